@@ -1,0 +1,1 @@
+//! rgbd placeholder replaced by the camera work

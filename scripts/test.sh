@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# The project's test command (README "Test"). CI runs exactly this through .ci/run.
+# It installs what the tests need, then: format check, clippy with -D warnings, all tests.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n== %s\n' "$*"; }
+
+step "toolchain"
+cargo --version
+rustup component list --installed 2>/dev/null | grep -E 'rustfmt|clippy' || true
+
+step "cargo fmt --check"
+cargo fmt --all -- --check
+
+step "cargo clippy -D warnings"
+cargo clippy --workspace --all-targets --locked -- -D warnings
+
+step "cargo test"
+cargo test --workspace --locked
+
+echo
+echo "all checks passed"
