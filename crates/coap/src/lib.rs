@@ -14,3 +14,28 @@
 pub mod content_format;
 pub mod group;
 pub mod link_format;
+pub mod msg;
+
+mod block;
+pub mod config;
+mod dedup;
+pub mod endpoint;
+
+pub use config::{EndpointConfig, Limits};
+pub use content_format::ContentFormat;
+pub use endpoint::{
+    Endpoint, Event, IncomingId, IncomingRequest, Request, RequestError, RequestId, Response,
+    Transmit,
+};
+pub use msg::{BlockOpt, Code, Message, OptionNumber, Options, Token, Type};
+
+/// A fixed instant for unit tests: the crate reads no clock, except this one place that
+/// only tests compile.
+#[cfg(test)]
+#[expect(
+    clippy::disallowed_methods,
+    reason = "tests need one real Instant as an epoch"
+)]
+pub(crate) fn test_epoch() -> std::time::Instant {
+    std::time::Instant::now()
+}

@@ -1,0 +1,600 @@
+//! Server-side block-wise state (RFC 7959): Block1 bodies being assembled, and Block2
+//! representations stored so that later blocks are served without asking the application
+//! again. Both are bounded in bytes and expire by the caller's `now`.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::time::Instant;
+
+use bytes::Bytes;
+
+use crate::config::{EndpointConfig, Limits};
+use crate::msg::{BlockOpt, Code, Options};
+
+/// Identifies the request a block belongs to: the peer and the request's method and
+/// options without the block options ([`Options::block_key`]).
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub(crate) struct BlockKey {
+    pub(crate) peer: SocketAddr,
+    pub(crate) method: Code,
+    pub(crate) options: Vec<u8>,
+}
+
+/// What the server answers to one Block1 request.
+#[derive(Debug, PartialEq, Eq)]
+pub(crate) enum Block1Outcome {
+    /// More blocks expected: answer 2.31 Continue with this Block1 option.
+    Continue(BlockOpt),
+    /// The body is complete; the final Block1 option is echoed in the response.
+    Complete(Bytes, BlockOpt),
+    /// Refused with this code and diagnostic, plus Size1 for 4.13.
+    Refuse {
+        code: Code,
+        diagnostic: &'static str,
+        size1: Option<u32>,
+    },
+}
+
+struct Assembly {
+    body: Vec<u8>,
+    last_used: Instant,
+}
+
+/// Block1 bodies in assembly, bounded per peer and in total.
+pub(crate) struct Block1Assembler {
+    assemblies: BTreeMap<BlockKey, Assembly>,
+    total_bytes: usize,
+}
+
+impl Block1Assembler {
+    pub(crate) fn new() -> Self {
+        Self {
+            assemblies: BTreeMap::new(),
+            total_bytes: 0,
+        }
+    }
+
+    fn peer_bytes(&self, peer: SocketAddr) -> usize {
+        self.assemblies
+            .iter()
+            .filter(|(k, _)| k.peer == peer)
+            .map(|(_, a)| a.body.len())
+            .sum()
+    }
+
+    /// Drops assemblies idle for longer than the lifetime.
+    pub(crate) fn expire(&mut self, now: Instant, limits: &Limits) {
+        let total = &mut self.total_bytes;
+        self.assemblies.retain(|_, a| {
+            let keep = now.saturating_duration_since(a.last_used) < limits.blockwise_lifetime;
+            if !keep {
+                *total -= a.body.len();
+            }
+            keep
+        });
+    }
+
+    /// Takes one Block1 request (RFC 7959 §2.3). `size1` is the request's Size1 option;
+    /// `max_szx` the block size this server prefers.
+    pub(crate) fn handle(
+        &mut self,
+        now: Instant,
+        key: BlockKey,
+        block: BlockOpt,
+        size1: Option<u32>,
+        payload: &[u8],
+        config: &EndpointConfig,
+    ) -> Block1Outcome {
+        let (limits, max_szx) = (&config.limits, config.max_block_szx);
+        self.expire(now, limits);
+        let peer_limit = u32::try_from(limits.block1_peer_bytes).unwrap_or(u32::MAX);
+        let too_large = Block1Outcome::Refuse {
+            code: Code::REQUEST_ENTITY_TOO_LARGE,
+            diagnostic: "request body exceeds this server's limit (see Size1)",
+            size1: Some(peer_limit),
+        };
+        if block.more && payload.len() != block.size() {
+            return Block1Outcome::Refuse {
+                code: Code::BAD_REQUEST,
+                diagnostic: "Block1 payload size does not match its SZX",
+                size1: None,
+            };
+        }
+        if block.num == 0 {
+            if let Some(old) = self.assemblies.remove(&key) {
+                self.total_bytes -= old.body.len();
+            }
+            if size1.is_some_and(|s| s > peer_limit) {
+                return too_large;
+            }
+        }
+        let offset = block.offset();
+        let current = self.assemblies.get(&key).map_or(0, |a| a.body.len());
+        if block.num > 0 && !self.assemblies.contains_key(&key) {
+            return Block1Outcome::Refuse {
+                code: Code::REQUEST_ENTITY_INCOMPLETE,
+                diagnostic: "Block1 without the preceding blocks",
+                size1: None,
+            };
+        }
+        let reply_szx = block.szx.min(max_szx);
+        if offset + payload.len() <= current && block.more {
+            // A block we already have, sent again after our 2.31 was lost: idempotent.
+            if let Some(a) = self.assemblies.get_mut(&key) {
+                a.last_used = now;
+            }
+            return Block1Outcome::Continue(BlockOpt {
+                szx: reply_szx,
+                ..block
+            });
+        }
+        if offset != current {
+            return Block1Outcome::Refuse {
+                code: Code::REQUEST_ENTITY_INCOMPLETE,
+                diagnostic: "Block1 out of sequence: a block is missing",
+                size1: None,
+            };
+        }
+        let new_len = current + payload.len();
+        if new_len > limits.block1_peer_bytes
+            || self.peer_bytes(key.peer) + payload.len() > limits.block1_peer_bytes
+        {
+            self.drop_key(&key);
+            return too_large;
+        }
+        if self.total_bytes + payload.len() > limits.block1_total_bytes {
+            self.drop_key(&key);
+            return Block1Outcome::Refuse {
+                code: Code::SERVICE_UNAVAILABLE,
+                diagnostic: "server is assembling too many request bodies; retry later",
+                size1: None,
+            };
+        }
+        let assembly = self
+            .assemblies
+            .entry(key.clone())
+            .or_insert_with(|| Assembly {
+                body: Vec::new(),
+                last_used: now,
+            });
+        assembly.body.extend_from_slice(payload);
+        assembly.last_used = now;
+        self.total_bytes += payload.len();
+        if block.more {
+            Block1Outcome::Continue(BlockOpt {
+                szx: reply_szx,
+                ..block
+            })
+        } else {
+            let body = self.drop_key(&key).unwrap_or_default();
+            Block1Outcome::Complete(Bytes::from(body), block)
+        }
+    }
+
+    fn drop_key(&mut self, key: &BlockKey) -> Option<Vec<u8>> {
+        let a = self.assemblies.remove(key)?;
+        self.total_bytes -= a.body.len();
+        Some(a.body)
+    }
+
+    #[cfg(test)]
+    pub(crate) fn total_bytes(&self) -> usize {
+        self.total_bytes
+    }
+}
+
+/// A representation stored for Block2 continuations.
+#[derive(Debug, Clone)]
+pub(crate) struct Stored {
+    pub(crate) code: Code,
+    /// The response options (Content-Format, Max-Age, ETag ...), without block options.
+    pub(crate) options: Options,
+    pub(crate) body: Bytes,
+    last_used: Instant,
+}
+
+/// Block2 representations keyed by request, bounded in bytes, least recently used out
+/// first, expired after an idle lifetime.
+pub(crate) struct ServerCache {
+    entries: BTreeMap<BlockKey, Stored>,
+    bytes: usize,
+}
+
+impl ServerCache {
+    pub(crate) fn new() -> Self {
+        Self {
+            entries: BTreeMap::new(),
+            bytes: 0,
+        }
+    }
+
+    pub(crate) fn expire(&mut self, now: Instant, limits: &Limits) {
+        let bytes = &mut self.bytes;
+        self.entries.retain(|_, s| {
+            let keep = now.saturating_duration_since(s.last_used) < limits.blockwise_lifetime;
+            if !keep {
+                *bytes -= s.body.len();
+            }
+            keep
+        });
+    }
+
+    /// Stores a representation, replacing the previous one for the same request and
+    /// evicting the least recently used ones to stay within the byte limit. A
+    /// representation larger than the whole store is not stored.
+    pub(crate) fn insert(
+        &mut self,
+        now: Instant,
+        key: BlockKey,
+        code: Code,
+        options: Options,
+        body: Bytes,
+        limits: &Limits,
+    ) {
+        self.expire(now, limits);
+        if let Some(old) = self.entries.remove(&key) {
+            self.bytes -= old.body.len();
+        }
+        if body.len() > limits.block2_store_bytes {
+            return;
+        }
+        while self.bytes + body.len() > limits.block2_store_bytes {
+            let Some(oldest) = self
+                .entries
+                .iter()
+                .min_by_key(|(_, s)| s.last_used)
+                .map(|(k, _)| k.clone())
+            else {
+                break;
+            };
+            if let Some(s) = self.entries.remove(&oldest) {
+                self.bytes -= s.body.len();
+            }
+        }
+        self.bytes += body.len();
+        self.entries.insert(
+            key,
+            Stored {
+                code,
+                options,
+                body,
+                last_used: now,
+            },
+        );
+    }
+
+    /// The stored representation for a continuation request, refreshing its lifetime.
+    pub(crate) fn get(&mut self, now: Instant, key: &BlockKey, limits: &Limits) -> Option<&Stored> {
+        self.expire(now, limits);
+        let s = self.entries.get_mut(key)?;
+        s.last_used = now;
+        Some(s)
+    }
+
+    #[cfg(test)]
+    pub(crate) fn bytes(&self) -> usize {
+        self.bytes
+    }
+}
+
+/// Cuts block `num` of size `2^(szx+4)` out of `body`: `None` when the block starts past
+/// the end (RFC 7959 §2.2: the server answers 4.02 then).
+pub(crate) fn slice(body: &Bytes, num: u32, szx: u8) -> Option<(Bytes, BlockOpt)> {
+    let size = BlockOpt::size_of(szx);
+    let start = num as usize * size;
+    if start >= body.len() && !(start == 0 && body.is_empty()) {
+        return None;
+    }
+    let end = (start + size).min(body.len());
+    Some((
+        body.slice(start..end),
+        BlockOpt {
+            num,
+            more: end < body.len(),
+            szx,
+        },
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+
+    fn key(port: u16) -> BlockKey {
+        BlockKey {
+            peer: SocketAddr::from(([127, 0, 0, 1], port)),
+            method: Code::PUT,
+            options: vec![],
+        }
+    }
+
+    fn cfg(max_block_szx: u8, limits: Limits) -> EndpointConfig {
+        EndpointConfig {
+            max_block_szx,
+            limits,
+            ..EndpointConfig::default()
+        }
+    }
+
+    fn b(num: u32, more: bool, szx: u8) -> BlockOpt {
+        BlockOpt { num, more, szx }
+    }
+
+    #[test]
+    fn rfc7959_2_3_block1_in_order_assembles() {
+        let now = crate::test_epoch();
+        let l = Limits::default();
+        let c = cfg(6, l);
+        let mut a = Block1Assembler::new();
+        assert_eq!(
+            a.handle(
+                now,
+                key(1),
+                b(0, true, 0),
+                None,
+                &[1; 16],
+                &c
+            ),
+            Block1Outcome::Continue(b(0, true, 0))
+        );
+        let Block1Outcome::Complete(body, echo) = a.handle(
+            now,
+            key(1),
+            b(1, false, 0),
+            None,
+            &[2; 5],
+            &c,
+        ) else {
+            panic!("not complete");
+        };
+        assert_eq!(body.len(), 21);
+        assert_eq!(echo, b(1, false, 0));
+        assert_eq!(a.total_bytes(), 0);
+    }
+
+    #[test]
+    fn rfc7959_2_9_2_block1_gap_gives_4_08() {
+        let now = crate::test_epoch();
+        let l = Limits::default();
+        let c = cfg(6, l);
+        let mut a = Block1Assembler::new();
+        let r = a.handle(
+            now,
+            key(1),
+            b(2, true, 0),
+            None,
+            &[1; 16],
+            &c,
+        );
+        assert!(matches!(
+            r,
+            Block1Outcome::Refuse {
+                code: Code::REQUEST_ENTITY_INCOMPLETE,
+                ..
+            }
+        ));
+        a.handle(
+            now,
+            key(1),
+            b(0, true, 0),
+            None,
+            &[1; 16],
+            &c,
+        );
+        let r = a.handle(
+            now,
+            key(1),
+            b(2, true, 0),
+            None,
+            &[1; 16],
+            &c,
+        );
+        assert!(matches!(
+            r,
+            Block1Outcome::Refuse {
+                code: Code::REQUEST_ENTITY_INCOMPLETE,
+                ..
+            }
+        ));
+    }
+
+    #[test]
+    fn rfc7959_2_9_3_block1_size1_over_limit_gives_4_13_with_size1() {
+        let now = crate::test_epoch();
+        let l = Limits {
+            block1_peer_bytes: 64,
+            ..Limits::default()
+        };
+        let mut a = Block1Assembler::new();
+        let c = cfg(6, l);
+        let r = a.handle(
+            now,
+            key(1),
+            b(0, true, 0),
+            Some(65),
+            &[1; 16],
+            &c,
+        );
+        assert_eq!(
+            r,
+            Block1Outcome::Refuse {
+                code: Code::REQUEST_ENTITY_TOO_LARGE,
+                diagnostic: "request body exceeds this server's limit (see Size1)",
+                size1: Some(64)
+            }
+        );
+        for n in 0..4 {
+            assert!(matches!(
+                a.handle(
+                    now,
+                    key(1),
+                    b(n, true, 0),
+                    None,
+                    &[1; 16],
+                    &c
+                ),
+                Block1Outcome::Continue(_)
+            ));
+        }
+        let r = a.handle(
+            now,
+            key(1),
+            b(4, true, 0),
+            None,
+            &[1; 16],
+            &c,
+        );
+        assert!(matches!(
+            r,
+            Block1Outcome::Refuse {
+                code: Code::REQUEST_ENTITY_TOO_LARGE,
+                size1: Some(64),
+                ..
+            }
+        ));
+        assert_eq!(a.total_bytes(), 0, "a refused body is dropped");
+    }
+
+    #[test]
+    fn block1_total_limit_gives_5_03() {
+        let now = crate::test_epoch();
+        let l = Limits {
+            block1_total_bytes: 40,
+            ..Limits::default()
+        };
+        let mut a = Block1Assembler::new();
+        let c = cfg(6, l);
+        a.handle(
+            now,
+            key(1),
+            b(0, true, 0),
+            None,
+            &[1; 16],
+            &c,
+        );
+        a.handle(
+            now,
+            key(2),
+            b(0, true, 0),
+            None,
+            &[1; 16],
+            &c,
+        );
+        let r = a.handle(
+            now,
+            key(3),
+            b(0, true, 0),
+            None,
+            &[1; 16],
+            &c,
+        );
+        assert!(matches!(
+            r,
+            Block1Outcome::Refuse {
+                code: Code::SERVICE_UNAVAILABLE,
+                ..
+            }
+        ));
+    }
+
+    #[test]
+    fn rfc7959_2_3_server_asks_for_smaller_blocks() {
+        let now = crate::test_epoch();
+        let mut a = Block1Assembler::new();
+        let r = a.handle(
+            now,
+            key(1),
+            b(0, true, 6),
+            None,
+            &[1; 1024],
+            &cfg(3, Limits::default()),
+        );
+        assert_eq!(r, Block1Outcome::Continue(b(0, true, 3)));
+        // The client continues at offset 1024 in 128-byte blocks: num 8.
+        let r = a.handle(
+            now,
+            key(1),
+            b(8, false, 3),
+            None,
+            &[2; 100],
+            &cfg(3, Limits::default()),
+        );
+        assert!(matches!(r, Block1Outcome::Complete(body, _) if body.len() == 1124));
+    }
+
+    #[test]
+    fn block1_assembly_expires_by_now() {
+        let now = crate::test_epoch();
+        let l = Limits::default();
+        let c = cfg(6, l);
+        let mut a = Block1Assembler::new();
+        a.handle(
+            now,
+            key(1),
+            b(0, true, 0),
+            None,
+            &[1; 16],
+            &c,
+        );
+        let later = now + c.limits.blockwise_lifetime + Duration::from_secs(1);
+        let r = a.handle(
+            later,
+            key(1),
+            b(1, false, 0),
+            None,
+            &[1; 3],
+            &c,
+        );
+        assert!(matches!(
+            r,
+            Block1Outcome::Refuse {
+                code: Code::REQUEST_ENTITY_INCOMPLETE,
+                ..
+            }
+        ));
+        assert_eq!(a.total_bytes(), 0);
+    }
+
+    #[test]
+    fn block2_store_is_bounded_and_expires() {
+        let now = crate::test_epoch();
+        let l = Limits {
+            block2_store_bytes: 100,
+            ..Limits::default()
+        };
+        let mut c = ServerCache::new();
+        c.insert(
+            now,
+            key(1),
+            Code::CONTENT,
+            Options::new(),
+            Bytes::from(vec![0; 60]),
+            &l,
+        );
+        c.insert(
+            now + Duration::from_secs(1),
+            key(2),
+            Code::CONTENT,
+            Options::new(),
+            Bytes::from(vec![0; 60]),
+            &l,
+        );
+        assert!(c.get(now, &key(1), &l).is_none(), "oldest evicted");
+        assert_eq!(c.bytes(), 60);
+        let later = now + l.blockwise_lifetime + Duration::from_secs(2);
+        assert!(c.get(later, &key(2), &l).is_none());
+        assert_eq!(c.bytes(), 0);
+    }
+
+    #[test]
+    fn rfc7959_2_2_slice_blocks() {
+        let body = Bytes::from((0..100u8).collect::<Vec<_>>());
+        let (p, o) = slice(&body, 0, 1).unwrap();
+        assert_eq!((p.len(), o.more), (32, true));
+        let (p, o) = slice(&body, 3, 1).unwrap();
+        assert_eq!((p.len(), o.more, p[0]), (4, false, 96));
+        assert!(slice(&body, 4, 1).is_none());
+    }
+}

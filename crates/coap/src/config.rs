@@ -1,0 +1,105 @@
+//! Transmission parameters (RFC 7252 §4.8) and the limits on every piece of state that
+//! input can grow. Every value is configurable; the defaults are the RFC's.
+
+use std::time::Duration;
+
+/// RFC 7252 §4.8 transmission parameters plus coapcam's resource limits.
+#[derive(Debug, Clone)]
+pub struct EndpointConfig {
+    /// ACK_TIMEOUT: the initial retransmission timeout before jitter (RFC 7252: 2 s).
+    pub ack_timeout: Duration,
+    /// ACK_RANDOM_FACTOR: the initial timeout is `ack_timeout * U[1, factor]` (RFC: 1.5).
+    pub ack_random_factor: f64,
+    /// MAX_RETRANSMIT: retransmissions after the first transmission (RFC: 4).
+    pub max_retransmit: u8,
+    /// NSTART: outstanding interactions per peer (RFC: 1).
+    pub nstart: usize,
+    /// EXCHANGE_LIFETIME: how long a CON message ID is remembered (RFC: 247 s).
+    pub exchange_lifetime: Duration,
+    /// NON_LIFETIME: how long a NON message ID is remembered (RFC: 145 s).
+    pub non_lifetime: Duration,
+    /// How long a client waits for a separate response after an empty ACK, and for the
+    /// response to a NON request before resending it. Default MAX_TRANSMIT_WAIT (93 s).
+    pub response_timeout: Duration,
+    /// How long the server waits for the application's response before it sends an empty
+    /// ACK and answers separately (RFC 7252 §5.2.2). Default 1 s, well inside ACK_TIMEOUT.
+    pub separate_ack_delay: Duration,
+    /// Token length for new requests, 0-8 bytes.
+    pub token_len: usize,
+    /// Seed of the endpoint's random generator (message IDs, tokens, jitter, ETags).
+    pub rng_seed: u64,
+    /// Largest block size exponent this endpoint sends or asks for (6 = 1024 bytes).
+    pub max_block_szx: u8,
+    /// Consecutive failed exchanges of one block (or one block-wise step) after which a
+    /// block-wise transfer gives up. Each resume sends the block the transfer lacks again,
+    /// never restarts from the beginning.
+    pub block_retries: u8,
+    /// Limits on state that peers can make grow.
+    pub limits: Limits,
+}
+
+/// Bounds on endpoint state. Past a bound the endpoint refuses (4.13, 5.03) or evicts the
+/// oldest entry; it never grows without limit.
+#[derive(Debug, Clone)]
+pub struct Limits {
+    /// Deduplication entries (message IDs remembered with their reply).
+    pub dedup_entries: usize,
+    /// Bytes of cached replies in the deduplication store.
+    pub dedup_bytes: usize,
+    /// Largest Block1 body the server assembles from one peer (4.13 with Size1 above).
+    pub block1_peer_bytes: usize,
+    /// Bytes of Block1 bodies being assembled over all peers (5.03 above).
+    pub block1_total_bytes: usize,
+    /// Bytes of stored Block2 representations over all peers; the least recently used
+    /// ones are dropped first.
+    pub block2_store_bytes: usize,
+    /// Idle lifetime of an unfinished Block1 assembly or a stored Block2 representation.
+    pub blockwise_lifetime: Duration,
+    /// Largest response body a client reassembles.
+    pub client_body_bytes: usize,
+    /// Requests handed to the application and not answered yet (5.03 above).
+    pub pending_requests: usize,
+}
+
+impl Default for EndpointConfig {
+    fn default() -> Self {
+        Self {
+            ack_timeout: Duration::from_secs(2),
+            ack_random_factor: 1.5,
+            max_retransmit: 4,
+            nstart: 1,
+            exchange_lifetime: Duration::from_secs(247),
+            non_lifetime: Duration::from_secs(145),
+            response_timeout: Duration::from_secs(93),
+            separate_ack_delay: Duration::from_secs(1),
+            token_len: 4,
+            rng_seed: 0,
+            max_block_szx: 6,
+            block_retries: 4,
+            limits: Limits::default(),
+        }
+    }
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            dedup_entries: 8192,
+            dedup_bytes: 16 << 20,
+            block1_peer_bytes: 8 << 20,
+            block1_total_bytes: 64 << 20,
+            block2_store_bytes: 256 << 20,
+            blockwise_lifetime: Duration::from_secs(247),
+            client_body_bytes: 256 << 20,
+            pending_requests: 1024,
+        }
+    }
+}
+
+impl EndpointConfig {
+    /// MAX_TRANSMIT_SPAN (RFC 7252 §4.8.2).
+    pub fn max_transmit_span(&self) -> Duration {
+        self.ack_timeout
+            .mul_f64(f64::from((1u32 << self.max_retransmit) - 1) * self.ack_random_factor)
+    }
+}

@@ -1,0 +1,227 @@
+//! Message deduplication (RFC 7252 §4.5): CON and NON message IDs are remembered for
+//! EXCHANGE_LIFETIME / NON_LIFETIME with the reply that was sent, so a duplicate gets the
+//! same reply again and never reaches the application twice.
+
+use std::collections::{HashMap, VecDeque};
+use std::net::SocketAddr;
+use std::time::Instant;
+
+use bytes::Bytes;
+
+use crate::config::Limits;
+use crate::msg::Token;
+
+/// What was done with a remembered message.
+#[derive(Debug, Clone)]
+pub(crate) enum Seen {
+    /// Handed to the application, no reply yet (the incoming request's id).
+    Pending(u64),
+    /// This reply was sent; a duplicate gets it again.
+    Replied(Bytes),
+    /// Nothing to send again (a NON request answered separately, or a dropped message).
+    Silent,
+}
+
+struct Entry {
+    token: Token,
+    expires: Instant,
+    seen: Seen,
+}
+
+/// Bounded store of recently received message IDs per peer.
+pub(crate) struct Dedup {
+    entries: HashMap<(SocketAddr, u16), Entry>,
+    /// Insertion order for expiry and eviction; stale keys are skipped.
+    order: VecDeque<(Instant, SocketAddr, u16)>,
+    bytes: usize,
+}
+
+impl Dedup {
+    pub(crate) fn new() -> Self {
+        Self {
+            entries: HashMap::new(),
+            order: VecDeque::new(),
+            bytes: 0,
+        }
+    }
+
+    fn expire(&mut self, now: Instant, limits: &Limits) {
+        while let Some(&(expires, peer, mid)) = self.order.front() {
+            let over = self.entries.len() > limits.dedup_entries || self.bytes > limits.dedup_bytes;
+            if expires > now && !over {
+                break;
+            }
+            self.order.pop_front();
+            if self
+                .entries
+                .get(&(peer, mid))
+                .is_some_and(|e| e.expires == expires)
+            {
+                self.remove(peer, mid);
+            }
+        }
+    }
+
+    fn remove(&mut self, peer: SocketAddr, mid: u16) {
+        if let Some(Entry {
+            seen: Seen::Replied(b),
+            ..
+        }) = self.entries.remove(&(peer, mid))
+        {
+            self.bytes -= b.len();
+        }
+    }
+
+    /// The earlier handling of this message, if it is a duplicate. A message ID reused
+    /// with a different token is a new message: ID space wraps after 65,536 messages, and
+    /// a fast client can get there within EXCHANGE_LIFETIME.
+    pub(crate) fn check(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        mid: u16,
+        token: Token,
+        limits: &Limits,
+    ) -> Option<&Seen> {
+        self.expire(now, limits);
+        match self.entries.get(&(peer, mid)) {
+            Some(e) if e.token == token => self.entries.get(&(peer, mid)).map(|e| &e.seen),
+            Some(_) => {
+                self.remove(peer, mid);
+                None
+            }
+            None => None,
+        }
+    }
+
+    /// Remembers a message until `expires`.
+    pub(crate) fn insert(
+        &mut self,
+        now: Instant,
+        (peer, mid): (SocketAddr, u16),
+        token: Token,
+        expires: Instant,
+        seen: Seen,
+        limits: &Limits,
+    ) {
+        self.remove(peer, mid);
+        if let Seen::Replied(b) = &seen {
+            self.bytes += b.len();
+        }
+        self.entries.insert(
+            (peer, mid),
+            Entry {
+                token,
+                expires,
+                seen,
+            },
+        );
+        self.order.push_back((expires, peer, mid));
+        self.expire(now, limits);
+    }
+
+    /// Records the reply to a remembered message, keeping its lifetime.
+    pub(crate) fn set_reply(&mut self, peer: SocketAddr, mid: u16, seen: Seen) {
+        let Some(e) = self.entries.get_mut(&(peer, mid)) else {
+            return;
+        };
+        if let Seen::Replied(b) = &e.seen {
+            self.bytes -= b.len();
+        }
+        if let Seen::Replied(b) = &seen {
+            self.bytes += b.len();
+        }
+        e.seen = seen;
+    }
+
+    #[cfg(test)]
+    pub(crate) fn len(&self) -> usize {
+        self.entries.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+
+    fn peer() -> SocketAddr {
+        SocketAddr::from(([127, 0, 0, 1], 5683))
+    }
+
+    #[test]
+    fn rfc7252_4_5_duplicate_within_lifetime_is_recognised() {
+        let now = crate::test_epoch();
+        let l = Limits::default();
+        let mut d = Dedup::new();
+        let t = Token::new(&[1]).unwrap();
+        d.insert(
+            now,
+            (peer(), 7),
+            t,
+            now + Duration::from_secs(247),
+            Seen::Replied(Bytes::from_static(b"x")),
+            &l,
+        );
+        assert!(matches!(
+            d.check(now, peer(), 7, t, &l),
+            Some(Seen::Replied(_))
+        ));
+        assert!(
+            d.check(now + Duration::from_secs(248), peer(), 7, t, &l)
+                .is_none()
+        );
+        assert_eq!(d.len(), 0);
+    }
+
+    #[test]
+    fn reused_message_id_with_new_token_is_new() {
+        let now = crate::test_epoch();
+        let l = Limits::default();
+        let mut d = Dedup::new();
+        d.insert(
+            now,
+            (peer(), 7),
+            Token::new(&[1]).unwrap(),
+            now + Duration::from_secs(247),
+            Seen::Silent,
+            &l,
+        );
+        assert!(
+            d.check(now, peer(), 7, Token::new(&[2]).unwrap(), &l)
+                .is_none()
+        );
+    }
+
+    #[test]
+    fn dedup_store_is_bounded() {
+        let now = crate::test_epoch();
+        let l = Limits {
+            dedup_entries: 10,
+            dedup_bytes: 100,
+            ..Limits::default()
+        };
+        let mut d = Dedup::new();
+        for mid in 0..50u16 {
+            let reply = Seen::Replied(Bytes::from(vec![0; 20]));
+            d.insert(
+                now,
+                (peer(), mid),
+                Token::EMPTY,
+                now + Duration::from_secs(247),
+                reply,
+                &l,
+            );
+        }
+        assert!(
+            d.len() <= 5,
+            "100 bytes hold five 20-byte replies, got {}",
+            d.len()
+        );
+        assert!(
+            d.check(now, peer(), 49, Token::EMPTY, &l).is_some(),
+            "newest kept"
+        );
+    }
+}

@@ -1,0 +1,1355 @@
+//! The endpoint: one CoAP endpoint (one socket's worth of peers), driven as quinn-proto is.
+//!
+//! Inputs: [`Endpoint::handle`] (a datagram), [`Endpoint::handle_timeout`],
+//! [`Endpoint::request`], [`Endpoint::respond`], [`Endpoint::ping`], [`Endpoint::cancel`].
+//! Outputs: [`Endpoint::poll_transmit`], [`Endpoint::poll_timeout`], [`Endpoint::poll_event`].
+//!
+//! Call order: after any input, drain `poll_transmit` and `poll_event`, then sleep until
+//! `poll_timeout` and call `handle_timeout`. A `handle_timeout` before anything is due is a
+//! no-op, so spurious wake-ups are harmless.
+//!
+//! Layers inside: the message layer (message IDs, CON retransmission with exponential
+//! back-off, ACK/RST, deduplication); the client request layer (tokens, NSTART per peer,
+//! transparent Block1 upload and Block2 reassembly that resumes from the block it lacks);
+//! the server request layer (Block1 assembly, Block2 slicing from a stored representation,
+//! piggybacked or separate responses).
+//!
+//! A client request is a sequence of *steps*, one message exchange each; today a request
+//! runs one step at a time. Windowed transfers (NSTART > 1 within one transfer, RFC 9177)
+//! add concurrent steps to the same request without changing the message layer.
+
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap, VecDeque};
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use rand_chacha::ChaCha8Rng;
+use rand_core::{RngCore, SeedableRng};
+
+use crate::block::{self, Block1Assembler, Block1Outcome, BlockKey, ServerCache};
+use crate::config::EndpointConfig;
+use crate::dedup::{Dedup, Seen};
+use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Reaction, Token, Type};
+
+/// Identifies a request this endpoint sent (client side).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct RequestId(pub u64);
+
+/// Identifies a request this endpoint received and must answer with [`Endpoint::respond`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct IncomingId(pub u64);
+
+/// A datagram to send.
+#[derive(Debug, Clone, PartialEq, Eq)]
+#[must_use]
+pub struct Transmit {
+    /// Destination.
+    pub peer: SocketAddr,
+    /// The encoded message.
+    pub data: Bytes,
+}
+
+/// A request to send. The payload may be any size: bodies larger than one block go out
+/// with Block1, and a response sent in blocks is reassembled before it is delivered.
+#[derive(Debug, Clone)]
+pub struct Request {
+    /// Method code.
+    pub method: Code,
+    /// Options (Uri-Path, Uri-Query, Accept, Content-Format, ...).
+    pub options: Options,
+    /// Request body.
+    pub payload: Bytes,
+    /// CON (default) or NON.
+    pub confirmable: bool,
+    /// Block size exponent to use (and to ask the server for); `None` uses the endpoint's
+    /// largest (1024 bytes by default) and asks for nothing.
+    pub block_szx: Option<u8>,
+    /// Give up after this long in total.
+    pub timeout: Option<Duration>,
+}
+
+impl Request {
+    /// A CON request for `path` (e.g. `/cams/pointclouds`) without payload.
+    pub fn new(method: Code, path: &str) -> Self {
+        let mut options = Options::new();
+        options.set_path(path);
+        Self {
+            method,
+            options,
+            payload: Bytes::new(),
+            confirmable: true,
+            block_szx: None,
+            timeout: None,
+        }
+    }
+
+    /// Sets the payload.
+    pub fn with_payload(mut self, payload: impl Into<Bytes>) -> Self {
+        self.payload = payload.into();
+        self
+    }
+}
+
+/// A response: to send with [`Endpoint::respond`], or received in
+/// [`Event::Response`] with the whole reassembled body.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Response {
+    /// Response code.
+    pub code: Code,
+    /// Options.
+    pub options: Options,
+    /// Body.
+    pub payload: Bytes,
+}
+
+impl Response {
+    /// A response with a code and no payload.
+    pub fn new(code: Code) -> Self {
+        Self {
+            code,
+            options: Options::new(),
+            payload: Bytes::new(),
+        }
+    }
+
+    /// An error response with a text/plain diagnostic payload (RFC 7252 §5.5.2).
+    pub fn diagnostic(code: Code, text: &str) -> Self {
+        Self {
+            code,
+            options: Options::new(),
+            payload: Bytes::copy_from_slice(text.as_bytes()),
+        }
+    }
+
+    /// Sets the payload.
+    pub fn with_payload(mut self, payload: impl Into<Bytes>) -> Self {
+        self.payload = payload.into();
+        self
+    }
+}
+
+/// A request received from a peer.
+#[derive(Debug, Clone)]
+pub struct IncomingRequest {
+    /// Answer it with [`Endpoint::respond`].
+    pub id: IncomingId,
+    /// Who sent it.
+    pub peer: SocketAddr,
+    /// Method code.
+    pub method: Code,
+    /// Options (malformed elective options already dropped).
+    pub options: Options,
+    /// The whole body (Block1 already assembled).
+    pub payload: Bytes,
+    /// Whether it was sent to a multicast address (error responses are suppressed).
+    pub multicast: bool,
+    /// Whether it was a CON message.
+    pub confirmable: bool,
+}
+
+/// Why a request failed.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum RequestError {
+    /// No acknowledgement after MAX_RETRANSMIT retransmissions, no response within the
+    /// response timeout, or the request's own timeout expired.
+    #[error("timed out")]
+    Timeout,
+    /// The peer rejected the message with a Reset.
+    #[error("reset by peer")]
+    Reset,
+    /// The response body exceeds the endpoint's limit.
+    #[error("response body larger than {limit} bytes")]
+    TooLarge {
+        /// The configured limit.
+        limit: usize,
+    },
+    /// The server changed the representation (ETag) during a block-wise transfer more
+    /// often than the endpoint retries.
+    #[error("representation changed during a block-wise transfer")]
+    RepresentationChanged,
+    /// The server broke the block-wise protocol.
+    #[error("protocol violation: {0}")]
+    Protocol(&'static str),
+    /// Cancelled by [`Endpoint::cancel`].
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// What the endpoint reports to its owner.
+#[derive(Debug, Clone)]
+#[must_use]
+pub enum Event {
+    /// A request to answer with [`Endpoint::respond`].
+    Request(IncomingRequest),
+    /// The complete response to a request.
+    Response {
+        /// The request.
+        id: RequestId,
+        /// The response with its whole body.
+        response: Response,
+    },
+    /// A request failed.
+    RequestFailed {
+        /// The request.
+        id: RequestId,
+        /// Why.
+        error: RequestError,
+    },
+    /// The peer answered a CoAP ping (RFC 7252 §4.3).
+    Pong {
+        /// The ping.
+        id: RequestId,
+    },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+enum TimerKind {
+    Retransmit { peer: SocketAddr, mid: u16, tx: u8 },
+    Step { id: u64, generation: u32 },
+    Deadline { id: u64 },
+    SeparateAck { id: u64 },
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Purpose {
+    Request(u64),
+    Ping(u64),
+    SeparateResponse,
+}
+
+/// A CON message waiting for its ACK (RFC 7252 §4.2).
+struct OutCon {
+    data: Bytes,
+    /// Retransmissions so far.
+    tx: u8,
+    timeout: Duration,
+    purpose: Purpose,
+}
+
+/// One exchange of a client request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    /// The whole payload in one message.
+    Whole,
+    /// Block1 upload of the block at this byte offset.
+    Upload { offset: usize },
+    /// Block2 request for block `num` of size `2^(szx+4)`.
+    Download { num: u32, szx: u8 },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Waiting {
+    /// Not started (queued behind NSTART).
+    Queued,
+    /// CON sent, no ACK yet.
+    Ack(u16),
+    /// ACKed empty; waiting for the separate response. Or a NON sent, waiting for the
+    /// response (carrying the NON's transmission count).
+    Response { non_tx: Option<u8>, mid: u16 },
+}
+
+struct ClientRequest {
+    peer: SocketAddr,
+    req: Request,
+    token: Token,
+    szx1: u8,
+    step: Step,
+    waiting: Waiting,
+    generation: u32,
+    failures: u8,
+    restarts: u8,
+    /// Block2 reassembly: body so far, the ETag, the first block's options.
+    body: Vec<u8>,
+    etag: Option<Vec<u8>>,
+    first_options: Option<Options>,
+    /// The user set Block2 in the request: random access, no reassembly.
+    user_block2: bool,
+}
+
+impl ClientRequest {
+    fn step_has_block_option(&self) -> bool {
+        match self.step {
+            Step::Whole => self.req.block_szx.is_some() || self.user_block2,
+            Step::Upload { .. } | Step::Download { .. } => true,
+        }
+    }
+}
+
+/// A received request waiting for the application's response.
+struct Pending {
+    peer: SocketAddr,
+    mid: u16,
+    token: Token,
+    confirmable: bool,
+    acked: bool,
+    multicast: bool,
+    block2: Option<BlockOpt>,
+    block1_echo: Option<BlockOpt>,
+    key: BlockKey,
+}
+
+#[derive(Default)]
+struct Peer {
+    active: usize,
+    queue: VecDeque<u64>,
+}
+
+/// A CoAP endpoint. See the module documentation for the driving protocol.
+pub struct Endpoint {
+    config: EndpointConfig,
+    rng: ChaCha8Rng,
+    next_mid: u16,
+    next_id: u64,
+    timer_seq: u64,
+    timers: BinaryHeap<Reverse<(Instant, u64, TimerKind)>>,
+    outbox: VecDeque<Transmit>,
+    events: VecDeque<Event>,
+    exchanges: HashMap<(SocketAddr, u16), OutCon>,
+    dedup: Dedup,
+    requests: HashMap<u64, ClientRequest>,
+    by_token: HashMap<Token, u64>,
+    peers: HashMap<SocketAddr, Peer>,
+    pending: HashMap<u64, Pending>,
+    block1: Block1Assembler,
+    block2: ServerCache,
+}
+
+impl Endpoint {
+    /// A new endpoint. All randomness comes from `config.rng_seed`.
+    pub fn new(config: EndpointConfig) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(config.rng_seed);
+        let next_mid = rng.next_u32() as u16;
+        Self {
+            config,
+            rng,
+            next_mid,
+            next_id: 1,
+            timer_seq: 0,
+            timers: BinaryHeap::new(),
+            outbox: VecDeque::new(),
+            events: VecDeque::new(),
+            exchanges: HashMap::new(),
+            dedup: Dedup::new(),
+            requests: HashMap::new(),
+            by_token: HashMap::new(),
+            peers: HashMap::new(),
+            pending: HashMap::new(),
+            block1: Block1Assembler::new(),
+            block2: ServerCache::new(),
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &EndpointConfig {
+        &self.config
+    }
+
+    /// The next datagram to send.
+    pub fn poll_transmit(&mut self) -> Option<Transmit> {
+        self.outbox.pop_front()
+    }
+
+    /// When [`Endpoint::handle_timeout`] should be called next.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.timers.peek().map(|Reverse((at, _, _))| *at)
+    }
+
+    /// The next event.
+    pub fn poll_event(&mut self) -> Option<Event> {
+        self.events.pop_front()
+    }
+
+    /// Requests in progress or queued (client side).
+    pub fn requests_in_flight(&self) -> usize {
+        self.requests.len()
+    }
+
+    /// Fires every timer due at `now`.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        while let Some(Reverse((at, _, kind))) = self.timers.peek().copied() {
+            if at > now {
+                break;
+            }
+            self.timers.pop();
+            match kind {
+                TimerKind::Retransmit { peer, mid, tx } => {
+                    self.on_retransmit_timer(now, peer, mid, tx)
+                }
+                TimerKind::Step { id, generation } => self.on_step_timer(now, id, generation),
+                TimerKind::Deadline { id } => {
+                    if self.requests.contains_key(&id) {
+                        self.fail(now, id, RequestError::Timeout);
+                    }
+                }
+                TimerKind::SeparateAck { id } => self.on_separate_ack_timer(now, id),
+            }
+        }
+    }
+
+    /// Takes one received datagram. `multicast` says it was addressed to a multicast group
+    /// (then no error responses and no Resets are sent, RFC 7390 §2.7).
+    pub fn handle(&mut self, now: Instant, peer: SocketAddr, data: &[u8], multicast: bool) {
+        let msg = match Message::decode(data) {
+            Ok(m) => m,
+            Err(e) => {
+                if let (Reaction::Reset(mid), false) = (Reaction::from(&e), multicast) {
+                    self.send(peer, &Message::empty(Type::Rst, mid));
+                }
+                return;
+            }
+        };
+        match msg.ty {
+            Type::Ack | Type::Rst => self.on_ack_or_reset(now, peer, msg),
+            Type::Con if msg.code.is_empty() => {
+                // CoAP ping (RFC 7252 §4.3): an empty CON is answered with a Reset.
+                if !multicast {
+                    self.send(peer, &Message::empty(Type::Rst, msg.message_id));
+                }
+            }
+            Type::Con | Type::Non if msg.code.is_request() => {
+                self.on_request(now, peer, msg, multicast);
+            }
+            Type::Con | Type::Non if msg.code.is_response() => {
+                self.on_separate_response(now, peer, msg)
+            }
+            // An empty NON is a format error (§4.3); unknown code classes are ignored.
+            Type::Con | Type::Non => {}
+        }
+    }
+
+    // ---------------------------------------------------------------- message layer
+
+    fn next_mid(&mut self) -> u16 {
+        self.next_mid = self.next_mid.wrapping_add(1);
+        self.next_mid
+    }
+
+    fn new_id(&mut self) -> u64 {
+        self.next_id += 1;
+        self.next_id
+    }
+
+    fn schedule(&mut self, at: Instant, kind: TimerKind) {
+        self.timer_seq += 1;
+        self.timers.push(Reverse((at, self.timer_seq, kind)));
+    }
+
+    /// ACK_TIMEOUT scaled by a uniform random factor in [1, ACK_RANDOM_FACTOR].
+    fn initial_timeout(&mut self) -> Duration {
+        let unit = (self.rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        let factor = 1.0 + unit * (self.config.ack_random_factor - 1.0).max(0.0);
+        self.config.ack_timeout.mul_f64(factor)
+    }
+
+    fn send(&mut self, peer: SocketAddr, msg: &Message) -> Bytes {
+        let data = Bytes::from(msg.encode());
+        self.outbox.push_back(Transmit {
+            peer,
+            data: data.clone(),
+        });
+        data
+    }
+
+    fn send_con(&mut self, now: Instant, peer: SocketAddr, msg: &Message, purpose: Purpose) {
+        let data = self.send(peer, msg);
+        let timeout = self.initial_timeout();
+        self.exchanges.insert(
+            (peer, msg.message_id),
+            OutCon {
+                data,
+                tx: 0,
+                timeout,
+                purpose,
+            },
+        );
+        self.schedule(
+            now + timeout,
+            TimerKind::Retransmit {
+                peer,
+                mid: msg.message_id,
+                tx: 0,
+            },
+        );
+    }
+
+    fn on_retransmit_timer(&mut self, now: Instant, peer: SocketAddr, mid: u16, tx: u8) {
+        let max = self.config.max_retransmit;
+        let Some(x) = self.exchanges.get_mut(&(peer, mid)) else {
+            return;
+        };
+        if x.tx != tx {
+            return;
+        }
+        if x.tx < max {
+            // RFC 7252 §4.2: retransmit, doubling the timeout each time.
+            x.tx += 1;
+            x.timeout *= 2;
+            let (data, timeout, tx) = (x.data.clone(), x.timeout, x.tx);
+            self.outbox.push_back(Transmit { peer, data });
+            self.schedule(now + timeout, TimerKind::Retransmit { peer, mid, tx });
+            return;
+        }
+        let Some(x) = self.exchanges.remove(&(peer, mid)) else {
+            return;
+        };
+        match x.purpose {
+            Purpose::Request(id) => self.step_failed(now, id, RequestError::Timeout),
+            Purpose::Ping(id) => {
+                self.events.push_back(Event::RequestFailed {
+                    id: RequestId(id),
+                    error: RequestError::Timeout,
+                });
+            }
+            Purpose::SeparateResponse => {}
+        }
+    }
+
+    fn on_ack_or_reset(&mut self, now: Instant, peer: SocketAddr, msg: Message) {
+        // ACK and RST are matched by message ID only (RFC 7252 §4.2, §4.3); an unknown one
+        // is ignored.
+        let Some(x) = self.exchanges.remove(&(peer, msg.message_id)) else {
+            return;
+        };
+        match x.purpose {
+            Purpose::Ping(id) => self.events.push_back(Event::Pong { id: RequestId(id) }),
+            Purpose::SeparateResponse => {}
+            Purpose::Request(id) => {
+                if msg.ty == Type::Rst {
+                    self.fail(now, id, RequestError::Reset);
+                } else if msg.code.is_response()
+                    && self.requests.get(&id).is_some_and(|r| r.token == msg.token)
+                {
+                    self.on_response(now, id, msg);
+                } else {
+                    self.on_empty_ack(now, id);
+                }
+            }
+        }
+    }
+
+    /// A CON or NON response (not piggybacked).
+    fn on_separate_response(&mut self, now: Instant, peer: SocketAddr, msg: Message) {
+        let limits = self.config.limits.clone();
+        let known = self.by_token.get(&msg.token).copied();
+        if let Some(seen) = self
+            .dedup
+            .check(now, peer, msg.message_id, msg.token, &limits)
+        {
+            if let Seen::Replied(data) = seen {
+                let data = data.clone();
+                self.outbox.push_back(Transmit { peer, data });
+            }
+            return;
+        }
+        let lifetime = if msg.ty == Type::Con {
+            self.config.exchange_lifetime
+        } else {
+            self.config.non_lifetime
+        };
+        let seen = match (known, msg.ty) {
+            // RFC 7252 §5.3.2: a response we cannot match is rejected with a Reset.
+            (None, _) => Seen::Replied(self.send(peer, &Message::empty(Type::Rst, msg.message_id))),
+            (Some(_), Type::Con) => {
+                Seen::Replied(self.send(peer, &Message::empty(Type::Ack, msg.message_id)))
+            }
+            (Some(_), _) => Seen::Silent,
+        };
+        self.dedup.insert(
+            now,
+            (peer, msg.message_id),
+            msg.token,
+            now + lifetime,
+            seen,
+            &limits,
+        );
+        if let Some(id) = known
+            && self.requests.get(&id).is_some_and(|r| r.peer == peer)
+        {
+            self.on_response(now, id, msg);
+        }
+    }
+
+    // ---------------------------------------------------------------- client layer
+
+    /// Starts a request to `peer`. The outcome arrives as [`Event::Response`] or
+    /// [`Event::RequestFailed`] with the returned id.
+    pub fn request(&mut self, now: Instant, peer: SocketAddr, req: Request) -> RequestId {
+        let id = self.new_id();
+        let token = self.new_token();
+        let szx1 = req
+            .block_szx
+            .unwrap_or(self.config.max_block_szx)
+            .min(self.config.max_block_szx);
+        let user_block2 = req.options.contains(OptionNumber::BLOCK2);
+        if let Some(t) = req.timeout {
+            self.schedule(now + t, TimerKind::Deadline { id });
+        }
+        let step = if req.payload.len() > BlockOpt::size_of(szx1) {
+            Step::Upload { offset: 0 }
+        } else {
+            Step::Whole
+        };
+        self.requests.insert(
+            id,
+            ClientRequest {
+                peer,
+                req,
+                token,
+                szx1,
+                step,
+                waiting: Waiting::Queued,
+                generation: 0,
+                failures: 0,
+                restarts: 0,
+                body: Vec::new(),
+                etag: None,
+                first_options: None,
+                user_block2,
+            },
+        );
+        self.by_token.insert(token, id);
+        self.peers.entry(peer).or_default().queue.push_back(id);
+        self.pump(now, peer);
+        RequestId(id)
+    }
+
+    /// Sends a CoAP ping (an empty CON, RFC 7252 §4.3): [`Event::Pong`] when the peer
+    /// answers with a Reset, [`Event::RequestFailed`] after MAX_RETRANSMIT.
+    pub fn ping(&mut self, now: Instant, peer: SocketAddr) -> RequestId {
+        let id = self.new_id();
+        let mid = self.next_mid();
+        self.send_con(
+            now,
+            peer,
+            &Message::empty(Type::Con, mid),
+            Purpose::Ping(id),
+        );
+        RequestId(id)
+    }
+
+    /// Abandons a request; [`Event::RequestFailed`] with [`RequestError::Cancelled`]
+    /// follows if it was still running.
+    pub fn cancel(&mut self, now: Instant, id: RequestId) {
+        if self.requests.contains_key(&id.0) {
+            self.fail(now, id.0, RequestError::Cancelled);
+        }
+    }
+
+    fn new_token(&mut self) -> Token {
+        let len = self.config.token_len.min(8);
+        loop {
+            let bytes = self.rng.next_u64().to_be_bytes();
+            // NOTE(unwrap): len <= 8.
+            let token = Token::new(&bytes[..len]).unwrap_or_default();
+            if len == 0 || !self.by_token.contains_key(&token) {
+                return token;
+            }
+        }
+    }
+
+    /// Starts queued requests while the peer has fewer than NSTART outstanding.
+    fn pump(&mut self, now: Instant, peer: SocketAddr) {
+        let nstart = self.config.nstart.max(1);
+        loop {
+            let Some(p) = self.peers.get_mut(&peer) else {
+                return;
+            };
+            if p.active >= nstart {
+                return;
+            }
+            let Some(id) = p.queue.pop_front() else {
+                if p.active == 0 {
+                    self.peers.remove(&peer);
+                }
+                return;
+            };
+            p.active += 1;
+            self.send_step(now, id);
+        }
+    }
+
+    fn step_message(&mut self, r: &ClientRequest) -> Message {
+        let mut options = r.req.options.clone();
+        let mut payload = Bytes::new();
+        match r.step {
+            Step::Whole => {
+                payload = r.req.payload.clone();
+                if let (Some(szx), false) = (r.req.block_szx, r.user_block2) {
+                    options.set_block(
+                        OptionNumber::BLOCK2,
+                        BlockOpt {
+                            num: 0,
+                            more: false,
+                            szx,
+                        },
+                    );
+                }
+            }
+            Step::Upload { offset } => {
+                let size = BlockOpt::size_of(r.szx1);
+                let end = (offset + size).min(r.req.payload.len());
+                payload = r.req.payload.slice(offset.min(end)..end);
+                let more = end < r.req.payload.len();
+                let num = (offset / size) as u32;
+                options.set_block(
+                    OptionNumber::BLOCK1,
+                    BlockOpt {
+                        num,
+                        more,
+                        szx: r.szx1,
+                    },
+                );
+                if offset == 0 {
+                    // RFC 7959 §4: Size1 tells the server the whole size up front.
+                    options.set_uint(OptionNumber::SIZE1, r.req.payload.len() as u32);
+                }
+            }
+            Step::Download { num, szx } => {
+                options.set_block(
+                    OptionNumber::BLOCK2,
+                    BlockOpt {
+                        num,
+                        more: false,
+                        szx,
+                    },
+                );
+            }
+        }
+        let ty = if r.req.confirmable {
+            Type::Con
+        } else {
+            Type::Non
+        };
+        Message {
+            ty,
+            code: r.req.method,
+            message_id: self.next_mid(),
+            token: r.token,
+            options,
+            payload,
+        }
+    }
+
+    fn send_step(&mut self, now: Instant, id: u64) {
+        let Some(r) = self.requests.remove(&id) else {
+            return;
+        };
+        let msg = self.step_message(&r);
+        let mut r = r;
+        r.generation += 1;
+        let mid = msg.message_id;
+        if r.req.confirmable {
+            r.waiting = Waiting::Ack(mid);
+            self.send_con(now, r.peer, &msg, Purpose::Request(id));
+        } else {
+            r.waiting = Waiting::Response {
+                non_tx: Some(0),
+                mid,
+            };
+            self.send(r.peer, &msg);
+            let t = self.initial_timeout();
+            self.schedule(
+                now + t,
+                TimerKind::Step {
+                    id,
+                    generation: r.generation,
+                },
+            );
+        }
+        self.requests.insert(id, r);
+    }
+
+    fn on_empty_ack(&mut self, now: Instant, id: u64) {
+        let timeout = self.config.response_timeout;
+        let Some(r) = self.requests.get_mut(&id) else {
+            return;
+        };
+        if let Waiting::Ack(mid) = r.waiting {
+            r.waiting = Waiting::Response { non_tx: None, mid };
+            r.generation += 1;
+            let generation = r.generation;
+            self.schedule(now + timeout, TimerKind::Step { id, generation });
+        }
+    }
+
+    fn on_step_timer(&mut self, now: Instant, id: u64, generation: u32) {
+        let max = self.config.max_retransmit;
+        let Some(r) = self.requests.get_mut(&id) else {
+            return;
+        };
+        if r.generation != generation {
+            return;
+        }
+        match r.waiting {
+            Waiting::Response {
+                non_tx: Some(tx), ..
+            } if tx < max => {
+                // A NON request gets no ACK; resend it (new message ID, same token) on
+                // the same back-off schedule a CON would use.
+                let mut msg = self.step_message_for(id);
+                let Some(r) = self.requests.get_mut(&id) else {
+                    return;
+                };
+                msg.token = r.token;
+                r.waiting = Waiting::Response {
+                    non_tx: Some(tx + 1),
+                    mid: msg.message_id,
+                };
+                let peer = r.peer;
+                self.send(peer, &msg);
+                let t = self.initial_timeout() * (1u32 << (tx + 1));
+                self.schedule(now + t, TimerKind::Step { id, generation });
+            }
+            _ => self.step_failed(now, id, RequestError::Timeout),
+        }
+    }
+
+    fn step_message_for(&mut self, id: u64) -> Message {
+        match self.requests.remove(&id) {
+            Some(r) => {
+                let msg = self.step_message(&r);
+                self.requests.insert(id, r);
+                msg
+            }
+            None => Message::empty(Type::Non, 0),
+        }
+    }
+
+    /// One exchange failed. A block-wise step is resumed (the same block again) up to
+    /// `block_retries` consecutive times; anything else fails the request.
+    fn step_failed(&mut self, now: Instant, id: u64, error: RequestError) {
+        let retries = self.config.block_retries;
+        let Some(r) = self.requests.get_mut(&id) else {
+            return;
+        };
+        if r.step_has_block_option() && r.failures < retries {
+            r.failures += 1;
+            self.send_step(now, id);
+        } else {
+            self.fail(now, id, error);
+        }
+    }
+
+    fn fail(&mut self, now: Instant, id: u64, error: RequestError) {
+        self.finish(now, id);
+        self.events.push_back(Event::RequestFailed {
+            id: RequestId(id),
+            error,
+        });
+    }
+
+    /// Removes a finished request and frees its NSTART slot.
+    fn finish(&mut self, now: Instant, id: u64) {
+        let Some(r) = self.requests.remove(&id) else {
+            return;
+        };
+        self.by_token.remove(&r.token);
+        match r.waiting {
+            Waiting::Ack(mid) => {
+                self.exchanges.remove(&(r.peer, mid));
+            }
+            Waiting::Queued => {
+                if let Some(p) = self.peers.get_mut(&r.peer) {
+                    p.queue.retain(|q| *q != id);
+                }
+                return;
+            }
+            Waiting::Response { .. } => {}
+        }
+        if let Some(p) = self.peers.get_mut(&r.peer) {
+            p.active = p.active.saturating_sub(1);
+        }
+        self.pump(now, r.peer);
+    }
+
+    /// A response (piggybacked or separate) matched to request `id` by token.
+    fn on_response(&mut self, now: Instant, id: u64, msg: Message) {
+        let limit = self.config.limits.client_body_bytes;
+        let Some(r) = self.requests.get_mut(&id) else {
+            return;
+        };
+        // Is it the answer to the step in flight? Late answers to earlier steps are dropped.
+        let current = match r.step {
+            Step::Upload { offset } => msg
+                .options
+                .block1()
+                .is_none_or(|b| b.num as usize == offset / BlockOpt::size_of(r.szx1)),
+            Step::Download { num, .. } => msg.options.block2().is_none_or(|b| b.num == num),
+            Step::Whole => true,
+        };
+        if !current || r.waiting == Waiting::Queued {
+            return;
+        }
+        // A separate response also acknowledges the request (RFC 7252 §5.2.2).
+        if let Waiting::Ack(mid) | Waiting::Response { mid, .. } = r.waiting {
+            self.exchanges.remove(&(r.peer, mid));
+        }
+        r.generation += 1;
+        r.failures = 0;
+
+        if let Step::Upload { offset } = r.step {
+            let size = BlockOpt::size_of(r.szx1);
+            let sent_end = (offset + size).min(r.req.payload.len());
+            if msg.code == Code::CONTINUE {
+                let Some(b1) = msg.options.block1() else {
+                    return self.fail(
+                        now,
+                        id,
+                        RequestError::Protocol("2.31 Continue without Block1"),
+                    );
+                };
+                if sent_end >= r.req.payload.len() {
+                    return self.fail(
+                        now,
+                        id,
+                        RequestError::Protocol("2.31 Continue after the last block"),
+                    );
+                }
+                // RFC 7959 §2.3: continue with the server's block size if it is smaller;
+                // the offset stays, so the block number scales.
+                r.szx1 = r.szx1.min(b1.szx);
+                r.step = Step::Upload { offset: sent_end };
+                return self.send_step(now, id);
+            }
+            if msg.code == Code::REQUEST_ENTITY_TOO_LARGE
+                && let Some(b1) = msg
+                    .options
+                    .block1()
+                    .filter(|b| b.szx < r.szx1 && r.restarts < 4)
+            {
+                // RFC 7959 §2.9.3: the server wants smaller blocks; start over with them.
+                r.restarts += 1;
+                r.szx1 = b1.szx;
+                r.step = Step::Upload { offset: 0 };
+                return self.send_step(now, id);
+            }
+        } else if r.step == Step::Whole
+            && msg.code == Code::REQUEST_ENTITY_TOO_LARGE
+            && !r.req.payload.is_empty()
+            && let Some(b1) = msg.options.block1().filter(|_| r.restarts < 4)
+        {
+            // The body fit one message but not the server: go block-wise at its size.
+            r.restarts += 1;
+            r.szx1 = b1.szx.min(r.szx1);
+            r.step = Step::Upload { offset: 0 };
+            return self.send_step(now, id);
+        }
+
+        // The request is fully sent; now the response, possibly in blocks.
+        let b2 = msg
+            .options
+            .block2()
+            .filter(|_| !r.user_block2 && msg.code.is_success());
+        let Some(b2) = b2 else {
+            let response = match r.first_options.take() {
+                // Reassembly ended with a block lacking Block2: a broken server.
+                Some(_) => {
+                    return self.fail(
+                        now,
+                        id,
+                        RequestError::Protocol("block-wise response lost its Block2"),
+                    );
+                }
+                None => Response {
+                    code: msg.code,
+                    options: msg.options,
+                    payload: msg.payload,
+                },
+            };
+            self.finish(now, id);
+            self.events.push_back(Event::Response {
+                id: RequestId(id),
+                response,
+            });
+            return;
+        };
+        let etag = msg.options.etag().map(<[u8]>::to_vec);
+        if r.first_options.is_some() && etag != r.etag {
+            // RFC 7959 §2.4: the representation changed; start over, a few times at most.
+            if r.restarts >= 4 {
+                return self.fail(now, id, RequestError::RepresentationChanged);
+            }
+            r.restarts += 1;
+            r.body.clear();
+            r.first_options = None;
+            r.step = Step::Download {
+                num: 0,
+                szx: b2.szx,
+            };
+            return self.send_step(now, id);
+        }
+        if r.first_options.is_none() {
+            if b2.num != 0 {
+                return self.fail(
+                    now,
+                    id,
+                    RequestError::Protocol("first Block2 response is not block 0"),
+                );
+            }
+            let mut first = msg.options.clone();
+            first.remove(OptionNumber::BLOCK2);
+            r.etag = etag;
+            if let Some(size2) = msg.options.uint(OptionNumber::SIZE2) {
+                // Pre-allocate from Size2, but never more than the limit allows.
+                r.body.reserve((size2 as usize).min(limit));
+            }
+            r.first_options = Some(first);
+        }
+        if b2.offset() != r.body.len() {
+            // A block we did not ask for at this offset: ask again for the one we lack.
+            let size = b2.size();
+            r.step = Step::Download {
+                num: (r.body.len() / size) as u32,
+                szx: b2.szx,
+            };
+            return self.send_step(now, id);
+        }
+        if r.body.len() + msg.payload.len() > limit {
+            return self.fail(now, id, RequestError::TooLarge { limit });
+        }
+        r.body.extend_from_slice(&msg.payload);
+        if b2.more {
+            if msg.payload.len() != b2.size() {
+                return self.fail(
+                    now,
+                    id,
+                    RequestError::Protocol("Block2 payload size does not match SZX"),
+                );
+            }
+            let num = (r.body.len() / b2.size()) as u32;
+            r.step = Step::Download { num, szx: b2.szx };
+            return self.send_step(now, id);
+        }
+        let body = Bytes::from(std::mem::take(&mut r.body));
+        let options = r.first_options.take().unwrap_or_default();
+        self.finish(now, id);
+        self.events.push_back(Event::Response {
+            id: RequestId(id),
+            response: Response {
+                code: msg.code,
+                options,
+                payload: body,
+            },
+        });
+    }
+
+    // ---------------------------------------------------------------- server layer
+
+    fn on_request(&mut self, now: Instant, peer: SocketAddr, mut msg: Message, multicast: bool) {
+        let limits = self.config.limits.clone();
+        let con = msg.ty == Type::Con;
+        if let Some(seen) = self
+            .dedup
+            .check(now, peer, msg.message_id, msg.token, &limits)
+        {
+            match seen.clone() {
+                Seen::Replied(data) => self.outbox.push_back(Transmit { peer, data }),
+                Seen::Pending(id) if con => self.ack_pending(id),
+                Seen::Pending(_) | Seen::Silent => {}
+            }
+            return;
+        }
+        let lifetime = if con {
+            self.config.exchange_lifetime
+        } else {
+            self.config.non_lifetime
+        };
+        let expires = now + lifetime;
+
+        if let Some(bad) = msg.options.first_bad_critical() {
+            // RFC 7252 §5.4.1: 4.02 for a CON request; a NON one is rejected.
+            let seen = if con {
+                let text = format!("unrecognized or malformed critical option {}", bad.0);
+                self.reply(
+                    peer,
+                    &msg,
+                    multicast,
+                    Response::diagnostic(Code::BAD_OPTION, &text),
+                )
+            } else if multicast {
+                Seen::Silent
+            } else {
+                Seen::Replied(self.send(peer, &Message::empty(Type::Rst, msg.message_id)))
+            };
+            self.dedup.insert(
+                now,
+                (peer, msg.message_id),
+                msg.token,
+                expires,
+                seen,
+                &limits,
+            );
+            return;
+        }
+        msg.options.drop_bad_elective();
+        let key = BlockKey {
+            peer,
+            method: msg.code,
+            options: msg.options.block_key(),
+        };
+        let block2 = msg.options.block2();
+        let block1 = msg.options.block1();
+
+        // A Block2 continuation is served from the stored representation; the application
+        // never sees it (a POST grab must not grab again).
+        if let (Some(b2), None) = (block2, block1)
+            && b2.num > 0
+        {
+            {
+                let szx = b2.szx.min(self.config.max_block_szx);
+                let stored = self.block2.get(now, &key, &limits).cloned();
+                let response = match stored {
+                    Some(s) => Some(block2_response(s.code, s.options, &s.body, b2.num, szx)),
+                    None if !matches!(msg.code, Code::GET | Code::FETCH) => {
+                        Some(Response::diagnostic(
+                            Code::REQUEST_ENTITY_INCOMPLETE,
+                            "the representation is no longer stored; repeat the request from block 0",
+                        ))
+                    }
+                    // A GET is safe: the application renders it again and the block is cut
+                    // from the new representation (its ETag tells the client if it changed).
+                    None => None,
+                };
+                if let Some(response) = response {
+                    let seen = self.reply(peer, &msg, multicast, response);
+                    self.dedup.insert(
+                        now,
+                        (peer, msg.message_id),
+                        msg.token,
+                        expires,
+                        seen,
+                        &limits,
+                    );
+                    return;
+                }
+            }
+        }
+
+        let mut payload = std::mem::take(&mut msg.payload);
+        let mut block1_echo = None;
+        if let Some(b1) = block1 {
+            let size1 = msg.options.uint(OptionNumber::SIZE1);
+            let outcome = self
+                .block1
+                .handle(now, key.clone(), b1, size1, &payload, &self.config);
+            let response = match outcome {
+                Block1Outcome::Continue(opt) => {
+                    let mut r = Response::new(Code::CONTINUE);
+                    r.options.set_block(OptionNumber::BLOCK1, opt);
+                    Some(r)
+                }
+                Block1Outcome::Refuse {
+                    code,
+                    diagnostic,
+                    size1,
+                } => {
+                    let mut r = Response::diagnostic(code, diagnostic);
+                    if let Some(s) = size1 {
+                        r.options.set_uint(OptionNumber::SIZE1, s);
+                    }
+                    if code == Code::SERVICE_UNAVAILABLE {
+                        r.options.set_uint(OptionNumber::MAX_AGE, 5);
+                    }
+                    Some(r)
+                }
+                Block1Outcome::Complete(body, echo) => {
+                    payload = body;
+                    block1_echo = Some(echo);
+                    None
+                }
+            };
+            if let Some(response) = response {
+                let seen = self.reply(peer, &msg, multicast, response);
+                self.dedup.insert(
+                    now,
+                    (peer, msg.message_id),
+                    msg.token,
+                    expires,
+                    seen,
+                    &limits,
+                );
+                return;
+            }
+        }
+
+        if self.pending.len() >= limits.pending_requests {
+            let r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, "server busy");
+            let seen = self.reply(peer, &msg, multicast, r);
+            self.dedup.insert(
+                now,
+                (peer, msg.message_id),
+                msg.token,
+                expires,
+                seen,
+                &limits,
+            );
+            return;
+        }
+        let id = self.new_id();
+        self.pending.insert(
+            id,
+            Pending {
+                peer,
+                mid: msg.message_id,
+                token: msg.token,
+                confirmable: con,
+                acked: false,
+                multicast,
+                block2,
+                block1_echo,
+                key,
+            },
+        );
+        self.dedup.insert(
+            now,
+            (peer, msg.message_id),
+            msg.token,
+            expires,
+            Seen::Pending(id),
+            &limits,
+        );
+        if con {
+            self.schedule(
+                now + self.config.separate_ack_delay,
+                TimerKind::SeparateAck { id },
+            );
+        }
+        self.events.push_back(Event::Request(IncomingRequest {
+            id: IncomingId(id),
+            peer,
+            method: msg.code,
+            options: msg.options,
+            payload,
+            multicast,
+            confirmable: con,
+        }));
+    }
+
+    /// Sends a response to a request right away (piggybacked on the ACK of a CON, or as a
+    /// NON to a NON) and returns what to remember for duplicates. Error responses to
+    /// multicast requests are suppressed (RFC 7390 §2.7).
+    fn reply(
+        &mut self,
+        peer: SocketAddr,
+        req: &Message,
+        multicast: bool,
+        response: Response,
+    ) -> Seen {
+        if multicast && response.code.is_error() {
+            return Seen::Silent;
+        }
+        let (ty, mid) = match req.ty {
+            Type::Con => (Type::Ack, req.message_id),
+            _ => (Type::Non, self.next_mid()),
+        };
+        let msg = Message {
+            ty,
+            code: response.code,
+            message_id: mid,
+            token: req.token,
+            options: response.options,
+            payload: response.payload,
+        };
+        Seen::Replied(self.send(peer, &msg))
+    }
+
+    fn on_separate_ack_timer(&mut self, _now: Instant, id: u64) {
+        self.ack_pending(id);
+    }
+
+    /// Sends the empty ACK of a CON request whose response is not ready (RFC 7252 §5.2.2).
+    fn ack_pending(&mut self, id: u64) {
+        let Some(p) = self.pending.get_mut(&id) else {
+            return;
+        };
+        if p.acked || !p.confirmable {
+            return;
+        }
+        p.acked = true;
+        let (peer, mid) = (p.peer, p.mid);
+        let data = self.send(peer, &Message::empty(Type::Ack, mid));
+        self.dedup.set_reply(peer, mid, Seen::Replied(data));
+    }
+
+    /// Answers a request from [`Event::Request`]. A body larger than one block is stored
+    /// and sent with Block2 (ETag and Size2 added); later blocks are served from the store.
+    /// Answering an unknown or already answered id does nothing.
+    pub fn respond(&mut self, now: Instant, id: IncomingId, response: Response) {
+        let limits = self.config.limits.clone();
+        let Some(p) = self.pending.remove(&id.0) else {
+            return;
+        };
+        let szx = p.block2.map_or(self.config.max_block_szx, |b| {
+            b.szx.min(self.config.max_block_szx)
+        });
+        let num = p.block2.map_or(0, |b| b.num);
+        let mut response = response;
+        if response.payload.len() > BlockOpt::size_of(szx) || num > 0 {
+            if response.options.etag().is_none() {
+                let etag = self.rng.next_u32().to_be_bytes();
+                response.options.set(OptionNumber::ETAG, etag.to_vec());
+            }
+            if response.payload.len() > BlockOpt::size_of(szx) {
+                self.block2.insert(
+                    now,
+                    p.key.clone(),
+                    response.code,
+                    response.options.clone(),
+                    response.payload.clone(),
+                    &limits,
+                );
+            }
+            response =
+                block2_response(response.code, response.options, &response.payload, num, szx);
+        }
+        if let Some(echo) = p.block1_echo {
+            response.options.set_block(OptionNumber::BLOCK1, echo);
+        }
+        if p.multicast && response.code.is_error() {
+            self.dedup.set_reply(p.peer, p.mid, Seen::Silent);
+            return;
+        }
+        let (ty, mid) = match (p.confirmable, p.acked) {
+            (true, false) => (Type::Ack, p.mid),
+            (true, true) => (Type::Con, self.next_mid()),
+            (false, _) => (Type::Non, self.next_mid()),
+        };
+        let msg = Message {
+            ty,
+            code: response.code,
+            message_id: mid,
+            token: p.token,
+            options: response.options,
+            payload: response.payload,
+        };
+        if ty == Type::Con {
+            self.send_con(now, p.peer, &msg, Purpose::SeparateResponse);
+        } else {
+            let data = self.send(p.peer, &msg);
+            self.dedup.set_reply(p.peer, p.mid, Seen::Replied(data));
+        }
+    }
+}
+
+/// Block `num` of a representation as a response, with Block2, and Size2 on block 0
+/// (RFC 7959 §4); 4.02 when the block starts past the end.
+fn block2_response(code: Code, options: Options, body: &Bytes, num: u32, szx: u8) -> Response {
+    let Some((payload, opt)) = block::slice(body, num, szx) else {
+        return Response::diagnostic(
+            Code::BAD_OPTION,
+            "Block2 number beyond the end of the representation",
+        );
+    };
+    let mut options = options;
+    options.set_block(OptionNumber::BLOCK2, opt);
+    if num == 0 {
+        options.set_uint(OptionNumber::SIZE2, body.len() as u32);
+    }
+    Response {
+        code,
+        options,
+        payload,
+    }
+}
