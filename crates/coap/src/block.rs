@@ -329,24 +329,12 @@ mod tests {
         let c = cfg(6, l);
         let mut a = Block1Assembler::new();
         assert_eq!(
-            a.handle(
-                now,
-                key(1),
-                b(0, true, 0),
-                None,
-                &[1; 16],
-                &c
-            ),
+            a.handle(now, key(1), b(0, true, 0), None, &[1; 16], &c),
             Block1Outcome::Continue(b(0, true, 0))
         );
-        let Block1Outcome::Complete(body, echo) = a.handle(
-            now,
-            key(1),
-            b(1, false, 0),
-            None,
-            &[2; 5],
-            &c,
-        ) else {
+        let Block1Outcome::Complete(body, echo) =
+            a.handle(now, key(1), b(1, false, 0), None, &[2; 5], &c)
+        else {
             panic!("not complete");
         };
         assert_eq!(body.len(), 21);
@@ -360,14 +348,7 @@ mod tests {
         let l = Limits::default();
         let c = cfg(6, l);
         let mut a = Block1Assembler::new();
-        let r = a.handle(
-            now,
-            key(1),
-            b(2, true, 0),
-            None,
-            &[1; 16],
-            &c,
-        );
+        let r = a.handle(now, key(1), b(2, true, 0), None, &[1; 16], &c);
         assert!(matches!(
             r,
             Block1Outcome::Refuse {
@@ -375,22 +356,8 @@ mod tests {
                 ..
             }
         ));
-        a.handle(
-            now,
-            key(1),
-            b(0, true, 0),
-            None,
-            &[1; 16],
-            &c,
-        );
-        let r = a.handle(
-            now,
-            key(1),
-            b(2, true, 0),
-            None,
-            &[1; 16],
-            &c,
-        );
+        a.handle(now, key(1), b(0, true, 0), None, &[1; 16], &c);
+        let r = a.handle(now, key(1), b(2, true, 0), None, &[1; 16], &c);
         assert!(matches!(
             r,
             Block1Outcome::Refuse {
@@ -409,14 +376,7 @@ mod tests {
         };
         let mut a = Block1Assembler::new();
         let c = cfg(6, l);
-        let r = a.handle(
-            now,
-            key(1),
-            b(0, true, 0),
-            Some(65),
-            &[1; 16],
-            &c,
-        );
+        let r = a.handle(now, key(1), b(0, true, 0), Some(65), &[1; 16], &c);
         assert_eq!(
             r,
             Block1Outcome::Refuse {
@@ -427,25 +387,11 @@ mod tests {
         );
         for n in 0..4 {
             assert!(matches!(
-                a.handle(
-                    now,
-                    key(1),
-                    b(n, true, 0),
-                    None,
-                    &[1; 16],
-                    &c
-                ),
+                a.handle(now, key(1), b(n, true, 0), None, &[1; 16], &c),
                 Block1Outcome::Continue(_)
             ));
         }
-        let r = a.handle(
-            now,
-            key(1),
-            b(4, true, 0),
-            None,
-            &[1; 16],
-            &c,
-        );
+        let r = a.handle(now, key(1), b(4, true, 0), None, &[1; 16], &c);
         assert!(matches!(
             r,
             Block1Outcome::Refuse {
@@ -466,30 +412,9 @@ mod tests {
         };
         let mut a = Block1Assembler::new();
         let c = cfg(6, l);
-        a.handle(
-            now,
-            key(1),
-            b(0, true, 0),
-            None,
-            &[1; 16],
-            &c,
-        );
-        a.handle(
-            now,
-            key(2),
-            b(0, true, 0),
-            None,
-            &[1; 16],
-            &c,
-        );
-        let r = a.handle(
-            now,
-            key(3),
-            b(0, true, 0),
-            None,
-            &[1; 16],
-            &c,
-        );
+        a.handle(now, key(1), b(0, true, 0), None, &[1; 16], &c);
+        a.handle(now, key(2), b(0, true, 0), None, &[1; 16], &c);
+        let r = a.handle(now, key(3), b(0, true, 0), None, &[1; 16], &c);
         assert!(matches!(
             r,
             Block1Outcome::Refuse {
@@ -530,23 +455,9 @@ mod tests {
         let l = Limits::default();
         let c = cfg(6, l);
         let mut a = Block1Assembler::new();
-        a.handle(
-            now,
-            key(1),
-            b(0, true, 0),
-            None,
-            &[1; 16],
-            &c,
-        );
+        a.handle(now, key(1), b(0, true, 0), None, &[1; 16], &c);
         let later = now + c.limits.blockwise_lifetime + Duration::from_secs(1);
-        let r = a.handle(
-            later,
-            key(1),
-            b(1, false, 0),
-            None,
-            &[1; 3],
-            &c,
-        );
+        let r = a.handle(later, key(1), b(1, false, 0), None, &[1; 3], &c);
         assert!(matches!(
             r,
             Block1Outcome::Refuse {

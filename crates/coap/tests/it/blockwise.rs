@@ -1,0 +1,391 @@
+//! RFC 7959 block-wise transfer, run in the simulator, with and without loss.
+
+use std::cell::Cell;
+use std::rc::Rc;
+use std::time::Duration;
+
+use bytes::Bytes;
+use coap::{
+    BlockOpt, Code, EndpointConfig, Event, Limits, OptionNumber, Request, RequestError, Response,
+};
+
+use crate::sim::{Handler, LinkConfig, Reply, Sim};
+
+fn cfg(seed: u64) -> EndpointConfig {
+    EndpointConfig {
+        rng_seed: seed,
+        ..EndpointConfig::default()
+    }
+}
+
+/// Deterministic pseudo-random bytes, so a misplaced block cannot go unnoticed.
+fn body(len: usize, seed: u32) -> Bytes {
+    let mut x = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
+    (0..len)
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x as u8
+        })
+        .collect::<Vec<u8>>()
+        .into()
+}
+
+fn serve(body: Bytes, calls: Rc<Cell<usize>>) -> Handler {
+    Box::new(move |_| {
+        calls.set(calls.get() + 1);
+        Reply::Now(Response::new(Code::CONTENT).with_payload(body.clone()))
+    })
+}
+
+fn response(sim: &Sim, node: usize) -> &Response {
+    match &sim.nodes[node].events[0].1 {
+        Event::Response { response, .. } => response,
+        other => panic!("expected a response, got {other:?}"),
+    }
+}
+
+/// A GET of `len` bytes over a link with `loss`; returns the simulation for inspection.
+fn block2_transfer(len: usize, loss: f64, method: Code) -> (Sim, Bytes, usize) {
+    let data = body(len, 42);
+    let calls = Rc::new(Cell::new(0));
+    let mut sim = Sim::new(if loss > 0.0 {
+        LinkConfig::lossy(loss, 99)
+    } else {
+        LinkConfig::default()
+    });
+    sim.record = false;
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), calls.clone())));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(method, "/big"));
+    assert!(
+        sim.run_to_event(c, Duration::from_secs(100_000)),
+        "no outcome"
+    );
+    (sim, data, calls.get())
+}
+
+fn check_block2(len: usize, loss: f64) {
+    let (sim, data, calls) = block2_transfer(len, loss, Code::GET);
+    let r = response(&sim, 0);
+    assert_eq!(r.code, Code::CONTENT);
+    assert_eq!(r.payload.len(), data.len());
+    assert!(r.payload == data, "body differs at {loss} loss");
+    assert_eq!(
+        calls, 1,
+        "the handler runs once; the other blocks come from the store"
+    );
+    assert_eq!(r.options.uint(OptionNumber::SIZE2), Some(len as u32));
+    assert!(r.options.etag().is_some());
+}
+
+#[test]
+fn rfc7959_2_4_block2_10_mb_bit_exact_without_loss() {
+    check_block2(10_032_012, 0.0);
+}
+
+#[test]
+fn rfc7959_2_4_block2_10_mb_bit_exact_at_5_percent_loss() {
+    check_block2(10_032_012, 0.05);
+}
+
+#[test]
+fn rfc7959_2_4_block2_10_mb_bit_exact_at_20_percent_loss_resumes_missing_blocks() {
+    check_block2(10_032_012, 0.20);
+}
+
+fn block1_upload(len: usize, loss: f64, server_szx: u8) -> (Sim, Bytes, Rc<Cell<usize>>) {
+    let data = body(len, 7);
+    let got = Rc::new(Cell::new(0));
+    let seen = got.clone();
+    let expected = data.clone();
+    let handler: Handler = Box::new(move |req| {
+        seen.set(seen.get() + 1);
+        let ok = req.payload == expected;
+        Reply::Now(Response::new(if ok {
+            Code::CHANGED
+        } else {
+            Code::BAD_REQUEST
+        }))
+    });
+    let mut sim = Sim::new(if loss > 0.0 {
+        LinkConfig::lossy(loss, 5)
+    } else {
+        LinkConfig::default()
+    });
+    let c = sim.add(cfg(3), None);
+    let s = sim.add(
+        EndpointConfig {
+            max_block_szx: server_szx,
+            ..cfg(4)
+        },
+        Some(handler),
+    );
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    let req = Request::new(Code::PUT, "/advanced-config").with_payload(data.clone());
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(10_000)));
+    (sim, data, got)
+}
+
+#[test]
+fn rfc7959_2_5_block1_3500_bytes_arrive_bit_exact_at_0_5_20_percent_loss() {
+    for loss in [0.0, 0.05, 0.20] {
+        let (sim, _, calls) = block1_upload(3500, loss, 6);
+        assert_eq!(response(&sim, 0).code, Code::CHANGED, "loss {loss}");
+        assert_eq!(
+            calls.get(),
+            1,
+            "assembled body handed over once, loss {loss}"
+        );
+    }
+}
+
+#[test]
+fn rfc7959_2_5_block1_sends_size1_and_gets_2_31_continue() {
+    let (sim, _, _) = block1_upload(3500, 0.0, 6);
+    let l: Vec<String> = sim.log.iter().map(|r| r.line()).collect();
+    // 4 blocks of 1024 (the last 428 bytes), 2.31 after each but the last.
+    assert_eq!(
+        l.iter().filter(|l| l.contains("ACK 2.31")).count(),
+        3,
+        "{l:#?}"
+    );
+    assert!(
+        l.last()
+            .is_some_and(|l| l.contains("ACK 2.04") && l.contains("b1=3/0/1024")),
+        "{l:#?}"
+    );
+    let first = sim.log[0]
+        .msg
+        .as_ref()
+        .map(|m| m.options.uint(OptionNumber::SIZE1));
+    assert_eq!(first, Some(Some(3500)));
+}
+
+#[test]
+fn rfc7959_2_3_block1_szx_renegotiation_to_smaller_server_blocks() {
+    let (sim, _, calls) = block1_upload(3500, 0.0, 4);
+    assert_eq!(response(&sim, 0).code, Code::CHANGED);
+    assert_eq!(calls.get(), 1);
+    let l: Vec<String> = sim.log.iter().map(|r| r.line()).collect();
+    // First block 1024 bytes, the server asks for 256; the client continues at offset
+    // 1024 = block 4 of 256 bytes.
+    assert!(l[0].contains("b1=0/1/1024"), "{l:#?}");
+    assert!(
+        l[1].contains("ACK 2.31") && l[1].contains("b1=0/1/256"),
+        "{l:#?}"
+    );
+    assert!(l[2].contains("b1=4/1/256"), "{l:#?}");
+}
+
+#[test]
+fn rfc7959_2_9_3_block1_over_server_limit_gives_4_13_with_size1() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let small = EndpointConfig {
+        limits: Limits {
+            block1_peer_bytes: 2048,
+            ..Limits::default()
+        },
+        ..cfg(2)
+    };
+    let s = sim.add(
+        small,
+        Some(Box::new(|_| Reply::Now(Response::new(Code::CHANGED)))),
+    );
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c].ep.request(
+        now,
+        server,
+        Request::new(Code::PUT, "/x").with_payload(body(3500, 1)),
+    );
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    let r = response(&sim, c);
+    assert_eq!(r.code, Code::REQUEST_ENTITY_TOO_LARGE);
+    assert_eq!(r.options.uint(OptionNumber::SIZE1), Some(2048));
+    assert_eq!(sim.nodes[s].requests_seen, 0);
+}
+
+#[test]
+fn rfc7959_2_4_post_block2_continuations_never_call_the_handler_again() {
+    let (sim, data, calls) = block2_transfer(100_000, 0.0, Code::POST);
+    assert!(response(&sim, 0).payload == data);
+    assert_eq!(calls, 1, "a grab happens once per POST, not once per block");
+}
+
+#[test]
+fn rfc7959_2_4_early_negotiation_asks_for_smaller_blocks() {
+    let data = body(1000, 3);
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let mut req = Request::new(Code::GET, "/x");
+    req.block_szx = Some(2);
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert!(response(&sim, c).payload == data);
+    let blocks = sim
+        .log
+        .iter()
+        .filter(|r| r.msg.as_ref().is_some_and(|m| m.code == Code::CONTENT))
+        .count();
+    assert_eq!(blocks, 16, "1000 bytes in 64-byte blocks");
+}
+
+#[test]
+fn rfc7959_2_4_etag_change_restarts_the_transfer() {
+    let seen = Rc::new(Cell::new(0u32));
+    // The representation changes on every request that reaches the handler: the store
+    // expires at once, so each GET continuation re-renders with a new ETag. After four
+    // restarts the client gives up with RepresentationChanged.
+    let handler: Handler = Box::new(move |_| {
+        seen.set(seen.get() + 1);
+        let mut r = Response::new(Code::CONTENT).with_payload(body(3000, seen.get()));
+        r.options
+            .set(OptionNumber::ETAG, seen.get().to_be_bytes().to_vec());
+        Reply::Now(r)
+    });
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let no_store = EndpointConfig {
+        limits: Limits {
+            block2_store_bytes: 0,
+            ..Limits::default()
+        },
+        ..cfg(2)
+    };
+    let s = sim.add(no_store, Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/changing"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert!(matches!(
+        sim.nodes[c].events[0].1,
+        Event::RequestFailed {
+            error: RequestError::RepresentationChanged,
+            ..
+        }
+    ));
+}
+
+#[test]
+fn rfc7959_2_4_stable_representation_without_store_still_reassembles() {
+    // With no store at all, a GET continuation is re-rendered by the application; with a
+    // stable ETag the blocks fit together.
+    let data = body(5000, 9);
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let no_store = EndpointConfig {
+        limits: Limits {
+            block2_store_bytes: 0,
+            ..Limits::default()
+        },
+        ..cfg(2)
+    };
+    let d = data.clone();
+    let handler: Handler = Box::new(move |_| {
+        let mut r = Response::new(Code::CONTENT).with_payload(d.clone());
+        r.options.set(OptionNumber::ETAG, b"v1".to_vec());
+        Reply::Now(r)
+    });
+    let s = sim.add(no_store, Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/stable"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert!(response(&sim, c).payload == data);
+    assert_eq!(sim.nodes[s].requests_seen, 5);
+}
+
+#[test]
+fn rfc7959_2_2_block2_beyond_the_end_gives_4_02() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(body(100, 1), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let mut req = Request::new(Code::GET, "/x");
+    req.options.set_block(
+        OptionNumber::BLOCK2,
+        BlockOpt {
+            num: 9,
+            more: false,
+            szx: 2,
+        },
+    );
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert_eq!(response(&sim, c).code, Code::BAD_OPTION);
+}
+
+#[test]
+fn rfc7959_2_4_random_access_block_is_delivered_as_is() {
+    let data = body(1000, 4);
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let mut req = Request::new(Code::GET, "/x");
+    req.options.set_block(
+        OptionNumber::BLOCK2,
+        BlockOpt {
+            num: 2,
+            more: false,
+            szx: 2,
+        },
+    );
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    let r = response(&sim, c);
+    assert_eq!(&r.payload[..], &data[128..192]);
+    assert_eq!(
+        r.options.block2(),
+        Some(BlockOpt {
+            num: 2,
+            more: true,
+            szx: 2
+        })
+    );
+}
+
+#[test]
+fn client_refuses_a_body_over_its_limit() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let small = EndpointConfig {
+        limits: Limits {
+            client_body_bytes: 4096,
+            ..Limits::default()
+        },
+        ..cfg(1)
+    };
+    let c = sim.add(small, None);
+    let s = sim.add(cfg(2), Some(serve(body(10_000, 1), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/x"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert!(matches!(
+        sim.nodes[c].events[0].1,
+        Event::RequestFailed {
+            error: RequestError::TooLarge { limit: 4096 },
+            ..
+        }
+    ));
+}

@@ -1,0 +1,5 @@
+//! Integration tests of the CoAP core: one binary, one module per area.
+
+mod blockwise;
+mod reliability;
+mod sim;

@@ -1,0 +1,431 @@
+//! RFC 7252 message layer, run in the simulator: piggybacked and separate responses,
+//! retransmission instants, timeouts, deduplication, ping, NSTART, bad options.
+
+use std::time::Duration;
+
+use coap::{
+    Code, EndpointConfig, Event, Message, OptionNumber, Request, RequestError, Response, Type,
+};
+
+use crate::sim::{LinkConfig, Reply, Sim};
+
+fn cfg(seed: u64) -> EndpointConfig {
+    EndpointConfig {
+        rng_seed: seed,
+        ..EndpointConfig::default()
+    }
+}
+
+fn echo_server() -> crate::sim::Handler {
+    Box::new(|req| {
+        Reply::Now(
+            Response::new(Code::CONTENT)
+                .with_payload(format!("echo {}", req.options.path_string())),
+        )
+    })
+}
+
+fn lines(sim: &Sim) -> Vec<String> {
+    sim.log.iter().map(|r| r.line()).collect()
+}
+
+#[test]
+fn rfc7252_5_2_1_piggybacked_response_in_the_ack() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    let id = sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/a/b"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    match &sim.nodes[c].events[0].1 {
+        Event::Response { id: got, response } => {
+            assert_eq!(*got, id);
+            assert_eq!(response.code, Code::CONTENT);
+            assert_eq!(&response.payload[..], b"echo /a/b");
+        }
+        other => panic!("unexpected {other:?}"),
+    }
+    let l = lines(&sim);
+    assert_eq!(l.len(), 2, "{l:#?}");
+    assert!(l[0].contains("CON 0.01"), "{l:?}");
+    assert!(l[1].contains("ACK 2.05"), "{l:?}");
+}
+
+#[test]
+fn rfc7252_5_2_2_separate_response_after_empty_ack() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let slow: crate::sim::Handler = Box::new(|_| {
+        Reply::After(
+            Duration::from_secs(5),
+            Response::new(Code::CONTENT).with_payload("late"),
+        )
+    });
+    let s = sim.add(cfg(2), Some(slow));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::POST, "/slow"));
+    assert!(sim.run_to_event(c, Duration::from_secs(60)));
+    let (at, ev) = &sim.nodes[c].events[0];
+    assert!(matches!(ev, Event::Response { response, .. } if &response.payload[..] == b"late"));
+    assert_eq!(
+        at.as_millis(),
+        5010,
+        "response sent at 5 s plus 5 ms link delay, ACKed"
+    );
+    // Transcript with literal times: request at 0, empty ACK after the 1 s separate-ACK
+    // delay, CON response at 5 s, its ACK from the client. No retransmission of the request.
+    assert_eq!(
+        lines(&sim)
+            .iter()
+            .map(|l| l.split(" mid=").next().unwrap_or("").to_string())
+            .collect::<Vec<_>>(),
+        [
+            "0 ms CON 0.02",
+            "1005 ms ACK 0.00",
+            "5005 ms CON 2.05",
+            "5010 ms ACK 0.00"
+        ]
+    );
+}
+
+#[test]
+fn rfc7252_4_2_retransmission_instants_double_with_jitter() {
+    // Nobody answers: the CON goes out five times, at 0, T, 3T, 7T, 15T, where the initial
+    // timeout T = ACK_TIMEOUT * U[1, 1.5] from the endpoint's seed; the exchange fails at 31T.
+    let mut sim = Sim::new(LinkConfig {
+        loss: 1.0,
+        ..LinkConfig::default()
+    });
+    let c = sim.add(cfg(7), None);
+    let s = sim.add(cfg(8), None);
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/x"));
+    assert!(sim.run_to_event(c, Duration::from_secs(200)));
+    let times: Vec<u128> = sim.log.iter().map(|r| r.at.as_millis()).collect();
+    assert_eq!(
+        times,
+        [0, 2270, 6810, 15890, 34051],
+        "seed 7 gives T = 2270 ms"
+    );
+    let t = times[1] as f64;
+    assert!((2000.0..=3000.0).contains(&t));
+    for (k, at) in times.iter().enumerate() {
+        let expected = t * f64::from((1u32 << k) - 1);
+        assert!(
+            (*at as f64 - expected).abs() <= 2.0,
+            "transmission {k} at {at} ms, expected {expected}"
+        );
+    }
+    let (failed_at, ev) = &sim.nodes[c].events[0];
+    assert!(matches!(
+        ev,
+        Event::RequestFailed {
+            error: RequestError::Timeout,
+            ..
+        }
+    ));
+    assert_eq!(
+        failed_at.as_millis(),
+        70372,
+        "31 T, within MAX_TRANSMIT_WAIT (93 s)"
+    );
+}
+
+#[test]
+fn rfc7252_4_8_transmission_parameters_are_configurable() {
+    let mut sim = Sim::new(LinkConfig {
+        loss: 1.0,
+        ..LinkConfig::default()
+    });
+    let fast = EndpointConfig {
+        ack_timeout: Duration::from_millis(100),
+        ack_random_factor: 1.0,
+        max_retransmit: 2,
+        ..cfg(3)
+    };
+    let c = sim.add(fast, None);
+    let s = sim.add(cfg(4), None);
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/x"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    let times: Vec<u128> = sim.log.iter().map(|r| r.at.as_millis()).collect();
+    assert_eq!(times, [0, 100, 300]);
+    assert_eq!(sim.nodes[c].events[0].0.as_millis(), 700);
+}
+
+#[test]
+fn rfc7252_4_5_duplicate_con_answered_from_cache_handler_runs_once() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let peer = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
+    let mut req = Message::empty(Type::Con, 0x1234);
+    req.code = Code::GET;
+    req.token = coap::Token::new(&[9, 9]).unwrap_or_default();
+    req.options.set_path("/dup");
+    let bytes = req.encode();
+    sim.inject(peer, s, &bytes);
+    sim.run_until(Duration::from_secs(1), |_| false);
+    sim.inject(peer, s, &bytes);
+    sim.run_until(Duration::from_secs(1), |_| false);
+    assert_eq!(sim.nodes[s].requests_seen, 1);
+    let replies: Vec<_> = sim
+        .log
+        .iter()
+        .filter(|r| r.from == sim.nodes[s].addr)
+        .collect();
+    assert_eq!(replies.len(), 2);
+    assert_eq!(replies[0].msg, replies[1].msg, "the same ACK again");
+    assert_eq!(replies[0].msg.as_ref().map(|m| m.message_id), Some(0x1234));
+}
+
+#[test]
+fn rfc7252_4_5_duplicate_of_pending_request_gets_empty_ack() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let s = sim.add(
+        cfg(2),
+        Some(Box::new(|_| {
+            Reply::After(Duration::from_secs(30), Response::new(Code::CHANGED))
+        })),
+    );
+    let peer = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
+    let mut req = Message::empty(Type::Con, 77);
+    req.code = Code::PUT;
+    req.token = coap::Token::new(&[1]).unwrap_or_default();
+    let bytes = req.encode();
+    sim.inject(peer, s, &bytes);
+    sim.run_until(Duration::from_millis(100), |_| false);
+    sim.inject(peer, s, &bytes);
+    sim.run_until(Duration::from_millis(100), |_| false);
+    assert_eq!(sim.nodes[s].requests_seen, 1);
+    let l = lines(&sim);
+    assert_eq!(l.len(), 1, "{l:?}");
+    assert!(l[0].starts_with("105 ms ACK 0.00 mid=77"), "{l:?}");
+}
+
+#[test]
+fn rfc7252_4_3_ping_is_answered_with_reset() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), None);
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    let id = sim.nodes[c].ep.ping(now, server);
+    assert!(sim.run_to_event(c, Duration::from_secs(5)));
+    assert!(matches!(sim.nodes[c].events[0].1, Event::Pong { id: got } if got == id));
+    let l = lines(&sim);
+    assert!(
+        l[0].contains("CON 0.00") && l[1].contains("RST 0.00"),
+        "{l:?}"
+    );
+}
+
+#[test]
+fn rfc7252_5_4_1_unknown_critical_option_in_con_request_gives_4_02() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let server = sim.nodes[s].addr;
+    let mut req = Request::new(Code::GET, "/x");
+    req.options.push(OptionNumber(2051), b"?".to_vec());
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(5)));
+    match &sim.nodes[c].events[0].1 {
+        Event::Response { response, .. } => {
+            assert_eq!(response.code, Code::BAD_OPTION);
+            assert!(String::from_utf8_lossy(&response.payload).contains("2051"));
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(
+        sim.nodes[s].requests_seen, 0,
+        "never reaches the application"
+    );
+}
+
+#[test]
+fn rfc7252_5_4_1_unknown_critical_option_in_non_request_is_rejected_with_reset() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let peer = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
+    let mut req = Message::empty(Type::Non, 5);
+    req.code = Code::GET;
+    req.options.push(OptionNumber(2051), b"?".to_vec());
+    sim.inject(peer, s, &req.encode());
+    sim.run_until(Duration::from_secs(1), |_| false);
+    let l = lines(&sim);
+    assert_eq!(l.len(), 1);
+    assert!(l[0].contains("RST 0.00 mid=5"), "{l:?}");
+}
+
+#[test]
+fn rfc7252_5_4_1_unknown_elective_option_is_ignored() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let server = sim.nodes[s].addr;
+    let mut req = Request::new(Code::GET, "/x");
+    req.options.push(OptionNumber(2050), b"?".to_vec());
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(5)));
+    assert!(
+        matches!(&sim.nodes[c].events[0].1, Event::Response { response, .. } if response.code == Code::CONTENT)
+    );
+}
+
+#[test]
+fn rfc7252_4_2_reset_fails_the_request() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), None);
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/x"));
+    // The server answers the CON with a Reset by hand.
+    sim.run_until(Duration::from_millis(6), |_| false);
+    let mid = sim.log[0].msg.as_ref().map_or(0, |m| m.message_id);
+    sim.inject(server, c, &Message::empty(Type::Rst, mid).encode());
+    assert!(sim.run_to_event(c, Duration::from_secs(5)));
+    assert!(matches!(
+        sim.nodes[c].events[0].1,
+        Event::RequestFailed {
+            error: RequestError::Reset,
+            ..
+        }
+    ));
+}
+
+#[test]
+fn rfc7252_4_3_non_request_gets_non_response() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let server = sim.nodes[s].addr;
+    let mut req = Request::new(Code::GET, "/n");
+    req.confirmable = false;
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(5)));
+    let l = lines(&sim);
+    assert!(
+        l[0].contains("NON 0.01") && l[1].contains("NON 2.05"),
+        "{l:?}"
+    );
+}
+
+#[test]
+fn rfc7252_5_3_2_unmatched_con_response_is_reset() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let stranger = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
+    let mut resp = Message::empty(Type::Con, 40);
+    resp.code = Code::CONTENT;
+    resp.token = coap::Token::new(&[1, 2, 3, 4]).unwrap_or_default();
+    sim.inject(stranger, c, &resp.encode());
+    sim.run_until(Duration::from_secs(1), |_| false);
+    assert!(lines(&sim)[0].contains("RST 0.00 mid=40"));
+    assert!(sim.nodes[c].events.is_empty());
+}
+
+#[test]
+fn rfc7252_4_7_nstart_limits_outstanding_interactions_per_peer() {
+    for nstart in [1usize, 2] {
+        let mut sim = Sim::new(LinkConfig::default());
+        let c = sim.add(EndpointConfig { nstart, ..cfg(1) }, None);
+        let slow: crate::sim::Handler =
+            Box::new(|_| Reply::After(Duration::from_secs(3), Response::new(Code::CONTENT)));
+        let s = sim.add(cfg(2), Some(slow));
+        let server = sim.nodes[s].addr;
+        let now = sim.now;
+        for _ in 0..4 {
+            sim.nodes[c]
+                .ep
+                .request(now, server, Request::new(Code::GET, "/q"));
+        }
+        assert!(sim.run_until(Duration::from_secs(60), |s| s.nodes[c].events.len() == 4));
+        let requests: Vec<u128> = sim
+            .log
+            .iter()
+            .filter(|r| r.msg.as_ref().is_some_and(|m| m.code == Code::GET))
+            .map(|r| r.at.as_millis() / 1000)
+            .collect();
+        // Each interaction takes about 3 s; with NSTART requests at a time they go out in
+        // waves of NSTART.
+        let expected: Vec<u128> = (0..4).map(|k| (k / nstart as u128) * 3).collect();
+        assert_eq!(requests, expected, "nstart {nstart}");
+    }
+}
+
+#[test]
+fn rfc7390_2_7_no_error_response_to_multicast_request() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let s = sim.add(
+        cfg(2),
+        Some(Box::new(|_| {
+            Reply::Now(Response::diagnostic(Code::NOT_FOUND, "no"))
+        })),
+    );
+    let peer = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
+    let mut req = Message::empty(Type::Non, 9);
+    req.code = Code::GET;
+    let data = req.encode();
+    let now = sim.now;
+    sim.nodes[s].ep.handle(now, peer, &data, true);
+    sim.run_until(Duration::from_secs(1), |_| false);
+    assert_eq!(sim.nodes[s].requests_seen, 1);
+    assert!(sim.log.is_empty(), "{:?}", lines(&sim));
+}
+
+#[test]
+fn same_seed_gives_identical_transcript() {
+    let run = || {
+        let mut sim = Sim::new(LinkConfig::lossy(0.2, 11));
+        let c = sim.add(cfg(5), None);
+        let s = sim.add(cfg(6), Some(echo_server()));
+        let server = sim.nodes[s].addr;
+        let now = sim.now;
+        for _ in 0..5 {
+            sim.nodes[c]
+                .ep
+                .request(now, server, Request::new(Code::GET, "/d"));
+        }
+        sim.run_until(Duration::from_secs(600), |s| s.nodes[c].events.len() == 5);
+        sim.log
+            .iter()
+            .map(|r| (r.at, r.msg.as_ref().map(Message::encode), r.lost))
+            .collect::<Vec<_>>()
+    };
+    let a = run();
+    assert!(a.len() > 10);
+    assert_eq!(a, run());
+}
+
+#[test]
+fn malformed_datagram_to_con_gets_reset_and_never_panics() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let peer = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
+    // CON, token length 9: a message format error (RFC 7252 §3), answered with RST.
+    sim.inject(peer, s, &[0x49, 0x01, 0x00, 0x10]);
+    // Version 2: silently ignored.
+    sim.inject(peer, s, &[0x80, 0x01, 0x00, 0x11]);
+    sim.run_until(Duration::from_secs(1), |_| false);
+    let l = lines(&sim);
+    assert_eq!(l.len(), 1, "{l:?}");
+    assert!(l[0].contains("RST 0.00 mid=16"));
+}

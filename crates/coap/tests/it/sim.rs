@@ -1,0 +1,348 @@
+//! A deterministic simulator: endpoints on a virtual clock joined by a seeded link that
+//! drops, duplicates, delays, reorders and enforces an MTU.
+//!
+//! `Sim::run_until` moves time straight to the next thing that happens (a datagram
+//! arriving, an endpoint timer, a delayed application response), so minutes of protocol
+//! time take milliseconds.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use coap::{Endpoint, EndpointConfig, Event, IncomingId, IncomingRequest, Message, Response, Type};
+use rand_chacha::ChaCha8Rng;
+use rand_core::{RngCore, SeedableRng};
+
+/// The one real instant the tests use, as the epoch of virtual time.
+#[expect(
+    clippy::disallowed_methods,
+    reason = "the simulator's epoch; everything after is virtual"
+)]
+pub(crate) fn epoch() -> Instant {
+    Instant::now()
+}
+
+/// What the link does to datagrams (the same in both directions).
+#[derive(Debug, Clone)]
+pub(crate) struct LinkConfig {
+    /// Probability that a datagram is lost.
+    pub(crate) loss: f64,
+    /// Probability that a delivered datagram is delivered twice.
+    pub(crate) duplicate: f64,
+    /// One-way delay.
+    pub(crate) delay: Duration,
+    /// Extra random delay in [0, jitter): datagrams overtake each other.
+    pub(crate) jitter: Duration,
+    /// Datagrams longer than this are dropped.
+    pub(crate) mtu: usize,
+    /// Seed of the link's randomness.
+    pub(crate) seed: u64,
+}
+
+impl Default for LinkConfig {
+    fn default() -> Self {
+        Self {
+            loss: 0.0,
+            duplicate: 0.0,
+            delay: Duration::from_millis(5),
+            jitter: Duration::ZERO,
+            mtu: 1280,
+            seed: 1,
+        }
+    }
+}
+
+impl LinkConfig {
+    /// A lossy link that also duplicates and reorders.
+    pub(crate) fn lossy(loss: f64, seed: u64) -> Self {
+        Self {
+            loss,
+            duplicate: loss / 4.0,
+            jitter: Duration::from_millis(8),
+            seed,
+            ..Self::default()
+        }
+    }
+}
+
+/// What a simulated server does with a request.
+pub(crate) enum Reply {
+    /// Answer at once.
+    Now(Response),
+    /// Answer after this long (a slow handler).
+    After(Duration, Response),
+    /// Never answer.
+    Never,
+}
+
+/// A request handler of a simulated node.
+pub(crate) type Handler = Box<dyn FnMut(&IncomingRequest) -> Reply>;
+
+/// One datagram as the link saw it.
+#[derive(Debug, Clone)]
+pub(crate) struct Record {
+    /// Time since the start of the simulation.
+    pub(crate) at: Duration,
+    /// Sender.
+    pub(crate) from: SocketAddr,
+    /// The decoded message (`None` if it did not decode).
+    pub(crate) msg: Option<Message>,
+    /// Whether the link dropped it.
+    pub(crate) lost: bool,
+}
+
+impl Record {
+    /// A short line: time, type, code, message ID, and the block option if any.
+    pub(crate) fn line(&self) -> String {
+        let Some(m) = &self.msg else {
+            return format!("{} ms garbage", self.at.as_millis());
+        };
+        let ty = match m.ty {
+            Type::Con => "CON",
+            Type::Non => "NON",
+            Type::Ack => "ACK",
+            Type::Rst => "RST",
+        };
+        let mut s = format!(
+            "{} ms {ty} {:?} mid={}",
+            self.at.as_millis(),
+            m.code,
+            m.message_id
+        );
+        if let Some(b) = m.options.block1() {
+            s.push_str(&format!(" b1={b}"));
+        }
+        if let Some(b) = m.options.block2() {
+            s.push_str(&format!(" b2={b}"));
+        }
+        if self.lost {
+            s.push_str(" LOST");
+        }
+        s
+    }
+}
+
+/// A simulated node: an endpoint, an optional request handler, and what it reported.
+pub(crate) struct Node {
+    /// Its address.
+    pub(crate) addr: SocketAddr,
+    /// Its endpoint.
+    pub(crate) ep: Endpoint,
+    handler: Option<Handler>,
+    /// Client events (responses, failures, pongs), with the time they came.
+    pub(crate) events: Vec<(Duration, Event)>,
+    /// Requests the handler saw.
+    pub(crate) requests_seen: usize,
+}
+
+/// A datagram on the link: arrival, sequence, destination node, sender, bytes.
+type InFlight = (Instant, u64, usize, SocketAddr, Bytes);
+/// A slow handler's response: due, sequence, node, request, slot in `delayed_responses`.
+type Delayed = (Instant, u64, usize, IncomingId, usize);
+
+/// The simulation.
+pub(crate) struct Sim {
+    start: Instant,
+    /// Current virtual time.
+    pub(crate) now: Instant,
+    /// The nodes.
+    pub(crate) nodes: Vec<Node>,
+    link: LinkConfig,
+    rng: ChaCha8Rng,
+    seq: u64,
+    in_flight: BinaryHeap<Reverse<InFlight>>,
+    delayed: BinaryHeap<Reverse<Delayed>>,
+    delayed_responses: Vec<Option<Response>>,
+    /// Every datagram sent, in order.
+    pub(crate) log: Vec<Record>,
+    /// Whether to keep `log` (large transfers turn it off).
+    pub(crate) record: bool,
+}
+
+impl Sim {
+    /// An empty simulation on `link`.
+    pub(crate) fn new(link: LinkConfig) -> Self {
+        let start = epoch();
+        Self {
+            start,
+            now: start,
+            nodes: Vec::new(),
+            rng: ChaCha8Rng::seed_from_u64(link.seed),
+            link,
+            seq: 0,
+            in_flight: BinaryHeap::new(),
+            delayed: BinaryHeap::new(),
+            delayed_responses: Vec::new(),
+            log: Vec::new(),
+            record: true,
+        }
+    }
+
+    /// Adds a node at `127.0.0.<n>:5683`; returns its index.
+    pub(crate) fn add(&mut self, config: EndpointConfig, handler: Option<Handler>) -> usize {
+        let n = self.nodes.len();
+        let addr = SocketAddr::from(([127, 0, 0, n as u8 + 1], 5683));
+        self.nodes.push(Node {
+            addr,
+            ep: Endpoint::new(config),
+            handler,
+            events: Vec::new(),
+            requests_seen: 0,
+        });
+        n
+    }
+
+    /// Time since the start.
+    pub(crate) fn elapsed(&self) -> Duration {
+        self.now - self.start
+    }
+
+    fn unit(&mut self) -> f64 {
+        (self.rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Injects a raw datagram from `from` to node `to`, delivered after the link delay
+    /// without loss.
+    pub(crate) fn inject(&mut self, from: SocketAddr, to: usize, data: &[u8]) {
+        self.seq += 1;
+        let at = self.now + self.link.delay;
+        self.in_flight.push(Reverse((
+            at,
+            self.seq,
+            to,
+            from,
+            Bytes::copy_from_slice(data),
+        )));
+    }
+
+    fn node_index(&self, addr: SocketAddr) -> Option<usize> {
+        self.nodes.iter().position(|n| n.addr == addr)
+    }
+
+    /// Hands requests to handlers and moves every node's output onto the link.
+    fn drain(&mut self) {
+        for i in 0..self.nodes.len() {
+            while let Some(ev) = self.nodes[i].ep.poll_event() {
+                match ev {
+                    Event::Request(req) => self.on_request(i, req),
+                    other => {
+                        let at = self.elapsed();
+                        self.nodes[i].events.push((at, other));
+                    }
+                }
+            }
+            while let Some(t) = self.nodes[i].ep.poll_transmit() {
+                let from = self.nodes[i].addr;
+                let lost = t.data.len() > self.link.mtu || self.unit() < self.link.loss;
+                if self.record {
+                    let at = self.elapsed();
+                    let msg = Message::decode(&t.data).ok();
+                    self.log.push(Record {
+                        at,
+                        from,
+                        msg,
+                        lost,
+                    });
+                }
+                let Some(to) = self.node_index(t.peer) else {
+                    continue;
+                };
+                if lost {
+                    continue;
+                }
+                let copies = if self.unit() < self.link.duplicate {
+                    2
+                } else {
+                    1
+                };
+                for _ in 0..copies {
+                    let jitter = self.link.jitter.mul_f64(self.unit());
+                    self.seq += 1;
+                    let at = self.now + self.link.delay + jitter;
+                    self.in_flight
+                        .push(Reverse((at, self.seq, to, from, t.data.clone())));
+                }
+            }
+        }
+    }
+
+    fn on_request(&mut self, i: usize, req: IncomingRequest) {
+        self.nodes[i].requests_seen += 1;
+        let reply = match self.nodes[i].handler.as_mut() {
+            Some(h) => h(&req),
+            None => Reply::Never,
+        };
+        match reply {
+            Reply::Now(resp) => {
+                let now = self.now;
+                self.nodes[i].ep.respond(now, req.id, resp);
+            }
+            Reply::After(d, resp) => {
+                self.seq += 1;
+                let slot = self.delayed_responses.len();
+                self.delayed
+                    .push(Reverse((self.now + d, self.seq, i, req.id, slot)));
+                self.delayed_responses.push(Some(resp));
+            }
+            Reply::Never => {}
+        }
+    }
+
+    /// Runs until `done` holds or nothing is left to happen or `limit` of virtual time
+    /// passed. Returns whether `done` held.
+    pub(crate) fn run_until(
+        &mut self,
+        limit: Duration,
+        mut done: impl FnMut(&Self) -> bool,
+    ) -> bool {
+        let deadline = self.now + limit;
+        loop {
+            self.drain();
+            if done(self) {
+                return true;
+            }
+            let next_packet = self.in_flight.peek().map(|Reverse((at, ..))| *at);
+            let next_timer = self.nodes.iter().filter_map(|n| n.ep.poll_timeout()).min();
+            let next_delayed = self.delayed.peek().map(|Reverse((at, ..))| *at);
+            let Some(next) = [next_packet, next_timer, next_delayed]
+                .into_iter()
+                .flatten()
+                .min()
+            else {
+                return false;
+            };
+            if next > deadline {
+                self.now = deadline;
+                return false;
+            }
+            self.now = self.now.max(next);
+            let now = self.now;
+            while let Some(Reverse((at, _, to, from, data))) = self.in_flight.peek().cloned() {
+                if at > now {
+                    break;
+                }
+                self.in_flight.pop();
+                self.nodes[to].ep.handle(now, from, &data, false);
+            }
+            while let Some(Reverse((at, _, i, id, slot))) = self.delayed.peek().copied() {
+                if at > now {
+                    break;
+                }
+                self.delayed.pop();
+                if let Some(resp) = self.delayed_responses[slot].take() {
+                    self.nodes[i].ep.respond(now, id, resp);
+                }
+            }
+            for n in &mut self.nodes {
+                n.ep.handle_timeout(now);
+            }
+        }
+    }
+
+    /// Runs until node `i` has at least one client event.
+    pub(crate) fn run_to_event(&mut self, i: usize, limit: Duration) -> bool {
+        self.run_until(limit, |s| !s.nodes[i].events.is_empty())
+    }
+}
