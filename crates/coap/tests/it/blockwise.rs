@@ -389,3 +389,19 @@ fn client_refuses_a_body_over_its_limit() {
         }
     ));
 }
+
+#[test]
+fn rfc7959_2_4_non_block2_transfer_resends_lost_requests() {
+    let data = body(200_000, 8);
+    let mut sim = Sim::new(LinkConfig::lossy(0.2, 17));
+    sim.record = false;
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let mut req = Request::new(Code::GET, "/non");
+    req.confirmable = false;
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(100_000)));
+    assert!(response(&sim, c).payload == data);
+}

@@ -429,3 +429,101 @@ fn malformed_datagram_to_con_gets_reset_and_never_panics() {
     assert_eq!(l.len(), 1, "{l:?}");
     assert!(l[0].contains("RST 0.00 mid=16"));
 }
+
+#[test]
+fn rfc7252_5_3_1_token_length_is_configurable_and_echoed() {
+    for token_len in [0usize, 1, 4, 8] {
+        let mut sim = Sim::new(LinkConfig::default());
+        let c = sim.add(
+            EndpointConfig {
+                token_len,
+                ..cfg(1)
+            },
+            None,
+        );
+        let s = sim.add(cfg(2), Some(echo_server()));
+        let server = sim.nodes[s].addr;
+        let now = sim.now;
+        sim.nodes[c]
+            .ep
+            .request(now, server, Request::new(Code::GET, "/t"));
+        assert!(sim.run_to_event(c, Duration::from_secs(5)));
+        let tokens: Vec<usize> = sim
+            .log
+            .iter()
+            .filter_map(|r| r.msg.as_ref())
+            .map(|m| m.token.len())
+            .collect();
+        assert_eq!(tokens, [token_len, token_len]);
+    }
+}
+
+#[test]
+fn rfc7252_4_4_message_ids_differ_between_messages() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(
+        EndpointConfig {
+            nstart: 8,
+            ..cfg(1)
+        },
+        None,
+    );
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    for _ in 0..8 {
+        sim.nodes[c]
+            .ep
+            .request(now, server, Request::new(Code::GET, "/m"));
+    }
+    assert!(sim.run_until(Duration::from_secs(5), |s| s.nodes[c].events.len() == 8));
+    let mut mids: Vec<u16> = sim
+        .log
+        .iter()
+        .filter(|r| r.from == sim.nodes[c].addr)
+        .filter_map(|r| r.msg.as_ref().map(|m| m.message_id))
+        .collect();
+    mids.sort_unstable();
+    mids.dedup();
+    assert_eq!(mids.len(), 8);
+}
+
+#[test]
+fn rfc7252_5_2_2_separate_responses_survive_20_percent_loss() {
+    let mut sim = Sim::new(LinkConfig::lossy(0.2, 3));
+    let c = sim.add(
+        EndpointConfig {
+            nstart: 4,
+            ..cfg(1)
+        },
+        None,
+    );
+    let slow: crate::sim::Handler = Box::new(|req| {
+        let body = format!("done {}", req.options.path_string());
+        Reply::After(
+            Duration::from_secs(2),
+            Response::new(Code::CONTENT).with_payload(body),
+        )
+    });
+    let s = sim.add(cfg(2), Some(slow));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    for k in 0..20 {
+        sim.nodes[c]
+            .ep
+            .request(now, server, Request::new(Code::POST, &format!("/job/{k}")));
+    }
+    assert!(sim.run_until(Duration::from_secs(3600), |s| s.nodes[c].events.len() == 20));
+    let ok = sim.nodes[c]
+        .events
+        .iter()
+        .filter(|(_, e)| matches!(e, Event::Response { response, .. } if response.payload.starts_with(b"done /job/")))
+        .count();
+    // A request whose five transmissions are all lost (0.2^5) may time out; the rest
+    // complete, each exactly once.
+    assert!(ok >= 19, "{ok} of 20");
+    assert!(
+        sim.nodes[s].requests_seen <= 20,
+        "duplicates never reach the handler twice"
+    );
+}
