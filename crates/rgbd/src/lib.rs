@@ -1,1 +1,34 @@
-//! rgbd placeholder replaced by the camera work
+//! RGB-D cameras for coapcam: frames, D415 stream modes, settings documents, the
+//! `Camera` trait with its hot-plug `CameraHub`, and the synthetic D415 backend.
+//!
+//! Owns: color/depth frame types, intrinsics/extrinsics and pinhole deprojection, the
+//! D415 mode tables and camera model, the depth-settings / color-settings /
+//! advanced-config JSON documents (thesis Listings A.1, A.2, A.5), scene files
+//! (DESIGN.md §7) and the camera backends.
+//!
+//! Must not: know CoAP or networking, use async runtimes (the crate is synchronous;
+//! callers move grabs off their executors), or read clocks anywhere but in a backend's
+//! grab path.
+
+#![deny(unsafe_code)]
+
+pub mod advanced;
+pub mod backend;
+pub mod camera;
+pub mod d415;
+pub mod frame;
+pub mod intrinsics;
+pub mod mode;
+pub mod scene;
+pub mod settings;
+
+pub use advanced::{AdvancedConfig, AdvancedError, VisualPreset};
+pub use backend::synthetic::SyntheticCamera;
+pub use camera::{
+    Camera, CameraError, CameraHub, HubError, HubEvent, Serial, SerialError, SettingError,
+};
+pub use frame::{ColorFormat, ColorFrame, DepthFormat, DepthFrame};
+pub use intrinsics::{DeprojectError, DistortionModel, Extrinsics, Intrinsics, Pose};
+pub use mode::{ModeError, ModeTable, ResolutionModes, Stream};
+pub use scene::{Scene, SceneError};
+pub use settings::{ColorSettings, DepthSettings, SettingsError};

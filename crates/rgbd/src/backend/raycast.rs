@@ -1,0 +1,484 @@
+//! Ray casting of a scene: analytic intersections with the floor plane, yawed boxes
+//! and vertical cylinders; per-row culling of primitives by their bounding spheres.
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::backend::label::{self, LabelTexture};
+use crate::intrinsics::{Intrinsics, Pose};
+use crate::scene::{Scene, SceneError};
+
+pub(crate) type V3 = Vector3<f32>;
+
+/// Parameter distance below which an intersection counts as the ray's own start.
+const T_EPS: f32 = 1e-4;
+
+/// Which surface a ray hit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Surface {
+    Floor,
+    /// A primitive (index into `World::prims`); `top` when its upward face was hit.
+    Prim {
+        index: usize,
+        top: bool,
+    },
+}
+
+/// The nearest intersection of a ray.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Hit {
+    /// Ray parameter; for camera rays `(a, b, 1)` rotated into the world this is the
+    /// depth along the camera's z axis.
+    pub(crate) t: f32,
+    /// Unit normal at the hit, world frame (not oriented towards the ray).
+    pub(crate) normal: V3,
+    pub(crate) surface: Surface,
+}
+
+#[derive(Debug)]
+struct BoxPrim {
+    /// Footprint centre on the floor.
+    center: V3,
+    cos: f32,
+    sin: f32,
+    half: [f32; 2],
+    height: f32,
+    label: Option<(LabelTexture, [f32; 2])>,
+}
+
+#[derive(Debug)]
+struct CylPrim {
+    center: V3,
+    radius: f32,
+    height: f32,
+}
+
+#[derive(Debug)]
+enum Shape {
+    Box(BoxPrim),
+    Cylinder(CylPrim),
+}
+
+#[derive(Debug)]
+struct Prim {
+    shape: Shape,
+    color: [f32; 3],
+    sphere_center: V3,
+    sphere_radius: f32,
+}
+
+/// An entry/exit interval along a ray and the normal at the entry.
+struct Interval {
+    near: f32,
+    far: f32,
+    normal: V3,
+    top: bool,
+}
+
+impl Prim {
+    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
+        match &self.shape {
+            Shape::Box(b) => b.interval(o, d),
+            Shape::Cylinder(c) => c.interval(o, d),
+        }
+    }
+}
+
+fn slab(o: f32, d: f32, lo: f32, hi: f32) -> Option<(f32, f32)> {
+    if d.abs() < 1e-12 {
+        return (lo..=hi)
+            .contains(&o)
+            .then_some((f32::NEG_INFINITY, f32::INFINITY));
+    }
+    let inv = 1.0 / d;
+    let (t0, t1) = ((lo - o) * inv, (hi - o) * inv);
+    Some(if t0 < t1 { (t0, t1) } else { (t1, t0) })
+}
+
+impl BoxPrim {
+    fn to_local(&self, v: &V3) -> V3 {
+        V3::new(
+            self.cos * v.x + self.sin * v.y,
+            -self.sin * v.x + self.cos * v.y,
+            v.z,
+        )
+    }
+
+    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
+        let lo = self.to_local(&(o - self.center));
+        let ld = self.to_local(d);
+        let (x0, x1) = slab(lo.x, ld.x, -self.half[0], self.half[0])?;
+        let (y0, y1) = slab(lo.y, ld.y, -self.half[1], self.half[1])?;
+        let (z0, z1) = slab(lo.z, ld.z, 0.0, self.height)?;
+        let near = x0.max(y0).max(z0);
+        let far = x1.min(y1).min(z1);
+        if near > far {
+            return None;
+        }
+        let (local_normal, top) = if near == z0 {
+            (V3::new(0.0, 0.0, -ld.z.signum()), ld.z < 0.0)
+        } else if near == x0 {
+            (V3::new(-ld.x.signum(), 0.0, 0.0), false)
+        } else {
+            (V3::new(0.0, -ld.y.signum(), 0.0), false)
+        };
+        let normal = V3::new(
+            self.cos * local_normal.x - self.sin * local_normal.y,
+            self.sin * local_normal.x + self.cos * local_normal.y,
+            local_normal.z,
+        );
+        Some(Interval {
+            near,
+            far,
+            normal,
+            top,
+        })
+    }
+
+    /// Whether the label is black at world point `p` on the top face.
+    fn label_dark(&self, p: &V3) -> bool {
+        let Some((texture, extent)) = &self.label else {
+            return false;
+        };
+        let l = self.to_local(&(p - self.center));
+        let u = (l.x + extent[0] / 2.0) / extent[0];
+        let v = (extent[1] / 2.0 - l.y) / extent[1];
+        (0.0..1.0).contains(&u) && (0.0..1.0).contains(&v) && texture.is_dark(u, v)
+    }
+
+    fn on_label(&self, p: &V3) -> bool {
+        let Some((_, extent)) = &self.label else {
+            return false;
+        };
+        let l = self.to_local(&(p - self.center));
+        l.x.abs() <= extent[0] / 2.0 && l.y.abs() <= extent[1] / 2.0
+    }
+}
+
+impl CylPrim {
+    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
+        let p = o - self.center;
+        let a = d.x * d.x + d.y * d.y;
+        let b = 2.0 * (p.x * d.x + p.y * d.y);
+        let c = p.x * p.x + p.y * p.y - self.radius * self.radius;
+        let (s0, s1) = if a < 1e-12 {
+            if c > 0.0 {
+                return None;
+            }
+            (f32::NEG_INFINITY, f32::INFINITY)
+        } else {
+            let disc = b * b - 4.0 * a * c;
+            if disc < 0.0 {
+                return None;
+            }
+            let sq = disc.sqrt();
+            ((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a))
+        };
+        let (z0, z1) = slab(p.z, d.z, 0.0, self.height)?;
+        let near = s0.max(z0);
+        let far = s1.min(z1);
+        if near > far {
+            return None;
+        }
+        let (normal, top) = if near == z0 {
+            (V3::new(0.0, 0.0, -d.z.signum()), d.z < 0.0)
+        } else {
+            let q = p + d * near;
+            (V3::new(q.x, q.y, 0.0) / self.radius, false)
+        };
+        Some(Interval {
+            near,
+            far,
+            normal,
+            top,
+        })
+    }
+}
+
+/// A scene prepared for ray casting (f32, labels encoded).
+#[derive(Debug)]
+pub(crate) struct World {
+    floor_z: f32,
+    floor_color: [f32; 3],
+    prims: Vec<Prim>,
+}
+
+fn rgb(c: [u8; 3]) -> [f32; 3] {
+    c.map(f32::from)
+}
+
+impl World {
+    pub(crate) fn new(scene: &Scene) -> Result<Self, SceneError> {
+        scene.validate()?;
+        let floor_z = scene.floor.z as f32;
+        let mut prims = Vec::with_capacity(scene.boxes.len() + scene.cylinders.len());
+        for (i, b) in scene.boxes.iter().enumerate() {
+            let label = match &b.label {
+                Some(l) => {
+                    let texture = label::encode(l).map_err(|reason| SceneError::Invalid {
+                        field: format!("box[{i}].label.text"),
+                        reason,
+                    })?;
+                    let (lx, ly) = l.extent_m();
+                    Some((texture, [lx as f32, ly as f32]))
+                }
+                None => None,
+            };
+            let yaw = (b.yaw_deg as f32).to_radians();
+            let half = [b.size[0] as f32 / 2.0, b.size[1] as f32 / 2.0];
+            let height = b.size[2] as f32;
+            let center = V3::new(b.center[0] as f32, b.center[1] as f32, floor_z);
+            prims.push(Prim {
+                shape: Shape::Box(BoxPrim {
+                    center,
+                    cos: yaw.cos(),
+                    sin: yaw.sin(),
+                    half,
+                    height,
+                    label,
+                }),
+                color: rgb(b.color),
+                sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
+                sphere_radius: (half[0] * half[0] + half[1] * half[1] + height * height / 4.0)
+                    .sqrt(),
+            });
+        }
+        for c in &scene.cylinders {
+            let (radius, height) = (c.radius as f32, c.height as f32);
+            let center = V3::new(c.center[0] as f32, c.center[1] as f32, floor_z);
+            prims.push(Prim {
+                shape: Shape::Cylinder(CylPrim {
+                    center,
+                    radius,
+                    height,
+                }),
+                color: rgb(c.color),
+                sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
+                sphere_radius: (radius * radius + height * height / 4.0).sqrt(),
+            });
+        }
+        Ok(Self {
+            floor_z,
+            floor_color: rgb(scene.floor.color),
+            prims,
+        })
+    }
+
+    fn floor_t(&self, o: &V3, d: &V3) -> Option<f32> {
+        if d.z.abs() < 1e-12 {
+            return None;
+        }
+        let t = (self.floor_z - o.z) / d.z;
+        (t > T_EPS).then_some(t)
+    }
+
+    /// Nearest hit of the ray `o + t d` among the floor and the primitives `candidates`.
+    pub(crate) fn trace(
+        &self,
+        o: &V3,
+        d: &V3,
+        candidates: impl Iterator<Item = usize>,
+    ) -> Option<Hit> {
+        let mut best = self.floor_t(o, d).map(|t| Hit {
+            t,
+            normal: V3::new(0.0, 0.0, 1.0),
+            surface: Surface::Floor,
+        });
+        for index in candidates {
+            let Some(iv) = self.prims[index].interval(o, d) else {
+                continue;
+            };
+            if iv.near > T_EPS && best.is_none_or(|b| iv.near < b.t) {
+                best = Some(Hit {
+                    t: iv.near,
+                    normal: iv.normal,
+                    surface: Surface::Prim { index, top: iv.top },
+                });
+            }
+        }
+        best
+    }
+
+    /// All primitive indices.
+    pub(crate) fn all(&self) -> std::ops::Range<usize> {
+        0..self.prims.len()
+    }
+
+    /// Whether the segment from `from` to `to` passes through the floor or a primitive
+    /// of `candidates` (the start point itself does not count, nor does leaving a
+    /// surface the start point lies on).
+    pub(crate) fn occluded(
+        &self,
+        from: &V3,
+        to: &V3,
+        candidates: impl Iterator<Item = usize>,
+    ) -> bool {
+        let d = to - from;
+        if self.floor_t(from, &d).is_some_and(|t| t < 1.0 - T_EPS) {
+            return true;
+        }
+        candidates.into_iter().any(|i| {
+            self.prims[i]
+                .interval(from, &d)
+                .is_some_and(|iv| iv.far > T_EPS && iv.near < 1.0 - T_EPS)
+        })
+    }
+
+    /// Shaded color of a hit, 0..=255 per channel (not rounded).
+    pub(crate) fn shade(&self, hit: &Hit, point: &V3, ray: &V3) -> [f32; 3] {
+        let base = match hit.surface {
+            Surface::Floor => self.floor_color,
+            Surface::Prim { index, top } => {
+                let prim = &self.prims[index];
+                match &prim.shape {
+                    Shape::Box(b) if top && b.on_label(point) => {
+                        if b.label_dark(point) {
+                            LABEL_BLACK
+                        } else {
+                            LABEL_WHITE
+                        }
+                    }
+                    _ => prim.color,
+                }
+            }
+        };
+        // Face the normal towards the viewer, then Lambert from a fixed light.
+        let n = if hit.normal.dot(ray) > 0.0 {
+            -hit.normal
+        } else {
+            hit.normal
+        };
+        let lambert = n.dot(&light_direction()).max(0.0);
+        let f = AMBIENT + (1.0 - AMBIENT) * lambert;
+        base.map(|c| (c * f).min(255.0))
+    }
+
+    /// Bounding spheres in a camera's frame (centre, radius), for row culling.
+    pub(crate) fn spheres_in(&self, view: &View) -> Vec<(V3, f32)> {
+        self.prims
+            .iter()
+            .map(|p| {
+                (
+                    view.rot.transpose() * (p.sphere_center - view.origin),
+                    p.sphere_radius,
+                )
+            })
+            .collect()
+    }
+}
+
+/// Labels are printed black on white.
+const LABEL_BLACK: [f32; 3] = [25.0, 25.0, 25.0];
+const LABEL_WHITE: [f32; 3] = [245.0, 245.0, 245.0];
+/// Share of light that reaches every surface.
+const AMBIENT: f32 = 0.35;
+
+/// Direction towards the light, world frame: high, from +x and -y.
+fn light_direction() -> V3 {
+    V3::new(0.35, -0.25, 1.0).normalize()
+}
+
+/// A pinhole camera placed in the world.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct View {
+    /// Optical centre, world.
+    pub(crate) origin: V3,
+    /// Camera -> world rotation (columns: camera x, y, z in the world).
+    pub(crate) rot: Matrix3<f32>,
+    pub(crate) k: Intrinsics,
+}
+
+/// One primitive that a row of rays may hit, with the columns that may hit it.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct RowCandidate {
+    pub(crate) prim: usize,
+    pub(crate) u_lo: u32,
+    pub(crate) u_hi: u32,
+}
+
+impl View {
+    /// The view of a camera with pose `pose` (camera->world), moved by `offset`
+    /// (camera frame, metres), with intrinsics `k`.
+    pub(crate) fn new(pose: &Pose, offset: [f32; 3], k: Intrinsics) -> Self {
+        let r = &pose.rotation;
+        let rot = Matrix3::new(
+            r[0][0] as f32,
+            r[0][1] as f32,
+            r[0][2] as f32,
+            r[1][0] as f32,
+            r[1][1] as f32,
+            r[1][2] as f32,
+            r[2][0] as f32,
+            r[2][1] as f32,
+            r[2][2] as f32,
+        );
+        let t = &pose.translation;
+        let origin = V3::new(t[0] as f32, t[1] as f32, t[2] as f32)
+            + rot * V3::new(offset[0], offset[1], offset[2]);
+        Self { origin, rot, k }
+    }
+
+    /// World direction of the ray through (`u`, `v`) with unit camera-z component.
+    pub(crate) fn ray(&self, u: f32, v: f32) -> V3 {
+        let a = (u - self.k.ppx) / self.k.fx;
+        let b = (v - self.k.ppy) / self.k.fy;
+        self.rot * V3::new(a, b, 1.0)
+    }
+
+    /// (ray at column 0, change per column) for row `v`: ray(u) = base + u * step.
+    pub(crate) fn row(&self, v: f32) -> (V3, V3) {
+        (self.ray(0.0, v), self.rot.column(0) / self.k.fx)
+    }
+
+    /// The primitives that rays of row `v` may hit, with conservative column ranges.
+    pub(crate) fn row_candidates(
+        &self,
+        spheres: &[(V3, f32)],
+        v: u32,
+        out: &mut Vec<RowCandidate>,
+    ) {
+        out.clear();
+        let w = self.k.width;
+        let b = (v as f32 - self.k.ppy) / self.k.fy;
+        for (prim, (p, r)) in spheres.iter().enumerate() {
+            let all = RowCandidate {
+                prim,
+                u_lo: 0,
+                u_hi: w.saturating_sub(1),
+            };
+            // Rays (a, b, 1); the sphere is hit iff (p.d)^2 >= (|p|^2 - r^2) |d|^2 with p.d > 0.
+            let k = p.norm_squared() - r * r;
+            if k <= 0.0 {
+                out.push(all);
+                continue;
+            }
+            let q = b * p.y + p.z;
+            let qa = p.x * p.x - k;
+            if qa >= 0.0 {
+                out.push(all);
+                continue;
+            }
+            let half_b = p.x * q;
+            let c = q * q - k * (b * b + 1.0);
+            let disc = half_b * half_b - qa * c;
+            if disc < 0.0 {
+                continue;
+            }
+            let sq = disc.sqrt();
+            let (a0, a1) = ((-half_b + sq) / qa, (-half_b - sq) / qa);
+            let (a_lo, a_hi) = if a0 < a1 { (a0, a1) } else { (a1, a0) };
+            if (a_lo + a_hi) / 2.0 * p.x + q <= 0.0 {
+                continue; // behind the camera
+            }
+            let to_u = |a: f32| a * self.k.fx + self.k.ppx;
+            let u_lo = (to_u(a_lo).floor() - 1.0).max(0.0);
+            let u_hi = (to_u(a_hi).ceil() + 1.0).min(w as f32 - 1.0);
+            if u_lo <= u_hi {
+                out.push(RowCandidate {
+                    prim,
+                    u_lo: u_lo as u32,
+                    u_hi: u_hi as u32,
+                });
+            }
+        }
+    }
+}

@@ -1,0 +1,223 @@
+//! Rendering of depth and color images from a [`World`], parallel over rows.
+
+use rayon::prelude::*;
+
+use crate::backend::raycast::{RowCandidate, V3, View, World};
+use crate::d415;
+use crate::frame::ColorFormat;
+use crate::scene::Noise;
+
+/// Relative depth step between neighbouring pixels that counts as a discontinuity.
+const EDGE_STEP: f32 = 0.02;
+/// Sub-pixel rays per axis for pixels at a discontinuity.
+const EDGE_SAMPLES: u32 = 4;
+/// Dropout threshold on a 16-bit hash: 655 / 65536 ~ 1 % of pixels.
+const DROPOUT_THRESHOLD: u64 = 655;
+
+/// How to render one depth frame.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct DepthJob {
+    pub(crate) noise: Noise,
+    /// Hash key of (seed, serial, frame number).
+    pub(crate) key: u64,
+    /// Metres per Z16 unit.
+    pub(crate) depth_scale: f32,
+}
+
+/// SplitMix64's finaliser: a cheap, well-mixed 64-bit hash.
+pub(crate) fn mix64(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// Hash key of one frame: every random choice of the frame derives from it and the
+/// pixel index, so rendering order (threads) does not matter.
+pub(crate) fn frame_key(seed: u64, serial: u64, frame_number: u64) -> u64 {
+    mix64(mix64(mix64(seed) ^ serial) ^ frame_number)
+}
+
+/// A standard-normal-like sample from a hash: the sum of four 16-bit uniforms
+/// (Irwin-Hall), centred and scaled to unit variance.
+fn gaussian(h: u64) -> f32 {
+    let sum: u64 = (0..4).map(|i| (h >> (16 * i)) & 0xffff).sum();
+    // Mean of the sum: 4 * 65535 / 2; variance: 4 * (65536^2 - 1) / 12.
+    let centred = sum as f32 - 2.0 * 65535.0;
+    centred / (65536.0 * (1.0f32 / 3.0).sqrt())
+}
+
+/// Renders the depth image of `view` (the left imager) as Z16 values.
+pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u16> {
+    let (w, h) = (view.k.width as usize, view.k.height as usize);
+    let spheres = world.spheres_in(view);
+    let right_imager = view.origin + view.rot.column(0) * d415::BASELINE_M;
+    let ideal = job.noise == Noise::Ideal;
+
+    // Pass 1: exact depth at pixel centres; negative = hit but hidden from the right
+    // imager (occlusion shadow); 0 = no surface.
+    let mut exact = vec![0.0f32; w * h];
+    exact
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each_init(Vec::new, |cands, (v, row)| {
+            view.row_candidates(&spheres, v as u32, cands);
+            let (base, step) = view.row(v as f32);
+            for (u, out) in row.iter_mut().enumerate() {
+                let d = base + step * u as f32;
+                let active = cands.iter().filter(|c| in_range(c, u)).map(|c| c.prim);
+                let Some(hit) = world.trace(&view.origin, &d, active) else {
+                    continue;
+                };
+                let shadowed = !ideal && {
+                    let p = view.origin + d * hit.t;
+                    world.occluded(&p, &right_imager, cands.iter().map(|c| c.prim))
+                };
+                *out = if shadowed { -hit.t } else { hit.t };
+            }
+        });
+
+    // Pass 2: the sensor model.
+    let mut raw = vec![0u16; w * h];
+    let min_range = d415::min_range_m(view.k.fx);
+    let disparity_factor = view.k.fx * d415::BASELINE_M;
+    raw.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
+        for (u, out) in row.iter_mut().enumerate() {
+            let z = exact[v * w + u];
+            if ideal {
+                *out = quantize(z, job.depth_scale);
+                continue;
+            }
+            if z <= 0.0 {
+                continue;
+            }
+            let index = (v * w + u) as u64;
+            let hash = mix64(job.key ^ index.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            if hash >> 48 < DROPOUT_THRESHOLD {
+                continue;
+            }
+            let z = if at_edge(&exact, w, h, u, v, z) {
+                supersample(world, view, &right_imager, u, v)
+            } else {
+                z
+            };
+            if !(min_range..=d415::MAX_RANGE_M).contains(&z) {
+                continue;
+            }
+            // Stereo noise lives in disparity: d = fx B / z, sigma_d = subpixel.
+            let disparity = disparity_factor / z + d415::SUBPIXEL_RMS_PX * gaussian(mix64(hash));
+            if disparity > 0.0 {
+                *out = quantize(disparity_factor / disparity, job.depth_scale);
+            }
+        }
+    });
+    raw
+}
+
+fn in_range(c: &RowCandidate, u: usize) -> bool {
+    (c.u_lo as usize..=c.u_hi as usize).contains(&u)
+}
+
+fn quantize(z: f32, scale: f32) -> u16 {
+    if z <= 0.0 {
+        return 0;
+    }
+    let units = (z / scale).round();
+    if (1.0..=65535.0).contains(&units) {
+        units as u16
+    } else {
+        0
+    }
+}
+
+/// Whether a 4-neighbour sees a surface at a clearly different depth.
+fn at_edge(exact: &[f32], w: usize, h: usize, u: usize, v: usize, z: f32) -> bool {
+    let neighbours = [
+        (u > 0).then(|| exact[v * w + u - 1]),
+        (u + 1 < w).then(|| exact[v * w + u + 1]),
+        (v > 0).then(|| exact[(v - 1) * w + u]),
+        (v + 1 < h).then(|| exact[(v + 1) * w + u]),
+    ];
+    neighbours
+        .into_iter()
+        .flatten()
+        .filter(|n| *n != 0.0)
+        .any(|n| (n.abs() - z).abs() > EDGE_STEP * z)
+}
+
+/// Depth a stereo match over the pixel's footprint reports at a discontinuity: the
+/// mean depth of the sub-pixel rays that both imagers see (a flying pixel when the
+/// footprint straddles two surfaces); 0 if none.
+fn supersample(world: &World, view: &View, right_imager: &V3, u: usize, v: usize) -> f32 {
+    let n = EDGE_SAMPLES;
+    let mut sum = 0.0;
+    let mut count = 0u32;
+    for j in 0..n {
+        for i in 0..n {
+            let su = u as f32 + (i as f32 + 0.5) / n as f32 - 0.5;
+            let sv = v as f32 + (j as f32 + 0.5) / n as f32 - 0.5;
+            let d = view.ray(su, sv);
+            let Some(hit) = world.trace(&view.origin, &d, world.all()) else {
+                continue;
+            };
+            let p = view.origin + d * hit.t;
+            if !world.occluded(&p, right_imager, world.all()) {
+                sum += hit.t;
+                count += 1;
+            }
+        }
+    }
+    if count == 0 { 0.0 } else { sum / count as f32 }
+}
+
+/// Color of rays that hit nothing (above the horizon).
+const BACKGROUND: [u8; 3] = [40, 40, 48];
+
+/// Renders the color image of `view` in `format`, rows `stride` bytes apart.
+pub(crate) fn render_color(world: &World, view: &View, format: ColorFormat) -> Vec<u8> {
+    let (w, h) = (view.k.width as usize, view.k.height as usize);
+    let bpp = format.bytes_per_pixel();
+    let spheres = world.spheres_in(view);
+    let mut data = vec![0u8; w * h * bpp];
+    data.par_chunks_mut(w * bpp)
+        .enumerate()
+        .for_each_init(Vec::new, |cands, (v, row)| {
+            view.row_candidates(&spheres, v as u32, cands);
+            let (base, step) = view.row(v as f32);
+            for (u, px) in row.chunks_exact_mut(bpp).enumerate() {
+                let d = base + step * u as f32;
+                let active = cands.iter().filter(|c| in_range(c, u)).map(|c| c.prim);
+                let rgb = match world.trace(&view.origin, &d, active) {
+                    Some(hit) => {
+                        let p = view.origin + d * hit.t;
+                        world.shade(&hit, &p, &d).map(|c| c.round() as u8)
+                    }
+                    None => BACKGROUND,
+                };
+                format.write_pixel(rgb, px);
+            }
+        });
+    data
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gaussian_has_unit_variance_and_zero_mean() {
+        let n = 200_000u64;
+        let samples: Vec<f64> = (0..n).map(|i| f64::from(gaussian(mix64(i)))).collect();
+        let mean = samples.iter().sum::<f64>() / n as f64;
+        let var = samples.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / n as f64;
+        assert!(mean.abs() < 0.01, "{mean}");
+        assert!((var - 1.0).abs() < 0.02, "{var}");
+    }
+
+    #[test]
+    fn quantize_rounds_and_refuses_what_z16_cannot_hold() {
+        assert_eq!(quantize(1.0004, 0.001), 1000);
+        assert_eq!(quantize(1.0006, 0.001), 1001);
+        assert_eq!(quantize(70.0, 0.001), 0);
+        assert_eq!(quantize(-1.0, 0.001), 0);
+    }
+}

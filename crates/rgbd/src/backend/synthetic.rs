@@ -1,0 +1,349 @@
+//! The synthetic D415: renders a [`Scene`] as a D415 would see it.
+//!
+//! Depth is rendered from the left imager (the depth origin) with D415 intrinsics for
+//! the current depth mode. With noise `"d415"` each pixel goes through this model:
+//!
+//! 1. exact depth z along the camera's z axis at the pixel centre (ray casting);
+//! 2. 0 if the surface point is hidden from the right imager (55 mm along +x): the
+//!    occlusion shadow beside depth edges;
+//! 3. 0 for about 1 % of pixels at random (dropout);
+//! 4. at a depth discontinuity (a 4-neighbour differs by more than 2 % of z) the
+//!    pixel takes the mean depth of 4x4 sub-pixel rays seen by both imagers, so
+//!    pixels straddling an edge "fly" between the two surfaces;
+//! 5. 0 nearer than the minimum range fx * 55 mm / 126 px (0.39 m at 1280x720,
+//!    scaling with the mode's fx) or beyond 10 m;
+//! 6. stereo noise added in disparity: d = fx B / z plus a zero-mean sample of
+//!    standard deviation 0.08 px, z = fx B / d; to first order the depth error has
+//!    sigma = z^2 * 0.08 / (fx * 0.055 m), Intel's RMS formula;
+//! 7. rounded to depth units (0 if it does not fit in 16 bits).
+//!
+//! Every random choice comes from a counter-based hash of (scene seed, serial, frame
+//! number, pixel index), so a frame's bytes depend on nothing else (not on threads).
+//!
+//! Noise `"ideal"` means: step 1 and step 7 only: the exact depth at every pixel centre
+//! where a ray hits a surface, rounded to the nearest depth unit; no shadows, no
+//! dropout, no flying pixels, no range limits, no noise. 0 only where the ray hits
+//! nothing or the depth does not fit in 16 bits.
+//!
+//! Color is rendered from the color camera (15 mm from the left imager, see
+//! [`d415::DEPTH_TO_COLOR_X_M`]) with its own intrinsics: flat colors shaded by one
+//! fixed directional light (ambient + Lambert), labels as black and white modules on
+//! the box's top face. No noise.
+//!
+//! Grabs deliver frames at once unless a frame delay is set
+//! ([`SyntheticCamera::set_frame_delay`]); a grab whose timeout is shorter than the
+//! delay fails with [`CameraError::Timeout`] after waiting the timeout. A camera set
+//! disconnected ([`SyntheticCamera::set_connected`]) fails grabs with
+//! [`CameraError::Disconnected`].
+
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use crate::advanced::{AdvancedConfig, VisualPreset};
+use crate::backend::raycast::{View, World};
+use crate::backend::render::{self, DepthJob};
+use crate::camera::{Camera, CameraError, Serial};
+use crate::d415;
+use crate::frame::{ColorFrame, DepthFrame};
+use crate::intrinsics::{Extrinsics, Intrinsics, Pose};
+use crate::mode::{ModeTable, Stream};
+use crate::scene::{Noise, Scene, SceneError};
+use crate::settings::{ColorSettings, DepthSettings};
+
+#[derive(Debug)]
+struct State {
+    color: ColorSettings,
+    depth: DepthSettings,
+    advanced: AdvancedConfig,
+    depth_frames: u64,
+    color_frames: u64,
+    last_timestamp_us: u64,
+    connected: bool,
+    frame_delay: Duration,
+}
+
+/// A synthetic Intel RealSense D415 looking at a scene.
+#[derive(Debug)]
+pub struct SyntheticCamera {
+    serial: Serial,
+    noise: Noise,
+    seed: u64,
+    pose: Pose,
+    calibrated: bool,
+    world: Arc<World>,
+    modes: ModeTable,
+    state: Mutex<State>,
+}
+
+impl SyntheticCamera {
+    /// The scene's camera with this serial.
+    pub fn new(scene: &Scene, serial: &Serial) -> Result<Self, SceneError> {
+        let world = Arc::new(World::new(scene)?);
+        Self::with_world(scene, serial, world)
+    }
+
+    /// Every camera of the scene, sharing one prepared scene.
+    pub fn all(scene: &Scene) -> Result<Vec<Arc<Self>>, SceneError> {
+        let world = Arc::new(World::new(scene)?);
+        scene
+            .cameras
+            .iter()
+            .map(|c| Self::with_world(scene, &c.serial, Arc::clone(&world)).map(Arc::new))
+            .collect()
+    }
+
+    fn with_world(scene: &Scene, serial: &Serial, world: Arc<World>) -> Result<Self, SceneError> {
+        let invalid = |reason: &str| SceneError::Invalid {
+            field: format!("camera {serial}"),
+            reason: reason.to_owned(),
+        };
+        let cam = scene
+            .camera(serial)
+            .ok_or_else(|| invalid("no camera with this serial in the scene"))?;
+        let pose = cam
+            .pose()
+            .ok_or_else(|| invalid("look_at and up do not define a pose"))?;
+        Ok(Self {
+            serial: *serial,
+            noise: cam.noise,
+            seed: scene.seed,
+            pose,
+            calibrated: cam.calibrated,
+            world,
+            modes: ModeTable::d415(),
+            state: Mutex::new(State {
+                color: ColorSettings::default(),
+                depth: DepthSettings::default(),
+                advanced: AdvancedConfig::preset(VisualPreset::Default),
+                depth_frames: 0,
+                color_frames: 0,
+                last_timestamp_us: 0,
+                connected: true,
+                frame_delay: Duration::ZERO,
+            }),
+        })
+    }
+
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // State updates are single assignments; a panicking holder leaves it consistent.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// How this camera renders depth.
+    pub fn noise(&self) -> Noise {
+        self.noise
+    }
+
+    /// Simulates plugging the camera in (`true`) or pulling it out (`false`).
+    pub fn set_connected(&self, connected: bool) {
+        self.lock().connected = connected;
+    }
+
+    /// Time a frame takes to arrive after a grab starts (default zero).
+    pub fn set_frame_delay(&self, delay: Duration) {
+        self.lock().frame_delay = delay;
+    }
+
+    fn depth_scale_of(state: &State) -> f32 {
+        state
+            .advanced
+            .depth_units_um()
+            .map_or(DepthFrame::DEFAULT_DEPTH_SCALE, |um| um as f32 * 1e-6)
+    }
+
+    /// Renders depth frame `frame_number` with the current settings, without
+    /// touching the frame counter. `timestamp_us` is the device clock: microseconds
+    /// since stream start at the mode's frame rate. Same scene seed, serial, settings
+    /// and frame number give identical data.
+    pub fn render_depth(&self, frame_number: u64) -> DepthFrame {
+        let (settings, depth_scale) = {
+            let s = self.lock();
+            (s.depth, Self::depth_scale_of(&s))
+        };
+        let k = d415::depth_intrinsics(settings.width, settings.height);
+        let view = View::new(&self.pose, [0.0; 3], k);
+        let job = DepthJob {
+            noise: self.noise,
+            key: render::frame_key(self.seed, self.serial.as_u64(), frame_number),
+            depth_scale,
+        };
+        DepthFrame {
+            width: settings.width,
+            height: settings.height,
+            stride: settings.width as usize,
+            depth_scale,
+            timestamp_us: device_time_us(frame_number, settings.fps),
+            frame_number,
+            data: render::render_depth(&self.world, &view, &job),
+        }
+    }
+
+    /// Renders color frame `frame_number` with the current settings, without touching
+    /// the frame counter (timestamps as [`SyntheticCamera::render_depth`]).
+    pub fn render_color(&self, frame_number: u64) -> ColorFrame {
+        let settings = self.lock().color;
+        let k = d415::color_intrinsics(settings.width, settings.height);
+        let view = View::new(&self.pose, color_offset(), k);
+        ColorFrame {
+            format: settings.format,
+            width: settings.width,
+            height: settings.height,
+            stride: settings.width as usize * settings.format.bytes_per_pixel(),
+            timestamp_us: device_time_us(frame_number, settings.fps),
+            frame_number,
+            data: render::render_color(&self.world, &view, settings.format),
+        }
+    }
+
+    /// Waits for the next frame (frame delay vs timeout) and returns
+    /// (frame number, wall-clock timestamp in µs).
+    fn next_frame(&self, stream: Stream, timeout: Duration) -> Result<(u64, u64), CameraError> {
+        let delay = {
+            let s = self.lock();
+            if !s.connected {
+                return Err(CameraError::Disconnected {
+                    serial: self.serial,
+                });
+            }
+            s.frame_delay
+        };
+        if delay > timeout {
+            std::thread::sleep(timeout);
+            return Err(CameraError::Timeout {
+                timeout_ms: timeout.as_millis().try_into().unwrap_or(u64::MAX),
+            });
+        }
+        std::thread::sleep(delay);
+        let mut s = self.lock();
+        if !s.connected {
+            return Err(CameraError::Disconnected {
+                serial: self.serial,
+            });
+        }
+        let counter = match stream {
+            Stream::Color => &mut s.color_frames,
+            Stream::Depth => &mut s.depth_frames,
+        };
+        *counter += 1;
+        let frame_number = *counter;
+        let now_us = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros().try_into().unwrap_or(u64::MAX));
+        let timestamp_us = now_us.max(s.last_timestamp_us + 1);
+        s.last_timestamp_us = timestamp_us;
+        Ok((frame_number, timestamp_us))
+    }
+}
+
+/// Optical centre of the color camera in the depth frame.
+fn color_offset() -> [f32; 3] {
+    let t = d415::depth_to_color().translation;
+    [-t[0], -t[1], -t[2]]
+}
+
+fn device_time_us(frame_number: u64, fps: u32) -> u64 {
+    frame_number.saturating_mul(1_000_000) / u64::from(fps.max(1))
+}
+
+impl Camera for SyntheticCamera {
+    fn serial(&self) -> Serial {
+        self.serial
+    }
+
+    fn model(&self) -> &str {
+        d415::MODEL_NAME
+    }
+
+    fn stream_modes(&self) -> &ModeTable {
+        &self.modes
+    }
+
+    fn color_settings(&self) -> ColorSettings {
+        self.lock().color
+    }
+
+    fn set_color_settings(&self, settings: ColorSettings) -> Result<(), CameraError> {
+        settings.validate(&self.modes)?;
+        self.lock().color = settings;
+        Ok(())
+    }
+
+    fn depth_settings(&self) -> DepthSettings {
+        self.lock().depth
+    }
+
+    fn set_depth_settings(&self, settings: DepthSettings) -> Result<(), CameraError> {
+        settings.validate(&self.modes)?;
+        self.lock().depth = settings;
+        Ok(())
+    }
+
+    fn grab_color(&self, timeout: Duration) -> Result<ColorFrame, CameraError> {
+        let (frame_number, timestamp_us) = self.next_frame(Stream::Color, timeout)?;
+        let mut frame = self.render_color(frame_number);
+        frame.timestamp_us = timestamp_us;
+        Ok(frame)
+    }
+
+    fn grab_depth(&self, timeout: Duration) -> Result<DepthFrame, CameraError> {
+        let (frame_number, timestamp_us) = self.next_frame(Stream::Depth, timeout)?;
+        let mut frame = self.render_depth(frame_number);
+        frame.timestamp_us = timestamp_us;
+        Ok(frame)
+    }
+
+    fn depth_intrinsics(&self) -> Result<Intrinsics, CameraError> {
+        let s = self.lock().depth;
+        Ok(d415::depth_intrinsics(s.width, s.height))
+    }
+
+    fn color_intrinsics(&self) -> Result<Intrinsics, CameraError> {
+        let s = self.lock().color;
+        Ok(d415::color_intrinsics(s.width, s.height))
+    }
+
+    fn depth_to_color(&self) -> Result<Extrinsics, CameraError> {
+        Ok(d415::depth_to_color())
+    }
+
+    fn depth_scale(&self) -> f32 {
+        Self::depth_scale_of(&self.lock())
+    }
+
+    fn advanced_config(&self) -> Result<AdvancedConfig, CameraError> {
+        let s = self.lock();
+        let mut doc = s.advanced.clone();
+        // The stream keys describe the current depth mode.
+        for (key, value) in [
+            ("stream-depth-format", s.depth.format.name().to_owned()),
+            ("stream-fps", s.depth.fps.to_string()),
+            ("stream-width", s.depth.width.to_string()),
+            ("stream-height", s.depth.height.to_string()),
+        ] {
+            doc.set(key, &value)?;
+        }
+        Ok(doc)
+    }
+
+    fn set_advanced_config(&self, config: &AdvancedConfig) -> Result<(), CameraError> {
+        let mut s = self.lock();
+        let mut depth = s.depth;
+        let number = |key: &str, current: u32| {
+            config
+                .get(key)
+                .and_then(|v| v.trim().parse::<u32>().ok())
+                .unwrap_or(current)
+        };
+        depth.fps = number("stream-fps", depth.fps);
+        depth.width = number("stream-width", depth.width);
+        depth.height = number("stream-height", depth.height);
+        depth.validate(&self.modes)?;
+        s.advanced.merge(config);
+        s.depth = depth;
+        Ok(())
+    }
+
+    fn true_pose(&self) -> Option<Pose> {
+        self.calibrated.then_some(self.pose)
+    }
+}

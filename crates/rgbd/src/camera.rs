@@ -1,0 +1,301 @@
+//! The `Camera` trait every backend implements, and the `CameraHub` that tracks
+//! which cameras are connected (hot-plug).
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::sync::mpsc::{self, Receiver, Sender};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
+
+use crate::advanced::{AdvancedConfig, AdvancedError};
+use crate::frame::{ColorFrame, DepthFrame};
+use crate::intrinsics::{Extrinsics, Intrinsics, Pose};
+use crate::mode::{ModeError, ModeTable};
+use crate::settings::{ColorSettings, DepthSettings};
+
+/// A camera serial number: exactly 12 ASCII digits (thesis §3.3.3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Serial([u8; 12]);
+
+/// Why a text is not a serial number.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("serial number must be 12 ASCII digits, got {0:?}")]
+pub struct SerialError(pub String);
+
+impl Serial {
+    /// Parses exactly 12 ASCII digits (no surrounding whitespace).
+    pub fn parse(text: &str) -> Result<Self, SerialError> {
+        let bytes: [u8; 12] = text
+            .as_bytes()
+            .try_into()
+            .map_err(|_| SerialError(text.to_owned()))?;
+        if bytes.iter().all(u8::is_ascii_digit) {
+            Ok(Self(bytes))
+        } else {
+            Err(SerialError(text.to_owned()))
+        }
+    }
+
+    /// A serial from digits the caller knows are ASCII digits (built-in scenes).
+    pub(crate) const fn from_digits(digits: [u8; 12]) -> Self {
+        Self(digits)
+    }
+
+    /// The 12 digits.
+    pub fn as_str(&self) -> &str {
+        // The bytes are ASCII digits (checked in `parse`), so this never falls back.
+        std::str::from_utf8(&self.0).unwrap_or_default()
+    }
+
+    /// The serial as a number (for seeding).
+    pub fn as_u64(&self) -> u64 {
+        self.0
+            .iter()
+            .fold(0, |acc, d| acc * 10 + u64::from(d - b'0'))
+    }
+}
+
+impl fmt::Display for Serial {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for Serial {
+    type Err = SerialError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::parse(s)
+    }
+}
+
+/// A setting the camera refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SettingError {
+    /// A color or depth mode outside the camera's table.
+    #[error(transparent)]
+    Mode(#[from] ModeError),
+    /// An advanced-config document the camera cannot load.
+    #[error(transparent)]
+    Advanced(#[from] AdvancedError),
+}
+
+/// Errors of camera operations.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum CameraError {
+    /// No frame arrived within the timeout.
+    #[error("no frame within {timeout_ms} ms")]
+    Timeout {
+        /// The timeout that passed.
+        timeout_ms: u64,
+    },
+    /// The camera is gone.
+    #[error("camera {serial} is disconnected")]
+    Disconnected {
+        /// Its serial number.
+        serial: Serial,
+    },
+    /// A setting was refused; nothing was changed.
+    #[error("invalid setting: {0}")]
+    InvalidSetting(#[from] SettingError),
+}
+
+impl From<ModeError> for CameraError {
+    fn from(e: ModeError) -> Self {
+        Self::InvalidSetting(SettingError::Mode(e))
+    }
+}
+
+impl From<AdvancedError> for CameraError {
+    fn from(e: AdvancedError) -> Self {
+        Self::InvalidSetting(SettingError::Advanced(e))
+    }
+}
+
+/// An RGB-D camera. Object-safe; shared as `Arc<dyn Camera>` between threads.
+/// Methods block (a grab waits for a frame); call them off async executors.
+pub trait Camera: Send + Sync {
+    /// Serial number.
+    fn serial(&self) -> Serial;
+
+    /// Product name, e.g. "Intel RealSense D415".
+    fn model(&self) -> &str;
+
+    /// The stream modes the camera offers.
+    fn stream_modes(&self) -> &ModeTable;
+
+    /// Current color settings.
+    fn color_settings(&self) -> ColorSettings;
+
+    /// Changes the color settings after checking them against the mode table.
+    fn set_color_settings(&self, settings: ColorSettings) -> Result<(), CameraError>;
+
+    /// Current depth settings.
+    fn depth_settings(&self) -> DepthSettings;
+
+    /// Changes the depth settings after checking them against the mode table.
+    fn set_depth_settings(&self, settings: DepthSettings) -> Result<(), CameraError>;
+
+    /// Waits at most `timeout` for a new color frame.
+    fn grab_color(&self, timeout: Duration) -> Result<ColorFrame, CameraError>;
+
+    /// Waits at most `timeout` for a new depth frame.
+    fn grab_depth(&self, timeout: Duration) -> Result<DepthFrame, CameraError>;
+
+    /// Intrinsics of the depth stream in its current mode.
+    fn depth_intrinsics(&self) -> Result<Intrinsics, CameraError>;
+
+    /// Intrinsics of the color stream in its current mode.
+    fn color_intrinsics(&self) -> Result<Intrinsics, CameraError>;
+
+    /// Transform from the depth frame to the color frame.
+    fn depth_to_color(&self) -> Result<Extrinsics, CameraError>;
+
+    /// Metres per raw depth unit.
+    fn depth_scale(&self) -> f32;
+
+    /// The complete advanced-config document (Listing A.5).
+    fn advanced_config(&self) -> Result<AdvancedConfig, CameraError>;
+
+    /// Loads an advanced-config document (possibly partial, as `rs2_load_json`).
+    fn set_advanced_config(&self, config: &AdvancedConfig) -> Result<(), CameraError>;
+
+    /// The calibrated pose of the depth frame in the world, when the camera knows it
+    /// (a synthetic camera with `calibrated = true`), so a server can preload its
+    /// 3d-transformation; `None` otherwise.
+    fn true_pose(&self) -> Option<Pose>;
+}
+
+/// A camera appeared or disappeared.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HubEvent {
+    /// A camera with this serial is now in the hub.
+    Added(Serial),
+    /// The camera with this serial left the hub.
+    Removed(Serial),
+}
+
+/// Errors of hub operations.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum HubError {
+    /// A camera with the same serial is already in the hub.
+    #[error("a camera with serial {0} is already connected")]
+    Duplicate(Serial),
+}
+
+#[derive(Default)]
+struct HubInner {
+    cameras: BTreeMap<Serial, Arc<dyn Camera>>,
+    subscribers: Vec<Sender<HubEvent>>,
+}
+
+impl HubInner {
+    fn publish(&mut self, event: HubEvent) {
+        self.subscribers.retain(|s| s.send(event).is_ok());
+    }
+}
+
+/// The connected cameras, by serial. Backends add and remove cameras as they come and
+/// go; subscribers receive [`HubEvent`]s in order.
+#[derive(Default)]
+pub struct CameraHub {
+    inner: Mutex<HubInner>,
+}
+
+impl fmt::Debug for CameraHub {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("CameraHub")
+            .field("serials", &self.serials())
+            .finish()
+    }
+}
+
+impl CameraHub {
+    /// An empty hub.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn lock(&self) -> MutexGuard<'_, HubInner> {
+        // The map stays consistent even if a holder panicked: every update is one insert
+        // or remove.
+        self.inner.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Adds a camera and tells subscribers.
+    pub fn add(&self, camera: Arc<dyn Camera>) -> Result<(), HubError> {
+        let serial = camera.serial();
+        let mut inner = self.lock();
+        if inner.cameras.contains_key(&serial) {
+            return Err(HubError::Duplicate(serial));
+        }
+        inner.cameras.insert(serial, camera);
+        inner.publish(HubEvent::Added(serial));
+        Ok(())
+    }
+
+    /// Removes a camera and tells subscribers; returns it, or `None` if it was not here.
+    pub fn remove(&self, serial: &Serial) -> Option<Arc<dyn Camera>> {
+        let mut inner = self.lock();
+        let camera = inner.cameras.remove(serial)?;
+        inner.publish(HubEvent::Removed(*serial));
+        Some(camera)
+    }
+
+    /// The camera with this serial.
+    pub fn get(&self, serial: &Serial) -> Option<Arc<dyn Camera>> {
+        self.lock().cameras.get(serial).cloned()
+    }
+
+    /// Serials of the connected cameras, ascending.
+    pub fn serials(&self) -> Vec<Serial> {
+        self.lock().cameras.keys().copied().collect()
+    }
+
+    /// The connected cameras, by ascending serial.
+    pub fn cameras(&self) -> Vec<Arc<dyn Camera>> {
+        self.lock().cameras.values().cloned().collect()
+    }
+
+    /// A receiver of hub events. It first receives `Added` for every camera already
+    /// connected, then every later change, so a subscriber never misses a camera.
+    /// Dropping the receiver unsubscribes.
+    pub fn subscribe(&self) -> Receiver<HubEvent> {
+        let (tx, rx) = mpsc::channel();
+        let mut inner = self.lock();
+        for serial in inner.cameras.keys() {
+            // The receiver is alive: it is returned below.
+            let _ = tx.send(HubEvent::Added(*serial));
+        }
+        inner.subscribers.push(tx);
+        rx
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn serial_takes_exactly_twelve_digits() {
+        assert_eq!(
+            Serial::parse("840412060746").unwrap().as_str(),
+            "840412060746"
+        );
+        assert_eq!(
+            Serial::parse("840412060746").unwrap().as_u64(),
+            840_412_060_746
+        );
+        for bad in [
+            "84041206074",
+            "8404120607460",
+            "84041206074a",
+            " 84041206074",
+            "",
+        ] {
+            assert!(Serial::parse(bad).is_err(), "{bad:?}");
+        }
+    }
+}

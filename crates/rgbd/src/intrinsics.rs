@@ -1,0 +1,217 @@
+//! Camera intrinsics and extrinsics as librealsense defines them, and
+//! pixel <-> point conversion.
+//!
+//! Camera frame (librealsense): x right, y down, z forward, metres, origin at the
+//! optical centre of the stream (the left imager for depth).
+
+use serde::{Deserialize, Serialize};
+
+/// Lens distortion models, named as librealsense's `rs2_distortion`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum DistortionModel {
+    /// Rectilinear image, no distortion.
+    None,
+    /// Forward Brown-Conrady applied to the already distorted image
+    /// (cannot be deprojected).
+    ModifiedBrownConrady,
+    /// Inverse Brown-Conrady (librealsense's label for D400 color streams).
+    InverseBrownConrady,
+    /// Brown-Conrady as OpenCV (D400 depth streams, with all coefficients zero).
+    BrownConrady,
+    /// Kannala-Brandt fisheye with four coefficients.
+    KannalaBrandt4,
+}
+
+impl DistortionModel {
+    /// The name librealsense prints for the model ("Brown Conrady", ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "None",
+            Self::ModifiedBrownConrady => "Modified Brown Conrady",
+            Self::InverseBrownConrady => "Inverse Brown Conrady",
+            Self::BrownConrady => "Brown Conrady",
+            Self::KannalaBrandt4 => "Kannala Brandt4",
+        }
+    }
+}
+
+/// Intrinsics of one stream at one resolution (`rs2_intrinsics`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Intrinsics {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Principal point, pixels from the left edge.
+    pub ppx: f32,
+    /// Principal point, pixels from the top edge.
+    pub ppy: f32,
+    /// Focal length in multiples of the pixel width.
+    pub fx: f32,
+    /// Focal length in multiples of the pixel height.
+    pub fy: f32,
+    /// Distortion model of `coeffs`.
+    pub model: DistortionModel,
+    /// `[k1, k2, p1, p2, k3]` for the Brown models, `[k1, k2, k3, k4, 0]` for Kannala-Brandt.
+    pub coeffs: [f32; 5],
+}
+
+/// Why a pixel could not be turned into a point.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DeprojectError {
+    /// The intrinsics use a distortion this crate does not invert yet.
+    #[error("deprojection with the {} model and non-zero coefficients is not supported", .0.name())]
+    UnsupportedDistortion(DistortionModel),
+}
+
+impl Intrinsics {
+    /// True when the image is a plain pinhole projection: model `None`, or a Brown
+    /// model whose coefficients are all zero (librealsense then skips the distortion
+    /// step, as for every D400 depth stream).
+    pub fn is_pinhole(&self) -> bool {
+        match self.model {
+            DistortionModel::None => true,
+            DistortionModel::BrownConrady
+            | DistortionModel::InverseBrownConrady
+            | DistortionModel::ModifiedBrownConrady => {
+                self.coeffs.iter().all(|c| c.abs() < f32::EPSILON)
+            }
+            DistortionModel::KannalaBrandt4 => false,
+        }
+    }
+
+    /// The 3D point (metres, camera frame) seen at `pixel` (`[u, v]`, pixel units,
+    /// integer values at pixel centres as librealsense's point cloud uses them) at
+    /// depth `depth_m` along z. Same arithmetic as `rs2_deproject_pixel_to_point`
+    /// for pinhole intrinsics.
+    pub fn deproject(&self, pixel: [f32; 2], depth_m: f32) -> Result<[f32; 3], DeprojectError> {
+        if !self.is_pinhole() {
+            return Err(DeprojectError::UnsupportedDistortion(self.model));
+        }
+        let x = (pixel[0] - self.ppx) / self.fx;
+        let y = (pixel[1] - self.ppy) / self.fy;
+        Ok([depth_m * x, depth_m * y, depth_m])
+    }
+
+    /// The pixel at which `point` (metres, camera frame, z > 0) is seen; same
+    /// arithmetic as `rs2_project_point_to_pixel` for pinhole intrinsics.
+    pub fn project(&self, point: [f32; 3]) -> Result<[f32; 2], DeprojectError> {
+        if !self.is_pinhole() {
+            return Err(DeprojectError::UnsupportedDistortion(self.model));
+        }
+        let x = point[0] / point[2];
+        let y = point[1] / point[2];
+        Ok([x * self.fx + self.ppx, y * self.fy + self.ppy])
+    }
+}
+
+/// Rigid transform from one stream's frame to another's (`rs2_extrinsics`):
+/// `to = R * from + t`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Extrinsics {
+    /// 3x3 rotation, column-major as librealsense stores it.
+    pub rotation: [f32; 9],
+    /// Translation in metres.
+    pub translation: [f32; 3],
+}
+
+impl Extrinsics {
+    /// The identity transform.
+    pub const IDENTITY: Self = Self {
+        rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        translation: [0.0; 3],
+    };
+
+    /// Transforms `point` (`rs2_transform_point_to_point`).
+    pub fn transform(&self, point: [f32; 3]) -> [f32; 3] {
+        let r = &self.rotation;
+        let [x, y, z] = point;
+        [
+            r[0] * x + r[3] * y + r[6] * z + self.translation[0],
+            r[1] * x + r[4] * y + r[7] * z + self.translation[1],
+            r[2] * x + r[5] * y + r[8] * z + self.translation[2],
+        ]
+    }
+}
+
+/// Pose of a camera's depth frame in the world (z up, metres): `world = R * camera + t`.
+/// This is the rotation and translation of the 3d-transformation resource
+/// (thesis Listing A.4) with unit scales and no post transform.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// 3x3 rotation, row-major (`rotation[row][col]`), as Listing A.4 writes it.
+    pub rotation: [[f64; 3]; 3],
+    /// Position of the camera's optical centre in the world, metres.
+    pub translation: [f64; 3],
+}
+
+impl Pose {
+    /// Transforms a camera-frame point into the world.
+    pub fn transform_point(&self, p: [f64; 3]) -> [f64; 3] {
+        let r = &self.rotation;
+        let t = &self.translation;
+        [
+            r[0][0] * p[0] + r[0][1] * p[1] + r[0][2] * p[2] + t[0],
+            r[1][0] * p[0] + r[1][1] * p[1] + r[1][2] * p[2] + t[1],
+            r[2][0] * p[0] + r[2][1] * p[1] + r[2][2] * p[2] + t[2],
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pinhole() -> Intrinsics {
+        Intrinsics {
+            width: 1280,
+            height: 720,
+            ppx: 637.0,
+            ppy: 364.0,
+            fx: 896.0,
+            fy: 896.0,
+            model: DistortionModel::BrownConrady,
+            coeffs: [0.0; 5],
+        }
+    }
+
+    #[test]
+    fn deproject_then_project_returns_the_pixel() {
+        let k = pinhole();
+        let p = k.deproject([100.0, 600.0], 1.25).unwrap();
+        let px = k.project(p).unwrap();
+        assert!((px[0] - 100.0).abs() < 1e-3 && (px[1] - 600.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn principal_point_deprojects_onto_the_optical_axis() {
+        assert_eq!(
+            pinhole().deproject([637.0, 364.0], 2.0).unwrap(),
+            [0.0, 0.0, 2.0]
+        );
+    }
+
+    #[test]
+    fn distorted_models_are_refused_not_guessed() {
+        let mut k = pinhole();
+        k.model = DistortionModel::InverseBrownConrady;
+        k.coeffs[0] = 0.1;
+        assert_eq!(
+            k.deproject([0.0, 0.0], 1.0),
+            Err(DeprojectError::UnsupportedDistortion(
+                DistortionModel::InverseBrownConrady
+            ))
+        );
+    }
+
+    #[test]
+    fn extrinsics_rotation_is_column_major() {
+        // 90 degrees about z: x -> y.
+        let e = Extrinsics {
+            rotation: [0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            translation: [0.5, 0.0, 0.0],
+        };
+        assert_eq!(e.transform([1.0, 0.0, 0.0]), [0.5, 1.0, 0.0]);
+    }
+}

@@ -1,0 +1,474 @@
+//! Scene files for the synthetic camera (DESIGN.md §7): TOML, world frame in metres,
+//! z up, floor at `floor.z` (0 by default).
+//!
+//! ```toml
+//! seed = 7
+//! [floor]
+//! z = 0.0
+//! color = [120, 120, 120]
+//!
+//! [[camera]]
+//! serial = "840412060746"
+//! position = [0.0, 0.0, 1.0]
+//! look_at = [0.0, 0.0, 0.0]
+//! up = [0.0, 1.0, 0.0]        # optional
+//! noise = "d415"              # or "ideal"
+//! calibrated = true
+//!
+//! [[box]]
+//! size = [0.40, 0.30, 0.20]   # length (along x before yaw), width, height
+//! center = [0.0, 0.0]         # footprint centre on the floor
+//! yaw_deg = 15.0
+//! color = [180, 140, 90]
+//! label = { kind = "qr", text = "PKG-0001", size = 0.08 }
+//!
+//! [[cylinder]]
+//! radius = 0.10
+//! height = 0.25
+//! center = [0.3, -0.2]
+//! ```
+//!
+//! Defaults: `seed` 0, floor at z = 0 colored [120, 120, 120], `up` world +z unless the
+//! camera looks (nearly) straight up or down, then world +y; `noise` "d415";
+//! `calibrated` false; box color [180, 140, 90]; cylinder color [70, 110, 160].
+//! A label lies centred on the box's top face, its x along the box's length. Its `size`
+//! is its width in metres; a QR label is square, a Code 128 label is half as tall as
+//! wide. Both carry a white quiet zone.
+
+use std::path::Path;
+
+use serde::Deserialize;
+
+use crate::camera::Serial;
+use crate::intrinsics::Pose;
+
+/// How a scene camera's depth is rendered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Noise {
+    /// As a D415 measures: stereo noise growing with z^2, occlusion shadows, random
+    /// dropout, flying pixels, minimum and maximum range.
+    D415,
+    /// Exact depth at each pixel centre (see the synthetic backend for the definition).
+    Ideal,
+}
+
+/// Kind of barcode on a label.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LabelKind {
+    /// A QR code.
+    Qr,
+    /// A Code 128 bar code (ASCII text).
+    Code128,
+}
+
+/// A barcode label on a box's top face.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Label {
+    /// Barcode kind.
+    pub kind: LabelKind,
+    /// Encoded text.
+    pub text: String,
+    /// Label width in metres.
+    pub size: f64,
+}
+
+impl Label {
+    /// Label extent on the top face, metres: (along the box length, along its width).
+    pub fn extent_m(&self) -> (f64, f64) {
+        match self.kind {
+            LabelKind::Qr => (self.size, self.size),
+            LabelKind::Code128 => (self.size, self.size / 2.0),
+        }
+    }
+}
+
+fn default_floor_color() -> [u8; 3] {
+    [120, 120, 120]
+}
+fn default_box_color() -> [u8; 3] {
+    [180, 140, 90]
+}
+fn default_cylinder_color() -> [u8; 3] {
+    [70, 110, 160]
+}
+fn default_noise() -> Noise {
+    Noise::D415
+}
+
+/// The floor plane.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Floor {
+    /// Height of the floor, metres.
+    #[serde(default)]
+    pub z: f64,
+    /// Color.
+    #[serde(default = "default_floor_color")]
+    pub color: [u8; 3],
+}
+
+impl Default for Floor {
+    fn default() -> Self {
+        Self {
+            z: 0.0,
+            color: default_floor_color(),
+        }
+    }
+}
+
+/// A synthetic D415 in the scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneCamera {
+    /// Serial number.
+    pub serial: Serial,
+    /// Position of the depth origin (left imager), world metres.
+    pub position: [f64; 3],
+    /// A point the optical axis passes through.
+    pub look_at: [f64; 3],
+    /// World direction that appears upwards in the image; `None` = the default.
+    pub up: Option<[f64; 3]>,
+    /// Depth rendering.
+    pub noise: Noise,
+    /// Whether the camera exposes its true pose ([`crate::Camera::true_pose`]).
+    pub calibrated: bool,
+}
+
+/// A box standing on the floor.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneBox {
+    /// Length (along x before yaw), width, height in metres.
+    pub size: [f64; 3],
+    /// Footprint centre on the floor, (x, y) metres.
+    pub center: [f64; 2],
+    /// Rotation about world z, degrees, counter-clockwise seen from above.
+    #[serde(default)]
+    pub yaw_deg: f64,
+    /// Color.
+    #[serde(default = "default_box_color")]
+    pub color: [u8; 3],
+    /// Optional barcode label on the top face.
+    #[serde(default)]
+    pub label: Option<Label>,
+}
+
+/// A vertical cylinder standing on the floor.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Cylinder {
+    /// Radius, metres.
+    pub radius: f64,
+    /// Height, metres.
+    pub height: f64,
+    /// Centre on the floor, (x, y) metres.
+    pub center: [f64; 2],
+    /// Color.
+    #[serde(default = "default_cylinder_color")]
+    pub color: [u8; 3],
+}
+
+/// A scene: what the synthetic cameras see.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scene {
+    /// Seed of every random choice (noise, dropout).
+    pub seed: u64,
+    /// The floor.
+    pub floor: Floor,
+    /// Cameras.
+    pub cameras: Vec<SceneCamera>,
+    /// Boxes.
+    pub boxes: Vec<SceneBox>,
+    /// Cylinders.
+    pub cylinders: Vec<Cylinder>,
+}
+
+/// Why a scene was refused.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SceneError {
+    /// The file could not be read.
+    #[error("cannot read scene file {path}: {source}")]
+    Io {
+        /// The path.
+        path: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// Not valid TOML of the scene shape (the message has line and column).
+    #[error("scene: {0}")]
+    Parse(String),
+    /// A value outside what the field allows.
+    #[error("scene: {field}: {reason}")]
+    Invalid {
+        /// Which field, e.g. `camera[1].serial`.
+        field: String,
+        /// What is wrong and what is allowed.
+        reason: String,
+    },
+}
+
+fn invalid(field: impl Into<String>, reason: impl Into<String>) -> SceneError {
+    SceneError::Invalid {
+        field: field.into(),
+        reason: reason.into(),
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    #[serde(default)]
+    seed: u64,
+    #[serde(default)]
+    floor: Floor,
+    #[serde(default)]
+    camera: Vec<CameraFile>,
+    #[serde(default, rename = "box")]
+    boxes: Vec<SceneBox>,
+    #[serde(default)]
+    cylinder: Vec<Cylinder>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraFile {
+    serial: String,
+    position: [f64; 3],
+    look_at: [f64; 3],
+    #[serde(default)]
+    up: Option<[f64; 3]>,
+    #[serde(default = "default_noise")]
+    noise: Noise,
+    #[serde(default)]
+    calibrated: bool,
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+fn normalized(a: [f64; 3]) -> Option<[f64; 3]> {
+    let n = dot(a, a).sqrt();
+    (n > 1e-9 && n.is_finite()).then(|| scale(a, 1.0 / n))
+}
+
+impl SceneCamera {
+    /// The up direction used when `up` is not given.
+    fn default_up(forward: [f64; 3]) -> [f64; 3] {
+        if forward[2].abs() > 0.99 {
+            [0.0, 1.0, 0.0]
+        } else {
+            [0.0, 0.0, 1.0]
+        }
+    }
+
+    /// The camera's pose: depth frame (x right, y down, z forward) -> world.
+    /// `None` if `look_at` equals `position` or `up` is parallel to the view direction
+    /// (a validated scene has neither).
+    pub fn pose(&self) -> Option<Pose> {
+        let z = normalized(sub(self.look_at, self.position))?;
+        let up = self.up.unwrap_or_else(|| Self::default_up(z));
+        // y (image down) is minus the part of `up` orthogonal to the view direction.
+        let up_orth = sub(up, scale(z, dot(up, z)));
+        let y = scale(normalized(up_orth)?, -1.0);
+        let x = cross(y, z);
+        Some(Pose {
+            rotation: [[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]],
+            translation: self.position,
+        })
+    }
+}
+
+fn finite(field: &str, values: &[f64]) -> Result<(), SceneError> {
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(invalid(field, "must be finite numbers"))
+    }
+}
+
+fn positive(field: &str, values: &[f64]) -> Result<(), SceneError> {
+    if values.iter().all(|v| v.is_finite() && *v > 0.0) {
+        Ok(())
+    } else {
+        Err(invalid(
+            field,
+            format!("must be positive (metres), got {values:?}"),
+        ))
+    }
+}
+
+impl Scene {
+    /// Parses and validates a scene from TOML text.
+    pub fn from_toml(text: &str) -> Result<Self, SceneError> {
+        let file: SceneFile = toml::from_str(text).map_err(|e| SceneError::Parse(e.to_string()))?;
+        let mut cameras = Vec::with_capacity(file.camera.len());
+        for (i, c) in file.camera.into_iter().enumerate() {
+            let serial = Serial::parse(&c.serial).map_err(|_| {
+                invalid(
+                    format!("camera[{i}].serial"),
+                    format!("must be 12 ASCII digits, got {:?}", c.serial),
+                )
+            })?;
+            cameras.push(SceneCamera {
+                serial,
+                position: c.position,
+                look_at: c.look_at,
+                up: c.up,
+                noise: c.noise,
+                calibrated: c.calibrated,
+            });
+        }
+        let scene = Self {
+            seed: file.seed,
+            floor: file.floor,
+            cameras,
+            boxes: file.boxes,
+            cylinders: file.cylinder,
+        };
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    /// Reads, parses and validates a scene file.
+    pub fn load(path: &Path) -> Result<Self, SceneError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml(&text)
+    }
+
+    /// Checks every rule a scene file must follow.
+    pub fn validate(&self) -> Result<(), SceneError> {
+        finite("floor.z", &[self.floor.z])?;
+        for (i, c) in self.cameras.iter().enumerate() {
+            let at = |f: &str| format!("camera[{i}].{f}");
+            finite(&at("position"), &c.position)?;
+            finite(&at("look_at"), &c.look_at)?;
+            if let Some(up) = c.up {
+                finite(&at("up"), &up)?;
+            }
+            if normalized(sub(c.look_at, c.position)).is_none() {
+                return Err(invalid(at("look_at"), "must differ from position"));
+            }
+            if c.pose().is_none() {
+                return Err(invalid(
+                    at("up"),
+                    "must not be parallel to the view direction",
+                ));
+            }
+            if self.cameras[..i].iter().any(|o| o.serial == c.serial) {
+                return Err(invalid(
+                    at("serial"),
+                    format!("{} is used by another camera", c.serial),
+                ));
+            }
+        }
+        for (i, b) in self.boxes.iter().enumerate() {
+            let at = |f: &str| format!("box[{i}].{f}");
+            positive(&at("size"), &b.size)?;
+            finite(&at("center"), &b.center)?;
+            finite(&at("yaw_deg"), &[b.yaw_deg])?;
+            if let Some(label) = &b.label {
+                positive(&at("label.size"), &[label.size])?;
+                let (lx, ly) = label.extent_m();
+                if lx > b.size[0] || ly > b.size[1] {
+                    return Err(invalid(
+                        at("label.size"),
+                        format!(
+                            "a {lx} x {ly} m label does not fit on the {} x {} m top face",
+                            b.size[0], b.size[1]
+                        ),
+                    ));
+                }
+                crate::backend::label::encode(label)
+                    .map_err(|reason| invalid(at("label.text"), reason))?;
+            }
+        }
+        for (i, c) in self.cylinders.iter().enumerate() {
+            let at = |f: &str| format!("cylinder[{i}].{f}");
+            positive(&at("radius"), &[c.radius])?;
+            positive(&at("height"), &[c.height])?;
+            finite(&at("center"), &c.center)?;
+        }
+        Ok(())
+    }
+
+    /// The camera with this serial.
+    pub fn camera(&self, serial: &Serial) -> Option<&SceneCamera> {
+        self.cameras.iter().find(|c| &c.serial == serial)
+    }
+
+    /// The built-in default scene: one 400 x 300 x 200 mm box, yawed 15 degrees and
+    /// carrying a QR label, under one calibrated camera 1.0 m above the floor looking
+    /// straight down.
+    pub fn default_single() -> Self {
+        Self {
+            seed: 7,
+            floor: Floor::default(),
+            cameras: vec![SceneCamera {
+                serial: Serial::from_digits(*b"840412060746"),
+                position: [0.0, 0.0, 1.0],
+                look_at: [0.0, 0.0, 0.0],
+                up: Some([0.0, 1.0, 0.0]),
+                noise: Noise::D415,
+                calibrated: true,
+            }],
+            boxes: vec![Self::default_box()],
+            cylinders: Vec::new(),
+        }
+    }
+
+    /// The built-in demo scene: the default box seen by two calibrated cameras from
+    /// opposite sides, 1.0 m and 1.2 m above the floor, tilted towards the box.
+    pub fn default_demo() -> Self {
+        let camera = |serial: &[u8; 12], position: [f64; 3]| SceneCamera {
+            serial: Serial::from_digits(*serial),
+            position,
+            look_at: [0.0, 0.0, 0.1],
+            up: None,
+            noise: Noise::D415,
+            calibrated: true,
+        };
+        Self {
+            seed: 7,
+            floor: Floor::default(),
+            cameras: vec![
+                camera(b"840412060746", [0.45, -0.25, 1.0]),
+                camera(b"840412060757", [-0.40, 0.30, 1.2]),
+            ],
+            boxes: vec![Self::default_box()],
+            cylinders: Vec::new(),
+        }
+    }
+
+    fn default_box() -> SceneBox {
+        SceneBox {
+            size: [0.40, 0.30, 0.20],
+            center: [0.0, 0.0],
+            yaw_deg: 15.0,
+            color: default_box_color(),
+            label: Some(Label {
+                kind: LabelKind::Qr,
+                text: "PKG-0001".to_owned(),
+                size: 0.08,
+            }),
+        }
+    }
+}

@@ -1,0 +1,3 @@
+//! Integration tests of the rgbd crate.
+
+mod hub;
