@@ -34,6 +34,9 @@ pub struct EndpointConfig {
     /// block-wise transfer gives up. Each resume sends the block the transfer lacks again,
     /// never restarts from the beginning.
     pub block_retries: u8,
+    /// Every this many notifications of an observation, one is sent as CON to learn
+    /// whether the client is still there (RFC 7641 §4.5); 0 sends only NON.
+    pub notify_con_interval: u32,
     /// Limits on state that peers can make grow.
     pub limits: Limits,
 }
@@ -59,6 +62,8 @@ pub struct Limits {
     pub client_body_bytes: usize,
     /// Requests handed to the application and not answered yet (5.03 above).
     pub pending_requests: usize,
+    /// Observations served at once; further registrations are answered as plain GETs.
+    pub observations: usize,
 }
 
 impl Default for EndpointConfig {
@@ -76,6 +81,7 @@ impl Default for EndpointConfig {
             rng_seed: 0,
             max_block_szx: 6,
             block_retries: 4,
+            notify_con_interval: 5,
             limits: Limits::default(),
         }
     }
@@ -92,6 +98,7 @@ impl Default for Limits {
             blockwise_lifetime: Duration::from_secs(247),
             client_body_bytes: 256 << 20,
             pending_requests: 1024,
+            observations: 1024,
         }
     }
 }

@@ -65,8 +65,13 @@ pub struct Request {
     /// Block size exponent to use (and to ask the server for); `None` uses the endpoint's
     /// largest (1024 bytes by default) and asks for nothing.
     pub block_szx: Option<u8>,
-    /// Give up after this long in total.
+    /// Give up after this long in total. For a multicast request: how long to collect
+    /// responses (default 5 s).
     pub timeout: Option<Duration>,
+    /// Sent to a multicast group (RFC 7390): always NON, never re-sent, and every server's
+    /// response arrives as [`Event::MulticastResponse`] until the timeout, then
+    /// [`Event::MulticastDone`].
+    pub multicast: bool,
 }
 
 impl Request {
@@ -81,6 +86,7 @@ impl Request {
             confirmable: true,
             block_szx: None,
             timeout: None,
+            multicast: false,
         }
     }
 
@@ -146,7 +152,15 @@ pub struct IncomingRequest {
     pub multicast: bool,
     /// Whether it was a CON message.
     pub confirmable: bool,
+    /// Set when this is an Observe registration (RFC 7641 §2: GET with Observe 0). If the
+    /// response is a success, the observation is established and [`Endpoint::notify`]
+    /// sends notifications to it.
+    pub observe: Option<ObservationId>,
 }
+
+/// Identifies an observation this endpoint serves (RFC 7641, server side).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct ObservationId(pub u64);
 
 /// Why a request failed.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -202,6 +216,33 @@ pub enum Event {
         /// The ping.
         id: RequestId,
     },
+    /// A notification of an observed resource (RFC 7641), after the first response.
+    Notification {
+        /// The Observe request.
+        id: RequestId,
+        /// The notification.
+        response: Response,
+    },
+    /// One server's response to a multicast request.
+    MulticastResponse {
+        /// The request.
+        id: RequestId,
+        /// The server that answered.
+        peer: SocketAddr,
+        /// Its response.
+        response: Response,
+    },
+    /// A multicast request stopped collecting responses.
+    MulticastDone {
+        /// The request.
+        id: RequestId,
+    },
+    /// An observation ended: the client deregistered, rejected a notification with a
+    /// Reset, or did not acknowledge a confirmable one (RFC 7641 §3.6, §4.5).
+    ObservationEnded {
+        /// The observation.
+        id: ObservationId,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -217,6 +258,7 @@ enum Purpose {
     Request(u64),
     Ping(u64),
     SeparateResponse,
+    Notification(u64),
 }
 
 /// A CON message waiting for its ACK (RFC 7252 §4.2).
@@ -248,6 +290,11 @@ enum Waiting {
     /// ACKed empty; waiting for the separate response. Or a NON sent, waiting for the
     /// response (carrying the NON's transmission count).
     Response { non_tx: Option<u8>, mid: u16 },
+    /// Observing (RFC 7641): the first response arrived, notifications follow; carries
+    /// the last Observe sequence number.
+    Observing(u32),
+    /// A multicast request collecting responses until its deadline.
+    Collecting,
 }
 
 struct ClientRequest {
@@ -266,6 +313,8 @@ struct ClientRequest {
     first_options: Option<Options>,
     /// The user set Block2 in the request: random access, no reassembly.
     user_block2: bool,
+    /// The request carries Observe 0 (a registration).
+    observe: bool,
 }
 
 impl ClientRequest {
@@ -288,6 +337,19 @@ struct Pending {
     block2: Option<BlockOpt>,
     block1_echo: Option<BlockOpt>,
     key: BlockKey,
+    observation: Option<u64>,
+}
+
+/// An observation this endpoint serves.
+struct Observation {
+    peer: SocketAddr,
+    token: Token,
+    key: BlockKey,
+    established: bool,
+    seq: u32,
+    sent: u32,
+    /// Message ID of the last NON notification, so a Reset to it ends the observation.
+    last_mid: Option<u16>,
 }
 
 #[derive(Default)]
@@ -314,6 +376,7 @@ pub struct Endpoint {
     pending: HashMap<u64, Pending>,
     block1: Block1Assembler,
     block2: ServerCache,
+    observations: HashMap<u64, Observation>,
 }
 
 impl Endpoint {
@@ -338,6 +401,7 @@ impl Endpoint {
             pending: HashMap::new(),
             block1: Block1Assembler::new(),
             block2: ServerCache::new(),
+            observations: HashMap::new(),
         }
     }
 
@@ -378,11 +442,15 @@ impl Endpoint {
                     self.on_retransmit_timer(now, peer, mid, tx)
                 }
                 TimerKind::Step { id, generation } => self.on_step_timer(now, id, generation),
-                TimerKind::Deadline { id } => {
-                    if self.requests.contains_key(&id) {
-                        self.fail(now, id, RequestError::Timeout);
+                TimerKind::Deadline { id } => match self.requests.get(&id).map(|r| r.waiting) {
+                    Some(Waiting::Collecting) => {
+                        self.finish(now, id);
+                        self.events
+                            .push_back(Event::MulticastDone { id: RequestId(id) });
                     }
-                }
+                    Some(_) => self.fail(now, id, RequestError::Timeout),
+                    None => {}
+                },
                 TimerKind::SeparateAck { id } => self.on_separate_ack_timer(now, id),
             }
         }
@@ -503,6 +571,7 @@ impl Endpoint {
                 });
             }
             Purpose::SeparateResponse => {}
+            Purpose::Notification(obs) => self.end_observation(obs),
         }
     }
 
@@ -510,11 +579,26 @@ impl Endpoint {
         // ACK and RST are matched by message ID only (RFC 7252 §4.2, §4.3); an unknown one
         // is ignored.
         let Some(x) = self.exchanges.remove(&(peer, msg.message_id)) else {
+            if msg.ty == Type::Rst {
+                // A Reset to a NON notification ends the observation (RFC 7641 §3.6).
+                let obs = self
+                    .observations
+                    .iter()
+                    .find(|(_, o)| o.peer == peer && o.last_mid == Some(msg.message_id));
+                if let Some((&id, _)) = obs {
+                    self.end_observation(id);
+                }
+            }
             return;
         };
         match x.purpose {
             Purpose::Ping(id) => self.events.push_back(Event::Pong { id: RequestId(id) }),
             Purpose::SeparateResponse => {}
+            Purpose::Notification(obs) => {
+                if msg.ty == Type::Rst {
+                    self.end_observation(obs);
+                }
+            }
             Purpose::Request(id) => {
                 if msg.ty == Type::Rst {
                     self.fail(now, id, RequestError::Reset);
@@ -564,10 +648,54 @@ impl Endpoint {
             seen,
             &limits,
         );
-        if let Some(id) = known
-            && self.requests.get(&id).is_some_and(|r| r.peer == peer)
-        {
-            self.on_response(now, id, msg);
+        let Some(id) = known else { return };
+        match self.requests.get_mut(&id) {
+            Some(r) if r.waiting == Waiting::Collecting => {
+                let response = Response {
+                    code: msg.code,
+                    options: msg.options,
+                    payload: msg.payload,
+                };
+                self.events.push_back(Event::MulticastResponse {
+                    id: RequestId(id),
+                    peer,
+                    response,
+                });
+            }
+            Some(r) if r.peer != peer => {}
+            Some(r) => {
+                if let Waiting::Observing(last) = r.waiting {
+                    let seq = msg.options.uint(OptionNumber::OBSERVE);
+                    // RFC 7641 §3.4: deliver only notifications newer than the last one.
+                    if let Some(seq) = seq.filter(|v| is_newer(last, *v)) {
+                        r.waiting = Waiting::Observing(seq);
+                        let response = Response {
+                            code: msg.code,
+                            options: msg.options,
+                            payload: msg.payload,
+                        };
+                        self.events.push_back(Event::Notification {
+                            id: RequestId(id),
+                            response,
+                        });
+                    } else if seq.is_none() {
+                        // A final response without Observe ends the observation (§3.2).
+                        let response = Response {
+                            code: msg.code,
+                            options: msg.options,
+                            payload: msg.payload,
+                        };
+                        self.finish(now, id);
+                        self.events.push_back(Event::Notification {
+                            id: RequestId(id),
+                            response,
+                        });
+                    }
+                    return;
+                }
+                self.on_response(now, id, msg);
+            }
+            None => {}
         }
     }
 
@@ -583,6 +711,12 @@ impl Endpoint {
             .unwrap_or(self.config.max_block_szx)
             .min(self.config.max_block_szx);
         let user_block2 = req.options.contains(OptionNumber::BLOCK2);
+        let observe = req.options.uint(OptionNumber::OBSERVE) == Some(0);
+        let mut req = req;
+        if req.multicast {
+            req.confirmable = false;
+            req.timeout = Some(req.timeout.unwrap_or(Duration::from_secs(5)));
+        }
         if let Some(t) = req.timeout {
             self.schedule(now + t, TimerKind::Deadline { id });
         }
@@ -607,6 +741,7 @@ impl Endpoint {
                 etag: None,
                 first_options: None,
                 user_block2,
+                observe,
             },
         );
         self.by_token.insert(token, id);
@@ -740,7 +875,11 @@ impl Endpoint {
         let mut r = r;
         r.generation += 1;
         let mid = msg.message_id;
-        if r.req.confirmable {
+        if r.req.multicast {
+            // RFC 7390 §2.5: sent once, responses collected until the deadline.
+            r.waiting = Waiting::Collecting;
+            self.send(r.peer, &msg);
+        } else if r.req.confirmable {
             r.waiting = Waiting::Ack(mid);
             self.send_con(now, r.peer, &msg, Purpose::Request(id));
         } else {
@@ -856,12 +995,38 @@ impl Endpoint {
                 }
                 return;
             }
-            Waiting::Response { .. } => {}
+            // An observation gave its NSTART slot back when it was established.
+            Waiting::Observing(_) => return,
+            Waiting::Response { .. } | Waiting::Collecting => {}
         }
-        if let Some(p) = self.peers.get_mut(&r.peer) {
+        self.release_slot(now, r.peer);
+    }
+
+    fn release_slot(&mut self, now: Instant, peer: SocketAddr) {
+        if let Some(p) = self.peers.get_mut(&peer) {
             p.active = p.active.saturating_sub(1);
         }
-        self.pump(now, r.peer);
+        self.pump(now, peer);
+    }
+
+    /// Delivers the final response of a request. An Observe registration that the server
+    /// accepted (a success carrying Observe) stays alive for its notifications and frees
+    /// its NSTART slot; anything else is finished.
+    fn complete(&mut self, now: Instant, id: u64, response: Response) {
+        let seq = response.options.uint(OptionNumber::OBSERVE);
+        let observing = self.requests.get_mut(&id).and_then(|r| {
+            let seq = seq.filter(|_| r.observe && response.code.is_success())?;
+            r.waiting = Waiting::Observing(seq);
+            Some(r.peer)
+        });
+        match observing {
+            Some(peer) => self.release_slot(now, peer),
+            None => self.finish(now, id),
+        }
+        self.events.push_back(Event::Response {
+            id: RequestId(id),
+            response,
+        });
     }
 
     /// A response (piggybacked or separate) matched to request `id` by token.
@@ -958,12 +1123,7 @@ impl Endpoint {
                     payload: msg.payload,
                 },
             };
-            self.finish(now, id);
-            self.events.push_back(Event::Response {
-                id: RequestId(id),
-                response,
-            });
-            return;
+            return self.complete(now, id, response);
         };
         let etag = msg.options.etag().map(<[u8]>::to_vec);
         if r.first_options.is_some() && etag != r.etag {
@@ -1024,15 +1184,12 @@ impl Endpoint {
         }
         let body = Bytes::from(std::mem::take(&mut r.body));
         let options = r.first_options.take().unwrap_or_default();
-        self.finish(now, id);
-        self.events.push_back(Event::Response {
-            id: RequestId(id),
-            response: Response {
-                code: msg.code,
-                options,
-                payload: body,
-            },
-        });
+        let response = Response {
+            code: msg.code,
+            options,
+            payload: body,
+        };
+        self.complete(now, id, response);
     }
 
     // ---------------------------------------------------------------- server layer
@@ -1188,6 +1345,7 @@ impl Endpoint {
             return;
         }
         let id = self.new_id();
+        let observation = self.observe_option(peer, &msg, &key);
         self.pending.insert(
             id,
             Pending {
@@ -1200,6 +1358,7 @@ impl Endpoint {
                 block2,
                 block1_echo,
                 key,
+                observation,
             },
         );
         self.dedup.insert(
@@ -1224,7 +1383,130 @@ impl Endpoint {
             payload,
             multicast,
             confirmable: con,
+            observe: observation.map(ObservationId),
         }));
+    }
+
+    /// RFC 7641 §2, §3.6: a GET or FETCH with Observe 0 registers (or re-registers, same
+    /// peer and token) an observation; Observe 1 deregisters.
+    fn observe_option(&mut self, peer: SocketAddr, msg: &Message, key: &BlockKey) -> Option<u64> {
+        if !matches!(msg.code, Code::GET | Code::FETCH) {
+            return None;
+        }
+        let value = msg.options.uint(OptionNumber::OBSERVE)?;
+        let existing = self
+            .observations
+            .iter()
+            .find(|(_, o)| o.peer == peer && o.token == msg.token)
+            .map(|(id, _)| *id);
+        match (value, existing) {
+            (0, Some(id)) => Some(id),
+            (0, None) if self.observations.len() < self.config.limits.observations => {
+                let id = self.new_id();
+                let o = Observation {
+                    peer,
+                    token: msg.token,
+                    key: key.clone(),
+                    established: false,
+                    seq: 0,
+                    sent: 0,
+                    last_mid: None,
+                };
+                self.observations.insert(id, o);
+                Some(id)
+            }
+            (1, Some(id)) => {
+                self.end_observation(id);
+                None
+            }
+            _ => None,
+        }
+    }
+
+    fn end_observation(&mut self, id: u64) {
+        if self.observations.remove(&id).is_some() {
+            self.events.push_back(Event::ObservationEnded {
+                id: ObservationId(id),
+            });
+        }
+    }
+
+    /// Sends a notification to an established observation (RFC 7641 §4.2): the Observe
+    /// sequence number goes up by one, every `notify_con_interval`-th notification is a CON
+    /// (§4.5), and a body larger than one block goes out as Block2 block 0 with the rest
+    /// kept for the client's continuations (RFC 7959 §2.6). A non-success response ends
+    /// the observation. Returns false when the observation no longer exists, so the
+    /// application can forget it.
+    pub fn notify(&mut self, now: Instant, id: ObservationId, response: Response) -> bool {
+        let limits = self.config.limits.clone();
+        let interval = self.config.notify_con_interval;
+        let szx = self.config.max_block_szx;
+        let Some(o) = self.observations.get_mut(&id.0).filter(|o| o.established) else {
+            return false;
+        };
+        o.seq = (o.seq + 1) & 0x00ff_ffff;
+        o.sent += 1;
+        let con = interval > 0 && o.sent % interval == 0;
+        let (peer, token, key, seq) = (o.peer, o.token, o.key.clone(), o.seq);
+        let mut response = self.blockwise_response(now, key, None, response, &limits, szx);
+        let success = response.code.is_success();
+        if success {
+            response.options.set_uint(OptionNumber::OBSERVE, seq);
+        }
+        let ty = if con { Type::Con } else { Type::Non };
+        let msg = Message {
+            ty,
+            code: response.code,
+            message_id: self.next_mid(),
+            token,
+            options: response.options,
+            payload: response.payload,
+        };
+        if con {
+            self.send_con(now, peer, &msg, Purpose::Notification(id.0));
+        } else {
+            self.send(peer, &msg);
+            if let Some(o) = self.observations.get_mut(&id.0) {
+                o.last_mid = Some(msg.message_id);
+            }
+        }
+        if !success {
+            self.observations.remove(&id.0);
+        }
+        true
+    }
+
+    /// Cuts a response into its first (or requested) block when it does not fit one, adding
+    /// an ETag and storing the representation for the continuations.
+    fn blockwise_response(
+        &mut self,
+        now: Instant,
+        key: BlockKey,
+        block2: Option<BlockOpt>,
+        mut response: Response,
+        limits: &crate::config::Limits,
+        max_szx: u8,
+    ) -> Response {
+        let szx = block2.map_or(max_szx, |b| b.szx.min(max_szx));
+        let num = block2.map_or(0, |b| b.num);
+        if response.payload.len() <= BlockOpt::size_of(szx) && num == 0 {
+            return response;
+        }
+        if response.options.etag().is_none() {
+            let etag = self.rng.next_u32().to_be_bytes();
+            response.options.set(OptionNumber::ETAG, etag.to_vec());
+        }
+        if response.payload.len() > BlockOpt::size_of(szx) {
+            self.block2.insert(
+                now,
+                key,
+                response.code,
+                response.options.clone(),
+                response.payload.clone(),
+                limits,
+            );
+        }
+        block2_response(response.code, response.options, &response.payload, num, szx)
     }
 
     /// Sends a response to a request right away (piggybacked on the ACK of a CON, or as a
@@ -1281,28 +1563,20 @@ impl Endpoint {
         let Some(p) = self.pending.remove(&id.0) else {
             return;
         };
-        let szx = p.block2.map_or(self.config.max_block_szx, |b| {
-            b.szx.min(self.config.max_block_szx)
-        });
-        let num = p.block2.map_or(0, |b| b.num);
-        let mut response = response;
-        if response.payload.len() > BlockOpt::size_of(szx) || num > 0 {
-            if response.options.etag().is_none() {
-                let etag = self.rng.next_u32().to_be_bytes();
-                response.options.set(OptionNumber::ETAG, etag.to_vec());
+        let max_szx = self.config.max_block_szx;
+        let mut response =
+            self.blockwise_response(now, p.key.clone(), p.block2, response, &limits, max_szx);
+        if let Some(obs) = p.observation {
+            match self.observations.get_mut(&obs) {
+                Some(o) if response.code.is_success() => {
+                    o.established = true;
+                    o.seq = (o.seq + 1) & 0x00ff_ffff;
+                    response.options.set_uint(OptionNumber::OBSERVE, o.seq);
+                }
+                _ => {
+                    self.observations.remove(&obs);
+                }
             }
-            if response.payload.len() > BlockOpt::size_of(szx) {
-                self.block2.insert(
-                    now,
-                    p.key.clone(),
-                    response.code,
-                    response.options.clone(),
-                    response.payload.clone(),
-                    &limits,
-                );
-            }
-            response =
-                block2_response(response.code, response.options, &response.payload, num, szx);
         }
         if let Some(echo) = p.block1_echo {
             response.options.set_block(OptionNumber::BLOCK1, echo);
@@ -1352,4 +1626,10 @@ fn block2_response(code: Code, options: Options, body: &Bytes, num: u32, szx: u8
         options,
         payload,
     }
+}
+
+/// RFC 7641 §3.4: whether Observe value `v2` is newer than `v1` (24-bit serial arithmetic).
+fn is_newer(v1: u32, v2: u32) -> bool {
+    const HALF: u32 = 1 << 23;
+    (v1 < v2 && v2 - v1 < HALF) || (v1 > v2 && v1 - v2 > HALF)
 }

@@ -24,8 +24,8 @@ pub mod endpoint;
 pub use config::{EndpointConfig, Limits};
 pub use content_format::ContentFormat;
 pub use endpoint::{
-    Endpoint, Event, IncomingId, IncomingRequest, Request, RequestError, RequestId, Response,
-    Transmit,
+    Endpoint, Event, IncomingId, IncomingRequest, ObservationId, Request, RequestError, RequestId,
+    Response, Transmit,
 };
 pub use msg::{BlockOpt, Code, Message, OptionNumber, Options, Token, Type};
 

@@ -24,6 +24,13 @@ pub(crate) fn epoch() -> Instant {
     Instant::now()
 }
 
+/// The multicast group of the simulation: a datagram sent here reaches every other node,
+/// flagged as multicast.
+pub(crate) const GROUP: SocketAddr = SocketAddr::new(
+    std::net::IpAddr::V4(std::net::Ipv4Addr::new(224, 0, 1, 187)),
+    5683,
+);
+
 /// What the link does to datagrams (the same in both directions).
 #[derive(Debug, Clone)]
 pub(crate) struct LinkConfig {
@@ -137,8 +144,8 @@ pub(crate) struct Node {
     pub(crate) requests_seen: usize,
 }
 
-/// A datagram on the link: arrival, sequence, destination node, sender, bytes.
-type InFlight = (Instant, u64, usize, SocketAddr, Bytes);
+/// A datagram on the link: arrival, sequence, destination node, sender, multicast, bytes.
+type InFlight = (Instant, u64, usize, SocketAddr, bool, Bytes);
 /// A slow handler's response: due, sequence, node, request, slot in `delayed_responses`.
 type Delayed = (Instant, u64, usize, IncomingId, usize);
 
@@ -213,6 +220,7 @@ impl Sim {
             self.seq,
             to,
             from,
+            false,
             Bytes::copy_from_slice(data),
         )));
     }
@@ -246,23 +254,29 @@ impl Sim {
                         lost,
                     });
                 }
-                let Some(to) = self.node_index(t.peer) else {
-                    continue;
+                let multicast = t.peer == GROUP;
+                let targets: Vec<usize> = if multicast {
+                    (0..self.nodes.len()).filter(|&n| n != i).collect()
+                } else {
+                    self.node_index(t.peer).into_iter().collect()
                 };
                 if lost {
                     continue;
                 }
-                let copies = if self.unit() < self.link.duplicate {
-                    2
-                } else {
-                    1
-                };
-                for _ in 0..copies {
-                    let jitter = self.link.jitter.mul_f64(self.unit());
-                    self.seq += 1;
-                    let at = self.now + self.link.delay + jitter;
-                    self.in_flight
-                        .push(Reverse((at, self.seq, to, from, t.data.clone())));
+                for to in targets {
+                    let copies = if self.unit() < self.link.duplicate {
+                        2
+                    } else {
+                        1
+                    };
+                    for _ in 0..copies {
+                        let jitter = self.link.jitter.mul_f64(self.unit());
+                        self.seq += 1;
+                        let at = self.now + self.link.delay + jitter;
+                        let data = t.data.clone();
+                        self.in_flight
+                            .push(Reverse((at, self.seq, to, from, multicast, data)));
+                    }
                 }
             }
         }
@@ -319,12 +333,14 @@ impl Sim {
             }
             self.now = self.now.max(next);
             let now = self.now;
-            while let Some(Reverse((at, _, to, from, data))) = self.in_flight.peek().cloned() {
+            while let Some(Reverse((at, _, to, from, multicast, data))) =
+                self.in_flight.peek().cloned()
+            {
                 if at > now {
                     break;
                 }
                 self.in_flight.pop();
-                self.nodes[to].ep.handle(now, from, &data, false);
+                self.nodes[to].ep.handle(now, from, &data, multicast);
             }
             while let Some(Reverse((at, _, i, id, slot))) = self.delayed.peek().copied() {
                 if at > now {

@@ -1,0 +1,246 @@
+//! RFC 7641 Observe and RFC 7390 multicast requests, in the simulator.
+
+use std::time::Duration;
+
+use coap::{Code, EndpointConfig, Event, ObservationId, OptionNumber, Request, Response};
+
+use crate::sim::{GROUP, LinkConfig, Reply, Sim};
+
+fn cfg(seed: u64) -> EndpointConfig {
+    EndpointConfig {
+        rng_seed: seed,
+        ..EndpointConfig::default()
+    }
+}
+
+fn observe_request(path: &str) -> Request {
+    let mut req = Request::new(Code::GET, path);
+    req.options.set_uint(OptionNumber::OBSERVE, 0);
+    req
+}
+
+/// A client observing a server that answers registrations; returns the simulation, the
+/// client and server indexes and the observation.
+fn observed(link: LinkConfig) -> (Sim, usize, usize, ObservationId) {
+    let mut sim = Sim::new(link);
+    let c = sim.add(cfg(1), None);
+    let reg = std::rc::Rc::new(std::cell::Cell::new(None));
+    let seen = reg.clone();
+    let handler: crate::sim::Handler = Box::new(move |req| {
+        seen.set(req.observe);
+        Reply::Now(Response::new(Code::CONTENT).with_payload("v0"))
+    });
+    let s = sim.add(cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, observe_request("/temp"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    let obs = reg.get().unwrap_or_else(|| panic!("no registration"));
+    (sim, c, s, obs)
+}
+
+#[test]
+fn rfc7641_3_observe_registration_then_five_notifications_in_order() {
+    let (mut sim, c, s, obs) = observed(LinkConfig::default());
+    assert!(
+        matches!(&sim.nodes[c].events[0].1, Event::Response { response, .. }
+        if response.options.uint(OptionNumber::OBSERVE).is_some() && &response.payload[..] == b"v0")
+    );
+    for k in 1..=5 {
+        let now = sim.now;
+        let body = format!("v{k}");
+        assert!(
+            sim.nodes[s]
+                .ep
+                .notify(now, obs, Response::new(Code::CONTENT).with_payload(body))
+        );
+        sim.run_until(Duration::from_secs(1), |_| false);
+    }
+    let bodies: Vec<String> = sim.nodes[c].events[1..]
+        .iter()
+        .map(|(_, e)| match e {
+            Event::Notification { response, .. } => {
+                String::from_utf8_lossy(&response.payload).into_owned()
+            }
+            other => panic!("{other:?}"),
+        })
+        .collect();
+    assert_eq!(bodies, ["v1", "v2", "v3", "v4", "v5"]);
+    // RFC 7641 §4.5: the fifth notification is confirmable.
+    let types: Vec<bool> = sim
+        .log
+        .iter()
+        .filter_map(|r| r.msg.as_ref())
+        .filter(|m| m.options.contains(OptionNumber::OBSERVE) && m.code == Code::CONTENT)
+        .map(|m| m.ty == coap::Type::Con)
+        .collect();
+    assert_eq!(types, [false, false, false, false, false, true]);
+}
+
+#[test]
+fn rfc7641_3_4_reordered_older_notification_is_dropped() {
+    let (mut sim, c, s, obs) = observed(LinkConfig {
+        jitter: Duration::from_millis(50),
+        ..LinkConfig::default()
+    });
+    // Two notifications sent 1 ms apart; with 50 ms of jitter the second may overtake the
+    // first, and then the first (older) must not be delivered after it.
+    for seed in 0..20 {
+        let now = sim.now;
+        let a = format!("a{seed}");
+        let b = format!("b{seed}");
+        sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT).with_payload(a));
+        sim.run_until(Duration::from_millis(1), |_| false);
+        let now = sim.now;
+        sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT).with_payload(b));
+        sim.run_until(Duration::from_secs(1), |_| false);
+    }
+    let bodies: Vec<String> = sim.nodes[c].events[1..]
+        .iter()
+        .filter_map(|(_, e)| match e {
+            Event::Notification { response, .. } => {
+                Some(String::from_utf8_lossy(&response.payload).into_owned())
+            }
+            _ => None,
+        })
+        .collect();
+    for k in 0..20 {
+        let b = bodies.iter().position(|x| *x == format!("b{k}"));
+        let a = bodies.iter().position(|x| *x == format!("a{k}"));
+        assert!(b.is_some(), "newest always delivered");
+        if let (Some(a), Some(b)) = (a, b) {
+            assert!(a < b, "older a{k} delivered after newer b{k}");
+        }
+    }
+}
+
+#[test]
+fn rfc7641_3_6_cancelled_client_resets_next_notification_and_observation_ends() {
+    let (mut sim, c, s, obs) = observed(LinkConfig::default());
+    let id = match sim.nodes[c].events[0].1 {
+        Event::Response { id, .. } => id,
+        ref other => panic!("{other:?}"),
+    };
+    let now = sim.now;
+    sim.nodes[c].ep.cancel(now, id);
+    let now = sim.now;
+    assert!(
+        sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT).with_payload("x"))
+    );
+    sim.run_until(Duration::from_secs(1), |_| false);
+    assert!(
+        sim.log
+            .iter()
+            .any(|r| r.msg.as_ref().is_some_and(|m| m.ty == coap::Type::Rst))
+    );
+    let now = sim.now;
+    assert!(
+        !sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT)),
+        "observation gone"
+    );
+}
+
+#[test]
+fn rfc7641_3_6_observe_1_deregisters() {
+    let (mut sim, c, s, obs) = observed(LinkConfig::default());
+    let mut req = Request::new(Code::GET, "/temp");
+    req.options.set_uint(OptionNumber::OBSERVE, 1);
+    // A deregistration must carry the registration's token: send it raw.
+    let token = sim.log[0].msg.as_ref().map(|m| m.token).unwrap_or_default();
+    let mut msg = coap::Message::empty(coap::Type::Con, 999);
+    msg.code = Code::GET;
+    msg.token = token;
+    msg.options = req.options;
+    let client = sim.nodes[c].addr;
+    sim.inject(client, s, &msg.encode());
+    sim.run_until(Duration::from_secs(1), |_| false);
+    let now = sim.now;
+    assert!(
+        !sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT))
+    );
+    let _ = server;
+}
+
+#[test]
+fn rfc7959_2_6_large_notification_first_block_then_continuations_from_store() {
+    let (mut sim, _c, s, obs) = observed(LinkConfig::default());
+    let now = sim.now;
+    let big = vec![7u8; 5000];
+    assert!(
+        sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT).with_payload(big))
+    );
+    sim.run_until(Duration::from_secs(1), |_| false);
+    let first = sim
+        .log
+        .iter()
+        .rev()
+        .find_map(|r| r.msg.as_ref().filter(|m| m.code == Code::CONTENT))
+        .cloned();
+    let first = first.unwrap_or_else(|| panic!("no notification"));
+    assert_eq!(
+        first.options.block2().map(|b| (b.num, b.more)),
+        Some((0, true))
+    );
+    assert_eq!(first.options.uint(OptionNumber::SIZE2), Some(5000));
+}
+
+#[test]
+fn rfc7390_2_5_multicast_request_collects_every_servers_response() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    for k in 0..3u64 {
+        let h: crate::sim::Handler = Box::new(move |_| {
+            Reply::Now(Response::new(Code::CONTENT).with_payload(format!("server {k}")))
+        });
+        sim.add(cfg(10 + k), Some(h));
+    }
+    // One more that errs: its error is suppressed (RFC 7390 §2.7).
+    sim.add(
+        cfg(20),
+        Some(Box::new(|_| {
+            Reply::Now(Response::diagnostic(Code::NOT_FOUND, "nope"))
+        })),
+    );
+    let mut req = Request::new(Code::GET, "/.well-known/core");
+    req.multicast = true;
+    req.timeout = Some(Duration::from_secs(2));
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, GROUP, req);
+    sim.run_until(Duration::from_secs(5), |_| false);
+    let mut got: Vec<String> = sim.nodes[c]
+        .events
+        .iter()
+        .filter_map(|(_, e)| match e {
+            Event::MulticastResponse { response, .. } => {
+                Some(String::from_utf8_lossy(&response.payload).into_owned())
+            }
+            _ => None,
+        })
+        .collect();
+    got.sort();
+    assert_eq!(got, ["server 0", "server 1", "server 2"]);
+    assert!(matches!(
+        sim.nodes[c].events.last().map(|(_, e)| e),
+        Some(Event::MulticastDone { .. })
+    ));
+    let sent = sim
+        .log
+        .iter()
+        .filter(|r| r.from == sim.nodes[c].addr)
+        .count();
+    assert_eq!(sent, 1, "a multicast request is sent once, as NON");
+}
