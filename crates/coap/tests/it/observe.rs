@@ -170,7 +170,6 @@ fn rfc7641_3_6_observe_1_deregisters() {
             .ep
             .notify(now, obs, Response::new(Code::CONTENT))
     );
-    let _ = server;
 }
 
 #[test]
