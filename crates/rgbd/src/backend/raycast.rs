@@ -263,7 +263,8 @@ impl World {
         })
     }
 
-    fn floor_t(&self, o: &V3, d: &V3) -> Option<f32> {
+    /// Ray parameter at which `o + t d` meets the floor, if ahead.
+    pub(crate) fn floor_t(&self, o: &V3, d: &V3) -> Option<f32> {
         if d.z.abs() < 1e-12 {
             return None;
         }
@@ -323,8 +324,9 @@ impl World {
         })
     }
 
-    /// Shaded color of a hit, 0..=255 per channel (not rounded).
-    pub(crate) fn shade(&self, hit: &Hit, point: &V3, ray: &V3) -> [f32; 3] {
+    /// Shaded color of a hit, 0..=255 per channel (not rounded); `light` is the unit
+    /// direction towards the light.
+    pub(crate) fn shade(&self, hit: &Hit, point: &V3, ray: &V3, light: &V3) -> [f32; 3] {
         let base = match hit.surface {
             Surface::Floor => self.floor_color,
             Surface::Prim { index, top } => {
@@ -347,7 +349,7 @@ impl World {
         } else {
             hit.normal
         };
-        let lambert = n.dot(&light_direction()).max(0.0);
+        let lambert = n.dot(light).max(0.0);
         let f = AMBIENT + (1.0 - AMBIENT) * lambert;
         base.map(|c| (c * f).min(255.0))
     }
@@ -373,7 +375,7 @@ const LABEL_WHITE: [f32; 3] = [245.0, 245.0, 245.0];
 const AMBIENT: f32 = 0.35;
 
 /// Direction towards the light, world frame: high, from +x and -y.
-fn light_direction() -> V3 {
+pub(crate) fn light_direction() -> V3 {
     V3::new(0.35, -0.25, 1.0).normalize()
 }
 
@@ -391,8 +393,10 @@ pub(crate) struct View {
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct RowCandidate {
     pub(crate) prim: usize,
-    pub(crate) u_lo: u32,
-    pub(crate) u_hi: u32,
+    /// First column whose ray may hit the primitive (-1: left of the image).
+    pub(crate) u_lo: i32,
+    /// Last column whose ray may hit the primitive (`width`: right of the image).
+    pub(crate) u_hi: i32,
 }
 
 impl View {
@@ -442,8 +446,8 @@ impl View {
         for (prim, (p, r)) in spheres.iter().enumerate() {
             let all = RowCandidate {
                 prim,
-                u_lo: 0,
-                u_hi: w.saturating_sub(1),
+                u_lo: -1,
+                u_hi: w as i32,
             };
             // Rays (a, b, 1); the sphere is hit iff (p.d)^2 >= (|p|^2 - r^2) |d|^2 with p.d > 0.
             let k = p.norm_squared() - r * r;
@@ -470,14 +474,12 @@ impl View {
                 continue; // behind the camera
             }
             let to_u = |a: f32| a * self.k.fx + self.k.ppx;
-            let u_lo = (to_u(a_lo).floor() - 1.0).max(0.0);
-            let u_hi = (to_u(a_hi).ceil() + 1.0).min(w as f32 - 1.0);
-            if u_lo <= u_hi {
-                out.push(RowCandidate {
-                    prim,
-                    u_lo: u_lo as u32,
-                    u_hi: u_hi as u32,
-                });
+            // Columns just outside the image (-1 and `w`) stand for "left of it" and
+            // "right of it": a sphere right of the image can still shadow points in it.
+            let u_lo = (to_u(a_lo).floor() - 1.0).clamp(-1.0, w as f32) as i32;
+            let u_hi = (to_u(a_hi).ceil() + 1.0).clamp(-1.0, w as f32) as i32;
+            if u_hi >= 0 {
+                out.push(RowCandidate { prim, u_lo, u_hi });
             }
         }
     }

@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 
-use crate::backend::raycast::{RowCandidate, V3, View, World};
+use crate::backend::raycast::{Hit, RowCandidate, Surface, V3, View, World, light_direction};
 use crate::d415;
 use crate::frame::ColorFormat;
 use crate::scene::Noise;
@@ -62,17 +62,36 @@ pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u1
         .for_each_init(Vec::new, |cands, (v, row)| {
             view.row_candidates(&spheres, v as u32, cands);
             let (base, step) = view.row(v as f32);
+            // The segment from a point seen at column u to the right imager projects onto
+            // columns u.. of the left image, so only primitives reaching column u or beyond
+            // can hide it from the right imager.
+            let shadow_reach = cands.iter().map(|c| c.u_hi).max();
             for (u, out) in row.iter_mut().enumerate() {
                 let d = base + step * u as f32;
-                let active = cands.iter().filter(|c| in_range(c, u)).map(|c| c.prim);
-                let Some(hit) = world.trace(&view.origin, &d, active) else {
-                    continue;
+                let mut active = cands
+                    .iter()
+                    .filter(|c| in_range(c, u))
+                    .map(|c| c.prim)
+                    .peekable();
+                let t = if active.peek().is_none() {
+                    let Some(t) = world.floor_t(&view.origin, &d) else {
+                        continue;
+                    };
+                    t
+                } else {
+                    let Some(hit) = world.trace(&view.origin, &d, active) else {
+                        continue;
+                    };
+                    hit.t
                 };
-                let shadowed = !ideal && {
-                    let p = view.origin + d * hit.t;
-                    world.occluded(&p, &right_imager, cands.iter().map(|c| c.prim))
-                };
-                *out = if shadowed { -hit.t } else { hit.t };
+                let shadowed = !ideal
+                    && shadow_reach.is_some_and(|reach| u as i32 <= reach)
+                    && world.occluded(
+                        &(view.origin + d * t),
+                        &right_imager,
+                        cands.iter().filter(|c| may_shadow(c, u)).map(|c| c.prim),
+                    );
+                *out = if shadowed { -t } else { t };
             }
         });
 
@@ -113,8 +132,17 @@ pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u1
     raw
 }
 
+fn rounded(c: [f32; 3]) -> [u8; 3] {
+    c.map(|v| v.round().clamp(0.0, 255.0) as u8)
+}
+
 fn in_range(c: &RowCandidate, u: usize) -> bool {
-    (c.u_lo as usize..=c.u_hi as usize).contains(&u)
+    (c.u_lo..=c.u_hi).contains(&(u as i32))
+}
+
+/// Whether the primitive may hide column `u`'s surface point from the right imager.
+fn may_shadow(c: &RowCandidate, u: usize) -> bool {
+    u as i32 <= c.u_hi
 }
 
 fn quantize(z: f32, scale: f32) -> u16 {
@@ -177,6 +205,16 @@ pub(crate) fn render_color(world: &World, view: &View, format: ColorFormat) -> V
     let (w, h) = (view.k.width as usize, view.k.height as usize);
     let bpp = format.bytes_per_pixel();
     let spheres = world.spheres_in(view);
+    let light = light_direction();
+    // The floor is flat and evenly lit: one color for rays that come down on it, one
+    // for rays that come up (a camera below the floor).
+    let floor_hit = Hit {
+        t: 1.0,
+        normal: V3::new(0.0, 0.0, 1.0),
+        surface: Surface::Floor,
+    };
+    let floor_rgb = [V3::new(0.0, 0.0, -1.0), V3::new(0.0, 0.0, 1.0)]
+        .map(|ray| rounded(world.shade(&floor_hit, &V3::zeros(), &ray, &light)));
     let mut data = vec![0u8; w * h * bpp];
     data.par_chunks_mut(w * bpp)
         .enumerate()
@@ -185,13 +223,24 @@ pub(crate) fn render_color(world: &World, view: &View, format: ColorFormat) -> V
             let (base, step) = view.row(v as f32);
             for (u, px) in row.chunks_exact_mut(bpp).enumerate() {
                 let d = base + step * u as f32;
-                let active = cands.iter().filter(|c| in_range(c, u)).map(|c| c.prim);
-                let rgb = match world.trace(&view.origin, &d, active) {
-                    Some(hit) => {
-                        let p = view.origin + d * hit.t;
-                        world.shade(&hit, &p, &d).map(|c| c.round() as u8)
+                let mut active = cands
+                    .iter()
+                    .filter(|c| in_range(c, u))
+                    .map(|c| c.prim)
+                    .peekable();
+                let rgb = if active.peek().is_none() {
+                    match world.floor_t(&view.origin, &d) {
+                        Some(_) => floor_rgb[usize::from(d.z > 0.0)],
+                        None => BACKGROUND,
                     }
-                    None => BACKGROUND,
+                } else {
+                    match world.trace(&view.origin, &d, active) {
+                        Some(hit) => {
+                            let p = view.origin + d * hit.t;
+                            rounded(world.shade(&hit, &p, &d, &light))
+                        }
+                        None => BACKGROUND,
+                    }
                 };
                 format.write_pixel(rgb, px);
             }

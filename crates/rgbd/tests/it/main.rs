@@ -1,3 +1,8 @@
-//! Integration tests of the rgbd crate.
+//! Integration tests of the rgbd crate: one binary, one module per topic.
 
+mod advanced;
 mod hub;
+mod modes;
+mod scene;
+mod support;
+mod synthetic;

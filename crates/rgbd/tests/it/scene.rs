@@ -1,0 +1,128 @@
+use rgbd::scene::{LabelKind, Noise};
+use rgbd::{Scene, SceneError};
+
+const DESIGN_EXAMPLE: &str = r#"
+seed = 7
+[floor]
+z = 0.0
+color = [120, 120, 120]
+
+[[camera]]
+serial = "840412060746"
+position = [0.0, 0.0, 1.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]        # optional
+noise = "d415"              # or "ideal"
+calibrated = true           # preload the true camera->world transform into 3d-transformation
+
+[[box]]
+size = [0.40, 0.30, 0.20]   # length (along x before yaw), width, height
+center = [0.0, 0.0]         # footprint centre on the floor
+yaw_deg = 15.0
+color = [180, 140, 90]
+label = { kind = "qr", text = "PKG-0001", size = 0.08 }   # optional, on the top face
+
+[[cylinder]]
+radius = 0.10
+height = 0.25
+center = [0.3, -0.2]
+"#;
+
+fn error_of(text: &str) -> String {
+    Scene::from_toml(text).unwrap_err().to_string()
+}
+
+#[test]
+fn the_design_example_parses() {
+    let scene = Scene::from_toml(DESIGN_EXAMPLE).unwrap();
+    assert_eq!(scene.seed, 7);
+    assert_eq!(scene.cameras[0].serial.as_str(), "840412060746");
+    assert_eq!(scene.cameras[0].noise, Noise::D415);
+    assert!(scene.cameras[0].calibrated);
+    assert_eq!(scene.boxes[0].size, [0.40, 0.30, 0.20]);
+    assert_eq!(scene.boxes[0].label.as_ref().unwrap().kind, LabelKind::Qr);
+    assert_eq!(scene.cylinders[0].radius, 0.10);
+}
+
+#[test]
+fn the_built_in_scenes_are_valid() {
+    let single = Scene::default_single();
+    single.validate().unwrap();
+    assert_eq!(single.cameras.len(), 1);
+    assert_eq!(single.boxes[0].size, [0.40, 0.30, 0.20]);
+    assert_eq!(single.boxes[0].yaw_deg, 15.0);
+    assert_eq!(single.cameras[0].position, [0.0, 0.0, 1.0]);
+    let demo = Scene::default_demo();
+    demo.validate().unwrap();
+    assert_eq!(demo.cameras.len(), 2);
+    assert!(demo.cameras.iter().all(|c| c.calibrated));
+}
+
+#[test]
+fn scene_parse_errors_are_clear() {
+    let bad_serial = DESIGN_EXAMPLE.replace("\"840412060746\"", "\"84041206\"");
+    assert_eq!(
+        error_of(&bad_serial),
+        "scene: camera[0].serial: must be 12 ASCII digits, got \"84041206\""
+    );
+
+    let negative =
+        DESIGN_EXAMPLE.replace("size = [0.40, 0.30, 0.20]", "size = [0.40, -0.30, 0.20]");
+    let e = error_of(&negative);
+    assert!(e.starts_with("scene: box[0].size: must be positive"), "{e}");
+
+    let zero_radius = DESIGN_EXAMPLE.replace("radius = 0.10", "radius = 0.0");
+    assert!(error_of(&zero_radius).starts_with("scene: cylinder[0].radius: must be positive"));
+
+    let big_label = DESIGN_EXAMPLE.replace("size = 0.08", "size = 0.35");
+    let e = error_of(&big_label);
+    assert!(
+        e.contains("box[0].label.size") && e.contains("does not fit"),
+        "{e}"
+    );
+
+    let unknown = DESIGN_EXAMPLE.replace("yaw_deg = 15.0", "yaw = 15.0");
+    let e = error_of(&unknown);
+    assert!(e.contains("unknown field `yaw`"), "{e}");
+    assert!(e.contains("line"), "the TOML error points at the line: {e}");
+
+    let noise = DESIGN_EXAMPLE.replace("noise = \"d415\"", "noise = \"d435\"");
+    let e = error_of(&noise);
+    assert!(e.contains("d435") && e.contains("ideal"), "{e}");
+
+    let same_place =
+        DESIGN_EXAMPLE.replace("look_at = [0.0, 0.0, 0.0]", "look_at = [0.0, 0.0, 1.0]");
+    assert_eq!(
+        error_of(&same_place),
+        "scene: camera[0].look_at: must differ from position"
+    );
+
+    let parallel_up = DESIGN_EXAMPLE.replace("up = [0.0, 1.0, 0.0]", "up = [0.0, 0.0, 1.0]");
+    assert_eq!(
+        error_of(&parallel_up),
+        "scene: camera[0].up: must not be parallel to the view direction"
+    );
+
+    let twice = format!(
+        "{DESIGN_EXAMPLE}\n[[camera]]\nserial = \"840412060746\"\nposition = [1.0, 0.0, 1.0]\nlook_at = [0.0, 0.0, 0.0]\n"
+    );
+    assert_eq!(
+        error_of(&twice),
+        "scene: camera[1].serial: 840412060746 is used by another camera"
+    );
+
+    let code128 = DESIGN_EXAMPLE.replace(
+        "kind = \"qr\", text = \"PKG-0001\"",
+        "kind = \"code128\", text = \"Größe\"",
+    );
+    assert!(error_of(&code128).contains("printable ASCII"));
+
+    assert!(matches!(
+        Scene::from_toml("seed = "),
+        Err(SceneError::Parse(_))
+    ));
+    assert!(matches!(
+        Scene::load(std::path::Path::new("/nonexistent/scene.toml")),
+        Err(SceneError::Io { .. })
+    ));
+}

@@ -1,0 +1,267 @@
+use rgbd::scene::Noise;
+use rgbd::{Camera, ColorFormat, ColorSettings, DepthFrame, Scene, SyntheticCamera, d415};
+
+use crate::support::{floor_scene, only_camera};
+
+/// World point seen at depth pixel (u, v) of `frame`, via the camera's intrinsics and
+/// true pose.
+fn world_point(cam: &SyntheticCamera, frame: &DepthFrame, u: u32, v: u32) -> Option<[f64; 3]> {
+    let z = frame.metres_at(u, v)?;
+    let k = cam.depth_intrinsics().unwrap();
+    let p = k.deproject([u as f32, v as f32], z).unwrap();
+    Some(cam.true_pose().unwrap().transform_point(p.map(f64::from)))
+}
+
+/// Pixel at which the depth camera sees world point `w`.
+fn pixel_of(cam: &SyntheticCamera, w: [f64; 3]) -> (u32, u32) {
+    let pose = cam.true_pose().unwrap();
+    let d = [
+        w[0] - pose.translation[0],
+        w[1] - pose.translation[1],
+        w[2] - pose.translation[2],
+    ];
+    let r = pose.rotation;
+    let c = [0, 1, 2].map(|j| (r[0][j] * d[0] + r[1][j] * d[1] + r[2][j] * d[2]) as f32);
+    let px = cam.depth_intrinsics().unwrap().project(c).unwrap();
+    (px[0].round() as u32, px[1].round() as u32)
+}
+
+#[test]
+fn a_pixel_on_the_box_top_deprojects_to_the_true_top_within_the_noise() {
+    let scene = Scene::default_single();
+    let cam = only_camera(&scene);
+    let frame = cam.render_depth(1);
+    let top_z = scene.boxes[0].size[2];
+    let sigma = f64::from(d415::depth_rms_m(0.8, cam.depth_intrinsics().unwrap().fx));
+    // Points across the top face (box frame, yawed 15 degrees), away from the edges.
+    let yaw = scene.boxes[0].yaw_deg.to_radians();
+    let mut checked = 0;
+    for (lx, ly) in [
+        (0.0, 0.0),
+        (0.15, 0.1),
+        (-0.15, -0.1),
+        (0.1, -0.12),
+        (-0.17, 0.12),
+    ] {
+        let w = [
+            lx * yaw.cos() - ly * yaw.sin(),
+            lx * yaw.sin() + ly * yaw.cos(),
+            top_z,
+        ];
+        let (u, v) = pixel_of(&cam, w);
+        for (du, dv) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let Some(p) = world_point(&cam, &frame, u + du, v + dv) else {
+                continue; // dropout
+            };
+            // Height within 5 sigma plus half a depth unit; position within two pixels.
+            assert!(
+                (p[2] - top_z).abs() < 5.0 * sigma + 0.0005,
+                "height {} at ({u},{v})",
+                p[2]
+            );
+            assert!(
+                (p[0] - w[0]).abs() < 0.003 && (p[1] - w[1]).abs() < 0.003,
+                "{p:?} vs {w:?}"
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked >= 15, "only {checked} pixels had depth");
+}
+
+#[test]
+fn depth_noise_sigma_is_within_20_percent_of_the_d415_formula_at_0_6_1_0_and_1_5_m() {
+    for height in [0.6, 1.0, 1.5] {
+        let cam = only_camera(&floor_scene(height, Noise::D415));
+        let frame = cam.render_depth(1);
+        let errors: Vec<f64> = frame
+            .data
+            .iter()
+            .filter(|&&raw| raw != 0)
+            .map(|&raw| f64::from(raw) * f64::from(frame.depth_scale) - height)
+            .collect();
+        assert!(errors.len() > 800_000, "{} valid pixels", errors.len());
+        let n = errors.len() as f64;
+        let mean = errors.iter().sum::<f64>() / n;
+        let sigma = (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let expected = f64::from(d415::depth_rms_m(
+            height as f32,
+            cam.depth_intrinsics().unwrap().fx,
+        ));
+        let ratio = sigma / expected;
+        assert!(
+            (0.8..=1.2).contains(&ratio),
+            "at {height} m: sigma {sigma} vs formula {expected} (ratio {ratio})"
+        );
+        assert!(
+            mean.abs() < 0.2 * expected + 0.0002,
+            "bias {mean} at {height} m"
+        );
+    }
+}
+
+#[test]
+fn about_one_percent_of_pixels_drop_out() {
+    let cam = only_camera(&floor_scene(1.0, Noise::D415));
+    let frame = cam.render_depth(3);
+    let zeros = frame.data.iter().filter(|&&v| v == 0).count() as f64 / frame.data.len() as f64;
+    assert!((0.008..0.012).contains(&zeros), "{zeros}");
+}
+
+#[test]
+fn ideal_noise_renders_exact_depth() {
+    let cam = only_camera(&floor_scene(1.0, Noise::Ideal));
+    assert!(cam.render_depth(1).data.iter().all(|&v| v == 1000));
+    let scene = Scene::default_single();
+    let mut ideal = scene.clone();
+    ideal.cameras[0].noise = Noise::Ideal;
+    let frame = only_camera(&ideal).render_depth(1);
+    assert!(
+        frame.data.iter().all(|&v| v == 800 || v == 1000),
+        "only the top and the floor"
+    );
+}
+
+#[test]
+fn the_floor_beside_the_left_box_edge_is_in_the_right_imagers_shadow() {
+    let scene = Scene::default_single();
+    let cam = only_camera(&scene);
+    let frame = cam.render_depth(1);
+    let k = cam.depth_intrinsics().unwrap();
+    // Shadow width along a row = disparity(top) - disparity(floor) = fx B (1/0.8 - 1/1.0).
+    let expected = f64::from(k.fx * d415::BASELINE_M) * (1.0 / 0.8 - 1.0);
+    let mut widths = Vec::new();
+    for v in (300..420).step_by(10) {
+        let row: Vec<u16> = (0..frame.width)
+            .map(|u| frame.raw_at(u, v).unwrap())
+            .collect();
+        let Some(edge) = row.iter().position(|&z| (700..900).contains(&z)) else {
+            continue;
+        };
+        let run = row[..edge].iter().rev().take_while(|&&z| z == 0).count();
+        widths.push(run as f64);
+    }
+    assert!(widths.len() >= 10);
+    let mean = widths.iter().sum::<f64>() / widths.len() as f64;
+    assert!(
+        (mean - expected).abs() < 2.0,
+        "mean shadow width {mean} px, expected {expected}"
+    );
+    // The right side of the box casts no shadow.
+    let v = 360;
+    let row: Vec<u16> = (0..frame.width)
+        .map(|u| frame.raw_at(u, v).unwrap())
+        .collect();
+    let last_top = row.iter().rposition(|&z| (700..900).contains(&z)).unwrap();
+    let zeros_after = row[last_top + 1..last_top + 10]
+        .iter()
+        .filter(|&&z| z == 0)
+        .count();
+    assert!(zeros_after <= 1, "{zeros_after}");
+}
+
+#[test]
+fn flying_pixels_appear_only_at_depth_edges_and_only_with_d415_noise() {
+    let scene = Scene::default_single();
+    let between = |f: &DepthFrame| f.data.iter().filter(|&&z| (830..970).contains(&z)).count();
+    let noisy = only_camera(&scene).render_depth(1);
+    let flying = between(&noisy);
+    // The box outline is ~1400 px long; a share of its pixels straddle the edge.
+    assert!((50..3000).contains(&flying), "{flying} flying pixels");
+    let mut ideal = scene.clone();
+    ideal.cameras[0].noise = Noise::Ideal;
+    assert_eq!(between(&only_camera(&ideal).render_depth(1)), 0);
+}
+
+#[test]
+fn nothing_nearer_than_the_minimum_range_is_reported() {
+    let cam = only_camera(&floor_scene(0.35, Noise::D415));
+    assert!(cam.render_depth(1).data.iter().all(|&v| v == 0));
+    // At 640x360 (fx 448) the minimum range is ~0.2 m, so the floor at 0.35 m is seen.
+    cam.set_depth_settings(rgbd::DepthSettings {
+        fps: 30,
+        width: 640,
+        height: 360,
+        ..cam.depth_settings()
+    })
+    .unwrap();
+    assert!(cam.render_depth(1).data.iter().filter(|&&v| v != 0).count() > 200_000);
+}
+
+#[test]
+fn same_seed_and_frame_number_give_identical_bytes() {
+    let scene = Scene::default_demo();
+    let serial = scene.cameras[1].serial;
+    let a = SyntheticCamera::new(&scene, &serial).unwrap();
+    let b = SyntheticCamera::new(&scene, &serial).unwrap();
+    assert_eq!(a.render_depth(5), b.render_depth(5));
+    assert_eq!(a.render_color(5), b.render_color(5));
+    assert_ne!(
+        a.render_depth(5).data,
+        a.render_depth(6).data,
+        "noise changes per frame"
+    );
+
+    let mut reseeded = scene.clone();
+    reseeded.seed += 1;
+    let c = SyntheticCamera::new(&reseeded, &serial).unwrap();
+    assert_ne!(
+        a.render_depth(5).data,
+        c.render_depth(5).data,
+        "noise follows the seed"
+    );
+}
+
+#[test]
+fn color_frames_use_the_configured_format_and_show_the_label() {
+    let scene = Scene::default_single();
+    let cam = only_camera(&scene);
+    let rgb = cam.render_color(1);
+    assert_eq!(
+        (rgb.width, rgb.height, rgb.format),
+        (1280, 720, ColorFormat::Bgr8)
+    );
+    assert_eq!(rgb.stride, 1280 * 3);
+    assert_eq!(rgb.data.len(), 1280 * 720 * 3);
+    cam.set_color_settings(ColorSettings {
+        format: ColorFormat::Rgba8,
+        fps: 30,
+        width: 1920,
+        height: 1080,
+    })
+    .unwrap();
+    let rgba = cam.render_color(1);
+    assert_eq!((rgba.stride, rgba.data.len()), (1920 * 4, 1920 * 1080 * 4));
+    assert!(rgba.data.chunks(4).all(|p| p[3] == 255));
+
+    // Around the label centre (box centre, top face) there are black and white modules.
+    let k = cam.color_intrinsics().unwrap();
+    let centre = k.project([0.015, 0.0, 0.8]).unwrap();
+    let (cu, cv) = (centre[0] as u32, centre[1] as u32);
+    let mut dark = 0;
+    let mut light = 0;
+    for v in cv - 40..cv + 40 {
+        for u in cu - 40..cu + 40 {
+            let [r, g, b] = rgba.rgb_at(u, v).unwrap();
+            if r < 40 && g < 40 && b < 40 {
+                dark += 1;
+            } else if r > 200 && g > 200 && b > 200 {
+                light += 1;
+            }
+        }
+    }
+    assert!(dark > 500 && light > 500, "dark {dark}, light {light}");
+}
+
+#[test]
+fn calibrated_cameras_expose_their_true_pose() {
+    let scene = Scene::default_single();
+    let cam = only_camera(&scene);
+    let pose = cam.true_pose().unwrap();
+    assert_eq!(pose.translation, [0.0, 0.0, 1.0]);
+    // The optical axis points straight down.
+    assert_eq!(pose.transform_point([0.0, 0.0, 1.0]), [0.0, 0.0, 0.0]);
+    let mut uncalibrated = scene.clone();
+    uncalibrated.cameras[0].calibrated = false;
+    assert!(only_camera(&uncalibrated).true_pose().is_none());
+}
