@@ -1,11 +1,46 @@
 //! Drives the sans-IO [`coap`] core over tokio UDP sockets.
 //!
-//! Owns: sockets, timers, the task that owns each `coap::Endpoint`.
-//! Must not: implement protocol rules; those live in `coap`.
-//!
-//! The network layer is its own issue ("The network layer"); this crate holds only what
-//! the layers above need today.
+//! Owns: sockets (IPv4, IPv6, multicast membership, the destination address of each
+//! datagram), the task per socket that owns a `coap::Endpoint`, the [`Client`], the
+//! [`Server`] and its [`Router`], `coap://` URIs.
+//! Must not: implement protocol rules (those live in `coap`), or read the clock anywhere
+//! but [`clock::now`], so that tokio's paused clock drives the tests.
 
 #![forbid(unsafe_code)]
 
+pub mod client;
+mod driver;
+pub mod router;
+pub mod server;
+pub mod socket;
+pub mod uri;
+
+pub use client::{Client, Observation};
 pub use coap;
+pub use driver::EndpointHandle;
+pub use router::{Ctx, Resource, Router, handler};
+pub use server::{Server, ServerConfig};
+pub use uri::Uri;
+
+/// The one clock of the network layer.
+pub mod clock {
+    /// Now, as tokio sees it (paused and advanced in tests).
+    pub fn now() -> std::time::Instant {
+        tokio::time::Instant::now().into_std()
+    }
+}
+
+/// Errors of the network layer.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The request failed in the protocol (timeout, reset, too large ...).
+    #[error(transparent)]
+    Request(#[from] coap::RequestError),
+    /// A socket operation failed.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+    /// The endpoint task is gone.
+    #[error("the endpoint has shut down")]
+    Closed,
+}

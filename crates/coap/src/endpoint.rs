@@ -152,9 +152,10 @@ pub struct IncomingRequest {
     pub multicast: bool,
     /// Whether it was a CON message.
     pub confirmable: bool,
-    /// Set when this is an Observe registration (RFC 7641 §2: GET with Observe 0). If the
-    /// response is a success, the observation is established and [`Endpoint::notify`]
-    /// sends notifications to it.
+    /// Set when this is an Observe registration (RFC 7641 §2: GET with Observe 0). The
+    /// application accepts it by answering with a success that carries an Observe option
+    /// (any value; the endpoint numbers notifications itself); then [`Endpoint::notify`]
+    /// sends notifications to it. A response without Observe declines (§4.1).
     pub observe: Option<ObservationId>,
 }
 
@@ -1568,7 +1569,10 @@ impl Endpoint {
             self.blockwise_response(now, p.key.clone(), p.block2, response, &limits, max_szx);
         if let Some(obs) = p.observation {
             match self.observations.get_mut(&obs) {
-                Some(o) if response.code.is_success() => {
+                Some(o)
+                    if response.code.is_success()
+                        && response.options.contains(OptionNumber::OBSERVE) =>
+                {
                     o.established = true;
                     o.seq = (o.seq + 1) & 0x00ff_ffff;
                     response.options.set_uint(OptionNumber::OBSERVE, o.seq);

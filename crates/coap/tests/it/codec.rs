@@ -71,11 +71,9 @@ fn rfc7252_appendix_a_fig16_con_get_piggybacked_2_05() {
         &req,
         &cat(&[&[0x40, 0x01, 0x7d, 0x34, 0xbb], b"temperature"]),
     );
-    let view = MessageView::new_checked(&req.encode())
-        .unwrap()
-        .options()
-        .next();
-    assert_eq!(view, Some((OptionNumber::URI_PATH, &b"temperature"[..])));
+    let bytes = req.encode();
+    let first = MessageView::new_checked(&bytes).unwrap().options().next();
+    assert_eq!(first, Some((OptionNumber::URI_PATH, &b"temperature"[..])));
 
     let resp = msg(Type::Ack, Code::CONTENT, 0x7d34, &[], &[], b"22.3 C");
     assert_wire(&resp, &cat(&[&[0x60, 0x45, 0x7d, 0x34, 0xff], b"22.3 C"]));

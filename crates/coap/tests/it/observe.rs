@@ -28,7 +28,9 @@ fn observed(link: LinkConfig) -> (Sim, usize, usize, ObservationId) {
     let seen = reg.clone();
     let handler: crate::sim::Handler = Box::new(move |req| {
         seen.set(req.observe);
-        Reply::Now(Response::new(Code::CONTENT).with_payload("v0"))
+        let mut r = Response::new(Code::CONTENT).with_payload("v0");
+        r.options.set_uint(OptionNumber::OBSERVE, 0);
+        Reply::Now(r)
     });
     let s = sim.add(cfg(2), Some(handler));
     let server = sim.nodes[s].addr;
@@ -147,6 +149,37 @@ fn rfc7641_3_6_cancelled_client_resets_next_notification_and_observation_ends() 
             .ep
             .notify(now, obs, Response::new(Code::CONTENT)),
         "observation gone"
+    );
+}
+
+#[test]
+fn rfc7641_4_1_response_without_observe_declines_the_registration() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let reg = std::rc::Rc::new(std::cell::Cell::new(None));
+    let seen = reg.clone();
+    let handler: crate::sim::Handler = Box::new(move |req| {
+        seen.set(req.observe);
+        Reply::Now(Response::new(Code::CONTENT).with_payload("plain"))
+    });
+    let s = sim.add(cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, observe_request("/plain"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    let obs = reg.get().unwrap_or_else(|| panic!("no registration"));
+    let now = sim.now;
+    assert!(
+        !sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT))
+    );
+    assert_eq!(
+        sim.nodes[c].ep.requests_in_flight(),
+        0,
+        "client request finished"
     );
 }
 

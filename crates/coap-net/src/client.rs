@@ -1,0 +1,137 @@
+//! The client: requests with transparent block-wise transfer, Observe as a stream,
+//! multicast requests that collect every server's response, ping.
+
+use std::net::SocketAddr;
+
+use coap::{EndpointConfig, Request, RequestId, Response};
+use tokio::sync::{mpsc, oneshot};
+
+use crate::Error;
+use crate::driver::{self, Command, EndpointHandle, Reply, StreamItem};
+use crate::socket::Socket;
+
+/// A CoAP client on one socket. Cheap to clone; requests from clones share the socket,
+/// the message IDs and NSTART.
+#[derive(Clone, Debug)]
+pub struct Client {
+    handle: EndpointHandle,
+}
+
+impl Client {
+    /// A client on a socket bound to `addr` (port 0 picks a free one).
+    pub fn bind(addr: SocketAddr, config: EndpointConfig) -> std::io::Result<Self> {
+        let socket = Socket::bind(addr)?;
+        Ok(Self {
+            handle: driver::spawn(socket, config, None),
+        })
+    }
+
+    /// A client on an ephemeral port of the right address family for `peer`.
+    pub fn for_peer(peer: SocketAddr, config: EndpointConfig) -> std::io::Result<Self> {
+        let any: SocketAddr = if peer.is_ipv4() {
+            ([0, 0, 0, 0], 0).into()
+        } else {
+            ([0u16; 8], 0).into()
+        };
+        Self::bind(any, config)
+    }
+
+    /// The local socket address.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.handle.local_addr()
+    }
+
+    /// Sends a request and waits for its whole response (every block).
+    pub async fn send(&self, peer: SocketAddr, request: Request) -> Result<Response, Error> {
+        let (tx, rx) = oneshot::channel();
+        self.handle.send(Command::Request {
+            peer,
+            request,
+            reply: Reply::Once(tx),
+            id_tx: None,
+        })?;
+        rx.await.map_err(|_| Error::Closed)?.map_err(Error::Request)
+    }
+
+    /// Registers an Observe on `peer` (the request gets Observe 0). The stream yields the
+    /// first response, then each notification; dropping it cancels the observation.
+    pub async fn observe(
+        &self,
+        peer: SocketAddr,
+        mut request: Request,
+    ) -> Result<Observation, Error> {
+        request.options.set_uint(coap::OptionNumber::OBSERVE, 0);
+        let (tx, rx) = mpsc::unbounded_channel();
+        let (id_tx, id_rx) = oneshot::channel();
+        self.handle.send(Command::Request {
+            peer,
+            request,
+            reply: Reply::Stream(tx),
+            id_tx: Some(id_tx),
+        })?;
+        let id = id_rx.await.map_err(|_| Error::Closed)?;
+        Ok(Observation {
+            rx,
+            id,
+            handle: self.handle.clone(),
+        })
+    }
+
+    /// Sends a request to a multicast group and collects every server's response until the
+    /// request's timeout (5 s when unset).
+    pub async fn multicast(
+        &self,
+        group: SocketAddr,
+        mut request: Request,
+    ) -> Result<Vec<(SocketAddr, Response)>, Error> {
+        request.multicast = true;
+        let (tx, mut rx) = mpsc::unbounded_channel();
+        self.handle.send(Command::Request {
+            peer: group,
+            request,
+            reply: Reply::Stream(tx),
+            id_tx: None,
+        })?;
+        let mut out = Vec::new();
+        while let Some(item) = rx.recv().await {
+            match item {
+                StreamItem::Response(peer, r) => out.push((peer, r)),
+                StreamItem::Failed(e) => return Err(Error::Request(e)),
+            }
+        }
+        Ok(out)
+    }
+
+    /// A CoAP ping: `Ok` when the peer answers the empty CON.
+    pub async fn ping(&self, peer: SocketAddr) -> Result<(), Error> {
+        let (tx, rx) = oneshot::channel();
+        self.handle.send(Command::Ping { peer, reply: tx })?;
+        rx.await.map_err(|_| Error::Closed)?.map_err(Error::Request)
+    }
+}
+
+/// A running observation: the first response, then notifications.
+#[derive(Debug)]
+pub struct Observation {
+    rx: mpsc::UnboundedReceiver<StreamItem>,
+    id: RequestId,
+    handle: EndpointHandle,
+}
+
+impl Observation {
+    /// The next response or notification; `None` when the observation ended.
+    pub async fn next(&mut self) -> Option<Result<Response, Error>> {
+        match self.rx.recv().await? {
+            StreamItem::Response(_, r) => Some(Ok(r)),
+            StreamItem::Failed(e) => Some(Err(Error::Request(e))),
+        }
+    }
+}
+
+impl Drop for Observation {
+    fn drop(&mut self) {
+        // Forgetting the token makes the client answer the next notification with a
+        // Reset, which ends the observation on the server (RFC 7641 §3.6).
+        let _ = self.handle.send(Command::Cancel(self.id));
+    }
+}

@@ -1,0 +1,364 @@
+//! Resources by path, added and removed at run time, with async per-method handlers and
+//! link attributes that feed `/.well-known/core` (RFC 6690).
+
+use std::collections::HashMap;
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::{Arc, RwLock};
+
+use coap::link_format::{self, Filter, Link};
+use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
+
+/// A request as a handler sees it: the received request plus the values of the path
+/// pattern's `{name}` segments.
+#[derive(Debug, Clone)]
+pub struct Ctx {
+    /// The request (body already assembled).
+    pub request: IncomingRequest,
+    /// Pattern parameters, e.g. `sn` for `/cams/{sn}/color`.
+    pub params: HashMap<String, String>,
+}
+
+impl Ctx {
+    /// A pattern parameter.
+    pub fn param(&self, name: &str) -> Option<&str> {
+        self.params.get(name).map(String::as_str)
+    }
+}
+
+/// A boxed handler future.
+pub type BoxFuture = Pin<Box<dyn Future<Output = Response> + Send>>;
+/// A handler: an async function from request to response.
+pub type Handler = Arc<dyn Fn(Ctx) -> BoxFuture + Send + Sync>;
+
+/// Wraps an async closure as a [`Handler`].
+pub fn handler<F, Fut>(f: F) -> Handler
+where
+    F: Fn(Ctx) -> Fut + Send + Sync + 'static,
+    Fut: Future<Output = Response> + Send + 'static,
+{
+    Arc::new(move |ctx| Box::pin(f(ctx)))
+}
+
+/// One resource: its handlers per method and its link attributes.
+#[derive(Clone, Default)]
+pub struct Resource {
+    methods: Vec<(Code, Handler)>,
+    attrs: Vec<(String, Option<String>)>,
+    observable: bool,
+}
+
+impl std::fmt::Debug for Resource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Resource")
+            .field(
+                "methods",
+                &self.methods.iter().map(|(c, _)| *c).collect::<Vec<_>>(),
+            )
+            .field("attrs", &self.attrs)
+            .field("observable", &self.observable)
+            .finish()
+    }
+}
+
+impl Resource {
+    /// A resource without methods (every method answers 4.05 until one is added).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Handles `method`.
+    pub fn on(mut self, method: Code, h: Handler) -> Self {
+        self.methods.retain(|(c, _)| *c != method);
+        self.methods.push((method, h));
+        self
+    }
+
+    /// Handles GET.
+    pub fn get(self, h: Handler) -> Self {
+        self.on(Code::GET, h)
+    }
+
+    /// Handles POST.
+    pub fn post(self, h: Handler) -> Self {
+        self.on(Code::POST, h)
+    }
+
+    /// Handles PUT.
+    pub fn put(self, h: Handler) -> Self {
+        self.on(Code::PUT, h)
+    }
+
+    /// Handles DELETE.
+    pub fn delete(self, h: Handler) -> Self {
+        self.on(Code::DELETE, h)
+    }
+
+    /// A link attribute for `/.well-known/core` (e.g. `rt`, `if`, `ct`, `title`).
+    pub fn attr(mut self, name: &str, value: impl Into<String>) -> Self {
+        self.attrs.push((name.to_string(), Some(value.into())));
+        self
+    }
+
+    /// Marks the resource observable (RFC 7641): GET registrations are accepted and the
+    /// link carries `obs`.
+    pub fn observable(mut self) -> Self {
+        self.observable = true;
+        self
+    }
+
+    /// Whether the resource is observable.
+    pub fn is_observable(&self) -> bool {
+        self.observable
+    }
+
+    fn handler(&self, method: Code) -> Option<&Handler> {
+        self.methods
+            .iter()
+            .find(|(c, _)| *c == method)
+            .map(|(_, h)| h)
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Segment {
+    Literal(String),
+    Param(String),
+}
+
+fn parse_pattern(pattern: &str) -> Vec<Segment> {
+    pattern
+        .split('/')
+        .filter(|s| !s.is_empty())
+        .map(
+            |s| match s.strip_prefix('{').and_then(|s| s.strip_suffix('}')) {
+                Some(name) => Segment::Param(name.to_string()),
+                None => Segment::Literal(s.to_string()),
+            },
+        )
+        .collect()
+}
+
+fn match_pattern(pattern: &[Segment], path: &[String]) -> Option<HashMap<String, String>> {
+    if pattern.len() != path.len() {
+        return None;
+    }
+    let mut params = HashMap::new();
+    for (seg, part) in pattern.iter().zip(path) {
+        match seg {
+            Segment::Literal(l) if l == part => {}
+            Segment::Literal(_) => return None,
+            Segment::Param(name) => {
+                params.insert(name.clone(), part.clone());
+            }
+        }
+    }
+    Some(params)
+}
+
+struct Entry {
+    pattern: String,
+    segments: Vec<Segment>,
+    resource: Resource,
+}
+
+/// The resource table. Shared (`Arc<Router>`) between the server and whoever adds and
+/// removes resources at run time.
+#[derive(Default)]
+pub struct Router {
+    entries: RwLock<Vec<Entry>>,
+}
+
+impl std::fmt::Debug for Router {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Router")
+            .field("patterns", &self.patterns())
+            .finish()
+    }
+}
+
+impl Router {
+    /// An empty router (it still answers `/.well-known/core`).
+    pub fn new() -> Arc<Self> {
+        Arc::new(Self::default())
+    }
+
+    /// Adds or replaces the resource at `pattern` (`/files/a.bin`, `/cams/{sn}/color`).
+    /// Literal paths are matched before patterns with parameters.
+    pub fn add(&self, pattern: &str, resource: Resource) {
+        let segments = parse_pattern(pattern);
+        let pattern = format!(
+            "/{}",
+            segments.iter().map(seg_str).collect::<Vec<_>>().join("/")
+        );
+        let mut entries = self
+            .entries
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        entries.retain(|e| e.pattern != pattern);
+        entries.push(Entry {
+            pattern,
+            segments,
+            resource,
+        });
+        entries.sort_by_key(|e| {
+            e.segments
+                .iter()
+                .filter(|s| matches!(s, Segment::Param(_)))
+                .count()
+        });
+    }
+
+    /// Removes the resource at `pattern`; returns whether there was one.
+    pub fn remove(&self, pattern: &str) -> bool {
+        let segments = parse_pattern(pattern);
+        let pattern = format!(
+            "/{}",
+            segments.iter().map(seg_str).collect::<Vec<_>>().join("/")
+        );
+        let mut entries = self
+            .entries
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let before = entries.len();
+        entries.retain(|e| e.pattern != pattern);
+        entries.len() != before
+    }
+
+    /// The registered patterns.
+    pub fn patterns(&self) -> Vec<String> {
+        let entries = self
+            .entries
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        entries.iter().map(|e| e.pattern.clone()).collect()
+    }
+
+    /// The resource for a concrete path, with its parameters.
+    pub fn find(&self, path: &[String]) -> Option<(Resource, HashMap<String, String>)> {
+        let entries = self
+            .entries
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        entries
+            .iter()
+            .find_map(|e| match_pattern(&e.segments, path).map(|p| (e.resource.clone(), p)))
+    }
+
+    /// The `/.well-known/core` document (RFC 6690 §4): every resource whose path has no
+    /// parameters, with its attributes, filtered by the query.
+    pub fn links(&self, filter: &Filter) -> String {
+        let entries = self
+            .entries
+            .read()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let links: Vec<Link> = entries
+            .iter()
+            .filter(|e| e.segments.iter().all(|s| matches!(s, Segment::Literal(_))))
+            .map(|e| {
+                let mut link = Link {
+                    target: e.pattern.clone(),
+                    attrs: e.resource.attrs.clone(),
+                };
+                if e.resource.observable {
+                    link.attrs.push(("obs".to_string(), None));
+                }
+                link
+            })
+            .filter(|l| filter.matches(l))
+            .collect();
+        link_format::write_links(&links)
+    }
+
+    /// Answers a request: `/.well-known/core`, the resource's handler, 4.04 for an unknown
+    /// path, 4.05 for a method the resource lacks. A GET whose ETag option names the
+    /// representation the handler produced is answered 2.03 Valid (RFC 7252 §5.10.6.1).
+    pub async fn dispatch(&self, request: IncomingRequest) -> Response {
+        let path: Vec<String> = request.options.uri_path().map(|s| s.into_owned()).collect();
+        if path == [".well-known", "core"] {
+            if request.method != Code::GET {
+                return Response::diagnostic(Code::METHOD_NOT_ALLOWED, "GET only");
+            }
+            let query: Vec<String> = request
+                .options
+                .uri_query()
+                .map(|q| q.into_owned())
+                .collect();
+            let filter = match Filter::parse(&query.join("&")) {
+                Ok(f) => f,
+                Err(e) => return Response::diagnostic(Code::BAD_REQUEST, &e.to_string()),
+            };
+            let mut r = Response::new(Code::CONTENT).with_payload(self.links(&filter));
+            r.options.set_uint(
+                OptionNumber::CONTENT_FORMAT,
+                u32::from(ContentFormat::LINK_FORMAT.0),
+            );
+            return r;
+        }
+        let Some((resource, params)) = self.find(&path) else {
+            return Response::diagnostic(Code::NOT_FOUND, "no such resource");
+        };
+        let Some(h) = resource.handler(request.method).cloned() else {
+            return Response::diagnostic(
+                Code::METHOD_NOT_ALLOWED,
+                "method not allowed on this resource",
+            );
+        };
+        let etags: Vec<Vec<u8>> = request
+            .options
+            .values(OptionNumber::ETAG)
+            .map(<[u8]>::to_vec)
+            .collect();
+        let method = request.method;
+        let observable = resource.observable;
+        let observe = request.observe.is_some();
+        let mut response = h(Ctx { request, params }).await;
+        if method == Code::GET
+            && response.code == Code::CONTENT
+            && response
+                .options
+                .etag()
+                .is_some_and(|t| etags.iter().any(|e| e == t))
+        {
+            // The client's copy is current: 2.03 with the ETag, no payload.
+            response.code = Code::VALID;
+            response.payload = bytes::Bytes::new();
+        }
+        if observable && observe && response.code.is_success() {
+            // Accept the registration (the endpoint numbers the notifications).
+            response.options.set_uint(OptionNumber::OBSERVE, 0);
+        }
+        response
+    }
+}
+
+fn seg_str(s: &Segment) -> String {
+    match s {
+        Segment::Literal(l) => l.clone(),
+        Segment::Param(p) => format!("{{{p}}}"),
+    }
+}
+
+/// RFC 7252 §5.10.8: checks If-Match and If-None-Match of a request against the current
+/// ETag of the target (`None`: the resource does not exist). Returns 4.12 Precondition
+/// Failed when a condition fails.
+pub fn check_preconditions(request: &IncomingRequest, current: Option<&[u8]>) -> Option<Response> {
+    let if_match: Vec<&[u8]> = request.options.values(OptionNumber::IF_MATCH).collect();
+    if !if_match.is_empty() {
+        // An empty If-Match value matches any existing representation.
+        let ok = current.is_some_and(|c| if_match.iter().any(|m| m.is_empty() || *m == c));
+        if !ok {
+            return Some(Response::diagnostic(
+                Code::PRECONDITION_FAILED,
+                "If-Match failed",
+            ));
+        }
+    }
+    if request.options.contains(OptionNumber::IF_NONE_MATCH) && current.is_some() {
+        return Some(Response::diagnostic(
+            Code::PRECONDITION_FAILED,
+            "If-None-Match: resource exists",
+        ));
+    }
+    None
+}

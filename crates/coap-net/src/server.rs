@@ -1,0 +1,249 @@
+//! The server: one endpoint task per bound address, a [`Router`] shared by all of them,
+//! handlers run as spawned tasks, Observe registrations kept per path.
+
+use std::collections::HashMap;
+use std::net::{IpAddr, SocketAddr};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use coap::{EndpointConfig, IncomingRequest, ObservationId, OptionNumber};
+use tokio::sync::{mpsc, oneshot};
+
+use crate::Error;
+use crate::driver::{self, Command, EndpointHandle, ServerEvent};
+use crate::router::Router;
+use crate::socket::Socket;
+
+/// Server settings.
+#[derive(Debug, Clone)]
+pub struct ServerConfig {
+    /// The protocol endpoint's settings.
+    pub endpoint: EndpointConfig,
+    /// Leisure (RFC 7252 §8.2, RFC 7390 §2.5): a response to a multicast request waits a
+    /// random time up to this, so that group members do not all answer at once. RFC 7252
+    /// suggests 5 s for unknown constrained networks; coapcam's endpoints sit on a LAN
+    /// and a user waits for the answer, so the default is 500 ms.
+    pub leisure: Duration,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        Self {
+            endpoint: EndpointConfig::default(),
+            leisure: Duration::from_millis(500),
+        }
+    }
+}
+
+struct Observer {
+    id: ObservationId,
+    endpoint: usize,
+    request: IncomingRequest,
+}
+
+#[derive(Default)]
+struct Observers {
+    by_path: Mutex<HashMap<String, Vec<Observer>>>,
+}
+
+impl Observers {
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, Vec<Observer>>> {
+        self.by_path.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn remove(&self, endpoint: usize, id: ObservationId) {
+        for list in self.lock().values_mut() {
+            list.retain(|o| !(o.endpoint == endpoint && o.id == id));
+        }
+    }
+}
+
+/// A running CoAP server.
+pub struct Server {
+    router: Arc<Router>,
+    endpoints: Vec<EndpointHandle>,
+    observers: Arc<Observers>,
+}
+
+impl std::fmt::Debug for Server {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Server")
+            .field("local_addrs", &self.local_addrs())
+            .finish()
+    }
+}
+
+impl Server {
+    /// Binds every address and starts serving `router`.
+    pub fn bind(
+        addrs: &[SocketAddr],
+        config: ServerConfig,
+        router: Arc<Router>,
+    ) -> std::io::Result<Self> {
+        let observers = Arc::new(Observers::default());
+        let mut endpoints = Vec::new();
+        for (index, addr) in addrs.iter().enumerate() {
+            let socket = Socket::bind(*addr)?;
+            let (tx, rx) = mpsc::unbounded_channel();
+            let mut ep_config = config.endpoint.clone();
+            ep_config.rng_seed = ep_config.rng_seed.wrapping_add(index as u64);
+            let handle = driver::spawn(socket, ep_config, Some(tx));
+            tokio::spawn(serve(
+                rx,
+                handle.clone(),
+                index,
+                router.clone(),
+                observers.clone(),
+                config.leisure,
+            ));
+            endpoints.push(handle);
+        }
+        Ok(Self {
+            router,
+            endpoints,
+            observers,
+        })
+    }
+
+    /// The bound addresses, in the order given to [`Server::bind`].
+    pub fn local_addrs(&self) -> Vec<SocketAddr> {
+        self.endpoints
+            .iter()
+            .map(EndpointHandle::local_addr)
+            .collect()
+    }
+
+    /// The router, to add and remove resources while serving.
+    pub fn router(&self) -> &Arc<Router> {
+        &self.router
+    }
+
+    /// Joins a multicast group on every socket of the group's address family
+    /// (`interface`: an IPv6 interface index, 0 for the default).
+    pub async fn join(&self, group: IpAddr, interface: u32) -> Result<usize, Error> {
+        self.membership(group, interface, true).await
+    }
+
+    /// Leaves a multicast group.
+    pub async fn leave(&self, group: IpAddr, interface: u32) -> Result<usize, Error> {
+        self.membership(group, interface, false).await
+    }
+
+    async fn membership(&self, group: IpAddr, interface: u32, join: bool) -> Result<usize, Error> {
+        let mut n = 0;
+        for h in &self.endpoints {
+            if h.local_addr().is_ipv4() != group.is_ipv4() {
+                continue;
+            }
+            let (done, rx) = oneshot::channel();
+            h.send(Command::Membership {
+                group,
+                interface,
+                join,
+                done,
+            })?;
+            rx.await.map_err(|_| Error::Closed)?.map_err(Error::Io)?;
+            n += 1;
+        }
+        Ok(n)
+    }
+
+    /// Tells the observers of `path` that it changed: the GET handler runs again for each
+    /// registration and the result goes out as a notification. Returns how many were sent.
+    pub async fn notify(&self, path: &str) -> usize {
+        let targets: Vec<(usize, ObservationId, IncomingRequest)> = self
+            .observers
+            .lock()
+            .get(path)
+            .map(|l| {
+                l.iter()
+                    .map(|o| (o.endpoint, o.id, o.request.clone()))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let mut sent = 0;
+        for (endpoint, id, request) in targets {
+            let response = self.router.dispatch(request).await;
+            let (done, rx) = oneshot::channel();
+            let Some(h) = self.endpoints.get(endpoint) else {
+                continue;
+            };
+            if h.send(Command::Notify { id, response, done }).is_err() {
+                continue;
+            }
+            if rx.await.unwrap_or(false) {
+                sent += 1;
+            } else {
+                self.observers.remove(endpoint, id);
+            }
+        }
+        sent
+    }
+
+    /// Paths with at least one observer.
+    pub fn observed_paths(&self) -> Vec<String> {
+        self.observers
+            .lock()
+            .iter()
+            .filter(|(_, l)| !l.is_empty())
+            .map(|(p, _)| p.clone())
+            .collect()
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        for h in &self.endpoints {
+            let _ = h.send(Command::Shutdown);
+        }
+    }
+}
+
+async fn serve(
+    mut rx: mpsc::UnboundedReceiver<ServerEvent>,
+    handle: EndpointHandle,
+    endpoint: usize,
+    router: Arc<Router>,
+    observers: Arc<Observers>,
+    leisure: Duration,
+) {
+    while let Some(ev) = rx.recv().await {
+        match ev {
+            ServerEvent::ObservationEnded(id) => observers.remove(endpoint, id),
+            ServerEvent::Request(request) => {
+                let handle = handle.clone();
+                let router = router.clone();
+                let observers = observers.clone();
+                tokio::spawn(async move {
+                    let id = request.id;
+                    let multicast = request.multicast;
+                    let registration = request.observe.map(|obs| (obs, request.clone()));
+                    let response = router.dispatch(request).await;
+                    if let Some((obs, request)) = registration
+                        && response.options.contains(OptionNumber::OBSERVE)
+                    {
+                        let path = request.options.path_string();
+                        observers.lock().entry(path).or_default().push(Observer {
+                            id: obs,
+                            endpoint,
+                            request,
+                        });
+                    }
+                    if multicast && !leisure.is_zero() {
+                        // A spread of answers over [0, Leisure), from the request id.
+                        let spread = splitmix(id.0) % (leisure.as_millis().max(1) as u64);
+                        tokio::time::sleep(Duration::from_millis(spread)).await;
+                    }
+                    let _ = handle.send(Command::Respond { id, response });
+                });
+            }
+        }
+    }
+}
+
+fn splitmix(mut x: u64) -> u64 {
+    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    x ^ (x >> 31)
+}

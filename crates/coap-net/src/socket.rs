@@ -1,0 +1,152 @@
+//! UDP sockets for CoAP: IPv4 and IPv6, multicast membership, and the destination address
+//! of every received datagram (so a request sent to a group is known as one).
+
+use std::io::{self, IoSliceMut};
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
+
+use quinn_udp::{RecvMeta, UdpSockRef, UdpSocketState};
+use socket2::{Domain, Protocol, Socket as RawSocket, Type};
+use tokio::io::Interest;
+
+/// The largest datagram a CoAP endpoint receives (the IPv4 UDP maximum).
+pub const MAX_DATAGRAM: usize = 65_507;
+
+/// One received datagram.
+#[derive(Debug, Clone, Copy)]
+pub struct Received {
+    /// Sender.
+    pub peer: SocketAddr,
+    /// Offset and length in the receive buffer.
+    pub range: (usize, usize),
+    /// Whether it was addressed to a multicast group.
+    pub multicast: bool,
+}
+
+/// A UDP socket bound for CoAP.
+#[derive(Debug)]
+pub struct Socket {
+    io: tokio::net::UdpSocket,
+    state: UdpSocketState,
+    local: SocketAddr,
+}
+
+impl Socket {
+    /// Binds `addr`. Address reuse is on, so several servers on one host can share a
+    /// multicast port; an IPv6 wildcard bind is IPv6-only, so `0.0.0.0:5683` and
+    /// `[::]:5683` can be bound side by side.
+    pub fn bind(addr: SocketAddr) -> io::Result<Self> {
+        let raw = RawSocket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP))?;
+        raw.set_reuse_address(true)?;
+        if addr.is_ipv6() {
+            raw.set_only_v6(true)?;
+        }
+        raw.set_nonblocking(true)?;
+        raw.bind(&addr.into())?;
+        let std: std::net::UdpSocket = raw.into();
+        let io = tokio::net::UdpSocket::from_std(std)?;
+        let state = UdpSocketState::new(UdpSockRef::from(&io))?;
+        let local = io.local_addr()?;
+        Ok(Self { io, state, local })
+    }
+
+    /// The bound address.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local
+    }
+
+    /// Joins a multicast group; `interface` is an IPv6 interface index (0: the default) and
+    /// is ignored for IPv4, which joins on the interface the routing table picks.
+    pub fn join(&self, group: IpAddr, interface: u32) -> io::Result<()> {
+        match group {
+            IpAddr::V4(g) => self.io.join_multicast_v4(g, Ipv4Addr::UNSPECIFIED),
+            IpAddr::V6(g) => self.io.join_multicast_v6(&g, interface),
+        }
+    }
+
+    /// Leaves a multicast group.
+    pub fn leave(&self, group: IpAddr, interface: u32) -> io::Result<()> {
+        match group {
+            IpAddr::V4(g) => self.io.leave_multicast_v4(g, Ipv4Addr::UNSPECIFIED),
+            IpAddr::V6(g) => self.io.leave_multicast_v6(&g, interface),
+        }
+    }
+
+    /// Multicast sends go out on this interface (IPv4 address or IPv6 interface index) and
+    /// loop back to local listeners.
+    pub fn set_multicast_interface(
+        &self,
+        v4: Option<Ipv4Addr>,
+        v6_index: Option<u32>,
+    ) -> io::Result<()> {
+        let raw = socket2::SockRef::from(&self.io);
+        match self.local {
+            SocketAddr::V4(_) => {
+                raw.set_multicast_loop_v4(true)?;
+                if let Some(a) = v4 {
+                    raw.set_multicast_if_v4(&a)?;
+                }
+            }
+            SocketAddr::V6(_) => {
+                raw.set_multicast_loop_v6(true)?;
+                if let Some(i) = v6_index {
+                    raw.set_multicast_if_v6(i)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Sends one datagram.
+    pub async fn send_to(&self, data: &[u8], peer: SocketAddr) -> io::Result<()> {
+        self.io.send_to(data, peer).await.map(|_| ())
+    }
+
+    /// Waits for datagrams and writes them into `buf`, filling `out` with one entry per
+    /// datagram (the kernel may hand several same-sized datagrams over at once).
+    pub async fn recv(&self, buf: &mut [u8], out: &mut Vec<Received>) -> io::Result<()> {
+        out.clear();
+        let mut meta = [RecvMeta::default()];
+        let n = self
+            .io
+            .async_io(Interest::READABLE, || {
+                let mut slices = [IoSliceMut::new(buf)];
+                self.state
+                    .recv(UdpSockRef::from(&self.io), &mut slices, &mut meta)
+            })
+            .await?;
+        for m in meta.iter().take(n) {
+            let multicast = m.dst_ip.is_some_and(is_multicast);
+            let stride = m.stride.max(1);
+            let mut start = 0;
+            while start < m.len {
+                let len = stride.min(m.len - start);
+                out.push(Received {
+                    peer: m.addr,
+                    range: (start, len),
+                    multicast,
+                });
+                start += stride;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn is_multicast(ip: IpAddr) -> bool {
+    match ip {
+        IpAddr::V4(a) => a.is_multicast(),
+        IpAddr::V6(a) => a.is_multicast() || a.to_ipv4_mapped().is_some_and(|v4| v4.is_multicast()),
+    }
+}
+
+/// The "All CoAP Nodes" groups (RFC 7252 §12.8).
+pub mod groups {
+    use super::*;
+
+    /// IPv4 224.0.1.187.
+    pub const ALL_COAP_V4: Ipv4Addr = Ipv4Addr::new(224, 0, 1, 187);
+    /// IPv6 link-local ff02::fd.
+    pub const ALL_COAP_V6_LINK: Ipv6Addr = Ipv6Addr::new(0xff02, 0, 0, 0, 0, 0, 0, 0xfd);
+    /// IPv6 site-local ff05::fd.
+    pub const ALL_COAP_V6_SITE: Ipv6Addr = Ipv6Addr::new(0xff05, 0, 0, 0, 0, 0, 0, 0xfd);
+}

@@ -1,0 +1,208 @@
+//! `coap://host[:port]/path?query` URIs (RFC 7252 §6) to a socket address and request
+//! options, and back.
+
+use std::net::{IpAddr, SocketAddr};
+
+use coap::{OptionNumber, Options};
+
+/// A parsed `coap://` URI.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Uri {
+    /// Host as written: an IP literal (IPv6 without brackets) or a name.
+    pub host: String,
+    /// Port (5683 when absent).
+    pub port: u16,
+    /// Path segments, percent-decoded.
+    pub path: Vec<String>,
+    /// Query items, percent-decoded.
+    pub query: Vec<String>,
+}
+
+/// Why a URI was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum UriError {
+    /// Only `coap://` is supported.
+    #[error("unsupported scheme in {0:?}: only coap:// is supported")]
+    Scheme(String),
+    /// No host.
+    #[error("no host in {0:?}")]
+    Host(String),
+    /// A port that is not a number from 1 to 65535.
+    #[error("bad port in {0:?}")]
+    Port(String),
+    /// A `%` not followed by two hex digits, or bytes that are not UTF-8.
+    #[error("bad percent-encoding in {0:?}")]
+    Percent(String),
+    /// A fragment (`#`), which CoAP URIs must not have (RFC 7252 §6.1).
+    #[error("fragment not allowed in {0:?}")]
+    Fragment(String),
+}
+
+/// The default CoAP port.
+pub const DEFAULT_PORT: u16 = 5683;
+
+impl Uri {
+    /// Parses `coap://host[:port][/path][?query]`.
+    pub fn parse(s: &str) -> Result<Self, UriError> {
+        let rest = s
+            .strip_prefix("coap://")
+            .ok_or_else(|| UriError::Scheme(s.to_string()))?;
+        if rest.contains('#') {
+            return Err(UriError::Fragment(s.to_string()));
+        }
+        let (authority, path_query) = match rest.find(['/', '?']) {
+            Some(i) => rest.split_at(i),
+            None => (rest, ""),
+        };
+        let (host, port) = if let Some(v6) = authority.strip_prefix('[') {
+            let (h, after) = v6
+                .split_once(']')
+                .ok_or_else(|| UriError::Host(s.to_string()))?;
+            let port = match after.strip_prefix(':') {
+                Some(p) => Some(p),
+                None if after.is_empty() => None,
+                None => return Err(UriError::Host(s.to_string())),
+            };
+            (h.to_string(), port)
+        } else {
+            match authority.rsplit_once(':') {
+                Some((h, p)) => (h.to_string(), Some(p)),
+                None => (authority.to_string(), None),
+            }
+        };
+        if host.is_empty() {
+            return Err(UriError::Host(s.to_string()));
+        }
+        let port = match port {
+            Some(p) => p
+                .parse::<u16>()
+                .ok()
+                .filter(|p| *p != 0)
+                .ok_or_else(|| UriError::Port(s.to_string()))?,
+            None => DEFAULT_PORT,
+        };
+        let (path, query) = match path_query.split_once('?') {
+            Some((p, q)) => (p, Some(q)),
+            None => (path_query, None),
+        };
+        let decode =
+            |part: &str| percent_decode(part).ok_or_else(|| UriError::Percent(s.to_string()));
+        let path = path
+            .split('/')
+            .filter(|seg| !seg.is_empty())
+            .map(decode)
+            .collect::<Result<Vec<_>, _>>()?;
+        let query = query
+            .map(|q| {
+                q.split('&')
+                    .filter(|i| !i.is_empty())
+                    .map(decode)
+                    .collect::<Result<Vec<_>, _>>()
+            })
+            .transpose()?
+            .unwrap_or_default();
+        Ok(Self {
+            host,
+            port,
+            path,
+            query,
+        })
+    }
+
+    /// The host as an IP address, when it is a literal.
+    pub fn ip(&self) -> Option<IpAddr> {
+        self.host.parse().ok()
+    }
+
+    /// Resolves the host (a literal, or a name through the system resolver).
+    pub async fn resolve(&self) -> std::io::Result<SocketAddr> {
+        if let Some(ip) = self.ip() {
+            return Ok(SocketAddr::new(ip, self.port));
+        }
+        tokio::net::lookup_host((self.host.as_str(), self.port))
+            .await?
+            .next()
+            .ok_or_else(|| {
+                std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
+                    format!("{} does not resolve", self.host),
+                )
+            })
+    }
+
+    /// The request options this URI stands for (RFC 7252 §6.4): Uri-Host for a name,
+    /// Uri-Path and Uri-Query for each segment and item.
+    pub fn options(&self) -> Options {
+        let mut o = Options::new();
+        if self.ip().is_none() {
+            o.push(OptionNumber::URI_HOST, self.host.as_bytes());
+        }
+        for seg in &self.path {
+            o.push(OptionNumber::URI_PATH, seg.as_bytes());
+        }
+        for q in &self.query {
+            o.push(OptionNumber::URI_QUERY, q.as_bytes());
+        }
+        o
+    }
+
+    /// The path with a leading `/`.
+    pub fn path_string(&self) -> String {
+        format!("/{}", self.path.join("/"))
+    }
+}
+
+fn percent_decode(s: &str) -> Option<String> {
+    let bytes = s.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while let Some(&b) = bytes.get(i) {
+        if b == b'%' {
+            let hex = std::str::from_utf8(bytes.get(i + 1..i + 3)?).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            i += 3;
+        } else {
+            out.push(b);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rfc7252_6_parses_host_port_path_query() {
+        let u = Uri::parse("coap://127.0.0.1:5684/cams/pointclouds?rt=rgbd.color&x=%20y").unwrap();
+        assert_eq!(u.port, 5684);
+        assert_eq!(u.path, ["cams", "pointclouds"]);
+        assert_eq!(u.query, ["rt=rgbd.color", "x= y"]);
+        assert!(!u.options().contains(OptionNumber::URI_HOST));
+        let u = Uri::parse("coap://[::1]/.well-known/core").unwrap();
+        assert_eq!((u.host.as_str(), u.port), ("::1", 5683));
+        let u = Uri::parse("coap://camera-1.local").unwrap();
+        assert!(u.path.is_empty());
+        assert!(u.options().contains(OptionNumber::URI_HOST));
+    }
+
+    #[test]
+    fn rfc7252_6_rejects_bad_uris() {
+        assert!(matches!(Uri::parse("http://x/"), Err(UriError::Scheme(_))));
+        assert!(matches!(Uri::parse("coap://x:0/"), Err(UriError::Port(_))));
+        assert!(matches!(
+            Uri::parse("coap://x:99999/"),
+            Err(UriError::Port(_))
+        ));
+        assert!(matches!(Uri::parse("coap:///a"), Err(UriError::Host(_))));
+        assert!(matches!(
+            Uri::parse("coap://x/a%zz"),
+            Err(UriError::Percent(_))
+        ));
+        assert!(matches!(
+            Uri::parse("coap://x/a#f"),
+            Err(UriError::Fragment(_))
+        ));
+    }
+}

@@ -1,0 +1,365 @@
+//! coap-net over real loopback sockets: client and server together.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use bytes::Bytes;
+use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
+use coap_net::{Client, Resource, Router, Server, ServerConfig, handler};
+
+fn body(len: usize) -> Bytes {
+    (0..len)
+        .map(|i| (i.wrapping_mul(31) ^ (i >> 7)) as u8)
+        .collect::<Vec<u8>>()
+        .into()
+}
+
+fn server(router: Arc<Router>) -> (Server, SocketAddr) {
+    let s = Server::bind(
+        &["127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!())],
+        ServerConfig::default(),
+        router,
+    )
+    .unwrap_or_else(|e| panic!("bind: {e}"));
+    let addr = s.local_addrs()[0];
+    (s, addr)
+}
+
+fn client(peer: SocketAddr) -> Client {
+    Client::for_peer(
+        peer,
+        EndpointConfig {
+            rng_seed: 5,
+            ..EndpointConfig::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
+async fn within<T>(f: impl Future<Output = T>) -> T {
+    tokio::time::timeout(Duration::from_secs(20), f)
+        .await
+        .unwrap_or_else(|_| panic!("test took too long"))
+}
+
+#[tokio::test]
+async fn methods_4_04_and_4_05_through_the_router() {
+    let router = Router::new();
+    router.add(
+        "/things/{name}",
+        Resource::new()
+            .get(handler(|ctx| async move {
+                Response::new(Code::CONTENT)
+                    .with_payload(format!("thing {}", ctx.param("name").unwrap_or("")))
+            }))
+            .put(handler(|ctx| async move {
+                Response::new(Code::CHANGED).with_payload(ctx.request.payload)
+            }))
+            .delete(handler(|_| async { Response::new(Code::DELETED) })),
+    );
+    let (_s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let r = c
+            .send(addr, Request::new(Code::GET, "/things/a"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((r.code, &r.payload[..]), (Code::CONTENT, &b"thing a"[..]));
+        let r = c
+            .send(addr, Request::new(Code::PUT, "/things/a").with_payload("x"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.code, Code::CHANGED);
+        let r = c
+            .send(addr, Request::new(Code::DELETE, "/things/a"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.code, Code::DELETED);
+        let r = c
+            .send(addr, Request::new(Code::POST, "/things/a"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.code, Code::METHOD_NOT_ALLOWED);
+        let r = c
+            .send(addr, Request::new(Code::GET, "/nothing"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.code, Code::NOT_FOUND);
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn rfc6690_4_1_discovery_with_filter_and_runtime_add_remove() {
+    let router = Router::new();
+    let ok = || handler(|_| async { Response::new(Code::CONTENT) });
+    router.add(
+        "/cams/111111111111/color",
+        Resource::new()
+            .get(ok())
+            .attr("rt", "rgbd.color")
+            .attr("ct", "42"),
+    );
+    router.add(
+        "/cams/111111111111/depth",
+        Resource::new().get(ok()).attr("rt", "rgbd.depth"),
+    );
+    let (_s, addr) = server(router.clone());
+    let c = client(addr);
+    within(async {
+        let mut req = Request::new(Code::GET, "/.well-known/core");
+        req.options
+            .push(OptionNumber::URI_QUERY, b"rt=rgbd.c*".to_vec());
+        let r = c
+            .send(addr, req.clone())
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        let text = String::from_utf8_lossy(&r.payload).into_owned();
+        assert!(
+            text.contains("</cams/111111111111/color>") && !text.contains("depth"),
+            "{text}"
+        );
+        assert_eq!(
+            r.options.content_format(),
+            Some(coap::ContentFormat::LINK_FORMAT)
+        );
+        assert!(router.remove("/cams/111111111111/color"));
+        let r = c.send(addr, req).await.unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            r.payload.is_empty(),
+            "removed resources vanish from discovery"
+        );
+        let r = c
+            .send(addr, Request::new(Code::GET, "/cams/111111111111/color"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.code, Code::NOT_FOUND);
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn rfc7959_large_get_and_post_over_loopback_bit_exact_handler_once() {
+    let data = body(2_764_810);
+    let calls = Arc::new(AtomicUsize::new(0));
+    let router = Router::new();
+    let (d, n) = (data.clone(), calls.clone());
+    router.add(
+        "/grab",
+        Resource::new().post(handler(move |_| {
+            let (d, n) = (d.clone(), n.clone());
+            async move {
+                n.fetch_add(1, Ordering::SeqCst);
+                Response::new(Code::CONTENT).with_payload(d)
+            }
+        })),
+    );
+    let (_s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let r = c
+            .send(addr, Request::new(Code::POST, "/grab"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(r.payload == data);
+        assert_eq!(calls.load(Ordering::SeqCst), 1);
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn rfc7959_block1_upload_over_loopback() {
+    let data = body(3500);
+    let router = Router::new();
+    let d = data.clone();
+    router.add(
+        "/up",
+        Resource::new().put(handler(move |ctx| {
+            let ok = ctx.request.payload == d;
+            async move { Response::new(if ok { Code::CHANGED } else { Code::BAD_REQUEST }) }
+        })),
+    );
+    let (_s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let r = c
+            .send(addr, Request::new(Code::PUT, "/up").with_payload(data))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.code, Code::CHANGED);
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn rfc7252_5_2_2_slow_handler_gets_separate_response() {
+    let router = Router::new();
+    router.add(
+        "/slow",
+        Resource::new().get(handler(|_| async {
+            tokio::time::sleep(Duration::from_millis(1300)).await;
+            Response::new(Code::CONTENT).with_payload("late")
+        })),
+    );
+    let (_s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let r = c
+            .send(addr, Request::new(Code::GET, "/slow"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(&r.payload[..], b"late");
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn rfc7641_observe_five_notifications_then_cancel() {
+    let counter = Arc::new(AtomicUsize::new(0));
+    let router = Router::new();
+    let n = counter.clone();
+    router.add(
+        "/counter",
+        Resource::new()
+            .get(handler(move |_| {
+                let v = n.load(Ordering::SeqCst);
+                async move { Response::new(Code::CONTENT).with_payload(v.to_string()) }
+            }))
+            .observable(),
+    );
+    let (s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let mut obs = c
+            .observe(addr, Request::new(Code::GET, "/counter"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        let first = obs
+            .next()
+            .await
+            .unwrap_or_else(|| panic!("ended"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(&first.payload[..], b"0");
+        for k in 1..=5 {
+            counter.store(k, Ordering::SeqCst);
+            assert_eq!(s.notify("/counter").await, 1);
+            let r = obs
+                .next()
+                .await
+                .unwrap_or_else(|| panic!("ended"))
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(r.payload, k.to_string().as_bytes());
+        }
+        drop(obs);
+        // The next notification is answered with a Reset and the observation ends.
+        s.notify("/counter").await;
+        for _ in 0..50 {
+            if s.observed_paths().is_empty() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert!(s.observed_paths().is_empty());
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn rfc7252_5_10_6_matching_etag_gets_2_03_valid() {
+    let router = Router::new();
+    router.add(
+        "/tagged",
+        Resource::new().get(handler(|_| async {
+            let mut r = Response::new(Code::CONTENT).with_payload("body");
+            r.options.set(OptionNumber::ETAG, b"t1".to_vec());
+            r
+        })),
+    );
+    let (_s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let mut req = Request::new(Code::GET, "/tagged");
+        req.options.push(OptionNumber::ETAG, b"t1".to_vec());
+        let r = c.send(addr, req).await.unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.code, Code::VALID);
+        assert!(r.payload.is_empty());
+        assert_eq!(r.options.etag(), Some(&b"t1"[..]));
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn rfc7252_4_3_ping_over_loopback() {
+    let (_s, addr) = server(Router::new());
+    let c = client(addr);
+    within(async { c.ping(addr).await.unwrap_or_else(|e| panic!("{e}")) }).await;
+}
+
+#[tokio::test]
+async fn ipv6_loopback_works() {
+    let router = Router::new();
+    router.add(
+        "/v6",
+        Resource::new().get(handler(|_| async {
+            Response::new(Code::CONTENT).with_payload("six")
+        })),
+    );
+    let s = match Server::bind(
+        &["[::1]:0".parse().unwrap_or_else(|_| unreachable!())],
+        ServerConfig::default(),
+        router,
+    ) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("SKIP ipv6_loopback_works: no IPv6 loopback here ({e})");
+            return;
+        }
+    };
+    let addr = s.local_addrs()[0];
+    let c = client(addr);
+    within(async {
+        let r = c
+            .send(addr, Request::new(Code::GET, "/v6"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(&r.payload[..], b"six");
+    })
+    .await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn paused_clock_drives_retransmission_to_timeout() {
+    // A peer that never answers: with tokio's clock paused the 93 s of back-off pass at
+    // once, and the datagrams still really cross the loopback.
+    let silent = std::net::UdpSocket::bind("127.0.0.1:0").unwrap_or_else(|e| panic!("{e}"));
+    let peer = silent.local_addr().unwrap_or_else(|e| panic!("{e}"));
+    let c = client(peer);
+    let started = tokio::time::Instant::now();
+    let r = c.send(peer, Request::new(Code::GET, "/x")).await;
+    assert!(
+        matches!(
+            r,
+            Err(coap_net::Error::Request(coap::RequestError::Timeout))
+        ),
+        "{r:?}"
+    );
+    let waited = started.elapsed();
+    assert!(
+        waited >= Duration::from_secs(62) && waited <= Duration::from_secs(93),
+        "{waited:?}"
+    );
+    silent
+        .set_nonblocking(true)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut buf = [0u8; 64];
+    let mut n = 0;
+    while silent.recv_from(&mut buf).is_ok() {
+        n += 1;
+    }
+    assert_eq!(
+        n, 5,
+        "one transmission and MAX_RETRANSMIT = 4 retransmissions"
+    );
+}
