@@ -1,0 +1,3 @@
+//! Integration tests of the `coapcam` binary: one binary, one module per subcommand.
+
+mod netem;
