@@ -308,13 +308,13 @@ impl AdvancedConfig {
                 continue;
             };
             for field in std::iter::once(canon).chain(same_field(canon)) {
-                if let Some((other, earlier)) = set_by.get(field) {
-                    if *earlier != value {
-                        return Err(AdvancedError::Conflict {
-                            key,
-                            other: other.clone(),
-                        });
-                    }
+                if let Some((other, earlier)) = set_by.get(field)
+                    && *earlier != value
+                {
+                    return Err(AdvancedError::Conflict {
+                        key,
+                        other: other.clone(),
+                    });
                 }
             }
             set_by.insert(canon, (key, value));

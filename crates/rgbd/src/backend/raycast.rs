@@ -66,12 +66,24 @@ struct Prim {
     sphere_radius: f32,
 }
 
-/// An entry/exit interval along a ray and the normal at the entry.
+/// Which face of a primitive a ray enters through.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Face {
+    /// A box face across local x.
+    X,
+    /// A box face across local y.
+    Y,
+    /// A horizontal face (box or cylinder cap).
+    Z,
+    /// The cylinder's side.
+    Side,
+}
+
+/// An entry/exit interval along a ray and the face at the entry.
 struct Interval {
     near: f32,
     far: f32,
-    normal: V3,
-    top: bool,
+    face: Face,
 }
 
 impl Prim {
@@ -79,6 +91,31 @@ impl Prim {
         match &self.shape {
             Shape::Box(b) => b.interval(o, d),
             Shape::Cylinder(c) => c.interval(o, d),
+        }
+    }
+
+    /// Unit normal (world) where the ray `o + t d` enters through `face` at `t`, and
+    /// whether that is an upward face.
+    fn normal(&self, face: Face, o: &V3, d: &V3, t: f32) -> (V3, bool) {
+        match (face, &self.shape) {
+            (Face::Z, _) => (V3::new(0.0, 0.0, -d.z.signum()), d.z < 0.0),
+            (Face::Side, Shape::Cylinder(c)) => {
+                let q = o + d * t - c.center;
+                (V3::new(q.x, q.y, 0.0) / c.radius, false)
+            }
+            (_, Shape::Box(b)) => {
+                let ld = b.to_local(d);
+                let (nx, ny) = if face == Face::X {
+                    (-ld.x.signum(), 0.0)
+                } else {
+                    (0.0, -ld.y.signum())
+                };
+                (
+                    V3::new(b.cos * nx - b.sin * ny, b.sin * nx + b.cos * ny, 0.0),
+                    false,
+                )
+            }
+            (_, Shape::Cylinder(_)) => (V3::new(0.0, 0.0, 1.0), false),
         }
     }
 }
@@ -114,24 +151,14 @@ impl BoxPrim {
         if near > far {
             return None;
         }
-        let (local_normal, top) = if near == z0 {
-            (V3::new(0.0, 0.0, -ld.z.signum()), ld.z < 0.0)
+        let face = if near == z0 {
+            Face::Z
         } else if near == x0 {
-            (V3::new(-ld.x.signum(), 0.0, 0.0), false)
+            Face::X
         } else {
-            (V3::new(0.0, -ld.y.signum(), 0.0), false)
+            Face::Y
         };
-        let normal = V3::new(
-            self.cos * local_normal.x - self.sin * local_normal.y,
-            self.sin * local_normal.x + self.cos * local_normal.y,
-            local_normal.z,
-        );
-        Some(Interval {
-            near,
-            far,
-            normal,
-            top,
-        })
+        Some(Interval { near, far, face })
     }
 
     /// Whether the label is black at world point `p` on the top face.
@@ -179,18 +206,8 @@ impl CylPrim {
         if near > far {
             return None;
         }
-        let (normal, top) = if near == z0 {
-            (V3::new(0.0, 0.0, -d.z.signum()), d.z < 0.0)
-        } else {
-            let q = p + d * near;
-            (V3::new(q.x, q.y, 0.0) / self.radius, false)
-        };
-        Some(Interval {
-            near,
-            far,
-            normal,
-            top,
-        })
+        let face = if near == z0 { Face::Z } else { Face::Side };
+        Some(Interval { near, far, face })
     }
 }
 
@@ -284,17 +301,24 @@ impl World {
             normal: V3::new(0.0, 0.0, 1.0),
             surface: Surface::Floor,
         });
+        let mut nearest: Option<(usize, Interval)> = None;
         for index in candidates {
             let Some(iv) = self.prims[index].interval(o, d) else {
                 continue;
             };
-            if iv.near > T_EPS && best.is_none_or(|b| iv.near < b.t) {
-                best = Some(Hit {
-                    t: iv.near,
-                    normal: iv.normal,
-                    surface: Surface::Prim { index, top: iv.top },
-                });
+            let ahead_of_floor = best.is_none_or(|b| iv.near < b.t);
+            let ahead_of_prims = nearest.as_ref().is_none_or(|(_, n)| iv.near < n.near);
+            if iv.near > T_EPS && ahead_of_floor && ahead_of_prims {
+                nearest = Some((index, iv));
             }
+        }
+        if let Some((index, iv)) = nearest {
+            let (normal, top) = self.prims[index].normal(iv.face, o, d, iv.near);
+            best = Some(Hit {
+                t: iv.near,
+                normal,
+                surface: Surface::Prim { index, top },
+            });
         }
         best
     }

@@ -37,13 +37,12 @@ pub(crate) fn frame_key(seed: u64, serial: u64, frame_number: u64) -> u64 {
     mix64(mix64(mix64(seed) ^ serial) ^ frame_number)
 }
 
-/// A standard-normal-like sample from a hash: the sum of four 16-bit uniforms
-/// (Irwin-Hall), centred and scaled to unit variance.
+/// A standard-normal-like sample from the low 48 bits of a hash: the sum of three
+/// 16-bit uniforms (Irwin-Hall), centred and scaled to unit variance.
 fn gaussian(h: u64) -> f32 {
-    let sum: u64 = (0..4).map(|i| (h >> (16 * i)) & 0xffff).sum();
-    // Mean of the sum: 4 * 65535 / 2; variance: 4 * (65536^2 - 1) / 12.
-    let centred = sum as f32 - 2.0 * 65535.0;
-    centred / (65536.0 * (1.0f32 / 3.0).sqrt())
+    let sum = (h & 0xffff) + ((h >> 16) & 0xffff) + ((h >> 32) & 0xffff);
+    // Mean of the sum: 3 * 65535 / 2; variance ~ 3 * 65536^2 / 12 = 65536^2 / 4.
+    (sum as f32 - 1.5 * 65535.0) * (2.0 / 65536.0)
 }
 
 /// Renders the depth image of `view` (the left imager) as Z16 values.
@@ -97,24 +96,39 @@ pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u1
 
     // Pass 2: the sensor model.
     let mut raw = vec![0u16; w * h];
+    let inv_scale = 1.0 / job.depth_scale;
     let min_range = d415::min_range_m(view.k.fx);
-    let disparity_factor = view.k.fx * d415::BASELINE_M;
+    // Disparity d = fx B / z gets noise sigma_d g, so z' = fx B / (d + sigma_d g)
+    // = z / (1 + noise_per_z * g * z).
+    let noise_per_z = d415::SUBPIXEL_RMS_PX / (view.k.fx * d415::BASELINE_M);
     raw.par_chunks_mut(w).enumerate().for_each(|(v, row)| {
-        for (u, out) in row.iter_mut().enumerate() {
-            let z = exact[v * w + u];
-            if ideal {
-                *out = quantize(z, job.depth_scale);
-                continue;
+        let here = &exact[v * w..(v + 1) * w];
+        if ideal {
+            for (out, &z) in row.iter_mut().zip(here) {
+                *out = quantize(z, inv_scale);
             }
+            return;
+        }
+        let above = (v > 0).then(|| &exact[(v - 1) * w..v * w]);
+        let below = (v + 1 < h).then(|| &exact[(v + 1) * w..(v + 2) * w]);
+        let row_key = job.key ^ ((v * w) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        for (u, out) in row.iter_mut().enumerate() {
+            let z = here[u];
             if z <= 0.0 {
                 continue;
             }
-            let index = (v * w + u) as u64;
-            let hash = mix64(job.key ^ index.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            // Top 16 bits: dropout; low 48 bits: the noise sample.
+            let hash = mix64(row_key ^ (u as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
             if hash >> 48 < DROPOUT_THRESHOLD {
                 continue;
             }
-            let z = if at_edge(&exact, w, h, u, v, z) {
+            let neighbours = [
+                u.checked_sub(1).map(|l| here[l]),
+                here.get(u + 1).copied(),
+                above.map(|r| r[u]),
+                below.map(|r| r[u]),
+            ];
+            let z = if at_edge(neighbours, z) {
                 supersample(world, view, &right_imager, u, v)
             } else {
                 z
@@ -122,10 +136,9 @@ pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u1
             if !(min_range..=d415::MAX_RANGE_M).contains(&z) {
                 continue;
             }
-            // Stereo noise lives in disparity: d = fx B / z, sigma_d = subpixel.
-            let disparity = disparity_factor / z + d415::SUBPIXEL_RMS_PX * gaussian(mix64(hash));
-            if disparity > 0.0 {
-                *out = quantize(disparity_factor / disparity, job.depth_scale);
+            let denominator = 1.0 + noise_per_z * gaussian(hash) * z;
+            if denominator > 0.0 {
+                *out = quantize(z / denominator, inv_scale);
             }
         }
     });
@@ -133,7 +146,8 @@ pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u1
 }
 
 fn rounded(c: [f32; 3]) -> [u8; 3] {
-    c.map(|v| v.round().clamp(0.0, 255.0) as u8)
+    // Channels are >= 0; `as u8` truncates and saturates.
+    c.map(|v| (v + 0.5) as u8)
 }
 
 fn in_range(c: &RowCandidate, u: usize) -> bool {
@@ -145,31 +159,29 @@ fn may_shadow(c: &RowCandidate, u: usize) -> bool {
     u as i32 <= c.u_hi
 }
 
-fn quantize(z: f32, scale: f32) -> u16 {
+/// Depth `z` (metres) in units of `1 / inv_scale` metres, rounded; 0 if it is not
+/// positive or does not fit in 16 bits.
+fn quantize(z: f32, inv_scale: f32) -> u16 {
     if z <= 0.0 {
         return 0;
     }
-    let units = (z / scale).round();
-    if (1.0..=65535.0).contains(&units) {
+    // Round half up by truncating the cast (z > 0); `f32::round` and `f32::trunc`
+    // are libm calls on baseline x86-64.
+    let units = z * inv_scale + 0.5;
+    if (1.0..65536.0).contains(&units) {
         units as u16
     } else {
         0
     }
 }
 
-/// Whether a 4-neighbour sees a surface at a clearly different depth.
-fn at_edge(exact: &[f32], w: usize, h: usize, u: usize, v: usize, z: f32) -> bool {
-    let neighbours = [
-        (u > 0).then(|| exact[v * w + u - 1]),
-        (u + 1 < w).then(|| exact[v * w + u + 1]),
-        (v > 0).then(|| exact[(v - 1) * w + u]),
-        (v + 1 < h).then(|| exact[(v + 1) * w + u]),
-    ];
+/// Whether a 4-neighbour (`None` outside the image; 0 = no surface; negative =
+/// shadowed, depth in the magnitude) sees a surface at a clearly different depth.
+fn at_edge(neighbours: [Option<f32>; 4], z: f32) -> bool {
     neighbours
         .into_iter()
         .flatten()
-        .filter(|n| *n != 0.0)
-        .any(|n| (n.abs() - z).abs() > EDGE_STEP * z)
+        .any(|n| n != 0.0 && (n.abs() - z).abs() > EDGE_STEP * z)
 }
 
 /// Depth a stereo match over the pixel's footprint reports at a discontinuity: the
@@ -264,9 +276,9 @@ mod tests {
 
     #[test]
     fn quantize_rounds_and_refuses_what_z16_cannot_hold() {
-        assert_eq!(quantize(1.0004, 0.001), 1000);
-        assert_eq!(quantize(1.0006, 0.001), 1001);
-        assert_eq!(quantize(70.0, 0.001), 0);
-        assert_eq!(quantize(-1.0, 0.001), 0);
+        assert_eq!(quantize(1.0004, 1000.0), 1000);
+        assert_eq!(quantize(1.0006, 1000.0), 1001);
+        assert_eq!(quantize(70.0, 1000.0), 0);
+        assert_eq!(quantize(-1.0, 1000.0), 0);
     }
 }

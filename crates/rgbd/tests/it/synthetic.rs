@@ -113,7 +113,7 @@ fn ideal_noise_renders_exact_depth() {
     let cam = only_camera(&floor_scene(1.0, Noise::Ideal));
     assert!(cam.render_depth(1).data.iter().all(|&v| v == 1000));
     let scene = Scene::default_single();
-    let mut ideal = scene.clone();
+    let mut ideal = scene;
     ideal.cameras[0].noise = Noise::Ideal;
     let frame = only_camera(&ideal).render_depth(1);
     assert!(
@@ -168,7 +168,7 @@ fn flying_pixels_appear_only_at_depth_edges_and_only_with_d415_noise() {
     let flying = between(&noisy);
     // The box outline is ~1400 px long; a share of its pixels straddle the edge.
     assert!((50..3000).contains(&flying), "{flying} flying pixels");
-    let mut ideal = scene.clone();
+    let mut ideal = scene;
     ideal.cameras[0].noise = Noise::Ideal;
     assert_eq!(between(&only_camera(&ideal).render_depth(1)), 0);
 }
@@ -202,7 +202,7 @@ fn same_seed_and_frame_number_give_identical_bytes() {
         "noise changes per frame"
     );
 
-    let mut reseeded = scene.clone();
+    let mut reseeded = scene;
     reseeded.seed += 1;
     let c = SyntheticCamera::new(&reseeded, &serial).unwrap();
     assert_ne!(
@@ -261,7 +261,7 @@ fn calibrated_cameras_expose_their_true_pose() {
     assert_eq!(pose.translation, [0.0, 0.0, 1.0]);
     // The optical axis points straight down.
     assert_eq!(pose.transform_point([0.0, 0.0, 1.0]), [0.0, 0.0, 0.0]);
-    let mut uncalibrated = scene.clone();
+    let mut uncalibrated = scene;
     uncalibrated.cameras[0].calibrated = false;
     assert!(only_camera(&uncalibrated).true_pose().is_none());
 }
