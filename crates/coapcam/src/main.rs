@@ -3,6 +3,8 @@
 #![forbid(unsafe_code)]
 
 mod netem;
+mod request;
+mod serve;
 
 use std::process::ExitCode;
 
@@ -19,6 +21,19 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// GET a resource; the body goes to standard output or -o FILE. Exit status 0 only for
+    /// a 2.xx response whose body arrived whole.
+    Get(request::RequestArgs),
+    /// POST to a resource.
+    Post(request::RequestArgs),
+    /// PUT a resource.
+    Put(request::RequestArgs),
+    /// DELETE a resource.
+    Delete(request::RequestArgs),
+    /// List a server's resources (/.well-known/core), or every server in a multicast group.
+    Discover(request::DiscoverArgs),
+    /// Run the CoAP server.
+    Serve(serve::ServeArgs),
     /// Relay UDP between clients and a server over an emulated link (loss, delay, jitter,
     /// rate limit), and print the counters when it ends.
     Netem(netem::NetemArgs),
@@ -26,7 +41,9 @@ enum Command {
 
 fn main() -> ExitCode {
     match run(Cli::parse()) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(true) => ExitCode::SUCCESS,
+        // The command printed why (e.g. the response code and its diagnostic).
+        Ok(false) => ExitCode::from(2),
         Err(e) => {
             eprintln!("coapcam: {e:#}");
             ExitCode::FAILURE
@@ -34,17 +51,24 @@ fn main() -> ExitCode {
     }
 }
 
-fn run(cli: Cli) -> anyhow::Result<()> {
+/// Runs the command; `Ok(false)` is a clean failure that was already reported.
+fn run(cli: Cli) -> anyhow::Result<bool> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
         .context("starting the tokio runtime")?;
     match cli.command {
+        Command::Get(args) => return runtime.block_on(request::run(coap::Code::GET, args)),
+        Command::Post(args) => return runtime.block_on(request::run(coap::Code::POST, args)),
+        Command::Put(args) => return runtime.block_on(request::run(coap::Code::PUT, args)),
+        Command::Delete(args) => return runtime.block_on(request::run(coap::Code::DELETE, args)),
+        Command::Discover(args) => return runtime.block_on(request::discover(args)),
+        Command::Serve(args) => runtime.block_on(serve::run(args))?,
         Command::Netem(args) => {
             let json = args.json;
             let counters = runtime.block_on(netem::run(args))?;
             println!("{}", netem::report(&counters, json)?);
         }
     }
-    Ok(())
+    Ok(true)
 }

@@ -1,0 +1,295 @@
+//! The generic CoAP commands: `get`, `post`, `put`, `delete` and `discover`.
+
+use std::io::Write as _;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, bail};
+use bytes::Bytes;
+use clap::Args;
+use coap::link_format;
+use coap::{BlockOpt, Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
+use coap_net::{Client, Uri};
+
+/// Flags shared by `get`, `post`, `put` and `delete`.
+#[derive(Debug, Args)]
+pub(crate) struct RequestArgs {
+    /// The resource, e.g. coap://127.0.0.1:5683/cams/pointclouds?x=1 (IPv6: coap://[::1]/...).
+    uri: String,
+    /// Request payload as text.
+    #[arg(long, conflicts_with = "file")]
+    payload: Option<String>,
+    /// Request payload from a file (sent block-wise when larger than one block).
+    #[arg(long)]
+    file: Option<PathBuf>,
+    /// Content-Format of the payload: a number, a media type, or a short name
+    /// (text, json, cbor, png, jpeg, octet-stream, link-format, ply).
+    #[arg(long, value_name = "CF")]
+    content_format: Option<ContentFormat>,
+    /// Accept: the Content-Format wanted in the response (same forms as --content-format).
+    #[arg(long, value_name = "CF")]
+    accept: Option<ContentFormat>,
+    /// Block size in bytes for block-wise transfers: 16, 32, 64, 128, 256, 512 or 1024.
+    #[arg(long, value_name = "N", value_parser = parse_block_size)]
+    block_size: Option<u8>,
+    /// Send a Non-confirmable request (no ACKs; lost requests are sent again).
+    #[arg(long)]
+    non: bool,
+    /// Write the response body to FILE instead of standard output.
+    #[arg(short = 'o', long = "output", value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// Observe the resource (GET only) and print this many notifications after the first
+    /// response, then stop.
+    #[arg(long, value_name = "N")]
+    observe: Option<usize>,
+    /// Give up after this many seconds.
+    #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
+    timeout: f64,
+    /// Print one JSON object per response (code, options, size, time) instead of the body.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_block_size(s: &str) -> Result<u8, String> {
+    let n: usize = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
+    if !(16..=1024).contains(&n) || !n.is_power_of_two() {
+        return Err(format!("{n} is not one of 16, 32, 64, 128, 256, 512, 1024"));
+    }
+    Ok(BlockOpt::szx_for(n))
+}
+
+/// Flags of `discover`.
+#[derive(Debug, Args)]
+pub(crate) struct DiscoverArgs {
+    /// The server (coap://host[:port]); a multicast address asks every server in the group.
+    uri: String,
+    /// A /.well-known/core filter (RFC 6690 §4.1), e.g. rt=rgbd.color or href=/cams*.
+    #[arg(long)]
+    query: Option<String>,
+    /// How long to collect answers from a multicast group, in seconds.
+    #[arg(long, value_name = "SECONDS", default_value_t = 2.0)]
+    wait: f64,
+    /// Give up after this many seconds (unicast).
+    #[arg(long, value_name = "SECONDS", default_value_t = 60.0)]
+    timeout: f64,
+    /// Print JSON: one object per link with its server, target and attributes.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `get|post|put|delete`. Returns whether the response was a success.
+pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<bool> {
+    let uri = Uri::parse(&args.uri)?;
+    let peer = uri
+        .resolve()
+        .await
+        .with_context(|| format!("resolving {}", uri.host))?;
+    let mut request = Request::new(method, "/");
+    request.options = uri.options();
+    request.confirmable = !args.non;
+    request.block_szx = args.block_size;
+    request.timeout = Some(Duration::try_from_secs_f64(args.timeout).context("--timeout")?);
+    if let Some(cf) = args.content_format {
+        request
+            .options
+            .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
+    }
+    if let Some(cf) = args.accept {
+        request
+            .options
+            .set_uint(OptionNumber::ACCEPT, u32::from(cf.0));
+    }
+    request.payload = match (&args.payload, &args.file) {
+        (Some(text), _) => Bytes::from(text.clone().into_bytes()),
+        (None, Some(path)) => {
+            Bytes::from(std::fs::read(path).with_context(|| format!("reading {}", path.display()))?)
+        }
+        (None, None) => Bytes::new(),
+    };
+    let client = Client::for_peer(peer, endpoint_config())?;
+    let started = Instant::now();
+    if let Some(count) = args.observe {
+        if method != Code::GET {
+            bail!("--observe needs GET");
+        }
+        return observe(&client, peer, request, count, &args, started).await;
+    }
+    let response = client
+        .send(peer, request)
+        .await
+        .with_context(|| format!("{method:?} {}", args.uri))?;
+    check_whole(&response)?;
+    output(&response, &args, started)?;
+    Ok(report_code(&response))
+}
+
+async fn observe(
+    client: &Client,
+    peer: SocketAddr,
+    request: Request,
+    count: usize,
+    args: &RequestArgs,
+    started: Instant,
+) -> anyhow::Result<bool> {
+    let mut obs = client.observe(peer, request).await?;
+    let mut seen = 0;
+    while let Some(r) = obs.next().await {
+        let response = r?;
+        output(&response, args, started)?;
+        if !response.code.is_success() {
+            return Ok(report_code(&response));
+        }
+        if !response.options.contains(OptionNumber::OBSERVE) {
+            if seen == 0 {
+                eprintln!("coapcam: the server did not accept the observation");
+            }
+            return Ok(true);
+        }
+        if seen == count {
+            return Ok(true);
+        }
+        seen += 1;
+    }
+    bail!("the observation ended after {seen} notifications")
+}
+
+/// Refuses a body that did not arrive whole. The endpoint only delivers complete
+/// reassemblies, and this checks the Size2 the server announced as well.
+fn check_whole(r: &Response) -> anyhow::Result<()> {
+    if let Some(size2) = r.options.uint(OptionNumber::SIZE2)
+        && r.code.is_success()
+        && size2 as usize != r.payload.len()
+    {
+        bail!(
+            "incomplete body: the server announced {size2} bytes (Size2), {} arrived",
+            r.payload.len()
+        );
+    }
+    Ok(())
+}
+
+fn report_code(r: &Response) -> bool {
+    if r.code.is_success() {
+        return true;
+    }
+    let diagnostic = String::from_utf8_lossy(&r.payload);
+    eprintln!(
+        "coapcam: {}{}{}",
+        r.code,
+        if diagnostic.is_empty() { "" } else { ": " },
+        diagnostic
+    );
+    false
+}
+
+fn output(r: &Response, args: &RequestArgs, started: Instant) -> anyhow::Result<()> {
+    if let Some(path) = &args.output {
+        std::fs::write(path, &r.payload).with_context(|| format!("writing {}", path.display()))?;
+    }
+    if args.json {
+        let v = serde_json::json!({
+            "code": format!("{:?}", r.code),
+            "content_format": r.options.content_format().map(|c| c.0),
+            "etag": r.options.etag().map(hex),
+            "observe": r.options.uint(OptionNumber::OBSERVE),
+            "size": r.payload.len(),
+            "elapsed_ms": started.elapsed().as_secs_f64() * 1e3,
+            "payload": if args.output.is_none() { std::str::from_utf8(&r.payload).ok() } else { None },
+        });
+        println!("{v}");
+    } else if args.output.is_none() && r.code.is_success() {
+        let mut out = std::io::stdout().lock();
+        out.write_all(&r.payload)
+            .context("writing standard output")?;
+        if !r.payload.ends_with(b"\n")
+            && std::str::from_utf8(&r.payload).is_ok()
+            && !r.payload.is_empty()
+        {
+            out.write_all(b"\n").context("writing standard output")?;
+        }
+    }
+    Ok(())
+}
+
+fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+fn endpoint_config() -> EndpointConfig {
+    // Seeded from the clock and the process id, so two clients started at once do not
+    // pick the same message IDs and tokens.
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+        ^ u64::from(std::process::id()).rotate_left(32);
+    EndpointConfig {
+        rng_seed: seed,
+        ..EndpointConfig::default()
+    }
+}
+
+/// Runs `discover`. Returns whether at least one server answered with a success.
+pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<bool> {
+    let uri = Uri::parse(&args.uri)?;
+    let peer = uri
+        .resolve()
+        .await
+        .with_context(|| format!("resolving {}", uri.host))?;
+    let mut request = Request::new(Code::GET, "/.well-known/core");
+    if let Some(q) = &args.query {
+        request.options.push(OptionNumber::URI_QUERY, q.as_bytes());
+    }
+    let client = Client::for_peer(peer, endpoint_config())?;
+    let answers: Vec<(SocketAddr, Response)> = if peer.ip().is_multicast() {
+        request.timeout = Some(Duration::try_from_secs_f64(args.wait).context("--wait")?);
+        client.multicast(peer, request).await?
+    } else {
+        request.timeout = Some(Duration::try_from_secs_f64(args.timeout).context("--timeout")?);
+        vec![(
+            peer,
+            client
+                .send(peer, request)
+                .await
+                .with_context(|| format!("discovering {}", args.uri))?,
+        )]
+    };
+    let mut ok = false;
+    let mut json = Vec::new();
+    for (server, r) in &answers {
+        if !report_code(r) {
+            continue;
+        }
+        ok = true;
+        let text =
+            std::str::from_utf8(&r.payload).context("the link-format document is not UTF-8")?;
+        let links =
+            link_format::parse(text).with_context(|| format!("parsing the answer of {server}"))?;
+        for l in links {
+            if args.json {
+                let attrs: serde_json::Map<String, serde_json::Value> = l
+                    .attrs
+                    .iter()
+                    .map(|(k, v)| {
+                        (
+                            k.clone(),
+                            v.clone().map_or(serde_json::Value::Bool(true), Into::into),
+                        )
+                    })
+                    .collect();
+                json.push(serde_json::json!({"server": server.to_string(), "target": l.target, "attrs": attrs}));
+            } else if answers.len() > 1 {
+                println!("{server} {l}");
+            } else {
+                println!("{l}");
+            }
+        }
+    }
+    if args.json {
+        println!("{}", serde_json::Value::Array(json));
+    }
+    if answers.is_empty() {
+        eprintln!("coapcam: no server answered within {} s", args.wait);
+    }
+    Ok(ok)
+}
