@@ -1,10 +1,29 @@
 //! Point-cloud geometry for coapcam.
 //!
-//! Owns: rigid transforms (thesis Listing A.4), regions of interest, registration and
-//! dimensioning. Must not: know about CoAP or cameras; everything here is synchronous and
-//! works in metres.
+//! Owns: point clouds in metres, the 3D transformation of thesis Listing A.4 and its JSON
+//! document, the 3D region of interest, merging, voxel downsampling, ICP registration and
+//! parcel dimensioning (DESIGN.md §5, §6).
+//!
+//! Must not: know about CoAP, cameras or files; read clocks; spawn threads of its own
+//! (data-parallel loops run on the caller's rayon pool). Everything here is synchronous and
+//! works in metres (`f32` points, `f64` where sums or documents need the precision).
 
 #![forbid(unsafe_code)]
+
+pub mod cloud;
+pub mod dimension;
+pub mod icp;
+mod index;
+pub mod roi;
+pub mod transform;
+pub mod voxel;
+
+pub use cloud::PointCloud;
+pub use dimension::{DimensionConfig, DimensionError, Dimensions, dimension};
+pub use icp::{IcpConfig, IcpError, IcpMethod, IcpOutcome, icp};
+pub use roi::{Roi3, RoiError};
+pub use transform::{Transform, TransformError, Transformation};
+pub use voxel::{VoxelError, voxel_downsample};
 
 /// A point in metres.
 pub type Point3 = nalgebra::Point3<f32>;

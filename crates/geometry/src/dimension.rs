@@ -1,0 +1,230 @@
+//! Parcel dimensioning (DESIGN.md §6): points in the output frame (z up, floor at
+//! z = 0) -> drop points below a minimum height -> keep the largest connected cluster ->
+//! height from a robust maximum of z -> convex hull of (x, y) -> minimum-area rectangle
+//! (one side always lies on a hull edge, so geo's search over hull edges is exact) ->
+//! length >= width.
+//!
+//! The robust maximum: take the `height_quantile` quantile of z over the cluster (so the
+//! highest outliers and noise tails are ignored), then the median z of the cluster points
+//! within `top_band_m` below it. On a box this is the median of the lid, which is unbiased
+//! by depth noise, where a plain quantile would read about two noise deviations high.
+
+use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point};
+
+use crate::cloud::is_finite;
+use crate::index::Index;
+use crate::{Point3, PointCloud};
+
+/// Thresholds of [`dimension`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DimensionConfig {
+    /// Points lower than this (metres above the floor) are floor, not parcel.
+    pub min_height_m: f32,
+    /// Two points closer than this (metres) belong to one object.
+    pub cluster_radius_m: f32,
+    /// Quantile of z taken as the top before the band median (in (0, 1]).
+    pub height_quantile: f32,
+    /// Depth of the band below that quantile whose median is the height (metres, >= 0).
+    pub top_band_m: f32,
+    /// Fewer points in the largest cluster is an error (at least 3).
+    pub min_points: usize,
+}
+
+impl Default for DimensionConfig {
+    /// 1 cm above the floor, 2 cm cluster radius, 99 % quantile, 1 cm top band, 50 points.
+    fn default() -> Self {
+        Self {
+            min_height_m: 0.01,
+            cluster_radius_m: 0.02,
+            height_quantile: 0.99,
+            top_band_m: 0.01,
+            min_points: 50,
+        }
+    }
+}
+
+/// Why no measurement came out.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DimensionError {
+    /// A configuration value is out of range.
+    #[error("dimension: `{field}` must be {allowed}")]
+    InvalidConfig {
+        /// The [`DimensionConfig`] field.
+        field: &'static str,
+        /// What is allowed.
+        allowed: &'static str,
+    },
+    /// The largest object above the floor has too few points.
+    #[error(
+        "dimension: the largest object above the floor has {found} points, at least {needed} are needed"
+    )]
+    TooFewPoints {
+        /// Points in the largest cluster (0 if nothing is above the floor).
+        found: usize,
+        /// The minimum.
+        needed: usize,
+    },
+    /// The cloud is too large for the nearest-neighbour index.
+    #[error("dimension: {points} points above the floor are more than the index can number")]
+    TooManyPoints {
+        /// Points above the floor.
+        points: usize,
+    },
+    /// The footprint has no area-defining hull (all points coincide).
+    #[error("dimension: the object's footprint is a single point")]
+    Footprint,
+}
+
+/// A measured parcel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dimensions {
+    /// Longer side of the footprint rectangle, millimetres.
+    pub length_mm: f64,
+    /// Shorter side of the footprint rectangle, millimetres.
+    pub width_mm: f64,
+    /// Height above the floor, millimetres.
+    pub height_mm: f64,
+    /// Direction of the long side from the +x axis towards +y, degrees in (-90, 90].
+    pub yaw_deg: f64,
+    /// Footprint rectangle corners [x, y] in metres, in order around the rectangle.
+    pub corners_m: [[f64; 2]; 4],
+    /// length x width x height, litres.
+    pub volume_l: f64,
+    /// Points in the measured cluster.
+    pub points: usize,
+}
+
+impl DimensionConfig {
+    fn validate(&self) -> Result<(), DimensionError> {
+        let checks = [
+            (
+                self.min_height_m.is_finite(),
+                "min_height_m",
+                "a finite number of metres",
+            ),
+            (
+                self.cluster_radius_m.is_finite() && self.cluster_radius_m > 0.0,
+                "cluster_radius_m",
+                "a positive finite number of metres",
+            ),
+            (
+                self.height_quantile > 0.0 && self.height_quantile <= 1.0,
+                "height_quantile",
+                "in (0, 1]",
+            ),
+            (
+                self.top_band_m.is_finite() && self.top_band_m >= 0.0,
+                "top_band_m",
+                "a finite number of metres >= 0",
+            ),
+            (self.min_points >= 3, "min_points", "at least 3"),
+        ];
+        match checks.into_iter().find(|(ok, _, _)| !ok) {
+            None => Ok(()),
+            Some((_, field, allowed)) => Err(DimensionError::InvalidConfig { field, allowed }),
+        }
+    }
+}
+
+/// Measures the largest object standing on the floor of `cloud` (output frame: z up,
+/// floor at z = 0, metres).
+pub fn dimension(
+    cloud: &PointCloud,
+    config: &DimensionConfig,
+) -> Result<Dimensions, DimensionError> {
+    config.validate()?;
+    let above: Vec<Point3> = cloud
+        .points
+        .iter()
+        .copied()
+        .filter(|p| is_finite(p) && p.z >= config.min_height_m)
+        .collect();
+    let cluster = largest_cluster(&above, config.cluster_radius_m)?;
+    if cluster.len() < config.min_points {
+        return Err(DimensionError::TooFewPoints {
+            found: cluster.len(),
+            needed: config.min_points,
+        });
+    }
+    let height_m = robust_height(&cluster, config);
+
+    let footprint: MultiPoint<f64> = cluster
+        .iter()
+        .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
+        .collect();
+    let hull = footprint.convex_hull();
+    let rect = hull
+        .minimum_rotated_rect()
+        .ok_or(DimensionError::Footprint)?;
+    let ring = &rect.exterior().0;
+    let [c0, c1, c2, c3] = match ring.as_slice() {
+        [a, b, c, d, ..] => [*a, *b, *c, *d],
+        _ => return Err(DimensionError::Footprint),
+    };
+    let (e0, e1) = (c1 - c0, c2 - c1);
+    let (n0, n1) = (e0.x.hypot(e0.y), e1.x.hypot(e1.y));
+    let (length_m, width_m, long) = if n0 >= n1 { (n0, n1, e0) } else { (n1, n0, e1) };
+    let mut yaw_deg = long.y.atan2(long.x).to_degrees();
+    if yaw_deg <= -90.0 {
+        yaw_deg += 180.0;
+    } else if yaw_deg > 90.0 {
+        yaw_deg -= 180.0;
+    }
+    let height_m = f64::from(height_m);
+    Ok(Dimensions {
+        length_mm: length_m * 1e3,
+        width_mm: width_m * 1e3,
+        height_mm: height_m * 1e3,
+        yaw_deg,
+        corners_m: [c0, c1, c2, c3].map(|c| [c.x, c.y]),
+        volume_l: length_m * width_m * height_m * 1e3,
+        points: cluster.len(),
+    })
+}
+
+/// The largest set of points connected by steps of at most `radius_m`; ties go to the
+/// cluster holding the lowest input index.
+fn largest_cluster(points: &[Point3], radius_m: f32) -> Result<Vec<Point3>, DimensionError> {
+    if points.is_empty() {
+        return Ok(Vec::new());
+    }
+    let index = Index::new(points).map_err(|e| DimensionError::TooManyPoints { points: e.0 })?;
+    let mut label = vec![usize::MAX; points.len()];
+    let mut best: Vec<usize> = Vec::new();
+    let mut stack = Vec::new();
+    for seed in 0..points.len() {
+        if label[seed] != usize::MAX {
+            continue;
+        }
+        label[seed] = seed;
+        let mut members = vec![seed];
+        stack.push(seed);
+        while let Some(i) = stack.pop() {
+            for j in index.within(&points[i], radius_m) {
+                if label[j] == usize::MAX {
+                    label[j] = seed;
+                    members.push(j);
+                    stack.push(j);
+                }
+            }
+        }
+        if members.len() > best.len() {
+            best = members;
+        }
+    }
+    best.sort_unstable();
+    Ok(best.into_iter().map(|i| points[i]).collect())
+}
+
+/// Median z of the points within `top_band_m` below the `height_quantile` quantile of z.
+fn robust_height(points: &[Point3], config: &DimensionConfig) -> f32 {
+    let mut z: Vec<f32> = points.iter().map(|p| p.z).collect();
+    z.sort_unstable_by(f32::total_cmp);
+    let last = z.len().saturating_sub(1);
+    let q_index = ((last as f64) * f64::from(config.height_quantile)).round() as usize;
+    let top = z[q_index.min(last)];
+    let band_start = z.partition_point(|v| *v < top - config.top_band_m);
+    let band = &z[band_start..=q_index.min(last)];
+    band[band.len() / 2]
+}
