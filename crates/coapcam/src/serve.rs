@@ -5,14 +5,16 @@ use std::collections::HashMap;
 use std::hash::{Hash as _, Hasher as _};
 use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, PoisonError, RwLock};
 use std::time::{Duration, SystemTime};
 
 use anyhow::{Context as _, bail};
 use bytes::Bytes;
 use clap::Args;
-use coap::{Code, ContentFormat, OptionNumber, Response};
-use coap_net::{Resource, Router, Server, ServerConfig, handler};
+use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
+use coap_net::router::check_preconditions;
+use coap_net::{Ctx, Resource, Router, Server, ServerConfig, handler};
+use tokio::sync::mpsc;
 
 /// Flags of `serve`.
 #[derive(Debug, Args)]
@@ -23,10 +25,15 @@ pub(crate) struct ServeArgs {
     /// Serve no cameras (a plain CoAP server, e.g. with --static).
     #[arg(long)]
     no_cameras: bool,
-    /// Serve the regular files of DIR read-only at /files/<name> (observable: changes are
-    /// notified).
+    /// Serve the regular files of DIR at /files/<name>, read-only unless --writable.
+    /// The resources are observable: a changed file is notified to its observers.
     #[arg(long = "static", value_name = "DIR")]
     static_dir: Option<PathBuf>,
+    /// Let clients change --static DIR: PUT /files/<name> creates or replaces a file
+    /// (If-Match and If-None-Match honoured), POST /files creates one under a new name
+    /// (2.01 with Location-Path), DELETE removes one.
+    #[arg(long, requires = "static_dir")]
+    writable: bool,
     /// Join this multicast group on start (e.g. 224.0.1.187 or ff02::fd); repeatable.
     #[arg(long, value_name = "MCAST_ADDR")]
     group: Vec<IpAddr>,
@@ -54,8 +61,9 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         args.bind.clone()
     };
     let router = Router::new();
+    let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
     let files = match &args.static_dir {
-        Some(dir) => Some(StaticFiles::load(dir.clone(), &router)?),
+        Some(dir) => Some(StaticFiles::load(dir, &router, args.writable, changed_tx)?),
         None => None,
     };
     let server = Server::bind(&binds, ServerConfig::default(), router)
@@ -83,6 +91,9 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         tokio::select! {
             _ = tokio::signal::ctrl_c() => break,
             () = &mut stop => break,
+            Some(path) = changed_rx.recv() => {
+                server.notify(&path).await;
+            }
             _ = tick.tick() => {
                 if let Some(files) = &files {
                     for path in files.rescan(server.router()) {
@@ -102,27 +113,55 @@ struct File {
     modified: Option<SystemTime>,
 }
 
-/// The files of a directory, reloaded when they change.
+/// The files of a directory, reloaded when they change on disk, and (with --writable)
+/// changed by clients.
+#[derive(Clone)]
 struct StaticFiles {
     dir: PathBuf,
     files: Arc<RwLock<HashMap<String, File>>>,
+    writable: bool,
+    /// Paths changed by clients, for notifications.
+    changed: mpsc::UnboundedSender<String>,
 }
 
 impl StaticFiles {
-    fn load(dir: PathBuf, router: &Router) -> anyhow::Result<Self> {
+    fn load(
+        dir: &Path,
+        router: &Router,
+        writable: bool,
+        changed: mpsc::UnboundedSender<String>,
+    ) -> anyhow::Result<Self> {
         if !dir.is_dir() {
             bail!("--static {}: not a directory", dir.display());
         }
         let me = Self {
-            dir,
-            files: Arc::new(RwLock::new(HashMap::new())),
+            dir: dir.to_path_buf(),
+            files: Arc::default(),
+            writable,
+            changed,
         };
         me.rescan(router);
+        if writable {
+            // Names that do not exist yet: PUT creates them; POST /files picks a name.
+            router.add("/files/{name}", me.resource(None));
+            router.add(
+                "/files",
+                me.resource(None).attr("title", "POST creates a file"),
+            );
+        }
         Ok(me)
     }
 
-    /// Reads new and changed files, drops vanished ones, and returns the paths whose
-    /// content changed (for notifications).
+    fn read(&self) -> std::sync::RwLockReadGuard<'_, HashMap<String, File>> {
+        self.files.read().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn write(&self) -> std::sync::RwLockWriteGuard<'_, HashMap<String, File>> {
+        self.files.write().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Reads new and changed files, drops vanished ones, keeps the router in step, and
+    /// returns the paths whose content changed on disk.
     fn rescan(&self, router: &Router) -> Vec<String> {
         let mut changed = Vec::new();
         let Ok(entries) = std::fs::read_dir(&self.dir) else {
@@ -134,43 +173,39 @@ impl StaticFiles {
             let Some(name) = entry.file_name().to_str().map(str::to_string) else {
                 continue;
             };
-            if !meta.is_file() {
+            if !meta.is_file() || !valid_name(&name) {
                 continue;
             }
             present.push(name.clone());
+            let path = format!("/files/{name}");
             let modified = meta.modified().ok();
             let known = self
                 .read()
                 .get(&name)
                 .map(|f| (f.modified, f.body.len() as u64));
-            if known == Some((modified, meta.len())) {
-                continue;
+            if known != Some((modified, meta.len())) {
+                let Ok(body) = std::fs::read(entry.path()) else {
+                    continue;
+                };
+                let file = File {
+                    etag: etag(&body),
+                    body: Bytes::from(body),
+                    modified,
+                };
+                self.write().insert(name.clone(), file);
+                if known.is_some() {
+                    changed.push(path.clone());
+                }
             }
-            let Ok(body) = std::fs::read(entry.path()) else {
-                continue;
-            };
-            let file = File {
-                etag: etag(&body),
-                body: Bytes::from(body),
-                modified,
-            };
-            let is_new = known.is_none();
-            self.files
-                .write()
-                .unwrap_or_else(std::sync::PoisonError::into_inner)
-                .insert(name.clone(), file);
-            let path = format!("/files/{name}");
-            if is_new {
-                router.add(&path, self.resource(&name));
-            } else {
-                changed.push(path);
+            if !router.patterns().contains(&path) {
+                router.add(
+                    &path,
+                    self.resource(Some(name))
+                        .attr("title", path.trim_start_matches("/files/")),
+                );
             }
         }
-        let mut files = self
-            .files
-            .write()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        files.retain(|name, _| {
+        self.write().retain(|name, _| {
             let keep = present.contains(name);
             if !keep {
                 router.remove(&format!("/files/{name}"));
@@ -180,40 +215,143 @@ impl StaticFiles {
         changed
     }
 
-    fn read(&self) -> std::sync::RwLockReadGuard<'_, HashMap<String, File>> {
-        self.files
-            .read()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    /// The resource of one file (`Some(name)`), or of the writable patterns (`None`: the
+    /// name comes from the path, or POST picks one).
+    fn resource(&self, name: Option<String>) -> Resource {
+        let (me, fixed) = (self.clone(), name.clone());
+        let name_of = move |ctx: &Ctx| {
+            fixed
+                .clone()
+                .or_else(|| ctx.param("name").map(str::to_string))
+        };
+        let mut r = Resource::new();
+        if let Some(n) = &name {
+            let cf = content_format_of(Path::new(n));
+            let size = self.read().get(n).map_or(0, |f| f.body.len());
+            r = r
+                .attr("ct", cf.0.to_string())
+                .attr("sz", size.to_string())
+                .observable();
+        }
+        let get = (me.clone(), name_of.clone());
+        r = r.get(handler(move |ctx| {
+            let response = get.0.get(get.1(&ctx));
+            async move { response }
+        }));
+        if !self.writable {
+            return r;
+        }
+        let put = (me.clone(), name_of.clone());
+        let delete = (me.clone(), name_of);
+        r.put(handler(move |ctx| {
+            let response = put.0.put(put.1(&ctx), &ctx.request);
+            async move { response }
+        }))
+        .delete(handler(move |ctx| {
+            let response = delete.0.delete(delete.1(&ctx));
+            async move { response }
+        }))
+        .post(handler(move |ctx| {
+            let response = me.post(&ctx.request);
+            async move { response }
+        }))
     }
 
-    fn resource(&self, name: &str) -> Resource {
-        let files = self.files.clone();
-        let key = name.to_string();
-        let cf = content_format_of(Path::new(name));
-        let size = self.read().get(name).map_or(0, |f| f.body.len());
-        Resource::new()
-            .get(handler(move |_| {
-                let file = files
-                    .read()
-                    .unwrap_or_else(std::sync::PoisonError::into_inner)
-                    .get(&key)
-                    .cloned();
-                async move {
-                    let Some(file) = file else {
-                        return Response::diagnostic(Code::NOT_FOUND, "file removed");
-                    };
-                    let mut r = Response::new(Code::CONTENT).with_payload(file.body);
-                    r.options
-                        .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
-                    r.options.set(OptionNumber::ETAG, file.etag.to_vec());
-                    r
-                }
-            }))
-            .attr("ct", cf.0.to_string())
-            .attr("sz", size.to_string())
-            .attr("title", name)
-            .observable()
+    fn get(&self, name: Option<String>) -> Response {
+        let Some(file) = name.as_ref().and_then(|n| self.read().get(n).cloned()) else {
+            return Response::diagnostic(Code::NOT_FOUND, "no such file");
+        };
+        let cf = content_format_of(Path::new(name.as_deref().unwrap_or_default()));
+        let mut r = Response::new(Code::CONTENT).with_payload(file.body);
+        r.options
+            .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
+        r.options.set(OptionNumber::ETAG, file.etag.to_vec());
+        r
     }
+
+    /// Writes through a temporary file and a rename, so readers never see half a file.
+    fn store(&self, name: &str, body: &Bytes) -> std::io::Result<()> {
+        let tmp = self.dir.join(format!(".{name}.tmp"));
+        std::fs::write(&tmp, body)?;
+        std::fs::rename(&tmp, self.dir.join(name))?;
+        let modified = std::fs::metadata(self.dir.join(name))?.modified().ok();
+        self.write().insert(
+            name.to_string(),
+            File {
+                body: body.clone(),
+                etag: etag(body),
+                modified,
+            },
+        );
+        let _ = self.changed.send(format!("/files/{name}"));
+        Ok(())
+    }
+
+    fn put(&self, name: Option<String>, request: &IncomingRequest) -> Response {
+        let Some(name) = name.filter(|n| valid_name(n)) else {
+            return Response::diagnostic(
+                Code::BAD_REQUEST,
+                "a file name must not be empty, start with '.' or contain '/'",
+            );
+        };
+        let current = self.read().get(&name).map(|f| f.etag);
+        if let Some(refused) = check_preconditions(request, current.as_ref().map(|e| &e[..])) {
+            return refused;
+        }
+        match self.store(&name, &request.payload) {
+            Ok(()) => Response::new(if current.is_some() {
+                Code::CHANGED
+            } else {
+                Code::CREATED
+            }),
+            Err(e) => {
+                Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("writing {name}: {e}"))
+            }
+        }
+    }
+
+    fn post(&self, request: &IncomingRequest) -> Response {
+        let stamp = SystemTime::now()
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        let name = format!("upload-{stamp}.bin");
+        match self.store(&name, &request.payload) {
+            Ok(()) => {
+                let mut r = Response::new(Code::CREATED);
+                r.options
+                    .push(OptionNumber::LOCATION_PATH, b"files".to_vec());
+                r.options
+                    .push(OptionNumber::LOCATION_PATH, name.into_bytes());
+                r
+            }
+            Err(e) => {
+                Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("writing {name}: {e}"))
+            }
+        }
+    }
+
+    fn delete(&self, name: Option<String>) -> Response {
+        let Some(name) = name.filter(|n| valid_name(n)) else {
+            return Response::diagnostic(Code::BAD_REQUEST, "bad file name");
+        };
+        match std::fs::remove_file(self.dir.join(&name)) {
+            Ok(()) => {
+                self.write().remove(&name);
+                Response::new(Code::DELETED)
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                Response::diagnostic(Code::NOT_FOUND, "no such file")
+            }
+            Err(e) => Response::diagnostic(
+                Code::INTERNAL_SERVER_ERROR,
+                &format!("deleting {name}: {e}"),
+            ),
+        }
+    }
+}
+
+fn valid_name(name: &str) -> bool {
+    !name.is_empty() && !name.starts_with('.') && !name.contains(['/', '\\', '\0'])
 }
 
 fn etag(body: &[u8]) -> [u8; 8] {
