@@ -19,5 +19,8 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 step "cargo test"
 cargo test --workspace --locked
 
+step "fuzz targets build and replay their seeds"
+bash scripts/fuzz-build.sh
+
 echo
 echo "all checks passed"

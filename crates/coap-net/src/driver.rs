@@ -114,6 +114,11 @@ async fn run(
     let mut replies: HashMap<RequestId, (SocketAddr, Reply)> = HashMap::new();
     let mut pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>> = HashMap::new();
     let mut open = true;
+    // One timer, moved only when the endpoint's next deadline moves.
+    let far = tokio::time::Instant::now() + std::time::Duration::from_secs(86_400 * 365);
+    let sleep = tokio::time::sleep_until(far);
+    tokio::pin!(sleep);
+    let mut armed: Option<std::time::Instant> = None;
     loop {
         while let Some(t) = ep.poll_transmit() {
             if let Err(e) = socket.send_to(&t.data, t.peer).await {
@@ -131,6 +136,12 @@ async fn run(
             return;
         }
         let timeout = ep.poll_timeout();
+        if timeout != armed {
+            armed = timeout;
+            sleep
+                .as_mut()
+                .reset(timeout.map_or(far, tokio::time::Instant::from_std));
+        }
         tokio::select! {
             r = socket.recv(&mut buf, &mut received) => match r {
                 Ok(()) => {
@@ -149,15 +160,12 @@ async fn run(
                 Some(cmd) => apply(cmd, &mut ep, &socket, &mut replies, &mut pings),
                 None => open = false,
             },
-            () = sleep_until(timeout) => ep.handle_timeout(clock::now()),
+            () = &mut sleep, if armed.is_some() => {
+                // Fired: re-arm on the next turn even if the deadline stays the same.
+                armed = None;
+                ep.handle_timeout(clock::now());
+            }
         }
-    }
-}
-
-async fn sleep_until(at: Option<std::time::Instant>) {
-    match at {
-        Some(at) => tokio::time::sleep_until(tokio::time::Instant::from_std(at)).await,
-        None => std::future::pending().await,
     }
 }
 

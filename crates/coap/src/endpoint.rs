@@ -239,7 +239,8 @@ pub enum Event {
         id: RequestId,
     },
     /// An observation ended: the client deregistered, rejected a notification with a
-    /// Reset, or did not acknowledge a confirmable one (RFC 7641 §3.6, §4.5).
+    /// Reset, or did not acknowledge a confirmable one (RFC 7641 §3.6, §4.5); or the
+    /// application declined the registration or sent a non-success notification.
     ObservationEnded {
         /// The observation.
         id: ObservationId,
@@ -1257,9 +1258,14 @@ impl Endpoint {
         {
             {
                 let szx = b2.szx.min(self.config.max_block_szx);
-                let stored = self.block2.get(now, &key, &limits).cloned();
-                let response = match stored {
-                    Some(s) => Some(block2_response(s.code, s.options, &s.body, b2.num, szx)),
+                let response = match self.block2.get(now, &key, &limits) {
+                    Some(s) => Some(block2_response(
+                        s.code,
+                        s.options.clone(),
+                        &s.body,
+                        b2.num,
+                        szx,
+                    )),
                     None if !matches!(msg.code, Code::GET | Code::FETCH) => {
                         Some(Response::diagnostic(
                             Code::REQUEST_ENTITY_INCOMPLETE,
@@ -1472,7 +1478,7 @@ impl Endpoint {
             }
         }
         if !success {
-            self.observations.remove(&id.0);
+            self.end_observation(id.0);
         }
         true
     }
@@ -1577,9 +1583,7 @@ impl Endpoint {
                     o.seq = (o.seq + 1) & 0x00ff_ffff;
                     response.options.set_uint(OptionNumber::OBSERVE, o.seq);
                 }
-                _ => {
-                    self.observations.remove(&obs);
-                }
+                _ => self.end_observation(obs),
             }
         }
         if let Some(echo) = p.block1_echo {

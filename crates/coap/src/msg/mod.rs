@@ -358,7 +358,8 @@ impl Message {
         for o in self.options.iter() {
             let delta = u32::from(o.number.0 - prev);
             prev = o.number.0;
-            len += 1 + ext_len(delta) + ext_len(o.value.len() as u32) + o.value.len();
+            let value_len = o.value.len().min(MAX_OPTION_LEN);
+            len += 1 + ext_len(delta) + ext_len(value_len as u32) + value_len;
         }
         if !self.payload.is_empty() {
             len += 1 + self.payload.len();
@@ -381,7 +382,7 @@ impl Message {
             // Values longer than 65535 + 269 bytes cannot be expressed; the option
             // registry caps every known option far below, and callers building unknown
             // options get them truncated rather than a corrupt datagram.
-            let value = &o.value[..o.value.len().min(65535 + 269)];
+            let value = &o.value[..o.value.len().min(MAX_OPTION_LEN)];
             let len = value.len() as u32;
             out.push((nibble(delta) << 4) | nibble(len));
             push_ext(out, delta);
@@ -420,6 +421,9 @@ impl From<MessageView<'_>> for Message {
         }
     }
 }
+
+/// The longest option value the wire format can express (RFC 7252 §3.1: 14 + 2 bytes).
+const MAX_OPTION_LEN: usize = 65535 + 269;
 
 fn nibble(v: u32) -> u8 {
     match v {

@@ -1,6 +1,7 @@
 //! Integration tests of the CoAP core: one binary, one module per area.
 
 mod blockwise;
+mod codec;
 mod observe;
 mod reliability;
 mod sim;
