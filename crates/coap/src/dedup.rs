@@ -6,10 +6,9 @@ use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::time::Instant;
 
-use bytes::Bytes;
 
 use crate::config::Limits;
-use crate::msg::Token;
+use crate::msg::{Message, Token};
 
 /// What was done with a remembered message.
 #[derive(Debug, Clone)]
@@ -17,7 +16,7 @@ pub(crate) enum Seen {
     /// Handed to the application, no reply yet (the incoming request's id).
     Pending(u64),
     /// This reply was sent; a duplicate gets it again.
-    Replied(Bytes),
+    Replied(Box<Message>),
     /// Nothing to send again (a NON request answered separately, or a dropped message).
     Silent,
 }
@@ -64,11 +63,11 @@ impl Dedup {
 
     fn remove(&mut self, peer: SocketAddr, mid: u16) {
         if let Some(Entry {
-            seen: Seen::Replied(b),
+            seen: Seen::Replied(m),
             ..
         }) = self.entries.remove(&(peer, mid))
         {
-            self.bytes -= b.len();
+            self.bytes -= m.encoded_len();
         }
     }
 
@@ -105,8 +104,8 @@ impl Dedup {
         limits: &Limits,
     ) {
         self.remove(peer, mid);
-        if let Seen::Replied(b) = &seen {
-            self.bytes += b.len();
+        if let Seen::Replied(m) = &seen {
+            self.bytes += m.encoded_len();
         }
         self.entries.insert(
             (peer, mid),
@@ -125,11 +124,11 @@ impl Dedup {
         let Some(e) = self.entries.get_mut(&(peer, mid)) else {
             return;
         };
-        if let Seen::Replied(b) = &e.seen {
-            self.bytes -= b.len();
+        if let Seen::Replied(m) = &e.seen {
+            self.bytes -= m.encoded_len();
         }
-        if let Seen::Replied(b) = &seen {
-            self.bytes += b.len();
+        if let Seen::Replied(m) = &seen {
+            self.bytes += m.encoded_len();
         }
         e.seen = seen;
     }
@@ -143,6 +142,8 @@ impl Dedup {
 #[cfg(test)]
 mod tests {
     use std::time::Duration;
+
+    use bytes::Bytes;
 
     use super::*;
 
@@ -161,7 +162,7 @@ mod tests {
             (peer(), 7),
             t,
             now + Duration::from_secs(247),
-            Seen::Replied(Bytes::from_static(b"x")),
+            Seen::Replied(Box::new(Message::empty(crate::msg::Type::Ack, 7))),
             &l,
         );
         assert!(matches!(
@@ -204,7 +205,10 @@ mod tests {
         };
         let mut d = Dedup::new();
         for mid in 0..50u16 {
-            let reply = Seen::Replied(Bytes::from(vec![0; 20]));
+            let mut m = Message::empty(crate::msg::Type::Ack, mid);
+            m.code = crate::msg::Code::CONTENT;
+            m.payload = Bytes::from(vec![0; 15]);
+            let reply = Seen::Replied(Box::new(m));
             d.insert(
                 now,
                 (peer(), mid),

@@ -623,8 +623,8 @@ impl Endpoint {
             .dedup
             .check(now, peer, msg.message_id, msg.token, &limits)
         {
-            if let Seen::Replied(data) = seen {
-                let data = data.clone();
+            if let Seen::Replied(m) = seen {
+                let data = Bytes::from(m.encode());
                 self.outbox.push_back(Transmit { peer, data });
             }
             return;
@@ -636,10 +636,8 @@ impl Endpoint {
         };
         let seen = match (known, msg.ty) {
             // RFC 7252 §5.3.2: a response we cannot match is rejected with a Reset.
-            (None, _) => Seen::Replied(self.send(peer, &Message::empty(Type::Rst, msg.message_id))),
-            (Some(_), Type::Con) => {
-                Seen::Replied(self.send(peer, &Message::empty(Type::Ack, msg.message_id)))
-            }
+            (None, _) => self.reply_with(peer, Message::empty(Type::Rst, msg.message_id)),
+            (Some(_), Type::Con) => self.reply_with(peer, Message::empty(Type::Ack, msg.message_id)),
             (Some(_), _) => Seen::Silent,
         };
         self.dedup.insert(
@@ -1204,7 +1202,10 @@ impl Endpoint {
             .check(now, peer, msg.message_id, msg.token, &limits)
         {
             match seen.clone() {
-                Seen::Replied(data) => self.outbox.push_back(Transmit { peer, data }),
+                Seen::Replied(m) => {
+                    let data = Bytes::from(m.encode());
+                    self.outbox.push_back(Transmit { peer, data });
+                }
                 Seen::Pending(id) if con => self.ack_pending(id),
                 Seen::Pending(_) | Seen::Silent => {}
             }
@@ -1230,7 +1231,7 @@ impl Endpoint {
             } else if multicast {
                 Seen::Silent
             } else {
-                Seen::Replied(self.send(peer, &Message::empty(Type::Rst, msg.message_id)))
+                self.reply_with(peer, Message::empty(Type::Rst, msg.message_id))
             };
             self.dedup.insert(
                 now,
@@ -1541,7 +1542,15 @@ impl Endpoint {
             options: response.options,
             payload: response.payload,
         };
-        Seen::Replied(self.send(peer, &msg))
+        self.reply_with(peer, msg)
+    }
+
+    /// Sends a reply and keeps the message (not its encoding: a block's payload is a
+    /// slice of the stored representation, so remembering it costs no copy) to send again
+    /// for duplicates.
+    fn reply_with(&mut self, peer: SocketAddr, msg: Message) -> Seen {
+        self.send(peer, &msg);
+        Seen::Replied(Box::new(msg))
     }
 
     fn on_separate_ack_timer(&mut self, _now: Instant, id: u64) {
@@ -1558,8 +1567,8 @@ impl Endpoint {
         }
         p.acked = true;
         let (peer, mid) = (p.peer, p.mid);
-        let data = self.send(peer, &Message::empty(Type::Ack, mid));
-        self.dedup.set_reply(peer, mid, Seen::Replied(data));
+        let seen = self.reply_with(peer, Message::empty(Type::Ack, mid));
+        self.dedup.set_reply(peer, mid, seen);
     }
 
     /// Answers a request from [`Event::Request`]. A body larger than one block is stored
@@ -1609,8 +1618,8 @@ impl Endpoint {
         if ty == Type::Con {
             self.send_con(now, p.peer, &msg, Purpose::SeparateResponse);
         } else {
-            let data = self.send(p.peer, &msg);
-            self.dedup.set_reply(p.peer, p.mid, Seen::Replied(data));
+            let seen = self.reply_with(p.peer, msg);
+            self.dedup.set_reply(p.peer, p.mid, seen);
         }
     }
 }
