@@ -6,7 +6,6 @@ use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::time::Instant;
 
-
 use crate::config::Limits;
 use crate::msg::{Message, Token};
 

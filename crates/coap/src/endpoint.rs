@@ -637,7 +637,9 @@ impl Endpoint {
         let seen = match (known, msg.ty) {
             // RFC 7252 §5.3.2: a response we cannot match is rejected with a Reset.
             (None, _) => self.reply_with(peer, Message::empty(Type::Rst, msg.message_id)),
-            (Some(_), Type::Con) => self.reply_with(peer, Message::empty(Type::Ack, msg.message_id)),
+            (Some(_), Type::Con) => {
+                self.reply_with(peer, Message::empty(Type::Ack, msg.message_id))
+            }
             (Some(_), _) => Seen::Silent,
         };
         self.dedup.insert(
@@ -1257,38 +1259,33 @@ impl Endpoint {
         if let (Some(b2), None) = (block2, block1)
             && b2.num > 0
         {
-            {
-                let szx = b2.szx.min(self.config.max_block_szx);
-                let response = match self.block2.get(now, &key, &limits) {
-                    Some(s) => Some(block2_response(
-                        s.code,
-                        s.options.clone(),
-                        &s.body,
-                        b2.num,
-                        szx,
-                    )),
-                    None if !matches!(msg.code, Code::GET | Code::FETCH) => {
-                        Some(Response::diagnostic(
-                            Code::REQUEST_ENTITY_INCOMPLETE,
-                            "the representation is no longer stored; repeat the request from block 0",
-                        ))
-                    }
-                    // A GET is safe: the application renders it again and the block is cut
-                    // from the new representation (its ETag tells the client if it changed).
-                    None => None,
-                };
-                if let Some(response) = response {
-                    let seen = self.reply(peer, &msg, multicast, response);
-                    self.dedup.insert(
-                        now,
-                        (peer, msg.message_id),
-                        msg.token,
-                        expires,
-                        seen,
-                        &limits,
-                    );
-                    return;
-                }
+            // A GET falls through when nothing is stored: it is safe, so the application
+            // renders it again and the block is cut from the new representation (its ETag
+            // tells the client whether the blocks still fit).
+            let szx = b2.szx.min(self.config.max_block_szx);
+            if let Some(s) = self.block2.get(now, &key, &limits) {
+                // Served from the store, which is idempotent (RFC 7252 §4.5 allows
+                // relaxing deduplication then): a duplicate is cut again from the same
+                // bytes, and a 10 MB transfer leaves no 10,000 dedup entries behind.
+                let response = block2_response(s.code, s.options.clone(), &s.body, b2.num, szx);
+                self.reply(peer, &msg, multicast, response);
+                return;
+            }
+            if !matches!(msg.code, Code::GET | Code::FETCH) {
+                let response = Response::diagnostic(
+                    Code::REQUEST_ENTITY_INCOMPLETE,
+                    "the representation is no longer stored; repeat the request from block 0",
+                );
+                let seen = self.reply(peer, &msg, multicast, response);
+                self.dedup.insert(
+                    now,
+                    (peer, msg.message_id),
+                    msg.token,
+                    expires,
+                    seen,
+                    &limits,
+                );
+                return;
             }
         }
 
