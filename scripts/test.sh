@@ -19,6 +19,14 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 step "cargo test"
 cargo test --workspace --locked
 
+step "multicast tests in a private network namespace"
+# Group traffic must never leave through a real interface: these tests run only inside a
+# namespace of their own (scripts/netns-run), which needs root and iproute2.
+if ! command -v ip >/dev/null; then
+  apt-get install -y iproute2
+fi
+scripts/netns-run cargo test -p coap-net --test it --locked multicast
+
 step "fuzz targets build and replay their seeds"
 bash scripts/fuzz-build.sh
 

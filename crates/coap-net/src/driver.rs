@@ -111,6 +111,11 @@ async fn run(
 ) {
     let mut buf = vec![0u8; MAX_DATAGRAM];
     let mut received: Vec<Received> = Vec::new();
+    // Group sockets of a server bound to a unicast address: they only receive; every
+    // answer leaves from the unicast socket (RFC 7390 §2.5: from the unicast address).
+    let mut groups: Vec<(IpAddr, u32, Socket)> = Vec::new();
+    let mut group_buf = vec![0u8; MAX_DATAGRAM];
+    let mut group_received: Vec<Received> = Vec::new();
     let mut replies: HashMap<RequestId, (SocketAddr, Reply)> = HashMap::new();
     let mut pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>> = HashMap::new();
     let mut open = true;
@@ -155,9 +160,22 @@ async fn run(
                 // the retransmission timers do not already handle.
                 Err(e) => tracing::debug!(error = %e, "recv failed"),
             },
+            r = recv_any(&groups, &mut group_buf, &mut group_received), if !groups.is_empty() => match r {
+                Ok(()) => {
+                    let now = clock::now();
+                    for d in &group_received {
+                        let (start, len) = d.range;
+                        ep.handle(now, d.peer, &group_buf[start..start + len], true);
+                    }
+                }
+                Err(e) => tracing::debug!(error = %e, "group recv failed"),
+            },
             cmd = rx.recv(), if open => match cmd {
                 Some(Command::Shutdown) => return,
-                Some(cmd) => apply(cmd, &mut ep, &socket, &mut replies, &mut pings),
+                Some(Command::Membership { group, interface, join, done }) => {
+                    let _ = done.send(membership(&socket, &mut groups, group, interface, join));
+                }
+                Some(cmd) => apply(cmd, &mut ep, &mut replies, &mut pings),
                 None => open = false,
             },
             () = &mut sleep, if armed.is_some() => {
@@ -169,10 +187,50 @@ async fn run(
     }
 }
 
+/// Joins or leaves a group: on the socket itself when it is bound to a wildcard address
+/// (it then receives the group's datagrams too), else through a group socket of its own.
+fn membership(
+    socket: &Socket,
+    groups: &mut Vec<(IpAddr, u32, Socket)>,
+    group: IpAddr,
+    interface: u32,
+    join: bool,
+) -> std::io::Result<()> {
+    if socket.local_addr().ip().is_unspecified() {
+        return if join {
+            socket.join(group, interface)
+        } else {
+            socket.leave(group, interface)
+        };
+    }
+    groups.retain(|(g, i, _)| !(*g == group && *i == interface));
+    if join {
+        let s = Socket::bind_group(group, socket.local_addr().port(), interface)?;
+        groups.push((group, interface, s));
+    }
+    Ok(())
+}
+
+/// Waits for a datagram on any of the group sockets.
+async fn recv_any(
+    groups: &[(IpAddr, u32, Socket)],
+    buf: &mut [u8],
+    out: &mut Vec<Received>,
+) -> std::io::Result<()> {
+    std::future::poll_fn(|cx| {
+        for (_, _, s) in groups {
+            if let std::task::Poll::Ready(r) = s.poll_recv(cx, buf, out) {
+                return std::task::Poll::Ready(r);
+            }
+        }
+        std::task::Poll::Pending
+    })
+    .await
+}
+
 fn apply(
     cmd: Command,
     ep: &mut Endpoint,
-    socket: &Socket,
     replies: &mut HashMap<RequestId, (SocketAddr, Reply)>,
     pings: &mut HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>>,
 ) {
@@ -203,20 +261,8 @@ fn apply(
             let id = ep.ping(now, peer);
             pings.insert(id, reply);
         }
-        Command::Membership {
-            group,
-            interface,
-            join,
-            done,
-        } => {
-            let r = if join {
-                socket.join(group, interface)
-            } else {
-                socket.leave(group, interface)
-            };
-            let _ = done.send(r);
-        }
-        Command::Shutdown => {}
+        // Handled by the task loop, which owns the sockets.
+        Command::Membership { .. } | Command::Shutdown => {}
     }
 }
 

@@ -2,7 +2,8 @@
 //! of every received datagram (so a request sent to a group is known as one).
 
 use std::io::{self, IoSliceMut};
-use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, SocketAddrV6};
+use std::task::{Context, Poll};
 
 use quinn_udp::{RecvMeta, UdpSockRef, UdpSocketState};
 use socket2::{Domain, Protocol, Socket as RawSocket, Type};
@@ -49,9 +50,48 @@ impl Socket {
         Ok(Self { io, state, local })
     }
 
+    /// A socket that receives the datagrams sent to `group` on `port`: bound to the group
+    /// address itself (so it sees no unicast traffic) and joined on `interface` (an IPv6
+    /// interface index; for IPv4 the routing table picks the interface).
+    pub fn bind_group(group: IpAddr, port: u16, interface: u32) -> io::Result<Self> {
+        let addr = match group {
+            IpAddr::V4(g) => SocketAddr::from((g, port)),
+            IpAddr::V6(g) => SocketAddr::V6(SocketAddrV6::new(g, port, 0, interface)),
+        };
+        let socket = Self::bind(addr)?;
+        socket.join(group, interface)?;
+        Ok(socket)
+    }
+
     /// The bound address.
     pub fn local_addr(&self) -> SocketAddr {
         self.local
+    }
+
+    /// Polls for datagrams (for a set of sockets polled together).
+    pub fn poll_recv(
+        &self,
+        cx: &mut Context<'_>,
+        buf: &mut [u8],
+        out: &mut Vec<Received>,
+    ) -> Poll<io::Result<()>> {
+        loop {
+            std::task::ready!(self.io.poll_recv_ready(cx))?;
+            let mut meta = [RecvMeta::default()];
+            let r = self.io.try_io(Interest::READABLE, || {
+                let mut slices = [IoSliceMut::new(buf)];
+                self.state
+                    .recv(UdpSockRef::from(&self.io), &mut slices, &mut meta)
+            });
+            match r {
+                Ok(n) => {
+                    split(&meta[..n], out);
+                    return Poll::Ready(Ok(()));
+                }
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {}
+                Err(e) => return Poll::Ready(Err(e)),
+            }
+        }
     }
 
     /// Joins a multicast group; `interface` is an IPv6 interface index (0: the default) and
@@ -104,31 +144,26 @@ impl Socket {
     /// Waits for datagrams and writes them into `buf`, filling `out` with one entry per
     /// datagram (the kernel may hand several same-sized datagrams over at once).
     pub async fn recv(&self, buf: &mut [u8], out: &mut Vec<Received>) -> io::Result<()> {
-        out.clear();
-        let mut meta = [RecvMeta::default()];
-        let n = self
-            .io
-            .async_io(Interest::READABLE, || {
-                let mut slices = [IoSliceMut::new(buf)];
-                self.state
-                    .recv(UdpSockRef::from(&self.io), &mut slices, &mut meta)
-            })
-            .await?;
-        for m in meta.iter().take(n) {
-            let multicast = m.dst_ip.is_some_and(is_multicast);
-            let stride = m.stride.max(1);
-            let mut start = 0;
-            while start < m.len {
-                let len = stride.min(m.len - start);
-                out.push(Received {
-                    peer: m.addr,
-                    range: (start, len),
-                    multicast,
-                });
-                start += stride;
-            }
+        std::future::poll_fn(|cx| self.poll_recv(cx, buf, out)).await
+    }
+}
+
+/// One entry per datagram; a GRO-coalesced buffer holds several of `stride` bytes.
+fn split(meta: &[RecvMeta], out: &mut Vec<Received>) {
+    out.clear();
+    for m in meta {
+        let multicast = m.dst_ip.is_some_and(is_multicast);
+        let stride = m.stride.max(1);
+        let mut start = 0;
+        while start < m.len {
+            let len = stride.min(m.len - start);
+            out.push(Received {
+                peer: m.addr,
+                range: (start, len),
+                multicast,
+            });
+            start += stride;
         }
-        Ok(())
     }
 }
 

@@ -8,8 +8,11 @@ use coap::{OptionNumber, Options};
 /// A parsed `coap://` URI.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Uri {
-    /// Host as written: an IP literal (IPv6 without brackets) or a name.
+    /// Host as written: an IP literal (IPv6 without brackets or zone) or a name.
     pub host: String,
+    /// The zone of an IPv6 link-local literal (RFC 6874, `[ff02::fd%25eth0]`): an
+    /// interface name or index.
+    pub zone: Option<String>,
     /// Port (5683 when absent).
     pub port: u16,
     /// Path segments, percent-decoded.
@@ -63,12 +66,18 @@ impl Uri {
                 None if after.is_empty() => None,
                 None => return Err(UriError::Host(s.to_string())),
             };
-            (h.to_string(), port)
+            // RFC 6874 writes the zone separator as %25; a bare % is accepted too.
+            (h.replacen("%25", "%", 1), port)
         } else {
             match authority.rsplit_once(':') {
                 Some((h, p)) => (h.to_string(), Some(p)),
                 None => (authority.to_string(), None),
             }
+        };
+        let (host, zone) = match host.split_once('%') {
+            Some((h, z)) if !z.is_empty() => (h.to_string(), Some(z.to_string())),
+            Some(_) => return Err(UriError::Host(s.to_string())),
+            None => (host, None),
         };
         if host.is_empty() {
             return Err(UriError::Host(s.to_string()));
@@ -103,6 +112,7 @@ impl Uri {
             .unwrap_or_default();
         Ok(Self {
             host,
+            zone,
             port,
             path,
             query,
@@ -114,10 +124,16 @@ impl Uri {
         self.host.parse().ok()
     }
 
-    /// Resolves the host (a literal, or a name through the system resolver).
+    /// Resolves the host (a literal, or a name through the system resolver). A zone
+    /// becomes the IPv6 scope (an interface index, or a name looked up in
+    /// `/sys/class/net/NAME/ifindex`).
     pub async fn resolve(&self) -> std::io::Result<SocketAddr> {
         if let Some(ip) = self.ip() {
-            return Ok(SocketAddr::new(ip, self.port));
+            let mut addr = SocketAddr::new(ip, self.port);
+            if let (SocketAddr::V6(a), Some(zone)) = (&mut addr, &self.zone) {
+                a.set_scope_id(interface_index(zone)?);
+            }
+            return Ok(addr);
         }
         tokio::net::lookup_host((self.host.as_str(), self.port))
             .await?
@@ -152,6 +168,22 @@ impl Uri {
     }
 }
 
+/// An interface index from a number or an interface name.
+pub fn interface_index(zone: &str) -> std::io::Result<u32> {
+    if let Ok(n) = zone.parse() {
+        return Ok(n);
+    }
+    let path = format!("/sys/class/net/{zone}/ifindex");
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| std::io::Error::new(e.kind(), format!("interface {zone:?}: {e}")))?;
+    text.trim().parse().map_err(|_| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{path}: not an index"),
+        )
+    })
+}
+
 fn percent_decode(s: &str) -> Option<String> {
     let bytes = s.as_bytes();
     let mut out = Vec::with_capacity(bytes.len());
@@ -182,6 +214,13 @@ mod tests {
         assert!(!u.options().contains(OptionNumber::URI_HOST));
         let u = Uri::parse("coap://[::1]/.well-known/core").unwrap();
         assert_eq!((u.host.as_str(), u.port), ("::1", 5683));
+        let u = Uri::parse("coap://[ff02::fd%25lo]:5683/.well-known/core").unwrap();
+        assert_eq!(
+            (u.host.as_str(), u.zone.as_deref()),
+            ("ff02::fd", Some("lo"))
+        );
+        let u = Uri::parse("coap://[fe80::1%3]").unwrap();
+        assert_eq!(u.zone.as_deref(), Some("3"));
         let u = Uri::parse("coap://camera-1.local").unwrap();
         assert!(u.path.is_empty());
         assert!(u.options().contains(OptionNumber::URI_HOST));

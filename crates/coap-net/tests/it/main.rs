@@ -1,5 +1,7 @@
 //! coap-net over real loopback sockets: client and server together.
 
+mod multicast;
+
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
