@@ -56,12 +56,12 @@ pub struct Intrinsics {
     pub coeffs: [f32; 5],
 }
 
-/// Why a pixel could not be turned into a point.
+/// Why a point could not be turned into a pixel.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum DeprojectError {
-    /// The intrinsics use a distortion this crate does not invert yet.
-    #[error("deprojection with the {} model and non-zero coefficients is not supported", .0.name())]
+    /// The intrinsics use a distortion this crate does not project through.
+    #[error("projection with the {} model and non-zero coefficients is not supported", .0.name())]
     UnsupportedDistortion(DistortionModel),
 }
 
@@ -83,15 +83,11 @@ impl Intrinsics {
 
     /// The 3D point (metres, camera frame) seen at `pixel` (`[u, v]`, pixel units,
     /// integer values at pixel centres as librealsense's point cloud uses them) at
-    /// depth `depth_m` along z. Same arithmetic as `rs2_deproject_pixel_to_point`
-    /// for pinhole intrinsics.
-    pub fn deproject(&self, pixel: [f32; 2], depth_m: f32) -> Result<[f32; 3], DeprojectError> {
-        if !self.is_pinhole() {
-            return Err(DeprojectError::UnsupportedDistortion(self.model));
-        }
-        let x = (pixel[0] - self.ppx) / self.fx;
-        let y = (pixel[1] - self.ppy) / self.fy;
-        Ok([depth_m * x, depth_m * y, depth_m])
+    /// depth `depth_m` along z: `rs2_deproject_pixel_to_point` for every model (see
+    /// [`crate::deproject`]).
+    pub fn deproject(&self, pixel: [f32; 2], depth_m: f32) -> [f32; 3] {
+        let [x, y] = crate::deproject::pixel_to_ray(self, pixel);
+        [depth_m * x, depth_m * y, depth_m]
     }
 
     /// The pixel at which `point` (metres, camera frame, z > 0) is seen; same
@@ -179,7 +175,7 @@ mod tests {
     #[test]
     fn deproject_then_project_returns_the_pixel() {
         let k = pinhole();
-        let p = k.deproject([100.0, 600.0], 1.25).unwrap();
+        let p = k.deproject([100.0, 600.0], 1.25);
         let px = k.project(p).unwrap();
         assert!((px[0] - 100.0).abs() < 1e-3 && (px[1] - 600.0).abs() < 1e-3);
     }
@@ -187,18 +183,18 @@ mod tests {
     #[test]
     fn principal_point_deprojects_onto_the_optical_axis() {
         assert_eq!(
-            pinhole().deproject([637.0, 364.0], 2.0).unwrap(),
+            pinhole().deproject([637.0, 364.0], 2.0),
             [0.0, 0.0, 2.0]
         );
     }
 
     #[test]
-    fn distorted_models_are_refused_not_guessed() {
+    fn projection_through_distortion_is_refused_not_guessed() {
         let mut k = pinhole();
         k.model = DistortionModel::InverseBrownConrady;
         k.coeffs[0] = 0.1;
         assert_eq!(
-            k.deproject([0.0, 0.0], 1.0),
+            k.project([0.0, 0.0, 1.0]),
             Err(DeprojectError::UnsupportedDistortion(
                 DistortionModel::InverseBrownConrady
             ))

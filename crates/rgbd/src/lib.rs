@@ -1,7 +1,8 @@
 //! RGB-D cameras for coapcam: frames, D415 stream modes, settings documents, the
 //! `Camera` trait with its hot-plug `CameraHub`, and the synthetic D415 backend.
 //!
-//! Owns: color/depth frame types, intrinsics/extrinsics and pinhole deprojection, the
+//! Owns: color/depth frame types, intrinsics/extrinsics and deprojection, the depth
+//! post-processing filters (librealsense's blocks, [`filter`]), the
 //! D415 mode tables and camera model, the depth-settings / color-settings /
 //! advanced-config JSON documents (thesis Listings A.1, A.2, A.5), scene files
 //! (DESIGN.md §7) and the camera backends.
@@ -16,6 +17,8 @@ pub mod advanced;
 pub mod backend;
 pub mod camera;
 pub mod d415;
+pub mod deproject;
+pub mod filter;
 pub mod frame;
 pub mod intrinsics;
 pub mod mode;
@@ -28,6 +31,8 @@ pub use camera::{
     Camera, CameraError, CameraHub, HubError, HubEvent, Serial, SerialError, SettingError,
 };
 pub use frame::{ColorFormat, ColorFrame, DepthFormat, DepthFrame};
+pub use deproject::{Deprojector, deproject_frame};
+pub use filter::{FilterError, PostProcessing, PostProcessingConfig};
 pub use intrinsics::{DeprojectError, DistortionModel, Extrinsics, Intrinsics, Pose};
 pub use mode::{ModeError, ModeTable, ResolutionModes, Stream};
 pub use scene::{Scene, SceneError};

@@ -8,7 +8,7 @@ use crate::support::{floor_scene, only_camera};
 fn world_point(cam: &SyntheticCamera, frame: &DepthFrame, u: u32, v: u32) -> Option<[f64; 3]> {
     let z = frame.metres_at(u, v)?;
     let k = cam.depth_intrinsics().unwrap();
-    let p = k.deproject([u as f32, v as f32], z).unwrap();
+    let p = k.deproject([u as f32, v as f32], z);
     Some(cam.true_pose().unwrap().transform_point(p.map(f64::from)))
 }
 
