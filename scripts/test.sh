@@ -10,6 +10,28 @@ step "toolchain"
 cargo --version
 rustup component list --installed 2>/dev/null | grep -E 'rustfmt|clippy' || true
 
+step "peers"
+# The interop tests (crates/coapcam/tests/it/interop.rs) drive libcoap 4.3.1 and aiocoap;
+# they fail in CI (CI=true) when a peer is missing, and are skipped loudly elsewhere.
+as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
+peer_failed() {
+  echo "installing $1 failed" >&2
+  if [ "${CI:-}" = true ]; then exit 1; fi
+}
+if command -v coap-client-notls >/dev/null && command -v coap-server-notls >/dev/null; then
+  echo "libcoap3-bin: present"
+else
+  { as_root apt-get update && as_root env DEBIAN_FRONTEND=noninteractive \
+      apt-get install -y --no-install-recommends libcoap3-bin; } || peer_failed libcoap3-bin
+fi
+AIOCOAP_VERSION=0.4.17
+if command -v aiocoap-client >/dev/null \
+  && python3 -c "import aiocoap.meta as m, sys; sys.exit(m.version != '$AIOCOAP_VERSION')" 2>/dev/null; then
+  echo "aiocoap $AIOCOAP_VERSION: present"
+else
+  python3 -m pip install "aiocoap==$AIOCOAP_VERSION" || peer_failed "aiocoap==$AIOCOAP_VERSION"
+fi
+
 step "cargo fmt --check"
 cargo fmt --all -- --check
 

@@ -1,0 +1,938 @@
+//! Interop with libcoap 4.3.1 (Debian libcoap3-bin) and aiocoap (PyPI), both directions:
+//! our client (`coapcam get|put|post|delete|discover`) against their servers
+//! (`coap-server-notls`, `tests/peers/aiocoap_server.py`), and their clients
+//! (`coap-client-notls`, `aiocoap-client`) against ours (`coapcam serve --static`).
+//!
+//! Each test: discovery with a filter; GET, PUT, POST, DELETE; a 10,032,012-byte Block2
+//! download, bit-exact; a 3,500-byte Block1 upload, checked bit-exact on the server side;
+//! NON requests; Observe with 5 notifications; a transfer through `coapcam netem` at 10 %
+//! loss, bit-exact.
+//!
+//! The 10 % loss transfers of the full 2,764,810 bytes are `#[ignore]`d: with RFC 7252's
+//! ACK_TIMEOUT of 2 s, every stop-and-wait client (ours, libcoap's, aiocoap's) waits 2-3 s
+//! per lost datagram; 2,701 exchanges at 10 % loss each way lose ~19 % of them, which is
+//! ~20-25 minutes (our client sends ~2.1 datagrams/s through netem at 10 %, measured with
+//! strace). In the default run the same paths carry a 24,576-byte body at 10 % loss (a few
+//! lost exchanges, seconds to tens of seconds). Run the full ones with
+//! `cargo test -p coapcam --test it -- --ignored interop:: --test-threads 4`.
+//!
+//! Peers missing: the test fails in CI (`CI=true`), and is skipped with a loud message
+//! locally (see `peers::available`).
+
+use std::path::Path;
+use std::thread;
+use std::time::Duration;
+
+#[path = "peers.rs"]
+mod peers;
+
+use self::peers::{
+    AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, Peer, Proc, TempDir, assert_file_is, assert_same,
+    random_file,
+};
+
+const BIG: usize = 10_032_012;
+const UPLOAD: usize = 3_500;
+const LOSSY_FULL: usize = 2_764_810;
+const LOSSY_SMALL: usize = 24_576;
+const LOSS: f64 = 0.1;
+
+/// Bound of a quick exchange.
+const QUICK: Duration = Duration::from_secs(20);
+/// Bound of a 10 MB transfer (aiocoap's client takes ~30 s: it reassembles with `bytes +=`).
+const BULK: Duration = Duration::from_secs(120);
+/// Bound of a small transfer at 10 % loss (a lost exchange costs 2-3 s, a doubly lost 6-9 s).
+const LOSSY: Duration = Duration::from_secs(150);
+/// Bound of a 2,764,810-byte transfer at 10 % loss (~25 min expected).
+const LOSSY_LONG: Duration = Duration::from_secs(3600);
+
+fn secs(d: Duration) -> String {
+    d.as_secs().to_string()
+}
+
+/// Our client's verb, e.g. `coapcam get URI ARGS...`, bounded by `limit`.
+fn ours(verb: &str, uri: &str, args: &[&str], limit: Duration) -> peers::Finished {
+    let timeout = secs(limit.saturating_sub(Duration::from_secs(5)));
+    let mut all = vec![verb, uri, "--timeout", &timeout];
+    all.extend_from_slice(args);
+    Proc::run(COAPCAM, &all, limit)
+}
+
+/// `coapcam get URI -o FILE`, must succeed; returns the body.
+fn our_get(uri: &str, out: &Path, args: &[&str], limit: Duration) -> Vec<u8> {
+    let mut all = vec!["-o", out.to_str().expect("UTF-8 path")];
+    all.extend_from_slice(args);
+    ours("get", uri, &all, limit).expect_success(&format!("coapcam get {uri}"));
+    std::fs::read(out).unwrap_or_else(|e| panic!("reading {}: {e}", out.display()))
+}
+
+/// Parses `coapcam ... --json` output: one object per line.
+fn json_lines(f: &peers::Finished) -> Vec<serde_json::Value> {
+    f.stdout_text()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{l:?}: {e}")))
+        .collect()
+}
+
+fn code_of(f: &peers::Finished) -> String {
+    let lines = json_lines(f);
+    assert_eq!(lines.len(), 1, "one response expected: {lines:?}");
+    lines[0]["code"].as_str().unwrap_or_default().to_string()
+}
+
+/// The links of `coapcam discover --query Q`.
+fn our_discover(addr: &str, query: &str) -> Vec<String> {
+    let f = ours(
+        "discover",
+        &format!("coap://{addr}"),
+        &["--query", query, "--json"],
+        QUICK,
+    )
+    .expect_success("coapcam discover");
+    let v: serde_json::Value = serde_json::from_str(f.stdout_text().trim())
+        .unwrap_or_else(|e| panic!("{}: {e}", f.stdout_text()));
+    v.as_array()
+        .expect("a JSON array")
+        .iter()
+        .map(|l| l["target"].as_str().expect("target").to_string())
+        .collect()
+}
+
+/// `coapcam get URI --observe 5 --json`: the first response and 5 notifications, each with
+/// an Observe option, in order. Returns the payloads.
+fn our_observe(uri: &str) -> Vec<String> {
+    let f = ours("get", uri, &["--observe", "5", "--json"], QUICK)
+        .expect_success(&format!("coapcam get {uri} --observe 5"));
+    let lines = json_lines(&f);
+    assert_eq!(
+        lines.len(),
+        6,
+        "the response and 5 notifications: {lines:?}"
+    );
+    let mut last: Option<u64> = None;
+    for l in &lines {
+        assert_eq!(l["code"], "2.05", "{l}");
+        let seq = l["observe"]
+            .as_u64()
+            .unwrap_or_else(|| panic!("no Observe option: {l}"));
+        if let Some(prev) = last {
+            // RFC 7641 §3.4: newer within the 24-bit sequence space.
+            let ahead = (seq.wrapping_sub(prev)) & 0xff_ffff;
+            assert!(ahead > 0 && ahead < 1 << 23, "Observe {prev} then {seq}");
+        }
+        last = Some(seq);
+    }
+    lines
+        .iter()
+        .map(|l| l["payload"].as_str().unwrap_or_default().to_string())
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------
+// Our client -> libcoap's coap-server-notls
+
+fn libcoap_put(uri: &str, file: &Path) {
+    Proc::run(
+        LIBCOAP_CLIENT,
+        &[
+            "-m",
+            "put",
+            "-b",
+            "1024",
+            "-B",
+            "60",
+            "-f",
+            file.to_str().expect("UTF-8 path"),
+            uri,
+        ],
+        BULK,
+    )
+    .expect_success(&format!("coap-client-notls -m put {uri}"));
+}
+
+fn libcoap_get(uri: &str, out: &Path, extra: &[&str], limit: Duration) -> peers::Finished {
+    let b = secs(limit.saturating_sub(Duration::from_secs(5)));
+    let mut args = vec!["-b", "1024", "-B", &b, "-o", out.to_str().expect("UTF-8")];
+    args.extend_from_slice(extra);
+    args.push(uri);
+    Proc::run(LIBCOAP_CLIENT, &args, limit)
+}
+
+#[test]
+fn our_client_libcoap_server_discovery_filter() {
+    if !peers::available(
+        "our_client_libcoap_server_discovery_filter",
+        &[Peer::Libcoap],
+    ) {
+        return;
+    }
+    let (_server, addr) = peers::libcoap_server();
+    let addr = addr.to_string();
+    assert_eq!(our_discover(&addr, "rt=ticks"), ["/time"]);
+    assert_eq!(our_discover(&addr, "rt=tick*"), ["/time"]);
+    assert_eq!(our_discover(&addr, "href=/ex*"), ["/example_data"]);
+    let all = our_discover(&addr, "ct=0");
+    assert!(all.len() >= 4, "{all:?}");
+}
+
+#[test]
+fn our_client_libcoap_server_get_put_post_delete() {
+    if !peers::available(
+        "our_client_libcoap_server_get_put_post_delete",
+        &[Peer::Libcoap],
+    ) {
+        return;
+    }
+    let (_server, addr) = peers::libcoap_server();
+    let uri = format!("coap://{addr}/interop");
+    // libcoap's -d: a PUT to an unknown path creates a dynamic resource (2.01), then
+    // replaces it (2.04); POST replaces its body too; DELETE removes it.
+    let put = ours("put", &uri, &["--payload", "first", "--json"], QUICK);
+    assert_eq!(code_of(&put.expect_success("put")), "2.01");
+    let put = ours("put", &uri, &["--payload", "second", "--json"], QUICK);
+    assert_eq!(code_of(&put.expect_success("put")), "2.04");
+    let get = ours("get", &uri, &[], QUICK).expect_success("get");
+    assert_eq!(get.stdout_text(), "second\n");
+    let post = ours("post", &uri, &["--payload", "third", "--json"], QUICK);
+    assert_eq!(code_of(&post.expect_success("post")), "2.04");
+    let get = ours("get", &uri, &[], QUICK).expect_success("get");
+    assert_eq!(get.stdout_text(), "third\n");
+    let delete = ours("delete", &uri, &["--json"], QUICK);
+    assert_eq!(code_of(&delete.expect_success("delete")), "2.02");
+    let gone = ours("get", &uri, &[], QUICK);
+    assert_eq!(gone.status.code(), Some(2), "{gone:?}");
+    assert!(gone.stderr.contains("4.04"), "{gone:?}");
+}
+
+#[test]
+fn our_client_libcoap_server_block2_10032012_bytes() {
+    if !peers::available(
+        "our_client_libcoap_server_block2_10032012_bytes",
+        &[Peer::Libcoap],
+    ) {
+        return;
+    }
+    let dir = TempDir::new("lc-block2");
+    let body = random_file(&dir.join("big"), BIG, 1);
+    let (_server, addr) = peers::libcoap_server();
+    let uri = format!("coap://{addr}/big");
+    libcoap_put(&uri, &dir.join("big"));
+    let got = our_get(&uri, &dir.join("got"), &["--block-size", "1024"], BULK);
+    assert_same(&got, &body, "10,032,012 bytes from libcoap");
+}
+
+#[test]
+fn our_client_libcoap_server_block1_3500_bytes() {
+    if !peers::available(
+        "our_client_libcoap_server_block1_3500_bytes",
+        &[Peer::Libcoap],
+    ) {
+        return;
+    }
+    let dir = TempDir::new("lc-block1");
+    let body = random_file(&dir.join("up"), UPLOAD, 2);
+    let (_server, addr) = peers::libcoap_server();
+    let uri = format!("coap://{addr}/up");
+    let put = ours(
+        "put",
+        &uri,
+        &[
+            "--file",
+            dir.join("up").to_str().expect("UTF-8"),
+            "--block-size",
+            "1024",
+            "--json",
+        ],
+        QUICK,
+    );
+    assert_eq!(code_of(&put.expect_success("put 3,500 bytes")), "2.01");
+    // Read back with libcoap's own client: what the server stored.
+    libcoap_get(&uri, &dir.join("back"), &[], QUICK).expect_success("coap-client get");
+    assert_file_is(&dir.join("back"), &body);
+}
+
+#[test]
+fn our_client_libcoap_server_non() {
+    if !peers::available("our_client_libcoap_server_non", &[Peer::Libcoap]) {
+        return;
+    }
+    let (_server, addr) = peers::libcoap_server();
+    let uri = format!("coap://{addr}/non");
+    let put = ours(
+        "put",
+        &uri,
+        &["--non", "--payload", "non-put", "--json"],
+        QUICK,
+    );
+    assert_eq!(code_of(&put.expect_success("NON put")), "2.01");
+    let get = ours("get", &uri, &["--non"], QUICK).expect_success("NON get");
+    assert_eq!(get.stdout_text(), "non-put\n");
+    let get = ours(
+        "get",
+        &format!("coap://{addr}/example_data"),
+        &["--non", "--json"],
+        QUICK,
+    );
+    assert_eq!(code_of(&get.expect_success("NON get")), "2.05");
+}
+
+#[test]
+fn our_client_libcoap_server_observe_5() {
+    if !peers::available("our_client_libcoap_server_observe_5", &[Peer::Libcoap]) {
+        return;
+    }
+    let (_server, addr) = peers::libcoap_server();
+    // /time notifies every second with the time of day.
+    let payloads = our_observe(&format!("coap://{addr}/time"));
+    assert!(payloads.iter().all(|p| !p.is_empty()), "{payloads:?}");
+}
+
+/// Our client -> netem (10 % loss) -> libcoap server, `len` bytes, bit-exact.
+///
+/// Interop difference (libcoap 4.3.1's server): it gives every block-wise transfer a fresh
+/// ETag (a counter: three GETs of one unchanged resource carry ETag 0x0a, 0x0b, 0x0c), and
+/// when a transfer's state is gone (a block exchange that exhausted its retransmissions
+/// and is resumed later, after libcoap released its state) the next block carries a new
+/// ETag. Our client then refuses to splice the blocks and exits 1 with "representation
+/// changed during a block-wise transfer" (measured with the 2,764,810-byte body, seed 1:
+/// after 492 s). When `allow_changed_etag`, that refusal passes; a 0 exit status with a
+/// body that is not bit-exact never does.
+fn our_client_libcoap_server_lossy(
+    test: &str,
+    len: usize,
+    seed: u64,
+    limit: Duration,
+    allow_changed_etag: bool,
+) {
+    if !peers::available(test, &[Peer::Libcoap]) {
+        return;
+    }
+    let dir = TempDir::new("lc-lossy");
+    let body = random_file(&dir.join("body"), len, seed);
+    let (_server, addr) = peers::libcoap_server();
+    libcoap_put(&format!("coap://{addr}/body"), &dir.join("body"));
+    let (_netem, lossy) = peers::netem(addr, LOSS, seed);
+    let got = dir.join("got");
+    let f = ours(
+        "get",
+        &format!("coap://{lossy}/body"),
+        &["-o", got.to_str().expect("UTF-8"), "--block-size", "1024"],
+        limit,
+    );
+    if allow_changed_etag
+        && f.status.code() == Some(1)
+        && f.stderr
+            .contains("representation changed during a block-wise transfer")
+    {
+        assert!(!got.exists(), "no body written after a refused transfer");
+        eprintln!("INTEROP DIFFERENCE: libcoap's server changed the ETag mid-transfer: {f:?}");
+        return;
+    }
+    f.expect_success("coapcam get through 10 % loss");
+    assert_file_is(&got, &body);
+}
+
+#[test]
+fn our_client_libcoap_server_netem_10pct_loss() {
+    our_client_libcoap_server_lossy(
+        "our_client_libcoap_server_netem_10pct_loss",
+        LOSSY_SMALL,
+        11,
+        LOSSY,
+        false,
+    );
+}
+
+#[test]
+#[ignore = "~25 min: 2,701 stop-and-wait exchanges at 10 % loss, 2-3 s per loss (RFC 7252 ACK_TIMEOUT)"]
+fn our_client_libcoap_server_netem_10pct_loss_2764810_bytes() {
+    our_client_libcoap_server_lossy(
+        "our_client_libcoap_server_netem_10pct_loss_2764810_bytes",
+        LOSSY_FULL,
+        12,
+        LOSSY_LONG,
+        true,
+    );
+}
+
+// ---------------------------------------------------------------------------------------
+// Our client -> tests/peers/aiocoap_server.py
+
+#[test]
+fn our_client_aiocoap_server_discovery_filter() {
+    if !peers::available(
+        "our_client_aiocoap_server_discovery_filter",
+        &[Peer::Aiocoap],
+    ) {
+        return;
+    }
+    let (_server, addr) = peers::aiocoap_server(None);
+    let addr = addr.to_string();
+    assert_eq!(our_discover(&addr, "rt=interop.counter"), ["/counter"]);
+    assert_eq!(our_discover(&addr, "rt=interop.s*"), ["/store"]);
+    assert_eq!(our_discover(&addr, "href=/b*"), ["/big"]);
+}
+
+#[test]
+fn our_client_aiocoap_server_get_put_post_delete() {
+    if !peers::available(
+        "our_client_aiocoap_server_get_put_post_delete",
+        &[Peer::Aiocoap],
+    ) {
+        return;
+    }
+    let (_server, addr) = peers::aiocoap_server(None);
+    let uri = format!("coap://{addr}/store");
+    let empty = ours("get", &uri, &[], QUICK);
+    assert_eq!(empty.status.code(), Some(2), "{empty:?}");
+    assert!(empty.stderr.contains("4.04"), "{empty:?}");
+    let put = ours("put", &uri, &["--payload", "first", "--json"], QUICK);
+    assert_eq!(code_of(&put.expect_success("put")), "2.01");
+    let put = ours("put", &uri, &["--payload", "second", "--json"], QUICK);
+    assert_eq!(code_of(&put.expect_success("put")), "2.04");
+    let get = ours("get", &uri, &[], QUICK).expect_success("get");
+    assert_eq!(get.stdout_text(), "second\n");
+    let post = ours("post", &uri, &["--payload", "third", "--json"], QUICK);
+    assert_eq!(code_of(&post.expect_success("post")), "2.01");
+    let get = ours("get", &uri, &[], QUICK).expect_success("get");
+    assert_eq!(get.stdout_text(), "third\n");
+    let echo = ours(
+        "post",
+        &format!("coap://{addr}/echo"),
+        &["--payload", "echoed"],
+        QUICK,
+    );
+    assert_eq!(echo.expect_success("post /echo").stdout_text(), "echoed\n");
+    let delete = ours("delete", &uri, &["--json"], QUICK);
+    assert_eq!(code_of(&delete.expect_success("delete")), "2.02");
+    let gone = ours("get", &uri, &[], QUICK);
+    assert_eq!(gone.status.code(), Some(2), "{gone:?}");
+    assert!(gone.stderr.contains("4.04"), "{gone:?}");
+}
+
+#[test]
+fn our_client_aiocoap_server_block2_10032012_bytes() {
+    if !peers::available(
+        "our_client_aiocoap_server_block2_10032012_bytes",
+        &[Peer::Aiocoap],
+    ) {
+        return;
+    }
+    let dir = TempDir::new("aio-block2");
+    let body = random_file(&dir.join("big"), BIG, 3);
+    let (_server, addr) = peers::aiocoap_server(Some(&dir.join("big")));
+    let got = our_get(
+        &format!("coap://{addr}/big"),
+        &dir.join("got"),
+        &["--block-size", "1024"],
+        BULK,
+    );
+    assert_same(&got, &body, "10,032,012 bytes from aiocoap");
+}
+
+#[test]
+fn our_client_aiocoap_server_block1_3500_bytes() {
+    if !peers::available(
+        "our_client_aiocoap_server_block1_3500_bytes",
+        &[Peer::Aiocoap],
+    ) {
+        return;
+    }
+    let dir = TempDir::new("aio-block1");
+    let body = random_file(&dir.join("up"), UPLOAD, 4);
+    let (_server, addr) = peers::aiocoap_server(None);
+    let uri = format!("coap://{addr}/store");
+    let put = ours(
+        "put",
+        &uri,
+        &[
+            "--file",
+            dir.join("up").to_str().expect("UTF-8"),
+            "--block-size",
+            "1024",
+            "--json",
+        ],
+        QUICK,
+    );
+    assert_eq!(code_of(&put.expect_success("put 3,500 bytes")), "2.01");
+    // Read back with aiocoap's own client: what the server stored.
+    let back = Proc::run(
+        AIOCOAP_CLIENT,
+        &["--no-pretty-print", "--no-color", &uri],
+        QUICK,
+    )
+    .expect_success("aiocoap-client get");
+    assert_same(&back.stdout, &body, "3,500 bytes stored by aiocoap");
+}
+
+#[test]
+fn our_client_aiocoap_server_non() {
+    if !peers::available("our_client_aiocoap_server_non", &[Peer::Aiocoap]) {
+        return;
+    }
+    let (_server, addr) = peers::aiocoap_server(None);
+    let uri = format!("coap://{addr}/store");
+    let put = ours(
+        "put",
+        &uri,
+        &["--non", "--payload", "non-put", "--json"],
+        QUICK,
+    );
+    assert_eq!(code_of(&put.expect_success("NON put")), "2.01");
+    let get = ours("get", &uri, &["--non"], QUICK).expect_success("NON get");
+    assert_eq!(get.stdout_text(), "non-put\n");
+    let echo = ours(
+        "post",
+        &format!("coap://{addr}/echo"),
+        &["--non", "--payload", "non-echo"],
+        QUICK,
+    );
+    assert_eq!(echo.expect_success("NON post").stdout_text(), "non-echo\n");
+}
+
+#[test]
+fn our_client_aiocoap_server_observe_5() {
+    if !peers::available("our_client_aiocoap_server_observe_5", &[Peer::Aiocoap]) {
+        return;
+    }
+    let (_server, addr) = peers::aiocoap_server(None);
+    // /counter counts up every 250 ms and notifies each step.
+    let payloads = our_observe(&format!("coap://{addr}/counter"));
+    let counts: Vec<u64> = payloads
+        .iter()
+        .map(|p| p.parse().unwrap_or_else(|e| panic!("{p:?}: {e}")))
+        .collect();
+    assert!(counts.windows(2).all(|w| w[0] < w[1]), "{counts:?}");
+}
+
+/// Our client -> netem (10 % loss) -> aiocoap server, `len` bytes, bit-exact.
+fn our_client_aiocoap_server_lossy(test: &str, len: usize, seed: u64, limit: Duration) {
+    if !peers::available(test, &[Peer::Aiocoap]) {
+        return;
+    }
+    let dir = TempDir::new("aio-lossy");
+    let body = random_file(&dir.join("body"), len, seed);
+    let (_server, addr) = peers::aiocoap_server(Some(&dir.join("body")));
+    let (_netem, lossy) = peers::netem(addr, LOSS, seed);
+    let got = our_get(
+        &format!("coap://{lossy}/big"),
+        &dir.join("got"),
+        &["--block-size", "1024"],
+        limit,
+    );
+    assert_same(&got, &body, "body through 10 % loss from aiocoap");
+}
+
+#[test]
+fn our_client_aiocoap_server_netem_10pct_loss() {
+    our_client_aiocoap_server_lossy(
+        "our_client_aiocoap_server_netem_10pct_loss",
+        LOSSY_SMALL,
+        21,
+        LOSSY,
+    );
+}
+
+#[test]
+#[ignore = "~25 min: 2,701 stop-and-wait exchanges at 10 % loss, 2-3 s per loss (RFC 7252 ACK_TIMEOUT)"]
+fn our_client_aiocoap_server_netem_10pct_loss_2764810_bytes() {
+    our_client_aiocoap_server_lossy(
+        "our_client_aiocoap_server_netem_10pct_loss_2764810_bytes",
+        LOSSY_FULL,
+        22,
+        LOSSY_LONG,
+    );
+}
+
+// ---------------------------------------------------------------------------------------
+// Their clients -> our `coapcam serve --no-cameras --static DIR --writable`
+
+/// A client program of a peer, driven the same way in every test below.
+#[derive(Clone, Copy)]
+enum TheirClient {
+    Libcoap,
+    Aiocoap,
+}
+
+impl TheirClient {
+    fn peer(self) -> Peer {
+        match self {
+            Self::Libcoap => Peer::Libcoap,
+            Self::Aiocoap => Peer::Aiocoap,
+        }
+    }
+
+    /// Runs one request: METHOD URI with an optional payload file or text, NON or CON.
+    /// Returns what the client printed; the body is on standard output.
+    fn request(
+        self,
+        method: &str,
+        uri: &str,
+        payload: Option<Payload<'_>>,
+        non: bool,
+        limit: Duration,
+    ) -> peers::Finished {
+        let b = secs(limit.saturating_sub(Duration::from_secs(5)));
+        let mut args: Vec<String> = Vec::new();
+        match self {
+            Self::Libcoap => {
+                args.extend(["-m", method, "-b", "1024", "-B", &b, "-o", "-"].map(String::from));
+                match payload {
+                    Some(Payload::Text(t)) => args.extend(["-e".into(), t.into()]),
+                    Some(Payload::File(f)) => {
+                        args.extend(["-f".into(), f.to_str().expect("UTF-8").into()]);
+                    }
+                    None => {}
+                }
+                if non {
+                    args.push("-N".into());
+                }
+            }
+            Self::Aiocoap => {
+                args.extend(["--no-pretty-print", "--no-color", "-m", method].map(String::from));
+                match payload {
+                    Some(Payload::Text(t)) => args.extend(["--payload".into(), t.into()]),
+                    Some(Payload::File(f)) => {
+                        args.extend(["--payload".into(), format!("@{}", f.display())]);
+                    }
+                    None => {}
+                }
+                if non {
+                    args.push("--non".into());
+                }
+            }
+        }
+        args.push(uri.into());
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        Proc::run(self.program(), &args, limit)
+    }
+
+    fn program(self) -> &'static str {
+        match self {
+            Self::Libcoap => LIBCOAP_CLIENT,
+            Self::Aiocoap => AIOCOAP_CLIENT,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Self::Libcoap => "libcoap",
+            Self::Aiocoap => "aiocoap",
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+enum Payload<'a> {
+    Text(&'a str),
+    File(&'a Path),
+}
+
+/// Our server with a writable static directory holding big.bin, hello.txt and extra.
+struct Ours {
+    dir: TempDir,
+    _server: Proc,
+    addr: std::net::SocketAddr,
+}
+
+fn start_ours(tag: &str, files: &[(&str, &[u8])]) -> Ours {
+    let dir = TempDir::new(tag);
+    for (name, body) in files {
+        std::fs::write(dir.join(name), body).expect("writing a served file");
+    }
+    let (server, addr) = peers::our_server(dir.path(), true);
+    Ours {
+        dir,
+        _server: server,
+        addr,
+    }
+}
+
+fn their_discovery(client: TheirClient) {
+    let ours = start_ours(
+        "disc",
+        &[("big.bin", b"b"), ("blue.txt", b"c"), ("hello.txt", b"h")],
+    );
+    let uri = format!("coap://{}/.well-known/core?href=/files/b*", ours.addr);
+    let f = client
+        .request("get", &uri, None, false, QUICK)
+        .expect_success("discovery");
+    let text = f.stdout_text();
+    let mut targets: Vec<&str> = text
+        .trim()
+        .split(',')
+        .map(|l| l.split(';').next().unwrap_or_default())
+        .collect();
+    targets.sort_unstable();
+    assert_eq!(targets, ["</files/big.bin>", "</files/blue.txt>"], "{text}");
+    let uri = format!("coap://{}/.well-known/core?title=hello.txt", ours.addr);
+    let f = client
+        .request("get", &uri, None, false, QUICK)
+        .expect_success("discovery");
+    assert!(
+        f.stdout_text().trim().starts_with("</files/hello.txt>;"),
+        "{}",
+        f.stdout_text()
+    );
+    assert!(!f.stdout_text().contains(','), "{}", f.stdout_text());
+}
+
+fn their_get_put_post_delete(client: TheirClient) {
+    let ours = start_ours("crud", &[("hello.txt", b"hello\n")]);
+    let base = format!("coap://{}", ours.addr);
+    let f = client.request(
+        "get",
+        &format!("{base}/files/hello.txt"),
+        None,
+        false,
+        QUICK,
+    );
+    assert_eq!(f.expect_success("get").stdout, b"hello\n");
+
+    let new = format!("{base}/files/new.txt");
+    client
+        .request("put", &new, Some(Payload::Text("put-body")), false, QUICK)
+        .expect_success("put");
+    assert_file_is(&ours.dir.join("new.txt"), b"put-body");
+    let f = client.request("get", &new, None, false, QUICK);
+    assert_eq!(f.expect_success("get").stdout, b"put-body");
+
+    client
+        .request(
+            "post",
+            &format!("{base}/files"),
+            Some(Payload::Text("post-body")),
+            false,
+            QUICK,
+        )
+        .expect_success("post");
+    let uploads: Vec<_> = std::fs::read_dir(ours.dir.path())
+        .expect("listing the served directory")
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with("upload-"))
+        .collect();
+    assert_eq!(uploads.len(), 1, "one file created by POST");
+    assert_file_is(&uploads[0].path(), b"post-body");
+
+    client
+        .request("delete", &new, None, false, QUICK)
+        .expect_success("delete");
+    assert!(!ours.dir.join("new.txt").exists(), "DELETE removed new.txt");
+    let f = client.request("get", &new, None, false, QUICK);
+    // libcoap's client exits 0 on 4.04 (it prints the code); aiocoap's exits 1.
+    assert!(f.stdout.is_empty(), "{f:?}");
+    assert!(f.stderr.contains("4.04"), "{f:?}");
+}
+
+fn their_block2_download(client: TheirClient) {
+    let body = peers::random_bytes(BIG, 5);
+    let ours = start_ours("block2", &[("big.bin", &body)]);
+    let uri = format!("coap://{}/files/big.bin", ours.addr);
+    let f = client
+        .request("get", &uri, None, false, BULK)
+        .expect_success("10,032,012-byte GET");
+    assert_same(
+        &f.stdout,
+        &body,
+        &format!("10,032,012 bytes to {}", client.name()),
+    );
+}
+
+fn their_block1_upload(client: TheirClient) {
+    let ours = start_ours("block1", &[]);
+    let src = TempDir::new("block1-src");
+    let body = random_file(&src.join("up.bin"), UPLOAD, 6);
+    let uri = format!("coap://{}/files/up.bin", ours.addr);
+    client
+        .request(
+            "put",
+            &uri,
+            Some(Payload::File(&src.join("up.bin"))),
+            false,
+            QUICK,
+        )
+        .expect_success("3,500-byte PUT");
+    assert_file_is(&ours.dir.join("up.bin"), &body);
+}
+
+fn their_non(client: TheirClient) {
+    let ours = start_ours("non", &[("hello.txt", b"hello\n")]);
+    let base = format!("coap://{}", ours.addr);
+    let f = client.request("get", &format!("{base}/files/hello.txt"), None, true, QUICK);
+    assert_eq!(f.expect_success("NON get").stdout, b"hello\n");
+    client
+        .request(
+            "put",
+            &format!("{base}/files/non.txt"),
+            Some(Payload::Text("non-put")),
+            true,
+            QUICK,
+        )
+        .expect_success("NON put");
+    assert_file_is(&ours.dir.join("non.txt"), b"non-put");
+}
+
+/// Their client observes /files/obs.txt while the file is rewritten 8 times, 300 ms apart;
+/// our server polls the directory every 200 ms and notifies each change.
+///
+/// aiocoap's observer is `tests/peers/aiocoap_observe.py` (the aiocoap library), not
+/// `aiocoap-client --observe`: aiocoap-client 0.4.17 cancels the observation when the
+/// first response arrives and never prints a notification, with any server (checked
+/// against libcoap's /time too). See the script's docstring.
+fn their_observe(client: TheirClient) {
+    let ours = start_ours("observe", &[("obs.txt", b"n0\n")]);
+    let uri = format!("coap://{}/files/obs.txt", ours.addr);
+    let mut observer = match client {
+        TheirClient::Libcoap => Proc::spawn(LIBCOAP_CLIENT, &["-s", "20", "-B", "20", &uri]),
+        TheirClient::Aiocoap => Proc::spawn(
+            "python3",
+            &[&peers::script("aiocoap_observe.py"), &uri, "5"],
+        ),
+    };
+    // The first response: the observation is registered.
+    observer.stdout_line(QUICK, |l| l.ends_with("n0").then_some(()));
+    for n in 1..=8 {
+        thread::sleep(Duration::from_millis(300));
+        let tmp = ours.dir.join(".obs.tmp");
+        std::fs::write(&tmp, format!("n{n}\n")).expect("writing obs.txt");
+        std::fs::rename(&tmp, ours.dir.join("obs.txt")).expect("replacing obs.txt");
+    }
+    let f = match client {
+        // libcoap's client observes for its -s seconds: stop it once the writes are seen.
+        TheirClient::Libcoap => {
+            thread::sleep(Duration::from_millis(1000));
+            observer.kill()
+        }
+        // The script ends by itself after 5 notifications.
+        TheirClient::Aiocoap => observer
+            .wait(QUICK)
+            .expect("aiocoap_observe.py did not end")
+            .expect_success("aiocoap_observe.py"),
+    };
+    let printed = f.stdout_text();
+    let seen: Vec<u32> = printed
+        .lines()
+        .filter_map(|l| l.split_whitespace().last()?.strip_prefix('n')?.parse().ok())
+        .collect();
+    assert_eq!(seen.first(), Some(&0), "{printed}");
+    let notified = &seen[1..];
+    assert!(notified.len() >= 5, "at least 5 notifications: {printed}");
+    assert!(
+        notified.windows(2).all(|w| w[0] < w[1]),
+        "in order: {seen:?}"
+    );
+    if matches!(client, TheirClient::Libcoap) {
+        assert_eq!(notified.last(), Some(&8), "the last state: {seen:?}");
+    }
+}
+
+/// Their client -> netem (10 % loss) -> our server, `len` bytes.
+fn their_lossy(client: TheirClient, len: usize, seed: u64, limit: Duration) {
+    let body = peers::random_bytes(len, seed);
+    let ours = start_ours("lossy", &[("body.bin", &body)]);
+    let (_netem, lossy) = peers::netem(ours.addr, LOSS, seed);
+    let uri = format!("coap://{lossy}/files/body.bin");
+    let f = client
+        .request("get", &uri, None, false, limit)
+        .expect_success("GET through 10 % loss");
+    assert_same(
+        &f.stdout,
+        &body,
+        &format!("body through 10 % loss to {}", client.name()),
+    );
+}
+
+macro_rules! their_client_tests {
+    ($client:expr, $($name:ident => $body:expr;)*) => {
+        $(
+            #[test]
+            fn $name() {
+                if !peers::available(stringify!($name), &[$client.peer()]) {
+                    return;
+                }
+                $body
+            }
+        )*
+    };
+}
+
+their_client_tests! {
+    TheirClient::Libcoap,
+    libcoap_client_our_server_discovery_filter => their_discovery(TheirClient::Libcoap);
+    libcoap_client_our_server_get_put_post_delete => their_get_put_post_delete(TheirClient::Libcoap);
+    libcoap_client_our_server_block2_10032012_bytes => their_block2_download(TheirClient::Libcoap);
+    libcoap_client_our_server_block1_3500_bytes => their_block1_upload(TheirClient::Libcoap);
+    libcoap_client_our_server_non => their_non(TheirClient::Libcoap);
+    libcoap_client_our_server_observe_5 => their_observe(TheirClient::Libcoap);
+    libcoap_client_our_server_netem_10pct_loss => their_lossy(TheirClient::Libcoap, LOSSY_SMALL, 31, LOSSY);
+}
+
+their_client_tests! {
+    TheirClient::Aiocoap,
+    aiocoap_client_our_server_discovery_filter => their_discovery(TheirClient::Aiocoap);
+    aiocoap_client_our_server_get_put_post_delete => their_get_put_post_delete(TheirClient::Aiocoap);
+    aiocoap_client_our_server_block2_10032012_bytes => their_block2_download(TheirClient::Aiocoap);
+    aiocoap_client_our_server_block1_3500_bytes => their_block1_upload(TheirClient::Aiocoap);
+    aiocoap_client_our_server_non => their_non(TheirClient::Aiocoap);
+    aiocoap_client_our_server_observe_5 => their_observe(TheirClient::Aiocoap);
+    aiocoap_client_our_server_netem_10pct_loss => their_lossy(TheirClient::Aiocoap, LOSSY_SMALL, 41, LOSSY);
+}
+
+/// libcoap's client -> netem (10 % loss) -> our server, 2,764,810 bytes.
+///
+/// Interop difference (libcoap 4.3.1's client, not ours): its RFC 7959 client stops
+/// asking for blocks about 93 s (MAX_TRANSMIT_WAIT) after the request, and at its `-B`
+/// limit exits 0 with a truncated file (seed 2, measured: 137,216 of 2,764,810 bytes
+/// after 150 s; /work/shared/research/anchor-measurements.md, observation 4, has the
+/// same with libcoap's own server). So this asserts what our side owes: every request
+/// that reached our server was answered (netem's counters), what arrived is a bit-exact
+/// prefix, and the whole body when libcoap does finish.
+#[test]
+#[ignore = "~150 s: libcoap's client stalls ~93 s into a lossy transfer and exits at its -B limit"]
+fn libcoap_client_our_server_netem_10pct_loss_2764810_bytes() {
+    if !peers::available(
+        "libcoap_client_our_server_netem_10pct_loss_2764810_bytes",
+        &[Peer::Libcoap],
+    ) {
+        return;
+    }
+    let body = peers::random_bytes(LOSSY_FULL, 32);
+    let ours = start_ours("lossy-lc-full", &[("body.bin", &body)]);
+    let (mut netem, lossy) = peers::netem(ours.addr, LOSS, 32);
+    let uri = format!("coap://{lossy}/files/body.bin");
+    let f = TheirClient::Libcoap.request("get", &uri, None, false, Duration::from_secs(155));
+    let counters = netem.interrupt_json();
+    let up = &counters["up"];
+    let down = &counters["down"];
+    assert_eq!(
+        up["forwarded"], down["received"],
+        "our server answers every request it receives: {counters}"
+    );
+    assert!(f.stdout.len() <= body.len(), "{} bytes", f.stdout.len());
+    assert_same(
+        &f.stdout,
+        &body[..f.stdout.len()],
+        "the prefix libcoap received",
+    );
+    if f.stdout.len() < body.len() {
+        eprintln!(
+            "INTEROP DIFFERENCE: coap-client-notls exited {} with {} of {} bytes through \
+             10 % loss (netem: {counters})",
+            f.status,
+            f.stdout.len(),
+            body.len()
+        );
+    }
+}
+
+#[test]
+#[ignore = "~25 min: 2,701 stop-and-wait exchanges at 10 % loss, 2-3 s per loss (RFC 7252 ACK_TIMEOUT)"]
+fn aiocoap_client_our_server_netem_10pct_loss_2764810_bytes() {
+    if !peers::available(
+        "aiocoap_client_our_server_netem_10pct_loss_2764810_bytes",
+        &[Peer::Aiocoap],
+    ) {
+        return;
+    }
+    their_lossy(TheirClient::Aiocoap, LOSSY_FULL, 42, LOSSY_LONG);
+}

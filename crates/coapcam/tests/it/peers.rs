@@ -1,0 +1,517 @@
+//! The peers of the interop tests as processes: libcoap 4.3.1 (`coap-server-notls`,
+//! `coap-client-notls`), aiocoap (`tests/peers/aiocoap_server.py`, `aiocoap-client`), our
+//! `coapcam serve` and `coapcam netem`. Every process is killed and reaped on drop, every
+//! wait is bounded, and every socket is on 127.0.0.1.
+
+use std::io::{BufRead, BufReader, Read};
+use std::net::{SocketAddr, UdpSocket};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, mpsc};
+use std::thread;
+use std::time::{Duration, Instant};
+
+/// How long a server may take to start listening.
+const STARTUP: Duration = Duration::from_secs(20);
+
+pub(crate) const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
+pub(crate) const LIBCOAP_SERVER: &str = "coap-server-notls";
+pub(crate) const LIBCOAP_CLIENT: &str = "coap-client-notls";
+pub(crate) const AIOCOAP_CLIENT: &str = "aiocoap-client";
+
+/// A peer program the tests need.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Peer {
+    /// Debian libcoap3-bin: coap-server-notls and coap-client-notls.
+    Libcoap,
+    /// PyPI aiocoap: the library (for the server script) and aiocoap-client.
+    Aiocoap,
+}
+
+fn on_path(name: &str) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|dir| dir.join(name))
+        .find(|p| p.is_file())
+}
+
+fn missing(peer: Peer) -> Option<String> {
+    match peer {
+        Peer::Libcoap => [LIBCOAP_SERVER, LIBCOAP_CLIENT]
+            .into_iter()
+            .find(|b| on_path(b).is_none())
+            .map(|b| format!("{b} is not on PATH (Debian package libcoap3-bin)")),
+        Peer::Aiocoap => {
+            if on_path(AIOCOAP_CLIENT).is_none() {
+                return Some(format!("{AIOCOAP_CLIENT} is not on PATH (PyPI aiocoap)"));
+            }
+            let import = Command::new("python3")
+                .args(["-c", "import aiocoap"])
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .status();
+            match import {
+                Ok(s) if s.success() => None,
+                _ => Some("python3 cannot import aiocoap (PyPI aiocoap)".into()),
+            }
+        }
+    }
+}
+
+/// Whether the peers are installed. Missing in CI (`CI=true`) fails the test; missing
+/// locally skips it with a loud message on standard error.
+pub(crate) fn available(test: &str, peers: &[Peer]) -> bool {
+    let Some(why) = peers.iter().find_map(|p| missing(*p)) else {
+        return true;
+    };
+    if std::env::var("CI").is_ok_and(|v| v == "true" || v == "1") {
+        panic!("{test}: {why}; scripts/test.sh installs the interop peers");
+    }
+    // Written to the process's standard error directly, past libtest's capture of
+    // eprintln!, so the skip shows in a plain `cargo test`.
+    let message = format!(
+        "\n!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!\n\
+         !!! SKIPPED interop test {test}: {why}.\n\
+         !!! Install the peers (scripts/test.sh does) to run it; in CI it fails.\n\
+         !!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!!\n"
+    );
+    let _ = std::io::Write::write_all(&mut std::io::stderr(), message.as_bytes());
+    false
+}
+
+/// A fresh directory under the system's temporary directory, removed on drop.
+pub(crate) struct TempDir(PathBuf);
+
+impl TempDir {
+    pub(crate) fn new(tag: &str) -> Self {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let dir =
+            std::env::temp_dir().join(format!("coapcam-interop-{tag}-{}-{n}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("creating {}: {e}", dir.display()));
+        Self(dir)
+    }
+
+    pub(crate) fn path(&self) -> &Path {
+        &self.0
+    }
+
+    pub(crate) fn join(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// `len` pseudo-random bytes (SplitMix64 from `seed`): incompressible, never all zero.
+pub(crate) fn random_bytes(len: usize, seed: u64) -> Vec<u8> {
+    let mut state = seed;
+    let mut out = Vec::with_capacity(len + 8);
+    while out.len() < len {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        out.extend_from_slice(&(z ^ (z >> 31)).to_le_bytes());
+    }
+    out.truncate(len);
+    out
+}
+
+/// Writes `random_bytes(len, seed)` to `path` and returns them.
+pub(crate) fn random_file(path: &Path, len: usize, seed: u64) -> Vec<u8> {
+    let body = random_bytes(len, seed);
+    std::fs::write(path, &body).unwrap_or_else(|e| panic!("writing {}: {e}", path.display()));
+    body
+}
+
+/// Asserts that `path` holds exactly `want`, naming the first differing byte if not.
+pub(crate) fn assert_file_is(path: &Path, want: &[u8]) {
+    let got = std::fs::read(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()));
+    assert_same(&got, want, &path.display().to_string());
+}
+
+/// Asserts that two bodies are identical, naming the first differing byte if not.
+pub(crate) fn assert_same(got: &[u8], want: &[u8], what: &str) {
+    if got != want {
+        let first = got.iter().zip(want).position(|(a, b)| a != b);
+        panic!(
+            "{what}: {} bytes, {} expected; first difference at byte {:?}",
+            got.len(),
+            want.len(),
+            first.unwrap_or_else(|| got.len().min(want.len()))
+        );
+    }
+}
+
+/// A port that was free on 127.0.0.1 a moment ago (for peers that cannot bind port 0
+/// and report it). Servers started on it are checked, and restarted on another port if
+/// they could not bind it.
+pub(crate) fn free_port() -> u16 {
+    let socket = UdpSocket::bind("127.0.0.1:0").expect("binding 127.0.0.1:0");
+    socket.local_addr().expect("local address").port()
+}
+
+/// Lines a child printed, collected by a thread per pipe.
+#[derive(Clone, Default)]
+struct Lines(Arc<Mutex<Vec<u8>>>);
+
+impl Lines {
+    fn follow(pipe: impl Read + Send + 'static, lines: Option<mpsc::Sender<String>>) -> Self {
+        let me = Self::default();
+        let buf = Arc::clone(&me.0);
+        thread::spawn(move || {
+            let mut reader = BufReader::new(pipe);
+            let mut line = Vec::new();
+            loop {
+                line.clear();
+                match reader.read_until(b'\n', &mut line) {
+                    Ok(0) | Err(_) => break,
+                    Ok(_) => {
+                        buf.lock()
+                            .unwrap_or_else(std::sync::PoisonError::into_inner)
+                            .extend_from_slice(&line);
+                        if let Some(tx) = &lines {
+                            let _ = tx.send(String::from_utf8_lossy(&line).trim_end().to_string());
+                        }
+                    }
+                }
+            }
+        });
+        me
+    }
+
+    fn bytes(&self) -> Vec<u8> {
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+}
+
+/// A running child process, killed and reaped on drop.
+pub(crate) struct Proc {
+    name: String,
+    child: Child,
+    stdout: Lines,
+    stderr: Lines,
+    /// Standard error, line by line, as it is printed.
+    stderr_lines: mpsc::Receiver<String>,
+    /// Standard output, line by line, as it is printed.
+    stdout_lines: mpsc::Receiver<String>,
+}
+
+/// What a finished process printed.
+#[derive(Debug)]
+pub(crate) struct Finished {
+    pub(crate) status: ExitStatus,
+    pub(crate) stdout: Vec<u8>,
+    pub(crate) stderr: String,
+}
+
+impl Finished {
+    pub(crate) fn stdout_text(&self) -> String {
+        String::from_utf8_lossy(&self.stdout).into_owned()
+    }
+
+    /// Panics with everything the process printed unless it exited 0.
+    pub(crate) fn expect_success(self, what: &str) -> Self {
+        assert!(
+            self.status.success(),
+            "{what}: {}\nstdout: {}\nstderr: {}",
+            self.status,
+            self.stdout_text(),
+            self.stderr
+        );
+        self
+    }
+}
+
+impl Proc {
+    pub(crate) fn spawn(program: &str, args: &[&str]) -> Self {
+        let mut child = Command::new(program)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("starting {program}: {e}"));
+        let (out_tx, stdout_lines) = mpsc::channel();
+        let (err_tx, stderr_lines) = mpsc::channel();
+        let stdout = Lines::follow(child.stdout.take().expect("stdout pipe"), Some(out_tx));
+        let stderr = Lines::follow(child.stderr.take().expect("stderr pipe"), Some(err_tx));
+        Self {
+            name: format!("{program} {}", args.join(" ")),
+            child,
+            stdout,
+            stderr,
+            stderr_lines,
+            stdout_lines,
+        }
+    }
+
+    /// Runs a program to its end, killing it (and failing) after `limit`.
+    pub(crate) fn run(program: &str, args: &[&str], limit: Duration) -> Finished {
+        let mut p = Self::spawn(program, args);
+        match p.wait(limit) {
+            Some(f) => f,
+            None => {
+                let f = p.kill();
+                panic!(
+                    "{} did not finish within {limit:?}\nstdout: {}\nstderr: {}",
+                    p.name,
+                    f.stdout_text(),
+                    f.stderr
+                );
+            }
+        }
+    }
+
+    /// Waits for the process to end, at most `limit`; `None` if it is still running.
+    pub(crate) fn wait(&mut self, limit: Duration) -> Option<Finished> {
+        let deadline = Instant::now() + limit;
+        loop {
+            match self.child.try_wait() {
+                Ok(Some(status)) => return Some(self.finished(status)),
+                Ok(None) if Instant::now() < deadline => thread::sleep(Duration::from_millis(10)),
+                Ok(None) => return None,
+                Err(e) => panic!("waiting for {}: {e}", self.name),
+            }
+        }
+    }
+
+    /// Kills the process and returns what it printed.
+    pub(crate) fn kill(&mut self) -> Finished {
+        let _ = self.child.kill();
+        let status = self
+            .child
+            .wait()
+            .unwrap_or_else(|e| panic!("waiting for {}: {e}", self.name));
+        self.finished(status)
+    }
+
+    fn finished(&mut self, status: ExitStatus) -> Finished {
+        // The reader threads see end-of-file once the process (and its children) are
+        // gone; give them a moment to drain the pipes.
+        thread::sleep(Duration::from_millis(50));
+        Finished {
+            status,
+            stdout: self.stdout.bytes(),
+            stderr: String::from_utf8_lossy(&self.stderr.bytes()).into_owned(),
+        }
+    }
+
+    /// Waits (bounded) for a line of standard error that `pick` accepts.
+    pub(crate) fn stderr_line<T>(
+        &mut self,
+        limit: Duration,
+        pick: impl Fn(&str) -> Option<T>,
+    ) -> T {
+        Self::line(
+            &self.stderr_lines,
+            &self.name,
+            "standard error",
+            limit,
+            pick,
+        )
+    }
+
+    /// Waits (bounded) for a line of standard output that `pick` accepts.
+    pub(crate) fn stdout_line<T>(
+        &mut self,
+        limit: Duration,
+        pick: impl Fn(&str) -> Option<T>,
+    ) -> T {
+        Self::line(
+            &self.stdout_lines,
+            &self.name,
+            "standard output",
+            limit,
+            pick,
+        )
+    }
+
+    fn line<T>(
+        rx: &mpsc::Receiver<String>,
+        name: &str,
+        pipe: &str,
+        limit: Duration,
+        pick: impl Fn(&str) -> Option<T>,
+    ) -> T {
+        let deadline = Instant::now() + limit;
+        let mut seen = Vec::new();
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match rx.recv_timeout(left) {
+                Ok(line) => {
+                    if let Some(t) = pick(&line) {
+                        return t;
+                    }
+                    seen.push(line);
+                }
+                Err(e) => panic!("{name}: no expected line on {pipe} ({e}); saw {seen:?}"),
+            }
+        }
+    }
+
+    /// Interrupts the process (SIGINT, as Ctrl-C), waits for it (bounded) and parses the
+    /// JSON object it printed last on standard output (`coapcam netem --json`).
+    pub(crate) fn interrupt_json(&mut self) -> serde_json::Value {
+        let pid = self.child.id().to_string();
+        let sent = Command::new("kill").args(["-INT", &pid]).status();
+        assert!(sent.is_ok_and(|s| s.success()), "kill -INT {pid}");
+        let f = self
+            .wait(STARTUP)
+            .unwrap_or_else(|| panic!("{} ignored SIGINT", self.name));
+        let text = f.stdout_text();
+        let last = text.lines().last().unwrap_or_default();
+        serde_json::from_str(last).unwrap_or_else(|e| panic!("{}: {last:?}: {e}", self.name))
+    }
+
+    pub(crate) fn is_running(&mut self) -> bool {
+        matches!(self.child.try_wait(), Ok(None))
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Polls `addr` with `coapcam get coap://ADDR/PATH` until it answers with a success,
+/// while `server` runs. Returns false if the server exited.
+fn wait_until_serving(server: &mut Proc, addr: SocketAddr, path: &str) -> bool {
+    let deadline = Instant::now() + STARTUP;
+    let uri = format!("coap://{addr}{path}");
+    while Instant::now() < deadline {
+        if !server.is_running() {
+            return false;
+        }
+        let probe = Proc::run(
+            COAPCAM,
+            &["get", &uri, "--timeout", "1", "--json"],
+            Duration::from_secs(10),
+        );
+        if probe.status.success() {
+            return true;
+        }
+        thread::sleep(Duration::from_millis(50));
+    }
+    panic!("no answer from {uri} within {STARTUP:?}");
+}
+
+/// Starts a server on a free port of 127.0.0.1 and waits until it answers `probe`;
+/// tries another port if the first was taken meanwhile.
+fn start_on_free_port(mut start: impl FnMut(u16) -> Proc, probe: &str) -> (Proc, SocketAddr) {
+    for _ in 0..5 {
+        let port = free_port();
+        let addr = SocketAddr::from(([127, 0, 0, 1], port));
+        let mut p = start(port);
+        if wait_until_serving(&mut p, addr, probe) {
+            return (p, addr);
+        }
+        let f = p.kill();
+        eprintln!("server on port {port} exited: {}\n{}", f.status, f.stderr);
+    }
+    panic!("no server could be started");
+}
+
+/// `coap-server-notls -A 127.0.0.1 -p PORT -d 10`: libcoap's example server, where a PUT
+/// creates a resource (at most 10).
+pub(crate) fn libcoap_server() -> (Proc, SocketAddr) {
+    start_on_free_port(
+        |port| {
+            Proc::spawn(
+                LIBCOAP_SERVER,
+                &["-A", "127.0.0.1", "-p", &port.to_string(), "-d", "10"],
+            )
+        },
+        "/.well-known/core",
+    )
+}
+
+/// The path of a script of `tests/peers/`.
+pub(crate) fn script(name: &str) -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/peers")
+        .join(name);
+    path.to_str().expect("UTF-8 path").to_string()
+}
+
+/// `tests/peers/aiocoap_server.py PORT [BIG_FILE]`, ready once it printed "ready".
+pub(crate) fn aiocoap_server(big: Option<&Path>) -> (Proc, SocketAddr) {
+    let script = script("aiocoap_server.py");
+    let big = big.map(|p| p.to_str().expect("UTF-8 path").to_string());
+    start_on_free_port(
+        |port| {
+            let port = port.to_string();
+            let mut args = vec![script.as_str(), port.as_str()];
+            args.extend(big.as_deref());
+            let mut p = Proc::spawn("python3", &args);
+            p.stdout_line(STARTUP, |l| (l == "ready").then_some(()));
+            p
+        },
+        "/.well-known/core",
+    )
+}
+
+/// `coapcam serve --no-cameras --static DIR [--writable] --bind 127.0.0.1:0`, with the
+/// address it reports.
+pub(crate) fn our_server(dir: &Path, writable: bool) -> (Proc, SocketAddr) {
+    let dir = dir.to_str().expect("UTF-8 path");
+    let mut args = vec![
+        "serve",
+        "--no-cameras",
+        "--static",
+        dir,
+        "--bind",
+        "127.0.0.1:0",
+    ];
+    if writable {
+        args.push("--writable");
+    }
+    let mut p = Proc::spawn(COAPCAM, &args);
+    let addr = p.stderr_line(STARTUP, |l| {
+        l.strip_prefix("coapcam: serving on ")
+            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
+    });
+    assert!(
+        wait_until_serving(&mut p, addr, "/.well-known/core"),
+        "coapcam serve exited"
+    );
+    (p, addr)
+}
+
+/// `coapcam netem --listen 127.0.0.1:0 --forward FORWARD --loss LOSS --seed SEED --json`,
+/// with the address it listens on.
+pub(crate) fn netem(forward: SocketAddr, loss: f64, seed: u64) -> (Proc, SocketAddr) {
+    let mut p = Proc::spawn(
+        COAPCAM,
+        &[
+            "netem",
+            "--listen",
+            "127.0.0.1:0",
+            "--forward",
+            &forward.to_string(),
+            "--loss",
+            &loss.to_string(),
+            "--seed",
+            &seed.to_string(),
+            "--json",
+        ],
+    );
+    let addr = p.stderr_line(STARTUP, |l| {
+        l.strip_prefix("netem: listening on ")
+            .and_then(|rest| rest.split(',').next())
+            .and_then(|a| a.parse::<SocketAddr>().ok())
+    });
+    (p, addr)
+}
