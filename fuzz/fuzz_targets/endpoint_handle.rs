@@ -175,7 +175,9 @@ impl Harness {
                         self.end(id);
                     }
                 }
-                Event::Notification { id, .. } | Event::MulticastResponse { id, .. } => {
+                Event::Notification { id, .. }
+                | Event::MulticastResponse { id, .. }
+                | Event::Progress { id, .. } => {
                     self.ongoing(id);
                 }
                 Event::RequestFailed { id, .. }
@@ -250,6 +252,7 @@ impl Harness {
                     req.options.set_uint(OptionNumber::OBSERVE, 0);
                 }
                 req.multicast = extra & 2 != 0;
+                req.progress = extra & 8 != 0;
                 let id = self.ep.request(self.now, peer(op >> 3), req);
                 self.started.push(id);
                 if observe || extra & 2 != 0 {

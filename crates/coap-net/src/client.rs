@@ -7,7 +7,7 @@ use coap::{EndpointConfig, Request, RequestId, Response};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::Error;
-use crate::driver::{self, Command, EndpointHandle, Reply, StreamItem};
+use crate::driver::{self, Command, EndpointHandle, Progress, Reply, StreamItem};
 use crate::socket::Socket;
 
 /// A CoAP client on one socket. Cheap to clone; requests from clones share the socket,
@@ -48,6 +48,26 @@ impl Client {
             peer,
             request,
             reply: Reply::Once(tx),
+            id_tx: None,
+        })?;
+        rx.await.map_err(|_| Error::Closed)?.map_err(Error::Request)
+    }
+
+    /// Like [`Client::send`], and reports the progress of a block-wise transfer on
+    /// `progress` after every block.
+    pub async fn send_with_progress(
+        &self,
+        peer: SocketAddr,
+        mut request: Request,
+        progress: mpsc::UnboundedSender<Progress>,
+    ) -> Result<Response, Error> {
+        request.progress = true;
+        let (tx, rx) = oneshot::channel();
+        let reply = Reply::Tracked(tx, progress);
+        self.handle.send(Command::Request {
+            peer,
+            request,
+            reply,
             id_tx: None,
         })?;
         rx.await.map_err(|_| Error::Closed)?.map_err(Error::Request)

@@ -20,9 +20,23 @@ use crate::socket::{MAX_DATAGRAM, Received, Socket};
 pub(crate) enum Reply {
     /// One response (or failure).
     Once(oneshot::Sender<Result<Response, RequestError>>),
+    /// One response, and the progress of its block-wise transfer on the way.
+    Tracked(
+        oneshot::Sender<Result<Response, RequestError>>,
+        mpsc::UnboundedSender<Progress>,
+    ),
     /// The first response and every notification (Observe), or every server's response
     /// (multicast); the channel closes when the request ends.
     Stream(mpsc::UnboundedSender<StreamItem>),
+}
+
+/// How far a block-wise transfer has come.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Progress {
+    /// Bytes transferred so far.
+    pub done: usize,
+    /// The whole size, when the peer announced it.
+    pub total: Option<usize>,
 }
 
 /// One item of a [`Reply::Stream`].
@@ -301,13 +315,18 @@ fn dispatch(
                     replies.remove(&id);
                 }
             }
-            Some((_, Reply::Once(_))) => {
-                if let Some((_, Reply::Once(tx))) = replies.remove(&id) {
+            Some((_, Reply::Once(_) | Reply::Tracked(..))) => {
+                if let Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) = replies.remove(&id) {
                     let _ = tx.send(Ok(response));
                 }
             }
             None => {}
         },
+        Event::Progress { id, done, total } => {
+            if let Some((_, Reply::Tracked(_, p))) = replies.get(&id) {
+                let _ = p.send(Progress { done, total });
+            }
+        }
         Event::Notification { id, response } => {
             // A notification without Observe is the last one (RFC 7641 §3.2).
             let last = !response.options.contains(coap::OptionNumber::OBSERVE);
@@ -327,7 +346,7 @@ fn dispatch(
             replies.remove(&id);
         }
         Event::RequestFailed { id, error } => match replies.remove(&id) {
-            Some((_, Reply::Once(tx))) => {
+            Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
                 let _ = tx.send(Err(error));
             }
             Some((_, Reply::Stream(tx))) => {

@@ -17,7 +17,7 @@ pub mod uri;
 
 pub use client::{Client, Observation};
 pub use coap;
-pub use driver::EndpointHandle;
+pub use driver::{EndpointHandle, Progress};
 pub use router::{Ctx, Resource, Router, handler};
 pub use server::{Server, ServerConfig};
 pub use uri::Uri;

@@ -72,6 +72,8 @@ pub struct Request {
     /// response arrives as [`Event::MulticastResponse`] until the timeout, then
     /// [`Event::MulticastDone`].
     pub multicast: bool,
+    /// Report [`Event::Progress`] during a block-wise transfer.
+    pub progress: bool,
 }
 
 impl Request {
@@ -87,6 +89,7 @@ impl Request {
             block_szx: None,
             timeout: None,
             multicast: false,
+            progress: false,
         }
     }
 
@@ -232,6 +235,16 @@ pub enum Event {
         peer: SocketAddr,
         /// Its response.
         response: Response,
+    },
+    /// A block-wise transfer passed another 64 KiB, or ended (only for requests with
+    /// [`Request::progress`]).
+    Progress {
+        /// The request.
+        id: RequestId,
+        /// Bytes transferred so far.
+        done: usize,
+        /// The whole size, when known (Size1 of an upload, Size2 of a download).
+        total: Option<usize>,
     },
     /// A multicast request stopped collecting responses.
     MulticastDone {
@@ -1078,6 +1091,14 @@ impl Endpoint {
                 // the offset stays, so the block number scales.
                 r.szx1 = r.szx1.min(b1.szx);
                 r.step = Step::Upload { offset: sent_end };
+                if r.req.progress && offset >> 16 != sent_end >> 16 {
+                    let total = Some(r.req.payload.len());
+                    self.events.push_back(Event::Progress {
+                        id: RequestId(id),
+                        done: sent_end,
+                        total,
+                    });
+                }
                 return self.send_step(now, id);
             }
             if msg.code == Code::REQUEST_ENTITY_TOO_LARGE
@@ -1171,7 +1192,25 @@ impl Endpoint {
         if r.body.len() + msg.payload.len() > limit {
             return self.fail(now, id, RequestError::TooLarge { limit });
         }
+        let before = r.body.len();
         r.body.extend_from_slice(&msg.payload);
+        // Progress at most every 64 KiB (and at the end), so watching costs nothing.
+        if r.req.progress && (before >> 16 != r.body.len() >> 16 || !b2.more) {
+            let total = r
+                .first_options
+                .as_ref()
+                .and_then(|o| o.uint(OptionNumber::SIZE2))
+                .map(|v| v as usize);
+            let done = r.body.len();
+            self.events.push_back(Event::Progress {
+                id: RequestId(id),
+                done,
+                total,
+            });
+        }
+        let Some(r) = self.requests.get_mut(&id) else {
+            return;
+        };
         if b2.more {
             if msg.payload.len() != b2.size() {
                 return self.fail(

@@ -1,6 +1,6 @@
 //! The generic CoAP commands: `get`, `post`, `put`, `delete` and `discover`.
 
-use std::io::Write as _;
+use std::io::{IsTerminal as _, Write as _};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -115,10 +115,12 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<bool>
         }
         return observe(&client, peer, request, count, &args, started).await;
     }
-    let response = client
-        .send(peer, request)
-        .await
-        .with_context(|| format!("{method:?} {}", args.uri))?;
+    let response = if std::io::stderr().is_terminal() && !args.json {
+        send_with_bar(&client, peer, request).await
+    } else {
+        client.send(peer, request).await
+    }
+    .with_context(|| format!("{method:?} {}", args.uri))?;
     check_whole(&response)?;
     output(&response, &args, started)?;
     Ok(report_code(&response))
@@ -152,6 +154,39 @@ async fn observe(
         seen += 1;
     }
     bail!("the observation ended after {seen} notifications")
+}
+
+/// Transfers over 1 MB show a progress bar on a terminal.
+async fn send_with_bar(
+    client: &Client,
+    peer: SocketAddr,
+    request: Request,
+) -> Result<Response, coap_net::Error> {
+    const SHOW_ABOVE: usize = 1 << 20;
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<coap_net::Progress>();
+    let bar = async move {
+        let mut bar: Option<indicatif::ProgressBar> = None;
+        while let Some(p) = rx.recv().await {
+            if bar.is_none() && p.total.unwrap_or(p.done).max(p.done) > SHOW_ABOVE {
+                let b = indicatif::ProgressBar::new(p.total.unwrap_or(0) as u64);
+                b.set_style(
+                    indicatif::ProgressStyle::with_template(
+                        "{bar:40} {bytes}/{total_bytes} {bytes_per_sec} {eta}",
+                    )
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+                );
+                bar = Some(b);
+            }
+            if let Some(b) = &bar {
+                b.set_position(p.done as u64);
+            }
+        }
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
+    };
+    let (response, ()) = tokio::join!(client.send_with_progress(peer, request, tx), bar);
+    response
 }
 
 /// Refuses a body that did not arrive whole. The endpoint only delivers complete

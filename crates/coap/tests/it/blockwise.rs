@@ -405,3 +405,34 @@ fn rfc7959_2_4_non_block2_transfer_resends_lost_requests() {
     assert!(sim.run_to_event(c, Duration::from_secs(100_000)));
     assert!(response(&sim, c).payload == data);
 }
+
+#[test]
+fn progress_events_every_64_kib_and_at_the_end_when_asked() {
+    let data = body(200_000, 2);
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let mut req = Request::new(Code::GET, "/p");
+    req.progress = true;
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_until(Duration::from_secs(10), |s| {
+        s.nodes[c]
+            .events
+            .iter()
+            .any(|(_, e)| matches!(e, Event::Response { .. }))
+    }));
+    let progress: Vec<(usize, Option<usize>)> = sim.nodes[c]
+        .events
+        .iter()
+        .filter_map(|(_, e)| match e {
+            Event::Progress { done, total, .. } => Some((*done, *total)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        progress,
+        [65536, 131_072, 196_608, 200_000].map(|d| (d, Some(200_000)))
+    );
+}
