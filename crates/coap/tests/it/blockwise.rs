@@ -411,7 +411,7 @@ fn progress_events_every_64_kib_and_at_the_end_when_asked() {
     let data = body(200_000, 2);
     let mut sim = Sim::new(LinkConfig::default());
     let c = sim.add(cfg(1), None);
-    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let s = sim.add(cfg(2), Some(serve(data, Rc::new(Cell::new(0)))));
     let server = sim.nodes[s].addr;
     let mut req = Request::new(Code::GET, "/p");
     req.progress = true;
