@@ -31,6 +31,17 @@ if command -v aiocoap-client >/dev/null \
 else
   python3 -m pip install "aiocoap==$AIOCOAP_VERSION" || peer_failed "aiocoap==$AIOCOAP_VERSION"
 fi
+# librealsense for the rgbd differential tests (crates/rgbd/tests/it/librealsense.rs
+# regenerates its goldens with tools/rs_reference.py); its wheel needs libusb-1.0.
+PYREALSENSE2_VERSION=2.59.1.11053
+if python3 -c "import pyrealsense2, sys; sys.exit(pyrealsense2.__version__ != '2.59.1')" 2>/dev/null; then
+  echo "pyrealsense2 $PYREALSENSE2_VERSION: present"
+else
+  python3 -m pip install "pyrealsense2==$PYREALSENSE2_VERSION" || peer_failed pyrealsense2
+  ldconfig -p | grep 'libusb-1.0.so.0' >/dev/null || { as_root apt-get update && as_root env \
+      DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends libusb-1.0-0; } \
+    || peer_failed libusb-1.0-0
+fi
 
 step "cargo fmt --check"
 cargo fmt --all -- --check

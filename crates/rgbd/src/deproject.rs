@@ -68,7 +68,8 @@ fn undistort(k: &Intrinsics, x0: f32, y0: f32) -> [f32; 2] {
             let rd = (x0 * x0 + y0 * y0).sqrt().max(f32::EPSILON);
             let (mut theta, mut theta2) = (rd, rd * rd);
             for _ in 0..KB4_STEPS {
-                let f = theta * (1.0 + theta2 * (c[0] + theta2 * (c[1] + theta2 * (c[2] + theta2 * c[3]))))
+                let f = theta
+                    * (1.0 + theta2 * (c[0] + theta2 * (c[1] + theta2 * (c[2] + theta2 * c[3]))))
                     - rd;
                 if f.abs() < f32::EPSILON {
                     break;

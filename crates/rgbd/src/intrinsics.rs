@@ -182,10 +182,7 @@ mod tests {
 
     #[test]
     fn principal_point_deprojects_onto_the_optical_axis() {
-        assert_eq!(
-            pinhole().deproject([637.0, 364.0], 2.0),
-            [0.0, 0.0, 2.0]
-        );
+        assert_eq!(pinhole().deproject([637.0, 364.0], 2.0), [0.0, 0.0, 2.0]);
     }
 
     #[test]

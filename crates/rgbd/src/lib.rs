@@ -30,9 +30,9 @@ pub use backend::synthetic::SyntheticCamera;
 pub use camera::{
     Camera, CameraError, CameraHub, HubError, HubEvent, Serial, SerialError, SettingError,
 };
-pub use frame::{ColorFormat, ColorFrame, DepthFormat, DepthFrame};
 pub use deproject::{Deprojector, deproject_frame};
 pub use filter::{FilterError, PostProcessing, PostProcessingConfig};
+pub use frame::{ColorFormat, ColorFrame, DepthFormat, DepthFrame};
 pub use intrinsics::{DeprojectError, DistortionModel, Extrinsics, Intrinsics, Pose};
 pub use mode::{ModeError, ModeTable, ResolutionModes, Stream};
 pub use scene::{Scene, SceneError};

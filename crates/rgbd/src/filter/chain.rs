@@ -133,8 +133,8 @@ pub enum PostProcessingError {
 impl PostProcessingConfig {
     /// Parses and validates a `postprocessing` JSON object.
     pub fn from_json(json: &[u8]) -> Result<Self, PostProcessingError> {
-        let raw: RawConfig = serde_json::from_slice(json)
-            .map_err(|e| PostProcessingError::Syntax(e.to_string()))?;
+        let raw: RawConfig =
+            serde_json::from_slice(json).map_err(|e| PostProcessingError::Syntax(e.to_string()))?;
         Self::try_from(raw)
     }
 
@@ -265,16 +265,12 @@ struct RawHoleFilling {
 }
 
 /// What a stage's JSON value is: 0, 1 or an object.
+#[derive(Default)]
 enum RawStage<T> {
+    #[default]
     Off,
     Defaults,
     Params(T),
-}
-
-impl<T> Default for RawStage<T> {
-    fn default() -> Self {
-        Self::Off
-    }
 }
 
 /// The name and the accepted object of a stage, for error messages.
@@ -332,7 +328,11 @@ impl<'de, T: Deserialize<'de> + StageShape> Deserialize<'de> for RawStage<T> {
     }
 }
 
-fn narrow(field: &'static str, value: i64, allowed: &'static str) -> Result<u8, PostProcessingError> {
+fn narrow(
+    field: &'static str,
+    value: i64,
+    allowed: &'static str,
+) -> Result<u8, PostProcessingError> {
     u8::try_from(value).map_err(|_| PostProcessingError::Invalid {
         field,
         found: value.to_string(),
@@ -395,7 +395,7 @@ impl TryFrom<RawConfig> for PostProcessingConfig {
             RawStage::Off => None,
             RawStage::Defaults => Some(HoleFillingConfig::default()),
             RawStage::Params(p) => Some(HoleFillingConfig {
-                mode: p.mode.unwrap_or(HoleFillingConfig::default().mode),
+                mode: p.mode.unwrap_or_else(|| HoleFillingConfig::default().mode),
             }),
         };
         let config = Self {

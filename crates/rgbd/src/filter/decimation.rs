@@ -116,7 +116,7 @@ fn order(a: &mut u16, b: &mut u16) {
 /// 2x2 blocks: lower median of the non-zero pixels. Zeros sort first, so with `k`
 /// non-zero values in the sorted four, the lower median sits at `4 - k + (k - 1) / 2`.
 fn decimate_median2(src: &[u16], stride: usize, cells: &mut [u16]) {
-    let (r0, r1) = (&src[..], &src[stride..]);
+    let (r0, r1) = (src, &src[stride..]);
     for (i, cell) in cells.iter_mut().enumerate() {
         let x = 2 * i;
         let mut v = [r0[x], r0[x + 1], r1[x], r1[x + 1]];
@@ -166,7 +166,7 @@ fn decimate_mean(src: &[u16], stride: usize, s: usize, cells: &mut [u16]) {
                 k += u32::from(p != 0);
             }
         }
-        // The mean of u16 values fits u16.
-        *cell = if k == 0 { 0 } else { (sum / k) as u16 };
+        // The mean of u16 values fits u16; no values gives 0.
+        *cell = sum.checked_div(k).unwrap_or(0) as u16;
     }
 }

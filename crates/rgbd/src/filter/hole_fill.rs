@@ -131,10 +131,7 @@ impl HoleFilling {
                         row[x] = if farest {
                             around.into_iter().fold(up[x], u16::max)
                         } else {
-                            around
-                                .into_iter()
-                                .filter(|&v| v != 0)
-                                .fold(up[x], u16::min)
+                            around.into_iter().filter(|&v| v != 0).fold(up[x], u16::min)
                         };
                     }
                 }

@@ -19,8 +19,8 @@ pub mod spatial;
 pub mod threshold;
 
 pub use chain::{
-    DecimationConfig, HoleFillingConfig, PostProcessing, PostProcessingConfig,
-    PostProcessingError, SpatialConfig,
+    DecimationConfig, HoleFillingConfig, PostProcessing, PostProcessingConfig, PostProcessingError,
+    SpatialConfig,
 };
 pub use decimation::Decimation;
 pub use disparity::{DepthToDisparity, DisparityFrame, DisparityToDepth};

@@ -157,8 +157,8 @@ fn filter_strip(rows: &mut [&mut [f32]], alpha: f32, delta: f32) {
     let Some((first, rest)) = rows.split_first_mut() else {
         return;
     };
-    state.copy_from_slice(&**first);
-    prev.copy_from_slice(&**first);
+    state.copy_from_slice(first);
+    prev.copy_from_slice(first);
     for row in rest.iter_mut() {
         for ((v, s), p) in row.iter_mut().zip(state.iter_mut()).zip(prev.iter_mut()) {
             step(v, s, p, alpha, delta);
@@ -167,8 +167,8 @@ fn filter_strip(rows: &mut [&mut [f32]], alpha: f32, delta: f32) {
     let Some((last, rest)) = rows.split_last_mut() else {
         return;
     };
-    state.copy_from_slice(&**last);
-    prev.copy_from_slice(&**last);
+    state.copy_from_slice(last);
+    prev.copy_from_slice(last);
     for row in rest.iter_mut().rev() {
         for ((v, s), p) in row.iter_mut().zip(state.iter_mut()).zip(prev.iter_mut()) {
             step(v, s, p, alpha, delta);
@@ -230,8 +230,9 @@ impl SpatialFilter {
         for _ in 0..self.params.iterations {
             data.par_chunks_mut(w)
                 .for_each(|row| filter_row(row, alpha, delta));
-            let mut strips: Vec<Vec<&mut [f32]>> =
-                (0..w.div_ceil(STRIP)).map(|_| Vec::with_capacity(h)).collect();
+            let mut strips: Vec<Vec<&mut [f32]>> = (0..w.div_ceil(STRIP))
+                .map(|_| Vec::with_capacity(h))
+                .collect();
             for row in data.chunks_mut(w) {
                 for (strip, part) in strips.iter_mut().zip(row.chunks_mut(STRIP)) {
                     strip.push(part);

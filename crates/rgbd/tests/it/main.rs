@@ -2,6 +2,7 @@
 
 mod advanced;
 mod hub;
+mod librealsense;
 mod modes;
 mod scene;
 mod support;
