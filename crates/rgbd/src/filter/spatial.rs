@@ -113,36 +113,54 @@ fn valid(v: f32) -> bool {
     (v.to_bits() as i32) > 0
 }
 
-/// One step of the recursive filter along a line (see the module documentation).
+/// One step of the recursive filter along a line (see the module documentation),
+/// written without branches so that independent lines can advance side by side.
 #[inline(always)]
 fn step(cur: &mut f32, state: &mut f32, prev: &mut f32, alpha: f32, delta: f32) {
     let raw = *cur;
-    if valid(raw) {
-        let d = *prev - raw;
-        if valid(*prev) && d < delta && d > -delta {
-            *state = raw * alpha + *state * (1.0 - alpha);
-            *cur = *state;
-        } else {
-            *state = raw;
-        }
-    }
+    let d = *prev - raw;
+    let cur_valid = valid(raw);
+    let smooth = cur_valid & valid(*prev) & (d < delta) & (d > -delta);
+    let blended = raw * alpha + *state * (1.0 - alpha);
+    *state = if smooth {
+        blended
+    } else if cur_valid {
+        raw
+    } else {
+        *state
+    };
+    *cur = if smooth { blended } else { raw };
     *prev = raw;
 }
 
-fn filter_row(row: &mut [f32], alpha: f32, delta: f32) {
-    let Some((&mut first, rest)) = row.split_first_mut() else {
-        return;
-    };
-    let (mut state, mut prev) = (first, first);
-    for v in rest.iter_mut() {
-        step(v, &mut state, &mut prev, alpha, delta);
+/// Rows filtered side by side in the horizontal pass: independent recurrences hide
+/// each other's latency.
+const ROWS_PER_TASK: usize = 8;
+
+/// Filters up to [`ROWS_PER_TASK`] rows of width `w` (left to right, then right to
+/// left), advancing them together.
+fn filter_rows(block: &mut [f32], w: usize, alpha: f32, delta: f32) {
+    let mut rows: Vec<&mut [f32]> = block.chunks_mut(w).collect();
+    let n = rows.len();
+    let mut state = [0f32; ROWS_PER_TASK];
+    let mut prev = [0f32; ROWS_PER_TASK];
+    for (r, row) in rows.iter().enumerate() {
+        state[r] = row[0];
+        prev[r] = row[0];
     }
-    let Some((&mut last, rest)) = row.split_last_mut() else {
-        return;
-    };
-    let (mut state, mut prev) = (last, last);
-    for v in rest.iter_mut().rev() {
-        step(v, &mut state, &mut prev, alpha, delta);
+    for x in 1..w {
+        for r in 0..n {
+            step(&mut rows[r][x], &mut state[r], &mut prev[r], alpha, delta);
+        }
+    }
+    for (r, row) in rows.iter().enumerate() {
+        state[r] = row[w - 1];
+        prev[r] = row[w - 1];
+    }
+    for x in (0..w - 1).rev() {
+        for r in 0..n {
+            step(&mut rows[r][x], &mut state[r], &mut prev[r], alpha, delta);
+        }
     }
 }
 
@@ -228,8 +246,8 @@ impl SpatialFilter {
         let delta = f32::from(self.params.delta);
         let data = &mut disparity.data[..w * h];
         for _ in 0..self.params.iterations {
-            data.par_chunks_mut(w)
-                .for_each(|row| filter_row(row, alpha, delta));
+            data.par_chunks_mut(w * ROWS_PER_TASK)
+                .for_each(|block| filter_rows(block, w, alpha, delta));
             let mut strips: Vec<Vec<&mut [f32]>> = (0..w.div_ceil(STRIP))
                 .map(|_| Vec::with_capacity(h))
                 .collect();
