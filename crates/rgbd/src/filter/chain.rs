@@ -141,12 +141,15 @@ impl PostProcessingConfig {
     /// The JSON form: `0` for an off stage, `1` for a stage with librealsense's
     /// defaults, an object otherwise.
     pub fn to_json(&self) -> String {
+        self.json_value().to_string()
+    }
+
+    fn json_value(&self) -> serde_json::Value {
         serde_json::json!({
             "decimation": stage_json(self.decimation),
             "spatial": stage_json(self.spatial),
             "holefilling": stage_json(self.holefilling),
         })
-        .to_string()
     }
 
     /// Checks every parameter against librealsense's ranges.
@@ -196,12 +199,7 @@ impl PostProcessingConfig {
 
 impl Serialize for PostProcessingConfig {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        serde_json::json!({
-            "decimation": stage_json(self.decimation),
-            "spatial": stage_json(self.spatial),
-            "holefilling": stage_json(self.holefilling),
-        })
-        .serialize(serializer)
+        self.json_value().serialize(serializer)
     }
 }
 

@@ -141,7 +141,6 @@ const ROWS_PER_TASK: usize = 8;
 /// left), advancing them together.
 fn filter_rows(block: &mut [f32], w: usize, alpha: f32, delta: f32) {
     let mut rows: Vec<&mut [f32]> = block.chunks_mut(w).collect();
-    let n = rows.len();
     let mut state = [0f32; ROWS_PER_TASK];
     let mut prev = [0f32; ROWS_PER_TASK];
     for (r, row) in rows.iter().enumerate() {
@@ -149,8 +148,8 @@ fn filter_rows(block: &mut [f32], w: usize, alpha: f32, delta: f32) {
         prev[r] = row[0];
     }
     for x in 1..w {
-        for r in 0..n {
-            step(&mut rows[r][x], &mut state[r], &mut prev[r], alpha, delta);
+        for ((row, s), p) in rows.iter_mut().zip(&mut state).zip(&mut prev) {
+            step(&mut row[x], s, p, alpha, delta);
         }
     }
     for (r, row) in rows.iter().enumerate() {
@@ -158,8 +157,8 @@ fn filter_rows(block: &mut [f32], w: usize, alpha: f32, delta: f32) {
         prev[r] = row[w - 1];
     }
     for x in (0..w - 1).rev() {
-        for r in 0..n {
-            step(&mut rows[r][x], &mut state[r], &mut prev[r], alpha, delta);
+        for ((row, s), p) in rows.iter_mut().zip(&mut state).zip(&mut prev) {
+            step(&mut row[x], s, p, alpha, delta);
         }
     }
 }

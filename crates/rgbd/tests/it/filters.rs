@@ -1,0 +1,178 @@
+//! The filters' own contracts: configuration, sizes, intrinsics, invalid pixels.
+//! (Agreement with librealsense is tested in `librealsense.rs`.)
+
+use rgbd::filter::{
+    Decimation, FilterError, HoleFillingMode, PostProcessing, PostProcessingConfig,
+    PostProcessingError, Roi2, RoiCrop, Threshold,
+};
+use rgbd::{Deprojector, DepthFrame, Intrinsics, d415, deproject_frame};
+
+fn frame(width: u32, height: u32, value: impl Fn(u32, u32) -> u16) -> DepthFrame {
+    DepthFrame {
+        width,
+        height,
+        stride: width as usize,
+        depth_scale: DepthFrame::DEFAULT_DEPTH_SCALE,
+        timestamp_us: 0,
+        frame_number: 1,
+        data: (0..height)
+            .flat_map(|y| (0..width).map(move |x| (x, y)))
+            .map(|(x, y)| value(x, y))
+            .collect(),
+    }
+}
+
+#[test]
+fn the_thesis_postprocessing_section_parses_as_on_off_flags() {
+    let c = PostProcessingConfig::from_json(br#"{"decimation":1,"spatial":1,"holefilling":0}"#)
+        .unwrap();
+    assert_eq!(c.decimation.unwrap().magnitude, 2);
+    assert_eq!(c.spatial.unwrap().delta, 20);
+    assert!(c.holefilling.is_none());
+    assert_eq!(
+        c.to_json(),
+        r#"{"decimation":1,"holefilling":0,"spatial":1}"#
+    );
+}
+
+#[test]
+fn stage_objects_set_parameters_and_round_trip() {
+    let json = br#"{"decimation":{"magnitude":4},
+        "spatial":{"alpha":0.35,"delta":8,"iterations":3,"holes_fill":2},
+        "holefilling":{"mode":"nearest_from_around"}}"#;
+    let c = PostProcessingConfig::from_json(json).unwrap();
+    assert_eq!(c.decimation.unwrap().magnitude, 4);
+    assert_eq!(c.spatial.unwrap().iterations, 3);
+    assert_eq!(
+        c.holefilling.unwrap().mode,
+        HoleFillingMode::NearestFromAround
+    );
+    assert_eq!(
+        PostProcessingConfig::from_json(c.to_json().as_bytes()),
+        Ok(c)
+    );
+}
+
+#[test]
+fn out_of_range_values_name_the_field_and_what_it_accepts() {
+    let err = |json: &str| PostProcessingConfig::from_json(json.as_bytes()).unwrap_err();
+    assert_eq!(
+        err(r#"{"decimation":{"magnitude":9}}"#),
+        PostProcessingError::Invalid {
+            field: "postprocessing.decimation.magnitude",
+            found: "9".to_owned(),
+            allowed: "an integer from 1 to 8",
+        }
+    );
+    let e = err(r#"{"spatial":{"delta":300}}"#).to_string();
+    assert!(
+        e.contains("postprocessing.spatial.delta") && e.contains("1 to 50"),
+        "{e}"
+    );
+    let e = err(r#"{"spatial":{"alpha":0.1}}"#).to_string();
+    assert!(
+        e.contains("postprocessing.spatial.alpha") && e.contains("0.25 to 1"),
+        "{e}"
+    );
+    let e = err(r#"{"holefilling":2}"#).to_string();
+    assert!(e.contains("postprocessing.holefilling: 0 (off), 1"), "{e}");
+    let e = err(r#"{"holefilling":{"mode":"average"}}"#).to_string();
+    assert!(e.contains("fill_from_left"), "{e}");
+    let e = err(r#"{"temporal":1}"#).to_string();
+    assert!(e.contains("temporal"), "{e}");
+}
+
+#[test]
+fn decimated_sizes_are_padded_to_multiples_of_four_as_in_librealsense() {
+    let size = |s, w, h| Decimation::new(s).unwrap().output_size(w, h);
+    assert_eq!(size(3, 1280, 720), ((426, 240), (428, 240)));
+    assert_eq!(size(8, 1280, 720), ((160, 90), (160, 92)));
+    assert_eq!(size(5, 848, 480), ((169, 96), (172, 96)));
+    assert!(matches!(
+        Decimation::new(9),
+        Err(FilterError::Parameter {
+            field: "magnitude",
+            ..
+        })
+    ));
+    assert!(Decimation::new(0).is_err());
+}
+
+#[test]
+fn a_crop_moves_the_principal_point_so_pixels_keep_their_rays() {
+    let k = d415::depth_intrinsics(1280, 720);
+    let f = frame(1280, 720, |x, y| 500 + (x + y) as u16 % 300);
+    let roi = Roi2 {
+        px: 100,
+        py: 50,
+        width: 64,
+        height: 32,
+    };
+    let mut crop = RoiCrop::new(roi);
+    let (out, kc) = crop.process(&f, &k).unwrap();
+    assert_eq!(
+        (out.width, out.height, kc.width, kc.height),
+        (64, 32, 64, 32)
+    );
+    assert_eq!(out.raw_at(3, 4), f.raw_at(103, 54));
+    assert_eq!(
+        kc.deproject([3.0, 4.0], 1.0),
+        k.deproject([103.0, 54.0], 1.0)
+    );
+    let outside = Roi2 { px: 1250, ..roi };
+    assert!(matches!(
+        RoiCrop::new(outside).process(&f, &k),
+        Err(FilterError::RoiOutside { .. })
+    ));
+}
+
+#[test]
+fn pixels_without_depth_give_no_point() {
+    let k = d415::depth_intrinsics(640, 360);
+    let f = frame(640, 360, |x, y| if (x + y) % 3 == 0 { 0 } else { 1000 });
+    let points = deproject_frame(&f, &k).unwrap();
+    let valid = f.data.iter().filter(|&&v| v != 0).count();
+    assert_eq!(points.len(), valid);
+    assert!(points.iter().all(|p| (p.z - 1.0).abs() < 1e-6));
+    // Row-major: the first point is pixel (1, 0).
+    let p = k.deproject([1.0, 0.0], 1.0);
+    assert_eq!([points[0].x, points[0].y, points[0].z], p);
+}
+
+#[test]
+fn frames_that_do_not_match_their_size_or_intrinsics_are_refused() {
+    let k = d415::depth_intrinsics(640, 360);
+    let mut short = frame(640, 360, |_, _| 1000);
+    short.data.truncate(1000);
+    let mut d = Deprojector::new();
+    assert!(matches!(
+        d.deproject_frame(&short, &k, &mut Vec::new()),
+        Err(FilterError::FrameSize { .. })
+    ));
+    let other: Intrinsics = d415::depth_intrinsics(1280, 720);
+    let ok = frame(640, 360, |_, _| 1000);
+    assert!(matches!(
+        Decimation::new(2).unwrap().process(&ok, &other),
+        Err(FilterError::IntrinsicsSize { .. })
+    ));
+}
+
+#[test]
+fn a_chain_with_every_stage_off_returns_the_frame() {
+    let k = d415::depth_intrinsics(640, 360);
+    let f = frame(640, 360, |x, _| if x % 7 == 0 { 0 } else { 900 });
+    let config = PostProcessingConfig::from_json(b"{}").unwrap();
+    let mut chain = PostProcessing::new(&config, 55.0).unwrap();
+    let (out, kout) = chain.process(&f, &k).unwrap();
+    assert_eq!((out, kout), (&f, k));
+}
+
+#[test]
+fn the_threshold_keeps_both_bounds() {
+    let k = d415::depth_intrinsics(640, 360);
+    let f = frame(640, 360, |x, _| [499, 500, 1000, 1001][x as usize % 4]);
+    let mut t = Threshold::new(0.5, 1.0).unwrap();
+    let (out, _) = t.process(&f, &k).unwrap();
+    assert_eq!(&out.data[..4], &[0, 500, 1000, 0]);
+    assert!(Threshold::new(0.1, 17.0).is_err());
+}
