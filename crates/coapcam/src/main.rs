@@ -5,6 +5,7 @@
 mod netem;
 mod request;
 mod serve;
+mod transmission;
 
 use std::process::ExitCode;
 

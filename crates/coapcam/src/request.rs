@@ -9,8 +9,10 @@ use anyhow::{Context as _, bail};
 use bytes::Bytes;
 use clap::Args;
 use coap::link_format;
-use coap::{BlockOpt, Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
+use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{Client, Uri};
+
+use crate::transmission::TransmissionArgs;
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
 #[derive(Debug, Args)]
@@ -49,6 +51,8 @@ pub(crate) struct RequestArgs {
     /// Print one JSON object per response (code, options, size, time) instead of the body.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    transmission: TransmissionArgs,
 }
 
 fn parse_block_size(s: &str) -> Result<u8, String> {
@@ -76,6 +80,8 @@ pub(crate) struct DiscoverArgs {
     /// Print JSON: one object per link with its server, target and attributes.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    transmission: TransmissionArgs,
 }
 
 /// Runs `get|post|put|delete`. Returns whether the response was a success.
@@ -107,7 +113,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<bool>
         }
         (None, None) => Bytes::new(),
     };
-    let client = Client::for_peer(peer, endpoint_config())?;
+    let client = Client::for_peer(peer, args.transmission.endpoint_config())?;
     let started = Instant::now();
     if let Some(count) = args.observe {
         if method != Code::GET {
@@ -120,7 +126,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<bool>
     } else {
         client.send(peer, request).await
     }
-    .with_context(|| format!("{method:?} {}", args.uri))?;
+    .with_context(|| format!("{} {}", method.name().unwrap_or("request"), args.uri))?;
     check_whole(&response)?;
     output(&response, &args, started)?;
     Ok(report_code(&response))
@@ -251,19 +257,6 @@ fn hex(b: &[u8]) -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
-fn endpoint_config() -> EndpointConfig {
-    // Seeded from the clock and the process id, so two clients started at once do not
-    // pick the same message IDs and tokens.
-    let seed = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64)
-        ^ u64::from(std::process::id()).rotate_left(32);
-    EndpointConfig {
-        rng_seed: seed,
-        ..EndpointConfig::default()
-    }
-}
-
 /// Runs `discover`. Returns whether at least one server answered with a success.
 pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<bool> {
     let uri = Uri::parse(&args.uri)?;
@@ -275,7 +268,7 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<bool> {
     if let Some(q) = &args.query {
         request.options.push(OptionNumber::URI_QUERY, q.as_bytes());
     }
-    let client = Client::for_peer(peer, endpoint_config())?;
+    let client = Client::for_peer(peer, args.transmission.endpoint_config())?;
     let answers: Vec<(SocketAddr, Response)> = if peer.ip().is_multicast() {
         request.timeout = Some(Duration::try_from_secs_f64(args.wait).context("--wait")?);
         client.multicast(peer, request).await?

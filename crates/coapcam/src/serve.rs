@@ -16,6 +16,8 @@ use coap_net::router::check_preconditions;
 use coap_net::{Ctx, Resource, Router, Server, ServerConfig, handler};
 use tokio::sync::mpsc;
 
+use crate::transmission::TransmissionArgs;
+
 /// Flags of `serve`.
 #[derive(Debug, Args)]
 pub(crate) struct ServeArgs {
@@ -43,6 +45,8 @@ pub(crate) struct ServeArgs {
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
+    #[command(flatten)]
+    transmission: TransmissionArgs,
 }
 
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
@@ -66,8 +70,12 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         Some(dir) => Some(StaticFiles::load(dir, &router, args.writable, changed_tx)?),
         None => None,
     };
-    let server = Server::bind(&binds, ServerConfig::default(), router)
-        .with_context(|| format!("binding {binds:?}"))?;
+    let config = ServerConfig {
+        endpoint: args.transmission.endpoint_config(),
+        ..ServerConfig::default()
+    };
+    let server =
+        Server::bind(&binds, config, router).with_context(|| format!("binding {binds:?}"))?;
     for g in &args.group {
         server
             .join(*g, args.group_interface)

@@ -1,0 +1,43 @@
+//! RFC 7252 §4.8 transmission parameters on the command line, shared by every command
+//! that speaks CoAP.
+
+use std::time::Duration;
+
+use clap::Args;
+use coap::EndpointConfig;
+
+/// Transmission parameters (RFC 7252 §4.8). The defaults are the RFC's; on a link whose
+/// round trip is known to be short (a LAN, loopback), a shorter ACK timeout recovers a
+/// lost datagram in milliseconds instead of seconds.
+#[derive(Debug, Clone, Args)]
+pub(crate) struct TransmissionArgs {
+    /// ACK_TIMEOUT in milliseconds: a CON is sent again after this times a random factor
+    /// in [1, 1.5], doubling each time (RFC 7252 default 2000).
+    #[arg(long, value_name = "MS", default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..=600_000))]
+    ack_timeout_ms: u64,
+    /// MAX_RETRANSMIT: how often a CON is sent again before the exchange fails (RFC 7252
+    /// default 4).
+    #[arg(long, value_name = "N", default_value_t = 4, value_parser = clap::value_parser!(u8).range(0..=10))]
+    max_retransmit: u8,
+    /// NSTART: requests outstanding at once per peer (RFC 7252 default 1).
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=64))]
+    nstart: u64,
+}
+
+impl TransmissionArgs {
+    /// The endpoint configuration, with a seed that differs between processes started at
+    /// the same time (so they do not pick the same message IDs and tokens).
+    pub(crate) fn endpoint_config(&self) -> EndpointConfig {
+        let seed = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64)
+            ^ u64::from(std::process::id()).rotate_left(32);
+        EndpointConfig {
+            rng_seed: seed,
+            ack_timeout: Duration::from_millis(self.ack_timeout_ms),
+            max_retransmit: self.max_retransmit,
+            nstart: self.nstart as usize,
+            ..EndpointConfig::default()
+        }
+    }
+}
