@@ -1315,15 +1315,7 @@ impl Endpoint {
                     Code::REQUEST_ENTITY_INCOMPLETE,
                     "the representation is no longer stored; repeat the request from block 0",
                 );
-                let seen = self.reply(peer, &msg, multicast, response);
-                self.dedup.insert(
-                    now,
-                    (peer, msg.message_id),
-                    msg.token,
-                    expires,
-                    seen,
-                    &limits,
-                );
+                self.answer(now, peer, &msg, multicast, expires, response);
                 return;
             }
         }
@@ -1362,30 +1354,14 @@ impl Endpoint {
                 }
             };
             if let Some(response) = response {
-                let seen = self.reply(peer, &msg, multicast, response);
-                self.dedup.insert(
-                    now,
-                    (peer, msg.message_id),
-                    msg.token,
-                    expires,
-                    seen,
-                    &limits,
-                );
+                self.answer(now, peer, &msg, multicast, expires, response);
                 return;
             }
         }
 
         if self.pending.len() >= limits.pending_requests {
             let r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, "server busy");
-            let seen = self.reply(peer, &msg, multicast, r);
-            self.dedup.insert(
-                now,
-                (peer, msg.message_id),
-                msg.token,
-                expires,
-                seen,
-                &limits,
-            );
+            self.answer(now, peer, &msg, multicast, expires, r);
             return;
         }
         let id = self.new_id();
@@ -1551,6 +1527,28 @@ impl Endpoint {
             );
         }
         block2_response(response.code, response.options, &response.payload, num, szx)
+    }
+
+    /// Answers a request at once and remembers the answer for its duplicates.
+    fn answer(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        req: &Message,
+        multicast: bool,
+        expires: Instant,
+        response: Response,
+    ) {
+        let seen = self.reply(peer, req, multicast, response);
+        let limits = &self.config.limits;
+        self.dedup.insert(
+            now,
+            (peer, req.message_id),
+            req.token,
+            expires,
+            seen,
+            limits,
+        );
     }
 
     /// Sends a response to a request right away (piggybacked on the ACK of a CON, or as a
