@@ -2,6 +2,7 @@
 
 #![forbid(unsafe_code)]
 
+mod cams;
 mod netem;
 mod request;
 mod serve;

@@ -1,5 +1,5 @@
-//! `coapcam serve`: the CoAP server. Today it serves files (`--static DIR`); the camera
-//! resource tree joins it with the resource-server issue.
+//! `coapcam serve`: the CoAP server: the `/cams` tree of the cameras of a scene (the
+//! built-in synthetic one by default), and files with `--static DIR`.
 
 use std::collections::HashMap;
 use std::hash::{Hash as _, Hasher as _};
@@ -16,6 +16,9 @@ use coap_net::router::check_preconditions;
 use coap_net::{Ctx, Resource, Router, Server, ServerConfig, handler};
 use tokio::sync::mpsc;
 
+use rgbd::{CameraHub, Scene, SyntheticCamera};
+
+use crate::cams::Cams;
 use crate::transmission::TransmissionArgs;
 
 /// Flags of `serve`.
@@ -25,8 +28,15 @@ pub(crate) struct ServeArgs {
     #[arg(long, value_name = "ADDR:PORT")]
     bind: Vec<SocketAddr>,
     /// Serve no cameras (a plain CoAP server, e.g. with --static).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "scene")]
     no_cameras: bool,
+    /// Synthetic cameras of this scene file (default: the built-in single-camera scene).
+    #[arg(long, value_name = "FILE")]
+    scene: Option<PathBuf>,
+    /// Where camera configuration is persisted per serial (default:
+    /// $XDG_STATE_HOME/coapcam, ~/.local/state/coapcam, else ./coapcam-state).
+    #[arg(long, value_name = "DIR")]
+    state_dir: Option<PathBuf>,
     /// Serve the regular files of DIR at /files/<name>, read-only unless --writable.
     /// The resources are observable: a changed file is notified to its observers.
     #[arg(long = "static", value_name = "DIR")]
@@ -50,12 +60,6 @@ pub(crate) struct ServeArgs {
 }
 
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
-    if !args.no_cameras {
-        bail!(
-            "camera resources are not served yet (they come with the resource-server issue); \
-             run `coapcam serve --no-cameras --static DIR` for a file server"
-        );
-    }
     let binds = if args.bind.is_empty() {
         vec![
             SocketAddr::from(([0, 0, 0, 0], 5683)),
@@ -67,8 +71,18 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let router = Router::new();
     let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
     let files = match &args.static_dir {
-        Some(dir) => Some(StaticFiles::load(dir, &router, args.writable, changed_tx)?),
+        Some(dir) => Some(StaticFiles::load(
+            dir,
+            &router,
+            args.writable,
+            changed_tx.clone(),
+        )?),
         None => None,
+    };
+    let cameras = if args.no_cameras {
+        None
+    } else {
+        Some(start_cameras(&args, &router, changed_tx.clone())?)
     };
     let config = ServerConfig {
         endpoint: args.transmission.endpoint_config(),
@@ -95,6 +109,8 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     };
     tokio::pin!(stop);
     let mut tick = tokio::time::interval(Duration::from_millis(200));
+    // The camera tree lives as long as the server.
+    let _cameras = cameras;
     loop {
         tokio::select! {
             _ = tokio::signal::ctrl_c() => break,
@@ -112,6 +128,42 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The cameras of the scene in a hub, and the `/cams` tree following it.
+fn start_cameras(
+    args: &ServeArgs,
+    router: &Arc<Router>,
+    changed: mpsc::UnboundedSender<String>,
+) -> anyhow::Result<(Arc<CameraHub>, Arc<Cams>)> {
+    let scene = match &args.scene {
+        Some(path) => {
+            Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
+        }
+        None => Scene::default_single(),
+    };
+    let state_dir = args.state_dir.clone().unwrap_or_else(default_state_dir);
+    std::fs::create_dir_all(&state_dir)
+        .with_context(|| format!("creating state directory {}", state_dir.display()))?;
+    let hub = Arc::new(CameraHub::new());
+    let cams = Cams::start(hub.clone(), router.clone(), &state_dir, changed)
+        .context("starting the camera hub listener")?;
+    for camera in SyntheticCamera::all(&scene).context("building the scene's cameras")? {
+        hub.add(camera).context("adding a camera")?;
+    }
+    Ok((hub, cams))
+}
+
+fn default_state_dir() -> PathBuf {
+    let base = std::env::var_os("XDG_STATE_HOME")
+        .filter(|v| !v.is_empty())
+        .map(PathBuf::from)
+        .or_else(|| {
+            std::env::var_os("HOME")
+                .filter(|v| !v.is_empty())
+                .map(|h| PathBuf::from(h).join(".local").join("state"))
+        });
+    base.map_or_else(|| PathBuf::from("coapcam-state"), |b| b.join("coapcam"))
 }
 
 #[derive(Clone)]

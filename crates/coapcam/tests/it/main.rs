@@ -1,4 +1,5 @@
 //! Integration tests of the `coapcam` binary: one binary, one module per subcommand.
 
+mod cams;
 mod interop;
 mod netem;

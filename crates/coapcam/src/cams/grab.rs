@@ -1,0 +1,118 @@
+//! Grabs (blocking; run them off the executor): a color or depth image cropped to
+//! `roi2d`, or a point cloud through depth -> roi2d -> post-processing -> deprojection
+//! -> 3D transformation -> roi3d.
+
+use geometry::{Point3, TransformError, Transformation};
+use rgbd::filter::{Roi2, RoiCrop};
+use rgbd::{Camera, CameraError, ColorFrame, DepthFrame, FilterError, PostProcessing};
+
+use super::config::AppConfig;
+
+/// A grabbed frame as the resources keep it.
+#[derive(Debug, Clone)]
+pub(crate) enum Frame {
+    Color(ColorFrame),
+    Depth(DepthFrame),
+    Cloud {
+        points: Vec<Point3>,
+        timestamp_us: u64,
+        frame_number: u64,
+    },
+}
+
+impl Frame {
+    pub(crate) fn frame_number(&self) -> u64 {
+        match self {
+            Self::Color(f) => f.frame_number,
+            Self::Depth(f) => f.frame_number,
+            Self::Cloud { frame_number, .. } => *frame_number,
+        }
+    }
+
+    pub(crate) fn timestamp_us(&self) -> u64 {
+        match self {
+            Self::Color(f) => f.timestamp_us,
+            Self::Depth(f) => f.timestamp_us,
+            Self::Cloud { timestamp_us, .. } => *timestamp_us,
+        }
+    }
+}
+
+/// Why a grab failed.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum GrabError {
+    #[error(transparent)]
+    Camera(#[from] CameraError),
+    #[error("depth processing: {0}")]
+    Filter(#[from] FilterError),
+    #[error("3d-transformation: {0}")]
+    Transform(#[from] TransformError),
+    #[error("application-config roi2d lies outside the {width}x{height} frame")]
+    RoiOutside { width: u32, height: u32 },
+}
+
+fn roi(app: &AppConfig, width: u32, height: u32) -> Result<Roi2, GrabError> {
+    app.roi_in(width, height)
+        .ok_or(GrabError::RoiOutside { width, height })
+}
+
+/// A color frame cropped to `roi2d`.
+pub(crate) fn color(camera: &dyn Camera, app: &AppConfig) -> Result<Frame, GrabError> {
+    let frame = camera.grab_color(app.color_timeout())?;
+    let r = roi(app, frame.width, frame.height)?;
+    if (r.width, r.height) == (frame.width, frame.height) {
+        return Ok(Frame::Color(frame));
+    }
+    let bpp = frame.format.bytes_per_pixel();
+    let row = r.width as usize * bpp;
+    let mut data = Vec::with_capacity(row * r.height as usize);
+    for y in r.py..r.py + r.height {
+        let start = y as usize * frame.stride + r.px as usize * bpp;
+        if let Some(pixels) = frame.data.get(start..start + row) {
+            data.extend_from_slice(pixels);
+        }
+    }
+    Ok(Frame::Color(ColorFrame {
+        width: r.width,
+        height: r.height,
+        stride: row,
+        data,
+        ..frame
+    }))
+}
+
+/// A depth frame cropped to `roi2d`.
+pub(crate) fn depth(camera: &dyn Camera, app: &AppConfig) -> Result<Frame, GrabError> {
+    let intrinsics = camera.depth_intrinsics()?;
+    let frame = camera.grab_depth(app.depth_timeout())?;
+    let r = roi(app, frame.width, frame.height)?;
+    if (r.width, r.height) == (frame.width, frame.height) {
+        return Ok(Frame::Depth(frame));
+    }
+    let mut crop = RoiCrop::new(r);
+    let (cropped, _) = crop.process(&frame, &intrinsics)?;
+    Ok(Frame::Depth(cropped.clone()))
+}
+
+/// A point cloud in the output frame of `transformation`, inside `roi3d`.
+pub(crate) fn cloud(
+    camera: &dyn Camera,
+    app: &AppConfig,
+    transformation: &Transformation,
+) -> Result<Frame, GrabError> {
+    let transform = transformation.to_transform()?;
+    let intrinsics = camera.depth_intrinsics()?;
+    let frame = camera.grab_depth(app.depth_timeout())?;
+    let r = roi(app, frame.width, frame.height)?;
+    let mut crop = RoiCrop::new(r);
+    let (cropped, k) = crop.process(&frame, &intrinsics)?;
+    let mut chain = PostProcessing::new(&app.postprocessing, rgbd::d415::BASELINE_M * 1000.0)?;
+    let (processed, k) = chain.process(cropped, &k)?;
+    let points = rgbd::deproject_frame(processed, &k)?;
+    let cloud = transform.apply_and_crop(&points, &app.roi3d);
+    Ok(Frame::Cloud {
+        points: cloud.points,
+        timestamp_us: frame.timestamp_us,
+        frame_number: frame.frame_number,
+    })
+}

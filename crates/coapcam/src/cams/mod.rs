@@ -1,0 +1,705 @@
+//! The `/cams` resource tree (thesis Table 3.1, DESIGN.md §5): creation resources,
+//! per-camera grab and configuration resources that follow the [`CameraHub`], and
+//! `/cams/pointclouds`.
+
+mod config;
+mod grab;
+mod repr;
+mod state;
+
+use std::collections::HashMap;
+use std::hash::{Hash as _, Hasher as _};
+use std::path::Path;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::SystemTime;
+
+use bytes::Bytes;
+use coap::link_format::Filter;
+use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
+use coap_net::{Resource, Router, handler};
+use geometry::{IcpConfig, PointCloud, Transform, Transformation};
+use nalgebra::{Isometry3, Matrix3, Vector3};
+use rgbd::{
+    AdvancedConfig, Camera, CameraError, CameraHub, ColorSettings, DepthSettings, HubEvent, Serial,
+};
+use tokio::sync::mpsc;
+
+use config::AppConfig;
+use grab::{Frame, GrabError};
+use state::StateDir;
+
+/// Grab resources of a camera: name, link `rt`.
+const GRABS: [(&str, &str); 3] = [
+    ("color", "rgbd.color"),
+    ("depth", "rgbd.depth"),
+    ("pointcloud", "rgbd.pointcloud"),
+];
+
+/// JSON configuration resources of a camera.
+const CONFIGS: [&str; 5] = [
+    "color-settings",
+    "depth-settings",
+    "application-config",
+    "3d-transformation",
+    "advanced-config",
+];
+
+/// What a grab resource produces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Color,
+    Depth,
+    Cloud,
+}
+
+impl Kind {
+    fn of(name: &str) -> Option<Self> {
+        match name {
+            "color" => Some(Self::Color),
+            "depth" => Some(Self::Depth),
+            "pointcloud" => Some(Self::Cloud),
+            _ => None,
+        }
+    }
+
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// A grabbed frame with its ETag.
+type Stored = Arc<(Frame, [u8; 8])>;
+
+/// One connected camera and the server's state for it.
+struct CamState {
+    camera: Arc<dyn Camera>,
+    app: Mutex<AppConfig>,
+    transformation: Mutex<Transformation>,
+    latest: Mutex<[Option<Stored>; 3]>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+/// The resource tree, shared by its handlers and the hub listener.
+pub(crate) struct Cams {
+    hub: Arc<CameraHub>,
+    router: Arc<Router>,
+    state: StateDir,
+    cams: Mutex<HashMap<Serial, Arc<CamState>>>,
+    /// Paths with a new representation, for Observe notifications.
+    changed: mpsc::UnboundedSender<String>,
+}
+
+impl Cams {
+    /// Registers `/cams`, `/cams/pointclouds` and the creation resources on `router`,
+    /// then follows `hub` on a thread of its own: per-camera resources appear when a
+    /// camera connects (with its persisted configuration re-applied) and vanish when it
+    /// disconnects.
+    pub(crate) fn start(
+        hub: Arc<CameraHub>,
+        router: Arc<Router>,
+        state_dir: &Path,
+        changed: mpsc::UnboundedSender<String>,
+    ) -> std::io::Result<Arc<Self>> {
+        let me = Arc::new(Self {
+            hub,
+            router,
+            state: StateDir::new(state_dir),
+            cams: Mutex::default(),
+            changed,
+        });
+        me.register_fixed();
+        let events = me.hub.subscribe();
+        let weak = Arc::downgrade(&me);
+        std::thread::Builder::new()
+            .name("camera-hub".to_string())
+            .spawn(move || {
+                for event in events {
+                    let Some(cams) = weak.upgrade() else { break };
+                    match event {
+                        HubEvent::Added(sn) => cams.connected(sn),
+                        HubEvent::Removed(sn) => cams.disconnected(sn),
+                    }
+                }
+            })?;
+        Ok(me)
+    }
+
+    fn register_fixed(self: &Arc<Self>) {
+        let me = self.clone();
+        self.router.add(
+            "/cams",
+            Resource::new()
+                .get(handler(move |_ctx| {
+                    let links = me
+                        .router
+                        .links(&Filter::parse("href=/cams/*").unwrap_or_default());
+                    async move {
+                        let mut r = Response::new(Code::CONTENT).with_payload(links);
+                        set_cf(&mut r, ContentFormat::LINK_FORMAT);
+                        r
+                    }
+                }))
+                .attr("ct", "40"),
+        );
+        let me = self.clone();
+        self.router.add(
+            "/cams/pointclouds",
+            Resource::new()
+                .post(handler(move |ctx| {
+                    let me = me.clone();
+                    async move { me.pointclouds(&ctx.request).await }
+                }))
+                .attr("rt", "rgbd.pointcloud")
+                .attr("ct", "42"),
+        );
+        for name in GRABS.iter().map(|(n, _)| *n).chain(CONFIGS) {
+            let me = self.clone();
+            self.router.add(
+                &format!("/cams/{name}"),
+                Resource::new()
+                    .post(handler(move |ctx| {
+                        let response = me.create(name, &ctx.request);
+                        async move { response }
+                    }))
+                    .attr(
+                        "title",
+                        format!("POST a serial to create /cams/<serial>/{name}"),
+                    ),
+            );
+        }
+    }
+
+    fn camera(&self, sn: &Serial) -> Option<Arc<CamState>> {
+        lock(&self.cams).get(sn).cloned()
+    }
+
+    /// A camera connected: its state (persisted documents re-applied) and resources.
+    fn connected(self: &Arc<Self>, sn: Serial) {
+        let Some(camera) = self.hub.get(&sn) else {
+            return;
+        };
+        let cam = Arc::new(CamState {
+            app: Mutex::new(
+                self.restore(&sn, "application-config", AppConfig::from_json)
+                    .unwrap_or_default(),
+            ),
+            transformation: Mutex::new(
+                self.restore(&sn, "3d-transformation", Transformation::from_json)
+                    .unwrap_or_else(|| {
+                        camera
+                            .true_pose()
+                            .map_or_else(Transformation::identity, pose_transformation)
+                    }),
+            ),
+            latest: Mutex::default(),
+            camera,
+        });
+        let modes = cam.camera.stream_modes().clone();
+        if let Some(s) = self.restore(&sn, "color-settings", |j| {
+            ColorSettings::from_json(j, &modes)
+        }) {
+            warn_on(&sn, "color-settings", cam.camera.set_color_settings(s));
+        }
+        if let Some(s) = self.restore(&sn, "depth-settings", |j| {
+            DepthSettings::from_json(j, &modes)
+        }) {
+            warn_on(&sn, "depth-settings", cam.camera.set_depth_settings(s));
+        }
+        if let Some(a) = self.restore(&sn, "advanced-config", AdvancedConfig::from_json) {
+            warn_on(&sn, "advanced-config", cam.camera.set_advanced_config(&a));
+        }
+        lock(&self.cams).insert(sn, cam);
+        for (name, _) in GRABS {
+            self.add_resource(sn, name);
+        }
+        for name in CONFIGS {
+            self.add_resource(sn, name);
+        }
+        tracing::debug!(serial = %sn, "camera resources added");
+    }
+
+    /// A persisted document that still parses; a broken one is logged and ignored.
+    fn restore<T, E: std::fmt::Display>(
+        &self,
+        sn: &Serial,
+        name: &str,
+        parse: impl FnOnce(&[u8]) -> Result<T, E>,
+    ) -> Option<T> {
+        match self.state.load(sn, name) {
+            Ok(Some(bytes)) => match parse(&bytes) {
+                Ok(v) => Some(v),
+                Err(e) => {
+                    tracing::warn!(serial = %sn, name, "ignoring persisted document: {e}");
+                    None
+                }
+            },
+            Ok(None) => None,
+            Err(e) => {
+                tracing::warn!(serial = %sn, name, "reading persisted document: {e}");
+                None
+            }
+        }
+    }
+
+    fn disconnected(&self, sn: Serial) {
+        lock(&self.cams).remove(&sn);
+        for name in GRABS.iter().map(|(n, _)| *n).chain(CONFIGS) {
+            self.router.remove(&format!("/cams/{sn}/{name}"));
+        }
+        tracing::debug!(serial = %sn, "camera resources removed");
+    }
+
+    /// Adds `/cams/<sn>/<name>`.
+    fn add_resource(self: &Arc<Self>, sn: Serial, name: &'static str) {
+        let path = format!("/cams/{sn}/{name}");
+        let delete = {
+            let (me, path) = (self.clone(), path.clone());
+            handler(move |_ctx| {
+                me.router.remove(&path);
+                async { Response::new(Code::DELETED) }
+            })
+        };
+        let resource = if let Some(kind) = Kind::of(name) {
+            let rt = GRABS
+                .iter()
+                .find(|(n, _)| *n == name)
+                .map_or("", |(_, rt)| rt);
+            let (get_me, post_me, post_path) = (self.clone(), self.clone(), path.clone());
+            Resource::new()
+                .get(handler(move |ctx| {
+                    let response = get_me.latest(sn, kind, &ctx.request);
+                    async move { response }
+                }))
+                .post(handler(move |ctx| {
+                    let (me, path) = (post_me.clone(), post_path.clone());
+                    async move { me.grab(sn, kind, &path, &ctx.request).await }
+                }))
+                .delete(delete)
+                .attr("rt", rt)
+                .attr("if", "core.p")
+                .attr("ct", "42")
+                .observable()
+        } else {
+            let (get_me, put_me) = (self.clone(), self.clone());
+            Resource::new()
+                .get(handler(move |_ctx| {
+                    let me = get_me.clone();
+                    async move { me.get_config(sn, name).await }
+                }))
+                .put(handler(move |ctx| {
+                    let me = put_me.clone();
+                    async move { me.put_config(sn, name, ctx.request.payload).await }
+                }))
+                .delete(delete)
+                .attr("rt", "rgbd.config")
+                .attr("if", "core.p")
+                .attr("ct", "50")
+        };
+        self.router.add(&path, resource);
+    }
+
+    /// `POST /cams/<name>` with a serial: (re)creates `/cams/<serial>/<name>`.
+    fn create(self: &Arc<Self>, name: &'static str, request: &IncomingRequest) -> Response {
+        let text = String::from_utf8_lossy(&request.payload);
+        let sn = match Serial::parse(text.trim()) {
+            Ok(sn) => sn,
+            Err(e) => {
+                return Response::diagnostic(
+                    Code::BAD_REQUEST,
+                    &format!("the payload must be a 12-digit serial number: {e}"),
+                );
+            }
+        };
+        if self.camera(&sn).is_none() {
+            return Response::diagnostic(
+                Code::BAD_REQUEST,
+                &format!("no camera with serial {sn} is connected"),
+            );
+        }
+        self.add_resource(sn, name);
+        let mut r = Response::new(Code::CREATED);
+        for seg in ["cams", sn.as_str(), name] {
+            r.options
+                .push(OptionNumber::LOCATION_PATH, seg.as_bytes().to_vec());
+        }
+        r
+    }
+
+    /// `POST /cams/<sn>/<grab>`: a new frame.
+    async fn grab(
+        &self,
+        sn: Serial,
+        kind: Kind,
+        path: &str,
+        request: &IncomingRequest,
+    ) -> Response {
+        if let Err(refused) = negotiate(kind, request) {
+            return refused;
+        }
+        let Some(cam) = self.camera(&sn) else {
+            return Response::diagnostic(Code::NOT_FOUND, &format!("camera {sn} is disconnected"));
+        };
+        let app = lock(&cam.app).clone();
+        let transformation = *lock(&cam.transformation);
+        let camera = cam.camera.clone();
+        let grabbed = tokio::task::spawn_blocking(move || match kind {
+            Kind::Color => grab::color(camera.as_ref(), &app),
+            Kind::Depth => grab::depth(camera.as_ref(), &app),
+            Kind::Cloud => grab::cloud(camera.as_ref(), &app, &transformation),
+        })
+        .await;
+        let frame = match grabbed {
+            Ok(Ok(frame)) => frame,
+            Ok(Err(e)) => return grab_error(&sn, &e),
+            Err(e) => {
+                return Response::diagnostic(
+                    Code::INTERNAL_SERVER_ERROR,
+                    &format!("grab task: {e}"),
+                );
+            }
+        };
+        let etag = frame_etag(&sn, kind, &frame);
+        let stored = Arc::new((frame, etag));
+        lock(&cam.latest)[kind.index()] = Some(stored.clone());
+        let _ = self.changed.send(path.to_string());
+        represent(kind, &stored.0, etag, request)
+    }
+
+    /// `GET /cams/<sn>/<grab>`: the latest frame.
+    fn latest(&self, sn: Serial, kind: Kind, request: &IncomingRequest) -> Response {
+        if let Err(refused) = negotiate(kind, request) {
+            return refused;
+        }
+        let stored = self
+            .camera(&sn)
+            .and_then(|cam| lock(&cam.latest)[kind.index()].clone());
+        match stored {
+            Some(s) => represent(kind, &s.0, s.1, request),
+            None => Response::diagnostic(Code::NOT_FOUND, "no frame grabbed yet: POST grabs one"),
+        }
+    }
+
+    async fn get_config(&self, sn: Serial, name: &'static str) -> Response {
+        let Some(cam) = self.camera(&sn) else {
+            return Response::diagnostic(Code::NOT_FOUND, &format!("camera {sn} is disconnected"));
+        };
+        let doc = match name {
+            "color-settings" => Ok(cam.camera.color_settings().to_json()),
+            "depth-settings" => Ok(cam.camera.depth_settings().to_json()),
+            "application-config" => Ok(lock(&cam.app).to_json()),
+            "3d-transformation" => Ok(lock(&cam.transformation).to_json()),
+            _ => {
+                let camera = cam.camera.clone();
+                match tokio::task::spawn_blocking(move || camera.advanced_config()).await {
+                    Ok(Ok(a)) => Ok(a.to_json()),
+                    Ok(Err(e)) => Err(e.to_string()),
+                    Err(e) => Err(e.to_string()),
+                }
+            }
+        };
+        match doc {
+            Ok(doc) => {
+                let mut r = Response::new(Code::CONTENT).with_payload(doc);
+                set_cf(&mut r, ContentFormat::JSON);
+                r
+            }
+            Err(e) => Response::diagnostic(Code::SERVICE_UNAVAILABLE, &format!("{name}: {e}")),
+        }
+    }
+
+    /// `PUT`: validate completely, apply, persist; a refused document changes nothing.
+    async fn put_config(self: &Arc<Self>, sn: Serial, name: &'static str, body: Bytes) -> Response {
+        let Some(cam) = self.camera(&sn) else {
+            return Response::diagnostic(Code::NOT_FOUND, &format!("camera {sn} is disconnected"));
+        };
+        let me = self.clone();
+        match tokio::task::spawn_blocking(move || me.replace(&sn, &cam, name, &body)).await {
+            Ok(Ok(())) => Response::new(Code::CHANGED),
+            Ok(Err(r)) => r,
+            Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("{name}: {e}")),
+        }
+    }
+
+    fn replace(
+        &self,
+        sn: &Serial,
+        cam: &CamState,
+        name: &str,
+        body: &[u8],
+    ) -> Result<(), Response> {
+        let bad = |e: &dyn std::fmt::Display| {
+            Response::diagnostic(Code::BAD_REQUEST, &format!("{name}: {e}"))
+        };
+        let camera = &cam.camera;
+        let modes = camera.stream_modes();
+        // Validate, and keep what undoes the change if persisting fails.
+        let (stored, undo): (String, Box<dyn FnOnce() + '_>) = match name {
+            "color-settings" => {
+                let new = ColorSettings::from_json(body, modes).map_err(|e| bad(&e))?;
+                let old = camera.color_settings();
+                camera.set_color_settings(new).map_err(|e| bad(&e))?;
+                (
+                    new.to_json(),
+                    Box::new(move || warn_on(sn, name, camera.set_color_settings(old))),
+                )
+            }
+            "depth-settings" => {
+                let new = DepthSettings::from_json(body, modes).map_err(|e| bad(&e))?;
+                let old = camera.depth_settings();
+                camera.set_depth_settings(new).map_err(|e| bad(&e))?;
+                (
+                    new.to_json(),
+                    Box::new(move || warn_on(sn, name, camera.set_depth_settings(old))),
+                )
+            }
+            "application-config" => {
+                let new = AppConfig::from_json(body).map_err(|e| bad(&e))?;
+                let json = new.to_json();
+                let old = std::mem::replace(&mut *lock(&cam.app), new);
+                (json, Box::new(move || *lock(&cam.app) = old))
+            }
+            "3d-transformation" => {
+                let new = Transformation::from_json(body).map_err(|e| bad(&e))?;
+                new.to_transform().map_err(|e| bad(&e))?;
+                let old = std::mem::replace(&mut *lock(&cam.transformation), new);
+                (
+                    new.to_json(),
+                    Box::new(move || *lock(&cam.transformation) = old),
+                )
+            }
+            _ => {
+                let new = AdvancedConfig::from_json(body).map_err(|e| bad(&e))?;
+                let old = camera.advanced_config().map_err(|e| camera_error(sn, &e))?;
+                camera.set_advanced_config(&new).map_err(|e| bad(&e))?;
+                let full = camera.advanced_config().map_err(|e| camera_error(sn, &e))?;
+                (
+                    full.to_json(),
+                    Box::new(move || warn_on(sn, name, camera.set_advanced_config(&old))),
+                )
+            }
+        };
+        if let Err(e) = self.state.store(sn, name, stored.as_bytes()) {
+            tracing::warn!(serial = %sn, name, "persisting: {e}");
+            undo();
+            return Err(Response::diagnostic(
+                Code::INTERNAL_SERVER_ERROR,
+                &format!("{name}: cannot persist the document ({e}); nothing was changed"),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `POST /cams/pointclouds`: every camera's cloud in the common frame, merged.
+    async fn pointclouds(&self, request: &IncomingRequest) -> Response {
+        if let Err(refused) = negotiate(Kind::Cloud, request) {
+            return refused;
+        }
+        let cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
+            .iter()
+            .map(|(sn, c)| (*sn, c.clone()))
+            .collect();
+        let tasks: Vec<_> = cams
+            .into_iter()
+            .map(|(sn, cam)| {
+                let app = lock(&cam.app).clone();
+                let transformation = *lock(&cam.transformation);
+                let icp = app.icp;
+                let task = tokio::task::spawn_blocking(move || {
+                    grab::cloud(cam.camera.as_ref(), &app, &transformation)
+                });
+                (sn, icp, task)
+            })
+            .collect();
+        let mut clouds = Vec::new();
+        let mut newest_us = 0;
+        for (sn, icp, task) in tasks {
+            match task.await {
+                Ok(Ok(frame)) => {
+                    newest_us = newest_us.max(frame.timestamp_us());
+                    if let Frame::Cloud { points, .. } = frame {
+                        clouds.push((sn, icp, PointCloud::from(points)));
+                    }
+                }
+                Ok(Err(e)) => tracing::warn!(serial = %sn, "pointclouds: {e}"),
+                Err(e) => tracing::warn!(serial = %sn, "pointclouds: grab task: {e}"),
+            }
+        }
+        let merged = tokio::task::spawn_blocking(move || register_and_merge(clouds))
+            .await
+            .unwrap_or_default();
+        let timestamp_s = if newest_us == 0 {
+            SystemTime::now()
+                .duration_since(SystemTime::UNIX_EPOCH)
+                .map_or(0, |d| u32::try_from(d.as_secs()).unwrap_or(u32::MAX))
+        } else {
+            repr::unix_seconds(newest_us)
+        };
+        let body = repr::cloud_packet(&merged.points, timestamp_s);
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        body.hash(&mut h);
+        let mut r = Response::new(Code::CONTENT).with_payload(body);
+        set_cf(&mut r, ContentFormat::OCTET_STREAM);
+        r.options
+            .set(OptionNumber::ETAG, h.finish().to_be_bytes().to_vec());
+        r
+    }
+}
+
+/// Merges clouds already in the common frame; a cloud whose camera has `icp` on is first
+/// registered onto the clouds merged before it.
+fn register_and_merge(clouds: Vec<(Serial, bool, PointCloud)>) -> PointCloud {
+    let mut merged = PointCloud::default();
+    for (sn, icp, mut cloud) in clouds {
+        if icp && !merged.is_empty() {
+            match geometry::icp(
+                &cloud,
+                &merged,
+                &Isometry3::identity(),
+                &IcpConfig::default(),
+            ) {
+                Ok(outcome) => Transform::from(outcome.transform).apply_in_place(&mut cloud),
+                Err(e) => tracing::warn!(serial = %sn, "ICP skipped: {e}"),
+            }
+        }
+        merged.extend_from(&cloud);
+    }
+    merged
+}
+
+/// The 3d-transformation of a known pose: camera frame -> world.
+fn pose_transformation(pose: rgbd::Pose) -> Transformation {
+    let r = pose.rotation;
+    Transformation {
+        rotation: Matrix3::new(
+            r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
+        ),
+        translation: Vector3::from(pose.translation),
+        ..Transformation::identity()
+    }
+}
+
+fn warn_on(sn: &Serial, name: &str, result: Result<(), CameraError>) {
+    if let Err(e) = result {
+        tracing::warn!(serial = %sn, name, "re-applying: {e}");
+    }
+}
+
+fn camera_error(sn: &Serial, e: &CameraError) -> Response {
+    match e {
+        CameraError::Disconnected { .. } => {
+            Response::diagnostic(Code::NOT_FOUND, &format!("camera {sn} is disconnected"))
+        }
+        CameraError::Timeout { timeout_ms } => {
+            let mut r = Response::diagnostic(
+                Code::SERVICE_UNAVAILABLE,
+                &format!("camera {sn}: no frame within {timeout_ms} ms; retry later"),
+            );
+            let secs = timeout_ms.div_ceil(1000).max(1);
+            r.options.set_uint(
+                OptionNumber::MAX_AGE,
+                u32::try_from(secs).unwrap_or(u32::MAX),
+            );
+            r
+        }
+        other => Response::diagnostic(
+            Code::INTERNAL_SERVER_ERROR,
+            &format!("camera {sn}: {other}"),
+        ),
+    }
+}
+
+fn grab_error(sn: &Serial, e: &GrabError) -> Response {
+    tracing::warn!(serial = %sn, "grab: {e}");
+    match e {
+        GrabError::Camera(c) => camera_error(sn, c),
+        GrabError::RoiOutside { .. } | GrabError::Transform(_) => {
+            Response::diagnostic(Code::BAD_REQUEST, &e.to_string())
+        }
+        GrabError::Filter(_) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
+    }
+}
+
+fn set_cf(r: &mut Response, cf: ContentFormat) {
+    r.options
+        .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
+}
+
+/// The content format to answer with, or 4.06 Not Acceptable.
+fn negotiate(kind: Kind, request: &IncomingRequest) -> Result<ContentFormat, Response> {
+    let accept = request
+        .options
+        .accept()
+        .unwrap_or(ContentFormat::OCTET_STREAM);
+    let ok = match kind {
+        Kind::Color => [
+            ContentFormat::OCTET_STREAM,
+            ContentFormat::IMAGE_PNG,
+            ContentFormat::IMAGE_JPEG,
+        ]
+        .contains(&accept),
+        Kind::Depth => [ContentFormat::OCTET_STREAM, ContentFormat::IMAGE_PNG].contains(&accept),
+        Kind::Cloud => accept == ContentFormat::OCTET_STREAM,
+    };
+    if ok {
+        Ok(accept)
+    } else {
+        Err(Response::diagnostic(
+            Code::NOT_ACCEPTABLE,
+            match kind {
+                Kind::Color => "color is served as 42 (thesis packet), 23 (PNG) or 22 (JPEG)",
+                Kind::Depth => "depth is served as 42 (thesis packet) or 23 (16-bit PNG)",
+                Kind::Cloud => "point clouds are served as 42 (thesis packet)",
+            },
+        ))
+    }
+}
+
+/// A frame in the format the request accepts.
+fn represent(kind: Kind, frame: &Frame, etag: [u8; 8], request: &IncomingRequest) -> Response {
+    let cf = match negotiate(kind, request) {
+        Ok(cf) => cf,
+        Err(refused) => return refused,
+    };
+    let body = match (frame, cf) {
+        (Frame::Color(f), ContentFormat::IMAGE_PNG) => repr::color_png(f),
+        (Frame::Color(f), ContentFormat::IMAGE_JPEG) => repr::color_jpeg(f),
+        (Frame::Color(f), _) => Ok(repr::color_packet(f)),
+        (Frame::Depth(f), ContentFormat::IMAGE_PNG) => repr::depth_png(f),
+        (Frame::Depth(f), _) => Ok(repr::depth_packet(f)),
+        (
+            Frame::Cloud {
+                points,
+                timestamp_us,
+                ..
+            },
+            _,
+        ) => Ok(repr::cloud_packet(
+            points,
+            repr::unix_seconds(*timestamp_us),
+        )),
+    };
+    match body {
+        Ok(body) => {
+            let mut r = Response::new(Code::CONTENT).with_payload(body);
+            set_cf(&mut r, cf);
+            r.options.set(OptionNumber::ETAG, etag.to_vec());
+            r
+        }
+        Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
+    }
+}
+
+fn frame_etag(sn: &Serial, kind: Kind, frame: &Frame) -> [u8; 8] {
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    (
+        sn.as_u64(),
+        kind.index(),
+        frame.frame_number(),
+        frame.timestamp_us(),
+    )
+        .hash(&mut h);
+    h.finish().to_be_bytes()
+}

@@ -1,0 +1,69 @@
+//! Per-serial persistence of the JSON resources: `<state-dir>/<serial>/<name>.json`,
+//! written atomically (temporary file, fsync, rename, fsync of the directory).
+
+use std::fs::File;
+use std::io::{self, Write as _};
+use std::path::{Path, PathBuf};
+
+use rgbd::Serial;
+
+/// The state directory.
+#[derive(Debug, Clone)]
+pub(crate) struct StateDir {
+    root: PathBuf,
+}
+
+impl StateDir {
+    pub(crate) fn new(root: &Path) -> Self {
+        Self {
+            root: root.to_path_buf(),
+        }
+    }
+
+    fn path(&self, serial: &Serial, name: &str) -> PathBuf {
+        self.root.join(serial.as_str()).join(format!("{name}.json"))
+    }
+
+    /// The stored document, `None` when there is none.
+    pub(crate) fn load(&self, serial: &Serial, name: &str) -> io::Result<Option<Vec<u8>>> {
+        match std::fs::read(self.path(serial, name)) {
+            Ok(bytes) => Ok(Some(bytes)),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Replaces the stored document; a reader sees the old or the new one, never a part.
+    pub(crate) fn store(&self, serial: &Serial, name: &str, body: &[u8]) -> io::Result<()> {
+        let dir = self.root.join(serial.as_str());
+        std::fs::create_dir_all(&dir)?;
+        let tmp = dir.join(format!(".{name}.json.tmp"));
+        let mut f = File::create(&tmp)?;
+        f.write_all(body)?;
+        f.sync_all()?;
+        drop(f);
+        std::fs::rename(&tmp, self.path(serial, name))?;
+        File::open(&dir)?.sync_all()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stores_and_loads_per_serial() {
+        let root = std::env::temp_dir().join(format!("coapcam-state-unit-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let dir = StateDir::new(&root);
+        let sn = Serial::parse("840412060746").expect("serial");
+        assert!(matches!(dir.load(&sn, "color-settings"), Ok(None)));
+        assert!(dir.store(&sn, "color-settings", b"{}").is_ok());
+        assert!(dir.store(&sn, "color-settings", b"{\"a\":1}").is_ok());
+        assert_eq!(
+            dir.load(&sn, "color-settings").ok().flatten(),
+            Some(b"{\"a\":1}".to_vec())
+        );
+        let _ = std::fs::remove_dir_all(&root);
+    }
+}

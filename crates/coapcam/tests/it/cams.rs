@@ -1,0 +1,476 @@
+//! `coapcam serve` with the built-in synthetic camera: thesis Table 3.1 (every row and
+//! method), the JSON resources, persistence across restarts, packet sizes and Block2.
+
+use std::io::{BufRead as _, BufReader};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
+use coap_net::Client;
+
+const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
+
+/// A running `coapcam serve`, killed on drop.
+struct Server(Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// A fresh temporary directory, removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(tag: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("coapcam-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("temporary directory");
+        Self(dir)
+    }
+
+    fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+const SN: &str = "840412060746";
+const LIMIT: Duration = Duration::from_secs(60);
+
+/// A server on an ephemeral port of 127.0.0.1 with its state in `state`.
+fn serve(state: &Path) -> (Server, SocketAddr) {
+    let dir = state.to_string_lossy().into_owned();
+    let mut child = Command::new(COAPCAM)
+        .args([
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--state-dir",
+            &dir,
+            "--duration",
+            "120",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("starting coapcam serve");
+    let stderr = child.stderr.take().expect("stderr pipe");
+    let server = Server(child);
+    // The server stops by itself after --duration, which bounds this read.
+    let mut lines = BufReader::new(stderr).lines();
+    let addr = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .find_map(|l| {
+            l.strip_prefix("coapcam: serving on ")
+                .and_then(|a| a.trim().parse().ok())
+        })
+        .expect("coapcam serve printed no address");
+    std::thread::spawn(move || lines.for_each(drop));
+    (server, addr)
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .expect("tokio runtime")
+}
+
+async fn send(
+    client: &Client,
+    addr: SocketAddr,
+    method: Code,
+    path: &str,
+    payload: &[u8],
+    accept: Option<u16>,
+) -> Response {
+    let mut request = Request::new(method, path).with_payload(payload.to_vec());
+    request.timeout = Some(LIMIT);
+    if let Some(cf) = accept {
+        request
+            .options
+            .set_uint(OptionNumber::ACCEPT, u32::from(cf));
+    }
+    client
+        .send(addr, request)
+        .await
+        .unwrap_or_else(|e| panic!("{method:?} {path}: {e}"))
+}
+
+fn client() -> Client {
+    Client::bind(
+        SocketAddr::from(([127, 0, 0, 1], 0)),
+        EndpointConfig::default(),
+    )
+    .expect("client socket")
+}
+
+const COLOR_640: &str = r#"{"format": "BGR8", "fps": 30, "width": 640, "height": 480}"#;
+const DEPTH_640: &str = r#"{"format": "Z16", "fps": 30, "width": 640, "height": 480}"#;
+
+#[test]
+fn table_3_1_every_row_and_method() {
+    let state = TempDir::new("cams-table");
+    let (_server, addr) = serve(state.path());
+    runtime().block_on(async {
+        let c = client();
+        let code = |method, path: String, payload: &'static str| {
+            let c = &c;
+            async move {
+                send(c, addr, method, &path, payload.as_bytes(), None)
+                    .await
+                    .code
+            }
+        };
+        use Code as C;
+        // Smaller frames keep the grabs quick.
+        assert_eq!(
+            code(C::PUT, format!("/cams/{SN}/color-settings"), COLOR_640).await,
+            C::CHANGED
+        );
+        assert_eq!(
+            code(C::PUT, format!("/cams/{SN}/depth-settings"), DEPTH_640).await,
+            C::CHANGED
+        );
+        // /cams and /cams/pointclouds.
+        for (m, want) in [
+            (C::GET, C::CONTENT),
+            (C::POST, C::METHOD_NOT_ALLOWED),
+            (C::PUT, C::METHOD_NOT_ALLOWED),
+            (C::DELETE, C::METHOD_NOT_ALLOWED),
+        ] {
+            assert_eq!(code(m, "/cams".into(), "").await, want, "{m:?} /cams");
+        }
+        for (m, want) in [
+            (C::GET, C::METHOD_NOT_ALLOWED),
+            (C::POST, C::CONTENT),
+            (C::PUT, C::METHOD_NOT_ALLOWED),
+            (C::DELETE, C::METHOD_NOT_ALLOWED),
+        ] {
+            assert_eq!(
+                code(m, "/cams/pointclouds".into(), "").await,
+                want,
+                "{m:?} /cams/pointclouds"
+            );
+        }
+        let names = [
+            "color",
+            "depth",
+            "pointcloud",
+            "color-settings",
+            "depth-settings",
+            "application-config",
+            "3d-transformation",
+            "advanced-config",
+        ];
+        for name in names {
+            let create = format!("/cams/{name}");
+            for m in [C::GET, C::PUT, C::DELETE] {
+                assert_eq!(
+                    code(m, create.clone(), SN).await,
+                    C::METHOD_NOT_ALLOWED,
+                    "{m:?} {create}"
+                );
+            }
+            assert_eq!(
+                code(C::POST, create.clone(), "84041206074").await,
+                C::BAD_REQUEST
+            );
+            assert_eq!(
+                code(C::POST, create.clone(), "000000000000").await,
+                C::BAD_REQUEST
+            );
+            let r = send(&c, addr, C::POST, &create, SN.as_bytes(), None).await;
+            assert_eq!(r.code, C::CREATED, "POST {create}");
+            let location: Vec<&[u8]> = r.options.values(OptionNumber::LOCATION_PATH).collect();
+            assert_eq!(
+                location,
+                [b"cams".as_slice(), SN.as_bytes(), name.as_bytes()]
+            );
+
+            let path = format!("/cams/{SN}/{name}");
+            if ["color", "depth", "pointcloud"].contains(&name) {
+                assert_eq!(
+                    code(C::GET, path.clone(), "").await,
+                    C::NOT_FOUND,
+                    "GET {path} before a grab"
+                );
+                assert_eq!(
+                    code(C::POST, path.clone(), "").await,
+                    C::CONTENT,
+                    "POST {path}"
+                );
+                assert_eq!(
+                    code(C::GET, path.clone(), "").await,
+                    C::CONTENT,
+                    "GET {path}"
+                );
+                assert_eq!(
+                    code(C::PUT, path.clone(), "").await,
+                    C::METHOD_NOT_ALLOWED,
+                    "PUT {path}"
+                );
+            } else {
+                let doc = send(&c, addr, C::GET, &path, b"", None).await;
+                assert_eq!(doc.code, C::CONTENT, "GET {path}");
+                let mut put = Request::new(C::PUT, &path).with_payload(doc.payload.clone());
+                put.timeout = Some(LIMIT);
+                assert_eq!(
+                    c.send(addr, put).await.map(|r| r.code).ok(),
+                    Some(C::CHANGED),
+                    "PUT {path}"
+                );
+                assert_eq!(
+                    code(C::POST, path.clone(), "").await,
+                    C::METHOD_NOT_ALLOWED,
+                    "POST {path}"
+                );
+            }
+            assert_eq!(
+                code(C::DELETE, path.clone(), "").await,
+                C::DELETED,
+                "DELETE {path}"
+            );
+            assert_eq!(
+                code(C::GET, path.clone(), "").await,
+                C::NOT_FOUND,
+                "{path} after DELETE"
+            );
+            let links = send(&c, addr, C::GET, "/.well-known/core", b"", None).await;
+            let gone = !String::from_utf8_lossy(&links.payload).contains(&format!("<{path}>"));
+            assert!(gone, "{path} still in discovery");
+            assert_eq!(code(C::POST, create, SN).await, C::CREATED);
+        }
+        let accept = send(
+            &c,
+            addr,
+            C::POST,
+            &format!("/cams/{SN}/pointcloud"),
+            b"",
+            Some(23),
+        )
+        .await;
+        assert_eq!(accept.code, C::NOT_ACCEPTABLE);
+        let png = send(
+            &c,
+            addr,
+            C::POST,
+            &format!("/cams/{SN}/depth"),
+            b"",
+            Some(23),
+        )
+        .await;
+        assert!(png.payload.starts_with(b"\x89PNG"));
+        let jpeg = send(
+            &c,
+            addr,
+            C::POST,
+            &format!("/cams/{SN}/color"),
+            b"",
+            Some(22),
+        )
+        .await;
+        assert!(jpeg.payload.starts_with(&[0xff, 0xd8]));
+    });
+}
+
+#[test]
+fn json_resources_refuse_bad_documents_and_survive_a_restart() {
+    let state = TempDir::new("cams-json");
+    let app_config = format!("/cams/{SN}/application-config");
+    let custom = r#"{"roi2d": {"px": 10, "py": 20, "width": 300, "height": 200},
+        "roi3d": {"min_x": -0.5, "max_x": 0.5, "min_y": -0.5, "max_y": 0.5, "min_z": -0.1, "max_z": 0.5},
+        "depth_grab_timeout_ms": 5000, "color_grab_timeout_ms": 4000, "icp": 0,
+        "postprocessing": {"decimation": 1, "spatial": 0, "holefilling": 0}}"#;
+    let (first_doc, color_doc) = {
+        let (_server, addr) = serve(state.path());
+        runtime().block_on(async {
+            let c = client();
+            let put = |path: String, body: String| {
+                let c = &c;
+                async move { send(c, addr, Code::PUT, &path, body.as_bytes(), None).await }
+            };
+            assert_eq!(
+                put(app_config.clone(), custom.to_string()).await.code,
+                Code::CHANGED
+            );
+            assert_eq!(
+                put(format!("/cams/{SN}/color-settings"), COLOR_640.to_string())
+                    .await
+                    .code,
+                Code::CHANGED
+            );
+            let before = send(&c, addr, Code::GET, &app_config, b"", None)
+                .await
+                .payload;
+            for (bad, field) in [
+                (custom.replace("\"icp\": 0", "\"icp\": 7"), "icp"),
+                (custom.replace("\"width\": 300", "\"width\": 0"), "roi2d"),
+                (custom.replace("\"max_z\": 0.5", "\"max_z\": -0.5"), "roi3d"),
+                ("not json".to_string(), "JSON"),
+            ] {
+                let r = put(app_config.clone(), bad).await;
+                assert_eq!(r.code, Code::BAD_REQUEST);
+                assert!(
+                    String::from_utf8_lossy(&r.payload).contains(field),
+                    "{:?}",
+                    r.payload
+                );
+                assert_eq!(
+                    send(&c, addr, Code::GET, &app_config, b"", None)
+                        .await
+                        .payload,
+                    before
+                );
+            }
+            for (name, bad) in [
+                (
+                    "color-settings",
+                    r#"{"format": "BGR8", "fps": 31, "width": 640, "height": 480}"#,
+                ),
+                (
+                    "depth-settings",
+                    r#"{"format": "Y8", "fps": 30, "width": 640, "height": 480}"#,
+                ),
+                ("3d-transformation", r#"{"rotation_matrix": 1}"#),
+                ("advanced-config", r#"{"no-such-key": "1"}"#),
+            ] {
+                let path = format!("/cams/{SN}/{name}");
+                let old = send(&c, addr, Code::GET, &path, b"", None).await.payload;
+                assert_eq!(
+                    put(path.clone(), bad.to_string()).await.code,
+                    Code::BAD_REQUEST,
+                    "{name}"
+                );
+                assert_eq!(
+                    send(&c, addr, Code::GET, &path, b"", None).await.payload,
+                    old,
+                    "{name}"
+                );
+            }
+            // roi2d crops the color image.
+            let r = send(
+                &c,
+                addr,
+                Code::POST,
+                &format!("/cams/{SN}/color"),
+                b"",
+                None,
+            )
+            .await;
+            assert_eq!(r.payload.len(), 10 + 300 * 200 * 3);
+            let color = send(
+                &c,
+                addr,
+                Code::GET,
+                &format!("/cams/{SN}/color-settings"),
+                b"",
+                None,
+            )
+            .await
+            .payload;
+            (before, color)
+        })
+    };
+    let (_server, addr) = serve(state.path());
+    runtime().block_on(async {
+        let c = client();
+        assert_eq!(
+            send(&c, addr, Code::GET, &app_config, b"", None)
+                .await
+                .payload,
+            first_doc
+        );
+        let color = send(
+            &c,
+            addr,
+            Code::GET,
+            &format!("/cams/{SN}/color-settings"),
+            b"",
+            None,
+        )
+        .await
+        .payload;
+        assert_eq!(color, color_doc);
+    });
+}
+
+#[test]
+fn packet_sizes_and_block2_grab_once() {
+    let state = TempDir::new("cams-sizes");
+    let (_server, addr) = serve(state.path());
+    runtime().block_on(async {
+        let c = client();
+        let color = format!("/cams/{SN}/color");
+        let r = send(
+            &c,
+            addr,
+            Code::PUT,
+            &format!("/cams/{SN}/color-settings"),
+            COLOR_640.as_bytes(),
+            None,
+        )
+        .await;
+        assert_eq!(r.code, Code::CHANGED);
+        let mut post = Request::new(Code::POST, &color);
+        post.block_szx = Some(4);
+        post.timeout = Some(LIMIT);
+        let grabbed = c.send(addr, post).await.expect("POST color");
+        assert_eq!(grabbed.payload.len(), 921_610);
+        assert_eq!(&grabbed.payload[..6], &[1, 0x02, 0x80, 0x01, 0xe0, 3]);
+        // The continuations came from the stored answer: the latest frame is that grab.
+        let latest = send(&c, addr, Code::GET, &color, b"", None).await;
+        assert_eq!(latest.options.etag(), grabbed.options.etag());
+        assert_eq!(latest.payload, grabbed.payload);
+
+        let cloud = send(
+            &c,
+            addr,
+            Code::POST,
+            &format!("/cams/{SN}/pointcloud"),
+            b"",
+            None,
+        )
+        .await;
+        let n = u32::from_be_bytes([
+            cloud.payload[4],
+            cloud.payload[5],
+            cloud.payload[6],
+            cloud.payload[7],
+        ]);
+        assert!(n > 0);
+        assert_eq!(cloud.payload.len(), 12 + 12 * n as usize);
+        let all = send(&c, addr, Code::POST, "/cams/pointclouds", b"", None).await;
+        let m = u32::from_be_bytes([
+            all.payload[4],
+            all.payload[5],
+            all.payload[6],
+            all.payload[7],
+        ]);
+        assert_eq!(all.payload.len(), 12 + 12 * m as usize);
+        assert!(m > 0);
+
+        let depth = send(
+            &c,
+            addr,
+            Code::POST,
+            &format!("/cams/{SN}/depth"),
+            b"",
+            None,
+        )
+        .await;
+        assert_eq!(depth.payload.len(), 14 + 1280 * 720 * 2);
+    });
+}
