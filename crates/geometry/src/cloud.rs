@@ -46,11 +46,6 @@ impl PointCloud {
         }
         merged
     }
-
-    /// Drops every point with a NaN or infinite coordinate.
-    pub fn retain_finite(&mut self) {
-        self.points.retain(is_finite);
-    }
 }
 
 impl From<Vec<Point3>> for PointCloud {

@@ -242,7 +242,8 @@ pub fn icp(
         }
     }
 
-    let pairs = pair_up(&source, &index, &target64, &estimate, max_sq, &normals);
+    // Fitness and RMSE count every pair within reach, with or without a target normal.
+    let pairs = pair_up(&source, &index, &target64, &estimate, max_sq, &[]);
     let (fitness, rmse_m) = if pairs.is_empty() {
         (0.0, 0.0)
     } else {
@@ -289,7 +290,12 @@ fn pair_up(
         .collect()
 }
 
-/// Kabsch: the rotation and translation minimising the summed squared pair distances.
+/// Relative size below which a singular value of the cross-covariance counts as zero;
+/// the points are `f32`, so collinearity is only resolvable to about `f32` precision.
+const RANK_TOLERANCE: f64 = 1e-6;
+
+/// Kabsch: the rotation and translation minimising the summed squared pair distances;
+/// `None` when the pairs lie on one line (or one point).
 fn point_to_point_step(pairs: &[Pair], target: &[Vector3<f64>]) -> Option<Isometry3<f64>> {
     let n = pairs.len() as f64;
     let (sum_s, sum_t) = pairs
@@ -303,6 +309,16 @@ fn point_to_point_step(pairs: &[Pair], target: &[Vector3<f64>]) -> Option<Isomet
         .map(|pair| (pair.source - mean_s) * (target[pair.target] - mean_t).transpose())
         .sum();
     let svd = h.svd(true, true);
+    // Pairs on one line (rank 1) leave the rotation about that line arbitrary.
+    let mut sigma = [
+        svd.singular_values[0],
+        svd.singular_values[1],
+        svd.singular_values[2],
+    ];
+    sigma.sort_by(|a, b| b.total_cmp(a));
+    if !sigma[1].is_finite() || sigma[1] <= RANK_TOLERANCE * sigma[0] {
+        return None;
+    }
     let (u, v_t) = (svd.u?, svd.v_t?);
     let mut v = v_t.transpose();
     if (v * u.transpose()).determinant() < 0.0 {

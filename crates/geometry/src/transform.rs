@@ -261,9 +261,22 @@ impl From<Transformation> for RawTransformation {
     }
 }
 
+/// Rows shown by [`shape_of`]; the message stays short whatever the document holds.
+const SHAPE_ROWS_SHOWN: usize = 3;
+
+/// "3 rows of [3, 2, 3] entries"; beyond [`SHAPE_ROWS_SHOWN`] rows the rest is elided.
 fn shape_of(rows: &[Vec<f64>]) -> String {
-    let lens: Vec<String> = rows.iter().map(|r| r.len().to_string()).collect();
-    format!("{} rows of [{}] entries", rows.len(), lens.join(", "))
+    let lens: Vec<String> = rows
+        .iter()
+        .take(SHAPE_ROWS_SHOWN)
+        .map(|r| r.len().to_string())
+        .collect();
+    let more = if rows.len() > SHAPE_ROWS_SHOWN {
+        ", …"
+    } else {
+        ""
+    };
+    format!("{} rows of [{}{more}] entries", rows.len(), lens.join(", "))
 }
 
 fn parse_column(field: &'static str, rows: &[Vec<f64>]) -> Result<Vector3<f64>, TransformError> {

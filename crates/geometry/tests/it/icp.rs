@@ -179,3 +179,50 @@ fn icp_refuses_clouds_without_enough_points_or_pairs() {
         })
     ));
 }
+
+#[test]
+fn point_to_point_reports_degenerate_when_all_pairs_lie_on_one_line() {
+    // 50 points along a tilted line: the rotation about the line is undetermined.
+    let direction = Vector3::new(0.3_f32, -0.5, 0.8).normalize();
+    let line: PointCloud = (0..50)
+        .map(|i| geometry::Point3::from(direction * (i as f32 * 0.01)))
+        .collect();
+    let shifted = Isometry3::translation(0.002, -0.001, 0.003);
+    for max_iterations in [1, 2, 3, 7] {
+        let limited = IcpConfig {
+            max_iterations,
+            ..config(IcpMethod::PointToPoint)
+        };
+        for init in [Isometry3::identity(), shifted] {
+            assert!(
+                matches!(
+                    icp(&line, &line, &init, &limited),
+                    Err(IcpError::Degenerate { iteration: 1 })
+                ),
+                "{max_iterations} iterations from {init:?}: {:?}",
+                icp(&line, &line, &init, &limited)
+            );
+        }
+    }
+}
+
+#[test]
+fn point_to_plane_fitness_counts_pairs_whose_target_has_no_normal() {
+    // The scene plus a line of points 1 m away: the line's neighbourhoods are collinear,
+    // so its target points get no normal, yet they pair exactly with the source.
+    let (_, mut target) = views(5_000);
+    let scene_len = target.len();
+    target
+        .points
+        .extend((0..30).map(|i| geometry::Point3::new(1.0 + i as f32 * 0.01, 1.0, 1.0)));
+    let outcome = icp(
+        &target,
+        &target,
+        &Isometry3::identity(),
+        &config(IcpMethod::PointToPlane),
+    )
+    .expect("icp runs");
+    assert!(scene_len < target.len());
+    assert_eq!(outcome.fitness, 1.0, "{outcome:?}");
+    assert!(outcome.rmse_m < 1e-6, "{outcome:?}");
+}

@@ -184,6 +184,23 @@ fn rotation_matrix_of_wrong_size_is_refused_naming_the_field_and_the_shape() {
 }
 
 #[test]
+fn shape_error_of_a_huge_matrix_stays_under_300_bytes() {
+    let rows = vec!["[1,2]"; 100_000].join(",");
+    let json = format!(r#"{{"rotation_matrix":[{rows}],"translation_matrix":[[0],[0],[0]]}}"#);
+    assert!(json.len() > 500_000);
+    let text = refusal(&json).to_string();
+    assert!(text.len() < 300, "{} bytes: {text}", text.len());
+    assert!(
+        text.contains("100000 rows of [2, 2, 2, …] entries"),
+        "{text}"
+    );
+    let column =
+        format!(r#"{{"rotation_matrix":[[1,0,0],[0,1,0],[0,0,1]],"translation_matrix":[{rows}]}}"#);
+    let text = refusal(&column).to_string();
+    assert!(text.len() < 300, "{} bytes: {text}", text.len());
+}
+
+#[test]
 fn column_of_wrong_size_is_refused_naming_the_field() {
     let e = refusal(
         r#"{"rotation_matrix":[[1,0,0],[0,1,0],[0,0,1]],"translation_matrix":[[0],[0],[0]],"post_rotation_matrix":[[0,0,0]]}"#,
