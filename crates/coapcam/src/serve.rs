@@ -108,12 +108,15 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         }
     };
     tokio::pin!(stop);
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("installing the SIGTERM handler")?;
     let mut tick = tokio::time::interval(Duration::from_millis(200));
     // The camera tree lives as long as the server.
     let _cameras = cameras;
     loop {
         tokio::select! {
             _ = tokio::signal::ctrl_c() => break,
+            _ = terminate.recv() => break,
             () = &mut stop => break,
             Some(path) = changed_rx.recv() => {
                 server.notify(&path).await;

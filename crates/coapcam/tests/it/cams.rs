@@ -49,6 +49,11 @@ const LIMIT: Duration = Duration::from_secs(60);
 
 /// A server on an ephemeral port of 127.0.0.1 with its state in `state`.
 fn serve(state: &Path) -> (Server, SocketAddr) {
+    serve_with(state, &[])
+}
+
+/// As [`serve`], with more flags.
+fn serve_with(state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
     let dir = state.to_string_lossy().into_owned();
     let mut child = Command::new(COAPCAM)
         .args([
@@ -60,6 +65,7 @@ fn serve(state: &Path) -> (Server, SocketAddr) {
             "--duration",
             "120",
         ])
+        .args(extra)
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -472,5 +478,111 @@ fn packet_sizes_and_block2_grab_once() {
         )
         .await;
         assert_eq!(depth.payload.len(), 14 + 1280 * 720 * 2);
+    });
+}
+
+/// Two calibrated, noise-free cameras looking at one box from opposite sides.
+const TWO_CAMERAS: &str = r#"
+seed = 3
+[floor]
+z = 0.0
+color = [120, 120, 120]
+
+[[camera]]
+serial = "111111111111"
+position = [0.6, 0.0, 1.0]
+look_at = [0.0, 0.0, 0.0]
+noise = "ideal"
+calibrated = true
+
+[[camera]]
+serial = "222222222222"
+position = [-0.6, 0.0, 1.0]
+look_at = [0.0, 0.0, 0.0]
+noise = "ideal"
+calibrated = true
+
+[[box]]
+size = [0.40, 0.30, 0.20]
+center = [0.0, 0.0]
+yaw_deg = 15.0
+color = [180, 140, 90]
+"#;
+
+fn point_count(packet: &[u8]) -> usize {
+    assert_eq!(packet.get(..2), Some(&[3u8, 12][..]), "point-cloud header");
+    let n = u32::from_be_bytes([packet[4], packet[5], packet[6], packet[7]]) as usize;
+    assert_eq!(packet.len(), 12 + 12 * n);
+    n
+}
+
+#[test]
+fn pointclouds_merges_every_camera_of_a_scene_and_notifies_observers() {
+    let state = TempDir::new("cams-scene");
+    let scene = state.path().join("two.toml");
+    std::fs::write(&scene, TWO_CAMERAS).expect("scene file");
+    let (_server, addr) = serve_with(state.path(), &["--scene", &scene.to_string_lossy()]);
+    runtime().block_on(async {
+        let c = client();
+        let mut single = 0;
+        for sn in ["111111111111", "222222222222"] {
+            let put = send(
+                &c,
+                addr,
+                Code::PUT,
+                &format!("/cams/{sn}/depth-settings"),
+                DEPTH_640.as_bytes(),
+                None,
+            )
+            .await;
+            assert_eq!(put.code, Code::CHANGED);
+            let cloud = send(
+                &c,
+                addr,
+                Code::POST,
+                &format!("/cams/{sn}/pointcloud"),
+                b"",
+                None,
+            )
+            .await;
+            let n = point_count(&cloud.payload);
+            assert!(n > 0, "camera {sn} sees nothing");
+            single += n;
+        }
+        let all = send(&c, addr, Code::POST, "/cams/pointclouds", b"", None).await;
+        assert_eq!(all.code, Code::CONTENT);
+        assert_eq!(point_count(&all.payload), single);
+
+        // ICP on the second camera registers its cloud; it keeps every point.
+        let path = "/cams/222222222222/application-config";
+        let doc = send(&c, addr, Code::GET, path, b"", None).await.payload;
+        let text = String::from_utf8_lossy(&doc).replace("\"icp\": 0", "\"icp\": 1");
+        assert_eq!(
+            send(&c, addr, Code::PUT, path, text.as_bytes(), None)
+                .await
+                .code,
+            Code::CHANGED
+        );
+        let registered = send(&c, addr, Code::POST, "/cams/pointclouds", b"", None).await;
+        assert_eq!(point_count(&registered.payload), single);
+
+        // An observer of a grab resource hears of each new grab (a 4.04 before the first
+        // grab would end the observation, RFC 7641 §3.2).
+        let depth = "/cams/111111111111/depth";
+        let before = send(&c, addr, Code::POST, depth, b"", None).await;
+        let mut register = Request::new(Code::GET, depth);
+        register.timeout = Some(LIMIT);
+        let mut observation = c.observe(addr, register).await.expect("observe");
+        match tokio::time::timeout(LIMIT, observation.next()).await {
+            Ok(Some(Ok(r))) => assert_eq!(r.options.etag(), before.options.etag()),
+            other => panic!("no first observe response: {other:?}"),
+        }
+        let grabbed = send(&c, addr, Code::POST, depth, b"", None).await;
+        assert_eq!(grabbed.payload.len(), 14 + 640 * 480 * 2);
+        let note = tokio::time::timeout(LIMIT, observation.next()).await;
+        match note {
+            Ok(Some(Ok(r))) => assert_eq!(r.options.etag(), grabbed.options.etag()),
+            other => panic!("no notification after a grab: {other:?}"),
+        }
     });
 }
