@@ -5,7 +5,8 @@
 //! D400 advanced-mode key set of librealsense's JSON loader; values are checked by
 //! kind (number, `"True"`/`"False"`, laser state, stream format). A document sent to
 //! a camera may be partial: like `rs2_load_json`, only the given keys change. The
-//! newer `{"parameters": {...}}` wrapper that realsense-viewer writes is accepted too.
+//! newer `{"parameters": {...}}` wrapper that realsense-viewer writes is accepted too;
+//! next to `parameters` only its `device` and `schema version` keys may appear (ignored).
 //!
 //! Key spellings: a camera answers with the 92 keys of Listing A.5, spelled as
 //! librealsense spells them. Four keys of the thesis listing are spelled differently
@@ -237,6 +238,9 @@ fn same_field(key: &str) -> Option<&'static str> {
     })
 }
 
+/// The keys realsense-viewer writes next to `parameters` (only `parameters` is read).
+const WRAPPER_KEYS: [&str; 2] = ["device", "schema version"];
+
 /// Why an advanced-config document was refused. `Display` is the 4.00 diagnostic.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
@@ -244,17 +248,30 @@ pub enum AdvancedError {
     /// Not valid JSON.
     #[error("advanced-config: not JSON: {0}")]
     Json(String),
-    /// Valid JSON but not an object of key -> string.
+    /// Valid JSON but not an object of key -> string (or `parameters` is not one).
     #[error("advanced-config: the document must be a JSON object of key -> string")]
     NotAnObject,
+    /// A top-level key next to `parameters` other than `device` and `schema version`.
+    #[error(
+        "advanced-config: \"{}\" next to \"parameters\" is not allowed; allowed: \"device\", \"schema version\"",
+        crate::echo(.0)
+    )]
+    UnknownWrapperKey(String),
     /// A key outside the D400 advanced-mode key set.
-    #[error("advanced-config: \"{0}\" is not a D400 advanced-mode key")]
+    #[error("advanced-config: \"{}\" is not a D400 advanced-mode key", crate::echo(.0))]
     UnknownKey(String),
     /// A value that is not a JSON string.
-    #[error("advanced-config: value of \"{0}\" must be a JSON string such as \"400\"")]
+    #[error(
+        "advanced-config: value of \"{}\" must be a JSON string such as \"400\"",
+        crate::echo(.0)
+    )]
     NotAString(String),
     /// A value of the wrong shape or range.
-    #[error("advanced-config: \"{key}\" = \"{value}\" is not allowed; expected {expected}")]
+    #[error(
+        "advanced-config: \"{}\" = \"{}\" is not allowed; expected {expected}",
+        crate::echo(.key),
+        crate::echo(.value)
+    )]
     BadValue {
         /// The key.
         key: String,
@@ -272,7 +289,11 @@ pub enum AdvancedError {
         other: String,
     },
     /// A preset name that does not exist.
-    #[error("unknown visual preset \"{0}\"; allowed: {names}", names = VisualPreset::names())]
+    #[error(
+        "unknown visual preset \"{}\"; allowed: {names}",
+        crate::echo(.0),
+        names = VisualPreset::names()
+    )]
     UnknownPreset(String),
 }
 
@@ -293,7 +314,13 @@ impl AdvancedConfig {
             return Err(AdvancedError::NotAnObject);
         };
         // realsense-viewer's newer wrapper: {"device": {...}, "parameters": {...}, "schema version": 1}
-        if let Some(serde_json::Value::Object(params)) = map.remove("parameters") {
+        if let Some(params) = map.remove("parameters") {
+            let serde_json::Value::Object(params) = params else {
+                return Err(AdvancedError::NotAnObject);
+            };
+            if let Some(key) = map.keys().find(|k| !WRAPPER_KEYS.contains(&k.as_str())) {
+                return Err(AdvancedError::UnknownWrapperKey(key.clone()));
+            }
             map = params;
         }
         let mut config = Self::default();

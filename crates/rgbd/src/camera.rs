@@ -19,7 +19,7 @@ pub struct Serial([u8; 12]);
 
 /// Why a text is not a serial number.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("serial number must be 12 ASCII digits, got {0:?}")]
+#[error("serial number must be 12 ASCII digits, got {:?}", crate::echo(.0))]
 pub struct SerialError(pub String);
 
 impl Serial {

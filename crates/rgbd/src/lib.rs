@@ -25,6 +25,26 @@ pub mod mode;
 pub mod scene;
 pub mod settings;
 
+/// Longest client string, in characters, that an error message echoes (DESIGN §2.3: a
+/// short diagnostic).
+const ECHO_CHARS: usize = 64;
+
+/// Longest parser description, in characters, that an error message carries.
+const MESSAGE_CHARS: usize = 200;
+
+/// `s` as an error message echoes it: at most [`ECHO_CHARS`] characters, then "…".
+pub(crate) fn echo(s: &str) -> std::borrow::Cow<'_, str> {
+    clip(s, ECHO_CHARS)
+}
+
+/// At most `max` characters of `s`, then "…" when anything was cut.
+fn clip(s: &str, max: usize) -> std::borrow::Cow<'_, str> {
+    match s.char_indices().nth(max) {
+        None => std::borrow::Cow::Borrowed(s),
+        Some((end, _)) => std::borrow::Cow::Owned(format!("{}…", &s[..end])),
+    }
+}
+
 pub use advanced::{AdvancedConfig, AdvancedError, VisualPreset};
 pub use backend::synthetic::SyntheticCamera;
 pub use camera::{

@@ -43,7 +43,11 @@ pub struct ResolutionModes {
 #[non_exhaustive]
 pub enum ModeError {
     /// The format name is not one of the stream's formats.
-    #[error("{} format \"{format}\" is not offered; allowed: {allowed}", .stream.name())]
+    #[error(
+        "{} format \"{}\" is not offered; allowed: {allowed}",
+        .stream.name(),
+        crate::echo(.format)
+    )]
     UnknownFormat {
         /// The stream.
         stream: Stream,

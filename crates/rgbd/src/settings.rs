@@ -15,7 +15,7 @@ use crate::mode::{ModeError, ModeTable, Stream};
 pub enum SettingsError {
     /// Not JSON of the expected shape (missing or unknown field, wrong type); the
     /// message names the field.
-    #[error("{stream} settings: {message}")]
+    #[error("{stream} settings: {}", crate::clip(.message, crate::MESSAGE_CHARS))]
     Json {
         /// "color" or "depth".
         stream: &'static str,

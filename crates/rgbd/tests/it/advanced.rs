@@ -203,3 +203,42 @@ fn a_camera_loads_partial_documents_and_reports_complete_ones() {
     ));
     assert_eq!(cam.depth_settings().fps, 15);
 }
+
+#[test]
+fn parameters_wrapper_must_hold_an_object_and_no_other_top_level_keys() {
+    assert_eq!(
+        AdvancedConfig::from_json(br#"{"parameters": 5}"#),
+        Err(AdvancedError::NotAnObject)
+    );
+    let e = AdvancedConfig::from_json(
+        br#"{"parameters": {"param-depthunits": "1000"}, "param-zunits": "100"}"#,
+    )
+    .unwrap_err();
+    assert_eq!(e, AdvancedError::UnknownWrapperKey("param-zunits".into()));
+    assert!(e.to_string().contains("\"param-zunits\""), "{e}");
+    let doc = AdvancedConfig::from_json(
+        br#"{"device": {"name": "Intel RealSense D415"}, "parameters": {"param-depthunits": "1000"}, "schema version": 1}"#,
+    )
+    .expect("viewer wrapper loads");
+    assert_eq!(doc.depth_units_um(), Some(1000));
+}
+
+#[test]
+fn advanced_config_errors_echo_at_most_64_characters_of_client_strings() {
+    let huge = "x".repeat(300_000);
+    let docs = [
+        format!(r#"{{"{huge}": "1"}}"#),
+        format!(r#"{{"{huge}": 1}}"#),
+        format!(r#"{{"param-depthunits": "{huge}"}}"#),
+        format!(r#"{{"parameters": {{}}, "{huge}": 1}}"#),
+    ];
+    for doc in docs {
+        let text = AdvancedConfig::from_json(doc.as_bytes())
+            .unwrap_err()
+            .to_string();
+        assert!(text.len() < 300, "{} bytes: {}", text.len(), &text[..300]);
+        assert!(text.contains(&format!("{}…", "x".repeat(64))), "{text}");
+    }
+    let text = VisualPreset::from_name(&huge).unwrap_err().to_string();
+    assert!(text.len() < 300, "{} bytes", text.len());
+}

@@ -183,3 +183,28 @@ fn a_camera_refuses_settings_outside_its_table_and_keeps_the_old_ones() {
     assert_eq!((k.width, k.height), (640, 360));
     assert_eq!(cam.render_depth(1).data.len(), 640 * 360);
 }
+
+#[test]
+fn unknown_format_error_echoes_at_most_64_characters_of_the_name() {
+    let huge = "Y".repeat(300_000);
+    let t = ModeTable::d415();
+    for e in [
+        t.color_format(&huge).unwrap_err(),
+        t.depth_format(&huge).unwrap_err(),
+    ] {
+        let text = e.to_string();
+        assert!(text.len() < 300, "{} bytes", text.len());
+        assert!(text.contains(&format!("\"{}…\"", "Y".repeat(64))), "{text}");
+    }
+}
+
+#[test]
+fn settings_json_error_of_a_huge_unknown_key_stays_under_300_bytes() {
+    let huge = "k".repeat(300_000);
+    let doc =
+        format!(r#"{{"{huge}": 1, "format": "Z16", "fps": 30, "width": 848, "height": 480}}"#);
+    let text = DepthSettings::from_json(doc.as_bytes(), &ModeTable::d415())
+        .unwrap_err()
+        .to_string();
+    assert!(text.len() < 300, "{} bytes", text.len());
+}
