@@ -254,11 +254,6 @@ impl CameraHub {
         self.lock().cameras.keys().copied().collect()
     }
 
-    /// The connected cameras, by ascending serial.
-    pub fn cameras(&self) -> Vec<Arc<dyn Camera>> {
-        self.lock().cameras.values().cloned().collect()
-    }
-
     /// A receiver of hub events. It first receives `Added` for every camera already
     /// connected, then every later change, so a subscriber never misses a camera.
     /// Dropping the receiver unsubscribes.

@@ -108,8 +108,10 @@ impl ColorFrame {
             return None;
         }
         let bpp = self.format.bytes_per_pixel();
-        let start = y as usize * self.stride + x as usize * bpp;
-        let px = self.data.get(start..start + bpp)?;
+        let start = (y as usize)
+            .checked_mul(self.stride)?
+            .checked_add((x as usize).checked_mul(bpp)?)?;
+        let px = self.data.get(start..start.checked_add(bpp)?)?;
         Some(match self.format {
             ColorFormat::Rgb8 | ColorFormat::Rgba8 => [px[0], px[1], px[2]],
             ColorFormat::Bgr8 | ColorFormat::Bgra8 => [px[2], px[1], px[0]],
@@ -145,9 +147,10 @@ impl DepthFrame {
         if x >= self.width || y >= self.height {
             return None;
         }
-        self.data
-            .get(y as usize * self.stride + x as usize)
-            .copied()
+        let index = (y as usize)
+            .checked_mul(self.stride)?
+            .checked_add(x as usize)?;
+        self.data.get(index).copied()
     }
 
     /// Depth in metres at pixel (`x`, `y`); `None` outside the image or where the

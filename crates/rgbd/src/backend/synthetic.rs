@@ -129,11 +129,6 @@ impl SyntheticCamera {
         self.state.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// How this camera renders depth.
-    pub fn noise(&self) -> Noise {
-        self.noise
-    }
-
     /// Simulates plugging the camera in (`true`) or pulling it out (`false`).
     pub fn set_connected(&self, connected: bool) {
         self.lock().connected = connected;

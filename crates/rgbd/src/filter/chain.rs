@@ -469,7 +469,7 @@ impl PostProcessing {
         let mutable: Option<&'a mut DepthFrame> = match spatial {
             Some((to_disparity, filter, to_depth)) => {
                 let disparity = to_disparity.process(current, &k)?;
-                filter.apply(disparity);
+                filter.apply(disparity)?;
                 Some(to_depth.process(disparity))
             }
             None => None,

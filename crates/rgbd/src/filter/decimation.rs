@@ -50,12 +50,6 @@ impl Decimation {
         })
     }
 
-    /// The magnitude `s`.
-    pub fn magnitude(&self) -> u8 {
-        // new() bounds it to 1..=8.
-        self.magnitude as u8
-    }
-
     /// Size of the output for a `width` x `height` input: (data size, padded size).
     pub fn output_size(&self, width: u32, height: u32) -> ((u32, u32), (u32, u32)) {
         let (w, h) = (width / self.magnitude, height / self.magnitude);

@@ -44,15 +44,6 @@ impl HoleFillingMode {
         Self::NearestFromAround,
     ];
 
-    /// librealsense's option value (0, 1, 2).
-    pub fn option_value(self) -> u8 {
-        match self {
-            Self::FillFromLeft => 0,
-            Self::FarestFromAround => 1,
-            Self::NearestFromAround => 2,
-        }
-    }
-
     /// The name the configuration uses ("fill_from_left", ...).
     pub fn name(self) -> &'static str {
         match self {

@@ -53,6 +53,18 @@ pub enum FilterError {
         /// Values the frame holds.
         len: usize,
     },
+    /// A disparity frame's buffer is shorter than `width * height`.
+    #[error("disparity frame {width}x{height} needs {needed} values, it holds {len}")]
+    DisparitySize {
+        /// Frame width, pixels.
+        width: u32,
+        /// Frame height, pixels.
+        height: u32,
+        /// Values a frame of this size needs.
+        needed: usize,
+        /// Values the frame holds.
+        len: usize,
+    },
     /// The intrinsics describe an image of another size than the frame.
     #[error("intrinsics are for {k_width}x{k_height} but the frame is {width}x{height}")]
     IntrinsicsSize {

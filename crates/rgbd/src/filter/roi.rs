@@ -53,11 +53,6 @@ impl RoiCrop {
         }
     }
 
-    /// The window this crop keeps.
-    pub fn roi(&self) -> Roi2 {
-        self.roi
-    }
-
     /// The window of `frame` (compact rows) and its intrinsics; fails when the window
     /// does not lie inside the frame.
     pub fn process(
@@ -78,9 +73,11 @@ impl RoiCrop {
             });
         }
         shape_output(&mut self.out, frame, r.width, r.height);
-        let (w, px, stride) = (r.width as usize, r.px as usize, frame.stride.max(1));
-        let src = &frame.data[r.py as usize * stride..];
+        let (w, px, stride) = (r.width as usize, r.px as usize, frame.stride);
+        // A window of width 0 copies nothing; one of width > 0 lies in a frame of that
+        // width, whose rows `check_frame` has found in `data`.
         if w > 0 {
+            let src = &frame.data[r.py as usize * stride..];
             self.out
                 .data
                 .par_chunks_mut(w * ROWS_PER_TASK)

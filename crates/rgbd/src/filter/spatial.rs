@@ -230,20 +230,25 @@ impl SpatialFilter {
         })
     }
 
-    /// The filter's parameters.
-    pub fn params(&self) -> SpatialParams {
-        self.params
-    }
-
-    /// Filters `disparity` in place.
-    pub fn apply(&mut self, disparity: &mut DisparityFrame) {
+    /// Filters `disparity` in place; fails when its data is shorter than
+    /// `width * height`.
+    pub fn apply(&mut self, disparity: &mut DisparityFrame) -> Result<(), FilterError> {
         let (w, h) = (disparity.width as usize, disparity.height as usize);
+        let needed = w.saturating_mul(h);
+        let len = disparity.data.len();
+        let Some(data) = disparity.data.get_mut(..needed) else {
+            return Err(FilterError::DisparitySize {
+                width: disparity.width,
+                height: disparity.height,
+                needed,
+                len,
+            });
+        };
         if w == 0 || h == 0 {
-            return;
+            return Ok(());
         }
         let alpha = self.params.alpha;
         let delta = f32::from(self.params.delta);
-        let data = &mut disparity.data[..w * h];
         for _ in 0..self.params.iterations {
             data.par_chunks_mut(w * ROWS_PER_TASK)
                 .for_each(|block| filter_rows(block, w, alpha, delta));
@@ -270,5 +275,6 @@ impl SpatialFilter {
                 .zip(next_firsts.par_iter())
                 .for_each(|(row, &next)| fill_row(row, next, radius));
         }
+        Ok(())
     }
 }

@@ -61,7 +61,10 @@ impl Threshold {
     /// Zeroes, in place, every pixel of `frame` outside the range.
     pub fn apply_in_place(&self, frame: &mut DepthFrame) -> Result<(), FilterError> {
         check_frame(frame, None)?;
-        let (width, stride, scale) = (frame.width as usize, frame.stride.max(1), frame.depth_scale);
+        if frame.width == 0 || frame.height == 0 {
+            return Ok(());
+        }
+        let (width, stride, scale) = (frame.width as usize, frame.stride, frame.depth_scale);
         let len = stride * frame.height as usize;
         frame.data[..len]
             .par_chunks_mut(stride * ROWS_PER_TASK)

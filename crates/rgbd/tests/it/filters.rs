@@ -2,10 +2,11 @@
 //! (Agreement with librealsense is tested in `librealsense.rs`.)
 
 use rgbd::filter::{
-    Decimation, FilterError, HoleFillingMode, PostProcessing, PostProcessingConfig,
-    PostProcessingError, Roi2, RoiCrop, Threshold,
+    Decimation, DisparityFrame, FilterError, HoleFilling, HoleFillingMode, PostProcessing,
+    PostProcessingConfig, PostProcessingError, Roi2, RoiCrop, SpatialFilter, SpatialParams,
+    Threshold,
 };
-use rgbd::{Deprojector, DepthFrame, Intrinsics, d415, deproject_frame};
+use rgbd::{ColorFormat, ColorFrame, Deprojector, DepthFrame, Intrinsics, d415, deproject_frame};
 
 fn frame(width: u32, height: u32, value: impl Fn(u32, u32) -> u16) -> DepthFrame {
     DepthFrame {
@@ -175,4 +176,103 @@ fn the_threshold_keeps_both_bounds() {
     let (out, _) = t.process(&f, &k).unwrap();
     assert_eq!(&out.data[..4], &[0, 500, 1000, 0]);
     assert!(Threshold::new(0.1, 17.0).is_err());
+}
+
+#[test]
+fn a_frame_of_width_0_and_stride_0_with_rows_but_no_data_is_filtered_without_panic() {
+    let empty = DepthFrame {
+        width: 0,
+        height: 7,
+        stride: 0,
+        depth_scale: DepthFrame::DEFAULT_DEPTH_SCALE,
+        timestamp_us: 0,
+        frame_number: 1,
+        data: Vec::new(),
+    };
+    let k = Intrinsics {
+        width: 0,
+        height: 7,
+        ..d415::depth_intrinsics(640, 360)
+    };
+    let threshold = Threshold::new(0.5, 1.0).unwrap();
+    let mut in_place = empty.clone();
+    assert_eq!(threshold.apply_in_place(&mut in_place), Ok(()));
+    assert_eq!(in_place, empty);
+    let mut copy = Threshold::new(0.5, 1.0).unwrap();
+    let (out, _) = copy.process(&empty, &k).unwrap();
+    assert_eq!((out.width, out.height, out.data.len()), (0, 7, 0));
+    for roi in [
+        Roi2 {
+            px: 0,
+            py: 3,
+            width: 0,
+            height: 4,
+        },
+        Roi2 {
+            px: 0,
+            py: 7,
+            width: 0,
+            height: 0,
+        },
+    ] {
+        let mut crop = RoiCrop::new(roi);
+        let (out, kc) = crop.process(&empty, &k).unwrap();
+        assert_eq!(
+            (out.width, out.height, kc.height),
+            (0, roi.height, roi.height)
+        );
+    }
+    let mut holes = HoleFilling::new(HoleFillingMode::FarestFromAround);
+    assert_eq!(holes.apply_in_place(&mut empty.clone()), Ok(()));
+}
+
+#[test]
+fn spatial_filter_refuses_disparity_data_shorter_than_width_times_height() {
+    let mut short = DisparityFrame {
+        width: 64,
+        height: 32,
+        depth_scale: DepthFrame::DEFAULT_DEPTH_SCALE,
+        factor: 1.0,
+        timestamp_us: 0,
+        frame_number: 1,
+        data: vec![100.0; 64 * 32 - 1],
+    };
+    let mut filter = SpatialFilter::new(SpatialParams::default()).unwrap();
+    assert_eq!(
+        filter.apply(&mut short),
+        Err(FilterError::DisparitySize {
+            width: 64,
+            height: 32,
+            needed: 2048,
+            len: 2047,
+        })
+    );
+    short.width = u32::MAX;
+    short.height = u32::MAX;
+    assert!(matches!(
+        filter.apply(&mut short),
+        Err(FilterError::DisparitySize { .. })
+    ));
+    short.data.resize(64 * 32, 100.0);
+    (short.width, short.height) = (64, 32);
+    assert_eq!(filter.apply(&mut short), Ok(()));
+}
+
+#[test]
+fn pixel_lookups_with_overflowing_stride_give_none() {
+    let mut depth = frame(4, 4, |_, _| 1000);
+    depth.stride = usize::MAX;
+    assert_eq!(depth.raw_at(0, 0), Some(1000));
+    assert_eq!(depth.raw_at(1, 3), None);
+    let color = ColorFrame {
+        width: 4,
+        height: 4,
+        stride: usize::MAX,
+        format: ColorFormat::Rgb8,
+        timestamp_us: 0,
+        frame_number: 1,
+        data: vec![7; 48],
+    };
+    assert_eq!(color.rgb_at(0, 0), Some([7, 7, 7]));
+    assert_eq!(color.rgb_at(3, 2), None);
 }

@@ -265,7 +265,8 @@ fn check_case(dir: &Path, case: &Case) -> Option<String> {
             let disparity = t.process(small, &k).unwrap();
             SpatialFilter::new(spatial_params(&case.params))
                 .unwrap()
-                .apply(disparity);
+                .apply(disparity)
+                .unwrap();
             same_disparity(case, &golden, disparity)
         }
         "chain" => {
