@@ -230,7 +230,8 @@ impl StaticFiles {
         let Ok(entries) = std::fs::read_dir(&self.dir) else {
             return changed;
         };
-        let mut present = Vec::new();
+        let mut present = std::collections::HashSet::new();
+        let routed: std::collections::HashSet<String> = router.patterns().into_iter().collect();
         for entry in entries.flatten() {
             let Ok(meta) = entry.metadata() else { continue };
             let Some(name) = entry.file_name().to_str().map(str::to_string) else {
@@ -239,7 +240,7 @@ impl StaticFiles {
             if !meta.is_file() || !valid_name(&name) {
                 continue;
             }
-            present.push(name.clone());
+            present.insert(name.clone());
             let path = format!("/files/{name}");
             let modified = meta.modified().ok();
             let known = self
@@ -260,7 +261,7 @@ impl StaticFiles {
                     changed.push(path.clone());
                 }
             }
-            if !router.patterns().contains(&path) {
+            if !routed.contains(&path) {
                 router.add(
                     &path,
                     self.resource(Some(name))
