@@ -294,6 +294,17 @@ impl SceneCamera {
     }
 }
 
+/// Largest coordinate magnitude of a position, point or direction, metres.
+pub const MAX_COORDINATE_M: f64 = 1000.0;
+/// Largest size (box edge, radius, height, label width), metres.
+pub const MAX_SIZE_M: f64 = 100.0;
+/// Most cameras in a scene.
+pub const MAX_CAMERAS: usize = 16;
+/// Most objects (boxes and cylinders together) in a scene.
+pub const MAX_OBJECTS: usize = 256;
+/// Longest label text, characters.
+pub const MAX_LABEL_CHARS: usize = 256;
+
 fn finite(field: &str, values: &[f64]) -> Result<(), SceneError> {
     if values.iter().all(|v| v.is_finite()) {
         Ok(())
@@ -302,13 +313,30 @@ fn finite(field: &str, values: &[f64]) -> Result<(), SceneError> {
     }
 }
 
-fn positive(field: &str, values: &[f64]) -> Result<(), SceneError> {
-    if values.iter().all(|v| v.is_finite() && *v > 0.0) {
+fn coordinates(field: &str, values: &[f64]) -> Result<(), SceneError> {
+    if values
+        .iter()
+        .all(|v| v.is_finite() && v.abs() <= MAX_COORDINATE_M)
+    {
         Ok(())
     } else {
         Err(invalid(
             field,
-            format!("must be positive (metres), got {values:?}"),
+            format!("must be finite numbers within ±{MAX_COORDINATE_M} m, got {values:?}"),
+        ))
+    }
+}
+
+fn positive(field: &str, values: &[f64]) -> Result<(), SceneError> {
+    if values
+        .iter()
+        .all(|v| v.is_finite() && *v > 0.0 && *v <= MAX_SIZE_M)
+    {
+        Ok(())
+    } else {
+        Err(invalid(
+            field,
+            format!("must be positive (metres) and at most {MAX_SIZE_M} m, got {values:?}"),
         ))
     }
 }
@@ -356,13 +384,26 @@ impl Scene {
 
     /// Checks every rule a scene file must follow.
     pub fn validate(&self) -> Result<(), SceneError> {
-        finite("floor.z", &[self.floor.z])?;
+        coordinates("floor.z", &[self.floor.z])?;
+        if self.cameras.len() > MAX_CAMERAS {
+            return Err(invalid(
+                "camera",
+                format!("at most {MAX_CAMERAS} cameras, got {}", self.cameras.len()),
+            ));
+        }
+        let objects = self.boxes.len().saturating_add(self.cylinders.len());
+        if objects > MAX_OBJECTS {
+            return Err(invalid(
+                "box, cylinder",
+                format!("at most {MAX_OBJECTS} boxes and cylinders together, got {objects}"),
+            ));
+        }
         for (i, c) in self.cameras.iter().enumerate() {
             let at = |f: &str| format!("camera[{i}].{f}");
-            finite(&at("position"), &c.position)?;
-            finite(&at("look_at"), &c.look_at)?;
+            coordinates(&at("position"), &c.position)?;
+            coordinates(&at("look_at"), &c.look_at)?;
             if let Some(up) = c.up {
-                finite(&at("up"), &up)?;
+                coordinates(&at("up"), &up)?;
             }
             if normalized(sub(c.look_at, c.position)).is_none() {
                 return Err(invalid(at("look_at"), "must differ from position"));
@@ -383,10 +424,17 @@ impl Scene {
         for (i, b) in self.boxes.iter().enumerate() {
             let at = |f: &str| format!("box[{i}].{f}");
             positive(&at("size"), &b.size)?;
-            finite(&at("center"), &b.center)?;
+            coordinates(&at("center"), &b.center)?;
             finite(&at("yaw_deg"), &[b.yaw_deg])?;
             if let Some(label) = &b.label {
                 positive(&at("label.size"), &[label.size])?;
+                let chars = label.text.chars().count();
+                if chars > MAX_LABEL_CHARS {
+                    return Err(invalid(
+                        at("label.text"),
+                        format!("at most {MAX_LABEL_CHARS} characters, got {chars}"),
+                    ));
+                }
                 let (lx, ly) = label.extent_m();
                 if lx > b.size[0] || ly > b.size[1] {
                     return Err(invalid(
@@ -405,7 +453,7 @@ impl Scene {
             let at = |f: &str| format!("cylinder[{i}].{f}");
             positive(&at("radius"), &[c.radius])?;
             positive(&at("height"), &[c.height])?;
-            finite(&at("center"), &c.center)?;
+            coordinates(&at("center"), &c.center)?;
         }
         Ok(())
     }

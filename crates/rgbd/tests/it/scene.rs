@@ -126,3 +126,59 @@ fn scene_parse_errors_are_clear() {
         Err(SceneError::Io { .. })
     ));
 }
+
+#[test]
+fn scene_bounds_coordinates_sizes_counts_and_label_text_naming_the_field() {
+    let far = DESIGN_EXAMPLE.replace("center = [0.3, -0.2]", "center = [0.3, -1000.5]");
+    let e = error_of(&far);
+    assert!(
+        e.starts_with("scene: cylinder[0].center: must be finite numbers within"),
+        "{e}"
+    );
+    let high = DESIGN_EXAMPLE.replace("position = [0.0, 0.0, 1.0]", "position = [0.0, 0.0, 1e6]");
+    assert!(error_of(&high).starts_with("scene: camera[0].position:"));
+
+    let huge = DESIGN_EXAMPLE.replace("size = [0.40, 0.30, 0.20]", "size = [0.40, 0.30, 100.5]");
+    let e = error_of(&huge);
+    assert!(e.starts_with("scene: box[0].size: must be positive"), "{e}");
+    assert!(e.contains("at most 100 m"), "{e}");
+
+    let mut scene = Scene::default_single();
+    scene.cameras = (0..17)
+        .map(|i| rgbd::scene::SceneCamera {
+            serial: rgbd::Serial::parse(&format!("{}", 840_412_060_000_u64 + i)).unwrap(),
+            ..scene.cameras[0].clone()
+        })
+        .collect();
+    let e = scene.validate().unwrap_err().to_string();
+    assert_eq!(e, "scene: camera: at most 16 cameras, got 17");
+
+    let mut scene = Scene::default_single();
+    scene.boxes = vec![scene.boxes[0].clone(); 200];
+    scene.cylinders = vec![
+        rgbd::scene::Cylinder {
+            radius: 0.1,
+            height: 0.2,
+            center: [0.0, 0.0],
+            color: [0, 0, 0],
+        };
+        57
+    ];
+    let e = scene.validate().unwrap_err().to_string();
+    assert_eq!(
+        e,
+        "scene: box, cylinder: at most 256 boxes and cylinders together, got 257"
+    );
+    scene.cylinders.pop();
+    scene.validate().unwrap();
+
+    let mut scene = Scene::default_single();
+    if let Some(label) = scene.boxes[0].label.as_mut() {
+        label.text = "A".repeat(257);
+    }
+    let e = scene.validate().unwrap_err().to_string();
+    assert_eq!(
+        e,
+        "scene: box[0].label.text: at most 256 characters, got 257"
+    );
+}
