@@ -461,22 +461,41 @@ impl fmt::Display for AdvancedConfig {
 }
 
 /// Formats like a C++ `std::ostream` with its default precision (`%g`, 6 significant
-/// digits), which is how librealsense writes advanced-mode values.
+/// digits), which is how librealsense writes advanced-mode values: `%e` rounding to 6
+/// digits decides the exponent X; for -4 <= X < 6 fixed notation, otherwise
+/// `d.ddddde±XX`; trailing zeros (and a trailing point) removed. Non-finite values
+/// (never in a preset table) print as Rust prints them.
 fn format_g6(v: f64) -> String {
+    const PRECISION: i32 = 6;
     if v == 0.0 {
         return "0".to_owned();
     }
-    let exponent = v.abs().log10().floor();
-    if !(-5.0..6.0).contains(&exponent) {
+    if !v.is_finite() {
         return format!("{v}");
     }
-    // exponent is in -5..=5, so the cast is exact and decimals is in 0..=10.
-    let decimals = (5 - exponent as i32).max(0) as usize;
-    let fixed = format!("{v:.decimals$}");
-    if fixed.contains('.') {
-        fixed.trim_end_matches('0').trim_end_matches('.').to_owned()
+    let scientific = format!("{v:.*e}", (PRECISION - 1) as usize);
+    let Some((mantissa, exponent)) = scientific.split_once('e') else {
+        return scientific;
+    };
+    let Ok(exponent) = exponent.parse::<i32>() else {
+        return scientific;
+    };
+    if (-4..PRECISION).contains(&exponent) {
+        // exponent is in -4..=5, so decimals is in 0..=9.
+        let decimals = (PRECISION - 1 - exponent) as usize;
+        trim_zeros(&format!("{v:.decimals$}")).to_owned()
     } else {
-        fixed
+        let sign = if exponent < 0 { '-' } else { '+' };
+        format!("{}e{sign}{:02}", trim_zeros(mantissa), exponent.abs())
+    }
+}
+
+/// `1.500` -> `1.5`, `2.000` -> `2`; text without a decimal point is returned as is.
+fn trim_zeros(text: &str) -> &str {
+    if text.contains('.') {
+        text.trim_end_matches('0').trim_end_matches('.')
+    } else {
+        text
     }
 }
 
@@ -857,6 +876,18 @@ mod tests {
         assert_eq!(format_g6(65536.0), "65536");
         assert_eq!(format_g6(-0.553711), "-0.553711");
         assert_eq!(format_g6(0.0458984), "0.0458984");
+    }
+
+    #[test]
+    fn g6_switches_to_exponent_notation_like_c_printf() {
+        assert_eq!(format_g6(0.0001), "0.0001");
+        assert_eq!(format_g6(0.0000123), "1.23e-05");
+        assert_eq!(format_g6(999_999.0), "999999");
+        assert_eq!(format_g6(999_999.7), "1e+06");
+        assert_eq!(format_g6(1_234_567.0), "1.23457e+06");
+        assert_eq!(format_g6(-2.5e-7), "-2.5e-07");
+        assert_eq!(format_g6(1e100), "1e+100");
+        assert_eq!(format_g6(0.5), "0.5");
     }
 
     #[test]

@@ -11,8 +11,9 @@ use serde::{Deserialize, Serialize};
 pub enum DistortionModel {
     /// Rectilinear image, no distortion.
     None,
-    /// Forward Brown-Conrady applied to the already distorted image
-    /// (cannot be deprojected).
+    /// Forward Brown-Conrady applied to the already distorted image. librealsense's
+    /// release builds deproject it as a plain pinhole (skipping their debug assertion),
+    /// and so does this crate.
     ModifiedBrownConrady,
     /// Inverse Brown-Conrady (librealsense's label for D400 color streams).
     InverseBrownConrady,
@@ -56,12 +57,16 @@ pub struct Intrinsics {
     pub coeffs: [f32; 5],
 }
 
-/// Why a point could not be turned into a pixel.
+/// Why a point could not be projected to a pixel.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 #[non_exhaustive]
-pub enum DeprojectError {
-    /// The intrinsics use a distortion this crate does not project through.
-    #[error("projection with the {} model and non-zero coefficients is not supported", .0.name())]
+pub enum ProjectError {
+    /// The intrinsics are not pinhole: a Brown model with non-zero coefficients, or
+    /// Kannala-Brandt (whatever its coefficients).
+    #[error(
+        "projection through the {} distortion model is not supported (only pinhole: model None, or a Brown model with all coefficients zero)",
+        .0.name()
+    )]
     UnsupportedDistortion(DistortionModel),
 }
 
@@ -92,9 +97,9 @@ impl Intrinsics {
 
     /// The pixel at which `point` (metres, camera frame, z > 0) is seen; same
     /// arithmetic as `rs2_project_point_to_pixel` for pinhole intrinsics.
-    pub fn project(&self, point: [f32; 3]) -> Result<[f32; 2], DeprojectError> {
+    pub fn project(&self, point: [f32; 3]) -> Result<[f32; 2], ProjectError> {
         if !self.is_pinhole() {
-            return Err(DeprojectError::UnsupportedDistortion(self.model));
+            return Err(ProjectError::UnsupportedDistortion(self.model));
         }
         let x = point[0] / point[2];
         let y = point[1] / point[2];
@@ -192,9 +197,30 @@ mod tests {
         k.coeffs[0] = 0.1;
         assert_eq!(
             k.project([0.0, 0.0, 1.0]),
-            Err(DeprojectError::UnsupportedDistortion(
+            Err(ProjectError::UnsupportedDistortion(
                 DistortionModel::InverseBrownConrady
             ))
+        );
+    }
+
+    #[test]
+    fn kannala_brandt_is_refused_even_with_zero_coefficients_and_modified_brown_deprojects_as_pinhole()
+     {
+        let mut k = pinhole();
+        k.model = DistortionModel::KannalaBrandt4;
+        let e = k.project([0.0, 0.0, 1.0]).unwrap_err();
+        assert_eq!(
+            e,
+            ProjectError::UnsupportedDistortion(DistortionModel::KannalaBrandt4)
+        );
+        assert!(e.to_string().starts_with("projection through the"), "{e}");
+        assert!(!e.to_string().contains("non-zero coefficients is"), "{e}");
+        let mut m = pinhole();
+        m.model = DistortionModel::ModifiedBrownConrady;
+        m.coeffs[0] = 0.1;
+        assert_eq!(
+            m.deproject([100.0, 50.0], 2.0),
+            pinhole().deproject([100.0, 50.0], 2.0)
         );
     }
 

@@ -53,7 +53,7 @@ pub use camera::{
 pub use deproject::{Deprojector, deproject_frame};
 pub use filter::{FilterError, PostProcessing, PostProcessingConfig};
 pub use frame::{ColorFormat, ColorFrame, DepthFormat, DepthFrame};
-pub use intrinsics::{DeprojectError, DistortionModel, Extrinsics, Intrinsics, Pose};
+pub use intrinsics::{DistortionModel, Extrinsics, Intrinsics, Pose, ProjectError};
 pub use mode::{ModeError, ModeTable, ResolutionModes, Stream};
 pub use scene::{Scene, SceneError};
 pub use settings::{ColorSettings, DepthSettings, SettingsError};
