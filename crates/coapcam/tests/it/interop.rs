@@ -893,3 +893,121 @@ fn aiocoap_client_our_server_netem_10pct_loss_2764810_bytes() {
     }
     their_lossy(TheirClient::Aiocoap, LOSSY_FULL, 42, LOSSY_LONG);
 }
+
+// ---------------------------------------------------------------------------------------
+// libcoap's client -> the camera resource tree of `coapcam serve` (thesis Table 3.1)
+
+/// `coap-client-notls ARGS... URI` with `-v 6`, returning the codes of the responses it
+/// printed (`c:2.05`) and what it wrote to standard output.
+fn libcoap_codes(args: &[&str], uri: &str) -> (Vec<String>, String) {
+    let mut all = vec!["-v", "6", "-B", "30"];
+    all.extend_from_slice(args);
+    all.push(uri);
+    let f = Proc::run(LIBCOAP_CLIENT, &all, BULK);
+    let text = format!("{}{}", f.stdout_text(), f.stderr);
+    let codes = text
+        .split_whitespace()
+        .filter_map(|w| w.strip_prefix("c:"))
+        .filter(|c| c.starts_with(['2', '4', '5']) && c.get(1..2) == Some("."))
+        .map(str::to_string)
+        .collect();
+    (codes, text)
+}
+
+#[test]
+fn libcoap_client_drives_the_camera_api() {
+    if !peers::available("libcoap_client_drives_the_camera_api", &[Peer::Libcoap]) {
+        return;
+    }
+    let dir = TempDir::new("cams-lc");
+    let state = dir.join("state");
+    let state = state.to_str().expect("UTF-8 path");
+    let mut server = Proc::spawn(
+        COAPCAM,
+        &[
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--state-dir",
+            state,
+            "--duration",
+            "120",
+        ],
+    );
+    let addr = server.stderr_line(QUICK, |l| {
+        l.strip_prefix("coapcam: serving on ")
+            .and_then(|a| a.trim().parse::<std::net::SocketAddr>().ok())
+    });
+    let sn = "840412060746";
+    let base = format!("coap://{addr}");
+
+    // Discovery with a filter finds the camera's grab resource.
+    let (codes, text) = libcoap_codes(&[], &format!("{base}/.well-known/core?rt=rgbd.color"));
+    assert!(codes.iter().any(|c| c == "2.05"), "{text}");
+    assert!(text.contains(&format!("</cams/{sn}/color>")), "{text}");
+
+    // A creation resource: 2.01 with Location-Path for a connected serial, 4.00 otherwise.
+    let (codes, text) = libcoap_codes(&["-m", "post", "-e", sn], &format!("{base}/cams/color"));
+    assert_eq!(codes, ["2.01"], "{text}");
+    assert!(text.contains("Location-Path:cams"), "{text}");
+    let (codes, text) = libcoap_codes(
+        &["-m", "post", "-e", "12345"],
+        &format!("{base}/cams/color"),
+    );
+    assert_eq!(codes, ["4.00"], "{text}");
+
+    // A grab, block-wise: the thesis packet of a 1280x720 BGR8 frame.
+    let color = dir.join("color.bin");
+    let color_arg = color.to_str().expect("UTF-8 path");
+    let (codes, text) = libcoap_codes(
+        &["-m", "post", "-b", "1024", "-o", color_arg],
+        &format!("{base}/cams/{sn}/color"),
+    );
+    assert!(codes.iter().all(|c| c == "2.05"), "{text}");
+    assert_eq!(
+        std::fs::metadata(&color).map(|m| m.len()).ok(),
+        Some(2_764_810)
+    );
+
+    // A bad PUT changes nothing; a good one switches the mode: 921,610 bytes at 640x480.
+    let settings = format!("{base}/cams/{sn}/color-settings");
+    let (codes, text) = libcoap_codes(&["-m", "put", "-e", r#"{"fps": 7}"#], &settings);
+    assert_eq!(codes, ["4.00"], "{text}");
+    let vga = r#"{"format": "BGR8", "fps": 30, "width": 640, "height": 480}"#;
+    let (codes, text) = libcoap_codes(&["-m", "put", "-e", vga], &settings);
+    assert_eq!(codes, ["2.04"], "{text}");
+    let (codes, text) = libcoap_codes(
+        &["-m", "post", "-b", "1024", "-o", color_arg],
+        &format!("{base}/cams/{sn}/color"),
+    );
+    assert!(codes.iter().all(|c| c == "2.05"), "{text}");
+    assert_eq!(
+        std::fs::metadata(&color).map(|m| m.len()).ok(),
+        Some(921_610)
+    );
+
+    // Every camera's cloud, merged: 12 + 12 x points.
+    let cloud = dir.join("cloud.bin");
+    let (codes, text) = libcoap_codes(
+        &[
+            "-m",
+            "post",
+            "-b",
+            "1024",
+            "-o",
+            cloud.to_str().expect("UTF-8 path"),
+        ],
+        &format!("{base}/cams/pointclouds"),
+    );
+    assert!(codes.iter().all(|c| c == "2.05"), "{text}");
+    let len = std::fs::metadata(&cloud).map(|m| m.len()).unwrap_or(0);
+    assert!(
+        len > 12 && (len - 12) % 12 == 0,
+        "point cloud of {len} bytes"
+    );
+
+    // A method Table 3.1 marks "-": 4.05.
+    let (codes, text) = libcoap_codes(&["-m", "delete"], &format!("{base}/cams/pointclouds"));
+    assert_eq!(codes, ["4.05"], "{text}");
+    drop(server);
+}
