@@ -1002,7 +1002,7 @@ fn libcoap_client_drives_the_camera_api() {
     assert!(codes.iter().all(|c| c == "2.05"), "{text}");
     let len = std::fs::metadata(&cloud).map(|m| m.len()).unwrap_or(0);
     assert!(
-        len > 12 && (len - 12) % 12 == 0,
+        len > 12 && (len - 12).is_multiple_of(12),
         "point cloud of {len} bytes"
     );
 
