@@ -62,6 +62,7 @@ if ! command -v ip >/dev/null; then
     apt-get install -y --no-install-recommends iproute2
 fi
 scripts/netns-run cargo test -p coap-net --test it --locked multicast -- --ignored
+scripts/netns-run cargo test -p coapcam --test it --locked group -- --ignored
 
 step "fuzz targets build and replay their seeds"
 bash scripts/fuzz-build.sh

@@ -98,13 +98,15 @@ impl Client {
     }
 
     /// Sends a request to a multicast group and collects every server's response until the
-    /// request's timeout (5 s when unset).
+    /// request's timeout (5 s when unset). An answer sent block-wise is completed by
+    /// unicast requests to its server.
     pub async fn multicast(
         &self,
         group: SocketAddr,
         mut request: Request,
     ) -> Result<Vec<(SocketAddr, Response)>, Error> {
         request.multicast = true;
+        let follow_up = request.clone();
         let (tx, mut rx) = mpsc::unbounded_channel();
         self.handle.send(Command::Request {
             peer: group,
@@ -119,7 +121,59 @@ impl Client {
                 StreamItem::Failed(e) => return Err(Error::Request(e)),
             }
         }
+        for (peer, response) in &mut out {
+            self.rest_of_blocks(*peer, &follow_up, response).await?;
+        }
         Ok(out)
+    }
+
+    /// A multicast answer that came as Block2 block 0 with more to follow: the other
+    /// blocks are asked of that server by unicast (RFC 7959 §2.8 with RFC 7390), one
+    /// after the other, and must carry the first block's ETag.
+    async fn rest_of_blocks(
+        &self,
+        peer: SocketAddr,
+        original: &Request,
+        response: &mut Response,
+    ) -> Result<(), Error> {
+        let Some(first) = response.options.block2().filter(|b| b.more && b.num == 0) else {
+            return Ok(());
+        };
+        let etag = response.options.etag().map(<[u8]>::to_vec);
+        let mut body = response.payload.to_vec();
+        let mut block = first;
+        while block.more {
+            let mut next = original.clone();
+            next.multicast = false;
+            next.payload = bytes::Bytes::new();
+            let num = u32::try_from(body.len() / block.size()).map_err(|_| {
+                Error::Request(coap::RequestError::Protocol("block number out of range"))
+            })?;
+            let opt = coap::BlockOpt {
+                num,
+                more: false,
+                szx: block.szx,
+            };
+            next.options.set_block(coap::OptionNumber::BLOCK2, opt);
+            let r = self.send(peer, next).await?;
+            let got = r
+                .options
+                .block2()
+                .filter(|b| b.num == num && r.code.is_success());
+            let Some(got) = got else {
+                return Err(Error::Request(coap::RequestError::Protocol(
+                    "a multicast follow-up lost its Block2",
+                )));
+            };
+            if r.options.etag().map(<[u8]>::to_vec) != etag {
+                return Err(Error::Request(coap::RequestError::RepresentationChanged));
+            }
+            body.extend_from_slice(&r.payload);
+            block = got;
+        }
+        response.options.remove(coap::OptionNumber::BLOCK2);
+        response.payload = body.into();
+        Ok(())
     }
 
     /// A CoAP ping: `Ok` when the peer answers the empty CON.
