@@ -13,7 +13,7 @@ use coap_net::Client;
 const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
 
 /// A running `coapcam serve`, killed on drop.
-struct Server(Child);
+pub(crate) struct Server(Child);
 
 impl Drop for Server {
     fn drop(&mut self) {
@@ -23,17 +23,17 @@ impl Drop for Server {
 }
 
 /// A fresh temporary directory, removed on drop.
-struct TempDir(PathBuf);
+pub(crate) struct TempDir(PathBuf);
 
 impl TempDir {
-    fn new(tag: &str) -> Self {
+    pub(crate) fn new(tag: &str) -> Self {
         let dir = std::env::temp_dir().join(format!("coapcam-{tag}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).expect("temporary directory");
         Self(dir)
     }
 
-    fn path(&self) -> &Path {
+    pub(crate) fn path(&self) -> &Path {
         &self.0
     }
 }
@@ -54,12 +54,17 @@ fn serve(state: &Path) -> (Server, SocketAddr) {
 
 /// As [`serve`], with more flags.
 fn serve_with(state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
+    serve_at("127.0.0.1:0", state, extra)
+}
+
+/// A server bound to `bind` with its state in `state` and more flags.
+pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
     let dir = state.to_string_lossy().into_owned();
     let mut child = Command::new(COAPCAM)
         .args([
             "serve",
             "--bind",
-            "127.0.0.1:0",
+            bind,
             "--state-dir",
             &dir,
             "--duration",

@@ -4,22 +4,13 @@
 //! server's own address. Runs only inside `scripts/netns-run` (a private namespace), which
 //! `scripts/test.sh` uses; `#[ignore]`d elsewhere.
 
-use std::io::{BufRead as _, BufReader};
 use std::net::SocketAddr;
-use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
 use coap::{Code, EndpointConfig, Request};
 use coap_net::Client;
 
-struct Server(Child);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
+use crate::cams::{Server, TempDir, serve_at};
 
 fn scene(serial: &str) -> String {
     format!(
@@ -46,39 +37,13 @@ color = [180, 140, 90]
 }
 
 fn start(host: u8, dir: &std::path::Path) -> Server {
-    let serial = format!("{host:012}");
     let scene_file = dir.join(format!("scene-{host}.toml"));
-    std::fs::write(&scene_file, scene(&serial)).expect("writing the scene");
+    std::fs::write(&scene_file, scene(&format!("{host:012}"))).expect("writing the scene");
+    let scene_arg = scene_file.to_str().expect("UTF-8 path");
     let state = dir.join(format!("state-{host}"));
-    let mut child = Command::new(env!("CARGO_BIN_EXE_coapcam"))
-        .args([
-            "serve",
-            "--bind",
-            &format!("127.0.0.{host}:5683"),
-            "--group",
-            "224.0.1.187",
-        ])
-        .args(["--duration", "120", "--scene"])
-        .arg(&scene_file)
-        .arg("--state-dir")
-        .arg(&state)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting coapcam serve");
-    let stderr = child.stderr.take().expect("stderr pipe");
-    let server = Server(child);
-    // The server prints its address once the socket is bound and the group joined; it
-    // stops by itself after --duration, which bounds this read.
-    let mut lines = BufReader::new(stderr).lines();
-    let seen = lines
-        .by_ref()
-        .map_while(Result::ok)
-        .any(|l| l.starts_with("coapcam: serving on "));
-    assert!(seen, "coapcam serve on 127.0.0.{host} did not start");
-    std::thread::spawn(move || lines.for_each(drop));
-    server
+    let bind = format!("127.0.0.{host}:5683");
+    let extra = ["--group", "224.0.1.187", "--scene", scene_arg];
+    serve_at(&bind, &state, &extra).0
 }
 
 #[test]
@@ -90,9 +55,8 @@ fn multicast_grab_of_three_servers_in_one_group() {
         );
         return;
     }
-    let dir = std::env::temp_dir().join(format!("coapcam-group-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    let _servers: Vec<Server> = [2u8, 3, 4].iter().map(|h| start(*h, &dir)).collect();
+    let dir = TempDir::new("group");
+    let _servers: Vec<Server> = [2u8, 3, 4].iter().map(|h| start(*h, dir.path())).collect();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -137,5 +101,4 @@ fn multicast_grab_of_three_servers_in_one_group() {
             "{peer}: the whole cloud arrived"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
