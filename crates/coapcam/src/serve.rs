@@ -16,7 +16,7 @@ use coap_net::router::check_preconditions;
 use coap_net::{Ctx, Resource, Router, Server, ServerConfig, handler};
 use tokio::sync::mpsc;
 
-use rgbd::{CameraHub, Scene, SyntheticCamera};
+use rgbd::{Camera as _, CameraHub, Scene, SyntheticCamera};
 
 use crate::cams::Cams;
 use crate::transmission::TransmissionArgs;
@@ -151,8 +151,20 @@ fn start_cameras(
     let hub = Arc::new(CameraHub::new());
     let cams = Cams::start(hub.clone(), router.clone(), &state_dir, changed)
         .context("starting the camera hub listener")?;
+    let mut expected = Vec::new();
     for camera in SyntheticCamera::all(&scene).context("building the scene's cameras")? {
+        expected.push(format!("/cams/{}/color", camera.serial()));
         hub.add(camera).context("adding a camera")?;
+    }
+    // The hub listener registers per-camera resources on its own thread: announce the
+    // server only once every camera of the scene is routed, so a client that starts at
+    // "serving on" never sees a 4.04 for a camera that is there.
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while !expected.iter().all(|p| router.patterns().contains(p)) {
+        if std::time::Instant::now() > deadline {
+            bail!("the scene's camera resources did not appear within 10 s");
+        }
+        std::thread::sleep(Duration::from_millis(2));
     }
     Ok((hub, cams))
 }
