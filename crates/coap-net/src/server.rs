@@ -218,7 +218,15 @@ async fn serve(
                     let id = request.id;
                     let multicast = request.multicast;
                     let registration = request.observe.map(|obs| (obs, request.clone()));
+                    let (peer, method) = (request.peer, request.method);
+                    let path = request.options.path_string();
                     let response = router.dispatch(request).await;
+                    if response.code.is_error() {
+                        let diagnostic = String::from_utf8_lossy(&response.payload);
+                        tracing::warn!(%peer, %method, %path, code = %response.code, %diagnostic, "request refused");
+                    } else {
+                        tracing::debug!(%peer, %method, %path, code = %response.code, bytes = response.payload.len(), "request");
+                    }
                     if let Some((obs, request)) = registration
                         && response.options.contains(OptionNumber::OBSERVE)
                     {

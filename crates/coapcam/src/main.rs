@@ -42,7 +42,18 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    match run(Cli::parse()) {
+    let cli = Cli::parse();
+    // Logs go to standard error: warnings by default (a refused request, a failed grab);
+    // RUST_LOG=debug adds every request the server answers.
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .init();
+    match run(cli) {
         Ok(true) => ExitCode::SUCCESS,
         // The command printed why (e.g. the response code and its diagnostic).
         Ok(false) => ExitCode::from(2),
