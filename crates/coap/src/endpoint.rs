@@ -820,7 +820,8 @@ impl Endpoint {
         }
     }
 
-    fn step_message(&mut self, r: &ClientRequest) -> Message {
+    /// The message of the request's current step, with message ID `mid`.
+    fn step_message(r: &ClientRequest, mid: u16) -> Message {
         let mut options = r.req.options.clone();
         let mut payload = Bytes::new();
         match r.step {
@@ -875,7 +876,7 @@ impl Endpoint {
         Message {
             ty,
             code: r.req.method,
-            message_id: self.next_mid(),
+            message_id: mid,
             token: r.token,
             options,
             payload,
@@ -883,11 +884,11 @@ impl Endpoint {
     }
 
     fn send_step(&mut self, now: Instant, id: u64) {
-        let Some(r) = self.requests.remove(&id) else {
+        let mid = self.next_mid();
+        let Some(mut r) = self.requests.remove(&id) else {
             return;
         };
-        let msg = self.step_message(&r);
-        let mut r = r;
+        let msg = Self::step_message(&r, mid);
         r.generation += 1;
         let mid = msg.message_id;
         if r.req.multicast {
@@ -942,11 +943,11 @@ impl Endpoint {
             } if tx < max => {
                 // A NON request gets no ACK; resend it (new message ID, same token) on
                 // the same back-off schedule a CON would use.
-                let mut msg = self.step_message_for(id);
+                let mid = self.next_mid();
                 let Some(r) = self.requests.get_mut(&id) else {
                     return;
                 };
-                msg.token = r.token;
+                let msg = Self::step_message(r, mid);
                 r.waiting = Waiting::Response {
                     non_tx: Some(tx + 1),
                     mid: msg.message_id,
@@ -957,17 +958,6 @@ impl Endpoint {
                 self.schedule(now + t, TimerKind::Step { id, generation });
             }
             _ => self.step_failed(now, id, RequestError::Timeout),
-        }
-    }
-
-    fn step_message_for(&mut self, id: u64) -> Message {
-        match self.requests.remove(&id) {
-            Some(r) => {
-                let msg = self.step_message(&r);
-                self.requests.insert(id, r);
-                msg
-            }
-            None => Message::empty(Type::Non, 0),
         }
     }
 
