@@ -2,10 +2,11 @@
 //!
 //! Owns: point clouds in metres, the 3D transformation of thesis Listing A.4 and its JSON
 //! document, the 3D region of interest, merging, voxel downsampling, ICP registration and
-//! parcel dimensioning (DESIGN.md §5, §6).
+//! parcel dimensioning (DESIGN.md §5, §6), and the binary PLY encoding of clouds.
 //!
-//! Must not: know about CoAP, cameras or files; read clocks; spawn threads of its own
-//! (data-parallel loops run on the caller's rayon pool). Everything here is synchronous and
+//! Must not: know about CoAP, cameras or the file system (PLY goes through `io::Write`);
+//! read clocks; spawn threads of its own (data-parallel loops run on the caller's rayon
+//! pool). Everything here is synchronous and
 //! works in metres (`f32` points, `f64` where sums or documents need the precision).
 
 #![forbid(unsafe_code)]
@@ -14,6 +15,7 @@ pub mod cloud;
 pub mod dimension;
 pub mod icp;
 mod index;
+pub mod ply;
 pub mod roi;
 pub mod transform;
 pub mod voxel;
@@ -21,6 +23,7 @@ pub mod voxel;
 pub use cloud::PointCloud;
 pub use dimension::{DimensionConfig, DimensionError, Dimensions, dimension};
 pub use icp::{IcpConfig, IcpError, IcpMethod, IcpOutcome, icp};
+pub use ply::{PlyError, decode_ply, encode_ply, write_ply};
 pub use roi::{Roi3, RoiError};
 pub use transform::{Transform, TransformError, Transformation};
 pub use voxel::{VoxelError, voxel_downsample};
