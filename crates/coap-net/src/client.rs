@@ -103,7 +103,18 @@ impl Client {
     pub async fn multicast(
         &self,
         group: SocketAddr,
+        request: Request,
+    ) -> Result<Vec<(SocketAddr, Response)>, Error> {
+        self.multicast_expecting(group, request, None).await
+    }
+
+    /// [`Client::multicast`] that stops collecting as soon as `expected` servers have
+    /// answered (or at the timeout, whichever comes first).
+    pub async fn multicast_expecting(
+        &self,
+        group: SocketAddr,
         mut request: Request,
+        expected: Option<usize>,
     ) -> Result<Vec<(SocketAddr, Response)>, Error> {
         request.multicast = true;
         let follow_up = request.clone();
@@ -119,6 +130,9 @@ impl Client {
             match item {
                 StreamItem::Response(peer, r) => out.push((peer, r)),
                 StreamItem::Failed(e) => return Err(Error::Request(e)),
+            }
+            if expected.is_some_and(|n| out.len() >= n) {
+                break;
             }
         }
         for (peer, response) in &mut out {

@@ -3,10 +3,15 @@
 #![forbid(unsafe_code)]
 
 mod cams;
+mod client;
+mod grab_cmd;
+mod measure;
 mod netem;
+mod packet;
 mod request;
 mod serve;
 mod transmission;
+mod view;
 
 use std::process::ExitCode;
 
@@ -34,6 +39,11 @@ enum Command {
     Delete(request::RequestArgs),
     /// List a server's resources (/.well-known/core), or every server in a multicast group.
     Discover(request::DiscoverArgs),
+    /// Grab one new frame into a file (.png, .jpg, .ply or .bin), optionally with a picture
+    /// for people (--view).
+    Grab(grab_cmd::GrabArgs),
+    /// Measure the largest parcel below the cameras: length, width, height in millimetres.
+    Measure(measure::MeasureArgs),
     /// Run the CoAP server.
     Serve(serve::ServeArgs),
     /// Relay UDP between clients and a server over an emulated link (loss, delay, jitter,
@@ -76,6 +86,8 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         Command::Put(args) => return runtime.block_on(request::run(coap::Code::PUT, args)),
         Command::Delete(args) => return runtime.block_on(request::run(coap::Code::DELETE, args)),
         Command::Discover(args) => return runtime.block_on(request::discover(args)),
+        Command::Grab(args) => return runtime.block_on(grab_cmd::run(args)),
+        Command::Measure(args) => return runtime.block_on(measure::run(args)),
         Command::Serve(args) => runtime.block_on(serve::run(args))?,
         Command::Netem(args) => {
             let json = args.json;

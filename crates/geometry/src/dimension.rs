@@ -9,7 +9,10 @@
 //! within `top_band_m` below it. On a box this is the median of the lid, which is unbiased
 //! by depth noise, where a plain quantile would read about two noise deviations high.
 
+use std::num::NonZeroUsize;
+
 use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point};
+use rayon::prelude::*;
 
 use crate::cloud::is_finite;
 use crate::index::Index;
@@ -28,10 +31,18 @@ pub struct DimensionConfig {
     pub top_band_m: f32,
     /// Fewer points in the largest cluster is an error (at least 3).
     pub min_points: usize,
+    /// Depth of the band below the height whose points make the footprint (metres, > 0):
+    /// the upper surface, as the thesis measures it. Points lower down (sides seen at an
+    /// angle, flying pixels between an edge and the floor) lie outside a parcel's lid.
+    pub lid_band_m: f32,
+    /// A lid point with fewer other lid points than this within three typical point
+    /// spacings is a flying pixel and not part of the footprint.
+    pub min_neighbours: usize,
 }
 
 impl Default for DimensionConfig {
-    /// 1 cm above the floor, 2 cm cluster radius, 99 % quantile, 1 cm top band, 50 points.
+    /// 1 cm above the floor, 2 cm cluster radius, 99 % quantile, 1 cm top band, 50 points,
+    /// a 2 cm lid band, 4 neighbours.
     fn default() -> Self {
         Self {
             min_height_m: 0.01,
@@ -39,6 +50,8 @@ impl Default for DimensionConfig {
             height_quantile: 0.99,
             top_band_m: 0.01,
             min_points: 50,
+            lid_band_m: 0.02,
+            min_neighbours: 4,
         }
     }
 }
@@ -119,6 +132,11 @@ impl DimensionConfig {
                 "a finite number of metres >= 0",
             ),
             (self.min_points >= 3, "min_points", "at least 3"),
+            (
+                self.lid_band_m.is_finite() && self.lid_band_m > 0.0,
+                "lid_band_m",
+                "a positive finite number of metres",
+            ),
         ];
         match checks.into_iter().find(|(ok, _, _)| !ok) {
             None => Ok(()),
@@ -148,8 +166,12 @@ pub fn dimension(
         });
     }
     let height_m = robust_height(&cluster, config);
+    let lid = lid(&cluster, height_m, config)?;
+    if lid.len() < 3 {
+        return Err(DimensionError::Footprint);
+    }
 
-    let footprint: MultiPoint<f64> = cluster
+    let footprint: MultiPoint<f64> = lid
         .iter()
         .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
         .collect();
@@ -215,6 +237,43 @@ fn largest_cluster(points: &[Point3], radius_m: f32) -> Result<Vec<Point3>, Dime
     }
     best.sort_unstable();
     Ok(best.into_iter().map(|i| points[i]).collect())
+}
+
+/// Points of the cluster in the lid band below `height_m` that have at least
+/// `min_neighbours` other lid points within three typical point spacings (the median
+/// distance from a lid point to its nearest neighbour, over a sample).
+fn lid(
+    cluster: &[Point3],
+    height_m: f32,
+    config: &DimensionConfig,
+) -> Result<Vec<Point3>, DimensionError> {
+    let floor = (height_m - config.lid_band_m).max(config.min_height_m);
+    let band: Vec<Point3> = cluster.iter().copied().filter(|p| p.z >= floor).collect();
+    if band.len() < 2 || config.min_neighbours == 0 {
+        return Ok(band);
+    }
+    let index = Index::new(&band).map_err(|e| DimensionError::TooManyPoints { points: e.0 })?;
+    const SAMPLES: usize = 1000;
+    let step = (band.len() / SAMPLES).max(1);
+    let two = NonZeroUsize::new(2).unwrap_or(NonZeroUsize::MIN);
+    let mut spacing: Vec<f32> = band
+        .iter()
+        .step_by(step)
+        .filter_map(|p| {
+            let near = index.nearest_n(p, two);
+            near.get(1).map(|&j| (band[j] - p).norm())
+        })
+        .collect();
+    spacing.sort_unstable_by(f32::total_cmp);
+    let Some(median) = spacing.get(spacing.len() / 2) else {
+        return Ok(band);
+    };
+    let radius = 3.0 * median.max(1e-4);
+    Ok(band
+        .par_iter()
+        .filter(|p| index.within(p, radius).len() > config.min_neighbours)
+        .copied()
+        .collect())
 }
 
 /// Median z of the points within `top_band_m` below the `height_quantile` quantile of z.

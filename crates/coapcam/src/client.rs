@@ -1,0 +1,263 @@
+//! The typed camera client: what `grab`, `measure`, `monitor` and `demo` ask of a
+//! coapcam server (the resource API of DESIGN.md §5), over one `coap_net::Client`.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use anyhow::{Context as _, bail};
+use bytes::Bytes;
+use coap::link_format;
+use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
+use coap_net::{Client, Uri};
+
+/// What a grab resource produces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Stream {
+    /// The color image.
+    Color,
+    /// The depth image.
+    Depth,
+    /// The point cloud.
+    Pointcloud,
+}
+
+impl Stream {
+    /// The resource name under `/cams/<sn>/`.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Self::Color => "color",
+            Self::Depth => "depth",
+            Self::Pointcloud => "pointcloud",
+        }
+    }
+}
+
+/// A client of one coapcam server.
+pub(crate) struct CamClient {
+    client: Client,
+    server: SocketAddr,
+    timeout: Duration,
+}
+
+impl CamClient {
+    /// A client for the server at `uri` (`coap://host[:port]`); every request gives up
+    /// after `timeout`.
+    pub(crate) async fn connect(
+        uri: &str,
+        config: EndpointConfig,
+        timeout: Duration,
+    ) -> anyhow::Result<Self> {
+        let uri = Uri::parse(uri)?;
+        let server = uri
+            .resolve()
+            .await
+            .with_context(|| format!("resolving {}", uri.host))?;
+        let client = Client::for_peer(server, config).context("binding the client socket")?;
+        Ok(Self {
+            client,
+            server,
+            timeout,
+        })
+    }
+
+    /// A client for requests to the multicast group `group` (answers come from each
+    /// server's unicast address).
+    pub(crate) fn for_group(
+        group: SocketAddr,
+        config: EndpointConfig,
+        timeout: Duration,
+    ) -> anyhow::Result<Self> {
+        let client = Client::for_peer(group, config).context("binding the client socket")?;
+        Ok(Self {
+            client,
+            server: group,
+            timeout,
+        })
+    }
+
+    /// A client of `server` sharing `other`'s socket and timeout.
+    pub(crate) fn unicast(other: &Self, server: SocketAddr) -> Self {
+        Self {
+            client: other.client.clone(),
+            server,
+            timeout: other.timeout,
+        }
+    }
+
+    /// The server's address.
+    pub(crate) fn server(&self) -> SocketAddr {
+        self.server
+    }
+
+    /// The underlying CoAP client (for multicast requests).
+    pub(crate) fn coap(&self) -> &Client {
+        &self.client
+    }
+
+    /// Sends `method path` and returns the response if it is a 2.xx whose body arrived
+    /// whole; any other code becomes an error carrying the code and the diagnostic.
+    pub(crate) async fn call(
+        &self,
+        method: Code,
+        path: &str,
+        payload: Bytes,
+        content_format: Option<ContentFormat>,
+        accept: Option<ContentFormat>,
+    ) -> anyhow::Result<Response> {
+        let request = self.request(method, path, payload, content_format, accept);
+        let what = format!("{} {path}", method.name().unwrap_or("request"));
+        let response = self
+            .client
+            .send(self.server, request)
+            .await
+            .with_context(|| format!("{what} on {}", self.server))?;
+        check(&what, response)
+    }
+
+    /// The request `call` sends, for callers that send it themselves (multicast).
+    pub(crate) fn request(
+        &self,
+        method: Code,
+        path: &str,
+        payload: Bytes,
+        content_format: Option<ContentFormat>,
+        accept: Option<ContentFormat>,
+    ) -> Request {
+        let mut request = Request::new(method, path).with_payload(payload);
+        request.timeout = Some(self.timeout);
+        if let Some(cf) = content_format {
+            request
+                .options
+                .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
+        }
+        if let Some(cf) = accept {
+            request
+                .options
+                .set_uint(OptionNumber::ACCEPT, u32::from(cf.0));
+        }
+        request
+    }
+
+    /// The serials of the server's cameras, from discovery (`rt=rgbd.color`), sorted.
+    pub(crate) async fn cameras(&self) -> anyhow::Result<Vec<String>> {
+        let mut request = Request::new(Code::GET, "/.well-known/core");
+        request
+            .options
+            .push(OptionNumber::URI_QUERY, b"rt=rgbd.color");
+        request.timeout = Some(self.timeout);
+        let response = self
+            .client
+            .send(self.server, request)
+            .await
+            .with_context(|| format!("discovering the cameras of {}", self.server))?;
+        let response = check("discovery", response)?;
+        let text = std::str::from_utf8(&response.payload)
+            .context("the link-format document is not UTF-8")?;
+        let mut serials: Vec<String> = link_format::parse(text)
+            .context("parsing the link-format document")?
+            .into_iter()
+            .filter_map(|l| {
+                let rest = l.target.strip_prefix("/cams/")?;
+                let (sn, name) = rest.split_once('/')?;
+                (name == "color").then(|| sn.to_owned())
+            })
+            .collect();
+        serials.sort();
+        serials.dedup();
+        Ok(serials)
+    }
+
+    /// The camera to use: `camera` if given, else the server's only camera.
+    pub(crate) async fn one_camera(&self, camera: Option<&str>) -> anyhow::Result<String> {
+        if let Some(sn) = camera {
+            return Ok(sn.to_owned());
+        }
+        let serials = self.cameras().await?;
+        match serials.as_slice() {
+            [one] => Ok(one.clone()),
+            [] => bail!("{} has no camera", self.server),
+            many => bail!(
+                "{} has {} cameras ({}); choose one with --camera",
+                self.server,
+                many.len(),
+                many.join(", ")
+            ),
+        }
+    }
+
+    /// GET a camera's JSON document (`color-settings`, `application-config`, ...).
+    pub(crate) async fn get_json(
+        &self,
+        serial: &str,
+        name: &str,
+    ) -> anyhow::Result<serde_json::Value> {
+        let r = self
+            .call(
+                Code::GET,
+                &format!("/cams/{serial}/{name}"),
+                Bytes::new(),
+                None,
+                None,
+            )
+            .await?;
+        serde_json::from_slice(&r.payload).with_context(|| format!("parsing {name} of {serial}"))
+    }
+
+    /// PUT a camera's JSON document.
+    pub(crate) async fn put_json(
+        &self,
+        serial: &str,
+        name: &str,
+        doc: &serde_json::Value,
+    ) -> anyhow::Result<()> {
+        self.call(
+            Code::PUT,
+            &format!("/cams/{serial}/{name}"),
+            Bytes::from(doc.to_string()),
+            Some(ContentFormat::JSON),
+            None,
+        )
+        .await?;
+        Ok(())
+    }
+
+    /// Grabs a new frame of one camera (POST), in the representation `accept` (the
+    /// thesis packet when `None`).
+    pub(crate) async fn grab(
+        &self,
+        serial: &str,
+        stream: Stream,
+        accept: Option<ContentFormat>,
+    ) -> anyhow::Result<Response> {
+        let path = format!("/cams/{serial}/{}", stream.name());
+        self.call(Code::POST, &path, Bytes::new(), None, accept)
+            .await
+    }
+
+    /// Grabs every camera of the server and merges their clouds (POST /cams/pointclouds).
+    pub(crate) async fn grab_all(&self, accept: Option<ContentFormat>) -> anyhow::Result<Response> {
+        self.call(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept)
+            .await
+    }
+}
+
+/// `response` if it is a 2.xx whose body is as long as its Size2 says.
+pub(crate) fn check(what: &str, response: Response) -> anyhow::Result<Response> {
+    if !response.code.is_success() {
+        let diagnostic = String::from_utf8_lossy(&response.payload);
+        bail!(
+            "{what}: {}{}{diagnostic}",
+            response.code,
+            if diagnostic.is_empty() { "" } else { ": " }
+        );
+    }
+    if let Some(size2) = response.options.uint(OptionNumber::SIZE2)
+        && size2 as usize != response.payload.len()
+    {
+        bail!(
+            "{what}: incomplete body: the server announced {size2} bytes (Size2), {} arrived",
+            response.payload.len()
+        );
+    }
+    Ok(response)
+}
