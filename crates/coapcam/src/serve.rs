@@ -82,7 +82,16 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let cameras = if args.no_cameras {
         None
     } else {
-        Some(start_cameras(&args, &router, changed_tx.clone())?)
+        let scene = match &args.scene {
+            Some(path) => {
+                Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
+            }
+            None => Scene::default_single(),
+        };
+        let state_dir = args.state_dir.clone().unwrap_or_else(default_state_dir);
+        let (hub, cams) = start_hub(&state_dir, &router, changed_tx.clone())?;
+        load_scene(&hub, &router, &scene)?;
+        Some((hub, cams))
     };
     let config = ServerConfig {
         endpoint: args.transmission.endpoint_config(),
@@ -133,40 +142,110 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The cameras of the scene in a hub, and the `/cams` tree following it.
-fn start_cameras(
-    args: &ServeArgs,
+/// A server of a scene's synthetic cameras on one address, answering until dropped
+/// (`demo`, `bench accuracy`); [`SceneServer::load`] swaps the scene's cameras.
+pub(crate) struct SceneServer {
+    server: Arc<Server>,
+    hub: Arc<CameraHub>,
+    _cams: Arc<Cams>,
+    notifier: tokio::task::JoinHandle<()>,
+}
+
+impl SceneServer {
+    /// Serves `scene` on `bind` (port 0 picks a free one), persisting configuration in
+    /// `state_dir`.
+    pub(crate) async fn start(
+        scene: &Scene,
+        state_dir: &Path,
+        bind: SocketAddr,
+    ) -> anyhow::Result<Self> {
+        let router = Router::new();
+        let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
+        let (hub, cams) = start_hub(state_dir, &router, changed_tx)?;
+        load_scene(&hub, &router, scene)?;
+        let server = Arc::new(
+            Server::bind(&[bind], ServerConfig::default(), router)
+                .with_context(|| format!("binding {bind}"))?,
+        );
+        let notify = server.clone();
+        let notifier = tokio::spawn(async move {
+            while let Some(path) = changed_rx.recv().await {
+                notify.notify(&path).await;
+            }
+        });
+        Ok(Self {
+            server,
+            hub,
+            _cams: cams,
+            notifier,
+        })
+    }
+
+    /// Replaces the cameras with those of `scene` (they disconnect and connect, as when
+    /// cameras are unplugged and plugged in).
+    pub(crate) fn load(&self, scene: &Scene) -> anyhow::Result<()> {
+        load_scene(&self.hub, self.server.router(), scene)
+    }
+
+    /// The address the server answers on.
+    pub(crate) fn addr(&self) -> anyhow::Result<SocketAddr> {
+        self.server
+            .local_addrs()
+            .into_iter()
+            .next()
+            .context("the server has no address")
+    }
+}
+
+impl Drop for SceneServer {
+    fn drop(&mut self) {
+        self.notifier.abort();
+    }
+}
+
+/// A camera hub and the `/cams` tree following it.
+fn start_hub(
+    state_dir: &Path,
     router: &Arc<Router>,
     changed: mpsc::UnboundedSender<String>,
 ) -> anyhow::Result<(Arc<CameraHub>, Arc<Cams>)> {
-    let scene = match &args.scene {
-        Some(path) => {
-            Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
-        }
-        None => Scene::default_single(),
-    };
-    let state_dir = args.state_dir.clone().unwrap_or_else(default_state_dir);
-    std::fs::create_dir_all(&state_dir)
+    std::fs::create_dir_all(state_dir)
         .with_context(|| format!("creating state directory {}", state_dir.display()))?;
     let hub = Arc::new(CameraHub::new());
-    let cams = Cams::start(hub.clone(), router.clone(), &state_dir, changed)
+    let cams = Cams::start(hub.clone(), router.clone(), state_dir, changed)
         .context("starting the camera hub listener")?;
+    Ok((hub, cams))
+}
+
+/// Replaces the cameras of `hub` with the synthetic cameras of `scene`, and returns once
+/// the router follows: the hub listener adds and removes per-camera resources on its own
+/// thread, so a client that starts after this (or after "serving on") never sees a 4.04
+/// for a camera that is there, nor a resource of one that left.
+fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result<()> {
+    let cameras = SyntheticCamera::all(scene).context("building the scene's cameras")?;
+    let path = |sn: &dyn std::fmt::Display| format!("/cams/{sn}/color");
+    let gone: Vec<String> = hub.serials().iter().map(|sn| path(sn)).collect();
+    for sn in hub.serials() {
+        hub.remove(&sn);
+    }
+    wait_for(|| gone.iter().all(|p| !router.patterns().contains(p)))?;
     let mut expected = Vec::new();
-    for camera in SyntheticCamera::all(&scene).context("building the scene's cameras")? {
-        expected.push(format!("/cams/{}/color", camera.serial()));
+    for camera in cameras {
+        expected.push(path(&camera.serial()));
         hub.add(camera).context("adding a camera")?;
     }
-    // The hub listener registers per-camera resources on its own thread: announce the
-    // server only once every camera of the scene is routed, so a client that starts at
-    // "serving on" never sees a 4.04 for a camera that is there.
+    wait_for(|| expected.iter().all(|p| router.patterns().contains(p)))
+}
+
+fn wait_for(done: impl Fn() -> bool) -> anyhow::Result<()> {
     let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while !expected.iter().all(|p| router.patterns().contains(p)) {
+    while !done() {
         if std::time::Instant::now() > deadline {
-            bail!("the scene's camera resources did not appear within 10 s");
+            bail!("the cameras' resources did not follow the hub within 10 s");
         }
         std::thread::sleep(Duration::from_millis(2));
     }
-    Ok((hub, cams))
+    Ok(())
 }
 
 fn default_state_dir() -> PathBuf {
