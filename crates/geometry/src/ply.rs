@@ -94,11 +94,12 @@ pub enum PlyError {
     },
 }
 
-/// Writes `cloud` as binary little-endian PLY with an optional one-line `comment`.
+/// Writes the points (e.g. a [`PointCloud`]'s `points`) as binary little-endian PLY with
+/// an optional one-line `comment`.
 ///
 /// The writer is not buffered here: pass a `BufWriter` for files.
 pub fn write_ply<W: Write>(
-    cloud: &PointCloud,
+    points: &[Point3],
     comment: Option<&str>,
     mut out: W,
 ) -> Result<(), PlyError> {
@@ -115,12 +116,12 @@ pub fn write_ply<W: Write>(
     }
     header.push_str(&format!(
         "element vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
-        cloud.len()
+        points.len()
     ));
     out.write_all(header.as_bytes())?;
     const CHUNK_POINTS: usize = 4096;
-    let mut buf = Vec::with_capacity(CHUNK_POINTS.min(cloud.len()) * 12);
-    for chunk in cloud.points.chunks(CHUNK_POINTS) {
+    let mut buf = Vec::with_capacity(CHUNK_POINTS.min(points.len()) * 12);
+    for chunk in points.chunks(CHUNK_POINTS) {
         buf.clear();
         for p in chunk {
             buf.extend_from_slice(&p.x.to_le_bytes());
@@ -133,10 +134,10 @@ pub fn write_ply<W: Write>(
     Ok(())
 }
 
-/// The cloud as a binary little-endian PLY file in memory (see [`write_ply`]).
-pub fn encode_ply(cloud: &PointCloud, comment: Option<&str>) -> Result<Vec<u8>, PlyError> {
-    let mut out = Vec::with_capacity(160 + comment.map_or(0, str::len) + cloud.len() * 12);
-    write_ply(cloud, comment, &mut out)?;
+/// The points as a binary little-endian PLY file in memory (see [`write_ply`]).
+pub fn encode_ply(points: &[Point3], comment: Option<&str>) -> Result<Vec<u8>, PlyError> {
+    let mut out = Vec::with_capacity(160 + comment.map_or(0, str::len) + points.len() * 12);
+    write_ply(points, comment, &mut out)?;
     Ok(out)
 }
 

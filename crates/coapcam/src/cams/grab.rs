@@ -4,15 +4,16 @@
 
 use geometry::{Point3, TransformError, Transformation};
 use rgbd::filter::{Roi2, RoiCrop};
-use rgbd::{Camera, CameraError, ColorFrame, DepthFrame, FilterError, PostProcessing};
+use rgbd::{Camera, CameraError, ColorFrame, DepthFrame, FilterError, Intrinsics, PostProcessing};
 
 use super::config::AppConfig;
 
-/// A grabbed frame as the resources keep it.
+/// A grabbed frame as the resources keep it; images with the intrinsics of their pixels
+/// (after the `roi2d` crop).
 #[derive(Debug, Clone)]
 pub(crate) enum Frame {
-    Color(ColorFrame),
-    Depth(DepthFrame),
+    Color(ColorFrame, Intrinsics),
+    Depth(DepthFrame, Intrinsics),
     Cloud {
         points: Vec<Point3>,
         timestamp_us: u64,
@@ -23,16 +24,16 @@ pub(crate) enum Frame {
 impl Frame {
     pub(crate) fn frame_number(&self) -> u64 {
         match self {
-            Self::Color(f) => f.frame_number,
-            Self::Depth(f) => f.frame_number,
+            Self::Color(f, _) => f.frame_number,
+            Self::Depth(f, _) => f.frame_number,
             Self::Cloud { frame_number, .. } => *frame_number,
         }
     }
 
     pub(crate) fn timestamp_us(&self) -> u64 {
         match self {
-            Self::Color(f) => f.timestamp_us,
-            Self::Depth(f) => f.timestamp_us,
+            Self::Color(f, _) => f.timestamp_us,
+            Self::Depth(f, _) => f.timestamp_us,
             Self::Cloud { timestamp_us, .. } => *timestamp_us,
         }
     }
@@ -58,11 +59,19 @@ fn roi(app: &AppConfig, width: u32, height: u32) -> Result<Roi2, GrabError> {
 
 /// A color frame cropped to `roi2d`.
 pub(crate) fn color(camera: &dyn Camera, app: &AppConfig) -> Result<Frame, GrabError> {
+    let intrinsics = camera.color_intrinsics()?;
     let frame = camera.grab_color(app.color_timeout())?;
     let r = roi(app, frame.width, frame.height)?;
     if (r.width, r.height) == (frame.width, frame.height) {
-        return Ok(Frame::Color(frame));
+        return Ok(Frame::Color(frame, intrinsics));
     }
+    let cropped = Intrinsics {
+        width: r.width,
+        height: r.height,
+        ppx: intrinsics.ppx - r.px as f32,
+        ppy: intrinsics.ppy - r.py as f32,
+        ..intrinsics
+    };
     let bpp = frame.format.bytes_per_pixel();
     let row = r.width as usize * bpp;
     let mut data = Vec::with_capacity(row * r.height as usize);
@@ -72,13 +81,16 @@ pub(crate) fn color(camera: &dyn Camera, app: &AppConfig) -> Result<Frame, GrabE
             data.extend_from_slice(pixels);
         }
     }
-    Ok(Frame::Color(ColorFrame {
-        width: r.width,
-        height: r.height,
-        stride: row,
-        data,
-        ..frame
-    }))
+    Ok(Frame::Color(
+        ColorFrame {
+            width: r.width,
+            height: r.height,
+            stride: row,
+            data,
+            ..frame
+        },
+        cropped,
+    ))
 }
 
 /// A depth frame cropped to `roi2d`.
@@ -87,11 +99,11 @@ pub(crate) fn depth(camera: &dyn Camera, app: &AppConfig) -> Result<Frame, GrabE
     let frame = camera.grab_depth(app.depth_timeout())?;
     let r = roi(app, frame.width, frame.height)?;
     if (r.width, r.height) == (frame.width, frame.height) {
-        return Ok(Frame::Depth(frame));
+        return Ok(Frame::Depth(frame, intrinsics));
     }
     let mut crop = RoiCrop::new(r);
-    let (cropped, _) = crop.process(&frame, &intrinsics)?;
-    Ok(Frame::Depth(cropped.clone()))
+    let (cropped, k) = crop.process(&frame, &intrinsics)?;
+    Ok(Frame::Depth(cropped.clone(), k))
 }
 
 /// A point cloud in the output frame of `transformation`, inside `roi3d`.

@@ -365,7 +365,7 @@ impl Cams {
         let stored = Arc::new((frame, etag));
         lock(&cam.latest)[kind.index()] = Some(stored.clone());
         let _ = self.changed.send(path.to_string());
-        represent(kind, &stored.0, etag, request)
+        represent(&sn, kind, &stored.0, etag, request)
     }
 
     /// `GET /cams/<sn>/<grab>`: the latest frame.
@@ -377,7 +377,7 @@ impl Cams {
             .camera(&sn)
             .and_then(|cam| lock(&cam.latest)[kind.index()].clone());
         match stored {
-            Some(s) => represent(kind, &s.0, s.1, request),
+            Some(s) => represent(&sn, kind, &s.0, s.1, request),
             None => Response::diagnostic(Code::NOT_FOUND, "no frame grabbed yet: POST grabs one"),
         }
     }
@@ -494,9 +494,10 @@ impl Cams {
 
     /// `POST /cams/pointclouds`: every camera's cloud in the common frame, merged.
     async fn pointclouds(&self, request: &IncomingRequest) -> Response {
-        if let Err(refused) = negotiate(Kind::Cloud, request) {
-            return refused;
-        }
+        let cf = match negotiate(Kind::Cloud, request) {
+            Ok(cf) => cf,
+            Err(refused) => return refused,
+        };
         let cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
             .iter()
             .map(|(sn, c)| (*sn, c.clone()))
@@ -514,12 +515,14 @@ impl Cams {
             })
             .collect();
         let mut clouds = Vec::new();
+        let mut serials = Vec::new();
         let mut newest_us = 0;
         for (sn, icp, task) in tasks {
             match task.await {
                 Ok(Ok(frame)) => {
                     newest_us = newest_us.max(frame.timestamp_us());
                     if let Frame::Cloud { points, .. } = frame {
+                        serials.push(sn);
                         clouds.push((sn, icp, PointCloud::from(points)));
                     }
                 }
@@ -530,18 +533,30 @@ impl Cams {
         let merged = tokio::task::spawn_blocking(move || register_and_merge(clouds))
             .await
             .unwrap_or_default();
-        let timestamp_s = if newest_us == 0 {
+        let timestamp_us = if newest_us == 0 {
             SystemTime::now()
                 .duration_since(SystemTime::UNIX_EPOCH)
-                .map_or(0, |d| u32::try_from(d.as_secs()).unwrap_or(u32::MAX))
+                .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX))
         } else {
-            repr::unix_seconds(newest_us)
+            newest_us
         };
-        let body = repr::cloud_packet(&merged.points, timestamp_s);
+        let source = repr::CloudSource::Merged { serials: &serials };
+        let body = match cf {
+            ContentFormat::CBOR => repr::cloud_cbor(&merged.points, timestamp_us, source),
+            ContentFormat::PLY => repr::cloud_ply(&merged.points, timestamp_us, source),
+            _ => Ok(repr::cloud_packet(
+                &merged.points,
+                repr::unix_seconds(timestamp_us),
+            )),
+        };
+        let body = match body {
+            Ok(body) => body,
+            Err(e) => return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
+        };
         let mut h = std::collections::hash_map::DefaultHasher::new();
         body.hash(&mut h);
         let mut r = Response::new(Code::CONTENT).with_payload(body);
-        set_cf(&mut r, ContentFormat::OCTET_STREAM);
+        set_cf(&mut r, cf);
         r.options
             .set(OptionNumber::ETAG, h.finish().to_be_bytes().to_vec());
         r
@@ -627,69 +642,105 @@ fn set_cf(r: &mut Response, cf: ContentFormat) {
         .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
 }
 
+/// The content formats of a grab resource, the first being the default.
+fn formats(kind: Kind) -> &'static [ContentFormat] {
+    use ContentFormat as Cf;
+    match kind {
+        Kind::Color => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::IMAGE_JPEG, Cf::CBOR],
+        Kind::Depth => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::CBOR],
+        Kind::Cloud => &[Cf::OCTET_STREAM, Cf::CBOR, Cf::PLY],
+    }
+}
+
 /// The content format to answer with, or 4.06 Not Acceptable.
 fn negotiate(kind: Kind, request: &IncomingRequest) -> Result<ContentFormat, Response> {
     let accept = request
         .options
         .accept()
         .unwrap_or(ContentFormat::OCTET_STREAM);
-    let ok = match kind {
-        Kind::Color => [
-            ContentFormat::OCTET_STREAM,
-            ContentFormat::IMAGE_PNG,
-            ContentFormat::IMAGE_JPEG,
-        ]
-        .contains(&accept),
-        Kind::Depth => [ContentFormat::OCTET_STREAM, ContentFormat::IMAGE_PNG].contains(&accept),
-        Kind::Cloud => accept == ContentFormat::OCTET_STREAM,
-    };
-    if ok {
+    if formats(kind).contains(&accept) {
         Ok(accept)
     } else {
         Err(Response::diagnostic(
             Code::NOT_ACCEPTABLE,
             match kind {
-                Kind::Color => "color is served as 42 (thesis packet), 23 (PNG) or 22 (JPEG)",
-                Kind::Depth => "depth is served as 42 (thesis packet) or 23 (16-bit PNG)",
-                Kind::Cloud => "point clouds are served as 42 (thesis packet)",
+                Kind::Color => {
+                    "color is served as 42 (thesis packet), 23 (PNG), 22 (JPEG) or 60 (CBOR)"
+                }
+                Kind::Depth => {
+                    "depth is served as 42 (thesis packet), 23 (16-bit PNG) or 60 (CBOR)"
+                }
+                Kind::Cloud => {
+                    "point clouds are served as 42 (thesis packet), 60 (CBOR) or 65100 (PLY)"
+                }
             },
         ))
     }
 }
 
-/// A frame in the format the request accepts.
-fn represent(kind: Kind, frame: &Frame, etag: [u8; 8], request: &IncomingRequest) -> Response {
+/// A frame in the format the request accepts; the ETag is the frame's, made distinct per
+/// content format (RFC 7252 §5.10.6: an entity-tag identifies one representation).
+fn represent(
+    sn: &Serial,
+    kind: Kind,
+    frame: &Frame,
+    etag: [u8; 8],
+    request: &IncomingRequest,
+) -> Response {
     let cf = match negotiate(kind, request) {
         Ok(cf) => cf,
         Err(refused) => return refused,
     };
     let body = match (frame, cf) {
-        (Frame::Color(f), ContentFormat::IMAGE_PNG) => repr::color_png(f),
-        (Frame::Color(f), ContentFormat::IMAGE_JPEG) => repr::color_jpeg(f),
-        (Frame::Color(f), _) => Ok(repr::color_packet(f)),
-        (Frame::Depth(f), ContentFormat::IMAGE_PNG) => repr::depth_png(f),
-        (Frame::Depth(f), _) => Ok(repr::depth_packet(f)),
+        (Frame::Color(f, _), ContentFormat::IMAGE_PNG) => repr::color_png(f),
+        (Frame::Color(f, _), ContentFormat::IMAGE_JPEG) => repr::color_jpeg(f),
+        (Frame::Color(f, k), ContentFormat::CBOR) => repr::color_cbor(f, k, sn),
+        (Frame::Color(f, _), _) => Ok(repr::color_packet(f)),
+        (Frame::Depth(f, _), ContentFormat::IMAGE_PNG) => repr::depth_png(f),
+        (Frame::Depth(f, k), ContentFormat::CBOR) => repr::depth_cbor(f, k, sn),
+        (Frame::Depth(f, _), _) => Ok(repr::depth_packet(f)),
         (
             Frame::Cloud {
                 points,
                 timestamp_us,
-                ..
+                frame_number,
             },
-            _,
-        ) => Ok(repr::cloud_packet(
-            points,
-            repr::unix_seconds(*timestamp_us),
-        )),
+            cf,
+        ) => {
+            let source = repr::CloudSource::Camera {
+                serial: sn,
+                frame: *frame_number,
+            };
+            match cf {
+                ContentFormat::CBOR => repr::cloud_cbor(points, *timestamp_us, source),
+                ContentFormat::PLY => repr::cloud_ply(points, *timestamp_us, source),
+                _ => Ok(repr::cloud_packet(
+                    points,
+                    repr::unix_seconds(*timestamp_us),
+                )),
+            }
+        }
     };
     match body {
         Ok(body) => {
             let mut r = Response::new(Code::CONTENT).with_payload(body);
             set_cf(&mut r, cf);
-            r.options.set(OptionNumber::ETAG, etag.to_vec());
+            r.options
+                .set(OptionNumber::ETAG, representation_etag(etag, cf).to_vec());
             r
         }
         Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
     }
+}
+
+/// The ETag of one representation of a frame: the frame's own for the thesis packet.
+fn representation_etag(frame: [u8; 8], cf: ContentFormat) -> [u8; 8] {
+    if cf == ContentFormat::OCTET_STREAM {
+        return frame;
+    }
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    (frame, cf.0).hash(&mut h);
+    h.finish().to_be_bytes()
 }
 
 fn frame_etag(sn: &Serial, kind: Kind, frame: &Frame) -> [u8; 8] {

@@ -1,12 +1,15 @@
 //! Representations of grabbed frames: the thesis packets (DESIGN.md §5, header in
-//! network byte order) and PNG / JPEG images.
+//! network byte order), PNG / JPEG images, CBOR maps (the packet's header fields plus
+//! serial, frame number, microsecond timestamp and intrinsics, the data as a byte string;
+//! the keys are listed in README.md) and binary PLY point clouds.
 
+use ciborium::Value;
 use geometry::Point3;
 use image::ExtendedColorType;
 use image::ImageEncoder as _;
 use image::codecs::jpeg::JpegEncoder;
 use image::codecs::png::PngEncoder;
-use rgbd::{ColorFormat, ColorFrame, DepthFrame};
+use rgbd::{ColorFormat, ColorFrame, DepthFrame, Intrinsics, Serial};
 
 /// Packet type of a color image.
 const TYPE_COLOR: u8 = 1;
@@ -19,12 +22,22 @@ const POINT_SIZE: u8 = 12;
 /// Quality of JPEG color images.
 const JPEG_QUALITY: u8 = 90;
 
-/// An image could not be encoded.
+/// A representation could not be encoded.
 #[derive(Debug, thiserror::Error)]
-#[error("encoding {format}: {source}")]
-pub(crate) struct EncodeError {
-    format: &'static str,
-    source: image::ImageError,
+pub(crate) enum EncodeError {
+    #[error("encoding {format}: {source}")]
+    Image {
+        format: &'static str,
+        source: image::ImageError,
+    },
+    #[error("encoding CBOR: {0}")]
+    Cbor(#[from] ciborium::ser::Error<std::io::Error>),
+    #[error("encoding PLY: {0}")]
+    Ply(#[from] geometry::PlyError),
+}
+
+fn image_error(format: &'static str) -> impl FnOnce(image::ImageError) -> EncodeError {
+    move |source| EncodeError::Image { format, source }
 }
 
 /// Seconds since the UNIX epoch of a frame timestamp in microseconds, as the 32-bit
@@ -62,6 +75,24 @@ pub(crate) fn color_packet(frame: &ColorFrame) -> Vec<u8> {
     out
 }
 
+/// Appends the depth values of `frame` little-endian, compact rows.
+fn append_depth_values(frame: &DepthFrame, out: &mut Vec<u8>) {
+    for row in depth_rows(frame) {
+        for v in row {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+}
+
+/// Appends x, y, z of every point as f32 little-endian.
+fn append_points(points: &[Point3], out: &mut Vec<u8>) {
+    for p in points {
+        for c in [p.x, p.y, p.z] {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+}
+
 /// Depth packet: type 2, width, height, pixel size 2, timestamp, depth scale (f32),
 /// then Z16 values little-endian.
 pub(crate) fn depth_packet(frame: &DepthFrame) -> Vec<u8> {
@@ -72,11 +103,7 @@ pub(crate) fn depth_packet(frame: &DepthFrame) -> Vec<u8> {
     out.push(2);
     out.extend_from_slice(&unix_seconds(frame.timestamp_us).to_be_bytes());
     out.extend_from_slice(&frame.depth_scale.to_be_bytes());
-    for row in depth_rows(frame) {
-        for v in row {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
+    append_depth_values(frame, &mut out);
     out
 }
 
@@ -101,12 +128,152 @@ pub(crate) fn cloud_packet(points: &[Point3], timestamp_s: u32) -> Vec<u8> {
             .to_be_bytes(),
     );
     out.extend_from_slice(&timestamp_s.to_be_bytes());
-    for p in points {
-        for c in [p.x, p.y, p.z] {
-            out.extend_from_slice(&c.to_le_bytes());
-        }
-    }
+    append_points(points, &mut out);
     out
+}
+
+/// Where a point cloud came from, for its CBOR map and PLY comment.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum CloudSource<'a> {
+    /// One camera's grab.
+    Camera { serial: &'a Serial, frame: u64 },
+    /// `/cams/pointclouds`: the cameras whose clouds were merged.
+    Merged { serials: &'a [Serial] },
+}
+
+fn text(key: &str) -> Value {
+    Value::Text(key.to_owned())
+}
+
+fn uint(v: impl Into<u64>) -> Value {
+    Value::Integer(v.into().into())
+}
+
+fn float(v: f32) -> Value {
+    Value::Float(f64::from(v))
+}
+
+fn intrinsics_value(k: &Intrinsics) -> Value {
+    Value::Map(vec![
+        (text("width"), uint(k.width)),
+        (text("height"), uint(k.height)),
+        (text("ppx"), float(k.ppx)),
+        (text("ppy"), float(k.ppy)),
+        (text("fx"), float(k.fx)),
+        (text("fy"), float(k.fy)),
+        (text("model"), text(k.model.name())),
+        (
+            text("coeffs"),
+            Value::Array(k.coeffs.iter().map(|c| float(*c)).collect()),
+        ),
+    ])
+}
+
+fn cbor(entries: Vec<(Value, Value)>) -> Result<Vec<u8>, EncodeError> {
+    let mut out = Vec::new();
+    ciborium::into_writer(&Value::Map(entries), &mut out)?;
+    Ok(out)
+}
+
+/// Color as a CBOR map: `type` 1, `width`, `height`, `pixel_size`, `format`, `timestamp`,
+/// `timestamp_us`, `frame`, `serial`, `intrinsics`, `data` (compact rows).
+pub(crate) fn color_cbor(
+    frame: &ColorFrame,
+    intrinsics: &Intrinsics,
+    serial: &Serial,
+) -> Result<Vec<u8>, EncodeError> {
+    let bpp = frame.format.bytes_per_pixel();
+    let mut data = Vec::with_capacity(frame.width as usize * frame.height as usize * bpp);
+    for row in compact_pixels(frame) {
+        data.extend_from_slice(row);
+    }
+    cbor(vec![
+        (text("type"), uint(TYPE_COLOR)),
+        (text("width"), uint(frame.width)),
+        (text("height"), uint(frame.height)),
+        (text("pixel_size"), uint(bpp as u64)),
+        (text("format"), text(frame.format.name())),
+        (text("timestamp"), uint(unix_seconds(frame.timestamp_us))),
+        (text("timestamp_us"), uint(frame.timestamp_us)),
+        (text("frame"), uint(frame.frame_number)),
+        (text("serial"), text(serial.as_str())),
+        (text("intrinsics"), intrinsics_value(intrinsics)),
+        (text("data"), Value::Bytes(data)),
+    ])
+}
+
+/// Depth as a CBOR map: `type` 2, `width`, `height`, `pixel_size` 2, `timestamp`,
+/// `timestamp_us`, `frame`, `serial`, `depth_scale`, `intrinsics`, `data` (Z16
+/// little-endian).
+pub(crate) fn depth_cbor(
+    frame: &DepthFrame,
+    intrinsics: &Intrinsics,
+    serial: &Serial,
+) -> Result<Vec<u8>, EncodeError> {
+    let mut data = Vec::with_capacity(frame.width as usize * frame.height as usize * 2);
+    append_depth_values(frame, &mut data);
+    cbor(vec![
+        (text("type"), uint(TYPE_DEPTH)),
+        (text("width"), uint(frame.width)),
+        (text("height"), uint(frame.height)),
+        (text("pixel_size"), uint(2u8)),
+        (text("timestamp"), uint(unix_seconds(frame.timestamp_us))),
+        (text("timestamp_us"), uint(frame.timestamp_us)),
+        (text("frame"), uint(frame.frame_number)),
+        (text("serial"), text(serial.as_str())),
+        (text("depth_scale"), float(frame.depth_scale)),
+        (text("intrinsics"), intrinsics_value(intrinsics)),
+        (text("data"), Value::Bytes(data)),
+    ])
+}
+
+/// A point cloud as a CBOR map: `type` 3, `point_size` 12, `points`, `timestamp`,
+/// `timestamp_us`, then `serial` and `frame` of one camera's grab or `serials` of a merged
+/// cloud, and `data` (x, y, z as f32 little-endian, metres).
+pub(crate) fn cloud_cbor(
+    points: &[Point3],
+    timestamp_us: u64,
+    source: CloudSource<'_>,
+) -> Result<Vec<u8>, EncodeError> {
+    let mut data = Vec::with_capacity(points.len() * usize::from(POINT_SIZE));
+    append_points(points, &mut data);
+    let mut entries = vec![
+        (text("type"), uint(TYPE_CLOUD)),
+        (text("point_size"), uint(POINT_SIZE)),
+        (text("points"), uint(points.len() as u64)),
+        (text("timestamp"), uint(unix_seconds(timestamp_us))),
+        (text("timestamp_us"), uint(timestamp_us)),
+    ];
+    match source {
+        CloudSource::Camera { serial, frame } => {
+            entries.push((text("serial"), text(serial.as_str())));
+            entries.push((text("frame"), uint(frame)));
+        }
+        CloudSource::Merged { serials } => entries.push((
+            text("serials"),
+            Value::Array(serials.iter().map(|s| text(s.as_str())).collect()),
+        )),
+    }
+    entries.push((text("data"), Value::Bytes(data)));
+    cbor(entries)
+}
+
+/// A point cloud as binary little-endian PLY, its origin in the comment line.
+pub(crate) fn cloud_ply(
+    points: &[Point3],
+    timestamp_us: u64,
+    source: CloudSource<'_>,
+) -> Result<Vec<u8>, EncodeError> {
+    let comment = match source {
+        CloudSource::Camera { serial, frame } => {
+            format!("coapcam camera {serial} frame {frame} timestamp_us {timestamp_us}")
+        }
+        CloudSource::Merged { serials } => format!(
+            "coapcam merged cloud of {} cameras timestamp_us {timestamp_us}",
+            serials.len()
+        ),
+    };
+    Ok(geometry::encode_ply(points, Some(&comment))?)
 }
 
 /// The pixels as RGB (or RGBA when the frame has alpha), compact rows.
@@ -142,10 +309,7 @@ pub(crate) fn color_png(frame: &ColorFrame) -> Result<Vec<u8>, EncodeError> {
     let mut out = Vec::new();
     PngEncoder::new(&mut out)
         .write_image(&pixels, frame.width, frame.height, ty)
-        .map_err(|source| EncodeError {
-            format: "PNG",
-            source,
-        })?;
+        .map_err(image_error("PNG"))?;
     Ok(out)
 }
 
@@ -163,10 +327,7 @@ pub(crate) fn color_jpeg(frame: &ColorFrame) -> Result<Vec<u8>, EncodeError> {
     let mut out = Vec::new();
     JpegEncoder::new_with_quality(&mut out, JPEG_QUALITY)
         .write_image(&rgb, frame.width, frame.height, ExtendedColorType::Rgb8)
-        .map_err(|source| EncodeError {
-            format: "JPEG",
-            source,
-        })?;
+        .map_err(image_error("JPEG"))?;
     Ok(out)
 }
 
@@ -181,10 +342,7 @@ pub(crate) fn depth_png(frame: &DepthFrame) -> Result<Vec<u8>, EncodeError> {
     let mut out = Vec::new();
     PngEncoder::new(&mut out)
         .write_image(&pixels, frame.width, frame.height, ExtendedColorType::L16)
-        .map_err(|source| EncodeError {
-            format: "PNG",
-            source,
-        })?;
+        .map_err(image_error("PNG"))?;
     Ok(out)
 }
 

@@ -10,7 +10,7 @@ use std::time::Duration;
 use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::Client;
 
-const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
+pub(crate) const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
 
 /// A running `coapcam serve`, killed on drop.
 pub(crate) struct Server(Child);
@@ -44,16 +44,16 @@ impl Drop for TempDir {
     }
 }
 
-const SN: &str = "840412060746";
-const LIMIT: Duration = Duration::from_secs(60);
+pub(crate) const SN: &str = "840412060746";
+pub(crate) const LIMIT: Duration = Duration::from_secs(60);
 
 /// A server on an ephemeral port of 127.0.0.1 with its state in `state`.
-fn serve(state: &Path) -> (Server, SocketAddr) {
+pub(crate) fn serve(state: &Path) -> (Server, SocketAddr) {
     serve_with(state, &[])
 }
 
 /// As [`serve`], with more flags.
-fn serve_with(state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
+pub(crate) fn serve_with(state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
     serve_at("127.0.0.1:0", state, extra)
 }
 
@@ -92,14 +92,14 @@ pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, Soc
     (server, addr)
 }
 
-fn runtime() -> tokio::runtime::Runtime {
+pub(crate) fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
         .expect("tokio runtime")
 }
 
-async fn send(
+pub(crate) async fn send(
     client: &Client,
     addr: SocketAddr,
     method: Code,
@@ -120,7 +120,7 @@ async fn send(
         .unwrap_or_else(|e| panic!("{method:?} {path}: {e}"))
 }
 
-fn client() -> Client {
+pub(crate) fn client() -> Client {
     Client::bind(
         SocketAddr::from(([127, 0, 0, 1], 0)),
         EndpointConfig::default(),
@@ -128,8 +128,8 @@ fn client() -> Client {
     .expect("client socket")
 }
 
-const COLOR_640: &str = r#"{"format": "BGR8", "fps": 30, "width": 640, "height": 480}"#;
-const DEPTH_640: &str = r#"{"format": "Z16", "fps": 30, "width": 640, "height": 480}"#;
+pub(crate) const COLOR_640: &str = r#"{"format": "BGR8", "fps": 30, "width": 640, "height": 480}"#;
+pub(crate) const DEPTH_640: &str = r#"{"format": "Z16", "fps": 30, "width": 640, "height": 480}"#;
 
 #[test]
 fn table_3_1_every_row_and_method() {
