@@ -4,6 +4,7 @@
 
 mod cams;
 mod client;
+mod demo;
 mod grab_cmd;
 mod measure;
 mod netem;
@@ -44,6 +45,10 @@ enum Command {
     Grab(grab_cmd::GrabArgs),
     /// Measure the largest parcel below the cameras: length, width, height in millimetres.
     Measure(measure::MeasureArgs),
+    /// The whole job on synthetic cameras: serve a two-camera scene in-process, discover,
+    /// grab, measure, and write pictures, a cloud and the dimensions next to the scene's
+    /// truth into ./coapcam-demo/.
+    Demo(demo::DemoArgs),
     /// Run the CoAP server.
     Serve(serve::ServeArgs),
     /// Relay UDP between clients and a server over an emulated link (loss, delay, jitter,
@@ -88,6 +93,7 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         Command::Discover(args) => return runtime.block_on(request::discover(args)),
         Command::Grab(args) => return runtime.block_on(grab_cmd::run(args)),
         Command::Measure(args) => return runtime.block_on(measure::run(args)),
+        Command::Demo(args) => return runtime.block_on(demo::run(args)),
         Command::Serve(args) => runtime.block_on(serve::run(args))?,
         Command::Netem(args) => {
             let json = args.json;

@@ -24,6 +24,20 @@ pub enum DistortionModel {
 }
 
 impl DistortionModel {
+    /// Every model.
+    pub const ALL: [Self; 5] = [
+        Self::None,
+        Self::ModifiedBrownConrady,
+        Self::InverseBrownConrady,
+        Self::BrownConrady,
+        Self::KannalaBrandt4,
+    ];
+
+    /// The model [`DistortionModel::name`] names.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|m| m.name() == name)
+    }
+
     /// The name librealsense prints for the model ("Brown Conrady", ...).
     pub fn name(self) -> &'static str {
         match self {

@@ -4,7 +4,10 @@
 
 use geometry::{Point3, TransformError, Transformation};
 use rgbd::filter::{Roi2, RoiCrop};
-use rgbd::{Camera, CameraError, ColorFrame, DepthFrame, FilterError, Intrinsics, PostProcessing};
+use rgbd::{
+    Camera, CameraError, ColorFrame, DepthFrame, Extrinsics, FilterError, Intrinsics,
+    PostProcessing,
+};
 
 use super::config::AppConfig;
 
@@ -12,7 +15,8 @@ use super::config::AppConfig;
 /// (after the `roi2d` crop).
 #[derive(Debug, Clone)]
 pub(crate) enum Frame {
-    Color(ColorFrame, Intrinsics),
+    /// The frame, its intrinsics, and the depth->color extrinsics of its camera.
+    Color(ColorFrame, Intrinsics, Extrinsics),
     Depth(DepthFrame, Intrinsics),
     Cloud {
         points: Vec<Point3>,
@@ -24,7 +28,7 @@ pub(crate) enum Frame {
 impl Frame {
     pub(crate) fn frame_number(&self) -> u64 {
         match self {
-            Self::Color(f, _) => f.frame_number,
+            Self::Color(f, ..) => f.frame_number,
             Self::Depth(f, _) => f.frame_number,
             Self::Cloud { frame_number, .. } => *frame_number,
         }
@@ -32,7 +36,7 @@ impl Frame {
 
     pub(crate) fn timestamp_us(&self) -> u64 {
         match self {
-            Self::Color(f, _) => f.timestamp_us,
+            Self::Color(f, ..) => f.timestamp_us,
             Self::Depth(f, _) => f.timestamp_us,
             Self::Cloud { timestamp_us, .. } => *timestamp_us,
         }
@@ -60,10 +64,11 @@ fn roi(app: &AppConfig, width: u32, height: u32) -> Result<Roi2, GrabError> {
 /// A color frame cropped to `roi2d`.
 pub(crate) fn color(camera: &dyn Camera, app: &AppConfig) -> Result<Frame, GrabError> {
     let intrinsics = camera.color_intrinsics()?;
+    let extrinsics = camera.depth_to_color()?;
     let frame = camera.grab_color(app.color_timeout())?;
     let r = roi(app, frame.width, frame.height)?;
     if (r.width, r.height) == (frame.width, frame.height) {
-        return Ok(Frame::Color(frame, intrinsics));
+        return Ok(Frame::Color(frame, intrinsics, extrinsics));
     }
     let cropped = Intrinsics {
         width: r.width,
@@ -90,6 +95,7 @@ pub(crate) fn color(camera: &dyn Camera, app: &AppConfig) -> Result<Frame, GrabE
             ..frame
         },
         cropped,
+        extrinsics,
     ))
 }
 

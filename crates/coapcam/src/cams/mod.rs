@@ -692,10 +692,10 @@ fn represent(
         Err(refused) => return refused,
     };
     let body = match (frame, cf) {
-        (Frame::Color(f, _), ContentFormat::IMAGE_PNG) => repr::color_png(f),
-        (Frame::Color(f, _), ContentFormat::IMAGE_JPEG) => repr::color_jpeg(f),
-        (Frame::Color(f, k), ContentFormat::CBOR) => repr::color_cbor(f, k, sn),
-        (Frame::Color(f, _), _) => Ok(repr::color_packet(f)),
+        (Frame::Color(f, ..), ContentFormat::IMAGE_PNG) => repr::color_png(f),
+        (Frame::Color(f, ..), ContentFormat::IMAGE_JPEG) => repr::color_jpeg(f),
+        (Frame::Color(f, k, e), ContentFormat::CBOR) => repr::color_cbor(f, k, e, sn),
+        (Frame::Color(f, ..), _) => Ok(repr::color_packet(f)),
         (Frame::Depth(f, _), ContentFormat::IMAGE_PNG) => repr::depth_png(f),
         (Frame::Depth(f, k), ContentFormat::CBOR) => repr::depth_cbor(f, k, sn),
         (Frame::Depth(f, _), _) => Ok(repr::depth_packet(f)),

@@ -9,7 +9,7 @@ use image::ExtendedColorType;
 use image::ImageEncoder as _;
 use image::codecs::jpeg::JpegEncoder;
 use image::codecs::png::PngEncoder;
-use rgbd::{ColorFormat, ColorFrame, DepthFrame, Intrinsics, Serial};
+use rgbd::{ColorFormat, ColorFrame, DepthFrame, Extrinsics, Intrinsics, Serial};
 
 /// Packet type of a color image.
 const TYPE_COLOR: u8 = 1;
@@ -153,6 +153,10 @@ fn float(v: f32) -> Value {
     Value::Float(f64::from(v))
 }
 
+fn floats(values: &[f32]) -> Value {
+    Value::Array(values.iter().map(|v| float(*v)).collect())
+}
+
 fn intrinsics_value(k: &Intrinsics) -> Value {
     Value::Map(vec![
         (text("width"), uint(k.width)),
@@ -162,10 +166,7 @@ fn intrinsics_value(k: &Intrinsics) -> Value {
         (text("fx"), float(k.fx)),
         (text("fy"), float(k.fy)),
         (text("model"), text(k.model.name())),
-        (
-            text("coeffs"),
-            Value::Array(k.coeffs.iter().map(|c| float(*c)).collect()),
-        ),
+        (text("coeffs"), floats(&k.coeffs)),
     ])
 }
 
@@ -176,10 +177,14 @@ fn cbor(entries: Vec<(Value, Value)>) -> Result<Vec<u8>, EncodeError> {
 }
 
 /// Color as a CBOR map: `type` 1, `width`, `height`, `pixel_size`, `format`, `timestamp`,
-/// `timestamp_us`, `frame`, `serial`, `intrinsics`, `data` (compact rows).
+/// `timestamp_us`, `frame`, `serial`, `intrinsics`, `depth_to_color` (`rotation`, 9
+/// floats column-major, and `translation` in metres: where a point of the depth frame,
+/// the frame of the 3d-transformation, lies in this image's camera), `data` (compact
+/// rows).
 pub(crate) fn color_cbor(
     frame: &ColorFrame,
     intrinsics: &Intrinsics,
+    depth_to_color: &Extrinsics,
     serial: &Serial,
 ) -> Result<Vec<u8>, EncodeError> {
     let bpp = frame.format.bytes_per_pixel();
@@ -198,6 +203,13 @@ pub(crate) fn color_cbor(
         (text("frame"), uint(frame.frame_number)),
         (text("serial"), text(serial.as_str())),
         (text("intrinsics"), intrinsics_value(intrinsics)),
+        (
+            text("depth_to_color"),
+            Value::Map(vec![
+                (text("rotation"), floats(&depth_to_color.rotation)),
+                (text("translation"), floats(&depth_to_color.translation)),
+            ]),
+        ),
         (text("data"), Value::Bytes(data)),
     ])
 }
