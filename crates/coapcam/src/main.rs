@@ -3,6 +3,7 @@
 #![forbid(unsafe_code)]
 
 mod cams;
+mod group;
 mod netem;
 mod request;
 mod serve;
@@ -76,7 +77,13 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         Command::Put(args) => return runtime.block_on(request::run(coap::Code::PUT, args)),
         Command::Delete(args) => return runtime.block_on(request::run(coap::Code::DELETE, args)),
         Command::Discover(args) => return runtime.block_on(request::discover(args)),
-        Command::Serve(args) => runtime.block_on(serve::run(args))?,
+        Command::Serve(args) => {
+            let served = runtime.block_on(serve::run(args));
+            // A grab still waiting for its camera in a blocking thread must not hold up
+            // the exit after SIGINT or SIGTERM.
+            runtime.shutdown_timeout(std::time::Duration::from_secs(1));
+            served?;
+        }
         Command::Netem(args) => {
             let json = args.json;
             let counters = runtime.block_on(netem::run(args))?;
