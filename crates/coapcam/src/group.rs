@@ -194,7 +194,8 @@ impl Groups {
             let listening = if family.is_empty() {
                 "no port of that address family".to_string()
             } else {
-                format!("port {family:?}")
+                let ports: Vec<String> = family.iter().map(u16::to_string).collect();
+                format!("port {}", ports.join(", "))
             };
             return Err(Response::diagnostic(
                 Code::BAD_REQUEST,
