@@ -6,6 +6,7 @@ mod cams;
 mod client;
 mod demo;
 mod grab_cmd;
+mod group;
 mod measure;
 mod netem;
 mod packet;
@@ -94,7 +95,13 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         Command::Grab(args) => return runtime.block_on(grab_cmd::run(args)),
         Command::Measure(args) => return runtime.block_on(measure::run(args)),
         Command::Demo(args) => return runtime.block_on(demo::run(args)),
-        Command::Serve(args) => runtime.block_on(serve::run(args))?,
+        Command::Serve(args) => {
+            let served = runtime.block_on(serve::run(args));
+            // A grab still waiting for its camera in a blocking thread must not hold up
+            // the exit after SIGINT or SIGTERM.
+            runtime.shutdown_timeout(std::time::Duration::from_secs(1));
+            served?;
+        }
         Command::Netem(args) => {
             let json = args.json;
             let counters = runtime.block_on(netem::run(args))?;

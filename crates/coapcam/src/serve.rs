@@ -14,11 +14,13 @@ use clap::Args;
 use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::router::check_preconditions;
 use coap_net::{Ctx, Resource, Router, Server, ServerConfig, handler};
+use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::mpsc;
 
 use rgbd::{Camera as _, CameraHub, Scene, SyntheticCamera};
 
 use crate::cams::Cams;
+use crate::group::Groups;
 use crate::transmission::TransmissionArgs;
 
 /// Flags of `serve`.
@@ -46,7 +48,8 @@ pub(crate) struct ServeArgs {
     /// (2.01 with Location-Path), DELETE removes one.
     #[arg(long, requires = "static_dir")]
     writable: bool,
-    /// Join this multicast group on start (e.g. 224.0.1.187 or ff02::fd); repeatable.
+    /// Join this multicast group on start (e.g. 224.0.1.187 or ff02::fd), on the server's
+    /// port; repeatable. Listed in /coap-group, where clients add and remove memberships.
     #[arg(long, value_name = "MCAST_ADDR")]
     group: Vec<IpAddr>,
     /// IPv6 interface index for --group (0: the system's default).
@@ -70,6 +73,8 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     };
     let router = Router::new();
     let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
+    let (membership_tx, mut membership_rx) = mpsc::unbounded_channel();
+    let groups = Groups::register(&router, membership_tx);
     let files = match &args.static_dir {
         Some(dir) => Some(StaticFiles::load(
             dir,
@@ -99,15 +104,9 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     };
     let server =
         Server::bind(&binds, config, router).with_context(|| format!("binding {binds:?}"))?;
-    for g in &args.group {
-        server
-            .join(*g, args.group_interface)
-            .await
-            .with_context(|| format!("joining {g}"))?;
-    }
-    for a in server.local_addrs() {
-        eprintln!("coapcam: serving on {a}");
-    }
+    groups
+        .start(&server, &args.group, args.group_interface)
+        .await?;
     let stop = async {
         match args.duration {
             Some(s) => {
@@ -117,18 +116,27 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         }
     };
     tokio::pin!(stop);
-    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("installing the SIGTERM handler")?;
+    // Both handlers are in place before the server announces itself: a signal sent as soon
+    // as "serving on" appears stops the server cleanly instead of killing it.
+    let mut terminate =
+        signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
+    let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
+    for a in server.local_addrs() {
+        eprintln!("coapcam: serving on {a}");
+    }
     let mut tick = tokio::time::interval(Duration::from_millis(200));
     // The camera tree lives as long as the server.
     let _cameras = cameras;
     loop {
         tokio::select! {
-            _ = tokio::signal::ctrl_c() => break,
+            _ = interrupt.recv() => break,
             _ = terminate.recv() => break,
             () = &mut stop => break,
             Some(path) = changed_rx.recv() => {
                 server.notify(&path).await;
+            }
+            Some(change) = membership_rx.recv() => {
+                crate::group::apply(&server, change, args.group_interface).await;
             }
             _ = tick.tick() => {
                 if let Some(files) = &files {

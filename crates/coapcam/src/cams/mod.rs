@@ -6,6 +6,8 @@ mod config;
 mod grab;
 mod repr;
 mod state;
+#[cfg(test)]
+mod tests;
 
 use std::collections::HashMap;
 use std::hash::{Hash as _, Hasher as _};

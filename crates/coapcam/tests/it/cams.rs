@@ -15,6 +15,13 @@ pub(crate) const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
 /// A running `coapcam serve`, killed on drop.
 pub(crate) struct Server(Child);
 
+impl Server {
+    /// The server's process.
+    pub(crate) fn process(&mut self) -> &mut Child {
+        &mut self.0
+    }
+}
+
 impl Drop for Server {
     fn drop(&mut self) {
         let _ = self.0.kill();

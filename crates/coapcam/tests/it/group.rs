@@ -1,16 +1,154 @@
-//! A multicast grab (issue "camera resource server", RFC 7390): three `coapcam serve` on
-//! 127.0.0.2, .3 and .4 in the group 224.0.1.187; one POST /cams/pointclouds to the group
-//! gets every server's whole merged cloud, each completed block-wise by unicast from the
-//! server's own address. Runs only inside `scripts/netns-run` (a private namespace), which
-//! `scripts/test.sh` uses; `#[ignore]`d elsewhere.
+//! Group communication (RFC 7390). `/coap-group` by unicast: memberships listed, created,
+//! read, replaced and deleted, bad payloads refused without change. In a private network
+//! namespace (`scripts/netns-run`, which `scripts/test.sh` uses; `#[ignore]`d elsewhere):
+//! a multicast grab of three `coapcam serve` on 127.0.0.2, .3 and .4 in the group
+//! 224.0.1.187, each answer completed block-wise by unicast from the server's own address;
+//! and a membership created at run time by POST makes a server answer its group.
 
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use coap::{Code, EndpointConfig, Request};
+use coap::group::{GroupConfig, decode_list};
+use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::Client;
 
-use crate::cams::{Server, TempDir, serve_at};
+use crate::cams::{LIMIT, Server, TempDir, client, runtime, send, serve_at, serve_with};
+
+/// The membership list of `GET /coap-group`.
+async fn list(c: &Client, addr: SocketAddr) -> BTreeMap<String, GroupConfig> {
+    let r = send(c, addr, Code::GET, "/coap-group", b"", None).await;
+    assert_eq!(r.code, Code::CONTENT);
+    assert_eq!(r.options.content_format().map(|f| f.0), Some(256));
+    decode_list(&r.payload).expect("an application/coap-group+json list")
+}
+
+fn membership(json: &str) -> GroupConfig {
+    GroupConfig::from_json(json.as_bytes()).expect("a membership")
+}
+
+fn location(r: &Response) -> Vec<String> {
+    r.options
+        .values(OptionNumber::LOCATION_PATH)
+        .map(|v| String::from_utf8_lossy(v).into_owned())
+        .collect()
+}
+
+#[test]
+fn coap_group_memberships_are_listed_created_replaced_and_deleted() {
+    let state = TempDir::new("group-crud");
+    // Administratively scoped groups (RFC 2365): never routed beyond the site.
+    let (_server, addr) = serve_with(state.path(), &["--no-cameras", "--group", "239.255.71.1"]);
+    let port = addr.port();
+    runtime().block_on(async {
+        let c = client();
+        let mut discover = Request::new(Code::GET, "/.well-known/core");
+        discover
+            .options
+            .push(OptionNumber::URI_QUERY, b"rt=core.gp".to_vec());
+        discover.timeout = Some(LIMIT);
+        let links = c.send(addr, discover).await.expect("discovery");
+        let links = String::from_utf8_lossy(&links.payload).into_owned();
+        assert!(links.starts_with("</coap-group>"), "{links}");
+        assert!(links.contains("ct=256"), "{links}");
+
+        let start = list(&c, addr).await;
+        let first = membership(&format!(r#"{{"a": "239.255.71.1:{port}"}}"#));
+        assert_eq!(start, BTreeMap::from([("1".to_string(), first.clone())]));
+
+        let floor1 = format!(r#"{{"n": "floor1.example", "a": "239.255.71.2:{port}"}}"#);
+        let created = send(&c, addr, Code::POST, "/coap-group", floor1.as_bytes(), None).await;
+        assert_eq!(created.code, Code::CREATED);
+        assert_eq!(location(&created), ["coap-group", "2"]);
+        let read = send(&c, addr, Code::GET, "/coap-group/2", b"", None).await;
+        assert_eq!(read.code, Code::CONTENT);
+        assert_eq!(read.options.content_format().map(|f| f.0), Some(256));
+        assert_eq!(
+            GroupConfig::from_json(&read.payload).ok(),
+            Some(membership(&floor1))
+        );
+        let both = list(&c, addr).await;
+        assert_eq!(both.len(), 2);
+
+        let wrong_port = if port == 5683 { 5684 } else { 5683 };
+        let bad = [
+            ("not json".to_string(), "JSON"),
+            ("[1]".to_string(), "object"),
+            (r#"{"n": "no-address"}"#.to_string(), "\"a\""),
+            (format!(r#"{{"a": "10.1.2.3:{port}"}}"#), "multicast"),
+            (format!(r#"{{"a": "239.255.71.3:{wrong_port}"}}"#), "port"),
+            (format!(r#"{{"a": "[ff05::fd]:{port}"}}"#), "family"),
+        ];
+        for (payload, why) in &bad {
+            for (method, path) in [(Code::POST, "/coap-group"), (Code::PUT, "/coap-group/2")] {
+                let r = send(&c, addr, method, path, payload.as_bytes(), None).await;
+                assert_eq!(r.code, Code::BAD_REQUEST, "{method:?} {payload}");
+                let text = String::from_utf8_lossy(&r.payload);
+                assert!(text.contains(why), "{method:?} {payload}: {text}");
+                assert_eq!(
+                    list(&c, addr).await,
+                    both,
+                    "{method:?} {payload} changed the list"
+                );
+            }
+        }
+        let mut plain = Request::new(Code::POST, "/coap-group").with_payload(floor1.clone());
+        plain.options.set_uint(OptionNumber::CONTENT_FORMAT, 0);
+        plain.timeout = Some(LIMIT);
+        let r = c.send(addr, plain).await.expect("POST text/plain");
+        assert_eq!(r.code, Code::UNSUPPORTED_CONTENT_FORMAT);
+        assert_eq!(list(&c, addr).await, both);
+
+        let floor2 = format!(r#"{{"n": "floor2.example", "a": "239.255.71.3:{port}"}}"#);
+        let r = send(
+            &c,
+            addr,
+            Code::PUT,
+            "/coap-group/2",
+            floor2.as_bytes(),
+            None,
+        )
+        .await;
+        assert_eq!(r.code, Code::CHANGED);
+        assert_eq!(
+            list(&c, addr).await,
+            BTreeMap::from([
+                ("1".to_string(), first.clone()),
+                ("2".to_string(), membership(&floor2))
+            ])
+        );
+        let r = send(
+            &c,
+            addr,
+            Code::PUT,
+            "/coap-group/9",
+            floor2.as_bytes(),
+            None,
+        )
+        .await;
+        assert_eq!(r.code, Code::NOT_FOUND);
+
+        for (method, path) in [
+            (Code::PUT, "/coap-group"),
+            (Code::DELETE, "/coap-group"),
+            (Code::POST, "/coap-group/1"),
+        ] {
+            let r = send(&c, addr, method, path, floor2.as_bytes(), None).await;
+            assert_eq!(r.code, Code::METHOD_NOT_ALLOWED, "{method:?} {path}");
+        }
+
+        let r = send(&c, addr, Code::DELETE, "/coap-group/2", b"", None).await;
+        assert_eq!(r.code, Code::DELETED);
+        let r = send(&c, addr, Code::GET, "/coap-group/2", b"", None).await;
+        assert_eq!(r.code, Code::NOT_FOUND);
+        let r = send(&c, addr, Code::DELETE, "/coap-group/2", b"", None).await;
+        assert_eq!(r.code, Code::NOT_FOUND);
+        assert_eq!(
+            list(&c, addr).await,
+            BTreeMap::from([("1".to_string(), first)])
+        );
+    });
+}
 
 fn scene(serial: &str) -> String {
     format!(
@@ -44,6 +182,69 @@ fn start(host: u8, dir: &std::path::Path) -> Server {
     let bind = format!("127.0.0.{host}:5683");
     let extra = ["--group", "224.0.1.187", "--scene", scene_arg];
     serve_at(&bind, &state, &extra).0
+}
+
+/// `GET /.well-known/core` sent to `group`: the servers that answered.
+async fn discover(client: &Client, group: SocketAddr) -> Vec<SocketAddr> {
+    let mut request = Request::new(Code::GET, "/.well-known/core");
+    request.timeout = Some(Duration::from_secs(2));
+    let answers = tokio::time::timeout(LIMIT, client.multicast(group, request))
+        .await
+        .expect("bounded")
+        .expect("multicast request");
+    answers.into_iter().map(|(peer, _)| peer).collect()
+}
+
+#[test]
+#[ignore = "multicast: run inside scripts/netns-run (scripts/test.sh does)"]
+fn a_membership_created_by_post_makes_the_server_answer_its_group() {
+    if std::env::var("COAPCAM_NETNS").ok().as_deref() != Some("1") {
+        eprintln!(
+            "SKIP a_membership_created_by_post_makes_the_server_answer_its_group: only inside scripts/netns-run"
+        );
+        return;
+    }
+    let dir = TempDir::new("group-runtime");
+    let (_server, addr) = serve_at("127.0.0.5:5683", dir.path(), &["--no-cameras"]);
+    let group: SocketAddr = "224.0.1.190:5683".parse().expect("group");
+    runtime().block_on(async {
+        let unicast = client();
+        // Bound to 127.0.0.1, as in the multicast grab below.
+        let multicast = Client::bind(
+            SocketAddr::from(([127, 0, 0, 1], 0)),
+            EndpointConfig::default(),
+        )
+        .expect("client socket");
+        assert!(
+            discover(&multicast, group).await.is_empty(),
+            "an answer before the server joined"
+        );
+        let created = send(
+            &unicast,
+            addr,
+            Code::POST,
+            "/coap-group",
+            br#"{"n": "cams.local", "a": "224.0.1.190"}"#,
+            None,
+        )
+        .await;
+        assert_eq!(created.code, Code::CREATED);
+        assert_eq!(discover(&multicast, group).await, [addr]);
+        let deleted = send(
+            &unicast,
+            addr,
+            Code::DELETE,
+            &format!("/{}", location(&created).join("/")),
+            b"",
+            None,
+        )
+        .await;
+        assert_eq!(deleted.code, Code::DELETED);
+        assert!(
+            discover(&multicast, group).await.is_empty(),
+            "an answer after the server left"
+        );
+    });
 }
 
 #[test]

@@ -5,3 +5,4 @@ mod formats;
 mod group;
 mod interop;
 mod netem;
+mod signals;

@@ -1,0 +1,221 @@
+//! The resource tree driven through a real server on 127.0.0.1 with a hub the test owns:
+//! cameras plugged in and pulled out at run time, a grab that outlasts its timeout, a
+//! camera that disappears.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
+use coap_net::{Client, Router, Server, ServerConfig};
+use rgbd::{Camera as _, CameraHub, Scene, SyntheticCamera};
+use tokio::sync::mpsc;
+
+use super::Cams;
+
+const LIMIT: Duration = Duration::from_secs(60);
+
+/// A state directory removed on drop.
+struct StateDir(PathBuf);
+
+impl StateDir {
+    fn new(tag: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("coapcam-unit-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("state directory");
+        Self(dir)
+    }
+}
+
+impl Drop for StateDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// The tree on a server of its own, an empty hub, and a client.
+struct Rig {
+    hub: Arc<CameraHub>,
+    router: Arc<Router>,
+    _cams: Arc<Cams>,
+    _server: Server,
+    addr: SocketAddr,
+    client: Client,
+}
+
+impl Rig {
+    fn start(state: &StateDir) -> Self {
+        let hub = Arc::new(CameraHub::new());
+        let router = Router::new();
+        let (changed, _) = mpsc::unbounded_channel();
+        let cams = Cams::start(hub.clone(), router.clone(), &state.0, changed).expect("cams");
+        let server = Server::bind(
+            &[SocketAddr::from(([127, 0, 0, 1], 0))],
+            ServerConfig::default(),
+            router.clone(),
+        )
+        .expect("server");
+        let addr = server.local_addrs()[0];
+        let client = Client::bind(
+            SocketAddr::from(([127, 0, 0, 1], 0)),
+            EndpointConfig::default(),
+        )
+        .expect("client");
+        Self {
+            hub,
+            router,
+            _cams: cams,
+            _server: server,
+            addr,
+            client,
+        }
+    }
+
+    async fn send(&self, method: Code, path: &str, payload: &[u8]) -> Response {
+        let mut request = Request::new(method, path).with_payload(payload.to_vec());
+        request.timeout = Some(LIMIT);
+        self.client
+            .send(self.addr, request)
+            .await
+            .unwrap_or_else(|e| panic!("{method:?} {path}: {e}"))
+    }
+
+    async fn discovery(&self) -> String {
+        let r = self.send(Code::GET, "/.well-known/core", b"").await;
+        String::from_utf8_lossy(&r.payload).into_owned()
+    }
+
+    /// Waits (bounded) until the hub listener has added or removed `path`.
+    async fn routed(&self, path: &str, present: bool) {
+        let wait = async {
+            while self.router.patterns().iter().any(|p| p == path) != present {
+                tokio::time::sleep(Duration::from_millis(5)).await;
+            }
+        };
+        tokio::time::timeout(LIMIT, wait)
+            .await
+            .unwrap_or_else(|_| panic!("{path} present = {present} never happened"));
+    }
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .expect("runtime")
+}
+
+fn cameras() -> Vec<Arc<SyntheticCamera>> {
+    SyntheticCamera::all(&Scene::default_demo()).expect("the demo scene's cameras")
+}
+
+#[test]
+fn cameras_plugged_in_and_pulled_out_appear_in_and_vanish_from_discovery() {
+    let state = StateDir::new("hotplug");
+    runtime().block_on(async {
+        let rig = Rig::start(&state);
+        let cams = cameras();
+        let (a, b) = (cams[0].clone(), cams[1].clone());
+        let (sa, sb) = (a.serial(), b.serial());
+        rig.hub.add(a).expect("plug in a");
+        rig.routed(&format!("/cams/{sa}/color"), true).await;
+        let links = rig.discovery().await;
+        assert!(
+            links.contains(&format!("</cams/{sa}/pointcloud>")),
+            "{links}"
+        );
+        assert!(!links.contains(&sb.to_string()), "{links}");
+
+        rig.hub.add(b).expect("plug in b");
+        rig.routed(&format!("/cams/{sb}/color"), true).await;
+        let links = rig.discovery().await;
+        for name in super::GRABS.iter().map(|(n, _)| *n).chain(super::CONFIGS) {
+            assert!(
+                links.contains(&format!("</cams/{sb}/{name}>")),
+                "{name}: {links}"
+            );
+        }
+        // A setting of b, to see it re-applied when b returns.
+        let settings = format!("/cams/{sb}/color-settings");
+        let doc = r#"{"format": "RGB8", "fps": 15, "width": 640, "height": 480}"#;
+        let put = rig.send(Code::PUT, &settings, doc.as_bytes()).await;
+        assert_eq!(put.code, Code::CHANGED);
+        let before = rig.send(Code::GET, &settings, b"").await.payload;
+
+        let b = rig.hub.remove(&sb).expect("pull out b");
+        rig.routed(&format!("/cams/{sb}/color"), false).await;
+        let links = rig.discovery().await;
+        assert!(!links.contains(&sb.to_string()), "{links}");
+        assert!(links.contains(&format!("</cams/{sa}/color>")), "{links}");
+        for path in [format!("/cams/{sb}/color"), settings.clone()] {
+            assert_eq!(rig.send(Code::GET, &path, b"").await.code, Code::NOT_FOUND);
+        }
+        let create = rig
+            .send(Code::POST, "/cams/color", sb.as_str().as_bytes())
+            .await;
+        assert_eq!(create.code, Code::BAD_REQUEST);
+        let grab = rig
+            .send(Code::POST, &format!("/cams/{sa}/depth"), b"")
+            .await;
+        assert_eq!(grab.code, Code::CONTENT, "the other camera still serves");
+
+        rig.hub.add(b).expect("plug b in again");
+        rig.routed(&settings, true).await;
+        assert_eq!(rig.send(Code::GET, &settings, b"").await.payload, before);
+    });
+}
+
+#[test]
+fn a_grab_that_outlasts_its_timeout_answers_5_03_with_max_age() {
+    let state = StateDir::new("timeout");
+    runtime().block_on(async {
+        let rig = Rig::start(&state);
+        let camera = cameras().swap_remove(0);
+        let sn = camera.serial();
+        rig.hub.add(camera.clone()).expect("plug in");
+        let config = format!("/cams/{sn}/application-config");
+        rig.routed(&config, true).await;
+        let doc = rig.send(Code::GET, &config, b"").await.payload;
+        let mut doc: serde_json::Value = serde_json::from_slice(&doc).expect("JSON");
+        doc["depth_grab_timeout_ms"] = 1500.into();
+        let put = rig
+            .send(Code::PUT, &config, doc.to_string().as_bytes())
+            .await;
+        assert_eq!(put.code, Code::CHANGED);
+
+        camera.set_frame_delay(Duration::from_secs(5));
+        for grab in ["depth", "pointcloud"] {
+            let r = rig
+                .send(Code::POST, &format!("/cams/{sn}/{grab}"), b"")
+                .await;
+            assert_eq!(r.code, Code::SERVICE_UNAVAILABLE, "{grab}");
+            assert_eq!(
+                r.options.uint(OptionNumber::MAX_AGE),
+                Some(2),
+                "{grab}: Max-Age is the timeout in whole seconds, rounded up"
+            );
+            let text = String::from_utf8_lossy(&r.payload);
+            assert!(text.contains("no frame within 1500 ms"), "{grab}: {text}");
+        }
+        // The server keeps serving: discovery, and the grab once frames come in time.
+        assert!(
+            rig.discovery()
+                .await
+                .contains(&format!("</cams/{sn}/depth>"))
+        );
+        camera.set_frame_delay(Duration::ZERO);
+        let r = rig
+            .send(Code::POST, &format!("/cams/{sn}/depth"), b"")
+            .await;
+        assert_eq!(r.code, Code::CONTENT);
+
+        // A camera that stops delivering (pulled out, not yet noticed by the hub).
+        camera.set_connected(false);
+        let r = rig
+            .send(Code::POST, &format!("/cams/{sn}/color"), b"")
+            .await;
+        assert_eq!(r.code, Code::NOT_FOUND);
+        assert!(String::from_utf8_lossy(&r.payload).contains("disconnected"));
+    });
+}
