@@ -2,6 +2,7 @@
 
 #![forbid(unsafe_code)]
 
+mod bench;
 mod cams;
 mod client;
 mod demo;
@@ -50,6 +51,9 @@ enum Command {
     /// grab, measure, and write pictures, a cloud and the dimensions next to the scene's
     /// truth into ./coapcam-demo/.
     Demo(demo::DemoArgs),
+    /// Benchmarks: `bench accuracy` measures a built-in set of synthetic parcels end to
+    /// end over CoAP and prints the errors.
+    Bench(bench::BenchArgs),
     /// Run the CoAP server.
     Serve(serve::ServeArgs),
     /// Relay UDP between clients and a server over an emulated link (loss, delay, jitter,
@@ -94,6 +98,7 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         Command::Discover(args) => return runtime.block_on(request::discover(args)),
         Command::Grab(args) => return runtime.block_on(grab_cmd::run(args)),
         Command::Measure(args) => return runtime.block_on(measure::run(args)),
+        Command::Bench(args) => return runtime.block_on(bench::run(args)),
         Command::Demo(args) => return runtime.block_on(demo::run(args)),
         Command::Serve(args) => {
             let served = runtime.block_on(serve::run(args));

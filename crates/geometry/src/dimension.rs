@@ -9,6 +9,7 @@
 //! within `top_band_m` below it. On a box this is the median of the lid, which is unbiased
 //! by depth noise, where a plain quantile would read about two noise deviations high.
 
+use std::collections::HashMap;
 use std::num::NonZeroUsize;
 
 use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point};
@@ -23,7 +24,8 @@ use crate::{Point3, PointCloud};
 pub struct DimensionConfig {
     /// Points lower than this (metres above the floor) are floor, not parcel.
     pub min_height_m: f32,
-    /// Two points closer than this (metres) belong to one object.
+    /// Two points closer than this (metres) belong to one object (points up to about 3.5
+    /// times as far apart may; see the grid in `largest_cluster`).
     pub cluster_radius_m: f32,
     /// Quantile of z taken as the top before the band median (in (0, 1]).
     pub height_quantile: f32,
@@ -205,38 +207,67 @@ pub fn dimension(
     })
 }
 
-/// The largest set of points connected by steps of at most `radius_m`; ties go to the
-/// cluster holding the lowest input index.
+/// The largest set of points connected through a grid of `radius_m` cells: points in
+/// the same or touching cells (26-neighbourhood) belong together, so points closer than
+/// `radius_m` always do and points up to about 3.5 radii apart may. Linear in the
+/// number of points, where a neighbour search per point grows with the density. Ties go
+/// to the cluster holding the lowest input index; the points keep their input order.
 fn largest_cluster(points: &[Point3], radius_m: f32) -> Result<Vec<Point3>, DimensionError> {
-    if points.is_empty() {
-        return Ok(Vec::new());
-    }
-    let index = Index::new(points).map_err(|e| DimensionError::TooManyPoints { points: e.0 })?;
-    let mut label = vec![usize::MAX; points.len()];
-    let mut best: Vec<usize> = Vec::new();
-    let mut stack = Vec::new();
-    for seed in 0..points.len() {
-        if label[seed] != usize::MAX {
-            continue;
+    let key = |p: &Point3| {
+        let k = |v: f32| (v / radius_m).floor() as i64;
+        (k(p.x), k(p.y), k(p.z))
+    };
+    let mut cells: HashMap<(i64, i64, i64), usize> = HashMap::new();
+    let mut counts: Vec<usize> = Vec::new();
+    let cell_of: Vec<usize> = points
+        .iter()
+        .map(|p| {
+            let next = cells.len();
+            let c = *cells.entry(key(p)).or_insert(next);
+            if c == counts.len() {
+                counts.push(0);
+            }
+            counts[c] += 1;
+            c
+        })
+        .collect();
+    let mut parent: Vec<usize> = (0..counts.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
         }
-        label[seed] = seed;
-        let mut members = vec![seed];
-        stack.push(seed);
-        while let Some(i) = stack.pop() {
-            for j in index.within(&points[i], radius_m) {
-                if label[j] == usize::MAX {
-                    label[j] = seed;
-                    members.push(j);
-                    stack.push(j);
+        i
+    }
+    for (&(x, y, z), &c) in &cells {
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    if let Some(&n) = cells.get(&(x + dx, y + dy, z + dz)) {
+                        let (a, b) = (root(&mut parent, c), root(&mut parent, n));
+                        if a != b {
+                            parent[a.max(b)] = a.min(b);
+                        }
+                    }
                 }
             }
         }
-        if members.len() > best.len() {
-            best = members;
-        }
     }
-    best.sort_unstable();
-    Ok(best.into_iter().map(|i| points[i]).collect())
+    let mut size = vec![0usize; counts.len()];
+    for (c, n) in counts.iter().enumerate() {
+        size[root(&mut parent, c)] += n;
+    }
+    // Cells are numbered in order of their first point, and every root is its set's
+    // lowest cell, so the first maximum holds the lowest input index.
+    let Some(best) = (0..size.len()).max_by(|&a, &b| size[a].cmp(&size[b]).then(b.cmp(&a))) else {
+        return Ok(Vec::new());
+    };
+    Ok(points
+        .iter()
+        .zip(&cell_of)
+        .filter(|(_, c)| root(&mut parent, **c) == best)
+        .map(|(p, _)| *p)
+        .collect())
 }
 
 /// Points of the cluster in the lid band below `height_m` that have at least

@@ -1,0 +1,324 @@
+//! `coapcam bench accuracy`: a built-in, seeded set of synthetic parcel scenes measured
+//! end to end over CoAP on loopback, with per-scene errors and a summary.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use anyhow::{Context as _, bail};
+use clap::{Args, Subcommand};
+use coap::EndpointConfig;
+use rand_chacha::ChaCha8Rng;
+use rand_core::{RngCore as _, SeedableRng as _};
+use rgbd::scene::{Noise, SceneBox, SceneCamera};
+use rgbd::{Scene, Serial};
+
+use crate::client::CamClient;
+use crate::demo::{cut_floor, truth, yaw_difference};
+use crate::measure::{self, DimensionArgs, Source};
+use crate::serve::SceneServer;
+
+/// Flags of `bench`.
+#[derive(Debug, Args)]
+pub(crate) struct BenchArgs {
+    #[command(subcommand)]
+    what: BenchKind,
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchKind {
+    /// Measure a built-in set of synthetic parcels (10-80 cm, yaw 0-90 deg, 2-60 cm high,
+    /// one or two D415s 0.8-1.5 m above the floor) end to end over CoAP and print the
+    /// errors.
+    Accuracy(AccuracyArgs),
+}
+
+#[derive(Debug, Args)]
+struct AccuracyArgs {
+    /// Number of scenes (at least 1).
+    #[arg(long, default_value_t = 40)]
+    scenes: usize,
+    /// Seed of the scene generator.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print one JSON object (every scene and the summary) instead of tables.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    dimension: DimensionArgs,
+}
+
+/// Half fields of view of the D415 depth stream, degrees (wide and narrow axis).
+const DEPTH_HALF_FOV_DEG: [f64; 2] = [32.5, 21.0];
+
+fn uniform(rng: &mut ChaCha8Rng, lo: f64, hi: f64) -> f64 {
+    let unit = (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+    lo + (hi - lo) * unit
+}
+
+/// Scene `index` of the set: a box with random size, yaw and position near the origin,
+/// seen by one camera above it (even indices) or two cameras on either end of its long
+/// side (odd ones), turned so the long side runs along the image's wide axis and high
+/// enough that the whole lid is in view.
+pub(crate) fn scene(seed: u64, index: usize) -> anyhow::Result<Scene> {
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(seed.wrapping_mul(1_000_003).wrapping_add(index as u64));
+    let (length, width) = {
+        let a = uniform(&mut rng, 0.10, 0.80);
+        let b = uniform(&mut rng, 0.10, 0.80);
+        (a.max(b), a.min(b))
+    };
+    let two = index % 2 == 1;
+    let offset = if two { 0.12 } else { 0.0 };
+    // A camera `d` above the lid sees d * tan(half angle) either side of its axis; keep
+    // 15 % of margin.
+    let [wide, narrow] = DEPTH_HALF_FOV_DEG.map(|a| a.to_radians().tan() * 0.85);
+    let needed = ((length / 2.0 + offset) / wide).max(width / 2.0 / narrow);
+    let height_max = (1.5 - needed).min(0.60);
+    let height = uniform(&mut rng, 0.02, height_max.max(0.02));
+    let camera_z = uniform(&mut rng, (height + needed).max(0.8), 1.5).min(1.5);
+    let yaw_deg = uniform(&mut rng, 0.0, 90.0);
+    let center = [
+        uniform(&mut rng, -0.05, 0.05),
+        uniform(&mut rng, -0.05, 0.05),
+    ];
+    let (sin, cos) = yaw_deg.to_radians().sin_cos();
+    // Up in the image is the box's width axis, so the image's x runs along its length.
+    let up = [-sin, cos, 0.0];
+    let camera = |n: u64, along: f64, z: f64| -> anyhow::Result<SceneCamera> {
+        Ok(SceneCamera {
+            serial: Serial::parse(&format!("{:012}", 840_412_060_700 + n))
+                .map_err(|e| anyhow::anyhow!("{e}"))?,
+            position: [center[0] + along * cos, center[1] + along * sin, z],
+            look_at: [center[0], center[1], height],
+            up: Some(up),
+            noise: Noise::D415,
+            calibrated: true,
+        })
+    };
+    let cameras = if two {
+        vec![
+            camera(1, offset, camera_z)?,
+            camera(2, -offset, camera_z - 0.05)?,
+        ]
+    } else {
+        vec![camera(0, 0.0, camera_z)?]
+    };
+    Ok(Scene {
+        seed: rng.next_u64(),
+        cameras,
+        boxes: vec![SceneBox {
+            size: [length, width, height],
+            center,
+            yaw_deg,
+            color: [180, 140, 90],
+            label: None,
+        }],
+        ..Scene::default_single()
+    })
+}
+
+/// One scene's result.
+struct Row {
+    index: usize,
+    cameras: usize,
+    camera_z: f64,
+    truth: [f64; 4],
+    measured: Option<[f64; 4]>,
+    cycle_ms: f64,
+    error: Option<String>,
+}
+
+impl Row {
+    /// Errors of length, width, height (mm) and yaw (deg).
+    fn errors(&self) -> Option<[f64; 4]> {
+        let m = self.measured?;
+        Some([
+            m[0] - self.truth[0],
+            m[1] - self.truth[1],
+            m[2] - self.truth[2],
+            yaw_difference(m[3], self.truth[3]),
+        ])
+    }
+}
+
+/// Mean absolute value, 95th percentile of absolute values (nearest rank) and maximum.
+fn summary(values: &[f64]) -> [f64; 3] {
+    let mut abs: Vec<f64> = values.iter().map(|v| v.abs()).collect();
+    abs.sort_by(f64::total_cmp);
+    if abs.is_empty() {
+        return [f64::NAN; 3];
+    }
+    let rank = ((0.95 * abs.len() as f64).ceil() as usize).clamp(1, abs.len());
+    [
+        abs.iter().sum::<f64>() / abs.len() as f64,
+        abs[rank - 1],
+        abs[abs.len() - 1],
+    ]
+}
+
+/// Runs `bench`.
+pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<bool> {
+    match args.what {
+        BenchKind::Accuracy(a) => accuracy(a).await,
+    }
+}
+
+async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
+    if args.scenes == 0 {
+        bail!("--scenes must be at least 1");
+    }
+    let state = std::env::temp_dir().join(format!("coapcam-bench-{}", std::process::id()));
+    let first = scene(args.seed, 0)?;
+    let server = SceneServer::start(&first, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
+    let uri = format!("coap://{}", server.addr()?);
+    let client =
+        CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(30)).await?;
+    let config = args.dimension.config();
+    let mut rows = Vec::new();
+    for index in 0..args.scenes {
+        let scene = scene(args.seed, index)?;
+        server.load(&scene)?;
+        let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
+        cut_floor(&client, &serials, 1.0).await?;
+        let truth = truth(&scene).context("the scene has no box")?;
+        let result = measure::measure_once(&client, &Source::All, &config).await;
+        let row = Row {
+            index,
+            cameras: scene.cameras.len(),
+            camera_z: scene.cameras[0].position[2],
+            truth,
+            cycle_ms: result
+                .as_ref()
+                .map_or(f64::NAN, |m| m.cycle.as_secs_f64() * 1e3),
+            measured: result.as_ref().ok().map(|m| {
+                let d = &m.dimensions;
+                [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg]
+            }),
+            error: result.err().map(|e| format!("{e:#}")),
+        };
+        if !args.json {
+            print_row(&row);
+        }
+        rows.push(row);
+    }
+    drop(server);
+    std::fs::remove_dir_all(&state).ok();
+    let errors: Vec<[f64; 4]> = rows.iter().filter_map(Row::errors).collect();
+    let column = |i: usize| summary(&errors.iter().map(|e| e[i]).collect::<Vec<_>>());
+    let mut cycles: Vec<f64> = rows
+        .iter()
+        .map(|r| r.cycle_ms)
+        .filter(|c| c.is_finite())
+        .collect();
+    cycles.sort_by(f64::total_cmp);
+    let median_cycle = cycles.get(cycles.len() / 2).copied().unwrap_or(f64::NAN);
+    let max_cycle = cycles.last().copied().unwrap_or(f64::NAN);
+    let failed = rows.len() - errors.len();
+    let names = ["length_mm", "width_mm", "height_mm", "yaw_deg"];
+    if args.json {
+        let scenes: Vec<serde_json::Value> = rows
+            .iter()
+            .map(|r| {
+                serde_json::json!({
+                    "scene": r.index, "cameras": r.cameras, "camera_z_m": r.camera_z,
+                    "truth": r.truth, "measured": r.measured, "cycle_ms": r.cycle_ms,
+                    "error": r.error,
+                })
+            })
+            .collect();
+        let summary: serde_json::Map<String, serde_json::Value> = names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| {
+                let [mae, p95, max] = column(i);
+                (
+                    (*n).to_owned(),
+                    serde_json::json!({"mae": mae, "p95": p95, "max": max}),
+                )
+            })
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({
+                "scenes": scenes, "summary": summary, "failed": failed,
+                "cycle_ms": {"median": median_cycle, "max": max_cycle},
+            })
+        );
+    } else {
+        println!();
+        println!("{:<10} {:>8} {:>8} {:>8}", "", "MAE", "p95", "max");
+        for (i, name) in ["length mm", "width mm", "height mm", "yaw deg"]
+            .iter()
+            .enumerate()
+        {
+            let [mae, p95, max] = column(i);
+            println!("{name:<10} {mae:>8.2} {p95:>8.2} {max:>8.2}");
+        }
+        println!(
+            "{} scenes, {failed} failed; cycle median {median_cycle:.0} ms, max {max_cycle:.0} ms",
+            rows.len()
+        );
+    }
+    Ok(failed == 0)
+}
+
+fn print_row(r: &Row) {
+    let t = r.truth;
+    match (r.errors(), &r.error) {
+        (Some(e), _) => println!(
+            "scene {:>2}: {} cam at {:.2} m  {:>5.0} x {:>5.0} x {:>5.0} mm  yaw {:>4.1}  error {:>+6.1} {:>+6.1} {:>+6.1} mm {:>+5.1} deg  {:>4.0} ms",
+            r.index,
+            r.cameras,
+            r.camera_z,
+            t[0],
+            t[1],
+            t[2],
+            t[3],
+            e[0],
+            e[1],
+            e[2],
+            e[3],
+            r.cycle_ms
+        ),
+        (None, Some(err)) => println!(
+            "scene {:>2}: {} cam at {:.2} m  {:>5.0} x {:>5.0} x {:>5.0} mm  FAILED: {err}",
+            r.index, r.cameras, r.camera_z, t[0], t[1], t[2]
+        ),
+        (None, None) => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_scene_set_covers_the_ranges_and_is_reproducible() {
+        let scenes: Vec<Scene> = (0..40).map(|i| scene(1, i).unwrap()).collect();
+        assert_eq!(scenes[7], scene(1, 7).unwrap());
+        let boxes: Vec<&SceneBox> = scenes.iter().map(|s| &s.boxes[0]).collect();
+        for b in &boxes {
+            assert!(
+                b.size[0] >= 0.1 && b.size[0] <= 0.8 && b.size[1] >= 0.1,
+                "{b:?}"
+            );
+            assert!(b.size[2] >= 0.02 && b.size[2] <= 0.6, "{b:?}");
+            assert!((0.0..=90.0).contains(&b.yaw_deg));
+        }
+        for s in &scenes {
+            for c in &s.cameras {
+                assert!(c.position[2] >= 0.75 && c.position[2] <= 1.5, "{c:?}");
+            }
+        }
+        assert!(scenes.iter().any(|s| s.cameras.len() == 2));
+        assert!(scenes.iter().any(|s| s.cameras.len() == 1));
+    }
+
+    #[test]
+    fn summary_is_mean_p95_and_max_of_absolute_values() {
+        let v: Vec<f64> = (1..=20)
+            .map(|i| if i % 2 == 0 { i as f64 } else { -(i as f64) })
+            .collect();
+        assert_eq!(summary(&v), [10.5, 19.0, 20.0]);
+    }
+}
