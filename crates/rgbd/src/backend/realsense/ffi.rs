@@ -835,10 +835,18 @@ pub(crate) struct Frame {
 unsafe impl Send for Frame {}
 
 impl Frame {
-    /// The frame's pixels.
+    /// The frame's pixels. Frames of a software device report a data size of 0
+    /// (librealsense keeps the injected buffer outside the frame); their size is then
+    /// stride * height, the buffer the injector handed over.
     pub(crate) fn data(&self) -> Result<&[u8], RsError> {
         let p = call!(self.lib, rs2_get_frame_data(self.raw))?;
-        let size = call!(self.lib, rs2_get_frame_data_size(self.raw))?;
+        let size = match call!(self.lib, rs2_get_frame_data_size(self.raw))? {
+            0 => {
+                let (_, height, stride) = self.geometry()?;
+                i64::from(height) * i64::from(stride)
+            }
+            n => i64::from(n),
+        };
         let size = usize::try_from(size).unwrap_or(0);
         if p.is_null() || size == 0 {
             return Ok(&[]);
