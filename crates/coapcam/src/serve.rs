@@ -33,6 +33,27 @@ pub(crate) struct ServeArgs {
     /// Synthetic cameras of this scene file (default: the built-in single-camera scene).
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
+    /// Serve the Intel RealSense D400 cameras librealsense2 finds (loaded at run time;
+    /// hot-plug followed) instead of synthetic ones.
+    #[arg(long, conflicts_with = "no_cameras")]
+    realsense: bool,
+    /// The librealsense2 library for --realsense (default: $LIBREALSENSE2_PATH, then
+    /// librealsense2.so.2.* / librealsense2.so on the system library path).
+    #[arg(long, value_name = "PATH", requires = "realsense")]
+    librealsense: Option<PathBuf>,
+    /// A library to load globally before librealsense2 (repeatable), e.g. the libpython
+    /// a pyrealsense2 wheel's module needs when that module is --librealsense.
+    #[arg(long, value_name = "PATH", requires = "realsense")]
+    librealsense_preload: Vec<PathBuf>,
+    /// With --realsense: keep the sensors streaming and serve the newest frame, instead
+    /// of opening and closing a sensor per grab.
+    #[arg(long, requires = "realsense")]
+    realsense_streaming: bool,
+    /// With --realsense: also put a virtual D415 per camera of the scene into
+    /// librealsense (a software device fed by the synthetic renderer), served through
+    /// the same librealsense code path as a real camera. For testing without hardware.
+    #[arg(long, requires = "realsense")]
+    realsense_software: bool,
     /// Where camera configuration is persisted per serial (default:
     /// $XDG_STATE_HOME/coapcam, ~/.local/state/coapcam, else ./coapcam-state).
     #[arg(long, value_name = "DIR")]
@@ -133,12 +154,13 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The cameras of the scene in a hub, and the `/cams` tree following it.
+/// The cameras (of the scene, or librealsense's with --realsense) in a hub, and the
+/// `/cams` tree following it.
 fn start_cameras(
     args: &ServeArgs,
     router: &Arc<Router>,
     changed: mpsc::UnboundedSender<String>,
-) -> anyhow::Result<(Arc<CameraHub>, Arc<Cams>)> {
+) -> anyhow::Result<CameraTree> {
     let scene = match &args.scene {
         Some(path) => {
             Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
@@ -152,9 +174,21 @@ fn start_cameras(
     let cams = Cams::start(hub.clone(), router.clone(), &state_dir, changed)
         .context("starting the camera hub listener")?;
     let mut expected = Vec::new();
-    for camera in SyntheticCamera::all(&scene).context("building the scene's cameras")? {
-        expected.push(format!("/cams/{}/color", camera.serial()));
-        hub.add(camera).context("adding a camera")?;
+    let mut backend = None;
+    if args.realsense {
+        let realsense = realsense::start(args, &scene, hub.clone())?;
+        expected.extend(
+            realsense
+                .serials
+                .iter()
+                .map(|sn| format!("/cams/{sn}/color")),
+        );
+        backend = Some(realsense);
+    } else {
+        for camera in SyntheticCamera::all(&scene).context("building the scene's cameras")? {
+            expected.push(format!("/cams/{}/color", camera.serial()));
+            hub.add(camera).context("adding a camera")?;
+        }
     }
     // The hub listener registers per-camera resources on its own thread: announce the
     // server only once every camera of the scene is routed, so a client that starts at
@@ -166,7 +200,88 @@ fn start_cameras(
         }
         std::thread::sleep(Duration::from_millis(2));
     }
-    Ok((hub, cams))
+    Ok(CameraTree {
+        _backend: backend,
+        _hub: hub,
+        _cams: cams,
+    })
+}
+
+/// What serves the cameras; kept alive as long as the server.
+struct CameraTree {
+    _backend: Option<realsense::Backend>,
+    _hub: Arc<CameraHub>,
+    _cams: Arc<Cams>,
+}
+
+/// `--realsense`: librealsense's cameras in the hub.
+mod realsense {
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use anyhow::Context as _;
+    use rgbd::backend::realsense::{
+        GrabMode, LibrarySearch, RealSense, RealSenseLibrary, SoftwareD415,
+    };
+    use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
+
+    use super::ServeArgs;
+
+    /// How long librealsense gets to announce the first camera.
+    const FIRST_CAMERA: Duration = Duration::from_secs(3);
+
+    /// The running backend, its virtual cameras and the serials served at start.
+    pub(super) struct Backend {
+        pub(super) serials: Vec<Serial>,
+        // Dropped before the context: stops injecting.
+        _software: Vec<SoftwareD415>,
+        _realsense: RealSense,
+    }
+
+    pub(super) fn start(
+        args: &ServeArgs,
+        scene: &Scene,
+        hub: Arc<CameraHub>,
+    ) -> anyhow::Result<Backend> {
+        let library = RealSenseLibrary::load(&LibrarySearch {
+            explicit: args.librealsense.clone(),
+            preload: args.librealsense_preload.clone(),
+        })?;
+        let mode = if args.realsense_streaming {
+            GrabMode::Streaming
+        } else {
+            GrabMode::PerRequest
+        };
+        let realsense = RealSense::start(&library, hub, mode)
+            .with_context(|| format!("starting librealsense {}", library.version()))?;
+        let mut software = Vec::new();
+        if args.realsense_software {
+            for camera in SyntheticCamera::all(scene).context("building the scene's cameras")? {
+                software.push(
+                    realsense
+                        .add_software_d415(camera)
+                        .context("adding a virtual D415 to librealsense")?,
+                );
+            }
+        }
+        let mut serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
+        // Every virtual camera is announced on librealsense's thread; wait for all.
+        let deadline = std::time::Instant::now() + FIRST_CAMERA;
+        while software.iter().any(|s| !serials.contains(&s.serial()))
+            && std::time::Instant::now() < deadline
+        {
+            std::thread::sleep(Duration::from_millis(10));
+            serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
+        }
+        for reason in realsense.rejected() {
+            tracing::warn!("librealsense device not served: {reason}");
+        }
+        Ok(Backend {
+            serials,
+            _software: software,
+            _realsense: realsense,
+        })
+    }
 }
 
 fn default_state_dir() -> PathBuf {

@@ -4,3 +4,4 @@ mod cams;
 mod group;
 mod interop;
 mod netem;
+mod realsense;
