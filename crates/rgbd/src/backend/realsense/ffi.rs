@@ -39,7 +39,7 @@ pub(crate) const STREAM_DEPTH: c_int = 1;
 pub(crate) const STREAM_COLOR: c_int = 2;
 /// `RS2_FORMAT_Z16`.
 pub(crate) const FORMAT_Z16: c_int = 1;
-/// `RS2_FORMAT_RGB8`, `BGR8`, `RGBA8`, `BGRA8`.
+/// `RS2_FORMAT_RGB8`.
 pub(crate) const FORMAT_RGB8: c_int = 5;
 /// `RS2_FORMAT_BGR8`.
 pub(crate) const FORMAT_BGR8: c_int = 6;

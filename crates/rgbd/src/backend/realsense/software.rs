@@ -16,7 +16,6 @@ use super::ffi::{
 use crate::backend::synthetic::SyntheticCamera;
 use crate::camera::{Camera, Serial};
 use crate::d415;
-use crate::frame::ColorFormat;
 use crate::intrinsics::Intrinsics;
 use crate::mode::ModeTable;
 use crate::settings::{ColorSettings, DepthSettings};
@@ -338,7 +337,7 @@ fn inject(
                 &InjectedFrame {
                     bytes: &frame.data,
                     stride: frame.stride,
-                    bpp: bpp(frame.format),
+                    bpp: frame.format.bytes_per_pixel(),
                     number: frame_number,
                     timestamp_ms: frame.timestamp_us as f64 / 1000.0,
                     depth_units: 0.0,
@@ -347,8 +346,4 @@ fn inject(
         }
     }
     Ok(())
-}
-
-fn bpp(format: ColorFormat) -> usize {
-    format.bytes_per_pixel()
 }
