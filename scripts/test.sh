@@ -44,6 +44,19 @@ else
       DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends libusb-1.0-0; } \
     || peer_failed libusb-1.0-0
 fi
+# The realsense backend tests (crates/rgbd/tests/it/realsense.rs, crates/coapcam/tests/it/
+# realsense.rs) load the wheel's module outside Python, after the libpython it needs.
+if rs_paths=$(python3 -c "import os, sysconfig, pyrealsense2 as rs
+print(rs.pyrealsense2.__file__)
+print(os.path.join(sysconfig.get_config_var('LIBDIR'), sysconfig.get_config_var('INSTSONAME')))"); then
+  COAPCAM_LIBREALSENSE=$(sed -n 1p <<<"$rs_paths")
+  COAPCAM_LIBPYTHON=$(sed -n 2p <<<"$rs_paths")
+  export COAPCAM_LIBREALSENSE COAPCAM_LIBPYTHON
+  echo "librealsense: $COAPCAM_LIBREALSENSE (after $COAPCAM_LIBPYTHON)"
+  [ -f "$COAPCAM_LIBPYTHON" ] || peer_failed "a shared libpython ($COAPCAM_LIBPYTHON)"
+else
+  peer_failed "pyrealsense2 paths"
+fi
 
 step "cargo fmt --check"
 cargo fmt --all -- --check

@@ -35,6 +35,27 @@ pub(crate) struct ServeArgs {
     /// Synthetic cameras of this scene file (default: the built-in single-camera scene).
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
+    /// Serve the Intel RealSense D400 cameras librealsense2 finds (loaded at run time;
+    /// hot-plug followed) instead of synthetic ones.
+    #[arg(long, conflicts_with = "no_cameras")]
+    realsense: bool,
+    /// The librealsense2 library for --realsense (default: $LIBREALSENSE2_PATH, then
+    /// librealsense2.so.2.* / librealsense2.so on the system library path).
+    #[arg(long, value_name = "PATH", requires = "realsense")]
+    librealsense: Option<PathBuf>,
+    /// A library to load globally before librealsense2 (repeatable), e.g. the libpython
+    /// a pyrealsense2 wheel's module needs when that module is --librealsense.
+    #[arg(long, value_name = "PATH", requires = "realsense")]
+    librealsense_preload: Vec<PathBuf>,
+    /// With --realsense: keep the sensors streaming and serve the newest frame, instead
+    /// of opening and closing a sensor per grab.
+    #[arg(long, requires = "realsense")]
+    realsense_streaming: bool,
+    /// With --realsense: also put a virtual D415 per camera of the scene into
+    /// librealsense (a software device fed by the synthetic renderer), served through
+    /// the same librealsense code path as a real camera. For testing without hardware.
+    #[arg(long, requires = "realsense")]
+    realsense_software: bool,
     /// Where camera configuration is persisted per serial (default:
     /// $XDG_STATE_HOME/coapcam, ~/.local/state/coapcam, else ./coapcam-state).
     #[arg(long, value_name = "DIR")]
@@ -87,16 +108,7 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let cameras = if args.no_cameras {
         None
     } else {
-        let scene = match &args.scene {
-            Some(path) => {
-                Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
-            }
-            None => Scene::default_single(),
-        };
-        let state_dir = args.state_dir.clone().unwrap_or_else(default_state_dir);
-        let (hub, cams) = start_hub(&state_dir, &router, changed_tx.clone())?;
-        load_scene(&hub, &router, &scene)?;
-        Some((hub, cams))
+        Some(start_cameras(&args, &router, changed_tx.clone())?)
     };
     let config = ServerConfig {
         endpoint: args.transmission.endpoint_config(),
@@ -254,6 +266,118 @@ fn wait_for(done: impl Fn() -> bool) -> anyhow::Result<()> {
         std::thread::sleep(Duration::from_millis(2));
     }
     Ok(())
+}
+
+/// The cameras (of the scene, or librealsense's with --realsense) in a hub, and the
+/// `/cams` tree following it; returns once every camera present at start is routed.
+fn start_cameras(
+    args: &ServeArgs,
+    router: &Arc<Router>,
+    changed: mpsc::UnboundedSender<String>,
+) -> anyhow::Result<CameraTree> {
+    let scene = match &args.scene {
+        Some(path) => {
+            Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
+        }
+        None => Scene::default_single(),
+    };
+    let state_dir = args.state_dir.clone().unwrap_or_else(default_state_dir);
+    let (hub, cams) = start_hub(&state_dir, router, changed)?;
+    let mut backend = None;
+    if args.realsense {
+        let realsense = realsense::start(args, &scene, hub.clone())?;
+        let expected: Vec<String> = realsense
+            .serials
+            .iter()
+            .map(|sn| format!("/cams/{sn}/color"))
+            .collect();
+        wait_for(|| expected.iter().all(|p| router.patterns().contains(p)))?;
+        backend = Some(realsense);
+    } else {
+        load_scene(&hub, router, &scene)?;
+    }
+    Ok(CameraTree {
+        _backend: backend,
+        _hub: hub,
+        _cams: cams,
+    })
+}
+
+/// What serves the cameras; kept alive as long as the server.
+struct CameraTree {
+    _backend: Option<realsense::Backend>,
+    _hub: Arc<CameraHub>,
+    _cams: Arc<Cams>,
+}
+
+/// `--realsense`: librealsense's cameras in the hub.
+mod realsense {
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use anyhow::Context as _;
+    use rgbd::backend::realsense::{
+        GrabMode, LibrarySearch, RealSense, RealSenseLibrary, SoftwareD415,
+    };
+    use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
+
+    use super::ServeArgs;
+
+    /// How long librealsense gets to announce the first camera.
+    const FIRST_CAMERA: Duration = Duration::from_secs(3);
+
+    /// The running backend, its virtual cameras and the serials served at start.
+    pub(super) struct Backend {
+        pub(super) serials: Vec<Serial>,
+        // Dropped before the context: stops injecting.
+        _software: Vec<SoftwareD415>,
+        _realsense: RealSense,
+    }
+
+    pub(super) fn start(
+        args: &ServeArgs,
+        scene: &Scene,
+        hub: Arc<CameraHub>,
+    ) -> anyhow::Result<Backend> {
+        let library = RealSenseLibrary::load(&LibrarySearch {
+            explicit: args.librealsense.clone(),
+            preload: args.librealsense_preload.clone(),
+        })?;
+        let mode = if args.realsense_streaming {
+            GrabMode::Streaming
+        } else {
+            GrabMode::PerRequest
+        };
+        let realsense = RealSense::start(&library, hub, mode)
+            .with_context(|| format!("starting librealsense {}", library.version()))?;
+        let mut software = Vec::new();
+        if args.realsense_software {
+            for camera in SyntheticCamera::all(scene).context("building the scene's cameras")? {
+                software.push(
+                    realsense
+                        .add_software_d415(camera)
+                        .context("adding a virtual D415 to librealsense")?,
+                );
+            }
+        }
+        let mut serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
+        // Every virtual camera is announced on librealsense's thread; wait for all.
+        let deadline = std::time::Instant::now() + FIRST_CAMERA;
+        while software.iter().any(|s| !serials.contains(&s.serial()))
+            && std::time::Instant::now() < deadline
+        {
+            std::thread::sleep(Duration::from_millis(10));
+            serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
+        }
+        for reason in realsense.rejected() {
+            tracing::warn!("librealsense device not served: {reason}");
+        }
+        Ok(Backend {
+            serials,
+            _software: software,
+            _realsense: realsense,
+        })
+    }
 }
 
 fn default_state_dir() -> PathBuf {

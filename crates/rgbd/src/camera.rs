@@ -99,6 +99,16 @@ pub enum CameraError {
     /// A setting was refused; nothing was changed.
     #[error("invalid setting: {0}")]
     InvalidSetting(#[from] SettingError),
+    /// The device or its driver library failed (e.g. a librealsense call).
+    #[error("device error: {0}")]
+    Device(String),
+    /// The advanced config needs the D400 advanced mode, which this device does not
+    /// have or has disabled.
+    #[error("camera {serial} has no advanced mode enabled (needed for the advanced config)")]
+    AdvancedModeUnavailable {
+        /// Its serial number.
+        serial: Serial,
+    },
 }
 
 impl From<ModeError> for CameraError {

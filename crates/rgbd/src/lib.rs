@@ -1,15 +1,17 @@
 //! RGB-D cameras for coapcam: frames, D415 stream modes, settings documents, the
-//! `Camera` trait with its hot-plug `CameraHub`, and the synthetic D415 backend.
+//! `Camera` trait with its hot-plug `CameraHub`, and the backends: the synthetic D415 and
+//! Intel RealSense D400 cameras through librealsense (loaded at run time).
 //!
 //! Owns: color/depth frame types, intrinsics/extrinsics and deprojection, the depth
 //! post-processing filters (librealsense's blocks, [`filter`]), the
 //! D415 mode tables and camera model, the depth-settings / color-settings /
 //! advanced-config JSON documents (thesis Listings A.1, A.2, A.5), scene files
-//! (DESIGN.md §7) and the camera backends.
+//! (DESIGN.md §7) and the camera backends. The only unsafe code is librealsense's FFI
+//! (`backend::realsense::ffi`, allowed there alone).
 //!
 //! Must not: know CoAP or networking, use async runtimes (the crate is synchronous;
-//! callers move grabs off their executors), or read clocks anywhere but in a backend's
-//! grab path.
+//! callers move grabs off their executors), or read clocks anywhere but in a backend (its grab path,
+//! librealsense's wait for a first camera, the software D415's frame pacing).
 
 #![deny(unsafe_code)]
 

@@ -5,4 +5,5 @@ mod formats;
 mod group;
 mod interop;
 mod netem;
+mod realsense;
 mod signals;

@@ -2,5 +2,6 @@
 
 pub(crate) mod label;
 mod raycast;
+pub mod realsense;
 mod render;
 pub mod synthetic;

@@ -5,6 +5,7 @@ mod filters;
 mod hub;
 mod librealsense;
 mod modes;
+mod realsense;
 mod scene;
 mod support;
 mod synthetic;

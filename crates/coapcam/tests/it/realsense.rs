@@ -1,0 +1,184 @@
+//! `coapcam serve --realsense`: clear failures without librealsense, and a virtual
+//! D415 (a librealsense software device fed by the synthetic renderer) served through
+//! librealsense's code path with the same resource tree as the synthetic camera.
+//!
+//! The library is the pyrealsense2 wheel's module with its libpython preloaded:
+//! `COAPCAM_LIBREALSENSE` and `COAPCAM_LIBPYTHON`, else found by asking `python3`.
+//! Missing: a loud skip, a failure under `CI=true`.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use coap::Code;
+
+use crate::cams::{COLOR_640, TempDir, client, runtime, send, serve_at};
+
+const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
+const SN: &str = "840412060746";
+
+fn wheel() -> Option<(String, String)> {
+    let from_env = |name: &str| std::env::var(name).ok().filter(|v| !v.is_empty());
+    let found = match (
+        from_env("COAPCAM_LIBREALSENSE"),
+        from_env("COAPCAM_LIBPYTHON"),
+    ) {
+        (Some(module), Some(libpython)) => Some((module, libpython)),
+        _ => {
+            let script = "import os, sysconfig, pyrealsense2 as rs\n\
+                print(rs.pyrealsense2.__file__)\n\
+                print(os.path.join(sysconfig.get_config_var('LIBDIR'), \
+                sysconfig.get_config_var('INSTSONAME')))";
+            Command::new("python3")
+                .args(["-c", script])
+                .output()
+                .ok()
+                .filter(|o| o.status.success())
+                .and_then(|o| String::from_utf8(o.stdout).ok())
+                .and_then(|t| {
+                    let mut lines = t.lines().map(str::to_owned);
+                    Some((lines.next()?, lines.next()?))
+                })
+        }
+    };
+    match found {
+        Some((m, p)) if PathBuf::from(&m).is_file() && PathBuf::from(&p).is_file() => Some((m, p)),
+        other => {
+            let why = format!(
+                "SKIPPED: pyrealsense2 wheel module or its libpython not found ({other:?})"
+            );
+            assert!(std::env::var("CI").as_deref() != Ok("true"), "{why}");
+            eprintln!("{why}");
+            None
+        }
+    }
+}
+
+#[test]
+fn serve_realsense_without_the_library_exits_with_the_paths_tried() {
+    let out = Command::new(COAPCAM)
+        .args([
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--duration",
+            "5",
+            "--realsense",
+            "--librealsense",
+            "/nonexistent/librealsense2.so",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("librealsense2 could not be loaded"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("/nonexistent/librealsense2.so ("),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+#[test]
+fn serve_realsense_with_a_working_library_but_no_camera_says_so() {
+    let Some((module, libpython)) = wheel() else {
+        return;
+    };
+    let out = Command::new(COAPCAM)
+        .args([
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--duration",
+            "5",
+            "--realsense",
+        ])
+        .args([
+            "--librealsense",
+            &module,
+            "--librealsense-preload",
+            &libpython,
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("found no Intel RealSense D400 camera"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+#[test]
+fn a_virtual_d415_through_librealsense_serves_the_synthetic_tree_and_pixels() {
+    let Some((module, libpython)) = wheel() else {
+        return;
+    };
+    let synthetic_state = TempDir::new("rs-synthetic");
+    let realsense_state = TempDir::new("rs-realsense");
+    let (_synthetic, synthetic) = serve_at("127.0.0.1:0", synthetic_state.path(), &[]);
+    let (_realsense, realsense) = serve_at(
+        "127.0.0.1:0",
+        realsense_state.path(),
+        &[
+            "--realsense",
+            "--realsense-software",
+            "--librealsense",
+            &module,
+            "--librealsense-preload",
+            &libpython,
+        ],
+    );
+    runtime().block_on(async {
+        let c = client();
+        let core = |addr| {
+            let c = &c;
+            async move { send(c, addr, Code::GET, "/.well-known/core", b"", None).await }
+        };
+        let (a, b) = (core(synthetic).await, core(realsense).await);
+        assert_eq!(a.code, Code::CONTENT);
+        let links = String::from_utf8_lossy(&b.payload).into_owned();
+        assert!(links.contains(&format!("</cams/{SN}/color>")), "{links}");
+        assert_eq!(a.payload, b.payload, "resource trees differ");
+
+        // Color has no noise: a grab through librealsense has the synthetic pixels.
+        let mut grabs = Vec::new();
+        for addr in [synthetic, realsense] {
+            let settings = format!("/cams/{SN}/color-settings");
+            let r = send(&c, addr, Code::PUT, &settings, COLOR_640.as_bytes(), None).await;
+            assert_eq!(r.code, Code::CHANGED);
+            let r = send(
+                &c,
+                addr,
+                Code::POST,
+                &format!("/cams/{SN}/color"),
+                b"",
+                None,
+            )
+            .await;
+            assert_eq!(
+                r.code,
+                Code::CONTENT,
+                "{}",
+                String::from_utf8_lossy(&r.payload)
+            );
+            grabs.push(r.payload);
+        }
+        assert_eq!(grabs[1].len(), 921_610);
+        assert!(grabs[0][10..] == grabs[1][10..], "color pixels differ");
+        let depth = send(
+            &c,
+            realsense,
+            Code::POST,
+            &format!("/cams/{SN}/depth"),
+            b"",
+            None,
+        )
+        .await;
+        assert_eq!(depth.code, Code::CONTENT);
+        assert_eq!(depth.payload.len(), 14 + 1280 * 720 * 2);
+    });
+}
