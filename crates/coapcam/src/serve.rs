@@ -1,5 +1,6 @@
 //! `coapcam serve`: the CoAP server: the `/cams` tree of the cameras of a scene (the
-//! built-in synthetic one by default), and files with `--static DIR`.
+//! built-in synthetic one by default) or of librealsense recordings (`--bag`), and
+//! files with `--static DIR`.
 
 use std::collections::HashMap;
 use std::hash::{Hash as _, Hasher as _};
@@ -16,6 +17,7 @@ use coap_net::router::check_preconditions;
 use coap_net::{Ctx, Resource, Router, Server, ServerConfig, handler};
 use tokio::sync::mpsc;
 
+use rgbd::backend::playback::PlaybackCamera;
 use rgbd::{Camera as _, CameraHub, Scene, SyntheticCamera};
 
 use crate::cams::Cams;
@@ -33,6 +35,10 @@ pub(crate) struct ServeArgs {
     /// Synthetic cameras of this scene file (default: the built-in single-camera scene).
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
+    /// Play a librealsense recording (.bag or .db3) as cameras, one per recorded
+    /// device, instead of synthetic ones; repeatable.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["scene", "no_cameras"])]
+    bag: Vec<PathBuf>,
     /// Where camera configuration is persisted per serial (default:
     /// $XDG_STATE_HOME/coapcam, ~/.local/state/coapcam, else ./coapcam-state).
     #[arg(long, value_name = "DIR")]
@@ -152,9 +158,20 @@ fn start_cameras(
     let cams = Cams::start(hub.clone(), router.clone(), &state_dir, changed)
         .context("starting the camera hub listener")?;
     let mut expected = Vec::new();
-    for camera in SyntheticCamera::all(&scene).context("building the scene's cameras")? {
-        expected.push(format!("/cams/{}/color", camera.serial()));
-        hub.add(camera).context("adding a camera")?;
+    if args.bag.is_empty() {
+        for camera in SyntheticCamera::all(&scene).context("building the scene's cameras")? {
+            expected.push(format!("/cams/{}/color", camera.serial()));
+            hub.add(camera).context("adding a camera")?;
+        }
+    }
+    for path in &args.bag {
+        let cameras = PlaybackCamera::open(path)
+            .with_context(|| format!("opening recording {}", path.display()))?;
+        for camera in cameras {
+            expected.push(format!("/cams/{}/color", camera.serial()));
+            hub.add(Arc::new(camera))
+                .with_context(|| format!("adding the camera of {}", path.display()))?;
+        }
     }
     // The hub listener registers per-camera resources on its own thread: announce the
     // server only once every camera of the scene is routed, so a client that starts at

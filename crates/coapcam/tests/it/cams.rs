@@ -92,14 +92,14 @@ pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, Soc
     (server, addr)
 }
 
-fn runtime() -> tokio::runtime::Runtime {
+pub(crate) fn runtime() -> tokio::runtime::Runtime {
     tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
         .expect("tokio runtime")
 }
 
-async fn send(
+pub(crate) async fn send(
     client: &Client,
     addr: SocketAddr,
     method: Code,
@@ -120,7 +120,7 @@ async fn send(
         .unwrap_or_else(|e| panic!("{method:?} {path}: {e}"))
 }
 
-fn client() -> Client {
+pub(crate) fn client() -> Client {
     Client::bind(
         SocketAddr::from(([127, 0, 0, 1], 0)),
         EndpointConfig::default(),
