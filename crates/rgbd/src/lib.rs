@@ -1,5 +1,6 @@
 //! RGB-D cameras for coapcam: frames, D415 stream modes, settings documents, the
-//! `Camera` trait with its hot-plug `CameraHub`, and the synthetic D415 backend.
+//! `Camera` trait with its hot-plug `CameraHub`, the synthetic D415 backend, and
+//! playback of librealsense recordings (`.bag`, `.db3`; [`backend::playback`]).
 //!
 //! Owns: color/depth frame types, intrinsics/extrinsics and deprojection, the depth
 //! post-processing filters (librealsense's blocks, [`filter`]), the

@@ -9,7 +9,7 @@
 //!   `messages` of CDR-serialized messages; see [`db3`].
 //!
 //! Both share librealsense's topic grammar `/device_<d>/sensor_<s>/<Stream>_<i>/...`;
-//! the readers turn messages into [`Event`]s and [`DeviceBuilder`] assembles them.
+//! the readers turn messages into `Event`s and `DeviceBuilder` assembles them.
 //!
 //! Playback: the whole recording is decoded when it is opened (at most
 //! [`MAX_RECORDING_BYTES`] of pixels; a longer recording is refused, not truncated).
