@@ -1,5 +1,6 @@
 //! `coapcam serve`: the CoAP server: the `/cams` tree of the cameras of a scene (the
-//! built-in synthetic one by default), and files with `--static DIR`.
+//! built-in synthetic one by default) or of librealsense recordings (`--bag`), and
+//! files with `--static DIR`.
 
 use std::collections::HashMap;
 use std::hash::{Hash as _, Hasher as _};
@@ -17,6 +18,7 @@ use coap_net::{Ctx, Resource, Router, Server, ServerConfig, handler};
 use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::mpsc;
 
+use rgbd::backend::playback::PlaybackCamera;
 use rgbd::{Camera as _, CameraHub, Scene, SyntheticCamera};
 
 use crate::cams::Cams;
@@ -56,6 +58,10 @@ pub(crate) struct ServeArgs {
     /// the same librealsense code path as a real camera. For testing without hardware.
     #[arg(long, requires = "realsense")]
     realsense_software: bool,
+    /// Play a librealsense recording (.bag or .db3) as cameras, one per recorded
+    /// device, instead of synthetic ones; repeatable.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["scene", "no_cameras", "realsense"])]
+    bag: Vec<PathBuf>,
     /// Where camera configuration is persisted per serial (default:
     /// $XDG_STATE_HOME/coapcam, ~/.local/state/coapcam, else ./coapcam-state).
     #[arg(long, value_name = "DIR")]
@@ -293,6 +299,18 @@ fn start_cameras(
             .collect();
         wait_for(|| expected.iter().all(|p| router.patterns().contains(p)))?;
         backend = Some(realsense);
+    } else if !args.bag.is_empty() {
+        let mut expected = Vec::new();
+        for path in &args.bag {
+            let cameras = PlaybackCamera::open(path)
+                .with_context(|| format!("opening recording {}", path.display()))?;
+            for camera in cameras {
+                expected.push(format!("/cams/{}/color", camera.serial()));
+                hub.add(Arc::new(camera))
+                    .with_context(|| format!("adding the camera of {}", path.display()))?;
+            }
+        }
+        wait_for(|| expected.iter().all(|p| router.patterns().contains(p)))?;
     } else {
         load_scene(&hub, router, &scene)?;
     }

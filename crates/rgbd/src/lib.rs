@@ -1,6 +1,7 @@
 //! RGB-D cameras for coapcam: frames, D415 stream modes, settings documents, the
-//! `Camera` trait with its hot-plug `CameraHub`, and the backends: the synthetic D415 and
-//! Intel RealSense D400 cameras through librealsense (loaded at run time).
+//! `Camera` trait with its hot-plug `CameraHub`, and the backends: the synthetic D415,
+//! Intel RealSense D400 cameras through librealsense (loaded at run time), and playback
+//! of librealsense recordings (`.bag`, `.db3`; [`backend::playback`]).
 //!
 //! Owns: color/depth frame types, intrinsics/extrinsics and deprojection, the depth
 //! post-processing filters (librealsense's blocks, [`filter`]), the

@@ -1,5 +1,6 @@
 //! Integration tests of the `coapcam` binary: one binary, one module per subcommand.
 
+mod bag;
 mod cams;
 mod formats;
 mod group;

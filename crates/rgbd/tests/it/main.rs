@@ -1,6 +1,7 @@
 //! Integration tests of the rgbd crate: one binary, one module per topic.
 
 mod advanced;
+mod bag;
 mod filters;
 mod hub;
 mod librealsense;
