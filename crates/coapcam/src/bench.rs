@@ -125,6 +125,7 @@ struct Row {
     truth: [f64; 4],
     measured: Option<[f64; 4]>,
     cycle_ms: f64,
+    grab_ms: f64,
     error: Option<String>,
 }
 
@@ -190,6 +191,9 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
             cycle_ms: result
                 .as_ref()
                 .map_or(f64::NAN, |m| m.cycle.as_secs_f64() * 1e3),
+            grab_ms: result
+                .as_ref()
+                .map_or(f64::NAN, |m| m.grab.as_secs_f64() * 1e3),
             measured: result.as_ref().ok().map(|m| {
                 let d = &m.dimensions;
                 [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg]
@@ -221,7 +225,7 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
             .map(|r| {
                 serde_json::json!({
                     "scene": r.index, "cameras": r.cameras, "camera_z_m": r.camera_z,
-                    "truth": r.truth, "measured": r.measured, "cycle_ms": r.cycle_ms,
+                    "truth": r.truth, "measured": r.measured, "cycle_ms": r.cycle_ms, "grab_ms": r.grab_ms,
                     "error": r.error,
                 })
             })
@@ -266,7 +270,7 @@ fn print_row(r: &Row) {
     let t = r.truth;
     match (r.errors(), &r.error) {
         (Some(e), _) => println!(
-            "scene {:>2}: {} cam at {:.2} m  {:>5.0} x {:>5.0} x {:>5.0} mm  yaw {:>4.1}  error {:>+6.1} {:>+6.1} {:>+6.1} mm {:>+5.1} deg  {:>4.0} ms",
+            "scene {:>2}: {} cam at {:.2} m  {:>5.0} x {:>5.0} x {:>5.0} mm  yaw {:>4.1}  error {:>+6.1} {:>+6.1} {:>+6.1} mm {:>+5.1} deg  {:>4.0} ms ({:.0} grab)",
             r.index,
             r.cameras,
             r.camera_z,
@@ -278,7 +282,8 @@ fn print_row(r: &Row) {
             e[1],
             e[2],
             e[3],
-            r.cycle_ms
+            r.cycle_ms,
+            r.grab_ms
         ),
         (None, Some(err)) => println!(
             "scene {:>2}: {} cam at {:.2} m  {:>5.0} x {:>5.0} x {:>5.0} mm  FAILED: {err}",

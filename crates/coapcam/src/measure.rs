@@ -131,6 +131,8 @@ pub(crate) struct Measurement {
     pub(crate) grabbed: Grabbed,
     /// From sending the first request until the dimensions were known.
     pub(crate) cycle: Duration,
+    /// Of the cycle: until the last cloud arrived (the servers' grabs and the transfers).
+    pub(crate) grab: Duration,
 }
 
 impl Measurement {
@@ -159,6 +161,7 @@ impl Measurement {
             "servers": self.grabbed.cameras.iter().map(|(s, _)| s.to_string()).collect::<Vec<_>>(),
             "timestamps_us": self.grabbed.timestamps_us,
             "cycle_ms": (self.cycle.as_secs_f64() * 1e4).round() / 10.0,
+            "grab_ms": (self.grab.as_secs_f64() * 1e4).round() / 10.0,
             "bytes": self.grabbed.bytes,
         })
     }
@@ -182,7 +185,7 @@ impl Measurement {
              yaw {:.1} deg  volume {:.2} l  volumetric weight {:.2} kg (divisor {} cm3/kg)\n\
              footprint corners (m): {}\n\
              {} points of {} from {} camera(s): {}\n\
-             cycle {:.0} ms, {:.2} MB received",
+             cycle {:.0} ms (grab and transfer {:.0} ms), {:.2} MB received",
             d.length_mm,
             d.width_mm,
             d.height_mm,
@@ -196,6 +199,7 @@ impl Measurement {
             serials.len(),
             serials.join(", "),
             self.cycle.as_secs_f64() * 1e3,
+            self.grab.as_secs_f64() * 1e3,
             self.grabbed.bytes as f64 / 1e6,
         )
     }
@@ -278,6 +282,7 @@ pub(crate) async fn measure_once(
 ) -> anyhow::Result<Measurement> {
     let started = Instant::now();
     let grabbed = grab_clouds(client, source).await?;
+    let grab = started.elapsed();
     let (dimensions, grabbed) = tokio::task::spawn_blocking({
         let config = *config;
         move || (geometry::dimension(&grabbed.cloud, &config), grabbed)
@@ -289,6 +294,7 @@ pub(crate) async fn measure_once(
         dimensions,
         grabbed,
         cycle: started.elapsed(),
+        grab,
     })
 }
 

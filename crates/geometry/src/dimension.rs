@@ -33,9 +33,11 @@ pub struct DimensionConfig {
     pub top_band_m: f32,
     /// Fewer points in the largest cluster is an error (at least 3).
     pub min_points: usize,
-    /// Depth of the band below the height whose points make the footprint (metres, > 0):
-    /// the upper surface, as the thesis measures it. Points lower down (sides seen at an
-    /// angle, flying pixels between an edge and the floor) lie outside a parcel's lid.
+    /// Deepest band below the height whose points make the footprint (metres, > 0): the
+    /// upper surface, as the thesis measures it. The band used is four robust standard
+    /// deviations of the lid's z (at least 3 mm), up to this; points lower down (sides
+    /// seen at an angle, flying pixels between an edge and the floor) lie outside a
+    /// parcel's lid.
     pub lid_band_m: f32,
     /// A lid point with fewer other lid points than this within three typical point
     /// spacings is a flying pixel and not part of the footprint.
@@ -278,7 +280,7 @@ fn lid(
     height_m: f32,
     config: &DimensionConfig,
 ) -> Result<Vec<Point3>, DimensionError> {
-    let floor = (height_m - config.lid_band_m).max(config.min_height_m);
+    let floor = (height_m - lid_band(cluster, height_m, config)).max(config.min_height_m);
     let band: Vec<Point3> = cluster.iter().copied().filter(|p| p.z >= floor).collect();
     if band.len() < 2 || config.min_neighbours == 0 {
         return Ok(band);
@@ -305,6 +307,23 @@ fn lid(
         .filter(|p| index.within(p, radius).len() > config.min_neighbours)
         .copied()
         .collect())
+}
+
+/// Four robust standard deviations (1.4826 x the median absolute deviation) of z over
+/// the points within `lid_band_m` of the height, clamped to [3 mm, `lid_band_m`].
+fn lid_band(cluster: &[Point3], height_m: f32, config: &DimensionConfig) -> f32 {
+    const MIN_BAND_M: f32 = 0.003;
+    let mut deviations: Vec<f32> = cluster
+        .iter()
+        .map(|p| (p.z - height_m).abs())
+        .filter(|d| *d <= config.lid_band_m)
+        .collect();
+    if deviations.is_empty() {
+        return config.lid_band_m;
+    }
+    let mid = deviations.len() / 2;
+    let (_, mad, _) = deviations.select_nth_unstable_by(mid, f32::total_cmp);
+    (4.0 * 1.4826 * *mad).clamp(MIN_BAND_M.min(config.lid_band_m), config.lid_band_m)
 }
 
 /// Median z of the points within `top_band_m` below the `height_quantile` quantile of z.

@@ -114,6 +114,54 @@ fn the_largest_object_is_measured_and_smaller_ones_ignored() {
     assert_measures(&found, &big, 3.0);
 }
 
+/// Flying pixels: a stereo camera 1 m above the origin reports points part way along
+/// the ray between a lid edge and the floor behind it. They touch the parcel, so they are
+/// in its cluster, and they lie outside its footprint.
+#[test]
+fn flying_pixels_between_the_lid_edge_and_the_floor_do_not_widen_the_footprint() {
+    let b = parcel();
+    let mut cloud = noisy_scene(&b, 41);
+    let mut sampler = Sampler::new(42);
+    let camera = Point3::new(0.0, 0.0, 1.0);
+    let (sin, cos) = b.yaw_deg.to_radians().sin_cos();
+    let mut flying = 0;
+    while flying < 600 {
+        // A point on the lid's outline ...
+        let (u, v) = (sampler.range(-0.5, 0.5), sampler.range(-0.5, 0.5));
+        let (u, v) = if sampler.unit() < 0.5 {
+            (u.signum() * 0.5, v)
+        } else {
+            (u, v.signum() * 0.5)
+        };
+        let (lx, ly) = (u * b.length_m, v * b.width_m);
+        let edge = Point3::new(
+            b.center_xy[0] + lx * cos - ly * sin,
+            b.center_xy[1] + lx * sin + ly * cos,
+            b.height_m,
+        );
+        // ... pushed away from the camera along its ray, to somewhere above the floor.
+        let ray = edge - camera;
+        let t = sampler.range(1.0, 1.0 / (1.0 - b.height_m) * 0.98);
+        let p = camera + ray * t;
+        if p.z > 0.012 && p.z < b.height_m - 0.003 {
+            cloud.points.push(p);
+            flying += 1;
+        }
+    }
+    let found = dimension(&cloud, &DimensionConfig::default()).expect("measures");
+    assert_measures(&found, &b, 3.0);
+    let all_points = DimensionConfig {
+        lid_band_m: 1.0,
+        min_neighbours: 0,
+        ..DimensionConfig::default()
+    };
+    let naive = dimension(&cloud, &all_points).expect("measures");
+    assert!(
+        naive.length_mm > found.length_mm + 10.0,
+        "the flying pixels must matter without the lid band: {naive:?}"
+    );
+}
+
 #[test]
 fn an_empty_floor_has_nothing_to_measure() {
     let floor: PointCloud = (0..1000)
