@@ -8,6 +8,7 @@ mod demo;
 mod grab_cmd;
 mod group;
 mod measure;
+mod monitor;
 mod netem;
 mod packet;
 mod request;
@@ -46,6 +47,10 @@ enum Command {
     Grab(grab_cmd::GrabArgs),
     /// Measure the largest parcel below the cameras: length, width, height in millimetres.
     Measure(measure::MeasureArgs),
+    /// Repeat a grab or a measurement every --interval seconds, or observe a resource;
+    /// print each result and the statistics of the transfer times (count, min, median,
+    /// max, mean, standard deviation, coefficient of variation: the thesis's Table 4.x).
+    Monitor(monitor::MonitorArgs),
     /// The whole job on synthetic cameras: serve a two-camera scene in-process, discover,
     /// grab, measure, and write pictures, a cloud and the dimensions next to the scene's
     /// truth into ./coapcam-demo/.
@@ -94,6 +99,7 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         Command::Discover(args) => return runtime.block_on(request::discover(args)),
         Command::Grab(args) => return runtime.block_on(grab_cmd::run(args)),
         Command::Measure(args) => return runtime.block_on(measure::run(args)),
+        Command::Monitor(args) => return runtime.block_on(monitor::run(args)),
         Command::Demo(args) => return runtime.block_on(demo::run(args)),
         Command::Serve(args) => {
             let served = runtime.block_on(serve::run(args));
