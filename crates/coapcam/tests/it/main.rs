@@ -1,6 +1,7 @@
 //! Integration tests of the `coapcam` binary: one binary, one module per subcommand.
 
 mod cams;
+mod client;
 mod formats;
 mod group;
 mod interop;
