@@ -117,7 +117,7 @@ pub(crate) struct Stats {
 }
 
 /// What the statistics say about the results so far.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub(crate) struct Summary {
     /// Successful results.
     pub(crate) count: u64,
@@ -197,7 +197,7 @@ impl Stats {
             let mut sorted: Vec<u64> = self.recent_ns.iter().copied().collect();
             sorted.sort_unstable();
             let mid = sorted.len() / 2;
-            let median_ns = if sorted.len() % 2 == 1 {
+            let median_ns = if !sorted.len().is_multiple_of(2) {
                 sorted[mid] as f64
             } else {
                 (sorted[mid - 1] as f64 + sorted[mid] as f64) / 2.0
@@ -437,7 +437,7 @@ fn thousands(n: usize) -> String {
     let digits = n.to_string();
     let mut out = String::with_capacity(digits.len() + digits.len() / 3);
     for (i, c) in digits.chars().enumerate() {
-        if i > 0 && (digits.len() - i) % 3 == 0 {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
             out.push(',');
         }
         out.push(c);
