@@ -80,6 +80,8 @@ impl Client {
         peer: SocketAddr,
         mut request: Request,
     ) -> Result<Observation, Error> {
+        let mut follow_up = request.clone();
+        follow_up.options.remove(coap::OptionNumber::OBSERVE);
         request.options.set_uint(coap::OptionNumber::OBSERVE, 0);
         let (tx, rx) = mpsc::unbounded_channel();
         let (id_tx, id_rx) = oneshot::channel();
@@ -93,7 +95,8 @@ impl Client {
         Ok(Observation {
             rx,
             id,
-            handle: self.handle.clone(),
+            client: self.clone(),
+            follow_up,
         })
     }
 
@@ -141,9 +144,10 @@ impl Client {
         Ok(out)
     }
 
-    /// A multicast answer that came as Block2 block 0 with more to follow: the other
-    /// blocks are asked of that server by unicast (RFC 7959 §2.8 with RFC 7390), one
-    /// after the other, and must carry the first block's ETag.
+    /// A multicast answer or a notification that came as Block2 block 0 with more to
+    /// follow: the other blocks are asked of that server by unicast (RFC 7959 §2.8 with
+    /// RFC 7390; §2.6 for Observe), one after the other, and must carry the first block's
+    /// ETag.
     async fn rest_of_blocks(
         &self,
         peer: SocketAddr,
@@ -203,14 +207,25 @@ impl Client {
 pub struct Observation {
     rx: mpsc::UnboundedReceiver<StreamItem>,
     id: RequestId,
-    handle: EndpointHandle,
+    client: Client,
+    /// The registration without Observe: what asks for the rest of a notification sent
+    /// block-wise.
+    follow_up: Request,
 }
 
 impl Observation {
-    /// The next response or notification; `None` when the observation ended.
+    /// The next response or notification, whole; `None` when the observation ended. A
+    /// notification sent block-wise is completed by GETs of its other blocks (RFC 7959
+    /// §2.6), which fail with [`coap::RequestError::RepresentationChanged`] when the
+    /// resource changes in between.
     pub async fn next(&mut self) -> Option<Result<Response, Error>> {
         match self.rx.recv().await? {
-            StreamItem::Response(_, r) => Some(Ok(r)),
+            StreamItem::Response(peer, mut r) => Some(
+                self.client
+                    .rest_of_blocks(peer, &self.follow_up, &mut r)
+                    .await
+                    .map(|()| r),
+            ),
             StreamItem::Failed(e) => Some(Err(Error::Request(e))),
         }
     }
@@ -220,6 +235,6 @@ impl Drop for Observation {
     fn drop(&mut self) {
         // Forgetting the token makes the client answer the next notification with a
         // Reset, which ends the observation on the server (RFC 7641 §3.6).
-        let _ = self.handle.send(Command::Cancel(self.id));
+        let _ = self.client.handle.send(Command::Cancel(self.id));
     }
 }

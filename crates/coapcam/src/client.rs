@@ -1,7 +1,7 @@
 //! The typed camera client: what `grab`, `measure`, `monitor` and `demo` ask of a
 //! coapcam server (the resource API of DESIGN.md §5), over one `coap_net::Client`.
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::time::Duration;
 
 use anyhow::{Context as _, bail};
@@ -61,13 +61,21 @@ impl CamClient {
     }
 
     /// A client for requests to the multicast group `group` (answers come from each
-    /// server's unicast address).
+    /// server's unicast address), sending from `bind` if given. The unicast follow-ups of
+    /// block-wise answers must leave from the address the multicast request left from (a
+    /// server keeps an answer for the peer that asked); on loopback an unbound socket sends
+    /// each follow-up from the server's own 127.0.0.N, so bind 127.0.0.1 there.
     pub(crate) fn for_group(
         group: SocketAddr,
+        bind: Option<IpAddr>,
         config: EndpointConfig,
         timeout: Duration,
     ) -> anyhow::Result<Self> {
-        let client = Client::for_peer(group, config).context("binding the client socket")?;
+        let client = match bind {
+            Some(ip) => Client::bind(SocketAddr::new(ip, 0), config)
+                .with_context(|| format!("binding the client socket to {ip}"))?,
+            None => Client::for_peer(group, config).context("binding the client socket")?,
+        };
         Ok(Self {
             client,
             server: group,

@@ -9,6 +9,7 @@ mod demo;
 mod grab_cmd;
 mod group;
 mod measure;
+mod monitor;
 mod netem;
 mod packet;
 mod request;
@@ -47,6 +48,10 @@ enum Command {
     Grab(grab_cmd::GrabArgs),
     /// Measure the largest parcel below the cameras: length, width, height in millimetres.
     Measure(measure::MeasureArgs),
+    /// Repeat a grab or a measurement every --interval seconds, or observe a resource;
+    /// print each result and the statistics of the transfer times (count, min, median,
+    /// max, mean, standard deviation, coefficient of variation: the thesis's Table 4.x).
+    Monitor(monitor::MonitorArgs),
     /// The whole job on synthetic cameras: serve a two-camera scene in-process, discover,
     /// grab, measure, and write pictures, a cloud and the dimensions next to the scene's
     /// truth into ./coapcam-demo/.
@@ -99,6 +104,7 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         Command::Grab(args) => return runtime.block_on(grab_cmd::run(args)),
         Command::Measure(args) => return runtime.block_on(measure::run(args)),
         Command::Bench(args) => return runtime.block_on(bench::run(args)),
+        Command::Monitor(args) => return runtime.block_on(monitor::run(args)),
         Command::Demo(args) => return runtime.block_on(demo::run(args)),
         Command::Serve(args) => {
             let served = runtime.block_on(serve::run(args));

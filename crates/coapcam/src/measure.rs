@@ -40,6 +40,10 @@ pub(crate) struct MeasureArgs {
     /// With --group: stop waiting once this many servers have answered.
     #[arg(long, value_name = "N", requires = "group")]
     expect: Option<usize>,
+    /// With --group: the local address to send from (e.g. 127.0.0.1 when the servers are
+    /// on loopback addresses); by default the kernel chooses per destination.
+    #[arg(long, value_name = "ADDR", requires = "group")]
+    bind: Option<std::net::IpAddr>,
     /// With --group: how long to collect answers, in seconds.
     #[arg(
         long,
@@ -306,7 +310,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
         (Some(g), _) => {
             let group = group_address(g).await?;
             let wait = Duration::try_from_secs_f64(args.wait).context("--wait")?;
-            let client = CamClient::for_group(group, config, timeout)?;
+            let client = CamClient::for_group(group, args.bind, config, timeout)?;
             let expect = args.expect;
             (
                 client,

@@ -269,6 +269,44 @@ async fn rfc7641_observe_five_notifications_then_cancel() {
 }
 
 #[tokio::test]
+async fn rfc7959_2_6_notifications_sent_block_wise_arrive_whole() {
+    let counter = Arc::new(AtomicUsize::new(0));
+    let router = Router::new();
+    let n = counter.clone();
+    router.add(
+        "/big",
+        Resource::new()
+            .get(handler(move |_| {
+                let len = 3000 + 1000 * n.load(Ordering::SeqCst);
+                async move { Response::new(Code::CONTENT).with_payload(body(len)) }
+            }))
+            .observable(),
+    );
+    let (s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let mut obs = c
+            .observe(addr, Request::new(Code::GET, "/big"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        for k in 0..3 {
+            if k > 0 {
+                counter.store(k, Ordering::SeqCst);
+                assert_eq!(s.notify("/big").await, 1);
+            }
+            let r = obs
+                .next()
+                .await
+                .unwrap_or_else(|| panic!("ended"))
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(r.payload, body(3000 + 1000 * k), "response {k}");
+            assert!(r.options.contains(OptionNumber::OBSERVE), "response {k}");
+        }
+    })
+    .await;
+}
+
+#[tokio::test]
 async fn rfc7252_5_10_6_matching_etag_gets_2_03_valid() {
     let router = Router::new();
     router.add(

@@ -13,7 +13,8 @@ use coap::group::{GroupConfig, decode_list};
 use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::Client;
 
-use crate::cams::{LIMIT, Server, TempDir, client, runtime, send, serve_at, serve_with};
+use crate::cams::{COAPCAM, LIMIT, Server, TempDir, client, runtime, send, serve_at, serve_with};
+use crate::interop::peers::Proc;
 
 /// The membership list of `GET /coap-group`.
 async fn list(c: &Client, addr: SocketAddr) -> BTreeMap<String, GroupConfig> {
@@ -300,6 +301,119 @@ fn multicast_grab_of_three_servers_in_one_group() {
             r.payload.len(),
             12 + 12 * n,
             "{peer}: the whole cloud arrived"
+        );
+    }
+}
+
+/// A scene with one calibrated camera `serial` at `position`, looking at the box every
+/// server of the multicast measurement sees.
+fn box_scene(serial: &str, position: [f64; 3]) -> String {
+    format!(
+        r#"
+seed = 11
+[floor]
+z = 0.0
+color = [120, 120, 120]
+
+[[camera]]
+serial = "{serial}"
+position = [{}, {}, {}]
+look_at = [0.0, 0.0, 0.0]
+noise = "d415"
+calibrated = true
+
+[[box]]
+size = [0.40, 0.30, 0.20]
+center = [0.0, 0.0]
+yaw_deg = 15.0
+color = [180, 140, 90]
+"#,
+        position[0], position[1], position[2]
+    )
+}
+
+#[test]
+#[ignore = "multicast: run inside scripts/netns-run (scripts/test.sh does)"]
+fn multicast_measurement_merges_three_servers_cameras() {
+    if std::env::var("COAPCAM_NETNS").ok().as_deref() != Some("1") {
+        eprintln!(
+            "SKIP multicast_measurement_merges_three_servers_cameras: only inside scripts/netns-run"
+        );
+        return;
+    }
+    let dir = TempDir::new("group-measure");
+    // Above, and obliquely from two sides.
+    let cameras = [
+        (6u8, "000000000006", [0.0, 0.0, 1.0]),
+        (7, "000000000007", [0.6, 0.2, 1.1]),
+        (8, "000000000008", [-0.3, -0.6, 1.2]),
+    ];
+    let _servers: Vec<Server> = cameras
+        .iter()
+        .map(|(host, serial, position)| {
+            let scene_file = dir.path().join(format!("scene-{host}.toml"));
+            std::fs::write(&scene_file, box_scene(serial, *position)).expect("writing the scene");
+            let scene_arg = scene_file.to_str().expect("UTF-8 path");
+            let state = dir.path().join(format!("state-{host}"));
+            let bind = format!("127.0.0.{host}:5683");
+            serve_at(
+                &bind,
+                &state,
+                &["--group", "224.0.1.188", "--scene", scene_arg],
+            )
+            .0
+        })
+        .collect();
+    let f = Proc::run(
+        COAPCAM,
+        &[
+            "measure",
+            "--group",
+            "224.0.1.188",
+            "--expect",
+            "3",
+            "--bind",
+            "127.0.0.1",
+            "--wait",
+            "30",
+            "--json",
+        ],
+        Duration::from_secs(110),
+    )
+    .expect_success("coapcam measure --group");
+    let text = f.stdout_text();
+    let m: serde_json::Value =
+        serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{text:?}: {e}"));
+    let mut serials: Vec<&str> = m["cameras"]
+        .as_array()
+        .expect("cameras")
+        .iter()
+        .filter_map(|s| s.as_str())
+        .collect();
+    serials.sort_unstable();
+    assert_eq!(
+        serials,
+        ["000000000006", "000000000007", "000000000008"],
+        "{m}"
+    );
+    let mut servers: Vec<&str> = m["servers"]
+        .as_array()
+        .expect("servers")
+        .iter()
+        .filter_map(|s| s.as_str())
+        .collect();
+    servers.sort_unstable();
+    assert_eq!(
+        servers,
+        ["127.0.0.6:5683", "127.0.0.7:5683", "127.0.0.8:5683"],
+        "{m}"
+    );
+    assert_eq!(m["timestamps_us"].as_array().map(Vec::len), Some(3), "{m}");
+    let got = ["length_mm", "width_mm", "height_mm"].map(|k| m[k].as_f64().expect(k));
+    for (g, want) in got.iter().zip([400.0, 300.0, 200.0]) {
+        assert!(
+            (g - want).abs() <= 5.0,
+            "{got:?} vs 400 x 300 x 200 mm: {m}"
         );
     }
 }

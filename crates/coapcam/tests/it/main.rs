@@ -2,6 +2,7 @@
 
 mod bag;
 mod cams;
+mod client;
 mod formats;
 mod group;
 mod interop;

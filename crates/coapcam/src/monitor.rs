@@ -1,0 +1,739 @@
+//! `coapcam monitor`: the thesis's test procedure (§3.4) as a command. A grab or a
+//! measurement is repeated every `--interval` seconds (or a resource is observed), one
+//! line is printed per result, and the transfer times are summarised as in the thesis's
+//! Tables 4.1-4.11: count, minimum, median, maximum, mean, standard deviation and
+//! coefficient of variation.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant, SystemTime};
+
+use anyhow::{Context as _, bail};
+use bytes::Bytes;
+use clap::Args;
+use coap::{Code, ContentFormat, OptionNumber, Response};
+use geometry::DimensionConfig;
+
+use crate::client::{CamClient, Stream};
+use crate::measure::{self, DimensionArgs, Measurement, Source};
+use crate::transmission::TransmissionArgs;
+
+/// What `monitor` repeats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Target {
+    /// Grab a color image of one camera.
+    Color,
+    /// Grab a depth image of one camera.
+    Depth,
+    /// Grab a point cloud of one camera.
+    Pointcloud,
+    /// Grab every camera's cloud, merged (POST /cams/pointclouds).
+    Pointclouds,
+    /// Measure the parcel (one camera with --camera, else every camera of the server).
+    Measure,
+}
+
+impl Target {
+    /// The grab resource of one camera, if the target is one.
+    fn stream(self) -> Option<Stream> {
+        match self {
+            Self::Color => Some(Stream::Color),
+            Self::Depth => Some(Stream::Depth),
+            Self::Pointcloud => Some(Stream::Pointcloud),
+            Self::Pointclouds | Self::Measure => None,
+        }
+    }
+}
+
+/// Flags of `monitor`.
+#[derive(Debug, Args)]
+pub(crate) struct MonitorArgs {
+    /// What to repeat (or, with --observe, which resource of the camera to observe).
+    target: Target,
+    /// The server, coap://host[:port].
+    #[arg(long, value_name = "URI")]
+    server: String,
+    /// The camera (12-digit serial); may be left out when the server has one camera.
+    /// With `measure`: measure with this camera only instead of every camera.
+    #[arg(long, value_name = "SN")]
+    camera: Option<String>,
+    /// Seconds from the start of one request to the start of the next; a request that
+    /// takes longer is followed at once by the next.
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        default_value_t = 1.0,
+        conflicts_with = "observe"
+    )]
+    interval: f64,
+    /// Stop after this many results (failed ones included); without it, run until Ctrl-C.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    count: Option<u64>,
+    /// Observe the camera's color, depth or pointcloud resource (GET with Observe) instead
+    /// of grabbing: the latest frame, then each frame anyone grabs, is a result; its time
+    /// is the time since the previous result.
+    #[arg(long)]
+    observe: bool,
+    /// The representation asked for (Accept): a number or a short name (png, jpeg, cbor,
+    /// ply, ...); the thesis packet when left out. Not for `measure`.
+    #[arg(long, value_name = "CF")]
+    accept: Option<ContentFormat>,
+    /// One JSON object per line for each result, and the statistics as the last line.
+    #[arg(long)]
+    json: bool,
+    /// Give up on a request after this many seconds (with --observe: on the first
+    /// response).
+    #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
+    timeout: f64,
+    #[command(flatten)]
+    dimension: DimensionArgs,
+    #[command(flatten)]
+    transmission: TransmissionArgs,
+}
+
+/// Transfer times kept for the median: the last 2^20 (8 MiB). Minimum, maximum, mean and
+/// standard deviation cover every result however long the monitor runs.
+const MEDIAN_WINDOW: usize = 1 << 20;
+
+/// Running statistics of transfer times, the columns of the thesis's Tables 4.1-4.11.
+///
+/// The standard deviation is the population one (divide by n). The thesis does not say
+/// which it used, but its tables admit only this one: in Table 4.1 (32 transfers, one of
+/// 597.5 ms, mean 137.9 ms) that single outlier contributes (597.5 - 123.1)^2 + 31 x
+/// (137.9 - 123.1)^2 = 2.18e5 ms^2 to the sum of squares, more than the 31 x 82.8^2 =
+/// 2.12e5 ms^2 a sample deviation of 82.8 ms would allow, while 32 x 82.8^2 = 2.19e5 ms^2
+/// leaves the other 31 transfers a spread of 6.6 ms, as the text describes (0.11-0.14 s).
+/// Table 4.2 gives the same verdict.
+#[derive(Debug, Clone)]
+pub(crate) struct Stats {
+    count: u64,
+    failed: u64,
+    min_ns: u64,
+    max_ns: u64,
+    /// Welford's running mean and sum of squared deviations, in nanoseconds.
+    mean_ns: f64,
+    m2: f64,
+    recent_ns: VecDeque<u64>,
+    window: usize,
+}
+
+/// What the statistics say about the results so far.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Summary {
+    /// Successful results.
+    pub(crate) count: u64,
+    /// Failed results.
+    pub(crate) failed: u64,
+    /// The transfer times of the successful results; `None` before the first.
+    pub(crate) times: Option<Times>,
+}
+
+/// Transfer-time statistics, nanoseconds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Times {
+    pub(crate) min_ns: u64,
+    /// Median of the last [`MEDIAN_WINDOW`] results (of all while there are fewer).
+    pub(crate) median_ns: f64,
+    pub(crate) max_ns: u64,
+    pub(crate) mean_ns: f64,
+    /// Population standard deviation.
+    pub(crate) sd_ns: f64,
+    /// Standard deviation over mean.
+    pub(crate) cv: f64,
+}
+
+impl Stats {
+    /// No results yet.
+    pub(crate) fn new() -> Self {
+        Self::with_median_window(MEDIAN_WINDOW)
+    }
+
+    /// No results yet; the median covers the last `window` transfer times.
+    fn with_median_window(window: usize) -> Self {
+        Self {
+            count: 0,
+            failed: 0,
+            min_ns: 0,
+            max_ns: 0,
+            mean_ns: 0.0,
+            m2: 0.0,
+            recent_ns: VecDeque::new(),
+            window: window.max(1),
+        }
+    }
+
+    /// A successful result's transfer time.
+    pub(crate) fn record(&mut self, time: Duration) {
+        let ns = u64::try_from(time.as_nanos()).unwrap_or(u64::MAX);
+        self.count += 1;
+        if self.count == 1 {
+            (self.min_ns, self.max_ns) = (ns, ns);
+        } else {
+            self.min_ns = self.min_ns.min(ns);
+            self.max_ns = self.max_ns.max(ns);
+        }
+        let x = ns as f64;
+        let delta = x - self.mean_ns;
+        self.mean_ns += delta / self.count as f64;
+        self.m2 += delta * (x - self.mean_ns);
+        if self.recent_ns.len() == self.window {
+            self.recent_ns.pop_front();
+        }
+        self.recent_ns.push_back(ns);
+    }
+
+    /// A failed result.
+    pub(crate) fn record_failure(&mut self) {
+        self.failed += 1;
+    }
+
+    /// The mean transfer time so far.
+    pub(crate) fn mean(&self) -> Option<Duration> {
+        (self.count > 0).then(|| Duration::from_nanos(self.mean_ns.round() as u64))
+    }
+
+    /// Every column at once.
+    pub(crate) fn summary(&self) -> Summary {
+        let times = (self.count > 0).then(|| {
+            let mut sorted: Vec<u64> = self.recent_ns.iter().copied().collect();
+            sorted.sort_unstable();
+            let mid = sorted.len() / 2;
+            let median_ns = if !sorted.len().is_multiple_of(2) {
+                sorted[mid] as f64
+            } else {
+                (sorted[mid - 1] as f64 + sorted[mid] as f64) / 2.0
+            };
+            let sd_ns = (self.m2 / self.count as f64).max(0.0).sqrt();
+            Times {
+                min_ns: self.min_ns,
+                median_ns,
+                max_ns: self.max_ns,
+                mean_ns: self.mean_ns,
+                sd_ns,
+                cv: if self.mean_ns > 0.0 {
+                    sd_ns / self.mean_ns
+                } else {
+                    0.0
+                },
+            }
+        });
+        Summary {
+            count: self.count,
+            failed: self.failed,
+            times,
+        }
+    }
+}
+
+impl Summary {
+    /// The statistics as the last line of `--json`: times in nanoseconds as the thesis
+    /// gives them.
+    pub(crate) fn to_json(&self) -> serde_json::Value {
+        let mut stats = serde_json::json!({
+            "count": self.count,
+            "failed": self.failed,
+            "sd": "population",
+        });
+        if let Some(t) = &self.times {
+            stats["min_ns"] = t.min_ns.into();
+            stats["median_ns"] = (t.median_ns.round() as u64).into();
+            stats["max_ns"] = t.max_ns.into();
+            stats["mean_ns"] = (t.mean_ns.round() as u64).into();
+            stats["sd_ns"] = (t.sd_ns.round() as u64).into();
+            stats["cv"] = ((t.cv * 1e4).round() / 1e4).into();
+        }
+        serde_json::json!({ "statistics": stats })
+    }
+
+    /// The statistics as a table, times in milliseconds.
+    pub(crate) fn to_text(&self, what: &str) -> String {
+        let mut out = format!(
+            "{what} of {} result(s), {} failed (population standard deviation):\n",
+            self.count, self.failed
+        );
+        out += &format!(
+            "{:>7} {:>11} {:>11} {:>11} {:>11} {:>11} {:>6}\n",
+            "count", "min ms", "median ms", "max ms", "mean ms", "sd ms", "cv"
+        );
+        match &self.times {
+            Some(t) => {
+                let ms = |ns: f64| ns / 1e6;
+                out += &format!(
+                    "{:>7} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>6.2}\n",
+                    self.count,
+                    ms(t.min_ns as f64),
+                    ms(t.median_ns),
+                    ms(t.max_ns as f64),
+                    ms(t.mean_ns),
+                    ms(t.sd_ns),
+                    t.cv
+                );
+            }
+            None => out += &format!("{:>7} {:>11}\n", 0, "-"),
+        }
+        out
+    }
+}
+
+/// What one request brought.
+struct Success {
+    bytes: usize,
+    /// The time the statistics count.
+    time: Duration,
+    measurement: Option<Measurement>,
+}
+
+/// What `monitor` does, resolved once at the start.
+enum Plan {
+    Repeat(Repeat),
+    Observe { serial: String, stream: Stream },
+}
+
+/// A request repeated every interval.
+enum Repeat {
+    Grab { serial: String, stream: Stream },
+    All,
+    Measure(Source),
+}
+
+impl Plan {
+    async fn resolve(args: &MonitorArgs, client: &CamClient) -> anyhow::Result<Self> {
+        if args.accept.is_some() && args.target == Target::Measure {
+            bail!("--accept is for grabs: a measurement reads the thesis packet");
+        }
+        if let Some(stream) = args.target.stream() {
+            let serial = client.one_camera(args.camera.as_deref()).await?;
+            return Ok(if args.observe {
+                Self::Observe { serial, stream }
+            } else {
+                Self::Repeat(Repeat::Grab { serial, stream })
+            });
+        }
+        if args.observe {
+            bail!("--observe watches one camera's color, depth or pointcloud resource");
+        }
+        let repeat = match (args.target, &args.camera) {
+            (Target::Measure, Some(sn)) => Repeat::Measure(Source::Camera(sn.clone())),
+            (Target::Measure, None) => Repeat::Measure(Source::All),
+            (_, Some(_)) => bail!("pointclouds merges every camera; leave out --camera"),
+            (_, None) => Repeat::All,
+        };
+        Ok(Self::Repeat(repeat))
+    }
+
+    /// Words for the header.
+    fn describe(&self) -> String {
+        match self {
+            Self::Repeat(Repeat::Grab { serial, stream }) => {
+                format!("POST /cams/{serial}/{}", stream.name())
+            }
+            Self::Repeat(Repeat::All) => "POST /cams/pointclouds".to_owned(),
+            Self::Repeat(Repeat::Measure(Source::Camera(sn))) => {
+                format!("measure with camera {sn}")
+            }
+            Self::Repeat(Repeat::Measure(_)) => "measure with every camera".to_owned(),
+            Self::Observe { serial, stream } => {
+                format!("observe GET /cams/{serial}/{}", stream.name())
+            }
+        }
+    }
+}
+
+/// Prints results and keeps the statistics.
+struct Report {
+    json: bool,
+    stats: Stats,
+    seen: u64,
+}
+
+impl Report {
+    fn result(&mut self, outcome: anyhow::Result<Success>, elapsed: Duration) {
+        self.seen += 1;
+        let unix_ms = SystemTime::now()
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as u64);
+        match outcome {
+            Ok(s) => {
+                self.stats.record(s.time);
+                let mean = self.stats.mean().unwrap_or(s.time);
+                if self.json {
+                    let mut line = s
+                        .measurement
+                        .as_ref()
+                        .map_or_else(|| serde_json::json!({}), Measurement::to_json);
+                    line["n"] = self.seen.into();
+                    line["unix_ms"] = unix_ms.into();
+                    line["ok"] = true.into();
+                    line["bytes"] = s.bytes.into();
+                    line["time_ms"] = millis(s.time).into();
+                    line["mean_ms"] = millis(mean).into();
+                    println!("{line}");
+                } else {
+                    let mut line = format!(
+                        "#{:<4} {}  {:>12} B  {:>10.1} ms  mean {:.1} ms",
+                        self.seen,
+                        clock(unix_ms),
+                        thousands(s.bytes),
+                        millis(s.time),
+                        millis(mean)
+                    );
+                    if let Some(m) = &s.measurement {
+                        let d = &m.dimensions;
+                        line += &format!(
+                            "  {:.1} x {:.1} x {:.1} mm, yaw {:.1} deg, {} points",
+                            d.length_mm, d.width_mm, d.height_mm, d.yaw_deg, d.points
+                        );
+                    }
+                    println!("{line}");
+                }
+            }
+            Err(e) => {
+                self.stats.record_failure();
+                if self.json {
+                    let line = serde_json::json!({
+                        "n": self.seen,
+                        "unix_ms": unix_ms,
+                        "ok": false,
+                        "time_ms": millis(elapsed),
+                        "error": format!("{e:#}"),
+                    });
+                    println!("{line}");
+                } else {
+                    println!(
+                        "#{:<4} {}  failed after {:.1} ms: {e:#}",
+                        self.seen,
+                        clock(unix_ms),
+                        millis(elapsed)
+                    );
+                }
+            }
+        }
+    }
+
+    /// Whether `--count` results have been printed.
+    fn done(&self, count: Option<u64>) -> bool {
+        count.is_some_and(|n| self.seen >= n)
+    }
+}
+
+/// Milliseconds with a tenth of a microsecond.
+fn millis(d: Duration) -> f64 {
+    (d.as_secs_f64() * 1e7).round() / 1e4
+}
+
+/// `hh:mm:ss.mmm UTC` of a UNIX time in milliseconds.
+fn clock(unix_ms: u64) -> String {
+    let ms_of_day = unix_ms % 86_400_000;
+    format!(
+        "{:02}:{:02}:{:02}.{:03} UTC",
+        ms_of_day / 3_600_000,
+        ms_of_day / 60_000 % 60,
+        ms_of_day / 1000 % 60,
+        ms_of_day % 1000
+    )
+}
+
+/// 2764810 -> "2,764,810".
+fn thousands(n: usize) -> String {
+    let digits = n.to_string();
+    let mut out = String::with_capacity(digits.len() + digits.len() / 3);
+    for (i, c) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// One grab or measurement.
+async fn once(
+    client: &CamClient,
+    plan: &Repeat,
+    accept: Option<ContentFormat>,
+    config: &DimensionConfig,
+) -> anyhow::Result<Success> {
+    let started = Instant::now();
+    match plan {
+        Repeat::Grab { serial, stream } => {
+            let r = client.grab(serial, *stream, accept).await?;
+            Ok(Success {
+                bytes: r.payload.len(),
+                time: started.elapsed(),
+                measurement: None,
+            })
+        }
+        Repeat::All => {
+            let r = client.grab_all(accept).await?;
+            Ok(Success {
+                bytes: r.payload.len(),
+                time: started.elapsed(),
+                measurement: None,
+            })
+        }
+        Repeat::Measure(source) => {
+            let m = measure::measure_once(client, source, config).await?;
+            Ok(Success {
+                bytes: m.grabbed.bytes,
+                time: m.grab,
+                measurement: Some(m),
+            })
+        }
+    }
+}
+
+/// Repeats the plan every `period` until `count` results.
+async fn repeat(
+    client: &CamClient,
+    plan: &Repeat,
+    args: &MonitorArgs,
+    period: Duration,
+    report: &mut Report,
+) -> anyhow::Result<()> {
+    // tokio's interval refuses a zero period: then the requests follow each other.
+    let mut ticks = (!period.is_zero()).then(|| {
+        let mut ticks = tokio::time::interval(period);
+        ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        ticks
+    });
+    let config = args.dimension.config();
+    while !report.done(args.count) {
+        if let Some(ticks) = &mut ticks {
+            ticks.tick().await;
+        }
+        let started = Instant::now();
+        let outcome = once(client, plan, args.accept, &config).await;
+        report.result(outcome, started.elapsed());
+    }
+    Ok(())
+}
+
+/// Observes `/cams/<serial>/<stream>` until `count` results or the end of the observation.
+async fn observe(
+    client: &CamClient,
+    serial: &str,
+    stream: Stream,
+    args: &MonitorArgs,
+    timeout: Duration,
+    report: &mut Report,
+) -> anyhow::Result<()> {
+    let path = format!("/cams/{serial}/{}", stream.name());
+    let mut request = client.request(Code::GET, &path, Bytes::new(), None, args.accept);
+    // The request's timeout would end the observation; only the first answer is bounded.
+    request.timeout = None;
+    let mut previous = Instant::now();
+    let mut observation = client
+        .coap()
+        .observe(client.server(), request)
+        .await
+        .with_context(|| format!("observing {path} on {}", client.server()))?;
+    let mut first = true;
+    while !report.done(args.count) {
+        let next = if first {
+            tokio::time::timeout(timeout, observation.next())
+                .await
+                .with_context(|| format!("no answer to the observation of {path} in {timeout:?}"))?
+        } else {
+            observation.next().await
+        };
+        let Some(next) = next else {
+            bail!("the observation of {path} ended");
+        };
+        let elapsed = previous.elapsed();
+        previous = Instant::now();
+        let response: Response = next.with_context(|| format!("observing {path}"))?;
+        let observing = response.options.contains(OptionNumber::OBSERVE);
+        let outcome = crate::client::check(&format!("GET {path}"), response).map(|r| Success {
+            bytes: r.payload.len(),
+            time: elapsed,
+            measurement: None,
+        });
+        report.result(outcome, elapsed);
+        if !observing {
+            if first {
+                bail!("the server did not accept the observation of {path}");
+            }
+            bail!("the server ended the observation of {path}");
+        }
+        first = false;
+    }
+    Ok(())
+}
+
+/// Runs `monitor`: true when at least one result succeeded.
+pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<bool> {
+    let timeout = Duration::try_from_secs_f64(args.timeout).context("--timeout")?;
+    let period = Duration::try_from_secs_f64(args.interval).context("--interval")?;
+    if period.is_zero() && args.count.is_none() && !args.observe {
+        bail!("--interval 0 needs --count");
+    }
+    let client =
+        CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout).await?;
+    let plan = Plan::resolve(&args, &client).await?;
+    let what = plan.describe();
+    if !args.json {
+        match args.count {
+            Some(n) => println!("{what}: {n} result(s)"),
+            None => println!("{what}: until Ctrl-C"),
+        }
+    }
+    let mut report = Report {
+        json: args.json,
+        stats: Stats::new(),
+        seen: 0,
+    };
+    let work = async {
+        match &plan {
+            Plan::Observe { serial, stream } => {
+                observe(&client, serial, *stream, &args, timeout, &mut report).await
+            }
+            Plan::Repeat(repeat_plan) => {
+                repeat(&client, repeat_plan, &args, period, &mut report).await
+            }
+        }
+    };
+    let ended = tokio::select! {
+        ended = work => ended,
+        interrupted = tokio::signal::ctrl_c() => interrupted.context("waiting for Ctrl-C"),
+    };
+    let summary = report.stats.summary();
+    if args.json {
+        println!("{}", summary.to_json());
+    } else {
+        let times = if args.observe {
+            "times between results"
+        } else {
+            "transfer times"
+        };
+        print!("{}", summary.to_text(times));
+    }
+    if let Err(e) = ended {
+        eprintln!("coapcam: {e:#}");
+        return Ok(false);
+    }
+    Ok(summary.count > 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ms(values: &[u64]) -> Stats {
+        let mut s = Stats::new();
+        for v in values {
+            s.record(Duration::from_millis(*v));
+        }
+        s
+    }
+
+    #[test]
+    fn known_samples_give_known_columns_with_the_population_deviation() {
+        // Population variance 4 (sample variance 32/7, sd 2.14).
+        let s = ms(&[2, 4, 4, 4, 5, 5, 7, 9]).summary();
+        let t = s.times.unwrap();
+        assert_eq!((s.count, s.failed), (8, 0));
+        assert_eq!((t.min_ns, t.max_ns), (2_000_000, 9_000_000));
+        assert_eq!(t.median_ns, 4_500_000.0);
+        assert!((t.mean_ns - 5e6).abs() < 1e-3, "{}", t.mean_ns);
+        assert!((t.sd_ns - 2e6).abs() < 1e-3, "{}", t.sd_ns);
+        assert!((t.cv - 0.4).abs() < 1e-12, "{}", t.cv);
+    }
+
+    #[test]
+    fn an_odd_count_has_the_middle_value_as_median() {
+        let t = ms(&[30, 10, 20]).summary().times.unwrap();
+        assert_eq!(t.median_ns, 20e6);
+        assert_eq!((t.min_ns, t.max_ns), (10_000_000, 30_000_000));
+    }
+
+    #[test]
+    fn one_result_has_no_spread_and_none_has_no_times() {
+        let t = ms(&[7]).summary().times.unwrap();
+        assert_eq!((t.sd_ns, t.cv, t.median_ns), (0.0, 0.0, 7e6));
+        let mut s = Stats::new();
+        s.record_failure();
+        s.record_failure();
+        assert_eq!(
+            s.summary(),
+            Summary {
+                count: 0,
+                failed: 2,
+                times: None
+            }
+        );
+        assert_eq!(s.mean(), None);
+        let json = s.summary().to_json();
+        assert_eq!(json["statistics"]["failed"], 2);
+        assert!(json["statistics"].get("mean_ns").is_none());
+    }
+
+    #[test]
+    fn failures_do_not_enter_the_times() {
+        let mut s = ms(&[10, 20]);
+        s.record_failure();
+        let sum = s.summary();
+        assert_eq!((sum.count, sum.failed), (2, 1));
+        assert_eq!(sum.times.unwrap().mean_ns, 15e6);
+    }
+
+    #[test]
+    fn long_runs_keep_a_bounded_window_for_the_median_and_exact_moments() {
+        let mut s = Stats::with_median_window(3);
+        for v in 1..=5 {
+            s.record(Duration::from_millis(v));
+        }
+        assert_eq!(s.recent_ns.len(), 3);
+        let t = s.summary().times.unwrap();
+        // Median of 3, 4, 5; the rest over all five.
+        assert_eq!(t.median_ns, 4e6);
+        assert_eq!((t.min_ns, t.max_ns), (1_000_000, 5_000_000));
+        assert!((t.mean_ns - 3e6).abs() < 1e-3);
+        assert!((t.sd_ns - 2f64.sqrt() * 1e6).abs() < 1e-3, "{}", t.sd_ns);
+    }
+
+    #[test]
+    fn large_times_with_small_spread_keep_their_precision() {
+        // 324 s transfers (Table 4.8) a nanosecond apart: a naive sum of squares in f64
+        // would lose the spread entirely.
+        let mut s = Stats::new();
+        for extra in [1, 2, 3] {
+            s.record(Duration::from_nanos(324_000_000_000 + extra));
+        }
+        let t = s.summary().times.unwrap();
+        assert!((t.sd_ns - (2f64 / 3.0).sqrt()).abs() < 1e-3, "{}", t.sd_ns);
+        assert_eq!(t.median_ns, 324_000_000_002.0);
+    }
+
+    #[test]
+    fn the_outputs_name_every_column() {
+        let s = ms(&[100, 200, 300]).summary();
+        let json = s.to_json();
+        let st = &json["statistics"];
+        for key in [
+            "count",
+            "failed",
+            "min_ns",
+            "median_ns",
+            "max_ns",
+            "mean_ns",
+            "sd_ns",
+            "cv",
+        ] {
+            assert!(st.get(key).is_some(), "{key} missing in {json}");
+        }
+        assert_eq!(st["median_ns"], 200_000_000);
+        assert_eq!(st["sd"], "population");
+        let text = s.to_text("transfer times");
+        assert!(text.contains("median ms"), "{text}");
+        assert!(text.contains("200.000"), "{text}");
+        assert!(text.contains("0.41"), "{text}");
+    }
+
+    #[test]
+    fn clock_and_thousands_format_as_printed() {
+        assert_eq!(clock(86_400_000 + 3_723_045), "01:02:03.045 UTC");
+        assert_eq!(thousands(2_764_810), "2,764,810");
+        assert_eq!(thousands(999), "999");
+        assert_eq!(thousands(1000), "1,000");
+        assert_eq!(millis(Duration::from_micros(12_345)), 12.345);
+    }
+}
