@@ -13,7 +13,7 @@ use rgbd::scene::{Noise, SceneBox, SceneCamera};
 use rgbd::{Scene, Serial};
 
 use crate::client::CamClient;
-use crate::demo::{cut_floor, truth, yaw_difference};
+use crate::demo::{prepare_cameras, truth, yaw_difference};
 use crate::measure::{self, DimensionArgs, Source};
 use crate::serve::SceneServer;
 
@@ -180,7 +180,7 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
         let scene = scene(args.seed, index)?;
         server.load(&scene)?;
         let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
-        cut_floor(&client, &serials, 1.0).await?;
+        prepare_cameras(&client, &serials, 1.0).await?;
         let truth = truth(&scene).context("the scene has no box")?;
         let result = measure::measure_once(&client, &Source::All, &config).await;
         let row = Row {
