@@ -36,7 +36,7 @@ pub(crate) const FLOOR_CUT_M: f64 = 0.005;
 
 /// Prepares every camera for measuring as the thesis does (§3.3.5): roi3d becomes the
 /// box above the floor within `half_width_m` of the origin, and the spatial filter runs
-/// (librealsense's defaults: it halves the depth noise that widens a footprint's hull);
+/// (librealsense's defaults: it smooths the depth noise that widens a footprint's hull);
 /// the rest of each application-config stays.
 pub(crate) async fn prepare_cameras(
     client: &CamClient,
@@ -128,9 +128,12 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<bool> {
         cloud_path.display(),
         m.grabbed.cloud.len()
     );
-    save(&view::top_view(&m.grabbed.cloud), &dir.join("top.png"))?;
-    measure::annotate_from_server(&client, first, &m.dimensions, &dir.join("annotated.png"))
-        .await?;
+    let top = dir.join("top.png");
+    save(&view::top_view(&m.grabbed.cloud), &top)?;
+    println!("wrote {}", top.display());
+    let annotated = dir.join("annotated.png");
+    measure::annotate_from_server(&client, first, &m.dimensions, &annotated).await?;
+    println!("wrote {} (camera {first})", annotated.display());
     println!();
     print!("{}", report(&m, truth(&scene)));
     Ok(true)
@@ -153,9 +156,23 @@ async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Res
         depth.values.clone(),
     )
     .context("the depth image's size")?;
+    let depth_views = [
+        ("depth-view.png", view::depth_gray(&depth).into()),
+        (
+            "depth-color.png",
+            image::DynamicImage::from(view::depth_colored(&depth)),
+        ),
+    ];
     save(&raw, &dir.join("depth.png"))?;
-    save(&view::depth_gray(&depth), &dir.join("depth-view.png"))?;
-    save(&view::depth_colored(&depth), &dir.join("depth-color.png"))
+    println!("wrote {}", dir.join("depth.png").display());
+    for (name, picture) in depth_views {
+        let path = dir.join(name);
+        picture
+            .save_with_format(&path, image::ImageFormat::Png)
+            .with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
 }
 
 /// The measurement next to the truth, as a table.

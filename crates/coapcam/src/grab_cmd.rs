@@ -122,19 +122,22 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<bool> {
         response.payload.len()
     );
     if let Some(path) = &args.view {
-        write_view(&client, &args, kind, &response, path).await?;
+        for written in write_view(&client, &args, kind, &response, path).await? {
+            eprintln!("coapcam: wrote {}", written.display());
+        }
     }
     Ok(true)
 }
 
-/// Writes the picture of `--view` from the representation that arrived.
+/// Writes the picture(s) of `--view` from the representation that arrived; returns the
+/// files written.
 async fn write_view(
     client: &CamClient,
     args: &GrabArgs,
     kind: FileKind,
     response: &Response,
     path: &Path,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<Vec<PathBuf>> {
     match args.stream {
         Stream::Color => {
             let image = match kind {
@@ -147,15 +150,18 @@ async fn write_view(
                     color_from_packet(&response.payload, &settings)?
                 }
             };
-            save(&image, path)
+            save(&image, path)?;
+            Ok(vec![path.to_owned()])
         }
         Stream::Depth => {
             let depth = match kind {
                 FileKind::Png => depth_from_png(&response.payload)?,
                 _ => packet::depth(&response.payload).context("reading the depth packet")?,
             };
+            let colored = sibling(path, "-color");
             save(&view::depth_gray(&depth), path)?;
-            save(&view::depth_colored(&depth), &sibling(path, "-color"))
+            save(&view::depth_colored(&depth), &colored)?;
+            Ok(vec![path.to_owned(), colored])
         }
         Stream::Pointcloud => {
             let cloud = match kind {
@@ -168,7 +174,8 @@ async fn write_view(
                         .cloud
                 }
             };
-            save(&view::top_view(&cloud), path)
+            save(&view::top_view(&cloud), path)?;
+            Ok(vec![path.to_owned()])
         }
     }
 }
@@ -179,7 +186,7 @@ pub(crate) fn sibling(path: &Path, suffix: &str) -> PathBuf {
     path.with_file_name(format!("{stem}{suffix}.png"))
 }
 
-/// Saves a picture as PNG.
+/// Saves a picture as PNG (quietly: callers say what they wrote where their output goes).
 pub(crate) fn save<P, C>(image: &image::ImageBuffer<P, C>, path: &Path) -> anyhow::Result<()>
 where
     P: image::PixelWithColorType,
@@ -188,9 +195,7 @@ where
 {
     image
         .save_with_format(path, ImageFormat::Png)
-        .with_context(|| format!("writing {}", path.display()))?;
-    eprintln!("coapcam: wrote {}", path.display());
-    Ok(())
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// A 16-bit grayscale PNG of raw depth units (the server's `image/png` depth).

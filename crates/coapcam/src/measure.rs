@@ -345,6 +345,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
             .context("no camera to take the color image from")?;
         let one = CamClient::unicast(&client, *server);
         annotate_from_server(&one, sn, &m.dimensions, path).await?;
+        eprintln!("coapcam: wrote {}", path.display());
     }
     Ok(true)
 }
