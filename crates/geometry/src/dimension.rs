@@ -16,6 +16,7 @@ use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point};
 use rayon::prelude::*;
 
 use crate::cloud::is_finite;
+use crate::grid::{Cell, Grid};
 use crate::index::Index;
 use crate::{Point3, PointCloud};
 
@@ -215,25 +216,24 @@ pub fn dimension(
 /// number of points, where a neighbour search per point grows with the density. Ties go
 /// to the cluster holding the lowest input index; the points keep their input order.
 fn largest_cluster(points: &[Point3], radius_m: f32) -> Result<Vec<Point3>, DimensionError> {
-    let key = |p: &Point3| {
-        let k = |v: f32| (v / radius_m).floor() as i64;
-        (k(p.x), k(p.y), k(p.z))
-    };
-    let mut cells: HashMap<(i64, i64, i64), usize> = HashMap::new();
-    let mut counts: Vec<usize> = Vec::new();
-    let cell_of: Vec<usize> = points
-        .iter()
-        .map(|p| {
-            let next = cells.len();
-            let c = *cells.entry(key(p)).or_insert(next);
-            if c == counts.len() {
-                counts.push(0);
-            }
-            counts[c] += 1;
-            c
-        })
+    if u32::try_from(points.len()).is_err() {
+        return Err(DimensionError::TooManyPoints {
+            points: points.len(),
+        });
+    }
+    let grid = Grid::new(points, radius_m);
+    // Union-find over cells; a set's root is its lowest cell number, and cells are
+    // numbered in order of their lowest point.
+    let mut number: HashMap<Cell, usize> = HashMap::new();
+    let mut cells: Vec<(Cell, usize)> = grid
+        .cells()
+        .map(|(cell, members)| (*cell, members.iter().min().copied().unwrap_or(0) as usize))
         .collect();
-    let mut parent: Vec<usize> = (0..counts.len()).collect();
+    cells.sort_unstable_by_key(|&(_, first)| first);
+    for (n, (cell, _)) in cells.iter().enumerate() {
+        number.insert(*cell, n);
+    }
+    let mut parent: Vec<usize> = (0..cells.len()).collect();
     fn root(parent: &mut [usize], mut i: usize) -> usize {
         while parent[i] != i {
             parent[i] = parent[parent[i]];
@@ -241,34 +241,27 @@ fn largest_cluster(points: &[Point3], radius_m: f32) -> Result<Vec<Point3>, Dime
         }
         i
     }
-    for (&(x, y, z), &c) in &cells {
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    if let Some(&n) = cells.get(&(x + dx, y + dy, z + dz)) {
-                        let (a, b) = (root(&mut parent, c), root(&mut parent, n));
-                        if a != b {
-                            parent[a.max(b)] = a.min(b);
-                        }
-                    }
-                }
+    for (n, (cell, _)) in cells.iter().enumerate() {
+        for neighbour in grid.occupied_around(*cell) {
+            let (a, b) = (root(&mut parent, n), root(&mut parent, number[&neighbour]));
+            if a != b {
+                parent[a.max(b)] = a.min(b);
             }
         }
     }
-    let mut size = vec![0usize; counts.len()];
-    for (c, n) in counts.iter().enumerate() {
-        size[root(&mut parent, c)] += n;
+    let mut size = vec![0usize; cells.len()];
+    for (cell, members) in grid.cells() {
+        let r = root(&mut parent, number[cell]);
+        size[r] += members.len();
     }
-    // Cells are numbered in order of their first point, and every root is its set's
-    // lowest cell, so the first maximum holds the lowest input index.
+    // The first maximum holds the lowest input index.
     let Some(best) = (0..size.len()).max_by(|&a, &b| size[a].cmp(&size[b]).then(b.cmp(&a))) else {
         return Ok(Vec::new());
     };
     Ok(points
         .iter()
-        .zip(&cell_of)
-        .filter(|(_, c)| root(&mut parent, **c) == best)
-        .map(|(p, _)| *p)
+        .filter(|p| root(&mut parent, number[&grid.cell(p)]) == best)
+        .copied()
         .collect())
 }
 
@@ -302,10 +295,26 @@ fn lid(
         return Ok(band);
     };
     let radius = 3.0 * median.max(1e-4);
+    let grid = Grid::new(&band, radius);
+    let needed = config.min_neighbours;
     Ok(band
         .par_iter()
-        .filter(|p| index.within(p, radius).len() > config.min_neighbours)
-        .copied()
+        .enumerate()
+        .filter(|&(i, p)| {
+            let mut others = 0;
+            for members in grid.around(grid.cell(p)) {
+                for &j in members {
+                    if j as usize != i && (band[j as usize] - p).norm_squared() <= radius * radius {
+                        others += 1;
+                        if others >= needed {
+                            return true;
+                        }
+                    }
+                }
+            }
+            false
+        })
+        .map(|(_, p)| *p)
         .collect())
 }
 

@@ -44,16 +44,4 @@ impl Index {
             .map(|found| found.item as usize)
             .collect()
     }
-
-    /// Indices of all points within `radius_m` of `p` (inclusive), in no order.
-    pub(crate) fn within(&self, p: &Point3, radius_m: f32) -> Vec<usize> {
-        self.tree
-            .query(&[p.x, p.y, p.z])
-            .within::<SquaredEuclidean<f32>>(radius_m * radius_m)
-            .unsorted()
-            .execute()
-            .into_iter()
-            .map(|found| found.item as usize)
-            .collect()
-    }
 }

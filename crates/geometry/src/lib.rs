@@ -13,6 +13,7 @@
 
 pub mod cloud;
 pub mod dimension;
+mod grid;
 pub mod icp;
 mod index;
 pub mod ply;
