@@ -9,14 +9,13 @@
 //! within `top_band_m` below it. On a box this is the median of the lid, which is unbiased
 //! by depth noise, where a plain quantile would read about two noise deviations high.
 
-use std::collections::HashMap;
 use std::num::NonZeroUsize;
 
 use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point};
 use rayon::prelude::*;
 
 use crate::cloud::is_finite;
-use crate::grid::{Cell, Grid};
+use crate::grid::{Cell, CellMap, Grid};
 use crate::index::Index;
 use crate::{Point3, PointCloud};
 
@@ -224,7 +223,7 @@ fn largest_cluster(points: &[Point3], radius_m: f32) -> Result<Vec<Point3>, Dime
     let grid = Grid::new(points, radius_m);
     // Union-find over cells; a set's root is its lowest cell number, and cells are
     // numbered in order of their lowest point.
-    let mut number: HashMap<Cell, usize> = HashMap::new();
+    let mut number: CellMap<usize> = CellMap::default();
     let mut cells: Vec<(Cell, usize)> = grid
         .cells()
         .map(|(cell, members)| (*cell, members.iter().min().copied().unwrap_or(0) as usize))

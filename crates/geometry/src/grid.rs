@@ -4,7 +4,13 @@
 
 use std::collections::HashMap;
 
+use foldhash::fast::FixedState;
+
 use crate::Point3;
+
+/// A map keyed by cells, with a fast fixed-seed hash (the keys are our own coordinates,
+/// not input an attacker chooses freely, and the work is bounded by the point count).
+pub(crate) type CellMap<V> = HashMap<Cell, V, FixedState>;
 
 /// Integer cell coordinates.
 pub(crate) type Cell = (i64, i64, i64);
@@ -12,7 +18,7 @@ pub(crate) type Cell = (i64, i64, i64);
 /// Points bucketed by cell; items are indices into the slice the grid was built from.
 pub(crate) struct Grid {
     size_m: f32,
-    cells: HashMap<Cell, Vec<u32>>,
+    cells: CellMap<Vec<u32>>,
 }
 
 impl Grid {
@@ -21,7 +27,7 @@ impl Grid {
     pub(crate) fn new(points: &[Point3], size_m: f32) -> Self {
         let mut grid = Self {
             size_m,
-            cells: HashMap::new(),
+            cells: CellMap::default(),
         };
         for (i, p) in points.iter().enumerate() {
             let cell = grid.cell(p);
