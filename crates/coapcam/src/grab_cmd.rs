@@ -225,21 +225,12 @@ fn color_from_packet(payload: &[u8], settings: &serde_json::Value) -> anyhow::Re
     }
     let width = u32::from(u16::from_be_bytes([payload[1], payload[2]]));
     let height = u32::from(u16::from_be_bytes([payload[3], payload[4]]));
-    let bpp = usize::from(payload[5]);
-    let pixels = &payload[10..];
-    if pixels.len() != width as usize * height as usize * bpp || !(3..=4).contains(&bpp) {
-        bail!("the color packet's size does not match {width}x{height}x{bpp}");
-    }
-    let swap = format.to_ascii_uppercase().starts_with("BGR");
-    let rgb = pixels
-        .chunks_exact(bpp)
-        .flat_map(|p| {
-            if swap {
-                [p[2], p[1], p[0]]
-            } else {
-                [p[0], p[1], p[2]]
-            }
-        })
-        .collect();
-    RgbImage::from_raw(width, height, rgb).context("the color packet's size")
+    view::rgb_image(
+        &payload[10..],
+        width,
+        height,
+        usize::from(payload[5]),
+        format,
+    )
+    .map_err(|e| anyhow::anyhow!("the color packet: {e}"))
 }

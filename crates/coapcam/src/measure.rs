@@ -423,21 +423,8 @@ impl ColorCapture {
         let data = cbor_field(map, "data")?
             .as_bytes()
             .context("data is not bytes")?;
-        if !(3..=4).contains(&bpp) || data.len() != width as usize * height as usize * bpp {
-            bail!("the color data does not hold {width}x{height} pixels of {bpp} bytes");
-        }
-        let bgr = format.starts_with("BGR");
-        let rgb = data
-            .chunks_exact(bpp)
-            .flat_map(|p| {
-                if bgr {
-                    [p[2], p[1], p[0]]
-                } else {
-                    [p[0], p[1], p[2]]
-                }
-            })
-            .collect();
-        let image = image::RgbImage::from_raw(width, height, rgb).context("the color image")?;
+        let image = crate::view::rgb_image(data, width, height, bpp, format)
+            .map_err(|e| anyhow::anyhow!("the CBOR color frame: {e}"))?;
         let k = cbor_field(map, "intrinsics")?
             .as_map()
             .context("intrinsics is not a map")?;

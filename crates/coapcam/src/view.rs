@@ -7,6 +7,37 @@ use image::{GrayImage, Luma, Rgb, RgbImage};
 
 use crate::packet::DepthImage;
 
+/// Color pixels of `width` x `height`, `bytes_per_pixel` (3 or 4) each, in the camera's
+/// `format` (RGB8, BGR8, RGBA8, BGRA8), as an RGB image.
+pub(crate) fn rgb_image(
+    pixels: &[u8],
+    width: u32,
+    height: u32,
+    bytes_per_pixel: usize,
+    format: &str,
+) -> Result<RgbImage, String> {
+    if !(3..=4).contains(&bytes_per_pixel)
+        || pixels.len() != width as usize * height as usize * bytes_per_pixel
+    {
+        return Err(format!(
+            "{} bytes are not {width}x{height} pixels of {bytes_per_pixel} bytes",
+            pixels.len()
+        ));
+    }
+    let bgr = format.to_ascii_uppercase().starts_with("BGR");
+    let rgb = pixels
+        .chunks_exact(bytes_per_pixel)
+        .flat_map(|p| {
+            if bgr {
+                [p[2], p[1], p[0]]
+            } else {
+                [p[0], p[1], p[2]]
+            }
+        })
+        .collect();
+    RgbImage::from_raw(width, height, rgb).ok_or_else(|| "the image's size".to_owned())
+}
+
 /// The depth values at the 1st and 99th percentile of the valid (non-zero) pixels, so a
 /// few flying pixels do not flatten the picture; `None` without valid pixels.
 fn depth_range(values: &[u16]) -> Option<(u16, u16)> {
