@@ -28,6 +28,19 @@ pub(crate) enum Reply {
     /// The first response and every notification (Observe), or every server's response
     /// (multicast); the channel closes when the request ends.
     Stream(mpsc::UnboundedSender<StreamItem>),
+    /// The pieces of a streamed body, then the response or the failure.
+    Body(mpsc::UnboundedSender<BodyItem>),
+}
+
+/// One item of a [`Reply::Body`].
+#[derive(Debug)]
+pub(crate) enum BodyItem {
+    /// The next piece of the body, and the whole size when the server announced it.
+    Chunk(bytes::Bytes, Option<usize>),
+    /// The response (its payload is empty: the body came in the pieces).
+    Done(Response),
+    /// The request failed; the pieces so far are not a body.
+    Failed(RequestError),
 }
 
 /// How far a block-wise transfer has come.
@@ -315,13 +328,32 @@ fn dispatch(
                     replies.remove(&id);
                 }
             }
-            Some((_, Reply::Once(_) | Reply::Tracked(..))) => {
-                if let Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) = replies.remove(&id) {
-                    let _ = tx.send(Ok(response));
+            Some((_, Reply::Once(_) | Reply::Tracked(..) | Reply::Body(_))) => {
+                match replies.remove(&id) {
+                    Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
+                        let _ = tx.send(Ok(response));
+                    }
+                    Some((_, Reply::Body(tx))) => {
+                        let _ = tx.send(BodyItem::Done(response));
+                    }
+                    _ => {}
                 }
             }
             None => {}
         },
+        Event::BodyChunk {
+            id, data, total, ..
+        } => {
+            let gone = match replies.get(&id) {
+                Some((_, Reply::Body(tx))) => tx.send(BodyItem::Chunk(data, total)).is_err(),
+                _ => false,
+            };
+            if gone {
+                // Nobody reads the body any more: stop the transfer.
+                replies.remove(&id);
+                ep.cancel(clock::now(), id);
+            }
+        }
         Event::Progress { id, done, total } => {
             if let Some((_, Reply::Tracked(_, p))) = replies.get(&id) {
                 let _ = p.send(Progress { done, total });
@@ -351,6 +383,9 @@ fn dispatch(
             }
             Some((_, Reply::Stream(tx))) => {
                 let _ = tx.send(StreamItem::Failed(error));
+            }
+            Some((_, Reply::Body(tx))) => {
+                let _ = tx.send(BodyItem::Failed(error));
             }
             None => {
                 if let Some(tx) = pings.remove(&id) {

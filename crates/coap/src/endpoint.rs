@@ -74,6 +74,12 @@ pub struct Request {
     pub multicast: bool,
     /// Report [`Event::Progress`] during a block-wise transfer.
     pub progress: bool,
+    /// Deliver the body of a success response as [`Event::BodyChunk`]s, in order, as its
+    /// blocks arrive, instead of reassembling it: the final [`Event::Response`] then has
+    /// an empty payload. Chunks are provisional until that response; a failure after some
+    /// of them (an ETag that changed mid-transfer, a missing block, a total that does not
+    /// match Size2) ends in [`Event::RequestFailed`], and the chunks must be discarded.
+    pub stream: bool,
 }
 
 impl Request {
@@ -90,6 +96,7 @@ impl Request {
             timeout: None,
             multicast: false,
             progress: false,
+            stream: false,
         }
     }
 
@@ -246,6 +253,19 @@ pub enum Event {
         /// The whole size, when known (Size1 of an upload, Size2 of a download).
         total: Option<usize>,
     },
+    /// The next piece of a response body, for requests with [`Request::stream`]. Pieces
+    /// come in order without gaps; the request's [`Event::Response`] or
+    /// [`Event::RequestFailed`] follows the last one.
+    BodyChunk {
+        /// The request.
+        id: RequestId,
+        /// Where the piece starts in the body.
+        offset: usize,
+        /// The bytes.
+        data: Bytes,
+        /// The whole size, when the server announced it (Size2).
+        total: Option<usize>,
+    },
     /// A multicast request stopped collecting responses.
     MulticastDone {
         /// The request.
@@ -322,8 +342,10 @@ struct ClientRequest {
     generation: u32,
     failures: u8,
     restarts: u8,
-    /// Block2 reassembly: body so far, the ETag, the first block's options.
+    /// Block2 reassembly: body so far (empty when streamed), the bytes received, the
+    /// ETag, the first block's options.
     body: Vec<u8>,
+    received: usize,
     etag: Option<Vec<u8>>,
     first_options: Option<Options>,
     /// The user set Block2 in the request: random access, no reassembly.
@@ -753,6 +775,7 @@ impl Endpoint {
                 failures: 0,
                 restarts: 0,
                 body: Vec::new(),
+                received: 0,
                 etag: None,
                 first_options: None,
                 user_block2,
@@ -1121,31 +1144,41 @@ impl Endpoint {
             .block2()
             .filter(|_| !r.user_block2 && msg.code.is_success());
         let Some(b2) = b2 else {
-            let response = match r.first_options.take() {
+            if r.first_options.take().is_some() {
                 // Reassembly ended with a block lacking Block2: a broken server.
-                Some(_) => {
-                    return self.fail(
-                        now,
-                        id,
-                        RequestError::Protocol("block-wise response lost its Block2"),
-                    );
-                }
-                None => Response {
-                    code: msg.code,
-                    options: msg.options,
-                    payload: msg.payload,
-                },
+                return self.fail(
+                    now,
+                    id,
+                    RequestError::Protocol("block-wise response lost its Block2"),
+                );
+            }
+            let mut response = Response {
+                code: msg.code,
+                options: msg.options,
+                payload: msg.payload,
             };
+            if r.req.stream && response.code.is_success() && !response.payload.is_empty() {
+                let data = std::mem::take(&mut response.payload);
+                self.events.push_back(Event::BodyChunk {
+                    id: RequestId(id),
+                    offset: 0,
+                    total: Some(data.len()),
+                    data,
+                });
+            }
             return self.complete(now, id, response);
         };
         let etag = msg.options.etag().map(<[u8]>::to_vec);
         if r.first_options.is_some() && etag != r.etag {
-            // RFC 7959 §2.4: the representation changed; start over, a few times at most.
-            if r.restarts >= 4 {
+            // RFC 7959 §2.4: the representation changed. Streamed pieces cannot be taken
+            // back, so a streamed request fails; a reassembled one starts over, a few
+            // times at most.
+            if r.restarts >= 4 || r.req.stream {
                 return self.fail(now, id, RequestError::RepresentationChanged);
             }
             r.restarts += 1;
             r.body.clear();
+            r.received = 0;
             r.first_options = None;
             r.step = Step::Download {
                 num: 0,
@@ -1164,34 +1197,61 @@ impl Endpoint {
             let mut first = msg.options.clone();
             first.remove(OptionNumber::BLOCK2);
             r.etag = etag;
-            if let Some(size2) = msg.options.uint(OptionNumber::SIZE2) {
+            if let Some(size2) = msg.options.uint(OptionNumber::SIZE2)
+                && !r.req.stream
+            {
                 // Pre-allocate from Size2, but never more than the limit allows.
                 r.body.reserve((size2 as usize).min(limit));
             }
             r.first_options = Some(first);
         }
-        if b2.offset() != r.body.len() {
+        if b2.offset() != r.received {
             // A block we did not ask for at this offset: ask again for the one we lack.
             let size = b2.size();
             r.step = Step::Download {
-                num: (r.body.len() / size) as u32,
+                num: (r.received / size) as u32,
                 szx: b2.szx,
             };
             return self.send_step(now, id);
         }
-        if r.body.len() + msg.payload.len() > limit {
+        if r.received + msg.payload.len() > limit {
             return self.fail(now, id, RequestError::TooLarge { limit });
         }
-        let before = r.body.len();
-        r.body.extend_from_slice(&msg.payload);
+        if b2.more && msg.payload.len() != b2.size() {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("Block2 payload size does not match SZX"),
+            );
+        }
+        let total = r
+            .first_options
+            .as_ref()
+            .and_then(|o| o.uint(OptionNumber::SIZE2))
+            .map(|v| v as usize);
+        let (stream, progress) = (r.req.stream, r.req.progress);
+        let before = r.received;
+        r.received += msg.payload.len();
+        let done = r.received;
+        if stream {
+            if !b2.more && total.is_some_and(|t| t != done) {
+                return self.fail(
+                    now,
+                    id,
+                    RequestError::Protocol("the body does not have the size Size2 announced"),
+                );
+            }
+            self.events.push_back(Event::BodyChunk {
+                id: RequestId(id),
+                offset: before,
+                data: msg.payload,
+                total,
+            });
+        } else {
+            r.body.extend_from_slice(&msg.payload);
+        }
         // Progress at most every 64 KiB (and at the end), so watching costs nothing.
-        if r.req.progress && (before >> 16 != r.body.len() >> 16 || !b2.more) {
-            let total = r
-                .first_options
-                .as_ref()
-                .and_then(|o| o.uint(OptionNumber::SIZE2))
-                .map(|v| v as usize);
-            let done = r.body.len();
+        if progress && (before >> 16 != done >> 16 || !b2.more) {
             self.events.push_back(Event::Progress {
                 id: RequestId(id),
                 done,
@@ -1202,14 +1262,7 @@ impl Endpoint {
             return;
         };
         if b2.more {
-            if msg.payload.len() != b2.size() {
-                return self.fail(
-                    now,
-                    id,
-                    RequestError::Protocol("Block2 payload size does not match SZX"),
-                );
-            }
-            let num = (r.body.len() / b2.size()) as u32;
+            let num = (r.received / b2.size()) as u32;
             r.step = Step::Download { num, szx: b2.szx };
             return self.send_step(now, id);
         }

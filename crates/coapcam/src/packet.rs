@@ -126,7 +126,7 @@ pub(crate) fn cloud(packet: &[u8]) -> Result<CloudPacket, PacketError> {
     }
     let count = be_u32(packet, 4) as usize;
     let body = &packet[HEADER..];
-    if body.len() / 12 != count || body.len() % 12 != 0 {
+    if body.len() / 12 != count || !body.len().is_multiple_of(12) {
         return Err(error(
             what,
             format!(

@@ -1,6 +1,7 @@
 //! coap-net over real loopback sockets: client and server together.
 
 mod multicast;
+mod stream;
 
 use std::net::SocketAddr;
 use std::sync::Arc;

@@ -25,7 +25,7 @@ use std::thread;
 use std::time::Duration;
 
 #[path = "peers.rs"]
-mod peers;
+pub(crate) mod peers;
 
 use self::peers::{
     AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, Peer, Proc, TempDir, assert_file_is, assert_same,

@@ -3,6 +3,7 @@
 mod bag;
 mod cams;
 mod formats;
+mod get;
 mod group;
 mod interop;
 mod netem;
