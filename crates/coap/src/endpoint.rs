@@ -389,6 +389,11 @@ struct Observation {
     last_mid: Option<u16>,
 }
 
+/// A map keyed by what this endpoint chose itself (request and observation ids, its own
+/// tokens and message IDs, the peers it sends to): a fast seeded hash is enough there.
+/// The deduplication store, keyed by message IDs that peers choose, keeps SipHash.
+type FastMap<K, V> = HashMap<K, V, foldhash::fast::RandomState>;
+
 #[derive(Default)]
 struct Peer {
     active: usize,
@@ -405,15 +410,15 @@ pub struct Endpoint {
     timers: BinaryHeap<Reverse<(Instant, u64, TimerKind)>>,
     outbox: VecDeque<Transmit>,
     events: VecDeque<Event>,
-    exchanges: HashMap<(SocketAddr, u16), OutCon>,
+    exchanges: FastMap<(SocketAddr, u16), OutCon>,
     dedup: Dedup,
-    requests: HashMap<u64, ClientRequest>,
-    by_token: HashMap<Token, u64>,
-    peers: HashMap<SocketAddr, Peer>,
-    pending: HashMap<u64, Pending>,
+    requests: FastMap<u64, ClientRequest>,
+    by_token: FastMap<Token, u64>,
+    peers: FastMap<SocketAddr, Peer>,
+    pending: FastMap<u64, Pending>,
     block1: Block1Assembler,
     block2: ServerCache,
-    observations: HashMap<u64, Observation>,
+    observations: FastMap<u64, Observation>,
 }
 
 impl Endpoint {
@@ -430,15 +435,15 @@ impl Endpoint {
             timers: BinaryHeap::new(),
             outbox: VecDeque::new(),
             events: VecDeque::new(),
-            exchanges: HashMap::new(),
+            exchanges: FastMap::default(),
             dedup: Dedup::new(),
-            requests: HashMap::new(),
-            by_token: HashMap::new(),
-            peers: HashMap::new(),
-            pending: HashMap::new(),
+            requests: FastMap::default(),
+            by_token: FastMap::default(),
+            peers: FastMap::default(),
+            pending: FastMap::default(),
             block1: Block1Assembler::new(),
             block2: ServerCache::new(),
-            observations: HashMap::new(),
+            observations: FastMap::default(),
         }
     }
 
@@ -548,17 +553,17 @@ impl Endpoint {
         self.config.ack_timeout.mul_f64(factor)
     }
 
-    fn send(&mut self, peer: SocketAddr, msg: &Message) -> Bytes {
+    fn send(&mut self, peer: SocketAddr, msg: &Message) {
+        let data = Bytes::from(msg.encode());
+        self.outbox.push_back(Transmit { peer, data });
+    }
+
+    fn send_con(&mut self, now: Instant, peer: SocketAddr, msg: &Message, purpose: Purpose) {
         let data = Bytes::from(msg.encode());
         self.outbox.push_back(Transmit {
             peer,
             data: data.clone(),
         });
-        data
-    }
-
-    fn send_con(&mut self, now: Instant, peer: SocketAddr, msg: &Message, purpose: Purpose) {
-        let data = self.send(peer, msg);
         let timeout = self.initial_timeout();
         self.exchanges.insert(
             (peer, msg.message_id),
@@ -845,7 +850,8 @@ impl Endpoint {
 
     /// The message of the request's current step, with message ID `mid`.
     fn step_message(r: &ClientRequest, mid: u16) -> Message {
-        let mut options = r.req.options.clone();
+        // Room for Block1 or Block2, and Size1.
+        let mut options = r.req.options.clone_with_room(2);
         let mut payload = Bytes::new();
         match r.step {
             Step::Whole => {
@@ -908,35 +914,28 @@ impl Endpoint {
 
     fn send_step(&mut self, now: Instant, id: u64) {
         let mid = self.next_mid();
-        let Some(mut r) = self.requests.remove(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
-        let msg = Self::step_message(&r, mid);
+        let msg = Self::step_message(r, mid);
         r.generation += 1;
-        let mid = msg.message_id;
+        let (peer, generation) = (r.peer, r.generation);
         if r.req.multicast {
             // RFC 7390 §2.5: sent once, responses collected until the deadline.
             r.waiting = Waiting::Collecting;
-            self.send(r.peer, &msg);
+            self.send(peer, &msg);
         } else if r.req.confirmable {
             r.waiting = Waiting::Ack(mid);
-            self.send_con(now, r.peer, &msg, Purpose::Request(id));
+            self.send_con(now, peer, &msg, Purpose::Request(id));
         } else {
             r.waiting = Waiting::Response {
                 non_tx: Some(0),
                 mid,
             };
-            self.send(r.peer, &msg);
+            self.send(peer, &msg);
             let t = self.initial_timeout();
-            self.schedule(
-                now + t,
-                TimerKind::Step {
-                    id,
-                    generation: r.generation,
-                },
-            );
+            self.schedule(now + t, TimerKind::Step { id, generation });
         }
-        self.requests.insert(id, r);
     }
 
     fn on_empty_ack(&mut self, now: Instant, id: u64) {
@@ -1349,8 +1348,11 @@ impl Endpoint {
                 // Served from the store, which is idempotent (RFC 7252 §4.5 allows
                 // relaxing deduplication then): a duplicate is cut again from the same
                 // bytes, and a 10 MB transfer leaves no 10,000 dedup entries behind.
-                let response = block2_response(s.code, s.options.clone(), &s.body, b2.num, szx);
-                self.reply(peer, &msg, multicast, response);
+                let response =
+                    block2_response(s.code, s.options.clone_with_room(2), &s.body, b2.num, szx);
+                if let Some(reply) = self.reply_message(&msg, multicast, response) {
+                    self.send(peer, &reply);
+                }
                 return;
             }
             if !matches!(msg.code, Code::GET | Code::FETCH) {
@@ -1557,7 +1559,7 @@ impl Endpoint {
         }
         if response.options.etag().is_none() {
             let etag = self.rng.next_u32().to_be_bytes();
-            response.options.set(OptionNumber::ETAG, etag.to_vec());
+            response.options.set(OptionNumber::ETAG, etag);
         }
         if response.payload.len() > BlockOpt::size_of(szx) {
             self.block2.insert(
@@ -1604,8 +1606,22 @@ impl Endpoint {
         multicast: bool,
         response: Response,
     ) -> Seen {
+        match self.reply_message(req, multicast, response) {
+            Some(msg) => self.reply_with(peer, msg),
+            None => Seen::Silent,
+        }
+    }
+
+    /// The message that answers `req` right away; `None` when nothing is sent (an error
+    /// response to a multicast request).
+    fn reply_message(
+        &mut self,
+        req: &Message,
+        multicast: bool,
+        response: Response,
+    ) -> Option<Message> {
         if multicast && response.code.is_error() {
-            return Seen::Silent;
+            return None;
         }
         let (ty, mid) = match req.ty {
             Type::Con => (Type::Ack, req.message_id),
@@ -1619,7 +1635,7 @@ impl Endpoint {
             options: response.options,
             payload: response.payload,
         };
-        self.reply_with(peer, msg)
+        Some(msg)
     }
 
     /// Sends a reply and keeps the message (not its encoding: a block's payload is a

@@ -251,8 +251,7 @@ fn rfc7959_2_4_etag_change_restarts_the_transfer() {
     let handler: Handler = Box::new(move |_| {
         seen.set(seen.get() + 1);
         let mut r = Response::new(Code::CONTENT).with_payload(body(3000, seen.get()));
-        r.options
-            .set(OptionNumber::ETAG, seen.get().to_be_bytes().to_vec());
+        r.options.set(OptionNumber::ETAG, seen.get().to_be_bytes());
         Reply::Now(r)
     });
     let mut sim = Sim::new(LinkConfig::default());
@@ -297,7 +296,7 @@ fn rfc7959_2_4_stable_representation_without_store_still_reassembles() {
     let d = data.clone();
     let handler: Handler = Box::new(move |_| {
         let mut r = Response::new(Code::CONTENT).with_payload(d.clone());
-        r.options.set(OptionNumber::ETAG, b"v1".to_vec());
+        r.options.set(OptionNumber::ETAG, b"v1");
         Reply::Now(r)
     });
     let s = sim.add(no_store, Some(handler));
@@ -528,8 +527,7 @@ fn streamed_etag_change_fails_at_once_instead_of_restarting() {
     let handler: Handler = Box::new(move |_| {
         seen.set(seen.get() + 1);
         let mut r = Response::new(Code::CONTENT).with_payload(body(3000, seen.get()));
-        r.options
-            .set(OptionNumber::ETAG, seen.get().to_be_bytes().to_vec());
+        r.options.set(OptionNumber::ETAG, seen.get().to_be_bytes());
         Reply::Now(r)
     });
     let mut sim = Sim::new(LinkConfig::default());

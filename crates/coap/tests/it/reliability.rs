@@ -238,7 +238,7 @@ fn rfc7252_5_4_1_unknown_critical_option_in_con_request_gives_4_02() {
     let s = sim.add(cfg(2), Some(echo_server()));
     let server = sim.nodes[s].addr;
     let mut req = Request::new(Code::GET, "/x");
-    req.options.push(OptionNumber(2051), b"?".to_vec());
+    req.options.push(OptionNumber(2051), b"?");
     let now = sim.now;
     sim.nodes[c].ep.request(now, server, req);
     assert!(sim.run_to_event(c, Duration::from_secs(5)));
@@ -262,7 +262,7 @@ fn rfc7252_5_4_1_unknown_critical_option_in_non_request_is_rejected_with_reset()
     let peer = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
     let mut req = Message::empty(Type::Non, 5);
     req.code = Code::GET;
-    req.options.push(OptionNumber(2051), b"?".to_vec());
+    req.options.push(OptionNumber(2051), b"?");
     sim.inject(peer, s, &req.encode());
     sim.run_until(Duration::from_secs(1), |_| false);
     let l = lines(&sim);
@@ -277,7 +277,7 @@ fn rfc7252_5_4_1_unknown_elective_option_is_ignored() {
     let s = sim.add(cfg(2), Some(echo_server()));
     let server = sim.nodes[s].addr;
     let mut req = Request::new(Code::GET, "/x");
-    req.options.push(OptionNumber(2050), b"?".to_vec());
+    req.options.push(OptionNumber(2050), b"?");
     let now = sim.now;
     sim.nodes[c].ep.request(now, server, req);
     assert!(sim.run_to_event(c, Duration::from_secs(5)));
