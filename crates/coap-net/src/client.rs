@@ -73,8 +73,9 @@ impl Client {
         rx.await.map_err(|_| Error::Closed)?.map_err(Error::Request)
     }
 
-    /// Sends a request and streams the body of a success response as its blocks arrive
-    /// (RFC 7959 Block2 included), so a large body is never reassembled in memory. The
+    /// Sends a request and streams the body of a success response while its blocks
+    /// arrive (RFC 7959 Block2), in pieces of 64 KiB, so a large body is never reassembled
+    /// in memory and the reader wakes once per piece, not per block. The
     /// pieces are provisional: only [`BodyPart::End`] says the body arrived whole; an
     /// error after some pieces (an ETag that changed mid-transfer, a missing block, a
     /// total that differs from Size2, a timeout) means they must be discarded. Dropping

@@ -14,7 +14,7 @@ use coap::{
 use tokio::sync::{mpsc, oneshot};
 
 use crate::clock;
-use crate::socket::{MAX_DATAGRAM, Received, Socket};
+use crate::socket::{RECV_BUFFER, Received, Socket};
 
 /// What a request's caller gets back.
 pub(crate) enum Reply {
@@ -136,12 +136,12 @@ async fn run(
     mut rx: mpsc::UnboundedReceiver<Command>,
     server: Option<mpsc::UnboundedSender<ServerEvent>>,
 ) {
-    let mut buf = vec![0u8; MAX_DATAGRAM];
+    let mut buf = vec![0u8; RECV_BUFFER];
     let mut received: Vec<Received> = Vec::new();
     // Group sockets of a server bound to a unicast address: they only receive; every
     // answer leaves from the unicast socket (RFC 7390 §2.5: from the unicast address).
     let mut groups: Vec<(IpAddr, u32, Socket)> = Vec::new();
-    let mut group_buf = vec![0u8; MAX_DATAGRAM];
+    let mut group_buf = vec![0u8; RECV_BUFFER];
     let mut group_received: Vec<Received> = Vec::new();
     let mut replies: HashMap<RequestId, (SocketAddr, Reply)> = HashMap::new();
     let mut pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>> = HashMap::new();

@@ -74,8 +74,8 @@ pub struct Request {
     pub multicast: bool,
     /// Report [`Event::Progress`] during a block-wise transfer.
     pub progress: bool,
-    /// Deliver the body of a success response as [`Event::BodyChunk`]s, in order, as its
-    /// blocks arrive, instead of reassembling it: the final [`Event::Response`] then has
+    /// Deliver the body of a success response as [`Event::BodyChunk`]s, in order, while
+    /// its blocks arrive (64 KiB at a time), instead of reassembling it: the final [`Event::Response`] then has
     /// an empty payload. Chunks are provisional until that response; a failure after some
     /// of them (an ETag that changed mid-transfer, a missing block, a total that does not
     /// match Size2) ends in [`Event::RequestFailed`], and the chunks must be discarded.
@@ -253,8 +253,9 @@ pub enum Event {
         /// The whole size, when known (Size1 of an upload, Size2 of a download).
         total: Option<usize>,
     },
-    /// The next piece of a response body, for requests with [`Request::stream`]. Pieces
-    /// come in order without gaps; the request's [`Event::Response`] or
+    /// The next piece of a response body, for requests with [`Request::stream`]: 64 KiB
+    /// or more (several blocks), the last one shorter. Pieces come in order without gaps;
+    /// the request's [`Event::Response`] or
     /// [`Event::RequestFailed`] follows the last one.
     BodyChunk {
         /// The request.
@@ -388,6 +389,10 @@ struct Observation {
     /// Message ID of the last NON notification, so a Reset to it ends the observation.
     last_mid: Option<u16>,
 }
+
+/// Streamed bodies are handed over in pieces of at least this many bytes (the last one
+/// may be shorter).
+const STREAM_PIECE: usize = 64 << 10;
 
 /// A map keyed by what this endpoint chose itself (request and observation ids, its own
 /// tokens and message IDs, the peers it sends to): a fast seeded hash is enough there.
@@ -1232,22 +1237,24 @@ impl Endpoint {
         let before = r.received;
         r.received += msg.payload.len();
         let done = r.received;
-        if stream {
-            if !b2.more && total.is_some_and(|t| t != done) {
-                return self.fail(
-                    now,
-                    id,
-                    RequestError::Protocol("the body does not have the size Size2 announced"),
-                );
-            }
+        if stream && !b2.more && total.is_some_and(|t| t != done) {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("the body does not have the size Size2 announced"),
+            );
+        }
+        r.body.extend_from_slice(&msg.payload);
+        // A streamed body leaves in pieces of STREAM_PIECE bytes (and the rest at the end):
+        // one hand-over to the reader per piece, not per block.
+        if stream && (r.body.len() >= STREAM_PIECE || !b2.more) {
+            let data = Bytes::from(std::mem::take(&mut r.body));
             self.events.push_back(Event::BodyChunk {
                 id: RequestId(id),
-                offset: before,
-                data: msg.payload,
+                offset: done - data.len(),
+                data,
                 total,
             });
-        } else {
-            r.body.extend_from_slice(&msg.payload);
         }
         // Progress at most every 64 KiB (and at the end), so watching costs nothing.
         if progress && (before >> 16 != done >> 16 || !b2.more) {

@@ -80,21 +80,23 @@ async fn changing_server(change_at: u32) -> SocketAddr {
 
 #[tokio::test]
 async fn a_streamed_body_whose_etag_changes_mid_transfer_is_an_error() {
-    let addr = changing_server(3).await;
+    let addr = changing_server(100).await;
     let c = client(addr);
     within(async {
         let mut stream = c
             .send_streamed(addr, Request::new(Code::GET, "/changing"))
             .unwrap_or_else(|e| panic!("{e}"));
-        let mut pieces = Vec::new();
+        let mut got = Vec::new();
         let error = loop {
             match stream.next().await {
-                Ok(BodyPart::Chunk { data, .. }) => pieces.push(data[0]),
+                Ok(BodyPart::Chunk { data, .. }) => got.extend_from_slice(&data),
                 Ok(BodyPart::End(r)) => panic!("a changed body ended as {r:?}"),
                 Err(e) => break e,
             }
         };
-        assert_eq!(pieces, [0, 1, 2], "blocks before the change, in order");
+        // One 64 KiB piece (blocks 0 to 63) left before the change at block 100.
+        let want: Vec<u8> = (0..64u8).flat_map(|n| [n; 1024]).collect();
+        assert!(got == want, "the blocks before the change, in order");
         assert!(
             matches!(
                 error,
@@ -105,4 +107,43 @@ async fn a_streamed_body_whose_etag_changes_mid_transfer_is_an_error() {
         assert!(matches!(stream.next().await, Err(coap_net::Error::Closed)));
     })
     .await;
+}
+
+#[tokio::test]
+async fn a_socket_receives_two_waiting_datagrams_in_one_call_and_then_waits() {
+    use coap_net::socket::{RECV_BUFFER, Socket};
+    let socket = Socket::bind("127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!()))
+        .unwrap_or_else(|e| panic!("bind: {e}"));
+    let sender = std::net::UdpSocket::bind("127.0.0.1:0").unwrap_or_else(|e| panic!("{e}"));
+    for d in [&b"first"[..], &[7u8; 1500][..], b"third"] {
+        sender
+            .send_to(d, socket.local_addr())
+            .unwrap_or_else(|e| panic!("{e}"));
+    }
+    let mut buf = vec![0u8; RECV_BUFFER];
+    let mut got: Vec<Vec<u8>> = Vec::new();
+    within(async {
+        while got.len() < 3 {
+            let mut out = Vec::new();
+            socket
+                .recv(&mut buf, &mut out)
+                .await
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert!((1..=2).contains(&out.len()), "{} datagrams", out.len());
+            for d in &out {
+                let (start, len) = d.range;
+                got.push(buf[start..start + len].to_vec());
+            }
+        }
+    })
+    .await;
+    assert_eq!(got, [b"first".to_vec(), vec![7u8; 1500], b"third".to_vec()]);
+    // Drained: the next receive waits for the next datagram.
+    let mut out = Vec::new();
+    let waited = tokio::time::timeout(
+        std::time::Duration::from_millis(100),
+        socket.recv(&mut buf, &mut out),
+    )
+    .await;
+    assert!(waited.is_err(), "nothing was waiting");
 }

@@ -479,6 +479,9 @@ fn streamed_block2_10_mb_at_20_percent_loss_arrives_in_order_and_whole() {
     assert_eq!(response.code, Code::CONTENT);
     assert!(response.payload.is_empty(), "the body came in the pieces");
     assert_eq!(response.options.uint(OptionNumber::SIZE2), Some(10_032_012));
+    let (last_piece, whole_pieces) = pieces.split_last().unwrap_or_else(|| panic!("no pieces"));
+    assert!(whole_pieces.iter().all(|(_, p)| p.len() >= 64 << 10));
+    assert!(!last_piece.1.is_empty());
     let mut next = 0;
     let mut got = Vec::with_capacity(data.len());
     for (offset, piece) in &pieces {
@@ -542,7 +545,10 @@ fn streamed_etag_change_fails_at_once_instead_of_restarting() {
     let s = sim.add(no_store, Some(handler));
     let server = sim.nodes[s].addr;
     let (pieces, last) = streamed_get(&mut sim, c, server);
-    assert_eq!(pieces.len(), 1, "block 0 was delivered before the change");
+    assert!(
+        pieces.is_empty(),
+        "less than a piece arrived before the change"
+    );
     assert!(matches!(
         last,
         Event::RequestFailed {
