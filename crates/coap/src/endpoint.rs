@@ -462,9 +462,36 @@ impl Endpoint {
         self.outbox.pop_front()
     }
 
-    /// When [`Endpoint::handle_timeout`] should be called next.
-    pub fn poll_timeout(&self) -> Option<Instant> {
-        self.timers.peek().map(|Reverse((at, _, _))| *at)
+    /// When [`Endpoint::handle_timeout`] should be called next. Timers that would do
+    /// nothing when they fire (the retransmission of a message already acknowledged, the
+    /// step of a request that moved on) are dropped first, so a long transfer does not
+    /// wake its owner once more per block, ACK_TIMEOUT after each acknowledgement.
+    pub fn poll_timeout(&mut self) -> Option<Instant> {
+        while let Some(Reverse((at, _, kind))) = self.timers.peek().copied() {
+            if self.timer_is_live(kind) {
+                return Some(at);
+            }
+            self.timers.pop();
+        }
+        None
+    }
+
+    /// Whether firing this timer now would do anything (the handlers' own checks).
+    fn timer_is_live(&self, kind: TimerKind) -> bool {
+        match kind {
+            TimerKind::Retransmit { peer, mid, tx } => {
+                self.exchanges.get(&(peer, mid)).is_some_and(|x| x.tx == tx)
+            }
+            TimerKind::Step { id, generation } => self
+                .requests
+                .get(&id)
+                .is_some_and(|r| r.generation == generation),
+            TimerKind::Deadline { id } => self.requests.contains_key(&id),
+            TimerKind::SeparateAck { id } => self
+                .pending
+                .get(&id)
+                .is_some_and(|p| !p.acked && p.confirmable),
+        }
     }
 
     /// The next event.

@@ -527,3 +527,38 @@ fn rfc7252_5_2_2_separate_responses_survive_20_percent_loss() {
         "duplicates never reach the handler twice"
     );
 }
+
+#[test]
+fn an_acknowledged_exchange_leaves_no_timer_to_wake_for() {
+    // A block-wise transfer acknowledges each block long before its retransmission
+    // timer would fire; such timers must not keep waking the endpoint's owner.
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/a"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert!(matches!(&sim.nodes[c].events[0].1, Event::Response { .. }));
+    assert_eq!(
+        sim.nodes[c].ep.poll_timeout(),
+        None,
+        "a stale retransmission timer"
+    );
+
+    // With a deadline set, the deadline is the only timer left while the request runs.
+    sim.nodes[c].events.clear();
+    let mut req = Request::new(Code::GET, "/b");
+    req.timeout = Some(Duration::from_secs(60));
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    let armed = sim.nodes[c].ep.poll_timeout();
+    assert!(
+        armed.is_some_and(|t| t < now + Duration::from_secs(60)),
+        "retransmission first"
+    );
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert_eq!(sim.nodes[c].ep.poll_timeout(), None);
+}
