@@ -141,7 +141,8 @@ async fn run(
     // Group sockets of a server bound to a unicast address: they only receive; every
     // answer leaves from the unicast socket (RFC 7390 §2.5: from the unicast address).
     let mut groups: Vec<(IpAddr, u32, Socket)> = Vec::new();
-    let mut group_buf = vec![0u8; RECV_BUFFER];
+    // Allocated with the first group socket: most endpoints never join a group.
+    let mut group_buf: Vec<u8> = Vec::new();
     let mut group_received: Vec<Received> = Vec::new();
     let mut replies: HashMap<RequestId, (SocketAddr, Reply)> = HashMap::new();
     let mut pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>> = HashMap::new();
@@ -200,7 +201,11 @@ async fn run(
             cmd = rx.recv(), if open => match cmd {
                 Some(Command::Shutdown) => return,
                 Some(Command::Membership { group, interface, join, done }) => {
-                    let _ = done.send(membership(&socket, &mut groups, group, interface, join));
+                    let joined = membership(&socket, &mut groups, group, interface, join);
+                    if !groups.is_empty() && group_buf.is_empty() {
+                        group_buf = vec![0u8; RECV_BUFFER];
+                    }
+                    let _ = done.send(joined);
                 }
                 Some(cmd) => apply(cmd, &mut ep, &mut replies, &mut pings),
                 None => open = false,

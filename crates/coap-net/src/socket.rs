@@ -12,11 +12,14 @@ use tokio::io::Interest;
 /// The largest datagram a CoAP endpoint receives (the IPv4 UDP maximum).
 pub const MAX_DATAGRAM: usize = 65_507;
 
-/// A receive buffer this large takes two datagrams per call to [`Socket::poll_recv`]. When
-/// only one was waiting the socket is known to be drained, and the next wait goes straight
-/// to the poller instead of first trying a receive that finds nothing (one system call
-/// less per datagram in a stop-and-wait exchange).
-pub const RECV_BUFFER: usize = 2 * MAX_DATAGRAM;
+/// A receive buffer this large (two halves of 64 KiB, each above [`MAX_DATAGRAM`]) takes
+/// two datagrams per call to [`Socket::poll_recv`]. When only one was waiting the socket
+/// is known to be drained, and the next wait goes straight to the poller instead of first
+/// trying a receive that finds nothing (one system call less per datagram in a
+/// stop-and-wait exchange). At 128 KiB a zeroed buffer comes from fresh pages (glibc by
+/// default maps allocations this large), so only the pages datagrams reach become
+/// resident, and nothing is cleared up front.
+pub const RECV_BUFFER: usize = 2 << 16;
 
 /// One received datagram.
 #[derive(Debug, Clone, Copy)]
