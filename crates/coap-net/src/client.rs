@@ -79,7 +79,8 @@ impl Client {
     /// pieces are provisional: only [`BodyPart::End`] says the body arrived whole; an
     /// error after some pieces (an ETag that changed mid-transfer, a missing block, a
     /// total that differs from Size2, a timeout) means they must be discarded. Dropping
-    /// the stream cancels the transfer.
+    /// the stream cancels the transfer. Pieces the reader has not taken yet wait in a
+    /// queue, which the endpoint's `client_body_bytes` limit bounds like any body.
     pub fn send_streamed(
         &self,
         peer: SocketAddr,

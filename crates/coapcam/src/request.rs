@@ -167,7 +167,7 @@ async fn to_file(
                 bar.finish();
                 if response.code.is_success() {
                     check_whole(&response, written)?;
-                    part.keep(path)?;
+                    part.keep()?;
                 }
                 return Ok((response, written));
             }
@@ -175,17 +175,46 @@ async fn to_file(
     }
 }
 
-/// A temporary file in the directory of the file it will become; removed unless kept.
+/// Where `-o FILE` writes: a temporary file beside FILE (new, or a regular file, possibly
+/// through a symbolic link), renamed to it only when the body arrived whole and removed
+/// otherwise; or FILE itself when it is not a regular file (a device such as /dev/null, a
+/// pipe), which must not be replaced and where a partial body cannot be taken back.
 struct PartFile {
+    /// The file written.
     path: PathBuf,
+    /// The file it becomes; `None` when `path` is the output itself.
+    target: Option<PathBuf>,
     file: Option<std::io::BufWriter<std::fs::File>>,
 }
 
 impl PartFile {
-    fn create(target: &Path) -> anyhow::Result<Self> {
+    fn create(output: &Path) -> anyhow::Result<Self> {
+        let existing = match std::fs::metadata(output) {
+            Ok(m) => Some(m),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e) => return Err(e).with_context(|| format!("reading {}", output.display())),
+        };
+        if existing.as_ref().is_some_and(|m| !m.is_file()) {
+            let file = std::fs::OpenOptions::new()
+                .write(true)
+                .truncate(true)
+                .open(output)
+                .with_context(|| format!("opening {}", output.display()))?;
+            return Ok(Self {
+                path: output.to_path_buf(),
+                target: None,
+                file: Some(std::io::BufWriter::with_capacity(1 << 16, file)),
+            });
+        }
+        // A link to a regular file keeps pointing at it: the body replaces what it names.
+        let target = match existing {
+            Some(_) => std::fs::canonicalize(output)
+                .with_context(|| format!("resolving {}", output.display()))?,
+            None => output.to_path_buf(),
+        };
         let name = target
             .file_name()
-            .with_context(|| format!("{} names no file", target.display()))?;
+            .with_context(|| format!("{} names no file", output.display()))?;
         let dir = target
             .parent()
             .filter(|d| !d.as_os_str().is_empty())
@@ -199,10 +228,17 @@ impl PartFile {
             .create_new(true)
             .open(&path)
             .with_context(|| format!("creating {}", path.display()))?;
-        Ok(Self {
+        let part = Self {
             path,
+            target: Some(target),
             file: Some(std::io::BufWriter::with_capacity(1 << 16, file)),
-        })
+        };
+        if let Some(m) = existing {
+            // The replacement keeps the permissions of the file it replaces.
+            std::fs::set_permissions(&part.path, m.permissions())
+                .with_context(|| format!("setting the permissions of {}", part.path.display()))?;
+        }
+        Ok(part)
     }
 
     fn write(&mut self, data: &[u8]) -> anyhow::Result<()> {
@@ -213,16 +249,20 @@ impl PartFile {
         Ok(())
     }
 
-    /// Flushes the file and renames it to `target`.
-    fn keep(mut self, target: &Path) -> anyhow::Result<()> {
+    /// Flushes the file and renames it to the output.
+    fn keep(mut self) -> anyhow::Result<()> {
         if let Some(f) = self.file.take() {
             f.into_inner()
                 .map_err(std::io::IntoInnerError::into_error)
                 .with_context(|| format!("writing {}", self.path.display()))?;
         }
-        std::fs::rename(&self.path, target)
-            .with_context(|| format!("renaming {} to {}", self.path.display(), target.display()))?;
-        self.path = PathBuf::new();
+        if let Some(target) = &self.target {
+            std::fs::rename(&self.path, target).with_context(|| {
+                format!("renaming {} to {}", self.path.display(), target.display())
+            })?;
+        }
+        // Renamed: nothing left to remove.
+        self.target = None;
         Ok(())
     }
 }
@@ -230,7 +270,7 @@ impl PartFile {
 impl Drop for PartFile {
     fn drop(&mut self) {
         self.file = None;
-        if !self.path.as_os_str().is_empty() {
+        if self.target.is_some() {
             // Best effort: the file is a hidden leftover if this fails.
             let _ = std::fs::remove_file(&self.path);
         }

@@ -143,3 +143,46 @@ fn get_o_whose_etag_changes_mid_transfer_fails_and_leaves_no_file() {
 fn get_o_from_a_server_that_stops_answering_fails_and_leaves_no_file() {
     check_interrupted(Then::Silence, "silent server");
 }
+
+#[test]
+fn get_o_writes_through_a_link_and_into_a_pipe_without_replacing_them() {
+    let served = TempDir::new("get-served-special");
+    let want = peers::random_file(&served.join("mid.bin"), 300_000, 12);
+    let (_server, addr) = peers::our_server(served.path(), false);
+    let uri = format!("coap://{addr}/files/mid.bin");
+    let dir = TempDir::new("get-special");
+
+    // A symbolic link to a regular file: the file gets the body, the link stays a link.
+    let real = dir.join("real.bin");
+    std::fs::write(&real, b"old").expect("writing the linked file");
+    let link = dir.join("link.bin");
+    std::os::unix::fs::symlink(&real, &link).expect("symlink");
+    get(&uri, &link, &[]).expect_success("coapcam get -o LINK");
+    peers::assert_file_is(&real, &want);
+    let meta = std::fs::symlink_metadata(&link).expect("link metadata");
+    assert!(meta.file_type().is_symlink(), "the link was replaced");
+
+    // A named pipe (like /dev/stdout or /dev/null, not a regular file): written into
+    // directly, never replaced.
+    let fifo = dir.join("pipe");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .expect("running mkfifo");
+    assert!(made.success(), "mkfifo failed");
+    let reader = {
+        let fifo = fifo.clone();
+        thread::spawn(move || std::fs::read(&fifo).expect("reading the pipe"))
+    };
+    get(&uri, &fifo, &[]).expect_success("coapcam get -o PIPE");
+    let got = reader.join().expect("reader thread");
+    peers::assert_same(&got, &want, "body through the pipe");
+    let meta = std::fs::symlink_metadata(&fifo).expect("pipe metadata");
+    assert!(
+        std::os::unix::fs::FileTypeExt::is_fifo(&meta.file_type()),
+        "the pipe was replaced"
+    );
+    let mut left = leftovers(dir.path(), "real.bin");
+    left.sort();
+    assert_eq!(left, ["link.bin", "pipe"]);
+}
