@@ -6,10 +6,15 @@
 # For 921,610, 2,764,810 and 10,032,012 bytes with 1024-byte blocks, it times
 #   - coapcam's client against coapcam's server (`serve --no-cameras --static`),
 #   - libcoap's coap-client-notls against coap-server-notls -d 10 (the file PUT first),
-#   - the round-trip floor: a minimal UDP ping-pong of 1,044-byte datagrams, one per block,
-# each as whole-process wall time, unpinned and with both processes pinned to CPU 0.
+#   - the round-trip floor: a minimal UDP ping-pong of 1,044-byte datagrams, one per block
+#     (blocking receive), timed around its loop,
+#   - the same ping-pong on a current-thread tokio runtime ("tokio floor": what waiting
+#     for datagrams through tokio's poller costs, before any CoAP work),
+# coapcam and libcoap as whole-process wall time, unpinned and with both processes pinned
+# to CPU 0.
 # Every transfer is compared with the original (cmp); a mismatch aborts the run.
-# It prints medians, the ratios, and each server's peak RSS (VmHWM).
+# It prints medians, the ratios, and each server's peak RSS (VmHWM) and private memory
+# (RssAnon: heap and stacks, without the mapped pages of the binary and its libraries).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS=${1:-8}
@@ -18,8 +23,9 @@ command -v taskset >/dev/null || { echo "needs taskset (util-linux)" >&2; exit 1
 
 cargo build --release -q -p coapcam
 cargo build --release -q -p coap-net --example udp_pingpong
-BIN=target/release/coapcam
-PINGPONG=target/release/examples/udp_pingpong
+TARGET=${CARGO_TARGET_DIR:-target}
+BIN=$TARGET/release/coapcam
+PINGPONG=$TARGET/release/examples/udp_pingpong
 
 work=$(mktemp -d)
 pids=()
@@ -33,6 +39,8 @@ free_port() { python3 -c 'import socket; s=socket.socket(socket.AF_INET, socket.
 now_ns() { date +%s%N; }
 median() { sort -g | awk '{a[NR]=$1} END {if (NR%2) print a[(NR+1)/2]; else printf "%.6f\n", (a[NR/2]+a[NR/2+1])/2}'; }
 peak_rss_kb() { awk '/VmHWM/ {print $2}' "/proc/$1/status"; }
+# Private memory (heap, stacks: RssAnon), without the mapped pages of binary and libraries.
+anon_kb() { awk '/RssAnon/ {print $2}' "/proc/$1/status"; }
 
 # run_mode LABEL PREFIX...: PREFIX is empty (unpinned) or "taskset -c 0".
 run_mode() {
@@ -50,7 +58,7 @@ run_mode() {
   done
   for s in "${SIZES[@]}"; do
     local blocks=$(( (s + 1023) / 1024 ))
-    local ours=() lc=() floor=()
+    local ours=() lc=() floor=() tfloor=()
     for _ in $(seq "$RUNS"); do
       rm -f "$work/out"
       local t0; t0=$(now_ns)
@@ -66,22 +74,27 @@ run_mode() {
       sleep 0.05
       floor+=("$("${pin[@]}" "$PINGPONG" client "127.0.0.1:$pp_port" "$blocks" 1044)")
       wait "$pp"
+      "${pin[@]}" "$PINGPONG" server-tokio "127.0.0.1:$pp_port" & pp=$!
+      sleep 0.05
+      tfloor+=("$("${pin[@]}" "$PINGPONG" client-tokio "127.0.0.1:$pp_port" "$blocks" 1044)")
+      wait "$pp"
     done
-    local m_ours m_lc m_floor
+    local m_ours m_lc m_floor m_tfloor
     m_ours=$(printf '%s\n' "${ours[@]}" | awk '{print $1/1e9}' | median)
     m_lc=$(printf '%s\n' "${lc[@]}" | awk '{print $1/1e9}' | median)
     m_floor=$(printf '%s\n' "${floor[@]}" | median)
-    awk -v l="$label" -v s="$s" -v o="$m_ours" -v c="$m_lc" -v f="$m_floor" \
-      'BEGIN {printf "| %-9s | %10d | %8.3f | %8.3f | %8.3f | %6.2f | %6.2f |\n", l, s, o, c, f, o/c, o/f}'
+    m_tfloor=$(printf '%s\n' "${tfloor[@]}" | median)
+    awk -v l="$label" -v s="$s" -v o="$m_ours" -v c="$m_lc" -v f="$m_floor" -v t="$m_tfloor" \
+      'BEGIN {printf "| %-9s | %10d | %8.3f | %8.3f | %8.3f | %8.3f | %6.2f | %6.2f | %6.2f |\n", l, s, o, c, f, t, o/c, o/f, o/t}'
   done
-  echo "| $label peak RSS: coapcam server $(peak_rss_kb "$ours_pid") kB, libcoap server $(peak_rss_kb "$lc_pid") kB |"
+  echo "| $label peak RSS: coapcam server $(peak_rss_kb "$ours_pid") kB, libcoap server $(peak_rss_kb "$lc_pid") kB; private (RssAnon): coapcam $(anon_kb "$ours_pid") kB, libcoap $(anon_kb "$lc_pid") kB |"
   kill "$ours_pid" "$lc_pid" 2>/dev/null || true
   wait "$ours_pid" "$lc_pid" 2>/dev/null || true
 }
 
 echo "RFC 7959 GET, 1024-byte blocks, median of $RUNS runs (seconds, whole-process wall time)"
 echo
-echo "| mode      |      bytes |  coapcam |  libcoap |    floor | ours/libcoap | ours/floor |"
-echo "|-----------|-----------:|---------:|---------:|---------:|-------:|-------:|"
+echo "| mode      |      bytes |  coapcam |  libcoap |    floor | tokio floor | ours/libcoap | ours/floor | ours/tokio floor |"
+echo "|-----------|-----------:|---------:|---------:|---------:|---------:|-------:|-------:|-------:|"
 run_mode unpinned
 run_mode "pinned"  taskset -c 0

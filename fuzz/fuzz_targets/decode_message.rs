@@ -21,7 +21,7 @@ fuzz_target!(|data: &[u8]| {
             assert!(
                 view.options()
                     .map(|(number, value)| (number, value.to_vec()))
-                    .eq(msg.options.iter().map(|o| (o.number, o.value.clone()))),
+                    .eq(msg.options.iter().map(|o| (o.number, o.value.to_vec()))),
                 "view and owned options differ"
             );
 

@@ -177,7 +177,8 @@ impl Harness {
                 }
                 Event::Notification { id, .. }
                 | Event::MulticastResponse { id, .. }
-                | Event::Progress { id, .. } => {
+                | Event::Progress { id, .. }
+                | Event::BodyChunk { id, .. } => {
                     self.ongoing(id);
                 }
                 Event::RequestFailed { id, .. }
@@ -253,6 +254,7 @@ impl Harness {
                 }
                 req.multicast = extra & 2 != 0;
                 req.progress = extra & 8 != 0;
+                req.stream = extra & 16 != 0;
                 let id = self.ep.request(self.now, peer(op >> 3), req);
                 self.started.push(id);
                 if observe || extra & 2 != 0 {

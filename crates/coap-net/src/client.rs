@@ -7,7 +7,7 @@ use coap::{EndpointConfig, Request, RequestId, Response};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::Error;
-use crate::driver::{self, Command, EndpointHandle, Progress, Reply, StreamItem};
+use crate::driver::{self, BodyItem, Command, EndpointHandle, Progress, Reply, StreamItem};
 use crate::socket::Socket;
 
 /// A CoAP client on one socket. Cheap to clone; requests from clones share the socket,
@@ -71,6 +71,56 @@ impl Client {
             id_tx: None,
         })?;
         rx.await.map_err(|_| Error::Closed)?.map_err(Error::Request)
+    }
+
+    /// Sends a request and streams the body of a success response while its blocks
+    /// arrive (RFC 7959 Block2), in pieces of 64 KiB, so a large body is never reassembled
+    /// in memory and the reader wakes once per piece, not per block. The
+    /// pieces are provisional: only [`BodyPart::End`] says the body arrived whole; an
+    /// error after some pieces (an ETag that changed mid-transfer, a missing block, a
+    /// total that differs from Size2, a timeout) means they must be discarded. Dropping
+    /// the stream cancels the transfer. Pieces the reader has not taken yet wait in a
+    /// queue, which the endpoint's `client_body_bytes` limit bounds like any body.
+    pub fn send_streamed(
+        &self,
+        peer: SocketAddr,
+        mut request: Request,
+    ) -> Result<BodyStream, Error> {
+        request.stream = true;
+        let (tx, rx) = mpsc::unbounded_channel();
+        self.handle.send(Command::Request {
+            peer,
+            request,
+            reply: Reply::Body(tx),
+            id_tx: None,
+        })?;
+        Ok(BodyStream { rx, ended: false })
+    }
+
+    /// [`Client::send_streamed`] into `sink`: writes each piece as it arrives and returns
+    /// the response (with an empty payload) and the number of body bytes written. On an
+    /// error the sink holds a partial body: write to a temporary place and keep it only
+    /// on `Ok`.
+    pub async fn send_to_writer<W: std::io::Write>(
+        &self,
+        peer: SocketAddr,
+        request: Request,
+        sink: &mut W,
+    ) -> Result<(Response, usize), Error> {
+        let mut stream = self.send_streamed(peer, request)?;
+        let mut written = 0;
+        loop {
+            match stream.next().await? {
+                BodyPart::Chunk { data, .. } => {
+                    sink.write_all(&data)?;
+                    written += data.len();
+                }
+                BodyPart::End(response) => {
+                    sink.flush()?;
+                    return Ok((response, written));
+                }
+            }
+        }
     }
 
     /// Registers an Observe on `peer` (the request gets Observe 0). The stream yields the
@@ -199,6 +249,54 @@ impl Client {
         let (tx, rx) = oneshot::channel();
         self.handle.send(Command::Ping { peer, reply: tx })?;
         rx.await.map_err(|_| Error::Closed)?.map_err(Error::Request)
+    }
+}
+
+/// A body arriving piece by piece ([`Client::send_streamed`]).
+#[derive(Debug)]
+pub struct BodyStream {
+    rx: mpsc::UnboundedReceiver<BodyItem>,
+    ended: bool,
+}
+
+/// One item of a [`BodyStream`].
+#[derive(Debug)]
+pub enum BodyPart {
+    /// The next piece of the body, in order.
+    Chunk {
+        /// The bytes.
+        data: bytes::Bytes,
+        /// The whole size, when the server announced it (Size2).
+        total: Option<usize>,
+    },
+    /// The body is complete; the response carries the code and options of the first
+    /// block and an empty payload (or the diagnostic of an error response).
+    End(Response),
+}
+
+impl BodyStream {
+    /// The next piece, or the end. After the end or an error it returns
+    /// [`Error::Closed`].
+    pub async fn next(&mut self) -> Result<BodyPart, Error> {
+        if self.ended {
+            return Err(Error::Closed);
+        }
+        let item = self.rx.recv().await;
+        match item {
+            Some(BodyItem::Chunk(data, total)) => Ok(BodyPart::Chunk { data, total }),
+            Some(BodyItem::Done(response)) => {
+                self.ended = true;
+                Ok(BodyPart::End(response))
+            }
+            Some(BodyItem::Failed(e)) => {
+                self.ended = true;
+                Err(Error::Request(e))
+            }
+            None => {
+                self.ended = true;
+                Err(Error::Closed)
+            }
+        }
     }
 }
 

@@ -14,7 +14,7 @@ use coap::{
 use tokio::sync::{mpsc, oneshot};
 
 use crate::clock;
-use crate::socket::{MAX_DATAGRAM, Received, Socket};
+use crate::socket::{RECV_BUFFER, Received, Socket};
 
 /// What a request's caller gets back.
 pub(crate) enum Reply {
@@ -28,6 +28,19 @@ pub(crate) enum Reply {
     /// The first response and every notification (Observe), or every server's response
     /// (multicast); the channel closes when the request ends.
     Stream(mpsc::UnboundedSender<StreamItem>),
+    /// The pieces of a streamed body, then the response or the failure.
+    Body(mpsc::UnboundedSender<BodyItem>),
+}
+
+/// One item of a [`Reply::Body`].
+#[derive(Debug)]
+pub(crate) enum BodyItem {
+    /// The next piece of the body, and the whole size when the server announced it.
+    Chunk(bytes::Bytes, Option<usize>),
+    /// The response (its payload is empty: the body came in the pieces).
+    Done(Response),
+    /// The request failed; the pieces so far are not a body.
+    Failed(RequestError),
 }
 
 /// How far a block-wise transfer has come.
@@ -123,12 +136,13 @@ async fn run(
     mut rx: mpsc::UnboundedReceiver<Command>,
     server: Option<mpsc::UnboundedSender<ServerEvent>>,
 ) {
-    let mut buf = vec![0u8; MAX_DATAGRAM];
+    let mut buf = vec![0u8; RECV_BUFFER];
     let mut received: Vec<Received> = Vec::new();
     // Group sockets of a server bound to a unicast address: they only receive; every
     // answer leaves from the unicast socket (RFC 7390 §2.5: from the unicast address).
     let mut groups: Vec<(IpAddr, u32, Socket)> = Vec::new();
-    let mut group_buf = vec![0u8; MAX_DATAGRAM];
+    // Allocated with the first group socket: most endpoints never join a group.
+    let mut group_buf: Vec<u8> = Vec::new();
     let mut group_received: Vec<Received> = Vec::new();
     let mut replies: HashMap<RequestId, (SocketAddr, Reply)> = HashMap::new();
     let mut pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>> = HashMap::new();
@@ -187,7 +201,11 @@ async fn run(
             cmd = rx.recv(), if open => match cmd {
                 Some(Command::Shutdown) => return,
                 Some(Command::Membership { group, interface, join, done }) => {
-                    let _ = done.send(membership(&socket, &mut groups, group, interface, join));
+                    let joined = membership(&socket, &mut groups, group, interface, join);
+                    if !groups.is_empty() && group_buf.is_empty() {
+                        group_buf = vec![0u8; RECV_BUFFER];
+                    }
+                    let _ = done.send(joined);
                 }
                 Some(cmd) => apply(cmd, &mut ep, &mut replies, &mut pings),
                 None => open = false,
@@ -315,13 +333,32 @@ fn dispatch(
                     replies.remove(&id);
                 }
             }
-            Some((_, Reply::Once(_) | Reply::Tracked(..))) => {
-                if let Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) = replies.remove(&id) {
-                    let _ = tx.send(Ok(response));
+            Some((_, Reply::Once(_) | Reply::Tracked(..) | Reply::Body(_))) => {
+                match replies.remove(&id) {
+                    Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
+                        let _ = tx.send(Ok(response));
+                    }
+                    Some((_, Reply::Body(tx))) => {
+                        let _ = tx.send(BodyItem::Done(response));
+                    }
+                    _ => {}
                 }
             }
             None => {}
         },
+        Event::BodyChunk {
+            id, data, total, ..
+        } => {
+            let gone = match replies.get(&id) {
+                Some((_, Reply::Body(tx))) => tx.send(BodyItem::Chunk(data, total)).is_err(),
+                _ => false,
+            };
+            if gone {
+                // Nobody reads the body any more: stop the transfer.
+                replies.remove(&id);
+                ep.cancel(clock::now(), id);
+            }
+        }
         Event::Progress { id, done, total } => {
             if let Some((_, Reply::Tracked(_, p))) = replies.get(&id) {
                 let _ = p.send(Progress { done, total });
@@ -351,6 +388,9 @@ fn dispatch(
             }
             Some((_, Reply::Stream(tx))) => {
                 let _ = tx.send(StreamItem::Failed(error));
+            }
+            Some((_, Reply::Body(tx))) => {
+                let _ = tx.send(BodyItem::Failed(error));
             }
             None => {
                 if let Some(tx) = pings.remove(&id) {

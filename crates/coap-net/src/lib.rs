@@ -15,7 +15,7 @@ pub mod server;
 pub mod socket;
 pub mod uri;
 
-pub use client::{Client, Observation};
+pub use client::{BodyPart, BodyStream, Client, Observation};
 pub use coap;
 pub use driver::{EndpointHandle, Progress};
 pub use router::{Ctx, Resource, Router, handler};

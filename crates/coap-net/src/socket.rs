@@ -12,6 +12,15 @@ use tokio::io::Interest;
 /// The largest datagram a CoAP endpoint receives (the IPv4 UDP maximum).
 pub const MAX_DATAGRAM: usize = 65_507;
 
+/// A receive buffer this large (two halves of 64 KiB, each above [`MAX_DATAGRAM`]) takes
+/// two datagrams per call to [`Socket::poll_recv`]. When only one was waiting the socket
+/// is known to be drained, and the next wait goes straight to the poller instead of first
+/// trying a receive that finds nothing (one system call less per datagram in a
+/// stop-and-wait exchange). At 128 KiB a zeroed buffer comes from fresh pages (glibc by
+/// default maps allocations this large), so only the pages datagrams reach become
+/// resident, and nothing is cleared up front.
+pub const RECV_BUFFER: usize = 2 << 16;
+
 /// One received datagram.
 #[derive(Debug, Clone, Copy)]
 pub struct Received {
@@ -68,7 +77,8 @@ impl Socket {
         self.local
     }
 
-    /// Polls for datagrams (for a set of sockets polled together).
+    /// Polls for datagrams (for a set of sockets polled together). A `buf` of
+    /// [`RECV_BUFFER`] bytes or more takes two datagrams per call.
     pub fn poll_recv(
         &self,
         cx: &mut Context<'_>,
@@ -77,19 +87,42 @@ impl Socket {
     ) -> Poll<io::Result<()>> {
         loop {
             std::task::ready!(self.io.poll_recv_ready(cx))?;
-            let mut meta = [RecvMeta::default()];
+            let mut meta = [RecvMeta::default(), RecvMeta::default()];
+            let half = if buf.len() >= RECV_BUFFER {
+                buf.len() / 2
+            } else {
+                buf.len()
+            };
+            let k = if half < buf.len() { 2 } else { 1 };
+            let mut got = 0;
             let r = self.io.try_io(Interest::READABLE, || {
-                let mut slices = [IoSliceMut::new(buf)];
-                self.state
-                    .recv(UdpSockRef::from(&self.io), &mut slices, &mut meta)
-            });
-            match r {
-                Ok(n) => {
-                    split(&meta[..n], out);
-                    return Poll::Ready(Ok(()));
+                let (first, second) = buf.split_at_mut(half);
+                let mut slices = [IoSliceMut::new(first), IoSliceMut::new(second)];
+                got = self.state.recv(
+                    UdpSockRef::from(&self.io),
+                    &mut slices[..k],
+                    &mut meta[..k],
+                )?;
+                if got < k {
+                    // Fewer than asked for: the socket is drained. Saying so lets tokio
+                    // clear its readiness now rather than after a receive that finds
+                    // nothing; a datagram arriving meanwhile sets it again.
+                    return Err(io::ErrorKind::WouldBlock.into());
                 }
+                Ok(())
+            });
+            if got > 0 {
+                split(&meta[..got], half, out);
+                return Poll::Ready(Ok(()));
+            }
+            match r {
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => {}
                 Err(e) => return Poll::Ready(Err(e)),
+                // Only with datagrams, which returned above.
+                Ok(()) => {
+                    out.clear();
+                    return Poll::Ready(Ok(()));
+                }
             }
         }
     }
@@ -148,18 +181,20 @@ impl Socket {
     }
 }
 
-/// One entry per datagram; a GRO-coalesced buffer holds several of `stride` bytes.
-fn split(meta: &[RecvMeta], out: &mut Vec<Received>) {
+/// One entry per datagram; the i-th buffer starts at `i * slice_len`, and a GRO-coalesced
+/// buffer holds several datagrams of `stride` bytes.
+fn split(meta: &[RecvMeta], slice_len: usize, out: &mut Vec<Received>) {
     out.clear();
-    for m in meta {
+    for (i, m) in meta.iter().enumerate() {
         let multicast = m.dst_ip.is_some_and(is_multicast);
         let stride = m.stride.max(1);
+        let base = i * slice_len;
         let mut start = 0;
         while start < m.len {
             let len = stride.min(m.len - start);
             out.push(Received {
                 peer: m.addr,
-                range: (start, len),
+                range: (base + start, len),
                 multicast,
             });
             start += stride;

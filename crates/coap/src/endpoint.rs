@@ -74,6 +74,12 @@ pub struct Request {
     pub multicast: bool,
     /// Report [`Event::Progress`] during a block-wise transfer.
     pub progress: bool,
+    /// Deliver the body of a success response as [`Event::BodyChunk`]s, in order, while
+    /// its blocks arrive (64 KiB at a time), instead of reassembling it: the final [`Event::Response`] then has
+    /// an empty payload. Chunks are provisional until that response; a failure after some
+    /// of them (an ETag that changed mid-transfer, a missing block, a total that does not
+    /// match Size2) ends in [`Event::RequestFailed`], and the chunks must be discarded.
+    pub stream: bool,
 }
 
 impl Request {
@@ -90,6 +96,7 @@ impl Request {
             timeout: None,
             multicast: false,
             progress: false,
+            stream: false,
         }
     }
 
@@ -246,6 +253,20 @@ pub enum Event {
         /// The whole size, when known (Size1 of an upload, Size2 of a download).
         total: Option<usize>,
     },
+    /// The next piece of a response body, for requests with [`Request::stream`]: 64 KiB
+    /// or more (several blocks), the last one shorter. Pieces come in order without gaps;
+    /// the request's [`Event::Response`] or
+    /// [`Event::RequestFailed`] follows the last one.
+    BodyChunk {
+        /// The request.
+        id: RequestId,
+        /// Where the piece starts in the body.
+        offset: usize,
+        /// The bytes.
+        data: Bytes,
+        /// The whole size, when the server announced it (Size2).
+        total: Option<usize>,
+    },
     /// A multicast request stopped collecting responses.
     MulticastDone {
         /// The request.
@@ -322,8 +343,10 @@ struct ClientRequest {
     generation: u32,
     failures: u8,
     restarts: u8,
-    /// Block2 reassembly: body so far, the ETag, the first block's options.
+    /// Block2 reassembly: body so far (empty when streamed), the bytes received, the
+    /// ETag, the first block's options.
     body: Vec<u8>,
+    received: usize,
     etag: Option<Vec<u8>>,
     first_options: Option<Options>,
     /// The user set Block2 in the request: random access, no reassembly.
@@ -367,6 +390,15 @@ struct Observation {
     last_mid: Option<u16>,
 }
 
+/// Streamed bodies are handed over in pieces of at least this many bytes (the last one
+/// may be shorter).
+const STREAM_PIECE: usize = 64 << 10;
+
+/// A map keyed by what this endpoint chose itself (request and observation ids, its own
+/// tokens and message IDs, the peers it sends to): a fast seeded hash is enough there.
+/// The deduplication store, keyed by message IDs that peers choose, keeps SipHash.
+type FastMap<K, V> = HashMap<K, V, foldhash::fast::RandomState>;
+
 #[derive(Default)]
 struct Peer {
     active: usize,
@@ -383,15 +415,15 @@ pub struct Endpoint {
     timers: BinaryHeap<Reverse<(Instant, u64, TimerKind)>>,
     outbox: VecDeque<Transmit>,
     events: VecDeque<Event>,
-    exchanges: HashMap<(SocketAddr, u16), OutCon>,
+    exchanges: FastMap<(SocketAddr, u16), OutCon>,
     dedup: Dedup,
-    requests: HashMap<u64, ClientRequest>,
-    by_token: HashMap<Token, u64>,
-    peers: HashMap<SocketAddr, Peer>,
-    pending: HashMap<u64, Pending>,
+    requests: FastMap<u64, ClientRequest>,
+    by_token: FastMap<Token, u64>,
+    peers: FastMap<SocketAddr, Peer>,
+    pending: FastMap<u64, Pending>,
     block1: Block1Assembler,
     block2: ServerCache,
-    observations: HashMap<u64, Observation>,
+    observations: FastMap<u64, Observation>,
 }
 
 impl Endpoint {
@@ -408,15 +440,15 @@ impl Endpoint {
             timers: BinaryHeap::new(),
             outbox: VecDeque::new(),
             events: VecDeque::new(),
-            exchanges: HashMap::new(),
+            exchanges: FastMap::default(),
             dedup: Dedup::new(),
-            requests: HashMap::new(),
-            by_token: HashMap::new(),
-            peers: HashMap::new(),
-            pending: HashMap::new(),
+            requests: FastMap::default(),
+            by_token: FastMap::default(),
+            peers: FastMap::default(),
+            pending: FastMap::default(),
             block1: Block1Assembler::new(),
             block2: ServerCache::new(),
-            observations: HashMap::new(),
+            observations: FastMap::default(),
         }
     }
 
@@ -430,9 +462,36 @@ impl Endpoint {
         self.outbox.pop_front()
     }
 
-    /// When [`Endpoint::handle_timeout`] should be called next.
-    pub fn poll_timeout(&self) -> Option<Instant> {
-        self.timers.peek().map(|Reverse((at, _, _))| *at)
+    /// When [`Endpoint::handle_timeout`] should be called next. Timers that would do
+    /// nothing when they fire (the retransmission of a message already acknowledged, the
+    /// step of a request that moved on) are dropped first, so a long transfer does not
+    /// wake its owner once more per block, ACK_TIMEOUT after each acknowledgement.
+    pub fn poll_timeout(&mut self) -> Option<Instant> {
+        while let Some(Reverse((at, _, kind))) = self.timers.peek().copied() {
+            if self.timer_is_live(kind) {
+                return Some(at);
+            }
+            self.timers.pop();
+        }
+        None
+    }
+
+    /// Whether firing this timer now would do anything (the handlers' own checks).
+    fn timer_is_live(&self, kind: TimerKind) -> bool {
+        match kind {
+            TimerKind::Retransmit { peer, mid, tx } => {
+                self.exchanges.get(&(peer, mid)).is_some_and(|x| x.tx == tx)
+            }
+            TimerKind::Step { id, generation } => self
+                .requests
+                .get(&id)
+                .is_some_and(|r| r.generation == generation),
+            TimerKind::Deadline { id } => self.requests.contains_key(&id),
+            TimerKind::SeparateAck { id } => self
+                .pending
+                .get(&id)
+                .is_some_and(|p| !p.acked && p.confirmable),
+        }
     }
 
     /// The next event.
@@ -526,17 +585,17 @@ impl Endpoint {
         self.config.ack_timeout.mul_f64(factor)
     }
 
-    fn send(&mut self, peer: SocketAddr, msg: &Message) -> Bytes {
+    fn send(&mut self, peer: SocketAddr, msg: &Message) {
+        let data = Bytes::from(msg.encode());
+        self.outbox.push_back(Transmit { peer, data });
+    }
+
+    fn send_con(&mut self, now: Instant, peer: SocketAddr, msg: &Message, purpose: Purpose) {
         let data = Bytes::from(msg.encode());
         self.outbox.push_back(Transmit {
             peer,
             data: data.clone(),
         });
-        data
-    }
-
-    fn send_con(&mut self, now: Instant, peer: SocketAddr, msg: &Message, purpose: Purpose) {
-        let data = self.send(peer, msg);
         let timeout = self.initial_timeout();
         self.exchanges.insert(
             (peer, msg.message_id),
@@ -753,6 +812,7 @@ impl Endpoint {
                 failures: 0,
                 restarts: 0,
                 body: Vec::new(),
+                received: 0,
                 etag: None,
                 first_options: None,
                 user_block2,
@@ -822,7 +882,8 @@ impl Endpoint {
 
     /// The message of the request's current step, with message ID `mid`.
     fn step_message(r: &ClientRequest, mid: u16) -> Message {
-        let mut options = r.req.options.clone();
+        // Room for Block1 or Block2, and Size1.
+        let mut options = r.req.options.clone_with_room(2);
         let mut payload = Bytes::new();
         match r.step {
             Step::Whole => {
@@ -885,35 +946,28 @@ impl Endpoint {
 
     fn send_step(&mut self, now: Instant, id: u64) {
         let mid = self.next_mid();
-        let Some(mut r) = self.requests.remove(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
-        let msg = Self::step_message(&r, mid);
+        let msg = Self::step_message(r, mid);
         r.generation += 1;
-        let mid = msg.message_id;
+        let (peer, generation) = (r.peer, r.generation);
         if r.req.multicast {
             // RFC 7390 §2.5: sent once, responses collected until the deadline.
             r.waiting = Waiting::Collecting;
-            self.send(r.peer, &msg);
+            self.send(peer, &msg);
         } else if r.req.confirmable {
             r.waiting = Waiting::Ack(mid);
-            self.send_con(now, r.peer, &msg, Purpose::Request(id));
+            self.send_con(now, peer, &msg, Purpose::Request(id));
         } else {
             r.waiting = Waiting::Response {
                 non_tx: Some(0),
                 mid,
             };
-            self.send(r.peer, &msg);
+            self.send(peer, &msg);
             let t = self.initial_timeout();
-            self.schedule(
-                now + t,
-                TimerKind::Step {
-                    id,
-                    generation: r.generation,
-                },
-            );
+            self.schedule(now + t, TimerKind::Step { id, generation });
         }
-        self.requests.insert(id, r);
     }
 
     fn on_empty_ack(&mut self, now: Instant, id: u64) {
@@ -1121,31 +1175,41 @@ impl Endpoint {
             .block2()
             .filter(|_| !r.user_block2 && msg.code.is_success());
         let Some(b2) = b2 else {
-            let response = match r.first_options.take() {
+            if r.first_options.take().is_some() {
                 // Reassembly ended with a block lacking Block2: a broken server.
-                Some(_) => {
-                    return self.fail(
-                        now,
-                        id,
-                        RequestError::Protocol("block-wise response lost its Block2"),
-                    );
-                }
-                None => Response {
-                    code: msg.code,
-                    options: msg.options,
-                    payload: msg.payload,
-                },
+                return self.fail(
+                    now,
+                    id,
+                    RequestError::Protocol("block-wise response lost its Block2"),
+                );
+            }
+            let mut response = Response {
+                code: msg.code,
+                options: msg.options,
+                payload: msg.payload,
             };
+            if r.req.stream && response.code.is_success() && !response.payload.is_empty() {
+                let data = std::mem::take(&mut response.payload);
+                self.events.push_back(Event::BodyChunk {
+                    id: RequestId(id),
+                    offset: 0,
+                    total: Some(data.len()),
+                    data,
+                });
+            }
             return self.complete(now, id, response);
         };
         let etag = msg.options.etag().map(<[u8]>::to_vec);
         if r.first_options.is_some() && etag != r.etag {
-            // RFC 7959 §2.4: the representation changed; start over, a few times at most.
-            if r.restarts >= 4 {
+            // RFC 7959 §2.4: the representation changed. Streamed pieces cannot be taken
+            // back, so a streamed request fails; a reassembled one starts over, a few
+            // times at most.
+            if r.restarts >= 4 || r.req.stream {
                 return self.fail(now, id, RequestError::RepresentationChanged);
             }
             r.restarts += 1;
             r.body.clear();
+            r.received = 0;
             r.first_options = None;
             r.step = Step::Download {
                 num: 0,
@@ -1164,34 +1228,63 @@ impl Endpoint {
             let mut first = msg.options.clone();
             first.remove(OptionNumber::BLOCK2);
             r.etag = etag;
-            if let Some(size2) = msg.options.uint(OptionNumber::SIZE2) {
+            if let Some(size2) = msg.options.uint(OptionNumber::SIZE2)
+                && !r.req.stream
+            {
                 // Pre-allocate from Size2, but never more than the limit allows.
                 r.body.reserve((size2 as usize).min(limit));
             }
             r.first_options = Some(first);
         }
-        if b2.offset() != r.body.len() {
+        if b2.offset() != r.received {
             // A block we did not ask for at this offset: ask again for the one we lack.
             let size = b2.size();
             r.step = Step::Download {
-                num: (r.body.len() / size) as u32,
+                num: (r.received / size) as u32,
                 szx: b2.szx,
             };
             return self.send_step(now, id);
         }
-        if r.body.len() + msg.payload.len() > limit {
+        if r.received + msg.payload.len() > limit {
             return self.fail(now, id, RequestError::TooLarge { limit });
         }
-        let before = r.body.len();
+        if b2.more && msg.payload.len() != b2.size() {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("Block2 payload size does not match SZX"),
+            );
+        }
+        let total = r
+            .first_options
+            .as_ref()
+            .and_then(|o| o.uint(OptionNumber::SIZE2))
+            .map(|v| v as usize);
+        let (stream, progress) = (r.req.stream, r.req.progress);
+        let before = r.received;
+        r.received += msg.payload.len();
+        let done = r.received;
+        if stream && !b2.more && total.is_some_and(|t| t != done) {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("the body does not have the size Size2 announced"),
+            );
+        }
         r.body.extend_from_slice(&msg.payload);
+        // A streamed body leaves in pieces of STREAM_PIECE bytes (and the rest at the end):
+        // one hand-over to the reader per piece, not per block.
+        if stream && (r.body.len() >= STREAM_PIECE || !b2.more) {
+            let data = Bytes::from(std::mem::take(&mut r.body));
+            self.events.push_back(Event::BodyChunk {
+                id: RequestId(id),
+                offset: done - data.len(),
+                data,
+                total,
+            });
+        }
         // Progress at most every 64 KiB (and at the end), so watching costs nothing.
-        if r.req.progress && (before >> 16 != r.body.len() >> 16 || !b2.more) {
-            let total = r
-                .first_options
-                .as_ref()
-                .and_then(|o| o.uint(OptionNumber::SIZE2))
-                .map(|v| v as usize);
-            let done = r.body.len();
+        if progress && (before >> 16 != done >> 16 || !b2.more) {
             self.events.push_back(Event::Progress {
                 id: RequestId(id),
                 done,
@@ -1202,14 +1295,7 @@ impl Endpoint {
             return;
         };
         if b2.more {
-            if msg.payload.len() != b2.size() {
-                return self.fail(
-                    now,
-                    id,
-                    RequestError::Protocol("Block2 payload size does not match SZX"),
-                );
-            }
-            let num = (r.body.len() / b2.size()) as u32;
+            let num = (r.received / b2.size()) as u32;
             r.step = Step::Download { num, szx: b2.szx };
             return self.send_step(now, id);
         }
@@ -1296,8 +1382,11 @@ impl Endpoint {
                 // Served from the store, which is idempotent (RFC 7252 §4.5 allows
                 // relaxing deduplication then): a duplicate is cut again from the same
                 // bytes, and a 10 MB transfer leaves no 10,000 dedup entries behind.
-                let response = block2_response(s.code, s.options.clone(), &s.body, b2.num, szx);
-                self.reply(peer, &msg, multicast, response);
+                let response =
+                    block2_response(s.code, s.options.clone_with_room(2), &s.body, b2.num, szx);
+                if let Some(reply) = self.reply_message(&msg, multicast, response) {
+                    self.send(peer, &reply);
+                }
                 return;
             }
             if !matches!(msg.code, Code::GET | Code::FETCH) {
@@ -1504,7 +1593,7 @@ impl Endpoint {
         }
         if response.options.etag().is_none() {
             let etag = self.rng.next_u32().to_be_bytes();
-            response.options.set(OptionNumber::ETAG, etag.to_vec());
+            response.options.set(OptionNumber::ETAG, etag);
         }
         if response.payload.len() > BlockOpt::size_of(szx) {
             self.block2.insert(
@@ -1551,8 +1640,22 @@ impl Endpoint {
         multicast: bool,
         response: Response,
     ) -> Seen {
+        match self.reply_message(req, multicast, response) {
+            Some(msg) => self.reply_with(peer, msg),
+            None => Seen::Silent,
+        }
+    }
+
+    /// The message that answers `req` right away; `None` when nothing is sent (an error
+    /// response to a multicast request).
+    fn reply_message(
+        &mut self,
+        req: &Message,
+        multicast: bool,
+        response: Response,
+    ) -> Option<Message> {
         if multicast && response.code.is_error() {
-            return Seen::Silent;
+            return None;
         }
         let (ty, mid) = match req.ty {
             Type::Con => (Type::Ack, req.message_id),
@@ -1566,7 +1669,7 @@ impl Endpoint {
             options: response.options,
             payload: response.payload,
         };
-        self.reply_with(peer, msg)
+        Some(msg)
     }
 
     /// Sends a reply and keeps the message (not its encoding: a block's payload is a

@@ -242,8 +242,7 @@ impl Groups {
         let index = memberships.insert(config);
         let mut r = Response::new(Code::CREATED);
         for seg in ["coap-group", index.as_str()] {
-            r.options
-                .push(OptionNumber::LOCATION_PATH, seg.as_bytes().to_vec());
+            r.options.push(OptionNumber::LOCATION_PATH, seg.as_bytes());
         }
         r
     }

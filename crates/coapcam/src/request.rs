@@ -2,7 +2,7 @@
 
 use std::io::{IsTerminal as _, Write as _};
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, bail};
@@ -10,7 +10,7 @@ use bytes::Bytes;
 use clap::Args;
 use coap::link_format;
 use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
-use coap_net::{Client, Uri};
+use coap_net::{BodyPart, Client, Uri};
 
 use crate::transmission::TransmissionArgs;
 
@@ -121,15 +121,199 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<bool>
         }
         return observe(&client, peer, request, count, &args, started).await;
     }
-    let response = if std::io::stderr().is_terminal() && !args.json {
+    let what = || format!("{} {}", method.name().unwrap_or("request"), args.uri);
+    let bar = std::io::stderr().is_terminal() && !args.json;
+    if let Some(path) = &args.output {
+        let (response, size) = to_file(&client, peer, request, path, bar)
+            .await
+            .with_context(what)?;
+        output(&response, size, &args, started)?;
+        return Ok(report_code(&response));
+    }
+    let response = if bar {
         send_with_bar(&client, peer, request).await
     } else {
         client.send(peer, request).await
     }
-    .with_context(|| format!("{} {}", method.name().unwrap_or("request"), args.uri))?;
-    check_whole(&response)?;
-    output(&response, &args, started)?;
+    .with_context(what)?;
+    check_whole(&response, response.payload.len())?;
+    output(&response, response.payload.len(), &args, started)?;
     Ok(report_code(&response))
+}
+
+/// Streams the body of a success response into a temporary file next to `path`, and
+/// renames it to `path` only when the body arrived whole: a failed transfer leaves `path`
+/// as it was. Returns the response (its payload is the diagnostic of an error response,
+/// which is not written) and the size of the body.
+async fn to_file(
+    client: &Client,
+    peer: SocketAddr,
+    request: Request,
+    path: &Path,
+    show_bar: bool,
+) -> anyhow::Result<(Response, usize)> {
+    let mut part = PartFile::create(path)?;
+    let mut stream = client.send_streamed(peer, request)?;
+    let mut bar = Bar::new(show_bar);
+    let mut written = 0;
+    loop {
+        match stream.next().await? {
+            BodyPart::Chunk { data, total } => {
+                part.write(&data)?;
+                written += data.len();
+                bar.show(written, total);
+            }
+            BodyPart::End(response) => {
+                bar.finish();
+                if response.code.is_success() {
+                    check_whole(&response, written)?;
+                    part.keep()?;
+                }
+                return Ok((response, written));
+            }
+        }
+    }
+}
+
+/// Where `-o FILE` writes: a temporary file beside FILE (new, or a regular file, possibly
+/// through a symbolic link), renamed to it only when the body arrived whole and removed
+/// otherwise; or FILE itself when it is not a regular file (a device such as /dev/null, a
+/// pipe), which must not be replaced and where a partial body cannot be taken back.
+struct PartFile {
+    /// The file written.
+    path: PathBuf,
+    /// The file it becomes; `None` when `path` is the output itself.
+    target: Option<PathBuf>,
+    file: Option<std::io::BufWriter<std::fs::File>>,
+}
+
+impl PartFile {
+    fn create(output: &Path) -> anyhow::Result<Self> {
+        let existing = match std::fs::metadata(output) {
+            Ok(m) => Some(m),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e) => return Err(e).with_context(|| format!("reading {}", output.display())),
+        };
+        if existing.as_ref().is_some_and(|m| !m.is_file()) {
+            let file = std::fs::OpenOptions::new()
+                .write(true)
+                .truncate(true)
+                .open(output)
+                .with_context(|| format!("opening {}", output.display()))?;
+            return Ok(Self {
+                path: output.to_path_buf(),
+                target: None,
+                file: Some(std::io::BufWriter::with_capacity(1 << 16, file)),
+            });
+        }
+        // A link to a regular file keeps pointing at it: the body replaces what it names.
+        let target = match existing {
+            Some(_) => std::fs::canonicalize(output)
+                .with_context(|| format!("resolving {}", output.display()))?,
+            None => output.to_path_buf(),
+        };
+        let name = target
+            .file_name()
+            .with_context(|| format!("{} names no file", output.display()))?;
+        let dir = target
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or_else(|| Path::new("."));
+        let mut part_name = std::ffi::OsString::from(".");
+        part_name.push(name);
+        part_name.push(format!(".{}.part", std::process::id()));
+        let path = dir.join(part_name);
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&path)
+            .with_context(|| format!("creating {}", path.display()))?;
+        let part = Self {
+            path,
+            target: Some(target),
+            file: Some(std::io::BufWriter::with_capacity(1 << 16, file)),
+        };
+        if let Some(m) = existing {
+            // The replacement keeps the permissions of the file it replaces.
+            std::fs::set_permissions(&part.path, m.permissions())
+                .with_context(|| format!("setting the permissions of {}", part.path.display()))?;
+        }
+        Ok(part)
+    }
+
+    fn write(&mut self, data: &[u8]) -> anyhow::Result<()> {
+        if let Some(f) = &mut self.file {
+            f.write_all(data)
+                .with_context(|| format!("writing {}", self.path.display()))?;
+        }
+        Ok(())
+    }
+
+    /// Flushes the file and renames it to the output.
+    fn keep(mut self) -> anyhow::Result<()> {
+        if let Some(f) = self.file.take() {
+            f.into_inner()
+                .map_err(std::io::IntoInnerError::into_error)
+                .with_context(|| format!("writing {}", self.path.display()))?;
+        }
+        if let Some(target) = &self.target {
+            std::fs::rename(&self.path, target).with_context(|| {
+                format!("renaming {} to {}", self.path.display(), target.display())
+            })?;
+        }
+        // Renamed: nothing left to remove.
+        self.target = None;
+        Ok(())
+    }
+}
+
+impl Drop for PartFile {
+    fn drop(&mut self) {
+        self.file = None;
+        if self.target.is_some() {
+            // Best effort: the file is a hidden leftover if this fails.
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// A progress bar on a terminal for transfers over 1 MB.
+struct Bar {
+    enabled: bool,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Bar {
+    const SHOW_ABOVE: usize = 1 << 20;
+
+    fn new(enabled: bool) -> Self {
+        Self { enabled, bar: None }
+    }
+
+    fn show(&mut self, done: usize, total: Option<usize>) {
+        if !self.enabled {
+            return;
+        }
+        if self.bar.is_none() && total.unwrap_or(done).max(done) > Self::SHOW_ABOVE {
+            let b = indicatif::ProgressBar::new(total.unwrap_or(0) as u64);
+            b.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{bar:40} {bytes}/{total_bytes} {bytes_per_sec} {eta}",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            self.bar = Some(b);
+        }
+        if let Some(b) = &self.bar {
+            b.set_position(done as u64);
+        }
+    }
+
+    fn finish(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+    }
 }
 
 async fn observe(
@@ -144,7 +328,11 @@ async fn observe(
     let mut seen = 0;
     while let Some(r) = obs.next().await {
         let response = r?;
-        output(&response, args, started)?;
+        if let Some(path) = &args.output {
+            std::fs::write(path, &response.payload)
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
+        output(&response, response.payload.len(), args, started)?;
         if !response.code.is_success() {
             return Ok(report_code(&response));
         }
@@ -168,44 +356,26 @@ async fn send_with_bar(
     peer: SocketAddr,
     request: Request,
 ) -> Result<Response, coap_net::Error> {
-    const SHOW_ABOVE: usize = 1 << 20;
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<coap_net::Progress>();
     let bar = async move {
-        let mut bar: Option<indicatif::ProgressBar> = None;
+        let mut bar = Bar::new(true);
         while let Some(p) = rx.recv().await {
-            if bar.is_none() && p.total.unwrap_or(p.done).max(p.done) > SHOW_ABOVE {
-                let b = indicatif::ProgressBar::new(p.total.unwrap_or(0) as u64);
-                b.set_style(
-                    indicatif::ProgressStyle::with_template(
-                        "{bar:40} {bytes}/{total_bytes} {bytes_per_sec} {eta}",
-                    )
-                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-                );
-                bar = Some(b);
-            }
-            if let Some(b) = &bar {
-                b.set_position(p.done as u64);
-            }
+            bar.show(p.done, p.total);
         }
-        if let Some(b) = bar {
-            b.finish_and_clear();
-        }
+        bar.finish();
     };
     let (response, ()) = tokio::join!(client.send_with_progress(peer, request, tx), bar);
     response
 }
 
-/// Refuses a body that did not arrive whole. The endpoint only delivers complete
-/// reassemblies, and this checks the Size2 the server announced as well.
-fn check_whole(r: &Response) -> anyhow::Result<()> {
+/// Refuses a body of `size` bytes that did not arrive whole. The endpoint only delivers
+/// complete bodies, and this checks the Size2 the server announced as well.
+fn check_whole(r: &Response, size: usize) -> anyhow::Result<()> {
     if let Some(size2) = r.options.uint(OptionNumber::SIZE2)
         && r.code.is_success()
-        && size2 as usize != r.payload.len()
+        && size2 as usize != size
     {
-        bail!(
-            "incomplete body: the server announced {size2} bytes (Size2), {} arrived",
-            r.payload.len()
-        );
+        bail!("incomplete body: the server announced {size2} bytes (Size2), {size} arrived");
     }
     Ok(())
 }
@@ -224,17 +394,16 @@ fn report_code(r: &Response) -> bool {
     false
 }
 
-fn output(r: &Response, args: &RequestArgs, started: Instant) -> anyhow::Result<()> {
-    if let Some(path) = &args.output {
-        std::fs::write(path, &r.payload).with_context(|| format!("writing {}", path.display()))?;
-    }
+/// Prints a response: the body (unless it went to --output) or, with --json, a summary
+/// where `size` is the size of the body.
+fn output(r: &Response, size: usize, args: &RequestArgs, started: Instant) -> anyhow::Result<()> {
     if args.json {
         let v = serde_json::json!({
             "code": format!("{:?}", r.code),
             "content_format": r.options.content_format().map(|c| c.0),
             "etag": r.options.etag().map(hex),
             "observe": r.options.uint(OptionNumber::OBSERVE),
-            "size": r.payload.len(),
+            "size": size,
             "elapsed_ms": started.elapsed().as_secs_f64() * 1e3,
             "payload": if args.output.is_none() { std::str::from_utf8(&r.payload).ok() } else { None },
         });

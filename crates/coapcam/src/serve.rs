@@ -570,7 +570,7 @@ impl StaticFiles {
         let mut r = Response::new(Code::CONTENT).with_payload(file.body);
         r.options
             .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
-        r.options.set(OptionNumber::ETAG, file.etag.to_vec());
+        r.options.set(OptionNumber::ETAG, file.etag);
         r
     }
 
@@ -623,8 +623,7 @@ impl StaticFiles {
         match self.store(&name, &request.payload) {
             Ok(()) => {
                 let mut r = Response::new(Code::CREATED);
-                r.options
-                    .push(OptionNumber::LOCATION_PATH, b"files".to_vec());
+                r.options.push(OptionNumber::LOCATION_PATH, b"files");
                 r.options
                     .push(OptionNumber::LOCATION_PATH, name.into_bytes());
                 r

@@ -1,6 +1,7 @@
 //! coap-net over real loopback sockets: client and server together.
 
 mod multicast;
+mod stream;
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -112,8 +113,7 @@ async fn rfc6690_4_1_discovery_with_filter_and_runtime_add_remove() {
     let c = client(addr);
     within(async {
         let mut req = Request::new(Code::GET, "/.well-known/core");
-        req.options
-            .push(OptionNumber::URI_QUERY, b"rt=rgbd.c*".to_vec());
+        req.options.push(OptionNumber::URI_QUERY, b"rt=rgbd.c*");
         let r = c
             .send(addr, req.clone())
             .await
@@ -313,7 +313,7 @@ async fn rfc7252_5_10_6_matching_etag_gets_2_03_valid() {
         "/tagged",
         Resource::new().get(handler(|_| async {
             let mut r = Response::new(Code::CONTENT).with_payload("body");
-            r.options.set(OptionNumber::ETAG, b"t1".to_vec());
+            r.options.set(OptionNumber::ETAG, b"t1");
             r
         })),
     );
@@ -321,7 +321,7 @@ async fn rfc7252_5_10_6_matching_etag_gets_2_03_valid() {
     let c = client(addr);
     within(async {
         let mut req = Request::new(Code::GET, "/tagged");
-        req.options.push(OptionNumber::ETAG, b"t1".to_vec());
+        req.options.push(OptionNumber::ETAG, b"t1");
         let r = c.send(addr, req).await.unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(r.code, Code::VALID);
         assert!(r.payload.is_empty());

@@ -12,7 +12,7 @@ use std::fmt;
 use bytes::Bytes;
 
 pub use code::Code;
-pub use option::{BlockOpt, CoapOption, OptionNumber, Options};
+pub use option::{BlockOpt, CoapOption, OptionNumber, OptionValue, Options};
 
 /// The message type (RFC 7252 §3).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -414,7 +414,7 @@ impl From<MessageView<'_>> for Message {
                 .options()
                 .map(|(number, value)| CoapOption {
                     number,
-                    value: value.to_vec(),
+                    value: OptionValue::new(value),
                 })
                 .collect(),
             payload: Bytes::copy_from_slice(view.payload()),

@@ -224,11 +224,11 @@ impl BlockOpt {
     /// Encodes the option value. Numbers above 20 bits are truncated by the caller's
     /// contract: the stack never builds one (bodies are bounded well below 1 GiB).
     pub fn encode(self) -> Vec<u8> {
-        encode_uint(
-            ((self.num & Self::MAX_NUM) << 4)
-                | (u32::from(self.more) << 3)
-                | u32::from(self.szx & 7),
-        )
+        encode_uint(self.as_uint())
+    }
+
+    fn as_uint(self) -> u32 {
+        ((self.num & Self::MAX_NUM) << 4) | (u32::from(self.more) << 3) | u32::from(self.szx & 7)
     }
 }
 
@@ -244,7 +244,84 @@ pub struct CoapOption {
     /// The option number.
     pub number: OptionNumber,
     /// The raw value.
-    pub value: Vec<u8>,
+    pub value: OptionValue,
+}
+
+/// The raw value of an option. Values of up to [`OptionValue::INLINE`] bytes (every
+/// uint, block, ETag and token-sized option, and most path segments) are kept inline, so
+/// decoding, copying and building messages allocate once per message rather than once per
+/// option; longer values live on the heap.
+#[derive(Clone)]
+pub struct OptionValue(ValueRepr);
+
+#[derive(Clone)]
+enum ValueRepr {
+    Inline {
+        len: u8,
+        buf: [u8; OptionValue::INLINE],
+    },
+    Heap(Vec<u8>),
+}
+
+impl OptionValue {
+    /// The longest value kept inline.
+    pub const INLINE: usize = 22;
+
+    /// A value holding a copy of `bytes`.
+    pub fn new(bytes: &[u8]) -> Self {
+        if bytes.len() <= Self::INLINE {
+            let mut buf = [0u8; Self::INLINE];
+            buf[..bytes.len()].copy_from_slice(bytes);
+            Self(ValueRepr::Inline {
+                len: bytes.len() as u8,
+                buf,
+            })
+        } else {
+            Self(ValueRepr::Heap(bytes.to_vec()))
+        }
+    }
+
+    /// The bytes.
+    pub fn as_slice(&self) -> &[u8] {
+        match &self.0 {
+            ValueRepr::Inline { len, buf } => &buf[..usize::from(*len)],
+            ValueRepr::Heap(v) => v,
+        }
+    }
+}
+
+impl std::ops::Deref for OptionValue {
+    type Target = [u8];
+
+    fn deref(&self) -> &[u8] {
+        self.as_slice()
+    }
+}
+
+impl AsRef<[u8]> for OptionValue {
+    fn as_ref(&self) -> &[u8] {
+        self.as_slice()
+    }
+}
+
+impl PartialEq for OptionValue {
+    fn eq(&self, other: &Self) -> bool {
+        self.as_slice() == other.as_slice()
+    }
+}
+
+impl Eq for OptionValue {}
+
+impl std::hash::Hash for OptionValue {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.as_slice().hash(state);
+    }
+}
+
+impl fmt::Debug for OptionValue {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        self.as_slice().fmt(f)
+    }
 }
 
 /// The options of a message, kept sorted by number; options with the same number keep
@@ -258,6 +335,13 @@ impl Options {
     /// No options.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A copy with room for `extra` more options, so adding them does not reallocate.
+    pub fn clone_with_room(&self, extra: usize) -> Self {
+        let mut list = Vec::with_capacity(self.list.len() + extra);
+        list.extend_from_slice(&self.list);
+        Self { list }
     }
 
     /// All options in wire order.
@@ -276,26 +360,28 @@ impl Options {
     }
 
     /// Appends an instance of `number` after the existing instances of the same number.
-    pub fn push(&mut self, number: OptionNumber, value: impl Into<Vec<u8>>) {
+    pub fn push(&mut self, number: OptionNumber, value: impl AsRef<[u8]>) {
         let at = self.list.partition_point(|o| o.number <= number);
         self.list.insert(
             at,
             CoapOption {
                 number,
-                value: value.into(),
+                value: OptionValue::new(value.as_ref()),
             },
         );
     }
 
     /// Replaces all instances of `number` with one value.
-    pub fn set(&mut self, number: OptionNumber, value: impl Into<Vec<u8>>) {
+    pub fn set(&mut self, number: OptionNumber, value: impl AsRef<[u8]>) {
         self.remove(number);
         self.push(number, value);
     }
 
     /// Replaces all instances of `number` with one uint value.
     pub fn set_uint(&mut self, number: OptionNumber, value: u32) {
-        self.set(number, encode_uint(value));
+        let bytes = value.to_be_bytes();
+        let skip = bytes.iter().take_while(|b| **b == 0).count();
+        self.set(number, &bytes[skip..]);
     }
 
     /// Removes every instance of `number`.
@@ -333,7 +419,7 @@ impl Options {
 
     /// Sets a block option.
     pub fn set_block(&mut self, number: OptionNumber, block: BlockOpt) {
-        self.set(number, block.encode());
+        self.set_uint(number, block.as_uint());
     }
 
     /// Block1 (RFC 7959).
@@ -445,7 +531,7 @@ impl Options {
     /// Observe). Request-Tag stays in, so that differently tagged bodies never mix
     /// (RFC 9175 §3.3).
     pub fn block_key(&self) -> Vec<u8> {
-        let mut key = Vec::new();
+        let mut key = Vec::with_capacity(self.list.iter().map(|o| 4 + o.value.len()).sum());
         for o in &self.list {
             if matches!(
                 o.number,
@@ -571,5 +657,24 @@ mod tests {
         o.push(OptionNumber::BLOCK2, [0u8]);
         o.push(OptionNumber::BLOCK2, [0x10u8]);
         assert_eq!(o.first_bad_critical(), Some(OptionNumber::BLOCK2));
+    }
+
+    #[test]
+    fn option_values_short_and_long_keep_their_bytes() {
+        for len in [0, 1, OptionValue::INLINE, OptionValue::INLINE + 1, 300] {
+            let bytes: Vec<u8> = (0..len).map(|i| i as u8 ^ 0xa5).collect();
+            let mut o = Options::new();
+            o.push(OptionNumber::URI_PATH, &bytes);
+            o.set_uint(OptionNumber::SIZE2, 0x0001_0203);
+            assert_eq!(
+                o.values(OptionNumber::URI_PATH).next(),
+                Some(&bytes[..]),
+                "{len} bytes"
+            );
+            assert_eq!(o.uint(OptionNumber::SIZE2), Some(0x0001_0203));
+            let copy = o.clone_with_room(2);
+            assert_eq!(copy, o);
+        }
+        assert_ne!(OptionValue::new(b"a"), OptionValue::new(b"ab"));
     }
 }

@@ -251,8 +251,7 @@ fn rfc7959_2_4_etag_change_restarts_the_transfer() {
     let handler: Handler = Box::new(move |_| {
         seen.set(seen.get() + 1);
         let mut r = Response::new(Code::CONTENT).with_payload(body(3000, seen.get()));
-        r.options
-            .set(OptionNumber::ETAG, seen.get().to_be_bytes().to_vec());
+        r.options.set(OptionNumber::ETAG, seen.get().to_be_bytes());
         Reply::Now(r)
     });
     let mut sim = Sim::new(LinkConfig::default());
@@ -297,7 +296,7 @@ fn rfc7959_2_4_stable_representation_without_store_still_reassembles() {
     let d = data.clone();
     let handler: Handler = Box::new(move |_| {
         let mut r = Response::new(Code::CONTENT).with_payload(d.clone());
-        r.options.set(OptionNumber::ETAG, b"v1".to_vec());
+        r.options.set(OptionNumber::ETAG, b"v1");
         Reply::Now(r)
     });
     let s = sim.add(no_store, Some(handler));
@@ -435,4 +434,127 @@ fn progress_events_every_64_kib_and_at_the_end_when_asked() {
         progress,
         [65536, 131_072, 196_608, 200_000].map(|d| (d, Some(200_000)))
     );
+}
+
+/// Runs a streamed GET of `/s` from node `c` to `server` until it ends; returns the
+/// pieces (offset, bytes) and the last event.
+fn streamed_get(
+    sim: &mut Sim,
+    c: usize,
+    server: std::net::SocketAddr,
+) -> (Vec<(usize, Bytes)>, Event) {
+    let mut req = Request::new(Code::GET, "/s");
+    req.stream = true;
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    let ended = |e: &Event| matches!(e, Event::Response { .. } | Event::RequestFailed { .. });
+    assert!(sim.run_until(Duration::from_secs(100_000), |s| {
+        s.nodes[c].events.iter().any(|(_, e)| ended(e))
+    }));
+    let mut pieces = Vec::new();
+    let mut last = None;
+    for (_, e) in &sim.nodes[c].events {
+        match e {
+            Event::BodyChunk { offset, data, .. } => pieces.push((*offset, data.clone())),
+            e if ended(e) => last = Some(e.clone()),
+            _ => {}
+        }
+    }
+    let last = last.unwrap_or_else(|| unreachable!("run_until saw the end"));
+    (pieces, last)
+}
+
+#[test]
+fn streamed_block2_10_mb_at_20_percent_loss_arrives_in_order_and_whole() {
+    let data = body(10_032_012, 7);
+    let mut sim = Sim::new(LinkConfig::lossy(0.2, 5));
+    sim.record = false;
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let (pieces, last) = streamed_get(&mut sim, c, server);
+    let Event::Response { response, .. } = last else {
+        panic!("expected the response, got {last:?}");
+    };
+    assert_eq!(response.code, Code::CONTENT);
+    assert!(response.payload.is_empty(), "the body came in the pieces");
+    assert_eq!(response.options.uint(OptionNumber::SIZE2), Some(10_032_012));
+    let (last_piece, whole_pieces) = pieces.split_last().unwrap_or_else(|| panic!("no pieces"));
+    assert!(whole_pieces.iter().all(|(_, p)| p.len() >= 64 << 10));
+    assert!(!last_piece.1.is_empty());
+    let mut next = 0;
+    let mut got = Vec::with_capacity(data.len());
+    for (offset, piece) in &pieces {
+        assert_eq!(*offset, next, "pieces in order, without gaps or repeats");
+        next += piece.len();
+        got.extend_from_slice(piece);
+    }
+    assert!(got == data[..], "streamed body differs");
+}
+
+#[test]
+fn streamed_small_response_is_one_piece_and_errors_keep_their_diagnostic() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let handler: Handler = Box::new(|req| {
+        Reply::Now(if req.options.path_string() == "/s" {
+            Response::new(Code::CONTENT).with_payload("small")
+        } else {
+            Response::diagnostic(Code::NOT_FOUND, "nothing here")
+        })
+    });
+    let s = sim.add(cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    let (pieces, last) = streamed_get(&mut sim, c, server);
+    assert_eq!(pieces, vec![(0, Bytes::from_static(b"small"))]);
+    assert!(matches!(last, Event::Response { response, .. } if response.payload.is_empty()));
+
+    sim.nodes[c].events.clear();
+    let mut req = Request::new(Code::GET, "/missing");
+    req.stream = true;
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert!(matches!(
+        &sim.nodes[c].events[0].1,
+        Event::Response { response, .. }
+            if response.code == Code::NOT_FOUND && &response.payload[..] == b"nothing here"
+    ));
+}
+
+#[test]
+fn streamed_etag_change_fails_at_once_instead_of_restarting() {
+    let renders = Rc::new(Cell::new(0u32));
+    let seen = renders.clone();
+    // No store: every continuation is rendered again, with a new ETag each time.
+    let handler: Handler = Box::new(move |_| {
+        seen.set(seen.get() + 1);
+        let mut r = Response::new(Code::CONTENT).with_payload(body(3000, seen.get()));
+        r.options.set(OptionNumber::ETAG, seen.get().to_be_bytes());
+        Reply::Now(r)
+    });
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let no_store = EndpointConfig {
+        limits: Limits {
+            block2_store_bytes: 0,
+            ..Limits::default()
+        },
+        ..cfg(2)
+    };
+    let s = sim.add(no_store, Some(handler));
+    let server = sim.nodes[s].addr;
+    let (pieces, last) = streamed_get(&mut sim, c, server);
+    assert!(
+        pieces.is_empty(),
+        "less than a piece arrived before the change"
+    );
+    assert!(matches!(
+        last,
+        Event::RequestFailed {
+            error: RequestError::RepresentationChanged,
+            ..
+        }
+    ));
+    assert_eq!(renders.get(), 2, "no restart from block 0");
 }

@@ -238,7 +238,7 @@ fn rfc7252_5_4_1_unknown_critical_option_in_con_request_gives_4_02() {
     let s = sim.add(cfg(2), Some(echo_server()));
     let server = sim.nodes[s].addr;
     let mut req = Request::new(Code::GET, "/x");
-    req.options.push(OptionNumber(2051), b"?".to_vec());
+    req.options.push(OptionNumber(2051), b"?");
     let now = sim.now;
     sim.nodes[c].ep.request(now, server, req);
     assert!(sim.run_to_event(c, Duration::from_secs(5)));
@@ -262,7 +262,7 @@ fn rfc7252_5_4_1_unknown_critical_option_in_non_request_is_rejected_with_reset()
     let peer = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
     let mut req = Message::empty(Type::Non, 5);
     req.code = Code::GET;
-    req.options.push(OptionNumber(2051), b"?".to_vec());
+    req.options.push(OptionNumber(2051), b"?");
     sim.inject(peer, s, &req.encode());
     sim.run_until(Duration::from_secs(1), |_| false);
     let l = lines(&sim);
@@ -277,7 +277,7 @@ fn rfc7252_5_4_1_unknown_elective_option_is_ignored() {
     let s = sim.add(cfg(2), Some(echo_server()));
     let server = sim.nodes[s].addr;
     let mut req = Request::new(Code::GET, "/x");
-    req.options.push(OptionNumber(2050), b"?".to_vec());
+    req.options.push(OptionNumber(2050), b"?");
     let now = sim.now;
     sim.nodes[c].ep.request(now, server, req);
     assert!(sim.run_to_event(c, Duration::from_secs(5)));
@@ -526,4 +526,39 @@ fn rfc7252_5_2_2_separate_responses_survive_20_percent_loss() {
         sim.nodes[s].requests_seen <= 20,
         "duplicates never reach the handler twice"
     );
+}
+
+#[test]
+fn an_acknowledged_exchange_leaves_no_timer_to_wake_for() {
+    // A block-wise transfer acknowledges each block long before its retransmission
+    // timer would fire; such timers must not keep waking the endpoint's owner.
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(echo_server()));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/a"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert!(matches!(&sim.nodes[c].events[0].1, Event::Response { .. }));
+    assert_eq!(
+        sim.nodes[c].ep.poll_timeout(),
+        None,
+        "a stale retransmission timer"
+    );
+
+    // With a deadline set, the deadline is the only timer left while the request runs.
+    sim.nodes[c].events.clear();
+    let mut req = Request::new(Code::GET, "/b");
+    req.timeout = Some(Duration::from_secs(60));
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, server, req);
+    let armed = sim.nodes[c].ep.poll_timeout();
+    assert!(
+        armed.is_some_and(|t| t < now + Duration::from_secs(60)),
+        "retransmission first"
+    );
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert_eq!(sim.nodes[c].ep.poll_timeout(), None);
 }

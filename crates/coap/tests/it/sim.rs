@@ -318,7 +318,11 @@ impl Sim {
                 return true;
             }
             let next_packet = self.in_flight.peek().map(|Reverse((at, ..))| *at);
-            let next_timer = self.nodes.iter().filter_map(|n| n.ep.poll_timeout()).min();
+            let next_timer = self
+                .nodes
+                .iter_mut()
+                .filter_map(|n| n.ep.poll_timeout())
+                .min();
             let next_delayed = self.delayed.peek().map(|Reverse((at, ..))| *at);
             let Some(next) = [next_packet, next_timer, next_delayed]
                 .into_iter()

@@ -324,8 +324,7 @@ impl Cams {
         self.add_resource(sn, name);
         let mut r = Response::new(Code::CREATED);
         for seg in ["cams", sn.as_str(), name] {
-            r.options
-                .push(OptionNumber::LOCATION_PATH, seg.as_bytes().to_vec());
+            r.options.push(OptionNumber::LOCATION_PATH, seg.as_bytes());
         }
         r
     }
@@ -559,8 +558,7 @@ impl Cams {
         body.hash(&mut h);
         let mut r = Response::new(Code::CONTENT).with_payload(body);
         set_cf(&mut r, cf);
-        r.options
-            .set(OptionNumber::ETAG, h.finish().to_be_bytes().to_vec());
+        r.options.set(OptionNumber::ETAG, h.finish().to_be_bytes());
         r
     }
 }
@@ -728,7 +726,7 @@ fn represent(
             let mut r = Response::new(Code::CONTENT).with_payload(body);
             set_cf(&mut r, cf);
             r.options
-                .set(OptionNumber::ETAG, representation_etag(etag, cf).to_vec());
+                .set(OptionNumber::ETAG, representation_etag(etag, cf));
             r
         }
         Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),

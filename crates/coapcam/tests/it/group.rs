@@ -46,7 +46,7 @@ fn coap_group_memberships_are_listed_created_replaced_and_deleted() {
         let mut discover = Request::new(Code::GET, "/.well-known/core");
         discover
             .options
-            .push(OptionNumber::URI_QUERY, b"rt=core.gp".to_vec());
+            .push(OptionNumber::URI_QUERY, b"rt=core.gp");
         discover.timeout = Some(LIMIT);
         let links = c.send(addr, discover).await.expect("discovery");
         let links = String::from_utf8_lossy(&links.payload).into_owned();

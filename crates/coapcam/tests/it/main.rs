@@ -4,6 +4,7 @@ mod bag;
 mod cams;
 mod client;
 mod formats;
+mod get;
 mod group;
 mod interop;
 mod netem;

@@ -1,0 +1,188 @@
+//! `coapcam get -o FILE`: the body is streamed into a temporary file beside FILE and
+//! renamed to FILE only when it arrived whole.
+
+use std::net::{SocketAddr, UdpSocket};
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread;
+use std::time::Duration;
+
+use bytes::Bytes;
+use coap::{BlockOpt, Code, Message, OptionNumber, Type};
+
+use crate::interop::peers::{self, COAPCAM, Proc, TempDir};
+
+const LIMIT: Duration = Duration::from_secs(60);
+
+fn get(uri: &str, out: &Path, extra: &[&str]) -> peers::Finished {
+    let mut args = vec!["get", uri, "-o", out.to_str().expect("UTF-8 path")];
+    args.extend_from_slice(extra);
+    Proc::run(COAPCAM, &args, LIMIT)
+}
+
+/// Names in `dir` other than `keep`.
+fn leftovers(dir: &Path, keep: &str) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap_or_else(|e| panic!("listing {}: {e}", dir.display()))
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .filter(|n| n != keep)
+        .collect()
+}
+
+#[test]
+fn get_o_streams_a_10_mb_body_into_file_bit_exact_and_replaces_an_old_file() {
+    let served = TempDir::new("get-served");
+    let want = peers::random_file(&served.join("big.bin"), 10_032_012, 11);
+    let (_server, addr) = peers::our_server(served.path(), false);
+    let out_dir = TempDir::new("get-out");
+    let out = out_dir.join("big.bin");
+    std::fs::write(&out, b"an older file").expect("writing the old file");
+    get(
+        &format!("coap://{addr}/files/big.bin"),
+        &out,
+        &["--block-size", "1024"],
+    )
+    .expect_success("coapcam get -o");
+    peers::assert_file_is(&out, &want);
+    assert_eq!(leftovers(out_dir.path(), "big.bin"), Vec::<String>::new());
+}
+
+/// What the fake server does after `blocks` good blocks of 1024 bytes.
+#[derive(Clone, Copy)]
+enum Then {
+    /// Answers with another ETag.
+    ChangeEtag,
+    /// Stops answering.
+    Silence,
+}
+
+/// A server that answers GETs block by block (ETag 1, always more to come) for `blocks`
+/// blocks, then misbehaves; it stops when the returned flag is set.
+fn misbehaving_server(blocks: u32, then: Then) -> (SocketAddr, Arc<AtomicBool>) {
+    let socket = UdpSocket::bind("127.0.0.1:0").expect("binding the fake server");
+    socket
+        .set_read_timeout(Some(Duration::from_millis(100)))
+        .expect("read timeout");
+    let addr = socket.local_addr().expect("local address");
+    let stop = Arc::new(AtomicBool::new(false));
+    let stopped = stop.clone();
+    thread::spawn(move || {
+        let mut buf = [0u8; 2048];
+        while !stopped.load(Ordering::SeqCst) {
+            let Ok((n, peer)) = socket.recv_from(&mut buf) else {
+                continue;
+            };
+            let Ok(req) = Message::decode(&buf[..n]) else {
+                continue;
+            };
+            let num = req.options.block2().map_or(0, |b| b.num);
+            let etag = match then {
+                _ if num < blocks => 1u8,
+                Then::ChangeEtag => 2,
+                Then::Silence => continue,
+            };
+            let mut options = coap::Options::new();
+            options.set(OptionNumber::ETAG, vec![etag]);
+            options.set_uint(OptionNumber::SIZE2, 1024 * 1000);
+            let more = true;
+            options.set_block(OptionNumber::BLOCK2, BlockOpt { num, more, szx: 6 });
+            let reply = Message {
+                ty: Type::Ack,
+                code: Code::CONTENT,
+                message_id: req.message_id,
+                token: req.token,
+                options,
+                payload: Bytes::from(vec![0x5a; 1024]),
+            };
+            let _ = socket.send_to(&reply.encode(), peer);
+        }
+    });
+    (addr, stop)
+}
+
+fn check_interrupted(then: Then, what: &str) {
+    let (addr, stop) = misbehaving_server(20, then);
+    let dir = TempDir::new("get-interrupted");
+    let fresh = dir.join("fresh.bin");
+    let f = get(
+        &format!("coap://{addr}/body"),
+        &fresh,
+        &["--block-size", "1024", "--timeout", "2"],
+    );
+    assert!(
+        !f.status.success(),
+        "{what}: exit 0 with an incomplete body"
+    );
+    assert!(!fresh.exists(), "{what}: a truncated file was left behind");
+    assert_eq!(leftovers(dir.path(), "fresh.bin"), Vec::<String>::new());
+
+    // A file that was there before the failed transfer is left as it was.
+    let old = dir.join("old.bin");
+    std::fs::write(&old, b"keep me").expect("writing the old file");
+    let f = get(
+        &format!("coap://{addr}/body"),
+        &old,
+        &["--block-size", "1024", "--timeout", "2"],
+    );
+    assert!(
+        !f.status.success(),
+        "{what}: exit 0 with an incomplete body"
+    );
+    peers::assert_file_is(&old, b"keep me");
+    assert_eq!(leftovers(dir.path(), "old.bin"), Vec::<String>::new());
+    stop.store(true, Ordering::SeqCst);
+}
+
+#[test]
+fn get_o_whose_etag_changes_mid_transfer_fails_and_leaves_no_file() {
+    check_interrupted(Then::ChangeEtag, "ETag change");
+}
+
+#[test]
+fn get_o_from_a_server_that_stops_answering_fails_and_leaves_no_file() {
+    check_interrupted(Then::Silence, "silent server");
+}
+
+#[test]
+fn get_o_writes_through_a_link_and_into_a_pipe_without_replacing_them() {
+    let served = TempDir::new("get-served-special");
+    let want = peers::random_file(&served.join("mid.bin"), 300_000, 12);
+    let (_server, addr) = peers::our_server(served.path(), false);
+    let uri = format!("coap://{addr}/files/mid.bin");
+    let dir = TempDir::new("get-special");
+
+    // A symbolic link to a regular file: the file gets the body, the link stays a link.
+    let real = dir.join("real.bin");
+    std::fs::write(&real, b"old").expect("writing the linked file");
+    let link = dir.join("link.bin");
+    std::os::unix::fs::symlink(&real, &link).expect("symlink");
+    get(&uri, &link, &[]).expect_success("coapcam get -o LINK");
+    peers::assert_file_is(&real, &want);
+    let meta = std::fs::symlink_metadata(&link).expect("link metadata");
+    assert!(meta.file_type().is_symlink(), "the link was replaced");
+
+    // A named pipe (like /dev/stdout or /dev/null, not a regular file): written into
+    // directly, never replaced.
+    let fifo = dir.join("pipe");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .expect("running mkfifo");
+    assert!(made.success(), "mkfifo failed");
+    let reader = {
+        let fifo = fifo.clone();
+        thread::spawn(move || std::fs::read(&fifo).expect("reading the pipe"))
+    };
+    get(&uri, &fifo, &[]).expect_success("coapcam get -o PIPE");
+    let got = reader.join().expect("reader thread");
+    peers::assert_same(&got, &want, "body through the pipe");
+    let meta = std::fs::symlink_metadata(&fifo).expect("pipe metadata");
+    assert!(
+        std::os::unix::fs::FileTypeExt::is_fifo(&meta.file_type()),
+        "the pipe was replaced"
+    );
+    let mut left = leftovers(dir.path(), "real.bin");
+    left.sort();
+    assert_eq!(left, ["link.bin", "pipe"]);
+}
