@@ -132,7 +132,7 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<bool> {
     save(&view::top_view(&m.grabbed.cloud), &top)?;
     println!("wrote {}", top.display());
     let annotated = dir.join("annotated.png");
-    measure::annotate_from_server(&client, first, &m.dimensions, &annotated).await?;
+    crate::annotate::from_server(&client, first, &m.dimensions, &annotated).await?;
     println!("wrote {} (camera {first})", annotated.display());
     println!();
     print!("{}", report(&m, truth(&scene)));
