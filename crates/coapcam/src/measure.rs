@@ -52,6 +52,12 @@ pub(crate) struct MeasureArgs {
         requires = "group"
     )]
     wait: f64,
+    /// First prepare the server's cameras as `demo` does (and the thesis's client
+    /// expects): roi3d becomes the space above the floor within 1 m of the origin, so
+    /// the floor is not sent, and the spatial filter runs; the rest of each camera's
+    /// application-config stays. Not with --group.
+    #[arg(long, conflicts_with = "group")]
+    prepare: bool,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -323,6 +329,13 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
         }
         (None, Some(server)) => {
             let client = CamClient::connect(server, config, timeout).await?;
+            if args.prepare {
+                let serials = match &args.camera {
+                    Some(sn) => vec![sn.clone()],
+                    None => client.cameras().await?,
+                };
+                crate::demo::prepare_cameras(&client, &serials, 1.0).await?;
+            }
             let source = match &args.camera {
                 Some(sn) => Source::Camera(sn.clone()),
                 None => Source::All,

@@ -313,6 +313,28 @@ fn measure_finds_the_default_scenes_box() {
     assert!(text.starts_with("length "), "{text}");
     assert!(text.contains(SN), "{text}");
 
+    // --prepare cuts the floor out of what the camera sends: the same box from a
+    // fraction of the points, and the camera's application-config says so afterwards.
+    let whole = m["bytes"].as_u64().expect("bytes");
+    let m = json(&ok(&["measure", "--server", &uri, "--prepare", "--json"]));
+    assert_measures_the_box(&m);
+    let cut = m["bytes"].as_u64().expect("bytes");
+    assert!(
+        cut * 3 < whole,
+        "{cut} bytes with --prepare, {whole} without"
+    );
+    let config = json(&ok(&[
+        "get",
+        &format!("{uri}/cams/{SN}/application-config"),
+    ]));
+    let min_z = config["roi3d"]["min_z"].as_f64().expect("min_z");
+    assert!((min_z - 0.005).abs() < 1e-6, "{config}");
+    assert_ne!(
+        config["postprocessing"]["spatial"],
+        serde_json::json!(0),
+        "{config}"
+    );
+
     let f = coapcam(&["measure", "--server", &uri, "--camera", "999999999999"]);
     assert!(!f.status.success());
     assert!(f.stderr.contains("4.04"), "{}", f.stderr);
