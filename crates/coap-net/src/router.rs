@@ -177,6 +177,16 @@ impl std::fmt::Debug for Router {
     }
 }
 
+/// A pattern's segments and its canonical text (`/a/{b}`), the key entries are stored by.
+fn normalized(pattern: &str) -> (String, Vec<Segment>) {
+    let segments = parse_pattern(pattern);
+    let text = format!(
+        "/{}",
+        segments.iter().map(seg_str).collect::<Vec<_>>().join("/")
+    );
+    (text, segments)
+}
+
 impl Router {
     /// An empty router (it still answers `/.well-known/core`).
     pub fn new() -> Arc<Self> {
@@ -186,11 +196,7 @@ impl Router {
     /// Adds or replaces the resource at `pattern` (`/files/a.bin`, `/cams/{sn}/color`).
     /// Literal paths are matched before patterns with parameters.
     pub fn add(&self, pattern: &str, resource: Resource) {
-        let segments = parse_pattern(pattern);
-        let pattern = format!(
-            "/{}",
-            segments.iter().map(seg_str).collect::<Vec<_>>().join("/")
-        );
+        let (pattern, segments) = normalized(pattern);
         let mut entries = self
             .entries
             .write()
@@ -211,11 +217,7 @@ impl Router {
 
     /// Removes the resource at `pattern`; returns whether there was one.
     pub fn remove(&self, pattern: &str) -> bool {
-        let segments = parse_pattern(pattern);
-        let pattern = format!(
-            "/{}",
-            segments.iter().map(seg_str).collect::<Vec<_>>().join("/")
-        );
+        let (pattern, _) = normalized(pattern);
         let mut entries = self
             .entries
             .write()

@@ -7,37 +7,8 @@ use bytes::Bytes;
 use coap::Code;
 use geometry::Dimensions;
 
+use crate::cbor;
 use crate::client::{CamClient, Stream};
-
-/// A field of a CBOR map.
-fn cbor_field<'a>(
-    map: &'a [(ciborium::Value, ciborium::Value)],
-    key: &str,
-) -> anyhow::Result<&'a ciborium::Value> {
-    map.iter()
-        .find(|(k, _)| k.as_text() == Some(key))
-        .map(|(_, v)| v)
-        .with_context(|| format!("the CBOR map has no {key:?}"))
-}
-
-fn cbor_floats<const N: usize>(value: &ciborium::Value) -> anyhow::Result<[f32; N]> {
-    let items = value.as_array().context("expected an array of numbers")?;
-    let mut out = [0.0; N];
-    if items.len() != N {
-        bail!("expected {N} numbers, found {}", items.len());
-    }
-    for (o, v) in out.iter_mut().zip(items) {
-        *o = v.as_float().context("expected a number")? as f32;
-    }
-    Ok(out)
-}
-
-fn cbor_u32(map: &[(ciborium::Value, ciborium::Value)], key: &str) -> anyhow::Result<u32> {
-    let v = cbor_field(map, key)?
-        .as_integer()
-        .with_context(|| format!("{key} is not an integer"))?;
-    u32::try_from(v).with_context(|| format!("{key} is out of range"))
-}
 
 /// A color frame as the server's CBOR representation carries it: RGB pixels, the color
 /// intrinsics and the depth->color extrinsics.
@@ -55,44 +26,44 @@ impl ColorCapture {
         let map = value
             .as_map()
             .context("the CBOR color frame is not a map")?;
-        let (width, height) = (cbor_u32(map, "width")?, cbor_u32(map, "height")?);
-        let bpp = cbor_u32(map, "pixel_size")? as usize;
-        let format = cbor_field(map, "format")?
+        let (width, height) = (cbor::u32_of(map, "width")?, cbor::u32_of(map, "height")?);
+        let bpp = cbor::u32_of(map, "pixel_size")? as usize;
+        let format = cbor::field(map, "format")?
             .as_text()
             .context("format is not text")?;
-        let data = cbor_field(map, "data")?
+        let data = cbor::field(map, "data")?
             .as_bytes()
             .context("data is not bytes")?;
         let image = crate::view::rgb_image(data, width, height, bpp, format)
             .map_err(|e| anyhow::anyhow!("the CBOR color frame: {e}"))?;
-        let k = cbor_field(map, "intrinsics")?
+        let k = cbor::field(map, "intrinsics")?
             .as_map()
             .context("intrinsics is not a map")?;
-        let model_name = cbor_field(k, "model")?
+        let model_name = cbor::field(k, "model")?
             .as_text()
             .context("model is not text")?;
         let f = |key: &str| -> anyhow::Result<f32> {
-            Ok(cbor_field(k, key)?
+            Ok(cbor::field(k, key)?
                 .as_float()
                 .with_context(|| format!("{key} is not a number"))? as f32)
         };
         let intrinsics = rgbd::Intrinsics {
-            width: cbor_u32(k, "width")?,
-            height: cbor_u32(k, "height")?,
+            width: cbor::u32_of(k, "width")?,
+            height: cbor::u32_of(k, "height")?,
             ppx: f("ppx")?,
             ppy: f("ppy")?,
             fx: f("fx")?,
             fy: f("fy")?,
             model: rgbd::DistortionModel::from_name(model_name)
                 .with_context(|| format!("unknown distortion model {model_name:?}"))?,
-            coeffs: cbor_floats(cbor_field(k, "coeffs")?)?,
+            coeffs: cbor::floats(cbor::field(k, "coeffs")?)?,
         };
-        let e = cbor_field(map, "depth_to_color")?
+        let e = cbor::field(map, "depth_to_color")?
             .as_map()
             .context("depth_to_color is not a map")?;
         let depth_to_color = rgbd::Extrinsics {
-            rotation: cbor_floats(cbor_field(e, "rotation")?)?,
-            translation: cbor_floats(cbor_field(e, "translation")?)?,
+            rotation: cbor::floats(cbor::field(e, "rotation")?)?,
+            translation: cbor::floats(cbor::field(e, "translation")?)?,
         };
         Ok(Self {
             image,

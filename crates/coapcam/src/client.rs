@@ -252,20 +252,30 @@ impl CamClient {
 /// `response` if it is a 2.xx whose body is as long as its Size2 says.
 pub(crate) fn check(what: &str, response: Response) -> anyhow::Result<Response> {
     if !response.code.is_success() {
-        let diagnostic = String::from_utf8_lossy(&response.payload);
-        bail!(
-            "{what}: {}{}{diagnostic}",
-            response.code,
-            if diagnostic.is_empty() { "" } else { ": " }
-        );
+        bail!("{what}: {}", describe(&response));
     }
-    if let Some(size2) = response.options.uint(OptionNumber::SIZE2)
-        && size2 as usize != response.payload.len()
-    {
-        bail!(
-            "{what}: incomplete body: the server announced {size2} bytes (Size2), {} arrived",
-            response.payload.len()
-        );
-    }
+    check_size(&response, response.payload.len()).with_context(|| what.to_owned())?;
     Ok(response)
+}
+
+/// The code and the diagnostic of a response, e.g. "4.04 Not Found: no such resource".
+pub(crate) fn describe(response: &Response) -> String {
+    let diagnostic = String::from_utf8_lossy(&response.payload);
+    if diagnostic.is_empty() {
+        response.code.to_string()
+    } else {
+        format!("{}: {diagnostic}", response.code)
+    }
+}
+
+/// Refuses a successful body of `size` bytes when the server announced another size
+/// (Size2).
+pub(crate) fn check_size(response: &Response, size: usize) -> anyhow::Result<()> {
+    if let Some(size2) = response.options.uint(OptionNumber::SIZE2)
+        && response.code.is_success()
+        && size2 as usize != size
+    {
+        bail!("incomplete body: the server announced {size2} bytes (Size2), {size} arrived");
+    }
+    Ok(())
 }

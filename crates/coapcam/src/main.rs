@@ -5,6 +5,7 @@
 mod annotate;
 mod bench;
 mod cams;
+mod cbor;
 mod client;
 mod demo;
 mod grab_cmd;

@@ -9,12 +9,12 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, bail};
 use bytes::Bytes;
 use clap::Args;
-use coap::Code;
+use coap::{Code, ContentFormat};
 use coap_net::Uri;
 use geometry::{DimensionConfig, Dimensions, PointCloud};
 
+use crate::cbor;
 use crate::client::{CamClient, Stream, check};
-use crate::packet;
 use crate::transmission::TransmissionArgs;
 
 /// Divisor of the volumetric weight, cm³ per kg (the courier convention).
@@ -218,34 +218,27 @@ impl Measurement {
 /// Grabs the clouds of `source` (`client` is the server's client; for a group, any
 /// client) and merges them.
 pub(crate) async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<Grabbed> {
-    match source {
-        Source::Camera(sn) => {
-            let r = client.grab(sn, Stream::Pointcloud, None).await?;
-            let p = packet::cloud(&r.payload).context("reading the point cloud")?;
-            Ok(Grabbed {
-                bytes: r.payload.len(),
-                cloud: p.cloud,
-                cameras: vec![(client.server(), sn.clone())],
-                timestamps_us: vec![u64::from(p.timestamp_s) * 1_000_000],
-            })
-        }
-        Source::All => {
-            let (serials, r) = tokio::try_join!(client.cameras(), client.grab_all(None))?;
-            let p = packet::cloud(&r.payload).context("reading the merged point cloud")?;
-            Ok(Grabbed {
-                bytes: r.payload.len(),
-                cloud: p.cloud,
-                cameras: serials.into_iter().map(|s| (client.server(), s)).collect(),
-                timestamps_us: vec![u64::from(p.timestamp_s) * 1_000_000],
-            })
-        }
+    let mut grabbed = Grabbed {
+        cloud: PointCloud::default(),
+        cameras: Vec::new(),
+        timestamps_us: Vec::new(),
+        bytes: 0,
+    };
+    // The CBOR map names the cameras that made each cloud and its time in microseconds.
+    let accept = Some(ContentFormat::CBOR);
+    let answers = match source {
+        Source::Camera(sn) => vec![(
+            client.server(),
+            client.grab(sn, Stream::Pointcloud, accept).await?,
+        )],
+        Source::All => vec![(client.server(), client.grab_all(accept).await?)],
         Source::Group {
             group,
             expect,
             wait,
         } => {
             let mut request =
-                client.request(Code::POST, "/cams/pointclouds", Bytes::new(), None, None);
+                client.request(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept);
             request.timeout = Some(*wait);
             let answers = client
                 .coap()
@@ -255,33 +248,28 @@ pub(crate) async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::
             if answers.is_empty() {
                 bail!("no server of the group {group} answered within {wait:?}");
             }
-            let mut grabbed = Grabbed {
-                cloud: PointCloud::default(),
-                cameras: Vec::new(),
-                timestamps_us: Vec::new(),
-                bytes: 0,
-            };
-            for (server, response) in answers {
-                let what = format!("POST /cams/pointclouds on {server}");
-                let response = check(&what, response)?;
-                let p = packet::cloud(&response.payload).with_context(|| what.clone())?;
-                grabbed.bytes += response.payload.len();
-                grabbed.cloud.extend_from(&p.cloud);
-                grabbed
-                    .timestamps_us
-                    .push(u64::from(p.timestamp_s) * 1_000_000);
-                let one = CamClient::unicast(client, server);
-                for sn in one
-                    .cameras()
-                    .await
-                    .with_context(|| format!("discovering {server}"))?
-                {
-                    grabbed.cameras.push((server, sn));
-                }
-            }
-            Ok(grabbed)
+            answers
+                .into_iter()
+                .map(|(server, r)| {
+                    Ok((
+                        server,
+                        check(&format!("POST /cams/pointclouds on {server}"), r)?,
+                    ))
+                })
+                .collect::<anyhow::Result<_>>()?
         }
+    };
+    for (server, response) in answers {
+        let c = cbor::Cloud::from_cbor(&response.payload)
+            .with_context(|| format!("reading the point cloud of {server}"))?;
+        grabbed.bytes += response.payload.len();
+        grabbed.cloud.extend_from(&c.cloud);
+        grabbed.timestamps_us.push(c.timestamp_us);
+        grabbed
+            .cameras
+            .extend(c.serials.into_iter().map(|sn| (server, sn)));
     }
+    Ok(grabbed)
 }
 
 /// Grabs and measures once.

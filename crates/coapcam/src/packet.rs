@@ -135,14 +135,19 @@ pub(crate) fn cloud(packet: &[u8]) -> Result<CloudPacket, PacketError> {
             ),
         ));
     }
-    let f = |b: &[u8]| f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
     Ok(CloudPacket {
         timestamp_s: be_u32(packet, 8),
-        cloud: body
-            .chunks_exact(12)
-            .map(|p| Point3::new(f(&p[0..4]), f(&p[4..8]), f(&p[8..12])))
-            .collect(),
+        cloud: points(body),
     })
+}
+
+/// Points stored as x, y, z f32 little-endian (12 bytes each; a partial point is
+/// ignored: callers check the length).
+pub(crate) fn points(data: &[u8]) -> PointCloud {
+    let f = |b: &[u8]| f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+    data.chunks_exact(12)
+        .map(|p| Point3::new(f(&p[0..4]), f(&p[4..8]), f(&p[8..12])))
+        .collect()
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@ use coap::link_format;
 use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{BodyPart, Client, Uri};
 
+use crate::client::{check_size, describe};
 use crate::transmission::TransmissionArgs;
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
@@ -136,7 +137,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<bool>
         client.send(peer, request).await
     }
     .with_context(what)?;
-    check_whole(&response, response.payload.len())?;
+    check_size(&response, response.payload.len())?;
     output(&response, response.payload.len(), &args, started)?;
     Ok(report_code(&response))
 }
@@ -166,7 +167,7 @@ async fn to_file(
             BodyPart::End(response) => {
                 bar.finish();
                 if response.code.is_success() {
-                    check_whole(&response, written)?;
+                    check_size(&response, written)?;
                     part.keep()?;
                 }
                 return Ok((response, written));
@@ -368,29 +369,11 @@ async fn send_with_bar(
     response
 }
 
-/// Refuses a body of `size` bytes that did not arrive whole. The endpoint only delivers
-/// complete bodies, and this checks the Size2 the server announced as well.
-fn check_whole(r: &Response, size: usize) -> anyhow::Result<()> {
-    if let Some(size2) = r.options.uint(OptionNumber::SIZE2)
-        && r.code.is_success()
-        && size2 as usize != size
-    {
-        bail!("incomplete body: the server announced {size2} bytes (Size2), {size} arrived");
-    }
-    Ok(())
-}
-
 fn report_code(r: &Response) -> bool {
     if r.code.is_success() {
         return true;
     }
-    let diagnostic = String::from_utf8_lossy(&r.payload);
-    eprintln!(
-        "coapcam: {}{}{}",
-        r.code,
-        if diagnostic.is_empty() { "" } else { ": " },
-        diagnostic
-    );
+    eprintln!("coapcam: {}", describe(r));
     false
 }
 
