@@ -63,6 +63,12 @@ const DIMENSION: Kind = Kind::Integer {
     max: 65_535,
 };
 
+/// Micrometres per depth unit; librealsense's depth-units option spans 1e-6 .. 1e-2 m.
+const UNITS: Kind = Kind::Integer {
+    min: 1,
+    max: 10_000,
+};
+
 /// The keys a D400 camera reports, with their kinds (the key set of Listing A.5).
 const KEYS: &[(&str, Kind)] = &[
     ("aux-param-autoexposure-setpoint", Kind::Number),
@@ -108,14 +114,7 @@ const KEYS: &[(&str, Kind)] = &[
     ("param-censusvsize", Kind::Number),
     ("param-depthclampmax", Kind::Number),
     ("param-depthclampmin", Kind::Number),
-    // Micrometres per depth unit; librealsense's depth-units option spans 1e-6 .. 1e-2 m.
-    (
-        "param-depthunits",
-        Kind::Integer {
-            min: 1,
-            max: 10_000,
-        },
-    ),
+    ("param-depthunits", UNITS),
     ("param-disableraucolor", Kind::Number),
     ("param-disablesadcolor", Kind::Number),
     ("param-disablesadnormalize", Kind::Number),
@@ -159,13 +158,7 @@ const KEYS: &[(&str, Kind)] = &[
     ("param-texturecountthresh", Kind::Number),
     ("param-texturedifferencethresh", Kind::Number),
     ("param-usersm", Kind::Number),
-    (
-        "param-zunits",
-        Kind::Integer {
-            min: 1,
-            max: 10_000,
-        },
-    ),
+    ("param-zunits", UNITS),
     ("stream-depth-format", Kind::DepthFormat),
     ("stream-fps", DIMENSION),
     ("stream-height", DIMENSION),

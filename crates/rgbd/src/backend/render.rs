@@ -67,21 +67,10 @@ pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u1
             let shadow_reach = cands.iter().map(|c| c.u_hi).max();
             for (u, out) in row.iter_mut().enumerate() {
                 let d = base + step * u as f32;
-                let mut active = cands
-                    .iter()
-                    .filter(|c| in_range(c, u))
-                    .map(|c| c.prim)
-                    .peekable();
-                let t = if active.peek().is_none() {
-                    let Some(t) = world.floor_t(&view.origin, &d) else {
-                        continue;
-                    };
-                    t
-                } else {
-                    let Some(hit) = world.trace(&view.origin, &d, active) else {
-                        continue;
-                    };
-                    hit.t
+                let t = match first_seen(world, &view.origin, &d, cands, u) {
+                    Some(Seen::Floor(t)) => t,
+                    Some(Seen::Hit(hit)) => hit.t,
+                    None => continue,
                 };
                 let shadowed = !ideal
                     && shadow_reach.is_some_and(|reach| u as i32 <= reach)
@@ -152,6 +141,35 @@ fn rounded(c: [f32; 3]) -> [u8; 3] {
 
 fn in_range(c: &RowCandidate, u: usize) -> bool {
     (c.u_lo..=c.u_hi).contains(&(u as i32))
+}
+
+/// The first surface on a ray through column `u`.
+enum Seen {
+    /// The floor at ray parameter `t`; no candidate primitive covers the column.
+    Floor(f32),
+    /// The nearest hit among the floor and the candidates covering the column.
+    Hit(Hit),
+}
+
+/// What the ray `origin + t d` through column `u` meets first. Only when one of the
+/// row's `cands` covers `u` are primitives traced; otherwise just the floor is.
+fn first_seen(
+    world: &World,
+    origin: &V3,
+    d: &V3,
+    cands: &[RowCandidate],
+    u: usize,
+) -> Option<Seen> {
+    let mut active = cands
+        .iter()
+        .filter(|c| in_range(c, u))
+        .map(|c| c.prim)
+        .peekable();
+    if active.peek().is_none() {
+        world.floor_t(origin, d).map(Seen::Floor)
+    } else {
+        world.trace(origin, d, active).map(Seen::Hit)
+    }
 }
 
 /// Whether the primitive may hide column `u`'s surface point from the right imager.
@@ -235,24 +253,13 @@ pub(crate) fn render_color(world: &World, view: &View, format: ColorFormat) -> V
             let (base, step) = view.row(v as f32);
             for (u, px) in row.chunks_exact_mut(bpp).enumerate() {
                 let d = base + step * u as f32;
-                let mut active = cands
-                    .iter()
-                    .filter(|c| in_range(c, u))
-                    .map(|c| c.prim)
-                    .peekable();
-                let rgb = if active.peek().is_none() {
-                    match world.floor_t(&view.origin, &d) {
-                        Some(_) => floor_rgb[usize::from(d.z > 0.0)],
-                        None => BACKGROUND,
+                let rgb = match first_seen(world, &view.origin, &d, cands, u) {
+                    Some(Seen::Floor(_)) => floor_rgb[usize::from(d.z > 0.0)],
+                    Some(Seen::Hit(hit)) => {
+                        let p = view.origin + d * hit.t;
+                        rounded(world.shade(&hit, &p, &d, &light))
                     }
-                } else {
-                    match world.trace(&view.origin, &d, active) {
-                        Some(hit) => {
-                            let p = view.origin + d * hit.t;
-                            rounded(world.shade(&hit, &p, &d, &light))
-                        }
-                        None => BACKGROUND,
-                    }
+                    None => BACKGROUND,
                 };
                 format.write_pixel(rgb, px);
             }

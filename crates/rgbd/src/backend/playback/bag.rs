@@ -35,8 +35,8 @@ use std::path::Path;
 use rosbag::{ChunkRecord, MessageRecord, RosBag};
 
 use super::{
-    DeviceBuilder, Event, Image, Kind, Pixels, PlaybackError, TopicPath, check_image, check_text,
-    distortion_model,
+    DeviceBuilder, Event, Image, Kind, Pixels, PlaybackError, TopicPath, camera_matrix_intrinsics,
+    check_image, check_text, distortion_model,
 };
 use crate::intrinsics::{Extrinsics, Intrinsics};
 
@@ -390,16 +390,7 @@ fn camera_info(m: &mut Ros1<'_>) -> Result<Intrinsics, PlaybackError> {
     for v in &mut k {
         *v = m.f64()?;
     }
-    Ok(Intrinsics {
-        width,
-        height,
-        fx: k[0] as f32,
-        ppx: k[2] as f32,
-        fy: k[4] as f32,
-        ppy: k[5] as f32,
-        model,
-        coeffs,
-    })
+    Ok(camera_matrix_intrinsics(width, height, &k, model, coeffs))
 }
 
 fn image(m: &mut Ros1<'_>) -> Result<Image, PlaybackError> {

@@ -34,11 +34,11 @@ use rusqlite::{Connection, OpenFlags};
 use serde::Deserialize;
 
 use super::{
-    DeviceBuilder, Event, Image, Kind, Pixels, PlaybackError, TopicPath, check_image, check_text,
-    distortion_model,
+    DeviceBuilder, Event, Image, Kind, Pixels, PlaybackError, TopicPath, camera_matrix_intrinsics,
+    check_image, check_text, distortion_model,
 };
 use crate::frame::ColorFormat;
-use crate::intrinsics::{DistortionModel, Extrinsics, Intrinsics};
+use crate::intrinsics::{DistortionModel, Extrinsics};
 
 /// The first bytes of an SQLite 3 database.
 pub(crate) const MAGIC: &[u8] = b"SQLite format 3\0";
@@ -369,20 +369,16 @@ impl Message<'_> {
                     "equidistant" => DistortionModel::KannalaBrandt4,
                     _ => DistortionModel::None,
                 };
-                let k = info.k;
                 events.push(Event::Intrinsics {
                     device,
                     stream,
-                    intrinsics: Intrinsics {
-                        width: info.width,
-                        height: info.height,
-                        fx: k[0] as f32,
-                        ppx: k[2] as f32,
-                        fy: k[4] as f32,
-                        ppy: k[5] as f32,
+                    intrinsics: camera_matrix_intrinsics(
+                        info.width,
+                        info.height,
+                        &info.k,
                         model,
                         coeffs,
-                    },
+                    ),
                 });
             }
             (Some(sensor), None, ["option", name, "value"]) => {

@@ -561,6 +561,27 @@ fn invert(e: &Extrinsics) -> Extrinsics {
     }
 }
 
+/// Intrinsics from a ROS CameraInfo: its row-major camera matrix `k`
+/// (`[fx 0 ppx; 0 fy ppy; 0 0 1]`), distortion model and coefficients.
+pub(crate) fn camera_matrix_intrinsics(
+    width: u32,
+    height: u32,
+    k: &[f64; 9],
+    model: DistortionModel,
+    coeffs: [f32; 5],
+) -> Intrinsics {
+    Intrinsics {
+        width,
+        height,
+        fx: k[0] as f32,
+        ppx: k[2] as f32,
+        fy: k[4] as f32,
+        ppy: k[5] as f32,
+        model,
+        coeffs,
+    }
+}
+
 /// librealsense's distortion model names as recordings spell them.
 pub(crate) fn distortion_model(name: &str) -> Option<DistortionModel> {
     Some(match name {
