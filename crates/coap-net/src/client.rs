@@ -22,7 +22,7 @@ impl Client {
     pub fn bind(addr: SocketAddr, config: EndpointConfig) -> std::io::Result<Self> {
         let socket = Socket::bind(addr)?;
         Ok(Self {
-            handle: driver::spawn(socket, config, None),
+            handle: driver::spawn(socket, config, None)?,
         })
     }
 

@@ -1,16 +1,26 @@
-//! One task per socket owns a `coap::Endpoint`: it moves datagrams between the socket and
-//! the endpoint, sleeps until the endpoint's next timeout, and exchanges commands and
-//! events with the rest of the program over channels. Nothing here decides protocol
-//! behaviour.
+//! One thread per socket owns a `coap::Endpoint`: it waits for datagrams in a blocking
+//! receive (up to the endpoint's next timeout), moves them between the socket and the
+//! endpoint, and exchanges commands and events with the async rest of the program over
+//! channels. Nothing here decides protocol behaviour.
+//!
+//! Why a thread and not a tokio task: in a stop-and-wait transfer every block is one
+//! round trip, and the kernel's receive is the only wait on it. Through tokio's poller a
+//! datagram costs an `epoll_wait` and a non-blocking receive plus the runtime's wake-up,
+//! about half again a blocking ping-pong's time per block on these machines. The thread
+//! costs the async callers one thing: a command must wake the receive, which an empty
+//! datagram sent to the socket from the endpoint's waker does (at most one is in flight).
 
 use std::collections::HashMap;
-use std::net::{IpAddr, SocketAddr};
-use std::sync::Arc;
+use std::net::{IpAddr, SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Weak};
+use std::time::Duration;
 
 use coap::{
     Endpoint, EndpointConfig, Event, IncomingRequest, ObservationId, Request, RequestError,
     RequestId, Response,
 };
+use tokio::sync::mpsc::error::TryRecvError;
 use tokio::sync::{mpsc, oneshot};
 
 use crate::clock;
@@ -89,15 +99,71 @@ pub(crate) enum Command {
         join: bool,
         done: oneshot::Sender<std::io::Result<()>>,
     },
+    /// A datagram a group socket's thread received (`membership` names the socket).
+    GroupDatagram {
+        membership: u64,
+        peer: SocketAddr,
+        data: Vec<u8>,
+    },
     Shutdown,
 }
 
-/// A handle to a running endpoint task. Cloning it is cheap; the task ends when every
-/// handle and the server side are gone.
+/// A handle to a running endpoint thread. Cloning it is cheap; the thread ends when every
+/// handle and the server side are gone and no request is open.
 #[derive(Clone, Debug)]
 pub struct EndpointHandle {
-    pub(crate) tx: mpsc::UnboundedSender<Command>,
+    tx: mpsc::UnboundedSender<Command>,
+    waker: Arc<Waker>,
     local: SocketAddr,
+}
+
+/// Wakes the endpoint thread out of its receive: an empty datagram to the endpoint's
+/// socket, from a socket of its own (the thread knows its address). Only one is in flight:
+/// the thread clears `pending` before it reads the commands.
+#[derive(Debug)]
+struct Waker {
+    socket: UdpSocket,
+    pending: Arc<AtomicBool>,
+}
+
+impl Waker {
+    /// A waker for the socket bound to `target` (a wildcard bind is woken over loopback).
+    fn new(target: SocketAddr) -> std::io::Result<Self> {
+        let mut to = target;
+        if to.ip().is_unspecified() {
+            to.set_ip(match to {
+                SocketAddr::V4(_) => IpAddr::from([127, 0, 0, 1]),
+                SocketAddr::V6(_) => IpAddr::from([0u16, 0, 0, 0, 0, 0, 0, 1]),
+            });
+        }
+        let any: SocketAddr = match to {
+            SocketAddr::V4(_) => ([0, 0, 0, 0], 0).into(),
+            SocketAddr::V6(_) => ([0u16; 8], 0).into(),
+        };
+        let socket = UdpSocket::bind(any)?;
+        socket.connect(to)?;
+        Ok(Self {
+            socket,
+            pending: Arc::new(AtomicBool::new(false)),
+        })
+    }
+
+    fn wake(&self) {
+        if !self.pending.swap(true, Ordering::AcqRel)
+            && let Err(e) = self.socket.send(&[])
+        {
+            // The thread still reads the commands at its next datagram or timeout.
+            tracing::debug!(error = %e, "wake-up not sent");
+            self.pending.store(false, Ordering::Release);
+        }
+    }
+}
+
+impl Drop for Waker {
+    /// The last handle is gone: the thread sees the closed channel and ends.
+    fn drop(&mut self) {
+        let _ = self.socket.send(&[]);
+    }
 }
 
 /// Requests received by an endpoint that serves, and the end of observations.
@@ -113,151 +179,282 @@ impl EndpointHandle {
     }
 
     pub(crate) fn send(&self, cmd: Command) -> Result<(), crate::Error> {
-        self.tx.send(cmd).map_err(|_| crate::Error::Closed)
+        self.tx.send(cmd).map_err(|_| crate::Error::Closed)?;
+        self.waker.wake();
+        Ok(())
     }
 }
 
-/// Starts the task for `socket`. Requests go to `server` when given; a client-only
+/// The longest a thread sleeps in a receive without a timeout of the endpoint's: a bound
+/// on how late a command is read if its wake-up datagram was lost (a full receive buffer).
+const MAX_WAIT: Duration = Duration::from_secs(1);
+
+/// Starts the thread for `socket`. Requests go to `server` when given; a client-only
 /// endpoint answers them 4.04.
 pub(crate) fn spawn(
     socket: Socket,
     config: EndpointConfig,
     server: Option<mpsc::UnboundedSender<ServerEvent>>,
-) -> EndpointHandle {
+) -> std::io::Result<EndpointHandle> {
     let (tx, rx) = mpsc::unbounded_channel();
     let local = socket.local_addr();
-    tokio::spawn(run(Arc::new(socket), Endpoint::new(config), rx, server));
-    EndpointHandle { tx, local }
+    let waker = Arc::new(Waker::new(local)?);
+    let thread = Thread {
+        socket,
+        ep: Endpoint::new(config),
+        rx,
+        tx: tx.downgrade(),
+        waker: Arc::downgrade(&waker),
+        server,
+        wake_from: waker.socket.local_addr()?,
+        wake_pending: waker.pending.clone(),
+        replies: HashMap::new(),
+        pings: HashMap::new(),
+        groups: Vec::new(),
+        open: true,
+        wait: None,
+    };
+    std::thread::Builder::new()
+        .name(format!("coap {local}"))
+        .spawn(move || thread.run())?;
+    Ok(EndpointHandle { tx, waker, local })
 }
 
-async fn run(
+/// A group socket of a server bound to a unicast address: it only receives, on a thread of
+/// its own that hands each datagram to the endpoint thread; every answer leaves from the
+/// unicast socket (RFC 7390 §2.5: from the unicast address).
+struct Group {
+    group: IpAddr,
+    interface: u32,
+    membership: u64,
     socket: Arc<Socket>,
-    mut ep: Endpoint,
-    mut rx: mpsc::UnboundedReceiver<Command>,
+}
+
+impl Drop for Group {
+    /// Its thread notices within [`MAX_WAIT`] and ends; datagrams it still hands over
+    /// are dropped (their membership is gone).
+    fn drop(&mut self) {
+        let _ = self.socket.leave(self.group, self.interface);
+    }
+}
+
+static MEMBERSHIPS: AtomicU64 = AtomicU64::new(0);
+
+struct Thread {
+    socket: Socket,
+    ep: Endpoint,
+    rx: mpsc::UnboundedReceiver<Command>,
+    /// For group sockets' threads (weak: they must not keep the endpoint alive).
+    tx: mpsc::WeakUnboundedSender<Command>,
+    waker: Weak<Waker>,
     server: Option<mpsc::UnboundedSender<ServerEvent>>,
-) {
-    let mut buf = vec![0u8; RECV_BUFFER];
-    let mut received: Vec<Received> = Vec::new();
-    // Group sockets of a server bound to a unicast address: they only receive; every
-    // answer leaves from the unicast socket (RFC 7390 §2.5: from the unicast address).
-    let mut groups: Vec<(IpAddr, u32, Socket)> = Vec::new();
-    // Allocated with the first group socket: most endpoints never join a group.
-    let mut group_buf: Vec<u8> = Vec::new();
-    let mut group_received: Vec<Received> = Vec::new();
-    let mut replies: HashMap<RequestId, (SocketAddr, Reply)> = HashMap::new();
-    let mut pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>> = HashMap::new();
-    let mut open = true;
-    // One timer, moved only when the endpoint's next deadline moves.
-    let far = tokio::time::Instant::now() + std::time::Duration::from_secs(86_400 * 365);
-    let sleep = tokio::time::sleep_until(far);
-    tokio::pin!(sleep);
-    let mut armed: Option<std::time::Instant> = None;
-    loop {
-        while let Some(t) = ep.poll_transmit() {
-            if let Err(e) = socket.send_to(&t.data, t.peer).await {
-                tracing::debug!(peer = %t.peer, error = %e, "send failed");
+    wake_from: SocketAddr,
+    wake_pending: Arc<AtomicBool>,
+    replies: HashMap<RequestId, (SocketAddr, Reply)>,
+    pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>>,
+    groups: Vec<Group>,
+    /// Whether handles may still send commands.
+    open: bool,
+    /// The socket's read timeout as last set (`None`: not yet).
+    wait: Option<Duration>,
+}
+
+impl Thread {
+    fn run(mut self) {
+        let mut buf = vec![0u8; RECV_BUFFER];
+        let mut received: Vec<Received> = Vec::new();
+        loop {
+            while let Some(t) = self.ep.poll_transmit() {
+                if let Err(e) = self.socket.send_to(&t.data, t.peer) {
+                    tracing::debug!(peer = %t.peer, error = %e, "send failed");
+                }
             }
-        }
-        while let Some(ev) = ep.poll_event() {
-            dispatch(ev, &mut replies, &mut pings, server.as_ref(), &mut ep);
-        }
-        if !open
-            && replies.is_empty()
-            && pings.is_empty()
-            && server.as_ref().is_none_or(|s| s.is_closed())
-        {
-            return;
-        }
-        let timeout = ep.poll_timeout();
-        if timeout != armed {
-            armed = timeout;
-            sleep
-                .as_mut()
-                .reset(timeout.map_or(far, tokio::time::Instant::from_std));
-        }
-        tokio::select! {
-            r = socket.recv(&mut buf, &mut received) => match r {
+            while let Some(ev) = self.ep.poll_event() {
+                self.dispatch(ev);
+            }
+            if !self.open
+                && self.replies.is_empty()
+                && self.pings.is_empty()
+                && self.server.as_ref().is_none_or(|s| s.is_closed())
+            {
+                return;
+            }
+            let now = clock::now();
+            let deadline = self.ep.poll_timeout();
+            if deadline.is_some_and(|d| d <= now) {
+                self.ep.handle_timeout(now);
+                continue;
+            }
+            self.arm(deadline.map_or(MAX_WAIT, |d| d - now));
+            match self.socket.recv(&mut buf, &mut received) {
                 Ok(()) => {
                     let now = clock::now();
                     for d in &received {
+                        if d.peer == self.wake_from {
+                            self.wake_pending.store(false, Ordering::Release);
+                            continue;
+                        }
                         let (start, len) = d.range;
-                        ep.handle(now, d.peer, &buf[start..start + len], d.multicast);
+                        self.ep
+                            .handle(now, d.peer, &buf[start..start + len], d.multicast);
                     }
                 }
-                // ICMP errors (port unreachable) surface here on Linux; they say nothing
-                // the retransmission timers do not already handle.
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) => {}
+                // ICMP errors (port unreachable) may surface here; they say nothing the
+                // retransmission timers do not already handle.
                 Err(e) => tracing::debug!(error = %e, "recv failed"),
-            },
-            r = recv_any(&groups, &mut group_buf, &mut group_received), if !groups.is_empty() => match r {
-                Ok(()) => {
-                    let now = clock::now();
-                    for d in &group_received {
-                        let (start, len) = d.range;
-                        ep.handle(now, d.peer, &group_buf[start..start + len], true);
-                    }
-                }
-                Err(e) => tracing::debug!(error = %e, "group recv failed"),
-            },
-            cmd = rx.recv(), if open => match cmd {
-                Some(Command::Shutdown) => return,
-                Some(Command::Membership { group, interface, join, done }) => {
-                    let joined = membership(&socket, &mut groups, group, interface, join);
-                    if !groups.is_empty() && group_buf.is_empty() {
-                        group_buf = vec![0u8; RECV_BUFFER];
-                    }
-                    let _ = done.send(joined);
-                }
-                Some(cmd) => apply(cmd, &mut ep, &mut replies, &mut pings),
-                None => open = false,
-            },
-            () = &mut sleep, if armed.is_some() => {
-                // Fired: re-arm on the next turn even if the deadline stays the same.
-                armed = None;
-                ep.handle_timeout(clock::now());
+            }
+            // Every turn, not only after a wake-up: a lost wake-up costs no command.
+            if self.commands() {
+                return;
             }
         }
     }
-}
 
-/// Joins or leaves a group: on the socket itself when it is bound to a wildcard address
-/// (it then receives the group's datagrams too), else through a group socket of its own.
-fn membership(
-    socket: &Socket,
-    groups: &mut Vec<(IpAddr, u32, Socket)>,
-    group: IpAddr,
-    interface: u32,
-    join: bool,
-) -> std::io::Result<()> {
-    if socket.local_addr().ip().is_unspecified() {
-        return if join {
-            socket.join(group, interface)
-        } else {
-            socket.leave(group, interface)
-        };
-    }
-    groups.retain(|(g, i, _)| !(*g == group && *i == interface));
-    if join {
-        let s = Socket::bind_group(group, socket.local_addr().port(), interface)?;
-        groups.push((group, interface, s));
-    }
-    Ok(())
-}
-
-/// Waits for a datagram on any of the group sockets.
-async fn recv_any(
-    groups: &[(IpAddr, u32, Socket)],
-    buf: &mut [u8],
-    out: &mut Vec<Received>,
-) -> std::io::Result<()> {
-    std::future::poll_fn(|cx| {
-        for (_, _, s) in groups {
-            if let std::task::Poll::Ready(r) = s.poll_recv(cx, buf, out) {
-                return std::task::Poll::Ready(r);
+    /// Sets the socket's read timeout so the receive returns by `until_deadline` (at most
+    /// [`MAX_WAIT`]). A system call only when the wait would end late or far too early:
+    /// the retransmission deadline moves with every block of a transfer, the timeout not.
+    fn arm(&mut self, until_deadline: Duration) {
+        let want = until_deadline.min(MAX_WAIT).max(Duration::from_millis(1));
+        let rearm = self.wait.is_none_or(|w| want < w || want > w * 4);
+        if rearm {
+            // Three quarters: the next deadlines, a little later or earlier, still fit.
+            let w = (want * 3 / 4).max(Duration::from_millis(1));
+            match self.socket.set_read_timeout(Some(w)) {
+                Ok(()) => self.wait = Some(w),
+                Err(e) => tracing::debug!(error = %e, "read timeout not set"),
             }
         }
-        std::task::Poll::Pending
-    })
-    .await
+    }
+
+    /// Applies the waiting commands; true when the thread is to end.
+    fn commands(&mut self) -> bool {
+        while self.open {
+            match self.rx.try_recv() {
+                Ok(Command::Shutdown) => return true,
+                Ok(Command::Membership {
+                    group,
+                    interface,
+                    join,
+                    done,
+                }) => {
+                    let _ = done.send(self.membership(group, interface, join));
+                }
+                Ok(Command::GroupDatagram {
+                    membership,
+                    peer,
+                    data,
+                }) => {
+                    // A datagram that arrived before its group was left is dropped.
+                    if self.groups.iter().any(|g| g.membership == membership) {
+                        self.ep.handle(clock::now(), peer, &data, true);
+                    }
+                }
+                Ok(cmd) => self.apply(cmd),
+                Err(TryRecvError::Empty) => break,
+                Err(TryRecvError::Disconnected) => self.open = false,
+            }
+        }
+        false
+    }
+
+    /// Joins or leaves a group: on the socket itself when it is bound to a wildcard address
+    /// (it then receives the group's datagrams too), else through a group socket of its own.
+    fn membership(&mut self, group: IpAddr, interface: u32, join: bool) -> std::io::Result<()> {
+        if self.socket.local_addr().ip().is_unspecified() {
+            return if join {
+                self.socket.join(group, interface)
+            } else {
+                self.socket.leave(group, interface)
+            };
+        }
+        self.groups
+            .retain(|g| !(g.group == group && g.interface == interface));
+        if join {
+            let socket = Arc::new(Socket::bind_group(
+                group,
+                self.socket.local_addr().port(),
+                interface,
+            )?);
+            let membership = MEMBERSHIPS.fetch_add(1, Ordering::Relaxed);
+            let (s, tx, waker) = (socket.clone(), self.tx.clone(), self.waker.clone());
+            std::thread::Builder::new()
+                .name(format!("coap group {group}"))
+                .spawn(move || receive_group(&s, membership, &tx, &waker))?;
+            self.groups.push(Group {
+                group,
+                interface,
+                membership,
+                socket,
+            });
+        }
+        Ok(())
+    }
+    fn apply(&mut self, cmd: Command) {
+        apply(cmd, &mut self.ep, &mut self.replies, &mut self.pings);
+    }
+
+    fn dispatch(&mut self, ev: Event) {
+        let server = self.server.as_ref();
+        dispatch(ev, &mut self.replies, &mut self.pings, server, &mut self.ep);
+    }
+}
+
+/// A group socket's thread: hands every datagram to the endpoint thread until the group
+/// is left or the endpoint is gone.
+fn receive_group(
+    socket: &Arc<Socket>,
+    membership: u64,
+    tx: &mpsc::WeakUnboundedSender<Command>,
+    waker: &Weak<Waker>,
+) {
+    let mut buf = vec![0u8; RECV_BUFFER];
+    let mut received = Vec::new();
+    if let Err(e) = socket.set_read_timeout(Some(MAX_WAIT)) {
+        tracing::debug!(error = %e, "group socket read timeout not set");
+    }
+    loop {
+        let got = socket.recv(&mut buf, &mut received);
+        // The endpoint thread holds the other reference while the group is joined.
+        if Arc::strong_count(socket) == 1 {
+            return;
+        }
+        match got {
+            Ok(()) => {
+                let (Some(tx), Some(waker)) = (tx.upgrade(), waker.upgrade()) else {
+                    return;
+                };
+                for d in &received {
+                    let (start, len) = d.range;
+                    let data = buf[start..start + len].to_vec();
+                    let cmd = Command::GroupDatagram {
+                        membership,
+                        peer: d.peer,
+                        data,
+                    };
+                    if tx.send(cmd).is_err() {
+                        return;
+                    }
+                }
+                waker.wake();
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                if tx.upgrade().is_none() {
+                    return;
+                }
+            }
+            Err(e) => tracing::debug!(error = %e, "group recv failed"),
+        }
+    }
 }
 
 fn apply(
@@ -293,8 +490,8 @@ fn apply(
             let id = ep.ping(now, peer);
             pings.insert(id, reply);
         }
-        // Handled by the task loop, which owns the sockets.
-        Command::Membership { .. } | Command::Shutdown => {}
+        // Handled by the thread's loop, which owns the sockets.
+        Command::Membership { .. } | Command::GroupDatagram { .. } | Command::Shutdown => {}
     }
 }
 

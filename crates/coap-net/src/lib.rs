@@ -1,10 +1,10 @@
-//! Drives the sans-IO [`coap`] core over tokio UDP sockets.
+//! Drives the sans-IO [`coap`] core over UDP sockets, for async (tokio) callers.
 //!
 //! Owns: sockets (IPv4, IPv6, multicast membership, the destination address of each
-//! datagram), the task per socket that owns a `coap::Endpoint`, the [`Client`], the
+//! datagram), the thread per socket that owns a `coap::Endpoint`, the [`Client`], the
 //! [`Server`] and its [`Router`], `coap://` URIs.
 //! Must not: implement protocol rules (those live in `coap`), or read the clock anywhere
-//! but [`clock::now`], so that tokio's paused clock drives the tests.
+//! but [`clock::now`].
 
 #![forbid(unsafe_code)]
 
@@ -24,9 +24,10 @@ pub use uri::Uri;
 
 /// The one clock of the network layer.
 pub mod clock {
-    /// Now, as tokio sees it (paused and advanced in tests).
+    /// Now, for the endpoint threads (their timeouts are the socket's read timeouts, so
+    /// this is the system's monotonic clock, not tokio's).
     pub fn now() -> std::time::Instant {
-        tokio::time::Instant::now().into_std()
+        std::time::Instant::now()
     }
 }
 

@@ -87,7 +87,7 @@ impl Server {
             let (tx, rx) = mpsc::unbounded_channel();
             let mut ep_config = config.endpoint.clone();
             ep_config.rng_seed = ep_config.rng_seed.wrapping_add(index as u64);
-            let handle = driver::spawn(socket, ep_config, Some(tx));
+            let handle = driver::spawn(socket, ep_config, Some(tx))?;
             tokio::spawn(serve(
                 rx,
                 handle.clone(),

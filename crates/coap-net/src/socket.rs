@@ -3,23 +3,18 @@
 
 use std::io::{self, IoSliceMut};
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, SocketAddrV6};
-use std::task::{Context, Poll};
+use std::time::Duration;
 
 use quinn_udp::{RecvMeta, UdpSockRef, UdpSocketState};
-use socket2::{Domain, Protocol, Socket as RawSocket, Type};
-use tokio::io::Interest;
+use socket2::{Domain, Protocol, SockRef, Socket as RawSocket, Type};
 
 /// The largest datagram a CoAP endpoint receives (the IPv4 UDP maximum).
 pub const MAX_DATAGRAM: usize = 65_507;
 
-/// A receive buffer this large (two halves of 64 KiB, each above [`MAX_DATAGRAM`]) takes
-/// two datagrams per call to [`Socket::poll_recv`]. When only one was waiting the socket
-/// is known to be drained, and the next wait goes straight to the poller instead of first
-/// trying a receive that finds nothing (one system call less per datagram in a
-/// stop-and-wait exchange). At 128 KiB a zeroed buffer comes from fresh pages (glibc by
-/// default maps allocations this large), so only the pages datagrams reach become
-/// resident, and nothing is cleared up front.
-pub const RECV_BUFFER: usize = 2 << 16;
+/// The receive buffer: room for the largest datagram, or for several same-sized ones the
+/// kernel coalesced (GRO). At 64 KiB a zeroed buffer comes from fresh pages, so only the
+/// pages datagrams reach become resident.
+pub const RECV_BUFFER: usize = 1 << 16;
 
 /// One received datagram.
 #[derive(Debug, Clone, Copy)]
@@ -32,10 +27,11 @@ pub struct Received {
     pub multicast: bool,
 }
 
-/// A UDP socket bound for CoAP.
+/// A UDP socket bound for CoAP. Receives block (up to the read timeout): the socket's own
+/// thread waits in the receive itself, with no poller in between (see `driver`).
 #[derive(Debug)]
 pub struct Socket {
-    io: tokio::net::UdpSocket,
+    io: std::net::UdpSocket,
     state: UdpSocketState,
     local: SocketAddr,
 }
@@ -50,11 +46,12 @@ impl Socket {
         if addr.is_ipv6() {
             raw.set_only_v6(true)?;
         }
-        raw.set_nonblocking(true)?;
         raw.bind(&addr.into())?;
-        let std: std::net::UdpSocket = raw.into();
-        let io = tokio::net::UdpSocket::from_std(std)?;
+        let io: std::net::UdpSocket = raw.into();
+        // quinn-udp asks for the destination address and coalesced receives, and makes
+        // the socket non-blocking; receives here block.
         let state = UdpSocketState::new(UdpSockRef::from(&io))?;
+        io.set_nonblocking(false)?;
         let local = io.local_addr()?;
         Ok(Self { io, state, local })
     }
@@ -77,61 +74,29 @@ impl Socket {
         self.local
     }
 
-    /// Polls for datagrams (for a set of sockets polled together). A `buf` of
-    /// [`RECV_BUFFER`] bytes or more takes two datagrams per call.
-    pub fn poll_recv(
-        &self,
-        cx: &mut Context<'_>,
-        buf: &mut [u8],
-        out: &mut Vec<Received>,
-    ) -> Poll<io::Result<()>> {
-        loop {
-            std::task::ready!(self.io.poll_recv_ready(cx))?;
-            let mut meta = [RecvMeta::default(), RecvMeta::default()];
-            let half = if buf.len() >= RECV_BUFFER {
-                buf.len() / 2
-            } else {
-                buf.len()
-            };
-            let k = if half < buf.len() { 2 } else { 1 };
-            let mut got = 0;
-            let r = self.io.try_io(Interest::READABLE, || {
-                let (first, second) = buf.split_at_mut(half);
-                let mut slices = [IoSliceMut::new(first), IoSliceMut::new(second)];
-                got = self.state.recv(
-                    UdpSockRef::from(&self.io),
-                    &mut slices[..k],
-                    &mut meta[..k],
-                )?;
-                if got < k {
-                    // Fewer than asked for: the socket is drained. Saying so lets tokio
-                    // clear its readiness now rather than after a receive that finds
-                    // nothing; a datagram arriving meanwhile sets it again.
-                    return Err(io::ErrorKind::WouldBlock.into());
-                }
-                Ok(())
-            });
-            if got > 0 {
-                split(&meta[..got], half, out);
-                return Poll::Ready(Ok(()));
-            }
-            match r {
-                Err(e) if e.kind() == io::ErrorKind::WouldBlock => {}
-                Err(e) => return Poll::Ready(Err(e)),
-                // Only with datagrams, which returned above.
-                Ok(()) => {
-                    out.clear();
-                    return Poll::Ready(Ok(()));
-                }
-            }
-        }
+    /// How long [`Socket::recv`] waits at most (`None`: without end).
+    pub fn set_read_timeout(&self, timeout: Option<Duration>) -> io::Result<()> {
+        self.io.set_read_timeout(timeout)
+    }
+
+    /// Waits for a datagram (up to the read timeout: then an error of kind `WouldBlock`)
+    /// and writes it into `buf`, filling `out` with one entry per datagram (the kernel may
+    /// hand several same-sized datagrams over at once).
+    pub fn recv(&self, buf: &mut [u8], out: &mut Vec<Received>) -> io::Result<()> {
+        let mut meta = [RecvMeta::default()];
+        let mut slices = [IoSliceMut::new(buf)];
+        let got = self
+            .state
+            .recv(UdpSockRef::from(&self.io), &mut slices, &mut meta)?;
+        split(&meta[..got], out);
+        Ok(())
     }
 
     /// Joins a multicast group; `interface` is an IPv6 interface index (0: the default) and
     /// is ignored for IPv4, which joins on the interface the routing table picks.
     pub fn join(&self, group: IpAddr, interface: u32) -> io::Result<()> {
         match group {
-            IpAddr::V4(g) => self.io.join_multicast_v4(g, Ipv4Addr::UNSPECIFIED),
+            IpAddr::V4(g) => self.io.join_multicast_v4(&g, &Ipv4Addr::UNSPECIFIED),
             IpAddr::V6(g) => self.io.join_multicast_v6(&g, interface),
         }
     }
@@ -139,7 +104,7 @@ impl Socket {
     /// Leaves a multicast group.
     pub fn leave(&self, group: IpAddr, interface: u32) -> io::Result<()> {
         match group {
-            IpAddr::V4(g) => self.io.leave_multicast_v4(g, Ipv4Addr::UNSPECIFIED),
+            IpAddr::V4(g) => self.io.leave_multicast_v4(&g, &Ipv4Addr::UNSPECIFIED),
             IpAddr::V6(g) => self.io.leave_multicast_v6(&g, interface),
         }
     }
@@ -151,7 +116,7 @@ impl Socket {
         v4: Option<Ipv4Addr>,
         v6_index: Option<u32>,
     ) -> io::Result<()> {
-        let raw = socket2::SockRef::from(&self.io);
+        let raw = SockRef::from(&self.io);
         match self.local {
             SocketAddr::V4(_) => {
                 raw.set_multicast_loop_v4(true)?;
@@ -170,31 +135,32 @@ impl Socket {
     }
 
     /// Sends one datagram.
-    pub async fn send_to(&self, data: &[u8], peer: SocketAddr) -> io::Result<()> {
-        self.io.send_to(data, peer).await.map(|_| ())
-    }
-
-    /// Waits for datagrams and writes them into `buf`, filling `out` with one entry per
-    /// datagram (the kernel may hand several same-sized datagrams over at once).
-    pub async fn recv(&self, buf: &mut [u8], out: &mut Vec<Received>) -> io::Result<()> {
-        std::future::poll_fn(|cx| self.poll_recv(cx, buf, out)).await
+    pub fn send_to(&self, data: &[u8], peer: SocketAddr) -> io::Result<()> {
+        self.io.send_to(data, peer).map(|_| ())
     }
 }
 
-/// One entry per datagram; the i-th buffer starts at `i * slice_len`, and a GRO-coalesced
-/// buffer holds several datagrams of `stride` bytes.
-fn split(meta: &[RecvMeta], slice_len: usize, out: &mut Vec<Received>) {
+/// One entry per datagram; a GRO-coalesced buffer holds several datagrams of `stride`
+/// bytes.
+fn split(meta: &[RecvMeta], out: &mut Vec<Received>) {
     out.clear();
-    for (i, m) in meta.iter().enumerate() {
+    for m in meta {
         let multicast = m.dst_ip.is_some_and(is_multicast);
         let stride = m.stride.max(1);
-        let base = i * slice_len;
         let mut start = 0;
+        if m.len == 0 {
+            // An empty datagram is one too (the driver's wake-ups are empty).
+            out.push(Received {
+                peer: m.addr,
+                range: (0, 0),
+                multicast,
+            });
+        }
         while start < m.len {
             let len = stride.min(m.len - start);
             out.push(Received {
                 peer: m.addr,
-                range: (base + start, len),
+                range: (start, len),
                 multicast,
             });
             start += stride;
