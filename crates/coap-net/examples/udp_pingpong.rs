@@ -2,12 +2,9 @@
 //!
 //! `udp_pingpong server ADDR` echoes datagrams until it receives an empty one;
 //! `udp_pingpong client ADDR COUNT SIZE` sends COUNT datagrams of SIZE bytes one at a time,
-//! each after the previous echo, and prints the elapsed seconds. `scripts/bench-transfer.sh`
-//! multiplies nothing: COUNT is the number of blocks of the transfer it compares with.
-//!
-//! `server-tokio` and `client-tokio` do the same on a current-thread tokio runtime (the
-//! one `coapcam` runs on): the floor of any design that waits for datagrams through
-//! tokio's poller rather than in a blocking receive.
+//! each after the previous echo, and prints the seconds of that loop. `scripts/bench-transfer.sh`
+//! multiplies nothing: COUNT is the number of blocks of the transfer it compares with, and
+//! it times the client process as a whole too.
 
 use std::net::UdpSocket;
 use std::process::ExitCode;
@@ -18,14 +15,7 @@ fn main() -> ExitCode {
     let result = match args.get(1).map(String::as_str) {
         Some("server") if args.len() == 3 => server(&args[2]),
         Some("client") if args.len() == 5 => client(&args[2], &args[3], &args[4]),
-        Some("server-tokio") if args.len() == 3 => on_tokio(server_tokio(&args[2])),
-        Some("client-tokio") if args.len() == 5 => {
-            on_tokio(client_tokio(&args[2], &args[3], &args[4]))
-        }
-        _ => Err(
-            "usage: udp_pingpong server|server-tokio ADDR | client|client-tokio ADDR COUNT SIZE"
-                .into(),
-        ),
+        _ => Err("usage: udp_pingpong server ADDR | client ADDR COUNT SIZE".into()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -63,45 +53,6 @@ fn client(addr: &str, count: &str, size: &str) -> Result<(), Box<dyn std::error:
     }
     let elapsed = started.elapsed();
     socket.send(&[])?;
-    println!("{:.6}", elapsed.as_secs_f64());
-    Ok(())
-}
-
-type Outcome = Result<(), Box<dyn std::error::Error>>;
-
-fn on_tokio(f: impl Future<Output = Outcome>) -> Outcome {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?
-        .block_on(f)
-}
-
-async fn server_tokio(addr: &str) -> Outcome {
-    let socket = tokio::net::UdpSocket::bind(addr).await?;
-    let mut buf = [0u8; 2048];
-    loop {
-        let (n, peer) = socket.recv_from(&mut buf).await?;
-        if n == 0 {
-            return Ok(());
-        }
-        socket.send_to(&buf[..n], peer).await?;
-    }
-}
-
-async fn client_tokio(addr: &str, count: &str, size: &str) -> Outcome {
-    let count: usize = count.parse()?;
-    let size: usize = size.parse()?;
-    let socket = tokio::net::UdpSocket::bind("127.0.0.1:0").await?;
-    socket.connect(addr).await?;
-    let out = vec![0x5a_u8; size];
-    let mut buf = [0u8; 2048];
-    let started = Instant::now();
-    for _ in 0..count {
-        socket.send(&out).await?;
-        tokio::time::timeout(std::time::Duration::from_secs(2), socket.recv(&mut buf)).await??;
-    }
-    let elapsed = started.elapsed();
-    socket.send(&[]).await?;
     println!("{:.6}", elapsed.as_secs_f64());
     Ok(())
 }

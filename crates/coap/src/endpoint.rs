@@ -1271,11 +1271,23 @@ impl Endpoint {
                 RequestError::Protocol("the body does not have the size Size2 announced"),
             );
         }
+        if r.body.capacity() == 0 && b2.more {
+            // Room for the first piece of a streamed body, or for the whole body Size2
+            // announced (bounded by the limit), not regrown block by block.
+            let room = if stream {
+                STREAM_PIECE + b2.size()
+            } else {
+                total.unwrap_or(0).min(limit)
+            };
+            r.body.reserve(room);
+        }
         r.body.extend_from_slice(&msg.payload);
         // A streamed body leaves in pieces of STREAM_PIECE bytes (and the rest at the end):
         // one hand-over to the reader per piece, not per block.
         if stream && (r.body.len() >= STREAM_PIECE || !b2.more) {
-            let data = Bytes::from(std::mem::take(&mut r.body));
+            // The next piece gets its room at once rather than growing block by block.
+            let room = if b2.more { STREAM_PIECE + b2.size() } else { 0 };
+            let data = Bytes::from(std::mem::replace(&mut r.body, Vec::with_capacity(room)));
             self.events.push_back(Event::BodyChunk {
                 id: RequestId(id),
                 offset: done - data.len(),
