@@ -119,16 +119,34 @@ pub struct EndpointHandle {
 
 /// Wakes the endpoint thread out of its receive: an empty datagram to the endpoint's
 /// socket, from a socket of its own (the thread knows its address). Only one is in flight:
-/// the thread clears `pending` before it reads the commands.
+/// the thread clears `pending` before it reads the commands. Without a route to the
+/// endpoint's address (an IPv6 wildcard on a host whose loopback has no ::1) there is no
+/// socket, and the thread looks for commands every [`POLL_WAIT`] instead.
 #[derive(Debug)]
 struct Waker {
-    socket: UdpSocket,
+    socket: Option<UdpSocket>,
     pending: Arc<AtomicBool>,
 }
 
 impl Waker {
     /// A waker for the socket bound to `target` (a wildcard bind is woken over loopback).
-    fn new(target: SocketAddr) -> std::io::Result<Self> {
+    fn new(target: SocketAddr) -> Self {
+        let socket = Self::connect(target)
+            .inspect_err(|e| {
+                tracing::warn!(
+                    %target,
+                    error = %e,
+                    "no route to wake the socket's thread; it looks for commands every {POLL_WAIT:?}"
+                );
+            })
+            .ok();
+        Self {
+            socket,
+            pending: Arc::new(AtomicBool::new(false)),
+        }
+    }
+
+    fn connect(target: SocketAddr) -> std::io::Result<UdpSocket> {
         let mut to = target;
         if to.ip().is_unspecified() {
             to.set_ip(match to {
@@ -142,15 +160,18 @@ impl Waker {
         };
         let socket = UdpSocket::bind(any)?;
         socket.connect(to)?;
-        Ok(Self {
-            socket,
-            pending: Arc::new(AtomicBool::new(false)),
-        })
+        Ok(socket)
+    }
+
+    /// The address wake-ups come from, if there are any.
+    fn from(&self) -> Option<SocketAddr> {
+        self.socket.as_ref().and_then(|s| s.local_addr().ok())
     }
 
     fn wake(&self) {
+        let Some(socket) = &self.socket else { return };
         if !self.pending.swap(true, Ordering::AcqRel)
-            && let Err(e) = self.socket.send(&[])
+            && let Err(e) = socket.send(&[])
         {
             // The thread still reads the commands at its next datagram or timeout.
             tracing::debug!(error = %e, "wake-up not sent");
@@ -162,7 +183,9 @@ impl Waker {
 impl Drop for Waker {
     /// The last handle is gone: the thread sees the closed channel and ends.
     fn drop(&mut self) {
-        let _ = self.socket.send(&[]);
+        if let Some(socket) = &self.socket {
+            let _ = socket.send(&[]);
+        }
     }
 }
 
@@ -189,6 +212,9 @@ impl EndpointHandle {
 /// on how late a command is read if its wake-up datagram was lost (a full receive buffer).
 const MAX_WAIT: Duration = Duration::from_secs(1);
 
+/// The same bound for a thread that has no waker.
+const POLL_WAIT: Duration = Duration::from_millis(10);
+
 /// Starts the thread for `socket`. Requests go to `server` when given; a client-only
 /// endpoint answers them 4.04.
 pub(crate) fn spawn(
@@ -196,9 +222,20 @@ pub(crate) fn spawn(
     config: EndpointConfig,
     server: Option<mpsc::UnboundedSender<ServerEvent>>,
 ) -> std::io::Result<EndpointHandle> {
+    let waker = Waker::new(socket.local_addr());
+    start(socket, config, server, waker)
+}
+
+fn start(
+    socket: Socket,
+    config: EndpointConfig,
+    server: Option<mpsc::UnboundedSender<ServerEvent>>,
+    waker: Waker,
+) -> std::io::Result<EndpointHandle> {
     let (tx, rx) = mpsc::unbounded_channel();
     let local = socket.local_addr();
-    let waker = Arc::new(Waker::new(local)?);
+    let waker = Arc::new(waker);
+    let wake_from = waker.from();
     let thread = Thread {
         socket,
         ep: Endpoint::new(config),
@@ -206,7 +243,12 @@ pub(crate) fn spawn(
         tx: tx.downgrade(),
         waker: Arc::downgrade(&waker),
         server,
-        wake_from: waker.socket.local_addr()?,
+        max_wait: if wake_from.is_some() {
+            MAX_WAIT
+        } else {
+            POLL_WAIT
+        },
+        wake_from,
         wake_pending: waker.pending.clone(),
         replies: HashMap::new(),
         pings: HashMap::new(),
@@ -248,8 +290,11 @@ struct Thread {
     tx: mpsc::WeakUnboundedSender<Command>,
     waker: Weak<Waker>,
     server: Option<mpsc::UnboundedSender<ServerEvent>>,
-    wake_from: SocketAddr,
+    /// Where wake-ups come from (`None`: no waker; commands are polled).
+    wake_from: Option<SocketAddr>,
     wake_pending: Arc<AtomicBool>,
+    /// The longest wait in a receive: [`MAX_WAIT`], or [`POLL_WAIT`] without a waker.
+    max_wait: Duration,
     replies: HashMap<RequestId, (SocketAddr, Reply)>,
     pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>>,
     groups: Vec<Group>,
@@ -285,12 +330,12 @@ impl Thread {
                 self.ep.handle_timeout(now);
                 continue;
             }
-            self.arm(deadline.map_or(MAX_WAIT, |d| d - now));
+            self.arm(deadline.map_or(self.max_wait, |d| d - now));
             match self.socket.recv(&mut buf, &mut received) {
                 Ok(()) => {
                     let now = clock::now();
                     for d in &received {
-                        if d.peer == self.wake_from {
+                        if Some(d.peer) == self.wake_from {
                             self.wake_pending.store(false, Ordering::Release);
                             continue;
                         }
@@ -316,10 +361,12 @@ impl Thread {
     }
 
     /// Sets the socket's read timeout so the receive returns by `until_deadline` (at most
-    /// [`MAX_WAIT`]). A system call only when the wait would end late or far too early:
+    /// `max_wait`). A system call only when the wait would end late or far too early:
     /// the retransmission deadline moves with every block of a transfer, the timeout not.
     fn arm(&mut self, until_deadline: Duration) {
-        let want = until_deadline.min(MAX_WAIT).max(Duration::from_millis(1));
+        let want = until_deadline
+            .min(self.max_wait)
+            .max(Duration::from_millis(1));
         let rearm = self.wait.is_none_or(|w| want < w || want > w * 4);
         if rearm {
             // Three quarters: the next deadlines, a little later or earlier, still fit.
@@ -600,5 +647,49 @@ fn dispatch(
                 let _ = tx.send(Ok(()));
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Resource, Router, Server, ServerConfig, handler};
+
+    #[tokio::test]
+    async fn without_a_waker_the_thread_polls_for_commands() {
+        // A host whose loopback cannot reach the socket's address gives no waker.
+        let router = Router::new();
+        router.add(
+            "/x",
+            Resource::new().get(handler(|_| async {
+                Response::new(coap::Code::CONTENT).with_payload("x")
+            })),
+        );
+        let any: SocketAddr = ([127, 0, 0, 1], 0).into();
+        let server =
+            Server::bind(&[any], ServerConfig::default(), router).unwrap_or_else(|e| panic!("{e}"));
+        let socket = Socket::bind(any).unwrap_or_else(|e| panic!("{e}"));
+        let waker = Waker {
+            socket: None,
+            pending: Arc::new(AtomicBool::new(false)),
+        };
+        let handle =
+            start(socket, EndpointConfig::default(), None, waker).unwrap_or_else(|e| panic!("{e}"));
+        let (tx, rx) = oneshot::channel();
+        let request = Request::new(coap::Code::GET, "/x");
+        handle
+            .send(Command::Request {
+                peer: server.local_addrs()[0],
+                request,
+                reply: Reply::Once(tx),
+                id_tx: None,
+            })
+            .unwrap_or_else(|e| panic!("{e}"));
+        let response = tokio::time::timeout(Duration::from_secs(10), rx)
+            .await
+            .unwrap_or_else(|_| panic!("no response"))
+            .unwrap_or_else(|_| panic!("endpoint gone"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(&response.payload[..], b"x");
     }
 }
