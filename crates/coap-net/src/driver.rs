@@ -12,7 +12,7 @@
 
 use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr, UdpSocket};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Weak};
 use std::time::Duration;
 
@@ -164,7 +164,7 @@ impl Waker {
     }
 
     /// The address wake-ups come from, if there are any.
-    fn from(&self) -> Option<SocketAddr> {
+    fn source(&self) -> Option<SocketAddr> {
         self.socket.as_ref().and_then(|s| s.local_addr().ok())
     }
 
@@ -235,7 +235,7 @@ fn start(
     let (tx, rx) = mpsc::unbounded_channel();
     let local = socket.local_addr();
     let waker = Arc::new(waker);
-    let wake_from = waker.from();
+    let wake_from = waker.source();
     let thread = Thread {
         socket,
         ep: Endpoint::new(config),
@@ -253,6 +253,7 @@ fn start(
         replies: HashMap::new(),
         pings: HashMap::new(),
         groups: Vec::new(),
+        memberships: 0,
         open: true,
         wait: None,
     };
@@ -280,8 +281,6 @@ impl Drop for Group {
     }
 }
 
-static MEMBERSHIPS: AtomicU64 = AtomicU64::new(0);
-
 struct Thread {
     socket: Socket,
     ep: Endpoint,
@@ -298,6 +297,8 @@ struct Thread {
     replies: HashMap<RequestId, (SocketAddr, Reply)>,
     pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>>,
     groups: Vec<Group>,
+    /// Memberships made so far: the last one names the newest group socket.
+    memberships: u64,
     /// Whether handles may still send commands.
     open: bool,
     /// The socket's read timeout as last set (`None`: not yet).
@@ -383,24 +384,6 @@ impl Thread {
         while self.open {
             match self.rx.try_recv() {
                 Ok(Command::Shutdown) => return true,
-                Ok(Command::Membership {
-                    group,
-                    interface,
-                    join,
-                    done,
-                }) => {
-                    let _ = done.send(self.membership(group, interface, join));
-                }
-                Ok(Command::GroupDatagram {
-                    membership,
-                    peer,
-                    data,
-                }) => {
-                    // A datagram that arrived before its group was left is dropped.
-                    if self.groups.iter().any(|g| g.membership == membership) {
-                        self.ep.handle(clock::now(), peer, &data, true);
-                    }
-                }
                 Ok(cmd) => self.apply(cmd),
                 Err(TryRecvError::Empty) => break,
                 Err(TryRecvError::Disconnected) => self.open = false,
@@ -427,7 +410,8 @@ impl Thread {
                 self.socket.local_addr().port(),
                 interface,
             )?);
-            let membership = MEMBERSHIPS.fetch_add(1, Ordering::Relaxed);
+            self.memberships += 1;
+            let membership = self.memberships;
             let (s, tx, waker) = (socket.clone(), self.tx.clone(), self.waker.clone());
             std::thread::Builder::new()
                 .name(format!("coap group {group}"))
@@ -441,13 +425,160 @@ impl Thread {
         }
         Ok(())
     }
+
     fn apply(&mut self, cmd: Command) {
-        apply(cmd, &mut self.ep, &mut self.replies, &mut self.pings);
+        let now = clock::now();
+        match cmd {
+            Command::Request {
+                peer,
+                request,
+                reply,
+                id_tx,
+            } => {
+                let id = self.ep.request(now, peer, request);
+                self.replies.insert(id, (peer, reply));
+                if let Some(tx) = id_tx {
+                    let _ = tx.send(id);
+                }
+            }
+            Command::Cancel(id) => {
+                self.ep.cancel(now, id);
+                // The Cancelled failure event is dropped with the reply.
+                self.replies.remove(&id);
+            }
+            Command::Respond { id, response } => self.ep.respond(now, id, response),
+            Command::Notify { id, response, done } => {
+                let _ = done.send(self.ep.notify(now, id, response));
+            }
+            Command::Ping { peer, reply } => {
+                let id = self.ep.ping(now, peer);
+                self.pings.insert(id, reply);
+            }
+            Command::Membership {
+                group,
+                interface,
+                join,
+                done,
+            } => {
+                let _ = done.send(self.membership(group, interface, join));
+            }
+            Command::GroupDatagram {
+                membership,
+                peer,
+                data,
+            } => {
+                // A datagram that arrived before its group was left is dropped.
+                if self.groups.iter().any(|g| g.membership == membership) {
+                    self.ep.handle(now, peer, &data, true);
+                }
+            }
+            // Ends the thread's loop before it gets here.
+            Command::Shutdown => {}
+        }
     }
 
     fn dispatch(&mut self, ev: Event) {
-        let server = self.server.as_ref();
-        dispatch(ev, &mut self.replies, &mut self.pings, server, &mut self.ep);
+        match ev {
+            Event::Request(req) => match &self.server {
+                Some(s) => {
+                    let id = req.id;
+                    if s.send(ServerEvent::Request(req)).is_err() {
+                        self.ep.respond(
+                            clock::now(),
+                            id,
+                            Response::diagnostic(coap::Code::SERVICE_UNAVAILABLE, "shutting down"),
+                        );
+                    }
+                }
+                None => self
+                    .ep
+                    .respond(clock::now(), req.id, Response::new(coap::Code::NOT_FOUND)),
+            },
+            Event::ObservationEnded { id } => {
+                if let Some(s) = &self.server {
+                    let _ = s.send(ServerEvent::ObservationEnded(id));
+                }
+            }
+            Event::Response { id, response } => match self.replies.get(&id) {
+                Some((peer, Reply::Stream(tx))) => {
+                    // An Observe request stays open for its notifications; anything else ends.
+                    let observing = response.options.contains(coap::OptionNumber::OBSERVE);
+                    let _ = tx.send(StreamItem::Response(*peer, response));
+                    if !observing {
+                        self.replies.remove(&id);
+                    }
+                }
+                Some((_, Reply::Once(_) | Reply::Tracked(..) | Reply::Body(_))) => {
+                    match self.replies.remove(&id) {
+                        Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
+                            let _ = tx.send(Ok(response));
+                        }
+                        Some((_, Reply::Body(tx))) => {
+                            let _ = tx.send(BodyItem::Done(response));
+                        }
+                        _ => {}
+                    }
+                }
+                None => {}
+            },
+            Event::BodyChunk {
+                id, data, total, ..
+            } => {
+                let gone = match self.replies.get(&id) {
+                    Some((_, Reply::Body(tx))) => tx.send(BodyItem::Chunk(data, total)).is_err(),
+                    _ => false,
+                };
+                if gone {
+                    // Nobody reads the body any more: stop the transfer.
+                    self.replies.remove(&id);
+                    self.ep.cancel(clock::now(), id);
+                }
+            }
+            Event::Progress { id, done, total } => {
+                if let Some((_, Reply::Tracked(_, p))) = self.replies.get(&id) {
+                    let _ = p.send(Progress { done, total });
+                }
+            }
+            Event::Notification { id, response } => {
+                // A notification without Observe is the last one (RFC 7641 §3.2).
+                let last = !response.options.contains(coap::OptionNumber::OBSERVE);
+                if let Some((peer, Reply::Stream(tx))) = self.replies.get(&id) {
+                    let _ = tx.send(StreamItem::Response(*peer, response));
+                }
+                if last {
+                    self.replies.remove(&id);
+                }
+            }
+            Event::MulticastResponse { id, peer, response } => {
+                if let Some((_, Reply::Stream(tx))) = self.replies.get(&id) {
+                    let _ = tx.send(StreamItem::Response(peer, response));
+                }
+            }
+            Event::MulticastDone { id } => {
+                self.replies.remove(&id);
+            }
+            Event::RequestFailed { id, error } => match self.replies.remove(&id) {
+                Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
+                    let _ = tx.send(Err(error));
+                }
+                Some((_, Reply::Stream(tx))) => {
+                    let _ = tx.send(StreamItem::Failed(error));
+                }
+                Some((_, Reply::Body(tx))) => {
+                    let _ = tx.send(BodyItem::Failed(error));
+                }
+                None => {
+                    if let Some(tx) = self.pings.remove(&id) {
+                        let _ = tx.send(Err(error));
+                    }
+                }
+            },
+            Event::Pong { id } => {
+                if let Some(tx) = self.pings.remove(&id) {
+                    let _ = tx.send(Ok(()));
+                }
+            }
+        }
     }
 }
 
@@ -500,152 +631,6 @@ fn receive_group(
                 }
             }
             Err(e) => tracing::debug!(error = %e, "group recv failed"),
-        }
-    }
-}
-
-fn apply(
-    cmd: Command,
-    ep: &mut Endpoint,
-    replies: &mut HashMap<RequestId, (SocketAddr, Reply)>,
-    pings: &mut HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>>,
-) {
-    let now = clock::now();
-    match cmd {
-        Command::Request {
-            peer,
-            request,
-            reply,
-            id_tx,
-        } => {
-            let id = ep.request(now, peer, request);
-            replies.insert(id, (peer, reply));
-            if let Some(tx) = id_tx {
-                let _ = tx.send(id);
-            }
-        }
-        Command::Cancel(id) => {
-            ep.cancel(now, id);
-            // The Cancelled failure event is dropped with the reply.
-            replies.remove(&id);
-        }
-        Command::Respond { id, response } => ep.respond(now, id, response),
-        Command::Notify { id, response, done } => {
-            let _ = done.send(ep.notify(now, id, response));
-        }
-        Command::Ping { peer, reply } => {
-            let id = ep.ping(now, peer);
-            pings.insert(id, reply);
-        }
-        // Handled by the thread's loop, which owns the sockets.
-        Command::Membership { .. } | Command::GroupDatagram { .. } | Command::Shutdown => {}
-    }
-}
-
-fn dispatch(
-    ev: Event,
-    replies: &mut HashMap<RequestId, (SocketAddr, Reply)>,
-    pings: &mut HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>>,
-    server: Option<&mpsc::UnboundedSender<ServerEvent>>,
-    ep: &mut Endpoint,
-) {
-    match ev {
-        Event::Request(req) => match server {
-            Some(s) => {
-                let id = req.id;
-                if s.send(ServerEvent::Request(req)).is_err() {
-                    ep.respond(
-                        clock::now(),
-                        id,
-                        Response::diagnostic(coap::Code::SERVICE_UNAVAILABLE, "shutting down"),
-                    );
-                }
-            }
-            None => ep.respond(clock::now(), req.id, Response::new(coap::Code::NOT_FOUND)),
-        },
-        Event::ObservationEnded { id } => {
-            if let Some(s) = server {
-                let _ = s.send(ServerEvent::ObservationEnded(id));
-            }
-        }
-        Event::Response { id, response } => match replies.get(&id) {
-            Some((peer, Reply::Stream(tx))) => {
-                // An Observe request stays open for its notifications; anything else ends.
-                let observing = response.options.contains(coap::OptionNumber::OBSERVE);
-                let _ = tx.send(StreamItem::Response(*peer, response));
-                if !observing {
-                    replies.remove(&id);
-                }
-            }
-            Some((_, Reply::Once(_) | Reply::Tracked(..) | Reply::Body(_))) => {
-                match replies.remove(&id) {
-                    Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
-                        let _ = tx.send(Ok(response));
-                    }
-                    Some((_, Reply::Body(tx))) => {
-                        let _ = tx.send(BodyItem::Done(response));
-                    }
-                    _ => {}
-                }
-            }
-            None => {}
-        },
-        Event::BodyChunk {
-            id, data, total, ..
-        } => {
-            let gone = match replies.get(&id) {
-                Some((_, Reply::Body(tx))) => tx.send(BodyItem::Chunk(data, total)).is_err(),
-                _ => false,
-            };
-            if gone {
-                // Nobody reads the body any more: stop the transfer.
-                replies.remove(&id);
-                ep.cancel(clock::now(), id);
-            }
-        }
-        Event::Progress { id, done, total } => {
-            if let Some((_, Reply::Tracked(_, p))) = replies.get(&id) {
-                let _ = p.send(Progress { done, total });
-            }
-        }
-        Event::Notification { id, response } => {
-            // A notification without Observe is the last one (RFC 7641 §3.2).
-            let last = !response.options.contains(coap::OptionNumber::OBSERVE);
-            if let Some((peer, Reply::Stream(tx))) = replies.get(&id) {
-                let _ = tx.send(StreamItem::Response(*peer, response));
-            }
-            if last {
-                replies.remove(&id);
-            }
-        }
-        Event::MulticastResponse { id, peer, response } => {
-            if let Some((_, Reply::Stream(tx))) = replies.get(&id) {
-                let _ = tx.send(StreamItem::Response(peer, response));
-            }
-        }
-        Event::MulticastDone { id } => {
-            replies.remove(&id);
-        }
-        Event::RequestFailed { id, error } => match replies.remove(&id) {
-            Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
-                let _ = tx.send(Err(error));
-            }
-            Some((_, Reply::Stream(tx))) => {
-                let _ = tx.send(StreamItem::Failed(error));
-            }
-            Some((_, Reply::Body(tx))) => {
-                let _ = tx.send(BodyItem::Failed(error));
-            }
-            None => {
-                if let Some(tx) = pings.remove(&id) {
-                    let _ = tx.send(Err(error));
-                }
-            }
-        },
-        Event::Pong { id } => {
-            if let Some(tx) = pings.remove(&id) {
-                let _ = tx.send(Ok(()));
-            }
         }
     }
 }
