@@ -3,7 +3,10 @@
 //! again. Both are bounded in bytes and expire by the caller's `now`.
 
 use std::collections::BTreeMap;
+use std::fmt;
 use std::net::SocketAddr;
+use std::ops::Range;
+use std::sync::Arc;
 use std::time::Instant;
 
 use bytes::Bytes;
@@ -183,13 +186,79 @@ impl Block1Assembler {
     }
 }
 
+/// A response body read block by block as clients ask for it, instead of held whole in
+/// memory: a file served from disk, say. Handed to the endpoint with
+/// [`Response::with_source`](crate::Response::with_source); the Block2 store keeps the
+/// source and reads each block from it.
+pub trait BlockSource: Send + Sync {
+    /// The body's length in bytes. It must not change: a body that changes is a new
+    /// representation (a new source, with a new ETag).
+    fn len(&self) -> usize;
+
+    /// Whether the body is empty.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The bytes of `range` (within `0..len()`), or `None` when they can no longer be read
+    /// as they were when the source was made (the file changed or vanished). The endpoint
+    /// then drops the stored representation: a GET is rendered again, and the client sees
+    /// the new ETag.
+    fn read(&self, range: Range<usize>) -> Option<Bytes>;
+
+    /// Bytes the source keeps in memory (a read-ahead window, say), counted against the
+    /// Block2 store's byte limit.
+    fn held(&self) -> usize;
+}
+
+impl BlockSource for Bytes {
+    fn len(&self) -> usize {
+        Self::len(self)
+    }
+
+    fn read(&self, range: Range<usize>) -> Option<Bytes> {
+        Some(self.slice(range))
+    }
+
+    fn held(&self) -> usize {
+        Self::len(self)
+    }
+}
+
+/// A shared [`BlockSource`]; equal only to itself.
+#[derive(Clone)]
+pub struct Source(pub(crate) Arc<dyn BlockSource>);
+
+impl Source {
+    /// Wraps a source.
+    pub fn new(source: impl BlockSource + 'static) -> Self {
+        Self(Arc::new(source))
+    }
+}
+
+impl PartialEq for Source {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.0, &other.0)
+    }
+}
+
+impl Eq for Source {}
+
+impl fmt::Debug for Source {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "Source({} bytes)", self.0.len())
+    }
+}
+
 /// A representation stored for Block2 continuations.
 #[derive(Debug, Clone)]
 pub(crate) struct Stored {
     pub(crate) code: Code,
     /// The response options (Content-Format, Max-Age, ETag ...), without block options.
     pub(crate) options: Options,
-    pub(crate) body: Bytes,
+    pub(crate) body: Source,
+    /// What `body` held when it was stored (its [`BlockSource::held`]).
+    held: usize,
     last_used: Instant,
 }
 
@@ -213,7 +282,7 @@ impl ServerCache {
         self.entries.retain(|_, s| {
             let keep = now.saturating_duration_since(s.last_used) < limits.blockwise_lifetime;
             if !keep {
-                *bytes -= s.body.len();
+                *bytes -= s.held;
             }
             keep
         });
@@ -228,17 +297,16 @@ impl ServerCache {
         key: BlockKey,
         code: Code,
         options: Options,
-        body: Bytes,
+        body: Source,
         limits: &Limits,
     ) {
         self.expire(now, limits);
-        if let Some(old) = self.entries.remove(&key) {
-            self.bytes -= old.body.len();
-        }
-        if body.len() > limits.block2_store_bytes {
+        self.remove(&key);
+        let held = body.0.held();
+        if held > limits.block2_store_bytes {
             return;
         }
-        while self.bytes + body.len() > limits.block2_store_bytes {
+        while self.bytes + held > limits.block2_store_bytes {
             let Some(oldest) = self
                 .entries
                 .iter()
@@ -247,20 +315,26 @@ impl ServerCache {
             else {
                 break;
             };
-            if let Some(s) = self.entries.remove(&oldest) {
-                self.bytes -= s.body.len();
-            }
+            self.remove(&oldest);
         }
-        self.bytes += body.len();
+        self.bytes += held;
         self.entries.insert(
             key,
             Stored {
                 code,
                 options,
                 body,
+                held,
                 last_used: now,
             },
         );
+    }
+
+    /// Drops the representation stored for a request (its source could not be read).
+    pub(crate) fn remove(&mut self, key: &BlockKey) {
+        if let Some(old) = self.entries.remove(key) {
+            self.bytes -= old.held;
+        }
     }
 
     /// The stored representation for a continuation request, refreshing its lifetime.
@@ -277,23 +351,36 @@ impl ServerCache {
     }
 }
 
-/// Cuts block `num` of size `2^(szx+4)` out of `body`: `None` when the block starts past
-/// the end (RFC 7959 §2.2: the server answers 4.02 then).
-pub(crate) fn slice(body: &Bytes, num: u32, szx: u8) -> Option<(Bytes, BlockOpt)> {
+/// Block `num` of a body, cut by [`slice`].
+#[derive(Debug, PartialEq, Eq)]
+pub(crate) enum Slice {
+    Block(Bytes, BlockOpt),
+    /// The block starts past the end (RFC 7959 §2.2: the server answers 4.02 then).
+    PastEnd,
+    /// The source could not be read ([`BlockSource::read`]).
+    Unreadable,
+}
+
+/// Cuts block `num` of size `2^(szx+4)` out of `body`.
+pub(crate) fn slice(body: &dyn BlockSource, num: u32, szx: u8) -> Slice {
     let size = BlockOpt::size_of(szx);
+    let len = body.len();
     let start = num as usize * size;
-    if start >= body.len() && !(start == 0 && body.is_empty()) {
-        return None;
+    if start >= len && !(start == 0 && len == 0) {
+        return Slice::PastEnd;
     }
-    let end = (start + size).min(body.len());
-    Some((
-        body.slice(start..end),
-        BlockOpt {
-            num,
-            more: end < body.len(),
-            szx,
-        },
-    ))
+    let end = (start + size).min(len);
+    match body.read(start..end) {
+        Some(bytes) => Slice::Block(
+            bytes,
+            BlockOpt {
+                num,
+                more: end < len,
+                szx,
+            },
+        ),
+        None => Slice::Unreadable,
+    }
 }
 
 #[cfg(test)]
@@ -481,7 +568,7 @@ mod tests {
             key(1),
             Code::CONTENT,
             Options::new(),
-            Bytes::from(vec![0; 60]),
+            Source::new(Bytes::from(vec![0; 60])),
             &l,
         );
         c.insert(
@@ -489,7 +576,7 @@ mod tests {
             key(2),
             Code::CONTENT,
             Options::new(),
-            Bytes::from(vec![0; 60]),
+            Source::new(Bytes::from(vec![0; 60])),
             &l,
         );
         assert!(c.get(now, &key(1), &l).is_none(), "oldest evicted");
@@ -502,10 +589,76 @@ mod tests {
     #[test]
     fn rfc7959_2_2_slice_blocks() {
         let body = Bytes::from((0..100u8).collect::<Vec<_>>());
-        let (p, o) = slice(&body, 0, 1).unwrap();
+        let Slice::Block(p, o) = slice(&body, 0, 1) else {
+            panic!("block 0")
+        };
         assert_eq!((p.len(), o.more), (32, true));
-        let (p, o) = slice(&body, 3, 1).unwrap();
+        let Slice::Block(p, o) = slice(&body, 3, 1) else {
+            panic!("block 3")
+        };
         assert_eq!((p.len(), o.more, p[0]), (4, false, 96));
-        assert!(slice(&body, 4, 1).is_none());
+        assert_eq!(slice(&body, 4, 1), Slice::PastEnd);
+    }
+
+    /// A body of `len` bytes (byte i is i % 256) that holds `held` bytes and can be read
+    /// until `gone` is set.
+    struct Counting {
+        len: usize,
+        held: usize,
+        gone: std::sync::atomic::AtomicBool,
+    }
+
+    impl BlockSource for Counting {
+        fn len(&self) -> usize {
+            self.len
+        }
+
+        fn read(&self, range: Range<usize>) -> Option<Bytes> {
+            (!self.gone.load(std::sync::atomic::Ordering::Relaxed))
+                .then(|| range.map(|i| i as u8).collect())
+        }
+
+        fn held(&self) -> usize {
+            self.held
+        }
+    }
+
+    #[test]
+    fn a_source_is_read_per_block_and_counts_what_it_holds() {
+        let now = crate::test_epoch();
+        let l = Limits {
+            block2_store_bytes: 100,
+            ..Limits::default()
+        };
+        let source = Arc::new(Counting {
+            len: 1000,
+            held: 40,
+            gone: false.into(),
+        });
+        let mut c = ServerCache::new();
+        c.insert(
+            now,
+            key(1),
+            Code::CONTENT,
+            Options::new(),
+            Source(source.clone()),
+            &l,
+        );
+        assert_eq!(
+            c.bytes(),
+            40,
+            "a 1000-byte body counts what its source holds"
+        );
+        let stored = c.get(now, &key(1), &l).expect("stored");
+        let Slice::Block(p, o) = slice(&*stored.body.0, 31, 1) else {
+            panic!("block 31")
+        };
+        assert_eq!((p.len(), o.more, p[0]), (8, false, (992 % 256) as u8));
+        source
+            .gone
+            .store(true, std::sync::atomic::Ordering::Relaxed);
+        assert_eq!(slice(&*stored.body.0, 0, 1), Slice::Unreadable);
+        c.remove(&key(1));
+        assert_eq!(c.bytes(), 0);
     }
 }

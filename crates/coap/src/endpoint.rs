@@ -27,7 +27,9 @@ use bytes::Bytes;
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
 
-use crate::block::{self, Block1Assembler, Block1Outcome, BlockKey, ServerCache};
+use crate::block::{
+    self, Block1Assembler, Block1Outcome, BlockKey, BlockSource, ServerCache, Slice, Source,
+};
 use crate::config::EndpointConfig;
 use crate::dedup::{Dedup, Seen};
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Reaction, Token, Type};
@@ -117,30 +119,46 @@ pub struct Response {
     pub options: Options,
     /// Body.
     pub payload: Bytes,
+    /// A body read block by block when clients ask for it, in place of `payload` (only in
+    /// responses this endpoint sends).
+    pub source: Option<Source>,
 }
 
 impl Response {
     /// A response with a code and no payload.
     pub fn new(code: Code) -> Self {
+        Self::with_parts(code, Options::new(), Bytes::new())
+    }
+
+    /// A response of these parts.
+    pub fn with_parts(code: Code, options: Options, payload: Bytes) -> Self {
         Self {
             code,
-            options: Options::new(),
-            payload: Bytes::new(),
+            options,
+            payload,
+            source: None,
         }
     }
 
     /// An error response with a text/plain diagnostic payload (RFC 7252 §5.5.2).
     pub fn diagnostic(code: Code, text: &str) -> Self {
-        Self {
+        Self::with_parts(
             code,
-            options: Options::new(),
-            payload: Bytes::copy_from_slice(text.as_bytes()),
-        }
+            Options::new(),
+            Bytes::copy_from_slice(text.as_bytes()),
+        )
     }
 
     /// Sets the payload.
     pub fn with_payload(mut self, payload: impl Into<Bytes>) -> Self {
         self.payload = payload.into();
+        self
+    }
+
+    /// Sets a body that is read block by block as clients ask for it (a large file, say),
+    /// instead of a payload held in memory.
+    pub fn with_source(mut self, source: impl BlockSource + 'static) -> Self {
+        self.source = Some(Source::new(source));
         self
     }
 }
@@ -725,11 +743,7 @@ impl Endpoint {
         let Some(id) = known else { return };
         match self.requests.get_mut(&id) {
             Some(r) if r.waiting == Waiting::Collecting => {
-                let response = Response {
-                    code: msg.code,
-                    options: msg.options,
-                    payload: msg.payload,
-                };
+                let response = Response::with_parts(msg.code, msg.options, msg.payload);
                 self.events.push_back(Event::MulticastResponse {
                     id: RequestId(id),
                     peer,
@@ -743,22 +757,14 @@ impl Endpoint {
                     // RFC 7641 §3.4: deliver only notifications newer than the last one.
                     if let Some(seq) = seq.filter(|v| is_newer(last, *v)) {
                         r.waiting = Waiting::Observing(seq);
-                        let response = Response {
-                            code: msg.code,
-                            options: msg.options,
-                            payload: msg.payload,
-                        };
+                        let response = Response::with_parts(msg.code, msg.options, msg.payload);
                         self.events.push_back(Event::Notification {
                             id: RequestId(id),
                             response,
                         });
                     } else if seq.is_none() {
                         // A final response without Observe ends the observation (§3.2).
-                        let response = Response {
-                            code: msg.code,
-                            options: msg.options,
-                            payload: msg.payload,
-                        };
+                        let response = Response::with_parts(msg.code, msg.options, msg.payload);
                         self.finish(now, id);
                         self.events.push_back(Event::Notification {
                             id: RequestId(id),
@@ -1183,11 +1189,7 @@ impl Endpoint {
                     RequestError::Protocol("block-wise response lost its Block2"),
                 );
             }
-            let mut response = Response {
-                code: msg.code,
-                options: msg.options,
-                payload: msg.payload,
-            };
+            let mut response = Response::with_parts(msg.code, msg.options, msg.payload);
             if r.req.stream && response.code.is_success() && !response.payload.is_empty() {
                 let data = std::mem::take(&mut response.payload);
                 self.events.push_back(Event::BodyChunk {
@@ -1313,11 +1315,7 @@ impl Endpoint {
         }
         let body = Bytes::from(std::mem::take(&mut r.body));
         let options = r.first_options.take().unwrap_or_default();
-        let response = Response {
-            code: msg.code,
-            options,
-            payload: body,
-        };
+        let response = Response::with_parts(msg.code, options, body);
         self.complete(now, id, response);
     }
 
@@ -1390,16 +1388,23 @@ impl Endpoint {
             // renders it again and the block is cut from the new representation (its ETag
             // tells the client whether the blocks still fit).
             let szx = b2.szx.min(self.config.max_block_szx);
-            if let Some(s) = self.block2.get(now, &key, &limits) {
+            let stored = self.block2.get(now, &key, &limits).map(|s| {
+                block2_response(s.code, s.options.clone_with_room(2), &s.body, b2.num, szx)
+            });
+            match stored {
                 // Served from the store, which is idempotent (RFC 7252 §4.5 allows
                 // relaxing deduplication then): a duplicate is cut again from the same
                 // bytes, and a 10 MB transfer leaves no 10,000 dedup entries behind.
-                let response =
-                    block2_response(s.code, s.options.clone_with_room(2), &s.body, b2.num, szx);
-                if let Some(reply) = self.reply_message(&msg, multicast, response) {
-                    self.send(peer, &reply);
+                Some(Some(response)) => {
+                    if let Some(reply) = self.reply_message(&msg, multicast, response) {
+                        self.send(peer, &reply);
+                    }
+                    return;
                 }
-                return;
+                // The stored source can no longer be read as it was: as if nothing were
+                // stored.
+                Some(None) => self.block2.remove(&key),
+                None => {}
             }
             if !matches!(msg.code, Code::GET | Code::FETCH) {
                 let response = Response::diagnostic(
@@ -1600,24 +1605,35 @@ impl Endpoint {
     ) -> Response {
         let szx = block2.map_or(max_szx, |b| b.szx.min(max_szx));
         let num = block2.map_or(0, |b| b.num);
-        if response.payload.len() <= BlockOpt::size_of(szx) && num == 0 {
-            return response;
+        let body = match response.source.take() {
+            Some(source) => source,
+            None if response.payload.len() <= BlockOpt::size_of(szx) && num == 0 => {
+                return response;
+            }
+            None => Source::new(std::mem::take(&mut response.payload)),
+        };
+        let len = body.0.len();
+        if len <= BlockOpt::size_of(szx) && num == 0 {
+            return match body.0.read(0..len) {
+                Some(payload) => response.with_payload(payload),
+                None => unreadable(),
+            };
         }
         if response.options.etag().is_none() {
             let etag = self.rng.next_u32().to_be_bytes();
             response.options.set(OptionNumber::ETAG, etag);
         }
-        if response.payload.len() > BlockOpt::size_of(szx) {
+        if len > BlockOpt::size_of(szx) {
             self.block2.insert(
                 now,
                 key,
                 response.code,
                 response.options.clone(),
-                response.payload.clone(),
+                body.clone(),
                 limits,
             );
         }
-        block2_response(response.code, response.options, &response.payload, num, szx)
+        block2_response(response.code, response.options, &body, num, szx).unwrap_or_else(unreadable)
     }
 
     /// Answers a request at once and remembers the answer for its duplicates.
@@ -1764,24 +1780,42 @@ impl Endpoint {
 }
 
 /// Block `num` of a representation as a response, with Block2, and Size2 on block 0
-/// (RFC 7959 §4); 4.02 when the block starts past the end.
-fn block2_response(code: Code, options: Options, body: &Bytes, num: u32, szx: u8) -> Response {
-    let Some((payload, opt)) = block::slice(body, num, szx) else {
-        return Response::diagnostic(
-            Code::BAD_OPTION,
-            "Block2 number beyond the end of the representation",
-        );
+/// (RFC 7959 §4); 4.02 when the block starts past the end; `None` when the body's source
+/// could not be read.
+fn block2_response(
+    code: Code,
+    options: Options,
+    body: &Source,
+    num: u32,
+    szx: u8,
+) -> Option<Response> {
+    let (payload, opt) = match block::slice(&*body.0, num, szx) {
+        Slice::Block(payload, opt) => (payload, opt),
+        Slice::PastEnd => {
+            return Some(Response::diagnostic(
+                Code::BAD_OPTION,
+                "Block2 number beyond the end of the representation",
+            ));
+        }
+        Slice::Unreadable => return None,
     };
     let mut options = options;
     options.set_block(OptionNumber::BLOCK2, opt);
     if num == 0 {
-        options.set_uint(OptionNumber::SIZE2, body.len() as u32);
+        options.set_uint(OptionNumber::SIZE2, body.0.len() as u32);
     }
-    Response {
-        code,
-        options,
-        payload,
-    }
+    Some(Response::with_parts(code, options, payload))
+}
+
+/// The answer when a body's source cannot be read as it was (the file is changing): try
+/// again in a second (RFC 7252 §5.9.3.4).
+fn unreadable() -> Response {
+    let mut r = Response::diagnostic(
+        Code::SERVICE_UNAVAILABLE,
+        "the representation changed while it was read; try again",
+    );
+    r.options.set_uint(OptionNumber::MAX_AGE, 1);
+    r
 }
 
 /// RFC 7641 §3.4: whether Observe value `v2` is newer than `v1` (24-bit serial arithmetic).

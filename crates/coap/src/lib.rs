@@ -21,6 +21,7 @@ pub mod config;
 mod dedup;
 pub mod endpoint;
 
+pub use block::{BlockSource, Source};
 pub use config::{EndpointConfig, Limits};
 pub use content_format::ContentFormat;
 pub use endpoint::{

@@ -8,6 +8,7 @@ mod cams;
 mod cbor;
 mod client;
 mod demo;
+mod files;
 mod grab_cmd;
 mod group;
 mod measure;
@@ -122,4 +123,30 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         }
     }
     Ok(true)
+}
+
+/// A directory of a unit test's own under the system's temporary directory, removed on
+/// drop.
+#[cfg(test)]
+pub(crate) struct ScratchDir(pub(crate) std::path::PathBuf);
+
+#[cfg(test)]
+impl ScratchDir {
+    pub(crate) fn new(tag: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("coapcam-unit-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("scratch directory");
+        Self(dir)
+    }
+
+    pub(crate) fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+#[cfg(test)]
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }

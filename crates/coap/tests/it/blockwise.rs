@@ -2,11 +2,13 @@
 
 use std::cell::Cell;
 use std::rc::Rc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use bytes::Bytes;
 use coap::{
-    BlockOpt, Code, EndpointConfig, Event, Limits, OptionNumber, Request, RequestError, Response,
+    BlockOpt, BlockSource, Code, EndpointConfig, Event, Limits, OptionNumber, Request,
+    RequestError, Response,
 };
 
 use crate::sim::{Handler, LinkConfig, Reply, Sim};
@@ -277,6 +279,73 @@ fn rfc7959_2_4_etag_change_restarts_the_transfer() {
             ..
         }
     ));
+}
+
+/// A body read through [`BlockSource`] that stops being readable after `readable` reads,
+/// as a file changed in place does.
+struct Fading {
+    body: Bytes,
+    reads: AtomicUsize,
+    readable: usize,
+}
+
+impl BlockSource for Fading {
+    fn len(&self) -> usize {
+        self.body.len()
+    }
+
+    fn read(&self, range: std::ops::Range<usize>) -> Option<Bytes> {
+        let reads = self.reads.fetch_add(1, Ordering::Relaxed) + 1;
+        (reads <= self.readable).then(|| self.body.slice(range))
+    }
+
+    fn held(&self) -> usize {
+        0
+    }
+}
+
+#[test]
+fn a_source_is_read_block_by_block_and_a_source_gone_unreadable_is_rendered_again() {
+    // First rendering: a source that fails at its 11th read. The continuation that finds it
+    // unreadable reaches the handler again (as if nothing were stored), which renders the
+    // new content with a new ETag; the client starts over from block 0 and gets that whole.
+    let calls = Rc::new(Cell::new(0u32));
+    let seen = calls.clone();
+    let (old, new) = (body(20_000, 1), body(30_000, 2));
+    let latest = new.clone();
+    let handler: Handler = Box::new(move |_| {
+        seen.set(seen.get() + 1);
+        let mut r = Response::new(Code::CONTENT);
+        let first = seen.get() == 1;
+        r.options
+            .set(OptionNumber::ETAG, [if first { 1 } else { 2 }]);
+        Reply::Now(if first {
+            r.with_source(Fading {
+                body: old.clone(),
+                reads: AtomicUsize::new(0),
+                readable: 10,
+            })
+        } else {
+            r.with_payload(latest.clone())
+        })
+    });
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/file"));
+    assert!(sim.run_to_event(c, Duration::from_secs(100)));
+    let r = response(&sim, c);
+    assert!(r.payload == new, "the new content, whole");
+    assert_eq!(r.options.etag(), Some(&[2][..]));
+    assert_eq!(
+        calls.get(),
+        3,
+        "block 0, the continuation that found the source unreadable, block 0 again"
+    );
 }
 
 #[test]

@@ -3,7 +3,6 @@
 //! camera that disappears.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -13,26 +12,9 @@ use rgbd::{Camera as _, CameraHub, Scene, SyntheticCamera};
 use tokio::sync::mpsc;
 
 use super::Cams;
+use crate::ScratchDir;
 
 const LIMIT: Duration = Duration::from_secs(60);
-
-/// A state directory removed on drop.
-struct StateDir(PathBuf);
-
-impl StateDir {
-    fn new(tag: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!("coapcam-unit-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("state directory");
-        Self(dir)
-    }
-}
-
-impl Drop for StateDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 /// The tree on a server of its own, an empty hub, and a client.
 struct Rig {
@@ -45,7 +27,7 @@ struct Rig {
 }
 
 impl Rig {
-    fn start(state: &StateDir) -> Self {
+    fn start(state: &ScratchDir) -> Self {
         let hub = Arc::new(CameraHub::new());
         let router = Router::new();
         let (changed, _) = mpsc::unbounded_channel();
@@ -112,7 +94,7 @@ fn cameras() -> Vec<Arc<SyntheticCamera>> {
 
 #[test]
 fn cameras_plugged_in_and_pulled_out_appear_in_and_vanish_from_discovery() {
-    let state = StateDir::new("hotplug");
+    let state = ScratchDir::new("hotplug");
     runtime().block_on(async {
         let rig = Rig::start(&state);
         let cams = cameras();
@@ -168,7 +150,7 @@ fn cameras_plugged_in_and_pulled_out_appear_in_and_vanish_from_discovery() {
 
 #[test]
 fn a_grab_that_outlasts_its_timeout_answers_5_03_with_max_age() {
-    let state = StateDir::new("timeout");
+    let state = ScratchDir::new("timeout");
     runtime().block_on(async {
         let rig = Rig::start(&state);
         let camera = cameras().swap_remove(0);

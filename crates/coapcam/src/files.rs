@@ -1,0 +1,498 @@
+//! `serve --static DIR`: the regular files of a directory at `/files/<name>`, read from
+//! disk block by block as clients ask for them, so a server of large files holds none of
+//! them in memory.
+
+use std::collections::{HashMap, HashSet};
+use std::fs;
+use std::hash::Hasher as _;
+use std::io::{self, Read as _};
+use std::ops::Range;
+use std::os::unix::fs::FileExt as _;
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, PoisonError, RwLock};
+use std::time::SystemTime;
+
+use anyhow::bail;
+use bytes::Bytes;
+use coap::{BlockSource, Code, ContentFormat, IncomingRequest, OptionNumber, Response};
+use coap_net::router::check_preconditions;
+use coap_net::{Ctx, Resource, Router, handler};
+use tokio::sync::mpsc;
+
+/// Bytes read from a file at a time: one read serves 64 blocks of 1024 bytes.
+const WINDOW: usize = 64 << 10;
+
+/// What the server knows of a file: enough to tell when it changes, not its content.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Stamp {
+    len: u64,
+    modified: Option<SystemTime>,
+}
+
+impl Stamp {
+    fn of(meta: &fs::Metadata) -> Self {
+        Self {
+            len: meta.len(),
+            modified: meta.modified().ok(),
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+struct File {
+    stamp: Stamp,
+    /// A hash of the content, computed when the file was (re)read.
+    etag: [u8; 8],
+}
+
+/// The files of a directory, rescanned when they change on disk, and (with --writable)
+/// changed by clients.
+#[derive(Clone)]
+pub(crate) struct StaticFiles {
+    dir: PathBuf,
+    files: Arc<RwLock<HashMap<String, File>>>,
+    writable: bool,
+    /// Paths changed by clients, for notifications.
+    changed: mpsc::UnboundedSender<String>,
+}
+
+impl StaticFiles {
+    pub(crate) fn load(
+        dir: &Path,
+        router: &Router,
+        writable: bool,
+        changed: mpsc::UnboundedSender<String>,
+    ) -> anyhow::Result<Self> {
+        if !dir.is_dir() {
+            bail!("--static {}: not a directory", dir.display());
+        }
+        let me = Self {
+            dir: dir.to_path_buf(),
+            files: Arc::default(),
+            writable,
+            changed,
+        };
+        me.rescan(router);
+        if writable {
+            // Names that do not exist yet: PUT creates them; POST /files picks a name.
+            router.add("/files/{name}", me.resource(None));
+            router.add(
+                "/files",
+                me.resource(None).attr("title", "POST creates a file"),
+            );
+        }
+        Ok(me)
+    }
+
+    fn read(&self) -> std::sync::RwLockReadGuard<'_, HashMap<String, File>> {
+        self.files.read().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn write(&self) -> std::sync::RwLockWriteGuard<'_, HashMap<String, File>> {
+        self.files.write().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Hashes new and changed files, drops vanished ones, keeps the router in step, and
+    /// returns the paths whose content changed on disk.
+    pub(crate) fn rescan(&self, router: &Router) -> Vec<String> {
+        let mut changed = Vec::new();
+        let Ok(entries) = fs::read_dir(&self.dir) else {
+            return changed;
+        };
+        let mut present = HashSet::new();
+        let routed: HashSet<String> = router.patterns().into_iter().collect();
+        for entry in entries.flatten() {
+            let Ok(meta) = entry.metadata() else { continue };
+            let Some(name) = entry.file_name().to_str().map(str::to_string) else {
+                continue;
+            };
+            if !meta.is_file() || !valid_name(&name) {
+                continue;
+            }
+            present.insert(name.clone());
+            let path = format!("/files/{name}");
+            let stamp = Stamp::of(&meta);
+            let known = self.read().get(&name).map(|f| f.stamp);
+            if known != Some(stamp) {
+                let Ok(etag) = etag_of_file(&entry.path(), stamp) else {
+                    continue;
+                };
+                self.write().insert(name.clone(), File { stamp, etag });
+                if known.is_some() {
+                    changed.push(path.clone());
+                }
+            }
+            if !routed.contains(&path) {
+                router.add(
+                    &path,
+                    self.resource(Some(name))
+                        .attr("title", path.trim_start_matches("/files/")),
+                );
+            }
+        }
+        self.write().retain(|name, _| {
+            let keep = present.contains(name);
+            if !keep {
+                router.remove(&format!("/files/{name}"));
+            }
+            keep
+        });
+        changed
+    }
+
+    /// The resource of one file (`Some(name)`), or of the writable patterns (`None`: the
+    /// name comes from the path, or POST picks one).
+    fn resource(&self, name: Option<String>) -> Resource {
+        let (me, fixed) = (self.clone(), name.clone());
+        let name_of = move |ctx: &Ctx| {
+            fixed
+                .clone()
+                .or_else(|| ctx.param("name").map(str::to_string))
+        };
+        let mut r = Resource::new();
+        if let Some(n) = &name {
+            let cf = content_format_of(Path::new(n));
+            let size = self.read().get(n).map_or(0, |f| f.stamp.len);
+            r = r
+                .attr("ct", cf.0.to_string())
+                .attr("sz", size.to_string())
+                .observable();
+        }
+        let get = (me.clone(), name_of.clone());
+        r = r.get(handler(move |ctx| {
+            let response = get.0.get(get.1(&ctx));
+            async move { response }
+        }));
+        if !self.writable {
+            return r;
+        }
+        let put = (me.clone(), name_of.clone());
+        let delete = (me.clone(), name_of);
+        r.put(handler(move |ctx| {
+            let response = put.0.put(put.1(&ctx), &ctx.request);
+            async move { response }
+        }))
+        .delete(handler(move |ctx| {
+            let response = delete.0.delete(delete.1(&ctx));
+            async move { response }
+        }))
+        .post(handler(move |ctx| {
+            let response = me.post(&ctx.request);
+            async move { response }
+        }))
+    }
+
+    fn get(&self, name: Option<String>) -> Response {
+        let Some((name, file)) = name.and_then(|n| {
+            let file = *self.read().get(&n)?;
+            Some((n, file))
+        }) else {
+            return Response::diagnostic(Code::NOT_FOUND, "no such file");
+        };
+        let source = match FileSource::open(&self.dir.join(&name), file.stamp) {
+            Ok(Some(source)) => source,
+            // Changed since it was hashed: the next rescan gives it a new ETag.
+            Ok(None) => return changing(),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {
+                return Response::diagnostic(Code::NOT_FOUND, "no such file");
+            }
+            Err(e) => {
+                return Response::diagnostic(
+                    Code::INTERNAL_SERVER_ERROR,
+                    &format!("reading {name}: {e}"),
+                );
+            }
+        };
+        let cf = content_format_of(Path::new(&name));
+        let mut r = Response::new(Code::CONTENT).with_source(source);
+        r.options
+            .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
+        r.options.set(OptionNumber::ETAG, file.etag);
+        r
+    }
+
+    /// Writes through a temporary file and a rename, so readers never see half a file.
+    fn store(&self, name: &str, body: &Bytes) -> io::Result<()> {
+        let tmp = self.dir.join(format!(".{name}.tmp"));
+        fs::write(&tmp, body)?;
+        fs::rename(&tmp, self.dir.join(name))?;
+        let stamp = Stamp::of(&fs::metadata(self.dir.join(name))?);
+        let mut hash = Etag::new(body.len() as u64);
+        hash.write(body);
+        self.write().insert(
+            name.to_string(),
+            File {
+                stamp,
+                etag: hash.finish(),
+            },
+        );
+        let _ = self.changed.send(format!("/files/{name}"));
+        Ok(())
+    }
+
+    fn put(&self, name: Option<String>, request: &IncomingRequest) -> Response {
+        let Some(name) = name.filter(|n| valid_name(n)) else {
+            return Response::diagnostic(
+                Code::BAD_REQUEST,
+                "a file name must not be empty, start with '.' or contain '/'",
+            );
+        };
+        let current = self.read().get(&name).map(|f| f.etag);
+        if let Some(refused) = check_preconditions(request, current.as_ref().map(|e| &e[..])) {
+            return refused;
+        }
+        match self.store(&name, &request.payload) {
+            Ok(()) => Response::new(if current.is_some() {
+                Code::CHANGED
+            } else {
+                Code::CREATED
+            }),
+            Err(e) => {
+                Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("writing {name}: {e}"))
+            }
+        }
+    }
+
+    fn post(&self, request: &IncomingRequest) -> Response {
+        let stamp = SystemTime::now()
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos());
+        let name = format!("upload-{stamp}.bin");
+        match self.store(&name, &request.payload) {
+            Ok(()) => {
+                let mut r = Response::new(Code::CREATED);
+                r.options.push(OptionNumber::LOCATION_PATH, b"files");
+                r.options
+                    .push(OptionNumber::LOCATION_PATH, name.into_bytes());
+                r
+            }
+            Err(e) => {
+                Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("writing {name}: {e}"))
+            }
+        }
+    }
+
+    fn delete(&self, name: Option<String>) -> Response {
+        let Some(name) = name.filter(|n| valid_name(n)) else {
+            return Response::diagnostic(Code::BAD_REQUEST, "bad file name");
+        };
+        match fs::remove_file(self.dir.join(&name)) {
+            Ok(()) => {
+                self.write().remove(&name);
+                Response::new(Code::DELETED)
+            }
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {
+                Response::diagnostic(Code::NOT_FOUND, "no such file")
+            }
+            Err(e) => Response::diagnostic(
+                Code::INTERNAL_SERVER_ERROR,
+                &format!("deleting {name}: {e}"),
+            ),
+        }
+    }
+}
+
+/// One GET's view of a file: the open file, read a window at a time, and only while it
+/// still has the length and modification time its ETag was computed for. A file replaced
+/// by a rename (as PUT does) keeps being read from the old inode, which does not change.
+struct FileSource {
+    file: fs::File,
+    stamp: Stamp,
+    /// The last window read: its offset in the file and its bytes.
+    window: Mutex<(usize, Bytes)>,
+}
+
+impl FileSource {
+    /// Opens the file; `None` when it no longer matches `stamp`.
+    fn open(path: &Path, stamp: Stamp) -> io::Result<Option<Self>> {
+        let file = fs::File::open(path)?;
+        let source = Self {
+            file,
+            stamp,
+            window: Mutex::new((0, Bytes::new())),
+        };
+        Ok(source.unchanged().then_some(source))
+    }
+
+    fn unchanged(&self) -> bool {
+        self.file
+            .metadata()
+            .is_ok_and(|meta| Stamp::of(&meta) == self.stamp)
+    }
+}
+
+impl BlockSource for FileSource {
+    fn len(&self) -> usize {
+        self.stamp.len as usize
+    }
+
+    fn read(&self, range: Range<usize>) -> Option<Bytes> {
+        let mut window = self.window.lock().unwrap_or_else(PoisonError::into_inner);
+        let (start, bytes) = &*window;
+        if range.start < *start || range.end > start + bytes.len() {
+            let end = range.end.max(range.start + WINDOW).min(self.len());
+            let mut buf = vec![0; end - range.start];
+            // Checked after the read too: a write that landed during it shows in the
+            // modification time.
+            if !self.unchanged()
+                || self
+                    .file
+                    .read_exact_at(&mut buf, range.start as u64)
+                    .is_err()
+                || !self.unchanged()
+            {
+                return None;
+            }
+            *window = (range.start, Bytes::from(buf));
+        }
+        let (start, bytes) = &*window;
+        Some(bytes.slice(range.start - start..range.end - start))
+    }
+
+    fn held(&self) -> usize {
+        WINDOW.min(self.len())
+    }
+}
+
+/// 5.03 with Max-Age 1: the file is being changed; the client may try again in a second.
+fn changing() -> Response {
+    let mut r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, "the file is changing; try again");
+    r.options.set_uint(OptionNumber::MAX_AGE, 1);
+    r
+}
+
+fn valid_name(name: &str) -> bool {
+    !name.is_empty() && !name.starts_with('.') && !name.contains(['/', '\\', '\0'])
+}
+
+/// A file's ETag: a hash of its length and content.
+struct Etag(std::collections::hash_map::DefaultHasher);
+
+impl Etag {
+    fn new(len: u64) -> Self {
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        h.write_u64(len);
+        Self(h)
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        self.0.write(bytes);
+    }
+
+    fn finish(&self) -> [u8; 8] {
+        self.0.finish().to_be_bytes()
+    }
+}
+
+/// Hashes a file a window at a time, failing when it does not match `stamp` (it changed
+/// while being read; the next rescan tries again).
+fn etag_of_file(path: &Path, stamp: Stamp) -> io::Result<[u8; 8]> {
+    let mut file = fs::File::open(path)?;
+    let mut hash = Etag::new(stamp.len);
+    let mut buf = vec![0; WINDOW];
+    let mut total = 0u64;
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        hash.write(&buf[..n]);
+        total += n as u64;
+    }
+    if total != stamp.len || Stamp::of(&file.metadata()?) != stamp {
+        return Err(io::Error::other("changed while hashed"));
+    }
+    Ok(hash.finish())
+}
+
+fn content_format_of(path: &Path) -> ContentFormat {
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("txt") => ContentFormat::TEXT_PLAIN,
+        Some("json") => ContentFormat::JSON,
+        Some("png") => ContentFormat::IMAGE_PNG,
+        Some("jpg" | "jpeg") => ContentFormat::IMAGE_JPEG,
+        Some("cbor") => ContentFormat::CBOR,
+        Some("ply") => ContentFormat::PLY,
+        Some("wlnk") => ContentFormat::LINK_FORMAT,
+        _ => ContentFormat::OCTET_STREAM,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+
+    fn source(path: &Path) -> FileSource {
+        let stamp = Stamp::of(&fs::metadata(path).unwrap());
+        FileSource::open(path, stamp).unwrap().expect("unchanged")
+    }
+
+    #[test]
+    fn a_file_is_read_a_window_at_a_time_and_not_after_it_changed_in_place() {
+        let dir = crate::ScratchDir::new("files-in-place");
+        let path = dir.path().join("body.bin");
+        let body: Vec<u8> = (0..3 * WINDOW + 100).map(|i| (i * 7) as u8).collect();
+        fs::write(&path, &body).unwrap();
+        let s = source(&path);
+        assert_eq!(s.len(), body.len());
+        for start in (0..body.len()).step_by(1024) {
+            let end = (start + 1024).min(body.len());
+            assert_eq!(s.read(start..end).unwrap(), body[start..end], "at {start}");
+        }
+        assert_eq!(s.held(), WINDOW);
+        // Written in place, with a new modification time: what is not read yet is refused.
+        let f = fs::OpenOptions::new().write(true).open(&path).unwrap();
+        f.write_all_at(b"changed", 0).unwrap();
+        f.set_modified(SystemTime::now() + Duration::from_secs(5))
+            .unwrap();
+        assert_eq!(s.read(0..1024), None);
+        assert!(FileSource::open(&path, s.stamp).unwrap().is_none());
+    }
+
+    #[test]
+    fn a_file_replaced_by_a_rename_is_still_read_as_it_was() {
+        let dir = crate::ScratchDir::new("files-rename");
+        let path = dir.path().join("body.bin");
+        fs::write(&path, vec![1; 2 * WINDOW]).unwrap();
+        let s = source(&path);
+        fs::write(dir.path().join("new"), vec![2; 10]).unwrap();
+        fs::rename(dir.path().join("new"), &path).unwrap();
+        assert_eq!(s.read(WINDOW..WINDOW + 16).unwrap(), vec![1; 16]);
+    }
+
+    #[test]
+    fn the_etag_follows_the_content_and_a_file_that_changes_while_hashed_has_none() {
+        let dir = crate::ScratchDir::new("files-etag");
+        let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+        fs::write(&a, vec![5; WINDOW + 1]).unwrap();
+        fs::write(&b, vec![5; WINDOW + 1]).unwrap();
+        let stamp = |p: &Path| Stamp::of(&fs::metadata(p).unwrap());
+        assert_eq!(
+            etag_of_file(&a, stamp(&a)).unwrap(),
+            etag_of_file(&b, stamp(&b)).unwrap()
+        );
+        let mut written = Etag::new(WINDOW as u64 + 1);
+        written.write(&vec![5; WINDOW + 1]);
+        assert_eq!(written.finish(), etag_of_file(&a, stamp(&a)).unwrap());
+        let old = stamp(&b);
+        fs::write(&b, vec![6; WINDOW + 1]).unwrap();
+        fs::File::options()
+            .write(true)
+            .open(&b)
+            .unwrap()
+            .set_modified(SystemTime::now() + Duration::from_secs(5))
+            .unwrap();
+        assert!(etag_of_file(&b, old).is_err());
+        assert_ne!(
+            etag_of_file(&a, stamp(&a)).unwrap(),
+            etag_of_file(&b, stamp(&b)).unwrap()
+        );
+    }
+}
