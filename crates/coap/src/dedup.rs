@@ -4,6 +4,8 @@
 
 use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
+
+use crate::peer_key::MidKey;
 use std::time::Instant;
 
 use crate::config::Limits;
@@ -28,7 +30,7 @@ struct Entry {
 
 /// Bounded store of recently received message IDs per peer.
 pub(crate) struct Dedup {
-    entries: HashMap<(SocketAddr, u16), Entry>,
+    entries: HashMap<MidKey, Entry>,
     /// Insertion order for expiry and eviction; stale keys are skipped.
     order: VecDeque<(Instant, SocketAddr, u16)>,
     bytes: usize,
@@ -52,7 +54,7 @@ impl Dedup {
             self.order.pop_front();
             if self
                 .entries
-                .get(&(peer, mid))
+                .get(&MidKey(peer, mid))
                 .is_some_and(|e| e.expires == expires)
             {
                 self.remove(peer, mid);
@@ -64,7 +66,7 @@ impl Dedup {
         if let Some(Entry {
             seen: Seen::Replied(m),
             ..
-        }) = self.entries.remove(&(peer, mid))
+        }) = self.entries.remove(&MidKey(peer, mid))
         {
             self.bytes -= m.encoded_len();
         }
@@ -82,8 +84,8 @@ impl Dedup {
         limits: &Limits,
     ) -> Option<&Seen> {
         self.expire(now, limits);
-        match self.entries.get(&(peer, mid)) {
-            Some(e) if e.token == token => self.entries.get(&(peer, mid)).map(|e| &e.seen),
+        match self.entries.get(&MidKey(peer, mid)) {
+            Some(e) if e.token == token => self.entries.get(&MidKey(peer, mid)).map(|e| &e.seen),
             Some(_) => {
                 self.remove(peer, mid);
                 None
@@ -107,7 +109,7 @@ impl Dedup {
             self.bytes += m.encoded_len();
         }
         self.entries.insert(
-            (peer, mid),
+            MidKey(peer, mid),
             Entry {
                 token,
                 expires,
@@ -120,7 +122,7 @@ impl Dedup {
 
     /// Records the reply to a remembered message, keeping its lifetime.
     pub(crate) fn set_reply(&mut self, peer: SocketAddr, mid: u16, seen: Seen) {
-        let Some(e) = self.entries.get_mut(&(peer, mid)) else {
+        let Some(e) = self.entries.get_mut(&MidKey(peer, mid)) else {
             return;
         };
         if let Seen::Replied(m) = &e.seen {

@@ -23,7 +23,7 @@ use std::collections::{BinaryHeap, HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use bytes::Bytes;
+use bytes::{Bytes, BytesMut};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
 
@@ -33,6 +33,7 @@ use crate::block::{
 use crate::config::EndpointConfig;
 use crate::dedup::{Dedup, Seen};
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Reaction, Token, Type};
+use crate::peer_key::{MidKey, PeerKey};
 
 /// Identifies a request this endpoint sent (client side).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -412,6 +413,9 @@ struct Observation {
 /// may be shorter).
 const STREAM_PIECE: usize = 64 << 10;
 
+/// Bytes of the chunk that messages sent once are encoded into ([`Endpoint::send`]).
+const ENCODE_CHUNK: usize = 16 << 10;
+
 /// A map keyed by what this endpoint chose itself (request and observation ids, its own
 /// tokens and message IDs, the peers it sends to): a fast seeded hash is enough there.
 /// The deduplication store, keyed by message IDs that peers choose, keeps SipHash.
@@ -432,12 +436,14 @@ pub struct Endpoint {
     timer_seq: u64,
     timers: BinaryHeap<Reverse<(Instant, u64, TimerKind)>>,
     outbox: VecDeque<Transmit>,
+    /// Where [`Endpoint::send`] encodes.
+    encoded: BytesMut,
     events: VecDeque<Event>,
-    exchanges: FastMap<(SocketAddr, u16), OutCon>,
+    exchanges: FastMap<MidKey, OutCon>,
     dedup: Dedup,
     requests: FastMap<u64, ClientRequest>,
     by_token: FastMap<Token, u64>,
-    peers: FastMap<SocketAddr, Peer>,
+    peers: FastMap<PeerKey, Peer>,
     pending: FastMap<u64, Pending>,
     block1: Block1Assembler,
     block2: ServerCache,
@@ -457,6 +463,7 @@ impl Endpoint {
             timer_seq: 0,
             timers: BinaryHeap::new(),
             outbox: VecDeque::new(),
+            encoded: BytesMut::new(),
             events: VecDeque::new(),
             exchanges: FastMap::default(),
             dedup: Dedup::new(),
@@ -497,9 +504,10 @@ impl Endpoint {
     /// Whether firing this timer now would do anything (the handlers' own checks).
     fn timer_is_live(&self, kind: TimerKind) -> bool {
         match kind {
-            TimerKind::Retransmit { peer, mid, tx } => {
-                self.exchanges.get(&(peer, mid)).is_some_and(|x| x.tx == tx)
-            }
+            TimerKind::Retransmit { peer, mid, tx } => self
+                .exchanges
+                .get(&MidKey(peer, mid))
+                .is_some_and(|x| x.tx == tx),
             TimerKind::Step { id, generation } => self
                 .requests
                 .get(&id)
@@ -603,8 +611,17 @@ impl Endpoint {
         self.config.ack_timeout.mul_f64(factor)
     }
 
+    /// Sends a message that goes out once and is not kept (not a CON, whose encoding waits
+    /// for its acknowledgement). It is encoded into a chunk shared with the messages before
+    /// it, so a block costs no allocation of its own; once they are all sent and dropped,
+    /// the chunk is used again from its start.
     fn send(&mut self, peer: SocketAddr, msg: &Message) {
-        let data = Bytes::from(msg.encode());
+        let len = msg.encoded_len();
+        if self.encoded.capacity() < len {
+            self.encoded.reserve(len.max(ENCODE_CHUNK));
+        }
+        msg.encode_into(&mut self.encoded);
+        let data = self.encoded.split().freeze();
         self.outbox.push_back(Transmit { peer, data });
     }
 
@@ -616,7 +633,7 @@ impl Endpoint {
         });
         let timeout = self.initial_timeout();
         self.exchanges.insert(
-            (peer, msg.message_id),
+            MidKey(peer, msg.message_id),
             OutCon {
                 data,
                 tx: 0,
@@ -636,7 +653,7 @@ impl Endpoint {
 
     fn on_retransmit_timer(&mut self, now: Instant, peer: SocketAddr, mid: u16, tx: u8) {
         let max = self.config.max_retransmit;
-        let Some(x) = self.exchanges.get_mut(&(peer, mid)) else {
+        let Some(x) = self.exchanges.get_mut(&MidKey(peer, mid)) else {
             return;
         };
         if x.tx != tx {
@@ -651,7 +668,7 @@ impl Endpoint {
             self.schedule(now + timeout, TimerKind::Retransmit { peer, mid, tx });
             return;
         }
-        let Some(x) = self.exchanges.remove(&(peer, mid)) else {
+        let Some(x) = self.exchanges.remove(&MidKey(peer, mid)) else {
             return;
         };
         match x.purpose {
@@ -670,7 +687,7 @@ impl Endpoint {
     fn on_ack_or_reset(&mut self, now: Instant, peer: SocketAddr, msg: Message) {
         // ACK and RST are matched by message ID only (RFC 7252 §4.2, §4.3); an unknown one
         // is ignored.
-        let Some(x) = self.exchanges.remove(&(peer, msg.message_id)) else {
+        let Some(x) = self.exchanges.remove(&MidKey(peer, msg.message_id)) else {
             if msg.ty == Type::Rst {
                 // A Reset to a NON notification ends the observation (RFC 7641 §3.6).
                 let obs = self
@@ -826,7 +843,11 @@ impl Endpoint {
             },
         );
         self.by_token.insert(token, id);
-        self.peers.entry(peer).or_default().queue.push_back(id);
+        self.peers
+            .entry(PeerKey(peer))
+            .or_default()
+            .queue
+            .push_back(id);
         self.pump(now, peer);
         RequestId(id)
     }
@@ -869,7 +890,7 @@ impl Endpoint {
     fn pump(&mut self, now: Instant, peer: SocketAddr) {
         let nstart = self.config.nstart.max(1);
         loop {
-            let Some(p) = self.peers.get_mut(&peer) else {
+            let Some(p) = self.peers.get_mut(&PeerKey(peer)) else {
                 return;
             };
             if p.active >= nstart {
@@ -877,7 +898,7 @@ impl Endpoint {
             }
             let Some(id) = p.queue.pop_front() else {
                 if p.active == 0 {
-                    self.peers.remove(&peer);
+                    self.peers.remove(&PeerKey(peer));
                 }
                 return;
             };
@@ -1052,10 +1073,10 @@ impl Endpoint {
         self.by_token.remove(&r.token);
         match r.waiting {
             Waiting::Ack(mid) => {
-                self.exchanges.remove(&(r.peer, mid));
+                self.exchanges.remove(&MidKey(r.peer, mid));
             }
             Waiting::Queued => {
-                if let Some(p) = self.peers.get_mut(&r.peer) {
+                if let Some(p) = self.peers.get_mut(&PeerKey(r.peer)) {
                     p.queue.retain(|q| *q != id);
                 }
                 return;
@@ -1068,7 +1089,7 @@ impl Endpoint {
     }
 
     fn release_slot(&mut self, now: Instant, peer: SocketAddr) {
-        if let Some(p) = self.peers.get_mut(&peer) {
+        if let Some(p) = self.peers.get_mut(&PeerKey(peer)) {
             p.active = p.active.saturating_sub(1);
         }
         self.pump(now, peer);
@@ -1114,7 +1135,7 @@ impl Endpoint {
         }
         // A separate response also acknowledges the request (RFC 7252 §5.2.2).
         if let Waiting::Ack(mid) | Waiting::Response { mid, .. } = r.waiting {
-            self.exchanges.remove(&(r.peer, mid));
+            self.exchanges.remove(&MidKey(r.peer, mid));
         }
         r.generation += 1;
         r.failures = 0;

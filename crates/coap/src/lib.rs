@@ -15,6 +15,7 @@ pub mod content_format;
 pub mod group;
 pub mod link_format;
 pub mod msg;
+mod peer_key;
 
 mod block;
 pub mod config;

@@ -5,9 +5,8 @@
 use std::collections::{HashMap, HashSet};
 use std::fs;
 use std::hash::Hasher as _;
-use std::io::{self, Read as _};
+use std::io::{self, Read as _, Seek as _, SeekFrom};
 use std::ops::Range;
-use std::os::unix::fs::FileExt as _;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::SystemTime;
@@ -292,7 +291,8 @@ impl StaticFiles {
     }
 }
 
-/// One GET's view of a file: the open file, read a window at a time, and only while it
+/// One GET's view of a file: the open file (its own handle, so its position is this
+/// source's), read a window at a time, and only while it
 /// still has the length and modification time its ETag was computed for. A file replaced
 /// by a rename (as PUT does) keeps being read from the old inode, which does not change.
 struct FileSource {
@@ -314,6 +314,16 @@ impl FileSource {
         Ok(source.unchanged().then_some(source))
     }
 
+    /// `len` bytes from `offset`, into memory that is not zeroed first (`read_to_end`
+    /// fills spare capacity); `None` when fewer are there.
+    fn read_at(&self, offset: usize, len: usize) -> Option<Vec<u8>> {
+        let mut file = &self.file;
+        file.seek(SeekFrom::Start(offset as u64)).ok()?;
+        let mut buf = Vec::with_capacity(len);
+        file.take(len as u64).read_to_end(&mut buf).ok()?;
+        (buf.len() == len).then_some(buf)
+    }
+
     fn unchanged(&self) -> bool {
         self.file
             .metadata()
@@ -331,16 +341,13 @@ impl BlockSource for FileSource {
         let (start, bytes) = &*window;
         if range.start < *start || range.end > start + bytes.len() {
             let end = range.end.max(range.start + WINDOW).min(self.len());
-            let mut buf = vec![0; end - range.start];
             // Checked after the read too: a write that landed during it shows in the
             // modification time.
-            if !self.unchanged()
-                || self
-                    .file
-                    .read_exact_at(&mut buf, range.start as u64)
-                    .is_err()
-                || !self.unchanged()
-            {
+            if !self.unchanged() {
+                return None;
+            }
+            let buf = self.read_at(range.start, end - range.start)?;
+            if !self.unchanged() {
                 return None;
             }
             *window = (range.start, Bytes::from(buf));
@@ -449,7 +456,7 @@ mod tests {
         assert_eq!(s.held(), WINDOW);
         // Written in place, with a new modification time: what is not read yet is refused.
         let f = fs::OpenOptions::new().write(true).open(&path).unwrap();
-        f.write_all_at(b"changed", 0).unwrap();
+        std::os::unix::fs::FileExt::write_all_at(&f, b"changed", 0).unwrap();
         f.set_modified(SystemTime::now() + Duration::from_secs(5))
             .unwrap();
         assert_eq!(s.read(0..1024), None);

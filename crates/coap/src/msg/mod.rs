@@ -9,7 +9,7 @@ pub mod option;
 
 use std::fmt;
 
-use bytes::Bytes;
+use bytes::{BufMut, Bytes};
 
 pub use code::Code;
 pub use option::{BlockOpt, CoapOption, OptionNumber, OptionValue, Options};
@@ -367,14 +367,14 @@ impl Message {
         len
     }
 
-    /// Appends the encoded message to `out`.
-    pub fn encode_into(&self, out: &mut Vec<u8>) {
-        out.reserve(self.encoded_len());
+    /// Appends the encoded message to `out` (room for [`Message::encoded_len`] bytes is
+    /// made as it goes; reserve it first to grow `out` once).
+    pub fn encode_into(&self, out: &mut impl BufMut) {
         let token = self.token.as_bytes();
-        out.push(0x40 | (self.ty.bits() << 4) | token.len() as u8);
-        out.push(self.code.0);
-        out.extend_from_slice(&self.message_id.to_be_bytes());
-        out.extend_from_slice(token);
+        out.put_u8(0x40 | (self.ty.bits() << 4) | token.len() as u8);
+        out.put_u8(self.code.0);
+        out.put_u16(self.message_id);
+        out.put_slice(token);
         let mut prev = 0u16;
         for o in self.options.iter() {
             let delta = u32::from(o.number.0 - prev);
@@ -384,20 +384,20 @@ impl Message {
             // options get them truncated rather than a corrupt datagram.
             let value = &o.value[..o.value.len().min(MAX_OPTION_LEN)];
             let len = value.len() as u32;
-            out.push((nibble(delta) << 4) | nibble(len));
-            push_ext(out, delta);
-            push_ext(out, len);
-            out.extend_from_slice(value);
+            out.put_u8((nibble(delta) << 4) | nibble(len));
+            put_ext(out, delta);
+            put_ext(out, len);
+            out.put_slice(value);
         }
         if !self.payload.is_empty() {
-            out.push(0xff);
-            out.extend_from_slice(&self.payload);
+            out.put_u8(0xff);
+            out.put_slice(&self.payload);
         }
     }
 
     /// Encodes into a new buffer.
     pub fn encode(&self) -> Vec<u8> {
-        let mut out = Vec::new();
+        let mut out = Vec::with_capacity(self.encoded_len());
         self.encode_into(&mut out);
         out
     }
@@ -441,10 +441,10 @@ fn ext_len(v: u32) -> usize {
     }
 }
 
-fn push_ext(out: &mut Vec<u8>, v: u32) {
+fn put_ext(out: &mut impl BufMut, v: u32) {
     match v {
         0..=12 => {}
-        13..=268 => out.push((v - 13) as u8),
-        _ => out.extend_from_slice(&((v - 269).min(0xffff) as u16).to_be_bytes()),
+        13..=268 => out.put_u8((v - 13) as u8),
+        _ => out.put_u16((v - 269).min(0xffff) as u16),
     }
 }
