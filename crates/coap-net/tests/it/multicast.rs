@@ -86,11 +86,18 @@ async fn rfc7390_ipv4_group_on_lo_answers_from_unicast_addresses() {
             .unwrap_or_else(|e| panic!("join: {e}"));
         servers.push(s);
     }
-    let failing = group_server(SocketAddr::from(([127, 0, 0, 5], port)), "five", true);
-    failing
-        .join(IpAddr::V4(groups::ALL_COAP_V4), 0)
-        .await
-        .unwrap_or_else(|e| panic!("join: {e}"));
+    // Two members that answer 4.04, suppressed for a group request: one bound to its
+    // unicast address (a group socket of its own receives for it), one to the wildcard
+    // address (its own socket receives the group's datagrams and reads their destination).
+    let failing = [
+        group_server(SocketAddr::from(([127, 0, 0, 5], port)), "five", true),
+        group_server(SocketAddr::from(([0, 0, 0, 0], port)), "wildcard", true),
+    ];
+    for f in &failing {
+        f.join(IpAddr::V4(groups::ALL_COAP_V4), 0)
+            .await
+            .unwrap_or_else(|e| panic!("join: {e}"));
+    }
     let got = collect(SocketAddr::from((groups::ALL_COAP_V4, port))).await;
     let expected: Vec<(SocketAddr, String)> = [(2u8, "two"), (3, "three"), (4, "four")]
         .iter()
@@ -98,7 +105,7 @@ async fn rfc7390_ipv4_group_on_lo_answers_from_unicast_addresses() {
         .collect();
     assert_eq!(
         got, expected,
-        "one answer per member, from its unicast address; the 4.04 is suppressed"
+        "one answer per member, from its unicast address; the 4.04s are suppressed"
     );
     // After leaving, a member no longer answers.
     servers[0]
