@@ -1654,7 +1654,14 @@ impl Endpoint {
                 limits,
             );
         }
-        block2_response(response.code, response.options, &body, num, szx).unwrap_or_else(unreadable)
+        let Some(mut block) = block2_response(response.code, response.options, &body, num, szx)
+        else {
+            return unreadable();
+        };
+        // The reply is remembered for duplicates for EXCHANGE_LIFETIME; a slice would keep
+        // the whole representation (or a source's read-ahead window) alive that long.
+        block.payload = Bytes::copy_from_slice(&block.payload);
+        block
     }
 
     /// Answers a request at once and remembers the answer for its duplicates.

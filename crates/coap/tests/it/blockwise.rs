@@ -2,7 +2,8 @@
 
 use std::cell::Cell;
 use std::rc::Rc;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::Duration;
 
 use bytes::Bytes;
@@ -346,6 +347,64 @@ fn a_source_is_read_block_by_block_and_a_source_gone_unreadable_is_rendered_agai
         3,
         "block 0, the continuation that found the source unreadable, block 0 again"
     );
+}
+
+/// Bytes whose memory reports when it is freed.
+struct Tracked(Vec<u8>, Arc<AtomicBool>);
+
+impl AsRef<[u8]> for Tracked {
+    fn as_ref(&self) -> &[u8] {
+        &self.0
+    }
+}
+
+impl Drop for Tracked {
+    fn drop(&mut self) {
+        self.1.store(true, Ordering::Relaxed);
+    }
+}
+
+#[test]
+fn the_reply_kept_for_duplicates_does_not_keep_the_representation() {
+    // Block 0's reply is remembered for duplicates for EXCHANGE_LIFETIME (247 s); the
+    // representation only for the Block2 lifetime, here 10 s. After that, the body's memory
+    // is freed although the reply is still remembered.
+    let freed = Arc::new(AtomicBool::new(false));
+    let flag = freed.clone();
+    let calls = Rc::new(Cell::new(0));
+    let seen = calls.clone();
+    let handler: Handler = Box::new(move |_| {
+        seen.set(seen.get() + 1);
+        let body = if seen.get() == 1 {
+            Bytes::from_owner(Tracked(body(5000, 3).to_vec(), flag.clone()))
+        } else {
+            body(5000, 4)
+        };
+        Reply::Now(Response::new(Code::CONTENT).with_payload(body))
+    });
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let server_cfg = EndpointConfig {
+        limits: Limits {
+            blockwise_lifetime: Duration::from_secs(10),
+            ..Limits::default()
+        },
+        ..cfg(2)
+    };
+    let s = sim.add(server_cfg, Some(handler));
+    let server = sim.nodes[s].addr;
+    for _ in 0..2 {
+        let now = sim.now;
+        sim.nodes[c]
+            .ep
+            .request(now, server, Request::new(Code::GET, "/file"));
+        assert!(sim.run_to_event(c, Duration::from_secs(100)));
+        sim.nodes[c].events.clear();
+        // Past the Block2 lifetime; the next representation stored expires the first.
+        sim.run_until(Duration::from_secs(20), |_| false);
+    }
+    assert_eq!(calls.get(), 2);
+    assert!(freed.load(Ordering::Relaxed), "the first body was freed");
 }
 
 #[test]
