@@ -21,8 +21,8 @@ use socket2::{Domain, Protocol, SockRef, Socket as RawSocket, Type};
 pub const MAX_DATAGRAM: usize = 65_507;
 
 /// The receive buffer: room for the largest datagram, or for several same-sized ones the
-/// kernel coalesced (GRO, asked for together with destinations). At 64 KiB a zeroed buffer comes from fresh pages, so only the
-/// pages datagrams reach become resident.
+/// kernel coalesced (GRO, asked for together with destinations). Each socket thread
+/// zeroes its buffer once, when it starts.
 pub const RECV_BUFFER: usize = 1 << 16;
 
 /// One received datagram.
