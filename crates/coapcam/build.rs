@@ -15,7 +15,8 @@ fn main() {
     let flags = var("CARGO_ENCODED_RUSTFLAGS");
     let default_linker = env::var_os("RUSTC_LINKER").is_none()
         && !flags.contains("linker")
-        && !flags.contains("link-self-contained");
+        && !flags.contains("link-self-contained")
+        && !flags.contains("fuse-ld");
     let order = Path::new(&var("CARGO_MANIFEST_DIR")).join("link-order.txt");
     if var("PROFILE") == "release"
         && var("TARGET") == "x86_64-unknown-linux-gnu"

@@ -146,7 +146,9 @@ impl Socket {
     }
 
     /// Joins a multicast group; `interface` is an IPv6 interface index (0: the default) and
-    /// is ignored for IPv4, which joins on the interface the routing table picks.
+    /// is ignored for IPv4, which joins on the interface the routing table picks. Call it
+    /// from the thread that receives: a wildcard socket starts reading destinations here,
+    /// and a receive already waiting on another thread would not.
     pub fn join(&self, group: IpAddr, interface: u32) -> io::Result<()> {
         if self.local.ip().is_unspecified() {
             self.read_destinations()?;

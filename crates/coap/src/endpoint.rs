@@ -614,7 +614,8 @@ impl Endpoint {
     /// Sends a message that goes out once and is not kept (not a CON, whose encoding waits
     /// for its acknowledgement). It is encoded into a chunk shared with the messages before
     /// it, so a block costs no allocation of its own; once they are all sent and dropped,
-    /// the chunk is used again from its start.
+    /// the chunk is used again from its start (so a caller that keeps a [`Transmit`]
+    /// keeps its whole chunk).
     fn send(&mut self, peer: SocketAddr, msg: &Message) {
         let len = msg.encoded_len();
         if self.encoded.capacity() < len {
@@ -1640,24 +1641,26 @@ impl Endpoint {
                 None => unreadable(),
             };
         }
+        // Block numbers have 20 bits (RFC 7959 §2.2) and Size2 at most 4 bytes.
+        if len > BlockOpt::size_of(szx) << 20 || u32::try_from(len).is_err() {
+            return Response::diagnostic(
+                Code::INTERNAL_SERVER_ERROR,
+                "the representation is too large for block-wise transfer at this block size",
+            );
+        }
         if response.options.etag().is_none() {
             let etag = self.rng.next_u32().to_be_bytes();
             response.options.set(OptionNumber::ETAG, etag);
         }
-        if len > BlockOpt::size_of(szx) {
-            self.block2.insert(
-                now,
-                key,
-                response.code,
-                response.options.clone(),
-                body.clone(),
-                limits,
-            );
-        }
-        let Some(mut block) = block2_response(response.code, response.options, &body, num, szx)
+        let Some(mut block) =
+            block2_response(response.code, response.options.clone(), &body, num, szx)
         else {
             return unreadable();
         };
+        if len > BlockOpt::size_of(szx) {
+            self.block2
+                .insert(now, key, response.code, response.options, body, limits);
+        }
         // The reply is remembered for duplicates for EXCHANGE_LIFETIME; a slice would keep
         // the whole representation (or a source's read-ahead window) alive that long.
         block.payload = Bytes::copy_from_slice(&block.payload);
@@ -1728,9 +1731,8 @@ impl Endpoint {
         Some(msg)
     }
 
-    /// Sends a reply and keeps the message (not its encoding: a block's payload is a
-    /// slice of the stored representation, so remembering it costs no copy) to send again
-    /// for duplicates.
+    /// Sends a reply and keeps the message (not its encoding, which shares a chunk with
+    /// other messages) to send again for duplicates.
     fn reply_with(&mut self, peer: SocketAddr, msg: Message) -> Seen {
         self.send(peer, &msg);
         Seen::Replied(Box::new(msg))

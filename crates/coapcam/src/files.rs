@@ -5,9 +5,11 @@
 use std::collections::{HashMap, HashSet};
 use std::fs;
 use std::hash::Hasher as _;
-use std::io::{self, Read as _, Seek as _, SeekFrom};
+use std::io::{self, Read as _, Seek as _, SeekFrom, Write as _};
 use std::ops::Range;
+use std::os::unix::fs::MetadataExt as _;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::SystemTime;
 
@@ -22,17 +24,26 @@ use tokio::sync::mpsc;
 const WINDOW: usize = 64 << 10;
 
 /// What the server knows of a file: enough to tell when it changes, not its content.
+/// The inode, length, and modification and change times: a write in place moves the
+/// times (the change time even for tools that restore the modification time, `cp -p`,
+/// `touch -r`), a replacement changes the inode.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Stamp {
+    device: u64,
+    inode: u64,
     len: u64,
     modified: Option<SystemTime>,
+    changed: (i64, i64),
 }
 
 impl Stamp {
     fn of(meta: &fs::Metadata) -> Self {
         Self {
+            device: meta.dev(),
+            inode: meta.ino(),
             len: meta.len(),
             modified: meta.modified().ok(),
+            changed: (meta.ctime(), meta.ctime_nsec()),
         }
     }
 }
@@ -188,10 +199,15 @@ impl StaticFiles {
         }) else {
             return Response::diagnostic(Code::NOT_FOUND, "no such file");
         };
-        let source = match FileSource::open(&self.dir.join(&name), file.stamp) {
-            Ok(Some(source)) => source,
+        let source = FileSource {
+            path: self.dir.join(&name),
+            stamp: file.stamp,
+            window: Mutex::new((0, Bytes::new())),
+        };
+        match fs::metadata(&source.path) {
+            Ok(meta) if Stamp::of(&meta) == file.stamp => {}
             // Changed since it was hashed: the next rescan gives it a new ETag.
-            Ok(None) => return changing(),
+            Ok(_) => return changing(),
             Err(e) if e.kind() == io::ErrorKind::NotFound => {
                 return Response::diagnostic(Code::NOT_FOUND, "no such file");
             }
@@ -201,7 +217,7 @@ impl StaticFiles {
                     &format!("reading {name}: {e}"),
                 );
             }
-        };
+        }
         let cf = content_format_of(Path::new(&name));
         let mut r = Response::new(Code::CONTENT).with_source(source);
         r.options
@@ -210,12 +226,24 @@ impl StaticFiles {
         r
     }
 
-    /// Writes through a temporary file and a rename, so readers never see half a file.
+    /// Writes through a temporary file of its own and a rename, so readers never see half
+    /// a file. The stamp comes from the written file itself after the rename, so a second
+    /// write to the same name cannot pair this ETag with its content.
     fn store(&self, name: &str, body: &Bytes) -> io::Result<()> {
-        let tmp = self.dir.join(format!(".{name}.tmp"));
-        fs::write(&tmp, body)?;
-        fs::rename(&tmp, self.dir.join(name))?;
-        let stamp = Stamp::of(&fs::metadata(self.dir.join(name))?);
+        static WRITES: AtomicU64 = AtomicU64::new(0);
+        let n = WRITES.fetch_add(1, Ordering::Relaxed);
+        let tmp = self
+            .dir
+            .join(format!(".{name}.{}.{n}.tmp", std::process::id()));
+        let mut file = fs::File::create(&tmp)?;
+        if let Err(e) = file
+            .write_all(body)
+            .and_then(|()| fs::rename(&tmp, self.dir.join(name)))
+        {
+            let _ = fs::remove_file(&tmp);
+            return Err(e);
+        }
+        let stamp = Stamp::of(&file.metadata()?);
         let mut hash = Etag::new(body.len() as u64);
         hash.write(body);
         self.write().insert(
@@ -291,43 +319,35 @@ impl StaticFiles {
     }
 }
 
-/// One GET's view of a file: the open file (its own handle, so its position is this
-/// source's), read a window at a time, and only while it
-/// still has the length and modification time its ETag was computed for. A file replaced
-/// by a rename (as PUT does) keeps being read from the old inode, which does not change.
+/// One GET's view of a file, read a window at a time, and only while the file at its path
+/// still has the stamp its ETag was computed for. The file is opened for each window, not
+/// kept open: the Block2 store keeps a source for minutes after its last block, and open
+/// files would pile up to the process's limit.
 struct FileSource {
-    file: fs::File,
+    path: PathBuf,
     stamp: Stamp,
     /// The last window read: its offset in the file and its bytes.
     window: Mutex<(usize, Bytes)>,
 }
 
 impl FileSource {
-    /// Opens the file; `None` when it no longer matches `stamp`.
-    fn open(path: &Path, stamp: Stamp) -> io::Result<Option<Self>> {
-        let file = fs::File::open(path)?;
-        let source = Self {
-            file,
-            stamp,
-            window: Mutex::new((0, Bytes::new())),
-        };
-        Ok(source.unchanged().then_some(source))
-    }
-
     /// `len` bytes from `offset`, into memory that is not zeroed first (`read_to_end`
-    /// fills spare capacity); `None` when fewer are there.
+    /// fills spare capacity); `None` when the file is no longer the one stamped or fewer
+    /// bytes are there. Stamped before and after the read: a write that landed during it
+    /// shows in the times.
     fn read_at(&self, offset: usize, len: usize) -> Option<Vec<u8>> {
-        let mut file = &self.file;
+        let mut file = fs::File::open(&self.path).ok()?;
+        let unchanged = |file: &fs::File| {
+            file.metadata()
+                .is_ok_and(|meta| Stamp::of(&meta) == self.stamp)
+        };
+        if !unchanged(&file) {
+            return None;
+        }
         file.seek(SeekFrom::Start(offset as u64)).ok()?;
         let mut buf = Vec::with_capacity(len);
-        file.take(len as u64).read_to_end(&mut buf).ok()?;
-        (buf.len() == len).then_some(buf)
-    }
-
-    fn unchanged(&self) -> bool {
-        self.file
-            .metadata()
-            .is_ok_and(|meta| Stamp::of(&meta) == self.stamp)
+        (&file).take(len as u64).read_to_end(&mut buf).ok()?;
+        (buf.len() == len && unchanged(&file)).then_some(buf)
     }
 }
 
@@ -341,15 +361,7 @@ impl BlockSource for FileSource {
         let (start, bytes) = &*window;
         if range.start < *start || range.end > start + bytes.len() {
             let end = range.end.max(range.start + WINDOW).min(self.len());
-            // Checked after the read too: a write that landed during it shows in the
-            // modification time.
-            if !self.unchanged() {
-                return None;
-            }
             let buf = self.read_at(range.start, end - range.start)?;
-            if !self.unchanged() {
-                return None;
-            }
             *window = (range.start, Bytes::from(buf));
         }
         let (start, bytes) = &*window;
@@ -437,8 +449,11 @@ mod tests {
     use super::*;
 
     fn source(path: &Path) -> FileSource {
-        let stamp = Stamp::of(&fs::metadata(path).unwrap());
-        FileSource::open(path, stamp).unwrap().expect("unchanged")
+        FileSource {
+            path: path.to_path_buf(),
+            stamp: Stamp::of(&fs::metadata(path).unwrap()),
+            window: Mutex::new((0, Bytes::new())),
+        }
     }
 
     #[test]
@@ -454,24 +469,51 @@ mod tests {
             assert_eq!(s.read(start..end).unwrap(), body[start..end], "at {start}");
         }
         assert_eq!(s.held(), WINDOW);
-        // Written in place, with a new modification time: what is not read yet is refused.
+        // Written in place, the modification time put back as `cp -p` or `touch -r` do:
+        // the change time still tells, and what is not read yet is refused.
+        let modified = fs::metadata(&path).unwrap().modified().unwrap();
+        std::thread::sleep(Duration::from_millis(20));
         let f = fs::OpenOptions::new().write(true).open(&path).unwrap();
         std::os::unix::fs::FileExt::write_all_at(&f, b"changed", 0).unwrap();
-        f.set_modified(SystemTime::now() + Duration::from_secs(5))
-            .unwrap();
+        f.set_modified(modified).unwrap();
+        assert_eq!(fs::metadata(&path).unwrap().modified().unwrap(), modified);
         assert_eq!(s.read(0..1024), None);
-        assert!(FileSource::open(&path, s.stamp).unwrap().is_none());
     }
 
     #[test]
-    fn a_file_replaced_by_a_rename_is_still_read_as_it_was() {
+    fn a_file_replaced_by_a_rename_is_refused() {
         let dir = crate::ScratchDir::new("files-rename");
         let path = dir.path().join("body.bin");
         fs::write(&path, vec![1; 2 * WINDOW]).unwrap();
         let s = source(&path);
-        fs::write(dir.path().join("new"), vec![2; 10]).unwrap();
+        assert_eq!(s.read(0..16).unwrap(), vec![1; 16]);
+        fs::write(dir.path().join("new"), vec![2; 2 * WINDOW]).unwrap();
         fs::rename(dir.path().join("new"), &path).unwrap();
-        assert_eq!(s.read(WINDOW..WINDOW + 16).unwrap(), vec![1; 16]);
+        assert_eq!(
+            s.read(WINDOW..WINDOW + 16),
+            None,
+            "same length, another inode"
+        );
+    }
+
+    #[test]
+    fn a_stored_file_is_recorded_with_its_own_stamp_and_etag() {
+        let dir = crate::ScratchDir::new("files-store");
+        let (tx, _rx) = mpsc::unbounded_channel();
+        let files = StaticFiles::load(dir.path(), &Router::new(), true, tx).unwrap();
+        for body in [&b"first"[..], &b"second, longer"[..]] {
+            files.store("a.txt", &Bytes::copy_from_slice(body)).unwrap();
+            let path = dir.path().join("a.txt");
+            let stamp = Stamp::of(&fs::metadata(&path).unwrap());
+            let recorded = *files.read().get("a.txt").unwrap();
+            assert_eq!(recorded.stamp, stamp);
+            assert_eq!(recorded.etag, etag_of_file(&path, stamp).unwrap());
+        }
+        let names: Vec<_> = fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["a.txt"], "no temporary file left");
     }
 
     #[test]

@@ -349,6 +349,40 @@ fn a_source_is_read_block_by_block_and_a_source_gone_unreadable_is_rendered_agai
     );
 }
 
+/// A body of `len` zero bytes that exists only as it is read.
+struct Zeros(usize);
+
+impl BlockSource for Zeros {
+    fn len(&self) -> usize {
+        self.0
+    }
+
+    fn read(&self, range: std::ops::Range<usize>) -> Option<Bytes> {
+        Some(vec![0; range.len()].into())
+    }
+
+    fn held(&self) -> usize {
+        0
+    }
+}
+
+#[test]
+fn rfc7959_2_2_a_body_past_the_20_bit_block_number_is_refused_not_wrapped() {
+    // 16-byte blocks: block numbers end at 16 MiB.
+    let handler: Handler =
+        Box::new(|_| Reply::Now(Response::new(Code::CONTENT).with_source(Zeros((16 << 20) + 1))));
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    let mut req = Request::new(Code::GET, "/huge");
+    req.block_szx = Some(0);
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(100)));
+    assert_eq!(response(&sim, c).code, Code::INTERNAL_SERVER_ERROR);
+}
+
 /// Bytes whose memory reports when it is freed.
 struct Tracked(Vec<u8>, Arc<AtomicBool>);
 
