@@ -141,6 +141,13 @@ async fn rfc7390_ipv6_link_local_group_on_veth() {
             .unwrap_or_else(|e| panic!("join: {e}"));
         servers.push(s);
     }
+    // A wildcard-bound member that answers 4.04: it reads each datagram's destination,
+    // so it knows the request was sent to the group and stays silent.
+    let failing = group_server(SocketAddr::from(([0u16; 8], port)), "wildcard", true);
+    failing
+        .join(IpAddr::V6(groups::ALL_COAP_V6_LINK), ifindex)
+        .await
+        .unwrap_or_else(|e| panic!("join: {e}"));
     let group = SocketAddr::V6(SocketAddrV6::new(
         groups::ALL_COAP_V6_LINK,
         port,
