@@ -7,10 +7,9 @@ use std::time::Duration;
 
 use image::{DynamicImage, ImageFormat};
 
-use crate::cams::{COLOR_640, DEPTH_640, SN, TempDir, serve};
+use crate::cams::{COAPCAM, COLOR_640, DEPTH_640, SN, TempDir, serve};
 use crate::interop::peers::{Finished, Proc};
 
-const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
 /// Bound on one command (the servers stop by themselves after 120 s).
 const LIMIT: Duration = Duration::from_secs(110);
 
@@ -50,18 +49,6 @@ fn ply_parts(bytes: &[u8]) -> (Vec<String>, &[u8]) {
         .map(str::to_owned)
         .collect();
     (header, &bytes[at + end.len()..])
-}
-
-fn json(f: &Finished) -> serde_json::Value {
-    let text = f.stdout_text();
-    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{text:?}: {e}"))
-}
-
-fn json_lines(f: &Finished) -> Vec<serde_json::Value> {
-    f.stdout_text()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{l:?}: {e}")))
-        .collect()
 }
 
 /// Points in a thesis point-cloud packet, checking its length.
@@ -190,8 +177,8 @@ fn grab_writes_every_stream_in_every_file_type() {
 #[test]
 fn grab_refuses_a_file_type_that_does_not_fit() {
     let state = TempDir::new("client-grab-refused");
-    let (_server, addr) = serve(state.path());
-    let uri = format!("coap://{addr}");
+    // Refused before any request: no server is needed (port 9 discards).
+    let uri = "coap://127.0.0.1:9".to_owned();
     let files = state.path().join("files");
     std::fs::create_dir_all(&files).expect("a directory for the files");
     let out = |name: &str| path(&files.join(name)).to_owned();
@@ -289,12 +276,12 @@ fn measure_finds_the_default_scenes_box() {
     let (_server, addr) = serve(state.path());
     let uri = format!("coap://{addr}");
 
-    let m = json(&ok(&["measure", "--server", &uri, "--json"]));
+    let m = ok(&["measure", "--server", &uri, "--json"]).json();
     assert_measures_the_box(&m);
     assert_eq!(m["cameras"], serde_json::json!([SN]));
 
     let annotated = state.path().join("annotated.png");
-    let m = json(&ok(&[
+    let m = ok(&[
         "measure",
         "--server",
         &uri,
@@ -303,7 +290,8 @@ fn measure_finds_the_default_scenes_box() {
         "--json",
         "--annotate",
         path(&annotated),
-    ]));
+    ])
+    .json();
     assert_measures_the_box(&m);
     assert_eq!(m["cameras"], serde_json::json!([SN]));
     let picture = decode(&annotated, ImageFormat::Png);
@@ -316,17 +304,14 @@ fn measure_finds_the_default_scenes_box() {
     // --prepare cuts the floor out of what the camera sends: the same box from a
     // fraction of the points, and the camera's application-config says so afterwards.
     let whole = m["bytes"].as_u64().expect("bytes");
-    let m = json(&ok(&["measure", "--server", &uri, "--prepare", "--json"]));
+    let m = ok(&["measure", "--server", &uri, "--prepare", "--json"]).json();
     assert_measures_the_box(&m);
     let cut = m["bytes"].as_u64().expect("bytes");
     assert!(
         cut * 3 < whole,
         "{cut} bytes with --prepare, {whole} without"
     );
-    let config = json(&ok(&[
-        "get",
-        &format!("{uri}/cams/{SN}/application-config"),
-    ]));
+    let config = ok(&["get", &format!("{uri}/cams/{SN}/application-config")]).json();
     let min_z = config["roi3d"]["min_z"].as_f64().expect("min_z");
     assert!((min_z - 0.005).abs() < 1e-6, "{config}");
     assert_ne!(
@@ -383,7 +368,7 @@ fn monitor_prints_each_result_and_the_statistics() {
         "0",
         "--json",
     ]);
-    let lines = json_lines(&f);
+    let lines = f.json_lines();
     assert_eq!(lines.len(), 3, "two results and the statistics: {lines:?}");
     for (i, l) in lines[..2].iter().enumerate() {
         assert_eq!(l["n"], i + 1);
@@ -416,7 +401,7 @@ fn monitor_prints_each_result_and_the_statistics() {
     let f = ok(&[
         "monitor", "measure", "--server", &uri, "--count", "1", "--json",
     ]);
-    let lines = json_lines(&f);
+    let lines = f.json_lines();
     assert_eq!(lines.len(), 2, "{lines:?}");
     assert_measures_the_box(&lines[0]);
     assert_eq!(lines[1]["statistics"]["count"], 1);

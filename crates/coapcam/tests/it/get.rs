@@ -11,9 +11,8 @@ use std::time::Duration;
 use bytes::Bytes;
 use coap::{BlockOpt, Code, Message, OptionNumber, Type};
 
+use crate::cams::LIMIT;
 use crate::interop::peers::{self, COAPCAM, Proc, TempDir};
-
-const LIMIT: Duration = Duration::from_secs(60);
 
 fn get(uri: &str, out: &Path, extra: &[&str]) -> peers::Finished {
     let mut args = vec!["get", uri, "-o", out.to_str().expect("UTF-8 path")];

@@ -10,7 +10,7 @@ use std::net::SocketAddr;
 use std::time::Duration;
 
 use coap::group::{GroupConfig, decode_list};
-use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
+use coap::{Code, OptionNumber, Request, Response};
 use coap_net::Client;
 
 use crate::cams::{COAPCAM, LIMIT, Server, TempDir, client, runtime, send, serve_at, serve_with};
@@ -211,11 +211,7 @@ fn a_membership_created_by_post_makes_the_server_answer_its_group() {
     runtime().block_on(async {
         let unicast = client();
         // Bound to 127.0.0.1, as in the multicast grab below.
-        let multicast = Client::bind(
-            SocketAddr::from(([127, 0, 0, 1], 0)),
-            EndpointConfig::default(),
-        )
-        .expect("client socket");
+        let multicast = client();
         assert!(
             discover(&multicast, group).await.is_empty(),
             "an answer before the server joined"
@@ -259,19 +255,12 @@ fn multicast_grab_of_three_servers_in_one_group() {
     }
     let dir = TempDir::new("group");
     let _servers: Vec<Server> = [2u8, 3, 4].iter().map(|h| start(*h, dir.path())).collect();
-    let runtime = tokio::runtime::Builder::new_multi_thread()
-        .enable_all()
-        .build()
-        .expect("runtime");
+    let runtime = runtime();
     let answers = runtime.block_on(async {
         // Bound to 127.0.0.1, not 0.0.0.0: on lo the kernel would otherwise send each
         // unicast follow-up from the address it is sent to (127.0.0.N is local too), and
         // the servers keep the stored cloud for the address that asked.
-        let client = Client::bind(
-            SocketAddr::from(([127, 0, 0, 1], 0)),
-            EndpointConfig::default(),
-        )
-        .expect("client socket");
+        let client = client();
         let mut request = Request::new(Code::POST, "/cams/pointclouds");
         request.timeout = Some(Duration::from_secs(3));
         tokio::time::timeout(
@@ -381,30 +370,24 @@ fn multicast_measurement_merges_three_servers_cameras() {
         Duration::from_secs(110),
     )
     .expect_success("coapcam measure --group");
-    let text = f.stdout_text();
-    let m: serde_json::Value =
-        serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{text:?}: {e}"));
-    let mut serials: Vec<&str> = m["cameras"]
-        .as_array()
-        .expect("cameras")
-        .iter()
-        .filter_map(|s| s.as_str())
-        .collect();
-    serials.sort_unstable();
+    let m = f.json();
+    let sorted = |key: &str| {
+        let mut v: Vec<&str> = m[key]
+            .as_array()
+            .expect(key)
+            .iter()
+            .filter_map(|s| s.as_str())
+            .collect();
+        v.sort_unstable();
+        v
+    };
     assert_eq!(
-        serials,
+        sorted("cameras"),
         ["000000000006", "000000000007", "000000000008"],
         "{m}"
     );
-    let mut servers: Vec<&str> = m["servers"]
-        .as_array()
-        .expect("servers")
-        .iter()
-        .filter_map(|s| s.as_str())
-        .collect();
-    servers.sort_unstable();
     assert_eq!(
-        servers,
+        sorted("servers"),
         ["127.0.0.6:5683", "127.0.0.7:5683", "127.0.0.8:5683"],
         "{m}"
     );

@@ -72,16 +72,8 @@ fn our_get(uri: &str, out: &Path, args: &[&str], limit: Duration) -> Vec<u8> {
     std::fs::read(out).unwrap_or_else(|e| panic!("reading {}: {e}", out.display()))
 }
 
-/// Parses `coapcam ... --json` output: one object per line.
-fn json_lines(f: &peers::Finished) -> Vec<serde_json::Value> {
-    f.stdout_text()
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{l:?}: {e}")))
-        .collect()
-}
-
 fn code_of(f: &peers::Finished) -> String {
-    let lines = json_lines(f);
+    let lines = f.json_lines();
     assert_eq!(lines.len(), 1, "one response expected: {lines:?}");
     lines[0]["code"].as_str().unwrap_or_default().to_string()
 }
@@ -109,7 +101,7 @@ fn our_discover(addr: &str, query: &str) -> Vec<String> {
 fn our_observe(uri: &str) -> Vec<String> {
     let f = ours("get", uri, &["--observe", "5", "--json"], QUICK)
         .expect_success(&format!("coapcam get {uri} --observe 5"));
-    let lines = json_lines(&f);
+    let lines = f.json_lines();
     assert_eq!(
         lines.len(),
         6,

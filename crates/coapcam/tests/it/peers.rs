@@ -221,6 +221,20 @@ impl Finished {
     }
 
     /// Panics with everything the process printed unless it exited 0.
+    /// Standard output as one JSON value (`--json`).
+    pub(crate) fn json(&self) -> serde_json::Value {
+        let text = self.stdout_text();
+        serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("{text:?}: {e}"))
+    }
+
+    /// Standard output as one JSON value per line.
+    pub(crate) fn json_lines(&self) -> Vec<serde_json::Value> {
+        self.stdout_text()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{l:?}: {e}")))
+            .collect()
+    }
+
     pub(crate) fn expect_success(self, what: &str) -> Self {
         assert!(
             self.status.success(),

@@ -11,10 +11,7 @@ use std::process::Command;
 
 use coap::Code;
 
-use crate::cams::{COLOR_640, TempDir, client, runtime, send, serve_at};
-
-const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
-const SN: &str = "840412060746";
+use crate::cams::{COAPCAM, COLOR_640, SN, TempDir, client, runtime, send, serve_at};
 
 fn wheel() -> Option<(String, String)> {
     let from_env = |name: &str| std::env::var(name).ok().filter(|v| !v.is_empty());

@@ -123,7 +123,6 @@ fn flying_pixels_between_the_lid_edge_and_the_floor_do_not_widen_the_footprint()
     let mut cloud = noisy_scene(&b, 41);
     let mut sampler = Sampler::new(42);
     let camera = Point3::new(0.0, 0.0, 1.0);
-    let (sin, cos) = b.yaw_deg.to_radians().sin_cos();
     let mut flying = 0;
     while flying < 600 {
         // A point on the lid's outline ...
@@ -134,11 +133,7 @@ fn flying_pixels_between_the_lid_edge_and_the_floor_do_not_widen_the_footprint()
             (u, v.signum() * 0.5)
         };
         let (lx, ly) = (u * b.length_m, v * b.width_m);
-        let edge = Point3::new(
-            b.center_xy[0] + lx * cos - ly * sin,
-            b.center_xy[1] + lx * sin + ly * cos,
-            b.height_m,
-        );
+        let edge = b.world_point(lx, ly, b.height_m);
         // ... pushed away from the camera along its ray, to somewhere above the floor.
         let ray = edge - camera;
         let t = sampler.range(1.0, 1.0 / (1.0 - b.height_m) * 0.98);

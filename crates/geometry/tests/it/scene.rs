@@ -42,7 +42,7 @@ pub(crate) struct BoxSpec {
 }
 
 impl BoxSpec {
-    fn world_point(&self, local_x: f32, local_y: f32, z: f32) -> Point3 {
+    pub(crate) fn world_point(&self, local_x: f32, local_y: f32, z: f32) -> Point3 {
         let (s, c) = self.yaw_deg.to_radians().sin_cos();
         Point3::new(
             self.center_xy[0] + c * local_x - s * local_y,
