@@ -94,7 +94,7 @@ impl Client {
             reply: Reply::Body(tx),
             id_tx: None,
         })?;
-        Ok(BodyStream { rx, ended: false })
+        Ok(BodyStream { rx })
     }
 
     /// [`Client::send_streamed`] into `sink`: writes each piece as it arrives and returns
@@ -256,7 +256,6 @@ impl Client {
 #[derive(Debug)]
 pub struct BodyStream {
     rx: mpsc::UnboundedReceiver<BodyItem>,
-    ended: bool,
 }
 
 /// One item of a [`BodyStream`].
@@ -278,24 +277,13 @@ impl BodyStream {
     /// The next piece, or the end. After the end or an error it returns
     /// [`Error::Closed`].
     pub async fn next(&mut self) -> Result<BodyPart, Error> {
-        if self.ended {
-            return Err(Error::Closed);
-        }
-        let item = self.rx.recv().await;
-        match item {
+        // The endpoint drops its sender with the end or the error, so what follows them
+        // is `None`.
+        match self.rx.recv().await {
             Some(BodyItem::Chunk(data, total)) => Ok(BodyPart::Chunk { data, total }),
-            Some(BodyItem::Done(response)) => {
-                self.ended = true;
-                Ok(BodyPart::End(response))
-            }
-            Some(BodyItem::Failed(e)) => {
-                self.ended = true;
-                Err(Error::Request(e))
-            }
-            None => {
-                self.ended = true;
-                Err(Error::Closed)
-            }
+            Some(BodyItem::Done(response)) => Ok(BodyPart::End(response)),
+            Some(BodyItem::Failed(e)) => Err(Error::Request(e)),
+            None => Err(Error::Closed),
         }
     }
 }

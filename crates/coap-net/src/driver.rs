@@ -345,11 +345,7 @@ impl Thread {
                             .handle(now, d.peer, &buf[start..start + len], d.multicast);
                     }
                 }
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                    ) => {}
+                Err(e) if timed_out(&e) => {}
                 // ICMP errors (port unreachable) may surface here; they say nothing the
                 // retransmission timers do not already handle.
                 Err(e) => tracing::debug!(error = %e, "recv failed"),
@@ -499,28 +495,26 @@ impl Thread {
                     let _ = s.send(ServerEvent::ObservationEnded(id));
                 }
             }
-            Event::Response { id, response } => match self.replies.get(&id) {
-                Some((peer, Reply::Stream(tx))) => {
+            Event::Response { id, response } => {
+                if let Some((peer, Reply::Stream(tx))) = self.replies.get(&id) {
                     // An Observe request stays open for its notifications; anything else ends.
                     let observing = response.options.contains(coap::OptionNumber::OBSERVE);
                     let _ = tx.send(StreamItem::Response(*peer, response));
                     if !observing {
                         self.replies.remove(&id);
                     }
+                    return;
                 }
-                Some((_, Reply::Once(_) | Reply::Tracked(..) | Reply::Body(_))) => {
-                    match self.replies.remove(&id) {
-                        Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
-                            let _ = tx.send(Ok(response));
-                        }
-                        Some((_, Reply::Body(tx))) => {
-                            let _ = tx.send(BodyItem::Done(response));
-                        }
-                        _ => {}
+                match self.replies.remove(&id) {
+                    Some((_, Reply::Once(tx) | Reply::Tracked(tx, _))) => {
+                        let _ = tx.send(Ok(response));
                     }
+                    Some((_, Reply::Body(tx))) => {
+                        let _ = tx.send(BodyItem::Done(response));
+                    }
+                    Some((_, Reply::Stream(_))) | None => {}
                 }
-                None => {}
-            },
+            }
             Event::BodyChunk {
                 id, data, total, ..
             } => {
@@ -582,6 +576,14 @@ impl Thread {
     }
 }
 
+/// Whether a receive error only says the read timeout passed with nothing received.
+fn timed_out(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+    )
+}
+
 /// A group socket's thread: hands every datagram to the endpoint thread until the group
 /// is left or the endpoint is gone.
 fn receive_group(
@@ -620,12 +622,7 @@ fn receive_group(
                 }
                 waker.wake();
             }
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                ) =>
-            {
+            Err(e) if timed_out(&e) => {
                 if tx.upgrade().is_none() {
                     return;
                 }

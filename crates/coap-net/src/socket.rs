@@ -17,9 +17,6 @@ use std::time::Duration;
 use quinn_udp::{RecvMeta, UdpSockRef, UdpSocketState};
 use socket2::{Domain, Protocol, SockRef, Socket as RawSocket, Type};
 
-/// The largest datagram a CoAP endpoint receives (the IPv4 UDP maximum).
-pub const MAX_DATAGRAM: usize = 65_507;
-
 /// The receive buffer: room for the largest datagram, or for several same-sized ones the
 /// kernel coalesced (GRO, asked for together with destinations). Each socket thread
 /// zeroes its buffer once, when it starts.

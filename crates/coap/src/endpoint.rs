@@ -1223,8 +1223,7 @@ impl Endpoint {
             }
             return self.complete(now, id, response);
         };
-        let etag = msg.options.etag().map(<[u8]>::to_vec);
-        if r.first_options.is_some() && etag != r.etag {
+        if r.first_options.is_some() && msg.options.etag() != r.etag.as_deref() {
             // RFC 7959 §2.4: the representation changed. Streamed pieces cannot be taken
             // back, so a streamed request fails; a reassembled one starts over, a few
             // times at most.
@@ -1251,13 +1250,17 @@ impl Endpoint {
             }
             let mut first = msg.options.clone();
             first.remove(OptionNumber::BLOCK2);
-            r.etag = etag;
-            if let Some(size2) = msg.options.uint(OptionNumber::SIZE2)
-                && !r.req.stream
-            {
-                // Pre-allocate from Size2, but never more than the limit allows.
-                r.body.reserve((size2 as usize).min(limit));
-            }
+            r.etag = msg.options.etag().map(<[u8]>::to_vec);
+            // Room for the first piece of a streamed body, or for the whole body Size2
+            // announced (bounded by the limit), not regrown block by block.
+            let room = if r.req.stream {
+                if b2.more { STREAM_PIECE + b2.size() } else { 0 }
+            } else {
+                msg.options
+                    .uint(OptionNumber::SIZE2)
+                    .map_or(0, |size2| (size2 as usize).min(limit))
+            };
+            r.body.reserve(room);
             r.first_options = Some(first);
         }
         if b2.offset() != r.received {
@@ -1294,16 +1297,6 @@ impl Endpoint {
                 id,
                 RequestError::Protocol("the body does not have the size Size2 announced"),
             );
-        }
-        if r.body.capacity() == 0 && b2.more {
-            // Room for the first piece of a streamed body, or for the whole body Size2
-            // announced (bounded by the limit), not regrown block by block.
-            let room = if stream {
-                STREAM_PIECE + b2.size()
-            } else {
-                total.unwrap_or(0).min(limit)
-            };
-            r.body.reserve(room);
         }
         r.body.extend_from_slice(&msg.payload);
         // A streamed body leaves in pieces of STREAM_PIECE bytes (and the rest at the end):
@@ -1351,10 +1344,7 @@ impl Endpoint {
             .check(now, peer, msg.message_id, msg.token, &limits)
         {
             match seen.clone() {
-                Seen::Replied(m) => {
-                    let data = Bytes::from(m.encode());
-                    self.outbox.push_back(Transmit { peer, data });
-                }
+                Seen::Replied(m) => self.send(peer, &m),
                 Seen::Pending(id) if con => self.ack_pending(id),
                 Seen::Pending(_) | Seen::Silent => {}
             }
