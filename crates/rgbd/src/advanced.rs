@@ -18,6 +18,8 @@
 use std::collections::BTreeMap;
 use std::fmt;
 
+use crate::settings::DepthSettings;
+
 /// What a value must look like.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Kind {
@@ -397,6 +399,33 @@ impl AdvancedConfig {
         for (k, v) in &update.values {
             self.values.insert(k, v.clone());
         }
+    }
+
+    /// Sets the stream keys to describe the depth mode of `depth`.
+    pub(crate) fn set_depth_mode(&mut self, depth: &DepthSettings) -> Result<(), AdvancedError> {
+        for (key, value) in [
+            ("stream-depth-format", depth.format.name().to_owned()),
+            ("stream-fps", depth.fps.to_string()),
+            ("stream-width", depth.width.to_string()),
+            ("stream-height", depth.height.to_string()),
+        ] {
+            self.set(key, &value)?;
+        }
+        Ok(())
+    }
+
+    /// `depth` with fps, width and height taken from the stream keys where this
+    /// document has them as numbers (not validated).
+    pub(crate) fn depth_mode(&self, mut depth: DepthSettings) -> DepthSettings {
+        let number = |key: &str, current: u32| {
+            self.get(key)
+                .and_then(|v| v.trim().parse::<u32>().ok())
+                .unwrap_or(current)
+        };
+        depth.fps = number("stream-fps", depth.fps);
+        depth.width = number("stream-width", depth.width);
+        depth.height = number("stream-height", depth.height);
+        depth
     }
 
     /// Micrometres per depth unit (`param-depthunits`), if present.

@@ -37,9 +37,10 @@
 //! [`CameraError::Disconnected`].
 
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use crate::advanced::{AdvancedConfig, VisualPreset};
+use crate::backend::FrameClock;
 use crate::backend::raycast::{View, World};
 use crate::backend::render::{self, DepthJob};
 use crate::camera::{Camera, CameraError, Serial};
@@ -55,9 +56,7 @@ struct State {
     color: ColorSettings,
     depth: DepthSettings,
     advanced: AdvancedConfig,
-    depth_frames: u64,
-    color_frames: u64,
-    last_timestamp_us: u64,
+    clock: FrameClock,
     connected: bool,
     frame_delay: Duration,
 }
@@ -115,9 +114,7 @@ impl SyntheticCamera {
                 color: ColorSettings::default(),
                 depth: DepthSettings::default(),
                 advanced: AdvancedConfig::preset(VisualPreset::Default),
-                depth_frames: 0,
-                color_frames: 0,
-                last_timestamp_us: 0,
+                clock: FrameClock::default(),
                 connected: true,
                 frame_delay: Duration::ZERO,
             }),
@@ -215,18 +212,7 @@ impl SyntheticCamera {
                 serial: self.serial,
             });
         }
-        let counter = match stream {
-            Stream::Color => &mut s.color_frames,
-            Stream::Depth => &mut s.depth_frames,
-        };
-        *counter += 1;
-        let frame_number = *counter;
-        let now_us = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_micros().try_into().unwrap_or(u64::MAX));
-        let timestamp_us = now_us.max(s.last_timestamp_us + 1);
-        s.last_timestamp_us = timestamp_us;
-        Ok((frame_number, timestamp_us))
+        Ok(s.clock.stamp(stream))
     }
 }
 
@@ -309,29 +295,13 @@ impl Camera for SyntheticCamera {
         let s = self.lock();
         let mut doc = s.advanced.clone();
         // The stream keys describe the current depth mode.
-        for (key, value) in [
-            ("stream-depth-format", s.depth.format.name().to_owned()),
-            ("stream-fps", s.depth.fps.to_string()),
-            ("stream-width", s.depth.width.to_string()),
-            ("stream-height", s.depth.height.to_string()),
-        ] {
-            doc.set(key, &value)?;
-        }
+        doc.set_depth_mode(&s.depth)?;
         Ok(doc)
     }
 
     fn set_advanced_config(&self, config: &AdvancedConfig) -> Result<(), CameraError> {
         let mut s = self.lock();
-        let mut depth = s.depth;
-        let number = |key: &str, current: u32| {
-            config
-                .get(key)
-                .and_then(|v| v.trim().parse::<u32>().ok())
-                .unwrap_or(current)
-        };
-        depth.fps = number("stream-fps", depth.fps);
-        depth.width = number("stream-width", depth.width);
-        depth.height = number("stream-height", depth.height);
+        let depth = config.depth_mode(s.depth);
         depth.validate(&self.modes)?;
         s.advanced.merge(config);
         s.depth = depth;

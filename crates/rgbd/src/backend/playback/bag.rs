@@ -36,9 +36,9 @@ use rosbag::{ChunkRecord, MessageRecord, RosBag};
 
 use super::{
     DeviceBuilder, Event, Image, Kind, Pixels, PlaybackError, TopicPath, camera_matrix_intrinsics,
-    check_image, check_text, distortion_model,
+    check_image, check_text,
 };
-use crate::intrinsics::{Extrinsics, Intrinsics};
+use crate::intrinsics::{DistortionModel, Extrinsics, Intrinsics};
 
 /// The first bytes of a ROS 1 bag v2.0.
 pub(crate) const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
@@ -100,10 +100,8 @@ fn field_u64(fields: &HashMap<&str, &[u8]>, name: &str) -> Result<Option<u64>, P
     }
 }
 
-/// Reads one record's header (bounded) and returns its fields and data length.
-fn record_header(
-    file: &mut std::fs::File,
-) -> Result<(HashMap<String, Vec<u8>>, u32), PlaybackError> {
+/// Reads one record's header (bounded); its data length follows it.
+fn record_header(file: &mut std::fs::File) -> Result<Vec<u8>, PlaybackError> {
     let len = read_u32(file)?;
     if len > MAX_HEADER_BYTES {
         return Err(PlaybackError::TooLarge {
@@ -114,12 +112,7 @@ fn record_header(
     }
     let mut header = vec![0u8; len as usize];
     file.read_exact(&mut header).map_err(bag_error)?;
-    let fields = header_fields(&header)?
-        .into_iter()
-        .map(|(k, v)| (k.to_owned(), v.to_vec()))
-        .collect();
-    let data_len = read_u32(file)?;
-    Ok((fields, data_len))
+    Ok(header)
 }
 
 /// Walks the record headers of the whole file (see the module documentation).
@@ -131,15 +124,13 @@ fn check_container(path: &Path) -> Result<(), PlaybackError> {
     let file_len = file.metadata().map_err(bag_error)?.len();
     file.seek(SeekFrom::Start(MAGIC.len() as u64))
         .map_err(bag_error)?;
-    let (fields, data_len) = record_header(&mut file)?;
-    let borrowed: HashMap<&str, &[u8]> = fields
-        .iter()
-        .map(|(k, v)| (k.as_str(), v.as_slice()))
-        .collect();
-    if borrowed.get("op").copied() != Some(&[0x03][..]) {
+    let header = record_header(&mut file)?;
+    let fields = header_fields(&header)?;
+    let data_len = read_u32(&mut file)?;
+    if fields.get("op").copied() != Some(&[0x03][..]) {
         return Err(bag_error("the first record is not the bag header"));
     }
-    let index_pos = field_u64(&borrowed, "index_pos")?
+    let index_pos = field_u64(&fields, "index_pos")?
         .ok_or_else(|| bag_error("bag header without index_pos"))?;
     let mut pos = file
         .stream_position()
@@ -152,7 +143,9 @@ fn check_container(path: &Path) -> Result<(), PlaybackError> {
     }
     while pos < index_pos {
         file.seek(SeekFrom::Start(pos)).map_err(bag_error)?;
-        let (fields, data_len) = record_header(&mut file)?;
+        let header = record_header(&mut file)?;
+        let fields = header_fields(&header)?;
+        let data_len = read_u32(&mut file)?;
         let end = file
             .stream_position()
             .map_err(bag_error)?
@@ -162,20 +155,16 @@ fn check_container(path: &Path) -> Result<(), PlaybackError> {
                 "record at {pos} runs past the index position: truncated?"
             )));
         }
-        if fields.get("op").map(Vec::as_slice) == Some(&[0x05][..]) {
-            let compression = fields.get("compression").map(Vec::as_slice);
+        if fields.get("op").copied() == Some(&[0x05][..]) {
+            let compression = fields.get("compression").copied();
             if !matches!(compression, Some(b"none" | b"lz4")) {
                 return Err(PlaybackError::Unsupported(format!(
                     "bag chunk compression {:?} (librealsense writes none or lz4)",
                     compression.map(String::from_utf8_lossy)
                 )));
             }
-            let borrowed: HashMap<&str, &[u8]> = fields
-                .iter()
-                .map(|(k, v)| (k.as_str(), v.as_slice()))
-                .collect();
             let size =
-                field_u64(&borrowed, "size")?.ok_or_else(|| bag_error("chunk without size"))?;
+                field_u64(&fields, "size")?.ok_or_else(|| bag_error("chunk without size"))?;
             if size > MAX_CHUNK_BYTES {
                 return Err(PlaybackError::TooLarge {
                     what: "bag chunk".into(),
@@ -369,7 +358,7 @@ fn camera_info(m: &mut Ros1<'_>) -> Result<Intrinsics, PlaybackError> {
     let height = m.u32()?;
     let width = m.u32()?;
     let model_name = m.string()?;
-    let model = distortion_model(model_name).ok_or_else(|| {
+    let model = DistortionModel::from_name(model_name).ok_or_else(|| {
         PlaybackError::Unsupported(format!("{}: distortion model {model_name:?}", m.topic))
     })?;
     let n = m.u32()? as usize;

@@ -35,7 +35,7 @@ use serde::Deserialize;
 
 use super::{
     DeviceBuilder, Event, Image, Kind, Pixels, PlaybackError, TopicPath, camera_matrix_intrinsics,
-    check_image, check_text, distortion_model,
+    check_image, check_text,
 };
 use crate::frame::ColorFormat;
 use crate::intrinsics::{DistortionModel, Extrinsics};
@@ -348,7 +348,7 @@ impl Message<'_> {
                 self.expect("std_msgs/msg/String")?;
                 let text = string(topic, self.data)?;
                 if let Some((_, name)) = pairs(&text).find(|(k, _)| *k == "model") {
-                    let model = distortion_model(name).ok_or_else(|| {
+                    let model = DistortionModel::from_name(name).ok_or_else(|| {
                         PlaybackError::Unsupported(format!(
                             "{topic}: distortion model {:?}",
                             crate::echo(name)

@@ -30,9 +30,10 @@ pub mod db3;
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::sync::{Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use crate::advanced::{AdvancedConfig, AdvancedError};
+use crate::backend::FrameClock;
 use crate::camera::{Camera, CameraError, Serial, SerialError};
 use crate::frame::{ColorFormat, ColorFrame, DepthFormat, DepthFrame};
 use crate::intrinsics::{DistortionModel, Extrinsics, Intrinsics, Pose};
@@ -582,18 +583,6 @@ pub(crate) fn camera_matrix_intrinsics(
     }
 }
 
-/// librealsense's distortion model names as recordings spell them.
-pub(crate) fn distortion_model(name: &str) -> Option<DistortionModel> {
-    Some(match name {
-        "None" => DistortionModel::None,
-        "Modified Brown Conrady" => DistortionModel::ModifiedBrownConrady,
-        "Inverse Brown Conrady" => DistortionModel::InverseBrownConrady,
-        "Brown Conrady" => DistortionModel::BrownConrady,
-        "Kannala Brandt4" => DistortionModel::KannalaBrandt4,
-        _ => return None,
-    })
-}
-
 /// Checks an image's size against the bounds and the data length against
 /// `width * height * bpp`.
 pub(crate) fn check_image(
@@ -638,9 +627,7 @@ pub(crate) fn check_text(topic: &str, text: &str) -> Result<(), PlaybackError> {
 struct State {
     color: usize,
     depth: usize,
-    color_grabs: u64,
-    depth_grabs: u64,
-    last_timestamp_us: u64,
+    clock: FrameClock,
 }
 
 /// One recorded device played back as a camera (see the module documentation).
@@ -714,19 +701,13 @@ impl PlaybackCamera {
     fn next(&self, stream: Stream) -> (usize, u64, u64) {
         let mut guard = self.lock();
         let s = &mut *guard;
-        let (cursor, grabs, len) = match stream {
-            Stream::Depth => (&mut s.depth, &mut s.depth_grabs, self.depth_frames.len()),
-            Stream::Color => (&mut s.color, &mut s.color_grabs, self.color_frames.len()),
+        let (cursor, len) = match stream {
+            Stream::Depth => (&mut s.depth, self.depth_frames.len()),
+            Stream::Color => (&mut s.color, self.color_frames.len()),
         };
         let index = *cursor;
         *cursor = (index + 1) % len.max(1);
-        *grabs += 1;
-        let grab = *grabs;
-        let now_us = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_micros().try_into().unwrap_or(u64::MAX));
-        let timestamp_us = now_us.max(s.last_timestamp_us + 1);
-        s.last_timestamp_us = timestamp_us;
+        let (grab, timestamp_us) = s.clock.stamp(stream);
         (index, grab, timestamp_us)
     }
 }

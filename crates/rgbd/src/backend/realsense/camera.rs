@@ -3,7 +3,7 @@
 use std::ffi::c_int;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use super::ffi::{
     self, CameraInfo, Device, DeviceList, Frame, FrameQueue, Lib, Profile, ProfileData, RsError,
@@ -11,10 +11,11 @@ use super::ffi::{
 };
 use super::{D400, GrabMode};
 use crate::advanced::{AdvancedConfig, AdvancedError};
+use crate::backend::FrameClock;
 use crate::camera::{Camera, CameraError, Serial};
 use crate::frame::{ColorFormat, ColorFrame, DepthFrame};
 use crate::intrinsics::{DistortionModel, Extrinsics, Intrinsics, Pose};
-use crate::mode::ModeTable;
+use crate::mode::{ModeTable, Stream};
 use crate::settings::{ColorSettings, DepthSettings};
 
 /// The librealsense format of a color format.
@@ -70,7 +71,8 @@ impl Wanted {
 /// A sensor streaming into a queue (continuous mode).
 struct Session {
     queue: FrameQueue,
-    uid: c_int,
+    /// The profile the sensor was opened with.
+    want: Wanted,
 }
 
 /// One sensor and its streaming session, behind one lock: the open/start/stop/close
@@ -107,6 +109,17 @@ impl Slot {
         )))
     }
 
+    /// Opens the sensor with profile `want` and starts it into a new queue.
+    fn start(&self, lib: &Arc<Lib>, want: Wanted) -> Result<FrameQueue, CameraError> {
+        let queue = FrameQueue::new(lib, 1)?;
+        self.with_profile(want, |p, _| self.sensor.open(p))?;
+        if let Err(e) = self.sensor.start(&queue) {
+            let _ = self.sensor.close();
+            return Err(e.into());
+        }
+        Ok(queue)
+    }
+
     fn stop_session(&self, session: &mut Option<Session>) -> Result<(), RsError> {
         if session.take().is_some() {
             let stopped = self.sensor.stop();
@@ -132,13 +145,8 @@ impl Slot {
         let mut session = self.lock();
         match mode {
             GrabMode::PerRequest => {
-                self.stop_session(&mut session)?;
-                let queue = FrameQueue::new(lib, 1)?;
-                self.with_profile(want, |p, _| self.sensor.open(p))?;
-                if let Err(e) = self.sensor.start(&queue) {
-                    let _ = self.sensor.close();
-                    return Err(e.into());
-                }
+                // The mode is fixed per camera: no session was started.
+                let queue = self.start(lib, want)?;
                 let waited = queue.wait(timeout_ms);
                 let stopped = self.sensor.stop();
                 let closed = self.sensor.close();
@@ -148,16 +156,10 @@ impl Slot {
                 frame.ok_or(timed_out)
             }
             GrabMode::Streaming => {
-                let uid = self.with_profile(want, |_, d| Ok(d.uid))?;
-                if session.as_ref().map(|s| s.uid) != Some(uid) {
+                if session.as_ref().map(|s| s.want) != Some(want) {
                     self.stop_session(&mut session)?;
-                    let queue = FrameQueue::new(lib, 1)?;
-                    self.with_profile(want, |p, _| self.sensor.open(p))?;
-                    if let Err(e) = self.sensor.start(&queue) {
-                        let _ = self.sensor.close();
-                        return Err(e.into());
-                    }
-                    *session = Some(Session { queue, uid });
+                    let queue = self.start(lib, want)?;
+                    *session = Some(Session { queue, want });
                 }
                 let Some(s) = session.as_ref() else {
                     return Err(timed_out);
@@ -188,9 +190,7 @@ struct State {
     color: ColorSettings,
     depth: DepthSettings,
     depth_scale: f32,
-    depth_frames: u64,
-    color_frames: u64,
-    last_timestamp_us: u64,
+    clock: FrameClock,
 }
 
 /// An Intel RealSense D400 camera reached through librealsense.
@@ -270,9 +270,7 @@ impl RealSenseCamera {
                 color: ColorSettings::default(),
                 depth: DepthSettings::default(),
                 depth_scale,
-                depth_frames: 0,
-                color_frames: 0,
-                last_timestamp_us: 0,
+                clock: FrameClock::default(),
             }),
             connected: AtomicBool::new(true),
             device,
@@ -305,25 +303,6 @@ impl RealSenseCamera {
                 serial: self.serial,
             })
         }
-    }
-
-    /// Next frame number of a stream and a wall-clock timestamp (µs since the epoch,
-    /// strictly increasing per camera), as every backend stamps grabbed frames.
-    fn stamp(&self, depth: bool) -> (u64, u64) {
-        let mut s = self.lock();
-        let counter = if depth {
-            &mut s.depth_frames
-        } else {
-            &mut s.color_frames
-        };
-        *counter += 1;
-        let number = *counter;
-        let now_us = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.as_micros().try_into().unwrap_or(u64::MAX));
-        let timestamp_us = now_us.max(s.last_timestamp_us + 1);
-        s.last_timestamp_us = timestamp_us;
-        (number, timestamp_us)
     }
 
     fn require_advanced(&self) -> Result<(), CameraError> {
@@ -493,7 +472,7 @@ impl Camera for RealSenseCamera {
         let bpp = settings.format.bytes_per_pixel();
         let data = packed_rows(&frame, &want, bpp)?;
         drop(frame);
-        let (frame_number, timestamp_us) = self.stamp(false);
+        let (frame_number, timestamp_us) = self.lock().clock.stamp(Stream::Color);
         Ok(ColorFrame {
             format: settings.format,
             width: settings.width,
@@ -513,7 +492,7 @@ impl Camera for RealSenseCamera {
         let bytes = packed_rows(&frame, &want, 2)?;
         drop(frame);
         let depth_scale = self.refresh_depth_scale()?;
-        let (frame_number, timestamp_us) = self.stamp(true);
+        let (frame_number, timestamp_us) = self.lock().clock.stamp(Stream::Depth);
         Ok(DepthFrame {
             width: settings.width,
             height: settings.height,
@@ -570,29 +549,13 @@ impl Camera for RealSenseCamera {
         self.require_advanced()?;
         let mut doc = device_config(&self.device.serialize_json()?)?;
         let depth = self.lock().depth;
-        for (key, value) in [
-            ("stream-depth-format", depth.format.name().to_owned()),
-            ("stream-fps", depth.fps.to_string()),
-            ("stream-width", depth.width.to_string()),
-            ("stream-height", depth.height.to_string()),
-        ] {
-            doc.set(key, &value)?;
-        }
+        doc.set_depth_mode(&depth)?;
         Ok(doc)
     }
 
     fn set_advanced_config(&self, config: &AdvancedConfig) -> Result<(), CameraError> {
         self.require_advanced()?;
-        let mut depth = self.lock().depth;
-        let number = |key: &str, current: u32| {
-            config
-                .get(key)
-                .and_then(|v| v.trim().parse::<u32>().ok())
-                .unwrap_or(current)
-        };
-        depth.fps = number("stream-fps", depth.fps);
-        depth.width = number("stream-width", depth.width);
-        depth.height = number("stream-height", depth.height);
+        let depth = config.depth_mode(self.lock().depth);
         depth.validate(&self.modes)?;
         self.depth
             .with_profile(Wanted::depth(&depth), |_, _| Ok(()))?;
