@@ -176,12 +176,19 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
         CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(30)).await?;
     let config = args.dimension.config();
     let mut rows = Vec::new();
+    let mut next;
     for index in 0..args.scenes {
-        let scene = scene(args.seed, index)?;
-        server.load(&scene)?;
+        // The server started with scene 0.
+        let scene = if index == 0 {
+            &first
+        } else {
+            next = scene(args.seed, index)?;
+            server.load(&next)?;
+            &next
+        };
         let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
         prepare_cameras(&client, &serials, 1.0).await?;
-        let truth = truth(&scene).context("the scene has no box")?;
+        let truth = truth(scene).context("the scene has no box")?;
         let result = measure::measure_once(&client, &Source::All, &config).await;
         let row = Row {
             index,

@@ -9,12 +9,12 @@ use std::time::Duration;
 use anyhow::{Context as _, bail};
 use clap::Args;
 use coap::{ContentFormat, EndpointConfig};
-use geometry::Dimensions;
+use geometry::{DimensionConfig, Dimensions};
 use rgbd::Scene;
 
 use crate::client::{CamClient, Stream};
 use crate::grab_cmd::save;
-use crate::measure::{self, DimensionArgs, Measurement, Source};
+use crate::measure::{self, Measurement, Source};
 use crate::packet;
 use crate::serve::SceneServer;
 use crate::view;
@@ -116,8 +116,7 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<bool> {
     );
 
     save_grabs(&client, first, dir).await?;
-    let m =
-        measure::measure_once(&client, &Source::All, &DimensionArgs::default().config()).await?;
+    let m = measure::measure_once(&client, &Source::All, &DimensionConfig::default()).await?;
     let cloud_path = dir.join("cloud.ply");
     let ply = geometry::encode_ply(&m.grabbed.cloud.points, Some("coapcam demo, metres, z up"))
         .context("encoding the PLY cloud")?;
@@ -156,12 +155,10 @@ async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Res
         depth.values.clone(),
     )
     .context("the depth image's size")?;
+    let (gray, colored) = view::depth_views(&depth);
     let depth_views = [
-        ("depth-view.png", view::depth_gray(&depth).into()),
-        (
-            "depth-color.png",
-            image::DynamicImage::from(view::depth_colored(&depth)),
-        ),
+        ("depth-view.png", gray.into()),
+        ("depth-color.png", image::DynamicImage::from(colored)),
     ];
     save(&raw, &dir.join("depth.png"))?;
     println!("wrote {}", dir.join("depth.png").display());

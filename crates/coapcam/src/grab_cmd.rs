@@ -108,11 +108,12 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<bool> {
     let timeout = Duration::try_from_secs_f64(args.timeout).context("--timeout")?;
     let client =
         CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout).await?;
-    let response = if args.all {
-        client.grab_all(kind.accept()).await?
+    let (sn, response) = if args.all {
+        (None, client.grab_all(kind.accept()).await?)
     } else {
         let sn = client.one_camera(args.camera.as_deref()).await?;
-        client.grab(&sn, args.stream, kind.accept()).await?
+        let response = client.grab(&sn, args.stream, kind.accept()).await?;
+        (Some(sn), response)
     };
     std::fs::write(&args.output, &response.payload)
         .with_context(|| format!("writing {}", args.output.display()))?;
@@ -122,17 +123,18 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<bool> {
         response.payload.len()
     );
     if let Some(path) = &args.view {
-        for written in write_view(&client, &args, kind, &response, path).await? {
+        for written in write_view(&client, sn.as_deref(), &args, kind, &response, path).await? {
             eprintln!("coapcam: wrote {}", written.display());
         }
     }
     Ok(true)
 }
 
-/// Writes the picture(s) of `--view` from the representation that arrived; returns the
-/// files written.
+/// Writes the picture(s) of `--view` from the representation that arrived (from camera
+/// `sn`, `None` with `--all`); returns the files written.
 async fn write_view(
     client: &CamClient,
+    sn: Option<&str>,
     args: &GrabArgs,
     kind: FileKind,
     response: &Response,
@@ -145,8 +147,8 @@ async fn write_view(
                     .context("decoding the color image")?
                     .to_rgb8(),
                 FileKind::Packet | FileKind::Ply => {
-                    let sn = client.one_camera(args.camera.as_deref()).await?;
-                    let settings = client.get_json(&sn, "color-settings").await?;
+                    let sn = sn.context("--all is for point clouds")?;
+                    let settings = client.get_json(sn, "color-settings").await?;
                     color_from_packet(&response.payload, &settings)?
                 }
             };
@@ -159,8 +161,9 @@ async fn write_view(
                 _ => packet::depth(&response.payload).context("reading the depth packet")?,
             };
             let colored = sibling(path, "-color");
-            save(&view::depth_gray(&depth), path)?;
-            save(&view::depth_colored(&depth), &colored)?;
+            let (gray, colored_view) = view::depth_views(&depth);
+            save(&gray, path)?;
+            save(&colored_view, &colored)?;
             Ok(vec![path.to_owned(), colored])
         }
         Stream::Pointcloud => {

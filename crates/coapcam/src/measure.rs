@@ -95,15 +95,6 @@ impl DimensionArgs {
     }
 }
 
-impl Default for DimensionArgs {
-    fn default() -> Self {
-        Self {
-            min_height_mm: 10.0,
-            cluster_mm: 20.0,
-        }
-    }
-}
-
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
 pub(crate) enum Source {

@@ -51,26 +51,39 @@ fn be_u32(b: &[u8], at: usize) -> u32 {
     u32::from_be_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
 }
 
+/// Checks what every packet begins with: at least `header` bytes, the packet type `kind`
+/// first, and the element size `(name, at byte, expected)`.
+fn check_header(
+    packet: &[u8],
+    what: &'static str,
+    header: usize,
+    kind: u8,
+    (size_name, size_at, size): (&str, usize, u8),
+) -> Result<(), PacketError> {
+    if packet.len() < header {
+        return Err(error(
+            what,
+            format!("{} bytes, the header alone is {header}", packet.len()),
+        ));
+    }
+    if packet[0] != kind {
+        return Err(error(what, format!("type {}, expected {kind}", packet[0])));
+    }
+    if packet[size_at] != size {
+        return Err(error(
+            what,
+            format!("{size_name} {}, expected {size}", packet[size_at]),
+        ));
+    }
+    Ok(())
+}
+
 /// Reads a depth packet: type 2, width, height, pixel size 2, timestamp, depth scale,
 /// then Z16 values little-endian.
 pub(crate) fn depth(packet: &[u8]) -> Result<DepthImage, PacketError> {
     const HEADER: usize = 14;
     let what = "depth";
-    if packet.len() < HEADER {
-        return Err(error(
-            what,
-            format!("{} bytes, the header alone is {HEADER}", packet.len()),
-        ));
-    }
-    if packet[0] != TYPE_DEPTH {
-        return Err(error(
-            what,
-            format!("type {}, expected {TYPE_DEPTH}", packet[0]),
-        ));
-    }
-    if packet[5] != 2 {
-        return Err(error(what, format!("pixel size {}, expected 2", packet[5])));
-    }
+    check_header(packet, what, HEADER, TYPE_DEPTH, ("pixel size", 5, 2))?;
     let (width, height) = (u32::from(be_u16(packet, 1)), u32::from(be_u16(packet, 3)));
     let expected = HEADER + width as usize * height as usize * 2;
     if packet.len() != expected {
@@ -106,24 +119,7 @@ pub(crate) fn depth(packet: &[u8]) -> Result<DepthImage, PacketError> {
 pub(crate) fn cloud(packet: &[u8]) -> Result<CloudPacket, PacketError> {
     const HEADER: usize = 12;
     let what = "point-cloud";
-    if packet.len() < HEADER {
-        return Err(error(
-            what,
-            format!("{} bytes, the header alone is {HEADER}", packet.len()),
-        ));
-    }
-    if packet[0] != TYPE_CLOUD {
-        return Err(error(
-            what,
-            format!("type {}, expected {TYPE_CLOUD}", packet[0]),
-        ));
-    }
-    if packet[1] != 12 {
-        return Err(error(
-            what,
-            format!("point size {}, expected 12", packet[1]),
-        ));
-    }
+    check_header(packet, what, HEADER, TYPE_CLOUD, ("point size", 1, 12))?;
     let count = be_u32(packet, 4) as usize;
     let body = &packet[HEADER..];
     if count.checked_mul(12) != Some(body.len()) {

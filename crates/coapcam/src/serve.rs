@@ -14,7 +14,7 @@ use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::mpsc;
 
 use rgbd::backend::playback::PlaybackCamera;
-use rgbd::{Camera as _, CameraHub, Scene, SyntheticCamera};
+use rgbd::{Camera as _, CameraHub, Scene, Serial, SyntheticCamera};
 
 use crate::cams::Cams;
 use crate::files::StaticFiles;
@@ -245,21 +245,30 @@ fn start_hub(
 /// for a camera that is there, nor a resource of one that left.
 fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result<()> {
     let cameras = SyntheticCamera::all(scene).context("building the scene's cameras")?;
-    let path = |sn: &dyn std::fmt::Display| format!("/cams/{sn}/color");
-    let gone: Vec<String> = hub.serials().iter().map(|sn| path(sn)).collect();
-    for sn in hub.serials() {
-        hub.remove(&sn);
+    let gone = hub.serials();
+    for sn in &gone {
+        hub.remove(sn);
     }
-    wait_for(|| gone.iter().all(|p| !router.patterns().contains(p)))?;
+    wait_routed(router, &gone, false)?;
     let mut expected = Vec::new();
     for camera in cameras {
-        expected.push(path(&camera.serial()));
+        expected.push(camera.serial());
         hub.add(camera).context("adding a camera")?;
     }
-    wait_for(|| expected.iter().all(|p| router.patterns().contains(p)))
+    wait_routed(router, &expected, true)
 }
 
-fn wait_for(done: impl Fn() -> bool) -> anyhow::Result<()> {
+/// Waits until `/cams/{sn}/color` of every camera of `serials` is routed (`present`), or
+/// of none of them (not `present`).
+fn wait_routed(router: &Router, serials: &[Serial], present: bool) -> anyhow::Result<()> {
+    let paths: Vec<String> = serials
+        .iter()
+        .map(|sn| format!("/cams/{sn}/color"))
+        .collect();
+    let done = || {
+        let patterns = router.patterns();
+        paths.iter().all(|p| patterns.contains(p) == present)
+    };
     let deadline = std::time::Instant::now() + Duration::from_secs(10);
     while !done() {
         if std::time::Instant::now() > deadline {
@@ -288,12 +297,7 @@ fn start_cameras(
     let mut backend = None;
     if args.realsense {
         let realsense = realsense::start(args, &scene, hub.clone())?;
-        let expected: Vec<String> = realsense
-            .serials
-            .iter()
-            .map(|sn| format!("/cams/{sn}/color"))
-            .collect();
-        wait_for(|| expected.iter().all(|p| router.patterns().contains(p)))?;
+        wait_routed(router, &realsense.serials, true)?;
         backend = Some(realsense);
     } else if !args.bag.is_empty() {
         let mut expected = Vec::new();
@@ -301,12 +305,12 @@ fn start_cameras(
             let cameras = PlaybackCamera::open(path)
                 .with_context(|| format!("opening recording {}", path.display()))?;
             for camera in cameras {
-                expected.push(format!("/cams/{}/color", camera.serial()));
+                expected.push(camera.serial());
                 hub.add(Arc::new(camera))
                     .with_context(|| format!("adding the camera of {}", path.display()))?;
             }
         }
-        wait_for(|| expected.iter().all(|p| router.patterns().contains(p)))?;
+        wait_routed(router, &expected, true)?;
     } else {
         load_scene(&hub, router, &scene)?;
     }

@@ -58,29 +58,25 @@ fn normalized(v: u16, lo: u16, hi: u16) -> f32 {
     ((f32::from(v) - f32::from(lo)) / f32::from(hi - lo)).clamp(0.0, 1.0)
 }
 
-/// Depth as 8-bit grayscale: near bright, far dark, no depth black.
-pub(crate) fn depth_gray(depth: &DepthImage) -> GrayImage {
+/// Depth as 8-bit grayscale (near bright, far dark) and colour-mapped (near blue, far red,
+/// as librealsense's "Jet" colorizer) over one depth range; pixels without depth black.
+pub(crate) fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
     let range = depth_range(&depth.values);
-    GrayImage::from_fn(depth.width, depth.height, |x, y| {
+    // 0 (near) to 1 (far) at a pixel with depth.
+    let at = |x: u32, y: u32| {
         let v = depth.values[(y * depth.width + x) as usize];
         match range {
-            Some((lo, hi)) if v != 0 => Luma([(255.0 - 215.0 * normalized(v, lo, hi)) as u8]),
-            _ => Luma([0]),
+            Some((lo, hi)) if v != 0 => Some(normalized(v, lo, hi)),
+            _ => None,
         }
-    })
-}
-
-/// Depth colour-mapped (near blue, far red, as librealsense's "Jet" colorizer), no depth
-/// black.
-pub(crate) fn depth_colored(depth: &DepthImage) -> RgbImage {
-    let range = depth_range(&depth.values);
-    RgbImage::from_fn(depth.width, depth.height, |x, y| {
-        let v = depth.values[(y * depth.width + x) as usize];
-        match range {
-            Some((lo, hi)) if v != 0 => Rgb(jet(normalized(v, lo, hi))),
-            _ => Rgb([0, 0, 0]),
-        }
-    })
+    };
+    let gray = GrayImage::from_fn(depth.width, depth.height, |x, y| {
+        Luma([at(x, y).map_or(0, |t| (255.0 - 215.0 * t) as u8)])
+    });
+    let colored = RgbImage::from_fn(depth.width, depth.height, |x, y| {
+        Rgb(at(x, y).map_or([0, 0, 0], jet))
+    });
+    (gray, colored)
 }
 
 /// The jet colour map: blue, cyan, green, yellow, red for `t` from 0 to 1.
@@ -292,11 +288,11 @@ mod tests {
 
     #[test]
     fn near_is_bright_far_is_dark_and_holes_are_black() {
-        let g = depth_gray(&depth(vec![800, 1000, 1200, 0], 4));
+        let (g, _) = depth_views(&depth(vec![800, 1000, 1200, 0], 4));
         let px: Vec<u8> = g.pixels().map(|p| p.0[0]).collect();
         assert!(px[0] > px[1] && px[1] > px[2] && px[2] > 0, "{px:?}");
         assert_eq!(px[3], 0);
-        let c = depth_colored(&depth(vec![800, 1200, 0], 3));
+        let (_, c) = depth_views(&depth(vec![800, 1200, 0], 3));
         assert_eq!(c.get_pixel(0, 0).0, jet(0.0));
         assert_eq!(c.get_pixel(1, 0).0, jet(1.0));
         assert_eq!(c.get_pixel(2, 0).0, [0, 0, 0]);

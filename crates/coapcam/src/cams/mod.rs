@@ -542,24 +542,13 @@ impl Cams {
             newest_us
         };
         let source = repr::CloudSource::Merged { serials: &serials };
-        let body = match cf {
-            ContentFormat::CBOR => repr::cloud_cbor(&merged.points, timestamp_us, source),
-            ContentFormat::PLY => repr::cloud_ply(&merged.points, timestamp_us, source),
-            _ => Ok(repr::cloud_packet(
-                &merged.points,
-                repr::unix_seconds(timestamp_us),
-            )),
-        };
-        let body = match body {
+        let body = match repr::cloud(cf, &merged.points, timestamp_us, source) {
             Ok(body) => body,
             Err(e) => return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
         };
         let mut h = std::collections::hash_map::DefaultHasher::new();
         body.hash(&mut h);
-        let mut r = Response::new(Code::CONTENT).with_payload(body);
-        set_cf(&mut r, cf);
-        r.options.set(OptionNumber::ETAG, h.finish().to_be_bytes());
-        r
+        content(body, cf, h.finish().to_be_bytes())
     }
 }
 
@@ -711,26 +700,21 @@ fn represent(
                 serial: sn,
                 frame: *frame_number,
             };
-            match cf {
-                ContentFormat::CBOR => repr::cloud_cbor(points, *timestamp_us, source),
-                ContentFormat::PLY => repr::cloud_ply(points, *timestamp_us, source),
-                _ => Ok(repr::cloud_packet(
-                    points,
-                    repr::unix_seconds(*timestamp_us),
-                )),
-            }
+            repr::cloud(cf, points, *timestamp_us, source)
         }
     };
     match body {
-        Ok(body) => {
-            let mut r = Response::new(Code::CONTENT).with_payload(body);
-            set_cf(&mut r, cf);
-            r.options
-                .set(OptionNumber::ETAG, representation_etag(etag, cf));
-            r
-        }
+        Ok(body) => content(body, cf, representation_etag(etag, cf)),
         Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
     }
+}
+
+/// A 2.05 Content of `body` in `cf` with ETag `etag`.
+fn content(body: Vec<u8>, cf: ContentFormat, etag: [u8; 8]) -> Response {
+    let mut r = Response::new(Code::CONTENT).with_payload(body);
+    set_cf(&mut r, cf);
+    r.options.set(OptionNumber::ETAG, etag);
+    r
 }
 
 /// The ETag of one representation of a frame: the frame's own for the thesis packet.

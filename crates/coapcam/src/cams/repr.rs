@@ -4,6 +4,7 @@
 //! the keys are listed in README.md) and binary PLY point clouds.
 
 use ciborium::Value;
+use coap::ContentFormat;
 use geometry::Point3;
 use image::ExtendedColorType;
 use image::ImageEncoder as _;
@@ -268,6 +269,20 @@ pub(crate) fn cloud_cbor(
     }
     entries.push((text("data"), Value::Bytes(data)));
     cbor(entries)
+}
+
+/// A point cloud in content format `cf`: CBOR, PLY, else the thesis packet.
+pub(crate) fn cloud(
+    cf: ContentFormat,
+    points: &[Point3],
+    timestamp_us: u64,
+    source: CloudSource<'_>,
+) -> Result<Vec<u8>, EncodeError> {
+    match cf {
+        ContentFormat::CBOR => cloud_cbor(points, timestamp_us, source),
+        ContentFormat::PLY => cloud_ply(points, timestamp_us, source),
+        _ => Ok(cloud_packet(points, unix_seconds(timestamp_us))),
+    }
 }
 
 /// A point cloud as binary little-endian PLY, its origin in the comment line.
