@@ -10,6 +10,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use bytes::Bytes;
+use smallvec::SmallVec;
 
 use crate::config::{EndpointConfig, Limits};
 use crate::msg::{BlockOpt, Code, Options};
@@ -20,7 +21,9 @@ use crate::msg::{BlockOpt, Code, Options};
 pub(crate) struct BlockKey {
     pub(crate) peer: SocketAddr,
     pub(crate) method: Code,
-    pub(crate) options: Vec<u8>,
+    /// The request's options as [`Options::block_key`] encodes them: a path of a few
+    /// segments fits without an allocation.
+    pub(crate) options: SmallVec<[u8; 64]>,
 }
 
 /// What the server answers to one Block1 request.
@@ -338,8 +341,14 @@ impl ServerCache {
     }
 
     /// The stored representation for a continuation request, refreshing its lifetime.
+    /// Only this entry's age is checked here; the others expire on the next insert, so a
+    /// block costs one lookup.
     pub(crate) fn get(&mut self, now: Instant, key: &BlockKey, limits: &Limits) -> Option<&Stored> {
-        self.expire(now, limits);
+        let s = self.entries.get(key)?;
+        if now.saturating_duration_since(s.last_used) >= limits.blockwise_lifetime {
+            self.remove(key);
+            return None;
+        }
         let s = self.entries.get_mut(key)?;
         s.last_used = now;
         Some(s)
@@ -393,7 +402,7 @@ mod tests {
         BlockKey {
             peer: SocketAddr::from(([127, 0, 0, 1], port)),
             method: Code::PUT,
-            options: vec![],
+            options: SmallVec::new(),
         }
     }
 

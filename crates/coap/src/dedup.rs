@@ -2,6 +2,7 @@
 //! EXCHANGE_LIFETIME / NON_LIFETIME with the reply that was sent, so a duplicate gets the
 //! same reply again and never reaches the application twice.
 
+use std::collections::hash_map::Entry as MapEntry;
 use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
 
@@ -84,13 +85,15 @@ impl Dedup {
         limits: &Limits,
     ) -> Option<&Seen> {
         self.expire(now, limits);
-        match self.entries.get(&MidKey(peer, mid)) {
-            Some(e) if e.token == token => self.entries.get(&MidKey(peer, mid)).map(|e| &e.seen),
-            Some(_) => {
-                self.remove(peer, mid);
+        match self.entries.entry(MidKey(peer, mid)) {
+            MapEntry::Occupied(e) if e.get().token == token => Some(&e.into_mut().seen),
+            MapEntry::Occupied(e) => {
+                if let Seen::Replied(m) = e.remove().seen {
+                    self.bytes -= m.encoded_len();
+                }
                 None
             }
-            None => None,
+            MapEntry::Vacant(_) => None,
         }
     }
 

@@ -30,9 +30,9 @@ use rand_core::{RngCore, SeedableRng};
 use crate::block::{
     self, Block1Assembler, Block1Outcome, BlockKey, BlockSource, ServerCache, Slice, Source,
 };
-use crate::config::EndpointConfig;
+use crate::config::{EndpointConfig, Limits};
 use crate::dedup::{Dedup, Seen};
-use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Reaction, Token, Type};
+use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Outgoing, Reaction, Token, Type};
 use crate::peer_key::{MidKey, PeerKey};
 
 /// Identifies a request this endpoint sent (client side).
@@ -318,7 +318,10 @@ enum Purpose {
 
 /// A CON message waiting for its ACK (RFC 7252 §4.2).
 struct OutCon {
-    data: Bytes,
+    /// The datagram to send again. A request's step keeps none: its message is built
+    /// again from the request (same message ID, token, options and payload), so the
+    /// block-by-block path sends each CON from the shared chunk, without an allocation.
+    data: Option<Bytes>,
     /// Retransmissions so far.
     tx: u8,
     timeout: Duration,
@@ -375,12 +378,73 @@ struct ClientRequest {
 }
 
 impl ClientRequest {
+    /// Sends the message of the current step with message ID `mid`: the request's options
+    /// with the step's block option (and Size1 on an upload's first block) set over them,
+    /// encoded from the request in place.
+    fn send_step(&self, mid: u16, outbox: &mut Outbox) {
+        let block = |num, more, szx| BlockOpt { num, more, szx }.as_uint();
+        let mut uints = [(OptionNumber(0), 0); 2];
+        let mut set = 0;
+        let mut payload: &[u8] = &[];
+        match self.step {
+            Step::Whole => {
+                payload = &self.req.payload;
+                if let (Some(szx), false) = (self.req.block_szx, self.user_block2) {
+                    uints[0] = (OptionNumber::BLOCK2, block(0, false, szx));
+                    set = 1;
+                }
+            }
+            Step::Upload { offset } => {
+                let size = BlockOpt::size_of(self.szx1);
+                let end = (offset + size).min(self.req.payload.len());
+                payload = &self.req.payload[offset.min(end)..end];
+                let more = end < self.req.payload.len();
+                uints[0] = (
+                    OptionNumber::BLOCK1,
+                    block((offset / size) as u32, more, self.szx1),
+                );
+                set = 1;
+                if offset == 0 {
+                    // RFC 7959 §4: Size1 tells the server the whole size up front.
+                    uints[1] = (OptionNumber::SIZE1, self.req.payload.len() as u32);
+                    set = 2;
+                }
+            }
+            Step::Download { num, szx } => {
+                uints[0] = (OptionNumber::BLOCK2, block(num, false, szx));
+                set = 1;
+            }
+        }
+        let ty = if self.req.confirmable {
+            Type::Con
+        } else {
+            Type::Non
+        };
+        let msg = Outgoing {
+            ty,
+            code: self.req.method,
+            message_id: mid,
+            token: self.token,
+            options: &self.req.options,
+            uints: &uints[..set],
+            payload,
+        };
+        outbox.send(self.peer, &msg);
+    }
+
     fn step_has_block_option(&self) -> bool {
         match self.step {
             Step::Whole => self.req.block_szx.is_some() || self.user_block2,
             Step::Upload { .. } | Step::Download { .. } => true,
         }
     }
+}
+
+/// How a Block2 continuation was served from the store.
+enum Served {
+    Sent,
+    PastEnd,
+    Unreadable,
 }
 
 /// A received request waiting for the application's response.
@@ -427,6 +491,31 @@ struct Peer {
     queue: VecDeque<u64>,
 }
 
+/// The datagrams waiting for [`Endpoint::poll_transmit`].
+#[derive(Default)]
+struct Outbox {
+    queue: VecDeque<Transmit>,
+    /// Where [`Outbox::send`] encodes.
+    chunk: BytesMut,
+}
+
+impl Outbox {
+    /// Queues a message that goes out once and is not kept (not a CON that keeps its
+    /// encoding until its ACK). It is encoded into a chunk shared with the messages before
+    /// it, so a block costs no allocation of its own; once they are all sent and dropped,
+    /// the chunk is used again from its start (so a caller that keeps a [`Transmit`]
+    /// keeps its whole chunk).
+    fn send(&mut self, peer: SocketAddr, msg: &Outgoing<'_>) {
+        let len = msg.encoded_len();
+        if self.chunk.capacity() < len {
+            self.chunk.reserve(len.max(ENCODE_CHUNK));
+        }
+        msg.encode_into(&mut self.chunk);
+        let data = self.chunk.split().freeze();
+        self.queue.push_back(Transmit { peer, data });
+    }
+}
+
 /// A CoAP endpoint. See the module documentation for the driving protocol.
 pub struct Endpoint {
     config: EndpointConfig,
@@ -435,9 +524,7 @@ pub struct Endpoint {
     next_id: u64,
     timer_seq: u64,
     timers: BinaryHeap<Reverse<(Instant, u64, TimerKind)>>,
-    outbox: VecDeque<Transmit>,
-    /// Where [`Endpoint::send`] encodes.
-    encoded: BytesMut,
+    outbox: Outbox,
     events: VecDeque<Event>,
     exchanges: FastMap<MidKey, OutCon>,
     dedup: Dedup,
@@ -462,8 +549,7 @@ impl Endpoint {
             next_id: 1,
             timer_seq: 0,
             timers: BinaryHeap::new(),
-            outbox: VecDeque::new(),
-            encoded: BytesMut::new(),
+            outbox: Outbox::default(),
             events: VecDeque::new(),
             exchanges: FastMap::default(),
             dedup: Dedup::new(),
@@ -484,7 +570,7 @@ impl Endpoint {
 
     /// The next datagram to send.
     pub fn poll_transmit(&mut self) -> Option<Transmit> {
-        self.outbox.pop_front()
+        self.outbox.queue.pop_front()
     }
 
     /// When [`Endpoint::handle_timeout`] should be called next. Timers that would do
@@ -611,30 +697,34 @@ impl Endpoint {
         self.config.ack_timeout.mul_f64(factor)
     }
 
-    /// Sends a message that goes out once and is not kept (not a CON, whose encoding waits
-    /// for its acknowledgement). It is encoded into a chunk shared with the messages before
-    /// it, so a block costs no allocation of its own; once they are all sent and dropped,
-    /// the chunk is used again from its start (so a caller that keeps a [`Transmit`]
-    /// keeps its whole chunk).
+    /// Sends a message that goes out once ([`Outbox::send`]).
     fn send(&mut self, peer: SocketAddr, msg: &Message) {
-        let len = msg.encoded_len();
-        if self.encoded.capacity() < len {
-            self.encoded.reserve(len.max(ENCODE_CHUNK));
-        }
-        msg.encode_into(&mut self.encoded);
-        let data = self.encoded.split().freeze();
-        self.outbox.push_back(Transmit { peer, data });
+        self.outbox.send(peer, &msg.outgoing());
     }
 
+    /// Sends a CON that keeps its own encoding for retransmission.
     fn send_con(&mut self, now: Instant, peer: SocketAddr, msg: &Message, purpose: Purpose) {
         let data = Bytes::from(msg.encode());
-        self.outbox.push_back(Transmit {
+        self.outbox.queue.push_back(Transmit {
             peer,
             data: data.clone(),
         });
+        self.await_ack(now, peer, msg.message_id, purpose, Some(data));
+    }
+
+    /// Records a CON just sent and schedules its retransmission (RFC 7252 §4.2). `data`
+    /// is what to send again; `None` for a request's step, which is built again.
+    fn await_ack(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        mid: u16,
+        purpose: Purpose,
+        data: Option<Bytes>,
+    ) {
         let timeout = self.initial_timeout();
         self.exchanges.insert(
-            MidKey(peer, msg.message_id),
+            MidKey(peer, mid),
             OutCon {
                 data,
                 tx: 0,
@@ -642,14 +732,7 @@ impl Endpoint {
                 purpose,
             },
         );
-        self.schedule(
-            now + timeout,
-            TimerKind::Retransmit {
-                peer,
-                mid: msg.message_id,
-                tx: 0,
-            },
-        );
+        self.schedule(now + timeout, TimerKind::Retransmit { peer, mid, tx: 0 });
     }
 
     fn on_retransmit_timer(&mut self, now: Instant, peer: SocketAddr, mid: u16, tx: u8) {
@@ -664,8 +747,30 @@ impl Endpoint {
             // RFC 7252 §4.2: retransmit, doubling the timeout each time.
             x.tx += 1;
             x.timeout *= 2;
-            let (data, timeout, tx) = (x.data.clone(), x.timeout, x.tx);
-            self.outbox.push_back(Transmit { peer, data });
+            let (timeout, tx) = (x.timeout, x.tx);
+            match (&x.data, x.purpose) {
+                (Some(data), _) => {
+                    let data = data.clone();
+                    self.outbox.queue.push_back(Transmit { peer, data });
+                }
+                (None, Purpose::Request(id)) => {
+                    // Built from the step the request still waits for; an exchange its
+                    // request has left behind ends here.
+                    let Some(r) = self
+                        .requests
+                        .get(&id)
+                        .filter(|r| r.waiting == Waiting::Ack(mid))
+                    else {
+                        self.exchanges.remove(&MidKey(peer, mid));
+                        return;
+                    };
+                    r.send_step(mid, &mut self.outbox);
+                }
+                (None, _) => {
+                    self.exchanges.remove(&MidKey(peer, mid));
+                    return;
+                }
+            }
             self.schedule(now + timeout, TimerKind::Retransmit { peer, mid, tx });
             return;
         }
@@ -733,7 +838,7 @@ impl Endpoint {
         {
             if let Seen::Replied(m) = seen {
                 let data = Bytes::from(m.encode());
-                self.outbox.push_back(Transmit { peer, data });
+                self.outbox.queue.push_back(Transmit { peer, data });
             }
             return;
         }
@@ -908,91 +1013,25 @@ impl Endpoint {
         }
     }
 
-    /// The message of the request's current step, with message ID `mid`.
-    fn step_message(r: &ClientRequest, mid: u16) -> Message {
-        // Room for Block1 or Block2, and Size1.
-        let mut options = r.req.options.clone_with_room(2);
-        let mut payload = Bytes::new();
-        match r.step {
-            Step::Whole => {
-                payload = r.req.payload.clone();
-                if let (Some(szx), false) = (r.req.block_szx, r.user_block2) {
-                    options.set_block(
-                        OptionNumber::BLOCK2,
-                        BlockOpt {
-                            num: 0,
-                            more: false,
-                            szx,
-                        },
-                    );
-                }
-            }
-            Step::Upload { offset } => {
-                let size = BlockOpt::size_of(r.szx1);
-                let end = (offset + size).min(r.req.payload.len());
-                payload = r.req.payload.slice(offset.min(end)..end);
-                let more = end < r.req.payload.len();
-                let num = (offset / size) as u32;
-                options.set_block(
-                    OptionNumber::BLOCK1,
-                    BlockOpt {
-                        num,
-                        more,
-                        szx: r.szx1,
-                    },
-                );
-                if offset == 0 {
-                    // RFC 7959 §4: Size1 tells the server the whole size up front.
-                    options.set_uint(OptionNumber::SIZE1, r.req.payload.len() as u32);
-                }
-            }
-            Step::Download { num, szx } => {
-                options.set_block(
-                    OptionNumber::BLOCK2,
-                    BlockOpt {
-                        num,
-                        more: false,
-                        szx,
-                    },
-                );
-            }
-        }
-        let ty = if r.req.confirmable {
-            Type::Con
-        } else {
-            Type::Non
-        };
-        Message {
-            ty,
-            code: r.req.method,
-            message_id: mid,
-            token: r.token,
-            options,
-            payload,
-        }
-    }
-
     fn send_step(&mut self, now: Instant, id: u64) {
         let mid = self.next_mid();
         let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
-        let msg = Self::step_message(r, mid);
+        r.send_step(mid, &mut self.outbox);
         r.generation += 1;
         let (peer, generation) = (r.peer, r.generation);
         if r.req.multicast {
             // RFC 7390 §2.5: sent once, responses collected until the deadline.
             r.waiting = Waiting::Collecting;
-            self.send(peer, &msg);
         } else if r.req.confirmable {
             r.waiting = Waiting::Ack(mid);
-            self.send_con(now, peer, &msg, Purpose::Request(id));
+            self.await_ack(now, peer, mid, Purpose::Request(id), None);
         } else {
             r.waiting = Waiting::Response {
                 non_tx: Some(0),
                 mid,
             };
-            self.send(peer, &msg);
             let t = self.initial_timeout();
             self.schedule(now + t, TimerKind::Step { id, generation });
         }
@@ -1029,13 +1068,11 @@ impl Endpoint {
                 let Some(r) = self.requests.get_mut(&id) else {
                     return;
                 };
-                let msg = Self::step_message(r, mid);
+                r.send_step(mid, &mut self.outbox);
                 r.waiting = Waiting::Response {
                     non_tx: Some(tx + 1),
-                    mid: msg.message_id,
+                    mid,
                 };
-                let peer = r.peer;
-                self.send(peer, &msg);
                 let t = self.initial_timeout() * (1u32 << (tx + 1));
                 self.schedule(now + t, TimerKind::Step { id, generation });
             }
@@ -1339,15 +1376,14 @@ impl Endpoint {
     fn on_request(&mut self, now: Instant, peer: SocketAddr, mut msg: Message, multicast: bool) {
         let limits = self.config.limits.clone();
         let con = msg.ty == Type::Con;
-        if let Some(seen) = self
-            .dedup
-            .check(now, peer, msg.message_id, msg.token, &limits)
-        {
-            match seen.clone() {
-                Seen::Replied(m) => self.send(peer, &m),
-                Seen::Pending(id) if con => self.ack_pending(id),
-                Seen::Pending(_) | Seen::Silent => {}
-            }
+        let block2 = msg.options.block2();
+        let block1 = msg.options.block1();
+        // A Block2 continuation is looked up in the store before deduplication: the store
+        // answers a duplicate just as well, and the message ID of a long transfer's
+        // continuation may come round again to that of its first block, whose reply the
+        // dedup store keeps (the token is the same).
+        let continuation = matches!((block2, block1), (Some(b2), None) if b2.num > 0);
+        if !continuation && self.replay_duplicate(now, peer, &msg, &limits) {
             return;
         }
         let lifetime = if con {
@@ -1358,6 +1394,9 @@ impl Endpoint {
         let expires = now + lifetime;
 
         if let Some(bad) = msg.options.first_bad_critical() {
+            if continuation && self.replay_duplicate(now, peer, &msg, &limits) {
+                return;
+            }
             // RFC 7252 §5.4.1: 4.02 for a CON request; a NON one is rejected.
             let seen = if con {
                 let text = format!("unrecognized or malformed critical option {}", bad.0);
@@ -1388,35 +1427,66 @@ impl Endpoint {
             method: msg.code,
             options: msg.options.block_key(),
         };
-        let block2 = msg.options.block2();
-        let block1 = msg.options.block1();
 
         // A Block2 continuation is served from the stored representation; the application
         // never sees it (a POST grab must not grab again).
-        if let (Some(b2), None) = (block2, block1)
-            && b2.num > 0
-        {
+        if let (Some(b2), true) = (block2, continuation) {
             // A GET falls through when nothing is stored: it is safe, so the application
             // renders it again and the block is cut from the new representation (its ETag
             // tells the client whether the blocks still fit).
             let szx = b2.szx.min(self.config.max_block_szx);
+            let (ty, mid) = self.reply_header(&msg);
             let stored = self.block2.get(now, &key, &limits).map(|s| {
-                block2_response(s.code, s.options.clone_with_room(2), &s.body, b2.num, szx)
+                match block::slice(&*s.body.0, b2.num, szx) {
+                    // The block goes out as the stored options with this Block2 set over
+                    // them, encoded in place.
+                    Slice::Block(payload, opt) => {
+                        self.outbox.send(
+                            peer,
+                            &Outgoing {
+                                ty,
+                                code: s.code,
+                                message_id: mid,
+                                token: msg.token,
+                                options: &s.options,
+                                uints: &[(OptionNumber::BLOCK2, opt.as_uint())],
+                                payload: &payload,
+                            },
+                        );
+                        Served::Sent
+                    }
+                    Slice::PastEnd => Served::PastEnd,
+                    Slice::Unreadable => Served::Unreadable,
+                }
             });
             match stored {
                 // Served from the store, which is idempotent (RFC 7252 §4.5 allows
                 // relaxing deduplication then): a duplicate is cut again from the same
                 // bytes, and a 10 MB transfer leaves no 10,000 dedup entries behind.
-                Some(Some(response)) => {
-                    if let Some(reply) = self.reply_message(&msg, multicast, response) {
+                Some(Served::Sent) => return,
+                // RFC 7959 §2.2: a block past the end is a bad option.
+                Some(Served::PastEnd) => {
+                    if !multicast {
+                        let response = past_end();
+                        let reply = Message {
+                            ty,
+                            code: response.code,
+                            message_id: mid,
+                            token: msg.token,
+                            options: response.options,
+                            payload: response.payload,
+                        };
                         self.send(peer, &reply);
                     }
                     return;
                 }
                 // The stored source can no longer be read as it was: as if nothing were
                 // stored.
-                Some(None) => self.block2.remove(&key),
+                Some(Served::Unreadable) => self.block2.remove(&key),
                 None => {}
+            }
+            if self.replay_duplicate(now, peer, &msg, &limits) {
+                return;
             }
             if !matches!(msg.code, Code::GET | Code::FETCH) {
                 let response = Response::diagnostic(
@@ -1517,6 +1587,29 @@ impl Endpoint {
 
     /// RFC 7641 §2, §3.6: a GET or FETCH with Observe 0 registers (or re-registers, same
     /// peer and token) an observation; Observe 1 deregisters.
+    /// Answers a duplicate request as the first one was answered (RFC 7252 §4.5); whether
+    /// `msg` was one.
+    fn replay_duplicate(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        msg: &Message,
+        limits: &Limits,
+    ) -> bool {
+        let Some(seen) = self
+            .dedup
+            .check(now, peer, msg.message_id, msg.token, limits)
+        else {
+            return false;
+        };
+        match seen.clone() {
+            Seen::Replied(m) => self.send(peer, &m),
+            Seen::Pending(id) if msg.ty == Type::Con => self.ack_pending(id),
+            Seen::Pending(_) | Seen::Silent => {}
+        }
+        true
+    }
+
     fn observe_option(&mut self, peer: SocketAddr, msg: &Message, key: &BlockKey) -> Option<u64> {
         if !matches!(msg.code, Code::GET | Code::FETCH) {
             return None;
@@ -1612,7 +1705,7 @@ impl Endpoint {
         key: BlockKey,
         block2: Option<BlockOpt>,
         mut response: Response,
-        limits: &crate::config::Limits,
+        limits: &Limits,
         max_szx: u8,
     ) -> Response {
         let szx = block2.map_or(max_szx, |b| b.szx.min(max_szx));
@@ -1697,6 +1790,15 @@ impl Endpoint {
 
     /// The message that answers `req` right away; `None` when nothing is sent (an error
     /// response to a multicast request).
+    /// The type and message ID of a reply to `req`: a piggybacked ACK to a CON, a NON
+    /// with a new message ID otherwise.
+    fn reply_header(&mut self, req: &Message) -> (Type, u16) {
+        match req.ty {
+            Type::Con => (Type::Ack, req.message_id),
+            _ => (Type::Non, self.next_mid()),
+        }
+    }
+
     fn reply_message(
         &mut self,
         req: &Message,
@@ -1706,10 +1808,7 @@ impl Endpoint {
         if multicast && response.code.is_error() {
             return None;
         }
-        let (ty, mid) = match req.ty {
-            Type::Con => (Type::Ack, req.message_id),
-            _ => (Type::Non, self.next_mid()),
-        };
+        let (ty, mid) = self.reply_header(req);
         let msg = Message {
             ty,
             code: response.code,
@@ -1811,12 +1910,7 @@ fn block2_response(
 ) -> Option<Response> {
     let (payload, opt) = match block::slice(&*body.0, num, szx) {
         Slice::Block(payload, opt) => (payload, opt),
-        Slice::PastEnd => {
-            return Some(Response::diagnostic(
-                Code::BAD_OPTION,
-                "Block2 number beyond the end of the representation",
-            ));
-        }
+        Slice::PastEnd => return Some(past_end()),
         Slice::Unreadable => return None,
     };
     let mut options = options;
@@ -1825,6 +1919,14 @@ fn block2_response(
         options.set_uint(OptionNumber::SIZE2, body.0.len() as u32);
     }
     Some(Response::with_parts(code, options, payload))
+}
+
+/// The answer to a block that starts past the end of the body (RFC 7959 §2.2).
+fn past_end() -> Response {
+    Response::diagnostic(
+        Code::BAD_OPTION,
+        "Block2 number beyond the end of the representation",
+    )
 }
 
 /// The answer when a body's source cannot be read as it was (the file is changing): try

@@ -351,23 +351,99 @@ impl Message {
         Ok(Self::from(view))
     }
 
+    /// The message as an [`Outgoing`] with nothing set over its options.
+    pub fn outgoing(&self) -> Outgoing<'_> {
+        Outgoing {
+            ty: self.ty,
+            code: self.code,
+            message_id: self.message_id,
+            token: self.token,
+            options: &self.options,
+            uints: &[],
+            payload: &self.payload,
+        }
+    }
+
     /// The exact number of bytes [`Message::encode_into`] writes.
+    pub fn encoded_len(&self) -> usize {
+        self.outgoing().encoded_len()
+    }
+
+    /// Appends the encoded message to `out` (room for [`Message::encoded_len`] bytes is
+    /// made as it goes; reserve it first to grow `out` once).
+    pub fn encode_into(&self, out: &mut impl BufMut) {
+        self.outgoing().encode_into(out);
+    }
+
+    /// Encodes into a new buffer.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.encoded_len());
+        self.encode_into(&mut out);
+        out
+    }
+}
+
+/// A message to encode, borrowed from its parts: options plus uint options set over them.
+/// A client builds each block's request this way from the request it keeps, without
+/// copying the request's options into a new [`Message`].
+#[derive(Debug, Clone, Copy)]
+pub struct Outgoing<'a> {
+    /// Message type.
+    pub ty: Type,
+    /// Code.
+    pub code: Code,
+    /// Message ID.
+    pub message_id: u16,
+    /// Token.
+    pub token: Token,
+    /// Options, sorted by number.
+    pub options: &'a Options,
+    /// Uint options set over `options`, sorted by number: each replaces every instance
+    /// of its number in `options` (as [`Options::set_uint`] would).
+    pub uints: &'a [(OptionNumber, u32)],
+    /// Payload.
+    pub payload: &'a [u8],
+}
+
+impl Outgoing<'_> {
+    /// The options in wire order, with `uints` merged in.
+    fn each_option(&self, mut f: impl FnMut(OptionNumber, &[u8])) {
+        fn put_uint(f: &mut impl FnMut(OptionNumber, &[u8]), &(number, v): &(OptionNumber, u32)) {
+            // RFC 7252 §3.2: no leading zero bytes (zero is the empty value).
+            f(number, &v.to_be_bytes()[(v.leading_zeros() / 8) as usize..]);
+        }
+        let mut uints = self.uints.iter().peekable();
+        for o in self.options.iter() {
+            if self.uints.iter().any(|(n, _)| *n == o.number) {
+                continue;
+            }
+            while let Some(u) = uints.next_if(|(n, _)| *n < o.number) {
+                put_uint(&mut f, u);
+            }
+            f(o.number, &o.value);
+        }
+        for u in uints {
+            put_uint(&mut f, u);
+        }
+    }
+
+    /// The exact number of bytes [`Outgoing::encode_into`] writes.
     pub fn encoded_len(&self) -> usize {
         let mut len = 4 + self.token.len();
         let mut prev = 0u16;
-        for o in self.options.iter() {
-            let delta = u32::from(o.number.0 - prev);
-            prev = o.number.0;
-            let value_len = o.value.len().min(MAX_OPTION_LEN);
+        self.each_option(|number, value| {
+            let delta = u32::from(number.0 - prev);
+            prev = number.0;
+            let value_len = value.len().min(MAX_OPTION_LEN);
             len += 1 + ext_len(delta) + ext_len(value_len as u32) + value_len;
-        }
+        });
         if !self.payload.is_empty() {
             len += 1 + self.payload.len();
         }
         len
     }
 
-    /// Appends the encoded message to `out` (room for [`Message::encoded_len`] bytes is
+    /// Appends the encoded message to `out` (room for [`Outgoing::encoded_len`] bytes is
     /// made as it goes; reserve it first to grow `out` once).
     pub fn encode_into(&self, out: &mut impl BufMut) {
         let token = self.token.as_bytes();
@@ -376,30 +452,23 @@ impl Message {
         out.put_u16(self.message_id);
         out.put_slice(token);
         let mut prev = 0u16;
-        for o in self.options.iter() {
-            let delta = u32::from(o.number.0 - prev);
-            prev = o.number.0;
+        self.each_option(|number, value| {
+            let delta = u32::from(number.0 - prev);
+            prev = number.0;
             // Values longer than 65535 + 269 bytes cannot be expressed; the option
             // registry caps every known option far below, and callers building unknown
             // options get them truncated rather than a corrupt datagram.
-            let value = &o.value[..o.value.len().min(MAX_OPTION_LEN)];
+            let value = &value[..value.len().min(MAX_OPTION_LEN)];
             let len = value.len() as u32;
             out.put_u8((nibble(delta) << 4) | nibble(len));
             put_ext(out, delta);
             put_ext(out, len);
             out.put_slice(value);
-        }
+        });
         if !self.payload.is_empty() {
             out.put_u8(0xff);
-            out.put_slice(&self.payload);
+            out.put_slice(self.payload);
         }
-    }
-
-    /// Encodes into a new buffer.
-    pub fn encode(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(self.encoded_len());
-        self.encode_into(&mut out);
-        out
     }
 }
 

@@ -3,6 +3,8 @@
 
 use std::fmt;
 
+use smallvec::SmallVec;
+
 use crate::content_format::ContentFormat;
 
 /// An option number (RFC 7252 §5.4.6). Odd numbers are critical.
@@ -227,7 +229,8 @@ impl BlockOpt {
         encode_uint(self.as_uint())
     }
 
-    fn as_uint(self) -> u32 {
+    /// The option value as a uint.
+    pub fn as_uint(self) -> u32 {
         ((self.num & Self::MAX_NUM) << 4) | (u32::from(self.more) << 3) | u32::from(self.szx & 7)
     }
 }
@@ -326,12 +329,19 @@ impl fmt::Debug for OptionValue {
 
 /// The options of a message, kept sorted by number; options with the same number keep
 /// their relative order (RFC 7252 §5.4.5: repeated options are ordered).
+///
+/// Up to [`Options::INLINE`] options live inside the value, so decoding a block-wise
+/// message or building the next block's request allocates nothing for its options.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Hash)]
 pub struct Options {
-    list: Vec<CoapOption>,
+    list: SmallVec<[CoapOption; Self::INLINE]>,
 }
 
 impl Options {
+    /// How many options are kept without a heap allocation: a block-wise request's path
+    /// segments and block option, or a response's ETag, Content-Format, Block2 and Size2.
+    pub const INLINE: usize = 6;
+
     /// No options.
     pub fn new() -> Self {
         Self::default()
@@ -339,8 +349,8 @@ impl Options {
 
     /// A copy with room for `extra` more options, so adding them does not reallocate.
     pub fn clone_with_room(&self, extra: usize) -> Self {
-        let mut list = Vec::with_capacity(self.list.len() + extra);
-        list.extend_from_slice(&self.list);
+        let mut list = SmallVec::with_capacity(self.list.len() + extra);
+        list.extend(self.list.iter().cloned());
         Self { list }
     }
 
@@ -530,8 +540,8 @@ impl Options {
     /// those that change between the blocks of one transfer (Block1/2, Q-Block1/2, Size1/2,
     /// Observe). Request-Tag stays in, so that differently tagged bodies never mix
     /// (RFC 9175 §3.3).
-    pub fn block_key(&self) -> Vec<u8> {
-        let mut key = Vec::with_capacity(self.list.iter().map(|o| 4 + o.value.len()).sum());
+    pub(crate) fn block_key(&self) -> SmallVec<[u8; 64]> {
+        let mut key = SmallVec::with_capacity(self.list.iter().map(|o| 4 + o.value.len()).sum());
         for o in &self.list {
             if matches!(
                 o.number,
@@ -556,7 +566,7 @@ impl Options {
 
 impl FromIterator<CoapOption> for Options {
     fn from_iter<I: IntoIterator<Item = CoapOption>>(iter: I) -> Self {
-        let mut list: Vec<CoapOption> = iter.into_iter().collect();
+        let mut list: SmallVec<[CoapOption; Self::INLINE]> = iter.into_iter().collect();
         list.sort_by_key(|o| o.number);
         Self { list }
     }

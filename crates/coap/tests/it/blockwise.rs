@@ -8,8 +8,8 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use coap::{
-    BlockOpt, BlockSource, Code, EndpointConfig, Event, Limits, OptionNumber, Request,
-    RequestError, Response,
+    BlockOpt, BlockSource, Code, Endpoint, EndpointConfig, Event, Limits, Message, OptionNumber,
+    Request, RequestError, Response, Token, Type,
 };
 
 use crate::sim::{Handler, LinkConfig, Reply, Sim};
@@ -719,4 +719,51 @@ fn streamed_etag_change_fails_at_once_instead_of_restarting() {
         }
     ));
     assert_eq!(renders.get(), 2, "no restart from block 0");
+}
+
+#[test]
+fn a_continuation_whose_message_id_comes_round_again_is_served_not_replayed() {
+    // After 65,536 messages a client's message IDs start over, well within the 247 s that
+    // the reply to block 0 is kept for duplicates, and its token stays the same for the
+    // whole transfer. A continuation with block 0's message ID must get its own block.
+    let mut ep = Endpoint::new(cfg(2));
+    let peer = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
+    let now = crate::sim::epoch();
+    let data = body(4096, 7);
+    let get = |num| {
+        let mut m = Message::empty(Type::Con, 7);
+        m.code = Code::GET;
+        m.token = Token::new(b"tk").unwrap_or_default();
+        m.options.set_path("/x");
+        let block = BlockOpt {
+            num,
+            more: false,
+            szx: 6,
+        };
+        m.options.set_block(OptionNumber::BLOCK2, block);
+        m.encode()
+    };
+    let sent = |ep: &mut Endpoint| {
+        let t = ep.poll_transmit().expect("a reply");
+        Message::decode(&t.data).expect("a valid reply")
+    };
+    ep.handle(now, peer, &get(0), false);
+    let Some(Event::Request(req)) = ep.poll_event() else {
+        panic!("the first block reaches the application");
+    };
+    ep.respond(
+        now,
+        req.id,
+        Response::new(Code::CONTENT).with_payload(data.clone()),
+    );
+    assert_eq!(sent(&mut ep).payload, data.slice(..1024));
+
+    ep.handle(now, peer, &get(2), false);
+    let reply = sent(&mut ep);
+    assert_eq!(reply.options.block2().map(|b| b.num), Some(2));
+    assert_eq!(reply.payload, data.slice(2048..3072));
+    // A real duplicate of block 0 still gets block 0's reply.
+    ep.handle(now, peer, &get(0), false);
+    assert_eq!(sent(&mut ep).payload, data.slice(..1024));
+    assert!(ep.poll_event().is_none());
 }
