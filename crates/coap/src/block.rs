@@ -17,13 +17,52 @@ use crate::msg::{BlockOpt, Code, Options};
 
 /// Identifies the request a block belongs to: the peer and the request's method and
 /// options without the block options ([`Options::block_key`]).
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+#[derive(Debug, Clone)]
 pub(crate) struct BlockKey {
     pub(crate) peer: SocketAddr,
     pub(crate) method: Code,
     /// The request's options as [`Options::block_key`] encodes them: a path of a few
     /// segments fits without an allocation.
     pub(crate) options: SmallVec<[u8; 64]>,
+}
+
+impl BlockKey {
+    /// The address as integers, which order faster than `SocketAddr`'s field-by-field
+    /// comparison; every part that tells two addresses apart is kept (family, address,
+    /// port, flow label, scope).
+    fn addr_bits(&self) -> (u128, u64, u64) {
+        match self.peer {
+            SocketAddr::V4(a) => (u128::from(a.ip().to_bits()), u64::from(a.port()), 0),
+            SocketAddr::V6(a) => (
+                a.ip().to_bits(),
+                u64::from(a.port()) << 32 | u64::from(a.scope_id()),
+                1 << 32 | u64::from(a.flowinfo()),
+            ),
+        }
+    }
+}
+
+impl PartialEq for BlockKey {
+    fn eq(&self, other: &Self) -> bool {
+        self.cmp(other).is_eq()
+    }
+}
+
+impl Eq for BlockKey {}
+
+impl PartialOrd for BlockKey {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for BlockKey {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.addr_bits()
+            .cmp(&other.addr_bits())
+            .then(self.method.cmp(&other.method))
+            .then_with(|| self.options.cmp(&other.options))
+    }
 }
 
 /// What the server answers to one Block1 request.
@@ -403,6 +442,37 @@ mod tests {
             peer: SocketAddr::from(([127, 0, 0, 1], port)),
             method: Code::PUT,
             options: SmallVec::new(),
+        }
+    }
+
+    #[test]
+    fn keys_order_every_address_apart() {
+        let addrs = [
+            "1.2.3.4:5683",
+            "1.2.3.4:5684",
+            "[::1.2.3.4]:5683",
+            "[::ffff:1.2.3.4]:5683",
+            "[fe80::1%1]:5683",
+            "[fe80::1%2]:5683",
+        ];
+        let mut keys: Vec<BlockKey> = addrs
+            .iter()
+            .map(|a| BlockKey {
+                peer: a.parse().unwrap(),
+                ..key(0)
+            })
+            .collect();
+        let mut flow = std::net::SocketAddrV6::new("fe80::1".parse().unwrap(), 5683, 0, 1);
+        flow.set_flowinfo(7);
+        keys.push(BlockKey {
+            peer: flow.into(),
+            ..key(0)
+        });
+        for (i, a) in keys.iter().enumerate() {
+            for (j, b) in keys.iter().enumerate() {
+                assert_eq!(a == b, i == j, "{a:?} {b:?}");
+                assert_eq!(a.cmp(b), b.cmp(a).reverse());
+            }
         }
     }
 

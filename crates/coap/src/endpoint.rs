@@ -302,10 +302,27 @@ pub enum Event {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 enum TimerKind {
-    Retransmit { peer: SocketAddr, mid: u16, tx: u8 },
-    Step { id: u64, generation: u32 },
-    Deadline { id: u64 },
-    SeparateAck { id: u64 },
+    Retransmit {
+        peer: SocketAddr,
+        mid: u16,
+        tx: u8,
+    },
+    /// The retransmission check of a request's CON, armed at `at` (see
+    /// [`ClientRequest::ack_timer`]).
+    RequestAck {
+        id: u64,
+        at: Instant,
+    },
+    Step {
+        id: u64,
+        generation: u32,
+    },
+    Deadline {
+        id: u64,
+    },
+    SeparateAck {
+        id: u64,
+    },
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -325,6 +342,8 @@ struct OutCon {
     /// Retransmissions so far.
     tx: u8,
     timeout: Duration,
+    /// When it is sent again (or given up) unless acknowledged.
+    at: Instant,
     purpose: Purpose,
 }
 
@@ -375,6 +394,11 @@ struct ClientRequest {
     user_block2: bool,
     /// The request carries Observe 0 (a registration).
     observe: bool,
+    /// When its armed [`TimerKind::RequestAck`] fires. Each block's CON does not push a
+    /// timer of its own: the armed one fires, finds the CON then awaited and re-arms for
+    /// its due time. So a transfer arms about one timer per ACK_TIMEOUT instead of one per
+    /// block, and retransmissions still go out exactly when due.
+    ack_timer: Option<Instant>,
 }
 
 impl ClientRequest {
@@ -506,9 +530,11 @@ impl Outbox {
     /// the chunk is used again from its start (so a caller that keeps a [`Transmit`]
     /// keeps its whole chunk).
     fn send(&mut self, peer: SocketAddr, msg: &Outgoing<'_>) {
-        let len = msg.encoded_len();
-        if self.chunk.capacity() < len {
-            self.chunk.reserve(len.max(ENCODE_CHUNK));
+        // Room for the payload and usual header and options, without counting them
+        // first; a message with more options grows the chunk as it is written.
+        let room = msg.payload.len() + 128;
+        if self.chunk.capacity() < room {
+            self.chunk.reserve(room.max(ENCODE_CHUNK));
         }
         msg.encode_into(&mut self.chunk);
         let data = self.chunk.split().freeze();
@@ -594,6 +620,10 @@ impl Endpoint {
                 .exchanges
                 .get(&MidKey(peer, mid))
                 .is_some_and(|x| x.tx == tx),
+            TimerKind::RequestAck { id, at } => self
+                .requests
+                .get(&id)
+                .is_some_and(|r| r.ack_timer == Some(at)),
             TimerKind::Step { id, generation } => self
                 .requests
                 .get(&id)
@@ -627,6 +657,7 @@ impl Endpoint {
                 TimerKind::Retransmit { peer, mid, tx } => {
                     self.on_retransmit_timer(now, peer, mid, tx)
                 }
+                TimerKind::RequestAck { id, at } => self.on_request_ack_timer(now, id, at),
                 TimerKind::Step { id, generation } => self.on_step_timer(now, id, generation),
                 TimerKind::Deadline { id } => match self.requests.get(&id).map(|r| r.waiting) {
                     Some(Waiting::Collecting) => {
@@ -645,7 +676,7 @@ impl Endpoint {
     /// Takes one received datagram. `multicast` says it was addressed to a multicast group
     /// (then no error responses and no Resets are sent, RFC 7390 §2.7).
     pub fn handle(&mut self, now: Instant, peer: SocketAddr, data: &[u8], multicast: bool) {
-        let msg = match Message::decode(data) {
+        let (mut msg, payload) = match Message::decode_borrowed(data) {
             Ok(m) => m,
             Err(e) => {
                 if let (Reaction::Reset(mid), false) = (Reaction::from(&e), multicast) {
@@ -655,7 +686,10 @@ impl Endpoint {
             }
         };
         match msg.ty {
-            Type::Ack | Type::Rst => self.on_ack_or_reset(now, peer, msg),
+            // Passed on by reference: a message with its inline options is a few hundred
+            // bytes, and each move would copy them. A response's payload stays in the
+            // datagram until it is copied where it goes (into a body being reassembled).
+            Type::Ack | Type::Rst => self.on_ack_or_reset(now, peer, &mut msg, payload),
             Type::Con if msg.code.is_empty() => {
                 // CoAP ping (RFC 7252 §4.3): an empty CON is answered with a Reset.
                 if !multicast {
@@ -663,10 +697,11 @@ impl Endpoint {
                 }
             }
             Type::Con | Type::Non if msg.code.is_request() => {
+                msg.payload = Bytes::copy_from_slice(payload);
                 self.on_request(now, peer, msg, multicast);
             }
             Type::Con | Type::Non if msg.code.is_response() => {
-                self.on_separate_response(now, peer, msg)
+                self.on_separate_response(now, peer, &mut msg, payload)
             }
             // An empty NON is a format error (§4.3); unknown code classes are ignored.
             Type::Con | Type::Non => {}
@@ -723,16 +758,68 @@ impl Endpoint {
         data: Option<Bytes>,
     ) {
         let timeout = self.initial_timeout();
+        let at = now + timeout;
         self.exchanges.insert(
             MidKey(peer, mid),
             OutCon {
                 data,
                 tx: 0,
                 timeout,
+                at,
                 purpose,
             },
         );
-        self.schedule(now + timeout, TimerKind::Retransmit { peer, mid, tx: 0 });
+        match purpose {
+            Purpose::Request(id) => self.arm_request_ack(id, at),
+            _ => self.schedule(at, TimerKind::Retransmit { peer, mid, tx: 0 }),
+        }
+    }
+
+    /// Makes sure the request's ACK timer fires no later than `at`.
+    fn arm_request_ack(&mut self, id: u64, at: Instant) {
+        let Some(r) = self.requests.get_mut(&id) else {
+            return;
+        };
+        if r.ack_timer.is_some_and(|armed| armed <= at) {
+            return;
+        }
+        r.ack_timer = Some(at);
+        self.schedule(at, TimerKind::RequestAck { id, at });
+    }
+
+    /// The ACK timer of a request: the CON it waits for is sent again if due (RFC 7252
+    /// §4.2, the timeout doubling each time), its step fails after MAX_RETRANSMIT; a CON
+    /// due later re-arms the timer for then.
+    fn on_request_ack_timer(&mut self, now: Instant, id: u64, at: Instant) {
+        let max = self.config.max_retransmit;
+        let Some(r) = self.requests.get_mut(&id) else {
+            return;
+        };
+        if r.ack_timer != Some(at) {
+            return;
+        }
+        r.ack_timer = None;
+        let Waiting::Ack(mid) = r.waiting else {
+            return;
+        };
+        let key = MidKey(r.peer, mid);
+        let Some(x) = self.exchanges.get_mut(&key) else {
+            return;
+        };
+        if x.at > now {
+            let due = x.at;
+            self.arm_request_ack(id, due);
+        } else if x.tx < max {
+            x.tx += 1;
+            x.timeout *= 2;
+            x.at = now + x.timeout;
+            let due = x.at;
+            r.send_step(mid, &mut self.outbox);
+            self.arm_request_ack(id, due);
+        } else {
+            self.exchanges.remove(&key);
+            self.step_failed(now, id, RequestError::Timeout);
+        }
     }
 
     fn on_retransmit_timer(&mut self, now: Instant, peer: SocketAddr, mid: u16, tx: u8) {
@@ -747,31 +834,14 @@ impl Endpoint {
             // RFC 7252 §4.2: retransmit, doubling the timeout each time.
             x.tx += 1;
             x.timeout *= 2;
-            let (timeout, tx) = (x.timeout, x.tx);
-            match (&x.data, x.purpose) {
-                (Some(data), _) => {
-                    let data = data.clone();
-                    self.outbox.queue.push_back(Transmit { peer, data });
-                }
-                (None, Purpose::Request(id)) => {
-                    // Built from the step the request still waits for; an exchange its
-                    // request has left behind ends here.
-                    let Some(r) = self
-                        .requests
-                        .get(&id)
-                        .filter(|r| r.waiting == Waiting::Ack(mid))
-                    else {
-                        self.exchanges.remove(&MidKey(peer, mid));
-                        return;
-                    };
-                    r.send_step(mid, &mut self.outbox);
-                }
-                (None, _) => {
-                    self.exchanges.remove(&MidKey(peer, mid));
-                    return;
-                }
-            }
-            self.schedule(now + timeout, TimerKind::Retransmit { peer, mid, tx });
+            x.at = now + x.timeout;
+            let (at, tx) = (x.at, x.tx);
+            // Only a request's CON keeps no datagram, and it has no timer of this kind.
+            let Some(data) = x.data.clone() else {
+                return;
+            };
+            self.outbox.queue.push_back(Transmit { peer, data });
+            self.schedule(at, TimerKind::Retransmit { peer, mid, tx });
             return;
         }
         let Some(x) = self.exchanges.remove(&MidKey(peer, mid)) else {
@@ -790,7 +860,13 @@ impl Endpoint {
         }
     }
 
-    fn on_ack_or_reset(&mut self, now: Instant, peer: SocketAddr, msg: Message) {
+    fn on_ack_or_reset(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        msg: &mut Message,
+        payload: &[u8],
+    ) {
         // ACK and RST are matched by message ID only (RFC 7252 §4.2, §4.3); an unknown one
         // is ignored.
         let Some(x) = self.exchanges.remove(&MidKey(peer, msg.message_id)) else {
@@ -818,9 +894,14 @@ impl Endpoint {
                 if msg.ty == Type::Rst {
                     self.fail(now, id, RequestError::Reset);
                 } else if msg.code.is_response()
-                    && self.requests.get(&id).is_some_and(|r| r.token == msg.token)
+                    && let Some(r) = self.requests.get_mut(&id).filter(|r| r.token == msg.token)
                 {
-                    self.on_response(now, id, msg);
+                    // Piggybacked: the exchange ended with this ACK.
+                    r.waiting = Waiting::Response {
+                        non_tx: None,
+                        mid: msg.message_id,
+                    };
+                    self.on_response(now, id, msg, payload);
                 } else {
                     self.on_empty_ack(now, id);
                 }
@@ -829,7 +910,13 @@ impl Endpoint {
     }
 
     /// A CON or NON response (not piggybacked).
-    fn on_separate_response(&mut self, now: Instant, peer: SocketAddr, msg: Message) {
+    fn on_separate_response(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        msg: &mut Message,
+        payload: &[u8],
+    ) {
         let limits = self.config.limits.clone();
         let known = self.by_token.get(&msg.token).copied();
         if let Some(seen) = self
@@ -866,7 +953,7 @@ impl Endpoint {
         let Some(id) = known else { return };
         match self.requests.get_mut(&id) {
             Some(r) if r.waiting == Waiting::Collecting => {
-                let response = Response::with_parts(msg.code, msg.options, msg.payload);
+                let response = take_response(msg, payload);
                 self.events.push_back(Event::MulticastResponse {
                     id: RequestId(id),
                     peer,
@@ -880,14 +967,14 @@ impl Endpoint {
                     // RFC 7641 §3.4: deliver only notifications newer than the last one.
                     if let Some(seq) = seq.filter(|v| is_newer(last, *v)) {
                         r.waiting = Waiting::Observing(seq);
-                        let response = Response::with_parts(msg.code, msg.options, msg.payload);
+                        let response = take_response(msg, payload);
                         self.events.push_back(Event::Notification {
                             id: RequestId(id),
                             response,
                         });
                     } else if seq.is_none() {
                         // A final response without Observe ends the observation (§3.2).
-                        let response = Response::with_parts(msg.code, msg.options, msg.payload);
+                        let response = take_response(msg, payload);
                         self.finish(now, id);
                         self.events.push_back(Event::Notification {
                             id: RequestId(id),
@@ -896,7 +983,7 @@ impl Endpoint {
                     }
                     return;
                 }
-                self.on_response(now, id, msg);
+                self.on_response(now, id, msg, payload);
             }
             None => {}
         }
@@ -946,6 +1033,7 @@ impl Endpoint {
                 first_options: None,
                 user_block2,
                 observe,
+                ack_timer: None,
             },
         );
         self.by_token.insert(token, id);
@@ -1154,7 +1242,7 @@ impl Endpoint {
     }
 
     /// A response (piggybacked or separate) matched to request `id` by token.
-    fn on_response(&mut self, now: Instant, id: u64, msg: Message) {
+    fn on_response(&mut self, now: Instant, id: u64, msg: &mut Message, payload: &[u8]) {
         let limit = self.config.limits.client_body_bytes;
         let Some(r) = self.requests.get_mut(&id) else {
             return;
@@ -1172,7 +1260,7 @@ impl Endpoint {
             return;
         }
         // A separate response also acknowledges the request (RFC 7252 §5.2.2).
-        if let Waiting::Ack(mid) | Waiting::Response { mid, .. } = r.waiting {
+        if let Waiting::Ack(mid) = r.waiting {
             self.exchanges.remove(&MidKey(r.peer, mid));
         }
         r.generation += 1;
@@ -1248,7 +1336,7 @@ impl Endpoint {
                     RequestError::Protocol("block-wise response lost its Block2"),
                 );
             }
-            let mut response = Response::with_parts(msg.code, msg.options, msg.payload);
+            let mut response = take_response(msg, payload);
             if r.req.stream && response.code.is_success() && !response.payload.is_empty() {
                 let data = std::mem::take(&mut response.payload);
                 self.events.push_back(Event::BodyChunk {
@@ -1309,10 +1397,10 @@ impl Endpoint {
             };
             return self.send_step(now, id);
         }
-        if r.received + msg.payload.len() > limit {
+        if r.received + payload.len() > limit {
             return self.fail(now, id, RequestError::TooLarge { limit });
         }
-        if b2.more && msg.payload.len() != b2.size() {
+        if b2.more && payload.len() != b2.size() {
             return self.fail(
                 now,
                 id,
@@ -1326,7 +1414,7 @@ impl Endpoint {
             .map(|v| v as usize);
         let (stream, progress) = (r.req.stream, r.req.progress);
         let before = r.received;
-        r.received += msg.payload.len();
+        r.received += payload.len();
         let done = r.received;
         if stream && !b2.more && total.is_some_and(|t| t != done) {
             return self.fail(
@@ -1335,7 +1423,7 @@ impl Endpoint {
                 RequestError::Protocol("the body does not have the size Size2 announced"),
             );
         }
-        r.body.extend_from_slice(&msg.payload);
+        r.body.extend_from_slice(payload);
         // A streamed body leaves in pieces of STREAM_PIECE bytes (and the rest at the end):
         // one hand-over to the reader per piece, not per block.
         if stream && (r.body.len() >= STREAM_PIECE || !b2.more) {
@@ -1919,6 +2007,13 @@ fn block2_response(
         options.set_uint(OptionNumber::SIZE2, body.0.len() as u32);
     }
     Some(Response::with_parts(code, options, payload))
+}
+
+/// A received response: the code and options taken out of its message, and a copy of
+/// its payload.
+fn take_response(msg: &mut Message, payload: &[u8]) -> Response {
+    let options = std::mem::take(&mut msg.options);
+    Response::with_parts(msg.code, options, Bytes::copy_from_slice(payload))
 }
 
 /// The answer to a block that starts past the end of the body (RFC 7959 §2.2).

@@ -9,7 +9,7 @@ pub mod option;
 
 use std::fmt;
 
-use bytes::{BufMut, Bytes};
+use bytes::{Bytes, BytesMut};
 
 pub use code::Code;
 pub use option::{BlockOpt, CoapOption, OptionNumber, OptionValue, Options};
@@ -347,8 +347,31 @@ impl Message {
 
     /// Decodes a datagram.
     pub fn decode(data: &[u8]) -> Result<Self, DecodeError> {
+        let (mut msg, payload) = Self::decode_borrowed(data)?;
+        msg.payload = Bytes::copy_from_slice(payload);
+        Ok(msg)
+    }
+
+    /// Decodes a datagram but leaves the payload in it: the message comes back with an
+    /// empty payload, beside the payload's bytes. A block-wise receiver copies each block
+    /// once, into the body, instead of into a payload of its own first.
+    pub fn decode_borrowed(data: &[u8]) -> Result<(Self, &[u8]), DecodeError> {
         let view = MessageView::new_checked(data)?;
-        Ok(Self::from(view))
+        let msg = Self {
+            ty: view.ty(),
+            code: view.code(),
+            message_id: view.message_id(),
+            token: view.token(),
+            options: view
+                .options()
+                .map(|(number, value)| CoapOption {
+                    number,
+                    value: OptionValue::new(value),
+                })
+                .collect(),
+            payload: Bytes::new(),
+        };
+        Ok((msg, view.payload()))
     }
 
     /// The message as an [`Outgoing`] with nothing set over its options.
@@ -364,22 +387,14 @@ impl Message {
         }
     }
 
-    /// The exact number of bytes [`Message::encode_into`] writes.
+    /// The exact number of bytes [`Message::encode`] gives.
     pub fn encoded_len(&self) -> usize {
         self.outgoing().encoded_len()
     }
 
-    /// Appends the encoded message to `out` (room for [`Message::encoded_len`] bytes is
-    /// made as it goes; reserve it first to grow `out` once).
-    pub fn encode_into(&self, out: &mut impl BufMut) {
-        self.outgoing().encode_into(out);
-    }
-
     /// Encodes into a new buffer.
     pub fn encode(&self) -> Vec<u8> {
-        let mut out = Vec::with_capacity(self.encoded_len());
-        self.encode_into(&mut out);
-        out
+        self.outgoing().encode()
     }
 }
 
@@ -406,87 +421,136 @@ pub struct Outgoing<'a> {
 }
 
 impl Outgoing<'_> {
-    /// The options in wire order, with `uints` merged in.
-    fn each_option(&self, mut f: impl FnMut(OptionNumber, &[u8])) {
-        fn put_uint(f: &mut impl FnMut(OptionNumber, &[u8]), &(number, v): &(OptionNumber, u32)) {
-            // RFC 7252 §3.2: no leading zero bytes (zero is the empty value).
-            f(number, &v.to_be_bytes()[(v.leading_zeros() / 8) as usize..]);
+    /// Most heads (header, token, options, payload marker) fit a stack buffer this long.
+    const HEAD_ON_STACK: usize = 256;
+
+    /// Calls `f` with the bytes before the payload: header, token, options and the payload
+    /// marker. They are written on the stack unless the options are long.
+    fn with_head<R>(&self, f: impl FnOnce(&[u8]) -> R) -> R {
+        // 1 option byte, 2 + 2 extension bytes per option; a uint takes at most 4 bytes.
+        let bound = 4
+            + 8
+            + 1
+            + 9 * self.uints.len()
+            + self
+                .options
+                .iter()
+                .map(|o| 5 + o.value.len())
+                .sum::<usize>();
+        if bound <= Self::HEAD_ON_STACK {
+            let mut head = [0u8; Self::HEAD_ON_STACK];
+            let len = self.write_head(&mut head);
+            f(&head[..len])
+        } else {
+            let mut head = vec![0u8; bound];
+            let len = self.write_head(&mut head);
+            f(&head[..len])
         }
-        let mut uints = self.uints.iter().peekable();
+    }
+
+    /// Writes the head into `out`, which is long enough; its length.
+    fn write_head(&self, out: &mut [u8]) -> usize {
+        let token = self.token.as_bytes();
+        out[0] = 0x40 | (self.ty.bits() << 4) | token.len() as u8;
+        out[1] = self.code.0;
+        out[2..4].copy_from_slice(&self.message_id.to_be_bytes());
+        out[4..4 + token.len()].copy_from_slice(token);
+        let mut w = HeadWriter {
+            out,
+            pos: 4 + token.len(),
+            prev: 0,
+        };
+        let mut uints = self.uints;
         for o in self.options.iter() {
             if self.uints.iter().any(|(n, _)| *n == o.number) {
                 continue;
             }
-            while let Some(u) = uints.next_if(|(n, _)| *n < o.number) {
-                put_uint(&mut f, u);
+            while let [(number, v), rest @ ..] = uints
+                && *number < o.number
+            {
+                w.uint(*number, *v);
+                uints = rest;
             }
-            f(o.number, &o.value);
+            w.option(o.number, &o.value);
         }
-        for u in uints {
-            put_uint(&mut f, u);
+        for &(number, v) in uints {
+            w.uint(number, v);
         }
+        if !self.payload.is_empty() {
+            w.out[w.pos] = 0xff;
+            w.pos += 1;
+        }
+        w.pos
     }
 
-    /// The exact number of bytes [`Outgoing::encode_into`] writes.
+    /// The exact number of bytes the encoding takes.
     pub fn encoded_len(&self) -> usize {
-        let mut len = 4 + self.token.len();
-        let mut prev = 0u16;
-        self.each_option(|number, value| {
-            let delta = u32::from(number.0 - prev);
-            prev = number.0;
-            let value_len = value.len().min(MAX_OPTION_LEN);
-            len += 1 + ext_len(delta) + ext_len(value_len as u32) + value_len;
-        });
-        if !self.payload.is_empty() {
-            len += 1 + self.payload.len();
-        }
-        len
+        self.with_head(<[u8]>::len) + self.payload.len()
     }
 
-    /// Appends the encoded message to `out` (room for [`Outgoing::encoded_len`] bytes is
-    /// made as it goes; reserve it first to grow `out` once).
-    pub fn encode_into(&self, out: &mut impl BufMut) {
-        let token = self.token.as_bytes();
-        out.put_u8(0x40 | (self.ty.bits() << 4) | token.len() as u8);
-        out.put_u8(self.code.0);
-        out.put_u16(self.message_id);
-        out.put_slice(token);
-        let mut prev = 0u16;
-        self.each_option(|number, value| {
-            let delta = u32::from(number.0 - prev);
-            prev = number.0;
-            // Values longer than 65535 + 269 bytes cannot be expressed; the option
-            // registry caps every known option far below, and callers building unknown
-            // options get them truncated rather than a corrupt datagram.
-            let value = &value[..value.len().min(MAX_OPTION_LEN)];
-            let len = value.len() as u32;
-            out.put_u8((nibble(delta) << 4) | nibble(len));
-            put_ext(out, delta);
-            put_ext(out, len);
-            out.put_slice(value);
+    /// Appends the encoded message to `out`.
+    pub fn encode_into(&self, out: &mut BytesMut) {
+        self.with_head(|head| out.extend_from_slice(head));
+        out.extend_from_slice(self.payload);
+    }
+
+    /// Encodes into a new buffer.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        self.with_head(|head| {
+            out.reserve_exact(head.len() + self.payload.len());
+            out.extend_from_slice(head);
         });
-        if !self.payload.is_empty() {
-            out.put_u8(0xff);
-            out.put_slice(self.payload);
-        }
+        out.extend_from_slice(self.payload);
+        out
     }
 }
 
-impl From<MessageView<'_>> for Message {
-    fn from(view: MessageView<'_>) -> Self {
-        Self {
-            ty: view.ty(),
-            code: view.code(),
-            message_id: view.message_id(),
-            token: view.token(),
-            options: view
-                .options()
-                .map(|(number, value)| CoapOption {
-                    number,
-                    value: OptionValue::new(value),
-                })
-                .collect(),
-            payload: Bytes::copy_from_slice(view.payload()),
+/// Writes options one after the other (RFC 7252 §3.1).
+struct HeadWriter<'a> {
+    out: &'a mut [u8],
+    pos: usize,
+    prev: u16,
+}
+
+impl HeadWriter<'_> {
+    #[inline]
+    fn option(&mut self, number: OptionNumber, value: &[u8]) {
+        let delta = u32::from(number.0 - self.prev);
+        self.prev = number.0;
+        // Values longer than 65535 + 269 bytes cannot be expressed; the option registry
+        // caps every known option far below, and callers building unknown options get
+        // them truncated rather than a corrupt datagram.
+        let value = &value[..value.len().min(MAX_OPTION_LEN)];
+        let len = value.len() as u32;
+        self.out[self.pos] = (nibble(delta) << 4) | nibble(len);
+        self.pos += 1;
+        self.ext(delta);
+        self.ext(len);
+        self.out[self.pos..self.pos + value.len()].copy_from_slice(value);
+        self.pos += value.len();
+    }
+
+    /// A uint option (RFC 7252 §3.2: no leading zero bytes, zero is the empty value).
+    #[inline]
+    fn uint(&mut self, number: OptionNumber, v: u32) {
+        self.option(number, &v.to_be_bytes()[(v.leading_zeros() / 8) as usize..]);
+    }
+
+    /// The extension of a delta or length.
+    #[inline]
+    fn ext(&mut self, v: u32) {
+        match v {
+            0..=12 => {}
+            13..=268 => {
+                self.out[self.pos] = (v - 13) as u8;
+                self.pos += 1;
+            }
+            _ => {
+                let v = (v - 269).min(0xffff) as u16;
+                self.out[self.pos..self.pos + 2].copy_from_slice(&v.to_be_bytes());
+                self.pos += 2;
+            }
         }
     }
 }
@@ -499,21 +563,5 @@ fn nibble(v: u32) -> u8 {
         0..=12 => v as u8,
         13..=268 => 13,
         _ => 14,
-    }
-}
-
-fn ext_len(v: u32) -> usize {
-    match v {
-        0..=12 => 0,
-        13..=268 => 1,
-        _ => 2,
-    }
-}
-
-fn put_ext(out: &mut impl BufMut, v: u32) {
-    match v {
-        0..=12 => {}
-        13..=268 => out.put_u8((v - 13) as u8),
-        _ => out.put_u16((v - 269).min(0xffff) as u16),
     }
 }
