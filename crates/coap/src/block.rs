@@ -13,7 +13,7 @@ use bytes::Bytes;
 use smallvec::SmallVec;
 
 use crate::config::{EndpointConfig, Limits};
-use crate::msg::{BlockOpt, Code, Options};
+use crate::msg::{BlockHead, BlockOpt, Code, OptionNumber, Options};
 
 /// Identifies the request a block belongs to: the peer and the request's method and
 /// options without the block options ([`Options::block_key`]).
@@ -296,8 +296,9 @@ impl fmt::Debug for Source {
 #[derive(Debug, Clone)]
 pub(crate) struct Stored {
     pub(crate) code: Code,
-    /// The response options (Content-Format, Max-Age, ETag ...), without block options.
-    pub(crate) options: Options,
+    /// The response options (Content-Format, Max-Age, ETag ...) encoded around Block2,
+    /// which each continuation sets.
+    pub(crate) head: BlockHead,
     pub(crate) body: Source,
     /// What `body` held when it was stored (its [`BlockSource::held`]).
     held: usize,
@@ -364,7 +365,7 @@ impl ServerCache {
             key,
             Stored {
                 code,
-                options,
+                head: BlockHead::new(&options, OptionNumber::BLOCK2),
                 body,
                 held,
                 last_used: now,

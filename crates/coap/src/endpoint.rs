@@ -32,7 +32,9 @@ use crate::block::{
 };
 use crate::config::{EndpointConfig, Limits};
 use crate::dedup::{Dedup, Seen};
-use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Outgoing, Reaction, Token, Type};
+use crate::msg::{
+    BlockHead, BlockOpt, Code, Message, OptionNumber, Options, Outgoing, Reaction, Token, Type,
+};
 use crate::peer_key::{MidKey, PeerKey};
 
 /// Identifies a request this endpoint sent (client side).
@@ -399,14 +401,34 @@ struct ClientRequest {
     /// its due time. So a transfer arms about one timer per ACK_TIMEOUT instead of one per
     /// block, and retransmissions still go out exactly when due.
     ack_timer: Option<Instant>,
+    /// The request's options encoded around Block2, for the blocks of a download.
+    block_head: Option<BlockHead>,
 }
 
 impl ClientRequest {
     /// Sends the message of the current step with message ID `mid`: the request's options
     /// with the step's block option (and Size1 on an upload's first block) set over them,
     /// encoded from the request in place.
-    fn send_step(&self, mid: u16, outbox: &mut Outbox) {
+    fn send_step(&mut self, mid: u16, outbox: &mut Outbox) {
         let block = |num, more, szx| BlockOpt { num, more, szx }.as_uint();
+        let ty = if self.req.confirmable {
+            Type::Con
+        } else {
+            Type::Non
+        };
+        if let Step::Download { num, szx } = self.step {
+            // Every block of a download is the same request but for Block2.
+            let options = &self.req.options;
+            let head = self
+                .block_head
+                .get_or_insert_with(|| BlockHead::new(options, OptionNumber::BLOCK2));
+            let header = (ty, self.req.method, mid, self.token);
+            let value = block(num, false, szx);
+            outbox.send_with(self.peer, 0, |out| {
+                head.encode_into(out, header, value, &[])
+            });
+            return;
+        }
         let mut uints = [(OptionNumber(0), 0); 2];
         let mut set = 0;
         let mut payload: &[u8] = &[];
@@ -434,16 +456,8 @@ impl ClientRequest {
                     set = 2;
                 }
             }
-            Step::Download { num, szx } => {
-                uints[0] = (OptionNumber::BLOCK2, block(num, false, szx));
-                set = 1;
-            }
+            Step::Download { .. } => {}
         }
-        let ty = if self.req.confirmable {
-            Type::Con
-        } else {
-            Type::Non
-        };
         let msg = Outgoing {
             ty,
             code: self.req.method,
@@ -530,13 +544,18 @@ impl Outbox {
     /// the chunk is used again from its start (so a caller that keeps a [`Transmit`]
     /// keeps its whole chunk).
     fn send(&mut self, peer: SocketAddr, msg: &Outgoing<'_>) {
+        self.send_with(peer, msg.payload.len(), |out| msg.encode_into(out));
+    }
+
+    /// Queues the message that `encode` appends to the chunk (as [`Outbox::send`]).
+    fn send_with(&mut self, peer: SocketAddr, payload: usize, encode: impl FnOnce(&mut BytesMut)) {
         // Room for the payload and usual header and options, without counting them
         // first; a message with more options grows the chunk as it is written.
-        let room = msg.payload.len() + 128;
+        let room = payload + 128;
         if self.chunk.capacity() < room {
             self.chunk.reserve(room.max(ENCODE_CHUNK));
         }
-        msg.encode_into(&mut self.chunk);
+        encode(&mut self.chunk);
         let data = self.chunk.split().freeze();
         self.queue.push_back(Transmit { peer, data });
     }
@@ -676,8 +695,9 @@ impl Endpoint {
     /// Takes one received datagram. `multicast` says it was addressed to a multicast group
     /// (then no error responses and no Resets are sent, RFC 7390 §2.7).
     pub fn handle(&mut self, now: Instant, peer: SocketAddr, data: &[u8], multicast: bool) {
-        let (mut msg, payload) = match Message::decode_borrowed(data) {
-            Ok(m) => m,
+        let mut msg = Message::empty(Type::Con, 0);
+        let payload = match msg.decode_in_place(data) {
+            Ok(payload) => payload,
             Err(e) => {
                 if let (Reaction::Reset(mid), false) = (Reaction::from(&e), multicast) {
                     self.send(peer, &Message::empty(Type::Rst, mid));
@@ -728,8 +748,11 @@ impl Endpoint {
     /// ACK_TIMEOUT scaled by a uniform random factor in [1, ACK_RANDOM_FACTOR].
     fn initial_timeout(&mut self) -> Duration {
         let unit = (self.rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
-        let factor = 1.0 + unit * (self.config.ack_random_factor - 1.0).max(0.0);
-        self.config.ack_timeout.mul_f64(factor)
+        let spread = (self.config.ack_random_factor - 1.0).max(0.0);
+        let jitter = self.config.ack_timeout.as_secs_f64() * 1e9 * spread * unit;
+        // Whole nanoseconds added, rather than Duration::mul_f64's checked conversion of
+        // the product: this runs for every CON of a transfer.
+        self.config.ack_timeout + Duration::from_nanos(jitter as u64)
     }
 
     /// Sends a message that goes out once ([`Outbox::send`]).
@@ -1034,6 +1057,7 @@ impl Endpoint {
                 user_block2,
                 observe,
                 ack_timer: None,
+                block_head: None,
             },
         );
         self.by_token.insert(token, id);
@@ -1526,21 +1550,13 @@ impl Endpoint {
             let (ty, mid) = self.reply_header(&msg);
             let stored = self.block2.get(now, &key, &limits).map(|s| {
                 match block::slice(&*s.body.0, b2.num, szx) {
-                    // The block goes out as the stored options with this Block2 set over
-                    // them, encoded in place.
+                    // The block goes out as the stored options, encoded once, around
+                    // this Block2.
                     Slice::Block(payload, opt) => {
-                        self.outbox.send(
-                            peer,
-                            &Outgoing {
-                                ty,
-                                code: s.code,
-                                message_id: mid,
-                                token: msg.token,
-                                options: &s.options,
-                                uints: &[(OptionNumber::BLOCK2, opt.as_uint())],
-                                payload: &payload,
-                            },
-                        );
+                        let header = (ty, s.code, mid, msg.token);
+                        self.outbox.send_with(peer, payload.len(), |out| {
+                            s.head.encode_into(out, header, opt.as_uint(), &payload);
+                        });
                         Served::Sent
                     }
                     Slice::PastEnd => Served::PastEnd,

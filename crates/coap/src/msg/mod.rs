@@ -347,31 +347,25 @@ impl Message {
 
     /// Decodes a datagram.
     pub fn decode(data: &[u8]) -> Result<Self, DecodeError> {
-        let (mut msg, payload) = Self::decode_borrowed(data)?;
+        let mut msg = Self::empty(Type::Con, 0);
+        let payload = msg.decode_in_place(data)?;
         msg.payload = Bytes::copy_from_slice(payload);
         Ok(msg)
     }
 
-    /// Decodes a datagram but leaves the payload in it: the message comes back with an
-    /// empty payload, beside the payload's bytes. A block-wise receiver copies each block
-    /// once, into the body, instead of into a payload of its own first.
-    pub fn decode_borrowed(data: &[u8]) -> Result<(Self, &[u8]), DecodeError> {
+    /// Decodes a datagram into this message, all but the payload: the message's payload is
+    /// left empty and the payload's bytes are returned. A block-wise receiver copies each
+    /// block once, into the body, and the message (a few hundred bytes with its inline
+    /// options) is filled where it lies rather than built and moved.
+    pub fn decode_in_place<'d>(&mut self, data: &'d [u8]) -> Result<&'d [u8], DecodeError> {
         let view = MessageView::new_checked(data)?;
-        let msg = Self {
-            ty: view.ty(),
-            code: view.code(),
-            message_id: view.message_id(),
-            token: view.token(),
-            options: view
-                .options()
-                .map(|(number, value)| CoapOption {
-                    number,
-                    value: OptionValue::new(value),
-                })
-                .collect(),
-            payload: Bytes::new(),
-        };
-        Ok((msg, view.payload()))
+        self.ty = view.ty();
+        self.code = view.code();
+        self.message_id = view.message_id();
+        self.token = view.token();
+        self.options.fill_in_wire_order(view.options());
+        self.payload = Bytes::new();
+        Ok(view.payload())
     }
 
     /// The message as an [`Outgoing`] with nothing set over its options.
@@ -506,6 +500,83 @@ impl Outgoing<'_> {
     }
 }
 
+/// The options of a message sent many times over with only its header, token, payload and
+/// one uint option changed: each block of a block-wise transfer (the request's Block2 on
+/// a client, the stored response's Block2 on a server). They are encoded once; each block
+/// then copies them around its own option instead of encoding every option again.
+#[derive(Debug, Clone)]
+pub(crate) struct BlockHead {
+    /// The options before `number`, then those after it (encoded as if `number` came
+    /// between).
+    bytes: Vec<u8>,
+    split: usize,
+    /// The number of the last option before `number` (0 for none).
+    prev: u16,
+    number: OptionNumber,
+}
+
+impl BlockHead {
+    /// The encoding of `options` around `number`; instances of `number` itself are left
+    /// out (each block sets its own).
+    pub(crate) fn new(options: &Options, number: OptionNumber) -> Self {
+        let bound = options.iter().map(|o| 5 + o.value.len()).sum::<usize>();
+        let mut bytes = vec![0; bound];
+        let mut w = HeadWriter {
+            out: &mut bytes,
+            pos: 0,
+            prev: 0,
+        };
+        for o in options.iter().filter(|o| o.number < number) {
+            w.option(o.number, &o.value);
+        }
+        let (split, prev) = (w.pos, w.prev);
+        w.prev = number.0;
+        for o in options.iter().filter(|o| o.number > number) {
+            w.option(o.number, &o.value);
+        }
+        let len = w.pos;
+        bytes.truncate(len);
+        Self {
+            bytes,
+            split,
+            prev,
+            number,
+        }
+    }
+
+    /// Appends the message with these options and `value` for the block option.
+    pub(crate) fn encode_into(
+        &self,
+        out: &mut BytesMut,
+        (ty, code, message_id, token): (Type, Code, u16, Token),
+        value: u32,
+        payload: &[u8],
+    ) {
+        let token = token.as_bytes();
+        let mut head = [0u8; 4 + 8];
+        head[0] = 0x40 | (ty.bits() << 4) | token.len() as u8;
+        head[1] = code.0;
+        head[2..4].copy_from_slice(&message_id.to_be_bytes());
+        head[4..4 + token.len()].copy_from_slice(token);
+        out.extend_from_slice(&head[..4 + token.len()]);
+        out.extend_from_slice(&self.bytes[..self.split]);
+        let mut block = [0u8; 8];
+        let mut w = HeadWriter {
+            out: &mut block,
+            pos: 0,
+            prev: self.prev,
+        };
+        w.uint(self.number, value);
+        let len = w.pos;
+        out.extend_from_slice(&block[..len]);
+        out.extend_from_slice(&self.bytes[self.split..]);
+        if !payload.is_empty() {
+            out.extend_from_slice(&[0xff]);
+            out.extend_from_slice(payload);
+        }
+    }
+}
+
 /// Writes options one after the other (RFC 7252 §3.1).
 struct HeadWriter<'a> {
     out: &'a mut [u8],
@@ -563,5 +634,47 @@ fn nibble(v: u32) -> u8 {
         0..=12 => v as u8,
         13..=268 => 13,
         _ => 14,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_block_head_encodes_as_the_whole_message_would() {
+        let mut around = Options::new();
+        around.set_path("/a/segment-longer-than-twelve/c");
+        around.set_uint(OptionNumber::ACCEPT, 50);
+        // Replaced by each block's own Block2.
+        around.set_uint(OptionNumber::BLOCK2, 0x1234);
+        around.set_uint(OptionNumber::SIZE2, 70_000);
+        around.push(OptionNumber(2000), b"far");
+        let mut before = Options::new();
+        before.set(OptionNumber::ETAG, b"etag");
+        let mut after = Options::new();
+        after.set_uint(OptionNumber::SIZE2, 5);
+        let token = Token::new(b"tok").unwrap_or_default();
+        for options in [Options::new(), around, before, after] {
+            let head = BlockHead::new(&options, OptionNumber::BLOCK2);
+            for (value, payload) in [(0, &b""[..]), (0x76, b"x"), (0xfffff6, &[7; 300][..])] {
+                let whole = Outgoing {
+                    ty: Type::Ack,
+                    code: Code::CONTENT,
+                    message_id: 0xbeef,
+                    token,
+                    options: &options,
+                    uints: &[(OptionNumber::BLOCK2, value)],
+                    payload,
+                };
+                let mut out = BytesMut::new();
+                let header = (Type::Ack, Code::CONTENT, 0xbeef, token);
+                head.encode_into(&mut out, header, value, payload);
+                assert_eq!(&out[..], &whole.encode()[..], "{options:?} {value}");
+                assert_eq!(out.len(), whole.encoded_len());
+                let back = Message::decode(&out).unwrap();
+                assert_eq!(back.options.block2().map(BlockOpt::as_uint), Some(value));
+            }
+        }
     }
 }

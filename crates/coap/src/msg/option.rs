@@ -354,6 +354,20 @@ impl Options {
         Self { list }
     }
 
+    /// Replaces the options with those of a checked message, which come sorted.
+    pub(crate) fn fill_in_wire_order<'a>(
+        &mut self,
+        options: impl Iterator<Item = (OptionNumber, &'a [u8])>,
+    ) {
+        self.list.clear();
+        for (number, value) in options {
+            self.list.push(CoapOption {
+                number,
+                value: OptionValue::new(value),
+            });
+        }
+    }
+
     /// All options in wire order.
     pub fn iter(&self) -> impl Iterator<Item = &CoapOption> {
         self.list.iter()
