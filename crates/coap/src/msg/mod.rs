@@ -553,27 +553,36 @@ impl BlockHead {
         payload: &[u8],
     ) {
         let token = token.as_bytes();
-        let mut head = [0u8; 4 + 8];
+        // Header, token, the options and the payload marker are put together on the
+        // stack (unless the options are long) and appended at once, then the payload.
+        let len = 4 + token.len() + self.bytes.len() + 8 + 1;
+        let mut stack = [0u8; 256];
+        let mut heap = Vec::new();
+        let head = if len <= stack.len() {
+            &mut stack[..len]
+        } else {
+            heap.resize(len, 0);
+            &mut heap[..]
+        };
         head[0] = 0x40 | (ty.bits() << 4) | token.len() as u8;
         head[1] = code.0;
         head[2..4].copy_from_slice(&message_id.to_be_bytes());
         head[4..4 + token.len()].copy_from_slice(token);
-        out.extend_from_slice(&head[..4 + token.len()]);
-        out.extend_from_slice(&self.bytes[..self.split]);
-        let mut block = [0u8; 8];
         let mut w = HeadWriter {
-            out: &mut block,
-            pos: 0,
-            prev: self.prev,
+            out: head,
+            pos: 4 + token.len(),
+            prev: 0,
         };
+        w.bytes(&self.bytes[..self.split]);
+        w.prev = self.prev;
         w.uint(self.number, value);
-        let len = w.pos;
-        out.extend_from_slice(&block[..len]);
-        out.extend_from_slice(&self.bytes[self.split..]);
+        w.bytes(&self.bytes[self.split..]);
         if !payload.is_empty() {
-            out.extend_from_slice(&[0xff]);
-            out.extend_from_slice(payload);
+            w.bytes(&[0xff]);
         }
+        let len = w.pos;
+        out.extend_from_slice(&head[..len]);
+        out.extend_from_slice(payload);
     }
 }
 
@@ -598,14 +607,20 @@ impl HeadWriter<'_> {
         self.pos += 1;
         self.ext(delta);
         self.ext(len);
-        self.out[self.pos..self.pos + value.len()].copy_from_slice(value);
-        self.pos += value.len();
+        self.bytes(value);
     }
 
     /// A uint option (RFC 7252 §3.2: no leading zero bytes, zero is the empty value).
     #[inline]
     fn uint(&mut self, number: OptionNumber, v: u32) {
         self.option(number, &v.to_be_bytes()[(v.leading_zeros() / 8) as usize..]);
+    }
+
+    /// Bytes already encoded.
+    #[inline]
+    fn bytes(&mut self, bytes: &[u8]) {
+        self.out[self.pos..self.pos + bytes.len()].copy_from_slice(bytes);
+        self.pos += bytes.len();
     }
 
     /// The extension of a delta or length.
@@ -617,11 +632,7 @@ impl HeadWriter<'_> {
                 self.out[self.pos] = (v - 13) as u8;
                 self.pos += 1;
             }
-            _ => {
-                let v = (v - 269).min(0xffff) as u16;
-                self.out[self.pos..self.pos + 2].copy_from_slice(&v.to_be_bytes());
-                self.pos += 2;
-            }
+            _ => self.bytes(&((v - 269).min(0xffff) as u16).to_be_bytes()),
         }
     }
 }

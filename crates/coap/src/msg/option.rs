@@ -570,8 +570,9 @@ impl Options {
             ) {
                 continue;
             }
-            key.extend_from_slice(&o.number.0.to_be_bytes());
-            key.extend_from_slice(&(o.value.len() as u16).to_be_bytes());
+            let [n0, n1] = o.number.0.to_be_bytes();
+            let [l0, l1] = (o.value.len() as u16).to_be_bytes();
+            key.extend_from_slice(&[n0, n1, l0, l1]);
             key.extend_from_slice(&o.value);
         }
         key
