@@ -117,7 +117,7 @@ impl Client {
                 }
                 BodyPart::End(response) => {
                     sink.flush()?;
-                    return Ok((response, written));
+                    return Ok((*response, written));
                 }
             }
         }
@@ -181,7 +181,7 @@ impl Client {
         let mut out = Vec::new();
         while let Some(item) = rx.recv().await {
             match item {
-                StreamItem::Response(peer, r) => out.push((peer, r)),
+                StreamItem::Response(peer, r) => out.push((peer, *r)),
                 StreamItem::Failed(e) => return Err(Error::Request(e)),
             }
             if expected.is_some_and(|n| out.len() >= n) {
@@ -269,8 +269,9 @@ pub enum BodyPart {
         total: Option<usize>,
     },
     /// The body is complete; the response carries the code and options of the first
-    /// block and an empty payload (or the diagnostic of an error response).
-    End(Response),
+    /// block and an empty payload (or the diagnostic of an error response). Boxed: a
+    /// response keeps its options inline, and a stream yields far more chunks than ends.
+    End(Box<Response>),
 }
 
 impl BodyStream {
@@ -306,12 +307,15 @@ impl Observation {
     /// resource changes in between.
     pub async fn next(&mut self) -> Option<Result<Response, Error>> {
         match self.rx.recv().await? {
-            StreamItem::Response(peer, mut r) => Some(
-                self.client
-                    .rest_of_blocks(peer, &self.follow_up, &mut r)
-                    .await
-                    .map(|()| r),
-            ),
+            StreamItem::Response(peer, r) => {
+                let mut r = *r;
+                Some(
+                    self.client
+                        .rest_of_blocks(peer, &self.follow_up, &mut r)
+                        .await
+                        .map(|()| r),
+                )
+            }
             StreamItem::Failed(e) => Some(Err(Error::Request(e))),
         }
     }

@@ -48,7 +48,7 @@ pub(crate) enum BodyItem {
     /// The next piece of the body, and the whole size when the server announced it.
     Chunk(bytes::Bytes, Option<usize>),
     /// The response (its payload is empty: the body came in the pieces).
-    Done(Response),
+    Done(Box<Response>),
     /// The request failed; the pieces so far are not a body.
     Failed(RequestError),
 }
@@ -67,7 +67,7 @@ pub struct Progress {
 pub(crate) enum StreamItem {
     /// A response: the first one or a notification, or one server's answer to a multicast
     /// request.
-    Response(SocketAddr, Response),
+    Response(SocketAddr, Box<Response>),
     /// The request failed.
     Failed(RequestError),
 }
@@ -190,8 +190,11 @@ impl Drop for Waker {
 }
 
 /// Requests received by an endpoint that serves, and the end of observations.
+///
+/// Responses and requests travel boxed through these channels: they keep their options
+/// inline, a few hundred bytes each.
 pub(crate) enum ServerEvent {
-    Request(IncomingRequest),
+    Request(Box<IncomingRequest>),
     ObservationEnded(ObservationId),
 }
 
@@ -478,7 +481,7 @@ impl Thread {
             Event::Request(req) => match &self.server {
                 Some(s) => {
                     let id = req.id;
-                    if s.send(ServerEvent::Request(req)).is_err() {
+                    if s.send(ServerEvent::Request(Box::new(req))).is_err() {
                         self.ep.respond(
                             clock::now(),
                             id,
@@ -499,7 +502,7 @@ impl Thread {
                 if let Some((peer, Reply::Stream(tx))) = self.replies.get(&id) {
                     // An Observe request stays open for its notifications; anything else ends.
                     let observing = response.options.contains(coap::OptionNumber::OBSERVE);
-                    let _ = tx.send(StreamItem::Response(*peer, response));
+                    let _ = tx.send(StreamItem::Response(*peer, Box::new(response)));
                     if !observing {
                         self.replies.remove(&id);
                     }
@@ -510,7 +513,7 @@ impl Thread {
                         let _ = tx.send(Ok(response));
                     }
                     Some((_, Reply::Body(tx))) => {
-                        let _ = tx.send(BodyItem::Done(response));
+                        let _ = tx.send(BodyItem::Done(Box::new(response)));
                     }
                     Some((_, Reply::Stream(_))) | None => {}
                 }
@@ -537,7 +540,7 @@ impl Thread {
                 // A notification without Observe is the last one (RFC 7641 §3.2).
                 let last = !response.options.contains(coap::OptionNumber::OBSERVE);
                 if let Some((peer, Reply::Stream(tx))) = self.replies.get(&id) {
-                    let _ = tx.send(StreamItem::Response(*peer, response));
+                    let _ = tx.send(StreamItem::Response(*peer, Box::new(response)));
                 }
                 if last {
                     self.replies.remove(&id);
@@ -545,7 +548,7 @@ impl Thread {
             }
             Event::MulticastResponse { id, peer, response } => {
                 if let Some((_, Reply::Stream(tx))) = self.replies.get(&id) {
-                    let _ = tx.send(StreamItem::Response(peer, response));
+                    let _ = tx.send(StreamItem::Response(peer, Box::new(response)));
                 }
             }
             Event::MulticastDone { id } => {

@@ -215,6 +215,7 @@ async fn serve(
                 let router = router.clone();
                 let observers = observers.clone();
                 tokio::spawn(async move {
+                    let request = *request;
                     let id = request.id;
                     let multicast = request.multicast;
                     let registration = request.observe.map(|obs| (obs, request.clone()));

@@ -37,36 +37,77 @@ struct Cli {
 enum Command {
     /// GET a resource; the body goes to standard output or -o FILE. Exit status 0 only for
     /// a 2.xx response whose body arrived whole.
-    Get(request::RequestArgs),
+    Get(Deferred<request::RequestArgs>),
     /// POST to a resource.
-    Post(request::RequestArgs),
+    Post(Deferred<request::RequestArgs>),
     /// PUT a resource.
-    Put(request::RequestArgs),
+    Put(Deferred<request::RequestArgs>),
     /// DELETE a resource.
-    Delete(request::RequestArgs),
+    Delete(Deferred<request::RequestArgs>),
     /// List a server's resources (/.well-known/core), or every server in a multicast group.
-    Discover(request::DiscoverArgs),
+    Discover(Deferred<request::DiscoverArgs>),
     /// Grab one new frame into a file (.png, .jpg, .ply or .bin), optionally with a picture
     /// for people (--view).
-    Grab(grab_cmd::GrabArgs),
+    Grab(Deferred<grab_cmd::GrabArgs>),
     /// Measure the largest parcel below the cameras: length, width, height in millimetres.
-    Measure(measure::MeasureArgs),
+    Measure(Deferred<measure::MeasureArgs>),
     /// Repeat a grab or a measurement every --interval seconds, or observe a resource;
     /// print each result and the statistics of the transfer times (count, min, median,
     /// max, mean, standard deviation, coefficient of variation: the thesis's Table 4.x).
-    Monitor(monitor::MonitorArgs),
+    Monitor(Deferred<monitor::MonitorArgs>),
     /// The whole job on synthetic cameras: serve a two-camera scene in-process, discover,
     /// grab, measure, and write pictures, a cloud and the dimensions next to the scene's
     /// truth into ./coapcam-demo/.
-    Demo(demo::DemoArgs),
+    Demo(Deferred<demo::DemoArgs>),
     /// Benchmarks: `bench accuracy` measures a built-in set of synthetic parcels end to
     /// end over CoAP and prints the errors.
-    Bench(bench::BenchArgs),
+    Bench(Deferred<bench::BenchArgs>),
     /// Run the CoAP server.
-    Serve(serve::ServeArgs),
+    Serve(Deferred<serve::ServeArgs>),
     /// Relay UDP between clients and a server over an emulated link (loss, delay, jitter,
     /// rate limit), and print the counters when it ends.
-    Netem(netem::NetemArgs),
+    Netem(Deferred<netem::NetemArgs>),
+}
+
+/// A subcommand's arguments, built by clap only when that subcommand is the one given
+/// (`Command::defer`): `coapcam get` does not build the arguments of every other command
+/// at each start.
+#[derive(Debug)]
+struct Deferred<T>(T);
+
+impl<T: clap::FromArgMatches> clap::FromArgMatches for Deferred<T> {
+    fn from_arg_matches(matches: &clap::ArgMatches) -> Result<Self, clap::Error> {
+        T::from_arg_matches(matches).map(Self)
+    }
+
+    fn update_from_arg_matches(&mut self, matches: &clap::ArgMatches) -> Result<(), clap::Error> {
+        self.0.update_from_arg_matches(matches)
+    }
+}
+
+impl<T: clap::Args> clap::Args for Deferred<T> {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        cmd.defer(|cmd| keep_about(cmd, T::augment_args))
+    }
+
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        cmd.defer(|cmd| keep_about(cmd, T::augment_args_for_update))
+    }
+
+    fn group_id() -> Option<clap::Id> {
+        T::group_id()
+    }
+}
+
+/// Runs `augment` on a subcommand but keeps the subcommand's description: built late, the
+/// arguments' own doc comment would otherwise replace it.
+fn keep_about(cmd: clap::Command, augment: fn(clap::Command) -> clap::Command) -> clap::Command {
+    use clap::builder::Resettable;
+    let kept = |text: Option<&clap::builder::StyledStr>| {
+        text.cloned().map_or(Resettable::Reset, Resettable::Value)
+    };
+    let (about, long_about) = (kept(cmd.get_about()), kept(cmd.get_long_about()));
+    augment(cmd).about(about).long_about(long_about)
 }
 
 fn main() -> ExitCode {
@@ -99,24 +140,32 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         .build()
         .context("starting the tokio runtime")?;
     match cli.command {
-        Command::Get(args) => return runtime.block_on(request::run(coap::Code::GET, args)),
-        Command::Post(args) => return runtime.block_on(request::run(coap::Code::POST, args)),
-        Command::Put(args) => return runtime.block_on(request::run(coap::Code::PUT, args)),
-        Command::Delete(args) => return runtime.block_on(request::run(coap::Code::DELETE, args)),
-        Command::Discover(args) => return runtime.block_on(request::discover(args)),
-        Command::Grab(args) => return runtime.block_on(grab_cmd::run(args)),
-        Command::Measure(args) => return runtime.block_on(measure::run(args)),
-        Command::Bench(args) => return runtime.block_on(bench::run(args)),
-        Command::Monitor(args) => return runtime.block_on(monitor::run(args)),
-        Command::Demo(args) => return runtime.block_on(demo::run(args)),
-        Command::Serve(args) => {
+        Command::Get(Deferred(args)) => {
+            return runtime.block_on(request::run(coap::Code::GET, args));
+        }
+        Command::Post(Deferred(args)) => {
+            return runtime.block_on(request::run(coap::Code::POST, args));
+        }
+        Command::Put(Deferred(args)) => {
+            return runtime.block_on(request::run(coap::Code::PUT, args));
+        }
+        Command::Delete(Deferred(args)) => {
+            return runtime.block_on(request::run(coap::Code::DELETE, args));
+        }
+        Command::Discover(Deferred(args)) => return runtime.block_on(request::discover(args)),
+        Command::Grab(Deferred(args)) => return runtime.block_on(grab_cmd::run(args)),
+        Command::Measure(Deferred(args)) => return runtime.block_on(measure::run(args)),
+        Command::Bench(Deferred(args)) => return runtime.block_on(bench::run(args)),
+        Command::Monitor(Deferred(args)) => return runtime.block_on(monitor::run(args)),
+        Command::Demo(Deferred(args)) => return runtime.block_on(demo::run(args)),
+        Command::Serve(Deferred(args)) => {
             let served = runtime.block_on(serve::run(args));
             // A grab still waiting for its camera in a blocking thread must not hold up
             // the exit after SIGINT or SIGTERM.
             runtime.shutdown_timeout(std::time::Duration::from_secs(1));
             served?;
         }
-        Command::Netem(args) => {
+        Command::Netem(Deferred(args)) => {
             let json = args.json;
             let counters = runtime.block_on(netem::run(args))?;
             println!("{}", netem::report(&counters, json)?);

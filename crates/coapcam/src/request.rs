@@ -170,7 +170,7 @@ async fn to_file(
                     check_size(&response, written)?;
                     part.keep()?;
                 }
-                return Ok((response, written));
+                return Ok((*response, written));
             }
         }
     }
