@@ -552,6 +552,10 @@ impl Outbox {
         // Room for the payload and usual header and options, without counting them
         // first; a message with more options grows the chunk as it is written.
         let room = payload + 128;
+        // Back to the front of the chunk when every datagram cut from it is gone (the
+        // usual case: each is sent before the next is encoded), so that block after block
+        // is written to the same cache lines.
+        let _ = self.chunk.try_reclaim(ENCODE_CHUNK);
         if self.chunk.capacity() < room {
             self.chunk.reserve(room.max(ENCODE_CHUNK));
         }
