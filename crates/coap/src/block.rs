@@ -382,7 +382,7 @@ impl ServerCache {
 
     /// The stored representation for a continuation request, refreshing its lifetime.
     /// Only this entry's age is checked here; the others expire on the next insert, so a
-    /// block costs one lookup.
+    /// block does not walk the whole store.
     pub(crate) fn get(&mut self, now: Instant, key: &BlockKey, limits: &Limits) -> Option<&Stored> {
         let s = self.entries.get(key)?;
         if now.saturating_duration_since(s.last_used) >= limits.blockwise_lifetime {

@@ -10,7 +10,7 @@ use crate::peer_key::MidKey;
 use std::time::Instant;
 
 use crate::config::Limits;
-use crate::msg::{Message, Token};
+use crate::msg::{BlockOpt, Message, Token};
 
 /// What was done with a remembered message.
 #[derive(Debug, Clone)]
@@ -23,8 +23,27 @@ pub(crate) enum Seen {
     Silent,
 }
 
-struct Entry {
+/// What tells a duplicate from a new message that reuses a message ID: the token and the
+/// block options. A fast client's message IDs come round within EXCHANGE_LIFETIME during a
+/// long block-wise transfer (RFC 7252 §4.4 would hold it to 265 messages a second), while
+/// its token stays the same from block to block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Fingerprint {
     token: Token,
+    blocks: (Option<BlockOpt>, Option<BlockOpt>),
+}
+
+impl Fingerprint {
+    pub(crate) fn of(msg: &Message) -> Self {
+        Self {
+            token: msg.token,
+            blocks: (msg.options.block1(), msg.options.block2()),
+        }
+    }
+}
+
+struct Entry {
+    fingerprint: Fingerprint,
     expires: Instant,
     seen: Seen,
 }
@@ -74,19 +93,19 @@ impl Dedup {
     }
 
     /// The earlier handling of this message, if it is a duplicate. A message ID reused
-    /// with a different token is a new message: ID space wraps after 65,536 messages, and
-    /// a fast client can get there within EXCHANGE_LIFETIME.
+    /// with a different token or block is a new message: ID space wraps after 65,536
+    /// messages, and a fast client can get there within EXCHANGE_LIFETIME.
     pub(crate) fn check(
         &mut self,
         now: Instant,
         peer: SocketAddr,
         mid: u16,
-        token: Token,
+        fingerprint: Fingerprint,
         limits: &Limits,
     ) -> Option<&Seen> {
         self.expire(now, limits);
         match self.entries.entry(MidKey(peer, mid)) {
-            MapEntry::Occupied(e) if e.get().token == token => Some(&e.into_mut().seen),
+            MapEntry::Occupied(e) if e.get().fingerprint == fingerprint => Some(&e.into_mut().seen),
             MapEntry::Occupied(e) => {
                 if let Seen::Replied(m) = e.remove().seen {
                     self.bytes -= m.encoded_len();
@@ -102,7 +121,7 @@ impl Dedup {
         &mut self,
         now: Instant,
         (peer, mid): (SocketAddr, u16),
-        token: Token,
+        fingerprint: Fingerprint,
         expires: Instant,
         seen: Seen,
         limits: &Limits,
@@ -114,7 +133,7 @@ impl Dedup {
         self.entries.insert(
             MidKey(peer, mid),
             Entry {
-                token,
+                fingerprint,
                 expires,
                 seen,
             },
@@ -155,12 +174,27 @@ mod tests {
         SocketAddr::from(([127, 0, 0, 1], 5683))
     }
 
+    /// A GET with this token, and this Block2 number when given.
+    fn get(token: u8, block2: Option<u32>) -> Fingerprint {
+        let mut m = Message::empty(crate::msg::Type::Con, 7);
+        m.token = Token::new(&[token]).unwrap();
+        if let Some(num) = block2 {
+            let block = BlockOpt {
+                num,
+                more: false,
+                szx: 6,
+            };
+            m.options.set_block(crate::msg::OptionNumber::BLOCK2, block);
+        }
+        Fingerprint::of(&m)
+    }
+
     #[test]
     fn rfc7252_4_5_duplicate_within_lifetime_is_recognised() {
         let now = crate::test_epoch();
         let l = Limits::default();
         let mut d = Dedup::new();
-        let t = Token::new(&[1]).unwrap();
+        let t = get(1, None);
         d.insert(
             now,
             (peer(), 7),
@@ -181,22 +215,19 @@ mod tests {
     }
 
     #[test]
-    fn reused_message_id_with_new_token_is_new() {
+    fn reused_message_id_with_new_token_or_block_is_new() {
         let now = crate::test_epoch();
         let l = Limits::default();
-        let mut d = Dedup::new();
-        d.insert(
-            now,
-            (peer(), 7),
-            Token::new(&[1]).unwrap(),
-            now + Duration::from_secs(247),
-            Seen::Silent,
-            &l,
-        );
-        assert!(
-            d.check(now, peer(), 7, Token::new(&[2]).unwrap(), &l)
-                .is_none()
-        );
+        for (first, again) in [
+            (get(1, None), get(2, None)),
+            (get(1, Some(0)), get(1, Some(65536))),
+        ] {
+            let mut d = Dedup::new();
+            let lifetime = now + Duration::from_secs(247);
+            d.insert(now, (peer(), 7), first, lifetime, Seen::Silent, &l);
+            assert!(d.check(now, peer(), 7, again, &l).is_none());
+            assert_eq!(d.len(), 0, "the older message is forgotten");
+        }
     }
 
     #[test]
@@ -216,7 +247,7 @@ mod tests {
             d.insert(
                 now,
                 (peer(), mid),
-                Token::EMPTY,
+                get(0, None),
                 now + Duration::from_secs(247),
                 reply,
                 &l,
@@ -228,7 +259,7 @@ mod tests {
             d.len()
         );
         assert!(
-            d.check(now, peer(), 49, Token::EMPTY, &l).is_some(),
+            d.check(now, peer(), 49, get(0, None), &l).is_some(),
             "newest kept"
         );
     }

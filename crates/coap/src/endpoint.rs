@@ -31,7 +31,7 @@ use crate::block::{
     self, Block1Assembler, Block1Outcome, BlockKey, BlockSource, ServerCache, Slice, Source,
 };
 use crate::config::{EndpointConfig, Limits};
-use crate::dedup::{Dedup, Seen};
+use crate::dedup::{Dedup, Fingerprint, Seen};
 use crate::msg::{
     BlockHead, BlockOpt, Code, Message, OptionNumber, Options, Outgoing, Reaction, Token, Type,
 };
@@ -859,14 +859,15 @@ impl Endpoint {
         }
         if x.tx < max {
             // RFC 7252 §4.2: retransmit, doubling the timeout each time.
+            // Only a request's CON keeps no datagram, and it has no timer of this kind.
+            debug_assert!(x.data.is_some(), "a request's CON has its own ACK timer");
+            let Some(data) = x.data.clone() else {
+                return;
+            };
             x.tx += 1;
             x.timeout *= 2;
             x.at = now + x.timeout;
             let (at, tx) = (x.at, x.tx);
-            // Only a request's CON keeps no datagram, and it has no timer of this kind.
-            let Some(data) = x.data.clone() else {
-                return;
-            };
             self.outbox.queue.push_back(Transmit { peer, data });
             self.schedule(at, TimerKind::Retransmit { peer, mid, tx });
             return;
@@ -946,9 +947,9 @@ impl Endpoint {
     ) {
         let limits = self.config.limits.clone();
         let known = self.by_token.get(&msg.token).copied();
-        if let Some(seen) = self
-            .dedup
-            .check(now, peer, msg.message_id, msg.token, &limits)
+        if let Some(seen) =
+            self.dedup
+                .check(now, peer, msg.message_id, Fingerprint::of(msg), &limits)
         {
             if let Seen::Replied(m) = seen {
                 let data = Bytes::from(m.encode());
@@ -972,7 +973,7 @@ impl Endpoint {
         self.dedup.insert(
             now,
             (peer, msg.message_id),
-            msg.token,
+            Fingerprint::of(msg),
             now + lifetime,
             seen,
             &limits,
@@ -1285,6 +1286,15 @@ impl Endpoint {
             Step::Whole => true,
         };
         if !current || r.waiting == Waiting::Queued {
+            if !current && msg.ty == Type::Ack {
+                // The ACK of the step's own CON answers another block: that exchange is
+                // over, so the block is asked for again rather than waited for.
+                return self.step_failed(
+                    now,
+                    id,
+                    RequestError::Protocol("the response is for another block"),
+                );
+            }
             return;
         }
         // A separate response also acknowledges the request (RFC 7252 §5.2.2).
@@ -1530,7 +1540,7 @@ impl Endpoint {
             self.dedup.insert(
                 now,
                 (peer, msg.message_id),
-                msg.token,
+                Fingerprint::of(&msg),
                 expires,
                 seen,
                 &limits,
@@ -1574,16 +1584,7 @@ impl Endpoint {
                 Some(Served::Sent) => return,
                 // RFC 7959 §2.2: a block past the end is a bad option.
                 Some(Served::PastEnd) => {
-                    if !multicast {
-                        let response = past_end();
-                        let reply = Message {
-                            ty,
-                            code: response.code,
-                            message_id: mid,
-                            token: msg.token,
-                            options: response.options,
-                            payload: response.payload,
-                        };
+                    if let Some(reply) = self.reply_message(&msg, multicast, past_end()) {
                         self.send(peer, &reply);
                     }
                     return;
@@ -1670,7 +1671,7 @@ impl Endpoint {
         self.dedup.insert(
             now,
             (peer, msg.message_id),
-            msg.token,
+            Fingerprint::of(&msg),
             expires,
             Seen::Pending(id),
             &limits,
@@ -1693,8 +1694,6 @@ impl Endpoint {
         }));
     }
 
-    /// RFC 7641 §2, §3.6: a GET or FETCH with Observe 0 registers (or re-registers, same
-    /// peer and token) an observation; Observe 1 deregisters.
     /// Answers a duplicate request as the first one was answered (RFC 7252 §4.5); whether
     /// `msg` was one.
     fn replay_duplicate(
@@ -1706,7 +1705,7 @@ impl Endpoint {
     ) -> bool {
         let Some(seen) = self
             .dedup
-            .check(now, peer, msg.message_id, msg.token, limits)
+            .check(now, peer, msg.message_id, Fingerprint::of(msg), limits)
         else {
             return false;
         };
@@ -1718,6 +1717,8 @@ impl Endpoint {
         true
     }
 
+    /// RFC 7641 §2, §3.6: a GET or FETCH with Observe 0 registers (or re-registers, same
+    /// peer and token) an observation; Observe 1 deregisters.
     fn observe_option(&mut self, peer: SocketAddr, msg: &Message, key: &BlockKey) -> Option<u64> {
         if !matches!(msg.code, Code::GET | Code::FETCH) {
             return None;
@@ -1873,7 +1874,7 @@ impl Endpoint {
         self.dedup.insert(
             now,
             (peer, req.message_id),
-            req.token,
+            Fingerprint::of(req),
             expires,
             seen,
             limits,
@@ -1896,8 +1897,6 @@ impl Endpoint {
         }
     }
 
-    /// The message that answers `req` right away; `None` when nothing is sent (an error
-    /// response to a multicast request).
     /// The type and message ID of a reply to `req`: a piggybacked ACK to a CON, a NON
     /// with a new message ID otherwise.
     fn reply_header(&mut self, req: &Message) -> (Type, u16) {
@@ -1907,6 +1906,8 @@ impl Endpoint {
         }
     }
 
+    /// The message that answers `req` right away; `None` when nothing is sent (an error
+    /// response to a multicast request).
     fn reply_message(
         &mut self,
         req: &Message,

@@ -29,7 +29,7 @@ pub use endpoint::{
     Endpoint, Event, IncomingId, IncomingRequest, ObservationId, Request, RequestError, RequestId,
     Response, Transmit,
 };
-pub use msg::{BlockOpt, Code, Message, OptionNumber, Options, Outgoing, Token, Type};
+pub use msg::{BlockOpt, Code, Message, OptionNumber, Options, Token, Type};
 
 /// A fixed instant for unit tests: the crate reads no clock, except this one place that
 /// only tests compile.

@@ -167,6 +167,10 @@ impl Groups {
     }
 
     /// A membership from a request body, or the 4.xx that refuses it.
+    #[expect(
+        clippy::result_large_err,
+        reason = "a refusal is the Response sent; it keeps its options inline"
+    )]
     fn parse(&self, request: &IncomingRequest) -> Result<GroupConfig, Response> {
         if let Some(cf) = request.options.content_format()
             && cf != ContentFormat::COAP_GROUP_JSON

@@ -369,7 +369,7 @@ impl Message {
     }
 
     /// The message as an [`Outgoing`] with nothing set over its options.
-    pub fn outgoing(&self) -> Outgoing<'_> {
+    pub(crate) fn outgoing(&self) -> Outgoing<'_> {
         Outgoing {
             ty: self.ty,
             code: self.code,
@@ -396,100 +396,72 @@ impl Message {
 /// A client builds each block's request this way from the request it keeps, without
 /// copying the request's options into a new [`Message`].
 #[derive(Debug, Clone, Copy)]
-pub struct Outgoing<'a> {
-    /// Message type.
-    pub ty: Type,
-    /// Code.
-    pub code: Code,
-    /// Message ID.
-    pub message_id: u16,
-    /// Token.
-    pub token: Token,
+pub(crate) struct Outgoing<'a> {
+    pub(crate) ty: Type,
+    pub(crate) code: Code,
+    pub(crate) message_id: u16,
+    pub(crate) token: Token,
     /// Options, sorted by number.
-    pub options: &'a Options,
+    pub(crate) options: &'a Options,
     /// Uint options set over `options`, sorted by number: each replaces every instance
     /// of its number in `options` (as [`Options::set_uint`] would).
-    pub uints: &'a [(OptionNumber, u32)],
-    /// Payload.
-    pub payload: &'a [u8],
+    pub(crate) uints: &'a [(OptionNumber, u32)],
+    pub(crate) payload: &'a [u8],
 }
 
 impl Outgoing<'_> {
-    /// Most heads (header, token, options, payload marker) fit a stack buffer this long.
-    const HEAD_ON_STACK: usize = 256;
-
     /// Calls `f` with the bytes before the payload: header, token, options and the payload
-    /// marker. They are written on the stack unless the options are long.
+    /// marker.
     fn with_head<R>(&self, f: impl FnOnce(&[u8]) -> R) -> R {
-        // 1 option byte, 2 + 2 extension bytes per option; a uint takes at most 4 bytes.
-        let bound = 4
-            + 8
-            + 1
-            + 9 * self.uints.len()
+        debug_assert!(
+            self.uints.is_sorted_by_key(|(n, _)| *n),
+            "uints out of order"
+        );
+        // A uint option takes at most 1 + 2 + 4 bytes.
+        let options = 7 * self.uints.len()
             + self
                 .options
                 .iter()
                 .map(|o| 5 + o.value.len())
                 .sum::<usize>();
-        if bound <= Self::HEAD_ON_STACK {
-            let mut head = [0u8; Self::HEAD_ON_STACK];
-            let len = self.write_head(&mut head);
-            f(&head[..len])
-        } else {
-            let mut head = vec![0u8; bound];
-            let len = self.write_head(&mut head);
-            f(&head[..len])
-        }
-    }
-
-    /// Writes the head into `out`, which is long enough; its length.
-    fn write_head(&self, out: &mut [u8]) -> usize {
-        let token = self.token.as_bytes();
-        out[0] = 0x40 | (self.ty.bits() << 4) | token.len() as u8;
-        out[1] = self.code.0;
-        out[2..4].copy_from_slice(&self.message_id.to_be_bytes());
-        out[4..4 + token.len()].copy_from_slice(token);
-        let mut w = HeadWriter {
-            out,
-            pos: 4 + token.len(),
-            prev: 0,
+        let header = (self.ty, self.code, self.message_id, self.token);
+        let write_options = |w: &mut HeadWriter<'_>| {
+            let mut uints = self.uints;
+            for o in self.options.iter() {
+                if self.uints.iter().any(|(n, _)| *n == o.number) {
+                    continue;
+                }
+                while let [(number, v), rest @ ..] = uints
+                    && *number < o.number
+                {
+                    w.uint(*number, *v);
+                    uints = rest;
+                }
+                w.option(o.number, &o.value);
+            }
+            for &(number, v) in uints {
+                w.uint(number, v);
+            }
+            if !self.payload.is_empty() {
+                w.bytes(&[0xff]);
+            }
         };
-        let mut uints = self.uints;
-        for o in self.options.iter() {
-            if self.uints.iter().any(|(n, _)| *n == o.number) {
-                continue;
-            }
-            while let [(number, v), rest @ ..] = uints
-                && *number < o.number
-            {
-                w.uint(*number, *v);
-                uints = rest;
-            }
-            w.option(o.number, &o.value);
-        }
-        for &(number, v) in uints {
-            w.uint(number, v);
-        }
-        if !self.payload.is_empty() {
-            w.out[w.pos] = 0xff;
-            w.pos += 1;
-        }
-        w.pos
+        with_head(options, header, write_options, f)
     }
 
     /// The exact number of bytes the encoding takes.
-    pub fn encoded_len(&self) -> usize {
+    pub(crate) fn encoded_len(&self) -> usize {
         self.with_head(<[u8]>::len) + self.payload.len()
     }
 
     /// Appends the encoded message to `out`.
-    pub fn encode_into(&self, out: &mut BytesMut) {
+    pub(crate) fn encode_into(&self, out: &mut BytesMut) {
         self.with_head(|head| out.extend_from_slice(head));
         out.extend_from_slice(self.payload);
     }
 
     /// Encodes into a new buffer.
-    pub fn encode(&self) -> Vec<u8> {
+    pub(crate) fn encode(&self) -> Vec<u8> {
         let mut out = Vec::new();
         self.with_head(|head| {
             out.reserve_exact(head.len() + self.payload.len());
@@ -548,42 +520,64 @@ impl BlockHead {
     pub(crate) fn encode_into(
         &self,
         out: &mut BytesMut,
-        (ty, code, message_id, token): (Type, Code, u16, Token),
+        header: Header,
         value: u32,
         payload: &[u8],
     ) {
-        let token = token.as_bytes();
-        // Header, token, the options and the payload marker are put together on the
-        // stack (unless the options are long) and appended at once, then the payload.
-        let len = 4 + token.len() + self.bytes.len() + 8 + 1;
-        let mut stack = [0u8; 256];
-        let mut heap = Vec::new();
-        let head = if len <= stack.len() {
-            &mut stack[..len]
-        } else {
-            heap.resize(len, 0);
-            &mut heap[..]
+        // A uint option takes at most 1 + 2 + 4 bytes.
+        let options = self.bytes.len() + 7;
+        let write_options = |w: &mut HeadWriter<'_>| {
+            w.bytes(&self.bytes[..self.split]);
+            w.prev = self.prev;
+            w.uint(self.number, value);
+            w.bytes(&self.bytes[self.split..]);
+            if !payload.is_empty() {
+                w.bytes(&[0xff]);
+            }
         };
-        head[0] = 0x40 | (ty.bits() << 4) | token.len() as u8;
-        head[1] = code.0;
-        head[2..4].copy_from_slice(&message_id.to_be_bytes());
-        head[4..4 + token.len()].copy_from_slice(token);
-        let mut w = HeadWriter {
-            out: head,
-            pos: 4 + token.len(),
-            prev: 0,
-        };
-        w.bytes(&self.bytes[..self.split]);
-        w.prev = self.prev;
-        w.uint(self.number, value);
-        w.bytes(&self.bytes[self.split..]);
-        if !payload.is_empty() {
-            w.bytes(&[0xff]);
-        }
-        let len = w.pos;
-        out.extend_from_slice(&head[..len]);
+        with_head(options, header, write_options, |head| {
+            out.extend_from_slice(head);
+        });
         out.extend_from_slice(payload);
     }
+}
+
+/// A message's type, code, message ID and token.
+pub(crate) type Header = (Type, Code, u16, Token);
+
+/// Puts a message's head together (header, token, then what `write_options` adds: the
+/// options and the payload marker, at most `options` bytes) and hands it to `f`. It is
+/// written on the stack, byte by byte, unless the options are long, rather than through
+/// a buffer call per field.
+fn with_head<R>(
+    options: usize,
+    (ty, code, message_id, token): Header,
+    write_options: impl FnOnce(&mut HeadWriter<'_>),
+    f: impl FnOnce(&[u8]) -> R,
+) -> R {
+    const ON_STACK: usize = 256;
+    let bound = 4 + 8 + options + 1;
+    let mut stack = [0u8; ON_STACK];
+    let mut heap = Vec::new();
+    let out = if bound <= ON_STACK {
+        &mut stack[..]
+    } else {
+        heap.resize(bound, 0);
+        &mut heap[..]
+    };
+    let token = token.as_bytes();
+    out[0] = 0x40 | (ty.bits() << 4) | token.len() as u8;
+    out[1] = code.0;
+    out[2..4].copy_from_slice(&message_id.to_be_bytes());
+    out[4..4 + token.len()].copy_from_slice(token);
+    let mut w = HeadWriter {
+        out,
+        pos: 4 + token.len(),
+        prev: 0,
+    };
+    write_options(&mut w);
+    let len = w.pos;
+    f(&w.out[..len])
 }
 
 /// Writes options one after the other (RFC 7252 §3.1).

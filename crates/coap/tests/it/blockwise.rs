@@ -722,7 +722,7 @@ fn streamed_etag_change_fails_at_once_instead_of_restarting() {
 }
 
 #[test]
-fn a_continuation_whose_message_id_comes_round_again_is_served_not_replayed() {
+fn a_block_whose_message_id_comes_round_again_is_answered_not_replayed() {
     // After 65,536 messages a client's message IDs start over, well within the 247 s that
     // the reply to block 0 is kept for duplicates, and its token stays the same for the
     // whole transfer. A continuation with block 0's message ID must get its own block.
@@ -766,4 +766,62 @@ fn a_continuation_whose_message_id_comes_round_again_is_served_not_replayed() {
     ep.handle(now, peer, &get(0), false);
     assert_eq!(sent(&mut ep).payload, data.slice(..1024));
     assert!(ep.poll_event().is_none());
+
+    // The same for an upload: block 1 with block 0's message ID is not answered with block
+    // 0's 2.31 Continue.
+    let put = |num| {
+        let mut m = Message::empty(Type::Con, 9);
+        m.code = Code::PUT;
+        m.token = Token::new(b"up").unwrap_or_default();
+        m.options.set_path("/y");
+        let block = BlockOpt {
+            num,
+            more: true,
+            szx: 0,
+        };
+        m.options.set_block(OptionNumber::BLOCK1, block);
+        m.payload = Bytes::from_static(&[1; 16]);
+        m.encode()
+    };
+    for num in [0, 1] {
+        ep.handle(now, peer, &put(num), false);
+        let reply = sent(&mut ep);
+        assert_eq!(reply.code, Code::CONTINUE);
+        assert_eq!(reply.options.block1().map(|b| b.num), Some(num));
+    }
+}
+
+#[test]
+fn a_piggybacked_answer_for_another_block_is_asked_again() {
+    // A server that answers block 1 with block 3 in the ACK: the client's exchange is over,
+    // so it must ask for block 1 again instead of waiting for an answer that cannot come.
+    let mut ep = Endpoint::new(cfg(1));
+    let server = "127.0.0.9:5683".parse().unwrap_or_else(|_| unreachable!());
+    let now = crate::sim::epoch();
+    let sent = |ep: &mut Endpoint| {
+        let t = ep.poll_transmit().expect("a request");
+        Message::decode(&t.data).expect("a valid request")
+    };
+    let ack = |req: &Message, num| {
+        let mut m = Message::empty(Type::Ack, req.message_id);
+        m.code = Code::CONTENT;
+        m.token = req.token;
+        let block = BlockOpt {
+            num,
+            more: true,
+            szx: 6,
+        };
+        m.options.set_block(OptionNumber::BLOCK2, block);
+        m.payload = Bytes::from(vec![7; 1024]);
+        m.encode()
+    };
+    ep.request(now, server, Request::new(Code::GET, "/big"));
+    let first = sent(&mut ep);
+    ep.handle(now, server, &ack(&first, 0), false);
+    let second = sent(&mut ep);
+    assert_eq!(second.options.block2().map(|b| b.num), Some(1));
+    ep.handle(now, server, &ack(&second, 3), false);
+    let again = sent(&mut ep);
+    assert_eq!(again.options.block2().map(|b| b.num), Some(1));
+    assert_ne!(again.message_id, second.message_id);
 }

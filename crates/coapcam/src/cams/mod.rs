@@ -412,6 +412,10 @@ impl Cams {
     }
 
     /// `PUT`: validate completely, apply, persist; a refused document changes nothing.
+    #[expect(
+        clippy::result_large_err,
+        reason = "a refusal is the Response sent; it keeps its options inline"
+    )]
     async fn put_config(self: &Arc<Self>, sn: Serial, name: &'static str, body: Bytes) -> Response {
         let Some(cam) = self.camera(&sn) else {
             return Response::diagnostic(Code::NOT_FOUND, &format!("camera {sn} is disconnected"));
@@ -424,6 +428,10 @@ impl Cams {
         }
     }
 
+    #[expect(
+        clippy::result_large_err,
+        reason = "a refusal is the Response sent; it keeps its options inline"
+    )]
     fn replace(
         &self,
         sn: &Serial,
@@ -642,6 +650,10 @@ fn formats(kind: Kind) -> &'static [ContentFormat] {
 }
 
 /// The content format to answer with, or 4.06 Not Acceptable.
+#[expect(
+    clippy::result_large_err,
+    reason = "a refusal is the Response sent; it keeps its options inline"
+)]
 fn negotiate(kind: Kind, request: &IncomingRequest) -> Result<ContentFormat, Response> {
     let accept = request
         .options
