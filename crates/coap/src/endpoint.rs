@@ -416,34 +416,32 @@ impl ClientRequest {
         } else {
             Type::Non
         };
-        if let Step::Download { num, szx } = self.step {
-            // Every block of a download is the same request but for Block2.
-            let options = &self.req.options;
-            let head = self
-                .block_head
-                .get_or_insert_with(|| BlockHead::new(options, OptionNumber::BLOCK2));
-            let header = (ty, self.req.method, mid, self.token);
-            let value = block(num, false, szx);
-            outbox.send_with(self.peer, 0, |out| {
-                head.encode_into(out, header, value, &[])
-            });
-            return;
-        }
         let mut uints = [(OptionNumber(0), 0); 2];
         let mut set = 0;
-        let mut payload: &[u8] = &[];
-        match self.step {
+        let payload: &[u8] = match self.step {
+            Step::Download { num, szx } => {
+                // Every block of a download is the same request but for Block2.
+                let options = &self.req.options;
+                let head = self
+                    .block_head
+                    .get_or_insert_with(|| BlockHead::new(options, OptionNumber::BLOCK2));
+                let header = (ty, self.req.method, mid, self.token);
+                let value = block(num, false, szx);
+                outbox.send_with(self.peer, 0, |out| {
+                    head.encode_into(out, header, value, &[])
+                });
+                return;
+            }
             Step::Whole => {
-                payload = &self.req.payload;
                 if let (Some(szx), false) = (self.req.block_szx, self.user_block2) {
                     uints[0] = (OptionNumber::BLOCK2, block(0, false, szx));
                     set = 1;
                 }
+                &self.req.payload
             }
             Step::Upload { offset } => {
                 let size = BlockOpt::size_of(self.szx1);
                 let end = (offset + size).min(self.req.payload.len());
-                payload = &self.req.payload[offset.min(end)..end];
                 let more = end < self.req.payload.len();
                 uints[0] = (
                     OptionNumber::BLOCK1,
@@ -455,9 +453,9 @@ impl ClientRequest {
                     uints[1] = (OptionNumber::SIZE1, self.req.payload.len() as u32);
                     set = 2;
                 }
+                &self.req.payload[offset.min(end)..end]
             }
-            Step::Download { .. } => {}
-        }
+        };
         let msg = Outgoing {
             ty,
             code: self.req.method,
@@ -515,7 +513,7 @@ struct Observation {
 /// may be shorter).
 const STREAM_PIECE: usize = 64 << 10;
 
-/// Bytes of the chunk that messages sent once are encoded into ([`Endpoint::send`]).
+/// Bytes of the chunk that messages sent once are encoded into ([`Outbox::send`]).
 const ENCODE_CHUNK: usize = 16 << 10;
 
 /// A map keyed by what this endpoint chose itself (request and observation ids, its own
@@ -947,14 +945,7 @@ impl Endpoint {
     ) {
         let limits = self.config.limits.clone();
         let known = self.by_token.get(&msg.token).copied();
-        if let Some(seen) =
-            self.dedup
-                .check(now, peer, msg.message_id, Fingerprint::of(msg), &limits)
-        {
-            if let Seen::Replied(m) = seen {
-                let data = Bytes::from(m.encode());
-                self.outbox.queue.push_back(Transmit { peer, data });
-            }
+        if self.replay_duplicate(now, peer, msg, &limits) {
             return;
         }
         let lifetime = if msg.ty == Type::Con {
@@ -1694,7 +1685,7 @@ impl Endpoint {
         }));
     }
 
-    /// Answers a duplicate request as the first one was answered (RFC 7252 §4.5); whether
+    /// Answers a duplicate message as the first one was answered (RFC 7252 §4.5); whether
     /// `msg` was one.
     fn replay_duplicate(
         &mut self,
