@@ -246,11 +246,6 @@ fn start(
         tx: tx.downgrade(),
         waker: Arc::downgrade(&waker),
         server,
-        max_wait: if wake_from.is_some() {
-            MAX_WAIT
-        } else {
-            POLL_WAIT
-        },
         wake_from,
         wake_pending: waker.pending.clone(),
         replies: HashMap::new(),
@@ -295,8 +290,6 @@ struct Thread {
     /// Where wake-ups come from (`None`: no waker; commands are polled).
     wake_from: Option<SocketAddr>,
     wake_pending: Arc<AtomicBool>,
-    /// The longest wait in a receive: [`MAX_WAIT`], or [`POLL_WAIT`] without a waker.
-    max_wait: Duration,
     replies: HashMap<RequestId, (SocketAddr, Reply)>,
     pings: HashMap<RequestId, oneshot::Sender<Result<(), RequestError>>>,
     groups: Vec<Group>,
@@ -334,7 +327,7 @@ impl Thread {
                 self.ep.handle_timeout(now);
                 continue;
             }
-            self.arm(deadline.map_or(self.max_wait, |d| d - now));
+            self.arm(deadline.map_or_else(|| self.max_wait(), |d| d - now));
             match self.socket.recv(&mut buf, &mut received) {
                 Ok(()) => {
                     let now = clock::now();
@@ -365,7 +358,7 @@ impl Thread {
     /// the retransmission deadline moves with every block of a transfer, the timeout not.
     fn arm(&mut self, until_deadline: Duration) {
         let want = until_deadline
-            .min(self.max_wait)
+            .min(self.max_wait())
             .max(Duration::from_millis(1));
         let rearm = self.wait.is_none_or(|w| want < w || want > w * 4);
         if rearm {
@@ -375,6 +368,15 @@ impl Thread {
                 Ok(()) => self.wait = Some(w),
                 Err(e) => tracing::debug!(error = %e, "read timeout not set"),
             }
+        }
+    }
+
+    /// The longest wait in a receive: [`MAX_WAIT`], or [`POLL_WAIT`] without a waker.
+    fn max_wait(&self) -> Duration {
+        if self.wake_from.is_some() {
+            MAX_WAIT
+        } else {
+            POLL_WAIT
         }
     }
 

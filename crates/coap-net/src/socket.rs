@@ -64,8 +64,9 @@ impl Socket {
             destinations: OnceLock::new(),
             local,
         };
-        if !socket.only_own_groups() {
-            // Datagrams of groups joined elsewhere may arrive: read every destination.
+        // Only a wildcard-bound socket can receive a group's datagrams without having
+        // joined it itself; where that cannot be turned off, it reads every destination.
+        if local.ip().is_unspecified() && !socket.only_own_groups() {
             socket.read_destinations()?;
         }
         Ok(socket)

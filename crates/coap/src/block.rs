@@ -380,18 +380,23 @@ impl ServerCache {
         }
     }
 
-    /// The stored representation for a continuation request, refreshing its lifetime.
-    /// Only this entry's age is checked here; the others expire on the next insert, so a
-    /// block does not walk the whole store.
-    pub(crate) fn get(&mut self, now: Instant, key: &BlockKey, limits: &Limits) -> Option<&Stored> {
-        let s = self.entries.get(key)?;
-        if now.saturating_duration_since(s.last_used) >= limits.blockwise_lifetime {
-            self.remove(key);
-            return None;
-        }
+    /// Calls `f` with the representation stored for a continuation request, refreshing its
+    /// lifetime; `None` when none is stored. Only this entry's age is checked here; the
+    /// others expire on the next insert, so a block does not walk the whole store.
+    pub(crate) fn with_stored<R>(
+        &mut self,
+        now: Instant,
+        key: &BlockKey,
+        limits: &Limits,
+        f: impl FnOnce(&Stored) -> R,
+    ) -> Option<R> {
         let s = self.entries.get_mut(key)?;
-        s.last_used = now;
-        Some(s)
+        if now.saturating_duration_since(s.last_used) < limits.blockwise_lifetime {
+            s.last_used = now;
+            return Some(f(s));
+        }
+        self.remove(key);
+        None
     }
 
     #[cfg(test)]
@@ -659,10 +664,13 @@ mod tests {
             Source::new(Bytes::from(vec![0; 60])),
             &l,
         );
-        assert!(c.get(now, &key(1), &l).is_none(), "oldest evicted");
+        assert!(
+            c.with_stored(now, &key(1), &l, |_| ()).is_none(),
+            "oldest evicted"
+        );
         assert_eq!(c.bytes(), 60);
         let later = now + l.blockwise_lifetime + Duration::from_secs(2);
-        assert!(c.get(later, &key(2), &l).is_none());
+        assert!(c.with_stored(later, &key(2), &l, |_| ()).is_none());
         assert_eq!(c.bytes(), 0);
     }
 
@@ -729,15 +737,17 @@ mod tests {
             40,
             "a 1000-byte body counts what its source holds"
         );
-        let stored = c.get(now, &key(1), &l).expect("stored");
-        let Slice::Block(p, o) = slice(&*stored.body.0, 31, 1) else {
+        let body = c
+            .with_stored(now, &key(1), &l, |s| s.body.clone())
+            .expect("stored");
+        let Slice::Block(p, o) = slice(&*body.0, 31, 1) else {
             panic!("block 31")
         };
         assert_eq!((p.len(), o.more, p[0]), (8, false, (992 % 256) as u8));
         source
             .gone
             .store(true, std::sync::atomic::Ordering::Relaxed);
-        assert_eq!(slice(&*stored.body.0, 0, 1), Slice::Unreadable);
+        assert_eq!(slice(&*body.0, 0, 1), Slice::Unreadable);
         c.remove(&key(1));
         assert_eq!(c.bytes(), 0);
     }

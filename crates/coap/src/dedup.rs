@@ -46,6 +46,16 @@ struct Entry {
     fingerprint: Fingerprint,
     expires: Instant,
     seen: Seen,
+    /// What `seen` counts against the byte limit: its reply's encoded length, or 0.
+    bytes: usize,
+}
+
+/// The bytes a remembered reply takes, counted once when it is stored.
+fn size(seen: &Seen) -> usize {
+    match seen {
+        Seen::Replied(m) => m.encoded_len(),
+        Seen::Pending(_) | Seen::Silent => 0,
+    }
 }
 
 /// Bounded store of recently received message IDs per peer.
@@ -83,12 +93,8 @@ impl Dedup {
     }
 
     fn remove(&mut self, peer: SocketAddr, mid: u16) {
-        if let Some(Entry {
-            seen: Seen::Replied(m),
-            ..
-        }) = self.entries.remove(&MidKey(peer, mid))
-        {
-            self.bytes -= m.encoded_len();
+        if let Some(e) = self.entries.remove(&MidKey(peer, mid)) {
+            self.bytes -= e.bytes;
         }
     }
 
@@ -107,9 +113,7 @@ impl Dedup {
         match self.entries.entry(MidKey(peer, mid)) {
             MapEntry::Occupied(e) if e.get().fingerprint == fingerprint => Some(&e.into_mut().seen),
             MapEntry::Occupied(e) => {
-                if let Seen::Replied(m) = e.remove().seen {
-                    self.bytes -= m.encoded_len();
-                }
+                self.bytes -= e.remove().bytes;
                 None
             }
             MapEntry::Vacant(_) => None,
@@ -127,15 +131,15 @@ impl Dedup {
         limits: &Limits,
     ) {
         self.remove(peer, mid);
-        if let Seen::Replied(m) = &seen {
-            self.bytes += m.encoded_len();
-        }
+        let bytes = size(&seen);
+        self.bytes += bytes;
         self.entries.insert(
             MidKey(peer, mid),
             Entry {
                 fingerprint,
                 expires,
                 seen,
+                bytes,
             },
         );
         self.order.push_back((expires, peer, mid));
@@ -147,12 +151,9 @@ impl Dedup {
         let Some(e) = self.entries.get_mut(&MidKey(peer, mid)) else {
             return;
         };
-        if let Seen::Replied(m) = &e.seen {
-            self.bytes -= m.encoded_len();
-        }
-        if let Seen::Replied(m) = &seen {
-            self.bytes += m.encoded_len();
-        }
+        let bytes = size(&seen);
+        self.bytes = self.bytes - e.bytes + bytes;
+        e.bytes = bytes;
         e.seen = seen;
     }
 

@@ -476,13 +476,6 @@ impl ClientRequest {
     }
 }
 
-/// How a Block2 continuation was served from the store.
-enum Served {
-    Sent,
-    PastEnd,
-    Unreadable,
-}
-
 /// A received request waiting for the application's response.
 struct Pending {
     peer: SocketAddr,
@@ -1553,28 +1546,25 @@ impl Endpoint {
             // tells the client whether the blocks still fit).
             let szx = b2.szx.min(self.config.max_block_szx);
             let (ty, mid) = self.reply_header(&msg);
-            let stored = self.block2.get(now, &key, &limits).map(|s| {
-                match block::slice(&*s.body.0, b2.num, szx) {
-                    // The block goes out as the stored options, encoded once, around
-                    // this Block2.
-                    Slice::Block(payload, opt) => {
-                        let header = (ty, s.code, mid, msg.token);
-                        self.outbox.send_with(peer, payload.len(), |out| {
-                            s.head.encode_into(out, header, opt.as_uint(), &payload);
-                        });
-                        Served::Sent
-                    }
-                    Slice::PastEnd => Served::PastEnd,
-                    Slice::Unreadable => Served::Unreadable,
+            let stored = self.block2.with_stored(now, &key, &limits, |s| {
+                let slice = block::slice(&*s.body.0, b2.num, szx);
+                if let Slice::Block(payload, opt) = &slice {
+                    // The block goes out as the stored options, encoded once, around this
+                    // Block2.
+                    let header = (ty, s.code, mid, msg.token);
+                    self.outbox.send_with(peer, payload.len(), |out| {
+                        s.head.encode_into(out, header, opt.as_uint(), payload);
+                    });
                 }
+                slice
             });
             match stored {
                 // Served from the store, which is idempotent (RFC 7252 §4.5 allows
                 // relaxing deduplication then): a duplicate is cut again from the same
                 // bytes, and a 10 MB transfer leaves no 10,000 dedup entries behind.
-                Some(Served::Sent) => return,
+                Some(Slice::Block(..)) => return,
                 // RFC 7959 §2.2: a block past the end is a bad option.
-                Some(Served::PastEnd) => {
+                Some(Slice::PastEnd) => {
                     if let Some(reply) = self.reply_message(&msg, multicast, past_end()) {
                         self.send(peer, &reply);
                     }
@@ -1582,7 +1572,7 @@ impl Endpoint {
                 }
                 // The stored source can no longer be read as it was: as if nothing were
                 // stored.
-                Some(Served::Unreadable) => self.block2.remove(&key),
+                Some(Slice::Unreadable) => self.block2.remove(&key),
                 None => {}
             }
             if self.replay_duplicate(now, peer, &msg, &limits) {

@@ -357,7 +357,7 @@ impl Message {
     /// left empty and the payload's bytes are returned. A block-wise receiver copies each
     /// block once, into the body, and the message (a few hundred bytes with its inline
     /// options) is filled where it lies rather than built and moved.
-    pub fn decode_in_place<'d>(&mut self, data: &'d [u8]) -> Result<&'d [u8], DecodeError> {
+    pub(crate) fn decode_in_place<'d>(&mut self, data: &'d [u8]) -> Result<&'d [u8], DecodeError> {
         let view = MessageView::new_checked(data)?;
         self.ty = view.ty();
         self.code = view.code();
