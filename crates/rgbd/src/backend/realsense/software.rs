@@ -218,7 +218,8 @@ impl SoftwareD415 {
         self.serial
     }
 
-    /// Frames injected so far (both sensors).
+    /// Frames handed to librealsense so far (both sensors), counted before it takes
+    /// them; it drops those that arrive while their sensor is not streaming.
     pub fn frames_injected(&self) -> u64 {
         *self.injected.lock().unwrap_or_else(PoisonError::into_inner)
     }
@@ -279,9 +280,8 @@ fn inject_while(
             continue;
         };
         frame_number += 1;
-        if inject(injected, index, mode, synthetic, frame_number).is_ok() {
-            *count.lock().unwrap_or_else(PoisonError::into_inner) += 1;
-        }
+        // A refused frame is dropped like one that arrives while the sensor is closed.
+        let _ = inject(injected, index, mode, synthetic, frame_number, count);
         std::thread::sleep(Duration::from_secs(1) / mode.fps().max(1));
     }
 }
@@ -301,49 +301,46 @@ fn active_mode(injected: &Injected) -> Option<(usize, Mode)> {
         .map(|(i, (_, mode))| (i, *mode))
 }
 
+/// Renders frame `frame_number` of `mode` and hands it to librealsense, counting it in
+/// `count` first: the grab that receives it may return before this call does.
 fn inject(
     injected: &Injected,
     index: usize,
     mode: Mode,
     synthetic: &SyntheticCamera,
     frame_number: u64,
+    count: &Mutex<u64>,
 ) -> Result<(), RealSenseError> {
     let invalid = |e: crate::CameraError| ffi::RsError {
         function: "SoftwareD415".to_owned(),
         message: e.to_string(),
     };
-    match mode {
+    let (bytes, stride, bpp, timestamp_us, depth_units) = match mode {
         Mode::Depth(settings) => {
             synthetic.set_depth_settings(settings).map_err(invalid)?;
             let frame = synthetic.render_depth(frame_number);
             let bytes: Vec<u8> = frame.data.iter().flat_map(|v| v.to_le_bytes()).collect();
-            injected.sensor.inject(
-                index,
-                &InjectedFrame {
-                    bytes: &bytes,
-                    stride: frame.stride * 2,
-                    bpp: 2,
-                    number: frame_number,
-                    timestamp_ms: frame.timestamp_us as f64 / 1000.0,
-                    depth_units: frame.depth_scale,
-                },
-            )?;
+            let (stride, time, scale) = (frame.stride * 2, frame.timestamp_us, frame.depth_scale);
+            (bytes, stride, 2, time, scale)
         }
         Mode::Color(settings) => {
             synthetic.set_color_settings(settings).map_err(invalid)?;
             let frame = synthetic.render_color(frame_number);
-            injected.sensor.inject(
-                index,
-                &InjectedFrame {
-                    bytes: &frame.data,
-                    stride: frame.stride,
-                    bpp: frame.format.bytes_per_pixel(),
-                    number: frame_number,
-                    timestamp_ms: frame.timestamp_us as f64 / 1000.0,
-                    depth_units: 0.0,
-                },
-            )?;
+            let bpp = frame.format.bytes_per_pixel();
+            (frame.data, frame.stride, bpp, frame.timestamp_us, 0.0)
         }
-    }
+    };
+    *count.lock().unwrap_or_else(PoisonError::into_inner) += 1;
+    injected.sensor.inject(
+        index,
+        &InjectedFrame {
+            bytes: &bytes,
+            stride,
+            bpp,
+            number: frame_number,
+            timestamp_ms: timestamp_us as f64 / 1000.0,
+            depth_units,
+        },
+    )?;
     Ok(())
 }
