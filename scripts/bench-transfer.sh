@@ -16,6 +16,9 @@
 # so each peak RSS (VmHWM) is that of one transfer's server; private memory (RssAnon:
 # heap and stacks, without the mapped pages of the binary and its libraries) beside it.
 # Every transfer is compared with the original (cmp); a mismatch aborts the run.
+# A second table gives the CPU time each transfer cost, client and server together (the
+# clients' from bash's `time`, the servers' from their threads' schedstat): wall time on
+# this kind of machine moves by a quarter from one run to the next, CPU time much less.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS=${1:-8}
@@ -49,6 +52,16 @@ median() { sort -g | awk '{a[NR]=$1} END {if (NR%2) print a[(NR+1)/2]; else prin
 peak_rss_kb() { awk '/VmHWM/ {print $2}' "/proc/$1/status"; }
 # Private memory (heap, stacks: RssAnon), without the mapped pages of binary and libraries.
 anon_kb() { awk '/RssAnon/ {print $2}' "/proc/$1/status"; }
+# CPU milliseconds of a running process's threads so far (schedstat counts nanoseconds).
+cpu_ms() { cat /proc/"$1"/task/*/schedstat | awk '{s += $1} END {printf "%.3f\n", s / 1e6}'; }
+# `time`'s output: user and system seconds with millisecond digits.
+TIMEFORMAT='%3U %3S'
+# timed FILE CMD...: runs CMD, adding its CPU milliseconds (user + system) to FILE.
+timed() {
+  local file=$1; shift
+  { time "$@" 2>&3; } 3>&2 2> "$work/time.$BASHPID"
+  awk '{printf "%.3f\n", ($1 + $2) * 1000}' "$work/time.$BASHPID" >> "$file"
+}
 
 # run_mode LABEL PREFIX...: PREFIX is empty (unpinned) or "taskset -c 0".
 run_mode() {
@@ -66,23 +79,28 @@ run_mode() {
     sleep 0.5
     coap-client-notls -m put -b 1024 -f "$work/files/body-$s.bin" "coap://127.0.0.1:$lc_port/body-$s" >/dev/null
     local blocks=$(( (s + 1023) / 1024 ))
-    local ours=() lc=() floor=() loop=()
+    local ours=() lc=() floor=() loop=() c0
+    rm -f "$work"/cpu-*-*
     for _ in $(seq "$RUNS"); do
       rm -f "$work/out"
       # Microseconds from bash itself: timing a run forks nothing but the run.
       local t0=${EPOCHREALTIME/./}
-      "${pin[@]}" "$BIN" get "coap://127.0.0.1:$ours_port/files/body-$s.bin" --block-size 1024 -o "$work/out"
+      c0=$(cpu_ms "$ours_pid")
+      timed "$work/cpu-ours-client" "${pin[@]}" "$BIN" get "coap://127.0.0.1:$ours_port/files/body-$s.bin" --block-size 1024 -o "$work/out"
       ours+=("$(( ${EPOCHREALTIME/./} - t0 ))")
+      awk -v a="$c0" -v b="$(cpu_ms "$ours_pid")" 'BEGIN {print b - a}' >> "$work/cpu-ours-server"
       cmp -s "$work/out" "$work/files/body-$s.bin" || { echo "coapcam: body differs ($s bytes)" >&2; exit 1; }
       rm -f "$work/out"
       t0=${EPOCHREALTIME/./}
-      "${pin[@]}" coap-client-notls -b 1024 -B 60 "coap://127.0.0.1:$lc_port/body-$s" -o "$work/out"
+      c0=$(cpu_ms "$lc_pid")
+      timed "$work/cpu-lc-client" "${pin[@]}" coap-client-notls -b 1024 -B 60 "coap://127.0.0.1:$lc_port/body-$s" -o "$work/out"
       lc+=("$(( ${EPOCHREALTIME/./} - t0 ))")
+      awk -v a="$c0" -v b="$(cpu_ms "$lc_pid")" 'BEGIN {print b - a}' >> "$work/cpu-lc-server"
       cmp -s "$work/out" "$work/files/body-$s.bin" || { echo "libcoap: body differs ($s bytes)" >&2; exit 1; }
-      "${pin[@]}" "$PINGPONG" server "127.0.0.1:$pp_port" & local pp=$!
+      timed "$work/cpu-pp-server" "${pin[@]}" "$PINGPONG" server "127.0.0.1:$pp_port" & local pp=$!
       sleep 0.05
       t0=${EPOCHREALTIME/./}
-      "${pin[@]}" "$PINGPONG" client "127.0.0.1:$pp_port" "$blocks" 1044 > "$work/loop"
+      timed "$work/cpu-pp-client" "${pin[@]}" "$PINGPONG" client "127.0.0.1:$pp_port" "$blocks" 1044 > "$work/loop"
       floor+=("$(( ${EPOCHREALTIME/./} - t0 ))")
       loop+=("$(cat "$work/loop")")
       wait "$pp"
@@ -97,6 +115,13 @@ run_mode() {
       -v ao="$(anon_kb "$ours_pid")" -v ac="$(anon_kb "$lc_pid")" \
       'BEGIN {printf "| %-8s | %10d | %7.3f | %7.3f | %7.3f | %5.2f | %5.2f | %7.3f | %5.2f | %6.1f (%4.1f) | %6.1f (%4.1f) |\n", \
         l, s, o, c, f, o/c, o/f, p, o/p, ro/1024, ao/1024, rc/1024, ac/1024}'
+    # Per run, client plus server.
+    local m_cpu=()
+    for who in ours lc pp; do
+      m_cpu+=("$(paste "$work/cpu-$who-client" "$work/cpu-$who-server" | awk '{print $1 + $2}' | median)")
+    done
+    awk -v l="$label" -v s="$s" -v o="${m_cpu[0]}" -v c="${m_cpu[1]}" -v f="${m_cpu[2]}" \
+      'BEGIN {printf "| %-8s | %10d | %7.1f | %7.1f | %7.1f | %5.2f | %5.2f |\n", l, s, o, c, f, o/c, o/f}' >> "$work/cpu.md"
     kill "$ours_pid" "$lc_pid" 2>/dev/null || true
     wait "$ours_pid" "$lc_pid" 2>/dev/null || true
   done
@@ -109,3 +134,9 @@ echo "| mode     |      bytes | coapcam | libcoap |   floor | /libcoap | /floor 
 echo "|----------|-----------:|--------:|--------:|--------:|------:|------:|--------:|------:|------------:|------------:|"
 run_mode unpinned
 run_mode "pinned"  taskset -c 0
+echo
+echo "CPU time per transfer, client and server together (milliseconds, median of $RUNS)"
+echo
+echo "| mode     |      bytes | coapcam | libcoap |   floor | /libcoap | /floor |"
+echo "|----------|-----------:|--------:|--------:|--------:|------:|------:|"
+cat "$work/cpu.md"
