@@ -9,7 +9,7 @@ use std::io::{self, Read as _, Seek as _, SeekFrom, Write as _};
 use std::ops::Range;
 use std::os::unix::fs::MetadataExt as _;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::SystemTime;
 
@@ -64,6 +64,8 @@ pub(crate) struct StaticFiles {
     writable: bool,
     /// Paths changed by clients, for notifications.
     changed: mpsc::UnboundedSender<String>,
+    /// Set when the server stops: a rescan under way ends at its next window.
+    stopped: Arc<AtomicBool>,
 }
 
 impl StaticFiles {
@@ -81,6 +83,7 @@ impl StaticFiles {
             files: Arc::default(),
             writable,
             changed,
+            stopped: Arc::default(),
         };
         me.rescan(router);
         if writable {
@@ -102,10 +105,19 @@ impl StaticFiles {
         self.files.write().unwrap_or_else(PoisonError::into_inner)
     }
 
+    /// Ends a rescan under way (on another thread) at its next window; later rescans do
+    /// nothing.
+    pub(crate) fn stop(&self) {
+        self.stopped.store(true, Ordering::Relaxed);
+    }
+
     /// Hashes new and changed files, drops vanished ones, keeps the router in step, and
     /// returns the paths whose content changed on disk.
     pub(crate) fn rescan(&self, router: &Router) -> Vec<String> {
         let mut changed = Vec::new();
+        if self.stopped.load(Ordering::Relaxed) {
+            return changed;
+        }
         let Ok(entries) = fs::read_dir(&self.dir) else {
             return changed;
         };
@@ -124,7 +136,10 @@ impl StaticFiles {
             let stamp = Stamp::of(&meta);
             let known = self.read().get(&name).map(|f| f.stamp);
             if known != Some(stamp) {
-                let Ok(etag) = etag_of_file(&entry.path(), stamp) else {
+                let Ok(etag) = etag_of_file(&entry.path(), stamp, &self.stopped) else {
+                    if self.stopped.load(Ordering::Relaxed) {
+                        return changed;
+                    }
                     continue;
                 };
                 self.write().insert(name.clone(), File { stamp, etag });
@@ -411,13 +426,16 @@ impl Etag {
 }
 
 /// Hashes a file a window at a time, failing when it does not match `stamp` (it changed
-/// while being read; the next rescan tries again).
-fn etag_of_file(path: &Path, stamp: Stamp) -> io::Result<[u8; 8]> {
+/// while being read; the next rescan tries again) or when `stopped` is set.
+fn etag_of_file(path: &Path, stamp: Stamp, stopped: &AtomicBool) -> io::Result<[u8; 8]> {
     let mut file = fs::File::open(path)?;
     let mut hash = Etag::new(stamp.len);
     let mut buf = vec![0; WINDOW];
     let mut total = 0u64;
     loop {
+        if stopped.load(Ordering::Relaxed) {
+            return Err(io::ErrorKind::Interrupted.into());
+        }
         let n = file.read(&mut buf)?;
         if n == 0 {
             break;
@@ -454,6 +472,9 @@ mod tests {
     use std::time::Duration;
 
     use super::*;
+
+    /// A server that has not stopped.
+    static RUNNING: AtomicBool = AtomicBool::new(false);
 
     fn source(path: &Path) -> FileSource {
         FileSource {
@@ -520,7 +541,7 @@ mod tests {
             let stamp = Stamp::of(&fs::metadata(&path).unwrap());
             let recorded = *files.read().get("a.txt").unwrap();
             assert_eq!(recorded.stamp, stamp);
-            assert_eq!(recorded.etag, etag_of_file(&path, stamp).unwrap());
+            assert_eq!(recorded.etag, etag_of_file(&path, stamp, &RUNNING).unwrap());
         }
         let names: Vec<_> = fs::read_dir(dir.path())
             .unwrap()
@@ -537,12 +558,15 @@ mod tests {
         fs::write(&b, vec![5; WINDOW + 1]).unwrap();
         let stamp = |p: &Path| Stamp::of(&fs::metadata(p).unwrap());
         assert_eq!(
-            etag_of_file(&a, stamp(&a)).unwrap(),
-            etag_of_file(&b, stamp(&b)).unwrap()
+            etag_of_file(&a, stamp(&a), &RUNNING).unwrap(),
+            etag_of_file(&b, stamp(&b), &RUNNING).unwrap()
         );
         let mut written = Etag::new(WINDOW as u64 + 1);
         written.write(&vec![5; WINDOW + 1]);
-        assert_eq!(written.finish(), etag_of_file(&a, stamp(&a)).unwrap());
+        assert_eq!(
+            written.finish(),
+            etag_of_file(&a, stamp(&a), &RUNNING).unwrap()
+        );
         let old = stamp(&b);
         fs::write(&b, vec![6; WINDOW + 1]).unwrap();
         fs::File::options()
@@ -551,10 +575,14 @@ mod tests {
             .unwrap()
             .set_modified(SystemTime::now() + Duration::from_secs(5))
             .unwrap();
-        assert!(etag_of_file(&b, old).is_err());
+        assert!(etag_of_file(&b, old, &RUNNING).is_err());
         assert_ne!(
-            etag_of_file(&a, stamp(&a)).unwrap(),
-            etag_of_file(&b, stamp(&b)).unwrap()
+            etag_of_file(&a, stamp(&a), &RUNNING).unwrap(),
+            etag_of_file(&b, stamp(&b), &RUNNING).unwrap()
         );
+        // A stopping server hashes nothing more.
+        let stopped = AtomicBool::new(true);
+        let e = etag_of_file(&a, stamp(&a), &stopped).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::Interrupted);
     }
 }

@@ -12,6 +12,8 @@ use clap::Args;
 use coap_net::{Router, Server, ServerConfig};
 use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+use tokio::time::{Instant, MissedTickBehavior};
 
 use rgbd::backend::playback::PlaybackCamera;
 use rgbd::{Camera as _, CameraHub, Scene, Serial, SyntheticCamera};
@@ -85,6 +87,9 @@ pub(crate) struct ServeArgs {
     transmission: TransmissionArgs,
 }
 
+/// How often `--static` looks for new, changed and vanished files.
+const RESCAN: Duration = Duration::from_millis(200);
+
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let binds = if args.bind.is_empty() {
         vec![
@@ -138,7 +143,12 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     for a in server.local_addrs() {
         eprintln!("coapcam: serving on {a}");
     }
-    let mut tick = tokio::time::interval(Duration::from_millis(200));
+    // The files were scanned at load. A rescan hashes new and changed files, as long as
+    // that takes: it runs on the blocking pool, one at a time, so requests, notifications
+    // and signals are not held up behind it.
+    let mut tick = tokio::time::interval_at(Instant::now() + RESCAN, RESCAN);
+    tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+    let mut scan: Option<JoinHandle<Vec<String>>> = None;
     // The camera tree lives as long as the server.
     let _cameras = cameras;
     loop {
@@ -152,14 +162,32 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             Some(change) = membership_rx.recv() => {
                 crate::group::apply(&server, change, args.group_interface).await;
             }
-            _ = tick.tick() => {
-                if let Some(files) = &files {
-                    for path in files.rescan(server.router()) {
-                        server.notify(&path).await;
+            _ = tick.tick(), if scan.is_none() => {
+                if let Some(files) = files.clone() {
+                    let router = Arc::clone(server.router());
+                    scan = Some(tokio::task::spawn_blocking(move || files.rescan(&router)));
+                }
+            }
+            done = async { scan.as_mut().expect("guarded by is_some").await }, if scan.is_some() => {
+                scan = None;
+                match done {
+                    Ok(paths) => {
+                        for path in paths {
+                            server.notify(&path).await;
+                        }
                     }
+                    Err(e) => tracing::warn!(error = %e, "rescanning the files failed"),
                 }
             }
         }
+    }
+    // A rescan under way ends at its next window instead of hashing on: the runtime
+    // waits for its blocking work when it shuts down.
+    if let Some(files) = &files {
+        files.stop();
+    }
+    if let Some(scan) = scan {
+        let _ = scan.await;
     }
     Ok(())
 }
@@ -170,7 +198,7 @@ pub(crate) struct SceneServer {
     server: Arc<Server>,
     hub: Arc<CameraHub>,
     _cams: Arc<Cams>,
-    notifier: tokio::task::JoinHandle<()>,
+    notifier: JoinHandle<()>,
 }
 
 impl SceneServer {

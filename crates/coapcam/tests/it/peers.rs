@@ -374,15 +374,19 @@ impl Proc {
         }
     }
 
-    /// Interrupts the process (SIGINT, as Ctrl-C), waits for it (bounded) and parses the
-    /// JSON object it printed last on standard output (`coapcam netem --json`).
-    pub(crate) fn interrupt_json(&mut self) -> serde_json::Value {
+    /// Interrupts the process (SIGINT, as Ctrl-C) and waits for it, at most [`STARTUP`].
+    pub(crate) fn interrupt(&mut self) -> Finished {
         let pid = self.child.id().to_string();
         let sent = Command::new("kill").args(["-INT", &pid]).status();
         assert!(sent.is_ok_and(|s| s.success()), "kill -INT {pid}");
-        let f = self
-            .wait(STARTUP)
-            .unwrap_or_else(|| panic!("{} ignored SIGINT", self.name));
+        self.wait(STARTUP)
+            .unwrap_or_else(|| panic!("{} still runs {STARTUP:?} after SIGINT", self.name))
+    }
+
+    /// Interrupts the process and parses the JSON object it printed last on standard
+    /// output (`coapcam netem --json`).
+    pub(crate) fn interrupt_json(&mut self) -> serde_json::Value {
+        let f = self.interrupt();
         let text = f.stdout_text();
         let last = text.lines().last().unwrap_or_default();
         serde_json::from_str(last).unwrap_or_else(|e| panic!("{}: {last:?}: {e}", self.name))

@@ -1,12 +1,13 @@
 //! `coapcam serve` stops cleanly on SIGTERM and SIGINT: exit status 0, well before the
-//! `--duration` (120 s) that would stop it otherwise.
+//! `--duration` (120 s) that would stop it otherwise, even while it hashes a large file.
 
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use coap::Code;
 
-use crate::cams::{SN, TempDir, client, runtime, send, serve};
+use crate::cams::{LIMIT, SN, TempDir, client, runtime, send, serve};
+use crate::interop::peers::{self, COAPCAM, Proc};
 
 /// Longest wait for the process to exit; far below the server's 120 s `--duration`.
 const EXIT_BOUND: Duration = Duration::from_secs(30);
@@ -44,4 +45,35 @@ fn serve_exits_with_status_0_on_sigterm_and_sigint() {
         };
         assert_eq!(status.code(), Some(0), "SIG{signal}: {status}");
     }
+}
+
+#[test]
+fn a_file_being_hashed_holds_up_neither_requests_nor_the_stop() {
+    let dir = TempDir::new("signal-hashing");
+    std::fs::write(dir.join("small.txt"), b"small").expect("writing small.txt");
+    let (mut server, addr) = peers::our_server(dir.path(), false);
+    // Sparse: it takes no disk space, but its ETag means reading and hashing 64 GiB, far
+    // longer than this test runs. It is routed once hashed.
+    std::fs::File::create(dir.join("huge.bin"))
+        .and_then(|f| f.set_len(64 << 30))
+        .expect("creating a sparse huge.bin");
+    // A rescan (every 200 ms) is hashing it by now.
+    std::thread::sleep(Duration::from_secs(1));
+    let small = Proc::run(
+        COAPCAM,
+        &["get", &format!("coap://{addr}/files/small.txt")],
+        LIMIT,
+    )
+    .expect_success("GET while a file is hashed");
+    assert_eq!(small.stdout_text().trim_end(), "small");
+    let links = Proc::run(COAPCAM, &["discover", &format!("coap://{addr}")], LIMIT)
+        .expect_success("discover while a file is hashed");
+    let links = links.stdout_text();
+    assert!(links.contains("</files/small.txt>"), "{links}");
+    assert!(
+        !links.contains("huge.bin"),
+        "the GET waited until huge.bin was hashed: {links}"
+    );
+    let stopped = server.interrupt();
+    assert_eq!(stopped.status.code(), Some(0), "{}", stopped.stderr);
 }
