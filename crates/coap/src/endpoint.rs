@@ -712,8 +712,7 @@ impl Endpoint {
                 }
             }
             Type::Con | Type::Non if msg.code.is_request() => {
-                msg.payload = Bytes::copy_from_slice(payload);
-                self.on_request(now, peer, msg, multicast);
+                self.on_request(now, peer, msg, payload, multicast);
             }
             Type::Con | Type::Non if msg.code.is_response() => {
                 self.on_separate_response(now, peer, &mut msg, payload)
@@ -1483,7 +1482,16 @@ impl Endpoint {
 
     // ---------------------------------------------------------------- server layer
 
-    fn on_request(&mut self, now: Instant, peer: SocketAddr, mut msg: Message, multicast: bool) {
+    /// A request; its `payload` stays in the datagram until it is copied where it goes
+    /// (an upload's block into the body being assembled).
+    fn on_request(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        mut msg: Message,
+        payload: &[u8],
+        multicast: bool,
+    ) {
         let limits = self.config.limits.clone();
         let con = msg.ty == Type::Con;
         let block2 = msg.options.block2();
@@ -1588,13 +1596,13 @@ impl Endpoint {
             }
         }
 
-        let mut payload = std::mem::take(&mut msg.payload);
+        let mut assembled = None;
         let mut block1_echo = None;
         if let Some(b1) = block1 {
             let size1 = msg.options.uint(OptionNumber::SIZE1);
             let outcome = self
                 .block1
-                .handle(now, key.clone(), b1, size1, &payload, &self.config);
+                .handle(now, key.clone(), b1, size1, payload, &self.config);
             let response = match outcome {
                 Block1Outcome::Continue(opt) => {
                     let mut r = Response::new(Code::CONTINUE);
@@ -1616,7 +1624,7 @@ impl Endpoint {
                     Some(r)
                 }
                 Block1Outcome::Complete(body, echo) => {
-                    payload = body;
+                    assembled = Some(body);
                     block1_echo = Some(echo);
                     None
                 }
@@ -1668,7 +1676,7 @@ impl Endpoint {
             peer,
             method: msg.code,
             options: msg.options,
-            payload,
+            payload: assembled.unwrap_or_else(|| Bytes::copy_from_slice(payload)),
             multicast,
             confirmable: con,
             observe: observation.map(ObservationId),
