@@ -19,7 +19,7 @@ use bytes::Bytes;
 use coap::link_format::Filter;
 use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Resource, Router, handler};
-use geometry::{IcpConfig, PointCloud, Transform, Transformation};
+use geometry::{IcpConfig, IcpMethod, PointCloud, Transform, Transformation};
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use rgbd::{
     AdvancedConfig, Camera, CameraError, CameraHub, ColorSettings, DepthSettings, HubEvent, Serial,
@@ -507,10 +507,13 @@ impl Cams {
             Ok(cf) => cf,
             Err(refused) => return refused,
         };
-        let cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
+        // In serial order: ICP registers a camera onto those merged before it, so the
+        // order decides the result.
+        let mut cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
             .iter()
             .map(|(sn, c)| (*sn, c.clone()))
             .collect();
+        cams.sort_unstable_by_key(|(sn, _)| *sn);
         let tasks: Vec<_> = cams
             .into_iter()
             .map(|(sn, cam)| {
@@ -560,25 +563,39 @@ impl Cams {
     }
 }
 
+/// ICP finds a camera's correction on clouds thinned to one point per cube of this edge
+/// (metres), point-to-plane, then moves the whole cloud. On two 640x480 clouds (600,000
+/// points) point-to-point ICP on every point took 13 s and, on a view displaced by 15 mm
+/// and 1 degree, stopped 9 mm off after its 30 iterations; thinned and point-to-plane it
+/// takes a fraction of a second and ends within 2 mm (the floor dominates these scenes,
+/// and point-to-point slides along it).
+const ICP_VOXEL_M: f32 = 0.01;
+
 /// Merges clouds already in the common frame; a cloud whose camera has `icp` on is first
 /// registered onto the clouds merged before it.
 fn register_and_merge(clouds: Vec<(Serial, bool, PointCloud)>) -> PointCloud {
     let mut merged = PointCloud::default();
     for (sn, icp, mut cloud) in clouds {
         if icp && !merged.is_empty() {
-            match geometry::icp(
-                &cloud,
-                &merged,
-                &Isometry3::identity(),
-                &IcpConfig::default(),
-            ) {
-                Ok(outcome) => Transform::from(outcome.transform).apply_in_place(&mut cloud),
-                Err(e) => tracing::warn!(serial = %sn, "ICP skipped: {e}"),
+            match icp_correction(&cloud, &merged) {
+                Ok(correction) => Transform::from(correction).apply_in_place(&mut cloud),
+                Err(e) => tracing::warn!(serial = %sn, "ICP skipped: {e:#}"),
             }
         }
         merged.extend_from(&cloud);
     }
     merged
+}
+
+/// The transform that registers `cloud` onto `merged`, found on both thinned.
+fn icp_correction(cloud: &PointCloud, merged: &PointCloud) -> anyhow::Result<Isometry3<f32>> {
+    let source = geometry::voxel_downsample(cloud, ICP_VOXEL_M)?;
+    let target = geometry::voxel_downsample(merged, ICP_VOXEL_M)?;
+    let config = IcpConfig {
+        method: IcpMethod::PointToPlane,
+        ..IcpConfig::default()
+    };
+    Ok(geometry::icp(&source, &target, &Isometry3::identity(), &config)?.transform)
 }
 
 /// The 3d-transformation of a known pose: camera frame -> world.

@@ -201,3 +201,57 @@ fn a_grab_that_outlasts_its_timeout_answers_5_03_with_max_age() {
         assert!(String::from_utf8_lossy(&r.payload).contains("disconnected"));
     });
 }
+
+#[test]
+fn icp_brings_a_displaced_camera_back_onto_the_cloud_merged_before_it() {
+    use geometry::{PointCloud, Transform};
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+    let cams = SyntheticCamera::all(&Scene::default_demo()).expect("the demo scene's cameras");
+    let cam = &cams[0];
+    let pose = super::pose_transformation(cam.true_pose().expect("a calibrated camera"));
+    let app = super::config::AppConfig::default();
+    let Ok(super::grab::Frame::Cloud { points, .. }) =
+        super::grab::cloud(cam.as_ref(), &app, &pose)
+    else {
+        panic!("no cloud")
+    };
+    let truth = PointCloud::from(points);
+    // The same view with its pose 15 mm and 1 degree off, as a second camera's.
+    let error = Isometry3::from_parts(
+        Translation3::new(0.012, -0.008, 0.004),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 1f32.to_radians()),
+    );
+    let mut displaced = truth.clone();
+    Transform::from(error).apply_in_place(&mut displaced);
+    let mean_error = |cloud: &[nalgebra::Point3<f32>]| {
+        let pairs = cloud
+            .iter()
+            .zip(&truth.points)
+            .filter(|(p, _)| p.x.is_finite());
+        let (sum, n) = pairs.fold((0.0, 0), |(s, n), (p, q)| (s + (p - q).norm(), n + 1));
+        sum / n as f32
+    };
+    assert!(mean_error(&displaced.points) > 0.010);
+
+    let n = truth.points.len();
+    let merged = super::register_and_merge(vec![
+        (
+            rgbd::Serial::parse("111111111111").expect("a serial"),
+            false,
+            truth.clone(),
+        ),
+        (
+            rgbd::Serial::parse("222222222222").expect("a serial"),
+            true,
+            displaced,
+        ),
+    ]);
+    assert_eq!(merged.points.len(), 2 * n, "every point kept");
+    let registered = mean_error(&merged.points[n..]);
+    assert!(
+        registered < 0.003,
+        "{:.1} mm off after ICP",
+        registered * 1000.0
+    );
+}
