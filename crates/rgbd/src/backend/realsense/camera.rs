@@ -3,7 +3,7 @@
 use std::ffi::c_int;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use super::ffi::{
     self, CameraInfo, Device, DeviceList, Frame, FrameQueue, Lib, Profile, ProfileData, RsError,
@@ -147,7 +147,7 @@ impl Slot {
             GrabMode::PerRequest => {
                 // The mode is fixed per camera: no session was started.
                 let queue = self.start(lib, want)?;
-                let waited = queue.wait(timeout_ms);
+                let waited = wait_wanted(&queue, &want, timeout);
                 let stopped = self.sensor.stop();
                 let closed = self.sensor.close();
                 let frame = waited?;
@@ -166,11 +166,13 @@ impl Slot {
                 };
                 let mut newest = None;
                 while let Some(frame) = s.queue.poll()? {
-                    newest = Some(frame);
+                    if is_wanted(&frame, &want)? {
+                        newest = Some(frame);
+                    }
                 }
                 match newest {
                     Some(frame) => Ok(frame),
-                    None => s.queue.wait(timeout_ms)?.ok_or(timed_out),
+                    None => wait_wanted(&s.queue, &want, timeout)?.ok_or(timed_out),
                 }
             }
         }
@@ -339,6 +341,35 @@ fn sensor_kind(sensor: &Sensor) -> Result<Option<c_int>, RsError> {
     Ok(kind)
 }
 
+/// Whether `frame` has the format and size `want` asks for. A frame of the stream's
+/// previous profile can still arrive after the stream restarts with another (the
+/// software device's injector may be rendering one just then); grabs pass it over.
+fn is_wanted(frame: &Frame, want: &Wanted) -> Result<bool, RsError> {
+    let format = frame.profile()?.data()?.format;
+    let (width, height, _) = frame.geometry()?;
+    Ok(format == want.format
+        && u32::try_from(width).ok() == Some(want.width)
+        && u32::try_from(height).ok() == Some(want.height))
+}
+
+/// The first frame of `queue` that [`is_wanted`], waiting up to `timeout` in all.
+fn wait_wanted(
+    queue: &FrameQueue,
+    want: &Wanted,
+    timeout: Duration,
+) -> Result<Option<Frame>, RsError> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let left_ms = u32::try_from(left.as_millis()).unwrap_or(u32::MAX);
+        match queue.wait(left_ms)? {
+            Some(frame) if is_wanted(&frame, want)? => return Ok(Some(frame)),
+            Some(_) if !left.is_zero() => {}
+            _ => return Ok(None),
+        }
+    }
+}
+
 /// The rows of a frame with `row_bytes` of pixels per row, without padding.
 fn packed_rows(frame: &Frame, want: &Wanted, bpp: usize) -> Result<Vec<u8>, CameraError> {
     let profile = frame.profile()?.data()?;
@@ -349,10 +380,7 @@ fn packed_rows(frame: &Frame, want: &Wanted, bpp: usize) -> Result<Vec<u8>, Came
             profile.format, want.width, want.height, want.format
         ))
     };
-    if profile.format != want.format
-        || u32::try_from(width).ok() != Some(want.width)
-        || u32::try_from(height).ok() != Some(want.height)
-    {
+    if !is_wanted(frame, want)? {
         return Err(mismatch());
     }
     let row = want.width as usize * bpp;
