@@ -196,17 +196,31 @@ impl Router {
     /// Adds or replaces the resource at `pattern` (`/files/a.bin`, `/cams/{sn}/color`).
     /// Literal paths are matched before patterns with parameters.
     pub fn add(&self, pattern: &str, resource: Resource) {
-        let (pattern, segments) = normalized(pattern);
+        self.add_all([(pattern, resource)]);
+    }
+
+    /// Adds or replaces several resources at once: a request finds all of them or none
+    /// (a camera's resources appear together).
+    pub fn add_all<P: AsRef<str>>(&self, resources: impl IntoIterator<Item = (P, Resource)>) {
+        let added: Vec<Entry> = resources
+            .into_iter()
+            .map(|(pattern, resource)| {
+                let (pattern, segments) = normalized(pattern.as_ref());
+                Entry {
+                    pattern,
+                    segments,
+                    resource,
+                }
+            })
+            .collect();
         let mut entries = self
             .entries
             .write()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
-        entries.retain(|e| e.pattern != pattern);
-        entries.push(Entry {
-            pattern,
-            segments,
-            resource,
-        });
+        for entry in added {
+            entries.retain(|e| e.pattern != entry.pattern);
+            entries.push(entry);
+        }
         entries.sort_by_key(|e| {
             e.segments
                 .iter()
@@ -217,14 +231,23 @@ impl Router {
 
     /// Removes the resource at `pattern`; returns whether there was one.
     pub fn remove(&self, pattern: &str) -> bool {
-        let (pattern, _) = normalized(pattern);
+        self.remove_all([pattern]) > 0
+    }
+
+    /// Removes several resources at once (see [`Router::add_all`]); returns how many
+    /// there were.
+    pub fn remove_all<P: AsRef<str>>(&self, patterns: impl IntoIterator<Item = P>) -> usize {
+        let gone: Vec<String> = patterns
+            .into_iter()
+            .map(|p| normalized(p.as_ref()).0)
+            .collect();
         let mut entries = self
             .entries
             .write()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         let before = entries.len();
-        entries.retain(|e| e.pattern != pattern);
-        entries.len() != before
+        entries.retain(|e| !gone.contains(&e.pattern));
+        before - entries.len()
     }
 
     /// The registered patterns.
@@ -363,4 +386,32 @@ pub fn check_preconditions(request: &IncomingRequest, current: Option<&[u8]>) ->
         ));
     }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn resources_added_and_removed_together_replace_and_count() {
+        let router = Router::new();
+        let titled = |t: &str| Resource::new().attr("title", t);
+        router.add("/cams/1/color", titled("old"));
+        router.add_all([
+            ("/cams/1/color", titled("new")),
+            ("/cams/1/depth", titled("d")),
+        ]);
+        let mut patterns = router.patterns();
+        patterns.sort();
+        assert_eq!(patterns, ["/cams/1/color", "/cams/1/depth"]);
+        let path = |p: &str| p.split('/').skip(1).map(str::to_owned).collect::<Vec<_>>();
+        let (found, _) = router.find(&path("/cams/1/color")).expect("color");
+        assert_eq!(found.attrs, [("title".to_owned(), Some("new".to_owned()))]);
+        assert_eq!(
+            router.remove_all(["/cams/1/color", "/cams/1/depth", "/cams/1/x"]),
+            2
+        );
+        assert!(router.patterns().is_empty());
+        assert!(!router.remove("/cams/1/color"));
+    }
 }

@@ -214,12 +214,10 @@ impl Cams {
             warn_on(&sn, "advanced-config", cam.camera.set_advanced_config(&a));
         }
         lock(&self.cams).insert(sn, cam);
-        for (name, _) in GRABS {
-            self.add_resource(sn, name);
-        }
-        for name in CONFIGS {
-            self.add_resource(sn, name);
-        }
+        // All at once: a client that finds one of them finds the others.
+        let names = GRABS.iter().map(|(n, _)| *n).chain(CONFIGS);
+        self.router
+            .add_all(names.map(|name| self.resource(sn, name)));
         tracing::debug!(serial = %sn, "camera resources added");
     }
 
@@ -248,14 +246,20 @@ impl Cams {
 
     fn disconnected(&self, sn: Serial) {
         lock(&self.cams).remove(&sn);
-        for name in GRABS.iter().map(|(n, _)| *n).chain(CONFIGS) {
-            self.router.remove(&format!("/cams/{sn}/{name}"));
-        }
+        let names = GRABS.iter().map(|(n, _)| *n).chain(CONFIGS);
+        self.router
+            .remove_all(names.map(|name| format!("/cams/{sn}/{name}")));
         tracing::debug!(serial = %sn, "camera resources removed");
     }
 
     /// Adds `/cams/<sn>/<name>`.
     fn add_resource(self: &Arc<Self>, sn: Serial, name: &'static str) {
+        let (path, resource) = self.resource(sn, name);
+        self.router.add(&path, resource);
+    }
+
+    /// The path `/cams/<sn>/<name>` and its resource.
+    fn resource(self: &Arc<Self>, sn: Serial, name: &'static str) -> (String, Resource) {
         let path = format!("/cams/{sn}/{name}");
         let delete = {
             let (me, path) = (self.clone(), path.clone());
@@ -300,7 +304,7 @@ impl Cams {
                 .attr("if", "core.p")
                 .attr("ct", "50")
         };
-        self.router.add(&path, resource);
+        (path, resource)
     }
 
     /// `POST /cams/<name>` with a serial: (re)creates `/cams/<serial>/<name>`.
