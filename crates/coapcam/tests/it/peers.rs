@@ -7,13 +7,15 @@ use std::io::{BufRead, BufReader, Read};
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use std::thread;
 use std::time::{Duration, Instant};
 
 /// How long a server may take to start listening.
 const STARTUP: Duration = Duration::from_secs(20);
+/// Longest wait for a finished process's pipes to end (a child of its own may hold them).
+const DRAIN: Duration = Duration::from_secs(5);
 
 pub(crate) const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
 pub(crate) const LIBCOAP_SERVER: &str = "coap-server-notls";
@@ -160,12 +162,16 @@ pub(crate) fn free_port() -> u16 {
 
 /// Lines a child printed, collected by a thread per pipe.
 #[derive(Clone, Default)]
-struct Lines(Arc<Mutex<Vec<u8>>>);
+struct Lines {
+    bytes: Arc<Mutex<Vec<u8>>>,
+    /// Set once the pipe reached its end (every process holding it is gone).
+    ended: Arc<AtomicBool>,
+}
 
 impl Lines {
     fn follow(pipe: impl Read + Send + 'static, lines: Option<mpsc::Sender<String>>) -> Self {
         let me = Self::default();
-        let buf = Arc::clone(&me.0);
+        let (buf, ended) = (Arc::clone(&me.bytes), Arc::clone(&me.ended));
         thread::spawn(move || {
             let mut reader = BufReader::new(pipe);
             let mut line = Vec::new();
@@ -183,12 +189,19 @@ impl Lines {
                     }
                 }
             }
+            ended.store(true, Ordering::Release);
         });
         me
     }
 
-    fn bytes(&self) -> Vec<u8> {
-        self.0
+    /// Everything read so far, once the pipe ended or `limit` passed (a grandchild may
+    /// still hold the pipe open).
+    fn bytes(&self, limit: Duration) -> Vec<u8> {
+        let deadline = Instant::now() + limit;
+        while !self.ended.load(Ordering::Acquire) && Instant::now() < deadline {
+            thread::sleep(Duration::from_millis(2));
+        }
+        self.bytes
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .clone()
@@ -312,12 +325,11 @@ impl Proc {
 
     fn finished(&mut self, status: ExitStatus) -> Finished {
         // The reader threads see end-of-file once the process (and its children) are
-        // gone; give them a moment to drain the pipes.
-        thread::sleep(Duration::from_millis(50));
+        // gone, and have read everything by then.
         Finished {
             status,
-            stdout: self.stdout.bytes(),
-            stderr: String::from_utf8_lossy(&self.stderr.bytes()).into_owned(),
+            stdout: self.stdout.bytes(DRAIN),
+            stderr: String::from_utf8_lossy(&self.stderr.bytes(DRAIN)).into_owned(),
         }
     }
 
