@@ -747,9 +747,10 @@ fn their_observe(client: TheirClient) {
         std::fs::rename(&tmp, ours.dir.join("obs.txt")).expect("replacing obs.txt");
     }
     let f = match client {
-        // libcoap's client observes for its -s seconds: stop it once the writes are seen.
+        // libcoap's client observes for its -s seconds: stop it once the last write is
+        // seen.
         TheirClient::Libcoap => {
-            thread::sleep(Duration::from_millis(1000));
+            observer.stdout_line(QUICK, |l| l.ends_with("n8").then_some(()));
             observer.kill()
         }
         // The script ends by itself after 5 notifications.
