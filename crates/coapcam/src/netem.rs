@@ -1036,6 +1036,10 @@ mod tests {
         Ok((addr, stop, task))
     }
 
+    /// How long a drain waits for one more datagram: far longer than a loaded machine
+    /// may hold up the test's runtime between two of them.
+    const QUIET: Duration = Duration::from_secs(1);
+
     /// Receives datagrams until none has come for `quiet`; bounded by 5 s in all.
     async fn drain(socket: &UdpSocket, quiet: Duration) -> Vec<Vec<u8>> {
         let mut got = Vec::new();
@@ -1093,7 +1097,7 @@ mod tests {
             for i in 0..200u16 {
                 client.send_to(&i.to_be_bytes(), netem).await?;
             }
-            let echoes = drain(&client, Duration::from_millis(100)).await;
+            let echoes = drain(&client, QUIET).await;
             let _ = stop.send(());
             let counters = task.await??;
             assert_eq!(counters.up.received, 200);
@@ -1120,8 +1124,8 @@ mod tests {
             b.send_to(b"from b", netem).await?;
         }
         let (got_a, got_b) = tokio::join!(
-            drain(&a, Duration::from_millis(100)),
-            drain(&b, Duration::from_millis(100))
+            drain(&a, QUIET),
+            drain(&b, QUIET)
         );
         let _ = stop.send(());
         let counters = task.await??;
