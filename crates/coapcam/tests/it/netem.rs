@@ -177,7 +177,7 @@ fn relays_through_the_cli_and_prints_json_counters_on_ctrl_c() {
 #[test]
 fn stops_after_the_duration_and_prints_a_table() {
     let echo = Echo::start().unwrap_or_else(|e| panic!("echo server: {e}"));
-    let netem = Netem::start(echo.addr, &["--loss=1", "--duration=0.5", "--seed=3"]);
+    let netem = Netem::start(echo.addr, &["--loss=1", "--duration=2", "--seed=3"]);
     let client = UdpSocket::bind("127.0.0.1:0").unwrap_or_else(|e| panic!("client: {e}"));
     for _ in 0..3 {
         client
