@@ -1123,10 +1123,7 @@ mod tests {
             a.send_to(b"from a", netem).await?;
             b.send_to(b"from b", netem).await?;
         }
-        let (got_a, got_b) = tokio::join!(
-            drain(&a, QUIET),
-            drain(&b, QUIET)
-        );
+        let (got_a, got_b) = tokio::join!(drain(&a, QUIET), drain(&b, QUIET));
         let _ = stop.send(());
         let counters = task.await??;
         echo.abort();
