@@ -9,7 +9,7 @@ mod state;
 #[cfg(test)]
 mod tests;
 
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 use std::hash::{Hash as _, Hasher as _};
 use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -89,7 +89,9 @@ pub(crate) struct Cams {
     hub: Arc<CameraHub>,
     router: Arc<Router>,
     state: StateDir,
-    cams: Mutex<HashMap<Serial, Arc<CamState>>>,
+    /// By serial: `/cams/pointclouds` merges in this order, which decides what ICP
+    /// registers onto what.
+    cams: Mutex<BTreeMap<Serial, Arc<CamState>>>,
     /// Paths with a new representation, for Observe notifications.
     changed: mpsc::UnboundedSender<String>,
 }
@@ -511,13 +513,10 @@ impl Cams {
             Ok(cf) => cf,
             Err(refused) => return refused,
         };
-        // In serial order: ICP registers a camera onto those merged before it, so the
-        // order decides the result.
-        let mut cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
+        let cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
             .iter()
             .map(|(sn, c)| (*sn, c.clone()))
             .collect();
-        cams.sort_unstable_by_key(|(sn, _)| *sn);
         let tasks: Vec<_> = cams
             .into_iter()
             .map(|(sn, cam)| {
