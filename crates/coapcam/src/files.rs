@@ -105,8 +105,8 @@ impl StaticFiles {
         self.files.write().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// Ends a rescan under way (on another thread) at its next window; later rescans do
-    /// nothing.
+    /// Ends a rescan under way (on another thread) at its next window; later rescans
+    /// hash nothing.
     pub(crate) fn stop(&self) {
         self.stopped.store(true, Ordering::Relaxed);
     }
@@ -115,9 +115,6 @@ impl StaticFiles {
     /// returns the paths whose content changed on disk.
     pub(crate) fn rescan(&self, router: &Router) -> Vec<String> {
         let mut changed = Vec::new();
-        if self.stopped.load(Ordering::Relaxed) {
-            return changed;
-        }
         let Ok(entries) = fs::read_dir(&self.dir) else {
             return changed;
         };
@@ -137,9 +134,6 @@ impl StaticFiles {
             let known = self.read().get(&name).map(|f| f.stamp);
             if known != Some(stamp) {
                 let Ok(etag) = etag_of_file(&entry.path(), stamp, &self.stopped) else {
-                    if self.stopped.load(Ordering::Relaxed) {
-                        return changed;
-                    }
                     continue;
                 };
                 self.write().insert(name.clone(), File { stamp, etag });
