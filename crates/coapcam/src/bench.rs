@@ -187,7 +187,7 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
             &next
         };
         let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
-        prepare_cameras(&client, &serials, 1.0).await?;
+        prepare_cameras(&client, &serials, 1.0, false).await?;
         let truth = truth(scene).context("the scene has no box")?;
         let result = measure::measure_once(&client, &Source::All, &config).await;
         let row = Row {

@@ -7,6 +7,7 @@ mod bench;
 mod cams;
 mod cbor;
 mod client;
+mod codes;
 mod demo;
 mod files;
 mod grab_cmd;

@@ -297,15 +297,31 @@ fn measure_finds_the_default_scenes_box() {
     let picture = decode(&annotated, ImageFormat::Png);
     assert!(picture.width() >= 640 && picture.height() >= 480);
 
-    let text = ok(&["measure", "--server", &uri]).stdout_text();
+    let text = ok(&["measure", "--server", &uri, "--codes"]).stdout_text();
     assert!(text.starts_with("length "), "{text}");
     assert!(text.contains(SN), "{text}");
+    assert!(
+        text.contains(&format!("codes: qr \"PKG-0001\" ({SN})")),
+        "{text}"
+    );
 
     // --prepare cuts the floor out of what the camera sends: the same box from a
     // fraction of the points, and the camera's application-config says so afterwards.
     let whole = m["bytes"].as_u64().expect("bytes");
-    let m = ok(&["measure", "--server", &uri, "--prepare", "--json"]).json();
+    let m = ok(&[
+        "measure",
+        "--server",
+        &uri,
+        "--prepare",
+        "--codes",
+        "--json",
+    ])
+    .json();
     assert_measures_the_box(&m);
+    assert_eq!(
+        m["codes"],
+        serde_json::json!([{ "kind": "qr", "text": "PKG-0001", "cameras": [SN] }])
+    );
     let cut = m["bytes"].as_u64().expect("bytes");
     assert!(
         cut * 3 < whole,
@@ -318,6 +334,12 @@ fn measure_finds_the_default_scenes_box() {
         config["postprocessing"]["spatial"],
         serde_json::json!(0),
         "{config}"
+    );
+    // --codes made the color stream 1920x1080 (the codes' resolution).
+    let color = ok(&["get", &format!("{uri}/cams/{SN}/color-settings")]).json();
+    assert_eq!(
+        (&color["width"], &color["height"]),
+        (&1920.into(), &1080.into())
     );
 
     let f = coapcam(&["measure", "--server", &uri, "--camera", "999999999999"]);
@@ -495,6 +517,12 @@ fn demo_writes_its_files_and_the_table() {
     }
     assert!(
         text.contains("measured") && text.contains("scene"),
+        "{text}"
+    );
+    assert!(
+        text.contains(
+            "codes: qr \"PKG-0001\" (840412060746, 840412060757); on the scene's parcels: qr \"PKG-0001\""
+        ),
         "{text}"
     );
 }

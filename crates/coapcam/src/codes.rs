@@ -1,0 +1,645 @@
+//! Reading the codes printed on a parcel from a color image (`measure --codes`, `demo`):
+//! QR codes through `rqrr`, Code 128 along scan lines at several angles. A Code 128 read
+//! counts only with its start and stop patterns and a matching check symbol.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt;
+use std::net::SocketAddr;
+
+use anyhow::Context as _;
+use bytes::Bytes;
+use coap::ContentFormat;
+use image::GrayImage;
+
+use crate::client::{CamClient, Stream};
+
+/// The symbology of a code.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub(crate) enum CodeKind {
+    /// QR code (ISO/IEC 18004).
+    Qr,
+    /// Code 128 (ISO/IEC 15417).
+    Code128,
+}
+
+impl CodeKind {
+    /// The name the scene files and the JSON output use.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Self::Qr => "qr",
+            Self::Code128 => "code128",
+        }
+    }
+}
+
+/// A code read from an image.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub(crate) struct Code {
+    /// Symbology.
+    pub(crate) kind: CodeKind,
+    /// The decoded text.
+    pub(crate) text: String,
+}
+
+impl fmt::Display for Code {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} {:?}", self.kind.name(), self.text)
+    }
+}
+
+/// A code and the cameras that read it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct Seen {
+    /// The code.
+    pub(crate) code: Code,
+    /// Serials of the cameras whose image it was read from.
+    pub(crate) cameras: Vec<String>,
+}
+
+impl Seen {
+    /// The entry of the `codes` array of `measure --json`.
+    pub(crate) fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "kind": self.code.kind.name(),
+            "text": self.code.text,
+            "cameras": self.cameras,
+        })
+    }
+}
+
+/// The codes one line of text names: `qr "PKG-0001" (840412060746, ...)`, or `none`.
+pub(crate) fn describe(seen: &[Seen]) -> String {
+    if seen.is_empty() {
+        return "none".into();
+    }
+    let each: Vec<String> = seen
+        .iter()
+        .map(|s| format!("{} ({})", s.code, s.cameras.join(", ")))
+        .collect();
+    each.join(", ")
+}
+
+/// Grabs a new PNG color image of camera `serial` and reads the codes in it; returns the
+/// PNG as received, too.
+pub(crate) async fn photograph(
+    client: &CamClient,
+    serial: &str,
+) -> anyhow::Result<(Bytes, Vec<Code>)> {
+    let png = client
+        .grab(serial, Stream::Color, Some(ContentFormat::IMAGE_PNG))
+        .await?
+        .payload;
+    let codes = tokio::task::spawn_blocking({
+        let png = png.clone();
+        move || -> anyhow::Result<Vec<Code>> {
+            let image = image::load_from_memory_with_format(&png, image::ImageFormat::Png)
+                .context("decoding the PNG color image")?;
+            Ok(read(&image.to_luma8()))
+        }
+    })
+    .await
+    .context("the code reading task failed")?
+    .with_context(|| format!("reading codes from camera {serial}"))?;
+    Ok((png, codes))
+}
+
+/// Reads the codes each camera (server, serial) sees in a new color image; each code
+/// once, with the cameras that read it.
+pub(crate) async fn read_cameras(
+    client: &CamClient,
+    cameras: &[(SocketAddr, String)],
+) -> anyhow::Result<Vec<Seen>> {
+    let mut seen: BTreeMap<Code, Vec<String>> = BTreeMap::new();
+    for (server, serial) in cameras {
+        let one = CamClient::unicast(client, *server);
+        for code in photograph(&one, serial).await?.1 {
+            seen.entry(code).or_default().push(serial.clone());
+        }
+    }
+    Ok(seen
+        .into_iter()
+        .map(|(code, cameras)| Seen { code, cameras })
+        .collect())
+}
+
+/// Every code found in `image`, each once, in order of kind and text.
+pub(crate) fn read(image: &GrayImage) -> Vec<Code> {
+    let mut found = BTreeSet::new();
+    read_qr(image, &mut found);
+    read_code128(image, &mut found);
+    found.into_iter().collect()
+}
+
+fn read_qr(image: &GrayImage, found: &mut BTreeSet<Code>) {
+    let (width, height) = (image.width() as usize, image.height() as usize);
+    let mut prepared = rqrr::PreparedImage::prepare_from_greyscale(width, height, |x, y| {
+        image.get_pixel(x as u32, y as u32).0[0]
+    });
+    for grid in prepared.detect_grids() {
+        if let Ok((_, text)) = grid.decode() {
+            found.insert(Code {
+                kind: CodeKind::Qr,
+                text,
+            });
+        }
+    }
+}
+
+/// Directions of the scan lines; a bar code turned up to half a step from the nearest
+/// one is still crossed whole when its bars are at least a fifth as tall as it is long.
+const SCAN_ANGLES: usize = 8;
+/// Distance between parallel scan lines, pixels.
+const SCAN_SPACING_PX: f32 = 3.0;
+/// Half width of the window that sets a sample's threshold, samples.
+const THRESHOLD_HALF_WINDOW: usize = 16;
+/// Smallest difference between the darkest and the lightest gray level (0-255) in that
+/// window for a sample to count as printed: flat regions are neither bars nor spaces.
+const MIN_CONTRAST: f32 = 40.0;
+/// Shortest space after the stop pattern, modules (the standard asks for 10).
+const QUIET_MODULES: f32 = 5.0;
+/// Largest summed deviation, in modules, of a symbol's six widths from its pattern.
+const MAX_SYMBOL_ERROR: f32 = 1.6;
+
+fn read_code128(image: &GrayImage, found: &mut BTreeSet<Code>) {
+    let (w, h) = (image.width() as f32, image.height() as f32);
+    let half_diagonal = 0.5 * w.hypot(h);
+    let (cx, cy) = (0.5 * w, 0.5 * h);
+    let mut samples = Vec::new();
+    for a in 0..SCAN_ANGLES {
+        let angle = std::f32::consts::PI * a as f32 / SCAN_ANGLES as f32;
+        let (dx, dy) = (angle.cos(), angle.sin());
+        let mut offset = -half_diagonal;
+        while offset <= half_diagonal {
+            // The line through the centre's offset point, along (dx, dy).
+            let (ox, oy) = (cx - dy * offset, cy + dx * offset);
+            samples.clear();
+            let mut t = -half_diagonal;
+            while t <= half_diagonal {
+                let (x, y) = (ox + dx * t, oy + dy * t);
+                if x >= 0.0 && y >= 0.0 && x < w - 1.0 && y < h - 1.0 {
+                    samples.push(bilinear(image, x, y));
+                } else if !samples.is_empty() {
+                    break;
+                }
+                t += 1.0;
+            }
+            let runs = runs(&samples);
+            if let Some(text) = decode_runs(&runs) {
+                found.insert(Code {
+                    kind: CodeKind::Code128,
+                    text,
+                });
+            }
+            offset += SCAN_SPACING_PX;
+        }
+    }
+}
+
+fn bilinear(image: &GrayImage, x: f32, y: f32) -> f32 {
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let (x0, y0) = (x0 as u32, y0 as u32);
+    let p = |x, y| f32::from(image.get_pixel(x, y).0[0]);
+    let top = p(x0, y0) * (1.0 - fx) + p(x0 + 1, y0) * fx;
+    let bottom = p(x0, y0 + 1) * (1.0 - fx) + p(x0 + 1, y0 + 1) * fx;
+    top * (1.0 - fy) + bottom * fy
+}
+
+/// The alternating bars (`true`) and spaces of a scan line with their widths in samples.
+/// A sample's threshold is halfway between the darkest and the lightest sample near it,
+/// and edges fall where the signal crosses it, interpolated between samples. Samples
+/// without contrast nearby are spaces.
+fn runs(samples: &[f32]) -> Vec<(bool, f32)> {
+    let n = samples.len();
+    let lows = sliding(samples, THRESHOLD_HALF_WINDOW, |a, b| a <= b);
+    let highs = sliding(samples, THRESHOLD_HALF_WINDOW, |a, b| a >= b);
+    // Signed distance of each sample above its threshold.
+    let level: Vec<f32> = (0..n)
+        .map(|i| {
+            if highs[i] - lows[i] < MIN_CONTRAST {
+                1.0
+            } else {
+                samples[i] - 0.5 * (lows[i] + highs[i])
+            }
+        })
+        .collect();
+    let mut out = Vec::new();
+    let mut edge = 0.0f32;
+    for i in 1..n {
+        let (a, b) = (level[i - 1], level[i]);
+        if (a < 0.0) != (b < 0.0) {
+            let at = (i - 1) as f32 + a / (a - b);
+            out.push((a < 0.0, at - edge));
+            edge = at;
+        }
+    }
+    if n > 0 {
+        out.push((level[n - 1] < 0.0, n as f32 - edge));
+    }
+    out
+}
+
+/// For each sample, the extreme of the samples within `half` of it: the minimum when
+/// `keeps(a, b)` is `a <= b`, the maximum when it is `a >= b` (a monotonic queue, linear).
+fn sliding(samples: &[f32], half: usize, keeps: impl Fn(f32, f32) -> bool) -> Vec<f32> {
+    let n = samples.len();
+    let mut queue = std::collections::VecDeque::new();
+    let mut out = Vec::with_capacity(n);
+    let mut pushed = 0;
+    for i in 0..n {
+        while pushed < n && pushed <= i + half {
+            while queue
+                .back()
+                .is_some_and(|&j: &usize| keeps(samples[pushed], samples[j]))
+            {
+                queue.pop_back();
+            }
+            queue.push_back(pushed);
+            pushed += 1;
+        }
+        while queue.front().is_some_and(|&j| j + half < i) {
+            queue.pop_front();
+        }
+        out.push(samples[queue[0]]);
+    }
+    out
+}
+
+/// Module widths of the 103 data symbols, the three start symbols (103-105: A, B, C),
+/// bar first; ISO/IEC 15417 table 1.
+const PATTERNS: [[u8; 6]; 106] = [
+    [2, 1, 2, 2, 2, 2],
+    [2, 2, 2, 1, 2, 2],
+    [2, 2, 2, 2, 2, 1],
+    [1, 2, 1, 2, 2, 3],
+    [1, 2, 1, 3, 2, 2],
+    [1, 3, 1, 2, 2, 2],
+    [1, 2, 2, 2, 1, 3],
+    [1, 2, 2, 3, 1, 2],
+    [1, 3, 2, 2, 1, 2],
+    [2, 2, 1, 2, 1, 3],
+    [2, 2, 1, 3, 1, 2],
+    [2, 3, 1, 2, 1, 2],
+    [1, 1, 2, 2, 3, 2],
+    [1, 2, 2, 1, 3, 2],
+    [1, 2, 2, 2, 3, 1],
+    [1, 1, 3, 2, 2, 2],
+    [1, 2, 3, 1, 2, 2],
+    [1, 2, 3, 2, 2, 1],
+    [2, 2, 3, 2, 1, 1],
+    [2, 2, 1, 1, 3, 2],
+    [2, 2, 1, 2, 3, 1],
+    [2, 1, 3, 2, 1, 2],
+    [2, 2, 3, 1, 1, 2],
+    [3, 1, 2, 1, 3, 1],
+    [3, 1, 1, 2, 2, 2],
+    [3, 2, 1, 1, 2, 2],
+    [3, 2, 1, 2, 2, 1],
+    [3, 1, 2, 2, 1, 2],
+    [3, 2, 2, 1, 1, 2],
+    [3, 2, 2, 2, 1, 1],
+    [2, 1, 2, 1, 2, 3],
+    [2, 1, 2, 3, 2, 1],
+    [2, 3, 2, 1, 2, 1],
+    [1, 1, 1, 3, 2, 3],
+    [1, 3, 1, 1, 2, 3],
+    [1, 3, 1, 3, 2, 1],
+    [1, 1, 2, 3, 1, 3],
+    [1, 3, 2, 1, 1, 3],
+    [1, 3, 2, 3, 1, 1],
+    [2, 1, 1, 3, 1, 3],
+    [2, 3, 1, 1, 1, 3],
+    [2, 3, 1, 3, 1, 1],
+    [1, 1, 2, 1, 3, 3],
+    [1, 1, 2, 3, 3, 1],
+    [1, 3, 2, 1, 3, 1],
+    [1, 1, 3, 1, 2, 3],
+    [1, 1, 3, 3, 2, 1],
+    [1, 3, 3, 1, 2, 1],
+    [3, 1, 3, 1, 2, 1],
+    [2, 1, 1, 3, 3, 1],
+    [2, 3, 1, 1, 3, 1],
+    [2, 1, 3, 1, 1, 3],
+    [2, 1, 3, 3, 1, 1],
+    [2, 1, 3, 1, 3, 1],
+    [3, 1, 1, 1, 2, 3],
+    [3, 1, 1, 3, 2, 1],
+    [3, 3, 1, 1, 2, 1],
+    [3, 1, 2, 1, 1, 3],
+    [3, 1, 2, 3, 1, 1],
+    [3, 3, 2, 1, 1, 1],
+    [3, 1, 4, 1, 1, 1],
+    [2, 2, 1, 4, 1, 1],
+    [4, 3, 1, 1, 1, 1],
+    [1, 1, 1, 2, 2, 4],
+    [1, 1, 1, 4, 2, 2],
+    [1, 2, 1, 1, 2, 4],
+    [1, 2, 1, 4, 2, 1],
+    [1, 4, 1, 1, 2, 2],
+    [1, 4, 1, 2, 2, 1],
+    [1, 1, 2, 2, 1, 4],
+    [1, 1, 2, 4, 1, 2],
+    [1, 2, 2, 1, 1, 4],
+    [1, 2, 2, 4, 1, 1],
+    [1, 4, 2, 1, 1, 2],
+    [1, 4, 2, 2, 1, 1],
+    [2, 4, 1, 2, 1, 1],
+    [2, 2, 1, 1, 1, 4],
+    [4, 1, 3, 1, 1, 1],
+    [2, 4, 1, 1, 1, 2],
+    [1, 3, 4, 1, 1, 1],
+    [1, 1, 1, 2, 4, 2],
+    [1, 2, 1, 1, 4, 2],
+    [1, 2, 1, 2, 4, 1],
+    [1, 1, 4, 2, 1, 2],
+    [1, 2, 4, 1, 1, 2],
+    [1, 2, 4, 2, 1, 1],
+    [4, 1, 1, 2, 1, 2],
+    [4, 2, 1, 1, 1, 2],
+    [4, 2, 1, 2, 1, 1],
+    [2, 1, 2, 1, 4, 1],
+    [2, 1, 4, 1, 2, 1],
+    [4, 1, 2, 1, 2, 1],
+    [1, 1, 1, 1, 4, 3],
+    [1, 1, 1, 3, 4, 1],
+    [1, 3, 1, 1, 4, 1],
+    [1, 1, 4, 1, 1, 3],
+    [1, 1, 4, 3, 1, 1],
+    [4, 1, 1, 1, 1, 3],
+    [4, 1, 1, 3, 1, 1],
+    [1, 1, 3, 1, 4, 1],
+    [1, 1, 4, 1, 3, 1],
+    [3, 1, 1, 1, 4, 1],
+    [4, 1, 1, 1, 3, 1],
+    [2, 1, 1, 4, 1, 2],
+    [2, 1, 1, 2, 1, 4],
+    [2, 1, 1, 2, 3, 2],
+];
+/// The stop pattern (with its final bar), 13 modules.
+const STOP: [u8; 7] = [2, 3, 3, 1, 1, 1, 2];
+const START_A: usize = 103;
+const START_C: usize = 105;
+
+/// Summed deviation, in modules, of `widths` from `pattern` once the widths are scaled
+/// to the pattern's module count.
+fn deviation(widths: &[f32], pattern: &[u8]) -> f32 {
+    let total: f32 = widths.iter().sum();
+    let modules: u8 = pattern.iter().sum();
+    let scale = f32::from(modules) / total;
+    widths
+        .iter()
+        .zip(pattern)
+        .map(|(w, &p)| (w * scale - f32::from(p)).abs())
+        .sum()
+}
+
+/// The symbol (0-105) closest to six element widths, if it is close enough.
+fn symbol(widths: &[f32]) -> Option<usize> {
+    let (best, error) = PATTERNS
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (i, deviation(widths, p)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    (error < MAX_SYMBOL_ERROR).then_some(best)
+}
+
+/// The first complete Code 128 symbol along a scan line's runs, read in either
+/// direction.
+fn decode_runs(runs: &[(bool, f32)]) -> Option<String> {
+    let widths: Vec<f32> = runs.iter().map(|r| r.1).collect();
+    let bar_first = |start: usize| runs[start].0;
+    if let Some(text) = (0..runs.len())
+        .filter(|&i| bar_first(i))
+        .find_map(|i| decode_from(&widths[i..]))
+    {
+        return Some(text);
+    }
+    let mut reversed = widths;
+    reversed.reverse();
+    let reversed_bar = |i: usize| runs[runs.len() - 1 - i].0;
+    (0..reversed.len())
+        .filter(|&i| reversed_bar(i))
+        .find_map(|i| decode_from(&reversed[i..]))
+}
+
+/// Decodes the symbol that starts with a start pattern at `widths[0]` (a bar).
+fn decode_from(widths: &[f32]) -> Option<String> {
+    let first = widths.get(..6)?;
+    let start = (START_A..=START_C).find(|&s| deviation(first, &PATTERNS[s]) < MAX_SYMBOL_ERROR)?;
+    let mut values = Vec::new();
+    let mut at = 6;
+    loop {
+        let next = widths.get(at..at + 7)?;
+        // The stop pattern is followed by a quiet zone (or the line's end), which tells
+        // it from a data symbol and the element after it.
+        let module = next.iter().sum::<f32>() / 13.0;
+        let quiet = widths
+            .get(at + 7)
+            .is_none_or(|&w| w >= QUIET_MODULES * module);
+        if quiet && deviation(next, &STOP) < MAX_SYMBOL_ERROR {
+            break;
+        }
+        let value = symbol(&next[..6]).filter(|&v| v < START_A)?;
+        values.push(value);
+        at += 6;
+    }
+    let (&check, data) = values.split_last()?;
+    if data.is_empty() {
+        return None;
+    }
+    let sum = data
+        .iter()
+        .enumerate()
+        .fold(start, |acc, (i, &v)| (acc + (i + 1) * v) % 103);
+    (sum == check).then(|| text(start, data)).flatten()
+}
+
+/// The code sets of Code 128.
+#[derive(Clone, Copy, PartialEq)]
+enum Set {
+    A,
+    B,
+    C,
+}
+
+/// The text of the data symbols under the code set `start` selects. Function characters
+/// (FNC1-4) carry no text; FNC1 after the first position is the GS1 separator (0x1D).
+fn text(start: usize, data: &[usize]) -> Option<String> {
+    let mut set = match start {
+        START_A => Set::A,
+        START_C => Set::C,
+        _ => Set::B,
+    };
+    let mut shift = false;
+    let mut out = String::new();
+    for (i, &v) in data.iter().enumerate() {
+        let current = if shift {
+            if set == Set::A { Set::B } else { Set::A }
+        } else {
+            set
+        };
+        shift = false;
+        match (current, v) {
+            (Set::C, 0..=99) => {
+                out.push(char::from(b'0' + (v / 10) as u8));
+                out.push(char::from(b'0' + (v % 10) as u8));
+            }
+            (Set::A, 0..=63) | (Set::B, 0..=95) => out.push(char::from(32 + v as u8)),
+            (Set::A, 64..=95) => out.push(char::from(v as u8 - 64)),
+            (Set::A | Set::B, 98) => shift = true,
+            (Set::A | Set::B, 99) => set = Set::C,
+            (Set::A | Set::C, 100) => set = Set::B,
+            (Set::B | Set::C, 101) => set = Set::A,
+            (_, 102) if i > 0 => out.push('\u{1d}'),
+            // FNC1 first (a GS1-128 marker), FNC2, FNC3, FNC4.
+            (_, 96 | 97 | 102) | (Set::A, 101) | (Set::B, 100) => {}
+            _ => return None,
+        }
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bars of a Code 128 symbol as `barcoders` encodes them (one entry per module),
+    /// with quiet zones, drawn `module_px` wide and `height` tall.
+    fn draw(modules: &[u8], module_px: u32, height: u32) -> GrayImage {
+        let quiet = 10;
+        let width = (modules.len() as u32 + 2 * quiet) * module_px;
+        GrayImage::from_fn(width, height, |x, _| {
+            let m = (x / module_px) as usize;
+            let dark = m >= quiet as usize && modules.get(m - quiet as usize) == Some(&1);
+            image::Luma([if dark { 20 } else { 235 }])
+        })
+    }
+
+    fn encode(text: &str) -> Vec<u8> {
+        barcoders::sym::code128::Code128::new(text)
+            .expect("encodable")
+            .encode()
+    }
+
+    #[test]
+    fn every_printable_ascii_character_reads_back_from_set_b() {
+        let all: String = (32u8..127).map(char::from).collect();
+        for chunk in all.as_bytes().chunks(12) {
+            let text = std::str::from_utf8(chunk).unwrap();
+            let image = draw(&encode(&format!("\u{0181}{text}")), 2, 20);
+            assert_eq!(
+                read(&image),
+                [Code {
+                    kind: CodeKind::Code128,
+                    text: text.into()
+                }],
+                "{text:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn digits_read_back_from_set_c_and_control_characters_from_set_a() {
+        let image = draw(&encode("\u{0106}0123456789998877"), 3, 20);
+        assert_eq!(read(&image)[0].text, "0123456789998877");
+        let image = draw(&encode("\u{00C0}AB\u{0106}1234\u{0181}xy"), 2, 20);
+        assert_eq!(read(&image)[0].text, "AB1234xy");
+    }
+
+    #[test]
+    fn a_code_reads_right_to_left_and_turned() {
+        let image = draw(&encode("\u{0181}PKG-0001"), 3, 120);
+        let flipped = image::imageops::rotate180(&image);
+        assert_eq!(read(&flipped)[0].text, "PKG-0001");
+        let turned = image::imageops::rotate90(&image);
+        assert_eq!(read(&turned)[0].text, "PKG-0001");
+    }
+
+    #[test]
+    fn a_wrong_check_symbol_or_a_missing_stop_reads_nothing() {
+        let mut modules = encode("\u{0181}PKG-0001");
+        // The check symbol is the 11 modules before the 13 of the stop pattern: swap it
+        // for the pattern of another value.
+        let check = modules.len() - 13 - 11;
+        let other: Vec<u8> = PATTERNS[8]
+            .iter()
+            .enumerate()
+            .flat_map(|(i, &w)| std::iter::repeat_n(u8::from(i % 2 == 0), usize::from(w)))
+            .collect();
+        let original = modules[check..check + 11].to_vec();
+        assert_ne!(original, other, "pick another value");
+        modules[check..check + 11].copy_from_slice(&other);
+        assert_eq!(read(&draw(&modules, 2, 20)), []);
+        let mut cut = encode("\u{0181}PKG-0001");
+        cut.truncate(cut.len() - 13);
+        assert_eq!(read(&draw(&cut, 2, 20)), []);
+    }
+
+    #[test]
+    fn a_flat_image_and_noise_read_nothing() {
+        assert_eq!(
+            read(&GrayImage::from_pixel(200, 100, image::Luma([128]))),
+            []
+        );
+        let mut state = 12345u32;
+        let noise = GrayImage::from_fn(300, 200, |_, _| {
+            state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
+            image::Luma([(state >> 24) as u8])
+        });
+        assert_eq!(read(&noise), []);
+    }
+
+    /// The gray image camera `index` of `scene` sees at 1920x1080.
+    fn photograph(scene: &rgbd::Scene, index: usize) -> GrayImage {
+        use rgbd::Camera as _;
+        let cameras = rgbd::SyntheticCamera::all(scene).expect("scene");
+        let camera = &cameras[index];
+        camera
+            .set_color_settings(rgbd::ColorSettings {
+                format: rgbd::ColorFormat::Rgb8,
+                fps: 30,
+                width: 1920,
+                height: 1080,
+            })
+            .expect("1920x1080 is a D415 color mode");
+        let frame = camera.render_color(1);
+        let rgb = image::RgbImage::from_raw(frame.width, frame.height, frame.data).unwrap();
+        image::DynamicImage::from(rgb).to_luma8()
+    }
+
+    #[test]
+    fn both_demo_cameras_read_the_qr_label_of_the_parcel() {
+        let scene = rgbd::Scene::default_demo();
+        for index in 0..scene.cameras.len() {
+            assert_eq!(
+                read(&photograph(&scene, index)),
+                [Code {
+                    kind: CodeKind::Qr,
+                    text: "PKG-0001".into()
+                }],
+                "camera {index}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_code128_label_on_a_turned_parcel_reads_and_a_bare_parcel_reads_nothing() {
+        let mut scene = rgbd::Scene::default_single();
+        let parcel = &mut scene.boxes[0];
+        parcel.yaw_deg = 35.0;
+        parcel.label = Some(rgbd::scene::Label {
+            kind: rgbd::scene::LabelKind::Code128,
+            text: "1Z999AA10123456784".into(),
+            size: 0.25,
+        });
+        assert_eq!(
+            read(&photograph(&scene, 0)),
+            [Code {
+                kind: CodeKind::Code128,
+                text: "1Z999AA10123456784".into()
+            }]
+        );
+        scene.boxes[0].label = None;
+        assert_eq!(read(&photograph(&scene, 0)), []);
+    }
+}
