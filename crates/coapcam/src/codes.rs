@@ -103,22 +103,30 @@ pub(crate) async fn photograph(
     Ok((png, codes))
 }
 
-/// Reads the codes each camera (server, serial) sees in a new color image; each code
-/// once, with the cameras that read it.
+/// Reads the codes each camera (server, serial) sees in a new color image, all cameras
+/// at once; each code once, with the cameras that read it.
 pub(crate) async fn read_cameras(
     client: &CamClient,
     cameras: &[(SocketAddr, String)],
 ) -> anyhow::Result<Vec<Seen>> {
+    let mut tasks = tokio::task::JoinSet::new();
+    for (server, serial) in cameras.iter().cloned() {
+        let one = CamClient::unicast(client, server);
+        tasks.spawn(async move { photograph(&one, &serial).await.map(|(_, c)| (serial, c)) });
+    }
     let mut seen: BTreeMap<Code, Vec<String>> = BTreeMap::new();
-    for (server, serial) in cameras {
-        let one = CamClient::unicast(client, *server);
-        for code in photograph(&one, serial).await?.1 {
+    while let Some(done) = tasks.join_next().await {
+        let (serial, codes) = done.context("a code reading task failed")??;
+        for code in codes {
             seen.entry(code).or_default().push(serial.clone());
         }
     }
     Ok(seen
         .into_iter()
-        .map(|(code, cameras)| Seen { code, cameras })
+        .map(|(code, mut cameras)| {
+            cameras.sort();
+            Seen { code, cameras }
+        })
         .collect())
 }
 
@@ -149,7 +157,7 @@ fn read_qr(image: &GrayImage, found: &mut BTreeSet<Code>) {
 /// one is still crossed whole when its bars are at least a fifth as tall as it is long.
 const SCAN_ANGLES: usize = 8;
 /// Distance between parallel scan lines, pixels.
-const SCAN_SPACING_PX: f32 = 3.0;
+const SCAN_SPACING_PX: f32 = 6.0;
 /// Half width of the window that sets a sample's threshold, samples.
 const THRESHOLD_HALF_WINDOW: usize = 16;
 /// Smallest difference between the darkest and the lightest gray level (0-255) in that
@@ -161,25 +169,42 @@ const QUIET_MODULES: f32 = 5.0;
 const MAX_SYMBOL_ERROR: f32 = 1.6;
 
 fn read_code128(image: &GrayImage, found: &mut BTreeSet<Code>) {
-    let (w, h) = (image.width() as f32, image.height() as f32);
-    let half_diagonal = 0.5 * w.hypot(h);
-    let (cx, cy) = (0.5 * w, 0.5 * h);
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    if w < 2 || h < 2 {
+        return;
+    }
+    let pixels = image.as_raw();
+    // Samples stay inside [0, w - 1) x [0, h - 1), where bilinear has four neighbours.
+    let (x_max, y_max) = ((w - 1) as f32, (h - 1) as f32);
+    let half_diagonal = 0.5 * x_max.hypot(y_max);
+    let (cx, cy) = (0.5 * x_max, 0.5 * y_max);
     let mut samples = Vec::new();
     for a in 0..SCAN_ANGLES {
         let angle = std::f32::consts::PI * a as f32 / SCAN_ANGLES as f32;
         let (dx, dy) = (angle.cos(), angle.sin());
         let mut offset = -half_diagonal;
         while offset <= half_diagonal {
-            // The line through the centre's offset point, along (dx, dy).
+            // The line through the centre's offset point, along (dx, dy), clipped to
+            // the image.
             let (ox, oy) = (cx - dy * offset, cy + dx * offset);
+            let (mut from, mut to) = (f32::NEG_INFINITY, f32::INFINITY);
+            for (o, d, max) in [(ox, dx, x_max), (oy, dy, y_max)] {
+                if d.abs() < 1e-6 {
+                    if !(0.0..max).contains(&o) {
+                        (from, to) = (1.0, 0.0);
+                    }
+                } else {
+                    let (t0, t1) = ((0.0 - o) / d, (max - o) / d);
+                    from = from.max(t0.min(t1));
+                    to = to.min(t0.max(t1));
+                }
+            }
             samples.clear();
-            let mut t = -half_diagonal;
-            while t <= half_diagonal {
+            let mut t = from.ceil();
+            while t < to {
                 let (x, y) = (ox + dx * t, oy + dy * t);
-                if x >= 0.0 && y >= 0.0 && x < w - 1.0 && y < h - 1.0 {
-                    samples.push(bilinear(image, x, y));
-                } else if !samples.is_empty() {
-                    break;
+                if x >= 0.0 && y >= 0.0 && x < x_max && y < y_max {
+                    samples.push(bilinear(pixels, w, x, y));
                 }
                 t += 1.0;
             }
@@ -195,13 +220,16 @@ fn read_code128(image: &GrayImage, found: &mut BTreeSet<Code>) {
     }
 }
 
-fn bilinear(image: &GrayImage, x: f32, y: f32) -> f32 {
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let (x0, y0) = (x0 as u32, y0 as u32);
-    let p = |x, y| f32::from(image.get_pixel(x, y).0[0]);
-    let top = p(x0, y0) * (1.0 - fx) + p(x0 + 1, y0) * fx;
-    let bottom = p(x0, y0 + 1) * (1.0 - fx) + p(x0 + 1, y0 + 1) * fx;
+/// The gray level at (`x`, `y`), both non-negative and at least one pixel inside the
+/// last row and column, interpolated between the four pixels around it.
+fn bilinear(pixels: &[u8], width: usize, x: f32, y: f32) -> f32 {
+    // Truncation is the floor for the non-negative coordinates here.
+    let (x0, y0) = (x as usize, y as usize);
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let at = y0 * width + x0;
+    let p = |i: usize| f32::from(pixels[i]);
+    let top = p(at) * (1.0 - fx) + p(at + 1) * fx;
+    let bottom = p(at + width) * (1.0 - fx) + p(at + width + 1) * fx;
     top * (1.0 - fy) + bottom * fy
 }
 

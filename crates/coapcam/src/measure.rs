@@ -330,19 +330,28 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
     };
     let m = measure_once(&client, &source, &args.dimension.config()).await?;
     let codes = match args.codes {
-        true => Some(crate::codes::read_cameras(&client, &m.grabbed.cameras).await?),
+        true => {
+            let started = Instant::now();
+            let codes = crate::codes::read_cameras(&client, &m.grabbed.cameras).await?;
+            Some((codes, started.elapsed()))
+        }
         false => None,
     };
     if args.json {
         let mut json = m.to_json();
-        if let Some(codes) = &codes {
+        if let Some((codes, took)) = &codes {
             json["codes"] = codes.iter().map(crate::codes::Seen::to_json).collect();
+            json["codes_ms"] = ((took.as_secs_f64() * 1e4).round() / 10.0).into();
         }
         println!("{json}");
     } else {
         println!("{}", m.to_text());
-        if let Some(codes) = &codes {
-            println!("codes: {}", crate::codes::describe(codes));
+        if let Some((codes, took)) = &codes {
+            println!(
+                "codes: {} (grabbed and read in {:.0} ms)",
+                crate::codes::describe(codes),
+                took.as_secs_f64() * 1e3
+            );
         }
     }
     if let Some(path) = &args.annotate {

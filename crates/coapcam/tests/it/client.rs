@@ -301,7 +301,9 @@ fn measure_finds_the_default_scenes_box() {
     assert!(text.starts_with("length "), "{text}");
     assert!(text.contains(SN), "{text}");
     assert!(
-        text.contains(&format!("codes: qr \"PKG-0001\" ({SN})")),
+        text.contains(&format!(
+            "codes: qr \"PKG-0001\" ({SN}) (grabbed and read in "
+        )),
         "{text}"
     );
 
@@ -322,6 +324,7 @@ fn measure_finds_the_default_scenes_box() {
         m["codes"],
         serde_json::json!([{ "kind": "qr", "text": "PKG-0001", "cameras": [SN] }])
     );
+    assert!(m["codes_ms"].as_f64().is_some(), "{m}");
     let cut = m["bytes"].as_u64().expect("bytes");
     assert!(
         cut * 3 < whole,

@@ -45,6 +45,16 @@ fn the_design_example_parses() {
 }
 
 #[test]
+fn the_committed_scene_files_load_and_the_demo_file_is_the_built_in_demo() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let demo = Scene::load(&dir.join("demo.toml")).expect("scenes/demo.toml");
+    assert_eq!(demo, Scene::default_demo());
+    let code128 = Scene::load(&dir.join("code128.toml")).expect("scenes/code128.toml");
+    let label = code128.boxes[0].label.as_ref().expect("a label");
+    assert_eq!(label.kind, LabelKind::Code128);
+}
+
+#[test]
 fn the_built_in_scenes_are_valid() {
     let single = Scene::default_single();
     single.validate().unwrap();
