@@ -7,7 +7,6 @@ use std::fmt;
 use std::net::SocketAddr;
 
 use anyhow::Context as _;
-use bytes::Bytes;
 use coap::ContentFormat;
 use image::GrayImage;
 
@@ -79,28 +78,20 @@ pub(crate) fn describe(seen: &[Seen]) -> String {
     each.join(", ")
 }
 
-/// Grabs a new PNG color image of camera `serial` and reads the codes in it; returns the
-/// PNG as received, too.
-pub(crate) async fn photograph(
-    client: &CamClient,
-    serial: &str,
-) -> anyhow::Result<(Bytes, Vec<Code>)> {
+/// Grabs a new PNG color image of camera `serial` and reads the codes in it.
+async fn read_camera(client: &CamClient, serial: &str) -> anyhow::Result<Vec<Code>> {
     let png = client
         .grab(serial, Stream::Color, Some(ContentFormat::IMAGE_PNG))
         .await?
         .payload;
-    let codes = tokio::task::spawn_blocking({
-        let png = png.clone();
-        move || -> anyhow::Result<Vec<Code>> {
-            let image = image::load_from_memory_with_format(&png, image::ImageFormat::Png)
-                .context("decoding the PNG color image")?;
-            Ok(read(&image.to_luma8()))
-        }
+    tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<Code>> {
+        let image = image::load_from_memory_with_format(&png, image::ImageFormat::Png)
+            .context("decoding the PNG color image")?;
+        Ok(read(&image.to_luma8()))
     })
     .await
     .context("the code reading task failed")?
-    .with_context(|| format!("reading codes from camera {serial}"))?;
-    Ok((png, codes))
+    .with_context(|| format!("reading codes from camera {serial}"))
 }
 
 /// Reads the codes each camera (server, serial) sees in a new color image, all cameras
@@ -112,7 +103,7 @@ pub(crate) async fn read_cameras(
     let mut tasks = tokio::task::JoinSet::new();
     for (server, serial) in cameras.iter().cloned() {
         let one = CamClient::unicast(client, server);
-        tasks.spawn(async move { photograph(&one, &serial).await.map(|(_, c)| (serial, c)) });
+        tasks.spawn(async move { read_camera(&one, &serial).await.map(|c| (serial, c)) });
     }
     let mut seen: BTreeMap<Code, Vec<String>> = BTreeMap::new();
     while let Some(done) = tasks.join_next().await {

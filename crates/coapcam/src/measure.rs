@@ -329,13 +329,12 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
         (None, None) => bail!("give --server URI or --group MCAST_ADDR"),
     };
     let m = measure_once(&client, &source, &args.dimension.config()).await?;
-    let codes = match args.codes {
-        true => {
-            let started = Instant::now();
-            let codes = crate::codes::read_cameras(&client, &m.grabbed.cameras).await?;
-            Some((codes, started.elapsed()))
-        }
-        false => None,
+    let codes = if args.codes {
+        let started = Instant::now();
+        let codes = crate::codes::read_cameras(&client, &m.grabbed.cameras).await?;
+        Some((codes, started.elapsed()))
+    } else {
+        None
     };
     if args.json {
         let mut json = m.to_json();
