@@ -63,7 +63,7 @@ pub(crate) struct MeasureArgs {
     json: bool,
     /// Also read the QR and Code 128 codes on the parcel from a new color image of each
     /// camera (`codes` in the JSON). With --prepare the color stream first becomes
-    /// 1920x1080, where a code needs about half the size it needs at 1280x720.
+    /// 1920x1080, where a code may be a third smaller than at 1280x720.
     #[arg(long)]
     codes: bool,
     /// Draw the measured box and its dimensions onto a new color image of the first
