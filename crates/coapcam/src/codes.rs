@@ -124,7 +124,20 @@ pub(crate) async fn read_cameras(
 /// Every code found in `image`, each once, in order of kind and text.
 pub(crate) fn read(image: &GrayImage) -> Vec<Code> {
     let mut found = BTreeSet::new();
-    read_qr(image, &mut found);
+    if image.width() == 0 || image.height() == 0 {
+        return Vec::new();
+    }
+    // rqrr asserts on some grids it cannot sample (its issue #54); a code it cannot read
+    // must not cost the Code 128 reads or the other cameras' codes.
+    let qr = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let mut qr = BTreeSet::new();
+        read_qr(image, &mut qr);
+        qr
+    }));
+    match qr {
+        Ok(qr) => found.extend(qr),
+        Err(_) => tracing::warn!("the QR reader failed on this image; QR codes skipped"),
+    }
     read_code128(image, &mut found);
     found.into_iter().collect()
 }
@@ -173,8 +186,10 @@ fn read_code128(image: &GrayImage, found: &mut BTreeSet<Code>) {
     for a in 0..SCAN_ANGLES {
         let angle = std::f32::consts::PI * a as f32 / SCAN_ANGLES as f32;
         let (dx, dy) = (angle.cos(), angle.sin());
-        let mut offset = -half_diagonal;
-        while offset <= half_diagonal {
+        // Positions count in whole steps: an f32 that grows by 1 stops growing at 2^24.
+        let lines = (2.0 * half_diagonal / SCAN_SPACING_PX) as u32;
+        for line in 0..=lines {
+            let offset = line as f32 * SCAN_SPACING_PX - half_diagonal;
             // The line through the centre's offset point, along (dx, dy), clipped to
             // the image.
             let (ox, oy) = (cx - dy * offset, cy + dx * offset);
@@ -191,13 +206,18 @@ fn read_code128(image: &GrayImage, found: &mut BTreeSet<Code>) {
                 }
             }
             samples.clear();
-            let mut t = from.ceil();
-            while t < to {
+            let first = from.ceil();
+            let steps = if to > first {
+                (to - first).ceil() as u32
+            } else {
+                0
+            };
+            for step in 0..steps {
+                let t = first + step as f32;
                 let (x, y) = (ox + dx * t, oy + dy * t);
                 if x >= 0.0 && y >= 0.0 && x < x_max && y < y_max {
                     samples.push(bilinear(pixels, w, x, y));
                 }
-                t += 1.0;
             }
             let runs = runs(&samples);
             if let Some(text) = decode_runs(&runs) {
@@ -206,7 +226,6 @@ fn read_code128(image: &GrayImage, found: &mut BTreeSet<Code>) {
                     text,
                 });
             }
-            offset += SCAN_SPACING_PX;
         }
     }
 }
@@ -452,9 +471,10 @@ fn decode_from(widths: &[f32]) -> Option<String> {
         // The stop pattern is followed by a quiet zone (or the line's end), which tells
         // it from a data symbol and the element after it.
         let module = next.iter().sum::<f32>() / 13.0;
-        let quiet = widths
-            .get(at + 7)
-            .is_none_or(|&w| w >= QUIET_MODULES * module);
+        let quiet = match widths.get(at + 7) {
+            Some(&w) => w >= QUIET_MODULES * module || at + 8 == widths.len(),
+            None => true,
+        };
         if quiet && deviation(next, &STOP) < MAX_SYMBOL_ERROR {
             break;
         }
@@ -481,8 +501,10 @@ enum Set {
     C,
 }
 
-/// The text of the data symbols under the code set `start` selects. Function characters
-/// (FNC1-4) carry no text; FNC1 after the first position is the GS1 separator (0x1D).
+/// The text of the data symbols under the code set `start` selects. FNC1 first marks
+/// GS1-128 and carries no text, later it is the GS1 separator (0x1D); FNC2 and FNC3 carry
+/// no text; FNC4 adds 128 to the next character (Latin-1), two in a row to every
+/// character until the next two.
 fn text(start: usize, data: &[usize]) -> Option<String> {
     let mut set = match start {
         START_A => Set::A,
@@ -490,6 +512,7 @@ fn text(start: usize, data: &[usize]) -> Option<String> {
         _ => Set::B,
     };
     let mut shift = false;
+    let (mut fnc4, mut fnc4_latched) = (false, false);
     let mut out = String::new();
     for (i, &v) in data.iter().enumerate() {
         let current = if shift {
@@ -498,22 +521,47 @@ fn text(start: usize, data: &[usize]) -> Option<String> {
             set
         };
         shift = false;
-        match (current, v) {
+        let character = match (current, v) {
             (Set::C, 0..=99) => {
                 out.push(char::from(b'0' + (v / 10) as u8));
                 out.push(char::from(b'0' + (v % 10) as u8));
+                continue;
             }
-            (Set::A, 0..=63) | (Set::B, 0..=95) => out.push(char::from(32 + v as u8)),
-            (Set::A, 64..=95) => out.push(char::from(v as u8 - 64)),
-            (Set::A | Set::B, 98) => shift = true,
-            (Set::A | Set::B, 99) => set = Set::C,
-            (Set::A | Set::C, 100) => set = Set::B,
-            (Set::B | Set::C, 101) => set = Set::A,
-            (_, 102) if i > 0 => out.push('\u{1d}'),
-            // FNC1 first (a GS1-128 marker), FNC2, FNC3, FNC4.
-            (_, 96 | 97 | 102) | (Set::A, 101) | (Set::B, 100) => {}
+            (Set::A, 0..=63) | (Set::B, 0..=95) => 32 + v as u8,
+            (Set::A, 64..=95) => v as u8 - 64,
+            (Set::A, 101) | (Set::B, 100) => {
+                if fnc4 {
+                    fnc4_latched = !fnc4_latched;
+                }
+                fnc4 = !fnc4;
+                continue;
+            }
+            (Set::A | Set::B, 98) => {
+                shift = true;
+                continue;
+            }
+            (Set::A | Set::B, 99) => {
+                set = Set::C;
+                continue;
+            }
+            (Set::A | Set::C, 100) => {
+                set = Set::B;
+                continue;
+            }
+            (Set::B | Set::C, 101) => {
+                set = Set::A;
+                continue;
+            }
+            (_, 102) if i > 0 => {
+                out.push('\u{1d}');
+                continue;
+            }
+            (_, 96 | 97 | 102) => continue,
             _ => return None,
-        }
+        };
+        let high = if fnc4 != fnc4_latched { 128 } else { 0 };
+        fnc4 = false;
+        out.push(char::from(character + high));
     }
     Some(out)
 }
@@ -606,6 +654,60 @@ mod tests {
             image::Luma([(state >> 24) as u8])
         });
         assert_eq!(read(&noise), []);
+    }
+
+    /// The modules of start symbol `start`, the data `values`, their check symbol and
+    /// the stop pattern.
+    fn symbol_modules(start: usize, values: &[usize]) -> Vec<u8> {
+        let check = values
+            .iter()
+            .enumerate()
+            .fold(start, |acc, (i, &v)| (acc + (i + 1) * v) % 103);
+        let mut widths: Vec<u8> = Vec::new();
+        for v in std::iter::once(start)
+            .chain(values.iter().copied())
+            .chain([check])
+        {
+            widths.extend(PATTERNS[v]);
+        }
+        widths.extend(STOP);
+        widths
+            .iter()
+            .enumerate()
+            .flat_map(|(i, &w)| std::iter::repeat_n(u8::from(i % 2 == 0), usize::from(w)))
+            .collect()
+    }
+
+    #[test]
+    fn fnc4_extends_the_next_character_and_two_extend_until_two_more() {
+        const B: usize = 104;
+        const FNC4: usize = 100;
+        let (a, b) = (33, 34);
+        let read_text = |values: &[usize]| read(&draw(&symbol_modules(B, values), 2, 20));
+        assert_eq!(read_text(&[FNC4, a, b])[0].text, "\u{c1}B");
+        assert_eq!(
+            read_text(&[FNC4, FNC4, a, b, FNC4, a, FNC4, FNC4, b])[0].text,
+            "\u{c1}\u{c2}AB"
+        );
+    }
+
+    #[test]
+    fn a_stop_pattern_at_the_edge_of_the_image_still_ends_the_code() {
+        let modules = encode("\u{0181}PKG-0001");
+        for gap in 0..=6 {
+            let drawn = draw(&modules, 2, 20);
+            // Cut the right quiet zone down to `gap` modules.
+            let width = drawn.width() - (10 - gap) * 2;
+            let cut = image::imageops::crop_imm(&drawn, 0, 0, width, 20).to_image();
+            assert_eq!(read(&cut).len(), 1, "{gap} modules after the stop");
+        }
+    }
+
+    #[test]
+    fn an_empty_image_reads_nothing() {
+        assert_eq!(read(&GrayImage::new(0, 5)), []);
+        assert_eq!(read(&GrayImage::new(5, 0)), []);
+        assert_eq!(read(&GrayImage::new(1, 1)), []);
     }
 
     /// The gray image camera `index` of `scene` sees at 1920x1080.
