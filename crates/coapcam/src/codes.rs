@@ -31,6 +31,16 @@ impl CodeKind {
     }
 }
 
+impl From<rgbd::scene::LabelKind> for CodeKind {
+    /// The symbology of a synthetic scene's label.
+    fn from(kind: rgbd::scene::LabelKind) -> Self {
+        match kind {
+            rgbd::scene::LabelKind::Qr => Self::Qr,
+            rgbd::scene::LabelKind::Code128 => Self::Code128,
+        }
+    }
+}
+
 /// A code read from an image.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub(crate) struct Code {
@@ -444,20 +454,17 @@ fn symbol(widths: &[f32]) -> Option<usize> {
 /// The first complete Code 128 symbol along a scan line's runs, read in either
 /// direction.
 fn decode_runs(runs: &[(bool, f32)]) -> Option<String> {
-    let widths: Vec<f32> = runs.iter().map(|r| r.1).collect();
-    let bar_first = |start: usize| runs[start].0;
-    if let Some(text) = (0..runs.len())
-        .filter(|&i| bar_first(i))
-        .find_map(|i| decode_from(&widths[i..]))
-    {
-        return Some(text);
-    }
-    let mut reversed = widths;
-    reversed.reverse();
-    let reversed_bar = |i: usize| runs[runs.len() - 1 - i].0;
-    (0..reversed.len())
-        .filter(|&i| reversed_bar(i))
-        .find_map(|i| decode_from(&reversed[i..]))
+    [false, true].into_iter().find_map(|backwards| {
+        let ordered: Vec<(bool, f32)> = if backwards {
+            runs.iter().rev().copied().collect()
+        } else {
+            runs.to_vec()
+        };
+        let widths: Vec<f32> = ordered.iter().map(|r| r.1).collect();
+        (0..ordered.len())
+            .filter(|&i| ordered[i].0)
+            .find_map(|i| decode_from(&widths[i..]))
+    })
 }
 
 /// Decodes the symbol that starts with a start pattern at `widths[0]` (a bar).

@@ -13,6 +13,7 @@ use geometry::{DimensionConfig, Dimensions};
 use rgbd::Scene;
 
 use crate::client::{CamClient, Stream};
+use crate::codes::Code;
 use crate::grab_cmd::save;
 use crate::measure::{self, Measurement, Source};
 use crate::packet;
@@ -92,11 +93,11 @@ fn scene_codes(scene: &Scene) -> String {
         .iter()
         .filter_map(|b| b.label.as_ref())
         .map(|l| {
-            let kind = match l.kind {
-                rgbd::scene::LabelKind::Qr => crate::codes::CodeKind::Qr,
-                rgbd::scene::LabelKind::Code128 => crate::codes::CodeKind::Code128,
+            let code = Code {
+                kind: l.kind.into(),
+                text: l.text.clone(),
             };
-            format!("{} {:?}", kind.name(), l.text)
+            code.to_string()
         })
         .collect();
     if labels.is_empty() {
