@@ -31,14 +31,6 @@ TARGET=${CARGO_TARGET_DIR:-target}
 BIN=$TARGET/release/coapcam
 PINGPONG=$TARGET/release/examples/udp_pingpong
 
-# The server's resident code depends on the link order (crates/coapcam/build.rs); say how
-# much of it the binary still has (names carry rustc's hashes).
-order=crates/coapcam/link-order.txt
-if [ -f "$order" ]; then
-  have=$(nm --defined-only "$BIN" | awk '{print $3}' | sort | comm -12 - <(sort "$order") | wc -l)
-  echo "link order: $have of $(wc -l < "$order") functions found in the binary (scripts/link-order.sh renews the list)"
-fi
-
 work=$(mktemp -d)
 pids=()
 cleanup() { for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done; rm -rf "$work"; }
