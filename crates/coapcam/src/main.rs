@@ -1,25 +1,9 @@
-//! `coapcam`: RGB-D cameras as CoAP resources, and parcel measurement.
+//! The `coapcam` binary: the command enum and its dispatch. Each command's flags and
+//! `run` are in `cli/`; what they do is the `coapcam` library's.
 
 #![forbid(unsafe_code)]
 
-mod annotate;
-mod bench;
-mod cams;
-mod cbor;
-mod client;
-mod codes;
-mod demo;
-mod files;
-mod grab_cmd;
-mod group;
-mod measure;
-mod monitor;
-mod netem;
-mod packet;
-mod request;
-mod serve;
-mod transmission;
-mod view;
+mod cli;
 
 use std::process::ExitCode;
 
@@ -38,36 +22,36 @@ struct Cli {
 enum Command {
     /// GET a resource; the body goes to standard output or -o FILE. Exit status 0 only for
     /// a 2.xx response whose body arrived whole.
-    Get(Deferred<request::RequestArgs>),
+    Get(Deferred<cli::request::RequestArgs>),
     /// POST to a resource.
-    Post(Deferred<request::RequestArgs>),
+    Post(Deferred<cli::request::RequestArgs>),
     /// PUT a resource.
-    Put(Deferred<request::RequestArgs>),
+    Put(Deferred<cli::request::RequestArgs>),
     /// DELETE a resource.
-    Delete(Deferred<request::RequestArgs>),
+    Delete(Deferred<cli::request::RequestArgs>),
     /// List a server's resources (/.well-known/core), or every server in a multicast group.
-    Discover(Deferred<request::DiscoverArgs>),
+    Discover(Deferred<cli::request::DiscoverArgs>),
     /// Grab one new frame into a file (.png, .jpg, .ply or .bin), optionally with a picture
     /// for people (--view).
-    Grab(Deferred<grab_cmd::GrabArgs>),
+    Grab(Deferred<cli::grab::GrabArgs>),
     /// Measure the largest parcel below the cameras: length, width, height in millimetres.
-    Measure(Deferred<measure::MeasureArgs>),
+    Measure(Deferred<cli::measure::MeasureArgs>),
     /// Repeat a grab or a measurement every --interval seconds, or observe a resource;
     /// print each result and the statistics of the transfer times (count, min, median,
     /// max, mean, standard deviation, coefficient of variation: the thesis's Table 4.x).
-    Monitor(Deferred<monitor::MonitorArgs>),
+    Monitor(Deferred<cli::monitor::MonitorArgs>),
     /// The whole job on synthetic cameras: serve a two-camera scene in-process, discover,
     /// grab, measure, and write pictures, a cloud and the dimensions next to the scene's
     /// truth into ./coapcam-demo/.
-    Demo(Deferred<demo::DemoArgs>),
+    Demo(Deferred<cli::demo::DemoArgs>),
     /// Benchmarks: `bench accuracy` measures a built-in set of synthetic parcels end to
     /// end over CoAP and prints the errors.
-    Bench(Deferred<bench::BenchArgs>),
+    Bench(Deferred<cli::bench::BenchArgs>),
     /// Run the CoAP server.
-    Serve(Deferred<serve::ServeArgs>),
+    Serve(Deferred<cli::serve::ServeArgs>),
     /// Relay UDP between clients and a server over an emulated link (loss, delay, jitter,
     /// rate limit), and print the counters when it ends.
-    Netem(Deferred<netem::NetemArgs>),
+    Netem(Deferred<cli::netem::NetemArgs>),
 }
 
 /// A subcommand's arguments, built by clap only when that subcommand is the one given
@@ -142,25 +126,25 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         .context("starting the tokio runtime")?;
     match cli.command {
         Command::Get(Deferred(args)) => {
-            return runtime.block_on(request::run(coap::Code::GET, args));
+            return runtime.block_on(cli::request::run(coap::Code::GET, args));
         }
         Command::Post(Deferred(args)) => {
-            return runtime.block_on(request::run(coap::Code::POST, args));
+            return runtime.block_on(cli::request::run(coap::Code::POST, args));
         }
         Command::Put(Deferred(args)) => {
-            return runtime.block_on(request::run(coap::Code::PUT, args));
+            return runtime.block_on(cli::request::run(coap::Code::PUT, args));
         }
         Command::Delete(Deferred(args)) => {
-            return runtime.block_on(request::run(coap::Code::DELETE, args));
+            return runtime.block_on(cli::request::run(coap::Code::DELETE, args));
         }
-        Command::Discover(Deferred(args)) => return runtime.block_on(request::discover(args)),
-        Command::Grab(Deferred(args)) => return runtime.block_on(grab_cmd::run(args)),
-        Command::Measure(Deferred(args)) => return runtime.block_on(measure::run(args)),
-        Command::Bench(Deferred(args)) => return runtime.block_on(bench::run(args)),
-        Command::Monitor(Deferred(args)) => return runtime.block_on(monitor::run(args)),
-        Command::Demo(Deferred(args)) => return runtime.block_on(demo::run(args)),
+        Command::Discover(Deferred(args)) => return runtime.block_on(cli::request::discover(args)),
+        Command::Grab(Deferred(args)) => return runtime.block_on(cli::grab::run(args)),
+        Command::Measure(Deferred(args)) => return runtime.block_on(cli::measure::run(args)),
+        Command::Bench(Deferred(args)) => return runtime.block_on(cli::bench::run(args)),
+        Command::Monitor(Deferred(args)) => return runtime.block_on(cli::monitor::run(args)),
+        Command::Demo(Deferred(args)) => return runtime.block_on(cli::demo::run(args)),
         Command::Serve(Deferred(args)) => {
-            let served = runtime.block_on(serve::run(args));
+            let served = runtime.block_on(cli::serve::run(args));
             // A grab still waiting for its camera in a blocking thread must not hold up
             // the exit after SIGINT or SIGTERM.
             runtime.shutdown_timeout(std::time::Duration::from_secs(1));
@@ -168,35 +152,9 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         }
         Command::Netem(Deferred(args)) => {
             let json = args.json;
-            let counters = runtime.block_on(netem::run(args))?;
-            println!("{}", netem::report(&counters, json)?);
+            let counters = runtime.block_on(cli::netem::run(args))?;
+            println!("{}", cli::netem::report(&counters, json)?);
         }
     }
     Ok(true)
-}
-
-/// A directory of a unit test's own under the system's temporary directory, removed on
-/// drop.
-#[cfg(test)]
-pub(crate) struct ScratchDir(pub(crate) std::path::PathBuf);
-
-#[cfg(test)]
-impl ScratchDir {
-    pub(crate) fn new(tag: &str) -> Self {
-        let dir = std::env::temp_dir().join(format!("coapcam-unit-{tag}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("scratch directory");
-        Self(dir)
-    }
-
-    pub(crate) fn path(&self) -> &std::path::Path {
-        &self.0
-    }
-}
-
-#[cfg(test)]
-impl Drop for ScratchDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
 }

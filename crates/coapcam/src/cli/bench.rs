@@ -12,10 +12,10 @@ use rand_core::{RngCore as _, SeedableRng as _};
 use rgbd::scene::{Noise, SceneBox, SceneCamera};
 use rgbd::{Scene, Serial};
 
-use crate::client::CamClient;
-use crate::demo::{prepare_cameras, truth, yaw_difference};
-use crate::measure::{self, DimensionArgs, Source};
-use crate::serve::SceneServer;
+use super::DimensionArgs;
+use coapcam::client::CamClient;
+use coapcam::client::measure::{self, Source, prepare_cameras, truth, yaw_difference};
+use coapcam::server::SceneServer;
 
 /// Flags of `bench`.
 #[derive(Debug, Args)]

@@ -7,12 +7,11 @@ use std::time::Duration;
 use anyhow::{Context as _, bail};
 use clap::Args;
 use coap::{ContentFormat, Response};
-use image::{ImageFormat, RgbImage};
+use coapcam::client::CamClient;
+use coapcam::repr::{Stream, packet, raster};
+use coapcam::vision::picture::{self, save, sibling};
 
-use crate::client::{CamClient, Stream};
-use crate::packet::{self, DepthImage};
-use crate::transmission::TransmissionArgs;
-use crate::view;
+use super::TransmissionArgs;
 
 /// Flags of `grab`.
 #[derive(Debug, Args)]
@@ -44,54 +43,31 @@ pub(crate) struct GrabArgs {
     transmission: TransmissionArgs,
 }
 
-/// The representations `grab` writes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum FileKind {
-    Png,
-    Jpeg,
-    Ply,
-    Packet,
+/// The content format a file named `path` holds for `stream` (the extension decides, by
+/// the table of [`Stream::formats`]).
+fn file_format(path: &Path, stream: Stream) -> anyhow::Result<ContentFormat> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or_default();
+    stream.format_of_extension(ext).with_context(|| {
+        let all: Vec<String> = Stream::ALL
+            .iter()
+            .map(|s| format!("{} as {}", s.name(), s.extensions()))
+            .collect();
+        format!(
+            "{}: {} cannot be written as .{ext}: {}",
+            path.display(),
+            stream.name(),
+            all.join("; ")
+        )
+    })
 }
 
-impl FileKind {
-    fn of(path: &Path, stream: Stream) -> anyhow::Result<Self> {
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase)
-            .unwrap_or_default();
-        let kind = match ext.as_str() {
-            "png" => Self::Png,
-            "jpg" | "jpeg" => Self::Jpeg,
-            "ply" => Self::Ply,
-            "bin" => Self::Packet,
-            _ => bail!(
-                "{}: the extension must be .png, .jpg, .ply or .bin",
-                path.display()
-            ),
-        };
-        let fits = match stream {
-            Stream::Color => matches!(kind, Self::Png | Self::Jpeg | Self::Packet),
-            Stream::Depth => matches!(kind, Self::Png | Self::Packet),
-            Stream::Pointcloud => matches!(kind, Self::Ply | Self::Packet),
-        };
-        if !fits {
-            bail!(
-                "{} cannot be written as .{ext}: color as .png, .jpg or .bin; depth as .png or .bin; pointcloud as .ply or .bin",
-                stream.name()
-            );
-        }
-        Ok(kind)
-    }
-
-    fn accept(self) -> Option<ContentFormat> {
-        match self {
-            Self::Png => Some(ContentFormat::IMAGE_PNG),
-            Self::Jpeg => Some(ContentFormat::IMAGE_JPEG),
-            Self::Ply => Some(ContentFormat::PLY),
-            Self::Packet => None,
-        }
-    }
+/// The Accept option of a grab for a file in `cf`: none for the thesis packet, the
+/// resources' default.
+fn accept(cf: ContentFormat) -> Option<ContentFormat> {
+    (cf != ContentFormat::OCTET_STREAM).then_some(cf)
 }
 
 /// Runs `grab`.
@@ -99,9 +75,9 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<bool> {
     if args.all && args.stream != Stream::Pointcloud {
         bail!("--all is for point clouds: every camera's cloud merged");
     }
-    let kind = FileKind::of(&args.output, args.stream)?;
+    let kind = file_format(&args.output, args.stream)?;
     if let Some(v) = &args.view
-        && FileKind::of(v, Stream::Color).ok() != Some(FileKind::Png)
+        && file_format(v, Stream::Color).ok() != Some(ContentFormat::IMAGE_PNG)
     {
         bail!("--view writes PNG: give a .png file name");
     }
@@ -109,10 +85,10 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<bool> {
     let client =
         CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout).await?;
     let (sn, response) = if args.all {
-        (None, client.grab_all(kind.accept()).await?)
+        (None, client.grab_all(accept(kind)).await?)
     } else {
         let sn = client.one_camera(args.camera.as_deref()).await?;
-        let response = client.grab(&sn, args.stream, kind.accept()).await?;
+        let response = client.grab(&sn, args.stream, accept(kind)).await?;
         (Some(sn), response)
     };
     std::fs::write(&args.output, &response.payload)
@@ -136,20 +112,26 @@ async fn write_view(
     client: &CamClient,
     sn: Option<&str>,
     args: &GrabArgs,
-    kind: FileKind,
+    kind: ContentFormat,
     response: &Response,
     path: &Path,
 ) -> anyhow::Result<Vec<PathBuf>> {
     match args.stream {
         Stream::Color => {
             let image = match kind {
-                FileKind::Png | FileKind::Jpeg => image::load_from_memory(&response.payload)
-                    .context("decoding the color image")?
-                    .to_rgb8(),
-                FileKind::Packet | FileKind::Ply => {
+                ContentFormat::IMAGE_PNG | ContentFormat::IMAGE_JPEG => {
+                    image::load_from_memory(&response.payload)
+                        .context("decoding the color image")?
+                        .to_rgb8()
+                }
+                _ => {
                     let sn = sn.context("--all is for point clouds")?;
                     let settings = client.get_json(sn, "color-settings").await?;
-                    color_from_packet(&response.payload, &settings)?
+                    let format = settings
+                        .get("format")
+                        .and_then(|f| f.as_str())
+                        .context("the color-settings have no format")?;
+                    packet::color(&response.payload, format)?
                 }
             };
             save(&image, path)?;
@@ -157,18 +139,18 @@ async fn write_view(
         }
         Stream::Depth => {
             let depth = match kind {
-                FileKind::Png => depth_from_png(&response.payload)?,
+                ContentFormat::IMAGE_PNG => raster::depth_from_png(&response.payload)?,
                 _ => packet::depth(&response.payload).context("reading the depth packet")?,
             };
             let colored = sibling(path, "-color");
-            let (gray, colored_view) = view::depth_views(&depth);
+            let (gray, colored_view) = picture::depth_views(&depth);
             save(&gray, path)?;
             save(&colored_view, &colored)?;
             Ok(vec![path.to_owned(), colored])
         }
         Stream::Pointcloud => {
             let cloud = match kind {
-                FileKind::Ply => {
+                ContentFormat::PLY => {
                     geometry::decode_ply(&response.payload).context("reading the PLY cloud")?
                 }
                 _ => {
@@ -177,63 +159,8 @@ async fn write_view(
                         .cloud
                 }
             };
-            save(&view::top_view(&cloud), path)?;
+            save(&picture::top_view(&cloud), path)?;
             Ok(vec![path.to_owned()])
         }
     }
-}
-
-/// `dir/name-suffix.png` for `dir/name.png`.
-pub(crate) fn sibling(path: &Path, suffix: &str) -> PathBuf {
-    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("view");
-    path.with_file_name(format!("{stem}{suffix}.png"))
-}
-
-/// Saves a picture as PNG (quietly: callers say what they wrote where their output goes).
-pub(crate) fn save<P, C>(image: &image::ImageBuffer<P, C>, path: &Path) -> anyhow::Result<()>
-where
-    P: image::PixelWithColorType,
-    [P::Subpixel]: image::EncodableLayout,
-    C: std::ops::Deref<Target = [P::Subpixel]>,
-{
-    image
-        .save_with_format(path, ImageFormat::Png)
-        .with_context(|| format!("writing {}", path.display()))
-}
-
-/// A 16-bit grayscale PNG of raw depth units (the server's `image/png` depth).
-fn depth_from_png(png: &[u8]) -> anyhow::Result<DepthImage> {
-    let image = image::load_from_memory_with_format(png, ImageFormat::Png)
-        .context("decoding the depth PNG")?;
-    let image::DynamicImage::ImageLuma16(gray) = image else {
-        bail!("the depth PNG is not 16-bit grayscale");
-    };
-    Ok(DepthImage {
-        width: gray.width(),
-        height: gray.height(),
-        timestamp_s: 0,
-        depth_scale: 0.001,
-        values: gray.into_raw(),
-    })
-}
-
-/// A color packet in the format the camera's color-settings name.
-fn color_from_packet(payload: &[u8], settings: &serde_json::Value) -> anyhow::Result<RgbImage> {
-    let format = settings
-        .get("format")
-        .and_then(|f| f.as_str())
-        .context("the color-settings have no format")?;
-    if payload.len() < 10 || payload[0] != 1 {
-        bail!("not a color packet");
-    }
-    let width = u32::from(u16::from_be_bytes([payload[1], payload[2]]));
-    let height = u32::from(u16::from_be_bytes([payload[3], payload[4]]));
-    view::rgb_image(
-        &payload[10..],
-        width,
-        height,
-        usize::from(payload[5]),
-        format,
-    )
-    .map_err(|e| anyhow::anyhow!("the color packet: {e}"))
 }

@@ -1,10 +1,21 @@
-//! RFC 7252 §4.8 transmission parameters on the command line, shared by every command
-//! that speaks CoAP.
+//! The commands: one file per subcommand, with its clap flags and its `run`. The
+//! commands share only the flag groups of this file (transmission parameters, the
+//! measurement's thresholds); none imports another, and what they do is the library's.
+
+pub(crate) mod bench;
+pub(crate) mod demo;
+pub(crate) mod grab;
+pub(crate) mod measure;
+pub(crate) mod monitor;
+pub(crate) mod netem;
+pub(crate) mod request;
+pub(crate) mod serve;
 
 use std::time::Duration;
 
 use clap::Args;
 use coap::EndpointConfig;
+use geometry::DimensionConfig;
 
 /// Transmission parameters (RFC 7252 §4.8). The defaults are the RFC's; on a link whose
 /// round trip is known to be short (a LAN, loopback), a shorter ACK timeout recovers a
@@ -38,6 +49,27 @@ impl TransmissionArgs {
             max_retransmit: self.max_retransmit,
             nstart: self.nstart as usize,
             ..EndpointConfig::default()
+        }
+    }
+}
+
+/// Thresholds of the measurement.
+#[derive(Debug, Clone, Args)]
+pub(crate) struct DimensionArgs {
+    /// Points lower than this above the floor are floor, in millimetres.
+    #[arg(long, value_name = "MM", default_value_t = 10.0)]
+    min_height_mm: f32,
+    /// Points closer than this belong to one object, in millimetres.
+    #[arg(long, value_name = "MM", default_value_t = 20.0)]
+    cluster_mm: f32,
+}
+
+impl DimensionArgs {
+    pub(crate) fn config(&self) -> DimensionConfig {
+        DimensionConfig {
+            min_height_m: self.min_height_mm / 1e3,
+            cluster_radius_m: self.cluster_mm / 1e3,
+            ..DimensionConfig::default()
         }
     }
 }

@@ -13,9 +13,12 @@ use clap::Args;
 use coap::{Code, ContentFormat, OptionNumber, Response};
 use geometry::DimensionConfig;
 
-use crate::client::{CamClient, Stream};
-use crate::measure::{self, DimensionArgs, Measurement, Source};
-use crate::transmission::TransmissionArgs;
+use coapcam::client::CamClient;
+use coapcam::client::measure::{self, Measurement, Source};
+use coapcam::repr::Stream;
+
+use super::DimensionArgs;
+use super::TransmissionArgs;
 
 /// What `monitor` repeats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -542,7 +545,7 @@ async fn observe(
         previous = Instant::now();
         let response: Response = next.with_context(|| format!("observing {path}"))?;
         let observing = response.options.contains(OptionNumber::OBSERVE);
-        let outcome = crate::client::check(&format!("GET {path}"), response).map(|r| Success {
+        let outcome = coapcam::client::check(&format!("GET {path}"), response).map(|r| Success {
             bytes: r.payload.len(),
             time: elapsed,
             measurement: None,

@@ -12,8 +12,8 @@ use coap::link_format;
 use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{BodyPart, Client, Uri};
 
-use crate::client::{check_size, describe};
-use crate::transmission::TransmissionArgs;
+use super::TransmissionArgs;
+use coapcam::client::{check_size, describe};
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
 #[derive(Debug, Args)]

@@ -1,27 +1,18 @@
-//! `coapcam serve`: the CoAP server: the `/cams` tree of the cameras of a scene (the
-//! built-in synthetic one by default) or of librealsense recordings (`--bag`), and
-//! files with `--static DIR`.
+//! `coapcam serve`: the camera server (the library's [`Station`]) until SIGINT, SIGTERM or
+//! `--duration`.
 
 use std::net::{IpAddr, SocketAddr};
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::{Context as _, bail};
+use anyhow::Context as _;
 use clap::Args;
-use coap_net::{Router, Server, ServerConfig};
+use coapcam::server::{Cameras, RealSenseOptions, Station, StationConfig};
+use rgbd::Scene;
+use rgbd::backend::realsense::LibrarySearch;
 use tokio::signal::unix::{SignalKind, signal};
-use tokio::sync::mpsc;
-use tokio::task::JoinHandle;
-use tokio::time::{Instant, MissedTickBehavior};
 
-use rgbd::backend::playback::PlaybackCamera;
-use rgbd::{Camera as _, CameraHub, Scene, Serial, SyntheticCamera};
-
-use crate::cams::Cams;
-use crate::files::StaticFiles;
-use crate::group::Groups;
-use crate::transmission::TransmissionArgs;
+use super::TransmissionArgs;
 
 /// Flags of `serve`.
 #[derive(Debug, Args)]
@@ -87,9 +78,7 @@ pub(crate) struct ServeArgs {
     transmission: TransmissionArgs,
 }
 
-/// How often `--static` looks for new, changed and vanished files.
-const RESCAN: Duration = Duration::from_millis(200);
-
+/// Runs `serve` until a signal or `--duration`.
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let binds = if args.bind.is_empty() {
         vec![
@@ -99,34 +88,50 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     } else {
         args.bind.clone()
     };
-    let router = Router::new();
-    let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
-    let (membership_tx, mut membership_rx) = mpsc::unbounded_channel();
-    let groups = Groups::register(&router, membership_tx);
-    let files = match &args.static_dir {
-        Some(dir) => Some(StaticFiles::load(
-            dir,
-            &router,
-            args.writable,
-            changed_tx.clone(),
-        )?),
-        None => None,
-    };
     let cameras = if args.no_cameras {
         None
     } else {
-        Some(start_cameras(&args, &router, changed_tx.clone())?)
+        let scene = match &args.scene {
+            Some(path) => {
+                Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
+            }
+            None => Scene::default_single(),
+        };
+        Some(if args.realsense {
+            Cameras::RealSense(RealSenseOptions {
+                library: LibrarySearch {
+                    explicit: args.librealsense.clone(),
+                    preload: args.librealsense_preload.clone(),
+                },
+                streaming: args.realsense_streaming,
+                software: args.realsense_software.then_some(scene),
+            })
+        } else if !args.bag.is_empty() {
+            Cameras::Recordings(args.bag.clone())
+        } else {
+            Cameras::Scene(scene)
+        })
     };
-    let config = ServerConfig {
+    let station = Station::start(StationConfig {
+        binds,
+        cameras,
+        state_dir: args.state_dir.clone().unwrap_or_else(default_state_dir),
+        static_dir: args.static_dir.clone(),
+        writable: args.writable,
+        groups: args.group.clone(),
+        group_interface: args.group_interface,
         endpoint: args.transmission.endpoint_config(),
-        ..ServerConfig::default()
-    };
-    let server =
-        Server::bind(&binds, config, router).with_context(|| format!("binding {binds:?}"))?;
-    groups
-        .start(&server, &args.group, args.group_interface)
-        .await?;
-    let stop = async {
+    })
+    .await?;
+    // Both handlers are in place before the server announces itself: a signal sent as soon
+    // as "serving on" appears stops the server cleanly instead of killing it.
+    let mut terminate =
+        signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
+    let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
+    for a in station.local_addrs() {
+        eprintln!("coapcam: serving on {a}");
+    }
+    let duration = async {
         match args.duration {
             Some(s) => {
                 tokio::time::sleep(Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)).await
@@ -134,296 +139,16 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             None => std::future::pending().await,
         }
     };
-    tokio::pin!(stop);
-    // Both handlers are in place before the server announces itself: a signal sent as soon
-    // as "serving on" appears stops the server cleanly instead of killing it.
-    let mut terminate =
-        signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
-    let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
-    for a in server.local_addrs() {
-        eprintln!("coapcam: serving on {a}");
-    }
-    // The files were scanned at load. A rescan hashes new and changed files, as long as
-    // that takes: it runs on the blocking pool, one at a time, so requests, notifications
-    // and signals are not held up behind it.
-    let mut tick = tokio::time::interval_at(Instant::now() + RESCAN, RESCAN);
-    tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
-    let mut scan: Option<JoinHandle<Vec<String>>> = None;
-    // The camera tree lives as long as the server.
-    let _cameras = cameras;
-    loop {
-        tokio::select! {
-            _ = interrupt.recv() => break,
-            _ = terminate.recv() => break,
-            () = &mut stop => break,
-            Some(path) = changed_rx.recv() => {
-                server.notify(&path).await;
+    station
+        .run(async {
+            tokio::select! {
+                _ = interrupt.recv() => {}
+                _ = terminate.recv() => {}
+                () = duration => {}
             }
-            Some(change) = membership_rx.recv() => {
-                crate::group::apply(&server, change, args.group_interface).await;
-            }
-            _ = tick.tick(), if scan.is_none() => {
-                if let Some(files) = files.clone() {
-                    let router = Arc::clone(server.router());
-                    scan = Some(tokio::task::spawn_blocking(move || files.rescan(&router)));
-                }
-            }
-            done = async { scan.as_mut().expect("guarded by is_some").await }, if scan.is_some() => {
-                scan = None;
-                match done {
-                    Ok(paths) => {
-                        for path in paths {
-                            server.notify(&path).await;
-                        }
-                    }
-                    Err(e) => tracing::warn!(error = %e, "rescanning the files failed"),
-                }
-            }
-        }
-    }
-    // A rescan under way ends at its next window instead of hashing on: the runtime
-    // waits for its blocking work when it shuts down.
-    if let Some(files) = &files {
-        files.stop();
-    }
-    if let Some(scan) = scan {
-        let _ = scan.await;
-    }
-    Ok(())
-}
-
-/// A server of a scene's synthetic cameras on one address, answering until dropped
-/// (`demo`, `bench accuracy`); [`SceneServer::load`] swaps the scene's cameras.
-pub(crate) struct SceneServer {
-    server: Arc<Server>,
-    hub: Arc<CameraHub>,
-    _cams: Arc<Cams>,
-    notifier: JoinHandle<()>,
-}
-
-impl SceneServer {
-    /// Serves `scene` on `bind` (port 0 picks a free one), persisting configuration in
-    /// `state_dir`.
-    pub(crate) async fn start(
-        scene: &Scene,
-        state_dir: &Path,
-        bind: SocketAddr,
-    ) -> anyhow::Result<Self> {
-        let router = Router::new();
-        let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
-        let (hub, cams) = start_hub(state_dir, &router, changed_tx)?;
-        load_scene(&hub, &router, scene)?;
-        let server = Arc::new(
-            Server::bind(&[bind], ServerConfig::default(), router)
-                .with_context(|| format!("binding {bind}"))?,
-        );
-        let notify = server.clone();
-        let notifier = tokio::spawn(async move {
-            while let Some(path) = changed_rx.recv().await {
-                notify.notify(&path).await;
-            }
-        });
-        Ok(Self {
-            server,
-            hub,
-            _cams: cams,
-            notifier,
         })
-    }
-
-    /// Replaces the cameras with those of `scene` (they disconnect and connect, as when
-    /// cameras are unplugged and plugged in).
-    pub(crate) fn load(&self, scene: &Scene) -> anyhow::Result<()> {
-        load_scene(&self.hub, self.server.router(), scene)
-    }
-
-    /// The address the server answers on.
-    pub(crate) fn addr(&self) -> anyhow::Result<SocketAddr> {
-        self.server
-            .local_addrs()
-            .into_iter()
-            .next()
-            .context("the server has no address")
-    }
-}
-
-impl Drop for SceneServer {
-    fn drop(&mut self) {
-        self.notifier.abort();
-    }
-}
-
-/// A camera hub and the `/cams` tree following it.
-fn start_hub(
-    state_dir: &Path,
-    router: &Arc<Router>,
-    changed: mpsc::UnboundedSender<String>,
-) -> anyhow::Result<(Arc<CameraHub>, Arc<Cams>)> {
-    std::fs::create_dir_all(state_dir)
-        .with_context(|| format!("creating state directory {}", state_dir.display()))?;
-    let hub = Arc::new(CameraHub::new());
-    let cams = Cams::start(hub.clone(), router.clone(), state_dir, changed)
-        .context("starting the camera hub listener")?;
-    Ok((hub, cams))
-}
-
-/// Replaces the cameras of `hub` with the synthetic cameras of `scene`, and returns once
-/// the router follows: the hub listener adds and removes per-camera resources on its own
-/// thread, so a client that starts after this (or after "serving on") never sees a 4.04
-/// for a camera that is there, nor a resource of one that left.
-fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result<()> {
-    let cameras = SyntheticCamera::all(scene).context("building the scene's cameras")?;
-    let gone = hub.serials();
-    for sn in &gone {
-        hub.remove(sn);
-    }
-    wait_routed(router, &gone, false)?;
-    let mut expected = Vec::new();
-    for camera in cameras {
-        expected.push(camera.serial());
-        hub.add(camera).context("adding a camera")?;
-    }
-    wait_routed(router, &expected, true)
-}
-
-/// Waits until `/cams/{sn}/color` of every camera of `serials` is routed (`present`), or
-/// of none of them (not `present`).
-fn wait_routed(router: &Router, serials: &[Serial], present: bool) -> anyhow::Result<()> {
-    let paths: Vec<String> = serials
-        .iter()
-        .map(|sn| format!("/cams/{sn}/color"))
-        .collect();
-    let done = || {
-        let patterns = router.patterns();
-        paths.iter().all(|p| patterns.contains(p) == present)
-    };
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while !done() {
-        if std::time::Instant::now() > deadline {
-            bail!("the cameras' resources did not follow the hub within 10 s");
-        }
-        std::thread::sleep(Duration::from_millis(2));
-    }
+        .await;
     Ok(())
-}
-
-/// The cameras (of the scene, or librealsense's with --realsense) in a hub, and the
-/// `/cams` tree following it; returns once every camera present at start is routed.
-fn start_cameras(
-    args: &ServeArgs,
-    router: &Arc<Router>,
-    changed: mpsc::UnboundedSender<String>,
-) -> anyhow::Result<CameraTree> {
-    let scene = match &args.scene {
-        Some(path) => {
-            Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
-        }
-        None => Scene::default_single(),
-    };
-    let state_dir = args.state_dir.clone().unwrap_or_else(default_state_dir);
-    let (hub, cams) = start_hub(&state_dir, router, changed)?;
-    let mut backend = None;
-    if args.realsense {
-        let realsense = realsense::start(args, &scene, hub.clone())?;
-        wait_routed(router, &realsense.serials, true)?;
-        backend = Some(realsense);
-    } else if !args.bag.is_empty() {
-        let mut expected = Vec::new();
-        for path in &args.bag {
-            let cameras = PlaybackCamera::open(path)
-                .with_context(|| format!("opening recording {}", path.display()))?;
-            for camera in cameras {
-                expected.push(camera.serial());
-                hub.add(Arc::new(camera))
-                    .with_context(|| format!("adding the camera of {}", path.display()))?;
-            }
-        }
-        wait_routed(router, &expected, true)?;
-    } else {
-        load_scene(&hub, router, &scene)?;
-    }
-    Ok(CameraTree {
-        _backend: backend,
-        _hub: hub,
-        _cams: cams,
-    })
-}
-
-/// What serves the cameras; kept alive as long as the server.
-struct CameraTree {
-    _backend: Option<realsense::Backend>,
-    _hub: Arc<CameraHub>,
-    _cams: Arc<Cams>,
-}
-
-/// `--realsense`: librealsense's cameras in the hub.
-mod realsense {
-    use std::sync::Arc;
-    use std::time::Duration;
-
-    use anyhow::Context as _;
-    use rgbd::backend::realsense::{
-        GrabMode, LibrarySearch, RealSense, RealSenseLibrary, SoftwareD415,
-    };
-    use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
-
-    use super::ServeArgs;
-
-    /// How long librealsense gets to announce the first camera.
-    const FIRST_CAMERA: Duration = Duration::from_secs(3);
-
-    /// The running backend, its virtual cameras and the serials served at start.
-    pub(super) struct Backend {
-        pub(super) serials: Vec<Serial>,
-        // Dropped before the context: stops injecting.
-        _software: Vec<SoftwareD415>,
-        _realsense: RealSense,
-    }
-
-    pub(super) fn start(
-        args: &ServeArgs,
-        scene: &Scene,
-        hub: Arc<CameraHub>,
-    ) -> anyhow::Result<Backend> {
-        let library = RealSenseLibrary::load(&LibrarySearch {
-            explicit: args.librealsense.clone(),
-            preload: args.librealsense_preload.clone(),
-        })?;
-        let mode = if args.realsense_streaming {
-            GrabMode::Streaming
-        } else {
-            GrabMode::PerRequest
-        };
-        let realsense = RealSense::start(&library, hub, mode)
-            .with_context(|| format!("starting librealsense {}", library.version()))?;
-        let mut software = Vec::new();
-        if args.realsense_software {
-            for camera in SyntheticCamera::all(scene).context("building the scene's cameras")? {
-                software.push(
-                    realsense
-                        .add_software_d415(camera)
-                        .context("adding a virtual D415 to librealsense")?,
-                );
-            }
-        }
-        let mut serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
-        // Every virtual camera is announced on librealsense's thread; wait for all.
-        let deadline = std::time::Instant::now() + FIRST_CAMERA;
-        while software.iter().any(|s| !serials.contains(&s.serial()))
-            && std::time::Instant::now() < deadline
-        {
-            std::thread::sleep(Duration::from_millis(10));
-            serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
-        }
-        for reason in realsense.rejected() {
-            tracing::warn!("librealsense device not served: {reason}");
-        }
-        Ok(Backend {
-            serials,
-            _software: software,
-            _realsense: realsense,
-        })
-    }
 }
 
 fn default_state_dir() -> PathBuf {

@@ -1,5 +1,10 @@
 //! The typed camera client: what `grab`, `measure`, `monitor` and `demo` ask of a
-//! coapcam server (the resource API of DESIGN.md §5), over one `coap_net::Client`.
+//! coapcam server (the resource API of docs/design.md §5), over one `coap_net::Client`,
+//! and what is built on it: measuring, reading the parcel's codes, the annotated picture.
+
+pub mod annotate;
+pub mod codes;
+pub mod measure;
 
 use std::net::{IpAddr, SocketAddr};
 use std::time::Duration;
@@ -10,30 +15,10 @@ use coap::link_format;
 use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::{Client, Uri};
 
-/// What a grab resource produces.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub(crate) enum Stream {
-    /// The color image.
-    Color,
-    /// The depth image.
-    Depth,
-    /// The point cloud.
-    Pointcloud,
-}
-
-impl Stream {
-    /// The resource name under `/cams/<sn>/`.
-    pub(crate) fn name(self) -> &'static str {
-        match self {
-            Self::Color => "color",
-            Self::Depth => "depth",
-            Self::Pointcloud => "pointcloud",
-        }
-    }
-}
+use crate::repr::Stream;
 
 /// A client of one coapcam server.
-pub(crate) struct CamClient {
+pub struct CamClient {
     client: Client,
     server: SocketAddr,
     timeout: Duration,
@@ -42,7 +27,7 @@ pub(crate) struct CamClient {
 impl CamClient {
     /// A client for the server at `uri` (`coap://host[:port]`); every request gives up
     /// after `timeout`.
-    pub(crate) async fn connect(
+    pub async fn connect(
         uri: &str,
         config: EndpointConfig,
         timeout: Duration,
@@ -65,7 +50,7 @@ impl CamClient {
     /// block-wise answers must leave from the address the multicast request left from (a
     /// server keeps an answer for the peer that asked); on loopback an unbound socket sends
     /// each follow-up from the server's own 127.0.0.N, so bind 127.0.0.1 there.
-    pub(crate) fn for_group(
+    pub fn for_group(
         group: SocketAddr,
         bind: Option<IpAddr>,
         config: EndpointConfig,
@@ -84,7 +69,7 @@ impl CamClient {
     }
 
     /// A client of `server` sharing `other`'s socket and timeout.
-    pub(crate) fn unicast(other: &Self, server: SocketAddr) -> Self {
+    pub fn unicast(other: &Self, server: SocketAddr) -> Self {
         Self {
             client: other.client.clone(),
             server,
@@ -93,18 +78,18 @@ impl CamClient {
     }
 
     /// The server's address.
-    pub(crate) fn server(&self) -> SocketAddr {
+    pub fn server(&self) -> SocketAddr {
         self.server
     }
 
     /// The underlying CoAP client (for multicast requests).
-    pub(crate) fn coap(&self) -> &Client {
+    pub fn coap(&self) -> &Client {
         &self.client
     }
 
     /// Sends `method path` and returns the response if it is a 2.xx whose body arrived
     /// whole; any other code becomes an error carrying the code and the diagnostic.
-    pub(crate) async fn call(
+    pub async fn call(
         &self,
         method: Code,
         path: &str,
@@ -123,7 +108,7 @@ impl CamClient {
     }
 
     /// The request `call` sends, for callers that send it themselves (multicast).
-    pub(crate) fn request(
+    pub fn request(
         &self,
         method: Code,
         path: &str,
@@ -147,7 +132,7 @@ impl CamClient {
     }
 
     /// The serials of the server's cameras, from discovery (`rt=rgbd.color`), sorted.
-    pub(crate) async fn cameras(&self) -> anyhow::Result<Vec<String>> {
+    pub async fn cameras(&self) -> anyhow::Result<Vec<String>> {
         let mut request = Request::new(Code::GET, "/.well-known/core");
         request
             .options
@@ -176,7 +161,7 @@ impl CamClient {
     }
 
     /// The camera to use: `camera` if given, else the server's only camera.
-    pub(crate) async fn one_camera(&self, camera: Option<&str>) -> anyhow::Result<String> {
+    pub async fn one_camera(&self, camera: Option<&str>) -> anyhow::Result<String> {
         if let Some(sn) = camera {
             return Ok(sn.to_owned());
         }
@@ -194,11 +179,7 @@ impl CamClient {
     }
 
     /// GET a camera's JSON document (`color-settings`, `application-config`, ...).
-    pub(crate) async fn get_json(
-        &self,
-        serial: &str,
-        name: &str,
-    ) -> anyhow::Result<serde_json::Value> {
+    pub async fn get_json(&self, serial: &str, name: &str) -> anyhow::Result<serde_json::Value> {
         let r = self
             .call(
                 Code::GET,
@@ -212,7 +193,7 @@ impl CamClient {
     }
 
     /// PUT a camera's JSON document.
-    pub(crate) async fn put_json(
+    pub async fn put_json(
         &self,
         serial: &str,
         name: &str,
@@ -231,7 +212,7 @@ impl CamClient {
 
     /// Grabs a new frame of one camera (POST), in the representation `accept` (the
     /// thesis packet when `None`).
-    pub(crate) async fn grab(
+    pub async fn grab(
         &self,
         serial: &str,
         stream: Stream,
@@ -243,14 +224,14 @@ impl CamClient {
     }
 
     /// Grabs every camera of the server and merges their clouds (POST /cams/pointclouds).
-    pub(crate) async fn grab_all(&self, accept: Option<ContentFormat>) -> anyhow::Result<Response> {
+    pub async fn grab_all(&self, accept: Option<ContentFormat>) -> anyhow::Result<Response> {
         self.call(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept)
             .await
     }
 }
 
 /// `response` if it is a 2.xx whose body is as long as its Size2 says.
-pub(crate) fn check(what: &str, response: Response) -> anyhow::Result<Response> {
+pub fn check(what: &str, response: Response) -> anyhow::Result<Response> {
     if !response.code.is_success() {
         bail!("{what}: {}", describe(&response));
     }
@@ -259,7 +240,7 @@ pub(crate) fn check(what: &str, response: Response) -> anyhow::Result<Response> 
 }
 
 /// The code and the diagnostic of a response, e.g. "4.04 Not Found: no such resource".
-pub(crate) fn describe(response: &Response) -> String {
+pub fn describe(response: &Response) -> String {
     let diagnostic = String::from_utf8_lossy(&response.payload);
     if diagnostic.is_empty() {
         response.code.to_string()
@@ -270,7 +251,7 @@ pub(crate) fn describe(response: &Response) -> String {
 
 /// Refuses a successful body of `size` bytes when the server announced another size
 /// (Size2).
-pub(crate) fn check_size(response: &Response, size: usize) -> anyhow::Result<()> {
+pub fn check_size(response: &Response, size: usize) -> anyhow::Result<()> {
     if let Some(size2) = response.options.uint(OptionNumber::SIZE2)
         && response.code.is_success()
         && size2 as usize != size

@@ -1,20 +1,15 @@
-//! Reading the codes printed on a parcel from a color image (`measure --codes`, `demo`):
+//! Reading the codes printed on a parcel from an image, a pure function of the pixels:
 //! QR codes through `rqrr`, Code 128 along scan lines at several angles. A Code 128 read
 //! counts only with its start and stop patterns and a matching check symbol.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::fmt;
-use std::net::SocketAddr;
 
-use anyhow::Context as _;
-use coap::ContentFormat;
 use image::GrayImage;
-
-use crate::client::{CamClient, Stream};
 
 /// The symbology of a code.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub(crate) enum CodeKind {
+pub enum CodeKind {
     /// QR code (ISO/IEC 18004).
     Qr,
     /// Code 128 (ISO/IEC 15417).
@@ -23,7 +18,7 @@ pub(crate) enum CodeKind {
 
 impl CodeKind {
     /// The name the scene files and the JSON output use.
-    pub(crate) fn name(self) -> &'static str {
+    pub fn name(self) -> &'static str {
         match self {
             Self::Qr => "qr",
             Self::Code128 => "code128",
@@ -43,11 +38,11 @@ impl From<rgbd::scene::LabelKind> for CodeKind {
 
 /// A code read from an image.
 #[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub(crate) struct Code {
+pub struct Code {
     /// Symbology.
-    pub(crate) kind: CodeKind,
+    pub kind: CodeKind,
     /// The decoded text.
-    pub(crate) text: String,
+    pub text: String,
 }
 
 impl fmt::Display for Code {
@@ -56,83 +51,8 @@ impl fmt::Display for Code {
     }
 }
 
-/// A code and the cameras that read it.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub(crate) struct Seen {
-    /// The code.
-    pub(crate) code: Code,
-    /// Serials of the cameras whose image it was read from.
-    pub(crate) cameras: Vec<String>,
-}
-
-impl Seen {
-    /// The entry of the `codes` array of `measure --json`.
-    pub(crate) fn to_json(&self) -> serde_json::Value {
-        serde_json::json!({
-            "kind": self.code.kind.name(),
-            "text": self.code.text,
-            "cameras": self.cameras,
-        })
-    }
-}
-
-/// The codes one line of text names: `qr "PKG-0001" (840412060746, ...)`, or `none`.
-pub(crate) fn describe(seen: &[Seen]) -> String {
-    if seen.is_empty() {
-        return "none".into();
-    }
-    let each: Vec<String> = seen
-        .iter()
-        .map(|s| format!("{} ({})", s.code, s.cameras.join(", ")))
-        .collect();
-    each.join(", ")
-}
-
-/// Grabs a new PNG color image of camera `serial` and reads the codes in it.
-async fn read_camera(client: &CamClient, serial: &str) -> anyhow::Result<Vec<Code>> {
-    let png = client
-        .grab(serial, Stream::Color, Some(ContentFormat::IMAGE_PNG))
-        .await?
-        .payload;
-    tokio::task::spawn_blocking(move || -> anyhow::Result<Vec<Code>> {
-        let image = image::load_from_memory_with_format(&png, image::ImageFormat::Png)
-            .context("decoding the PNG color image")?;
-        Ok(read(&image.to_luma8()))
-    })
-    .await
-    .context("the code reading task failed")?
-    .with_context(|| format!("reading codes from camera {serial}"))
-}
-
-/// Reads the codes each camera (server, serial) sees in a new color image, all cameras
-/// at once; each code once, with the cameras that read it.
-pub(crate) async fn read_cameras(
-    client: &CamClient,
-    cameras: &[(SocketAddr, String)],
-) -> anyhow::Result<Vec<Seen>> {
-    let mut tasks = tokio::task::JoinSet::new();
-    for (server, serial) in cameras.iter().cloned() {
-        let one = CamClient::unicast(client, server);
-        tasks.spawn(async move { read_camera(&one, &serial).await.map(|c| (serial, c)) });
-    }
-    let mut seen: BTreeMap<Code, Vec<String>> = BTreeMap::new();
-    while let Some(done) = tasks.join_next().await {
-        let (serial, codes) = done.context("a code reading task failed")??;
-        for code in codes {
-            seen.entry(code).or_default().push(serial.clone());
-        }
-    }
-    Ok(seen
-        .into_iter()
-        .map(|(code, mut cameras)| {
-            cameras.sort();
-            Seen { code, cameras }
-        })
-        .collect())
-}
-
 /// Every code found in `image`, each once, in order of kind and text.
-pub(crate) fn read(image: &GrayImage) -> Vec<Code> {
+pub fn read(image: &GrayImage) -> Vec<Code> {
     let mut found = BTreeSet::new();
     if image.width() == 0 || image.height() == 0 {
         return Vec::new();

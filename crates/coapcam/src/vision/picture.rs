@@ -2,41 +2,13 @@
 //! colour-mapped, a top view of a point cloud coloured by height, and the measured box
 //! drawn onto a color image with its dimensions.
 
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
 use geometry::{Dimensions, PointCloud};
-use image::{GrayImage, Luma, Rgb, RgbImage};
+use image::{GrayImage, ImageFormat, Luma, Rgb, RgbImage};
 
-use crate::packet::DepthImage;
-
-/// Color pixels of `width` x `height`, `bytes_per_pixel` (3 or 4) each, in the camera's
-/// `format` (RGB8, BGR8, RGBA8, BGRA8), as an RGB image.
-pub(crate) fn rgb_image(
-    pixels: &[u8],
-    width: u32,
-    height: u32,
-    bytes_per_pixel: usize,
-    format: &str,
-) -> Result<RgbImage, String> {
-    if !(3..=4).contains(&bytes_per_pixel)
-        || pixels.len() != width as usize * height as usize * bytes_per_pixel
-    {
-        return Err(format!(
-            "{} bytes are not {width}x{height} pixels of {bytes_per_pixel} bytes",
-            pixels.len()
-        ));
-    }
-    let bgr = format.to_ascii_uppercase().starts_with("BGR");
-    let rgb = pixels
-        .chunks_exact(bytes_per_pixel)
-        .flat_map(|p| {
-            if bgr {
-                [p[2], p[1], p[0]]
-            } else {
-                [p[0], p[1], p[2]]
-            }
-        })
-        .collect();
-    RgbImage::from_raw(width, height, rgb).ok_or_else(|| "the image's size".to_owned())
-}
+use crate::repr::packet::DepthImage;
 
 /// The depth values at the 1st and 99th percentile of the valid (non-zero) pixels, so a
 /// few flying pixels do not flatten the picture; `None` without valid pixels.
@@ -60,7 +32,7 @@ fn normalized(v: u16, lo: u16, hi: u16) -> f32 {
 
 /// Depth as 8-bit grayscale (near bright, far dark) and colour-mapped (near blue, far red,
 /// as librealsense's "Jet" colorizer) over one depth range; pixels without depth black.
-pub(crate) fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
+pub fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
     let range = depth_range(&depth.values);
     // 0 (near) to 1 (far) at a pixel with depth.
     let at = |x: u32, y: u32| {
@@ -80,7 +52,7 @@ pub(crate) fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
 }
 
 /// The jet colour map: blue, cyan, green, yellow, red for `t` from 0 to 1.
-pub(crate) fn jet(t: f32) -> [u8; 3] {
+pub fn jet(t: f32) -> [u8; 3] {
     let c = |offset: f32| ((1.5 - (4.0 * t - offset).abs()).clamp(0.0, 1.0) * 255.0) as u8;
     [c(3.0), c(2.0), c(1.0)]
 }
@@ -91,7 +63,7 @@ const TOP_VIEW_MAX_PX: f32 = 1024.0;
 /// The cloud seen from above (x right, y up), one pixel per millimetre or coarser so the
 /// longer side fits in 1024 pixels, each pixel coloured by the highest point in it (blue
 /// low, red high); empty pixels black.
-pub(crate) fn top_view(cloud: &PointCloud) -> RgbImage {
+pub fn top_view(cloud: &PointCloud) -> RgbImage {
     let finite = || {
         cloud
             .points
@@ -133,7 +105,7 @@ pub(crate) fn top_view(cloud: &PointCloud) -> RgbImage {
 /// Draws the measured box (footprint on the floor, lid at the measured height, and the
 /// vertical edges) onto `image` through `project` (world point in metres -> pixel), and
 /// the dimensions as text in the top-left corner.
-pub(crate) fn annotate(
+pub fn annotate(
     image: &mut RgbImage,
     dims: &Dimensions,
     project: impl Fn([f64; 3]) -> Option<[f32; 2]>,
@@ -270,6 +242,24 @@ fn draw_text(image: &mut RgbImage, at: (u32, u32), text: &str, scale: u32, color
             }
         }
     }
+}
+
+/// `dir/name-suffix.png` for `dir/name.png`.
+pub fn sibling(path: &Path, suffix: &str) -> PathBuf {
+    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("view");
+    path.with_file_name(format!("{stem}{suffix}.png"))
+}
+
+/// Saves a picture as PNG (quietly: callers say what they wrote where their output goes).
+pub fn save<P, C>(image: &image::ImageBuffer<P, C>, path: &Path) -> anyhow::Result<()>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    image
+        .save_with_format(path, ImageFormat::Png)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 #[cfg(test)]

@@ -4,7 +4,6 @@
 
 mod config;
 mod grab;
-mod repr;
 mod state;
 #[cfg(test)]
 mod tests;
@@ -26,16 +25,11 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
+use crate::repr::{self, Stream, cbor, packet, raster};
+
 use config::AppConfig;
 use grab::{Frame, GrabError};
 use state::StateDir;
-
-/// Grab resources of a camera: name, link `rt`.
-const GRABS: [(&str, &str); 3] = [
-    ("color", "rgbd.color"),
-    ("depth", "rgbd.depth"),
-    ("pointcloud", "rgbd.pointcloud"),
-];
 
 /// JSON configuration resources of a camera.
 const CONFIGS: [&str; 5] = [
@@ -45,29 +39,6 @@ const CONFIGS: [&str; 5] = [
     "3d-transformation",
     "advanced-config",
 ];
-
-/// What a grab resource produces.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    Color,
-    Depth,
-    Cloud,
-}
-
-impl Kind {
-    fn of(name: &str) -> Option<Self> {
-        match name {
-            "color" => Some(Self::Color),
-            "depth" => Some(Self::Depth),
-            "pointcloud" => Some(Self::Cloud),
-            _ => None,
-        }
-    }
-
-    fn index(self) -> usize {
-        self as usize
-    }
-}
 
 /// A grabbed frame with its ETag.
 type Stored = Arc<(Frame, [u8; 8])>;
@@ -159,7 +130,7 @@ impl Cams {
                 .attr("rt", "rgbd.pointcloud")
                 .attr("ct", "42"),
         );
-        for name in GRABS.iter().map(|(n, _)| *n).chain(CONFIGS) {
+        for name in Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS) {
             let me = self.clone();
             self.router.add(
                 &format!("/cams/{name}"),
@@ -217,7 +188,7 @@ impl Cams {
         }
         lock(&self.cams).insert(sn, cam);
         // All at once: a client that finds one of them finds the others.
-        let names = GRABS.iter().map(|(n, _)| *n).chain(CONFIGS);
+        let names = Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS);
         self.router
             .add_all(names.map(|name| self.resource(sn, name)));
         tracing::debug!(serial = %sn, "camera resources added");
@@ -248,7 +219,7 @@ impl Cams {
 
     fn disconnected(&self, sn: Serial) {
         lock(&self.cams).remove(&sn);
-        let names = GRABS.iter().map(|(n, _)| *n).chain(CONFIGS);
+        let names = Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS);
         self.router
             .remove_all(names.map(|name| format!("/cams/{sn}/{name}")));
         tracing::debug!(serial = %sn, "camera resources removed");
@@ -270,11 +241,8 @@ impl Cams {
                 async { Response::new(Code::DELETED) }
             })
         };
-        let resource = if let Some(kind) = Kind::of(name) {
-            let rt = GRABS
-                .iter()
-                .find(|(n, _)| *n == name)
-                .map_or("", |(_, rt)| rt);
+        let resource = if let Some(kind) = Stream::of(name) {
+            let rt = kind.resource_type();
             let (get_me, post_me, post_path) = (self.clone(), self.clone(), path.clone());
             Resource::new()
                 .get(handler(move |ctx| {
@@ -339,7 +307,7 @@ impl Cams {
     async fn grab(
         &self,
         sn: Serial,
-        kind: Kind,
+        kind: Stream,
         path: &str,
         request: &IncomingRequest,
     ) -> Response {
@@ -353,9 +321,9 @@ impl Cams {
         let transformation = *lock(&cam.transformation);
         let camera = cam.camera.clone();
         let grabbed = tokio::task::spawn_blocking(move || match kind {
-            Kind::Color => grab::color(camera.as_ref(), &app),
-            Kind::Depth => grab::depth(camera.as_ref(), &app),
-            Kind::Cloud => grab::cloud(camera.as_ref(), &app, &transformation),
+            Stream::Color => grab::color(camera.as_ref(), &app),
+            Stream::Depth => grab::depth(camera.as_ref(), &app),
+            Stream::Pointcloud => grab::cloud(camera.as_ref(), &app, &transformation),
         })
         .await;
         let frame = match grabbed {
@@ -376,7 +344,7 @@ impl Cams {
     }
 
     /// `GET /cams/<sn>/<grab>`: the latest frame.
-    fn latest(&self, sn: Serial, kind: Kind, request: &IncomingRequest) -> Response {
+    fn latest(&self, sn: Serial, kind: Stream, request: &IncomingRequest) -> Response {
         if let Err(refused) = negotiate(kind, request) {
             return refused;
         }
@@ -509,7 +477,7 @@ impl Cams {
 
     /// `POST /cams/pointclouds`: every camera's cloud in the common frame, merged.
     async fn pointclouds(&self, request: &IncomingRequest) -> Response {
-        let cf = match negotiate(Kind::Cloud, request) {
+        let cf = match negotiate(Stream::Pointcloud, request) {
             Ok(cf) => cf,
             Err(refused) => return refused,
         };
@@ -659,42 +627,22 @@ fn set_cf(r: &mut Response, cf: ContentFormat) {
         .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
 }
 
-/// The content formats of a grab resource, the first being the default.
-fn formats(kind: Kind) -> &'static [ContentFormat] {
-    use ContentFormat as Cf;
-    match kind {
-        Kind::Color => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::IMAGE_JPEG, Cf::CBOR],
-        Kind::Depth => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::CBOR],
-        Kind::Cloud => &[Cf::OCTET_STREAM, Cf::CBOR, Cf::PLY],
-    }
-}
-
 /// The content format to answer with, or 4.06 Not Acceptable.
 #[expect(
     clippy::result_large_err,
     reason = "a refusal is the Response sent; it keeps its options inline"
 )]
-fn negotiate(kind: Kind, request: &IncomingRequest) -> Result<ContentFormat, Response> {
+fn negotiate(kind: Stream, request: &IncomingRequest) -> Result<ContentFormat, Response> {
     let accept = request
         .options
         .accept()
         .unwrap_or(ContentFormat::OCTET_STREAM);
-    if formats(kind).contains(&accept) {
+    if kind.formats().contains(&accept) {
         Ok(accept)
     } else {
         Err(Response::diagnostic(
             Code::NOT_ACCEPTABLE,
-            match kind {
-                Kind::Color => {
-                    "color is served as 42 (thesis packet), 23 (PNG), 22 (JPEG) or 60 (CBOR)"
-                }
-                Kind::Depth => {
-                    "depth is served as 42 (thesis packet), 23 (16-bit PNG) or 60 (CBOR)"
-                }
-                Kind::Cloud => {
-                    "point clouds are served as 42 (thesis packet), 60 (CBOR) or 65100 (PLY)"
-                }
-            },
+            &kind.not_acceptable(),
         ))
     }
 }
@@ -703,7 +651,7 @@ fn negotiate(kind: Kind, request: &IncomingRequest) -> Result<ContentFormat, Res
 /// content format (RFC 7252 §5.10.6: an entity-tag identifies one representation).
 fn represent(
     sn: &Serial,
-    kind: Kind,
+    kind: Stream,
     frame: &Frame,
     etag: [u8; 8],
     request: &IncomingRequest,
@@ -713,13 +661,13 @@ fn represent(
         Err(refused) => return refused,
     };
     let body = match (frame, cf) {
-        (Frame::Color(f, ..), ContentFormat::IMAGE_PNG) => repr::color_png(f),
-        (Frame::Color(f, ..), ContentFormat::IMAGE_JPEG) => repr::color_jpeg(f),
-        (Frame::Color(f, k, e), ContentFormat::CBOR) => repr::color_cbor(f, k, e, sn),
-        (Frame::Color(f, ..), _) => Ok(repr::color_packet(f)),
-        (Frame::Depth(f, _), ContentFormat::IMAGE_PNG) => repr::depth_png(f),
-        (Frame::Depth(f, k), ContentFormat::CBOR) => repr::depth_cbor(f, k, sn),
-        (Frame::Depth(f, _), _) => Ok(repr::depth_packet(f)),
+        (Frame::Color(f, ..), ContentFormat::IMAGE_PNG) => raster::color_png(f),
+        (Frame::Color(f, ..), ContentFormat::IMAGE_JPEG) => raster::color_jpeg(f),
+        (Frame::Color(f, k, e), ContentFormat::CBOR) => cbor::color_cbor(f, k, e, sn),
+        (Frame::Color(f, ..), _) => Ok(packet::color_packet(f)),
+        (Frame::Depth(f, _), ContentFormat::IMAGE_PNG) => raster::depth_png(f),
+        (Frame::Depth(f, k), ContentFormat::CBOR) => cbor::depth_cbor(f, k, sn),
+        (Frame::Depth(f, _), _) => Ok(packet::depth_packet(f)),
         (
             Frame::Cloud {
                 points,
@@ -759,7 +707,7 @@ fn representation_etag(frame: [u8; 8], cf: ContentFormat) -> [u8; 8] {
     h.finish().to_be_bytes()
 }
 
-fn frame_etag(sn: &Serial, kind: Kind, frame: &Frame) -> [u8; 8] {
+fn frame_etag(sn: &Serial, kind: Stream, frame: &Frame) -> [u8; 8] {
     let mut h = std::collections::hash_map::DefaultHasher::new();
     (
         sn.as_u64(),

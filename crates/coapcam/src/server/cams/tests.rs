@@ -112,7 +112,11 @@ fn cameras_plugged_in_and_pulled_out_appear_in_and_vanish_from_discovery() {
         rig.hub.add(b).expect("plug in b");
         rig.routed(&format!("/cams/{sb}/color"), true).await;
         let links = rig.discovery().await;
-        for name in super::GRABS.iter().map(|(n, _)| *n).chain(super::CONFIGS) {
+        for name in crate::repr::Stream::ALL
+            .iter()
+            .map(|s| s.name())
+            .chain(super::CONFIGS)
+        {
             assert!(
                 links.contains(&format!("</cams/{sb}/{name}>")),
                 "{name}: {links}"

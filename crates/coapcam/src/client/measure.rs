@@ -1,0 +1,297 @@
+//! Measuring: point clouds grabbed from one camera, from every camera of a server, or
+//! from every server of a multicast group, merged and handed to `geometry::dimension`;
+//! the preparation of the cameras that makes the clouds small (docs/design.md §6); and the
+//! comparison with a synthetic scene's truth.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, bail};
+use bytes::Bytes;
+use coap::{Code, ContentFormat};
+use geometry::{DimensionConfig, Dimensions, PointCloud};
+use rgbd::Scene;
+
+use super::{CamClient, check};
+use crate::repr::{Stream, cbor};
+
+/// Divisor of the volumetric weight, cm³ per kg (the courier convention).
+pub const VOLUMETRIC_DIVISOR_CM3_PER_KG: f64 = 5000.0;
+
+/// Where the clouds come from.
+#[derive(Debug, Clone)]
+pub enum Source {
+    /// One camera of a server.
+    Camera(String),
+    /// Every camera of a server, merged by the server.
+    All,
+    /// Every server of a multicast group.
+    Group {
+        /// The group's address and port.
+        group: SocketAddr,
+        /// Stop once this many servers answered.
+        expect: Option<usize>,
+        /// How long to collect answers.
+        wait: Duration,
+    },
+}
+
+/// The clouds of one measurement, merged, and where they came from.
+#[derive(Debug)]
+pub struct Grabbed {
+    /// Every camera's cloud in the common frame.
+    pub cloud: PointCloud,
+    /// `(server, camera serial)` of every camera that contributed.
+    pub cameras: Vec<(SocketAddr, String)>,
+    /// Frame timestamps, microseconds since the UNIX epoch (one per cloud received).
+    pub timestamps_us: Vec<u64>,
+    /// Bytes of point-cloud representations received.
+    pub bytes: usize,
+}
+
+/// One measurement with its provenance and timing.
+#[derive(Debug)]
+pub struct Measurement {
+    /// The parcel's dimensions.
+    pub dimensions: Dimensions,
+    /// The clouds it was measured from.
+    pub grabbed: Grabbed,
+    /// From sending the first request until the dimensions were known.
+    pub cycle: Duration,
+    /// Of the cycle: until the last cloud arrived (the servers' grabs and the transfers).
+    pub grab: Duration,
+}
+
+impl Measurement {
+    /// length x width x height in cm³ over the divisor, kilograms.
+    pub fn volumetric_weight_kg(&self) -> f64 {
+        let d = &self.dimensions;
+        (d.length_mm / 10.0) * (d.width_mm / 10.0) * (d.height_mm / 10.0)
+            / VOLUMETRIC_DIVISOR_CM3_PER_KG
+    }
+
+    /// The JSON object of `measure --json` (DESIGN.md §6).
+    pub fn to_json(&self) -> serde_json::Value {
+        let d = &self.dimensions;
+        let mm = |v: f64| (v * 10.0).round() / 10.0;
+        serde_json::json!({
+            "length_mm": mm(d.length_mm),
+            "width_mm": mm(d.width_mm),
+            "height_mm": mm(d.height_mm),
+            "yaw_deg": (d.yaw_deg * 100.0).round() / 100.0,
+            "corners_m": d.corners_m,
+            "volume_l": (d.volume_l * 1000.0).round() / 1000.0,
+            "volumetric_weight_kg": (self.volumetric_weight_kg() * 1000.0).round() / 1000.0,
+            "points": d.points,
+            "cloud_points": self.grabbed.cloud.len(),
+            "cameras": self.grabbed.cameras.iter().map(|(_, sn)| sn).collect::<Vec<_>>(),
+            "servers": self.grabbed.cameras.iter().map(|(s, _)| s.to_string()).collect::<Vec<_>>(),
+            "timestamps_us": self.grabbed.timestamps_us,
+            "cycle_ms": (self.cycle.as_secs_f64() * 1e4).round() / 10.0,
+            "grab_ms": (self.grab.as_secs_f64() * 1e4).round() / 10.0,
+            "bytes": self.grabbed.bytes,
+        })
+    }
+
+    /// The text of `measure` without --json.
+    pub fn to_text(&self) -> String {
+        let d = &self.dimensions;
+        let serials: Vec<&str> = self
+            .grabbed
+            .cameras
+            .iter()
+            .map(|(_, s)| s.as_str())
+            .collect();
+        let corners: Vec<String> = d
+            .corners_m
+            .iter()
+            .map(|[x, y]| format!("({x:.3}, {y:.3})"))
+            .collect();
+        format!(
+            "length {:.1} mm  width {:.1} mm  height {:.1} mm\n\
+             yaw {:.1} deg  volume {:.2} l  volumetric weight {:.2} kg (divisor {} cm3/kg)\n\
+             footprint corners (m): {}\n\
+             {} points of {} from {} camera(s): {}\n\
+             cycle {:.0} ms (grab and transfer {:.0} ms), {:.2} MB received",
+            d.length_mm,
+            d.width_mm,
+            d.height_mm,
+            d.yaw_deg,
+            d.volume_l,
+            self.volumetric_weight_kg(),
+            VOLUMETRIC_DIVISOR_CM3_PER_KG,
+            corners.join(" "),
+            d.points,
+            self.grabbed.cloud.len(),
+            serials.len(),
+            serials.join(", "),
+            self.cycle.as_secs_f64() * 1e3,
+            self.grab.as_secs_f64() * 1e3,
+            self.grabbed.bytes as f64 / 1e6,
+        )
+    }
+}
+
+/// Grabs the clouds of `source` (`client` is the server's client; for a group, any
+/// client) and merges them.
+pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<Grabbed> {
+    let mut grabbed = Grabbed {
+        cloud: PointCloud::default(),
+        cameras: Vec::new(),
+        timestamps_us: Vec::new(),
+        bytes: 0,
+    };
+    // The CBOR map names the cameras that made each cloud and its time in microseconds.
+    let accept = Some(ContentFormat::CBOR);
+    let answers = match source {
+        Source::Camera(sn) => vec![(
+            client.server(),
+            client.grab(sn, Stream::Pointcloud, accept).await?,
+        )],
+        Source::All => vec![(client.server(), client.grab_all(accept).await?)],
+        Source::Group {
+            group,
+            expect,
+            wait,
+        } => {
+            let mut request =
+                client.request(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept);
+            request.timeout = Some(*wait);
+            let answers = client
+                .coap()
+                .multicast_expecting(*group, request, *expect)
+                .await
+                .with_context(|| format!("POST /cams/pointclouds to the group {group}"))?;
+            if answers.is_empty() {
+                bail!("no server of the group {group} answered within {wait:?}");
+            }
+            answers
+                .into_iter()
+                .map(|(server, r)| {
+                    Ok((
+                        server,
+                        check(&format!("POST /cams/pointclouds on {server}"), r)?,
+                    ))
+                })
+                .collect::<anyhow::Result<_>>()?
+        }
+    };
+    for (server, response) in answers {
+        let c = cbor::Cloud::from_cbor(&response.payload)
+            .with_context(|| format!("reading the point cloud of {server}"))?;
+        grabbed.bytes += response.payload.len();
+        grabbed.cloud.extend_from(&c.cloud);
+        grabbed.timestamps_us.push(c.timestamp_us);
+        grabbed
+            .cameras
+            .extend(c.serials.into_iter().map(|sn| (server, sn)));
+    }
+    Ok(grabbed)
+}
+
+/// Grabs and measures once.
+pub async fn measure_once(
+    client: &CamClient,
+    source: &Source,
+    config: &DimensionConfig,
+) -> anyhow::Result<Measurement> {
+    let started = Instant::now();
+    let grabbed = grab_clouds(client, source).await?;
+    let grab = started.elapsed();
+    let (dimensions, grabbed) = tokio::task::spawn_blocking({
+        let config = *config;
+        move || (geometry::dimension(&grabbed.cloud, &config), grabbed)
+    })
+    .await
+    .context("the measuring task failed")?;
+    let dimensions = dimensions.context("measuring the point cloud")?;
+    Ok(Measurement {
+        dimensions,
+        grabbed,
+        cycle: started.elapsed(),
+        grab,
+    })
+}
+
+/// Lowest point sent by the cameras, metres above the floor: the floor itself is not
+/// transmitted (thesis §3.3.5), which makes the clouds several times smaller.
+pub const FLOOR_CUT_M: f64 = 0.005;
+
+/// Prepares every camera for measuring as the thesis does (§3.3.5): roi3d becomes the
+/// box above the floor within `half_width_m` of the origin, and the spatial filter runs
+/// (librealsense's defaults: it smooths the depth noise that widens a footprint's hull);
+/// the rest of each application-config stays. With `for_codes` the color stream becomes
+/// 1920x1080 at 30 fps (its format stays), so smaller codes can be read.
+pub async fn prepare_cameras(
+    client: &CamClient,
+    serials: &[String],
+    half_width_m: f64,
+    for_codes: bool,
+) -> anyhow::Result<()> {
+    for sn in serials {
+        if for_codes {
+            let mut color = client.get_json(sn, "color-settings").await?;
+            color["width"] = serde_json::json!(1920);
+            color["height"] = serde_json::json!(1080);
+            color["fps"] = serde_json::json!(30);
+            client.put_json(sn, "color-settings", &color).await?;
+        }
+        let mut doc = client.get_json(sn, "application-config").await?;
+        doc["roi3d"] = serde_json::json!({
+            "min_x": -half_width_m, "max_x": half_width_m,
+            "min_y": -half_width_m, "max_y": half_width_m,
+            "min_z": FLOOR_CUT_M, "max_z": 3.0,
+        });
+        doc["postprocessing"]["spatial"] = serde_json::json!(1);
+        client.put_json(sn, "application-config", &doc).await?;
+    }
+    Ok(())
+}
+
+/// The scene's largest box as measurements: length >= width, height, yaw of the long
+/// side in (-90, 90].
+pub fn truth(scene: &Scene) -> Option<[f64; 4]> {
+    let b = scene
+        .boxes
+        .iter()
+        .max_by(|a, b| (a.size[0] * a.size[1]).total_cmp(&(b.size[0] * b.size[1])))?;
+    let (length, width, mut yaw) = if b.size[0] >= b.size[1] {
+        (b.size[0], b.size[1], b.yaw_deg)
+    } else {
+        (b.size[1], b.size[0], b.yaw_deg + 90.0)
+    };
+    yaw = (yaw + 90.0).rem_euclid(180.0) - 90.0;
+    if yaw <= -90.0 {
+        yaw += 180.0;
+    }
+    Some([length * 1e3, width * 1e3, b.size[2] * 1e3, yaw])
+}
+
+/// Difference of two yaw angles of a rectangle's long side, in (-90, 90].
+pub fn yaw_difference(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(180.0);
+    if d > 90.0 { d - 180.0 } else { d }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_truth_names_the_long_side_and_its_yaw() {
+        let mut scene = Scene::default_single();
+        scene.boxes[0].size = [0.3, 0.5, 0.2];
+        scene.boxes[0].yaw_deg = 30.0;
+        assert_eq!(truth(&scene), Some([500.0, 300.0, 200.0, -60.0]));
+        scene.boxes[0].size = [0.5, 0.3, 0.2];
+        scene.boxes[0].yaw_deg = 100.0;
+        assert_eq!(truth(&scene).map(|t| t[3].round()), Some(-80.0));
+    }
+
+    #[test]
+    fn yaw_differences_wrap_at_half_a_turn() {
+        assert_eq!(yaw_difference(89.0, -89.0), -2.0);
+        assert_eq!(yaw_difference(10.0, 5.0), 5.0);
+        assert_eq!(yaw_difference(-85.0, 85.0), 10.0);
+    }
+}

@@ -1,0 +1,47 @@
+//! coapcam: RGB-D cameras (Intel RealSense D400 and a synthetic D415) as CoAP resources,
+//! and parcel measurement from their point clouds.
+//!
+//! The `coapcam` binary is a thin layer of commands over this library:
+//! - [`repr`]: the wire formats, each encoder beside its decoder, and the one table of
+//!   which stream is served in which content format;
+//! - [`server`]: the resource tree of a camera server (`/cams`, `/files`, `/coap-group`)
+//!   and its assembly from a configuration;
+//! - [`client`]: the typed client of a camera server, measuring (with the cameras'
+//!   preparation), the codes of the cameras and the annotated picture;
+//! - [`vision`]: pure image work: reading QR and Code 128 codes, pictures for people.
+//!
+//! The protocol lives in the `coap` and `coap-net` crates, the cameras in `rgbd`, the
+//! point-cloud geometry in `geometry`, the link emulator in `netem`.
+
+#![forbid(unsafe_code)]
+
+pub mod client;
+pub mod repr;
+pub mod server;
+pub mod vision;
+
+/// A directory of a unit test's own under the system's temporary directory, removed on
+/// drop.
+#[cfg(test)]
+pub(crate) struct ScratchDir(pub(crate) std::path::PathBuf);
+
+#[cfg(test)]
+impl ScratchDir {
+    pub(crate) fn new(tag: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("coapcam-unit-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("scratch directory");
+        Self(dir)
+    }
+
+    pub(crate) fn path(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+#[cfg(test)]
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}

@@ -1,0 +1,226 @@
+//! Representations: each wire format's encoder (the server's) and decoder (the client's)
+//! together, and the one table of which stream is offered in which content format.
+//!
+//! | content format | color | depth | point cloud | module |
+//! |---|---|---|---|---|
+//! | 42 `application/octet-stream`: the thesis packet (the default) | yes | yes | yes | [`packet`] |
+//! | 23 `image/png` | 8-bit RGB(A) | 16-bit raw units | | [`raster`] |
+//! | 22 `image/jpeg` | yes | | | [`raster`] |
+//! | 60 `application/cbor`: a map with intrinsics and provenance | yes | yes | yes | [`cbor`] |
+//! | 65100 PLY, binary little-endian | | | yes | [`ply`] |
+
+pub mod cbor;
+pub mod packet;
+pub mod ply;
+pub mod raster;
+
+use coap::ContentFormat;
+use geometry::Point3;
+use rgbd::Serial;
+
+/// What a grab resource produces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, clap::ValueEnum)]
+pub enum Stream {
+    /// The color image.
+    Color,
+    /// The depth image.
+    Depth,
+    /// The point cloud.
+    Pointcloud,
+}
+
+impl Stream {
+    /// Every stream, in the order of [`Stream::index`].
+    pub const ALL: [Self; 3] = [Self::Color, Self::Depth, Self::Pointcloud];
+
+    /// The resource name under `/cams/<sn>/`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Color => "color",
+            Self::Depth => "depth",
+            Self::Pointcloud => "pointcloud",
+        }
+    }
+
+    /// The stream whose resource is called `name`.
+    pub fn of(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    /// The resource type (`rt`) of its resources in `/.well-known/core`.
+    pub fn resource_type(self) -> &'static str {
+        match self {
+            Self::Color => "rgbd.color",
+            Self::Depth => "rgbd.depth",
+            Self::Pointcloud => "rgbd.pointcloud",
+        }
+    }
+
+    /// Its position in [`Stream::ALL`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// The content formats its resources offer, the first being the default.
+    pub fn formats(self) -> &'static [ContentFormat] {
+        use ContentFormat as Cf;
+        match self {
+            Self::Color => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::IMAGE_JPEG, Cf::CBOR],
+            Self::Depth => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::CBOR],
+            Self::Pointcloud => &[Cf::OCTET_STREAM, Cf::CBOR, Cf::PLY],
+        }
+    }
+
+    /// The diagnostic of a 4.06 Not Acceptable: the formats it is served in.
+    pub fn not_acceptable(self) -> String {
+        let names: Vec<String> = self
+            .formats()
+            .iter()
+            .map(|cf| format!("{} ({})", cf.0, format_name(*cf)))
+            .collect();
+        format!("{} is served as {}", self.name(), or_list(&names))
+    }
+
+    /// The content format a file named `*.ext` holds (`png`, `jpg`, `ply`, `bin` for the
+    /// thesis packet), if the stream is offered in it.
+    pub fn format_of_extension(self, ext: &str) -> Option<ContentFormat> {
+        self.formats()
+            .iter()
+            .copied()
+            .find(|cf| extensions(*cf).contains(&ext.to_ascii_lowercase().as_str()))
+    }
+
+    /// The file extensions it can be written to, e.g. `.png, .jpg or .bin`.
+    pub fn extensions(self) -> String {
+        let exts: Vec<String> = self
+            .formats()
+            .iter()
+            .filter_map(|cf| extensions(*cf).first())
+            .map(|e| format!(".{e}"))
+            .collect();
+        or_list(&exts)
+    }
+}
+
+/// How a content format of [`Stream::formats`] is named for people.
+fn format_name(cf: ContentFormat) -> &'static str {
+    match cf {
+        ContentFormat::OCTET_STREAM => "thesis packet",
+        ContentFormat::IMAGE_PNG => "PNG",
+        ContentFormat::IMAGE_JPEG => "JPEG",
+        ContentFormat::CBOR => "CBOR",
+        ContentFormat::PLY => "PLY",
+        _ => "other",
+    }
+}
+
+/// File extensions of a content format of [`Stream::formats`], the usual one first.
+fn extensions(cf: ContentFormat) -> &'static [&'static str] {
+    match cf {
+        ContentFormat::OCTET_STREAM => &["bin"],
+        ContentFormat::IMAGE_PNG => &["png"],
+        ContentFormat::IMAGE_JPEG => &["jpg", "jpeg"],
+        ContentFormat::PLY => &["ply"],
+        _ => &[],
+    }
+}
+
+/// `a, b or c`.
+fn or_list(items: &[String]) -> String {
+    match items {
+        [] => String::new(),
+        [one] => one.clone(),
+        [first @ .., last] => format!("{} or {last}", first.join(", ")),
+    }
+}
+
+/// A representation could not be encoded.
+#[derive(Debug, thiserror::Error)]
+pub enum EncodeError {
+    #[error("encoding {format}: {source}")]
+    /// A PNG or JPEG encoder failed.
+    Image {
+        /// `PNG` or `JPEG`.
+        format: &'static str,
+        /// The encoder's error.
+        source: image::ImageError,
+    },
+    #[error("encoding CBOR: {0}")]
+    /// The CBOR writer failed.
+    Cbor(#[from] ciborium::ser::Error<std::io::Error>),
+    #[error("encoding PLY: {0}")]
+    /// The PLY writer failed.
+    Ply(#[from] geometry::PlyError),
+}
+
+/// Where a point cloud came from, for its CBOR map and PLY comment.
+#[derive(Debug, Clone, Copy)]
+pub enum CloudSource<'a> {
+    /// One camera's grab.
+    Camera {
+        /// The camera.
+        serial: &'a Serial,
+        /// The frame number of the depth frame.
+        frame: u64,
+    },
+    /// `/cams/pointclouds`: the cameras whose clouds were merged.
+    Merged {
+        /// The cameras, in the order they were merged.
+        serials: &'a [Serial],
+    },
+}
+
+/// A point cloud in content format `cf`: CBOR, PLY, else the thesis packet.
+pub fn cloud(
+    cf: ContentFormat,
+    points: &[Point3],
+    timestamp_us: u64,
+    source: CloudSource<'_>,
+) -> Result<Vec<u8>, EncodeError> {
+    match cf {
+        ContentFormat::CBOR => cbor::cloud_cbor(points, timestamp_us, source),
+        ContentFormat::PLY => ply::cloud_ply(points, timestamp_us, source),
+        _ => Ok(packet::cloud_packet(
+            points,
+            packet::unix_seconds(timestamp_us),
+        )),
+    }
+}
+
+/// A point cloud as binary little-endian PLY, its origin in the comment line.
+pub fn cloud_ply(
+    points: &[Point3],
+    timestamp_us: u64,
+    source: CloudSource<'_>,
+) -> Result<Vec<u8>, EncodeError> {
+    let comment = match source {
+        CloudSource::Camera { serial, frame } => {
+            format!("coapcam camera {serial} frame {frame} timestamp_us {timestamp_us}")
+        }
+        CloudSource::Merged { serials } => format!(
+            "coapcam merged cloud of {} cameras timestamp_us {timestamp_us}",
+            serials.len()
+        ),
+    };
+    Ok(geometry::encode_ply(points, Some(&comment))?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_names_formats_and_extensions() {
+        assert_eq!(
+            Stream::Color.not_acceptable(),
+            "color is served as 42 (thesis packet), 23 (PNG), 22 (JPEG) or 60 (CBOR)"
+        );
+        assert_eq!(Stream::Pointcloud.extensions(), ".bin or .ply");
+        assert_eq!(
+            Stream::Color.format_of_extension("JPEG"),
+            Some(ContentFormat::IMAGE_JPEG)
+        );
+        assert_eq!(Stream::Depth.format_of_extension("jpg"), None);
+        assert_eq!(Stream::of("pointcloud"), Some(Stream::Pointcloud));
+    }
+}

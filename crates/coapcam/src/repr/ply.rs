@@ -1,0 +1,24 @@
+//! Point clouds as binary little-endian PLY (written by `geometry`), with where they came
+//! from in the comment line.
+
+use geometry::Point3;
+
+use super::{CloudSource, EncodeError};
+
+/// A point cloud as binary little-endian PLY, its origin in the comment line.
+pub fn cloud_ply(
+    points: &[Point3],
+    timestamp_us: u64,
+    source: CloudSource<'_>,
+) -> Result<Vec<u8>, EncodeError> {
+    let comment = match source {
+        CloudSource::Camera { serial, frame } => {
+            format!("coapcam camera {serial} frame {frame} timestamp_us {timestamp_us}")
+        }
+        CloudSource::Merged { serials } => format!(
+            "coapcam merged cloud of {} cameras timestamp_us {timestamp_us}",
+            serials.len()
+        ),
+    };
+    Ok(geometry::encode_ply(points, Some(&comment))?)
+}

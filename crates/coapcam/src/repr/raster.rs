@@ -1,0 +1,130 @@
+//! PNG and JPEG: color as 8-bit RGB(A) PNG or JPEG, depth as 16-bit grayscale PNG of the
+//! raw units.
+
+use anyhow::{Context as _, bail};
+use image::codecs::jpeg::JpegEncoder;
+use image::codecs::png::PngEncoder;
+use image::{ExtendedColorType, ImageEncoder as _, ImageFormat};
+use rgbd::{ColorFormat, ColorFrame, DepthFrame};
+
+use super::EncodeError;
+use super::packet::{DepthImage, compact_pixels, depth_rows};
+
+/// Quality of JPEG color images.
+const JPEG_QUALITY: u8 = 90;
+
+fn image_error(format: &'static str) -> impl FnOnce(image::ImageError) -> EncodeError {
+    move |source| EncodeError::Image { format, source }
+}
+
+/// The pixels as RGB (or RGBA when the frame has alpha), compact rows.
+fn rgb_pixels(frame: &ColorFrame) -> (Vec<u8>, ExtendedColorType) {
+    let (alpha, swap) = match frame.format {
+        ColorFormat::Rgb8 => (false, false),
+        ColorFormat::Bgr8 => (false, true),
+        ColorFormat::Rgba8 => (true, false),
+        ColorFormat::Bgra8 => (true, true),
+    };
+    let bpp = frame.format.bytes_per_pixel();
+    let mut out = Vec::with_capacity(frame.width as usize * frame.height as usize * bpp);
+    for row in compact_pixels(frame) {
+        for px in row.chunks_exact(bpp) {
+            let (r, b) = if swap { (px[2], px[0]) } else { (px[0], px[2]) };
+            out.extend_from_slice(&[r, px[1], b]);
+            if alpha {
+                out.push(px[3]);
+            }
+        }
+    }
+    let ty = if alpha {
+        ExtendedColorType::Rgba8
+    } else {
+        ExtendedColorType::Rgb8
+    };
+    (out, ty)
+}
+
+/// Color as an 8-bit RGB(A) PNG.
+pub fn color_png(frame: &ColorFrame) -> Result<Vec<u8>, EncodeError> {
+    let (pixels, ty) = rgb_pixels(frame);
+    let mut out = Vec::new();
+    PngEncoder::new(&mut out)
+        .write_image(&pixels, frame.width, frame.height, ty)
+        .map_err(image_error("PNG"))?;
+    Ok(out)
+}
+
+/// Color as a JPEG (alpha dropped).
+pub fn color_jpeg(frame: &ColorFrame) -> Result<Vec<u8>, EncodeError> {
+    let (pixels, ty) = rgb_pixels(frame);
+    let rgb: Vec<u8> = if ty == ExtendedColorType::Rgba8 {
+        pixels
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect()
+    } else {
+        pixels
+    };
+    let mut out = Vec::new();
+    JpegEncoder::new_with_quality(&mut out, JPEG_QUALITY)
+        .write_image(&rgb, frame.width, frame.height, ExtendedColorType::Rgb8)
+        .map_err(image_error("JPEG"))?;
+    Ok(out)
+}
+
+/// Depth as a 16-bit grayscale PNG of the raw units.
+pub fn depth_png(frame: &DepthFrame) -> Result<Vec<u8>, EncodeError> {
+    let mut pixels = Vec::with_capacity(frame.width as usize * frame.height as usize * 2);
+    for row in depth_rows(frame) {
+        for v in row {
+            pixels.extend_from_slice(&v.to_ne_bytes());
+        }
+    }
+    let mut out = Vec::new();
+    PngEncoder::new(&mut out)
+        .write_image(&pixels, frame.width, frame.height, ExtendedColorType::L16)
+        .map_err(image_error("PNG"))?;
+    Ok(out)
+}
+
+// ---- reading
+
+/// A 16-bit grayscale PNG of raw depth units (the server's `image/png` depth).
+pub fn depth_from_png(png: &[u8]) -> anyhow::Result<DepthImage> {
+    let image = image::load_from_memory_with_format(png, ImageFormat::Png)
+        .context("decoding the depth PNG")?;
+    let image::DynamicImage::ImageLuma16(gray) = image else {
+        bail!("the depth PNG is not 16-bit grayscale");
+    };
+    Ok(DepthImage {
+        width: gray.width(),
+        height: gray.height(),
+        timestamp_s: 0,
+        depth_scale: 0.001,
+        values: gray.into_raw(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn color(format: ColorFormat, width: u32, height: u32, stride: usize) -> ColorFrame {
+        ColorFrame {
+            format,
+            width,
+            height,
+            stride,
+            timestamp_us: 1_700_000_000_500_000,
+            frame_number: 1,
+            data: vec![7; stride * height as usize],
+        }
+    }
+
+    #[test]
+    fn images_encode() {
+        let frame = color(ColorFormat::Bgra8, 4, 2, 16);
+        assert!(color_png(&frame).is_ok_and(|p| p.starts_with(b"\x89PNG")));
+        assert!(color_jpeg(&frame).is_ok_and(|p| p.starts_with(&[0xff, 0xd8])));
+    }
+}

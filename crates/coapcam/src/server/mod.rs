@@ -1,0 +1,404 @@
+//! A camera server: the resource tree of the thesis (docs/design.md §5) over `coap_net`.
+//! [`Station`] assembles one from its configuration ([`StationConfig`]): the `/cams`
+//! tree of its cameras (`cams`), files under `/files` (`files`), the group memberships
+//! of `/coap-group` (`group`). [`SceneServer`] is the same tree for a
+//! synthetic scene on one address inside another program (`demo`, `bench`, tests).
+
+mod cams;
+mod files;
+mod group;
+
+use std::future::Future;
+use std::net::{IpAddr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context as _, bail};
+use coap::EndpointConfig;
+use coap_net::{Router, Server, ServerConfig};
+use rgbd::backend::playback::PlaybackCamera;
+use rgbd::backend::realsense::LibrarySearch;
+use rgbd::{Camera as _, CameraHub, Scene, Serial, SyntheticCamera};
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+use tokio::time::{Instant, MissedTickBehavior};
+
+use cams::Cams;
+use files::StaticFiles;
+use group::Groups;
+
+/// How often `/files` looks for new, changed and vanished files.
+const RESCAN: Duration = Duration::from_millis(200);
+
+/// The cameras a server serves.
+pub enum Cameras {
+    /// The synthetic cameras of a scene.
+    Scene(Scene),
+    /// librealsense recordings (`.bag`, `.db3`), a camera per recorded device.
+    Recordings(Vec<PathBuf>),
+    /// The Intel RealSense D400 cameras librealsense finds.
+    RealSense(RealSenseOptions),
+}
+
+/// How the RealSense cameras are served.
+pub struct RealSenseOptions {
+    /// Where librealsense2 is loaded from.
+    pub library: LibrarySearch,
+    /// Keep the sensors streaming and serve the newest frame, instead of opening and
+    /// closing a sensor per grab.
+    pub streaming: bool,
+    /// Also put a virtual D415 per camera of this scene into librealsense (a software
+    /// device fed by the synthetic renderer).
+    pub software: Option<Scene>,
+}
+
+/// What a [`Station`] serves, and where.
+pub struct StationConfig {
+    /// The addresses to answer on.
+    pub binds: Vec<SocketAddr>,
+    /// The cameras under `/cams`; none for a plain CoAP server.
+    pub cameras: Option<Cameras>,
+    /// Where each camera's configuration is persisted, per serial.
+    pub state_dir: PathBuf,
+    /// Serve the regular files of this directory at `/files/<name>`.
+    pub static_dir: Option<PathBuf>,
+    /// Let clients change the files (PUT, POST, DELETE).
+    pub writable: bool,
+    /// Multicast groups joined at start, on the server's port.
+    pub groups: Vec<IpAddr>,
+    /// IPv6 interface index for the groups (0: the system's default).
+    pub group_interface: u32,
+    /// Transmission parameters and limits of the endpoint.
+    pub endpoint: EndpointConfig,
+}
+
+/// A running camera server: bound, its cameras routed, its groups joined.
+pub struct Station {
+    server: Server,
+    files: Option<StaticFiles>,
+    changed: mpsc::UnboundedReceiver<String>,
+    memberships: mpsc::UnboundedReceiver<group::MembershipChange>,
+    group_interface: u32,
+    _cameras: Option<CameraTree>,
+}
+
+impl Station {
+    /// Builds the resource tree of `config`, binds every address and joins the groups.
+    pub async fn start(config: StationConfig) -> anyhow::Result<Self> {
+        let router = Router::new();
+        let (changed_tx, changed) = mpsc::unbounded_channel::<String>();
+        let (membership_tx, memberships) = mpsc::unbounded_channel();
+        let groups = Groups::register(&router, membership_tx);
+        let files = match &config.static_dir {
+            Some(dir) => Some(StaticFiles::load(
+                dir,
+                &router,
+                config.writable,
+                changed_tx.clone(),
+            )?),
+            None => None,
+        };
+        let cameras = match config.cameras {
+            Some(cameras) => Some(start_cameras(
+                cameras,
+                &config.state_dir,
+                &router,
+                changed_tx.clone(),
+            )?),
+            None => None,
+        };
+        let binds = &config.binds;
+        let server = Server::bind(
+            binds,
+            ServerConfig {
+                endpoint: config.endpoint,
+                ..ServerConfig::default()
+            },
+            router,
+        )
+        .with_context(|| format!("binding {binds:?}"))?;
+        groups
+            .start(&server, &config.groups, config.group_interface)
+            .await?;
+        Ok(Self {
+            server,
+            files,
+            changed,
+            memberships,
+            group_interface: config.group_interface,
+            _cameras: cameras,
+        })
+    }
+
+    /// The addresses it answers on.
+    pub fn local_addrs(&self) -> Vec<SocketAddr> {
+        self.server.local_addrs()
+    }
+
+    /// Serves until `stop` completes: notifies observers of changed resources, applies
+    /// group changes, rescans the files.
+    pub async fn run(mut self, stop: impl Future<Output = ()>) {
+        let server = &self.server;
+        tokio::pin!(stop);
+        // The files were scanned at load. A rescan hashes new and changed files, as long as
+        // that takes: it runs on the blocking pool, one at a time, so requests, notifications
+        // and signals are not held up behind it.
+        let mut tick = tokio::time::interval_at(Instant::now() + RESCAN, RESCAN);
+        tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
+        let mut scan: Option<JoinHandle<Vec<String>>> = None;
+        loop {
+            tokio::select! {
+                () = &mut stop => break,
+                Some(path) = self.changed.recv() => {
+                    server.notify(&path).await;
+                }
+                Some(change) = self.memberships.recv() => {
+                    group::apply(server, change, self.group_interface).await;
+                }
+                _ = tick.tick(), if scan.is_none() => {
+                    if let Some(files) = self.files.clone() {
+                        let router = Arc::clone(server.router());
+                        scan = Some(tokio::task::spawn_blocking(move || files.rescan(&router)));
+                    }
+                }
+                done = async { scan.as_mut().expect("guarded by is_some").await }, if scan.is_some() => {
+                    scan = None;
+                    match done {
+                        Ok(paths) => {
+                            for path in paths {
+                                server.notify(&path).await;
+                            }
+                        }
+                        Err(e) => tracing::warn!(error = %e, "rescanning the files failed"),
+                    }
+                }
+            }
+        }
+        // A rescan under way ends at its next window instead of hashing on: the runtime
+        // waits for its blocking work when it shuts down.
+        if let Some(files) = &self.files {
+            files.stop();
+        }
+        if let Some(scan) = scan {
+            let _ = scan.await;
+        }
+    }
+}
+
+/// A server of a scene's synthetic cameras on one address, answering until dropped
+/// (`demo`, `bench accuracy`); [`SceneServer::load`] swaps the scene's cameras.
+pub struct SceneServer {
+    server: Arc<Server>,
+    hub: Arc<CameraHub>,
+    _cams: Arc<Cams>,
+    notifier: JoinHandle<()>,
+}
+
+impl SceneServer {
+    /// Serves `scene` on `bind` (port 0 picks a free one), persisting configuration in
+    /// `state_dir`.
+    pub async fn start(scene: &Scene, state_dir: &Path, bind: SocketAddr) -> anyhow::Result<Self> {
+        let router = Router::new();
+        let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
+        let (hub, cams) = start_hub(state_dir, &router, changed_tx)?;
+        load_scene(&hub, &router, scene)?;
+        let server = Arc::new(
+            Server::bind(&[bind], ServerConfig::default(), router)
+                .with_context(|| format!("binding {bind}"))?,
+        );
+        let notify = server.clone();
+        let notifier = tokio::spawn(async move {
+            while let Some(path) = changed_rx.recv().await {
+                notify.notify(&path).await;
+            }
+        });
+        Ok(Self {
+            server,
+            hub,
+            _cams: cams,
+            notifier,
+        })
+    }
+
+    /// Replaces the cameras with those of `scene` (they disconnect and connect, as when
+    /// cameras are unplugged and plugged in).
+    pub fn load(&self, scene: &Scene) -> anyhow::Result<()> {
+        load_scene(&self.hub, self.server.router(), scene)
+    }
+
+    /// The address the server answers on.
+    pub fn addr(&self) -> anyhow::Result<SocketAddr> {
+        self.server
+            .local_addrs()
+            .into_iter()
+            .next()
+            .context("the server has no address")
+    }
+}
+
+impl Drop for SceneServer {
+    fn drop(&mut self) {
+        self.notifier.abort();
+    }
+}
+
+/// A camera hub and the `/cams` tree following it.
+fn start_hub(
+    state_dir: &Path,
+    router: &Arc<Router>,
+    changed: mpsc::UnboundedSender<String>,
+) -> anyhow::Result<(Arc<CameraHub>, Arc<Cams>)> {
+    std::fs::create_dir_all(state_dir)
+        .with_context(|| format!("creating state directory {}", state_dir.display()))?;
+    let hub = Arc::new(CameraHub::new());
+    let cams = Cams::start(hub.clone(), router.clone(), state_dir, changed)
+        .context("starting the camera hub listener")?;
+    Ok((hub, cams))
+}
+
+/// Replaces the cameras of `hub` with the synthetic cameras of `scene`, and returns once
+/// the router follows: the hub listener adds and removes per-camera resources on its own
+/// thread, so a client that starts after this (or after "serving on") never sees a 4.04
+/// for a camera that is there, nor a resource of one that left.
+fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result<()> {
+    let cameras = SyntheticCamera::all(scene).context("building the scene's cameras")?;
+    let gone = hub.serials();
+    for sn in &gone {
+        hub.remove(sn);
+    }
+    wait_routed(router, &gone, false)?;
+    let mut expected = Vec::new();
+    for camera in cameras {
+        expected.push(camera.serial());
+        hub.add(camera).context("adding a camera")?;
+    }
+    wait_routed(router, &expected, true)
+}
+
+/// Waits until `/cams/{sn}/color` of every camera of `serials` is routed (`present`), or
+/// of none of them (not `present`).
+fn wait_routed(router: &Router, serials: &[Serial], present: bool) -> anyhow::Result<()> {
+    let paths: Vec<String> = serials
+        .iter()
+        .map(|sn| format!("/cams/{sn}/color"))
+        .collect();
+    let done = || {
+        let patterns = router.patterns();
+        paths.iter().all(|p| patterns.contains(p) == present)
+    };
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while !done() {
+        if std::time::Instant::now() > deadline {
+            bail!("the cameras' resources did not follow the hub within 10 s");
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    Ok(())
+}
+
+/// The cameras of `cameras` in a hub, and the `/cams` tree following it; returns once every
+/// camera present at start is routed.
+fn start_cameras(
+    cameras: Cameras,
+    state_dir: &Path,
+    router: &Arc<Router>,
+    changed: mpsc::UnboundedSender<String>,
+) -> anyhow::Result<CameraTree> {
+    let (hub, cams) = start_hub(state_dir, router, changed)?;
+    let mut backend = None;
+    match cameras {
+        Cameras::RealSense(options) => {
+            let realsense = realsense::start(options, hub.clone())?;
+            wait_routed(router, &realsense.serials, true)?;
+            backend = Some(realsense);
+        }
+        Cameras::Recordings(paths) => {
+            let mut expected = Vec::new();
+            for path in &paths {
+                let cameras = PlaybackCamera::open(path)
+                    .with_context(|| format!("opening recording {}", path.display()))?;
+                for camera in cameras {
+                    expected.push(camera.serial());
+                    hub.add(Arc::new(camera))
+                        .with_context(|| format!("adding the camera of {}", path.display()))?;
+                }
+            }
+            wait_routed(router, &expected, true)?;
+        }
+        Cameras::Scene(scene) => load_scene(&hub, router, &scene)?,
+    }
+    Ok(CameraTree {
+        _backend: backend,
+        _hub: hub,
+        _cams: cams,
+    })
+}
+
+/// What serves the cameras; kept alive as long as the server.
+struct CameraTree {
+    _backend: Option<realsense::Backend>,
+    _hub: Arc<CameraHub>,
+    _cams: Arc<Cams>,
+}
+
+/// `--realsense`: librealsense's cameras in the hub.
+mod realsense {
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    use anyhow::Context as _;
+    use rgbd::backend::realsense::{GrabMode, RealSense, RealSenseLibrary, SoftwareD415};
+    use rgbd::{CameraHub, Serial, SyntheticCamera};
+
+    use super::RealSenseOptions;
+
+    /// How long librealsense gets to announce the first camera.
+    const FIRST_CAMERA: Duration = Duration::from_secs(3);
+
+    /// The running backend, its virtual cameras and the serials served at start.
+    pub(super) struct Backend {
+        pub(super) serials: Vec<Serial>,
+        // Dropped before the context: stops injecting.
+        _software: Vec<SoftwareD415>,
+        _realsense: RealSense,
+    }
+
+    pub(super) fn start(options: RealSenseOptions, hub: Arc<CameraHub>) -> anyhow::Result<Backend> {
+        let library = RealSenseLibrary::load(&options.library)?;
+        let mode = if options.streaming {
+            GrabMode::Streaming
+        } else {
+            GrabMode::PerRequest
+        };
+        let realsense = RealSense::start(&library, hub, mode)
+            .with_context(|| format!("starting librealsense {}", library.version()))?;
+        let mut software = Vec::new();
+        if let Some(scene) = &options.software {
+            for camera in SyntheticCamera::all(scene).context("building the scene's cameras")? {
+                software.push(
+                    realsense
+                        .add_software_d415(camera)
+                        .context("adding a virtual D415 to librealsense")?,
+                );
+            }
+        }
+        let mut serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
+        // Every virtual camera is announced on librealsense's thread; wait for all.
+        let deadline = std::time::Instant::now() + FIRST_CAMERA;
+        while software.iter().any(|s| !serials.contains(&s.serial()))
+            && std::time::Instant::now() < deadline
+        {
+            std::thread::sleep(Duration::from_millis(10));
+            serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
+        }
+        for reason in realsense.rejected() {
+            tracing::warn!("librealsense device not served: {reason}");
+        }
+        Ok(Backend {
+            serials,
+            _software: software,
+            _realsense: realsense,
+        })
+    }
+}

@@ -1,0 +1,5 @@
+//! Image work that needs no network: reading the codes on a parcel, and the pictures for
+//! people (depth views, the top view of a cloud, the measured box on a color image).
+
+pub mod codes;
+pub mod picture;
