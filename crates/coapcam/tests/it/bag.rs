@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use coap::Code;
 use serde::Deserialize;
 
-use crate::cams::{TempDir, client, runtime, send, serve_at};
+use crate::support::{TempDir, client, runtime, send, serve_at};
 
 #[derive(Deserialize)]
 struct Expected {

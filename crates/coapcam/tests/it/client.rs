@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use image::{DynamicImage, ImageFormat};
 
-use crate::cams::{COAPCAM, COLOR_640, DEPTH_640, SN, TempDir, serve};
-use crate::interop::peers::{Finished, Proc};
+use crate::support::{COAPCAM, COLOR_640, DEPTH_640, SN, TempDir, serve};
+use crate::support::{Finished, Proc};
 
 /// Bound on one command (the servers stop by themselves after 120 s).
 const LIMIT: Duration = Duration::from_secs(110);
@@ -60,7 +60,7 @@ fn cloud_packet_points(packet: &[u8]) -> usize {
 }
 
 /// A default server with 640x480 color and depth (quick grabs).
-fn small_server(state: &TempDir) -> (crate::cams::Server, String) {
+fn small_server(state: &TempDir) -> (crate::support::Server, String) {
     let (server, addr) = serve(state.path());
     let uri = format!("coap://{addr}");
     for (name, doc) in [("color-settings", COLOR_640), ("depth-settings", DEPTH_640)] {

@@ -5,7 +5,7 @@
 use ciborium::Value;
 use coap::{Code, Response};
 
-use crate::cams::{COLOR_640, DEPTH_640, SN, TempDir, client, runtime, send, serve};
+use crate::support::{COLOR_640, DEPTH_640, SN, TempDir, client, runtime, send, serve};
 
 const CBOR: u16 = 60;
 const PLY: u16 = 65100;

@@ -11,10 +11,10 @@ use std::time::Duration;
 use bytes::Bytes;
 use coap::{BlockOpt, Code, Message, OptionNumber, Type};
 
-use crate::cams::LIMIT;
-use crate::interop::peers::{self, COAPCAM, Proc, TempDir};
+use crate::support::LIMIT;
+use crate::support::{self, COAPCAM, Proc, TempDir};
 
-fn get(uri: &str, out: &Path, extra: &[&str]) -> peers::Finished {
+fn get(uri: &str, out: &Path, extra: &[&str]) -> support::Finished {
     let mut args = vec!["get", uri, "-o", out.to_str().expect("UTF-8 path")];
     args.extend_from_slice(extra);
     Proc::run(COAPCAM, &args, LIMIT)
@@ -32,8 +32,8 @@ fn leftovers(dir: &Path, keep: &str) -> Vec<String> {
 #[test]
 fn get_o_streams_a_10_mb_body_into_file_bit_exact_and_replaces_an_old_file() {
     let served = TempDir::new("get-served");
-    let want = peers::random_file(&served.join("big.bin"), 10_032_012, 11);
-    let (_server, addr) = peers::our_server(served.path(), false);
+    let want = support::random_file(&served.join("big.bin"), 10_032_012, 11);
+    let (_server, addr) = support::our_server(served.path(), false);
     let out_dir = TempDir::new("get-out");
     let out = out_dir.join("big.bin");
     std::fs::write(&out, b"an older file").expect("writing the old file");
@@ -43,7 +43,7 @@ fn get_o_streams_a_10_mb_body_into_file_bit_exact_and_replaces_an_old_file() {
         &["--block-size", "1024"],
     )
     .expect_success("coapcam get -o");
-    peers::assert_file_is(&out, &want);
+    support::assert_file_is(&out, &want);
     assert_eq!(leftovers(out_dir.path(), "big.bin"), Vec::<String>::new());
 }
 
@@ -128,7 +128,7 @@ fn check_interrupted(then: Then, what: &str) {
         !f.status.success(),
         "{what}: exit 0 with an incomplete body"
     );
-    peers::assert_file_is(&old, b"keep me");
+    support::assert_file_is(&old, b"keep me");
     assert_eq!(leftovers(dir.path(), "old.bin"), Vec::<String>::new());
     stop.store(true, Ordering::SeqCst);
 }
@@ -146,8 +146,8 @@ fn get_o_from_a_server_that_stops_answering_fails_and_leaves_no_file() {
 #[test]
 fn get_o_writes_through_a_link_and_into_a_pipe_without_replacing_them() {
     let served = TempDir::new("get-served-special");
-    let want = peers::random_file(&served.join("mid.bin"), 300_000, 12);
-    let (_server, addr) = peers::our_server(served.path(), false);
+    let want = support::random_file(&served.join("mid.bin"), 300_000, 12);
+    let (_server, addr) = support::our_server(served.path(), false);
     let uri = format!("coap://{addr}/files/mid.bin");
     let dir = TempDir::new("get-special");
 
@@ -157,7 +157,7 @@ fn get_o_writes_through_a_link_and_into_a_pipe_without_replacing_them() {
     let link = dir.join("link.bin");
     std::os::unix::fs::symlink(&real, &link).expect("symlink");
     get(&uri, &link, &[]).expect_success("coapcam get -o LINK");
-    peers::assert_file_is(&real, &want);
+    support::assert_file_is(&real, &want);
     let meta = std::fs::symlink_metadata(&link).expect("link metadata");
     assert!(meta.file_type().is_symlink(), "the link was replaced");
 
@@ -175,7 +175,7 @@ fn get_o_writes_through_a_link_and_into_a_pipe_without_replacing_them() {
     };
     get(&uri, &fifo, &[]).expect_success("coapcam get -o PIPE");
     let got = reader.join().expect("reader thread");
-    peers::assert_same(&got, &want, "body through the pipe");
+    support::assert_same(&got, &want, "body through the pipe");
     let meta = std::fs::symlink_metadata(&fifo).expect("pipe metadata");
     assert!(
         std::os::unix::fs::FileTypeExt::is_fifo(&meta.file_type()),

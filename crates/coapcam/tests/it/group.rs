@@ -13,8 +13,10 @@ use coap::group::{GroupConfig, decode_list};
 use coap::{Code, OptionNumber, Request, Response};
 use coap_net::Client;
 
-use crate::cams::{COAPCAM, LIMIT, Server, TempDir, client, runtime, send, serve_at, serve_with};
-use crate::interop::peers::Proc;
+use crate::support::Proc;
+use crate::support::{
+    COAPCAM, LIMIT, Server, TempDir, client, runtime, send, serve_at, serve_with,
+};
 
 /// The membership list of `GET /coap-group`.
 async fn list(c: &Client, addr: SocketAddr) -> BTreeMap<String, GroupConfig> {

@@ -18,18 +18,15 @@
 //! carries a 24,576-byte body through the same 10 % loss in their direction.
 //!
 //! Peers missing: the test fails in CI (`CI=true`), and is skipped with a loud message
-//! locally (see `peers::available`).
+//! locally (see `support::available`).
 
 use std::path::Path;
 use std::thread;
 use std::time::Duration;
 
-#[path = "peers.rs"]
-pub(crate) mod peers;
-
-use self::peers::{
-    AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, Peer, Proc, TempDir, assert_file_is, assert_same,
-    random_file,
+use crate::support::{
+    self, AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, Peer, Proc, TempDir, assert_file_is,
+    assert_same, random_file,
 };
 
 const BIG: usize = 10_032_012;
@@ -57,7 +54,7 @@ fn secs(d: Duration) -> String {
 }
 
 /// Our client's verb, e.g. `coapcam get URI ARGS...`, bounded by `limit`.
-fn ours(verb: &str, uri: &str, args: &[&str], limit: Duration) -> peers::Finished {
+fn ours(verb: &str, uri: &str, args: &[&str], limit: Duration) -> support::Finished {
     let timeout = secs(limit.saturating_sub(Duration::from_secs(5)));
     let mut all = vec![verb, uri, "--timeout", &timeout];
     all.extend_from_slice(args);
@@ -72,7 +69,7 @@ fn our_get(uri: &str, out: &Path, args: &[&str], limit: Duration) -> Vec<u8> {
     std::fs::read(out).unwrap_or_else(|e| panic!("reading {}: {e}", out.display()))
 }
 
-fn code_of(f: &peers::Finished) -> String {
+fn code_of(f: &support::Finished) -> String {
     let lines = f.json_lines();
     assert_eq!(lines.len(), 1, "one response expected: {lines:?}");
     lines[0]["code"].as_str().unwrap_or_default().to_string()
@@ -148,7 +145,7 @@ fn libcoap_put(uri: &str, file: &Path) {
     .expect_success(&format!("coap-client-notls -m put {uri}"));
 }
 
-fn libcoap_get(uri: &str, out: &Path, extra: &[&str], limit: Duration) -> peers::Finished {
+fn libcoap_get(uri: &str, out: &Path, extra: &[&str], limit: Duration) -> support::Finished {
     let b = secs(limit.saturating_sub(Duration::from_secs(5)));
     let mut args = vec!["-b", "1024", "-B", &b, "-o", out.to_str().expect("UTF-8")];
     args.extend_from_slice(extra);
@@ -158,13 +155,13 @@ fn libcoap_get(uri: &str, out: &Path, extra: &[&str], limit: Duration) -> peers:
 
 #[test]
 fn our_client_libcoap_server_discovery_filter() {
-    if !peers::available(
+    if !support::available(
         "our_client_libcoap_server_discovery_filter",
         &[Peer::Libcoap],
     ) {
         return;
     }
-    let (_server, addr) = peers::libcoap_server();
+    let (_server, addr) = support::libcoap_server();
     let addr = addr.to_string();
     assert_eq!(our_discover(&addr, "rt=ticks"), ["/time"]);
     assert_eq!(our_discover(&addr, "rt=tick*"), ["/time"]);
@@ -175,13 +172,13 @@ fn our_client_libcoap_server_discovery_filter() {
 
 #[test]
 fn our_client_libcoap_server_get_put_post_delete() {
-    if !peers::available(
+    if !support::available(
         "our_client_libcoap_server_get_put_post_delete",
         &[Peer::Libcoap],
     ) {
         return;
     }
-    let (_server, addr) = peers::libcoap_server();
+    let (_server, addr) = support::libcoap_server();
     let uri = format!("coap://{addr}/interop");
     // libcoap's -d: a PUT to an unknown path creates a dynamic resource (2.01), then
     // replaces it (2.04); POST replaces its body too; DELETE removes it.
@@ -204,7 +201,7 @@ fn our_client_libcoap_server_get_put_post_delete() {
 
 #[test]
 fn our_client_libcoap_server_block2_10032012_bytes() {
-    if !peers::available(
+    if !support::available(
         "our_client_libcoap_server_block2_10032012_bytes",
         &[Peer::Libcoap],
     ) {
@@ -212,7 +209,7 @@ fn our_client_libcoap_server_block2_10032012_bytes() {
     }
     let dir = TempDir::new("lc-block2");
     let body = random_file(&dir.join("big"), BIG, 1);
-    let (_server, addr) = peers::libcoap_server();
+    let (_server, addr) = support::libcoap_server();
     let uri = format!("coap://{addr}/big");
     libcoap_put(&uri, &dir.join("big"));
     let got = our_get(&uri, &dir.join("got"), &["--block-size", "1024"], BULK);
@@ -221,7 +218,7 @@ fn our_client_libcoap_server_block2_10032012_bytes() {
 
 #[test]
 fn our_client_libcoap_server_block1_3500_bytes() {
-    if !peers::available(
+    if !support::available(
         "our_client_libcoap_server_block1_3500_bytes",
         &[Peer::Libcoap],
     ) {
@@ -229,7 +226,7 @@ fn our_client_libcoap_server_block1_3500_bytes() {
     }
     let dir = TempDir::new("lc-block1");
     let body = random_file(&dir.join("up"), UPLOAD, 2);
-    let (_server, addr) = peers::libcoap_server();
+    let (_server, addr) = support::libcoap_server();
     let uri = format!("coap://{addr}/up");
     let put = ours(
         "put",
@@ -251,10 +248,10 @@ fn our_client_libcoap_server_block1_3500_bytes() {
 
 #[test]
 fn our_client_libcoap_server_non() {
-    if !peers::available("our_client_libcoap_server_non", &[Peer::Libcoap]) {
+    if !support::available("our_client_libcoap_server_non", &[Peer::Libcoap]) {
         return;
     }
-    let (_server, addr) = peers::libcoap_server();
+    let (_server, addr) = support::libcoap_server();
     let uri = format!("coap://{addr}/non");
     let put = ours(
         "put",
@@ -276,10 +273,10 @@ fn our_client_libcoap_server_non() {
 
 #[test]
 fn our_client_libcoap_server_observe_5() {
-    if !peers::available("our_client_libcoap_server_observe_5", &[Peer::Libcoap]) {
+    if !support::available("our_client_libcoap_server_observe_5", &[Peer::Libcoap]) {
         return;
     }
-    let (_server, addr) = peers::libcoap_server();
+    let (_server, addr) = support::libcoap_server();
     // /time notifies every second with the time of day.
     let payloads = our_observe(&format!("coap://{addr}/time"));
     assert!(payloads.iter().all(|p| !p.is_empty()), "{payloads:?}");
@@ -305,15 +302,15 @@ fn our_client_libcoap_server_observe_5() {
 #[test]
 fn our_client_libcoap_server_netem_10pct_loss_2764810_bytes() {
     let test = "our_client_libcoap_server_netem_10pct_loss_2764810_bytes";
-    if !peers::available(test, &[Peer::Libcoap]) {
+    if !support::available(test, &[Peer::Libcoap]) {
         return;
     }
     let seed = 12;
     let dir = TempDir::new("lc-lossy");
     let body = random_file(&dir.join("body"), LOSSY_FULL, seed);
-    let (_server, addr) = peers::libcoap_server();
+    let (_server, addr) = support::libcoap_server();
     libcoap_put(&format!("coap://{addr}/body"), &dir.join("body"));
-    let (_netem, lossy) = peers::netem(addr, LOSS, seed);
+    let (_netem, lossy) = support::netem(addr, LOSS, seed);
     let got = dir.join("got");
     let mut args = vec!["-o", got.to_str().expect("UTF-8")];
     args.extend_from_slice(FAST_ACK);
@@ -327,13 +324,13 @@ fn our_client_libcoap_server_netem_10pct_loss_2764810_bytes() {
 
 #[test]
 fn our_client_aiocoap_server_discovery_filter() {
-    if !peers::available(
+    if !support::available(
         "our_client_aiocoap_server_discovery_filter",
         &[Peer::Aiocoap],
     ) {
         return;
     }
-    let (_server, addr) = peers::aiocoap_server(None);
+    let (_server, addr) = support::aiocoap_server(None);
     let addr = addr.to_string();
     assert_eq!(our_discover(&addr, "rt=interop.counter"), ["/counter"]);
     assert_eq!(our_discover(&addr, "rt=interop.s*"), ["/store"]);
@@ -342,13 +339,13 @@ fn our_client_aiocoap_server_discovery_filter() {
 
 #[test]
 fn our_client_aiocoap_server_get_put_post_delete() {
-    if !peers::available(
+    if !support::available(
         "our_client_aiocoap_server_get_put_post_delete",
         &[Peer::Aiocoap],
     ) {
         return;
     }
-    let (_server, addr) = peers::aiocoap_server(None);
+    let (_server, addr) = support::aiocoap_server(None);
     let uri = format!("coap://{addr}/store");
     let empty = ours("get", &uri, &[], QUICK);
     assert_eq!(empty.status.code(), Some(2), "{empty:?}");
@@ -379,7 +376,7 @@ fn our_client_aiocoap_server_get_put_post_delete() {
 
 #[test]
 fn our_client_aiocoap_server_block2_10032012_bytes() {
-    if !peers::available(
+    if !support::available(
         "our_client_aiocoap_server_block2_10032012_bytes",
         &[Peer::Aiocoap],
     ) {
@@ -387,7 +384,7 @@ fn our_client_aiocoap_server_block2_10032012_bytes() {
     }
     let dir = TempDir::new("aio-block2");
     let body = random_file(&dir.join("big"), BIG, 3);
-    let (_server, addr) = peers::aiocoap_server(Some(&dir.join("big")));
+    let (_server, addr) = support::aiocoap_server(Some(&dir.join("big")));
     let got = our_get(
         &format!("coap://{addr}/big"),
         &dir.join("got"),
@@ -399,7 +396,7 @@ fn our_client_aiocoap_server_block2_10032012_bytes() {
 
 #[test]
 fn our_client_aiocoap_server_block1_3500_bytes() {
-    if !peers::available(
+    if !support::available(
         "our_client_aiocoap_server_block1_3500_bytes",
         &[Peer::Aiocoap],
     ) {
@@ -407,7 +404,7 @@ fn our_client_aiocoap_server_block1_3500_bytes() {
     }
     let dir = TempDir::new("aio-block1");
     let body = random_file(&dir.join("up"), UPLOAD, 4);
-    let (_server, addr) = peers::aiocoap_server(None);
+    let (_server, addr) = support::aiocoap_server(None);
     let uri = format!("coap://{addr}/store");
     let put = ours(
         "put",
@@ -434,10 +431,10 @@ fn our_client_aiocoap_server_block1_3500_bytes() {
 
 #[test]
 fn our_client_aiocoap_server_non() {
-    if !peers::available("our_client_aiocoap_server_non", &[Peer::Aiocoap]) {
+    if !support::available("our_client_aiocoap_server_non", &[Peer::Aiocoap]) {
         return;
     }
-    let (_server, addr) = peers::aiocoap_server(None);
+    let (_server, addr) = support::aiocoap_server(None);
     let uri = format!("coap://{addr}/store");
     let put = ours(
         "put",
@@ -459,10 +456,10 @@ fn our_client_aiocoap_server_non() {
 
 #[test]
 fn our_client_aiocoap_server_observe_5() {
-    if !peers::available("our_client_aiocoap_server_observe_5", &[Peer::Aiocoap]) {
+    if !support::available("our_client_aiocoap_server_observe_5", &[Peer::Aiocoap]) {
         return;
     }
-    let (_server, addr) = peers::aiocoap_server(None);
+    let (_server, addr) = support::aiocoap_server(None);
     // /counter counts up every 250 ms and notifies each step.
     let payloads = our_observe(&format!("coap://{addr}/counter"));
     let counts: Vec<u64> = payloads
@@ -476,14 +473,14 @@ fn our_client_aiocoap_server_observe_5() {
 #[test]
 fn our_client_aiocoap_server_netem_10pct_loss_2764810_bytes() {
     let test = "our_client_aiocoap_server_netem_10pct_loss_2764810_bytes";
-    if !peers::available(test, &[Peer::Aiocoap]) {
+    if !support::available(test, &[Peer::Aiocoap]) {
         return;
     }
     let seed = 22;
     let dir = TempDir::new("aio-lossy");
     let body = random_file(&dir.join("body"), LOSSY_FULL, seed);
-    let (_server, addr) = peers::aiocoap_server(Some(&dir.join("body")));
-    let (_netem, lossy) = peers::netem(addr, LOSS, seed);
+    let (_server, addr) = support::aiocoap_server(Some(&dir.join("body")));
+    let (_netem, lossy) = support::netem(addr, LOSS, seed);
     let got = our_get(
         &format!("coap://{lossy}/big"),
         &dir.join("got"),
@@ -520,7 +517,7 @@ impl TheirClient {
         payload: Option<Payload<'_>>,
         non: bool,
         limit: Duration,
-    ) -> peers::Finished {
+    ) -> support::Finished {
         let b = secs(limit.saturating_sub(Duration::from_secs(5)));
         let mut args: Vec<String> = Vec::new();
         match self {
@@ -589,7 +586,7 @@ fn start_ours(tag: &str, files: &[(&str, &[u8])]) -> Ours {
     for (name, body) in files {
         std::fs::write(dir.join(name), body).expect("writing a served file");
     }
-    let (server, addr) = peers::our_server(dir.path(), true);
+    let (server, addr) = support::our_server(dir.path(), true);
     Ours {
         dir,
         _server: server,
@@ -674,7 +671,7 @@ fn their_get_put_post_delete(client: TheirClient) {
 }
 
 fn their_block2_download(client: TheirClient) {
-    let body = peers::random_bytes(BIG, 5);
+    let body = support::random_bytes(BIG, 5);
     let ours = start_ours("block2", &[("big.bin", &body)]);
     let uri = format!("coap://{}/files/big.bin", ours.addr);
     let f = client
@@ -735,7 +732,7 @@ fn their_observe(client: TheirClient) {
         TheirClient::Libcoap => Proc::spawn(LIBCOAP_CLIENT, &["-s", "20", "-B", "20", &uri]),
         TheirClient::Aiocoap => Proc::spawn(
             "python3",
-            &[&peers::script("aiocoap_observe.py"), &uri, "5"],
+            &[&support::script("aiocoap_observe.py"), &uri, "5"],
         ),
     };
     // The first response: the observation is registered.
@@ -778,9 +775,9 @@ fn their_observe(client: TheirClient) {
 
 /// Their client -> netem (10 % loss) -> our server, `len` bytes.
 fn their_lossy(client: TheirClient, len: usize, seed: u64, limit: Duration) {
-    let body = peers::random_bytes(len, seed);
+    let body = support::random_bytes(len, seed);
     let ours = start_ours("lossy", &[("body.bin", &body)]);
-    let (_netem, lossy) = peers::netem(ours.addr, LOSS, seed);
+    let (_netem, lossy) = support::netem(ours.addr, LOSS, seed);
     let uri = format!("coap://{lossy}/files/body.bin");
     let f = client
         .request("get", &uri, None, false, limit)
@@ -797,7 +794,7 @@ macro_rules! their_client_tests {
         $(
             #[test]
             fn $name() {
-                if !peers::available(stringify!($name), &[$client.peer()]) {
+                if !support::available(stringify!($name), &[$client.peer()]) {
                     return;
                 }
                 $body
@@ -840,15 +837,15 @@ their_client_tests! {
 #[test]
 #[ignore = "~150 s: libcoap's client stalls ~93 s into a lossy transfer and exits at its -B limit"]
 fn libcoap_client_our_server_netem_10pct_loss_2764810_bytes() {
-    if !peers::available(
+    if !support::available(
         "libcoap_client_our_server_netem_10pct_loss_2764810_bytes",
         &[Peer::Libcoap],
     ) {
         return;
     }
-    let body = peers::random_bytes(LOSSY_FULL, 32);
+    let body = support::random_bytes(LOSSY_FULL, 32);
     let ours = start_ours("lossy-lc-full", &[("body.bin", &body)]);
-    let (mut netem, lossy) = peers::netem(ours.addr, LOSS, 32);
+    let (mut netem, lossy) = support::netem(ours.addr, LOSS, 32);
     let uri = format!("coap://{lossy}/files/body.bin");
     let f = TheirClient::Libcoap.request("get", &uri, None, false, Duration::from_secs(155));
     let counters = netem.interrupt_json();
@@ -878,7 +875,7 @@ fn libcoap_client_our_server_netem_10pct_loss_2764810_bytes() {
 #[test]
 #[ignore = "~30 min: 2,701 stop-and-wait exchanges at 10 % loss, 2-3 s per loss (RFC 7252 ACK_TIMEOUT)"]
 fn aiocoap_client_our_server_netem_10pct_loss_2764810_bytes() {
-    if !peers::available(
+    if !support::available(
         "aiocoap_client_our_server_netem_10pct_loss_2764810_bytes",
         &[Peer::Aiocoap],
     ) {
@@ -909,7 +906,7 @@ fn libcoap_codes(args: &[&str], uri: &str) -> (Vec<String>, String) {
 
 #[test]
 fn libcoap_client_drives_the_camera_api() {
-    if !peers::available("libcoap_client_drives_the_camera_api", &[Peer::Libcoap]) {
+    if !support::available("libcoap_client_drives_the_camera_api", &[Peer::Libcoap]) {
         return;
     }
     let dir = TempDir::new("cams-lc");

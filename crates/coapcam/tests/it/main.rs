@@ -1,4 +1,6 @@
-//! Integration tests of the `coapcam` binary: one binary, one module per subcommand.
+//! Integration tests of `coapcam`: the binary as a process (one module per subcommand, the
+//! peers it interoperates with), and the library in process (`library`); `support` holds
+//! what they share.
 
 mod bag;
 mod cams;
@@ -7,6 +9,8 @@ mod formats;
 mod get;
 mod group;
 mod interop;
+mod library;
 mod netem;
 mod realsense;
 mod signals;
+mod support;

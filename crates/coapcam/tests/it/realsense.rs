@@ -11,7 +11,7 @@ use std::process::Command;
 
 use coap::Code;
 
-use crate::cams::{COAPCAM, COLOR_640, SN, TempDir, client, runtime, send, serve_at};
+use crate::support::{COAPCAM, COLOR_640, SN, TempDir, client, runtime, send, serve_at};
 
 fn wheel() -> Option<(String, String)> {
     let from_env = |name: &str| std::env::var(name).ok().filter(|v| !v.is_empty());

@@ -6,8 +6,8 @@ use std::time::{Duration, Instant};
 
 use coap::Code;
 
-use crate::cams::{LIMIT, SN, TempDir, client, runtime, send, serve};
-use crate::interop::peers::{self, COAPCAM, Proc};
+use crate::support::{self, COAPCAM, Proc};
+use crate::support::{LIMIT, SN, TempDir, client, runtime, send, serve};
 
 /// Longest wait for the process to exit; far below the server's 120 s `--duration`.
 const EXIT_BOUND: Duration = Duration::from_secs(30);
@@ -51,7 +51,7 @@ fn serve_exits_with_status_0_on_sigterm_and_sigint() {
 fn a_file_being_hashed_holds_up_neither_requests_nor_the_stop() {
     let dir = TempDir::new("signal-hashing");
     std::fs::write(dir.join("small.txt"), b"small").expect("writing small.txt");
-    let (mut server, addr) = peers::our_server(dir.path(), false);
+    let (mut server, addr) = support::our_server(dir.path(), false);
     // Sparse: it takes no disk space, but its ETag means reading and hashing 64 GiB, far
     // longer than this test runs. It is routed once hashed.
     std::fs::File::create(dir.join("huge.bin"))

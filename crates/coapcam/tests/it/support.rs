@@ -1,7 +1,8 @@
-//! The peers of the interop tests as processes: libcoap 4.3.1 (`coap-server-notls`,
-//! `coap-client-notls`), aiocoap (`tests/peers/aiocoap_server.py`, `aiocoap-client`), our
-//! `coapcam serve` and `coapcam netem`. Every process is killed and reaped on drop, every
-//! wait is bounded, and every socket is on 127.0.0.1.
+//! What the tests share: processes (our `coapcam serve` and `coapcam netem`, libcoap
+//! 4.3.1's `coap-server-notls` and `coap-client-notls`, aiocoap's
+//! `tests/peers/aiocoap_server.py` and `aiocoap-client`), a CoAP client and its requests,
+//! scratch directories and bodies. Every process is killed and reaped on drop, every wait
+//! is bounded, and every socket is on 127.0.0.1.
 
 use std::io::{BufRead, BufReader, Read};
 use std::net::{SocketAddr, UdpSocket};
@@ -11,6 +12,9 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 use std::thread;
 use std::time::{Duration, Instant};
+
+use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
+use coap_net::Client;
 
 /// How long a server may take to start listening.
 const STARTUP: Duration = Duration::from_secs(20);
@@ -545,3 +549,107 @@ pub(crate) fn netem(forward: SocketAddr, loss: f64, seed: u64) -> (Proc, SocketA
     });
     (p, addr)
 }
+
+/// A running `coapcam serve`, killed on drop.
+pub(crate) struct Server(Child);
+
+impl Server {
+    /// The server's process.
+    pub(crate) fn process(&mut self) -> &mut Child {
+        &mut self.0
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+pub(crate) const SN: &str = "840412060746";
+pub(crate) const LIMIT: Duration = Duration::from_secs(60);
+
+/// A server on an ephemeral port of 127.0.0.1 with its state in `state`.
+pub(crate) fn serve(state: &Path) -> (Server, SocketAddr) {
+    serve_with(state, &[])
+}
+
+/// As [`serve`], with more flags.
+pub(crate) fn serve_with(state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
+    serve_at("127.0.0.1:0", state, extra)
+}
+
+/// A server bound to `bind` with its state in `state` and more flags.
+pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
+    let dir = state.to_string_lossy().into_owned();
+    let mut child = Command::new(COAPCAM)
+        .args([
+            "serve",
+            "--bind",
+            bind,
+            "--state-dir",
+            &dir,
+            "--duration",
+            "120",
+        ])
+        .args(extra)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("starting coapcam serve");
+    let stderr = child.stderr.take().expect("stderr pipe");
+    let server = Server(child);
+    // The server stops by itself after --duration, which bounds this read.
+    let mut lines = BufReader::new(stderr).lines();
+    let addr = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .find_map(|l| {
+            l.strip_prefix("coapcam: serving on ")
+                .and_then(|a| a.trim().parse().ok())
+        })
+        .expect("coapcam serve printed no address");
+    thread::spawn(move || lines.for_each(drop));
+    (server, addr)
+}
+
+pub(crate) fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .expect("tokio runtime")
+}
+
+pub(crate) async fn send(
+    client: &Client,
+    addr: SocketAddr,
+    method: Code,
+    path: &str,
+    payload: &[u8],
+    accept: Option<u16>,
+) -> Response {
+    let mut request = Request::new(method, path).with_payload(payload.to_vec());
+    request.timeout = Some(LIMIT);
+    if let Some(cf) = accept {
+        request
+            .options
+            .set_uint(OptionNumber::ACCEPT, u32::from(cf));
+    }
+    client
+        .send(addr, request)
+        .await
+        .unwrap_or_else(|e| panic!("{method:?} {path}: {e}"))
+}
+
+pub(crate) fn client() -> Client {
+    Client::bind(
+        SocketAddr::from(([127, 0, 0, 1], 0)),
+        EndpointConfig::default(),
+    )
+    .expect("client socket")
+}
+
+pub(crate) const COLOR_640: &str = r#"{"format": "BGR8", "fps": 30, "width": 640, "height": 480}"#;
+pub(crate) const DEPTH_640: &str = r#"{"format": "Z16", "fps": 30, "width": 640, "height": 480}"#;

@@ -1,0 +1,118 @@
+//! The `coapcam` library in one process, without the binary: a `SceneServer` on a loopback
+//! port, the typed client, measuring, and the decoders reading what the server's encoders
+//! wrote.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use coap::{ContentFormat, EndpointConfig};
+use coapcam::client::CamClient;
+use coapcam::client::measure::{Source, measure_once, prepare_cameras, truth, yaw_difference};
+use coapcam::repr::{Stream, cbor, packet, raster};
+use coapcam::server::SceneServer;
+use geometry::DimensionConfig;
+use rgbd::Scene;
+
+use crate::support::{TempDir, runtime};
+
+/// A scene server and a client of it.
+async fn start(scene: &Scene, state: &TempDir) -> (SceneServer, CamClient) {
+    let server = SceneServer::start(scene, state.path(), SocketAddr::from(([127, 0, 0, 1], 0)))
+        .await
+        .expect("scene server");
+    let uri = format!("coap://{}", server.addr().expect("its address"));
+    let client = CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(60))
+        .await
+        .expect("client");
+    (server, client)
+}
+
+#[test]
+fn the_library_measures_the_demo_scene_in_process() {
+    let state = TempDir::new("library-measure");
+    let scene = Scene::default_demo();
+    runtime().block_on(async {
+        let (_server, client) = start(&scene, &state).await;
+        let serials = client.cameras().await.expect("discovery");
+        assert_eq!(serials.len(), scene.cameras.len());
+        prepare_cameras(&client, &serials, 1.0, false)
+            .await
+            .expect("prepare");
+        let m = measure_once(&client, &Source::All, &DimensionConfig::default())
+            .await
+            .expect("measure");
+        let [length, width, height, yaw] = truth(&scene).expect("the scene has a box");
+        let d = &m.dimensions;
+        for (got, want, what) in [
+            (d.length_mm, length, "length"),
+            (d.width_mm, width, "width"),
+            (d.height_mm, height, "height"),
+        ] {
+            assert!(
+                (got - want).abs() < 5.0,
+                "{what}: {got:.1} mm, truth {want:.1} mm"
+            );
+        }
+        assert!(
+            yaw_difference(d.yaw_deg, yaw).abs() < 2.0,
+            "yaw {}",
+            d.yaw_deg
+        );
+        assert_eq!(m.grabbed.cameras.len(), scene.cameras.len());
+    });
+}
+
+#[test]
+fn every_representation_decodes_to_the_same_frame() {
+    let state = TempDir::new("library-repr");
+    let scene = Scene::default_single();
+    runtime().block_on(async {
+        let (_server, client) = start(&scene, &state).await;
+        let sn = client.one_camera(None).await.expect("one camera");
+        // A grab makes a new frame; GET answers the last one in any format.
+        client
+            .grab(&sn, Stream::Depth, None)
+            .await
+            .expect("depth grab");
+        let get = |cf: ContentFormat| {
+            let path = format!("/cams/{sn}/depth");
+            let client = &client;
+            async move {
+                client
+                    .call(coap::Code::GET, &path, bytes::Bytes::new(), None, Some(cf))
+                    .await
+                    .expect("GET depth")
+                    .payload
+            }
+        };
+        let from_packet = packet::depth(&get(ContentFormat::OCTET_STREAM).await).expect("packet");
+        let from_png = raster::depth_from_png(&get(ContentFormat::IMAGE_PNG).await).expect("png");
+        assert_eq!(from_png.values, from_packet.values);
+        assert_eq!(
+            (from_png.width, from_png.height),
+            (from_packet.width, from_packet.height)
+        );
+
+        client
+            .grab(&sn, Stream::Pointcloud, None)
+            .await
+            .expect("cloud grab");
+        let path = format!("/cams/{sn}/pointcloud");
+        let mut clouds = Vec::new();
+        for cf in Stream::Pointcloud.formats() {
+            let body = client
+                .call(coap::Code::GET, &path, bytes::Bytes::new(), None, Some(*cf))
+                .await
+                .expect("GET pointcloud")
+                .payload;
+            clouds.push(match *cf {
+                ContentFormat::OCTET_STREAM => packet::cloud(&body).expect("packet").cloud,
+                ContentFormat::CBOR => cbor::Cloud::from_cbor(&body).expect("cbor").cloud,
+                ContentFormat::PLY => geometry::decode_ply(&body).expect("ply"),
+                other => panic!("a format the table does not list: {other:?}"),
+            });
+        }
+        assert!(!clouds[0].is_empty());
+        assert!(clouds.iter().all(|c| c.points == clouds[0].points));
+    });
+}
