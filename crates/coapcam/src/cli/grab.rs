@@ -50,6 +50,15 @@ fn file_format(path: &Path, stream: Stream) -> anyhow::Result<ContentFormat> {
         .extension()
         .and_then(|e| e.to_str())
         .unwrap_or_default();
+    if Stream::ALL
+        .iter()
+        .all(|s| s.format_of_extension(ext).is_none())
+    {
+        bail!(
+            "{}: the extension must be .png, .jpg, .ply or .bin",
+            path.display()
+        );
+    }
     stream.format_of_extension(ext).with_context(|| {
         let all: Vec<String> = Stream::ALL
             .iter()

@@ -15,7 +15,6 @@ pub mod ply;
 pub mod raster;
 
 use coap::ContentFormat;
-use geometry::Point3;
 use rgbd::Serial;
 
 /// What a grab resource produces.
@@ -168,41 +167,6 @@ pub enum CloudSource<'a> {
         /// The cameras, in the order they were merged.
         serials: &'a [Serial],
     },
-}
-
-/// A point cloud in content format `cf`: CBOR, PLY, else the thesis packet.
-pub fn cloud(
-    cf: ContentFormat,
-    points: &[Point3],
-    timestamp_us: u64,
-    source: CloudSource<'_>,
-) -> Result<Vec<u8>, EncodeError> {
-    match cf {
-        ContentFormat::CBOR => cbor::cloud_cbor(points, timestamp_us, source),
-        ContentFormat::PLY => ply::cloud_ply(points, timestamp_us, source),
-        _ => Ok(packet::cloud_packet(
-            points,
-            packet::unix_seconds(timestamp_us),
-        )),
-    }
-}
-
-/// A point cloud as binary little-endian PLY, its origin in the comment line.
-pub fn cloud_ply(
-    points: &[Point3],
-    timestamp_us: u64,
-    source: CloudSource<'_>,
-) -> Result<Vec<u8>, EncodeError> {
-    let comment = match source {
-        CloudSource::Camera { serial, frame } => {
-            format!("coapcam camera {serial} frame {frame} timestamp_us {timestamp_us}")
-        }
-        CloudSource::Merged { serials } => format!(
-            "coapcam merged cloud of {} cameras timestamp_us {timestamp_us}",
-            serials.len()
-        ),
-    };
-    Ok(geometry::encode_ply(points, Some(&comment))?)
 }
 
 #[cfg(test)]

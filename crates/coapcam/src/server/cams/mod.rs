@@ -18,14 +18,14 @@ use bytes::Bytes;
 use coap::link_format::Filter;
 use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Resource, Router, handler};
-use geometry::{IcpConfig, IcpMethod, PointCloud, Transform, Transformation};
+use geometry::{IcpConfig, IcpMethod, Point3, PointCloud, Transform, Transformation};
 use nalgebra::{Isometry3, Matrix3, Vector3};
 use rgbd::{
     AdvancedConfig, Camera, CameraError, CameraHub, ColorSettings, DepthSettings, HubEvent, Serial,
 };
 use tokio::sync::mpsc;
 
-use crate::repr::{self, Stream, cbor, packet, raster};
+use crate::repr::{self, CloudSource, Stream, cbor, packet, raster};
 
 use config::AppConfig;
 use grab::{Frame, GrabError};
@@ -523,8 +523,8 @@ impl Cams {
         } else {
             newest_us
         };
-        let source = repr::CloudSource::Merged { serials: &serials };
-        let body = match repr::cloud(cf, &merged.points, timestamp_us, source) {
+        let source = CloudSource::Merged { serials: &serials };
+        let body = match cloud_body(cf, &merged.points, timestamp_us, source) {
             Ok(body) => body,
             Err(e) => return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
         };
@@ -676,16 +676,33 @@ fn represent(
             },
             cf,
         ) => {
-            let source = repr::CloudSource::Camera {
+            let source = CloudSource::Camera {
                 serial: sn,
                 frame: *frame_number,
             };
-            repr::cloud(cf, points, *timestamp_us, source)
+            cloud_body(cf, points, *timestamp_us, source)
         }
     };
     match body {
         Ok(body) => content(body, cf, representation_etag(etag, cf)),
         Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
+    }
+}
+
+/// A point cloud in content format `cf`: CBOR, PLY, else the thesis packet.
+fn cloud_body(
+    cf: ContentFormat,
+    points: &[Point3],
+    timestamp_us: u64,
+    source: CloudSource<'_>,
+) -> Result<Vec<u8>, repr::EncodeError> {
+    match cf {
+        ContentFormat::CBOR => cbor::cloud_cbor(points, timestamp_us, source),
+        ContentFormat::PLY => repr::ply::cloud_ply(points, timestamp_us, source),
+        _ => Ok(packet::cloud_packet(
+            points,
+            packet::unix_seconds(timestamp_us),
+        )),
     }
 }
 
