@@ -9,6 +9,7 @@ use std::process::ExitCode;
 
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
+use cli::Deferred;
 
 /// RGB-D cameras (Intel RealSense D400 and a synthetic D415) as CoAP resources.
 #[derive(Debug, Parser)]
@@ -52,47 +53,6 @@ enum Command {
     /// Relay UDP between clients and a server over an emulated link (loss, delay, jitter,
     /// rate limit), and print the counters when it ends.
     Netem(Deferred<cli::netem::NetemArgs>),
-}
-
-/// A subcommand's arguments, built by clap only when that subcommand is the one given
-/// (`Command::defer`): `coapcam get` does not build the arguments of every other command
-/// at each start.
-#[derive(Debug)]
-struct Deferred<T>(T);
-
-impl<T: clap::FromArgMatches> clap::FromArgMatches for Deferred<T> {
-    fn from_arg_matches(matches: &clap::ArgMatches) -> Result<Self, clap::Error> {
-        T::from_arg_matches(matches).map(Self)
-    }
-
-    fn update_from_arg_matches(&mut self, matches: &clap::ArgMatches) -> Result<(), clap::Error> {
-        self.0.update_from_arg_matches(matches)
-    }
-}
-
-impl<T: clap::Args> clap::Args for Deferred<T> {
-    fn augment_args(cmd: clap::Command) -> clap::Command {
-        cmd.defer(|cmd| keep_about(cmd, T::augment_args))
-    }
-
-    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
-        cmd.defer(|cmd| keep_about(cmd, T::augment_args_for_update))
-    }
-
-    fn group_id() -> Option<clap::Id> {
-        T::group_id()
-    }
-}
-
-/// Runs `augment` on a subcommand but keeps the subcommand's description: built late, the
-/// arguments' own doc comment would otherwise replace it.
-fn keep_about(cmd: clap::Command, augment: fn(clap::Command) -> clap::Command) -> clap::Command {
-    use clap::builder::Resettable;
-    let kept = |text: Option<&clap::builder::StyledStr>| {
-        text.cloned().map_or(Resettable::Reset, Resettable::Value)
-    };
-    let (about, long_about) = (kept(cmd.get_about()), kept(cmd.get_long_about()));
-    augment(cmd).about(about).long_about(long_about)
 }
 
 fn main() -> ExitCode {

@@ -1,6 +1,7 @@
 //! The commands: one file per subcommand, with its clap flags and its `run`. The
 //! commands share only the flag groups of this file (transmission parameters, the
-//! measurement's thresholds); none imports another, and what they do is the library's.
+//! measurement's thresholds) and `Deferred`, which builds a command's flags only when it
+//! is the one given; none imports another, and what they do is the library's.
 
 pub(crate) mod bench;
 pub(crate) mod demo;
@@ -72,4 +73,45 @@ impl DimensionArgs {
             ..DimensionConfig::default()
         }
     }
+}
+
+/// A subcommand's arguments, built by clap only when that subcommand is the one given
+/// (`Command::defer`): `coapcam get` does not build the arguments of every other command
+/// at each start.
+#[derive(Debug)]
+pub(crate) struct Deferred<T>(pub(crate) T);
+
+impl<T: clap::FromArgMatches> clap::FromArgMatches for Deferred<T> {
+    fn from_arg_matches(matches: &clap::ArgMatches) -> Result<Self, clap::Error> {
+        T::from_arg_matches(matches).map(Self)
+    }
+
+    fn update_from_arg_matches(&mut self, matches: &clap::ArgMatches) -> Result<(), clap::Error> {
+        self.0.update_from_arg_matches(matches)
+    }
+}
+
+impl<T: Args> Args for Deferred<T> {
+    fn augment_args(cmd: clap::Command) -> clap::Command {
+        cmd.defer(|cmd| keep_about(cmd, T::augment_args))
+    }
+
+    fn augment_args_for_update(cmd: clap::Command) -> clap::Command {
+        cmd.defer(|cmd| keep_about(cmd, T::augment_args_for_update))
+    }
+
+    fn group_id() -> Option<clap::Id> {
+        T::group_id()
+    }
+}
+
+/// Runs `augment` on a subcommand but keeps the subcommand's description: built late, the
+/// arguments' own doc comment would otherwise replace it.
+fn keep_about(cmd: clap::Command, augment: fn(clap::Command) -> clap::Command) -> clap::Command {
+    use clap::builder::Resettable;
+    let kept = |text: Option<&clap::builder::StyledStr>| {
+        text.cloned().map_or(Resettable::Reset, Resettable::Value)
+    };
+    let (about, long_about) = (kept(cmd.get_about()), kept(cmd.get_long_about()));
+    augment(cmd).about(about).long_about(long_about)
 }
