@@ -9,7 +9,7 @@ use std::process::ExitCode;
 
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
-use cli::Deferred;
+use cli::{Deferred, Exit};
 
 /// RGB-D cameras (Intel RealSense D400 and a synthetic D415) as CoAP resources.
 #[derive(Debug, Parser)]
@@ -68,18 +68,20 @@ fn main() -> ExitCode {
         )
         .init();
     match run(cli) {
-        Ok(true) => ExitCode::SUCCESS,
-        // The command printed why (e.g. the response code and its diagnostic).
-        Ok(false) => ExitCode::from(2),
-        Err(e) => {
-            eprintln!("coapcam: {e:#}");
-            ExitCode::FAILURE
-        }
+        Ok(exit) => ExitCode::from(exit.code()),
+        Err(e) => match cli::exit_status(&e) {
+            Some(exit) => {
+                eprintln!("coapcam: {e:#}");
+                ExitCode::from(exit.code())
+            }
+            // Standard output's reader went away (`| head`): nothing more to say.
+            None => ExitCode::SUCCESS,
+        },
     }
 }
 
-/// Runs the command; `Ok(false)` is a clean failure that was already reported.
-fn run(cli: Cli) -> anyhow::Result<bool> {
+/// Runs the command; how it ended is its exit status (README.md's table).
+fn run(cli: Cli) -> anyhow::Result<Exit> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -113,8 +115,8 @@ fn run(cli: Cli) -> anyhow::Result<bool> {
         Command::Netem(Deferred(args)) => {
             let json = args.json;
             let counters = runtime.block_on(cli::netem::run(args))?;
-            println!("{}", cli::netem::report(&counters, json)?);
+            cli::outln!("{}", cli::netem::report(&counters, json)?);
         }
     }
-    Ok(true)
+    Ok(Exit::Success)
 }

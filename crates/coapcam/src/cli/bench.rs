@@ -12,9 +12,9 @@ use rand_core::{RngCore as _, SeedableRng as _};
 use rgbd::scene::{Noise, SceneBox, SceneCamera};
 use rgbd::{Scene, Serial};
 
-use super::DimensionArgs;
+use super::{DimensionArgs, Exit, outln};
 use coapcam::client::CamClient;
-use coapcam::client::measure::{self, Source, prepare_cameras, truth, yaw_difference};
+use coapcam::client::measure::{self, Measurement, Source, prepare_cameras, truth, yaw_difference};
 use coapcam::server::SceneServer;
 
 /// Flags of `bench`.
@@ -158,13 +158,13 @@ fn summary(values: &[f64]) -> [f64; 3] {
 }
 
 /// Runs `bench`.
-pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<bool> {
+pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
     match args.what {
         BenchKind::Accuracy(a) => accuracy(a).await,
     }
 }
 
-async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
+async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     if args.scenes == 0 {
         bail!("--scenes must be at least 1");
     }
@@ -201,14 +201,19 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
             grab_ms: result
                 .as_ref()
                 .map_or(f64::NAN, |m| m.grab.as_secs_f64() * 1e3),
-            measured: result.as_ref().ok().map(|m| {
-                let d = &m.dimensions;
-                [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg]
-            }),
-            error: result.err().map(|e| format!("{e:#}")),
+            measured: result
+                .as_ref()
+                .ok()
+                .and_then(Measurement::dimensions)
+                .map(|d| [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg]),
+            error: match &result {
+                Ok(m) if m.dimensions().is_none() => Some("nothing on the table".into()),
+                Ok(_) => None,
+                Err(e) => Some(format!("{e:#}")),
+            },
         };
         if !args.json {
-            print_row(&row);
+            print_row(&row)?;
         }
         rows.push(row);
     }
@@ -248,7 +253,7 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
                 )
             })
             .collect();
-        println!(
+        outln!(
             "{}",
             serde_json::json!({
                 "scenes": scenes, "summary": summary, "failed": failed,
@@ -256,27 +261,31 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<bool> {
             })
         );
     } else {
-        println!();
-        println!("{:<10} {:>8} {:>8} {:>8}", "", "MAE", "p95", "max");
+        outln!("");
+        outln!("{:<10} {:>8} {:>8} {:>8}", "", "MAE", "p95", "max");
         for (i, name) in ["length mm", "width mm", "height mm", "yaw deg"]
             .iter()
             .enumerate()
         {
             let [mae, p95, max] = column(i);
-            println!("{name:<10} {mae:>8.2} {p95:>8.2} {max:>8.2}");
+            outln!("{name:<10} {mae:>8.2} {p95:>8.2} {max:>8.2}");
         }
-        println!(
+        outln!(
             "{} scenes, {failed} failed; cycle median {median_cycle:.0} ms, p95 {p95_cycle:.0} ms, max {max_cycle:.0} ms",
             rows.len()
         );
     }
-    Ok(failed == 0)
+    Ok(if failed == 0 {
+        Exit::Success
+    } else {
+        Exit::Failure
+    })
 }
 
-fn print_row(r: &Row) {
+fn print_row(r: &Row) -> anyhow::Result<()> {
     let t = r.truth;
     match (r.errors(), &r.error) {
-        (Some(e), _) => println!(
+        (Some(e), _) => outln!(
             "scene {:>2}: {} cam at {:.2} m  {:>5.0} x {:>5.0} x {:>5.0} mm  yaw {:>4.1}  error {:>+6.1} {:>+6.1} {:>+6.1} mm {:>+5.1} deg  {:>4.0} ms ({:.0} grab)",
             r.index,
             r.cameras,
@@ -292,12 +301,18 @@ fn print_row(r: &Row) {
             r.cycle_ms,
             r.grab_ms
         ),
-        (None, Some(err)) => println!(
+        (None, Some(err)) => outln!(
             "scene {:>2}: {} cam at {:.2} m  {:>5.0} x {:>5.0} x {:>5.0} mm  FAILED: {err}",
-            r.index, r.cameras, r.camera_z, t[0], t[1], t[2]
+            r.index,
+            r.cameras,
+            r.camera_z,
+            t[0],
+            t[1],
+            t[2]
         ),
         (None, None) => {}
     }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -12,9 +12,10 @@ use coap::{ContentFormat, EndpointConfig};
 use geometry::{DimensionConfig, Dimensions};
 use rgbd::Scene;
 
+use super::{Exit, out, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::{
-    self, FLOOR_CUT_M, Measurement, Source, prepare_cameras, truth, yaw_difference,
+    self, Billing, FLOOR_CUT_M, Measurement, Source, prepare_cameras, truth, yaw_difference,
 };
 use coapcam::client::{annotate, codes};
 use coapcam::repr::Stream;
@@ -57,7 +58,7 @@ fn scene_codes(scene: &Scene) -> String {
 }
 
 /// Runs `demo`.
-pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<bool> {
+pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
     let scene = match &args.scene {
         Some(path) => {
             Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
@@ -73,19 +74,19 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<bool> {
     )
     .await?;
     let uri = format!("coap://{}", server.addr()?);
-    println!(
+    outln!(
         "server: {} synthetic D415 camera(s) on {uri}",
         scene.cameras.len()
     );
     let client =
         CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(30)).await?;
     let serials = client.cameras().await?;
-    println!("discovered cameras: {}", serials.join(", "));
+    outln!("discovered cameras: {}", serials.join(", "));
     let Some(first) = serials.first() else {
         bail!("the server has no camera");
     };
     prepare_cameras(&client, &serials, 1.0, true).await?;
-    println!(
+    outln!(
         "application-config: roi3d from {:.0} mm above the floor (the floor is not sent), spatial filter on; color 1920x1080",
         FLOOR_CUT_M * 1e3
     );
@@ -98,25 +99,28 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<bool> {
         .context("encoding the PLY cloud")?;
     std::fs::write(&cloud_path, ply)
         .with_context(|| format!("writing {}", cloud_path.display()))?;
-    println!(
+    outln!(
         "wrote {} ({} points)",
         cloud_path.display(),
         m.grabbed.cloud.len()
     );
     let top = dir.join("top.png");
     save(&picture::top_view(&m.grabbed.cloud), &top)?;
-    println!("wrote {}", top.display());
+    outln!("wrote {}", top.display());
     let annotated = dir.join("annotated.png");
-    annotate::from_server(&client, first, &m.dimensions, &annotated).await?;
-    println!("wrote {} (camera {first})", annotated.display());
-    println!();
-    print!("{}", report(&m, truth(&scene)));
-    println!(
+    let Some(dimensions) = m.dimensions() else {
+        bail!("nothing on the table: the scene's box was not seen");
+    };
+    annotate::from_server(&client, first, dimensions, &annotated).await?;
+    outln!("wrote {} (camera {first})", annotated.display());
+    outln!("");
+    out!("{}", report(&m, dimensions, truth(&scene)));
+    outln!(
         "codes: {}; on the scene's parcels: {}",
         codes::describe(&codes),
         scene_codes(&scene)
     );
-    Ok(true)
+    Ok(Exit::Success)
 }
 
 /// color.png, depth.png (16-bit raw units), depth-view.png and depth-color.png of one
@@ -127,7 +131,7 @@ async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Res
         .await?;
     let path = dir.join("color.png");
     std::fs::write(&path, &color.payload).with_context(|| format!("writing {}", path.display()))?;
-    println!("wrote {} (camera {serial})", path.display());
+    outln!("wrote {} (camera {serial})", path.display());
     let depth = client.grab(serial, Stream::Depth, None).await?;
     let depth = packet::depth(&depth.payload).context("reading the depth packet")?;
     let raw = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
@@ -142,20 +146,20 @@ async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Res
         ("depth-color.png", image::DynamicImage::from(colored)),
     ];
     save(&raw, &dir.join("depth.png"))?;
-    println!("wrote {}", dir.join("depth.png").display());
+    outln!("wrote {}", dir.join("depth.png").display());
     for (name, picture) in depth_views {
         let path = dir.join(name);
         picture
             .save_with_format(&path, image::ImageFormat::Png)
             .with_context(|| format!("writing {}", path.display()))?;
-        println!("wrote {}", path.display());
+        outln!("wrote {}", path.display());
     }
     Ok(())
 }
 
-/// The measurement next to the truth, as a table.
-fn report(m: &Measurement, truth: Option<[f64; 4]>) -> String {
-    let d: &Dimensions = &m.dimensions;
+/// The measurement of `d` next to the truth, as a table.
+fn report(m: &Measurement, d: &Dimensions, truth: Option<[f64; 4]>) -> String {
+    let billing = Billing::default();
     let measured = [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg];
     let names = ["length mm", "width mm", "height mm", "yaw deg"];
     let mut out = format!(
@@ -180,8 +184,8 @@ fn report(m: &Measurement, truth: Option<[f64; 4]>) -> String {
     }
     out += &format!(
         "volume {:.2} l, volumetric weight {:.2} kg, {} points from {} camera(s), cycle {:.0} ms ({:.2} MB)\n",
-        d.volume_l,
-        m.volumetric_weight_kg(),
+        billing.volume_l(d),
+        billing.volumetric_weight_kg(d),
         d.points,
         m.grabbed.cameras.len(),
         m.cycle.as_secs_f64() * 1e3,

@@ -11,7 +11,7 @@ use coapcam::client::CamClient;
 use coapcam::repr::{Stream, packet, raster};
 use coapcam::vision::picture::{self, save, sibling};
 
-use super::TransmissionArgs;
+use super::{Exit, TransmissionArgs};
 
 /// Flags of `grab`.
 #[derive(Debug, Args)]
@@ -80,7 +80,7 @@ fn accept(cf: ContentFormat) -> Option<ContentFormat> {
 }
 
 /// Runs `grab`.
-pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<bool> {
+pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
     if args.all && args.stream != Stream::Pointcloud {
         bail!("--all is for point clouds: every camera's cloud merged");
     }
@@ -112,7 +112,7 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<bool> {
             eprintln!("coapcam: wrote {}", written.display());
         }
     }
-    Ok(true)
+    Ok(Exit::Success)
 }
 
 /// Writes the picture(s) of `--view` from the representation that arrived (from camera

@@ -1,6 +1,6 @@
 //! `coapcam measure`: grab point clouds (one camera, every camera of a server, or every
 //! server of a multicast group), merge them and measure the largest parcel on the floor
-//! (DESIGN.md §6).
+//! (docs/design.md §6).
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -10,10 +10,10 @@ use anyhow::{Context as _, bail};
 use clap::Args;
 use coap_net::Uri;
 
-use super::{DimensionArgs, TransmissionArgs};
-use coapcam::client::CamClient;
-use coapcam::client::measure::{Source, measure_once, prepare_cameras};
-use coapcam::client::{annotate, codes};
+use coapcam::client::measure::{Billing, FLOOR_CUT_M, Source, measure_once, prepare_cameras};
+use coapcam::client::{CamClient, annotate, codes};
+
+use super::{DimensionArgs, Exit, TransmissionArgs, outln};
 
 /// Flags of `measure`.
 #[derive(Debug, Args)]
@@ -50,7 +50,9 @@ pub(crate) struct MeasureArgs {
     /// First prepare the server's cameras as `demo` does (and the thesis's client
     /// expects): roi3d becomes the space above the floor within 1 m of the origin, so
     /// the floor is not sent, and the spatial filter runs; the rest of each camera's
-    /// application-config stays. Not with --group.
+    /// application-config stays. This changes the cameras' settings on the server, for
+    /// every client and across restarts (the server persists them); what changed is
+    /// printed on standard error. Not with --group.
     #[arg(long, conflicts_with = "group")]
     prepare: bool,
     /// Print one JSON object instead of text.
@@ -58,13 +60,24 @@ pub(crate) struct MeasureArgs {
     json: bool,
     /// Also read the QR and Code 128 codes on the parcel from a new color image of each
     /// camera (`codes` in the JSON). With --prepare the color stream first becomes
-    /// 1920x1080, where a code may be a third smaller than at 1280x720.
+    /// 1920x1080 (on the server, for every client), where a code may be a third smaller
+    /// than at 1280x720.
     #[arg(long)]
     codes: bool,
     /// Draw the measured box and its dimensions onto a new color image of the first
     /// camera and write it as PNG.
     #[arg(long, value_name = "FILE.png")]
     annotate: Option<PathBuf>,
+    /// Divisor of the volumetric weight, cm³ per kg (5000 is the common courier
+    /// convention, 6000 is used too).
+    #[arg(long, value_name = "CM3_PER_KG", default_value_t = 5000.0,
+          value_parser = parse_positive)]
+    volumetric_divisor: f64,
+    /// Round each dimension up to a multiple of this many millimetres, as a scale with
+    /// this division reports it (e.g. 5); the volume and volumetric weight follow the
+    /// rounded dimensions.
+    #[arg(long, value_name = "MM", value_parser = parse_positive)]
+    round_up_mm: Option<f64>,
     /// Give up on a request after this many seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
     timeout: f64,
@@ -74,10 +87,23 @@ pub(crate) struct MeasureArgs {
     transmission: TransmissionArgs,
 }
 
-/// Runs `measure`. Returns whether a measurement came out.
-pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
+fn parse_positive(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("{v} is not a positive number")),
+        Err(e) => Err(format!("not a number ({e})")),
+    }
+}
+
+/// Runs `measure`: [`Exit::Empty`] when nothing is on the table, [`Exit::Fewer`] when
+/// fewer servers of a group answered than `--expect`.
+pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     let timeout = Duration::try_from_secs_f64(args.timeout).context("--timeout")?;
     let config = args.transmission.endpoint_config();
+    let billing = Billing {
+        divisor_cm3_per_kg: args.volumetric_divisor,
+        division_mm: args.round_up_mm,
+    };
     let (client, source) = match (&args.group, &args.server) {
         (Some(g), _) => {
             let group = group_address(g).await?;
@@ -101,6 +127,12 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
                     None => client.cameras().await?,
                 };
                 prepare_cameras(&client, &serials, 1.0, args.codes).await?;
+                eprintln!(
+                    "coapcam: prepared camera(s) {} on the server, for every client: roi3d from {:.0} mm above the floor, spatial filter on{}",
+                    serials.join(", "),
+                    FLOOR_CUT_M * 1e3,
+                    if args.codes { ", color 1920x1080" } else { "" }
+                );
             }
             let source = match &args.camera {
                 Some(sn) => Source::Camera(sn.clone()),
@@ -111,6 +143,20 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
         (None, None) => bail!("give --server URI or --group MCAST_ADDR"),
     };
     let m = measure_once(&client, &source, &args.dimension.config()).await?;
+    let mut warnings = Vec::new();
+    if let Source::Group {
+        group,
+        expect: Some(expected),
+        ..
+    } = &source
+    {
+        let answered = m.servers().len();
+        if answered < *expected {
+            warnings.push(format!(
+                "{answered} of the {expected} expected servers of the group {group} answered"
+            ));
+        }
+    }
     let codes = if args.codes {
         let started = Instant::now();
         let codes = codes::read_cameras(&client, &m.grabbed.cameras).await?;
@@ -118,34 +164,44 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<bool> {
     } else {
         None
     };
+    for w in &warnings {
+        eprintln!("coapcam: warning: {w}");
+    }
     if args.json {
-        let mut json = m.to_json();
+        let mut json = m.to_json(&billing);
+        json["warnings"] = warnings.clone().into();
         if let Some((codes, took)) = &codes {
             json["codes"] = codes.iter().map(codes::Seen::to_json).collect();
             json["codes_ms"] = ((took.as_secs_f64() * 1e4).round() / 10.0).into();
         }
-        println!("{json}");
+        outln!("{json}");
     } else {
-        println!("{}", m.to_text());
+        outln!("{}", m.to_text(&billing));
         if let Some((codes, took)) = &codes {
-            println!(
+            outln!(
                 "codes: {} (grabbed and read in {:.0} ms)",
                 codes::describe(codes),
                 took.as_secs_f64() * 1e3
             );
         }
     }
-    if let Some(path) = &args.annotate {
+    if let (Some(path), Some(dimensions)) = (&args.annotate, m.dimensions()) {
         let (server, sn) = m
             .grabbed
             .cameras
             .first()
             .context("no camera to take the color image from")?;
         let one = CamClient::unicast(&client, *server);
-        annotate::from_server(&one, sn, &m.dimensions, path).await?;
+        annotate::from_server(&one, sn, dimensions, path).await?;
         eprintln!("coapcam: wrote {}", path.display());
     }
-    Ok(true)
+    Ok(if m.dimensions().is_none() {
+        Exit::Empty
+    } else if !warnings.is_empty() {
+        Exit::Fewer
+    } else {
+        Exit::Success
+    })
 }
 
 /// `224.0.1.187`, `[ff02::fd]`, or a full `coap://group:port` URI; port 5683 by default.

@@ -115,3 +115,90 @@ fn keep_about(cmd: clap::Command, augment: fn(clap::Command) -> clap::Command) -
     let (about, long_about) = (kept(cmd.get_about()), kept(cmd.get_long_about()));
     augment(cmd).about(about).long_about(long_about)
 }
+
+/// How a command ended, as its exit status; README.md's table lists them. A usage error
+/// is 2 (clap's); an error's status is [`exit_status`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Exit {
+    /// 0: done.
+    Success,
+    /// 1: failed: a network or file error, a malformed answer, a protocol violation.
+    Failure,
+    /// 3: the server answered with an error response (4.xx, 5.xx) or refused what was
+    /// asked (an observation it does not allow); the code and diagnostic were printed.
+    Refused,
+    /// 4: nothing answered in time: no server at the address, no member of the group.
+    NoAnswer,
+    /// 5: `measure`: nothing is on the table (printed as a result).
+    Empty,
+    /// 6: fewer servers answered than `--expect` asked for; the answers that came were
+    /// used and printed.
+    Fewer,
+}
+
+impl Exit {
+    /// The process's exit status.
+    pub(crate) fn code(self) -> u8 {
+        match self {
+            Self::Success => 0,
+            Self::Failure => 1,
+            Self::Refused => 3,
+            Self::NoAnswer => 4,
+            Self::Empty => 5,
+            Self::Fewer => 6,
+        }
+    }
+}
+
+/// How a command that failed with `error` ends: [`Exit::Refused`] when a server's
+/// error response caused it, [`Exit::NoAnswer`] when nothing answered in time, else
+/// [`Exit::Failure`]. `None` when standard output was closed by its reader (`coapcam
+/// discover | head`): not a failure, the command ends quietly.
+pub(crate) fn exit_status(error: &anyhow::Error) -> Option<Exit> {
+    for cause in error.chain() {
+        if cause.is::<coapcam::client::ErrorResponse>() {
+            return Some(Exit::Refused);
+        }
+        if cause.is::<coapcam::client::NoAnswer>()
+            || matches!(
+                cause.downcast_ref(),
+                Some(coap_net::Error::Request(coap::RequestError::Timeout))
+            )
+            || matches!(cause.downcast_ref(), Some(coap::RequestError::Timeout))
+        {
+            return Some(Exit::NoAnswer);
+        }
+        if cause
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+        {
+            return None;
+        }
+    }
+    Some(Exit::Failure)
+}
+
+/// `println!` for command output, returning from the enclosing function with an error
+/// instead of panicking when standard output fails (a reader that went away).
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        anyhow::Context::context(
+            writeln!(std::io::stdout(), $($arg)*),
+            "writing standard output",
+        )?
+    }};
+}
+pub(crate) use outln;
+
+/// `print!` as [`outln!`].
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        anyhow::Context::context(
+            write!(std::io::stdout(), $($arg)*),
+            "writing standard output",
+        )?
+    }};
+}
+pub(crate) use out;

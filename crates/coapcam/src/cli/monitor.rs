@@ -14,11 +14,10 @@ use coap::{Code, ContentFormat, OptionNumber, Response};
 use geometry::DimensionConfig;
 
 use coapcam::client::CamClient;
-use coapcam::client::measure::{self, Measurement, Source};
+use coapcam::client::measure::{self, Billing, Measurement, Parcel, Source};
 use coapcam::repr::Stream;
 
-use super::DimensionArgs;
-use super::TransmissionArgs;
+use super::{DimensionArgs, Exit, TransmissionArgs, exit_status, out, outln};
 
 /// What `monitor` repeats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -346,10 +345,16 @@ struct Report {
     json: bool,
     stats: Stats,
     seen: u64,
+    /// How the last failed result would end the command.
+    last_failure: Option<Exit>,
 }
 
 impl Report {
-    fn result(&mut self, outcome: anyhow::Result<Success>, elapsed: Duration) {
+    fn result(
+        &mut self,
+        outcome: anyhow::Result<Success>,
+        elapsed: Duration,
+    ) -> anyhow::Result<()> {
         self.seen += 1;
         let unix_ms = SystemTime::now()
             .duration_since(SystemTime::UNIX_EPOCH)
@@ -362,14 +367,14 @@ impl Report {
                     let mut line = s
                         .measurement
                         .as_ref()
-                        .map_or_else(|| serde_json::json!({}), Measurement::to_json);
+                        .map_or_else(|| serde_json::json!({}), |m| m.to_json(&Billing::default()));
                     line["n"] = self.seen.into();
-                    line["unix_ms"] = unix_ms.into();
+                    line["at_unix_ms"] = unix_ms.into();
                     line["ok"] = true.into();
-                    line["bytes"] = s.bytes.into();
+                    line["received_bytes"] = s.bytes.into();
                     line["time_ms"] = millis(s.time).into();
                     line["mean_ms"] = millis(mean).into();
-                    println!("{line}");
+                    outln!("{line}");
                 } else {
                     let mut line = format!(
                         "#{:<4} {}  {:>12} B  {:>10.1} ms  mean {:.1} ms",
@@ -379,29 +384,33 @@ impl Report {
                         millis(s.time),
                         millis(mean)
                     );
-                    if let Some(m) = &s.measurement {
-                        let d = &m.dimensions;
-                        line += &format!(
-                            "  {:.1} x {:.1} x {:.1} mm, yaw {:.1} deg, {} points",
-                            d.length_mm, d.width_mm, d.height_mm, d.yaw_deg, d.points
-                        );
+                    match s.measurement.as_ref().map(|m| &m.parcel) {
+                        Some(Parcel::Measured(d)) => {
+                            line += &format!(
+                                "  {:.1} x {:.1} x {:.1} mm, yaw {:.1} deg, {} points",
+                                d.length_mm, d.width_mm, d.height_mm, d.yaw_deg, d.points
+                            );
+                        }
+                        Some(Parcel::Nothing { .. }) => line += "  nothing on the table",
+                        None => {}
                     }
-                    println!("{line}");
+                    outln!("{line}");
                 }
             }
             Err(e) => {
                 self.stats.record_failure();
+                self.last_failure = exit_status(&e);
                 if self.json {
                     let line = serde_json::json!({
                         "n": self.seen,
-                        "unix_ms": unix_ms,
+                        "at_unix_ms": unix_ms,
                         "ok": false,
                         "time_ms": millis(elapsed),
                         "error": format!("{e:#}"),
                     });
-                    println!("{line}");
+                    outln!("{line}");
                 } else {
-                    println!(
+                    outln!(
                         "#{:<4} {}  failed after {:.1} ms: {e:#}",
                         self.seen,
                         clock(unix_ms),
@@ -410,6 +419,7 @@ impl Report {
                 }
             }
         }
+        Ok(())
     }
 
     /// Whether `--count` results have been printed.
@@ -505,7 +515,7 @@ async fn repeat(
         }
         let started = Instant::now();
         let outcome = once(client, plan, args.accept, &config).await;
-        report.result(outcome, started.elapsed());
+        report.result(outcome, started.elapsed())?;
     }
     Ok(())
 }
@@ -550,7 +560,7 @@ async fn observe(
             time: elapsed,
             measurement: None,
         });
-        report.result(outcome, elapsed);
+        report.result(outcome, elapsed)?;
         if !observing {
             if first {
                 bail!("the server did not accept the observation of {path}");
@@ -562,8 +572,9 @@ async fn observe(
     Ok(())
 }
 
-/// Runs `monitor`: true when at least one result succeeded.
-pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<bool> {
+/// Runs `monitor`: a success when at least one result succeeded, else as its last
+/// failure.
+pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
     let timeout = Duration::try_from_secs_f64(args.timeout).context("--timeout")?;
     let period = Duration::try_from_secs_f64(args.interval).context("--interval")?;
     if period.is_zero() && args.count.is_none() && !args.observe {
@@ -575,14 +586,15 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<bool> {
     let what = plan.describe();
     if !args.json {
         match args.count {
-            Some(n) => println!("{what}: {n} result(s)"),
-            None => println!("{what}: until Ctrl-C"),
+            Some(n) => outln!("{what}: {n} result(s)"),
+            None => outln!("{what}: until Ctrl-C"),
         }
     }
     let mut report = Report {
         json: args.json,
         stats: Stats::new(),
         seen: 0,
+        last_failure: None,
     };
     let work = async {
         match &plan {
@@ -600,20 +612,21 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<bool> {
     };
     let summary = report.stats.summary();
     if args.json {
-        println!("{}", summary.to_json());
+        outln!("{}", summary.to_json());
     } else {
         let times = if args.observe {
             "times between results"
         } else {
             "transfer times"
         };
-        print!("{}", summary.to_text(times));
+        out!("{}", summary.to_text(times));
     }
-    if let Err(e) = ended {
-        eprintln!("coapcam: {e:#}");
-        return Ok(false);
-    }
-    Ok(summary.count > 0)
+    ended?;
+    Ok(if summary.count > 0 {
+        Exit::Success
+    } else {
+        report.last_failure.unwrap_or(Exit::Failure)
+    })
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@ use coap::link_format;
 use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{BodyPart, Client, Uri};
 
-use super::TransmissionArgs;
+use super::{Exit, TransmissionArgs, outln};
 use coapcam::client::{check_size, describe};
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
@@ -85,8 +85,9 @@ pub(crate) struct DiscoverArgs {
     transmission: TransmissionArgs,
 }
 
-/// Runs `get|post|put|delete`. Returns whether the response was a success.
-pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<bool> {
+/// Runs `get|post|put|delete`: a success for a 2.xx whose body arrived whole,
+/// [`Exit::Refused`] for an error response.
+pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit> {
     let uri = Uri::parse(&args.uri)?;
     let peer = uri
         .resolve()
@@ -324,7 +325,7 @@ async fn observe(
     count: usize,
     args: &RequestArgs,
     started: Instant,
-) -> anyhow::Result<bool> {
+) -> anyhow::Result<Exit> {
     let mut obs = client.observe(peer, request).await?;
     let mut seen = 0;
     while let Some(r) = obs.next().await {
@@ -339,12 +340,16 @@ async fn observe(
         }
         if !response.options.contains(OptionNumber::OBSERVE) {
             if seen == 0 {
-                eprintln!("coapcam: the server did not accept the observation");
+                eprintln!(
+                    "coapcam: the server answered without Observe: it does not let this resource be observed"
+                );
+                return Ok(Exit::Refused);
             }
-            return Ok(true);
+            // The server ended the observation (RFC 7641 §3.2) after `seen` notifications.
+            bail!("the server ended the observation after {seen} notifications");
         }
         if seen == count {
-            return Ok(true);
+            return Ok(Exit::Success);
         }
         seen += 1;
     }
@@ -369,28 +374,31 @@ async fn send_with_bar(
     response
 }
 
-fn report_code(r: &Response) -> bool {
+/// A success for a 2.xx response, else [`Exit::Refused`] with the code and diagnostic
+/// printed.
+fn report_code(r: &Response) -> Exit {
     if r.code.is_success() {
-        return true;
+        return Exit::Success;
     }
     eprintln!("coapcam: {}", describe(r));
-    false
+    Exit::Refused
 }
 
-/// Prints a response: the body (unless it went to --output) or, with --json, a summary
-/// where `size` is the size of the body.
+/// Prints a response: the body (unless it went to --output) or, with --json, one line
+/// with its code, every option, the body's size and the time since the request.
 fn output(r: &Response, size: usize, args: &RequestArgs, started: Instant) -> anyhow::Result<()> {
     if args.json {
         let v = serde_json::json!({
             "code": format!("{:?}", r.code),
+            "options": options_json(&r.options),
             "content_format": r.options.content_format().map(|c| c.0),
             "etag": r.options.etag().map(hex),
             "observe": r.options.uint(OptionNumber::OBSERVE),
-            "size": size,
-            "elapsed_ms": started.elapsed().as_secs_f64() * 1e3,
+            "size_bytes": size,
+            "time_ms": (started.elapsed().as_secs_f64() * 1e4).round() / 10.0,
             "payload": if args.output.is_none() { std::str::from_utf8(&r.payload).ok() } else { None },
         });
-        println!("{v}");
+        outln!("{v}");
     } else if args.output.is_none() && r.code.is_success() {
         let mut out = std::io::stdout().lock();
         out.write_all(&r.payload)
@@ -405,12 +413,41 @@ fn output(r: &Response, size: usize, args: &RequestArgs, started: Instant) -> an
     Ok(())
 }
 
+/// Every option of a response: `{"Location-Path": ["a", "b"], "ETag": ["0a1b"], ...}`,
+/// values as the registry's format says (text, number, or hex for opaque values and
+/// options the registry does not know, named by number).
+fn options_json(options: &coap::Options) -> serde_json::Map<String, serde_json::Value> {
+    use coap::msg::option::ValueFormat;
+    let mut out = serde_json::Map::new();
+    for o in options.iter() {
+        let info = o.number.info();
+        let name = info.map_or_else(|| o.number.0.to_string(), |i| i.name.to_owned());
+        let bytes = o.value.as_slice();
+        let value = match info.map(|i| i.format) {
+            Some(ValueFormat::Uint) => coap::msg::option::decode_uint(bytes)
+                .map_or_else(|| hex(bytes).into(), serde_json::Value::from),
+            Some(ValueFormat::String) => String::from_utf8_lossy(bytes).into_owned().into(),
+            Some(ValueFormat::Empty) => serde_json::Value::Bool(true),
+            _ => hex(bytes).into(),
+        };
+        match out
+            .entry(name)
+            .or_insert_with(|| serde_json::Value::Array(Vec::new()))
+        {
+            serde_json::Value::Array(values) => values.push(value),
+            _ => unreachable!("every entry is an array"),
+        }
+    }
+    out
+}
+
 fn hex(b: &[u8]) -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
-/// Runs `discover`. Returns whether at least one server answered with a success.
-pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<bool> {
+/// Runs `discover`: a success when a server answered with its links,
+/// [`Exit::NoAnswer`] when no member of a group answered.
+pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
     let uri = Uri::parse(&args.uri)?;
     let peer = uri
         .resolve()
@@ -434,13 +471,15 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<bool> {
                 .with_context(|| format!("discovering {}", args.uri))?,
         )]
     };
-    let mut ok = false;
-    let mut json = Vec::new();
+    let mut exit = Exit::NoAnswer;
     for (server, r) in &answers {
-        if !report_code(r) {
+        if report_code(r) != Exit::Success {
+            if exit == Exit::NoAnswer {
+                exit = Exit::Refused;
+            }
             continue;
         }
-        ok = true;
+        exit = Exit::Success;
         let text =
             std::str::from_utf8(&r.payload).context("the link-format document is not UTF-8")?;
         let links =
@@ -457,19 +496,17 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<bool> {
                         )
                     })
                     .collect();
-                json.push(serde_json::json!({"server": server.to_string(), "target": l.target, "attrs": attrs}));
+                let link = serde_json::json!({"server": server.to_string(), "target": l.target, "attrs": attrs});
+                outln!("{link}");
             } else if answers.len() > 1 {
-                println!("{server} {l}");
+                outln!("{server} {l}");
             } else {
-                println!("{l}");
+                outln!("{l}");
             }
         }
-    }
-    if args.json {
-        println!("{}", serde_json::Value::Array(json));
     }
     if answers.is_empty() {
         eprintln!("coapcam: no server answered within {} s", args.wait);
     }
-    Ok(ok)
+    Ok(exit)
 }

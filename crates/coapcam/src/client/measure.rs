@@ -6,17 +6,70 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, bail};
+use anyhow::Context as _;
 use bytes::Bytes;
 use coap::{Code, ContentFormat};
 use geometry::{DimensionConfig, Dimensions, PointCloud};
 use rgbd::Scene;
 
-use super::{CamClient, check};
+use super::{CamClient, NoAnswer, check};
 use crate::repr::{Stream, cbor};
 
-/// Divisor of the volumetric weight, cm³ per kg (the courier convention).
-pub const VOLUMETRIC_DIVISOR_CM3_PER_KG: f64 = 5000.0;
+/// How a measurement is reported to an integrator's billing: the volumetric divisor and
+/// the scale division the dimensions are rounded up to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Billing {
+    /// Divisor of the volumetric weight, cm³ per kg: 5000 by default (the courier
+    /// convention), 6000 with some carriers.
+    pub divisor_cm3_per_kg: f64,
+    /// Round each dimension up to a multiple of this many millimetres (a scale
+    /// division, e.g. 5); `None` reports them to 0.1 mm.
+    pub division_mm: Option<f64>,
+}
+
+impl Default for Billing {
+    fn default() -> Self {
+        Self {
+            divisor_cm3_per_kg: 5000.0,
+            division_mm: None,
+        }
+    }
+}
+
+impl Billing {
+    /// Length, width and height in millimetres as reported: rounded up to the division,
+    /// else to 0.1 mm.
+    pub fn dimensions_mm(&self, d: &Dimensions) -> [f64; 3] {
+        [d.length_mm, d.width_mm, d.height_mm].map(|v| match self.division_mm {
+            Some(step) => (v / step - 1e-9).ceil() * step,
+            None => (v * 10.0).round() / 10.0,
+        })
+    }
+
+    /// The volume of the reported dimensions, litres.
+    pub fn volume_l(&self, d: &Dimensions) -> f64 {
+        let [l, w, h] = self.dimensions_mm(d);
+        l * w * h / 1e6
+    }
+
+    /// The volumetric weight of the reported dimensions: cm³ over the divisor, kg.
+    pub fn volumetric_weight_kg(&self, d: &Dimensions) -> f64 {
+        self.volume_l(d) * 1000.0 / self.divisor_cm3_per_kg
+    }
+}
+
+/// What a measurement found on the table.
+#[derive(Debug, Clone)]
+pub enum Parcel {
+    /// The largest object above the floor, measured.
+    Measured(Dimensions),
+    /// Nothing on the table: the largest object above the floor has fewer points than a
+    /// measurement needs.
+    Nothing {
+        /// Points of the largest object above the floor (0 when there is none).
+        points: usize,
+    },
+}
 
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
@@ -52,82 +105,117 @@ pub struct Grabbed {
 /// One measurement with its provenance and timing.
 #[derive(Debug)]
 pub struct Measurement {
-    /// The parcel's dimensions.
-    pub dimensions: Dimensions,
+    /// The parcel's dimensions, or that nothing is on the table.
+    pub parcel: Parcel,
     /// The clouds it was measured from.
     pub grabbed: Grabbed,
-    /// From sending the first request until the dimensions were known.
+    /// From sending the first request until the result was known.
     pub cycle: Duration,
     /// Of the cycle: until the last cloud arrived (the servers' grabs and the transfers).
     pub grab: Duration,
 }
 
 impl Measurement {
-    /// length x width x height in cm³ over the divisor, kilograms.
-    pub fn volumetric_weight_kg(&self) -> f64 {
-        let d = &self.dimensions;
-        (d.length_mm / 10.0) * (d.width_mm / 10.0) * (d.height_mm / 10.0)
-            / VOLUMETRIC_DIVISOR_CM3_PER_KG
+    /// The servers that sent clouds, each once, in the order they answered.
+    pub fn servers(&self) -> Vec<SocketAddr> {
+        let mut servers: Vec<SocketAddr> = Vec::new();
+        for (server, _) in &self.grabbed.cameras {
+            if !servers.contains(server) {
+                servers.push(*server);
+            }
+        }
+        servers
     }
 
-    /// The JSON object of `measure --json` (DESIGN.md §6).
-    pub fn to_json(&self) -> serde_json::Value {
-        let d = &self.dimensions;
-        let mm = |v: f64| (v * 10.0).round() / 10.0;
-        serde_json::json!({
-            "length_mm": mm(d.length_mm),
-            "width_mm": mm(d.width_mm),
-            "height_mm": mm(d.height_mm),
-            "yaw_deg": (d.yaw_deg * 100.0).round() / 100.0,
-            "corners_m": d.corners_m,
-            "volume_l": (d.volume_l * 1000.0).round() / 1000.0,
-            "volumetric_weight_kg": (self.volumetric_weight_kg() * 1000.0).round() / 1000.0,
-            "points": d.points,
-            "cloud_points": self.grabbed.cloud.len(),
-            "cameras": self.grabbed.cameras.iter().map(|(_, sn)| sn).collect::<Vec<_>>(),
-            "servers": self.grabbed.cameras.iter().map(|(s, _)| s.to_string()).collect::<Vec<_>>(),
-            "timestamps_us": self.grabbed.timestamps_us,
-            "cycle_ms": (self.cycle.as_secs_f64() * 1e4).round() / 10.0,
-            "grab_ms": (self.grab.as_secs_f64() * 1e4).round() / 10.0,
-            "bytes": self.grabbed.bytes,
-        })
+    /// The parcel's dimensions; `None` when nothing is on the table.
+    pub fn dimensions(&self) -> Option<&Dimensions> {
+        match &self.parcel {
+            Parcel::Measured(d) => Some(d),
+            Parcel::Nothing { .. } => None,
+        }
+    }
+
+    /// The JSON object of `measure --json` (docs/design.md §6): `"parcel": "measured"`
+    /// with the dimensions, or `"parcel": "nothing"`, and where the clouds came from.
+    /// Units are in the names; instants are `_unix_us`.
+    pub fn to_json(&self, billing: &Billing) -> serde_json::Value {
+        let g = &self.grabbed;
+        let ms = |d: Duration| (d.as_secs_f64() * 1e4).round() / 10.0;
+        let mut json = serde_json::json!({
+            "cloud_points": g.cloud.len(),
+            "cameras": g.cameras.iter().map(|(_, sn)| sn).collect::<Vec<_>>(),
+            "servers": g.cameras.iter().map(|(s, _)| s.to_string()).collect::<Vec<_>>(),
+            "frames_unix_us": g.timestamps_us,
+            "cycle_ms": ms(self.cycle),
+            "grab_ms": ms(self.grab),
+            "received_bytes": g.bytes,
+        });
+        match &self.parcel {
+            Parcel::Measured(d) => {
+                let [l, w, h] = billing.dimensions_mm(d);
+                json["parcel"] = "measured".into();
+                json["length_mm"] = l.into();
+                json["width_mm"] = w.into();
+                json["height_mm"] = h.into();
+                json["division_mm"] = billing.division_mm.into();
+                json["yaw_deg"] = ((d.yaw_deg * 100.0).round() / 100.0).into();
+                json["corners_m"] = serde_json::json!(d.corners_m);
+                json["volume_l"] = ((billing.volume_l(d) * 1000.0).round() / 1000.0).into();
+                json["volumetric_weight_kg"] =
+                    ((billing.volumetric_weight_kg(d) * 1000.0).round() / 1000.0).into();
+                json["volumetric_divisor_cm3_per_kg"] = billing.divisor_cm3_per_kg.into();
+                json["parcel_points"] = d.points.into();
+            }
+            Parcel::Nothing { points } => {
+                json["parcel"] = "nothing".into();
+                json["parcel_points"] = (*points).into();
+            }
+        }
+        json
     }
 
     /// The text of `measure` without --json.
-    pub fn to_text(&self) -> String {
-        let d = &self.dimensions;
-        let serials: Vec<&str> = self
-            .grabbed
-            .cameras
-            .iter()
-            .map(|(_, s)| s.as_str())
-            .collect();
+    pub fn to_text(&self, billing: &Billing) -> String {
+        let g = &self.grabbed;
+        let serials: Vec<&str> = g.cameras.iter().map(|(_, s)| s.as_str()).collect();
+        let provenance = format!(
+            "{} points from {} camera(s): {}\n\
+             cycle {:.0} ms (grab and transfer {:.0} ms), {:.2} MB received",
+            g.cloud.len(),
+            serials.len(),
+            serials.join(", "),
+            self.cycle.as_secs_f64() * 1e3,
+            self.grab.as_secs_f64() * 1e3,
+            g.bytes as f64 / 1e6,
+        );
+        let d = match &self.parcel {
+            Parcel::Measured(d) => d,
+            Parcel::Nothing { points } => {
+                return format!(
+                    "nothing on the table (the largest object above the floor has {points} points)\n{provenance}"
+                );
+            }
+        };
+        let [l, w, h] = billing.dimensions_mm(d);
+        let rounded = billing
+            .division_mm
+            .map_or_else(String::new, |s| format!(" (rounded up to {s} mm)"));
         let corners: Vec<String> = d
             .corners_m
             .iter()
             .map(|[x, y]| format!("({x:.3}, {y:.3})"))
             .collect();
         format!(
-            "length {:.1} mm  width {:.1} mm  height {:.1} mm\n\
+            "length {l:.1} mm  width {w:.1} mm  height {h:.1} mm{rounded}\n\
              yaw {:.1} deg  volume {:.2} l  volumetric weight {:.2} kg (divisor {} cm3/kg)\n\
              footprint corners (m): {}\n\
-             {} points of {} from {} camera(s): {}\n\
-             cycle {:.0} ms (grab and transfer {:.0} ms), {:.2} MB received",
-            d.length_mm,
-            d.width_mm,
-            d.height_mm,
+             parcel {} points of {provenance}",
             d.yaw_deg,
-            d.volume_l,
-            self.volumetric_weight_kg(),
-            VOLUMETRIC_DIVISOR_CM3_PER_KG,
+            billing.volume_l(d),
+            billing.volumetric_weight_kg(d),
+            billing.divisor_cm3_per_kg,
             corners.join(" "),
             d.points,
-            self.grabbed.cloud.len(),
-            serials.len(),
-            serials.join(", "),
-            self.cycle.as_secs_f64() * 1e3,
-            self.grab.as_secs_f64() * 1e3,
-            self.grabbed.bytes as f64 / 1e6,
         )
     }
 }
@@ -163,7 +251,10 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                 .await
                 .with_context(|| format!("POST /cams/pointclouds to the group {group}"))?;
             if answers.is_empty() {
-                bail!("no server of the group {group} answered within {wait:?}");
+                return Err(NoAnswer(format!(
+                    "no server of the group {group} answered within {wait:?}"
+                ))
+                .into());
             }
             answers
                 .into_iter()
@@ -204,9 +295,15 @@ pub async fn measure_once(
     })
     .await
     .context("the measuring task failed")?;
-    let dimensions = dimensions.context("measuring the point cloud")?;
+    let parcel = match dimensions {
+        Ok(d) => Parcel::Measured(d),
+        Err(geometry::DimensionError::TooFewPoints { found, .. }) => {
+            Parcel::Nothing { points: found }
+        }
+        Err(e) => return Err(e).context("measuring the point cloud"),
+    };
     Ok(Measurement {
-        dimensions,
+        parcel,
         grabbed,
         cycle: started.elapsed(),
         grab,

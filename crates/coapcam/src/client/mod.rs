@@ -230,10 +230,30 @@ impl CamClient {
     }
 }
 
-/// `response` if it is a 2.xx whose body is as long as its Size2 says.
+/// A request answered with an error response (4.xx, 5.xx).
+#[derive(Debug, thiserror::Error)]
+#[error("{what}: {}", describe(.response))]
+pub struct ErrorResponse {
+    /// The request, e.g. `GET /cams/840412060746/depth-settings`.
+    pub what: String,
+    /// The response, its payload the diagnostic.
+    pub response: Response,
+}
+
+/// Nothing answered in time: no server at the address, or no member of a group.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct NoAnswer(pub String);
+
+/// `response` if it is a 2.xx whose body is as long as its Size2 says; an error response
+/// becomes an [`ErrorResponse`].
 pub fn check(what: &str, response: Response) -> anyhow::Result<Response> {
     if !response.code.is_success() {
-        bail!("{what}: {}", describe(&response));
+        return Err(ErrorResponse {
+            what: what.to_owned(),
+            response,
+        }
+        .into());
     }
     check_size(&response, response.payload.len()).with_context(|| what.to_owned())?;
     Ok(response)

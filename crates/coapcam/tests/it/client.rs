@@ -238,9 +238,9 @@ fn assert_measures_the_box(m: &serde_json::Value) {
         "yaw_deg",
         "corners_m",
         "volume_l",
-        "points",
+        "parcel_points",
         "cameras",
-        "timestamps_us",
+        "frames_unix_us",
     ] {
         assert!(m.get(key).is_some(), "{key} missing in {m}");
     }
@@ -260,8 +260,8 @@ fn assert_measures_the_box(m: &serde_json::Value) {
     assert!((yaw - 15.0).abs() < 2.0, "yaw {yaw}");
     let volume = m["volume_l"].as_f64().expect("volume");
     assert!((volume - 24.0).abs() < 1.0, "volume {volume} l");
-    assert!(m["points"].as_u64().is_some_and(|p| p > 1000), "{m}");
-    let stamps = m["timestamps_us"].as_array().expect("timestamps");
+    assert!(m["parcel_points"].as_u64().is_some_and(|p| p > 1000), "{m}");
+    let stamps = m["frames_unix_us"].as_array().expect("timestamps");
     assert!(
         !stamps.is_empty()
             && stamps
@@ -309,7 +309,7 @@ fn measure_finds_the_default_scenes_box() {
 
     // --prepare cuts the floor out of what the camera sends: the same box from a
     // fraction of the points, and the camera's application-config says so afterwards.
-    let whole = m["bytes"].as_u64().expect("bytes");
+    let whole = m["received_bytes"].as_u64().expect("bytes");
     let m = ok(&[
         "measure",
         "--server",
@@ -325,7 +325,7 @@ fn measure_finds_the_default_scenes_box() {
         serde_json::json!([{ "kind": "qr", "text": "PKG-0001", "cameras": [SN] }])
     );
     assert!(m["codes_ms"].as_f64().is_some(), "{m}");
-    let cut = m["bytes"].as_u64().expect("bytes");
+    let cut = m["received_bytes"].as_u64().expect("bytes");
     assert!(
         cut * 3 < whole,
         "{cut} bytes with --prepare, {whole} without"
@@ -398,7 +398,10 @@ fn monitor_prints_each_result_and_the_statistics() {
     for (i, l) in lines[..2].iter().enumerate() {
         assert_eq!(l["n"], i + 1);
         assert_eq!(l["ok"], true);
-        assert!(l["bytes"].as_u64().is_some_and(|b| b > 1_000_000), "{l}");
+        assert!(
+            l["received_bytes"].as_u64().is_some_and(|b| b > 1_000_000),
+            "{l}"
+        );
         assert!(l["time_ms"].as_f64().is_some_and(|t| t > 0.0), "{l}");
     }
     let stats = &lines[2]["statistics"];
@@ -449,8 +452,9 @@ fn monitor_counts_failures_without_stopping() {
         "--interval",
         "0.01",
     ]);
-    // Nothing succeeded: exit status 2, after every result and the statistics.
-    assert_eq!(f.status.code(), Some(2), "{}", f.stderr);
+    // Nothing succeeded: the exit status of the last failure (3: an error response),
+    // after every result and the statistics.
+    assert_eq!(f.status.code(), Some(3), "{}", f.stderr);
     let text = f.stdout_text();
     let failed: Vec<&str> = text
         .lines()
@@ -474,7 +478,7 @@ fn monitor_observes_each_grab_and_stops_on_ctrl_c() {
     );
     let size = |l: &str| {
         let v: serde_json::Value = serde_json::from_str(l).ok()?;
-        v["bytes"].as_u64()
+        v["received_bytes"].as_u64()
     };
     // Each notification arrives whole (it is sent block-wise).
     assert_eq!(watcher.stdout_line(LIMIT, size), 14 + 640 * 480 * 2);

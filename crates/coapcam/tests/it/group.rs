@@ -393,7 +393,7 @@ fn multicast_measurement_merges_three_servers_cameras() {
         ["127.0.0.6:5683", "127.0.0.7:5683", "127.0.0.8:5683"],
         "{m}"
     );
-    assert_eq!(m["timestamps_us"].as_array().map(Vec::len), Some(3), "{m}");
+    assert_eq!(m["frames_unix_us"].as_array().map(Vec::len), Some(3), "{m}");
     let got = ["length_mm", "width_mm", "height_mm"].map(|k| m[k].as_f64().expect(k));
     for (g, want) in got.iter().zip([400.0, 300.0, 200.0]) {
         assert!(

@@ -42,7 +42,7 @@ fn the_library_measures_the_demo_scene_in_process() {
             .await
             .expect("measure");
         let [length, width, height, yaw] = truth(&scene).expect("the scene has a box");
-        let d = &m.dimensions;
+        let d = m.dimensions().expect("the box is measured");
         for (got, want, what) in [
             (d.length_mm, length, "length"),
             (d.width_mm, width, "width"),

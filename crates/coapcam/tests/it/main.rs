@@ -5,6 +5,7 @@
 mod bag;
 mod cams;
 mod client;
+mod exits;
 mod formats;
 mod get;
 mod group;

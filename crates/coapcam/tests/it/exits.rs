@@ -1,0 +1,195 @@
+//! The exit statuses of README.md's table, and what commands print when the answer is
+//! not a plain success: an error response, no answer, nothing on the table, a closed
+//! standard output; and the units a measurement is reported in.
+
+use std::io::Write as _;
+use std::net::UdpSocket;
+use std::process::{Command, Stdio};
+
+use crate::support::{self, COAPCAM, Finished, LIMIT, Proc, SN, TempDir, serve, serve_with};
+
+fn coapcam(args: &[&str]) -> Finished {
+    Proc::run(COAPCAM, args, LIMIT)
+}
+
+fn status(f: &Finished) -> Option<i32> {
+    f.status.code()
+}
+
+#[test]
+fn an_error_response_exits_3_in_every_command() {
+    let state = TempDir::new("exits-refused");
+    let (_server, addr) = serve(state.path());
+    let uri = format!("coap://{addr}");
+    let unknown = "999999999999";
+    let out = state.path().join("x.png");
+    let out = out.to_str().expect("UTF-8 path");
+    for args in [
+        vec![
+            "grab", "color", "--server", &uri, "--camera", unknown, "-o", out,
+        ],
+        vec!["measure", "--server", &uri, "--camera", unknown],
+        vec!["get", &format!("{uri}/cams/{unknown}/color-settings")],
+        vec![
+            "monitor", "depth", "--server", &uri, "--camera", unknown, "--count", "1",
+        ],
+    ] {
+        let f = coapcam(&args);
+        assert_eq!(status(&f), Some(3), "{args:?}: {}", f.stderr);
+        // monitor prints each failed result on standard output.
+        let said = format!("{}{}", f.stderr, f.stdout_text());
+        assert!(said.contains("4.04"), "{args:?}: {said}");
+    }
+    // A usage error is clap's 2, distinct from every answer of a server.
+    let f = coapcam(&["measure", "--server", &uri, "--no-such-flag"]);
+    assert_eq!(status(&f), Some(2), "{}", f.stderr);
+}
+
+#[test]
+fn an_observation_the_server_refuses_exits_3() {
+    let state = TempDir::new("exits-observe");
+    let (_server, addr) = serve(state.path());
+    // Discovery is not observable: the answer carries no Observe option.
+    let f = coapcam(&[
+        "get",
+        &format!("coap://{addr}/.well-known/core"),
+        "--observe",
+        "2",
+    ]);
+    assert_eq!(status(&f), Some(3), "{}", f.stderr);
+    assert!(f.stderr.contains("does not let"), "{}", f.stderr);
+}
+
+#[test]
+fn no_answer_in_time_exits_4() {
+    // A port nobody answers on: bound here and never read.
+    let silent = UdpSocket::bind("127.0.0.1:0").expect("a socket");
+    let addr = silent.local_addr().expect("its address");
+    let f = coapcam(&[
+        "get",
+        &format!("coap://{addr}/x"),
+        "--timeout",
+        "1",
+        "--ack-timeout-ms",
+        "100",
+    ]);
+    assert_eq!(status(&f), Some(4), "{}", f.stderr);
+    assert!(f.stderr.contains("timed out"), "{}", f.stderr);
+}
+
+#[test]
+fn a_closed_standard_output_ends_quietly() {
+    let state = TempDir::new("exits-pipe");
+    let (_server, addr) = serve(state.path());
+    let mut child = Command::new(COAPCAM)
+        .args(["discover", &format!("coap://{addr}")])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("coapcam discover");
+    // The reader goes away before anything is written (`| head -0`).
+    drop(child.stdout.take());
+    let out = child.wait_with_output().expect("its end");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+/// A scene with the demo's camera and nothing on the table.
+fn empty_table(state: &TempDir) -> String {
+    let path = state.path().join("empty.toml");
+    let mut f = std::fs::File::create(&path).expect("a scene file");
+    writeln!(
+        f,
+        "[[camera]]\nserial = \"{SN}\"\nposition = [0.0, 0.0, 1.0]\nlook_at = [0.0, 0.0, 0.0]\ncalibrated = true"
+    )
+    .expect("writing the scene");
+    path.to_str().expect("UTF-8 path").to_owned()
+}
+
+#[test]
+fn nothing_on_the_table_is_a_result_with_exit_5() {
+    let state = TempDir::new("exits-empty");
+    let scene = empty_table(&state);
+    let (_server, addr) = serve_with(state.path(), &["--scene", &scene]);
+    let uri = format!("coap://{addr}");
+    let f = coapcam(&["measure", "--server", &uri, "--prepare", "--json"]);
+    assert_eq!(status(&f), Some(5), "{}", f.stderr);
+    let m = f.json();
+    assert_eq!(m["parcel"], "nothing", "{m}");
+    assert_eq!(m["cameras"], serde_json::json!([SN]), "{m}");
+    assert!(m["parcel_points"].as_u64().is_some(), "{m}");
+    assert!(m.get("length_mm").is_none(), "{m}");
+    let f = coapcam(&["measure", "--server", &uri]);
+    assert_eq!(status(&f), Some(5), "{}", f.stderr);
+    assert!(
+        f.stdout_text().starts_with("nothing on the table"),
+        "{}",
+        f.stdout_text()
+    );
+}
+
+#[test]
+fn the_volumetric_divisor_and_the_scale_division_are_the_integrators() {
+    let state = TempDir::new("exits-units");
+    let (_server, addr) = serve(state.path());
+    let uri = format!("coap://{addr}");
+    let m = coapcam(&[
+        "measure",
+        "--server",
+        &uri,
+        "--json",
+        "--volumetric-divisor",
+        "6000",
+        "--round-up-mm",
+        "5",
+    ])
+    .json();
+    let dims: Vec<f64> = ["length_mm", "width_mm", "height_mm"]
+        .iter()
+        .map(|k| m[*k].as_f64().unwrap_or_else(|| panic!("{k} in {m}")))
+        .collect();
+    for d in &dims {
+        assert_eq!(d % 5.0, 0.0, "{d} is not a multiple of 5 mm: {m}");
+    }
+    let weight = dims.iter().product::<f64>() / 1000.0 / 6000.0;
+    let reported = m["volumetric_weight_kg"].as_f64().expect("weight");
+    assert!(
+        (reported - weight).abs() < 0.001,
+        "{reported} vs {weight}: {m}"
+    );
+    assert_eq!(m["volumetric_divisor_cm3_per_kg"], 6000.0, "{m}");
+    assert_eq!(m["division_mm"], 5.0, "{m}");
+    // The default divisor is 5000 and the dimensions are to 0.1 mm.
+    let m = coapcam(&["measure", "--server", &uri, "--json"]).json();
+    assert_eq!(m["volumetric_divisor_cm3_per_kg"], 5000.0, "{m}");
+    assert!(m["division_mm"].is_null(), "{m}");
+    let f = coapcam(&["measure", "--server", &uri, "--volumetric-divisor", "0"]);
+    assert_eq!(status(&f), Some(2), "{}", f.stderr);
+}
+
+#[test]
+fn get_json_lists_every_option() {
+    let dir = TempDir::new("exits-options");
+    let (_server, addr) = support::our_server(dir.path(), true);
+    let f = coapcam(&[
+        "post",
+        &format!("coap://{addr}/files"),
+        "--payload",
+        "hello",
+        "--json",
+    ]);
+    let lines = f.json_lines();
+    assert_eq!(lines.len(), 1, "{}", f.stdout_text());
+    let r = &lines[0];
+    assert_eq!(r["code"], "2.01", "{r}");
+    let location = r["options"]["Location-Path"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no Location-Path in {r}"));
+    assert_eq!(location[0], "files", "{r}");
+    assert!(
+        r["size_bytes"].as_u64().is_some() && r["time_ms"].as_f64().is_some(),
+        "{r}"
+    );
+}
