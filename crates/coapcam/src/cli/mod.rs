@@ -134,6 +134,9 @@ pub(crate) enum Exit {
     /// 6: fewer servers answered than `--expect` asked for; the answers that came were
     /// used and printed.
     Fewer,
+    /// 128 + the signal's number (130 for SIGINT, 143 for SIGTERM): stopped by a signal
+    /// after cleaning up (`get -o FILE` removes its temporary file).
+    Interrupted(u8),
 }
 
 impl Exit {
@@ -146,6 +149,7 @@ impl Exit {
             Self::NoAnswer => 4,
             Self::Empty => 5,
             Self::Fewer => 6,
+            Self::Interrupted(signal) => 128 + signal,
         }
     }
 }
@@ -156,6 +160,9 @@ impl Exit {
 /// discover | head`): not a failure, the command ends quietly.
 pub(crate) fn exit_status(error: &anyhow::Error) -> Option<Exit> {
     for cause in error.chain() {
+        if let Some(Interrupted(signal)) = cause.downcast_ref() {
+            return Some(Exit::Interrupted(*signal));
+        }
         if cause.is::<coapcam::client::ErrorResponse>() {
             return Some(Exit::Refused);
         }
@@ -177,6 +184,11 @@ pub(crate) fn exit_status(error: &anyhow::Error) -> Option<Exit> {
     }
     Some(Exit::Failure)
 }
+
+/// A command stopped by a signal (its number).
+#[derive(Debug, thiserror::Error)]
+#[error("interrupted by signal {0}")]
+pub(crate) struct Interrupted(pub(crate) u8);
 
 /// `println!` for command output, returning from the enclosing function with an error
 /// instead of panicking when standard output fails (a reader that went away).

@@ -12,7 +12,7 @@ use coap::link_format;
 use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{BodyPart, Client, Uri};
 
-use super::{Exit, TransmissionArgs, outln};
+use super::{Exit, Interrupted, TransmissionArgs, outln};
 use coapcam::client::{check_size, describe};
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
@@ -126,9 +126,14 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
     let what = || format!("{} {}", method.name().unwrap_or("request"), args.uri);
     let bar = std::io::stderr().is_terminal() && !args.json;
     if let Some(path) = &args.output {
-        let (response, size) = to_file(&client, peer, request, path, bar)
-            .await
-            .with_context(what)?;
+        // SIGINT and SIGTERM end the transfer through this select, which drops it and
+        // with it the temporary file (its Drop removes it), instead of killing the
+        // process where it stands.
+        let mut signals = Signals::install()?;
+        let (response, size) = tokio::select! {
+            done = to_file(&client, peer, request, path, bar) => done.with_context(what)?,
+            signal = signals.recv() => return Err(signal.into()),
+        };
         output(&response, size, &args, started)?;
         return Ok(report_code(&response));
     }
@@ -173,6 +178,30 @@ async fn to_file(
                 }
                 return Ok((*response, written));
             }
+        }
+    }
+}
+
+/// SIGINT and SIGTERM, caught.
+struct Signals {
+    interrupt: tokio::signal::unix::Signal,
+    terminate: tokio::signal::unix::Signal,
+}
+
+impl Signals {
+    fn install() -> anyhow::Result<Self> {
+        use tokio::signal::unix::{SignalKind, signal};
+        Ok(Self {
+            interrupt: signal(SignalKind::interrupt()).context("installing the SIGINT handler")?,
+            terminate: signal(SignalKind::terminate()).context("installing the SIGTERM handler")?,
+        })
+    }
+
+    /// The next signal.
+    async fn recv(&mut self) -> Interrupted {
+        tokio::select! {
+            _ = self.interrupt.recv() => Interrupted(2),
+            _ = self.terminate.recv() => Interrupted(15),
         }
     }
 }

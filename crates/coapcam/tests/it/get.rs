@@ -185,3 +185,52 @@ fn get_o_writes_through_a_link_and_into_a_pipe_without_replacing_them() {
     left.sort();
     assert_eq!(left, ["link.bin", "pipe"]);
 }
+
+/// `coapcam get -o FILE` stopped by `signal` while the body arrives: the temporary file
+/// goes, FILE was never created, and the exit status is 128 + the signal's number.
+fn check_signal(signal: &str, status: i32) {
+    let (addr, stop) = misbehaving_server(20, Then::Silence);
+    let dir = TempDir::new(&format!("get-{signal}"));
+    let out = dir.join("body.bin");
+    let mut child = std::process::Command::new(COAPCAM)
+        .args(["get", &format!("coap://{addr}/body"), "-o"])
+        .arg(&out)
+        .args(["--block-size", "1024", "--timeout", "60"])
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("coapcam get");
+    // The temporary file appears when the transfer starts; the server's 20 blocks take
+    // milliseconds (the file is written through a buffer), then it falls silent and the
+    // client waits for the 21st.
+    let deadline = std::time::Instant::now() + LIMIT;
+    while leftovers(dir.path(), "body.bin").is_empty() {
+        if let Ok(Some(status)) = child.try_wait() {
+            panic!("coapcam get ended early ({status})");
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "no part file appeared"
+        );
+        thread::sleep(Duration::from_millis(20));
+    }
+    thread::sleep(Duration::from_millis(300));
+    let killed = std::process::Command::new("kill")
+        .args([&format!("-{signal}"), &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(killed.success());
+    let finished = child.wait_with_output().expect("its end");
+    stop.store(true, Ordering::SeqCst);
+    let stderr = String::from_utf8_lossy(&finished.stderr);
+    assert_eq!(finished.status.code(), Some(status), "{stderr}");
+    assert!(!out.exists());
+    assert_eq!(leftovers(dir.path(), "body.bin"), Vec::<String>::new());
+}
+
+#[test]
+fn get_o_stopped_by_sigint_or_sigterm_leaves_no_part_file() {
+    check_signal("INT", 130);
+    check_signal("TERM", 143);
+}
