@@ -71,7 +71,7 @@ fn main() -> ExitCode {
         Ok(exit) => ExitCode::from(exit.code()),
         Err(e) => match cli::exit_status(&e) {
             Some(exit) => {
-                eprintln!("coapcam: {e:#}");
+                eprintln!("coapcam: {}", cli::error_text(&e));
                 ExitCode::from(exit.code())
             }
             // Standard output's reader went away (`| head`): nothing more to say.

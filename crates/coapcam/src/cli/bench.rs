@@ -209,7 +209,7 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
             error: match &result {
                 Ok(m) if m.dimensions().is_none() => Some("nothing on the table".into()),
                 Ok(_) => None,
-                Err(e) => Some(format!("{e:#}")),
+                Err(e) => Some(super::error_text(e)),
             },
         };
         if !args.json {

@@ -17,7 +17,7 @@ use coapcam::client::CamClient;
 use coapcam::client::measure::{self, Billing, Measurement, Parcel, Source};
 use coapcam::repr::Stream;
 
-use super::{DimensionArgs, Exit, TransmissionArgs, exit_status, out, outln};
+use super::{DimensionArgs, Exit, TransmissionArgs, error_text, exit_status, out, outln};
 
 /// What `monitor` repeats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -406,15 +406,16 @@ impl Report {
                         "at_unix_ms": unix_ms,
                         "ok": false,
                         "time_ms": millis(elapsed),
-                        "error": format!("{e:#}"),
+                        "error": error_text(&e),
                     });
                     outln!("{line}");
                 } else {
                     outln!(
-                        "#{:<4} {}  failed after {:.1} ms: {e:#}",
+                        "#{:<4} {}  failed after {:.1} ms: {}",
                         self.seen,
                         clock(unix_ms),
-                        millis(elapsed)
+                        millis(elapsed),
+                        error_text(&e)
                     );
                 }
             }

@@ -193,3 +193,19 @@ fn get_json_lists_every_option() {
         "{r}"
     );
 }
+
+#[test]
+fn an_error_says_its_prefix_and_the_os_error_once() {
+    let dir = TempDir::new("exits-once");
+    let missing = dir.join("missing.toml");
+    let f = coapcam(&[
+        "serve",
+        "--scene",
+        missing.to_str().expect("UTF-8 path"),
+        "--bind",
+        "127.0.0.1:0",
+    ]);
+    assert_eq!(status(&f), Some(1), "{}", f.stderr);
+    assert_eq!(f.stderr.matches("coapcam:").count(), 1, "{}", f.stderr);
+    assert_eq!(f.stderr.matches("(os error 2)").count(), 1, "{}", f.stderr);
+}
