@@ -222,11 +222,13 @@ async fn serve(
                     let (peer, method) = (request.peer, request.method);
                     let path = request.options.path_string();
                     let response = router.dispatch(request).await;
+                    // The path and the diagnostic are the peer's text: escaped (`?`, Debug),
+                    // so a newline or a terminal escape in them cannot forge a log line.
                     if response.code.is_error() {
                         let diagnostic = String::from_utf8_lossy(&response.payload);
-                        tracing::warn!(%peer, %method, %path, code = %response.code, %diagnostic, "request refused");
+                        tracing::warn!(%peer, %method, ?path, code = %response.code, ?diagnostic, "request refused");
                     } else {
-                        tracing::debug!(%peer, %method, %path, code = %response.code, bytes = response.payload.len(), "request");
+                        tracing::debug!(%peer, %method, ?path, code = %response.code, bytes = response.payload.len(), "request");
                     }
                     if let Some((obs, request)) = registration
                         && response.options.contains(OptionNumber::OBSERVE)

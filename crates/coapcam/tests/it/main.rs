@@ -11,6 +11,7 @@ mod get;
 mod group;
 mod interop;
 mod library;
+mod logs;
 mod netem;
 mod realsense;
 mod signals;

@@ -266,8 +266,14 @@ impl Finished {
 
 impl Proc {
     pub(crate) fn spawn(program: &str, args: &[&str]) -> Self {
+        Self::spawn_with_env(program, args, &[])
+    }
+
+    /// As [`Proc::spawn`], with more environment variables.
+    pub(crate) fn spawn_with_env(program: &str, args: &[&str], env: &[(&str, &str)]) -> Self {
         let mut child = Command::new(program)
             .args(args)
+            .envs(env.iter().copied())
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

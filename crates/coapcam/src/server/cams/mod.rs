@@ -191,7 +191,7 @@ impl Cams {
         let names = Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS);
         self.router
             .add_all(names.map(|name| self.resource(sn, name)));
-        tracing::debug!(serial = %sn, "camera resources added");
+        tracing::info!(serial = %sn, "camera connected: /cams/{sn} added");
     }
 
     /// A persisted document that still parses; a broken one is logged and ignored.
@@ -222,7 +222,7 @@ impl Cams {
         let names = Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS);
         self.router
             .remove_all(names.map(|name| format!("/cams/{sn}/{name}")));
-        tracing::debug!(serial = %sn, "camera resources removed");
+        tracing::info!(serial = %sn, "camera disconnected: /cams/{sn} removed");
     }
 
     /// Adds `/cams/<sn>/<name>`.
@@ -396,7 +396,10 @@ impl Cams {
         };
         let me = self.clone();
         match tokio::task::spawn_blocking(move || me.replace(&sn, &cam, name, &body)).await {
-            Ok(Ok(())) => Response::new(Code::CHANGED),
+            Ok(Ok(())) => {
+                tracing::info!(serial = %sn, "{name} of camera {sn} changed");
+                Response::new(Code::CHANGED)
+            }
             Ok(Err(r)) => r,
             Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("{name}: {e}")),
         }

@@ -1,0 +1,82 @@
+//! What `coapcam serve` logs: the peer's text escaped, and at `RUST_LOG=info` the cameras
+//! arriving and leaving and each configuration change.
+
+use std::net::SocketAddr;
+
+use coap::Code;
+
+use crate::support::{COAPCAM, LIMIT, Proc, SN, TempDir, client, runtime, send};
+
+/// `coapcam serve` on a free port of 127.0.0.1 with `RUST_LOG` set, its address, and the
+/// lines it logged before it said where it serves.
+fn server(state: &TempDir, rust_log: &str, extra: &[&str]) -> (Proc, SocketAddr, Vec<String>) {
+    let dir = state.path().to_str().expect("UTF-8 path");
+    let mut args = vec![
+        "serve",
+        "--bind",
+        "127.0.0.1:0",
+        "--state-dir",
+        dir,
+        "--duration",
+        "60",
+    ];
+    args.extend_from_slice(extra);
+    let mut p = Proc::spawn_with_env(COAPCAM, &args, &[("RUST_LOG", rust_log)]);
+    let before = std::cell::RefCell::new(Vec::new());
+    let addr = p.stderr_line(LIMIT, |l| {
+        let addr = l
+            .strip_prefix("coapcam: serving on ")
+            .and_then(|a| a.trim().parse().ok());
+        if addr.is_none() {
+            before.borrow_mut().push(l.to_owned());
+        }
+        addr
+    });
+    (p, addr, before.into_inner())
+}
+
+#[test]
+fn a_path_with_newlines_and_escapes_cannot_forge_log_lines() {
+    let state = TempDir::new("logs-forge");
+    let (mut p, addr, _) = server(&state, "warn", &["--no-cameras"]);
+    let forged = "x\nWARN forged: admin logged in\u{1b}[2J";
+    runtime().block_on(async {
+        let r = send(&client(), addr, Code::GET, &format!("/{forged}"), b"", None).await;
+        assert_eq!(r.code, Code::NOT_FOUND);
+    });
+    let refused = p.stderr_line(LIMIT, |l| {
+        l.contains("request refused").then(|| l.to_owned())
+    });
+    assert!(refused.contains(r"x\nWARN forged"), "{refused}");
+    assert!(!refused.contains('\u{1b}'), "{refused:?}");
+    let finished = p.kill();
+    assert!(
+        !finished
+            .stderr
+            .lines()
+            .any(|l| l.starts_with("WARN forged")),
+        "{}",
+        finished.stderr
+    );
+}
+
+#[test]
+fn info_logs_cameras_and_configuration_changes() {
+    let state = TempDir::new("logs-info");
+    let (mut p, addr, before) = server(&state, "info", &[]);
+    assert!(
+        before
+            .iter()
+            .any(|l| l.contains("camera connected") && l.contains(SN)),
+        "{before:?}"
+    );
+    runtime().block_on(async {
+        let path = format!("/cams/{SN}/application-config");
+        let doc = send(&client(), addr, Code::GET, &path, b"", None).await;
+        let r = send(&client(), addr, Code::PUT, &path, &doc.payload, None).await;
+        assert_eq!(r.code, Code::CHANGED);
+    });
+    p.stderr_line(LIMIT, |l| {
+        (l.contains("application-config") && l.contains("changed")).then_some(())
+    });
+}
