@@ -45,12 +45,17 @@ pub struct Socket {
 }
 
 impl Socket {
-    /// Binds `addr`. Address reuse is on, so several servers on one host can share a
-    /// multicast port; an IPv6 wildcard bind is IPv6-only, so `0.0.0.0:5683` and
+    /// Binds `addr`. Only a group address is bound with address reuse, so that several
+    /// servers on one host can each receive a group's datagrams; a unicast or wildcard
+    /// address is this socket's alone, and binding one that is taken fails with
+    /// `AddrInUse` (with reuse on, a second server would bind it as well and take the
+    /// first one's traffic). An IPv6 wildcard bind is IPv6-only, so `0.0.0.0:5683` and
     /// `[::]:5683` can be bound side by side.
     pub fn bind(addr: SocketAddr) -> io::Result<Self> {
         let raw = RawSocket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP))?;
-        raw.set_reuse_address(true)?;
+        if addr.ip().is_multicast() {
+            raw.set_reuse_address(true)?;
+        }
         if addr.is_ipv6() {
             raw.set_only_v6(true)?;
         }

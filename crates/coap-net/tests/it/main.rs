@@ -410,3 +410,11 @@ async fn retransmission_backs_off_to_timeout() {
         "one transmission and MAX_RETRANSMIT = 4 retransmissions"
     );
 }
+
+#[tokio::test]
+async fn a_second_server_on_a_taken_unicast_address_fails_to_bind() {
+    let (_first, addr) = server(Router::new());
+    let second = Server::bind(&[addr], ServerConfig::default(), Router::new());
+    let error = second.err().expect("the address is taken");
+    assert_eq!(error.kind(), std::io::ErrorKind::AddrInUse, "{error}");
+}

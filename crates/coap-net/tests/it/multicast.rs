@@ -22,7 +22,27 @@ fn in_namespace(test: &str) -> bool {
     ok
 }
 
+/// A group server on `bind` once that address is free: servers dropped just before
+/// release their sockets when their threads end, a moment later.
+async fn group_server_when_free(bind: SocketAddr, name: &'static str, fail: bool) -> Server {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    loop {
+        match try_group_server(bind, name, fail) {
+            Ok(s) => return s,
+            Err(e) if std::time::Instant::now() < deadline => {
+                assert_eq!(e.kind(), std::io::ErrorKind::AddrInUse, "bind {bind}: {e}");
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            }
+            Err(e) => panic!("bind {bind}: {e}"),
+        }
+    }
+}
+
 fn group_server(bind: SocketAddr, name: &'static str, fail: bool) -> Server {
+    try_group_server(bind, name, fail).unwrap_or_else(|e| panic!("bind {bind}: {e}"))
+}
+
+fn try_group_server(bind: SocketAddr, name: &'static str, fail: bool) -> std::io::Result<Server> {
     let router = Router::new();
     router.add(
         "/who",
@@ -38,7 +58,7 @@ fn group_server(bind: SocketAddr, name: &'static str, fail: bool) -> Server {
         leisure: std::time::Duration::from_millis(50),
         ..ServerConfig::default()
     };
-    Server::bind(&[bind], config, router).unwrap_or_else(|e| panic!("bind {bind}: {e}"))
+    Server::bind(&[bind], config, router)
 }
 
 async fn collect(group: SocketAddr) -> Vec<(SocketAddr, String)> {
@@ -86,18 +106,13 @@ async fn rfc7390_ipv4_group_on_lo_answers_from_unicast_addresses() {
             .unwrap_or_else(|e| panic!("join: {e}"));
         servers.push(s);
     }
-    // Two members that answer 4.04, suppressed for a group request: one bound to its
-    // unicast address (a group socket of its own receives for it), one to the wildcard
-    // address (its own socket receives the group's datagrams and reads their destination).
-    let failing = [
-        group_server(SocketAddr::from(([127, 0, 0, 5], port)), "five", true),
-        group_server(SocketAddr::from(([0, 0, 0, 0], port)), "wildcard", true),
-    ];
-    for f in &failing {
-        f.join(IpAddr::V4(groups::ALL_COAP_V4), 0)
-            .await
-            .unwrap_or_else(|e| panic!("join: {e}"));
-    }
+    // A member that answers 4.04, suppressed for a group request, bound to its unicast
+    // address (a group socket of its own receives for it).
+    let failing = group_server(SocketAddr::from(([127, 0, 0, 5], port)), "five", true);
+    failing
+        .join(IpAddr::V4(groups::ALL_COAP_V4), 0)
+        .await
+        .unwrap_or_else(|e| panic!("join: {e}"));
     let got = collect(SocketAddr::from((groups::ALL_COAP_V4, port))).await;
     let expected: Vec<(SocketAddr, String)> = [(2u8, "two"), (3, "three"), (4, "four")]
         .iter()
@@ -114,6 +129,22 @@ async fn rfc7390_ipv4_group_on_lo_answers_from_unicast_addresses() {
         .unwrap_or_else(|e| panic!("leave: {e}"));
     let got = collect(SocketAddr::from((groups::ALL_COAP_V4, port))).await;
     assert_eq!(got.len(), 2, "{got:?}");
+    // A member bound to the wildcard address: its own socket receives the group's
+    // datagrams and reads their destination, so its 4.04 is suppressed too. A unicast or
+    // wildcard address is bound without address reuse (a second server must not share
+    // it), so it has the port once the others are gone.
+    drop((servers, failing));
+    let wildcard =
+        group_server_when_free(SocketAddr::from(([0, 0, 0, 0], port)), "wildcard", true).await;
+    wildcard
+        .join(IpAddr::V4(groups::ALL_COAP_V4), 0)
+        .await
+        .unwrap_or_else(|e| panic!("join: {e}"));
+    let got = collect(SocketAddr::from((groups::ALL_COAP_V4, port))).await;
+    assert!(
+        got.is_empty(),
+        "the wildcard member's 4.04 was not suppressed: {got:?}"
+    );
 }
 
 #[tokio::test]
@@ -141,13 +172,6 @@ async fn rfc7390_ipv6_link_local_group_on_veth() {
             .unwrap_or_else(|e| panic!("join: {e}"));
         servers.push(s);
     }
-    // A wildcard-bound member that answers 4.04: it reads each datagram's destination,
-    // so it knows the request was sent to the group and stays silent.
-    let failing = group_server(SocketAddr::from(([0u16; 8], port)), "wildcard", true);
-    failing
-        .join(IpAddr::V6(groups::ALL_COAP_V6_LINK), ifindex)
-        .await
-        .unwrap_or_else(|e| panic!("join: {e}"));
     let group = SocketAddr::V6(SocketAddrV6::new(
         groups::ALL_COAP_V6_LINK,
         port,
@@ -163,4 +187,19 @@ async fn rfc7390_ipv6_link_local_group_on_veth() {
             "answered from {peer}"
         );
     }
+    // A wildcard-bound member that answers 4.04: it reads each datagram's destination,
+    // so it knows the request was sent to the group and stays silent. It has the port
+    // once the unicast members are gone (their addresses are bound without reuse).
+    drop(servers);
+    let failing =
+        group_server_when_free(SocketAddr::from(([0u16; 8], port)), "wildcard", true).await;
+    failing
+        .join(IpAddr::V6(groups::ALL_COAP_V6_LINK), ifindex)
+        .await
+        .unwrap_or_else(|e| panic!("join: {e}"));
+    let got = collect(group).await;
+    assert!(
+        got.is_empty(),
+        "the wildcard member's 4.04 was not suppressed: {got:?}"
+    );
 }

@@ -209,3 +209,20 @@ fn an_error_says_its_prefix_and_the_os_error_once() {
     assert_eq!(f.stderr.matches("coapcam:").count(), 1, "{}", f.stderr);
     assert_eq!(f.stderr.matches("(os error 2)").count(), 1, "{}", f.stderr);
 }
+
+#[test]
+fn a_second_server_on_a_busy_port_fails_at_once() {
+    let dir = TempDir::new("exits-busy");
+    let (_first, addr) = support::our_server(dir.path(), false);
+    let f = coapcam(&[
+        "serve",
+        "--no-cameras",
+        "--bind",
+        &addr.to_string(),
+        "--duration",
+        "30",
+    ]);
+    assert_eq!(status(&f), Some(1), "{}", f.stderr);
+    assert!(f.stderr.contains("in use"), "{}", f.stderr);
+    assert!(!f.stderr.contains("serving on"), "{}", f.stderr);
+}
