@@ -415,6 +415,8 @@ async fn retransmission_backs_off_to_timeout() {
 async fn a_second_server_on_a_taken_unicast_address_fails_to_bind() {
     let (_first, addr) = server(Router::new());
     let second = Server::bind(&[addr], ServerConfig::default(), Router::new());
-    let error = second.err().expect("the address is taken");
+    let Err(error) = second else {
+        panic!("a second server bound {addr}, which the first one holds");
+    };
     assert_eq!(error.kind(), std::io::ErrorKind::AddrInUse, "{error}");
 }
