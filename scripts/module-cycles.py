@@ -19,7 +19,7 @@ import sys
 MOD_DECL = re.compile(r"^\s*(?:pub(?:\([^)]*\))?\s+)?mod\s+(\w+)\s*;", re.M)
 INLINE_MOD = re.compile(r"^\s*(?:pub(?:\([^)]*\))?\s+)?mod\s+\w+\s*\{")
 REEXPORT = re.compile(r"^\s*pub(?:\([^)]*\))?\s+use\s+([^;]+);", re.M)
-PATH = re.compile(r"(?<![\w:])(crate|super|self|\w+)((?:::\w+)+|::\{)")
+PATH = re.compile(r"(?<![\w:])(crate|super|self|\w+)((?:::\w+)*)(::\{)?")
 
 
 def module_tree(root_file):
@@ -81,7 +81,9 @@ def references(modules, source, text):
         pos += len(line)
     out = []
     for m in PATH.finditer(text):
-        head, rest = m.group(1), m.group(2)
+        head, rest, group = m.group(1), m.group(2), m.group(3)
+        if not rest and not group:
+            continue
         if max((n for p, n in inline_at if p <= m.start()), default=0):
             # Inside an inline module (`mod tests { ... }`): a module of its own, which
             # nothing imports, so it closes no cycle.
@@ -96,10 +98,11 @@ def references(modules, source, text):
             base = source + (head,)
         else:
             continue
-        if rest == "::{":
-            tails = group_heads(text, m.end() - 1)
+        prefix = [seg for seg in rest.split("::") if seg]
+        if group:
+            tails = [prefix + h for h in group_heads(text, m.end() - 1)]
         else:
-            tails = [rest.strip(":").split("::")]
+            tails = [prefix]
         out.extend((m.start(), base, tail) for tail in tails)
     return out
 

@@ -5,7 +5,7 @@
 //! (f32), then the model's undistortion, then `point = (z x, z y, z)` with
 //! `z = depth_scale * raw` metres. Camera frame: x right, y down, z forward.
 //!
-//! Undistortion per model, as librealsense's code runs it:
+//! Undistortion per model, as librealsense's code runs it ([`crate::intrinsics::pixel_to_ray`]):
 //! - `None`: nothing.
 //! - `BrownConrady`: ten fixed-point iterations of OpenCV's `undistortPoints`:
 //!   `icd = 1 / (1 + ((k3 r2 + k2) r2 + k1) r2)`, tangential terms from the current
@@ -28,64 +28,10 @@ use rayon::prelude::*;
 
 use crate::filter::{FilterError, check_frame, rows};
 use crate::frame::DepthFrame;
-use crate::intrinsics::{DistortionModel, Intrinsics};
+use crate::intrinsics::{DistortionModel, Intrinsics, pixel_to_ray};
 
 /// Rows per parallel task.
 const ROWS_PER_TASK: usize = 16;
-
-/// Iterations librealsense runs for the Brown-Conrady models.
-const BROWN_ITERATIONS: usize = 10;
-
-/// Newton steps librealsense allows for Kannala-Brandt.
-const KB4_STEPS: usize = 4;
-
-/// The undistorted normalised ray (z = 1) through `pixel`, as librealsense computes it.
-pub fn pixel_to_ray(k: &Intrinsics, pixel: [f32; 2]) -> [f32; 2] {
-    let x = (pixel[0] - k.ppx) / k.fx;
-    let y = (pixel[1] - k.ppy) / k.fy;
-    undistort(k, x, y)
-}
-
-fn undistort(k: &Intrinsics, x0: f32, y0: f32) -> [f32; 2] {
-    let c = &k.coeffs;
-    match k.model {
-        DistortionModel::None | DistortionModel::ModifiedBrownConrady => [x0, y0],
-        DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady => {
-            let inverse = k.model == DistortionModel::InverseBrownConrady;
-            let (mut x, mut y) = (x0, y0);
-            for _ in 0..BROWN_ITERATIONS {
-                let r2 = x * x + y * y;
-                let icd = 1.0 / (1.0 + ((c[4] * r2 + c[1]) * r2 + c[0]) * r2);
-                let (tx, ty) = if inverse { (x / icd, y / icd) } else { (x, y) };
-                let dx = 2.0 * c[2] * tx * ty + c[3] * (r2 + 2.0 * tx * tx);
-                let dy = 2.0 * c[3] * tx * ty + c[2] * (r2 + 2.0 * ty * ty);
-                x = (x0 - dx) * icd;
-                y = (y0 - dy) * icd;
-            }
-            [x, y]
-        }
-        DistortionModel::KannalaBrandt4 => {
-            let rd = (x0 * x0 + y0 * y0).sqrt().max(f32::EPSILON);
-            let (mut theta, mut theta2) = (rd, rd * rd);
-            for _ in 0..KB4_STEPS {
-                let f = theta
-                    * (1.0 + theta2 * (c[0] + theta2 * (c[1] + theta2 * (c[2] + theta2 * c[3]))))
-                    - rd;
-                if f.abs() < f32::EPSILON {
-                    break;
-                }
-                let df = 1.0
-                    + theta2
-                        * (3.0 * c[0]
-                            + theta2 * (5.0 * c[1] + theta2 * (7.0 * c[2] + 9.0 * theta2 * c[3])));
-                theta -= f / df;
-                theta2 = theta * theta;
-            }
-            let r = theta.tan();
-            [x0 * (r / rd), y0 * (r / rd)]
-        }
-    }
-}
 
 /// True when undistortion leaves every ray unchanged, so rays separate into a
 /// column term and a row term.

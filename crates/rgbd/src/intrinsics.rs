@@ -103,9 +103,9 @@ impl Intrinsics {
     /// The 3D point (metres, camera frame) seen at `pixel` (`[u, v]`, pixel units,
     /// integer values at pixel centres as librealsense's point cloud uses them) at
     /// depth `depth_m` along z: `rs2_deproject_pixel_to_point` for every model (see
-    /// [`crate::deproject`]).
+    /// [`pixel_to_ray`]).
     pub fn deproject(&self, pixel: [f32; 2], depth_m: f32) -> [f32; 3] {
-        let [x, y] = crate::deproject::pixel_to_ray(self, pixel);
+        let [x, y] = pixel_to_ray(self, pixel);
         [depth_m * x, depth_m * y, depth_m]
     }
 
@@ -171,6 +171,60 @@ impl Pose {
             r[1][0] * p[0] + r[1][1] * p[1] + r[1][2] * p[2] + t[1],
             r[2][0] * p[0] + r[2][1] * p[1] + r[2][2] * p[2] + t[2],
         ]
+    }
+}
+
+/// Iterations librealsense runs for the Brown-Conrady models.
+const BROWN_ITERATIONS: usize = 10;
+
+/// Newton steps librealsense allows for Kannala-Brandt.
+const KB4_STEPS: usize = 4;
+
+/// The undistorted normalised ray (z = 1) through `pixel`, as librealsense computes it.
+pub fn pixel_to_ray(k: &Intrinsics, pixel: [f32; 2]) -> [f32; 2] {
+    let x = (pixel[0] - k.ppx) / k.fx;
+    let y = (pixel[1] - k.ppy) / k.fy;
+    undistort(k, x, y)
+}
+
+fn undistort(k: &Intrinsics, x0: f32, y0: f32) -> [f32; 2] {
+    let c = &k.coeffs;
+    match k.model {
+        DistortionModel::None | DistortionModel::ModifiedBrownConrady => [x0, y0],
+        DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady => {
+            let inverse = k.model == DistortionModel::InverseBrownConrady;
+            let (mut x, mut y) = (x0, y0);
+            for _ in 0..BROWN_ITERATIONS {
+                let r2 = x * x + y * y;
+                let icd = 1.0 / (1.0 + ((c[4] * r2 + c[1]) * r2 + c[0]) * r2);
+                let (tx, ty) = if inverse { (x / icd, y / icd) } else { (x, y) };
+                let dx = 2.0 * c[2] * tx * ty + c[3] * (r2 + 2.0 * tx * tx);
+                let dy = 2.0 * c[3] * tx * ty + c[2] * (r2 + 2.0 * ty * ty);
+                x = (x0 - dx) * icd;
+                y = (y0 - dy) * icd;
+            }
+            [x, y]
+        }
+        DistortionModel::KannalaBrandt4 => {
+            let rd = (x0 * x0 + y0 * y0).sqrt().max(f32::EPSILON);
+            let (mut theta, mut theta2) = (rd, rd * rd);
+            for _ in 0..KB4_STEPS {
+                let f = theta
+                    * (1.0 + theta2 * (c[0] + theta2 * (c[1] + theta2 * (c[2] + theta2 * c[3]))))
+                    - rd;
+                if f.abs() < f32::EPSILON {
+                    break;
+                }
+                let df = 1.0
+                    + theta2
+                        * (3.0 * c[0]
+                            + theta2 * (5.0 * c[1] + theta2 * (7.0 * c[2] + 9.0 * theta2 * c[3])));
+                theta -= f / df;
+                theta2 = theta * theta;
+            }
+            let r = theta.tan();
+            [x0 * (r / rd), y0 * (r / rd)]
+        }
     }
 }
 

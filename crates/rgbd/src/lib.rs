@@ -19,13 +19,11 @@
 pub mod advanced;
 pub mod backend;
 pub mod camera;
-pub mod d415;
 pub mod deproject;
 pub mod filter;
 pub mod frame;
 pub mod intrinsics;
 pub mod mode;
-pub mod scene;
 pub mod settings;
 
 /// Longest client string, in characters, that an error message echoes (DESIGN §2.3: a
@@ -49,7 +47,7 @@ fn clip(s: &str, max: usize) -> std::borrow::Cow<'_, str> {
 }
 
 pub use advanced::{AdvancedConfig, AdvancedError, VisualPreset};
-pub use backend::synthetic::SyntheticCamera;
+pub use backend::synthetic::{SyntheticCamera, d415, scene};
 pub use camera::{
     Camera, CameraError, CameraHub, HubError, HubEvent, Serial, SerialError, SettingError,
 };

@@ -1,10 +1,7 @@
 //! Camera backends.
 
-pub(crate) mod label;
 pub mod playback;
-mod raycast;
 pub mod realsense;
-mod render;
 pub mod synthetic;
 
 use std::time::{SystemTime, UNIX_EPOCH};

@@ -34,7 +34,7 @@ use std::path::Path;
 
 use rosbag::{ChunkRecord, MessageRecord, RosBag};
 
-use super::{
+use super::recording::{
     DeviceBuilder, Event, Image, Kind, Pixels, PlaybackError, TopicPath, camera_matrix_intrinsics,
     check_image, check_text,
 };

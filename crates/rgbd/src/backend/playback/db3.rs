@@ -33,7 +33,7 @@ use byteorder::LittleEndian;
 use rusqlite::{Connection, OpenFlags};
 use serde::Deserialize;
 
-use super::{
+use super::recording::{
     DeviceBuilder, Event, Image, Kind, Pixels, PlaybackError, TopicPath, camera_matrix_intrinsics,
     check_image, check_text,
 };

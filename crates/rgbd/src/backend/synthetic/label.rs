@@ -1,6 +1,38 @@
 //! Barcode labels as textures: modules from the `qrcode` and `barcoders` encoders.
 
-use crate::scene::{Label, LabelKind};
+use serde::Deserialize;
+
+/// Kind of barcode on a label.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LabelKind {
+    /// A QR code.
+    Qr,
+    /// A Code 128 bar code (ASCII text).
+    Code128,
+}
+
+/// A barcode label on a box's top face.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Label {
+    /// Barcode kind.
+    pub kind: LabelKind,
+    /// Encoded text.
+    pub text: String,
+    /// Label width in metres.
+    pub size: f64,
+}
+
+impl Label {
+    /// Label extent on the top face, metres: (along the box length, along its width).
+    pub fn extent_m(&self) -> (f64, f64) {
+        match self.kind {
+            LabelKind::Qr => (self.size, self.size),
+            LabelKind::Code128 => (self.size, self.size / 2.0),
+        }
+    }
+}
 
 /// QR quiet zone, modules (ISO/IEC 18004: 4).
 const QR_QUIET: usize = 4;

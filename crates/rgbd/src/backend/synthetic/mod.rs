@@ -36,20 +36,25 @@
 //! disconnected ([`SyntheticCamera::set_connected`]) fails grabs with
 //! [`CameraError::Disconnected`].
 
+pub mod d415;
+mod label;
+mod raycast;
+mod render;
+pub mod scene;
+
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
 use crate::advanced::{AdvancedConfig, VisualPreset};
 use crate::backend::FrameClock;
-use crate::backend::raycast::{View, World};
-use crate::backend::render::{self, DepthJob};
 use crate::camera::{Camera, CameraError, Serial};
-use crate::d415;
 use crate::frame::{ColorFrame, DepthFrame};
 use crate::intrinsics::{Extrinsics, Intrinsics, Pose};
 use crate::mode::{ModeTable, Stream};
-use crate::scene::{Noise, Scene, SceneError};
 use crate::settings::{ColorSettings, DepthSettings};
+use raycast::{View, World};
+use render::DepthJob;
+use scene::{Noise, Scene, SceneError};
 
 #[derive(Debug)]
 struct State {

@@ -2,10 +2,10 @@
 
 use rayon::prelude::*;
 
-use crate::backend::raycast::{Hit, RowCandidate, Surface, V3, View, World, light_direction};
-use crate::d415;
+use super::d415;
+use super::raycast::{Hit, RowCandidate, Surface, V3, View, World, light_direction};
+use super::scene::Noise;
 use crate::frame::ColorFormat;
-use crate::scene::Noise;
 
 /// Relative depth step between neighbouring pixels that counts as a discontinuity.
 const EDGE_STEP: f32 = 0.02;

@@ -39,6 +39,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+pub use super::label::{Label, LabelKind};
 use crate::camera::Serial;
 use crate::intrinsics::Pose;
 
@@ -51,38 +52,6 @@ pub enum Noise {
     D415,
     /// Exact depth at each pixel centre (see the synthetic backend for the definition).
     Ideal,
-}
-
-/// Kind of barcode on a label.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum LabelKind {
-    /// A QR code.
-    Qr,
-    /// A Code 128 bar code (ASCII text).
-    Code128,
-}
-
-/// A barcode label on a box's top face.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Label {
-    /// Barcode kind.
-    pub kind: LabelKind,
-    /// Encoded text.
-    pub text: String,
-    /// Label width in metres.
-    pub size: f64,
-}
-
-impl Label {
-    /// Label extent on the top face, metres: (along the box length, along its width).
-    pub fn extent_m(&self) -> (f64, f64) {
-        match self.kind {
-            LabelKind::Qr => (self.size, self.size),
-            LabelKind::Code128 => (self.size, self.size / 2.0),
-        }
-    }
 }
 
 fn default_floor_color() -> [u8; 3] {
@@ -445,8 +414,7 @@ impl Scene {
                         ),
                     ));
                 }
-                crate::backend::label::encode(label)
-                    .map_err(|reason| invalid(at("label.text"), reason))?;
+                super::label::encode(label).map_err(|reason| invalid(at("label.text"), reason))?;
             }
         }
         for (i, c) in self.cylinders.iter().enumerate() {

@@ -3,9 +3,9 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::backend::label::{self, LabelTexture};
+use super::label::{self, LabelTexture};
+use super::scene::{Scene, SceneError};
 use crate::intrinsics::{Intrinsics, Pose};
-use crate::scene::{Scene, SceneError};
 
 pub(crate) type V3 = Vector3<f32>;
 
