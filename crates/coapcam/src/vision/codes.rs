@@ -690,4 +690,56 @@ mod tests {
         scene.boxes[0].label = None;
         assert_eq!(read(&photograph(&scene, 0)), []);
     }
+
+    /// A Code 128 symbol of `modules` (with 10-module quiet zones), `module_px` pixels
+    /// per module, its bars a quarter as tall as the symbol is long (the reader's scan
+    /// lines cross bars at least a fifth as tall whole), turned `yaw_deg` about the
+    /// image's centre, as a camera images it: each pixel the mean of 4x4 samples over
+    /// its area.
+    fn render_turned(modules: &[u8], module_px: f32, yaw_deg: f32) -> GrayImage {
+        let quiet = 10.0;
+        let length = (modules.len() as f32 + 2.0 * quiet) * module_px;
+        let height = length / 4.0;
+        let side = (length.hypot(height) + 8.0).ceil() as u32;
+        let (c, (sin, cos)) = (side as f32 / 2.0, yaw_deg.to_radians().sin_cos());
+        let dark = |x: f32, y: f32| {
+            // Into the symbol's frame: u along the bars' sequence, v along the bars.
+            let (dx, dy) = (x - c, y - c);
+            let (u, v) = (dx * cos + dy * sin + length / 2.0, -dx * sin + dy * cos);
+            let m = (u / module_px - quiet).floor();
+            v.abs() <= height / 2.0 && m >= 0.0 && modules.get(m as usize) == Some(&1)
+        };
+        GrayImage::from_fn(side, side, |x, y| {
+            let mut sum = 0.0;
+            for j in 0..4 {
+                for i in 0..4 {
+                    let (sx, sy) = (
+                        x as f32 + (i as f32 + 0.5) / 4.0,
+                        y as f32 + (j as f32 + 0.5) / 4.0,
+                    );
+                    sum += if dark(sx, sy) { 25.0 } else { 240.0 };
+                }
+            }
+            image::Luma([(sum / 16.0) as u8])
+        })
+    }
+
+    #[test]
+    fn code128_reads_at_every_yaw_down_to_two_pixels_per_module() {
+        let text = "1Z999AA10123456784";
+        let modules = encode(&format!("\u{0181}{text}"));
+        for module_px in [2.0, 2.5, 3.5] {
+            for yaw in [0.0, 10.0, 25.0, 40.0, 55.0, 70.0, 90.0, 115.0, 140.0, 165.0] {
+                let image = render_turned(&modules, module_px, yaw);
+                assert_eq!(
+                    read(&image),
+                    [Code {
+                        kind: CodeKind::Code128,
+                        text: text.into()
+                    }],
+                    "{module_px} px per module, turned {yaw} deg"
+                );
+            }
+        }
+    }
 }

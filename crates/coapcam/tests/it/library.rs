@@ -116,3 +116,27 @@ fn every_representation_decodes_to_the_same_frame() {
         assert!(clouds.iter().all(|c| c.points == clouds[0].points));
     });
 }
+
+#[test]
+fn both_cameras_read_the_code128_label_of_the_code128_scene() {
+    let state = TempDir::new("library-code128");
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/code128.toml");
+    let scene = Scene::load(std::path::Path::new(path)).expect("scenes/code128.toml");
+    runtime().block_on(async {
+        let (_server, client) = start(&scene, &state).await;
+        let serials = client.cameras().await.expect("discovery");
+        prepare_cameras(&client, &serials, 1.0, true)
+            .await
+            .expect("prepare for codes");
+        let cameras: Vec<(SocketAddr, String)> = serials
+            .iter()
+            .map(|sn| (client.server(), sn.clone()))
+            .collect();
+        let seen = coapcam::client::codes::read_cameras(&client, &cameras)
+            .await
+            .expect("reading codes");
+        assert_eq!(seen.len(), 1, "{seen:?}");
+        assert_eq!(seen[0].code.text, "1Z999AA10123456784", "{seen:?}");
+        assert_eq!(seen[0].cameras.len(), 2, "{seen:?}");
+    });
+}

@@ -348,6 +348,17 @@ impl World {
         })
     }
 
+    /// Whether a hit at `point` lies on a label (whose modules need more than one ray
+    /// per pixel to be drawn as a camera sees them).
+    pub(crate) fn on_label(&self, hit: &Hit, point: &V3) -> bool {
+        match hit.surface {
+            Surface::Prim { index, top: true } => {
+                matches!(&self.prims[index].shape, Shape::Box(b) if b.on_label(point))
+            }
+            _ => false,
+        }
+    }
+
     /// Shaded color of a hit, 0..=255 per channel (not rounded); `light` is the unit
     /// direction towards the light.
     pub(crate) fn shade(&self, hit: &Hit, point: &V3, ray: &V3, light: &V3) -> [f32; 3] {

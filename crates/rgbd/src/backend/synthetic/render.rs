@@ -227,6 +227,32 @@ fn supersample(world: &World, view: &View, right_imager: &V3, u: usize, v: usize
     if count == 0 { 0.0 } else { sum / count as f32 }
 }
 
+/// Sub-pixel rays per side of a color pixel on a label.
+const LABEL_SAMPLES: u32 = 4;
+
+/// A color pixel on a label, as a sensor integrates the light over the pixel: the mean
+/// shade of `LABEL_SAMPLES`² sub-pixel rays. One ray per pixel would draw a bar code's
+/// modules a whole pixel wide or not at all (aliasing), which no camera does.
+fn label_pixel(world: &World, view: &View, light: &V3, u: usize, v: usize) -> [u8; 3] {
+    let n = LABEL_SAMPLES;
+    let mut sum = [0.0f32; 3];
+    for j in 0..n {
+        for i in 0..n {
+            let su = u as f32 + (i as f32 + 0.5) / n as f32 - 0.5;
+            let sv = v as f32 + (j as f32 + 0.5) / n as f32 - 0.5;
+            let d = view.ray(su, sv);
+            let rgb = match world.trace(&view.origin, &d, world.all()) {
+                Some(hit) => world.shade(&hit, &(view.origin + d * hit.t), &d, light),
+                None => BACKGROUND.map(f32::from),
+            };
+            for (s, c) in sum.iter_mut().zip(rgb) {
+                *s += c;
+            }
+        }
+    }
+    rounded(sum.map(|s| s / (n * n) as f32))
+}
+
 /// Color of rays that hit nothing (above the horizon).
 const BACKGROUND: [u8; 3] = [40, 40, 48];
 
@@ -257,7 +283,11 @@ pub(crate) fn render_color(world: &World, view: &View, format: ColorFormat) -> V
                     Some(Seen::Floor(_)) => floor_rgb[usize::from(d.z > 0.0)],
                     Some(Seen::Hit(hit)) => {
                         let p = view.origin + d * hit.t;
-                        rounded(world.shade(&hit, &p, &d, &light))
+                        if world.on_label(&hit, &p) {
+                            label_pixel(world, view, &light, u, v)
+                        } else {
+                            rounded(world.shade(&hit, &p, &d, &light))
+                        }
                     }
                     None => BACKGROUND,
                 };
