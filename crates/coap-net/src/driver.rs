@@ -342,9 +342,14 @@ impl Thread {
                     }
                 }
                 Err(e) if timed_out(&e) => {}
-                // ICMP errors (port unreachable) may surface here; they say nothing the
-                // retransmission timers do not already handle.
-                Err(e) => tracing::debug!(error = %e, "recv failed"),
+                // A queued ICMP error surfaces here: a port that nothing listens on fails
+                // the requests to it now, not after every retransmission.
+                Err(e) => {
+                    tracing::debug!(error = %e, "recv failed");
+                    for peer in self.socket.unreachable() {
+                        self.fail_peer(peer, RequestError::Unreachable);
+                    }
+                }
             }
             // Every turn, not only after a wake-up: a lost wake-up costs no command.
             if self.commands() {
@@ -475,6 +480,34 @@ impl Thread {
             }
             // Ends the thread's loop before it gets here.
             Command::Shutdown => {}
+        }
+    }
+
+    /// Fails every request to `peer` with `error` and stops its exchanges.
+    fn fail_peer(&mut self, peer: SocketAddr, error: RequestError) {
+        let now = clock::now();
+        let ids: Vec<RequestId> = self
+            .replies
+            .iter()
+            .filter(|(_, (p, _))| *p == peer)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in ids {
+            // Removed first: the Cancelled failure the endpoint reports is dropped.
+            if let Some((_, reply)) = self.replies.remove(&id) {
+                self.ep.cancel(now, id);
+                match reply {
+                    Reply::Once(tx) | Reply::Tracked(tx, _) => {
+                        let _ = tx.send(Err(error.clone()));
+                    }
+                    Reply::Stream(tx) => {
+                        let _ = tx.send(StreamItem::Failed(error.clone()));
+                    }
+                    Reply::Body(tx) => {
+                        let _ = tx.send(BodyItem::Failed(error.clone()));
+                    }
+                }
+            }
         }
     }
 

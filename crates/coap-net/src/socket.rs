@@ -69,12 +69,78 @@ impl Socket {
             destinations: OnceLock::new(),
             local,
         };
+        socket.queue_errors();
         // Only a wildcard-bound socket can receive a group's datagrams without having
         // joined it itself; where that cannot be turned off, it reads every destination.
         if local.ip().is_unspecified() && !socket.only_own_groups() {
             socket.read_destinations()?;
         }
         Ok(socket)
+    }
+
+    /// Asks the kernel to queue the ICMP errors the socket's datagrams cause (IP_RECVERR):
+    /// an unconnected socket is otherwise never told that a port is unreachable. A
+    /// receive then fails once per queued error, and [`Socket::unreachable`] reads them.
+    #[cfg(target_os = "linux")]
+    fn queue_errors(&self) {
+        use nix::sys::socket::{setsockopt, sockopt};
+        let set = match self.local {
+            SocketAddr::V4(_) => setsockopt(&self.io, sockopt::Ipv4RecvErr, &true),
+            SocketAddr::V6(_) => setsockopt(&self.io, sockopt::Ipv6RecvErr, &true),
+        };
+        if let Err(e) = set {
+            tracing::debug!(error = %e, "ICMP errors are not reported on this socket");
+        }
+    }
+
+    #[cfg(not(target_os = "linux"))]
+    fn queue_errors(&self) {}
+
+    /// The destinations of earlier datagrams that the network answered with ICMP "port
+    /// unreachable" (nothing listens there), read from the socket's error queue; other
+    /// errors are read and dropped. Empty where the queue cannot be read.
+    #[cfg(target_os = "linux")]
+    pub fn unreachable(&self) -> Vec<SocketAddr> {
+        use std::os::fd::AsRawFd as _;
+
+        use nix::errno::Errno;
+        use nix::libc;
+        use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg};
+
+        let mut peers = Vec::new();
+        let mut data = [0u8; 64];
+        let mut control = nix::cmsg_space!(libc::sock_extended_err, libc::sockaddr_in6);
+        // At most a bounded number per call: the queue holds what arrived so far.
+        for _ in 0..64 {
+            let mut iov = [IoSliceMut::new(&mut data)];
+            let got = recvmsg::<SockaddrStorage>(
+                self.io.as_raw_fd(),
+                &mut iov,
+                Some(&mut control),
+                MsgFlags::MSG_ERRQUEUE | MsgFlags::MSG_DONTWAIT,
+            );
+            let Ok(msg) = got else { break };
+            let refused = msg.cmsgs().into_iter().flatten().any(|c| match c {
+                ControlMessageOwned::Ipv4RecvErr(e, _) | ControlMessageOwned::Ipv6RecvErr(e, _) => {
+                    e.ee_errno == Errno::ECONNREFUSED as u32
+                }
+                _ => false,
+            });
+            let destination = msg.address.and_then(|a| {
+                a.as_sockaddr_in()
+                    .map(|v4| SocketAddr::V4((*v4).into()))
+                    .or_else(|| a.as_sockaddr_in6().map(|v6| SocketAddr::V6((*v6).into())))
+            });
+            if let (true, Some(peer)) = (refused, destination) {
+                peers.push(peer);
+            }
+        }
+        peers
+    }
+
+    #[cfg(not(target_os = "linux"))]
+    pub fn unreachable(&self) -> Vec<SocketAddr> {
+        Vec::new()
     }
 
     /// Makes the socket receive only the groups it joins itself; false where that cannot

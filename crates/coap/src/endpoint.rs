@@ -205,6 +205,10 @@ pub enum RequestError {
     /// The peer rejected the message with a Reset.
     #[error("reset by peer")]
     Reset,
+    /// Nothing listens at the peer's address: its host answered with ICMP "port
+    /// unreachable" (reported by the driver, which reads the socket's errors).
+    #[error("nothing listens there (ICMP port unreachable)")]
+    Unreachable,
     /// The response body exceeds the endpoint's limit.
     #[error("response body larger than {limit} bytes")]
     TooLarge {

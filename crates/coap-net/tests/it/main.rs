@@ -420,3 +420,21 @@ async fn a_second_server_on_a_taken_unicast_address_fails_to_bind() {
     };
     assert_eq!(error.kind(), std::io::ErrorKind::AddrInUse, "{error}");
 }
+
+#[tokio::test]
+async fn a_request_to_a_port_nothing_listens_on_fails_at_once() {
+    // A port that was free a moment ago: nothing listens there.
+    let peer = std::net::UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let c = client(peer);
+    // Unreachable, not Timeout: the ICMP error ended it, not the retransmissions.
+    let result = within(c.send(peer, Request::new(Code::GET, "/x"))).await;
+    assert!(
+        matches!(
+            result,
+            Err(coap_net::Error::Request(coap::RequestError::Unreachable))
+        ),
+        "{result:?}"
+    );
+}

@@ -2,7 +2,6 @@
 //! file whose extension chooses the representation, and optionally a picture for people.
 
 use std::path::{Path, PathBuf};
-use std::time::Duration;
 
 use anyhow::{Context as _, bail};
 use clap::Args;
@@ -36,9 +35,6 @@ pub(crate) struct GrabArgs {
     /// from above, coloured by height.
     #[arg(long, value_name = "FILE.png")]
     view: Option<PathBuf>,
-    /// Give up after this many seconds.
-    #[arg(long, value_name = "SECONDS", default_value_t = 60.0)]
-    timeout: f64,
     #[command(flatten)]
     transmission: TransmissionArgs,
 }
@@ -90,7 +86,7 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
     {
         bail!("--view writes PNG: give a .png file name");
     }
-    let timeout = Duration::try_from_secs_f64(args.timeout).context("--timeout")?;
+    let timeout = args.transmission.timeout()?;
     let client =
         CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout).await?;
     let (sn, response) = if args.all {

@@ -78,9 +78,6 @@ pub(crate) struct MeasureArgs {
     /// rounded dimensions.
     #[arg(long, value_name = "MM", value_parser = parse_positive)]
     round_up_mm: Option<f64>,
-    /// Give up on a request after this many seconds.
-    #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
-    timeout: f64,
     #[command(flatten)]
     dimension: DimensionArgs,
     #[command(flatten)]
@@ -98,7 +95,7 @@ fn parse_positive(text: &str) -> Result<f64, String> {
 /// Runs `measure`: [`Exit::Empty`] when nothing is on the table, [`Exit::Fewer`] when
 /// fewer servers of a group answered than `--expect`.
 pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
-    let timeout = Duration::try_from_secs_f64(args.timeout).context("--timeout")?;
+    let timeout = args.transmission.timeout()?;
     let config = args.transmission.endpoint_config();
     let billing = Billing {
         divisor_cm3_per_kg: args.volumetric_divisor,

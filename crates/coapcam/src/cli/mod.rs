@@ -34,9 +34,20 @@ pub(crate) struct TransmissionArgs {
     /// NSTART: requests outstanding at once per peer (RFC 7252 default 1).
     #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=64))]
     nstart: u64,
+    /// Give up on a request, with every block of its body, after this many seconds (the
+    /// same default in every command: a few megabytes over a slow link take minutes
+    /// block by block). A request that nothing acknowledges fails sooner, after
+    /// MAX_RETRANSMIT retransmissions (45-93 s with the RFC 7252 defaults).
+    #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
+    timeout: f64,
 }
 
 impl TransmissionArgs {
+    /// `--timeout`.
+    pub(crate) fn timeout(&self) -> anyhow::Result<Duration> {
+        anyhow::Context::context(Duration::try_from_secs_f64(self.timeout), "--timeout")
+    }
+
     /// The endpoint configuration, with a seed that differs between processes started at
     /// the same time (so they do not pick the same message IDs and tokens).
     pub(crate) fn endpoint_config(&self) -> EndpointConfig {
@@ -127,7 +138,8 @@ pub(crate) enum Exit {
     /// 3: the server answered with an error response (4.xx, 5.xx) or refused what was
     /// asked (an observation it does not allow); the code and diagnostic were printed.
     Refused,
-    /// 4: nothing answered in time: no server at the address, no member of the group.
+    /// 4: no answer: nothing listens at the address (ICMP port unreachable), nothing
+    /// answered in time, no member of the group answered.
     NoAnswer,
     /// 5: `measure`: nothing is on the table (printed as a result).
     Empty,
@@ -166,12 +178,15 @@ pub(crate) fn exit_status(error: &anyhow::Error) -> Option<Exit> {
         if cause.is::<coapcam::client::ErrorResponse>() {
             return Some(Exit::Refused);
         }
-        if cause.is::<coapcam::client::NoAnswer>()
-            || matches!(
-                cause.downcast_ref(),
-                Some(coap_net::Error::Request(coap::RequestError::Timeout))
+        let silent = |e: &coap::RequestError| {
+            matches!(
+                e,
+                coap::RequestError::Timeout | coap::RequestError::Unreachable
             )
-            || matches!(cause.downcast_ref(), Some(coap::RequestError::Timeout))
+        };
+        if cause.is::<coapcam::client::NoAnswer>()
+            || matches!(cause.downcast_ref(), Some(coap_net::Error::Request(e)) if silent(e))
+            || cause.downcast_ref().is_some_and(silent)
         {
             return Some(Exit::NoAnswer);
         }

@@ -82,10 +82,6 @@ pub(crate) struct MonitorArgs {
     /// One JSON object per line for each result, and the statistics as the last line.
     #[arg(long)]
     json: bool,
-    /// Give up on a request after this many seconds (with --observe: on the first
-    /// response).
-    #[arg(long, value_name = "SECONDS", default_value_t = 30.0)]
-    timeout: f64,
     #[command(flatten)]
     dimension: DimensionArgs,
     #[command(flatten)]
@@ -576,7 +572,7 @@ async fn observe(
 /// Runs `monitor`: a success when at least one result succeeded, else as its last
 /// failure.
 pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
-    let timeout = Duration::try_from_secs_f64(args.timeout).context("--timeout")?;
+    let timeout = args.transmission.timeout()?;
     let period = Duration::try_from_secs_f64(args.interval).context("--interval")?;
     if period.is_zero() && args.count.is_none() && !args.observe {
         bail!("--interval 0 needs --count");

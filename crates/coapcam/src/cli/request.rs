@@ -46,9 +46,6 @@ pub(crate) struct RequestArgs {
     /// response, then stop.
     #[arg(long, value_name = "N")]
     observe: Option<usize>,
-    /// Give up after this many seconds.
-    #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
-    timeout: f64,
     /// Print one JSON object per response (code, options, size, time) instead of the body.
     #[arg(long)]
     json: bool,
@@ -75,9 +72,6 @@ pub(crate) struct DiscoverArgs {
     /// How long to collect answers from a multicast group, in seconds.
     #[arg(long, value_name = "SECONDS", default_value_t = 2.0)]
     wait: f64,
-    /// Give up after this many seconds (unicast).
-    #[arg(long, value_name = "SECONDS", default_value_t = 60.0)]
-    timeout: f64,
     /// Print JSON: one object per link with its server, target and attributes.
     #[arg(long)]
     json: bool,
@@ -97,7 +91,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
     request.options = uri.options();
     request.confirmable = !args.non;
     request.block_szx = args.block_size;
-    request.timeout = Some(Duration::try_from_secs_f64(args.timeout).context("--timeout")?);
+    request.timeout = Some(args.transmission.timeout()?);
     if let Some(cf) = args.content_format {
         request
             .options
@@ -491,7 +485,7 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
         request.timeout = Some(Duration::try_from_secs_f64(args.wait).context("--wait")?);
         client.multicast(peer, request).await?
     } else {
-        request.timeout = Some(Duration::try_from_secs_f64(args.timeout).context("--timeout")?);
+        request.timeout = Some(args.transmission.timeout()?);
         vec![(
             peer,
             client

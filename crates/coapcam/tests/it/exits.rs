@@ -78,6 +78,27 @@ fn no_answer_in_time_exits_4() {
 }
 
 #[test]
+fn nothing_listening_at_the_address_exits_4_at_once_naming_it() {
+    let free = UdpSocket::bind("127.0.0.1:0")
+        .and_then(|s| s.local_addr())
+        .expect("a free port");
+    for args in [
+        vec!["get".to_owned(), format!("coap://{free}/x")],
+        vec![
+            "measure".to_owned(),
+            "--server".to_owned(),
+            format!("coap://{free}"),
+        ],
+    ] {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let f = coapcam(&args);
+        assert_eq!(status(&f), Some(4), "{args:?}: {}", f.stderr);
+        assert!(f.stderr.contains("nothing listens"), "{}", f.stderr);
+        assert!(f.stderr.contains(&free.to_string()), "{}", f.stderr);
+    }
+}
+
+#[test]
 fn a_closed_standard_output_ends_quietly() {
     let state = TempDir::new("exits-pipe");
     let (_server, addr) = serve(state.path());
