@@ -36,6 +36,11 @@ fn hash_addr<H: Hasher>(addr: &SocketAddr, extra: u16, state: &mut H) {
     state.write_u64(scope << 32 | u64::from(addr.port()) << 16 | u64::from(extra));
 }
 
+/// A map keyed by what this endpoint chose itself (request and observation ids, its own
+/// tokens and message IDs, the peers it sends to): a fast seeded hash is enough there.
+/// The deduplication store, keyed by message IDs that peers choose, keeps SipHash.
+pub(crate) type FastMap<K, V> = std::collections::HashMap<K, V, foldhash::fast::RandomState>;
+
 #[cfg(test)]
 mod tests {
     use std::collections::HashSet;

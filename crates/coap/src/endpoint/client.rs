@@ -1,0 +1,622 @@
+//! The client side's behaviour: requests this endpoint sends, step by step (the state is
+//! in `client_state`).
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use rand_core::RngCore;
+
+use super::Endpoint;
+use super::client_state::{
+    ClientRequest, Peer, STREAM_PIECE, Step, Waiting, is_newer, take_response,
+};
+use super::congestion::Nstart;
+use super::message::{Due, Purpose, TimerKind};
+use super::types::{Event, Request, RequestError, RequestId, Response};
+use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
+use crate::peer_key::{MidKey, PeerKey};
+
+impl Endpoint {
+    /// Starts a request to `peer`. The outcome arrives as [`Event::Response`] or
+    /// [`Event::RequestFailed`] with the returned id.
+    pub fn request(&mut self, now: Instant, peer: SocketAddr, req: Request) -> RequestId {
+        let id = self.new_id();
+        let token = self.new_token();
+        let szx1 = req
+            .block_szx
+            .unwrap_or(self.config.max_block_szx)
+            .min(self.config.max_block_szx);
+        let user_block2 = req.options.contains(OptionNumber::BLOCK2);
+        let observe = req.options.uint(OptionNumber::OBSERVE) == Some(0);
+        let mut req = req;
+        if req.multicast {
+            req.confirmable = false;
+            req.timeout = Some(req.timeout.unwrap_or(Duration::from_secs(5)));
+        }
+        if let Some(t) = req.timeout {
+            self.msg.schedule(now + t, TimerKind::Deadline { id });
+        }
+        let step = if req.payload.len() > BlockOpt::size_of(szx1) {
+            Step::Upload { offset: 0 }
+        } else {
+            Step::Whole
+        };
+        self.client.requests.insert(
+            id,
+            ClientRequest {
+                peer,
+                req,
+                token,
+                szx1,
+                step,
+                waiting: Waiting::Queued,
+                generation: 0,
+                failures: 0,
+                restarts: 0,
+                body: Vec::new(),
+                received: 0,
+                etag: None,
+                first_options: None,
+                user_block2,
+                observe,
+                ack_timer: None,
+                block_head: None,
+            },
+        );
+        self.client.by_token.insert(token, id);
+        let nstart = self.config.nstart;
+        self.client
+            .peers
+            .entry(PeerKey(peer))
+            .or_insert_with(|| Peer::new(Box::new(Nstart::new(nstart))))
+            .queue
+            .push_back(id);
+        self.pump(now, peer);
+        RequestId(id)
+    }
+
+    /// Sends a CoAP ping (an empty CON, RFC 7252 §4.3): [`Event::Pong`] when the peer
+    /// answers with a Reset, [`Event::RequestFailed`] after MAX_RETRANSMIT.
+    pub fn ping(&mut self, now: Instant, peer: SocketAddr) -> RequestId {
+        let id = self.new_id();
+        let mid = self.msg.next_mid();
+        self.msg.send_con(
+            now,
+            peer,
+            &Message::empty(Type::Con, mid),
+            Purpose::Ping(id),
+            &self.config,
+        );
+        RequestId(id)
+    }
+
+    /// Abandons a request; [`Event::RequestFailed`] with [`RequestError::Cancelled`]
+    /// follows if it was still running.
+    pub fn cancel(&mut self, now: Instant, id: RequestId) {
+        if self.client.requests.contains_key(&id.0) {
+            self.fail(now, id.0, RequestError::Cancelled);
+        }
+    }
+
+    fn new_token(&mut self) -> Token {
+        let len = self.config.token_len.min(8);
+        loop {
+            let bytes = self.msg.rng.next_u64().to_be_bytes();
+            // NOTE(unwrap): len <= 8.
+            let token = Token::new(&bytes[..len]).unwrap_or_default();
+            if len == 0 || !self.client.by_token.contains_key(&token) {
+                return token;
+            }
+        }
+    }
+
+    /// Starts queued requests while the peer has fewer outstanding than its congestion
+    /// controller allows.
+    pub(super) fn pump(&mut self, now: Instant, peer: SocketAddr) {
+        loop {
+            let Some(p) = self.client.peers.get_mut(&PeerKey(peer)) else {
+                return;
+            };
+            if p.active >= p.controller.window() {
+                return;
+            }
+            let Some(id) = p.queue.pop_front() else {
+                if p.active == 0 {
+                    self.client.peers.remove(&PeerKey(peer));
+                }
+                return;
+            };
+            p.active += 1;
+            self.send_step(now, id);
+        }
+    }
+
+    pub(super) fn send_step(&mut self, now: Instant, id: u64) {
+        let mid = self.msg.next_mid();
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        r.send_step(mid, &mut self.msg.outbox);
+        r.generation += 1;
+        let (peer, generation) = (r.peer, r.generation);
+        if r.req.multicast {
+            // RFC 7390 §2.5: sent once, responses collected until the deadline.
+            r.waiting = Waiting::Collecting;
+        } else if r.req.confirmable {
+            r.waiting = Waiting::Ack(mid);
+            let at = self
+                .msg
+                .await_ack(now, peer, mid, Purpose::Request(id), None, &self.config);
+            self.arm_request_ack(id, at);
+        } else {
+            r.waiting = Waiting::Response {
+                non_tx: Some(0),
+                mid,
+            };
+            let t = self.msg.initial_timeout(&self.config);
+            self.msg
+                .schedule(now + t, TimerKind::Step { id, generation });
+        }
+    }
+
+    /// Makes sure the request's ACK timer fires no later than `at`.
+    pub(super) fn arm_request_ack(&mut self, id: u64, at: Instant) {
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        if r.ack_timer.is_some_and(|armed| armed <= at) {
+            return;
+        }
+        r.ack_timer = Some(at);
+        self.msg.schedule(at, TimerKind::RequestAck { id, at });
+    }
+
+    /// The ACK timer of a request: the CON it waits for is sent again if due (RFC 7252
+    /// §4.2, the timeout doubling each time), its step fails after MAX_RETRANSMIT; a CON
+    /// due later re-arms the timer for then.
+    pub(super) fn on_request_ack_timer(&mut self, now: Instant, id: u64, at: Instant) {
+        let max = self.config.max_retransmit;
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        if r.ack_timer != Some(at) {
+            return;
+        }
+        r.ack_timer = None;
+        let Waiting::Ack(mid) = r.waiting else {
+            return;
+        };
+        match self.msg.request_con_due(now, r.peer, mid, max) {
+            Due::Gone => {}
+            Due::Later(due) => self.arm_request_ack(id, due),
+            Due::Resend(due) => {
+                r.send_step(mid, &mut self.msg.outbox);
+                self.arm_request_ack(id, due);
+            }
+            Due::GaveUp => self.step_failed(now, id, RequestError::Timeout),
+        }
+    }
+
+    /// The ACK or Reset of a request's CON: a Reset fails it, a piggybacked response is
+    /// its answer, an empty ACK means the answer comes separately.
+    pub(super) fn on_request_ack(
+        &mut self,
+        now: Instant,
+        id: u64,
+        msg: &mut Message,
+        payload: &[u8],
+    ) {
+        if msg.ty == Type::Rst {
+            self.fail(now, id, RequestError::Reset);
+        } else if msg.code.is_response()
+            && let Some(r) = self
+                .client
+                .requests
+                .get_mut(&id)
+                .filter(|r| r.token == msg.token)
+        {
+            // Piggybacked: the exchange ended with this ACK.
+            r.waiting = Waiting::Response {
+                non_tx: None,
+                mid: msg.message_id,
+            };
+            self.on_response(now, id, msg, payload);
+        } else {
+            self.on_empty_ack(now, id);
+        }
+    }
+
+    /// A separate response (CON or NON) to request `id`, already acknowledged and
+    /// deduplicated: a multicast answer, a notification, or the request's answer.
+    pub(super) fn on_separate_response_to(
+        &mut self,
+        now: Instant,
+        id: u64,
+        peer: SocketAddr,
+        msg: &mut Message,
+        payload: &[u8],
+    ) {
+        match self.client.requests.get_mut(&id) {
+            Some(r) if r.waiting == Waiting::Collecting => {
+                let response = take_response(msg, payload);
+                self.events.push_back(Event::MulticastResponse {
+                    id: RequestId(id),
+                    peer,
+                    response,
+                });
+            }
+            Some(r) if r.peer != peer => {}
+            Some(r) => {
+                if let Waiting::Observing(last) = r.waiting {
+                    let seq = msg.options.uint(OptionNumber::OBSERVE);
+                    // RFC 7641 §3.4: deliver only notifications newer than the last one.
+                    if let Some(seq) = seq.filter(|v| is_newer(last, *v)) {
+                        r.waiting = Waiting::Observing(seq);
+                        let response = take_response(msg, payload);
+                        self.events.push_back(Event::Notification {
+                            id: RequestId(id),
+                            response,
+                        });
+                    } else if seq.is_none() {
+                        // A final response without Observe ends the observation (§3.2).
+                        let response = take_response(msg, payload);
+                        self.finish(now, id);
+                        self.events.push_back(Event::Notification {
+                            id: RequestId(id),
+                            response,
+                        });
+                    }
+                    return;
+                }
+                self.on_response(now, id, msg, payload);
+            }
+            None => {}
+        }
+    }
+
+    pub(super) fn on_empty_ack(&mut self, now: Instant, id: u64) {
+        let timeout = self.config.response_timeout;
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        if let Waiting::Ack(mid) = r.waiting {
+            r.waiting = Waiting::Response { non_tx: None, mid };
+            r.generation += 1;
+            let generation = r.generation;
+            self.msg
+                .schedule(now + timeout, TimerKind::Step { id, generation });
+        }
+    }
+
+    pub(super) fn on_step_timer(&mut self, now: Instant, id: u64, generation: u32) {
+        let max = self.config.max_retransmit;
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        if r.generation != generation {
+            return;
+        }
+        match r.waiting {
+            Waiting::Response {
+                non_tx: Some(tx), ..
+            } if tx < max => {
+                // A NON request gets no ACK; resend it (new message ID, same token) on
+                // the same back-off schedule a CON would use.
+                let mid = self.msg.next_mid();
+                let Some(r) = self.client.requests.get_mut(&id) else {
+                    return;
+                };
+                r.send_step(mid, &mut self.msg.outbox);
+                r.waiting = Waiting::Response {
+                    non_tx: Some(tx + 1),
+                    mid,
+                };
+                let t = self.msg.initial_timeout(&self.config) * (1u32 << (tx + 1));
+                self.msg
+                    .schedule(now + t, TimerKind::Step { id, generation });
+            }
+            _ => self.step_failed(now, id, RequestError::Timeout),
+        }
+    }
+
+    /// One exchange failed. A block-wise step is resumed (the same block again) up to
+    /// `block_retries` consecutive times; anything else fails the request.
+    pub(super) fn step_failed(&mut self, now: Instant, id: u64, error: RequestError) {
+        let retries = self.config.block_retries;
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        if r.step_has_block_option() && r.failures < retries {
+            r.failures += 1;
+            self.send_step(now, id);
+        } else {
+            self.fail(now, id, error);
+        }
+    }
+
+    pub(super) fn fail(&mut self, now: Instant, id: u64, error: RequestError) {
+        self.finish(now, id);
+        self.events.push_back(Event::RequestFailed {
+            id: RequestId(id),
+            error,
+        });
+    }
+
+    /// Removes a finished request and frees its NSTART slot.
+    pub(super) fn finish(&mut self, now: Instant, id: u64) {
+        let Some(r) = self.client.requests.remove(&id) else {
+            return;
+        };
+        self.client.by_token.remove(&r.token);
+        match r.waiting {
+            Waiting::Ack(mid) => {
+                self.msg.exchanges.remove(&MidKey(r.peer, mid));
+            }
+            Waiting::Queued => {
+                if let Some(p) = self.client.peers.get_mut(&PeerKey(r.peer)) {
+                    p.queue.retain(|q| *q != id);
+                }
+                return;
+            }
+            // An observation gave its NSTART slot back when it was established.
+            Waiting::Observing(_) => return,
+            Waiting::Response { .. } | Waiting::Collecting => {}
+        }
+        self.release_slot(now, r.peer);
+    }
+
+    pub(super) fn release_slot(&mut self, now: Instant, peer: SocketAddr) {
+        if let Some(p) = self.client.peers.get_mut(&PeerKey(peer)) {
+            p.active = p.active.saturating_sub(1);
+        }
+        self.pump(now, peer);
+    }
+
+    /// Delivers the final response of a request. An Observe registration that the server
+    /// accepted (a success carrying Observe) stays alive for its notifications and frees
+    /// its NSTART slot; anything else is finished.
+    pub(super) fn complete(&mut self, now: Instant, id: u64, response: Response) {
+        let seq = response.options.uint(OptionNumber::OBSERVE);
+        let observing = self.client.requests.get_mut(&id).and_then(|r| {
+            let seq = seq.filter(|_| r.observe && response.code.is_success())?;
+            r.waiting = Waiting::Observing(seq);
+            Some(r.peer)
+        });
+        match observing {
+            Some(peer) => self.release_slot(now, peer),
+            None => self.finish(now, id),
+        }
+        self.events.push_back(Event::Response {
+            id: RequestId(id),
+            response,
+        });
+    }
+
+    /// A response (piggybacked or separate) matched to request `id` by token.
+    pub(super) fn on_response(&mut self, now: Instant, id: u64, msg: &mut Message, payload: &[u8]) {
+        let limit = self.config.limits.client_body_bytes;
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        // Is it the answer to the step in flight? Late answers to earlier steps are dropped.
+        let current = match r.step {
+            Step::Upload { offset } => msg
+                .options
+                .block1()
+                .is_none_or(|b| b.num as usize == offset / BlockOpt::size_of(r.szx1)),
+            Step::Download { num, .. } => msg.options.block2().is_none_or(|b| b.num == num),
+            Step::Whole => true,
+        };
+        if !current || r.waiting == Waiting::Queued {
+            if !current && msg.ty == Type::Ack {
+                // The ACK of the step's own CON answers another block: that exchange is
+                // over, so the block is asked for again rather than waited for.
+                return self.step_failed(
+                    now,
+                    id,
+                    RequestError::Protocol("the response is for another block"),
+                );
+            }
+            return;
+        }
+        // A separate response also acknowledges the request (RFC 7252 §5.2.2).
+        if let Waiting::Ack(mid) = r.waiting {
+            self.msg.exchanges.remove(&MidKey(r.peer, mid));
+        }
+        r.generation += 1;
+        r.failures = 0;
+
+        if let Step::Upload { offset } = r.step {
+            let size = BlockOpt::size_of(r.szx1);
+            let sent_end = (offset + size).min(r.req.payload.len());
+            if msg.code == Code::CONTINUE {
+                let Some(b1) = msg.options.block1() else {
+                    return self.fail(
+                        now,
+                        id,
+                        RequestError::Protocol("2.31 Continue without Block1"),
+                    );
+                };
+                if sent_end >= r.req.payload.len() {
+                    return self.fail(
+                        now,
+                        id,
+                        RequestError::Protocol("2.31 Continue after the last block"),
+                    );
+                }
+                // RFC 7959 §2.3: continue with the server's block size if it is smaller;
+                // the offset stays, so the block number scales.
+                r.szx1 = r.szx1.min(b1.szx);
+                r.step = Step::Upload { offset: sent_end };
+                if r.req.progress && offset >> 16 != sent_end >> 16 {
+                    let total = Some(r.req.payload.len());
+                    self.events.push_back(Event::Progress {
+                        id: RequestId(id),
+                        done: sent_end,
+                        total,
+                    });
+                }
+                return self.send_step(now, id);
+            }
+            if msg.code == Code::REQUEST_ENTITY_TOO_LARGE
+                && let Some(b1) = msg
+                    .options
+                    .block1()
+                    .filter(|b| b.szx < r.szx1 && r.restarts < 4)
+            {
+                // RFC 7959 §2.9.3: the server wants smaller blocks; start over with them.
+                r.restarts += 1;
+                r.szx1 = b1.szx;
+                r.step = Step::Upload { offset: 0 };
+                return self.send_step(now, id);
+            }
+        } else if r.step == Step::Whole
+            && msg.code == Code::REQUEST_ENTITY_TOO_LARGE
+            && !r.req.payload.is_empty()
+            && let Some(b1) = msg.options.block1().filter(|_| r.restarts < 4)
+        {
+            // The body fit one message but not the server: go block-wise at its size.
+            r.restarts += 1;
+            r.szx1 = b1.szx.min(r.szx1);
+            r.step = Step::Upload { offset: 0 };
+            return self.send_step(now, id);
+        }
+
+        // The request is fully sent; now the response, possibly in blocks.
+        let b2 = msg
+            .options
+            .block2()
+            .filter(|_| !r.user_block2 && msg.code.is_success());
+        let Some(b2) = b2 else {
+            if r.first_options.take().is_some() {
+                // Reassembly ended with a block lacking Block2: a broken server.
+                return self.fail(
+                    now,
+                    id,
+                    RequestError::Protocol("block-wise response lost its Block2"),
+                );
+            }
+            let mut response = take_response(msg, payload);
+            if r.req.stream && response.code.is_success() && !response.payload.is_empty() {
+                let data = std::mem::take(&mut response.payload);
+                self.events.push_back(Event::BodyChunk {
+                    id: RequestId(id),
+                    offset: 0,
+                    total: Some(data.len()),
+                    data,
+                });
+            }
+            return self.complete(now, id, response);
+        };
+        if r.first_options.is_some() && msg.options.etag() != r.etag.as_deref() {
+            // RFC 7959 §2.4: the representation changed. Streamed pieces cannot be taken
+            // back, so a streamed request fails; a reassembled one starts over, a few
+            // times at most.
+            if r.restarts >= 4 || r.req.stream {
+                return self.fail(now, id, RequestError::RepresentationChanged);
+            }
+            r.restarts += 1;
+            r.body.clear();
+            r.received = 0;
+            r.first_options = None;
+            r.step = Step::Download {
+                num: 0,
+                szx: b2.szx,
+            };
+            return self.send_step(now, id);
+        }
+        if r.first_options.is_none() {
+            if b2.num != 0 {
+                return self.fail(
+                    now,
+                    id,
+                    RequestError::Protocol("first Block2 response is not block 0"),
+                );
+            }
+            let mut first = msg.options.clone();
+            first.remove(OptionNumber::BLOCK2);
+            r.etag = msg.options.etag().map(<[u8]>::to_vec);
+            // Room for the first piece of a streamed body, or for the whole body Size2
+            // announced (bounded by the limit), not regrown block by block.
+            let room = if r.req.stream {
+                if b2.more { STREAM_PIECE + b2.size() } else { 0 }
+            } else {
+                msg.options
+                    .uint(OptionNumber::SIZE2)
+                    .map_or(0, |size2| (size2 as usize).min(limit))
+            };
+            r.body.reserve(room);
+            r.first_options = Some(first);
+        }
+        if b2.offset() != r.received {
+            // A block we did not ask for at this offset: ask again for the one we lack.
+            let size = b2.size();
+            r.step = Step::Download {
+                num: (r.received / size) as u32,
+                szx: b2.szx,
+            };
+            return self.send_step(now, id);
+        }
+        if r.received + payload.len() > limit {
+            return self.fail(now, id, RequestError::TooLarge { limit });
+        }
+        if b2.more && payload.len() != b2.size() {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("Block2 payload size does not match SZX"),
+            );
+        }
+        let total = r
+            .first_options
+            .as_ref()
+            .and_then(|o| o.uint(OptionNumber::SIZE2))
+            .map(|v| v as usize);
+        let (stream, progress) = (r.req.stream, r.req.progress);
+        let before = r.received;
+        r.received += payload.len();
+        let done = r.received;
+        if stream && !b2.more && total.is_some_and(|t| t != done) {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("the body does not have the size Size2 announced"),
+            );
+        }
+        r.body.extend_from_slice(payload);
+        // A streamed body leaves in pieces of STREAM_PIECE bytes (and the rest at the end):
+        // one hand-over to the reader per piece, not per block.
+        if stream && (r.body.len() >= STREAM_PIECE || !b2.more) {
+            // The next piece gets its room at once rather than growing block by block.
+            let room = if b2.more { STREAM_PIECE + b2.size() } else { 0 };
+            let data = Bytes::from(std::mem::replace(&mut r.body, Vec::with_capacity(room)));
+            self.events.push_back(Event::BodyChunk {
+                id: RequestId(id),
+                offset: done - data.len(),
+                data,
+                total,
+            });
+        }
+        // Progress at most every 64 KiB (and at the end), so watching costs nothing.
+        if progress && (before >> 16 != done >> 16 || !b2.more) {
+            self.events.push_back(Event::Progress {
+                id: RequestId(id),
+                done,
+                total,
+            });
+        }
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        if b2.more {
+            let num = (r.received / b2.size()) as u32;
+            r.step = Step::Download { num, szx: b2.szx };
+            return self.send_step(now, id);
+        }
+        let body = Bytes::from(std::mem::take(&mut r.body));
+        let options = r.first_options.take().unwrap_or_default();
+        let response = Response::with_parts(msg.code, options, body);
+        self.complete(now, id, response);
+    }
+}

@@ -1,0 +1,213 @@
+//! The client side's state: the requests this endpoint sends and their peers; see
+//! `client` for what happens to them.
+//!
+//! The client side: requests this endpoint sends. Each is a sequence of *steps*, one
+//! message exchange each (the whole request, a Block1 block, a Block2 block); the message
+//! layer carries a step's CON, this layer decides the next step from the response:
+//! transparent Block1 upload, Block2 reassembly (or streaming) that resumes from the block
+//! it lacks, Observe registrations and their notifications, multicast collection. Each
+//! peer's requests are admitted by its congestion controller (`congestion`).
+
+use std::collections::VecDeque;
+use std::net::SocketAddr;
+use std::time::Instant;
+
+use bytes::Bytes;
+
+use super::congestion::Controller;
+use super::message::Outbox;
+use super::types::{Request, Response};
+
+use crate::msg::{BlockHead, BlockOpt, Message, OptionNumber, Options, Outgoing, Token, Type};
+use crate::peer_key::{FastMap, PeerKey};
+
+/// Streamed bodies are handed over in pieces of at least this many bytes (the last one
+/// may be shorter).
+pub(super) const STREAM_PIECE: usize = 64 << 10;
+
+/// One exchange of a client request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Step {
+    /// The whole payload in one message.
+    Whole,
+    /// Block1 upload of the block at this byte offset.
+    Upload { offset: usize },
+    /// Block2 request for block `num` of size `2^(szx+4)`.
+    Download { num: u32, szx: u8 },
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Waiting {
+    /// Not started (queued behind NSTART).
+    Queued,
+    /// CON sent, no ACK yet.
+    Ack(u16),
+    /// ACKed empty; waiting for the separate response. Or a NON sent, waiting for the
+    /// response (carrying the NON's transmission count).
+    Response { non_tx: Option<u8>, mid: u16 },
+    /// Observing (RFC 7641): the first response arrived, notifications follow; carries
+    /// the last Observe sequence number.
+    Observing(u32),
+    /// A multicast request collecting responses until its deadline.
+    Collecting,
+}
+
+pub(super) struct ClientRequest {
+    pub(super) peer: SocketAddr,
+    pub(super) req: Request,
+    pub(super) token: Token,
+    pub(super) szx1: u8,
+    pub(super) step: Step,
+    pub(super) waiting: Waiting,
+    pub(super) generation: u32,
+    pub(super) failures: u8,
+    pub(super) restarts: u8,
+    /// Block2 reassembly: body so far (empty when streamed), the bytes received, the
+    /// ETag, the first block's options.
+    pub(super) body: Vec<u8>,
+    pub(super) received: usize,
+    pub(super) etag: Option<Vec<u8>>,
+    pub(super) first_options: Option<Options>,
+    /// The user set Block2 in the request: random access, no reassembly.
+    pub(super) user_block2: bool,
+    /// The request carries Observe 0 (a registration).
+    pub(super) observe: bool,
+    /// When its armed [`TimerKind::RequestAck`] fires. Each block's CON does not push a
+    /// timer of its own: the armed one fires, finds the CON then awaited and re-arms for
+    /// its due time. So a transfer arms about one timer per ACK_TIMEOUT instead of one per
+    /// block, and retransmissions still go out exactly when due.
+    pub(super) ack_timer: Option<Instant>,
+    /// The request's options encoded around Block2, for the blocks of a download.
+    pub(super) block_head: Option<BlockHead>,
+}
+
+impl ClientRequest {
+    /// Sends the message of the current step with message ID `mid`: the request's options
+    /// with the step's block option (and Size1 on an upload's first block) set over them,
+    /// encoded from the request in place.
+    pub(super) fn send_step(&mut self, mid: u16, outbox: &mut Outbox) {
+        let block = |num, more, szx| BlockOpt { num, more, szx }.as_uint();
+        let ty = if self.req.confirmable {
+            Type::Con
+        } else {
+            Type::Non
+        };
+        let mut uints = [(OptionNumber(0), 0); 2];
+        let mut set = 0;
+        let payload: &[u8] = match self.step {
+            Step::Download { num, szx } => {
+                // Every block of a download is the same request but for Block2.
+                let options = &self.req.options;
+                let head = self
+                    .block_head
+                    .get_or_insert_with(|| BlockHead::new(options, OptionNumber::BLOCK2));
+                let header = (ty, self.req.method, mid, self.token);
+                let value = block(num, false, szx);
+                outbox.send_with(self.peer, 0, |out| {
+                    head.encode_into(out, header, value, &[])
+                });
+                return;
+            }
+            Step::Whole => {
+                if let (Some(szx), false) = (self.req.block_szx, self.user_block2) {
+                    uints[0] = (OptionNumber::BLOCK2, block(0, false, szx));
+                    set = 1;
+                }
+                &self.req.payload
+            }
+            Step::Upload { offset } => {
+                let size = BlockOpt::size_of(self.szx1);
+                let end = (offset + size).min(self.req.payload.len());
+                let more = end < self.req.payload.len();
+                uints[0] = (
+                    OptionNumber::BLOCK1,
+                    block((offset / size) as u32, more, self.szx1),
+                );
+                set = 1;
+                if offset == 0 {
+                    // RFC 7959 §4: Size1 tells the server the whole size up front.
+                    uints[1] = (OptionNumber::SIZE1, self.req.payload.len() as u32);
+                    set = 2;
+                }
+                &self.req.payload[offset.min(end)..end]
+            }
+        };
+        let msg = Outgoing {
+            ty,
+            code: self.req.method,
+            message_id: mid,
+            token: self.token,
+            options: &self.req.options,
+            uints: &uints[..set],
+            payload,
+        };
+        outbox.send(self.peer, &msg);
+    }
+
+    pub(super) fn step_has_block_option(&self) -> bool {
+        match self.step {
+            Step::Whole => self.req.block_szx.is_some() || self.user_block2,
+            Step::Upload { .. } | Step::Download { .. } => true,
+        }
+    }
+}
+
+/// The requests of one peer: how many are outstanding, the queue behind them, and the
+/// controller that says how many may be.
+pub(super) struct Peer {
+    pub(super) active: usize,
+    pub(super) queue: VecDeque<u64>,
+    pub(super) controller: Box<dyn Controller>,
+}
+
+impl Peer {
+    pub(super) fn new(controller: Box<dyn Controller>) -> Self {
+        Self {
+            active: 0,
+            queue: VecDeque::new(),
+            controller,
+        }
+    }
+}
+
+/// The client side's state.
+#[derive(Default)]
+pub(super) struct ClientLayer {
+    pub(super) requests: FastMap<u64, ClientRequest>,
+    pub(super) by_token: FastMap<Token, u64>,
+    pub(super) peers: FastMap<PeerKey, Peer>,
+}
+
+impl ClientLayer {
+    /// Whether request `id`'s ACK timer is the one armed for `at`.
+    pub(super) fn ack_timer_is(&self, id: u64, at: Instant) -> bool {
+        self.requests
+            .get(&id)
+            .is_some_and(|r| r.ack_timer == Some(at))
+    }
+
+    /// Whether request `id` is still at step `generation`.
+    pub(super) fn step_is(&self, id: u64, generation: u32) -> bool {
+        self.requests
+            .get(&id)
+            .is_some_and(|r| r.generation == generation)
+    }
+
+    /// What request `id` waits for, if it still runs.
+    pub(super) fn waiting(&self, id: u64) -> Option<Waiting> {
+        self.requests.get(&id).map(|r| r.waiting)
+    }
+}
+
+/// A received response: the code and options taken out of its message, and a copy of
+/// its payload.
+pub(super) fn take_response(msg: &mut Message, payload: &[u8]) -> Response {
+    let options = std::mem::take(&mut msg.options);
+    Response::with_parts(msg.code, options, Bytes::copy_from_slice(payload))
+}
+
+/// RFC 7641 §3.4: whether Observe value `v2` is newer than `v1` (24-bit serial arithmetic).
+pub(super) fn is_newer(v1: u32, v2: u32) -> bool {
+    const HALF: u32 = 1 << 23;
+    (v1 < v2 && v2 - v1 < HALF) || (v1 > v2 && v1 - v2 > HALF)
+}

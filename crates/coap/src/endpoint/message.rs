@@ -1,0 +1,279 @@
+//! The message layer (RFC 7252 §4): message IDs, the timers, confirmable messages waiting
+//! for their ACK and their retransmission with exponential back-off, the deduplication
+//! store, and the datagrams waiting to be sent. It knows nothing of requests: a CON's
+//! [`Purpose`] says whom its ACK, Reset or failure concerns, and the endpoint routes it.
+
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, VecDeque};
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use bytes::{Bytes, BytesMut};
+use rand_chacha::ChaCha8Rng;
+use rand_core::{RngCore, SeedableRng};
+
+use super::types::Transmit;
+use crate::config::EndpointConfig;
+use crate::dedup::Dedup;
+use crate::msg::{Message, Outgoing};
+use crate::peer_key::{FastMap, MidKey};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub(super) enum TimerKind {
+    Retransmit {
+        peer: SocketAddr,
+        mid: u16,
+        tx: u8,
+    },
+    /// The retransmission check of a request's CON, armed at `at` (see
+    /// [`ClientRequest::ack_timer`]).
+    RequestAck {
+        id: u64,
+        at: Instant,
+    },
+    Step {
+        id: u64,
+        generation: u32,
+    },
+    Deadline {
+        id: u64,
+    },
+    SeparateAck {
+        id: u64,
+    },
+}
+
+#[derive(Debug, Clone, Copy)]
+pub(super) enum Purpose {
+    Request(u64),
+    Ping(u64),
+    SeparateResponse,
+    Notification(u64),
+}
+
+/// A CON message waiting for its ACK (RFC 7252 §4.2).
+pub(super) struct OutCon {
+    /// The datagram to send again. A request's step keeps none: its message is built
+    /// again from the request (same message ID, token, options and payload), so the
+    /// block-by-block path sends each CON from the shared chunk, without an allocation.
+    data: Option<Bytes>,
+    /// Retransmissions so far.
+    pub(super) tx: u8,
+    timeout: Duration,
+    /// When it is sent again (or given up) unless acknowledged.
+    at: Instant,
+    pub(super) purpose: Purpose,
+}
+
+/// Bytes of the chunk that messages sent once are encoded into ([`Outbox::send`]).
+const ENCODE_CHUNK: usize = 16 << 10;
+
+/// The datagrams waiting for [`Endpoint::poll_transmit`].
+#[derive(Default)]
+pub(super) struct Outbox {
+    pub(super) queue: VecDeque<Transmit>,
+    /// Where [`Outbox::send`] encodes.
+    chunk: BytesMut,
+}
+
+impl Outbox {
+    /// Queues a message that goes out once and is not kept (not a CON that keeps its
+    /// encoding until its ACK). It is encoded into a chunk shared with the messages before
+    /// it, so a block costs no allocation of its own; once they are all sent and dropped,
+    /// the chunk is used again from its start (so a caller that keeps a [`Transmit`]
+    /// keeps its whole chunk).
+    pub(super) fn send(&mut self, peer: SocketAddr, msg: &Outgoing<'_>) {
+        self.send_with(peer, msg.payload.len(), |out| msg.encode_into(out));
+    }
+
+    /// Queues the message that `encode` appends to the chunk (as [`Outbox::send`]).
+    pub(super) fn send_with(
+        &mut self,
+        peer: SocketAddr,
+        payload: usize,
+        encode: impl FnOnce(&mut BytesMut),
+    ) {
+        // Room for the payload and usual header and options, without counting them
+        // first; a message with more options grows the chunk as it is written.
+        let room = payload + 128;
+        // Back to the front of the chunk when every datagram cut from it is gone (the
+        // usual case: each is sent before the next is encoded), so that block after block
+        // is written to the same cache lines.
+        let _ = self.chunk.try_reclaim(ENCODE_CHUNK);
+        if self.chunk.capacity() < room {
+            self.chunk.reserve(room.max(ENCODE_CHUNK));
+        }
+        encode(&mut self.chunk);
+        let data = self.chunk.split().freeze();
+        self.queue.push_back(Transmit { peer, data });
+    }
+}
+
+/// What a request's ACK timer does about its CON ([`MessageLayer::request_con_due`]).
+pub(super) enum Due {
+    /// Acknowledged already, or the request moved on.
+    Gone,
+    /// Not due yet: check again then.
+    Later(Instant),
+    /// Send it again now; due again then.
+    Resend(Instant),
+    /// MAX_RETRANSMIT reached: the exchange is over.
+    GaveUp,
+}
+
+/// The message layer's state.
+pub(super) struct MessageLayer {
+    pub(super) rng: ChaCha8Rng,
+    next_mid: u16,
+    timer_seq: u64,
+    pub(super) timers: BinaryHeap<Reverse<(Instant, u64, TimerKind)>>,
+    pub(super) outbox: Outbox,
+    pub(super) exchanges: FastMap<MidKey, OutCon>,
+    pub(super) dedup: Dedup,
+}
+
+impl MessageLayer {
+    pub(super) fn new(seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let next_mid = rng.next_u32() as u16;
+        Self {
+            rng,
+            next_mid,
+            timer_seq: 0,
+            timers: BinaryHeap::new(),
+            outbox: Outbox::default(),
+            exchanges: FastMap::default(),
+            dedup: Dedup::new(),
+        }
+    }
+
+    pub(super) fn next_mid(&mut self) -> u16 {
+        self.next_mid = self.next_mid.wrapping_add(1);
+        self.next_mid
+    }
+
+    pub(super) fn schedule(&mut self, at: Instant, kind: TimerKind) {
+        self.timer_seq += 1;
+        self.timers.push(Reverse((at, self.timer_seq, kind)));
+    }
+
+    /// ACK_TIMEOUT scaled by a uniform random factor in [1, ACK_RANDOM_FACTOR].
+    pub(super) fn initial_timeout(&mut self, config: &EndpointConfig) -> Duration {
+        let unit = (self.rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        let spread = (config.ack_random_factor - 1.0).max(0.0);
+        let jitter = config.ack_timeout.as_secs_f64() * 1e9 * spread * unit;
+        // Whole nanoseconds added, rather than Duration::mul_f64's checked conversion of
+        // the product: this runs for every CON of a transfer.
+        config.ack_timeout + Duration::from_nanos(jitter as u64)
+    }
+
+    /// Sends a message that goes out once ([`Outbox::send`]).
+    pub(super) fn send(&mut self, peer: SocketAddr, msg: &Message) {
+        self.outbox.send(peer, &msg.outgoing());
+    }
+
+    /// Sends a CON that keeps its own encoding for retransmission (a ping, a
+    /// notification, a separate response).
+    pub(super) fn send_con(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        msg: &Message,
+        purpose: Purpose,
+        config: &EndpointConfig,
+    ) {
+        let data = Bytes::from(msg.encode());
+        self.outbox.queue.push_back(Transmit {
+            peer,
+            data: data.clone(),
+        });
+        self.await_ack(now, peer, msg.message_id, purpose, Some(data), config);
+    }
+
+    /// Records a CON just sent (RFC 7252 §4.2) and returns when it is due again. `data`
+    /// is what to send again, with a retransmission timer of its own; `None` for a
+    /// request's step, which is built again when its request's ACK timer fires.
+    pub(super) fn await_ack(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        mid: u16,
+        purpose: Purpose,
+        data: Option<Bytes>,
+        config: &EndpointConfig,
+    ) -> Instant {
+        let timeout = self.initial_timeout(config);
+        let at = now + timeout;
+        let retransmits = data.is_some();
+        self.exchanges.insert(
+            MidKey(peer, mid),
+            OutCon {
+                data,
+                tx: 0,
+                timeout,
+                at,
+                purpose,
+            },
+        );
+        if retransmits {
+            self.schedule(at, TimerKind::Retransmit { peer, mid, tx: 0 });
+        }
+        at
+    }
+
+    /// What a request's ACK timer does about its CON (`peer`, `mid`): wait longer, send it
+    /// again now (its timeout doubled, RFC 7252 §4.2) or give it up after MAX_RETRANSMIT.
+    pub(super) fn request_con_due(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        mid: u16,
+        max_retransmit: u8,
+    ) -> Due {
+        let key = MidKey(peer, mid);
+        let Some(x) = self.exchanges.get_mut(&key) else {
+            return Due::Gone;
+        };
+        if x.at > now {
+            Due::Later(x.at)
+        } else if x.tx < max_retransmit {
+            x.tx += 1;
+            x.timeout *= 2;
+            x.at = now + x.timeout;
+            Due::Resend(x.at)
+        } else {
+            self.exchanges.remove(&key);
+            Due::GaveUp
+        }
+    }
+
+    /// The retransmission timer of a CON that keeps its datagram: sent again, the timeout
+    /// doubling (RFC 7252 §4.2); after MAX_RETRANSMIT it is given up and its purpose
+    /// returned.
+    pub(super) fn on_retransmit_timer(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        mid: u16,
+        tx: u8,
+        max_retransmit: u8,
+    ) -> Option<Purpose> {
+        let x = self.exchanges.get_mut(&MidKey(peer, mid))?;
+        if x.tx != tx {
+            return None;
+        }
+        if x.tx < max_retransmit {
+            // Only a request's CON keeps no datagram, and it has no timer of this kind.
+            debug_assert!(x.data.is_some(), "a request's CON has its own ACK timer");
+            let data = x.data.clone()?;
+            x.tx += 1;
+            x.timeout *= 2;
+            x.at = now + x.timeout;
+            let (at, tx) = (x.at, x.tx);
+            self.outbox.queue.push_back(Transmit { peer, data });
+            self.schedule(at, TimerKind::Retransmit { peer, mid, tx });
+            return None;
+        }
+        self.exchanges.remove(&MidKey(peer, mid)).map(|x| x.purpose)
+    }
+}

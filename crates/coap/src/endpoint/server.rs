@@ -1,0 +1,548 @@
+//! The server side's behaviour: requests this endpoint receives, answered piggybacked or
+//! separately, block-wise, observed (the state is in `server_state`).
+
+use std::net::SocketAddr;
+use std::time::Instant;
+
+use bytes::Bytes;
+use rand_core::RngCore;
+
+use super::Endpoint;
+use super::message::{Purpose, TimerKind};
+use super::server_state::{Observation, Pending, block2_response, past_end, unreadable};
+use super::types::{Event, IncomingId, IncomingRequest, ObservationId, Response};
+use crate::block::{self, Block1Outcome, BlockKey, Slice, Source};
+use crate::config::Limits;
+use crate::dedup::{Fingerprint, Seen};
+use crate::msg::{BlockOpt, Code, Message, OptionNumber, Type};
+
+impl Endpoint {
+    /// A request; its `payload` stays in the datagram until it is copied where it goes
+    /// (an upload's block into the body being assembled).
+    pub(super) fn on_request(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        mut msg: Message,
+        payload: &[u8],
+        multicast: bool,
+    ) {
+        let limits = self.config.limits.clone();
+        let con = msg.ty == Type::Con;
+        let block2 = msg.options.block2();
+        let block1 = msg.options.block1();
+        // A Block2 continuation is looked up in the store before deduplication: the store
+        // answers a duplicate just as well, and the message ID of a long transfer's
+        // continuation may come round again to that of its first block, whose reply the
+        // dedup store keeps (the token is the same).
+        let continuation = matches!((block2, block1), (Some(b2), None) if b2.num > 0);
+        if !continuation && self.replay_duplicate(now, peer, &msg, &limits) {
+            return;
+        }
+        let lifetime = if con {
+            self.config.exchange_lifetime
+        } else {
+            self.config.non_lifetime
+        };
+        let expires = now + lifetime;
+
+        if let Some(bad) = msg.options.first_bad_critical() {
+            if continuation && self.replay_duplicate(now, peer, &msg, &limits) {
+                return;
+            }
+            // RFC 7252 §5.4.1: 4.02 for a CON request; a NON one is rejected.
+            let seen = if con {
+                let text = format!("unrecognized or malformed critical option {}", bad.0);
+                self.reply(
+                    peer,
+                    &msg,
+                    multicast,
+                    Response::diagnostic(Code::BAD_OPTION, &text),
+                )
+            } else if multicast {
+                Seen::Silent
+            } else {
+                self.reply_with(peer, Message::empty(Type::Rst, msg.message_id))
+            };
+            self.msg.dedup.insert(
+                now,
+                (peer, msg.message_id),
+                Fingerprint::of(&msg),
+                expires,
+                seen,
+                &limits,
+            );
+            return;
+        }
+        msg.options.drop_bad_elective();
+        let key = BlockKey {
+            peer,
+            method: msg.code,
+            options: msg.options.block_key(),
+        };
+
+        // A Block2 continuation is served from the stored representation; the application
+        // never sees it (a POST grab must not grab again).
+        if let (Some(b2), true) = (block2, continuation) {
+            // A GET falls through when nothing is stored: it is safe, so the application
+            // renders it again and the block is cut from the new representation (its ETag
+            // tells the client whether the blocks still fit).
+            let szx = b2.szx.min(self.config.max_block_szx);
+            let (ty, mid) = self.reply_header(&msg);
+            let stored = self.server.block2.with_stored(now, &key, &limits, |s| {
+                let slice = block::slice(&*s.body.0, b2.num, szx);
+                if let Slice::Block(payload, opt) = &slice {
+                    // The block goes out as the stored options, encoded once, around this
+                    // Block2.
+                    let header = (ty, s.code, mid, msg.token);
+                    self.msg.outbox.send_with(peer, payload.len(), |out| {
+                        s.head.encode_into(out, header, opt.as_uint(), payload);
+                    });
+                }
+                slice
+            });
+            match stored {
+                // Served from the store, which is idempotent (RFC 7252 §4.5 allows
+                // relaxing deduplication then): a duplicate is cut again from the same
+                // bytes, and a 10 MB transfer leaves no 10,000 dedup entries behind.
+                Some(Slice::Block(..)) => return,
+                // RFC 7959 §2.2: a block past the end is a bad option.
+                Some(Slice::PastEnd) => {
+                    if let Some(reply) = self.reply_message(&msg, multicast, past_end()) {
+                        self.msg.send(peer, &reply);
+                    }
+                    return;
+                }
+                // The stored source can no longer be read as it was: as if nothing were
+                // stored.
+                Some(Slice::Unreadable) => self.server.block2.remove(&key),
+                None => {}
+            }
+            if self.replay_duplicate(now, peer, &msg, &limits) {
+                return;
+            }
+            if !matches!(msg.code, Code::GET | Code::FETCH) {
+                let response = Response::diagnostic(
+                    Code::REQUEST_ENTITY_INCOMPLETE,
+                    "the representation is no longer stored; repeat the request from block 0",
+                );
+                self.answer(now, peer, &msg, multicast, expires, response);
+                return;
+            }
+        }
+
+        let mut assembled = None;
+        let mut block1_echo = None;
+        if let Some(b1) = block1 {
+            let size1 = msg.options.uint(OptionNumber::SIZE1);
+            let outcome =
+                self.server
+                    .block1
+                    .handle(now, key.clone(), b1, size1, payload, &self.config);
+            let response = match outcome {
+                Block1Outcome::Continue(opt) => {
+                    let mut r = Response::new(Code::CONTINUE);
+                    r.options.set_block(OptionNumber::BLOCK1, opt);
+                    Some(r)
+                }
+                Block1Outcome::Refuse {
+                    code,
+                    diagnostic,
+                    size1,
+                } => {
+                    let mut r = Response::diagnostic(code, diagnostic);
+                    if let Some(s) = size1 {
+                        r.options.set_uint(OptionNumber::SIZE1, s);
+                    }
+                    if code == Code::SERVICE_UNAVAILABLE {
+                        r.options.set_uint(OptionNumber::MAX_AGE, 5);
+                    }
+                    Some(r)
+                }
+                Block1Outcome::Complete(body, echo) => {
+                    assembled = Some(body);
+                    block1_echo = Some(echo);
+                    None
+                }
+            };
+            if let Some(response) = response {
+                self.answer(now, peer, &msg, multicast, expires, response);
+                return;
+            }
+        }
+
+        if self.server.pending.len() >= limits.pending_requests {
+            let r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, "server busy");
+            self.answer(now, peer, &msg, multicast, expires, r);
+            return;
+        }
+        let id = self.new_id();
+        let observation = self.observe_option(peer, &msg, &key);
+        self.server.pending.insert(
+            id,
+            Pending {
+                peer,
+                mid: msg.message_id,
+                token: msg.token,
+                confirmable: con,
+                acked: false,
+                multicast,
+                block2,
+                block1_echo,
+                key,
+                observation,
+            },
+        );
+        self.msg.dedup.insert(
+            now,
+            (peer, msg.message_id),
+            Fingerprint::of(&msg),
+            expires,
+            Seen::Pending(id),
+            &limits,
+        );
+        if con {
+            self.msg.schedule(
+                now + self.config.separate_ack_delay,
+                TimerKind::SeparateAck { id },
+            );
+        }
+        self.events.push_back(Event::Request(IncomingRequest {
+            id: IncomingId(id),
+            peer,
+            method: msg.code,
+            options: msg.options,
+            payload: assembled.unwrap_or_else(|| Bytes::copy_from_slice(payload)),
+            multicast,
+            confirmable: con,
+            observe: observation.map(ObservationId),
+        }));
+    }
+
+    /// Answers a duplicate message as the first one was answered (RFC 7252 §4.5); whether
+    /// `msg` was one.
+    pub(super) fn replay_duplicate(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        msg: &Message,
+        limits: &Limits,
+    ) -> bool {
+        let Some(seen) =
+            self.msg
+                .dedup
+                .check(now, peer, msg.message_id, Fingerprint::of(msg), limits)
+        else {
+            return false;
+        };
+        match seen.clone() {
+            Seen::Replied(m) => self.msg.send(peer, &m),
+            Seen::Pending(id) if msg.ty == Type::Con => self.ack_pending(id),
+            Seen::Pending(_) | Seen::Silent => {}
+        }
+        true
+    }
+
+    /// RFC 7641 §2, §3.6: a GET or FETCH with Observe 0 registers (or re-registers, same
+    /// peer and token) an observation; Observe 1 deregisters.
+    pub(super) fn observe_option(
+        &mut self,
+        peer: SocketAddr,
+        msg: &Message,
+        key: &BlockKey,
+    ) -> Option<u64> {
+        if !matches!(msg.code, Code::GET | Code::FETCH) {
+            return None;
+        }
+        let value = msg.options.uint(OptionNumber::OBSERVE)?;
+        let existing = self
+            .server
+            .observations
+            .iter()
+            .find(|(_, o)| o.peer == peer && o.token == msg.token)
+            .map(|(id, _)| *id);
+        match (value, existing) {
+            (0, Some(id)) => Some(id),
+            (0, None) if self.server.observations.len() < self.config.limits.observations => {
+                let id = self.new_id();
+                let o = Observation {
+                    peer,
+                    token: msg.token,
+                    key: key.clone(),
+                    established: false,
+                    seq: 0,
+                    sent: 0,
+                    last_mid: None,
+                };
+                self.server.observations.insert(id, o);
+                Some(id)
+            }
+            (1, Some(id)) => {
+                self.end_observation(id);
+                None
+            }
+            _ => None,
+        }
+    }
+
+    pub(super) fn end_observation(&mut self, id: u64) {
+        if self.server.observations.remove(&id).is_some() {
+            self.events.push_back(Event::ObservationEnded {
+                id: ObservationId(id),
+            });
+        }
+    }
+
+    /// Sends a notification to an established observation (RFC 7641 §4.2): the Observe
+    /// sequence number goes up by one, every `notify_con_interval`-th notification is a CON
+    /// (§4.5), and a body larger than one block goes out as Block2 block 0 with the rest
+    /// kept for the client's continuations (RFC 7959 §2.6). A non-success response ends
+    /// the observation. Returns false when the observation no longer exists, so the
+    /// application can forget it.
+    pub fn notify(&mut self, now: Instant, id: ObservationId, response: Response) -> bool {
+        let limits = self.config.limits.clone();
+        let interval = self.config.notify_con_interval;
+        let szx = self.config.max_block_szx;
+        let Some(o) = self
+            .server
+            .observations
+            .get_mut(&id.0)
+            .filter(|o| o.established)
+        else {
+            return false;
+        };
+        o.seq = (o.seq + 1) & 0x00ff_ffff;
+        o.sent += 1;
+        let con = interval > 0 && o.sent % interval == 0;
+        let (peer, token, key, seq) = (o.peer, o.token, o.key.clone(), o.seq);
+        let mut response = self.blockwise_response(now, key, None, response, &limits, szx);
+        let success = response.code.is_success();
+        if success {
+            response.options.set_uint(OptionNumber::OBSERVE, seq);
+        }
+        let ty = if con { Type::Con } else { Type::Non };
+        let msg = Message {
+            ty,
+            code: response.code,
+            message_id: self.msg.next_mid(),
+            token,
+            options: response.options,
+            payload: response.payload,
+        };
+        if con {
+            self.msg
+                .send_con(now, peer, &msg, Purpose::Notification(id.0), &self.config);
+        } else {
+            self.msg.send(peer, &msg);
+            if let Some(o) = self.server.observations.get_mut(&id.0) {
+                o.last_mid = Some(msg.message_id);
+            }
+        }
+        if !success {
+            self.end_observation(id.0);
+        }
+        true
+    }
+
+    /// Cuts a response into its first (or requested) block when it does not fit one, adding
+    /// an ETag and storing the representation for the continuations.
+    pub(super) fn blockwise_response(
+        &mut self,
+        now: Instant,
+        key: BlockKey,
+        block2: Option<BlockOpt>,
+        mut response: Response,
+        limits: &Limits,
+        max_szx: u8,
+    ) -> Response {
+        let szx = block2.map_or(max_szx, |b| b.szx.min(max_szx));
+        let num = block2.map_or(0, |b| b.num);
+        let body = match response.source.take() {
+            Some(source) => source,
+            None if response.payload.len() <= BlockOpt::size_of(szx) && num == 0 => {
+                return response;
+            }
+            None => Source::new(std::mem::take(&mut response.payload)),
+        };
+        let len = body.0.len();
+        if len <= BlockOpt::size_of(szx) && num == 0 {
+            return match body.0.read(0..len) {
+                Some(payload) => response.with_payload(payload),
+                None => unreadable(),
+            };
+        }
+        // Block numbers have 20 bits (RFC 7959 §2.2) and Size2 at most 4 bytes.
+        if len > BlockOpt::size_of(szx) << 20 || u32::try_from(len).is_err() {
+            return Response::diagnostic(
+                Code::INTERNAL_SERVER_ERROR,
+                "the representation is too large for block-wise transfer at this block size",
+            );
+        }
+        if response.options.etag().is_none() {
+            let etag = self.msg.rng.next_u32().to_be_bytes();
+            response.options.set(OptionNumber::ETAG, etag);
+        }
+        let Some(mut block) =
+            block2_response(response.code, response.options.clone(), &body, num, szx)
+        else {
+            return unreadable();
+        };
+        if len > BlockOpt::size_of(szx) {
+            self.server
+                .block2
+                .insert(now, key, response.code, response.options, body, limits);
+        }
+        // The reply is remembered for duplicates for EXCHANGE_LIFETIME; a slice would keep
+        // the whole representation (or a source's read-ahead window) alive that long.
+        block.payload = Bytes::copy_from_slice(&block.payload);
+        block
+    }
+
+    /// Answers a request at once and remembers the answer for its duplicates.
+    pub(super) fn answer(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        req: &Message,
+        multicast: bool,
+        expires: Instant,
+        response: Response,
+    ) {
+        let seen = self.reply(peer, req, multicast, response);
+        let limits = &self.config.limits;
+        self.msg.dedup.insert(
+            now,
+            (peer, req.message_id),
+            Fingerprint::of(req),
+            expires,
+            seen,
+            limits,
+        );
+    }
+
+    /// Sends a response to a request right away (piggybacked on the ACK of a CON, or as a
+    /// NON to a NON) and returns what to remember for duplicates. Error responses to
+    /// multicast requests are suppressed (RFC 7390 §2.7).
+    pub(super) fn reply(
+        &mut self,
+        peer: SocketAddr,
+        req: &Message,
+        multicast: bool,
+        response: Response,
+    ) -> Seen {
+        match self.reply_message(req, multicast, response) {
+            Some(msg) => self.reply_with(peer, msg),
+            None => Seen::Silent,
+        }
+    }
+
+    /// The type and message ID of a reply to `req`: a piggybacked ACK to a CON, a NON
+    /// with a new message ID otherwise.
+    pub(super) fn reply_header(&mut self, req: &Message) -> (Type, u16) {
+        match req.ty {
+            Type::Con => (Type::Ack, req.message_id),
+            _ => (Type::Non, self.msg.next_mid()),
+        }
+    }
+
+    /// The message that answers `req` right away; `None` when nothing is sent (an error
+    /// response to a multicast request).
+    pub(super) fn reply_message(
+        &mut self,
+        req: &Message,
+        multicast: bool,
+        response: Response,
+    ) -> Option<Message> {
+        if multicast && response.code.is_error() {
+            return None;
+        }
+        let (ty, mid) = self.reply_header(req);
+        let msg = Message {
+            ty,
+            code: response.code,
+            message_id: mid,
+            token: req.token,
+            options: response.options,
+            payload: response.payload,
+        };
+        Some(msg)
+    }
+
+    /// Sends a reply and keeps the message (not its encoding, which shares a chunk with
+    /// other messages) to send again for duplicates.
+    pub(super) fn reply_with(&mut self, peer: SocketAddr, msg: Message) -> Seen {
+        self.msg.send(peer, &msg);
+        Seen::Replied(Box::new(msg))
+    }
+
+    pub(super) fn on_separate_ack_timer(&mut self, _now: Instant, id: u64) {
+        self.ack_pending(id);
+    }
+
+    /// Sends the empty ACK of a CON request whose response is not ready (RFC 7252 §5.2.2).
+    pub(super) fn ack_pending(&mut self, id: u64) {
+        let Some(p) = self.server.pending.get_mut(&id) else {
+            return;
+        };
+        if p.acked || !p.confirmable {
+            return;
+        }
+        p.acked = true;
+        let (peer, mid) = (p.peer, p.mid);
+        let seen = self.reply_with(peer, Message::empty(Type::Ack, mid));
+        self.msg.dedup.set_reply(peer, mid, seen);
+    }
+
+    /// Answers a request from [`Event::Request`]. A body larger than one block is stored
+    /// and sent with Block2 (ETag and Size2 added); later blocks are served from the store.
+    /// Answering an unknown or already answered id does nothing.
+    pub fn respond(&mut self, now: Instant, id: IncomingId, response: Response) {
+        let limits = self.config.limits.clone();
+        let Some(p) = self.server.pending.remove(&id.0) else {
+            return;
+        };
+        let max_szx = self.config.max_block_szx;
+        let mut response =
+            self.blockwise_response(now, p.key.clone(), p.block2, response, &limits, max_szx);
+        if let Some(obs) = p.observation {
+            match self.server.observations.get_mut(&obs) {
+                Some(o)
+                    if response.code.is_success()
+                        && response.options.contains(OptionNumber::OBSERVE) =>
+                {
+                    o.established = true;
+                    o.seq = (o.seq + 1) & 0x00ff_ffff;
+                    response.options.set_uint(OptionNumber::OBSERVE, o.seq);
+                }
+                _ => self.end_observation(obs),
+            }
+        }
+        if let Some(echo) = p.block1_echo {
+            response.options.set_block(OptionNumber::BLOCK1, echo);
+        }
+        if p.multicast && response.code.is_error() {
+            self.msg.dedup.set_reply(p.peer, p.mid, Seen::Silent);
+            return;
+        }
+        let (ty, mid) = match (p.confirmable, p.acked) {
+            (true, false) => (Type::Ack, p.mid),
+            (true, true) => (Type::Con, self.msg.next_mid()),
+            (false, _) => (Type::Non, self.msg.next_mid()),
+        };
+        let msg = Message {
+            ty,
+            code: response.code,
+            message_id: mid,
+            token: p.token,
+            options: response.options,
+            payload: response.payload,
+        };
+        if ty == Type::Con {
+            self.msg
+                .send_con(now, p.peer, &msg, Purpose::SeparateResponse, &self.config);
+        } else {
+            let seen = self.reply_with(p.peer, msg);
+            self.msg.dedup.set_reply(p.peer, p.mid, seen);
+        }
+    }
+}
