@@ -1,4 +1,4 @@
-//! Parcel dimensioning (DESIGN.md §6): points in the output frame (z up, floor at
+//! Parcel dimensioning (docs/design.md §6): points in the output frame (z up, floor at
 //! z = 0) -> drop points below a minimum height -> keep the largest connected cluster ->
 //! height from a robust maximum of z -> convex hull of (x, y) -> minimum-area rectangle
 //! (one side always lies on a hull edge, so geo's search over hull edges is exact) ->

@@ -2,7 +2,7 @@
 //!
 //! Owns: point clouds in metres, the 3D transformation of thesis Listing A.4 and its JSON
 //! document, the 3D region of interest, merging, voxel downsampling, ICP registration and
-//! parcel dimensioning (DESIGN.md §5, §6), and the binary PLY encoding of clouds.
+//! parcel dimensioning (docs/design.md §5, §6), and the binary PLY encoding of clouds.
 //!
 //! Must not: know about CoAP, cameras or the file system (PLY goes through `io::Write`);
 //! read clocks; spawn threads of its own (data-parallel loops run on the caller's rayon

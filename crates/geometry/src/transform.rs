@@ -1,4 +1,4 @@
-//! The 3D transformation of thesis Listing A.4 (DESIGN.md §5) and its JSON document.
+//! The 3D transformation of thesis Listing A.4 (docs/design.md §5) and its JSON document.
 //!
 //! A camera point `p` (librealsense frame: x right, y down, z forward, metres) goes to
 //!

@@ -7,7 +7,7 @@
 //! post-processing filters (librealsense's blocks, [`filter`]), the
 //! D415 mode tables and camera model, the depth-settings / color-settings /
 //! advanced-config JSON documents (thesis Listings A.1, A.2, A.5), scene files
-//! (DESIGN.md §7) and the camera backends. The only unsafe code is librealsense's FFI
+//! (docs/design.md §7) and the camera backends. The only unsafe code is librealsense's FFI
 //! (`backend::realsense::ffi`, allowed there alone).
 //!
 //! Must not: know CoAP or networking, use async runtimes (the crate is synchronous;
@@ -26,7 +26,7 @@ pub mod intrinsics;
 pub mod mode;
 pub mod settings;
 
-/// Longest client string, in characters, that an error message echoes (DESIGN §2.3: a
+/// Longest client string, in characters, that an error message echoes (docs/design.md §2.3: a
 /// short diagnostic).
 const ECHO_CHARS: usize = 64;
 

@@ -246,7 +246,7 @@ pub struct ColorCapture {
 }
 
 impl ColorCapture {
-    /// Reads the CBOR color representation (DESIGN.md §5).
+    /// Reads the CBOR color representation (docs/design.md §5).
     pub fn from_cbor(body: &[u8]) -> anyhow::Result<Self> {
         let value: Value = ciborium::from_reader(body).context("decoding the CBOR color frame")?;
         let map = value

@@ -13,7 +13,7 @@ use crate::support::{Finished, Proc};
 /// Bound on one command (the servers stop by themselves after 120 s).
 const LIMIT: Duration = Duration::from_secs(110);
 
-/// The default scene's box, millimetres (DESIGN.md §7, `Scene::default_single`).
+/// The default scene's box, millimetres (docs/design.md §7, `Scene::default_single`).
 const BOX_MM: [f64; 3] = [400.0, 300.0, 200.0];
 /// How far a measured dimension may be from the box.
 const TOLERANCE_MM: f64 = 5.0;

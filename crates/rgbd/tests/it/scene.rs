@@ -1,6 +1,7 @@
 use rgbd::scene::{LabelKind, Noise};
 use rgbd::{Scene, SceneError};
 
+/// The example scene of docs/design.md §7.
 const DESIGN_EXAMPLE: &str = r#"
 seed = 7
 [floor]

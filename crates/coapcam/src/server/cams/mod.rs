@@ -1,4 +1,4 @@
-//! The `/cams` resource tree (thesis Table 3.1, DESIGN.md §5): creation resources,
+//! The `/cams` resource tree (thesis Table 3.1, docs/design.md §5): creation resources,
 //! per-camera grab and configuration resources that follow the [`CameraHub`], and
 //! `/cams/pointclouds`.
 

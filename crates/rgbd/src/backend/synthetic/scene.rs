@@ -1,4 +1,4 @@
-//! Scene files for the synthetic camera (DESIGN.md §7): TOML, world frame in metres,
+//! Scene files for the synthetic camera (docs/design.md §7): TOML, world frame in metres,
 //! z up, floor at `floor.z` (0 by default).
 //!
 //! ```toml
