@@ -39,6 +39,24 @@ pub struct DirConfig {
     pub rate_bytes_per_s: Option<u64>,
 }
 
+impl DirConfig {
+    /// A direction that loses datagrams with probability `loss`, delays them by `delay`
+    /// ± `jitter`, and serializes them at `rate_bytes_per_s` (`None`: no limit).
+    pub fn new(
+        loss: f64,
+        delay: Duration,
+        jitter: Duration,
+        rate_bytes_per_s: Option<u64>,
+    ) -> Self {
+        Self {
+            loss,
+            delay,
+            jitter,
+            rate_bytes_per_s,
+        }
+    }
+}
+
 /// Both directions, the seed and the queue bound.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LinkConfig {
@@ -274,12 +292,8 @@ mod tests {
     use super::*;
 
     fn direction(loss: f64, delay_ms: u64, jitter_ms: u64, rate: Option<u64>) -> DirConfig {
-        DirConfig {
-            loss,
-            delay: Duration::from_millis(delay_ms),
-            jitter: Duration::from_millis(jitter_ms),
-            rate_bytes_per_s: rate,
-        }
+        let ms = Duration::from_millis;
+        DirConfig::new(loss, ms(delay_ms), ms(jitter_ms), rate)
     }
 
     fn link(up: DirConfig, down: DirConfig, seed: u64) -> Link {

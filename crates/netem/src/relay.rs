@@ -323,12 +323,8 @@ mod tests {
     }
 
     fn direction(loss: f64, delay_ms: u64, jitter_ms: u64) -> DirConfig {
-        DirConfig {
-            loss,
-            delay: Duration::from_millis(delay_ms),
-            jitter: Duration::from_millis(jitter_ms),
-            rate_bytes_per_s: None,
-        }
+        let ms = Duration::from_millis;
+        DirConfig::new(loss, ms(delay_ms), ms(jitter_ms), None)
     }
 
     fn config(up: DirConfig, down: DirConfig, seed: u64) -> LinkConfig {

@@ -112,13 +112,14 @@ fn parse_seconds(text: &str) -> Result<Duration, String> {
 impl NetemArgs {
     /// The link that these flags describe, per-direction flags overriding the shared ones.
     fn link_config(&self) -> LinkConfig {
-        let direction =
-            |loss: Option<f64>, delay_ms: Option<u64>, jitter_ms, rate: Option<u64>| DirConfig {
-                loss: loss.unwrap_or(self.loss),
-                delay: Duration::from_millis(delay_ms.unwrap_or(self.delay_ms)),
-                jitter: Duration::from_millis(jitter_ms),
-                rate_bytes_per_s: rate.or(self.rate),
-            };
+        let direction = |loss: Option<f64>, delay_ms: Option<u64>, jitter_ms, rate: Option<u64>| {
+            DirConfig::new(
+                loss.unwrap_or(self.loss),
+                Duration::from_millis(delay_ms.unwrap_or(self.delay_ms)),
+                Duration::from_millis(jitter_ms),
+                rate.or(self.rate),
+            )
+        };
         LinkConfig {
             up: direction(
                 self.loss_up,
@@ -180,12 +181,8 @@ mod tests {
     }
 
     fn direction(loss: f64, delay_ms: u64, jitter_ms: u64, rate: Option<u64>) -> DirConfig {
-        DirConfig {
-            loss,
-            delay: Duration::from_millis(delay_ms),
-            jitter: Duration::from_millis(jitter_ms),
-            rate_bytes_per_s: rate,
-        }
+        let ms = Duration::from_millis;
+        DirConfig::new(loss, ms(delay_ms), ms(jitter_ms), rate)
     }
 
     #[test]

@@ -170,8 +170,22 @@ pub enum CloudSource<'a> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+    use rgbd::{ColorFormat, ColorFrame};
+
+    /// A color frame of `width` x `height` pixels in `format`, rows `stride` bytes apart.
+    pub(crate) fn color(format: ColorFormat, width: u32, height: u32, stride: usize) -> ColorFrame {
+        ColorFrame {
+            format,
+            width,
+            height,
+            stride,
+            timestamp_us: 1_700_000_000_500_000,
+            frame_number: 1,
+            data: vec![7; stride * height as usize],
+        }
+    }
 
     #[test]
     fn the_table_names_formats_and_extensions() {

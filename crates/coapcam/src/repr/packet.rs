@@ -319,19 +319,8 @@ pub fn color(packet: &[u8], format: &str) -> Result<RgbImage, PacketError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::repr::tests::color;
     use rgbd::ColorFormat;
-
-    fn color(format: ColorFormat, width: u32, height: u32, stride: usize) -> ColorFrame {
-        ColorFrame {
-            format,
-            width,
-            height,
-            stride,
-            timestamp_us: 1_700_000_000_500_000,
-            frame_number: 1,
-            data: vec![7; stride * height as usize],
-        }
-    }
 
     #[test]
     fn color_packet_is_ten_bytes_of_header_and_compact_pixels() {

@@ -108,18 +108,7 @@ pub fn depth_from_png(png: &[u8]) -> anyhow::Result<DepthImage> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn color(format: ColorFormat, width: u32, height: u32, stride: usize) -> ColorFrame {
-        ColorFrame {
-            format,
-            width,
-            height,
-            stride,
-            timestamp_us: 1_700_000_000_500_000,
-            frame_number: 1,
-            data: vec![7; stride * height as usize],
-        }
-    }
+    use crate::repr::tests::color;
 
     #[test]
     fn images_encode() {

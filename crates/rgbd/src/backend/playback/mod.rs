@@ -55,19 +55,7 @@ struct State {
 /// One recorded device played back as a camera (see the module documentation).
 #[derive(Debug)]
 pub struct PlaybackCamera {
-    serial: Serial,
-    model: String,
-    modes: ModeTable,
-    color_settings: ColorSettings,
-    depth_settings: DepthSettings,
-    color_intrinsics: Intrinsics,
-    depth_intrinsics: Intrinsics,
-    depth_to_color: Extrinsics,
-    depth_scale: f32,
-    /// (recorded frame number, metres per unit, values).
-    depth_frames: Vec<(u64, f32, Vec<u16>)>,
-    /// (recorded frame number, pixels).
-    color_frames: Vec<(u64, Vec<u8>)>,
+    recorded: RecordedDevice,
     state: Mutex<State>,
 }
 
@@ -107,32 +95,9 @@ impl PlaybackCamera {
     }
 
     /// A camera playing `device`'s frames.
-    fn play(device: RecordedDevice) -> Self {
-        let RecordedDevice {
-            serial,
-            model,
-            modes,
-            color_settings,
-            depth_settings,
-            color_intrinsics,
-            depth_intrinsics,
-            depth_to_color,
-            depth_scale,
-            depth_frames,
-            color_frames,
-        } = device;
+    fn play(recorded: RecordedDevice) -> Self {
         Self {
-            serial,
-            model,
-            modes,
-            color_settings,
-            depth_settings,
-            color_intrinsics,
-            depth_intrinsics,
-            depth_to_color,
-            depth_scale,
-            depth_frames,
-            color_frames,
+            recorded,
             state: Mutex::new(State::default()),
         }
     }
@@ -140,8 +105,8 @@ impl PlaybackCamera {
     /// The recorded frame numbers of a stream, in playback order.
     pub fn recorded_frame_numbers(&self, stream: Stream) -> Vec<u64> {
         match stream {
-            Stream::Depth => self.depth_frames.iter().map(|f| f.0).collect(),
-            Stream::Color => self.color_frames.iter().map(|f| f.0).collect(),
+            Stream::Depth => self.recorded.depth_frames.iter().map(|f| f.0).collect(),
+            Stream::Color => self.recorded.color_frames.iter().map(|f| f.0).collect(),
         }
     }
 
@@ -155,8 +120,8 @@ impl PlaybackCamera {
         let mut guard = self.lock();
         let s = &mut *guard;
         let (cursor, len) = match stream {
-            Stream::Depth => (&mut s.depth, self.depth_frames.len()),
-            Stream::Color => (&mut s.color, self.color_frames.len()),
+            Stream::Depth => (&mut s.depth, self.recorded.depth_frames.len()),
+            Stream::Color => (&mut s.color, self.recorded.color_frames.len()),
         };
         let index = *cursor;
         *cursor = (index + 1) % len.max(1);
@@ -167,39 +132,40 @@ impl PlaybackCamera {
 
 impl Camera for PlaybackCamera {
     fn serial(&self) -> Serial {
-        self.serial
+        self.recorded.serial
     }
 
     fn model(&self) -> &str {
-        &self.model
+        &self.recorded.model
     }
 
     fn stream_modes(&self) -> &ModeTable {
-        &self.modes
+        &self.recorded.modes
     }
 
     fn color_settings(&self) -> ColorSettings {
-        self.color_settings
+        self.recorded.color_settings
     }
 
     fn set_color_settings(&self, settings: ColorSettings) -> Result<(), CameraError> {
-        settings.validate(&self.modes)?;
+        settings.validate(&self.recorded.modes)?;
         Ok(())
     }
 
     fn depth_settings(&self) -> DepthSettings {
-        self.depth_settings
+        self.recorded.depth_settings
     }
 
     fn set_depth_settings(&self, settings: DepthSettings) -> Result<(), CameraError> {
-        settings.validate(&self.modes)?;
+        settings.validate(&self.recorded.modes)?;
         Ok(())
     }
 
     fn grab_color(&self, _timeout: Duration) -> Result<ColorFrame, CameraError> {
         let (index, frame_number, timestamp_us) = self.next(Stream::Color);
-        let s = &self.color_settings;
+        let s = &self.recorded.color_settings;
         let data = self
+            .recorded
             .color_frames
             .get(index)
             .map(|f| f.1.clone())
@@ -217,11 +183,14 @@ impl Camera for PlaybackCamera {
 
     fn grab_depth(&self, _timeout: Duration) -> Result<DepthFrame, CameraError> {
         let (index, frame_number, timestamp_us) = self.next(Stream::Depth);
-        let s = &self.depth_settings;
+        let s = &self.recorded.depth_settings;
         let (depth_scale, data) = self
+            .recorded
             .depth_frames
             .get(index)
-            .map_or((self.depth_scale, Vec::new()), |f| (f.1, f.2.clone()));
+            .map_or((self.recorded.depth_scale, Vec::new()), |f| {
+                (f.1, f.2.clone())
+            });
         Ok(DepthFrame {
             width: s.width,
             height: s.height,
@@ -234,19 +203,19 @@ impl Camera for PlaybackCamera {
     }
 
     fn depth_intrinsics(&self) -> Result<Intrinsics, CameraError> {
-        Ok(self.depth_intrinsics)
+        Ok(self.recorded.depth_intrinsics)
     }
 
     fn color_intrinsics(&self) -> Result<Intrinsics, CameraError> {
-        Ok(self.color_intrinsics)
+        Ok(self.recorded.color_intrinsics)
     }
 
     fn depth_to_color(&self) -> Result<Extrinsics, CameraError> {
-        Ok(self.depth_to_color)
+        Ok(self.recorded.depth_to_color)
     }
 
     fn depth_scale(&self) -> f32 {
-        self.depth_scale
+        self.recorded.depth_scale
     }
 
     fn advanced_config(&self) -> Result<AdvancedConfig, CameraError> {
