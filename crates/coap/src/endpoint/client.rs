@@ -489,7 +489,10 @@ impl Endpoint {
             .block2()
             .filter(|_| !r.user_block2 && msg.code.is_success());
         let Some(b2) = b2 else {
-            if r.first_options.take().is_some() {
+            // An error response ends the transfer with what the server said (a 5.03 in
+            // the middle of a block-wise transfer is the server's answer, not a broken
+            // protocol); the blocks so far are dropped.
+            if r.first_options.take().is_some() && msg.code.is_success() {
                 // Reassembly ended with a block lacking Block2: a broken server.
                 return self.fail(
                     now,

@@ -137,6 +137,14 @@ fn nothing_on_the_table_is_a_result_with_exit_5() {
     let uri = format!("coap://{addr}");
     let f = coapcam(&["measure", "--server", &uri, "--prepare", "--json"]);
     assert_eq!(status(&f), Some(5), "{}", f.stderr);
+    // --prepare changes the server's settings for every client, and says so.
+    assert!(
+        f.stderr.contains(&format!(
+            "prepared camera(s) {SN} on the server, for every client"
+        )),
+        "{}",
+        f.stderr
+    );
     let m = f.json();
     assert_eq!(m["parcel"], "nothing", "{m}");
     assert_eq!(m["cameras"], serde_json::json!([SN]), "{m}");

@@ -54,6 +54,8 @@ enum Then {
     ChangeEtag,
     /// Stops answering.
     Silence,
+    /// Answers 5.03 Service Unavailable with a diagnostic.
+    Unavailable,
 }
 
 /// A server that answers GETs block by block (ETag 1, always more to come) for `blocks`
@@ -80,6 +82,18 @@ fn misbehaving_server(blocks: u32, then: Then) -> (SocketAddr, Arc<AtomicBool>) 
                 _ if num < blocks => 1u8,
                 Then::ChangeEtag => 2,
                 Then::Silence => continue,
+                Then::Unavailable => {
+                    let reply = Message {
+                        ty: Type::Ack,
+                        code: Code::SERVICE_UNAVAILABLE,
+                        message_id: req.message_id,
+                        token: req.token,
+                        options: coap::Options::new(),
+                        payload: Bytes::from_static(b"the camera is busy"),
+                    };
+                    let _ = socket.send_to(&reply.encode(), peer);
+                    continue;
+                }
             };
             let mut options = coap::Options::new();
             options.set(OptionNumber::ETAG, vec![etag]);
@@ -233,4 +247,25 @@ fn check_signal(signal: &str, status: i32) {
 fn get_o_stopped_by_sigint_or_sigterm_leaves_no_part_file() {
     check_signal("INT", 130);
     check_signal("TERM", 143);
+}
+
+#[test]
+fn an_error_response_in_the_middle_of_a_transfer_is_reported_as_itself() {
+    let (addr, stop) = misbehaving_server(5, Then::Unavailable);
+    let dir = TempDir::new("get-unavailable");
+    let out = dir.join("body.bin");
+    let f = get(
+        &format!("coap://{addr}/body"),
+        &out,
+        &["--block-size", "1024"],
+    );
+    stop.store(true, Ordering::SeqCst);
+    assert_eq!(f.status.code(), Some(3), "{}", f.stderr);
+    assert!(
+        f.stderr.contains("5.03") && f.stderr.contains("the camera is busy"),
+        "{}",
+        f.stderr
+    );
+    assert!(!out.exists());
+    assert_eq!(leftovers(dir.path(), "body.bin"), Vec::<String>::new());
 }
