@@ -27,6 +27,22 @@ pub(crate) struct BlockKey {
 }
 
 impl BlockKey {
+    /// The key under which a response to a request sent to a group is stored: the
+    /// client's port without its address. The client asks for the other blocks by
+    /// unicast (RFC 7959 §2.8), and the kernel may send those from another of its
+    /// addresses than the group request (the source address is chosen per destination).
+    pub(crate) fn for_group(&self) -> Self {
+        let any = match self.peer {
+            SocketAddr::V4(_) => std::net::IpAddr::from(std::net::Ipv4Addr::UNSPECIFIED),
+            SocketAddr::V6(_) => std::net::IpAddr::from(std::net::Ipv6Addr::UNSPECIFIED),
+        };
+        Self {
+            peer: SocketAddr::new(any, self.peer.port()),
+            method: self.method,
+            options: self.options.clone(),
+        }
+    }
+
     /// The address as integers, which order faster than `SocketAddr`'s field-by-field
     /// comparison; every part that tells two addresses apart is kept (family, address,
     /// port, flow label, scope).
@@ -378,6 +394,11 @@ impl ServerCache {
         if let Some(old) = self.entries.remove(key) {
             self.bytes -= old.held;
         }
+    }
+
+    /// Whether a representation is stored under `key` (expired or not).
+    pub(crate) fn contains(&self, key: &BlockKey) -> bool {
+        self.entries.contains_key(key)
     }
 
     /// Calls `f` with the representation stored for a continuation request, refreshing its

@@ -280,13 +280,18 @@ fn lid(
     let index = Index::new(&band).map_err(|e| DimensionError::TooManyPoints { points: e.0 })?;
     const SAMPLES: usize = 1000;
     let step = (band.len() / SAMPLES).max(1);
-    let two = NonZeroUsize::new(2).unwrap_or(NonZeroUsize::MIN);
+    // The spacing to the nearest other point that is not the same point again: a cloud
+    // merged from cameras that see the same thing (the same camera served twice) holds
+    // exact duplicates, whose distance 0 would shrink the radius to nothing.
+    let four = NonZeroUsize::new(4).unwrap_or(NonZeroUsize::MIN);
     let mut spacing: Vec<f32> = band
         .iter()
         .step_by(step)
         .filter_map(|p| {
-            let near = index.nearest_n(p, two);
-            near.get(1).map(|&j| (band[j] - p).norm())
+            let near = index.nearest_n(p, four);
+            near.iter()
+                .map(|&j| (band[j] - p).norm())
+                .find(|d| *d > 0.0)
         })
         .collect();
     spacing.sort_unstable_by(f32::total_cmp);

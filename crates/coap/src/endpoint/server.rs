@@ -89,18 +89,29 @@ impl Endpoint {
             // tells the client whether the blocks still fit).
             let szx = b2.szx.min(self.config.max_block_szx);
             let (ty, mid) = self.reply_header(&msg);
-            let stored = self.server.block2.with_stored(now, &key, &limits, |s| {
-                let slice = block::slice(&*s.body.0, b2.num, szx);
-                if let Slice::Block(payload, opt) = &slice {
-                    // The block goes out as the stored options, encoded once, around this
-                    // Block2.
-                    let header = (ty, s.code, mid, msg.token);
-                    self.msg.outbox.send_with(peer, payload.len(), |out| {
-                        s.head.encode_into(out, header, opt.as_uint(), payload);
-                    });
-                }
-                slice
-            });
+            // Stored for this peer, or for a request this peer sent to a group.
+            let group_key;
+            let stored_key = if self.server.block2.contains(&key) {
+                &key
+            } else {
+                group_key = key.for_group();
+                &group_key
+            };
+            let stored = self
+                .server
+                .block2
+                .with_stored(now, stored_key, &limits, |s| {
+                    let slice = block::slice(&*s.body.0, b2.num, szx);
+                    if let Slice::Block(payload, opt) = &slice {
+                        // The block goes out as the stored options, encoded once, around this
+                        // Block2.
+                        let header = (ty, s.code, mid, msg.token);
+                        self.msg.outbox.send_with(peer, payload.len(), |out| {
+                            s.head.encode_into(out, header, opt.as_uint(), payload);
+                        });
+                    }
+                    slice
+                });
             match stored {
                 // Served from the store, which is idempotent (RFC 7252 §4.5 allows
                 // relaxing deduplication then): a duplicate is cut again from the same
@@ -115,7 +126,7 @@ impl Endpoint {
                 }
                 // The stored source can no longer be read as it was: as if nothing were
                 // stored.
-                Some(Slice::Unreadable) => self.server.block2.remove(&key),
+                Some(Slice::Unreadable) => self.server.block2.remove(stored_key),
                 None => {}
             }
             if self.replay_duplicate(now, peer, &msg, &limits) {
@@ -189,7 +200,9 @@ impl Endpoint {
                 multicast,
                 block2,
                 block1_echo,
-                key,
+                // A response to a group request is stored for the client's port, whatever
+                // address its unicast follow-ups come from.
+                key: if multicast { key.for_group() } else { key },
                 observation,
             },
         );

@@ -35,8 +35,9 @@ pub(crate) struct MeasureArgs {
     /// With --group: stop waiting once this many servers have answered.
     #[arg(long, value_name = "N", requires = "group")]
     expect: Option<usize>,
-    /// With --group: the local address to send from (e.g. 127.0.0.1 when the servers are
-    /// on loopback addresses); by default the kernel chooses per destination.
+    /// With --group: the local address to send from; by default the kernel chooses per
+    /// destination (the servers accept the follow-ups of a group request from any of the
+    /// client's addresses).
     #[arg(long, value_name = "ADDR", requires = "group")]
     bind: Option<std::net::IpAddr>,
     /// With --group: how long to collect answers, in seconds.

@@ -363,8 +363,6 @@ fn multicast_measurement_merges_three_servers_cameras() {
             "224.0.1.188",
             "--expect",
             "3",
-            "--bind",
-            "127.0.0.1",
             "--wait",
             "30",
             "--json",
@@ -401,4 +399,106 @@ fn multicast_measurement_merges_three_servers_cameras() {
             "{got:?} vs 400 x 300 x 200 mm: {m}"
         );
     }
+}
+
+/// Whether the test runs inside `scripts/netns-run`; says so when it does not.
+fn in_namespace(test: &str) -> bool {
+    let ok = std::env::var("COAPCAM_NETNS").ok().as_deref() == Some("1");
+    if !ok {
+        eprintln!("SKIP {test}: only inside scripts/netns-run");
+    }
+    ok
+}
+
+/// The servers named in `coapcam discover --json` lines.
+fn servers_of(f: &crate::support::Finished) -> Vec<String> {
+    let mut servers: Vec<String> = f
+        .json_lines()
+        .iter()
+        .filter_map(|l| l["server"].as_str().map(str::to_owned))
+        .collect();
+    servers.sort();
+    servers.dedup();
+    servers
+}
+
+#[test]
+#[ignore = "multicast: run inside scripts/netns-run (scripts/test.sh does)"]
+fn discover_lists_every_server_of_a_group_whatever_address_the_kernel_sends_from() {
+    if !in_namespace("discover_lists_every_server_of_a_group") {
+        return;
+    }
+    let dir = TempDir::new("group-discover");
+    // Three servers of the default scene: their discovery answers take several blocks,
+    // which the client asks of each server by unicast, from the address the kernel picks
+    // for it (not the one the group request left from).
+    let _servers: Vec<Server> = [10u8, 11, 12]
+        .iter()
+        .map(|host| {
+            let state = dir.path().join(format!("state-{host}"));
+            serve_at(
+                &format!("127.0.0.{host}:5683"),
+                &state,
+                &["--group", "224.0.1.189"],
+            )
+            .0
+        })
+        .collect();
+    let want = ["127.0.0.10:5683", "127.0.0.11:5683", "127.0.0.12:5683"];
+    for query in [None, Some("rt=rgbd*")] {
+        let mut args = vec!["discover", "coap://224.0.1.189:5683", "--json"];
+        if let Some(q) = query {
+            args.extend(["--query", q]);
+        }
+        let f = Proc::run(COAPCAM, &args, LIMIT).expect_success("coapcam discover a group");
+        assert_eq!(servers_of(&f), want, "{query:?}: {}", f.stdout_text());
+    }
+}
+
+#[test]
+#[ignore = "multicast: run inside scripts/netns-run (scripts/test.sh does)"]
+fn measure_group_with_fewer_servers_than_expected_warns_and_exits_6() {
+    if !in_namespace("measure_group_with_fewer_servers_than_expected") {
+        return;
+    }
+    let dir = TempDir::new("group-fewer");
+    let _servers: Vec<Server> = [(13u8, "000000000013"), (14, "000000000014")]
+        .iter()
+        .map(|(host, serial)| {
+            let scene_file = dir.path().join(format!("scene-{host}.toml"));
+            std::fs::write(&scene_file, box_scene(serial, [0.0, 0.0, 1.0]))
+                .expect("writing the scene");
+            let scene_arg = scene_file.to_str().expect("UTF-8 path");
+            let state = dir.path().join(format!("state-{host}"));
+            serve_at(
+                &format!("127.0.0.{host}:5683"),
+                &state,
+                &["--group", "224.0.1.190", "--scene", scene_arg],
+            )
+            .0
+        })
+        .collect();
+    let f = Proc::run(
+        COAPCAM,
+        &[
+            "measure",
+            "--group",
+            "224.0.1.190",
+            "--expect",
+            "3",
+            "--wait",
+            "5",
+            "--json",
+        ],
+        Duration::from_secs(110),
+    );
+    assert_eq!(f.status.code(), Some(6), "{}", f.stderr);
+    assert!(
+        f.stderr.contains("warning: 2 of the 3 expected servers"),
+        "{}",
+        f.stderr
+    );
+    let m = f.json();
+    assert_eq!(m["warnings"].as_array().map(Vec::len), Some(1), "{m}");
+    assert_eq!(m["parcel"], "measured", "{m}");
 }

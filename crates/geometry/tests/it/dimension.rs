@@ -78,6 +78,24 @@ fn box_on_the_floor_measures_within_3_mm_and_yaw_modulo_90() {
 }
 
 #[test]
+fn a_cloud_merged_from_the_same_view_three_times_measures_as_one() {
+    let b = parcel();
+    let once = noisy_scene(&b, 12);
+    let mut thrice = once.clone();
+    for _ in 0..2 {
+        thrice.points.extend_from_slice(&once.points);
+    }
+    let config = DimensionConfig::default();
+    let one = dimension(&once, &config).expect("measures once");
+    let three = dimension(&thrice, &config).expect("measures the same points three times");
+    assert_measures(&three, &b, 3.0);
+    assert!(
+        (three.length_mm - one.length_mm).abs() < 1.0,
+        "{one:?} vs {three:?}"
+    );
+}
+
+#[test]
 fn length_is_the_longer_side_whatever_the_orientation() {
     for (yaw_deg, seed) in [(0.0, 21), (75.0, 22), (-40.0, 23), (100.0, 24)] {
         let b = BoxSpec {
