@@ -57,19 +57,32 @@ pub fn read(image: &GrayImage) -> Vec<Code> {
     if image.width() == 0 || image.height() == 0 {
         return Vec::new();
     }
-    // rqrr asserts on some grids it cannot sample (its issue #54); a code it cannot read
-    // must not cost the Code 128 reads or the other cameras' codes.
+    // rqrr's finder search misses some sharp-edged codes it reads once the image is
+    // slightly blurred (as a lens blurs): a second look, only when the first found none.
+    let mut qr = read_qr_guarded(image);
+    if qr.is_empty() {
+        qr = read_qr_guarded(&image::imageops::blur(image, QR_SECOND_LOOK_BLUR_PX));
+    }
+    found.extend(qr);
+    read_code128(image, &mut found);
+    found.into_iter().collect()
+}
+
+/// Standard deviation of the Gaussian blur of the QR reader's second look, pixels.
+const QR_SECOND_LOOK_BLUR_PX: f32 = 1.0;
+
+/// The QR codes in `image`. rqrr asserts on some grids it cannot sample (its issue #54);
+/// a code it cannot read must not cost the Code 128 reads or the other cameras' codes.
+fn read_qr_guarded(image: &GrayImage) -> BTreeSet<Code> {
     let qr = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         let mut qr = BTreeSet::new();
         read_qr(image, &mut qr);
         qr
     }));
-    match qr {
-        Ok(qr) => found.extend(qr),
-        Err(_) => tracing::warn!("the QR reader failed on this image; QR codes skipped"),
-    }
-    read_code128(image, &mut found);
-    found.into_iter().collect()
+    qr.unwrap_or_else(|_| {
+        tracing::warn!("the QR reader failed on this image; QR codes skipped");
+        BTreeSet::new()
+    })
 }
 
 fn read_qr(image: &GrayImage, found: &mut BTreeSet<Code>) {

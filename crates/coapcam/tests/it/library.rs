@@ -140,3 +140,22 @@ fn both_cameras_read_the_code128_label_of_the_code128_scene() {
         assert_eq!(seen[0].cameras.len(), 2, "{seen:?}");
     });
 }
+
+#[test]
+fn the_default_scenes_qr_label_reads_at_1920x1080() {
+    let state = TempDir::new("library-qr");
+    let scene = Scene::default_single();
+    runtime().block_on(async {
+        let (_server, client) = start(&scene, &state).await;
+        let serials = client.cameras().await.expect("discovery");
+        prepare_cameras(&client, &serials, 1.0, true)
+            .await
+            .expect("prepare for codes");
+        let cameras = vec![(client.server(), serials[0].clone())];
+        let seen = coapcam::client::codes::read_cameras(&client, &cameras)
+            .await
+            .expect("reading codes");
+        let texts: Vec<&str> = seen.iter().map(|s| s.code.text.as_str()).collect();
+        assert_eq!(texts, ["PKG-0001"], "{seen:?}");
+    });
+}
