@@ -105,7 +105,7 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
         m.grabbed.cloud.len()
     );
     let top = dir.join("top.png");
-    save(&picture::top_view(&m.grabbed.cloud), &top)?;
+    save(&picture::top_view(&m.grabbed.cloud, m.dimensions()), &top)?;
     outln!("wrote {}", top.display());
     let annotated = dir.join("annotated.png");
     let Some(dimensions) = m.dimensions() else {

@@ -164,7 +164,7 @@ async fn write_view(
                         .cloud
                 }
             };
-            save(&picture::top_view(&cloud), path)?;
+            save(&picture::top_view(&cloud, None), path)?;
             Ok(vec![path.to_owned()])
         }
     }

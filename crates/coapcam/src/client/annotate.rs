@@ -60,6 +60,13 @@ pub async fn from_server(
         .context("composing the 3d-transformation")?;
     let mut capture = ColorCapture::from_cbor(&color.payload)?;
     let mut image = std::mem::take(&mut capture.image);
-    picture::annotate(&mut image, dims, projector(&capture, &transform)?);
+    // The camera in the world: where its depth frame's origin goes.
+    let camera = transform.translation.map(f64::from);
+    picture::annotate(
+        &mut image,
+        dims,
+        [camera.x, camera.y, camera.z],
+        projector(&capture, &transform)?,
+    );
     picture::save(&image, path)
 }

@@ -45,9 +45,23 @@ pub fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
     let gray = GrayImage::from_fn(depth.width, depth.height, |x, y| {
         Luma([at(x, y).map_or(0, |t| (255.0 - 215.0 * t) as u8)])
     });
-    let colored = RgbImage::from_fn(depth.width, depth.height, |x, y| {
+    let mut colored = RgbImage::from_fn(depth.width, depth.height, |x, y| {
         Rgb(at(x, y).map_or([0, 0, 0], jet))
     });
+    if let Some((lo, hi)) = range {
+        let mm = |v: u16| f64::from(v) * f64::from(depth.depth_scale) * 1e3;
+        let scale = text_scale(&colored);
+        let bar = ColourBar {
+            title: "depth",
+            lo: format!("{:.0} mm near", mm(lo)),
+            hi: format!("{:.0} mm far", mm(hi)),
+        };
+        let size = bar.size(scale);
+        if colored.width() > size.0 && colored.height() > size.1 {
+            let at = (colored.width() - size.0, colored.height() - size.1);
+            bar.draw(&mut colored, at, scale);
+        }
+    }
     (gray, colored)
 }
 
@@ -57,13 +71,15 @@ pub fn jet(t: f32) -> [u8; 3] {
     [c(3.0), c(2.0), c(1.0)]
 }
 
-/// Longest side of a top view, pixels.
+/// Longest side of a top view's plot, pixels.
 const TOP_VIEW_MAX_PX: f32 = 1024.0;
 
 /// The cloud seen from above (x right, y up), one pixel per millimetre or coarser so the
 /// longer side fits in 1024 pixels, each pixel coloured by the highest point in it (blue
-/// low, red high); empty pixels black.
-pub fn top_view(cloud: &PointCloud) -> RgbImage {
+/// low, red high), empty pixels black; the world axes where the origin is in view, and
+/// with a measurement its footprint outlined in white. Below the plot: a millimetre scale bar, the
+/// colour bar of heights and the dimensions.
+pub fn top_view(cloud: &PointCloud, measured: Option<&Dimensions>) -> RgbImage {
     let finite = || {
         cloud
             .points
@@ -92,68 +108,257 @@ pub fn top_view(cloud: &PointCloud) -> RgbImage {
         *cell = cell.max(p.z);
     }
     let z_span = (hi[2] - lo[2]).max(1e-3);
-    RgbImage::from_fn(w, h, |x, y| {
+    let plot = RgbImage::from_fn(w, h, |x, y| {
         let z = top[(y * w + x) as usize];
         if z == f32::MIN {
             Rgb([0, 0, 0])
         } else {
             Rgb(jet((z - lo[2]) / z_span))
         }
-    })
+    });
+    // World metres to plot pixels.
+    let to_px = |x: f64, y: f64| {
+        [
+            ((x - f64::from(lo[0])) / f64::from(metres_per_px)) as f32,
+            (f64::from(h - 1) - (y - f64::from(lo[1])) / f64::from(metres_per_px)) as f32,
+        ]
+    };
+    let scale = text_scale(&plot).max(if w < 400 { 1 } else { 2 });
+    let key = TopKey {
+        mm_per_px: f64::from(metres_per_px) * 1e3,
+        heights_mm: [f64::from(lo[2]) * 1e3, f64::from(hi[2]) * 1e3],
+        measured,
+    };
+    let mut image = RgbImage::new(w.max(key.width(scale)), h + key.height(scale));
+    image::imageops::replace(&mut image, &plot, 0, 0);
+    if let Some(d) = measured {
+        let corner = |i: usize| to_px(d.corners_m[i][0], d.corners_m[i][1]);
+        for i in 0..4 {
+            draw_line(&mut image, corner(i), corner((i + 1) % 4), WHITE, scale);
+        }
+    }
+    let origin = to_px(0.0, 0.0);
+    if (0.0..w as f32).contains(&origin[0]) && (0.0..h as f32).contains(&origin[1]) {
+        draw_axes(&mut image, origin, 60.0 * scale as f32, scale);
+    }
+    key.draw(&mut image, (0, h), scale);
+    image
 }
 
-/// Draws the measured box (footprint on the floor, lid at the measured height, and the
-/// vertical edges) onto `image` through `project` (world point in metres -> pixel), and
-/// the dimensions as text in the top-left corner.
+/// What is drawn under a top view's plot.
+struct TopKey<'a> {
+    mm_per_px: f64,
+    heights_mm: [f64; 2],
+    measured: Option<&'a Dimensions>,
+}
+
+impl TopKey<'_> {
+    /// The round length of the scale bar: at most a quarter of 1024 plot pixels.
+    fn bar_mm(&self) -> f64 {
+        [10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0]
+            .into_iter()
+            .rev()
+            .find(|mm| mm / self.mm_per_px <= 256.0)
+            .unwrap_or(10.0)
+    }
+
+    fn lines(&self) -> Vec<String> {
+        let mut lines = vec![format!("top view, scale bar {:.0} mm", self.bar_mm())];
+        if let Some(d) = self.measured {
+            lines.push(format!(
+                "white: footprint {:.0} x {:.0} mm, height {:.0} mm",
+                d.length_mm, d.width_mm, d.height_mm
+            ));
+        }
+        lines
+    }
+
+    fn width(&self, scale: u32) -> u32 {
+        let text = self.lines().iter().map(|l| text_width(l, scale)).max();
+        text.unwrap_or(0).max(self.bar().size(scale).0) + 4 * scale
+    }
+
+    fn height(&self, scale: u32) -> u32 {
+        (2 + self.lines().len() as u32) * line_height(scale) + self.bar().size(scale).1 + 4 * scale
+    }
+
+    fn bar(&self) -> ColourBar {
+        ColourBar {
+            title: "height",
+            lo: format!("{:.0} mm", self.heights_mm[0]),
+            hi: format!("{:.0} mm", self.heights_mm[1]),
+        }
+    }
+
+    fn draw(&self, image: &mut RgbImage, at: (u32, u32), scale: u32) {
+        let (x0, mut y) = (at.0 + 2 * scale, at.1 + 2 * scale);
+        for line in self.lines() {
+            draw_text(image, (x0, y), &line, scale, WHITE);
+            y += line_height(scale);
+        }
+        // The scale bar with end ticks.
+        let bar_px = (self.bar_mm() / self.mm_per_px) as f32;
+        let ym = (y + line_height(scale) / 2) as f32;
+        let (a, b) = ([x0 as f32, ym], [x0 as f32 + bar_px, ym]);
+        draw_line(image, a, b, WHITE, scale);
+        for x in [a[0], b[0]] {
+            let tick = 3.0 * scale as f32;
+            draw_line(image, [x, ym - tick], [x, ym + tick], WHITE, scale);
+        }
+        y += 2 * line_height(scale);
+        self.bar().draw(image, (x0, y), scale);
+    }
+}
+
+/// A horizontal jet colour bar with its title and the values at both ends.
+struct ColourBar {
+    title: &'static str,
+    lo: String,
+    hi: String,
+}
+
+impl ColourBar {
+    /// Pixels of the gradient.
+    const STEPS: u32 = 128;
+
+    fn text(&self) -> String {
+        format!("{} {}", self.title, self.lo)
+    }
+
+    fn size(&self, scale: u32) -> (u32, u32) {
+        let width = text_width(&self.text(), scale)
+            + Self::STEPS * scale
+            + text_width(&self.hi, scale)
+            + 8 * scale;
+        (width, line_height(scale) + 2 * scale)
+    }
+
+    fn draw(&self, image: &mut RgbImage, at: (u32, u32), scale: u32) {
+        let size = self.size(scale);
+        fill(image, at, size, BLACK);
+        let (mut x, y) = (at.0 + 2 * scale, at.1 + 2 * scale);
+        draw_text(image, (x, y), &self.text(), scale, WHITE);
+        x += text_width(&self.text(), scale) + 2 * scale;
+        for i in 0..Self::STEPS {
+            let colour = Rgb(jet(i as f32 / (Self::STEPS - 1) as f32));
+            fill(image, (x + i * scale, y), (scale, GLYPH_PX * scale), colour);
+        }
+        x += Self::STEPS * scale + 2 * scale;
+        draw_text(image, (x, y), &self.hi, scale, WHITE);
+    }
+}
+
+/// The world's x axis (right) and y axis (up) from `origin`, `len` pixels, in magenta,
+/// a colour the height scale does not use.
+fn draw_axes(image: &mut RgbImage, origin: [f32; 2], len: f32, scale: u32) {
+    let [ox, oy] = origin;
+    for (tip, colour, name) in [
+        ([ox + len, oy], MAGENTA, "x"),
+        ([ox, oy - len], MAGENTA, "y"),
+    ] {
+        draw_line(image, origin, tip, colour, scale);
+        let at = (tip[0].max(0.0) as u32 + 2 * scale, tip[1].max(0.0) as u32);
+        draw_text(image, at, name, scale, colour);
+    }
+}
+
+/// Draws the measured box onto `image` through `project` (world point in metres ->
+/// pixel), seen from `camera` (the camera's position in the world): the footprint on the
+/// floor red, the lid green, the vertical edges yellow; an edge the box hides from the
+/// camera (no face it borders faces the camera) dashed. A legend in the top-left corner
+/// says so, with the dimensions.
 pub fn annotate(
     image: &mut RgbImage,
     dims: &Dimensions,
+    camera: [f64; 3],
     project: impl Fn([f64; 3]) -> Option<[f32; 2]>,
 ) {
     let h = dims.height_mm / 1e3;
-    let corner = |i: usize, z: f64| project([dims.corners_m[i][0], dims.corners_m[i][1], z]);
+    let c = &dims.corners_m;
+    let centre = [0, 1].map(|k| c.iter().map(|p| p[k]).sum::<f64>() / 4.0);
+    // Whether the face through `point` with outward normal `normal` faces the camera.
+    let faces = |point: [f64; 3], normal: [f64; 3]| {
+        (0..3)
+            .map(|k| (camera[k] - point[k]) * normal[k])
+            .sum::<f64>()
+            > 0.0
+    };
+    let top = faces([c[0][0], c[0][1], h], [0.0, 0.0, 1.0]);
+    let bottom = faces([c[0][0], c[0][1], 0.0], [0.0, 0.0, -1.0]);
+    // Side i runs from corner i to corner i + 1; its normal points away from the centre.
+    let side: Vec<bool> = (0..4)
+        .map(|i| {
+            let (a, b) = (c[i], c[(i + 1) % 4]);
+            let mut n = [b[1] - a[1], a[0] - b[0], 0.0];
+            let mid = [(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0];
+            if (mid[0] - centre[0]) * n[0] + (mid[1] - centre[1]) * n[1] < 0.0 {
+                n = [-n[0], -n[1], 0.0];
+            }
+            faces([mid[0], mid[1], h / 2.0], n)
+        })
+        .collect();
     let thickness = (image.width() / 400).max(2);
-    let (floor, lid, edge) = (Rgb([255, 64, 64]), Rgb([64, 255, 64]), Rgb([255, 220, 0]));
+    let corner = |i: usize, z: f64| project([c[i][0], c[i][1], z]);
+    // (from, to, colour, visible): hidden edges first, so visible ones are drawn over them.
+    let mut edges = Vec::new();
     for i in 0..4 {
         let j = (i + 1) % 4;
-        for (z, color) in [(0.0, floor), (h, lid)] {
-            if let (Some(a), Some(b)) = (corner(i, z), corner(j, z)) {
-                draw_line(image, a, b, color, thickness);
+        edges.push((corner(i, 0.0), corner(j, 0.0), RED, bottom || side[i]));
+        edges.push((corner(i, h), corner(j, h), GREEN, top || side[i]));
+        edges.push((
+            corner(i, 0.0),
+            corner(i, h),
+            YELLOW,
+            side[i] || side[(i + 3) % 4],
+        ));
+    }
+    edges.sort_by_key(|e| e.3);
+    for (a, b, colour, visible) in edges {
+        if let (Some(a), Some(b)) = (a, b) {
+            if visible {
+                draw_line(image, a, b, colour, thickness);
+            } else {
+                draw_dashed(image, a, b, colour, thickness);
             }
-        }
-        if let (Some(a), Some(b)) = (corner(i, 0.0), corner(i, h)) {
-            draw_line(image, a, b, edge, thickness);
         }
     }
     let lines = [
-        format!(
-            "{:.0} x {:.0} x {:.0} mm",
-            dims.length_mm, dims.width_mm, dims.height_mm
-        ),
-        format!("yaw {:.1} deg", dims.yaw_deg),
-    ];
-    let scale = (image.width() / 320).max(2);
-    let line_height = (GLYPH_ROWS as u32 + 3) * scale;
-    let text_width = lines.iter().map(|l| l.len()).max().unwrap_or(0) as u32 * 6 * scale;
-    fill(
-        image,
-        (0, 0),
         (
-            text_width + 4 * scale,
-            line_height * lines.len() as u32 + 2 * scale,
+            format!(
+                "measured box {:.0} x {:.0} x {:.0} mm, yaw {:.1} deg",
+                dims.length_mm, dims.width_mm, dims.height_mm, dims.yaw_deg
+            ),
+            WHITE,
         ),
-        Rgb([0, 0, 0]),
-    );
-    for (i, line) in lines.iter().enumerate() {
-        draw_text(
-            image,
-            (2 * scale, 2 * scale + i as u32 * line_height),
-            line,
-            scale,
-            Rgb([255, 255, 255]),
-        );
+        ("red: footprint on the floor".to_owned(), RED),
+        ("green: lid".to_owned(), GREEN),
+        ("yellow: vertical edges".to_owned(), YELLOW),
+        ("dashed: edges hidden behind the box".to_owned(), WHITE),
+    ];
+    legend(image, (0, 0), &lines, text_scale(image));
+}
+
+/// Lines of text on a black box at `at`.
+fn legend(image: &mut RgbImage, at: (u32, u32), lines: &[(String, Rgb<u8>)], scale: u32) {
+    let width = lines
+        .iter()
+        .map(|(l, _)| text_width(l, scale))
+        .max()
+        .unwrap_or(0);
+    let height = line_height(scale) * lines.len() as u32;
+    fill(image, at, (width + 4 * scale, height + 2 * scale), BLACK);
+    for (i, (line, colour)) in lines.iter().enumerate() {
+        let y = at.1 + 2 * scale + i as u32 * line_height(scale);
+        draw_text(image, (at.0 + 2 * scale, y), line, scale, *colour);
     }
 }
+
+const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
+const BLACK: Rgb<u8> = Rgb([0, 0, 0]);
+const RED: Rgb<u8> = Rgb([255, 64, 64]);
+const GREEN: Rgb<u8> = Rgb([64, 255, 64]);
+const YELLOW: Rgb<u8> = Rgb([255, 220, 0]);
+const MAGENTA: Rgb<u8> = Rgb([255, 0, 255]);
 
 fn fill(image: &mut RgbImage, at: (u32, u32), size: (u32, u32), color: Rgb<u8>) {
     for y in at.1..(at.1 + size.1).min(image.height()) {
@@ -165,10 +370,30 @@ fn fill(image: &mut RgbImage, at: (u32, u32), size: (u32, u32), color: Rgb<u8>) 
 
 /// A line `thickness` pixels wide; the parts outside the image are skipped.
 fn draw_line(image: &mut RgbImage, a: [f32; 2], b: [f32; 2], color: Rgb<u8>, thickness: u32) {
+    draw_pattern(image, a, b, color, thickness, |_| true);
+}
+
+/// A dashed line: dashes and gaps of four times its thickness.
+fn draw_dashed(image: &mut RgbImage, a: [f32; 2], b: [f32; 2], color: Rgb<u8>, thickness: u32) {
+    let period = 8 * thickness.max(1);
+    draw_pattern(image, a, b, color, thickness, |step| {
+        step % period < period / 2
+    });
+}
+
+/// The pixels of the line from `a` to `b` whose step along it `on` keeps.
+fn draw_pattern(
+    image: &mut RgbImage,
+    a: [f32; 2],
+    b: [f32; 2],
+    color: Rgb<u8>,
+    thickness: u32,
+    on: impl Fn(u32) -> bool,
+) {
     let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
     let steps = dx.abs().max(dy.abs()).ceil().min(1e5) as u32;
     let half = thickness as i64 / 2;
-    for s in 0..=steps {
+    for s in (0..=steps).filter(|s| on(*s)) {
         let t = if steps == 0 {
             0.0
         } else {
@@ -193,57 +418,6 @@ fn draw_line(image: &mut RgbImage, a: [f32; 2], b: [f32; 2], color: Rgb<u8>, thi
     }
 }
 
-/// Rows of a glyph.
-const GLYPH_ROWS: usize = 7;
-
-/// A 5x7 bitmap font for the characters of the annotations; each row's low 5 bits, the
-/// leftmost pixel in bit 4.
-fn glyph(c: char) -> [u8; GLYPH_ROWS] {
-    match c {
-        '0' => [14, 17, 19, 21, 25, 17, 14],
-        '1' => [4, 12, 4, 4, 4, 4, 14],
-        '2' => [14, 17, 1, 2, 4, 8, 31],
-        '3' => [30, 1, 1, 14, 1, 1, 30],
-        '4' => [2, 6, 10, 18, 31, 2, 2],
-        '5' => [31, 16, 30, 1, 1, 17, 14],
-        '6' => [6, 8, 16, 30, 17, 17, 14],
-        '7' => [31, 1, 2, 4, 8, 8, 8],
-        '8' => [14, 17, 17, 14, 17, 17, 14],
-        '9' => [14, 17, 17, 15, 1, 2, 12],
-        '.' => [0, 0, 0, 0, 0, 12, 12],
-        '-' => [0, 0, 0, 31, 0, 0, 0],
-        'a' => [0, 0, 14, 1, 15, 17, 15],
-        'd' => [1, 1, 13, 19, 17, 17, 15],
-        'e' => [0, 0, 14, 17, 31, 16, 14],
-        'g' => [0, 15, 17, 17, 15, 1, 14],
-        'k' => [16, 16, 18, 20, 24, 20, 18],
-        'm' => [0, 0, 26, 21, 21, 21, 21],
-        'w' => [0, 0, 17, 17, 21, 21, 10],
-        'x' => [0, 0, 17, 10, 4, 10, 17],
-        'y' => [0, 0, 17, 17, 15, 1, 14],
-        _ => [0; GLYPH_ROWS],
-    }
-}
-
-/// Text in the 5x7 font, each font pixel `scale` x `scale` image pixels.
-fn draw_text(image: &mut RgbImage, at: (u32, u32), text: &str, scale: u32, color: Rgb<u8>) {
-    for (i, c) in text.chars().enumerate() {
-        let x0 = at.0 + i as u32 * 6 * scale;
-        for (row, bits) in glyph(c).iter().enumerate() {
-            for col in 0..5u32 {
-                if bits & (16 >> col) != 0 {
-                    fill(
-                        image,
-                        (x0 + col * scale, at.1 + row as u32 * scale),
-                        (scale, scale),
-                        color,
-                    );
-                }
-            }
-        }
-    }
-}
-
 /// `dir/name-suffix.png` for `dir/name.png`.
 pub fn sibling(path: &Path, suffix: &str) -> PathBuf {
     let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("view");
@@ -260,6 +434,47 @@ where
     image
         .save_with_format(path, ImageFormat::Png)
         .with_context(|| format!("writing {}", path.display()))
+}
+
+/// Side of a glyph of the 8x8 font, in font pixels.
+const GLYPH_PX: u32 = 8;
+
+/// Font pixels per glyph pixel for text on `image`: larger on larger images.
+fn text_scale(image: &RgbImage) -> u32 {
+    (image.width() / 640).max(1)
+}
+
+/// Height of a line of text, glyph and spacing.
+fn line_height(scale: u32) -> u32 {
+    (GLYPH_PX + 3) * scale
+}
+
+/// Width of `text` drawn at `scale`.
+fn text_width(text: &str, scale: u32) -> u32 {
+    text.chars().count() as u32 * GLYPH_PX * scale
+}
+
+/// Text in the public-domain 8x8 font of `font8x8`, each font pixel `scale` x `scale`
+/// image pixels; characters it lacks are left blank.
+fn draw_text(image: &mut RgbImage, at: (u32, u32), text: &str, scale: u32, color: Rgb<u8>) {
+    use font8x8::UnicodeFonts as _;
+    for (i, c) in text.chars().enumerate() {
+        let x0 = at.0 + i as u32 * GLYPH_PX * scale;
+        let rows = font8x8::BASIC_FONTS.get(c).unwrap_or_default();
+        for (row, bits) in rows.iter().enumerate() {
+            for col in 0..GLYPH_PX {
+                // Bit 0 is the leftmost pixel.
+                if bits & (1 << col) != 0 {
+                    fill(
+                        image,
+                        (x0 + col * scale, at.1 + row as u32 * scale),
+                        (scale, scale),
+                        color,
+                    );
+                }
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -299,20 +514,23 @@ mod tests {
     fn the_top_view_colours_the_highest_point_of_each_pixel() {
         let cloud: PointCloud = vec![
             geometry::Point3::new(0.0, 0.0, 0.0),
-            geometry::Point3::new(0.0, 0.0, 0.2),
             geometry::Point3::new(0.1, 0.05, 0.0),
+            geometry::Point3::new(0.05, 0.02, 0.0),
+            geometry::Point3::new(0.05, 0.02, 0.2),
         ]
         .into();
-        let img = top_view(&cloud);
-        assert_eq!((img.width(), img.height()), (101, 51));
-        assert_eq!(img.get_pixel(0, 50).0, jet(1.0));
+        let img = top_view(&cloud, None);
+        // The plot (101 x 51 pixels, one per millimetre) is at the top left.
+        // The 0.2 m point hides the floor point under it, near (50, 30).
+        assert_eq!(count(&img, 48..53, 28..33, Rgb(jet(1.0))), 1);
+        assert_eq!(count(&img, 48..53, 28..33, Rgb(jet(0.0))), 0);
         assert_eq!(img.get_pixel(100, 0).0, jet(0.0));
-        assert_eq!(img.get_pixel(50, 25).0, [0, 0, 0]);
+        assert_eq!(img.get_pixel(25, 10).0, [0, 0, 0]);
+        assert!(img.height() > 51);
     }
 
-    #[test]
-    fn the_box_and_its_numbers_are_drawn() {
-        let dims = Dimensions {
+    fn measured_box() -> Dimensions {
+        Dimensions {
             length_mm: 400.0,
             width_mm: 300.0,
             height_mm: 200.0,
@@ -320,24 +538,115 @@ mod tests {
             corners_m: [[-0.2, -0.15], [0.2, -0.15], [0.2, 0.15], [-0.2, 0.15]],
             volume_l: 24.0,
             points: 1000,
-        };
-        let mut img = RgbImage::new(640, 480);
-        // A camera 1 m above the origin looking down, 500 px focal length.
-        annotate(&mut img, &dims, |[x, y, z]| {
-            let d = 1.0 - z;
+        }
+    }
+
+    /// Pixels of `colour` in a rectangle.
+    fn count(
+        img: &RgbImage,
+        x: std::ops::Range<u32>,
+        y: std::ops::Range<u32>,
+        colour: Rgb<u8>,
+    ) -> usize {
+        y.flat_map(|y| x.clone().map(move |x| (x, y)))
+            .filter(|&(x, y)| img.get_pixel(x, y) == &colour)
+            .count()
+    }
+
+    #[test]
+    fn the_top_view_has_a_scale_bar_a_colour_bar_and_the_footprint() {
+        // A floor 0.8 m square at z = 0 and the box's lid at 0.2 m.
+        let mut points = Vec::new();
+        for i in 0..=80 {
+            for j in 0..=80 {
+                let (x, y) = (-0.4 + i as f32 * 0.01, -0.4 + j as f32 * 0.01);
+                let z = if x.abs() < 0.2 && y.abs() < 0.15 {
+                    0.2
+                } else {
+                    0.0
+                };
+                points.push(geometry::Point3::new(x, y, z));
+            }
+        }
+        let cloud: PointCloud = points.into();
+        let img = top_view(&cloud, Some(&measured_box()));
+        // 801 x 801 plot pixels; the footprint's edge at x = -0.2 m is white.
+        assert_eq!(img.get_pixel(200, 400), &WHITE);
+        // Under the plot: the text, the scale bar and the colour bar's gradient.
+        let below = 801..img.height();
+        assert!(count(&img, 0..img.width(), below.clone(), WHITE) > 500);
+        assert!(count(&img, 0..img.width(), below.clone(), Rgb(jet(0.0))) > 0);
+        assert!(count(&img, 0..img.width(), below, Rgb(jet(1.0))) > 0);
+        // The axes at the origin (the plot's centre): x to the right.
+        assert_eq!(img.get_pixel(430, 400), &MAGENTA);
+    }
+
+    #[test]
+    fn the_depth_colours_come_with_their_colour_bar() {
+        let values: Vec<u16> = (0..640 * 480).map(|i| 800 + (i % 640) as u16).collect();
+        let (_, c) = depth_views(&depth(values, 640));
+        let bottom = 440..480;
+        // Near and far ends of the bar, and its labels, in the bottom-right corner.
+        assert!(count(&c, 300..640, bottom.clone(), WHITE) > 50);
+        assert!(count(&c, 300..640, bottom, BLACK) > 100);
+    }
+
+    /// A camera `height` m above the origin looking down, 500 px focal length.
+    fn from_above(height: f64) -> impl Fn([f64; 3]) -> Option<[f32; 2]> {
+        move |[x, y, z]: [f64; 3]| {
+            let d = height - z;
             Some([
                 (320.0 + 500.0 * x / d) as f32,
                 (240.0 - 500.0 * y / d) as f32,
             ])
-        });
-        // Floor edge at x = -0.2 m -> u = 220; lid edge at x = -0.2 m, 0.8 m away -> 195.
-        assert_eq!(img.get_pixel(220, 240).0, [255, 64, 64]);
-        assert_eq!(img.get_pixel(195, 240).0, [64, 255, 64]);
+        }
+    }
+
+    #[test]
+    fn the_box_its_legend_and_its_numbers_are_drawn() {
+        let mut img = RgbImage::new(640, 480);
+        annotate(&mut img, &measured_box(), [0.0, 0.0, 1.0], from_above(1.0));
+        // Lid edge at x = -0.2 m, 0.8 m away -> u = 195, drawn solid.
+        assert_eq!(img.get_pixel(195, 240).0, GREEN.0);
         assert_eq!(img.get_pixel(320, 240).0, [0, 0, 0]);
-        let text_pixels = (0..40)
-            .flat_map(|y| (0..200).map(move |x| (x, y)))
-            .filter(|&(x, y)| img.get_pixel(x, y).0 == [255, 255, 255])
-            .count();
-        assert!(text_pixels > 100, "{text_pixels}");
+        let text_pixels = count(&img, 0..400, 0..60, WHITE);
+        assert!(text_pixels > 300, "{text_pixels}");
+        assert!(
+            count(&img, 0..400, 0..60, RED) > 20,
+            "the legend's red line"
+        );
+    }
+
+    #[test]
+    fn edges_the_box_hides_are_dashed_and_the_others_solid() {
+        let mut img = RgbImage::new(640, 480);
+        // Straight above: the sides face away, so the footprint on the floor and the
+        // vertical edges are hidden under the lid.
+        annotate(&mut img, &measured_box(), [0.0, 0.0, 1.0], from_above(1.0));
+        // The floor edge at x = -0.2 m -> u = 220, from v = 165 to 315.
+        let floor: Vec<bool> = (170..310).map(|v| img.get_pixel(220, v) == &RED).collect();
+        let drawn = floor.iter().filter(|d| **d).count();
+        assert!(
+            drawn > 20 && drawn < floor.len() - 20,
+            "dashed: {drawn} of {}",
+            floor.len()
+        );
+        // The lid edge at u = 195 is solid from v = 146 to 334.
+        assert!((150..330).all(|v| img.get_pixel(195, v) == &GREEN));
+        // Seen from the side (x = 2 m, 0.5 m up), the side facing the camera is visible:
+        // its floor edge at x = +0.2 m is drawn solid.
+        let mut side = RgbImage::new(640, 480);
+        let from_side = |[x, y, z]: [f64; 3]| {
+            let d = 2.0 - x;
+            Some([
+                (320.0 + 500.0 * y / d) as f32,
+                (240.0 - 500.0 * (z - 0.5) / d) as f32,
+            ])
+        };
+        annotate(&mut side, &measured_box(), [2.0, 0.0, 0.5], from_side);
+        // Floor edge x = 0.2, z = 0: v = 240 + 500 * 0.5 / 1.8 = 378.9.
+        assert!(
+            (285..355).all(|u| side.get_pixel(u, 379) == &RED || side.get_pixel(u, 378) == &RED)
+        );
     }
 }
