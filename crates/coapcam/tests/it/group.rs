@@ -502,3 +502,19 @@ fn measure_group_with_fewer_servers_than_expected_warns_and_exits_6() {
     assert_eq!(m["warnings"].as_array().map(Vec::len), Some(1), "{m}");
     assert_eq!(m["parcel"], "measured", "{m}");
 }
+
+#[test]
+#[ignore = "multicast: run inside scripts/netns-run (scripts/test.sh does)"]
+fn a_group_nobody_answers_exits_4_for_discover_and_measure() {
+    if !in_namespace("a_group_nobody_answers_exits_4") {
+        return;
+    }
+    for args in [
+        &["discover", "coap://224.0.1.191:5683", "--wait", "1"][..],
+        &["measure", "--group", "224.0.1.191", "--wait", "1"],
+    ] {
+        let f = Proc::run(COAPCAM, args, LIMIT);
+        assert_eq!(f.status.code(), Some(4), "{args:?}: {}", f.stderr);
+        assert!(f.stderr.contains("no server"), "{args:?}: {}", f.stderr);
+    }
+}
