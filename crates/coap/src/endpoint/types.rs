@@ -13,7 +13,7 @@ use crate::msg::{Code, Options};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct RequestId(pub u64);
 
-/// Identifies a request this endpoint received and must answer with [`Endpoint::respond`].
+/// Identifies a request this endpoint received and must answer with [`Endpoint::respond`](crate::Endpoint::respond).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct IncomingId(pub u64);
 
@@ -84,7 +84,7 @@ impl Request {
     }
 }
 
-/// A response: to send with [`Endpoint::respond`], or received in
+/// A response: to send with [`Endpoint::respond`](crate::Endpoint::respond), or received in
 /// [`Event::Response`] with the whole reassembled body.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Response {
@@ -141,7 +141,7 @@ impl Response {
 /// A request received from a peer.
 #[derive(Debug, Clone)]
 pub struct IncomingRequest {
-    /// Answer it with [`Endpoint::respond`].
+    /// Answer it with [`Endpoint::respond`](crate::Endpoint::respond).
     pub id: IncomingId,
     /// Who sent it.
     pub peer: SocketAddr,
@@ -157,7 +157,7 @@ pub struct IncomingRequest {
     pub confirmable: bool,
     /// Set when this is an Observe registration (RFC 7641 §2: GET with Observe 0). The
     /// application accepts it by answering with a success that carries an Observe option
-    /// (any value; the endpoint numbers notifications itself); then [`Endpoint::notify`]
+    /// (any value; the endpoint numbers notifications itself); then [`Endpoint::notify`](crate::Endpoint::notify)
     /// sends notifications to it. A response without Observe declines (§4.1).
     pub observe: Option<ObservationId>,
 }
@@ -194,7 +194,7 @@ pub enum RequestError {
     /// The server broke the block-wise protocol.
     #[error("protocol violation: {0}")]
     Protocol(&'static str),
-    /// Cancelled by [`Endpoint::cancel`].
+    /// Cancelled by [`Endpoint::cancel`](crate::Endpoint::cancel).
     #[error("cancelled")]
     Cancelled,
 }
@@ -203,7 +203,7 @@ pub enum RequestError {
 #[derive(Debug, Clone)]
 #[must_use]
 pub enum Event {
-    /// A request to answer with [`Endpoint::respond`].
+    /// A request to answer with [`Endpoint::respond`](crate::Endpoint::respond).
     Request(IncomingRequest),
     /// The complete response to a request.
     Response {
