@@ -1,7 +1,8 @@
 //! The commands: one file per subcommand, with its clap flags and its `run`. The
-//! commands share only the flag groups of this file (transmission parameters, the
-//! measurement's thresholds) and `Deferred`, which builds a command's flags only when it
-//! is the one given; none imports another, and what they do is the library's.
+//! commands share only what this file holds: the flag groups (transmission parameters,
+//! the measurement's thresholds), `Deferred`, which builds a command's flags only when it
+//! is the one given, how a command ends (`Exit`, `exit_status`, `error_text`), and the
+//! output macros. None imports another, and what they do is the library's.
 
 pub(crate) mod bench;
 pub(crate) mod demo;
