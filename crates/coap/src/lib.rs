@@ -26,8 +26,8 @@ pub use block::{BlockSource, Source};
 pub use config::{EndpointConfig, Limits};
 pub use content_format::ContentFormat;
 pub use endpoint::{
-    Endpoint, Event, IncomingId, IncomingRequest, ObservationId, Request, RequestError, RequestId,
-    Response, Transmit,
+    Endpoint, Event, IncomingId, IncomingRequest, ObservationId, PathStats, Request, RequestError,
+    RequestId, Response, Transfer, Transmit,
 };
 pub use msg::{BlockOpt, Code, Message, OptionNumber, Options, Token, Type};
 

@@ -62,6 +62,8 @@ impl Endpoint {
                 observe,
                 ack_timer: None,
                 block_head: None,
+                window: None,
+                window_timer: None,
             },
         );
         self.client.by_token.insert(token, id);
@@ -99,7 +101,7 @@ impl Endpoint {
         }
     }
 
-    fn new_token(&mut self) -> Token {
+    pub(super) fn new_token(&mut self) -> Token {
         let len = self.config.token_len.min(8);
         loop {
             let bytes = self.msg.rng.next_u64().to_be_bytes();
@@ -154,7 +156,7 @@ impl Endpoint {
                 non_tx: Some(0),
                 mid,
             };
-            let t = self.msg.initial_timeout(&self.config);
+            let t = self.msg.initial_timeout(now, peer, &self.config);
             self.msg
                 .schedule(now + t, TimerKind::Step { id, generation });
         }
@@ -312,7 +314,8 @@ impl Endpoint {
                     non_tx: Some(tx + 1),
                     mid,
                 };
-                let t = self.msg.initial_timeout(&self.config) * (1u32 << (tx + 1));
+                let peer = r.peer;
+                let t = self.msg.initial_timeout(now, peer, &self.config) * (1u32 << (tx + 1));
                 self.msg
                     .schedule(now + t, TimerKind::Step { id, generation });
             }
@@ -345,6 +348,7 @@ impl Endpoint {
 
     /// Removes a finished request and frees its NSTART slot.
     pub(super) fn finish(&mut self, now: Instant, id: u64) {
+        self.end_window(now, id);
         let Some(r) = self.client.requests.remove(&id) else {
             return;
         };
@@ -361,7 +365,7 @@ impl Endpoint {
             }
             // An observation gave its NSTART slot back when it was established.
             Waiting::Observing(_) => return,
-            Waiting::Response { .. } | Waiting::Collecting => {}
+            Waiting::Response { .. } | Waiting::Collecting | Waiting::Window => {}
         }
         self.release_slot(now, r.peer);
     }
@@ -399,6 +403,9 @@ impl Endpoint {
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
         };
+        if r.window.is_some() {
+            return self.on_window_response(now, id, msg, payload);
+        }
         // Is it the answer to the step in flight? Late answers to earlier steps are dropped.
         let current = match r.step {
             Step::Upload { offset } => msg
@@ -561,57 +568,21 @@ impl Endpoint {
             };
             return self.send_step(now, id);
         }
-        if r.received + payload.len() > limit {
-            return self.fail(now, id, RequestError::TooLarge { limit });
-        }
-        if b2.more && payload.len() != b2.size() {
-            return self.fail(
-                now,
-                id,
-                RequestError::Protocol("Block2 payload size does not match SZX"),
-            );
-        }
-        let total = r
-            .first_options
-            .as_ref()
-            .and_then(|o| o.uint(OptionNumber::SIZE2))
-            .map(|v| v as usize);
-        let (stream, progress) = (r.req.stream, r.req.progress);
-        let before = r.received;
-        r.received += payload.len();
-        let done = r.received;
-        if stream && !b2.more && total.is_some_and(|t| t != done) {
-            return self.fail(
-                now,
-                id,
-                RequestError::Protocol("the body does not have the size Size2 announced"),
-            );
-        }
-        r.body.extend_from_slice(payload);
-        // A streamed body leaves in pieces of STREAM_PIECE bytes (and the rest at the end):
-        // one hand-over to the reader per piece, not per block.
-        if stream && (r.body.len() >= STREAM_PIECE || !b2.more) {
-            // The next piece gets its room at once rather than growing block by block.
-            let room = if b2.more { STREAM_PIECE + b2.size() } else { 0 };
-            let data = Bytes::from(std::mem::replace(&mut r.body, Vec::with_capacity(room)));
-            self.events.push_back(Event::BodyChunk {
-                id: RequestId(id),
-                offset: done - data.len(),
-                data,
-                total,
-            });
-        }
-        // Progress at most every 64 KiB (and at the end), so watching costs nothing.
-        if progress && (before >> 16 != done >> 16 || !b2.more) {
-            self.events.push_back(Event::Progress {
-                id: RequestId(id),
-                done,
-                total,
-            });
+        if let Err(e) = r.append(id, payload, b2.more, b2.size(), limit, &mut self.events) {
+            return self.fail(now, id, e);
         }
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
         };
+        if b2.more && b2.num == 0 && r.may_window() {
+            let size2 = r
+                .first_options
+                .as_ref()
+                .and_then(|o| o.uint(OptionNumber::SIZE2));
+            if let Some(last) = size2.and_then(|t| (t as usize).checked_sub(1)) {
+                return self.start_window(now, id, b2.szx, (last / b2.size()) as u32);
+            }
+        }
         if b2.more {
             let num = (r.received / b2.size()) as u32;
             r.step = Step::Download { num, szx: b2.szx };

@@ -16,7 +16,8 @@ use bytes::Bytes;
 
 use super::congestion::Controller;
 use super::message::Outbox;
-use super::types::{Request, Response};
+use super::types::{Event, Request, RequestError, RequestId, Response, Transfer};
+use super::window::Window;
 
 use crate::msg::{BlockHead, BlockOpt, Message, OptionNumber, Options, Outgoing, Token, Type};
 use crate::peer_key::{FastMap, PeerKey};
@@ -50,6 +51,8 @@ pub(super) enum Waiting {
     Observing(u32),
     /// A multicast request collecting responses until its deadline.
     Collecting,
+    /// A windowed download's block requests are in flight (see `window`).
+    Window,
 }
 
 pub(super) struct ClientRequest {
@@ -79,6 +82,9 @@ pub(super) struct ClientRequest {
     pub(super) ack_timer: Option<Instant>,
     /// The request's options encoded around Block2, for the blocks of a download.
     pub(super) block_head: Option<BlockHead>,
+    /// A windowed download in progress, and when its armed timer fires.
+    pub(super) window: Option<Window>,
+    pub(super) window_timer: Option<Instant>,
 }
 
 impl ClientRequest {
@@ -87,12 +93,14 @@ impl ClientRequest {
     /// encoded from the request in place.
     pub(super) fn send_step(&mut self, mid: u16, outbox: &mut Outbox) {
         let block = |num, more, szx| BlockOpt { num, more, szx }.as_uint();
-        let ty = if self.req.confirmable {
+        // A windowed download's block requests are NON: their loss is found and repaired
+        // by the window, not by CON retransmission.
+        let ty = if self.req.confirmable && self.window.is_none() {
             Type::Con
         } else {
             Type::Non
         };
-        let mut uints = [(OptionNumber(0), 0); 2];
+        let mut uints = [(OptionNumber(0), 0); 3];
         let mut set = 0;
         let payload: &[u8] = match self.step {
             Step::Download { num, szx } => {
@@ -110,8 +118,14 @@ impl ClientRequest {
             }
             Step::Whole => {
                 if let (Some(szx), false) = (self.req.block_szx, self.user_block2) {
-                    uints[0] = (OptionNumber::BLOCK2, block(0, false, szx));
-                    set = 1;
+                    uints[set] = (OptionNumber::BLOCK2, block(0, false, szx));
+                    set += 1;
+                }
+                if self.may_window() {
+                    // RFC 7959 §4: Size2 0 asks for the size, which a window needs to
+                    // know how many blocks to ask for.
+                    uints[set] = (OptionNumber::SIZE2, 0);
+                    set += 1;
                 }
                 &self.req.payload
             }
@@ -142,6 +156,72 @@ impl ClientRequest {
             payload,
         };
         outbox.send(self.peer, &msg);
+    }
+
+    /// Appends the next block of a download (`more`: not the last; `size`: the block
+    /// size) to the body, and queues the stream pieces and progress events it completes.
+    pub(super) fn append(
+        &mut self,
+        id: u64,
+        payload: &[u8],
+        more: bool,
+        size: usize,
+        limit: usize,
+        events: &mut VecDeque<Event>,
+    ) -> Result<(), RequestError> {
+        if self.received + payload.len() > limit {
+            return Err(RequestError::TooLarge { limit });
+        }
+        if more && payload.len() != size {
+            return Err(RequestError::Protocol(
+                "Block2 payload size does not match SZX",
+            ));
+        }
+        let total = self
+            .first_options
+            .as_ref()
+            .and_then(|o| o.uint(OptionNumber::SIZE2))
+            .map(|v| v as usize);
+        let (stream, progress) = (self.req.stream, self.req.progress);
+        let before = self.received;
+        self.received += payload.len();
+        let done = self.received;
+        if !more && total.is_some_and(|t| t != done) && (stream || self.window.is_some()) {
+            return Err(RequestError::Protocol(
+                "the body does not have the size Size2 announced",
+            ));
+        }
+        self.body.extend_from_slice(payload);
+        // A streamed body leaves in pieces of STREAM_PIECE bytes (and the rest at the end):
+        // one hand-over to the reader per piece, not per block.
+        if stream && (self.body.len() >= STREAM_PIECE || !more) {
+            // The next piece gets its room at once rather than growing block by block.
+            let room = if more { STREAM_PIECE + size } else { 0 };
+            let data = Bytes::from(std::mem::replace(&mut self.body, Vec::with_capacity(room)));
+            events.push_back(Event::BodyChunk {
+                id: RequestId(id),
+                offset: done - data.len(),
+                data,
+                total,
+            });
+        }
+        // Progress at most every 64 KiB (and at the end), so watching costs nothing.
+        if progress && (before >> 16 != done >> 16 || !more) {
+            events.push_back(Event::Progress {
+                id: RequestId(id),
+                done,
+                total,
+            });
+        }
+        Ok(())
+    }
+
+    /// Whether a response in blocks may be fetched with a window.
+    pub(super) fn may_window(&self) -> bool {
+        self.req.transfer == Transfer::Window
+            && !self.user_block2
+            && !self.observe
+            && !self.req.multicast
     }
 
     pub(super) fn step_has_block_option(&self) -> bool {
@@ -184,6 +264,13 @@ impl ClientLayer {
         self.requests
             .get(&id)
             .is_some_and(|r| r.ack_timer == Some(at))
+    }
+
+    /// Whether request `id`'s window timer is the one armed for `at`.
+    pub(super) fn window_timer_is(&self, id: u64, at: Instant) -> bool {
+        self.requests
+            .get(&id)
+            .is_some_and(|r| r.window_timer == Some(at))
     }
 
     /// Whether request `id` is still at step `generation`.

@@ -12,11 +12,12 @@ use bytes::{Bytes, BytesMut};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
 
-use super::types::Transmit;
+use super::congestion::{Bbr, RttEstimator};
+use super::types::{PathStats, Transmit};
 use crate::config::EndpointConfig;
 use crate::dedup::Dedup;
 use crate::msg::{Message, Outgoing};
-use crate::peer_key::{FastMap, MidKey};
+use crate::peer_key::{FastMap, MidKey, PeerKey};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub(super) enum TimerKind {
@@ -34,6 +35,11 @@ pub(super) enum TimerKind {
     Step {
         id: u64,
         generation: u32,
+    },
+    /// The loss, probe or pacing timer of a windowed download, armed at `at`.
+    Window {
+        id: u64,
+        at: Instant,
     },
     Deadline {
         id: u64,
@@ -59,6 +65,8 @@ pub(super) struct OutCon {
     data: Option<Bytes>,
     /// Retransmissions so far.
     pub(super) tx: u8,
+    /// When it was first sent (its round trip is measured from there).
+    pub(super) first_sent: Instant,
     timeout: Duration,
     /// When it is sent again (or given up) unless acknowledged.
     at: Instant,
@@ -121,8 +129,32 @@ pub(super) enum Due {
     GaveUp,
 }
 
+/// Paths remembered at most; past it, those without requests in flight are forgotten.
+const MAX_PATHS: usize = 4096;
+
+/// What the endpoint knows of the path to one peer: its round-trip estimate, the
+/// congestion controller of its windowed transfers, and their counters.
+pub(super) struct Path {
+    pub(super) rtt: RttEstimator,
+    pub(super) bbr: Option<Bbr>,
+    pub(super) stats: PathStats,
+}
+
+impl Path {
+    /// The statistics with the current estimate.
+    pub(super) fn stats(&self) -> PathStats {
+        PathStats {
+            srtt: self.rtt.srtt(),
+            rttvar: self.rtt.rttvar(),
+            min_rtt: self.rtt.min(),
+            ..self.stats
+        }
+    }
+}
+
 /// The message layer's state.
 pub(super) struct MessageLayer {
+    pub(super) paths: FastMap<PeerKey, Path>,
     pub(super) rng: ChaCha8Rng,
     next_mid: u16,
     timer_seq: u64,
@@ -137,6 +169,7 @@ impl MessageLayer {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let next_mid = rng.next_u32() as u16;
         Self {
+            paths: FastMap::default(),
             rng,
             next_mid,
             timer_seq: 0,
@@ -157,14 +190,60 @@ impl MessageLayer {
         self.timers.push(Reverse((at, self.timer_seq, kind)));
     }
 
-    /// ACK_TIMEOUT scaled by a uniform random factor in [1, ACK_RANDOM_FACTOR].
-    pub(super) fn initial_timeout(&mut self, config: &EndpointConfig) -> Duration {
+    /// The path to `peer`, created if new.
+    pub(super) fn path(&mut self, now: Instant, peer: SocketAddr) -> &mut Path {
+        if self.paths.len() >= MAX_PATHS && !self.paths.contains_key(&PeerKey(peer)) {
+            self.paths
+                .retain(|_, p| p.bbr.as_ref().is_some_and(|b| b.in_flight() > 0));
+        }
+        self.paths.entry(PeerKey(peer)).or_insert_with(|| Path {
+            rtt: RttEstimator::new(now),
+            bbr: None,
+            stats: PathStats::default(),
+        })
+    }
+
+    /// The timeout of a CON (or a NON request) to `peer`: the path's estimate (ACK_TIMEOUT
+    /// before one exists) scaled by a uniform random factor in [1, ACK_RANDOM_FACTOR].
+    pub(super) fn initial_timeout(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        config: &EndpointConfig,
+    ) -> Duration {
+        let base = self
+            .paths
+            .get(&PeerKey(peer))
+            .map_or(config.ack_timeout, |p| {
+                p.rtt.con_timeout(now, config.ack_timeout)
+            });
         let unit = (self.rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
         let spread = (config.ack_random_factor - 1.0).max(0.0);
-        let jitter = config.ack_timeout.as_secs_f64() * 1e9 * spread * unit;
+        let jitter = base.as_secs_f64() * 1e9 * spread * unit;
         // Whole nanoseconds added, rather than Duration::mul_f64's checked conversion of
         // the product: this runs for every CON of a transfer.
-        config.ack_timeout + Duration::from_nanos(jitter as u64)
+        base + Duration::from_nanos(jitter as u64)
+    }
+
+    /// An exchange with `peer` first sent at `first_sent` was acknowledged at `now` after
+    /// `tx` retransmissions: a round-trip sample, strong if it was sent once, weak
+    /// (CoCoA) if sent at most three times, none otherwise.
+    pub(super) fn on_acknowledged(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        first_sent: Instant,
+        tx: u8,
+    ) {
+        if tx <= 2 {
+            let rtt = now.saturating_duration_since(first_sent);
+            self.path(now, peer).rtt.on_sample(now, rtt, tx == 0);
+        }
+    }
+
+    /// Counts a retransmission to `peer`.
+    fn count_retransmission(&mut self, now: Instant, peer: SocketAddr) {
+        self.path(now, peer).stats.retransmissions += 1;
     }
 
     /// Sends a message that goes out once ([`Outbox::send`]).
@@ -202,7 +281,7 @@ impl MessageLayer {
         data: Option<Bytes>,
         config: &EndpointConfig,
     ) -> Instant {
-        let timeout = self.initial_timeout(config);
+        let timeout = self.initial_timeout(now, peer, config);
         let at = now + timeout;
         let retransmits = data.is_some();
         self.exchanges.insert(
@@ -210,6 +289,7 @@ impl MessageLayer {
             OutCon {
                 data,
                 tx: 0,
+                first_sent: now,
                 timeout,
                 at,
                 purpose,
@@ -240,7 +320,9 @@ impl MessageLayer {
             x.tx += 1;
             x.timeout *= 2;
             x.at = now + x.timeout;
-            Due::Resend(x.at)
+            let at = x.at;
+            self.count_retransmission(now, peer);
+            Due::Resend(at)
         } else {
             self.exchanges.remove(&key);
             Due::GaveUp
@@ -272,6 +354,7 @@ impl MessageLayer {
             let (at, tx) = (x.at, x.tx);
             self.outbox.queue.push_back(Transmit { peer, data });
             self.schedule(at, TimerKind::Retransmit { peer, mid, tx });
+            self.count_retransmission(now, peer);
             return None;
         }
         self.exchanges.remove(&MidKey(peer, mid)).map(|x| x.purpose)

@@ -29,10 +29,12 @@
 mod client;
 mod client_state;
 mod congestion;
+mod download;
 mod message;
 mod server;
 mod server_state;
 mod types;
+mod window;
 
 use std::cmp::Reverse;
 use std::collections::VecDeque;
@@ -40,14 +42,14 @@ use std::net::SocketAddr;
 use std::time::Instant;
 
 pub use types::{
-    Event, IncomingId, IncomingRequest, ObservationId, Request, RequestError, RequestId, Response,
-    Transmit,
+    Event, IncomingId, IncomingRequest, ObservationId, PathStats, Request, RequestError, RequestId,
+    Response, Transfer, Transmit,
 };
 
 use crate::config::EndpointConfig;
 use crate::dedup::{Fingerprint, Seen};
 use crate::msg::{Message, Reaction, Type};
-use crate::peer_key::MidKey;
+use crate::peer_key::{MidKey, PeerKey};
 use client_state::{ClientLayer, Waiting};
 use message::{MessageLayer, Purpose, TimerKind};
 use server_state::ServerLayer;
@@ -109,6 +111,7 @@ impl Endpoint {
                 .is_some_and(|x| x.tx == tx),
             TimerKind::RequestAck { id, at } => self.client.ack_timer_is(id, at),
             TimerKind::Step { id, generation } => self.client.step_is(id, generation),
+            TimerKind::Window { id, at } => self.client.window_timer_is(id, at),
             TimerKind::Deadline { id } => self.client.requests.contains_key(&id),
             TimerKind::SeparateAck { id } => self.server.awaits_separate_ack(id),
         }
@@ -117,6 +120,12 @@ impl Endpoint {
     /// The next event.
     pub fn poll_event(&mut self) -> Option<Event> {
         self.events.pop_front()
+    }
+
+    /// What this endpoint knows of the path to `peer` (its round trip, what its windowed
+    /// transfers counted), if it has exchanged anything with it.
+    pub fn path_stats(&self, peer: SocketAddr) -> Option<PathStats> {
+        self.msg.paths.get(&PeerKey(peer)).map(message::Path::stats)
     }
 
     /// Requests in progress or queued (client side).
@@ -140,6 +149,7 @@ impl Endpoint {
                 }
                 TimerKind::RequestAck { id, at } => self.on_request_ack_timer(now, id, at),
                 TimerKind::Step { id, generation } => self.on_step_timer(now, id, generation),
+                TimerKind::Window { id, at } => self.on_window_timer(now, id, at),
                 TimerKind::Deadline { id } => match self.client.waiting(id) {
                     Some(Waiting::Collecting) => {
                         self.finish(now, id);
@@ -229,6 +239,7 @@ impl Endpoint {
             }
             return;
         };
+        self.msg.on_acknowledged(now, peer, x.first_sent, x.tx);
         match x.purpose {
             Purpose::Ping(id) => self.events.push_back(Event::Pong { id: RequestId(id) }),
             Purpose::SeparateResponse => {}

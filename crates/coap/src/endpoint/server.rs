@@ -372,7 +372,11 @@ impl Endpoint {
         let num = block2.map_or(0, |b| b.num);
         let body = match response.source.take() {
             Some(source) => source,
-            None if response.payload.len() <= BlockOpt::size_of(szx) && num == 0 => {
+            // An error answers whatever block was asked for (RFC 7959's blocks are of the
+            // representation a success carries).
+            None if response.payload.len() <= BlockOpt::size_of(szx)
+                && (num == 0 || !response.code.is_success()) =>
+            {
                 return response;
             }
             None => Source::new(std::mem::take(&mut response.payload)),

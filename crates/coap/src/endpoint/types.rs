@@ -57,6 +57,47 @@ pub struct Request {
     /// of them (an ETag that changed mid-transfer, a missing block, a total that does not
     /// match Size2) ends in [`Event::RequestFailed`], and the chunks must be discarded.
     pub stream: bool,
+    /// How a response sent in blocks is fetched (see [`Transfer`]).
+    pub transfer: Transfer,
+}
+
+/// How a client fetches a response that comes in blocks (RFC 7959 Block2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Transfer {
+    /// One block at a time, each asked for when the one before arrived (RFC 7959's
+    /// stop-and-wait, NSTART 1).
+    StopAndWait,
+    /// After block 0, many blocks in flight at once as NON requests, admitted and paced
+    /// by the peer's congestion controller, lost ones asked for again within about a
+    /// round trip. Needs Size2 in block 0's response (the first request asks for it) and
+    /// a server that serves any block on request (RFC 7959 §2.4); otherwise, or when the
+    /// server refuses a block, the transfer goes on stop-and-wait.
+    #[default]
+    Window,
+}
+
+/// What an endpoint knows of the path to one peer: its round-trip estimate and what its
+/// windowed transfers counted ([`Endpoint::path_stats`](crate::Endpoint::path_stats)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PathStats {
+    /// The smoothed round trip (RFC 6298 SRTT), if measured.
+    pub srtt: Option<Duration>,
+    /// Its variation (RTTVAR).
+    pub rttvar: Duration,
+    /// The smallest round trip seen.
+    pub min_rtt: Option<Duration>,
+    /// CON messages sent again after their timeout.
+    pub retransmissions: u64,
+    /// Block requests of windowed transfers, including those sent again.
+    pub block_requests: u64,
+    /// Of those, declared lost (the block asked for again).
+    pub blocks_lost: u64,
+    /// Blocks that arrived after their request had been declared lost.
+    pub blocks_late: u64,
+    /// Blocks that arrived twice.
+    pub blocks_duplicate: u64,
+    /// The most block requests in flight at once.
+    pub max_window: u64,
 }
 
 impl Request {
@@ -74,6 +115,7 @@ impl Request {
             multicast: false,
             progress: false,
             stream: false,
+            transfer: Transfer::default(),
         }
     }
 

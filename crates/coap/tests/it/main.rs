@@ -5,3 +5,4 @@ mod codec;
 mod observe;
 mod reliability;
 mod sim;
+mod window;

@@ -46,6 +46,11 @@ pub(crate) struct LinkConfig {
     pub(crate) mtu: usize,
     /// Seed of the link's randomness.
     pub(crate) seed: u64,
+    /// Each node's uplink rate in bytes per second (`None`: unlimited); what a node sends
+    /// is serialized at this rate behind what it sent before.
+    pub(crate) rate: Option<u64>,
+    /// Bytes a node's uplink holds waiting to be serialized; beyond it, drop-tail.
+    pub(crate) queue_bytes: usize,
 }
 
 impl Default for LinkConfig {
@@ -57,6 +62,8 @@ impl Default for LinkConfig {
             jitter: Duration::ZERO,
             mtu: 1280,
             seed: 1,
+            rate: None,
+            queue_bytes: usize::MAX,
         }
     }
 }
@@ -166,6 +173,10 @@ pub(crate) struct Sim {
     pub(crate) log: Vec<Record>,
     /// Whether to keep `log` (large transfers turn it off).
     pub(crate) record: bool,
+    /// Per node: when its uplink is free, and the departures it holds (instant, bytes).
+    uplinks: Vec<(Instant, std::collections::VecDeque<(Instant, usize)>)>,
+    /// Datagrams dropped because an uplink queue was full.
+    pub(crate) overflows: u64,
 }
 
 impl Sim {
@@ -184,6 +195,8 @@ impl Sim {
             delayed_responses: Vec::new(),
             log: Vec::new(),
             record: true,
+            uplinks: Vec::new(),
+            overflows: 0,
         }
     }
 
@@ -198,6 +211,7 @@ impl Sim {
             events: Vec::new(),
             requests_seen: 0,
         });
+        self.uplinks.push((self.now, Default::default()));
         n
     }
 
@@ -263,6 +277,10 @@ impl Sim {
                 if lost {
                     continue;
                 }
+                let Some(departs) = self.serialize(i, t.data.len()) else {
+                    self.overflows += 1;
+                    continue;
+                };
                 for to in targets {
                     let copies = if self.unit() < self.link.duplicate {
                         2
@@ -272,7 +290,7 @@ impl Sim {
                     for _ in 0..copies {
                         let jitter = self.link.jitter.mul_f64(self.unit());
                         self.seq += 1;
-                        let at = self.now + self.link.delay + jitter;
+                        let at = departs + self.link.delay + jitter;
                         let data = t.data.clone();
                         self.in_flight
                             .push(Reverse((at, self.seq, to, from, multicast, data)));
@@ -280,6 +298,28 @@ impl Sim {
                 }
             }
         }
+    }
+
+    /// When a datagram of `len` bytes sent now by node `i` leaves its uplink, or `None`
+    /// if the uplink's queue is full.
+    fn serialize(&mut self, i: usize, len: usize) -> Option<Instant> {
+        let Some(rate) = self.link.rate else {
+            return Some(self.now);
+        };
+        let now = self.now;
+        let (free, held) = &mut self.uplinks[i];
+        while held.front().is_some_and(|(at, _)| *at <= now) {
+            held.pop_front();
+        }
+        let queued: usize = held.iter().map(|(_, n)| n).sum();
+        if queued + len > self.link.queue_bytes {
+            return None;
+        }
+        let start = (*free).max(now);
+        let departs = start + Duration::from_nanos((len as u64 * 1_000_000_000).div_ceil(rate));
+        *free = departs;
+        held.push_back((departs, len));
+        Some(departs)
     }
 
     fn on_request(&mut self, i: usize, req: IncomingRequest) {

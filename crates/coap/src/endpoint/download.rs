@@ -1,0 +1,296 @@
+//! The behaviour of a windowed Block2 download (its state is `window::Window`): started
+//! when block 0 arrives with Size2, fed by the responses to its block requests, driven by
+//! its timer, and handed back to stop-and-wait when the server does not play along.
+
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+
+use super::Endpoint;
+use super::client_state::{Step, Waiting};
+use super::congestion::Bbr;
+use super::message::TimerKind;
+use super::types::{RequestError, Response, Transfer};
+use super::window::{Arrival, Window};
+use crate::msg::{BlockOpt, Message, OptionNumber};
+
+impl Endpoint {
+    /// Block 0 of request `id` arrived (block size exponent `szx`, last block `last`):
+    /// the rest comes through a window.
+    pub(super) fn start_window(&mut self, now: Instant, id: u64, szx: u8, last: u32) {
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        r.window = Some(Window::new(now, last));
+        r.waiting = Waiting::Window;
+        r.step = Step::Download { num: 1, szx };
+        r.generation += 1;
+        self.window_pump(now, id);
+    }
+
+    /// Sends the block requests the controller admits now, then arms the window's timer.
+    pub(super) fn window_pump(&mut self, now: Instant, id: u64) {
+        let mut paced = None;
+        loop {
+            let Some(r) = self.client.requests.get(&id) else {
+                return;
+            };
+            let Some(num) = r.window.as_ref().and_then(Window::next_block) else {
+                break;
+            };
+            let peer = r.peer;
+            let path = self.msg.path(now, peer);
+            let bbr = path.bbr.get_or_insert_with(|| Bbr::new(now));
+            if bbr.in_flight() >= bbr.window() {
+                break;
+            }
+            if let Err(at) = bbr.pace(now) {
+                paced = Some(at);
+                break;
+            }
+            let state = bbr.on_send(now);
+            let mid = self.msg.next_mid();
+            let Some(r) = self.client.requests.get_mut(&id) else {
+                return;
+            };
+            let Step::Download { szx, .. } = r.step else {
+                return;
+            };
+            r.step = Step::Download { num, szx };
+            r.send_step(mid, &mut self.msg.outbox);
+            if let Some(w) = r.window.as_mut() {
+                w.on_sent(num, state);
+            }
+        }
+        self.arm_window(now, id, paced);
+    }
+
+    /// The round trip the loss delay grows from (`SRTT + 4 RTTVAR`) and the probe
+    /// timeout, from the path.
+    fn window_timing(&mut self, now: Instant, id: u64) -> Option<(Duration, Duration)> {
+        let peer = self.client.requests.get(&id)?.peer;
+        let default = self.config.ack_timeout;
+        let rtt = &self.msg.path(now, peer).rtt;
+        let base = rtt.srtt().map_or(default, |srtt| srtt + rtt.rttvar() * 4);
+        Some((base, rtt.pto(default)))
+    }
+
+    /// Arms the window's timer for its loss or probe time, or `paced` (when pacing
+    /// holds back a request) if earlier.
+    fn arm_window(&mut self, now: Instant, id: u64, paced: Option<Instant>) {
+        let Some((_, pto)) = self.window_timing(now, id) else {
+            return;
+        };
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let Some(w) = &r.window else { return };
+        let at = match (w.timer(pto), paced) {
+            (Some(a), Some(b)) => a.min(b),
+            (a, b) => match a.or(b) {
+                Some(at) => at,
+                None => return,
+            },
+        };
+        if r.window_timer
+            .is_some_and(|armed| armed <= at && armed > now)
+        {
+            return;
+        }
+        r.window_timer = Some(at);
+        self.msg.schedule(at, TimerKind::Window { id, at });
+    }
+
+    /// The window's timer: declares lost what is late, gives up after MAX_TRANSMIT_SPAN
+    /// without a block, and sends what may go now.
+    pub(super) fn on_window_timer(&mut self, now: Instant, id: u64, at: Instant) {
+        let Some((rtt, pto)) = self.window_timing(now, id) else {
+            return;
+        };
+        let give_up = self.config.max_transmit_span();
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        if r.window_timer != Some(at) {
+            return;
+        }
+        r.window_timer = None;
+        let peer = r.peer;
+        let Some(w) = r.window.as_mut() else { return };
+        if now.saturating_duration_since(w.heard) > give_up {
+            return self.fail(now, id, RequestError::Timeout);
+        }
+        let lost = w.on_timer(now, rtt, pto);
+        if let Some(bbr) = self.msg.path(now, peer).bbr.as_mut() {
+            (0..lost).for_each(|_| bbr.on_lost());
+        }
+        self.window_pump(now, id);
+    }
+
+    /// A response to one of the window's block requests.
+    pub(super) fn on_window_response(
+        &mut self,
+        now: Instant,
+        id: u64,
+        msg: &Message,
+        payload: &[u8],
+    ) {
+        let limit = self.config.limits.client_body_bytes;
+        let Some((rtt, _)) = self.window_timing(now, id) else {
+            return;
+        };
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let Step::Download { szx, .. } = r.step else {
+            return;
+        };
+        let b2 = msg
+            .options
+            .block2()
+            .filter(|b| msg.code.is_success() && b.szx == szx);
+        let Some(b2) = b2 else {
+            // An error, or blocks of another size: the server does not serve blocks out
+            // of order as asked. The rest goes stop-and-wait, which handles either.
+            return self.window_fallback(now, id);
+        };
+        if msg.options.etag() != r.etag.as_deref() {
+            // RFC 7959 §2.4: the representation changed; start over (a few times at
+            // most), or fail a streamed body whose pieces are gone already.
+            if r.restarts >= 4 || r.req.stream {
+                return self.fail(now, id, RequestError::RepresentationChanged);
+            }
+            self.end_window(now, id);
+            let Some(r) = self.client.requests.get_mut(&id) else {
+                return;
+            };
+            r.restarts += 1;
+            r.body.clear();
+            r.received = 0;
+            r.first_options = None;
+            r.step = Step::Download { num: 0, szx };
+            return self.send_step(now, id);
+        }
+        let total = r
+            .first_options
+            .as_ref()
+            .and_then(|o| o.uint(OptionNumber::SIZE2))
+            .map_or(0, |t| t as usize);
+        let size = b2.size();
+        let expected = total.saturating_sub(b2.offset()).min(size);
+        let peer = r.peer;
+        let Some(w) = r.window.as_mut() else { return };
+        let mut lost = 0;
+        let (arrival, sample) = w.on_block(now, b2.num, rtt, || lost += 1);
+        if arrival != Arrival::Duplicate && payload.len() != expected {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("the block does not have the size Size2 implies"),
+            );
+        }
+        let path = self.msg.path(now, peer);
+        match sample {
+            Some((state, rtt)) => {
+                if let Some(rtt) = rtt {
+                    path.rtt.on_sample(now, rtt, true);
+                }
+                if let Some(bbr) = path.bbr.as_mut() {
+                    bbr.on_delivered(now, state, true, rtt);
+                }
+            }
+            None if arrival != Arrival::Duplicate => {
+                if let Some(bbr) = path.bbr.as_mut() {
+                    bbr.on_late_delivery(now);
+                }
+            }
+            None => {}
+        }
+        if let Some(bbr) = path.bbr.as_mut() {
+            (0..lost).for_each(|_| bbr.on_lost());
+        }
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        match arrival {
+            Arrival::Duplicate => return,
+            Arrival::Ahead => {
+                if let Some(w) = r.window.as_mut() {
+                    w.keep(b2.num, payload);
+                }
+            }
+            Arrival::Next => {
+                let mut block = None;
+                let mut offset = b2.offset();
+                loop {
+                    let data = block.as_deref().unwrap_or(payload);
+                    let more = offset + data.len() < total;
+                    if let Err(e) = r.append(id, data, more, size, limit, &mut self.events) {
+                        return self.fail(now, id, e);
+                    }
+                    offset += data.len();
+                    block = r.window.as_mut().and_then(Window::delivered);
+                    if block.is_none() {
+                        break;
+                    }
+                }
+            }
+        }
+        if r.window.as_ref().is_some_and(Window::complete) {
+            self.end_window(now, id);
+            let Some(r) = self.client.requests.get_mut(&id) else {
+                return;
+            };
+            let body = Bytes::from(std::mem::take(&mut r.body));
+            let options = r.first_options.take().unwrap_or_default();
+            let response = Response::with_parts(msg.code, options, body);
+            return self.complete(now, id, response);
+        }
+        self.window_pump(now, id);
+    }
+
+    /// The server refused or mangled a block asked for out of order: the download goes
+    /// on stop-and-wait from the next block to deliver (blocks that arrived ahead are
+    /// asked for again).
+    fn window_fallback(&mut self, now: Instant, id: u64) {
+        self.end_window(now, id);
+        // A new token, so that late answers to the window's requests (a refusal without
+        // Block2 among them) are not taken for the answer to the next step.
+        let token = self.new_token();
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let Step::Download { szx, .. } = r.step else {
+            return;
+        };
+        self.client.by_token.remove(&r.token);
+        self.client.by_token.insert(token, id);
+        r.token = token;
+        r.req.transfer = Transfer::StopAndWait;
+        r.step = Step::Download {
+            num: (r.received / BlockOpt::size_of(szx)) as u32,
+            szx,
+        };
+        self.send_step(now, id);
+    }
+
+    /// Ends request `id`'s window, if it has one: its requests in flight are forgotten by
+    /// the controller and its counters added to the path's.
+    pub(super) fn end_window(&mut self, now: Instant, id: u64) {
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let Some(mut w) = r.window.take() else { return };
+        r.window_timer = None;
+        let path = self.msg.path(now, r.peer);
+        if let Some(bbr) = path.bbr.as_mut() {
+            bbr.forget(w.abandon());
+        }
+        let (s, t) = (&mut path.stats, w.stats);
+        s.block_requests += t.requests;
+        s.blocks_lost += t.lost;
+        s.blocks_late += t.late;
+        s.blocks_duplicate += t.duplicates;
+        s.max_window = s.max_window.max(t.max_window);
+    }
+}

@@ -1,0 +1,273 @@
+//! Windowed Block2 downloads in the simulator: bit-exact under loss, duplication and
+//! reordering, deterministic per seed, faster than stop-and-wait, fair to each other, and
+//! back to stop-and-wait with servers that do not serve blocks out of order.
+
+use std::cell::Cell;
+use std::rc::Rc;
+use std::time::Duration;
+
+use bytes::Bytes;
+use coap::{Code, Event, OptionNumber, PathStats, Request, Response, Transfer};
+
+use crate::blockwise::{body, cfg, serve};
+use crate::sim::{Handler, LinkConfig, Reply, Sim};
+
+const TEN_MB: usize = 10_032_012;
+
+/// A 20 ms round trip (10 ms each way), with `loss` each way and, if lossy, duplicates
+/// and up to 4 ms of reordering jitter.
+fn link(loss: f64, seed: u64) -> LinkConfig {
+    LinkConfig {
+        loss,
+        duplicate: loss / 4.0,
+        delay: Duration::from_millis(10),
+        jitter: if loss > 0.0 {
+            Duration::from_millis(4)
+        } else {
+            Duration::ZERO
+        },
+        seed,
+        ..LinkConfig::default()
+    }
+}
+
+/// What one download did: the simulated time it took, the body, the path's counters.
+struct Outcome {
+    elapsed: Duration,
+    body: Bytes,
+    stats: PathStats,
+    /// Every datagram, as `Record::line` prints it (when recorded).
+    trace: Vec<String>,
+}
+
+fn download(link: LinkConfig, data: &Bytes, transfer: Transfer, record: bool) -> Outcome {
+    let mut sim = Sim::new(link);
+    sim.record = record;
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    let mut req = Request::new(Code::GET, "/big");
+    req.transfer = transfer;
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(3600)), "no outcome");
+    let body = match &sim.nodes[c].events[0].1 {
+        Event::Response { response, .. } => response.payload.clone(),
+        other => panic!("expected a response, got {other:?}"),
+    };
+    Outcome {
+        elapsed: sim.elapsed(),
+        body,
+        stats: sim.nodes[c].ep.path_stats(server).expect("a path"),
+        trace: sim.log.iter().map(|r| r.line()).collect(),
+    }
+}
+
+#[test]
+fn ten_mb_arrive_bit_exact_at_0_2_5_and_20_percent_loss_with_duplicates_and_reordering() {
+    let data = body(TEN_MB, 7);
+    for loss in [0.0, 0.02, 0.05, 0.20] {
+        let o = download(link(loss, 11), &data, Transfer::Window, false);
+        assert!(o.body == data, "body differs at {loss} loss");
+        if loss > 0.0 {
+            assert!(o.stats.blocks_lost > 0, "loss {loss} found no lost block");
+        }
+    }
+}
+
+#[test]
+fn a_seed_gives_the_same_transfer_every_time() {
+    let data = body(300_000, 3);
+    let a = download(link(0.05, 5), &data, Transfer::Window, true);
+    let b = download(link(0.05, 5), &data, Transfer::Window, true);
+    assert!(a.body == data);
+    assert_eq!(a.elapsed, b.elapsed);
+    assert_eq!(a.trace, b.trace);
+    assert_eq!(a.stats, b.stats);
+}
+
+#[test]
+fn the_window_is_an_order_of_magnitude_faster_than_stop_and_wait() {
+    let data = body(921_610, 9);
+    for loss in [0.0, 0.02] {
+        let window = download(link(loss, 2), &data, Transfer::Window, false);
+        let stop = download(link(loss, 2), &data, Transfer::StopAndWait, false);
+        assert!(window.body == data && stop.body == data);
+        assert!(
+            window.elapsed * 10 < stop.elapsed,
+            "at {loss} loss: window {:?}, stop-and-wait {:?}",
+            window.elapsed,
+            stop.elapsed
+        );
+    }
+}
+
+#[test]
+fn two_downloads_through_one_bottleneck_share_it() {
+    // 50 Mbit/s out of the server with a 64 KB drop-tail queue, 20 ms round trip.
+    let data = body(2_764_810, 4);
+    let mut sim = Sim::new(LinkConfig {
+        rate: Some(6_250_000),
+        queue_bytes: 64_000,
+        ..link(0.0, 8)
+    });
+    sim.record = false;
+    let clients = [sim.add(cfg(1), None), sim.add(cfg(3), None)];
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    for c in clients {
+        let mut req = Request::new(Code::GET, "/big");
+        req.progress = true;
+        sim.nodes[c].ep.request(now, server, req);
+    }
+    let finished = |sim: &Sim, c: usize| {
+        sim.nodes[c]
+            .events
+            .iter()
+            .any(|(_, e)| matches!(e, Event::Response { .. }))
+    };
+    assert!(sim.run_until(Duration::from_secs(60), |sim| {
+        clients.iter().any(|&c| finished(sim, c))
+    }));
+    let done = |c: usize| {
+        sim.nodes[c]
+            .events
+            .iter()
+            .filter_map(|(_, e)| match e {
+                Event::Progress { done, .. } => Some(*done),
+                _ => None,
+            })
+            .max()
+            .unwrap_or(0)
+    };
+    let (a, b) = (done(clients[0]), done(clients[1]));
+    let share = a as f64 / (a + b) as f64;
+    assert!(
+        (0.35..=0.65).contains(&share),
+        "shares {a} and {b} bytes when the first finished"
+    );
+    assert!(sim.run_until(Duration::from_secs(60), |sim| {
+        clients.iter().all(|&c| finished(sim, c))
+    }));
+    for c in clients {
+        match &sim.nodes[c].events.last().expect("an outcome").1 {
+            Event::Response { response, .. } => assert!(response.payload == data),
+            other => panic!("expected the body, got {other:?}"),
+        }
+    }
+}
+
+/// The window for a fixed seed, datagram by datagram: block 0's response is lost and
+/// its CON sent again after ACK_TIMEOUT (no estimate yet); then the initial window of 10
+/// NON requests goes at once, block 2's response is lost, and block 2 is asked for again
+/// one loss delay (`9/8 (SRTT + 4 RTTVAR)`) after its request, while the window has moved
+/// on to block 11.
+#[test]
+fn the_window_and_its_loss_timer_for_a_fixed_seed() {
+    let data = body(12_000, 1);
+    let o = download(link(0.15, 3), &data, Transfer::Window, true);
+    assert!(o.body == data);
+    let expected = [
+        "0 ms CON 0.01 mid=3506",
+        "11 ms ACK 2.05 mid=3506 b2=0/1/1024 LOST",
+        "2211 ms CON 0.01 mid=3506",
+        "2221 ms ACK 2.05 mid=3506 b2=0/1/1024",
+        "2232 ms NON 0.01 mid=3507 b2=1/0/1024",
+        "2232 ms NON 0.01 mid=3508 b2=2/0/1024",
+        "2232 ms NON 0.01 mid=3509 b2=3/0/1024",
+        "2232 ms NON 0.01 mid=3510 b2=4/0/1024",
+        "2232 ms NON 0.01 mid=3511 b2=5/0/1024",
+        "2232 ms NON 0.01 mid=3512 b2=6/0/1024",
+        "2232 ms NON 0.01 mid=3513 b2=7/0/1024",
+        "2232 ms NON 0.01 mid=3514 b2=8/0/1024",
+        "2232 ms NON 0.01 mid=3515 b2=9/0/1024",
+        "2232 ms NON 0.01 mid=3516 b2=10/0/1024",
+        "2243 ms NON 2.05 mid=7110 b2=8/1/1024",
+        "2243 ms NON 2.05 mid=7111 b2=2/1/1024 LOST",
+        "2244 ms NON 2.05 mid=7112 b2=7/1/1024",
+        "2244 ms NON 2.05 mid=7113 b2=5/1/1024",
+        "2244 ms NON 2.05 mid=7114 b2=1/1/1024",
+        "2245 ms NON 2.05 mid=7115 b2=4/1/1024",
+        "2245 ms NON 2.05 mid=7116 b2=9/1/1024",
+        "2245 ms NON 2.05 mid=7117 b2=6/1/1024",
+        "2245 ms NON 2.05 mid=7118 b2=10/1/1024",
+        "2246 ms NON 2.05 mid=7119 b2=3/1/1024",
+        "2255 ms NON 0.01 mid=3517 b2=11/0/1024",
+        "2267 ms NON 2.05 mid=7120 b2=11/0/1024",
+        "2273 ms NON 0.01 mid=3518 b2=2/0/1024",
+        "2285 ms NON 2.05 mid=7121 b2=2/1/1024",
+    ];
+    assert_eq!(o.trace, expected);
+    assert_eq!(o.elapsed.as_millis(), 2296);
+    let s = o.stats;
+    assert_eq!(s.srtt.map(|d| d.as_micros()), Some(23_744));
+    assert_eq!(s.rttvar.as_micros(), 2_374);
+    assert_eq!(
+        (
+            s.retransmissions,
+            s.block_requests,
+            s.blocks_lost,
+            s.max_window
+        ),
+        (1, 12, 1, 10)
+    );
+}
+
+#[test]
+fn a_server_that_serves_blocks_only_in_order_gets_stop_and_wait() {
+    // No store: every block request reaches the handler, which (as a server generating
+    // its body as it goes would) refuses a block beyond the next one it has.
+    let data = body(40_000, 5);
+    let served = data.clone();
+    let next = Rc::new(Cell::new(0u32));
+    let refused = Rc::new(Cell::new(0u32));
+    let (expected, refusals) = (next.clone(), refused.clone());
+    let handler: Handler = Box::new(move |req| {
+        let num = req.options.block2().map_or(0, |b| b.num);
+        if num > expected.get() {
+            refusals.set(refusals.get() + 1);
+            return Reply::Now(Response::diagnostic(
+                Code::REQUEST_ENTITY_INCOMPLETE,
+                "blocks in order only",
+            ));
+        }
+        expected.set(expected.get().max(num + 1));
+        let mut response = Response::new(Code::CONTENT).with_payload(served.clone());
+        response.options.set(OptionNumber::ETAG, *b"v1");
+        Reply::Now(response)
+    });
+    // Jitter reorders the window's requests on their way.
+    let mut sim = Sim::new(LinkConfig {
+        jitter: Duration::from_millis(4),
+        ..link(0.0, 1)
+    });
+    let c = sim.add(cfg(1), None);
+    let no_store = coap::EndpointConfig {
+        limits: coap::Limits {
+            block2_store_bytes: 0,
+            ..coap::Limits::default()
+        },
+        ..cfg(2)
+    };
+    let s = sim.add(no_store, Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/big"));
+    assert!(sim.run_to_event(c, Duration::from_secs(600)));
+    match &sim.nodes[c].events[0].1 {
+        Event::Response { response, .. } => {
+            assert_eq!(response.code, Code::CONTENT);
+            assert!(response.payload == data);
+            assert_eq!(
+                response.options.uint(OptionNumber::SIZE2),
+                Some(data.len() as u32)
+            );
+        }
+        other => panic!("expected the body, got {other:?}"),
+    }
+    assert!(refused.get() > 0, "the window asked out of order");
+    assert_eq!(next.get(), 40);
+}
