@@ -579,9 +579,10 @@ impl Endpoint {
                 .first_options
                 .as_ref()
                 .and_then(|o| o.uint(OptionNumber::SIZE2));
-            if let Some(last) = size2.and_then(|t| (t as usize).checked_sub(1)) {
-                return self.start_window(now, id, b2.szx, (last / b2.size()) as u32);
-            }
+            let last = size2
+                .and_then(|t| (t as usize).checked_sub(1))
+                .map(|end| (end / b2.size()) as u32);
+            return self.start_window(now, id, b2.szx, last);
         }
         if b2.more {
             let num = (r.received / b2.size()) as u32;

@@ -109,14 +109,15 @@ impl RttEstimator {
 
     /// The base timeout of a CON at `now` (before ACK_RANDOM_FACTOR's jitter):
     /// `SRTT + 4 RTTVAR`, at least 1 s (RFC 6298 (2.4): CON exchanges have no congestion
-    /// control of their own), at most 60 s; `default` (ACK_TIMEOUT) before any sample,
-    /// and moving back towards it by half every 30 s without a sample.
+    /// control of their own) or `default` if that is shorter (a configured ACK_TIMEOUT
+    /// below 1 s is the owner's choice), at most 60 s; `default` (ACK_TIMEOUT) before any
+    /// sample, and moving back towards it by half every 30 s without a sample.
     pub(super) fn con_timeout(&self, now: Instant, default: Duration) -> Duration {
         if self.samples == 0 {
             return default;
         }
-        let rto =
-            (self.srtt + self.rttvar * 4).clamp(Duration::from_secs(1), Duration::from_secs(60));
+        let floor = default.min(Duration::from_secs(1));
+        let rto = (self.srtt + self.rttvar * 4).clamp(floor, Duration::from_secs(60).max(floor));
         let idle = now.saturating_duration_since(self.last_sample);
         let kept = 0.5f64.powf(idle.as_secs_f64() / AGE_HALF_LIFE.as_secs_f64());
         let (rto, default) = (rto.as_secs_f64(), default.as_secs_f64());

@@ -12,12 +12,12 @@ use super::congestion::Bbr;
 use super::message::TimerKind;
 use super::types::{RequestError, Response, Transfer};
 use super::window::{Arrival, Window};
-use crate::msg::{BlockOpt, Message, OptionNumber};
+use crate::msg::{BlockOpt, Code, Message, OptionNumber};
 
 impl Endpoint {
-    /// Block 0 of request `id` arrived (block size exponent `szx`, last block `last`):
-    /// the rest comes through a window.
-    pub(super) fn start_window(&mut self, now: Instant, id: u64, szx: u8, last: u32) {
+    /// Block 0 of request `id` arrived (block size exponent `szx`, last block `last` if
+    /// Size2 told): the rest comes through a window.
+    pub(super) fn start_window(&mut self, now: Instant, id: u64, szx: u8, last: Option<u32>) {
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
         };
@@ -121,6 +121,12 @@ impl Endpoint {
             return self.fail(now, id, RequestError::Timeout);
         }
         let lost = w.on_timer(now, rtt, pto);
+        if w.probes >= 3 {
+            // Three probe timeouts in a row without a block: a server that ignores NON
+            // requests (or answers them as if they were CONs), or a path gone quiet. The
+            // rest goes stop-and-wait, with CONs and their retransmissions.
+            return self.window_fallback(now, id);
+        }
         if let Some(bbr) = self.msg.path(now, peer).bbr.as_mut() {
             (0..lost).for_each(|_| bbr.on_lost());
         }
@@ -150,6 +156,16 @@ impl Endpoint {
             .block2()
             .filter(|b| msg.code.is_success() && b.szx == szx);
         let Some(b2) = b2 else {
+            let size_unknown = r
+                .first_options
+                .as_ref()
+                .is_none_or(|o| o.uint(OptionNumber::SIZE2).is_none());
+            if size_unknown && matches!(msg.code, Code::BAD_OPTION | Code::BAD_REQUEST) {
+                // Without Size2 the window asks past the end until the last block
+                // arrives; such a request is refused (4.02, RFC 7959 §2.2; aiocoap says
+                // 4.00), and forgotten once the last block is known.
+                return;
+            }
             // An error, or blocks of another size: the server does not serve blocks out
             // of order as asked. The rest goes stop-and-wait, which handles either.
             return self.window_fallback(now, id);
@@ -175,14 +191,33 @@ impl Endpoint {
             .first_options
             .as_ref()
             .and_then(|o| o.uint(OptionNumber::SIZE2))
-            .map_or(0, |t| t as usize);
+            .map(|t| t as usize);
         let size = b2.size();
-        let expected = total.saturating_sub(b2.offset()).min(size);
         let peer = r.peer;
         let Some(w) = r.window.as_mut() else { return };
+        let mut forgotten = 0;
+        if !b2.more && w.last().is_none() {
+            forgotten = w.set_last(b2.num);
+        }
+        // The size a block must have: a whole block but for the last, which holds what
+        // Size2 leaves (at most a block, if the size is not known).
+        let size_ok = match (total, w.last()) {
+            (Some(total), _) => payload.len() == total.saturating_sub(b2.offset()).min(size),
+            (None, Some(last)) if b2.num == last => payload.len() <= size,
+            (None, _) => payload.len() == size,
+        };
+        if w.last()
+            .is_some_and(|last| b2.num <= last && b2.more == (b2.num == last))
+        {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("Block2 says more after the last block, or none before"),
+            );
+        }
         let mut lost = 0;
         let (arrival, sample) = w.on_block(now, b2.num, rtt, || lost += 1);
-        if arrival != Arrival::Duplicate && payload.len() != expected {
+        if arrival != Arrival::Duplicate && !size_ok {
             return self.fail(
                 now,
                 id,
@@ -208,6 +243,7 @@ impl Endpoint {
         }
         if let Some(bbr) = path.bbr.as_mut() {
             (0..lost).for_each(|_| bbr.on_lost());
+            bbr.forget(forgotten);
         }
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
@@ -221,14 +257,14 @@ impl Endpoint {
             }
             Arrival::Next => {
                 let mut block = None;
-                let mut offset = b2.offset();
+                let mut num = b2.num;
                 loop {
                     let data = block.as_deref().unwrap_or(payload);
-                    let more = offset + data.len() < total;
+                    let more = r.window.as_ref().and_then(Window::last) != Some(num);
                     if let Err(e) = r.append(id, data, more, size, limit, &mut self.events) {
                         return self.fail(now, id, e);
                     }
-                    offset += data.len();
+                    num += 1;
                     block = r.window.as_mut().and_then(Window::delivered);
                     if block.is_none() {
                         break;
@@ -249,9 +285,9 @@ impl Endpoint {
         self.window_pump(now, id);
     }
 
-    /// The server refused or mangled a block asked for out of order: the download goes
-    /// on stop-and-wait from the next block to deliver (blocks that arrived ahead are
-    /// asked for again).
+    /// The server refused or mangled a block asked for out of order, or answered none of
+    /// the window's requests: the download goes on stop-and-wait from the next block to
+    /// deliver (blocks that arrived ahead are asked for again).
     fn window_fallback(&mut self, now: Instant, id: u64) {
         self.end_window(now, id);
         // A new token, so that late answers to the window's requests (a refusal without

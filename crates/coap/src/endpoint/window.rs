@@ -57,11 +57,16 @@ pub(super) enum Arrival {
     Ahead,
 }
 
+/// The largest block number (20 bits, RFC 7959 §2.2).
+const MAX_BLOCK: u32 = (1 << 20) - 1;
+
 /// The state of one windowed download.
 #[derive(Debug)]
 pub(super) struct Window {
-    /// The number of the last block.
+    /// The number of the last block (the largest possible one until it is known).
     last: u32,
+    /// Whether `last` is known (from Size2, or a block without `more`).
+    last_known: bool,
     /// The next block never asked for.
     next_new: u32,
     /// The next block to deliver.
@@ -89,10 +94,12 @@ pub(super) struct Window {
 }
 
 impl Window {
-    /// A download of blocks `1..=last` (block 0 arrived already), at `now`.
-    pub(super) fn new(now: Instant, last: u32) -> Self {
+    /// A download of blocks `1..=last` (block 0 arrived already; `None`: the size is not
+    /// known, blocks are asked for until one comes without `more`), at `now`.
+    pub(super) fn new(now: Instant, last: Option<u32>) -> Self {
         Self {
-            last,
+            last: last.unwrap_or(MAX_BLOCK),
+            last_known: last.is_some(),
             next_new: 1,
             next_deliver: 1,
             ahead: BTreeMap::new(),
@@ -215,6 +222,23 @@ impl Window {
             self.lost.insert(tx.num);
             self.stats.lost += 1;
         }
+    }
+
+    /// The last block's number, if known.
+    pub(super) fn last(&self) -> Option<u32> {
+        self.last_known.then_some(self.last)
+    }
+
+    /// Block `last` came without `more`: requests for blocks after it (answered with
+    /// 4.02, RFC 7959 §2.2) are forgotten. Returns how many were in flight.
+    pub(super) fn set_last(&mut self, last: u32) -> usize {
+        self.last = last;
+        self.last_known = true;
+        self.lost.retain(|&num| num <= last);
+        self.outstanding.retain(|&num, _| num <= last);
+        let before = self.in_flight.len();
+        self.in_flight.retain(|_, tx| tx.num <= last);
+        before - self.in_flight.len()
     }
 
     /// Keeps a block that arrived ahead of the next to deliver.

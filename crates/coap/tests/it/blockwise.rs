@@ -820,7 +820,9 @@ fn a_piggybacked_answer_for_another_block_is_asked_again() {
         m.payload = Bytes::from(vec![7; 1024]);
         m.encode()
     };
-    ep.request(now, server, Request::new(Code::GET, "/big"));
+    let mut req = Request::new(Code::GET, "/big");
+    req.transfer = coap::Transfer::StopAndWait;
+    ep.request(now, server, req);
     let first = sent(&mut ep);
     ep.handle(now, server, &ack(&first, 0), false);
     let second = sent(&mut ep);
