@@ -244,6 +244,14 @@ impl Client {
         Ok(())
     }
 
+    /// What the endpoint knows of the path to `peer`: its round-trip estimate and what its
+    /// windowed transfers counted (`None` before any exchange with it).
+    pub async fn path_stats(&self, peer: SocketAddr) -> Result<Option<coap::PathStats>, Error> {
+        let (tx, rx) = oneshot::channel();
+        self.handle.send(Command::PathStats { peer, reply: tx })?;
+        rx.await.map_err(|_| Error::Closed)
+    }
+
     /// A CoAP ping: `Ok` when the peer answers the empty CON.
     pub async fn ping(&self, peer: SocketAddr) -> Result<(), Error> {
         let (tx, rx) = oneshot::channel();

@@ -93,6 +93,10 @@ pub(crate) enum Command {
         peer: SocketAddr,
         reply: oneshot::Sender<Result<(), RequestError>>,
     },
+    PathStats {
+        peer: SocketAddr,
+        reply: oneshot::Sender<Option<coap::PathStats>>,
+    },
     Membership {
         group: IpAddr,
         interface: u32,
@@ -459,6 +463,9 @@ impl Thread {
             Command::Ping { peer, reply } => {
                 let id = self.ep.ping(now, peer);
                 self.pings.insert(id, reply);
+            }
+            Command::PathStats { peer, reply } => {
+                let _ = reply.send(self.ep.path_stats(peer));
             }
             Command::Membership {
                 group,

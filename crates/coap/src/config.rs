@@ -3,6 +3,8 @@
 
 use std::time::Duration;
 
+use crate::endpoint::Transfer;
+
 /// RFC 7252 §4.8 transmission parameters plus coapcam's resource limits.
 #[derive(Debug, Clone)]
 pub struct EndpointConfig {
@@ -37,6 +39,9 @@ pub struct EndpointConfig {
     /// Every this many notifications of an observation, one is sent as CON to learn
     /// whether the client is still there (RFC 7641 §4.5); 0 sends only NON.
     pub notify_con_interval: u32,
+    /// How requests fetch responses that come in blocks, unless a request says
+    /// ([`Request::transfer`](crate::Request::transfer)); windowed by default.
+    pub transfer: Transfer,
     /// Limits on state that peers can make grow.
     pub limits: Limits,
 }
@@ -82,6 +87,7 @@ impl Default for EndpointConfig {
             max_block_szx: 6,
             block_retries: 4,
             notify_con_interval: 5,
+            transfer: Transfer::default(),
             limits: Limits::default(),
         }
     }

@@ -37,6 +37,9 @@ pub struct DirConfig {
     pub jitter: Duration,
     /// Serialization rate in payload bytes per second; `None` is unlimited.
     pub rate_bytes_per_s: Option<u64>,
+    /// Probability that a datagram skips the delay (and the serializer's queue), so it
+    /// overtakes those before it, in [0, 1] (Linux netem's `reorder`).
+    pub reorder: f64,
 }
 
 impl DirConfig {
@@ -53,7 +56,13 @@ impl DirConfig {
             delay,
             jitter,
             rate_bytes_per_s,
+            reorder: 0.0,
         }
+    }
+
+    /// The same, with probability `reorder` that a datagram skips the delay.
+    pub fn with_reorder(self, reorder: f64) -> Self {
+        Self { reorder, ..self }
     }
 }
 
@@ -68,6 +77,9 @@ pub struct LinkConfig {
     pub seed: u64,
     /// Datagrams held at most per direction.
     pub queue_limit: usize,
+    /// Bytes waiting for a rate-limited direction's serializer at most (a bottleneck's
+    /// drop-tail buffer); `None` bounds them only by `queue_limit`.
+    pub queue_bytes: Option<usize>,
 }
 
 /// What happens to one datagram.
@@ -75,7 +87,8 @@ pub struct LinkConfig {
 pub enum Fate {
     /// Lost on the link (the loss probability).
     Drop,
-    /// Dropped because the direction already holds `queue_limit` datagrams.
+    /// Dropped because the direction already holds `queue_limit` datagrams, or its
+    /// serializer `queue_bytes` bytes.
     Overflow,
     /// Delivered at this instant.
     DeliverAt(Instant),
@@ -211,6 +224,7 @@ fn unit(draw: u64) -> f64 {
 pub struct Link {
     dirs: [DirState; 2],
     queue_limit: usize,
+    queue_bytes: Option<usize>,
     seed: u64,
 }
 
@@ -223,6 +237,7 @@ impl Link {
                 DirState::new(config.down, config.seed, 1),
             ],
             queue_limit: config.queue_limit,
+            queue_bytes: config.queue_bytes,
             seed: config.seed,
         }
     }
@@ -231,6 +246,7 @@ impl Link {
     /// A datagram given `DeliverAt` is held until [`Link::on_departed`] is called for it.
     pub fn on_datagram(&mut self, now: Instant, dir: Dir, len: usize) -> Fate {
         let queue_limit = self.queue_limit;
+        let queue_bytes = self.queue_bytes;
         let state = &mut self.dirs[dir.index()];
         let loss_draw = state.rng.next_u64();
         let jitter_draw = state.rng.next_u64();
@@ -240,13 +256,28 @@ impl Link {
             state.counters.dropped += 1;
             return Fate::Drop;
         }
+        // A third draw only when reordering is on: links without it keep the two draws
+        // per datagram (and the decisions) they always had.
+        let skips = state.config.reorder > 0.0 && unit(state.rng.next_u64()) < state.config.reorder;
         if state.held >= queue_limit {
             state.counters.overflowed += 1;
             return Fate::Overflow;
         }
+        if skips {
+            state.held += 1;
+            state.counters.max_queue = state.counters.max_queue.max(state.held as u64);
+            return Fate::DeliverAt(now);
+        }
         let departs = match state.config.rate_bytes_per_s {
             Some(rate) => {
                 let start = state.free_at.map_or(now, |free| free.max(now));
+                // The bytes still waiting for the serializer: its backlog at this rate.
+                let backlog =
+                    start.duration_since(now).as_nanos() * u128::from(rate) / 1_000_000_000;
+                if queue_bytes.is_some_and(|limit| backlog + len as u128 > limit as u128) {
+                    state.counters.overflowed += 1;
+                    return Fate::Overflow;
+                }
                 let ns = (len as u128 * 1_000_000_000).div_ceil(u128::from(rate));
                 let departs = start + Duration::from_nanos(u64::try_from(ns).unwrap_or(u64::MAX));
                 state.free_at = Some(departs);
@@ -302,6 +333,7 @@ mod tests {
             down,
             seed,
             queue_limit: usize::MAX,
+            queue_bytes: None,
         })
     }
 
@@ -448,6 +480,7 @@ mod tests {
             down: direction(0.0, 100, 0, None),
             seed: 0,
             queue_limit: 2,
+            queue_bytes: None,
         });
         assert!(matches!(
             link.on_datagram(t0, Dir::Up, 10),
@@ -509,5 +542,55 @@ mod tests {
         assert_eq!(json["down"]["max_queue"], 0);
         assert_eq!(json["elapsed_ms"], 1234);
         Ok(())
+    }
+
+    #[test]
+    fn a_bottleneck_drops_what_its_byte_buffer_cannot_hold() {
+        // 1,000 bytes per second: a 500-byte datagram takes 0.5 s to serialize.
+        let t0 = Instant::now();
+        let mut l = Link::new(LinkConfig {
+            up: direction(0.0, 0, 0, Some(1000)),
+            down: direction(0.0, 0, 0, None),
+            seed: 1,
+            queue_limit: usize::MAX,
+            queue_bytes: Some(1200),
+        });
+        let fates: Vec<Fate> = (0..4).map(|_| l.on_datagram(t0, Dir::Up, 500)).collect();
+        let s = Duration::from_millis;
+        // Backlogs seen: 0, 500 and 1,000 bytes fit with the next 500 up to 1,200 only for
+        // the first two; the third would make 1,500.
+        assert_eq!(
+            fates,
+            [
+                Fate::DeliverAt(t0 + s(500)),
+                Fate::DeliverAt(t0 + s(1000)),
+                Fate::Overflow,
+                Fate::Overflow
+            ]
+        );
+        // Half a second later the first has left: room again.
+        assert_eq!(
+            l.on_datagram(t0 + s(500), Dir::Up, 500),
+            Fate::DeliverAt(t0 + s(1500))
+        );
+        assert_eq!(l.counters(Dir::Up).overflowed, 2);
+    }
+
+    #[test]
+    fn reordering_lets_a_share_of_datagrams_overtake_the_delayed_ones() {
+        let t0 = Instant::now();
+        let mut l = link(
+            direction(0.0, 50, 0, None).with_reorder(0.25),
+            direction(0.0, 50, 0, None),
+            7,
+        );
+        let n = 4000;
+        let early = (0..n)
+            .filter(|_| delivery(l.on_datagram(t0, Dir::Up, 100)) == t0)
+            .count();
+        let share = early as f64 / n as f64;
+        assert!((share - 0.25).abs() < 0.03, "{share}");
+        // Without reordering nothing skips the delay.
+        assert!((0..100).all(|_| delivery(l.on_datagram(t0, Dir::Down, 100)) > t0));
     }
 }

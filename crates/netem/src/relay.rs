@@ -333,6 +333,7 @@ mod tests {
             down,
             seed,
             queue_limit: 1000,
+            queue_bytes: None,
         }
     }
 

@@ -30,6 +30,7 @@ impl Endpoint {
         let user_block2 = req.options.contains(OptionNumber::BLOCK2);
         let observe = req.options.uint(OptionNumber::OBSERVE) == Some(0);
         let mut req = req;
+        req.transfer = req.transfer.or(Some(self.config.transfer));
         if req.multicast {
             req.confirmable = false;
             req.timeout = Some(req.timeout.unwrap_or(Duration::from_secs(5)));

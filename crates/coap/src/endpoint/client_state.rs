@@ -218,7 +218,7 @@ impl ClientRequest {
 
     /// Whether a response in blocks may be fetched with a window.
     pub(super) fn may_window(&self) -> bool {
-        self.req.transfer == Transfer::Window
+        self.req.transfer == Some(Transfer::Window)
             && !self.user_block2
             && !self.observe
             && !self.req.multicast

@@ -302,7 +302,7 @@ impl Endpoint {
         self.client.by_token.remove(&r.token);
         self.client.by_token.insert(token, id);
         r.token = token;
-        r.req.transfer = Transfer::StopAndWait;
+        r.req.transfer = Some(Transfer::StopAndWait);
         r.step = Step::Download {
             num: (r.received / BlockOpt::size_of(szx)) as u32,
             szx,

@@ -57,12 +57,13 @@ pub struct Request {
     /// of them (an ETag that changed mid-transfer, a missing block, a total that does not
     /// match Size2) ends in [`Event::RequestFailed`], and the chunks must be discarded.
     pub stream: bool,
-    /// How a response sent in blocks is fetched (see [`Transfer`]).
-    pub transfer: Transfer,
+    /// How a response sent in blocks is fetched (see [`Transfer`]); `None` takes the
+    /// endpoint's [`EndpointConfig::transfer`](crate::EndpointConfig::transfer).
+    pub transfer: Option<Transfer>,
 }
 
 /// How a client fetches a response that comes in blocks (RFC 7959 Block2).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
 pub enum Transfer {
     /// One block at a time, each asked for when the one before arrived (RFC 7959's
     /// stop-and-wait, NSTART 1).
@@ -115,7 +116,7 @@ impl Request {
             multicast: false,
             progress: false,
             stream: false,
-            transfer: Transfer::default(),
+            transfer: None,
         }
     }
 

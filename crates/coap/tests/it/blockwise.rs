@@ -821,7 +821,7 @@ fn a_piggybacked_answer_for_another_block_is_asked_again() {
         m.encode()
     };
     let mut req = Request::new(Code::GET, "/big");
-    req.transfer = coap::Transfer::StopAndWait;
+    req.transfer = Some(coap::Transfer::StopAndWait);
     ep.request(now, server, req);
     let first = sent(&mut ep);
     ep.handle(now, server, &ack(&first, 0), false);

@@ -48,7 +48,7 @@ fn download(link: LinkConfig, data: &Bytes, transfer: Transfer, record: bool) ->
     let server = sim.nodes[s].addr;
     let now = sim.now;
     let mut req = Request::new(Code::GET, "/big");
-    req.transfer = transfer;
+    req.transfer = Some(transfer);
     sim.nodes[c].ep.request(now, server, req);
     assert!(sim.run_to_event(c, Duration::from_secs(3600)), "no outcome");
     let body = match &sim.nodes[c].events[0].1 {

@@ -41,6 +41,21 @@ pub(crate) struct TransmissionArgs {
     /// MAX_RETRANSMIT retransmissions (45-93 s with the RFC 7252 defaults).
     #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
     timeout: f64,
+    /// How a response that comes in blocks is fetched: `window` (many blocks in flight,
+    /// paced by a congestion controller, lost blocks asked for again within about a round
+    /// trip; falls back to stop-and-wait with servers that refuse) or `stop-and-wait`
+    /// (RFC 7959: one block per round trip).
+    #[arg(long, value_name = "MODE", default_value = "window")]
+    transfer: TransferMode,
+}
+
+/// `--transfer`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum TransferMode {
+    /// Many blocks in flight.
+    Window,
+    /// One block per round trip (RFC 7959).
+    StopAndWait,
 }
 
 impl TransmissionArgs {
@@ -61,6 +76,10 @@ impl TransmissionArgs {
             ack_timeout: Duration::from_millis(self.ack_timeout_ms),
             max_retransmit: self.max_retransmit,
             nstart: self.nstart as usize,
+            transfer: match self.transfer {
+                TransferMode::Window => coap::Transfer::Window,
+                TransferMode::StopAndWait => coap::Transfer::StopAndWait,
+            },
             ..EndpointConfig::default()
         }
     }

@@ -20,9 +20,13 @@ Each datagram's delay is uniform in [delay - jitter, delay + jitter] (clamped at
 jitter reorders datagrams. With --rate, a direction is a serializer: a datagram leaves it \
 at max(arrival, previous departure) + bytes / rate, then the delay starts.
 
+With --queue-bytes, a datagram that would find more than that many bytes waiting for \
+the serializer is dropped (a bottleneck's drop-tail buffer). With --reorder P, a datagram \
+skips delay and serializer with probability P and overtakes those before it.
+
 Randomness comes from ChaCha8 seeded by --seed, one stream per direction, two draws per \
-datagram (loss, then jitter): the same seed and the same arrival order give the same \
-decisions.
+datagram (loss, then jitter; a third for --reorder): the same seed and the same arrival \
+order give the same decisions.
 
 The counters are printed on standard output when --duration has elapsed or on Ctrl-C.")]
 pub(crate) struct NetemArgs {
@@ -76,6 +80,14 @@ pub(crate) struct NetemArgs {
     #[arg(long, value_name = "DATAGRAMS", default_value_t = 1000,
           value_parser = clap::value_parser!(u64).range(1..))]
     queue_limit: u64,
+    /// With --rate: bytes at most waiting for a direction's serializer, the buffer of a
+    /// bottleneck (e.g. 65536); more are dropped (drop-tail) and counted as overflowed.
+    #[arg(long, value_name = "BYTES", value_parser = clap::value_parser!(u64).range(1..))]
+    queue_bytes: Option<u64>,
+    /// Probability that a datagram skips the delay and overtakes those before it, both
+    /// directions (Linux netem's reorder).
+    #[arg(long, value_name = "P", default_value_t = 0.0, value_parser = parse_probability)]
+    reorder: f64,
     /// Seed of the random generator (loss and jitter decisions).
     #[arg(long, value_name = "N", default_value_t = 0)]
     seed: u64,
@@ -119,6 +131,7 @@ impl NetemArgs {
                 Duration::from_millis(jitter_ms),
                 rate.or(self.rate),
             )
+            .with_reorder(self.reorder)
         };
         LinkConfig {
             up: direction(
@@ -135,6 +148,9 @@ impl NetemArgs {
             ),
             seed: self.seed,
             queue_limit: usize::try_from(self.queue_limit).unwrap_or(usize::MAX),
+            queue_bytes: self
+                .queue_bytes
+                .map(|b| usize::try_from(b).unwrap_or(usize::MAX)),
         }
     }
 }

@@ -128,7 +128,8 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
             done = to_file(&client, peer, request, path, bar) => done.with_context(what)?,
             signal = signals.recv() => return Err(signal.into()),
         };
-        output(&response, size, &args, started)?;
+        let path = path_json(&client, peer).await;
+        output(&response, size, &args, started, path)?;
         return Ok(report_code(&response));
     }
     let response = if bar {
@@ -138,7 +139,8 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
     }
     .with_context(what)?;
     check_size(&response, response.payload.len())?;
-    output(&response, response.payload.len(), &args, started)?;
+    let path = path_json(&client, peer).await;
+    output(&response, response.payload.len(), &args, started, path)?;
     Ok(report_code(&response))
 }
 
@@ -357,7 +359,13 @@ async fn observe(
             std::fs::write(path, &response.payload)
                 .with_context(|| format!("writing {}", path.display()))?;
         }
-        output(&response, response.payload.len(), args, started)?;
+        output(
+            &response,
+            response.payload.len(),
+            args,
+            started,
+            serde_json::Value::Null,
+        )?;
         if !response.code.is_success() {
             return Ok(report_code(&response));
         }
@@ -409,7 +417,33 @@ fn report_code(r: &Response) -> Exit {
 
 /// Prints a response: the body (unless it went to --output) or, with --json, one line
 /// with its code, every option, the body's size and the time since the request.
-fn output(r: &Response, size: usize, args: &RequestArgs, started: Instant) -> anyhow::Result<()> {
+/// What the client's endpoint knows of the path to `peer` after the request, for
+/// `--json`: its round-trip estimate and what the window counted.
+async fn path_json(client: &Client, peer: SocketAddr) -> serde_json::Value {
+    let ms = |d: Duration| (d.as_secs_f64() * 1e4).round() / 10.0;
+    match client.path_stats(peer).await {
+        Ok(Some(p)) => serde_json::json!({
+            "srtt_ms": p.srtt.map(ms),
+            "rttvar_ms": ms(p.rttvar),
+            "min_rtt_ms": p.min_rtt.map(ms),
+            "retransmissions": p.retransmissions,
+            "block_requests": p.block_requests,
+            "blocks_lost": p.blocks_lost,
+            "blocks_late": p.blocks_late,
+            "blocks_duplicate": p.blocks_duplicate,
+            "max_window": p.max_window,
+        }),
+        _ => serde_json::Value::Null,
+    }
+}
+
+fn output(
+    r: &Response,
+    size: usize,
+    args: &RequestArgs,
+    started: Instant,
+    path: serde_json::Value,
+) -> anyhow::Result<()> {
     if args.json {
         let v = serde_json::json!({
             "code": format!("{:?}", r.code),
@@ -420,6 +454,7 @@ fn output(r: &Response, size: usize, args: &RequestArgs, started: Instant) -> an
             "size_bytes": size,
             "time_ms": (started.elapsed().as_secs_f64() * 1e4).round() / 10.0,
             "payload": if args.output.is_none() { std::str::from_utf8(&r.payload).ok() } else { None },
+            "transfer": path,
         });
         outln!("{v}");
     } else if args.output.is_none() && r.code.is_success() {
