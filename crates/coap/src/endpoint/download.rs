@@ -1,6 +1,6 @@
 //! The behaviour of a windowed Block2 download (its state is `window::Window`): started
-//! when block 0 arrives with Size2, fed by the responses to its block requests, driven by
-//! its timer, and handed back to stop-and-wait when the server does not play along.
+//! when block 0 arrives with `more`, fed by the responses to its block requests, driven
+//! by its timer, and handed back to stop-and-wait when the server does not play along.
 
 use std::time::{Duration, Instant};
 
@@ -87,10 +87,11 @@ impl Endpoint {
         let Some(w) = &r.window else { return };
         let at = match (w.timer(pto), paced) {
             (Some(a), Some(b)) => a.min(b),
-            (a, b) => match a.or(b) {
-                Some(at) => at,
-                None => return,
-            },
+            (Some(at), None) | (None, Some(at)) => at,
+            // Nothing in flight, yet blocks to ask for: the peer's window is full with
+            // another download's requests (NSTART above 1). Look again in a while.
+            (None, None) if w.next_block().is_some() => now + pto,
+            (None, None) => return,
         };
         if r.window_timer
             .is_some_and(|armed| armed <= at && armed > now)

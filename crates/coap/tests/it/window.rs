@@ -271,3 +271,47 @@ fn a_server_that_serves_blocks_only_in_order_gets_stop_and_wait() {
     assert!(refused.get() > 0, "the window asked out of order");
     assert_eq!(next.get(), 40);
 }
+
+#[test]
+fn two_downloads_from_one_peer_share_its_window() {
+    // NSTART 2: both run at once, drawing on the one controller of their path.
+    let (a, b) = (body(300_000, 1), body(200_000, 2));
+    let mut sim = Sim::new(link(0.02, 4));
+    sim.record = false;
+    let c = sim.add(
+        coap::EndpointConfig {
+            nstart: 2,
+            ..cfg(1)
+        },
+        None,
+    );
+    let (sa, sb) = (a.clone(), b.clone());
+    let handler: Handler = Box::new(move |req| {
+        let body = if req.options.path_string() == "/a" {
+            &sa
+        } else {
+            &sb
+        };
+        Reply::Now(Response::new(Code::CONTENT).with_payload(body.clone()))
+    });
+    let s = sim.add(cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    let ia = sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/a"));
+    let ib = sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/b"));
+    assert!(
+        sim.run_until(Duration::from_secs(60), |sim| sim.nodes[c].events.len()
+            == 2)
+    );
+    for (_, e) in &sim.nodes[c].events {
+        match e {
+            Event::Response { id, response } if *id == ia => assert!(response.payload == a),
+            Event::Response { id, response } if *id == ib => assert!(response.payload == b),
+            other => panic!("expected the two bodies, got {other:?}"),
+        }
+    }
+}
