@@ -39,6 +39,11 @@ impl Endpoint {
                 break;
             };
             let peer = r.peer;
+            if let Some(at) = self.msg.mid_free_at(now, self.config.exchange_lifetime) {
+                // Every message ID was used within EXCHANGE_LIFETIME: wait for the next.
+                paced = Some(at);
+                break;
+            }
             let path = self.msg.path(now, peer);
             let bbr = path.bbr.get_or_insert_with(|| Bbr::new(now));
             if bbr.in_flight() >= bbr.window() {
@@ -118,7 +123,7 @@ impl Endpoint {
         r.window_timer = None;
         let peer = r.peer;
         let Some(w) = r.window.as_mut() else { return };
-        if now.saturating_duration_since(w.heard) > give_up {
+        if w.awaiting() && now.saturating_duration_since(w.heard) > give_up {
             return self.fail(now, id, RequestError::Timeout);
         }
         let lost = w.on_timer(now, rtt, pto);

@@ -129,6 +129,9 @@ pub(super) enum Due {
     GaveUp,
 }
 
+/// How many message IDs apart [`MessageLayer::mid_free_at`] records the time.
+const MID_SAMPLE: u64 = 256;
+
 /// Paths remembered at most; past it, those without requests in flight are forgotten.
 const MAX_PATHS: usize = 4096;
 
@@ -157,6 +160,12 @@ pub(super) struct MessageLayer {
     pub(super) paths: FastMap<PeerKey, Path>,
     pub(super) rng: ChaCha8Rng,
     next_mid: u16,
+    /// Message IDs issued so far, and a sample of when: (time, count) every
+    /// [`MID_SAMPLE`] IDs, kept for EXCHANGE_LIFETIME ([`MessageLayer::mid_free_at`]).
+    mids_issued: u64,
+    mids_recorded: u64,
+    mids_expired: u64,
+    mid_samples: VecDeque<(Instant, u64)>,
     timer_seq: u64,
     pub(super) timers: BinaryHeap<Reverse<(Instant, u64, TimerKind)>>,
     pub(super) outbox: Outbox,
@@ -172,6 +181,10 @@ impl MessageLayer {
             paths: FastMap::default(),
             rng,
             next_mid,
+            mids_issued: 0,
+            mids_recorded: 0,
+            mids_expired: 0,
+            mid_samples: VecDeque::new(),
             timer_seq: 0,
             timers: BinaryHeap::new(),
             outbox: Outbox::default(),
@@ -182,7 +195,36 @@ impl MessageLayer {
 
     pub(super) fn next_mid(&mut self) -> u16 {
         self.next_mid = self.next_mid.wrapping_add(1);
+        self.mids_issued += 1;
         self.next_mid
+    }
+
+    /// When the next message ID is free to use again (RFC 7252 §4.4: not within
+    /// EXCHANGE_LIFETIME of its last use; the IDs come round every 65,536), or `None` if it
+    /// is now. Called by the senders that can wait (a window's block requests), which also
+    /// keep the record: every [`MID_SAMPLE`] IDs, the time they see. An ID issued between
+    /// two records counts as used at the later one, so the answer errs on the safe side.
+    pub(super) fn mid_free_at(&mut self, now: Instant, lifetime: Duration) -> Option<Instant> {
+        if self.mids_issued >= self.mids_recorded + MID_SAMPLE {
+            self.mid_samples.push_back((now, self.mids_issued));
+            self.mids_recorded = self.mids_issued;
+        }
+        while let Some(&(at, n)) = self.mid_samples.front() {
+            if at + lifetime > now {
+                break;
+            }
+            self.mid_samples.pop_front();
+            self.mids_expired = n;
+        }
+        // The next ID was last issued as number `mids_issued + 1 - 65,536`; the first
+        // record at or after that count is no earlier than its use. If that record has
+        // expired, so has the use.
+        let last_use = (self.mids_issued + 1).checked_sub(1 << 16)?;
+        if last_use <= self.mids_expired {
+            return None;
+        }
+        let &(at, _) = self.mid_samples.iter().find(|&&(_, n)| n >= last_use)?;
+        Some(at + lifetime).filter(|&free| free > now)
     }
 
     pub(super) fn schedule(&mut self, at: Instant, kind: TimerKind) {

@@ -128,6 +128,12 @@ impl Window {
 
     /// Records the request for `num` just sent.
     pub(super) fn on_sent(&mut self, num: u32, state: SendState) {
+        if self.in_flight.is_empty() {
+            // Nothing was awaited until now (the window waited for pacing or message
+            // IDs): the probe timer and the give-up start from here.
+            self.last_arrival = state.sent();
+            self.heard = state.sent();
+        }
         self.seq += 1;
         self.lost.remove(&num);
         let again = num < self.next_new;
@@ -136,6 +142,11 @@ impl Window {
         self.outstanding.insert(num, self.seq);
         self.stats.requests += 1;
         self.stats.max_window = self.stats.max_window.max(self.in_flight.len() as u64);
+    }
+
+    /// Whether requests are in flight (answers are awaited).
+    pub(super) fn awaiting(&self) -> bool {
+        !self.in_flight.is_empty()
     }
 
     /// Whether every block has been delivered.

@@ -315,3 +315,38 @@ fn two_downloads_from_one_peer_share_its_window() {
         }
     }
 }
+
+#[test]
+fn no_message_id_comes_round_within_the_exchange_lifetime() {
+    // 80 MB are 78,000 block requests: more than the 65,536 message IDs. With an
+    // EXCHANGE_LIFETIME of 60 s the window must wait for the first IDs to be free again,
+    // where without the rule it would take a few seconds.
+    let data = body(80_000_000, 6);
+    let mut sim = Sim::new(link(0.0, 1));
+    sim.record = false;
+    let lifetime = Duration::from_secs(60);
+    let c = sim.add(
+        coap::EndpointConfig {
+            exchange_lifetime: lifetime,
+            ..cfg(1)
+        },
+        None,
+    );
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/big"));
+    assert!(sim.run_to_event(c, Duration::from_secs(3600)));
+    match &sim.nodes[c].events[0].1 {
+        Event::Response { response, .. } => assert!(response.payload == data),
+        other => panic!("expected the body, got {other:?}"),
+    }
+    // One lifetime of waiting, and the IDs free again at the pace they were used.
+    let took = sim.elapsed();
+    assert!(
+        took > lifetime && took < lifetime + Duration::from_secs(5),
+        "{took:?}"
+    );
+}
