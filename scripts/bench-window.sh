@@ -9,16 +9,20 @@
 #   window         coapcam get (the default, --transfer window), RUNS runs
 #   stop-and-wait  coapcam get --transfer stop-and-wait, SLOW_RUNS runs
 #   libcoap 4.3.1  coap-client-notls (RFC 7959, CON, NSTART 1), SLOW_RUNS runs
-# Each time is the whole process's wall time; every body is compared with the original
-# (a mismatch aborts). The table gives medians (seconds) and ratios to the window.
+#   QUIC           crates/quic-bench (quinn 0.11 with BBR, one stream), RUNS runs: the
+#                  modern-transport reference, through the same relay
+# Each time is the whole process's wall time (QUIC's includes its handshake, CoAP needs
+# none); every body is compared with the original (a mismatch aborts). The table gives
+# medians (seconds) and ratios.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 RUNS=${1:-5}
 SLOW_RUNS=${2:-1}
 command -v coap-client-notls >/dev/null || { echo "needs libcoap3-bin (apt-get install libcoap3-bin)" >&2; exit 1; }
 
-cargo build --release -q -p coapcam
+cargo build --release -q -p coapcam -p quic-bench
 BIN=${CARGO_TARGET_DIR:-target}/release/coapcam
+QUIC=${CARGO_TARGET_DIR:-target}/release/quic-bench
 
 work=$(mktemp -d)
 pids=()
@@ -34,6 +38,12 @@ median() { sort -g | awk '{a[NR]=$1} END {if (NR%2) print a[(NR+1)/2]; else prin
 server_port=$(free_port)
 "$BIN" serve --no-cameras --static "$work/files" --bind "127.0.0.1:$server_port" 2>/dev/null &
 pids+=("$!")
+declare -A quic_port
+for s in "${SIZES[@]}"; do
+  quic_port[$s]=$(free_port)
+  "$QUIC" serve "127.0.0.1:${quic_port[$s]}" "$work/files/body-$s.bin" "$work/cert-$s.der" >/dev/null &
+  pids+=("$!")
+done
 sleep 0.5
 
 # timed_runs N CMD...: runs CMD N times (it writes $work/out), prints the median seconds.
@@ -53,21 +63,25 @@ timed_runs() {
 echo "Block2 GET through coapcam netem, 20 ms round trip, 1024-byte blocks (seconds, median;"
 echo "window: $RUNS runs, the others: $SLOW_RUNS)"
 echo
-echo "| loss each way |      bytes | window | stop-and-wait | libcoap 4.3.1 | s&w / window | libcoap / window |"
-echo "|--------------:|-----------:|-------:|--------------:|--------------:|-------------:|-----------------:|"
+echo "| loss each way |      bytes | window |  QUIC | stop-and-wait | libcoap 4.3.1 | window / QUIC | s&w / window | libcoap / window |"
+echo "|--------------:|-----------:|-------:|------:|--------------:|--------------:|--------------:|-------------:|-----------------:|"
 for loss in 0 0.02; do
-  port=$(free_port)
-  "$BIN" netem --listen "127.0.0.1:$port" --forward "127.0.0.1:$server_port" \
-    --delay-ms 10 --loss "$loss" --seed 7 >/dev/null 2>&1 &
-  netem=$!; pids+=("$netem")
-  sleep 0.5
   for s in "${SIZES[@]}"; do
+    port=$(free_port); qport=$(free_port)
+    "$BIN" netem --listen "127.0.0.1:$port" --forward "127.0.0.1:$server_port" \
+      --delay-ms 10 --loss "$loss" --seed 7 >/dev/null 2>&1 &
+    netem=$!; pids+=("$netem")
+    "$BIN" netem --listen "127.0.0.1:$qport" --forward "127.0.0.1:${quic_port[$s]}" \
+      --delay-ms 10 --loss "$loss" --seed 7 >/dev/null 2>&1 &
+    qnetem=$!; pids+=("$qnetem")
+    sleep 0.5
     uri="coap://127.0.0.1:$port/files/body-$s.bin"
     w=$(timed_runs "$RUNS" "$s" "$BIN" get "$uri" -o "$work/out")
+    q=$(timed_runs "$RUNS" "$s" "$QUIC" get "127.0.0.1:$qport" "$work/cert-$s.der" "$work/out")
     sw=$(timed_runs "$SLOW_RUNS" "$s" "$BIN" get "$uri" --transfer stop-and-wait -o "$work/out")
     lc=$(timed_runs "$SLOW_RUNS" "$s" coap-client-notls -b 1024 -B 600 "$uri" -o "$work/out")
-    awk -v l="$loss" -v s="$s" -v w="$w" -v sw="$sw" -v lc="$lc" \
-      'BEGIN {printf "| %12.0f %% | %10d | %6.3f | %13.3f | %13.3f | %11.1fx | %15.1fx |\n", l*100, s, w, sw, lc, sw/w, lc/w}'
+    awk -v l="$loss" -v s="$s" -v w="$w" -v q="$q" -v sw="$sw" -v lc="$lc" \
+      'BEGIN {printf "| %12.0f %% | %10d | %6.3f | %5.3f | %13.3f | %13.3f | %12.2fx | %11.1fx | %15.1fx |\n", l*100, s, w, q, sw, lc, w/q, sw/w, lc/w}'
+    kill "$netem" "$qnetem"; wait "$netem" "$qnetem" 2>/dev/null || true
   done
-  kill "$netem"; wait "$netem" 2>/dev/null || true
 done
