@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
-# Block-wise GET benchmark, coapcam against libcoap 4.3.1 in the same run (issue 7).
+# Block-wise GET benchmark, RFC 7959 stop-and-wait, coapcam (--transfer stop-and-wait)
+# against libcoap 4.3.1 in the same run, on loopback (scripts/bench-window.sh compares the
+# windowed transfer through an emulated link).
 #
 #   scripts/bench-transfer.sh [RUNS]      (default 8 runs per size and pair)
 #
@@ -78,7 +80,7 @@ run_mode() {
       # Microseconds from bash itself: timing a run forks nothing but the run.
       local t0=${EPOCHREALTIME/./}
       c0=$(cpu_ms "$ours_pid")
-      timed "$work/cpu-ours-client" "${pin[@]}" "$BIN" get "coap://127.0.0.1:$ours_port/files/body-$s.bin" --block-size 1024 -o "$work/out"
+      timed "$work/cpu-ours-client" "${pin[@]}" "$BIN" get "coap://127.0.0.1:$ours_port/files/body-$s.bin" --block-size 1024 --transfer stop-and-wait -o "$work/out"
       ours+=("$(( ${EPOCHREALTIME/./} - t0 ))")
       awk -v a="$c0" -v b="$(cpu_ms "$ours_pid")" 'BEGIN {print b - a}' >> "$work/cpu-ours-server"
       cmp -s "$work/out" "$work/files/body-$s.bin" || { echo "coapcam: body differs ($s bytes)" >&2; exit 1; }
