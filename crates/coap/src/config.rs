@@ -3,8 +3,6 @@
 
 use std::time::Duration;
 
-use crate::endpoint::Transfer;
-
 /// RFC 7252 §4.8 transmission parameters plus coapcam's resource limits.
 #[derive(Debug, Clone)]
 pub struct EndpointConfig {
@@ -115,4 +113,19 @@ impl EndpointConfig {
         self.ack_timeout
             .mul_f64(f64::from((1u32 << self.max_retransmit) - 1) * self.ack_random_factor)
     }
+}
+
+/// How a client fetches a response that comes in blocks (RFC 7959 Block2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
+pub enum Transfer {
+    /// One block at a time, each asked for when the one before arrived (RFC 7959's
+    /// stop-and-wait, NSTART 1).
+    StopAndWait,
+    /// After block 0, many blocks in flight at once as NON requests, admitted and paced
+    /// by the peer's congestion controller, lost ones asked for again within about a
+    /// round trip. Needs Size2 in block 0's response (the first request asks for it) and
+    /// a server that serves any block on request (RFC 7959 §2.4); otherwise, or when the
+    /// server refuses a block, the transfer goes on stop-and-wait.
+    #[default]
+    Window,
 }

@@ -16,8 +16,9 @@ use bytes::Bytes;
 
 use super::congestion::Controller;
 use super::message::Outbox;
-use super::types::{Event, Request, RequestError, RequestId, Response, Transfer};
+use super::types::{Event, Request, RequestError, RequestId, Response};
 use super::window::Window;
+use crate::config::Transfer;
 
 use crate::msg::{BlockHead, BlockOpt, Message, OptionNumber, Options, Outgoing, Token, Type};
 use crate::peer_key::{FastMap, PeerKey};

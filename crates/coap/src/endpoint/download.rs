@@ -10,8 +10,9 @@ use super::Endpoint;
 use super::client_state::{Step, Waiting};
 use super::congestion::Bbr;
 use super::message::TimerKind;
-use super::types::{RequestError, Response, Transfer};
+use super::types::{RequestError, Response};
 use super::window::{Arrival, Window};
+use crate::config::Transfer;
 use crate::msg::{BlockOpt, Code, Message, OptionNumber};
 
 impl Endpoint {

@@ -41,9 +41,10 @@ use std::collections::VecDeque;
 use std::net::SocketAddr;
 use std::time::Instant;
 
+pub use crate::config::Transfer;
 pub use types::{
     Event, IncomingId, IncomingRequest, ObservationId, PathStats, Request, RequestError, RequestId,
-    Response, Transfer, Transmit,
+    Response, Transmit,
 };
 
 use crate::config::EndpointConfig;

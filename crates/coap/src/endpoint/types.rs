@@ -7,6 +7,7 @@ use std::time::Duration;
 use bytes::Bytes;
 
 use crate::block::{BlockSource, Source};
+use crate::config::Transfer;
 use crate::msg::{Code, Options};
 
 /// Identifies a request this endpoint sent (client side).
@@ -60,21 +61,6 @@ pub struct Request {
     /// How a response sent in blocks is fetched (see [`Transfer`]); `None` takes the
     /// endpoint's [`EndpointConfig::transfer`](crate::EndpointConfig::transfer).
     pub transfer: Option<Transfer>,
-}
-
-/// How a client fetches a response that comes in blocks (RFC 7959 Block2).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
-pub enum Transfer {
-    /// One block at a time, each asked for when the one before arrived (RFC 7959's
-    /// stop-and-wait, NSTART 1).
-    StopAndWait,
-    /// After block 0, many blocks in flight at once as NON requests, admitted and paced
-    /// by the peer's congestion controller, lost ones asked for again within about a
-    /// round trip. Needs Size2 in block 0's response (the first request asks for it) and
-    /// a server that serves any block on request (RFC 7959 §2.4); otherwise, or when the
-    /// server refuses a block, the transfer goes on stop-and-wait.
-    #[default]
-    Window,
 }
 
 /// What an endpoint knows of the path to one peer: its round-trip estimate and what its

@@ -2,15 +2,17 @@
 //! which are lost, and the blocks that arrived ahead of the next one to deliver.
 //!
 //! Every block of a representation can be asked for on its own (RFC 7959 §2.4), so after
-//! block 0 (and its Size2) the client asks for many blocks at once, as NON requests that
-//! the peer's [`Bbr`](super::congestion::Bbr) admits and paces. Each request is one
+//! block 0 the client asks for many blocks at once, as NON requests that the peer's
+//! [`Bbr`](super::congestion::Bbr) admits and paces; up to the last block Size2 implies,
+//! or, without Size2, until a block comes without `more`. Each request is one
 //! *transmission* with a sequence number; a block asked for again gets a new one. Loss is
 //! found by time, as RACK finds it (RFC 8985): a request is lost when one sent after it
 //! has been answered and it is older than the *loss delay*, `SRTT + 4 RTTVAR` plus an
 //! eighth, growing by another eighth (to at most twice) each time a block declared lost
-//! arrives after all (the path reorders); a probe timeout covers the tail. Blocks are delivered in order; those
-//! that arrive early wait in a buffer of at most [`MAX_AHEAD`] blocks, which also bounds
-//! how far ahead of the next block to deliver a request may reach.
+//! arrives after all (the path reorders); a probe timeout covers the tail. Blocks are
+//! delivered in order; those that arrive early wait in a buffer of at most [`MAX_AHEAD`]
+//! blocks, which also bounds how far ahead of the next block to deliver a request may
+//! reach.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
