@@ -65,7 +65,7 @@ timed_runs() {
     times+=("$(( ${EPOCHREALTIME/./} - t0 ))")
     cmp -s "$work/out" "$work/files/body-$size.bin" || { echo "$*: body differs" >&2; exit 1; }
   done
-  printf '%s\n' "${times[@]}" | awk '{print $1/1e6}' | median
+  printf '%s\n' "${times[@]}" | awk '{print $1/1e6}' | median | awk '{printf "%.3f\n", $1}'
 }
 
 # ratio A B: A / B with one decimal and an x, or "-" if either failed.
