@@ -10,10 +10,13 @@
 //!
 //! Layers, one module each, each with its own state in [`Endpoint`]:
 //! - `message`: message IDs, timers, CON retransmission with exponential back-off,
-//!   deduplication, the outbox. It knows nothing of requests.
+//!   deduplication, the outbox, and the path to each peer (round-trip estimate,
+//!   congestion controller, counters). It knows nothing of requests.
 //! - `client`: requests this endpoint sends (tokens, transparent Block1 upload and Block2
 //!   reassembly that resumes from the block it lacks, Observe, multicast), admitted per
-//!   peer by `congestion`, the place for RTT estimation and congestion control.
+//!   peer by NSTART (`congestion`).
+//! - `window` and `download`: a Block2 download with many block requests in flight,
+//!   paced by the path's controller (`congestion::Bbr`), lost ones asked for again.
 //! - `server`: requests it receives (Block1 assembly, Block2 slicing from a stored
 //!   representation, piggybacked or separate responses, observations it serves).
 //! - `types`: what the owner sees (requests, responses, events, errors).
@@ -22,9 +25,9 @@
 //! Reset to the purpose of its CON, a timer to its layer. `client` and `server` use
 //! `message`; `message` uses neither.
 //!
-//! A client request is a sequence of *steps*, one message exchange each; today a request
-//! runs one step at a time. Windowed transfers (NSTART > 1 within one transfer, RFC 9177)
-//! add concurrent steps to the same request without changing the message layer.
+//! A client request is a sequence of *steps*, one message exchange each, one at a time;
+//! a windowed download is the exception, its block requests in flight together (the
+//! message layer is the same for both).
 
 mod client;
 mod client_state;
