@@ -42,7 +42,20 @@ pub(crate) fn serve(body: Bytes, calls: Rc<Cell<usize>>) -> Handler {
     })
 }
 
-fn response(sim: &Sim, node: usize) -> &Response {
+/// An endpoint configuration (seed `seed`) that stores no Block2 representation: every
+/// continuation is rendered again by the application.
+pub(crate) fn no_store(seed: u64) -> EndpointConfig {
+    EndpointConfig {
+        limits: Limits {
+            block2_store_bytes: 0,
+            ..Limits::default()
+        },
+        ..cfg(seed)
+    }
+}
+
+/// The first event of `node`, which must be a response.
+pub(crate) fn response(sim: &Sim, node: usize) -> &Response {
     match &sim.nodes[node].events[0].1 {
         Event::Response { response, .. } => response,
         other => panic!("expected a response, got {other:?}"),
@@ -259,13 +272,7 @@ fn rfc7959_2_4_etag_change_restarts_the_transfer() {
     });
     let mut sim = Sim::new(LinkConfig::default());
     let c = sim.add(cfg(1), None);
-    let no_store = EndpointConfig {
-        limits: Limits {
-            block2_store_bytes: 0,
-            ..Limits::default()
-        },
-        ..cfg(2)
-    };
+    let no_store = no_store(2);
     let s = sim.add(no_store, Some(handler));
     let server = sim.nodes[s].addr;
     let now = sim.now;
@@ -448,13 +455,7 @@ fn rfc7959_2_4_stable_representation_without_store_still_reassembles() {
     let data = body(5000, 9);
     let mut sim = Sim::new(LinkConfig::default());
     let c = sim.add(cfg(1), None);
-    let no_store = EndpointConfig {
-        limits: Limits {
-            block2_store_bytes: 0,
-            ..Limits::default()
-        },
-        ..cfg(2)
-    };
+    let no_store = no_store(2);
     let d = data.clone();
     let handler: Handler = Box::new(move |_| {
         let mut r = Response::new(Code::CONTENT).with_payload(d.clone());
@@ -696,13 +697,7 @@ fn streamed_etag_change_fails_at_once_instead_of_restarting() {
     });
     let mut sim = Sim::new(LinkConfig::default());
     let c = sim.add(cfg(1), None);
-    let no_store = EndpointConfig {
-        limits: Limits {
-            block2_store_bytes: 0,
-            ..Limits::default()
-        },
-        ..cfg(2)
-    };
+    let no_store = no_store(2);
     let s = sim.add(no_store, Some(handler));
     let server = sim.nodes[s].addr;
     let (pieces, last) = streamed_get(&mut sim, c, server);

@@ -9,7 +9,7 @@ use std::time::Duration;
 use bytes::Bytes;
 use coap::{Code, Event, OptionNumber, PathStats, Request, Response, Transfer};
 
-use crate::blockwise::{body, cfg, serve};
+use crate::blockwise::{body, cfg, no_store, response, serve};
 use crate::sim::{Handler, LinkConfig, Reply, Sim};
 
 const TEN_MB: usize = 10_032_012;
@@ -51,10 +51,7 @@ fn download(link: LinkConfig, data: &Bytes, transfer: Transfer, record: bool) ->
     req.transfer = Some(transfer);
     sim.nodes[c].ep.request(now, server, req);
     assert!(sim.run_to_event(c, Duration::from_secs(3600)), "no outcome");
-    let body = match &sim.nodes[c].events[0].1 {
-        Event::Response { response, .. } => response.payload.clone(),
-        other => panic!("expected a response, got {other:?}"),
-    };
+    let body = response(&sim, c).payload.clone();
     Outcome {
         elapsed: sim.elapsed(),
         body,
@@ -243,31 +240,20 @@ fn a_server_that_serves_blocks_only_in_order_gets_stop_and_wait() {
         ..link(0.0, 1)
     });
     let c = sim.add(cfg(1), None);
-    let no_store = coap::EndpointConfig {
-        limits: coap::Limits {
-            block2_store_bytes: 0,
-            ..coap::Limits::default()
-        },
-        ..cfg(2)
-    };
-    let s = sim.add(no_store, Some(handler));
+    let s = sim.add(no_store(2), Some(handler));
     let server = sim.nodes[s].addr;
     let now = sim.now;
     sim.nodes[c]
         .ep
         .request(now, server, Request::new(Code::GET, "/big"));
     assert!(sim.run_to_event(c, Duration::from_secs(600)));
-    match &sim.nodes[c].events[0].1 {
-        Event::Response { response, .. } => {
-            assert_eq!(response.code, Code::CONTENT);
-            assert!(response.payload == data);
-            assert_eq!(
-                response.options.uint(OptionNumber::SIZE2),
-                Some(data.len() as u32)
-            );
-        }
-        other => panic!("expected the body, got {other:?}"),
-    }
+    let got = response(&sim, c);
+    assert_eq!(got.code, Code::CONTENT);
+    assert!(got.payload == data);
+    assert_eq!(
+        got.options.uint(OptionNumber::SIZE2),
+        Some(data.len() as u32)
+    );
     assert!(refused.get() > 0, "the window asked out of order");
     assert_eq!(next.get(), 40);
 }
@@ -339,10 +325,7 @@ fn no_message_id_comes_round_within_the_exchange_lifetime() {
         .ep
         .request(now, server, Request::new(Code::GET, "/big"));
     assert!(sim.run_to_event(c, Duration::from_secs(3600)));
-    match &sim.nodes[c].events[0].1 {
-        Event::Response { response, .. } => assert!(response.payload == data),
-        other => panic!("expected the body, got {other:?}"),
-    }
+    assert!(response(&sim, c).payload == data);
     // One lifetime of waiting, and the IDs free again at the pace they were used.
     let took = sim.elapsed();
     assert!(

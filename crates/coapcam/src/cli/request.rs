@@ -128,7 +128,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
             done = to_file(&client, peer, request, path, bar) => done.with_context(what)?,
             signal = signals.recv() => return Err(signal.into()),
         };
-        let path = path_json(&client, peer).await;
+        let path = path_json(&client, peer, args.json).await;
         output(&response, size, &args, started, path)?;
         return Ok(report_code(&response));
     }
@@ -139,7 +139,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
     }
     .with_context(what)?;
     check_size(&response, response.payload.len())?;
-    let path = path_json(&client, peer).await;
+    let path = path_json(&client, peer, args.json).await;
     output(&response, response.payload.len(), &args, started, path)?;
     Ok(report_code(&response))
 }
@@ -418,9 +418,13 @@ fn report_code(r: &Response) -> Exit {
 /// Prints a response: the body (unless it went to --output) or, with --json, one line
 /// with its code, every option, the body's size and the time since the request.
 /// What the client's endpoint knows of the path to `peer` after the request, for
-/// `--json`: its round-trip estimate and what the window counted.
-async fn path_json(client: &Client, peer: SocketAddr) -> serde_json::Value {
+/// `--json` (asked of the endpoint only then): its round-trip estimate and what the
+/// window counted.
+async fn path_json(client: &Client, peer: SocketAddr, json: bool) -> serde_json::Value {
     let ms = |d: Duration| (d.as_secs_f64() * 1e4).round() / 10.0;
+    if !json {
+        return serde_json::Value::Null;
+    }
     match client.path_stats(peer).await {
         Ok(Some(p)) => serde_json::json!({
             "srtt_ms": p.srtt.map(ms),

@@ -309,18 +309,17 @@ fn our_client_libcoap_server_netem_10pct_loss_2764810_bytes() {
     let (_server, addr) = support::libcoap_server();
     libcoap_put(&format!("coap://{addr}/body"), &dir.join("body"));
     let (_netem, lossy) = support::netem(addr, LOSS, seed);
-    let got = dir.join("got");
-    let mut args = vec!["-o", got.to_str().expect("UTF-8"), "--json"];
-    args.extend_from_slice(FAST_ACK);
-    let f = ours("get", &format!("coap://{lossy}/body"), &args, LOSSY_FAST)
-        .expect_success("coapcam get through 10 % loss");
-    assert_file_is(&got, &body);
-    assert_windowed(&f);
+    get_windowed(&format!("coap://{lossy}/body"), &dir.join("got"), &body);
 }
 
-/// The transfer went through a window (many blocks in flight, lost ones found and asked
-/// for again), as `--json` reports it.
-fn assert_windowed(f: &support::Finished) {
+/// `coapcam get URI -o OUT --json` through a lossy link: the body arrives whole, and
+/// through a window (many blocks in flight, lost ones found and asked for again), as
+/// `--json` reports it.
+fn get_windowed(uri: &str, out: &Path, body: &[u8]) {
+    let mut args = vec!["-o", out.to_str().expect("UTF-8"), "--json"];
+    args.extend_from_slice(FAST_ACK);
+    let f = ours("get", uri, &args, LOSSY_FAST).expect_success(&format!("coapcam get {uri}"));
+    assert_file_is(out, body);
     let path = &f.json()["transfer"];
     let count = |k: &str| path[k].as_u64().unwrap_or_default();
     assert!(count("max_window") > 1, "{path}");
@@ -489,13 +488,7 @@ fn our_client_aiocoap_server_netem_10pct_loss_2764810_bytes() {
     let body = random_file(&dir.join("body"), LOSSY_FULL, seed);
     let (_server, addr) = support::aiocoap_server(Some(&dir.join("body")));
     let (_netem, lossy) = support::netem(addr, LOSS, seed);
-    let got = dir.join("got");
-    let mut args = vec!["-o", got.to_str().expect("UTF-8"), "--json"];
-    args.extend_from_slice(FAST_ACK);
-    let f = ours("get", &format!("coap://{lossy}/big"), &args, LOSSY_FAST)
-        .expect_success("coapcam get through 10 % loss from aiocoap");
-    assert_file_is(&got, &body);
-    assert_windowed(&f);
+    get_windowed(&format!("coap://{lossy}/big"), &dir.join("got"), &body);
 }
 
 // ---------------------------------------------------------------------------------------
