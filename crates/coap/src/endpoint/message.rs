@@ -223,7 +223,8 @@ impl MessageLayer {
         if last_use <= self.mids_expired {
             return None;
         }
-        let &(at, _) = self.mid_samples.iter().find(|&&(_, n)| n >= last_use)?;
+        let i = self.mid_samples.partition_point(|&(_, n)| n < last_use);
+        let &(at, _) = self.mid_samples.get(i)?;
         Some(at + lifetime).filter(|&free| free > now)
     }
 
