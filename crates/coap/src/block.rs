@@ -316,6 +316,9 @@ pub(crate) struct Stored {
     /// which each continuation sets.
     pub(crate) head: BlockHead,
     pub(crate) body: Source,
+    /// For a body sent with Q-Block2 (RFC 9177), the options of every block (Size2
+    /// included), which a Block2 continuation must not be cut from.
+    pub(crate) q_options: Option<Options>,
     /// What `body` held when it was stored (its [`BlockSource::held`]).
     held: usize,
     last_used: Instant,
@@ -349,7 +352,9 @@ impl ServerCache {
 
     /// Stores a representation, replacing the previous one for the same request and
     /// evicting the least recently used ones to stay within the byte limit. A
-    /// representation larger than the whole store is not stored.
+    /// representation larger than the whole store is not stored. `q_block`: its blocks
+    /// go with Q-Block2 (RFC 9177), not Block2.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn insert(
         &mut self,
         now: Instant,
@@ -357,6 +362,7 @@ impl ServerCache {
         code: Code,
         options: Options,
         body: Source,
+        q_block: bool,
         limits: &Limits,
     ) {
         self.expire(now, limits);
@@ -382,6 +388,7 @@ impl ServerCache {
             Stored {
                 code,
                 head: BlockHead::new(&options, OptionNumber::BLOCK2),
+                q_options: q_block.then_some(options),
                 body,
                 held,
                 last_used: now,
@@ -675,6 +682,7 @@ mod tests {
             Code::CONTENT,
             Options::new(),
             Source::new(Bytes::from(vec![0; 60])),
+            false,
             &l,
         );
         c.insert(
@@ -683,6 +691,7 @@ mod tests {
             Code::CONTENT,
             Options::new(),
             Source::new(Bytes::from(vec![0; 60])),
+            false,
             &l,
         );
         assert!(
@@ -751,6 +760,7 @@ mod tests {
             Code::CONTENT,
             Options::new(),
             Source(source.clone()),
+            false,
             &l,
         );
         assert_eq!(

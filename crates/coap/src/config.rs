@@ -40,6 +40,10 @@ pub struct EndpointConfig {
     /// How requests fetch responses that come in blocks, unless a request says
     /// ([`Request::transfer`](crate::Request::transfer)); windowed by default.
     pub transfer: Transfer,
+    /// MAX_PAYLOADS (RFC 9177 §7.2): the payloads of a Q-Block body sent in one burst,
+    /// one *set*, before the sender waits for the receiver's 'Continue' (RFC: 10; both
+    /// ends must use the same value).
+    pub max_payloads: u32,
     /// Limits on state that peers can make grow.
     pub limits: Limits,
 }
@@ -86,6 +90,7 @@ impl Default for EndpointConfig {
             block_retries: 4,
             notify_con_interval: 5,
             transfer: Transfer::default(),
+            max_payloads: 10,
             limits: Limits::default(),
         }
     }
@@ -128,4 +133,10 @@ pub enum Transfer {
     /// server refuses a block, the transfer goes on stop-and-wait.
     #[default]
     Window,
+    /// RFC 9177 Q-Block2 for responses and Q-Block1 for request bodies, with NON
+    /// messages: the server sends MAX_PAYLOADS blocks at a time, the client confirms
+    /// each whole set ('Continue') and asks for missing blocks. The first exchange with
+    /// a peer is a CON that finds out whether it speaks Q-Block; with peers that do not,
+    /// the transfer is RFC 7959 stop-and-wait.
+    QBlock,
 }

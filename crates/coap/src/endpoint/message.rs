@@ -47,6 +47,16 @@ pub(super) enum TimerKind {
     SeparateAck {
         id: u64,
     },
+    /// The next set of a body the server sends with Q-Block2, due at `at`.
+    QSet {
+        id: u64,
+        at: Instant,
+    },
+    /// The receive timer of a body the server receives with Q-Block1, due at `at`.
+    QReceive {
+        id: u64,
+        at: Instant,
+    },
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -246,6 +256,18 @@ impl MessageLayer {
         })
     }
 
+    /// The path's probe timeout (`SRTT + 4 RTTVAR`) if it has a round-trip estimate:
+    /// what the Q-Block timers use in place of the RFC's fixed values.
+    pub(super) fn estimate(&self, peer: SocketAddr) -> Option<Duration> {
+        let rtt = &self.paths.get(&PeerKey(peer))?.rtt;
+        rtt.srtt().map(|_| rtt.pto(Duration::ZERO))
+    }
+
+    /// A uniform sample in [0, 1).
+    pub(super) fn unit(&mut self) -> f64 {
+        (self.rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
     /// The timeout of a CON (or a NON request) to `peer`: the path's estimate (ACK_TIMEOUT
     /// before one exists) scaled by a uniform random factor in [1, ACK_RANDOM_FACTOR].
     pub(super) fn initial_timeout(
@@ -260,7 +282,7 @@ impl MessageLayer {
             .map_or(config.ack_timeout, |p| {
                 p.rtt.con_timeout(now, config.ack_timeout)
             });
-        let unit = (self.rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+        let unit = self.unit();
         let spread = (config.ack_random_factor - 1.0).max(0.0);
         let jitter = base.as_secs_f64() * 1e9 * spread * unit;
         // Whole nanoseconds added, rather than Duration::mul_f64's checked conversion of

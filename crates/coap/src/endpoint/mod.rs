@@ -34,6 +34,8 @@ mod client_state;
 mod congestion;
 mod download;
 mod message;
+mod qblock;
+mod qserver;
 mod server;
 mod server_state;
 mod types;
@@ -118,6 +120,12 @@ impl Endpoint {
             TimerKind::Window { id, at } => self.client.window_timer_is(id, at),
             TimerKind::Deadline { id } => self.client.requests.contains_key(&id),
             TimerKind::SeparateAck { id } => self.server.awaits_separate_ack(id),
+            TimerKind::QSet { id, at } => self.server.qsends.get(&id).is_some_and(|q| q.at == at),
+            TimerKind::QReceive { id, at } => self
+                .server
+                .quploads
+                .get(&id)
+                .is_some_and(|u| u.at == at && !u.done),
         }
     }
 
@@ -164,6 +172,8 @@ impl Endpoint {
                     None => {}
                 },
                 TimerKind::SeparateAck { id } => self.on_separate_ack_timer(now, id),
+                TimerKind::QSet { id, at } => self.on_qset_timer(now, id, at),
+                TimerKind::QReceive { id, at } => self.on_qreceive_timer(now, id, at),
             }
         }
     }

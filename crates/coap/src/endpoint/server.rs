@@ -9,6 +9,7 @@ use rand_core::RngCore;
 
 use super::Endpoint;
 use super::message::{Purpose, TimerKind};
+use super::qserver::QNext;
 use super::server_state::{Observation, Pending, block2_response, past_end, unreadable};
 use super::types::{Event, IncomingId, IncomingRequest, ObservationId, Response};
 use crate::block::{self, Block1Outcome, BlockKey, Slice, Source};
@@ -36,7 +37,17 @@ impl Endpoint {
         // continuation may come round again to that of its first block, whose reply the
         // dedup store keeps (the token is the same).
         let continuation = matches!((block2, block1), (Some(b2), None) if b2.num > 0);
-        if !continuation && self.replay_duplicate(now, peer, &msg, &limits) {
+        // RFC 9177: Q-Block2 options (repeatable) and Q-Block1. Their blocks are served
+        // from the store or assembled with duplicates found by block number, so they skip
+        // deduplication as Block2 continuations do.
+        let q2: Vec<BlockOpt> = msg
+            .options
+            .values(OptionNumber::Q_BLOCK2)
+            .filter_map(BlockOpt::decode)
+            .collect();
+        let q1 = msg.options.block(OptionNumber::Q_BLOCK1);
+        let q_stateless = q1.is_some() || q2.iter().any(|b| b.num > 0);
+        if !continuation && !q_stateless && self.replay_duplicate(now, peer, &msg, &limits) {
             return;
         }
         let lifetime = if con {
@@ -81,6 +92,14 @@ impl Endpoint {
             options: msg.options.block_key(),
         };
 
+        let mut assembled = None;
+        if !q2.is_empty() || q1.is_some() {
+            match self.on_q_request(now, peer, &msg, payload, multicast, &key, &q2, q1, expires) {
+                QNext::Done => return,
+                QNext::Dispatch(body) => assembled = body,
+            }
+        }
+
         // A Block2 continuation is served from the stored representation; the application
         // never sees it (a POST grab must not grab again).
         if let (Some(b2), true) = (block2, continuation) {
@@ -101,6 +120,10 @@ impl Endpoint {
                 .server
                 .block2
                 .with_stored(now, stored_key, &limits, |s| {
+                    if s.q_options.is_some() {
+                        // Stored for Q-Block2: not a body to cut Block2 blocks from.
+                        return Slice::Unreadable;
+                    }
                     let slice = block::slice(&*s.body.0, b2.num, szx);
                     if let Slice::Block(payload, opt) = &slice {
                         // The block goes out as the stored options, encoded once, around this
@@ -142,7 +165,6 @@ impl Endpoint {
             }
         }
 
-        let mut assembled = None;
         let mut block1_echo = None;
         if let Some(b1) = block1 {
             let size1 = msg.options.uint(OptionNumber::SIZE1);
@@ -204,6 +226,11 @@ impl Endpoint {
                 // address its unicast follow-ups come from.
                 key: if multicast { key.for_group() } else { key },
                 observation,
+                qblock2: if observation.is_none() {
+                    q2
+                } else {
+                    Vec::new()
+                },
             },
         );
         self.msg.dedup.insert(
@@ -405,9 +432,15 @@ impl Endpoint {
             return unreadable();
         };
         if len > BlockOpt::size_of(szx) {
-            self.server
-                .block2
-                .insert(now, key, response.code, response.options, body, limits);
+            self.server.block2.insert(
+                now,
+                key,
+                response.code,
+                response.options,
+                body,
+                false,
+                limits,
+            );
         }
         // The reply is remembered for duplicates for EXCHANGE_LIFETIME; a slice would keep
         // the whole representation (or a source's read-ahead window) alive that long.
@@ -519,8 +552,14 @@ impl Endpoint {
             return;
         };
         let max_szx = self.config.max_block_szx;
-        let mut response =
-            self.blockwise_response(now, p.key.clone(), p.block2, response, &limits, max_szx);
+        let mut q_rest = None;
+        let mut response = if p.qblock2.is_empty() {
+            self.blockwise_response(now, p.key.clone(), p.block2, response, &limits, max_szx)
+        } else {
+            let (first, rest) = self.q_first_response(now, &p, response);
+            q_rest = rest;
+            first
+        };
         if let Some(obs) = p.observation {
             match self.server.observations.get_mut(&obs) {
                 Some(o)
@@ -560,6 +599,9 @@ impl Endpoint {
         } else {
             let seen = self.reply_with(p.peer, msg);
             self.msg.dedup.set_reply(p.peer, p.mid, seen);
+        }
+        if let Some(rest) = q_rest {
+            self.q_after_first(now, &p, rest);
         }
     }
 }

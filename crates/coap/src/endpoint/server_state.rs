@@ -8,8 +8,10 @@
 //! answers go piggybacked on the ACK, or separately after an empty ACK; Observe
 //! registrations and notifications (RFC 7641).
 
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 
+use super::qblock::{QSend, QUpload};
 use super::types::Response;
 use crate::block::{self, Block1Assembler, BlockKey, ServerCache, Slice, Source};
 use crate::msg::{BlockOpt, Code, OptionNumber, Options, Token};
@@ -27,6 +29,8 @@ pub(super) struct Pending {
     pub(super) block1_echo: Option<BlockOpt>,
     pub(super) key: BlockKey,
     pub(super) observation: Option<u64>,
+    /// The request's Q-Block2 options (RFC 9177): the response goes with Q-Block2.
+    pub(super) qblock2: Vec<BlockOpt>,
 }
 
 /// An observation this endpoint serves.
@@ -47,6 +51,11 @@ pub(super) struct ServerLayer {
     pub(super) block1: Block1Assembler,
     pub(super) block2: ServerCache,
     pub(super) observations: FastMap<u64, Observation>,
+    /// Bodies being sent with Q-Block2, set by set.
+    pub(super) qsends: FastMap<u64, QSend>,
+    /// Bodies being received with Q-Block1, and their ids by request.
+    pub(super) quploads: FastMap<u64, QUpload>,
+    pub(super) qupload_ids: BTreeMap<BlockKey, u64>,
 }
 
 impl ServerLayer {
@@ -71,6 +80,9 @@ impl ServerLayer {
             block1: Block1Assembler::new(),
             block2: ServerCache::new(),
             observations: FastMap::default(),
+            qsends: FastMap::default(),
+            quploads: FastMap::default(),
+            qupload_ids: BTreeMap::new(),
         }
     }
 }

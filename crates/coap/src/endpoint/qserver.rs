@@ -1,0 +1,649 @@
+//! The server side of RFC 9177: a response body sent with Q-Block2 set by set, and a
+//! request body received with Q-Block1 in any order (the state is in `qblock`).
+//!
+//! Q-Block2: the first request is answered by the application; its body is stored (as
+//! for Block2) and the blocks its Q-Block2 options ask for go out at once, as NONs to a
+//! NON request. A CON request gets one block, piggybacked (as libcoap does: the RFC's
+//! CON bursts would need NSTART above 1). Later requests ('Continue', missing blocks)
+//! are served from the store. The next set goes on a 'Continue', or NON_TIMEOUT_RANDOM
+//! after the last one.
+//!
+//! Q-Block1: blocks are written where they belong in a body of Size1 bytes, with a bitmap
+//! of those received. A whole set (and none missing before it) is confirmed with 2.31; a
+//! set that starts with blocks missing before it gets a 4.08 listing them at once, and so
+//! does a body that stops arriving, after NON_RECEIVE_TIMEOUT. The whole body goes to
+//! the application as one request, answered to the token of its last block.
+
+use std::net::SocketAddr;
+use std::time::Instant;
+
+use bytes::Bytes;
+use rand_core::RngCore;
+
+use super::Endpoint;
+use super::message::TimerKind;
+use super::qblock::{
+    self, MISSING_BLOCKS_CBOR_SEQ, NON_MAX_RETRANSMIT, QSend, QUpload, asked_blocks, continue_set,
+};
+use super::server_state::{Pending, past_end, unreadable};
+use super::types::Response;
+use crate::block::{self, BlockKey, Slice, Source};
+use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
+
+/// How the first block of a Q-Block2 answer goes: piggybacked on the ACK of a CON
+/// request (then it is the only one), or as NONs.
+#[derive(Clone, Copy)]
+enum Reply {
+    Ack(u16),
+    Non,
+}
+
+/// What [`Endpoint::on_q_request`] leaves to the usual request path.
+pub(super) enum QNext {
+    /// Answered (or dropped) here.
+    Done,
+    /// To the application, with the body assembled from Q-Block1 blocks, if any.
+    Dispatch(Option<Bytes>),
+}
+
+impl Endpoint {
+    /// A request with Q-Block1 or Q-Block2 options (`q2`, `q1`).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn on_q_request(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        msg: &Message,
+        payload: &[u8],
+        multicast: bool,
+        key: &BlockKey,
+        q2: &[BlockOpt],
+        q1: Option<BlockOpt>,
+        expires: Instant,
+    ) -> QNext {
+        if multicast {
+            // RFC 9177 §4.8: multicast requests with Q-Block2 are ignored (and Q-Block1
+            // has no use there).
+            return QNext::Done;
+        }
+        let refuse = |code, text| Response::diagnostic(code, text);
+        if msg.options.block1().is_some() || msg.options.block2().is_some() {
+            let r = refuse(Code::BAD_OPTION, "Q-Block and Block options in one request");
+            self.answer(now, peer, msg, false, expires, r);
+            return QNext::Done;
+        }
+        if let Some(q) = q1 {
+            return match self.on_q_block1(now, peer, msg, payload, key, q, expires) {
+                Some(body) => QNext::Dispatch(Some(body)),
+                None => QNext::Done,
+            };
+        }
+        if q2.iter().any(|b| b.num > 0) {
+            if self.q_block2_from_store(now, peer, msg, key, q2, expires) {
+                return QNext::Done;
+            }
+            if !matches!(msg.code, Code::GET | Code::FETCH) {
+                let r = refuse(
+                    Code::REQUEST_ENTITY_INCOMPLETE,
+                    "the representation is no longer stored; ask for block 0 again",
+                );
+                self.answer(now, peer, msg, false, expires, r);
+                return QNext::Done;
+            }
+        }
+        QNext::Dispatch(None)
+    }
+
+    /// Answers a request for blocks of a body stored for Q-Block2; false when none is.
+    fn q_block2_from_store(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        msg: &Message,
+        key: &BlockKey,
+        q2: &[BlockOpt],
+        expires: Instant,
+    ) -> bool {
+        let limits = self.config.limits.clone();
+        let mp = self.config.max_payloads.max(1);
+        let szx = q2[0].szx.min(self.config.max_block_szx);
+        let len = self.server.block2.with_stored(now, key, &limits, |s| {
+            s.q_options.is_some().then(|| s.body.0.len())
+        });
+        let Some(Some(len)) = len else {
+            return false;
+        };
+        let last = last_block(len, szx);
+        let Some(nums) = asked_blocks(q2, mp, last) else {
+            let r = Response::diagnostic(
+                Code::BAD_REQUEST,
+                "Q-Block2 options must have increasing block numbers",
+            );
+            self.answer(now, peer, msg, false, expires, r);
+            return true;
+        };
+        if nums.is_empty() {
+            self.answer(now, peer, msg, false, expires, past_end());
+            return true;
+        }
+        if let Some(set) = continue_set(q2, mp) {
+            self.q_continue(now, peer, key, msg.token, set, szx, last / mp + 1);
+        }
+        let reply = match msg.ty {
+            Type::Con => Reply::Ack(msg.message_id),
+            _ => Reply::Non,
+        };
+        if !self.q_send_blocks(now, peer, key, msg.token, reply, &nums, szx) {
+            // The stored source can no longer be read as it was.
+            self.server.block2.remove(key);
+            self.answer(now, peer, msg, false, expires, unreadable());
+        }
+        true
+    }
+
+    /// Sends blocks `nums` (of size exponent `szx`) of the body stored under `key`, to
+    /// the request with `token`: only the first, piggybacked, after a CON request. False
+    /// when the body is gone or cannot be read.
+    #[allow(clippy::too_many_arguments)]
+    fn q_send_blocks(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        key: &BlockKey,
+        token: Token,
+        reply: Reply,
+        nums: &[u32],
+        szx: u8,
+    ) -> bool {
+        let limits = self.config.limits.clone();
+        let nums = match reply {
+            Reply::Ack(_) => &nums[..nums.len().min(1)],
+            Reply::Non => nums,
+        };
+        let msg = &mut self.msg;
+        let sent = self.server.block2.with_stored(now, key, &limits, |s| {
+            let Some(options) = &s.q_options else {
+                return false;
+            };
+            for &num in nums {
+                let Slice::Block(payload, opt) = block::slice(&*s.body.0, num, szx) else {
+                    return false;
+                };
+                let mut options = options.clone();
+                options.set_block(OptionNumber::Q_BLOCK2, opt);
+                let (ty, message_id) = match reply {
+                    Reply::Ack(mid) => (Type::Ack, mid),
+                    Reply::Non => (Type::Non, msg.next_mid()),
+                };
+                let m = Message {
+                    ty,
+                    code: s.code,
+                    message_id,
+                    token,
+                    options,
+                    payload,
+                };
+                msg.send(peer, &m);
+            }
+            true
+        });
+        sent == Some(true)
+    }
+
+    /// A 'Continue' for set `set` of a body of `sets` sets: the body's next set is the one
+    /// after, due NON_TIMEOUT_RANDOM from now unless another 'Continue' comes first. The
+    /// time since the set before went out, if a request asked for it, is a round trip.
+    #[allow(clippy::too_many_arguments)]
+    fn q_continue(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        key: &BlockKey,
+        token: Token,
+        set: u32,
+        szx: u8,
+        sets: u32,
+    ) {
+        let found = self
+            .server
+            .qsends
+            .iter()
+            .find(|(_, q)| q.peer == peer && &q.key == key)
+            .map(|(&id, _)| id);
+        let id = match found {
+            Some(id) => id,
+            None => {
+                let id = self.new_id();
+                let timeout = self.q_non_timeout(peer);
+                let q = QSend {
+                    peer,
+                    key: key.clone(),
+                    token,
+                    szx,
+                    next_set: set,
+                    sets,
+                    sent_at: now,
+                    asked: false,
+                    timeout,
+                    at: now,
+                };
+                self.server.qsends.insert(id, q);
+                id
+            }
+        };
+        let Some(q) = self.server.qsends.get_mut(&id) else {
+            return;
+        };
+        if q.next_set == set && q.asked && set > 0 {
+            let rtt = now.saturating_duration_since(q.sent_at);
+            self.msg.path(now, peer).rtt.on_sample(now, rtt, true);
+        }
+        q.next_set = q.next_set.max(set + 1);
+        q.token = token;
+        q.sent_at = now;
+        q.asked = true;
+        self.arm_qset(id);
+    }
+
+    /// Schedules the next set of body `id`, or forgets the body when every set went.
+    fn arm_qset(&mut self, id: u64) {
+        let Some(q) = self.server.qsends.get_mut(&id) else {
+            return;
+        };
+        if q.next_set >= q.sets {
+            self.server.qsends.remove(&id);
+            return;
+        }
+        q.at = q.sent_at + q.timeout;
+        let at = q.at;
+        self.msg.schedule(at, TimerKind::QSet { id, at });
+    }
+
+    /// NON_TIMEOUT_RANDOM for a new body to `peer`.
+    fn q_non_timeout(&mut self, peer: SocketAddr) -> std::time::Duration {
+        let unit = self.msg.unit();
+        let c = &self.config;
+        qblock::non_timeout(
+            self.msg.estimate(peer),
+            c.ack_timeout,
+            c.ack_random_factor,
+            unit,
+        )
+    }
+
+    /// NON_TIMEOUT_RANDOM passed without a 'Continue': the next set goes.
+    pub(super) fn on_qset_timer(&mut self, now: Instant, id: u64, at: Instant) {
+        let mp = self.config.max_payloads.max(1);
+        let Some(q) = self.server.qsends.get_mut(&id).filter(|q| q.at == at) else {
+            return;
+        };
+        let (peer, key, token, szx) = (q.peer, q.key.clone(), q.token, q.szx);
+        let set = q.next_set;
+        q.next_set += 1;
+        q.sent_at = now;
+        q.asked = false;
+        let nums: Vec<u32> = (set * mp..(set + 1) * mp).collect();
+        let last = self
+            .server
+            .block2
+            .with_stored(now, &key, &self.config.limits.clone(), |s| {
+                last_block(s.body.0.len(), szx)
+            });
+        let Some(last) = last else {
+            self.server.qsends.remove(&id);
+            return;
+        };
+        let nums: Vec<u32> = nums.into_iter().filter(|&n| n <= last).collect();
+        if !self.q_send_blocks(now, peer, &key, token, Reply::Non, &nums, szx) {
+            self.server.qsends.remove(&id);
+            return;
+        }
+        self.arm_qset(id);
+    }
+
+    /// The response to a request with Q-Block2 options: the first block it asks for, with
+    /// the body stored and the blocks after it sent by [`Endpoint::q_after_first`].
+    /// Returns the response and what remains to send (blocks, and whether a set
+    /// follows by timer).
+    pub(super) fn q_first_response(
+        &mut self,
+        now: Instant,
+        p: &Pending,
+        mut response: Response,
+    ) -> (Response, Option<QRest>) {
+        let limits = self.config.limits.clone();
+        let mp = self.config.max_payloads.max(1);
+        let szx = p.qblock2[0].szx.min(self.config.max_block_szx);
+        let size = BlockOpt::size_of(szx);
+        let body = match response.source.take() {
+            Some(source) => source,
+            None => Source::new(std::mem::take(&mut response.payload)),
+        };
+        let len = body.0.len();
+        if !response.code.is_success() {
+            return match body.0.read(0..len) {
+                Some(payload) => (response.with_payload(payload), None),
+                None => (unreadable(), None),
+            };
+        }
+        if len > size << 20 || u32::try_from(len).is_err() {
+            let r = Response::diagnostic(
+                Code::INTERNAL_SERVER_ERROR,
+                "the representation is too large for block-wise transfer at this block size",
+            );
+            return (r, None);
+        }
+        let last = last_block(len, szx);
+        let Some(nums) = asked_blocks(&p.qblock2, mp, last) else {
+            let r = Response::diagnostic(
+                Code::BAD_REQUEST,
+                "Q-Block2 options must have increasing block numbers",
+            );
+            return (r, None);
+        };
+        let Some(&first) = nums.first() else {
+            return (past_end(), None);
+        };
+        if response.options.etag().is_none() {
+            let etag = self.msg.rng.next_u32().to_be_bytes();
+            response.options.set(OptionNumber::ETAG, etag);
+        }
+        // RFC 9177 §4.6: Size2, exactly, in every block.
+        response.options.set_uint(OptionNumber::SIZE2, len as u32);
+        let (payload, opt) = match block::slice(&*body.0, first, szx) {
+            Slice::Block(payload, opt) => (payload, opt),
+            Slice::PastEnd => return (past_end(), None),
+            Slice::Unreadable => return (unreadable(), None),
+        };
+        let mut options = response.options.clone();
+        options.set_block(OptionNumber::Q_BLOCK2, opt);
+        let first_response =
+            Response::with_parts(response.code, options, Bytes::copy_from_slice(&payload));
+        if len <= size {
+            return (first_response, None);
+        }
+        self.server.block2.insert(
+            now,
+            p.key.clone(),
+            response.code,
+            response.options,
+            body,
+            true,
+            &limits,
+        );
+        let sets = last / mp + 1;
+        // A request for the whole body (block 0 with M) starts its sets; the set after
+        // the last block asked for goes by timer unless the client asks first.
+        let next_set = p
+            .qblock2
+            .iter()
+            .any(|b| b.more)
+            .then(|| nums[nums.len() - 1] / mp + 1)
+            .filter(|&s| s < sets);
+        let rest = QRest {
+            nums: nums[1..].to_vec(),
+            szx,
+            next_set,
+            sets,
+        };
+        (first_response, Some(rest))
+    }
+
+    /// Sends what remains of a Q-Block2 answer after its first block (nothing after a
+    /// CON request: the client asks for each block).
+    pub(super) fn q_after_first(&mut self, now: Instant, p: &Pending, rest: QRest) {
+        if p.confirmable {
+            return;
+        }
+        let sent = self.q_send_blocks(
+            now,
+            p.peer,
+            &p.key,
+            p.token,
+            Reply::Non,
+            &rest.nums,
+            rest.szx,
+        );
+        let Some(next_set) = rest.next_set.filter(|_| sent) else {
+            return;
+        };
+        let id = self.new_id();
+        let timeout = self.q_non_timeout(p.peer);
+        let q = QSend {
+            peer: p.peer,
+            key: p.key.clone(),
+            token: p.token,
+            szx: rest.szx,
+            next_set,
+            sets: rest.sets,
+            sent_at: now,
+            asked: true,
+            timeout,
+            at: now,
+        };
+        self.server.qsends.insert(id, q);
+        self.arm_qset(id);
+    }
+
+    /// A block of a body sent with Q-Block1; the whole body when it is complete.
+    #[allow(clippy::too_many_arguments)]
+    fn on_q_block1(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        msg: &Message,
+        payload: &[u8],
+        key: &BlockKey,
+        q: BlockOpt,
+        expires: Instant,
+    ) -> Option<Bytes> {
+        let limits = self.config.limits.clone();
+        let mp = self.config.max_payloads.max(1);
+        let size1 = msg
+            .options
+            .uint(OptionNumber::SIZE1)
+            .filter(|_| msg.options.contains(OptionNumber::REQUEST_TAG));
+        let Some(size1) = size1 else {
+            // RFC 9177 §4.3.
+            let r = Response::diagnostic(Code::BAD_REQUEST, "Q-Block1 needs Request-Tag and Size1");
+            self.answer(now, peer, msg, false, expires, r);
+            return None;
+        };
+        let size1 = size1 as usize;
+        let size = q.size();
+        let blocks = size1.div_ceil(size).max(1) as u32;
+        self.expire_quploads(now);
+        let existing = self.server.qupload_ids.get(key).copied();
+        if existing.is_some_and(|id| self.server.quploads.get(&id).is_some_and(|u| u.done)) {
+            // A block of a body already handed over (sent again, or late): dropped.
+            return None;
+        }
+        if size1 > limits.block1_peer_bytes {
+            let mut r = Response::diagnostic(Code::REQUEST_ENTITY_TOO_LARGE, "body too large");
+            r.options
+                .set_uint(OptionNumber::SIZE1, limits.block1_peer_bytes as u32);
+            self.answer(now, peer, msg, false, expires, r);
+            return None;
+        }
+        let held: usize = self.server.quploads.values().map(|u| u.body.len()).sum();
+        if existing.is_none() && held + size1 > limits.block1_total_bytes {
+            let mut r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, "too many uploads");
+            r.options.set_uint(OptionNumber::MAX_AGE, 5);
+            self.answer(now, peer, msg, false, expires, r);
+            return None;
+        }
+        let expected = size1.saturating_sub(q.offset()).min(size);
+        let fits = q.num < blocks
+            && q.more == (q.num + 1 < blocks)
+            && payload.len() == expected
+            && existing.is_none_or(|id| {
+                self.server
+                    .quploads
+                    .get(&id)
+                    .is_some_and(|u| u.got.len() == blocks as usize && u.szx == q.szx)
+            });
+        if !fits {
+            let r = Response::diagnostic(
+                Code::BAD_REQUEST,
+                "the Q-Block1 block does not fit the body's Size1 or its first blocks",
+            );
+            self.answer(now, peer, msg, false, expires, r);
+            return None;
+        }
+        let id = match existing {
+            Some(id) => id,
+            None => {
+                let id = self.new_id();
+                let u = QUpload {
+                    key: key.clone(),
+                    body: vec![0; size1],
+                    got: vec![false; blocks as usize],
+                    count: 0,
+                    szx: q.szx,
+                    token: msg.token,
+                    options: msg.options.clone(),
+                    reported: None,
+                    heard: now,
+                    continued_at: None,
+                    at: now,
+                    tries: 0,
+                    done: false,
+                };
+                self.server.quploads.insert(id, u);
+                self.server.qupload_ids.insert(key.clone(), id);
+                id
+            }
+        };
+        let u = self.server.quploads.get_mut(&id)?;
+        let num = q.num as usize;
+        if !u.got[num] {
+            u.body[q.offset()..q.offset() + payload.len()].copy_from_slice(payload);
+            u.got[num] = true;
+            u.count += 1;
+            if let (Some(at), 0) = (u.continued_at.take(), q.num % mp) {
+                // The first block of the set a 2.31 asked for: a round trip.
+                let rtt = now.saturating_duration_since(at);
+                self.msg.path(now, peer).rtt.on_sample(now, rtt, true);
+            }
+        }
+        let u = self.server.quploads.get_mut(&id)?;
+        u.token = msg.token;
+        u.options = msg.options.clone();
+        u.heard = now;
+        u.tries = 0;
+        if u.count == blocks {
+            u.done = true;
+            u.got = Vec::new();
+            return Some(Bytes::from(std::mem::take(&mut u.body)));
+        }
+        let set = q.num / mp;
+        if msg.ty == Type::Con {
+            // RFC 9177 §4.3: each CON block is acknowledged; the response waits for the
+            // whole body.
+            self.msg
+                .send(peer, &Message::empty(Type::Ack, msg.message_id));
+        } else if u.set_complete(set, mp) && !u.gap_before(set, mp) {
+            // RFC 9177 §7.2: a whole set, confirmed so the next goes at once.
+            let last = ((set + 1) * mp - 1).min(blocks - 1);
+            let mut r = Response::new(Code::CONTINUE);
+            let opt = BlockOpt {
+                num: last,
+                more: true,
+                szx: q.szx,
+            };
+            r.options.set_block(OptionNumber::Q_BLOCK1, opt);
+            u.continued_at = Some(now);
+            self.q_reply(peer, msg.token, r);
+        } else if u.gap_before(set, mp) && u.reported.is_none_or(|r| r < set) {
+            // A later set began with blocks missing before it: ask for them at once.
+            u.reported = Some(set);
+            let r = q_missing_response(u, mp);
+            self.q_reply(peer, msg.token, r);
+        }
+        let estimate = self.msg.estimate(peer);
+        let u = self.server.quploads.get_mut(&id)?;
+        u.at = now + qblock::receive_timeout(estimate, self.config.ack_timeout, 0);
+        let at = u.at;
+        self.msg.schedule(at, TimerKind::QReceive { id, at });
+        None
+    }
+
+    /// NON_RECEIVE_TIMEOUT passed since the last block of an incomplete body: a 4.08
+    /// lists what is missing, NON_MAX_RETRANSMIT times at most, then the body is dropped.
+    pub(super) fn on_qreceive_timer(&mut self, now: Instant, id: u64, at: Instant) {
+        let mp = self.config.max_payloads.max(1);
+        let Some(peer) = self.server.quploads.get(&id).map(|u| u.key.peer) else {
+            return;
+        };
+        let estimate = self.msg.estimate(peer);
+        let Some(u) = self
+            .server
+            .quploads
+            .get_mut(&id)
+            .filter(|u| u.at == at && !u.done)
+        else {
+            return;
+        };
+        if u.tries >= NON_MAX_RETRANSMIT {
+            let key = u.key.clone();
+            self.server.quploads.remove(&id);
+            self.server.qupload_ids.remove(&key);
+            return;
+        }
+        u.tries += 1;
+        let r = q_missing_response(u, mp);
+        let token = u.token;
+        u.at = now + qblock::receive_timeout(estimate, self.config.ack_timeout, u.tries);
+        let at = u.at;
+        self.msg.schedule(at, TimerKind::QReceive { id, at });
+        self.q_reply(peer, token, r);
+    }
+
+    /// Sends a NON response to the request with `token` (2.31, 4.08).
+    fn q_reply(&mut self, peer: SocketAddr, token: Token, r: Response) {
+        let m = Message {
+            ty: Type::Non,
+            code: r.code,
+            message_id: self.msg.next_mid(),
+            token,
+            options: r.options,
+            payload: r.payload,
+        };
+        self.msg.send(peer, &m);
+    }
+
+    /// Forgets uploads idle for NON_PARTIAL_TIMEOUT (the Block-wise lifetime), finished
+    /// ones included.
+    fn expire_quploads(&mut self, now: Instant) {
+        let lifetime = self.config.limits.blockwise_lifetime;
+        let ids = &mut self.server.qupload_ids;
+        self.server.quploads.retain(|_, u| {
+            let keep = now.saturating_duration_since(u.heard) < lifetime;
+            if !keep {
+                ids.remove(&u.key);
+            }
+            keep
+        });
+    }
+}
+
+/// The rest of a Q-Block2 answer after its first block.
+pub(super) struct QRest {
+    nums: Vec<u32>,
+    szx: u8,
+    next_set: Option<u32>,
+    sets: u32,
+}
+
+/// The number of the last block of a body of `len` bytes.
+fn last_block(len: usize, szx: u8) -> u32 {
+    (len.saturating_sub(1) / BlockOpt::size_of(szx)) as u32
+}
+
+/// A 4.08 listing the first MAX_PAYLOADS blocks an upload lacks (RFC 9177 §5).
+fn q_missing_response(u: &QUpload, mp: u32) -> Response {
+    let mut r = Response::new(Code::REQUEST_ENTITY_INCOMPLETE);
+    r.options
+        .set_uint(OptionNumber::CONTENT_FORMAT, MISSING_BLOCKS_CBOR_SEQ);
+    r.with_payload(Bytes::from(qblock::encode_missing(&u.missing(mp as usize))))
+}
