@@ -14,6 +14,7 @@ use super::client_state::{
 use super::congestion::Nstart;
 use super::message::{Due, Purpose, TimerKind};
 use super::types::{Event, Request, RequestError, RequestId, Response};
+use crate::config::Transfer;
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
 use crate::peer_key::{MidKey, PeerKey};
 
@@ -65,8 +66,21 @@ impl Endpoint {
                 block_head: None,
                 window: None,
                 window_timer: None,
+                qdown: None,
+                qup: None,
             },
         );
+        let q_upload = matches!(step, Step::Upload { .. })
+            && self.client.requests[&id].req.transfer == Some(Transfer::QBlock)
+            && self.client.requests[&id].req.confirmable;
+        if q_upload {
+            let r = &self.client.requests[&id];
+            let (options, len) = (r.req.options.clone(), r.req.payload.len());
+            let qup = self.new_qup(szx1, &options, len, peer);
+            if let Some(r) = self.client.requests.get_mut(&id) {
+                r.qup = Some(qup);
+            }
+        }
         self.client.by_token.insert(token, id);
         let nstart = self.config.nstart;
         self.client
@@ -283,6 +297,9 @@ impl Endpoint {
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
         };
+        if r.qup.is_some() {
+            return self.qup_probe_acked(now, id);
+        }
         if let Waiting::Ack(mid) = r.waiting {
             r.waiting = Waiting::Response { non_tx: None, mid };
             r.generation += 1;
@@ -354,6 +371,10 @@ impl Endpoint {
             return;
         };
         self.client.by_token.remove(&r.token);
+        let q_tokens = r.qdown.iter().flat_map(|d| &d.tokens);
+        for t in q_tokens.chain(r.qup.iter().flat_map(|u| &u.tokens)) {
+            self.client.by_token.remove(t);
+        }
         match r.waiting {
             Waiting::Ack(mid) => {
                 self.msg.exchanges.remove(&MidKey(r.peer, mid));
@@ -406,6 +427,33 @@ impl Endpoint {
         };
         if r.window.is_some() {
             return self.on_window_response(now, id, msg, payload);
+        }
+        if r.qdown.is_some() {
+            return self.on_qdown_response(now, id, msg, payload);
+        }
+        if r.qup.is_some() {
+            if let Waiting::Ack(mid) = r.waiting {
+                self.msg.exchanges.remove(&MidKey(r.peer, mid));
+            }
+            return self.on_qup_response(now, id, msg, payload);
+        }
+        if r.step == Step::Whole && r.may_qblock() {
+            if msg.code == Code::BAD_OPTION {
+                // RFC 9177 §4.1: the server does not know Q-Block2; RFC 7959 then, with a
+                // window.
+                r.req.transfer = Some(Transfer::Window);
+                return self.send_step(now, id);
+            }
+            if let Some(q) = msg
+                .options
+                .block(OptionNumber::Q_BLOCK2)
+                .filter(|q| q.more && msg.code.is_success())
+            {
+                if let Waiting::Ack(mid) = r.waiting {
+                    self.msg.exchanges.remove(&MidKey(r.peer, mid));
+                }
+                return self.start_qdown(now, id, msg, payload, q);
+            }
         }
         // Is it the answer to the step in flight? Late answers to earlier steps are dropped.
         let current = match r.step {

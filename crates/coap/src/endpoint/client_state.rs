@@ -16,6 +16,7 @@ use bytes::Bytes;
 
 use super::congestion::Controller;
 use super::message::Outbox;
+use super::qclient::{QDown, QUp};
 use super::types::{Event, Request, RequestError, RequestId, Response};
 use super::window::Window;
 use crate::config::Transfer;
@@ -86,6 +87,9 @@ pub(super) struct ClientRequest {
     /// A windowed download in progress, and when its armed timer fires.
     pub(super) window: Option<Window>,
     pub(super) window_timer: Option<Instant>,
+    /// A response body fetched, or a request body sent, with Q-Block (RFC 9177).
+    pub(super) qdown: Option<QDown>,
+    pub(super) qup: Option<QUp>,
 }
 
 impl ClientRequest {
@@ -103,6 +107,12 @@ impl ClientRequest {
         };
         let mut uints = [(OptionNumber(0), 0); 3];
         let mut set = 0;
+        if let (Step::Upload { .. }, true) = (self.step, self.qup.is_some()) {
+            // Block 0 of a Q-Block1 body, a CON that finds out whether the server knows
+            // Q-Block1; the rest goes as NONs (`qclient`).
+            self.send_qup_block(0, ty, mid, self.token, outbox);
+            return;
+        }
         let payload: &[u8] = match self.step {
             Step::Download { num, szx } => {
                 // Every block of a download is the same request but for Block2.
@@ -116,6 +126,13 @@ impl ClientRequest {
                     head.encode_into(out, header, value, &[])
                 });
                 return;
+            }
+            Step::Whole if self.may_qblock() => {
+                // RFC 9177 §4.4: the whole body, set by set.
+                let szx = self.req.block_szx.unwrap_or(self.szx1);
+                uints[set] = (OptionNumber::Q_BLOCK2, block(0, true, szx));
+                set += 1;
+                &self.req.payload
             }
             Step::Whole => {
                 if let (Some(szx), false) = (self.req.block_szx, self.user_block2) {
@@ -215,6 +232,14 @@ impl ClientRequest {
             });
         }
         Ok(())
+    }
+
+    /// Whether a response in blocks is asked for with Q-Block2.
+    pub(super) fn may_qblock(&self) -> bool {
+        self.req.transfer == Some(Transfer::QBlock)
+            && !self.user_block2
+            && !self.observe
+            && !self.req.multicast
     }
 
     /// Whether a response in blocks may be fetched with a window.

@@ -52,6 +52,11 @@ pub(super) enum TimerKind {
         id: u64,
         at: Instant,
     },
+    /// The timer of a body a client fetches or sends with Q-Block, due at `at`.
+    QClient {
+        id: u64,
+        at: Instant,
+    },
     /// The receive timer of a body the server receives with Q-Block1, due at `at`.
     QReceive {
         id: u64,

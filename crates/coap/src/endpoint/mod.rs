@@ -35,6 +35,7 @@ mod congestion;
 mod download;
 mod message;
 mod qblock;
+mod qclient;
 mod qserver;
 mod server;
 mod server_state;
@@ -120,6 +121,7 @@ impl Endpoint {
             TimerKind::Window { id, at } => self.client.window_timer_is(id, at),
             TimerKind::Deadline { id } => self.client.requests.contains_key(&id),
             TimerKind::SeparateAck { id } => self.server.awaits_separate_ack(id),
+            TimerKind::QClient { id, at } => self.qclient_timer_is(id, at),
             TimerKind::QSet { id, at } => self.server.qsends.get(&id).is_some_and(|q| q.at == at),
             TimerKind::QReceive { id, at } => self
                 .server
@@ -172,6 +174,7 @@ impl Endpoint {
                     None => {}
                 },
                 TimerKind::SeparateAck { id } => self.on_separate_ack_timer(now, id),
+                TimerKind::QClient { id, at } => self.on_qclient_timer(now, id, at),
                 TimerKind::QSet { id, at } => self.on_qset_timer(now, id, at),
                 TimerKind::QReceive { id, at } => self.on_qreceive_timer(now, id, at),
             }

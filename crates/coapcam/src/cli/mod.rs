@@ -41,10 +41,13 @@ pub(crate) struct TransmissionArgs {
     /// MAX_RETRANSMIT retransmissions (45-93 s with the RFC 7252 defaults).
     #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
     timeout: f64,
-    /// How a response that comes in blocks is fetched: `window` (many blocks in flight,
-    /// paced by a congestion controller, lost blocks asked for again within about a round
-    /// trip; falls back to stop-and-wait with servers that refuse) or `stop-and-wait`
-    /// (RFC 7959: one block per round trip).
+    /// How a body that comes in blocks is moved: `window` (many block requests in
+    /// flight, paced by a congestion controller, lost blocks asked for again within about
+    /// a round trip; falls back to stop-and-wait with servers that refuse),
+    /// `stop-and-wait` (RFC 7959: one block per round trip) or `q-block` (RFC 9177
+    /// Q-Block2 and Q-Block1: the sender sends MAX_PAYLOADS blocks at a time as NONs, the
+    /// receiver confirms each set and asks for missing blocks; with servers that do not
+    /// know Q-Block, as `window`). Uploads are windowed only with `q-block`.
     #[arg(long, value_name = "MODE", default_value = "window")]
     transfer: TransferMode,
 }
@@ -56,6 +59,8 @@ pub(crate) enum TransferMode {
     Window,
     /// One block per round trip (RFC 7959).
     StopAndWait,
+    /// RFC 9177 Q-Block2 and Q-Block1.
+    QBlock,
 }
 
 impl TransmissionArgs {
@@ -79,6 +84,7 @@ impl TransmissionArgs {
             transfer: match self.transfer {
                 TransferMode::Window => coap::Transfer::Window,
                 TransferMode::StopAndWait => coap::Transfer::StopAndWait,
+                TransferMode::QBlock => coap::Transfer::QBlock,
             },
             ..EndpointConfig::default()
         }

@@ -1,0 +1,621 @@
+//! The client side of RFC 9177: a response body fetched with Q-Block2 and a request body
+//! sent with Q-Block1 (their state, [`QDown`] and [`QUp`], lives in the request).
+//!
+//! Q-Block2: the first request carries Q-Block2 0 with M (a CON: RFC 9177 §4.1 requires
+//! finding out with a CON whether the server knows the option; a 4.02 means it does not,
+//! and the request goes on as a windowed RFC 7959 download). A server answers a CON with
+//! block 0 only, so the rest of the first set is asked for with a NON. Each whole set is
+//! confirmed with a 'Continue' for the next; blocks of a later set arriving with earlier
+//! ones missing, or NON_RECEIVE_TIMEOUT without a block, ask for the missing ones (at
+//! most MAX_PAYLOADS per request, one Q-Block2 option each). Every request has a new
+//! token. Blocks are delivered in order; those that arrive early wait.
+//!
+//! Q-Block1: block 0 goes as a CON (the same test; a 4.02 sends the body with Block1
+//! instead), the others as NONs, MAX_PAYLOADS at a time, with Request-Tag and Size1 in
+//! each. A 2.31 sends the next set; a 4.08 listing missing blocks sends them again;
+//! NON_TIMEOUT_RANDOM without either sends the next set anyway, or, once all went, the
+//! last block again (NON_MAX_RETRANSMIT times).
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use rand_core::RngCore;
+
+use super::Endpoint;
+use super::client_state::{Step, Waiting};
+use super::message::TimerKind;
+use super::qblock::{self, MISSING_BLOCKS_CBOR_SEQ, NON_MAX_RETRANSMIT};
+use super::types::{RequestError, Response};
+use crate::config::Transfer;
+use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Outgoing, Token, Type};
+
+/// A response body being fetched with Q-Block2.
+#[derive(Debug)]
+pub(super) struct QDown {
+    szx: u8,
+    last: u32,
+    total: usize,
+    got: Vec<bool>,
+    /// Blocks that arrived ahead of the next one to deliver.
+    ahead: BTreeMap<u32, Vec<u8>>,
+    next_deliver: u32,
+    /// Sets asked for so far (the first set by the first request).
+    asked_sets: u32,
+    /// The highest set a block arrived from.
+    seen_set: u32,
+    /// When the latest 'Continue' went, until its set's first block arrives.
+    continued_at: Option<Instant>,
+    heard: Instant,
+    tries: u32,
+    /// When the armed timer fires.
+    pub(super) at: Option<Instant>,
+    /// Tokens of the requests sent for this body (all routed to the request).
+    pub(super) tokens: Vec<Token>,
+}
+
+/// A request body being sent with Q-Block1.
+#[derive(Debug)]
+pub(super) struct QUp {
+    /// The request's options with its Request-Tag.
+    options: Options,
+    szx: u8,
+    blocks: u32,
+    /// The next block never sent.
+    next_new: u32,
+    /// Block 0 went as a CON and is not acknowledged yet.
+    probing: bool,
+    /// NON_TIMEOUT_RANDOM, drawn once.
+    timeout: Duration,
+    /// When the latest set went (its 2.31 gives a round trip).
+    set_sent: Option<Instant>,
+    /// Message ID and token of the last block sent, to send it again.
+    last_sent: Option<(u32, u16, Token)>,
+    tries: u32,
+    pub(super) at: Option<Instant>,
+    pub(super) tokens: Vec<Token>,
+}
+
+impl super::client_state::ClientRequest {
+    /// Sends block `num` of the request's Q-Block1 body (with Request-Tag, and Size1 in
+    /// every block, RFC 9177 §4.3, §4.6).
+    pub(super) fn send_qup_block(
+        &self,
+        num: u32,
+        ty: Type,
+        mid: u16,
+        token: Token,
+        outbox: &mut super::message::Outbox,
+    ) {
+        let Some(u) = self.qup.as_ref() else { return };
+        let size = BlockOpt::size_of(u.szx);
+        let len = self.req.payload.len();
+        let start = (num as usize * size).min(len);
+        let end = (start + size).min(len);
+        let opt = BlockOpt {
+            num,
+            more: num + 1 < u.blocks,
+            szx: u.szx,
+        };
+        let uints = [
+            (OptionNumber::Q_BLOCK1, opt.as_uint()),
+            (OptionNumber::SIZE1, len as u32),
+        ];
+        let out = Outgoing {
+            ty,
+            code: self.req.method,
+            message_id: mid,
+            token,
+            options: &u.options,
+            uints: &uints,
+            payload: &self.req.payload[start..end],
+        };
+        outbox.send(self.peer, &out);
+    }
+}
+
+impl Endpoint {
+    /// The first response to a request that asked for Q-Block2 carries Q-Block2 `q` with
+    /// more to come: the body is fetched set by set.
+    pub(super) fn start_qdown(
+        &mut self,
+        now: Instant,
+        id: u64,
+        msg: &Message,
+        payload: &[u8],
+        q: BlockOpt,
+    ) {
+        let limit = self.config.limits.client_body_bytes;
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let Some(total) = msg.options.uint(OptionNumber::SIZE2).map(|t| t as usize) else {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("Q-Block2 response without Size2"),
+            );
+        };
+        if total > limit {
+            return self.fail(now, id, RequestError::TooLarge { limit });
+        }
+        if q.num != 0 {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("first Q-Block2 response is not block 0"),
+            );
+        }
+        let mut first = msg.options.clone();
+        first.remove(OptionNumber::Q_BLOCK2);
+        r.etag = msg.options.etag().map(<[u8]>::to_vec);
+        r.first_options = Some(first);
+        if !r.req.stream {
+            r.body.reserve(total);
+        }
+        let last = (total.saturating_sub(1) / q.size()) as u32;
+        r.qdown = Some(QDown {
+            szx: q.szx,
+            last,
+            total,
+            got: vec![false; last as usize + 1],
+            ahead: BTreeMap::new(),
+            next_deliver: 0,
+            asked_sets: 1,
+            seen_set: 0,
+            continued_at: None,
+            heard: now,
+            tries: 0,
+            at: None,
+            tokens: Vec::new(),
+        });
+        r.waiting = Waiting::Window;
+        r.generation += 1;
+        let con = msg.ty == Type::Ack;
+        self.on_qdown_block(now, id, msg, payload);
+        if con
+            && self
+                .client
+                .requests
+                .get(&id)
+                .is_some_and(|r| r.qdown.is_some())
+        {
+            // The server answered the CON with block 0 alone: ask for the rest of the set.
+            self.qdown_ask(
+                now,
+                id,
+                &[BlockOpt {
+                    num: 1,
+                    more: true,
+                    szx: q.szx,
+                }],
+            );
+        }
+    }
+
+    /// A response to one of a Q-Block2 body's requests.
+    pub(super) fn on_qdown_response(
+        &mut self,
+        now: Instant,
+        id: u64,
+        msg: &Message,
+        payload: &[u8],
+    ) {
+        let q = msg.options.block(OptionNumber::Q_BLOCK2);
+        let Some(q) = q.filter(|_| msg.code.is_success()) else {
+            // An error in the middle of the body (the representation went away, the
+            // server is busy): the server's answer.
+            let mut msg = msg.clone();
+            let response = super::client_state::take_response(&mut msg, payload);
+            return self.complete(now, id, response);
+        };
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        if msg.options.etag() != r.etag.as_deref() {
+            // RFC 9177 §4.4: the representation changed; the partial body is stale.
+            return self.fail(now, id, RequestError::RepresentationChanged);
+        }
+        let _ = q;
+        self.on_qdown_block(now, id, msg, payload);
+    }
+
+    /// Block `msg` of a Q-Block2 body arrived.
+    fn on_qdown_block(&mut self, now: Instant, id: u64, msg: &Message, payload: &[u8]) {
+        let limit = self.config.limits.client_body_bytes;
+        let mp = self.config.max_payloads.max(1);
+        let Some(q) = msg.options.block(OptionNumber::Q_BLOCK2) else {
+            return;
+        };
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let peer = r.peer;
+        let Some(d) = r.qdown.as_mut() else { return };
+        let size = BlockOpt::size_of(d.szx);
+        if q.szx != d.szx
+            || q.num > d.last
+            || payload.len() != d.total.saturating_sub(q.num as usize * size).min(size)
+            || q.more != (q.num < d.last)
+        {
+            return self.fail(
+                now,
+                id,
+                RequestError::Protocol("the Q-Block2 block does not fit Size2"),
+            );
+        }
+        if d.got[q.num as usize] {
+            return;
+        }
+        d.got[q.num as usize] = true;
+        d.heard = now;
+        d.tries = 0;
+        let set = q.num / mp;
+        let mut sample = None;
+        if set + 1 == d.asked_sets
+            && let Some(at) = d.continued_at.take()
+        {
+            sample = Some(now.saturating_duration_since(at));
+        }
+        let new_set = set > d.seen_set;
+        d.seen_set = d.seen_set.max(set);
+        let last = d.last;
+        if q.num != d.next_deliver {
+            d.ahead.insert(q.num, payload.to_vec());
+        } else {
+            let mut block: Option<Vec<u8>> = None;
+            let mut num = q.num;
+            loop {
+                let data = block.as_deref().unwrap_or(payload);
+                if let Err(e) = r.append(id, data, num < last, size, limit, &mut self.events) {
+                    return self.fail(now, id, e);
+                }
+                num += 1;
+                let Some(d) = r.qdown.as_mut() else { return };
+                d.next_deliver = num;
+                block = d.ahead.remove(&num);
+                if block.is_none() {
+                    break;
+                }
+            }
+        }
+        if let Some(rtt) = sample {
+            self.msg.path(now, peer).rtt.on_sample(now, rtt, true);
+        }
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let Some(d) = r.qdown.as_ref() else { return };
+        if d.next_deliver > d.last {
+            let body = Bytes::from(std::mem::take(&mut r.body));
+            let options = r.first_options.take().unwrap_or_default();
+            let response = Response::with_parts(msg.code, options, body);
+            return self.complete(now, id, response);
+        }
+        let szx = d.szx;
+        let asked_end = (d.asked_sets * mp).min(d.last + 1);
+        let latest_whole = (d.asked_sets - 1) * mp..asked_end;
+        if latest_whole.clone().all(|n| d.got[n as usize]) && asked_end <= d.last {
+            // RFC 9177 §7.2: the latest set is whole: 'Continue' with the next.
+            let next = d.asked_sets;
+            if let Some(d) = r.qdown.as_mut() {
+                d.asked_sets += 1;
+                d.continued_at = Some(now);
+            }
+            self.qdown_ask(
+                now,
+                id,
+                &[BlockOpt {
+                    num: next * mp,
+                    more: true,
+                    szx,
+                }],
+            );
+        } else if new_set {
+            // A new set began with blocks missing before it: ask for them at once.
+            let missing = self.qdown_missing(id, set * mp);
+            if !missing.is_empty() {
+                self.qdown_ask(now, id, &missing);
+            }
+        }
+        self.arm_qdown(now, id);
+    }
+
+    /// The first MAX_PAYLOADS missing blocks below `end`, as Q-Block2 options without M.
+    fn qdown_missing(&self, id: u64, end: u32) -> Vec<BlockOpt> {
+        let mp = self.config.max_payloads.max(1) as usize;
+        let Some(d) = self.client.requests.get(&id).and_then(|r| r.qdown.as_ref()) else {
+            return Vec::new();
+        };
+        (0..end.min(d.last + 1))
+            .filter(|&n| !d.got[n as usize])
+            .take(mp)
+            .map(|num| BlockOpt {
+                num,
+                more: false,
+                szx: d.szx,
+            })
+            .collect()
+    }
+
+    /// Sends a NON request for the body with these Q-Block2 options and a new token.
+    fn qdown_ask(&mut self, _now: Instant, id: u64, opts: &[BlockOpt]) {
+        let token = self.new_token();
+        let mid = self.msg.next_mid();
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let mut options = r.req.options.clone();
+        for o in opts {
+            options.push(OptionNumber::Q_BLOCK2, o.encode());
+        }
+        let msg = Message {
+            ty: Type::Non,
+            code: r.req.method,
+            message_id: mid,
+            token,
+            options,
+            payload: r.req.payload.clone(),
+        };
+        let peer = r.peer;
+        if let Some(d) = r.qdown.as_mut() {
+            d.tokens.push(token);
+        }
+        self.client.by_token.insert(token, id);
+        self.msg.send(peer, &msg);
+    }
+
+    /// Arms the body's timer NON_RECEIVE_TIMEOUT after its last block.
+    fn arm_qdown(&mut self, _now: Instant, id: u64) {
+        let ack = self.config.ack_timeout;
+        let Some(peer) = self.client.requests.get(&id).map(|r| r.peer) else {
+            return;
+        };
+        let estimate = self.msg.estimate(peer);
+        let Some(d) = self
+            .client
+            .requests
+            .get_mut(&id)
+            .and_then(|r| r.qdown.as_mut())
+        else {
+            return;
+        };
+        let at = d.heard + qblock::receive_timeout(estimate, ack, d.tries);
+        d.at = Some(at);
+        self.msg.schedule(at, TimerKind::QClient { id, at });
+    }
+
+    /// NON_RECEIVE_TIMEOUT without a block: ask for what is missing of the sets asked for
+    /// (a lost 'Continue' shows as a whole set missing), NON_MAX_RETRANSMIT times.
+    fn on_qdown_timer(&mut self, now: Instant, id: u64) {
+        let mp = self.config.max_payloads.max(1);
+        let Some(d) = self
+            .client
+            .requests
+            .get_mut(&id)
+            .and_then(|r| r.qdown.as_mut())
+        else {
+            return;
+        };
+        if d.tries >= NON_MAX_RETRANSMIT {
+            return self.fail(now, id, RequestError::Timeout);
+        }
+        d.tries += 1;
+        d.heard = now;
+        let end = d.asked_sets * mp;
+        let missing = self.qdown_missing(id, end);
+        if !missing.is_empty() {
+            self.qdown_ask(now, id, &missing);
+        }
+        self.arm_qdown(now, id);
+    }
+
+    /// A client Q-Block timer fired.
+    pub(super) fn on_qclient_timer(&mut self, now: Instant, id: u64, at: Instant) {
+        let Some(r) = self.client.requests.get(&id) else {
+            return;
+        };
+        if r.qdown.as_ref().is_some_and(|d| d.at == Some(at)) {
+            self.on_qdown_timer(now, id);
+        } else if r.qup.as_ref().is_some_and(|u| u.at == Some(at)) {
+            self.on_qup_timer(now, id);
+        }
+    }
+
+    /// Whether request `id`'s Q-Block timer is the one armed for `at`.
+    pub(super) fn qclient_timer_is(&self, id: u64, at: Instant) -> bool {
+        self.client.requests.get(&id).is_some_and(|r| {
+            r.qdown.as_ref().is_some_and(|d| d.at == Some(at))
+                || r.qup.as_ref().is_some_and(|u| u.at == Some(at))
+        })
+    }
+
+    /// The state of a request body sent with Q-Block1, before block 0 goes.
+    pub(super) fn new_qup(
+        &mut self,
+        szx: u8,
+        req_options: &Options,
+        len: usize,
+        peer: std::net::SocketAddr,
+    ) -> QUp {
+        let mut options = req_options.clone();
+        let tag = self.msg.rng.next_u32().to_be_bytes();
+        options.set(OptionNumber::REQUEST_TAG, tag);
+        let unit = self.msg.unit();
+        let c = &self.config;
+        let timeout = qblock::non_timeout(
+            self.msg.estimate(peer),
+            c.ack_timeout,
+            c.ack_random_factor,
+            unit,
+        );
+        QUp {
+            options,
+            szx,
+            blocks: len.div_ceil(BlockOpt::size_of(szx)).max(1) as u32,
+            next_new: 1,
+            probing: true,
+            timeout,
+            set_sent: None,
+            last_sent: None,
+            tries: 0,
+            at: None,
+            tokens: Vec::new(),
+        }
+    }
+
+    /// Sends block `num` of a Q-Block1 body as a NON with a new token, or again with
+    /// message ID and token `again`.
+    fn qup_send_block(&mut self, id: u64, num: u32, again: Option<(u16, Token)>) {
+        let (mid, token) = match again {
+            Some(x) => x,
+            None => (self.msg.next_mid(), self.new_token()),
+        };
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        r.send_qup_block(num, Type::Non, mid, token, &mut self.msg.outbox);
+        let Some(u) = r.qup.as_mut() else { return };
+        u.last_sent = Some((num, mid, token));
+        if again.is_none() {
+            u.tokens.push(token);
+            self.client.by_token.insert(token, id);
+        }
+    }
+
+    /// Sends the next set of new blocks (the rest of the first set after block 0), and
+    /// arms NON_TIMEOUT_RANDOM.
+    fn qup_next_set(&mut self, now: Instant, id: u64) {
+        let mp = self.config.max_payloads.max(1);
+        let Some(u) = self
+            .client
+            .requests
+            .get_mut(&id)
+            .and_then(|r| r.qup.as_mut())
+        else {
+            return;
+        };
+        u.probing = false;
+        let start = u.next_new;
+        let end = ((start / mp + 1) * mp).min(u.blocks);
+        for num in start..end {
+            self.qup_send_block(id, num, None);
+        }
+        if let Some(u) = self
+            .client
+            .requests
+            .get_mut(&id)
+            .and_then(|r| r.qup.as_mut())
+        {
+            u.next_new = u.next_new.max(end);
+            u.set_sent = Some(now);
+            u.tries = 0;
+        }
+        self.arm_qup(now, id);
+    }
+
+    fn arm_qup(&mut self, now: Instant, id: u64) {
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        r.waiting = Waiting::Window;
+        let Some(u) = r.qup.as_mut() else { return };
+        let at = now + u.timeout * (1 << u.tries.min(6));
+        u.at = Some(at);
+        self.msg.schedule(at, TimerKind::QClient { id, at });
+    }
+
+    /// The CON of block 0 was acknowledged without a response: the server takes Q-Block1.
+    pub(super) fn qup_probe_acked(&mut self, now: Instant, id: u64) {
+        self.qup_next_set(now, id);
+    }
+
+    /// A response to one of a Q-Block1 body's blocks.
+    pub(super) fn on_qup_response(
+        &mut self,
+        now: Instant,
+        id: u64,
+        msg: &mut Message,
+        payload: &[u8],
+    ) {
+        let Some(r) = self.client.requests.get_mut(&id) else {
+            return;
+        };
+        let peer = r.peer;
+        let Some(u) = r.qup.as_mut() else { return };
+        if u.probing && msg.code == Code::BAD_OPTION {
+            // RFC 9177 §4.1: the server does not know Q-Block1; RFC 7959 then.
+            r.qup = None;
+            r.req.transfer = Some(Transfer::Window);
+            r.step = Step::Upload { offset: 0 };
+            return self.send_step(now, id);
+        }
+        if msg.code == Code::CONTINUE {
+            let Some(q) = msg.options.block(OptionNumber::Q_BLOCK1) else {
+                return;
+            };
+            if q.num + 1 >= u.next_new && u.next_new < u.blocks {
+                if let Some(at) = u.set_sent.take() {
+                    self.msg.path(now, peer).rtt.on_sample(
+                        now,
+                        now.saturating_duration_since(at),
+                        true,
+                    );
+                }
+                self.qup_next_set(now, id);
+            }
+            return;
+        }
+        if msg.code == Code::REQUEST_ENTITY_INCOMPLETE
+            && msg.options.uint(OptionNumber::CONTENT_FORMAT) == Some(MISSING_BLOCKS_CBOR_SEQ)
+        {
+            let Some(missing) = qblock::decode_missing(payload) else {
+                return;
+            };
+            let blocks = u.blocks;
+            u.probing = false;
+            for num in missing.into_iter().filter(|&n| n < blocks) {
+                self.qup_send_block(id, num, None);
+            }
+            if let Some(u) = self
+                .client
+                .requests
+                .get_mut(&id)
+                .and_then(|r| r.qup.as_mut())
+            {
+                u.set_sent = None;
+            }
+            return self.arm_qup(now, id);
+        }
+        // The final response (or an error): the body's answer.
+        let response = super::client_state::take_response(msg, payload);
+        self.complete(now, id, response);
+    }
+
+    /// NON_TIMEOUT_RANDOM without a 2.31: the next set goes; once all went, the last block
+    /// goes again (its message ID too, so a server that has the body answers it again),
+    /// NON_MAX_RETRANSMIT times.
+    fn on_qup_timer(&mut self, now: Instant, id: u64) {
+        let Some(u) = self
+            .client
+            .requests
+            .get_mut(&id)
+            .and_then(|r| r.qup.as_mut())
+        else {
+            return;
+        };
+        u.at = None;
+        if u.next_new < u.blocks {
+            u.set_sent = None;
+            return self.qup_next_set(now, id);
+        }
+        if u.tries >= NON_MAX_RETRANSMIT {
+            return self.fail(now, id, RequestError::Timeout);
+        }
+        u.tries += 1;
+        if let Some((num, mid, token)) = u.last_sent {
+            self.qup_send_block(id, num, Some((mid, token)));
+        }
+        self.arm_qup(now, id);
+    }
+}
