@@ -92,6 +92,16 @@ impl RttEstimator {
         self.last_sample = now;
     }
 
+    /// A sample from an exchange that may have been answered by a message already on
+    /// its way (a Q-Block set the server sent by timer just before a 'Continue' asked
+    /// for it): taken as strong, unless it is shorter than half the smallest round trip
+    /// seen, which no round trip can be.
+    pub(super) fn on_plausible_sample(&mut self, now: Instant, rtt: Duration) {
+        if self.min().is_none_or(|min| rtt >= min / 2) {
+            self.on_sample(now, rtt, true);
+        }
+    }
+
     /// The smoothed round trip, if there is an estimate.
     pub(super) fn srtt(&self) -> Option<Duration> {
         (self.samples > 0).then_some(self.srtt)

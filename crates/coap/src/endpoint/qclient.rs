@@ -280,7 +280,7 @@ impl Endpoint {
             }
         }
         if let Some(rtt) = sample {
-            self.msg.path(now, peer).rtt.on_sample(now, rtt, true);
+            self.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
         }
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
@@ -339,7 +339,7 @@ impl Endpoint {
     }
 
     /// Sends a NON request for the body with these Q-Block2 options and a new token.
-    fn qdown_ask(&mut self, _now: Instant, id: u64, opts: &[BlockOpt]) {
+    fn qdown_ask(&mut self, now: Instant, id: u64, opts: &[BlockOpt]) {
         let token = self.new_token();
         let mid = self.msg.next_mid();
         let Some(r) = self.client.requests.get_mut(&id) else {
@@ -363,6 +363,12 @@ impl Endpoint {
         }
         self.client.by_token.insert(token, id);
         self.msg.send(peer, &msg);
+        let stats = &mut self.msg.path(now, peer).stats;
+        stats.block_requests += 1;
+        if !matches!(opts, [o] if o.more) {
+            // Missing blocks asked for again.
+            stats.blocks_lost += opts.len() as u64;
+        }
     }
 
     /// Arms the body's timer NON_RECEIVE_TIMEOUT after its last block.
@@ -501,6 +507,11 @@ impl Endpoint {
         for num in start..end {
             self.qup_send_block(id, num, None);
         }
+        if let Some(peer) = self.client.requests.get(&id).map(|r| r.peer) {
+            let stats = &mut self.msg.path(now, peer).stats;
+            stats.block_requests += u64::from(end.saturating_sub(start));
+            stats.max_window = stats.max_window.max(u64::from(mp));
+        }
         if let Some(u) = self
             .client
             .requests
@@ -574,9 +585,11 @@ impl Endpoint {
             };
             let blocks = u.blocks;
             u.probing = false;
-            for num in missing.into_iter().filter(|&n| n < blocks) {
+            let resent: Vec<u32> = missing.into_iter().filter(|&n| n < blocks).collect();
+            for &num in &resent {
                 self.qup_send_block(id, num, None);
             }
+            self.msg.path(now, peer).stats.blocks_lost += resent.len() as u64;
             if let Some(u) = self
                 .client
                 .requests

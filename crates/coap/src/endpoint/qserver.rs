@@ -236,7 +236,7 @@ impl Endpoint {
         };
         if q.next_set == set && q.asked && set > 0 {
             let rtt = now.saturating_duration_since(q.sent_at);
-            self.msg.path(now, peer).rtt.on_sample(now, rtt, true);
+            self.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
         }
         q.next_set = q.next_set.max(set + 1);
         q.token = token;
@@ -523,7 +523,7 @@ impl Endpoint {
             if let (Some(at), 0) = (u.continued_at.take(), q.num % mp) {
                 // The first block of the set a 2.31 asked for: a round trip.
                 let rtt = now.saturating_duration_since(at);
-                self.msg.path(now, peer).rtt.on_sample(now, rtt, true);
+                self.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
             }
         }
         let u = self.server.quploads.get_mut(&id)?;

@@ -3,6 +3,7 @@
 mod blockwise;
 mod codec;
 mod observe;
+mod qblock;
 mod reliability;
 mod sim;
 mod window;

@@ -11,7 +11,10 @@ use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
-use coap::{Endpoint, EndpointConfig, Event, IncomingId, IncomingRequest, Message, Response, Type};
+use coap::{
+    BlockOpt, Endpoint, EndpointConfig, Event, IncomingId, IncomingRequest, Message, OptionNumber,
+    Response, Type,
+};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
 
@@ -130,6 +133,14 @@ impl Record {
         }
         if let Some(b) = m.options.block2() {
             s.push_str(&format!(" b2={b}"));
+        }
+        if let Some(b) = m.options.block(OptionNumber::Q_BLOCK1) {
+            s.push_str(&format!(" q1={b}"));
+        }
+        for v in m.options.values(OptionNumber::Q_BLOCK2) {
+            if let Some(b) = BlockOpt::decode(v) {
+                s.push_str(&format!(" q2={b}"));
+            }
         }
         if self.lost {
             s.push_str(" LOST");
