@@ -171,6 +171,9 @@ pub(super) struct QUpload {
     pub(super) at: Instant,
     /// 4.08s sent since the latest block arrived.
     pub(super) tries: u32,
+    /// The blocks the latest 4.08 listed: once they are all in, the next 4.08 goes at
+    /// once (RFC 9177 §5) rather than after NON_RECEIVE_TIMEOUT.
+    pub(super) listed: Vec<u32>,
     /// The body was complete and went to the application; blocks that come after are
     /// dropped.
     pub(super) done: bool,

@@ -538,6 +538,17 @@ impl Endpoint {
 
     /// The CON of block 0 was acknowledged without a response: the server takes Q-Block1.
     pub(super) fn qup_probe_acked(&mut self, now: Instant, id: u64) {
+        // The ACK gave a round trip: NON_TIMEOUT_RANDOM follows it from here.
+        if let Some(peer) = self.client.requests.get(&id).map(|r| r.peer)
+            && let Some(estimate) = self.msg.estimate(peer)
+            && let Some(u) = self
+                .client
+                .requests
+                .get_mut(&id)
+                .and_then(|r| r.qup.as_mut())
+        {
+            u.timeout = estimate;
+        }
         self.qup_next_set(now, id);
     }
 
@@ -596,7 +607,9 @@ impl Endpoint {
                 .get_mut(&id)
                 .and_then(|r| r.qup.as_mut())
             {
+                // The server is there and still assembling: the give-up count starts over.
                 u.set_sent = None;
+                u.tries = 0;
             }
             return self.arm_qup(now, id);
         }

@@ -507,6 +507,7 @@ impl Endpoint {
                     continued_at: None,
                     at: now,
                     tries: 0,
+                    listed: Vec::new(),
                     done: false,
                 };
                 self.server.quploads.insert(id, u);
@@ -557,6 +558,10 @@ impl Endpoint {
         } else if u.gap_before(set, mp) && u.reported.is_none_or(|r| r < set) {
             // A later set began with blocks missing before it: ask for them at once.
             u.reported = Some(set);
+            let r = q_missing_response(u, mp);
+            self.q_reply(peer, msg.token, r);
+        } else if !u.listed.is_empty() && u.listed.iter().all(|&n| u.got[n as usize]) {
+            // Every block the last 4.08 listed came: list the next ones now.
             let r = q_missing_response(u, mp);
             self.q_reply(peer, msg.token, r);
         }
@@ -640,10 +645,12 @@ fn last_block(len: usize, szx: u8) -> u32 {
     (len.saturating_sub(1) / BlockOpt::size_of(szx)) as u32
 }
 
-/// A 4.08 listing the first MAX_PAYLOADS blocks an upload lacks (RFC 9177 §5).
-fn q_missing_response(u: &QUpload, mp: u32) -> Response {
+/// A 4.08 listing the first MAX_PAYLOADS blocks an upload lacks (RFC 9177 §5), which
+/// it remembers.
+fn q_missing_response(u: &mut QUpload, mp: u32) -> Response {
     let mut r = Response::new(Code::REQUEST_ENTITY_INCOMPLETE);
     r.options
         .set_uint(OptionNumber::CONTENT_FORMAT, MISSING_BLOCKS_CBOR_SEQ);
-    r.with_payload(Bytes::from(qblock::encode_missing(&u.missing(mp as usize))))
+    u.listed = u.missing(mp as usize);
+    r.with_payload(Bytes::from(qblock::encode_missing(&u.listed)))
 }
