@@ -16,7 +16,7 @@ cargo --version
 rustup component list --installed 2>/dev/null | grep -E 'rustfmt|clippy' || true
 
 step "peers"
-# The interop tests (crates/coapcam/tests/it/interop.rs) drive libcoap 4.3.1 and aiocoap;
+# The interop tests (crates/coapcam/tests/it/interop.rs) drive libcoap 4.3.1 and 4.3.5 and aiocoap;
 # they fail in CI (CI=true) when a peer is missing, and are skipped loudly elsewhere.
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 peer_failed() {
@@ -28,6 +28,18 @@ if command -v coap-client-notls >/dev/null && command -v coap-server-notls >/dev
 else
   { as_root apt-get update && as_root env DEBIAN_FRONTEND=noninteractive \
       apt-get install -y --no-install-recommends libcoap3-bin; } || peer_failed libcoap3-bin
+fi
+# libcoap 4.3.5 (Q-Block, RFC 9177; Debian has only 4.3.1) is built from the source
+# beside this repository (../shared/peers) for the Q-Block interop tests.
+if [ -x ../shared/peers/build-libcoap.sh ] || [ -f ../shared/peers/build-libcoap.sh ]; then
+  if COAPCAM_LIBCOAP435=$(bash ../shared/peers/build-libcoap.sh); then
+    export COAPCAM_LIBCOAP435
+    echo "libcoap 4.3.5: $COAPCAM_LIBCOAP435"
+  else
+    peer_failed "libcoap 4.3.5 (../shared/peers/build-libcoap.sh)"
+  fi
+else
+  echo "libcoap 4.3.5: ../shared/peers/build-libcoap.sh not found; its tests skip (fail in CI)"
 fi
 AIOCOAP_VERSION=0.4.17
 if command -v aiocoap-client >/dev/null \

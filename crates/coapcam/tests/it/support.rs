@@ -33,6 +33,46 @@ pub(crate) enum Peer {
     Libcoap,
     /// PyPI aiocoap: the library (for the server script) and aiocoap-client.
     Aiocoap,
+    /// libcoap 4.3.5 built from source (Q-Block, RFC 9177) by
+    /// `../shared/peers/build-libcoap.sh`: its folder in `COAPCAM_LIBCOAP435`, or the
+    /// script's default.
+    Libcoap435,
+}
+
+/// The path of libcoap 4.3.5's `coap-client` or `coap-server`.
+pub(crate) fn libcoap435(bin: &str) -> PathBuf {
+    let dir = std::env::var_os("COAPCAM_LIBCOAP435").map_or_else(
+        || {
+            let home = std::env::var_os("HOME").unwrap_or_default();
+            PathBuf::from(home).join(".cache/coapcam-peers/libcoap-4.3.5/build")
+        },
+        PathBuf::from,
+    );
+    dir.join(bin)
+}
+
+/// libcoap 4.3.5's server with Q-Block (`-L 5`) and dynamic resources (`-d 10`).
+pub(crate) fn libcoap435_server() -> (Proc, SocketAddr) {
+    let server = libcoap435("coap-server");
+    let server = server.to_str().expect("UTF-8 path").to_string();
+    start_on_free_port(
+        |port| {
+            Proc::spawn(
+                &server,
+                &[
+                    "-A",
+                    "127.0.0.1",
+                    "-p",
+                    &port.to_string(),
+                    "-d",
+                    "10",
+                    "-L",
+                    "5",
+                ],
+            )
+        },
+        "/.well-known/core",
+    )
 }
 
 fn on_path(name: &str) -> Option<PathBuf> {
@@ -48,6 +88,17 @@ fn missing(peer: Peer) -> Option<String> {
             .into_iter()
             .find(|b| on_path(b).is_none())
             .map(|b| format!("{b} is not on PATH (Debian package libcoap3-bin)")),
+        Peer::Libcoap435 => ["coap-client", "coap-server"]
+            .into_iter()
+            .map(libcoap435)
+            .find(|b| !b.is_file())
+            .map(|b| {
+                format!(
+                    "{} is missing (../shared/peers/build-libcoap.sh builds libcoap 4.3.5; \
+                     COAPCAM_LIBCOAP435 names its folder)",
+                    b.display()
+                )
+            }),
         Peer::Aiocoap => {
             if on_path(AIOCOAP_CLIENT).is_none() {
                 return Some(format!("{AIOCOAP_CLIENT} is not on PATH (PyPI aiocoap)"));
