@@ -294,8 +294,8 @@ impl Endpoint {
         }
         let szx = d.szx;
         let asked_end = (d.asked_sets * mp).min(d.last + 1);
-        let latest_whole = (d.asked_sets - 1) * mp..asked_end;
-        if latest_whole.clone().all(|n| d.got[n as usize]) && asked_end <= d.last {
+        let mut latest_whole = (d.asked_sets - 1) * mp..asked_end;
+        if latest_whole.all(|n| d.got[n as usize]) && asked_end <= d.last {
             // RFC 9177 §7.2: the latest set is whole: 'Continue' with the next.
             let next = d.asked_sets;
             if let Some(d) = r.qdown.as_mut() {
