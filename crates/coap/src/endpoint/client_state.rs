@@ -16,7 +16,7 @@ use bytes::Bytes;
 
 use super::congestion::Controller;
 use super::message::Outbox;
-use super::qclient::{QDown, QUp};
+use super::qblock::{QDown, QUp};
 use super::types::{Event, Request, RequestError, RequestId, Response};
 use super::window::Window;
 use crate::config::Transfer;

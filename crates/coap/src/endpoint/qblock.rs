@@ -10,6 +10,7 @@
 //! the path's round-trip estimate once there is one (`congestion::RttEstimator`), as
 //! RFC 7252 §4.8.1 allows with congestion control, and keep the RFC's values until then.
 
+use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use crate::block::BlockKey;
@@ -200,6 +201,52 @@ impl QUpload {
         let end = ((set * max_payloads) as usize).min(self.got.len());
         self.got[..end].iter().any(|&g| !g)
     }
+}
+
+/// A response body being fetched with Q-Block2.
+#[derive(Debug)]
+pub(super) struct QDown {
+    pub(super) szx: u8,
+    pub(super) last: u32,
+    pub(super) total: usize,
+    pub(super) got: Vec<bool>,
+    /// Blocks that arrived ahead of the next one to deliver.
+    pub(super) ahead: BTreeMap<u32, Vec<u8>>,
+    pub(super) next_deliver: u32,
+    /// Sets asked for so far (the first set by the first request).
+    pub(super) asked_sets: u32,
+    /// The highest set a block arrived from.
+    pub(super) seen_set: u32,
+    /// When the latest 'Continue' went, until its set's first block arrives.
+    pub(super) continued_at: Option<Instant>,
+    pub(super) heard: Instant,
+    pub(super) tries: u32,
+    /// When the armed timer fires.
+    pub(super) at: Option<Instant>,
+    /// Tokens of the requests sent for this body (all routed to the request).
+    pub(super) tokens: Vec<Token>,
+}
+
+/// A request body being sent with Q-Block1.
+#[derive(Debug)]
+pub(super) struct QUp {
+    /// The request's options with its Request-Tag.
+    pub(super) options: Options,
+    pub(super) szx: u8,
+    pub(super) blocks: u32,
+    /// The next block never sent.
+    pub(super) next_new: u32,
+    /// Block 0 went as a CON and is not acknowledged yet.
+    pub(super) probing: bool,
+    /// NON_TIMEOUT_RANDOM, drawn once.
+    pub(super) timeout: Duration,
+    /// When the latest set went (its 2.31 gives a round trip).
+    pub(super) set_sent: Option<Instant>,
+    /// Message ID and token of the last block sent, to send it again.
+    pub(super) last_sent: Option<(u32, u16, Token)>,
+    pub(super) tries: u32,
+    pub(super) at: Option<Instant>,
+    pub(super) tokens: Vec<Token>,
 }
 
 #[cfg(test)]

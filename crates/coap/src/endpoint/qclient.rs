@@ -17,7 +17,7 @@
 //! last block again (NON_MAX_RETRANSMIT times).
 
 use std::collections::BTreeMap;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use bytes::Bytes;
 use rand_core::RngCore;
@@ -25,56 +25,10 @@ use rand_core::RngCore;
 use super::Endpoint;
 use super::client_state::{Step, Waiting};
 use super::message::TimerKind;
-use super::qblock::{self, MISSING_BLOCKS_CBOR_SEQ, NON_MAX_RETRANSMIT};
+use super::qblock::{self, MISSING_BLOCKS_CBOR_SEQ, NON_MAX_RETRANSMIT, QDown, QUp};
 use super::types::{RequestError, Response};
 use crate::config::Transfer;
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Outgoing, Token, Type};
-
-/// A response body being fetched with Q-Block2.
-#[derive(Debug)]
-pub(super) struct QDown {
-    szx: u8,
-    last: u32,
-    total: usize,
-    got: Vec<bool>,
-    /// Blocks that arrived ahead of the next one to deliver.
-    ahead: BTreeMap<u32, Vec<u8>>,
-    next_deliver: u32,
-    /// Sets asked for so far (the first set by the first request).
-    asked_sets: u32,
-    /// The highest set a block arrived from.
-    seen_set: u32,
-    /// When the latest 'Continue' went, until its set's first block arrives.
-    continued_at: Option<Instant>,
-    heard: Instant,
-    tries: u32,
-    /// When the armed timer fires.
-    pub(super) at: Option<Instant>,
-    /// Tokens of the requests sent for this body (all routed to the request).
-    pub(super) tokens: Vec<Token>,
-}
-
-/// A request body being sent with Q-Block1.
-#[derive(Debug)]
-pub(super) struct QUp {
-    /// The request's options with its Request-Tag.
-    options: Options,
-    szx: u8,
-    blocks: u32,
-    /// The next block never sent.
-    next_new: u32,
-    /// Block 0 went as a CON and is not acknowledged yet.
-    probing: bool,
-    /// NON_TIMEOUT_RANDOM, drawn once.
-    timeout: Duration,
-    /// When the latest set went (its 2.31 gives a round trip).
-    set_sent: Option<Instant>,
-    /// Message ID and token of the last block sent, to send it again.
-    last_sent: Option<(u32, u16, Token)>,
-    tries: u32,
-    pub(super) at: Option<Instant>,
-    pub(super) tokens: Vec<Token>,
-}
 
 impl super::client_state::ClientRequest {
     /// Sends block `num` of the request's Q-Block1 body (with Request-Tag, and Size1 in
