@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Block-wise GET benchmark, RFC 7959 stop-and-wait, coapcam (--transfer stop-and-wait)
-# against libcoap 4.3.1 in the same run, on loopback (scripts/bench-window.sh compares the
-# windowed transfer through an emulated link).
+# against libcoap 4.3.1 in the same run, on loopback (`coapcam bench transfer` compares the
+# transfer modes, libcoap and QUIC through emulated links).
 #
 #   scripts/bench-transfer.sh [RUNS]      (default 8 runs per size and pair)
 #

@@ -1,5 +1,5 @@
 //! `quic-bench`: one file over QUIC (quinn with BBR), the modern-transport reference that
-//! `scripts/bench-window.sh` times beside coapcam's CoAP transfers through the same
+//! `coapcam bench transfer` times beside coapcam's CoAP transfers through the same
 //! emulated link.
 //!
 //! ```text

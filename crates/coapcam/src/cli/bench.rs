@@ -17,6 +17,10 @@ use coapcam::client::CamClient;
 use coapcam::client::measure::{self, Measurement, Source, prepare_cameras, truth, yaw_difference};
 use coapcam::server::SceneServer;
 
+/// `bench transfer` (declared here, not in `cli/mod.rs`, with its file beside this one).
+#[path = "bench_transfer.rs"]
+mod transfer;
+
 /// Flags of `bench`.
 #[derive(Debug, Args)]
 pub(crate) struct BenchArgs {
@@ -30,6 +34,11 @@ enum BenchKind {
     /// one or two D415s 0.8-1.5 m above the floor) end to end over CoAP and print the
     /// errors.
     Accuracy(AccuracyArgs),
+    /// Time whole-body GETs through emulated links (loopback, 20 ms, 2 % and 5 % loss, a
+    /// 50 Mbit/s bottleneck) with our stop-and-wait, window and Q-Block2 clients, libcoap
+    /// 4.3.1 and 4.3.5 and QUIC, each body checked bit-exact; print a markdown table,
+    /// optionally JSON and a PNG plot.
+    Transfer(transfer::TransferArgs),
 }
 
 #[derive(Debug, Args)]
@@ -161,6 +170,7 @@ fn summary(values: &[f64]) -> [f64; 3] {
 pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
     match args.what {
         BenchKind::Accuracy(a) => accuracy(a).await,
+        BenchKind::Transfer(a) => transfer::run(a).await,
     }
 }
 

@@ -3,6 +3,7 @@
 //! what they share.
 
 mod bag;
+mod bench_transfer;
 mod cams;
 mod client;
 mod exits;
