@@ -24,6 +24,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
 
 use crate::cli::{Exit, error_text, outln};
+use coapcam::vision::picture;
 
 /// The largest body `--sizes` accepts (what `quic-bench get` takes at most).
 const MAX_BODY: u64 = 256 << 20;
@@ -134,13 +135,11 @@ pub(super) struct TransferArgs {
 }
 
 fn parse_cap(text: &str) -> Result<Duration, String> {
-    let seconds: f64 = text
-        .parse()
-        .map_err(|e| format!("not a number of seconds ({e})"))?;
-    if seconds.is_nan() || seconds <= 0.0 {
-        return Err(format!("{seconds} s: the cap must be more than 0"));
+    let cap = crate::cli::netem::parse_seconds(text)?;
+    if cap.is_zero() {
+        return Err(format!("{text} s: the cap must be more than 0"));
     }
-    Duration::try_from_secs_f64(seconds).map_err(|e| format!("{seconds} s: {e}"))
+    Ok(cap)
 }
 
 /// An emulated link between client and server.
@@ -1403,9 +1402,7 @@ fn run_blocking(args: &TransferArgs) -> anyhow::Result<Exit> {
         std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.plot {
-        plot(&sizes, &links, &modes, &cells)
-            .save_with_format(path, image::ImageFormat::Png)
-            .with_context(|| format!("writing {}", path.display()))?;
+        picture::save(&plot(&sizes, &links, &modes, &cells), path)?;
     }
     Ok(Exit::Success)
 }
@@ -1616,7 +1613,6 @@ const PANEL: (u32, u32) = (600, 450);
 const LEGEND_WIDTH: u32 = 300;
 /// The plot area inside a panel: left, top, right, bottom margins.
 const MARGIN: (u32, u32, u32, u32) = (72, 44, 20, 56);
-const GLYPH_PX: u32 = 8;
 const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
 const INK: Rgb<u8> = Rgb([30, 30, 30]);
 const GRID: Rgb<u8> = Rgb([215, 215, 215]);
@@ -1644,38 +1640,10 @@ impl Canvas {
         }
     }
 
-    fn rect(&mut self, x: i64, y: i64, w: i64, h: i64, color: Rgb<u8>) {
-        for yy in y..y + h {
-            for xx in x..x + w {
-                self.dot(xx, yy, color);
-            }
-        }
-    }
-
-    /// A line `width` pixels thick (Bresenham with a square pen).
-    fn line(&mut self, from: (i64, i64), to: (i64, i64), width: i64, color: Rgb<u8>) {
-        let (mut x, mut y) = from;
-        let dx = (to.0 - x).abs();
-        let dy = -(to.1 - y).abs();
-        let sx = if x < to.0 { 1 } else { -1 };
-        let sy = if y < to.1 { 1 } else { -1 };
-        let mut err = dx + dy;
-        let half = width / 2;
-        loop {
-            self.rect(x - half, y - half, width, width, color);
-            if (x, y) == to {
-                break;
-            }
-            let e2 = 2 * err;
-            if e2 >= dy {
-                err += dy;
-                x += sx;
-            }
-            if e2 <= dx {
-                err += dx;
-                y += sy;
-            }
-        }
+    /// A line `width` pixels thick.
+    fn line(&mut self, from: (i64, i64), to: (i64, i64), width: u32, color: Rgb<u8>) {
+        let point = |(x, y): (i64, i64)| [x as f32, y as f32];
+        picture::draw_line(&mut self.0, point(from), point(to), color, width);
     }
 
     fn marker(&mut self, (x, y): (i64, i64), marker: Marker, color: Rgb<u8>) {
@@ -1701,25 +1669,14 @@ impl Canvas {
         self.line((x - 5, y + 5), (x + 5, y - 5), 2, color);
     }
 
-    /// Text in the public-domain 8x8 font of `font8x8`, its top left at `at`.
+    /// Text in the 8x8 font, its top left at `at` (kept inside the image).
     fn text(&mut self, at: (i64, i64), text: &str, color: Rgb<u8>) {
-        use font8x8::UnicodeFonts as _;
-        for (i, c) in text.chars().enumerate() {
-            let x0 = at.0 + i as i64 * i64::from(GLYPH_PX);
-            let rows = font8x8::BASIC_FONTS.get(c).unwrap_or_default();
-            for (row, bits) in rows.iter().enumerate() {
-                for col in 0..GLYPH_PX {
-                    // Bit 0 is the leftmost pixel.
-                    if bits & (1 << col) != 0 {
-                        self.dot(x0 + i64::from(col), at.1 + row as i64, color);
-                    }
-                }
-            }
-        }
+        let at = (at.0.max(0) as u32, at.1.max(0) as u32);
+        picture::draw_text(&mut self.0, at, text, 1, color);
     }
 
     fn text_centered(&mut self, center_x: i64, y: i64, text: &str, color: Rgb<u8>) {
-        let width = text.chars().count() as i64 * i64::from(GLYPH_PX);
+        let width = i64::from(picture::text_width(text, 1));
         self.text((center_x - width / 2, y), text, color);
     }
 }
@@ -1797,7 +1754,7 @@ fn plot(sizes: &[u64], links: &[Link], modes: &[Mode], cells: &[Cell]) -> RgbIma
             let y = to_y(decade);
             c.line((x0, y), (x0 + pw, y), 1, GRID);
             let label = decade_label(e);
-            let w = label.chars().count() as i64 * i64::from(GLYPH_PX);
+            let w = i64::from(picture::text_width(&label, 1));
             c.text((x0 - 8 - w, y - 4), &label, INK);
         }
         let step = if max_loss > 10.0 { 5.0 } else { 1.0 };

@@ -369,7 +369,7 @@ fn fill(image: &mut RgbImage, at: (u32, u32), size: (u32, u32), color: Rgb<u8>) 
 }
 
 /// A line `thickness` pixels wide; the parts outside the image are skipped.
-fn draw_line(image: &mut RgbImage, a: [f32; 2], b: [f32; 2], color: Rgb<u8>, thickness: u32) {
+pub fn draw_line(image: &mut RgbImage, a: [f32; 2], b: [f32; 2], color: Rgb<u8>, thickness: u32) {
     draw_pattern(image, a, b, color, thickness, |_| true);
 }
 
@@ -450,13 +450,13 @@ fn line_height(scale: u32) -> u32 {
 }
 
 /// Width of `text` drawn at `scale`.
-fn text_width(text: &str, scale: u32) -> u32 {
+pub fn text_width(text: &str, scale: u32) -> u32 {
     text.chars().count() as u32 * GLYPH_PX * scale
 }
 
 /// Text in the public-domain 8x8 font of `font8x8`, each font pixel `scale` x `scale`
 /// image pixels; characters it lacks are left blank.
-fn draw_text(image: &mut RgbImage, at: (u32, u32), text: &str, scale: u32, color: Rgb<u8>) {
+pub fn draw_text(image: &mut RgbImage, at: (u32, u32), text: &str, scale: u32, color: Rgb<u8>) {
     use font8x8::UnicodeFonts as _;
     for (i, c) in text.chars().enumerate() {
         let x0 = at.0 + i as u32 * GLYPH_PX * scale;
