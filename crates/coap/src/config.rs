@@ -113,6 +113,11 @@ impl Default for Limits {
 }
 
 impl EndpointConfig {
+    /// The blocks of one Q-Block set: [`EndpointConfig::max_payloads`], at least 1.
+    pub(crate) fn payloads_per_set(&self) -> u32 {
+        self.max_payloads.max(1)
+    }
+
     /// MAX_TRANSMIT_SPAN (RFC 7252 §4.8.2).
     pub fn max_transmit_span(&self) -> Duration {
         self.ack_timeout

@@ -44,6 +44,12 @@ impl Endpoint {
         } else {
             Step::Whole
         };
+        // A request body in blocks goes with Q-Block1 if asked (block 0 is the CON that
+        // finds out whether the server knows it).
+        let qup = (matches!(step, Step::Upload { .. })
+            && req.transfer == Some(Transfer::QBlock)
+            && req.confirmable)
+            .then(|| self.new_qup(szx1, &req.options, req.payload.len(), peer));
         self.client.requests.insert(
             id,
             ClientRequest {
@@ -67,20 +73,9 @@ impl Endpoint {
                 window: None,
                 window_timer: None,
                 qdown: None,
-                qup: None,
+                qup,
             },
         );
-        let q_upload = matches!(step, Step::Upload { .. })
-            && self.client.requests[&id].req.transfer == Some(Transfer::QBlock)
-            && self.client.requests[&id].req.confirmable;
-        if q_upload {
-            let r = &self.client.requests[&id];
-            let (options, len) = (r.req.options.clone(), r.req.payload.len());
-            let qup = self.new_qup(szx1, &options, len, peer);
-            if let Some(r) = self.client.requests.get_mut(&id) {
-                r.qup = Some(qup);
-            }
-        }
         self.client.by_token.insert(token, id);
         let nstart = self.config.nstart;
         self.client

@@ -299,6 +299,16 @@ impl ClientLayer {
             .is_some_and(|r| r.window_timer == Some(at))
     }
 
+    /// Request `id`'s Q-Block2 download, if it has one.
+    pub(super) fn qdown_mut(&mut self, id: u64) -> Option<&mut QDown> {
+        self.requests.get_mut(&id)?.qdown.as_mut()
+    }
+
+    /// Request `id`'s Q-Block1 upload, if it has one.
+    pub(super) fn qup_mut(&mut self, id: u64) -> Option<&mut QUp> {
+        self.requests.get_mut(&id)?.qup.as_mut()
+    }
+
     /// Whether request `id` is still at step `generation`.
     pub(super) fn step_is(&self, id: u64, generation: u32) -> bool {
         self.requests

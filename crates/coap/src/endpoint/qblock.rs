@@ -45,6 +45,11 @@ pub(super) fn asked_blocks(opts: &[BlockOpt], max_payloads: u32, last: u32) -> O
     Some(nums)
 }
 
+/// The number of the last block of a body of `len` bytes in blocks of exponent `szx`.
+pub(super) fn last_block(len: usize, szx: u8) -> u32 {
+    (len.saturating_sub(1) / BlockOpt::size_of(szx)) as u32
+}
+
 /// Whether a request's Q-Block2 options are a 'Continue' (RFC 9177 §4.4): one option with
 /// M set and a NUM that starts a set other than the first; returns the set.
 pub(super) fn continue_set(opts: &[BlockOpt], max_payloads: u32) -> Option<u32> {
@@ -137,9 +142,9 @@ pub(super) struct QSend {
     /// The token of the latest request for this body (the sets answer it).
     pub(super) token: Token,
     pub(super) szx: u8,
-    /// The next set to send, and the number of sets.
+    /// The next set to send, and the body's last block.
     pub(super) next_set: u32,
-    pub(super) sets: u32,
+    pub(super) last: u32,
     /// When the last set went, and whether a 'Continue' asked for it (then the time to
     /// the next 'Continue' is a round trip).
     pub(super) sent_at: Instant,
@@ -159,10 +164,8 @@ pub(super) struct QUpload {
     pub(super) got: Vec<bool>,
     pub(super) count: u32,
     pub(super) szx: u8,
-    /// The latest request of the body: its token, message ID, type and options (the
-    /// 2.31s, 4.08s and the final response answer it).
+    /// The token of the body's latest request (the 2.31s and 4.08s answer it).
     pub(super) token: Token,
-    pub(super) options: Options,
     /// The highest set a 4.08 was sent for at once, when its first block arrived with
     /// earlier blocks missing.
     pub(super) reported: Option<u32>,

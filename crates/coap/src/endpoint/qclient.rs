@@ -107,7 +107,7 @@ impl Endpoint {
         if !r.req.stream {
             r.body.reserve(total);
         }
-        let last = (total.saturating_sub(1) / q.size()) as u32;
+        let last = qblock::last_block(total, q.szx);
         r.qdown = Some(QDown {
             szx: q.szx,
             last,
@@ -152,17 +152,15 @@ impl Endpoint {
         &mut self,
         now: Instant,
         id: u64,
-        msg: &Message,
+        msg: &mut Message,
         payload: &[u8],
     ) {
-        let q = msg.options.block(OptionNumber::Q_BLOCK2);
-        let Some(q) = q.filter(|_| msg.code.is_success()) else {
+        if !msg.code.is_success() || !msg.options.contains(OptionNumber::Q_BLOCK2) {
             // An error in the middle of the body (the representation went away, the
             // server is busy): the server's answer.
-            let mut msg = msg.clone();
-            let response = super::client_state::take_response(&mut msg, payload);
+            let response = super::client_state::take_response(msg, payload);
             return self.complete(now, id, response);
-        };
+        }
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
         };
@@ -170,14 +168,13 @@ impl Endpoint {
             // RFC 9177 §4.4: the representation changed; the partial body is stale.
             return self.fail(now, id, RequestError::RepresentationChanged);
         }
-        let _ = q;
         self.on_qdown_block(now, id, msg, payload);
     }
 
     /// Block `msg` of a Q-Block2 body arrived.
     fn on_qdown_block(&mut self, now: Instant, id: u64, msg: &Message, payload: &[u8]) {
         let limit = self.config.limits.client_body_bytes;
-        let mp = self.config.max_payloads.max(1);
+        let mp = self.config.payloads_per_set();
         let Some(q) = msg.options.block(OptionNumber::Q_BLOCK2) else {
             return;
         };
@@ -277,7 +274,7 @@ impl Endpoint {
 
     /// The first MAX_PAYLOADS missing blocks below `end`, as Q-Block2 options without M.
     fn qdown_missing(&self, id: u64, end: u32) -> Vec<BlockOpt> {
-        let mp = self.config.max_payloads.max(1) as usize;
+        let mp = self.config.payloads_per_set() as usize;
         let Some(d) = self.client.requests.get(&id).and_then(|r| r.qdown.as_ref()) else {
             return Vec::new();
         };
@@ -332,12 +329,7 @@ impl Endpoint {
             return;
         };
         let estimate = self.msg.estimate(peer);
-        let Some(d) = self
-            .client
-            .requests
-            .get_mut(&id)
-            .and_then(|r| r.qdown.as_mut())
-        else {
+        let Some(d) = self.client.qdown_mut(id) else {
             return;
         };
         let at = d.heard + qblock::receive_timeout(estimate, ack, d.tries);
@@ -348,13 +340,8 @@ impl Endpoint {
     /// NON_RECEIVE_TIMEOUT without a block: ask for what is missing of the sets asked for
     /// (a lost 'Continue' shows as a whole set missing), NON_MAX_RETRANSMIT times.
     fn on_qdown_timer(&mut self, now: Instant, id: u64) {
-        let mp = self.config.max_payloads.max(1);
-        let Some(d) = self
-            .client
-            .requests
-            .get_mut(&id)
-            .and_then(|r| r.qdown.as_mut())
-        else {
+        let mp = self.config.payloads_per_set();
+        let Some(d) = self.client.qdown_mut(id) else {
             return;
         };
         if d.tries >= NON_MAX_RETRANSMIT {
@@ -446,13 +433,8 @@ impl Endpoint {
     /// Sends the next set of new blocks (the rest of the first set after block 0), and
     /// arms NON_TIMEOUT_RANDOM.
     fn qup_next_set(&mut self, now: Instant, id: u64) {
-        let mp = self.config.max_payloads.max(1);
-        let Some(u) = self
-            .client
-            .requests
-            .get_mut(&id)
-            .and_then(|r| r.qup.as_mut())
-        else {
+        let mp = self.config.payloads_per_set();
+        let Some(u) = self.client.qup_mut(id) else {
             return;
         };
         u.probing = false;
@@ -466,12 +448,7 @@ impl Endpoint {
             stats.block_requests += u64::from(end.saturating_sub(start));
             stats.max_window = stats.max_window.max(u64::from(mp));
         }
-        if let Some(u) = self
-            .client
-            .requests
-            .get_mut(&id)
-            .and_then(|r| r.qup.as_mut())
-        {
+        if let Some(u) = self.client.qup_mut(id) {
             u.next_new = u.next_new.max(end);
             u.set_sent = Some(now);
             u.tries = 0;
@@ -547,12 +524,7 @@ impl Endpoint {
                 self.qup_send_block(id, num, None);
             }
             self.msg.path(now, peer).stats.blocks_lost += resent.len() as u64;
-            if let Some(u) = self
-                .client
-                .requests
-                .get_mut(&id)
-                .and_then(|r| r.qup.as_mut())
-            {
+            if let Some(u) = self.client.qup_mut(id) {
                 // The server is there and still assembling: the give-up count starts over.
                 u.set_sent = None;
                 u.tries = 0;
@@ -568,12 +540,7 @@ impl Endpoint {
     /// goes again (its message ID too, so a server that has the body answers it again),
     /// NON_MAX_RETRANSMIT times.
     fn on_qup_timer(&mut self, now: Instant, id: u64) {
-        let Some(u) = self
-            .client
-            .requests
-            .get_mut(&id)
-            .and_then(|r| r.qup.as_mut())
-        else {
+        let Some(u) = self.client.qup_mut(id) else {
             return;
         };
         u.at = None;

@@ -24,6 +24,7 @@ use super::Endpoint;
 use super::message::TimerKind;
 use super::qblock::{
     self, MISSING_BLOCKS_CBOR_SEQ, NON_MAX_RETRANSMIT, QSend, QUpload, asked_blocks, continue_set,
+    last_block,
 };
 use super::server_state::{Pending, past_end, unreadable};
 use super::types::Response;
@@ -105,7 +106,7 @@ impl Endpoint {
         expires: Instant,
     ) -> bool {
         let limits = self.config.limits.clone();
-        let mp = self.config.max_payloads.max(1);
+        let mp = self.config.payloads_per_set();
         let szx = q2[0].szx.min(self.config.max_block_szx);
         let len = self.server.block2.with_stored(now, key, &limits, |s| {
             s.q_options.is_some().then(|| s.body.0.len())
@@ -127,7 +128,7 @@ impl Endpoint {
             return true;
         }
         if let Some(set) = continue_set(q2, mp) {
-            self.q_continue(now, peer, key, msg.token, set, szx, last / mp + 1);
+            self.q_continue(now, peer, key, msg.token, set, szx, last);
         }
         let reply = match msg.ty {
             Type::Con => Reply::Ack(msg.message_id),
@@ -190,7 +191,7 @@ impl Endpoint {
         sent == Some(true)
     }
 
-    /// A 'Continue' for set `set` of a body of `sets` sets: the body's next set is the one
+    /// A 'Continue' for set `set` of a body whose last block is `last`: the next set is the one
     /// after, due NON_TIMEOUT_RANDOM from now unless another 'Continue' comes first. The
     /// time since the set before went out, if a request asked for it, is a round trip.
     #[allow(clippy::too_many_arguments)]
@@ -202,7 +203,7 @@ impl Endpoint {
         token: Token,
         set: u32,
         szx: u8,
-        sets: u32,
+        last: u32,
     ) {
         let found = self
             .server
@@ -221,7 +222,7 @@ impl Endpoint {
                     token,
                     szx,
                     next_set: set,
-                    sets,
+                    last,
                     sent_at: now,
                     asked: false,
                     timeout,
@@ -247,10 +248,11 @@ impl Endpoint {
 
     /// Schedules the next set of body `id`, or forgets the body when every set went.
     fn arm_qset(&mut self, id: u64) {
+        let mp = self.config.payloads_per_set();
         let Some(q) = self.server.qsends.get_mut(&id) else {
             return;
         };
-        if q.next_set >= q.sets {
+        if q.next_set > q.last / mp {
             self.server.qsends.remove(&id);
             return;
         }
@@ -273,7 +275,7 @@ impl Endpoint {
 
     /// NON_TIMEOUT_RANDOM passed without a 'Continue': the next set goes.
     pub(super) fn on_qset_timer(&mut self, now: Instant, id: u64, at: Instant) {
-        let mp = self.config.max_payloads.max(1);
+        let mp = self.config.payloads_per_set();
         let Some(q) = self.server.qsends.get_mut(&id).filter(|q| q.at == at) else {
             return;
         };
@@ -282,18 +284,7 @@ impl Endpoint {
         q.next_set += 1;
         q.sent_at = now;
         q.asked = false;
-        let nums: Vec<u32> = (set * mp..(set + 1) * mp).collect();
-        let last = self
-            .server
-            .block2
-            .with_stored(now, &key, &self.config.limits.clone(), |s| {
-                last_block(s.body.0.len(), szx)
-            });
-        let Some(last) = last else {
-            self.server.qsends.remove(&id);
-            return;
-        };
-        let nums: Vec<u32> = nums.into_iter().filter(|&n| n <= last).collect();
+        let nums: Vec<u32> = (set * mp..=((set + 1) * mp - 1).min(q.last)).collect();
         if !self.q_send_blocks(now, peer, &key, token, Reply::Non, &nums, szx) {
             self.server.qsends.remove(&id);
             return;
@@ -312,7 +303,7 @@ impl Endpoint {
         mut response: Response,
     ) -> (Response, Option<QRest>) {
         let limits = self.config.limits.clone();
-        let mp = self.config.max_payloads.max(1);
+        let mp = self.config.payloads_per_set();
         let szx = p.qblock2[0].szx.min(self.config.max_block_szx);
         let size = BlockOpt::size_of(szx);
         let body = match response.source.take() {
@@ -384,7 +375,7 @@ impl Endpoint {
             nums: nums[1..].to_vec(),
             szx,
             next_set,
-            sets,
+            last,
         };
         (first_response, Some(rest))
     }
@@ -415,7 +406,7 @@ impl Endpoint {
             token: p.token,
             szx: rest.szx,
             next_set,
-            sets: rest.sets,
+            last: rest.last,
             sent_at: now,
             asked: true,
             timeout,
@@ -438,7 +429,7 @@ impl Endpoint {
         expires: Instant,
     ) -> Option<Bytes> {
         let limits = self.config.limits.clone();
-        let mp = self.config.max_payloads.max(1);
+        let mp = self.config.payloads_per_set();
         let size1 = msg
             .options
             .uint(OptionNumber::SIZE1)
@@ -452,7 +443,6 @@ impl Endpoint {
         let size1 = size1 as usize;
         let size = q.size();
         let blocks = size1.div_ceil(size).max(1) as u32;
-        self.expire_quploads(now);
         let existing = self.server.qupload_ids.get(key).copied();
         if existing.is_some_and(|id| self.server.quploads.get(&id).is_some_and(|u| u.done)) {
             // A block of a body already handed over (sent again, or late): dropped.
@@ -465,8 +455,7 @@ impl Endpoint {
             self.answer(now, peer, msg, false, expires, r);
             return None;
         }
-        let held: usize = self.server.quploads.values().map(|u| u.body.len()).sum();
-        if existing.is_none() && held + size1 > limits.block1_total_bytes {
+        if existing.is_none() && self.quploads_full(now, size1) {
             let mut r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, "too many uploads");
             r.options.set_uint(OptionNumber::MAX_AGE, 5);
             self.answer(now, peer, msg, false, expires, r);
@@ -501,7 +490,6 @@ impl Endpoint {
                     count: 0,
                     szx: q.szx,
                     token: msg.token,
-                    options: msg.options.clone(),
                     reported: None,
                     heard: now,
                     continued_at: None,
@@ -529,7 +517,6 @@ impl Endpoint {
         }
         let u = self.server.quploads.get_mut(&id)?;
         u.token = msg.token;
-        u.options = msg.options.clone();
         u.heard = now;
         u.tries = 0;
         if u.count == blocks {
@@ -576,7 +563,7 @@ impl Endpoint {
     /// NON_RECEIVE_TIMEOUT passed since the last block of an incomplete body: a 4.08
     /// lists what is missing, NON_MAX_RETRANSMIT times at most, then the body is dropped.
     pub(super) fn on_qreceive_timer(&mut self, now: Instant, id: u64, at: Instant) {
-        let mp = self.config.max_payloads.max(1);
+        let mp = self.config.payloads_per_set();
         let Some(peer) = self.server.quploads.get(&id).map(|u| u.key.peer) else {
             return;
         };
@@ -617,9 +604,10 @@ impl Endpoint {
         self.msg.send(peer, &m);
     }
 
-    /// Forgets uploads idle for NON_PARTIAL_TIMEOUT (the Block-wise lifetime), finished
-    /// ones included.
-    fn expire_quploads(&mut self, now: Instant) {
+    /// Whether a new upload of `size1` bytes would pass the bytes all uploads may hold,
+    /// after forgetting those idle for NON_PARTIAL_TIMEOUT (the block-wise lifetime),
+    /// finished ones included. Called for a body's first block only.
+    fn quploads_full(&mut self, now: Instant, size1: usize) -> bool {
         let lifetime = self.config.limits.blockwise_lifetime;
         let ids = &mut self.server.qupload_ids;
         self.server.quploads.retain(|_, u| {
@@ -629,6 +617,8 @@ impl Endpoint {
             }
             keep
         });
+        let held: usize = self.server.quploads.values().map(|u| u.body.len()).sum();
+        held + size1 > self.config.limits.block1_total_bytes
     }
 }
 
@@ -637,12 +627,7 @@ pub(super) struct QRest {
     nums: Vec<u32>,
     szx: u8,
     next_set: Option<u32>,
-    sets: u32,
-}
-
-/// The number of the last block of a body of `len` bytes.
-fn last_block(len: usize, szx: u8) -> u32 {
-    (len.saturating_sub(1) / BlockOpt::size_of(szx)) as u32
+    last: u32,
 }
 
 /// A 4.08 listing the first MAX_PAYLOADS blocks an upload lacks (RFC 9177 §5), which

@@ -12,24 +12,9 @@ use coap::{Code, PathStats, Request, Response, Transfer};
 
 use crate::blockwise::{body, cfg, response, serve};
 use crate::sim::{LinkConfig, Reply, Sim};
+use crate::window::link;
 
 const TEN_MB: usize = 10_032_012;
-
-/// A 20 ms round trip, with `loss` each way and, if lossy, duplicates and reordering.
-fn link(loss: f64, seed: u64) -> LinkConfig {
-    LinkConfig {
-        loss,
-        duplicate: loss / 4.0,
-        delay: Duration::from_millis(10),
-        jitter: if loss > 0.0 {
-            Duration::from_millis(4)
-        } else {
-            Duration::ZERO
-        },
-        seed,
-        ..LinkConfig::default()
-    }
-}
 
 struct Outcome {
     elapsed: Duration,

@@ -16,7 +16,7 @@ const TEN_MB: usize = 10_032_012;
 
 /// A 20 ms round trip (10 ms each way), with `loss` each way and, if lossy, duplicates
 /// and up to 4 ms of reordering jitter.
-fn link(loss: f64, seed: u64) -> LinkConfig {
+pub(crate) fn link(loss: f64, seed: u64) -> LinkConfig {
     LinkConfig {
         loss,
         duplicate: loss / 4.0,
