@@ -133,6 +133,14 @@ pub(super) fn receive_timeout(
     estimate.unwrap_or(ack_timeout * 2) * (1 << tries.min(6))
 }
 
+/// How long an incomplete Q-Block1 body may go without a block before the server drops
+/// it: NON_RECEIVE_TIMEOUT · (2^NON_MAX_RETRANSMIT − 1) with the RFC's timers (60 s), so
+/// that a sender that keeps them is not given up on sooner because the server's own
+/// timers follow the round trip.
+pub(super) fn stale_after(ack_timeout: Duration) -> Duration {
+    ack_timeout * 2 * ((1 << NON_MAX_RETRANSMIT) - 1)
+}
+
 /// A body the server sends with Q-Block2, set by set: the next set goes when the client
 /// confirms the last ('Continue') or NON_TIMEOUT_RANDOM after it.
 #[derive(Debug)]
@@ -166,8 +174,8 @@ pub(super) struct QUpload {
     pub(super) szx: u8,
     /// The token of the body's latest request (the 2.31s and 4.08s answer it).
     pub(super) token: Token,
-    /// The highest set a 4.08 was sent for at once, when its first block arrived with
-    /// earlier blocks missing.
+    /// The highest block whose arrival sent a 4.08 at once: a set's first block with
+    /// earlier blocks missing, or its last block with blocks of the set missing.
     pub(super) reported: Option<u32>,
     /// When the latest block arrived, when a 2.31 last went, and the receive timer.
     pub(super) heard: Instant,
@@ -184,12 +192,28 @@ pub(super) struct QUpload {
 }
 
 impl QUpload {
-    /// The missing blocks, lowest first, at most `max`.
-    pub(super) fn missing(&self, max: usize) -> Vec<u32> {
-        (0..self.got.len() as u32)
+    /// The missing blocks below `end`, lowest first, at most `max`.
+    pub(super) fn missing(&self, end: u32, max: usize) -> Vec<u32> {
+        (0..end.min(self.got.len() as u32))
             .filter(|&n| !self.got[n as usize])
             .take(max)
             .collect()
+    }
+
+    /// One past the highest block that arrived.
+    pub(super) fn received_end(&self) -> u32 {
+        self.got
+            .iter()
+            .rposition(|&g| g)
+            .map_or(0, |n| n as u32 + 1)
+    }
+
+    /// One past the set of the lowest missing block: the end of what a 4.08 lists when
+    /// the body stopped arriving (the gaps, then the rest of that set, which may be the
+    /// next set when the 2.31 was lost).
+    pub(super) fn stalled_end(&self, max_payloads: u32) -> u32 {
+        let first = self.got.iter().position(|&g| !g).unwrap_or(self.got.len()) as u32;
+        (first / max_payloads + 1) * max_payloads
     }
 
     /// Whether every block of set `set` arrived (`max_payloads` blocks a set).

@@ -517,9 +517,10 @@ impl Endpoint {
             let Some(missing) = qblock::decode_missing(payload) else {
                 return;
             };
-            let blocks = u.blocks;
             u.probing = false;
-            let resent: Vec<u32> = missing.into_iter().filter(|&n| n < blocks).collect();
+            let next_new = u.next_new;
+            // Blocks not sent yet are the next set, asked for early.
+            let resent: Vec<u32> = missing.iter().copied().filter(|&n| n < next_new).collect();
             for &num in &resent {
                 self.qup_send_block(id, num, None);
             }
@@ -528,6 +529,9 @@ impl Endpoint {
                 // The server is there and still assembling: the give-up count starts over.
                 u.set_sent = None;
                 u.tries = 0;
+                if missing.iter().any(|&n| n >= next_new) && next_new < u.blocks {
+                    return self.qup_next_set(now, id);
+                }
             }
             return self.arm_qup(now, id);
         }

@@ -11,8 +11,9 @@
 //! Q-Block1: blocks are written where they belong in a body of Size1 bytes, with a bitmap
 //! of those received. A whole set (and none missing before it) is confirmed with 2.31; a
 //! set that starts with blocks missing before it gets a 4.08 listing them at once, and so
-//! does a body that stops arriving, after NON_RECEIVE_TIMEOUT. The whole body goes to
-//! the application as one request, answered to the token of its last block.
+//! does a set whose last block arrives with blocks of it missing, and a body that stops
+//! arriving, after NON_RECEIVE_TIMEOUT. The whole body goes to the application as one
+//! request, answered to the token of its last block.
 
 use std::net::SocketAddr;
 use std::time::Instant;
@@ -24,7 +25,7 @@ use super::Endpoint;
 use super::message::TimerKind;
 use super::qblock::{
     self, MISSING_BLOCKS_CBOR_SEQ, NON_MAX_RETRANSMIT, QSend, QUpload, asked_blocks, continue_set,
-    last_block,
+    last_block, stale_after,
 };
 use super::server_state::{Pending, past_end, unreadable};
 use super::types::Response;
@@ -505,7 +506,8 @@ impl Endpoint {
         };
         let u = self.server.quploads.get_mut(&id)?;
         let num = q.num as usize;
-        if !u.got[num] {
+        let again = u.got[num];
+        if !again {
             u.body[q.offset()..q.offset() + payload.len()].copy_from_slice(payload);
             u.got[num] = true;
             u.count += 1;
@@ -530,7 +532,7 @@ impl Endpoint {
             // whole body.
             self.msg
                 .send(peer, &Message::empty(Type::Ack, msg.message_id));
-        } else if u.set_complete(set, mp) && !u.gap_before(set, mp) {
+        } else if !again && u.set_complete(set, mp) && !u.gap_before(set, mp) {
             // RFC 9177 §7.2: a whole set, confirmed so the next goes at once.
             let last = ((set + 1) * mp - 1).min(blocks - 1);
             let mut r = Response::new(Code::CONTINUE);
@@ -542,15 +544,10 @@ impl Endpoint {
             r.options.set_block(OptionNumber::Q_BLOCK1, opt);
             u.continued_at = Some(now);
             self.q_reply(peer, msg.token, r);
-        } else if u.gap_before(set, mp) && u.reported.is_none_or(|r| r < set) {
-            // A later set began with blocks missing before it: ask for them at once.
-            u.reported = Some(set);
-            let r = q_missing_response(u, mp);
-            self.q_reply(peer, msg.token, r);
-        } else if !u.listed.is_empty() && u.listed.iter().all(|&n| u.got[n as usize]) {
-            // Every block the last 4.08 listed came: list the next ones now.
-            let r = q_missing_response(u, mp);
-            self.q_reply(peer, msg.token, r);
+        } else if let Some(end) = immediate_report(u, q, set, mp, again) {
+            if let Some(r) = q_missing_response(u, mp, end) {
+                self.q_reply(peer, msg.token, r);
+            }
         }
         let estimate = self.msg.estimate(peer);
         let u = self.server.quploads.get_mut(&id)?;
@@ -561,7 +558,8 @@ impl Endpoint {
     }
 
     /// NON_RECEIVE_TIMEOUT passed since the last block of an incomplete body: a 4.08
-    /// lists what is missing, NON_MAX_RETRANSMIT times at most, then the body is dropped.
+    /// lists what is missing, again and again (doubling), until NON_MAX_RETRANSMIT went
+    /// unanswered and [`stale_after`] passed; then the body is dropped.
     pub(super) fn on_qreceive_timer(&mut self, now: Instant, id: u64, at: Instant) {
         let mp = self.config.payloads_per_set();
         let Some(peer) = self.server.quploads.get(&id).map(|u| u.key.peer) else {
@@ -576,19 +574,23 @@ impl Endpoint {
         else {
             return;
         };
-        if u.tries >= NON_MAX_RETRANSMIT {
+        let stale = now.saturating_duration_since(u.heard) >= stale_after(self.config.ack_timeout);
+        if u.tries >= NON_MAX_RETRANSMIT && stale {
             let key = u.key.clone();
             self.server.quploads.remove(&id);
             self.server.qupload_ids.remove(&key);
             return;
         }
         u.tries += 1;
-        let r = q_missing_response(u, mp);
+        let end = u.stalled_end(mp);
+        let r = q_missing_response(u, mp, end);
         let token = u.token;
         u.at = now + qblock::receive_timeout(estimate, self.config.ack_timeout, u.tries);
         let at = u.at;
         self.msg.schedule(at, TimerKind::QReceive { id, at });
-        self.q_reply(peer, token, r);
+        if let Some(r) = r {
+            self.q_reply(peer, token, r);
+        }
     }
 
     /// Sends a NON response to the request with `token` (2.31, 4.08).
@@ -630,12 +632,45 @@ pub(super) struct QRest {
     last: u32,
 }
 
-/// A 4.08 listing the first MAX_PAYLOADS blocks an upload lacks (RFC 9177 §5), which
-/// it remembers.
-fn q_missing_response(u: &mut QUpload, mp: u32) -> Response {
+/// Whether the block `q` (of set `set`; `again` when it had come before) calls for a
+/// 4.08 at once rather than after NON_RECEIVE_TIMEOUT, and below which block it lists
+/// the gaps. Blocks above the latest are not listed: they may still be on the way.
+fn immediate_report(u: &mut QUpload, q: BlockOpt, set: u32, mp: u32, again: bool) -> Option<u32> {
+    if u.gap_before(set, mp) && u.reported.is_none_or(|r| r < set * mp) {
+        // A later set began with blocks missing before it (RFC 9177 §7.2).
+        u.reported = Some(q.num);
+        return Some(q.num);
+    }
+    if (q.num % mp == mp - 1 || !q.more) && u.reported.is_none_or(|r| r < q.num) {
+        // A set's last block came with blocks of the set missing: the RFC waits
+        // NON_RECEIVE_TIMEOUT for them; a block that was only reordered is sent twice.
+        u.reported = Some(q.num);
+        return Some(q.num);
+    }
+    if again && !q.more {
+        // The body's last block sent again: the sender heard nothing from us.
+        return Some(q.num);
+    }
+    if !u.listed.is_empty() && u.listed.iter().all(|&n| u.got[n as usize]) {
+        // Every block the last 4.08 listed came: the next gaps.
+        return Some(u.received_end());
+    }
+    None
+}
+
+/// A 4.08 listing the first MAX_PAYLOADS blocks below `end` that an upload lacks (RFC
+/// 9177 §5), which it remembers; none when nothing is missing there.
+fn q_missing_response(u: &mut QUpload, mp: u32, end: u32) -> Option<Response> {
+    let listed = u.missing(end, mp as usize);
+    if listed.is_empty() {
+        return None;
+    }
     let mut r = Response::new(Code::REQUEST_ENTITY_INCOMPLETE);
     r.options
         .set_uint(OptionNumber::CONTENT_FORMAT, MISSING_BLOCKS_CBOR_SEQ);
-    u.listed = u.missing(mp as usize);
-    r.with_payload(Bytes::from(qblock::encode_missing(&u.listed)))
+    let payload = Bytes::from(qblock::encode_missing(&listed));
+    u.listed = listed;
+    // The next set may now answer this 4.08 rather than a 2.31: no round-trip sample.
+    u.continued_at = None;
+    Some(r.with_payload(payload))
 }

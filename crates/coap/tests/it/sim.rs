@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use coap::{
-    BlockOpt, Endpoint, EndpointConfig, Event, IncomingId, IncomingRequest, Message, OptionNumber,
-    Response, Type,
+    BlockOpt, Code, Endpoint, EndpointConfig, Event, IncomingId, IncomingRequest, Message,
+    OptionNumber, Response, Type,
 };
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
@@ -142,11 +142,40 @@ impl Record {
                 s.push_str(&format!(" q2={b}"));
             }
         }
+        if m.code == Code::REQUEST_ENTITY_INCOMPLETE
+            && m.options.uint(OptionNumber::CONTENT_FORMAT) == Some(272)
+        {
+            s.push_str(&format!(" missing={:?}", cbor_uints(&m.payload)));
+        }
         if self.lost {
             s.push_str(" LOST");
         }
         s
     }
+}
+
+/// The unsigned integers of a CBOR sequence (a 4.08's missing blocks), as far as they
+/// decode.
+fn cbor_uints(mut bytes: &[u8]) -> Vec<u64> {
+    let mut out = Vec::new();
+    while let Some((&head, rest)) = bytes.split_first() {
+        let len = match head {
+            0x00..=0x17 => 0,
+            0x18 => 1,
+            0x19 => 2,
+            0x1a => 4,
+            _ => break,
+        };
+        let Some(arg) = rest.get(..len) else { break };
+        let value = if len == 0 {
+            u64::from(head)
+        } else {
+            arg.iter().fold(0, |v, &b| v << 8 | u64::from(b))
+        };
+        out.push(value);
+        bytes = &rest[len..];
+    }
+    out
 }
 
 /// A simulated node: an endpoint, an optional request handler, and what it reported.
