@@ -550,6 +550,14 @@ impl Endpoint {
         u.at = None;
         if u.next_new < u.blocks {
             u.set_sent = None;
+            if u.tries == 0 {
+                // No 2.31: blocks of the set were lost, or the 2.31 was. Wait once more
+                // for the server's 4.08 (RFC 9177 allows a longer wait): a set sent
+                // while gaps are open adds to them, and libcoap 4.3.5's server gives up
+                // an upload with more than two gaps ("Too many missing blocks").
+                u.tries = 1;
+                return self.arm_qup(now, id);
+            }
             return self.qup_next_set(now, id);
         }
         if u.tries >= NON_MAX_RETRANSMIT {

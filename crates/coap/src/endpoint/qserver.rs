@@ -544,10 +544,10 @@ impl Endpoint {
             r.options.set_block(OptionNumber::Q_BLOCK1, opt);
             u.continued_at = Some(now);
             self.q_reply(peer, msg.token, r);
-        } else if let Some(end) = immediate_report(u, q, set, mp, again) {
-            if let Some(r) = q_missing_response(u, mp, end) {
-                self.q_reply(peer, msg.token, r);
-            }
+        } else if let Some(end) = immediate_report(u, q, set, mp, again)
+            && let Some(r) = q_missing_response(u, mp, end)
+        {
+            self.q_reply(peer, msg.token, r);
         }
         let estimate = self.msg.estimate(peer);
         let u = self.server.quploads.get_mut(&id)?;
