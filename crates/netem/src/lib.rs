@@ -30,4 +30,4 @@ mod link;
 mod relay;
 
 pub use link::{Counters, Dir, DirConfig, DirCounters, Fate, Link, LinkConfig};
-pub use relay::{MAX_CLIENTS, Netem, NetemError};
+pub use relay::{DeliveredBytes, MAX_CLIENTS, Netem, NetemError};

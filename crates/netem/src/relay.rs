@@ -5,6 +5,7 @@ use std::collections::{BinaryHeap, HashMap};
 use std::future::{Future, pending, poll_fn};
 use std::io;
 use std::net::{Ipv4Addr, Ipv6Addr, SocketAddr};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
 
@@ -107,6 +108,27 @@ enum Wake {
     FromServer(usize, SocketAddr),
 }
 
+/// The payload bytes a relay has delivered downstream (server -> client) to each client
+/// address, counted when a datagram is sent to the client; readable while the relay runs
+/// (a handle from [`Netem::delivered`], cloned freely).
+#[derive(Debug, Clone, Default)]
+pub struct DeliveredBytes(Arc<Mutex<HashMap<SocketAddr, u64>>>);
+
+impl DeliveredBytes {
+    /// The bytes delivered to each client so far.
+    pub fn snapshot(&self) -> HashMap<SocketAddr, u64> {
+        self.0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
+    fn add(&self, client: SocketAddr, bytes: usize) {
+        let mut counts = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        *counts.entry(client).or_default() += bytes as u64;
+    }
+}
+
 /// A bound link emulator, ready to run.
 #[derive(Debug)]
 pub struct Netem {
@@ -114,6 +136,7 @@ pub struct Netem {
     forward: SocketAddr,
     duration: Option<Duration>,
     link: Link,
+    delivered: DeliveredBytes,
 }
 
 impl Netem {
@@ -135,7 +158,13 @@ impl Netem {
             forward,
             duration,
             link: Link::new(link),
+            delivered: DeliveredBytes::default(),
         })
+    }
+
+    /// A handle on the bytes this relay delivers to each client, to read while it runs.
+    pub fn delivered(&self) -> DeliveredBytes {
+        self.delivered.clone()
     }
 
     /// The address clients send to (the actual port when the listen address asked for
@@ -166,7 +195,7 @@ impl Netem {
         let started = now();
         let end = self.duration.and_then(|d| started.checked_add(d));
         let mut heap: BinaryHeap<Reverse<Pending>> = BinaryHeap::new();
-        let mut upstreams: HashMap<SocketAddr, UdpSocket> = HashMap::new();
+        let mut upstreams = Upstreams::default();
         let mut clients_refused = 0u64;
         let mut seq = 0u64;
         let mut from_client = vec![0u8; MAX_DATAGRAM_BYTES];
@@ -189,7 +218,7 @@ impl Netem {
                     Err(e) if is_transient(&e) => continue,
                     Err(e) => return Err(NetemError::Receive { from: "clients", source: e }),
                 },
-                received = poll_fn(|cx| poll_upstreams(cx, &upstreams, &mut from_server)) => {
+                received = poll_fn(|cx| upstreams.poll_recv(cx, &mut from_server)) => {
                     match received {
                         Ok((len, client)) => Wake::FromServer(len, client),
                         Err(e) if is_transient(&e) => continue,
@@ -209,15 +238,18 @@ impl Netem {
                         let Some(Reverse(p)) = heap.pop() else { break };
                         let sent = match p.dir {
                             Dir::Up => upstreams
-                                .get(&p.client)
+                                .socket(p.client)
                                 .is_some_and(|s| s.try_send_to(&p.payload, self.forward).is_ok()),
                             Dir::Down => self.listen.try_send_to(&p.payload, p.client).is_ok(),
                         };
+                        if sent && p.dir == Dir::Down {
+                            self.delivered.add(p.client, p.payload.len());
+                        }
                         self.link.on_departed(p.dir, p.payload.len(), sent);
                     }
                 }
                 Wake::FromClient(len, client) => {
-                    if !upstreams.contains_key(&client) {
+                    if upstreams.socket(client).is_none() {
                         if upstreams.len() >= MAX_CLIENTS {
                             clients_refused += 1;
                             continue;
@@ -283,22 +315,53 @@ fn bind(addr: SocketAddr) -> io::Result<UdpSocket> {
     UdpSocket::from_std(socket.into())
 }
 
-/// Receives from whichever client's upstream socket has a datagram; returns its length and
-/// the client it belongs to.
-fn poll_upstreams(
-    cx: &mut Context<'_>,
-    upstreams: &HashMap<SocketAddr, UdpSocket>,
-    buf: &mut [u8],
-) -> Poll<io::Result<(usize, SocketAddr)>> {
-    for (client, socket) in upstreams {
-        let mut read = ReadBuf::new(buf);
-        match socket.poll_recv_from(cx, &mut read) {
-            Poll::Ready(Ok(_)) => return Poll::Ready(Ok((read.filled().len(), *client))),
-            Poll::Ready(Err(e)) => return Poll::Ready(Err(e)),
-            Poll::Pending => {}
-        }
+/// The socket each client's datagrams go to the server from, in the order the clients
+/// came.
+#[derive(Default)]
+struct Upstreams {
+    sockets: Vec<(SocketAddr, UdpSocket)>,
+    index: HashMap<SocketAddr, usize>,
+    /// Where the next receive starts looking, so that one busy client cannot starve the
+    /// others (two transfers through one link must be able to share it).
+    next: usize,
+}
+
+impl Upstreams {
+    fn len(&self) -> usize {
+        self.sockets.len()
     }
-    Poll::Pending
+
+    fn socket(&self, client: SocketAddr) -> Option<&UdpSocket> {
+        self.index.get(&client).map(|&i| &self.sockets[i].1)
+    }
+
+    fn insert(&mut self, client: SocketAddr, socket: UdpSocket) {
+        self.index.insert(client, self.sockets.len());
+        self.sockets.push((client, socket));
+    }
+
+    /// Receives from the first client's socket with a datagram, round-robin; returns its
+    /// length and the client it belongs to.
+    fn poll_recv(
+        &mut self,
+        cx: &mut Context<'_>,
+        buf: &mut [u8],
+    ) -> Poll<io::Result<(usize, SocketAddr)>> {
+        let n = self.sockets.len();
+        for k in 0..n {
+            let i = (self.next + k) % n;
+            let (client, socket) = &self.sockets[i];
+            let mut read = ReadBuf::new(buf);
+            match socket.poll_recv_from(cx, &mut read) {
+                Poll::Ready(result) => {
+                    self.next = (i + 1) % n;
+                    return Poll::Ready(result.map(|_| (read.filled().len(), *client)));
+                }
+                Poll::Pending => {}
+            }
+        }
+        Poll::Pending
+    }
 }
 
 /// Errors that a UDP receive reports about an earlier datagram (an ICMP unreachable) or a
@@ -476,6 +539,66 @@ mod tests {
         assert_eq!(got_a, vec![b"from a".to_vec(); 10]);
         assert_eq!(got_b, vec![b"from b".to_vec(); 10]);
         assert_eq!((counters.up.forwarded, counters.down.forwarded), (20, 20));
+        Ok(())
+    }
+
+    #[tokio::test]
+    async fn counts_the_bytes_delivered_to_each_client_while_it_runs() -> anyhow::Result<()> {
+        let (server, echo) = echo_server().await?;
+        // Loss up only: what the server never answers is never delivered.
+        let link = config(direction(0.3, 0, 0), direction(0.0, 2, 0), 5);
+        let netem = Netem::bind(localhost(), server, link, None)?;
+        let addr = netem.local_addr()?;
+        let delivered = netem.delivered();
+        assert!(delivered.snapshot().is_empty());
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(netem.run(async move {
+            let _ = stopped.await;
+            Ok(())
+        }));
+        let a = UdpSocket::bind("127.0.0.1:0").await?;
+        let b = UdpSocket::bind("127.0.0.1:0").await?;
+        for _ in 0..50 {
+            a.send_to(&[1; 10], addr).await?;
+            b.send_to(&[2; 300], addr).await?;
+        }
+        let (got_a, got_b) = tokio::join!(drain(&a, QUIET), drain(&b, QUIET));
+        // Read while the relay still runs.
+        let counts = delivered.snapshot();
+        let _ = stop.send(());
+        let counters = task.await??;
+        echo.abort();
+        let bytes = |got: &[Vec<u8>]| got.iter().map(Vec::len).sum::<usize>() as u64;
+        assert_eq!(counts.len(), 2, "{counts:?}");
+        assert_eq!(counts.get(&a.local_addr()?), Some(&bytes(&got_a)));
+        assert_eq!(counts.get(&b.local_addr()?), Some(&bytes(&got_b)));
+        assert!(got_a.len() < 50 && got_b.len() < 50, "{counters:?}");
+        assert_eq!(counts.values().sum::<u64>(), counters.down.bytes_forwarded);
+        Ok(())
+    }
+
+    #[tokio::test]
+    async fn receives_from_busy_clients_in_turn() -> anyhow::Result<()> {
+        let mut upstreams = Upstreams::default();
+        let sender = UdpSocket::bind(localhost()).await?;
+        let mut clients = Vec::new();
+        for port in [1, 2, 3] {
+            let client = SocketAddr::from(([127, 0, 0, 1], port));
+            let socket = bind(localhost())?;
+            for _ in 0..4 {
+                sender.send_to(&[port as u8], socket.local_addr()?).await?;
+            }
+            upstreams.insert(client, socket);
+            clients.push(client);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let mut buf = [0u8; 16];
+        let mut order = Vec::new();
+        for _ in 0..6 {
+            let (_, client) = poll_fn(|cx| upstreams.poll_recv(cx, &mut buf)).await?;
+            order.push(client.port());
+        }
+        assert_eq!(order, [1, 2, 3, 1, 2, 3]);
         Ok(())
     }
 

@@ -297,6 +297,9 @@ impl Endpoint {
     /// deliver (blocks that arrived ahead are asked for again).
     fn window_fallback(&mut self, now: Instant, id: u64) {
         self.end_window(now, id);
+        if let Some(peer) = self.client.requests.get(&id).map(|r| r.peer) {
+            self.msg.path(now, peer).stats.window_fallbacks += 1;
+        }
         // A new token, so that late answers to the window's requests (a refusal without
         // Block2 among them) are not taken for the answer to the next step.
         let token = self.new_token();

@@ -85,6 +85,9 @@ pub struct PathStats {
     pub blocks_duplicate: u64,
     /// The most block requests in flight at once.
     pub max_window: u64,
+    /// Windowed downloads that went on stop-and-wait after three probe timeouts in a
+    /// row without a block.
+    pub window_fallbacks: u64,
 }
 
 impl Request {

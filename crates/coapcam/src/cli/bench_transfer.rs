@@ -5,7 +5,10 @@
 //! client and server is a child process, so every mode is timed the same way: the client
 //! process's wall time, start to exit. Every body is compared bit-exact with the original.
 //! The result is a markdown table on standard output, and optionally JSON and a PNG plot.
+//! Pair runs (`--pairs`) start two clients of one mode at once through one 50 Mbit/s relay
+//! and report how the link's bytes were shared between them, in a second table.
 
+use std::cmp::Reverse;
 use std::fmt::Write as _;
 use std::fs::File;
 use std::io::{BufRead as _, BufReader};
@@ -19,7 +22,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, bail};
 use clap::{Args, ValueEnum};
 use image::{Rgb, RgbImage};
-use netem::{Counters, DirConfig, LinkConfig, Netem};
+use netem::{Counters, DeliveredBytes, DirConfig, LinkConfig, Netem};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
 
@@ -43,6 +46,12 @@ const RELAY_QUEUE_LIMIT: usize = 1000;
 const RATE_50_MBIT: u64 = 6_250_000;
 /// The bottleneck's drop-tail buffer of `20ms-2%-50mbit` (as in the simulator's test).
 const QUEUE_64_KB: usize = 64_000;
+/// The link of the pair runs: two transfers at once through its rate limit.
+const PAIR_LINK: Link = Link::Rtt20Loss2Rate50;
+/// A pair run holds when the smaller of the two clients' shares is at least this.
+const FAIR_SHARE: f64 = 0.35;
+/// Mixed into the seeds of the pair runs' relays, so that they differ from the single runs'.
+const PAIR_SEED: u64 = 0x7061_6972;
 
 /// Flags of `bench transfer`.
 #[derive(Debug, Args)]
@@ -85,12 +94,26 @@ a PUT on loopback before anything is timed, checked by a GET. A run succeeds whe
 client exits with status 0 within --cap and its output equals the body byte for byte; a \
 client that exits 0 with a short file fails the run.
 
+Two transfers at once (--pairs N, when 20ms-2%-50mbit is among --links): for each size \
+and each fast mode, N runs of two clients of that mode started together through one relay \
+of that link to one server, to see whether they share the 50 Mbit/s fairly. Both clients \
+are timed and checked like any run. When the first of them ends, the relay's count of the \
+payload bytes it has delivered to each client so far gives the shares: each client's bytes \
+over the sum of both (the relay knows the clients by address, not by process, so a run \
+reports its smaller and its larger share). A pair run holds when its smaller share is at \
+least 35 %. Its link utilisation is both bodies (2 x size) over the later client's time, \
+as a fraction of 50 Mbit/s. The slow modes are not paired; --pairs 0 runs none.
+
 Output: the table on standard output, one row per (link, size), one column per mode: \
 the median of the successful runs in seconds, [min-max] of them and successful/runs, \
-then ratios of medians, and every failed run with its reason under the table. Progress goes \
+then ratios of medians, and every failed run with its reason under the table. After it, \
+when pairs ran, the table of the pair runs, one row per (size, mode): the median smaller \
+share [min-max], the runs that held, the median link utilisation [min-max] and \
+successful/runs (successful: both clients), medians of the successful runs. Progress goes \
 to standard error. --json writes every \
-run (time, exit, bit-exactness, the relay's counters); --plot draws the medians against \
-the loss rate, one panel per size.
+run (time, exit, bit-exactness, the relay's counters) and every pair run (both clients, \
+the bytes delivered to each client address when the first ended, the shares, the \
+utilisation); --plot draws the medians against the loss rate, one panel per size.
 
 Exit status: 0 when the benchmark ran, failed runs included (they are results); 1 when \
 it could not run (a body or output file could not be written, a relay could not bind).")]
@@ -120,6 +143,10 @@ pub(super) struct TransferArgs {
           default_values = ["stop-and-wait", "window", "q-block", "libcoap-4.3.1",
                             "libcoap-4.3.5-qblock", "quic"])]
     modes: Vec<Mode>,
+    /// Pair runs per size and fast mode: two clients at once through one 20ms-2%-50mbit
+    /// relay (see below); 0 runs none, and none run when that link is not among --links.
+    #[arg(long, value_name = "N", default_value_t = 3)]
+    pairs: u32,
     /// Seconds a run may take; a client still running then is killed and the run failed.
     #[arg(long, value_name = "SECONDS", default_value = "120", value_parser = parse_cap)]
     cap: Duration,
@@ -362,6 +389,8 @@ fn unique<T: PartialEq + Copy>(items: &[T]) -> Vec<T> {
 struct Proc {
     child: Child,
     name: String,
+    /// When it started (when the spawn returned): where its time counts from.
+    started: Instant,
 }
 
 impl Proc {
@@ -373,6 +402,7 @@ impl Proc {
         Ok(Self {
             child,
             name: name.to_owned(),
+            started: Instant::now(),
         })
     }
 
@@ -401,6 +431,8 @@ impl Drop for Proc {
 /// A `netem` relay on a thread of its own (its own tokio runtime), until dropped.
 struct Relay {
     addr: SocketAddr,
+    /// The bytes it has delivered to each client so far.
+    delivered: DeliveredBytes,
     stop: Option<tokio::sync::oneshot::Sender<()>>,
     thread: Option<JoinHandle<anyhow::Result<Counters>>>,
 }
@@ -423,7 +455,7 @@ impl Relay {
                         .and_then(|n| Ok((n.local_addr()?, n)));
                     let netem = match bound {
                         Ok((addr, netem)) => {
-                            let _ = addr_tx.send(Ok(addr));
+                            let _ = addr_tx.send(Ok((addr, netem.delivered())));
                             netem
                         }
                         Err(e) => {
@@ -442,11 +474,12 @@ impl Relay {
             .context("starting the relay's thread")?;
         let mut relay = Self {
             addr: SocketAddr::from((Ipv4Addr::LOCALHOST, 0)),
+            delivered: DeliveredBytes::default(),
             stop: Some(stop_tx),
             thread: Some(thread),
         };
-        relay.addr = match addr_rx.recv() {
-            Ok(Ok(addr)) => addr,
+        (relay.addr, relay.delivered) = match addr_rx.recv() {
+            Ok(Ok(bound)) => bound,
             Ok(Err(e)) => bail!("binding a relay on 127.0.0.1: {e}"),
             Err(_) => bail!("the relay's thread ended before it bound"),
         };
@@ -569,22 +602,48 @@ fn run_to_end(mut command: Command, name: &str, log: &Path, limit: Duration) -> 
     }
 }
 
-/// Waits for `proc` to exit, killing it after `cap`; its exit status (`None`: killed) and
-/// the time from `started` to when its exit was seen.
+/// Waits for `proc` to exit, killing it `cap` after its start; its exit status (`None`:
+/// killed) and the time from its start to when its exit was seen.
 fn wait_capped(proc: &mut Proc, cap: Duration) -> anyhow::Result<(Option<ExitStatus>, Duration)> {
-    let started = Instant::now();
+    let ended = wait_all_capped(std::slice::from_mut(proc), cap, || {})?;
+    Ok(ended[0])
+}
+
+/// Waits for every one of `procs` to exit, checking each every [`POLL`] and killing one
+/// still running `cap` after its start. Per process, in order: its exit status (`None`:
+/// killed) and the time from its start to when its end was seen. `on_first_end` is called
+/// once, right after the check that first sees one of them end.
+fn wait_all_capped(
+    procs: &mut [Proc],
+    cap: Duration,
+    on_first_end: impl FnOnce(),
+) -> anyhow::Result<Vec<(Option<ExitStatus>, Duration)>> {
+    let mut ended: Vec<Option<(Option<ExitStatus>, Duration)>> = vec![None; procs.len()];
+    let mut on_first_end = Some(on_first_end);
     loop {
-        let polled = proc
-            .child
-            .try_wait()
-            .with_context(|| format!("waiting for {}", proc.name));
-        let elapsed = started.elapsed();
-        if let Some(status) = polled? {
-            return Ok((Some(status), elapsed));
+        for (proc, end) in procs.iter_mut().zip(&mut ended) {
+            if end.is_some() {
+                continue;
+            }
+            let polled = proc
+                .child
+                .try_wait()
+                .with_context(|| format!("waiting for {}", proc.name));
+            let elapsed = proc.started.elapsed();
+            if let Some(status) = polled? {
+                *end = Some((Some(status), elapsed));
+            } else if elapsed >= cap {
+                proc.kill();
+                *end = Some((None, elapsed));
+            }
         }
-        if elapsed >= cap {
-            proc.kill();
-            return Ok((None, elapsed));
+        if ended.iter().any(Option::is_some)
+            && let Some(first) = on_first_end.take()
+        {
+            first();
+        }
+        if ended.iter().all(Option::is_some) {
+            return Ok(ended.into_iter().flatten().collect());
         }
         thread::sleep(POLL);
     }
@@ -1099,24 +1158,81 @@ impl RunResult {
     }
 }
 
+/// A client to run: its command, the file it writes the body into and the log of its
+/// standard error.
+struct Client<'a> {
+    cmd: Command,
+    out: &'a Path,
+    log: &'a Path,
+}
+
 /// Runs one client and checks its output.
 fn time_client(
-    mut cmd: Command,
+    client: Client<'_>,
     name: &str,
+    cap: Duration,
+    body: &[u8],
+) -> anyhow::Result<RunResult> {
+    time_clients(vec![client], name, cap, body, || {})?
+        .pop()
+        .context("a client without a result")
+}
+
+/// Starts `clients` one right after the other, waits for all of them (each timed from its
+/// own start) and checks each one's output against `body`; one result per client, in
+/// order. `on_first_end` is called once, as soon as the first of them is seen to end (its
+/// exit, or its kill at the cap). A client that cannot start fails the run of every one
+/// (those started are killed).
+fn time_clients(
+    clients: Vec<Client<'_>>,
+    name: &str,
+    cap: Duration,
+    body: &[u8],
+    on_first_end: impl FnOnce(),
+) -> anyhow::Result<Vec<RunResult>> {
+    let count = clients.len();
+    let mut procs = Vec::with_capacity(count);
+    let mut files = Vec::with_capacity(count);
+    for (i, Client { mut cmd, out, log }) in clients.into_iter().enumerate() {
+        let _ = std::fs::remove_file(out);
+        let stderr = File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        cmd.stdout(Stdio::null()).stderr(stderr);
+        match Proc::spawn(cmd, name) {
+            Ok(proc) => procs.push(proc),
+            Err(e) => {
+                let why = error_text(&e);
+                let result = |j| {
+                    if j == i {
+                        RunResult::failed(why.clone())
+                    } else {
+                        RunResult::failed(format!("another client of the run failed: {why}"))
+                    }
+                };
+                return Ok((0..count).map(result).collect());
+            }
+        }
+        files.push((out, log));
+    }
+    let ended = wait_all_capped(&mut procs, cap, on_first_end)?;
+    drop(procs);
+    Ok(ended
+        .into_iter()
+        .zip(files)
+        .map(|((status, elapsed), (out, log))| client_result(status, elapsed, cap, out, log, body))
+        .collect())
+}
+
+/// The result of a client that ended with `status` (`None`: killed at the cap) `elapsed`
+/// after its start: its output in `out` compared with `body` (and removed), the reason of a
+/// failure from its `log`.
+fn client_result(
+    status: Option<ExitStatus>,
+    elapsed: Duration,
     cap: Duration,
     out: &Path,
     log: &Path,
     body: &[u8],
-) -> anyhow::Result<RunResult> {
-    let _ = std::fs::remove_file(out);
-    let stderr = File::create(log).with_context(|| format!("creating {}", log.display()))?;
-    cmd.stdout(Stdio::null()).stderr(stderr);
-    let mut proc = match Proc::spawn(cmd, name) {
-        Ok(p) => p,
-        Err(e) => return Ok(RunResult::failed(error_text(&e))),
-    };
-    let (status, elapsed) = wait_capped(&mut proc, cap)?;
-    drop(proc);
+) -> RunResult {
     let wrote = out.exists();
     let diff = wrote.then(|| difference(out, body)).flatten();
     let bit_exact = wrote.then_some(diff.is_none());
@@ -1140,7 +1256,7 @@ fn time_client(
         Some(_) => diff.map(|d| format!("exited with 0 but the {d}")),
     };
     result.ok = result.error.is_none();
-    Ok(result)
+    result
 }
 
 /// One (link, size, mode) and its runs.
@@ -1249,6 +1365,229 @@ fn ratio_columns(modes: &[Mode]) -> Vec<(Mode, Mode)> {
     out
 }
 
+/// One pair run: two clients of one mode at once through one relay of [`PAIR_LINK`].
+struct PairRun {
+    /// Both clients, in the order they were started.
+    clients: Vec<RunResult>,
+    /// The payload bytes the relay had delivered to each client address when the first
+    /// client ended, the most first.
+    delivered: Vec<(SocketAddr, u64)>,
+    relay: Counters,
+}
+
+impl PairRun {
+    /// Both clients succeeded.
+    fn ok(&self) -> bool {
+        self.clients.iter().all(|c| c.ok)
+    }
+
+    /// The smaller and the larger client's share of the bytes delivered to both when the
+    /// first ended; `None` if none was delivered.
+    fn shares(&self) -> Option<(f64, f64)> {
+        let total: u64 = self.delivered.iter().map(|&(_, n)| n).sum();
+        let most = self.delivered.first()?.1;
+        // A client that had been delivered nothing yet is not in the count.
+        let least = if self.delivered.len() < self.clients.len() {
+            0
+        } else {
+            self.delivered.last()?.1
+        };
+        (total > 0).then(|| (least as f64 / total as f64, most as f64 / total as f64))
+    }
+
+    fn holds(&self) -> bool {
+        self.shares()
+            .is_some_and(|(smaller, _)| smaller >= FAIR_SHARE)
+    }
+
+    /// The later client's time, seconds (NaN when the clients did not start).
+    fn later_s(&self) -> f64 {
+        self.clients
+            .iter()
+            .map(|c| c.time_s)
+            .fold(f64::NAN, f64::max)
+    }
+
+    /// Both bodies of `size` bytes over the later client's time, as a fraction of the
+    /// link's rate.
+    fn utilisation(&self, size: u64) -> f64 {
+        let bytes = (self.clients.len() as u64 * size) as f64;
+        bytes / self.later_s() / RATE_50_MBIT as f64
+    }
+
+    /// The progress line's summary: both times, the shares, the utilisation and the
+    /// failures.
+    fn summary(&self, size: u64) -> String {
+        let times: Vec<String> = self
+            .clients
+            .iter()
+            .map(|c| format!("{:.3} s", c.time_s))
+            .collect();
+        let shares = self.shares().map_or_else(
+            || "no bytes delivered".to_owned(),
+            |(smaller, larger)| {
+                format!(
+                    "shares {:.1} % and {:.1} %",
+                    smaller * 100.0,
+                    larger * 100.0
+                )
+            },
+        );
+        let errors: Vec<String> = self
+            .clients
+            .iter()
+            .enumerate()
+            .filter_map(|(i, c)| Some(format!("client {}: {}", i + 1, c.error.as_ref()?)))
+            .collect();
+        let outcome = if errors.is_empty() {
+            "ok".to_owned()
+        } else {
+            format!("FAILED: {}", errors.join("; "))
+        };
+        format!(
+            "{}, {shares}, link {:.0} %: {outcome}",
+            times.join(" and "),
+            self.utilisation(size) * 100.0
+        )
+    }
+
+    fn json(&self, size: u64) -> serde_json::Value {
+        let finite = |x: f64| x.is_finite().then_some(x);
+        let shares = self.shares();
+        serde_json::json!({
+            "ok": self.ok(),
+            "clients": self.clients.iter().map(RunResult::json).collect::<Vec<_>>(),
+            "delivered_at_first_end": self.delivered.iter().map(|(client, bytes)| {
+                serde_json::json!({ "client": client.to_string(), "bytes": bytes })
+            }).collect::<Vec<_>>(),
+            "smaller_share": shares.map(|s| s.0),
+            "larger_share": shares.map(|s| s.1),
+            "holds": self.holds(),
+            "later_s": finite(self.later_s()),
+            "aggregate_bytes_per_s": finite(self.utilisation(size) * RATE_50_MBIT as f64),
+            "utilisation": finite(self.utilisation(size)),
+            "relay": self.relay,
+        })
+    }
+}
+
+/// The pair runs of one (size, mode).
+struct PairCell {
+    size: u64,
+    mode: Mode,
+    /// Why it was not run (the mode is unavailable or its server did not start).
+    skipped: Option<String>,
+    runs: Vec<PairRun>,
+}
+
+impl PairCell {
+    fn ok_runs(&self) -> impl Iterator<Item = &PairRun> {
+        self.runs.iter().filter(|r| r.ok())
+    }
+
+    /// Median, min and max of the smaller shares of the successful runs.
+    fn smaller_shares(&self) -> Option<[f64; 3]> {
+        let shares: Vec<f64> = self
+            .ok_runs()
+            .map(|r| r.shares().map_or(0.0, |s| s.0))
+            .collect();
+        stats(&shares)
+    }
+
+    /// Median, min and max of the link utilisation of the successful runs.
+    fn utilisation(&self) -> Option<[f64; 3]> {
+        let used: Vec<f64> = self.ok_runs().map(|r| r.utilisation(self.size)).collect();
+        stats(&used)
+    }
+
+    /// The successful runs that held.
+    fn holding(&self) -> usize {
+        self.ok_runs().filter(|r| r.holds()).count()
+    }
+
+    /// The table's row.
+    fn row(&self) -> Vec<String> {
+        let mut row = vec![self.size.to_string(), self.mode.name().to_owned()];
+        if self.skipped.is_some() {
+            row.extend(["unavailable", "", "", ""].map(str::to_owned));
+            return row;
+        }
+        let percent = |s: Option<[f64; 3]>| {
+            s.map_or_else(
+                || "-".to_owned(),
+                |[median, min, max]| {
+                    format!(
+                        "{:.1} % [{:.1}-{:.1}]",
+                        median * 100.0,
+                        min * 100.0,
+                        max * 100.0
+                    )
+                },
+            )
+        };
+        let ok = self.ok_runs().count();
+        let runs = self.runs.len();
+        row.extend([
+            percent(self.smaller_shares()),
+            format!("{}/{runs}", self.holding()),
+            percent(self.utilisation()),
+            format!("{ok}/{runs}"),
+        ]);
+        row
+    }
+
+    fn json(&self) -> serde_json::Value {
+        let shares = self.smaller_shares();
+        let used = self.utilisation();
+        serde_json::json!({
+            "bytes": self.size,
+            "mode": self.mode.name(),
+            "unavailable": self.skipped,
+            "runs": self.runs.len(),
+            "ok": self.ok_runs().count(),
+            "holding": self.holding(),
+            "median_smaller_share": shares.map(|s| s[0]),
+            "min_smaller_share": shares.map(|s| s[1]),
+            "max_smaller_share": shares.map(|s| s[2]),
+            "median_utilisation": used.map(|s| s[0]),
+            "min_utilisation": used.map(|s| s[1]),
+            "max_utilisation": used.map(|s| s[2]),
+            "results": self.runs.iter().map(|r| r.json(self.size)).collect::<Vec<_>>(),
+        })
+    }
+}
+
+/// Two clients of `mode` fetching `body` from `target` at once through one relay of
+/// `config`; the relay's delivered bytes are read when the first client ends.
+fn run_pair(
+    programs: &Programs,
+    mode: Mode,
+    target: &Target,
+    config: LinkConfig,
+    body: &Body,
+    cap: Duration,
+    work: &Path,
+) -> anyhow::Result<PairRun> {
+    let relay = Relay::start(target.addr, config)?;
+    let outs = [work.join("out-1"), work.join("out-2")];
+    let logs = [work.join("client-1.log"), work.join("client-2.log")];
+    let mut clients = Vec::new();
+    for (out, log) in outs.iter().zip(&logs) {
+        let cmd = client_command(programs, mode, relay.addr, target, out, cap)?;
+        clients.push(Client { cmd, out, log });
+    }
+    let mut delivered = Vec::new();
+    let clients = time_clients(clients, mode.name(), cap, &body.bytes, || {
+        delivered = relay.delivered.snapshot().into_iter().collect();
+    })?;
+    delivered.sort_unstable_by_key(|&(client, bytes)| (Reverse(bytes), client));
+    Ok(PairRun {
+        clients,
+        delivered,
+        relay: relay.finish()?,
+    })
+}
+
 // ---------------------------------------------------------------------------------------
 // The benchmark
 
@@ -1314,31 +1653,48 @@ fn run_blocking(args: &TransferArgs) -> anyhow::Result<Exit> {
     let runs_of = |m: Mode| {
         if m.slow() { args.slow_runs } else { args.runs }
     };
+    let skipped = |mode: Mode, size: u64| {
+        programs.missing(mode).map(str::to_owned).or_else(|| {
+            servers
+                .target(mode, size)
+                .err()
+                .map(|e| format!("setup failed: {e}"))
+        })
+    };
     let mut cells: Vec<Cell> = Vec::new();
     for &link in &links {
         for body in &bodies {
             for &mode in &modes {
-                let skipped = programs.missing(mode).map(str::to_owned).or_else(|| {
-                    servers
-                        .target(mode, body.size)
-                        .err()
-                        .map(|e| format!("setup failed: {e}"))
-                });
                 cells.push(Cell {
                     link,
                     size: body.size,
                     mode,
-                    skipped,
+                    skipped: skipped(mode, body.size),
                     runs: Vec::new(),
                 });
             }
         }
     }
+    let mut pair_cells: Vec<PairCell> = Vec::new();
+    if args.pairs > 0 && links.contains(&PAIR_LINK) {
+        for body in &bodies {
+            for &mode in modes.iter().filter(|m| !m.slow()) {
+                pair_cells.push(PairCell {
+                    size: body.size,
+                    mode,
+                    skipped: skipped(mode, body.size),
+                    runs: Vec::new(),
+                });
+            }
+        }
+    }
+    let runnable = pair_cells.iter().filter(|c| c.skipped.is_none()).count() as u32;
     let total: u32 = cells
         .iter()
         .filter(|c| c.skipped.is_none())
         .map(|c| runs_of(c.mode))
-        .sum();
+        .sum::<u32>()
+        + runnable * args.pairs;
     let out = work.0.join("out");
     let log = work.0.join("client.log");
     let mut done = 0u32;
@@ -1369,8 +1725,12 @@ fn run_blocking(args: &TransferArgs) -> anyhow::Result<Exit> {
                     };
                     let addr = relay.as_ref().map_or(target.addr, |r| r.addr);
                     let cmd = client_command(&programs, mode, addr, &target, &out, args.cap)?;
-                    let mut result =
-                        time_client(cmd, mode.name(), args.cap, &out, &log, &body.bytes)?;
+                    let client = Client {
+                        cmd,
+                        out: &out,
+                        log: &log,
+                    };
+                    let mut result = time_client(client, mode.name(), args.cap, &body.bytes)?;
                     if let Some(relay) = relay {
                         result.relay = Some(relay.finish()?);
                     }
@@ -1393,11 +1753,44 @@ fn run_blocking(args: &TransferArgs) -> anyhow::Result<Exit> {
             }
         }
     }
+    for body in &bodies {
+        for run in 0..args.pairs {
+            let seed = mix(mix(args.seed, PAIR_SEED), mix(body.size, u64::from(run)));
+            let config = PAIR_LINK
+                .config(seed)
+                .context("the pair runs' link has a relay")?;
+            for cell in &mut pair_cells {
+                if cell.size != body.size || cell.skipped.is_some() {
+                    continue;
+                }
+                let target = servers
+                    .target(cell.mode, body.size)
+                    .map_err(|e| anyhow::anyhow!("{e}"))?;
+                let pair = run_pair(
+                    &programs, cell.mode, target, config, body, args.cap, &work.0,
+                )?;
+                done += 1;
+                eprintln!(
+                    "[{done}/{total}] {} {} B {} pair run {}/{}: {}",
+                    PAIR_LINK.name(),
+                    body.size,
+                    cell.mode.name(),
+                    run + 1,
+                    args.pairs,
+                    pair.summary(body.size)
+                );
+                cell.runs.push(pair);
+            }
+        }
+    }
     drop(servers);
 
     outln!("{}", table(args, &links, &bodies, &modes, &cells));
+    if !pair_cells.is_empty() {
+        outln!("\n{}", pair_table(args, &pair_cells));
+    }
     if let Some(path) = &args.json {
-        let json = report_json(args, &links, &modes, &cells, &programs);
+        let json = report_json(args, &links, &modes, &cells, &pair_cells, &programs);
         let text = serde_json::to_string_pretty(&json).context("encoding the JSON")?;
         std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
     }
@@ -1460,41 +1853,7 @@ fn table(
             rows.push(row);
         }
     }
-    let widths: Vec<usize> = (0..header.len())
-        .map(|i| {
-            rows.iter()
-                .map(|r| r[i].chars().count())
-                .chain([header[i].chars().count()])
-                .max()
-                .unwrap_or(0)
-        })
-        .collect();
-    let line = |cells: &[String]| {
-        let mut l = String::from("|");
-        for (i, c) in cells.iter().enumerate() {
-            // Text columns to the left, numbers to the right.
-            if i == 0 {
-                let _ = write!(l, " {c:<w$} |", w = widths[i]);
-            } else {
-                let _ = write!(l, " {c:>w$} |", w = widths[i]);
-            }
-        }
-        l
-    };
-    let _ = writeln!(s, "{}", line(&header));
-    let mut rule = String::from("|");
-    for (i, w) in widths.iter().enumerate() {
-        let dashes = "-".repeat(*w);
-        if i == 0 {
-            let _ = write!(rule, "-{dashes}-|");
-        } else {
-            let _ = write!(rule, "-{dashes}:|");
-        }
-    }
-    let _ = writeln!(s, "{rule}");
-    for row in &rows {
-        let _ = writeln!(s, "{}", line(row));
-    }
+    s += &markdown(&header, &rows, 1);
     let mut notes = Vec::new();
     for c in cells {
         if let Some(why) = &c.skipped {
@@ -1518,12 +1877,115 @@ fn table(
             }
         }
     }
+    failures(&mut s, &notes);
+    s.trim_end().to_owned()
+}
+
+/// The list of failed runs under a table, if any.
+fn failures(s: &mut String, notes: &[String]) {
     if !notes.is_empty() {
         let _ = writeln!(s, "\nFailed or not run:");
         for n in notes {
             let _ = writeln!(s, "- {n}");
         }
     }
+}
+
+/// A markdown table of `header` and `rows`, its columns padded to their widest cell: the
+/// first `text` columns to the left, the others (numbers) to the right.
+fn markdown(header: &[String], rows: &[Vec<String>], text: usize) -> String {
+    let widths: Vec<usize> = (0..header.len())
+        .map(|i| {
+            rows.iter()
+                .map(|r| r[i].chars().count())
+                .chain([header[i].chars().count()])
+                .max()
+                .unwrap_or(0)
+        })
+        .collect();
+    let line = |cells: &[String]| {
+        let mut l = String::from("|");
+        for (i, c) in cells.iter().enumerate() {
+            if i < text {
+                let _ = write!(l, " {c:<w$} |", w = widths[i]);
+            } else {
+                let _ = write!(l, " {c:>w$} |", w = widths[i]);
+            }
+        }
+        l
+    };
+    let mut s = String::new();
+    let _ = writeln!(s, "{}", line(header));
+    let mut rule = String::from("|");
+    for (i, w) in widths.iter().enumerate() {
+        let dashes = "-".repeat(*w);
+        if i < text {
+            let _ = write!(rule, "-{dashes}-|");
+        } else {
+            let _ = write!(rule, "-{dashes}:|");
+        }
+    }
+    let _ = writeln!(s, "{rule}");
+    for row in rows {
+        let _ = writeln!(s, "{}", line(row));
+    }
+    s
+}
+
+/// The markdown table of the pair runs, its heading and the failures under it.
+fn pair_table(args: &TransferArgs, cells: &[PairCell]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "Two transfers at once through {}: two clients of one mode started together through \
+         one relay to one server ({} runs per row; cap {} s; seed {}). Smaller share: the \
+         smaller client's part of the payload bytes the relay had delivered to the two when \
+         the first one ended; a run holds when it is at least {:.0} %. Link utilisation: both \
+         bodies over the later client's time, as a fraction of 50 Mbit/s. Medians of the \
+         successful runs (both clients bit-exact within the cap) [min-max].",
+        PAIR_LINK.name(),
+        args.pairs,
+        args.cap.as_secs_f64(),
+        args.seed,
+        FAIR_SHARE * 100.0
+    );
+    let _ = writeln!(s);
+    let header = [
+        "bytes",
+        "mode",
+        "smaller share",
+        "holds",
+        "link utilisation",
+        "ok",
+    ]
+    .map(str::to_owned);
+    let rows: Vec<Vec<String>> = cells.iter().map(PairCell::row).collect();
+    s += &markdown(&header, &rows, 2);
+    let mut notes = Vec::new();
+    for c in cells {
+        if let Some(why) = &c.skipped {
+            notes.push(format!(
+                "{} B {}: unavailable: {why}",
+                c.size,
+                c.mode.name()
+            ));
+            continue;
+        }
+        for (i, run) in c.runs.iter().enumerate() {
+            for (k, client) in run.clients.iter().enumerate() {
+                if let Some(e) = &client.error {
+                    notes.push(format!(
+                        "{} B {} pair run {} client {}: {e}",
+                        c.size,
+                        c.mode.name(),
+                        i + 1,
+                        k + 1
+                    ));
+                }
+            }
+        }
+    }
+    failures(&mut s, &notes);
     s.trim_end().to_owned()
 }
 
@@ -1559,6 +2021,7 @@ fn report_json(
     links: &[Link],
     modes: &[Mode],
     cells: &[Cell],
+    pair_cells: &[PairCell],
     programs: &Programs,
 ) -> serde_json::Value {
     let unix_s = std::time::SystemTime::now()
@@ -1601,6 +2064,22 @@ fn report_json(
             "unavailable": programs.missing(m),
         })).collect::<Vec<_>>(),
         "cells": cells.iter().map(Cell::json).collect::<Vec<_>>(),
+        "pairs": {
+            "runs": args.pairs,
+            "link": PAIR_LINK.name(),
+            "rate_bytes_per_s": RATE_50_MBIT,
+            "what": "two clients of one mode started together through one relay of the \
+                     link to one server, per size and fast mode; none when --pairs is 0 \
+                     or the link is not among --links",
+            "shares": "each client address's payload bytes delivered by the relay \
+                       (server to client) when the first client ended, over the sum of \
+                       both; the relay knows clients by address, not by process, so a run \
+                       gives its smaller and larger share",
+            "holds_at_smaller_share": FAIR_SHARE,
+            "utilisation": "2 x bytes over the later client's time, over the link's rate",
+            "statistics": "median, min and max over the successful runs (both clients ok)",
+            "cells": pair_cells.iter().map(PairCell::json).collect::<Vec<_>>(),
+        },
     })
 }
 
@@ -1841,6 +2320,7 @@ fn plot(sizes: &[u64], links: &[Link], modes: &[Mode], cells: &[Cell]) -> RgbIma
 #[cfg(test)]
 mod tests {
     use super::*;
+    use netem::DirCounters;
 
     #[test]
     fn stats_are_median_min_max_of_finite_values() {
@@ -1920,6 +2400,45 @@ mod tests {
         assert_eq!(which_block(&body[..1024], &body), "");
         assert_eq!(which_block(&body[..10], &body), "");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn pair_shares_are_of_the_bytes_delivered_when_the_first_client_ended() {
+        let ok = RunResult {
+            time_s: 2.0,
+            ok: true,
+            exit: Some(0),
+            killed_at_cap: false,
+            bit_exact: Some(true),
+            error: None,
+            relay: None,
+        };
+        let addr = |port| SocketAddr::from((Ipv4Addr::LOCALHOST, port));
+        let mut pair = PairRun {
+            clients: vec![ok.clone(), RunResult { time_s: 2.5, ..ok }],
+            delivered: vec![(addr(1), 600), (addr(2), 400)],
+            relay: Counters {
+                seed: 0,
+                elapsed_ms: 2500,
+                clients: 2,
+                clients_refused: 0,
+                up: DirCounters::default(),
+                down: DirCounters::default(),
+            },
+        };
+        assert_eq!(pair.shares(), Some((0.4, 0.6)));
+        assert!(pair.holds() && pair.ok());
+        assert_eq!(pair.later_s(), 2.5);
+        // 2 x 6,250,000 bytes in 2.5 s: 80 % of 50 Mbit/s.
+        assert!((pair.utilisation(6_250_000) - 0.8).abs() < 1e-12);
+        pair.delivered = vec![(addr(1), 900), (addr(2), 100)];
+        assert!(!pair.holds());
+        // A client that had nothing yet.
+        pair.delivered = vec![(addr(2), 500)];
+        assert_eq!(pair.shares(), Some((0.0, 1.0)));
+        pair.delivered.clear();
+        assert_eq!(pair.shares(), None);
+        assert!(!pair.holds());
     }
 
     #[test]

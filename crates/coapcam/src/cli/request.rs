@@ -435,6 +435,7 @@ async fn path_json(client: &Client, peer: SocketAddr, json: bool) -> serde_json:
             "blocks_lost": p.blocks_lost,
             "blocks_late": p.blocks_late,
             "blocks_duplicate": p.blocks_duplicate,
+            "window_fallbacks": p.window_fallbacks,
             "max_window": p.max_window,
         }),
         _ => serde_json::Value::Null,

@@ -114,6 +114,107 @@ fn bench_transfer_reports_bit_exact_runs_as_table_json_and_plot() {
 }
 
 #[test]
+fn bench_transfer_pairs_two_bit_exact_clients_through_one_relay() {
+    let dir = TempDir::new("bench-transfer-pairs");
+    let json = dir.join("bench.json");
+    let args = [
+        "bench",
+        "transfer",
+        "--sizes",
+        "30000",
+        "--links",
+        "20ms-2%-50mbit",
+        "--modes",
+        "window",
+        "--runs",
+        "1",
+        "--pairs",
+        "1",
+        "--seed",
+        "3",
+        "--json",
+        json.to_str().expect("UTF-8 path"),
+    ];
+    let finished = Proc::run(COAPCAM, &args, LIMIT).expect_success("coapcam bench transfer");
+
+    // The second table, after the main one: one row for the one (size, mode).
+    let table = finished.stdout_text();
+    let heading = table
+        .find("Two transfers at once through 20ms-2%-50mbit")
+        .unwrap_or_else(|| panic!("no pair table in {table}"));
+    assert!(table[..heading].contains("| link "), "{table}");
+    let row = table[heading..]
+        .lines()
+        .find(|l| l.starts_with("| 30000 "))
+        .unwrap_or_else(|| panic!("no pair row in {table}"));
+    assert!(row.contains(" window "), "{row}");
+    assert!(row.ends_with(" 1/1 |"), "{row}");
+
+    let report: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(&json).unwrap_or_else(|e| panic!("reading {}: {e}", json.display())),
+    )
+    .expect("the report is JSON");
+    // The single run is there as usual.
+    assert_eq!(
+        report["cells"].as_array().map(Vec::len),
+        Some(1),
+        "{report:#}"
+    );
+    let pairs = &report["pairs"];
+    assert_eq!(pairs["runs"], 1, "{pairs:#}");
+    assert_eq!(pairs["link"], "20ms-2%-50mbit", "{pairs:#}");
+    let cells = pairs["cells"].as_array().expect("pair cells");
+    assert_eq!(cells.len(), 1, "{pairs:#}");
+    let cell = &cells[0];
+    assert_eq!(
+        (&cell["bytes"], &cell["mode"]),
+        (&30000.into(), &"window".into())
+    );
+    assert_eq!(
+        (&cell["runs"], &cell["ok"]),
+        (&1.into(), &1.into()),
+        "{cell:#}"
+    );
+    let run = &cell["results"][0];
+    assert_eq!(run["ok"], true, "{run:#}");
+    let clients = run["clients"].as_array().expect("clients");
+    assert_eq!(clients.len(), 2, "{run:#}");
+    for client in clients {
+        assert_eq!(client["ok"], true, "{run:#}");
+        assert_eq!(client["bit_exact"], true, "{run:#}");
+        assert_eq!(client["exit"], 0, "{run:#}");
+    }
+    // What the relay had delivered when the first client ended: to one or both client
+    // addresses (a client that started late may have had nothing yet), all of it.
+    let delivered = run["delivered_at_first_end"].as_array().expect("delivered");
+    assert!((1..=2).contains(&delivered.len()), "{run:#}");
+    assert!(
+        delivered
+            .iter()
+            .all(|d| d["bytes"].as_u64().is_some_and(|n| n > 0)),
+        "{run:#}"
+    );
+    let smaller = run["smaller_share"].as_f64().expect("smaller share");
+    let larger = run["larger_share"].as_f64().expect("larger share");
+    assert!(
+        (0.0..=0.5).contains(&smaller) && smaller <= larger,
+        "{run:#}"
+    );
+    assert!((smaller + larger - 1.0).abs() < 1e-9, "{run:#}");
+    assert!(
+        run["utilisation"].as_f64().is_some_and(|u| u > 0.0),
+        "{run:#}"
+    );
+    assert!(
+        run["relay"]["down"]["forwarded"]
+            .as_u64()
+            .is_some_and(|n| n > 0),
+        "{run:#}"
+    );
+    assert_eq!(run["relay"]["clients"], 2, "{run:#}");
+}
+
+#[test]
 fn bench_transfer_refuses_bad_flags() {
     for bad in [
         &["--runs", "0"][..],
