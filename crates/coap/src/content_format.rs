@@ -81,6 +81,12 @@ impl ContentFormat {
     /// reserved for experiments and never assigned by IANA, so it means "PLY" only between
     /// coapcam peers.
     pub const PLY: Self = Self(65100);
+    /// 65101: `application/x-rvl`, coapcam's RVL-compressed 16-bit depth image
+    /// (experimental range, as [`ContentFormat::PLY`]).
+    pub const RVL: Self = Self(65101);
+    /// 65102: `application/x-rvl+zstd`, that RVL image in a zstd frame (experimental
+    /// range).
+    pub const RVL_ZSTD: Self = Self(65102);
 
     /// The registered media type, e.g. `"image/png"`, or `None` for a number this crate does
     /// not know.
@@ -293,6 +299,12 @@ const REGISTRY: &[Entry] = &[
         "senml-etch+cbor",
     ),
     e(ContentFormat::PLY, "application/x-ply", "ply"),
+    e(ContentFormat::RVL, "application/x-rvl", "rvl"),
+    e(
+        ContentFormat::RVL_ZSTD,
+        "application/x-rvl+zstd",
+        "rvl-zstd",
+    ),
 ];
 
 /// Extra short names accepted by [`ContentFormat::from_name`], never printed.
@@ -365,6 +377,8 @@ mod tests {
             (320, "application/senml-etch+json"),
             (322, "application/senml-etch+cbor"),
             (65100, "application/x-ply"),
+            (65101, "application/x-rvl"),
+            (65102, "application/x-rvl+zstd"),
         ];
         for &(number, media_type) in expected {
             let cf = ContentFormat(number);
@@ -412,6 +426,8 @@ mod tests {
             ("text", ContentFormat::TEXT_PLAIN),
             ("text/plain", ContentFormat::TEXT_PLAIN),
             ("ply", ContentFormat::PLY),
+            ("rvl", ContentFormat::RVL),
+            ("rvl-zstd", ContentFormat::RVL_ZSTD),
             ("PNG", ContentFormat::IMAGE_PNG),
             (" cbor ", ContentFormat::CBOR),
         ];

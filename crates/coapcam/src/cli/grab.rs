@@ -7,7 +7,7 @@ use anyhow::{Context as _, bail};
 use clap::Args;
 use coap::{ContentFormat, Response};
 use coapcam::client::CamClient;
-use coapcam::repr::{Stream, packet, raster};
+use coapcam::repr::{Stream, packet, raster, rvl};
 use coapcam::vision::picture::{self, save, sibling};
 
 use super::{Exit, TransmissionArgs};
@@ -42,16 +42,23 @@ pub(crate) struct GrabArgs {
 /// The content format a file named `path` holds for `stream` (the extension decides, by
 /// the table of [`Stream::formats`]).
 fn file_format(path: &Path, stream: Stream) -> anyhow::Result<ContentFormat> {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
+    let name = path
+        .file_name()
+        .and_then(|n| n.to_str())
         .unwrap_or_default();
+    let ext = if name.to_ascii_lowercase().ends_with(".rvl.zst") {
+        "rvl.zst"
+    } else {
+        path.extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or_default()
+    };
     if Stream::ALL
         .iter()
         .all(|s| s.format_of_extension(ext).is_none())
     {
         bail!(
-            "{}: the extension must be .png, .jpg, .ply or .bin",
+            "{}: the extension must be .png, .jpg, .ply, .rvl, .rvl.zst or .bin",
             path.display()
         );
     }
@@ -145,6 +152,8 @@ async fn write_view(
         Stream::Depth => {
             let depth = match kind {
                 ContentFormat::IMAGE_PNG => raster::depth_from_png(&response.payload)?,
+                ContentFormat::RVL => rvl::depth_from_rvl(&response.payload)?,
+                ContentFormat::RVL_ZSTD => rvl::depth_from_rvl_zstd(&response.payload)?,
                 _ => packet::depth(&response.payload).context("reading the depth packet")?,
             };
             let colored = sibling(path, "-color");

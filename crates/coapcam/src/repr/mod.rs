@@ -8,11 +8,14 @@
 //! | 22 `image/jpeg` | yes | | | [`raster`] |
 //! | 60 `application/cbor`: a map with intrinsics and provenance | yes | yes | yes | [`cbor`] |
 //! | 65100 PLY, binary little-endian | | | yes | [`ply`] |
+//! | 65101 RVL: run lengths and nibble-coded differences, lossless | | yes | | [`rvl`] |
+//! | 65102 RVL in a zstd frame | | yes | | [`rvl`] |
 
 pub mod cbor;
 pub mod packet;
 pub mod ply;
 pub mod raster;
+pub mod rvl;
 
 use coap::ContentFormat;
 use rgbd::Serial;
@@ -65,9 +68,21 @@ impl Stream {
         use ContentFormat as Cf;
         match self {
             Self::Color => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::IMAGE_JPEG, Cf::CBOR],
-            Self::Depth => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::CBOR],
+            Self::Depth => &[
+                Cf::OCTET_STREAM,
+                Cf::IMAGE_PNG,
+                Cf::CBOR,
+                Cf::RVL,
+                Cf::RVL_ZSTD,
+            ],
             Self::Pointcloud => &[Cf::OCTET_STREAM, Cf::CBOR, Cf::PLY],
         }
+    }
+
+    /// Its resources' `ct` in discovery: every format it offers, the default first.
+    pub fn ct(self) -> String {
+        let numbers: Vec<String> = self.formats().iter().map(|cf| cf.0.to_string()).collect();
+        numbers.join(" ")
     }
 
     /// The diagnostic of a 4.06 Not Acceptable: the formats it is served in.
@@ -80,8 +95,8 @@ impl Stream {
         format!("{} is served as {}", self.name(), or_list(&names))
     }
 
-    /// The content format a file named `*.ext` holds (`png`, `jpg`, `ply`, `bin` for the
-    /// thesis packet), if the stream is offered in it.
+    /// The content format a file named `*.ext` holds (`png`, `jpg`, `ply`, `rvl`,
+    /// `rvl.zst`, `bin` for the thesis packet), if the stream is offered in it.
     pub fn format_of_extension(self, ext: &str) -> Option<ContentFormat> {
         self.formats()
             .iter()
@@ -109,6 +124,8 @@ fn format_name(cf: ContentFormat) -> &'static str {
         ContentFormat::IMAGE_JPEG => "JPEG",
         ContentFormat::CBOR => "CBOR",
         ContentFormat::PLY => "PLY",
+        ContentFormat::RVL => "RVL",
+        ContentFormat::RVL_ZSTD => "RVL+zstd",
         _ => "other",
     }
 }
@@ -120,6 +137,8 @@ fn extensions(cf: ContentFormat) -> &'static [&'static str] {
         ContentFormat::IMAGE_PNG => &["png"],
         ContentFormat::IMAGE_JPEG => &["jpg", "jpeg"],
         ContentFormat::PLY => &["ply"],
+        ContentFormat::RVL => &["rvl"],
+        ContentFormat::RVL_ZSTD => &["rvl.zst"],
         _ => &[],
     }
 }
@@ -150,6 +169,9 @@ pub enum EncodeError {
     #[error("encoding PLY: {0}")]
     /// The PLY writer failed.
     Ply(#[from] geometry::PlyError),
+    #[error("compressing with zstd: {0}")]
+    /// zstd failed.
+    Zstd(#[from] std::io::Error),
 }
 
 /// Where a point cloud came from, for its CBOR map and PLY comment.

@@ -8,7 +8,7 @@ use std::time::Duration;
 use coap::{ContentFormat, EndpointConfig};
 use coapcam::client::CamClient;
 use coapcam::client::measure::{Source, measure_once, prepare_cameras, truth, yaw_difference};
-use coapcam::repr::{Stream, cbor, packet, raster};
+use coapcam::repr::{Stream, cbor, packet, raster, rvl};
 use coapcam::server::SceneServer;
 use geometry::DimensionConfig;
 use rgbd::Scene;
@@ -92,6 +92,13 @@ fn every_representation_decodes_to_the_same_frame() {
             (from_png.width, from_png.height),
             (from_packet.width, from_packet.height)
         );
+        for from_rvl in [
+            rvl::depth_from_rvl(&get(ContentFormat::RVL).await).expect("rvl"),
+            rvl::depth_from_rvl_zstd(&get(ContentFormat::RVL_ZSTD).await).expect("rvl+zstd"),
+        ] {
+            // Everything the packet carries, the depth scale and the second included.
+            assert_eq!(from_rvl, from_packet);
+        }
 
         client
             .grab(&sn, Stream::Pointcloud, None)

@@ -25,7 +25,7 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
-use crate::repr::{self, CloudSource, Stream, cbor, packet, raster};
+use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
 
 use config::AppConfig;
 use grab::{Frame, GrabError};
@@ -128,7 +128,7 @@ impl Cams {
                     async move { me.pointclouds(&ctx.request).await }
                 }))
                 .attr("rt", "rgbd.pointcloud")
-                .attr("ct", "42"),
+                .attr("ct", Stream::Pointcloud.ct()),
         );
         for name in Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS) {
             let me = self.clone();
@@ -256,7 +256,7 @@ impl Cams {
                 .delete(delete)
                 .attr("rt", rt)
                 .attr("if", "core.p")
-                .attr("ct", "42")
+                .attr("ct", kind.ct())
                 .observable()
         } else {
             let (get_me, put_me) = (self.clone(), self.clone());
@@ -669,6 +669,8 @@ fn represent(
         (Frame::Color(f, k, e), ContentFormat::CBOR) => cbor::color_cbor(f, k, e, sn),
         (Frame::Color(f, ..), _) => Ok(packet::color_packet(f)),
         (Frame::Depth(f, _), ContentFormat::IMAGE_PNG) => raster::depth_png(f),
+        (Frame::Depth(f, _), ContentFormat::RVL) => Ok(rvl::depth_rvl(f)),
+        (Frame::Depth(f, _), ContentFormat::RVL_ZSTD) => rvl::depth_rvl_zstd(f),
         (Frame::Depth(f, k), ContentFormat::CBOR) => cbor::depth_cbor(f, k, sn),
         (Frame::Depth(f, _), _) => Ok(packet::depth_packet(f)),
         (

@@ -108,6 +108,13 @@ fn cameras_plugged_in_and_pulled_out_appear_in_and_vanish_from_discovery() {
             "{links}"
         );
         assert!(!links.contains(&sb.to_string()), "{links}");
+        // Each grab resource lists every format it offers, the default first.
+        assert!(
+            links.contains(&format!(
+                "</cams/{sa}/depth>;rt=\"rgbd.depth\";if=\"core.p\";ct=\"42 23 60 65101 65102\""
+            )),
+            "{links}"
+        );
 
         rig.hub.add(b).expect("plug in b");
         rig.routed(&format!("/cams/{sb}/color"), true).await;
