@@ -94,8 +94,9 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
         bail!("--view writes PNG: give a .png file name");
     }
     let timeout = args.transmission.timeout()?;
-    let client =
-        CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout).await?;
+    let client = CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout)
+        .await?
+        .with_bars(&indicatif::MultiProgress::new());
     let (sn, response) = if args.all {
         (None, client.grab_all(accept(kind)).await?)
     } else {

@@ -106,7 +106,8 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         (Some(g), _) => {
             let group = group_address(g).await?;
             let wait = Duration::try_from_secs_f64(args.wait).context("--wait")?;
-            let client = CamClient::for_group(group, args.bind, config, timeout)?;
+            let client = CamClient::for_group(group, args.bind, config, timeout)?
+                .with_bars(&indicatif::MultiProgress::new());
             let expect = args.expect;
             (
                 client,
@@ -118,7 +119,9 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             )
         }
         (None, Some(server)) => {
-            let client = CamClient::connect(server, config, timeout).await?;
+            let client = CamClient::connect(server, config, timeout)
+                .await?
+                .with_bars(&indicatif::MultiProgress::new());
             if args.prepare {
                 let serials = match &args.camera {
                     Some(sn) => vec![sn.clone()],

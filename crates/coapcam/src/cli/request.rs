@@ -13,6 +13,7 @@ use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{BodyPart, Client, Uri};
 
 use super::{Exit, Interrupted, TransmissionArgs, outln};
+use coapcam::client::progress::Bar;
 use coapcam::client::{check_size, describe};
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
@@ -304,45 +305,6 @@ impl Drop for PartFile {
     }
 }
 
-/// A progress bar on a terminal for transfers over 1 MB.
-struct Bar {
-    enabled: bool,
-    bar: Option<indicatif::ProgressBar>,
-}
-
-impl Bar {
-    const SHOW_ABOVE: usize = 1 << 20;
-
-    fn new(enabled: bool) -> Self {
-        Self { enabled, bar: None }
-    }
-
-    fn show(&mut self, done: usize, total: Option<usize>) {
-        if !self.enabled {
-            return;
-        }
-        if self.bar.is_none() && total.unwrap_or(done).max(done) > Self::SHOW_ABOVE {
-            let b = indicatif::ProgressBar::new(total.unwrap_or(0) as u64);
-            b.set_style(
-                indicatif::ProgressStyle::with_template(
-                    "{bar:40} {bytes}/{total_bytes} {bytes_per_sec} {eta}",
-                )
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-            );
-            self.bar = Some(b);
-        }
-        if let Some(b) = &self.bar {
-            b.set_position(done as u64);
-        }
-    }
-
-    fn finish(&mut self) {
-        if let Some(b) = self.bar.take() {
-            b.finish_and_clear();
-        }
-    }
-}
-
 async fn observe(
     client: &Client,
     peer: SocketAddr,
@@ -393,14 +355,8 @@ async fn send_with_bar(
     peer: SocketAddr,
     request: Request,
 ) -> Result<Response, coap_net::Error> {
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<coap_net::Progress>();
-    let bar = async move {
-        let mut bar = Bar::new(true);
-        while let Some(p) = rx.recv().await {
-            bar.show(p.done, p.total);
-        }
-        bar.finish();
-    };
+    let (tx, rx) = tokio::sync::mpsc::unbounded_channel::<coap_net::Progress>();
+    let bar = Bar::new(true).follow(rx);
     let (response, ()) = tokio::join!(client.send_with_progress(peer, request, tx), bar);
     response
 }

@@ -5,6 +5,7 @@
 pub mod annotate;
 pub mod codes;
 pub mod measure;
+pub mod progress;
 
 use std::net::{IpAddr, SocketAddr};
 use std::time::Duration;
@@ -22,6 +23,8 @@ pub struct CamClient {
     client: Client,
     server: SocketAddr,
     timeout: Duration,
+    /// Bars for answers over 1 MB, when the command shows them.
+    bars: Option<indicatif::MultiProgress>,
 }
 
 impl CamClient {
@@ -42,7 +45,16 @@ impl CamClient {
             client,
             server,
             timeout,
+            bars: None,
         })
+    }
+
+    /// Shows a progress bar on standard error, when it is a terminal, for every answer
+    /// over 1 MB (one line per transfer, in `bars`).
+    #[must_use]
+    pub fn with_bars(mut self, bars: &indicatif::MultiProgress) -> Self {
+        self.bars = Some(bars.clone());
+        self
     }
 
     /// A client for requests to the multicast group `group` (answers come from each
@@ -65,6 +77,7 @@ impl CamClient {
             client,
             server: group,
             timeout,
+            bars: None,
         })
     }
 
@@ -74,6 +87,7 @@ impl CamClient {
             client: other.client.clone(),
             server,
             timeout: other.timeout,
+            bars: other.bars.clone(),
         }
     }
 
@@ -99,11 +113,16 @@ impl CamClient {
     ) -> anyhow::Result<Response> {
         let request = self.request(method, path, payload, content_format, accept);
         let what = format!("{} {path}", method.name().unwrap_or("request"));
-        let response = self
-            .client
-            .send(self.server, request)
-            .await
-            .with_context(|| format!("{what} on {}", self.server))?;
+        let response = match &self.bars {
+            Some(bars) => {
+                let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+                let sent = self.client.send_with_progress(self.server, request, tx);
+                let (response, ()) = tokio::join!(sent, progress::Bar::in_group(bars).follow(rx));
+                response
+            }
+            None => self.client.send(self.server, request).await,
+        };
+        let response = response.with_context(|| format!("{what} on {}", self.server))?;
         check(&what, response)
     }
 
