@@ -27,9 +27,13 @@ pub(crate) struct GrabArgs {
     #[arg(long)]
     all: bool,
     /// Output file; its extension chooses the format: .png (color; depth as 16-bit PNG of
-    /// raw units), .jpg (color), .ply (point cloud, binary PLY), .bin (the thesis packet).
+    /// raw units), .jpg (color), .rvl and .rvl.zst (depth, lossless), .ply (point cloud,
+    /// binary PLY), .bin (the thesis packet).
     #[arg(short = 'o', long = "output", value_name = "FILE")]
     output: PathBuf,
+    /// With a .jpg file: the JPEG quality, 1-100 (the server's default is 90).
+    #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(1..=100))]
+    jpeg_quality: Option<u8>,
     /// Also write what a person looks at, as PNG: the color image; depth in grayscale
     /// (near bright) plus a colour-mapped copy named FILE-color.png; a point cloud seen
     /// from above, coloured by height.
@@ -93,6 +97,9 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
     {
         bail!("--view writes PNG: give a .png file name");
     }
+    if args.jpeg_quality.is_some() && kind != ContentFormat::IMAGE_JPEG {
+        bail!("--jpeg-quality is for color written to a .jpg file");
+    }
     let timeout = args.transmission.timeout()?;
     let client = CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout)
         .await?
@@ -101,7 +108,10 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
         (None, client.grab_all(accept(kind)).await?)
     } else {
         let sn = client.one_camera(args.camera.as_deref()).await?;
-        let response = client.grab(&sn, args.stream, accept(kind)).await?;
+        let response = match args.jpeg_quality {
+            Some(q) => client.grab_jpeg(&sn, q).await?,
+            None => client.grab(&sn, args.stream, accept(kind)).await?,
+        };
         (Some(sn), response)
     };
     std::fs::write(&args.output, &response.payload)

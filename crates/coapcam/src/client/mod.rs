@@ -113,6 +113,12 @@ impl CamClient {
     ) -> anyhow::Result<Response> {
         let request = self.request(method, path, payload, content_format, accept);
         let what = format!("{} {path}", method.name().unwrap_or("request"));
+        self.exchange(request, &what).await
+    }
+
+    /// Sends `request` (`what` names it in errors) and returns the response if it is a
+    /// 2.xx whose body arrived whole.
+    async fn exchange(&self, request: Request, what: &str) -> anyhow::Result<Response> {
         let response = match &self.bars {
             Some(bars) => {
                 let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
@@ -123,7 +129,7 @@ impl CamClient {
             None => self.client.send(self.server, request).await,
         };
         let response = response.with_context(|| format!("{what} on {}", self.server))?;
-        check(&what, response)
+        check(what, response)
     }
 
     /// The request `call` sends, for callers that send it themselves (multicast).
@@ -239,6 +245,18 @@ impl CamClient {
     ) -> anyhow::Result<Response> {
         let path = format!("/cams/{serial}/{}", stream.name());
         self.call(Code::POST, &path, Bytes::new(), None, accept)
+            .await
+    }
+
+    /// Grabs a new color frame of one camera (POST) as a JPEG of `quality` (1-100).
+    pub async fn grab_jpeg(&self, serial: &str, quality: u8) -> anyhow::Result<Response> {
+        let path = format!("/cams/{serial}/color");
+        let accept = Some(ContentFormat::IMAGE_JPEG);
+        let mut request = self.request(Code::POST, &path, Bytes::new(), None, accept);
+        request
+            .options
+            .push(OptionNumber::URI_QUERY, format!("q={quality}").as_bytes());
+        self.exchange(request, &format!("POST {path}?q={quality}"))
             .await
     }
 

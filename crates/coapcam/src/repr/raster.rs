@@ -11,7 +11,8 @@ use super::EncodeError;
 use super::packet::{DepthImage, compact_pixels, depth_rows};
 
 /// Quality of JPEG color images.
-const JPEG_QUALITY: u8 = 90;
+/// The JPEG quality when the request names none (`q=N` on a color resource).
+pub const JPEG_QUALITY: u8 = 90;
 
 fn image_error(format: &'static str) -> impl FnOnce(image::ImageError) -> EncodeError {
     move |source| EncodeError::Image { format, source }
@@ -54,8 +55,8 @@ pub fn color_png(frame: &ColorFrame) -> Result<Vec<u8>, EncodeError> {
     Ok(out)
 }
 
-/// Color as a JPEG (alpha dropped).
-pub fn color_jpeg(frame: &ColorFrame) -> Result<Vec<u8>, EncodeError> {
+/// Color as a JPEG of `quality` (1-100; alpha dropped).
+pub fn color_jpeg(frame: &ColorFrame, quality: u8) -> Result<Vec<u8>, EncodeError> {
     let (pixels, ty) = rgb_pixels(frame);
     let rgb: Vec<u8> = if ty == ExtendedColorType::Rgba8 {
         pixels
@@ -66,7 +67,7 @@ pub fn color_jpeg(frame: &ColorFrame) -> Result<Vec<u8>, EncodeError> {
         pixels
     };
     let mut out = Vec::new();
-    JpegEncoder::new_with_quality(&mut out, JPEG_QUALITY)
+    JpegEncoder::new_with_quality(&mut out, quality)
         .write_image(&rgb, frame.width, frame.height, ExtendedColorType::Rgb8)
         .map_err(image_error("JPEG"))?;
     Ok(out)
@@ -114,6 +115,6 @@ mod tests {
     fn images_encode() {
         let frame = color(ColorFormat::Bgra8, 4, 2, 16);
         assert!(color_png(&frame).is_ok_and(|p| p.starts_with(b"\x89PNG")));
-        assert!(color_jpeg(&frame).is_ok_and(|p| p.starts_with(&[0xff, 0xd8])));
+        assert!(color_jpeg(&frame, 90).is_ok_and(|p| p.starts_with(&[0xff, 0xd8])));
     }
 }

@@ -166,3 +166,56 @@ fn the_default_scenes_qr_label_reads_at_1920x1080() {
         assert_eq!(texts, ["PKG-0001"], "{seen:?}");
     });
 }
+
+#[test]
+fn the_client_chooses_the_jpeg_quality() {
+    let state = TempDir::new("library-jpeg");
+    let scene = Scene::default_single();
+    runtime().block_on(async {
+        let (_server, client) = start(&scene, &state).await;
+        let sn = client.one_camera(None).await.expect("one camera");
+        let low = client.grab_jpeg(&sn, 20).await.expect("q=20");
+        let high = client.grab_jpeg(&sn, 95).await.expect("q=95");
+        for r in [&low, &high] {
+            assert!(r.payload.starts_with(&[0xff, 0xd8]), "not a JPEG");
+        }
+        // Quality 20 is well below 95 (28 KB against 46 KB for the default scene).
+        assert!(
+            low.payload.len() * 4 < high.payload.len() * 3,
+            "{} and {} bytes",
+            low.payload.len(),
+            high.payload.len()
+        );
+        // The latest frame at two qualities: two representations, two ETags.
+        let get = |query: &'static str, accept: ContentFormat| {
+            let mut request = client.request(
+                coap::Code::GET,
+                &format!("/cams/{sn}/color"),
+                bytes::Bytes::new(),
+                None,
+                Some(accept),
+            );
+            request
+                .options
+                .push(coap::OptionNumber::URI_QUERY, query.as_bytes());
+            let c = client.coap().clone();
+            let server = client.server();
+            async move { c.send(server, request).await.expect("an answer") }
+        };
+        let (a, b) = (
+            get("q=30", ContentFormat::IMAGE_JPEG).await,
+            get("q=31", ContentFormat::IMAGE_JPEG).await,
+        );
+        assert_eq!((a.code, b.code), (coap::Code::CONTENT, coap::Code::CONTENT));
+        assert_ne!(a.options.etag(), b.options.etag());
+        for (query, accept) in [
+            ("q=0", ContentFormat::IMAGE_JPEG),
+            ("q=101", ContentFormat::IMAGE_JPEG),
+            ("q=high", ContentFormat::IMAGE_JPEG),
+            ("q=50", ContentFormat::IMAGE_PNG),
+        ] {
+            let r = get(query, accept).await;
+            assert_eq!(r.code, coap::Code::BAD_REQUEST, "{query} {accept}");
+        }
+    });
+}

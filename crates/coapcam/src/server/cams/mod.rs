@@ -663,9 +663,15 @@ fn represent(
         Ok(cf) => cf,
         Err(refused) => return refused,
     };
+    let quality = match jpeg_quality(request, cf) {
+        Ok(q) => q,
+        Err(refused) => return refused,
+    };
     let body = match (frame, cf) {
         (Frame::Color(f, ..), ContentFormat::IMAGE_PNG) => raster::color_png(f),
-        (Frame::Color(f, ..), ContentFormat::IMAGE_JPEG) => raster::color_jpeg(f),
+        (Frame::Color(f, ..), ContentFormat::IMAGE_JPEG) => {
+            raster::color_jpeg(f, quality.unwrap_or(raster::JPEG_QUALITY))
+        }
         (Frame::Color(f, k, e), ContentFormat::CBOR) => cbor::color_cbor(f, k, e, sn),
         (Frame::Color(f, ..), _) => Ok(packet::color_packet(f)),
         (Frame::Depth(f, _), ContentFormat::IMAGE_PNG) => raster::depth_png(f),
@@ -689,8 +695,35 @@ fn represent(
         }
     };
     match body {
-        Ok(body) => content(body, cf, representation_etag(etag, cf)),
+        Ok(body) => content(body, cf, representation_etag(etag, cf, quality)),
         Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
+    }
+}
+
+/// The JPEG quality a request asks for with the query `q=N` (1-100), if it does; 4.00 for
+/// a bad one or for `q` with another format than JPEG.
+#[expect(
+    clippy::result_large_err,
+    reason = "a refusal is the Response sent; it keeps its options inline"
+)]
+fn jpeg_quality(request: &IncomingRequest, cf: ContentFormat) -> Result<Option<u8>, Response> {
+    let Some(q) = request
+        .options
+        .uri_query()
+        .find_map(|item| item.strip_prefix("q=").map(str::to_owned))
+    else {
+        return Ok(None);
+    };
+    if cf != ContentFormat::IMAGE_JPEG {
+        let why = "q (the JPEG quality) needs Accept: image/jpeg (22)";
+        return Err(Response::diagnostic(Code::BAD_REQUEST, why));
+    }
+    match q.parse::<u8>() {
+        Ok(n @ 1..=100) => Ok(Some(n)),
+        _ => Err(Response::diagnostic(
+            Code::BAD_REQUEST,
+            &format!("q={q}: the JPEG quality is a whole number from 1 to 100"),
+        )),
     }
 }
 
@@ -720,12 +753,15 @@ fn content(body: Vec<u8>, cf: ContentFormat, etag: [u8; 8]) -> Response {
 }
 
 /// The ETag of one representation of a frame: the frame's own for the thesis packet.
-fn representation_etag(frame: [u8; 8], cf: ContentFormat) -> [u8; 8] {
+fn representation_etag(frame: [u8; 8], cf: ContentFormat, quality: Option<u8>) -> [u8; 8] {
     if cf == ContentFormat::OCTET_STREAM {
         return frame;
     }
     let mut h = std::collections::hash_map::DefaultHasher::new();
     (frame, cf.0).hash(&mut h);
+    if let Some(q) = quality {
+        q.hash(&mut h);
+    }
     h.finish().to_be_bytes()
 }
 
