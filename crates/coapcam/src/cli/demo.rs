@@ -19,7 +19,6 @@ use coapcam::client::measure::{
 };
 use coapcam::client::{annotate, codes};
 use coapcam::repr::Stream;
-use coapcam::repr::packet;
 use coapcam::server::SceneServer;
 use coapcam::vision::codes::Code;
 use coapcam::vision::picture::{self, save};
@@ -132,8 +131,7 @@ async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Res
     let path = dir.join("color.png");
     std::fs::write(&path, &color.payload).with_context(|| format!("writing {}", path.display()))?;
     outln!("wrote {} (camera {serial})", path.display());
-    let depth = client.grab(serial, Stream::Depth, None).await?;
-    let depth = packet::depth(&depth.payload).context("reading the depth packet")?;
+    let depth = client.grab_depth(serial).await?;
     let raw = image::ImageBuffer::<image::Luma<u16>, _>::from_raw(
         depth.width,
         depth.height,

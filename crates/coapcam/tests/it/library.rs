@@ -219,3 +219,51 @@ fn the_client_chooses_the_jpeg_quality() {
         }
     });
 }
+
+#[test]
+fn depth_comes_compressed_and_as_the_packet_from_a_server_without_rvl() {
+    let state = TempDir::new("library-depth");
+    let scene = Scene::default_single();
+    runtime().block_on(async {
+        // Ours offers RVL+zstd: the image equals the packet of the same frame.
+        let (_server, client) = start(&scene, &state).await;
+        let sn = client.one_camera(None).await.expect("one camera");
+        let compact = client.grab_depth(&sn).await.expect("RVL+zstd depth");
+        let path = format!("/cams/{sn}/depth");
+        let get = client
+            .call(coap::Code::GET, &path, bytes::Bytes::new(), None, None)
+            .await
+            .expect("GET depth");
+        assert_eq!(compact, packet::depth(&get.payload).expect("packet"));
+
+        // A server that knows only the thesis packet answers 4.06 to anything else.
+        let body = get.payload.clone();
+        let router = coap_net::Router::new();
+        router.add(
+            &path,
+            coap_net::Resource::new().post(coap_net::handler(move |ctx| {
+                let body = body.clone();
+                async move {
+                    match ctx.request.options.accept() {
+                        None | Some(ContentFormat::OCTET_STREAM) => {
+                            coap::Response::new(coap::Code::CONTENT).with_payload(body)
+                        }
+                        Some(_) => coap::Response::new(coap::Code::NOT_ACCEPTABLE),
+                    }
+                }
+            })),
+        );
+        let loopback = SocketAddr::from(([127, 0, 0, 1], 0));
+        let old = coap_net::Server::bind(&[loopback], coap_net::ServerConfig::default(), router)
+            .expect("a thesis-only server");
+        let uri = format!("coap://{}", old.local_addrs()[0]);
+        let thesis = CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(10))
+            .await
+            .expect("client");
+        let image = thesis
+            .grab_depth(&sn)
+            .await
+            .expect("the packet, after a 4.06");
+        assert_eq!(image, compact);
+    });
+}
