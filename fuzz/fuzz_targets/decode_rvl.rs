@@ -14,7 +14,7 @@ fuzz_target!(|data: &[u8]| {
             image.height,
             image.depth_scale,
             image.timestamp_s,
-            image.values.iter().copied(),
+            &image.values,
         );
         let back = rvl::decode(&again).expect("our own encoding decodes");
         assert_eq!(back.values, image.values);

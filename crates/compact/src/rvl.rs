@@ -148,9 +148,9 @@ pub fn encode(
     height: u16,
     depth_scale: f32,
     timestamp_s: u32,
-    pixels: impl Iterator<Item = u16>,
+    pixels: &[u16],
 ) -> Vec<u8> {
-    let mut out = Vec::with_capacity(HEADER + usize::from(width) * usize::from(height) / 2);
+    let mut out = Vec::with_capacity(HEADER + pixels.len());
     out.extend_from_slice(&width.to_le_bytes());
     out.extend_from_slice(&height.to_le_bytes());
     out.extend_from_slice(&depth_scale.to_le_bytes());
@@ -160,25 +160,20 @@ pub fn encode(
         word: 0,
         nibbles: 0,
     };
-    let mut pixels = pixels.peekable();
     let mut previous = 0i32;
-    let mut valid = Vec::new();
-    while pixels.peek().is_some() {
-        let mut zeros = 0u32;
-        while pixels.next_if_eq(&0).is_some() {
-            zeros += 1;
-        }
-        valid.clear();
-        while let Some(v) = pixels.next_if(|&v| v != 0) {
-            valid.push(v);
-        }
-        w.number(zeros);
-        w.number(valid.len() as u32);
-        for &v in &valid {
+    let mut at = 0;
+    while at < pixels.len() {
+        let zeros = pixels[at..].iter().take_while(|&&v| v == 0).count();
+        at += zeros;
+        let valid = pixels[at..].iter().take_while(|&&v| v != 0).count();
+        w.number(zeros as u32);
+        w.number(valid as u32);
+        for &v in &pixels[at..at + valid] {
             let v = i32::from(v);
             w.number(zigzag(v - previous));
             previous = v;
         }
+        at += valid;
     }
     w.finish()
 }
@@ -314,7 +309,7 @@ mod tests {
     use proptest::prelude::*;
 
     fn rvl(width: u16, height: u16, values: &[u16]) -> Vec<u8> {
-        encode(width, height, 0.001, 1_700_000_000, values.iter().copied())
+        encode(width, height, 0.001, 1_700_000_000, values)
     }
 
     #[test]

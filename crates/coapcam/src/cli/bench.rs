@@ -1,5 +1,6 @@
 //! `coapcam bench accuracy`: a built-in, seeded set of synthetic parcel scenes measured
-//! end to end over CoAP on loopback, with per-scene errors and a summary.
+//! end to end over CoAP on loopback, with per-scene errors and a summary; `bench transfer`
+//! and `bench repr` are in their own files.
 
 use std::net::SocketAddr;
 use std::time::Duration;
@@ -21,6 +22,10 @@ use coapcam::server::SceneServer;
 #[path = "bench_transfer.rs"]
 mod transfer;
 
+/// `bench repr`, the same way.
+#[path = "bench_repr.rs"]
+mod repr;
+
 /// Flags of `bench`.
 #[derive(Debug, Args)]
 pub(crate) struct BenchArgs {
@@ -39,6 +44,9 @@ enum BenchKind {
     /// 4.3.1 and 4.3.5 and QUIC, each body checked bit-exact; print a markdown table,
     /// optionally JSON and a PNG plot.
     Transfer(transfer::TransferArgs),
+    /// Print the bytes of every representation of one depth frame, one color frame and
+    /// the merged point cloud of a scene, and the milliseconds to encode and decode each.
+    Repr(repr::ReprArgs),
 }
 
 #[derive(Debug, Args)]
@@ -171,6 +179,7 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
     match args.what {
         BenchKind::Accuracy(a) => accuracy(a).await,
         BenchKind::Transfer(a) => transfer::run(a).await,
+        BenchKind::Repr(a) => repr::run(a).await,
     }
 }
 

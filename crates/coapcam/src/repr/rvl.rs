@@ -13,12 +13,20 @@ pub use compact::rvl::RvlError;
 /// A depth frame as RVL (65101). Frames are at most 65,535 pixels wide and high (a
 /// D400's largest is 1280 x 720).
 pub fn depth_rvl(frame: &DepthFrame) -> Vec<u8> {
+    let width = frame.width as usize;
+    let packed;
+    let pixels = if frame.stride == width {
+        &frame.data[..(width * frame.height as usize).min(frame.data.len())]
+    } else {
+        packed = depth_rows(frame).flatten().copied().collect::<Vec<u16>>();
+        &packed[..]
+    };
     rvl::encode(
         frame.width as u16,
         frame.height as u16,
         frame.depth_scale,
         unix_seconds(frame.timestamp_us),
-        depth_rows(frame).flatten().copied(),
+        pixels,
     )
 }
 

@@ -1,6 +1,7 @@
 //! Content negotiation of the grab resources: CBOR maps (decoded with ciborium and compared
 //! field by field with the thesis packet of the same frame) and binary PLY point clouds;
-//! an Accept a resource cannot produce answers 4.06.
+//! an Accept a resource cannot produce answers 4.06; and `bench repr`, which sizes and times
+//! every representation.
 
 use ciborium::Value;
 use coap::{Code, Response};
@@ -212,4 +213,44 @@ fn an_accept_a_resource_cannot_produce_answers_4_06() {
             }
         }
     });
+}
+
+/// `bench repr`: every representation of the demo scene's depth, color and merged cloud,
+/// with its bytes; the compact depth forms are smaller than the packet.
+#[test]
+fn bench_repr_reports_every_representation() {
+    let args = ["bench", "repr", "--runs", "1", "--json"];
+    let finished = crate::support::Proc::run(
+        crate::support::COAPCAM,
+        &args,
+        std::time::Duration::from_secs(120),
+    )
+    .expect_success("coapcam bench repr");
+    let report: serde_json::Value =
+        serde_json::from_str(&finished.stdout_text()).expect("the report is JSON");
+    let rows = report["representations"]
+        .as_array()
+        .expect("representations");
+    let bytes = |what: &str, cf: u64| {
+        rows.iter()
+            .find(|r| r["what"] == what && r["content_format"] == cf)
+            .and_then(|r| r["bytes"].as_u64())
+            .unwrap_or_else(|| panic!("no {what} in {cf}: {report:#}"))
+    };
+    for (what, formats) in [
+        ("depth", &[42, 23, 65101, 65102, 60][..]),
+        ("color", &[42, 23, 22, 60][..]),
+        ("merged cloud", &[42, 65100, 60][..]),
+    ] {
+        for &cf in formats {
+            assert!(bytes(what, cf) > 0);
+        }
+    }
+    assert_eq!(bytes("depth", 42), 1_843_214, "a 1280x720 depth packet");
+    assert!(bytes("depth", 65102) < bytes("depth", 65101));
+    assert!(bytes("depth", 65101) < bytes("depth", 42) / 2);
+    assert!(
+        report["points"].as_u64().is_some_and(|n| n > 1000),
+        "{report:#}"
+    );
 }

@@ -1,0 +1,264 @@
+//! `coapcam bench repr`: the bytes of every representation a server offers for one depth
+//! frame, one color frame and the merged point cloud of a scene, and how long each takes to
+//! encode (the server's work) and to decode (the client's), medians over `--runs`.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Context as _;
+use clap::Args;
+use coap::{ContentFormat, EndpointConfig};
+use rgbd::{Camera as _, Scene, SyntheticCamera};
+
+use super::{Exit, outln};
+use coapcam::client::CamClient;
+use coapcam::client::measure::prepare_cameras;
+use coapcam::repr::{CloudSource, cbor, packet, ply, raster, rvl};
+use coapcam::server::SceneServer;
+
+/// Flags of `bench repr`.
+#[derive(Debug, Args)]
+pub(super) struct ReprArgs {
+    /// The scene (TOML); the built-in demo scene (two cameras, 1280x720) by default. The
+    /// first camera's frames are encoded; the cloud is every camera's, merged.
+    #[arg(long, value_name = "FILE")]
+    scene: Option<PathBuf>,
+    /// How often each representation is encoded and decoded; the medians are printed.
+    #[arg(long, value_name = "N", default_value_t = 11,
+          value_parser = clap::value_parser!(u32).range(1..))]
+    runs: u32,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// One representation's figures.
+struct Row {
+    what: &'static str,
+    format: ContentFormat,
+    bytes: usize,
+    encode_ms: f64,
+    decode_ms: f64,
+}
+
+/// The median of `runs` timings of `f`, in milliseconds, and its last result.
+fn time<T>(runs: u32, mut f: impl FnMut() -> anyhow::Result<T>) -> anyhow::Result<(f64, T)> {
+    let mut ms = Vec::new();
+    let mut last = None;
+    for _ in 0..runs {
+        let started = Instant::now();
+        last = Some(f()?);
+        ms.push(started.elapsed().as_secs_f64() * 1000.0);
+    }
+    ms.sort_by(f64::total_cmp);
+    let result = last.context("no run")?;
+    Ok((ms[ms.len() / 2], result))
+}
+
+/// Times `encode`, then `decode` of what it made.
+fn row(
+    what: &'static str,
+    format: ContentFormat,
+    runs: u32,
+    encode: impl FnMut() -> anyhow::Result<Vec<u8>>,
+    mut decode: impl FnMut(&[u8]) -> anyhow::Result<()>,
+) -> anyhow::Result<Row> {
+    let (encode_ms, body) = time(runs, encode)?;
+    let (decode_ms, ()) = time(runs, || decode(&body))?;
+    Ok(Row {
+        what,
+        format,
+        bytes: body.len(),
+        encode_ms,
+        decode_ms,
+    })
+}
+
+/// Parses a CBOR document (the representations' maps): what a client does first.
+fn parse_cbor(body: &[u8]) -> anyhow::Result<()> {
+    let _: ciborium::Value = ciborium::from_reader(body).context("parsing CBOR")?;
+    Ok(())
+}
+
+pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
+    let scene = match &args.scene {
+        Some(path) => {
+            Scene::load(path).with_context(|| format!("loading scene {}", path.display()))?
+        }
+        None => Scene::default_demo(),
+    };
+    let runs = args.runs;
+    let camera = SyntheticCamera::all(&scene)?
+        .into_iter()
+        .next()
+        .context("the scene has no camera")?;
+    let serial = camera.serial();
+    let depth = camera.render_depth(1);
+    let depth_k = camera.depth_intrinsics()?;
+    let color = camera.render_color(1);
+    let (color_k, to_color) = (camera.color_intrinsics()?, camera.depth_to_color()?);
+
+    let mut rows = Vec::new();
+    let d = &depth;
+    rows.push(row(
+        "depth",
+        ContentFormat::OCTET_STREAM,
+        runs,
+        || Ok(packet::depth_packet(d)),
+        |b| Ok(packet::depth(b).map(drop)?),
+    )?);
+    rows.push(row(
+        "depth",
+        ContentFormat::IMAGE_PNG,
+        runs,
+        || Ok(raster::depth_png(d)?),
+        |b| raster::depth_from_png(b).map(drop),
+    )?);
+    rows.push(row(
+        "depth",
+        ContentFormat::RVL,
+        runs,
+        || Ok(rvl::depth_rvl(d)),
+        |b| Ok(rvl::depth_from_rvl(b).map(drop)?),
+    )?);
+    rows.push(row(
+        "depth",
+        ContentFormat::RVL_ZSTD,
+        runs,
+        || Ok(rvl::depth_rvl_zstd(d)?),
+        |b| Ok(rvl::depth_from_rvl_zstd(b).map(drop)?),
+    )?);
+    rows.push(row(
+        "depth",
+        ContentFormat::CBOR,
+        runs,
+        || Ok(cbor::depth_cbor(d, &depth_k, &serial)?),
+        parse_cbor,
+    )?);
+
+    let c = &color;
+    let format = camera.color_settings().format;
+    rows.push(row(
+        "color",
+        ContentFormat::OCTET_STREAM,
+        runs,
+        || Ok(packet::color_packet(c)),
+        |b| Ok(packet::color(b, format.name()).map(drop)?),
+    )?);
+    rows.push(row(
+        "color",
+        ContentFormat::IMAGE_PNG,
+        runs,
+        || Ok(raster::color_png(c)?),
+        |b| Ok(image::load_from_memory(b).map(drop)?),
+    )?);
+    rows.push(row(
+        "color",
+        ContentFormat::IMAGE_JPEG,
+        runs,
+        || Ok(raster::color_jpeg(c, raster::JPEG_QUALITY)?),
+        |b| Ok(image::load_from_memory(b).map(drop)?),
+    )?);
+    rows.push(row(
+        "color",
+        ContentFormat::CBOR,
+        runs,
+        || Ok(cbor::color_cbor(c, &color_k, &to_color, &serial)?),
+        |b| cbor::ColorCapture::from_cbor(b).map(drop),
+    )?);
+
+    // The merged cloud of every camera, prepared as `measure --prepare` does.
+    let state = std::env::temp_dir().join(format!("coapcam-bench-repr-{}", std::process::id()));
+    let server = SceneServer::start(&scene, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
+    let uri = format!("coap://{}", server.addr()?);
+    let client =
+        CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(30)).await?;
+    let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
+    prepare_cameras(&client, &serials, 1.0, false).await?;
+    let merged = client.grab_all(None).await?;
+    let cloud = packet::cloud(&merged.payload).context("reading the merged cloud")?;
+    let points = cloud.cloud.points.clone();
+    let all: Vec<rgbd::Serial> = scene.cameras.iter().map(|c| c.serial).collect();
+    let source = CloudSource::Merged { serials: &all };
+    let timestamp_us = u64::from(cloud.timestamp_s) * 1_000_000;
+    let p = &points;
+    rows.push(row(
+        "merged cloud",
+        ContentFormat::OCTET_STREAM,
+        runs,
+        || Ok(packet::cloud_packet(p, cloud.timestamp_s)),
+        |b| Ok(packet::cloud(b).map(drop)?),
+    )?);
+    rows.push(row(
+        "merged cloud",
+        ContentFormat::PLY,
+        runs,
+        || Ok(ply::cloud_ply(p, timestamp_us, source)?),
+        |b| Ok(geometry::decode_ply(b).map(drop)?),
+    )?);
+    rows.push(row(
+        "merged cloud",
+        ContentFormat::CBOR,
+        runs,
+        || Ok(cbor::cloud_cbor(p, timestamp_us, source)?),
+        |b| cbor::Cloud::from_cbor(b).map(drop),
+    )?);
+    drop(server);
+    let _ = std::fs::remove_dir_all(&state);
+
+    if args.json {
+        let list: Vec<serde_json::Value> = rows
+            .iter()
+            .map(|r| {
+                serde_json::json!({
+                    "what": r.what,
+                    "content_format": r.format.0,
+                    "name": r.format.to_string(),
+                    "bytes": r.bytes,
+                    "encode_ms": r.encode_ms,
+                    "decode_ms": r.decode_ms,
+                })
+            })
+            .collect();
+        let doc = serde_json::json!({
+            "runs": runs,
+            "depth": [depth.width, depth.height],
+            "color": [color.width, color.height],
+            "points": points.len(),
+            "representations": list,
+        });
+        outln!("{doc}");
+        return Ok(Exit::Success);
+    }
+    outln!(
+        "one {}x{} depth frame and one {}x{} color frame of camera {serial}, the merged cloud \
+         of {} camera(s) ({} points); medians of {runs} runs",
+        depth.width,
+        depth.height,
+        color.width,
+        color.height,
+        scene.cameras.len(),
+        points.len()
+    );
+    outln!();
+    outln!("| what | content format | bytes | of the packet | encode ms | decode ms |");
+    outln!("|---|---|---:|---:|---:|---:|");
+    for r in &rows {
+        let packet = rows
+            .iter()
+            .find(|p| p.what == r.what && p.format == ContentFormat::OCTET_STREAM)
+            .map_or(0, |p| p.bytes);
+        outln!(
+            "| {} | {} {} | {} | {:.3} | {:.2} | {:.2} |",
+            r.what,
+            r.format.0,
+            r.format,
+            r.bytes,
+            r.bytes as f64 / packet as f64,
+            r.encode_ms,
+            r.decode_ms
+        );
+    }
+    Ok(Exit::Success)
+}
