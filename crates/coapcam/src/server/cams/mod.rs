@@ -49,6 +49,9 @@ struct CamState {
     app: Mutex<AppConfig>,
     transformation: Mutex<Transformation>,
     latest: Mutex<[Option<Stored>; 3]>,
+    /// Held through a PUT's validation, change and persisting: PUTs of one camera take
+    /// effect one after the other, in memory and on disk in the same order.
+    writes: Mutex<()>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -170,6 +173,7 @@ impl Cams {
                     }),
             ),
             latest: Mutex::default(),
+            writes: Mutex::default(),
             camera,
         });
         let modes = cam.camera.stream_modes().clone();
@@ -419,6 +423,7 @@ impl Cams {
         let bad = |e: &dyn std::fmt::Display| {
             Response::diagnostic(Code::BAD_REQUEST, &format!("{name}: {e}"))
         };
+        let _one_at_a_time = lock(&cam.writes);
         let camera = &cam.camera;
         let modes = camera.stream_modes();
         // Validate, and keep what undoes the change if persisting fails.

@@ -4,6 +4,7 @@
 use std::fs::File;
 use std::io::{self, Write as _};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use rgbd::Serial;
 
@@ -34,15 +35,25 @@ impl StateDir {
     }
 
     /// Replaces the stored document; a reader sees the old or the new one, never a part.
+    /// Each write has a temporary file of its own (two writers never share one), removed
+    /// when the write fails.
     pub(crate) fn store(&self, serial: &Serial, name: &str, body: &[u8]) -> io::Result<()> {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
         let dir = self.root.join(serial.as_str());
         std::fs::create_dir_all(&dir)?;
-        let tmp = dir.join(format!(".{name}.json.tmp"));
-        let mut f = File::create(&tmp)?;
-        f.write_all(body)?;
-        f.sync_all()?;
-        drop(f);
-        std::fs::rename(&tmp, self.path(serial, name))?;
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let tmp = dir.join(format!(".{name}.json.{}.{n}.tmp", std::process::id()));
+        let written = (|| {
+            let mut f = File::create_new(&tmp)?;
+            f.write_all(body)?;
+            f.sync_all()?;
+            drop(f);
+            std::fs::rename(&tmp, self.path(serial, name))
+        })();
+        if let Err(e) = written {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e);
+        }
         File::open(&dir)?.sync_all()
     }
 }

@@ -266,3 +266,54 @@ fn icp_brings_a_displaced_camera_back_onto_the_cloud_merged_before_it() {
         registered * 1000.0
     );
 }
+
+#[test]
+fn concurrent_puts_leave_one_of_them_in_memory_and_the_same_on_disk() {
+    let state = ScratchDir::new("concurrent-puts");
+    runtime().block_on(async {
+        let rig = Rig::start(&state);
+        let camera = cameras().swap_remove(0);
+        let sn = camera.serial();
+        rig.hub.add(camera).expect("plug in");
+        let config = format!("/cams/{sn}/application-config");
+        rig.routed(&config, true).await;
+        let doc = rig.send(Code::GET, &config, b"").await.payload;
+        let doc: serde_json::Value = serde_json::from_slice(&doc).expect("JSON");
+        // Four clients, each PUTting its own documents as fast as it can.
+        let mut tasks = tokio::task::JoinSet::new();
+        for client in 0..4u64 {
+            let sender = Client::bind(
+                SocketAddr::from(([127, 0, 0, 1], 0)),
+                EndpointConfig::default(),
+            )
+            .expect("client");
+            let (addr, config, mut doc) = (rig.addr, config.clone(), doc.clone());
+            tasks.spawn(async move {
+                for round in 0..25u64 {
+                    doc["depth_grab_timeout_ms"] = (1000 + client * 100 + round).into();
+                    let mut request =
+                        Request::new(Code::PUT, &config).with_payload(doc.to_string().into_bytes());
+                    request.timeout = Some(LIMIT);
+                    let r = sender.send(addr, request).await.expect("an answer");
+                    assert_eq!(r.code, Code::CHANGED);
+                }
+            });
+        }
+        while let Some(done) = tasks.join_next().await {
+            done.expect("a client");
+        }
+        let served = rig.send(Code::GET, &config, b"").await.payload;
+        let served: serde_json::Value = serde_json::from_slice(&served).expect("JSON");
+        let dir = state.0.join(sn.as_str());
+        let on_disk = std::fs::read(dir.join("application-config.json")).expect("the file");
+        let on_disk: serde_json::Value =
+            serde_json::from_slice(&on_disk).expect("the file is JSON");
+        assert_eq!(on_disk, served, "memory and disk disagree");
+        let left: Vec<_> = std::fs::read_dir(&dir)
+            .expect("the camera's state")
+            .filter_map(|e| e.ok()?.file_name().into_string().ok())
+            .filter(|n| n.ends_with(".tmp"))
+            .collect();
+        assert!(left.is_empty(), "temporary files left: {left:?}");
+    });
+}
