@@ -25,12 +25,20 @@ impl StateDir {
         self.root.join(serial.as_str()).join(format!("{name}.json"))
     }
 
-    /// The stored document, `None` when there is none.
+    /// The stored document, `None` when there is none. Anything but a regular file (a
+    /// FIFO would block the reader, a device would never end) is refused, the error naming
+    /// the path.
     pub(crate) fn load(&self, serial: &Serial, name: &str) -> io::Result<Option<Vec<u8>>> {
-        match std::fs::read(self.path(serial, name)) {
-            Ok(bytes) => Ok(Some(bytes)),
+        let path = self.path(serial, name);
+        let named = |e: io::Error| io::Error::new(e.kind(), format!("{}: {e}", path.display()));
+        match std::fs::metadata(&path) {
+            Ok(m) if !m.is_file() => {
+                let why = format!("{}: not a regular file", path.display());
+                Err(io::Error::new(io::ErrorKind::InvalidInput, why))
+            }
+            Ok(_) => std::fs::read(&path).map(Some).map_err(named),
             Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(e),
+            Err(e) => Err(named(e)),
         }
     }
 
@@ -75,6 +83,25 @@ mod tests {
             dir.load(&sn, "color-settings").ok().flatten(),
             Some(b"{\"a\":1}".to_vec())
         );
+        let _ = std::fs::remove_dir_all(&root);
+    }
+
+    #[test]
+    fn a_fifo_is_refused_at_once_and_named() {
+        let root = std::env::temp_dir().join(format!("coapcam-state-fifo-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let sn = Serial::parse("840412060746").expect("serial");
+        std::fs::create_dir_all(root.join(sn.as_str())).expect("mkdir");
+        let fifo = root.join(sn.as_str()).join("application-config.json");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .expect("mkfifo runs");
+        assert!(made.success());
+        let err = StateDir::new(&root)
+            .load(&sn, "application-config")
+            .expect_err("a FIFO is not a document");
+        assert!(err.to_string().contains("application-config.json"), "{err}");
         let _ = std::fs::remove_dir_all(&root);
     }
 }
