@@ -262,7 +262,15 @@ impl Endpoint {
             Purpose::SeparateResponse => {}
             Purpose::Notification(obs) => {
                 if msg.ty == Type::Rst {
-                    self.end_observation(obs);
+                    return self.end_observation(obs);
+                }
+                // Acknowledged: the notification that waited for it goes now.
+                let Some(o) = self.server.observations.get_mut(&obs) else {
+                    return;
+                };
+                o.in_flight = false;
+                if let Some(next) = o.queued.take() {
+                    self.notify(now, ObservationId(obs), next);
                 }
             }
             Purpose::Request(id) => self.on_request_ack(now, id, msg, payload),

@@ -313,6 +313,8 @@ impl Endpoint {
                     seq: 0,
                     sent: 0,
                     last_mid: None,
+                    in_flight: false,
+                    queued: None,
                 };
                 self.server.observations.insert(id, o);
                 Some(id)
@@ -336,9 +338,12 @@ impl Endpoint {
     /// Sends a notification to an established observation (RFC 7641 §4.2): the Observe
     /// sequence number goes up by one, every `notify_con_interval`-th notification is a CON
     /// (§4.5), and a body larger than one block goes out as Block2 block 0 with the rest
-    /// kept for the client's continuations (RFC 7959 §2.6). A non-success response ends
-    /// the observation. Returns false when the observation no longer exists, so the
-    /// application can forget it.
+    /// kept for the client's continuations (RFC 7959 §2.6). While a CON notification is
+    /// unacknowledged the next waits, only the newest kept, and goes on the ACK (§4.5.2:
+    /// one in flight; an observer that stopped answering costs one retransmitted
+    /// notification, not one per change); the CON's timeout ends the observation. A
+    /// non-success response ends the observation. Returns false when the observation no
+    /// longer exists, so the application can forget it.
     pub fn notify(&mut self, now: Instant, id: ObservationId, response: Response) -> bool {
         let limits = self.config.limits.clone();
         let interval = self.config.notify_con_interval;
@@ -351,6 +356,10 @@ impl Endpoint {
         else {
             return false;
         };
+        if o.in_flight {
+            o.queued = Some(response);
+            return true;
+        }
         o.seq = (o.seq + 1) & 0x00ff_ffff;
         o.sent += 1;
         let con = interval > 0 && o.sent % interval == 0;
@@ -372,6 +381,9 @@ impl Endpoint {
         if con {
             self.msg
                 .send_con(now, peer, &msg, Purpose::Notification(id.0), &self.config);
+            if let Some(o) = self.server.observations.get_mut(&id.0) {
+                o.in_flight = true;
+            }
         } else {
             self.msg.send(peer, &msg);
             if let Some(o) = self.server.observations.get_mut(&id.0) {

@@ -43,6 +43,10 @@ pub(super) struct Observation {
     pub(super) sent: u32,
     /// Message ID of the last NON notification, so a Reset to it ends the observation.
     pub(super) last_mid: Option<u16>,
+    /// A CON notification is unacknowledged: the next waits (RFC 7641 §4.5.2).
+    pub(super) in_flight: bool,
+    /// The newest notification that came while one was in flight; it goes on the ACK.
+    pub(super) queued: Option<Response>,
 }
 
 /// The server side's state.

@@ -276,3 +276,84 @@ fn rfc7390_2_5_multicast_request_collects_every_servers_response() {
         .count();
     assert_eq!(sent, 1, "a multicast request is sent once, as NON");
 }
+
+/// RFC 7641 §4.5.2: one CON notification in flight per observer. An observer that
+/// stopped answering gets the first CON notification and its retransmissions, nothing for
+/// the changes after it, and is removed when that CON times out.
+#[test]
+fn rfc7641_4_5_2_one_con_notification_in_flight_and_a_silent_observer_removed() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let reg = std::rc::Rc::new(std::cell::Cell::new(None));
+    let seen = reg.clone();
+    let handler: crate::sim::Handler = Box::new(move |req| {
+        seen.set(req.observe);
+        let mut r = Response::new(Code::CONTENT).with_payload("v0");
+        r.options.set_uint(OptionNumber::OBSERVE, 0);
+        Reply::Now(r)
+    });
+    let every_con = EndpointConfig {
+        notify_con_interval: 1,
+        ..cfg(2)
+    };
+    let s = sim.add(every_con, Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, observe_request("/temp"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    let obs = reg.get().unwrap_or_else(|| panic!("no registration"));
+    let count = |sim: &Sim| {
+        let notifications = sim.log.iter().filter_map(|r| {
+            let m = r.msg.as_ref()?;
+            (r.from == server && m.code == Code::CONTENT && m.ty == coap::Type::Con)
+                .then_some(m.message_id)
+        });
+        let mids: Vec<u16> = notifications.collect();
+        let mut distinct = mids.clone();
+        distinct.sort_unstable();
+        distinct.dedup();
+        (mids.len(), distinct.len())
+    };
+
+    // While the observer answers, every change arrives.
+    for k in 1..=3 {
+        let now = sim.now;
+        let body = format!("v{k}");
+        assert!(
+            sim.nodes[s]
+                .ep
+                .notify(now, obs, Response::new(Code::CONTENT).with_payload(body))
+        );
+        sim.run_until(Duration::from_millis(200), |_| false);
+    }
+    assert_eq!(count(&sim), (3, 3));
+
+    // The observer goes silent; ten changes follow, 100 ms apart.
+    sim.link.loss = 1.0;
+    for k in 4..=13 {
+        let now = sim.now;
+        let body = format!("v{k}");
+        assert!(
+            sim.nodes[s]
+                .ep
+                .notify(now, obs, Response::new(Code::CONTENT).with_payload(body))
+        );
+        sim.run_until(Duration::from_millis(100), |_| false);
+    }
+    sim.run_until(Duration::from_secs(300), |_| false);
+    let (sent, distinct) = count(&sim);
+    assert_eq!(
+        distinct, 4,
+        "one new CON notification after the observer went silent"
+    );
+    assert_eq!(sent, 3 + 5, "that one, sent MAX_RETRANSMIT + 1 times");
+    let now = sim.now;
+    assert!(
+        !sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT)),
+        "the observation ended with the notification's timeout"
+    );
+}

@@ -203,7 +203,7 @@ pub(crate) struct Sim {
     pub(crate) now: Instant,
     /// The nodes.
     pub(crate) nodes: Vec<Node>,
-    link: LinkConfig,
+    pub(crate) link: LinkConfig,
     rng: ChaCha8Rng,
     seq: u64,
     in_flight: BinaryHeap<Reverse<InFlight>>,
