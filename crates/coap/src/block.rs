@@ -7,13 +7,14 @@ use std::fmt;
 use std::net::SocketAddr;
 use std::ops::Range;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 use smallvec::SmallVec;
 
 use crate::config::{EndpointConfig, Limits};
 use crate::msg::{BlockHead, BlockOpt, Code, OptionNumber, Options};
+use crate::peer_key::FastMap;
 
 /// Identifies the request a block belongs to: the peer and the request's method and
 /// options without the block options ([`Options::block_key`]).
@@ -105,34 +106,65 @@ struct Assembly {
 pub(crate) struct Block1Assembler {
     assemblies: BTreeMap<BlockKey, Assembly>,
     total_bytes: usize,
+    /// The bytes held per peer, kept as bodies grow and go (no scan per request).
+    peer_bytes: FastMap<SocketAddr, usize>,
+    /// When idle assemblies were last looked for.
+    swept: Option<Instant>,
 }
+
+/// How often [`Block1Assembler::expire`] looks through every assembly: once a second at
+/// most, not once per request (an assembly may outlive the lifetime by that much).
+const SWEEP_EVERY: Duration = Duration::from_secs(1);
 
 impl Block1Assembler {
     pub(crate) fn new() -> Self {
         Self {
             assemblies: BTreeMap::new(),
             total_bytes: 0,
+            peer_bytes: FastMap::default(),
+            swept: None,
         }
     }
 
     fn peer_bytes(&self, peer: SocketAddr) -> usize {
-        self.assemblies
-            .iter()
-            .filter(|(k, _)| k.peer == peer)
-            .map(|(_, a)| a.body.len())
-            .sum()
+        self.peer_bytes.get(&peer).copied().unwrap_or(0)
+    }
+
+    /// Counts `len` more (`grew`) or fewer bytes held for `peer`.
+    fn account(&mut self, peer: SocketAddr, len: usize, grew: bool) {
+        let held = self.peer_bytes.entry(peer).or_default();
+        if grew {
+            self.total_bytes += len;
+            *held += len;
+        } else {
+            self.total_bytes -= len;
+            *held -= len;
+            if *held == 0 {
+                self.peer_bytes.remove(&peer);
+            }
+        }
     }
 
     /// Drops assemblies idle for longer than the lifetime.
     pub(crate) fn expire(&mut self, now: Instant, limits: &Limits) {
-        let total = &mut self.total_bytes;
-        self.assemblies.retain(|_, a| {
+        if self
+            .swept
+            .is_some_and(|at| now.saturating_duration_since(at) < SWEEP_EVERY)
+        {
+            return;
+        }
+        self.swept = Some(now);
+        let mut gone = Vec::new();
+        self.assemblies.retain(|k, a| {
             let keep = now.saturating_duration_since(a.last_used) < limits.blockwise_lifetime;
             if !keep {
-                *total -= a.body.len();
+                gone.push((k.peer, a.body.len()));
             }
             keep
         });
+        for (peer, len) in gone {
+            self.account(peer, len, false);
+        }
     }
 
     /// Takes one Block1 request (RFC 7959 §2.3). `size1` is the request's Size1 option;
@@ -162,9 +194,7 @@ impl Block1Assembler {
             };
         }
         if block.num == 0 {
-            if let Some(old) = self.assemblies.remove(&key) {
-                self.total_bytes -= old.body.len();
-            }
+            self.drop_key(&key);
             if size1.is_some_and(|s| s > peer_limit) {
                 return too_large;
             }
@@ -220,7 +250,7 @@ impl Block1Assembler {
             });
         assembly.body.extend_from_slice(payload);
         assembly.last_used = now;
-        self.total_bytes += payload.len();
+        self.account(key.peer, payload.len(), true);
         if block.more {
             Block1Outcome::Continue(BlockOpt {
                 szx: reply_szx,
@@ -234,7 +264,7 @@ impl Block1Assembler {
 
     fn drop_key(&mut self, key: &BlockKey) -> Option<Vec<u8>> {
         let a = self.assemblies.remove(key)?;
-        self.total_bytes -= a.body.len();
+        self.account(key.peer, a.body.len(), false);
         Some(a.body)
     }
 
@@ -666,6 +696,50 @@ mod tests {
             }
         ));
         assert_eq!(a.total_bytes(), 0);
+    }
+
+    #[test]
+    fn block1_bytes_per_peer_follow_the_assemblies() {
+        let now = crate::test_epoch();
+        let l = Limits {
+            block1_peer_bytes: 64,
+            ..Limits::default()
+        };
+        let c = cfg(6, l);
+        let mut a = Block1Assembler::new();
+        // Peer 1: two bodies of 32 bytes so far (two requests); peer 3: one of 16.
+        let mut two = key(1);
+        two.options.extend_from_slice(b"other");
+        for k in [key(1), two.clone()] {
+            a.handle(now, k.clone(), b(0, true, 0), None, &[1; 16], &c);
+            a.handle(now, k, b(1, true, 0), None, &[1; 16], &c);
+        }
+        a.handle(now, key(3), b(0, true, 0), None, &[1; 16], &c);
+        assert_eq!(
+            (a.peer_bytes(key(1).peer), a.peer_bytes(key(3).peer)),
+            (64, 16)
+        );
+        assert_eq!(a.total_bytes(), 80);
+        // A third block for peer 1 passes its 64 bytes: that body is dropped.
+        let r = a.handle(now, key(1), b(2, true, 0), None, &[1; 16], &c);
+        assert!(matches!(
+            r,
+            Block1Outcome::Refuse {
+                code: Code::REQUEST_ENTITY_TOO_LARGE,
+                ..
+            }
+        ));
+        assert_eq!(a.peer_bytes(key(1).peer), 32);
+        // Completed and expired bodies are no longer counted.
+        assert!(matches!(
+            a.handle(now, two, b(2, false, 0), None, &[1; 4], &c),
+            Block1Outcome::Complete(..)
+        ));
+        assert_eq!(a.peer_bytes(key(1).peer), 0);
+        let later = now + c.limits.blockwise_lifetime + Duration::from_secs(1);
+        a.expire(later, &c.limits);
+        assert_eq!((a.peer_bytes(key(3).peer), a.total_bytes()), (0, 0));
+        assert!(a.peer_bytes.is_empty());
     }
 
     #[test]
