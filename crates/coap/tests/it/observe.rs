@@ -22,6 +22,11 @@ fn observe_request(path: &str) -> Request {
 /// A client observing a server that answers registrations; returns the simulation, the
 /// client and server indexes and the observation.
 fn observed(link: LinkConfig) -> (Sim, usize, usize, ObservationId) {
+    observed_by(link, cfg(2))
+}
+
+/// [`observed`] with the server's configuration.
+fn observed_by(link: LinkConfig, server_cfg: EndpointConfig) -> (Sim, usize, usize, ObservationId) {
     let mut sim = Sim::new(link);
     let c = sim.add(cfg(1), None);
     let reg = std::rc::Rc::new(std::cell::Cell::new(None));
@@ -32,7 +37,7 @@ fn observed(link: LinkConfig) -> (Sim, usize, usize, ObservationId) {
         r.options.set_uint(OptionNumber::OBSERVE, 0);
         Reply::Now(r)
     });
-    let s = sim.add(cfg(2), Some(handler));
+    let s = sim.add(server_cfg, Some(handler));
     let server = sim.nodes[s].addr;
     let now = sim.now;
     sim.nodes[c]
@@ -282,28 +287,12 @@ fn rfc7390_2_5_multicast_request_collects_every_servers_response() {
 /// the changes after it, and is removed when that CON times out.
 #[test]
 fn rfc7641_4_5_2_one_con_notification_in_flight_and_a_silent_observer_removed() {
-    let mut sim = Sim::new(LinkConfig::default());
-    let c = sim.add(cfg(1), None);
-    let reg = std::rc::Rc::new(std::cell::Cell::new(None));
-    let seen = reg.clone();
-    let handler: crate::sim::Handler = Box::new(move |req| {
-        seen.set(req.observe);
-        let mut r = Response::new(Code::CONTENT).with_payload("v0");
-        r.options.set_uint(OptionNumber::OBSERVE, 0);
-        Reply::Now(r)
-    });
     let every_con = EndpointConfig {
         notify_con_interval: 1,
         ..cfg(2)
     };
-    let s = sim.add(every_con, Some(handler));
+    let (mut sim, _c, s, obs) = observed_by(LinkConfig::default(), every_con);
     let server = sim.nodes[s].addr;
-    let now = sim.now;
-    sim.nodes[c]
-        .ep
-        .request(now, server, observe_request("/temp"));
-    assert!(sim.run_to_event(c, Duration::from_secs(10)));
-    let obs = reg.get().unwrap_or_else(|| panic!("no registration"));
     let count = |sim: &Sim| {
         let notifications = sim.log.iter().filter_map(|r| {
             let m = r.msg.as_ref()?;

@@ -2,44 +2,21 @@
 //! loss, duplication and reordering, deterministic per seed, and the sets, 'Continue's
 //! and missing-block requests on the wire for a fixed seed.
 
-use std::cell::Cell;
 use std::cell::RefCell;
 use std::rc::Rc;
 use std::time::Duration;
 
 use bytes::Bytes;
-use coap::{Code, PathStats, Request, Response, Transfer};
+use coap::{Code, Request, Response, Transfer};
 
-use crate::blockwise::{body, cfg, response, serve};
+use crate::blockwise::{body, cfg, response};
 use crate::sim::{LinkConfig, Reply, Sim};
-use crate::window::link;
+use crate::window::{self, Outcome, link};
 
 const TEN_MB: usize = 10_032_012;
 
-struct Outcome {
-    elapsed: Duration,
-    body: Bytes,
-    trace: Vec<String>,
-    stats: PathStats,
-}
-
 fn download(link: LinkConfig, data: &Bytes, record: bool) -> Outcome {
-    let mut sim = Sim::new(link);
-    sim.record = record;
-    let c = sim.add(cfg(1), None);
-    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
-    let server = sim.nodes[s].addr;
-    let now = sim.now;
-    let mut req = Request::new(Code::GET, "/big");
-    req.transfer = Some(Transfer::QBlock);
-    sim.nodes[c].ep.request(now, server, req);
-    assert!(sim.run_to_event(c, Duration::from_secs(3600)), "no outcome");
-    Outcome {
-        elapsed: sim.elapsed(),
-        body: response(&sim, c).payload.clone(),
-        trace: sim.log.iter().map(|r| r.line()).collect(),
-        stats: sim.nodes[c].ep.path_stats(server).expect("a path"),
-    }
+    window::download(link, data, Transfer::QBlock, record)
 }
 
 /// A PUT of `data` with Q-Block1; returns what the server's application received and

@@ -32,15 +32,21 @@ pub(crate) fn link(loss: f64, seed: u64) -> LinkConfig {
 }
 
 /// What one download did: the simulated time it took, the body, the path's counters.
-struct Outcome {
-    elapsed: Duration,
-    body: Bytes,
-    stats: PathStats,
+pub(crate) struct Outcome {
+    pub(crate) elapsed: Duration,
+    pub(crate) body: Bytes,
+    pub(crate) stats: PathStats,
     /// Every datagram, as `Record::line` prints it (when recorded).
-    trace: Vec<String>,
+    pub(crate) trace: Vec<String>,
 }
 
-fn download(link: LinkConfig, data: &Bytes, transfer: Transfer, record: bool) -> Outcome {
+/// A GET of `data` with `transfer` through `link`.
+pub(crate) fn download(
+    link: LinkConfig,
+    data: &Bytes,
+    transfer: Transfer,
+    record: bool,
+) -> Outcome {
     let mut sim = Sim::new(link);
     sim.record = record;
     let c = sim.add(cfg(1), None);
