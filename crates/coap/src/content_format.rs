@@ -87,6 +87,13 @@ impl ContentFormat {
     /// 65102: `application/x-rvl+zstd`, that RVL image in a zstd frame (experimental
     /// range).
     pub const RVL_ZSTD: Self = Self(65102);
+    /// 65103: `application/x-depth-cloud+zstd`, coapcam's compact point cloud: each
+    /// camera's filtered depth (RVL) with the intrinsics, transform and region that turn
+    /// it into the points, in a zstd frame (experimental range).
+    pub const DEPTH_CLOUD: Self = Self(65103);
+    /// 65104: `application/x-cloud-mm+zstd`, coapcam's quantized point cloud: integer
+    /// millimetres, delta coded, in a zstd frame (experimental range).
+    pub const CLOUD_MM: Self = Self(65104);
 
     /// The registered media type, e.g. `"image/png"`, or `None` for a number this crate does
     /// not know.
@@ -305,6 +312,16 @@ const REGISTRY: &[Entry] = &[
         "application/x-rvl+zstd",
         "rvl-zstd",
     ),
+    e(
+        ContentFormat::DEPTH_CLOUD,
+        "application/x-depth-cloud+zstd",
+        "depth-cloud",
+    ),
+    e(
+        ContentFormat::CLOUD_MM,
+        "application/x-cloud-mm+zstd",
+        "cloud-mm",
+    ),
 ];
 
 /// Extra short names accepted by [`ContentFormat::from_name`], never printed.
@@ -379,6 +396,8 @@ mod tests {
             (65100, "application/x-ply"),
             (65101, "application/x-rvl"),
             (65102, "application/x-rvl+zstd"),
+            (65103, "application/x-depth-cloud+zstd"),
+            (65104, "application/x-cloud-mm+zstd"),
         ];
         for &(number, media_type) in expected {
             let cf = ContentFormat(number);

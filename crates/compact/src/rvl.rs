@@ -284,22 +284,12 @@ pub fn decode(payload: &[u8]) -> Result<DepthImage, RvlError> {
 
 /// Decodes an RVL+zstd payload (65102).
 pub fn decode_zstd(payload: &[u8]) -> Result<DepthImage, RvlError> {
-    use std::io::Read as _;
-    let zstd = |e: io::Error| RvlError::Zstd(e.to_string());
     // RVL takes at most 3 bytes a pixel (a difference of 17 bits is 6 nibbles; runs take
     // at most 4 nibbles a pixel), so this bounds what is decompressed.
-    let limit = (HEADER + MAX_PIXELS * 3 + 8) as u64;
-    let mut rvl = Vec::new();
-    zstd::stream::read::Decoder::with_buffer(payload)
-        .map_err(zstd)?
-        .take(limit + 1)
-        .read_to_end(&mut rvl)
-        .map_err(zstd)?;
-    if rvl.len() as u64 > limit {
-        return Err(RvlError::Zstd(format!(
-            "more than {limit} bytes decompressed"
-        )));
-    }
+    let rvl = crate::wire::unzstd(payload, HEADER + MAX_PIXELS * 3 + 8).map_err(|e| match e {
+        crate::WireError::Zstd(why) => RvlError::Zstd(why),
+        other => RvlError::Zstd(other.to_string()),
+    })?;
     decode(&rvl)
 }
 

@@ -12,8 +12,7 @@ use coap::{Code, ContentFormat};
 use geometry::{DimensionConfig, Dimensions, PointCloud};
 use rgbd::Scene;
 
-use super::{CamClient, NoAnswer, check};
-use crate::repr::{Stream, cbor};
+use super::{CamClient, NoAnswer, check, cloud_of};
 
 /// How a measurement is reported to an integrator's billing: the volumetric divisor and
 /// the scale division the dimensions are rounded up to.
@@ -221,27 +220,18 @@ impl Measurement {
 }
 
 /// Grabs the clouds of `source` (`client` is the server's client; for a group, any
-/// client) and merges them.
+/// client) and merges them. Clouds come compactly (65103) from servers that offer it, as
+/// the thesis packet from the others.
 pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<Grabbed> {
-    let mut grabbed = Grabbed {
-        cloud: PointCloud::default(),
-        cameras: Vec::new(),
-        timestamps_us: Vec::new(),
-        bytes: 0,
-    };
-    // The CBOR map names the cameras that made each cloud and its time in microseconds.
-    let accept = Some(ContentFormat::CBOR);
     let answers = match source {
-        Source::Camera(sn) => vec![(
-            client.server(),
-            client.grab(sn, Stream::Pointcloud, accept).await?,
-        )],
-        Source::All => vec![(client.server(), client.grab_all(accept).await?)],
+        Source::Camera(sn) => vec![(client.server(), client.grab_cloud(Some(sn)).await?)],
+        Source::All => vec![(client.server(), client.grab_cloud(None).await?)],
         Source::Group {
             group,
             expect,
             wait,
         } => {
+            let accept = Some(ContentFormat::DEPTH_CLOUD);
             let mut request =
                 client.request(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept);
             request.timeout = Some(*wait);
@@ -256,21 +246,45 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                 ))
                 .into());
             }
-            answers
-                .into_iter()
-                .map(|(server, r)| {
-                    Ok((
-                        server,
-                        check(&format!("POST /cams/pointclouds on {server}"), r)?,
-                    ))
-                })
-                .collect::<anyhow::Result<_>>()?
+            let mut checked = Vec::with_capacity(answers.len());
+            for (server, r) in answers {
+                let r = if r.code == Code::NOT_ACCEPTABLE {
+                    CamClient::unicast(client, server).grab_cloud(None).await?
+                } else {
+                    check(&format!("POST /cams/pointclouds on {server}"), r)?
+                };
+                checked.push((server, r));
+            }
+            checked
         }
     };
-    for (server, response) in answers {
-        let c = cbor::Cloud::from_cbor(&response.payload)
-            .with_context(|| format!("reading the point cloud of {server}"))?;
-        grabbed.bytes += response.payload.len();
+    let bytes = answers.iter().map(|(_, r)| r.payload.len()).sum();
+    let decoded = tokio::task::spawn_blocking(move || {
+        answers
+            .into_iter()
+            .map(|(server, r)| {
+                let c =
+                    cloud_of(&r).with_context(|| format!("reading the point cloud of {server}"));
+                c.map(|c| (server, c))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()
+    })
+    .await
+    .context("the decoding task failed")??;
+    let mut grabbed = Grabbed {
+        cloud: PointCloud::default(),
+        cameras: Vec::new(),
+        timestamps_us: Vec::new(),
+        bytes,
+    };
+    for (server, mut c) in decoded {
+        if c.serials.is_empty() {
+            // The thesis packet names no camera.
+            c.serials = match source {
+                Source::Camera(sn) => vec![sn.clone()],
+                _ => CamClient::unicast(client, server).cameras().await?,
+            };
+        }
         grabbed.cloud.extend_from(&c.cloud);
         grabbed.timestamps_us.push(c.timestamp_us);
         grabbed

@@ -17,7 +17,7 @@ use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response}
 use coap_net::{Client, Uri};
 
 use crate::repr::packet::{self, DepthImage};
-use crate::repr::{Stream, rvl};
+use crate::repr::{Stream, cbor, clouds, rvl};
 
 /// A client of one coapcam server.
 pub struct CamClient {
@@ -257,10 +257,7 @@ impl CamClient {
             .await
         {
             Ok(r) => Ok(rvl::depth_from_rvl_zstd(&r.payload)?),
-            Err(e)
-                if e.downcast_ref::<ErrorResponse>()
-                    .is_some_and(|r| r.response.code == Code::NOT_ACCEPTABLE) =>
-            {
+            Err(e) if not_acceptable(&e) => {
                 let r = self.grab(serial, Stream::Depth, None).await?;
                 Ok(packet::depth(&r.payload).context("reading the depth packet")?)
             }
@@ -284,6 +281,55 @@ impl CamClient {
     pub async fn grab_all(&self, accept: Option<ContentFormat>) -> anyhow::Result<Response> {
         self.call(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept)
             .await
+    }
+
+    /// Grabs a new point cloud (POST) of camera `serial`, or of every camera merged
+    /// (`/cams/pointclouds`) when `None`; as the compact cloud (65103), or the thesis
+    /// packet from a server that does not offer it (4.06). [`cloud_of`] reads either.
+    pub async fn grab_cloud(&self, serial: Option<&str>) -> anyhow::Result<Response> {
+        let post = |accept| async move {
+            match serial {
+                Some(sn) => self.grab(sn, Stream::Pointcloud, accept).await,
+                None => self.grab_all(accept).await,
+            }
+        };
+        match post(Some(ContentFormat::DEPTH_CLOUD)).await {
+            Err(e) if not_acceptable(&e) => post(None).await,
+            other => other,
+        }
+    }
+}
+
+/// True for an [`ErrorResponse`] 4.06 Not Acceptable: the server does not offer the format.
+fn not_acceptable(e: &anyhow::Error) -> bool {
+    e.downcast_ref::<ErrorResponse>()
+        .is_some_and(|r| r.response.code == Code::NOT_ACCEPTABLE)
+}
+
+/// The point cloud of a response in any of its representations, with the cameras and
+/// the time of the grab where the representation carries them (the thesis packet names
+/// no camera and has whole seconds). Deprojecting a compact cloud takes a few
+/// milliseconds: call it off the executor.
+pub fn cloud_of(response: &Response) -> anyhow::Result<cbor::Cloud> {
+    let payload = &response.payload;
+    match response.options.content_format() {
+        Some(ContentFormat::DEPTH_CLOUD) => Ok(clouds::cloud_from_depth_cloud(payload)?),
+        Some(ContentFormat::CLOUD_MM) => Ok(clouds::cloud_from_mm(payload)?),
+        Some(ContentFormat::CBOR) => cbor::Cloud::from_cbor(payload),
+        Some(ContentFormat::PLY) => Ok(cbor::Cloud {
+            cloud: geometry::decode_ply(payload)?,
+            serials: Vec::new(),
+            timestamp_us: 0,
+        }),
+        Some(ContentFormat::OCTET_STREAM) | None => {
+            let p = packet::cloud(payload).context("reading the point-cloud packet")?;
+            Ok(cbor::Cloud {
+                cloud: p.cloud,
+                serials: Vec::new(),
+                timestamp_us: u64::from(p.timestamp_s) * 1_000_000,
+            })
+        }
+        Some(other) => bail!("a point cloud in an unknown content format ({other})"),
     }
 }
 

@@ -10,8 +10,11 @@
 //! | 65100 PLY, binary little-endian | | | yes | [`ply`] |
 //! | 65101 RVL: run lengths and nibble-coded differences, lossless | | yes | | [`rvl`] |
 //! | 65102 RVL in a zstd frame | | yes | | [`rvl`] |
+//! | 65103 compact cloud: filtered depth (RVL) and its geometry, in zstd | | | yes | [`clouds`] |
+//! | 65104 millimetre cloud: quantized, delta coded, in zstd | | | yes | [`clouds`] |
 
 pub mod cbor;
+pub mod clouds;
 pub mod packet;
 pub mod ply;
 pub mod raster;
@@ -75,7 +78,13 @@ impl Stream {
                 Cf::RVL,
                 Cf::RVL_ZSTD,
             ],
-            Self::Pointcloud => &[Cf::OCTET_STREAM, Cf::CBOR, Cf::PLY],
+            Self::Pointcloud => &[
+                Cf::OCTET_STREAM,
+                Cf::CBOR,
+                Cf::PLY,
+                Cf::DEPTH_CLOUD,
+                Cf::CLOUD_MM,
+            ],
         }
     }
 
@@ -126,6 +135,8 @@ fn format_name(cf: ContentFormat) -> &'static str {
         ContentFormat::PLY => "PLY",
         ContentFormat::RVL => "RVL",
         ContentFormat::RVL_ZSTD => "RVL+zstd",
+        ContentFormat::DEPTH_CLOUD => "compact cloud",
+        ContentFormat::CLOUD_MM => "millimetre cloud",
         _ => "other",
     }
 }
@@ -139,6 +150,8 @@ fn extensions(cf: ContentFormat) -> &'static [&'static str] {
         ContentFormat::PLY => &["ply"],
         ContentFormat::RVL => &["rvl"],
         ContentFormat::RVL_ZSTD => &["rvl.zst"],
+        ContentFormat::DEPTH_CLOUD => &["dcl"],
+        ContentFormat::CLOUD_MM => &["qmm"],
         _ => &[],
     }
 }
@@ -215,7 +228,7 @@ pub(crate) mod tests {
             Stream::Color.not_acceptable(),
             "color is served as 42 (thesis packet), 23 (PNG), 22 (JPEG) or 60 (CBOR)"
         );
-        assert_eq!(Stream::Pointcloud.extensions(), ".bin or .ply");
+        assert_eq!(Stream::Pointcloud.extensions(), ".bin, .ply, .dcl or .qmm");
         assert_eq!(
             Stream::Color.format_of_extension("JPEG"),
             Some(ContentFormat::IMAGE_JPEG)

@@ -7,8 +7,10 @@ use std::time::Duration;
 
 use coap::{ContentFormat, EndpointConfig};
 use coapcam::client::CamClient;
-use coapcam::client::measure::{Source, measure_once, prepare_cameras, truth, yaw_difference};
-use coapcam::repr::{Stream, cbor, packet, raster, rvl};
+use coapcam::client::measure::{
+    Source, grab_clouds, measure_once, prepare_cameras, truth, yaw_difference,
+};
+use coapcam::repr::{Stream, cbor, clouds, packet, raster, rvl};
 use coapcam::server::SceneServer;
 use geometry::DimensionConfig;
 use rgbd::Scene;
@@ -105,7 +107,7 @@ fn every_representation_decodes_to_the_same_frame() {
             .await
             .expect("cloud grab");
         let path = format!("/cams/{sn}/pointcloud");
-        let mut clouds = Vec::new();
+        let mut clouds: Vec<geometry::PointCloud> = Vec::new();
         for cf in Stream::Pointcloud.formats() {
             let body = client
                 .call(coap::Code::GET, &path, bytes::Bytes::new(), None, Some(*cf))
@@ -116,11 +118,25 @@ fn every_representation_decodes_to_the_same_frame() {
                 ContentFormat::OCTET_STREAM => packet::cloud(&body).expect("packet").cloud,
                 ContentFormat::CBOR => cbor::Cloud::from_cbor(&body).expect("cbor").cloud,
                 ContentFormat::PLY => geometry::decode_ply(&body).expect("ply"),
+                ContentFormat::DEPTH_CLOUD => {
+                    clouds::cloud_from_depth_cloud(&body)
+                        .expect("compact")
+                        .cloud
+                }
+                ContentFormat::CLOUD_MM => {
+                    let mm = clouds::cloud_from_mm(&body).expect("mm").cloud;
+                    assert_eq!(mm.len(), clouds[0].len());
+                    for (a, b) in mm.points.iter().zip(&clouds[0].points) {
+                        assert!((a - b).abs().max() <= 0.000_51, "{a} {b}");
+                    }
+                    continue;
+                }
                 other => panic!("a format the table does not list: {other:?}"),
             });
         }
         assert!(!clouds[0].is_empty());
-        assert!(clouds.iter().all(|c| c.points == clouds[0].points));
+        // Bit for bit: the compact cloud's points are computed again by the client.
+        assert!(clouds.iter().all(|c| bits(c) == bits(&clouds[0])));
     });
 }
 
@@ -221,38 +237,50 @@ fn the_client_chooses_the_jpeg_quality() {
 }
 
 #[test]
-fn depth_comes_compressed_and_as_the_packet_from_a_server_without_rvl() {
+fn depth_and_clouds_come_compact_and_as_packets_from_a_server_without_them() {
     let state = TempDir::new("library-depth");
     let scene = Scene::default_single();
     runtime().block_on(async {
-        // Ours offers RVL+zstd: the image equals the packet of the same frame.
+        // Ours offers RVL+zstd and the compact cloud: each equals the packet of the same
+        // frame (the cloud bit for bit).
         let (_server, client) = start(&scene, &state).await;
         let sn = client.one_camera(None).await.expect("one camera");
         let compact = client.grab_depth(&sn).await.expect("RVL+zstd depth");
-        let path = format!("/cams/{sn}/depth");
-        let get = client
-            .call(coap::Code::GET, &path, bytes::Bytes::new(), None, None)
+        let compact_cloud = grab_clouds(&client, &Source::Camera(sn.clone()))
             .await
-            .expect("GET depth");
-        assert_eq!(compact, packet::depth(&get.payload).expect("packet"));
+            .expect("compact cloud");
+        let mut packets = Vec::new();
+        for stream in [Stream::Depth, Stream::Pointcloud] {
+            let path = format!("/cams/{sn}/{}", stream.name());
+            let get = client
+                .call(coap::Code::GET, &path, bytes::Bytes::new(), None, None)
+                .await
+                .expect("GET the packet");
+            packets.push((path, get.payload));
+        }
+        assert_eq!(compact, packet::depth(&packets[0].1).expect("packet"));
+        let from_packet = packet::cloud(&packets[1].1).expect("packet").cloud;
+        assert!(compact_cloud.bytes * 3 < packets[1].1.len());
+        assert_eq!(bits(&compact_cloud.cloud), bits(&from_packet));
 
         // A server that knows only the thesis packet answers 4.06 to anything else.
-        let body = get.payload.clone();
         let router = coap_net::Router::new();
-        router.add(
-            &path,
-            coap_net::Resource::new().post(coap_net::handler(move |ctx| {
-                let body = body.clone();
-                async move {
-                    match ctx.request.options.accept() {
-                        None | Some(ContentFormat::OCTET_STREAM) => {
-                            coap::Response::new(coap::Code::CONTENT).with_payload(body)
+        for (path, body) in packets {
+            router.add(
+                &path,
+                coap_net::Resource::new().post(coap_net::handler(move |ctx| {
+                    let body = body.clone();
+                    async move {
+                        match ctx.request.options.accept() {
+                            None | Some(ContentFormat::OCTET_STREAM) => {
+                                coap::Response::new(coap::Code::CONTENT).with_payload(body)
+                            }
+                            Some(_) => coap::Response::new(coap::Code::NOT_ACCEPTABLE),
                         }
-                        Some(_) => coap::Response::new(coap::Code::NOT_ACCEPTABLE),
                     }
-                }
-            })),
-        );
+                })),
+            );
+        }
         let loopback = SocketAddr::from(([127, 0, 0, 1], 0));
         let old = coap_net::Server::bind(&[loopback], coap_net::ServerConfig::default(), router)
             .expect("a thesis-only server");
@@ -265,5 +293,17 @@ fn depth_comes_compressed_and_as_the_packet_from_a_server_without_rvl() {
             .await
             .expect("the packet, after a 4.06");
         assert_eq!(image, compact);
+        let cloud = grab_clouds(&thesis, &Source::Camera(sn.clone()))
+            .await
+            .expect("the cloud packet, after a 4.06");
+        assert_eq!(bits(&cloud.cloud), bits(&from_packet));
+        assert_eq!(cloud.cameras, [(thesis.server(), sn)]);
     });
+}
+
+fn bits(c: &geometry::PointCloud) -> Vec<[u32; 3]> {
+    c.points
+        .iter()
+        .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+        .collect()
 }

@@ -3,6 +3,8 @@
 //! -> 3D transformation -> roi3d.
 
 use geometry::{Point3, TransformError, Transformation};
+
+use crate::repr::clouds::DepthPart;
 use rgbd::filter::{Roi2, RoiCrop};
 use rgbd::{
     Camera, CameraError, ColorFrame, DepthFrame, Extrinsics, FilterError, Intrinsics,
@@ -18,10 +20,10 @@ pub(crate) enum Frame {
     /// The frame, its intrinsics, and the depth->color extrinsics of its camera.
     Color(ColorFrame, Intrinsics, Extrinsics),
     Depth(DepthFrame, Intrinsics),
+    /// The points and what they were computed from (the compact cloud sends that).
     Cloud {
         points: Vec<Point3>,
-        timestamp_us: u64,
-        frame_number: u64,
+        part: DepthPart,
     },
 }
 
@@ -30,7 +32,7 @@ impl Frame {
         match self {
             Self::Color(f, ..) => f.frame_number,
             Self::Depth(f, _) => f.frame_number,
-            Self::Cloud { frame_number, .. } => *frame_number,
+            Self::Cloud { part, .. } => part.depth.frame_number,
         }
     }
 
@@ -38,7 +40,7 @@ impl Frame {
         match self {
             Self::Color(f, ..) => f.timestamp_us,
             Self::Depth(f, _) => f.timestamp_us,
-            Self::Cloud { timestamp_us, .. } => *timestamp_us,
+            Self::Cloud { part, .. } => part.depth.timestamp_us,
         }
     }
 }
@@ -126,11 +128,18 @@ pub(crate) fn cloud(
     let (cropped, k) = crop.process(&frame, &intrinsics)?;
     let mut chain = PostProcessing::new(&app.postprocessing, rgbd::d415::BASELINE_M * 1000.0)?;
     let (processed, k) = chain.process(cropped, &k)?;
-    let points = rgbd::deproject_frame(processed, &k)?;
-    let cloud = transform.apply_and_crop(&points, &app.roi3d);
-    Ok(Frame::Cloud {
-        points: cloud.points,
-        timestamp_us: frame.timestamp_us,
-        frame_number: frame.frame_number,
-    })
+    let mut part = DepthPart {
+        serial: camera.serial().to_string(),
+        depth: DepthFrame {
+            timestamp_us: frame.timestamp_us,
+            frame_number: frame.frame_number,
+            ..processed.clone()
+        },
+        intrinsics: k,
+        transform,
+        roi: app.roi3d,
+        correction: None,
+    };
+    let points = part.points()?;
+    Ok(Frame::Cloud { points, part })
 }

@@ -25,6 +25,7 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
+use crate::repr::clouds::{self, DepthPart};
 use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
 
 use config::AppConfig;
@@ -505,34 +506,31 @@ impl Cams {
                 (sn, icp, task)
             })
             .collect();
-        let mut clouds = Vec::new();
-        let mut serials = Vec::new();
-        let mut newest_us = 0;
+        let mut parts = Vec::new();
         for (sn, icp, task) in tasks {
             match task.await {
-                Ok(Ok(frame)) => {
-                    newest_us = newest_us.max(frame.timestamp_us());
-                    if let Frame::Cloud { points, .. } = frame {
-                        serials.push(sn);
-                        clouds.push((sn, icp, PointCloud::from(points)));
-                    }
-                }
+                Ok(Ok(Frame::Cloud { points, part })) => parts.push((sn, icp, points, part)),
+                Ok(Ok(_)) => {}
                 Ok(Err(e)) => tracing::warn!(serial = %sn, "pointclouds: {e}"),
                 Err(e) => tracing::warn!(serial = %sn, "pointclouds: grab task: {e}"),
             }
         }
-        let merged = tokio::task::spawn_blocking(move || register_and_merge(clouds))
-            .await
-            .unwrap_or_default();
-        let timestamp_us = if newest_us == 0 {
+        let serials: Vec<Serial> = parts.iter().map(|(sn, ..)| *sn).collect();
+        let newest_us = parts.iter().map(|(.., part)| part.depth.timestamp_us).max();
+        let timestamp_us = newest_us.unwrap_or_else(|| {
             SystemTime::now()
                 .duration_since(SystemTime::UNIX_EPOCH)
                 .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX))
-        } else {
-            newest_us
-        };
+        });
+        let (merged, parts) = tokio::task::spawn_blocking(move || register_and_merge(parts))
+            .await
+            .unwrap_or_default();
         let source = CloudSource::Merged { serials: &serials };
-        let body = match cloud_body(cf, &merged.points, timestamp_us, source) {
+        let body = match cf {
+            ContentFormat::DEPTH_CLOUD => clouds::depth_cloud(&parts),
+            _ => cloud_body(cf, &merged.points, timestamp_us, source),
+        };
+        let body = match body {
             Ok(body) => body,
             Err(e) => return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
         };
@@ -551,19 +549,28 @@ impl Cams {
 const ICP_VOXEL_M: f32 = 0.01;
 
 /// Merges clouds already in the common frame; a cloud whose camera has `icp` on is first
-/// registered onto the clouds merged before it.
-fn register_and_merge(clouds: Vec<(Serial, bool, PointCloud)>) -> PointCloud {
+/// registered onto the clouds merged before it, and its part keeps that correction.
+fn register_and_merge(
+    clouds: Vec<(Serial, bool, Vec<Point3>, DepthPart)>,
+) -> (PointCloud, Vec<DepthPart>) {
     let mut merged = PointCloud::default();
-    for (sn, icp, mut cloud) in clouds {
+    let mut parts = Vec::with_capacity(clouds.len());
+    for (sn, icp, points, mut part) in clouds {
+        let mut cloud = PointCloud::from(points);
         if icp && !merged.is_empty() {
             match icp_correction(&cloud, &merged) {
-                Ok(correction) => Transform::from(correction).apply_in_place(&mut cloud),
+                Ok(correction) => {
+                    let correction = Transform::from(correction);
+                    correction.apply_in_place(&mut cloud);
+                    part.correction = Some(correction);
+                }
                 Err(e) => tracing::warn!(serial = %sn, "ICP skipped: {e:#}"),
             }
         }
         merged.extend_from(&cloud);
+        parts.push(part);
     }
-    merged
+    (merged, parts)
 }
 
 /// The transform that registers `cloud` onto `merged`, found on both thinned.
@@ -684,19 +691,13 @@ fn represent(
         (Frame::Depth(f, _), ContentFormat::RVL_ZSTD) => rvl::depth_rvl_zstd(f),
         (Frame::Depth(f, k), ContentFormat::CBOR) => cbor::depth_cbor(f, k, sn),
         (Frame::Depth(f, _), _) => Ok(packet::depth_packet(f)),
-        (
-            Frame::Cloud {
-                points,
-                timestamp_us,
-                frame_number,
-            },
-            cf,
-        ) => {
+        (Frame::Cloud { part, .. }, ContentFormat::DEPTH_CLOUD) => clouds::depth_cloud([part]),
+        (Frame::Cloud { points, part }, cf) => {
             let source = CloudSource::Camera {
                 serial: sn,
-                frame: *frame_number,
+                frame: part.depth.frame_number,
             };
-            cloud_body(cf, points, *timestamp_us, source)
+            cloud_body(cf, points, part.depth.timestamp_us, source)
         }
     };
     match body {
@@ -732,7 +733,7 @@ fn jpeg_quality(request: &IncomingRequest, cf: ContentFormat) -> Result<Option<u
     }
 }
 
-/// A point cloud in content format `cf`: CBOR, PLY, else the thesis packet.
+/// A point cloud in content format `cf`: CBOR, PLY, millimetres, else the thesis packet.
 fn cloud_body(
     cf: ContentFormat,
     points: &[Point3],
@@ -742,6 +743,7 @@ fn cloud_body(
     match cf {
         ContentFormat::CBOR => cbor::cloud_cbor(points, timestamp_us, source),
         ContentFormat::PLY => repr::ply::cloud_ply(points, timestamp_us, source),
+        ContentFormat::CLOUD_MM => clouds::cloud_mm(points, timestamp_us, source),
         _ => Ok(packet::cloud_packet(
             points,
             packet::unix_seconds(timestamp_us),

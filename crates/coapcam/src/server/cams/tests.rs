@@ -222,7 +222,7 @@ fn icp_brings_a_displaced_camera_back_onto_the_cloud_merged_before_it() {
     let cam = &cams[0];
     let pose = super::pose_transformation(cam.true_pose().expect("a calibrated camera"));
     let app = super::config::AppConfig::default();
-    let Ok(super::grab::Frame::Cloud { points, .. }) =
+    let Ok(super::grab::Frame::Cloud { points, part }) =
         super::grab::cloud(cam.as_ref(), &app, &pose)
     else {
         panic!("no cloud")
@@ -246,19 +246,23 @@ fn icp_brings_a_displaced_camera_back_onto_the_cloud_merged_before_it() {
     assert!(mean_error(&displaced.points) > 0.010);
 
     let n = truth.points.len();
-    let merged = super::register_and_merge(vec![
+    let (merged, parts) = super::register_and_merge(vec![
         (
             rgbd::Serial::parse("111111111111").expect("a serial"),
             false,
-            truth.clone(),
+            truth.points.clone(),
+            part.clone(),
         ),
         (
             rgbd::Serial::parse("222222222222").expect("a serial"),
             true,
-            displaced,
+            displaced.points,
+            part,
         ),
     ]);
     assert_eq!(merged.points.len(), 2 * n, "every point kept");
+    // The compact cloud carries the correction for the client to apply.
+    assert!(parts[0].correction.is_none() && parts[1].correction.is_some());
     let registered = mean_error(&merged.points[n..]);
     assert!(
         registered < 0.003,
