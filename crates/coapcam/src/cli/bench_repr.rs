@@ -14,7 +14,7 @@ use rgbd::{Camera as _, Scene, SyntheticCamera};
 use super::{Exit, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::prepare_cameras;
-use coapcam::repr::{CloudSource, cbor, packet, ply, raster, rvl};
+use coapcam::repr::{CloudSource, cbor, clouds, packet, ply, raster, rvl};
 use coapcam::server::SceneServer;
 
 /// Flags of `bench repr`.
@@ -168,42 +168,68 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
         |b| cbor::ColorCapture::from_cbor(b).map(drop),
     )?);
 
-    // The merged cloud of every camera, prepared as `measure --prepare` does.
+    // The merged cloud of every camera, as the cameras start and prepared as `measure
+    // --prepare` does. The server sends it compactly; its points are the packet's.
     let state = std::env::temp_dir().join(format!("coapcam-bench-repr-{}", std::process::id()));
     let server = SceneServer::start(&scene, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
     let uri = format!("coap://{}", server.addr()?);
     let client =
         CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(30)).await?;
     let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
-    prepare_cameras(&client, &serials, 1.0, false).await?;
-    let merged = client.grab_all(None).await?;
-    let cloud = packet::cloud(&merged.payload).context("reading the merged cloud")?;
-    let points = cloud.cloud.points.clone();
     let all: Vec<rgbd::Serial> = scene.cameras.iter().map(|c| c.serial).collect();
     let source = CloudSource::Merged { serials: &all };
-    let timestamp_us = u64::from(cloud.timestamp_s) * 1_000_000;
-    let p = &points;
-    rows.push(row(
-        "merged cloud",
-        ContentFormat::OCTET_STREAM,
-        runs,
-        || Ok(packet::cloud_packet(p, cloud.timestamp_s)),
-        |b| Ok(packet::cloud(b).map(drop)?),
-    )?);
-    rows.push(row(
-        "merged cloud",
-        ContentFormat::PLY,
-        runs,
-        || Ok(ply::cloud_ply(p, timestamp_us, source)?),
-        |b| Ok(geometry::decode_ply(b).map(drop)?),
-    )?);
-    rows.push(row(
-        "merged cloud",
-        ContentFormat::CBOR,
-        runs,
-        || Ok(cbor::cloud_cbor(p, timestamp_us, source)?),
-        |b| cbor::Cloud::from_cbor(b).map(drop),
-    )?);
+    let mut points = 0;
+    for (what, prepare) in [("merged cloud, unprepared", false), ("merged cloud", true)] {
+        if prepare {
+            prepare_cameras(&client, &serials, 1.0, false).await?;
+        }
+        let merged = client.grab_all(Some(ContentFormat::DEPTH_CLOUD)).await?;
+        let mut parts = clouds::parts_from_depth_cloud(&merged.payload)?;
+        let mut cloud = Vec::new();
+        let mut timestamp_us = 0;
+        for part in &mut parts {
+            cloud.extend(part.points()?);
+            timestamp_us = timestamp_us.max(part.depth.timestamp_us);
+        }
+        points = cloud.len();
+        let (p, parts) = (&cloud, &parts);
+        let seconds = packet::unix_seconds(timestamp_us);
+        rows.push(row(
+            what,
+            ContentFormat::OCTET_STREAM,
+            runs,
+            || Ok(packet::cloud_packet(p, seconds)),
+            |b| Ok(packet::cloud(b).map(drop)?),
+        )?);
+        rows.push(row(
+            what,
+            ContentFormat::PLY,
+            runs,
+            || Ok(ply::cloud_ply(p, timestamp_us, source)?),
+            |b| Ok(geometry::decode_ply(b).map(drop)?),
+        )?);
+        rows.push(row(
+            what,
+            ContentFormat::CBOR,
+            runs,
+            || Ok(cbor::cloud_cbor(p, timestamp_us, source)?),
+            |b| cbor::Cloud::from_cbor(b).map(drop),
+        )?);
+        rows.push(row(
+            what,
+            ContentFormat::DEPTH_CLOUD,
+            runs,
+            || Ok(clouds::depth_cloud(parts)?),
+            |b| Ok(clouds::cloud_from_depth_cloud(b).map(drop)?),
+        )?);
+        rows.push(row(
+            what,
+            ContentFormat::CLOUD_MM,
+            runs,
+            || Ok(clouds::cloud_mm(p, timestamp_us, source)?),
+            |b| Ok(clouds::cloud_from_mm(b).map(drop)?),
+        )?);
+    }
     drop(server);
     let _ = std::fs::remove_dir_all(&state);
 
@@ -225,7 +251,7 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
             "runs": runs,
             "depth": [depth.width, depth.height],
             "color": [color.width, color.height],
-            "points": points.len(),
+            "points": points,
             "representations": list,
         });
         outln!("{doc}");
@@ -233,13 +259,13 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
     }
     outln!(
         "one {}x{} depth frame and one {}x{} color frame of camera {serial}, the merged cloud \
-         of {} camera(s) ({} points); medians of {runs} runs",
+         of {} camera(s) as they start and prepared ({} points); medians of {runs} runs",
         depth.width,
         depth.height,
         color.width,
         color.height,
         scene.cameras.len(),
-        points.len()
+        points
     );
     outln!();
     outln!("| what | content format | bytes | of the packet | encode ms | decode ms |");

@@ -122,13 +122,13 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
     Ok(Exit::Success)
 }
 
-/// color.png, depth.png (16-bit raw units), depth-view.png and depth-color.png of one
-/// camera.
+/// color.jpg (a picture for people: JPEG at the server's quality), depth.png (16-bit raw
+/// units), depth-view.png and depth-color.png of one camera.
 async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Result<()> {
     let color = client
-        .grab(serial, Stream::Color, Some(ContentFormat::IMAGE_PNG))
+        .grab(serial, Stream::Color, Some(ContentFormat::IMAGE_JPEG))
         .await?;
-    let path = dir.join("color.png");
+    let path = dir.join("color.jpg");
     std::fs::write(&path, &color.payload).with_context(|| format!("writing {}", path.display()))?;
     outln!("wrote {} (camera {serial})", path.display());
     let depth = client.grab_depth(serial).await?;

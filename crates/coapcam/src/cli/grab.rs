@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context as _, bail};
 use clap::Args;
 use coap::{ContentFormat, Response};
-use coapcam::client::CamClient;
+use coapcam::client::{CamClient, cloud_of};
 use coapcam::repr::{Stream, packet, raster, rvl};
 use coapcam::vision::picture::{self, save, sibling};
 
@@ -26,9 +26,10 @@ pub(crate) struct GrabArgs {
     /// Point clouds only: every camera of the server, merged (POST /cams/pointclouds).
     #[arg(long)]
     all: bool,
-    /// Output file; its extension chooses the format: .png (color; depth as 16-bit PNG of
-    /// raw units), .jpg (color), .rvl and .rvl.zst (depth, lossless), .ply (point cloud,
-    /// binary PLY), .bin (the thesis packet).
+    /// Output file; its extension chooses the format: .jpg (color, for people), .png
+    /// (color, lossless; depth as 16-bit PNG of raw units), .rvl and .rvl.zst (depth,
+    /// lossless), .ply (point cloud, binary PLY), .dcl (the compact cloud: filtered depth
+    /// and its geometry), .qmm (a cloud in whole millimetres), .bin (the thesis packet).
     #[arg(short = 'o', long = "output", value_name = "FILE")]
     output: PathBuf,
     /// With a .jpg file: the JPEG quality, 1-100 (the server's default is 90).
@@ -62,7 +63,7 @@ fn file_format(path: &Path, stream: Stream) -> anyhow::Result<ContentFormat> {
         .all(|s| s.format_of_extension(ext).is_none())
     {
         bail!(
-            "{}: the extension must be .png, .jpg, .ply, .rvl, .rvl.zst or .bin",
+            "{}: the extension must be .jpg, .png, .rvl, .rvl.zst, .ply, .dcl, .qmm or .bin",
             path.display()
         );
     }
@@ -174,16 +175,7 @@ async fn write_view(
             Ok(vec![path.to_owned(), colored])
         }
         Stream::Pointcloud => {
-            let cloud = match kind {
-                ContentFormat::PLY => {
-                    geometry::decode_ply(&response.payload).context("reading the PLY cloud")?
-                }
-                _ => {
-                    packet::cloud(&response.payload)
-                        .context("reading the point-cloud packet")?
-                        .cloud
-                }
-            };
+            let cloud = cloud_of(response)?.cloud;
             save(&picture::top_view(&cloud, None), path)?;
             Ok(vec![path.to_owned()])
         }

@@ -76,7 +76,9 @@ pub(crate) struct MonitorArgs {
     #[arg(long)]
     observe: bool,
     /// The representation asked for (Accept): a number or a short name (png, jpeg, cbor,
-    /// ply, ...); the thesis packet when left out. Not for `measure`.
+    /// ply, depth-cloud, ...). Left out, grabs ask for the compact form (color JPEG, depth
+    /// RVL+zstd, clouds the compact cloud; the thesis packet from a server without it)
+    /// and --observe for the thesis packet. Not for `measure`.
     #[arg(long, value_name = "CF")]
     accept: Option<ContentFormat>,
     /// One JSON object per line for each result, and the statistics as the last line.
@@ -296,7 +298,7 @@ enum Repeat {
 impl Plan {
     async fn resolve(args: &MonitorArgs, client: &CamClient) -> anyhow::Result<Self> {
         if args.accept.is_some() && args.target == Target::Measure {
-            bail!("--accept is for grabs: a measurement reads the thesis packet");
+            bail!("--accept is for grabs: a measurement asks for the compact cloud");
         }
         if let Some(stream) = args.target.stream() {
             let serial = client.one_camera(args.camera.as_deref()).await?;
@@ -465,7 +467,10 @@ async fn once(
     let started = Instant::now();
     match plan {
         Repeat::Grab { serial, stream } => {
-            let r = client.grab(serial, *stream, accept).await?;
+            let r = match accept {
+                Some(cf) => client.grab(serial, *stream, Some(cf)).await?,
+                None => client.grab_compact(serial, *stream).await?,
+            };
             Ok(Success {
                 bytes: r.payload.len(),
                 time: started.elapsed(),
@@ -473,7 +478,10 @@ async fn once(
             })
         }
         Repeat::All => {
-            let r = client.grab_all(accept).await?;
+            let r = match accept {
+                Some(cf) => client.grab_all(Some(cf)).await?,
+                None => client.grab_cloud(None).await?,
+            };
             Ok(Success {
                 bytes: r.payload.len(),
                 time: started.elapsed(),

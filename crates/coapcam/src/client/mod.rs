@@ -249,19 +249,22 @@ impl CamClient {
             .await
     }
 
-    /// Grabs a new depth frame of one camera (POST), compactly: RVL+zstd (65102), or the
-    /// thesis packet from a server that does not offer it (4.06).
+    /// Grabs a new frame of one camera (POST) in its stream's compact form ([`Stream::compact`]):
+    /// color as JPEG at the server's quality, depth as RVL+zstd, a cloud as the compact
+    /// cloud; the thesis packet from a server that does not offer it (4.06).
+    pub async fn grab_compact(&self, serial: &str, stream: Stream) -> anyhow::Result<Response> {
+        match self.grab(serial, stream, Some(stream.compact())).await {
+            Err(e) if not_acceptable(&e) => self.grab(serial, stream, None).await,
+            other => other,
+        }
+    }
+
+    /// Grabs a new depth frame of one camera (POST), compactly ([`Self::grab_compact`]).
     pub async fn grab_depth(&self, serial: &str) -> anyhow::Result<DepthImage> {
-        match self
-            .grab(serial, Stream::Depth, Some(ContentFormat::RVL_ZSTD))
-            .await
-        {
-            Ok(r) => Ok(rvl::depth_from_rvl_zstd(&r.payload)?),
-            Err(e) if not_acceptable(&e) => {
-                let r = self.grab(serial, Stream::Depth, None).await?;
-                Ok(packet::depth(&r.payload).context("reading the depth packet")?)
-            }
-            Err(e) => Err(e),
+        let r = self.grab_compact(serial, Stream::Depth).await?;
+        match r.options.content_format() {
+            Some(ContentFormat::RVL_ZSTD) => Ok(rvl::depth_from_rvl_zstd(&r.payload)?),
+            _ => Ok(packet::depth(&r.payload).context("reading the depth packet")?),
         }
     }
 
@@ -287,16 +290,13 @@ impl CamClient {
     /// (`/cams/pointclouds`) when `None`; as the compact cloud (65103), or the thesis
     /// packet from a server that does not offer it (4.06). [`cloud_of`] reads either.
     pub async fn grab_cloud(&self, serial: Option<&str>) -> anyhow::Result<Response> {
-        let post = |accept| async move {
-            match serial {
-                Some(sn) => self.grab(sn, Stream::Pointcloud, accept).await,
-                None => self.grab_all(accept).await,
-            }
+        let Some(sn) = serial else {
+            return match self.grab_all(Some(Stream::Pointcloud.compact())).await {
+                Err(e) if not_acceptable(&e) => self.grab_all(None).await,
+                other => other,
+            };
         };
-        match post(Some(ContentFormat::DEPTH_CLOUD)).await {
-            Err(e) if not_acceptable(&e) => post(None).await,
-            other => other,
-        }
+        self.grab_compact(sn, Stream::Pointcloud).await
     }
 }
 

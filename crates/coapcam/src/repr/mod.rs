@@ -88,6 +88,16 @@ impl Stream {
         }
     }
 
+    /// Its compact form, which the typed client asks for first: JPEG (lossy, for
+    /// pictures), RVL+zstd (lossless), the compact cloud (the same points).
+    pub fn compact(self) -> ContentFormat {
+        match self {
+            Self::Color => ContentFormat::IMAGE_JPEG,
+            Self::Depth => ContentFormat::RVL_ZSTD,
+            Self::Pointcloud => ContentFormat::DEPTH_CLOUD,
+        }
+    }
+
     /// Its resources' `ct` in discovery: every format it offers, the default first.
     pub fn ct(self) -> String {
         let numbers: Vec<String> = self.formats().iter().map(|cf| cf.0.to_string()).collect();
