@@ -150,6 +150,30 @@ fn grab_writes_every_stream_in_every_file_type() {
     // One camera: the merged cloud is a new frame of its cloud (the noise differs).
     let m = cloud_packet_points(&merged);
     assert!(m.abs_diff(n) < n / 50, "{m} points merged, {n} in one grab");
+    // The compact clouds: the filtered depth with its geometry, and quantized millimetres.
+    let dcl = std::fs::read(grab("pointcloud", "cloud.dcl", &[])).expect("cloud.dcl");
+    let from_depth = coapcam::repr::clouds::cloud_from_depth_cloud(&dcl).expect("65103 decodes");
+    assert_eq!(from_depth.serials, [SN]);
+    let k = from_depth.cloud.points.len();
+    assert!(
+        k.abs_diff(n) < n / 50,
+        "{k} points from .dcl, {n} in a packet"
+    );
+    assert!(
+        dcl.len() * 8 < packet.len(),
+        "{} B .dcl, {} B packet",
+        dcl.len(),
+        packet.len()
+    );
+    let qmm = std::fs::read(grab("pointcloud", "cloud.qmm", &[])).expect("cloud.qmm");
+    let from_mm = coapcam::repr::clouds::cloud_from_mm(&qmm).expect("65104 decodes");
+    assert!(from_mm.cloud.points.len().abs_diff(n) < n / 50);
+    assert!(
+        qmm.len() * 4 < packet.len(),
+        "{} B .qmm, {} B packet",
+        qmm.len(),
+        packet.len()
+    );
 
     // --view: the pictures a person looks at.
     let view = dir.join("color-view.png");
