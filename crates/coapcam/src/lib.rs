@@ -16,6 +16,7 @@
 #![forbid(unsafe_code)]
 
 pub mod client;
+pub mod report;
 pub mod repr;
 pub mod server;
 pub mod vision;

@@ -15,9 +15,10 @@ use rgbd::Scene;
 use super::{Exit, out, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::{
-    self, Billing, FLOOR_CUT_M, Measurement, Source, prepare_cameras, truth, yaw_difference,
+    self, FLOOR_CUT_M, Measurement, Source, prepare_cameras, truth, yaw_difference,
 };
 use coapcam::client::{annotate, codes};
+use coapcam::report::{Billing, describe};
 use coapcam::repr::Stream;
 use coapcam::server::SceneServer;
 use coapcam::vision::codes::Code;
@@ -116,7 +117,7 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
     out!("{}", report(&m, dimensions, truth(&scene)));
     outln!(
         "codes: {}; on the scene's parcels: {}",
-        codes::describe(&codes),
+        describe(&codes),
         scene_codes(&scene)
     );
     Ok(Exit::Success)

@@ -10,8 +10,9 @@ use anyhow::{Context as _, bail};
 use clap::Args;
 use coap_net::Uri;
 
-use coapcam::client::measure::{Billing, FLOOR_CUT_M, Source, measure_once, prepare_cameras};
+use coapcam::client::measure::{FLOOR_CUT_M, Source, measure_once, prepare_cameras};
 use coapcam::client::{CamClient, annotate, codes};
+use coapcam::report::{self, Billing, EdgeQuery, Parcel, Seen};
 
 use super::{DimensionArgs, Exit, TransmissionArgs, outln};
 
@@ -56,11 +57,22 @@ pub(crate) struct MeasureArgs {
     /// printed on standard error. Not with --group.
     #[arg(long, conflicts_with = "group")]
     prepare: bool,
+    /// Measure on the server (`POST /cams/dimensions`, an extension of coapcam): it
+    /// grabs and merges its cameras, measures, and sends only the result, a few hundred
+    /// bytes instead of the point clouds. The default when the server offers it and
+    /// neither --camera nor --group is given; with --edge a server without it is an
+    /// error.
+    #[arg(long, conflicts_with_all = ["camera", "group", "clouds"])]
+    edge: bool,
+    /// Grab the point clouds and measure here, even when the server could measure.
+    #[arg(long)]
+    clouds: bool,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
     /// Also read the QR and Code 128 codes on the parcel from a new color image of each
-    /// camera (`codes` in the JSON). With --prepare the color stream first becomes
+    /// camera (`codes` in the JSON; at the edge the server reads them, while it grabs the
+    /// clouds). With --prepare the color stream first becomes
     /// 1920x1080 (on the server, for every client), where a code may be a third smaller
     /// than at 1280x720.
     #[arg(long)]
@@ -143,66 +155,107 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         }
         (None, None) => bail!("give --server URI or --group MCAST_ADDR"),
     };
-    let m = measure_once(&client, &source, &args.dimension.config()).await?;
-    let mut warnings = Vec::new();
+    let edge = match (&source, args.clouds) {
+        (Source::All, false) => {
+            let query = EdgeQuery {
+                codes: args.codes,
+                config: args.dimension.config(),
+                billing,
+            };
+            let started = Instant::now();
+            let measured = client.measure_edge(&query).await?;
+            if measured.is_none() && args.edge {
+                bail!(
+                    "{} does not offer /cams/dimensions (measurement at the edge); leave out --edge",
+                    client.server()
+                );
+            }
+            measured.map(|(mut doc, bytes)| {
+                let cameras = doc["cameras"].as_array().map_or(0, Vec::len);
+                doc["servers"] = vec![client.server().to_string(); cameras].into();
+                doc["cycle_ms"] = report::ms(started.elapsed()).into();
+                doc["received_bytes"] = bytes.into();
+                doc
+            })
+        }
+        _ => None,
+    };
+    let mut doc = match edge {
+        Some(doc) => doc,
+        None => measure_here(&client, &source, &args, &billing).await?,
+    };
+    let mut warnings: Vec<String> = doc["warnings"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|w| w.as_str().map(str::to_owned))
+                .collect()
+        })
+        .unwrap_or_default();
     if let Source::Group {
         group,
         expect: Some(expected),
         ..
     } = &source
     {
-        let answered = m.servers().len();
+        let answered = doc["servers"].as_array().map_or(0, |servers| {
+            let mut distinct: Vec<&serde_json::Value> = servers.iter().collect();
+            distinct.sort_by_key(|s| s.to_string());
+            distinct.dedup();
+            distinct.len()
+        });
         if answered < *expected {
             warnings.push(format!(
                 "{answered} of the {expected} expected servers of the group {group} answered"
             ));
         }
     }
-    let codes = if args.codes {
-        let started = Instant::now();
-        let codes = codes::read_cameras(&client, &m.grabbed.cameras).await?;
-        Some((codes, started.elapsed()))
-    } else {
-        None
-    };
     for w in &warnings {
         eprintln!("coapcam: warning: {w}");
     }
+    doc["warnings"] = warnings.clone().into();
     if args.json {
-        let mut json = m.to_json(&billing);
-        json["warnings"] = warnings.clone().into();
-        if let Some((codes, took)) = &codes {
-            json["codes"] = codes.iter().map(codes::Seen::to_json).collect();
-            json["codes_ms"] = ((took.as_secs_f64() * 1e4).round() / 10.0).into();
-        }
-        outln!("{json}");
+        outln!("{doc}");
     } else {
-        outln!("{}", m.to_text(&billing));
-        if let Some((codes, took)) = &codes {
-            outln!(
-                "codes: {} (grabbed and read in {:.0} ms)",
-                codes::describe(codes),
-                took.as_secs_f64() * 1e3
-            );
-        }
+        outln!("{}", report::text(&doc));
     }
-    if let (Some(path), Some(dimensions)) = (&args.annotate, m.dimensions()) {
-        let (server, sn) = m
-            .grabbed
-            .cameras
-            .first()
+    let parcel = Parcel::from_document(&doc)?;
+    if let (Some(path), Parcel::Measured(dimensions)) = (&args.annotate, &parcel) {
+        let (server, sn) = doc["servers"][0]
+            .as_str()
+            .and_then(|s| s.parse::<SocketAddr>().ok())
+            .zip(doc["cameras"][0].as_str())
             .context("no camera to take the color image from")?;
-        let one = CamClient::unicast(&client, *server);
+        let one = CamClient::unicast(&client, server);
         annotate::from_server(&one, sn, dimensions, path).await?;
         eprintln!("coapcam: wrote {}", path.display());
     }
-    Ok(if m.dimensions().is_none() {
+    Ok(if matches!(parcel, Parcel::Nothing { .. }) {
         Exit::Empty
-    } else if !warnings.is_empty() {
+    } else if !warnings.is_empty() && matches!(source, Source::Group { .. }) {
         Exit::Fewer
     } else {
         Exit::Success
     })
+}
+
+/// Grabs the clouds, measures them here, and reads the codes if asked: the document of
+/// `measure --json`.
+async fn measure_here(
+    client: &CamClient,
+    source: &Source,
+    args: &MeasureArgs,
+    billing: &Billing,
+) -> anyhow::Result<serde_json::Value> {
+    let m = measure_once(client, source, &args.dimension.config()).await?;
+    let mut doc = m.to_json(billing);
+    if args.codes {
+        let started = Instant::now();
+        let codes = codes::read_cameras(client, &m.grabbed.cameras).await?;
+        doc["codes"] = codes.iter().map(Seen::to_json).collect();
+        doc["codes_ms"] = report::ms(started.elapsed()).into();
+    }
+    Ok(doc)
 }
 
 /// `224.0.1.187`, `[ff02::fd]`, or a full `coap://group:port` URI; port 5683 by default.

@@ -14,7 +14,8 @@ use coap::{Code, ContentFormat, OptionNumber, Response};
 use geometry::DimensionConfig;
 
 use coapcam::client::CamClient;
-use coapcam::client::measure::{self, Billing, Measurement, Parcel, Source};
+use coapcam::client::measure::{self, Measurement, Source};
+use coapcam::report::{Billing, Parcel};
 use coapcam::repr::Stream;
 
 use super::{DimensionArgs, Exit, TransmissionArgs, error_text, exit_status, out, outln};

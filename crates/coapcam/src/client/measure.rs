@@ -13,62 +13,7 @@ use geometry::{DimensionConfig, Dimensions, PointCloud};
 use rgbd::Scene;
 
 use super::{CamClient, NoAnswer, check, cloud_of};
-
-/// How a measurement is reported to an integrator's billing: the volumetric divisor and
-/// the scale division the dimensions are rounded up to.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Billing {
-    /// Divisor of the volumetric weight, cm³ per kg: 5000 by default (the courier
-    /// convention), 6000 with some carriers.
-    pub divisor_cm3_per_kg: f64,
-    /// Round each dimension up to a multiple of this many millimetres (a scale
-    /// division, e.g. 5); `None` reports them to 0.1 mm.
-    pub division_mm: Option<f64>,
-}
-
-impl Default for Billing {
-    fn default() -> Self {
-        Self {
-            divisor_cm3_per_kg: 5000.0,
-            division_mm: None,
-        }
-    }
-}
-
-impl Billing {
-    /// Length, width and height in millimetres as reported: rounded up to the division,
-    /// else to 0.1 mm.
-    pub fn dimensions_mm(&self, d: &Dimensions) -> [f64; 3] {
-        [d.length_mm, d.width_mm, d.height_mm].map(|v| match self.division_mm {
-            Some(step) => (v / step - 1e-9).ceil() * step,
-            None => (v * 10.0).round() / 10.0,
-        })
-    }
-
-    /// The volume of the reported dimensions, litres.
-    pub fn volume_l(&self, d: &Dimensions) -> f64 {
-        let [l, w, h] = self.dimensions_mm(d);
-        l * w * h / 1e6
-    }
-
-    /// The volumetric weight of the reported dimensions: cm³ over the divisor, kg.
-    pub fn volumetric_weight_kg(&self, d: &Dimensions) -> f64 {
-        self.volume_l(d) * 1000.0 / self.divisor_cm3_per_kg
-    }
-}
-
-/// What a measurement found on the table.
-#[derive(Debug, Clone)]
-pub enum Parcel {
-    /// The largest object above the floor, measured.
-    Measured(Dimensions),
-    /// Nothing on the table: the largest object above the floor has fewer points than a
-    /// measurement needs.
-    Nothing {
-        /// Points of the largest object above the floor (0 when there is none).
-        points: usize,
-    },
-}
+use crate::report::{Billing, Parcel, ms};
 
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
@@ -134,88 +79,27 @@ impl Measurement {
         }
     }
 
-    /// The JSON object of `measure --json` (docs/design.md §6): `"parcel": "measured"`
-    /// with the dimensions, or `"parcel": "nothing"`, and where the clouds came from.
-    /// Units are in the names; instants are `_unix_us`.
+    /// The document of `measure --json` (docs/design.md §6): the parcel's fields
+    /// ([`Parcel::fields`]) and where the clouds came from. Units are in the names;
+    /// instants are `_unix_us`.
     pub fn to_json(&self, billing: &Billing) -> serde_json::Value {
         let g = &self.grabbed;
-        let ms = |d: Duration| (d.as_secs_f64() * 1e4).round() / 10.0;
-        let mut json = serde_json::json!({
-            "cloud_points": g.cloud.len(),
-            "cameras": g.cameras.iter().map(|(_, sn)| sn).collect::<Vec<_>>(),
-            "servers": g.cameras.iter().map(|(s, _)| s.to_string()).collect::<Vec<_>>(),
-            "frames_unix_us": g.timestamps_us,
-            "cycle_ms": ms(self.cycle),
-            "grab_ms": ms(self.grab),
-            "received_bytes": g.bytes,
-        });
-        match &self.parcel {
-            Parcel::Measured(d) => {
-                let [l, w, h] = billing.dimensions_mm(d);
-                json["parcel"] = "measured".into();
-                json["length_mm"] = l.into();
-                json["width_mm"] = w.into();
-                json["height_mm"] = h.into();
-                json["division_mm"] = billing.division_mm.into();
-                json["yaw_deg"] = ((d.yaw_deg * 100.0).round() / 100.0).into();
-                json["corners_m"] = serde_json::json!(d.corners_m);
-                json["volume_l"] = ((billing.volume_l(d) * 1000.0).round() / 1000.0).into();
-                json["volumetric_weight_kg"] =
-                    ((billing.volumetric_weight_kg(d) * 1000.0).round() / 1000.0).into();
-                json["volumetric_divisor_cm3_per_kg"] = billing.divisor_cm3_per_kg.into();
-                json["parcel_points"] = d.points.into();
-            }
-            Parcel::Nothing { points } => {
-                json["parcel"] = "nothing".into();
-                json["parcel_points"] = (*points).into();
-            }
-        }
-        json
-    }
-
-    /// The text of `measure` without --json.
-    pub fn to_text(&self, billing: &Billing) -> String {
-        let g = &self.grabbed;
-        let serials: Vec<&str> = g.cameras.iter().map(|(_, s)| s.as_str()).collect();
-        let provenance = format!(
-            "{} points from {} camera(s): {}\n\
-             cycle {:.0} ms (grab and transfer {:.0} ms), {:.2} MB received",
-            g.cloud.len(),
-            serials.len(),
-            serials.join(", "),
-            self.cycle.as_secs_f64() * 1e3,
-            self.grab.as_secs_f64() * 1e3,
-            g.bytes as f64 / 1e6,
+        let mut doc = self.parcel.fields(billing);
+        doc.extend(
+            serde_json::json!({
+                "cloud_points": g.cloud.len(),
+                "cameras": g.cameras.iter().map(|(_, sn)| sn).collect::<Vec<_>>(),
+                "servers": g.cameras.iter().map(|(s, _)| s.to_string()).collect::<Vec<_>>(),
+                "frames_unix_us": g.timestamps_us,
+                "cycle_ms": ms(self.cycle),
+                "grab_ms": ms(self.grab),
+                "received_bytes": g.bytes,
+            })
+            .as_object()
+            .cloned()
+            .unwrap_or_default(),
         );
-        let d = match &self.parcel {
-            Parcel::Measured(d) => d,
-            Parcel::Nothing { points } => {
-                return format!(
-                    "nothing on the table (the largest object above the floor has {points} points)\n{provenance}"
-                );
-            }
-        };
-        let [l, w, h] = billing.dimensions_mm(d);
-        let rounded = billing
-            .division_mm
-            .map_or_else(String::new, |s| format!(" (rounded up to {s} mm)"));
-        let corners: Vec<String> = d
-            .corners_m
-            .iter()
-            .map(|[x, y]| format!("({x:.3}, {y:.3})"))
-            .collect();
-        format!(
-            "length {l:.1} mm  width {w:.1} mm  height {h:.1} mm{rounded}\n\
-             yaw {:.1} deg  volume {:.2} l  volumetric weight {:.2} kg (divisor {} cm3/kg)\n\
-             footprint corners (m): {}\n\
-             parcel {} points of {provenance}",
-            d.yaw_deg,
-            billing.volume_l(d),
-            billing.volumetric_weight_kg(d),
-            billing.divisor_cm3_per_kg,
-            corners.join(" "),
-            d.points,
-        )
+        doc.into()
     }
 }
 
@@ -303,19 +187,13 @@ pub async fn measure_once(
     let started = Instant::now();
     let grabbed = grab_clouds(client, source).await?;
     let grab = started.elapsed();
-    let (dimensions, grabbed) = tokio::task::spawn_blocking({
+    let (parcel, grabbed) = tokio::task::spawn_blocking({
         let config = *config;
-        move || (geometry::dimension(&grabbed.cloud, &config), grabbed)
+        move || (Parcel::measure(&grabbed.cloud, &config), grabbed)
     })
     .await
     .context("the measuring task failed")?;
-    let parcel = match dimensions {
-        Ok(d) => Parcel::Measured(d),
-        Err(geometry::DimensionError::TooFewPoints { found, .. }) => {
-            Parcel::Nothing { points: found }
-        }
-        Err(e) => return Err(e).context("measuring the point cloud"),
-    };
+    let parcel = parcel.context("measuring the point cloud")?;
     Ok(Measurement {
         parcel,
         grabbed,

@@ -16,6 +16,7 @@ use coap::link_format;
 use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::{Client, Uri};
 
+use crate::report::EdgeQuery;
 use crate::repr::packet::{self, DepthImage};
 use crate::repr::{Stream, cbor, clouds, rvl};
 
@@ -298,12 +299,56 @@ impl CamClient {
         };
         self.grab_compact(sn, Stream::Pointcloud).await
     }
+
+    /// Measures at the edge (`POST /cams/dimensions`, an extension): the server grabs
+    /// every camera it has, merges, measures and answers the document of
+    /// `measure --json` (asked for as CBOR), returned with its size in bytes. `None` when
+    /// the server does not offer it (4.04 or 4.05: a server without the extension).
+    pub async fn measure_edge(
+        &self,
+        query: &EdgeQuery,
+    ) -> anyhow::Result<Option<(serde_json::Value, usize)>> {
+        let mut request = self.request(
+            Code::POST,
+            "/cams/dimensions",
+            Bytes::new(),
+            None,
+            Some(ContentFormat::CBOR),
+        );
+        for item in query.to_query() {
+            request
+                .options
+                .push(OptionNumber::URI_QUERY, item.as_bytes());
+        }
+        let response = match self.exchange(request, "POST /cams/dimensions").await {
+            Ok(r) => r,
+            Err(e)
+                if matches!(
+                    error_code(&e),
+                    Some(Code::NOT_FOUND | Code::METHOD_NOT_ALLOWED)
+                ) =>
+            {
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        };
+        let doc: serde_json::Value = ciborium::from_reader(&response.payload[..])
+            .context("the measurement from /cams/dimensions is not CBOR")?;
+        if !doc.is_object() {
+            bail!("the measurement from /cams/dimensions is not a map");
+        }
+        Ok(Some((doc, response.payload.len())))
+    }
+}
+
+/// The code of an [`ErrorResponse`], if `e` is one.
+fn error_code(e: &anyhow::Error) -> Option<Code> {
+    e.downcast_ref::<ErrorResponse>().map(|r| r.response.code)
 }
 
 /// True for an [`ErrorResponse`] 4.06 Not Acceptable: the server does not offer the format.
 fn not_acceptable(e: &anyhow::Error) -> bool {
-    e.downcast_ref::<ErrorResponse>()
-        .is_some_and(|r| r.response.code == Code::NOT_ACCEPTABLE)
+    error_code(e) == Some(Code::NOT_ACCEPTABLE)
 }
 
 /// The point cloud of a response in any of its representations, with the cameras and

@@ -73,6 +73,19 @@ pub fn color_jpeg(frame: &ColorFrame, quality: u8) -> Result<Vec<u8>, EncodeErro
     Ok(out)
 }
 
+/// Color as 8-bit gray, converted as `image` converts an RGB image (the codes reader
+/// reads gray).
+pub fn color_gray(frame: &ColorFrame) -> image::GrayImage {
+    let (pixels, ty) = rgb_pixels(frame);
+    let (w, h) = (frame.width, frame.height);
+    let image = if ty == ExtendedColorType::Rgba8 {
+        image::RgbaImage::from_raw(w, h, pixels).map(image::DynamicImage::ImageRgba8)
+    } else {
+        image::RgbImage::from_raw(w, h, pixels).map(image::DynamicImage::ImageRgb8)
+    };
+    image.map(|i| i.to_luma8()).unwrap_or_default()
+}
+
 /// Depth as a 16-bit grayscale PNG of the raw units.
 pub fn depth_png(frame: &DepthFrame) -> Result<Vec<u8>, EncodeError> {
     let mut pixels = Vec::with_capacity(frame.width as usize * frame.height as usize * 2);

@@ -5,11 +5,13 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use coap::{ContentFormat, EndpointConfig};
+use bytes::Bytes;
+use coap::{Code, ContentFormat, EndpointConfig};
 use coapcam::client::CamClient;
 use coapcam::client::measure::{
     Source, grab_clouds, measure_once, prepare_cameras, truth, yaw_difference,
 };
+use coapcam::report::{Billing, EdgeQuery};
 use coapcam::repr::{Stream, cbor, clouds, packet, raster, rvl};
 use coapcam::server::SceneServer;
 use geometry::DimensionConfig;
@@ -81,7 +83,7 @@ fn every_representation_decodes_to_the_same_frame() {
             let client = &client;
             async move {
                 client
-                    .call(coap::Code::GET, &path, bytes::Bytes::new(), None, Some(cf))
+                    .call(Code::GET, &path, Bytes::new(), None, Some(cf))
                     .await
                     .expect("GET depth")
                     .payload
@@ -110,7 +112,7 @@ fn every_representation_decodes_to_the_same_frame() {
         let mut clouds: Vec<geometry::PointCloud> = Vec::new();
         for cf in Stream::Pointcloud.formats() {
             let body = client
-                .call(coap::Code::GET, &path, bytes::Bytes::new(), None, Some(*cf))
+                .call(Code::GET, &path, Bytes::new(), None, Some(*cf))
                 .await
                 .expect("GET pointcloud")
                 .payload;
@@ -205,9 +207,9 @@ fn the_client_chooses_the_jpeg_quality() {
         // The latest frame at two qualities: two representations, two ETags.
         let get = |query: &'static str, accept: ContentFormat| {
             let mut request = client.request(
-                coap::Code::GET,
+                Code::GET,
                 &format!("/cams/{sn}/color"),
-                bytes::Bytes::new(),
+                Bytes::new(),
                 None,
                 Some(accept),
             );
@@ -222,7 +224,7 @@ fn the_client_chooses_the_jpeg_quality() {
             get("q=30", ContentFormat::IMAGE_JPEG).await,
             get("q=31", ContentFormat::IMAGE_JPEG).await,
         );
-        assert_eq!((a.code, b.code), (coap::Code::CONTENT, coap::Code::CONTENT));
+        assert_eq!((a.code, b.code), (Code::CONTENT, Code::CONTENT));
         assert_ne!(a.options.etag(), b.options.etag());
         for (query, accept) in [
             ("q=0", ContentFormat::IMAGE_JPEG),
@@ -231,8 +233,138 @@ fn the_client_chooses_the_jpeg_quality() {
             ("q=50", ContentFormat::IMAGE_PNG),
         ] {
             let r = get(query, accept).await;
-            assert_eq!(r.code, coap::Code::BAD_REQUEST, "{query} {accept}");
+            assert_eq!(r.code, Code::BAD_REQUEST, "{query} {accept}");
         }
+    });
+}
+
+#[test]
+fn the_server_measures_at_the_edge_as_the_client_does() {
+    let state = TempDir::new("library-edge");
+    let scene = Scene::default_demo();
+    runtime().block_on(async {
+        let (_server, client) = start(&scene, &state).await;
+        let serials = client.cameras().await.expect("discovery");
+        prepare_cameras(&client, &serials, 1.0, true)
+            .await
+            .expect("prepare");
+        // Before the first measurement GET has nothing; the observer hears of the next.
+        let get = |accept| client.call(Code::GET, "/cams/dimensions", Bytes::new(), None, accept);
+        let none = get(None).await.expect_err("nothing measured yet");
+        assert!(format!("{none:#}").contains("4.04"), "{none:#}");
+        let query = EdgeQuery {
+            codes: true,
+            ..EdgeQuery::default()
+        };
+        let (doc, bytes) = client
+            .measure_edge(&query)
+            .await
+            .expect("POST /cams/dimensions")
+            .expect("the server offers it");
+        assert!(bytes < 1000, "{bytes} bytes");
+        let [length, width, height, _] = truth(&scene).expect("the scene has a box");
+        for (key, want) in [
+            ("length_mm", length),
+            ("width_mm", width),
+            ("height_mm", height),
+        ] {
+            let got = doc[key].as_f64().expect(key);
+            assert!(
+                (got - want).abs() < 5.0,
+                "{key}: {got:.1} mm, truth {want:.1} mm"
+            );
+        }
+        assert_eq!(doc["cameras"], serde_json::json!(serials));
+        assert_eq!(doc["warnings"], serde_json::json!([]));
+        let codes = doc["codes"].as_array().expect("codes");
+        assert!(
+            codes
+                .iter()
+                .any(|c| c["text"] == "PKG-0001" && c["kind"] == "qr"),
+            "{codes:?}"
+        );
+
+        // The same fields as the client's own measurement (which adds where it measured
+        // from and how long the transfer took).
+        let here = measure_once(&client, &Source::All, &DimensionConfig::default())
+            .await
+            .expect("measure here")
+            .to_json(&Billing::default());
+        let keys = |v: &serde_json::Value| {
+            let mut k: Vec<String> = v.as_object().expect("a map").keys().cloned().collect();
+            k.retain(|k| {
+                ![
+                    "servers",
+                    "cycle_ms",
+                    "received_bytes",
+                    "codes",
+                    "codes_ms",
+                    "warnings",
+                    "measure_ms",
+                ]
+                .contains(&k.as_str())
+            });
+            k
+        };
+        assert_eq!(keys(&doc), keys(&here));
+        for key in ["length_mm", "width_mm", "height_mm"] {
+            let (a, b) = (
+                doc[key].as_f64().expect(key),
+                here[key].as_f64().expect(key),
+            );
+            assert!((a - b).abs() < 3.0, "{key}: {a} at the edge, {b} here");
+        }
+
+        // GET gives the latest, as JSON or CBOR; an Observe registration the next one.
+        let json: serde_json::Value =
+            serde_json::from_slice(&get(None).await.expect("GET").payload).expect("JSON");
+        assert_eq!(json, doc);
+        let cbor = get(Some(ContentFormat::CBOR))
+            .await
+            .expect("GET CBOR")
+            .payload;
+        let cbor: serde_json::Value = ciborium::from_reader(&cbor[..]).expect("CBOR");
+        assert_eq!(cbor, doc);
+        let refused = get(Some(ContentFormat::OCTET_STREAM))
+            .await
+            .expect_err("4.06");
+        assert!(format!("{refused:#}").contains("4.06"), "{refused:#}");
+        let mut register = coap::Request::new(Code::GET, "/cams/dimensions");
+        register.timeout = Some(Duration::from_secs(60));
+        let mut observation = client
+            .coap()
+            .observe(client.server(), register)
+            .await
+            .expect("observe");
+        let first = tokio::time::timeout(Duration::from_secs(60), observation.next()).await;
+        assert!(matches!(first, Ok(Some(Ok(_)))), "{first:?}");
+        let (next, _) = client
+            .measure_edge(&EdgeQuery::default())
+            .await
+            .expect("measure again")
+            .expect("offered");
+        assert!(next.get("codes").is_none(), "codes only when asked");
+        let note = tokio::time::timeout(Duration::from_secs(60), observation.next()).await;
+        match note {
+            Ok(Some(Ok(r))) => {
+                let noted: serde_json::Value = serde_json::from_slice(&r.payload).expect("JSON");
+                assert_eq!(noted, next);
+            }
+            other => panic!("no notification after a measurement: {other:?}"),
+        }
+
+        // A query it does not know is refused, naming what it takes.
+        let mut request = client.request(Code::POST, "/cams/dimensions", Bytes::new(), None, None);
+        request
+            .options
+            .push(coap::OptionNumber::URI_QUERY, b"colour");
+        let refused = client
+            .coap()
+            .send(client.server(), request)
+            .await
+            .expect("an answer");
+        assert_eq!(refused.code, Code::BAD_REQUEST);
+        assert!(String::from_utf8_lossy(&refused.payload).contains("min_height_mm"));
     });
 }
 
@@ -253,7 +385,7 @@ fn depth_and_clouds_come_compact_and_as_packets_from_a_server_without_them() {
         for stream in [Stream::Depth, Stream::Pointcloud] {
             let path = format!("/cams/{sn}/{}", stream.name());
             let get = client
-                .call(coap::Code::GET, &path, bytes::Bytes::new(), None, None)
+                .call(Code::GET, &path, Bytes::new(), None, None)
                 .await
                 .expect("GET the packet");
             packets.push((path, get.payload));
@@ -273,9 +405,9 @@ fn depth_and_clouds_come_compact_and_as_packets_from_a_server_without_them() {
                     async move {
                         match ctx.request.options.accept() {
                             None | Some(ContentFormat::OCTET_STREAM) => {
-                                coap::Response::new(coap::Code::CONTENT).with_payload(body)
+                                coap::Response::new(Code::CONTENT).with_payload(body)
                             }
-                            Some(_) => coap::Response::new(coap::Code::NOT_ACCEPTABLE),
+                            Some(_) => coap::Response::new(Code::NOT_ACCEPTABLE),
                         }
                     }
                 })),
@@ -298,6 +430,9 @@ fn depth_and_clouds_come_compact_and_as_packets_from_a_server_without_them() {
             .expect("the cloud packet, after a 4.06");
         assert_eq!(bits(&cloud.cloud), bits(&from_packet));
         assert_eq!(cloud.cameras, [(thesis.server(), sn)]);
+        // Nor does it measure: the client measures the clouds itself.
+        let edge = thesis.measure_edge(&EdgeQuery::default()).await;
+        assert!(matches!(edge, Ok(None)), "{edge:?}");
     });
 }
 

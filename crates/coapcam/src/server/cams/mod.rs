@@ -1,8 +1,9 @@
 //! The `/cams` resource tree (thesis Table 3.1, docs/design.md §5): creation resources,
 //! per-camera grab and configuration resources that follow the [`CameraHub`], and
-//! `/cams/pointclouds`.
+//! `/cams/pointclouds`, and `/cams/dimensions` (measurement at the edge, an extension).
 
 mod config;
+mod edge;
 mod grab;
 mod state;
 #[cfg(test)]
@@ -69,6 +70,8 @@ pub(crate) struct Cams {
     cams: Mutex<BTreeMap<Serial, Arc<CamState>>>,
     /// Paths with a new representation, for Observe notifications.
     changed: mpsc::UnboundedSender<String>,
+    /// `/cams/dimensions`: the latest measurement at the edge.
+    measured: Mutex<edge::Latest>,
 }
 
 impl Cams {
@@ -88,6 +91,7 @@ impl Cams {
             state: StateDir::new(state_dir),
             cams: Mutex::default(),
             changed,
+            measured: Mutex::default(),
         });
         me.register_fixed();
         let events = me.hub.subscribe();
@@ -133,6 +137,26 @@ impl Cams {
                 }))
                 .attr("rt", "rgbd.pointcloud")
                 .attr("ct", Stream::Pointcloud.ct()),
+        );
+        let (post_me, get_me) = (self.clone(), self.clone());
+        self.router.add(
+            edge::PATH,
+            Resource::new()
+                .post(handler(move |ctx| {
+                    let me = post_me.clone();
+                    async move { me.measure(&ctx.request).await }
+                }))
+                .get(handler(move |ctx| {
+                    let response = get_me.latest_measurement(&ctx.request);
+                    async move { response }
+                }))
+                .attr("rt", "coapcam.dimensions")
+                .attr("ct", "50 60")
+                .attr(
+                    "title",
+                    "extension: POST measures the parcel with every camera here; GET the latest",
+                )
+                .observable(),
         );
         for name in Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS) {
             let me = self.clone();
@@ -490,6 +514,27 @@ impl Cams {
             Ok(cf) => cf,
             Err(refused) => return refused,
         };
+        let merged = self.grab_merged().await;
+        let source = CloudSource::Merged {
+            serials: &merged.serials,
+        };
+        let body = match cf {
+            ContentFormat::DEPTH_CLOUD => clouds::depth_cloud(&merged.parts),
+            _ => cloud_body(cf, &merged.cloud.points, merged.timestamp_us, source),
+        };
+        let body = match body {
+            Ok(body) => body,
+            Err(e) => return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
+        };
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        body.hash(&mut h);
+        content(body, cf, h.finish().to_be_bytes())
+    }
+
+    /// A new cloud of every camera, each in the common frame, merged (cameras with `icp`
+    /// registered onto those before them); a camera whose grab fails is left out, with
+    /// the reason in `failed`.
+    async fn grab_merged(&self) -> Merged {
         let cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
             .iter()
             .map(|(sn, c)| (*sn, c.clone()))
@@ -507,37 +552,57 @@ impl Cams {
             })
             .collect();
         let mut parts = Vec::new();
+        let mut failed = Vec::new();
         for (sn, icp, task) in tasks {
             match task.await {
                 Ok(Ok(Frame::Cloud { points, part })) => parts.push((sn, icp, points, part)),
                 Ok(Ok(_)) => {}
-                Ok(Err(e)) => tracing::warn!(serial = %sn, "pointclouds: {e}"),
-                Err(e) => tracing::warn!(serial = %sn, "pointclouds: grab task: {e}"),
+                Ok(Err(e)) => {
+                    tracing::warn!(serial = %sn, "pointclouds: {e}");
+                    failed.push(format!("camera {sn}: {e}"));
+                }
+                Err(e) => {
+                    tracing::warn!(serial = %sn, "pointclouds: grab task: {e}");
+                    failed.push(format!("camera {sn}: grab task: {e}"));
+                }
             }
         }
         let serials: Vec<Serial> = parts.iter().map(|(sn, ..)| *sn).collect();
-        let newest_us = parts.iter().map(|(.., part)| part.depth.timestamp_us).max();
-        let timestamp_us = newest_us.unwrap_or_else(|| {
+        let frames_us: Vec<u64> = parts
+            .iter()
+            .map(|(.., part)| part.depth.timestamp_us)
+            .collect();
+        let timestamp_us = frames_us.iter().copied().max().unwrap_or_else(|| {
             SystemTime::now()
                 .duration_since(SystemTime::UNIX_EPOCH)
                 .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX))
         });
-        let (merged, parts) = tokio::task::spawn_blocking(move || register_and_merge(parts))
+        let (cloud, parts) = tokio::task::spawn_blocking(move || register_and_merge(parts))
             .await
             .unwrap_or_default();
-        let source = CloudSource::Merged { serials: &serials };
-        let body = match cf {
-            ContentFormat::DEPTH_CLOUD => clouds::depth_cloud(&parts),
-            _ => cloud_body(cf, &merged.points, timestamp_us, source),
-        };
-        let body = match body {
-            Ok(body) => body,
-            Err(e) => return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
-        };
-        let mut h = std::collections::hash_map::DefaultHasher::new();
-        body.hash(&mut h);
-        content(body, cf, h.finish().to_be_bytes())
+        Merged {
+            cloud,
+            parts,
+            serials,
+            frames_us,
+            timestamp_us,
+            failed,
+        }
     }
+}
+
+/// What [`Cams::grab_merged`] collected.
+struct Merged {
+    cloud: PointCloud,
+    parts: Vec<DepthPart>,
+    /// The cameras in the cloud, in merge order.
+    serials: Vec<Serial>,
+    /// Their frames' timestamps, microseconds since the UNIX epoch.
+    frames_us: Vec<u64>,
+    /// The newest frame's (now, when there is none).
+    timestamp_us: u64,
+    /// Why cameras were left out.
+    failed: Vec<String>,
 }
 
 /// ICP finds a camera's correction on clouds thinned to one point per cube of this edge

@@ -1,0 +1,408 @@
+//! What a measurement reports, wherever it was made (the client's `measure`, or the
+//! server's `/cams/dimensions`): the parcel, its billing and the codes seen, as one JSON
+//! document (docs/design.md §6), and the text `measure` prints from that document.
+
+use std::collections::BTreeMap;
+
+use anyhow::Context as _;
+use geometry::{DimensionConfig, DimensionError, Dimensions, PointCloud};
+use serde_json::{Map, Value, json};
+
+use crate::vision::codes::{Code, CodeKind};
+
+/// How a measurement is reported to an integrator's billing: the volumetric divisor and
+/// the scale division the dimensions are rounded up to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Billing {
+    /// Divisor of the volumetric weight, cm³ per kg: 5000 by default (the courier
+    /// convention), 6000 with some carriers.
+    pub divisor_cm3_per_kg: f64,
+    /// Round each dimension up to a multiple of this many millimetres (a scale
+    /// division, e.g. 5); `None` reports them to 0.1 mm.
+    pub division_mm: Option<f64>,
+}
+
+impl Default for Billing {
+    fn default() -> Self {
+        Self {
+            divisor_cm3_per_kg: 5000.0,
+            division_mm: None,
+        }
+    }
+}
+
+impl Billing {
+    /// Length, width and height in millimetres as reported: rounded up to the division,
+    /// else to 0.1 mm.
+    pub fn dimensions_mm(&self, d: &Dimensions) -> [f64; 3] {
+        [d.length_mm, d.width_mm, d.height_mm].map(|v| match self.division_mm {
+            Some(step) => (v / step - 1e-9).ceil() * step,
+            None => (v * 10.0).round() / 10.0,
+        })
+    }
+
+    /// The volume of the reported dimensions, litres.
+    pub fn volume_l(&self, d: &Dimensions) -> f64 {
+        let [l, w, h] = self.dimensions_mm(d);
+        l * w * h / 1e6
+    }
+
+    /// The volumetric weight of the reported dimensions: cm³ over the divisor, kg.
+    pub fn volumetric_weight_kg(&self, d: &Dimensions) -> f64 {
+        self.volume_l(d) * 1000.0 / self.divisor_cm3_per_kg
+    }
+}
+
+/// What a measurement found on the table.
+#[derive(Debug, Clone)]
+pub enum Parcel {
+    /// The largest object above the floor, measured.
+    Measured(Dimensions),
+    /// Nothing on the table: the largest object above the floor has fewer points than a
+    /// measurement needs.
+    Nothing {
+        /// Points of the largest object above the floor (0 when there is none).
+        points: usize,
+    },
+}
+
+impl Parcel {
+    /// Measures the largest parcel in `cloud` (blocking: run it off the executor).
+    pub fn measure(cloud: &PointCloud, config: &DimensionConfig) -> Result<Self, DimensionError> {
+        match geometry::dimension(cloud, config) {
+            Ok(d) => Ok(Self::Measured(d)),
+            Err(DimensionError::TooFewPoints { found, .. }) => Ok(Self::Nothing { points: found }),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// The parcel's fields of the document: `"parcel": "measured"` with the dimensions as
+    /// `billing` reports them, or `"parcel": "nothing"`; units are in the names.
+    pub fn fields(&self, billing: &Billing) -> Map<String, Value> {
+        let mut out = Map::new();
+        match self {
+            Self::Measured(d) => {
+                let [l, w, h] = billing.dimensions_mm(d);
+                let milli = |v: f64| (v * 1000.0).round() / 1000.0;
+                out.insert("parcel".into(), "measured".into());
+                out.insert("length_mm".into(), l.into());
+                out.insert("width_mm".into(), w.into());
+                out.insert("height_mm".into(), h.into());
+                out.insert("division_mm".into(), billing.division_mm.into());
+                out.insert(
+                    "yaw_deg".into(),
+                    ((d.yaw_deg * 100.0).round() / 100.0).into(),
+                );
+                // To 0.1 mm, as the dimensions.
+                let corners = d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4));
+                out.insert("corners_m".into(), json!(corners));
+                out.insert("volume_l".into(), milli(billing.volume_l(d)).into());
+                out.insert(
+                    "volumetric_weight_kg".into(),
+                    milli(billing.volumetric_weight_kg(d)).into(),
+                );
+                out.insert(
+                    "volumetric_divisor_cm3_per_kg".into(),
+                    billing.divisor_cm3_per_kg.into(),
+                );
+                out.insert("parcel_points".into(), d.points.into());
+            }
+            Self::Nothing { points } => {
+                out.insert("parcel".into(), "nothing".into());
+                out.insert("parcel_points".into(), (*points).into());
+            }
+        }
+        out
+    }
+
+    /// The parcel a document describes (the dimensions as reported, corners and yaw).
+    pub fn from_document(doc: &Value) -> anyhow::Result<Self> {
+        let number = |key: &str| {
+            doc[key]
+                .as_f64()
+                .with_context(|| format!("the measurement has no number {key}"))
+        };
+        let points = doc["parcel_points"]
+            .as_u64()
+            .and_then(|n| usize::try_from(n).ok())
+            .context("the measurement has no parcel_points")?;
+        match doc["parcel"].as_str() {
+            Some("measured") => {
+                let corners_m: [[f64; 2]; 4] = serde_json::from_value(doc["corners_m"].clone())
+                    .context("the measurement's corners_m are not four [x, y]")?;
+                let (length_mm, width_mm, height_mm) = (
+                    number("length_mm")?,
+                    number("width_mm")?,
+                    number("height_mm")?,
+                );
+                Ok(Self::Measured(Dimensions {
+                    length_mm,
+                    width_mm,
+                    height_mm,
+                    yaw_deg: number("yaw_deg")?,
+                    corners_m,
+                    volume_l: length_mm * width_mm * height_mm / 1e6,
+                    points,
+                }))
+            }
+            Some("nothing") => Ok(Self::Nothing { points }),
+            other => {
+                anyhow::bail!("the measurement's parcel is {other:?}, not measured or nothing")
+            }
+        }
+    }
+}
+
+/// What a `POST /cams/dimensions` asks for, as its query (the names of `measure`'s
+/// flags).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeQuery {
+    /// Read the codes from a new color image of every camera (`codes`).
+    pub codes: bool,
+    /// `min_height_mm=` and `cluster_mm=`.
+    pub config: DimensionConfig,
+    /// `volumetric_divisor=` and `round_up_mm=`.
+    pub billing: Billing,
+}
+
+impl Default for EdgeQuery {
+    fn default() -> Self {
+        Self {
+            codes: false,
+            config: DimensionConfig::default(),
+            billing: Billing::default(),
+        }
+    }
+}
+
+impl EdgeQuery {
+    /// The Uri-Query items that ask for this (defaults left out).
+    pub fn to_query(&self) -> Vec<String> {
+        let d = Self::default();
+        let mut q = Vec::new();
+        if self.codes {
+            q.push("codes".into());
+        }
+        if self.config.min_height_m != d.config.min_height_m {
+            q.push(format!("min_height_mm={}", self.config.min_height_m * 1e3));
+        }
+        if self.config.cluster_radius_m != d.config.cluster_radius_m {
+            q.push(format!("cluster_mm={}", self.config.cluster_radius_m * 1e3));
+        }
+        if self.billing.divisor_cm3_per_kg != d.billing.divisor_cm3_per_kg {
+            q.push(format!(
+                "volumetric_divisor={}",
+                self.billing.divisor_cm3_per_kg
+            ));
+        }
+        if let Some(mm) = self.billing.division_mm {
+            q.push(format!("round_up_mm={mm}"));
+        }
+        q
+    }
+
+    /// Reads the query items; an unknown item or a value that is not a positive number is
+    /// refused with the reason.
+    pub fn parse<S: AsRef<str>>(items: impl IntoIterator<Item = S>) -> Result<Self, String> {
+        let mut q = Self::default();
+        for item in items {
+            let item = item.as_ref();
+            let (key, value) = item.split_once('=').unwrap_or((item, ""));
+            if key == "codes" {
+                q.codes = match value {
+                    "" | "1" | "true" => true,
+                    "0" | "false" => false,
+                    _ => return Err(format!("codes={value}: give codes, codes=1 or codes=0")),
+                };
+                continue;
+            }
+            if ![
+                "min_height_mm",
+                "cluster_mm",
+                "volumetric_divisor",
+                "round_up_mm",
+            ]
+            .contains(&key)
+            {
+                return Err(format!(
+                    "unknown query item {key}: /cams/dimensions takes codes, min_height_mm, cluster_mm, volumetric_divisor and round_up_mm"
+                ));
+            }
+            let v = match value.parse::<f64>() {
+                Ok(v) if v.is_finite() && v > 0.0 => v,
+                _ => return Err(format!("{key}={value}: not a positive number")),
+            };
+            match key {
+                "min_height_mm" => q.config.min_height_m = (v / 1e3) as f32,
+                "cluster_mm" => q.config.cluster_radius_m = (v / 1e3) as f32,
+                "volumetric_divisor" => q.billing.divisor_cm3_per_kg = v,
+                _ => q.billing.division_mm = Some(v),
+            }
+        }
+        Ok(q)
+    }
+}
+
+/// A code and the cameras that read it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Seen {
+    /// The code.
+    pub code: Code,
+    /// Serials of the cameras whose image it was read from.
+    pub cameras: Vec<String>,
+}
+
+impl Seen {
+    /// Each code once, with the cameras that read it, from what each camera read.
+    pub fn gather(per_camera: impl IntoIterator<Item = (String, Vec<Code>)>) -> Vec<Self> {
+        let mut seen: BTreeMap<Code, Vec<String>> = BTreeMap::new();
+        for (serial, codes) in per_camera {
+            for code in codes {
+                seen.entry(code).or_default().push(serial.clone());
+            }
+        }
+        seen.into_iter()
+            .map(|(code, mut cameras)| {
+                cameras.sort();
+                Self { code, cameras }
+            })
+            .collect()
+    }
+
+    /// The entry of the document's `codes` array.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "kind": self.code.kind.name(),
+            "text": self.code.text,
+            "cameras": self.cameras,
+        })
+    }
+
+    fn from_json(entry: &Value) -> Option<Self> {
+        let kind = match entry["kind"].as_str()? {
+            "qr" => CodeKind::Qr,
+            "code128" => CodeKind::Code128,
+            _ => return None,
+        };
+        let text = entry["text"].as_str()?.to_owned();
+        let cameras = entry["cameras"]
+            .as_array()?
+            .iter()
+            .map(|c| c.as_str().map(str::to_owned))
+            .collect::<Option<_>>()?;
+        Some(Self {
+            code: Code { kind, text },
+            cameras,
+        })
+    }
+}
+
+/// The codes one line of text names: `qr "PKG-0001" (840412060746, ...)`, or `none`.
+pub fn describe(seen: &[Seen]) -> String {
+    if seen.is_empty() {
+        return "none".into();
+    }
+    let each: Vec<String> = seen
+        .iter()
+        .map(|s| format!("{} ({})", s.code, s.cameras.join(", ")))
+        .collect();
+    each.join(", ")
+}
+
+/// The text `measure` prints for its document (the object `measure --json` prints).
+pub fn text(doc: &Value) -> String {
+    let f = |key: &str| doc[key].as_f64().unwrap_or(f64::NAN);
+    let serials: Vec<&str> = doc["cameras"]
+        .as_array()
+        .map(|a| a.iter().filter_map(Value::as_str).collect())
+        .unwrap_or_default();
+    let provenance = format!(
+        "{} points from {} camera(s): {}\n\
+         cycle {:.0} ms (grab and transfer {:.0} ms), {:.2} MB received",
+        doc["cloud_points"],
+        serials.len(),
+        serials.join(", "),
+        f("cycle_ms"),
+        f("grab_ms"),
+        f("received_bytes") / 1e6,
+    );
+    let mut out = if doc["parcel"] == "measured" {
+        let rounded = doc["division_mm"]
+            .as_f64()
+            .map_or_else(String::new, |s| format!(" (rounded up to {s} mm)"));
+        let corners: Vec<String> = doc["corners_m"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .map(|c| {
+                        format!(
+                            "({:.3}, {:.3})",
+                            c[0].as_f64().unwrap_or(f64::NAN),
+                            c[1].as_f64().unwrap_or(f64::NAN)
+                        )
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        format!(
+            "length {:.1} mm  width {:.1} mm  height {:.1} mm{rounded}\n\
+             yaw {:.1} deg  volume {:.2} l  volumetric weight {:.2} kg (divisor {} cm3/kg)\n\
+             footprint corners (m): {}\n\
+             parcel {} points of {provenance}",
+            f("length_mm"),
+            f("width_mm"),
+            f("height_mm"),
+            f("yaw_deg"),
+            f("volume_l"),
+            f("volumetric_weight_kg"),
+            f("volumetric_divisor_cm3_per_kg"),
+            corners.join(" "),
+            doc["parcel_points"],
+        )
+    } else {
+        format!(
+            "nothing on the table (the largest object above the floor has {} points)\n{provenance}",
+            doc["parcel_points"]
+        )
+    };
+    if let Some(codes) = doc["codes"].as_array() {
+        let seen: Vec<Seen> = codes.iter().filter_map(Seen::from_json).collect();
+        out += &format!(
+            "\ncodes: {} (grabbed and read in {:.0} ms)",
+            describe(&seen),
+            f("codes_ms")
+        );
+    }
+    out
+}
+
+/// Milliseconds to 0.1 ms, as the document gives durations.
+pub fn ms(d: std::time::Duration) -> f64 {
+    (d.as_secs_f64() * 1e4).round() / 10.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_query_round_trips_and_refuses_what_it_does_not_know() {
+        assert_eq!(EdgeQuery::parse([""; 0]), Ok(EdgeQuery::default()));
+        let q = EdgeQuery::parse(["codes", "cluster_mm=30", "round_up_mm=5"]).expect("valid");
+        assert!(q.codes);
+        assert_eq!(q.config.cluster_radius_m, 0.03);
+        assert_eq!(q.billing.division_mm, Some(5.0));
+        let items = q.to_query();
+        assert_eq!(EdgeQuery::parse(&items), Ok(q));
+        for bad in [
+            "colour",
+            "cluster_mm=-1",
+            "round_up_mm=x",
+            "codes=yes",
+            "min_height_mm=inf",
+        ] {
+            let why = EdgeQuery::parse([bad]).expect_err(bad);
+            assert!(why.contains(bad.split('=').next().unwrap_or(bad)), "{why}");
+        }
+    }
+}
