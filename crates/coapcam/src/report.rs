@@ -155,7 +155,7 @@ impl Parcel {
 
 /// What a `POST /cams/dimensions` asks for, as its query (the names of `measure`'s
 /// flags).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct EdgeQuery {
     /// Read the codes from a new color image of every camera (`codes`).
     pub codes: bool,
@@ -163,16 +163,6 @@ pub struct EdgeQuery {
     pub config: DimensionConfig,
     /// `volumetric_divisor=` and `round_up_mm=`.
     pub billing: Billing,
-}
-
-impl Default for EdgeQuery {
-    fn default() -> Self {
-        Self {
-            codes: false,
-            config: DimensionConfig::default(),
-            billing: Billing::default(),
-        }
-    }
 }
 
 impl EdgeQuery {

@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 use std::hash::{Hash as _, Hasher as _};
 use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::SystemTime;
+use std::time::{Instant, SystemTime};
 
 use bytes::Bytes;
 use coap::link_format::Filter;
@@ -26,6 +26,7 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
+use crate::report::{self, EdgeQuery, Parcel, Seen};
 use crate::repr::clouds::{self, DepthPart};
 use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
 
@@ -588,6 +589,99 @@ impl Cams {
             timestamp_us,
             failed,
         }
+    }
+
+    /// `POST /cams/dimensions`: a new measurement with every camera of this server (see
+    /// [`edge`]).
+    async fn measure(&self, request: &IncomingRequest) -> Response {
+        let cf = match edge::negotiate(request) {
+            Ok(cf) => cf,
+            Err(refused) => return refused,
+        };
+        let query = match EdgeQuery::parse(request.options.uri_query()) {
+            Ok(q) => q,
+            Err(why) => return Response::diagnostic(Code::BAD_REQUEST, &why),
+        };
+        let cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
+            .iter()
+            .map(|(sn, c)| (*sn, c.clone()))
+            .collect();
+        if cams.is_empty() {
+            return Response::diagnostic(Code::SERVICE_UNAVAILABLE, "no camera is connected");
+        }
+        let started = Instant::now();
+        // The color images for the codes are grabbed and read while the clouds are.
+        let codes = query.codes.then(|| {
+            let cameras = cams
+                .iter()
+                .map(|(sn, cam)| (*sn, cam.camera.clone(), lock(&cam.app).clone()))
+                .collect();
+            edge::read_codes(cameras, started)
+        });
+        let merged = self.grab_merged().await;
+        let grab_ms = report::ms(started.elapsed());
+        let config = query.config;
+        let measured =
+            tokio::task::spawn_blocking(move || (Parcel::measure(&merged.cloud, &config), merged))
+                .await;
+        let (parcel, merged) = match measured {
+            Ok((Ok(parcel), merged)) => (parcel, merged),
+            Ok((Err(e), _)) => {
+                let why = format!("measuring: {e}");
+                return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
+            }
+            Err(e) => {
+                let why = format!("measuring task: {e}");
+                return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
+            }
+        };
+        let mut doc = parcel.fields(&query.billing);
+        let mut warnings = merged.failed;
+        let serials: Vec<String> = merged.serials.iter().map(ToString::to_string).collect();
+        doc.insert("cloud_points".into(), merged.cloud.len().into());
+        doc.insert("cameras".into(), serials.into());
+        doc.insert("frames_unix_us".into(), merged.frames_us.into());
+        doc.insert("grab_ms".into(), grab_ms.into());
+        if let Some(task) = codes {
+            match task.await {
+                Ok((seen, failed, took)) => {
+                    let seen: Vec<serde_json::Value> = seen.iter().map(Seen::to_json).collect();
+                    doc.insert("codes".into(), seen.into());
+                    doc.insert("codes_ms".into(), report::ms(took).into());
+                    warnings.extend(failed);
+                }
+                Err(e) => warnings.push(format!("code reading: {e}")),
+            }
+        }
+        doc.insert("measure_ms".into(), report::ms(started.elapsed()).into());
+        doc.insert("warnings".into(), warnings.into());
+        let doc = serde_json::Value::Object(doc);
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        doc.to_string().hash(&mut h);
+        let stored = Arc::new((doc, h.finish().to_be_bytes()));
+        *lock(&self.measured) = Some(stored.clone());
+        let _ = self.changed.send(edge::PATH.to_string());
+        measurement(&stored, cf)
+    }
+
+    /// `GET /cams/dimensions`: the latest measurement.
+    fn latest_measurement(&self, request: &IncomingRequest) -> Response {
+        let cf = match edge::negotiate(request) {
+            Ok(cf) => cf,
+            Err(refused) => return refused,
+        };
+        match lock(&self.measured).clone() {
+            Some(stored) => measurement(&stored, cf),
+            None => Response::diagnostic(Code::NOT_FOUND, "no measurement yet: POST measures"),
+        }
+    }
+}
+
+/// A measurement's document as the answer in `cf`.
+fn measurement(stored: &(serde_json::Value, [u8; 8]), cf: ContentFormat) -> Response {
+    match edge::body(stored, cf) {
+        Ok((body, etag)) => content(body, cf, etag),
+        Err(why) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why),
     }
 }
 
