@@ -166,7 +166,7 @@ impl Endpoint {
                 non_tx: Some(0),
                 mid,
             };
-            let t = self.msg.initial_timeout(now, peer, &self.config);
+            let (t, _) = self.msg.initial_timeout(now, peer, &self.config);
             self.msg
                 .schedule(now + t, TimerKind::Step { id, generation });
         }
@@ -185,7 +185,7 @@ impl Endpoint {
     }
 
     /// The ACK timer of a request: the CON it waits for is sent again if due (RFC 7252
-    /// §4.2, the timeout doubling each time), its step fails after MAX_RETRANSMIT; a CON
+    /// §4.2, the timeout growing by its backoff factor), its step fails after MAX_RETRANSMIT; a CON
     /// due later re-arms the timer for then.
     pub(super) fn on_request_ack_timer(&mut self, now: Instant, id: u64, at: Instant) {
         let max = self.config.max_retransmit;
@@ -328,7 +328,7 @@ impl Endpoint {
                     mid,
                 };
                 let peer = r.peer;
-                let t = self.msg.initial_timeout(now, peer, &self.config) * (1u32 << (tx + 1));
+                let t = self.msg.initial_timeout(now, peer, &self.config).0 * (1u32 << (tx + 1));
                 self.msg
                     .schedule(now + t, TimerKind::Step { id, generation });
             }

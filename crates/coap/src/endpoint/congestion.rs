@@ -117,17 +117,16 @@ impl RttEstimator {
         (self.samples > 0).then_some(self.min)
     }
 
-    /// The base timeout of a CON at `now` (before ACK_RANDOM_FACTOR's jitter):
-    /// `SRTT + 4 RTTVAR`, at least 1 s (RFC 6298 (2.4): CON exchanges have no congestion
-    /// control of their own) or `default` if that is shorter (a configured ACK_TIMEOUT
-    /// below 1 s is the owner's choice), at most 60 s; `default` (ACK_TIMEOUT) before any
-    /// sample, and moving back towards it by half every 30 s without a sample.
+    /// The base timeout of a CON at `now` (before ACK_RANDOM_FACTOR's jitter): CoCoA's
+    /// RTO, `SRTT + max(4 RTTVAR, G)` with a granularity G of 100 ms (RFC 6298 (2.3);
+    /// Californium's G) and without RFC 6298's 1 s floor, which CoCoA replaces with its
+    /// variable backoff factor ([`backoff_factor`]), at most 60 s; `default` (ACK_TIMEOUT)
+    /// before any sample, and moving back towards it by half every 30 s without a sample.
     pub(super) fn con_timeout(&self, now: Instant, default: Duration) -> Duration {
         if self.samples == 0 {
             return default;
         }
-        let floor = default.min(Duration::from_secs(1));
-        let rto = (self.srtt + self.rttvar * 4).clamp(floor, Duration::from_secs(60).max(floor));
+        let rto = (self.srtt + (self.rttvar * 4).max(CON_GRANULARITY)).min(Duration::from_secs(60));
         let idle = now.saturating_duration_since(self.last_sample);
         let kept = 0.5f64.powf(idle.as_secs_f64() / AGE_HALF_LIFE.as_secs_f64());
         let (rto, default) = (rto.as_secs_f64(), default.as_secs_f64());
@@ -141,6 +140,22 @@ impl RttEstimator {
             Some(srtt) => srtt + (self.rttvar * 4).max(Duration::from_millis(1)),
             None => default,
         }
+    }
+}
+
+/// G of a CON's RTO ([`RttEstimator::con_timeout`]).
+const CON_GRANULARITY: Duration = Duration::from_millis(100);
+
+/// CoCoA's variable backoff factor: what a CON's timeout is multiplied by at each
+/// retransmission, chosen by its first timeout: 3 below 1 s (a short RTO backs off fast),
+/// 1.5 above 3 s, else RFC 7252's 2.
+pub(super) fn backoff_factor(first_timeout: Duration) -> f64 {
+    if first_timeout < Duration::from_secs(1) {
+        3.0
+    } else if first_timeout > Duration::from_secs(3) {
+        1.5
+    } else {
+        2.0
     }
 }
 

@@ -12,7 +12,7 @@ use bytes::{Bytes, BytesMut};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
 
-use super::congestion::{Bbr, RttEstimator};
+use super::congestion::{Bbr, RttEstimator, backoff_factor};
 use super::types::{PathStats, Transmit};
 use crate::config::EndpointConfig;
 use crate::dedup::Dedup;
@@ -83,6 +83,8 @@ pub(super) struct OutCon {
     /// When it was first sent (its round trip is measured from there).
     pub(super) first_sent: Instant,
     timeout: Duration,
+    /// What `timeout` is multiplied by at each retransmission (CoCoA's variable backoff).
+    backoff: f64,
     /// When it is sent again (or given up) unless acknowledged.
     at: Instant,
     pub(super) purpose: Purpose,
@@ -274,25 +276,29 @@ impl MessageLayer {
     }
 
     /// The timeout of a CON (or a NON request) to `peer`: the path's estimate (ACK_TIMEOUT
-    /// before one exists) scaled by a uniform random factor in [1, ACK_RANDOM_FACTOR].
+    /// before one exists) scaled by a uniform random factor in [1, ACK_RANDOM_FACTOR]; and
+    /// what it grows by at each retransmission: CoCoA's variable backoff factor for an
+    /// estimate, RFC 7252's doubling for ACK_TIMEOUT.
     pub(super) fn initial_timeout(
         &mut self,
         now: Instant,
         peer: SocketAddr,
         config: &EndpointConfig,
-    ) -> Duration {
-        let base = self
-            .paths
-            .get(&PeerKey(peer))
-            .map_or(config.ack_timeout, |p| {
-                p.rtt.con_timeout(now, config.ack_timeout)
-            });
+    ) -> (Duration, f64) {
+        let estimate = self.paths.get(&PeerKey(peer)).and_then(|p| {
+            p.rtt
+                .srtt()
+                .is_some()
+                .then(|| p.rtt.con_timeout(now, config.ack_timeout))
+        });
+        let base = estimate.unwrap_or(config.ack_timeout);
         let unit = self.unit();
         let spread = (config.ack_random_factor - 1.0).max(0.0);
         let jitter = base.as_secs_f64() * 1e9 * spread * unit;
         // Whole nanoseconds added, rather than Duration::mul_f64's checked conversion of
         // the product: this runs for every CON of a transfer.
-        base + Duration::from_nanos(jitter as u64)
+        let timeout = base + Duration::from_nanos(jitter as u64);
+        (timeout, estimate.map_or(2.0, |_| backoff_factor(timeout)))
     }
 
     /// An exchange with `peer` first sent at `first_sent` was acknowledged at `now` after
@@ -351,7 +357,7 @@ impl MessageLayer {
         data: Option<Bytes>,
         config: &EndpointConfig,
     ) -> Instant {
-        let timeout = self.initial_timeout(now, peer, config);
+        let (timeout, backoff) = self.initial_timeout(now, peer, config);
         let at = now + timeout;
         let retransmits = data.is_some();
         self.exchanges.insert(
@@ -361,6 +367,7 @@ impl MessageLayer {
                 tx: 0,
                 first_sent: now,
                 timeout,
+                backoff,
                 at,
                 purpose,
             },
@@ -372,7 +379,7 @@ impl MessageLayer {
     }
 
     /// What a request's ACK timer does about its CON (`peer`, `mid`): wait longer, send it
-    /// again now (its timeout doubled, RFC 7252 §4.2) or give it up after MAX_RETRANSMIT.
+    /// again now (its timeout multiplied by the backoff factor) or give it up after MAX_RETRANSMIT.
     pub(super) fn request_con_due(
         &mut self,
         now: Instant,
@@ -388,7 +395,7 @@ impl MessageLayer {
             Due::Later(x.at)
         } else if x.tx < max_retransmit {
             x.tx += 1;
-            x.timeout *= 2;
+            x.timeout = x.timeout.mul_f64(x.backoff);
             x.at = now + x.timeout;
             let at = x.at;
             self.count_retransmission(now, peer);
@@ -400,7 +407,7 @@ impl MessageLayer {
     }
 
     /// The retransmission timer of a CON that keeps its datagram: sent again, the timeout
-    /// doubling (RFC 7252 §4.2); after MAX_RETRANSMIT it is given up and its purpose
+    /// growing by the backoff factor; after MAX_RETRANSMIT it is given up and its purpose
     /// returned.
     pub(super) fn on_retransmit_timer(
         &mut self,
@@ -419,7 +426,7 @@ impl MessageLayer {
             debug_assert!(x.data.is_some(), "a request's CON has its own ACK timer");
             let data = x.data.clone()?;
             x.tx += 1;
-            x.timeout *= 2;
+            x.timeout = x.timeout.mul_f64(x.backoff);
             x.at = now + x.timeout;
             let (at, tx) = (x.at, x.tx);
             self.outbox.queue.push_back(Transmit { peer, data });

@@ -141,6 +141,56 @@ fn rfc7252_4_2_retransmission_instants_double_with_jitter() {
 }
 
 #[test]
+fn cocoa_a_measured_path_retransmits_after_its_rto_backing_off_by_three() {
+    // One exchange over 10 ms each way gives SRTT 20 ms, RTTVAR 10 ms: the RTO is
+    // SRTT + max(4 RTTVAR, 100 ms) = 120 ms (no 1 s floor), T = 120-180 ms with the jitter;
+    // below 1 s the timeout triples at each retransmission: 0, T, 4T, 13T, 40T, failing at
+    // 121T (RFC 7252's doubling from ACK_TIMEOUT would wait 2-3 s before the first).
+    let mut sim = Sim::new(LinkConfig {
+        delay: Duration::from_millis(10),
+        ..LinkConfig::default()
+    });
+    let c = sim.add(cfg(7), None);
+    let s = sim.add(cfg(8), Some(echo_server()));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/x"));
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    assert!(matches!(sim.nodes[c].events[0].1, Event::Response { .. }));
+    sim.link.loss = 1.0;
+    sim.log.clear();
+    sim.nodes[c].events.clear();
+    let start = sim.elapsed();
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/y"));
+    assert!(sim.run_to_event(c, Duration::from_secs(60)));
+    let times: Vec<f64> = sim
+        .log
+        .iter()
+        .map(|r| (r.at - start).as_secs_f64() * 1e3)
+        .collect();
+    assert_eq!(times.len(), 5, "{times:?}");
+    let t = times[1];
+    assert!((120.0..=180.0).contains(&t), "first timeout {t} ms");
+    for (k, at) in times.iter().enumerate() {
+        let expected = t * (3f64.powi(k as i32) - 1.0) / 2.0;
+        assert!(
+            (at - expected).abs() <= 2.0,
+            "transmission {k} at {at} ms, expected {expected}"
+        );
+    }
+    let failed_at = (sim.nodes[c].events[0].0 - start).as_secs_f64() * 1e3;
+    assert!(
+        (failed_at - 121.0 * t).abs() <= 3.0,
+        "failed at {failed_at} ms, T = {t} ms"
+    );
+}
+
+#[test]
 fn rfc7252_4_8_transmission_parameters_are_configurable() {
     let mut sim = Sim::new(LinkConfig {
         loss: 1.0,
