@@ -48,9 +48,12 @@ docs = [json.loads(line) for line in open(path)]
 cycle = [d["cycle_ms"] for d in docs]
 process = [d["process_ms"] for d in docs]
 size = statistics.median(d["received_bytes"] for d in docs)
-dims = {(round(d["length_mm"]), round(d["width_mm"]), round(d["height_mm"])) for d in docs}
+dims = {(round(d["length_mm"]), round(d["width_mm"]), round(d["height_mm"]))
+        for d in docs if d["parcel"] == "measured"}
+nothing = sum(d["parcel"] != "measured" for d in docs)
 print(f"| {name} | {len(docs)} | {statistics.median(cycle):.0f} | {min(cycle):.0f}-{max(cycle):.0f} "
-      f"| {statistics.median(process):.0f} | {size:,.0f} | {', '.join('x'.join(map(str, d)) for d in sorted(dims))} |")
+      f"| {statistics.median(process):.0f} | {size:,.0f} | {', '.join('x'.join(map(str, d)) for d in sorted(dims))}"
+      + (f", nothing measured in {nothing}" if nothing else "") + " |")
 PY
 }
 

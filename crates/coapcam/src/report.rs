@@ -168,16 +168,18 @@ pub struct EdgeQuery {
 impl EdgeQuery {
     /// The Uri-Query items that ask for this (defaults left out).
     pub fn to_query(&self) -> Vec<String> {
+        // Millimetres of f32 metres to 0.1 µm, without the f32's tail (30, not 29.999999).
+        let mm = |m: f32| (f64::from(m) * 1e7).round() / 1e4;
         let d = Self::default();
         let mut q = Vec::new();
         if self.codes {
             q.push("codes".into());
         }
         if self.config.min_height_m != d.config.min_height_m {
-            q.push(format!("min_height_mm={}", self.config.min_height_m * 1e3));
+            q.push(format!("min_height_mm={}", mm(self.config.min_height_m)));
         }
         if self.config.cluster_radius_m != d.config.cluster_radius_m {
-            q.push(format!("cluster_mm={}", self.config.cluster_radius_m * 1e3));
+            q.push(format!("cluster_mm={}", mm(self.config.cluster_radius_m)));
         }
         if self.billing.divisor_cm3_per_kg != d.billing.divisor_cm3_per_kg {
             q.push(format!(
@@ -191,8 +193,8 @@ impl EdgeQuery {
         q
     }
 
-    /// Reads the query items; an unknown item or a value that is not a positive number is
-    /// refused with the reason.
+    /// Reads the query items; an unknown item or a value outside its range
+    /// ([`EdgeQuery::RANGES`]) is refused with the reason.
     pub fn parse<S: AsRef<str>>(items: impl IntoIterator<Item = S>) -> Result<Self, String> {
         let mut q = Self::default();
         for item in items {
@@ -206,21 +208,14 @@ impl EdgeQuery {
                 };
                 continue;
             }
-            if ![
-                "min_height_mm",
-                "cluster_mm",
-                "volumetric_divisor",
-                "round_up_mm",
-            ]
-            .contains(&key)
-            {
+            let Some((_, lo, hi)) = Self::RANGES.iter().find(|(k, ..)| *k == key) else {
                 return Err(format!(
                     "unknown query item {key}: /cams/dimensions takes codes, min_height_mm, cluster_mm, volumetric_divisor and round_up_mm"
                 ));
-            }
+            };
             let v = match value.parse::<f64>() {
-                Ok(v) if v.is_finite() && v > 0.0 => v,
-                _ => return Err(format!("{key}={value}: not a positive number")),
+                Ok(v) if (*lo..=*hi).contains(&v) => v,
+                _ => return Err(format!("{key}={value}: not a number from {lo} to {hi}")),
             };
             match key {
                 "min_height_mm" => q.config.min_height_m = (v / 1e3) as f32,
@@ -231,6 +226,14 @@ impl EdgeQuery {
         }
         Ok(q)
     }
+
+    /// The numeric query items and the values each takes (millimetres; cm³ per kg).
+    pub const RANGES: [(&str, f64, f64); 4] = [
+        ("min_height_mm", 0.0, 10_000.0),
+        ("cluster_mm", 0.1, 10_000.0),
+        ("volumetric_divisor", 1.0, 1e7),
+        ("round_up_mm", 0.1, 10_000.0),
+    ];
 }
 
 /// A code and the cameras that read it.
@@ -306,15 +309,22 @@ pub fn text(doc: &Value) -> String {
         .as_array()
         .map(|a| a.iter().filter_map(Value::as_str).collect())
         .unwrap_or_default();
+    let timing = if doc["measure_ms"].is_number() {
+        format!("measured on the server in {:.0} ms", f("measure_ms"))
+    } else {
+        format!("grab and transfer {:.0} ms", f("grab_ms"))
+    };
+    let received = match doc["received_bytes"].as_u64() {
+        Some(n) if n < 100_000 => format!("{n} bytes"),
+        _ => format!("{:.2} MB", f("received_bytes") / 1e6),
+    };
     let provenance = format!(
         "{} points from {} camera(s): {}\n\
-         cycle {:.0} ms (grab and transfer {:.0} ms), {:.2} MB received",
+         cycle {:.0} ms ({timing}), {received} received",
         doc["cloud_points"],
         serials.len(),
         serials.join(", "),
         f("cycle_ms"),
-        f("grab_ms"),
-        f("received_bytes") / 1e6,
     );
     let mut out = if doc["parcel"] == "measured" {
         let rounded = doc["division_mm"]
@@ -383,13 +393,21 @@ mod tests {
         assert_eq!(q.config.cluster_radius_m, 0.03);
         assert_eq!(q.billing.division_mm, Some(5.0));
         let items = q.to_query();
+        assert_eq!(items, ["codes", "cluster_mm=30", "round_up_mm=5"]);
+        assert_eq!(
+            EdgeQuery::parse(["min_height_mm=0"]).map(|q| q.config.min_height_m),
+            Ok(0.0)
+        );
         assert_eq!(EdgeQuery::parse(&items), Ok(q));
         for bad in [
             "colour",
             "cluster_mm=-1",
+            "cluster_mm=0",
             "round_up_mm=x",
             "codes=yes",
             "min_height_mm=inf",
+            "min_height_mm=1e300",
+            "volumetric_divisor=1e-300",
         ] {
             let why = EdgeQuery::parse([bad]).expect_err(bad);
             assert!(why.contains(bad.split('=').next().unwrap_or(bad)), "{why}");

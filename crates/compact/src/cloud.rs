@@ -102,14 +102,18 @@ pub struct Part {
     pub correction: Option<[f32; 12]>,
 }
 
-/// The payload of `parts` (at most [`MAX_PARTS`]), each with its depth image as RVL
-/// ([`rvl::encode`]).
+/// The payload of `parts` (1 to [`MAX_PARTS`]), each with its depth image as RVL
+/// ([`rvl::encode`]); other counts are refused (`InvalidInput`), as the decoder would.
 pub fn encode<'a>(parts: impl IntoIterator<Item = (&'a Part, &'a [u8])>) -> io::Result<Vec<u8>> {
     let mut out = MAGIC.to_vec();
     out.push(0);
-    let mut count = 0u8;
+    let mut count = 0usize;
     for (part, depth) in parts {
         count += 1;
+        if count > MAX_PARTS {
+            let why = format!("a compact cloud holds at most {MAX_PARTS} cameras");
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, why));
+        }
         put_string(&mut out, &part.serial);
         out.extend_from_slice(&part.frame_number.to_le_bytes());
         out.extend_from_slice(&part.timestamp_us.to_le_bytes());
@@ -131,7 +135,11 @@ pub fn encode<'a>(parts: impl IntoIterator<Item = (&'a Part, &'a [u8])>) -> io::
         out.extend_from_slice(&(depth.len() as u32).to_le_bytes());
         out.extend_from_slice(depth);
     }
-    out[MAGIC.len()] = count;
+    if count == 0 {
+        let why = "a compact cloud holds at least one camera's depth";
+        return Err(io::Error::new(io::ErrorKind::InvalidInput, why));
+    }
+    out[MAGIC.len()] = count as u8;
     zstd::bulk::compress(&out, ZSTD_LEVEL)
 }
 
@@ -273,6 +281,20 @@ mod tests {
         assert_eq!(back[0].0, a);
         assert_eq!(back[1].0, b);
         assert_eq!(back[1].1.values, [0, 900, 901, 0, 0, 1200]);
+    }
+
+    #[test]
+    fn the_encoder_refuses_what_the_decoder_would() {
+        let d = depth();
+        assert!(encode([]).is_err(), "no part");
+        let many = vec![part("a"); MAX_PARTS + 1];
+        assert!(
+            encode(many.iter().map(|p| (p, &d[..]))).is_err(),
+            "65 parts"
+        );
+        let most = &many[..MAX_PARTS];
+        let payload = encode(most.iter().map(|p| (p, &d[..]))).expect("64 parts");
+        assert_eq!(decode(&payload).expect("decodes").len(), MAX_PARTS);
     }
 
     /// The uncompressed layout with one field changed by `edit`.

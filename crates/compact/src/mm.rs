@@ -41,9 +41,10 @@ pub struct MmCloud {
 /// millimetres survive the trip through f32 metres exactly.
 pub const MAX_MM: i32 = 1_000_000;
 
-/// Whole millimetres of `metres`, clamped to [`MAX_MM`].
-fn mm(metres: f32) -> i32 {
-    ((metres * 1000.0).round() as i32).clamp(-MAX_MM, MAX_MM)
+/// Whole millimetres of `metres`; `None` beyond [`MAX_MM`] (or not a number).
+fn mm(metres: f32) -> Option<i32> {
+    let v = (metres * 1000.0).round();
+    (v.abs() <= MAX_MM as f32).then_some(v as i32)
 }
 
 fn zigzag(delta: i32) -> u32 {
@@ -55,20 +56,30 @@ fn unzigzag(value: u32) -> i32 {
 }
 
 /// The payload of `points` (metres, within a kilometre of the origin on each axis; at most
-/// [`MAX_POINTS`], at most 255 serials).
+/// [`MAX_POINTS`], at most 255 serials); anything else is refused (`InvalidInput`), as the
+/// decoder would.
 pub fn encode(timestamp_us: u64, serials: &[&str], points: &[[f32; 3]]) -> io::Result<Vec<u8>> {
+    let refuse = |why: String| Err(io::Error::new(io::ErrorKind::InvalidInput, why));
+    if points.len() > MAX_POINTS {
+        return refuse(format!("{} points, at most {MAX_POINTS}", points.len()));
+    }
+    let Ok(cameras) = u8::try_from(serials.len()) else {
+        return refuse(format!("{} cameras, at most 255", serials.len()));
+    };
     let mut out = Vec::with_capacity(32 + points.len() * 4);
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&timestamp_us.to_le_bytes());
-    out.push(serials.len().min(255) as u8);
-    for sn in serials.iter().take(255) {
+    out.push(cameras);
+    for sn in serials {
         put_string(&mut out, sn);
     }
     out.extend_from_slice(&(points.len() as u32).to_le_bytes());
     let mut previous = [0i32; 3];
     for p in points {
         for (axis, v) in p.iter().enumerate() {
-            let v = mm(*v);
+            let Some(v) = mm(*v) else {
+                return refuse(format!("{v} m is not within {MAX_MM} mm of the origin"));
+            };
             put_varint(&mut out, zigzag(v.wrapping_sub(previous[axis])));
             previous[axis] = v;
         }
@@ -141,6 +152,18 @@ mod tests {
             (back.timestamp_us, &back.serials[..]),
             (7, &["ab".to_owned()][..])
         );
+    }
+
+    #[test]
+    fn the_encoder_refuses_what_the_decoder_would() {
+        for bad in [f32::NAN, f32::INFINITY, 1000.001, -1000.001] {
+            assert!(encode(0, &[], &[[0.0, bad, 0.0]]).is_err(), "{bad} m");
+        }
+        assert!(
+            encode(0, &[], &[[1000.0, -1000.0, 0.0]]).is_ok(),
+            "a kilometre"
+        );
+        assert!(encode(0, &["a"; 256], &[]).is_err(), "256 cameras");
     }
 
     #[test]

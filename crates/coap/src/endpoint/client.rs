@@ -316,8 +316,8 @@ impl Endpoint {
             Waiting::Response {
                 non_tx: Some(tx), ..
             } if tx < max => {
-                // A NON request gets no ACK; resend it (new message ID, same token) on
-                // the same back-off schedule a CON would use.
+                // A NON request gets no ACK; resend it (new message ID, same token) after
+                // the timeout a CON would start with, doubling each time.
                 let mid = self.msg.next_mid();
                 let Some(r) = self.client.requests.get_mut(&id) else {
                     return;

@@ -120,7 +120,7 @@ impl RttEstimator {
     /// The base timeout of a CON at `now` (before ACK_RANDOM_FACTOR's jitter): CoCoA's
     /// RTO, `SRTT + max(4 RTTVAR, G)` with a granularity G of 100 ms (RFC 6298 (2.3);
     /// Californium's G) and without RFC 6298's 1 s floor, which CoCoA replaces with its
-    /// variable backoff factor ([`backoff_factor`]), at most 60 s; `default` (ACK_TIMEOUT)
+    /// variable backoff ([`Backoff::cocoa`]), at most 60 s; `default` (ACK_TIMEOUT)
     /// before any sample, and moving back towards it by half every 30 s without a sample.
     pub(super) fn con_timeout(&self, now: Instant, default: Duration) -> Duration {
         if self.samples == 0 {
@@ -146,16 +146,40 @@ impl RttEstimator {
 /// G of a CON's RTO ([`RttEstimator::con_timeout`]).
 const CON_GRANULARITY: Duration = Duration::from_millis(100);
 
-/// CoCoA's variable backoff factor: what a CON's timeout is multiplied by at each
-/// retransmission, chosen by its first timeout: 3 below 1 s (a short RTO backs off fast),
-/// 1.5 above 3 s, else RFC 7252's 2.
-pub(super) fn backoff_factor(first_timeout: Duration) -> f64 {
-    if first_timeout < Duration::from_secs(1) {
-        3.0
-    } else if first_timeout > Duration::from_secs(3) {
-        1.5
-    } else {
-        2.0
+/// How a CON's timeout grows at each retransmission.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Backoff {
+    factor: f64,
+    cap: Duration,
+}
+
+impl Backoff {
+    /// RFC 7252 §4.2: doubling, for a timeout from ACK_TIMEOUT.
+    pub(super) const DOUBLING: Self = Self {
+        factor: 2.0,
+        cap: Duration::MAX,
+    };
+
+    /// CoCoA's variable backoff for a timeout from a round-trip estimate `rto` (before
+    /// the jitter): 3 times below 1 s (a short RTO backs off fast), 1.5 times above 3 s,
+    /// else 2 times; no timeout beyond 32 s.
+    pub(super) fn cocoa(rto: Duration) -> Self {
+        let factor = if rto < Duration::from_secs(1) {
+            3.0
+        } else if rto > Duration::from_secs(3) {
+            1.5
+        } else {
+            2.0
+        };
+        Self {
+            factor,
+            cap: Duration::from_secs(32),
+        }
+    }
+
+    /// The timeout after `timeout` at the next retransmission.
+    pub(super) fn next(self, timeout: Duration) -> Duration {
+        timeout.mul_f64(self.factor).min(self.cap)
     }
 }
 

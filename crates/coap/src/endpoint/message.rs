@@ -12,7 +12,7 @@ use bytes::{Bytes, BytesMut};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
 
-use super::congestion::{Bbr, RttEstimator, backoff_factor};
+use super::congestion::{Backoff, Bbr, RttEstimator};
 use super::types::{PathStats, Transmit};
 use crate::config::EndpointConfig;
 use crate::dedup::Dedup;
@@ -83,8 +83,8 @@ pub(super) struct OutCon {
     /// When it was first sent (its round trip is measured from there).
     pub(super) first_sent: Instant,
     timeout: Duration,
-    /// What `timeout` is multiplied by at each retransmission (CoCoA's variable backoff).
-    backoff: f64,
+    /// How `timeout` grows at each retransmission.
+    backoff: Backoff,
     /// When it is sent again (or given up) unless acknowledged.
     at: Instant,
     pub(super) purpose: Purpose,
@@ -284,13 +284,11 @@ impl MessageLayer {
         now: Instant,
         peer: SocketAddr,
         config: &EndpointConfig,
-    ) -> (Duration, f64) {
-        let estimate = self.paths.get(&PeerKey(peer)).and_then(|p| {
-            p.rtt
-                .srtt()
-                .is_some()
-                .then(|| p.rtt.con_timeout(now, config.ack_timeout))
-        });
+    ) -> (Duration, Backoff) {
+        let estimate = self
+            .paths
+            .get(&PeerKey(peer))
+            .and_then(|p| (p.rtt.srtt()).map(|_| p.rtt.con_timeout(now, config.ack_timeout)));
         let base = estimate.unwrap_or(config.ack_timeout);
         let unit = self.unit();
         let spread = (config.ack_random_factor - 1.0).max(0.0);
@@ -298,7 +296,7 @@ impl MessageLayer {
         // Whole nanoseconds added, rather than Duration::mul_f64's checked conversion of
         // the product: this runs for every CON of a transfer.
         let timeout = base + Duration::from_nanos(jitter as u64);
-        (timeout, estimate.map_or(2.0, |_| backoff_factor(timeout)))
+        (timeout, estimate.map_or(Backoff::DOUBLING, Backoff::cocoa))
     }
 
     /// An exchange with `peer` first sent at `first_sent` was acknowledged at `now` after
@@ -395,7 +393,7 @@ impl MessageLayer {
             Due::Later(x.at)
         } else if x.tx < max_retransmit {
             x.tx += 1;
-            x.timeout = x.timeout.mul_f64(x.backoff);
+            x.timeout = x.backoff.next(x.timeout);
             x.at = now + x.timeout;
             let at = x.at;
             self.count_retransmission(now, peer);
@@ -426,7 +424,7 @@ impl MessageLayer {
             debug_assert!(x.data.is_some(), "a request's CON has its own ACK timer");
             let data = x.data.clone()?;
             x.tx += 1;
-            x.timeout = x.timeout.mul_f64(x.backoff);
+            x.timeout = x.backoff.next(x.timeout);
             x.at = now + x.timeout;
             let (at, tx) = (x.at, x.tx);
             self.outbox.queue.push_back(Transmit { peer, data });

@@ -133,7 +133,8 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             let mut checked = Vec::with_capacity(answers.len());
             for (server, r) in answers {
                 let r = if r.code == Code::NOT_ACCEPTABLE {
-                    CamClient::unicast(client, server).grab_cloud(None).await?
+                    // A server without the compact cloud: its thesis packet.
+                    CamClient::unicast(client, server).grab_all(None).await?
                 } else {
                     check(&format!("POST /cams/pointclouds on {server}"), r)?
                 };

@@ -292,6 +292,38 @@ fn json_resources_refuse_bad_documents_and_survive_a_restart() {
         .payload;
         assert_eq!(color, color_doc);
     });
+
+    // A document broken on disk: the server starts, serves the defaults, and keeps the
+    // broken file aside under a new name for a person to look at.
+    let saved = state.path().join(SN).join("application-config.json");
+    std::fs::write(&saved, b"{ broken").expect("break the saved document");
+    let (_server, addr) = serve(state.path());
+    runtime().block_on(async {
+        let c = client();
+        let r = send(&c, addr, Code::GET, &app_config, b"", None).await;
+        assert_eq!(r.code, Code::CONTENT);
+        assert_ne!(
+            r.payload, first_doc,
+            "the defaults, not the document before"
+        );
+        let color = format!("/cams/{SN}/color-settings");
+        assert_eq!(
+            send(&c, addr, Code::GET, &color, b"", None).await.payload,
+            color_doc
+        );
+    });
+    let aside: Vec<_> = std::fs::read_dir(state.path().join(SN))
+        .expect("the camera's state directory")
+        .filter_map(Result::ok)
+        .filter(|e| {
+            e.file_name()
+                .to_string_lossy()
+                .starts_with("application-config.json.corrupt-")
+        })
+        .collect();
+    assert_eq!(aside.len(), 1, "one document set aside");
+    assert_eq!(std::fs::read(aside[0].path()).expect("kept"), b"{ broken");
+    assert!(!saved.exists(), "nothing in its place until a PUT");
 }
 
 #[test]

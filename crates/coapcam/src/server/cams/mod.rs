@@ -235,7 +235,20 @@ impl Cams {
             Ok(Some(bytes)) => match parse(&bytes) {
                 Ok(v) => Some(v),
                 Err(e) => {
-                    tracing::warn!(serial = %sn, name, "ignoring persisted document: {e}");
+                    // Kept for a person to look at; defaults are served meanwhile.
+                    match self.state.set_aside(sn, name) {
+                        Ok(aside) => tracing::warn!(
+                            serial = %sn,
+                            name,
+                            "the persisted document is not valid ({e}); moved it to {} and serve the defaults",
+                            aside.display()
+                        ),
+                        Err(moving) => tracing::warn!(
+                            serial = %sn,
+                            name,
+                            "the persisted document is not valid ({e}) and could not be moved aside ({moving}); serving the defaults"
+                        ),
+                    }
                     None
                 }
             },
@@ -516,6 +529,11 @@ impl Cams {
             Err(refused) => return refused,
         };
         let merged = self.grab_merged().await;
+        if cf == ContentFormat::DEPTH_CLOUD && merged.parts.is_empty() {
+            // The compact cloud is made of cameras' depth: without one there is nothing
+            // to send in it (the other formats send an empty cloud).
+            return no_cloud(&merged.failed);
+        }
         let source = CloudSource::Merged {
             serials: &merged.serials,
         };
@@ -578,9 +596,19 @@ impl Cams {
                 .duration_since(SystemTime::UNIX_EPOCH)
                 .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX))
         });
-        let (cloud, parts) = tokio::task::spawn_blocking(move || register_and_merge(parts))
-            .await
-            .unwrap_or_default();
+        let (cloud, parts) =
+            match tokio::task::spawn_blocking(move || register_and_merge(parts)).await {
+                Ok(merged) => merged,
+                Err(e) => {
+                    failed.push(format!("merging the clouds: {e}"));
+                    (PointCloud::default(), Vec::new())
+                }
+            };
+        let (serials, frames_us) = if parts.is_empty() {
+            (Vec::new(), Vec::new())
+        } else {
+            (serials, frames_us)
+        };
         Merged {
             cloud,
             parts,
@@ -607,7 +635,7 @@ impl Cams {
             .map(|(sn, c)| (*sn, c.clone()))
             .collect();
         if cams.is_empty() {
-            return Response::diagnostic(Code::SERVICE_UNAVAILABLE, "no camera is connected");
+            return no_cloud(&[]);
         }
         let started = Instant::now();
         // The color images for the codes are grabbed and read while the clouds are.
@@ -619,6 +647,9 @@ impl Cams {
             edge::read_codes(cameras, started)
         });
         let merged = self.grab_merged().await;
+        if merged.parts.is_empty() {
+            return no_cloud(&merged.failed);
+        }
         let grab_ms = report::ms(started.elapsed());
         let config = query.config;
         let measured =
@@ -675,6 +706,16 @@ impl Cams {
             None => Response::diagnostic(Code::NOT_FOUND, "no measurement yet: POST measures"),
         }
     }
+}
+
+/// 5.03 for a request that needs a camera's cloud when no camera gave one, with why.
+fn no_cloud(failed: &[String]) -> Response {
+    let why = if failed.is_empty() {
+        "no camera is connected".to_string()
+    } else {
+        format!("no camera gave a cloud: {}", failed.join("; "))
+    };
+    Response::diagnostic(Code::SERVICE_UNAVAILABLE, &why)
 }
 
 /// A measurement's document as the answer in `cf`.

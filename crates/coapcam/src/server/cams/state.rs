@@ -42,6 +42,35 @@ impl StateDir {
         }
     }
 
+    /// Moves a stored document that could not be read aside, to
+    /// `<name>.json.corrupt-<unix seconds>` (`-2`, `-3`, ... after it when taken), and
+    /// returns where: it is kept for a person to look at, and never overwritten.
+    pub(crate) fn set_aside(&self, serial: &Serial, name: &str) -> io::Result<PathBuf> {
+        let path = self.path(serial, name);
+        let secs = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        for n in 1..1000 {
+            let suffix = if n == 1 {
+                String::new()
+            } else {
+                format!("-{n}")
+            };
+            let aside = path.with_extension(format!("json.corrupt-{secs}{suffix}"));
+            // A hard link fails when the name is taken, where a rename would replace it.
+            match std::fs::hard_link(&path, &aside) {
+                Ok(()) => {
+                    std::fs::remove_file(&path)?;
+                    return Ok(aside);
+                }
+                Err(e) if e.kind() == io::ErrorKind::AlreadyExists => {}
+                Err(e) => return Err(e),
+            }
+        }
+        let why = format!("{}: no free name to set it aside", path.display());
+        Err(io::Error::new(io::ErrorKind::AlreadyExists, why))
+    }
+
     /// Replaces the stored document; a reader sees the old or the new one, never a part.
     /// Each write has a temporary file of its own (two writers never share one), removed
     /// when the write fails.
@@ -83,6 +112,24 @@ mod tests {
             dir.load(&sn, "color-settings").ok().flatten(),
             Some(b"{\"a\":1}".to_vec())
         );
+        let _ = std::fs::remove_dir_all(&root);
+    }
+
+    #[test]
+    fn a_document_set_aside_keeps_its_bytes_and_never_replaces_another() {
+        let root = std::env::temp_dir().join(format!("coapcam-state-aside-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let dir = StateDir::new(&root);
+        let sn = Serial::parse("840412060746").expect("serial");
+        let mut aside = Vec::new();
+        for body in [&b"{ broken"[..], b"\x00\x01"] {
+            dir.store(&sn, "application-config", body).expect("store");
+            let path = dir.set_aside(&sn, "application-config").expect("set aside");
+            assert_eq!(std::fs::read(&path).expect("kept"), body);
+            aside.push(path);
+        }
+        assert_ne!(aside[0], aside[1], "the second did not replace the first");
+        assert!(matches!(dir.load(&sn, "application-config"), Ok(None)));
         let _ = std::fs::remove_dir_all(&root);
     }
 
