@@ -274,11 +274,9 @@ impl StaticFiles {
     }
 
     fn put(&self, name: Option<String>, request: &IncomingRequest) -> Response {
-        let Some(name) = name.filter(|n| valid_name(n)) else {
-            return Response::diagnostic(
-                Code::BAD_REQUEST,
-                "a file name must not be empty, start with '.' or contain '/'",
-            );
+        let name = match self.writable_name(name) {
+            Ok(name) => name,
+            Err(refused) => return refused,
         };
         let current = self.read().get(&name).map(|f| f.etag);
         if let Some(refused) = check_preconditions(request, current.as_ref().map(|e| &e[..])) {
@@ -316,8 +314,9 @@ impl StaticFiles {
     }
 
     fn delete(&self, name: Option<String>) -> Response {
-        let Some(name) = name.filter(|n| valid_name(n)) else {
-            return Response::diagnostic(Code::BAD_REQUEST, "bad file name");
+        let name = match self.writable_name(name) {
+            Ok(name) => name,
+            Err(refused) => return refused,
         };
         match fs::remove_file(self.dir.join(&name)) {
             Ok(()) => {
@@ -327,13 +326,47 @@ impl StaticFiles {
             Err(e) if e.kind() == io::ErrorKind::NotFound => {
                 Response::diagnostic(Code::NOT_FOUND, "no such file")
             }
-            Err(e) => Response::diagnostic(
-                Code::INTERNAL_SERVER_ERROR,
-                &format!("deleting {name}: {e}"),
-            ),
+            Err(e) => {
+                tracing::warn!(name, "deleting: {e}");
+                Response::diagnostic(
+                    Code::INTERNAL_SERVER_ERROR,
+                    &format!("could not delete {name}"),
+                )
+            }
+        }
+    }
+
+    /// The name a PUT or DELETE may change: valid, short enough for its temporary file
+    /// (4.00 otherwise), and naming nothing or a regular file: a directory, a symbolic
+    /// link, a FIFO or a device in the directory is left alone (4.05).
+    #[expect(
+        clippy::result_large_err,
+        reason = "a refusal is the Response sent; it keeps its options inline"
+    )]
+    fn writable_name(&self, name: Option<String>) -> Result<String, Response> {
+        let Some(name) = name.filter(|n| valid_name(n)) else {
+            return Err(Response::diagnostic(
+                Code::BAD_REQUEST,
+                "a file name must not be empty, start with '.' or contain '/'",
+            ));
+        };
+        if name.len() > MAX_NAME {
+            let why = format!("a file name is at most {MAX_NAME} bytes");
+            return Err(Response::diagnostic(Code::BAD_REQUEST, &why));
+        }
+        match fs::symlink_metadata(self.dir.join(&name)) {
+            Ok(meta) if !meta.file_type().is_file() => Err(Response::diagnostic(
+                Code::METHOD_NOT_ALLOWED,
+                &format!("{name} is not a regular file; only regular files are changed"),
+            )),
+            _ => Ok(name),
         }
     }
 }
+
+/// Longest file name a client may write: its temporary file (`.<name>.<pid>.<n>.tmp`)
+/// must fit the 255 bytes a name may have on Linux file systems.
+const MAX_NAME: usize = 200;
 
 /// One GET's view of a file, read a window at a time, and only while the file at its path
 /// still has the stamp its ETag was computed for. The file is opened for each window, not

@@ -7,6 +7,7 @@ mod bench_transfer;
 mod cams;
 mod client;
 mod exits;
+mod files;
 mod formats;
 mod get;
 mod group;

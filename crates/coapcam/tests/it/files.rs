@@ -1,0 +1,85 @@
+//! `coapcam serve --static DIR --writable`: clients change regular files and nothing else.
+
+use std::os::unix::fs::symlink;
+
+use coap::Code;
+
+use crate::support::{TempDir, client, our_server, runtime, send};
+
+#[test]
+fn only_regular_files_are_replaced_or_removed() {
+    let served = TempDir::new("files-regular");
+    let outside = TempDir::new("files-outside");
+    let dir = served.path();
+    std::fs::write(dir.join("a.txt"), b"a").expect("a.txt");
+    std::fs::create_dir(dir.join("sub")).expect("sub");
+    std::fs::write(outside.path().join("target.txt"), b"kept").expect("target");
+    symlink(outside.path().join("target.txt"), dir.join("link")).expect("symlink");
+    let made = std::process::Command::new("mkfifo")
+        .arg(dir.join("pipe"))
+        .status()
+        .expect("mkfifo runs");
+    assert!(made.success());
+    let (_server, addr) = our_server(dir, true);
+    runtime().block_on(async {
+        let c = client();
+        for (method, name) in [
+            (Code::DELETE, "sub"),
+            (Code::PUT, "sub"),
+            (Code::PUT, "link"),
+            (Code::DELETE, "link"),
+            (Code::PUT, "pipe"),
+            (Code::DELETE, "pipe"),
+        ] {
+            let r = send(&c, addr, method, &format!("/files/{name}"), b"new", None).await;
+            assert_eq!(r.code, Code::METHOD_NOT_ALLOWED, "{method:?} {name}");
+            let text = String::from_utf8_lossy(&r.payload);
+            assert!(text.contains("not a regular file"), "{text}");
+            assert!(!text.contains("os error"), "no OS text: {text}");
+        }
+        // The longest name whose temporary file still fits 255 bytes, and one more.
+        let longest = "x".repeat(200);
+        let path = format!("/files/{longest}");
+        assert_eq!(
+            send(&c, addr, Code::PUT, &path, b"x", None).await.code,
+            Code::CREATED
+        );
+        let r = send(
+            &c,
+            addr,
+            Code::PUT,
+            &format!("/files/{longest}y"),
+            b"x",
+            None,
+        )
+        .await;
+        assert_eq!(r.code, Code::BAD_REQUEST);
+        assert!(String::from_utf8_lossy(&r.payload).contains("200 bytes"));
+        assert_eq!(
+            send(&c, addr, Code::PUT, "/files/a.txt", b"b", None)
+                .await
+                .code,
+            Code::CHANGED
+        );
+        assert_eq!(
+            send(&c, addr, Code::DELETE, "/files/a.txt", b"", None)
+                .await
+                .code,
+            Code::DELETED
+        );
+    });
+    assert!(dir.join("sub").is_dir());
+    assert!(
+        dir.join("link")
+            .symlink_metadata()
+            .expect("link")
+            .file_type()
+            .is_symlink()
+    );
+    assert_eq!(
+        std::fs::read(outside.path().join("target.txt")).expect("target"),
+        b"kept"
+    );
+    assert!(dir.join("pipe").symlink_metadata().is_ok());
+    assert!(!dir.join("a.txt").exists());
+}
