@@ -25,8 +25,9 @@ pub(crate) struct MeasureArgs {
     /// Measure with this camera only (12-digit serial).
     #[arg(long, value_name = "SN", conflicts_with_all = ["all", "group"])]
     camera: Option<String>,
-    /// Measure with every camera of the server, merged (POST /cams/pointclouds); the
-    /// default when neither --camera nor --group is given.
+    /// Measure with every camera of the server, merged: on the server when it offers it
+    /// (see --edge), else from its merged clouds (POST /cams/pointclouds); the default
+    /// when neither --camera nor --group is given.
     #[arg(long)]
     all: bool,
     /// Ask every server of this multicast group (e.g. 224.0.1.187 or
