@@ -18,7 +18,7 @@ pub mod uri;
 pub use client::{BodyPart, BodyStream, Client, Observation};
 pub use coap;
 pub use driver::{EndpointHandle, Progress};
-pub use router::{Ctx, Resource, Router, handler};
+pub use router::{Ctx, Policy, Resource, Router, handler};
 pub use server::{Server, ServerConfig};
 pub use uri::Uri;
 

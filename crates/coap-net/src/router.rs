@@ -46,6 +46,8 @@ pub struct Resource {
     methods: Vec<(Code, Handler)>,
     attrs: Vec<(String, Option<String>)>,
     observable: bool,
+    /// Methods that change the server's configuration ([`Router::set_policy`]).
+    configuring: Vec<Code>,
 }
 
 impl std::fmt::Debug for Resource {
@@ -112,6 +114,13 @@ impl Resource {
         self.observable
     }
 
+    /// Marks `methods` as changing the server's configuration: the router's policy
+    /// ([`Router::set_policy`]) decides who may use them.
+    pub fn configuring(mut self, methods: &[Code]) -> Self {
+        self.configuring.extend_from_slice(methods);
+        self
+    }
+
     fn handler(&self, method: Code) -> Option<&Handler> {
         self.methods
             .iter()
@@ -167,7 +176,12 @@ struct Entry {
 #[derive(Default)]
 pub struct Router {
     entries: RwLock<Vec<Entry>>,
+    policy: RwLock<Option<Policy>>,
 }
+
+/// Who may change the configuration: the answer to a request it refuses, `None` for one
+/// it lets through.
+pub type Policy = Arc<dyn Fn(&IncomingRequest) -> Option<Response> + Send + Sync>;
 
 impl std::fmt::Debug for Router {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -191,6 +205,15 @@ impl Router {
     /// An empty router (it still answers `/.well-known/core`).
     pub fn new() -> Arc<Self> {
         Arc::new(Self::default())
+    }
+
+    /// Sets who may use the methods resources mark as [`Resource::configuring`]; without a
+    /// policy anyone may.
+    pub fn set_policy(&self, policy: Policy) {
+        *self
+            .policy
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(policy);
     }
 
     /// Adds or replaces the resource at `pattern` (`/files/a.bin`, `/cams/{sn}/color`).
@@ -329,6 +352,14 @@ impl Router {
                 "method not allowed on this resource",
             );
         };
+        if resource.configuring.contains(&request.method) {
+            let policy = (self.policy.read())
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .clone();
+            if let Some(refused) = policy.and_then(|refuses| refuses(&request)) {
+                return refused;
+            }
+        }
         let etags: Vec<Vec<u8>> = request
             .options
             .values(OptionNumber::ETAG)
@@ -413,5 +444,53 @@ mod tests {
         );
         assert!(router.patterns().is_empty());
         assert!(!router.remove("/cams/1/color"));
+    }
+
+    #[test]
+    fn the_policy_decides_only_the_methods_marked_configuring() {
+        let router = Router::new();
+        let ok = || handler(|_ctx| async { Response::new(Code::CHANGED) });
+        router.add(
+            "/cfg",
+            Resource::new()
+                .get(ok())
+                .put(ok())
+                .post(ok())
+                .configuring(&[Code::PUT]),
+        );
+        let request = |method: Code, peer: &str| IncomingRequest {
+            id: coap::IncomingId(1),
+            peer: peer.parse().expect("address"),
+            method,
+            options: coap::Request::new(method, "/cfg").options,
+            payload: bytes::Bytes::new(),
+            multicast: false,
+            confirmable: true,
+            observe: None,
+        };
+        let code = |method, peer| {
+            let runtime = tokio::runtime::Builder::new_current_thread()
+                .build()
+                .expect("runtime");
+            runtime
+                .block_on(router.dispatch(request(method, peer)))
+                .code
+        };
+        assert_eq!(
+            code(Code::PUT, "192.0.2.7:5683"),
+            Code::CHANGED,
+            "no policy yet"
+        );
+        router.set_policy(Arc::new(|r: &IncomingRequest| {
+            (!r.peer.ip().is_loopback()).then(|| Response::new(Code::FORBIDDEN))
+        }));
+        assert_eq!(code(Code::PUT, "192.0.2.7:5683"), Code::FORBIDDEN);
+        assert_eq!(code(Code::PUT, "127.0.0.1:5683"), Code::CHANGED);
+        assert_eq!(
+            code(Code::POST, "192.0.2.7:5683"),
+            Code::CHANGED,
+            "POST is not marked"
+        );
+        assert_eq!(code(Code::GET, "192.0.2.7:5683"), Code::CHANGED);
     }
 }

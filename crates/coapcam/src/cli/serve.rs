@@ -71,6 +71,12 @@ pub(crate) struct ServeArgs {
     /// IPv6 interface index for --group (0: the system's default).
     #[arg(long, value_name = "INDEX", default_value_t = 0)]
     group_interface: u32,
+    /// Accept configuration changes (PUT and DELETE, and POST to /coap-group, /files and
+    /// /cams/<name>) from any address. Without it they are accepted only from this
+    /// machine (loopback) and answer 4.03 from elsewhere: coapcam has no authentication
+    /// yet, so anyone who can reach the port could change the cameras.
+    #[arg(long)]
+    allow_unauthenticated_config: bool,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
@@ -121,8 +127,18 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         groups: args.group.clone(),
         group_interface: args.group_interface,
         endpoint: args.transmission.endpoint_config(),
+        allow_unauthenticated_config: args.allow_unauthenticated_config,
     })
     .await?;
+    if args.allow_unauthenticated_config {
+        eprintln!(
+            "coapcam: warning: anyone who can reach this server may change its configuration (--allow-unauthenticated-config)"
+        );
+    } else {
+        eprintln!(
+            "coapcam: configuration changes are accepted only from this machine (--allow-unauthenticated-config accepts them from anywhere)"
+        );
+    }
     // Both handlers are in place before the server announces itself: a signal sent as soon
     // as "serving on" appears stops the server cleanly instead of killing it.
     let mut terminate =

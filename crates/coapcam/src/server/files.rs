@@ -199,6 +199,7 @@ impl StaticFiles {
             let response = me.post(&ctx.request);
             async move { response }
         }))
+        .configuring(&[Code::PUT, Code::DELETE, Code::POST])
     }
 
     fn get(&self, name: Option<String>) -> Response {

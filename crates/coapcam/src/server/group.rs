@@ -103,7 +103,8 @@ impl Groups {
                     async move { me.create(&ctx.request).await }
                 }))
                 .attr("rt", "core.gp")
-                .attr("ct", ContentFormat::COAP_GROUP_JSON.0.to_string()),
+                .attr("ct", ContentFormat::COAP_GROUP_JSON.0.to_string())
+                .configuring(&[Code::POST]),
         );
         let (get, put, delete) = (me.clone(), me.clone(), me.clone());
         router.add(
@@ -120,7 +121,8 @@ impl Groups {
                 .delete(handler(move |ctx| {
                     let me = delete.clone();
                     async move { me.delete(index_of(&ctx)).await }
-                })),
+                }))
+                .configuring(&[Code::PUT, Code::DELETE]),
         );
         me
     }

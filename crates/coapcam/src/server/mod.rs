@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context as _, bail};
-use coap::EndpointConfig;
+use coap::{Code, EndpointConfig, IncomingRequest, Response};
 use coap_net::{Router, Server, ServerConfig};
 use rgbd::backend::playback::PlaybackCamera;
 use rgbd::backend::realsense::LibrarySearch;
@@ -71,6 +71,23 @@ pub struct StationConfig {
     pub group_interface: u32,
     /// Transmission parameters and limits of the endpoint.
     pub endpoint: EndpointConfig,
+    /// Accept configuration changes from any address, not only from this machine
+    /// ([`loopback_only`]).
+    pub allow_unauthenticated_config: bool,
+}
+
+/// The policy of a server without security configured: configuration changes (PUT and
+/// DELETE, and POST to `/coap-group`, `/files` and the creation resources `/cams/<name>`)
+/// come from this machine only (a loopback address); anything else answers 4.03. The
+/// answer is the refusal, `None` letting the request through.
+pub fn loopback_only(request: &IncomingRequest) -> Option<Response> {
+    if request.peer.ip().to_canonical().is_loopback() {
+        return None;
+    }
+    Some(Response::diagnostic(
+        Code::FORBIDDEN,
+        "configuration changes are accepted only from the server's own machine (its operator can allow them with serve --allow-unauthenticated-config)",
+    ))
 }
 
 /// A running camera server: bound, its cameras routed, its groups joined.
@@ -87,6 +104,9 @@ impl Station {
     /// Builds the resource tree of `config`, binds every address and joins the groups.
     pub async fn start(config: StationConfig) -> anyhow::Result<Self> {
         let router = Router::new();
+        if !config.allow_unauthenticated_config {
+            router.set_policy(Arc::new(loopback_only));
+        }
         let (changed_tx, changed) = mpsc::unbounded_channel::<String>();
         let (membership_tx, memberships) = mpsc::unbounded_channel();
         let groups = Groups::register(&router, membership_tx);
@@ -200,6 +220,7 @@ impl SceneServer {
     /// `state_dir`.
     pub async fn start(scene: &Scene, state_dir: &Path, bind: SocketAddr) -> anyhow::Result<Self> {
         let router = Router::new();
+        router.set_policy(Arc::new(loopback_only));
         let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
         let (hub, cams) = start_hub(state_dir, &router, changed_tx)?;
         load_scene(&hub, &router, scene)?;

@@ -171,7 +171,8 @@ impl Cams {
                     .attr(
                         "title",
                         format!("POST a serial to create /cams/<serial>/{name}"),
-                    ),
+                    )
+                    .configuring(&[Code::POST]),
             );
         }
     }
@@ -301,6 +302,7 @@ impl Cams {
                 .attr("if", "core.p")
                 .attr("ct", kind.ct())
                 .observable()
+                .configuring(&[Code::DELETE])
         } else {
             let (get_me, put_me) = (self.clone(), self.clone());
             Resource::new()
@@ -316,6 +318,7 @@ impl Cams {
                 .attr("rt", "rgbd.config")
                 .attr("if", "core.p")
                 .attr("ct", "50")
+                .configuring(&[Code::PUT, Code::DELETE])
         };
         (path, resource)
     }

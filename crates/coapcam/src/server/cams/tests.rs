@@ -321,3 +321,70 @@ fn concurrent_puts_leave_one_of_them_in_memory_and_the_same_on_disk() {
         assert!(left.is_empty(), "temporary files left: {left:?}");
     });
 }
+
+#[test]
+fn a_stranger_may_grab_but_not_change_the_cameras() {
+    let state = ScratchDir::new("stranger");
+    runtime().block_on(async {
+        let rig = Rig::start(&state);
+        rig.router
+            .set_policy(Arc::new(crate::server::loopback_only));
+        let cam = cameras()[0].clone();
+        let sn = cam.serial();
+        rig.hub.add(cam).expect("plug in");
+        rig.routed(&format!("/cams/{sn}/color"), true).await;
+        let from = |peer: &str, method: Code, path: &str, payload: &[u8]| {
+            let request = Request::new(method, path);
+            rig.router.dispatch(coap::IncomingRequest {
+                id: coap::IncomingId(1),
+                peer: peer.parse().expect("address"),
+                method,
+                options: request.options,
+                payload: bytes::Bytes::copy_from_slice(payload),
+                multicast: false,
+                confirmable: true,
+                observe: None,
+            })
+        };
+        let app = format!("/cams/{sn}/application-config");
+        let before = rig.send(Code::GET, &app, b"").await.payload;
+        let changed = String::from_utf8_lossy(&before).replace("\"icp\": 0", "\"icp\": 1");
+        for (method, path, payload) in [
+            (Code::PUT, app.as_str(), changed.as_bytes()),
+            (Code::DELETE, app.as_str(), &b""[..]),
+            (Code::DELETE, &format!("/cams/{sn}/color"), b""),
+            (Code::POST, "/cams/color", sn.as_str().as_bytes()),
+        ] {
+            for stranger in ["192.0.2.7:5683", "[2001:db8::7]:5683"] {
+                let r = from(stranger, method, path, payload).await;
+                assert_eq!(r.code, Code::FORBIDDEN, "{method:?} {path} from {stranger}");
+            }
+        }
+        assert_eq!(
+            rig.send(Code::GET, &app, b"").await.payload,
+            before,
+            "nothing changed"
+        );
+        assert!(rig.router.patterns().contains(&format!("/cams/{sn}/color")));
+        // Reading is for everyone; this machine may change things, also over IPv4-mapped
+        // IPv6.
+        let grab = from(
+            "192.0.2.7:5683",
+            Code::POST,
+            &format!("/cams/{sn}/depth"),
+            b"",
+        )
+        .await;
+        assert_eq!(grab.code, Code::CONTENT);
+        let get = from("192.0.2.7:5683", Code::GET, &app, b"").await;
+        assert_eq!(get.code, Code::CONTENT);
+        let put = from(
+            "[::ffff:127.0.0.1]:5683",
+            Code::PUT,
+            &app,
+            changed.as_bytes(),
+        )
+        .await;
+        assert_eq!(put.code, Code::CHANGED);
+    });
+}
