@@ -64,6 +64,10 @@ pub(crate) struct ServeArgs {
     /// (2.01 with Location-Path), DELETE removes one.
     #[arg(long, requires = "static_dir")]
     writable: bool,
+    /// With --writable: the most bytes the served files may hold together; a PUT or POST
+    /// that would go beyond it answers 4.13 and writes nothing.
+    #[arg(long, value_name = "BYTES", requires = "writable")]
+    quota: Option<u64>,
     /// Join this multicast group on start (e.g. 224.0.1.187 or ff02::fd), on the server's
     /// port; repeatable. Listed in /coap-group, where clients add and remove memberships.
     #[arg(long, value_name = "MCAST_ADDR")]
@@ -124,6 +128,7 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         state_dir: args.state_dir.clone().unwrap_or_else(default_state_dir),
         static_dir: args.static_dir.clone(),
         writable: args.writable,
+        quota: args.quota,
         groups: args.group.clone(),
         group_interface: args.group_interface,
         endpoint: args.transmission.endpoint_config(),

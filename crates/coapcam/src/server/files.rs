@@ -62,6 +62,10 @@ pub(crate) struct StaticFiles {
     dir: PathBuf,
     files: Arc<RwLock<HashMap<String, File>>>,
     writable: bool,
+    /// With `writable`: the most bytes the served files may hold together.
+    quota: Option<u64>,
+    /// Held through a client's write, from the quota check to the new file's record.
+    writes: Arc<Mutex<()>>,
     /// Paths changed by clients, for notifications.
     changed: mpsc::UnboundedSender<String>,
     /// Set when the server stops: a rescan under way ends at its next window.
@@ -73,6 +77,7 @@ impl StaticFiles {
         dir: &Path,
         router: &Router,
         writable: bool,
+        quota: Option<u64>,
         changed: mpsc::UnboundedSender<String>,
     ) -> anyhow::Result<Self> {
         if !dir.is_dir() {
@@ -82,6 +87,8 @@ impl StaticFiles {
             dir: dir.to_path_buf(),
             files: Arc::default(),
             writable,
+            quota,
+            writes: Arc::default(),
             changed,
             stopped: Arc::default(),
         };
@@ -241,6 +248,19 @@ impl StaticFiles {
     /// write to the same name cannot pair this ETag with its content.
     fn store(&self, name: &str, body: &Bytes) -> io::Result<()> {
         static WRITES: AtomicU64 = AtomicU64::new(0);
+        let _write = self.writes.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(quota) = self.quota {
+            let others: u64 = (self.read().iter())
+                .filter(|(n, _)| *n != name)
+                .map(|(_, f)| f.stamp.len)
+                .sum();
+            if others + body.len() as u64 > quota {
+                let why = format!(
+                    "the directory's quota of {quota} bytes is full: {others} bytes are taken"
+                );
+                return Err(io::Error::new(io::ErrorKind::StorageFull, why));
+            }
+        }
         let (tmp, mut file) = loop {
             let n = WRITES.fetch_add(1, Ordering::Relaxed);
             let tmp = self
@@ -289,9 +309,7 @@ impl StaticFiles {
             } else {
                 Code::CREATED
             }),
-            Err(e) => {
-                Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("writing {name}: {e}"))
-            }
+            Err(e) => write_error(&name, &e),
         }
     }
 
@@ -308,9 +326,7 @@ impl StaticFiles {
                     .push(OptionNumber::LOCATION_PATH, name.into_bytes());
                 r
             }
-            Err(e) => {
-                Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("writing {name}: {e}"))
-            }
+            Err(e) => write_error(&name, &e),
         }
     }
 
@@ -363,6 +379,15 @@ impl StaticFiles {
             _ => Ok(name),
         }
     }
+}
+
+/// The answer to a write that failed: 4.13 when there is no room (the quota, or the disk),
+/// else 5.00.
+fn write_error(name: &str, e: &io::Error) -> Response {
+    if e.kind() == io::ErrorKind::StorageFull {
+        return Response::diagnostic(Code::REQUEST_ENTITY_TOO_LARGE, &format!("{name}: {e}"));
+    }
+    Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &format!("writing {name}: {e}"))
 }
 
 /// Longest file name a client may write: its temporary file (`.<name>.<pid>.<n>.tmp`)
@@ -562,7 +587,7 @@ mod tests {
     fn a_stored_file_is_recorded_with_its_own_stamp_and_etag() {
         let dir = crate::ScratchDir::new("files-store");
         let (tx, _rx) = mpsc::unbounded_channel();
-        let files = StaticFiles::load(dir.path(), &Router::new(), true, tx).unwrap();
+        let files = StaticFiles::load(dir.path(), &Router::new(), true, None, tx).unwrap();
         for body in [&b"first"[..], &b"second, longer"[..]] {
             files.store("a.txt", &Bytes::copy_from_slice(body)).unwrap();
             let path = dir.path().join("a.txt");
@@ -576,6 +601,29 @@ mod tests {
             .map(|e| e.unwrap().file_name())
             .collect();
         assert_eq!(names, ["a.txt"], "no temporary file left");
+    }
+
+    #[test]
+    fn writes_beyond_the_quota_are_refused_and_write_nothing() {
+        let dir = crate::ScratchDir::new("files-quota");
+        fs::write(dir.path().join("old.bin"), [1; 40]).unwrap();
+        let (tx, _rx) = mpsc::unbounded_channel();
+        let files = StaticFiles::load(dir.path(), &Router::new(), true, Some(100), tx).unwrap();
+        let body = |n: usize| Bytes::from(vec![7; n]);
+        files
+            .store("a.bin", &body(60))
+            .expect("40 + 60 bytes fit 100");
+        let full = files
+            .store("b.bin", &body(1))
+            .expect_err("101 bytes do not");
+        assert_eq!(full.kind(), io::ErrorKind::StorageFull);
+        assert!(!dir.path().join("b.bin").exists(), "nothing written");
+        // Replacing a file counts its new size, not both.
+        files.store("a.bin", &body(50)).expect("40 + 50 bytes");
+        files.store("b.bin", &body(10)).expect("40 + 50 + 10 bytes");
+        let r = write_error("c.bin", &files.store("c.bin", &body(1)).expect_err("full"));
+        assert_eq!(r.code, Code::REQUEST_ENTITY_TOO_LARGE);
+        assert!(String::from_utf8_lossy(&r.payload).contains("quota of 100 bytes"));
     }
 
     #[test]

@@ -65,6 +65,8 @@ pub struct StationConfig {
     pub static_dir: Option<PathBuf>,
     /// Let clients change the files (PUT, POST, DELETE).
     pub writable: bool,
+    /// With `writable`: the most bytes the files may hold together.
+    pub quota: Option<u64>,
     /// Multicast groups joined at start, on the server's port.
     pub groups: Vec<IpAddr>,
     /// IPv6 interface index for the groups (0: the system's default).
@@ -115,6 +117,7 @@ impl Station {
                 dir,
                 &router,
                 config.writable,
+                config.quota,
                 changed_tx.clone(),
             )?),
             None => None,

@@ -4,7 +4,7 @@ use std::os::unix::fs::symlink;
 
 use coap::Code;
 
-use crate::support::{TempDir, client, our_server, runtime, send};
+use crate::support::{TempDir, client, our_server, our_server_with, runtime, send};
 
 #[test]
 fn only_regular_files_are_replaced_or_removed() {
@@ -82,4 +82,32 @@ fn only_regular_files_are_replaced_or_removed() {
     );
     assert!(dir.join("pipe").symlink_metadata().is_ok());
     assert!(!dir.join("a.txt").exists());
+}
+
+#[test]
+fn writes_beyond_the_quota_answer_4_13_and_write_nothing() {
+    let served = TempDir::new("files-quota");
+    let dir = served.path();
+    let (_server, addr) = our_server_with(dir, &["--writable", "--quota", "100"]);
+    runtime().block_on(async {
+        let c = client();
+        let put = |name: &str, n: usize| {
+            let c = &c;
+            let path = format!("/files/{name}");
+            async move { send(c, addr, Code::PUT, &path, &vec![7; n], None).await }
+        };
+        assert_eq!(put("a.bin", 60).await.code, Code::CREATED);
+        let r = put("b.bin", 41).await;
+        assert_eq!(r.code, Code::REQUEST_ENTITY_TOO_LARGE);
+        assert!(String::from_utf8_lossy(&r.payload).contains("quota of 100 bytes"));
+        let r = send(&c, addr, Code::POST, "/files", &[7; 41], None).await;
+        assert_eq!(r.code, Code::REQUEST_ENTITY_TOO_LARGE);
+        assert_eq!(put("b.bin", 40).await.code, Code::CREATED);
+    });
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .expect("the directory")
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["a.bin", "b.bin"], "nothing else written");
 }

@@ -557,6 +557,11 @@ pub(crate) fn aiocoap_server(big: Option<&Path>) -> (Proc, SocketAddr) {
 /// `coapcam serve --no-cameras --static DIR [--writable] --bind 127.0.0.1:0`, with the
 /// address it reports.
 pub(crate) fn our_server(dir: &Path, writable: bool) -> (Proc, SocketAddr) {
+    our_server_with(dir, if writable { &["--writable"] } else { &[] })
+}
+
+/// [`our_server`] with other flags (`--writable`, `--quota N`, ...).
+pub(crate) fn our_server_with(dir: &Path, flags: &[&str]) -> (Proc, SocketAddr) {
     let dir = dir.to_str().expect("UTF-8 path");
     let mut args = vec![
         "serve",
@@ -566,9 +571,7 @@ pub(crate) fn our_server(dir: &Path, writable: bool) -> (Proc, SocketAddr) {
         "--bind",
         "127.0.0.1:0",
     ];
-    if writable {
-        args.push("--writable");
-    }
+    args.extend_from_slice(flags);
     let mut p = Proc::spawn(COAPCAM, &args);
     let addr = p.stderr_line(STARTUP, |l| {
         l.strip_prefix("coapcam: serving on ")
