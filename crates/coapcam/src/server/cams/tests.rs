@@ -349,6 +349,7 @@ fn a_stranger_may_grab_but_not_change_the_cameras() {
         let app = format!("/cams/{sn}/application-config");
         let before = rig.send(Code::GET, &app, b"").await.payload;
         let changed = String::from_utf8_lossy(&before).replace("\"icp\": 0", "\"icp\": 1");
+        assert_ne!(changed.as_bytes(), &before[..], "a real change");
         for (method, path, payload) in [
             (Code::PUT, app.as_str(), changed.as_bytes()),
             (Code::DELETE, app.as_str(), &b""[..]),
