@@ -42,6 +42,8 @@ pub struct Grabbed {
     pub cameras: Vec<(SocketAddr, String)>,
     /// Frame timestamps, microseconds since the UNIX epoch (one per cloud received).
     pub timestamps_us: Vec<u64>,
+    /// Servers of a group that answered with an error, and why: their clouds are missing.
+    pub failed: Vec<String>,
     /// Bytes of point-cloud representations received.
     pub bytes: usize,
 }
@@ -94,6 +96,7 @@ impl Measurement {
                 "cycle_ms": ms(self.cycle),
                 "grab_ms": ms(self.grab),
                 "received_bytes": g.bytes,
+                "warnings": g.failed,
             })
             .as_object()
             .cloned()
@@ -107,6 +110,7 @@ impl Measurement {
 /// client) and merges them. Clouds come compactly (65103) from servers that offer it, as
 /// the thesis packet from the others.
 pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<Grabbed> {
+    let mut failed = Vec::new();
     let answers = match source {
         Source::Camera(sn) => vec![(client.server(), client.grab_cloud(Some(sn)).await?)],
         Source::All => vec![(client.server(), client.grab_cloud(None).await?)],
@@ -134,11 +138,21 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             for (server, r) in answers {
                 let r = if r.code == Code::NOT_ACCEPTABLE {
                     // A server without the compact cloud: its thesis packet.
-                    CamClient::unicast(client, server).grab_all(None).await?
+                    CamClient::unicast(client, server).grab_all(None).await
                 } else {
-                    check(&format!("POST /cams/pointclouds on {server}"), r)?
+                    check(&format!("POST /cams/pointclouds on {server}"), r)
                 };
-                checked.push((server, r));
+                // One server's failure leaves its cameras out, not the others'.
+                match r {
+                    Ok(r) => checked.push((server, r)),
+                    Err(e) => failed.push(format!("{e:#}")),
+                }
+            }
+            if checked.is_empty() {
+                anyhow::bail!(
+                    "no server of the group {group} sent a cloud: {}",
+                    failed.join("; ")
+                );
             }
             checked
         }
@@ -160,6 +174,7 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
         cloud: PointCloud::default(),
         cameras: Vec::new(),
         timestamps_us: Vec::new(),
+        failed,
         bytes,
     };
     for (server, mut c) in decoded {
