@@ -3,6 +3,7 @@
 //! document (docs/design.md §6), and the text `measure` prints from that document.
 
 use std::collections::BTreeMap;
+use std::time::Duration;
 
 use anyhow::Context as _;
 use geometry::{DimensionConfig, DimensionError, Dimensions, PointCloud};
@@ -376,8 +377,33 @@ pub fn text(doc: &Value) -> String {
     out
 }
 
+/// The document's fields that say what was measured, wherever: the points of the merged
+/// cloud, the cameras, their frames' times (microseconds since the UNIX epoch) and how
+/// long grabbing them took.
+pub fn provenance(
+    cloud_points: usize,
+    cameras: Vec<String>,
+    frames_unix_us: Vec<u64>,
+    grab: Duration,
+) -> Map<String, Value> {
+    let mut out = Map::new();
+    out.insert("cloud_points".into(), cloud_points.into());
+    out.insert("cameras".into(), cameras.into());
+    out.insert("frames_unix_us".into(), frames_unix_us.into());
+    out.insert("grab_ms".into(), ms(grab).into());
+    out
+}
+
+/// The document's fields of the codes read, in `took`: `codes` and `codes_ms`.
+pub fn codes_fields(seen: &[Seen], took: Duration) -> Map<String, Value> {
+    let mut out = Map::new();
+    out.insert("codes".into(), seen.iter().map(Seen::to_json).collect());
+    out.insert("codes_ms".into(), ms(took).into());
+    out
+}
+
 /// Milliseconds to 0.1 ms, as the document gives durations.
-pub fn ms(d: std::time::Duration) -> f64 {
+pub fn ms(d: Duration) -> f64 {
     (d.as_secs_f64() * 1e4).round() / 10.0
 }
 

@@ -120,17 +120,15 @@ impl RttEstimator {
     /// The base timeout of a CON at `now` (before ACK_RANDOM_FACTOR's jitter): CoCoA's
     /// RTO, `SRTT + max(4 RTTVAR, G)` with a granularity G of 100 ms (RFC 6298 (2.3);
     /// Californium's G) and without RFC 6298's 1 s floor, which CoCoA replaces with its
-    /// variable backoff ([`Backoff::cocoa`]), at most 60 s; `default` (ACK_TIMEOUT)
-    /// before any sample, and moving back towards it by half every 30 s without a sample.
-    pub(super) fn con_timeout(&self, now: Instant, default: Duration) -> Duration {
-        if self.samples == 0 {
-            return default;
-        }
-        let rto = (self.srtt + (self.rttvar * 4).max(CON_GRANULARITY)).min(Duration::from_secs(60));
+    /// variable backoff ([`Backoff::cocoa`]), at most 60 s, moving back towards `default`
+    /// (ACK_TIMEOUT) by half every 30 s without a sample; `None` before any sample.
+    pub(super) fn con_timeout(&self, now: Instant, default: Duration) -> Option<Duration> {
+        let srtt = self.srtt()?;
+        let rto = (srtt + (self.rttvar * 4).max(CON_GRANULARITY)).min(Duration::from_secs(60));
         let idle = now.saturating_duration_since(self.last_sample);
         let kept = 0.5f64.powf(idle.as_secs_f64() / AGE_HALF_LIFE.as_secs_f64());
         let (rto, default) = (rto.as_secs_f64(), default.as_secs_f64());
-        Duration::from_secs_f64(default + (rto - default) * kept)
+        Some(Duration::from_secs_f64(default + (rto - default) * kept))
     }
 
     /// The probe timeout of a windowed transfer: `SRTT + max(4 RTTVAR, 1 ms)`; `default`

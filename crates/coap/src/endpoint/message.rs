@@ -285,10 +285,8 @@ impl MessageLayer {
         peer: SocketAddr,
         config: &EndpointConfig,
     ) -> (Duration, Backoff) {
-        let estimate = self
-            .paths
-            .get(&PeerKey(peer))
-            .and_then(|p| (p.rtt.srtt()).map(|_| p.rtt.con_timeout(now, config.ack_timeout)));
+        let estimate = (self.paths.get(&PeerKey(peer)))
+            .and_then(|p| p.rtt.con_timeout(now, config.ack_timeout));
         let base = estimate.unwrap_or(config.ack_timeout);
         let unit = self.unit();
         let spread = (config.ack_random_factor - 1.0).max(0.0);

@@ -2,6 +2,7 @@
 //! server of a multicast group), merge them and measure the largest parcel on the floor
 //! (docs/design.md §6).
 
+use std::collections::BTreeSet;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -12,7 +13,7 @@ use coap_net::Uri;
 
 use coapcam::client::measure::{FLOOR_CUT_M, Source, measure_once, prepare_cameras};
 use coapcam::client::{CamClient, annotate, codes};
-use coapcam::report::{self, Billing, EdgeQuery, Parcel, Seen};
+use coapcam::report::{self, Billing, EdgeQuery, Parcel};
 
 use super::{DimensionArgs, Exit, TransmissionArgs, outln};
 
@@ -200,9 +201,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     } = &source
     {
         let answered = doc["servers"].as_array().map_or(0, |servers| {
-            let mut distinct: Vec<&serde_json::Value> = servers.iter().collect();
-            distinct.sort_by_key(|s| s.to_string());
-            distinct.dedup();
+            let distinct: BTreeSet<&str> = servers.iter().filter_map(|s| s.as_str()).collect();
             distinct.len()
         });
         if answered < *expected {
@@ -253,8 +252,10 @@ async fn measure_here(
     if args.codes {
         let started = Instant::now();
         let codes = codes::read_cameras(client, &m.grabbed.cameras).await?;
-        doc["codes"] = codes.iter().map(Seen::to_json).collect();
-        doc["codes_ms"] = report::ms(started.elapsed()).into();
+        let fields = report::codes_fields(&codes, started.elapsed());
+        if let Some(d) = doc.as_object_mut() {
+            d.extend(fields);
+        }
     }
     Ok(doc)
 }

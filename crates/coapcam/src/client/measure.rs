@@ -13,7 +13,7 @@ use geometry::{DimensionConfig, Dimensions, PointCloud};
 use rgbd::Scene;
 
 use super::{CamClient, NoAnswer, check, cloud_of};
-use crate::report::{Billing, Parcel, ms};
+use crate::report::{self, Billing, Parcel};
 
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
@@ -87,21 +87,19 @@ impl Measurement {
     pub fn to_json(&self, billing: &Billing) -> serde_json::Value {
         let g = &self.grabbed;
         let mut doc = self.parcel.fields(billing);
-        doc.extend(
-            serde_json::json!({
-                "cloud_points": g.cloud.len(),
-                "cameras": g.cameras.iter().map(|(_, sn)| sn).collect::<Vec<_>>(),
-                "servers": g.cameras.iter().map(|(s, _)| s.to_string()).collect::<Vec<_>>(),
-                "frames_unix_us": g.timestamps_us,
-                "cycle_ms": ms(self.cycle),
-                "grab_ms": ms(self.grab),
-                "received_bytes": g.bytes,
-                "warnings": g.failed,
-            })
-            .as_object()
-            .cloned()
-            .unwrap_or_default(),
-        );
+        let cameras = g.cameras.iter().map(|(_, sn)| sn.clone()).collect();
+        let frames = g.timestamps_us.clone();
+        doc.extend(report::provenance(
+            g.cloud.len(),
+            cameras,
+            frames,
+            self.grab,
+        ));
+        let servers: Vec<String> = g.cameras.iter().map(|(s, _)| s.to_string()).collect();
+        doc.insert("servers".into(), servers.into());
+        doc.insert("cycle_ms".into(), report::ms(self.cycle).into());
+        doc.insert("received_bytes".into(), g.bytes.into());
+        doc.insert("warnings".into(), g.failed.clone().into());
         doc.into()
     }
 }

@@ -26,7 +26,7 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
-use crate::report::{self, EdgeQuery, Parcel, Seen};
+use crate::report::{self, EdgeQuery, Parcel};
 use crate::repr::clouds::{self, DepthPart};
 use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
 
@@ -531,7 +531,7 @@ impl Cams {
             Ok(cf) => cf,
             Err(refused) => return refused,
         };
-        let merged = self.grab_merged().await;
+        let merged = self.grab_merged(self.snapshot()).await;
         if cf == ContentFormat::DEPTH_CLOUD && merged.parts.is_empty() {
             // The compact cloud is made of cameras' depth: without one there is nothing
             // to send in it (the other formats send an empty cloud).
@@ -553,14 +553,18 @@ impl Cams {
         content(body, cf, h.finish().to_be_bytes())
     }
 
-    /// A new cloud of every camera, each in the common frame, merged (cameras with `icp`
-    /// registered onto those before them); a camera whose grab fails is left out, with
-    /// the reason in `failed`.
-    async fn grab_merged(&self) -> Merged {
-        let cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
+    /// The connected cameras, in merge order.
+    fn snapshot(&self) -> Vec<(Serial, Arc<CamState>)> {
+        lock(&self.cams)
             .iter()
             .map(|(sn, c)| (*sn, c.clone()))
-            .collect();
+            .collect()
+    }
+
+    /// A new cloud of each of `cams`, each in the common frame, merged (cameras with `icp`
+    /// registered onto those before them); a camera whose grab fails is left out, with
+    /// the reason in `failed`.
+    async fn grab_merged(&self, cams: Vec<(Serial, Arc<CamState>)>) -> Merged {
         let tasks: Vec<_> = cams
             .into_iter()
             .map(|(sn, cam)| {
@@ -589,8 +593,8 @@ impl Cams {
                 }
             }
         }
-        let serials: Vec<Serial> = parts.iter().map(|(sn, ..)| *sn).collect();
-        let frames_us: Vec<u64> = parts
+        let mut serials: Vec<Serial> = parts.iter().map(|(sn, ..)| *sn).collect();
+        let mut frames_us: Vec<u64> = parts
             .iter()
             .map(|(.., part)| part.depth.timestamp_us)
             .collect();
@@ -604,14 +608,11 @@ impl Cams {
                 Ok(merged) => merged,
                 Err(e) => {
                     failed.push(format!("merging the clouds: {e}"));
+                    serials.clear();
+                    frames_us.clear();
                     (PointCloud::default(), Vec::new())
                 }
             };
-        let (serials, frames_us) = if parts.is_empty() {
-            (Vec::new(), Vec::new())
-        } else {
-            (serials, frames_us)
-        };
         Merged {
             cloud,
             parts,
@@ -633,10 +634,7 @@ impl Cams {
             Ok(q) => q,
             Err(why) => return Response::diagnostic(Code::BAD_REQUEST, &why),
         };
-        let cams: Vec<(Serial, Arc<CamState>)> = lock(&self.cams)
-            .iter()
-            .map(|(sn, c)| (*sn, c.clone()))
-            .collect();
+        let cams = self.snapshot();
         if cams.is_empty() {
             return no_cloud(&[]);
         }
@@ -649,11 +647,11 @@ impl Cams {
                 .collect();
             edge::read_codes(cameras, started)
         });
-        let merged = self.grab_merged().await;
+        let merged = self.grab_merged(cams).await;
         if merged.parts.is_empty() {
             return no_cloud(&merged.failed);
         }
-        let grab_ms = report::ms(started.elapsed());
+        let grab = started.elapsed();
         let config = query.config;
         let measured =
             tokio::task::spawn_blocking(move || (Parcel::measure(&merged.cloud, &config), merged))
@@ -670,18 +668,18 @@ impl Cams {
             }
         };
         let mut doc = parcel.fields(&query.billing);
+        let cameras = merged.serials.iter().map(ToString::to_string).collect();
+        doc.extend(report::provenance(
+            merged.cloud.len(),
+            cameras,
+            merged.frames_us,
+            grab,
+        ));
         let mut warnings = merged.failed;
-        let serials: Vec<String> = merged.serials.iter().map(ToString::to_string).collect();
-        doc.insert("cloud_points".into(), merged.cloud.len().into());
-        doc.insert("cameras".into(), serials.into());
-        doc.insert("frames_unix_us".into(), merged.frames_us.into());
-        doc.insert("grab_ms".into(), grab_ms.into());
         if let Some(task) = codes {
             match task.await {
                 Ok((seen, failed, took)) => {
-                    let seen: Vec<serde_json::Value> = seen.iter().map(Seen::to_json).collect();
-                    doc.insert("codes".into(), seen.into());
-                    doc.insert("codes_ms".into(), report::ms(took).into());
+                    doc.extend(report::codes_fields(&seen, took));
                     warnings.extend(failed);
                 }
                 Err(e) => warnings.push(format!("code reading: {e}")),
