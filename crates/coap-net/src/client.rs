@@ -189,6 +189,19 @@ impl Client {
             }
         }
         for (peer, response) in &mut out {
+            if let Some(echo) = response
+                .options
+                .first(coap::OptionNumber::ECHO)
+                .filter(|_| response.code == coap::Code::UNAUTHORIZED)
+            {
+                // RFC 9175 §2.4: this server has not verified our address and answered
+                // the group request with an Echo challenge only; the request goes to it
+                // again by unicast, with the Echo value.
+                let mut again = follow_up.clone();
+                again.multicast = false;
+                again.options.set(coap::OptionNumber::ECHO, echo);
+                *response = self.send(*peer, again).await?;
+            }
             self.rest_of_blocks(*peer, &follow_up, response).await?;
         }
         Ok(out)

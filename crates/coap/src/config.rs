@@ -44,6 +44,11 @@ pub struct EndpointConfig {
     /// one *set*, before the sender waits for the receiver's 'Continue' (RFC: 10; both
     /// ends must use the same value).
     pub max_payloads: u32,
+    /// RFC 9175 §2.4 amplification mitigation: a peer not on loopback whose address is
+    /// not verified gets at most three times what it sent, and an Echo challenge (4.01)
+    /// before a larger answer, an Observe registration or a request that changes state.
+    /// On by default.
+    pub verify_addresses: bool,
     /// Limits on state that peers can make grow.
     pub limits: Limits,
 }
@@ -71,6 +76,11 @@ pub struct Limits {
     pub pending_requests: usize,
     /// Observations served at once; further registrations are answered as plain GETs.
     pub observations: usize,
+    /// Peers whose address an Echo round trip verified, remembered at once; beyond it the
+    /// one silent longest is forgotten (and must answer an Echo challenge again).
+    pub verified_peers: usize,
+    /// How long a verified peer stays verified after its last request.
+    pub verified_lifetime: Duration,
 }
 
 impl Default for EndpointConfig {
@@ -91,6 +101,7 @@ impl Default for EndpointConfig {
             notify_con_interval: 5,
             transfer: Transfer::default(),
             max_payloads: 10,
+            verify_addresses: true,
             limits: Limits::default(),
         }
     }
@@ -108,6 +119,8 @@ impl Default for Limits {
             client_body_bytes: 256 << 20,
             pending_requests: 1024,
             observations: 1024,
+            verified_peers: 16384,
+            verified_lifetime: Duration::from_secs(600),
         }
     }
 }

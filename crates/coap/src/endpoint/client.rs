@@ -62,6 +62,7 @@ impl Endpoint {
                 generation: 0,
                 failures: 0,
                 restarts: 0,
+                echoes: 0,
                 body: Vec::new(),
                 received: 0,
                 etag: None,
@@ -420,6 +421,24 @@ impl Endpoint {
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
         };
+        if msg.code == Code::UNAUTHORIZED
+            && r.echoes < 2
+            && r.window.is_none()
+            && r.qdown.is_none()
+            && let Some(echo) = msg.options.first(OptionNumber::ECHO)
+        {
+            // RFC 9175 §2.3: the server wants proof of this endpoint's address (or a fresh
+            // request); the step goes again with its Echo value, and later steps carry it
+            // too (a server that has verified the address ignores it).
+            if let Waiting::Ack(mid) = r.waiting {
+                self.msg.exchanges.remove(&MidKey(r.peer, mid));
+            }
+            r.echoes += 1;
+            r.req.options.set(OptionNumber::ECHO, echo);
+            r.block_head = None;
+            r.generation += 1;
+            return self.send_step(now, id);
+        }
         if r.window.is_some() {
             return self.on_window_response(now, id, msg, payload);
         }

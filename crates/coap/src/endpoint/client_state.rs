@@ -67,6 +67,8 @@ pub(super) struct ClientRequest {
     pub(super) generation: u32,
     pub(super) failures: u8,
     pub(super) restarts: u8,
+    /// Echo challenges (RFC 9175) answered by sending the step again.
+    pub(super) echoes: u8,
     /// Block2 reassembly: body so far (empty when streamed), the bytes received, the
     /// ETag, the first block's options.
     pub(super) body: Vec<u8>,

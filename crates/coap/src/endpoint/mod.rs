@@ -18,7 +18,8 @@
 //! - `window` and `download`: a Block2 download with many block requests in flight,
 //!   paced by the path's controller (`congestion::Bbr`), lost ones asked for again.
 //! - `server`: requests it receives (Block1 assembly, Block2 slicing from a stored
-//!   representation, piggybacked or separate responses, observations it serves).
+//!   representation, piggybacked or separate responses, observations it serves), after
+//!   `verify` has checked the peer's address (RFC 9175 Echo, amplification limits).
 //! - `types`: what the owner sees (requests, responses, events, errors).
 //!
 //! This file owns the entry points and routes between the layers: a datagram's ACK or
@@ -40,6 +41,7 @@ mod qserver;
 mod server;
 mod server_state;
 mod types;
+mod verify;
 mod window;
 
 use std::cmp::Reverse;
@@ -60,6 +62,7 @@ use crate::peer_key::{MidKey, PeerKey};
 use client_state::{ClientLayer, Waiting};
 use message::{MessageLayer, Purpose, TimerKind};
 use server_state::ServerLayer;
+use verify::AddressCheck;
 
 /// A CoAP endpoint. See the module documentation for the driving protocol.
 pub struct Endpoint {
@@ -67,17 +70,20 @@ pub struct Endpoint {
     msg: MessageLayer,
     client: ClientLayer,
     server: ServerLayer,
+    verify: AddressCheck,
     next_id: u64,
     events: VecDeque<Event>,
 }
 
 impl Endpoint {
-    /// A new endpoint. All randomness comes from `config.rng_seed`.
+    /// A new endpoint. All randomness comes from `config.rng_seed`, but for the key of its
+    /// Echo values, which must be unpredictable (`verify`).
     pub fn new(config: EndpointConfig) -> Self {
         Self {
             msg: MessageLayer::new(config.rng_seed),
             client: ClientLayer::default(),
             server: ServerLayer::new(),
+            verify: AddressCheck::new(),
             config,
             next_id: 1,
             events: VecDeque::new(),
@@ -207,7 +213,7 @@ impl Endpoint {
                 }
             }
             Type::Con | Type::Non if msg.code.is_request() => {
-                self.on_request(now, peer, msg, payload, multicast);
+                self.on_request(now, peer, msg, payload, data.len(), multicast);
             }
             Type::Con | Type::Non if msg.code.is_response() => {
                 self.on_separate_response(now, peer, &mut msg, payload)

@@ -15,17 +15,18 @@ use super::types::{Event, IncomingId, IncomingRequest, ObservationId, Response};
 use crate::block::{self, Block1Outcome, BlockKey, Slice, Source};
 use crate::config::Limits;
 use crate::dedup::{Fingerprint, Seen};
-use crate::msg::{BlockOpt, Code, Message, OptionNumber, Type};
+use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
 
 impl Endpoint {
-    /// A request; its `payload` stays in the datagram until it is copied where it goes
-    /// (an upload's block into the body being assembled).
+    /// A request of `size` bytes; its `payload` stays in the datagram until it is copied
+    /// where it goes (an upload's block into the body being assembled).
     pub(super) fn on_request(
         &mut self,
         now: Instant,
         peer: SocketAddr,
         mut msg: Message,
         payload: &[u8],
+        size: usize,
         multicast: bool,
     ) {
         let limits = self.config.limits.clone();
@@ -57,6 +58,39 @@ impl Endpoint {
         };
         let expires = now + lifetime;
 
+        // RFC 9175 §2.4: an unverified peer gets at most three times `size`. What would
+        // send it more, keep state for it, or change state waits for an Echo round trip.
+        let verified = !self.config.verify_addresses
+            || self.verify.is_verified(
+                now,
+                peer,
+                msg.options.first(OptionNumber::ECHO),
+                limits.verified_lifetime,
+                limits.verified_peers,
+            );
+        let budget = (!verified).then_some(3 * size);
+        if !verified
+            && (!matches!(msg.code, Code::GET | Code::FETCH)
+                || msg.options.uint(OptionNumber::OBSERVE) == Some(0)
+                || block1.is_some()
+                || continuation
+                || q1.is_some()
+                || !q2.is_empty())
+        {
+            let header = self.reply_header(&msg);
+            let challenge = self.challenge(now, peer, msg.token, header, 3 * size);
+            let seen = match challenge {
+                Some(reply) => self.reply_with(peer, reply),
+                // A CON gets a Reset rather than waiting for an answer that never comes.
+                None if con => self.reply_with(peer, Message::empty(Type::Rst, msg.message_id)),
+                None => Seen::Silent,
+            };
+            let key = (peer, msg.message_id);
+            let limits = &self.config.limits;
+            (self.msg.dedup).insert(now, key, Fingerprint::of(&msg), expires, seen, limits);
+            return;
+        }
+
         if let Some(bad) = msg.options.first_bad_critical() {
             if continuation && self.replay_duplicate(now, peer, &msg, &limits) {
                 return;
@@ -64,12 +98,12 @@ impl Endpoint {
             // RFC 7252 §5.4.1: 4.02 for a CON request; a NON one is rejected.
             let seen = if con {
                 let text = format!("unrecognized or malformed critical option {}", bad.0);
-                self.reply(
-                    peer,
-                    &msg,
-                    multicast,
-                    Response::diagnostic(Code::BAD_OPTION, &text),
-                )
+                let mut response = Response::diagnostic(Code::BAD_OPTION, &text);
+                if budget.is_some() {
+                    // The diagnostic could be many times a short request.
+                    response.payload = Bytes::new();
+                }
+                self.reply(peer, &msg, multicast, response)
             } else if multicast {
                 Seen::Silent
             } else {
@@ -205,7 +239,8 @@ impl Endpoint {
         }
 
         if self.server.pending.len() >= limits.pending_requests {
-            let r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, "server busy");
+            let mut r = Response::new(Code::SERVICE_UNAVAILABLE);
+            r.options.set_uint(OptionNumber::MAX_AGE, 1);
             self.answer(now, peer, &msg, multicast, expires, r);
             return;
         }
@@ -222,6 +257,7 @@ impl Endpoint {
                 multicast,
                 block2,
                 block1_echo,
+                budget,
                 // A response to a group request is stored for the client's port, whatever
                 // address its unicast follow-ups come from.
                 key: if multicast { key.for_group() } else { key },
@@ -257,6 +293,66 @@ impl Endpoint {
             confirmable: con,
             observe: observation.map(ObservationId),
         }));
+    }
+
+    /// The Echo challenge to a request from an unverified peer (RFC 9175 §2.4): 4.01 with
+    /// an Echo value made for the peer, as a message of type `ty` and ID `message_id`. It
+    /// goes to a multicast request too, as the one error a group member answers (the
+    /// client repeats the request to this server by unicast). `None` when even the
+    /// challenge is more than `budget` bytes (three times a request of 4 or 5 bytes).
+    fn challenge(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        token: Token,
+        (ty, message_id): (Type, u16),
+        budget: usize,
+    ) -> Option<Message> {
+        let mut reply = Message {
+            ty,
+            code: Code::UNAUTHORIZED,
+            message_id,
+            token,
+            options: Default::default(),
+            payload: Bytes::new(),
+        };
+        reply.options.set(OptionNumber::ECHO, self.verify.echo(now, peer));
+        (reply.encoded_len() <= budget).then_some(reply)
+    }
+
+    /// Answers request `p` of an unverified peer: the response when it fits in `budget`
+    /// bytes and one block, the Echo challenge otherwise. Nothing is stored for the peer,
+    /// and an answer after the empty ACK goes as a NON: a CON would be sent up to five
+    /// times to an address nobody verified.
+    fn respond_unverified(&mut self, now: Instant, p: &Pending, response: Response, budget: usize) {
+        let (ty, mid) = match (p.confirmable, p.acked) {
+            (true, false) => (Type::Ack, p.mid),
+            _ => (Type::Non, self.msg.next_mid()),
+        };
+        let answer = Message {
+            ty,
+            code: response.code,
+            message_id: mid,
+            token: p.token,
+            options: response.options,
+            payload: response.payload,
+        };
+        let fits = response.source.is_none()
+            && answer.payload.len() <= BlockOpt::size_of(self.config.max_block_szx)
+            && answer.encoded_len() <= budget;
+        let reply = if !fits {
+            self.challenge(now, p.peer, p.token, (ty, mid), budget)
+                .or_else(|| (ty == Type::Ack).then(|| Message::empty(Type::Rst, mid)))
+        } else if p.multicast && answer.code.is_error() {
+            None
+        } else {
+            Some(answer)
+        };
+        let seen = match reply {
+            Some(m) => self.reply_with(p.peer, m),
+            None => Seen::Silent,
+        };
+        self.msg.dedup.set_reply(p.peer, p.mid, seen);
     }
 
     /// Answers a duplicate message as the first one was answered (RFC 7252 §4.5); whether
@@ -564,6 +660,9 @@ impl Endpoint {
             return;
         };
         let max_szx = self.config.max_block_szx;
+        if let Some(budget) = p.budget {
+            return self.respond_unverified(now, &p, response, budget);
+        }
         let mut q_rest = None;
         let mut response = if p.qblock2.is_empty() {
             self.blockwise_response(now, p.key.clone(), p.block2, response, &limits, max_szx)

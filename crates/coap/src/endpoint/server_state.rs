@@ -27,6 +27,9 @@ pub(super) struct Pending {
     pub(super) multicast: bool,
     pub(super) block2: Option<BlockOpt>,
     pub(super) block1_echo: Option<BlockOpt>,
+    /// The peer's address is not verified: the answer may be at most this many bytes
+    /// (three times the request, RFC 9175 §2.4).
+    pub(super) budget: Option<usize>,
     pub(super) key: BlockKey,
     pub(super) observation: Option<u64>,
     /// The request's Q-Block2 options (RFC 9177): the response goes with Q-Block2.

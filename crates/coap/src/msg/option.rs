@@ -545,7 +545,8 @@ impl Options {
 
     /// A byte string identifying the request for block-wise state: every option except
     /// those that change between the blocks of one transfer (Block1/2, Q-Block1/2, Size1/2,
-    /// Observe). Request-Tag stays in, so that differently tagged bodies never mix
+    /// Observe, and Echo, which a client may carry on one block only, RFC 9175 §2.3).
+    /// Request-Tag stays in, so that differently tagged bodies never mix
     /// (RFC 9175 §3.3).
     pub(crate) fn block_key(&self) -> SmallVec<[u8; 64]> {
         let mut key = SmallVec::with_capacity(self.list.iter().map(|o| 4 + o.value.len()).sum());
@@ -560,6 +561,7 @@ impl Options {
                     | OptionNumber::SIZE2
                     | OptionNumber::OBSERVE
                     | OptionNumber::ETAG
+                    | OptionNumber::ECHO
             ) {
                 continue;
             }

@@ -1,5 +1,6 @@
 //! Integration tests of the CoAP core: one binary, one module per area.
 
+mod amplification;
 mod blockwise;
 mod codec;
 mod observe;

@@ -104,6 +104,10 @@ pub(crate) struct Record {
     pub(crate) at: Duration,
     /// Sender.
     pub(crate) from: SocketAddr,
+    /// Destination (a node, the group, or an address no node has).
+    pub(crate) to: SocketAddr,
+    /// Size of the datagram in bytes.
+    pub(crate) len: usize,
     /// The decoded message (`None` if it did not decode).
     pub(crate) msg: Option<Message>,
     /// Whether the link dropped it.
@@ -244,6 +248,17 @@ impl Sim {
     pub(crate) fn add(&mut self, config: EndpointConfig, handler: Option<Handler>) -> usize {
         let n = self.nodes.len();
         let addr = SocketAddr::from(([127, 0, 0, n as u8 + 1], 5683));
+        self.add_at(addr, config, handler)
+    }
+
+    /// Adds a node at `addr` (not on loopback: its address must be verified, RFC 9175).
+    pub(crate) fn add_at(
+        &mut self,
+        addr: SocketAddr,
+        config: EndpointConfig,
+        handler: Option<Handler>,
+    ) -> usize {
+        let n = self.nodes.len();
         self.nodes.push(Node {
             addr,
             ep: Endpoint::new(config),
@@ -304,6 +319,8 @@ impl Sim {
                     self.log.push(Record {
                         at,
                         from,
+                        to: t.peer,
+                        len: t.data.len(),
                         msg,
                         lost,
                     });

@@ -1,0 +1,168 @@
+//! Address verification (RFC 9175 §2.4, item 3): a server must not become an amplifier
+//! for a peer whose source address it has not seen answer. Until a peer has returned an
+//! Echo value the server gave it, the server sends that peer at most three times the
+//! bytes of each request; a larger answer, an Observe registration and anything that
+//! changes state wait for a round trip that proves the address.
+//!
+//! The Echo value is stateless: the time it was made (whole seconds since the endpoint's
+//! first datagram) and a keyed 64-bit SipHash of that time and the peer's address, so a
+//! spoofed source costs the server no state. The key is the one piece of randomness not
+//! drawn from `rng_seed`: it must be unpredictable, so it comes from the OS
+//! (`RandomState`). Verified peers are remembered while they keep talking, up to
+//! [`Limits::verified_peers`](crate::config::Limits::verified_peers) of them.
+//!
+//! Loopback peers count as verified: a datagram with a loopback source cannot come from
+//! another host (the kernel drops such martians on every other interface).
+
+use std::hash::{BuildHasher, RandomState};
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use crate::peer_key::{FastMap, PeerKey};
+
+/// Seconds an Echo value stays good: long enough for a request that a lossy path makes a
+/// client retransmit for most of MAX_TRANSMIT_SPAN.
+const ECHO_VALIDITY_SECS: u32 = 60;
+/// Bytes of an Echo value: the time (4) and the MAC (8).
+pub(super) const ECHO_LEN: usize = 12;
+
+/// The verifier's state.
+pub(super) struct AddressCheck {
+    key: RandomState,
+    epoch: Option<Instant>,
+    /// Verified peers and when they were last heard from.
+    verified: FastMap<PeerKey, Instant>,
+}
+
+impl AddressCheck {
+    pub(super) fn new() -> Self {
+        Self {
+            key: RandomState::new(),
+            epoch: None,
+            verified: FastMap::default(),
+        }
+    }
+
+    fn secs(&mut self, now: Instant) -> u32 {
+        let epoch = *self.epoch.get_or_insert(now);
+        u32::try_from(now.saturating_duration_since(epoch).as_secs()).unwrap_or(u32::MAX)
+    }
+
+    fn mac(&self, peer: SocketAddr, t: u32) -> u64 {
+        self.key.hash_one((peer, t))
+    }
+
+    /// The Echo value to challenge `peer` with.
+    pub(super) fn echo(&mut self, now: Instant, peer: SocketAddr) -> [u8; ECHO_LEN] {
+        let t = self.secs(now);
+        let mut value = [0u8; ECHO_LEN];
+        value[..4].copy_from_slice(&t.to_be_bytes());
+        value[4..].copy_from_slice(&self.mac(peer, t).to_be_bytes());
+        value
+    }
+
+    /// Whether `peer` may be sent more than three times what it sent. A fresh Echo value
+    /// made for this peer verifies it; a verified peer's entry is refreshed.
+    pub(super) fn is_verified(
+        &mut self,
+        now: Instant,
+        peer: SocketAddr,
+        echo: Option<&[u8]>,
+        lifetime: Duration,
+        limit: usize,
+    ) -> bool {
+        if peer.ip().to_canonical().is_loopback() {
+            return true;
+        }
+        if let Some(seen) = self.verified.get_mut(&PeerKey(peer))
+            && now.saturating_duration_since(*seen) < lifetime
+        {
+            *seen = now;
+            return true;
+        }
+        let fresh = echo.is_some_and(|e| self.echo_is_good(now, peer, e));
+        if fresh {
+            self.remember(now, peer, lifetime, limit);
+        }
+        fresh
+    }
+
+    fn echo_is_good(&mut self, now: Instant, peer: SocketAddr, echo: &[u8]) -> bool {
+        let Ok(value) = <[u8; ECHO_LEN]>::try_from(echo) else {
+            return false;
+        };
+        let t = u32::from_be_bytes([value[0], value[1], value[2], value[3]]);
+        let mac = u64::from_be_bytes(value[4..].try_into().unwrap_or_default());
+        let age = self.secs(now).checked_sub(t);
+        age.is_some_and(|a| a <= ECHO_VALIDITY_SECS) && mac == self.mac(peer, t)
+    }
+
+    /// Adds a verified peer; at the limit, peers silent for `lifetime` go first, then the
+    /// one silent longest.
+    fn remember(&mut self, now: Instant, peer: SocketAddr, lifetime: Duration, limit: usize) {
+        if self.verified.len() >= limit {
+            self.verified
+                .retain(|_, seen| now.saturating_duration_since(*seen) < lifetime);
+        }
+        if self.verified.len() >= limit.max(1)
+            && let Some(oldest) = self
+                .verified
+                .iter()
+                .min_by_key(|(_, seen)| **seen)
+                .map(|(k, _)| *k)
+        {
+            self.verified.remove(&oldest);
+        }
+        self.verified.insert(PeerKey(peer), now);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const LIFE: Duration = Duration::from_secs(600);
+
+    fn peer(n: u8) -> SocketAddr {
+        SocketAddr::from(([192, 0, 2, n], 40000))
+    }
+
+    #[test]
+    fn an_echo_verifies_only_the_peer_it_was_made_for_and_only_while_fresh() {
+        let mut check = AddressCheck::new();
+        let t0 = Instant::now();
+        assert!(!check.is_verified(t0, peer(1), None, LIFE, 8));
+        let echo = check.echo(t0, peer(1));
+        assert!(!check.is_verified(t0, peer(2), Some(&echo), LIFE, 8));
+        let mut forged = echo;
+        forged[11] ^= 1;
+        assert!(!check.is_verified(t0, peer(1), Some(&forged), LIFE, 8));
+        let late = t0 + Duration::from_secs(u64::from(ECHO_VALIDITY_SECS) + 1);
+        assert!(!check.is_verified(late, peer(1), Some(&echo), LIFE, 8));
+        assert!(check.is_verified(t0 + Duration::from_secs(5), peer(1), Some(&echo), LIFE, 8));
+        // Remembered without an Echo from then on, while it keeps talking.
+        assert!(check.is_verified(t0 + Duration::from_secs(500), peer(1), None, LIFE, 8));
+        assert!(check.is_verified(t0 + Duration::from_secs(1000), peer(1), None, LIFE, 8));
+        assert!(!check.is_verified(t0 + Duration::from_secs(1700), peer(1), None, LIFE, 8));
+    }
+
+    #[test]
+    fn loopback_is_verified_and_the_table_stays_bounded() {
+        let mut check = AddressCheck::new();
+        let t0 = Instant::now();
+        assert!(check.is_verified(t0, "127.0.0.1:1".parse().unwrap(), None, LIFE, 2));
+        assert!(check.is_verified(t0, "[::ffff:127.0.0.1]:1".parse().unwrap(), None, LIFE, 2));
+        assert!(check.is_verified(t0, "[::1]:1".parse().unwrap(), None, LIFE, 2));
+        for n in 1..=5 {
+            let at = t0 + Duration::from_secs(u64::from(n));
+            let echo = check.echo(at, peer(n));
+            assert!(check.is_verified(at, peer(n), Some(&echo), LIFE, 2));
+            assert!(check.verified.len() <= 2);
+        }
+        // The two heard from last are kept.
+        let later = t0 + Duration::from_secs(6);
+        assert!(check.is_verified(later, peer(5), None, LIFE, 2));
+        assert!(check.is_verified(later, peer(4), None, LIFE, 2));
+        assert!(!check.is_verified(later, peer(1), None, LIFE, 2));
+    }
+}

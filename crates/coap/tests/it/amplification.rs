@@ -1,0 +1,259 @@
+//! RFC 9175 §2.4: a server answers a peer whose address it has not verified with at most
+//! three times what that peer sent, and challenges it with Echo before a larger answer,
+//! an Observe registration or a change of state. Spoofed requests come from addresses no
+//! node has (`Sim::inject`); the log counts every byte sent to them.
+
+use std::cell::{Cell, RefCell};
+use std::net::SocketAddr;
+use std::rc::Rc;
+use std::time::Duration;
+
+use coap::{
+    Code, EndpointConfig, Event, Message, ObservationId, OptionNumber, Request, Response, Token,
+    Type,
+};
+
+use crate::sim::{Handler, LinkConfig, Reply, Sim};
+
+const SERVER: SocketAddr = SocketAddr::new(
+    std::net::IpAddr::V4(std::net::Ipv4Addr::new(198, 51, 100, 1)),
+    5683,
+);
+
+fn victim(n: u16) -> SocketAddr {
+    SocketAddr::from(([192, 0, 2, (n % 250) as u8 + 1], 40000 + n / 250))
+}
+
+fn cfg(seed: u64) -> EndpointConfig {
+    EndpointConfig {
+        rng_seed: seed,
+        ..EndpointConfig::default()
+    }
+}
+
+/// A server off loopback: `/small` (2 bytes), `/big` (5,000), `/obs` (observable),
+/// POST `/grab` (20,000, whatever the body), PUT `/cfg`. Counts the requests its handler
+/// ran.
+fn server(sim: &mut Sim) -> (usize, Rc<Cell<usize>>) {
+    let (s, ran, _) = observable_server(sim);
+    (s, ran)
+}
+
+/// [`server`], and the observations it registered.
+fn observable_server(sim: &mut Sim) -> (usize, Rc<Cell<usize>>, Rc<RefCell<Vec<ObservationId>>>) {
+    let ran = Rc::new(Cell::new(0));
+    let count = ran.clone();
+    let registered = Rc::new(RefCell::new(Vec::new()));
+    let last = registered.clone();
+    let handler: Handler = Box::new(move |req| {
+        count.set(count.get() + 1);
+        if let Some(obs) = req.observe {
+            last.borrow_mut().push(obs);
+        }
+        let path = req.options.path_string();
+        let r = match (req.method, path.as_str()) {
+            (Code::GET, "/small") => Response::new(Code::CONTENT).with_payload("ok"),
+            (Code::GET, "/big") => Response::new(Code::CONTENT).with_payload(vec![7u8; 5000]),
+            (Code::GET, "/obs") => {
+                let mut r = Response::new(Code::CONTENT).with_payload("v0");
+                r.options.set_uint(OptionNumber::OBSERVE, 0);
+                r
+            }
+            (Code::POST, "/grab") => {
+                Response::new(Code::CONTENT).with_payload(vec![req.payload.len() as u8; 20_000])
+            }
+            (Code::PUT, "/cfg") => Response::new(Code::CHANGED),
+            _ => Response::new(Code::NOT_FOUND),
+        };
+        Reply::Now(r)
+    });
+    (sim.add_at(SERVER, cfg(2), Some(handler)), ran, registered)
+}
+
+fn raw(ty: Type, code: Code, mid: u16, path: &str, observe: Option<u32>) -> Vec<u8> {
+    let mut msg = Message::empty(ty, mid);
+    msg.code = code;
+    msg.token = Token::new(&mid.to_be_bytes()).unwrap_or_default();
+    msg.options.set_path(path);
+    if let Some(o) = observe {
+        msg.options.set_uint(OptionNumber::OBSERVE, o);
+    }
+    msg.encode()
+}
+
+/// Bytes the server sent to `peers`, and bytes they sent it (the datagrams injected).
+fn sent_to(sim: &Sim, peers: &[SocketAddr]) -> usize {
+    sim.log
+        .iter()
+        .filter(|r| r.from == SERVER && peers.contains(&r.to))
+        .map(|r| r.len)
+        .sum()
+}
+
+fn replies_to(sim: &Sim, peer: SocketAddr) -> Vec<Message> {
+    sim.log
+        .iter()
+        .filter(|r| r.from == SERVER && r.to == peer)
+        .filter_map(|r| r.msg.clone())
+        .collect()
+}
+
+#[test]
+fn rfc9175_2_4_spoofed_observe_registrations_get_a_challenge_and_no_notifications() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let (s, ran, registered) = observable_server(&mut sim);
+    // One registration from each of 1,024 spoofed sources, each sent 4 times as a CON's
+    // retransmissions would be.
+    let victims: Vec<SocketAddr> = (0..1024).map(victim).collect();
+    let mut received = 0;
+    for (i, v) in victims.iter().enumerate() {
+        let reg = raw(Type::Con, Code::GET, i as u16, "/obs", Some(0));
+        for _ in 0..4 {
+            sim.inject(*v, s, &reg);
+            received += reg.len();
+        }
+    }
+    sim.run_until(Duration::from_secs(1), |_| false);
+    // A spoofed NON POST that would trigger a grab and notify every observer.
+    let trigger = raw(Type::Non, Code::POST, 9999, "/grab", None);
+    sim.inject(victims[0], s, &trigger);
+    received += trigger.len();
+    // The application notifies its observers of a new grab every 10 s for 130 s.
+    for _ in 0..13 {
+        sim.run_until(Duration::from_secs(10), |_| false);
+        let now = sim.now;
+        for obs in registered.borrow().iter() {
+            let body = Response::new(Code::CONTENT).with_payload(vec![1u8; 1000]);
+            sim.nodes[s].ep.notify(now, *obs, body);
+        }
+    }
+    sim.run_until(Duration::from_secs(10), |_| false);
+
+    let sent = sent_to(&sim, &victims);
+    let factor = sent as f64 / received as f64;
+    eprintln!("spoofed registrations: {received} B in, {sent} B out, factor {factor:.2}");
+    assert!(factor <= 3.0, "amplification {factor:.2}");
+    assert_eq!(ran.get(), 0, "no handler ran for an unverified peer");
+    for m in replies_to(&sim, victims[7]) {
+        assert_eq!(m.code, Code::UNAUTHORIZED);
+        assert!(m.options.first(OptionNumber::ECHO).is_some());
+        assert!(m.options.uint(OptionNumber::OBSERVE).is_none());
+    }
+}
+
+#[test]
+fn rfc9175_2_4_unverified_requests_get_at_most_three_times_their_size() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let (s, ran) = server(&mut sim);
+    let v = victim(1);
+    let requests = [
+        raw(Type::Non, Code::POST, 1, "/grab", None),
+        raw(Type::Con, Code::GET, 2, "/big", None),
+        raw(Type::Con, Code::PUT, 3, "/cfg", None),
+        raw(Type::Con, Code::GET, 4, "/small", None),
+        // A CON POST with an empty token and no options: even the challenge is too large.
+        Message {
+            code: Code::POST,
+            ..Message::empty(Type::Con, 5)
+        }
+        .encode(),
+    ];
+    let mut continuation = Message::decode(&requests[1]).unwrap_or_else(|e| panic!("{e:?}"));
+    continuation.message_id = 6;
+    continuation.token = Token::new(&6u16.to_be_bytes()).unwrap_or_default();
+    continuation.options.set_block(
+        OptionNumber::BLOCK2,
+        coap::BlockOpt {
+            num: 3,
+            more: false,
+            szx: 6,
+        },
+    );
+    let continuation = continuation.encode();
+    let mut received = 0;
+    for r in requests.iter().chain([&continuation]) {
+        sim.inject(v, s, r);
+        received += r.len();
+        sim.run_until(Duration::from_millis(50), |_| false);
+    }
+    sim.run_until(Duration::from_secs(5), |_| false);
+    let sent = sent_to(&sim, &[v]);
+    let factor = sent as f64 / received as f64;
+    eprintln!("unverified requests: {received} B in, {sent} B out, factor {factor:.2}");
+    assert!(factor <= 3.0, "amplification {factor:.2}");
+
+    let replies = replies_to(&sim, v);
+    let by_mid = |mid: u16| -> Vec<&Message> {
+        let token = Token::new(&mid.to_be_bytes()).unwrap_or_default();
+        replies.iter().filter(|m| m.token == token).collect()
+    };
+    // The small answer fits and goes as it is; the rest are challenged.
+    let small = by_mid(4);
+    assert_eq!(small.len(), 1);
+    assert_eq!((small[0].code, &small[0].payload[..]), (Code::CONTENT, &b"ok"[..]));
+    for mid in [1, 2, 3, 6] {
+        let r = by_mid(mid);
+        assert_eq!(r.len(), 1, "one reply to request {mid}");
+        assert_eq!(r[0].code, Code::UNAUTHORIZED, "request {mid}");
+        assert!(r[0].options.first(OptionNumber::ECHO).is_some());
+        assert!(r[0].encoded_len() <= 3 * requests[0].len().min(continuation.len()));
+    }
+    assert!(
+        replies
+            .iter()
+            .any(|m| m.ty == Type::Rst && m.message_id == 5),
+        "the tiny POST gets a Reset"
+    );
+    // Only the safe requests ran (GET /big and GET /small); the POST grab, the PUT and
+    // the continuation did not.
+    assert_eq!(ran.get(), 2);
+}
+
+#[test]
+fn rfc9175_2_3_a_client_off_loopback_answers_one_challenge_and_then_works() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let (s, ran, registered) = observable_server(&mut sim);
+    let c = sim.add_at(
+        SocketAddr::from(([192, 0, 2, 200], 5683)),
+        cfg(1),
+        None,
+    );
+    let now = sim.now;
+    let mut post = Request::new(Code::POST, "/grab");
+    post.payload = vec![1u8; 3000].into();
+    sim.nodes[c].ep.request(now, SERVER, post);
+    assert!(sim.run_to_event(c, Duration::from_secs(20)));
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, SERVER, Request::new(Code::GET, "/big"));
+    let mut observe = Request::new(Code::GET, "/obs");
+    observe.options.set_uint(OptionNumber::OBSERVE, 0);
+    sim.nodes[c].ep.request(now, SERVER, observe);
+    assert!(sim.run_until(Duration::from_secs(20), |s| s.nodes[c].events.len() >= 3));
+
+    let bodies: Vec<(Code, usize)> = sim.nodes[c]
+        .events
+        .iter()
+        .filter_map(|(_, e)| match e {
+            Event::Response { response, .. } => Some((response.code, response.payload.len())),
+            _ => None,
+        })
+        .collect();
+    assert!(bodies.contains(&(Code::CONTENT, 20_000)), "{bodies:?}");
+    assert!(bodies.contains(&(Code::CONTENT, 5000)), "{bodies:?}");
+    assert!(bodies.contains(&(Code::CONTENT, 2)), "{bodies:?}");
+    let challenges = sim
+        .log
+        .iter()
+        .filter(|r| r.msg.as_ref().is_some_and(|m| m.code == Code::UNAUTHORIZED))
+        .count();
+    assert_eq!(challenges, 1, "only the first request is challenged");
+    // The POST ran once (its first block was challenged before it was stored), the GET
+    // and the registration once each.
+    assert_eq!(ran.get(), 3);
+    // The registration came from a verified address, so the observation notifies.
+    let obs = *registered.borrow().first().unwrap_or_else(|| panic!("no registration"));
+    let now = sim.now;
+    let update = Response::new(Code::CONTENT).with_payload("v1");
+    assert!(sim.nodes[s].ep.notify(now, obs, update));
+    assert!(sim.run_until(Duration::from_secs(5), |s| s.nodes[c].events.len() >= 4));
+}
