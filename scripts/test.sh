@@ -85,7 +85,7 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 step "cargo test"
 cargo test --workspace --locked
 
-step "multicast tests in a private network namespace"
+step "multicast and off-host tests in a private network namespace"
 # Group traffic must never leave through a real interface: these tests run only inside a
 # namespace of their own (scripts/netns-run), which needs root and iproute2.
 if ! command -v ip >/dev/null; then
@@ -94,7 +94,7 @@ if ! command -v ip >/dev/null; then
 fi
 # The whole workspace, as in the step above, so the test binaries built there are reused
 # (`-p` alone unifies features differently and rebuilds ~300 MB of them).
-scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group::
+scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group:: offhost::
 
 step "fuzz targets build and replay their seeds"
 bash scripts/fuzz-build.sh

@@ -316,7 +316,9 @@ impl Endpoint {
             options: Default::default(),
             payload: Bytes::new(),
         };
-        reply.options.set(OptionNumber::ECHO, self.verify.echo(now, peer));
+        reply
+            .options
+            .set(OptionNumber::ECHO, self.verify.echo(now, peer));
         (reply.encoded_len() <= budget).then_some(reply)
     }
 

@@ -190,7 +190,10 @@ fn rfc9175_2_4_unverified_requests_get_at_most_three_times_their_size() {
     // The small answer fits and goes as it is; the rest are challenged.
     let small = by_mid(4);
     assert_eq!(small.len(), 1);
-    assert_eq!((small[0].code, &small[0].payload[..]), (Code::CONTENT, &b"ok"[..]));
+    assert_eq!(
+        (small[0].code, &small[0].payload[..]),
+        (Code::CONTENT, &b"ok"[..])
+    );
     for mid in [1, 2, 3, 6] {
         let r = by_mid(mid);
         assert_eq!(r.len(), 1, "one reply to request {mid}");
@@ -213,18 +216,16 @@ fn rfc9175_2_4_unverified_requests_get_at_most_three_times_their_size() {
 fn rfc9175_2_3_a_client_off_loopback_answers_one_challenge_and_then_works() {
     let mut sim = Sim::new(LinkConfig::default());
     let (s, ran, registered) = observable_server(&mut sim);
-    let c = sim.add_at(
-        SocketAddr::from(([192, 0, 2, 200], 5683)),
-        cfg(1),
-        None,
-    );
+    let c = sim.add_at(SocketAddr::from(([192, 0, 2, 200], 5683)), cfg(1), None);
     let now = sim.now;
     let mut post = Request::new(Code::POST, "/grab");
     post.payload = vec![1u8; 3000].into();
     sim.nodes[c].ep.request(now, SERVER, post);
     assert!(sim.run_to_event(c, Duration::from_secs(20)));
     let now = sim.now;
-    sim.nodes[c].ep.request(now, SERVER, Request::new(Code::GET, "/big"));
+    sim.nodes[c]
+        .ep
+        .request(now, SERVER, Request::new(Code::GET, "/big"));
     let mut observe = Request::new(Code::GET, "/obs");
     observe.options.set_uint(OptionNumber::OBSERVE, 0);
     sim.nodes[c].ep.request(now, SERVER, observe);
@@ -251,7 +252,10 @@ fn rfc9175_2_3_a_client_off_loopback_answers_one_challenge_and_then_works() {
     // and the registration once each.
     assert_eq!(ran.get(), 3);
     // The registration came from a verified address, so the observation notifies.
-    let obs = *registered.borrow().first().unwrap_or_else(|| panic!("no registration"));
+    let obs = *registered
+        .borrow()
+        .first()
+        .unwrap_or_else(|| panic!("no registration"));
     let now = sim.now;
     let update = Response::new(Code::CONTENT).with_payload("v1");
     assert!(sim.nodes[s].ep.notify(now, obs, update));

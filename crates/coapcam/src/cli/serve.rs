@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use anyhow::Context as _;
 use clap::Args;
+use coap::EndpointConfig;
 use coapcam::server::{Cameras, RealSenseOptions, Station, StationConfig};
 use rgbd::Scene;
 use rgbd::backend::realsense::LibrarySearch;
@@ -81,6 +82,15 @@ pub(crate) struct ServeArgs {
     /// yet, so anyone who can reach the port could change the cameras.
     #[arg(long)]
     allow_unauthenticated_config: bool,
+    /// Answer clients off this machine in full before their address is verified. By
+    /// default (RFC 9175) a client whose address has not been proven gets at most three
+    /// times the bytes it sent, and an Echo challenge (4.01) before a larger answer, an
+    /// Observe registration or a change; clients that implement Echo (coapcam, libcoap)
+    /// repeat the request once and go on. For clients that do not (aiocoap 0.4.17) on a
+    /// network you trust; it lets a forged source address turn the server into an
+    /// amplifier.
+    #[arg(long)]
+    no_address_check: bool,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
@@ -131,10 +141,18 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         quota: args.quota,
         groups: args.group.clone(),
         group_interface: args.group_interface,
-        endpoint: args.transmission.endpoint_config(),
+        endpoint: EndpointConfig {
+            verify_addresses: !args.no_address_check,
+            ..args.transmission.endpoint_config()
+        },
         allow_unauthenticated_config: args.allow_unauthenticated_config,
     })
     .await?;
+    if args.no_address_check {
+        eprintln!(
+            "coapcam: warning: clients are answered in full before their address is verified (--no-address-check)"
+        );
+    }
     if args.allow_unauthenticated_config {
         eprintln!(
             "coapcam: warning: anyone who can reach this server may change its configuration (--allow-unauthenticated-config)"

@@ -15,6 +15,7 @@ mod interop;
 mod library;
 mod logs;
 mod netem;
+mod offhost;
 mod realsense;
 mod signals;
 mod support;
