@@ -91,6 +91,11 @@ pub(crate) struct ServeArgs {
     /// amplifier.
     #[arg(long)]
     no_address_check: bool,
+    /// The memory grabs in progress may take together, in MiB. Each grab reserves its
+    /// estimated peak (about 29 MiB for a 1280x720 point cloud) before it starts; one
+    /// that would pass the budget answers 5.03 with Max-Age 1 (clients retry then).
+    #[arg(long, value_name = "MIB", default_value_t = 256)]
+    grab_memory: u64,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
@@ -146,6 +151,7 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             ..args.transmission.endpoint_config()
         },
         allow_unauthenticated_config: args.allow_unauthenticated_config,
+        grab_memory: args.grab_memory.saturating_mul(1 << 20),
     })
     .await?;
     if args.no_address_check {

@@ -20,6 +20,9 @@ use crate::report::EdgeQuery;
 use crate::repr::packet::{self, DepthImage};
 use crate::repr::{Stream, cbor, clouds, rvl};
 
+/// The longest Max-Age of a 5.03 that [`CamClient`] waits out and asks again after.
+const BUSY_RETRY: Duration = Duration::from_secs(5);
+
 /// A client of one coapcam server.
 pub struct CamClient {
     client: Client,
@@ -119,19 +122,37 @@ impl CamClient {
     }
 
     /// Sends `request` (`what` names it in errors) and returns the response if it is a
-    /// 2.xx whose body arrived whole.
+    /// 2.xx whose body arrived whole. A server that is busy for a few seconds (5.03 with
+    /// Max-Age up to [`BUSY_RETRY`], e.g. grabs past its memory budget) is asked again
+    /// after Max-Age, within the request's timeout.
     async fn exchange(&self, request: Request, what: &str) -> anyhow::Result<Response> {
-        let response = match &self.bars {
-            Some(bars) => {
-                let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
-                let sent = self.client.send_with_progress(self.server, request, tx);
-                let (response, ()) = tokio::join!(sent, progress::Bar::in_group(bars).follow(rx));
-                response
+        let deadline = tokio::time::Instant::now() + self.timeout;
+        loop {
+            let response = match &self.bars {
+                Some(bars) => {
+                    let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+                    let sent = self.client.send_with_progress(self.server, request.clone(), tx);
+                    let (response, ()) =
+                        tokio::join!(sent, progress::Bar::in_group(bars).follow(rx));
+                    response
+                }
+                None => self.client.send(self.server, request.clone()).await,
+            };
+            let response = response.with_context(|| format!("{what} on {}", self.server))?;
+            if response.code == Code::SERVICE_UNAVAILABLE
+                && let Some(wait) = response
+                    .options
+                    .uint(OptionNumber::MAX_AGE)
+                    .map(|s| Duration::from_secs(u64::from(s)).max(Duration::from_millis(100)))
+                    .filter(|w| *w <= BUSY_RETRY)
+                && tokio::time::Instant::now() + wait < deadline
+            {
+                tracing::debug!(%what, ?wait, "the server is busy; asking again");
+                tokio::time::sleep(wait).await;
+                continue;
             }
-            None => self.client.send(self.server, request).await,
-        };
-        let response = response.with_context(|| format!("{what} on {}", self.server))?;
-        check(what, response)
+            return check(what, response);
+        }
     }
 
     /// The request `call` sends, for callers that send it themselves (multicast).

@@ -76,6 +76,9 @@ pub struct StationConfig {
     /// Accept configuration changes from any address, not only from this machine
     /// ([`loopback_only`]).
     pub allow_unauthenticated_config: bool,
+    /// The memory grabs in progress may take together, in bytes (a grab beyond it
+    /// answers 5.03 with Max-Age 1).
+    pub grab_memory: u64,
 }
 
 /// The policy of a server without security configured: configuration changes (PUT and
@@ -128,6 +131,7 @@ impl Station {
                 &config.state_dir,
                 &router,
                 changed_tx.clone(),
+                config.grab_memory,
             )?),
             None => None,
         };
@@ -328,8 +332,10 @@ fn start_cameras(
     state_dir: &Path,
     router: &Arc<Router>,
     changed: mpsc::UnboundedSender<String>,
+    grab_memory: u64,
 ) -> anyhow::Result<CameraTree> {
     let (hub, cams) = start_hub(state_dir, router, changed)?;
+    cams.set_grab_memory(grab_memory);
     let mut backend = None;
     match cameras {
         Cameras::RealSense(options) => {

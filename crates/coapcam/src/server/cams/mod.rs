@@ -2,6 +2,7 @@
 //! per-camera grab and configuration resources that follow the [`CameraHub`], and
 //! `/cams/pointclouds`, and `/cams/dimensions` (measurement at the edge, an extension).
 
+mod budget;
 mod config;
 mod edge;
 mod grab;
@@ -73,6 +74,8 @@ pub(crate) struct Cams {
     changed: mpsc::UnboundedSender<String>,
     /// `/cams/dimensions`: the latest measurement at the edge.
     measured: Mutex<edge::Latest>,
+    /// The memory grabs in progress may take together.
+    budget: Arc<budget::Budget>,
 }
 
 impl Cams {
@@ -93,6 +96,7 @@ impl Cams {
             cams: Mutex::default(),
             changed,
             measured: Mutex::default(),
+            budget: budget::Budget::new(budget::DEFAULT_BYTES),
         });
         me.register_fixed();
         let events = me.hub.subscribe();
@@ -109,6 +113,28 @@ impl Cams {
                 }
             })?;
         Ok(me)
+    }
+
+    /// Sets the memory grabs in progress may take together (default 256 MiB); a grab
+    /// beyond it answers 5.03 with Max-Age 1.
+    pub(crate) fn set_grab_memory(&self, bytes: u64) {
+        self.budget.set_limit(bytes);
+    }
+
+    /// Reserves the memory of grabbing `kinds` from each of `cams`, or the 5.03 refusal.
+    fn reserve(
+        &self,
+        cams: &[(Serial, Arc<CamState>)],
+        kinds: &[Stream],
+    ) -> Result<budget::Held, Response> {
+        let cost = cams
+            .iter()
+            .map(|(_, cam)| {
+                let (color, depth) = (cam.camera.color_settings(), cam.camera.depth_settings());
+                kinds.iter().map(|k| budget::cost(*k, &color, &depth)).sum::<u64>()
+            })
+            .sum();
+        self.budget.take(cost)
     }
 
     fn register_fixed(self: &Arc<Self>) {
@@ -363,6 +389,10 @@ impl Cams {
         let Some(cam) = self.camera(&sn) else {
             return Response::diagnostic(Code::NOT_FOUND, &format!("camera {sn} is disconnected"));
         };
+        let _held = match self.reserve(&[(sn, cam.clone())], &[kind]) {
+            Ok(held) => held,
+            Err(busy) => return busy,
+        };
         let app = lock(&cam.app).clone();
         let transformation = *lock(&cam.transformation);
         let camera = cam.camera.clone();
@@ -531,7 +561,12 @@ impl Cams {
             Ok(cf) => cf,
             Err(refused) => return refused,
         };
-        let merged = self.grab_merged(self.snapshot()).await;
+        let cams = self.snapshot();
+        let _held = match self.reserve(&cams, &[Stream::Pointcloud]) {
+            Ok(held) => held,
+            Err(busy) => return busy,
+        };
+        let merged = self.grab_merged(cams).await;
         if cf == ContentFormat::DEPTH_CLOUD && merged.parts.is_empty() {
             // The compact cloud is made of cameras' depth: without one there is nothing
             // to send in it (the other formats send an empty cloud).
@@ -638,6 +673,15 @@ impl Cams {
         if cams.is_empty() {
             return no_cloud(&[]);
         }
+        let kinds: &[Stream] = if query.codes {
+            &[Stream::Pointcloud, Stream::Color]
+        } else {
+            &[Stream::Pointcloud]
+        };
+        let _held = match self.reserve(&cams, kinds) {
+            Ok(held) => held,
+            Err(busy) => return busy,
+        };
         let started = Instant::now();
         // The color images for the codes are grabbed and read while the clouds are.
         let codes = query.codes.then(|| {
