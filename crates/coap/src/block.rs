@@ -28,6 +28,16 @@ pub(crate) struct BlockKey {
 }
 
 impl BlockKey {
+    /// The bytes the key holds: itself, and its options when they spilled to the heap.
+    pub(crate) fn held(&self) -> usize {
+        size_of::<Self>()
+            + if self.options.spilled() {
+                self.options.capacity()
+            } else {
+                0
+            }
+    }
+
     /// The key under which a response to a request sent to a group is stored: the
     /// client's port without its address. The client asks for the other blocks by
     /// unicast (RFC 7959 §2.8), and the kernel may send those from another of its
@@ -102,11 +112,21 @@ struct Assembly {
     last_used: Instant,
 }
 
+/// What an entry of a map keyed by [`BlockKey`] costs beyond its key and value: the
+/// tree's node share and the allocator's headers, rounded up.
+const ENTRY_OVERHEAD: usize = 64;
+
+/// The bytes an assembly holds: its key, its body's allocation, the entry.
+fn held(key: &BlockKey, a: &Assembly) -> usize {
+    key.held() + ENTRY_OVERHEAD + a.body.capacity()
+}
+
 /// Block1 bodies in assembly, bounded per peer and in total.
 pub(crate) struct Block1Assembler {
     assemblies: BTreeMap<BlockKey, Assembly>,
+    /// The bytes held in all: keys, bodies' allocations, entries.
     total_bytes: usize,
-    /// The bytes held per peer, kept as bodies grow and go (no scan per request).
+    /// The body bytes per peer, kept as bodies grow and go (no scan per request).
     peer_bytes: FastMap<SocketAddr, usize>,
     /// When idle assemblies were last looked for.
     swept: Option<Instant>,
@@ -130,16 +150,17 @@ impl Block1Assembler {
         self.peer_bytes.get(&peer).copied().unwrap_or(0)
     }
 
-    /// Counts `len` more (`grew`) or fewer bytes held for `peer`.
-    fn account(&mut self, peer: SocketAddr, len: usize, grew: bool) {
-        let held = self.peer_bytes.entry(peer).or_default();
+    /// Counts `body` more (`grew`) or fewer body bytes of `peer`, and `held` more or fewer
+    /// bytes held in all.
+    fn account(&mut self, peer: SocketAddr, body: usize, held: usize, grew: bool) {
+        let bytes = self.peer_bytes.entry(peer).or_default();
         if grew {
-            self.total_bytes += len;
-            *held += len;
+            self.total_bytes += held;
+            *bytes += body;
         } else {
-            self.total_bytes -= len;
-            *held -= len;
-            if *held == 0 {
+            self.total_bytes -= held;
+            *bytes -= body;
+            if *bytes == 0 {
                 self.peer_bytes.remove(&peer);
             }
         }
@@ -158,13 +179,24 @@ impl Block1Assembler {
         self.assemblies.retain(|k, a| {
             let keep = now.saturating_duration_since(a.last_used) < limits.blockwise_lifetime;
             if !keep {
-                gone.push((k.peer, a.body.len()));
+                gone.push((k.peer, a.body.len(), held(k, a)));
             }
             keep
         });
-        for (peer, len) in gone {
-            self.account(peer, len, false);
+        for (peer, body, held) in gone {
+            self.account(peer, body, held, false);
         }
+    }
+
+    /// Drops every assembly idle for longer than the lifetime, now.
+    pub(crate) fn expire_all(&mut self, now: Instant, limits: &Limits) {
+        self.swept = None;
+        self.expire(now, limits);
+    }
+
+    /// When the assembly idle longest was last used.
+    pub(crate) fn oldest(&self) -> Option<Instant> {
+        self.assemblies.values().map(|a| a.last_used).min()
     }
 
     /// Takes one Block1 request (RFC 7959 §2.3). `size1` is the request's Size1 option;
@@ -241,16 +273,22 @@ impl Block1Assembler {
                 size1: None,
             };
         }
-        let assembly = self
-            .assemblies
-            .entry(key.clone())
-            .or_insert_with(|| Assembly {
+        let mut fresh = false;
+        let assembly = self.assemblies.entry(key.clone()).or_insert_with(|| {
+            fresh = true;
+            Assembly {
                 body: Vec::new(),
                 last_used: now,
-            });
+            }
+        });
+        let before = assembly.body.capacity();
         assembly.body.extend_from_slice(payload);
         assembly.last_used = now;
-        self.account(key.peer, payload.len(), true);
+        let mut grew = assembly.body.capacity() - before;
+        if fresh {
+            grew += key.held() + ENTRY_OVERHEAD;
+        }
+        self.account(key.peer, payload.len(), grew, true);
         if block.more {
             Block1Outcome::Continue(BlockOpt {
                 szx: reply_szx,
@@ -264,11 +302,10 @@ impl Block1Assembler {
 
     fn drop_key(&mut self, key: &BlockKey) -> Option<Vec<u8>> {
         let a = self.assemblies.remove(key)?;
-        self.account(key.peer, a.body.len(), false);
+        self.account(key.peer, a.body.len(), held(key, &a), false);
         Some(a.body)
     }
 
-    #[cfg(test)]
     pub(crate) fn total_bytes(&self) -> usize {
         self.total_bytes
     }
@@ -380,6 +417,11 @@ impl ServerCache {
         });
     }
 
+    /// When the representation unused longest was last used.
+    pub(crate) fn oldest(&self) -> Option<Instant> {
+        self.entries.values().map(|s| s.last_used).min()
+    }
+
     /// Stores a representation, replacing the previous one for the same request and
     /// evicting the least recently used ones to stay within the byte limit. A
     /// representation larger than the whole store is not stored. `q_block`: its blocks
@@ -397,7 +439,16 @@ impl ServerCache {
     ) {
         self.expire(now, limits);
         self.remove(&key);
-        let held = body.0.held();
+        let head = BlockHead::new(&options, OptionNumber::BLOCK2);
+        let q_options = q_block.then_some(options);
+        // The body, and what the entry holds besides: its key, the options encoded once,
+        // the Q-Block options.
+        let held = body.0.held()
+            + key.held()
+            + ENTRY_OVERHEAD
+            + size_of::<Stored>()
+            + head.held()
+            + q_options.as_ref().map_or(0, Options::held);
         if held > limits.block2_store_bytes {
             return;
         }
@@ -417,8 +468,8 @@ impl ServerCache {
             key,
             Stored {
                 code,
-                head: BlockHead::new(&options, OptionNumber::BLOCK2),
-                q_options: q_block.then_some(options),
+                head,
+                q_options,
                 body,
                 held,
                 last_used: now,
@@ -457,7 +508,6 @@ impl ServerCache {
         None
     }
 
-    #[cfg(test)]
     pub(crate) fn bytes(&self) -> usize {
         self.bytes
     }
@@ -719,7 +769,10 @@ mod tests {
             (a.peer_bytes(key(1).peer), a.peer_bytes(key(3).peer)),
             (64, 16)
         );
-        assert_eq!(a.total_bytes(), 80);
+        // In all, what the bodies' allocations, the keys and the entries hold.
+        let held_now: usize = a.assemblies.iter().map(|(k, x)| held(k, x)).sum();
+        assert_eq!(a.total_bytes(), held_now);
+        assert!(held_now >= 80 + 3 * (key(1).held() + ENTRY_OVERHEAD));
         // A third block for peer 1 passes its 64 bytes: that body is dropped.
         let r = a.handle(now, key(1), b(2, true, 0), None, &[1; 16], &c);
         assert!(matches!(
@@ -742,11 +795,61 @@ mod tests {
         assert!(a.peer_bytes.is_empty());
     }
 
+    /// A key whose request carried `len` bytes of Uri-Query.
+    fn long_key(port: u16, len: usize) -> BlockKey {
+        let mut k = key(port);
+        k.options.extend(std::iter::repeat_n(b'q', len));
+        k
+    }
+
+    #[test]
+    fn stores_count_the_bytes_their_keys_hold() {
+        // 100 requests, each with 51 KB of Uri-Query and a small body: the keys are what
+        // fills memory, and what the limits must count.
+        let now = crate::test_epoch();
+        let l = Limits {
+            block2_store_bytes: 1 << 20,
+            block1_total_bytes: 1 << 20,
+            ..Limits::default()
+        };
+        let mut store = ServerCache::new();
+        let mut uploads = Block1Assembler::new();
+        let c = cfg(6, l.clone());
+        let mut refused = 0;
+        for n in 0..100 {
+            let body = Source::new(Bytes::from(vec![0; 2000]));
+            store.insert(
+                now,
+                long_key(n, 51_000),
+                Code::CONTENT,
+                Options::new(),
+                body,
+                false,
+                &l,
+            );
+            let r = uploads.handle(now, long_key(n, 51_000), b(0, true, 0), None, &[1; 16], &c);
+            refused += usize::from(!matches!(r, Block1Outcome::Continue(_)));
+        }
+        assert!(store.bytes() <= 1 << 20, "{} bytes", store.bytes());
+        assert!(store.entries.len() <= 20, "{} kept", store.entries.len());
+        assert!(uploads.total_bytes() <= (1 << 20) + 52_000);
+        assert!(refused >= 80, "{refused} refused");
+    }
+
+    /// What a stored entry of `key(n)` with no options holds besides its body.
+    fn stored_overhead() -> usize {
+        key(1).held()
+            + ENTRY_OVERHEAD
+            + size_of::<Stored>()
+            + BlockHead::new(&Options::new(), OptionNumber::BLOCK2).held()
+    }
+
     #[test]
     fn block2_store_is_bounded_and_expires() {
         let now = crate::test_epoch();
+        let o = stored_overhead();
         let l = Limits {
-            block2_store_bytes: 100,
+            block2_store_bytes: 100 + o,
             ..Limits::default()
         };
         let mut c = ServerCache::new();
@@ -772,7 +875,7 @@ mod tests {
             c.with_stored(now, &key(1), &l, |_| ()).is_none(),
             "oldest evicted"
         );
-        assert_eq!(c.bytes(), 60);
+        assert_eq!(c.bytes(), 60 + o, "the body, the key, the entry");
         let later = now + l.blockwise_lifetime + Duration::from_secs(2);
         assert!(c.with_stored(later, &key(2), &l, |_| ()).is_none());
         assert_eq!(c.bytes(), 0);
@@ -818,8 +921,9 @@ mod tests {
     #[test]
     fn a_source_is_read_per_block_and_counts_what_it_holds() {
         let now = crate::test_epoch();
+        let o = stored_overhead();
         let l = Limits {
-            block2_store_bytes: 100,
+            block2_store_bytes: 100 + o,
             ..Limits::default()
         };
         let source = Arc::new(Counting {
@@ -839,7 +943,7 @@ mod tests {
         );
         assert_eq!(
             c.bytes(),
-            40,
+            40 + o,
             "a 1000-byte body counts what its source holds"
         );
         let body = c

@@ -46,16 +46,21 @@ struct Entry {
     fingerprint: Fingerprint,
     expires: Instant,
     seen: Seen,
-    /// What `seen` counts against the byte limit: its reply's encoded length, or 0.
+    /// What the entry counts against the byte limit ([`size`]).
     bytes: usize,
 }
 
-/// The bytes a remembered reply takes, counted once when it is stored.
+/// The bytes an entry holds, counted once when it is stored: the entry itself with its
+/// key and its place in the order, and a remembered reply (the message, its options and
+/// payload).
 fn size(seen: &Seen) -> usize {
-    match seen {
-        Seen::Replied(m) => m.encoded_len(),
-        Seen::Pending(_) | Seen::Silent => 0,
-    }
+    const ENTRY: usize =
+        size_of::<(MidKey, Entry)>() + size_of::<(Instant, SocketAddr, u16)>() + 16;
+    ENTRY
+        + match seen {
+            Seen::Replied(m) => size_of::<Message>() + m.options.held() + m.payload.len(),
+            Seen::Pending(_) | Seen::Silent => 0,
+        }
 }
 
 /// Bounded store of recently received message IDs per peer.
@@ -234,17 +239,23 @@ mod tests {
     #[test]
     fn dedup_store_is_bounded() {
         let now = crate::test_epoch();
+        let reply = |mid| {
+            let mut m = Message::empty(crate::msg::Type::Ack, mid);
+            m.code = crate::msg::Code::CONTENT;
+            m.payload = Bytes::from(vec![0; 15]);
+            Seen::Replied(Box::new(m))
+        };
+        // An entry holds far more than its reply's 20 bytes on the wire.
+        let each = size(&reply(0));
+        assert!(each > size_of::<Message>() + 15);
         let l = Limits {
             dedup_entries: 10,
-            dedup_bytes: 100,
+            dedup_bytes: 5 * each,
             ..Limits::default()
         };
         let mut d = Dedup::new();
         for mid in 0..50u16 {
-            let mut m = Message::empty(crate::msg::Type::Ack, mid);
-            m.code = crate::msg::Code::CONTENT;
-            m.payload = Bytes::from(vec![0; 15]);
-            let reply = Seen::Replied(Box::new(m));
+            let reply = reply(mid);
             d.insert(
                 now,
                 (peer(), mid),
@@ -256,7 +267,7 @@ mod tests {
         }
         assert!(
             d.len() <= 5,
-            "100 bytes hold five 20-byte replies, got {}",
+            "the bytes of five entries hold five, got {}",
             d.len()
         );
         assert!(

@@ -27,7 +27,7 @@ pub use config::{EndpointConfig, Limits};
 pub use content_format::ContentFormat;
 pub use endpoint::{
     Endpoint, Event, IncomingId, IncomingRequest, ObservationId, PathStats, Request, RequestError,
-    RequestId, Response, Transfer, Transmit,
+    RequestId, Response, ServerStats, Transfer, Transmit,
 };
 pub use msg::{BlockOpt, Code, Message, OptionNumber, Options, Token, Type};
 

@@ -62,6 +62,10 @@ pub(super) enum TimerKind {
         id: u64,
         at: Instant,
     },
+    /// The expiry of the server's idle uploads and stored representations, due at `at`.
+    Sweep {
+        at: Instant,
+    },
 }
 
 #[derive(Debug, Clone, Copy)]

@@ -52,7 +52,7 @@ use std::time::Instant;
 pub use crate::config::Transfer;
 pub use types::{
     Event, IncomingId, IncomingRequest, ObservationId, PathStats, Request, RequestError, RequestId,
-    Response, Transmit,
+    Response, ServerStats, Transmit,
 };
 
 use crate::config::EndpointConfig;
@@ -134,6 +134,7 @@ impl Endpoint {
                 .quploads
                 .get(&id)
                 .is_some_and(|u| u.at == at && !u.done),
+            TimerKind::Sweep { at } => self.server.sweep_at == Some(at),
         }
     }
 
@@ -146,6 +147,16 @@ impl Endpoint {
     /// transfers counted), if it has exchanged anything with it.
     pub fn path_stats(&self, peer: SocketAddr) -> Option<PathStats> {
         self.msg.paths.get(&PeerKey(peer)).map(message::Path::stats)
+    }
+
+    /// What the server side holds now.
+    pub fn server_stats(&self) -> ServerStats {
+        ServerStats {
+            upload_bytes: self.server.block1.total_bytes(),
+            stored_bytes: self.server.block2.bytes(),
+            pending: self.server.pending.len(),
+            observations: self.server.observations.len(),
+        }
     }
 
     /// Requests in progress or queued (client side).
@@ -183,6 +194,7 @@ impl Endpoint {
                 TimerKind::QClient { id, at } => self.on_qclient_timer(now, id, at),
                 TimerKind::QSet { id, at } => self.on_qset_timer(now, id, at),
                 TimerKind::QReceive { id, at } => self.on_qreceive_timer(now, id, at),
+                TimerKind::Sweep { at } => self.on_sweep_timer(now, at),
             }
         }
     }

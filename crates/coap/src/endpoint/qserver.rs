@@ -354,6 +354,7 @@ impl Endpoint {
         if len <= size {
             return (first_response, None);
         }
+        self.arm_sweep(now + self.config.limits.blockwise_lifetime);
         self.server.block2.insert(
             now,
             p.key.clone(),

@@ -206,6 +206,7 @@ impl Endpoint {
                 self.server
                     .block1
                     .handle(now, key.clone(), b1, size1, payload, &self.config);
+            self.arm_sweep(now + limits.blockwise_lifetime);
             let response = match outcome {
                 Block1Outcome::Continue(opt) => {
                     let mut r = Response::new(Code::CONTINUE);
@@ -355,6 +356,32 @@ impl Endpoint {
             None => Seen::Silent,
         };
         self.msg.dedup.set_reply(p.peer, p.mid, seen);
+    }
+
+    /// Makes sure the sweep runs no later than `at`.
+    pub(super) fn arm_sweep(&mut self, at: Instant) {
+        if self.server.sweep_at.is_some_and(|armed| armed <= at) {
+            return;
+        }
+        self.server.sweep_at = Some(at);
+        self.msg.schedule(at, TimerKind::Sweep { at });
+    }
+
+    /// Drops the uploads and stored representations idle for their lifetime, so what an
+    /// idle server holds shrinks without a request to trigger it, and arms the next sweep
+    /// for the first of the rest to run out.
+    pub(super) fn on_sweep_timer(&mut self, now: Instant, at: Instant) {
+        if self.server.sweep_at != Some(at) {
+            return;
+        }
+        self.server.sweep_at = None;
+        let limits = &self.config.limits;
+        self.server.block1.expire_all(now, limits);
+        self.server.block2.expire(now, limits);
+        let oldest = [self.server.block1.oldest(), self.server.block2.oldest()];
+        if let Some(first) = oldest.into_iter().flatten().min() {
+            self.arm_sweep(first + limits.blockwise_lifetime);
+        }
     }
 
     /// Answers a duplicate message as the first one was answered (RFC 7252 §4.5); whether
@@ -542,6 +569,7 @@ impl Endpoint {
             return unreadable();
         };
         if len > BlockOpt::size_of(szx) {
+            self.arm_sweep(now + limits.blockwise_lifetime);
             self.server.block2.insert(
                 now,
                 key,

@@ -63,6 +63,9 @@ pub(super) struct ServerLayer {
     /// Bodies being received with Q-Block1, and their ids by request.
     pub(super) quploads: FastMap<u64, QUpload>,
     pub(super) qupload_ids: BTreeMap<BlockKey, u64>,
+    /// When the armed [`TimerKind::Sweep`](super::message::TimerKind) fires: the first
+    /// time an upload or a stored representation may have been idle for its lifetime.
+    pub(super) sweep_at: Option<std::time::Instant>,
 }
 
 impl ServerLayer {
@@ -90,6 +93,7 @@ impl ServerLayer {
             qsends: FastMap::default(),
             quploads: FastMap::default(),
             qupload_ids: BTreeMap::new(),
+            sweep_at: None,
         }
     }
 }

@@ -63,6 +63,19 @@ pub struct Request {
     pub transfer: Option<Transfer>,
 }
 
+/// What the server side of an endpoint holds ([`Endpoint::server_stats`](crate::Endpoint::server_stats)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ServerStats {
+    /// Bytes held by request bodies being assembled (Block1), with their keys.
+    pub upload_bytes: usize,
+    /// Bytes held by representations stored for Block2 continuations, with their keys.
+    pub stored_bytes: usize,
+    /// Requests handed to the application and not answered yet.
+    pub pending: usize,
+    /// Observations served.
+    pub observations: usize,
+}
+
 /// What an endpoint knows of the path to one peer: its round-trip estimate and what its
 /// windowed transfers counted ([`Endpoint::path_stats`](crate::Endpoint::path_stats)).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

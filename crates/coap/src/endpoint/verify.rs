@@ -130,7 +130,7 @@ mod tests {
     #[test]
     fn an_echo_verifies_only_the_peer_it_was_made_for_and_only_while_fresh() {
         let mut check = AddressCheck::new();
-        let t0 = Instant::now();
+        let t0 = crate::test_epoch();
         assert!(!check.is_verified(t0, peer(1), None, LIFE, 8));
         let echo = check.echo(t0, peer(1));
         assert!(!check.is_verified(t0, peer(2), Some(&echo), LIFE, 8));
@@ -149,7 +149,7 @@ mod tests {
     #[test]
     fn loopback_is_verified_and_the_table_stays_bounded() {
         let mut check = AddressCheck::new();
-        let t0 = Instant::now();
+        let t0 = crate::test_epoch();
         assert!(check.is_verified(t0, "127.0.0.1:1".parse().unwrap(), None, LIFE, 2));
         assert!(check.is_verified(t0, "[::ffff:127.0.0.1]:1".parse().unwrap(), None, LIFE, 2));
         assert!(check.is_verified(t0, "[::1]:1".parse().unwrap(), None, LIFE, 2));

@@ -488,6 +488,11 @@ pub(crate) struct BlockHead {
 }
 
 impl BlockHead {
+    /// The bytes it holds.
+    pub(crate) fn held(&self) -> usize {
+        size_of::<Self>() + self.bytes.capacity()
+    }
+
     /// The encoding of `options` around `number`; instances of `number` itself are left
     /// out (each block sets its own).
     pub(crate) fn new(options: &Options, number: OptionNumber) -> Self {

@@ -284,6 +284,14 @@ impl OptionValue {
         }
     }
 
+    /// The bytes it holds on the heap (0 when inline).
+    pub(crate) fn heap(&self) -> usize {
+        match &self.0 {
+            ValueRepr::Inline { .. } => 0,
+            ValueRepr::Heap(v) => v.capacity(),
+        }
+    }
+
     /// The bytes.
     pub fn as_slice(&self) -> &[u8] {
         match &self.0 {
@@ -359,6 +367,16 @@ impl Options {
                 value: OptionValue::new(value),
             });
         }
+    }
+
+    /// The bytes the list holds: itself, the spilled list and the values on the heap.
+    pub(crate) fn held(&self) -> usize {
+        let list = if self.list.spilled() {
+            self.list.capacity() * size_of::<CoapOption>()
+        } else {
+            0
+        };
+        size_of::<Self>() + list + self.list.iter().map(|o| o.value.heap()).sum::<usize>()
     }
 
     /// All options in wire order.

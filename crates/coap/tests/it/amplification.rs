@@ -39,8 +39,11 @@ fn server(sim: &mut Sim) -> (usize, Rc<Cell<usize>>) {
     (s, ran)
 }
 
+/// The observations a test server registered.
+type Registered = Rc<RefCell<Vec<ObservationId>>>;
+
 /// [`server`], and the observations it registered.
-fn observable_server(sim: &mut Sim) -> (usize, Rc<Cell<usize>>, Rc<RefCell<Vec<ObservationId>>>) {
+fn observable_server(sim: &mut Sim) -> (usize, Rc<Cell<usize>>, Registered) {
     let ran = Rc::new(Cell::new(0));
     let count = ran.clone();
     let registered = Rc::new(RefCell::new(Vec::new()));

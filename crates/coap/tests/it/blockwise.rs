@@ -827,3 +827,55 @@ fn a_piggybacked_answer_for_another_block_is_asked_again() {
     assert_eq!(again.options.block2().map(|b| b.num), Some(1));
     assert_ne!(again.message_id, second.message_id);
 }
+
+#[test]
+fn idle_uploads_and_stored_representations_expire_without_another_request() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let handler: Handler = Box::new(|req| {
+        let body = if req.payload.is_empty() { 4000 } else { 10 };
+        Reply::Now(Response::new(Code::CONTENT).with_payload(vec![5u8; body]))
+    });
+    let s = sim.add(cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    // A GET whose 4,000-byte answer is stored for its continuations, whose client asks
+    // for block 0 only; and the first block of an upload that never goes on.
+    let now = sim.now;
+    let mut get = Request::new(Code::GET, "/big");
+    get.options.set_block(
+        OptionNumber::BLOCK2,
+        BlockOpt {
+            num: 0,
+            more: false,
+            szx: 6,
+        },
+    );
+    sim.nodes[c].ep.request(now, server, get);
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    let mut first = Message::empty(Type::Con, 77);
+    first.code = Code::PUT;
+    first.token = Token::new(&[7]).unwrap_or_default();
+    first.options.set_path("/up");
+    first.options.set_block(
+        OptionNumber::BLOCK1,
+        BlockOpt {
+            num: 0,
+            more: true,
+            szx: 6,
+        },
+    );
+    first.payload = vec![1u8; 1024].into();
+    let client = sim.nodes[c].addr;
+    sim.inject(client, s, &first.encode());
+    sim.run_until(Duration::from_secs(1), |_| false);
+    let held = sim.nodes[s].ep.server_stats();
+    assert!(
+        held.upload_bytes >= 1024 && held.stored_bytes >= 4000,
+        "{held:?}"
+    );
+    // Nothing more arrives; the blockwise lifetime (247 s) passes.
+    let lifetime = cfg(2).limits.blockwise_lifetime;
+    sim.run_until(lifetime + Duration::from_secs(5), |_| false);
+    let held = sim.nodes[s].ep.server_stats();
+    assert_eq!((held.upload_bytes, held.stored_bytes), (0, 0), "{held:?}");
+}

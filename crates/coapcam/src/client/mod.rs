@@ -131,7 +131,9 @@ impl CamClient {
             let response = match &self.bars {
                 Some(bars) => {
                     let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
-                    let sent = self.client.send_with_progress(self.server, request.clone(), tx);
+                    let sent = self
+                        .client
+                        .send_with_progress(self.server, request.clone(), tx);
                     let (response, ()) =
                         tokio::join!(sent, progress::Bar::in_group(bars).follow(rx));
                     response

@@ -37,7 +37,11 @@ pub(super) struct Held {
 
 impl Drop for Held {
     fn drop(&mut self) {
-        let mut used = self.budget.used.lock().unwrap_or_else(PoisonError::into_inner);
+        let mut used = self
+            .budget
+            .used
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
         *used -= self.bytes;
     }
 }
@@ -54,27 +58,41 @@ impl Budget {
         self.limit.store(limit, Ordering::Relaxed);
     }
 
-    /// Reserves `bytes`, or the 5.03 (Max-Age 1) that refuses the grab.
-    pub(super) fn take(self: &Arc<Self>, bytes: u64) -> Result<Held, Response> {
+    /// Reserves `bytes`, or says how full the budget is.
+    pub(super) fn take(self: &Arc<Self>, bytes: u64) -> Result<Held, Busy> {
         let limit = self.limit.load(Ordering::Relaxed);
         let mut used = self.used.lock().unwrap_or_else(PoisonError::into_inner);
         if *used > 0 && *used + bytes > limit {
-            let mut r = Response::diagnostic(
-                Code::SERVICE_UNAVAILABLE,
-                &format!(
-                    "the grabs in progress hold {} of this server's {} MiB for grabs; try again in {RETRY_SECS} s",
-                    mib(*used),
-                    mib(limit)
-                ),
-            );
-            r.options.set_uint(OptionNumber::MAX_AGE, RETRY_SECS);
-            return Err(r);
+            return Err(Busy { used: *used, limit });
         }
         *used += bytes;
         Ok(Held {
             budget: self.clone(),
             bytes,
         })
+    }
+}
+
+/// A grab refused: what the grabs in progress hold, and the budget.
+#[derive(Debug)]
+pub(super) struct Busy {
+    used: u64,
+    limit: u64,
+}
+
+impl Busy {
+    /// The 5.03 that refuses the grab, with Max-Age 1.
+    pub(super) fn response(&self) -> Response {
+        let mut r = Response::diagnostic(
+            Code::SERVICE_UNAVAILABLE,
+            &format!(
+                "the grabs in progress hold {} of this server's {} MiB for grabs; try again in {RETRY_SECS} s",
+                mib(self.used),
+                mib(self.limit)
+            ),
+        );
+        r.options.set_uint(OptionNumber::MAX_AGE, RETRY_SECS);
+        r
     }
 }
 
@@ -103,7 +121,7 @@ mod tests {
     fn grabs_past_the_budget_are_refused_until_one_ends() {
         let budget = Budget::new(100);
         let a = budget.take(60).expect("first");
-        let refused = budget.take(60).expect_err("past the budget");
+        let refused = budget.take(60).expect_err("past the budget").response();
         assert_eq!(refused.code, Code::SERVICE_UNAVAILABLE);
         assert_eq!(refused.options.uint(OptionNumber::MAX_AGE), Some(1));
         let b = budget.take(40).expect("within");

@@ -126,12 +126,15 @@ impl Cams {
         &self,
         cams: &[(Serial, Arc<CamState>)],
         kinds: &[Stream],
-    ) -> Result<budget::Held, Response> {
+    ) -> Result<budget::Held, budget::Busy> {
         let cost = cams
             .iter()
             .map(|(_, cam)| {
                 let (color, depth) = (cam.camera.color_settings(), cam.camera.depth_settings());
-                kinds.iter().map(|k| budget::cost(*k, &color, &depth)).sum::<u64>()
+                kinds
+                    .iter()
+                    .map(|k| budget::cost(*k, &color, &depth))
+                    .sum::<u64>()
             })
             .sum();
         self.budget.take(cost)
@@ -391,7 +394,7 @@ impl Cams {
         };
         let _held = match self.reserve(&[(sn, cam.clone())], &[kind]) {
             Ok(held) => held,
-            Err(busy) => return busy,
+            Err(busy) => return busy.response(),
         };
         let app = lock(&cam.app).clone();
         let transformation = *lock(&cam.transformation);
@@ -564,7 +567,7 @@ impl Cams {
         let cams = self.snapshot();
         let _held = match self.reserve(&cams, &[Stream::Pointcloud]) {
             Ok(held) => held,
-            Err(busy) => return busy,
+            Err(busy) => return busy.response(),
         };
         let merged = self.grab_merged(cams).await;
         if cf == ContentFormat::DEPTH_CLOUD && merged.parts.is_empty() {
@@ -680,7 +683,7 @@ impl Cams {
         };
         let _held = match self.reserve(&cams, kinds) {
             Ok(held) => held,
-            Err(busy) => return busy,
+            Err(busy) => return busy.response(),
         };
         let started = Instant::now();
         // The color images for the codes are grabbed and read while the clouds are.

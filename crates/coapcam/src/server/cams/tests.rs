@@ -401,8 +401,15 @@ fn grabs_past_the_memory_budget_answer_5_03_with_max_age_until_memory_is_free() 
         rig.routed(&format!("/cams/{sn}/pointcloud"), true).await;
         rig.cams.set_grab_memory(80 << 20);
         // Another grab holds 60 MiB: a point cloud (about 29 MiB at 1280x720) does not fit.
-        let other = rig.cams.budget.take(60 << 20).expect("the first reservation");
-        for path in [format!("/cams/{sn}/pointcloud"), "/cams/pointclouds".to_string()] {
+        let other = rig
+            .cams
+            .budget
+            .take(60 << 20)
+            .expect("the first reservation");
+        for path in [
+            format!("/cams/{sn}/pointcloud"),
+            "/cams/pointclouds".to_string(),
+        ] {
             let busy = rig.send(Code::POST, &path, b"").await;
             assert_eq!(busy.code, Code::SERVICE_UNAVAILABLE, "{path}");
             assert_eq!(busy.options.uint(OptionNumber::MAX_AGE), Some(1), "{path}");
@@ -411,10 +418,14 @@ fn grabs_past_the_memory_budget_answer_5_03_with_max_age_until_memory_is_free() 
         assert_eq!(busy.code, Code::SERVICE_UNAVAILABLE);
         // Color (at most 14 MiB at 1920x1080) still fits; once the other grab ends, so does
         // the cloud.
-        let color = rig.send(Code::POST, &format!("/cams/{sn}/color"), b"").await;
+        let color = rig
+            .send(Code::POST, &format!("/cams/{sn}/color"), b"")
+            .await;
         assert_eq!(color.code, Code::CONTENT);
         drop(other);
-        let cloud = rig.send(Code::POST, &format!("/cams/{sn}/pointcloud"), b"").await;
+        let cloud = rig
+            .send(Code::POST, &format!("/cams/{sn}/pointcloud"), b"")
+            .await;
         assert_eq!(cloud.code, Code::CONTENT);
     });
 }
