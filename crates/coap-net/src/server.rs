@@ -161,16 +161,21 @@ impl Server {
                     .collect()
             })
             .unwrap_or_default();
-        let mut sent = 0;
+        // Every notification is handed to its endpoint before any answer is awaited: one
+        // round trip to the endpoint threads for all observers, not one each.
+        let mut handed = Vec::with_capacity(targets.len());
         for (endpoint, id, request) in targets {
             let response = self.router.dispatch(request).await;
             let (done, rx) = oneshot::channel();
             let Some(h) = self.endpoints.get(endpoint) else {
                 continue;
             };
-            if h.send(Command::Notify { id, response, done }).is_err() {
-                continue;
+            if h.send(Command::Notify { id, response, done }).is_ok() {
+                handed.push((endpoint, id, rx));
             }
+        }
+        let mut sent = 0;
+        for (endpoint, id, rx) in handed {
             if rx.await.unwrap_or(false) {
                 sent += 1;
             } else {

@@ -44,6 +44,9 @@ pub struct Socket {
     local: SocketAddr,
 }
 
+/// The receive buffer a socket asks the kernel for: 4 MiB.
+const RECV_SOCKET_BUFFER: usize = 4 << 20;
+
 impl Socket {
     /// Binds `addr`. Only a group address is bound with address reuse, so that several
     /// servers on one host can each receive a group's datagrams; a unicast or wildcard
@@ -58,6 +61,12 @@ impl Socket {
         }
         if addr.is_ipv6() {
             raw.set_only_v6(true)?;
+        }
+        // A server with many clients (or a client with a window of blocks in flight)
+        // receives bursts; the kernel's default buffer (about 200 KB) drops them while the
+        // endpoint's thread is busy. The kernel caps this at net.core.rmem_max.
+        if let Err(e) = raw.set_recv_buffer_size(RECV_SOCKET_BUFFER) {
+            tracing::debug!(error = %e, "the socket keeps the kernel's receive buffer size");
         }
         raw.bind(&addr.into())?;
         let local: SocketAddr = raw

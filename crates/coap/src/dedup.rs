@@ -10,7 +10,7 @@ use crate::peer_key::MidKey;
 use std::time::Instant;
 
 use crate::config::Limits;
-use crate::msg::{BlockOpt, Message, Token};
+use crate::msg::{BlockOpt, Message, OptionNumber, Token};
 
 /// What was done with a remembered message.
 #[derive(Debug, Clone)]
@@ -23,14 +23,17 @@ pub(crate) enum Seen {
     Silent,
 }
 
-/// What tells a duplicate from a new message that reuses a message ID: the token and the
-/// block options. A fast client's message IDs come round within EXCHANGE_LIFETIME during a
-/// long block-wise transfer (RFC 7252 §4.4 would hold it to 265 messages a second), while
-/// its token stays the same from block to block.
+/// What tells a duplicate from a new message that reuses a message ID: the token, the
+/// block options and the Observe value. A fast client's message IDs come round within
+/// EXCHANGE_LIFETIME during a long block-wise transfer (RFC 7252 §4.4 would hold it to
+/// 265 messages a second), while its token stays the same from block to block; and a
+/// busy server's message IDs come round while it notifies an observer, whose
+/// notifications all carry one token and differ in their Observe value.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Fingerprint {
     token: Token,
     blocks: (Option<BlockOpt>, Option<BlockOpt>),
+    observe: Option<u32>,
 }
 
 impl Fingerprint {
@@ -38,6 +41,7 @@ impl Fingerprint {
         Self {
             token: msg.token,
             blocks: (msg.options.block1(), msg.options.block2()),
+            observe: msg.options.uint(OptionNumber::OBSERVE),
         }
     }
 }
@@ -190,7 +194,7 @@ mod tests {
                 more: false,
                 szx: 6,
             };
-            m.options.set_block(crate::msg::OptionNumber::BLOCK2, block);
+            m.options.set_block(OptionNumber::BLOCK2, block);
         }
         Fingerprint::of(&m)
     }

@@ -187,8 +187,10 @@ impl Endpoint {
                         self.events
                             .push_back(Event::MulticastDone { id: RequestId(id) });
                     }
+                    // An established observation outlives the timeout, which bounds
+                    // the wait for the registration's answer.
+                    Some(Waiting::Observing(_)) | None => {}
                     Some(_) => self.fail(now, id, RequestError::Timeout),
-                    None => {}
                 },
                 TimerKind::SeparateAck { id } => self.on_separate_ack_timer(now, id),
                 TimerKind::QClient { id, at } => self.on_qclient_timer(now, id, at),

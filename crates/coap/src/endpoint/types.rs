@@ -44,7 +44,8 @@ pub struct Request {
     /// largest (1024 bytes by default) and asks for nothing.
     pub block_szx: Option<u8>,
     /// Give up after this long in total. For a multicast request: how long to collect
-    /// responses (default 5 s).
+    /// responses (default 5 s); for an Observe registration, how long to wait for the
+    /// first answer (the observation then lasts until it is cancelled or ends).
     pub timeout: Option<Duration>,
     /// Sent to a multicast group (RFC 7390): always NON, never re-sent, and every server's
     /// response arrives as [`Event::MulticastResponse`] until the timeout, then

@@ -346,3 +346,43 @@ fn rfc7641_4_5_2_one_con_notification_in_flight_and_a_silent_observer_removed() 
         "the observation ended with the notification's timeout"
     );
 }
+
+#[test]
+fn a_notification_reusing_an_earlier_message_id_is_new_when_its_observe_value_is() {
+    // A busy server's message IDs come round while it notifies: a CON notification may
+    // carry the ID of an earlier NON one to the same client, with the same token. It is
+    // a new message (its Observe value tells), and must be acknowledged and delivered.
+    let (mut sim, c, s, _obs) = observed(LinkConfig::default());
+    let token = sim.log[0].msg.as_ref().map(|m| m.token).unwrap_or_default();
+    let server = sim.nodes[s].addr;
+    let notification = |ty, seq: u32, body: &str| {
+        let mut m = coap::Message::empty(ty, 4242);
+        m.code = Code::CONTENT;
+        m.token = token;
+        m.options.set_uint(OptionNumber::OBSERVE, seq);
+        m.payload = bytes::Bytes::copy_from_slice(body.as_bytes());
+        m.encode()
+    };
+    sim.inject(server, c, &notification(coap::Type::Non, 10, "a"));
+    sim.run_until(Duration::from_secs(1), |_| false);
+    sim.inject(server, c, &notification(coap::Type::Con, 11, "b"));
+    sim.run_until(Duration::from_secs(1), |_| false);
+    let bodies: Vec<&[u8]> = sim.nodes[c]
+        .events
+        .iter()
+        .filter_map(|(_, e)| match e {
+            Event::Response { response, .. } | Event::Notification { response, .. } => {
+                Some(&response.payload[..])
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(bodies, [&b"v0"[..], b"a", b"b"]);
+    assert!(
+        sim.log.iter().any(|r| r.from == sim.nodes[c].addr
+            && r.msg
+                .as_ref()
+                .is_some_and(|m| m.ty == coap::Type::Ack && m.message_id == 4242)),
+        "the CON notification is acknowledged"
+    );
+}

@@ -1,6 +1,6 @@
 //! `coapcam bench accuracy`: a built-in, seeded set of synthetic parcel scenes measured
-//! end to end over CoAP on loopback, with per-scene errors and a summary; `bench transfer`
-//! and `bench repr` are in their own files.
+//! end to end over CoAP on loopback, with per-scene errors and a summary; `bench transfer`,
+//! `bench repr` and `bench load` are in their own files.
 
 use std::net::SocketAddr;
 use std::time::Duration;
@@ -26,6 +26,10 @@ mod transfer;
 #[path = "bench_repr.rs"]
 mod repr;
 
+/// `bench load`, the same way.
+#[path = "bench_load.rs"]
+mod load;
+
 /// Flags of `bench`.
 #[derive(Debug, Args)]
 pub(crate) struct BenchArgs {
@@ -47,6 +51,10 @@ enum BenchKind {
     /// Print the bytes of every representation of one depth frame, one color frame and
     /// the merged point cloud of a scene, and the milliseconds to encode and decode each.
     Repr(repr::ReprArgs),
+    /// Run many concurrent clients (discovery, uploads, grabs, observers) against a
+    /// running server for a while; print discovery latency and what each role counted,
+    /// every transfer checked; exit 1 when anything failed, mismatched or was lost.
+    Load(load::LoadArgs),
 }
 
 #[derive(Debug, Args)]
@@ -180,6 +188,7 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
         BenchKind::Accuracy(a) => accuracy(a).await,
         BenchKind::Transfer(a) => transfer::run(a).await,
         BenchKind::Repr(a) => repr::run(a).await,
+        BenchKind::Load(a) => load::run(a).await,
     }
 }
 

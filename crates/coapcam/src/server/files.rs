@@ -157,7 +157,10 @@ impl StaticFiles {
             }
         }
         self.write().retain(|name, _| {
-            let keep = present.contains(name);
+            // A file written (PUT, POST) after the directory was read is not in `present`
+            // but is there: only a file that is really gone loses its resource.
+            let keep = present.contains(name)
+                || fs::symlink_metadata(self.dir.join(name)).is_ok_and(|m| m.is_file());
             if !keep {
                 router.remove(&format!("/files/{name}"));
             }

@@ -178,7 +178,7 @@ impl Station {
             tokio::select! {
                 () = &mut stop => break,
                 Some(path) = self.changed.recv() => {
-                    server.notify(&path).await;
+                    notify_changed(server, path, &mut self.changed).await;
                 }
                 Some(change) = self.memberships.recv() => {
                     group::apply(server, change, self.group_interface).await;
@@ -213,6 +213,25 @@ impl Station {
     }
 }
 
+/// Notifies the observers of `first` and of every other path changed meanwhile, each
+/// once: a resource that changed many times while the last round of notifications went
+/// out is notified once, with its newest state.
+async fn notify_changed(
+    server: &Server,
+    first: String,
+    changed: &mut mpsc::UnboundedReceiver<String>,
+) {
+    let mut paths = vec![first];
+    while let Ok(path) = changed.try_recv() {
+        if !paths.contains(&path) {
+            paths.push(path);
+        }
+    }
+    for path in paths {
+        server.notify(&path).await;
+    }
+}
+
 /// A server of a scene's synthetic cameras on one address, answering until dropped
 /// (`demo`, `bench accuracy`); [`SceneServer::load`] swaps the scene's cameras.
 pub struct SceneServer {
@@ -238,7 +257,7 @@ impl SceneServer {
         let notify = server.clone();
         let notifier = tokio::spawn(async move {
             while let Some(path) = changed_rx.recv().await {
-                notify.notify(&path).await;
+                notify_changed(&notify, path, &mut changed_rx).await;
             }
         });
         Ok(Self {
