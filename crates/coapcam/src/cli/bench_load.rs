@@ -265,7 +265,7 @@ impl One {
         let mut turn = 0u64;
         while Instant::now() < stop {
             turn += 1;
-            if turn % 2 == 0 {
+            if turn.is_multiple_of(2) {
                 let Some(r) = self
                     .send(Request::new(Code::POST, "/cams/dimensions"))
                     .await
@@ -315,7 +315,8 @@ impl One {
                 if *last == seen {
                     return true;
                 }
-                deadline.get_or_insert(tokio::time::Instant::now() + Duration::from_secs(5));
+                deadline
+                    .get_or_insert_with(|| tokio::time::Instant::now() + Duration::from_secs(5));
             }
             let wait = async {
                 match deadline {
