@@ -128,14 +128,17 @@ impl Endpoint {
             return self.fail(now, id, RequestError::Timeout);
         }
         let lost = w.on_timer(now, rtt, pto);
-        if w.probes >= 3 {
+        let probes = w.probes;
+        // The requests declared lost leave the window now: they are no longer in flight,
+        // whatever happens next (a fallback forgets only those still in flight).
+        if let Some(bbr) = self.msg.path(now, peer).bbr.as_mut() {
+            (0..lost).for_each(|_| bbr.on_lost());
+        }
+        if probes >= 3 {
             // Three probe timeouts in a row without a block: a server that ignores NON
             // requests (or answers them as if they were CONs), or a path gone quiet. The
             // rest goes stop-and-wait, with CONs and their retransmissions.
             return self.window_fallback(now, id);
-        }
-        if let Some(bbr) = self.msg.path(now, peer).bbr.as_mut() {
-            (0..lost).for_each(|_| bbr.on_lost());
         }
         self.window_pump(now, id);
     }

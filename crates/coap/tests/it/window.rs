@@ -339,3 +339,78 @@ fn no_message_id_comes_round_within_the_exchange_lifetime() {
         "{took:?}"
     );
 }
+
+#[test]
+fn a_slow_answer_that_comes_separately_in_blocks_is_fetched_whole() {
+    // The handler takes 2 s: the server sends an empty ACK, then block 0 as a separate
+    // CON; the client fetches the rest with its window (or stop-and-wait).
+    for transfer in [Transfer::Window, Transfer::StopAndWait] {
+        let data = body(20_000, 9);
+        let mut sim = Sim::new(link(0.0, 1));
+        let c = sim.add(cfg(1), None);
+        let served = data.clone();
+        let handler: Handler = Box::new(move |_| {
+            Reply::After(
+                Duration::from_secs(2),
+                Response::new(Code::CONTENT).with_payload(served.clone()),
+            )
+        });
+        let s = sim.add(cfg(2), Some(handler));
+        let server = sim.nodes[s].addr;
+        let now = sim.now;
+        let mut req = Request::new(Code::POST, "/grab");
+        req.transfer = Some(transfer);
+        sim.nodes[c].ep.request(now, server, req);
+        assert!(
+            sim.run_to_event(c, Duration::from_secs(60)),
+            "{transfer:?}: no outcome"
+        );
+        assert_eq!(response(&sim, c).payload, data, "{transfer:?}");
+    }
+}
+
+#[test]
+fn downloads_after_a_fallback_still_get_a_window() {
+    // A path so lossy that the window gives up on it (three probe timeouts in a row) and
+    // goes stop-and-wait; then the loss ends. The requests the window declared lost must
+    // have left the path's count of requests in flight, or later windows never open.
+    let data = body(100_000, 3);
+    let mut l = link(0.45, 1);
+    l.delay = Duration::from_millis(1);
+    let mut sim = Sim::new(l);
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/big"));
+    assert!(sim.run_to_event(c, Duration::from_secs(3600)), "no outcome");
+    assert_eq!(response(&sim, c).payload, data);
+    let fallbacks = sim.nodes[c]
+        .ep
+        .path_stats(server)
+        .expect("a path")
+        .window_fallbacks;
+    assert!(fallbacks >= 1, "the lossy download fell back");
+    sim.link.loss = 0.0;
+    sim.link.duplicate = 0.0;
+    sim.link.jitter = Duration::ZERO;
+    for round in 0..5 {
+        sim.nodes[c].events.clear();
+        let started = sim.now;
+        sim.nodes[c]
+            .ep
+            .request(started, server, Request::new(Code::GET, "/big"));
+        assert!(
+            sim.run_to_event(c, Duration::from_secs(60)),
+            "round {round}: no outcome"
+        );
+        assert_eq!(response(&sim, c).payload, data, "round {round}");
+        assert!(
+            sim.now - started < Duration::from_secs(1),
+            "round {round}: {:?} for 100 KB over a clean 2 ms path",
+            sim.now - started
+        );
+    }
+}
