@@ -415,10 +415,12 @@ impl Thread {
         self.groups
             .retain(|g| !(g.group == group && g.interface == interface));
         if join {
+            let local = self.socket.local_addr();
             let socket = Arc::new(Socket::bind_group(
                 group,
-                self.socket.local_addr().port(),
+                local.port(),
                 interface,
+                local.ip(),
             )?);
             self.memberships += 1;
             let membership = self.memberships;

@@ -44,6 +44,26 @@ pub struct Socket {
     local: SocketAddr,
 }
 
+/// The index of the interface that has the IPv6 address `addr`.
+fn interface_of(addr: Ipv6Addr) -> io::Result<u32> {
+    let found = nix::ifaddrs::getifaddrs()
+        .map_err(io::Error::from)?
+        .find(|i| {
+            i.address
+                .as_ref()
+                .and_then(|a| a.as_sockaddr_in6())
+                .is_some_and(|a| a.ip() == addr)
+        })
+        .map(|i| nix::net::if_::if_nametoindex(i.interface_name.as_str()));
+    match found {
+        Some(index) => index.map_err(io::Error::from),
+        None => Err(io::Error::new(
+            io::ErrorKind::AddrNotAvailable,
+            format!("no interface has {addr}"),
+        )),
+    }
+}
+
 /// The receive buffer a socket asks the kernel for: 4 MiB.
 const RECV_SOCKET_BUFFER: usize = 4 << 20;
 
@@ -179,16 +199,25 @@ impl Socket {
         Ok(())
     }
 
-    /// A socket that receives the datagrams sent to `group` on `port`: bound to the group
-    /// address itself (so it sees no unicast traffic) and joined on `interface` (an IPv6
-    /// interface index; for IPv4 the routing table picks the interface).
-    pub fn bind_group(group: IpAddr, port: u16, interface: u32) -> io::Result<Self> {
+    /// A socket that receives the datagrams sent to `group` on `port` for a server bound
+    /// to the unicast address `on`: bound to the group address itself (so it sees no
+    /// unicast traffic) and joined on the interface that has `on`, so a server bound to
+    /// 127.0.0.1 listens to the group on loopback only, never on the interface of the
+    /// default route. An IPv6 `interface` index other than 0 is taken as given.
+    pub fn bind_group(group: IpAddr, port: u16, interface: u32, on: IpAddr) -> io::Result<Self> {
+        let interface = match (group, on) {
+            (IpAddr::V6(_), IpAddr::V6(a)) if interface == 0 => interface_of(a)?,
+            _ => interface,
+        };
         let addr = match group {
             IpAddr::V4(g) => SocketAddr::from((g, port)),
             IpAddr::V6(g) => SocketAddr::V6(SocketAddrV6::new(g, port, 0, interface)),
         };
         let socket = Self::bind(addr)?;
-        socket.join(group, interface)?;
+        match (group, on) {
+            (IpAddr::V4(g), IpAddr::V4(a)) => socket.io.join_multicast_v4(&g, &a)?,
+            _ => socket.join(group, interface)?,
+        }
         Ok(socket)
     }
 

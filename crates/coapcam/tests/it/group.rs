@@ -518,3 +518,50 @@ fn a_group_nobody_answers_exits_4_for_discover_and_measure() {
         assert!(f.stderr.contains("no server"), "{args:?}: {}", f.stderr);
     }
 }
+
+/// The interfaces (by name) on which `/proc/net/<file>` lists `group`, its address as the
+/// kernel prints it there.
+fn joined_on(file: &str, group: &str) -> Vec<String> {
+    let text = std::fs::read_to_string(format!("/proc/net/{file}")).expect("/proc/net");
+    let mut names = Vec::new();
+    let mut current = String::new();
+    for line in text.lines() {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        match (file, fields.as_slice()) {
+            // igmp: "Idx Device : Count Querier" then indented group lines.
+            ("igmp", [_, dev, ":", ..]) => current = (*dev).to_string(),
+            ("igmp", [g, ..]) if g.eq_ignore_ascii_case(group) => names.push(current.clone()),
+            // igmp6: "index device group users flags timer".
+            ("igmp6", [_, dev, g, ..]) if g.eq_ignore_ascii_case(group) => {
+                names.push((*dev).to_string());
+            }
+            _ => {}
+        }
+    }
+    names
+}
+
+#[test]
+#[ignore = "multicast: run inside scripts/netns-run (scripts/test.sh does)"]
+fn a_group_is_joined_only_on_the_interface_of_the_bound_address() {
+    if !in_namespace("a_group_is_joined_only_on_the_interface_of_the_bound_address") {
+        return;
+    }
+    let dir = TempDir::new("group-interface");
+    // fd00::2 is on mc0, 127.0.0.5 on lo: each server listens to its group there only.
+    let _v6 = serve_at(
+        "[fd00::2]:5695",
+        &dir.join("s6"),
+        &["--no-cameras", "--group", "ff02::fd"],
+    );
+    let _v4 = serve_at(
+        "127.0.0.5:5695",
+        &dir.join("s4"),
+        &["--no-cameras", "--group", "224.0.1.187"],
+    );
+    assert_eq!(
+        joined_on("igmp6", "ff0200000000000000000000000000fd"),
+        ["mc0"]
+    );
+    assert_eq!(joined_on("igmp", "BB0100E0"), ["lo"]);
+}

@@ -13,6 +13,7 @@ mod get;
 mod group;
 mod interop;
 mod library;
+mod load;
 mod logs;
 mod netem;
 mod offhost;

@@ -448,6 +448,11 @@ impl Proc {
     }
 
     /// Interrupts the process (SIGINT, as Ctrl-C) and waits for it, at most [`STARTUP`].
+    /// The process id.
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
     pub(crate) fn interrupt(&mut self) -> Finished {
         let pid = self.child.id().to_string();
         let sent = Command::new("kill").args(["-INT", &pid]).status();
