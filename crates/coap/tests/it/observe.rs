@@ -386,3 +386,42 @@ fn a_notification_reusing_an_earlier_message_id_is_new_when_its_observe_value_is
         "the CON notification is acknowledged"
     );
 }
+
+/// RFC 7641 §4.5.1: NON notifications are paced by the CON among them. Every fifth is a
+/// CON, and the next waits for its ACK: at most four NONs go out per round trip of the
+/// observer, and an observer that stopped answering (or a forged registration, had the
+/// address check let one through) gets four NONs and one CON with its retransmissions
+/// for any number of changes.
+#[test]
+fn rfc7641_4_5_1_non_notifications_are_paced_by_the_con_among_them() {
+    let (mut sim, _c, s, obs) = observed(LinkConfig::default());
+    let server = sim.nodes[s].addr;
+    sim.link.loss = 1.0;
+    for k in 0..1000 {
+        let now = sim.now;
+        let body = format!("change {k}");
+        sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT).with_payload(body));
+        sim.run_until(Duration::from_millis(10), |_| false);
+    }
+    sim.run_until(Duration::from_secs(300), |_| false);
+    let sent: Vec<coap::Type> = sim
+        .log
+        .iter()
+        .filter(|r| r.from == server)
+        .filter_map(|r| r.msg.as_ref())
+        .filter(|m| m.code == Code::CONTENT && m.options.uint(OptionNumber::OBSERVE).is_some())
+        .map(|m| m.ty)
+        .collect();
+    // The registration's answer (an ACK), four NONs, one CON sent five times.
+    let non = sent.iter().filter(|t| **t == coap::Type::Non).count();
+    let con = sent.iter().filter(|t| **t == coap::Type::Con).count();
+    assert_eq!((non, con), (4, 5), "{sent:?}");
+    let now = sim.now;
+    assert!(
+        !sim.nodes[s]
+            .ep
+            .notify(now, obs, Response::new(Code::CONTENT))
+    );
+}
