@@ -8,7 +8,17 @@ use tokio::sync::{mpsc, oneshot};
 
 use crate::Error;
 use crate::driver::{self, BodyItem, Command, EndpointHandle, Progress, Reply, StreamItem};
+use crate::dtls::Psk;
 use crate::socket::Socket;
+
+/// The wildcard address of `peer`'s family, any port.
+fn any_for(peer: SocketAddr) -> SocketAddr {
+    if peer.is_ipv4() {
+        ([0, 0, 0, 0], 0).into()
+    } else {
+        ([0u16; 8], 0).into()
+    }
+}
 
 /// A CoAP client on one socket. Cheap to clone; requests from clones share the socket,
 /// the message IDs and NSTART.
@@ -20,20 +30,34 @@ pub struct Client {
 impl Client {
     /// A client on a socket bound to `addr` (port 0 picks a free one).
     pub fn bind(addr: SocketAddr, config: EndpointConfig) -> std::io::Result<Self> {
+        Self::bind_secured(addr, config, None)
+    }
+
+    /// [`Client::bind`] speaking DTLS (`coaps://`) with `psk` (a [`Psk::Client`]), when
+    /// given: every peer is reached through a DTLS session, opened at its first request.
+    pub fn bind_secured(
+        addr: SocketAddr,
+        config: EndpointConfig,
+        psk: Option<&Psk>,
+    ) -> std::io::Result<Self> {
         let socket = Socket::bind(addr)?;
         Ok(Self {
-            handle: driver::spawn(socket, config, None)?,
+            handle: driver::spawn(socket, config, None, psk)?,
         })
     }
 
     /// A client on an ephemeral port of the right address family for `peer`.
     pub fn for_peer(peer: SocketAddr, config: EndpointConfig) -> std::io::Result<Self> {
-        let any: SocketAddr = if peer.is_ipv4() {
-            ([0, 0, 0, 0], 0).into()
-        } else {
-            ([0u16; 8], 0).into()
-        };
-        Self::bind(any, config)
+        Self::bind(any_for(peer), config)
+    }
+
+    /// [`Client::for_peer`] speaking DTLS with `psk`, when given.
+    pub fn for_peer_secured(
+        peer: SocketAddr,
+        config: EndpointConfig,
+        psk: Option<&Psk>,
+    ) -> std::io::Result<Self> {
+        Self::bind_secured(any_for(peer), config, psk)
     }
 
     /// The local socket address.

@@ -14,7 +14,7 @@ use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Weak};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use coap::{
     Endpoint, EndpointConfig, Event, IncomingRequest, ObservationId, Request, RequestError,
@@ -24,6 +24,7 @@ use tokio::sync::mpsc::error::TryRecvError;
 use tokio::sync::{mpsc, oneshot};
 
 use crate::clock;
+use crate::dtls::{Dtls, Psk};
 use crate::socket::{RECV_BUFFER, Received, Socket};
 
 /// What a request's caller gets back.
@@ -219,6 +220,9 @@ impl EndpointHandle {
 /// on how late a command is read if its wake-up datagram was lost (a full receive buffer).
 const MAX_WAIT: Duration = Duration::from_secs(1);
 
+/// Why requests to a peer failed when no DTLS session could be opened with it.
+const NO_SESSION: &str = "no DTLS session: the handshake failed or got no answer (a wrong key or identity, or no coaps:// server there)";
+
 /// The same bound for a thread that has no waker.
 const POLL_WAIT: Duration = Duration::from_millis(10);
 
@@ -228,9 +232,11 @@ pub(crate) fn spawn(
     socket: Socket,
     config: EndpointConfig,
     server: Option<mpsc::UnboundedSender<ServerEvent>>,
+    psk: Option<&Psk>,
 ) -> std::io::Result<EndpointHandle> {
     let waker = Waker::new(socket.local_addr());
-    start(socket, config, server, waker)
+    let dtls = psk.map(Dtls::new).transpose()?;
+    start(socket, config, server, waker, dtls)
 }
 
 fn start(
@@ -238,6 +244,7 @@ fn start(
     config: EndpointConfig,
     server: Option<mpsc::UnboundedSender<ServerEvent>>,
     waker: Waker,
+    dtls: Option<Dtls>,
 ) -> std::io::Result<EndpointHandle> {
     let (tx, rx) = mpsc::unbounded_channel();
     let local = socket.local_addr();
@@ -258,6 +265,8 @@ fn start(
         memberships: 0,
         open: true,
         wait: None,
+        dtls,
+        dtls_tick: None,
     };
     std::thread::Builder::new()
         .name(format!("coap {local}"))
@@ -303,6 +312,10 @@ struct Thread {
     open: bool,
     /// The socket's read timeout as last set (`None`: not yet).
     wait: Option<Duration>,
+    /// DTLS between the socket and the endpoint (`coaps://`), and when its handshakes
+    /// are to be driven next.
+    dtls: Option<Dtls>,
+    dtls_tick: Option<Instant>,
 }
 
 impl Thread {
@@ -311,8 +324,13 @@ impl Thread {
         let mut received: Vec<Received> = Vec::new();
         loop {
             while let Some(t) = self.ep.poll_transmit() {
-                if let Err(e) = self.socket.send_to(&t.data, t.peer) {
-                    tracing::debug!(peer = %t.peer, error = %e, "send failed");
+                match &mut self.dtls {
+                    Some(dtls) => {
+                        for d in dtls.send(clock::now(), t.peer, &t.data) {
+                            self.send(&d, t.peer);
+                        }
+                    }
+                    None => self.send(&t.data, t.peer),
                 }
             }
             while let Some(ev) = self.ep.poll_event() {
@@ -326,7 +344,31 @@ impl Thread {
                 return;
             }
             let now = clock::now();
-            let deadline = self.ep.poll_timeout();
+            if let Some(dtls) = &mut self.dtls {
+                let mut gave_up = Vec::new();
+                if self.dtls_tick.is_some_and(|t| t <= now) {
+                    self.dtls_tick = None;
+                    let (datagrams, peers) = dtls.handle_timeout(now);
+                    gave_up = peers;
+                    for (peer, d) in datagrams {
+                        if let Err(e) = self.socket.send_to(&d, peer) {
+                            tracing::debug!(%peer, error = %e, "send failed");
+                        }
+                    }
+                }
+                if self.dtls_tick.is_none() {
+                    self.dtls_tick = dtls.poll_timeout(now);
+                }
+                if self.server.is_none() {
+                    for peer in gave_up {
+                        self.fail_peer(peer, RequestError::Protocol(NO_SESSION));
+                    }
+                }
+            }
+            let deadline = match (self.ep.poll_timeout(), self.dtls_tick) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            };
             if deadline.is_some_and(|d| d <= now) {
                 self.ep.handle_timeout(now);
                 continue;
@@ -341,8 +383,24 @@ impl Thread {
                             continue;
                         }
                         let (start, len) = d.range;
-                        self.ep
-                            .handle(now, d.peer, &buf[start..start + len], d.multicast);
+                        let data = &buf[start..start + len];
+                        match &mut self.dtls {
+                            Some(dtls) => {
+                                let out = dtls.receive(now, d.peer, data);
+                                for reply in &out.send {
+                                    if let Err(e) = self.socket.send_to(reply, d.peer) {
+                                        tracing::debug!(peer = %d.peer, error = %e, "send failed");
+                                    }
+                                }
+                                for message in &out.received {
+                                    self.ep.handle(now, d.peer, message, false);
+                                }
+                                if out.failed && self.server.is_none() {
+                                    self.fail_peer(d.peer, RequestError::Protocol(NO_SESSION));
+                                }
+                            }
+                            None => self.ep.handle(now, d.peer, data, d.multicast),
+                        }
                     }
                 }
                 Err(e) if timed_out(&e) => {}
@@ -359,6 +417,12 @@ impl Thread {
             if self.commands() {
                 return;
             }
+        }
+    }
+
+    fn send(&self, data: &[u8], peer: SocketAddr) {
+        if let Err(e) = self.socket.send_to(data, peer) {
+            tracing::debug!(%peer, error = %e, "send failed");
         }
     }
 
@@ -522,9 +586,10 @@ impl Thread {
 
     fn dispatch(&mut self, ev: Event) {
         match ev {
-            Event::Request(req) => match &self.server {
+            Event::Request(mut req) => match &self.server {
                 Some(s) => {
                     let id = req.id;
+                    req.identity = self.dtls.as_ref().and_then(|d| d.identity(req.peer));
                     if s.send(ServerEvent::Request(Box::new(req))).is_err() {
                         self.ep.respond(
                             clock::now(),
@@ -702,8 +767,8 @@ mod tests {
             socket: None,
             pending: Arc::new(AtomicBool::new(false)),
         };
-        let handle =
-            start(socket, EndpointConfig::default(), None, waker).unwrap_or_else(|e| panic!("{e}"));
+        let handle = start(socket, EndpointConfig::default(), None, waker, None)
+            .unwrap_or_else(|e| panic!("{e}"));
         let (tx, rx) = oneshot::channel();
         let request = Request::new(coap::Code::GET, "/x");
         handle

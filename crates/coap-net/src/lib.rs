@@ -10,6 +10,7 @@
 
 pub mod client;
 mod driver;
+pub mod dtls;
 pub mod router;
 pub mod server;
 pub mod socket;
@@ -18,6 +19,7 @@ pub mod uri;
 pub use client::{BodyPart, BodyStream, Client, Observation};
 pub use coap;
 pub use driver::{EndpointHandle, Progress};
+pub use dtls::Psk;
 pub use router::{Ctx, Policy, Resource, Router, handler};
 pub use server::{Server, ServerConfig};
 pub use uri::Uri;

@@ -467,6 +467,7 @@ mod tests {
             multicast: false,
             confirmable: true,
             observe: None,
+            identity: None,
         };
         let code = |method, peer| {
             let runtime = tokio::runtime::Builder::new_current_thread()

@@ -11,6 +11,7 @@ use tokio::sync::{mpsc, oneshot};
 
 use crate::Error;
 use crate::driver::{self, Command, EndpointHandle, ServerEvent};
+use crate::dtls::Psk;
 use crate::router::Router;
 use crate::socket::Socket;
 
@@ -24,6 +25,10 @@ pub struct ServerConfig {
     /// suggests 5 s for unknown constrained networks; coapcam's endpoints sit on a LAN
     /// and a user waits for the answer, so the default is 500 ms.
     pub leisure: Duration,
+    /// Addresses answered with DTLS (`coaps://`, RFC 7252 §9), with `psk`'s keys.
+    pub secure: Vec<SocketAddr>,
+    /// The keys of the DTLS addresses (a [`Psk::Server`]).
+    pub psk: Option<Psk>,
 }
 
 impl Default for ServerConfig {
@@ -31,6 +36,8 @@ impl Default for ServerConfig {
         Self {
             endpoint: EndpointConfig::default(),
             leisure: Duration::from_millis(500),
+            secure: Vec::new(),
+            psk: None,
         }
     }
 }
@@ -80,14 +87,24 @@ impl Server {
         config: ServerConfig,
         router: Arc<Router>,
     ) -> std::io::Result<Self> {
+        if !config.secure.is_empty() && config.psk.is_none() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "DTLS addresses need pre-shared keys",
+            ));
+        }
         let observers = Arc::new(Observers::default());
         let mut endpoints = Vec::new();
-        for (index, addr) in addrs.iter().enumerate() {
+        let plain = addrs.iter().map(|a| (a, None));
+        let secure = config.secure.iter().map(|a| (a, config.psk.as_ref()));
+        for (index, (addr, psk)) in plain.chain(secure).enumerate() {
             let socket = Socket::bind(*addr)?;
             let (tx, rx) = mpsc::unbounded_channel();
             let mut ep_config = config.endpoint.clone();
             ep_config.rng_seed = ep_config.rng_seed.wrapping_add(index as u64);
-            let handle = driver::spawn(socket, ep_config, Some(tx))?;
+            // A DTLS handshake proves the peer's address (and its key): no Echo check.
+            ep_config.verify_addresses &= psk.is_none();
+            let handle = driver::spawn(socket, ep_config, Some(tx), psk)?;
             tokio::spawn(serve(
                 rx,
                 handle.clone(),
@@ -105,7 +122,7 @@ impl Server {
         })
     }
 
-    /// The bound addresses, in the order given to [`Server::bind`].
+    /// The bound addresses: those given to [`Server::bind`], then the DTLS ones.
     pub fn local_addrs(&self) -> Vec<SocketAddr> {
         self.endpoints
             .iter()

@@ -1,19 +1,21 @@
-//! `coap://host[:port]/path?query` URIs (RFC 7252 §6) to a socket address and request
-//! options, and back.
+//! `coap://host[:port]/path?query` and `coaps://` URIs (RFC 7252 §6) to a socket address
+//! and request options, and back.
 
 use std::net::{IpAddr, SocketAddr};
 
 use coap::{OptionNumber, Options};
 
-/// A parsed `coap://` URI.
+/// A parsed `coap://` or `coaps://` URI.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Uri {
+    /// `coaps://`: the server is reached through DTLS (RFC 7252 §6.2).
+    pub secure: bool,
     /// Host as written: an IP literal (IPv6 without brackets or zone) or a name.
     pub host: String,
     /// The zone of an IPv6 link-local literal (RFC 6874, `[ff02::fd%25eth0]`): an
     /// interface name or index.
     pub zone: Option<String>,
-    /// Port (5683 when absent).
+    /// Port (5683 when absent; 5684 for `coaps://`).
     pub port: u16,
     /// Path segments, percent-decoded.
     pub path: Vec<String>,
@@ -24,8 +26,8 @@ pub struct Uri {
 /// Why a URI was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum UriError {
-    /// Only `coap://` is supported.
-    #[error("unsupported scheme in {0:?}: only coap:// is supported")]
+    /// Only `coap://` and `coaps://` are supported.
+    #[error("unsupported scheme in {0:?}: only coap:// and coaps:// are supported")]
     Scheme(String),
     /// No host.
     #[error("no host in {0:?}")]
@@ -43,13 +45,17 @@ pub enum UriError {
 
 /// The default CoAP port.
 pub const DEFAULT_PORT: u16 = 5683;
+/// The default port of CoAP over DTLS (`coaps://`).
+pub const DEFAULT_SECURE_PORT: u16 = 5684;
 
 impl Uri {
-    /// Parses `coap://host[:port][/path][?query]`.
+    /// Parses `coap://host[:port][/path][?query]` (or `coaps://`).
     pub fn parse(s: &str) -> Result<Self, UriError> {
-        let rest = s
-            .strip_prefix("coap://")
-            .ok_or_else(|| UriError::Scheme(s.to_string()))?;
+        let (secure, rest) = match (s.strip_prefix("coap://"), s.strip_prefix("coaps://")) {
+            (Some(rest), _) => (false, rest),
+            (None, Some(rest)) => (true, rest),
+            (None, None) => return Err(UriError::Scheme(s.to_string())),
+        };
         if rest.contains('#') {
             return Err(UriError::Fragment(s.to_string()));
         }
@@ -88,6 +94,7 @@ impl Uri {
                 .ok()
                 .filter(|p| *p != 0)
                 .ok_or_else(|| UriError::Port(s.to_string()))?,
+            None if secure => DEFAULT_SECURE_PORT,
             None => DEFAULT_PORT,
         };
         let (path, query) = match path_query.split_once('?') {
@@ -111,6 +118,7 @@ impl Uri {
             .transpose()?
             .unwrap_or_default();
         Ok(Self {
+            secure,
             host,
             zone,
             port,

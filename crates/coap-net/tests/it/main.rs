@@ -1,5 +1,6 @@
 //! coap-net over real loopback sockets: client and server together.
 
+mod dtls;
 mod multicast;
 mod stream;
 

@@ -293,6 +293,7 @@ impl Endpoint {
             multicast,
             confirmable: con,
             observe: observation.map(ObservationId),
+            identity: None,
         }));
     }
 

@@ -206,6 +206,9 @@ pub struct IncomingRequest {
     /// (any value; the endpoint numbers notifications itself); then [`Endpoint::notify`](crate::Endpoint::notify)
     /// sends notifications to it. A response without Observe declines (§4.1).
     pub observe: Option<ObservationId>,
+    /// The peer's authenticated identity (its DTLS PSK identity), set by the transport;
+    /// `None` over plain CoAP.
+    pub identity: Option<std::sync::Arc<str>>,
 }
 
 /// Identifies an observation this endpoint serves (RFC 7641, server side).

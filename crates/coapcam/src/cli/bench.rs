@@ -200,8 +200,13 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     let first = scene(args.seed, 0)?;
     let server = SceneServer::start(&first, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
     let uri = format!("coap://{}", server.addr()?);
-    let client =
-        CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(30)).await?;
+    let client = CamClient::connect(
+        &uri,
+        EndpointConfig::default(),
+        None,
+        Duration::from_secs(30),
+    )
+    .await?;
     let config = args.dimension.config();
     let mut rows = Vec::new();
     let mut next;

@@ -85,7 +85,7 @@ pub(crate) async fn run(args: LoadArgs) -> anyhow::Result<Exit> {
     let server = uri.resolve().await.context("resolving the server")?;
     let timeout = Duration::try_from_secs_f64(args.timeout).context("--timeout")?;
     let duration = Duration::try_from_secs_f64(args.duration).context("--duration")?;
-    let cam = CamClient::connect(&args.server, EndpointConfig::default(), timeout).await?;
+    let cam = CamClient::connect(&args.server, EndpointConfig::default(), None, timeout).await?;
     let serial = cam.one_camera(None).await?;
     // A first measurement, so that observers of /cams/dimensions have one to register on.
     cam.call(Code::POST, "/cams/dimensions", Bytes::new(), None, None)

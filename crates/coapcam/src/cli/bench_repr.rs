@@ -173,8 +173,13 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
     let state = std::env::temp_dir().join(format!("coapcam-bench-repr-{}", std::process::id()));
     let server = SceneServer::start(&scene, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
     let uri = format!("coap://{}", server.addr()?);
-    let client =
-        CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(30)).await?;
+    let client = CamClient::connect(
+        &uri,
+        EndpointConfig::default(),
+        None,
+        Duration::from_secs(30),
+    )
+    .await?;
     let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
     let all: Vec<rgbd::Serial> = scene.cameras.iter().map(|c| c.serial).collect();
     let source = CloudSource::Merged { serials: &all };

@@ -78,8 +78,13 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
         "server: {} synthetic D415 camera(s) on {uri}",
         scene.cameras.len()
     );
-    let client =
-        CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(30)).await?;
+    let client = CamClient::connect(
+        &uri,
+        EndpointConfig::default(),
+        None,
+        Duration::from_secs(30),
+    )
+    .await?;
     let serials = client.cameras().await?;
     outln!("discovered cameras: {}", serials.join(", "));
     let Some(first) = serials.first() else {

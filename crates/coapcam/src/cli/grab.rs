@@ -102,9 +102,14 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
         bail!("--jpeg-quality is for color written to a .jpg file");
     }
     let timeout = args.transmission.timeout()?;
-    let client = CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout)
-        .await?
-        .with_bars(&indicatif::MultiProgress::new());
+    let client = CamClient::connect(
+        &args.server,
+        args.transmission.endpoint_config(),
+        args.transmission.psk().as_ref(),
+        timeout,
+    )
+    .await?
+    .with_bars(&indicatif::MultiProgress::new());
     let (sn, response) = if args.all {
         (None, client.grab_all(accept(kind)).await?)
     } else {

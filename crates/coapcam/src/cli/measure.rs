@@ -133,7 +133,8 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             )
         }
         (None, Some(server)) => {
-            let client = CamClient::connect(server, config, timeout)
+            let psk = args.transmission.psk();
+            let client = CamClient::connect(server, config, psk.as_ref(), timeout)
                 .await?
                 .with_bars(&indicatif::MultiProgress::new());
             if args.prepare {

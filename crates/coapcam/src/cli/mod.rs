@@ -50,6 +50,13 @@ pub(crate) struct TransmissionArgs {
     /// know Q-Block, as `window`). Uploads are windowed only with `q-block`.
     #[arg(long, value_name = "MODE", default_value = "window")]
     transfer: TransferMode,
+    /// For coaps:// URIs: the DTLS pre-shared key identity to present.
+    #[arg(long, value_name = "ID", requires = "psk_key")]
+    psk_identity: Option<String>,
+    /// For coaps:// URIs: the pre-shared key of --psk-identity (its text, as libcoap's
+    /// coap-client -k takes it).
+    #[arg(long, value_name = "KEY", requires = "psk_identity")]
+    psk_key: Option<String>,
 }
 
 /// `--transfer`.
@@ -64,6 +71,15 @@ pub(crate) enum TransferMode {
 }
 
 impl TransmissionArgs {
+    /// The DTLS client key of `--psk-identity` and `--psk-key`, if given.
+    pub(crate) fn psk(&self) -> Option<coap_net::Psk> {
+        let (identity, key) = (self.psk_identity.as_ref()?, self.psk_key.as_ref()?);
+        Some(coap_net::Psk::Client {
+            identity: identity.as_bytes().to_vec(),
+            key: key.as_bytes().to_vec(),
+        })
+    }
+
     /// `--timeout`.
     pub(crate) fn timeout(&self) -> anyhow::Result<Duration> {
         anyhow::Context::context(Duration::try_from_secs_f64(self.timeout), "--timeout")

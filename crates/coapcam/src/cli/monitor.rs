@@ -586,8 +586,13 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
     if period.is_zero() && args.count.is_none() && !args.observe {
         bail!("--interval 0 needs --count");
     }
-    let client =
-        CamClient::connect(&args.server, args.transmission.endpoint_config(), timeout).await?;
+    let client = CamClient::connect(
+        &args.server,
+        args.transmission.endpoint_config(),
+        args.transmission.psk().as_ref(),
+        timeout,
+    )
+    .await?;
     let plan = Plan::resolve(&args, &client).await?;
     let what = plan.describe();
     if !args.json {

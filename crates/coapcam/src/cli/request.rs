@@ -14,7 +14,7 @@ use coap_net::{BodyPart, Client, Uri};
 
 use super::{Exit, Interrupted, TransmissionArgs, outln};
 use coapcam::client::progress::Bar;
-use coapcam::client::{check_size, describe};
+use coapcam::client::{check_size, describe, secured_client};
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
 #[derive(Debug, Args)]
@@ -110,7 +110,13 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
         }
         (None, None) => Bytes::new(),
     };
-    let client = Client::for_peer(peer, args.transmission.endpoint_config())?;
+    let psk = args.transmission.psk();
+    let client = secured_client(
+        &uri,
+        peer,
+        args.transmission.endpoint_config(),
+        psk.as_ref(),
+    )?;
     let started = Instant::now();
     if let Some(count) = args.observe {
         if method != Code::GET {
@@ -476,7 +482,13 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
     if let Some(q) = &args.query {
         request.options.push(OptionNumber::URI_QUERY, q.as_bytes());
     }
-    let client = Client::for_peer(peer, args.transmission.endpoint_config())?;
+    let psk = args.transmission.psk();
+    let client = secured_client(
+        &uri,
+        peer,
+        args.transmission.endpoint_config(),
+        psk.as_ref(),
+    )?;
     let answers: Vec<(SocketAddr, Response)> = if peer.ip().is_multicast() {
         request.timeout = Some(Duration::try_from_secs_f64(args.wait).context("--wait")?);
         client.multicast(peer, request).await?

@@ -3,12 +3,13 @@
 
 use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
-use coapcam::server::{Cameras, RealSenseOptions, Station, StationConfig};
+use coapcam::server::{Cameras, Identities, RealSenseOptions, Station, StationConfig};
 use rgbd::Scene;
 use rgbd::backend::realsense::LibrarySearch;
 use tokio::signal::unix::{SignalKind, signal};
@@ -91,6 +92,20 @@ pub(crate) struct ServeArgs {
     /// amplifier.
     #[arg(long)]
     no_address_check: bool,
+    /// Also answer coaps:// (DTLS 1.2 with pre-shared keys, RFC 7252 §9) on this address,
+    /// e.g. 0.0.0.0:5684; repeatable. Needs --psk-file.
+    #[arg(long, value_name = "ADDR:PORT", requires = "psk_file")]
+    coaps: Vec<SocketAddr>,
+    /// The DTLS identities, one per line: `IDENTITY KEY ROLE`, ROLE `read` (GET, grabs,
+    /// discovery, Observe) or `configure` (also PUT, DELETE, POST to /coap-group, /files
+    /// and /cams/<name>). With it, configuration changes need a `configure` identity
+    /// (4.03 for a `read` one, 4.01 over plain CoAP), except from this machine.
+    #[arg(
+        long,
+        value_name = "FILE",
+        conflicts_with = "allow_unauthenticated_config"
+    )]
+    psk_file: Option<PathBuf>,
     /// The memory grabs in progress may take together, in MiB. Each grab reserves its
     /// estimated peak (about 29 MiB for a 1280x720 point cloud) before it starts; one
     /// that would pass the budget answers 5.03 with Max-Age 1 (clients retry then).
@@ -137,6 +152,10 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             Cameras::Scene(scene)
         })
     };
+    let identities = match &args.psk_file {
+        Some(path) => Some(Arc::new(Identities::load(path)?)),
+        None => None,
+    };
     let station = Station::start(StationConfig {
         binds,
         cameras,
@@ -152,6 +171,8 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         },
         allow_unauthenticated_config: args.allow_unauthenticated_config,
         grab_memory: args.grab_memory.saturating_mul(1 << 20),
+        secure_binds: args.coaps.clone(),
+        identities,
     })
     .await?;
     if args.no_address_check {
@@ -159,7 +180,11 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             "coapcam: warning: clients are answered in full before their address is verified (--no-address-check)"
         );
     }
-    if args.allow_unauthenticated_config {
+    if args.psk_file.is_some() {
+        eprintln!(
+            "coapcam: configuration changes need a DTLS identity of the configure role (or this machine)"
+        );
+    } else if args.allow_unauthenticated_config {
         eprintln!(
             "coapcam: warning: anyone who can reach this server may change its configuration (--allow-unauthenticated-config)"
         );
@@ -173,8 +198,15 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let mut terminate =
         signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
     let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
-    for a in station.local_addrs() {
-        eprintln!("coapcam: serving on {a}");
+    // The DTLS addresses come last.
+    let addrs = station.local_addrs();
+    let plain = addrs.len() - args.coaps.len();
+    for (i, a) in addrs.iter().enumerate() {
+        if i < plain {
+            eprintln!("coapcam: serving on {a}");
+        } else {
+            eprintln!("coapcam: serving coaps on {a}");
+        }
     }
     let duration = async {
         match args.duration {

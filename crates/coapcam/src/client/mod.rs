@@ -14,11 +14,26 @@ use anyhow::{Context as _, bail};
 use bytes::Bytes;
 use coap::link_format;
 use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
-use coap_net::{Client, Uri};
+use coap_net::{Client, Psk, Uri};
 
 use crate::report::EdgeQuery;
 use crate::repr::packet::{self, DepthImage};
 use crate::repr::{Stream, cbor, clouds, rvl};
+
+/// A client socket for `server`: plain for `coap://`, DTLS with `psk` for `coaps://`.
+pub fn secured_client(
+    uri: &Uri,
+    server: SocketAddr,
+    config: EndpointConfig,
+    psk: Option<&Psk>,
+) -> anyhow::Result<Client> {
+    let psk = match (uri.secure, psk) {
+        (true, None) => bail!("coaps:// needs a pre-shared key: --psk-identity ID --psk-key KEY"),
+        (true, psk) => psk,
+        (false, _) => None,
+    };
+    Client::for_peer_secured(server, config, psk).context("binding the client socket")
+}
 
 /// The longest Max-Age of a 5.03 that [`CamClient`] waits out and asks again after.
 const BUSY_RETRY: Duration = Duration::from_secs(5);
@@ -38,6 +53,7 @@ impl CamClient {
     pub async fn connect(
         uri: &str,
         config: EndpointConfig,
+        psk: Option<&Psk>,
         timeout: Duration,
     ) -> anyhow::Result<Self> {
         let uri = Uri::parse(uri)?;
@@ -45,7 +61,7 @@ impl CamClient {
             .resolve()
             .await
             .with_context(|| format!("resolving {}", uri.host))?;
-        let client = Client::for_peer(server, config).context("binding the client socket")?;
+        let client = secured_client(&uri, server, config, psk)?;
         Ok(Self {
             client,
             server,

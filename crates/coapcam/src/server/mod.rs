@@ -7,6 +7,7 @@
 mod cams;
 mod files;
 mod group;
+pub mod identities;
 
 use std::future::Future;
 use std::net::{IpAddr, SocketAddr};
@@ -27,6 +28,7 @@ use tokio::time::{Instant, MissedTickBehavior};
 use cams::Cams;
 use files::StaticFiles;
 use group::Groups;
+pub use identities::{Identities, Role};
 
 /// How often `/files` looks for new, changed and vanished files.
 const RESCAN: Duration = Duration::from_millis(200);
@@ -79,6 +81,11 @@ pub struct StationConfig {
     /// The memory grabs in progress may take together, in bytes (a grab beyond it
     /// answers 5.03 with Max-Age 1).
     pub grab_memory: u64,
+    /// Addresses answered with DTLS (`coaps://`); they need `identities`.
+    pub secure_binds: Vec<SocketAddr>,
+    /// The DTLS identities with their keys and roles; with them, configuration changes
+    /// need an identity of the `configure` role (or this machine).
+    pub identities: Option<Arc<Identities>>,
 }
 
 /// The policy of a server without security configured: configuration changes (PUT and
@@ -109,8 +116,10 @@ impl Station {
     /// Builds the resource tree of `config`, binds every address and joins the groups.
     pub async fn start(config: StationConfig) -> anyhow::Result<Self> {
         let router = Router::new();
-        if !config.allow_unauthenticated_config {
-            router.set_policy(Arc::new(loopback_only));
+        match (&config.identities, config.allow_unauthenticated_config) {
+            (Some(ids), _) => router.set_policy(Arc::new(identities::by_role(ids.clone()))),
+            (None, false) => router.set_policy(Arc::new(loopback_only)),
+            (None, true) => {}
         }
         let (changed_tx, changed) = mpsc::unbounded_channel::<String>();
         let (membership_tx, memberships) = mpsc::unbounded_channel();
@@ -140,6 +149,8 @@ impl Station {
             binds,
             ServerConfig {
                 endpoint: config.endpoint,
+                secure: config.secure_binds.clone(),
+                psk: config.identities.as_ref().map(Identities::keys),
                 ..ServerConfig::default()
             },
             router,

@@ -25,9 +25,14 @@ async fn start(scene: &Scene, state: &TempDir) -> (SceneServer, CamClient) {
         .await
         .expect("scene server");
     let uri = format!("coap://{}", server.addr().expect("its address"));
-    let client = CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(60))
-        .await
-        .expect("client");
+    let client = CamClient::connect(
+        &uri,
+        EndpointConfig::default(),
+        None,
+        Duration::from_secs(60),
+    )
+    .await
+    .expect("client");
     (server, client)
 }
 
@@ -417,9 +422,14 @@ fn depth_and_clouds_come_compact_and_as_packets_from_a_server_without_them() {
         let old = coap_net::Server::bind(&[loopback], coap_net::ServerConfig::default(), router)
             .expect("a thesis-only server");
         let uri = format!("coap://{}", old.local_addrs()[0]);
-        let thesis = CamClient::connect(&uri, EndpointConfig::default(), Duration::from_secs(10))
-            .await
-            .expect("client");
+        let thesis = CamClient::connect(
+            &uri,
+            EndpointConfig::default(),
+            None,
+            Duration::from_secs(10),
+        )
+        .await
+        .expect("client");
         let image = thesis
             .grab_depth(&sn)
             .await

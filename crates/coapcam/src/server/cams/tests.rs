@@ -344,6 +344,7 @@ fn a_stranger_may_grab_but_not_change_the_cameras() {
                 multicast: false,
                 confirmable: true,
                 observe: None,
+                identity: None,
             })
         };
         let app = format!("/cams/{sn}/application-config");
