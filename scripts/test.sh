@@ -10,15 +10,25 @@ cd "$(dirname "$0")/.."
 export CARGO_INCREMENTAL=0
 
 step() { printf '\n== %s\n' "$*"; }
+as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
 step "toolchain"
 cargo --version
 rustup component list --installed 2>/dev/null | grep -E 'rustfmt|clippy' || true
 
+step "build dependencies"
+# DTLS (coaps://) is OpenSSL's: the openssl crate links the system's libssl.
+if pkg-config --exists openssl 2>/dev/null; then
+  echo "libssl-dev: present"
+else
+  as_root apt-get update && as_root env DEBIAN_FRONTEND=noninteractive \
+    apt-get install -y --no-install-recommends libssl-dev pkg-config
+fi
+
 step "peers"
-# The interop tests (crates/coapcam/tests/it/interop.rs) drive libcoap 4.3.1 and 4.3.5 and aiocoap;
+# The interop tests (crates/coapcam/tests/it/interop.rs, dtls.rs) drive libcoap 4.3.1 (also its
+# OpenSSL DTLS tools) and 4.3.5 and aiocoap;
 # they fail in CI (CI=true) when a peer is missing, and are skipped loudly elsewhere.
-as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 peer_failed() {
   echo "installing $1 failed" >&2
   if [ "${CI:-}" = true ]; then exit 1; fi

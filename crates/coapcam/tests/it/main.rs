@@ -6,6 +6,7 @@ mod bag;
 mod bench_transfer;
 mod cams;
 mod client;
+mod dtls;
 mod exits;
 mod files;
 mod formats;

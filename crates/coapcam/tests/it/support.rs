@@ -25,11 +25,15 @@ pub(crate) const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
 pub(crate) const LIBCOAP_SERVER: &str = "coap-server-notls";
 pub(crate) const LIBCOAP_CLIENT: &str = "coap-client-notls";
 pub(crate) const AIOCOAP_CLIENT: &str = "aiocoap-client";
+/// Debian libcoap3-bin's DTLS tools (OpenSSL).
+pub(crate) const LIBCOAP_DTLS_SERVER: &str = "coap-server-openssl";
+pub(crate) const LIBCOAP_DTLS_CLIENT: &str = "coap-client-openssl";
 
 /// A peer program the tests need.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Peer {
-    /// Debian libcoap3-bin: coap-server-notls and coap-client-notls.
+    /// Debian libcoap3-bin: coap-server-notls and coap-client-notls, and the OpenSSL
+    /// (DTLS) ones.
     Libcoap,
     /// PyPI aiocoap: the library (for the server script) and aiocoap-client.
     Aiocoap,
@@ -84,10 +88,15 @@ fn on_path(name: &str) -> Option<PathBuf> {
 
 fn missing(peer: Peer) -> Option<String> {
     match peer {
-        Peer::Libcoap => [LIBCOAP_SERVER, LIBCOAP_CLIENT]
-            .into_iter()
-            .find(|b| on_path(b).is_none())
-            .map(|b| format!("{b} is not on PATH (Debian package libcoap3-bin)")),
+        Peer::Libcoap => [
+            LIBCOAP_SERVER,
+            LIBCOAP_CLIENT,
+            LIBCOAP_DTLS_SERVER,
+            LIBCOAP_DTLS_CLIENT,
+        ]
+        .into_iter()
+        .find(|b| on_path(b).is_none())
+        .map(|b| format!("{b} is not on PATH (Debian package libcoap3-bin)")),
         Peer::Libcoap435 => ["coap-client", "coap-server"]
             .into_iter()
             .map(libcoap435)
@@ -532,6 +541,30 @@ pub(crate) fn libcoap_server() -> (Proc, SocketAddr) {
         },
         "/.well-known/core",
     )
+}
+
+/// `coap-server-openssl -A 127.0.0.1 -p PORT -k KEY -d 10`: libcoap's example server
+/// with DTLS (any identity, this pre-shared key) on PORT + 1; returns its DTLS address.
+pub(crate) fn libcoap_dtls_server(key: &str) -> (Proc, SocketAddr) {
+    let (p, plain) = start_on_free_port(
+        |port| {
+            Proc::spawn(
+                LIBCOAP_DTLS_SERVER,
+                &[
+                    "-A",
+                    "127.0.0.1",
+                    "-p",
+                    &port.to_string(),
+                    "-k",
+                    key,
+                    "-d",
+                    "10",
+                ],
+            )
+        },
+        "/.well-known/core",
+    );
+    (p, SocketAddr::new(plain.ip(), plain.port() + 1))
 }
 
 /// The path of a script of `tests/peers/`.
