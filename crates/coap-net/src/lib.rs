@@ -1,8 +1,9 @@
 //! Drives the sans-IO [`coap`] core over UDP sockets, for async (tokio) callers.
 //!
 //! Owns: sockets (IPv4, IPv6, multicast membership, the destination address of each
-//! datagram), the thread per socket that owns a `coap::Endpoint`, the [`Client`], the
-//! [`Server`] and its [`Router`], `coap://` URIs.
+//! datagram), DTLS sessions (OpenSSL's, [`dtls`]), the thread per socket that owns a
+//! `coap::Endpoint`, the [`Client`], the [`Server`] and its [`Router`], `coap://` and
+//! `coaps://` URIs.
 //! Must not: implement protocol rules (those live in `coap`), or read the clock anywhere
 //! but [`clock::now`].
 
