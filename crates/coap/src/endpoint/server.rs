@@ -324,24 +324,34 @@ impl Endpoint {
         (reply.encoded_len() <= budget).then_some(reply)
     }
 
+    /// The message that answers `p`: piggybacked on the ACK of a CON request not yet
+    /// acknowledged; otherwise with a new message ID, as `late` after the empty ACK of a
+    /// CON request, as a NON to a NON one.
+    fn pending_reply(&mut self, p: &Pending, late: Type, response: Response) -> Message {
+        let (ty, message_id) = match (p.confirmable, p.acked) {
+            (true, false) => (Type::Ack, p.mid),
+            (true, true) => (late, self.msg.next_mid()),
+            (false, _) => (Type::Non, self.msg.next_mid()),
+        };
+        Message {
+            ty,
+            code: response.code,
+            message_id,
+            token: p.token,
+            options: response.options,
+            payload: response.payload,
+        }
+    }
+
     /// Answers request `p` of an unverified peer: the response when it fits in `budget`
     /// bytes and one block, the Echo challenge otherwise. Nothing is stored for the peer,
     /// and an answer after the empty ACK goes as a NON: a CON would be sent up to five
     /// times to an address nobody verified.
     fn respond_unverified(&mut self, now: Instant, p: &Pending, response: Response, budget: usize) {
-        let (ty, mid) = match (p.confirmable, p.acked) {
-            (true, false) => (Type::Ack, p.mid),
-            _ => (Type::Non, self.msg.next_mid()),
-        };
-        let answer = Message {
-            ty,
-            code: response.code,
-            message_id: mid,
-            token: p.token,
-            options: response.options,
-            payload: response.payload,
-        };
-        let fits = response.source.is_none()
+        let source = response.source.is_some();
+        let answer = self.pending_reply(p, Type::Non, response);
+        let (ty, mid) = (answer.ty, answer.message_id);
+        let fits = !source
             && answer.payload.len() <= BlockOpt::size_of(self.config.max_block_szx)
             && answer.encoded_len() <= budget;
         let reply = if !fits {
@@ -722,20 +732,8 @@ impl Endpoint {
             self.msg.dedup.set_reply(p.peer, p.mid, Seen::Silent);
             return;
         }
-        let (ty, mid) = match (p.confirmable, p.acked) {
-            (true, false) => (Type::Ack, p.mid),
-            (true, true) => (Type::Con, self.msg.next_mid()),
-            (false, _) => (Type::Non, self.msg.next_mid()),
-        };
-        let msg = Message {
-            ty,
-            code: response.code,
-            message_id: mid,
-            token: p.token,
-            options: response.options,
-            payload: response.payload,
-        };
-        if ty == Type::Con {
+        let msg = self.pending_reply(&p, Type::Con, response);
+        if msg.ty == Type::Con {
             self.msg
                 .send_con(now, p.peer, &msg, Purpose::SeparateResponse, &self.config);
         } else {

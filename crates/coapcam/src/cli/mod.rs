@@ -71,6 +71,16 @@ pub(crate) enum TransferMode {
 }
 
 impl TransmissionArgs {
+    /// A client socket for `uri`'s server at `peer`: DTLS with `--psk-identity` and
+    /// `--psk-key` for `coaps://`.
+    pub(crate) fn client(
+        &self,
+        uri: &coap_net::Uri,
+        peer: std::net::SocketAddr,
+    ) -> anyhow::Result<coap_net::Client> {
+        coapcam::client::secured_client(uri, peer, self.endpoint_config(), self.psk().as_ref())
+    }
+
     /// The DTLS client key of `--psk-identity` and `--psk-key`, if given.
     pub(crate) fn psk(&self) -> Option<coap_net::Psk> {
         let (identity, key) = (self.psk_identity.as_ref()?, self.psk_key.as_ref()?);

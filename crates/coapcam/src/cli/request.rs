@@ -14,7 +14,7 @@ use coap_net::{BodyPart, Client, Uri};
 
 use super::{Exit, Interrupted, TransmissionArgs, outln};
 use coapcam::client::progress::Bar;
-use coapcam::client::{check_size, describe, secured_client};
+use coapcam::client::{check_size, describe};
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
 #[derive(Debug, Args)]
@@ -110,13 +110,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
         }
         (None, None) => Bytes::new(),
     };
-    let psk = args.transmission.psk();
-    let client = secured_client(
-        &uri,
-        peer,
-        args.transmission.endpoint_config(),
-        psk.as_ref(),
-    )?;
+    let client = args.transmission.client(&uri, peer)?;
     let started = Instant::now();
     if let Some(count) = args.observe {
         if method != Code::GET {
@@ -482,13 +476,7 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
     if let Some(q) = &args.query {
         request.options.push(OptionNumber::URI_QUERY, q.as_bytes());
     }
-    let psk = args.transmission.psk();
-    let client = secured_client(
-        &uri,
-        peer,
-        args.transmission.endpoint_config(),
-        psk.as_ref(),
-    )?;
+    let client = args.transmission.client(&uri, peer)?;
     let answers: Vec<(SocketAddr, Response)> = if peer.ip().is_multicast() {
         request.timeout = Some(Duration::try_from_secs_f64(args.wait).context("--wait")?);
         client.multicast(peer, request).await?
