@@ -377,6 +377,37 @@ pub fn text(doc: &Value) -> String {
     out
 }
 
+/// How far the lowest points of a calibrated cloud may lie from z = 0 (the floor of the
+/// common frame) before the measurement warns.
+const FLOOR_TOLERANCE_M: f32 = 0.05;
+
+/// Warnings that the dimensions may be nonsense because the cameras are not calibrated:
+/// each camera of `uncalibrated` (its 3d-transformation the identity, as a real camera
+/// starts), and a `cloud` whose lowest points (the 2nd percentile of z) are not near the
+/// floor at z = 0.
+pub fn calibration_warnings(uncalibrated: &[String], cloud: &PointCloud) -> Vec<String> {
+    let mut out: Vec<String> = uncalibrated
+        .iter()
+        .map(|sn| {
+            format!(
+                "camera {sn} is not calibrated (its 3d-transformation is the identity): the dimensions are in its own frame; run coapcam calibrate"
+            )
+        })
+        .collect();
+    if cloud.points.len() >= 100 {
+        let mut z: Vec<f32> = cloud.points.iter().map(|p| p.z).collect();
+        let k = z.len() / 50;
+        let (_, low, _) = z.select_nth_unstable_by(k, f32::total_cmp);
+        if low.abs() > FLOOR_TOLERANCE_M {
+            out.push(format!(
+                "the floor is not near z = 0: the lowest points lie at {:.0} mm; check the cameras' 3d-transformation (coapcam calibrate)",
+                *low * 1000.0
+            ));
+        }
+    }
+    out
+}
+
 /// The document's fields that say what was measured, wherever: the points of the merged
 /// cloud, the cameras, their frames' times (microseconds since the UNIX epoch) and how
 /// long grabbing them took.

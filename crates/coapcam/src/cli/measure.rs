@@ -183,8 +183,9 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         }
         _ => None,
     };
-    let mut doc = match edge {
-        Some(doc) => doc,
+    // Servers of a group that failed: their cameras are missing (exit status 6).
+    let (mut doc, mut missing) = match edge {
+        Some(doc) => (doc, false),
         None => measure_here(&client, &source, &args, &billing).await?,
     };
     let mut warnings: Vec<String> = doc["warnings"]
@@ -206,6 +207,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             distinct.len()
         });
         if answered < *expected {
+            missing = true;
             warnings.push(format!(
                 "{answered} of the {expected} expected servers of the group {group} answered"
             ));
@@ -233,7 +235,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     }
     Ok(if matches!(parcel, Parcel::Nothing { .. }) {
         Exit::Empty
-    } else if !warnings.is_empty() && matches!(source, Source::Group { .. }) {
+    } else if missing && matches!(source, Source::Group { .. }) {
         Exit::Fewer
     } else {
         Exit::Success
@@ -241,15 +243,16 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
 }
 
 /// Grabs the clouds, measures them here, and reads the codes if asked: the document of
-/// `measure --json`.
+/// `measure --json`, and whether servers of a group failed (their cameras are missing).
 async fn measure_here(
     client: &CamClient,
     source: &Source,
     args: &MeasureArgs,
     billing: &Billing,
-) -> anyhow::Result<serde_json::Value> {
+) -> anyhow::Result<(serde_json::Value, bool)> {
     let m = measure_once(client, source, &args.dimension.config()).await?;
     let mut doc = m.to_json(billing);
+    let missing = !m.grabbed.failed.is_empty();
     if args.codes {
         let started = Instant::now();
         let codes = codes::read_cameras(client, &m.grabbed.cameras).await?;
@@ -258,7 +261,7 @@ async fn measure_here(
             d.extend(fields);
         }
     }
-    Ok(doc)
+    Ok((doc, missing))
 }
 
 /// `224.0.1.187`, `[ff02::fd]`, or a full `coap://group:port` URI; port 5683 by default.

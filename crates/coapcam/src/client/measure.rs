@@ -99,7 +99,11 @@ impl Measurement {
         doc.insert("servers".into(), servers.into());
         doc.insert("cycle_ms".into(), report::ms(self.cycle).into());
         doc.insert("received_bytes".into(), g.bytes.into());
-        doc.insert("warnings".into(), g.failed.clone().into());
+        // The clouds do not say which camera is uncalibrated (the thesis packet carries no
+        // transform); a floor far from z = 0 shows it.
+        let mut warnings = g.failed.clone();
+        warnings.extend(report::calibration_warnings(&[], &g.cloud));
+        doc.insert("warnings".into(), warnings.into());
         doc.into()
     }
 }

@@ -303,6 +303,7 @@ fn measure_finds_the_default_scenes_box() {
     let m = ok(&["measure", "--server", &uri, "--json"]).json();
     assert_measures_the_box(&m);
     assert_eq!(m["cameras"], serde_json::json!([SN]));
+    assert_eq!(m["warnings"], serde_json::json!([]), "a calibrated camera");
 
     let annotated = state.path().join("annotated.png");
     let m = ok(&[
@@ -565,4 +566,43 @@ fn demo_writes_its_files_and_the_table() {
         ),
         "{text}"
     );
+}
+
+#[test]
+fn measure_on_an_uncalibrated_camera_warns() {
+    // As a real camera starts: the 3d-transformation is the identity, so the "parcel" is
+    // measured in the camera's own frame (z forward, the floor 0.8-1 m away).
+    let state = TempDir::new("client-uncalibrated");
+    let scene = state.path().join("scene.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "seed = 3\n[[camera]]\nserial = \"{SN}\"\nposition = [0.1, 0.0, 1.0]\n\
+             look_at = [0.0, 0.0, 0.0]\ncalibrated = false\n\
+             [[box]]\nsize = [0.40, 0.30, 0.20]\ncenter = [0.0, 0.0]\n"
+        ),
+    )
+    .expect("writing the scene");
+    let (_server, addr) = crate::support::serve_with(state.path(), &["--scene", path(&scene)]);
+    let uri = format!("coap://{addr}");
+    for how in ["--edge", "--clouds"] {
+        let f = ok(&["measure", "--server", &uri, how, "--json"]);
+        let warnings = f.json()["warnings"].to_string();
+        assert!(
+            warnings.contains("the floor is not near z = 0"),
+            "{how}: {warnings}"
+        );
+        assert!(
+            f.stderr.contains("coapcam: warning: "),
+            "{how}: {}",
+            f.stderr
+        );
+        if how == "--edge" {
+            // The server knows which camera it is.
+            assert!(
+                warnings.contains(&format!("camera {SN} is not calibrated")),
+                "{warnings}"
+            );
+        }
+    }
 }

@@ -694,6 +694,11 @@ impl Cams {
                 .collect();
             edge::read_codes(cameras, started)
         });
+        let uncalibrated: Vec<String> = cams
+            .iter()
+            .filter(|(_, cam)| *lock(&cam.transformation) == Transformation::identity())
+            .map(|(sn, _)| sn.to_string())
+            .collect();
         let merged = self.grab_merged(cams).await;
         if merged.parts.is_empty() {
             return no_cloud(&merged.failed);
@@ -722,7 +727,8 @@ impl Cams {
             merged.frames_us,
             grab,
         ));
-        let mut warnings = merged.failed;
+        let mut warnings = report::calibration_warnings(&uncalibrated, &merged.cloud);
+        warnings.extend(merged.failed);
         if let Some(task) = codes {
             match task.await {
                 Ok((seen, failed, took)) => {
