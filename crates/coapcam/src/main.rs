@@ -37,6 +37,9 @@ enum Command {
     Grab(Deferred<cli::grab::GrabArgs>),
     /// Measure the largest parcel below the cameras: length, width, height in millimetres.
     Measure(Deferred<cli::measure::MeasureArgs>),
+    /// Calibrate cameras: write each one's 3d-transformation so its points are in the
+    /// table's frame (--floor: level on the floor it sees; --adjust: correct by hand).
+    Calibrate(Deferred<cli::calibrate::CalibrateArgs>),
     /// Repeat a grab or a measurement every --interval seconds, or observe a resource;
     /// print each result and the statistics of the transfer times (count, min, median,
     /// max, mean, standard deviation, coefficient of variation: the thesis's Table 4.x).
@@ -102,6 +105,7 @@ fn run(cli: Cli) -> anyhow::Result<Exit> {
         Command::Discover(Deferred(args)) => return runtime.block_on(cli::request::discover(args)),
         Command::Grab(Deferred(args)) => return runtime.block_on(cli::grab::run(args)),
         Command::Measure(Deferred(args)) => return runtime.block_on(cli::measure::run(args)),
+        Command::Calibrate(Deferred(args)) => return runtime.block_on(cli::calibrate::run(args)),
         Command::Bench(Deferred(args)) => return runtime.block_on(cli::bench::run(args)),
         Command::Monitor(Deferred(args)) => return runtime.block_on(cli::monitor::run(args)),
         Command::Demo(Deferred(args)) => return runtime.block_on(cli::demo::run(args)),

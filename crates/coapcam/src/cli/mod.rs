@@ -5,6 +5,7 @@
 //! output macros. None imports another, and what they do is the library's.
 
 pub(crate) mod bench;
+pub(crate) mod calibrate;
 pub(crate) mod demo;
 pub(crate) mod grab;
 pub(crate) mod measure;

@@ -606,3 +606,83 @@ fn measure_on_an_uncalibrated_camera_warns() {
         }
     }
 }
+
+#[test]
+fn calibrate_floor_levels_a_tilted_camera_so_measure_is_within_5_mm() {
+    let state = TempDir::new("client-calibrate");
+    let scene = state.path().join("scene.toml");
+    // Uncalibrated, 1.05 m up, looking at the box from 0.57 m aside: tilted 28.5 deg.
+    std::fs::write(
+        &scene,
+        format!(
+            "seed = 5\n[[camera]]\nserial = \"{SN}\"\nposition = [0.45, -0.35, 1.05]\n\
+             look_at = [0.0, 0.0, 0.0]\nnoise = \"d415\"\ncalibrated = false\n\
+             [[box]]\nsize = [0.40, 0.30, 0.20]\ncenter = [0.0, 0.0]\nyaw_deg = 15.0\n"
+        ),
+    )
+    .expect("writing the scene");
+    let (_server, addr) = crate::support::serve_with(state.path(), &["--scene", path(&scene)]);
+    let uri = format!("coap://{addr}");
+    let doc = format!("{uri}/cams/{SN}/3d-transformation");
+    let identity = ok(&["get", &doc]).stdout_text();
+
+    // --dry-run fits and reports, and writes nothing.
+    let dry = ok(&[
+        "calibrate",
+        "--server",
+        &uri,
+        "--floor",
+        "--dry-run",
+        "--json",
+    ])
+    .json();
+    assert_eq!(dry["written"], false);
+    assert_eq!(ok(&["get", &doc]).stdout_text(), identity);
+
+    let report = ok(&["calibrate", "--server", &uri, "--floor", "--json"]).json();
+    assert_eq!(report["camera"], SN);
+    let height = report["height_mm"].as_f64().expect("height");
+    let tilt = report["tilt_deg"].as_f64().expect("tilt");
+    assert!((height - 1050.0).abs() < 10.0, "{report}");
+    assert!((tilt - 28.5).abs() < 0.5, "{report}");
+
+    let m = ok(&["measure", "--server", &uri, "--json"]).json();
+    for (key, truth) in [
+        ("length_mm", 400.0),
+        ("width_mm", 300.0),
+        ("height_mm", 200.0),
+    ] {
+        let got = m[key].as_f64().expect("a dimension");
+        assert!((got - truth).abs() <= 5.0, "{key} {got}: {m}");
+    }
+    assert_eq!(m["warnings"], serde_json::json!([]), "calibrated now");
+
+    // --adjust sets the post rotation and translation given, and keeps the rest.
+    ok(&[
+        "calibrate",
+        "--server",
+        &uri,
+        "--camera",
+        SN,
+        "--adjust",
+        "--yaw",
+        "-10",
+        "--dz",
+        "0.002",
+    ]);
+    let after: serde_json::Value =
+        serde_json::from_str(&ok(&["get", &doc]).stdout_text()).expect("JSON");
+    // Column vectors, as the thesis writes them (Listing A.4).
+    assert_eq!(
+        after["post_rotation_matrix"],
+        serde_json::json!([[0.0], [0.0], [-10.0]])
+    );
+    assert_eq!(
+        after["post_translation_matrix"],
+        serde_json::json!([[0.0], [0.0], [0.002]])
+    );
+    assert_eq!(
+        after["translation_matrix"],
+        report["3d-transformation"]["translation_matrix"]
+    );
+}
