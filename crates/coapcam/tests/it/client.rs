@@ -571,18 +571,9 @@ fn demo_writes_its_files_and_the_table() {
 #[test]
 fn measure_on_an_uncalibrated_camera_warns() {
     // As a real camera starts: the 3d-transformation is the identity, so the "parcel" is
-    // measured in the camera's own frame (z forward, the floor 0.8-1 m away).
+    // measured in the camera's own frame (z forward, the floor about 1 m away).
     let state = TempDir::new("client-uncalibrated");
-    let scene = state.path().join("scene.toml");
-    std::fs::write(
-        &scene,
-        format!(
-            "seed = 3\n[[camera]]\nserial = \"{SN}\"\nposition = [0.1, 0.0, 1.0]\n\
-             look_at = [0.0, 0.0, 0.0]\ncalibrated = false\n\
-             [[box]]\nsize = [0.40, 0.30, 0.20]\ncenter = [0.0, 0.0]\n"
-        ),
-    )
-    .expect("writing the scene");
+    let scene = crate::support::tilted_uncalibrated_scene(state.path());
     let (_server, addr) = crate::support::serve_with(state.path(), &["--scene", path(&scene)]);
     let uri = format!("coap://{addr}");
     for how in ["--edge", "--clouds"] {
@@ -610,17 +601,7 @@ fn measure_on_an_uncalibrated_camera_warns() {
 #[test]
 fn calibrate_floor_levels_a_tilted_camera_so_measure_is_within_5_mm() {
     let state = TempDir::new("client-calibrate");
-    let scene = state.path().join("scene.toml");
-    // Uncalibrated, 1.05 m up, looking at the box from 0.57 m aside: tilted 28.5 deg.
-    std::fs::write(
-        &scene,
-        format!(
-            "seed = 5\n[[camera]]\nserial = \"{SN}\"\nposition = [0.45, -0.35, 1.05]\n\
-             look_at = [0.0, 0.0, 0.0]\nnoise = \"d415\"\ncalibrated = false\n\
-             [[box]]\nsize = [0.40, 0.30, 0.20]\ncenter = [0.0, 0.0]\nyaw_deg = 15.0\n"
-        ),
-    )
-    .expect("writing the scene");
+    let scene = crate::support::tilted_uncalibrated_scene(state.path());
     let (_server, addr) = crate::support::serve_with(state.path(), &["--scene", path(&scene)]);
     let uri = format!("coap://{addr}");
     let doc = format!("{uri}/cams/{SN}/3d-transformation");
@@ -646,16 +627,7 @@ fn calibrate_floor_levels_a_tilted_camera_so_measure_is_within_5_mm() {
     assert!((height - 1050.0).abs() < 10.0, "{report}");
     assert!((tilt - 28.5).abs() < 0.5, "{report}");
 
-    let m = ok(&["measure", "--server", &uri, "--json"]).json();
-    for (key, truth) in [
-        ("length_mm", 400.0),
-        ("width_mm", 300.0),
-        ("height_mm", 200.0),
-    ] {
-        let got = m[key].as_f64().expect("a dimension");
-        assert!((got - truth).abs() <= 5.0, "{key} {got}: {m}");
-    }
-    assert_eq!(m["warnings"], serde_json::json!([]), "calibrated now");
+    crate::support::assert_box_within_5_mm(&ok(&["measure", "--server", &uri, "--json"]).json());
 
     // --adjust sets the post rotation and translation given, and keeps the rest.
     ok(&[

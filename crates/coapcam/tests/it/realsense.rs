@@ -11,7 +11,9 @@ use std::process::Command;
 
 use coap::Code;
 
-use crate::support::{COAPCAM, COLOR_640, SN, TempDir, client, runtime, send, serve_at};
+use crate::support::{
+    COAPCAM, COLOR_640, LIMIT, Proc, SN, TempDir, client, runtime, send, serve_at,
+};
 
 fn wheel() -> Option<(String, String)> {
     let from_env = |name: &str| std::env::var(name).ok().filter(|v| !v.is_empty());
@@ -178,4 +180,40 @@ fn a_virtual_d415_through_librealsense_serves_the_synthetic_tree_and_pixels() {
         assert_eq!(depth.code, Code::CONTENT);
         assert_eq!(depth.payload.len(), 14 + 1280 * 720 * 2);
     });
+}
+
+/// The finding, through librealsense's code path: a virtual D415 starts with the
+/// identity 3d-transformation, as a real one does, and measures nonsense with warnings;
+/// `calibrate --floor` then makes it measure the box within 5 mm.
+#[test]
+fn a_virtual_d415_through_librealsense_is_calibrated_on_the_floor() {
+    let Some((module, libpython)) = wheel() else {
+        return;
+    };
+    let state = TempDir::new("rs-calibrate");
+    let scene = crate::support::tilted_uncalibrated_scene(state.path());
+    let (_server, addr) = serve_at(
+        "127.0.0.1:0",
+        state.path(),
+        &[
+            "--scene",
+            scene.to_str().expect("UTF-8 path"),
+            "--realsense",
+            "--realsense-software",
+            "--librealsense",
+            &module,
+            "--librealsense-preload",
+            &libpython,
+        ],
+    );
+    let uri = format!("coap://{addr}");
+    let run = |args: &[&str]| Proc::run(COAPCAM, args, LIMIT).expect_success("coapcam");
+    let before = run(&["measure", "--server", &uri, "--json"]).json();
+    let warnings = before["warnings"].to_string();
+    assert!(
+        warnings.contains(&format!("camera {SN} is not calibrated")),
+        "{before}"
+    );
+    run(&["calibrate", "--server", &uri, "--floor"]);
+    crate::support::assert_box_within_5_mm(&run(&["measure", "--server", &uri, "--json"]).json());
 }

@@ -751,3 +751,33 @@ pub(crate) fn client() -> Client {
 
 pub(crate) const COLOR_640: &str = r#"{"format": "BGR8", "fps": 30, "width": 640, "height": 480}"#;
 pub(crate) const DEPTH_640: &str = r#"{"format": "Z16", "fps": 30, "width": 640, "height": 480}"#;
+
+/// A scene file in `dir`: one uncalibrated D415 (noise on) 1.05 m above the floor, 0.57 m
+/// aside of a 400 x 300 x 200 mm box (yaw 15 degrees), so tilted 28.5 degrees.
+pub(crate) fn tilted_uncalibrated_scene(dir: &Path) -> PathBuf {
+    let scene = dir.join("tilted.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "seed = 5\n[[camera]]\nserial = \"{SN}\"\nposition = [0.45, -0.35, 1.05]\n\
+             look_at = [0.0, 0.0, 0.0]\nnoise = \"d415\"\ncalibrated = false\n\
+             [[box]]\nsize = [0.40, 0.30, 0.20]\ncenter = [0.0, 0.0]\nyaw_deg = 15.0\n"
+        ),
+    )
+    .expect("writing the scene");
+    scene
+}
+
+/// Asserts that a `measure --json` document has the box of
+/// [`tilted_uncalibrated_scene`] within 5 mm and no warning.
+pub(crate) fn assert_box_within_5_mm(m: &serde_json::Value) {
+    for (key, truth) in [
+        ("length_mm", 400.0),
+        ("width_mm", 300.0),
+        ("height_mm", 200.0),
+    ] {
+        let got = m[key].as_f64().expect("a dimension");
+        assert!((got - truth).abs() <= 5.0, "{key} {got}: {m}");
+    }
+    assert_eq!(m["warnings"], serde_json::json!([]), "{m}");
+}
