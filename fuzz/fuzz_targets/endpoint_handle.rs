@@ -1,5 +1,6 @@
 //! The endpoint's datagram handling. The input is a script of operations on one
-//! `coap::Endpoint` with small limits and a virtual clock:
+//! `coap::Endpoint` with small limits and a virtual clock (the first byte's low bit turns
+//! RFC 9175 address verification on):
 //!
 //! | op % 6 | operation                                                                 |
 //! |--------|---------------------------------------------------------------------------|
@@ -45,8 +46,11 @@ fn peer(i: u8) -> SocketAddr {
     SocketAddr::from((PEERS[usize::from(i) % PEERS.len()], 5683))
 }
 
-fn config() -> EndpointConfig {
+/// `verify`: RFC 9175 address verification on (the peers are not on loopback, so their
+/// requests are then challenged); off, every server path is reachable.
+fn config(verify: bool) -> EndpointConfig {
     EndpointConfig {
+        verify_addresses: verify,
         limits: Limits {
             dedup_entries: 32,
             dedup_bytes: 16 << 10,
@@ -136,9 +140,10 @@ impl Harness {
         while let Some(t) = self.ep.poll_transmit() {
             assert!(
                 t.data.len() <= MAX_DATAGRAM,
-                "{}-byte datagram to {}",
+                "{}-byte datagram to {}: {:?}",
                 t.data.len(),
-                t.peer
+                t.peer,
+                Message::decode(&t.data).map(|m| (m.ty, m.code, m.options))
             );
             let msg = match Message::decode(&t.data) {
                 Ok(m) => m,
@@ -327,8 +332,10 @@ impl Harness {
 }
 
 fuzz_target!(|data: &[u8]| {
+    // The first byte's low bit turns address verification on.
+    let verify = data.first().is_some_and(|b| b & 1 == 1);
     let mut h = Harness {
-        ep: Endpoint::new(config()),
+        ep: Endpoint::new(config(verify)),
         now: epoch(),
         sent: Vec::new(),
         incoming: Vec::new(),

@@ -307,17 +307,21 @@ impl Endpoint {
         let mp = self.config.payloads_per_set();
         let szx = p.qblock2[0].szx.min(self.config.max_block_szx);
         let size = BlockOpt::size_of(szx);
+        if !response.code.is_success() {
+            // An error is no Q-Block body: sent as any answer, a body larger than a block
+            // cut with Block2 (it was sent whole, past the path's MTU, before fuzzing
+            // found it).
+            let key = p.key.clone();
+            return (
+                self.blockwise_response(now, key, None, response, &limits, szx),
+                None,
+            );
+        }
         let body = match response.source.take() {
             Some(source) => source,
             None => Source::new(std::mem::take(&mut response.payload)),
         };
         let len = body.0.len();
-        if !response.code.is_success() {
-            return match body.0.read(0..len) {
-                Some(payload) => (response.with_payload(payload), None),
-                None => (unreadable(), None),
-            };
-        }
         if len > size << 20 || u32::try_from(len).is_err() {
             let r = Response::diagnostic(
                 Code::INTERNAL_SERVER_ERROR,

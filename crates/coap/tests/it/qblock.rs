@@ -89,3 +89,24 @@ fn a_seed_gives_the_same_q_block_transfer_every_time() {
     assert!(x == data && y == data);
     assert_eq!(tx, ty);
 }
+
+#[test]
+fn a_large_error_to_a_q_block2_request_goes_in_blocks_within_the_mtu() {
+    // Found by fuzzing: an error answer to a Q-Block2 request went whole, 3.8 KB in one
+    // datagram. It is cut with Block2 like any answer.
+    let mut sim = Sim::new(link(0.0, 1));
+    let c = sim.add(cfg(1), None);
+    let handler: crate::sim::Handler = Box::new(|_| {
+        Reply::Now(Response::new(Code::INTERNAL_SERVER_ERROR).with_payload(vec![b'e'; 3840]))
+    });
+    let s = sim.add(cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    let mut req = Request::new(Code::GET, "/broken");
+    req.transfer = Some(Transfer::QBlock);
+    sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(60)), "no outcome");
+    assert_eq!(response(&sim, c).code, Code::INTERNAL_SERVER_ERROR);
+    let largest = sim.log.iter().map(|r| r.len).max().unwrap_or(0);
+    assert!(largest <= 1152, "a {largest}-byte datagram");
+}
