@@ -32,6 +32,8 @@ const IDLE: Duration = Duration::from_secs(600);
 /// The largest DTLS record, so that a record and its UDP/IP headers fit a 1280-byte
 /// IPv6 path (RFC 7252 §4.6).
 const MTU: u32 = 1152;
+/// Messages a session keeps for its peer until the handshake is done.
+const WAITING_MAX: usize = 64;
 /// RFC 7252 §9.1.3.1's mandatory suite first, then the GCM and CBC ones libcoap offers.
 const CIPHERS: &str = "PSK-AES128-CCM8:PSK-AES128-GCM-SHA256:PSK-AES128-CBC-SHA256";
 
@@ -286,6 +288,11 @@ impl Dtls {
                 std::mem::take(&mut stream.get_mut().outgoing)
             }
             _ => {
+                // Retransmissions of a CON pile up while the handshake runs; the newest
+                // WAITING_MAX are kept (the rest would be answered as duplicates anyway).
+                if s.waiting.len() >= WAITING_MAX {
+                    s.waiting.remove(0);
+                }
                 s.waiting.push(plaintext.to_vec());
                 self.drive(peer, None).send
             }
@@ -377,7 +384,8 @@ impl Dtls {
                 if let Some(d) = datagram {
                     stream.get_mut().incoming.push_back(d.to_vec());
                 }
-                let mut buf = vec![0u8; 65536];
+                // A record's plaintext is at most 2^14 bytes (RFC 6347 §4.1).
+                let mut buf = vec![0u8; 1 << 14];
                 loop {
                     match stream.ssl_read(&mut buf) {
                         Ok(n) => out.received.push(buf[..n].to_vec()),
