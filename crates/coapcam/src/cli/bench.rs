@@ -7,7 +7,6 @@ use std::time::Duration;
 
 use anyhow::{Context as _, bail};
 use clap::{Args, Subcommand};
-use coap::EndpointConfig;
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
 use rgbd::scene::{Noise, SceneBox, SceneCamera};
@@ -199,14 +198,7 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     let state = std::env::temp_dir().join(format!("coapcam-bench-{}", std::process::id()));
     let first = scene(args.seed, 0)?;
     let server = SceneServer::start(&first, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
-    let uri = format!("coap://{}", server.addr()?);
-    let client = CamClient::connect(
-        &uri,
-        EndpointConfig::default(),
-        None,
-        Duration::from_secs(30),
-    )
-    .await?;
+    let client = CamClient::at(server.addr()?, Duration::from_secs(30))?;
     let config = args.dimension.config();
     let mut rows = Vec::new();
     let mut next;

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use clap::Args;
-use coap::{ContentFormat, EndpointConfig};
+use coap::ContentFormat;
 use rgbd::{Camera as _, Scene, SyntheticCamera};
 
 use super::{Exit, outln};
@@ -172,14 +172,7 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
     // --prepare` does. The server sends it compactly; its points are the packet's.
     let state = std::env::temp_dir().join(format!("coapcam-bench-repr-{}", std::process::id()));
     let server = SceneServer::start(&scene, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
-    let uri = format!("coap://{}", server.addr()?);
-    let client = CamClient::connect(
-        &uri,
-        EndpointConfig::default(),
-        None,
-        Duration::from_secs(30),
-    )
-    .await?;
+    let client = CamClient::at(server.addr()?, Duration::from_secs(30))?;
     let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
     let all: Vec<rgbd::Serial> = scene.cameras.iter().map(|c| c.serial).collect();
     let source = CloudSource::Merged { serials: &all };

@@ -74,6 +74,11 @@ pub(crate) struct CalibrateArgs {
     transmission: TransmissionArgs,
 }
 
+/// The resource of camera `sn`'s 3d-transformation.
+fn path(sn: &str) -> String {
+    format!("/cams/{sn}/3d-transformation")
+}
+
 /// Runs `calibrate`.
 pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
     let client = CamClient::connect(
@@ -102,17 +107,16 @@ pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
         } else {
             level(&client, sn).await?
         };
+        let document = transformation.to_json();
         if !args.dry_run {
-            let body = Bytes::from(transformation.to_json().into_bytes());
-            let path = format!("/cams/{sn}/3d-transformation");
+            let body = Bytes::from(document.clone().into_bytes());
             client
-                .call(Code::PUT, &path, body, Some(ContentFormat::JSON), None)
+                .call(Code::PUT, &path(sn), body, Some(ContentFormat::JSON), None)
                 .await?;
         }
         report["camera"] = sn.as_str().into();
         report["written"] = (!args.dry_run).into();
-        report["3d-transformation"] =
-            serde_json::from_str(&transformation.to_json()).unwrap_or_default();
+        report["3d-transformation"] = serde_json::from_str(&document).unwrap_or_default();
         if args.json {
             outln!("{report}");
         } else {
@@ -165,8 +169,10 @@ async fn adjusted(
     sn: &str,
     args: &CalibrateArgs,
 ) -> anyhow::Result<Transformation> {
-    let current = client.get_json(sn, "3d-transformation").await?;
-    let mut t = Transformation::from_json(current.to_string().as_bytes())
+    let current = client
+        .call(Code::GET, &path(sn), Bytes::new(), None, None)
+        .await?;
+    let mut t = Transformation::from_json(&current.payload)
         .with_context(|| format!("camera {sn}: reading its 3d-transformation"))?;
     for (i, value) in [args.roll, args.pitch, args.yaw].into_iter().enumerate() {
         if let Some(v) = value {

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use anyhow::{Context as _, bail};
 use clap::Args;
-use coap::{ContentFormat, EndpointConfig};
+use coap::ContentFormat;
 use geometry::{DimensionConfig, Dimensions};
 use rgbd::Scene;
 
@@ -78,13 +78,7 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
         "server: {} synthetic D415 camera(s) on {uri}",
         scene.cameras.len()
     );
-    let client = CamClient::connect(
-        &uri,
-        EndpointConfig::default(),
-        None,
-        Duration::from_secs(30),
-    )
-    .await?;
+    let client = CamClient::at(server.addr()?, Duration::from_secs(30))?;
     let serials = client.cameras().await?;
     outln!("discovered cameras: {}", serials.join(", "));
     let Some(first) = serials.first() else {

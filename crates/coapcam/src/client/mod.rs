@@ -70,6 +70,19 @@ impl CamClient {
         })
     }
 
+    /// A plain CoAP client of the server at `server` (an in-process one, for `demo` and
+    /// the benchmarks), with the default transmission parameters.
+    pub fn at(server: SocketAddr, timeout: Duration) -> anyhow::Result<Self> {
+        let client = Client::for_peer(server, EndpointConfig::default())
+            .context("binding the client socket")?;
+        Ok(Self {
+            client,
+            server,
+            timeout,
+            bars: None,
+        })
+    }
+
     /// Shows a progress bar on standard error, when it is a terminal, for every answer
     /// over 1 MB (one line per transfer, in `bars`).
     #[must_use]
