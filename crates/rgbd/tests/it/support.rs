@@ -22,6 +22,7 @@ pub(crate) fn floor_scene(height_m: f64, noise: Noise) -> Scene {
         }],
         boxes: Vec::new(),
         cylinders: Vec::new(),
+        markers: Vec::new(),
     }
 }
 

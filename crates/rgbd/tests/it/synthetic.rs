@@ -265,3 +265,76 @@ fn calibrated_cameras_expose_their_true_pose() {
     uncalibrated.cameras[0].calibrated = false;
     assert!(only_camera(&uncalibrated).true_pose().is_none());
 }
+
+/// Where the color camera of `cam` sees world point `w`, through its true pose, the
+/// depth->color extrinsics and the color intrinsics.
+fn color_pixel_of(cam: &SyntheticCamera, w: [f64; 3]) -> [f32; 2] {
+    let pose = cam.true_pose().unwrap();
+    let d = [0, 1, 2].map(|i| w[i] - pose.translation[i]);
+    let r = pose.rotation;
+    let depth = [0, 1, 2].map(|j| (r[0][j] * d[0] + r[1][j] * d[1] + r[2][j] * d[2]) as f32);
+    let c = cam.depth_to_color().unwrap().transform(depth);
+    cam.color_intrinsics().unwrap().project(c).unwrap()
+}
+
+#[test]
+fn a_floor_marker_is_drawn_with_its_family_pattern_where_the_color_camera_sees_it() {
+    let mut scene = floor_scene(1.2, Noise::D415);
+    scene.cameras[0].position = [0.3, -0.5, 1.2];
+    scene.markers.push(rgbd::scene::SceneMarker {
+        family: "tag36h11".to_owned(),
+        id: 7,
+        size: 0.16,
+        center: [0.1, 0.05],
+        yaw_deg: 30.0,
+    });
+    scene.validate().unwrap();
+    let cam = only_camera(&scene);
+    cam.set_color_settings(ColorSettings {
+        format: ColorFormat::Rgb8,
+        fps: 30,
+        width: 1920,
+        height: 1080,
+    })
+    .unwrap();
+    let frame = cam.render_color(1);
+    let gray: Vec<u8> = (0..frame.height as usize)
+        .flat_map(|v| (0..frame.width as usize).map(move |u| (v, u)))
+        .map(|(v, u)| {
+            frame
+                .rgb_at(u as u32, v as u32)
+                .unwrap()
+                .iter()
+                .map(|&c| u32::from(c))
+                .sum::<u32>() as u8
+                / 3
+        })
+        .collect();
+    let found = markers::detect(markers::Family::Tag36h11, &gray, 1920, 1080).unwrap();
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert_eq!(found[0].id, 7);
+    // The corners in marker order: (-, -), (+, -), (+, +), (-, +) in the marker frame.
+    let yaw = 30f64.to_radians();
+    for (corner, (sx, sy)) in
+        found[0]
+            .corners
+            .iter()
+            .zip([(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)])
+    {
+        let (x, y) = (sx * 0.08, sy * 0.08);
+        let w = [
+            0.1 + x * yaw.cos() - y * yaw.sin(),
+            0.05 + x * yaw.sin() + y * yaw.cos(),
+            0.0,
+        ];
+        let want = color_pixel_of(&cam, w);
+        let error = ((corner[0] - f64::from(want[0])).powi(2)
+            + (corner[1] - f64::from(want[1])).powi(2))
+        .sqrt();
+        // The detector's sub-pixel edges are good to a few tenths of a pixel.
+        assert!(
+            error < 0.6,
+            "corner {corner:?}, expected {want:?}: {error} px"
+        );
+    }
+}

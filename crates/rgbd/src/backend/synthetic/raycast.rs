@@ -211,12 +211,40 @@ impl CylPrim {
     }
 }
 
+/// A marker on the floor, its pattern read from the family's table.
+#[derive(Debug)]
+struct FloorMarker {
+    center: [f32; 2],
+    cos: f32,
+    sin: f32,
+    /// Side of one pattern cell, metres.
+    cell: f32,
+    pattern: markers::Pattern,
+}
+
+impl FloorMarker {
+    /// The pattern cell under a floor point, as (column, row) from the top-left; `None`
+    /// off the marker.
+    fn cell_at(&self, p: &V3) -> Option<(usize, usize)> {
+        let (dx, dy) = (p.x - self.center[0], p.y - self.center[1]);
+        // Into the marker frame: x along the rows, y towards the top row.
+        let x = self.cos * dx + self.sin * dy;
+        let y = -self.sin * dx + self.cos * dy;
+        let half = self.cell * self.pattern.cells as f32 / 2.0;
+        let col = ((x + half) / self.cell).floor();
+        let row = ((half - y) / self.cell).floor();
+        let n = self.pattern.cells as f32;
+        ((0.0..n).contains(&col) && (0.0..n).contains(&row)).then(|| (col as usize, row as usize))
+    }
+}
+
 /// A scene prepared for ray casting (f32, labels encoded).
 #[derive(Debug)]
 pub(crate) struct World {
     floor_z: f32,
     floor_color: [f32; 3],
     prims: Vec<Prim>,
+    markers: Vec<FloorMarker>,
 }
 
 fn rgb(c: [u8; 3]) -> [f32; 3] {
@@ -273,10 +301,30 @@ impl World {
                 sphere_radius: (radius * radius + height * height / 4.0).sqrt(),
             });
         }
+        let mut markers = Vec::with_capacity(scene.markers.len());
+        for (i, m) in scene.markers.iter().enumerate() {
+            let invalid = |reason: String| SceneError::Invalid {
+                field: format!("marker[{i}]"),
+                reason,
+            };
+            let family: markers::Family = m.family.parse().map_err(|e| invalid(format!("{e}")))?;
+            let pattern = family
+                .pattern(m.id)
+                .ok_or_else(|| invalid(format!("{family} has no id {}", m.id)))?;
+            let yaw = (m.yaw_deg as f32).to_radians();
+            markers.push(FloorMarker {
+                center: [m.center[0] as f32, m.center[1] as f32],
+                cos: yaw.cos(),
+                sin: yaw.sin(),
+                cell: m.size as f32 / pattern.black_cells as f32,
+                pattern,
+            });
+        }
         Ok(Self {
             floor_z,
             floor_color: rgb(scene.floor.color),
             prims,
+            markers,
         })
     }
 
@@ -359,11 +407,28 @@ impl World {
         }
     }
 
+    /// The marker under a floor point and its cell there.
+    fn marker_at(&self, point: &V3) -> Option<(&FloorMarker, (usize, usize))> {
+        self.markers
+            .iter()
+            .find_map(|m| m.cell_at(point).map(|cell| (m, cell)))
+    }
+
+    /// Whether a floor point lies on a marker (drawn, like labels, with more than one
+    /// ray per pixel).
+    pub(crate) fn on_marker(&self, point: &V3) -> bool {
+        self.marker_at(point).is_some()
+    }
+
     /// Shaded color of a hit, 0..=255 per channel (not rounded); `light` is the unit
     /// direction towards the light.
     pub(crate) fn shade(&self, hit: &Hit, point: &V3, ray: &V3, light: &V3) -> [f32; 3] {
         let base = match hit.surface {
-            Surface::Floor => self.floor_color,
+            Surface::Floor => match self.marker_at(point) {
+                Some((m, (col, row))) if m.pattern.is_white(col, row) => LABEL_WHITE,
+                Some(_) => LABEL_BLACK,
+                None => self.floor_color,
+            },
             Surface::Prim { index, top } => {
                 let prim = &self.prims[index];
                 match &prim.shape {

@@ -230,7 +230,7 @@ fn supersample(world: &World, view: &View, right_imager: &V3, u: usize, v: usize
 /// Sub-pixel rays per side of a color pixel on a label.
 const LABEL_SAMPLES: u32 = 4;
 
-/// A color pixel on a label, as a sensor integrates the light over the pixel: the mean
+/// A color pixel on a label or a marker, as a sensor integrates the light over the pixel: the mean
 /// shade of `LABEL_SAMPLES`² sub-pixel rays. One ray per pixel would draw a bar code's
 /// modules a whole pixel wide or not at all (aliasing), which no camera does.
 fn label_pixel(world: &World, view: &View, light: &V3, u: usize, v: usize) -> [u8; 3] {
@@ -280,10 +280,14 @@ pub(crate) fn render_color(world: &World, view: &View, format: ColorFormat) -> V
             for (u, px) in row.chunks_exact_mut(bpp).enumerate() {
                 let d = base + step * u as f32;
                 let rgb = match first_seen(world, &view.origin, &d, cands, u) {
+                    Some(Seen::Floor(t)) if world.on_marker(&(view.origin + d * t)) => {
+                        label_pixel(world, view, &light, u, v)
+                    }
                     Some(Seen::Floor(_)) => floor_rgb[usize::from(d.z > 0.0)],
                     Some(Seen::Hit(hit)) => {
                         let p = view.origin + d * hit.t;
-                        if world.on_label(&hit, &p) {
+                        let on_marker = hit.surface == Surface::Floor && world.on_marker(&p);
+                        if on_marker || world.on_label(&hit, &p) {
                             label_pixel(world, view, &light, u, v)
                         } else {
                             rounded(world.shade(&hit, &p, &d, &light))

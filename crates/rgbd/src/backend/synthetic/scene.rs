@@ -13,7 +13,7 @@
 //! look_at = [0.0, 0.0, 0.0]
 //! up = [0.0, 1.0, 0.0]        # optional
 //! noise = "d415"              # or "ideal"
-//! calibrated = true
+//! calibrated = true           # false: starts with the identity 3d-transformation
 //!
 //! [[box]]
 //! size = [0.40, 0.30, 0.20]   # length (along x before yaw), width, height
@@ -26,14 +26,28 @@
 //! radius = 0.10
 //! height = 0.25
 //! center = [0.3, -0.2]
+//!
+//! [[marker]]                  # a calibration marker printed on the floor
+//! family = "tag36h11"
+//! id = 0
+//! size = 0.16                 # side of the black square, metres
+//! center = [0.0, 0.0]
+//! yaw_deg = 0.0
 //! ```
 //!
 //! Defaults: `seed` 0, floor at z = 0 colored [120, 120, 120], `up` world +z unless the
 //! camera looks (nearly) straight up or down, then world +y; `noise` "d415";
-//! `calibrated` false; box color [180, 140, 90]; cylinder color [70, 110, 160].
+//! `calibrated` true (the camera exposes its true pose, which a server preloads as its
+//! 3d-transformation; false starts with the identity, as a real camera does); box color [180, 140, 90]; cylinder color [70, 110, 160].
 //! A label lies centred on the box's top face, its x along the box's length. Its `size`
 //! is its width in metres; a QR label is square, a Code 128 label is half as tall as
 //! wide. Both carry a white quiet zone.
+//!
+//! A marker lies flat on the floor (it changes color, not depth), drawn with its
+//! family's real pattern (the `markers` crate): the black square `size` wide, the data
+//! bits inside it, one white cell around it. Its x axis (the pattern's rows, left to
+//! right) points along world x turned by `yaw_deg`, its top towards world y turned
+//! likewise, as if printed and laid face up.
 
 use std::path::Path;
 
@@ -139,6 +153,23 @@ pub struct Cylinder {
     pub color: [u8; 3],
 }
 
+/// A calibration marker printed on the floor.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneMarker {
+    /// Family name, e.g. `"tag36h11"` ([`markers::FAMILIES`]).
+    pub family: String,
+    /// Id within the family.
+    pub id: u32,
+    /// Side of the black square, metres.
+    pub size: f64,
+    /// Centre on the floor, (x, y) metres.
+    pub center: [f64; 2],
+    /// Rotation about world z, degrees, counter-clockwise seen from above.
+    #[serde(default)]
+    pub yaw_deg: f64,
+}
+
 /// A scene: what the synthetic cameras see.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scene {
@@ -152,6 +183,8 @@ pub struct Scene {
     pub boxes: Vec<SceneBox>,
     /// Cylinders.
     pub cylinders: Vec<Cylinder>,
+    /// Calibration markers on the floor.
+    pub markers: Vec<SceneMarker>,
 }
 
 /// Why a scene was refused.
@@ -199,6 +232,8 @@ struct SceneFile {
     boxes: Vec<SceneBox>,
     #[serde(default)]
     cylinder: Vec<Cylinder>,
+    #[serde(default)]
+    marker: Vec<SceneMarker>,
 }
 
 #[derive(Deserialize)]
@@ -211,8 +246,12 @@ struct CameraFile {
     up: Option<[f64; 3]>,
     #[serde(default = "default_noise")]
     noise: Noise,
-    #[serde(default)]
+    #[serde(default = "default_calibrated")]
     calibrated: bool,
+}
+
+fn default_calibrated() -> bool {
+    true
 }
 
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
@@ -271,6 +310,8 @@ pub const MAX_SIZE_M: f64 = 100.0;
 pub const MAX_CAMERAS: usize = 16;
 /// Most objects (boxes and cylinders together) in a scene.
 pub const MAX_OBJECTS: usize = 256;
+/// Most markers in a scene.
+pub const MAX_MARKERS: usize = 256;
 /// Longest label text, characters.
 pub const MAX_LABEL_CHARS: usize = 256;
 
@@ -337,6 +378,7 @@ impl Scene {
             cameras,
             boxes: file.boxes,
             cylinders: file.cylinder,
+            markers: file.marker,
         };
         scene.validate()?;
         Ok(scene)
@@ -423,6 +465,28 @@ impl Scene {
             positive(&at("height"), &[c.height])?;
             coordinates(&at("center"), &c.center)?;
         }
+        if self.markers.len() > MAX_MARKERS {
+            return Err(invalid(
+                "marker",
+                format!("at most {MAX_MARKERS} markers, got {}", self.markers.len()),
+            ));
+        }
+        for (i, m) in self.markers.iter().enumerate() {
+            let at = |f: &str| format!("marker[{i}].{f}");
+            let family: markers::Family = m
+                .family
+                .parse()
+                .map_err(|e: markers::UnknownFamily| invalid(at("family"), e.to_string()))?;
+            if m.id >= family.len() {
+                return Err(invalid(
+                    at("id"),
+                    format!("{family} has ids 0 to {}, got {}", family.len() - 1, m.id),
+                ));
+            }
+            positive(&at("size"), &[m.size])?;
+            coordinates(&at("center"), &m.center)?;
+            finite(&at("yaw_deg"), &[m.yaw_deg])?;
+        }
         Ok(())
     }
 
@@ -448,6 +512,7 @@ impl Scene {
             }],
             boxes: vec![Self::default_box()],
             cylinders: Vec::new(),
+            markers: Vec::new(),
         }
     }
 
@@ -471,6 +536,7 @@ impl Scene {
             ],
             boxes: vec![Self::default_box()],
             cylinders: Vec::new(),
+            markers: Vec::new(),
         }
     }
 
