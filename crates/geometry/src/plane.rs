@@ -81,13 +81,13 @@ pub fn dominant_plane(
     if count * 10 < sample.len() {
         return Err(PlaneError::NoPlane);
     }
-    refine(points, normal, offset, inlier_m)
+    plane_near(points, normal, offset, inlier_m)
 }
 
-/// The least-squares plane of the points within `inlier_m` of the given one: through
-/// their centroid, normal to their covariance's smallest axis (turned to agree with the
-/// given normal).
-fn refine(
+/// The least-squares plane of the points within `inlier_m` of the plane `normal · p +
+/// offset = 0`: through their centroid, normal to their covariance's smallest axis
+/// (turned to agree with the given normal).
+pub fn plane_near(
     points: &[Point3],
     normal: Vector3<f64>,
     offset: f64,
