@@ -123,7 +123,10 @@ fn from_homography(sightings: &[Sighting]) -> Option<Isometry3<f64>> {
         }
     }
     let eigen = ata.symmetric_eigen();
-    let h = eigen.eigenvectors.column(eigen.eigenvalues.imin()).into_owned();
+    let h = eigen
+        .eigenvectors
+        .column(eigen.eigenvalues.imin())
+        .into_owned();
     let hn = Matrix3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
     let hm = tr.try_inverse()? * hn * tw;
     // hm ~ [r1 r2 t]: scale so that r1 and r2 have unit length on average, and the plane

@@ -176,7 +176,8 @@ pub enum CalibrationError {
 }
 
 fn isometry(rotation: Matrix3<f64>, translation: Vector3<f64>) -> Isometry3<f64> {
-    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(rotation));
+    let rotation =
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(rotation));
     Isometry3::from_parts(translation.into(), rotation)
 }
 
@@ -283,7 +284,15 @@ mod tests {
     }
 
     /// What the synthetic camera shows, and its true pose (depth -> world).
-    fn grab(scene: &Scene) -> (Vec<Detection>, Intrinsics, Extrinsics, Vec<Point3>, rgbd::Pose) {
+    fn grab(
+        scene: &Scene,
+    ) -> (
+        Vec<Detection>,
+        Intrinsics,
+        Extrinsics,
+        Vec<Point3>,
+        rgbd::Pose,
+    ) {
         let mut truth = scene.clone();
         truth.cameras[0].calibrated = true;
         let cam = SyntheticCamera::new(&truth, &truth.cameras[0].serial).expect("camera");
@@ -342,7 +351,10 @@ mod tests {
         let single = MarkerMap::single(Family::Tag36h11, 0, 0.16);
         let c = calibrate(&view, &single).expect("calibrated");
         let (mm, deg) = errors(&c, &truth);
-        eprintln!("origin only: {mm:.2} mm, {deg:.3} deg, unknown {:?}", c.unknown);
+        eprintln!(
+            "origin only: {mm:.2} mm, {deg:.3} deg, unknown {:?}",
+            c.unknown
+        );
         assert_eq!(c.unknown, vec![5]);
         assert!(mm < 5.0 && deg < 0.5, "{mm} mm, {deg} deg");
     }

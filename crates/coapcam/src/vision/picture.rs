@@ -80,6 +80,42 @@ const TOP_VIEW_MAX_PX: f32 = 1024.0;
 /// with a measurement its footprint outlined in white. Below the plot: a millimetre scale bar, the
 /// colour bar of heights and the dimensions.
 pub fn top_view(cloud: &PointCloud, measured: Option<&Dimensions>) -> RgbImage {
+    plot(cloud, measured, Looking::Down)
+}
+
+/// The cloud seen from the side, looking along +y: x right, z up, each pixel coloured by
+/// the nearest point in it (blue far, red near), drawn like [`top_view`].
+pub fn side_view(cloud: &PointCloud) -> RgbImage {
+    let turned = PointCloud {
+        points: cloud
+            .points
+            .iter()
+            .map(|p| geometry::Point3::new(p.x, p.z, -p.y))
+            .collect(),
+        ..PointCloud::default()
+    };
+    plot(&turned, None, Looking::Side)
+}
+
+/// Where a plot looks from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Looking {
+    /// From above: the plot's axes are x and y, the colour is z.
+    Down,
+    /// From -y: the plot's axes are x and z, the colour is -y.
+    Side,
+}
+
+impl Looking {
+    fn axes(self) -> [&'static str; 2] {
+        match self {
+            Self::Down => ["x", "y"],
+            Self::Side => ["x", "z"],
+        }
+    }
+}
+
+fn plot(cloud: &PointCloud, measured: Option<&Dimensions>, looking: Looking) -> RgbImage {
     let finite = || {
         cloud
             .points
@@ -125,6 +161,7 @@ pub fn top_view(cloud: &PointCloud, measured: Option<&Dimensions>) -> RgbImage {
     };
     let scale = text_scale(&plot).max(if w < 400 { 1 } else { 2 });
     let key = TopKey {
+        looking,
         mm_per_px: f64::from(metres_per_px) * 1e3,
         heights_mm: [f64::from(lo[2]) * 1e3, f64::from(hi[2]) * 1e3],
         measured,
@@ -139,7 +176,13 @@ pub fn top_view(cloud: &PointCloud, measured: Option<&Dimensions>) -> RgbImage {
     }
     let origin = to_px(0.0, 0.0);
     if (0.0..w as f32).contains(&origin[0]) && (0.0..h as f32).contains(&origin[1]) {
-        draw_axes(&mut image, origin, 60.0 * scale as f32, scale);
+        draw_axes(
+            &mut image,
+            origin,
+            60.0 * scale as f32,
+            scale,
+            looking.axes(),
+        );
     }
     key.draw(&mut image, (0, h), scale);
     image
@@ -147,6 +190,7 @@ pub fn top_view(cloud: &PointCloud, measured: Option<&Dimensions>) -> RgbImage {
 
 /// What is drawn under a top view's plot.
 struct TopKey<'a> {
+    looking: Looking,
     mm_per_px: f64,
     heights_mm: [f64; 2],
     measured: Option<&'a Dimensions>,
@@ -163,7 +207,11 @@ impl TopKey<'_> {
     }
 
     fn lines(&self) -> Vec<String> {
-        let mut lines = vec![format!("top view, scale bar {:.0} mm", self.bar_mm())];
+        let view = match self.looking {
+            Looking::Down => "top view",
+            Looking::Side => "side view (looking along +y)",
+        };
+        let mut lines = vec![format!("{view}, scale bar {:.0} mm", self.bar_mm())];
         if let Some(d) = self.measured {
             lines.push(format!(
                 "white: footprint {:.0} x {:.0} mm, height {:.0} mm",
@@ -184,7 +232,10 @@ impl TopKey<'_> {
 
     fn bar(&self) -> ColourBar {
         ColourBar {
-            title: "height",
+            title: match self.looking {
+                Looking::Down => "height",
+                Looking::Side => "-y",
+            },
             lo: format!("{:.0} mm", self.heights_mm[0]),
             hi: format!("{:.0} mm", self.heights_mm[1]),
         }
@@ -250,11 +301,11 @@ impl ColourBar {
 
 /// The world's x axis (right) and y axis (up) from `origin`, `len` pixels, in magenta,
 /// a colour the height scale does not use.
-fn draw_axes(image: &mut RgbImage, origin: [f32; 2], len: f32, scale: u32) {
+fn draw_axes(image: &mut RgbImage, origin: [f32; 2], len: f32, scale: u32, names: [&str; 2]) {
     let [ox, oy] = origin;
     for (tip, colour, name) in [
-        ([ox + len, oy], MAGENTA, "x"),
-        ([ox, oy - len], MAGENTA, "y"),
+        ([ox + len, oy], MAGENTA, names[0]),
+        ([ox, oy - len], MAGENTA, names[1]),
     ] {
         draw_line(image, origin, tip, colour, scale);
         let at = (tip[0].max(0.0) as u32 + 2 * scale, tip[1].max(0.0) as u32);
