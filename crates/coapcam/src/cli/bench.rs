@@ -9,13 +9,17 @@ use anyhow::{Context as _, bail};
 use clap::{Args, Subcommand};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
-use rgbd::scene::{Noise, SceneBox, SceneCamera};
+use std::time::Instant;
+
+use markers::Family;
+use rgbd::scene::{Noise, SceneBox, SceneCamera, SceneMarker};
 use rgbd::{Scene, Serial};
 
-use super::{DimensionArgs, Exit, outln};
+use super::{DimensionArgs, Exit, calibrate, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::{self, Measurement, Source, prepare_cameras, truth, yaw_difference};
 use coapcam::server::SceneServer;
+use coapcam::vision::calibration::{Calibration, MarkerMap};
 
 /// `bench transfer` (declared here, not in `cli/mod.rs`, with its file beside this one).
 #[path = "bench_transfer.rs"]
@@ -67,6 +71,13 @@ struct AccuracyArgs {
     /// Print one JSON object (every scene and the summary) instead of tables.
     #[arg(long)]
     json: bool,
+    /// Start every scene with its cameras uncalibrated (identity 3d-transformation), as
+    /// real cameras start: calibrate them on the empty table, where 25 tag36h11 markers
+    /// lie, then put the parcel on it and measure. Prints the cameras' pose errors too.
+    /// The scenes differ: one to three D415s 0.8-1.6 m from the parcel's lid, tilted
+    /// 0-35 degrees, parcels 10-60 cm wide and 2-40 cm high.
+    #[arg(long)]
+    calibrate: bool,
     #[command(flatten)]
     dimension: DimensionArgs,
 }
@@ -141,6 +152,112 @@ pub(crate) fn scene(seed: u64, index: usize) -> anyhow::Result<Scene> {
     })
 }
 
+/// The markers of the calibration table: a 5 x 5 grid 0.22 m apart, 12 cm wide, id 0
+/// (the origin) in the middle at the world's origin, the others turned by 15 degree steps.
+fn marker_grid() -> Vec<SceneMarker> {
+    let mut grid = Vec::with_capacity(25);
+    let mut id = 1;
+    for row in -2i32..=2 {
+        for col in -2i32..=2 {
+            let origin = row == 0 && col == 0;
+            grid.push(SceneMarker {
+                family: "tag36h11".to_owned(),
+                id: if origin { 0 } else { id },
+                size: 0.12,
+                center: [f64::from(col) * 0.22, f64::from(row) * 0.22],
+                yaw_deg: if origin {
+                    0.0
+                } else {
+                    f64::from(id % 6) * 15.0
+                },
+            });
+            id += u32::from(!origin);
+        }
+    }
+    grid
+}
+
+/// Scene `index` of the `--calibrate` set, as (the parcel's scene, the empty table's): a
+/// box 10-60 cm wide and 2-40 cm high near the origin, seen by one to three uncalibrated
+/// cameras spread around it, each 0.8-1.6 m from the centre of its lid (far enough that
+/// the whole lid is in view) and tilted 0-35 degrees from straight down; the table has
+/// the same cameras and [`marker_grid`] instead of the box.
+pub(crate) fn calibration_scenes(seed: u64, index: usize) -> anyhow::Result<(Scene, Scene)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(
+        seed.wrapping_mul(1_000_033)
+            .wrapping_add(index as u64)
+            .wrapping_add(0xca1b),
+    );
+    let (length, width) = {
+        let a = uniform(&mut rng, 0.10, 0.60);
+        let b = uniform(&mut rng, 0.10, 0.60);
+        (a.max(b), a.min(b))
+    };
+    let height = uniform(&mut rng, 0.02, 0.40);
+    let yaw_deg = uniform(&mut rng, 0.0, 90.0);
+    let center = [
+        uniform(&mut rng, -0.05, 0.05),
+        uniform(&mut rng, -0.05, 0.05),
+    ];
+    // The lid's half diagonal within 85 % of the narrow half angle.
+    let narrow = DEPTH_HALF_FOV_DEG[1].to_radians().tan() * 0.85;
+    let needed = (length.hypot(width) / 2.0 / narrow).max(0.8);
+    let count = index % 3 + 1;
+    let azimuth = uniform(&mut rng, 0.0, 360.0);
+    let mut cameras = Vec::with_capacity(count);
+    for k in 0..count {
+        let distance = uniform(&mut rng, needed, 1.6_f64.max(needed));
+        let tilt = uniform(&mut rng, if count == 1 { 0.0 } else { 10.0 }, 35.0).to_radians();
+        let turn = (azimuth + 360.0 * k as f64 / count as f64 + uniform(&mut rng, -20.0, 20.0))
+            .to_radians();
+        let lid = [center[0], center[1], height];
+        cameras.push(SceneCamera {
+            serial: Serial::parse(&format!("{:012}", 840_412_060_800 + k))
+                .map_err(|e| anyhow::anyhow!("{e}"))?,
+            position: [
+                lid[0] + distance * tilt.sin() * turn.cos(),
+                lid[1] + distance * tilt.sin() * turn.sin(),
+                lid[2] + distance * tilt.cos(),
+            ],
+            look_at: lid,
+            up: None,
+            noise: Noise::D415,
+            calibrated: false,
+        });
+    }
+    let parcel = Scene {
+        seed: rng.next_u64(),
+        cameras,
+        boxes: vec![SceneBox {
+            size: [length, width, height],
+            center,
+            yaw_deg,
+            color: [180, 140, 90],
+            label: None,
+        }],
+        ..Scene::default_single()
+    };
+    let table = Scene {
+        boxes: Vec::new(),
+        markers: marker_grid(),
+        ..parcel.clone()
+    };
+    parcel.validate()?;
+    table.validate()?;
+    Ok((parcel, table))
+}
+
+/// How far a calibration is from the truth: position (mm) and angle (degrees).
+fn pose_error(c: &Calibration, truth: &SceneCamera) -> anyhow::Result<[f64; 2]> {
+    let pose = truth.pose().context("the scene camera has no pose")?;
+    let rotation = nalgebra::Rotation3::from_matrix(&nalgebra::Matrix3::from_row_slice(
+        &pose.rotation.concat(),
+    ));
+    let position = c.depth_to_world.translation.vector - nalgebra::Vector3::from(pose.translation);
+    let turn = c.depth_to_world.rotation.to_rotation_matrix() * rotation.inverse();
+    Ok([position.norm() * 1000.0, turn.angle().to_degrees()])
+}
+
 /// One scene's result.
 struct Row {
     index: usize,
@@ -151,6 +268,9 @@ struct Row {
     cycle_ms: f64,
     grab_ms: f64,
     error: Option<String>,
+    /// With `--calibrate`: each camera's pose error (mm, degrees) and the time the
+    /// calibration of all cameras took.
+    calibration: Option<(Vec<[f64; 2]>, f64)>,
 }
 
 impl Row {
@@ -191,58 +311,134 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
     }
 }
 
+/// Measures `scene` (cameras already in place) through `client`.
+async fn measure_scene(
+    client: &CamClient,
+    index: usize,
+    scene: &Scene,
+    config: &geometry::DimensionConfig,
+) -> anyhow::Result<Row> {
+    let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
+    prepare_cameras(client, &serials, 1.0, false).await?;
+    let truth = truth(scene).context("the scene has no box")?;
+    let result = measure::measure_once(client, &Source::All, config).await;
+    Ok(Row {
+        index,
+        cameras: scene.cameras.len(),
+        camera_z: scene.cameras[0].position[2],
+        truth,
+        cycle_ms: result
+            .as_ref()
+            .map_or(f64::NAN, |m| m.cycle.as_secs_f64() * 1e3),
+        grab_ms: result
+            .as_ref()
+            .map_or(f64::NAN, |m| m.grab.as_secs_f64() * 1e3),
+        measured: result
+            .as_ref()
+            .ok()
+            .and_then(Measurement::dimensions)
+            .map(|d| [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg]),
+        error: match &result {
+            Ok(m) if m.dimensions().is_none() => Some("nothing on the table".into()),
+            Ok(_) => None,
+            Err(e) => Some(super::error_text(e)),
+        },
+        calibration: None,
+    })
+}
+
+/// `--calibrate`'s scene `index`: a server (state of its own) on the empty table, every
+/// camera calibrated by its markers and written, then the parcel put on the table and
+/// measured.
+async fn calibrate_and_measure(
+    state: &std::path::Path,
+    seed: u64,
+    index: usize,
+    config: &geometry::DimensionConfig,
+) -> anyhow::Result<Row> {
+    let (parcel, table) = calibration_scenes(seed, index)?;
+    let dir = state.join(index.to_string());
+    let server = SceneServer::start(&table, &dir, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
+    let client = CamClient::at(server.addr()?, Duration::from_secs(30))?;
+    let map = MarkerMap::from_scene(&table, Family::Tag36h11, 0)?;
+    let started = Instant::now();
+    let mut errors = Vec::with_capacity(table.cameras.len());
+    let mut failure = None;
+    for camera in &table.cameras {
+        let sn = camera.serial.to_string();
+        match calibrate::place(&client, &sn, &map).await {
+            Ok(placed) => {
+                let c = &placed.calibration;
+                calibrate::put(&client, &sn, &c.transformation().to_json()).await?;
+                errors.push(pose_error(c, camera)?);
+            }
+            Err(e) => {
+                failure = Some(format!("calibrating camera {sn}: {e:#}"));
+                break;
+            }
+        }
+    }
+    let calibrate_ms = started.elapsed().as_secs_f64() * 1e3;
+    let mut row = if let Some(error) = failure {
+        Row {
+            index,
+            cameras: parcel.cameras.len(),
+            camera_z: parcel.cameras[0].position[2],
+            truth: truth(&parcel).context("the scene has no box")?,
+            measured: None,
+            cycle_ms: f64::NAN,
+            grab_ms: f64::NAN,
+            error: Some(error),
+            calibration: None,
+        }
+    } else {
+        // The same cameras, their 3d-transformation restored from the state directory.
+        server.load(&parcel)?;
+        measure_scene(&client, index, &parcel, config).await?
+    };
+    row.calibration = Some((errors, calibrate_ms));
+    drop(server);
+    std::fs::remove_dir_all(&dir).ok();
+    Ok(row)
+}
+
 async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     if args.scenes == 0 {
         bail!("--scenes must be at least 1");
     }
     let state = std::env::temp_dir().join(format!("coapcam-bench-{}", std::process::id()));
-    let first = scene(args.seed, 0)?;
-    let server = SceneServer::start(&first, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
-    let client = CamClient::at(server.addr()?, Duration::from_secs(30))?;
     let config = args.dimension.config();
     let mut rows = Vec::new();
-    let mut next;
-    for index in 0..args.scenes {
-        // The server started with scene 0.
-        let scene = if index == 0 {
-            &first
-        } else {
-            next = scene(args.seed, index)?;
-            server.load(&next)?;
-            &next
-        };
-        let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
-        prepare_cameras(&client, &serials, 1.0, false).await?;
-        let truth = truth(scene).context("the scene has no box")?;
-        let result = measure::measure_once(&client, &Source::All, &config).await;
-        let row = Row {
-            index,
-            cameras: scene.cameras.len(),
-            camera_z: scene.cameras[0].position[2],
-            truth,
-            cycle_ms: result
-                .as_ref()
-                .map_or(f64::NAN, |m| m.cycle.as_secs_f64() * 1e3),
-            grab_ms: result
-                .as_ref()
-                .map_or(f64::NAN, |m| m.grab.as_secs_f64() * 1e3),
-            measured: result
-                .as_ref()
-                .ok()
-                .and_then(Measurement::dimensions)
-                .map(|d| [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg]),
-            error: match &result {
-                Ok(m) if m.dimensions().is_none() => Some("nothing on the table".into()),
-                Ok(_) => None,
-                Err(e) => Some(super::error_text(e)),
-            },
-        };
-        if !args.json {
-            print_row(&row)?;
+    if args.calibrate {
+        for index in 0..args.scenes {
+            let row = calibrate_and_measure(&state, args.seed, index, &config).await?;
+            if !args.json {
+                print_row(&row)?;
+            }
+            rows.push(row);
         }
-        rows.push(row);
+    } else {
+        let first = scene(args.seed, 0)?;
+        let server =
+            SceneServer::start(&first, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
+        let client = CamClient::at(server.addr()?, Duration::from_secs(30))?;
+        let mut next;
+        for index in 0..args.scenes {
+            // The server started with scene 0.
+            let scene = if index == 0 {
+                &first
+            } else {
+                next = scene(args.seed, index)?;
+                server.load(&next)?;
+                &next
+            };
+            let row = measure_scene(&client, index, scene, &config).await?;
+            if !args.json {
+                print_row(&row)?;
+            }
+            rows.push(row);
+        }
     }
-    drop(server);
     std::fs::remove_dir_all(&state).ok();
     let errors: Vec<[f64; 4]> = rows.iter().filter_map(Row::errors).collect();
     let column = |i: usize| summary(&errors.iter().map(|e| e[i]).collect::<Vec<_>>());
@@ -256,6 +452,29 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     let [_, p95_cycle, max_cycle] = summary(&cycles);
     let failed = rows.len() - errors.len();
     let names = ["length_mm", "width_mm", "height_mm", "yaw_deg"];
+    // With --calibrate: every camera's pose errors, and the calibration times.
+    let poses: Vec<[f64; 2]> = rows
+        .iter()
+        .filter_map(|r| r.calibration.as_ref())
+        .flat_map(|(e, _)| e.iter().copied())
+        .collect();
+    let pose_column = |i: usize| {
+        let mut v: Vec<f64> = poses.iter().map(|p| p[i]).collect();
+        v.sort_by(f64::total_cmp);
+        let [_, p95, max] = summary(&v);
+        [v.get(v.len() / 2).copied().unwrap_or(f64::NAN), p95, max]
+    };
+    let mut times: Vec<f64> = rows
+        .iter()
+        .filter_map(|r| {
+            r.calibration
+                .as_ref()
+                .map(|(e, ms)| ms / e.len().max(1) as f64)
+        })
+        .collect();
+    times.sort_by(f64::total_cmp);
+    let median_time = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
+    let max_time = times.last().copied().unwrap_or(f64::NAN);
     if args.json {
         let scenes: Vec<serde_json::Value> = rows
             .iter()
@@ -264,6 +483,8 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
                     "scene": r.index, "cameras": r.cameras, "camera_z_m": r.camera_z,
                     "truth": r.truth, "measured": r.measured, "cycle_ms": r.cycle_ms, "grab_ms": r.grab_ms,
                     "error": r.error,
+                    "pose_errors_mm_deg": r.calibration.as_ref().map(|c| &c.0),
+                    "calibrate_ms": r.calibration.as_ref().map(|c| c.1),
                 })
             })
             .collect();
@@ -283,6 +504,15 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
             serde_json::json!({
                 "scenes": scenes, "summary": summary, "failed": failed,
                 "cycle_ms": {"median": median_cycle, "p95": p95_cycle, "max": max_cycle},
+                "calibration": args.calibrate.then(|| {
+                    let ([pm, pp, px], [am, ap, ax]) = (pose_column(0), pose_column(1));
+                    serde_json::json!({
+                        "cameras": poses.len(),
+                        "position_mm": {"median": pm, "p95": pp, "max": px},
+                        "angle_deg": {"median": am, "p95": ap, "max": ax},
+                        "per_camera_ms": {"median": median_time, "max": max_time},
+                    })
+                }),
             })
         );
     } else {
@@ -299,6 +529,24 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
             "{} scenes, {failed} failed; cycle median {median_cycle:.0} ms, p95 {p95_cycle:.0} ms, max {max_cycle:.0} ms",
             rows.len()
         );
+        if args.calibrate {
+            outln!("");
+            outln!(
+                "{:<13} {:>8} {:>8} {:>8}",
+                "pose error",
+                "median",
+                "p95",
+                "max"
+            );
+            for (i, name) in ["position mm", "angle deg"].iter().enumerate() {
+                let [median, p95, max] = pose_column(i);
+                outln!("{name:<13} {median:>8.2} {p95:>8.2} {max:>8.3}");
+            }
+            outln!(
+                "{} cameras calibrated; per camera median {median_time:.0} ms, max {max_time:.0} ms (grabs over CoAP, detection, fit)",
+                poses.len()
+            );
+        }
     }
     Ok(if failed == 0 {
         Exit::Success
@@ -308,6 +556,17 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
 }
 
 fn print_row(r: &Row) -> anyhow::Result<()> {
+    if let Some((errors, ms)) = &r.calibration {
+        let each: Vec<String> = errors
+            .iter()
+            .map(|[mm, deg]| format!("{mm:.2} mm {deg:.3} deg"))
+            .collect();
+        outln!(
+            "scene {:>2}: calibrated in {ms:.0} ms, pose errors: {}",
+            r.index,
+            each.join(", ")
+        );
+    }
     let t = r.truth;
     match (r.errors(), &r.error) {
         (Some(e), _) => outln!(

@@ -163,10 +163,7 @@ async fn write(
 ) -> anyhow::Result<()> {
     let document = transformation.to_json();
     if !args.dry_run {
-        let body = Bytes::from(document.clone().into_bytes());
-        client
-            .call(Code::PUT, &path(sn), body, Some(ContentFormat::JSON), None)
-            .await?;
+        put(client, sn, &document).await?;
     }
     report["camera"] = sn.into();
     report["written"] = (!args.dry_run).into();
@@ -176,6 +173,15 @@ async fn write(
     } else {
         outln!("{}", text(&report));
     }
+    Ok(())
+}
+
+/// PUTs camera `sn`'s 3d-transformation `document`.
+pub(crate) async fn put(client: &CamClient, sn: &str, document: &str) -> anyhow::Result<()> {
+    let body = Bytes::from(document.as_bytes().to_vec());
+    client
+        .call(Code::PUT, &path(sn), body, Some(ContentFormat::JSON), None)
+        .await?;
     Ok(())
 }
 
@@ -193,12 +199,13 @@ fn marker_map(args: &CalibrateArgs) -> anyhow::Result<MarkerMap> {
 }
 
 /// What one camera showed and where the markers place it.
-struct Placed {
+pub(crate) struct Placed {
     serial: String,
     capture: ColorCapture,
     detections: Vec<Detection>,
     points: Vec<Point3>,
-    calibration: Calibration,
+    /// Where the markers place the camera.
+    pub(crate) calibration: Calibration,
 }
 
 /// Places every camera by the markers it sees; writes them all, or none when one fails.
@@ -250,7 +257,7 @@ async fn by_markers(
 }
 
 /// Grabs camera `sn`'s color (at full resolution) and depth, and places it.
-async fn place(client: &CamClient, sn: &str, map: &MarkerMap) -> anyhow::Result<Placed> {
+pub(crate) async fn place(client: &CamClient, sn: &str, map: &MarkerMap) -> anyhow::Result<Placed> {
     let capture = full_resolution_color(client, sn).await?;
     let gray = image::imageops::grayscale(&capture.image);
     let (w, h) = gray.dimensions();
