@@ -146,11 +146,7 @@ pub fn floor_transformation(floor: &Plane) -> Transformation {
         .unwrap_or_else(|| (Vector3::y() - up * up.dot(&Vector3::y())).normalize());
     let y = up.cross(&along);
     let rotation = Matrix3::from_rows(&[along.transpose(), y.transpose(), up.transpose()]);
-    Transformation {
-        rotation,
-        translation: Vector3::new(0.0, 0.0, height),
-        ..Transformation::identity()
-    }
+    Transformation::rigid(rotation, Vector3::new(0.0, 0.0, height))
 }
 
 #[cfg(test)]

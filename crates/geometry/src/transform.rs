@@ -125,6 +125,17 @@ impl Transformation {
         }
     }
 
+    /// The document of a rigid motion: `rotation` and `translation`, no scales, no post
+    /// transform.
+    #[must_use]
+    pub fn rigid(rotation: Matrix3<f64>, translation: Vector3<f64>) -> Self {
+        Self {
+            rotation,
+            translation,
+            ..Self::identity()
+        }
+    }
+
     /// Parses and validates a document.
     pub fn from_json(json: &[u8]) -> Result<Self, TransformError> {
         let raw: RawTransformation =

@@ -20,6 +20,7 @@ use coapcam::client::CamClient;
 use coapcam::client::measure::{self, Measurement, Source, prepare_cameras, truth, yaw_difference};
 use coapcam::server::SceneServer;
 use coapcam::vision::calibration::{Calibration, MarkerMap};
+use geometry::Transformation;
 
 /// `bench transfer` (declared here, not in `cli/mod.rs`, with its file beside this one).
 #[path = "bench_transfer.rs"]
@@ -271,6 +272,9 @@ struct Row {
     /// With `--calibrate`: each camera's pose error (mm, degrees) and the time the
     /// calibration of all cameras took.
     calibration: Option<(Vec<[f64; 2]>, f64)>,
+    /// With `--calibrate`: the same parcel measured with the cameras' true poses, which
+    /// tells the calibration's share of the errors from the measurement's.
+    with_true_poses: Option<[f64; 4]>,
 }
 
 impl Row {
@@ -344,6 +348,7 @@ async fn measure_scene(
             Err(e) => Some(super::error_text(e)),
         },
         calibration: None,
+        with_true_poses: None,
     })
 }
 
@@ -390,11 +395,24 @@ async fn calibrate_and_measure(
             grab_ms: f64::NAN,
             error: Some(error),
             calibration: None,
+            with_true_poses: None,
         }
     } else {
         // The same cameras, their 3d-transformation restored from the state directory.
         server.load(&parcel)?;
-        measure_scene(&client, index, &parcel, config).await?
+        let mut row = measure_scene(&client, index, &parcel, config).await?;
+        for camera in &parcel.cameras {
+            let pose = camera.pose().context("the scene camera has no pose")?;
+            let truth = Transformation::rigid(
+                nalgebra::Matrix3::from_row_slice(&pose.rotation.concat()),
+                nalgebra::Vector3::from(pose.translation),
+            );
+            calibrate::put(&client, &camera.serial.to_string(), &truth.to_json()).await?;
+        }
+        row.with_true_poses = measure_scene(&client, index, &parcel, config)
+            .await?
+            .measured;
+        row
     };
     row.calibration = Some((errors, calibrate_ms));
     drop(server);
@@ -485,6 +503,7 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
                     "error": r.error,
                     "pose_errors_mm_deg": r.calibration.as_ref().map(|c| &c.0),
                     "calibrate_ms": r.calibration.as_ref().map(|c| c.1),
+                    "measured_with_true_poses": r.with_true_poses,
                 })
             })
             .collect();
@@ -561,8 +580,14 @@ fn print_row(r: &Row) -> anyhow::Result<()> {
             .iter()
             .map(|[mm, deg]| format!("{mm:.2} mm {deg:.3} deg"))
             .collect();
+        let truth = r.with_true_poses.map_or(String::new(), |m| {
+            format!(
+                "; with the true poses {:.1} x {:.1} x {:.1} mm",
+                m[0], m[1], m[2]
+            )
+        });
         outln!(
-            "scene {:>2}: calibrated in {ms:.0} ms, pose errors: {}",
+            "scene {:>2}: calibrated in {ms:.0} ms, pose errors: {}{truth}",
             r.index,
             each.join(", ")
         );

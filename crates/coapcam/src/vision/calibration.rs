@@ -144,11 +144,10 @@ pub struct Calibration {
 impl Calibration {
     /// The 3d-transformation document of this pose.
     pub fn transformation(&self) -> Transformation {
-        Transformation {
-            rotation: *self.depth_to_world.rotation.to_rotation_matrix().matrix(),
-            translation: self.depth_to_world.translation.vector,
-            ..Transformation::identity()
-        }
+        Transformation::rigid(
+            *self.depth_to_world.rotation.to_rotation_matrix().matrix(),
+            self.depth_to_world.translation.vector,
+        )
     }
 }
 

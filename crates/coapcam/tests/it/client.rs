@@ -658,3 +658,141 @@ fn calibrate_floor_levels_a_tilted_camera_so_measure_is_within_5_mm() {
         report["3d-transformation"]["translation_matrix"]
     );
 }
+
+#[test]
+fn calibrate_by_markers_places_a_tilted_camera_within_2_mm_and_measure_within_5_mm() {
+    let state = TempDir::new("client-markers");
+    let scene = crate::support::tilted_uncalibrated_scene(state.path());
+    let (_server, addr) = crate::support::serve_with(state.path(), &["--scene", path(&scene)]);
+    let uri = format!("coap://{addr}");
+    let view = state.path().join("view.png");
+    let report = ok(&[
+        "calibrate",
+        "--server",
+        &uri,
+        "--map",
+        path(&scene),
+        "--view",
+        path(&view),
+        "--json",
+    ])
+    .json();
+    assert_eq!(report["camera"], SN);
+    assert_eq!(report["markers"], serde_json::json!([0, 3]), "{report}");
+    assert!(
+        report["reprojection_px"].as_f64().expect("px") < 0.5,
+        "{report}"
+    );
+    // The world is the origin marker's frame: the camera's true position, seen from it.
+    let ([mx, my], yaw) = crate::support::ORIGIN_MARKER;
+    let [cx, cy, cz] = crate::support::TILTED_CAMERA;
+    let (sin, cos) = yaw.to_radians().sin_cos();
+    let (dx, dy) = (cx - mx, cy - my);
+    let truth = [cos * dx + sin * dy, -sin * dx + cos * dy, cz].map(|v| v * 1000.0);
+    for (i, want) in truth.iter().enumerate() {
+        let got = report["camera_mm"][i].as_f64().expect("position");
+        assert!(
+            (got - want).abs() < 2.0,
+            "axis {i}: {got} mm, truth {want} mm"
+        );
+    }
+    for suffix in ["", "-side", &format!("-{SN}")] {
+        let file = state.path().join(format!("view{suffix}.png"));
+        let image = decode(&file, ImageFormat::Png);
+        assert!(image.width() > 100, "{}", file.display());
+    }
+    crate::support::assert_box_within_5_mm(&ok(&["measure", "--server", &uri, "--json"]).json());
+
+    // Without a map, the origin marker alone (its size given) places the camera too.
+    let single = ok(&[
+        "calibrate",
+        "--server",
+        &uri,
+        "--marker-size",
+        "0.14",
+        "--dry-run",
+        "--json",
+    ])
+    .json();
+    assert_eq!(single["markers"], serde_json::json!([0]), "{single}");
+    assert_eq!(
+        single["ignored_markers"],
+        serde_json::json!([3]),
+        "{single}"
+    );
+    assert_eq!(single["written"], false);
+    for i in 0..3 {
+        let got = single["camera_mm"][i].as_f64().expect("position");
+        assert!((got - truth[i]).abs() < 5.0, "axis {i}: {got} mm");
+    }
+}
+
+#[test]
+fn calibrate_names_a_camera_that_sees_no_marker_and_writes_nothing() {
+    let state = TempDir::new("client-no-marker");
+    // Two cameras: one sees the marker, the other looks at bare floor far away.
+    let scene = state.path().join("two.toml");
+    std::fs::write(
+        &scene,
+        "[[camera]]\nserial = \"840412060746\"\nposition = [0.3, -0.3, 1.0]\nlook_at = [0.0, 0.0, 0.0]\ncalibrated = false\n\
+         [[camera]]\nserial = \"840412060757\"\nposition = [3.0, 3.0, 1.0]\nlook_at = [3.5, 3.0, 0.0]\ncalibrated = false\n\
+         [[marker]]\nfamily = \"tag36h11\"\nid = 0\nsize = 0.16\ncenter = [0.0, 0.0]\n",
+    )
+    .expect("writing the scene");
+    let (_server, addr) = crate::support::serve_with(state.path(), &["--scene", path(&scene)]);
+    let uri = format!("coap://{addr}");
+    let doc = |sn: &str| ok(&["get", &format!("{uri}/cams/{sn}/3d-transformation")]).stdout_text();
+    let before = [doc("840412060746"), doc("840412060757")];
+    let f = coapcam(&["calibrate", "--server", &uri]);
+    assert_eq!(f.status.code(), Some(1), "{}", f.stderr);
+    assert!(
+        f.stderr
+            .contains("camera 840412060757: sees no marker of the map"),
+        "{}",
+        f.stderr
+    );
+    assert!(!f.stderr.contains("camera 840412060746:"), "{}", f.stderr);
+    assert!(f.stderr.contains("nothing was written"), "{}", f.stderr);
+    assert_eq!([doc("840412060746"), doc("840412060757")], before);
+    // The camera that sees it, alone, is calibrated.
+    ok(&["calibrate", "--server", &uri, "--camera", "840412060746"]);
+    assert_ne!(doc("840412060746"), before[0]);
+}
+
+#[test]
+fn bench_accuracy_calibrate_places_one_to_three_tilted_cameras_as_well_as_their_true_poses() {
+    let f = ok(&[
+        "bench",
+        "accuracy",
+        "--calibrate",
+        "--scenes",
+        "3",
+        "--json",
+    ]);
+    let b = f.json();
+    assert_eq!(b["failed"], 0, "{b}");
+    let scenes = b["scenes"].as_array().expect("scenes");
+    let cameras: Vec<usize> = scenes
+        .iter()
+        .map(|s| s["cameras"].as_u64().expect("cameras") as usize)
+        .collect();
+    assert_eq!(cameras, [1, 2, 3]);
+    for s in scenes {
+        for e in s["pose_errors_mm_deg"].as_array().expect("pose errors") {
+            let (mm, deg) = (e[0].as_f64().expect("mm"), e[1].as_f64().expect("deg"));
+            assert!(mm <= 2.0 && deg <= 0.2, "{s}");
+        }
+        // The calibration adds nothing the measurement can see: the dimensions are those
+        // measured with the true poses, within a millimetre. (How far both are from the
+        // truth is the measurement's accuracy, `bench accuracy`'s subject.)
+        let (calibrated, true_poses) = (&s["measured"], &s["measured_with_true_poses"]);
+        for i in 0..3 {
+            let difference = calibrated[i].as_f64().expect("measured")
+                - true_poses[i]
+                    .as_f64()
+                    .expect("measured with the true poses");
+            assert!(difference.abs() <= 1.0, "{s}");
+        }
+    }
+    assert_eq!(b["calibration"]["cameras"], 6, "{b}");
+}

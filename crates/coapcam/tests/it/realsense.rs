@@ -184,20 +184,22 @@ fn a_virtual_d415_through_librealsense_serves_the_synthetic_tree_and_pixels() {
 
 /// The finding, through librealsense's code path: a virtual D415 starts with the
 /// identity 3d-transformation, as a real one does, and measures nonsense with warnings;
-/// `calibrate --floor` then makes it measure the box within 5 mm.
+/// `calibrate` by the markers on its floor (color at full resolution through the software
+/// sensor), and `calibrate --floor`, each make it measure the box within 5 mm.
 #[test]
-fn a_virtual_d415_through_librealsense_is_calibrated_on_the_floor() {
+fn a_virtual_d415_through_librealsense_is_calibrated_by_markers_and_on_the_floor() {
     let Some((module, libpython)) = wheel() else {
         return;
     };
     let state = TempDir::new("rs-calibrate");
     let scene = crate::support::tilted_uncalibrated_scene(state.path());
+    let scene_path = scene.to_str().expect("UTF-8 path");
     let (_server, addr) = serve_at(
         "127.0.0.1:0",
         state.path(),
         &[
             "--scene",
-            scene.to_str().expect("UTF-8 path"),
+            scene_path,
             "--realsense",
             "--realsense-software",
             "--librealsense",
@@ -214,6 +216,9 @@ fn a_virtual_d415_through_librealsense_is_calibrated_on_the_floor() {
         warnings.contains(&format!("camera {SN} is not calibrated")),
         "{before}"
     );
+    let placed = run(&["calibrate", "--server", &uri, "--map", scene_path, "--json"]).json();
+    assert_eq!(placed["markers"], serde_json::json!([0, 3]), "{placed}");
+    crate::support::assert_box_within_5_mm(&run(&["measure", "--server", &uri, "--json"]).json());
     run(&["calibrate", "--server", &uri, "--floor"]);
     crate::support::assert_box_within_5_mm(&run(&["measure", "--server", &uri, "--json"]).json());
 }

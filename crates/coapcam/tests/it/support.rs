@@ -297,7 +297,6 @@ impl Finished {
         String::from_utf8_lossy(&self.stdout).into_owned()
     }
 
-    /// Panics with everything the process printed unless it exited 0.
     /// Standard output as one JSON value (`--json`).
     pub(crate) fn json(&self) -> serde_json::Value {
         let text = self.stdout_text();
@@ -312,6 +311,7 @@ impl Finished {
             .collect()
     }
 
+    /// Panics with everything the process printed unless it exited 0.
     pub(crate) fn expect_success(self, what: &str) -> Self {
         assert!(
             self.status.success(),
@@ -752,16 +752,25 @@ pub(crate) fn client() -> Client {
 pub(crate) const COLOR_640: &str = r#"{"format": "BGR8", "fps": 30, "width": 640, "height": 480}"#;
 pub(crate) const DEPTH_640: &str = r#"{"format": "Z16", "fps": 30, "width": 640, "height": 480}"#;
 
+/// Where [`tilted_uncalibrated_scene`]'s camera stands, world metres.
+pub(crate) const TILTED_CAMERA: [f64; 3] = [0.45, -0.35, 1.05];
+/// Where its origin marker (tag36h11 id 0) lies: centre and yaw in degrees.
+pub(crate) const ORIGIN_MARKER: ([f64; 2], f64) = ([-0.30, -0.30], 20.0);
+
 /// A scene file in `dir`: one uncalibrated D415 (noise on) 1.05 m above the floor, 0.57 m
-/// aside of a 400 x 300 x 200 mm box (yaw 15 degrees), so tilted 28.5 degrees.
+/// aside of a 400 x 300 x 200 mm box (yaw 15 degrees), so tilted 28.5 degrees; two
+/// tag36h11 markers on the floor beside the box, 0 at [`ORIGIN_MARKER`] and 3.
 pub(crate) fn tilted_uncalibrated_scene(dir: &Path) -> PathBuf {
     let scene = dir.join("tilted.toml");
+    let ([x, y], yaw) = ORIGIN_MARKER;
     std::fs::write(
         &scene,
         format!(
-            "seed = 5\n[[camera]]\nserial = \"{SN}\"\nposition = [0.45, -0.35, 1.05]\n\
+            "seed = 5\n[[camera]]\nserial = \"{SN}\"\nposition = {TILTED_CAMERA:?}\n\
              look_at = [0.0, 0.0, 0.0]\nnoise = \"d415\"\ncalibrated = false\n\
-             [[box]]\nsize = [0.40, 0.30, 0.20]\ncenter = [0.0, 0.0]\nyaw_deg = 15.0\n"
+             [[box]]\nsize = [0.40, 0.30, 0.20]\ncenter = [0.0, 0.0]\nyaw_deg = 15.0\n\
+             [[marker]]\nfamily = \"tag36h11\"\nid = 0\nsize = 0.14\ncenter = [{x}, {y}]\nyaw_deg = {yaw}\n\
+             [[marker]]\nfamily = \"tag36h11\"\nid = 3\nsize = 0.14\ncenter = [0.30, 0.25]\nyaw_deg = -10.0\n"
         ),
     )
     .expect("writing the scene");

@@ -840,14 +840,10 @@ fn icp_correction(cloud: &PointCloud, merged: &PointCloud) -> anyhow::Result<Iso
 
 /// The 3d-transformation of a known pose: camera frame -> world.
 fn pose_transformation(pose: rgbd::Pose) -> Transformation {
-    let r = pose.rotation;
-    Transformation {
-        rotation: Matrix3::new(
-            r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
-        ),
-        translation: Vector3::from(pose.translation),
-        ..Transformation::identity()
-    }
+    Transformation::rigid(
+        Matrix3::from_row_slice(&pose.rotation.concat()),
+        Vector3::from(pose.translation),
+    )
 }
 
 fn warn_on(sn: &Serial, name: &str, result: Result<(), CameraError>) {
