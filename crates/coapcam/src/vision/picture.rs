@@ -92,7 +92,6 @@ pub fn side_view(cloud: &PointCloud) -> RgbImage {
             .iter()
             .map(|p| geometry::Point3::new(p.x, p.z, -p.y))
             .collect(),
-        ..PointCloud::default()
     };
     plot(&turned, None, Looking::Side)
 }

@@ -234,7 +234,7 @@ impl FloorMarker {
         let col = ((x + half) / self.cell).floor();
         let row = ((half - y) / self.cell).floor();
         let n = self.pattern.cells as f32;
-        ((0.0..n).contains(&col) && (0.0..n).contains(&row)).then(|| (col as usize, row as usize))
+        ((0.0..n).contains(&col) && (0.0..n).contains(&row)).then_some((col as usize, row as usize))
     }
 }
 
