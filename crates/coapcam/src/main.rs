@@ -38,7 +38,9 @@ enum Command {
     /// Measure the largest parcel below the cameras: length, width, height in millimetres.
     Measure(Deferred<cli::measure::MeasureArgs>),
     /// Calibrate cameras: write each one's 3d-transformation so its points are in the
-    /// table's frame (--floor: level on the floor it sees; --adjust: correct by hand).
+    /// table's frame. By default from AprilTag (tag36h11) markers on the table, every
+    /// camera in the origin marker's frame; --floor: level each on the floor it sees;
+    /// --adjust: correct by hand.
     Calibrate(Deferred<cli::calibrate::CalibrateArgs>),
     /// Repeat a grab or a measurement every --interval seconds, or observe a resource;
     /// print each result and the statistics of the transfer times (count, min, median,

@@ -490,5 +490,27 @@ fn text(report: &serde_json::Value) -> String {
     } else {
         "; nothing written (--dry-run)"
     };
+    // The document's rotation rows and translation, compactly.
+    let doc = &report["3d-transformation"];
+    let numbers = |v: &serde_json::Value| -> Vec<String> {
+        v.as_array()
+            .map(|a| {
+                a.iter()
+                    .flat_map(|x| x.as_array().cloned().unwrap_or_else(|| vec![x.clone()]))
+                    .map(|x| format!("{:.4}", x.as_f64().unwrap_or(f64::NAN)))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let rotation = numbers(&doc["rotation_matrix"]);
+    if rotation.len() == 9 {
+        out += &format!(
+            "\n  rotation [{}; {}; {}], translation [{}] m",
+            rotation[0..3].join(", "),
+            rotation[3..6].join(", "),
+            rotation[6..9].join(", "),
+            numbers(&doc["translation_matrix"]).join(", ")
+        );
+    }
     out
 }
