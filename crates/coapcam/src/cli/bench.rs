@@ -139,18 +139,35 @@ pub(crate) fn scene(seed: u64, index: usize) -> anyhow::Result<Scene> {
     } else {
         vec![camera(0, 0.0, camera_z)?]
     };
-    Ok(Scene {
-        seed: rng.next_u64(),
+    Ok(parcel_scene(
+        rng.next_u64(),
+        cameras,
+        [length, width, height],
+        center,
+        yaw_deg,
+    ))
+}
+
+/// A scene of one plain box (no label) seen by `cameras`.
+fn parcel_scene(
+    seed: u64,
+    cameras: Vec<SceneCamera>,
+    size: [f64; 3],
+    center: [f64; 2],
+    yaw_deg: f64,
+) -> Scene {
+    Scene {
+        seed,
         cameras,
         boxes: vec![SceneBox {
-            size: [length, width, height],
+            size,
             center,
             yaw_deg,
             color: [180, 140, 90],
             label: None,
         }],
         ..Scene::default_single()
-    })
+    }
 }
 
 /// The markers of the calibration table: a 5 x 5 grid 0.22 m apart, 12 cm wide, id 0
@@ -226,18 +243,13 @@ pub(crate) fn calibration_scenes(seed: u64, index: usize) -> anyhow::Result<(Sce
             calibrated: false,
         });
     }
-    let parcel = Scene {
-        seed: rng.next_u64(),
+    let parcel = parcel_scene(
+        rng.next_u64(),
         cameras,
-        boxes: vec![SceneBox {
-            size: [length, width, height],
-            center,
-            yaw_deg,
-            color: [180, 140, 90],
-            label: None,
-        }],
-        ..Scene::default_single()
-    };
+        [length, width, height],
+        center,
+        yaw_deg,
+    );
     let table = Scene {
         boxes: Vec::new(),
         markers: marker_grid(),
@@ -648,6 +660,37 @@ mod tests {
         }
         assert!(scenes.iter().any(|s| s.cameras.len() == 2));
         assert!(scenes.iter().any(|s| s.cameras.len() == 1));
+    }
+
+    #[test]
+    fn the_calibration_set_has_one_to_three_uncalibrated_tilted_cameras_and_a_marker_table() {
+        let sets: Vec<(Scene, Scene)> =
+            (0..30).map(|i| calibration_scenes(1, i).unwrap()).collect();
+        assert_eq!(sets[4], calibration_scenes(1, 4).unwrap());
+        let mut tilts = Vec::new();
+        for (i, (parcel, table)) in sets.iter().enumerate() {
+            assert_eq!(parcel.cameras.len(), i % 3 + 1);
+            assert_eq!(parcel.cameras, table.cameras);
+            assert!(table.boxes.is_empty() && table.markers.len() == 25);
+            assert!(parcel.markers.is_empty());
+            let b = &parcel.boxes[0];
+            assert!(
+                b.size[0] <= 0.6 && b.size[1] >= 0.1 && b.size[2] <= 0.4,
+                "{b:?}"
+            );
+            for c in &parcel.cameras {
+                assert!(!c.calibrated);
+                let d: Vec<f64> = (0..3).map(|k| c.position[k] - c.look_at[k]).collect();
+                let distance = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                assert!((0.8..=1.6).contains(&distance), "{c:?}");
+                let tilt = (d[2] / distance).acos().to_degrees();
+                assert!(tilt <= 35.0, "{c:?}");
+                tilts.push(tilt);
+            }
+        }
+        assert!(tilts.iter().any(|t| *t > 30.0) && tilts.iter().any(|t| *t < 10.0));
+        let origin = &sets[0].1.markers.iter().find(|m| m.id == 0).unwrap();
+        assert_eq!((origin.center, origin.yaw_deg), ([0.0, 0.0], 0.0));
     }
 
     #[test]
