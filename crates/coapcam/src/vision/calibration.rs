@@ -282,9 +282,12 @@ mod tests {
         .expect("a valid scene")
     }
 
-    /// What the synthetic camera shows, and its true pose (depth -> world).
-    fn grab(
+    /// What the synthetic camera shows, and its true pose (depth -> world); with `noise`
+    /// > 0 the color image gets a 3 x 3 box blur and uniform noise of +-`noise` gray
+    /// levels, as a real lens and sensor would add.
+    fn grab_with(
         scene: &Scene,
+        noise: u8,
     ) -> (
         Vec<Detection>,
         Intrinsics,
@@ -303,11 +306,28 @@ mod tests {
         })
         .expect("full resolution");
         let color = cam.render_color(1);
-        let gray: Vec<u8> = color
+        let mut gray: Vec<u8> = color
             .data
             .chunks_exact(3)
             .map(|p| ((u16::from(p[0]) + u16::from(p[1]) + u16::from(p[2])) / 3) as u8)
             .collect();
+        if noise > 0 {
+            let (w, h) = (1920usize, 1080usize);
+            let sharp = gray.clone();
+            let mut state = 0x2545_f491_4f6c_dd1d_u64;
+            for y in 1..h - 1 {
+                for x in 1..w - 1 {
+                    let sum: u32 = (0..9)
+                        .map(|k| u32::from(sharp[(y + k / 3 - 1) * w + x + k % 3 - 1]))
+                        .sum();
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    let n = (state % (2 * u64::from(noise) + 1)) as i32 - i32::from(noise);
+                    gray[y * w + x] = (sum as i32 / 9 + n).clamp(0, 255) as u8;
+                }
+            }
+        }
         let detections = markers::detect(Family::Tag36h11, &gray, 1920, 1080).expect("detect");
         let depth = cam.render_depth(1);
         let points =
@@ -333,7 +353,7 @@ mod tests {
     #[test]
     fn a_tilted_camera_is_placed_within_2_mm_and_0_2_degrees_by_two_mapped_markers() {
         let scene = scene([0.9, -1.1, 1.3], [0.1, 0.1, 0.0]);
-        let (detections, color, extrinsics, points, truth) = grab(&scene);
+        let (detections, color, extrinsics, points, truth) = grab_with(&scene, 0);
         let map = MarkerMap::from_scene(&scene, Family::Tag36h11, 0).expect("map");
         let view = CameraView {
             detections: &detections,
@@ -359,9 +379,32 @@ mod tests {
     }
 
     #[test]
+    fn a_noisy_blurred_color_image_still_places_the_camera_within_2_mm_and_0_2_degrees() {
+        let scene = scene([-0.7, 1.2, 1.1], [0.1, 0.1, 0.0]);
+        let map = MarkerMap::from_scene(&scene, Family::Tag36h11, 0).expect("map");
+        for noise in [8, 20] {
+            let (detections, color, extrinsics, points, truth) = grab_with(&scene, noise);
+            let view = CameraView {
+                detections: &detections,
+                color: &color,
+                depth_to_color: &extrinsics,
+                depth_points: &points,
+            };
+            let c = calibrate(&view, &map).expect("calibrated");
+            let (mm, deg) = errors(&c, &truth);
+            eprintln!(
+                "noise +-{noise}: {mm:.2} mm, {deg:.3} deg, {:.2} px",
+                c.reprojection_px
+            );
+            assert_eq!(c.used.len(), 2, "{c:?}");
+            assert!(mm < 2.0 && deg < 0.2, "{mm} mm, {deg} deg");
+        }
+    }
+
+    #[test]
     fn a_camera_that_sees_no_marker_of_the_map_is_refused_naming_what_it_saw() {
         let scene = scene([0.9, -1.1, 1.3], [0.1, 0.1, 0.0]);
-        let (detections, color, extrinsics, points, _) = grab(&scene);
+        let (detections, color, extrinsics, points, _) = grab_with(&scene, 0);
         let view = CameraView {
             detections: &detections,
             color: &color,
