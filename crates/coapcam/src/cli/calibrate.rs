@@ -233,9 +233,6 @@ async fn by_markers(
             serials.len()
         );
     }
-    if let Some(view) = &args.view {
-        draw_views(&placed, view)?;
-    }
     for p in &placed {
         let c = &p.calibration;
         let camera = c.depth_to_world.translation.vector * 1000.0;
@@ -252,6 +249,9 @@ async fn by_markers(
             "tilt_deg": (-view_down).clamp(-1.0, 1.0).acos().to_degrees(),
         });
         write(client, &p.serial, &c.transformation(), report, args).await?;
+    }
+    if let Some(view) = &args.view {
+        draw_views(&placed, view)?;
     }
     Ok(Exit::Success)
 }
@@ -363,17 +363,24 @@ fn draw_views(placed: &[Placed], path: &Path) -> anyhow::Result<()> {
                 colour,
             );
         }
-        let project = projector(&p.capture, &transform)?;
-        if let Some(origin) = project([0.0; 3]) {
-            for (tip, colour) in [
-                ([0.1, 0.0, 0.0], RED),
-                ([0.0, 0.1, 0.0], GREEN),
-                ([0.0, 0.0, 0.1], BLUE),
-            ] {
-                if let Some(tip) = project(tip) {
-                    picture::draw_line(&mut image, origin, tip, colour, thickness);
+        match projector(&p.capture, &transform) {
+            Ok(project) => {
+                if let Some(origin) = project([0.0; 3]) {
+                    for (tip, colour) in [
+                        ([0.1, 0.0, 0.0], RED),
+                        ([0.0, 0.1, 0.0], GREEN),
+                        ([0.0, 0.0, 0.1], BLUE),
+                    ] {
+                        if let Some(tip) = project(tip) {
+                            picture::draw_line(&mut image, origin, tip, colour, thickness);
+                        }
+                    }
                 }
             }
+            Err(e) => eprintln!(
+                "coapcam: warning: camera {}: --view draws no axes: {e:#}",
+                p.serial
+            ),
         }
         picture::save(&image, &picture::sibling(path, &format!("-{}", p.serial)))?;
         merged.points.extend(
