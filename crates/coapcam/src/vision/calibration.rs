@@ -169,7 +169,7 @@ pub enum CalibrationError {
     NoPose,
     /// Too little floor in the depth image.
     #[error(
-        "only {0} depth points lie on the floor around the markers (at least {MIN_FLOOR_POINTS} needed); does its depth see the floor?"
+        "only {0} depth points lie near the floor the markers give (at least {MIN_FLOOR_POINTS} needed); does its depth see the floor, or does a roi3d cut it away?"
     )]
     NoFloor(usize),
 }
@@ -197,7 +197,7 @@ pub fn calibrate(view: &CameraView<'_>, map: &MarkerMap) -> Result<Calibration, 
             continue;
         };
         if used.contains(&d.id) {
-            continue; // the same id twice in one image: trust neither copy more
+            continue; // the same id twice in one image (a misread): the first counts
         }
         used.push(d.id);
         for (pixel, world) in d.corners.iter().zip(m.corners()) {
