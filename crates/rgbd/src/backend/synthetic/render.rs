@@ -230,9 +230,9 @@ fn supersample(world: &World, view: &View, right_imager: &V3, u: usize, v: usize
 /// Sub-pixel rays per side of a color pixel on a label.
 const LABEL_SAMPLES: u32 = 4;
 
-/// A color pixel on a label or a marker, as a sensor integrates the light over the pixel: the mean
-/// shade of `LABEL_SAMPLES`² sub-pixel rays. One ray per pixel would draw a bar code's
-/// modules a whole pixel wide or not at all (aliasing), which no camera does.
+/// A color pixel on a label or a marker, as a sensor integrates the light over the pixel:
+/// the mean shade of `LABEL_SAMPLES`² sub-pixel rays. One ray per pixel would draw a bar
+/// code's modules a whole pixel wide or not at all (aliasing), which no camera does.
 fn label_pixel(world: &World, view: &View, light: &V3, u: usize, v: usize) -> [u8; 3] {
     let n = LABEL_SAMPLES;
     let mut sum = [0.0f32; 3];

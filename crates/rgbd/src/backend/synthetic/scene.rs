@@ -38,7 +38,8 @@
 //! Defaults: `seed` 0, floor at z = 0 colored [120, 120, 120], `up` world +z unless the
 //! camera looks (nearly) straight up or down, then world +y; `noise` "d415";
 //! `calibrated` true (the camera exposes its true pose, which a server preloads as its
-//! 3d-transformation; false starts with the identity, as a real camera does); box color [180, 140, 90]; cylinder color [70, 110, 160].
+//! 3d-transformation; false starts with the identity, as a real camera does); box color
+//! [180, 140, 90]; cylinder color [70, 110, 160].
 //! A label lies centred on the box's top face, its x along the box's length. Its `size`
 //! is its width in metres; a QR label is square, a Code 128 label is half as tall as
 //! wide. Both carry a white quiet zone.
