@@ -282,19 +282,29 @@ mod tests {
         .expect("a valid scene")
     }
 
-    /// What the synthetic camera shows, and its true pose (depth -> world); with `noise`
-    /// > 0 the color image gets a 3 x 3 box blur and uniform noise of +-`noise` gray
-    /// levels, as a real lens and sensor would add.
-    fn grab_with(
-        scene: &Scene,
-        noise: u8,
-    ) -> (
-        Vec<Detection>,
-        Intrinsics,
-        Extrinsics,
-        Vec<Point3>,
-        rgbd::Pose,
-    ) {
+    /// What the synthetic camera shows, and its true pose (depth -> world).
+    struct Shown {
+        detections: Vec<Detection>,
+        color: Intrinsics,
+        extrinsics: Extrinsics,
+        points: Vec<Point3>,
+        truth: rgbd::Pose,
+    }
+
+    impl Shown {
+        fn view(&self) -> CameraView<'_> {
+            CameraView {
+                detections: &self.detections,
+                color: &self.color,
+                depth_to_color: &self.extrinsics,
+                depth_points: &self.points,
+            }
+        }
+    }
+
+    /// What the scene's camera shows; with `noise` above 0 the color image gets a 3 x 3
+    /// box blur and uniform noise of +-`noise` gray levels, as a lens and sensor add.
+    fn grab_with(scene: &Scene, noise: u8) -> Shown {
         let mut truth = scene.clone();
         truth.cameras[0].calibrated = true;
         let cam = SyntheticCamera::new(&truth, &truth.cameras[0].serial).expect("camera");
@@ -332,13 +342,13 @@ mod tests {
         let depth = cam.render_depth(1);
         let points =
             rgbd::deproject_frame(&depth, &cam.depth_intrinsics().expect("k")).expect("points");
-        (
+        Shown {
             detections,
-            cam.color_intrinsics().expect("k"),
-            cam.depth_to_color().expect("e"),
+            color: cam.color_intrinsics().expect("k"),
+            extrinsics: cam.depth_to_color().expect("e"),
             points,
-            cam.true_pose().expect("pose"),
-        )
+            truth: cam.true_pose().expect("pose"),
+        }
     }
 
     /// Position (mm) and angle (degrees) errors of a calibration against the truth.
@@ -353,23 +363,18 @@ mod tests {
     #[test]
     fn a_tilted_camera_is_placed_within_2_mm_and_0_2_degrees_by_two_mapped_markers() {
         let scene = scene([0.9, -1.1, 1.3], [0.1, 0.1, 0.0]);
-        let (detections, color, extrinsics, points, truth) = grab_with(&scene, 0);
+        let shown = grab_with(&scene, 0);
         let map = MarkerMap::from_scene(&scene, Family::Tag36h11, 0).expect("map");
-        let view = CameraView {
-            detections: &detections,
-            color: &color,
-            depth_to_color: &extrinsics,
-            depth_points: &points,
-        };
+        let view = shown.view();
         let c = calibrate(&view, &map).expect("calibrated");
-        let (mm, deg) = errors(&c, &truth);
+        let (mm, deg) = errors(&c, &shown.truth);
         eprintln!("{c:?}: {mm:.2} mm, {deg:.3} deg");
         assert_eq!(c.used.len(), 2, "{c:?}");
         assert!(mm < 2.0 && deg < 0.2, "{mm} mm, {deg} deg");
         // The origin marker alone places it too.
         let single = MarkerMap::single(Family::Tag36h11, 0, 0.16);
         let c = calibrate(&view, &single).expect("calibrated");
-        let (mm, deg) = errors(&c, &truth);
+        let (mm, deg) = errors(&c, &shown.truth);
         eprintln!(
             "origin only: {mm:.2} mm, {deg:.3} deg, unknown {:?}",
             c.unknown
@@ -383,15 +388,9 @@ mod tests {
         let scene = scene([-0.7, 1.2, 1.1], [0.1, 0.1, 0.0]);
         let map = MarkerMap::from_scene(&scene, Family::Tag36h11, 0).expect("map");
         for noise in [8, 20] {
-            let (detections, color, extrinsics, points, truth) = grab_with(&scene, noise);
-            let view = CameraView {
-                detections: &detections,
-                color: &color,
-                depth_to_color: &extrinsics,
-                depth_points: &points,
-            };
-            let c = calibrate(&view, &map).expect("calibrated");
-            let (mm, deg) = errors(&c, &truth);
+            let shown = grab_with(&scene, noise);
+            let c = calibrate(&shown.view(), &map).expect("calibrated");
+            let (mm, deg) = errors(&c, &shown.truth);
             eprintln!(
                 "noise +-{noise}: {mm:.2} mm, {deg:.3} deg, {:.2} px",
                 c.reprojection_px
@@ -404,14 +403,9 @@ mod tests {
     #[test]
     fn a_camera_that_sees_no_marker_of_the_map_is_refused_naming_what_it_saw() {
         let scene = scene([0.9, -1.1, 1.3], [0.1, 0.1, 0.0]);
-        let (detections, color, extrinsics, points, _) = grab_with(&scene, 0);
-        let view = CameraView {
-            detections: &detections,
-            color: &color,
-            depth_to_color: &extrinsics,
-            depth_points: &points,
-        };
-        let e = calibrate(&view, &MarkerMap::single(Family::Tag36h11, 9, 0.16)).unwrap_err();
+        let shown = grab_with(&scene, 0);
+        let e =
+            calibrate(&shown.view(), &MarkerMap::single(Family::Tag36h11, 9, 0.16)).unwrap_err();
         assert!(matches!(e, CalibrationError::NoMarker { .. }), "{e}");
         assert!(e.to_string().contains("[9]"), "{e}");
     }
