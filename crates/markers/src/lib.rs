@@ -108,13 +108,8 @@ impl Pattern {
 
 impl Family {
     /// How many markers the family has (valid ids are below this).
-    pub fn len(self) -> u32 {
+    pub fn ids(self) -> u32 {
         Table::new(self).codes()
-    }
-
-    /// Whether the family has no marker (never).
-    pub fn is_empty(self) -> bool {
-        self.len() == 0
     }
 
     /// The pattern of marker `id`, as the library draws it; `None` if there is no such id.
@@ -265,7 +260,7 @@ mod tests {
 
     #[test]
     fn tag36h11_has_587_ten_cell_patterns_with_a_white_ring_and_black_border() {
-        assert_eq!(Family::Tag36h11.len(), 587);
+        assert_eq!(Family::Tag36h11.ids(), 587);
         assert!(Family::Tag36h11.pattern(587).is_none());
         let p = Family::Tag36h11.pattern(0).expect("id 0");
         assert_eq!((p.cells, p.black_cells), (10, 8));

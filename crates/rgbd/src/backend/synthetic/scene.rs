@@ -478,10 +478,10 @@ impl Scene {
                 .family
                 .parse()
                 .map_err(|e: markers::UnknownFamily| invalid(at("family"), e.to_string()))?;
-            if m.id >= family.len() {
+            if m.id >= family.ids() {
                 return Err(invalid(
                     at("id"),
-                    format!("{family} has ids 0 to {}, got {}", family.len() - 1, m.id),
+                    format!("{family} has ids 0 to {}, got {}", family.ids() - 1, m.id),
                 ));
             }
             positive(&at("size"), &[m.size])?;
