@@ -19,8 +19,7 @@ use super::{DimensionArgs, Exit, calibrate, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::{self, Measurement, Source, prepare_cameras, truth, yaw_difference};
 use coapcam::server::SceneServer;
-use coapcam::vision::calibration::{Calibration, MarkerMap};
-use geometry::Transformation;
+use coapcam::vision::calibration::{MarkerMap, pose_transformation};
 
 /// `bench transfer` (declared here, not in `cli/mod.rs`, with its file beside this one).
 #[path = "bench_transfer.rs"]
@@ -260,17 +259,6 @@ pub(crate) fn calibration_scenes(seed: u64, index: usize) -> anyhow::Result<(Sce
     Ok((parcel, table))
 }
 
-/// How far a calibration is from the truth: position (mm) and angle (degrees).
-fn pose_error(c: &Calibration, truth: &SceneCamera) -> anyhow::Result<[f64; 2]> {
-    let pose = truth.pose().context("the scene camera has no pose")?;
-    let rotation = nalgebra::Rotation3::from_matrix(&nalgebra::Matrix3::from_row_slice(
-        &pose.rotation.concat(),
-    ));
-    let position = c.depth_to_world.translation.vector - nalgebra::Vector3::from(pose.translation);
-    let turn = c.depth_to_world.rotation.to_rotation_matrix() * rotation.inverse();
-    Ok([position.norm() * 1000.0, turn.angle().to_degrees()])
-}
-
 /// One scene's result.
 struct Row {
     index: usize,
@@ -387,7 +375,8 @@ async fn calibrate_and_measure(
             Ok(placed) => {
                 let c = &placed.calibration;
                 calibrate::put(&client, &sn, &c.transformation().to_json()).await?;
-                errors.push(pose_error(c, camera)?);
+                let truth = camera.pose().context("the scene camera has no pose")?;
+                errors.push(c.error_from(&truth));
             }
             Err(e) => {
                 failure = Some(format!("calibrating camera {sn}: {e:#}"));
@@ -415,11 +404,8 @@ async fn calibrate_and_measure(
         let mut row = measure_scene(&client, index, &parcel, config).await?;
         for camera in &parcel.cameras {
             let pose = camera.pose().context("the scene camera has no pose")?;
-            let truth = Transformation::rigid(
-                nalgebra::Matrix3::from_row_slice(&pose.rotation.concat()),
-                nalgebra::Vector3::from(pose.translation),
-            );
-            calibrate::put(&client, &camera.serial.to_string(), &truth.to_json()).await?;
+            let truth = pose_transformation(&pose).to_json();
+            calibrate::put(&client, &camera.serial.to_string(), &truth).await?;
         }
         row.with_true_poses = measure_scene(&client, index, &parcel, config)
             .await?

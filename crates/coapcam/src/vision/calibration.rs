@@ -149,6 +149,30 @@ impl Calibration {
             self.depth_to_world.translation.vector,
         )
     }
+
+    /// How far this pose is from `truth`: position (mm) and angle (degrees).
+    pub fn error_from(&self, truth: &rgbd::Pose) -> [f64; 2] {
+        let t = pose_isometry(truth);
+        let position = (self.depth_to_world.translation.vector - t.translation.vector).norm();
+        let angle = self.depth_to_world.rotation.angle_to(&t.rotation);
+        [position * 1000.0, angle.to_degrees()]
+    }
+}
+
+/// A known pose (depth frame -> world) as an isometry.
+fn pose_isometry(pose: &rgbd::Pose) -> Isometry3<f64> {
+    isometry(
+        Matrix3::from_row_slice(&pose.rotation.concat()),
+        Vector3::from(pose.translation),
+    )
+}
+
+/// The 3d-transformation document of a known pose (depth frame -> world).
+pub fn pose_transformation(pose: &rgbd::Pose) -> Transformation {
+    Transformation::rigid(
+        Matrix3::from_row_slice(&pose.rotation.concat()),
+        Vector3::from(pose.translation),
+    )
 }
 
 /// Why a camera could not be calibrated.
@@ -351,15 +375,6 @@ mod tests {
         }
     }
 
-    /// Position (mm) and angle (degrees) errors of a calibration against the truth.
-    fn errors(c: &Calibration, truth: &rgbd::Pose) -> (f64, f64) {
-        let r = Matrix3::from_row_slice(&truth.rotation.concat());
-        let t = isometry(r, Vector3::from(truth.translation));
-        let position = (c.depth_to_world.translation.vector - t.translation.vector).norm();
-        let angle = c.depth_to_world.rotation.angle_to(&t.rotation);
-        (position * 1000.0, angle.to_degrees())
-    }
-
     #[test]
     fn a_tilted_camera_is_placed_within_2_mm_and_0_2_degrees_by_two_mapped_markers() {
         let scene = scene([0.9, -1.1, 1.3], [0.1, 0.1, 0.0]);
@@ -367,14 +382,14 @@ mod tests {
         let map = MarkerMap::from_scene(&scene, Family::Tag36h11, 0).expect("map");
         let view = shown.view();
         let c = calibrate(&view, &map).expect("calibrated");
-        let (mm, deg) = errors(&c, &shown.truth);
+        let [mm, deg] = c.error_from(&shown.truth);
         eprintln!("{c:?}: {mm:.2} mm, {deg:.3} deg");
         assert_eq!(c.used.len(), 2, "{c:?}");
         assert!(mm < 2.0 && deg < 0.2, "{mm} mm, {deg} deg");
         // The origin marker alone places it too.
         let single = MarkerMap::single(Family::Tag36h11, 0, 0.16);
         let c = calibrate(&view, &single).expect("calibrated");
-        let (mm, deg) = errors(&c, &shown.truth);
+        let [mm, deg] = c.error_from(&shown.truth);
         eprintln!(
             "origin only: {mm:.2} mm, {deg:.3} deg, unknown {:?}",
             c.unknown
@@ -390,7 +405,7 @@ mod tests {
         for noise in [8, 20] {
             let shown = grab_with(&scene, noise);
             let c = calibrate(&shown.view(), &map).expect("calibrated");
-            let (mm, deg) = errors(&c, &shown.truth);
+            let [mm, deg] = c.error_from(&shown.truth);
             eprintln!(
                 "noise +-{noise}: {mm:.2} mm, {deg:.3} deg, {:.2} px",
                 c.reprojection_px

@@ -21,7 +21,7 @@ use coap::link_format::Filter;
 use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Resource, Router, handler};
 use geometry::{IcpConfig, IcpMethod, Point3, PointCloud, Transform, Transformation};
-use nalgebra::{Isometry3, Matrix3, Vector3};
+use nalgebra::Isometry3;
 use rgbd::{
     AdvancedConfig, Camera, CameraError, CameraHub, ColorSettings, DepthSettings, HubEvent, Serial,
 };
@@ -30,6 +30,7 @@ use tokio::sync::mpsc;
 use crate::report::{self, EdgeQuery, Parcel};
 use crate::repr::clouds::{self, DepthPart};
 use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
+use crate::vision::calibration::pose_transformation;
 
 use config::AppConfig;
 use grab::{Frame, GrabError};
@@ -225,7 +226,7 @@ impl Cams {
                     .unwrap_or_else(|| {
                         camera
                             .true_pose()
-                            .map_or_else(Transformation::identity, pose_transformation)
+                            .map_or_else(Transformation::identity, |p| pose_transformation(&p))
                     }),
             ),
             latest: Mutex::default(),
@@ -836,14 +837,6 @@ fn icp_correction(cloud: &PointCloud, merged: &PointCloud) -> anyhow::Result<Iso
         ..IcpConfig::default()
     };
     Ok(geometry::icp(&source, &target, &Isometry3::identity(), &config)?.transform)
-}
-
-/// The 3d-transformation of a known pose: camera frame -> world.
-fn pose_transformation(pose: rgbd::Pose) -> Transformation {
-    Transformation::rigid(
-        Matrix3::from_row_slice(&pose.rotation.concat()),
-        Vector3::from(pose.translation),
-    )
 }
 
 fn warn_on(sn: &Serial, name: &str, result: Result<(), CameraError>) {

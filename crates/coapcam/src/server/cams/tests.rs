@@ -220,7 +220,9 @@ fn icp_brings_a_displaced_camera_back_onto_the_cloud_merged_before_it() {
 
     let cams = SyntheticCamera::all(&Scene::default_demo()).expect("the demo scene's cameras");
     let cam = &cams[0];
-    let pose = super::pose_transformation(cam.true_pose().expect("a calibrated camera"));
+    let pose = crate::vision::calibration::pose_transformation(
+        &cam.true_pose().expect("a calibrated camera"),
+    );
     let app = super::config::AppConfig::default();
     let Ok(super::grab::Frame::Cloud { points, part }) =
         super::grab::cloud(cam.as_ref(), &app, &pose)
