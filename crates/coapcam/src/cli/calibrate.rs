@@ -26,6 +26,7 @@ use serde_json::json;
 use super::{Exit, TransmissionArgs, outln};
 use coapcam::client::CamClient;
 use coapcam::client::annotate::projector;
+use coapcam::client::measure::full_resolution;
 use coapcam::repr::Stream;
 use coapcam::repr::cbor::ColorCapture;
 use coapcam::repr::clouds::parts_from_depth_cloud;
@@ -37,8 +38,6 @@ use coapcam::vision::picture;
 const FLOOR_INLIER_M: f64 = 0.012;
 /// RANSAC samples.
 const ITERATIONS: usize = 400;
-/// The color resolution markers are searched at (the D415's largest, at most 30 fps).
-const FULL_COLOR: (u32, u32, u64) = (1920, 1080, 30);
 
 /// Flags of `calibrate`.
 #[derive(Debug, Args)]
@@ -279,25 +278,19 @@ pub(crate) async fn place(client: &CamClient, sn: &str, map: &MarkerMap) -> anyh
     })
 }
 
-/// A color frame of `sn` at [`FULL_COLOR`], its color-settings put back afterwards; at
-/// the current settings, with a warning, if the camera refuses that mode.
+/// A color frame of `sn` at full resolution ([`full_resolution`]), its color-settings put
+/// back afterwards; at the current settings, with a warning, if the camera refuses that
+/// mode.
 async fn full_resolution_color(client: &CamClient, sn: &str) -> anyhow::Result<ColorCapture> {
     let current = client.get_json(sn, "color-settings").await?;
-    let (width, height, fps) = FULL_COLOR;
-    let full = json!({
-        "format": current["format"],
-        "fps": current["fps"].as_u64().unwrap_or(fps).min(fps),
-        "width": width,
-        "height": height,
-    });
-    let changed = current["width"] != width || current["height"] != height;
-    let changed = changed
+    let full = full_resolution(&current);
+    let changed = full != current
         && match client.put_json(sn, "color-settings", &full).await {
             Ok(()) => true,
             Err(e) => {
                 eprintln!(
-                    "coapcam: warning: camera {sn}: searching markers at {}x{}: {width}x{height} refused ({e:#})",
-                    current["width"], current["height"]
+                    "coapcam: warning: camera {sn}: searching markers at {}x{}: {}x{} refused ({e:#})",
+                    current["width"], current["height"], full["width"], full["height"]
                 );
                 false
             }

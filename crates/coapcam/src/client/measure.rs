@@ -224,6 +224,16 @@ pub async fn measure_once(
 /// transmitted (thesis §3.3.5), which makes the clouds several times smaller.
 pub const FLOOR_CUT_M: f64 = 0.005;
 
+/// A color-settings document at the D415's largest color mode, 1920x1080 at 30 fps, its
+/// format kept.
+pub fn full_resolution(color_settings: &serde_json::Value) -> serde_json::Value {
+    let mut full = color_settings.clone();
+    full["width"] = serde_json::json!(1920);
+    full["height"] = serde_json::json!(1080);
+    full["fps"] = serde_json::json!(30);
+    full
+}
+
 /// Prepares every camera for measuring as the thesis does (§3.3.5): roi3d becomes the
 /// box above the floor within `half_width_m` of the origin, and the spatial filter runs
 /// (librealsense's defaults: it smooths the depth noise that widens a footprint's hull);
@@ -237,11 +247,10 @@ pub async fn prepare_cameras(
 ) -> anyhow::Result<()> {
     for sn in serials {
         if for_codes {
-            let mut color = client.get_json(sn, "color-settings").await?;
-            color["width"] = serde_json::json!(1920);
-            color["height"] = serde_json::json!(1080);
-            color["fps"] = serde_json::json!(30);
-            client.put_json(sn, "color-settings", &color).await?;
+            let color = client.get_json(sn, "color-settings").await?;
+            client
+                .put_json(sn, "color-settings", &full_resolution(&color))
+                .await?;
         }
         let mut doc = client.get_json(sn, "application-config").await?;
         doc["roi3d"] = serde_json::json!({

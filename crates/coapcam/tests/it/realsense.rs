@@ -52,6 +52,18 @@ fn wheel() -> Option<(String, String)> {
     }
 }
 
+/// `serve` flags for a software D415 through librealsense, from [`wheel`]'s paths.
+fn software_d415<'a>(module: &'a str, libpython: &'a str) -> [&'a str; 6] {
+    [
+        "--realsense",
+        "--realsense-software",
+        "--librealsense",
+        module,
+        "--librealsense-preload",
+        libpython,
+    ]
+}
+
 #[test]
 fn serve_realsense_without_the_library_exits_with_the_paths_tried() {
     let out = Command::new(COAPCAM)
@@ -122,14 +134,7 @@ fn a_virtual_d415_through_librealsense_serves_the_synthetic_tree_and_pixels() {
     let (_realsense, realsense) = serve_at(
         "127.0.0.1:0",
         realsense_state.path(),
-        &[
-            "--realsense",
-            "--realsense-software",
-            "--librealsense",
-            &module,
-            "--librealsense-preload",
-            &libpython,
-        ],
+        &software_d415(&module, &libpython),
     );
     runtime().block_on(async {
         let c = client();
@@ -198,15 +203,10 @@ fn a_virtual_d415_through_librealsense_is_calibrated_by_markers_and_on_the_floor
         "127.0.0.1:0",
         state.path(),
         &[
-            "--scene",
-            scene_path,
-            "--realsense",
-            "--realsense-software",
-            "--librealsense",
-            &module,
-            "--librealsense-preload",
-            &libpython,
-        ],
+            &["--scene", scene_path][..],
+            &software_d415(&module, &libpython),
+        ]
+        .concat(),
     );
     let uri = format!("coap://{addr}");
     let run = |args: &[&str]| Proc::run(COAPCAM, args, LIMIT).expect_success("coapcam");
