@@ -3,21 +3,19 @@
 //! `bench repr` and `bench load` are in their own files.
 
 use std::net::SocketAddr;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, bail};
 use clap::{Args, Subcommand};
+use markers::Family;
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
-use std::time::Instant;
-
-use markers::Family;
 use rgbd::scene::{Noise, SceneBox, SceneCamera, SceneMarker};
 use rgbd::{Scene, Serial};
 
 use super::{DimensionArgs, Exit, calibrate, outln};
 use coapcam::client::CamClient;
-use coapcam::client::measure::{self, Measurement, Source, prepare_cameras, truth, yaw_difference};
+use coapcam::client::measure::{self, Source, prepare_cameras, truth, yaw_difference};
 use coapcam::server::SceneServer;
 use coapcam::vision::calibration::{MarkerMap, pose_transformation};
 
@@ -278,6 +276,22 @@ struct Row {
 }
 
 impl Row {
+    /// The row of scene `index`, nothing measured yet.
+    fn new(index: usize, scene: &Scene) -> anyhow::Result<Self> {
+        Ok(Self {
+            index,
+            cameras: scene.cameras.len(),
+            camera_z: scene.cameras[0].position[2],
+            truth: truth(scene).context("the scene has no box")?,
+            measured: None,
+            cycle_ms: f64::NAN,
+            grab_ms: f64::NAN,
+            error: None,
+            calibration: None,
+            with_true_poses: None,
+        })
+    }
+
     /// Errors of length, width, height (mm) and yaw (deg).
     fn errors(&self) -> Option<[f64; 4]> {
         let m = self.measured?;
@@ -324,32 +338,21 @@ async fn measure_scene(
 ) -> anyhow::Result<Row> {
     let serials: Vec<String> = scene.cameras.iter().map(|c| c.serial.to_string()).collect();
     prepare_cameras(client, &serials, 1.0, false).await?;
-    let truth = truth(scene).context("the scene has no box")?;
     let result = measure::measure_once(client, &Source::All, config).await;
-    Ok(Row {
-        index,
-        cameras: scene.cameras.len(),
-        camera_z: scene.cameras[0].position[2],
-        truth,
-        cycle_ms: result
-            .as_ref()
-            .map_or(f64::NAN, |m| m.cycle.as_secs_f64() * 1e3),
-        grab_ms: result
-            .as_ref()
-            .map_or(f64::NAN, |m| m.grab.as_secs_f64() * 1e3),
-        measured: result
-            .as_ref()
-            .ok()
-            .and_then(Measurement::dimensions)
-            .map(|d| [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg]),
-        error: match &result {
-            Ok(m) if m.dimensions().is_none() => Some("nothing on the table".into()),
-            Ok(_) => None,
-            Err(e) => Some(super::error_text(e)),
-        },
-        calibration: None,
-        with_true_poses: None,
-    })
+    let mut row = Row::new(index, scene)?;
+    if let Ok(m) = &result {
+        row.cycle_ms = m.cycle.as_secs_f64() * 1e3;
+        row.grab_ms = m.grab.as_secs_f64() * 1e3;
+        row.measured = m
+            .dimensions()
+            .map(|d| [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg]);
+    }
+    row.error = match &result {
+        Ok(m) if m.dimensions().is_none() => Some("nothing on the table".into()),
+        Ok(_) => None,
+        Err(e) => Some(super::error_text(e)),
+    };
+    Ok(row)
 }
 
 /// `--calibrate`'s scene `index`: a server (state of its own) on the empty table, every
@@ -387,16 +390,8 @@ async fn calibrate_and_measure(
     let calibrate_ms = started.elapsed().as_secs_f64() * 1e3;
     let mut row = if let Some(error) = failure {
         Row {
-            index,
-            cameras: parcel.cameras.len(),
-            camera_z: parcel.cameras[0].position[2],
-            truth: truth(&parcel).context("the scene has no box")?,
-            measured: None,
-            cycle_ms: f64::NAN,
-            grab_ms: f64::NAN,
             error: Some(error),
-            calibration: None,
-            with_true_poses: None,
+            ..Row::new(index, &parcel)?
         }
     } else {
         // The same cameras, their 3d-transformation restored from the state directory.
