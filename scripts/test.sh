@@ -106,6 +106,21 @@ fi
 # (`-p` alone unifies features differently and rebuilds ~300 MB of them).
 scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group:: offhost::
 
+step "the README's main command, typed as the README gives it"
+# From a scratch folder under target/ (cargo finds the workspace above it), so the demo's
+# ./coapcam-demo lands there; a change that breaks `cargo run --release -- demo` fails here.
+demo_dir=target/readme-demo
+rm -rf "$demo_dir" && mkdir -p "$demo_dir"
+demo_out=$(cd "$demo_dir" && cargo run --release -- demo)
+printf '%s\n' "$demo_out"
+for f in color.jpg depth.png depth-view.png depth-color.png cloud.ply top.png annotated.png; do
+  [ -s "$demo_dir/coapcam-demo/$f" ] || { echo "demo did not write coapcam-demo/$f" >&2; exit 1; }
+done
+for row in "length mm" "width mm" "height mm"; do
+  grep -Eq "^$row +[0-9]+\.[0-9] +[0-9]+\.[0-9] +[-+][0-9]+\.[0-9]\$" <<<"$demo_out" \
+    || { echo "demo printed no \"$row\" row" >&2; exit 1; }
+done
+
 step "fuzz targets build and replay their seeds"
 bash scripts/fuzz-build.sh
 
