@@ -104,7 +104,7 @@ if ! command -v ip >/dev/null; then
 fi
 # The whole workspace, as in the step above, so the test binaries built there are reused
 # (`-p` alone unifies features differently and rebuilds ~300 MB of them).
-scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group:: offhost::
+scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group:: offhost:: readme::
 
 step "the README's main command, typed as the README gives it"
 # From a scratch folder under target/ (cargo finds the workspace above it), so the demo's

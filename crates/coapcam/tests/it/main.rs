@@ -18,6 +18,7 @@ mod load;
 mod logs;
 mod netem;
 mod offhost;
+mod readme;
 mod realsense;
 mod signals;
 mod support;

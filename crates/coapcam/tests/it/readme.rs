@@ -1,0 +1,282 @@
+//! README.md's commands, as the README gives them. The `sh` blocks are read from the file
+//! at test time, so an example that stops working, or a new one that never did, fails
+//! here. A block may be skipped only when a `<!-- not run by the tests: REASON -->` line
+//! stands right before it (a real camera, say). The CLI synopsis is checked against each
+//! command's `--help`.
+//!
+//! The examples use the well-known ports (5683, ...) and multicast groups, so they run
+//! inside `scripts/netns-run`'s private network namespace, where those ports are free and
+//! group traffic stays inside; the only change made to a line is the interface name of
+//! an IPv6 group (`eth0` becomes the namespace's `mc0`).
+
+use std::fs;
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use crate::support::{COAPCAM, Finished, Proc, TempDir};
+
+const README: &str = include_str!("../../../../README.md");
+const TEST_SH: &str = include_str!("../../../../scripts/test.sh");
+
+/// A command of one of README.md's `sh` blocks: continuation lines joined, the trailing
+/// comment removed.
+#[derive(Debug)]
+struct Example {
+    line: String,
+    /// Ends in `&`: started in the background and left running.
+    background: bool,
+}
+
+/// The commands of README.md's `sh` blocks, but for blocks marked as not run.
+fn examples() -> Vec<Example> {
+    let mut out = Vec::new();
+    let mut lines = README.lines().peekable();
+    let mut previous = "";
+    while let Some(line) = lines.next() {
+        if line.trim() == "```sh" {
+            let skipped = previous
+                .trim()
+                .strip_prefix("<!-- not run by the tests:")
+                .is_some_and(|why| why.trim_end_matches("-->").trim().len() > 3);
+            let mut joined = String::new();
+            for line in lines.by_ref() {
+                if line.trim() == "```" {
+                    break;
+                }
+                if skipped {
+                    continue;
+                }
+                let code = strip_comment(line);
+                if let Some(head) = code.trim_end().strip_suffix('\\') {
+                    joined.push_str(head.trim_end());
+                    joined.push(' ');
+                    continue;
+                }
+                joined.push_str(code.trim());
+                let command = std::mem::take(&mut joined).trim().to_string();
+                if command.is_empty() {
+                    continue;
+                }
+                let (line, background) = match command.strip_suffix('&') {
+                    Some(head) => (head.trim_end().to_string(), true),
+                    None => (command, false),
+                };
+                out.push(Example { line, background });
+            }
+        }
+        previous = line;
+    }
+    out
+}
+
+/// `line` without a trailing `# comment` (a `#` outside quotes, after a space).
+fn strip_comment(line: &str) -> &str {
+    let (mut single, mut double) = (false, false);
+    let mut last = ' ';
+    for (i, c) in line.char_indices() {
+        match c {
+            '\'' if !double => single = !single,
+            '"' if !single => double = !double,
+            '#' if !single && !double && last.is_whitespace() => return &line[..i],
+            _ => {}
+        }
+        last = c;
+    }
+    line
+}
+
+#[test]
+fn the_readme_blocks_are_understood() {
+    let all = examples();
+    let first: Vec<&str> = all.iter().take(2).map(|e| e.line.as_str()).collect();
+    assert_eq!(
+        first,
+        ["scripts/test.sh", "cargo run --release -- demo"],
+        "the README's two commands come first"
+    );
+    // scripts/test.sh is the test command itself; it runs the demo exactly as written.
+    assert!(
+        TEST_SH
+            .lines()
+            .any(|l| l.contains("&& cargo run --release -- demo)")),
+        "scripts/test.sh no longer runs `cargo run --release -- demo` literally"
+    );
+    for e in &all[2..] {
+        assert!(
+            e.line.starts_with("coapcam "),
+            "README example {:?} is not a coapcam command: run it in readme.rs, or mark \
+             its block `<!-- not run by the tests: REASON -->`",
+            e.line
+        );
+    }
+    assert!(all.len() > 10, "only {} README commands found", all.len());
+}
+
+#[test]
+fn every_flag_of_the_synopsis_is_in_the_commands_help() {
+    let synopsis = README
+        .split("## The command line")
+        .nth(1)
+        .and_then(|s| s.split("```").nth(1))
+        .expect("README's command line synopsis");
+    // Each entry starts with `coapcam COMMAND`; continuation lines are indented.
+    let mut entries: Vec<String> = Vec::new();
+    for line in synopsis.lines() {
+        if line.starts_with("coapcam ") {
+            entries.push(line.to_string());
+        } else if let Some(last) = entries.last_mut() {
+            last.push(' ');
+            last.push_str(line);
+        }
+    }
+    assert!(entries.len() > 10, "synopsis entries: {entries:?}");
+    for entry in &entries {
+        let words: Vec<&str> = entry.split_whitespace().collect();
+        // `get|post|put|delete` lists commands with one help; `bench accuracy` has a
+        // subcommand.
+        let command = words[1].split('|').next().expect("a command");
+        let mut help_args = vec![command];
+        if command == "bench" {
+            help_args.push(words[2]);
+        }
+        help_args.push("--help");
+        let help = Proc::run(COAPCAM, &help_args, Duration::from_secs(30))
+            .expect_success("help")
+            .stdout_text();
+        for flag in entry
+            .split(|c: char| !(c.is_ascii_alphanumeric() || c == '-'))
+            .filter(|w| w.starts_with("--") && w.len() > 2)
+        {
+            assert!(
+                help.contains(flag),
+                "README's synopsis gives `{flag}` for `coapcam {}`, which its --help lacks",
+                help_args[..help_args.len() - 1].join(" ")
+            );
+        }
+    }
+}
+
+#[test]
+#[ignore = "uses the well-known ports and groups: run inside scripts/netns-run (scripts/test.sh does)"]
+fn every_readme_example_runs() {
+    if std::env::var("COAPCAM_NETNS").ok().as_deref() != Some("1") {
+        eprintln!("SKIP every_readme_example_runs: only inside scripts/netns-run");
+        return;
+    }
+    let dir = TempDir::new("readme");
+    let home = dir.join("home");
+    fs::create_dir_all(&home).expect("home");
+    // What the examples take for granted: a recording and a folder of files to serve.
+    let fixture = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../rgbd/tests/fixtures/bag/d415.db3"
+    );
+    fs::copy(fixture, dir.join("recording.db3")).expect("recording.db3");
+    fs::create_dir_all(dir.join("photos")).expect("photos");
+    fs::write(
+        dir.join("photos/box.png"),
+        crate::support::random_bytes(300_000, 7),
+    )
+    .expect("box.png");
+    fs::write(dir.join("photos/status.txt"), "ready\n").expect("status.txt");
+    // What `measure --group 224.0.1.187 --expect 3` and the IPv6 discovery find: the
+    // servers of the groups the README's comments speak of.
+    let members: Vec<Proc> = [
+        "127.0.0.2:5683",
+        "127.0.0.3:5683",
+        "127.0.0.4:5683",
+        "[fd00::3]:5683",
+    ]
+    .iter()
+    .enumerate()
+    .map(|(i, bind)| {
+        let state = dir.join(&format!("member{i}"));
+        let state = state.to_str().expect("UTF-8");
+        let group = if bind.starts_with('[') {
+            "ff02::fd"
+        } else {
+            "224.0.1.187"
+        };
+        let mut args = vec!["serve", "--bind", bind, "--state-dir", state];
+        args.extend(["--group", group, "--duration", "300"]);
+        let mut p = Proc::spawn(COAPCAM, &args);
+        p.stderr_line(Duration::from_secs(60), |l| {
+            l.starts_with("coapcam: serving on ").then_some(())
+        });
+        p
+    })
+    .collect();
+    // `get .../status.txt --observe 5` waits for five changes: the status changes.
+    let stop = Arc::new(AtomicBool::new(false));
+    let writer = {
+        let (stop, path) = (Arc::clone(&stop), dir.join("photos/status.txt"));
+        thread::spawn(move || {
+            for n in 0.. {
+                if stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                fs::write(&path, format!("parcels: {n}\n")).expect("status.txt");
+                thread::sleep(Duration::from_millis(300));
+            }
+        })
+    };
+    let bin_dir = Path::new(COAPCAM).parent().expect("binary's folder");
+    let shell_prefix = format!(
+        "cd '{}' && export HOME='{}' PATH='{}':\"$PATH\" && exec ",
+        dir.path().display(),
+        home.display(),
+        bin_dir.display()
+    );
+    let mut background: Vec<Proc> = Vec::new();
+    let mut lines = Vec::new();
+    for e in examples().into_iter().skip(2) {
+        let line = e.line.replace("%25eth0", "%25mc0");
+        let script = format!("{shell_prefix}{line}");
+        if e.background {
+            let mut p = Proc::spawn("sh", &["-c", &script]);
+            let started = |l: &str| {
+                (l.starts_with("coapcam: serving on ") || l.starts_with("netem: listening on "))
+                    .then_some(())
+            };
+            p.stderr_line(Duration::from_secs(60), started);
+            background.push(p);
+            lines.push(format!("started: {line}"));
+            continue;
+        }
+        let began = Instant::now();
+        let f: Finished = Proc::run("sh", &["-c", &script], Duration::from_secs(120));
+        assert!(
+            f.status.success(),
+            "README example `{line}` failed ({}):\n{}\n{}",
+            f.status,
+            f.stdout_text(),
+            f.stderr
+        );
+        lines.push(format!("{:>6} ms: {line}", began.elapsed().as_millis()));
+    }
+    stop.store(true, Ordering::Relaxed);
+    writer.join().expect("status writer");
+    // What the examples say they write.
+    for file in [
+        "box.png",
+        "depth.png",
+        "depth-view.png",
+        "cloud.ply",
+        "color.png",
+    ] {
+        let len = fs::metadata(dir.join(file)).map_or(0, |m| m.len());
+        assert!(len > 0, "the README's examples wrote no {file}");
+    }
+    assert_eq!(
+        fs::read(dir.join("box.png")).expect("box.png"),
+        fs::read(dir.join("photos/box.png")).expect("photos/box.png"),
+        "`get .../files/box.png -o box.png` is not the served file"
+    );
+    for mut p in background.into_iter().chain(members) {
+        assert!(p.is_running(), "a background example exited early");
+    }
+    eprintln!("{}", lines.join("\n"));
+}
