@@ -8,6 +8,7 @@
 //!   and its assembly from a configuration;
 //! - [`client`]: the typed client of a camera server, measuring (with the cameras'
 //!   preparation), the codes of the cameras and the annotated picture;
+//! - [`station`]: what the server does by itself for a parcel lane: the results log;
 //! - [`vision`]: pure image work: reading QR and Code 128 codes, pictures for people.
 //!
 //! The protocol lives in the `coap` and `coap-net` crates, the cameras in `rgbd`, the
@@ -19,6 +20,7 @@ pub mod client;
 pub mod report;
 pub mod repr;
 pub mod server;
+pub mod station;
 pub mod vision;
 
 /// A directory of a unit test's own under the system's temporary directory, removed on

@@ -1,0 +1,881 @@
+//! The results log: every measurement the station makes, append-only and hash-chained,
+//! in an embedded SQLite database (docs/station.md has the schema and the encoding).
+//!
+//! Durability: the database is in WAL mode with `synchronous=FULL`, so each append's
+//! commit is on disk (the WAL fsynced) before [`ResultsLog::append`] returns; a process
+//! killed at any moment loses at most the append under way, never one that returned,
+//! and SQLite's recovery leaves the file consistent. Triggers refuse to change or delete
+//! a record; the only deletions are retention's, of pictures (their SHA-256s stay in
+//! the records, so the chain still verifies).
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
+
+use rusqlite::{Connection, OpenFlags, OptionalExtension as _, TransactionBehavior, params};
+use tokio::sync::watch;
+
+use super::record::{GENESIS, NewRecord, Record, canonical_bytes, sha256_hex};
+
+/// The schema's version, kept in `meta`.
+const SCHEMA_VERSION: &str = "1";
+
+/// How long a writer waits for another process's transaction before failing.
+const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The most records one list returns.
+pub const MAX_LIST: usize = 1000;
+
+/// The tables and triggers (created once, in one transaction).
+const SCHEMA: &str = "
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE records (
+    id INTEGER PRIMARY KEY,
+    body TEXT NOT NULL,
+    hash TEXT NOT NULL
+);
+CREATE TABLE pictures (
+    record INTEGER NOT NULL REFERENCES records(id),
+    kind TEXT NOT NULL CHECK (kind IN ('photo', 'annotated')),
+    data BLOB NOT NULL,
+    PRIMARY KEY (record, kind)
+);
+CREATE TABLE cursors (consumer TEXT PRIMARY KEY, id INTEGER NOT NULL);
+CREATE TRIGGER records_no_update BEFORE UPDATE ON records
+BEGIN SELECT RAISE(ABORT, 'the results log is append-only: records cannot be changed'); END;
+CREATE TRIGGER records_no_delete BEFORE DELETE ON records
+BEGIN SELECT RAISE(ABORT, 'the results log is append-only: records cannot be deleted'); END;
+CREATE TRIGGER pictures_no_update BEFORE UPDATE ON pictures
+BEGIN SELECT RAISE(ABORT, 'pictures cannot be changed, only pruned'); END;
+";
+
+/// What went wrong with the results log.
+#[derive(Debug, thiserror::Error)]
+pub enum LogError {
+    /// SQLite failed (the file, the disk, a lock held too long).
+    #[error("results log {path}: {source}")]
+    Sqlite {
+        /// The database file.
+        path: PathBuf,
+        /// SQLite's error.
+        source: rusqlite::Error,
+    },
+    /// The file is not a results log, or one of a newer schema.
+    #[error("results log {path}: {why}")]
+    Format {
+        /// The database file.
+        path: PathBuf,
+        /// What is wrong.
+        why: String,
+    },
+    /// A stored record does not read back (its body is not a record's JSON).
+    #[error("results log {path}: record {id} does not read back: {why}")]
+    Unreadable {
+        /// The database file.
+        path: PathBuf,
+        /// The record.
+        id: u64,
+        /// Why.
+        why: String,
+    },
+}
+
+/// How much the log keeps. Pictures are pruned oldest first to stay within it; records
+/// are never dropped: when the records alone pass `max_bytes`, every picture is gone, the
+/// records go on being appended and [`ResultsLog::over_limit`] says so (with a warning in
+/// the server's log).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Retention {
+    /// Keep the pictures of the newest this many records only.
+    pub keep_pictures: Option<u64>,
+    /// Keep the bytes of the records' bodies and pictures within this many, pruning the
+    /// oldest pictures first. SQLite's own pages come on top.
+    pub max_bytes: Option<u64>,
+}
+
+/// Which records [`ResultsLog::list`] returns, newest first.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ListQuery {
+    /// Only records with a larger id.
+    pub since: Option<u64>,
+    /// Only records with a smaller id (paging back: the smallest id of the last page).
+    pub before: Option<u64>,
+    /// At most this many (1 to [`MAX_LIST`]).
+    pub limit: usize,
+    /// Only records with a code of exactly this text.
+    pub code: Option<String>,
+}
+
+impl Default for ListQuery {
+    fn default() -> Self {
+        Self {
+            since: None,
+            before: None,
+            limit: 50,
+            code: None,
+        }
+    }
+}
+
+/// The results log of one database file: a cheap handle to clone. Its calls block (on
+/// the disk, on SQLite's lock): from async code call them on the blocking pool.
+#[derive(Clone)]
+pub struct ResultsLog {
+    inner: Arc<Inner>,
+}
+
+struct Inner {
+    path: PathBuf,
+    conn: Mutex<Connection>,
+    retention: Mutex<Retention>,
+    newest: watch::Sender<u64>,
+    over_limit: std::sync::atomic::AtomicBool,
+}
+
+impl std::fmt::Debug for ResultsLog {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ResultsLog")
+            .field("path", &self.inner.path)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ResultsLog {
+    /// Opens the log at `path`, creating the file (and its directory) if needed.
+    pub fn open(path: &Path) -> Result<Self, LogError> {
+        Self::open_with(path, Retention::default())
+    }
+
+    /// Opens the log at `path` with `retention` (applied at once, then after each append).
+    pub fn open_with(path: &Path, retention: Retention) -> Result<Self, LogError> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|e| LogError::Format {
+                path: path.to_owned(),
+                why: format!("creating its directory: {e}"),
+            })?;
+        }
+        let conn = connect(path, true)?;
+        let newest = newest_id(&conn).map_err(sql(path))?;
+        let log = Self {
+            inner: Arc::new(Inner {
+                path: path.to_owned(),
+                conn: Mutex::new(conn),
+                retention: Mutex::new(retention),
+                newest: watch::Sender::new(newest),
+                over_limit: std::sync::atomic::AtomicBool::new(false),
+            }),
+        };
+        log.prune()?;
+        Ok(log)
+    }
+
+    /// The database file.
+    pub fn path(&self) -> &Path {
+        &self.inner.path
+    }
+
+    fn conn(&self) -> MutexGuard<'_, Connection> {
+        self.inner
+            .conn
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+
+    fn err(&self) -> impl Fn(rusqlite::Error) -> LogError + '_ {
+        sql(&self.inner.path)
+    }
+
+    /// Records `new` after the newest record, chained to it, and returns the record. It is
+    /// on disk when this returns. Then prunes pictures as the retention says.
+    pub fn append(&self, new: NewRecord) -> Result<Record, LogError> {
+        let record = {
+            let mut conn = self.conn();
+            let tx = conn
+                .transaction_with_behavior(TransactionBehavior::Immediate)
+                .map_err(self.err())?;
+            let last: Option<(u64, String)> = tx
+                .query_row(
+                    "SELECT id, hash FROM records ORDER BY id DESC LIMIT 1",
+                    [],
+                    |r| Ok((r.get(0)?, r.get(1)?)),
+                )
+                .optional()
+                .map_err(self.err())?;
+            let (id, prev) = match &last {
+                Some((id, hash)) => (id + 1, hash.as_str()),
+                None => (1, GENESIS),
+            };
+            let record = Record::chain(&new, id, prev);
+            tx.execute(
+                "INSERT INTO records (id, body, hash) VALUES (?1, ?2, ?3)",
+                params![
+                    id,
+                    String::from_utf8_lossy(&record.stored_body()),
+                    record.hash
+                ],
+            )
+            .map_err(self.err())?;
+            for (kind, data) in [
+                ("photo", &new.photo_jpeg),
+                ("annotated", &new.annotated_png),
+            ] {
+                if let Some(data) = data {
+                    tx.execute(
+                        "INSERT INTO pictures (record, kind, data) VALUES (?1, ?2, ?3)",
+                        params![id, kind, data],
+                    )
+                    .map_err(self.err())?;
+                }
+            }
+            tx.commit().map_err(self.err())?;
+            record
+        };
+        self.inner.newest.send_replace(record.id);
+        if let Err(e) = self.prune() {
+            tracing::warn!("results log: pruning pictures failed: {e}");
+        }
+        Ok(record)
+    }
+
+    /// The record `id`, if there is one.
+    pub fn get(&self, id: u64) -> Result<Option<Record>, LogError> {
+        let conn = self.conn();
+        let row = conn
+            .query_row(&format!("{SELECT} WHERE r.id = ?1"), [id], raw_row)
+            .optional()
+            .map_err(self.err())?;
+        row.map(|raw| self.decode(raw)).transpose()
+    }
+
+    /// The newest record, if there is one.
+    pub fn latest(&self) -> Result<Option<Record>, LogError> {
+        let conn = self.conn();
+        let row = conn
+            .query_row(&format!("{SELECT} ORDER BY r.id DESC LIMIT 1"), [], raw_row)
+            .optional()
+            .map_err(self.err())?;
+        row.map(|raw| self.decode(raw)).transpose()
+    }
+
+    /// Records newest first, as `q` selects.
+    pub fn list(&self, q: &ListQuery) -> Result<Vec<Record>, LogError> {
+        let conn = self.conn();
+        let mut stmt = conn
+            .prepare_cached(&format!(
+                "{SELECT} WHERE r.id > ?1 AND r.id < ?2 AND (?3 IS NULL OR EXISTS (
+                    SELECT 1 FROM json_each(r.body, '$.measurement.codes') c
+                    WHERE json_extract(c.value, '$.text') = ?3))
+                 ORDER BY r.id DESC LIMIT ?4"
+            ))
+            .map_err(self.err())?;
+        let rows = stmt
+            .query_map(
+                params![
+                    q.since.unwrap_or(0),
+                    q.before
+                        .map_or(i64::MAX, |b| i64::try_from(b).unwrap_or(i64::MAX)),
+                    q.code,
+                    q.limit.clamp(1, MAX_LIST),
+                ],
+                raw_row,
+            )
+            .map_err(self.err())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.err())?;
+        rows.into_iter().map(|raw| self.decode(raw)).collect()
+    }
+
+    /// At most `limit` records after `id`, oldest first (for publishers catching up from
+    /// a cursor).
+    pub fn after(&self, id: u64, limit: usize) -> Result<Vec<Record>, LogError> {
+        let conn = self.conn();
+        let mut stmt = conn
+            .prepare_cached(&format!("{SELECT} WHERE r.id > ?1 ORDER BY r.id LIMIT ?2"))
+            .map_err(self.err())?;
+        let rows = stmt
+            .query_map(params![id, limit.clamp(1, MAX_LIST)], raw_row)
+            .map_err(self.err())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.err())?;
+        rows.into_iter().map(|raw| self.decode(raw)).collect()
+    }
+
+    /// The photo (JPEG) of record `id`, if it was taken and is still kept.
+    pub fn photo(&self, id: u64) -> Result<Option<Vec<u8>>, LogError> {
+        self.picture(id, "photo")
+    }
+
+    /// The annotated picture (PNG) of record `id`, if it was made and is still kept.
+    pub fn annotated(&self, id: u64) -> Result<Option<Vec<u8>>, LogError> {
+        self.picture(id, "annotated")
+    }
+
+    fn picture(&self, id: u64, kind: &str) -> Result<Option<Vec<u8>>, LogError> {
+        self.conn()
+            .query_row(
+                "SELECT data FROM pictures WHERE record = ?1 AND kind = ?2",
+                params![id, kind],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(self.err())
+    }
+
+    /// The id up to which `consumer` has taken the records (0 before its first).
+    pub fn cursor(&self, consumer: &str) -> Result<u64, LogError> {
+        self.conn()
+            .query_row(
+                "SELECT id FROM cursors WHERE consumer = ?1",
+                [consumer],
+                |r| r.get(0),
+            )
+            .optional()
+            .map(Option::unwrap_or_default)
+            .map_err(self.err())
+    }
+
+    /// Durably moves `consumer`'s cursor to `id`.
+    pub fn set_cursor(&self, consumer: &str, id: u64) -> Result<(), LogError> {
+        self.conn()
+            .execute(
+                "INSERT INTO cursors (consumer, id) VALUES (?1, ?2)
+                 ON CONFLICT (consumer) DO UPDATE SET id = excluded.id",
+                params![consumer, id],
+            )
+            .map(drop)
+            .map_err(self.err())
+    }
+
+    /// The newest record's id (0 while there is none), following every append.
+    pub fn subscribe(&self) -> watch::Receiver<u64> {
+        self.inner.newest.subscribe()
+    }
+
+    /// The newest record's id (0 while there is none).
+    pub fn newest(&self) -> u64 {
+        *self.inner.newest.borrow()
+    }
+
+    /// Whether the records alone are past the retention's `max_bytes` (every picture
+    /// pruned; records are kept regardless).
+    pub fn over_limit(&self) -> bool {
+        self.inner
+            .over_limit
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// The bytes the records' bodies and the kept pictures hold.
+    pub fn content_bytes(&self) -> Result<u64, LogError> {
+        content_bytes(&self.conn()).map_err(self.err())
+    }
+
+    /// Prunes pictures as the retention says: beyond the newest `keep_pictures` records,
+    /// then the oldest until the content fits `max_bytes`; frees the pages.
+    fn prune(&self) -> Result<(), LogError> {
+        let retention = *self
+            .inner
+            .retention
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if retention == Retention::default() {
+            return Ok(());
+        }
+        let conn = self.conn();
+        let mut pruned = 0;
+        if let Some(keep) = retention.keep_pictures {
+            let newest = newest_id(&conn).map_err(self.err())?;
+            pruned += conn
+                .execute(
+                    "DELETE FROM pictures WHERE record <= ?1",
+                    [newest.saturating_sub(keep)],
+                )
+                .map_err(self.err())?;
+        }
+        let mut over = false;
+        if let Some(max) = retention.max_bytes {
+            loop {
+                let total = content_bytes(&conn).map_err(self.err())?;
+                if total <= max {
+                    break;
+                }
+                let oldest: Option<u64> = conn
+                    .query_row("SELECT MIN(record) FROM pictures", [], |r| r.get(0))
+                    .map_err(self.err())?;
+                let Some(oldest) = oldest else {
+                    over = true;
+                    break;
+                };
+                pruned += conn
+                    .execute("DELETE FROM pictures WHERE record = ?1", [oldest])
+                    .map_err(self.err())?;
+            }
+        }
+        let was = self
+            .inner
+            .over_limit
+            .swap(over, std::sync::atomic::Ordering::Relaxed);
+        if over && !was {
+            tracing::warn!(
+                path = %self.inner.path.display(),
+                max_bytes = retention.max_bytes,
+                "the results log's records alone are past --results-max-bytes: every picture is pruned, and records are still kept (none is ever dropped); raise the limit or move the file"
+            );
+        }
+        if pruned > 0 {
+            conn.execute_batch("PRAGMA incremental_vacuum")
+                .map_err(self.err())?;
+        }
+        Ok(())
+    }
+
+    fn decode(&self, raw: RawRow) -> Result<Record, LogError> {
+        Record::from_stored(&raw.body, raw.hash, raw.has_photo, raw.has_annotated).map_err(|e| {
+            LogError::Unreadable {
+                path: self.inner.path.clone(),
+                id: raw.id,
+                why: e.to_string(),
+            }
+        })
+    }
+}
+
+/// What a record's row holds, before its body is read.
+struct RawRow {
+    id: u64,
+    body: Vec<u8>,
+    hash: String,
+    has_photo: bool,
+    has_annotated: bool,
+}
+
+/// The columns [`raw_row`] reads, from `records r`.
+const SELECT: &str = "SELECT r.id, r.body, r.hash,
+    EXISTS (SELECT 1 FROM pictures p WHERE p.record = r.id AND p.kind = 'photo'),
+    EXISTS (SELECT 1 FROM pictures p WHERE p.record = r.id AND p.kind = 'annotated')
+    FROM records r";
+
+fn raw_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RawRow> {
+    Ok(RawRow {
+        id: r.get(0)?,
+        body: body_bytes(r, 1)?,
+        hash: r.get(2)?,
+        has_photo: r.get(3)?,
+        has_annotated: r.get(4)?,
+    })
+}
+
+/// A body column's bytes, stored as text (or, changed by hand, as a blob).
+fn body_bytes(r: &rusqlite::Row<'_>, i: usize) -> rusqlite::Result<Vec<u8>> {
+    r.get_ref(i)?.as_bytes().map(<[u8]>::to_vec).map_err(|e| {
+        rusqlite::Error::FromSqlConversionFailure(i, rusqlite::types::Type::Text, Box::new(e))
+    })
+}
+
+fn sql(path: &Path) -> impl Fn(rusqlite::Error) -> LogError + '_ {
+    move |source| LogError::Sqlite {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+fn newest_id(conn: &Connection) -> rusqlite::Result<u64> {
+    conn.query_row("SELECT COALESCE(MAX(id), 0) FROM records", [], |r| r.get(0))
+}
+
+fn content_bytes(conn: &Connection) -> rusqlite::Result<u64> {
+    conn.query_row(
+        "SELECT COALESCE((SELECT SUM(length(body)) FROM records), 0)
+              + COALESCE((SELECT SUM(length(data)) FROM pictures), 0)",
+        [],
+        |r| r.get(0),
+    )
+}
+
+/// Opens the database at `path` in WAL mode with `synchronous=FULL`; `create` makes the
+/// file and its schema when missing, else a missing file is an error.
+fn connect(path: &Path, create: bool) -> Result<Connection, LogError> {
+    let err = sql(path);
+    let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    if create {
+        flags |= OpenFlags::SQLITE_OPEN_CREATE;
+    }
+    let mut conn = Connection::open_with_flags(path, flags).map_err(&err)?;
+    conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
+    // auto_vacuum takes effect only before the first table: a new file gets it, so pruned
+    // pictures give their pages back (PRAGMA incremental_vacuum after pruning).
+    conn.execute_batch("PRAGMA auto_vacuum = INCREMENTAL")
+        .map_err(&err)?;
+    let mode: String = conn
+        .query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0))
+        .map_err(&err)?;
+    if !mode.eq_ignore_ascii_case("wal") {
+        return Err(LogError::Format {
+            path: path.to_owned(),
+            why: format!("SQLite keeps it in journal mode {mode}, not WAL"),
+        });
+    }
+    conn.execute_batch("PRAGMA synchronous = FULL; PRAGMA foreign_keys = ON")
+        .map_err(&err)?;
+    let tx = conn
+        .transaction_with_behavior(TransactionBehavior::Immediate)
+        .map_err(&err)?;
+    let has_meta: bool = tx
+        .query_row(
+            "SELECT EXISTS (SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'meta')",
+            [],
+            |r| r.get(0),
+        )
+        .map_err(&err)?;
+    if has_meta {
+        let version: Option<String> = tx
+            .query_row("SELECT value FROM meta WHERE key = 'schema'", [], |r| {
+                r.get(0)
+            })
+            .optional()
+            .map_err(&err)?;
+        if version.as_deref() != Some(SCHEMA_VERSION) {
+            return Err(LogError::Format {
+                path: path.to_owned(),
+                why: format!(
+                    "its schema is {version:?}; this coapcam reads schema {SCHEMA_VERSION}"
+                ),
+            });
+        }
+    } else {
+        let tables: i64 = tx
+            .query_row(
+                "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table'",
+                [],
+                |r| r.get(0),
+            )
+            .map_err(&err)?;
+        if tables > 0 || !create {
+            return Err(LogError::Format {
+                path: path.to_owned(),
+                why: "not a coapcam results log (an SQLite database without its tables)".into(),
+            });
+        }
+        tx.execute_batch(SCHEMA).map_err(&err)?;
+        tx.execute(
+            "INSERT INTO meta (key, value) VALUES ('schema', ?1)",
+            [SCHEMA_VERSION],
+        )
+        .map_err(&err)?;
+    }
+    tx.commit().map_err(&err)?;
+    Ok(conn)
+}
+
+/// What [`verify`] found.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct VerifyReport {
+    /// Records read.
+    pub records: u64,
+    /// The newest record's id and hash (compare the hash with one published earlier to
+    /// know the tail was not cut off).
+    pub head: Option<(u64, String)>,
+    /// Pictures whose SHA-256 a record holds but which were pruned.
+    pub pictures_pruned: u64,
+    /// Pictures kept and checked against their records.
+    pub pictures_checked: u64,
+    /// The first record that breaks the chain, if any.
+    pub first_altered: Option<Altered>,
+}
+
+/// A record that breaks the chain, and how.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Altered {
+    /// The record's id.
+    pub id: u64,
+    /// What does not match.
+    pub why: String,
+}
+
+/// Checks the chain of the log at `path` (the file must exist; it is not changed): ids
+/// 1, 2, 3, ... without gaps, each record's hash over its canonical content, each
+/// `prev_hash` the previous record's hash, each kept picture's SHA-256 the one its
+/// record holds. Stops at the first record that does not match and names it.
+pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
+    if !path.is_file() {
+        return Err(LogError::Format {
+            path: path.to_owned(),
+            why: "no such file".into(),
+        });
+    }
+    let conn = connect(path, false)?;
+    let err = sql(path);
+    let mut report = VerifyReport {
+        records: 0,
+        head: None,
+        pictures_pruned: 0,
+        pictures_checked: 0,
+        first_altered: None,
+    };
+    let mut stmt = conn
+        .prepare(
+            "SELECT r.id, r.body, r.hash,
+                (SELECT data FROM pictures p WHERE p.record = r.id AND p.kind = 'photo'),
+                (SELECT data FROM pictures p WHERE p.record = r.id AND p.kind = 'annotated')
+             FROM records r ORDER BY r.id",
+        )
+        .map_err(&err)?;
+    let mut rows = stmt.query([]).map_err(&err)?;
+    let mut expected_id = 1u64;
+    let mut prev = GENESIS.to_owned();
+    let orphans: Option<u64> = conn
+        .query_row(
+            "SELECT MIN(record) FROM pictures WHERE record NOT IN (SELECT id FROM records)",
+            [],
+            |r| r.get(0),
+        )
+        .map_err(&err)?;
+    while let Some(row) = rows.next().map_err(&err)? {
+        let id: u64 = row.get(0).map_err(&err)?;
+        let body = body_bytes(row, 1).map_err(&err)?;
+        let hash: String = row.get(2).map_err(&err)?;
+        let photo: Option<Vec<u8>> = row.get(3).map_err(&err)?;
+        let annotated: Option<Vec<u8>> = row.get(4).map_err(&err)?;
+        let broken = |id: u64, why: String| Altered { id, why };
+        if id != expected_id {
+            report.first_altered = Some(broken(
+                expected_id,
+                format!("record {expected_id} is missing (the next one stored is {id})"),
+            ));
+            break;
+        }
+        let check = check_record(id, &body, &hash, &prev, [photo, annotated], &mut report);
+        if let Err(why) = check {
+            report.first_altered = Some(broken(id, why));
+            break;
+        }
+        report.records += 1;
+        report.head = Some((id, hash.clone()));
+        prev = hash;
+        expected_id += 1;
+    }
+    if report.first_altered.is_none()
+        && let Some(id) = orphans
+    {
+        report.first_altered = Some(Altered {
+            id,
+            why: format!("a picture of record {id} is stored, but the record is not"),
+        });
+    }
+    Ok(report)
+}
+
+/// Checks one record: its body names it and its predecessor, hashes to `hash`, and its
+/// kept pictures hash to the SHA-256s it holds.
+fn check_record(
+    id: u64,
+    body: &[u8],
+    hash: &str,
+    prev: &str,
+    pictures: [Option<Vec<u8>>; 2],
+    report: &mut VerifyReport,
+) -> Result<(), String> {
+    let content: serde_json::Value = serde_json::from_slice(body)
+        .map_err(|e| format!("record {id}'s content is not JSON ({e})"))?;
+    if content["id"].as_u64() != Some(id) {
+        return Err(format!("record {id}'s content names id {}", content["id"]));
+    }
+    let computed = Record::compute_hash(&content);
+    if computed != hash {
+        return Err(format!(
+            "record {id} was altered: its content hashes to {computed}, not to its stored hash {hash}"
+        ));
+    }
+    if content["prev_hash"].as_str() != Some(prev) {
+        return Err(format!(
+            "record {id}'s prev_hash is not the hash of record {} ({prev}): the record before it was rewritten, or this one",
+            id - 1
+        ));
+    }
+    if canonical_bytes(&content) != body {
+        // The same content in other bytes (keys reordered, spaces): not what the log
+        // writes, so someone rewrote it.
+        return Err(format!(
+            "record {id}'s stored bytes are not the canonical encoding of its content"
+        ));
+    }
+    for (kind, data) in ["photo", "annotated"].into_iter().zip(pictures) {
+        let key = format!("{kind}_sha256");
+        match (content[&key].as_str(), data) {
+            (Some(want), Some(data)) => {
+                let got = sha256_hex(&data);
+                if got != want {
+                    return Err(format!(
+                        "record {id}'s {kind} was altered: it hashes to {got}, the record holds {want}"
+                    ));
+                }
+                report.pictures_checked += 1;
+            }
+            (Some(_), None) => report.pictures_pruned += 1,
+            (None, Some(_)) => {
+                return Err(format!("record {id} has a {kind} stored but records none"));
+            }
+            (None, None) => {}
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ScratchDir;
+    use crate::station::record::{Trigger, UtcTime};
+
+    fn new(n: u64, code: &str, photo: bool) -> NewRecord {
+        NewRecord {
+            time: UtcTime {
+                unix_ms: 1_795_734_229_000 + i64::try_from(n).unwrap_or(0),
+            },
+            station: "lane-1".into(),
+            trigger: Trigger::Request,
+            measurement: serde_json::json!({
+                "parcel": "measured", "length_mm": 300.0 + n as f64, "width_mm": 200.0,
+                "codes": [{"kind": "qr", "text": code, "cameras": ["840412060746"]}],
+            }),
+            cameras: Vec::new(),
+            version: NewRecord::VERSION.into(),
+            photo_jpeg: photo.then(|| vec![n as u8; 1000]),
+            annotated_png: photo.then(|| vec![n as u8; 500]),
+        }
+    }
+
+    #[test]
+    fn records_chain_list_and_verify() {
+        let dir = ScratchDir::new("results-log-chain");
+        let path = dir.path().join("results.sqlite");
+        let log = ResultsLog::open(&path).expect("open");
+        assert_eq!(log.newest(), 0);
+        let mut rx = log.subscribe();
+        let first = log.append(new(1, "A", true)).expect("append");
+        assert_eq!((first.id, first.prev_hash.as_str()), (1, GENESIS));
+        assert!(rx.has_changed().expect("open"));
+        assert_eq!(*rx.borrow_and_update(), 1);
+        for n in 2..=5 {
+            let code = if n % 2 == 0 { "B" } else { "A" };
+            let r = log.append(new(n, code, n != 3)).expect("append");
+            assert_eq!(r.id, n);
+        }
+        assert_eq!(log.get(1).expect("get").as_ref(), Some(&first));
+        assert_eq!(log.get(9).expect("get"), None);
+        let ids = |q: ListQuery| -> Vec<u64> {
+            log.list(&q).expect("list").iter().map(|r| r.id).collect()
+        };
+        assert_eq!(ids(ListQuery::default()), [5, 4, 3, 2, 1]);
+        let since = ListQuery {
+            since: Some(3),
+            ..ListQuery::default()
+        };
+        assert_eq!(ids(since), [5, 4]);
+        let page = ListQuery {
+            before: Some(4),
+            limit: 2,
+            ..ListQuery::default()
+        };
+        assert_eq!(ids(page), [3, 2]);
+        let code = ListQuery {
+            code: Some("B".into()),
+            ..ListQuery::default()
+        };
+        assert_eq!(ids(code), [4, 2]);
+        let after: Vec<u64> = log
+            .after(2, 2)
+            .expect("after")
+            .iter()
+            .map(|r| r.id)
+            .collect();
+        assert_eq!(after, [3, 4]);
+        assert_eq!(log.photo(1).expect("photo"), Some(vec![1; 1000]));
+        assert_eq!(log.photo(3).expect("photo"), None);
+        assert_eq!(log.annotated(2).expect("annotated"), Some(vec![2; 500]));
+        assert_eq!(log.latest().expect("latest").map(|r| r.id), Some(5));
+        assert_eq!(log.cursor("mqtt").expect("cursor"), 0);
+        log.set_cursor("mqtt", 4).expect("cursor");
+        assert_eq!(log.cursor("mqtt").expect("cursor"), 4);
+        drop(log);
+        let report = verify(&path).expect("verify");
+        assert_eq!(report.first_altered, None);
+        assert_eq!(report.records, 5);
+        assert_eq!(report.pictures_checked, 8);
+        let reopened = ResultsLog::open(&path).expect("reopen");
+        assert_eq!(reopened.newest(), 5);
+        assert_eq!(reopened.append(new(6, "C", false)).expect("append").id, 6);
+    }
+
+    #[test]
+    fn records_refuse_changes_and_verify_names_the_altered_one() {
+        let dir = ScratchDir::new("results-log-altered");
+        let path = dir.path().join("results.sqlite");
+        let log = ResultsLog::open(&path).expect("open");
+        for n in 1..=4 {
+            log.append(new(n, "A", true)).expect("append");
+        }
+        drop(log);
+        let conn = Connection::open(&path).expect("sqlite");
+        let refused = conn.execute("UPDATE records SET hash = 'x' WHERE id = 2", []);
+        assert!(refused.is_err(), "an UPDATE went through");
+        assert!(
+            conn.execute("DELETE FROM records WHERE id = 4", [])
+                .is_err()
+        );
+        conn.execute_batch(
+            "DROP TRIGGER records_no_update;
+             UPDATE records SET body = json_set(body, '$.measurement.length_mm', 299.0) WHERE id = 3",
+        )
+        .expect("by hand");
+        drop(conn);
+        let report = verify(&path).expect("verify");
+        let altered = report.first_altered.expect("found");
+        assert_eq!(altered.id, 3, "{altered:?}");
+        assert_eq!(report.records, 2);
+    }
+
+    #[test]
+    fn retention_prunes_pictures_first_and_the_chain_still_verifies() {
+        let dir = ScratchDir::new("results-log-retention");
+        let path = dir.path().join("results.sqlite");
+        let retention = Retention {
+            keep_pictures: Some(2),
+            max_bytes: None,
+        };
+        let log = ResultsLog::open_with(&path, retention).expect("open");
+        for n in 1..=5 {
+            log.append(new(n, "A", true)).expect("append");
+        }
+        let kept: Vec<bool> = (1..=5)
+            .map(|id| log.get(id).expect("get").expect("there").has_photo)
+            .collect();
+        assert_eq!(kept, [false, false, false, true, true]);
+        let bodies = log.content_bytes().expect("bytes") - 2 * 1500;
+        drop(log);
+        let report = verify(&path).expect("verify");
+        assert_eq!(report.first_altered, None);
+        assert_eq!((report.pictures_pruned, report.pictures_checked), (6, 4));
+        // A byte limit that holds the records and one record's pictures.
+        let retention = Retention {
+            keep_pictures: None,
+            max_bytes: Some(bodies + 1600),
+        };
+        let log = ResultsLog::open_with(&path, retention).expect("open");
+        assert!(!log.get(4).expect("get").expect("there").has_photo);
+        assert!(log.get(5).expect("get").expect("there").has_photo);
+        assert!(!log.over_limit());
+        // Below the records themselves: every picture goes, every record stays.
+        let retention = Retention {
+            keep_pictures: None,
+            max_bytes: Some(10),
+        };
+        drop(log);
+        let log = ResultsLog::open_with(&path, retention).expect("open");
+        assert!(log.over_limit());
+        log.append(new(6, "A", true)).expect("append");
+        assert_eq!(log.list(&ListQuery::default()).expect("list").len(), 6);
+        assert!(!log.get(6).expect("get").expect("there").has_photo);
+        drop(log);
+        assert_eq!(verify(&path).expect("verify").first_altered, None);
+    }
+}

@@ -1,0 +1,457 @@
+//! One entry of the results log: what a measurement path hands the log ([`NewRecord`]),
+//! what the log keeps and serves ([`Record`]), and the chain's encoding: the canonical
+//! bytes a record's SHA-256 is taken over (docs/station.md).
+
+use std::fmt;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use geometry::Transformation;
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+use sha2::{Digest as _, Sha256};
+
+/// The `prev_hash` of the first record: 64 zeros.
+pub const GENESIS: &str = "0000000000000000000000000000000000000000000000000000000000000000";
+
+/// What the hashed bytes of a record start with: the encoding's name and version.
+const DOMAIN: &[u8] = b"coapcam-record-v1\n";
+
+/// Fields of a record's JSON that are not hashed: the hash itself, and whether the
+/// pictures are still kept (retention prunes them; their SHA-256s stay hashed).
+const UNHASHED: [&str; 3] = ["hash", "has_photo", "has_annotated"];
+
+/// What made a measurement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Trigger {
+    /// The station itself: a parcel was placed and stood still (`serve --auto-measure`).
+    Auto,
+    /// A client's `POST /cams/dimensions`.
+    Request,
+}
+
+impl Trigger {
+    /// `auto` or `request`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Request => "request",
+        }
+    }
+}
+
+/// A camera that took part in a measurement, and where it stood.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraPose {
+    /// The camera's serial number.
+    pub serial: String,
+    /// Its 3d-transformation document at the time of the measurement.
+    pub transformation: Transformation,
+}
+
+/// A measurement to record: what a measurement path hands [`super::log::ResultsLog::append`].
+#[derive(Debug, Clone)]
+pub struct NewRecord {
+    /// When it was measured.
+    pub time: UtcTime,
+    /// The station's name (`serve --station-name`).
+    pub station: String,
+    /// What made it.
+    pub trigger: Trigger,
+    /// The measurement's document (the dimensions, volume, volumetric weight with its
+    /// divisor, codes, warnings, as `POST /cams/dimensions` answers it).
+    pub measurement: Value,
+    /// Each camera's serial and 3d-transformation.
+    pub cameras: Vec<CameraPose>,
+    /// The software's version (`coapcam` crate version).
+    pub version: String,
+    /// The photo, JPEG.
+    pub photo_jpeg: Option<Vec<u8>>,
+    /// The annotated picture, PNG.
+    pub annotated_png: Option<Vec<u8>>,
+}
+
+impl NewRecord {
+    /// The software version this build records.
+    pub const VERSION: &'static str = env!("CARGO_PKG_VERSION");
+}
+
+/// A recorded measurement, as the log keeps it and as `/station/measurements`, MQTT and
+/// `coapcam results` give it (JSON or CBOR, pictures by their SHA-256 only).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Record {
+    /// Monotonic id: 1 for the first record, one more for each next.
+    pub id: u64,
+    /// When it was measured.
+    pub time: UtcTime,
+    /// The station's name.
+    pub station: String,
+    /// What made it.
+    pub trigger: Trigger,
+    /// The measurement's document.
+    pub measurement: Value,
+    /// Each camera's serial and 3d-transformation.
+    pub cameras: Vec<CameraPose>,
+    /// The software's version.
+    pub version: String,
+    /// SHA-256 (hex) of the photo (JPEG), if one was taken; kept after the photo is
+    /// pruned.
+    pub photo_sha256: Option<String>,
+    /// SHA-256 (hex) of the annotated picture (PNG), if one was made.
+    pub annotated_sha256: Option<String>,
+    /// The previous record's `hash` ([`GENESIS`] for the first).
+    pub prev_hash: String,
+    /// SHA-256 (hex) of this record's canonical bytes ([`Record::compute_hash`]).
+    pub hash: String,
+    /// Whether the photo is still kept (not hashed: retention prunes pictures).
+    #[serde(default)]
+    pub has_photo: bool,
+    /// Whether the annotated picture is still kept (not hashed).
+    #[serde(default)]
+    pub has_annotated: bool,
+}
+
+impl Record {
+    /// The record `new` becomes with `id` after `prev_hash`, its hash computed.
+    pub fn chain(new: &NewRecord, id: u64, prev_hash: &str) -> Self {
+        let mut record = Self {
+            id,
+            time: new.time,
+            station: new.station.clone(),
+            trigger: new.trigger,
+            measurement: new.measurement.clone(),
+            cameras: new.cameras.clone(),
+            version: new.version.clone(),
+            photo_sha256: new.photo_jpeg.as_deref().map(sha256_hex),
+            annotated_sha256: new.annotated_png.as_deref().map(sha256_hex),
+            prev_hash: prev_hash.to_owned(),
+            hash: String::new(),
+            has_photo: new.photo_jpeg.is_some(),
+            has_annotated: new.annotated_png.is_some(),
+        };
+        record.hash = Self::compute_hash(&record.content());
+        record
+    }
+
+    /// The hashed content: the record's JSON without `hash`, `has_photo` and
+    /// `has_annotated`.
+    pub fn content(&self) -> Value {
+        let mut v = serde_json::to_value(self).unwrap_or(Value::Null);
+        if let Value::Object(map) = &mut v {
+            for key in UNHASHED {
+                map.remove(key);
+            }
+        }
+        v
+    }
+
+    /// SHA-256 (hex) over the record-encoding tag and the canonical bytes of `content`
+    /// ([`canonical_bytes`]).
+    pub fn compute_hash(content: &Value) -> String {
+        let mut h = Sha256::new();
+        h.update(DOMAIN);
+        h.update(canonical_bytes(content));
+        hex(&h.finalize())
+    }
+
+    /// The record's content as stored: its canonical bytes.
+    pub fn stored_body(&self) -> Vec<u8> {
+        canonical_bytes(&self.content())
+    }
+
+    /// A record from its stored body, its hash and whether its pictures are kept.
+    pub fn from_stored(
+        body: &[u8],
+        hash: String,
+        has_photo: bool,
+        has_annotated: bool,
+    ) -> Result<Self, serde_json::Error> {
+        let mut v: Value = serde_json::from_slice(body)?;
+        if let Value::Object(map) = &mut v {
+            map.insert("hash".into(), hash.into());
+            map.insert("has_photo".into(), has_photo.into());
+            map.insert("has_annotated".into(), has_annotated.into());
+        }
+        serde_json::from_value(v)
+    }
+
+    /// The texts of the codes read (the measurement's `codes`), in its order.
+    pub fn code_texts(&self) -> Vec<String> {
+        self.measurement["codes"]
+            .as_array()
+            .map(|codes| {
+                codes
+                    .iter()
+                    .filter_map(|c| c["text"].as_str().map(str::to_owned))
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+}
+
+/// The canonical bytes of a JSON value: compact (no whitespace), object keys sorted by
+/// their UTF-8 bytes at every level, strings escaped and numbers written as serde_json
+/// writes them (integers as integers, other numbers in the shortest form that reads back
+/// to the same f64).
+pub fn canonical_bytes(v: &Value) -> Vec<u8> {
+    serde_json::to_vec(&sorted(v)).unwrap_or_default()
+}
+
+/// `v` with the keys of every object inserted in sorted order (serde_json's map keeps
+/// them sorted or in insertion order, depending on its features: both give sorted).
+fn sorted(v: &Value) -> Value {
+    match v {
+        Value::Object(map) => {
+            let mut keys: Vec<&String> = map.keys().collect();
+            keys.sort();
+            let mut out = Map::new();
+            for k in keys {
+                out.insert(k.clone(), sorted(&map[k]));
+            }
+            Value::Object(out)
+        }
+        Value::Array(items) => Value::Array(items.iter().map(sorted).collect()),
+        other => other.clone(),
+    }
+}
+
+/// SHA-256 of `bytes`, lower-case hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex(&Sha256::digest(bytes))
+}
+
+fn hex(bytes: &[u8]) -> String {
+    use fmt::Write as _;
+    let mut out = String::with_capacity(bytes.len() * 2);
+    for b in bytes {
+        let _ = write!(out, "{b:02x}");
+    }
+    out
+}
+
+/// A UTC time to the millisecond, written as RFC 3339 (`2026-11-26T23:17:09.123Z`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct UtcTime {
+    /// Milliseconds since the UNIX epoch.
+    pub unix_ms: i64,
+}
+
+impl UtcTime {
+    /// The system clock's time now.
+    pub fn now() -> Self {
+        let unix_ms = match SystemTime::now().duration_since(UNIX_EPOCH) {
+            Ok(d) => i64::try_from(d.as_millis()).unwrap_or(i64::MAX),
+            Err(before) => -i64::try_from(before.duration().as_millis()).unwrap_or(i64::MAX),
+        };
+        Self { unix_ms }
+    }
+
+    /// Reads `YYYY-MM-DDTHH:MM:SS[.fff]Z` (RFC 3339 in UTC; up to 9 fraction digits, kept
+    /// to the millisecond).
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let bad = || format!("{text:?} is not a UTC time as 2026-11-26T23:17:09.123Z");
+        let b = text.as_bytes();
+        if b.len() < 20 || b[4] != b'-' || b[7] != b'-' || !matches!(b[10], b'T' | b't') {
+            return Err(bad());
+        }
+        if b[13] != b':' || b[16] != b':' || !matches!(b[b.len() - 1], b'Z' | b'z') {
+            return Err(bad());
+        }
+        let num = |r: std::ops::Range<usize>| -> Result<i64, String> {
+            let s = text.get(r).ok_or_else(bad)?;
+            if !s.bytes().all(|c| c.is_ascii_digit()) {
+                return Err(bad());
+            }
+            s.parse().map_err(|_| bad())
+        };
+        let (year, month, day) = (num(0..4)?, num(5..7)?, num(8..10)?);
+        let (hour, minute, second) = (num(11..13)?, num(14..16)?, num(17..19)?);
+        let mut ms = 0;
+        let rest = &text[19..text.len() - 1];
+        if !rest.is_empty() {
+            let digits = rest.strip_prefix('.').ok_or_else(bad)?;
+            if digits.is_empty() || digits.len() > 9 || !digits.bytes().all(|c| c.is_ascii_digit())
+            {
+                return Err(bad());
+            }
+            let padded = format!("{digits:0<3}");
+            ms = padded[..3].parse::<i64>().map_err(|_| bad())?;
+        }
+        if !(1..=12).contains(&month)
+            || day < 1
+            || day > days_in_month(year, month)
+            || hour > 23
+            || minute > 59
+            || second > 59
+        {
+            return Err(bad());
+        }
+        let days = days_from_civil(year, month, day);
+        Ok(Self {
+            unix_ms: ((days * 24 + hour) * 60 + minute) * 60_000 + second * 1000 + ms,
+        })
+    }
+}
+
+impl fmt::Display for UtcTime {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let days = self.unix_ms.div_euclid(86_400_000);
+        let ms_of_day = self.unix_ms.rem_euclid(86_400_000);
+        let (y, m, d) = civil_from_days(days);
+        write!(
+            f,
+            "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}.{:03}Z",
+            ms_of_day / 3_600_000,
+            ms_of_day / 60_000 % 60,
+            ms_of_day / 1000 % 60,
+            ms_of_day % 1000
+        )
+    }
+}
+
+impl Serialize for UtcTime {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> Deserialize<'de> for UtcTime {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let text = String::deserialize(d)?;
+        Self::parse(&text).map_err(serde::de::Error::custom)
+    }
+}
+
+fn is_leap(year: i64) -> bool {
+    (year % 4 == 0 && year % 100 != 0) || year % 400 == 0
+}
+
+fn days_in_month(year: i64, month: i64) -> i64 {
+    match month {
+        2 if is_leap(year) => 29,
+        2 => 28,
+        4 | 6 | 9 | 11 => 30,
+        _ => 31,
+    }
+}
+
+/// Days since 1970-01-01 of a proleptic Gregorian date (the era arithmetic: 400-year
+/// cycles of 146097 days, years starting in March so the leap day comes last).
+fn days_from_civil(year: i64, month: i64, day: i64) -> i64 {
+    let y = if month <= 2 { year - 1 } else { year };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let mp = (month + 9) % 12;
+    let doy = (153 * mp + 2) / 5 + day - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    era * 146_097 + doe - 719_468
+}
+
+/// The date of a day count since 1970-01-01 (the inverse of [`days_from_civil`]).
+fn civil_from_days(days: i64) -> (i64, i64, i64) {
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    (year, month, day)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn utc_times_read_back_as_written() {
+        for (ms, text) in [
+            (0, "1970-01-01T00:00:00.000Z"),
+            (951_782_400_000, "2000-02-29T00:00:00.000Z"),
+            (1_795_734_229_123, "2026-11-26T23:03:49.123Z"),
+            (-1, "1969-12-31T23:59:59.999Z"),
+            (4_107_542_399_999, "2100-02-28T23:59:59.999Z"),
+        ] {
+            let t = UtcTime { unix_ms: ms };
+            assert_eq!(t.to_string(), text);
+            assert_eq!(UtcTime::parse(text), Ok(t));
+        }
+        assert_eq!(
+            UtcTime::parse("2026-11-26T23:03:49Z").map(|t| t.unix_ms),
+            Ok(1_795_734_229_000)
+        );
+        assert_eq!(
+            UtcTime::parse("2026-11-26T23:03:49.12345Z").map(|t| t.unix_ms),
+            Ok(1_795_734_229_123)
+        );
+        for bad in [
+            "",
+            "2026-11-26 19:43:49Z",
+            "2026-02-29T00:00:00Z",
+            "2026-11-26T24:00:00Z",
+            "2026-11-26T23:03:49.Z",
+            "2026-11-26T23:03:49+01:00",
+            "２026-11-26T19:43:49Z",
+        ] {
+            assert!(UtcTime::parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    fn new_record() -> NewRecord {
+        NewRecord {
+            time: UtcTime {
+                unix_ms: 1_795_734_229_123,
+            },
+            station: "lane-1".into(),
+            trigger: Trigger::Request,
+            measurement: serde_json::json!({
+                "parcel": "measured", "length_mm": 300.1, "width_mm": 200.0,
+                "codes": [{"kind": "qr", "text": "PKG-1", "cameras": ["1"]}],
+            }),
+            cameras: vec![CameraPose {
+                serial: "840412060746".into(),
+                transformation: Transformation::identity(),
+            }],
+            version: NewRecord::VERSION.into(),
+            photo_jpeg: Some(vec![1, 2, 3]),
+            annotated_png: None,
+        }
+    }
+
+    #[test]
+    fn the_hash_covers_the_content_and_not_the_pictures_kept() {
+        let r = Record::chain(&new_record(), 1, GENESIS);
+        assert_eq!(r.hash.len(), 64);
+        assert_eq!(
+            r.photo_sha256.as_deref(),
+            Some(sha256_hex(&[1, 2, 3]).as_str())
+        );
+        assert_eq!(r.annotated_sha256, None);
+        assert_eq!(Record::compute_hash(&r.content()), r.hash);
+        let mut pruned = r.clone();
+        pruned.has_photo = false;
+        assert_eq!(Record::compute_hash(&pruned.content()), r.hash);
+        let mut altered = r.clone();
+        altered.measurement["length_mm"] = 300.2.into();
+        assert_ne!(Record::compute_hash(&altered.content()), r.hash);
+        let next = Record::chain(&new_record(), 2, &r.hash);
+        assert_ne!(next.hash, r.hash);
+        let body = r.stored_body();
+        let back = Record::from_stored(&body, r.hash.clone(), true, false).expect("reads");
+        assert_eq!(back, r);
+        assert_eq!(back.code_texts(), ["PKG-1"]);
+    }
+
+    #[test]
+    fn canonical_bytes_sort_keys_at_every_level_and_have_no_whitespace() {
+        let v: Value =
+            serde_json::from_str(r#"{ "b": 1, "a": {"z": [ {"y": 2, "x": 1.5} ], "c": null} }"#)
+                .expect("json");
+        assert_eq!(
+            canonical_bytes(&v),
+            br#"{"a":{"c":null,"z":[{"x":1.5,"y":2}]},"b":1}"#
+        );
+    }
+}
