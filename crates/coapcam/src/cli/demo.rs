@@ -15,7 +15,7 @@ use rgbd::Scene;
 use super::{Exit, out, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::{
-    self, FLOOR_CUT_M, Measurement, Source, prepare_cameras, truth, yaw_difference,
+    self, CloudMeasurement, FLOOR_CUT_M, Source, prepare_cameras, truth, yaw_difference,
 };
 use coapcam::client::{annotate, codes};
 use coapcam::report::{Billing, describe};
@@ -156,7 +156,7 @@ async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Res
 }
 
 /// The measurement of `d` next to the truth, as a table.
-fn report(m: &Measurement, d: &Dimensions, truth: Option<[f64; 4]>) -> String {
+fn report(m: &CloudMeasurement, d: &Dimensions, truth: Option<[f64; 4]>) -> String {
     let billing = Billing::default();
     let measured = [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg];
     let names = ["length mm", "width mm", "height mm", "yaw deg"];

@@ -13,7 +13,7 @@ use coap_net::Uri;
 
 use coapcam::client::measure::{FLOOR_CUT_M, Source, measure_once, prepare_cameras};
 use coapcam::client::{CamClient, annotate, codes};
-use coapcam::report::{self, Billing, EdgeQuery, Parcel};
+use coapcam::report::{self, Billing, EdgeQuery, Measurement, Parcel};
 
 use super::{DimensionArgs, Exit, TransmissionArgs, outln};
 
@@ -173,63 +173,50 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
                     client.server()
                 );
             }
-            measured.map(|(mut doc, bytes)| {
-                let cameras = doc["cameras"].as_array().map_or(0, Vec::len);
-                doc["servers"] = vec![client.server().to_string(); cameras].into();
-                doc["cycle_ms"] = report::ms(started.elapsed()).into();
-                doc["received_bytes"] = bytes.into();
-                doc
+            measured.map(|(mut m, bytes)| {
+                m.servers = vec![client.server(); m.cameras.len()];
+                m.cycle_ms = Some(report::ms(started.elapsed()));
+                m.received_bytes = Some(bytes as u64);
+                m
             })
         }
         _ => None,
     };
     // Servers of a group that failed: their cameras are missing (exit status 6).
-    let (mut doc, mut missing) = match edge {
-        Some(doc) => (doc, false),
+    let (mut m, mut missing) = match edge {
+        Some(m) => (m, false),
         None => measure_here(&client, &source, &args, &billing).await?,
     };
-    let mut warnings: Vec<String> = doc["warnings"]
-        .as_array()
-        .map(|a| {
-            a.iter()
-                .filter_map(|w| w.as_str().map(str::to_owned))
-                .collect()
-        })
-        .unwrap_or_default();
     if let Source::Group {
         group,
         expect: Some(expected),
         ..
     } = &source
     {
-        let answered = doc["servers"].as_array().map_or(0, |servers| {
-            let distinct: BTreeSet<&str> = servers.iter().filter_map(|s| s.as_str()).collect();
-            distinct.len()
-        });
+        let answered = m.servers.iter().collect::<BTreeSet<_>>().len();
         if answered < *expected {
             missing = true;
-            warnings.push(format!(
+            m.warnings.push(format!(
                 "{answered} of the {expected} expected servers of the group {group} answered"
             ));
         }
     }
-    for w in &warnings {
+    for w in &m.warnings {
         eprintln!("coapcam: warning: {w}");
     }
-    doc["warnings"] = warnings.clone().into();
     if args.json {
-        outln!("{doc}");
+        outln!("{}", m.to_json()?);
     } else {
-        outln!("{}", report::text(&doc));
+        outln!("{}", m.text());
     }
-    let parcel = Parcel::from_document(&doc)?;
+    let parcel = m.parcel();
     if let (Some(path), Parcel::Measured(dimensions)) = (&args.annotate, &parcel) {
-        let (server, sn) = doc["servers"][0]
-            .as_str()
-            .and_then(|s| s.parse::<SocketAddr>().ok())
-            .zip(doc["cameras"][0].as_str())
+        let (server, sn) = m
+            .servers
+            .first()
+            .zip(m.cameras.first())
             .context("no camera to take the color image from")?;
-        let one = CamClient::unicast(&client, server);
+        let one = CamClient::unicast(&client, *server);
         annotate::from_server(&one, sn, dimensions, path).await?;
         eprintln!("coapcam: wrote {}", path.display());
     }
@@ -242,26 +229,23 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     })
 }
 
-/// Grabs the clouds, measures them here, and reads the codes if asked: the document of
-/// `measure --json`, and whether servers of a group failed (their cameras are missing).
+/// Grabs the clouds, measures them here, and reads the codes if asked: the measurement,
+/// and whether servers of a group failed (their cameras are missing).
 async fn measure_here(
     client: &CamClient,
     source: &Source,
     args: &MeasureArgs,
     billing: &Billing,
-) -> anyhow::Result<(serde_json::Value, bool)> {
-    let m = measure_once(client, source, &args.dimension.config()).await?;
-    let mut doc = m.to_json(billing);
-    let missing = !m.grabbed.failed.is_empty();
+) -> anyhow::Result<(Measurement, bool)> {
+    let here = measure_once(client, source, &args.dimension.config()).await?;
+    let mut m = here.report(billing);
+    let missing = !here.grabbed.failed.is_empty();
     if args.codes {
         let started = Instant::now();
-        let codes = codes::read_cameras(client, &m.grabbed.cameras).await?;
-        let fields = report::codes_fields(&codes, started.elapsed());
-        if let Some(d) = doc.as_object_mut() {
-            d.extend(fields);
-        }
+        let codes = codes::read_cameras(client, &here.grabbed.cameras).await?;
+        m.set_codes(codes, started.elapsed());
     }
-    Ok((doc, missing))
+    Ok((m, missing))
 }
 
 /// `224.0.1.187`, `[ff02::fd]`, or a full `coap://group:port` URI; port 5683 by default.

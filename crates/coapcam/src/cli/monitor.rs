@@ -14,8 +14,8 @@ use coap::{Code, ContentFormat, OptionNumber, Response};
 use geometry::DimensionConfig;
 
 use coapcam::client::CamClient;
-use coapcam::client::measure::{self, Measurement, Source};
-use coapcam::report::{Billing, Parcel};
+use coapcam::client::measure::{self, CloudMeasurement, Source};
+use coapcam::report::{Billing, Measurement, Parcel};
 use coapcam::repr::Stream;
 
 use super::{DimensionArgs, Exit, TransmissionArgs, error_text, exit_status, out, outln};
@@ -275,12 +275,26 @@ impl Summary {
     }
 }
 
+/// A line of `--json` for a request that succeeded: with `--measure` the measurement's
+/// fields, then the request's.
+#[derive(serde::Serialize)]
+struct Line {
+    #[serde(flatten)]
+    measurement: Option<Measurement>,
+    n: u64,
+    at_unix_ms: u64,
+    ok: bool,
+    received_bytes: usize,
+    time_ms: f64,
+    mean_ms: f64,
+}
+
 /// What one request brought.
 struct Success {
     bytes: usize,
     /// The time the statistics count.
     time: Duration,
-    measurement: Option<Measurement>,
+    measurement: Option<CloudMeasurement>,
 }
 
 /// What `monitor` does, resolved once at the start.
@@ -363,17 +377,21 @@ impl Report {
                 self.stats.record(s.time);
                 let mean = self.stats.mean().unwrap_or(s.time);
                 if self.json {
-                    let mut line = s
-                        .measurement
-                        .as_ref()
-                        .map_or_else(|| serde_json::json!({}), |m| m.to_json(&Billing::default()));
-                    line["n"] = self.seen.into();
-                    line["at_unix_ms"] = unix_ms.into();
-                    line["ok"] = true.into();
-                    line["received_bytes"] = s.bytes.into();
-                    line["time_ms"] = millis(s.time).into();
-                    line["mean_ms"] = millis(mean).into();
-                    outln!("{line}");
+                    let measurement = s.measurement.as_ref().map(|m| Measurement {
+                        // The line's own.
+                        received_bytes: None,
+                        ..m.report(&Billing::default())
+                    });
+                    let line = Line {
+                        measurement,
+                        n: self.seen,
+                        at_unix_ms: unix_ms,
+                        ok: true,
+                        received_bytes: s.bytes,
+                        time_ms: millis(s.time),
+                        mean_ms: millis(mean),
+                    };
+                    outln!("{}", serde_json::to_string(&line)?);
                 } else {
                     let mut line = format!(
                         "#{:<4} {}  {:>12} B  {:>10.1} ms  mean {:.1} ms",

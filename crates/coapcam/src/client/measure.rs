@@ -13,7 +13,7 @@ use geometry::{DimensionConfig, Dimensions, PointCloud};
 use rgbd::Scene;
 
 use super::{CamClient, NoAnswer, check, cloud_of};
-use crate::report::{self, Billing, Parcel};
+use crate::report::{self, Billing, Measurement, Parcel};
 
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
@@ -48,9 +48,10 @@ pub struct Grabbed {
     pub bytes: usize,
 }
 
-/// One measurement with its provenance and timing.
+/// One measurement made here from the clouds, with the clouds, their provenance and the
+/// timing ([`CloudMeasurement::report`] is what it reports).
 #[derive(Debug)]
-pub struct Measurement {
+pub struct CloudMeasurement {
     /// The parcel's dimensions, or that nothing is on the table.
     pub parcel: Parcel,
     /// The clouds it was measured from.
@@ -61,7 +62,7 @@ pub struct Measurement {
     pub grab: Duration,
 }
 
-impl Measurement {
+impl CloudMeasurement {
     /// The servers that sent clouds, each once, in the order they answered.
     pub fn servers(&self) -> Vec<SocketAddr> {
         let mut servers: Vec<SocketAddr> = Vec::new();
@@ -81,30 +82,28 @@ impl Measurement {
         }
     }
 
-    /// The document of `measure --json` (docs/design.md §6): the parcel's fields
-    /// ([`Parcel::fields`]) and where the clouds came from. Units are in the names;
-    /// instants are `_unix_us`.
-    pub fn to_json(&self, billing: &Billing) -> serde_json::Value {
+    /// What it reports (the document of `measure --json`, docs/design.md §6): the
+    /// parcel as `billing` says and where the clouds came from.
+    pub fn report(&self, billing: &Billing) -> Measurement {
         let g = &self.grabbed;
-        let mut doc = self.parcel.fields(billing);
         let cameras = g.cameras.iter().map(|(_, sn)| sn.clone()).collect();
-        let frames = g.timestamps_us.clone();
-        doc.extend(report::provenance(
+        let mut m = Measurement::new(
+            &self.parcel,
+            billing,
             g.cloud.len(),
             cameras,
-            frames,
+            g.timestamps_us.clone(),
             self.grab,
-        ));
-        let servers: Vec<String> = g.cameras.iter().map(|(s, _)| s.to_string()).collect();
-        doc.insert("servers".into(), servers.into());
-        doc.insert("cycle_ms".into(), report::ms(self.cycle).into());
-        doc.insert("received_bytes".into(), g.bytes.into());
+        );
+        m.servers = g.cameras.iter().map(|(s, _)| *s).collect();
+        m.cycle_ms = Some(report::ms(self.cycle));
+        m.received_bytes = Some(g.bytes as u64);
         // The clouds do not say which camera is uncalibrated (the thesis packet carries no
         // transform); a floor far from z = 0 shows it.
-        let mut warnings = g.failed.clone();
-        warnings.extend(report::calibration_warnings(&[], &g.cloud));
-        doc.insert("warnings".into(), warnings.into());
-        doc.into()
+        m.warnings = g.failed.clone();
+        m.warnings
+            .extend(report::calibration_warnings(&[], &g.cloud));
+        m
     }
 }
 
@@ -201,7 +200,7 @@ pub async fn measure_once(
     client: &CamClient,
     source: &Source,
     config: &DimensionConfig,
-) -> anyhow::Result<Measurement> {
+) -> anyhow::Result<CloudMeasurement> {
     let started = Instant::now();
     let grabbed = grab_clouds(client, source).await?;
     let grab = started.elapsed();
@@ -212,7 +211,7 @@ pub async fn measure_once(
     .await
     .context("the measuring task failed")?;
     let parcel = parcel.context("measuring the point cloud")?;
-    Ok(Measurement {
+    Ok(CloudMeasurement {
         parcel,
         grabbed,
         cycle: started.elapsed(),

@@ -16,7 +16,7 @@ use coap::link_format;
 use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::{Client, Psk, Uri};
 
-use crate::report::EdgeQuery;
+use crate::report::{EdgeQuery, Measurement};
 use crate::repr::packet::{self, DepthImage};
 use crate::repr::{Stream, cbor, clouds, rvl};
 
@@ -359,7 +359,7 @@ impl CamClient {
     pub async fn measure_edge(
         &self,
         query: &EdgeQuery,
-    ) -> anyhow::Result<Option<(serde_json::Value, usize)>> {
+    ) -> anyhow::Result<Option<(Measurement, usize)>> {
         let mut request = self.request(
             Code::POST,
             "/cams/dimensions",
@@ -384,12 +384,9 @@ impl CamClient {
             }
             Err(e) => return Err(e),
         };
-        let doc: serde_json::Value = ciborium::from_reader(&response.payload[..])
-            .context("the measurement from /cams/dimensions is not CBOR")?;
-        if !doc.is_object() {
-            bail!("the measurement from /cams/dimensions is not a map");
-        }
-        Ok(Some((doc, response.payload.len())))
+        let m = Measurement::from_cbor(&response.payload)
+            .context("reading the measurement from /cams/dimensions")?;
+        Ok(Some((m, response.payload.len())))
     }
 }
 

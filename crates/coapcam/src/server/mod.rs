@@ -25,7 +25,9 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
 
+use crate::report::{EdgeQuery, Measurement};
 use cams::Cams;
+pub use cams::{Busy, EdgeError};
 use files::StaticFiles;
 use group::Groups;
 pub use identities::{Identities, Role};
@@ -109,10 +111,19 @@ pub struct Station {
     changed: mpsc::UnboundedReceiver<String>,
     memberships: mpsc::UnboundedReceiver<group::MembershipChange>,
     group_interface: u32,
-    _cameras: Option<CameraTree>,
+    cameras: Option<CameraTree>,
 }
 
 impl Station {
+    /// Measures with every camera of this server, in process, as `POST /cams/dimensions`
+    /// does (and keeps it as its latest measurement); see [`SceneServer::measure_now`].
+    pub async fn measure_now(&self, query: &EdgeQuery) -> Result<Measurement, EdgeError> {
+        match &self.cameras {
+            Some(tree) => tree.cams.measure_now(query).await,
+            None => Err(EdgeError::NoCamera),
+        }
+    }
+
     /// Builds the resource tree of `config`, binds every address and joins the groups.
     pub async fn start(config: StationConfig) -> anyhow::Result<Self> {
         let router = Router::new();
@@ -165,7 +176,7 @@ impl Station {
             changed,
             memberships,
             group_interface: config.group_interface,
-            _cameras: cameras,
+            cameras,
         })
     }
 
@@ -248,7 +259,7 @@ async fn notify_changed(
 pub struct SceneServer {
     server: Arc<Server>,
     hub: Arc<CameraHub>,
-    _cams: Arc<Cams>,
+    cams: Arc<Cams>,
     notifier: JoinHandle<()>,
 }
 
@@ -274,7 +285,7 @@ impl SceneServer {
         Ok(Self {
             server,
             hub,
-            _cams: cams,
+            cams,
             notifier,
         })
     }
@@ -283,6 +294,13 @@ impl SceneServer {
     /// cameras are unplugged and plugged in).
     pub fn load(&self, scene: &Scene) -> anyhow::Result<()> {
         load_scene(&self.hub, self.server.router(), scene)
+    }
+
+    /// Measures with every camera of this server, in process, as `POST /cams/dimensions`
+    /// does: the server's edge measurement (no `servers`, `cycle_ms` or
+    /// `received_bytes`), kept as the latest (`GET /cams/dimensions` and its observers).
+    pub async fn measure_now(&self, query: &EdgeQuery) -> Result<Measurement, EdgeError> {
+        self.cams.measure_now(query).await
     }
 
     /// The address the server answers on.
@@ -391,7 +409,7 @@ fn start_cameras(
     Ok(CameraTree {
         _backend: backend,
         _hub: hub,
-        _cams: cams,
+        cams,
     })
 }
 
@@ -399,7 +417,7 @@ fn start_cameras(
 struct CameraTree {
     _backend: Option<realsense::Backend>,
     _hub: Arc<CameraHub>,
-    _cams: Arc<Cams>,
+    cams: Arc<Cams>,
 }
 
 /// `--realsense`: librealsense's cameras in the hub.

@@ -8,7 +8,10 @@ use std::fmt;
 use image::GrayImage;
 
 /// The symbology of a code.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "lowercase")]
 pub enum CodeKind {
     /// QR code (ISO/IEC 18004).
     Qr,
@@ -37,7 +40,9 @@ impl From<rgbd::scene::LabelKind> for CodeKind {
 }
 
 /// A code read from an image.
-#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[derive(
+    Debug, Clone, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize,
+)]
 pub struct Code {
     /// Symbology.
     pub kind: CodeKind,

@@ -11,7 +11,7 @@ use coapcam::client::CamClient;
 use coapcam::client::measure::{
     Source, grab_clouds, measure_once, prepare_cameras, truth, yaw_difference,
 };
-use coapcam::report::{Billing, EdgeQuery};
+use coapcam::report::{Billing, EdgeQuery, Measurement};
 use coapcam::repr::{Stream, cbor, clouds, packet, raster, rvl};
 use coapcam::server::SceneServer;
 use geometry::DimensionConfig;
@@ -248,7 +248,7 @@ fn the_server_measures_at_the_edge_as_the_client_does() {
     let state = TempDir::new("library-edge");
     let scene = Scene::default_demo();
     runtime().block_on(async {
-        let (_server, client) = start(&scene, &state).await;
+        let (server, client) = start(&scene, &state).await;
         let serials = client.cameras().await.expect("discovery");
         prepare_cameras(&client, &serials, 1.0, true)
             .await
@@ -261,11 +261,12 @@ fn the_server_measures_at_the_edge_as_the_client_does() {
             codes: true,
             ..EdgeQuery::default()
         };
-        let (doc, bytes) = client
+        let (measured, bytes) = client
             .measure_edge(&query)
             .await
             .expect("POST /cams/dimensions")
             .expect("the server offers it");
+        let doc = serde_json::to_value(&measured).expect("a document");
         assert!(bytes < 1000, "{bytes} bytes");
         let [length, width, height, _] = truth(&scene).expect("the scene has a box");
         for (key, want) in [
@@ -294,7 +295,8 @@ fn the_server_measures_at_the_edge_as_the_client_does() {
         let here = measure_once(&client, &Source::All, &DimensionConfig::default())
             .await
             .expect("measure here")
-            .to_json(&Billing::default());
+            .report(&Billing::default());
+        let here = serde_json::to_value(&here).expect("a document");
         let keys = |v: &serde_json::Value| {
             let mut k: Vec<String> = v.as_object().expect("a map").keys().cloned().collect();
             k.retain(|k| {
@@ -348,15 +350,28 @@ fn the_server_measures_at_the_edge_as_the_client_does() {
             .await
             .expect("measure again")
             .expect("offered");
-        assert!(next.get("codes").is_none(), "codes only when asked");
+        assert!(next.codes.is_none(), "codes only when asked");
         let note = tokio::time::timeout(Duration::from_secs(60), observation.next()).await;
         match note {
             Ok(Some(Ok(r))) => {
-                let noted: serde_json::Value = serde_json::from_slice(&r.payload).expect("JSON");
+                let noted = Measurement::from_json(&r.payload).expect("JSON");
                 assert_eq!(noted, next);
             }
             other => panic!("no notification after a measurement: {other:?}"),
         }
+
+        // In process, the same measurement without CoAP; it becomes the latest.
+        let local = server
+            .measure_now(&EdgeQuery::default())
+            .await
+            .expect("measured in process");
+        assert!(
+            local.servers.is_empty() && local.cycle_ms.is_none(),
+            "{local:?}"
+        );
+        assert_eq!(local.cameras, next.cameras);
+        let latest = Measurement::from_json(&get(None).await.expect("GET").payload).expect("JSON");
+        assert_eq!(latest, local);
 
         // A query it does not know is refused, naming what it takes.
         let mut request = client.request(Code::POST, "/cams/dimensions", Bytes::new(), None, None);

@@ -74,8 +74,13 @@ impl Budget {
 }
 
 /// A grab refused: what the grabs in progress hold, and the budget.
-#[derive(Debug)]
-pub(super) struct Busy {
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "the grabs in progress hold {} of this server's {} MiB for grabs; try again in {RETRY_SECS} s",
+    mib(*.used),
+    mib(*.limit)
+)]
+pub struct Busy {
     used: u64,
     limit: u64,
 }
@@ -83,14 +88,7 @@ pub(super) struct Busy {
 impl Busy {
     /// The 5.03 that refuses the grab, with Max-Age 1.
     pub(super) fn response(&self) -> Response {
-        let mut r = Response::diagnostic(
-            Code::SERVICE_UNAVAILABLE,
-            &format!(
-                "the grabs in progress hold {} of this server's {} MiB for grabs; try again in {RETRY_SECS} s",
-                mib(self.used),
-                mib(self.limit)
-            ),
-        );
+        let mut r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, &self.to_string());
         r.options.set_uint(OptionNumber::MAX_AGE, RETRY_SECS);
         r
     }

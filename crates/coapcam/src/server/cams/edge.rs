@@ -2,28 +2,69 @@
 //! grabs every camera of this server, merges the clouds in the common frame, measures the
 //! parcel and, when asked, reads the codes; the answer is the document of
 //! `measure --json` (JSON, or CBOR by Accept), a few hundred bytes instead of the clouds.
-//! `GET` (and Observe) gives the latest measurement. `Cams` serves it with these parts.
+//! `GET` (and Observe) gives the latest measurement. `Cams` serves it with these parts;
+//! `Cams::measure_now` makes one in process, and the `POST` handler wraps it.
 
 use std::hash::{Hash as _, Hasher as _};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use coap::{Code, ContentFormat, IncomingRequest, Response};
+use geometry::DimensionError;
 use rgbd::{Camera, Serial};
-use serde_json::Value;
 use tokio::task::JoinHandle;
 
+use super::budget::Busy;
 use super::config::AppConfig;
 use super::grab::{self, Frame};
-use crate::report::Seen;
+use crate::report::{Measurement, MeasurementError, Seen};
 use crate::repr::raster;
 use crate::vision::codes;
 
 /// The path of the resource.
 pub(super) const PATH: &str = "/cams/dimensions";
 
-/// The latest measurement: its document and ETag.
-pub(super) type Latest = Option<Arc<(Value, [u8; 8])>>;
+/// The latest measurement and its ETag.
+pub(super) type Latest = Option<Arc<(Measurement, [u8; 8])>>;
+
+/// Why the server could not measure.
+#[derive(Debug, thiserror::Error)]
+pub enum EdgeError {
+    /// No camera is connected.
+    #[error("no camera is connected")]
+    NoCamera,
+    /// Every camera's grab failed.
+    #[error("no camera gave a cloud: {}", .0.join("; "))]
+    NoCloud(Vec<String>),
+    /// The grabs in progress hold the memory budget.
+    #[error(transparent)]
+    Busy(#[from] Busy),
+    /// The measurement failed (its thresholds are checked by the query's ranges).
+    #[error("measuring: {0}")]
+    Measuring(#[from] DimensionError),
+    /// The measuring task panicked or was cancelled.
+    #[error("measuring task: {0}")]
+    Task(#[from] tokio::task::JoinError),
+    /// The measurement could not be encoded.
+    #[error(transparent)]
+    Encoding(#[from] MeasurementError),
+}
+
+impl EdgeError {
+    /// The answer to a `POST` that failed so: 5.03 (with Max-Age when busy) when there is
+    /// nothing to measure with yet, 5.00 otherwise.
+    pub(super) fn response(&self) -> Response {
+        match self {
+            Self::Busy(busy) => busy.response(),
+            Self::NoCamera | Self::NoCloud(_) => {
+                Response::diagnostic(Code::SERVICE_UNAVAILABLE, &self.to_string())
+            }
+            Self::Measuring(_) | Self::Task(_) | Self::Encoding(_) => {
+                Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &self.to_string())
+            }
+        }
+    }
+}
 
 /// Grabs a color image of each camera and reads the codes in it, all at once and off the
 /// executor: each code once with the cameras that read it, what failed, and how long it
@@ -77,19 +118,24 @@ pub(super) fn negotiate(request: &IncomingRequest) -> Result<ContentFormat, Resp
     }
 }
 
+/// The measurement with its ETag (a hash of its JSON document).
+pub(super) fn stored(m: Measurement) -> Result<(Measurement, [u8; 8]), MeasurementError> {
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    m.to_json()?.hash(&mut h);
+    Ok((m, h.finish().to_be_bytes()))
+}
+
 /// The document in `cf` (JSON or CBOR), with its ETag: the measurement's, distinct per
 /// format.
 pub(super) fn body(
-    stored: &(Value, [u8; 8]),
+    stored: &(Measurement, [u8; 8]),
     cf: ContentFormat,
-) -> Result<(Vec<u8>, [u8; 8]), String> {
-    let (doc, etag) = stored;
+) -> Result<(Vec<u8>, [u8; 8]), MeasurementError> {
+    let (m, etag) = stored;
     let body = if cf == ContentFormat::CBOR {
-        let mut out = Vec::new();
-        ciborium::into_writer(doc, &mut out).map_err(|e| format!("CBOR: {e}"))?;
-        out
+        m.to_cbor()?
     } else {
-        doc.to_string().into_bytes()
+        m.to_json()?.into_bytes()
     };
     let mut h = std::collections::hash_map::DefaultHasher::new();
     (etag, cf.0).hash(&mut h);

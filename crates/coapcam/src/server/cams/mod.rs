@@ -27,12 +27,14 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
-use crate::report::{self, EdgeQuery, Parcel};
+use crate::report::{self, EdgeQuery, Measurement, Parcel};
 use crate::repr::clouds::{self, DepthPart};
 use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
 use crate::vision::calibration::pose_transformation;
 
+pub use budget::Busy;
 use config::AppConfig;
+pub use edge::EdgeError;
 use grab::{Frame, GrabError};
 use state::StateDir;
 
@@ -127,7 +129,7 @@ impl Cams {
         &self,
         cams: &[(Serial, Arc<CamState>)],
         kinds: &[Stream],
-    ) -> Result<budget::Held, budget::Busy> {
+    ) -> Result<budget::Held, Busy> {
         let cost = cams
             .iter()
             .map(|(_, cam)| {
@@ -663,7 +665,7 @@ impl Cams {
     }
 
     /// `POST /cams/dimensions`: a new measurement with every camera of this server (see
-    /// [`edge`]).
+    /// [`Cams::measure_now`]), in the format the request accepts.
     async fn measure(&self, request: &IncomingRequest) -> Response {
         let cf = match edge::negotiate(request) {
             Ok(cf) => cf,
@@ -673,19 +675,33 @@ impl Cams {
             Ok(q) => q,
             Err(why) => return Response::diagnostic(Code::BAD_REQUEST, &why),
         };
+        // Its own measurement, not the latest: another may have ended meanwhile.
+        match self
+            .measure_now(&query)
+            .await
+            .and_then(|m| Ok(edge::stored(m)?))
+        {
+            Ok(stored) => measurement(&stored, cf),
+            Err(e) => e.response(),
+        }
+    }
+
+    /// Measures with every camera of this server, as `query` asks ([`edge`]): grabs and
+    /// merges their clouds (reading the codes from new color images meanwhile when asked),
+    /// measures the largest parcel, and keeps the result as the latest measurement
+    /// (`GET /cams/dimensions`, whose observers are notified). The measurement has the
+    /// server's fields: no `servers`, `cycle_ms` or `received_bytes`.
+    pub(crate) async fn measure_now(&self, query: &EdgeQuery) -> Result<Measurement, EdgeError> {
         let cams = self.snapshot();
         if cams.is_empty() {
-            return no_cloud(&[]);
+            return Err(EdgeError::NoCamera);
         }
         let kinds: &[Stream] = if query.codes {
             &[Stream::Pointcloud, Stream::Color]
         } else {
             &[Stream::Pointcloud]
         };
-        let _held = match self.reserve(&cams, kinds) {
-            Ok(held) => held,
-            Err(busy) => return busy.response(),
-        };
+        let _held = self.reserve(&cams, kinds)?;
         let started = Instant::now();
         // The color images for the codes are grabbed and read while the clouds are.
         let codes = query.codes.then(|| {
@@ -702,52 +718,37 @@ impl Cams {
             .collect();
         let merged = self.grab_merged(cams).await;
         if merged.parts.is_empty() {
-            return no_cloud(&merged.failed);
+            return Err(EdgeError::NoCloud(merged.failed));
         }
         let grab = started.elapsed();
         let config = query.config;
-        let measured =
+        let (parcel, merged) =
             tokio::task::spawn_blocking(move || (Parcel::measure(&merged.cloud, &config), merged))
-                .await;
-        let (parcel, merged) = match measured {
-            Ok((Ok(parcel), merged)) => (parcel, merged),
-            Ok((Err(e), _)) => {
-                let why = format!("measuring: {e}");
-                return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
-            }
-            Err(e) => {
-                let why = format!("measuring task: {e}");
-                return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
-            }
-        };
-        let mut doc = parcel.fields(&query.billing);
-        let cameras = merged.serials.iter().map(ToString::to_string).collect();
-        doc.extend(report::provenance(
+                .await?;
+        let mut m = Measurement::new(
+            &parcel?,
+            &query.billing,
             merged.cloud.len(),
-            cameras,
+            merged.serials.iter().map(ToString::to_string).collect(),
             merged.frames_us,
             grab,
-        ));
-        let mut warnings = report::calibration_warnings(&uncalibrated, &merged.cloud);
-        warnings.extend(merged.failed);
+        );
+        m.warnings = report::calibration_warnings(&uncalibrated, &merged.cloud);
+        m.warnings.extend(merged.failed);
         if let Some(task) = codes {
             match task.await {
                 Ok((seen, failed, took)) => {
-                    doc.extend(report::codes_fields(&seen, took));
-                    warnings.extend(failed);
+                    m.set_codes(seen, took);
+                    m.warnings.extend(failed);
                 }
-                Err(e) => warnings.push(format!("code reading: {e}")),
+                Err(e) => m.warnings.push(format!("code reading: {e}")),
             }
         }
-        doc.insert("measure_ms".into(), report::ms(started.elapsed()).into());
-        doc.insert("warnings".into(), warnings.into());
-        let doc = serde_json::Value::Object(doc);
-        let mut h = std::collections::hash_map::DefaultHasher::new();
-        doc.to_string().hash(&mut h);
-        let stored = Arc::new((doc, h.finish().to_be_bytes()));
-        *lock(&self.measured) = Some(stored.clone());
+        m.measure_ms = Some(report::ms(started.elapsed()));
+        let stored = Arc::new(edge::stored(m.clone())?);
+        *lock(&self.measured) = Some(stored);
         let _ = self.changed.send(edge::PATH.to_string());
-        measurement(&stored, cf)
+        Ok(m)
     }
 
     /// `GET /cams/dimensions`: the latest measurement.
@@ -774,10 +775,10 @@ fn no_cloud(failed: &[String]) -> Response {
 }
 
 /// A measurement's document as the answer in `cf`.
-fn measurement(stored: &(serde_json::Value, [u8; 8]), cf: ContentFormat) -> Response {
+fn measurement(stored: &(Measurement, [u8; 8]), cf: ContentFormat) -> Response {
     match edge::body(stored, cf) {
         Ok((body, etag)) => content(body, cf, etag),
-        Err(why) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why),
+        Err(why) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why.to_string()),
     }
 }
 

@@ -1,15 +1,19 @@
 //! What a measurement reports, wherever it was made (the client's `measure`, or the
-//! server's `/cams/dimensions`): the parcel, its billing and the codes seen, as one JSON
-//! document (docs/design.md §6), and the text `measure` prints from that document.
+//! server's `/cams/dimensions`): one typed [`Measurement`] (`measurement.rs`: its
+//! document, docs/design.md §6, and the text `measure` prints), the parcel, its billing,
+//! the codes seen and the query of `/cams/dimensions`.
+
+mod measurement;
 
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use anyhow::Context as _;
 use geometry::{DimensionConfig, DimensionError, Dimensions, PointCloud};
-use serde_json::{Map, Value, json};
+use serde::{Deserialize, Serialize};
 
-use crate::vision::codes::{Code, CodeKind};
+use crate::vision::codes::Code;
+
+pub use measurement::{Found, Measurement, MeasurementError, Reported, VERSION};
 
 /// How a measurement is reported to an integrator's billing: the volumetric divisor and
 /// the scale division the dimensions are rounded up to.
@@ -74,82 +78,6 @@ impl Parcel {
             Ok(d) => Ok(Self::Measured(d)),
             Err(DimensionError::TooFewPoints { found, .. }) => Ok(Self::Nothing { points: found }),
             Err(e) => Err(e),
-        }
-    }
-
-    /// The parcel's fields of the document: `"parcel": "measured"` with the dimensions as
-    /// `billing` reports them, or `"parcel": "nothing"`; units are in the names.
-    pub fn fields(&self, billing: &Billing) -> Map<String, Value> {
-        let mut out = Map::new();
-        match self {
-            Self::Measured(d) => {
-                let [l, w, h] = billing.dimensions_mm(d);
-                let milli = |v: f64| (v * 1000.0).round() / 1000.0;
-                out.insert("parcel".into(), "measured".into());
-                out.insert("length_mm".into(), l.into());
-                out.insert("width_mm".into(), w.into());
-                out.insert("height_mm".into(), h.into());
-                out.insert("division_mm".into(), billing.division_mm.into());
-                out.insert(
-                    "yaw_deg".into(),
-                    ((d.yaw_deg * 100.0).round() / 100.0).into(),
-                );
-                // To 0.1 mm, as the dimensions.
-                let corners = d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4));
-                out.insert("corners_m".into(), json!(corners));
-                out.insert("volume_l".into(), milli(billing.volume_l(d)).into());
-                out.insert(
-                    "volumetric_weight_kg".into(),
-                    milli(billing.volumetric_weight_kg(d)).into(),
-                );
-                out.insert(
-                    "volumetric_divisor_cm3_per_kg".into(),
-                    billing.divisor_cm3_per_kg.into(),
-                );
-                out.insert("parcel_points".into(), d.points.into());
-            }
-            Self::Nothing { points } => {
-                out.insert("parcel".into(), "nothing".into());
-                out.insert("parcel_points".into(), (*points).into());
-            }
-        }
-        out
-    }
-
-    /// The parcel a document describes (the dimensions as reported, corners and yaw).
-    pub fn from_document(doc: &Value) -> anyhow::Result<Self> {
-        let number = |key: &str| {
-            doc[key]
-                .as_f64()
-                .with_context(|| format!("the measurement has no number {key}"))
-        };
-        let points = doc["parcel_points"]
-            .as_u64()
-            .and_then(|n| usize::try_from(n).ok())
-            .context("the measurement has no parcel_points")?;
-        match doc["parcel"].as_str() {
-            Some("measured") => {
-                let corners_m: [[f64; 2]; 4] = serde_json::from_value(doc["corners_m"].clone())
-                    .context("the measurement's corners_m are not four [x, y]")?;
-                let (length_mm, width_mm, height_mm) = (
-                    number("length_mm")?,
-                    number("width_mm")?,
-                    number("height_mm")?,
-                );
-                Ok(Self::Measured(Dimensions {
-                    length_mm,
-                    width_mm,
-                    height_mm,
-                    yaw_deg: number("yaw_deg")?,
-                    corners_m,
-                    volume_l: length_mm * width_mm * height_mm / 1e6,
-                    points,
-                }))
-            }
-            Some("nothing") => Ok(Self::Nothing { points }),
-            other => {
-                anyhow::bail!("the measurement's parcel is {other:?}, not measured or nothing")
-            }
         }
     }
 }
@@ -237,10 +165,11 @@ impl EdgeQuery {
     ];
 }
 
-/// A code and the cameras that read it.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// A code and the cameras that read it (in the document: `kind`, `text`, `cameras`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Seen {
     /// The code.
+    #[serde(flatten)]
     pub code: Code,
     /// Serials of the cameras whose image it was read from.
     pub cameras: Vec<String>,
@@ -262,33 +191,6 @@ impl Seen {
             })
             .collect()
     }
-
-    /// The entry of the document's `codes` array.
-    pub fn to_json(&self) -> Value {
-        json!({
-            "kind": self.code.kind.name(),
-            "text": self.code.text,
-            "cameras": self.cameras,
-        })
-    }
-
-    fn from_json(entry: &Value) -> Option<Self> {
-        let kind = match entry["kind"].as_str()? {
-            "qr" => CodeKind::Qr,
-            "code128" => CodeKind::Code128,
-            _ => return None,
-        };
-        let text = entry["text"].as_str()?.to_owned();
-        let cameras = entry["cameras"]
-            .as_array()?
-            .iter()
-            .map(|c| c.as_str().map(str::to_owned))
-            .collect::<Option<_>>()?;
-        Some(Self {
-            code: Code { kind, text },
-            cameras,
-        })
-    }
 }
 
 /// The codes one line of text names: `qr "PKG-0001" (840412060746, ...)`, or `none`.
@@ -301,80 +203,6 @@ pub fn describe(seen: &[Seen]) -> String {
         .map(|s| format!("{} ({})", s.code, s.cameras.join(", ")))
         .collect();
     each.join(", ")
-}
-
-/// The text `measure` prints for its document (the object `measure --json` prints).
-pub fn text(doc: &Value) -> String {
-    let f = |key: &str| doc[key].as_f64().unwrap_or(f64::NAN);
-    let serials: Vec<&str> = doc["cameras"]
-        .as_array()
-        .map(|a| a.iter().filter_map(Value::as_str).collect())
-        .unwrap_or_default();
-    let timing = if doc["measure_ms"].is_number() {
-        format!("measured on the server in {:.0} ms", f("measure_ms"))
-    } else {
-        format!("grab and transfer {:.0} ms", f("grab_ms"))
-    };
-    let received = match doc["received_bytes"].as_u64() {
-        Some(n) if n < 100_000 => format!("{n} bytes"),
-        _ => format!("{:.2} MB", f("received_bytes") / 1e6),
-    };
-    let provenance = format!(
-        "{} points from {} camera(s): {}\n\
-         cycle {:.0} ms ({timing}), {received} received",
-        doc["cloud_points"],
-        serials.len(),
-        serials.join(", "),
-        f("cycle_ms"),
-    );
-    let mut out = if doc["parcel"] == "measured" {
-        let rounded = doc["division_mm"]
-            .as_f64()
-            .map_or_else(String::new, |s| format!(" (rounded up to {s} mm)"));
-        let corners: Vec<String> = doc["corners_m"]
-            .as_array()
-            .map(|a| {
-                a.iter()
-                    .map(|c| {
-                        format!(
-                            "({:.3}, {:.3})",
-                            c[0].as_f64().unwrap_or(f64::NAN),
-                            c[1].as_f64().unwrap_or(f64::NAN)
-                        )
-                    })
-                    .collect()
-            })
-            .unwrap_or_default();
-        format!(
-            "length {:.1} mm  width {:.1} mm  height {:.1} mm{rounded}\n\
-             yaw {:.1} deg  volume {:.2} l  volumetric weight {:.2} kg (divisor {} cm3/kg)\n\
-             footprint corners (m): {}\n\
-             parcel {} points of {provenance}",
-            f("length_mm"),
-            f("width_mm"),
-            f("height_mm"),
-            f("yaw_deg"),
-            f("volume_l"),
-            f("volumetric_weight_kg"),
-            f("volumetric_divisor_cm3_per_kg"),
-            corners.join(" "),
-            doc["parcel_points"],
-        )
-    } else {
-        format!(
-            "nothing on the table (the largest object above the floor has {} points)\n{provenance}",
-            doc["parcel_points"]
-        )
-    };
-    if let Some(codes) = doc["codes"].as_array() {
-        let seen: Vec<Seen> = codes.iter().filter_map(Seen::from_json).collect();
-        out += &format!(
-            "\ncodes: {} (grabbed and read in {:.0} ms)",
-            describe(&seen),
-            f("codes_ms")
-        );
-    }
-    out
 }
 
 /// How far the lowest points of a calibrated cloud may lie from z = 0 (the floor of the
@@ -405,31 +233,6 @@ pub fn calibration_warnings(uncalibrated: &[String], cloud: &PointCloud) -> Vec<
             ));
         }
     }
-    out
-}
-
-/// The document's fields that say what was measured, wherever: the points of the merged
-/// cloud, the cameras, their frames' times (microseconds since the UNIX epoch) and how
-/// long grabbing them took.
-pub fn provenance(
-    cloud_points: usize,
-    cameras: Vec<String>,
-    frames_unix_us: Vec<u64>,
-    grab: Duration,
-) -> Map<String, Value> {
-    let mut out = Map::new();
-    out.insert("cloud_points".into(), cloud_points.into());
-    out.insert("cameras".into(), cameras.into());
-    out.insert("frames_unix_us".into(), frames_unix_us.into());
-    out.insert("grab_ms".into(), ms(grab).into());
-    out
-}
-
-/// The document's fields of the codes read, in `took`: `codes` and `codes_ms`.
-pub fn codes_fields(seen: &[Seen], took: Duration) -> Map<String, Value> {
-    let mut out = Map::new();
-    out.insert("codes".into(), seen.iter().map(Seen::to_json).collect());
-    out.insert("codes_ms".into(), ms(took).into());
     out
 }
 

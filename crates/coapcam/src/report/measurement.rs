@@ -1,0 +1,461 @@
+//! The measurement report as one typed value, [`Measurement`]: what the server's edge
+//! measurement answers, what `measure --json` prints, what the text output is rendered
+//! from, and what a results log keeps. Its document (JSON, or CBOR by Accept) is the
+//! serde form of this type; the field names carry their units (docs/design.md §6).
+//!
+//! Versions: the document carries `"v"` ([`VERSION`]); a document without it is version 1
+//! (the servers before the field). Fields are only ever added, each optional for a
+//! reader (missing means "not known"), and a reader ignores the fields it does not know,
+//! so an addition keeps the version. Removing a field or changing what one means
+//! increments it, and a reader refuses a version newer than its own
+//! ([`MeasurementError::Version`]).
+
+use std::fmt::Write as _;
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use geometry::Dimensions;
+use serde::{Deserialize, Serialize};
+
+use super::{Billing, Parcel, Seen, describe, ms};
+
+/// The version of the document this program writes and the newest it reads.
+pub const VERSION: u32 = 1;
+
+/// One measurement, wherever it was made (the client from clouds, or the server at the
+/// edge), with what it was made from and how long it took.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Measurement {
+    /// The document's version ([`VERSION`]; 1 when absent).
+    #[serde(default = "first_version")]
+    pub v: u32,
+    /// `"parcel": "measured"` with its dimensions, or `"parcel": "nothing"`.
+    #[serde(flatten)]
+    pub parcel: Found,
+    /// Points of the parcel (the largest object above the floor; 0 when there is none).
+    pub parcel_points: u64,
+    /// Points of the merged cloud measured.
+    pub cloud_points: u64,
+    /// Serials of the cameras in the cloud, in merge order.
+    pub cameras: Vec<String>,
+    /// The server of each camera, in the order of `cameras` (the client fills it; the
+    /// server leaves it out).
+    #[serde(default, skip_serializing_if = "Vec::is_empty", with = "addresses")]
+    pub servers: Vec<SocketAddr>,
+    /// The frames' times, microseconds since the UNIX epoch (one per cloud).
+    pub frames_unix_us: Vec<u64>,
+    /// Until the last cloud was grabbed (and, on the client, received), ms.
+    pub grab_ms: f64,
+    /// On the client: from the first request until the result was known, ms.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cycle_ms: Option<f64>,
+    /// On the client: bytes of clouds (or of this document) received.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub received_bytes: Option<u64>,
+    /// At the edge: the server's time from the request to the answer, ms.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measure_ms: Option<f64>,
+    /// The codes read, each once with the cameras that read it, when they were asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub codes: Option<Vec<Seen>>,
+    /// How long grabbing the color images and reading the codes took, ms.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub codes_ms: Option<f64>,
+    /// What may make the result wrong or incomplete (cameras left out, uncalibrated).
+    #[serde(default)]
+    pub warnings: Vec<String>,
+}
+
+fn first_version() -> u32 {
+    1
+}
+
+/// What a measurement found on the table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "parcel", rename_all = "lowercase")]
+pub enum Found {
+    /// The largest object above the floor, measured.
+    Measured(Reported),
+    /// Nothing on the table.
+    Nothing,
+}
+
+/// A measured parcel as reported: the dimensions rounded as its [`Billing`] says.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Reported {
+    /// Longer side of the footprint, mm.
+    pub length_mm: f64,
+    /// Shorter side of the footprint, mm.
+    pub width_mm: f64,
+    /// Height above the floor, mm.
+    pub height_mm: f64,
+    /// The scale division the dimensions were rounded up to; `null` for 0.1 mm.
+    pub division_mm: Option<f64>,
+    /// Direction of the long side from +x towards +y, degrees in (-90, 90], to 0.01.
+    pub yaw_deg: f64,
+    /// The footprint's corners `[x, y]` in metres, around the rectangle, to 0.1 mm.
+    pub corners_m: [[f64; 2]; 4],
+    /// Volume of the reported dimensions, litres.
+    pub volume_l: f64,
+    /// cm³ over the divisor, kg.
+    pub volumetric_weight_kg: f64,
+    /// The divisor of the volumetric weight, cm³ per kg.
+    pub volumetric_divisor_cm3_per_kg: f64,
+}
+
+impl Reported {
+    /// `d` as `billing` reports it.
+    pub fn new(d: &Dimensions, billing: &Billing) -> Self {
+        let [length_mm, width_mm, height_mm] = billing.dimensions_mm(d);
+        let milli = |v: f64| (v * 1000.0).round() / 1000.0;
+        Self {
+            length_mm,
+            width_mm,
+            height_mm,
+            division_mm: billing.division_mm,
+            yaw_deg: (d.yaw_deg * 100.0).round() / 100.0,
+            // To 0.1 mm, as the dimensions.
+            corners_m: d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4)),
+            volume_l: milli(billing.volume_l(d)),
+            volumetric_weight_kg: milli(billing.volumetric_weight_kg(d)),
+            volumetric_divisor_cm3_per_kg: billing.divisor_cm3_per_kg,
+        }
+    }
+
+    /// The reported parcel as dimensions of `points` points (the volume of the reported
+    /// dimensions, unrounded).
+    pub fn dimensions(&self, points: usize) -> Dimensions {
+        Dimensions {
+            length_mm: self.length_mm,
+            width_mm: self.width_mm,
+            height_mm: self.height_mm,
+            yaw_deg: self.yaw_deg,
+            corners_m: self.corners_m,
+            volume_l: self.length_mm * self.width_mm * self.height_mm / 1e6,
+            points,
+        }
+    }
+}
+
+/// Why a measurement document could not be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum MeasurementError {
+    /// Not JSON, or JSON that is not a measurement document.
+    #[error("the measurement is not a JSON measurement document: {0}")]
+    Json(#[from] serde_json::Error),
+    /// Not CBOR, or CBOR that is not a measurement document.
+    #[error("the measurement is not a CBOR measurement document: {0}")]
+    Cbor(#[from] ciborium::de::Error<std::io::Error>),
+    /// Encoding as CBOR failed.
+    #[error("encoding the measurement as CBOR: {0}")]
+    CborEncode(#[from] ciborium::ser::Error<std::io::Error>),
+    /// A document of a newer version than this program reads.
+    #[error("the measurement document is version {found}; this program reads up to {VERSION}")]
+    Version {
+        /// The document's `v`.
+        found: u32,
+    },
+}
+
+impl Measurement {
+    /// A measurement of `parcel` (reported as `billing` says) in a merged cloud of
+    /// `cloud_points` points from `cameras`, whose frames are of `frames_unix_us`, grabbed
+    /// in `grab`; no codes, no warnings, no client's fields yet.
+    pub fn new(
+        parcel: &Parcel,
+        billing: &Billing,
+        cloud_points: usize,
+        cameras: Vec<String>,
+        frames_unix_us: Vec<u64>,
+        grab: Duration,
+    ) -> Self {
+        let (found, parcel_points) = match parcel {
+            Parcel::Measured(d) => (Found::Measured(Reported::new(d, billing)), d.points),
+            Parcel::Nothing { points } => (Found::Nothing, *points),
+        };
+        Self {
+            v: VERSION,
+            parcel: found,
+            parcel_points: parcel_points as u64,
+            cloud_points: cloud_points as u64,
+            cameras,
+            servers: Vec::new(),
+            frames_unix_us,
+            grab_ms: ms(grab),
+            cycle_ms: None,
+            received_bytes: None,
+            measure_ms: None,
+            codes: None,
+            codes_ms: None,
+            warnings: Vec::new(),
+        }
+    }
+
+    /// Adds the codes read, in `took`.
+    pub fn set_codes(&mut self, seen: Vec<Seen>, took: Duration) {
+        self.codes = Some(seen);
+        self.codes_ms = Some(ms(took));
+    }
+
+    /// The reported parcel; `None` when nothing is on the table.
+    pub fn reported(&self) -> Option<&Reported> {
+        match &self.parcel {
+            Found::Measured(r) => Some(r),
+            Found::Nothing => None,
+        }
+    }
+
+    /// The parcel as reported (see [`Reported::dimensions`]).
+    pub fn parcel(&self) -> Parcel {
+        let points = usize::try_from(self.parcel_points).unwrap_or(usize::MAX);
+        match &self.parcel {
+            Found::Measured(r) => Parcel::Measured(r.dimensions(points)),
+            Found::Nothing => Parcel::Nothing { points },
+        }
+    }
+
+    /// The document as JSON.
+    pub fn to_json(&self) -> Result<String, MeasurementError> {
+        Ok(serde_json::to_string(self)?)
+    }
+
+    /// The document as CBOR.
+    pub fn to_cbor(&self) -> Result<Vec<u8>, MeasurementError> {
+        let mut out = Vec::new();
+        ciborium::into_writer(self, &mut out)?;
+        Ok(out)
+    }
+
+    /// Reads a JSON document.
+    pub fn from_json(bytes: &[u8]) -> Result<Self, MeasurementError> {
+        Self::checked(serde_json::from_slice(bytes)?)
+    }
+
+    /// Reads a CBOR document.
+    pub fn from_cbor(bytes: &[u8]) -> Result<Self, MeasurementError> {
+        Self::checked(ciborium::from_reader(bytes)?)
+    }
+
+    fn checked(m: Self) -> Result<Self, MeasurementError> {
+        if m.v > VERSION {
+            return Err(MeasurementError::Version { found: m.v });
+        }
+        Ok(m)
+    }
+
+    /// The text `measure` prints.
+    pub fn text(&self) -> String {
+        let timing = match self.measure_ms {
+            Some(t) => format!("measured on the server in {t:.0} ms"),
+            None => format!("grab and transfer {:.0} ms", self.grab_ms),
+        };
+        let received = match self.received_bytes {
+            Some(n) if n < 100_000 => format!("{n} bytes"),
+            n => format!("{:.2} MB", n.map_or(f64::NAN, |n| n as f64) / 1e6),
+        };
+        let provenance = format!(
+            "{} points from {} camera(s): {}\n\
+             cycle {:.0} ms ({timing}), {received} received",
+            self.cloud_points,
+            self.cameras.len(),
+            self.cameras.join(", "),
+            self.cycle_ms.unwrap_or(f64::NAN),
+        );
+        let mut out = match &self.parcel {
+            Found::Measured(r) => {
+                let rounded = r
+                    .division_mm
+                    .map_or_else(String::new, |s| format!(" (rounded up to {s} mm)"));
+                let mut corners = String::new();
+                for [x, y] in r.corners_m {
+                    if !corners.is_empty() {
+                        corners.push(' ');
+                    }
+                    let _ = write!(corners, "({x:.3}, {y:.3})");
+                }
+                format!(
+                    "length {:.1} mm  width {:.1} mm  height {:.1} mm{rounded}\n\
+                     yaw {:.1} deg  volume {:.2} l  volumetric weight {:.2} kg (divisor {} cm3/kg)\n\
+                     footprint corners (m): {corners}\n\
+                     parcel {} points of {provenance}",
+                    r.length_mm,
+                    r.width_mm,
+                    r.height_mm,
+                    r.yaw_deg,
+                    r.volume_l,
+                    r.volumetric_weight_kg,
+                    r.volumetric_divisor_cm3_per_kg,
+                    self.parcel_points,
+                )
+            }
+            Found::Nothing => format!(
+                "nothing on the table (the largest object above the floor has {} points)\n{provenance}",
+                self.parcel_points
+            ),
+        };
+        if let Some(seen) = &self.codes {
+            let _ = write!(
+                out,
+                "\ncodes: {} (grabbed and read in {:.0} ms)",
+                describe(seen),
+                self.codes_ms.unwrap_or(f64::NAN)
+            );
+        }
+        out
+    }
+}
+
+/// Socket addresses as their text (`127.0.0.1:5683`, `[::1]:5683`) in every format, CBOR
+/// included (serde's own form is a tuple outside human-readable formats).
+mod addresses {
+    use std::net::SocketAddr;
+
+    use serde::{Deserialize as _, Deserializer, Serializer, de::Error as _};
+
+    pub(super) fn serialize<S: Serializer>(a: &[SocketAddr], s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(a.iter().map(ToString::to_string))
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> Result<Vec<SocketAddr>, D::Error> {
+        Vec::<String>::deserialize(d)?
+            .iter()
+            .map(|s| {
+                s.parse()
+                    .map_err(|e| D::Error::custom(format!("server {s:?}: {e}")))
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vision::codes::{Code, CodeKind};
+
+    fn measured() -> Measurement {
+        let d = Dimensions {
+            length_mm: 400.04,
+            width_mm: 300.0,
+            height_mm: 200.0,
+            yaw_deg: 15.004,
+            corners_m: [[0.1, 0.2], [0.5, 0.2], [0.5, 0.5], [0.1, 0.500_04]],
+            volume_l: 24.0,
+            points: 1234,
+        };
+        let mut m = Measurement::new(
+            &Parcel::Measured(d),
+            &Billing::default(),
+            5000,
+            vec!["840412060746".into()],
+            vec![1_700_000_000_000_000],
+            Duration::from_millis(42),
+        );
+        m.set_codes(
+            vec![Seen {
+                code: Code {
+                    kind: CodeKind::Qr,
+                    text: "PKG-0001".into(),
+                },
+                cameras: vec!["840412060746".into()],
+            }],
+            Duration::from_millis(7),
+        );
+        m.servers = vec!["127.0.0.1:5683".parse().expect("address")];
+        m.cycle_ms = Some(50.0);
+        m.received_bytes = Some(321);
+        m
+    }
+
+    #[test]
+    fn the_document_has_the_fields_of_measure_json_and_round_trips() {
+        let m = measured();
+        let doc: serde_json::Value =
+            serde_json::from_str(&m.to_json().expect("JSON")).expect("parses");
+        assert_eq!(doc["v"], 1);
+        assert_eq!(doc["parcel"], "measured");
+        assert_eq!(doc["length_mm"], 400.0);
+        assert_eq!(doc["division_mm"], serde_json::Value::Null);
+        assert_eq!(doc["yaw_deg"], 15.0);
+        assert_eq!(doc["corners_m"][3][1], 0.5);
+        assert_eq!(doc["volume_l"], 24.0);
+        assert_eq!(doc["volumetric_weight_kg"], 4.8);
+        assert_eq!(doc["volumetric_divisor_cm3_per_kg"], 5000.0);
+        assert_eq!(doc["parcel_points"], 1234);
+        assert_eq!(doc["servers"][0], "127.0.0.1:5683");
+        assert_eq!(doc["codes"][0]["kind"], "qr");
+        assert_eq!(doc["codes"][0]["text"], "PKG-0001");
+        assert_eq!(doc["codes_ms"], 7.0);
+        assert_eq!(doc["warnings"], serde_json::json!([]));
+        assert!(doc.get("measure_ms").is_none());
+        let json = m.to_json().expect("JSON");
+        assert_eq!(Measurement::from_json(json.as_bytes()).expect("reads"), m);
+        let cbor = m.to_cbor().expect("CBOR");
+        assert_eq!(Measurement::from_cbor(&cbor).expect("reads"), m);
+        let as_value: serde_json::Value = ciborium::from_reader(&cbor[..]).expect("CBOR");
+        assert_eq!(as_value, doc, "the same document in CBOR");
+    }
+
+    #[test]
+    fn nothing_on_the_table_has_no_dimensions() {
+        let mut m = Measurement::new(
+            &Parcel::Nothing { points: 12 },
+            &Billing::default(),
+            100,
+            Vec::new(),
+            Vec::new(),
+            Duration::ZERO,
+        );
+        m.measure_ms = Some(3.0);
+        let doc: serde_json::Value =
+            serde_json::from_str(&m.to_json().expect("JSON")).expect("parses");
+        assert_eq!(doc["parcel"], "nothing");
+        assert_eq!(doc["parcel_points"], 12);
+        assert!(doc.get("length_mm").is_none() && doc.get("servers").is_none());
+        let back = Measurement::from_json(doc.to_string().as_bytes()).expect("reads");
+        assert!(matches!(back.parcel(), Parcel::Nothing { points: 12 }));
+        assert!(back.text().starts_with("nothing on the table"));
+    }
+
+    #[test]
+    fn old_documents_read_and_newer_or_broken_ones_are_refused() {
+        let mut doc: serde_json::Value =
+            serde_json::from_str(&measured().to_json().expect("JSON")).expect("parses");
+        let object = doc.as_object_mut().expect("a map");
+        object.remove("v");
+        object.insert("added_later".into(), 1.into());
+        let old = Measurement::from_json(doc.to_string().as_bytes()).expect("version 1");
+        assert_eq!(old.v, 1);
+        doc["v"] = 2.into();
+        assert!(matches!(
+            Measurement::from_json(doc.to_string().as_bytes()),
+            Err(MeasurementError::Version { found: 2 })
+        ));
+        doc["v"] = 1.into();
+        doc["parcel"] = "floating".into();
+        assert!(matches!(
+            Measurement::from_json(doc.to_string().as_bytes()),
+            Err(MeasurementError::Json(_))
+        ));
+        doc["parcel"] = "measured".into();
+        doc["servers"] = serde_json::json!(["not an address"]);
+        assert!(Measurement::from_json(doc.to_string().as_bytes()).is_err());
+        assert!(matches!(
+            Measurement::from_cbor(b"\xff"),
+            Err(MeasurementError::Cbor(_))
+        ));
+    }
+
+    #[test]
+    fn the_text_names_the_dimensions_codes_and_timing() {
+        let text = measured().text();
+        assert!(
+            text.starts_with("length 400.0 mm  width 300.0 mm  height 200.0 mm\n"),
+            "{text}"
+        );
+        assert!(text.contains("volumetric weight 4.80 kg (divisor 5000 cm3/kg)"));
+        assert!(text.contains("cycle 50 ms (grab and transfer 42 ms), 321 bytes received"));
+        assert!(text.ends_with("codes: qr \"PKG-0001\" (840412060746) (grabbed and read in 7 ms)"));
+    }
+}
