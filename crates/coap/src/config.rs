@@ -40,6 +40,8 @@ pub struct EndpointConfig {
     /// How requests fetch responses that come in blocks, unless a request says
     /// ([`Request::transfer`](crate::Request::transfer)); windowed by default.
     pub transfer: Transfer,
+    /// The congestion controller of each peer's windowed transfers: BBR by default.
+    pub congestion: Congestion,
     /// MAX_PAYLOADS (RFC 9177 §7.2): the payloads of a Q-Block body sent in one burst,
     /// one *set*, before the sender waits for the receiver's 'Continue' (RFC: 10; both
     /// ends must use the same value).
@@ -100,6 +102,7 @@ impl Default for EndpointConfig {
             block_retries: 4,
             notify_con_interval: 5,
             transfer: Transfer::default(),
+            congestion: Congestion::default(),
             max_payloads: 10,
             verify_addresses: true,
             limits: Limits::default(),
@@ -157,4 +160,18 @@ pub enum Transfer {
     /// a peer is a CON that finds out whether it speaks Q-Block; with peers that do not,
     /// the transfer is RFC 7959 stop-and-wait.
     QBlock,
+}
+
+/// The congestion controller of a peer's windowed transfers ([`Transfer::Window`]): it
+/// admits and paces their block requests, one controller per peer shared by them all.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
+pub enum Congestion {
+    /// BBR: a window of twice the bandwidth-delay product and a pacing rate, both from
+    /// the delivery rate and the smallest round trip measured. Random loss does not
+    /// shrink it.
+    #[default]
+    Bbr,
+    /// RFC 7252's NSTART (§4.7): at most [`EndpointConfig::nstart`] block requests in
+    /// flight, unpaced; each loss found by the window is asked for again.
+    Nstart,
 }

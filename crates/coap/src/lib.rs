@@ -23,7 +23,7 @@ mod dedup;
 pub mod endpoint;
 
 pub use block::{BlockSource, Source};
-pub use config::{EndpointConfig, Limits};
+pub use config::{Congestion, EndpointConfig, Limits};
 pub use content_format::ContentFormat;
 pub use endpoint::{
     Endpoint, Event, IncomingId, IncomingRequest, ObservationId, PathStats, Request, RequestError,

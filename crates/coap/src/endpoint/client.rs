@@ -11,7 +11,7 @@ use super::Endpoint;
 use super::client_state::{
     ClientRequest, Peer, STREAM_PIECE, Step, Waiting, is_newer, take_response,
 };
-use super::congestion::Nstart;
+use super::congestion::{Controller, Nstart};
 use super::message::{Due, Purpose, TimerKind};
 use super::types::{Event, Request, RequestError, RequestId, Response};
 use crate::config::Transfer;
@@ -82,7 +82,7 @@ impl Endpoint {
         self.client
             .peers
             .entry(PeerKey(peer))
-            .or_insert_with(|| Peer::new(Box::new(Nstart::new(nstart))))
+            .or_insert_with(|| Peer::new(Nstart::new(nstart)))
             .queue
             .push_back(id);
         self.pump(now, peer);

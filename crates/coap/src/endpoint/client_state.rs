@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use bytes::Bytes;
 
-use super::congestion::Controller;
+use super::congestion::Nstart;
 use super::message::Outbox;
 use super::qblock::{QDown, QUp};
 use super::types::{Event, Request, RequestError, RequestId, Response};
@@ -265,11 +265,11 @@ impl ClientRequest {
 pub(super) struct Peer {
     pub(super) active: usize,
     pub(super) queue: VecDeque<u64>,
-    pub(super) controller: Box<dyn Controller>,
+    pub(super) controller: Nstart,
 }
 
 impl Peer {
-    pub(super) fn new(controller: Box<dyn Controller>) -> Self {
+    pub(super) fn new(controller: Nstart) -> Self {
         Self {
             active: 0,
             queue: VecDeque::new(),

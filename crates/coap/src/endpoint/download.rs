@@ -8,7 +8,6 @@ use bytes::Bytes;
 
 use super::Endpoint;
 use super::client_state::{Step, Waiting};
-use super::congestion::Bbr;
 use super::message::TimerKind;
 use super::types::{RequestError, Response};
 use super::window::{Arrival, Window};
@@ -45,16 +44,15 @@ impl Endpoint {
                 paced = Some(at);
                 break;
             }
-            let path = self.msg.path(now, peer);
-            let bbr = path.bbr.get_or_insert_with(|| Bbr::new(now));
-            if bbr.in_flight() >= bbr.window() {
+            let cc = self.msg.path(now, peer).controller(now, &self.config);
+            if cc.in_flight() >= cc.window() {
                 break;
             }
-            if let Err(at) = bbr.pace(now) {
+            if let Some(at) = cc.next_send(now) {
                 paced = Some(at);
                 break;
             }
-            let state = bbr.on_send(now);
+            let state = cc.on_sent(now);
             let mid = self.msg.next_mid();
             let Some(r) = self.client.requests.get_mut(&id) else {
                 return;
@@ -131,8 +129,8 @@ impl Endpoint {
         let probes = w.probes;
         // The requests declared lost leave the window now: they are no longer in flight,
         // whatever happens next (a fallback forgets only those still in flight).
-        if let Some(bbr) = self.msg.path(now, peer).bbr.as_mut() {
-            (0..lost).for_each(|_| bbr.on_lost());
+        if let Some(cc) = self.msg.path(now, peer).existing_controller() {
+            cc.on_lost(now, lost);
         }
         if probes >= 3 {
             // Three probe timeouts in a row without a block: a server that ignores NON
@@ -240,20 +238,20 @@ impl Endpoint {
                 if let Some(rtt) = rtt {
                     path.rtt.on_sample(now, rtt, true);
                 }
-                if let Some(bbr) = path.bbr.as_mut() {
-                    bbr.on_delivered(now, state, true, rtt);
+                if let Some(cc) = path.existing_controller() {
+                    cc.on_delivered(now, &state, rtt);
                 }
             }
             None if arrival != Arrival::Duplicate => {
-                if let Some(bbr) = path.bbr.as_mut() {
-                    bbr.on_late_delivery(now);
+                if let Some(cc) = path.existing_controller() {
+                    cc.on_late_delivery(now);
                 }
             }
             None => {}
         }
-        if let Some(bbr) = path.bbr.as_mut() {
-            (0..lost).for_each(|_| bbr.on_lost());
-            bbr.forget(forgotten);
+        if let Some(cc) = path.existing_controller() {
+            cc.on_lost(now, lost);
+            cc.on_abandoned(forgotten);
         }
         let Some(r) = self.client.requests.get_mut(&id) else {
             return;
@@ -332,8 +330,8 @@ impl Endpoint {
         let Some(mut w) = r.window.take() else { return };
         r.window_timer = None;
         let path = self.msg.path(now, r.peer);
-        if let Some(bbr) = path.bbr.as_mut() {
-            bbr.forget(w.abandon());
+        if let Some(cc) = path.existing_controller() {
+            cc.on_abandoned(w.abandon());
         }
         let (s, t) = (&mut path.stats, w.stats);
         s.block_requests += t.requests;

@@ -12,7 +12,7 @@ use bytes::{Bytes, BytesMut};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore, SeedableRng};
 
-use super::congestion::{Backoff, Bbr, RttEstimator};
+use super::congestion::{self, Backoff, Controller, RttEstimator};
 use super::types::{PathStats, Transmit};
 use crate::config::EndpointConfig;
 use crate::dedup::Dedup;
@@ -157,14 +157,31 @@ const MID_SAMPLE: u64 = 256;
 const MAX_PATHS: usize = 4096;
 
 /// What the endpoint knows of the path to one peer: its round-trip estimate, the
-/// congestion controller of its windowed transfers, and their counters.
+/// congestion controller of its windowed transfers (made by the first), and their
+/// counters.
 pub(super) struct Path {
     pub(super) rtt: RttEstimator,
-    pub(super) bbr: Option<Bbr>,
+    controller: Option<Box<dyn Controller>>,
     pub(super) stats: PathStats,
 }
 
 impl Path {
+    /// The controller of the windowed transfers, made as `config` chooses if none is yet.
+    pub(super) fn controller(
+        &mut self,
+        now: Instant,
+        config: &EndpointConfig,
+    ) -> &mut dyn Controller {
+        &mut **self
+            .controller
+            .get_or_insert_with(|| congestion::for_path(config, now))
+    }
+
+    /// The controller of the windowed transfers, if one ever ran on this path.
+    pub(super) fn existing_controller(&mut self) -> Option<&mut (dyn Controller + 'static)> {
+        self.controller.as_deref_mut()
+    }
+
     /// The statistics with the current estimate.
     pub(super) fn stats(&self) -> PathStats {
         PathStats {
@@ -258,11 +275,11 @@ impl MessageLayer {
     pub(super) fn path(&mut self, now: Instant, peer: SocketAddr) -> &mut Path {
         if self.paths.len() >= MAX_PATHS && !self.paths.contains_key(&PeerKey(peer)) {
             self.paths
-                .retain(|_, p| p.bbr.as_ref().is_some_and(|b| b.in_flight() > 0));
+                .retain(|_, p| p.controller.as_ref().is_some_and(|c| c.in_flight() > 0));
         }
         self.paths.entry(PeerKey(peer)).or_insert_with(|| Path {
             rtt: RttEstimator::new(now),
-            bbr: None,
+            controller: None,
             stats: PathStats::default(),
         })
     }

@@ -16,7 +16,8 @@
 //!   reassembly that resumes from the block it lacks, Observe, multicast), admitted per
 //!   peer by NSTART (`congestion`).
 //! - `window` and `download`: a Block2 download with many block requests in flight,
-//!   paced by the path's controller (`congestion::Bbr`), lost ones asked for again.
+//!   paced by the path's congestion controller (`congestion`: BBR unless
+//!   `EndpointConfig::congestion` says NSTART), lost ones asked for again.
 //! - `server`: requests it receives (Block1 assembly, Block2 slicing from a stored
 //!   representation, piggybacked or separate responses, observations it serves), after
 //!   `verify` has checked the peer's address (RFC 9175 Echo, amplification limits).

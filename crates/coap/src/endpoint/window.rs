@@ -3,7 +3,7 @@
 //!
 //! Every block of a representation can be asked for on its own (RFC 7959 §2.4), so after
 //! block 0 the client asks for many blocks at once, as NON requests that the peer's
-//! [`Bbr`](super::congestion::Bbr) admits and paces; up to the last block Size2 implies,
+//! congestion controller (`congestion`) admits and paces; up to the last block Size2 implies,
 //! or, without Size2, until a block comes without `more`. Each request is one
 //! *transmission* with a sequence number; a block asked for again gets a new one. Loss is
 //! found by time, as RACK finds it (RFC 8985): a request is lost when one sent after it

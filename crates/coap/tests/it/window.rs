@@ -7,7 +7,7 @@ use std::rc::Rc;
 use std::time::Duration;
 
 use bytes::Bytes;
-use coap::{Code, Event, OptionNumber, PathStats, Request, Response, Transfer};
+use coap::{Code, Congestion, Event, OptionNumber, PathStats, Request, Response, Transfer};
 
 use crate::blockwise::{body, cfg, no_store, response, serve};
 use crate::sim::{Handler, LinkConfig, Reply, Sim};
@@ -76,6 +76,31 @@ fn ten_mb_arrive_bit_exact_at_0_2_5_and_20_percent_loss_with_duplicates_and_reor
             assert!(o.stats.blocks_lost > 0, "loss {loss} found no lost block");
         }
     }
+}
+
+#[test]
+fn with_nstart_chosen_a_window_keeps_nstart_block_requests_in_flight() {
+    let data = body(300_000, 6);
+    let mut sim = Sim::new(link(0.02, 3));
+    sim.record = false;
+    let mut client = cfg(1);
+    client.congestion = Congestion::Nstart;
+    client.nstart = 4;
+    let c = sim.add(client, None);
+    let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/big"));
+    assert!(sim.run_to_event(c, Duration::from_secs(3600)), "no outcome");
+    assert!(response(&sim, c).payload == data);
+    let stats = sim.nodes[c].ep.path_stats(server).expect("a path");
+    assert_eq!(stats.max_window, 4, "{stats:?}");
+    assert!(stats.blocks_lost > 0, "2 % loss found no lost block");
+    // BBR's initial window alone is 10 requests.
+    let bbr = download(link(0.02, 3), &data, Transfer::Window, false);
+    assert!(bbr.stats.max_window > 4, "{:?}", bbr.stats);
 }
 
 #[test]
