@@ -1,10 +1,11 @@
 //! The server: one endpoint task per bound address, a [`Router`] shared by all of them,
-//! handlers run as spawned tasks, Observe registrations kept per path.
+//! handlers run as spawned tasks, Observe registrations kept per path. Every answer goes
+//! to the endpoint as soon as its handler returns; the endpoint holds a multicast
+//! request's answer for its leisure (`EndpointConfig::leisure`).
 
 use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::Duration;
 
 use coap::{EndpointConfig, IncomingRequest, ObservationId, OptionNumber};
 use tokio::sync::{mpsc, oneshot};
@@ -16,30 +17,14 @@ use crate::router::Router;
 use crate::socket::Socket;
 
 /// Server settings.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct ServerConfig {
     /// The protocol endpoint's settings.
     pub endpoint: EndpointConfig,
-    /// Leisure (RFC 7252 §8.2, RFC 7390 §2.5): a response to a multicast request waits a
-    /// random time up to this, so that group members do not all answer at once. RFC 7252
-    /// suggests 5 s for unknown constrained networks; coapcam's endpoints sit on a LAN
-    /// and a user waits for the answer, so the default is 500 ms.
-    pub leisure: Duration,
     /// Addresses answered with DTLS (`coaps://`, RFC 7252 §9), with `psk`'s keys.
     pub secure: Vec<SocketAddr>,
     /// The keys of the DTLS addresses (a [`Psk::Server`]).
     pub psk: Option<Psk>,
-}
-
-impl Default for ServerConfig {
-    fn default() -> Self {
-        Self {
-            endpoint: EndpointConfig::default(),
-            leisure: Duration::from_millis(500),
-            secure: Vec::new(),
-            psk: None,
-        }
-    }
 }
 
 struct Observer {
@@ -111,7 +96,6 @@ impl Server {
                 index,
                 router.clone(),
                 observers.clone(),
-                config.leisure,
             ));
             endpoints.push(handle);
         }
@@ -227,7 +211,6 @@ async fn serve(
     endpoint: usize,
     router: Arc<Router>,
     observers: Arc<Observers>,
-    leisure: Duration,
 ) {
     while let Some(ev) = rx.recv().await {
         match ev {
@@ -239,7 +222,6 @@ async fn serve(
                 tokio::spawn(async move {
                     let request = *request;
                     let id = request.id;
-                    let multicast = request.multicast;
                     let registration = request.observe.map(|obs| (obs, request.clone()));
                     let (peer, method) = (request.peer, request.method);
                     let path = request.options.path_string();
@@ -262,21 +244,9 @@ async fn serve(
                             request,
                         });
                     }
-                    if multicast && !leisure.is_zero() {
-                        // A spread of answers over [0, Leisure), from the request id.
-                        let spread = splitmix(id.0) % (leisure.as_millis().max(1) as u64);
-                        tokio::time::sleep(Duration::from_millis(spread)).await;
-                    }
                     let _ = handle.send(Command::Respond { id, response });
                 });
             }
         }
     }
-}
-
-fn splitmix(mut x: u64) -> u64 {
-    x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    x ^ (x >> 31)
 }

@@ -51,6 +51,13 @@ pub struct EndpointConfig {
     /// before a larger answer, an Observe registration or a request that changes state.
     /// On by default.
     pub verify_addresses: bool,
+    /// Leisure (RFC 7252 §8.2, RFC 7390 §2.5): the answer to a multicast request leaves
+    /// at a random instant within this long of the request's arrival (drawn from the
+    /// endpoint's generator), or as soon as the application answers if later, so that
+    /// the members of a group do not all answer at once. RFC 7252 suggests 5 s for
+    /// unknown constrained networks; coapcam's endpoints sit on a LAN and a user waits
+    /// for the answer: 500 ms. Zero answers at once.
+    pub leisure: Duration,
     /// Limits on state that peers can make grow.
     pub limits: Limits,
 }
@@ -105,6 +112,7 @@ impl Default for EndpointConfig {
             congestion: Congestion::default(),
             max_payloads: 10,
             verify_addresses: true,
+            leisure: Duration::from_millis(500),
             limits: Limits::default(),
         }
     }

@@ -55,7 +55,10 @@ fn try_group_server(bind: SocketAddr, name: &'static str, fail: bool) -> std::io
         })),
     );
     let config = ServerConfig {
-        leisure: std::time::Duration::from_millis(50),
+        endpoint: EndpointConfig {
+            leisure: std::time::Duration::from_millis(50),
+            ..EndpointConfig::default()
+        },
         ..ServerConfig::default()
     };
     Server::bind(&[bind], config, router)

@@ -47,6 +47,10 @@ pub(super) enum TimerKind {
     SeparateAck {
         id: u64,
     },
+    /// The end of the leisure of an answered multicast request (RFC 7252 §8.2).
+    Leisure {
+        id: u64,
+    },
     /// The next set of a body the server sends with Q-Block2, due at `at`.
     QSet {
         id: u64,

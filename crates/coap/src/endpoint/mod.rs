@@ -128,6 +128,7 @@ impl Endpoint {
             TimerKind::Window { id, at } => self.client.window_timer_is(id, at),
             TimerKind::Deadline { id } => self.client.requests.contains_key(&id),
             TimerKind::SeparateAck { id } => self.server.awaits_separate_ack(id),
+            TimerKind::Leisure { id } => self.server.held.contains_key(&id),
             TimerKind::QClient { id, at } => self.qclient_timer_is(id, at),
             TimerKind::QSet { id, at } => self.server.qsends.get(&id).is_some_and(|q| q.at == at),
             TimerKind::QReceive { id, at } => self
@@ -155,7 +156,7 @@ impl Endpoint {
         ServerStats {
             upload_bytes: self.server.block1.total_bytes(),
             stored_bytes: self.server.block2.bytes(),
-            pending: self.server.pending.len(),
+            pending: self.server.unanswered(),
             observations: self.server.observations.len(),
         }
     }
@@ -194,6 +195,7 @@ impl Endpoint {
                     Some(_) => self.fail(now, id, RequestError::Timeout),
                 },
                 TimerKind::SeparateAck { id } => self.on_separate_ack_timer(now, id),
+                TimerKind::Leisure { id } => self.on_leisure_timer(now, id),
                 TimerKind::QClient { id, at } => self.on_qclient_timer(now, id, at),
                 TimerKind::QSet { id, at } => self.on_qset_timer(now, id, at),
                 TimerKind::QReceive { id, at } => self.on_qreceive_timer(now, id, at),

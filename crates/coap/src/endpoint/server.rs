@@ -239,7 +239,7 @@ impl Endpoint {
             }
         }
 
-        if self.server.pending.len() >= limits.pending_requests {
+        if self.server.unanswered() >= limits.pending_requests {
             let mut r = Response::new(Code::SERVICE_UNAVAILABLE);
             r.options.set_uint(OptionNumber::MAX_AGE, 1);
             self.answer(now, peer, &msg, multicast, expires, r);
@@ -247,6 +247,11 @@ impl Endpoint {
         }
         let id = self.new_id();
         let observation = self.observe_option(peer, &msg, &key);
+        // RFC 7252 §8.2: a random instant within Leisure from now, drawn here so that the
+        // draws follow the requests' order.
+        let leisure = self.config.leisure;
+        let not_before =
+            (multicast && !leisure.is_zero()).then(|| now + leisure.mul_f64(self.msg.unit()));
         self.server.pending.insert(
             id,
             Pending {
@@ -268,6 +273,7 @@ impl Endpoint {
                 } else {
                     Vec::new()
                 },
+                not_before,
             },
         );
         self.msg.dedup.insert(
@@ -695,11 +701,30 @@ impl Endpoint {
     /// Answers a request from [`Event::Request`]. A body larger than one block is stored
     /// and sent with Block2 (ETag and Size2 added); later blocks are served from the store.
     /// Answering an unknown or already answered id does nothing.
+    /// The answer to a multicast request waits for the end of its leisure (RFC 7252
+    /// §8.2), held by the endpoint.
     pub fn respond(&mut self, now: Instant, id: IncomingId, response: Response) {
-        let limits = self.config.limits.clone();
         let Some(p) = self.server.pending.remove(&id.0) else {
             return;
         };
+        if let Some(at) = p.not_before.filter(|&at| at > now) {
+            self.server.held.insert(id.0, (p, response));
+            self.msg.schedule(at, TimerKind::Leisure { id: id.0 });
+            return;
+        }
+        self.send_answer(now, p, response);
+    }
+
+    /// The leisure of held answer `id` is over: it goes.
+    pub(super) fn on_leisure_timer(&mut self, now: Instant, id: u64) {
+        if let Some((p, response)) = self.server.held.remove(&id) {
+            self.send_answer(now, p, response);
+        }
+    }
+
+    /// Sends the application's answer to request `p`.
+    fn send_answer(&mut self, now: Instant, p: Pending, response: Response) {
+        let limits = self.config.limits.clone();
         let max_szx = self.config.max_block_szx;
         if let Some(budget) = p.budget {
             return self.respond_unverified(now, &p, response, budget);

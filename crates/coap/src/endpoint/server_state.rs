@@ -10,6 +10,7 @@
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
+use std::time::Instant;
 
 use super::qblock::{QSend, QUpload};
 use super::types::Response;
@@ -34,6 +35,8 @@ pub(super) struct Pending {
     pub(super) observation: Option<u64>,
     /// The request's Q-Block2 options (RFC 9177): the response goes with Q-Block2.
     pub(super) qblock2: Vec<BlockOpt>,
+    /// A multicast request's answer leaves no earlier (its leisure, RFC 7252 §8.2).
+    pub(super) not_before: Option<Instant>,
 }
 
 /// An observation this endpoint serves.
@@ -58,6 +61,8 @@ pub(super) struct ServerLayer {
     pub(super) block1: Block1Assembler,
     pub(super) block2: ServerCache,
     pub(super) observations: FastMap<u64, Observation>,
+    /// Answers to multicast requests waiting for the end of their leisure.
+    pub(super) held: FastMap<u64, (Pending, Response)>,
     /// Bodies being sent with Q-Block2, set by set.
     pub(super) qsends: FastMap<u64, QSend>,
     /// Bodies being received with Q-Block1, and their ids by request.
@@ -65,10 +70,16 @@ pub(super) struct ServerLayer {
     pub(super) qupload_ids: BTreeMap<BlockKey, u64>,
     /// When the armed [`TimerKind::Sweep`](super::message::TimerKind) fires: the first
     /// time an upload or a stored representation may have been idle for its lifetime.
-    pub(super) sweep_at: Option<std::time::Instant>,
+    pub(super) sweep_at: Option<Instant>,
 }
 
 impl ServerLayer {
+    /// Requests handed to the application and not answered on the wire yet (answers
+    /// held for their leisure included).
+    pub(super) fn unanswered(&self) -> usize {
+        self.pending.len() + self.held.len()
+    }
+
     /// Whether received request `id` still waits for the empty ACK of a CON.
     pub(super) fn awaits_separate_ack(&self, id: u64) -> bool {
         self.pending
@@ -90,6 +101,7 @@ impl ServerLayer {
             block1: Block1Assembler::new(),
             block2: ServerCache::new(),
             observations: FastMap::default(),
+            held: FastMap::default(),
             qsends: FastMap::default(),
             quploads: FastMap::default(),
             qupload_ids: BTreeMap::new(),

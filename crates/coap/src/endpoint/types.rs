@@ -71,7 +71,8 @@ pub struct ServerStats {
     pub upload_bytes: usize,
     /// Bytes held by representations stored for Block2 continuations, with their keys.
     pub stored_bytes: usize,
-    /// Requests handed to the application and not answered yet.
+    /// Requests handed to the application and not answered yet (or answered and held
+    /// for their leisure, RFC 7252 §8.2).
     pub pending: usize,
     /// Observations served.
     pub observations: usize,

@@ -282,6 +282,70 @@ fn rfc7390_2_5_multicast_request_collects_every_servers_response() {
     assert_eq!(sent, 1, "a multicast request is sent once, as NON");
 }
 
+/// When each server of a group answered a multicast GET sent at time 0 (in
+/// milliseconds, sorted), with `leisure` and a handler that takes `handler_ms`.
+fn group_answer_times(leisure: Duration, handler_ms: u64, seed: u64) -> Vec<u128> {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add(cfg(1), None);
+    let mut servers = Vec::new();
+    for k in 0..6u64 {
+        let h: crate::sim::Handler = Box::new(move |_| {
+            let r = Response::new(Code::CONTENT).with_payload(format!("server {k}"));
+            Reply::After(Duration::from_millis(handler_ms), r)
+        });
+        let config = EndpointConfig {
+            leisure,
+            ..cfg(seed + k)
+        };
+        let s = sim.add(config, Some(h));
+        servers.push(sim.nodes[s].addr);
+    }
+    let mut req = Request::new(Code::GET, "/who");
+    req.multicast = true;
+    req.timeout = Some(Duration::from_secs(3));
+    let now = sim.now;
+    sim.nodes[c].ep.request(now, GROUP, req);
+    sim.run_until(Duration::from_secs(4), |_| false);
+    let answered = sim.nodes[c]
+        .events
+        .iter()
+        .filter(|(_, e)| matches!(e, Event::MulticastResponse { .. }))
+        .count();
+    assert_eq!(answered, servers.len(), "every server answers once");
+    let mut times: Vec<u128> = sim
+        .log
+        .iter()
+        .filter(|r| servers.contains(&r.from))
+        .map(|r| r.at.as_millis())
+        .collect();
+    times.sort();
+    times
+}
+
+/// RFC 7252 §8.2: each group member answers a multicast request at a random instant
+/// within Leisure of its arrival, drawn from its seeded generator; an answer the
+/// application gives later than that goes at once; without Leisure, all at once.
+#[test]
+fn rfc7252_8_2_leisure_spreads_the_answers_to_a_multicast_request() {
+    // The request arrives at 5 ms; the answers leave within the next second.
+    let spread = group_answer_times(Duration::from_secs(1), 0, 30);
+    assert_eq!(spread.len(), 6);
+    assert!(spread.iter().all(|&t| (5..1005).contains(&t)), "{spread:?}");
+    let mut distinct = spread.clone();
+    distinct.dedup();
+    assert!(distinct.len() >= 5, "not spread: {spread:?}");
+    assert!(spread[5] - spread[0] >= 300, "not spread: {spread:?}");
+    // Same seeds, same instants.
+    assert_eq!(group_answer_times(Duration::from_secs(1), 0, 30), spread);
+    // No Leisure: every answer as its request arrives.
+    assert_eq!(group_answer_times(Duration::ZERO, 0, 30), [5; 6]);
+    // A handler slower than every member's leisure: each answer as soon as it is made.
+    assert_eq!(
+        group_answer_times(Duration::from_millis(100), 400, 30),
+        [405; 6]
+    );
+}
+
 /// RFC 7641 §4.5.2: one CON notification in flight per observer. An observer that
 /// stopped answering gets the first CON notification and its retransmissions, nothing for
 /// the changes after it, and is removed when that CON times out.
