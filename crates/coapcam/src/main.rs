@@ -55,6 +55,9 @@ enum Command {
     Bench(Deferred<cli::bench::BenchArgs>),
     /// Run the CoAP server.
     Serve(Deferred<cli::serve::ServeArgs>),
+    /// A station's results log: list its records (--server URI), or verify a log file's
+    /// hash chain (`results verify FILE`, exit status 7 naming the first altered record).
+    Results(Deferred<cli::results::ResultsArgs>),
     /// Relay UDP between clients and a server over an emulated link (loss, delay, jitter,
     /// rate limit), and print the counters when it ends.
     Netem(Deferred<cli::netem::NetemArgs>),
@@ -111,6 +114,7 @@ fn run(cli: Cli) -> anyhow::Result<Exit> {
         Command::Bench(Deferred(args)) => return runtime.block_on(cli::bench::run(args)),
         Command::Monitor(Deferred(args)) => return runtime.block_on(cli::monitor::run(args)),
         Command::Demo(Deferred(args)) => return runtime.block_on(cli::demo::run(args)),
+        Command::Results(Deferred(args)) => return runtime.block_on(cli::results::run(args)),
         Command::Serve(Deferred(args)) => {
             let served = runtime.block_on(cli::serve::run(args));
             // A grab still waiting for its camera in a blocking thread must not hold up

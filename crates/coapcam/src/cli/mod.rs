@@ -12,6 +12,7 @@ pub(crate) mod measure;
 pub(crate) mod monitor;
 pub(crate) mod netem;
 pub(crate) mod request;
+pub(crate) mod results;
 pub(crate) mod serve;
 
 use std::time::Duration;
@@ -199,6 +200,9 @@ pub(crate) enum Exit {
     /// 6: fewer servers answered than `--expect` asked for; the answers that came were
     /// used and printed.
     Fewer,
+    /// 7: `results verify`: the chain does not verify (a record was altered or is
+    /// missing); the first such record was named.
+    Altered,
     /// 128 + the signal's number (130 for SIGINT, 143 for SIGTERM): stopped by a signal
     /// after cleaning up (`get -o FILE` removes its temporary file).
     Interrupted(u8),
@@ -214,6 +218,7 @@ impl Exit {
             Self::NoAnswer => 4,
             Self::Empty => 5,
             Self::Fewer => 6,
+            Self::Altered => 7,
             Self::Interrupted(signal) => 128 + signal,
         }
     }

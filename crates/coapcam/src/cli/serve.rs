@@ -10,6 +10,7 @@ use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
 use coapcam::server::{Cameras, Identities, RealSenseOptions, Station, StationConfig};
+use coapcam::station::log::Retention;
 use rgbd::Scene;
 use rgbd::backend::realsense::LibrarySearch;
 use tokio::signal::unix::{SignalKind, signal};
@@ -111,6 +112,23 @@ pub(crate) struct ServeArgs {
     /// that would pass the budget answers 5.03 with Max-Age 1 (clients retry then).
     #[arg(long, value_name = "MIB", default_value_t = 256)]
     grab_memory: u64,
+    /// The station's name, in every record of the results log (default: the host name).
+    #[arg(long, value_name = "NAME")]
+    station_name: Option<String>,
+    /// The results log: every measurement is recorded in this SQLite file, append-only
+    /// and hash-chained (`coapcam results verify FILE` checks it) and served at
+    /// /station/measurements (default: results.sqlite in the state directory).
+    #[arg(long, value_name = "FILE", conflicts_with = "no_cameras")]
+    results: Option<PathBuf>,
+    /// Keep the photo and annotated picture of the newest N records only; older ones are
+    /// pruned (their SHA-256s stay in the records). Default: keep every picture.
+    #[arg(long, value_name = "N", conflicts_with = "no_cameras")]
+    results_keep_pictures: Option<u64>,
+    /// Keep the results log's records and pictures within BYTES, pruning the oldest
+    /// pictures first. Records are never dropped: past the limit with every picture
+    /// pruned, recording goes on and the server warns. Default: no limit.
+    #[arg(long, value_name = "BYTES", conflicts_with = "no_cameras")]
+    results_max_bytes: Option<u64>,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
@@ -173,6 +191,17 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         grab_memory: args.grab_memory.saturating_mul(1 << 20),
         secure_binds: args.coaps.clone(),
         identities,
+        station: coapcam::station::Config {
+            name: args
+                .station_name
+                .clone()
+                .unwrap_or_else(coapcam::station::host_name),
+            results: args.results.clone(),
+            retention: Retention {
+                keep_pictures: args.results_keep_pictures,
+                max_bytes: args.results_max_bytes,
+            },
+        },
     })
     .await?;
     if args.no_address_check {

@@ -6,6 +6,7 @@ pub mod annotate;
 pub mod codes;
 pub mod measure;
 pub mod progress;
+pub mod results;
 
 use std::net::{IpAddr, SocketAddr};
 use std::time::Duration;
@@ -208,6 +209,27 @@ impl CamClient {
                 .set_uint(OptionNumber::ACCEPT, u32::from(cf.0));
         }
         request
+    }
+
+    /// `GET path?query` (each item one Uri-Query option), as [`CamClient::call`].
+    pub async fn get_query(
+        &self,
+        path: &str,
+        query: &[String],
+        accept: Option<ContentFormat>,
+    ) -> anyhow::Result<Response> {
+        let mut request = self.request(Code::GET, path, Bytes::new(), None, accept);
+        for item in query {
+            request
+                .options
+                .push(OptionNumber::URI_QUERY, item.as_bytes());
+        }
+        let what = if query.is_empty() {
+            format!("GET {path}")
+        } else {
+            format!("GET {path}?{}", query.join("&"))
+        };
+        self.exchange(request, &what).await
     }
 
     /// The serials of the server's cameras, from discovery (`rt=rgbd.color`), sorted.

@@ -21,11 +21,13 @@ use coap_net::{Router, Server, ServerConfig};
 use rgbd::backend::playback::PlaybackCamera;
 use rgbd::backend::realsense::LibrarySearch;
 use rgbd::{Camera as _, CameraHub, Scene, Serial, SyntheticCamera};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
 
 use crate::report::{EdgeQuery, Measurement};
+use crate::station::log::ResultsLog;
+use crate::station::{self, Recorder};
 use cams::Cams;
 pub use cams::{Busy, EdgeError};
 use files::StaticFiles;
@@ -88,6 +90,9 @@ pub struct StationConfig {
     /// The DTLS identities with their keys and roles; with them, configuration changes
     /// need an identity of the `configure` role (or this machine).
     pub identities: Option<Arc<Identities>>,
+    /// What the station does by itself: its name, the results log that records every
+    /// measurement (opened when there are cameras), the log's retention.
+    pub station: station::Config,
 }
 
 /// The policy of a server without security configured: configuration changes (PUT and
@@ -112,6 +117,8 @@ pub struct Station {
     memberships: mpsc::UnboundedReceiver<group::MembershipChange>,
     group_interface: u32,
     cameras: Option<CameraTree>,
+    /// The results log, when there are cameras, and the newest record's id it follows.
+    results: Option<(ResultsLog, watch::Receiver<u64>)>,
 }
 
 impl Station {
@@ -155,6 +162,19 @@ impl Station {
             )?),
             None => None,
         };
+        let results = match &cameras {
+            Some(tree) => {
+                let path = config.station.results_path(&config.state_dir);
+                let log = ResultsLog::open_with(&path, config.station.retention)
+                    .with_context(|| format!("opening the results log {}", path.display()))?;
+                station::resources::register(&router, &log);
+                tree._cams
+                    .set_recorder(Recorder::new(log.clone(), config.station.name.clone()));
+                let newest = log.subscribe();
+                Some((log, newest))
+            }
+            None => None,
+        };
         let binds = &config.binds;
         let server = Server::bind(
             binds,
@@ -177,7 +197,13 @@ impl Station {
             memberships,
             group_interface: config.group_interface,
             cameras,
+            results,
         })
+    }
+
+    /// The results log (when the server has cameras).
+    pub fn results(&self) -> Option<&ResultsLog> {
+        self.results.as_ref().map(|(log, _)| log)
     }
 
     /// The addresses it answers on.
@@ -196,9 +222,16 @@ impl Station {
         let mut tick = tokio::time::interval_at(Instant::now() + RESCAN, RESCAN);
         tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
         let mut scan: Option<JoinHandle<Vec<String>>> = None;
+        let mut newest = self.results.as_ref().map(|(_, newest)| newest.clone());
         loop {
             tokio::select! {
                 () = &mut stop => break,
+                Ok(()) = async { newest.as_mut().expect("guarded by is_some").changed().await }, if newest.is_some() => {
+                    // One notification per new record: the observers of the newest record
+                    // are told before the next append is looked at (appends that come
+                    // faster than notifications go out are told once, with the newest).
+                    server.notify(station::resources::LATEST).await;
+                }
                 Some(path) = self.changed.recv() => {
                     notify_changed(server, path, &mut self.changed).await;
                 }

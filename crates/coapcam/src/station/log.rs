@@ -68,6 +68,14 @@ pub enum LogError {
         /// What is wrong.
         why: String,
     },
+    /// A task working on the log failed.
+    #[error("results log {path}: {why}")]
+    Failed {
+        /// The database file.
+        path: PathBuf,
+        /// What failed.
+        why: String,
+    },
     /// A stored record does not read back (its body is not a record's JSON).
     #[error("results log {path}: record {id} does not read back: {why}")]
     Unreadable {
@@ -733,10 +741,7 @@ mod tests {
             },
             station: "lane-1".into(),
             trigger: Trigger::Request,
-            measurement: serde_json::json!({
-                "parcel": "measured", "length_mm": 300.0 + n as f64, "width_mm": 200.0,
-                "codes": [{"kind": "qr", "text": code, "cameras": ["840412060746"]}],
-            }),
+            measurement: crate::station::record::tests::measurement(300.0 + n as f64, code),
             cameras: Vec::new(),
             version: NewRecord::VERSION.into(),
             photo_jpeg: photo.then(|| vec![n as u8; 1000]),

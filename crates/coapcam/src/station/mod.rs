@@ -1,6 +1,122 @@
 //! The station: what a camera server does by itself for a parcel lane (docs/station.md).
 //! - [`record`]: one recorded measurement and the chain's encoding;
-//! - [`log`]: the results log, append-only and hash-chained in SQLite, with retention.
+//! - [`log`]: the results log, append-only and hash-chained in SQLite, with retention;
+//! - [`resources`]: the log as CoAP resources (`/station/measurements...`).
 
 pub mod log;
 pub mod record;
+pub(crate) mod resources;
+
+use std::path::{Path, PathBuf};
+
+use self::log::{LogError, ResultsLog, Retention};
+use self::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
+
+/// The name of the results log's file in the state directory.
+pub const RESULTS_FILE: &str = "results.sqlite";
+
+/// The station's part of a server's configuration (`serve`'s station flags).
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// The station's name, in every record (`--station-name`).
+    pub name: String,
+    /// The results log's file (`--results`), `None` for [`RESULTS_FILE`] in the state
+    /// directory.
+    pub results: Option<PathBuf>,
+    /// How much of the log is kept (`--results-keep-pictures`, `--results-max-bytes`).
+    pub retention: Retention,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            name: host_name(),
+            results: None,
+            retention: Retention::default(),
+        }
+    }
+}
+
+impl Config {
+    /// The results log's file with `state_dir` as the state directory.
+    pub fn results_path(&self, state_dir: &Path) -> PathBuf {
+        self.results
+            .clone()
+            .unwrap_or_else(|| state_dir.join(RESULTS_FILE))
+    }
+}
+
+/// This machine's host name (the kernel's, else `$HOSTNAME`, else `coapcam`).
+pub fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+        .ok()
+        .map(|s| s.trim().to_owned())
+        .filter(|s| !s.is_empty())
+        .or_else(|| std::env::var("HOSTNAME").ok().filter(|s| !s.is_empty()))
+        .unwrap_or_else(|| "coapcam".to_owned())
+}
+
+/// Records measurements in the log under the station's name: what every measurement
+/// path (a client's `POST /cams/dimensions`, the automatic one) calls once it has
+/// measured, before it tells anyone.
+#[derive(Debug, Clone)]
+pub struct Recorder {
+    log: ResultsLog,
+    station: String,
+}
+
+/// What a measurement path hands [`Recorder::record`].
+#[derive(Debug, Clone)]
+pub struct Measured {
+    /// What made it.
+    pub trigger: Trigger,
+    /// The measurement.
+    pub measurement: crate::report::Measurement,
+    /// Each camera's serial and 3d-transformation.
+    pub cameras: Vec<CameraPose>,
+    /// The photo, JPEG.
+    pub photo_jpeg: Option<Vec<u8>>,
+    /// The annotated picture, PNG.
+    pub annotated_png: Option<Vec<u8>>,
+}
+
+impl Recorder {
+    /// Records into `log` as station `station`.
+    pub fn new(log: ResultsLog, station: String) -> Self {
+        Self { log, station }
+    }
+
+    /// The log.
+    pub fn log(&self) -> &ResultsLog {
+        &self.log
+    }
+
+    /// The station's name.
+    pub fn station(&self) -> &str {
+        &self.station
+    }
+
+    /// Appends `measured`, timed now, on the blocking pool; the record is on disk when
+    /// this returns.
+    pub async fn record(&self, measured: Measured) -> Result<Record, LogError> {
+        let new = NewRecord {
+            time: UtcTime::now(),
+            station: self.station.clone(),
+            trigger: measured.trigger,
+            measurement: measured.measurement,
+            cameras: measured.cameras,
+            version: NewRecord::VERSION.to_owned(),
+            photo_jpeg: measured.photo_jpeg,
+            annotated_png: measured.annotated_png,
+        };
+        let log = self.log.clone();
+        match tokio::task::spawn_blocking(move || log.append(new)).await {
+            Ok(appended) => appended,
+            Err(e) => Err(LogError::Failed {
+                path: self.log.path().to_owned(),
+                why: format!("the appending task failed: {e}"),
+            }),
+        }
+    }
+}

@@ -10,6 +10,8 @@ use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 use sha2::{Digest as _, Sha256};
 
+use crate::report::Measurement;
+
 /// The `prev_hash` of the first record: 64 zeros.
 pub const GENESIS: &str = "0000000000000000000000000000000000000000000000000000000000000000";
 
@@ -58,9 +60,9 @@ pub struct NewRecord {
     pub station: String,
     /// What made it.
     pub trigger: Trigger,
-    /// The measurement's document (the dimensions, volume, volumetric weight with its
-    /// divisor, codes, warnings, as `POST /cams/dimensions` answers it).
-    pub measurement: Value,
+    /// The measurement (the dimensions, volume, volumetric weight with its divisor,
+    /// codes, warnings), as `POST /cams/dimensions` answers it.
+    pub measurement: Measurement,
     /// Each camera's serial and 3d-transformation.
     pub cameras: Vec<CameraPose>,
     /// The software's version (`coapcam` crate version).
@@ -88,8 +90,8 @@ pub struct Record {
     pub station: String,
     /// What made it.
     pub trigger: Trigger,
-    /// The measurement's document.
-    pub measurement: Value,
+    /// The measurement, as `POST /cams/dimensions` answers it.
+    pub measurement: Measurement,
     /// Each camera's serial and 3d-transformation.
     pub cameras: Vec<CameraPose>,
     /// The software's version.
@@ -177,15 +179,12 @@ impl Record {
 
     /// The texts of the codes read (the measurement's `codes`), in its order.
     pub fn code_texts(&self) -> Vec<String> {
-        self.measurement["codes"]
-            .as_array()
-            .map(|codes| {
-                codes
-                    .iter()
-                    .filter_map(|c| c["text"].as_str().map(str::to_owned))
-                    .collect()
-            })
-            .unwrap_or_default()
+        self.measurement
+            .codes
+            .iter()
+            .flatten()
+            .map(|seen| seen.code.text.clone())
+            .collect()
     }
 }
 
@@ -362,7 +361,7 @@ fn civil_from_days(days: i64) -> (i64, i64, i64) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     #[test]
@@ -399,6 +398,21 @@ mod tests {
         }
     }
 
+    /// A measurement of a parcel `length_mm` long with a QR code `code`.
+    pub(crate) fn measurement(length_mm: f64, code: &str) -> Measurement {
+        serde_json::from_value(serde_json::json!({
+            "v": 1, "parcel": "measured", "length_mm": length_mm, "width_mm": 200.0,
+            "height_mm": 150.0, "division_mm": null, "yaw_deg": 0.0,
+            "corners_m": [[0.1, 0.1], [-0.1, 0.1], [-0.1, -0.1], [0.1, -0.1]],
+            "volume_l": length_mm * 0.03, "volumetric_weight_kg": length_mm * 0.000_006,
+            "volumetric_divisor_cm3_per_kg": 5000.0, "parcel_points": 1000,
+            "cloud_points": 5000, "cameras": ["840412060746"], "frames_unix_us": [1],
+            "grab_ms": 10.0, "warnings": [],
+            "codes": [{"kind": "qr", "text": code, "cameras": ["840412060746"]}],
+        }))
+        .expect("a measurement")
+    }
+
     fn new_record() -> NewRecord {
         NewRecord {
             time: UtcTime {
@@ -406,10 +420,7 @@ mod tests {
             },
             station: "lane-1".into(),
             trigger: Trigger::Request,
-            measurement: serde_json::json!({
-                "parcel": "measured", "length_mm": 300.1, "width_mm": 200.0,
-                "codes": [{"kind": "qr", "text": "PKG-1", "cameras": ["1"]}],
-            }),
+            measurement: measurement(300.1, "PKG-1"),
             cameras: vec![CameraPose {
                 serial: "840412060746".into(),
                 transformation: Transformation::identity(),
@@ -434,7 +445,7 @@ mod tests {
         pruned.has_photo = false;
         assert_eq!(Record::compute_hash(&pruned.content()), r.hash);
         let mut altered = r.clone();
-        altered.measurement["length_mm"] = 300.2.into();
+        altered.measurement = measurement(300.2, "PKG-1");
         assert_ne!(Record::compute_hash(&altered.content()), r.hash);
         let next = Record::chain(&new_record(), 2, &r.hash);
         assert_ne!(next.hash, r.hash);

@@ -13,7 +13,7 @@ mod tests;
 use std::collections::BTreeMap;
 use std::hash::{Hash as _, Hasher as _};
 use std::path::Path;
-use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock, PoisonError};
 use std::time::{Instant, SystemTime};
 
 use bytes::Bytes;
@@ -30,6 +30,8 @@ use tokio::sync::mpsc;
 use crate::report::{self, EdgeQuery, Measurement, Parcel};
 use crate::repr::clouds::{self, DepthPart};
 use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
+use crate::station::record::{CameraPose, Trigger};
+use crate::station::{Measured, Recorder};
 use crate::vision::calibration::pose_transformation;
 
 pub use budget::Busy;
@@ -79,6 +81,8 @@ pub(crate) struct Cams {
     measured: Mutex<edge::Latest>,
     /// The memory grabs in progress may take together.
     budget: Arc<budget::Budget>,
+    /// Where measurements are recorded (the results log), once the server has one.
+    recorder: OnceLock<Recorder>,
 }
 
 impl Cams {
@@ -100,6 +104,7 @@ impl Cams {
             changed,
             measured: Mutex::default(),
             budget: budget::Budget::new(budget::DEFAULT_BYTES),
+            recorder: OnceLock::new(),
         });
         me.register_fixed();
         let events = me.hub.subscribe();
@@ -122,6 +127,12 @@ impl Cams {
     /// beyond it answers 5.03 with Max-Age 1.
     pub(crate) fn set_grab_memory(&self, bytes: u64) {
         self.budget.set_limit(bytes);
+    }
+
+    /// Records every measurement made for a client (`POST /cams/dimensions`) with
+    /// `recorder` before answering it; set once.
+    pub(crate) fn set_recorder(&self, recorder: Recorder) {
+        let _ = self.recorder.set(recorder);
     }
 
     /// Reserves the memory of grabbing `kinds` from each of `cams`, or the 5.03 refusal.
@@ -676,14 +687,44 @@ impl Cams {
             Err(why) => return Response::diagnostic(Code::BAD_REQUEST, &why),
         };
         // Its own measurement, not the latest: another may have ended meanwhile.
-        match self
-            .measure_now(&query)
-            .await
-            .and_then(|m| Ok(edge::stored(m)?))
-        {
-            Ok(stored) => measurement(&stored, cf),
-            Err(e) => e.response(),
+        let m = match self.measure_now(&query).await {
+            Ok(m) => m,
+            Err(e) => return e.response(),
+        };
+        // Recorded before it is answered: an answered measurement is in the log.
+        if let Some(recorder) = self.recorder.get() {
+            let measured = Measured {
+                trigger: Trigger::Request,
+                cameras: self.poses(&m.cameras),
+                measurement: m.clone(),
+                photo_jpeg: None,
+                annotated_png: None,
+            };
+            if let Err(e) = recorder.record(measured).await {
+                tracing::error!("a measurement could not be recorded: {e}");
+                let why = format!("measured, but the measurement could not be recorded: {e}");
+                return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
+            }
         }
+        match edge::stored(m) {
+            Ok(stored) => measurement(&stored, cf),
+            Err(e) => EdgeError::from(e).response(),
+        }
+    }
+
+    /// The serial and 3d-transformation of each camera of `serials` still connected.
+    pub(crate) fn poses(&self, serials: &[String]) -> Vec<CameraPose> {
+        let cams = lock(&self.cams);
+        serials
+            .iter()
+            .filter_map(|sn| {
+                let cam = cams.iter().find(|(s, _)| s.to_string() == *sn)?.1;
+                Some(CameraPose {
+                    serial: sn.clone(),
+                    transformation: *lock(&cam.transformation),
+                })
+            })
+            .collect()
     }
 
     /// Measures with every camera of this server, as `query` asks ([`edge`]): grabs and

@@ -1,0 +1,252 @@
+//! `coapcam results`: a station's results log. `results --server URI` lists the records
+//! (`/station/measurements`); `results verify FILE` checks a log file's chain and names
+//! the first altered record (docs/station.md).
+
+use std::path::PathBuf;
+
+use anyhow::{Context as _, bail};
+use clap::{Args, Subcommand};
+
+use coapcam::client::{CamClient, results};
+use coapcam::report::Reported;
+use coapcam::station::log::{self, ListQuery};
+use coapcam::station::record::Record;
+
+use super::{Exit, TransmissionArgs, out, outln};
+
+/// Flags of `results`.
+#[derive(Debug, Args)]
+#[command(args_conflicts_with_subcommands = true)]
+pub(crate) struct ResultsArgs {
+    #[command(subcommand)]
+    command: Option<ResultsCommand>,
+    /// The station, coap://host[:port]: list its records, newest first.
+    #[arg(long, value_name = "URI")]
+    server: Option<String>,
+    /// Only records after this id.
+    #[arg(long, value_name = "ID")]
+    since: Option<u64>,
+    /// Only records before this id (the next page back: the smallest id listed).
+    #[arg(long, value_name = "ID")]
+    before: Option<u64>,
+    /// At most this many records (asked for in pages of up to 1000).
+    #[arg(long, value_name = "N", default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
+    limit: u64,
+    /// Only records with a code of exactly this text.
+    #[arg(long, value_name = "TEXT")]
+    code: Option<String>,
+    /// One JSON record per line (the record as the station serves it).
+    #[arg(long, conflicts_with = "csv")]
+    json: bool,
+    /// Comma-separated values with a header line (RFC 4180): id, time, station,
+    /// trigger, parcel, length_mm, width_mm, height_mm, volume_l, volumetric_weight_kg,
+    /// volumetric_divisor_cm3_per_kg, codes (`;`-separated), warnings (count), hash.
+    #[arg(long)]
+    csv: bool,
+    #[command(flatten)]
+    transmission: TransmissionArgs,
+}
+
+/// `results`' subcommands.
+#[derive(Debug, Subcommand)]
+enum ResultsCommand {
+    /// Check a results log file's chain: every record's SHA-256 over its content, every
+    /// link to the record before, every picture kept. Names the first record that was
+    /// altered or is missing and exits 7; exits 0 when the whole chain verifies.
+    Verify(VerifyArgs),
+}
+
+/// Flags of `results verify`.
+#[derive(Debug, Args)]
+struct VerifyArgs {
+    /// The results log (serve's --results; by default results.sqlite in the state
+    /// directory).
+    file: PathBuf,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `results`.
+pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
+    if let Some(ResultsCommand::Verify(v)) = &args.command {
+        return verify(v);
+    }
+    let Some(server) = &args.server else {
+        bail!("give --server URI to list a station's records, or `results verify FILE`");
+    };
+    let client = CamClient::connect(
+        server,
+        args.transmission.endpoint_config(),
+        args.transmission.psk().as_ref(),
+        args.transmission.timeout()?,
+    )
+    .await?;
+    let query = ListQuery {
+        since: args.since,
+        before: args.before,
+        limit: log::MAX_LIST,
+        code: args.code.clone(),
+    };
+    let limit = usize::try_from(args.limit).unwrap_or(usize::MAX);
+    let records = results::list(&client, &query, limit).await?;
+    if args.csv {
+        outln!("{}", CSV_HEADER.join(","));
+    }
+    for record in &records {
+        if args.json {
+            outln!("{}", serde_json::to_string(record)?);
+        } else if args.csv {
+            outln!("{}", csv_row(record));
+        } else {
+            outln!("{}", text(record));
+        }
+    }
+    if !args.json && !args.csv && records.is_empty() {
+        outln!("no records");
+    }
+    Ok(Exit::Success)
+}
+
+fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
+    let file = &args.file;
+    let report = log::verify(file).with_context(|| format!("verifying {}", file.display()))?;
+    if args.json {
+        let mut doc = serde_json::json!({
+            "file": file.display().to_string(),
+            "verified": report.first_altered.is_none(),
+            "records": report.records,
+            "pictures_checked": report.pictures_checked,
+            "pictures_pruned": report.pictures_pruned,
+        });
+        if let Some((id, hash)) = &report.head {
+            doc["head"] = serde_json::json!({ "id": id, "hash": hash });
+        }
+        if let Some(a) = &report.first_altered {
+            doc["first_altered"] = serde_json::json!({ "id": a.id, "why": a.why });
+        }
+        outln!("{doc}");
+    } else {
+        match &report.first_altered {
+            None => out!(
+                "{}: the chain verifies: {} record(s){}, {} picture(s) checked, {} pruned\n",
+                file.display(),
+                report.records,
+                report
+                    .head
+                    .as_ref()
+                    .map(|(id, hash)| format!(", newest #{id} with hash {hash}"))
+                    .unwrap_or_default(),
+                report.pictures_checked,
+                report.pictures_pruned,
+            ),
+            Some(a) => out!(
+                "{}: record {} was altered or is missing: {}\n({} record(s) before it verify)\n",
+                file.display(),
+                a.id,
+                a.why,
+                report.records
+            ),
+        }
+    }
+    Ok(if report.first_altered.is_none() {
+        Exit::Success
+    } else {
+        Exit::Altered
+    })
+}
+
+/// One line of text for a record.
+fn text(r: &Record) -> String {
+    let m = &r.measurement;
+    let parcel = match m.reported() {
+        Some(p) => format!(
+            "{:.1} x {:.1} x {:.1} mm  {:.2} l  {:.2} kg (divisor {})",
+            p.length_mm,
+            p.width_mm,
+            p.height_mm,
+            p.volume_l,
+            p.volumetric_weight_kg,
+            p.volumetric_divisor_cm3_per_kg
+        ),
+        None => "nothing on the table".to_owned(),
+    };
+    let codes = r.code_texts();
+    let mut line = format!(
+        "#{:<5} {}  {}  {:<7}  {parcel}",
+        r.id,
+        r.time,
+        r.station,
+        r.trigger.name()
+    );
+    if !codes.is_empty() {
+        line += &format!("  codes: {}", codes.join(", "));
+    }
+    let warnings = m.warnings.len();
+    if warnings > 0 {
+        line += &format!("  ({warnings} warning(s))");
+    }
+    line
+}
+
+const CSV_HEADER: [&str; 14] = [
+    "id",
+    "time",
+    "station",
+    "trigger",
+    "parcel",
+    "length_mm",
+    "width_mm",
+    "height_mm",
+    "volume_l",
+    "volumetric_weight_kg",
+    "volumetric_divisor_cm3_per_kg",
+    "codes",
+    "warnings",
+    "hash",
+];
+
+/// A record's CSV row, in [`CSV_HEADER`]'s order.
+fn csv_row(r: &Record) -> String {
+    let m = &r.measurement;
+    let p = m.reported();
+    let number = |f: fn(&Reported) -> f64| p.map(|p| f(p).to_string()).unwrap_or_default();
+    let fields = [
+        r.id.to_string(),
+        r.time.to_string(),
+        r.station.clone(),
+        r.trigger.name().to_owned(),
+        if p.is_some() { "measured" } else { "nothing" }.to_owned(),
+        number(|p| p.length_mm),
+        number(|p| p.width_mm),
+        number(|p| p.height_mm),
+        number(|p| p.volume_l),
+        number(|p| p.volumetric_weight_kg),
+        number(|p| p.volumetric_divisor_cm3_per_kg),
+        r.code_texts().join(";"),
+        m.warnings.len().to_string(),
+        r.hash.clone(),
+    ];
+    fields.map(|f| csv_field(&f)).join(",")
+}
+
+/// A CSV field, quoted when it holds a comma, a quote or a line break (RFC 4180).
+fn csv_field(text: &str) -> String {
+    if text.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", text.replace('"', "\"\""))
+    } else {
+        text.to_owned()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_fields_are_quoted_only_when_needed() {
+        assert_eq!(csv_field("PKG-1"), "PKG-1");
+        assert_eq!(csv_field("a,b"), "\"a,b\"");
+        assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");
+    }
+}
