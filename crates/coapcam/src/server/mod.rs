@@ -168,7 +168,7 @@ impl Station {
                 let log = ResultsLog::open_with(&path, config.station.retention)
                     .with_context(|| format!("opening the results log {}", path.display()))?;
                 station::resources::register(&router, &log);
-                tree._cams
+                tree.cams
                     .set_recorder(Recorder::new(log.clone(), config.station.name.clone()));
                 let newest = log.subscribe();
                 Some((log, newest))
