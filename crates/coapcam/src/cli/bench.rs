@@ -10,7 +10,7 @@ use clap::{Args, Subcommand};
 use markers::Family;
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
-use rgbd::scene::{Noise, SceneBox, SceneCamera, SceneMarker};
+use rgbd::scene::{Noise, SceneBox, SceneCamera, SceneMarker, Timeline};
 use rgbd::{Scene, Serial};
 
 use super::{DimensionArgs, Exit, calibrate, outln};
@@ -162,6 +162,7 @@ fn parcel_scene(
             yaw_deg,
             color: [180, 140, 90],
             label: None,
+            timeline: Timeline::default(),
         }],
         ..Scene::default_single()
     }
@@ -185,6 +186,7 @@ fn marker_grid() -> Vec<SceneMarker> {
                 } else {
                     f64::from(id % 6) * 15.0
                 },
+                timeline: Timeline::default(),
             });
             id += u32::from(!origin);
         }

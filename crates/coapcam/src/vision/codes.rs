@@ -697,6 +697,8 @@ mod tests {
             kind: rgbd::scene::LabelKind::Code128,
             text: "1Z999AA10123456784".into(),
             size: 0.25,
+            appear_s: None,
+            remove_s: None,
         });
         assert_eq!(
             read(&photograph(&scene, 0)),

@@ -10,3 +10,4 @@ mod realsense;
 mod scene;
 mod support;
 mod synthetic;
+mod timeline;

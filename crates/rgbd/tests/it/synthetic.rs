@@ -287,6 +287,7 @@ fn a_floor_marker_is_drawn_with_its_family_pattern_where_the_color_camera_sees_i
         size: 0.16,
         center: [0.1, 0.05],
         yaw_deg: 30.0,
+        timeline: rgbd::scene::Timeline::default(),
     });
     scene.validate().unwrap();
     let cam = only_camera(&scene);

@@ -22,6 +22,12 @@ pub struct Label {
     pub text: String,
     /// Label width in metres.
     pub size: f64,
+    /// When it is stuck on the box, seconds of scene time; `None` = from the start.
+    #[serde(default)]
+    pub appear_s: Option<f64>,
+    /// When it is peeled off; `None` = never.
+    #[serde(default)]
+    pub remove_s: Option<f64>,
 }
 
 impl Label {
@@ -125,6 +131,8 @@ mod tests {
             kind: LabelKind::Qr,
             text: "PKG-0001".into(),
             size: 0.08,
+            appear_s: None,
+            remove_s: None,
         })
         .unwrap();
         assert!(!t.is_dark(0.01, 0.01));
@@ -139,6 +147,8 @@ mod tests {
             kind: LabelKind::Code128,
             text: "Größe".into(),
             size: 0.1,
+            appear_s: None,
+            remove_s: None,
         });
         assert!(e.unwrap_err().contains("printable ASCII"));
     }

@@ -30,6 +30,13 @@
 //! fixed directional light (ambient + Lambert), labels as black and white modules on
 //! the box's top face. No noise.
 //!
+//! A scene may have a timeline (objects that appear, slide in and are removed; see
+//! [`scene`]): a grab renders the scene as it stands at the frame's capture, in scene
+//! time since the cameras were made ([`SyntheticCamera::scene_time`]; all cameras of
+//! [`SyntheticCamera::all`] share one). The scene is prepared once; the world of a
+//! moment is rebuilt from the prepared objects only when something moved, appeared or
+//! left since the frame before.
+//!
 //! Grabs deliver frames at once unless a frame delay is set
 //! ([`SyntheticCamera::set_frame_delay`]); a grab whose timeout is shorter than the
 //! delay fails with [`CameraError::Timeout`] after waiting the timeout. A camera set
@@ -43,7 +50,7 @@ mod render;
 pub mod scene;
 
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use crate::advanced::{AdvancedConfig, VisualPreset};
 use crate::backend::FrameClock;
@@ -52,7 +59,7 @@ use crate::frame::{ColorFrame, DepthFrame};
 use crate::intrinsics::{Extrinsics, Intrinsics, Pose};
 use crate::mode::{ModeTable, Stream};
 use crate::settings::{ColorSettings, DepthSettings};
-use raycast::{View, World};
+use raycast::{Stage, View};
 use render::DepthJob;
 use scene::{Noise, Scene, SceneError};
 
@@ -74,29 +81,43 @@ pub struct SyntheticCamera {
     seed: u64,
     pose: Pose,
     calibrated: bool,
-    world: Arc<World>,
+    stage: Arc<Stage>,
+    /// Scene time 0: when the scene's cameras were made.
+    epoch: Instant,
     modes: ModeTable,
     state: Mutex<State>,
 }
 
 impl SyntheticCamera {
-    /// The scene's camera with this serial.
+    /// The scene's camera with this serial; its scene time starts now.
     pub fn new(scene: &Scene, serial: &Serial) -> Result<Self, SceneError> {
-        let world = Arc::new(World::new(scene)?);
-        Self::with_world(scene, serial, world)
+        let stage = Arc::new(Stage::new(scene)?);
+        Self::on_stage(scene, serial, stage, Instant::now())
     }
 
-    /// Every camera of the scene, sharing one prepared scene.
+    /// Every camera of the scene, sharing one prepared scene and one scene time, which
+    /// starts now.
     pub fn all(scene: &Scene) -> Result<Vec<Arc<Self>>, SceneError> {
-        let world = Arc::new(World::new(scene)?);
+        Self::all_since(scene, Instant::now())
+    }
+
+    /// Every camera of the scene, sharing one prepared scene, with scene time 0 at
+    /// `epoch`.
+    pub fn all_since(scene: &Scene, epoch: Instant) -> Result<Vec<Arc<Self>>, SceneError> {
+        let stage = Arc::new(Stage::new(scene)?);
         scene
             .cameras
             .iter()
-            .map(|c| Self::with_world(scene, &c.serial, Arc::clone(&world)).map(Arc::new))
+            .map(|c| Self::on_stage(scene, &c.serial, Arc::clone(&stage), epoch).map(Arc::new))
             .collect()
     }
 
-    fn with_world(scene: &Scene, serial: &Serial, world: Arc<World>) -> Result<Self, SceneError> {
+    fn on_stage(
+        scene: &Scene,
+        serial: &Serial,
+        stage: Arc<Stage>,
+        epoch: Instant,
+    ) -> Result<Self, SceneError> {
         let invalid = |reason: &str| SceneError::Invalid {
             field: format!("camera {serial}"),
             reason: reason.to_owned(),
@@ -113,7 +134,8 @@ impl SyntheticCamera {
             seed: scene.seed,
             pose,
             calibrated: cam.calibrated,
-            world,
+            stage,
+            epoch,
             modes: ModeTable::d415(),
             state: Mutex::new(State {
                 color: ColorSettings::default(),
@@ -148,11 +170,23 @@ impl SyntheticCamera {
             .map_or(DepthFrame::DEFAULT_DEPTH_SCALE, |um| um as f32 * 1e-6)
     }
 
-    /// Renders depth frame `frame_number` with the current settings, without
-    /// touching the frame counter. `timestamp_us` is the device clock: microseconds
-    /// since stream start at the mode's frame rate. Same scene seed, serial, settings
-    /// and frame number give identical data.
+    /// Scene time now: how long ago the scene's cameras were made. The scene's
+    /// timelines (appear, slide, remove) are in this time.
+    pub fn scene_time(&self) -> Duration {
+        self.epoch.elapsed()
+    }
+
+    /// Renders depth frame `frame_number` with the current settings at the current
+    /// scene time ([`SyntheticCamera::render_depth_at`]).
     pub fn render_depth(&self, frame_number: u64) -> DepthFrame {
+        self.render_depth_at(frame_number, self.scene_time())
+    }
+
+    /// Renders depth frame `frame_number` with the current settings as the scene stands
+    /// at `scene_time`, without touching the frame counter. `timestamp_us` is the device
+    /// clock: microseconds since stream start at the mode's frame rate. Same scene seed,
+    /// serial, settings, frame number and scene (as it stands then) give identical data.
+    pub fn render_depth_at(&self, frame_number: u64, scene_time: Duration) -> DepthFrame {
         let (settings, depth_scale) = {
             let s = self.lock();
             (s.depth, Self::depth_scale_of(&s))
@@ -171,13 +205,20 @@ impl SyntheticCamera {
             depth_scale,
             timestamp_us: device_time_us(frame_number, settings.fps),
             frame_number,
-            data: render::render_depth(&self.world, &view, &job),
+            data: render::render_depth(&self.stage.world_at(scene_time.as_secs_f64()), &view, &job),
         }
     }
 
-    /// Renders color frame `frame_number` with the current settings, without touching
-    /// the frame counter (timestamps as [`SyntheticCamera::render_depth`]).
+    /// Renders color frame `frame_number` with the current settings at the current
+    /// scene time ([`SyntheticCamera::render_color_at`]).
     pub fn render_color(&self, frame_number: u64) -> ColorFrame {
+        self.render_color_at(frame_number, self.scene_time())
+    }
+
+    /// Renders color frame `frame_number` with the current settings as the scene stands
+    /// at `scene_time`, without touching the frame counter (timestamps as
+    /// [`SyntheticCamera::render_depth_at`]).
+    pub fn render_color_at(&self, frame_number: u64, scene_time: Duration) -> ColorFrame {
         let settings = self.lock().color;
         let k = d415::color_intrinsics(settings.width, settings.height);
         let view = View::new(&self.pose, color_offset(), k);
@@ -188,7 +229,11 @@ impl SyntheticCamera {
             stride: settings.width as usize * settings.format.bytes_per_pixel(),
             timestamp_us: device_time_us(frame_number, settings.fps),
             frame_number,
-            data: render::render_color(&self.world, &view, settings.format),
+            data: render::render_color(
+                &self.stage.world_at(scene_time.as_secs_f64()),
+                &view,
+                settings.format,
+            ),
         }
     }
 

@@ -1,10 +1,14 @@
 //! Ray casting of a scene: analytic intersections with the floor plane, yawed boxes
 //! and vertical cylinders; per-row culling of primitives by their bounding spheres.
+//! A [`Stage`] holds a scene prepared once (labels encoded, marker patterns read) and
+//! gives the [`World`] of any moment of its timeline.
+
+use std::sync::{Arc, Mutex, PoisonError};
 
 use nalgebra::{Matrix3, Vector3};
 
 use super::label::{self, LabelTexture};
-use super::scene::{Scene, SceneError};
+use super::scene::{Scene, SceneError, Timeline};
 use crate::intrinsics::{Intrinsics, Pose};
 
 pub(crate) type V3 = Vector3<f32>;
@@ -34,7 +38,7 @@ pub(crate) struct Hit {
     pub(crate) surface: Surface,
 }
 
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 struct BoxPrim {
     /// Footprint centre on the floor.
     center: V3,
@@ -42,23 +46,23 @@ struct BoxPrim {
     sin: f32,
     half: [f32; 2],
     height: f32,
-    label: Option<(LabelTexture, [f32; 2])>,
+    label: Option<(Arc<LabelTexture>, [f32; 2])>,
 }
 
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 struct CylPrim {
     center: V3,
     radius: f32,
     height: f32,
 }
 
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 enum Shape {
     Box(BoxPrim),
     Cylinder(CylPrim),
 }
 
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 struct Prim {
     shape: Shape,
     color: [f32; 3],
@@ -87,6 +91,21 @@ struct Interval {
 }
 
 impl Prim {
+    /// The centre of the primitive's footprint on the floor.
+    fn shape_center(&self) -> V3 {
+        match &self.shape {
+            Shape::Box(b) => b.center,
+            Shape::Cylinder(c) => c.center,
+        }
+    }
+
+    fn set_center(&mut self, to: V3) {
+        match &mut self.shape {
+            Shape::Box(b) => b.center = to,
+            Shape::Cylinder(c) => c.center = to,
+        }
+    }
+
     fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
         match &self.shape {
             Shape::Box(b) => b.interval(o, d),
@@ -212,14 +231,14 @@ impl CylPrim {
 }
 
 /// A marker on the floor, its pattern read from the family's table.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 struct FloorMarker {
     center: [f32; 2],
     cos: f32,
     sin: f32,
     /// Side of one pattern cell, metres.
     cell: f32,
-    pattern: markers::Pattern,
+    pattern: Arc<markers::Pattern>,
 }
 
 impl FloorMarker {
@@ -238,7 +257,7 @@ impl FloorMarker {
     }
 }
 
-/// A scene prepared for ray casting (f32, labels encoded).
+/// A scene at one moment, prepared for ray casting (f32, labels encoded).
 #[derive(Debug)]
 pub(crate) struct World {
     floor_z: f32,
@@ -251,7 +270,40 @@ fn rgb(c: [u8; 3]) -> [f32; 3] {
     c.map(f32::from)
 }
 
-impl World {
+/// An object of a stage: prepared at its centre, placed on the timeline.
+#[derive(Debug)]
+struct Staged<T> {
+    item: T,
+    center: [f64; 2],
+    timeline: Timeline,
+    /// A box's label's own timeline (the label is part of `item`).
+    label: Option<Timeline>,
+}
+
+/// Where each object of a stage is at one moment: its position (`None`: absent) and
+/// whether its label is on. Equal placements make the same world.
+#[derive(Debug, Clone, PartialEq)]
+struct Placement {
+    at: Option<[f64; 2]>,
+    label: bool,
+}
+
+/// A scene prepared once for every moment of its timeline. A scene without timelines
+/// has one world; otherwise the world of a moment is built from the prepared objects
+/// (moved, left out) when it differs from the last one asked for, so a scene where
+/// nothing moves costs no rebuilding per frame.
+#[derive(Debug)]
+pub(crate) struct Stage {
+    floor_z: f32,
+    floor_color: [f32; 3],
+    prims: Vec<Staged<Prim>>,
+    markers: Vec<Staged<FloorMarker>>,
+    /// The world for the placements of the last moment asked for.
+    posed: Mutex<(Vec<Placement>, Arc<World>)>,
+    timed: bool,
+}
+
+impl Stage {
     pub(crate) fn new(scene: &Scene) -> Result<Self, SceneError> {
         scene.validate()?;
         let floor_z = scene.floor.z as f32;
@@ -264,7 +316,7 @@ impl World {
                         reason,
                     })?;
                     let (lx, ly) = l.extent_m();
-                    Some((texture, [lx as f32, ly as f32]))
+                    Some((Arc::new(texture), [lx as f32, ly as f32]))
                 }
                 None => None,
             };
@@ -272,33 +324,43 @@ impl World {
             let half = [b.size[0] as f32 / 2.0, b.size[1] as f32 / 2.0];
             let height = b.size[2] as f32;
             let center = V3::new(b.center[0] as f32, b.center[1] as f32, floor_z);
-            prims.push(Prim {
-                shape: Shape::Box(BoxPrim {
-                    center,
-                    cos: yaw.cos(),
-                    sin: yaw.sin(),
-                    half,
-                    height,
-                    label,
-                }),
-                color: rgb(b.color),
-                sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
-                sphere_radius: (half[0] * half[0] + half[1] * half[1] + height * height / 4.0)
-                    .sqrt(),
+            prims.push(Staged {
+                item: Prim {
+                    shape: Shape::Box(BoxPrim {
+                        center,
+                        cos: yaw.cos(),
+                        sin: yaw.sin(),
+                        half,
+                        height,
+                        label,
+                    }),
+                    color: rgb(b.color),
+                    sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
+                    sphere_radius: (half[0] * half[0] + half[1] * half[1] + height * height / 4.0)
+                        .sqrt(),
+                },
+                center: b.center,
+                timeline: b.timeline,
+                label: b.label.as_ref().map(|l| l.timeline()),
             });
         }
         for c in &scene.cylinders {
             let (radius, height) = (c.radius as f32, c.height as f32);
             let center = V3::new(c.center[0] as f32, c.center[1] as f32, floor_z);
-            prims.push(Prim {
-                shape: Shape::Cylinder(CylPrim {
-                    center,
-                    radius,
-                    height,
-                }),
-                color: rgb(c.color),
-                sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
-                sphere_radius: (radius * radius + height * height / 4.0).sqrt(),
+            prims.push(Staged {
+                item: Prim {
+                    shape: Shape::Cylinder(CylPrim {
+                        center,
+                        radius,
+                        height,
+                    }),
+                    color: rgb(c.color),
+                    sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
+                    sphere_radius: (radius * radius + height * height / 4.0).sqrt(),
+                },
+                center: c.center,
+                timeline: c.timeline,
+                label: None,
             });
         }
         let mut markers = Vec::with_capacity(scene.markers.len());
@@ -312,20 +374,117 @@ impl World {
                 .pattern(m.id)
                 .ok_or_else(|| invalid(format!("{family} has no id {}", m.id)))?;
             let yaw = (m.yaw_deg as f32).to_radians();
-            markers.push(FloorMarker {
-                center: [m.center[0] as f32, m.center[1] as f32],
-                cos: yaw.cos(),
-                sin: yaw.sin(),
-                cell: m.size as f32 / pattern.black_cells as f32,
-                pattern,
+            markers.push(Staged {
+                item: FloorMarker {
+                    center: [m.center[0] as f32, m.center[1] as f32],
+                    cos: yaw.cos(),
+                    sin: yaw.sin(),
+                    cell: m.size as f32 / pattern.black_cells as f32,
+                    pattern: Arc::new(pattern),
+                },
+                center: m.center,
+                timeline: m.timeline,
+                label: None,
             });
         }
-        Ok(Self {
+        let mut stage = Self {
             floor_z,
             floor_color: rgb(scene.floor.color),
             prims,
             markers,
-        })
+            posed: Mutex::new((Vec::new(), Arc::new(World::empty()))),
+            timed: scene.is_timed(),
+        };
+        let placements = stage.placements(0.0);
+        let world = stage.build(&placements);
+        stage.posed = Mutex::new((placements, Arc::new(world)));
+        Ok(stage)
+    }
+
+    /// The world at scene time `t_s` (seconds).
+    pub(crate) fn world_at(&self, t_s: f64) -> Arc<World> {
+        let mut posed = self.posed.lock().unwrap_or_else(PoisonError::into_inner);
+        if !self.timed {
+            return Arc::clone(&posed.1);
+        }
+        let placements = self.placements(t_s);
+        if posed.0 != placements {
+            let world = Arc::new(self.build(&placements));
+            *posed = (placements, world);
+        }
+        Arc::clone(&posed.1)
+    }
+
+    /// Where every object (prims, then markers) is at `t_s`.
+    fn placements(&self, t_s: f64) -> Vec<Placement> {
+        self.prims
+            .iter()
+            .map(|p| p.placement(t_s))
+            .chain(self.markers.iter().map(|m| m.placement(t_s)))
+            .collect()
+    }
+
+    /// The world of `placements` (as [`Stage::placements`] gives them).
+    fn build(&self, placements: &[Placement]) -> World {
+        let (of_prims, of_markers) = placements.split_at(self.prims.len());
+        let prims = self
+            .prims
+            .iter()
+            .zip(of_prims)
+            .filter_map(|(p, place)| {
+                let at = place.at?;
+                let mut prim = p.item.clone();
+                if at != p.center {
+                    let to = V3::new(at[0] as f32, at[1] as f32, self.floor_z);
+                    prim.sphere_center += to - prim.shape_center();
+                    prim.set_center(to);
+                }
+                if !place.label
+                    && let Shape::Box(b) = &mut prim.shape
+                {
+                    b.label = None;
+                }
+                Some(prim)
+            })
+            .collect();
+        let markers = self
+            .markers
+            .iter()
+            .zip(of_markers)
+            .filter_map(|(m, place)| {
+                let at = place.at?;
+                let mut marker = m.item.clone();
+                marker.center = [at[0] as f32, at[1] as f32];
+                Some(marker)
+            })
+            .collect();
+        World {
+            floor_z: self.floor_z,
+            floor_color: self.floor_color,
+            prims,
+            markers,
+        }
+    }
+}
+
+impl<T> Staged<T> {
+    fn placement(&self, t_s: f64) -> Placement {
+        let at = self.timeline.position(self.center, t_s);
+        Placement {
+            at,
+            label: at.is_some() && self.label.is_some_and(|l| l.present(t_s)),
+        }
+    }
+}
+
+impl World {
+    fn empty() -> Self {
+        Self {
+            floor_z: 0.0,
+            floor_color: [0.0; 3],
+            prims: Vec::new(),
+            markers: Vec::new(),
+        }
     }
 
     /// Ray parameter at which `o + t d` meets the floor, if ahead.
@@ -582,5 +741,48 @@ impl View {
                 out.push(RowCandidate { prim, u_lo, u_hi });
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sliding() -> Scene {
+        Scene::from_toml(
+            r#"[[box]]
+size = [0.2, 0.1, 0.15]
+center = [0.0, 0.0]
+appear_s = 1.0
+from = [0.3, 0.0]
+still_s = 2.0
+remove_s = 4.0"#,
+        )
+        .expect("scene")
+    }
+
+    #[test]
+    fn a_scene_without_timelines_has_one_world() {
+        let stage = Stage::new(&Scene::default_demo()).expect("stage");
+        let first = stage.world_at(0.0);
+        assert!(Arc::ptr_eq(&first, &stage.world_at(1.0e6)));
+        assert_eq!(first.prims.len(), 1);
+    }
+
+    #[test]
+    fn a_world_is_built_again_only_when_something_changed() {
+        let stage = Stage::new(&sliding()).expect("stage");
+        let before = stage.world_at(0.2);
+        assert!(before.prims.is_empty());
+        assert!(Arc::ptr_eq(&before, &stage.world_at(0.9)), "nothing there");
+        let a = stage.world_at(1.25);
+        let b = stage.world_at(1.5);
+        assert!(!Arc::ptr_eq(&a, &b), "it slides");
+        assert!((a.prims[0].shape_center().x - 0.225).abs() < 1e-6);
+        assert!((a.prims[0].sphere_center.x - 0.225).abs() < 1e-6);
+        let still = stage.world_at(2.0);
+        assert!(Arc::ptr_eq(&still, &stage.world_at(3.5)), "standing still");
+        assert_eq!(still.prims[0].shape_center(), V3::zeros());
+        assert!(stage.world_at(4.0).prims.is_empty());
     }
 }

@@ -44,6 +44,26 @@
 //! is its width in metres; a QR label is square, a Code 128 label is half as tall as
 //! wide. Both carry a white quiet zone.
 //!
+//! Objects on a timeline: every `[[box]]`, `[[cylinder]]` and `[[marker]]` (and a box's
+//! label) may say when it is there, in seconds of scene time (the time since the cameras
+//! were made, i.e. since the server started):
+//!
+//! ```toml
+//! [[box]]
+//! size = [0.30, 0.20, 0.15]
+//! center = [0.0, 0.0]
+//! appear_s = 1.0              # absent before (default: there from the start)
+//! from = [0.6, 0.0]           # where it appears; it slides in a straight line ...
+//! still_s = 2.0               # ... to `center`, where it stands from `still_s` on
+//! remove_s = 6.0              # absent from then on (default: never removed)
+//! label = { kind = "qr", text = "PKG-2", size = 0.08, appear_s = 3.0 }  # stuck on later
+//! ```
+//!
+//! `from` and `still_s` go together; `still_s` must be after `appear_s`, `remove_s`
+//! after both. Yaw does not change while sliding. A label moves with its box and takes
+//! only `appear_s` and `remove_s`. Without these fields an object is there, still, all
+//! the time: a scene without them renders exactly as before timelines existed.
+//!
 //! A marker lies flat on the floor (it changes color, not depth), drawn with its
 //! family's real pattern (the `markers` crate): the black square `size` wide, the data
 //! bits inside it, one white cell around it. Its x axis (the pattern's rows, left to
@@ -80,6 +100,137 @@ fn default_cylinder_color() -> [u8; 3] {
 }
 fn default_noise() -> Noise {
     Noise::D415
+}
+
+/// When an object is in the scene and how it gets to its place, in seconds of scene
+/// time (see the module documentation). The default is "there, still, all the time".
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Timeline {
+    /// When it appears; `None` = from the start.
+    pub appear_s: Option<f64>,
+    /// When it is removed; `None` = never.
+    pub remove_s: Option<f64>,
+    /// Where it appears, (x, y) metres, when it slides in to its centre.
+    pub from: Option<[f64; 2]>,
+    /// When it stands at its centre, having slid from `from` since `appear_s`.
+    pub still_s: Option<f64>,
+}
+
+impl Label {
+    /// When the label is on its box (it moves with the box: no `from`).
+    pub fn timeline(&self) -> Timeline {
+        Timeline {
+            appear_s: self.appear_s,
+            remove_s: self.remove_s,
+            from: None,
+            still_s: None,
+        }
+    }
+}
+
+/// Latest time a timeline may name, seconds (about 116 days).
+pub const MAX_SCENE_TIME_S: f64 = 1.0e7;
+
+impl Timeline {
+    /// Whether it is the default: there, still, all the time.
+    pub fn is_always(&self) -> bool {
+        *self == Self::default()
+    }
+
+    /// When it appears, seconds (0 when there from the start).
+    pub fn appear(&self) -> f64 {
+        self.appear_s.unwrap_or(0.0)
+    }
+
+    /// When it stands still at its centre: `still_s` when it slides in, else when it
+    /// appears.
+    pub fn still(&self) -> f64 {
+        self.still_s.unwrap_or_else(|| self.appear())
+    }
+
+    /// Whether it is in the scene at scene time `t_s`.
+    pub fn present(&self, t_s: f64) -> bool {
+        t_s >= self.appear() && self.remove_s.is_none_or(|r| t_s < r)
+    }
+
+    /// Whether it is in the scene and sliding at `t_s`.
+    pub fn moving(&self, t_s: f64) -> bool {
+        self.present(t_s) && self.from.is_some() && t_s < self.still()
+    }
+
+    /// Where an object resting at `center` stands at `t_s`; `None` when it is absent.
+    /// From `still_s` on (and always without `from`) exactly `center`.
+    pub fn position(&self, center: [f64; 2], t_s: f64) -> Option<[f64; 2]> {
+        if !self.present(t_s) {
+            return None;
+        }
+        match (self.from, self.still_s) {
+            (Some(from), Some(still)) if t_s < still => {
+                let f = (t_s - self.appear()) / (still - self.appear());
+                Some([
+                    from[0] + (center[0] - from[0]) * f,
+                    from[1] + (center[1] - from[1]) * f,
+                ])
+            }
+            _ => Some(center),
+        }
+    }
+
+    /// Checks the rules of a timeline; `at` names a field (`box[0].still_s`).
+    fn validate(&self, at: &dyn Fn(&str) -> String) -> Result<(), SceneError> {
+        for (name, value) in [
+            ("appear_s", self.appear_s),
+            ("remove_s", self.remove_s),
+            ("still_s", self.still_s),
+        ] {
+            if let Some(v) = value
+                && !(v.is_finite() && (0.0..=MAX_SCENE_TIME_S).contains(&v))
+            {
+                return Err(invalid(
+                    at(name),
+                    format!("must be seconds of scene time from 0 to {MAX_SCENE_TIME_S}, got {v}"),
+                ));
+            }
+        }
+        if let Some(from) = self.from {
+            coordinates(&at("from"), &from)?;
+        }
+        let appear = self.appear();
+        match (self.from, self.still_s) {
+            (Some(_), None) => {
+                return Err(invalid(
+                    at("from"),
+                    "needs still_s: the time it stands at its centre after sliding from `from`",
+                ));
+            }
+            (None, Some(_)) => {
+                return Err(invalid(
+                    at("still_s"),
+                    "needs from: the point it slides from, starting at appear_s",
+                ));
+            }
+            (Some(_), Some(still)) if still <= appear => {
+                return Err(invalid(
+                    at("still_s"),
+                    format!("must be after appear_s ({appear} s), got {still}"),
+                ));
+            }
+            _ => {}
+        }
+        if let Some(remove) = self.remove_s {
+            let (after, when) = match self.still_s {
+                Some(still) => ("still_s", still),
+                None => ("appear_s", appear),
+            };
+            if remove <= when {
+                return Err(invalid(
+                    at("remove_s"),
+                    format!("must be after {after} ({when} s), got {remove}"),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The floor plane.
@@ -122,26 +273,64 @@ pub struct SceneCamera {
 
 /// A box standing on the floor.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(from = "BoxFile")]
 pub struct SceneBox {
     /// Length (along x before yaw), width, height in metres.
     pub size: [f64; 3],
     /// Footprint centre on the floor, (x, y) metres.
     pub center: [f64; 2],
     /// Rotation about world z, degrees, counter-clockwise seen from above.
-    #[serde(default)]
     pub yaw_deg: f64,
     /// Color.
-    #[serde(default = "default_box_color")]
     pub color: [u8; 3],
     /// Optional barcode label on the top face.
-    #[serde(default)]
     pub label: Option<Label>,
+    /// When it is there, and whether it slides in.
+    pub timeline: Timeline,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BoxFile {
+    size: [f64; 3],
+    center: [f64; 2],
+    #[serde(default)]
+    yaw_deg: f64,
+    #[serde(default = "default_box_color")]
+    color: [u8; 3],
+    #[serde(default)]
+    label: Option<Label>,
+    #[serde(default)]
+    appear_s: Option<f64>,
+    #[serde(default)]
+    remove_s: Option<f64>,
+    #[serde(default)]
+    from: Option<[f64; 2]>,
+    #[serde(default)]
+    still_s: Option<f64>,
+}
+
+impl From<BoxFile> for SceneBox {
+    fn from(f: BoxFile) -> Self {
+        Self {
+            size: f.size,
+            center: f.center,
+            yaw_deg: f.yaw_deg,
+            color: f.color,
+            label: f.label,
+            timeline: Timeline {
+                appear_s: f.appear_s,
+                remove_s: f.remove_s,
+                from: f.from,
+                still_s: f.still_s,
+            },
+        }
+    }
 }
 
 /// A vertical cylinder standing on the floor.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(from = "CylinderFile")]
 pub struct Cylinder {
     /// Radius, metres.
     pub radius: f64,
@@ -150,13 +339,49 @@ pub struct Cylinder {
     /// Centre on the floor, (x, y) metres.
     pub center: [f64; 2],
     /// Color.
-    #[serde(default = "default_cylinder_color")]
     pub color: [u8; 3],
+    /// When it is there, and whether it slides in.
+    pub timeline: Timeline,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CylinderFile {
+    radius: f64,
+    height: f64,
+    center: [f64; 2],
+    #[serde(default = "default_cylinder_color")]
+    color: [u8; 3],
+    #[serde(default)]
+    appear_s: Option<f64>,
+    #[serde(default)]
+    remove_s: Option<f64>,
+    #[serde(default)]
+    from: Option<[f64; 2]>,
+    #[serde(default)]
+    still_s: Option<f64>,
+}
+
+impl From<CylinderFile> for Cylinder {
+    fn from(f: CylinderFile) -> Self {
+        Self {
+            radius: f.radius,
+            height: f.height,
+            center: f.center,
+            color: f.color,
+            timeline: Timeline {
+                appear_s: f.appear_s,
+                remove_s: f.remove_s,
+                from: f.from,
+                still_s: f.still_s,
+            },
+        }
+    }
 }
 
 /// A calibration marker printed on the floor.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(from = "MarkerFile")]
 pub struct SceneMarker {
     /// Family name, e.g. `"tag36h11"` ([`markers::FAMILIES`]).
     pub family: String,
@@ -167,8 +392,46 @@ pub struct SceneMarker {
     /// Centre on the floor, (x, y) metres.
     pub center: [f64; 2],
     /// Rotation about world z, degrees, counter-clockwise seen from above.
-    #[serde(default)]
     pub yaw_deg: f64,
+    /// When it is there, and whether it slides in.
+    pub timeline: Timeline,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MarkerFile {
+    family: String,
+    id: u32,
+    size: f64,
+    center: [f64; 2],
+    #[serde(default)]
+    yaw_deg: f64,
+    #[serde(default)]
+    appear_s: Option<f64>,
+    #[serde(default)]
+    remove_s: Option<f64>,
+    #[serde(default)]
+    from: Option<[f64; 2]>,
+    #[serde(default)]
+    still_s: Option<f64>,
+}
+
+impl From<MarkerFile> for SceneMarker {
+    fn from(f: MarkerFile) -> Self {
+        Self {
+            family: f.family,
+            id: f.id,
+            size: f.size,
+            center: f.center,
+            yaw_deg: f.yaw_deg,
+            timeline: Timeline {
+                appear_s: f.appear_s,
+                remove_s: f.remove_s,
+                from: f.from,
+                still_s: f.still_s,
+            },
+        }
+    }
 }
 
 /// A scene: what the synthetic cameras see.
@@ -438,8 +701,12 @@ impl Scene {
             positive(&at("size"), &b.size)?;
             coordinates(&at("center"), &b.center)?;
             finite(&at("yaw_deg"), &[b.yaw_deg])?;
+            b.timeline.validate(&at)?;
             if let Some(label) = &b.label {
                 positive(&at("label.size"), &[label.size])?;
+                label
+                    .timeline()
+                    .validate(&|f: &str| at(&format!("label.{f}")))?;
                 let chars = label.text.chars().count();
                 if chars > MAX_LABEL_CHARS {
                     return Err(invalid(
@@ -465,6 +732,7 @@ impl Scene {
             positive(&at("radius"), &[c.radius])?;
             positive(&at("height"), &[c.height])?;
             coordinates(&at("center"), &c.center)?;
+            c.timeline.validate(&at)?;
         }
         if self.markers.len() > MAX_MARKERS {
             return Err(invalid(
@@ -487,8 +755,69 @@ impl Scene {
             positive(&at("size"), &[m.size])?;
             coordinates(&at("center"), &m.center)?;
             finite(&at("yaw_deg"), &[m.yaw_deg])?;
+            m.timeline.validate(&at)?;
         }
         Ok(())
+    }
+
+    /// Whether any object (or label) has a timeline: without one the scene is the same
+    /// at every moment.
+    pub fn is_timed(&self) -> bool {
+        self.boxes.iter().any(|b| {
+            !b.timeline.is_always() || b.label.as_ref().is_some_and(|l| !l.timeline().is_always())
+        }) || self.cylinders.iter().any(|c| !c.timeline.is_always())
+            || self.markers.iter().any(|m| !m.timeline.is_always())
+    }
+
+    /// The scene as it stands at scene time `t_s`: the objects there then, each where it
+    /// is then, without timelines (labels not yet stuck on, or peeled off, left out).
+    pub fn at(&self, t_s: f64) -> Self {
+        let mut scene = self.clone();
+        scene.boxes = self
+            .boxes
+            .iter()
+            .filter_map(|b| {
+                let center = b.timeline.position(b.center, t_s)?;
+                let label = b
+                    .label
+                    .as_ref()
+                    .filter(|l| l.timeline().present(t_s))
+                    .map(|l| Label {
+                        appear_s: None,
+                        remove_s: None,
+                        ..l.clone()
+                    });
+                Some(SceneBox {
+                    center,
+                    label,
+                    timeline: Timeline::default(),
+                    ..b.clone()
+                })
+            })
+            .collect();
+        scene.cylinders = self
+            .cylinders
+            .iter()
+            .filter_map(|c| {
+                Some(Cylinder {
+                    center: c.timeline.position(c.center, t_s)?,
+                    timeline: Timeline::default(),
+                    ..c.clone()
+                })
+            })
+            .collect();
+        scene.markers = self
+            .markers
+            .iter()
+            .filter_map(|m| {
+                Some(SceneMarker {
+                    center: m.timeline.position(m.center, t_s)?,
+                    timeline: Timeline::default(),
+                    ..m.clone()
+                })
+            })
+            .collect();
+        scene
     }
 
     /// The camera with this serial.
@@ -551,7 +880,10 @@ impl Scene {
                 kind: LabelKind::Qr,
                 text: "PKG-0001".to_owned(),
                 size: 0.08,
+                appear_s: None,
+                remove_s: None,
             }),
+            timeline: Timeline::default(),
         }
     }
 }
