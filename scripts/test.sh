@@ -58,6 +58,16 @@ if command -v aiocoap-client >/dev/null \
 else
   python3 -m pip install "aiocoap==$AIOCOAP_VERSION" || peer_failed "aiocoap==$AIOCOAP_VERSION"
 fi
+# The MQTT tests (crates/coapcam/tests/it/mqtt.rs) start Debian's mosquitto broker on a
+# free loopback port and read it with mosquitto_sub (mosquitto-clients).
+if { command -v mosquitto >/dev/null || [ -x /usr/sbin/mosquitto ]; } \
+  && command -v mosquitto_sub >/dev/null; then
+  echo "mosquitto: present"
+else
+  { as_root apt-get update && as_root env DEBIAN_FRONTEND=noninteractive \
+      apt-get install -y --no-install-recommends mosquitto mosquitto-clients; } \
+    || peer_failed "mosquitto mosquitto-clients"
+fi
 # librealsense for the rgbd differential tests (crates/rgbd/tests/it/librealsense.rs
 # regenerates its goldens with tools/rs_reference.py); its wheel needs libusb-1.0.
 PYREALSENSE2_VERSION=2.59.1.11053

@@ -16,6 +16,7 @@ mod interop;
 mod library;
 mod load;
 mod logs;
+mod mqtt;
 mod netem;
 mod offhost;
 mod readme;

@@ -41,6 +41,8 @@ pub(crate) enum Peer {
     /// `../shared/peers/build-libcoap.sh`: its folder in `COAPCAM_LIBCOAP435`, or the
     /// script's default.
     Libcoap435,
+    /// Debian mosquitto (the broker) and mosquitto-clients (mosquitto_sub).
+    Mosquitto,
 }
 
 /// The path of libcoap 4.3.5's `coap-client` or `coap-server`.
@@ -79,6 +81,18 @@ pub(crate) fn libcoap435_server() -> (Proc, SocketAddr) {
     )
 }
 
+/// Debian mosquitto-clients' subscriber.
+pub(crate) const MOSQUITTO_SUB: &str = "mosquitto_sub";
+
+/// The broker program: on PATH, else where Debian puts it (/usr/sbin is not on a
+/// user's PATH).
+pub(crate) fn mosquitto_broker() -> Option<PathBuf> {
+    on_path("mosquitto").or_else(|| {
+        let sbin = PathBuf::from("/usr/sbin/mosquitto");
+        sbin.is_file().then_some(sbin)
+    })
+}
+
 fn on_path(name: &str) -> Option<PathBuf> {
     let path = std::env::var_os("PATH")?;
     std::env::split_paths(&path)
@@ -97,6 +111,14 @@ fn missing(peer: Peer) -> Option<String> {
         .into_iter()
         .find(|b| on_path(b).is_none())
         .map(|b| format!("{b} is not on PATH (Debian package libcoap3-bin)")),
+        Peer::Mosquitto => {
+            if mosquitto_broker().is_none() {
+                return Some("mosquitto is not installed (Debian package mosquitto)".into());
+            }
+            on_path(MOSQUITTO_SUB).is_none().then(|| {
+                format!("{MOSQUITTO_SUB} is not on PATH (Debian package mosquitto-clients)")
+            })
+        }
         Peer::Libcoap435 => ["coap-client", "coap-server"]
             .into_iter()
             .map(libcoap435)

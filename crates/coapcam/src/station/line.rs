@@ -1,0 +1,280 @@
+//! A plain text line per measurement on TCP (`serve --line-output tcp://ADDR:PORT`), for
+//! systems that read a socket or a serial line: every reader connected gets a line for
+//! each measurement recorded while it is connected,
+//!
+//! ```text
+//! id,time,length_mm,width_mm,height_mm,kg,code\r\n
+//! ```
+//!
+//! ([`format_line`] says each field exactly). A reader that does not keep up, or that is
+//! gone, never holds up the station: each has a queue of [`QUEUE_LINES`] lines, and one
+//! whose queue is full is disconnected with a log line.
+
+use std::io;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+
+use tokio::io::AsyncWriteExt as _;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+
+/// Lines a reader may be behind before it is disconnected.
+pub const QUEUE_LINES: usize = 256;
+/// Readers served at once; one more is refused (closed at once, with a log line).
+pub const MAX_READERS: usize = 64;
+
+/// The fields of a line, in order (the first line of the documentation's example).
+pub const HEADER: &str = "id,time,length_mm,width_mm,height_mm,kg,code";
+
+/// One measurement as a line's fields.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LineFields<'a> {
+    /// The record's id in the results log.
+    pub id: u64,
+    /// UTC time of the measurement, RFC 3339 (e.g. `2026-11-27T09:41:07.250Z`).
+    pub time: &'a str,
+    /// Length, width and height as reported, mm; `None` when nothing was measured.
+    pub dimensions_mm: Option<[f64; 3]>,
+    /// The volumetric weight, kg; `None` when nothing was measured.
+    pub volumetric_weight_kg: Option<f64>,
+    /// The first code read, if any.
+    pub code: Option<&'a str>,
+}
+
+/// The line of a measurement, with its `\r\n`:
+/// - `id`: decimal; `time`: as recorded (RFC 3339, UTC, `Z`);
+/// - `length_mm`, `width_mm`, `height_mm`: one decimal (`400.0`); `kg`: the volumetric
+///   weight, three decimals (`4.800`); all four empty when nothing was measured;
+/// - `code`: the text of the first code read, empty when none was. It is written between
+///   double quotes when it holds a comma, a double quote, or starts or ends with a space,
+///   each double quote inside doubled (RFC 4180); a control character in it (below U+0020,
+///   and U+007F) is written as a space, so that a line is always one line.
+pub fn format_line(f: &LineFields<'_>) -> String {
+    let dims = f.dimensions_mm.map_or_else(
+        || ",,".to_owned(),
+        |[l, w, h]| format!("{l:.1},{w:.1},{h:.1}"),
+    );
+    let kg = f
+        .volumetric_weight_kg
+        .map_or_else(String::new, |kg| format!("{kg:.3}"));
+    let code = f.code.map_or_else(String::new, quote);
+    format!("{},{},{dims},{kg},{code}\r\n", f.id, f.time)
+}
+
+/// The code field: controls as spaces, quoted when needed (RFC 4180).
+fn quote(text: &str) -> String {
+    let clean: String = text
+        .chars()
+        .map(|c| {
+            if c.is_control() && (c as u32) < 0x80 {
+                ' '
+            } else {
+                c
+            }
+        })
+        .collect();
+    if clean.contains([',', '"']) || clean.starts_with(' ') || clean.ends_with(' ') {
+        format!("\"{}\"", clean.replace('"', "\"\""))
+    } else {
+        clean
+    }
+}
+
+type Readers = Arc<Mutex<Vec<Reader>>>;
+
+struct Reader {
+    peer: SocketAddr,
+    lines: mpsc::Sender<Arc<str>>,
+}
+
+/// The listening socket and its readers; dropping it closes every connection.
+pub struct LineServer {
+    addr: SocketAddr,
+    readers: Readers,
+    accept: JoinHandle<()>,
+}
+
+impl LineServer {
+    /// Listens on `addr` (port 0 picks a free one).
+    pub async fn bind(addr: SocketAddr) -> io::Result<Self> {
+        let listener = TcpListener::bind(addr).await?;
+        let addr = listener.local_addr()?;
+        let readers: Readers = Arc::default();
+        let accept = tokio::spawn(accept(listener, readers.clone()));
+        Ok(Self {
+            addr,
+            readers,
+            accept,
+        })
+    }
+
+    /// The address it listens on.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// How many readers are connected.
+    pub fn readers(&self) -> usize {
+        lock(&self.readers).len()
+    }
+
+    /// Queues `line` to every reader; never waits. A reader whose queue is full is
+    /// disconnected (logged), one that is gone is forgotten.
+    pub fn send(&self, line: &str) {
+        let line: Arc<str> = Arc::from(line);
+        lock(&self.readers).retain(|r| match r.lines.try_send(line.clone()) {
+            Ok(()) => true,
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                tracing::warn!(reader = %r.peer, "line output: reader {QUEUE_LINES} lines behind, disconnected");
+                false
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => {
+                tracing::info!(reader = %r.peer, "line output: reader gone");
+                false
+            }
+        });
+    }
+}
+
+impl Drop for LineServer {
+    fn drop(&mut self) {
+        self.accept.abort();
+        lock(&self.readers).clear();
+    }
+}
+
+fn lock(readers: &Readers) -> std::sync::MutexGuard<'_, Vec<Reader>> {
+    // A panic elsewhere while holding it leaves a list that is still whole.
+    readers
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+async fn accept(listener: TcpListener, readers: Readers) {
+    loop {
+        let (stream, peer) = match listener.accept().await {
+            Ok(s) => s,
+            Err(e) => {
+                // Out of descriptors and the like: pause rather than spin.
+                tracing::warn!(error = %e, "line output: accepting a reader failed");
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let mut list = lock(&readers);
+        list.retain(|r| !r.lines.is_closed());
+        if list.len() >= MAX_READERS {
+            tracing::warn!(reader = %peer, "line output: {MAX_READERS} readers already, refused");
+            continue;
+        }
+        let (tx, rx) = mpsc::channel(QUEUE_LINES);
+        list.push(Reader { peer, lines: tx });
+        drop(list);
+        tracing::info!(reader = %peer, "line output: reader connected");
+        tokio::spawn(write(stream, peer, rx));
+    }
+}
+
+/// Writes a reader's lines until its queue is dropped (disconnected) or it is gone.
+async fn write(mut stream: TcpStream, peer: SocketAddr, mut lines: mpsc::Receiver<Arc<str>>) {
+    let _ = stream.set_nodelay(true);
+    let (mut read, mut write) = stream.split();
+    let mut sink = [0u8; 256];
+    loop {
+        tokio::select! {
+            line = lines.recv() => {
+                let Some(line) = line else { return };
+                if let Err(e) = write.write_all(line.as_bytes()).await {
+                    tracing::info!(reader = %peer, error = %e, "line output: reader gone");
+                    return;
+                }
+            }
+            // What a reader sends is ignored; its end (0 bytes or an error) ends it.
+            n = tokio::io::AsyncReadExt::read(&mut read, &mut sink) => {
+                if !matches!(n, Ok(n) if n > 0) {
+                    tracing::info!(reader = %peer, "line output: reader closed the connection");
+                    return;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines() {
+        let mut f = LineFields {
+            id: 12,
+            time: "2026-11-27T09:41:07.250Z",
+            dimensions_mm: Some([400.04, 300.0, 199.96]),
+            volumetric_weight_kg: Some(4.8),
+            code: Some("PKG-0001"),
+        };
+        assert_eq!(
+            format_line(&f),
+            "12,2026-11-27T09:41:07.250Z,400.0,300.0,200.0,4.800,PKG-0001\r\n"
+        );
+        f.code = Some("A,\"B\"\r\nC");
+        assert_eq!(
+            format_line(&f),
+            "12,2026-11-27T09:41:07.250Z,400.0,300.0,200.0,4.800,\"A,\"\"B\"\"  C\"\r\n"
+        );
+        f.code = Some(" x");
+        assert!(format_line(&f).ends_with(",\" x\"\r\n"));
+        f.dimensions_mm = None;
+        f.volumetric_weight_kg = None;
+        f.code = None;
+        assert_eq!(format_line(&f), "12,2026-11-27T09:41:07.250Z,,,,,\r\n");
+    }
+
+    async fn wait_for_readers(server: &LineServer, n: usize) {
+        for _ in 0..1000 {
+            if server.readers() == n {
+                return;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+        }
+        panic!("{} readers, {n} expected", server.readers());
+    }
+
+    #[tokio::test]
+    async fn every_reader_gets_every_line_and_a_stalled_one_is_dropped() {
+        use tokio::io::AsyncBufReadExt as _;
+        let server = LineServer::bind(SocketAddr::from(([127, 0, 0, 1], 0)))
+            .await
+            .unwrap();
+        let mut a =
+            tokio::io::BufReader::new(TcpStream::connect(server.local_addr()).await.unwrap());
+        let mut b =
+            tokio::io::BufReader::new(TcpStream::connect(server.local_addr()).await.unwrap());
+        wait_for_readers(&server, 2).await;
+        for n in 0..3 {
+            server.send(&format!("{n},x\r\n"));
+        }
+        for reader in [&mut a, &mut b] {
+            for n in 0..3 {
+                let mut line = String::new();
+                reader.read_line(&mut line).await.unwrap();
+                assert_eq!(line, format!("{n},x\r\n"));
+            }
+        }
+        // b goes away; a stops reading: b is forgotten, a is dropped once its socket
+        // buffers and its queue are full, and sending never waits for either.
+        drop(b);
+        let line = format!("{}\r\n", "y".repeat(1000));
+        let mut sent = 0;
+        while server.readers() > 0 {
+            assert!(sent < 1_000_000, "the stalled reader was never dropped");
+            server.send(&line);
+            sent += 1;
+            if sent % 64 == 0 {
+                tokio::time::sleep(std::time::Duration::from_millis(1)).await;
+            }
+        }
+        drop(a);
+    }
+}

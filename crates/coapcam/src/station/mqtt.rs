@@ -1,0 +1,703 @@
+//! MQTT to the warehouse (`serve --mqtt mqtt://HOST[:PORT][/PREFIX]`): every record of the
+//! results log, as JSON with its id, published with QoS 1 to `PREFIX/<station>/measurements`
+//! in the log's order, and the station's state on `PREFIX/<station>/status` (`online` when
+//! connected, `offline` as the last will and on a clean stop; both retained).
+//!
+//! Nothing is lost while the broker is away: the publisher reads the log from a durable
+//! per-consumer cursor ([`CONSUMER`]) that moves only past records the broker
+//! acknowledged (PUBACK), so a record waits in the log until then and is delivered at least
+//! once, with its id for the consumer to drop repeats.
+//!
+//! [`Delivery`] is the bookkeeping without IO (which record is in flight, which PUBACK
+//! acknowledges which, how far the cursor may move); [`Publisher`] drives it with a
+//! rumqttc connection. Each connection is a fresh clean session: what was unacknowledged
+//! when a connection was lost is sent again, from the cursor, on the next one, and the
+//! client library keeps nothing of its own across connections.
+
+use std::collections::VecDeque;
+use std::fmt;
+use std::str::FromStr;
+use std::time::Duration;
+
+use rumqttc::{
+    AsyncClient, ConnectionError, Event, EventLoop, LastWill, MqttOptions, Outgoing, Packet, QoS,
+};
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+
+/// The cursor name of the MQTT publisher in the results log.
+pub const CONSUMER: &str = "mqtt";
+/// The broker port when the URI names none (MQTT over TCP, IANA).
+pub const DEFAULT_PORT: u16 = 1883;
+/// The topic prefix when the URI names none.
+pub const DEFAULT_PREFIX: &str = "coapcam";
+/// The retained payload of the status topic while the station is connected.
+pub const ONLINE: &str = "online";
+/// The retained payload of the status topic after the station left (the last will, or
+/// published on a clean stop).
+pub const OFFLINE: &str = "offline";
+
+/// Records in flight (published, not yet acknowledged) at once.
+const WINDOW: usize = 16;
+/// The first wait before reconnecting; doubled per failed attempt up to [`BACKOFF_MAX`],
+/// and back to this after a connection was made.
+const BACKOFF_FIRST: Duration = Duration::from_millis(250);
+/// The longest wait between connection attempts.
+const BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// The MQTT keep-alive: a broker that answers nothing for about this long is taken as
+/// gone (and a station that sends nothing for 1.5 times it is taken as gone by the broker,
+/// which then publishes the last will).
+const KEEP_ALIVE: Duration = Duration::from_secs(15);
+/// The largest message published; a record is far smaller (no pictures).
+const MAX_PACKET: usize = 1 << 20;
+/// How long a clean stop waits for the broker to acknowledge `offline`.
+const STOP_WAIT: Duration = Duration::from_secs(2);
+
+/// Where to publish: the broker and the topic prefix of `mqtt://HOST[:PORT][/PREFIX]`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Target {
+    /// The broker's host name or address (an IPv6 address in brackets).
+    pub host: String,
+    /// The broker's port.
+    pub port: u16,
+    /// The first topic levels, without a trailing `/`.
+    pub prefix: String,
+}
+
+/// Why an `mqtt://` URI or a station name cannot be used.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum TargetError {
+    /// Not `mqtt://...`.
+    #[error("{0:?} is not an mqtt:// URI (mqtt://HOST[:PORT][/PREFIX])")]
+    Scheme(String),
+    /// No host before the port or prefix.
+    #[error("{0:?} names no broker host")]
+    NoHost(String),
+    /// The port is not a number from 1 to 65535.
+    #[error("{0:?}: the port is not a number from 1 to 65535")]
+    Port(String),
+    /// The prefix or the station name cannot be part of a topic name.
+    #[error(
+        "{0:?} cannot be part of an MQTT topic name (no +, #, NUL, empty levels, or a / in the station name)"
+    )]
+    Topic(String),
+}
+
+impl FromStr for Target {
+    type Err = TargetError;
+
+    fn from_str(uri: &str) -> Result<Self, Self::Err> {
+        let rest = uri
+            .strip_prefix("mqtt://")
+            .ok_or_else(|| TargetError::Scheme(uri.into()))?;
+        let (authority, prefix) = rest.split_once('/').unwrap_or((rest, ""));
+        let (host, port) = if let Some(v6) = authority.strip_prefix('[') {
+            let (addr, after) = v6
+                .split_once(']')
+                .ok_or_else(|| TargetError::NoHost(uri.into()))?;
+            (format!("[{addr}]"), after.strip_prefix(':'))
+        } else {
+            match authority.rsplit_once(':') {
+                Some((h, p)) => (h.to_owned(), Some(p)),
+                None => (authority.to_owned(), None),
+            }
+        };
+        if host.is_empty() || host == "[]" {
+            return Err(TargetError::NoHost(uri.into()));
+        }
+        let port = match port {
+            None => DEFAULT_PORT,
+            Some(p) => match p.parse::<u16>() {
+                Ok(p) if p > 0 => p,
+                _ => return Err(TargetError::Port(uri.into())),
+            },
+        };
+        let prefix = prefix.trim_end_matches('/');
+        let prefix = if prefix.is_empty() {
+            DEFAULT_PREFIX.to_owned()
+        } else {
+            check_topic(prefix, true)?;
+            prefix.to_owned()
+        };
+        Ok(Self { host, port, prefix })
+    }
+}
+
+impl fmt::Display for Target {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "mqtt://{}:{}/{}", self.host, self.port, self.prefix)
+    }
+}
+
+/// Refuses what cannot be topic levels (MQTT 3.1.1 §4.7): wildcards, NUL, empty levels,
+/// and a `/` unless `levels`.
+fn check_topic(text: &str, levels: bool) -> Result<(), TargetError> {
+    let bad = text.is_empty()
+        || text.contains(['+', '#', '\0'])
+        || (!levels && text.contains('/'))
+        || text.split('/').any(str::is_empty);
+    if bad {
+        return Err(TargetError::Topic(text.into()));
+    }
+    Ok(())
+}
+
+/// The topics of one station under a [`Target`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Topics {
+    /// `PREFIX/<station>/measurements`: each record, JSON, QoS 1.
+    pub measurements: String,
+    /// `PREFIX/<station>/status`: `online` or `offline`, retained, QoS 1.
+    pub status: String,
+}
+
+impl Topics {
+    /// The topics of `station` (a single topic level) under `target`.
+    pub fn new(target: &Target, station: &str) -> Result<Self, TargetError> {
+        check_topic(station, false)?;
+        let base = format!("{}/{station}", target.prefix);
+        Ok(Self {
+            measurements: format!("{base}/measurements"),
+            status: format!("{base}/status"),
+        })
+    }
+}
+
+/// What the publisher reads: the results log, oldest first from a durable cursor. Each
+/// entry is an id and its JSON payload.
+pub trait Outbox: Clone + Send + Sync + 'static {
+    /// Why a read or a cursor write failed.
+    type Error: fmt::Display + Send + 'static;
+    /// At most `limit` entries with ids above `id`, oldest first, as (id, JSON).
+    fn after(&self, id: u64, limit: usize) -> Result<Vec<(u64, Vec<u8>)>, Self::Error>;
+    /// The consumer's durable cursor: every id up to it was delivered.
+    fn cursor(&self, consumer: &str) -> Result<u64, Self::Error>;
+    /// Moves the consumer's durable cursor.
+    fn set_cursor(&self, consumer: &str, id: u64) -> Result<(), Self::Error>;
+    /// The newest id, changing as entries are appended.
+    fn subscribe(&self) -> watch::Receiver<u64>;
+}
+
+/// What a message in flight carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Carried {
+    /// The station's status.
+    Status,
+    /// The record with this id.
+    Record(u64),
+}
+
+#[derive(Debug)]
+struct Flight {
+    carried: Carried,
+    /// The packet id the client gave it, once it was written.
+    pkid: Option<u16>,
+    acked: bool,
+}
+
+/// The delivery bookkeeping of one publisher, without IO: which messages are in flight on
+/// the current connection, in the order they were handed to the client, and how far the
+/// durable cursor may move. MQTT 3.1.1 §4.6 has a broker acknowledge QoS 1 messages in the
+/// order it received them; the bookkeeping pairs acknowledgements by packet id all the
+/// same, and moves the cursor only over an unbroken run of acknowledged records.
+#[derive(Debug)]
+pub struct Delivery {
+    window: usize,
+    cursor: u64,
+    sent_up_to: u64,
+    connected: bool,
+    flights: VecDeque<Flight>,
+}
+
+impl Delivery {
+    /// Bookkeeping that starts after `cursor` (every id up to it delivered), with at most
+    /// `window` records in flight.
+    pub fn new(cursor: u64, window: usize) -> Self {
+        Self {
+            window: window.max(1),
+            cursor,
+            sent_up_to: cursor,
+            connected: false,
+            flights: VecDeque::new(),
+        }
+    }
+
+    /// Every id up to this one was acknowledged.
+    pub fn cursor(&self) -> u64 {
+        self.cursor
+    }
+
+    /// The newest id handed to the client on this connection (the cursor when none).
+    pub fn sent_up_to(&self) -> u64 {
+        self.sent_up_to
+    }
+
+    /// A connection was made (a new clean session): nothing is in flight.
+    pub fn connected(&mut self) {
+        self.connected = true;
+        self.flights.clear();
+        self.sent_up_to = self.cursor;
+    }
+
+    /// The connection was lost: what was not acknowledged will be sent again from the
+    /// cursor on the next one.
+    pub fn disconnected(&mut self) {
+        self.connected = false;
+        self.flights.clear();
+        self.sent_up_to = self.cursor;
+    }
+
+    /// How many more records may be handed to the client now.
+    pub fn room(&self) -> usize {
+        if !self.connected {
+            return 0;
+        }
+        let records = self
+            .flights
+            .iter()
+            .filter(|f| matches!(f.carried, Carried::Record(_)))
+            .count();
+        self.window.saturating_sub(records)
+    }
+
+    /// A message is handed to the client (records in id order).
+    pub fn sending(&mut self, carried: Carried) {
+        if let Carried::Record(id) = carried {
+            self.sent_up_to = self.sent_up_to.max(id);
+        }
+        self.flights.push_back(Flight {
+            carried,
+            pkid: None,
+            acked: false,
+        });
+    }
+
+    /// The client wrote a QoS 1 publish with this packet id: the oldest message without
+    /// one (the client writes in the order it was handed them).
+    pub fn written(&mut self, pkid: u16) {
+        if let Some(f) = self.flights.iter_mut().find(|f| f.pkid.is_none()) {
+            f.pkid = Some(pkid);
+        }
+    }
+
+    /// Whether a status message waits for its acknowledgement.
+    pub fn status_in_flight(&self) -> bool {
+        self.flights
+            .iter()
+            .any(|f| f.carried == Carried::Status && !f.acked)
+    }
+
+    /// The broker acknowledged packet `pkid`. Returns what it acknowledged, and the new
+    /// cursor when it moved.
+    pub fn acked(&mut self, pkid: u16) -> (Option<Carried>, Option<u64>) {
+        let Some(f) = self
+            .flights
+            .iter_mut()
+            .find(|f| f.pkid == Some(pkid) && !f.acked)
+        else {
+            return (None, None);
+        };
+        f.acked = true;
+        let carried = f.carried;
+        let before = self.cursor;
+        while self.flights.front().is_some_and(|f| f.acked) {
+            if let Some(Flight {
+                carried: Carried::Record(id),
+                ..
+            }) = self.flights.pop_front()
+            {
+                self.cursor = self.cursor.max(id);
+            }
+        }
+        (
+            Some(carried),
+            (self.cursor != before).then_some(self.cursor),
+        )
+    }
+}
+
+/// How the publisher connects.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// The broker and the prefix.
+    pub target: Target,
+    /// The station's name: its topic level and its MQTT client id (`coapcam-<station>`).
+    pub station: String,
+}
+
+/// A running MQTT publisher; [`Publisher::stop`] ends it cleanly (status `offline`,
+/// then DISCONNECT).
+pub struct Publisher {
+    stop: watch::Sender<bool>,
+    task: JoinHandle<()>,
+}
+
+impl Publisher {
+    /// Starts publishing the records of `outbox` with `config` (connecting in the
+    /// background, and again whenever the connection is lost). Fails only on a station
+    /// name that cannot be a topic level.
+    pub fn start<O: Outbox>(config: Config, outbox: O) -> Result<Self, TargetError> {
+        let topics = Topics::new(&config.target, &config.station)?;
+        let mut options = MqttOptions::new(
+            format!("coapcam-{}", config.station),
+            config.target.host.clone(),
+            config.target.port,
+        );
+        options
+            .set_keep_alive(KEEP_ALIVE)
+            .set_clean_session(true)
+            .set_max_packet_size(MAX_PACKET, MAX_PACKET)
+            // The client's own window is one more than ours: the status message.
+            .set_inflight(u16::try_from(WINDOW + 1).unwrap_or(u16::MAX))
+            .set_last_will(LastWill::new(
+                topics.status.clone(),
+                OFFLINE,
+                QoS::AtLeastOnce,
+                true,
+            ));
+        let (stop, stopped) = watch::channel(false);
+        let task = tokio::spawn(run(options, topics, config.target, outbox, stopped));
+        Ok(Self { stop, task })
+    }
+
+    /// Stops: publishes `offline` (retained) and disconnects when connected, within
+    /// about two seconds.
+    pub async fn stop(self) {
+        let _ = self.stop.send(true);
+        if let Err(e) = self.task.await {
+            tracing::warn!(error = %e, "the MQTT publisher ended abnormally");
+        }
+    }
+}
+
+/// How one connection ended.
+enum End {
+    /// Stopping (after `offline` and DISCONNECT when connected).
+    Stopped,
+    /// Lost, or never made: reconnect after the back-off.
+    Lost(String),
+}
+
+async fn run<O: Outbox>(
+    options: MqttOptions,
+    topics: Topics,
+    target: Target,
+    outbox: O,
+    mut stop: watch::Receiver<bool>,
+) {
+    let mut newest = outbox.subscribe();
+    let cursor = loop {
+        let o = outbox.clone();
+        match tokio::task::spawn_blocking(move || o.cursor(CONSUMER).map_err(|e| e.to_string()))
+            .await
+        {
+            Ok(Ok(c)) => break c,
+            Ok(Err(e)) => tracing::error!(error = %e, "MQTT: reading the delivery cursor failed"),
+            Err(e) => tracing::error!(error = %e, "MQTT: reading the delivery cursor failed"),
+        }
+        if wait_or_stop(BACKOFF_MAX, &mut stop).await {
+            return;
+        }
+    };
+    let mut delivery = Delivery::new(cursor, WINDOW);
+    let mut backoff = BACKOFF_FIRST;
+    let mut was_lost = false;
+    loop {
+        let (client, eventloop) = AsyncClient::new(options.clone(), WINDOW + 4);
+        let (events_tx, events) = mpsc::channel(64);
+        let pump = tokio::spawn(pump(eventloop, events_tx));
+        let mut session = Session {
+            client: &client,
+            topics: &topics,
+            outbox: &outbox,
+            delivery: &mut delivery,
+        };
+        let end = session
+            .run(events, &mut newest, &mut stop, &mut backoff, &mut was_lost)
+            .await;
+        delivery.disconnected();
+        pump.abort();
+        match end {
+            End::Stopped => return,
+            End::Lost(why) => {
+                if !was_lost {
+                    tracing::warn!(broker = %target, "MQTT: no connection ({why}); retrying, the log keeps the measurements");
+                    was_lost = true;
+                } else {
+                    tracing::debug!(broker = %target, "MQTT: no connection ({why})");
+                }
+            }
+        }
+        if wait_or_stop(backoff, &mut stop).await {
+            return;
+        }
+        backoff = (backoff * 2).min(BACKOFF_MAX);
+    }
+}
+
+/// Polls the client's event loop, handing each event over, until the first error (the
+/// connection is then gone: a new client and event loop make the next one).
+async fn pump(mut eventloop: EventLoop, events: mpsc::Sender<Result<Event, ConnectionError>>) {
+    loop {
+        let event = eventloop.poll().await;
+        let end = event.is_err();
+        if events.send(event).await.is_err() || end {
+            return;
+        }
+    }
+}
+
+/// Waits `pause`; true when stopping instead.
+async fn wait_or_stop(pause: Duration, stop: &mut watch::Receiver<bool>) -> bool {
+    if *stop.borrow() {
+        return true;
+    }
+    tokio::select! {
+        () = tokio::time::sleep(pause) => false,
+        _ = stop.changed() => true,
+    }
+}
+
+/// One connection's worth of publishing.
+struct Session<'a, O: Outbox> {
+    client: &'a AsyncClient,
+    topics: &'a Topics,
+    outbox: &'a O,
+    delivery: &'a mut Delivery,
+}
+
+impl<O: Outbox> Session<'_, O> {
+    async fn run(
+        &mut self,
+        mut events: mpsc::Receiver<Result<Event, ConnectionError>>,
+        newest: &mut watch::Receiver<u64>,
+        stop: &mut watch::Receiver<bool>,
+        backoff: &mut Duration,
+        was_lost: &mut bool,
+    ) -> End {
+        loop {
+            tokio::select! {
+                event = events.recv() => {
+                    let event = match event {
+                        Some(Ok(event)) => event,
+                        Some(Err(e)) => return End::Lost(e.to_string()),
+                        None => return End::Lost("the client's event loop ended".into()),
+                    };
+                    match event {
+                        Event::Incoming(Packet::ConnAck(_)) => {
+                            tracing::info!(topic = %self.topics.status, "MQTT: connected, publishing from record {}", self.delivery.cursor() + 1);
+                            *backoff = BACKOFF_FIRST;
+                            *was_lost = false;
+                            self.delivery.connected();
+                            if let Err(e) = self.publish_status(ONLINE).await {
+                                return End::Lost(e);
+                            }
+                        }
+                        Event::Outgoing(Outgoing::Publish(pkid)) => self.delivery.written(pkid),
+                        Event::Incoming(Packet::PubAck(ack)) => {
+                            if let (_, Some(cursor)) = self.delivery.acked(ack.pkid) {
+                                self.save_cursor(cursor).await;
+                            }
+                        }
+                        _ => {}
+                    }
+                }
+                changed = newest.changed() => {
+                    if changed.is_err() {
+                        // The log is gone: nothing more will come; wait for the stop.
+                        let _ = stop.changed().await;
+                        return self.stop(&mut events).await;
+                    }
+                }
+                _ = stop.changed() => return self.stop(&mut events).await,
+            }
+            let up_to = *newest.borrow();
+            if let Err(e) = self.fill(up_to).await {
+                return End::Lost(e);
+            }
+        }
+    }
+
+    /// Hands the client the records after the last one sent, while the window has room.
+    async fn fill(&mut self, newest: u64) -> Result<(), String> {
+        while self.delivery.room() > 0 && newest > self.delivery.sent_up_to() {
+            let (from, limit) = (self.delivery.sent_up_to(), self.delivery.room());
+            let o = self.outbox.clone();
+            let batch = tokio::task::spawn_blocking(move || o.after(from, limit))
+                .await
+                .map_err(|e| e.to_string())?
+                .map_err(|e| format!("reading the results log: {e}"))?;
+            if batch.is_empty() {
+                return Ok(());
+            }
+            for (id, json) in batch {
+                if json.len() + self.topics.measurements.len() + 16 > MAX_PACKET {
+                    return Err(format!(
+                        "record {id} is {} bytes as JSON, more than an MQTT message of the station may hold ({MAX_PACKET})",
+                        json.len()
+                    ));
+                }
+                self.client
+                    .publish(&self.topics.measurements, QoS::AtLeastOnce, false, json)
+                    .await
+                    .map_err(|e| e.to_string())?;
+                self.delivery.sending(Carried::Record(id));
+            }
+        }
+        Ok(())
+    }
+
+    async fn publish_status(&mut self, status: &str) -> Result<(), String> {
+        self.client
+            .publish(&self.topics.status, QoS::AtLeastOnce, true, status)
+            .await
+            .map_err(|e| e.to_string())?;
+        self.delivery.sending(Carried::Status);
+        Ok(())
+    }
+
+    async fn save_cursor(&self, cursor: u64) {
+        let o = self.outbox.clone();
+        let saved = tokio::task::spawn_blocking(move || {
+            o.set_cursor(CONSUMER, cursor).map_err(|e| e.to_string())
+        })
+        .await;
+        match saved {
+            Ok(Ok(())) => {}
+            // The next acknowledgement saves a newer one; a restart sends these again.
+            Ok(Err(e)) => tracing::warn!(error = %e, "MQTT: saving the delivery cursor failed"),
+            Err(e) => tracing::warn!(error = %e, "MQTT: saving the delivery cursor failed"),
+        }
+    }
+
+    /// Publishes `offline` and disconnects, when connected; waits at most [`STOP_WAIT`].
+    async fn stop(&mut self, events: &mut mpsc::Receiver<Result<Event, ConnectionError>>) -> End {
+        if !self.delivery.connected {
+            return End::Stopped;
+        }
+        let wait = async {
+            self.publish_status(OFFLINE).await?;
+            // The acknowledgements of records still in flight move the cursor too.
+            loop {
+                match events.recv().await {
+                    Some(Ok(Event::Outgoing(Outgoing::Publish(pkid)))) => {
+                        self.delivery.written(pkid);
+                    }
+                    Some(Ok(Event::Incoming(Packet::PubAck(ack)))) => {
+                        let (carried, cursor) = self.delivery.acked(ack.pkid);
+                        if let Some(cursor) = cursor {
+                            self.save_cursor(cursor).await;
+                        }
+                        if carried == Some(Carried::Status) && !self.delivery.status_in_flight() {
+                            break;
+                        }
+                    }
+                    Some(Ok(_)) => {}
+                    Some(Err(e)) => return Err(e.to_string()),
+                    None => return Err("the client's event loop ended".into()),
+                }
+            }
+            self.client.disconnect().await.map_err(|e| e.to_string())?;
+            // The DISCONNECT is written (and flushed) when its event comes.
+            loop {
+                match events.recv().await {
+                    Some(Ok(Event::Outgoing(Outgoing::Disconnect))) => return Ok(()),
+                    Some(Ok(_)) => {}
+                    Some(Err(e)) => return Err(e.to_string()),
+                    None => return Err("the client's event loop ended".into()),
+                }
+            }
+        };
+        match tokio::time::timeout(STOP_WAIT, wait).await {
+            Ok(Ok(())) => tracing::info!("MQTT: offline published, disconnected"),
+            Ok(Err(e)) => {
+                tracing::warn!(
+                    "MQTT: stopping without a clean disconnect ({e}); the broker publishes the last will"
+                )
+            }
+            Err(_) => tracing::warn!(
+                "MQTT: the broker did not acknowledge offline within {STOP_WAIT:?}; it publishes the last will"
+            ),
+        }
+        End::Stopped
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn targets() {
+        let t: Target = "mqtt://broker.local".parse().unwrap();
+        assert_eq!(
+            t,
+            Target {
+                host: "broker.local".into(),
+                port: 1883,
+                prefix: "coapcam".into()
+            }
+        );
+        let t: Target = "mqtt://10.0.0.2:1884/site/hall-3/".parse().unwrap();
+        assert_eq!((t.port, t.prefix.as_str()), (1884, "site/hall-3"));
+        let t: Target = "mqtt://[::1]:1885".parse().unwrap();
+        assert_eq!((t.host.as_str(), t.port), ("[::1]", 1885));
+        let t: Target = "mqtt://[fe80::1]/x".parse().unwrap();
+        assert_eq!(
+            (t.host.as_str(), t.port, t.prefix.as_str()),
+            ("[fe80::1]", 1883, "x")
+        );
+        for bad in [
+            "tcp://h",
+            "mqtt://",
+            "mqtt://:1883",
+            "mqtt://h:0",
+            "mqtt://h:x",
+            "mqtt://h/a/+/b",
+            "mqtt://h/a//b",
+            "mqtt://h/#",
+        ] {
+            assert!(bad.parse::<Target>().is_err(), "{bad}");
+        }
+        let topics = Topics::new(&"mqtt://h/p".parse().unwrap(), "dock-1").unwrap();
+        assert_eq!(topics.measurements, "p/dock-1/measurements");
+        assert_eq!(topics.status, "p/dock-1/status");
+        for bad in ["a/b", "", "a+", "#"] {
+            assert!(Topics::new(&t, bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn the_cursor_moves_over_acknowledged_records_only() {
+        let mut d = Delivery::new(4, 3);
+        assert_eq!(d.room(), 0, "no room before a connection");
+        d.connected();
+        d.sending(Carried::Status);
+        for id in [5, 6, 7] {
+            d.sending(Carried::Record(id));
+        }
+        assert_eq!((d.room(), d.sent_up_to()), (0, 7));
+        for pkid in 1..=4 {
+            d.written(pkid);
+        }
+        // Record 6 (pkid 3) first: the cursor waits for the status and record 5.
+        assert_eq!(d.acked(3), (Some(Carried::Record(6)), None));
+        assert_eq!(d.acked(1), (Some(Carried::Status), None));
+        assert_eq!(d.acked(2), (Some(Carried::Record(5)), Some(6)));
+        assert_eq!(
+            d.acked(2),
+            (None, None),
+            "a repeated PUBACK changes nothing"
+        );
+        assert_eq!(d.room(), 2);
+        // Lost before 7 was acknowledged: the next connection starts after 6.
+        d.disconnected();
+        assert_eq!((d.cursor(), d.sent_up_to(), d.room()), (6, 6, 0));
+        d.connected();
+        assert_eq!(d.room(), 3);
+        d.sending(Carried::Record(7));
+        d.written(1);
+        assert_eq!(d.acked(1), (Some(Carried::Record(7)), Some(7)));
+    }
+}
