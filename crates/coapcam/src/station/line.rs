@@ -19,6 +19,9 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
+use super::log::ResultsLog;
+use super::record::Record;
+
 /// Lines a reader may be behind before it is disconnected.
 pub const QUEUE_LINES: usize = 256;
 /// Readers served at once; one more is refused (closed at once, with a log line).
@@ -29,17 +32,37 @@ pub const HEADER: &str = "id,time,length_mm,width_mm,height_mm,kg,code";
 
 /// One measurement as a line's fields.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LineFields<'a> {
+pub struct LineFields {
     /// The record's id in the results log.
     pub id: u64,
     /// UTC time of the measurement, RFC 3339 (e.g. `2026-11-27T09:41:07.250Z`).
-    pub time: &'a str,
+    pub time: String,
     /// Length, width and height as reported, mm; `None` when nothing was measured.
     pub dimensions_mm: Option<[f64; 3]>,
     /// The volumetric weight, kg; `None` when nothing was measured.
     pub volumetric_weight_kg: Option<f64>,
     /// The first code read, if any.
-    pub code: Option<&'a str>,
+    pub code: Option<String>,
+}
+
+impl LineFields {
+    /// The fields of a recorded measurement.
+    pub fn of(record: &Record) -> Self {
+        let m = &record.measurement;
+        let measured = m["parcel"] == "measured";
+        let number = |key: &str| m[key].as_f64().filter(|_| measured);
+        let dimensions_mm = match (number("length_mm"), number("width_mm"), number("height_mm")) {
+            (Some(l), Some(w), Some(h)) => Some([l, w, h]),
+            _ => None,
+        };
+        Self {
+            id: record.id,
+            time: record.time.to_string(),
+            dimensions_mm,
+            volumetric_weight_kg: number("volumetric_weight_kg"),
+            code: record.code_texts().into_iter().next(),
+        }
+    }
 }
 
 /// The line of a measurement, with its `\r\n`:
@@ -50,7 +73,7 @@ pub struct LineFields<'a> {
 ///   double quotes when it holds a comma, a double quote, or starts or ends with a space,
 ///   each double quote inside doubled (RFC 4180); a control character in it (below U+0020,
 ///   and U+007F) is written as a space, so that a line is always one line.
-pub fn format_line(f: &LineFields<'_>) -> String {
+pub fn format_line(f: &LineFields) -> String {
     let dims = f.dimensions_mm.map_or_else(
         || ",,".to_owned(),
         |[l, w, h]| format!("{l:.1},{w:.1},{h:.1}"),
@@ -58,7 +81,7 @@ pub fn format_line(f: &LineFields<'_>) -> String {
     let kg = f
         .volumetric_weight_kg
         .map_or_else(String::new, |kg| format!("{kg:.3}"));
-    let code = f.code.map_or_else(String::new, quote);
+    let code = f.code.as_deref().map_or_else(String::new, quote);
     format!("{},{},{dims},{kg},{code}\r\n", f.id, f.time)
 }
 
@@ -78,6 +101,73 @@ fn quote(text: &str) -> String {
         format!("\"{}\"", clean.replace('"', "\"\""))
     } else {
         clean
+    }
+}
+
+/// The line output of a results log: a [`LineServer`] and the task that hands it a line
+/// for each record appended from now on. Dropping it stops both.
+pub struct LineOutput {
+    server: Arc<LineServer>,
+    follow: JoinHandle<()>,
+}
+
+impl LineOutput {
+    /// Listens on `addr` and follows `log`.
+    pub async fn start(addr: SocketAddr, log: ResultsLog) -> io::Result<Self> {
+        let server = Arc::new(LineServer::bind(addr).await?);
+        let follow = tokio::spawn(follow(log, server.clone()));
+        Ok(Self { server, follow })
+    }
+
+    /// The address it listens on.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.server.local_addr()
+    }
+
+    /// How many readers are connected.
+    pub fn readers(&self) -> usize {
+        self.server.readers()
+    }
+}
+
+impl Drop for LineOutput {
+    fn drop(&mut self) {
+        self.follow.abort();
+    }
+}
+
+/// Records read from the log at once.
+const BATCH: usize = 64;
+
+async fn follow(log: ResultsLog, server: Arc<LineServer>) {
+    let mut newest = log.subscribe();
+    let mut last = *newest.borrow_and_update();
+    loop {
+        if newest.changed().await.is_err() {
+            return;
+        }
+        while *newest.borrow_and_update() > last {
+            let l = log.clone();
+            let batch = match tokio::task::spawn_blocking(move || l.after(last, BATCH)).await {
+                Ok(Ok(batch)) => batch,
+                Ok(Err(e)) => {
+                    tracing::warn!(error = %e, "line output: reading the results log failed");
+                    tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+                    continue;
+                }
+                Err(e) => {
+                    tracing::warn!(error = %e, "line output: reading the results log failed");
+                    return;
+                }
+            };
+            let Some(end) = batch.last().map(|r| r.id) else {
+                break;
+            };
+            for record in &batch {
+                server.send(&format_line(&LineFields::of(record)));
+            }
+            last = end;
+        }
     }
 }
 
@@ -209,21 +299,21 @@ mod tests {
     fn lines() {
         let mut f = LineFields {
             id: 12,
-            time: "2026-11-27T09:41:07.250Z",
+            time: "2026-11-27T09:41:07.250Z".into(),
             dimensions_mm: Some([400.04, 300.0, 199.96]),
             volumetric_weight_kg: Some(4.8),
-            code: Some("PKG-0001"),
+            code: Some("PKG-0001".into()),
         };
         assert_eq!(
             format_line(&f),
             "12,2026-11-27T09:41:07.250Z,400.0,300.0,200.0,4.800,PKG-0001\r\n"
         );
-        f.code = Some("A,\"B\"\r\nC");
+        f.code = Some("A,\"B\"\r\nC".into());
         assert_eq!(
             format_line(&f),
             "12,2026-11-27T09:41:07.250Z,400.0,300.0,200.0,4.800,\"A,\"\"B\"\"  C\"\r\n"
         );
-        f.code = Some(" x");
+        f.code = Some(" x".into());
         assert!(format_line(&f).ends_with(",\" x\"\r\n"));
         f.dimensions_mm = None;
         f.volumetric_weight_kg = None;

@@ -25,6 +25,8 @@ use rumqttc::{
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
+use super::log::ResultsLog;
+
 /// The cursor name of the MQTT publisher in the results log.
 pub const CONSUMER: &str = "mqtt";
 /// The broker port when the URI names none (MQTT over TCP, IANA).
@@ -162,21 +164,6 @@ impl Topics {
             status: format!("{base}/status"),
         })
     }
-}
-
-/// What the publisher reads: the results log, oldest first from a durable cursor. Each
-/// entry is an id and its JSON payload.
-pub trait Outbox: Clone + Send + Sync + 'static {
-    /// Why a read or a cursor write failed.
-    type Error: fmt::Display + Send + 'static;
-    /// At most `limit` entries with ids above `id`, oldest first, as (id, JSON).
-    fn after(&self, id: u64, limit: usize) -> Result<Vec<(u64, Vec<u8>)>, Self::Error>;
-    /// The consumer's durable cursor: every id up to it was delivered.
-    fn cursor(&self, consumer: &str) -> Result<u64, Self::Error>;
-    /// Moves the consumer's durable cursor.
-    fn set_cursor(&self, consumer: &str, id: u64) -> Result<(), Self::Error>;
-    /// The newest id, changing as entries are appended.
-    fn subscribe(&self) -> watch::Receiver<u64>;
 }
 
 /// What a message in flight carries.
@@ -334,10 +321,10 @@ pub struct Publisher {
 }
 
 impl Publisher {
-    /// Starts publishing the records of `outbox` with `config` (connecting in the
+    /// Starts publishing the records of `log` with `config` (connecting in the
     /// background, and again whenever the connection is lost). Fails only on a station
     /// name that cannot be a topic level.
-    pub fn start<O: Outbox>(config: Config, outbox: O) -> Result<Self, TargetError> {
+    pub fn start(config: Config, log: ResultsLog) -> Result<Self, TargetError> {
         let topics = Topics::new(&config.target, &config.station)?;
         let mut options = MqttOptions::new(
             format!("coapcam-{}", config.station),
@@ -357,7 +344,7 @@ impl Publisher {
                 true,
             ));
         let (stop, stopped) = watch::channel(false);
-        let task = tokio::spawn(run(options, topics, config.target, outbox, stopped));
+        let task = tokio::spawn(run(options, topics, config.target, log, stopped));
         Ok(Self { stop, task })
     }
 
@@ -379,17 +366,17 @@ enum End {
     Lost(String),
 }
 
-async fn run<O: Outbox>(
+async fn run(
     options: MqttOptions,
     topics: Topics,
     target: Target,
-    outbox: O,
+    log: ResultsLog,
     mut stop: watch::Receiver<bool>,
 ) {
-    let mut newest = outbox.subscribe();
+    let mut newest = log.subscribe();
     let cursor = loop {
-        let o = outbox.clone();
-        match tokio::task::spawn_blocking(move || o.cursor(CONSUMER).map_err(|e| e.to_string()))
+        let l = log.clone();
+        match tokio::task::spawn_blocking(move || l.cursor(CONSUMER).map_err(|e| e.to_string()))
             .await
         {
             Ok(Ok(c)) => break c,
@@ -410,7 +397,7 @@ async fn run<O: Outbox>(
         let mut session = Session {
             client: &client,
             topics: &topics,
-            outbox: &outbox,
+            log: &log,
             delivery: &mut delivery,
         };
         let end = session
@@ -460,14 +447,14 @@ async fn wait_or_stop(pause: Duration, stop: &mut watch::Receiver<bool>) -> bool
 }
 
 /// One connection's worth of publishing.
-struct Session<'a, O: Outbox> {
+struct Session<'a> {
     client: &'a AsyncClient,
     topics: &'a Topics,
-    outbox: &'a O,
+    log: &'a ResultsLog,
     delivery: &'a mut Delivery,
 }
 
-impl<O: Outbox> Session<'_, O> {
+impl Session<'_> {
     async fn run(
         &mut self,
         mut events: mpsc::Receiver<Result<Event, ConnectionError>>,
@@ -523,15 +510,18 @@ impl<O: Outbox> Session<'_, O> {
     async fn fill(&mut self, newest: u64) -> Result<(), String> {
         while self.delivery.room() > 0 && newest > self.delivery.sent_up_to() {
             let (from, limit) = (self.delivery.sent_up_to(), self.delivery.room());
-            let o = self.outbox.clone();
-            let batch = tokio::task::spawn_blocking(move || o.after(from, limit))
+            let l = self.log.clone();
+            let batch = tokio::task::spawn_blocking(move || l.after(from, limit))
                 .await
                 .map_err(|e| e.to_string())?
                 .map_err(|e| format!("reading the results log: {e}"))?;
             if batch.is_empty() {
                 return Ok(());
             }
-            for (id, json) in batch {
+            for record in batch {
+                let id = record.id;
+                let json =
+                    serde_json::to_vec(&record).map_err(|e| format!("record {id} as JSON: {e}"))?;
                 if json.len() + self.topics.measurements.len() + 16 > MAX_PACKET {
                     return Err(format!(
                         "record {id} is {} bytes as JSON, more than an MQTT message of the station may hold ({MAX_PACKET})",
@@ -558,9 +548,9 @@ impl<O: Outbox> Session<'_, O> {
     }
 
     async fn save_cursor(&self, cursor: u64) {
-        let o = self.outbox.clone();
+        let l = self.log.clone();
         let saved = tokio::task::spawn_blocking(move || {
-            o.set_cursor(CONSUMER, cursor).map_err(|e| e.to_string())
+            l.set_cursor(CONSUMER, cursor).map_err(|e| e.to_string())
         })
         .await;
         match saved {

@@ -14,6 +14,7 @@ mod get;
 mod group;
 mod interop;
 mod library;
+mod line;
 mod load;
 mod logs;
 mod mqtt;

@@ -3,13 +3,13 @@
 //! (rumqttc) and by `mosquitto_sub`. The broker missing fails in CI (`CI=true`) and skips
 //! loudly elsewhere.
 
-use std::collections::BTreeMap;
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use coapcam::station::mqtt::{Config, Outbox, Publisher};
+use coapcam::station::log::ResultsLog;
+use coapcam::station::mqtt::{CONSUMER, Config, Publisher};
+use coapcam::station::record::{NewRecord, Trigger, UtcTime};
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::{mpsc, watch};
 
@@ -235,64 +235,42 @@ fn retained(port: u16, topic: &str) -> String {
     f.stdout_text().trim_end().to_owned()
 }
 
-/// The records (id to JSON) and the cursor of a [`MemoryLog`].
-#[derive(Default)]
-struct Kept(BTreeMap<u64, Vec<u8>>, u64);
-
-/// Records kept in memory, as the results log keeps them, for the publisher's tests.
-#[derive(Clone, Default)]
-struct MemoryLog {
-    inner: Arc<Mutex<Kept>>,
-    newest: Arc<Mutex<Option<watch::Sender<u64>>>>,
+/// A results log of the test's own, in `dir`.
+fn open_log(dir: &TempDir) -> ResultsLog {
+    ResultsLog::open(&dir.join("results.sqlite")).expect("opening the results log")
 }
 
-impl MemoryLog {
-    fn append(&self, json: serde_json::Value) -> u64 {
-        let mut inner = self.inner.lock().unwrap();
-        let id = inner.0.keys().next_back().copied().unwrap_or(0) + 1;
-        let mut json = json;
-        json["id"] = id.into();
-        inner.0.insert(id, serde_json::to_vec(&json).unwrap());
-        drop(inner);
-        if let Some(tx) = &*self.newest.lock().unwrap() {
-            tx.send_replace(id);
-        }
-        id
-    }
-
-    fn cursor(&self) -> u64 {
-        self.inner.lock().unwrap().1
-    }
+/// Records a measurement of `length_mm` (with code `code`, if any), as a measurement
+/// path does; returns its id. Blocking: call it off the runtime's threads.
+pub(crate) fn record(log: &ResultsLog, length_mm: f64, code: Option<&str>) -> u64 {
+    let codes: Vec<serde_json::Value> = code
+        .map(|c| serde_json::json!({"kind": "qr", "text": c, "cameras": ["840412060746"]}))
+        .into_iter()
+        .collect();
+    log.append(NewRecord {
+        time: UtcTime::now(),
+        station: "dock".into(),
+        trigger: Trigger::Request,
+        measurement: serde_json::json!({
+            "parcel": "measured", "length_mm": length_mm, "width_mm": 300.0,
+            "height_mm": 200.0, "volume_l": length_mm * 0.06,
+            "volumetric_weight_kg": length_mm * 0.06 / 5.0, "codes": codes,
+        }),
+        cameras: Vec::new(),
+        version: NewRecord::VERSION.into(),
+        photo_jpeg: Some(vec![0xff; 2000]),
+        annotated_png: None,
+    })
+    .expect("appending a record")
+    .id
 }
 
-impl Outbox for MemoryLog {
-    type Error = String;
-
-    fn after(&self, id: u64, limit: usize) -> Result<Vec<(u64, Vec<u8>)>, String> {
-        let inner = self.inner.lock().unwrap();
-        Ok(inner
-            .0
-            .range(id + 1..)
-            .take(limit)
-            .map(|(k, v)| (*k, v.clone()))
-            .collect())
-    }
-
-    fn cursor(&self, _consumer: &str) -> Result<u64, String> {
-        Ok(self.inner.lock().unwrap().1)
-    }
-
-    fn set_cursor(&self, _consumer: &str, id: u64) -> Result<(), String> {
-        self.inner.lock().unwrap().1 = id;
-        Ok(())
-    }
-
-    fn subscribe(&self) -> watch::Receiver<u64> {
-        let newest = self.inner.lock().unwrap().0.keys().next_back().copied();
-        let mut tx = self.newest.lock().unwrap();
-        let tx = tx.get_or_insert_with(|| watch::channel(newest.unwrap_or(0)).0);
-        tx.subscribe()
-    }
+/// [`record`] on the blocking pool.
+async fn record_async(log: &ResultsLog, length_mm: f64) -> u64 {
+    let log = log.clone();
+    tokio::task::spawn_blocking(move || record(&log, length_mm, None))
+        .await
+        .expect("recording")
 }
 
 fn config(broker: &Broker, station: &str) -> Config {
@@ -309,33 +287,40 @@ fn records_arrive_in_order_as_json_with_ids_and_the_status_is_retained() {
     }
     let dir = TempDir::new("mqtt-records");
     let broker = Broker::start(&dir, false);
-    let log = MemoryLog::default();
+    let log = open_log(&dir);
     // Two recorded before the publisher starts, three after.
-    log.append(serde_json::json!({"n": 1}));
-    log.append(serde_json::json!({"n": 2}));
+    record(&log, 401.0, Some("PKG-1"));
+    record(&log, 402.0, None);
     runtime().block_on(async {
         let mut sub = Subscriber::start(broker.port, "test-sub", "lane/#", false).await;
         let publisher = Publisher::start(config(&broker, "dock-1"), log.clone()).expect("start");
         let status = sub.next_on("lane/dock-1/status").await;
         assert_eq!(status.text(), "online");
         for n in 3..=5 {
-            log.append(serde_json::json!({ "n": n }));
+            record_async(&log, 400.0 + f64::from(n)).await;
         }
         for id in 1..=5u64 {
             let m = sub.next_on("lane/dock-1/measurements").await;
             assert!(!m.retain, "measurements are not retained");
             let json = m.json();
+            // The record as the log keeps it, without its pictures.
+            let kept = log.get(id).expect("reading").expect("recorded");
+            assert_eq!(json, serde_json::to_value(&kept).unwrap());
             assert_eq!(json["id"], id, "{json}");
-            assert_eq!(json["n"], id, "{json}");
+            assert_eq!(
+                json["measurement"]["length_mm"],
+                400.0 + id as f64,
+                "{json}"
+            );
+            assert!(
+                json.get("photo_jpeg").is_none() && json["has_photo"] == true,
+                "{json}"
+            );
         }
         assert_eq!(retained(broker.port, "lane/dock-1/status"), "online");
         let deadline = Instant::now() + LIMIT;
-        while log.cursor() != 5 {
-            assert!(
-                Instant::now() < deadline,
-                "the cursor stays at {}",
-                log.cursor()
-            );
+        while log.cursor(CONSUMER).expect("the cursor") != 5 {
+            assert!(Instant::now() < deadline, "the cursor stays below 5");
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
         publisher.stop().await;
@@ -352,7 +337,7 @@ fn records_made_while_the_broker_is_down_arrive_after_it_is_back() {
     }
     let dir = TempDir::new("mqtt-restarts");
     let mut broker = Broker::start(&dir, true);
-    let log = MemoryLog::default();
+    let log = open_log(&dir);
     runtime().block_on(async {
         let mut sub =
             Subscriber::start(broker.port, "test-durable", "lane/+/measurements", true).await;
@@ -360,7 +345,7 @@ fn records_made_while_the_broker_is_down_arrive_after_it_is_back() {
         let mut repeats = 0;
         for cycle in 0..20u64 {
             broker.stop();
-            let id = log.append(serde_json::json!({ "cycle": cycle }));
+            let id = record_async(&log, 400.0 + cycle as f64).await;
             tokio::time::sleep(Duration::from_millis(100)).await;
             broker.restart();
             // At least once: a repeat of an earlier record may come first.
