@@ -48,18 +48,12 @@ pub struct LineFields {
 impl LineFields {
     /// The fields of a recorded measurement.
     pub fn of(record: &Record) -> Self {
-        let m = &record.measurement;
-        let measured = m["parcel"] == "measured";
-        let number = |key: &str| m[key].as_f64().filter(|_| measured);
-        let dimensions_mm = match (number("length_mm"), number("width_mm"), number("height_mm")) {
-            (Some(l), Some(w), Some(h)) => Some([l, w, h]),
-            _ => None,
-        };
+        let reported = record.measurement.reported();
         Self {
             id: record.id,
             time: record.time.to_string(),
-            dimensions_mm,
-            volumetric_weight_kg: number("volumetric_weight_kg"),
+            dimensions_mm: reported.map(|r| [r.length_mm, r.width_mm, r.height_mm]),
+            volumetric_weight_kg: reported.map(|r| r.volumetric_weight_kg),
             code: record.code_texts().into_iter().next(),
         }
     }

@@ -7,9 +7,12 @@ use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use coapcam::report::{Billing, Measurement, Parcel, Seen};
 use coapcam::station::log::ResultsLog;
 use coapcam::station::mqtt::{CONSUMER, Config, Publisher};
 use coapcam::station::record::{NewRecord, Trigger, UtcTime};
+use coapcam::vision::codes::{Code, CodeKind};
+use geometry::Dimensions;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::{mpsc, watch};
 
@@ -243,19 +246,38 @@ fn open_log(dir: &TempDir) -> ResultsLog {
 /// Records a measurement of `length_mm` (with code `code`, if any), as a measurement
 /// path does; returns its id. Blocking: call it off the runtime's threads.
 pub(crate) fn record(log: &ResultsLog, length_mm: f64, code: Option<&str>) -> u64 {
-    let codes: Vec<serde_json::Value> = code
-        .map(|c| serde_json::json!({"kind": "qr", "text": c, "cameras": ["840412060746"]}))
-        .into_iter()
-        .collect();
+    let dimensions = Dimensions {
+        length_mm,
+        width_mm: 300.0,
+        height_mm: 200.0,
+        yaw_deg: 0.0,
+        corners_m: [[0.0, 0.0], [0.4, 0.0], [0.4, 0.3], [0.0, 0.3]],
+        volume_l: length_mm * 0.06,
+        points: 5000,
+    };
+    let mut measurement = Measurement::new(
+        &Parcel::Measured(dimensions),
+        &Billing::default(),
+        20_000,
+        vec!["840412060746".into()],
+        vec![1],
+        Duration::from_millis(80),
+    );
+    if let Some(text) = code {
+        let code = Code {
+            kind: CodeKind::Qr,
+            text: text.into(),
+        };
+        measurement.set_codes(
+            Seen::gather([("840412060746".into(), vec![code])]),
+            Duration::ZERO,
+        );
+    }
     log.append(NewRecord {
         time: UtcTime::now(),
         station: "dock".into(),
         trigger: Trigger::Request,
-        measurement: serde_json::json!({
-            "parcel": "measured", "length_mm": length_mm, "width_mm": 300.0,
-            "height_mm": 200.0, "volume_l": length_mm * 0.06,
-            "volumetric_weight_kg": length_mm * 0.06 / 5.0, "codes": codes,
-        }),
+        measurement,
         cameras: Vec::new(),
         version: NewRecord::VERSION.into(),
         photo_jpeg: Some(vec![0xff; 2000]),
