@@ -54,7 +54,7 @@ enum Command {
     /// end over CoAP and prints the errors.
     Bench(Deferred<cli::bench::BenchArgs>),
     /// Run the CoAP server.
-    Serve(Deferred<cli::serve::ServeArgs>),
+    Serve(Box<Deferred<cli::serve::ServeArgs>>),
     /// A station's results log: list its records (--server URI), or verify a log file's
     /// hash chain (`results verify FILE`, exit status 7 naming the first altered record).
     Results(Deferred<cli::results::ResultsArgs>),
@@ -115,7 +115,8 @@ fn run(cli: Cli) -> anyhow::Result<Exit> {
         Command::Monitor(Deferred(args)) => return runtime.block_on(cli::monitor::run(args)),
         Command::Demo(Deferred(args)) => return runtime.block_on(cli::demo::run(args)),
         Command::Results(Deferred(args)) => return runtime.block_on(cli::results::run(args)),
-        Command::Serve(Deferred(args)) => {
+        Command::Serve(args) => {
+            let Deferred(args) = *args;
             let served = runtime.block_on(cli::serve::run(args));
             // A grab still waiting for its camera in a blocking thread must not hold up
             // the exit after SIGINT or SIGTERM.

@@ -129,6 +129,23 @@ pub(crate) struct ServeArgs {
     /// pruned, recording goes on and the server warns. Default: no limit.
     #[arg(long, value_name = "BYTES", conflicts_with = "no_cameras")]
     results_max_bytes: Option<u64>,
+    /// Publish every record of the results log to an MQTT broker, as JSON with QoS 1, on
+    /// PREFIX/<station-name>/measurements (PREFIX default coapcam, port default 1883),
+    /// and `online` / `offline` (retained; offline also as the last will) on
+    /// PREFIX/<station-name>/status. While the broker is away the records wait in the
+    /// log and follow in order once it is back: each is delivered at least once, with its
+    /// id.
+    #[arg(
+        long,
+        value_name = "mqtt://HOST[:PORT][/PREFIX]",
+        conflicts_with = "no_cameras"
+    )]
+    mqtt: Option<coapcam::station::mqtt::Target>,
+    /// Serve one text line per measurement (id,time,length_mm,width_mm,height_mm,kg,code
+    /// and CR LF; docs/station.md) to every reader connected to this TCP address. A
+    /// reader that falls 256 lines behind is disconnected.
+    #[arg(long, value_name = "tcp://ADDR:PORT", value_parser = coapcam::station::line::parse_tcp_uri, conflicts_with = "no_cameras")]
+    line_output: Option<SocketAddr>,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
@@ -201,6 +218,8 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
                 keep_pictures: args.results_keep_pictures,
                 max_bytes: args.results_max_bytes,
             },
+            mqtt: args.mqtt.clone(),
+            line_output: args.line_output,
         },
     })
     .await?;
@@ -227,6 +246,12 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let mut terminate =
         signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
     let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
+    if let Some(a) = station.line_output_addr() {
+        eprintln!("coapcam: line output on {a}");
+    }
+    if let Some(target) = &args.mqtt {
+        eprintln!("coapcam: publishing to {target}");
+    }
     // The DTLS addresses come last.
     let addrs = station.local_addrs();
     let plain = addrs.len() - args.coaps.len();

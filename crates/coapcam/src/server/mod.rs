@@ -119,6 +119,9 @@ pub struct Station {
     cameras: Option<CameraTree>,
     /// The results log, when there are cameras, and the newest record's id it follows.
     results: Option<(ResultsLog, watch::Receiver<u64>)>,
+    /// The log's MQTT publisher (`--mqtt`) and line output (`--line-output`).
+    publisher: Option<station::mqtt::Publisher>,
+    line_output: Option<station::line::LineOutput>,
 }
 
 impl Station {
@@ -175,6 +178,7 @@ impl Station {
             }
             None => None,
         };
+        let (publisher, line_output) = start_outputs(&config.station, results.as_ref()).await?;
         let binds = &config.binds;
         let server = Server::bind(
             binds,
@@ -182,7 +186,6 @@ impl Station {
                 endpoint: config.endpoint,
                 secure: config.secure_binds.clone(),
                 psk: config.identities.as_ref().map(Identities::keys),
-                ..ServerConfig::default()
             },
             router,
         )
@@ -198,7 +201,16 @@ impl Station {
             group_interface: config.group_interface,
             cameras,
             results,
+            publisher,
+            line_output,
         })
+    }
+
+    /// Where the line output listens (`--line-output`).
+    pub fn line_output_addr(&self) -> Option<SocketAddr> {
+        self.line_output
+            .as_ref()
+            .map(station::line::LineOutput::local_addr)
     }
 
     /// The results log (when the server has cameras).
@@ -265,7 +277,49 @@ impl Station {
         if let Some(scan) = scan {
             let _ = scan.await;
         }
+        // `offline` on the status topic, within a bounded time.
+        if let Some(publisher) = self.publisher.take() {
+            publisher.stop().await;
+        }
     }
+}
+
+/// The MQTT publisher and the line output of the results log, as `config` asks.
+async fn start_outputs(
+    config: &station::Config,
+    results: Option<&(ResultsLog, watch::Receiver<u64>)>,
+) -> anyhow::Result<(
+    Option<station::mqtt::Publisher>,
+    Option<station::line::LineOutput>,
+)> {
+    let Some((log, _)) = results else {
+        if config.mqtt.is_some() || config.line_output.is_some() {
+            bail!("--mqtt and --line-output need cameras (and so a results log)");
+        }
+        return Ok((None, None));
+    };
+    let publisher = match &config.mqtt {
+        Some(target) => Some(
+            station::mqtt::Publisher::start(
+                station::mqtt::Config {
+                    target: target.clone(),
+                    station: config.name.clone(),
+                },
+                log.clone(),
+            )
+            .context("the station's name as an MQTT topic level (--station-name)")?,
+        ),
+        None => None,
+    };
+    let line_output = match config.line_output {
+        Some(addr) => Some(
+            station::line::LineOutput::start(addr, log.clone())
+                .await
+                .with_context(|| format!("listening for line output readers on {addr}"))?,
+        ),
+        None => None,
+    };
+    Ok((publisher, line_output))
 }
 
 /// Notifies the observers of `first` and of every other path changed meanwhile, each

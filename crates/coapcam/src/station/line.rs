@@ -22,6 +22,15 @@ use tokio::task::JoinHandle;
 use super::log::ResultsLog;
 use super::record::Record;
 
+/// The address of `tcp://ADDR:PORT` (`serve --line-output`; an IPv6 address in brackets).
+pub fn parse_tcp_uri(uri: &str) -> Result<SocketAddr, String> {
+    uri.strip_prefix("tcp://")
+        .and_then(|a| a.trim_end_matches('/').parse().ok())
+        .ok_or_else(|| {
+            format!("{uri:?} is not tcp://ADDR:PORT (e.g. tcp://0.0.0.0:4001 or tcp://[::]:4001)")
+        })
+}
+
 /// Lines a reader may be behind before it is disconnected.
 pub const QUEUE_LINES: usize = 256;
 /// Readers served at once; one more is refused (closed at once, with a log line).
@@ -288,6 +297,26 @@ async fn write(mut stream: TcpStream, peer: SocketAddr, mut lines: mpsc::Receive
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tcp_uris() {
+        assert_eq!(
+            parse_tcp_uri("tcp://127.0.0.1:4001"),
+            Ok(SocketAddr::from(([127, 0, 0, 1], 4001)))
+        );
+        assert_eq!(
+            parse_tcp_uri("tcp://[::]:0"),
+            Ok(SocketAddr::from(([0u16; 8], 0)))
+        );
+        for bad in [
+            "127.0.0.1:4001",
+            "tcp://host:4001",
+            "tcp://1.2.3.4",
+            "udp://1.2.3.4:5",
+        ] {
+            assert!(parse_tcp_uri(bad).is_err(), "{bad}");
+        }
+    }
 
     #[test]
     fn lines() {

@@ -29,6 +29,10 @@ pub struct Config {
     pub results: Option<PathBuf>,
     /// How much of the log is kept (`--results-keep-pictures`, `--results-max-bytes`).
     pub retention: Retention,
+    /// Publish every record to this MQTT broker (`--mqtt`).
+    pub mqtt: Option<mqtt::Target>,
+    /// Serve a text line per measurement on this TCP address (`--line-output`).
+    pub line_output: Option<std::net::SocketAddr>,
 }
 
 impl Default for Config {
@@ -37,6 +41,8 @@ impl Default for Config {
             name: host_name(),
             results: None,
             retention: Retention::default(),
+            mqtt: None,
+            line_output: None,
         }
     }
 }

@@ -3,20 +3,24 @@
 //! (rumqttc) and by `mosquitto_sub`. The broker missing fails in CI (`CI=true`) and skips
 //! loudly elsewhere.
 
+use std::io::{BufRead as _, BufReader};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use coap::Code;
 use coapcam::report::{Billing, Measurement, Parcel, Seen};
 use coapcam::station::log::ResultsLog;
 use coapcam::station::mqtt::{CONSUMER, Config, Publisher};
 use coapcam::station::record::{NewRecord, Trigger, UtcTime};
-use coapcam::vision::codes::{Code, CodeKind};
+use coapcam::vision::codes::{Code as Label, CodeKind};
 use geometry::Dimensions;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::{mpsc, watch};
 
-use crate::support::{MOSQUITTO_SUB, Peer, Proc, TempDir, available, mosquitto_broker, runtime};
+use crate::support::{
+    COAPCAM, MOSQUITTO_SUB, Peer, Proc, TempDir, available, client, mosquitto_broker, runtime, send,
+};
 
 /// Longest wait for a message that should come.
 const LIMIT: Duration = Duration::from_secs(30);
@@ -126,6 +130,8 @@ struct Message {
     topic: String,
     payload: Vec<u8>,
     retain: bool,
+    /// When it arrived, ms since the UNIX epoch.
+    arrived_unix_ms: i64,
 }
 
 impl Message {
@@ -177,6 +183,7 @@ impl Subscriber {
                             topic: p.topic.clone(),
                             payload: p.payload.to_vec(),
                             retain: p.retain,
+                            arrived_unix_ms: UtcTime::now().unix_ms,
                         });
                     }
                     Ok(_) => {}
@@ -264,7 +271,7 @@ pub(crate) fn record(log: &ResultsLog, length_mm: f64, code: Option<&str>) -> u6
         Duration::from_millis(80),
     );
     if let Some(text) = code {
-        let code = Code {
+        let code = Label {
             kind: CodeKind::Qr,
             text: text.into(),
         };
@@ -353,35 +360,195 @@ fn records_arrive_in_order_as_json_with_ids_and_the_status_is_retained() {
 }
 
 #[test]
-fn records_made_while_the_broker_is_down_arrive_after_it_is_back() {
-    if !available("mqtt broker restarts", &[Peer::Mosquitto]) {
+fn bursts_recorded_while_the_broker_is_down_arrive_in_order_after_it_is_back() {
+    if !available("mqtt bursts", &[Peer::Mosquitto]) {
         return;
     }
-    let dir = TempDir::new("mqtt-restarts");
+    let dir = TempDir::new("mqtt-bursts");
     let mut broker = Broker::start(&dir, true);
     let log = open_log(&dir);
     runtime().block_on(async {
         let mut sub =
             Subscriber::start(broker.port, "test-durable", "lane/+/measurements", true).await;
         let publisher = Publisher::start(config(&broker, "dock-2"), log.clone()).expect("start");
+        let mut next = 1;
         let mut repeats = 0;
-        for cycle in 0..20u64 {
+        for cycle in 0..3 {
             broker.stop();
-            let id = record_async(&log, 400.0 + cycle as f64).await;
-            tokio::time::sleep(Duration::from_millis(100)).await;
+            // More than the publisher keeps in flight at once.
+            let mut last = 0;
+            for n in 0..40 {
+                last = record_async(&log, 400.0 + f64::from(cycle * 40 + n)).await;
+            }
+            broker.restart();
+            while next <= last {
+                let json = sub.next().await.json();
+                let id = json["id"].as_u64().expect("an id");
+                assert!(id <= next, "cycle {cycle}: record {id} before {next}");
+                if id == next {
+                    next += 1;
+                } else {
+                    repeats += 1;
+                }
+            }
+        }
+        eprintln!("3 bursts of 40 while the broker was down: all in order, {repeats} repeats");
+        publisher.stop().await;
+    });
+}
+
+/// `coapcam serve` of the default scene with `flags`, its state in `state`: the process,
+/// its CoAP address, and the line output's when `flags` ask for one.
+fn serve_station(state: &TempDir, flags: &[&str]) -> (Proc, SocketAddr, Option<SocketAddr>) {
+    let dir = state.path().to_string_lossy().into_owned();
+    let mut args = vec![
+        "serve",
+        "--bind",
+        "127.0.0.1:0",
+        "--state-dir",
+        &dir,
+        "--duration",
+        "600",
+    ];
+    args.extend_from_slice(flags);
+    let mut p = Proc::spawn(COAPCAM, &args);
+    let line = flags.contains(&"--line-output").then(|| {
+        p.stderr_line(LIMIT, |l| {
+            l.strip_prefix("coapcam: line output on ")
+                .and_then(|a| a.trim().parse::<SocketAddr>().ok())
+        })
+    });
+    let addr = p.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: serving on ")
+            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
+    });
+    (p, addr, line)
+}
+
+/// `POST /cams/dimensions`: a measurement, which the server records.
+async fn measure(client: &coap_net::Client, addr: SocketAddr) {
+    let r = send(client, addr, Code::POST, "/cams/dimensions", b"", None).await;
+    assert_eq!(
+        r.code,
+        Code::CONTENT,
+        "{}",
+        String::from_utf8_lossy(&r.payload)
+    );
+}
+
+/// Milliseconds at `q` (0 to 1) of sorted `v`.
+fn quantile(v: &[i64], q: f64) -> i64 {
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+#[test]
+fn serve_publishes_every_measurement_and_its_line_and_the_broker_tells_when_it_dies() {
+    if !available("serve --mqtt", &[Peer::Mosquitto]) {
+        return;
+    }
+    // COAPCAM_MQTT_RUNS=50 measures the delay from the record to the subscriber over more.
+    let runs: u64 = std::env::var("COAPCAM_MQTT_RUNS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(3);
+    let dir = TempDir::new("serve-mqtt");
+    let broker = Broker::start(&dir, false);
+    let uri = broker.uri("lane");
+    let (mut server, addr, line) = serve_station(
+        &dir,
+        &[
+            "--mqtt",
+            &uri,
+            "--station-name",
+            "dock-e2e",
+            "--line-output",
+            "tcp://127.0.0.1:0",
+        ],
+    );
+    let line = line.expect("the line output's address");
+    runtime().block_on(async {
+        let mut sub = Subscriber::start(broker.port, "test-e2e", "lane/#", false).await;
+        assert_eq!(sub.next_on("lane/dock-e2e/status").await.text(), "online");
+        // Two readers; a measurement takes far longer than the server takes to accept
+        // them.
+        let mut readers: Vec<BufReader<TcpStream>> = (0..2)
+            .map(|_| {
+                let s = TcpStream::connect(line).expect("connecting to the line output");
+                s.set_read_timeout(Some(LIMIT)).unwrap();
+                BufReader::new(s)
+            })
+            .collect();
+        let client = client();
+        let mut delays = Vec::new();
+        for id in 1..=runs {
+            measure(&client, addr).await;
+            let m = sub.next_on("lane/dock-e2e/measurements").await;
+            let json = m.json();
+            assert_eq!(json["id"], id, "{json}");
+            assert_eq!(json["station"], "dock-e2e", "{json}");
+            assert_eq!(json["trigger"], "request", "{json}");
+            assert_eq!(json["measurement"]["parcel"], "measured", "{json}");
+            let time = UtcTime::parse(json["time"].as_str().expect("a time")).expect("RFC 3339");
+            delays.push(m.arrived_unix_ms - time.unix_ms);
+            let length = json["measurement"]["length_mm"].as_f64().expect("a length");
+            for reader in &mut readers {
+                let mut text = String::new();
+                reader.read_line(&mut text).expect("a line");
+                let fields: Vec<&str> = text.trim_end_matches("\r\n").split(',').collect();
+                assert!(text.ends_with("\r\n"), "{text:?}");
+                assert_eq!(fields.len(), 7, "{text:?}");
+                assert_eq!(fields[0], id.to_string(), "{text:?}");
+                assert_eq!(fields[1], json["time"], "{text:?}");
+                assert_eq!(fields[2], format!("{length:.1}"), "{text:?}");
+            }
+        }
+        delays.sort_unstable();
+        eprintln!(
+            "record to MQTT subscriber over {runs}: median {} ms, p95 {} ms, max {} ms",
+            quantile(&delays, 0.5),
+            quantile(&delays, 0.95),
+            delays[delays.len() - 1]
+        );
+        assert_eq!(retained(broker.port, "lane/dock-e2e/status"), "online");
+        // Killed: no DISCONNECT, so the broker publishes the last will.
+        server.kill();
+        assert_eq!(sub.next_on("lane/dock-e2e/status").await.text(), "offline");
+    });
+    assert_eq!(retained(broker.port, "lane/dock-e2e/status"), "offline");
+}
+
+#[test]
+fn a_measurement_made_while_the_broker_is_down_arrives_after_it_is_back_20_times() {
+    if !available("serve --mqtt broker restarts", &[Peer::Mosquitto]) {
+        return;
+    }
+    let dir = TempDir::new("serve-mqtt-restarts");
+    let mut broker = Broker::start(&dir, true);
+    let uri = broker.uri("lane");
+    let (_server, addr, _) = serve_station(&dir, &["--mqtt", &uri, "--station-name", "dock-r"]);
+    runtime().block_on(async {
+        let mut sub =
+            Subscriber::start(broker.port, "test-e2e-durable", "lane/+/measurements", true).await;
+        let client = client();
+        let mut repeats = 0;
+        for id in 1..=20u64 {
+            broker.stop();
+            measure(&client, addr).await;
             broker.restart();
             // At least once: a repeat of an earlier record may come first.
             loop {
                 let json = sub.next().await.json();
-                let got_id = json["id"].as_u64().expect("an id");
-                assert!(got_id <= id, "cycle {cycle}: {json} before record {id}");
-                if got_id == id {
+                let got = json["id"].as_u64().expect("an id");
+                assert!(got <= id, "{json} before record {id}");
+                if got == id {
+                    assert_eq!(json["station"], "dock-r", "{json}");
                     break;
                 }
                 repeats += 1;
             }
         }
-        eprintln!("20 broker restarts: every record arrived in order, {repeats} repeats");
-        publisher.stop().await;
+        eprintln!(
+            "20 broker restarts through serve: every measurement in order, {repeats} repeats"
+        );
     });
 }
