@@ -13,10 +13,12 @@ use clap::Args;
 use coap::{Code, ContentFormat, OptionNumber, Response};
 use geometry::DimensionConfig;
 
-use coapcam::client::CamClient;
 use coapcam::client::measure::{self, CloudMeasurement, Source};
+use coapcam::client::{CamClient, results};
 use coapcam::report::{Billing, Measurement, Parcel};
 use coapcam::repr::Stream;
+use coapcam::station::log::ListQuery;
+use coapcam::station::record::Record;
 
 use super::{DimensionArgs, Exit, TransmissionArgs, error_text, exit_status, out, outln};
 
@@ -73,7 +75,10 @@ pub(crate) struct MonitorArgs {
     count: Option<u64>,
     /// Observe the camera's color, depth or pointcloud resource (GET with Observe) instead
     /// of grabbing: the latest frame, then each frame anyone grabs, is a result; its time
-    /// is the time since the previous result.
+    /// is the time since the previous result. With `measure`: follow the station's
+    /// results log (/station/measurements/latest) instead of measuring: each measurement
+    /// recorded from then on (by a client or the station itself) is a result, none
+    /// skipped (records appended between two notifications are fetched).
     #[arg(long)]
     observe: bool,
     /// The representation asked for (Accept): a number or a short name (png, jpeg, cbor,
@@ -281,6 +286,9 @@ impl Summary {
 struct Line {
     #[serde(flatten)]
     measurement: Option<Measurement>,
+    /// With `measure --observe`: the record's id, time, station and trigger.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    record: Option<RecordLine>,
     n: u64,
     at_unix_ms: u64,
     ok: bool,
@@ -289,18 +297,34 @@ struct Line {
     mean_ms: f64,
 }
 
+/// A record's fields on a `--json` line of `measure --observe`.
+#[derive(serde::Serialize)]
+struct RecordLine {
+    id: u64,
+    time: String,
+    station: String,
+    trigger: &'static str,
+}
+
 /// What one request brought.
 struct Success {
     bytes: usize,
     /// The time the statistics count.
     time: Duration,
     measurement: Option<CloudMeasurement>,
+    /// A record of the results log (`measure --observe`).
+    record: Option<Record>,
 }
 
 /// What `monitor` does, resolved once at the start.
 enum Plan {
     Repeat(Repeat),
-    Observe { serial: String, stream: Stream },
+    Observe {
+        serial: String,
+        stream: Stream,
+    },
+    /// `measure --observe`: the results log's new records.
+    Records,
 }
 
 /// A request repeated every interval.
@@ -324,7 +348,17 @@ impl Plan {
             });
         }
         if args.observe {
-            bail!("--observe watches one camera's color, depth or pointcloud resource");
+            if args.target != Target::Measure {
+                bail!(
+                    "--observe watches one camera's color, depth or pointcloud resource, or the measurements"
+                );
+            }
+            if args.camera.is_some() {
+                bail!(
+                    "measure --observe follows every measurement of the station; leave out --camera"
+                );
+            }
+            return Ok(Self::Records);
         }
         let repeat = match (args.target, &args.camera) {
             (Target::Measure, Some(sn)) => Repeat::Measure(Source::Camera(sn.clone())),
@@ -349,6 +383,7 @@ impl Plan {
             Self::Observe { serial, stream } => {
                 format!("observe GET /cams/{serial}/{}", stream.name())
             }
+            Self::Records => format!("observe GET {}", results::LATEST),
         }
     }
 }
@@ -377,13 +412,24 @@ impl Report {
                 self.stats.record(s.time);
                 let mean = self.stats.mean().unwrap_or(s.time);
                 if self.json {
-                    let measurement = s.measurement.as_ref().map(|m| Measurement {
-                        // The line's own.
-                        received_bytes: None,
-                        ..m.report(&Billing::default())
+                    let measurement = s
+                        .measurement
+                        .as_ref()
+                        .map(|m| Measurement {
+                            // The line's own.
+                            received_bytes: None,
+                            ..m.report(&Billing::default())
+                        })
+                        .or_else(|| s.record.as_ref().map(|r| r.measurement.clone()));
+                    let record = s.record.as_ref().map(|r| RecordLine {
+                        id: r.id,
+                        time: r.time.to_string(),
+                        station: r.station.clone(),
+                        trigger: r.trigger.name(),
                     });
                     let line = Line {
                         measurement,
+                        record,
                         n: self.seen,
                         at_unix_ms: unix_ms,
                         ok: true,
@@ -401,7 +447,21 @@ impl Report {
                         millis(s.time),
                         millis(mean)
                     );
-                    match s.measurement.as_ref().map(|m| &m.parcel) {
+                    if let Some(r) = &s.record {
+                        line += &format!(
+                            "  record #{} {} {} {}",
+                            r.id,
+                            r.time,
+                            r.station,
+                            r.trigger.name()
+                        );
+                    }
+                    let parcel = s
+                        .measurement
+                        .as_ref()
+                        .map(|m| m.parcel.clone())
+                        .or_else(|| s.record.as_ref().map(|r| r.measurement.parcel()));
+                    match parcel {
                         Some(Parcel::Measured(d)) => {
                             line += &format!(
                                 "  {:.1} x {:.1} x {:.1} mm, yaw {:.1} deg, {} points",
@@ -410,6 +470,11 @@ impl Report {
                         }
                         Some(Parcel::Nothing { .. }) => line += "  nothing on the table",
                         None => {}
+                    }
+                    if let Some(codes) = s.record.as_ref().map(Record::code_texts)
+                        && !codes.is_empty()
+                    {
+                        line += &format!(", codes {}", codes.join(", "));
                     }
                     outln!("{line}");
                 }
@@ -494,6 +559,7 @@ async fn once(
                 bytes: r.payload.len(),
                 time: started.elapsed(),
                 measurement: None,
+                record: None,
             })
         }
         Repeat::All => {
@@ -505,6 +571,7 @@ async fn once(
                 bytes: r.payload.len(),
                 time: started.elapsed(),
                 measurement: None,
+                record: None,
             })
         }
         Repeat::Measure(source) => {
@@ -513,6 +580,7 @@ async fn once(
                 bytes: m.grabbed.bytes,
                 time: m.grab,
                 measurement: Some(m),
+                record: None,
             })
         }
     }
@@ -583,6 +651,7 @@ async fn observe(
             bytes: r.payload.len(),
             time: elapsed,
             measurement: None,
+            record: None,
         });
         report.result(outcome, elapsed)?;
         if !observing {
@@ -592,6 +661,97 @@ async fn observe(
             bail!("the server ended the observation of {path}");
         }
         first = false;
+    }
+    Ok(())
+}
+
+/// Follows the results log (`measure --observe`): observes its newest record and reports
+/// each record added after the registration once, in id order, fetching those appended
+/// between two notifications (an observer is told the newest state, not every one).
+async fn observe_records(
+    client: &CamClient,
+    args: &MonitorArgs,
+    timeout: Duration,
+    report: &mut Report,
+) -> anyhow::Result<()> {
+    let path = results::LATEST;
+    let mut request = client.request(
+        Code::GET,
+        path,
+        Bytes::new(),
+        None,
+        Some(ContentFormat::CBOR),
+    );
+    request.timeout = None;
+    let mut previous = Instant::now();
+    let mut observation = client
+        .coap()
+        .observe(client.server(), request)
+        .await
+        .with_context(|| format!("observing {path} on {}", client.server()))?;
+    // The newest id reported (at first: the newest when the observation began).
+    let mut last: Option<u64> = None;
+    while !report.done(args.count) {
+        let next = if last.is_none() {
+            tokio::time::timeout(timeout, observation.next())
+                .await
+                .with_context(|| format!("no answer to the observation of {path} in {timeout:?}"))?
+        } else {
+            observation.next().await
+        };
+        let Some(next) = next else {
+            bail!("the observation of {path} ended");
+        };
+        let response = coapcam::client::check(
+            &format!("GET {path}"),
+            next.with_context(|| format!("observing {path}"))?,
+        )?;
+        let observing = response.options.contains(OptionNumber::OBSERVE);
+        let newest: Option<Record> = results::decode(&response.payload)?;
+        let Some(from) = last else {
+            let from = newest.as_ref().map_or(0, |r| r.id);
+            if !observing {
+                bail!("the server did not accept the observation of {path}");
+            }
+            eprintln!("coapcam: following {path} from record #{from}");
+            last = Some(from);
+            previous = Instant::now();
+            continue;
+        };
+        if let Some(newest) = newest.filter(|r| r.id > from) {
+            let mut records = Vec::new();
+            if newest.id > from + 1 {
+                let missed = ListQuery {
+                    since: Some(from),
+                    before: Some(newest.id),
+                    ..ListQuery::default()
+                };
+                let wanted = usize::try_from(newest.id - from - 1).unwrap_or(usize::MAX);
+                let mut got = results::list(client, &missed, wanted).await?;
+                got.reverse();
+                records = got;
+            }
+            records.push(newest);
+            for record in records {
+                let elapsed = previous.elapsed();
+                previous = Instant::now();
+                last = Some(record.id);
+                let bytes = response.payload.len();
+                let success = Success {
+                    bytes,
+                    time: elapsed,
+                    measurement: None,
+                    record: Some(record),
+                };
+                report.result(Ok(success), elapsed)?;
+                if report.done(args.count) {
+                    break;
+                }
+            }
+        }
+        if !observing {
+            bail!("the server ended the observation of {path}");
+        }
     }
     Ok(())
 }
@@ -633,6 +793,7 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
             Plan::Repeat(repeat_plan) => {
                 repeat(&client, repeat_plan, &args, period, &mut report).await
             }
+            Plan::Records => observe_records(&client, &args, timeout, &mut report).await,
         }
     };
     let ended = tokio::select! {
