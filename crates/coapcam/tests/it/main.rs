@@ -22,5 +22,6 @@ mod netem;
 mod offhost;
 mod readme;
 mod realsense;
+mod results;
 mod signals;
 mod support;

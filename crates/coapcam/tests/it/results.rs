@@ -1,0 +1,508 @@
+//! The results log (docs/station.md): every `POST /cams/dimensions` recorded before it
+//! is answered, the chain verified by `coapcam results verify`, an altered record named,
+//! no answered measurement lost across `kill -9`, the `/station/measurements` resources
+//! (queries, paging, refusals, pictures, Observe) and retention.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread;
+use std::time::Duration;
+
+use coap::{Code, ContentFormat, OptionNumber, Request, Response};
+use coapcam::report::Measurement;
+use coapcam::station::log::{ListQuery, ResultsLog, Retention};
+use coapcam::station::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
+
+use crate::support::{
+    COAPCAM, DEPTH_640, LIMIT, Proc, SN, TempDir, client, runtime, send, serve_with,
+};
+
+/// `POST /cams/dimensions` (CBOR), the measurement it answered.
+async fn measure(c: &coap_net::Client, addr: std::net::SocketAddr) -> Measurement {
+    let mut request = Request::new(Code::POST, "/cams/dimensions");
+    request.timeout = Some(LIMIT);
+    request.options.push(OptionNumber::URI_QUERY, b"codes");
+    request
+        .options
+        .set_uint(OptionNumber::ACCEPT, u32::from(ContentFormat::CBOR.0));
+    let r = c.send(addr, request).await.expect("an answer");
+    assert_eq!(
+        r.code,
+        Code::CONTENT,
+        "{}",
+        String::from_utf8_lossy(&r.payload)
+    );
+    Measurement::from_cbor(&r.payload).expect("a measurement")
+}
+
+/// `GET path` with its query items and Accept.
+async fn get(
+    c: &coap_net::Client,
+    addr: std::net::SocketAddr,
+    path: &str,
+    query: &[&str],
+    accept: Option<u16>,
+) -> Response {
+    let mut request = Request::new(Code::GET, path);
+    request.timeout = Some(LIMIT);
+    for item in query {
+        request
+            .options
+            .push(OptionNumber::URI_QUERY, item.as_bytes());
+    }
+    if let Some(cf) = accept {
+        request
+            .options
+            .set_uint(OptionNumber::ACCEPT, u32::from(cf));
+    }
+    c.send(addr, request).await.expect("an answer")
+}
+
+fn records_of(r: &Response) -> Vec<Record> {
+    assert_eq!(
+        r.code,
+        Code::CONTENT,
+        "{}",
+        String::from_utf8_lossy(&r.payload)
+    );
+    serde_json::from_slice(&r.payload).expect("a JSON list of records")
+}
+
+fn ids(records: &[Record]) -> Vec<u64> {
+    records.iter().map(|r| r.id).collect()
+}
+
+/// `coapcam results verify FILE --json`: its exit code and document.
+fn verify(file: &Path) -> (Option<i32>, serde_json::Value) {
+    let file = file.to_str().expect("UTF-8 path");
+    let f = Proc::run(COAPCAM, &["results", "verify", file, "--json"], LIMIT);
+    (f.status.code(), f.json())
+}
+
+#[test]
+fn requests_are_recorded_served_listed_and_verified() {
+    let dir = TempDir::new("results-served");
+    let results = dir.join("lane.sqlite");
+    let results_arg = results.to_str().expect("UTF-8");
+    let (_server, addr) = serve_with(
+        dir.path(),
+        &["--results", results_arg, "--station-name", "lane-7"],
+    );
+    let rt = runtime();
+    let c = client();
+    let answered: Vec<Measurement> = rt.block_on(async {
+        let mut out = Vec::new();
+        for _ in 0..3 {
+            out.push(measure(&c, addr).await);
+        }
+        out
+    });
+    rt.block_on(async {
+        // Newest first; each record is the measurement that was answered.
+        let all = records_of(&get(&c, addr, "/station/measurements", &[], None).await);
+        assert_eq!(ids(&all), [3, 2, 1]);
+        for (record, m) in all.iter().rev().zip(&answered) {
+            assert_eq!(&record.measurement, m);
+            assert_eq!(record.station, "lane-7");
+            assert_eq!(record.trigger, Trigger::Request);
+            assert_eq!(record.cameras.len(), 1);
+            assert_eq!(record.cameras[0].serial, SN);
+            assert!(!record.has_photo);
+        }
+        assert_eq!(all[0].prev_hash, all[1].hash);
+        // The same list in CBOR.
+        let cbor = get(&c, addr, "/station/measurements", &[], Some(60)).await;
+        assert_eq!(
+            cbor.options.uint(OptionNumber::CONTENT_FORMAT),
+            Some(u32::from(ContentFormat::CBOR.0))
+        );
+        let from_cbor: Vec<Record> = ciborium::from_reader(&cbor.payload[..]).expect("CBOR");
+        assert_eq!(from_cbor, all);
+        // since, limit, before (paging back), code.
+        let page = |q: &'static [&'static str]| {
+            let (c, addr) = (&c, addr);
+            async move {
+                ids(&records_of(
+                    &get(c, addr, "/station/measurements", q, None).await,
+                ))
+            }
+        };
+        assert_eq!(page(&["since=1"]).await, [3, 2]);
+        assert_eq!(page(&["limit=2"]).await, [3, 2]);
+        assert_eq!(page(&["limit=2", "before=2"]).await, [1]);
+        assert_eq!(page(&["code=PKG-0001"]).await, [3, 2, 1]);
+        assert!(page(&["code=PKG-9999"]).await.is_empty());
+        // One record, the newest, and refusals with a diagnostic.
+        let one = get(&c, addr, "/station/measurements/2", &[], None).await;
+        let two: Record = serde_json::from_slice(&one.payload).expect("a record");
+        assert_eq!(two, all[1]);
+        let latest = get(&c, addr, "/station/measurements/latest", &[], None).await;
+        let latest: Record = serde_json::from_slice(&latest.payload).expect("a record");
+        assert_eq!(latest, all[0]);
+        for (query, word) in [
+            (&["limit=0"][..], "limit"),
+            (&["since=x"], "since"),
+            (&["colour=red"], "colour"),
+            (&["code="], "code"),
+            (&["limit=1", "limit=2"], "twice"),
+        ] {
+            let r = get(&c, addr, "/station/measurements", query, None).await;
+            assert_eq!(r.code, Code::BAD_REQUEST, "{query:?}");
+            let why = String::from_utf8_lossy(&r.payload);
+            assert!(why.contains(word), "{query:?}: {why}");
+        }
+        let r = get(&c, addr, "/station/measurements/x", &[], None).await;
+        assert_eq!(r.code, Code::BAD_REQUEST);
+        let r = get(&c, addr, "/station/measurements/9", &[], None).await;
+        assert_eq!(r.code, Code::NOT_FOUND);
+        let r = get(&c, addr, "/station/measurements", &[], Some(23)).await;
+        assert_eq!(r.code, Code::NOT_ACCEPTABLE);
+        let r = get(&c, addr, "/station/measurements/1/photo", &[], None).await;
+        assert_eq!(r.code, Code::NOT_FOUND);
+        assert!(String::from_utf8_lossy(&r.payload).contains("no photo"));
+    });
+    // The command lists what the resources serve.
+    let uri = format!("coap://{addr}");
+    let f = Proc::run(
+        COAPCAM,
+        &["results", "--server", &uri, "--json", "--limit", "2"],
+        LIMIT,
+    )
+    .expect_success("results --json");
+    let lines = f.json_lines();
+    assert_eq!(lines.len(), 2);
+    assert_eq!(
+        (lines[0]["id"].as_u64(), lines[1]["id"].as_u64()),
+        (Some(3), Some(2))
+    );
+    let f = Proc::run(
+        COAPCAM,
+        &["results", "--server", &uri, "--csv", "--since", "1"],
+        LIMIT,
+    )
+    .expect_success("results --csv");
+    let text = f.stdout_text();
+    let rows: Vec<&str> = text.lines().collect();
+    assert_eq!(rows.len(), 3, "{text}");
+    assert!(
+        rows[0].starts_with("id,time,station,trigger,parcel,length_mm"),
+        "{text}"
+    );
+    assert!(
+        rows[1].starts_with("3,") && rows[1].contains(",lane-7,request,measured,"),
+        "{text}"
+    );
+    let (code, report) = verify(&results);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["records"], 3);
+    assert_eq!(
+        report["head"]["hash"].as_str(),
+        Some(answered_hash(&results, 3).as_str())
+    );
+}
+
+fn answered_hash(path: &Path, id: u64) -> String {
+    let log = ResultsLog::open(path).expect("open");
+    log.get(id).expect("get").expect("there").hash
+}
+
+#[test]
+fn a_record_changed_by_hand_is_named_by_verify() {
+    let dir = TempDir::new("results-altered");
+    let (mut server, addr) = serve_with(dir.path(), &[]);
+    let rt = runtime();
+    let c = client();
+    rt.block_on(async {
+        for _ in 0..4 {
+            measure(&c, addr).await;
+        }
+    });
+    let _ = server.process().kill();
+    let _ = server.process().wait();
+    let file = dir.join("results.sqlite");
+    assert_eq!(verify(&file).0, Some(0));
+    // The log refuses the change; whoever drops its trigger can make it, and is found.
+    let db = rusqlite::Connection::open(&file).expect("sqlite");
+    let refused = db.execute(
+        "UPDATE records SET body = json_set(body, '$.measurement.height_mm', 150.0) WHERE id = 3",
+        [],
+    );
+    assert!(refused.is_err(), "the trigger let an UPDATE through");
+    db.execute_batch(
+        "DROP TRIGGER records_no_update;
+         UPDATE records SET body = json_set(body, '$.measurement.height_mm', 150.0) WHERE id = 3;",
+    )
+    .expect("changed by hand");
+    drop(db);
+    let (code, report) = verify(&file);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["verified"], false);
+    assert_eq!(report["first_altered"]["id"], 3, "{report}");
+    assert_eq!(report["records"], 2);
+    // The text names it too.
+    let f = Proc::run(
+        COAPCAM,
+        &["results", "verify", file.to_str().expect("UTF-8")],
+        LIMIT,
+    );
+    assert_eq!(f.status.code(), Some(7));
+    assert!(
+        f.stdout_text().contains("record 3 was altered"),
+        "{}",
+        f.stdout_text()
+    );
+}
+
+#[test]
+fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
+    const CYCLES: u64 = 30;
+    let dir = TempDir::new("results-kill");
+    let file = dir.join("results.sqlite");
+    let rt = runtime();
+    let c = client();
+    let mut answered: Vec<Measurement> = Vec::new();
+    for cycle in 0..CYCLES {
+        let (mut server, addr) = serve_with(dir.path(), &[]);
+        if cycle == 0 {
+            // Smaller depth frames: a measurement in a fraction of a second (persisted).
+            let r = rt.block_on(send(
+                &c,
+                addr,
+                Code::PUT,
+                &format!("/cams/{SN}/depth-settings"),
+                DEPTH_640.as_bytes(),
+                None,
+            ));
+            assert_eq!(r.code, Code::CHANGED);
+        }
+        // Measurements one after another until the server dies; the kill lands at a
+        // different moment of a measurement each cycle.
+        let stop = Arc::new(AtomicBool::new(false));
+        let requests = {
+            let (stop, c) = (Arc::clone(&stop), c.clone());
+            rt.spawn(async move {
+                let mut answered = Vec::new();
+                loop {
+                    let mut request = Request::new(Code::POST, "/cams/dimensions");
+                    request.timeout = Some(Duration::from_secs(5));
+                    request
+                        .options
+                        .set_uint(OptionNumber::ACCEPT, u32::from(ContentFormat::CBOR.0));
+                    match c.send(addr, request).await {
+                        Ok(r) if r.code == Code::CONTENT => {
+                            answered.push(Measurement::from_cbor(&r.payload).expect("CBOR"));
+                        }
+                        Ok(r) => panic!("cycle {cycle}: {}", String::from_utf8_lossy(&r.payload)),
+                        Err(_) if stop.load(Ordering::Relaxed) => return answered,
+                        Err(e) => panic!("cycle {cycle}: {e}"),
+                    }
+                }
+            })
+        };
+        thread::sleep(Duration::from_millis(400 + (cycle * 173) % 900));
+        stop.store(true, Ordering::Relaxed);
+        server.process().kill().expect("kill -9");
+        answered.extend(rt.block_on(requests).expect("the requests"));
+        let _ = server.process().wait();
+        let (code, report) = verify(&file);
+        assert_eq!(code, Some(0), "cycle {cycle}: {report}");
+    }
+    // Every answered measurement is recorded, once, in the order it was answered.
+    let log = ResultsLog::open(&file).expect("open");
+    let mut recorded: Vec<Record> = Vec::new();
+    let mut before = None;
+    loop {
+        let page = log
+            .list(&ListQuery {
+                before,
+                limit: 1000,
+                ..ListQuery::default()
+            })
+            .expect("list");
+        let Some(last) = page.last() else { break };
+        before = Some(last.id);
+        recorded.extend(page);
+    }
+    recorded.reverse();
+    let mut at = 0;
+    for m in &answered {
+        let found = recorded[at..]
+            .iter()
+            .position(|r| &r.measurement == m)
+            .unwrap_or_else(|| panic!("an answered measurement is not in the log: {m:?}"));
+        at += found + 1;
+    }
+    eprintln!(
+        "{CYCLES} kill -9 cycles: {} measurements answered, {} recorded (the rest were cut off by the kill before their answer)",
+        answered.len(),
+        recorded.len()
+    );
+    assert!(
+        answered.len() as u64 >= CYCLES,
+        "too few measurements to mean anything"
+    );
+}
+
+#[test]
+fn observing_the_latest_gives_one_notification_per_new_record() {
+    let dir = TempDir::new("results-observe");
+    let (_server, addr) = serve_with(dir.path(), &[]);
+    let rt = runtime();
+    let c = client();
+    rt.block_on(async {
+        measure(&c, addr).await;
+        let mut request = Request::new(Code::GET, "/station/measurements/latest");
+        request
+            .options
+            .set_uint(OptionNumber::ACCEPT, u32::from(ContentFormat::JSON.0));
+        let mut observation = c.observe(addr, request).await.expect("observe");
+        assert_eq!(
+            next_id(&mut observation).await,
+            1,
+            "the registration's answer"
+        );
+        let mut notified = Vec::new();
+        for expected in 2..=4 {
+            measure(&c, addr).await;
+            notified.push(next_id(&mut observation).await);
+            assert_eq!(notified.last(), Some(&expected));
+        }
+        assert_eq!(notified, [2, 3, 4]);
+    });
+    // `monitor measure --observe` follows them, each once.
+    let uri = format!("coap://{addr}");
+    let mut monitor = Proc::spawn(
+        COAPCAM,
+        &[
+            "monitor",
+            "measure",
+            "--server",
+            &uri,
+            "--observe",
+            "--count",
+            "2",
+            "--json",
+        ],
+    );
+    monitor.stderr_line(LIMIT, |l| l.contains("following").then_some(()));
+    rt.block_on(async {
+        measure(&c, addr).await;
+        measure(&c, addr).await;
+    });
+    let f = monitor.wait(LIMIT).expect("monitor ends after --count");
+    let lines = f.json_lines();
+    let ids: Vec<u64> = lines
+        .iter()
+        .filter_map(|l| l["record"]["id"].as_u64())
+        .collect();
+    assert_eq!(ids, [5, 6], "{}", f.stdout_text());
+}
+
+/// The record id of the observation's next notification.
+async fn next_id(o: &mut coap_net::Observation) -> u64 {
+    let r = tokio::time::timeout(LIMIT, o.next())
+        .await
+        .expect("a notification in time")
+        .expect("the observation goes on")
+        .expect("a response");
+    assert!(r.options.contains(OptionNumber::OBSERVE));
+    let record: Record = serde_json::from_slice(&r.payload).expect("a record");
+    record.id
+}
+
+/// A record with pictures, as the station's own measurement path hands the log.
+fn with_pictures(n: u8, measurement: &Measurement) -> NewRecord {
+    NewRecord {
+        time: UtcTime::now(),
+        station: "lane-3".into(),
+        trigger: Trigger::Auto,
+        measurement: measurement.clone(),
+        cameras: vec![CameraPose {
+            serial: SN.into(),
+            transformation: geometry::Transformation::identity(),
+        }],
+        version: NewRecord::VERSION.into(),
+        photo_jpeg: Some(vec![0xFF, 0xD8, n, 0xFF, 0xD9]),
+        annotated_png: Some([&b"\x89PNG\r\n\x1a\n"[..], &[n; 64]].concat()),
+    }
+}
+
+#[test]
+fn pictures_are_served_and_retention_prunes_them_first() {
+    let dir = TempDir::new("results-pictures");
+    let file = dir.join("results.sqlite");
+    // A measurement to record, from a server, then records with pictures by the library.
+    let m = {
+        let (_server, addr) = serve_with(dir.path(), &[]);
+        runtime().block_on(measure(&client(), addr))
+    };
+    {
+        let log = ResultsLog::open(&file).expect("open");
+        for n in 2..=5u8 {
+            log.append(with_pictures(n, &m)).expect("append");
+        }
+    }
+    assert_eq!(verify(&file).1["pictures_checked"], 8);
+    // The server keeps the pictures of the newest two records.
+    let (_server, addr) = serve_with(dir.path(), &["--results-keep-pictures", "2"]);
+    let rt = runtime();
+    let c = client();
+    rt.block_on(async {
+        let photo = get(&c, addr, "/station/measurements/5/photo", &[], None).await;
+        assert_eq!(photo.code, Code::CONTENT);
+        assert_eq!(
+            photo.options.uint(OptionNumber::CONTENT_FORMAT),
+            Some(u32::from(ContentFormat::IMAGE_JPEG.0))
+        );
+        assert_eq!(&photo.payload[..], [0xFF, 0xD8, 5, 0xFF, 0xD9]);
+        let png = get(&c, addr, "/station/measurements/4/annotated", &[], None).await;
+        assert_eq!(png.code, Code::CONTENT);
+        assert_eq!(
+            png.options.uint(OptionNumber::CONTENT_FORMAT),
+            Some(u32::from(ContentFormat::IMAGE_PNG.0))
+        );
+        assert_eq!(png.payload.len(), 72);
+        let wrong = get(&c, addr, "/station/measurements/5/photo", &[], Some(23)).await;
+        assert_eq!(wrong.code, Code::NOT_ACCEPTABLE);
+        let pruned = get(&c, addr, "/station/measurements/3/photo", &[], None).await;
+        assert_eq!(pruned.code, Code::NOT_FOUND);
+        assert!(String::from_utf8_lossy(&pruned.payload).contains("pruned"));
+        let record: Record = serde_json::from_slice(
+            &get(&c, addr, "/station/measurements/3", &[], None)
+                .await
+                .payload,
+        )
+        .expect("a record");
+        assert!(!record.has_photo && record.photo_sha256.is_some());
+        // A new measurement pushes record 4's pictures out.
+        measure(&c, addr).await;
+        let gone = get(&c, addr, "/station/measurements/4/annotated", &[], None).await;
+        assert_eq!(gone.code, Code::NOT_FOUND);
+    });
+    let (code, report) = verify(&file);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["records"], 6);
+    assert_eq!(
+        (
+            report["pictures_checked"].as_u64(),
+            report["pictures_pruned"].as_u64()
+        ),
+        (Some(2), Some(6))
+    );
+    // A byte limit below the records themselves: every picture goes, no record.
+    let small = ResultsLog::open_with(
+        &file,
+        Retention {
+            keep_pictures: None,
+            max_bytes: Some(1),
+        },
+    )
+    .expect("open");
+    assert!(small.over_limit());
+    assert_eq!(small.newest(), 6);
+    drop(small);
+    let (code, report) = verify(&file);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["pictures_checked"], 0);
+}
