@@ -435,7 +435,18 @@ fn pictures_are_served_and_retention_prunes_them_first() {
     // A measurement to record, from a server, then records with pictures by the library.
     let m = {
         let (_server, addr) = serve_with(dir.path(), &[]);
-        runtime().block_on(measure(&client(), addr))
+        runtime().block_on(async {
+            let c = client();
+            // Before the first record, the newest is null.
+            let none = get(&c, addr, "/station/measurements/latest", &[], None).await;
+            assert_eq!(
+                (none.code, &none.payload[..]),
+                (Code::CONTENT, &b"null"[..])
+            );
+            let empty = get(&c, addr, "/station/measurements", &[], None).await;
+            assert_eq!(&empty.payload[..], b"[]");
+            measure(&c, addr).await
+        })
     };
     {
         let log = ResultsLog::open(&file).expect("open");
