@@ -9,7 +9,8 @@
 //! - [`client`]: the typed client of a camera server, measuring (with the cameras'
 //!   preparation), the codes of the cameras and the annotated picture;
 //! - [`station`]: what the server does by itself for a parcel lane: the results log;
-//! - [`vision`]: pure image work: reading QR and Code 128 codes, pictures for people.
+//! - [`vision`]: pure image work: reading QR and Code 128 codes, pictures for people;
+//! - [`stats`]: medians, percentiles and running moments of repeated measurements.
 //!
 //! The protocol lives in the `coap` and `coap-net` crates, the cameras in `rgbd`, the
 //! point-cloud geometry in `geometry`, the link emulator in `netem`.
@@ -21,6 +22,7 @@ pub mod report;
 pub mod repr;
 pub mod server;
 pub mod station;
+pub mod stats;
 pub mod vision;
 
 /// A directory of a unit test's own under the system's temporary directory, removed on

@@ -17,6 +17,7 @@ use super::{DimensionArgs, Exit, calibrate, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::{self, Source, prepare_cameras, truth, yaw_difference};
 use coapcam::server::SceneServer;
+use coapcam::stats::{self, AbsSummary};
 use coapcam::vision::calibration::{MarkerMap, pose_transformation};
 
 /// `bench transfer` (declared here, not in `cli/mod.rs`, with its file beside this one).
@@ -306,21 +307,6 @@ impl Row {
     }
 }
 
-/// Mean absolute value, 95th percentile of absolute values (nearest rank) and maximum.
-fn summary(values: &[f64]) -> [f64; 3] {
-    let mut abs: Vec<f64> = values.iter().map(|v| v.abs()).collect();
-    abs.sort_by(f64::total_cmp);
-    if abs.is_empty() {
-        return [f64::NAN; 3];
-    }
-    let rank = ((0.95 * abs.len() as f64).ceil() as usize).clamp(1, abs.len());
-    [
-        abs.iter().sum::<f64>() / abs.len() as f64,
-        abs[rank - 1],
-        abs[abs.len() - 1],
-    ]
-}
-
 /// Runs `bench`.
 pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
     match args.what {
@@ -454,15 +440,17 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     }
     std::fs::remove_dir_all(&state).ok();
     let errors: Vec<[f64; 4]> = rows.iter().filter_map(Row::errors).collect();
-    let column = |i: usize| summary(&errors.iter().map(|e| e[i]).collect::<Vec<_>>());
-    let mut cycles: Vec<f64> = rows
-        .iter()
-        .map(|r| r.cycle_ms)
-        .filter(|c| c.is_finite())
-        .collect();
-    cycles.sort_by(f64::total_cmp);
-    let median_cycle = cycles.get(cycles.len() / 2).copied().unwrap_or(f64::NAN);
-    let [_, p95_cycle, max_cycle] = summary(&cycles);
+    let column = |i: usize| {
+        let s = AbsSummary::of(&errors.iter().map(|e| e[i]).collect::<Vec<_>>());
+        [s.mean, s.p95, s.max]
+    };
+    let cycles: Vec<f64> = rows.iter().map(|r| r.cycle_ms).collect();
+    let median_cycle = stats::median(&cycles).unwrap_or(f64::NAN);
+    let AbsSummary {
+        p95: p95_cycle,
+        max: max_cycle,
+        ..
+    } = AbsSummary::of(&cycles);
     let failed = rows.len() - errors.len();
     let names = ["length_mm", "width_mm", "height_mm", "yaw_deg"];
     // With --calibrate: every camera's pose errors, and the calibration times.
@@ -472,12 +460,11 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
         .flat_map(|(e, _)| e.iter().copied())
         .collect();
     let pose_column = |i: usize| {
-        let mut v: Vec<f64> = poses.iter().map(|p| p[i]).collect();
-        v.sort_by(f64::total_cmp);
-        let [_, p95, max] = summary(&v);
-        [v.get(v.len() / 2).copied().unwrap_or(f64::NAN), p95, max]
+        let v: Vec<f64> = poses.iter().map(|p| p[i]).collect();
+        let s = AbsSummary::of(&v);
+        [stats::median(&v).unwrap_or(f64::NAN), s.p95, s.max]
     };
-    let mut times: Vec<f64> = rows
+    let times: Vec<f64> = rows
         .iter()
         .filter_map(|r| {
             r.calibration
@@ -485,9 +472,8 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
                 .map(|(e, ms)| ms / e.len().max(1) as f64)
         })
         .collect();
-    times.sort_by(f64::total_cmp);
-    let median_time = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
-    let max_time = times.last().copied().unwrap_or(f64::NAN);
+    let (median_time, max_time) =
+        stats::Spread::of(&times).map_or((f64::NAN, f64::NAN), |s| (s.median, s.max));
     if args.json {
         let scenes: Vec<serde_json::Value> = rows
             .iter()
@@ -674,13 +660,5 @@ mod tests {
         assert!(tilts.iter().any(|t| *t > 30.0) && tilts.iter().any(|t| *t < 10.0));
         let origin = &sets[0].1.markers.iter().find(|m| m.id == 0).unwrap();
         assert_eq!((origin.center, origin.yaw_deg), ([0.0, 0.0], 0.0));
-    }
-
-    #[test]
-    fn summary_is_mean_p95_and_max_of_absolute_values() {
-        let v: Vec<f64> = (1..=20)
-            .map(|i| if i % 2 == 0 { i as f64 } else { -(i as f64) })
-            .collect();
-        assert_eq!(summary(&v), [10.5, 19.0, 20.0]);
     }
 }

@@ -28,6 +28,7 @@ use serde_json::json;
 use super::{Exit, outln};
 use coapcam::client::CamClient;
 use coapcam::repr::rvl;
+use coapcam::stats;
 
 /// Flags of `bench load`.
 #[derive(Debug, Args)]
@@ -138,13 +139,8 @@ pub(crate) async fn run(args: LoadArgs) -> anyhow::Result<Exit> {
     }
 
     let t = tally(&shared);
-    let mut ms = t.discovery_ms.clone();
-    ms.sort_by(f64::total_cmp);
-    let pct = |p: f64| -> f64 {
-        ms.get(((ms.len() as f64 * p).ceil() as usize).saturating_sub(1))
-            .copied()
-            .unwrap_or(f64::NAN)
-    };
+    let ms = &t.discovery_ms;
+    let pct = |p: f64| stats::percentile(ms, p).unwrap_or(f64::NAN);
     let report = json!({
         "clients": args.clients,
         "duration_s": args.duration,
@@ -152,7 +148,7 @@ pub(crate) async fn run(args: LoadArgs) -> anyhow::Result<Exit> {
             "requests": ms.len(),
             "p50_ms": pct(0.5),
             "p99_ms": pct(0.99),
-            "max_ms": ms.last().copied().unwrap_or(f64::NAN),
+            "max_ms": pct(1.0),
             "mismatches": t.discovery_mismatches,
         },
         "uploads": {

@@ -27,6 +27,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
 
 use crate::cli::{Exit, error_text, outln};
+use coapcam::stats::Spread;
 use coapcam::vision::picture;
 
 /// The largest body `--sizes` accepts (what `quic-bench get` takes at most).
@@ -1269,20 +1270,6 @@ struct Cell {
     runs: Vec<RunResult>,
 }
 
-/// Median, minimum and maximum of `values` (the median of an even count is the mean of
-/// the middle two); `None` if empty.
-fn stats(values: &[f64]) -> Option<[f64; 3]> {
-    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    let median = match n {
-        0 => return None,
-        _ if n % 2 == 1 => v[n / 2],
-        _ => (v[n / 2 - 1] + v[n / 2]) / 2.0,
-    };
-    Some([median, v[0], v[n - 1]])
-}
-
 impl Cell {
     fn ok_times(&self) -> Vec<f64> {
         self.runs
@@ -1293,8 +1280,8 @@ impl Cell {
     }
 
     /// Median, min and max of the successful runs.
-    fn stats(&self) -> Option<[f64; 3]> {
-        stats(&self.ok_times())
+    fn stats(&self) -> Option<Spread> {
+        Spread::of(&self.ok_times())
     }
 
     fn ok_count(&self) -> usize {
@@ -1308,14 +1295,16 @@ impl Cell {
         }
         let count = format!("{}/{}", self.ok_count(), self.runs.len());
         match self.stats() {
-            Some([median, min, max]) => format!("{median:.3} [{min:.3}-{max:.3}] {count}"),
+            Some(Spread { median, min, max }) => {
+                format!("{median:.3} [{min:.3}-{max:.3}] {count}")
+            }
             None => format!("failed {count}"),
         }
     }
 
     fn json(&self) -> serde_json::Value {
         let stats = self.stats();
-        let pick = |i: usize| stats.map(|s| s[i]);
+        let pick = |f: fn(Spread) -> f64| stats.map(f);
         let all_bit_exact =
             !self.runs.is_empty() && self.runs.iter().all(|r| r.bit_exact == Some(true));
         let times: Vec<Option<f64>> = self
@@ -1331,9 +1320,9 @@ impl Cell {
             "runs": self.runs.len(),
             "ok": self.ok_count(),
             "all_bit_exact": all_bit_exact,
-            "median_s": pick(0),
-            "min_s": pick(1),
-            "max_s": pick(2),
+            "median_s": pick(|s| s.median),
+            "min_s": pick(|s| s.min),
+            "max_s": pick(|s| s.max),
             "times_s": times,
             "ok_flags": self.runs.iter().map(|r| r.ok).collect::<Vec<_>>(),
             "results": self.runs.iter().map(RunResult::json).collect::<Vec<_>>(),
@@ -1486,18 +1475,18 @@ impl PairCell {
     }
 
     /// Median, min and max of the smaller shares of the successful runs.
-    fn smaller_shares(&self) -> Option<[f64; 3]> {
+    fn smaller_shares(&self) -> Option<Spread> {
         let shares: Vec<f64> = self
             .ok_runs()
             .map(|r| r.shares().map_or(0.0, |s| s.0))
             .collect();
-        stats(&shares)
+        Spread::of(&shares)
     }
 
     /// Median, min and max of the link utilisation of the successful runs.
-    fn utilisation(&self) -> Option<[f64; 3]> {
+    fn utilisation(&self) -> Option<Spread> {
         let used: Vec<f64> = self.ok_runs().map(|r| r.utilisation(self.size)).collect();
-        stats(&used)
+        Spread::of(&used)
     }
 
     /// The successful runs that held.
@@ -1512,10 +1501,10 @@ impl PairCell {
             row.extend(["unavailable", "", "", ""].map(str::to_owned));
             return row;
         }
-        let percent = |s: Option<[f64; 3]>| {
+        let percent = |s: Option<Spread>| {
             s.map_or_else(
                 || "-".to_owned(),
-                |[median, min, max]| {
+                |Spread { median, min, max }| {
                     format!(
                         "{:.1} % [{:.1}-{:.1}]",
                         median * 100.0,
@@ -1546,12 +1535,12 @@ impl PairCell {
             "runs": self.runs.len(),
             "ok": self.ok_runs().count(),
             "holding": self.holding(),
-            "median_smaller_share": shares.map(|s| s[0]),
-            "min_smaller_share": shares.map(|s| s[1]),
-            "max_smaller_share": shares.map(|s| s[2]),
-            "median_utilisation": used.map(|s| s[0]),
-            "min_utilisation": used.map(|s| s[1]),
-            "max_utilisation": used.map(|s| s[2]),
+            "median_smaller_share": shares.map(|s| s.median),
+            "min_smaller_share": shares.map(|s| s.min),
+            "max_smaller_share": shares.map(|s| s.max),
+            "median_utilisation": used.map(|s| s.median),
+            "min_utilisation": used.map(|s| s.min),
+            "max_utilisation": used.map(|s| s.max),
             "results": self.runs.iter().map(|r| r.json(self.size)).collect::<Vec<_>>(),
         })
     }
@@ -1844,7 +1833,7 @@ fn table(
                     .map(|&m| cell(m).map_or_else(String::new, Cell::text)),
             );
             for &(a, b) in &ratios {
-                let median = |m| cell(m).and_then(Cell::stats).map(|s| s[0]);
+                let median = |m| cell(m).and_then(Cell::stats).map(|s| s.median);
                 row.push(match (median(a), median(b)) {
                     (Some(a), Some(b)) if b > 0.0 => format!("{:.2}x", a / b),
                     _ => "-".into(),
@@ -2198,8 +2187,8 @@ fn plot(sizes: &[u64], links: &[Link], modes: &[Mode], cells: &[Cell]) -> RgbIma
         .flat_map(Cell::ok_times)
         .filter(|t| *t > 0.0)
         .collect();
-    let (lo, hi) = match stats(&times) {
-        Some([_, min, max]) => (min.log10().floor() as i32, max.log10().ceil() as i32),
+    let (lo, hi) = match Spread::of(&times) {
+        Some(Spread { min, max, .. }) => (min.log10().floor() as i32, max.log10().ceil() as i32),
         None => (-2, 1),
     };
     let hi = hi.max(lo + 1);
@@ -2264,7 +2253,7 @@ fn plot(sizes: &[u64], links: &[Link], modes: &[Mode], cells: &[Cell]) -> RgbIma
                 .iter()
                 .filter(|l| l.on_line())
                 .filter_map(|&l| {
-                    let median = cell(l)?.stats()?[0];
+                    let median = cell(l)?.stats()?.median;
                     Some((to_x(l.loss_percent()) + shift, to_y(median)))
                 })
                 .collect();
@@ -2276,7 +2265,7 @@ fn plot(sizes: &[u64], links: &[Link], modes: &[Mode], cells: &[Cell]) -> RgbIma
                 let Some(cell) = cell(link) else { continue };
                 let x = to_x(link.loss_percent()) + shift;
                 match cell.stats() {
-                    Some([median, min, max]) => {
+                    Some(Spread { median, min, max }) => {
                         let (top, bottom) = (to_y(max), to_y(min));
                         c.line((x, top), (x, bottom), 1, color);
                         c.line((x - 3, top), (x + 3, top), 1, color);
@@ -2321,14 +2310,6 @@ fn plot(sizes: &[u64], links: &[Link], modes: &[Mode], cells: &[Cell]) -> RgbIma
 mod tests {
     use super::*;
     use netem::DirCounters;
-
-    #[test]
-    fn stats_are_median_min_max_of_finite_values() {
-        assert_eq!(stats(&[3.0, 1.0, 2.0]), Some([2.0, 1.0, 3.0]));
-        assert_eq!(stats(&[4.0, 1.0, 2.0, 3.0]), Some([2.5, 1.0, 4.0]));
-        assert_eq!(stats(&[f64::NAN, 5.0]), Some([5.0, 5.0, 5.0]));
-        assert_eq!(stats(&[]), None);
-    }
 
     #[test]
     fn ratios_compare_with_window_and_window_with_quic() {

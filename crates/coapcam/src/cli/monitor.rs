@@ -4,7 +4,6 @@
 //! Tables 4.1-4.11: count, minimum, median, maximum, mean, standard deviation and
 //! coefficient of variation.
 
-use std::collections::VecDeque;
 use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::{Context as _, bail};
@@ -19,6 +18,7 @@ use coapcam::report::{Billing, Measurement, Parcel};
 use coapcam::repr::Stream;
 use coapcam::station::log::ListQuery;
 use coapcam::station::record::Record;
+use coapcam::stats::{TransferStats, TransferSummary};
 
 use super::{DimensionArgs, Exit, TransmissionArgs, error_text, exit_status, out, outln};
 
@@ -96,188 +96,52 @@ pub(crate) struct MonitorArgs {
     transmission: TransmissionArgs,
 }
 
-/// Transfer times kept for the median: the last 2^20 (8 MiB). Minimum, maximum, mean and
-/// standard deviation cover every result however long the monitor runs.
-const MEDIAN_WINDOW: usize = 1 << 20;
-
-/// Running statistics of transfer times, the columns of the thesis's Tables 4.1-4.11.
-///
-/// The standard deviation is the population one (divide by n). The thesis does not say
-/// which it used, but its tables admit only this one: in Table 4.1 (32 transfers, one of
-/// 597.5 ms, mean 137.9 ms) that single outlier contributes (597.5 - 123.1)^2 + 31 x
-/// (137.9 - 123.1)^2 = 2.18e5 ms^2 to the sum of squares, more than the 31 x 82.8^2 =
-/// 2.12e5 ms^2 a sample deviation of 82.8 ms would allow, while 32 x 82.8^2 = 2.19e5 ms^2
-/// leaves the other 31 transfers a spread of 6.6 ms, as the text describes (0.11-0.14 s).
-/// Table 4.2 gives the same verdict.
-#[derive(Debug, Clone)]
-pub(crate) struct Stats {
-    count: u64,
-    failed: u64,
-    min_ns: u64,
-    max_ns: u64,
-    /// Welford's running mean and sum of squared deviations, in nanoseconds.
-    mean_ns: f64,
-    m2: f64,
-    recent_ns: VecDeque<u64>,
-    window: usize,
+/// The statistics as the last line of `--json`: times in nanoseconds as the thesis gives
+/// them.
+fn summary_json(summary: &TransferSummary) -> serde_json::Value {
+    let mut stats = serde_json::json!({
+        "count": summary.count,
+        "failed": summary.failed,
+        "sd": "population",
+    });
+    if let Some(t) = &summary.times {
+        stats["min_ns"] = t.min_ns.into();
+        stats["median_ns"] = (t.median_ns.round() as u64).into();
+        stats["max_ns"] = t.max_ns.into();
+        stats["mean_ns"] = (t.mean_ns.round() as u64).into();
+        stats["sd_ns"] = (t.sd_ns.round() as u64).into();
+        stats["cv"] = ((t.cv * 1e4).round() / 1e4).into();
+    }
+    serde_json::json!({ "statistics": stats })
 }
 
-/// What the statistics say about the results so far.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Summary {
-    /// Successful results.
-    pub(crate) count: u64,
-    /// Failed results.
-    pub(crate) failed: u64,
-    /// The transfer times of the successful results; `None` before the first.
-    pub(crate) times: Option<Times>,
-}
-
-/// Transfer-time statistics, nanoseconds.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Times {
-    pub(crate) min_ns: u64,
-    /// Median of the last [`MEDIAN_WINDOW`] results (of all while there are fewer).
-    pub(crate) median_ns: f64,
-    pub(crate) max_ns: u64,
-    pub(crate) mean_ns: f64,
-    /// Population standard deviation.
-    pub(crate) sd_ns: f64,
-    /// Standard deviation over mean.
-    pub(crate) cv: f64,
-}
-
-impl Stats {
-    /// No results yet.
-    pub(crate) fn new() -> Self {
-        Self::with_median_window(MEDIAN_WINDOW)
-    }
-
-    /// No results yet; the median covers the last `window` transfer times.
-    fn with_median_window(window: usize) -> Self {
-        Self {
-            count: 0,
-            failed: 0,
-            min_ns: 0,
-            max_ns: 0,
-            mean_ns: 0.0,
-            m2: 0.0,
-            recent_ns: VecDeque::new(),
-            window: window.max(1),
+/// The statistics as a table, times in milliseconds.
+fn summary_text(summary: &TransferSummary, what: &str) -> String {
+    let mut out = format!(
+        "{what} of {} result(s), {} failed (population standard deviation):\n",
+        summary.count, summary.failed
+    );
+    out += &format!(
+        "{:>7} {:>11} {:>11} {:>11} {:>11} {:>11} {:>6}\n",
+        "count", "min ms", "median ms", "max ms", "mean ms", "sd ms", "cv"
+    );
+    match &summary.times {
+        Some(t) => {
+            let ms = |ns: f64| ns / 1e6;
+            out += &format!(
+                "{:>7} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>6.2}\n",
+                summary.count,
+                ms(t.min_ns as f64),
+                ms(t.median_ns),
+                ms(t.max_ns as f64),
+                ms(t.mean_ns),
+                ms(t.sd_ns),
+                t.cv
+            );
         }
+        None => out += &format!("{:>7} {:>11}\n", 0, "-"),
     }
-
-    /// A successful result's transfer time.
-    pub(crate) fn record(&mut self, time: Duration) {
-        let ns = u64::try_from(time.as_nanos()).unwrap_or(u64::MAX);
-        self.count += 1;
-        if self.count == 1 {
-            (self.min_ns, self.max_ns) = (ns, ns);
-        } else {
-            self.min_ns = self.min_ns.min(ns);
-            self.max_ns = self.max_ns.max(ns);
-        }
-        let x = ns as f64;
-        let delta = x - self.mean_ns;
-        self.mean_ns += delta / self.count as f64;
-        self.m2 += delta * (x - self.mean_ns);
-        if self.recent_ns.len() == self.window {
-            self.recent_ns.pop_front();
-        }
-        self.recent_ns.push_back(ns);
-    }
-
-    /// A failed result.
-    pub(crate) fn record_failure(&mut self) {
-        self.failed += 1;
-    }
-
-    /// The mean transfer time so far.
-    pub(crate) fn mean(&self) -> Option<Duration> {
-        (self.count > 0).then(|| Duration::from_nanos(self.mean_ns.round() as u64))
-    }
-
-    /// Every column at once.
-    pub(crate) fn summary(&self) -> Summary {
-        let times = (self.count > 0).then(|| {
-            let mut sorted: Vec<u64> = self.recent_ns.iter().copied().collect();
-            sorted.sort_unstable();
-            let mid = sorted.len() / 2;
-            let median_ns = if !sorted.len().is_multiple_of(2) {
-                sorted[mid] as f64
-            } else {
-                (sorted[mid - 1] as f64 + sorted[mid] as f64) / 2.0
-            };
-            let sd_ns = (self.m2 / self.count as f64).max(0.0).sqrt();
-            Times {
-                min_ns: self.min_ns,
-                median_ns,
-                max_ns: self.max_ns,
-                mean_ns: self.mean_ns,
-                sd_ns,
-                cv: if self.mean_ns > 0.0 {
-                    sd_ns / self.mean_ns
-                } else {
-                    0.0
-                },
-            }
-        });
-        Summary {
-            count: self.count,
-            failed: self.failed,
-            times,
-        }
-    }
-}
-
-impl Summary {
-    /// The statistics as the last line of `--json`: times in nanoseconds as the thesis
-    /// gives them.
-    pub(crate) fn to_json(&self) -> serde_json::Value {
-        let mut stats = serde_json::json!({
-            "count": self.count,
-            "failed": self.failed,
-            "sd": "population",
-        });
-        if let Some(t) = &self.times {
-            stats["min_ns"] = t.min_ns.into();
-            stats["median_ns"] = (t.median_ns.round() as u64).into();
-            stats["max_ns"] = t.max_ns.into();
-            stats["mean_ns"] = (t.mean_ns.round() as u64).into();
-            stats["sd_ns"] = (t.sd_ns.round() as u64).into();
-            stats["cv"] = ((t.cv * 1e4).round() / 1e4).into();
-        }
-        serde_json::json!({ "statistics": stats })
-    }
-
-    /// The statistics as a table, times in milliseconds.
-    pub(crate) fn to_text(&self, what: &str) -> String {
-        let mut out = format!(
-            "{what} of {} result(s), {} failed (population standard deviation):\n",
-            self.count, self.failed
-        );
-        out += &format!(
-            "{:>7} {:>11} {:>11} {:>11} {:>11} {:>11} {:>6}\n",
-            "count", "min ms", "median ms", "max ms", "mean ms", "sd ms", "cv"
-        );
-        match &self.times {
-            Some(t) => {
-                let ms = |ns: f64| ns / 1e6;
-                out += &format!(
-                    "{:>7} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>6.2}\n",
-                    self.count,
-                    ms(t.min_ns as f64),
-                    ms(t.median_ns),
-                    ms(t.max_ns as f64),
-                    ms(t.mean_ns),
-                    ms(t.sd_ns),
-                    t.cv
-                );
-            }
-            None => out += &format!("{:>7} {:>11}\n", 0, "-"),
-        }
-        out
-    }
+    out
 }
 
 /// A line of `--json` for a request that succeeded: with `--measure` the measurement's
@@ -391,7 +255,7 @@ impl Plan {
 /// Prints results and keeps the statistics.
 struct Report {
     json: bool,
-    stats: Stats,
+    stats: TransferStats,
     seen: u64,
     /// How the last failed result would end the command.
     last_failure: Option<Exit>,
@@ -781,7 +645,7 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
     }
     let mut report = Report {
         json: args.json,
-        stats: Stats::new(),
+        stats: TransferStats::new(),
         seen: 0,
         last_failure: None,
     };
@@ -802,14 +666,14 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
     };
     let summary = report.stats.summary();
     if args.json {
-        outln!("{}", summary.to_json());
+        outln!("{}", summary_json(&summary));
     } else {
         let times = if args.observe {
             "times between results"
         } else {
             "transfer times"
         };
-        out!("{}", summary.to_text(times));
+        out!("{}", summary_text(&summary, times));
     }
     ended?;
     Ok(if summary.count > 0 {
@@ -823,8 +687,8 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
 mod tests {
     use super::*;
 
-    fn ms(values: &[u64]) -> Stats {
-        let mut s = Stats::new();
+    fn ms(values: &[u64]) -> TransferStats {
+        let mut s = TransferStats::new();
         for v in values {
             s.record(Duration::from_millis(*v));
         }
@@ -832,87 +696,9 @@ mod tests {
     }
 
     #[test]
-    fn known_samples_give_known_columns_with_the_population_deviation() {
-        // Population variance 4 (sample variance 32/7, sd 2.14).
-        let s = ms(&[2, 4, 4, 4, 5, 5, 7, 9]).summary();
-        let t = s.times.unwrap();
-        assert_eq!((s.count, s.failed), (8, 0));
-        assert_eq!((t.min_ns, t.max_ns), (2_000_000, 9_000_000));
-        assert_eq!(t.median_ns, 4_500_000.0);
-        assert!((t.mean_ns - 5e6).abs() < 1e-3, "{}", t.mean_ns);
-        assert!((t.sd_ns - 2e6).abs() < 1e-3, "{}", t.sd_ns);
-        assert!((t.cv - 0.4).abs() < 1e-12, "{}", t.cv);
-    }
-
-    #[test]
-    fn an_odd_count_has_the_middle_value_as_median() {
-        let t = ms(&[30, 10, 20]).summary().times.unwrap();
-        assert_eq!(t.median_ns, 20e6);
-        assert_eq!((t.min_ns, t.max_ns), (10_000_000, 30_000_000));
-    }
-
-    #[test]
-    fn one_result_has_no_spread_and_none_has_no_times() {
-        let t = ms(&[7]).summary().times.unwrap();
-        assert_eq!((t.sd_ns, t.cv, t.median_ns), (0.0, 0.0, 7e6));
-        let mut s = Stats::new();
-        s.record_failure();
-        s.record_failure();
-        assert_eq!(
-            s.summary(),
-            Summary {
-                count: 0,
-                failed: 2,
-                times: None
-            }
-        );
-        assert_eq!(s.mean(), None);
-        let json = s.summary().to_json();
-        assert_eq!(json["statistics"]["failed"], 2);
-        assert!(json["statistics"].get("mean_ns").is_none());
-    }
-
-    #[test]
-    fn failures_do_not_enter_the_times() {
-        let mut s = ms(&[10, 20]);
-        s.record_failure();
-        let sum = s.summary();
-        assert_eq!((sum.count, sum.failed), (2, 1));
-        assert_eq!(sum.times.unwrap().mean_ns, 15e6);
-    }
-
-    #[test]
-    fn long_runs_keep_a_bounded_window_for_the_median_and_exact_moments() {
-        let mut s = Stats::with_median_window(3);
-        for v in 1..=5 {
-            s.record(Duration::from_millis(v));
-        }
-        assert_eq!(s.recent_ns.len(), 3);
-        let t = s.summary().times.unwrap();
-        // Median of 3, 4, 5; the rest over all five.
-        assert_eq!(t.median_ns, 4e6);
-        assert_eq!((t.min_ns, t.max_ns), (1_000_000, 5_000_000));
-        assert!((t.mean_ns - 3e6).abs() < 1e-3);
-        assert!((t.sd_ns - 2f64.sqrt() * 1e6).abs() < 1e-3, "{}", t.sd_ns);
-    }
-
-    #[test]
-    fn large_times_with_small_spread_keep_their_precision() {
-        // 324 s transfers (Table 4.8) a nanosecond apart: a naive sum of squares in f64
-        // would lose the spread entirely.
-        let mut s = Stats::new();
-        for extra in [1, 2, 3] {
-            s.record(Duration::from_nanos(324_000_000_000 + extra));
-        }
-        let t = s.summary().times.unwrap();
-        assert!((t.sd_ns - (2f64 / 3.0).sqrt()).abs() < 1e-3, "{}", t.sd_ns);
-        assert_eq!(t.median_ns, 324_000_000_002.0);
-    }
-
-    #[test]
     fn the_outputs_name_every_column() {
         let s = ms(&[100, 200, 300]).summary();
-        let json = s.to_json();
+        let json = summary_json(&s);
         let st = &json["statistics"];
         for key in [
             "count",
@@ -928,10 +714,16 @@ mod tests {
         }
         assert_eq!(st["median_ns"], 200_000_000);
         assert_eq!(st["sd"], "population");
-        let text = s.to_text("transfer times");
+        let text = summary_text(&s, "transfer times");
         assert!(text.contains("median ms"), "{text}");
         assert!(text.contains("200.000"), "{text}");
         assert!(text.contains("0.41"), "{text}");
+        let mut failures = TransferStats::new();
+        failures.record_failure();
+        failures.record_failure();
+        let json = summary_json(&failures.summary());
+        assert_eq!(json["statistics"]["failed"], 2);
+        assert!(json["statistics"].get("mean_ns").is_none());
     }
 
     #[test]
