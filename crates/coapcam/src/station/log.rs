@@ -840,6 +840,35 @@ mod tests {
     }
 
     #[test]
+    fn verify_names_a_deleted_record_and_a_changed_picture() {
+        let dir = ScratchDir::new("results-log-gap");
+        let path = dir.path().join("results.sqlite");
+        let log = ResultsLog::open(&path).expect("open");
+        for n in 1..=4 {
+            log.append(new(n, "A", true)).expect("append");
+        }
+        drop(log);
+        let conn = Connection::open(&path).expect("sqlite");
+        conn.execute_batch(
+            "DROP TRIGGER pictures_no_update;
+             UPDATE pictures SET data = x'00' WHERE record = 2 AND kind = 'annotated';",
+        )
+        .expect("by hand");
+        let altered = verify(&path).expect("verify").first_altered.expect("found");
+        assert_eq!(altered.id, 2, "{altered:?}");
+        assert!(altered.why.contains("annotated"), "{altered:?}");
+        conn.execute_batch(
+            "DELETE FROM pictures WHERE record = 2;
+             DROP TRIGGER records_no_delete;
+             DELETE FROM records WHERE id = 2;",
+        )
+        .expect("by hand");
+        let altered = verify(&path).expect("verify").first_altered.expect("found");
+        assert_eq!(altered.id, 2, "{altered:?}");
+        assert!(altered.why.contains("missing"), "{altered:?}");
+    }
+
+    #[test]
     fn retention_prunes_pictures_first_and_the_chain_still_verifies() {
         let dir = ScratchDir::new("results-log-retention");
         let path = dir.path().join("results.sqlite");
