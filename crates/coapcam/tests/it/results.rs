@@ -517,3 +517,58 @@ fn pictures_are_served_and_retention_prunes_them_first() {
     assert_eq!(code, Some(0), "{report}");
     assert_eq!(report["pictures_checked"], 0);
 }
+
+/// The chain as docs/station.md describes it, checked by a program of its own (Python's
+/// sqlite3 and hashlib): each record's hash is SHA-256 over `coapcam-record-v1\n` and its
+/// stored body, each body names the previous record's hash, each kept picture hashes to
+/// the SHA-256 its record holds.
+const INDEPENDENT_CHECK: &str = r#"
+import hashlib, json, sqlite3, sys
+db = sqlite3.connect(sys.argv[1])
+prev, n = "0" * 64, 0
+for rid, body, stored in db.execute("SELECT id, body, hash FROM records ORDER BY id"):
+    raw = body.encode("utf-8") if isinstance(body, str) else body
+    assert hashlib.sha256(b"coapcam-record-v1\n" + raw).hexdigest() == stored, rid
+    content = json.loads(raw)
+    assert content["id"] == rid and content["prev_hash"] == prev, rid
+    assert list(content) == sorted(content), rid
+    for kind, data in db.execute("SELECT kind, data FROM pictures WHERE record = ?", (rid,)):
+        assert hashlib.sha256(data).hexdigest() == content[kind + "_sha256"], (rid, kind)
+    prev, n = stored, n + 1
+print(n, prev)
+"#;
+
+#[test]
+fn the_chain_checks_out_by_its_documented_encoding_alone() {
+    let dir = TempDir::new("results-independent");
+    let file = dir.join("results.sqlite");
+    let m: Measurement = serde_json::from_value(serde_json::json!({
+        "v": 1, "parcel": "measured", "length_mm": 400.5, "width_mm": 300.2,
+        "height_mm": 200.0, "division_mm": null, "yaw_deg": 15.0,
+        "corners_m": [[0.1544, 0.1969], [0.2321, -0.0931], [-0.1549, -0.1967], [-0.2325, 0.0933]],
+        "volume_l": 24.046, "volumetric_weight_kg": 4.809,
+        "volumetric_divisor_cm3_per_kg": 5000.0, "parcel_points": 149_454,
+        "cloud_points": 907_070, "cameras": [SN], "frames_unix_us": [1_795_736_128_856_479_u64],
+        "grab_ms": 403.4, "warnings": ["a \"quoted\" warning, with a comma"],
+        "codes": [{"kind": "qr", "text": "PKG-Ünïcødé 1e-5", "cameras": [SN]}],
+    }))
+    .expect("a measurement");
+    let log = ResultsLog::open(&file).expect("open");
+    let mut last = String::new();
+    for n in 1..=4u8 {
+        let mut new = with_pictures(n, &m);
+        new.station = "Halle Süd".into();
+        if n == 3 {
+            new.photo_jpeg = None;
+        }
+        last = log.append(new).expect("append").hash;
+    }
+    drop(log);
+    let f = Proc::run(
+        "python3",
+        &["-c", INDEPENDENT_CHECK, file.to_str().expect("UTF-8")],
+        LIMIT,
+    )
+    .expect_success("the independent check");
+    assert_eq!(f.stdout_text().trim(), format!("4 {last}"));
+}
