@@ -5,9 +5,9 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::thread;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use coap::{Code, ContentFormat, OptionNumber, Request, Response};
 use coapcam::report::Measurement;
@@ -279,8 +279,9 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
         // Measurements one after another until the server dies; the kill lands at a
         // different moment of a measurement each cycle.
         let stop = Arc::new(AtomicBool::new(false));
+        let count = Arc::new(AtomicUsize::new(0));
         let requests = {
-            let (stop, c) = (Arc::clone(&stop), c.clone());
+            let (stop, count, c) = (Arc::clone(&stop), Arc::clone(&count), c.clone());
             rt.spawn(async move {
                 let mut answered = Vec::new();
                 loop {
@@ -292,6 +293,7 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
                     match c.send(addr, request).await {
                         Ok(r) if r.code == Code::CONTENT => {
                             answered.push(Measurement::from_cbor(&r.payload).expect("CBOR"));
+                            count.fetch_add(1, Ordering::Relaxed);
                         }
                         Ok(r) => panic!("cycle {cycle}: {}", String::from_utf8_lossy(&r.payload)),
                         Err(_) if stop.load(Ordering::Relaxed) => return answered,
@@ -300,7 +302,17 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
                 }
             })
         };
-        thread::sleep(Duration::from_millis(400 + (cycle * 173) % 900));
+        // After the cycle's first answer, a little later each cycle (0-690 ms: within the
+        // next measurement's grab, measuring, recording or answer).
+        let first = Instant::now();
+        while count.load(Ordering::Relaxed) == 0 {
+            assert!(
+                first.elapsed() < LIMIT,
+                "cycle {cycle}: no measurement answered"
+            );
+            thread::sleep(Duration::from_millis(5));
+        }
+        thread::sleep(Duration::from_millis((cycle * 131) % 700));
         stop.store(true, Ordering::Relaxed);
         server.process().kill().expect("kill -9");
         answered.extend(rt.block_on(requests).expect("the requests"));
