@@ -23,7 +23,7 @@ use image::Rgb;
 use markers::{Detection, Family};
 use serde_json::json;
 
-use super::{Exit, TransmissionArgs, outln};
+use super::{CameraArgs, Exit, TransmissionArgs, outln};
 use coapcam::client::CamClient;
 use coapcam::client::annotate::projector;
 use coapcam::client::measure::full_resolution;
@@ -42,15 +42,8 @@ const ITERATIONS: usize = 400;
 /// Flags of `calibrate`.
 #[derive(Debug, Args)]
 pub(crate) struct CalibrateArgs {
-    /// The server, e.g. coap://127.0.0.1.
-    #[arg(long, value_name = "URI")]
-    server: String,
-    /// Only this camera.
-    #[arg(long, value_name = "SN", conflicts_with = "all")]
-    camera: Option<String>,
-    /// Every camera of the server (the default).
-    #[arg(long)]
-    all: bool,
+    #[command(flatten)]
+    cameras: CameraArgs,
     /// Markers (the default method): the family.
     #[arg(long, value_name = "F", default_value = "tag36h11")]
     family: String,
@@ -118,14 +111,8 @@ pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
     if !(args.marker_size.is_finite() && args.marker_size > 0.0) {
         bail!("--marker-size must be a positive number of metres");
     }
-    let client = CamClient::connect(
-        &args.server,
-        args.transmission.endpoint_config(),
-        args.transmission.psk().as_ref(),
-        args.transmission.timeout()?,
-    )
-    .await?;
-    let serials = match &args.camera {
+    let client = args.cameras.connect(&args.transmission).await?;
+    let serials = match &args.cameras.camera {
         Some(sn) => vec![sn.clone()],
         None => client.cameras().await?,
     };

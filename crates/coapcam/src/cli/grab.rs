@@ -10,22 +10,15 @@ use coapcam::client::{CamClient, cloud_of};
 use coapcam::repr::{Stream, packet, raster, rvl};
 use coapcam::vision::picture::{self, save, sibling};
 
-use super::{Exit, TransmissionArgs};
+use super::{CameraArgs, Exit, TransmissionArgs};
 
 /// Flags of `grab`.
 #[derive(Debug, Args)]
 pub(crate) struct GrabArgs {
     /// What to grab.
     stream: Stream,
-    /// The server, coap://host[:port].
-    #[arg(long, value_name = "URI")]
-    server: String,
-    /// The camera (12-digit serial); may be left out when the server has one camera.
-    #[arg(long, value_name = "SN", conflicts_with = "all")]
-    camera: Option<String>,
-    /// Point clouds only: every camera of the server, merged (POST /cams/pointclouds).
-    #[arg(long)]
-    all: bool,
+    #[command(flatten)]
+    cameras: CameraArgs,
     /// Output file; its extension chooses the format: .jpg (color, for people), .png
     /// (color, lossless; depth as 16-bit PNG of raw units), .rvl and .rvl.zst (depth,
     /// lossless), .ply (point cloud, binary PLY), .dcl (the compact cloud: filtered depth
@@ -89,7 +82,7 @@ fn accept(cf: ContentFormat) -> Option<ContentFormat> {
 
 /// Runs `grab`.
 pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
-    if args.all && args.stream != Stream::Pointcloud {
+    if args.cameras.all && args.stream != Stream::Pointcloud {
         bail!("--all is for point clouds: every camera's cloud merged");
     }
     let kind = file_format(&args.output, args.stream)?;
@@ -101,19 +94,15 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
     if args.jpeg_quality.is_some() && kind != ContentFormat::IMAGE_JPEG {
         bail!("--jpeg-quality is for color written to a .jpg file");
     }
-    let timeout = args.transmission.timeout()?;
-    let client = CamClient::connect(
-        &args.server,
-        args.transmission.endpoint_config(),
-        args.transmission.psk().as_ref(),
-        timeout,
-    )
-    .await?
-    .with_bars(&indicatif::MultiProgress::new());
-    let (sn, response) = if args.all {
+    let client = args
+        .cameras
+        .connect(&args.transmission)
+        .await?
+        .with_bars(&indicatif::MultiProgress::new());
+    let (sn, response) = if args.cameras.all {
         (None, client.grab_all(accept(kind)).await?)
     } else {
-        let sn = client.one_camera(args.camera.as_deref()).await?;
+        let sn = client.one_camera(args.cameras.camera.as_deref()).await?;
         let response = match args.jpeg_quality {
             Some(q) => client.grab_jpeg(&sn, q).await?,
             None => client.grab(&sn, args.stream, accept(kind)).await?,

@@ -15,25 +15,19 @@ use coapcam::client::measure::{FLOOR_CUT_M, Source, measure_once, prepare_camera
 use coapcam::client::{CamClient, annotate, codes};
 use coapcam::report::{self, Billing, EdgeQuery, Measurement, Parcel};
 
-use super::{DimensionArgs, Exit, TransmissionArgs, outln};
+use super::{CameraArgs, DimensionArgs, Exit, TransmissionArgs, outln};
 
 /// Flags of `measure`.
 #[derive(Debug, Args)]
 pub(crate) struct MeasureArgs {
-    /// The server, coap://host[:port] (not needed with --group).
-    #[arg(long, value_name = "URI", required_unless_present = "group")]
-    server: Option<String>,
-    /// Measure with this camera only (12-digit serial).
-    #[arg(long, value_name = "SN", conflicts_with_all = ["all", "group"])]
-    camera: Option<String>,
-    /// Measure with every camera of the server, merged: on the server when it offers it
-    /// (see --edge), else from its merged clouds (POST /cams/pointclouds); the default
-    /// when neither --camera nor --group is given.
-    #[arg(long)]
-    all: bool,
+    // The server (not needed with --group) and its cameras. With every camera (--all,
+    // the default) the server measures when it offers it (see --edge), else the client
+    // measures its merged clouds (POST /cams/pointclouds).
+    #[command(flatten)]
+    cameras: CameraArgs,
     /// Ask every server of this multicast group (e.g. 224.0.1.187 or
     /// coap://[ff02::fd%eth0]:5683) and merge the clouds of all that answer.
-    #[arg(long, value_name = "MCAST_ADDR", conflicts_with = "server")]
+    #[arg(long, value_name = "MCAST_ADDR", conflicts_with_all = ["server", "camera"])]
     group: Option<String>,
     /// With --group: stop waiting once this many servers have answered.
     #[arg(long, value_name = "N", requires = "group")]
@@ -116,7 +110,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         divisor_cm3_per_kg: args.volumetric_divisor,
         division_mm: args.round_up_mm,
     };
-    let (client, source) = match (&args.group, &args.server) {
+    let (client, source) = match (&args.group, args.cameras.server()) {
         (Some(g), _) => {
             let group = group_address(g).await?;
             let wait = Duration::try_from_secs_f64(args.wait).context("--wait")?;
@@ -138,7 +132,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
                 .await?
                 .with_bars(&indicatif::MultiProgress::new());
             if args.prepare {
-                let serials = match &args.camera {
+                let serials = match &args.cameras.camera {
                     Some(sn) => vec![sn.clone()],
                     None => client.cameras().await?,
                 };
@@ -150,7 +144,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
                     if args.codes { ", color 1920x1080" } else { "" }
                 );
             }
-            let source = match &args.camera {
+            let source = match &args.cameras.camera {
                 Some(sn) => Source::Camera(sn.clone()),
                 None => Source::All,
             };

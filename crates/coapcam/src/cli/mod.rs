@@ -1,6 +1,6 @@
 //! The commands: one file per subcommand, with its clap flags and its `run`. The
-//! commands share only what this file holds: the flag groups (transmission parameters,
-//! the measurement's thresholds), `Deferred`, which builds a command's flags only when it
+//! commands share only what this file holds: the flag groups (the server and its
+//! cameras, transmission parameters, the measurement's thresholds), `Deferred`, which builds a command's flags only when it
 //! is the one given, how a command ends (`Exit`, `exit_status`, `error_text`), and the
 //! output macros. None imports another, and what they do is the library's.
 
@@ -116,6 +116,46 @@ impl TransmissionArgs {
             },
             ..EndpointConfig::default()
         }
+    }
+}
+
+/// The server a command talks to and which of its cameras: `--server`, `--camera`,
+/// `--all`.
+#[derive(Debug, Clone, Args)]
+pub(crate) struct CameraArgs {
+    /// The server, coap://host[:port] (or coaps:// with --psk-identity and --psk-key).
+    // Required, but an argument that conflicts with one given (measure's --group) is not.
+    #[arg(long, value_name = "URI", required = true)]
+    server: Option<String>,
+    /// Only this camera (12-digit serial). Without it, a command that grabs one frame
+    /// takes the server's camera if it has only one; the others use every camera.
+    #[arg(long, value_name = "SN", conflicts_with = "all")]
+    pub(crate) camera: Option<String>,
+    /// Every camera of the server: grab merges their point clouds (POST
+    /// /cams/pointclouds); measure, calibrate and monitor do so by default.
+    #[arg(long)]
+    pub(crate) all: bool,
+}
+
+impl CameraArgs {
+    /// `--server`; `None` only where a flag that stands for it was given (`--group`).
+    pub(crate) fn server(&self) -> Option<&str> {
+        self.server.as_deref()
+    }
+
+    /// A client of `--server`, with `transmission`'s parameters.
+    pub(crate) async fn connect(
+        &self,
+        transmission: &TransmissionArgs,
+    ) -> anyhow::Result<coapcam::client::CamClient> {
+        let server = anyhow::Context::context(self.server(), "give --server URI")?;
+        coapcam::client::CamClient::connect(
+            server,
+            transmission.endpoint_config(),
+            transmission.psk().as_ref(),
+            transmission.timeout()?,
+        )
+        .await
     }
 }
 

@@ -20,7 +20,9 @@ use coapcam::station::log::ListQuery;
 use coapcam::station::record::Record;
 use coapcam::stats::{TransferStats, TransferSummary};
 
-use super::{DimensionArgs, Exit, TransmissionArgs, error_text, exit_status, out, outln};
+use super::{
+    CameraArgs, DimensionArgs, Exit, TransmissionArgs, error_text, exit_status, out, outln,
+};
 
 /// What `monitor` repeats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -54,13 +56,8 @@ impl Target {
 pub(crate) struct MonitorArgs {
     /// What to repeat (or, with --observe, which resource of the camera to observe).
     target: Target,
-    /// The server, coap://host[:port].
-    #[arg(long, value_name = "URI")]
-    server: String,
-    /// The camera (12-digit serial); may be left out when the server has one camera.
-    /// With `measure`: measure with this camera only instead of every camera.
-    #[arg(long, value_name = "SN")]
-    camera: Option<String>,
+    #[command(flatten)]
+    cameras: CameraArgs,
     /// Seconds from the start of one request to the start of the next; a request that
     /// takes longer is followed at once by the next.
     #[arg(
@@ -204,7 +201,7 @@ impl Plan {
             bail!("--accept is for grabs: a measurement asks for the compact cloud");
         }
         if let Some(stream) = args.target.stream() {
-            let serial = client.one_camera(args.camera.as_deref()).await?;
+            let serial = client.one_camera(args.cameras.camera.as_deref()).await?;
             return Ok(if args.observe {
                 Self::Observe { serial, stream }
             } else {
@@ -224,7 +221,7 @@ impl Plan {
             }
             return Ok(Self::Records);
         }
-        let repeat = match (args.target, &args.camera) {
+        let repeat = match (args.target, &args.cameras.camera) {
             (Target::Measure, Some(sn)) => Repeat::Measure(Source::Camera(sn.clone())),
             (Target::Measure, None) => Repeat::Measure(Source::All),
             (_, Some(_)) => bail!("pointclouds merges every camera; leave out --camera"),
@@ -628,13 +625,7 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
     if period.is_zero() && args.count.is_none() && !args.observe {
         bail!("--interval 0 needs --count");
     }
-    let client = CamClient::connect(
-        &args.server,
-        args.transmission.endpoint_config(),
-        args.transmission.psk().as_ref(),
-        timeout,
-    )
-    .await?;
+    let client = args.cameras.connect(&args.transmission).await?;
     let plan = Plan::resolve(&args, &client).await?;
     let what = plan.describe();
     if !args.json {
