@@ -15,6 +15,7 @@ use std::path::PathBuf;
 use criterion::{Criterion, criterion_group, criterion_main};
 use geometry::{Point3, Roi3, Transform};
 use nalgebra::{Matrix3, Vector3};
+use rgbd::FrameFilter as _;
 use rgbd::filter::{
     Decimation, HoleFilling, HoleFillingMode, PostProcessing, PostProcessingConfig,
 };

@@ -11,6 +11,7 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use rgbd::FrameFilter as _;
 use rgbd::filter::{Roi2, RoiCrop};
 use rgbd::{Camera, DepthSettings, Scene, SyntheticCamera, d415};
 

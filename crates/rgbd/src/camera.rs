@@ -165,6 +165,10 @@ pub trait Camera: Send + Sync {
     /// Metres per raw depth unit.
     fn depth_scale(&self) -> f32;
 
+    /// The distance between the two imagers of the depth stereo pair, metres (55 mm on a
+    /// D415, 50 mm on a D435): the filters that work on disparity need it.
+    fn stereo_baseline_m(&self) -> f32;
+
     /// The complete advanced-config document (Listing A.5).
     fn advanced_config(&self) -> Result<AdvancedConfig, CameraError>;
 

@@ -52,7 +52,7 @@ pub use camera::{
     Camera, CameraError, CameraHub, HubError, HubEvent, Serial, SerialError, SettingError,
 };
 pub use deproject::{Deprojector, deproject_frame};
-pub use filter::{FilterError, PostProcessing, PostProcessingConfig};
+pub use filter::{FilterError, FrameFilter, PostProcessing, PostProcessingConfig};
 pub use frame::{ColorFormat, ColorFrame, DepthFormat, DepthFrame};
 pub use intrinsics::{DistortionModel, Extrinsics, Intrinsics, Pose, ProjectError};
 pub use mode::{ModeError, ModeTable, ResolutionModes, Stream};

@@ -936,8 +936,8 @@ their_client_tests! {
 /// Interop difference (libcoap 4.3.1's client, not ours): its RFC 7959 client stops
 /// asking for blocks about 93 s (MAX_TRANSMIT_WAIT) after the request, and at its `-B`
 /// limit exits 0 with a truncated file (seed 2, measured: 137,216 of 2,764,810 bytes
-/// after 150 s; /work/shared/research/anchor-measurements.md, observation 4, has the
-/// same with libcoap's own server). So this asserts what our side owes: every request
+/// after 150 s; libcoap's client against libcoap's own server stalls the same way, so
+/// the stall is the client's). So this asserts what our side owes: every request
 /// that reached our server was answered (netem's counters), what arrived is a bit-exact
 /// prefix, and the whole body when libcoap does finish.
 #[test]

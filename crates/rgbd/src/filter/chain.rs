@@ -29,7 +29,7 @@ use super::decimation::Decimation;
 use super::disparity::{DepthToDisparity, DisparityToDepth, copy_compact};
 use super::hole_fill::{HoleFilling, HoleFillingMode};
 use super::spatial::{SpatialFilter, SpatialParams};
-use super::{FilterError, check_frame, empty_frame};
+use super::{FilterError, FrameFilter as _, check_frame, empty_frame};
 use crate::frame::DepthFrame;
 use crate::intrinsics::Intrinsics;
 

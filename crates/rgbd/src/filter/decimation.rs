@@ -15,7 +15,7 @@
 
 use rayon::prelude::*;
 
-use super::{FilterError, check_frame, empty_frame, shape_output};
+use super::{Checked, FilterError, FrameFilter, empty_frame, shape_output};
 use crate::frame::DepthFrame;
 use crate::intrinsics::Intrinsics;
 
@@ -55,14 +55,12 @@ impl Decimation {
         let (w, h) = (width / self.magnitude, height / self.magnitude);
         ((w, h), (w.div_ceil(4) * 4, h.div_ceil(4) * 4))
     }
+}
 
+impl FrameFilter for Decimation {
     /// The decimated frame and its intrinsics.
-    pub fn process(
-        &mut self,
-        frame: &DepthFrame,
-        intrinsics: &Intrinsics,
-    ) -> Result<(&DepthFrame, Intrinsics), FilterError> {
-        check_frame(frame, Some(intrinsics))?;
+    fn filter(&mut self, input: Checked<'_>) -> Result<(&DepthFrame, Intrinsics), FilterError> {
+        let (frame, intrinsics) = (input.frame(), input.intrinsics());
         let s = self.magnitude as usize;
         let ((real_w, real_h), (pad_w, pad_h)) = self.output_size(frame.width, frame.height);
         shape_output(&mut self.out, frame, pad_w, pad_h);

@@ -20,7 +20,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{FilterError, check_frame, empty_frame};
+use super::{Checked, FilterError, FrameFilter, check_frame, empty_frame};
 use crate::frame::DepthFrame;
 use crate::intrinsics::Intrinsics;
 
@@ -130,19 +130,16 @@ impl HoleFilling {
         }
         Ok(())
     }
+}
 
-    /// A filled copy of `frame` (compact rows) and its unchanged intrinsics.
-    pub fn process(
-        &mut self,
-        frame: &DepthFrame,
-        intrinsics: &Intrinsics,
-    ) -> Result<(&DepthFrame, Intrinsics), FilterError> {
-        check_frame(frame, Some(intrinsics))?;
+impl FrameFilter for HoleFilling {
+    /// A filled copy of the frame (compact rows) and its unchanged intrinsics.
+    fn filter(&mut self, input: Checked<'_>) -> Result<(&DepthFrame, Intrinsics), FilterError> {
         let mut out = std::mem::replace(&mut self.out, empty_frame());
-        super::disparity::copy_compact(frame, &mut out);
+        super::disparity::copy_compact(input.frame(), &mut out);
         let filled = self.apply_in_place(&mut out);
         self.out = out;
         filled?;
-        Ok((&self.out, *intrinsics))
+        Ok((&self.out, *input.intrinsics()))
     }
 }

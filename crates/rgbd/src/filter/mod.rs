@@ -7,8 +7,12 @@
 //! its [`Intrinsics`] and give back the filtered frame with the intrinsics that describe
 //! it (decimation scales them, the 2D crop shifts the principal point).
 //!
+//! The filters that make a new frame of a depth frame (threshold, decimation, hole
+//! filling, the 2D crop) are [`FrameFilter`]s: each filters a [`Checked`] frame, and
+//! [`FrameFilter::process`] checks the frame and its intrinsics first, once for all.
+//!
 //! Where librealsense's code departs from its documentation we follow the code; each
-//! module says where (facts in `shared/research/rgbd-anchors.md` §1).
+//! module says where.
 
 pub mod chain;
 pub mod decimation;
@@ -105,6 +109,44 @@ pub enum FilterError {
         /// Frame height.
         frame_height: u32,
     },
+}
+
+/// A depth frame whose buffer holds its pixels, with intrinsics of its size: only
+/// [`FrameFilter::process`] makes one, so a filter indexes its rows without checking.
+#[derive(Debug, Clone, Copy)]
+pub struct Checked<'a> {
+    frame: &'a DepthFrame,
+    intrinsics: &'a Intrinsics,
+}
+
+impl<'a> Checked<'a> {
+    /// The frame.
+    pub fn frame(&self) -> &'a DepthFrame {
+        self.frame
+    }
+
+    /// Its intrinsics.
+    pub fn intrinsics(&self) -> &'a Intrinsics {
+        self.intrinsics
+    }
+}
+
+/// A filter that makes a new frame, which it owns, of a depth frame, with the intrinsics
+/// that describe the result.
+pub trait FrameFilter {
+    /// The filtered frame of a checked `input` and its intrinsics.
+    fn filter(&mut self, input: Checked<'_>) -> Result<(&DepthFrame, Intrinsics), FilterError>;
+
+    /// Checks that `frame` holds its pixels and that `intrinsics` describe an image of
+    /// its size, then filters it.
+    fn process(
+        &mut self,
+        frame: &DepthFrame,
+        intrinsics: &Intrinsics,
+    ) -> Result<(&DepthFrame, Intrinsics), FilterError> {
+        check_frame(frame, Some(intrinsics))?;
+        self.filter(Checked { frame, intrinsics })
+    }
 }
 
 /// Checks that `frame` holds its pixels and, when given, that `intrinsics` describe

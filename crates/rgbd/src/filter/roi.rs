@@ -8,7 +8,7 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{FilterError, check_frame, empty_frame, shape_output};
+use super::{Checked, FilterError, FrameFilter, empty_frame, shape_output};
 use crate::frame::DepthFrame;
 use crate::intrinsics::Intrinsics;
 
@@ -52,15 +52,13 @@ impl RoiCrop {
             out: empty_frame(),
         }
     }
+}
 
-    /// The window of `frame` (compact rows) and its intrinsics; fails when the window
+impl FrameFilter for RoiCrop {
+    /// The window of the frame (compact rows) and its intrinsics; fails when the window
     /// does not lie inside the frame.
-    pub fn process(
-        &mut self,
-        frame: &DepthFrame,
-        intrinsics: &Intrinsics,
-    ) -> Result<(&DepthFrame, Intrinsics), FilterError> {
-        check_frame(frame, Some(intrinsics))?;
+    fn filter(&mut self, input: Checked<'_>) -> Result<(&DepthFrame, Intrinsics), FilterError> {
+        let (frame, intrinsics) = (input.frame(), input.intrinsics());
         let r = self.roi;
         if !r.fits(frame.width, frame.height) {
             return Err(FilterError::RoiOutside {
@@ -75,7 +73,7 @@ impl RoiCrop {
         shape_output(&mut self.out, frame, r.width, r.height);
         let (w, px, stride) = (r.width as usize, r.px as usize, frame.stride);
         // A window of width 0 copies nothing; one of width > 0 lies in a frame of that
-        // width, whose rows `check_frame` has found in `data`.
+        // width, whose rows `process` has found in `data`.
         if w > 0 {
             let src = &frame.data[r.py as usize * stride..];
             self.out

@@ -7,7 +7,7 @@
 
 use rayon::prelude::*;
 
-use super::{FilterError, check_frame, empty_frame, rows, shape_output};
+use super::{Checked, FilterError, FrameFilter, check_frame, empty_frame, rows, shape_output};
 use crate::frame::DepthFrame;
 use crate::intrinsics::Intrinsics;
 
@@ -77,14 +77,12 @@ impl Threshold {
             });
         Ok(())
     }
+}
 
-    /// The thresholded copy of `frame` (compact rows) and its unchanged intrinsics.
-    pub fn process(
-        &mut self,
-        frame: &DepthFrame,
-        intrinsics: &Intrinsics,
-    ) -> Result<(&DepthFrame, Intrinsics), FilterError> {
-        check_frame(frame, Some(intrinsics))?;
+impl FrameFilter for Threshold {
+    /// The thresholded copy of the frame (compact rows) and its unchanged intrinsics.
+    fn filter(&mut self, input: Checked<'_>) -> Result<(&DepthFrame, Intrinsics), FilterError> {
+        let (frame, intrinsics) = (input.frame(), input.intrinsics());
         let mut out = std::mem::replace(&mut self.out, empty_frame());
         shape_output(&mut out, frame, frame.width, frame.height);
         let width = (frame.width as usize).max(1);

@@ -79,6 +79,8 @@ fn check_against_librealsense(file: &str) {
     assert_eq!(cam.serial().as_str(), want.serial);
     assert_eq!(cam.model(), want.name);
     assert_eq!(cam.depth_scale(), want.depth_scale, "{file}");
+    // These recordings have no Stereo_Baseline option: the D415's nominal.
+    assert_eq!(cam.stereo_baseline_m(), rgbd::d415::BASELINE_M, "{file}");
     assert_eq!(
         cam.depth_intrinsics().unwrap(),
         want.streams.depth.intrinsics,

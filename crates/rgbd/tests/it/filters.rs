@@ -1,6 +1,7 @@
 //! The filters' own contracts: configuration, sizes, intrinsics, invalid pixels.
 //! (Agreement with librealsense is tested in `librealsense.rs`.)
 
+use rgbd::FrameFilter as _;
 use rgbd::filter::{
     Decimation, DisparityFrame, FilterError, HoleFilling, HoleFillingMode, PostProcessing,
     PostProcessingConfig, PostProcessingError, Roi2, RoiCrop, SpatialFilter, SpatialParams,

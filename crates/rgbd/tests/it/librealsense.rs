@@ -19,6 +19,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use rgbd::FrameFilter as _;
 use rgbd::filter::{
     Decimation, DepthToDisparity, DisparityFrame, DisparityToDepth, HoleFilling, HoleFillingMode,
     PostProcessing, PostProcessingConfig, SpatialFilter, SpatialParams, Threshold,

@@ -168,6 +168,8 @@ fn the_software_d415_is_grabbed_through_the_per_request_path() {
     );
     assert_eq!(depth.depth_scale, 0.001);
     assert_eq!(camera.depth_scale(), 0.001);
+    // Read through librealsense's option, in millimetres.
+    assert!((camera.stereo_baseline_m() - d415::BASELINE_M).abs() < 1e-6);
     assert_eq!(
         camera.depth_intrinsics().unwrap(),
         d415::depth_intrinsics(640, 480)

@@ -5,6 +5,7 @@
 use geometry::{Point3, TransformError, Transformation};
 
 use crate::repr::clouds::DepthPart;
+use rgbd::FrameFilter as _;
 use rgbd::filter::{Roi2, RoiCrop};
 use rgbd::{
     Camera, CameraError, ColorFrame, DepthFrame, Extrinsics, FilterError, Intrinsics,
@@ -126,7 +127,7 @@ pub(crate) fn cloud(
     let r = roi(app, frame.width, frame.height)?;
     let mut crop = RoiCrop::new(r);
     let (cropped, k) = crop.process(&frame, &intrinsics)?;
-    let mut chain = PostProcessing::new(&app.postprocessing, rgbd::d415::BASELINE_M * 1000.0)?;
+    let mut chain = PostProcessing::new(&app.postprocessing, camera.stereo_baseline_m() * 1000.0)?;
     let (processed, k) = chain.process(cropped, &k)?;
     let mut part = DepthPart {
         serial: camera.serial().to_string(),

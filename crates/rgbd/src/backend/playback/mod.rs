@@ -218,6 +218,11 @@ impl Camera for PlaybackCamera {
         self.recorded.depth_scale
     }
 
+    fn stereo_baseline_m(&self) -> f32 {
+        // A recording without the option (librealsense records it): the D415's nominal.
+        self.recorded.baseline_m.unwrap_or(crate::d415::BASELINE_M)
+    }
+
     fn advanced_config(&self) -> Result<AdvancedConfig, CameraError> {
         Err(AdvancedError::NotSupported(NO_ADVANCED_MODE.into()).into())
     }

@@ -411,6 +411,14 @@ impl DeviceParts {
                 name == "Depth_Units" && depth_sensor.is_none_or(|d| d == *sensor)
             })
             .map(|(_, v)| *v);
+        let baseline_m = self
+            .options
+            .iter()
+            .find(|((sensor, name), _)| {
+                name == "Stereo_Baseline" && depth_sensor.is_none_or(|d| d == *sensor)
+            })
+            .map(|(_, mm)| *mm / 1000.0)
+            .filter(|m| m.is_finite() && *m > 0.0);
         let depth_scale = option_units
             .or_else(|| depth.frames.iter().find_map(|f| f.depth_units))
             .ok_or_else(|| PlaybackError::Missing("depth units (option Depth_Units)".into()))?;
@@ -490,6 +498,7 @@ impl DeviceParts {
             depth_intrinsics: depth.intrinsics,
             depth_to_color,
             depth_scale,
+            baseline_m,
             depth_frames,
             color_frames,
         })
@@ -602,6 +611,8 @@ pub(crate) struct RecordedDevice {
     pub(crate) depth_intrinsics: Intrinsics,
     pub(crate) depth_to_color: Extrinsics,
     pub(crate) depth_scale: f32,
+    /// The option `Stereo_Baseline` (mm) in metres, when recorded.
+    pub(crate) baseline_m: Option<f32>,
     /// (recorded frame number, metres per unit, values).
     pub(crate) depth_frames: Vec<(u64, f32, Vec<u16>)>,
     /// (recorded frame number, pixels).

@@ -200,6 +200,8 @@ pub struct RealSenseCamera {
     lib: Arc<Lib>,
     serial: Serial,
     model: String,
+    /// The depth sensor's stereo baseline, read once (a device's calibration).
+    baseline_m: f32,
     modes: ModeTable,
     mode: GrabMode,
     depth: Slot,
@@ -260,10 +262,20 @@ impl RealSenseCamera {
             .sensor
             .option(ffi::OPTION_DEPTH_UNITS)
             .map_err(|e| format!("{serial}: {e}"))?;
+        let baseline_mm = depth
+            .sensor
+            .option(ffi::OPTION_STEREO_BASELINE)
+            .map_err(|e| format!("{serial}: the stereo baseline: {e}"))?;
+        if !(baseline_mm.is_finite() && baseline_mm > 0.0) {
+            return Err(format!(
+                "{serial}: the stereo baseline is {baseline_mm} mm, not a positive length"
+            ));
+        }
         Ok(Self {
             lib,
             serial,
             model: name,
+            baseline_m: baseline_mm / 1000.0,
             modes: ModeTable::d415(),
             mode,
             depth,
@@ -565,6 +577,10 @@ impl Camera for RealSenseCamera {
             "the color sensor offers no {}x{} at {} fps",
             color.width, color.height, color.fps
         )))
+    }
+
+    fn stereo_baseline_m(&self) -> f32 {
+        self.baseline_m
     }
 
     fn depth_scale(&self) -> f32 {

@@ -49,6 +49,8 @@ pub(crate) const FORMAT_RGBA8: c_int = 7;
 pub(crate) const FORMAT_BGRA8: c_int = 8;
 /// `RS2_OPTION_DEPTH_UNITS`.
 pub(crate) const OPTION_DEPTH_UNITS: c_int = 28;
+/// `RS2_OPTION_STEREO_BASELINE`: the depth sensor's baseline in millimetres.
+pub(crate) const OPTION_STEREO_BASELINE: c_int = 40;
 /// `RS2_EXTENSION_ADVANCED_MODE`.
 const EXTENSION_ADVANCED_MODE: c_int = 13;
 /// `RS2_TIMESTAMP_DOMAIN_HARDWARE_CLOCK`.

@@ -341,6 +341,10 @@ impl Camera for SyntheticCamera {
         Self::depth_scale_of(&self.lock())
     }
 
+    fn stereo_baseline_m(&self) -> f32 {
+        d415::BASELINE_M
+    }
+
     fn advanced_config(&self) -> Result<AdvancedConfig, CameraError> {
         let s = self.lock();
         let mut doc = s.advanced.clone();
