@@ -214,7 +214,7 @@ impl Plan {
                     "--observe watches one camera's color, depth or pointcloud resource, or the measurements"
                 );
             }
-            if args.camera.is_some() {
+            if args.cameras.camera.is_some() {
                 bail!(
                     "measure --observe follows every measurement of the station; leave out --camera"
                 );
