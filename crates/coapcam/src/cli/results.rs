@@ -16,12 +16,12 @@ use super::{Exit, TransmissionArgs, out, outln};
 
 /// Flags of `results`.
 #[derive(Debug, Args)]
-#[command(args_conflicts_with_subcommands = true)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub(crate) struct ResultsArgs {
     #[command(subcommand)]
     command: Option<ResultsCommand>,
     /// The station, coap://host[:port]: list its records, newest first.
-    #[arg(long, value_name = "URI")]
+    #[arg(long, value_name = "URI", required = true)]
     server: Option<String>,
     /// Only records after this id.
     #[arg(long, value_name = "ID")]
