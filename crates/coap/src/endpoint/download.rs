@@ -6,45 +6,54 @@ use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 
-use super::Endpoint;
+use super::client_state::ClientLayer;
 use super::client_state::{Step, Waiting};
-use super::message::TimerKind;
+use super::congestion::SendState;
+use super::context::Context;
+use super::message::{Path, TimerKind};
 use super::types::{RequestError, Response};
 use super::window::{Arrival, Window};
 use crate::config::Transfer;
 use crate::msg::{BlockOpt, Code, Message, OptionNumber};
 
-impl Endpoint {
+impl ClientLayer {
     /// Block 0 of request `id` arrived (block size exponent `szx`, last block `last` if
     /// Size2 told): the rest comes through a window.
-    pub(super) fn start_window(&mut self, now: Instant, id: u64, szx: u8, last: Option<u32>) {
-        let Some(r) = self.client.requests.get_mut(&id) else {
+    pub(super) fn start_window(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: u64,
+        szx: u8,
+        last: Option<u32>,
+    ) {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         r.window = Some(Window::new(now, last));
         r.waiting = Waiting::Window;
         r.step = Step::Download { num: 1, szx };
         r.generation += 1;
-        self.window_pump(now, id);
+        self.window_pump(cx, now, id);
     }
 
     /// Sends the block requests the controller admits now, then arms the window's timer.
-    pub(super) fn window_pump(&mut self, now: Instant, id: u64) {
+    pub(super) fn window_pump(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
         let mut paced = None;
         loop {
-            let Some(r) = self.client.requests.get(&id) else {
+            let Some(r) = self.requests.get(&id) else {
                 return;
             };
             let Some(num) = r.window.as_ref().and_then(Window::next_block) else {
                 break;
             };
             let peer = r.peer;
-            if let Some(at) = self.msg.mid_free_at(now, self.config.exchange_lifetime) {
+            if let Some(at) = cx.msg.mid_free_at(now, cx.config.exchange_lifetime) {
                 // Every message ID was used within EXCHANGE_LIFETIME: wait for the next.
                 paced = Some(at);
                 break;
             }
-            let cc = self.msg.path(now, peer).controller(now, &self.config);
+            let cc = cx.msg.path(now, peer).controller(now, cx.config);
             if cc.in_flight() >= cc.window() {
                 break;
             }
@@ -53,39 +62,44 @@ impl Endpoint {
                 break;
             }
             let state = cc.on_sent(now);
-            let mid = self.msg.next_mid();
-            let Some(r) = self.client.requests.get_mut(&id) else {
+            let mid = cx.msg.next_mid();
+            let Some(r) = self.requests.get_mut(&id) else {
                 return;
             };
             let Step::Download { szx, .. } = r.step else {
                 return;
             };
             r.step = Step::Download { num, szx };
-            r.send_step(mid, &mut self.msg.outbox);
+            r.send_step(mid, &mut cx.msg.outbox);
             if let Some(w) = r.window.as_mut() {
                 w.on_sent(num, state);
             }
         }
-        self.arm_window(now, id, paced);
+        self.arm_window(cx, now, id, paced);
     }
 
     /// The round trip the loss delay grows from (`SRTT + 4 RTTVAR`) and the probe
     /// timeout, from the path.
-    fn window_timing(&mut self, now: Instant, id: u64) -> Option<(Duration, Duration)> {
-        let peer = self.client.requests.get(&id)?.peer;
-        let default = self.config.ack_timeout;
-        let rtt = &self.msg.path(now, peer).rtt;
+    fn window_timing(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: u64,
+    ) -> Option<(Duration, Duration)> {
+        let peer = self.requests.get(&id)?.peer;
+        let default = cx.config.ack_timeout;
+        let rtt = &cx.msg.path(now, peer).rtt;
         let base = rtt.srtt().map_or(default, |srtt| srtt + rtt.rttvar() * 4);
         Some((base, rtt.pto(default)))
     }
 
     /// Arms the window's timer for its loss or probe time, or `paced` (when pacing
     /// holds back a request) if earlier.
-    fn arm_window(&mut self, now: Instant, id: u64, paced: Option<Instant>) {
-        let Some((_, pto)) = self.window_timing(now, id) else {
+    fn arm_window(&mut self, cx: &mut Context<'_>, now: Instant, id: u64, paced: Option<Instant>) {
+        let Some((_, pto)) = self.window_timing(cx, now, id) else {
             return;
         };
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let Some(w) = &r.window else { return };
@@ -103,17 +117,23 @@ impl Endpoint {
             return;
         }
         r.window_timer = Some(at);
-        self.msg.schedule(at, TimerKind::Window { id, at });
+        cx.msg.schedule(at, TimerKind::Window { id, at });
     }
 
     /// The window's timer: declares lost what is late, gives up after MAX_TRANSMIT_SPAN
     /// without a block, and sends what may go now.
-    pub(super) fn on_window_timer(&mut self, now: Instant, id: u64, at: Instant) {
-        let Some((rtt, pto)) = self.window_timing(now, id) else {
+    pub(super) fn on_window_timer(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: u64,
+        at: Instant,
+    ) {
+        let Some((rtt, pto)) = self.window_timing(cx, now, id) else {
             return;
         };
-        let give_up = self.config.max_transmit_span();
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let give_up = cx.config.max_transmit_span();
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         if r.window_timer != Some(at) {
@@ -123,37 +143,38 @@ impl Endpoint {
         let peer = r.peer;
         let Some(w) = r.window.as_mut() else { return };
         if w.awaiting() && now.saturating_duration_since(w.heard) > give_up {
-            return self.fail(now, id, RequestError::Timeout);
+            return self.fail(cx, now, id, RequestError::Timeout);
         }
         let lost = w.on_timer(now, rtt, pto);
         let probes = w.probes;
         // The requests declared lost leave the window now: they are no longer in flight,
         // whatever happens next (a fallback forgets only those still in flight).
-        if let Some(cc) = self.msg.path(now, peer).existing_controller() {
+        if let Some(cc) = cx.msg.path(now, peer).existing_controller() {
             cc.on_lost(now, lost);
         }
         if probes >= 3 {
             // Three probe timeouts in a row without a block: a server that ignores NON
             // requests (or answers them as if they were CONs), or a path gone quiet. The
             // rest goes stop-and-wait, with CONs and their retransmissions.
-            return self.window_fallback(now, id);
+            return self.window_fallback(cx, now, id);
         }
-        self.window_pump(now, id);
+        self.window_pump(cx, now, id);
     }
 
     /// A response to one of the window's block requests.
     pub(super) fn on_window_response(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
         id: u64,
         msg: &Message,
         payload: &[u8],
     ) {
-        let limit = self.config.limits.client_body_bytes;
-        let Some((rtt, _)) = self.window_timing(now, id) else {
+        let limit = cx.config.limits.client_body_bytes;
+        let Some((rtt, _)) = self.window_timing(cx, now, id) else {
             return;
         };
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let Step::Download { szx, .. } = r.step else {
@@ -176,16 +197,16 @@ impl Endpoint {
             }
             // An error, or blocks of another size: the server does not serve blocks out
             // of order as asked. The rest goes stop-and-wait, which handles either.
-            return self.window_fallback(now, id);
+            return self.window_fallback(cx, now, id);
         };
         if msg.options.etag() != r.etag.as_deref() {
             // RFC 7959 §2.4: the representation changed; start over (a few times at
             // most), or fail a streamed body whose pieces are gone already.
             if r.restarts >= 4 || r.req.stream {
-                return self.fail(now, id, RequestError::RepresentationChanged);
+                return self.fail(cx, now, id, RequestError::RepresentationChanged);
             }
-            self.end_window(now, id);
-            let Some(r) = self.client.requests.get_mut(&id) else {
+            self.end_window(cx, now, id);
+            let Some(r) = self.requests.get_mut(&id) else {
                 return;
             };
             r.restarts += 1;
@@ -193,7 +214,7 @@ impl Endpoint {
             r.received = 0;
             r.first_options = None;
             r.step = Step::Download { num: 0, szx };
-            return self.send_step(now, id);
+            return self.send_step(cx, now, id);
         }
         let total = r
             .first_options
@@ -218,6 +239,7 @@ impl Endpoint {
             .is_some_and(|last| b2.num <= last && b2.more == (b2.num == last))
         {
             return self.fail(
+                cx,
                 now,
                 id,
                 RequestError::Protocol("Block2 says more after the last block, or none before"),
@@ -227,33 +249,20 @@ impl Endpoint {
         let (arrival, sample) = w.on_block(now, b2.num, rtt, || lost += 1);
         if arrival != Arrival::Duplicate && !size_ok {
             return self.fail(
+                cx,
                 now,
                 id,
                 RequestError::Protocol("the block does not have the size Size2 implies"),
             );
         }
-        let path = self.msg.path(now, peer);
-        match sample {
-            Some((state, rtt)) => {
-                if let Some(rtt) = rtt {
-                    path.rtt.on_sample(now, rtt, true);
-                }
-                if let Some(cc) = path.existing_controller() {
-                    cc.on_delivered(now, &state, rtt);
-                }
-            }
-            None if arrival != Arrival::Duplicate => {
-                if let Some(cc) = path.existing_controller() {
-                    cc.on_late_delivery(now);
-                }
-            }
-            None => {}
-        }
-        if let Some(cc) = path.existing_controller() {
-            cc.on_lost(now, lost);
-            cc.on_abandoned(forgotten);
-        }
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        learn(
+            cx.msg.path(now, peer),
+            now,
+            arrival,
+            sample,
+            (lost, forgotten),
+        );
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         match arrival {
@@ -269,8 +278,8 @@ impl Endpoint {
                 loop {
                     let data = block.as_deref().unwrap_or(payload);
                     let more = r.window.as_ref().and_then(Window::last) != Some(num);
-                    if let Err(e) = r.append(id, data, more, size, limit, &mut self.events) {
-                        return self.fail(now, id, e);
+                    if let Err(e) = r.append(id, data, more, size, limit, cx.events) {
+                        return self.fail(cx, now, id, e);
                     }
                     num += 1;
                     block = r.window.as_mut().and_then(Window::delivered);
@@ -281,55 +290,55 @@ impl Endpoint {
             }
         }
         if r.window.as_ref().is_some_and(Window::complete) {
-            self.end_window(now, id);
-            let Some(r) = self.client.requests.get_mut(&id) else {
+            self.end_window(cx, now, id);
+            let Some(r) = self.requests.get_mut(&id) else {
                 return;
             };
             let body = Bytes::from(std::mem::take(&mut r.body));
             let options = r.first_options.take().unwrap_or_default();
             let response = Response::with_parts(msg.code, options, body);
-            return self.complete(now, id, response);
+            return self.complete(cx, now, id, response);
         }
-        self.window_pump(now, id);
+        self.window_pump(cx, now, id);
     }
 
     /// The server refused or mangled a block asked for out of order, or answered none of
     /// the window's requests: the download goes on stop-and-wait from the next block to
     /// deliver (blocks that arrived ahead are asked for again).
-    fn window_fallback(&mut self, now: Instant, id: u64) {
-        self.end_window(now, id);
-        if let Some(peer) = self.client.requests.get(&id).map(|r| r.peer) {
-            self.msg.path(now, peer).stats.window_fallbacks += 1;
+    fn window_fallback(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
+        self.end_window(cx, now, id);
+        if let Some(peer) = self.requests.get(&id).map(|r| r.peer) {
+            cx.msg.path(now, peer).stats.window_fallbacks += 1;
         }
         // A new token, so that late answers to the window's requests (a refusal without
         // Block2 among them) are not taken for the answer to the next step.
-        let token = self.new_token();
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let token = self.new_token(cx);
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let Step::Download { szx, .. } = r.step else {
             return;
         };
-        self.client.by_token.remove(&r.token);
-        self.client.by_token.insert(token, id);
+        self.by_token.remove(&r.token);
+        self.by_token.insert(token, id);
         r.token = token;
         r.req.transfer = Some(Transfer::StopAndWait);
         r.step = Step::Download {
             num: (r.received / BlockOpt::size_of(szx)) as u32,
             szx,
         };
-        self.send_step(now, id);
+        self.send_step(cx, now, id);
     }
 
     /// Ends request `id`'s window, if it has one: its requests in flight are forgotten by
     /// the controller and its counters added to the path's.
-    pub(super) fn end_window(&mut self, now: Instant, id: u64) {
-        let Some(r) = self.client.requests.get_mut(&id) else {
+    pub(super) fn end_window(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let Some(mut w) = r.window.take() else { return };
         r.window_timer = None;
-        let path = self.msg.path(now, r.peer);
+        let path = cx.msg.path(now, r.peer);
         if let Some(cc) = path.existing_controller() {
             cc.on_abandoned(w.abandon());
         }
@@ -339,5 +348,37 @@ impl Endpoint {
         s.blocks_late += t.late;
         s.blocks_duplicate += t.duplicates;
         s.max_window = s.max_window.max(t.max_window);
+    }
+}
+
+/// What the path learns from a block of its window: a round-trip sample, and what the
+/// controller hears (a delivery, late or not; `lost` requests declared lost, `forgotten`
+/// past the last block).
+fn learn(
+    path: &mut Path,
+    now: Instant,
+    arrival: Arrival,
+    sample: Option<(SendState, Option<Duration>)>,
+    (lost, forgotten): (usize, usize),
+) {
+    match sample {
+        Some((state, rtt)) => {
+            if let Some(rtt) = rtt {
+                path.rtt.on_sample(now, rtt, true);
+            }
+            if let Some(cc) = path.existing_controller() {
+                cc.on_delivered(now, &state, rtt);
+            }
+        }
+        None if arrival != Arrival::Duplicate => {
+            if let Some(cc) = path.existing_controller() {
+                cc.on_late_delivery(now);
+            }
+        }
+        None => {}
+    }
+    if let Some(cc) = path.existing_controller() {
+        cc.on_lost(now, lost);
+        cc.on_abandoned(forgotten);
     }
 }

@@ -15,7 +15,7 @@ use rand_core::{RngCore, SeedableRng};
 use super::congestion::{self, Backoff, Controller, RttEstimator};
 use super::types::{PathStats, Transmit};
 use crate::config::EndpointConfig;
-use crate::dedup::Dedup;
+use crate::dedup::{Dedup, Seen};
 use crate::msg::{Message, Outgoing};
 use crate::peer_key::{FastMap, MidKey, PeerKey};
 
@@ -346,6 +346,13 @@ impl MessageLayer {
     /// Sends a message that goes out once ([`Outbox::send`]).
     pub(super) fn send(&mut self, peer: SocketAddr, msg: &Message) {
         self.outbox.send(peer, &msg.outgoing());
+    }
+
+    /// Sends a reply and keeps the message (not its encoding, which shares a chunk with
+    /// other messages) to send again for duplicates.
+    pub(super) fn reply_with(&mut self, peer: SocketAddr, msg: Message) -> Seen {
+        self.send(peer, &msg);
+        Seen::Replied(Box::new(msg))
     }
 
     /// Sends a CON that keeps its own encoding for retransmission (a ping, a

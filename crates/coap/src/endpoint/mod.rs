@@ -8,7 +8,9 @@
 //! `poll_timeout` and call `handle_timeout`. A `handle_timeout` before anything is due is a
 //! no-op, so spurious wake-ups are harmless.
 //!
-//! Layers, one module each, each with its own state in [`Endpoint`]:
+//! Layers, one module each, each with its own state in [`Endpoint`]; the client and
+//! server layers are types with their own behaviour, acting on a `Context` that lends
+//! them the message layer, the configuration and the event queue:
 //! - `message`: message IDs, timers, CON retransmission with exponential back-off,
 //!   deduplication, the outbox, and the path to each peer (round-trip estimate,
 //!   congestion controller, counters). It knows nothing of requests.
@@ -18,14 +20,15 @@
 //! - `window` and `download`: a Block2 download with many block requests in flight,
 //!   paced by the path's congestion controller (`congestion`: BBR unless
 //!   `EndpointConfig::congestion` says NSTART), lost ones asked for again.
-//! - `server`: requests it receives (Block1 assembly, Block2 slicing from a stored
-//!   representation, piggybacked or separate responses, observations it serves), after
-//!   `verify` has checked the peer's address (RFC 9175 Echo, amplification limits).
+//! - `server`: requests it receives, in stages (a duplicate, `verify`'s check of the
+//!   peer's address (RFC 9175 Echo, amplification limits), bad options, Q-Block, Block2
+//!   slicing from a stored representation, Block1 assembly, then the application),
+//!   piggybacked or separate responses, observations it serves, Leisure.
 //! - `types`: what the owner sees (requests, responses, events, errors).
 //!
 //! This file owns the entry points and routes between the layers: a datagram's ACK or
 //! Reset to the purpose of its CON, a timer to its layer. `client` and `server` use
-//! `message`; `message` uses neither.
+//! `message` (through `context`); `message` uses neither, and neither uses the other.
 //!
 //! A client request is a sequence of *steps*, one message exchange each, one at a time;
 //! a windowed download is the exception, its block requests in flight together (the
@@ -34,11 +37,13 @@
 mod client;
 mod client_state;
 mod congestion;
+mod context;
 mod download;
 mod message;
 mod qblock;
 mod qclient;
 mod qserver;
+mod reply;
 mod server;
 mod server_state;
 mod types;
@@ -60,10 +65,10 @@ use crate::config::EndpointConfig;
 use crate::dedup::{Fingerprint, Seen};
 use crate::msg::{Message, Reaction, Type};
 use crate::peer_key::{MidKey, PeerKey};
-use client_state::{ClientLayer, Waiting};
+use client_state::ClientLayer;
+use context::Context;
 use message::{MessageLayer, Purpose, TimerKind};
-use server_state::ServerLayer;
-use verify::AddressCheck;
+use server_state::{Incoming, ServerLayer};
 
 /// A CoAP endpoint. See the module documentation for the driving protocol.
 pub struct Endpoint {
@@ -71,7 +76,6 @@ pub struct Endpoint {
     msg: MessageLayer,
     client: ClientLayer,
     server: ServerLayer,
-    verify: AddressCheck,
     next_id: u64,
     events: VecDeque<Event>,
 }
@@ -84,16 +88,71 @@ impl Endpoint {
             msg: MessageLayer::new(config.rng_seed),
             client: ClientLayer::default(),
             server: ServerLayer::new(),
-            verify: AddressCheck::new(),
             config,
             next_id: 1,
             events: VecDeque::new(),
         }
     }
 
+    /// The layers, with the context they act on.
+    fn parts(&mut self) -> (Context<'_>, &mut ClientLayer, &mut ServerLayer) {
+        let cx = Context::new(
+            &self.config,
+            &mut self.msg,
+            &mut self.events,
+            &mut self.next_id,
+        );
+        (cx, &mut self.client, &mut self.server)
+    }
+
     /// The configuration.
     pub fn config(&self) -> &EndpointConfig {
         &self.config
+    }
+
+    /// Starts a request to `peer`. The outcome arrives as [`Event::Response`] or
+    /// [`Event::RequestFailed`] with the returned id.
+    pub fn request(&mut self, now: Instant, peer: SocketAddr, req: Request) -> RequestId {
+        let (mut cx, client, _) = self.parts();
+        client.request(&mut cx, now, peer, req)
+    }
+
+    /// Sends a CoAP ping (an empty CON, RFC 7252 §4.3): [`Event::Pong`] when the peer
+    /// answers with a Reset, [`Event::RequestFailed`] after MAX_RETRANSMIT.
+    pub fn ping(&mut self, now: Instant, peer: SocketAddr) -> RequestId {
+        let (mut cx, client, _) = self.parts();
+        client.ping(&mut cx, now, peer)
+    }
+
+    /// Abandons a request; [`Event::RequestFailed`] with [`RequestError::Cancelled`]
+    /// follows if it was still running.
+    pub fn cancel(&mut self, now: Instant, id: RequestId) {
+        let (mut cx, client, _) = self.parts();
+        client.cancel(&mut cx, now, id);
+    }
+
+    /// Answers a request from [`Event::Request`]. A body larger than one block is stored
+    /// and sent with Block2 (ETag and Size2 added); later blocks are served from the store.
+    /// Answering an unknown or already answered id does nothing.
+    /// The answer to a multicast request waits for the end of its leisure (RFC 7252
+    /// §8.2), held by the endpoint.
+    pub fn respond(&mut self, now: Instant, id: IncomingId, response: Response) {
+        let (mut cx, _, server) = self.parts();
+        server.respond(&mut cx, now, id, response);
+    }
+
+    /// Sends a notification to an established observation (RFC 7641 §4.2): the Observe
+    /// sequence number goes up by one, every `notify_con_interval`-th notification is a CON
+    /// (§4.5), and a body larger than one block goes out as Block2 block 0 with the rest
+    /// kept for the client's continuations (RFC 7959 §2.6). While a CON notification is
+    /// unacknowledged the next waits, only the newest kept, and goes on the ACK (§4.5.2:
+    /// one in flight; an observer that stopped answering costs one retransmitted
+    /// notification, not one per change); the CON's timeout ends the observation. A
+    /// non-success response ends the observation. Returns false when the observation no
+    /// longer exists, so the application can forget it.
+    pub fn notify(&mut self, now: Instant, id: ObservationId, response: Response) -> bool {
+        let (mut cx, _, server) = self.parts();
+        server.notify(&mut cx, now, id, response)
     }
 
     /// The next datagram to send.
@@ -129,7 +188,7 @@ impl Endpoint {
             TimerKind::Deadline { id } => self.client.requests.contains_key(&id),
             TimerKind::SeparateAck { id } => self.server.awaits_separate_ack(id),
             TimerKind::Leisure { id } => self.server.held.contains_key(&id),
-            TimerKind::QClient { id, at } => self.qclient_timer_is(id, at),
+            TimerKind::QClient { id, at } => self.client.qclient_timer_is(id, at),
             TimerKind::QSet { id, at } => self.server.qsends.get(&id).is_some_and(|q| q.at == at),
             TimerKind::QReceive { id, at } => self
                 .server
@@ -173,33 +232,25 @@ impl Endpoint {
                 break;
             }
             self.msg.timers.pop();
+            let (mut cx, client, server) = self.parts();
+            let cx = &mut cx;
             match kind {
                 TimerKind::Retransmit { peer, mid, tx } => {
-                    let max = self.config.max_retransmit;
-                    if let Some(purpose) = self.msg.on_retransmit_timer(now, peer, mid, tx, max) {
-                        self.on_exchange_failed(now, purpose);
+                    let max = cx.config.max_retransmit;
+                    if let Some(purpose) = cx.msg.on_retransmit_timer(now, peer, mid, tx, max) {
+                        exchange_failed(cx, client, server, now, purpose);
                     }
                 }
-                TimerKind::RequestAck { id, at } => self.on_request_ack_timer(now, id, at),
-                TimerKind::Step { id, generation } => self.on_step_timer(now, id, generation),
-                TimerKind::Window { id, at } => self.on_window_timer(now, id, at),
-                TimerKind::Deadline { id } => match self.client.waiting(id) {
-                    Some(Waiting::Collecting) => {
-                        self.finish(now, id);
-                        self.events
-                            .push_back(Event::MulticastDone { id: RequestId(id) });
-                    }
-                    // An established observation outlives the timeout, which bounds
-                    // the wait for the registration's answer.
-                    Some(Waiting::Observing(_)) | None => {}
-                    Some(_) => self.fail(now, id, RequestError::Timeout),
-                },
-                TimerKind::SeparateAck { id } => self.on_separate_ack_timer(now, id),
-                TimerKind::Leisure { id } => self.on_leisure_timer(now, id),
-                TimerKind::QClient { id, at } => self.on_qclient_timer(now, id, at),
-                TimerKind::QSet { id, at } => self.on_qset_timer(now, id, at),
-                TimerKind::QReceive { id, at } => self.on_qreceive_timer(now, id, at),
-                TimerKind::Sweep { at } => self.on_sweep_timer(now, at),
+                TimerKind::RequestAck { id, at } => client.on_request_ack_timer(cx, now, id, at),
+                TimerKind::Step { id, generation } => client.on_step_timer(cx, now, id, generation),
+                TimerKind::Window { id, at } => client.on_window_timer(cx, now, id, at),
+                TimerKind::Deadline { id } => client.on_deadline(cx, now, id),
+                TimerKind::SeparateAck { id } => server.ack_pending(cx, id),
+                TimerKind::Leisure { id } => server.on_leisure_timer(cx, now, id),
+                TimerKind::QClient { id, at } => client.on_qclient_timer(cx, now, id, at),
+                TimerKind::QSet { id, at } => server.on_qset_timer(cx, now, id, at),
+                TimerKind::QReceive { id, at } => server.on_qreceive_timer(cx, now, id, at),
+                TimerKind::Sweep { at } => server.on_sweep_timer(cx, now, at),
             }
         }
     }
@@ -230,34 +281,15 @@ impl Endpoint {
                 }
             }
             Type::Con | Type::Non if msg.code.is_request() => {
-                self.on_request(now, peer, msg, payload, data.len(), multicast);
+                let (mut cx, _, server) = self.parts();
+                let req = Incoming::read(cx.config, now, peer, msg, payload, multicast);
+                server.on_request(&mut cx, now, req, data.len());
             }
             Type::Con | Type::Non if msg.code.is_response() => {
                 self.on_separate_response(now, peer, &mut msg, payload)
             }
             // An empty NON is a format error (§4.3); unknown code classes are ignored.
             Type::Con | Type::Non => {}
-        }
-    }
-
-    /// A new id for a request, a ping, a received request or an observation.
-    fn new_id(&mut self) -> u64 {
-        self.next_id += 1;
-        self.next_id
-    }
-
-    /// A CON given up after MAX_RETRANSMIT, routed by its purpose.
-    fn on_exchange_failed(&mut self, now: Instant, purpose: Purpose) {
-        match purpose {
-            Purpose::Request(id) => self.step_failed(now, id, RequestError::Timeout),
-            Purpose::Ping(id) => {
-                self.events.push_back(Event::RequestFailed {
-                    id: RequestId(id),
-                    error: RequestError::Timeout,
-                });
-            }
-            Purpose::SeparateResponse => {}
-            Purpose::Notification(obs) => self.end_observation(obs),
         }
     }
 
@@ -268,39 +300,31 @@ impl Endpoint {
         msg: &mut Message,
         payload: &[u8],
     ) {
+        let (mut cx, client, server) = self.parts();
+        let cx = &mut cx;
         // ACK and RST are matched by message ID only (RFC 7252 §4.2, §4.3); an unknown one
         // is ignored.
-        let Some(x) = self.msg.exchanges.remove(&MidKey(peer, msg.message_id)) else {
+        let Some(x) = cx.msg.exchanges.remove(&MidKey(peer, msg.message_id)) else {
             if msg.ty == Type::Rst {
                 // A Reset to a NON notification ends the observation (RFC 7641 §3.6).
-                if let Some(id) = self.server.notified_with(peer, msg.message_id) {
-                    self.end_observation(id);
+                if let Some(id) = server.notified_with(peer, msg.message_id) {
+                    server.end_observation(cx, id);
                 }
             }
             return;
         };
-        self.msg.on_acknowledged(now, peer, x.first_sent, x.tx);
+        cx.msg.on_acknowledged(now, peer, x.first_sent, x.tx);
         match x.purpose {
-            Purpose::Ping(id) => self.events.push_back(Event::Pong { id: RequestId(id) }),
+            Purpose::Ping(id) => cx.events.push_back(Event::Pong { id: RequestId(id) }),
             Purpose::SeparateResponse => {}
-            Purpose::Notification(obs) => {
-                if msg.ty == Type::Rst {
-                    return self.end_observation(obs);
-                }
-                // Acknowledged: the notification that waited for it goes now.
-                let Some(o) = self.server.observations.get_mut(&obs) else {
-                    return;
-                };
-                o.in_flight = false;
-                if let Some(next) = o.queued.take() {
-                    self.notify(now, ObservationId(obs), next);
-                }
-            }
-            Purpose::Request(id) => self.on_request_ack(now, id, msg, payload),
+            Purpose::Notification(obs) if msg.ty == Type::Rst => server.end_observation(cx, obs),
+            Purpose::Notification(obs) => server.on_notification_acked(cx, now, obs),
+            Purpose::Request(id) => client.on_request_ack(cx, now, id, msg, payload),
         }
     }
 
-    /// A CON or NON response (not piggybacked).
+    /// A CON or NON response (not piggybacked): acknowledged, or rejected when it matches
+    /// no request, remembered for its duplicates, then the client's.
     fn on_separate_response(
         &mut self,
         now: Instant,
@@ -308,33 +332,52 @@ impl Endpoint {
         msg: &mut Message,
         payload: &[u8],
     ) {
-        let limits = self.config.limits.clone();
-        let known = self.client.by_token.get(&msg.token).copied();
-        if self.replay_duplicate(now, peer, msg, &limits) {
+        let (mut cx, client, server) = self.parts();
+        let cx = &mut cx;
+        let known = client.by_token.get(&msg.token).copied();
+        if server.replay_duplicate(cx, now, peer, msg) {
             return;
         }
         let lifetime = if msg.ty == Type::Con {
-            self.config.exchange_lifetime
+            cx.config.exchange_lifetime
         } else {
-            self.config.non_lifetime
+            cx.config.non_lifetime
         };
         let seen = match (known, msg.ty) {
             // RFC 7252 §5.3.2: a response we cannot match is rejected with a Reset.
-            (None, _) => self.reply_with(peer, Message::empty(Type::Rst, msg.message_id)),
-            (Some(_), Type::Con) => {
-                self.reply_with(peer, Message::empty(Type::Ack, msg.message_id))
-            }
+            (None, _) => cx
+                .msg
+                .reply_with(peer, Message::empty(Type::Rst, msg.message_id)),
+            (Some(_), Type::Con) => cx
+                .msg
+                .reply_with(peer, Message::empty(Type::Ack, msg.message_id)),
             (Some(_), _) => Seen::Silent,
         };
-        self.msg.dedup.insert(
-            now,
-            (peer, msg.message_id),
-            Fingerprint::of(msg),
-            now + lifetime,
-            seen,
-            &limits,
-        );
+        let key = (peer, msg.message_id);
+        let limits = cx.limits();
+        (cx.msg.dedup).insert(now, key, Fingerprint::of(msg), now + lifetime, seen, limits);
         let Some(id) = known else { return };
-        self.on_separate_response_to(now, id, peer, msg, payload);
+        client.on_separate_response_to(cx, now, id, peer, msg, payload);
+    }
+}
+
+/// A CON given up after MAX_RETRANSMIT, routed by its purpose.
+fn exchange_failed(
+    cx: &mut Context<'_>,
+    client: &mut ClientLayer,
+    server: &mut ServerLayer,
+    now: Instant,
+    purpose: Purpose,
+) {
+    match purpose {
+        Purpose::Request(id) => client.step_failed(cx, now, id, RequestError::Timeout),
+        Purpose::Ping(id) => {
+            cx.events.push_back(Event::RequestFailed {
+                id: RequestId(id),
+                error: RequestError::Timeout,
+            });
+        }
+        Purpose::SeparateResponse => {}
+        Purpose::Notification(obs) => server.end_observation(cx, obs),
     }
 }

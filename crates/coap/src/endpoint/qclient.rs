@@ -22,11 +22,13 @@ use std::time::Instant;
 use bytes::Bytes;
 use rand_core::RngCore;
 
-use super::Endpoint;
+use super::client_state::ClientLayer;
 use super::client_state::{Step, Waiting};
+use super::context::Context;
 use super::message::TimerKind;
 use super::qblock::{self, MISSING_BLOCKS_CBOR_SEQ, NON_MAX_RETRANSMIT, QDown, QUp};
 use super::types::{RequestError, Response};
+use crate::config::EndpointConfig;
 use crate::config::Transfer;
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Outgoing, Token, Type};
 
@@ -68,33 +70,36 @@ impl super::client_state::ClientRequest {
     }
 }
 
-impl Endpoint {
+impl ClientLayer {
     /// The first response to a request that asked for Q-Block2 carries Q-Block2 `q` with
     /// more to come: the body is fetched set by set.
     pub(super) fn start_qdown(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
         id: u64,
         msg: &Message,
         payload: &[u8],
         q: BlockOpt,
     ) {
-        let limit = self.config.limits.client_body_bytes;
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let limit = cx.config.limits.client_body_bytes;
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let Some(total) = msg.options.uint(OptionNumber::SIZE2).map(|t| t as usize) else {
             return self.fail(
+                cx,
                 now,
                 id,
                 RequestError::Protocol("Q-Block2 response without Size2"),
             );
         };
         if total > limit {
-            return self.fail(now, id, RequestError::TooLarge { limit });
+            return self.fail(cx, now, id, RequestError::TooLarge { limit });
         }
         if q.num != 0 {
             return self.fail(
+                cx,
                 now,
                 id,
                 RequestError::Protocol("first Q-Block2 response is not block 0"),
@@ -126,16 +131,11 @@ impl Endpoint {
         r.waiting = Waiting::Window;
         r.generation += 1;
         let con = msg.ty == Type::Ack;
-        self.on_qdown_block(now, id, msg, payload);
-        if con
-            && self
-                .client
-                .requests
-                .get(&id)
-                .is_some_and(|r| r.qdown.is_some())
-        {
+        self.on_qdown_block(cx, now, id, msg, payload);
+        if con && self.requests.get(&id).is_some_and(|r| r.qdown.is_some()) {
             // The server answered the CON with block 0 alone: ask for the rest of the set.
             self.qdown_ask(
+                cx,
                 now,
                 id,
                 &[BlockOpt {
@@ -150,6 +150,7 @@ impl Endpoint {
     /// A response to one of a Q-Block2 body's requests.
     pub(super) fn on_qdown_response(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
         id: u64,
         msg: &mut Message,
@@ -159,26 +160,33 @@ impl Endpoint {
             // An error in the middle of the body (the representation went away, the
             // server is busy): the server's answer.
             let response = super::client_state::take_response(msg, payload);
-            return self.complete(now, id, response);
+            return self.complete(cx, now, id, response);
         }
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         if msg.options.etag() != r.etag.as_deref() {
             // RFC 9177 §4.4: the representation changed; the partial body is stale.
-            return self.fail(now, id, RequestError::RepresentationChanged);
+            return self.fail(cx, now, id, RequestError::RepresentationChanged);
         }
-        self.on_qdown_block(now, id, msg, payload);
+        self.on_qdown_block(cx, now, id, msg, payload);
     }
 
     /// Block `msg` of a Q-Block2 body arrived.
-    fn on_qdown_block(&mut self, now: Instant, id: u64, msg: &Message, payload: &[u8]) {
-        let limit = self.config.limits.client_body_bytes;
-        let mp = self.config.payloads_per_set();
+    fn on_qdown_block(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: u64,
+        msg: &Message,
+        payload: &[u8],
+    ) {
+        let limit = cx.config.limits.client_body_bytes;
+        let mp = cx.config.payloads_per_set();
         let Some(q) = msg.options.block(OptionNumber::Q_BLOCK2) else {
             return;
         };
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let peer = r.peer;
@@ -190,6 +198,7 @@ impl Endpoint {
             || q.more != (q.num < d.last)
         {
             return self.fail(
+                cx,
                 now,
                 id,
                 RequestError::Protocol("the Q-Block2 block does not fit Size2"),
@@ -218,8 +227,8 @@ impl Endpoint {
             let mut num = q.num;
             loop {
                 let data = block.as_deref().unwrap_or(payload);
-                if let Err(e) = r.append(id, data, num < last, size, limit, &mut self.events) {
-                    return self.fail(now, id, e);
+                if let Err(e) = r.append(id, data, num < last, size, limit, cx.events) {
+                    return self.fail(cx, now, id, e);
                 }
                 num += 1;
                 let Some(d) = r.qdown.as_mut() else { return };
@@ -231,9 +240,9 @@ impl Endpoint {
             }
         }
         if let Some(rtt) = sample {
-            self.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
+            cx.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
         }
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let Some(d) = r.qdown.as_ref() else { return };
@@ -241,7 +250,7 @@ impl Endpoint {
             let body = Bytes::from(std::mem::take(&mut r.body));
             let options = r.first_options.take().unwrap_or_default();
             let response = Response::with_parts(msg.code, options, body);
-            return self.complete(now, id, response);
+            return self.complete(cx, now, id, response);
         }
         let szx = d.szx;
         let asked_end = (d.asked_sets * mp).min(d.last + 1);
@@ -254,6 +263,7 @@ impl Endpoint {
                 d.continued_at = Some(now);
             }
             self.qdown_ask(
+                cx,
                 now,
                 id,
                 &[BlockOpt {
@@ -264,18 +274,18 @@ impl Endpoint {
             );
         } else if new_set {
             // A new set began with blocks missing before it: ask for them at once.
-            let missing = self.qdown_missing(id, set * mp);
+            let missing = self.qdown_missing(cx.config, id, set * mp);
             if !missing.is_empty() {
-                self.qdown_ask(now, id, &missing);
+                self.qdown_ask(cx, now, id, &missing);
             }
         }
-        self.arm_qdown(now, id);
+        self.arm_qdown(cx, now, id);
     }
 
     /// The first MAX_PAYLOADS missing blocks below `end`, as Q-Block2 options without M.
-    fn qdown_missing(&self, id: u64, end: u32) -> Vec<BlockOpt> {
-        let mp = self.config.payloads_per_set() as usize;
-        let Some(d) = self.client.requests.get(&id).and_then(|r| r.qdown.as_ref()) else {
+    fn qdown_missing(&self, config: &EndpointConfig, id: u64, end: u32) -> Vec<BlockOpt> {
+        let mp = config.payloads_per_set() as usize;
+        let Some(d) = self.requests.get(&id).and_then(|r| r.qdown.as_ref()) else {
             return Vec::new();
         };
         (0..end.min(d.last + 1))
@@ -290,10 +300,10 @@ impl Endpoint {
     }
 
     /// Sends a NON request for the body with these Q-Block2 options and a new token.
-    fn qdown_ask(&mut self, now: Instant, id: u64, opts: &[BlockOpt]) {
-        let token = self.new_token();
-        let mid = self.msg.next_mid();
-        let Some(r) = self.client.requests.get_mut(&id) else {
+    fn qdown_ask(&mut self, cx: &mut Context<'_>, now: Instant, id: u64, opts: &[BlockOpt]) {
+        let token = self.new_token(cx);
+        let mid = cx.msg.next_mid();
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let mut options = r.req.options.clone();
@@ -312,9 +322,9 @@ impl Endpoint {
         if let Some(d) = r.qdown.as_mut() {
             d.tokens.push(token);
         }
-        self.client.by_token.insert(token, id);
-        self.msg.send(peer, &msg);
-        let stats = &mut self.msg.path(now, peer).stats;
+        self.by_token.insert(token, id);
+        cx.msg.send(peer, &msg);
+        let stats = &mut cx.msg.path(now, peer).stats;
         stats.block_requests += 1;
         if !matches!(opts, [o] if o.more) {
             // Missing blocks asked for again.
@@ -323,55 +333,61 @@ impl Endpoint {
     }
 
     /// Arms the body's timer NON_RECEIVE_TIMEOUT after its last block.
-    fn arm_qdown(&mut self, _now: Instant, id: u64) {
-        let ack = self.config.ack_timeout;
-        let Some(peer) = self.client.requests.get(&id).map(|r| r.peer) else {
+    fn arm_qdown(&mut self, cx: &mut Context<'_>, _now: Instant, id: u64) {
+        let ack = cx.config.ack_timeout;
+        let Some(peer) = self.requests.get(&id).map(|r| r.peer) else {
             return;
         };
-        let estimate = self.msg.estimate(peer);
-        let Some(d) = self.client.qdown_mut(id) else {
+        let estimate = cx.msg.estimate(peer);
+        let Some(d) = self.qdown_mut(id) else {
             return;
         };
         let at = d.heard + qblock::receive_timeout(estimate, ack, d.tries);
         d.at = Some(at);
-        self.msg.schedule(at, TimerKind::QClient { id, at });
+        cx.msg.schedule(at, TimerKind::QClient { id, at });
     }
 
     /// NON_RECEIVE_TIMEOUT without a block: ask for what is missing of the sets asked for
     /// (a lost 'Continue' shows as a whole set missing), NON_MAX_RETRANSMIT times.
-    fn on_qdown_timer(&mut self, now: Instant, id: u64) {
-        let mp = self.config.payloads_per_set();
-        let Some(d) = self.client.qdown_mut(id) else {
+    fn on_qdown_timer(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
+        let mp = cx.config.payloads_per_set();
+        let Some(d) = self.qdown_mut(id) else {
             return;
         };
         if d.tries >= NON_MAX_RETRANSMIT {
-            return self.fail(now, id, RequestError::Timeout);
+            return self.fail(cx, now, id, RequestError::Timeout);
         }
         d.tries += 1;
         d.heard = now;
         let end = d.asked_sets * mp;
-        let missing = self.qdown_missing(id, end);
+        let missing = self.qdown_missing(cx.config, id, end);
         if !missing.is_empty() {
-            self.qdown_ask(now, id, &missing);
+            self.qdown_ask(cx, now, id, &missing);
         }
-        self.arm_qdown(now, id);
+        self.arm_qdown(cx, now, id);
     }
 
     /// A client Q-Block timer fired.
-    pub(super) fn on_qclient_timer(&mut self, now: Instant, id: u64, at: Instant) {
-        let Some(r) = self.client.requests.get(&id) else {
+    pub(super) fn on_qclient_timer(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: u64,
+        at: Instant,
+    ) {
+        let Some(r) = self.requests.get(&id) else {
             return;
         };
         if r.qdown.as_ref().is_some_and(|d| d.at == Some(at)) {
-            self.on_qdown_timer(now, id);
+            self.on_qdown_timer(cx, now, id);
         } else if r.qup.as_ref().is_some_and(|u| u.at == Some(at)) {
-            self.on_qup_timer(now, id);
+            self.on_qup_timer(cx, now, id);
         }
     }
 
     /// Whether request `id`'s Q-Block timer is the one armed for `at`.
     pub(super) fn qclient_timer_is(&self, id: u64, at: Instant) -> bool {
-        self.client.requests.get(&id).is_some_and(|r| {
+        self.requests.get(&id).is_some_and(|r| {
             r.qdown.as_ref().is_some_and(|d| d.at == Some(at))
                 || r.qup.as_ref().is_some_and(|u| u.at == Some(at))
         })
@@ -380,18 +396,19 @@ impl Endpoint {
     /// The state of a request body sent with Q-Block1, before block 0 goes.
     pub(super) fn new_qup(
         &mut self,
+        cx: &mut Context<'_>,
         szx: u8,
         req_options: &Options,
         len: usize,
         peer: std::net::SocketAddr,
     ) -> QUp {
         let mut options = req_options.clone();
-        let tag = self.msg.rng.next_u32().to_be_bytes();
+        let tag = cx.msg.rng.next_u32().to_be_bytes();
         options.set(OptionNumber::REQUEST_TAG, tag);
-        let unit = self.msg.unit();
-        let c = &self.config;
+        let unit = cx.msg.unit();
+        let c = cx.config;
         let timeout = qblock::non_timeout(
-            self.msg.estimate(peer),
+            cx.msg.estimate(peer),
             c.ack_timeout,
             c.ack_random_factor,
             unit,
@@ -413,77 +430,84 @@ impl Endpoint {
 
     /// Sends block `num` of a Q-Block1 body as a NON with a new token, or again with
     /// message ID and token `again`.
-    fn qup_send_block(&mut self, id: u64, num: u32, again: Option<(u16, Token)>) {
+    fn qup_send_block(
+        &mut self,
+        cx: &mut Context<'_>,
+        id: u64,
+        num: u32,
+        again: Option<(u16, Token)>,
+    ) {
         let (mid, token) = match again {
             Some(x) => x,
-            None => (self.msg.next_mid(), self.new_token()),
+            None => (cx.msg.next_mid(), self.new_token(cx)),
         };
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
-        r.send_qup_block(num, Type::Non, mid, token, &mut self.msg.outbox);
+        r.send_qup_block(num, Type::Non, mid, token, &mut cx.msg.outbox);
         let Some(u) = r.qup.as_mut() else { return };
         u.last_sent = Some((num, mid, token));
         if again.is_none() {
             u.tokens.push(token);
-            self.client.by_token.insert(token, id);
+            self.by_token.insert(token, id);
         }
     }
 
     /// Sends the next set of new blocks (the rest of the first set after block 0), and
     /// arms NON_TIMEOUT_RANDOM.
-    fn qup_next_set(&mut self, now: Instant, id: u64) {
-        let mp = self.config.payloads_per_set();
-        let Some(u) = self.client.qup_mut(id) else {
+    fn qup_next_set(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
+        let mp = cx.config.payloads_per_set();
+        let Some(u) = self.qup_mut(id) else {
             return;
         };
         u.probing = false;
         let start = u.next_new;
         let end = ((start / mp + 1) * mp).min(u.blocks);
         for num in start..end {
-            self.qup_send_block(id, num, None);
+            self.qup_send_block(cx, id, num, None);
         }
-        if let Some(peer) = self.client.requests.get(&id).map(|r| r.peer) {
-            let stats = &mut self.msg.path(now, peer).stats;
+        if let Some(peer) = self.requests.get(&id).map(|r| r.peer) {
+            let stats = &mut cx.msg.path(now, peer).stats;
             stats.block_requests += u64::from(end.saturating_sub(start));
             stats.max_window = stats.max_window.max(u64::from(mp));
         }
-        if let Some(u) = self.client.qup_mut(id) {
+        if let Some(u) = self.qup_mut(id) {
             u.next_new = u.next_new.max(end);
             u.set_sent = Some(now);
             u.tries = 0;
         }
-        self.arm_qup(now, id);
+        self.arm_qup(cx, now, id);
     }
 
-    fn arm_qup(&mut self, now: Instant, id: u64) {
-        let Some(r) = self.client.requests.get_mut(&id) else {
+    fn arm_qup(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         r.waiting = Waiting::Window;
         let Some(u) = r.qup.as_mut() else { return };
         let at = now + u.timeout * (1 << u.tries.min(6));
         u.at = Some(at);
-        self.msg.schedule(at, TimerKind::QClient { id, at });
+        cx.msg.schedule(at, TimerKind::QClient { id, at });
     }
 
     /// The CON of block 0 was acknowledged without a response: the server takes Q-Block1.
-    pub(super) fn qup_probe_acked(&mut self, now: Instant, id: u64) {
+    pub(super) fn qup_probe_acked(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
         // NON_TIMEOUT_RANDOM stays the RFC's (drawn once, before any round trip was
         // known): a set sent sooner, without a 2.31, leaves more gaps than libcoap
         // 4.3.5's server tracks (it answers 4.08 "Too many missing blocks").
-        self.qup_next_set(now, id);
+        self.qup_next_set(cx, now, id);
     }
 
     /// A response to one of a Q-Block1 body's blocks.
     pub(super) fn on_qup_response(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
         id: u64,
         msg: &mut Message,
         payload: &[u8],
     ) {
-        let Some(r) = self.client.requests.get_mut(&id) else {
+        let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
         let peer = r.peer;
@@ -493,7 +517,7 @@ impl Endpoint {
             r.qup = None;
             r.req.transfer = Some(Transfer::Window);
             r.step = Step::Upload { offset: 0 };
-            return self.send_step(now, id);
+            return self.send_step(cx, now, id);
         }
         if msg.code == Code::CONTINUE {
             let Some(q) = msg.options.block(OptionNumber::Q_BLOCK1) else {
@@ -501,13 +525,13 @@ impl Endpoint {
             };
             if q.num + 1 >= u.next_new && u.next_new < u.blocks {
                 if let Some(at) = u.set_sent.take() {
-                    self.msg.path(now, peer).rtt.on_sample(
+                    cx.msg.path(now, peer).rtt.on_sample(
                         now,
                         now.saturating_duration_since(at),
                         true,
                     );
                 }
-                self.qup_next_set(now, id);
+                self.qup_next_set(cx, now, id);
             }
             return;
         }
@@ -522,29 +546,29 @@ impl Endpoint {
             // Blocks not sent yet are the next set, asked for early.
             let resent: Vec<u32> = missing.iter().copied().filter(|&n| n < next_new).collect();
             for &num in &resent {
-                self.qup_send_block(id, num, None);
+                self.qup_send_block(cx, id, num, None);
             }
-            self.msg.path(now, peer).stats.blocks_lost += resent.len() as u64;
-            if let Some(u) = self.client.qup_mut(id) {
+            cx.msg.path(now, peer).stats.blocks_lost += resent.len() as u64;
+            if let Some(u) = self.qup_mut(id) {
                 // The server is there and still assembling: the give-up count starts over.
                 u.set_sent = None;
                 u.tries = 0;
                 if missing.iter().any(|&n| n >= next_new) && next_new < u.blocks {
-                    return self.qup_next_set(now, id);
+                    return self.qup_next_set(cx, now, id);
                 }
             }
-            return self.arm_qup(now, id);
+            return self.arm_qup(cx, now, id);
         }
         // The final response (or an error): the body's answer.
         let response = super::client_state::take_response(msg, payload);
-        self.complete(now, id, response);
+        self.complete(cx, now, id, response);
     }
 
     /// NON_TIMEOUT_RANDOM without a 2.31: the next set goes; once all went, the last block
     /// goes again (its message ID too, so a server that has the body answers it again),
     /// NON_MAX_RETRANSMIT times.
-    fn on_qup_timer(&mut self, now: Instant, id: u64) {
-        let Some(u) = self.client.qup_mut(id) else {
+    fn on_qup_timer(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
+        let Some(u) = self.qup_mut(id) else {
             return;
         };
         u.at = None;
@@ -556,17 +580,17 @@ impl Endpoint {
                 // while gaps are open adds to them, and libcoap 4.3.5's server gives up
                 // an upload with more than two gaps ("Too many missing blocks").
                 u.tries = 1;
-                return self.arm_qup(now, id);
+                return self.arm_qup(cx, now, id);
             }
-            return self.qup_next_set(now, id);
+            return self.qup_next_set(cx, now, id);
         }
         if u.tries >= NON_MAX_RETRANSMIT {
-            return self.fail(now, id, RequestError::Timeout);
+            return self.fail(cx, now, id, RequestError::Timeout);
         }
         u.tries += 1;
         if let Some((num, mid, token)) = u.last_sent {
-            self.qup_send_block(id, num, Some((mid, token)));
+            self.qup_send_block(cx, id, num, Some((mid, token)));
         }
-        self.arm_qup(now, id);
+        self.arm_qup(cx, now, id);
     }
 }

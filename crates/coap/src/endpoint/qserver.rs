@@ -21,13 +21,15 @@ use std::time::Instant;
 use bytes::Bytes;
 use rand_core::RngCore;
 
-use super::Endpoint;
+use super::context::Context;
 use super::message::TimerKind;
 use super::qblock::{
     self, MISSING_BLOCKS_CBOR_SEQ, NON_MAX_RETRANSMIT, QSend, QUpload, asked_blocks, continue_set,
     last_block, stale_after,
 };
-use super::server_state::{Pending, past_end, unreadable};
+use super::reply::answer;
+use super::server_state::ServerLayer;
+use super::server_state::{Incoming, Pending, past_end, unreadable};
 use super::types::Response;
 use crate::block::{self, BlockKey, Slice, Source};
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
@@ -48,22 +50,17 @@ pub(super) enum QNext {
     Dispatch(Option<Bytes>),
 }
 
-impl Endpoint {
-    /// A request with Q-Block1 or Q-Block2 options (`q2`, `q1`).
-    #[allow(clippy::too_many_arguments)]
+impl ServerLayer {
+    /// A request with Q-Block1 or Q-Block2 options, its blocks kept under `key`.
     pub(super) fn on_q_request(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
-        peer: SocketAddr,
-        msg: &Message,
-        payload: &[u8],
-        multicast: bool,
+        req: &Incoming<'_>,
         key: &BlockKey,
-        q2: &[BlockOpt],
-        q1: Option<BlockOpt>,
-        expires: Instant,
     ) -> QNext {
-        if multicast {
+        let msg = &req.msg;
+        if req.multicast {
             // RFC 9177 §4.8: multicast requests with Q-Block2 are ignored (and Q-Block1
             // has no use there).
             return QNext::Done;
@@ -71,17 +68,17 @@ impl Endpoint {
         let refuse = |code, text| Response::diagnostic(code, text);
         if msg.options.block1().is_some() || msg.options.block2().is_some() {
             let r = refuse(Code::BAD_OPTION, "Q-Block and Block options in one request");
-            self.answer(now, peer, msg, false, expires, r);
+            answer(cx, now, req, r);
             return QNext::Done;
         }
-        if let Some(q) = q1 {
-            return match self.on_q_block1(now, peer, msg, payload, key, q, expires) {
+        if let Some(q) = req.q1 {
+            return match self.on_q_block1(cx, now, req, key, q) {
                 Some(body) => QNext::Dispatch(Some(body)),
                 None => QNext::Done,
             };
         }
-        if q2.iter().any(|b| b.num > 0) {
-            if self.q_block2_from_store(now, peer, msg, key, q2, expires) {
+        if req.q2.iter().any(|b| b.num > 0) {
+            if self.q_block2_from_store(cx, now, req, key) {
                 return QNext::Done;
             }
             if !matches!(msg.code, Code::GET | Code::FETCH) {
@@ -89,7 +86,7 @@ impl Endpoint {
                     Code::REQUEST_ENTITY_INCOMPLETE,
                     "the representation is no longer stored; ask for block 0 again",
                 );
-                self.answer(now, peer, msg, false, expires, r);
+                answer(cx, now, req, r);
                 return QNext::Done;
             }
         }
@@ -99,17 +96,16 @@ impl Endpoint {
     /// Answers a request for blocks of a body stored for Q-Block2; false when none is.
     fn q_block2_from_store(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
-        peer: SocketAddr,
-        msg: &Message,
+        req: &Incoming<'_>,
         key: &BlockKey,
-        q2: &[BlockOpt],
-        expires: Instant,
     ) -> bool {
-        let limits = self.config.limits.clone();
-        let mp = self.config.payloads_per_set();
-        let szx = q2[0].szx.min(self.config.max_block_szx);
-        let len = self.server.block2.with_stored(now, key, &limits, |s| {
+        let (peer, msg, q2) = (req.peer, &req.msg, &req.q2[..]);
+        let limits = cx.limits();
+        let mp = cx.config.payloads_per_set();
+        let szx = q2[0].szx.min(cx.config.max_block_szx);
+        let len = self.block2.with_stored(now, key, limits, |s| {
             s.q_options.is_some().then(|| s.body.0.len())
         });
         let Some(Some(len)) = len else {
@@ -121,49 +117,57 @@ impl Endpoint {
                 Code::BAD_REQUEST,
                 "Q-Block2 options must have increasing block numbers",
             );
-            self.answer(now, peer, msg, false, expires, r);
+            answer(cx, now, req, r);
             return true;
         };
         if nums.is_empty() {
-            self.answer(now, peer, msg, false, expires, past_end());
+            answer(cx, now, req, past_end());
             return true;
         }
+        let to = Dest {
+            peer,
+            key,
+            token: msg.token,
+            szx,
+        };
         if let Some(set) = continue_set(q2, mp) {
-            self.q_continue(now, peer, key, msg.token, set, szx, last);
+            self.q_continue(cx, now, &to, set, last);
         }
         let reply = match msg.ty {
             Type::Con => Reply::Ack(msg.message_id),
             _ => Reply::Non,
         };
-        if !self.q_send_blocks(now, peer, key, msg.token, reply, &nums, szx) {
+        if !self.q_send_blocks(cx, now, &to, reply, &nums) {
             // The stored source can no longer be read as it was.
-            self.server.block2.remove(key);
-            self.answer(now, peer, msg, false, expires, unreadable());
+            self.block2.remove(key);
+            answer(cx, now, req, unreadable());
         }
         true
     }
 
-    /// Sends blocks `nums` (of size exponent `szx`) of the body stored under `key`, to
-    /// the request with `token`: only the first, piggybacked, after a CON request. False
-    /// when the body is gone or cannot be read.
-    #[allow(clippy::too_many_arguments)]
+    /// Sends blocks `nums` of the body stored for `to`: only the first, piggybacked,
+    /// after a CON request. False when the body is gone or cannot be read.
     fn q_send_blocks(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
-        peer: SocketAddr,
-        key: &BlockKey,
-        token: Token,
+        to: &Dest<'_>,
         reply: Reply,
         nums: &[u32],
-        szx: u8,
     ) -> bool {
-        let limits = self.config.limits.clone();
+        let &Dest {
+            peer,
+            key,
+            token,
+            szx,
+        } = to;
+        let limits = cx.limits();
         let nums = match reply {
             Reply::Ack(_) => &nums[..nums.len().min(1)],
             Reply::Non => nums,
         };
-        let msg = &mut self.msg;
-        let sent = self.server.block2.with_stored(now, key, &limits, |s| {
+        let msg = &mut *cx.msg;
+        let sent = self.block2.with_stored(now, key, limits, |s| {
             let Some(options) = &s.q_options else {
                 return false;
             };
@@ -192,22 +196,25 @@ impl Endpoint {
         sent == Some(true)
     }
 
-    /// A 'Continue' for set `set` of a body whose last block is `last`: the next set is the one
-    /// after, due NON_TIMEOUT_RANDOM from now unless another 'Continue' comes first. The
-    /// time since the set before went out, if a request asked for it, is a round trip.
-    #[allow(clippy::too_many_arguments)]
+    /// A 'Continue' for set `set` of the body stored for `to`, whose last block is
+    /// `last`: the next set is the one after, due NON_TIMEOUT_RANDOM from now unless
+    /// another 'Continue' comes first. The time since the set before went out, if a
+    /// request asked for it, is a round trip.
     fn q_continue(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
-        peer: SocketAddr,
-        key: &BlockKey,
-        token: Token,
+        to: &Dest<'_>,
         set: u32,
-        szx: u8,
         last: u32,
     ) {
+        let &Dest {
+            peer,
+            key,
+            token,
+            szx,
+        } = to;
         let found = self
-            .server
             .qsends
             .iter()
             .find(|(_, q)| q.peer == peer && &q.key == key)
@@ -215,8 +222,8 @@ impl Endpoint {
         let id = match found {
             Some(id) => id,
             None => {
-                let id = self.new_id();
-                let timeout = self.q_non_timeout(peer);
+                let id = cx.new_id();
+                let timeout = self.q_non_timeout(cx, peer);
                 let q = QSend {
                     peer,
                     key: key.clone(),
@@ -229,45 +236,45 @@ impl Endpoint {
                     timeout,
                     at: now,
                 };
-                self.server.qsends.insert(id, q);
+                self.qsends.insert(id, q);
                 id
             }
         };
-        let Some(q) = self.server.qsends.get_mut(&id) else {
+        let Some(q) = self.qsends.get_mut(&id) else {
             return;
         };
         if q.next_set == set && q.asked && set > 0 {
             let rtt = now.saturating_duration_since(q.sent_at);
-            self.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
+            cx.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
         }
         q.next_set = q.next_set.max(set + 1);
         q.token = token;
         q.sent_at = now;
         q.asked = true;
-        self.arm_qset(id);
+        self.arm_qset(cx, id);
     }
 
     /// Schedules the next set of body `id`, or forgets the body when every set went.
-    fn arm_qset(&mut self, id: u64) {
-        let mp = self.config.payloads_per_set();
-        let Some(q) = self.server.qsends.get_mut(&id) else {
+    fn arm_qset(&mut self, cx: &mut Context<'_>, id: u64) {
+        let mp = cx.config.payloads_per_set();
+        let Some(q) = self.qsends.get_mut(&id) else {
             return;
         };
         if q.next_set > q.last / mp {
-            self.server.qsends.remove(&id);
+            self.qsends.remove(&id);
             return;
         }
         q.at = q.sent_at + q.timeout;
         let at = q.at;
-        self.msg.schedule(at, TimerKind::QSet { id, at });
+        cx.msg.schedule(at, TimerKind::QSet { id, at });
     }
 
     /// NON_TIMEOUT_RANDOM for a new body to `peer`.
-    fn q_non_timeout(&mut self, peer: SocketAddr) -> std::time::Duration {
-        let unit = self.msg.unit();
-        let c = &self.config;
+    fn q_non_timeout(&mut self, cx: &mut Context<'_>, peer: SocketAddr) -> std::time::Duration {
+        let unit = cx.msg.unit();
+        let c = cx.config;
         qblock::non_timeout(
-            self.msg.estimate(peer),
+            cx.msg.estimate(peer),
             c.ack_timeout,
             c.ack_random_factor,
             unit,
@@ -275,9 +282,15 @@ impl Endpoint {
     }
 
     /// NON_TIMEOUT_RANDOM passed without a 'Continue': the next set goes.
-    pub(super) fn on_qset_timer(&mut self, now: Instant, id: u64, at: Instant) {
-        let mp = self.config.payloads_per_set();
-        let Some(q) = self.server.qsends.get_mut(&id).filter(|q| q.at == at) else {
+    pub(super) fn on_qset_timer(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: u64,
+        at: Instant,
+    ) {
+        let mp = cx.config.payloads_per_set();
+        let Some(q) = self.qsends.get_mut(&id).filter(|q| q.at == at) else {
             return;
         };
         let (peer, key, token, szx) = (q.peer, q.key.clone(), q.token, q.szx);
@@ -286,11 +299,17 @@ impl Endpoint {
         q.sent_at = now;
         q.asked = false;
         let nums: Vec<u32> = (set * mp..=((set + 1) * mp - 1).min(q.last)).collect();
-        if !self.q_send_blocks(now, peer, &key, token, Reply::Non, &nums, szx) {
-            self.server.qsends.remove(&id);
+        let to = Dest {
+            peer,
+            key: &key,
+            token,
+            szx,
+        };
+        if !self.q_send_blocks(cx, now, &to, Reply::Non, &nums) {
+            self.qsends.remove(&id);
             return;
         }
-        self.arm_qset(id);
+        self.arm_qset(cx, id);
     }
 
     /// The response to a request with Q-Block2 options: the first block it asks for, with
@@ -299,13 +318,14 @@ impl Endpoint {
     /// follows by timer).
     pub(super) fn q_first_response(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
         p: &Pending,
         mut response: Response,
     ) -> (Response, Option<QRest>) {
-        let limits = self.config.limits.clone();
-        let mp = self.config.payloads_per_set();
-        let szx = p.qblock2[0].szx.min(self.config.max_block_szx);
+        let limits = cx.limits();
+        let mp = cx.config.payloads_per_set();
+        let szx = p.qblock2[0].szx.min(cx.config.max_block_szx);
         let size = BlockOpt::size_of(szx);
         if !response.code.is_success() {
             // An error is no Q-Block body: sent as any answer, a body larger than a block
@@ -313,7 +333,7 @@ impl Endpoint {
             // found it).
             let key = p.key.clone();
             return (
-                self.blockwise_response(now, key, None, response, &limits, szx),
+                self.blockwise_response(cx, now, key, None, response, szx),
                 None,
             );
         }
@@ -341,7 +361,7 @@ impl Endpoint {
             return (past_end(), None);
         };
         if response.options.etag().is_none() {
-            let etag = self.msg.rng.next_u32().to_be_bytes();
+            let etag = cx.msg.rng.next_u32().to_be_bytes();
             response.options.set(OptionNumber::ETAG, etag);
         }
         // RFC 9177 §4.6: Size2, exactly, in every block.
@@ -358,15 +378,15 @@ impl Endpoint {
         if len <= size {
             return (first_response, None);
         }
-        self.arm_sweep(now + self.config.limits.blockwise_lifetime);
-        self.server.block2.insert(
+        self.arm_sweep(cx, now + cx.config.limits.blockwise_lifetime);
+        self.block2.insert(
             now,
             p.key.clone(),
             response.code,
             response.options,
             body,
             true,
-            &limits,
+            limits,
         );
         let sets = last / mp + 1;
         // A request for the whole body (block 0 with M) starts its sets; the set after
@@ -388,24 +408,28 @@ impl Endpoint {
 
     /// Sends what remains of a Q-Block2 answer after its first block (nothing after a
     /// CON request: the client asks for each block).
-    pub(super) fn q_after_first(&mut self, now: Instant, p: &Pending, rest: QRest) {
+    pub(super) fn q_after_first(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        p: &Pending,
+        rest: QRest,
+    ) {
         if p.confirmable {
             return;
         }
-        let sent = self.q_send_blocks(
-            now,
-            p.peer,
-            &p.key,
-            p.token,
-            Reply::Non,
-            &rest.nums,
-            rest.szx,
-        );
+        let to = Dest {
+            peer: p.peer,
+            key: &p.key,
+            token: p.token,
+            szx: rest.szx,
+        };
+        let sent = self.q_send_blocks(cx, now, &to, Reply::Non, &rest.nums);
         let Some(next_set) = rest.next_set.filter(|_| sent) else {
             return;
         };
-        let id = self.new_id();
-        let timeout = self.q_non_timeout(p.peer);
+        let id = cx.new_id();
+        let timeout = self.q_non_timeout(cx, p.peer);
         let q = QSend {
             peer: p.peer,
             key: p.key.clone(),
@@ -418,24 +442,22 @@ impl Endpoint {
             timeout,
             at: now,
         };
-        self.server.qsends.insert(id, q);
-        self.arm_qset(id);
+        self.qsends.insert(id, q);
+        self.arm_qset(cx, id);
     }
 
     /// A block of a body sent with Q-Block1; the whole body when it is complete.
-    #[allow(clippy::too_many_arguments)]
     fn on_q_block1(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
-        peer: SocketAddr,
-        msg: &Message,
-        payload: &[u8],
+        req: &Incoming<'_>,
         key: &BlockKey,
         q: BlockOpt,
-        expires: Instant,
     ) -> Option<Bytes> {
-        let limits = self.config.limits.clone();
-        let mp = self.config.payloads_per_set();
+        let (peer, msg, payload) = (req.peer, &req.msg, req.payload);
+        let limits = cx.limits();
+        let mp = cx.config.payloads_per_set();
         let size1 = msg
             .options
             .uint(OptionNumber::SIZE1)
@@ -443,14 +465,14 @@ impl Endpoint {
         let Some(size1) = size1 else {
             // RFC 9177 §4.3.
             let r = Response::diagnostic(Code::BAD_REQUEST, "Q-Block1 needs Request-Tag and Size1");
-            self.answer(now, peer, msg, false, expires, r);
+            answer(cx, now, req, r);
             return None;
         };
         let size1 = size1 as usize;
         let size = q.size();
         let blocks = size1.div_ceil(size).max(1) as u32;
-        let existing = self.server.qupload_ids.get(key).copied();
-        if existing.is_some_and(|id| self.server.quploads.get(&id).is_some_and(|u| u.done)) {
+        let existing = self.qupload_ids.get(key).copied();
+        if existing.is_some_and(|id| self.quploads.get(&id).is_some_and(|u| u.done)) {
             // A block of a body already handed over (sent again, or late): dropped.
             return None;
         }
@@ -458,13 +480,13 @@ impl Endpoint {
             let mut r = Response::diagnostic(Code::REQUEST_ENTITY_TOO_LARGE, "body too large");
             r.options
                 .set_uint(OptionNumber::SIZE1, limits.block1_peer_bytes as u32);
-            self.answer(now, peer, msg, false, expires, r);
+            answer(cx, now, req, r);
             return None;
         }
-        if existing.is_none() && self.quploads_full(now, size1) {
+        if existing.is_none() && self.quploads_full(cx, now, size1) {
             let mut r = Response::diagnostic(Code::SERVICE_UNAVAILABLE, "too many uploads");
             r.options.set_uint(OptionNumber::MAX_AGE, 5);
-            self.answer(now, peer, msg, false, expires, r);
+            answer(cx, now, req, r);
             return None;
         }
         let expected = size1.saturating_sub(q.offset()).min(size);
@@ -472,8 +494,7 @@ impl Endpoint {
             && q.more == (q.num + 1 < blocks)
             && payload.len() == expected
             && existing.is_none_or(|id| {
-                self.server
-                    .quploads
+                self.quploads
                     .get(&id)
                     .is_some_and(|u| u.got.len() == blocks as usize && u.szx == q.szx)
             });
@@ -482,13 +503,13 @@ impl Endpoint {
                 Code::BAD_REQUEST,
                 "the Q-Block1 block does not fit the body's Size1 or its first blocks",
             );
-            self.answer(now, peer, msg, false, expires, r);
+            answer(cx, now, req, r);
             return None;
         }
         let id = match existing {
             Some(id) => id,
             None => {
-                let id = self.new_id();
+                let id = cx.new_id();
                 let u = QUpload {
                     key: key.clone(),
                     body: vec![0; size1],
@@ -504,12 +525,12 @@ impl Endpoint {
                     listed: Vec::new(),
                     done: false,
                 };
-                self.server.quploads.insert(id, u);
-                self.server.qupload_ids.insert(key.clone(), id);
+                self.quploads.insert(id, u);
+                self.qupload_ids.insert(key.clone(), id);
                 id
             }
         };
-        let u = self.server.quploads.get_mut(&id)?;
+        let u = self.quploads.get_mut(&id)?;
         let num = q.num as usize;
         let again = u.got[num];
         if !again {
@@ -519,10 +540,10 @@ impl Endpoint {
             if let (Some(at), 0) = (u.continued_at.take(), q.num % mp) {
                 // The first block of the set a 2.31 asked for: a round trip.
                 let rtt = now.saturating_duration_since(at);
-                self.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
+                cx.msg.path(now, peer).rtt.on_plausible_sample(now, rtt);
             }
         }
-        let u = self.server.quploads.get_mut(&id)?;
+        let u = self.quploads.get_mut(&id)?;
         u.token = msg.token;
         u.heard = now;
         u.tries = 0;
@@ -535,7 +556,7 @@ impl Endpoint {
         if msg.ty == Type::Con {
             // RFC 9177 §4.3: each CON block is acknowledged; the response waits for the
             // whole body.
-            self.msg
+            cx.msg
                 .send(peer, &Message::empty(Type::Ack, msg.message_id));
         } else if !again && u.set_complete(set, mp) && !u.gap_before(set, mp) {
             // RFC 9177 §7.2: a whole set, confirmed so the next goes at once.
@@ -548,85 +569,95 @@ impl Endpoint {
             };
             r.options.set_block(OptionNumber::Q_BLOCK1, opt);
             u.continued_at = Some(now);
-            self.q_reply(peer, msg.token, r);
+            self.q_reply(cx, peer, msg.token, r);
         } else if let Some(end) = immediate_report(u, q, set, mp, again)
             && let Some(r) = q_missing_response(u, mp, end)
         {
-            self.q_reply(peer, msg.token, r);
+            self.q_reply(cx, peer, msg.token, r);
         }
-        let estimate = self.msg.estimate(peer);
-        let u = self.server.quploads.get_mut(&id)?;
-        u.at = now + qblock::receive_timeout(estimate, self.config.ack_timeout, 0);
+        let estimate = cx.msg.estimate(peer);
+        let u = self.quploads.get_mut(&id)?;
+        u.at = now + qblock::receive_timeout(estimate, cx.config.ack_timeout, 0);
         let at = u.at;
-        self.msg.schedule(at, TimerKind::QReceive { id, at });
+        cx.msg.schedule(at, TimerKind::QReceive { id, at });
         None
     }
 
     /// NON_RECEIVE_TIMEOUT passed since the last block of an incomplete body: a 4.08
     /// lists what is missing, again and again (doubling), until NON_MAX_RETRANSMIT went
     /// unanswered and [`stale_after`] passed; then the body is dropped.
-    pub(super) fn on_qreceive_timer(&mut self, now: Instant, id: u64, at: Instant) {
-        let mp = self.config.payloads_per_set();
-        let Some(peer) = self.server.quploads.get(&id).map(|u| u.key.peer) else {
+    pub(super) fn on_qreceive_timer(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: u64,
+        at: Instant,
+    ) {
+        let mp = cx.config.payloads_per_set();
+        let Some(peer) = self.quploads.get(&id).map(|u| u.key.peer) else {
             return;
         };
-        let estimate = self.msg.estimate(peer);
-        let Some(u) = self
-            .server
-            .quploads
-            .get_mut(&id)
-            .filter(|u| u.at == at && !u.done)
-        else {
+        let estimate = cx.msg.estimate(peer);
+        let Some(u) = self.quploads.get_mut(&id).filter(|u| u.at == at && !u.done) else {
             return;
         };
-        let stale = now.saturating_duration_since(u.heard) >= stale_after(self.config.ack_timeout);
+        let stale = now.saturating_duration_since(u.heard) >= stale_after(cx.config.ack_timeout);
         if u.tries >= NON_MAX_RETRANSMIT && stale {
             let key = u.key.clone();
-            self.server.quploads.remove(&id);
-            self.server.qupload_ids.remove(&key);
+            self.quploads.remove(&id);
+            self.qupload_ids.remove(&key);
             return;
         }
         u.tries += 1;
         let end = u.stalled_end(mp);
         let r = q_missing_response(u, mp, end);
         let token = u.token;
-        u.at = now + qblock::receive_timeout(estimate, self.config.ack_timeout, u.tries);
+        u.at = now + qblock::receive_timeout(estimate, cx.config.ack_timeout, u.tries);
         let at = u.at;
-        self.msg.schedule(at, TimerKind::QReceive { id, at });
+        cx.msg.schedule(at, TimerKind::QReceive { id, at });
         if let Some(r) = r {
-            self.q_reply(peer, token, r);
+            self.q_reply(cx, peer, token, r);
         }
     }
 
     /// Sends a NON response to the request with `token` (2.31, 4.08).
-    fn q_reply(&mut self, peer: SocketAddr, token: Token, r: Response) {
+    fn q_reply(&mut self, cx: &mut Context<'_>, peer: SocketAddr, token: Token, r: Response) {
         let m = Message {
             ty: Type::Non,
             code: r.code,
-            message_id: self.msg.next_mid(),
+            message_id: cx.msg.next_mid(),
             token,
             options: r.options,
             payload: r.payload,
         };
-        self.msg.send(peer, &m);
+        cx.msg.send(peer, &m);
     }
 
     /// Whether a new upload of `size1` bytes would pass the bytes all uploads may hold,
     /// after forgetting those idle for NON_PARTIAL_TIMEOUT (the block-wise lifetime),
     /// finished ones included. Called for a body's first block only.
-    fn quploads_full(&mut self, now: Instant, size1: usize) -> bool {
-        let lifetime = self.config.limits.blockwise_lifetime;
-        let ids = &mut self.server.qupload_ids;
-        self.server.quploads.retain(|_, u| {
+    fn quploads_full(&mut self, cx: &mut Context<'_>, now: Instant, size1: usize) -> bool {
+        let lifetime = cx.config.limits.blockwise_lifetime;
+        let ids = &mut self.qupload_ids;
+        self.quploads.retain(|_, u| {
             let keep = now.saturating_duration_since(u.heard) < lifetime;
             if !keep {
                 ids.remove(&u.key);
             }
             keep
         });
-        let held: usize = self.server.quploads.values().map(|u| u.body.len()).sum();
-        held + size1 > self.config.limits.block1_total_bytes
+        let held: usize = self.quploads.values().map(|u| u.body.len()).sum();
+        held + size1 > cx.config.limits.block1_total_bytes
     }
+}
+
+/// Where the blocks of a body stored for Q-Block2 go: the peer, the key the body is
+/// stored under, the token of the request they answer, their size exponent.
+struct Dest<'k> {
+    peer: SocketAddr,
+    key: &'k BlockKey,
+    token: Token,
+    szx: u8,
 }
 
 /// The rest of a Q-Block2 answer after its first block.

@@ -7,300 +7,338 @@ use std::time::Instant;
 use bytes::Bytes;
 use rand_core::RngCore;
 
-use super::Endpoint;
+use super::context::Context;
 use super::message::{Purpose, TimerKind};
 use super::qserver::QNext;
-use super::server_state::{Observation, Pending, block2_response, past_end, unreadable};
+use super::reply::{answer, remember, reply, reply_header, reply_message};
+use super::server_state::{
+    Incoming, Observation, Pending, ServerLayer, block2_response, past_end, unreadable,
+};
 use super::types::{Event, IncomingId, IncomingRequest, ObservationId, Response};
 use crate::block::{self, Block1Outcome, BlockKey, Slice, Source};
-use crate::config::Limits;
 use crate::dedup::{Fingerprint, Seen};
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
 
-impl Endpoint {
+impl ServerLayer {
     /// A request of `size` bytes; its `payload` stays in the datagram until it is copied
-    /// where it goes (an upload's block into the body being assembled).
+    /// where it goes (an upload's block into the body being assembled). It goes through
+    /// stages, each of which may answer it and end there.
     pub(super) fn on_request(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
-        peer: SocketAddr,
-        mut msg: Message,
-        payload: &[u8],
+        req: Incoming<'_>,
         size: usize,
-        multicast: bool,
     ) {
-        let limits = self.config.limits.clone();
-        let con = msg.ty == Type::Con;
-        let block2 = msg.options.block2();
-        let block1 = msg.options.block1();
+        // `Err(Answered)`: a stage answered (or dropped) the request.
+        let _ = self.request_stages(cx, now, req, size);
+    }
+
+    fn request_stages(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        mut req: Incoming<'_>,
+        size: usize,
+    ) -> Result<(), Answered> {
         // A Block2 continuation is looked up in the store before deduplication: the store
         // answers a duplicate just as well, and the message ID of a long transfer's
         // continuation may come round again to that of its first block, whose reply the
-        // dedup store keeps (the token is the same).
-        let continuation = matches!((block2, block1), (Some(b2), None) if b2.num > 0);
-        // RFC 9177: Q-Block2 options (repeatable) and Q-Block1. Their blocks are served
-        // from the store or assembled with duplicates found by block number, so they skip
-        // deduplication as Block2 continuations do.
-        let q2: Vec<BlockOpt> = msg
-            .options
-            .values(OptionNumber::Q_BLOCK2)
-            .filter_map(BlockOpt::decode)
-            .collect();
-        let q1 = msg.options.block(OptionNumber::Q_BLOCK1);
-        let q_stateless = q1.is_some() || q2.iter().any(|b| b.num > 0);
-        if !continuation && !q_stateless && self.replay_duplicate(now, peer, &msg, &limits) {
-            return;
+        // dedup store keeps (the token is the same). Q-Block blocks are served from the
+        // store or assembled with duplicates found by block number, so they skip it too.
+        if !req.continuation && !req.q_stateless() {
+            self.replay_stage(cx, now, &req)?;
         }
-        let lifetime = if con {
-            self.config.exchange_lifetime
-        } else {
-            self.config.non_lifetime
-        };
-        let expires = now + lifetime;
+        req.budget = self.verify_stage(cx, now, &req, size)?;
+        self.critical_options_stage(cx, now, &req)?;
+        req.msg.options.drop_bad_elective();
+        let key = req.block_key();
+        let mut body = Assembled::default();
+        if req.is_qblock() {
+            match self.on_q_request(cx, now, &req, &key) {
+                QNext::Done => return Err(Answered),
+                QNext::Dispatch(assembled) => body.bytes = assembled,
+            }
+        }
+        if req.continuation {
+            self.continuation_stage(cx, now, &req, &key)?;
+        }
+        if let Some(b1) = req.block1 {
+            body = self.block1_stage(cx, now, &req, &key, b1)?;
+        }
+        self.hand_over(cx, now, req, key, body)
+    }
 
-        // RFC 9175 §2.4: an unverified peer gets at most three times `size`. What would
-        // send it more, keep state for it, or change state waits for an Echo round trip.
-        let verified = !self.config.verify_addresses
+    /// A duplicate is answered as the first one was.
+    fn replay_stage(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        req: &Incoming<'_>,
+    ) -> Result<(), Answered> {
+        if self.replay_duplicate(cx, now, req.peer, &req.msg) {
+            return Err(Answered);
+        }
+        Ok(())
+    }
+
+    /// RFC 9175 §2.4: an unverified peer gets at most three times `size` (the budget
+    /// returned; `None` for a verified one). What would send it more, keep state for it,
+    /// or change state gets an Echo challenge instead.
+    fn verify_stage(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        req: &Incoming<'_>,
+        size: usize,
+    ) -> Result<Option<usize>, Answered> {
+        let limits = cx.limits();
+        let msg = &req.msg;
+        let verified = !cx.config.verify_addresses
             || self.verify.is_verified(
                 now,
-                peer,
+                req.peer,
                 msg.options.first(OptionNumber::ECHO),
                 limits.verified_lifetime,
                 limits.verified_peers,
             );
-        let budget = (!verified).then_some(3 * size);
-        if !verified
-            && (!matches!(msg.code, Code::GET | Code::FETCH)
-                || msg.options.uint(OptionNumber::OBSERVE) == Some(0)
-                || block1.is_some()
-                || continuation
-                || q1.is_some()
-                || !q2.is_empty())
+        if verified {
+            return Ok(None);
+        }
+        if matches!(msg.code, Code::GET | Code::FETCH)
+            && msg.options.uint(OptionNumber::OBSERVE) != Some(0)
+            && req.block1.is_none()
+            && !req.continuation
+            && !req.is_qblock()
         {
-            let header = self.reply_header(&msg);
-            let challenge = self.challenge(now, peer, msg.token, header, 3 * size);
-            let seen = match challenge {
-                Some(reply) => self.reply_with(peer, reply),
-                // A CON gets a Reset rather than waiting for an answer that never comes.
-                None if con => self.reply_with(peer, Message::empty(Type::Rst, msg.message_id)),
-                None => Seen::Silent,
-            };
-            let key = (peer, msg.message_id);
-            let limits = &self.config.limits;
-            (self.msg.dedup).insert(now, key, Fingerprint::of(&msg), expires, seen, limits);
-            return;
+            return Ok(Some(3 * size));
         }
-
-        if let Some(bad) = msg.options.first_bad_critical() {
-            if continuation && self.replay_duplicate(now, peer, &msg, &limits) {
-                return;
+        let header = reply_header(cx, msg);
+        let challenge = self.challenge(now, req.peer, msg.token, header, 3 * size);
+        let seen = match challenge {
+            Some(reply) => cx.msg.reply_with(req.peer, reply),
+            // A CON gets a Reset rather than waiting for an answer that never comes.
+            None if req.con => {
+                (cx.msg).reply_with(req.peer, Message::empty(Type::Rst, msg.message_id))
             }
-            // RFC 7252 §5.4.1: 4.02 for a CON request; a NON one is rejected.
-            let seen = if con {
-                let text = format!("unrecognized or malformed critical option {}", bad.0);
-                let mut response = Response::diagnostic(Code::BAD_OPTION, &text);
-                if budget.is_some() {
-                    // The diagnostic could be many times a short request.
-                    response.payload = Bytes::new();
-                }
-                self.reply(peer, &msg, multicast, response)
-            } else if multicast {
-                Seen::Silent
-            } else {
-                self.reply_with(peer, Message::empty(Type::Rst, msg.message_id))
-            };
-            self.msg.dedup.insert(
-                now,
-                (peer, msg.message_id),
-                Fingerprint::of(&msg),
-                expires,
-                seen,
-                &limits,
-            );
-            return;
-        }
-        msg.options.drop_bad_elective();
-        let key = BlockKey {
-            peer,
-            method: msg.code,
-            options: msg.options.block_key(),
+            None => Seen::Silent,
         };
+        remember(cx, now, req, seen);
+        Err(Answered)
+    }
 
-        let mut assembled = None;
-        if !q2.is_empty() || q1.is_some() {
-            match self.on_q_request(now, peer, &msg, payload, multicast, &key, &q2, q1, expires) {
-                QNext::Done => return,
-                QNext::Dispatch(body) => assembled = body,
-            }
+    /// RFC 7252 §5.4.1: a request with an unrecognized or malformed critical option gets
+    /// 4.02 if it is a CON, a Reset if a NON.
+    fn critical_options_stage(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        req: &Incoming<'_>,
+    ) -> Result<(), Answered> {
+        let Some(bad) = req.msg.options.first_bad_critical() else {
+            return Ok(());
+        };
+        if req.continuation && self.replay_duplicate(cx, now, req.peer, &req.msg) {
+            return Err(Answered);
         }
+        let seen = if req.con {
+            let text = format!("unrecognized or malformed critical option {}", bad.0);
+            let mut response = Response::diagnostic(Code::BAD_OPTION, &text);
+            if req.budget.is_some() {
+                // The diagnostic could be many times a short request.
+                response.payload = Bytes::new();
+            }
+            reply(cx, req, response)
+        } else if req.multicast {
+            Seen::Silent
+        } else {
+            let reset = Message::empty(Type::Rst, req.msg.message_id);
+            cx.msg.reply_with(req.peer, reset)
+        };
+        remember(cx, now, req, seen);
+        Err(Answered)
+    }
 
-        // A Block2 continuation is served from the stored representation; the application
-        // never sees it (a POST grab must not grab again).
-        if let (Some(b2), true) = (block2, continuation) {
-            // A GET falls through when nothing is stored: it is safe, so the application
-            // renders it again and the block is cut from the new representation (its ETag
-            // tells the client whether the blocks still fit).
-            let szx = b2.szx.min(self.config.max_block_szx);
-            let (ty, mid) = self.reply_header(&msg);
-            // Stored for this peer, or for a request this peer sent to a group.
-            let group_key;
-            let stored_key = if self.server.block2.contains(&key) {
-                &key
-            } else {
-                group_key = key.for_group();
-                &group_key
-            };
-            let stored = self
-                .server
-                .block2
-                .with_stored(now, stored_key, &limits, |s| {
-                    if s.q_options.is_some() {
-                        // Stored for Q-Block2: not a body to cut Block2 blocks from.
-                        return Slice::Unreadable;
-                    }
-                    let slice = block::slice(&*s.body.0, b2.num, szx);
-                    if let Slice::Block(payload, opt) = &slice {
-                        // The block goes out as the stored options, encoded once, around this
-                        // Block2.
-                        let header = (ty, s.code, mid, msg.token);
-                        self.msg.outbox.send_with(peer, payload.len(), |out| {
-                            s.head.encode_into(out, header, opt.as_uint(), payload);
-                        });
-                    }
-                    slice
+    /// A Block2 continuation is served from the stored representation; the application
+    /// never sees it (a POST grab must not grab again). A GET goes on when nothing is
+    /// stored: it is safe, so the application renders it again and the block is cut from
+    /// the new representation (its ETag tells the client whether the blocks still fit).
+    fn continuation_stage(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        req: &Incoming<'_>,
+        key: &BlockKey,
+    ) -> Result<(), Answered> {
+        let Some(b2) = req.block2 else { return Ok(()) };
+        let (peer, msg) = (req.peer, &req.msg);
+        let szx = b2.szx.min(cx.config.max_block_szx);
+        let (ty, mid) = reply_header(cx, msg);
+        // Stored for this peer, or for a request this peer sent to a group.
+        let group_key;
+        let stored_key = if self.block2.contains(key) {
+            key
+        } else {
+            group_key = key.for_group();
+            &group_key
+        };
+        let stored = self.block2.with_stored(now, stored_key, cx.limits(), |s| {
+            if s.q_options.is_some() {
+                // Stored for Q-Block2: not a body to cut Block2 blocks from.
+                return Slice::Unreadable;
+            }
+            let slice = block::slice(&*s.body.0, b2.num, szx);
+            if let Slice::Block(payload, opt) = &slice {
+                // The block goes out as the stored options, encoded once, around this
+                // Block2.
+                let header = (ty, s.code, mid, msg.token);
+                cx.msg.outbox.send_with(peer, payload.len(), |out| {
+                    s.head.encode_into(out, header, opt.as_uint(), payload);
                 });
-            match stored {
-                // Served from the store, which is idempotent (RFC 7252 §4.5 allows
-                // relaxing deduplication then): a duplicate is cut again from the same
-                // bytes, and a 10 MB transfer leaves no 10,000 dedup entries behind.
-                Some(Slice::Block(..)) => return,
-                // RFC 7959 §2.2: a block past the end is a bad option.
-                Some(Slice::PastEnd) => {
-                    if let Some(reply) = self.reply_message(&msg, multicast, past_end()) {
-                        self.msg.send(peer, &reply);
-                    }
-                    return;
+            }
+            slice
+        });
+        match stored {
+            // Served from the store, which is idempotent (RFC 7252 §4.5 allows relaxing
+            // deduplication then): a duplicate is cut again from the same bytes, and a
+            // 10 MB transfer leaves no 10,000 dedup entries behind.
+            Some(Slice::Block(..)) => return Err(Answered),
+            // RFC 7959 §2.2: a block past the end is a bad option.
+            Some(Slice::PastEnd) => {
+                if let Some(reply) = reply_message(cx, msg, req.multicast, past_end()) {
+                    cx.msg.send(peer, &reply);
                 }
-                // The stored source can no longer be read as it was: as if nothing were
-                // stored.
-                Some(Slice::Unreadable) => self.server.block2.remove(stored_key),
-                None => {}
+                return Err(Answered);
             }
-            if self.replay_duplicate(now, peer, &msg, &limits) {
-                return;
-            }
-            if !matches!(msg.code, Code::GET | Code::FETCH) {
-                let response = Response::diagnostic(
-                    Code::REQUEST_ENTITY_INCOMPLETE,
-                    "the representation is no longer stored; repeat the request from block 0",
-                );
-                self.answer(now, peer, &msg, multicast, expires, response);
-                return;
-            }
+            // The stored source can no longer be read as it was: as if nothing were stored.
+            Some(Slice::Unreadable) => self.block2.remove(stored_key),
+            None => {}
         }
-
-        let mut block1_echo = None;
-        if let Some(b1) = block1 {
-            let size1 = msg.options.uint(OptionNumber::SIZE1);
-            let outcome =
-                self.server
-                    .block1
-                    .handle(now, key.clone(), b1, size1, payload, &self.config);
-            self.arm_sweep(now + limits.blockwise_lifetime);
-            let response = match outcome {
-                Block1Outcome::Continue(opt) => {
-                    let mut r = Response::new(Code::CONTINUE);
-                    r.options.set_block(OptionNumber::BLOCK1, opt);
-                    Some(r)
-                }
-                Block1Outcome::Refuse {
-                    code,
-                    diagnostic,
-                    size1,
-                } => {
-                    let mut r = Response::diagnostic(code, diagnostic);
-                    if let Some(s) = size1 {
-                        r.options.set_uint(OptionNumber::SIZE1, s);
-                    }
-                    if code == Code::SERVICE_UNAVAILABLE {
-                        r.options.set_uint(OptionNumber::MAX_AGE, 5);
-                    }
-                    Some(r)
-                }
-                Block1Outcome::Complete(body, echo) => {
-                    assembled = Some(body);
-                    block1_echo = Some(echo);
-                    None
-                }
-            };
-            if let Some(response) = response {
-                self.answer(now, peer, &msg, multicast, expires, response);
-                return;
-            }
+        self.replay_stage(cx, now, req)?;
+        if !matches!(msg.code, Code::GET | Code::FETCH) {
+            let response = Response::diagnostic(
+                Code::REQUEST_ENTITY_INCOMPLETE,
+                "the representation is no longer stored; repeat the request from block 0",
+            );
+            answer(cx, now, req, response);
+            return Err(Answered);
         }
+        Ok(())
+    }
 
-        if self.server.unanswered() >= limits.pending_requests {
+    /// A Block1 block goes into its body: answered 2.31 Continue (or refused) until the
+    /// body is whole, which goes on to the application.
+    fn block1_stage(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        req: &Incoming<'_>,
+        key: &BlockKey,
+        b1: BlockOpt,
+    ) -> Result<Assembled, Answered> {
+        let size1 = req.msg.options.uint(OptionNumber::SIZE1);
+        let outcome = (self.block1).handle(now, key.clone(), b1, size1, req.payload, cx.config);
+        self.arm_sweep(cx, now + cx.limits().blockwise_lifetime);
+        let response = match outcome {
+            Block1Outcome::Continue(opt) => {
+                let mut r = Response::new(Code::CONTINUE);
+                r.options.set_block(OptionNumber::BLOCK1, opt);
+                r
+            }
+            Block1Outcome::Refuse {
+                code,
+                diagnostic,
+                size1,
+            } => {
+                let mut r = Response::diagnostic(code, diagnostic);
+                if let Some(s) = size1 {
+                    r.options.set_uint(OptionNumber::SIZE1, s);
+                }
+                if code == Code::SERVICE_UNAVAILABLE {
+                    r.options.set_uint(OptionNumber::MAX_AGE, 5);
+                }
+                r
+            }
+            Block1Outcome::Complete(body, echo) => {
+                return Ok(Assembled {
+                    bytes: Some(body),
+                    block1_echo: Some(echo),
+                });
+            }
+        };
+        answer(cx, now, req, response);
+        Err(Answered)
+    }
+
+    /// The request goes to the application ([`Event::Request`]) and waits for its answer
+    /// ([`ServerLayer::respond`]), unless too many wait already (5.03).
+    fn hand_over(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        req: Incoming<'_>,
+        key: BlockKey,
+        body: Assembled,
+    ) -> Result<(), Answered> {
+        if self.unanswered() >= cx.limits().pending_requests {
             let mut r = Response::new(Code::SERVICE_UNAVAILABLE);
             r.options.set_uint(OptionNumber::MAX_AGE, 1);
-            self.answer(now, peer, &msg, multicast, expires, r);
-            return;
+            answer(cx, now, &req, r);
+            return Err(Answered);
         }
-        let id = self.new_id();
-        let observation = self.observe_option(peer, &msg, &key);
+        let id = cx.new_id();
+        let (peer, multicast, con) = (req.peer, req.multicast, req.con);
+        let observation = self.observe_option(cx, peer, &req.msg, &key);
         // RFC 7252 §8.2: a random instant within Leisure from now, drawn here so that the
         // draws follow the requests' order.
-        let leisure = self.config.leisure;
+        let leisure = cx.config.leisure;
         let not_before =
-            (multicast && !leisure.is_zero()).then(|| now + leisure.mul_f64(self.msg.unit()));
-        self.server.pending.insert(
-            id,
-            Pending {
-                peer,
-                mid: msg.message_id,
-                token: msg.token,
-                confirmable: con,
-                acked: false,
-                multicast,
-                block2,
-                block1_echo,
-                budget,
-                // A response to a group request is stored for the client's port, whatever
-                // address its unicast follow-ups come from.
-                key: if multicast { key.for_group() } else { key },
-                observation,
-                qblock2: if observation.is_none() {
-                    q2
-                } else {
-                    Vec::new()
-                },
-                not_before,
+            (multicast && !leisure.is_zero()).then(|| now + leisure.mul_f64(cx.msg.unit()));
+        let pending = Pending {
+            peer,
+            mid: req.msg.message_id,
+            token: req.msg.token,
+            confirmable: con,
+            acked: false,
+            multicast,
+            block2: req.block2,
+            block1_echo: body.block1_echo,
+            budget: req.budget,
+            // A response to a group request is stored for the client's port, whatever
+            // address its unicast follow-ups come from.
+            key: if multicast { key.for_group() } else { key },
+            observation,
+            qblock2: if observation.is_none() {
+                req.q2
+            } else {
+                Vec::new()
             },
-        );
-        self.msg.dedup.insert(
-            now,
-            (peer, msg.message_id),
-            Fingerprint::of(&msg),
-            expires,
-            Seen::Pending(id),
-            &limits,
-        );
+            not_before,
+        };
+        self.pending.insert(id, pending);
+        let (msg, payload) = (req.msg, req.payload);
+        let key = (peer, msg.message_id);
+        let limits = cx.limits();
+        let seen = Seen::Pending(id);
+        (cx.msg.dedup).insert(now, key, Fingerprint::of(&msg), req.expires, seen, limits);
         if con {
-            self.msg.schedule(
-                now + self.config.separate_ack_delay,
-                TimerKind::SeparateAck { id },
-            );
+            let at = now + cx.config.separate_ack_delay;
+            cx.msg.schedule(at, TimerKind::SeparateAck { id });
         }
-        self.events.push_back(Event::Request(IncomingRequest {
+        cx.events.push_back(Event::Request(IncomingRequest {
             id: IncomingId(id),
             peer,
             method: msg.code,
             options: msg.options,
-            payload: assembled.unwrap_or_else(|| Bytes::copy_from_slice(payload)),
+            payload: body
+                .bytes
+                .unwrap_or_else(|| Bytes::copy_from_slice(payload)),
             multicast,
             confirmable: con,
             observe: observation.map(ObservationId),
             identity: None,
         }));
+        Ok(())
     }
 
     /// The Echo challenge to a request from an unverified peer (RFC 9175 §2.4): 4.01 with
@@ -333,11 +371,17 @@ impl Endpoint {
     /// The message that answers `p`: piggybacked on the ACK of a CON request not yet
     /// acknowledged; otherwise with a new message ID, as `late` after the empty ACK of a
     /// CON request, as a NON to a NON one.
-    fn pending_reply(&mut self, p: &Pending, late: Type, response: Response) -> Message {
+    fn pending_reply(
+        &mut self,
+        cx: &mut Context<'_>,
+        p: &Pending,
+        late: Type,
+        response: Response,
+    ) -> Message {
         let (ty, message_id) = match (p.confirmable, p.acked) {
             (true, false) => (Type::Ack, p.mid),
-            (true, true) => (late, self.msg.next_mid()),
-            (false, _) => (Type::Non, self.msg.next_mid()),
+            (true, true) => (late, cx.msg.next_mid()),
+            (false, _) => (Type::Non, cx.msg.next_mid()),
         };
         Message {
             ty,
@@ -353,12 +397,19 @@ impl Endpoint {
     /// bytes and one block, the Echo challenge otherwise. Nothing is stored for the peer,
     /// and an answer after the empty ACK goes as a NON: a CON would be sent up to five
     /// times to an address nobody verified.
-    fn respond_unverified(&mut self, now: Instant, p: &Pending, response: Response, budget: usize) {
+    fn respond_unverified(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        p: &Pending,
+        response: Response,
+        budget: usize,
+    ) {
         let source = response.source.is_some();
-        let answer = self.pending_reply(p, Type::Non, response);
+        let answer = self.pending_reply(cx, p, Type::Non, response);
         let (ty, mid) = (answer.ty, answer.message_id);
         let fits = !source
-            && answer.payload.len() <= BlockOpt::size_of(self.config.max_block_szx)
+            && answer.payload.len() <= BlockOpt::size_of(cx.config.max_block_szx)
             && answer.encoded_len() <= budget;
         let reply = if !fits {
             self.challenge(now, p.peer, p.token, (ty, mid), budget)
@@ -369,35 +420,35 @@ impl Endpoint {
             Some(answer)
         };
         let seen = match reply {
-            Some(m) => self.reply_with(p.peer, m),
+            Some(m) => cx.msg.reply_with(p.peer, m),
             None => Seen::Silent,
         };
-        self.msg.dedup.set_reply(p.peer, p.mid, seen);
+        cx.msg.dedup.set_reply(p.peer, p.mid, seen);
     }
 
     /// Makes sure the sweep runs no later than `at`.
-    pub(super) fn arm_sweep(&mut self, at: Instant) {
-        if self.server.sweep_at.is_some_and(|armed| armed <= at) {
+    pub(super) fn arm_sweep(&mut self, cx: &mut Context<'_>, at: Instant) {
+        if self.sweep_at.is_some_and(|armed| armed <= at) {
             return;
         }
-        self.server.sweep_at = Some(at);
-        self.msg.schedule(at, TimerKind::Sweep { at });
+        self.sweep_at = Some(at);
+        cx.msg.schedule(at, TimerKind::Sweep { at });
     }
 
     /// Drops the uploads and stored representations idle for their lifetime, so what an
     /// idle server holds shrinks without a request to trigger it, and arms the next sweep
     /// for the first of the rest to run out.
-    pub(super) fn on_sweep_timer(&mut self, now: Instant, at: Instant) {
-        if self.server.sweep_at != Some(at) {
+    pub(super) fn on_sweep_timer(&mut self, cx: &mut Context<'_>, now: Instant, at: Instant) {
+        if self.sweep_at != Some(at) {
             return;
         }
-        self.server.sweep_at = None;
-        let limits = &self.config.limits;
-        self.server.block1.expire_all(now, limits);
-        self.server.block2.expire(now, limits);
-        let oldest = [self.server.block1.oldest(), self.server.block2.oldest()];
+        self.sweep_at = None;
+        let limits = &cx.config.limits;
+        self.block1.expire_all(now, limits);
+        self.block2.expire(now, limits);
+        let oldest = [self.block1.oldest(), self.block2.oldest()];
         if let Some(first) = oldest.into_iter().flatten().min() {
-            self.arm_sweep(first + limits.blockwise_lifetime);
+            self.arm_sweep(cx, first + limits.blockwise_lifetime);
         }
     }
 
@@ -405,21 +456,22 @@ impl Endpoint {
     /// `msg` was one.
     pub(super) fn replay_duplicate(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
         peer: SocketAddr,
         msg: &Message,
-        limits: &Limits,
     ) -> bool {
+        let limits = cx.limits();
         let Some(seen) =
-            self.msg
+            cx.msg
                 .dedup
                 .check(now, peer, msg.message_id, Fingerprint::of(msg), limits)
         else {
             return false;
         };
         match seen.clone() {
-            Seen::Replied(m) => self.msg.send(peer, &m),
-            Seen::Pending(id) if msg.ty == Type::Con => self.ack_pending(id),
+            Seen::Replied(m) => cx.msg.send(peer, &m),
+            Seen::Pending(id) if msg.ty == Type::Con => self.ack_pending(cx, id),
             Seen::Pending(_) | Seen::Silent => {}
         }
         true
@@ -429,6 +481,7 @@ impl Endpoint {
     /// peer and token) an observation; Observe 1 deregisters.
     pub(super) fn observe_option(
         &mut self,
+        cx: &mut Context<'_>,
         peer: SocketAddr,
         msg: &Message,
         key: &BlockKey,
@@ -438,15 +491,14 @@ impl Endpoint {
         }
         let value = msg.options.uint(OptionNumber::OBSERVE)?;
         let existing = self
-            .server
             .observations
             .iter()
             .find(|(_, o)| o.peer == peer && o.token == msg.token)
             .map(|(id, _)| *id);
         match (value, existing) {
             (0, Some(id)) => Some(id),
-            (0, None) if self.server.observations.len() < self.config.limits.observations => {
-                let id = self.new_id();
+            (0, None) if self.observations.len() < cx.config.limits.observations => {
+                let id = cx.new_id();
                 let o = Observation {
                     peer,
                     token: msg.token,
@@ -458,44 +510,48 @@ impl Endpoint {
                     in_flight: false,
                     queued: None,
                 };
-                self.server.observations.insert(id, o);
+                self.observations.insert(id, o);
                 Some(id)
             }
             (1, Some(id)) => {
-                self.end_observation(id);
+                self.end_observation(cx, id);
                 None
             }
             _ => None,
         }
     }
 
-    pub(super) fn end_observation(&mut self, id: u64) {
-        if self.server.observations.remove(&id).is_some() {
-            self.events.push_back(Event::ObservationEnded {
+    /// The CON notification of observation `obs` was acknowledged: the one that waited
+    /// for it goes now.
+    pub(super) fn on_notification_acked(&mut self, cx: &mut Context<'_>, now: Instant, obs: u64) {
+        let Some(o) = self.observations.get_mut(&obs) else {
+            return;
+        };
+        o.in_flight = false;
+        if let Some(next) = o.queued.take() {
+            self.notify(cx, now, ObservationId(obs), next);
+        }
+    }
+
+    pub(super) fn end_observation(&mut self, cx: &mut Context<'_>, id: u64) {
+        if self.observations.remove(&id).is_some() {
+            cx.events.push_back(Event::ObservationEnded {
                 id: ObservationId(id),
             });
         }
     }
 
-    /// Sends a notification to an established observation (RFC 7641 §4.2): the Observe
-    /// sequence number goes up by one, every `notify_con_interval`-th notification is a CON
-    /// (§4.5), and a body larger than one block goes out as Block2 block 0 with the rest
-    /// kept for the client's continuations (RFC 7959 §2.6). While a CON notification is
-    /// unacknowledged the next waits, only the newest kept, and goes on the ACK (§4.5.2:
-    /// one in flight; an observer that stopped answering costs one retransmitted
-    /// notification, not one per change); the CON's timeout ends the observation. A
-    /// non-success response ends the observation. Returns false when the observation no
-    /// longer exists, so the application can forget it.
-    pub fn notify(&mut self, now: Instant, id: ObservationId, response: Response) -> bool {
-        let limits = self.config.limits.clone();
-        let interval = self.config.notify_con_interval;
-        let szx = self.config.max_block_szx;
-        let Some(o) = self
-            .server
-            .observations
-            .get_mut(&id.0)
-            .filter(|o| o.established)
-        else {
+    /// Sends a notification ([`Endpoint::notify`]).
+    pub(super) fn notify(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: ObservationId,
+        response: Response,
+    ) -> bool {
+        let interval = cx.config.notify_con_interval;
+        let szx = cx.config.max_block_szx;
+        let Some(o) = self.observations.get_mut(&id.0).filter(|o| o.established) else {
             return false;
         };
         if o.in_flight {
@@ -506,7 +562,7 @@ impl Endpoint {
         o.sent += 1;
         let con = interval > 0 && o.sent % interval == 0;
         let (peer, token, key, seq) = (o.peer, o.token, o.key.clone(), o.seq);
-        let mut response = self.blockwise_response(now, key, None, response, &limits, szx);
+        let mut response = self.blockwise_response(cx, now, key, None, response, szx);
         let success = response.code.is_success();
         if success {
             response.options.set_uint(OptionNumber::OBSERVE, seq);
@@ -515,25 +571,25 @@ impl Endpoint {
         let msg = Message {
             ty,
             code: response.code,
-            message_id: self.msg.next_mid(),
+            message_id: cx.msg.next_mid(),
             token,
             options: response.options,
             payload: response.payload,
         };
         if con {
-            self.msg
-                .send_con(now, peer, &msg, Purpose::Notification(id.0), &self.config);
-            if let Some(o) = self.server.observations.get_mut(&id.0) {
+            cx.msg
+                .send_con(now, peer, &msg, Purpose::Notification(id.0), cx.config);
+            if let Some(o) = self.observations.get_mut(&id.0) {
                 o.in_flight = true;
             }
         } else {
-            self.msg.send(peer, &msg);
-            if let Some(o) = self.server.observations.get_mut(&id.0) {
+            cx.msg.send(peer, &msg);
+            if let Some(o) = self.observations.get_mut(&id.0) {
                 o.last_mid = Some(msg.message_id);
             }
         }
         if !success {
-            self.end_observation(id.0);
+            self.end_observation(cx, id.0);
         }
         true
     }
@@ -542,13 +598,14 @@ impl Endpoint {
     /// an ETag and storing the representation for the continuations.
     pub(super) fn blockwise_response(
         &mut self,
+        cx: &mut Context<'_>,
         now: Instant,
         key: BlockKey,
         block2: Option<BlockOpt>,
         mut response: Response,
-        limits: &Limits,
         max_szx: u8,
     ) -> Response {
+        let limits = cx.limits();
         let szx = block2.map_or(max_szx, |b| b.szx.min(max_szx));
         let num = block2.map_or(0, |b| b.num);
         let body = match response.source.take() {
@@ -577,7 +634,7 @@ impl Endpoint {
             );
         }
         if response.options.etag().is_none() {
-            let etag = self.msg.rng.next_u32().to_be_bytes();
+            let etag = cx.msg.rng.next_u32().to_be_bytes();
             response.options.set(OptionNumber::ETAG, etag);
         }
         let Some(mut block) =
@@ -586,8 +643,8 @@ impl Endpoint {
             return unreadable();
         };
         if len > BlockOpt::size_of(szx) {
-            self.arm_sweep(now + limits.blockwise_lifetime);
-            self.server.block2.insert(
+            self.arm_sweep(cx, now + limits.blockwise_lifetime);
+            self.block2.insert(
                 now,
                 key,
                 response.code,
@@ -603,90 +660,9 @@ impl Endpoint {
         block
     }
 
-    /// Answers a request at once and remembers the answer for its duplicates.
-    pub(super) fn answer(
-        &mut self,
-        now: Instant,
-        peer: SocketAddr,
-        req: &Message,
-        multicast: bool,
-        expires: Instant,
-        response: Response,
-    ) {
-        let seen = self.reply(peer, req, multicast, response);
-        let limits = &self.config.limits;
-        self.msg.dedup.insert(
-            now,
-            (peer, req.message_id),
-            Fingerprint::of(req),
-            expires,
-            seen,
-            limits,
-        );
-    }
-
-    /// Sends a response to a request right away (piggybacked on the ACK of a CON, or as a
-    /// NON to a NON) and returns what to remember for duplicates. Error responses to
-    /// multicast requests are suppressed (RFC 7390 §2.7).
-    pub(super) fn reply(
-        &mut self,
-        peer: SocketAddr,
-        req: &Message,
-        multicast: bool,
-        response: Response,
-    ) -> Seen {
-        match self.reply_message(req, multicast, response) {
-            Some(msg) => self.reply_with(peer, msg),
-            None => Seen::Silent,
-        }
-    }
-
-    /// The type and message ID of a reply to `req`: a piggybacked ACK to a CON, a NON
-    /// with a new message ID otherwise.
-    pub(super) fn reply_header(&mut self, req: &Message) -> (Type, u16) {
-        match req.ty {
-            Type::Con => (Type::Ack, req.message_id),
-            _ => (Type::Non, self.msg.next_mid()),
-        }
-    }
-
-    /// The message that answers `req` right away; `None` when nothing is sent (an error
-    /// response to a multicast request).
-    pub(super) fn reply_message(
-        &mut self,
-        req: &Message,
-        multicast: bool,
-        response: Response,
-    ) -> Option<Message> {
-        if multicast && response.code.is_error() {
-            return None;
-        }
-        let (ty, mid) = self.reply_header(req);
-        let msg = Message {
-            ty,
-            code: response.code,
-            message_id: mid,
-            token: req.token,
-            options: response.options,
-            payload: response.payload,
-        };
-        Some(msg)
-    }
-
-    /// Sends a reply and keeps the message (not its encoding, which shares a chunk with
-    /// other messages) to send again for duplicates.
-    pub(super) fn reply_with(&mut self, peer: SocketAddr, msg: Message) -> Seen {
-        self.msg.send(peer, &msg);
-        Seen::Replied(Box::new(msg))
-    }
-
-    pub(super) fn on_separate_ack_timer(&mut self, _now: Instant, id: u64) {
-        self.ack_pending(id);
-    }
-
     /// Sends the empty ACK of a CON request whose response is not ready (RFC 7252 §5.2.2).
-    pub(super) fn ack_pending(&mut self, id: u64) {
-        let Some(p) = self.server.pending.get_mut(&id) else {
+    pub(super) fn ack_pending(&mut self, cx: &mut Context<'_>, id: u64) {
+        let Some(p) = self.pending.get_mut(&id) else {
             return;
         };
         if p.acked || !p.confirmable {
@@ -694,51 +670,52 @@ impl Endpoint {
         }
         p.acked = true;
         let (peer, mid) = (p.peer, p.mid);
-        let seen = self.reply_with(peer, Message::empty(Type::Ack, mid));
-        self.msg.dedup.set_reply(peer, mid, seen);
+        let seen = cx.msg.reply_with(peer, Message::empty(Type::Ack, mid));
+        cx.msg.dedup.set_reply(peer, mid, seen);
     }
 
-    /// Answers a request from [`Event::Request`]. A body larger than one block is stored
-    /// and sent with Block2 (ETag and Size2 added); later blocks are served from the store.
-    /// Answering an unknown or already answered id does nothing.
-    /// The answer to a multicast request waits for the end of its leisure (RFC 7252
-    /// §8.2), held by the endpoint.
-    pub fn respond(&mut self, now: Instant, id: IncomingId, response: Response) {
-        let Some(p) = self.server.pending.remove(&id.0) else {
+    /// Answers a received request ([`Endpoint::respond`]).
+    pub(super) fn respond(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        id: IncomingId,
+        response: Response,
+    ) {
+        let Some(p) = self.pending.remove(&id.0) else {
             return;
         };
         if let Some(at) = p.not_before.filter(|&at| at > now) {
-            self.server.held.insert(id.0, (p, response));
-            self.msg.schedule(at, TimerKind::Leisure { id: id.0 });
+            self.held.insert(id.0, (p, response));
+            cx.msg.schedule(at, TimerKind::Leisure { id: id.0 });
             return;
         }
-        self.send_answer(now, p, response);
+        self.send_answer(cx, now, p, response);
     }
 
     /// The leisure of held answer `id` is over: it goes.
-    pub(super) fn on_leisure_timer(&mut self, now: Instant, id: u64) {
-        if let Some((p, response)) = self.server.held.remove(&id) {
-            self.send_answer(now, p, response);
+    pub(super) fn on_leisure_timer(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
+        if let Some((p, response)) = self.held.remove(&id) {
+            self.send_answer(cx, now, p, response);
         }
     }
 
     /// Sends the application's answer to request `p`.
-    fn send_answer(&mut self, now: Instant, p: Pending, response: Response) {
-        let limits = self.config.limits.clone();
-        let max_szx = self.config.max_block_szx;
+    fn send_answer(&mut self, cx: &mut Context<'_>, now: Instant, p: Pending, response: Response) {
+        let max_szx = cx.config.max_block_szx;
         if let Some(budget) = p.budget {
-            return self.respond_unverified(now, &p, response, budget);
+            return self.respond_unverified(cx, now, &p, response, budget);
         }
         let mut q_rest = None;
         let mut response = if p.qblock2.is_empty() {
-            self.blockwise_response(now, p.key.clone(), p.block2, response, &limits, max_szx)
+            self.blockwise_response(cx, now, p.key.clone(), p.block2, response, max_szx)
         } else {
-            let (first, rest) = self.q_first_response(now, &p, response);
+            let (first, rest) = self.q_first_response(cx, now, &p, response);
             q_rest = rest;
             first
         };
         if let Some(obs) = p.observation {
-            match self.server.observations.get_mut(&obs) {
+            match self.observations.get_mut(&obs) {
                 Some(o)
                     if response.code.is_success()
                         && response.options.contains(OptionNumber::OBSERVE) =>
@@ -747,26 +724,38 @@ impl Endpoint {
                     o.seq = (o.seq + 1) & 0x00ff_ffff;
                     response.options.set_uint(OptionNumber::OBSERVE, o.seq);
                 }
-                _ => self.end_observation(obs),
+                _ => self.end_observation(cx, obs),
             }
         }
         if let Some(echo) = p.block1_echo {
             response.options.set_block(OptionNumber::BLOCK1, echo);
         }
         if p.multicast && response.code.is_error() {
-            self.msg.dedup.set_reply(p.peer, p.mid, Seen::Silent);
+            cx.msg.dedup.set_reply(p.peer, p.mid, Seen::Silent);
             return;
         }
-        let msg = self.pending_reply(&p, Type::Con, response);
+        let msg = self.pending_reply(cx, &p, Type::Con, response);
         if msg.ty == Type::Con {
-            self.msg
-                .send_con(now, p.peer, &msg, Purpose::SeparateResponse, &self.config);
+            cx.msg
+                .send_con(now, p.peer, &msg, Purpose::SeparateResponse, cx.config);
         } else {
-            let seen = self.reply_with(p.peer, msg);
-            self.msg.dedup.set_reply(p.peer, p.mid, seen);
+            let seen = cx.msg.reply_with(p.peer, msg);
+            cx.msg.dedup.set_reply(p.peer, p.mid, seen);
         }
         if let Some(rest) = q_rest {
-            self.q_after_first(now, &p, rest);
+            self.q_after_first(cx, now, &p, rest);
         }
     }
+}
+
+/// Marks a request answered (or dropped) by a stage of [`ServerLayer::on_request`]:
+/// nothing more is done with it.
+pub(super) struct Answered;
+
+/// A request body assembled from blocks (Block1 or Q-Block1), and the Block1 option its
+/// answer echoes.
+#[derive(Default)]
+struct Assembled {
+    bytes: Option<Bytes>,
+    block1_echo: Option<BlockOpt>,
 }

@@ -14,9 +14,95 @@ use std::time::Instant;
 
 use super::qblock::{QSend, QUpload};
 use super::types::Response;
+use super::verify::AddressCheck;
 use crate::block::{self, Block1Assembler, BlockKey, ServerCache, Slice, Source};
-use crate::msg::{BlockOpt, Code, OptionNumber, Options, Token};
+use crate::config::EndpointConfig;
+use crate::msg::{BlockOpt, Code, Message, OptionNumber, Options, Token, Type};
 use crate::peer_key::FastMap;
+
+/// A received request, and what its options say, read once: what the stages of the
+/// server's `on_request` and the Q-Block server read.
+pub(super) struct Incoming<'p> {
+    pub(super) peer: SocketAddr,
+    pub(super) msg: Message,
+    /// The payload, still in the datagram.
+    pub(super) payload: &'p [u8],
+    /// Sent to a multicast group (then no error answers, RFC 7390 §2.7).
+    pub(super) multicast: bool,
+    pub(super) con: bool,
+    /// When its message ID is forgotten: EXCHANGE_LIFETIME (CON) or NON_LIFETIME after
+    /// it arrived.
+    pub(super) expires: Instant,
+    pub(super) block1: Option<BlockOpt>,
+    pub(super) block2: Option<BlockOpt>,
+    /// Block2 for a block after the first, without Block1: served from the store.
+    pub(super) continuation: bool,
+    /// RFC 9177: its Q-Block2 options (repeatable) and Q-Block1.
+    pub(super) q2: Vec<BlockOpt>,
+    pub(super) q1: Option<BlockOpt>,
+    /// Once the address is checked: at most this many bytes may answer an unverified
+    /// peer (three times the request, RFC 9175 §2.4).
+    pub(super) budget: Option<usize>,
+}
+
+impl<'p> Incoming<'p> {
+    /// Request `msg` from `peer`, arrived at `now`.
+    pub(super) fn read(
+        config: &EndpointConfig,
+        now: Instant,
+        peer: SocketAddr,
+        msg: Message,
+        payload: &'p [u8],
+        multicast: bool,
+    ) -> Self {
+        let con = msg.ty == Type::Con;
+        let (block1, block2) = (msg.options.block1(), msg.options.block2());
+        let q2 = (msg.options.values(OptionNumber::Q_BLOCK2))
+            .filter_map(BlockOpt::decode)
+            .collect();
+        let q1 = msg.options.block(OptionNumber::Q_BLOCK1);
+        let lifetime = if con {
+            config.exchange_lifetime
+        } else {
+            config.non_lifetime
+        };
+        Self {
+            peer,
+            payload,
+            multicast,
+            con,
+            expires: now + lifetime,
+            block1,
+            block2,
+            continuation: matches!((block2, block1), (Some(b2), None) if b2.num > 0),
+            q2,
+            q1,
+            budget: None,
+            msg,
+        }
+    }
+
+    /// It has Q-Block options.
+    pub(super) fn is_qblock(&self) -> bool {
+        !self.q2.is_empty() || self.q1.is_some()
+    }
+
+    /// Its blocks are served from the store or assembled with duplicates found by block
+    /// number (Q-Block1, or Q-Block2 past block 0), not deduplicated by message ID.
+    pub(super) fn q_stateless(&self) -> bool {
+        self.q1.is_some() || self.q2.iter().any(|b| b.num > 0)
+    }
+
+    /// What its blocks are kept under: the peer, the method and the options that tell
+    /// one body from another.
+    pub(super) fn block_key(&self) -> BlockKey {
+        BlockKey {
+            peer: self.peer,
+            method: self.msg.code,
+            options: self.msg.options.block_key(),
+        }
+    }
+}
 
 /// A received request waiting for the application's response.
 pub(super) struct Pending {
@@ -57,6 +143,8 @@ pub(super) struct Observation {
 
 /// The server side's state.
 pub(super) struct ServerLayer {
+    /// RFC 9175 address verification: asked first about every request.
+    pub(super) verify: AddressCheck,
     pub(super) pending: FastMap<u64, Pending>,
     pub(super) block1: Block1Assembler,
     pub(super) block2: ServerCache,
@@ -97,6 +185,7 @@ impl ServerLayer {
 
     pub(super) fn new() -> Self {
         Self {
+            verify: AddressCheck::new(),
             pending: FastMap::default(),
             block1: Block1Assembler::new(),
             block2: ServerCache::new(),

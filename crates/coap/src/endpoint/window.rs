@@ -52,7 +52,7 @@ pub(super) struct TransferStats {
 }
 
 /// What happened to an arriving block.
-#[derive(Debug, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Arrival {
     /// Delivered already or waiting ahead: drop it.
     Duplicate,
