@@ -10,13 +10,14 @@
 //! an IPv6 group (`eth0` becomes the namespace's `mc0`).
 
 use std::fs;
+use std::net::TcpStream;
 use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use crate::support::{COAPCAM, Finished, Proc, TempDir};
+use crate::support::{COAPCAM, Finished, Peer, Proc, TempDir, available, mosquitto_broker};
 
 const README: &str = include_str!("../../../../README.md");
 const TEST_SH: &str = include_str!("../../../../scripts/test.sh");
@@ -104,9 +105,11 @@ fn the_readme_blocks_are_understood() {
             .any(|l| l.contains("&& cargo run --release -- demo)")),
         "scripts/test.sh no longer runs `cargo run --release -- demo` literally"
     );
+    // mosquitto_sub reads the broker every_readme_example_runs starts (the integrators'
+    // example).
     for e in &all[2..] {
         assert!(
-            e.line.starts_with("coapcam "),
+            e.line.starts_with("coapcam ") || e.line.starts_with("mosquitto_sub "),
             "README example {:?} is not a coapcam command: run it in readme.rs, or mark \
              its block `<!-- not run by the tests: REASON -->`",
             e.line
@@ -182,6 +185,24 @@ fn every_readme_example_runs() {
     )
     .expect("box.png");
     fs::write(dir.join("photos/status.txt"), "ready\n").expect("status.txt");
+    // What the integrators' example takes for granted: an MQTT broker on the machine's
+    // port 1883 (mosquitto 2 without a configuration listens on loopback only).
+    if !available(
+        "every_readme_example_runs (an MQTT broker)",
+        &[Peer::Mosquitto],
+    ) {
+        return;
+    }
+    let broker_program = mosquitto_broker().expect("checked by available()");
+    let mut broker = Proc::spawn(&broker_program.to_string_lossy(), &["-p", "1883"]);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while TcpStream::connect("127.0.0.1:1883").is_err() {
+        assert!(
+            broker.is_running() && Instant::now() < deadline,
+            "mosquitto did not listen on 127.0.0.1:1883"
+        );
+        thread::sleep(Duration::from_millis(20));
+    }
     // What `measure --group 224.0.1.187 --expect 3` and the IPv6 discovery find: the
     // servers of the groups the README's comments speak of.
     let members: Vec<Proc> = [
@@ -278,5 +299,6 @@ fn every_readme_example_runs() {
     for mut p in background.into_iter().chain(members) {
         assert!(p.is_running(), "a background example exited early");
     }
+    assert!(broker.is_running(), "the MQTT broker exited");
     eprintln!("{}", lines.join("\n"));
 }
