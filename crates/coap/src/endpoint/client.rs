@@ -485,9 +485,7 @@ impl ClientLayer {
             // RFC 9175 §2.3: the server wants proof of this endpoint's address (or a fresh
             // request); the step goes again with its Echo value, and later steps carry it
             // too (a server that has verified the address ignores it).
-            if let Waiting::Ack(mid) = r.waiting {
-                cx.msg.exchanges.remove(&MidKey(r.peer, mid));
-            }
+            r.end_exchange(cx.msg);
             r.echoes += 1;
             r.req.options.set(OptionNumber::ECHO, echo);
             r.block_head = None;
@@ -501,9 +499,7 @@ impl ClientLayer {
             return self.on_qdown_response(cx, now, id, msg, payload);
         }
         if r.qup.is_some() {
-            if let Waiting::Ack(mid) = r.waiting {
-                cx.msg.exchanges.remove(&MidKey(r.peer, mid));
-            }
+            r.end_exchange(cx.msg);
             return self.on_qup_response(cx, now, id, msg, payload);
         }
         if r.step == Step::Whole && r.may_qblock() {
@@ -518,9 +514,7 @@ impl ClientLayer {
                 .block(OptionNumber::Q_BLOCK2)
                 .filter(|q| q.more && msg.code.is_success())
             {
-                if let Waiting::Ack(mid) = r.waiting {
-                    cx.msg.exchanges.remove(&MidKey(r.peer, mid));
-                }
+                r.end_exchange(cx.msg);
                 return self.start_qdown(cx, now, id, msg, payload, q);
             }
         }
@@ -563,9 +557,7 @@ impl ClientLayer {
             return;
         }
         // A separate response also acknowledges the request (RFC 7252 §5.2.2).
-        if let Waiting::Ack(mid) = r.waiting {
-            cx.msg.exchanges.remove(&MidKey(r.peer, mid));
-        }
+        r.end_exchange(cx.msg);
         r.generation += 1;
         r.failures = 0;
 

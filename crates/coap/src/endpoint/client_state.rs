@@ -15,14 +15,14 @@ use std::time::Instant;
 use bytes::Bytes;
 
 use super::congestion::Nstart;
-use super::message::Outbox;
+use super::message::{MessageLayer, Outbox};
 use super::qblock::{QDown, QUp};
 use super::types::{Event, Request, RequestError, RequestId, Response};
 use super::window::Window;
 use crate::config::Transfer;
 
 use crate::msg::{BlockHead, BlockOpt, Message, OptionNumber, Options, Outgoing, Token, Type};
-use crate::peer_key::{FastMap, PeerKey};
+use crate::peer_key::{FastMap, MidKey, PeerKey};
 
 /// Streamed bodies are handed over in pieces of at least this many bytes (the last one
 /// may be shorter).
@@ -234,6 +234,14 @@ impl ClientRequest {
             });
         }
         Ok(())
+    }
+
+    /// The step's CON is answered (by a piggybacked or a separate response): its exchange
+    /// is over, nothing more to retransmit.
+    pub(super) fn end_exchange(&self, msg: &mut MessageLayer) {
+        if let Waiting::Ack(mid) = self.waiting {
+            msg.exchanges.remove(&MidKey(self.peer, mid));
+        }
     }
 
     /// Whether a response in blocks is asked for with Q-Block2.
