@@ -25,7 +25,7 @@ use tokio::sync::{mpsc, oneshot};
 
 use crate::clock;
 use crate::dtls::{Dtls, Psk};
-use crate::socket::{RECV_BUFFER, Received, Socket};
+use crate::socket::{RECV_BUFFER, Socket};
 
 /// What a request's caller gets back.
 pub(crate) enum Reply {
@@ -109,6 +109,7 @@ pub(crate) enum Command {
         membership: u64,
         peer: SocketAddr,
         data: Vec<u8>,
+        loopback: bool,
     },
     Shutdown,
 }
@@ -321,7 +322,6 @@ struct Thread {
 impl Thread {
     fn run(mut self) {
         let mut buf = vec![0u8; RECV_BUFFER];
-        let mut received: Vec<Received> = Vec::new();
         loop {
             while let Some(t) = self.ep.poll_transmit() {
                 match &mut self.dtls {
@@ -333,9 +333,9 @@ impl Thread {
                     None => self.send(&t.data, t.peer),
                 }
             }
-            while let Some(ev) = self.ep.poll_event() {
-                self.dispatch(ev);
-            }
+            // Requests are taken right after the datagram that completed them (below);
+            // any other is not known to have come over loopback.
+            self.events(false);
             if !self.open
                 && self.replies.is_empty()
                 && self.pings.is_empty()
@@ -374,16 +374,15 @@ impl Thread {
                 continue;
             }
             self.arm(deadline.map_or_else(|| self.max_wait(), |d| d - now));
-            match self.socket.recv(&mut buf, &mut received) {
-                Ok(()) => {
+            match self.socket.recv(&mut buf) {
+                Ok(d) => {
                     let now = clock::now();
-                    for d in &received {
-                        if Some(d.peer) == self.wake_from {
-                            self.wake_pending.store(false, Ordering::Release);
-                            continue;
-                        }
-                        let (start, len) = d.range;
-                        let data = &buf[start..start + len];
+                    if Some(d.peer) == self.wake_from {
+                        self.wake_pending.store(false, Ordering::Release);
+                    } else if d.forged_loopback() {
+                        tracing::debug!(peer = %d.peer, "dropped: a loopback source from outside");
+                    } else {
+                        let data = &buf[..d.len];
                         match &mut self.dtls {
                             Some(dtls) => {
                                 let out = dtls.receive(now, d.peer, data);
@@ -394,12 +393,16 @@ impl Thread {
                                 }
                                 for message in &out.received {
                                     self.ep.handle(now, d.peer, message, false);
+                                    self.events(d.loopback == Some(true));
                                 }
                                 if out.failed && self.server.is_none() {
                                     self.fail_peer(d.peer, RequestError::Protocol(NO_SESSION));
                                 }
                             }
-                            None => self.ep.handle(now, d.peer, data, d.multicast),
+                            None => {
+                                self.ep.handle(now, d.peer, data, d.multicast);
+                                self.events(d.loopback == Some(true));
+                            }
                         }
                     }
                 }
@@ -545,10 +548,12 @@ impl Thread {
                 membership,
                 peer,
                 data,
+                loopback,
             } => {
                 // A datagram that arrived before its group was left is dropped.
                 if self.groups.iter().any(|g| g.membership == membership) {
                     self.ep.handle(now, peer, &data, true);
+                    self.events(loopback);
                 }
             }
             // Ends the thread's loop before it gets here.
@@ -584,12 +589,21 @@ impl Thread {
         }
     }
 
-    fn dispatch(&mut self, ev: Event) {
+    /// Hands on the endpoint's events; a request among them came over loopback when
+    /// `loopback` says so (the datagram just handled did).
+    fn events(&mut self, loopback: bool) {
+        while let Some(ev) = self.ep.poll_event() {
+            self.dispatch(ev, loopback);
+        }
+    }
+
+    fn dispatch(&mut self, ev: Event, loopback: bool) {
         match ev {
             Event::Request(mut req) => match &self.server {
                 Some(s) => {
                     let id = req.id;
                     req.identity = self.dtls.as_ref().and_then(|d| d.identity(req.peer));
+                    req.loopback = loopback;
                     if s.send(ServerEvent::Request(Box::new(req))).is_err() {
                         self.ep.respond(
                             clock::now(),
@@ -705,32 +719,31 @@ fn receive_group(
     waker: &Weak<Waker>,
 ) {
     let mut buf = vec![0u8; RECV_BUFFER];
-    let mut received = Vec::new();
     if let Err(e) = socket.set_read_timeout(Some(MAX_WAIT)) {
         tracing::debug!(error = %e, "group socket read timeout not set");
     }
     loop {
-        let got = socket.recv(&mut buf, &mut received);
+        let got = socket.recv(&mut buf);
         // The endpoint thread holds the other reference while the group is joined.
         if Arc::strong_count(socket) == 1 {
             return;
         }
         match got {
-            Ok(()) => {
+            Ok(d) if d.forged_loopback() => {
+                tracing::debug!(peer = %d.peer, "dropped: a loopback source from outside");
+            }
+            Ok(d) => {
                 let (Some(tx), Some(waker)) = (tx.upgrade(), waker.upgrade()) else {
                     return;
                 };
-                for d in &received {
-                    let (start, len) = d.range;
-                    let data = buf[start..start + len].to_vec();
-                    let cmd = Command::GroupDatagram {
-                        membership,
-                        peer: d.peer,
-                        data,
-                    };
-                    if tx.send(cmd).is_err() {
-                        return;
-                    }
+                let cmd = Command::GroupDatagram {
+                    membership,
+                    peer: d.peer,
+                    data: buf[..d.len].to_vec(),
+                    loopback: d.loopback == Some(true),
+                };
+                if tx.send(cmd).is_err() {
+                    return;
                 }
                 waker.wake();
             }

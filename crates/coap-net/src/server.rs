@@ -84,6 +84,8 @@ impl Server {
         let secure = config.secure.iter().map(|a| (a, config.psk.as_ref()));
         for (index, (addr, psk)) in plain.chain(secure).enumerate() {
             let socket = Socket::bind(*addr)?;
+            // The policy must know what came from this machine.
+            socket.read_arrivals()?;
             let (tx, rx) = mpsc::unbounded_channel();
             let mut ep_config = config.endpoint.clone();
             ep_config.rng_seed = ep_config.rng_seed.wrapping_add(index as u64);

@@ -1,36 +1,56 @@
-//! UDP sockets for CoAP: IPv4 and IPv6, multicast membership, and whether each received
-//! datagram was sent to a group (so a request sent to a group is known as one).
+//! UDP sockets for CoAP: IPv4 and IPv6, multicast membership, and for each received
+//! datagram whether it was sent to a group (so a request sent to a group is known as one)
+//! and whether it arrived over the loopback interface (so "this machine" is known by where
+//! a datagram came in, never by what its source address looks like).
 //!
-//! A socket bound to one address, unicast or a group's, knows every datagram's destination
-//! from its bind, and receives with a plain `recvfrom`. Only a wildcard-bound socket that
-//! joins a group must read each datagram's destination (IP_PKTINFO, through quinn-udp's
-//! `recvmmsg`): that costs about 0.3 µs per datagram, a fifth of a loopback round trip's
-//! system time, so it is set up at the first join. Until then such a socket receives no
-//! group's datagrams: on Linux, sockets are made to receive only the groups they joined
-//! themselves (IP_MULTICAST_ALL off), not those another socket on the same port joined.
+//! A server's sockets, and any socket that joins a group, read each datagram's IP_PKTINFO
+//! / IPV6_PKTINFO: its destination address and the index of the interface it arrived on
+//! ([`Socket::read_arrivals`]). A source address proves nothing: an IPv6 frame from
+//! `::ffff:127.0.0.1` arriving on a network interface is delivered to a socket bound to
+//! `[::]`, and with `route_localnet` so is an IPv4 one from 127.0.0.1. The arrival
+//! interface cannot be forged by a remote sender: only this machine's own traffic comes in
+//! over loopback. It costs a control message per datagram (about 0.4 µs of a 1.5 µs
+//! receive, docs/design.md, "Who is this machine"), so a socket that only sends requests
+//! and joins no group receives with a plain `recvfrom`.
+//!
+//! On Linux, sockets are made to receive only the groups they joined themselves
+//! (IP_MULTICAST_ALL off), not those another socket on the same port joined.
 
 use std::io::{self, IoSliceMut};
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, SocketAddrV6};
 use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use quinn_udp::{RecvMeta, UdpSockRef, UdpSocketState};
 use socket2::{Domain, Protocol, SockRef, Socket as RawSocket, Type};
 
-/// The receive buffer: room for the largest datagram, or for several same-sized ones the
-/// kernel coalesced (GRO, asked for together with destinations). Each socket thread
-/// zeroes its buffer once, when it starts.
+/// The receive buffer: room for the largest datagram. Each socket thread zeroes its
+/// buffer once, when it starts.
 pub const RECV_BUFFER: usize = 1 << 16;
 
-/// One received datagram.
+/// One received datagram: its first `len` bytes of the receive buffer.
 #[derive(Debug, Clone, Copy)]
 pub struct Received {
     /// Sender.
     pub peer: SocketAddr,
-    /// Offset and length in the receive buffer.
-    pub range: (usize, usize),
+    /// Its length.
+    pub len: usize,
     /// Whether it was addressed to a multicast group.
     pub multicast: bool,
+    /// Whether it arrived over a loopback interface, that is from a program on this
+    /// machine; `None` when the socket does not read arrivals (false when it does and the
+    /// kernel did not say).
+    pub loopback: Option<bool>,
+}
+
+impl Received {
+    /// A source address that only this machine may use (127.0.0.0/8, ::1, or an IPv4-mapped
+    /// 127.x) on a datagram that did not come in over loopback: forged. Nothing can reach a
+    /// remote sender at such an address, and an answer would go to a program of this
+    /// machine instead, so such datagrams are dropped, not answered.
+    pub fn forged_loopback(&self) -> bool {
+        self.loopback == Some(false) && self.peer.ip().to_canonical().is_loopback()
+    }
 }
 
 /// A UDP socket bound for CoAP. Receives block (up to the read timeout): the socket's own
@@ -38,11 +58,41 @@ pub struct Received {
 #[derive(Debug)]
 pub struct Socket {
     io: std::net::UdpSocket,
-    /// quinn-udp's receive state, once datagrams' destinations must be read (a wildcard
-    /// socket joined a group).
-    destinations: OnceLock<UdpSocketState>,
     local: SocketAddr,
+    /// Whether each datagram's destination and arrival interface are read.
+    arrivals: AtomicBool,
 }
+
+/// The indexes of this machine's loopback interfaces (IFF_LOOPBACK), read once. Empty if
+/// they cannot be read: then no datagram counts as this machine's, which refuses local
+/// programs rather than admitting remote ones.
+fn loopback_interfaces() -> &'static [u32] {
+    static LOOPBACK: OnceLock<Vec<u32>> = OnceLock::new();
+    LOOPBACK.get_or_init(|| {
+        use nix::net::if_::{InterfaceFlags, if_nametoindex};
+        let all = match nix::ifaddrs::getifaddrs() {
+            Ok(all) => all,
+            Err(e) => {
+                tracing::warn!(error = %e, "the loopback interface is unknown: no datagram counts as this machine's");
+                return Vec::new();
+            }
+        };
+        let mut found: Vec<u32> = all
+            .filter(|i| i.flags.contains(InterfaceFlags::IFF_LOOPBACK))
+            .filter_map(|i| if_nametoindex(i.interface_name.as_str()).ok())
+            .collect();
+        found.sort_unstable();
+        found.dedup();
+        if found.is_empty() {
+            tracing::warn!("no loopback interface: no datagram counts as this machine's");
+        }
+        found
+    })
+}
+
+/// Room for one IP_PKTINFO or IPV6_PKTINFO control message, aligned for its header.
+#[repr(C, align(8))]
+struct Control([u8; 64]);
 
 /// The index of the interface that has the IPv6 address `addr`.
 fn interface_of(addr: Ipv6Addr) -> io::Result<u32> {
@@ -95,16 +145,33 @@ impl Socket {
             .ok_or_else(|| io::Error::other("bound to a non-IP address"))?;
         let socket = Self {
             io: raw.into(),
-            destinations: OnceLock::new(),
             local,
+            arrivals: AtomicBool::new(false),
         };
         socket.queue_errors();
         // Only a wildcard-bound socket can receive a group's datagrams without having
-        // joined it itself; where that cannot be turned off, it reads every destination.
-        if local.ip().is_unspecified() && !socket.only_own_groups() {
-            socket.read_destinations()?;
+        // joined it itself.
+        if local.ip().is_unspecified() {
+            socket.only_own_groups();
         }
         Ok(socket)
+    }
+
+    /// From now on, reads each datagram's destination (whether it was sent to a group) and
+    /// the interface it arrived on (whether it came from this machine). A server's sockets
+    /// need both; a socket joining a group reads them from its join.
+    pub fn read_arrivals(&self) -> io::Result<()> {
+        use nix::sys::socket::{setsockopt, sockopt};
+        if self.arrivals.load(Ordering::Acquire) {
+            return Ok(());
+        }
+        match self.local {
+            SocketAddr::V4(_) => setsockopt(&self.io, sockopt::Ipv4PacketInfo, &true),
+            SocketAddr::V6(_) => setsockopt(&self.io, sockopt::Ipv6RecvPacketInfo, &true),
+        }
+        .map_err(io::Error::from)?;
+        self.arrivals.store(true, Ordering::Release);
+        Ok(())
     }
 
     /// Asks the kernel to queue the ICMP errors the socket's datagrams cause (IP_RECVERR):
@@ -172,32 +239,22 @@ impl Socket {
         Vec::new()
     }
 
-    /// Makes the socket receive only the groups it joins itself; false where that cannot
-    /// be asked for.
+    /// Makes the socket receive only the groups it joins itself, where that can be asked
+    /// for (elsewhere its destinations still tell a group's datagrams apart).
     #[cfg(target_os = "linux")]
-    fn only_own_groups(&self) -> bool {
+    fn only_own_groups(&self) {
         let raw = SockRef::from(&self.io);
-        match self.local {
-            SocketAddr::V4(_) => raw.set_multicast_all_v4(false).is_ok(),
-            SocketAddr::V6(_) => raw.set_multicast_all_v6(false).is_ok(),
+        let set = match self.local {
+            SocketAddr::V4(_) => raw.set_multicast_all_v4(false),
+            SocketAddr::V6(_) => raw.set_multicast_all_v6(false),
+        };
+        if let Err(e) = set {
+            tracing::debug!(error = %e, "the socket also receives other sockets' groups");
         }
     }
 
     #[cfg(not(target_os = "linux"))]
-    fn only_own_groups(&self) -> bool {
-        false
-    }
-
-    /// From now on, reads each datagram's destination address. quinn-udp asks for it (and
-    /// for coalesced receives) and makes the socket non-blocking; receives here block.
-    fn read_destinations(&self) -> io::Result<()> {
-        if self.destinations.get().is_none() {
-            let state = UdpSocketState::new(UdpSockRef::from(&self.io))?;
-            self.io.set_nonblocking(false)?;
-            let _ = self.destinations.set(state);
-        }
-        Ok(())
-    }
+    fn only_own_groups(&self) {}
 
     /// A socket that receives the datagrams sent to `group` on `port` for a server bound
     /// to the unicast address `on`: bound to the group address itself (so it sees no
@@ -214,6 +271,7 @@ impl Socket {
             IpAddr::V6(g) => SocketAddr::V6(SocketAddrV6::new(g, port, 0, interface)),
         };
         let socket = Self::bind(addr)?;
+        socket.read_arrivals()?;
         match (group, on) {
             (IpAddr::V4(g), IpAddr::V4(a)) => socket.io.join_multicast_v4(&g, &a)?,
             _ => socket.join(group, interface)?,
@@ -232,34 +290,67 @@ impl Socket {
     }
 
     /// Waits for a datagram (up to the read timeout: then an error of kind `WouldBlock`)
-    /// and writes it into `buf`, filling `out` with one entry per datagram (the kernel may
-    /// hand several same-sized datagrams over at once).
-    pub fn recv(&self, buf: &mut [u8], out: &mut Vec<Received>) -> io::Result<()> {
-        let Some(state) = self.destinations.get() else {
+    /// and writes it into `buf`. A datagram longer than `buf` is cut to its length.
+    pub fn recv(&self, buf: &mut [u8]) -> io::Result<Received> {
+        use std::os::fd::AsRawFd as _;
+
+        use nix::sys::socket::{ControlMessageOwned, MsgFlags, SockaddrStorage, recvmsg};
+
+        if !self.arrivals.load(Ordering::Acquire) {
             let (len, peer) = self.io.recv_from(buf)?;
-            out.clear();
-            out.push(Received {
+            return Ok(Received {
                 peer,
-                range: (0, len),
+                len,
                 multicast: self.local.ip().is_multicast(),
+                loopback: None,
             });
-            return Ok(());
+        }
+        let mut control = Control([0; 64]);
+        let mut iov = [IoSliceMut::new(buf)];
+        let msg = recvmsg::<SockaddrStorage>(
+            self.io.as_raw_fd(),
+            &mut iov,
+            Some(&mut control.0),
+            MsgFlags::empty(),
+        )
+        .map_err(io::Error::from)?;
+        let peer = msg
+            .address
+            .and_then(|a| {
+                a.as_sockaddr_in()
+                    .map(|v4| SocketAddr::V4((*v4).into()))
+                    .or_else(|| a.as_sockaddr_in6().map(|v6| SocketAddr::V6((*v6).into())))
+            })
+            .ok_or_else(|| io::Error::other("a datagram without a sender's IP address"))?;
+        let mut received = Received {
+            peer,
+            len: msg.bytes,
+            multicast: self.local.ip().is_multicast(),
+            loopback: Some(false),
         };
-        let mut meta = [RecvMeta::default()];
-        let mut slices = [IoSliceMut::new(buf)];
-        let got = state.recv(UdpSockRef::from(&self.io), &mut slices, &mut meta)?;
-        split(&meta[..got], out);
-        Ok(())
+        for c in msg.cmsgs().into_iter().flatten() {
+            let (destination, interface) = match c {
+                ControlMessageOwned::Ipv4PacketInfo(i) => (
+                    IpAddr::from(Ipv4Addr::from(u32::from_be(i.ipi_addr.s_addr))),
+                    u32::try_from(i.ipi_ifindex).ok(),
+                ),
+                ControlMessageOwned::Ipv6PacketInfo(i) => (
+                    IpAddr::from(Ipv6Addr::from(i.ipi6_addr.s6_addr)),
+                    Some(i.ipi6_ifindex),
+                ),
+                _ => continue,
+            };
+            received.multicast |= is_multicast(destination);
+            received.loopback = Some(interface.is_some_and(|i| loopback_interfaces().contains(&i)));
+        }
+        Ok(received)
     }
 
     /// Joins a multicast group; `interface` is an IPv6 interface index (0: the default) and
-    /// is ignored for IPv4, which joins on the interface the routing table picks. Call it
-    /// from the thread that receives: a wildcard socket starts reading destinations here,
-    /// and a receive already waiting on another thread would not.
+    /// is ignored for IPv4, which joins on the interface the routing table picks. The
+    /// socket reads arrivals from then on ([`Socket::read_arrivals`]).
     pub fn join(&self, group: IpAddr, interface: u32) -> io::Result<()> {
-        if self.local.ip().is_unspecified() {
-            self.read_destinations()?;
-        }
+        self.read_arrivals()?;
         match group {
             IpAddr::V4(g) => self.io.join_multicast_v4(&g, &Ipv4Addr::UNSPECIFIED),
             IpAddr::V6(g) => self.io.join_multicast_v6(&g, interface),
@@ -302,34 +393,6 @@ impl Socket {
     /// Sends one datagram.
     pub fn send_to(&self, data: &[u8], peer: SocketAddr) -> io::Result<()> {
         self.io.send_to(data, peer).map(|_| ())
-    }
-}
-
-/// One entry per datagram; a GRO-coalesced buffer holds several datagrams of `stride`
-/// bytes.
-fn split(meta: &[RecvMeta], out: &mut Vec<Received>) {
-    out.clear();
-    for m in meta {
-        let multicast = m.dst_ip.is_some_and(is_multicast);
-        let stride = m.stride.max(1);
-        let mut start = 0;
-        if m.len == 0 {
-            // An empty datagram is one too (the driver's wake-ups are empty).
-            out.push(Received {
-                peer: m.addr,
-                range: (0, 0),
-                multicast,
-            });
-        }
-        while start < m.len {
-            let len = stride.min(m.len - start);
-            out.push(Received {
-                peer: m.addr,
-                range: (start, len),
-                multicast,
-            });
-            start += stride;
-        }
     }
 }
 

@@ -127,25 +127,29 @@ fn a_socket_receives_datagrams_in_order_and_then_waits_until_its_timeout() {
     let mut buf = vec![0u8; RECV_BUFFER];
     let mut got: Vec<Vec<u8>> = Vec::new();
     while got.len() < sent.len() {
-        let mut out = Vec::new();
-        socket
-            .recv(&mut buf, &mut out)
-            .unwrap_or_else(|e| panic!("{e}"));
-        for d in &out {
-            assert_eq!(
-                d.peer,
-                sender.local_addr().unwrap_or_else(|e| panic!("{e}"))
-            );
-            assert!(!d.multicast);
-            let (start, len) = d.range;
-            got.push(buf[start..start + len].to_vec());
-        }
+        let d = socket.recv(&mut buf).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            d.peer,
+            sender.local_addr().unwrap_or_else(|e| panic!("{e}"))
+        );
+        assert!(!d.multicast);
+        // A socket that does not read arrivals does not know the interface.
+        assert_eq!(d.loopback, None);
+        assert!(!d.forged_loopback());
+        got.push(buf[..d.len].to_vec());
     }
     // The empty datagram counts too: the endpoint threads are woken by them.
     assert_eq!(got, sent.map(<[u8]>::to_vec));
+    // A server's socket reads arrivals: this machine's datagrams come in over loopback.
+    socket.read_arrivals().unwrap_or_else(|e| panic!("{e}"));
+    sender
+        .send_to(b"fifth", socket.local_addr())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let d = socket.recv(&mut buf).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(&buf[..d.len], b"fifth");
+    assert_eq!(d.loopback, Some(true));
     // Drained: the next receive waits for the read timeout.
-    let mut out = Vec::new();
-    let waited = socket.recv(&mut buf, &mut out);
+    let waited = socket.recv(&mut buf);
     assert!(
         waited
             .as_ref()

@@ -337,6 +337,7 @@ impl ServerLayer {
             confirmable: con,
             observe: observation.map(ObservationId),
             identity: None,
+            loopback: false,
         }));
         Ok(())
     }

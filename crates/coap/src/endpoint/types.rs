@@ -210,6 +210,10 @@ pub struct IncomingRequest {
     /// The peer's authenticated identity (its DTLS PSK identity), set by the transport;
     /// `None` over plain CoAP.
     pub identity: Option<std::sync::Arc<str>>,
+    /// Whether it arrived over a loopback interface, that is from a program on this
+    /// machine, set by the transport (`false` unless it knows). Never inferred from the
+    /// peer's address: a remote sender can forge one that looks like loopback.
+    pub loopback: bool,
 }
 
 /// Identifies an observation this endpoint serves (RFC 7641, server side).

@@ -11,8 +11,9 @@
 //! (`RandomState`). Verified peers are remembered while they keep talking, up to
 //! [`Limits::verified_peers`](crate::config::Limits::verified_peers) of them.
 //!
-//! Loopback peers count as verified: a datagram with a loopback source cannot come from
-//! another host (the kernel drops such martians on every other interface).
+//! Loopback peers count as verified: the transport hands over a datagram with a loopback
+//! source only when it came in over the loopback interface (coap-net drops the others:
+//! the kernel delivers an IPv6 frame from `::ffff:127.0.0.1` arriving on any interface).
 
 use std::hash::{BuildHasher, RandomState};
 use std::net::SocketAddr;

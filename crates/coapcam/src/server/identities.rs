@@ -98,7 +98,7 @@ pub fn by_role(identities: Arc<Identities>) -> impl Fn(&IncomingRequest) -> Opti
             Code::FORBIDDEN,
             &format!("identity {id:?} may read but not change the configuration"),
         )),
-        None if request.peer.ip().to_canonical().is_loopback() => None,
+        None if request.loopback => None,
         None => Some(Response::diagnostic(
             Code::UNAUTHORIZED,
             "configuration changes need coaps:// with an identity of the configure role",
@@ -131,7 +131,8 @@ mod tests {
     fn configuration_changes_need_the_configure_role() {
         let ids = Arc::new(Identities::parse("alice a configure\nbob b read").expect("parses"));
         let policy = by_role(ids);
-        let request = |peer: &str, identity: Option<&str>| IncomingRequest {
+        // A request from `peer`, over loopback or from a network interface.
+        let request = |(peer, loopback): (&str, bool), identity: Option<&str>| IncomingRequest {
             id: coap::IncomingId(1),
             peer: peer.parse().expect("address"),
             method: Code::PUT,
@@ -141,17 +142,28 @@ mod tests {
             confirmable: true,
             observe: None,
             identity: identity.map(Into::into),
+            loopback,
         };
         let code = |r: Option<Response>| r.map(|r| r.code);
-        assert_eq!(code(policy(&request("192.0.2.1:1", Some("alice")))), None);
+        let stranger = ("192.0.2.1:1", false);
+        assert_eq!(code(policy(&request(stranger, Some("alice")))), None);
         assert_eq!(
-            code(policy(&request("192.0.2.1:1", Some("bob")))),
+            code(policy(&request(stranger, Some("bob")))),
             Some(Code::FORBIDDEN)
         );
         assert_eq!(
-            code(policy(&request("192.0.2.1:1", None))),
+            code(policy(&request(stranger, None))),
             Some(Code::UNAUTHORIZED)
         );
-        assert_eq!(code(policy(&request("127.0.0.1:1", None))), None);
+        assert_eq!(code(policy(&request(("127.0.0.1:1", true), None))), None);
+        // What decides is the way in, not the address.
+        assert_eq!(
+            code(policy(&request(("[::ffff:127.0.0.1]:1", false), None))),
+            Some(Code::UNAUTHORIZED)
+        );
+        assert_eq!(
+            code(policy(&request(("[2001:db8::1]:1", true), None))),
+            None
+        );
     }
 }

@@ -97,10 +97,11 @@ pub struct StationConfig {
 
 /// The policy of a server without security configured: configuration changes (PUT and
 /// DELETE, and POST to `/coap-group`, `/files` and the creation resources `/cams/<name>`)
-/// come from this machine only (a loopback address); anything else answers 4.03. The
-/// answer is the refusal, `None` letting the request through.
+/// come from this machine only (a request that arrived over the loopback interface,
+/// whatever its source address says); anything else answers 4.03. The answer is the
+/// refusal, `None` letting the request through.
 pub fn loopback_only(request: &IncomingRequest) -> Option<Response> {
-    if request.peer.ip().to_canonical().is_loopback() {
+    if request.loopback {
         return None;
     }
     Some(Response::diagnostic(

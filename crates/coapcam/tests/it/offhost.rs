@@ -171,3 +171,262 @@ fn offhost_clients_answer_the_echo_challenge_and_unverified_answers_stay_small()
     .expect_success("aiocoap-client");
     assert_eq!(f.stdout, body, "aiocoap's body");
 }
+
+/// Frames written by hand and put on the wire of `mc1`, so that they arrive on `mc0` (the
+/// other end of the namespace's veth pair) from a network interface, whatever their
+/// source address says.
+mod wire {
+    use std::net::{Ipv4Addr, Ipv6Addr, SocketAddr};
+
+    use nix::sys::socket::{AddressFamily, MsgFlags, SockFlag, SockType, sendto, socket};
+
+    /// The internet checksum of `parts` (RFC 1071).
+    fn checksum(parts: &[&[u8]]) -> u16 {
+        let mut bytes: Vec<u8> = parts.concat();
+        if bytes.len() % 2 == 1 {
+            bytes.push(0);
+        }
+        let mut sum: u32 = bytes
+            .chunks(2)
+            .map(|w| u32::from(u16::from_be_bytes([w[0], w[1]])))
+            .sum();
+        while sum > 0xffff {
+            sum = (sum & 0xffff) + (sum >> 16);
+        }
+        !(sum as u16)
+    }
+
+    fn udp(sport: u16, dport: u16, payload: &[u8]) -> Vec<u8> {
+        let len = u16::try_from(8 + payload.len()).expect("a small datagram");
+        let mut udp = Vec::new();
+        for field in [sport, dport, len, 0] {
+            udp.extend_from_slice(&field.to_be_bytes());
+        }
+        udp.extend_from_slice(payload);
+        udp
+    }
+
+    fn mac(interface: &str) -> Vec<u8> {
+        let text = std::fs::read_to_string(format!("/sys/class/net/{interface}/address"))
+            .expect("the interface's MAC address");
+        text.trim()
+            .split(':')
+            .map(|h| u8::from_str_radix(h, 16).expect("a MAC address"))
+            .collect()
+    }
+
+    /// An Ethernet frame for `mc0` from `mc1` carrying `packet` of `ethertype`.
+    fn ethernet(ethertype: u16, packet: &[u8]) -> Vec<u8> {
+        [
+            &mac("mc0")[..],
+            &mac("mc1")[..],
+            &ethertype.to_be_bytes(),
+            packet,
+        ]
+        .concat()
+    }
+
+    /// UDP `payload` from `from` to `to` in an IPv6 (or, for IPv4 addresses, IPv4) frame.
+    pub(super) fn frame(from: SocketAddr, to: SocketAddr, payload: &[u8]) -> Vec<u8> {
+        let mut udp = udp(from.port(), to.port(), payload);
+        match (from, to) {
+            (SocketAddr::V6(f), SocketAddr::V6(t)) => {
+                let len = u32::try_from(udp.len()).expect("length");
+                let pseudo = [
+                    &f.ip().octets()[..],
+                    &t.ip().octets(),
+                    &len.to_be_bytes(),
+                    &[0, 0, 0, 17],
+                ]
+                .concat();
+                let sum = match checksum(&[&pseudo, &udp]) {
+                    0 => 0xffff,
+                    s => s,
+                };
+                udp[6..8].copy_from_slice(&sum.to_be_bytes());
+                let mut ip = vec![0x60, 0, 0, 0];
+                ip.extend_from_slice(&(len as u16).to_be_bytes());
+                ip.extend_from_slice(&[17, 64]);
+                ip.extend_from_slice(&f.ip().octets());
+                ip.extend_from_slice(&t.ip().octets());
+                ethernet(0x86dd, &[ip, udp].concat())
+            }
+            (SocketAddr::V4(f), SocketAddr::V4(t)) => {
+                let len = u16::try_from(20 + udp.len()).expect("length");
+                let mut ip = vec![0x45, 0];
+                ip.extend_from_slice(&len.to_be_bytes());
+                ip.extend_from_slice(&[0, 1, 0, 0, 64, 17, 0, 0]);
+                ip.extend_from_slice(&f.ip().octets());
+                ip.extend_from_slice(&t.ip().octets());
+                let sum = checksum(&[&ip]);
+                ip[10..12].copy_from_slice(&sum.to_be_bytes());
+                ethernet(0x0800, &[ip, udp].concat())
+            }
+            _ => panic!("{from} and {to} are of different families"),
+        }
+    }
+
+    /// Sends `frame` out of `mc1` through a packet socket.
+    pub(super) fn inject(frame: &[u8]) {
+        let mc1 = nix::ifaddrs::getifaddrs()
+            .expect("interfaces")
+            .filter(|i| i.interface_name == "mc1")
+            .find_map(|i| i.address.and_then(|a| a.as_link_addr().copied()))
+            .expect("mc1's link address");
+        let fd = socket(
+            AddressFamily::Packet,
+            SockType::Raw,
+            SockFlag::empty(),
+            None,
+        )
+        .expect("a packet socket (root)");
+        let sent = sendto(
+            std::os::fd::AsRawFd::as_raw_fd(&fd),
+            frame,
+            &mc1,
+            MsgFlags::empty(),
+        )
+        .expect("sending on mc1");
+        assert_eq!(sent, frame.len());
+    }
+
+    /// `fd00::2`, on `mc0`.
+    pub(super) const SERVER_V6: Ipv6Addr = Ipv6Addr::new(0xfd00, 0, 0, 0, 0, 0, 0, 2);
+    /// `::ffff:127.0.0.1`.
+    pub(super) const MAPPED_LOOPBACK: Ipv6Addr = Ipv4Addr::LOCALHOST.to_ipv6_mapped();
+}
+
+/// Sets the IPv4 sysctl `name` of `mc0` to `value`, returning the old value.
+fn mc0_sysctl(name: &str, value: &str) -> String {
+    let path = format!("/proc/sys/net/ipv4/conf/mc0/{name}");
+    let old = std::fs::read_to_string(&path).expect("reading a sysctl");
+    std::fs::write(&path, value).expect("writing a sysctl");
+    old.trim().to_owned()
+}
+
+#[test]
+#[ignore = "off-host: run inside scripts/netns-run (scripts/test.sh does)"]
+fn offhost_a_forged_loopback_source_configures_nothing() {
+    use std::net::{Ipv4Addr, Ipv6Addr, SocketAddrV4, SocketAddrV6};
+
+    use coap_net::Client;
+
+    let test = "offhost_a_forged_loopback_source_configures_nothing";
+    if !in_namespace(test) {
+        return;
+    }
+    let dir = TempDir::new("forged-loopback");
+    let psk = dir.join("psk.txt");
+    std::fs::write(&psk, "alice secret-of-alice configure\n").expect("writing identities");
+    let psk = psk.to_str().expect("UTF-8 path");
+    // The default bind's two wildcards, and one with identities configured.
+    let servers = [
+        serve_at("[::]:0", &dir.join("v6"), &[]),
+        serve_at("[::]:0", &dir.join("v6-psk"), &["--psk-file", psk]),
+        serve_at("0.0.0.0:0", &dir.join("v4"), &[]),
+    ];
+    // IPv4 frames from 127.0.0.1 are martians unless the interface allows them; some
+    // hosts do (route_localnet, e.g. for a NodePort on 127.0.0.1). Here mc0 does.
+    let localnet = mc0_sysctl("route_localnet", "1");
+    let accept_local = mc0_sysctl("accept_local", "1");
+
+    let app = format!("/cams/{}/application-config", support::SN);
+    let pointcloud = format!("/cams/{}/pointcloud", support::SN);
+    let rt = support::runtime();
+    for (n, (_server, addr)) in servers.iter().enumerate() {
+        let port = addr.port();
+        let (here, client_bind, forged, target): (SocketAddr, SocketAddr, SocketAddr, SocketAddr) =
+            if addr.is_ipv6() {
+                (
+                    (Ipv6Addr::LOCALHOST, port).into(),
+                    (Ipv6Addr::LOCALHOST, 0).into(),
+                    SocketAddrV6::new(wire::MAPPED_LOOPBACK, 40_000 + n as u16, 0, 0).into(),
+                    SocketAddrV6::new(wire::SERVER_V6, port, 0, 0).into(),
+                )
+            } else {
+                (
+                    (Ipv4Addr::LOCALHOST, port).into(),
+                    (Ipv4Addr::LOCALHOST, 0).into(),
+                    SocketAddrV4::new(Ipv4Addr::LOCALHOST, 40_000 + n as u16).into(),
+                    SocketAddrV4::new(Ipv4Addr::LOCALHOST, port).into(),
+                )
+            };
+        let group = if addr.is_ipv6() {
+            format!(r#"{{"a": "[ff05::71:9]:{port}"}}"#)
+        } else {
+            format!(r#"{{"a": "239.255.71.9:{port}"}}"#)
+        };
+        let client = Client::bind(client_bind, coap::EndpointConfig::default()).expect("client");
+        let read =
+            |path: &str| rt.block_on(support::send(&client, here, Code::GET, path, b"", None));
+        let before = read(&app).payload;
+        let groups_before = read("/coap-group").payload;
+        let changed = String::from_utf8_lossy(&before).replace("\"icp\": 0", "\"icp\": 1");
+        assert_ne!(changed.as_bytes(), &before[..], "a real change");
+
+        // From "this machine" as far as the source address goes, arriving on mc0.
+        let forged_requests: [(Code, &str, &[u8], Option<u32>); 3] = [
+            (Code::PUT, &app, changed.as_bytes(), Some(50)),
+            (Code::DELETE, &pointcloud, b"", None),
+            (Code::POST, "/coap-group", group.as_bytes(), Some(256)),
+        ];
+        for (i, (method, path, payload, format)) in forged_requests.into_iter().enumerate() {
+            let mut msg = Message::empty(Type::Con, 0x4000 + i as u16);
+            msg.code = method;
+            msg.token = Token::new(&[7, i as u8]).unwrap_or_default();
+            msg.options.set_path(path);
+            if let Some(f) = format {
+                msg.options.set_uint(OptionNumber::CONTENT_FORMAT, f);
+            }
+            msg.payload = bytes::Bytes::copy_from_slice(payload);
+            // Twice, as a CON might be retransmitted.
+            for _ in 0..2 {
+                wire::inject(&wire::frame(forged, target, &msg.encode()));
+            }
+        }
+
+        // The same path carries frames to the server: one from fd00::7 (an address of
+        // this machine, but on mc0, not loopback) is a stranger's and draws the Echo
+        // challenge, which comes back to a socket bound there.
+        if addr.is_ipv6() {
+            let stranger = UdpSocket::bind("[fd00::7]:0").expect("bind fd00::7");
+            stranger
+                .set_read_timeout(Some(Duration::from_secs(5)))
+                .expect("timeout");
+            let from = stranger.local_addr().expect("address");
+            wire::inject(&wire::frame(from, target, &get(&app, 9).encode()));
+            let mut buf = [0u8; 1500];
+            let (len, _) = stranger.recv_from(&mut buf).expect("an answer on fd00::7");
+            let answer = Message::decode(&buf[..len]).expect("a CoAP answer");
+            assert_eq!(answer.code, Code::UNAUTHORIZED, "a stranger is challenged");
+        }
+        // The server works through its datagrams in order; a grace period lets the
+        // handlers of anything let through finish.
+        std::thread::sleep(Duration::from_millis(500));
+        assert_eq!(
+            read(&app).payload,
+            before,
+            "server {n}: the configuration changed"
+        );
+        let links = String::from_utf8_lossy(&read("/.well-known/core").payload).into_owned();
+        assert!(
+            links.contains(&format!("<{pointcloud}>")),
+            "server {n}: the point cloud resource is gone: {links}"
+        );
+        assert_eq!(
+            read("/coap-group").payload,
+            groups_before,
+            "server {n}: a group was joined"
+        );
+        // This machine still may, over loopback.
+        let put = rt.block_on(async {
+            let mut put = coap::Request::new(Code::PUT, &app).with_payload(changed.clone());
+            put.options.set_uint(OptionNumber::CONTENT_FORMAT, 50);
+            put.timeout = Some(LIMIT);
+            client.send(here, put).await.expect("PUT")
+        });
+        assert_eq!(put.code, Code::CHANGED, "server {n}: a local PUT");
+    }
+    mc0_sysctl("route_localnet", &localnet);
+    mc0_sysctl("accept_local", &accept_local);
+}

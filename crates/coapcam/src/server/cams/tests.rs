@@ -335,7 +335,8 @@ fn a_stranger_may_grab_but_not_change_the_cameras() {
         let sn = cam.serial();
         rig.hub.add(cam).expect("plug in");
         rig.routed(&format!("/cams/{sn}/color"), true).await;
-        let from = |peer: &str, method: Code, path: &str, payload: &[u8]| {
+        // A request from `peer`, arrived over loopback or not.
+        let from = |(peer, loopback): (&str, bool), method: Code, path: &str, payload: &[u8]| {
             let request = Request::new(method, path);
             rig.router.dispatch(coap::IncomingRequest {
                 id: coap::IncomingId(1),
@@ -347,6 +348,7 @@ fn a_stranger_may_grab_but_not_change_the_cameras() {
                 confirmable: true,
                 observe: None,
                 identity: None,
+                loopback,
             })
         };
         let app = format!("/cams/{sn}/application-config");
@@ -359,9 +361,21 @@ fn a_stranger_may_grab_but_not_change_the_cameras() {
             (Code::DELETE, &format!("/cams/{sn}/color"), b""),
             (Code::POST, "/cams/color", sn.as_str().as_bytes()),
         ] {
-            for stranger in ["192.0.2.7:5683", "[2001:db8::7]:5683"] {
+            // Strangers, and strangers whose source looks like loopback but who came in
+            // from a network interface.
+            for stranger in [
+                ("192.0.2.7:5683", false),
+                ("[2001:db8::7]:5683", false),
+                ("[::ffff:127.0.0.1]:5683", false),
+                ("127.0.0.1:5683", false),
+                ("[::1]:5683", false),
+            ] {
                 let r = from(stranger, method, path, payload).await;
-                assert_eq!(r.code, Code::FORBIDDEN, "{method:?} {path} from {stranger}");
+                assert_eq!(
+                    r.code,
+                    Code::FORBIDDEN,
+                    "{method:?} {path} from {stranger:?}"
+                );
             }
         }
         assert_eq!(
@@ -370,20 +384,20 @@ fn a_stranger_may_grab_but_not_change_the_cameras() {
             "nothing changed"
         );
         assert!(rig.router.patterns().contains(&format!("/cams/{sn}/color")));
-        // Reading is for everyone; this machine may change things, also over IPv4-mapped
-        // IPv6.
+        // Reading is for everyone; this machine (what came over loopback) may change
+        // things, whatever address it used.
         let grab = from(
-            "192.0.2.7:5683",
+            ("192.0.2.7:5683", false),
             Code::POST,
             &format!("/cams/{sn}/depth"),
             b"",
         )
         .await;
         assert_eq!(grab.code, Code::CONTENT);
-        let get = from("192.0.2.7:5683", Code::GET, &app, b"").await;
+        let get = from(("192.0.2.7:5683", false), Code::GET, &app, b"").await;
         assert_eq!(get.code, Code::CONTENT);
         let put = from(
-            "[::ffff:127.0.0.1]:5683",
+            ("[2001:db8::2]:5683", true),
             Code::PUT,
             &app,
             changed.as_bytes(),
