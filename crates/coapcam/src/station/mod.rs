@@ -3,8 +3,11 @@
 //! - [`log`]: the results log, append-only and hash-chained in SQLite, with retention;
 //! - [`resources`]: the log as CoAP resources (`/station/measurements...`);
 //! - [`mqtt`]: every record published to an MQTT broker, none lost while it is away;
-//! - [`line`]: a plain text line per measurement to the readers of a TCP port.
+//! - [`line`]: a plain text line per measurement to the readers of a TCP port;
+//! - [`auto`]: automatic measurement's core: height maps of the table and the stillness
+//!   detector that says when a parcel stands still.
 
+pub mod auto;
 pub mod line;
 pub mod log;
 pub mod mqtt;
