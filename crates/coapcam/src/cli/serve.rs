@@ -11,6 +11,7 @@ use clap::Args;
 use coap::EndpointConfig;
 use coapcam::server::{Cameras, Identities, RealSenseOptions, Station, StationConfig};
 use coapcam::station::log::Retention;
+use coapcam::station::watch::AutoConfig;
 use rgbd::Scene;
 use rgbd::backend::realsense::LibrarySearch;
 use tokio::signal::unix::{SignalKind, signal};
@@ -146,6 +147,21 @@ pub(crate) struct ServeArgs {
     /// reader that falls 256 lines behind is disconnected.
     #[arg(long, value_name = "tcp://ADDR:PORT", value_parser = coapcam::station::line::parse_tcp_uri, conflicts_with = "no_cameras")]
     line_output: Option<SocketAddr>,
+    /// Measure by itself: watch the table through the calibrated cameras' depth (a few
+    /// looks a second, every fourth pixel or so) and, when a parcel has arrived and stood
+    /// still for --still-ms, measure it once (dimensions, the codes, a photo and the
+    /// annotated picture) into the results log, recorded as triggered "auto". It is
+    /// measured again only after the table was empty or the parcel moved; nothing is
+    /// measured while it moves. Uncalibrated cameras are not watched (a warning names
+    /// them). With real cameras, --realsense-streaming keeps looks cheap.
+    #[arg(long, conflicts_with = "no_cameras")]
+    auto_measure: bool,
+    /// With --auto-measure: how long a parcel's height map must stay the same before it
+    /// is measured, in milliseconds. 600 by default: a parcel let go of has settled and
+    /// the hand is away by then, and it is measured within about a second of standing
+    /// still; raise it where parcels are placed slowly or wobble.
+    #[arg(long, value_name = "MS", requires = "auto_measure", value_parser = clap::value_parser!(u64).range(100..=60_000))]
+    still_ms: Option<u64>,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
@@ -221,6 +237,13 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             mqtt: args.mqtt.clone(),
             line_output: args.line_output,
         },
+        auto_measure: args.auto_measure.then(|| {
+            let mut auto = AutoConfig::default();
+            if let Some(ms) = args.still_ms {
+                auto.stillness.still = Duration::from_millis(ms);
+            }
+            auto
+        }),
     })
     .await?;
     if args.no_address_check {

@@ -73,6 +73,19 @@ pub fn color_jpeg(frame: &ColorFrame, quality: u8) -> Result<Vec<u8>, EncodeErro
     Ok(out)
 }
 
+/// Color as an 8-bit RGB image (alpha dropped), to draw on.
+pub fn color_rgb(frame: &ColorFrame) -> image::RgbImage {
+    let (pixels, ty) = rgb_pixels(frame);
+    let (w, h) = (frame.width, frame.height);
+    let image = if ty == ExtendedColorType::Rgba8 {
+        image::RgbaImage::from_raw(w, h, pixels)
+            .map(|i| image::DynamicImage::ImageRgba8(i).to_rgb8())
+    } else {
+        image::RgbImage::from_raw(w, h, pixels)
+    };
+    image.unwrap_or_default()
+}
+
 /// Color as 8-bit gray, converted as `image` converts an RGB image (the codes reader
 /// reads gray).
 pub fn color_gray(frame: &ColorFrame) -> image::GrayImage {

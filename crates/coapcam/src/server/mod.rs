@@ -93,6 +93,9 @@ pub struct StationConfig {
     /// What the station does by itself: its name, the results log that records every
     /// measurement (opened when there are cameras), the log's retention.
     pub station: station::Config,
+    /// Measure each parcel placed on the table by itself (`--auto-measure`,
+    /// `--still-ms`); `None`: only when a client asks.
+    pub auto_measure: Option<station::watch::AutoConfig>,
 }
 
 /// The policy of a server without security configured: configuration changes (PUT and
@@ -123,6 +126,17 @@ pub struct Station {
     /// The log's MQTT publisher (`--mqtt`) and line output (`--line-output`).
     publisher: Option<station::mqtt::Publisher>,
     line_output: Option<station::line::LineOutput>,
+    /// `--auto-measure`: the task watching the table, stopped with the station.
+    _watcher: Option<AbortOnDrop>,
+}
+
+/// A task aborted when this is dropped.
+struct AbortOnDrop(JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
 }
 
 impl Station {
@@ -166,14 +180,16 @@ impl Station {
             )?),
             None => None,
         };
+        let mut recorder = None;
         let results = match &cameras {
             Some(tree) => {
                 let path = config.station.results_path(&config.state_dir);
                 let log = ResultsLog::open_with(&path, config.station.retention)
                     .with_context(|| format!("opening the results log {}", path.display()))?;
                 station::resources::register(&router, &log);
-                tree.cams
-                    .set_recorder(Recorder::new(log.clone(), config.station.name.clone()));
+                let records = Recorder::new(log.clone(), config.station.name.clone());
+                tree.cams.set_recorder(records.clone());
+                recorder = Some(records);
                 let newest = log.subscribe();
                 Some((log, newest))
             }
@@ -194,6 +210,14 @@ impl Station {
         groups
             .start(&server, &config.groups, config.group_interface)
             .await?;
+        // The station watches the table once the server answers.
+        let watcher =
+            match (&cameras, recorder, config.auto_measure) {
+                (Some(tree), Some(recorder), Some(auto)) => Some(AbortOnDrop(
+                    station::watch::spawn(tree.cams.clone(), recorder, auto),
+                )),
+                _ => None,
+            };
         Ok(Self {
             server,
             files,
@@ -204,6 +228,7 @@ impl Station {
             results,
             publisher,
             line_output,
+            _watcher: watcher,
         })
     }
 

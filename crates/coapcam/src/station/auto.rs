@@ -420,8 +420,8 @@ mod tests {
             "444.....", ".444....", "..444...", "...444..", "....444.", ".....444",
         ];
         let mut m = EMPTY;
-        for r in row..row + 3 {
-            m[r] = ROWS[col];
+        for r in &mut m[row..row + 3] {
+            *r = ROWS[col];
         }
         m
     }
@@ -464,7 +464,11 @@ mod tests {
         // Still since 450 ms, for 600 ms: the look at 1050 ms is the first that counts.
         assert_eq!(
             events,
-            [(150, Event::Arrived), (1050, Event::Still), (3000, Event::Left)]
+            [
+                (150, Event::Arrived),
+                (1050, Event::Still),
+                (3000, Event::Left)
+            ]
         );
         assert!(d.is_empty());
     }
@@ -531,7 +535,11 @@ mod tests {
         looks.extend(hold(1200, 3000, still));
         assert_eq!(
             run(&mut d, &looks),
-            [(0, Event::Arrived), (600, Event::Still), (900, Event::Moved)]
+            [
+                (0, Event::Arrived),
+                (600, Event::Still),
+                (900, Event::Moved)
+            ]
         );
     }
 

@@ -10,9 +10,11 @@
 pub mod auto;
 pub mod line;
 pub mod log;
+pub mod measure;
 pub mod mqtt;
 pub mod record;
 pub(crate) mod resources;
+pub mod watch;
 
 use std::path::{Path, PathBuf};
 

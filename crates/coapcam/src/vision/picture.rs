@@ -4,9 +4,10 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Context as _;
-use geometry::{Dimensions, PointCloud};
+use anyhow::{Context as _, bail};
+use geometry::{Dimensions, PointCloud, Transform};
 use image::{GrayImage, ImageFormat, Luma, Rgb, RgbImage};
+use rgbd::{Extrinsics, Intrinsics};
 
 use crate::repr::packet::DepthImage;
 
@@ -310,6 +311,51 @@ fn draw_axes(image: &mut RgbImage, origin: [f32; 2], len: f32, scale: u32, names
         let at = (tip[0].max(0.0) as u32 + 2 * scale, tip[1].max(0.0) as u32);
         draw_text(image, at, name, scale, colour);
     }
+}
+
+/// The pixel at which a world point (the 3d-transformation's output frame) is seen by a
+/// color camera with `intrinsics`, `depth_to_color` from its depth camera, whose
+/// 3d-transformation is `depth_to_world`; `None` behind the camera. Fails for a
+/// transformation that cannot be inverted and for distorted color streams.
+pub fn projector(
+    intrinsics: Intrinsics,
+    depth_to_color: Extrinsics,
+    depth_to_world: &Transform,
+) -> anyhow::Result<impl Fn([f64; 3]) -> Option<[f32; 2]> + use<>> {
+    let inverse = depth_to_world
+        .linear
+        .try_inverse()
+        .context("the 3d-transformation cannot be inverted")?;
+    let translation = depth_to_world.translation;
+    if !intrinsics.is_pinhole() {
+        bail!(
+            "the color stream's {} distortion cannot be drawn through",
+            intrinsics.model.name()
+        );
+    }
+    Ok(move |[x, y, z]: [f64; 3]| {
+        let world = nalgebra::Vector3::new(x as f32, y as f32, z as f32);
+        let depth = inverse * (world - translation);
+        let c = depth_to_color.transform([depth.x, depth.y, depth.z]);
+        (c[2] > 1e-3).then(|| intrinsics.project(c).ok()).flatten()
+    })
+}
+
+/// Draws `dims` onto `image`, a color frame of a camera with `intrinsics` and
+/// `depth_to_color`, whose 3d-transformation is `depth_to_world` ([`annotate`] through
+/// [`projector`]).
+pub fn annotate_frame(
+    image: &mut RgbImage,
+    dims: &Dimensions,
+    intrinsics: Intrinsics,
+    depth_to_color: Extrinsics,
+    depth_to_world: &Transform,
+) -> anyhow::Result<()> {
+    // The camera in the world: where its depth frame's origin goes.
+    let camera = depth_to_world.translation.map(f64::from);
+    let project = projector(intrinsics, depth_to_color, depth_to_world)?;
+    annotate(image, dims, [camera.x, camera.y, camera.z], project);
+    Ok(())
 }
 
 /// Draws the measured box onto `image` through `project` (world point in metres ->

@@ -13,6 +13,7 @@ mod formats;
 mod get;
 mod group;
 mod interop;
+mod lane;
 mod library;
 mod line;
 mod load;

@@ -30,8 +30,9 @@ use tokio::sync::mpsc;
 use crate::report::{self, EdgeQuery, Measurement, Parcel};
 use crate::repr::clouds::{self, DepthPart};
 use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
+use crate::station::Recorder;
+use crate::station::measure::{self as station_measure, Rig, RigCamera, Shot};
 use crate::station::record::{CameraPose, Trigger};
-use crate::station::{Measured, Recorder};
 use crate::vision::calibration::pose_transformation;
 
 pub use budget::Busy;
@@ -686,25 +687,28 @@ impl Cams {
             Ok(q) => q,
             Err(why) => return Response::diagnostic(Code::BAD_REQUEST, &why),
         };
-        // Its own measurement, not the latest: another may have ended meanwhile.
-        let m = match self.measure_now(&query).await {
-            Ok(m) => m,
+        // Its own measurement, not the latest: another may have ended meanwhile. With a
+        // results log it comes with the photo and the annotated picture to record.
+        let recorder = self.recorder.get();
+        let measured = match station_measure::measure(
+            self,
+            &query,
+            Trigger::Request,
+            recorder.is_some(),
+        )
+        .await
+        {
+            Ok(measured) => measured,
             Err(e) => return e.response(),
         };
+        let m = measured.measurement.clone();
         // Recorded before it is answered: an answered measurement is in the log.
-        if let Some(recorder) = self.recorder.get() {
-            let measured = Measured {
-                trigger: Trigger::Request,
-                cameras: self.poses(&m.cameras),
-                measurement: m.clone(),
-                photo_jpeg: None,
-                annotated_png: None,
-            };
-            if let Err(e) = recorder.record(measured).await {
-                tracing::error!("a measurement could not be recorded: {e}");
-                let why = format!("measured, but the measurement could not be recorded: {e}");
-                return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
-            }
+        if let Some(recorder) = recorder
+            && let Err(e) = recorder.record(measured).await
+        {
+            tracing::error!("a measurement could not be recorded: {e}");
+            let why = format!("measured, but the measurement could not be recorded: {e}");
+            return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
         }
         match edge::stored(m) {
             Ok(stored) => measurement(&stored, cf),
@@ -802,6 +806,52 @@ impl Cams {
             Some(stored) => measurement(&stored, cf),
             None => Response::diagnostic(Code::NOT_FOUND, "no measurement yet: POST measures"),
         }
+    }
+}
+
+impl Rig for Cams {
+    type Error = EdgeError;
+
+    async fn measure(&self, query: &EdgeQuery) -> Result<Measurement, EdgeError> {
+        self.measure_now(query).await
+    }
+
+    async fn shot(&self, serial: Serial) -> Result<Shot, String> {
+        let cam = self
+            .camera(&serial)
+            .ok_or_else(|| format!("camera {serial} is not connected"))?;
+        let app = lock(&cam.app).clone();
+        let transformation = *lock(&cam.transformation);
+        let grabbed = tokio::task::spawn_blocking(move || grab::color(cam.camera.as_ref(), &app))
+            .await
+            .map_err(|e| format!("camera {serial}: color grab task: {e}"))?;
+        match grabbed {
+            Ok(Frame::Color(frame, intrinsics, depth_to_color)) => Ok(Shot {
+                frame,
+                intrinsics,
+                depth_to_color,
+                transformation,
+            }),
+            Ok(_) => Err(format!(
+                "camera {serial}: the color grab gave no color frame"
+            )),
+            Err(e) => Err(format!("camera {serial}: color: {e}")),
+        }
+    }
+
+    fn poses(&self, serials: &[String]) -> Vec<CameraPose> {
+        Self::poses(self, serials)
+    }
+
+    fn cameras(&self) -> Vec<RigCamera> {
+        self.snapshot()
+            .into_iter()
+            .map(|(serial, cam)| RigCamera {
+                serial,
+                camera: cam.camera.clone(),
+                transformation: *lock(&cam.transformation),
+            })
+            .collect()
     }
 }
 

@@ -1,0 +1,164 @@
+//! Making a measurement to record, the one way every measurement path does it (a client's
+//! `POST /cams/dimensions`, the automatic one): the edge measurement of every camera
+//! (with the codes when asked), a photo (JPEG) of the first camera in merge order, taken
+//! while the clouds are grabbed, and the measured box drawn onto that photo (PNG). The
+//! cameras are a [`Rig`], which the server's `/cams` tree is; the result is a
+//! [`Measured`] for [`super::Recorder::record`].
+
+use std::future::Future;
+use std::sync::Arc;
+
+use geometry::Transformation;
+use rgbd::{Camera, ColorFrame, Extrinsics, Intrinsics, Serial};
+
+use super::Measured;
+use super::record::{CameraPose, Trigger};
+use crate::report::{EdgeQuery, Found, Measurement};
+use crate::repr::raster;
+use crate::vision::picture;
+
+/// JPEG quality of the photo: a legible label and parcel at a tenth of the PNG's bytes.
+pub const PHOTO_QUALITY: u8 = 85;
+
+/// A color frame of one camera, with what drawing on it needs.
+#[derive(Debug, Clone)]
+pub struct Shot {
+    /// The frame.
+    pub frame: ColorFrame,
+    /// The color camera's intrinsics for this frame.
+    pub intrinsics: Intrinsics,
+    /// Where a point of the depth camera lies in the color camera's frame.
+    pub depth_to_color: Extrinsics,
+    /// The camera's 3d-transformation (depth frame -> table frame).
+    pub transformation: Transformation,
+}
+
+/// A connected camera with its 3d-transformation, as the watcher looks through it.
+#[derive(Clone)]
+pub struct RigCamera {
+    /// Its serial.
+    pub serial: Serial,
+    /// The camera.
+    pub camera: Arc<dyn Camera>,
+    /// Its 3d-transformation now.
+    pub transformation: Transformation,
+}
+
+/// What measuring needs of a server's cameras. The `/cams` tree is the one there is; the
+/// trait keeps the station's code free of the server's.
+pub trait Rig: Send + Sync + 'static {
+    /// Why a measurement failed.
+    type Error: std::error::Error + Send + Sync + 'static;
+
+    /// The edge measurement of every camera, as `query` asks.
+    fn measure(
+        &self,
+        query: &EdgeQuery,
+    ) -> impl Future<Output = Result<Measurement, Self::Error>> + Send;
+
+    /// A new color frame of camera `serial`.
+    fn shot(&self, serial: Serial) -> impl Future<Output = Result<Shot, String>> + Send;
+
+    /// The serial and 3d-transformation of each camera of `serials`.
+    fn poses(&self, serials: &[String]) -> Vec<CameraPose>;
+
+    /// The connected cameras, in merge order.
+    fn cameras(&self) -> Vec<RigCamera>;
+}
+
+/// Measures with every camera of `rig` as `query` asks and, with `pictures`, takes the
+/// photo and draws the annotated picture: the [`Measured`] to record as made by
+/// `trigger`. A photo or picture that cannot be made is left out, with a warning in the
+/// measurement saying why.
+pub async fn measure<R: Rig>(
+    rig: &R,
+    query: &EdgeQuery,
+    trigger: Trigger,
+    pictures: bool,
+) -> Result<Measured, R::Error> {
+    let first = rig.cameras().first().map(|c| c.serial);
+    let shot = async {
+        match (pictures, first) {
+            (true, Some(serial)) => Some(rig.shot(serial).await),
+            (true, None) => Some(Err("no camera is connected".to_owned())),
+            (false, _) => None,
+        }
+    };
+    let (measurement, shot) = tokio::join!(rig.measure(query), shot);
+    let mut measurement = measurement?;
+    let (photo_jpeg, annotated_png) = match shot {
+        None => (None, None),
+        Some(Err(why)) => {
+            measurement.warnings.push(format!("no photo: {why}"));
+            (None, None)
+        }
+        Some(Ok(shot)) => {
+            let found = measurement.parcel.clone();
+            let points = usize::try_from(measurement.parcel_points).unwrap_or(usize::MAX);
+            let made = tokio::task::spawn_blocking(move || pictures_of(&shot, &found, points))
+                .await
+                .unwrap_or_else(|e| {
+                    let why = format!("the pictures' task failed: {e}");
+                    (Err(why.clone()), Err(why))
+                });
+            let photo = made
+                .0
+                .map_err(|why| measurement.warnings.push(format!("no photo: {why}")))
+                .ok();
+            let annotated = made
+                .1
+                .map_err(|why| {
+                    measurement
+                        .warnings
+                        .push(format!("no annotated picture: {why}"))
+                })
+                .ok()
+                .flatten();
+            (photo, annotated)
+        }
+    };
+    Ok(Measured {
+        trigger,
+        cameras: rig.poses(&measurement.cameras),
+        measurement,
+        photo_jpeg,
+        annotated_png,
+    })
+}
+
+/// A picture, or why it could not be made.
+type Picture<T> = Result<T, String>;
+
+/// The photo (JPEG) of `shot` and, when a parcel was measured, the box drawn onto it
+/// (PNG; `None` when nothing was on the table).
+fn pictures_of(
+    shot: &Shot,
+    found: &Found,
+    points: usize,
+) -> (Picture<Vec<u8>>, Picture<Option<Vec<u8>>>) {
+    let photo = raster::color_jpeg(&shot.frame, PHOTO_QUALITY).map_err(|e| e.to_string());
+    let Found::Measured(reported) = found else {
+        return (photo, Ok(None));
+    };
+    let annotated = (|| {
+        let transform = shot
+            .transformation
+            .to_transform()
+            .map_err(|e| format!("the 3d-transformation: {e}"))?;
+        let mut image = raster::color_rgb(&shot.frame);
+        picture::annotate_frame(
+            &mut image,
+            &reported.dimensions(points),
+            shot.intrinsics,
+            shot.depth_to_color,
+            &transform,
+        )
+        .map_err(|e| format!("{e:#}"))?;
+        let mut png = Vec::new();
+        image
+            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .map_err(|e| format!("PNG: {e}"))?;
+        Ok(Some(png))
+    })();
+    (photo, annotated)
+}

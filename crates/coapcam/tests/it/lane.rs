@@ -1,0 +1,315 @@
+//! `serve --auto-measure` on scenes with a timeline: parcels slid onto the table, left
+//! standing, moved and taken away, measured by the station by itself. Each test plays
+//! a scene of some 20 seconds and then reads the station's records (`coapcam results
+//! --server --json`), checking them against the timeline: how many, how close to the
+//! truth, and that every frame measured was captured while its parcel stood still.
+
+use std::io::{BufRead as _, BufReader};
+use std::net::SocketAddr;
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::thread;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use coapcam::station::record::{Record, Trigger};
+use rgbd::Scene;
+use rgbd::scene::SceneBox;
+
+use crate::support::{COAPCAM, Proc, TempDir};
+
+/// One lane at a time: each renders and measures continuously, and three at once on a
+/// busy 2-core machine would slow the measurements past the time a parcel stands.
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+/// One calibrated D415 1.1 m above the table, looking down.
+const ONE_CAMERA: &str = r#"
+seed = 5
+[[camera]]
+serial = "840412060746"
+position = [0.0, 0.0, 1.1]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+"#;
+
+/// The two calibrated D415s of the demo scene, from opposite sides.
+const TWO_CAMERAS: &str = r#"
+seed = 7
+[[camera]]
+serial = "840412060746"
+position = [0.45, -0.25, 1.0]
+look_at = [0.0, 0.0, 0.1]
+
+[[camera]]
+serial = "840412060757"
+position = [-0.40, 0.30, 1.2]
+look_at = [0.0, 0.0, 0.1]
+"#;
+
+/// How long each parcel stands still: a measurement (grabs, codes, photo, annotated
+/// picture) in a debug build on a busy 2-core machine takes a few seconds, and one that
+/// is still running when its parcel is taken away is not recorded.
+const STILL_S: f64 = 8.0;
+
+/// A parcel `size` (metres) yawed `yaw`, slid from `from` to `center` between `appear`
+/// and `appear + 1`, standing still for [`STILL_S`], then taken away.
+fn parcel(size: [f64; 3], yaw: f64, center: [f64; 2], from: [f64; 2], appear: f64) -> String {
+    format!(
+        "[[box]]\nsize = {size:?}\ncenter = {center:?}\nyaw_deg = {yaw}\nappear_s = {appear}\n\
+         from = {from:?}\nstill_s = {}\nremove_s = {}\n\
+         label = {{ kind = \"qr\", text = \"PKG-{appear}\", size = 0.08 }}\n",
+        appear + 1.0,
+        appear + 1.0 + STILL_S,
+    )
+}
+
+/// A station playing `scene` with `--auto-measure`; the times around its start bound
+/// when its scene time began (the cameras are made before it says it serves). Its log
+/// lines are kept for the failure messages.
+struct Lane {
+    server: Child,
+    log: Arc<Mutex<Vec<String>>>,
+    _turn: MutexGuard<'static, ()>,
+    addr: SocketAddr,
+    scene: Scene,
+    results: std::path::PathBuf,
+    started_after_us: u64,
+    started_before_us: u64,
+}
+
+fn unix_us() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64)
+}
+
+impl Lane {
+    fn start(dir: &TempDir, scene_text: &str) -> Self {
+        let scene = Scene::from_toml(scene_text).expect("the test's scene");
+        let path = dir.join("lane.toml");
+        std::fs::write(&path, scene_text).expect("writing the scene");
+        let results = dir.join("results.sqlite");
+        let state = dir.join("state");
+        let turn = ONE_AT_A_TIME.lock().unwrap_or_else(PoisonError::into_inner);
+        let started_after_us = unix_us();
+        let mut server = Command::new(COAPCAM)
+            .args([
+                "serve",
+                "--bind",
+                "127.0.0.1:0",
+                "--duration",
+                "120",
+                "--scene",
+            ])
+            .arg(&path)
+            .arg("--state-dir")
+            .arg(&state)
+            .arg("--results")
+            .arg(&results)
+            .args(["--auto-measure", "--station-name", "lane-1"])
+            .env("RUST_LOG", "coapcam::station=info")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("starting coapcam serve");
+        let stderr = server.stderr.take().expect("stderr pipe");
+        // The server stops by itself after --duration, which bounds this read.
+        let mut lines = BufReader::new(stderr).lines().map_while(Result::ok);
+        let addr = lines
+            .by_ref()
+            .find_map(|l| {
+                l.strip_prefix("coapcam: serving on ")
+                    .and_then(|a| a.trim().parse().ok())
+            })
+            .expect("coapcam serve printed no address");
+        let started_before_us = unix_us();
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let keep = Arc::clone(&log);
+        thread::spawn(move || {
+            for line in lines {
+                keep.lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .push(line);
+            }
+        });
+        Self {
+            server,
+            log,
+            _turn: turn,
+            addr,
+            scene,
+            results,
+            started_after_us,
+            started_before_us,
+        }
+    }
+
+    /// What the station logged so far.
+    fn log(&self) -> String {
+        self.log
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .join("\n")
+    }
+
+    /// The scene's last moment: when its last object is taken away.
+    fn end_s(&self) -> f64 {
+        self.scene
+            .boxes
+            .iter()
+            .filter_map(|b| b.timeline.remove_s)
+            .fold(0.0, f64::max)
+    }
+
+    /// Waits until the scene has played out (and a second more), then lists the records.
+    fn records_after_the_scene(&self) -> Vec<Record> {
+        let end_us = self.started_before_us + ((self.end_s() + 1.0) * 1e6) as u64;
+        let now = unix_us();
+        if end_us > now {
+            thread::sleep(Duration::from_micros(end_us - now));
+        }
+        let server = format!("coap://{}", self.addr);
+        let out = Proc::run(
+            COAPCAM,
+            &["results", "--server", &server, "--json"],
+            Duration::from_secs(60),
+        )
+        .expect_success("coapcam results");
+        let mut records: Vec<Record> = out
+            .stdout_text()
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("a record"))
+            .collect();
+        records.sort_by_key(|r| r.id);
+        records
+    }
+
+    /// Checks that `record` measured `b` standing still: within 5 mm of its size, its
+    /// footprint centred where it stood still, every frame captured (whatever the exact
+    /// start of the scene's time within the start-up) between `still_s` and `remove_s`.
+    fn check(&self, record: &Record, b: &SceneBox) {
+        assert_eq!(record.trigger, Trigger::Auto);
+        assert_eq!(record.station, "lane-1");
+        let r = record.measurement.reported().expect("a measured parcel");
+        let [l, w] = if b.size[0] >= b.size[1] {
+            [b.size[0], b.size[1]]
+        } else {
+            [b.size[1], b.size[0]]
+        };
+        for (got, want, what) in [
+            (r.length_mm, l * 1e3, "length"),
+            (r.width_mm, w * 1e3, "width"),
+            (r.height_mm, b.size[2] * 1e3, "height"),
+        ] {
+            assert!(
+                (got - want).abs() <= 5.0,
+                "record {}: {what} {got} mm, truth {want} mm\n{}",
+                record.id,
+                self.log()
+            );
+        }
+        let centre = [0, 1].map(|k| r.corners_m.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+        let off = ((centre[0] - b.center[0]).powi(2) + (centre[1] - b.center[1]).powi(2)).sqrt();
+        assert!(
+            off < 0.005,
+            "record {}: footprint centred {centre:?}, the parcel stood at {:?}\n{}",
+            record.id,
+            b.center,
+            self.log()
+        );
+        let (still, remove) = (b.timeline.still(), b.timeline.remove_s.expect("removed"));
+        assert!(!record.measurement.frames_unix_us.is_empty());
+        for &frame_us in &record.measurement.frames_unix_us {
+            // Scene time of the frame: between these two, as scene time 0 was between
+            // the two start times.
+            let earliest = frame_us.saturating_sub(self.started_before_us) as f64 / 1e6;
+            let latest = frame_us.saturating_sub(self.started_after_us) as f64 / 1e6;
+            assert!(
+                earliest >= still && latest < remove,
+                "record {}: a frame at scene time {earliest:.2}..{latest:.2} s, the parcel stood still {still}..{remove} s\n{}",
+                record.id,
+                self.log()
+            );
+        }
+        assert!(record.has_photo && record.photo_sha256.is_some(), "a photo");
+        assert!(record.has_annotated, "an annotated picture");
+    }
+
+    /// `results verify` passes on the log.
+    fn verify(&self) {
+        Proc::run(
+            COAPCAM,
+            &["results", "verify", &self.results.to_string_lossy()],
+            Duration::from_secs(60),
+        )
+        .expect_success("coapcam results verify");
+    }
+
+    /// Checks that there are `n` records, with the station's log if not.
+    fn expect_count(&self, records: &[Record], n: usize) {
+        assert_eq!(
+            records.len(),
+            n,
+            "records: {records:#?}\nthe station's log:\n{}",
+            self.log()
+        );
+    }
+}
+
+impl Drop for Lane {
+    fn drop(&mut self) {
+        let _ = self.server.kill();
+        let _ = self.server.wait();
+    }
+}
+
+#[test]
+fn two_parcels_placed_one_after_the_other_are_measured_once_each_and_never_while_moving() {
+    let dir = TempDir::new("lane-two");
+    let scene = format!(
+        "{ONE_CAMERA}{}{}",
+        parcel([0.40, 0.30, 0.20], 15.0, [0.0, 0.0], [0.45, 0.0], 2.0),
+        parcel([0.32, 0.22, 0.12], -20.0, [0.02, -0.03], [0.0, -0.45], 12.0),
+    );
+    let lane = Lane::start(&dir, &scene);
+    let records = lane.records_after_the_scene();
+    lane.expect_count(&records, 2);
+    lane.check(&records[0], &lane.scene.boxes[0]);
+    lane.check(&records[1], &lane.scene.boxes[1]);
+    lane.verify();
+}
+
+#[test]
+fn a_parcel_moved_to_a_new_place_on_the_table_is_measured_again_there() {
+    let dir = TempDir::new("lane-moved");
+    // The parcel stands at (-0.1, 0) from 3 s; at 11 s it is pushed to (0.12, 0.05)
+    // (the second box takes the first's place and slides), still there from 12 s.
+    let first = parcel([0.30, 0.25, 0.18], 10.0, [-0.1, 0.0], [-0.5, 0.0], 2.0);
+    let moved = parcel([0.30, 0.25, 0.18], 10.0, [0.12, 0.05], [-0.1, 0.0], 11.0);
+    let scene = format!("{ONE_CAMERA}{first}{moved}");
+    let lane = Lane::start(&dir, &scene);
+    let records = lane.records_after_the_scene();
+    lane.expect_count(&records, 2);
+    lane.check(&records[0], &lane.scene.boxes[0]);
+    lane.check(&records[1], &lane.scene.boxes[1]);
+}
+
+#[test]
+fn a_parcel_seen_by_two_cameras_is_measured_once_with_both() {
+    let dir = TempDir::new("lane-two-cameras");
+    let scene = format!(
+        "{TWO_CAMERAS}{}",
+        parcel([0.36, 0.26, 0.16], 25.0, [0.0, 0.02], [0.0, 0.5], 2.0)
+    );
+    let lane = Lane::start(&dir, &scene);
+    let records = lane.records_after_the_scene();
+    lane.expect_count(&records, 1);
+    lane.check(&records[0], &lane.scene.boxes[0]);
+    let serials: Vec<&str> = records[0]
+        .cameras
+        .iter()
+        .map(|c| c.serial.as_str())
+        .collect();
+    assert_eq!(serials, ["840412060746", "840412060757"]);
+    assert_eq!(records[0].measurement.cameras.len(), 2);
+}
