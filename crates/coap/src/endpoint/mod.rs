@@ -282,8 +282,8 @@ impl Endpoint {
             }
             Type::Con | Type::Non if msg.code.is_request() => {
                 let (mut cx, _, server) = self.parts();
-                let req = Incoming::read(cx.config, now, peer, msg, payload, multicast);
-                server.on_request(&mut cx, now, req, data.len());
+                let mut req = Incoming::read(cx.config, now, peer, msg, payload, multicast);
+                server.on_request(&mut cx, now, &mut req, data.len());
             }
             Type::Con | Type::Non if msg.code.is_response() => {
                 self.on_separate_response(now, peer, &mut msg, payload)

@@ -27,7 +27,7 @@ impl ServerLayer {
         &mut self,
         cx: &mut Context<'_>,
         now: Instant,
-        req: Incoming<'_>,
+        req: &mut Incoming<'_>,
         size: usize,
     ) {
         // `Err(Answered)`: a stage answered (or dropped) the request.
@@ -38,7 +38,7 @@ impl ServerLayer {
         &mut self,
         cx: &mut Context<'_>,
         now: Instant,
-        mut req: Incoming<'_>,
+        req: &mut Incoming<'_>,
         size: usize,
     ) -> Result<(), Answered> {
         // A Block2 continuation is looked up in the store before deduplication: the store
@@ -47,24 +47,24 @@ impl ServerLayer {
         // dedup store keeps (the token is the same). Q-Block blocks are served from the
         // store or assembled with duplicates found by block number, so they skip it too.
         if !req.continuation && !req.q_stateless() {
-            self.replay_stage(cx, now, &req)?;
+            self.replay_stage(cx, now, req)?;
         }
-        req.budget = self.verify_stage(cx, now, &req, size)?;
-        self.critical_options_stage(cx, now, &req)?;
+        req.budget = self.verify_stage(cx, now, req, size)?;
+        self.critical_options_stage(cx, now, req)?;
         req.msg.options.drop_bad_elective();
         let key = req.block_key();
         let mut body = Assembled::default();
         if req.is_qblock() {
-            match self.on_q_request(cx, now, &req, &key) {
+            match self.on_q_request(cx, now, req, &key) {
                 QNext::Done => return Err(Answered),
                 QNext::Dispatch(assembled) => body.bytes = assembled,
             }
         }
         if req.continuation {
-            self.continuation_stage(cx, now, &req, &key)?;
+            self.continuation_stage(cx, now, req, &key)?;
         }
         if let Some(b1) = req.block1 {
-            body = self.block1_stage(cx, now, &req, &key, b1)?;
+            body = self.block1_stage(cx, now, req, &key, b1)?;
         }
         self.hand_over(cx, now, req, key, body)
     }
@@ -276,14 +276,14 @@ impl ServerLayer {
         &mut self,
         cx: &mut Context<'_>,
         now: Instant,
-        req: Incoming<'_>,
+        req: &mut Incoming<'_>,
         key: BlockKey,
         body: Assembled,
     ) -> Result<(), Answered> {
         if self.unanswered() >= cx.limits().pending_requests {
             let mut r = Response::new(Code::SERVICE_UNAVAILABLE);
             r.options.set_uint(OptionNumber::MAX_AGE, 1);
-            answer(cx, now, &req, r);
+            answer(cx, now, req, r);
             return Err(Answered);
         }
         let id = cx.new_id();
@@ -309,18 +309,18 @@ impl ServerLayer {
             key: if multicast { key.for_group() } else { key },
             observation,
             qblock2: if observation.is_none() {
-                req.q2
+                std::mem::take(&mut req.q2)
             } else {
                 Vec::new()
             },
             not_before,
         };
         self.pending.insert(id, pending);
-        let (msg, payload) = (req.msg, req.payload);
+        let msg = &mut req.msg;
         let key = (peer, msg.message_id);
         let limits = cx.limits();
         let seen = Seen::Pending(id);
-        (cx.msg.dedup).insert(now, key, Fingerprint::of(&msg), req.expires, seen, limits);
+        (cx.msg.dedup).insert(now, key, Fingerprint::of(msg), req.expires, seen, limits);
         if con {
             let at = now + cx.config.separate_ack_delay;
             cx.msg.schedule(at, TimerKind::SeparateAck { id });
@@ -329,10 +329,10 @@ impl ServerLayer {
             id: IncomingId(id),
             peer,
             method: msg.code,
-            options: msg.options,
+            options: std::mem::take(&mut msg.options),
             payload: body
                 .bytes
-                .unwrap_or_else(|| Bytes::copy_from_slice(payload)),
+                .unwrap_or_else(|| Bytes::copy_from_slice(req.payload)),
             multicast,
             confirmable: con,
             observe: observation.map(ObservationId),
