@@ -446,18 +446,19 @@ impl ServerLayer {
         self.arm_qset(cx, id);
     }
 
-    /// A block of a body sent with Q-Block1; the whole body when it is complete.
-    fn on_q_block1(
+    /// The upload a block of a body sent with Q-Block1 belongs to, made if it is the
+    /// first (its id, and the body's blocks); `None` when the block was answered here
+    /// (refused) or dropped (its body was handed over already).
+    fn q_upload_for(
         &mut self,
         cx: &mut Context<'_>,
         now: Instant,
         req: &Incoming<'_>,
         key: &BlockKey,
         q: BlockOpt,
-    ) -> Option<Bytes> {
-        let (peer, msg, payload) = (req.peer, &req.msg, req.payload);
+    ) -> Option<(u64, u32)> {
+        let (msg, payload) = (&req.msg, req.payload);
         let limits = cx.limits();
-        let mp = cx.config.payloads_per_set();
         let size1 = msg
             .options
             .uint(OptionNumber::SIZE1)
@@ -530,6 +531,21 @@ impl ServerLayer {
                 id
             }
         };
+        Some((id, blocks))
+    }
+
+    /// A block of a body sent with Q-Block1; the whole body when it is complete.
+    fn on_q_block1(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        req: &Incoming<'_>,
+        key: &BlockKey,
+        q: BlockOpt,
+    ) -> Option<Bytes> {
+        let (peer, msg, payload) = (req.peer, &req.msg, req.payload);
+        let mp = cx.config.payloads_per_set();
+        let (id, blocks) = self.q_upload_for(cx, now, req, key, q)?;
         let u = self.quploads.get_mut(&id)?;
         let num = q.num as usize;
         let again = u.got[num];
