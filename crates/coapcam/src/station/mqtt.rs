@@ -24,6 +24,7 @@ use rumqttc::{
 };
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
+use tokio::time::{Instant, sleep_until};
 
 use super::log::ResultsLog;
 
@@ -446,6 +447,15 @@ async fn wait_or_stop(pause: Duration, stop: &mut watch::Receiver<bool>) -> bool
     }
 }
 
+/// Why records could not be handed to the client.
+enum Stalled {
+    /// The connection is unusable: reconnect.
+    Connection(String),
+    /// The log could not be read (or a record not written as a message): keep the
+    /// connection and try again after [`BACKOFF_MAX`]; nothing is skipped.
+    Log(String),
+}
+
 /// One connection's worth of publishing.
 struct Session<'a> {
     client: &'a AsyncClient,
@@ -463,6 +473,7 @@ impl Session<'_> {
         backoff: &mut Duration,
         was_lost: &mut bool,
     ) -> End {
+        let mut retry: Option<Instant> = None;
         loop {
             tokio::select! {
                 event = events.recv() => {
@@ -490,48 +501,54 @@ impl Session<'_> {
                         _ => {}
                     }
                 }
-                changed = newest.changed() => {
-                    if changed.is_err() {
-                        // The log is gone: nothing more will come; wait for the stop.
-                        let _ = stop.changed().await;
-                        return self.stop(&mut events).await;
-                    }
+                // (The publisher holds the log, so the watch never closes.)
+                Ok(()) = newest.changed() => {}
+                () = sleep_until(retry.unwrap_or_else(Instant::now)), if retry.is_some() => {
+                    retry = None;
                 }
                 _ = stop.changed() => return self.stop(&mut events).await,
             }
+            if retry.is_some() {
+                continue;
+            }
             let up_to = *newest.borrow();
-            if let Err(e) = self.fill(up_to).await {
-                return End::Lost(e);
+            match self.fill(up_to).await {
+                Ok(()) => {}
+                Err(Stalled::Connection(e)) => return End::Lost(e),
+                Err(Stalled::Log(e)) => {
+                    tracing::error!("MQTT: {e}; trying again in {BACKOFF_MAX:?}");
+                    retry = Some(Instant::now() + BACKOFF_MAX);
+                }
             }
         }
     }
 
     /// Hands the client the records after the last one sent, while the window has room.
-    async fn fill(&mut self, newest: u64) -> Result<(), String> {
+    async fn fill(&mut self, newest: u64) -> Result<(), Stalled> {
         while self.delivery.room() > 0 && newest > self.delivery.sent_up_to() {
             let (from, limit) = (self.delivery.sent_up_to(), self.delivery.room());
             let l = self.log.clone();
             let batch = tokio::task::spawn_blocking(move || l.after(from, limit))
                 .await
-                .map_err(|e| e.to_string())?
-                .map_err(|e| format!("reading the results log: {e}"))?;
+                .map_err(|e| Stalled::Log(format!("reading the results log: {e}")))?
+                .map_err(|e| Stalled::Log(format!("reading the results log: {e}")))?;
             if batch.is_empty() {
                 return Ok(());
             }
             for record in batch {
                 let id = record.id;
-                let json =
-                    serde_json::to_vec(&record).map_err(|e| format!("record {id} as JSON: {e}"))?;
+                let json = serde_json::to_vec(&record)
+                    .map_err(|e| Stalled::Log(format!("record {id} as JSON: {e}")))?;
                 if json.len() + self.topics.measurements.len() + 16 > MAX_PACKET {
-                    return Err(format!(
+                    return Err(Stalled::Log(format!(
                         "record {id} is {} bytes as JSON, more than an MQTT message of the station may hold ({MAX_PACKET})",
                         json.len()
-                    ));
+                    )));
                 }
                 self.client
                     .publish(&self.topics.measurements, QoS::AtLeastOnce, false, json)
                     .await
-                    .map_err(|e| e.to_string())?;
+                    .map_err(|e| Stalled::Connection(e.to_string()))?;
                 self.delivery.sending(Carried::Record(id));
             }
         }

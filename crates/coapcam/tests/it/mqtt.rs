@@ -525,7 +525,7 @@ fn a_measurement_made_while_the_broker_is_down_arrives_after_it_is_back_20_times
     let dir = TempDir::new("serve-mqtt-restarts");
     let mut broker = Broker::start(&dir, true);
     let uri = broker.uri("lane");
-    let (_server, addr, _) = serve_station(&dir, &["--mqtt", &uri, "--station-name", "dock-r"]);
+    let (mut server, addr, _) = serve_station(&dir, &["--mqtt", &uri, "--station-name", "dock-r"]);
     runtime().block_on(async {
         let mut sub =
             Subscriber::start(broker.port, "test-e2e-durable", "lane/+/measurements", true).await;
@@ -551,4 +551,8 @@ fn a_measurement_made_while_the_broker_is_down_arrives_after_it_is_back_20_times
             "20 broker restarts through serve: every measurement in order, {repeats} repeats"
         );
     });
+    // A clean stop (SIGINT) publishes offline itself, as the last will would.
+    let f = server.interrupt();
+    assert!(f.status.success(), "serve: {}", f.stderr);
+    assert_eq!(retained(broker.port, "lane/dock-r/status"), "offline");
 }
