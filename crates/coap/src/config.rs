@@ -86,9 +86,10 @@ pub struct Limits {
     /// Observations served at once; further registrations are answered as plain GETs.
     pub observations: usize,
     /// Peers whose address an Echo round trip verified, remembered at once; beyond it the
-    /// one silent longest is forgotten (and must answer an Echo challenge again).
+    /// one proved longest ago is forgotten (and must answer an Echo challenge again).
     pub verified_peers: usize,
-    /// How long a verified peer stays verified after its last request.
+    /// How long a verified peer stays verified after the Echo value that proved it (other
+    /// requests, which anyone could send in its name, do not extend it).
     pub verified_lifetime: Duration,
 }
 

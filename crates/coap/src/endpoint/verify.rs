@@ -8,8 +8,11 @@
 //! first datagram) and a keyed 64-bit SipHash of that time and the peer's address, so a
 //! spoofed source costs the server no state. The key is the one piece of randomness not
 //! drawn from `rng_seed`: it must be unpredictable, so it comes from the OS
-//! (`RandomState`). Verified peers are remembered while they keep talking, up to
-//! [`Limits::verified_peers`](crate::config::Limits::verified_peers) of them.
+//! (`RandomState`). A verified peer is remembered for `verified_lifetime` after the Echo
+//! value that proved it, up to
+//! [`Limits::verified_peers`](crate::config::Limits::verified_peers) of them. Only a proof
+//! renews it: any request refreshing it would let whoever spoofs a once-verified address
+//! keep it open for reflection as long as they like.
 //!
 //! Loopback peers count as verified: the transport hands over a datagram with a loopback
 //! source only when it came in over the loopback interface (coap-net drops the others:
@@ -62,8 +65,9 @@ impl AddressCheck {
         value
     }
 
-    /// Whether `peer` may be sent more than three times what it sent. A fresh Echo value
-    /// made for this peer verifies it; a verified peer's entry is refreshed.
+    /// Whether `peer` may be sent more than three times what it sent: it returned a fresh
+    /// Echo value made for it, now or within `lifetime`. Only a fresh Echo value renews
+    /// the verification; other requests, which anyone can send in its name, do not.
     pub(super) fn is_verified(
         &mut self,
         now: Instant,
@@ -75,17 +79,14 @@ impl AddressCheck {
         if peer.ip().to_canonical().is_loopback() {
             return true;
         }
-        if let Some(seen) = self.verified.get_mut(&PeerKey(peer))
-            && now.saturating_duration_since(*seen) < lifetime
-        {
-            *seen = now;
-            return true;
-        }
         let fresh = echo.is_some_and(|e| self.echo_is_good(now, peer, e));
         if fresh {
             self.remember(now, peer, lifetime, limit);
+            return true;
         }
-        fresh
+        self.verified
+            .get(&PeerKey(peer))
+            .is_some_and(|proved| now.saturating_duration_since(*proved) < lifetime)
     }
 
     fn echo_is_good(&mut self, now: Instant, peer: SocketAddr, echo: &[u8]) -> bool {
@@ -98,14 +99,15 @@ impl AddressCheck {
         age.is_some_and(|a| a <= ECHO_VALIDITY_SECS) && mac == self.mac(peer, t)
     }
 
-    /// Adds a verified peer; at the limit, peers silent for `lifetime` go first, then the
-    /// one silent longest.
+    /// Adds (or renews) a verified peer; at the limit, peers proved more than `lifetime`
+    /// ago go first, then the one proved longest ago.
     fn remember(&mut self, now: Instant, peer: SocketAddr, lifetime: Duration, limit: usize) {
-        if self.verified.len() >= limit {
+        if self.verified.len() >= limit && !self.verified.contains_key(&PeerKey(peer)) {
             self.verified
                 .retain(|_, seen| now.saturating_duration_since(*seen) < lifetime);
         }
         if self.verified.len() >= limit.max(1)
+            && !self.verified.contains_key(&PeerKey(peer))
             && let Some(oldest) = self
                 .verified
                 .iter()
@@ -141,10 +143,15 @@ mod tests {
         let late = t0 + Duration::from_secs(u64::from(ECHO_VALIDITY_SECS) + 1);
         assert!(!check.is_verified(late, peer(1), Some(&echo), LIFE, 8));
         assert!(check.is_verified(t0 + Duration::from_secs(5), peer(1), Some(&echo), LIFE, 8));
-        // Remembered without an Echo from then on, while it keeps talking.
+        // Remembered without an Echo for LIFE after the proof; requests without one do
+        // not extend it, a new Echo does.
         assert!(check.is_verified(t0 + Duration::from_secs(500), peer(1), None, LIFE, 8));
-        assert!(check.is_verified(t0 + Duration::from_secs(1000), peer(1), None, LIFE, 8));
-        assert!(!check.is_verified(t0 + Duration::from_secs(1700), peer(1), None, LIFE, 8));
+        assert!(!check.is_verified(t0 + Duration::from_secs(605), peer(1), None, LIFE, 8));
+        let at = t0 + Duration::from_secs(700);
+        let echo = check.echo(at, peer(1));
+        assert!(check.is_verified(at, peer(1), Some(&echo), LIFE, 8));
+        assert!(check.is_verified(at + Duration::from_secs(599), peer(1), None, LIFE, 8));
+        assert!(!check.is_verified(at + Duration::from_secs(600), peer(1), None, LIFE, 8));
     }
 
     #[test]
@@ -160,7 +167,7 @@ mod tests {
             assert!(check.is_verified(at, peer(n), Some(&echo), LIFE, 2));
             assert!(check.verified.len() <= 2);
         }
-        // The two heard from last are kept.
+        // The two proved last are kept.
         let later = t0 + Duration::from_secs(6);
         assert!(check.is_verified(later, peer(5), None, LIFE, 2));
         assert!(check.is_verified(later, peer(4), None, LIFE, 2));

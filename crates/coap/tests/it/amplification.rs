@@ -264,3 +264,63 @@ fn rfc9175_2_3_a_client_off_loopback_answers_one_challenge_and_then_works() {
     assert!(sim.nodes[s].ep.notify(now, obs, update));
     assert!(sim.run_until(Duration::from_secs(5), |s| s.nodes[c].events.len() >= 4));
 }
+
+#[test]
+fn rfc9175_2_4_only_an_echo_keeps_an_address_verified_not_spoofed_requests() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let (s, _ran) = server(&mut sim);
+    let v = victim(3);
+    let big = |mid: u16, echo: Option<&[u8]>| {
+        let mut msg = Message::decode(&raw(Type::Con, Code::GET, mid, "/big", None))
+            .unwrap_or_else(|e| panic!("{e:?}"));
+        if let Some(e) = echo {
+            msg.options.set(OptionNumber::ECHO, e);
+        }
+        msg.encode()
+    };
+    // The answer to request `mid`: its code and whether it carries an Echo value.
+    let answer = |sim: &Sim, mid: u16| -> (Code, Option<Vec<u8>>) {
+        let token = Token::new(&mid.to_be_bytes()).unwrap_or_default();
+        let m = replies_to(sim, v)
+            .into_iter()
+            .rfind(|m| m.token == token)
+            .unwrap_or_else(|| panic!("no answer to request {mid}"));
+        let echo = m.options.first(OptionNumber::ECHO).map(<[u8]>::to_vec);
+        (m.code, echo)
+    };
+    // The address proves itself once.
+    sim.inject(v, s, &big(1, None));
+    sim.run_until(Duration::from_millis(50), |_| false);
+    let (code, echo) = answer(&sim, 1);
+    assert_eq!(code, Code::UNAUTHORIZED);
+    let echo = echo.unwrap_or_else(|| panic!("no Echo value"));
+    sim.inject(v, s, &big(2, Some(&echo)));
+    sim.run_until(Duration::from_millis(50), |_| false);
+    assert_eq!(answer(&sim, 2).0, Code::CONTENT, "verified by its Echo");
+    let t0 = sim.now;
+    // Someone else sends small requests in its name every minute for 11 minutes: they
+    // prove nothing, so 10 minutes after the Echo the address is a stranger's again.
+    for n in 0..11u16 {
+        sim.run_until(Duration::from_secs(60), |_| false);
+        // The simulator's clock stops when nothing is due; a minute passes all the same.
+        sim.now = sim.now.max(t0 + Duration::from_secs(60 * u64::from(n + 1)));
+        sim.inject(v, s, &raw(Type::Non, Code::GET, 100 + n, "/small", None));
+    }
+    // The address's own large request is challenged again; its Echo verifies it anew.
+    sim.inject(v, s, &big(3, None));
+    sim.run_until(Duration::from_millis(50), |_| false);
+    let (code, echo) = answer(&sim, 3);
+    assert_eq!(
+        code,
+        Code::UNAUTHORIZED,
+        "spoofed requests kept the address verified"
+    );
+    let echo = echo.unwrap_or_else(|| panic!("no Echo value"));
+    sim.inject(v, s, &big(4, Some(&echo)));
+    sim.run_until(Duration::from_millis(50), |_| false);
+    assert_eq!(
+        answer(&sim, 4).0,
+        Code::CONTENT,
+        "verified again by its Echo"
+    );
+}
