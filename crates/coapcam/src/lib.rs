@@ -10,20 +10,42 @@
 //!   preparation), the codes of the cameras and the annotated picture;
 //! - [`station`]: what the server does by itself for a parcel lane: the results log;
 //! - [`vision`]: pure image work: reading QR and Code 128 codes, pictures for people;
-//! - [`stats`]: medians, percentiles and running moments of repeated measurements.
+//! - [`stats`]: medians, percentiles and running moments of repeated measurements;
+//! - [`bench`]: the benchmarks, and [`process`]: the child processes and peer programs
+//!   they and the integration tests run.
 //!
 //! The protocol lives in the `coap` and `coap-net` crates, the cameras in `rgbd`, the
 //! point-cloud geometry in `geometry`, the link emulator in `netem`.
 
 #![forbid(unsafe_code)]
 
+pub mod bench;
 pub mod client;
+pub mod process;
 pub mod report;
 pub mod repr;
 pub mod server;
 pub mod station;
 pub mod stats;
 pub mod vision;
+
+/// An error and its causes, `: `-separated, each said once: many errors repeat their
+/// cause's text in their own (`cannot read x: No such file (os error 2)`) and also
+/// return it as their source, which `{:#}` would print twice.
+pub fn error_text(error: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
+}
 
 /// A directory of a unit test's own under the system's temporary directory, removed on
 /// drop.

@@ -298,23 +298,7 @@ pub(crate) fn exit_status(error: &anyhow::Error) -> Option<Exit> {
     Some(Exit::Failure)
 }
 
-/// An error and its causes, `: `-separated, each said once: many errors repeat their
-/// cause's text in their own (`cannot read x: No such file (os error 2)`) and also
-/// return it as their source, which `{:#}` would print twice.
-pub(crate) fn error_text(error: &anyhow::Error) -> String {
-    let mut out = String::new();
-    for cause in error.chain() {
-        let text = cause.to_string();
-        if out.contains(&text) {
-            continue;
-        }
-        if !out.is_empty() {
-            out.push_str(": ");
-        }
-        out.push_str(&text);
-    }
-    out
-}
+pub(crate) use coapcam::error_text;
 
 /// A command stopped by a signal (its number).
 #[derive(Debug, thiserror::Error)]

@@ -1,0 +1,116 @@
+//! Where the peer programs are: libcoap 4.3.1 (Debian libcoap3-bin, on PATH), libcoap
+//! 4.3.5 built from source (Q-Block, RFC 9177), aiocoap (PyPI) and `quic-bench` (this
+//! workspace). Each lookup says why a program cannot be used when it cannot: the
+//! benchmarks report that mode as unavailable, the tests skip or (in CI) fail with it.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+/// libcoap 4.3.1's client without DTLS (Debian libcoap3-bin).
+pub const LIBCOAP_CLIENT: &str = "coap-client-notls";
+/// libcoap 4.3.1's server without DTLS.
+pub const LIBCOAP_SERVER: &str = "coap-server-notls";
+/// libcoap 4.3.1's client with DTLS (OpenSSL).
+pub const LIBCOAP_DTLS_CLIENT: &str = "coap-client-openssl";
+/// libcoap 4.3.1's server with DTLS (OpenSSL).
+pub const LIBCOAP_DTLS_SERVER: &str = "coap-server-openssl";
+/// aiocoap's command-line client.
+pub const AIOCOAP_CLIENT: &str = "aiocoap-client";
+
+/// The first file called `name` in a folder of PATH.
+pub fn on_path(name: &str) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|dir| dir.join(name))
+        .find(|p| p.is_file())
+}
+
+/// The first of `names` that is not on PATH, as the reason it cannot be used.
+pub fn missing_on_path(names: &[&str]) -> Option<String> {
+    names.iter().find(|b| on_path(b).is_none()).map(|b| {
+        format!("{b} is not on PATH (Debian package libcoap3-bin: apt-get install libcoap3-bin)")
+    })
+}
+
+/// libcoap 4.3.1's client and server (without DTLS).
+pub fn libcoap431() -> Result<(PathBuf, PathBuf), String> {
+    if let Some(why) = missing_on_path(&[LIBCOAP_CLIENT, LIBCOAP_SERVER]) {
+        return Err(why);
+    }
+    match (on_path(LIBCOAP_CLIENT), on_path(LIBCOAP_SERVER)) {
+        (Some(client), Some(server)) => Ok((client, server)),
+        _ => Err(format!(
+            "{LIBCOAP_CLIENT} or {LIBCOAP_SERVER} is not on PATH"
+        )),
+    }
+}
+
+/// The folder of libcoap 4.3.5's `coap-client` and `coap-server`: `COAPCAM_LIBCOAP435`,
+/// or `~/.cache/coapcam-peers/libcoap-4.3.5/build`.
+pub fn libcoap435_dir() -> PathBuf {
+    std::env::var_os("COAPCAM_LIBCOAP435").map_or_else(
+        || {
+            let home = std::env::var_os("HOME").unwrap_or_default();
+            PathBuf::from(home).join(".cache/coapcam-peers/libcoap-4.3.5/build")
+        },
+        PathBuf::from,
+    )
+}
+
+/// libcoap 4.3.5's client and server.
+pub fn libcoap435() -> Result<(PathBuf, PathBuf), String> {
+    let dir = libcoap435_dir();
+    let (client, server) = (dir.join("coap-client"), dir.join("coap-server"));
+    let missing = [&client, &server]
+        .into_iter()
+        .find(|p| !p.is_file())
+        .cloned();
+    match missing {
+        None => Ok((client, server)),
+        Some(missing) => Err(format!(
+            "{} is missing (../shared/peers/build-libcoap.sh builds libcoap 4.3.5 there; \
+             COAPCAM_LIBCOAP435 names another folder)",
+            missing.display()
+        )),
+    }
+}
+
+/// Whether aiocoap is installed: `aiocoap-client` on PATH and the library importable by
+/// `python3` (the tests' server script uses it).
+pub fn aiocoap() -> Result<(), String> {
+    if on_path(AIOCOAP_CLIENT).is_none() {
+        return Err(format!("{AIOCOAP_CLIENT} is not on PATH (PyPI aiocoap)"));
+    }
+    let import = Command::new("python3")
+        .args(["-c", "import aiocoap"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status();
+    match import {
+        Ok(s) if s.success() => Ok(()),
+        _ => Err("python3 cannot import aiocoap (PyPI aiocoap)".into()),
+    }
+}
+
+/// `quic-bench`: `COAPCAM_QUIC_BENCH`, or the file next to `coapcam` (the coapcam
+/// executable, where cargo builds it).
+pub fn quic_bench(coapcam: &Path) -> Result<PathBuf, String> {
+    let quic = std::env::var_os("COAPCAM_QUIC_BENCH").map_or_else(
+        || {
+            coapcam
+                .parent()
+                .map_or_else(|| PathBuf::from("quic-bench"), |d| d.join("quic-bench"))
+        },
+        PathBuf::from,
+    );
+    if quic.is_file() {
+        Ok(quic)
+    } else {
+        Err(format!(
+            "{} is missing (cargo build --release -p quic-bench builds it next to coapcam; \
+             COAPCAM_QUIC_BENCH names another path)",
+            quic.display()
+        ))
+    }
+}
