@@ -1,6 +1,6 @@
 //! Where the peer programs are: libcoap 4.3.1 (Debian libcoap3-bin, on PATH), libcoap
 //! 4.3.5 built from source (Q-Block, RFC 9177), aiocoap (PyPI) and `quic-bench` (this
-//! workspace). Each lookup says why a program cannot be used when it cannot: the
+//! workspace), Mosquitto (Debian). Each lookup says why a program cannot be used when it cannot: the
 //! benchmarks report that mode as unavailable, the tests skip or (in CI) fail with it.
 
 use std::path::{Path, PathBuf};
@@ -112,5 +112,26 @@ pub fn quic_bench(coapcam: &Path) -> Result<PathBuf, String> {
              COAPCAM_QUIC_BENCH names another path)",
             quic.display()
         ))
+    }
+}
+
+/// Mosquitto's subscriber (Debian mosquitto-clients).
+pub const MOSQUITTO_SUB: &str = "mosquitto_sub";
+
+/// Mosquitto's broker: on PATH, else where Debian puts it (/usr/sbin is not on a user's
+/// PATH); `mosquitto_sub` must be on PATH too.
+pub fn mosquitto() -> Result<PathBuf, String> {
+    let broker = on_path("mosquitto").or_else(|| {
+        let sbin = PathBuf::from("/usr/sbin/mosquitto");
+        sbin.is_file().then_some(sbin)
+    });
+    let Some(broker) = broker else {
+        return Err("mosquitto is not installed (Debian package mosquitto)".into());
+    };
+    match on_path(MOSQUITTO_SUB) {
+        Some(_) => Ok(broker),
+        None => Err(format!(
+            "{MOSQUITTO_SUB} is not on PATH (Debian package mosquitto-clients)"
+        )),
     }
 }

@@ -5,7 +5,7 @@
 //! is bounded, and every socket is on 127.0.0.1.
 
 use std::io::{BufRead, BufReader, Read};
-use std::net::{SocketAddr, UdpSocket};
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 
 use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::Client;
+use coapcam::process::{self, peers};
 
 /// How long a server may take to start listening.
 const STARTUP: Duration = Duration::from_secs(20);
@@ -22,12 +23,10 @@ const STARTUP: Duration = Duration::from_secs(20);
 const DRAIN: Duration = Duration::from_secs(5);
 
 pub(crate) const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
-pub(crate) const LIBCOAP_SERVER: &str = "coap-server-notls";
-pub(crate) const LIBCOAP_CLIENT: &str = "coap-client-notls";
-pub(crate) const AIOCOAP_CLIENT: &str = "aiocoap-client";
-/// Debian libcoap3-bin's DTLS tools (OpenSSL).
-pub(crate) const LIBCOAP_DTLS_SERVER: &str = "coap-server-openssl";
-pub(crate) const LIBCOAP_DTLS_CLIENT: &str = "coap-client-openssl";
+pub(crate) use coapcam::process::peers::{
+    AIOCOAP_CLIENT, LIBCOAP_CLIENT, LIBCOAP_DTLS_CLIENT, LIBCOAP_DTLS_SERVER, LIBCOAP_SERVER,
+    MOSQUITTO_SUB,
+};
 
 /// A peer program the tests need.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -47,14 +46,7 @@ pub(crate) enum Peer {
 
 /// The path of libcoap 4.3.5's `coap-client` or `coap-server`.
 pub(crate) fn libcoap435(bin: &str) -> PathBuf {
-    let dir = std::env::var_os("COAPCAM_LIBCOAP435").map_or_else(
-        || {
-            let home = std::env::var_os("HOME").unwrap_or_default();
-            PathBuf::from(home).join(".cache/coapcam-peers/libcoap-4.3.5/build")
-        },
-        PathBuf::from,
-    );
-    dir.join(bin)
+    peers::libcoap435_dir().join(bin)
 }
 
 /// libcoap 4.3.5's server with Q-Block (`-L 5`) and dynamic resources (`-d 10`).
@@ -81,69 +73,23 @@ pub(crate) fn libcoap435_server() -> (Proc, SocketAddr) {
     )
 }
 
-/// Debian mosquitto-clients' subscriber.
-pub(crate) const MOSQUITTO_SUB: &str = "mosquitto_sub";
-
-/// The broker program: on PATH, else where Debian puts it (/usr/sbin is not on a
-/// user's PATH).
+/// The broker program (checked by [`available`] with [`Peer::Mosquitto`]).
 pub(crate) fn mosquitto_broker() -> Option<PathBuf> {
-    on_path("mosquitto").or_else(|| {
-        let sbin = PathBuf::from("/usr/sbin/mosquitto");
-        sbin.is_file().then_some(sbin)
-    })
+    peers::mosquitto().ok()
 }
 
-fn on_path(name: &str) -> Option<PathBuf> {
-    let path = std::env::var_os("PATH")?;
-    std::env::split_paths(&path)
-        .map(|dir| dir.join(name))
-        .find(|p| p.is_file())
-}
-
+/// Why `peer` cannot be used here, if it cannot.
 fn missing(peer: Peer) -> Option<String> {
     match peer {
-        Peer::Libcoap => [
+        Peer::Libcoap => peers::missing_on_path(&[
             LIBCOAP_SERVER,
             LIBCOAP_CLIENT,
             LIBCOAP_DTLS_SERVER,
             LIBCOAP_DTLS_CLIENT,
-        ]
-        .into_iter()
-        .find(|b| on_path(b).is_none())
-        .map(|b| format!("{b} is not on PATH (Debian package libcoap3-bin)")),
-        Peer::Mosquitto => {
-            if mosquitto_broker().is_none() {
-                return Some("mosquitto is not installed (Debian package mosquitto)".into());
-            }
-            on_path(MOSQUITTO_SUB).is_none().then(|| {
-                format!("{MOSQUITTO_SUB} is not on PATH (Debian package mosquitto-clients)")
-            })
-        }
-        Peer::Libcoap435 => ["coap-client", "coap-server"]
-            .into_iter()
-            .map(libcoap435)
-            .find(|b| !b.is_file())
-            .map(|b| {
-                format!(
-                    "{} is missing (../shared/peers/build-libcoap.sh builds libcoap 4.3.5; \
-                     COAPCAM_LIBCOAP435 names its folder)",
-                    b.display()
-                )
-            }),
-        Peer::Aiocoap => {
-            if on_path(AIOCOAP_CLIENT).is_none() {
-                return Some(format!("{AIOCOAP_CLIENT} is not on PATH (PyPI aiocoap)"));
-            }
-            let import = Command::new("python3")
-                .args(["-c", "import aiocoap"])
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .status();
-            match import {
-                Ok(s) if s.success() => None,
-                _ => Some("python3 cannot import aiocoap (PyPI aiocoap)".into()),
-            }
-        }
+        ]),
+        Peer::Mosquitto => peers::mosquitto().err(),
+        Peer::Libcoap435 => peers::libcoap435().err(),
+        Peer::Aiocoap => peers::aiocoap().err(),
     }
 }
 
@@ -242,8 +188,7 @@ pub(crate) fn assert_same(got: &[u8], want: &[u8], what: &str) {
 /// and report it). Servers started on it are checked, and restarted on another port if
 /// they could not bind it.
 pub(crate) fn free_port() -> u16 {
-    let socket = UdpSocket::bind("127.0.0.1:0").expect("binding 127.0.0.1:0");
-    socket.local_addr().expect("local address").port()
+    process::free_udp_port().expect("binding 127.0.0.1:0")
 }
 
 /// Lines a child printed, collected by a thread per pipe.
@@ -294,10 +239,11 @@ impl Lines {
     }
 }
 
-/// A running child process, killed and reaped on drop.
+/// A running child process (the library's, killed and reaped on drop) and what it
+/// prints.
 pub(crate) struct Proc {
     name: String,
-    child: Child,
+    child: process::Proc,
     stdout: Lines,
     stderr: Lines,
     /// Standard error, line by line, as it is printed.
@@ -353,20 +299,21 @@ impl Proc {
 
     /// As [`Proc::spawn`], with more environment variables.
     pub(crate) fn spawn_with_env(program: &str, args: &[&str], env: &[(&str, &str)]) -> Self {
-        let mut child = Command::new(program)
+        let name = format!("{program} {}", args.join(" "));
+        let mut command = Command::new(program);
+        command
             .args(args)
             .envs(env.iter().copied())
-            .stdin(Stdio::null())
             .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap_or_else(|e| panic!("starting {program}: {e}"));
+            .stderr(Stdio::piped());
+        let mut child = process::Proc::spawn(command, &name).unwrap_or_else(|e| panic!("{e:#}"));
         let (out_tx, stdout_lines) = mpsc::channel();
         let (err_tx, stderr_lines) = mpsc::channel();
-        let stdout = Lines::follow(child.stdout.take().expect("stdout pipe"), Some(out_tx));
-        let stderr = Lines::follow(child.stderr.take().expect("stderr pipe"), Some(err_tx));
+        let pipes = child.child_mut();
+        let stdout = Lines::follow(pipes.stdout.take().expect("stdout pipe"), Some(out_tx));
+        let stderr = Lines::follow(pipes.stderr.take().expect("stderr pipe"), Some(err_tx));
         Self {
-            name: format!("{program} {}", args.join(" ")),
+            name,
             child,
             stdout,
             stderr,
@@ -394,24 +341,16 @@ impl Proc {
 
     /// Waits for the process to end, at most `limit`; `None` if it is still running.
     pub(crate) fn wait(&mut self, limit: Duration) -> Option<Finished> {
-        let deadline = Instant::now() + limit;
-        loop {
-            match self.child.try_wait() {
-                Ok(Some(status)) => return Some(self.finished(status)),
-                Ok(None) if Instant::now() < deadline => thread::sleep(Duration::from_millis(10)),
-                Ok(None) => return None,
-                Err(e) => panic!("waiting for {}: {e}", self.name),
-            }
-        }
+        let status = self
+            .child
+            .wait_for(limit)
+            .unwrap_or_else(|e| panic!("{e:#}"))?;
+        Some(self.finished(status))
     }
 
     /// Kills the process and returns what it printed.
     pub(crate) fn kill(&mut self) -> Finished {
-        let _ = self.child.kill();
-        let status = self
-            .child
-            .wait()
-            .unwrap_or_else(|e| panic!("waiting for {}: {e}", self.name));
+        let status = self.child.kill().unwrap_or_else(|e| panic!("{e:#}"));
         self.finished(status)
     }
 
@@ -502,14 +441,7 @@ impl Proc {
     }
 
     pub(crate) fn is_running(&mut self) -> bool {
-        matches!(self.child.try_wait(), Ok(None))
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        self.child.is_running()
     }
 }
 
@@ -671,19 +603,12 @@ pub(crate) fn netem(forward: SocketAddr, loss: f64, seed: u64) -> (Proc, SocketA
 }
 
 /// A running `coapcam serve`, killed on drop.
-pub(crate) struct Server(Child);
+pub(crate) struct Server(process::Proc);
 
 impl Server {
     /// The server's process.
     pub(crate) fn process(&mut self) -> &mut Child {
-        &mut self.0
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
+        self.0.child_mut()
     }
 }
 
@@ -703,7 +628,8 @@ pub(crate) fn serve_with(state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
 /// A server bound to `bind` with its state in `state` and more flags.
 pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
     let dir = state.to_string_lossy().into_owned();
-    let mut child = Command::new(COAPCAM)
+    let mut command = Command::new(COAPCAM);
+    command
         .args([
             "serve",
             "--bind",
@@ -714,12 +640,11 @@ pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, Soc
             "120",
         ])
         .args(extra)
-        .stdin(Stdio::null())
         .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starting coapcam serve");
-    let stderr = child.stderr.take().expect("stderr pipe");
+        .stderr(Stdio::piped());
+    let mut child =
+        process::Proc::spawn(command, "coapcam serve").unwrap_or_else(|e| panic!("{e:#}"));
+    let stderr = child.child_mut().stderr.take().expect("stderr pipe");
     let server = Server(child);
     // The server stops by itself after --duration, which bounds this read.
     let mut lines = BufReader::new(stderr).lines();
