@@ -10,13 +10,35 @@ use coapcam::client::{CamClient, cloud_of};
 use coapcam::repr::{Stream, packet, raster, rvl};
 use coapcam::vision::picture::{self, save, sibling};
 
-use super::{CameraArgs, Exit, TransmissionArgs};
+use super::{Bars, CameraArgs, Exit, TransmissionArgs};
+
+/// The streams, named for the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum What {
+    /// The color image.
+    Color,
+    /// The depth image.
+    Depth,
+    /// The point cloud.
+    Pointcloud,
+}
+
+impl From<What> for Stream {
+    fn from(what: What) -> Self {
+        match what {
+            What::Color => Self::Color,
+            What::Depth => Self::Depth,
+            What::Pointcloud => Self::Pointcloud,
+        }
+    }
+}
 
 /// Flags of `grab`.
 #[derive(Debug, Args)]
 pub(crate) struct GrabArgs {
     /// What to grab.
-    stream: Stream,
+    #[arg(value_name = "STREAM")]
+    what: What,
     #[command(flatten)]
     cameras: CameraArgs,
     /// Output file; its extension chooses the format: .jpg (color, for people), .png
@@ -82,10 +104,11 @@ fn accept(cf: ContentFormat) -> Option<ContentFormat> {
 
 /// Runs `grab`.
 pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
-    if args.cameras.all && args.stream != Stream::Pointcloud {
+    let stream = Stream::from(args.what);
+    if args.cameras.all && stream != Stream::Pointcloud {
         bail!("--all is for point clouds: every camera's cloud merged");
     }
-    let kind = file_format(&args.output, args.stream)?;
+    let kind = file_format(&args.output, stream)?;
     if let Some(v) = &args.view
         && file_format(v, Stream::Color).ok() != Some(ContentFormat::IMAGE_PNG)
     {
@@ -98,14 +121,14 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
         .cameras
         .connect(&args.transmission)
         .await?
-        .with_bars(&indicatif::MultiProgress::new());
+        .with_progress(Bars::shown());
     let (sn, response) = if args.cameras.all {
         (None, client.grab_all(accept(kind)).await?)
     } else {
         let sn = client.one_camera(args.cameras.camera.as_deref()).await?;
         let response = match args.jpeg_quality {
             Some(q) => client.grab_jpeg(&sn, q).await?,
-            None => client.grab(&sn, args.stream, accept(kind)).await?,
+            None => client.grab(&sn, stream, accept(kind)).await?,
         };
         (Some(sn), response)
     };
@@ -134,7 +157,7 @@ async fn write_view(
     response: &Response,
     path: &Path,
 ) -> anyhow::Result<Vec<PathBuf>> {
-    match args.stream {
+    match Stream::from(args.what) {
         Stream::Color => {
             let image = match kind {
                 ContentFormat::IMAGE_PNG | ContentFormat::IMAGE_JPEG => {

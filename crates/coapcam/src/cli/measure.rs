@@ -15,7 +15,7 @@ use coapcam::client::measure::{FLOOR_CUT_M, Source, measure_once, prepare_camera
 use coapcam::client::{CamClient, annotate, codes};
 use coapcam::report::{self, Billing, EdgeQuery, Measurement, Parcel};
 
-use super::{CameraArgs, DimensionArgs, Exit, TransmissionArgs, outln};
+use super::{Bars, CameraArgs, DimensionArgs, Exit, TransmissionArgs, outln};
 
 /// Flags of `measure`.
 #[derive(Debug, Args)]
@@ -115,7 +115,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             let group = group_address(g).await?;
             let wait = Duration::try_from_secs_f64(args.wait).context("--wait")?;
             let client = CamClient::for_group(group, args.bind, config, timeout)?
-                .with_bars(&indicatif::MultiProgress::new());
+                .with_progress(Bars::shown());
             let expect = args.expect;
             (
                 client,
@@ -130,7 +130,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             let psk = args.transmission.psk();
             let client = CamClient::connect(server, config, psk.as_ref(), timeout)
                 .await?
-                .with_bars(&indicatif::MultiProgress::new());
+                .with_progress(Bars::shown());
             if args.prepare {
                 let serials = match &args.cameras.camera {
                     Some(sn) => vec![sn.clone()],

@@ -1,6 +1,6 @@
 //! The commands: one file per subcommand, with its clap flags and its `run`. The
 //! commands share only what this file holds: the flag groups (the server and its
-//! cameras, transmission parameters, the measurement's thresholds), `Deferred`, which builds a command's flags only when it
+//! cameras, transmission parameters, the measurement's thresholds), the progress bars, `Deferred`, which builds a command's flags only when it
 //! is the one given, how a command ends (`Exit`, `exit_status`, `error_text`), and the
 //! output macros. None imports another, and what they do is the library's.
 
@@ -329,3 +329,103 @@ macro_rules! out {
     }};
 }
 pub(crate) use out;
+
+/// A progress bar on standard error that appears once a transfer passes
+/// [`Bar::SHOW_ABOVE`] bytes (indicatif draws nothing when standard error is not a
+/// terminal); it goes when dropped.
+pub(crate) struct Bar {
+    enabled: bool,
+    group: Option<indicatif::MultiProgress>,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Bar {
+    /// Transfers larger than this show a bar.
+    pub(crate) const SHOW_ABOVE: usize = 1 << 20;
+
+    /// A bar of its own (none when `enabled` is false).
+    pub(crate) fn new(enabled: bool) -> Self {
+        Self {
+            enabled,
+            group: None,
+            bar: None,
+        }
+    }
+
+    /// `done` bytes of `total` (if known) have arrived.
+    pub(crate) fn show(&mut self, done: usize, total: Option<usize>) {
+        if !self.enabled {
+            return;
+        }
+        if self.bar.is_none() && total.unwrap_or(done).max(done) > Self::SHOW_ABOVE {
+            let bar = indicatif::ProgressBar::new(total.unwrap_or(0) as u64);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{bar:40} {bytes}/{total_bytes} {bytes_per_sec} {eta}",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            self.bar = Some(match &self.group {
+                Some(group) => group.add(bar),
+                None => bar,
+            });
+        }
+        if let Some(bar) = &self.bar {
+            bar.set_position(done as u64);
+        }
+    }
+
+    /// The transfer ended: the bar goes.
+    pub(crate) fn finish(&mut self) {
+        if let Some(bar) = self.bar.take() {
+            bar.finish_and_clear();
+            if let Some(group) = &self.group {
+                group.remove(&bar);
+            }
+        }
+    }
+
+    /// Shows what arrives on `progress` until its sender is dropped, then finishes.
+    pub(crate) async fn follow(
+        mut self,
+        mut progress: tokio::sync::mpsc::UnboundedReceiver<coap_net::Progress>,
+    ) {
+        while let Some(p) = progress.recv().await {
+            self.show(p.done, p.total);
+        }
+        self.finish();
+    }
+}
+
+impl Drop for Bar {
+    fn drop(&mut self) {
+        self.finish();
+    }
+}
+
+impl coapcam::client::WatchProgress for Bar {
+    fn show(&mut self, done: usize, total: Option<usize>) {
+        Self::show(self, done, total);
+    }
+}
+
+/// One bar per transfer of a client, one line each (transfers run at once):
+/// [`coapcam::client::CamClient::with_progress`].
+pub(crate) struct Bars(indicatif::MultiProgress);
+
+impl Bars {
+    /// A client's bars.
+    pub(crate) fn shown() -> std::sync::Arc<Self> {
+        std::sync::Arc::new(Self(indicatif::MultiProgress::new()))
+    }
+}
+
+impl coapcam::client::ShowProgress for Bars {
+    fn watch(&self) -> Box<dyn coapcam::client::WatchProgress> {
+        Box::new(Bar {
+            enabled: true,
+            group: Some(self.0.clone()),
+            bar: None,
+        })
+    }
+}

@@ -12,8 +12,7 @@ use coap::link_format;
 use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{BodyPart, Client, Uri};
 
-use super::{Exit, Interrupted, TransmissionArgs, outln};
-use coapcam::client::progress::Bar;
+use super::{Bar, Exit, Interrupted, TransmissionArgs, outln};
 use coapcam::client::{check_size, describe};
 
 /// Flags shared by `get`, `post`, `put` and `delete`.

@@ -5,10 +5,10 @@
 pub mod annotate;
 pub mod codes;
 pub mod measure;
-pub mod progress;
 pub mod results;
 
 use std::net::{IpAddr, SocketAddr};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context as _, bail};
@@ -44,8 +44,22 @@ pub struct CamClient {
     client: Client,
     server: SocketAddr,
     timeout: Duration,
-    /// Bars for answers over 1 MB, when the command shows them.
-    bars: Option<indicatif::MultiProgress>,
+    /// What shows the progress of answers, when the command shows it.
+    progress: Option<Arc<dyn ShowProgress>>,
+}
+
+/// What shows the progress of a client's transfers (the command line's bars; the library
+/// draws nothing itself).
+pub trait ShowProgress: Send + Sync {
+    /// A watcher of one transfer: told `(done, total)` as its body arrives, dropped when
+    /// it ends.
+    fn watch(&self) -> Box<dyn WatchProgress>;
+}
+
+/// The watcher of one transfer's progress ([`ShowProgress::watch`]).
+pub trait WatchProgress: Send {
+    /// `done` bytes of `total` (when known) have arrived.
+    fn show(&mut self, done: usize, total: Option<usize>);
 }
 
 impl CamClient {
@@ -67,7 +81,7 @@ impl CamClient {
             client,
             server,
             timeout,
-            bars: None,
+            progress: None,
         })
     }
 
@@ -80,15 +94,14 @@ impl CamClient {
             client,
             server,
             timeout,
-            bars: None,
+            progress: None,
         })
     }
 
-    /// Shows a progress bar on standard error, when it is a terminal, for every answer
-    /// over 1 MB (one line per transfer, in `bars`).
+    /// Shows the progress of every answer through `progress`.
     #[must_use]
-    pub fn with_bars(mut self, bars: &indicatif::MultiProgress) -> Self {
-        self.bars = Some(bars.clone());
+    pub fn with_progress(mut self, progress: Arc<dyn ShowProgress>) -> Self {
+        self.progress = Some(progress);
         self
     }
 
@@ -112,7 +125,7 @@ impl CamClient {
             client,
             server: group,
             timeout,
-            bars: None,
+            progress: None,
         })
     }
 
@@ -122,7 +135,7 @@ impl CamClient {
             client: other.client.clone(),
             server,
             timeout: other.timeout,
-            bars: other.bars.clone(),
+            progress: other.progress.clone(),
         }
     }
 
@@ -158,14 +171,19 @@ impl CamClient {
     async fn exchange(&self, request: Request, what: &str) -> anyhow::Result<Response> {
         let deadline = tokio::time::Instant::now() + self.timeout;
         loop {
-            let response = match &self.bars {
-                Some(bars) => {
-                    let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+            let response = match &self.progress {
+                Some(shown) => {
+                    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
                     let sent = self
                         .client
                         .send_with_progress(self.server, request.clone(), tx);
-                    let (response, ()) =
-                        tokio::join!(sent, progress::Bar::in_group(bars).follow(rx));
+                    let follow = async {
+                        let mut watch = shown.watch();
+                        while let Some(p) = rx.recv().await {
+                            watch.show(p.done, p.total);
+                        }
+                    };
+                    let (response, ()) = tokio::join!(sent, follow);
                     response
                 }
                 None => self.client.send(self.server, request.clone()).await,

@@ -24,7 +24,7 @@ use coap::ContentFormat;
 use rgbd::Serial;
 
 /// What a grab resource produces.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Stream {
     /// The color image.
     Color,
