@@ -57,4 +57,4 @@ pub use frame::{ColorFormat, ColorFrame, DepthFormat, DepthFrame};
 pub use intrinsics::{DistortionModel, Extrinsics, Intrinsics, Pose, ProjectError};
 pub use mode::{ModeError, ModeTable, ResolutionModes, Stream};
 pub use scene::{Scene, SceneError};
-pub use settings::{ColorSettings, DepthSettings, SettingsError};
+pub use settings::{ColorSettings, DepthSettings, SensorFormat, Settings, SettingsError};

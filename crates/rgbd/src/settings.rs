@@ -36,18 +36,48 @@ struct RawSettings {
     height: u32,
 }
 
-fn parse_raw(stream: Stream, json: &[u8]) -> Result<RawSettings, SettingsError> {
-    serde_json::from_slice(json).map_err(|e| SettingsError::Json {
-        stream: stream.name(),
-        message: e.to_string(),
-    })
+/// A sensor's pixel format as the settings documents name it: [`ColorFormat`] or
+/// [`DepthFormat`].
+pub trait SensorFormat: Copy {
+    /// The sensor's stream.
+    const STREAM: Stream;
+
+    /// The name in the documents ("BGR8", "Z16").
+    fn name(self) -> &'static str;
+
+    /// The format called `name`, if `table` offers it.
+    fn offered(table: &ModeTable, name: &str) -> Result<Self, ModeError>;
 }
 
-/// Color sensor settings (Listing A.2).
+impl SensorFormat for ColorFormat {
+    const STREAM: Stream = Stream::Color;
+
+    fn name(self) -> &'static str {
+        Self::name(self)
+    }
+
+    fn offered(table: &ModeTable, name: &str) -> Result<Self, ModeError> {
+        table.color_format(name)
+    }
+}
+
+impl SensorFormat for DepthFormat {
+    const STREAM: Stream = Stream::Depth;
+
+    fn name(self) -> &'static str {
+        Self::name(self)
+    }
+
+    fn offered(table: &ModeTable, name: &str) -> Result<Self, ModeError> {
+        table.depth_format(name)
+    }
+}
+
+/// A sensor's settings: its format and mode ([`ColorSettings`], [`DepthSettings`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
-pub struct ColorSettings {
+pub struct Settings<F> {
     /// Pixel format.
-    pub format: ColorFormat,
+    pub format: F,
     /// Frames per second.
     pub fps: u32,
     /// Width in pixels.
@@ -55,6 +85,12 @@ pub struct ColorSettings {
     /// Height in pixels.
     pub height: u32,
 }
+
+/// Color sensor settings (Listing A.2).
+pub type ColorSettings = Settings<ColorFormat>;
+
+/// Depth sensor settings (Listing A.1).
+pub type DepthSettings = Settings<DepthFormat>;
 
 impl Default for ColorSettings {
     /// The thesis example: BGR8, 30 fps, 1280x720.
@@ -66,45 +102,6 @@ impl Default for ColorSettings {
             height: 720,
         }
     }
-}
-
-impl ColorSettings {
-    /// Parses a color-settings document and checks it against `table`.
-    pub fn from_json(json: &[u8], table: &ModeTable) -> Result<Self, SettingsError> {
-        let raw = parse_raw(Stream::Color, json)?;
-        let settings = Self {
-            format: table.color_format(&raw.format)?,
-            fps: raw.fps,
-            width: raw.width,
-            height: raw.height,
-        };
-        settings.validate(table)?;
-        Ok(settings)
-    }
-
-    /// Checks the settings against `table`.
-    pub fn validate(&self, table: &ModeTable) -> Result<(), ModeError> {
-        table.color_format(self.format.name())?;
-        table.check(Stream::Color, self.width, self.height, self.fps)
-    }
-
-    /// The document in the key order of Listing A.2, pretty-printed.
-    pub fn to_json(&self) -> String {
-        settings_json(self.format.name(), self.fps, self.width, self.height)
-    }
-}
-
-/// Depth sensor settings (Listing A.1).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
-pub struct DepthSettings {
-    /// Pixel format (Z16).
-    pub format: DepthFormat,
-    /// Frames per second.
-    pub fps: u32,
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
 }
 
 impl Default for DepthSettings {
@@ -119,12 +116,15 @@ impl Default for DepthSettings {
     }
 }
 
-impl DepthSettings {
-    /// Parses a depth-settings document and checks it against `table`.
+impl<F: SensorFormat> Settings<F> {
+    /// Parses a settings document and checks it against `table`.
     pub fn from_json(json: &[u8], table: &ModeTable) -> Result<Self, SettingsError> {
-        let raw = parse_raw(Stream::Depth, json)?;
+        let raw: RawSettings = serde_json::from_slice(json).map_err(|e| SettingsError::Json {
+            stream: F::STREAM.name(),
+            message: e.to_string(),
+        })?;
         let settings = Self {
-            format: table.depth_format(&raw.format)?,
+            format: F::offered(table, &raw.format)?,
             fps: raw.fps,
             width: raw.width,
             height: raw.height,
@@ -135,20 +135,23 @@ impl DepthSettings {
 
     /// Checks the settings against `table`.
     pub fn validate(&self, table: &ModeTable) -> Result<(), ModeError> {
-        table.depth_format(self.format.name())?;
-        table.check(Stream::Depth, self.width, self.height, self.fps)
+        F::offered(table, self.format.name())?;
+        table.check(F::STREAM, self.width, self.height, self.fps)
     }
 
-    /// The document in the key order of Listing A.1, pretty-printed.
+    /// The document in the key order of Listings A.1 and A.2, pretty-printed.
     pub fn to_json(&self) -> String {
-        settings_json(self.format.name(), self.fps, self.width, self.height)
+        let Self {
+            format,
+            fps,
+            width,
+            height,
+        } = self;
+        format!(
+            "{{\n  \"format\": \"{}\",\n  \"fps\": {fps},\n  \"width\": {width},\n  \"height\": {height}\n}}",
+            format.name()
+        )
     }
-}
-
-fn settings_json(format: &str, fps: u32, width: u32, height: u32) -> String {
-    format!(
-        "{{\n  \"format\": \"{format}\",\n  \"fps\": {fps},\n  \"width\": {width},\n  \"height\": {height}\n}}"
-    )
 }
 
 #[cfg(test)]
