@@ -22,7 +22,7 @@ use crate::support::{COAPCAM, Proc, TempDir};
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
 /// One calibrated D415 1.1 m above the table, looking down.
-const ONE_CAMERA: &str = r#"
+pub(crate) const ONE_CAMERA: &str = r#"
 seed = 5
 [[camera]]
 serial = "840412060746"
@@ -48,11 +48,17 @@ look_at = [0.0, 0.0, 0.1]
 /// How long each parcel stands still: a measurement (grabs, codes, photo, annotated
 /// picture) in a debug build on a busy 2-core machine takes a few seconds, and one that
 /// is still running when its parcel is taken away is not recorded.
-const STILL_S: f64 = 8.0;
+pub(crate) const STILL_S: f64 = 8.0;
 
 /// A parcel `size` (metres) yawed `yaw`, slid from `from` to `center` between `appear`
 /// and `appear + 1`, standing still for [`STILL_S`], then taken away.
-fn parcel(size: [f64; 3], yaw: f64, center: [f64; 2], from: [f64; 2], appear: f64) -> String {
+pub(crate) fn parcel(
+    size: [f64; 3],
+    yaw: f64,
+    center: [f64; 2],
+    from: [f64; 2],
+    appear: f64,
+) -> String {
     format!(
         "[[box]]\nsize = {size:?}\ncenter = {center:?}\nyaw_deg = {yaw}\nappear_s = {appear}\n\
          from = {from:?}\nstill_s = {}\nremove_s = {}\n\
@@ -65,12 +71,12 @@ fn parcel(size: [f64; 3], yaw: f64, center: [f64; 2], from: [f64; 2], appear: f6
 /// A station playing `scene` with `--auto-measure`; the times around its start bound
 /// when its scene time began (the cameras are made before it says it serves). Its log
 /// lines are kept for the failure messages.
-struct Lane {
+pub(crate) struct Lane {
     server: Child,
     log: Arc<Mutex<Vec<String>>>,
     _turn: MutexGuard<'static, ()>,
-    addr: SocketAddr,
-    scene: Scene,
+    pub(crate) addr: SocketAddr,
+    pub(crate) scene: Scene,
     results: std::path::PathBuf,
     started_after_us: u64,
     started_before_us: u64,
@@ -84,6 +90,11 @@ fn unix_us() -> u64 {
 
 impl Lane {
     fn start(dir: &TempDir, scene_text: &str) -> Self {
+        Self::start_with(dir, scene_text, &[])
+    }
+
+    /// As [`Lane::start`], with more `serve` flags.
+    pub(crate) fn start_with(dir: &TempDir, scene_text: &str, extra: &[&str]) -> Self {
         let scene = Scene::from_toml(scene_text).expect("the test's scene");
         let path = dir.join("lane.toml");
         std::fs::write(&path, scene_text).expect("writing the scene");
@@ -106,6 +117,7 @@ impl Lane {
             .arg("--results")
             .arg(&results)
             .args(["--auto-measure", "--station-name", "lane-1"])
+            .args(extra)
             .env("RUST_LOG", "coapcam::station=info")
             .stdin(Stdio::null())
             .stdout(Stdio::null())
@@ -145,7 +157,7 @@ impl Lane {
     }
 
     /// What the station logged so far.
-    fn log(&self) -> String {
+    pub(crate) fn log(&self) -> String {
         self.log
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
@@ -162,7 +174,7 @@ impl Lane {
     }
 
     /// Waits until the scene has played out (and a second more), then lists the records.
-    fn records_after_the_scene(&self) -> Vec<Record> {
+    pub(crate) fn records_after_the_scene(&self) -> Vec<Record> {
         let end_us = self.started_before_us + ((self.end_s() + 1.0) * 1e6) as u64;
         let now = unix_us();
         if end_us > now {
@@ -187,7 +199,7 @@ impl Lane {
     /// Checks that `record` measured `b` standing still: within 5 mm of its size, its
     /// footprint centred where it stood still, every frame captured (whatever the exact
     /// start of the scene's time within the start-up) between `still_s` and `remove_s`.
-    fn check(&self, record: &Record, b: &SceneBox) {
+    pub(crate) fn check(&self, record: &Record, b: &SceneBox) {
         assert_eq!(record.trigger, Trigger::Auto);
         assert_eq!(record.station, "lane-1");
         let r = record.measurement.reported().expect("a measured parcel");
@@ -236,7 +248,7 @@ impl Lane {
     }
 
     /// `results verify` passes on the log.
-    fn verify(&self) {
+    pub(crate) fn verify(&self) {
         Proc::run(
             COAPCAM,
             &["results", "verify", &self.results.to_string_lossy()],
@@ -246,7 +258,7 @@ impl Lane {
     }
 
     /// Checks that there are `n` records, with the station's log if not.
-    fn expect_count(&self, records: &[Record], n: usize) {
+    pub(crate) fn expect_count(&self, records: &[Record], n: usize) {
         assert_eq!(
             records.len(),
             n,

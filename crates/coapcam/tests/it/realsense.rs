@@ -222,3 +222,55 @@ fn a_virtual_d415_through_librealsense_is_calibrated_by_markers_and_on_the_floor
     run(&["calibrate", "--server", &uri, "--floor"]);
     crate::support::assert_box_within_5_mm(&run(&["measure", "--server", &uri, "--json"]).json());
 }
+
+/// `serve --auto-measure` through librealsense's code path: a virtual D415 fed by a
+/// timeline scene, uncalibrated at first as a real one is (not watched, and said so),
+/// given its pose while the table is still empty; the parcel slid in is measured once,
+/// within 5 mm, while it stands still.
+#[test]
+fn a_virtual_d415_through_librealsense_measures_a_parcel_slid_in_by_itself() {
+    let Some((module, libpython)) = wheel() else {
+        return;
+    };
+    let dir = TempDir::new("rs-lane");
+    // The camera of the lane scene, starting with the identity as a real camera does.
+    let camera = crate::lane::ONE_CAMERA.replace(
+        "up = [0.0, 1.0, 0.0]",
+        "up = [0.0, 1.0, 0.0]\ncalibrated = false",
+    );
+    let scene = format!(
+        "{camera}{}",
+        crate::lane::parcel([0.38, 0.28, 0.17], 20.0, [0.0, 0.0], [0.45, 0.1], 4.0)
+    );
+    let lane = crate::lane::Lane::start_with(&dir, &scene, &software_d415(&module, &libpython));
+    let pose = lane.scene.cameras[0].pose().expect("a pose");
+    let transformation = coapcam::vision::calibration::pose_transformation(&pose).to_json();
+    runtime().block_on(async {
+        let c = client();
+        let path = format!("/cams/{SN}/3d-transformation");
+        let r = send(
+            &c,
+            lane.addr,
+            Code::PUT,
+            &path,
+            transformation.as_bytes(),
+            None,
+        )
+        .await;
+        assert_eq!(
+            r.code,
+            Code::CHANGED,
+            "{}",
+            String::from_utf8_lossy(&r.payload)
+        );
+    });
+    let records = lane.records_after_the_scene();
+    lane.expect_count(&records, 1);
+    lane.check(&records[0], &lane.scene.boxes[0]);
+    assert!(
+        lane.log().contains("is not calibrated"),
+        "the uncalibrated camera was named:\n{}",
+        lane.log()
+    );
+    lane.verify();
+}
