@@ -108,7 +108,9 @@ fn requests_are_recorded_served_listed_and_verified() {
             assert_eq!(record.trigger, Trigger::Request);
             assert_eq!(record.cameras.len(), 1);
             assert_eq!(record.cameras[0].serial, SN);
-            assert!(!record.has_photo);
+            // The photo and the annotated picture of each, as POST /cams/dimensions
+            // makes them.
+            assert!(record.has_photo && record.has_annotated);
         }
         assert_eq!(all[0].prev_hash, all[1].hash);
         // The same list in CBOR.
@@ -158,9 +160,16 @@ fn requests_are_recorded_served_listed_and_verified() {
         assert_eq!(r.code, Code::NOT_FOUND);
         let r = get(&c, addr, "/station/measurements", &[], Some(23)).await;
         assert_eq!(r.code, Code::NOT_ACCEPTABLE);
-        let r = get(&c, addr, "/station/measurements/1/photo", &[], None).await;
-        assert_eq!(r.code, Code::NOT_FOUND);
-        assert!(String::from_utf8_lossy(&r.payload).contains("no photo"));
+        let photo = get(&c, addr, "/station/measurements/1/photo", &[], None).await;
+        assert_eq!(photo.code, Code::CONTENT);
+        assert!(photo.payload.starts_with(&[0xFF, 0xD8]), "not a JPEG");
+        assert_eq!(
+            Some(coapcam::station::record::sha256_hex(&photo.payload)),
+            all[2].photo_sha256
+        );
+        let png = get(&c, addr, "/station/measurements/1/annotated", &[], None).await;
+        assert_eq!(png.code, Code::CONTENT);
+        assert!(png.payload.starts_with(b"\x89PNG"), "not a PNG");
     });
     // The command lists what the resources serve.
     let uri = format!("coap://{addr}");
@@ -196,6 +205,7 @@ fn requests_are_recorded_served_listed_and_verified() {
     let (code, report) = verify(&results);
     assert_eq!(code, Some(0), "{report}");
     assert_eq!(report["records"], 3);
+    assert_eq!(report["pictures_checked"], 6);
     assert_eq!(
         report["head"]["hash"].as_str(),
         Some(answered_hash(&results, 3).as_str())
@@ -260,7 +270,19 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
     let dir = TempDir::new("results-kill");
     let file = dir.join("results.sqlite");
     let rt = runtime();
-    let c = client();
+    // A short ACK timeout: the request cut off by the kill learns it from the ICMP
+    // unreachable of its first retransmission, a fraction of a second later.
+    let c = {
+        let _entered = rt.enter();
+        coap_net::Client::bind(
+            std::net::SocketAddr::from(([127, 0, 0, 1], 0)),
+            coap::EndpointConfig {
+                ack_timeout: Duration::from_millis(300),
+                ..coap::EndpointConfig::default()
+            },
+        )
+        .expect("client socket")
+    };
     let mut answered: Vec<Measurement> = Vec::new();
     for cycle in 0..CYCLES {
         let (mut server, addr) = serve_with(dir.path(), &[]);
@@ -463,10 +485,14 @@ fn pictures_are_served_and_retention_prunes_them_first() {
     {
         let log = ResultsLog::open(&file).expect("open");
         for n in 2..=5u8 {
-            log.append(with_pictures(n, &m)).expect("append");
+            let mut new = with_pictures(n, &m);
+            if n == 4 {
+                new.photo_jpeg = None;
+            }
+            log.append(new).expect("append");
         }
     }
-    assert_eq!(verify(&file).1["pictures_checked"], 8);
+    assert_eq!(verify(&file).1["pictures_checked"], 9);
     // The server keeps the pictures of the newest two records.
     let (_server, addr) = serve_with(dir.path(), &["--results-keep-pictures", "2"]);
     let rt = runtime();
@@ -486,6 +512,9 @@ fn pictures_are_served_and_retention_prunes_them_first() {
             Some(u32::from(ContentFormat::IMAGE_PNG.0))
         );
         assert_eq!(png.payload.len(), 72);
+        let none = get(&c, addr, "/station/measurements/4/photo", &[], None).await;
+        assert_eq!(none.code, Code::NOT_FOUND);
+        assert!(String::from_utf8_lossy(&none.payload).contains("no photo"));
         let wrong = get(&c, addr, "/station/measurements/5/photo", &[], Some(23)).await;
         assert_eq!(wrong.code, Code::NOT_ACCEPTABLE);
         let pruned = get(&c, addr, "/station/measurements/3/photo", &[], None).await;
@@ -511,7 +540,7 @@ fn pictures_are_served_and_retention_prunes_them_first() {
             report["pictures_checked"].as_u64(),
             report["pictures_pruned"].as_u64()
         ),
-        (Some(2), Some(6))
+        (Some(4), Some(7))
     );
     // A byte limit below the records themselves: every picture goes, no record.
     let small = ResultsLog::open_with(
