@@ -19,6 +19,10 @@ use crate::config::Transfer;
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
 use crate::peer_key::{MidKey, PeerKey};
 
+/// The longest Echo value a client sends back (RFC 9175 §2.2.1: the option holds 1 to 40
+/// bytes).
+const MAX_ECHO: usize = 40;
+
 impl ClientLayer {
     /// Starts a request ([`Endpoint::request`]).
     pub(super) fn request(
@@ -480,11 +484,16 @@ impl ClientLayer {
             && r.echoes < 2
             && r.window.is_none()
             && r.qdown.is_none()
-            && let Some(echo) = msg.options.first(OptionNumber::ECHO)
+            && let Some(echo) = msg
+                .options
+                .first(OptionNumber::ECHO)
+                .filter(|e| (1..=MAX_ECHO).contains(&e.len()))
         {
             // RFC 9175 §2.3: the server wants proof of this endpoint's address (or a fresh
             // request); the step goes again with its Echo value, and later steps carry it
-            // too (a server that has verified the address ignores it).
+            // too (a server that has verified the address ignores it). A value longer
+            // than the option allows is not sent back (the 4.01 is the answer): a server
+            // must not make its clients carry a kilobyte in every request.
             r.end_exchange(cx.msg);
             r.echoes += 1;
             r.req.options.set(OptionNumber::ECHO, echo);
@@ -744,6 +753,16 @@ impl ClientLayer {
                 .first_options
                 .as_ref()
                 .and_then(|o| o.uint(OptionNumber::SIZE2));
+            if size2.is_some_and(|t| t as usize <= b2.size()) {
+                // More blocks, and a size that ends within this one: a window would have
+                // nothing to ask for and wait for the timeout.
+                return self.fail(
+                    cx,
+                    now,
+                    id,
+                    RequestError::Protocol("the body does not have the size Size2 announced"),
+                );
+            }
             let last = size2
                 .and_then(|t| (t as usize).checked_sub(1))
                 .map(|end| (end / b2.size()) as u32);

@@ -324,3 +324,52 @@ fn rfc9175_2_4_only_an_echo_keeps_an_address_verified_not_spoofed_requests() {
         "verified again by its Echo"
     );
 }
+
+#[test]
+fn rfc9175_2_2_1_an_echo_value_over_40_bytes_is_not_sent_back() {
+    let mut sim = Sim::new(LinkConfig::default());
+    let c = sim.add_at(SocketAddr::from(([192, 0, 2, 200], 5683)), cfg(1), None);
+    // A server that is not a node: its answers are written by hand.
+    let server = SocketAddr::from(([198, 51, 100, 9], 5683));
+    let requests_with_echo = |sim: &Sim| -> Vec<usize> {
+        sim.log
+            .iter()
+            .filter(|r| r.from == sim.nodes[c].addr && r.to == server)
+            .filter_map(|r| r.msg.as_ref()?.options.first(OptionNumber::ECHO))
+            .map(<[u8]>::len)
+            .collect()
+    };
+    for (n, len) in [(0u8, 40usize), (1, 1000)] {
+        let now = sim.now;
+        let id = sim.nodes[c]
+            .ep
+            .request(now, server, Request::new(Code::GET, "/x"));
+        sim.run_until(Duration::from_millis(10), |_| false);
+        let request = sim
+            .log
+            .iter()
+            .rev()
+            .find(|r| r.from == sim.nodes[c].addr && r.to == server)
+            .and_then(|r| r.msg.clone())
+            .unwrap_or_else(|| panic!("no request"));
+        let mut challenge = Message::empty(Type::Ack, request.message_id);
+        challenge.code = Code::UNAUTHORIZED;
+        challenge.token = request.token;
+        challenge.options.set(OptionNumber::ECHO, vec![n; len]);
+        sim.inject(server, c, &challenge.encode());
+        sim.run_until(Duration::from_millis(10), |_| false);
+        let echoed = requests_with_echo(&sim);
+        if len <= 40 {
+            // Within the option's bounds: the request goes again, with the value.
+            assert_eq!(echoed, [len], "a {len}-byte Echo value");
+            sim.nodes[c].ep.cancel(sim.now, id);
+        } else {
+            assert_eq!(echoed, [40], "a {len}-byte Echo value was sent back");
+            let answered = sim.nodes[c].events.iter().any(|(_, e)| {
+                matches!(e, Event::Response { id: got, response }
+                    if *got == id && response.code == Code::UNAUTHORIZED)
+            });
+            assert!(answered, "the 4.01 is the answer");
+        }
+    }
+}

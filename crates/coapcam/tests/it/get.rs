@@ -56,6 +56,8 @@ enum Then {
     Silence,
     /// Answers 5.03 Service Unavailable with a diagnostic.
     Unavailable,
+    /// Goes on (ETag 1), every block announcing this Size2 instead of the body's 1 MB.
+    Size2(u32),
 }
 
 /// A server that answers GETs block by block (ETag 1, always more to come) for `blocks`
@@ -80,6 +82,7 @@ fn misbehaving_server(blocks: u32, then: Then) -> (SocketAddr, Arc<AtomicBool>) 
             let num = req.options.block2().map_or(0, |b| b.num);
             let etag = match then {
                 _ if num < blocks => 1u8,
+                Then::Size2(_) => 1,
                 Then::ChangeEtag => 2,
                 Then::Silence => continue,
                 Then::Unavailable => {
@@ -97,7 +100,11 @@ fn misbehaving_server(blocks: u32, then: Then) -> (SocketAddr, Arc<AtomicBool>) 
             };
             let mut options = coap::Options::new();
             options.set(OptionNumber::ETAG, vec![etag]);
-            options.set_uint(OptionNumber::SIZE2, 1024 * 1000);
+            let size2 = match then {
+                Then::Size2(size2) => size2,
+                _ => 1024 * 1000,
+            };
+            options.set_uint(OptionNumber::SIZE2, size2);
             let more = true;
             options.set_block(OptionNumber::BLOCK2, BlockOpt { num, more, szx: 6 });
             let reply = Message {
@@ -155,6 +162,36 @@ fn get_o_whose_etag_changes_mid_transfer_fails_and_leaves_no_file() {
 #[test]
 fn get_o_from_a_server_that_stops_answering_fails_and_leaves_no_file() {
     check_interrupted(Then::Silence, "silent server");
+}
+
+#[test]
+fn get_from_a_server_whose_size2_ends_within_the_first_block_fails_at_once() {
+    // Block 0 says more is to come and Size2 says the body ends within it: the client
+    // fails on the contradiction, not after --timeout.
+    for size2 in [1, 1024] {
+        let (addr, stop) = misbehaving_server(1000, Then::Size2(size2));
+        let dir = TempDir::new("get-size2");
+        let out = dir.join("out.bin");
+        let uri = format!("coap://{addr}/body");
+        let flags = ["--block-size", "1024", "--timeout", "20"];
+        for to_file in [true, false] {
+            let f = if to_file {
+                get(&uri, &out, &flags)
+            } else {
+                let mut args = vec!["get", uri.as_str()];
+                args.extend_from_slice(&flags);
+                Proc::run(COAPCAM, &args, LIMIT)
+            };
+            assert!(!f.status.success(), "Size2 {size2}: exit 0");
+            assert!(
+                f.stderr.contains("Size2"),
+                "Size2 {size2}, to a file {to_file}: {}",
+                f.stderr
+            );
+            assert!(!out.exists(), "a file was left behind");
+        }
+        stop.store(true, Ordering::SeqCst);
+    }
 }
 
 #[test]

@@ -77,3 +77,46 @@ fn a_file_being_hashed_holds_up_neither_requests_nor_the_stop() {
     let stopped = server.interrupt();
     assert_eq!(stopped.status.code(), Some(0), "{}", stopped.stderr);
 }
+
+#[test]
+fn a_server_started_after_kill_9_removes_the_temporary_files_left_behind() {
+    let state = TempDir::new("leftovers");
+    let path = format!("/cams/{SN}/application-config");
+    let (mut server, addr) = serve(state.path());
+    let before = runtime().block_on(async {
+        let c = client();
+        let doc = send(&c, addr, Code::GET, &path, b"", None).await.payload;
+        let r = send(&c, addr, Code::PUT, &path, &doc, None).await;
+        assert_eq!(r.code, Code::CHANGED);
+        doc
+    });
+    let pid = server.process().id();
+    server.process().kill().expect("kill -9");
+    let _ = server.process().wait();
+    // What ten writes cut off by the kill leave: their temporary files; and one of a
+    // process that still runs (this test), which must stay.
+    let dir = state.path().join(SN);
+    let left: Vec<_> = (0..10)
+        .map(|n| dir.join(format!(".application-config.json.{pid}.{n}.tmp")))
+        .collect();
+    for file in &left {
+        std::fs::write(file, b"{ half a docum").expect("a leftover");
+    }
+    let live = dir.join(format!(".color-settings.json.{}.0.tmp", std::process::id()));
+    std::fs::write(&live, b"{").expect("a live writer's file");
+
+    let (_server, addr) = serve(state.path());
+    for file in &left {
+        assert!(!file.exists(), "{} is still there", file.display());
+    }
+    assert!(
+        live.exists(),
+        "a running process's temporary file was removed"
+    );
+    let doc = runtime().block_on(async {
+        send(&client(), addr, Code::GET, &path, b"", None)
+            .await
+            .payload
+    });
+    assert_eq!(doc, before, "the stored document is intact");
+}

@@ -97,10 +97,18 @@ impl Cams {
         state_dir: &Path,
         changed: mpsc::UnboundedSender<String>,
     ) -> std::io::Result<Arc<Self>> {
+        let state = StateDir::new(state_dir);
+        let removed = state.remove_leftovers();
+        if removed > 0 {
+            tracing::info!(
+                removed,
+                "removed the temporary files of writes a stopped server did not finish"
+            );
+        }
         let me = Arc::new(Self {
             hub,
             router,
-            state: StateDir::new(state_dir),
+            state,
             cams: Mutex::default(),
             changed,
             measured: Mutex::default(),

@@ -1,5 +1,7 @@
 //! Per-serial persistence of the JSON resources: `<state-dir>/<serial>/<name>.json`,
-//! written atomically (temporary file, fsync, rename, fsync of the directory).
+//! written atomically (temporary file, fsync, rename, fsync of the directory). A server
+//! killed during a write leaves its temporary file; the next one to start removes those
+//! of processes that no longer run.
 
 use std::fs::File;
 use std::io::{self, Write as _};
@@ -19,6 +21,41 @@ impl StateDir {
         Self {
             root: root.to_path_buf(),
         }
+    }
+
+    /// Removes the temporary files (`.<name>.json.<pid>.<n>.tmp`) that writes of a process
+    /// no longer running left behind (a server killed with SIGKILL in the middle of a PUT),
+    /// and returns how many. A live process's file is left alone, and so is every file
+    /// where `/proc` cannot tell which processes run.
+    pub(crate) fn remove_leftovers(&self) -> usize {
+        let Ok(serials) = std::fs::read_dir(&self.root) else {
+            return 0;
+        };
+        let mut removed = 0;
+        for serial in serials.flatten() {
+            let Ok(entries) = std::fs::read_dir(serial.path()) else {
+                continue;
+            };
+            for entry in entries.flatten() {
+                let leftover = entry
+                    .file_name()
+                    .to_str()
+                    .and_then(writer_of)
+                    .is_some_and(|pid| !runs(pid))
+                    && entry.file_type().is_ok_and(|t| t.is_file());
+                if leftover {
+                    match std::fs::remove_file(entry.path()) {
+                        Ok(()) => removed += 1,
+                        Err(e) => tracing::warn!(
+                            path = %entry.path().display(),
+                            error = %e,
+                            "a temporary file left by an interrupted write stays"
+                        ),
+                    }
+                }
+            }
+        }
+        removed
     }
 
     fn path(&self, serial: &Serial, name: &str) -> PathBuf {
@@ -95,9 +132,45 @@ impl StateDir {
     }
 }
 
+/// The process that wrote the temporary file `name` (`.<name>.json.<pid>.<n>.tmp`, what
+/// [`StateDir::store`] makes); `None` for any other name.
+fn writer_of(name: &str) -> Option<u32> {
+    let inner = name.strip_prefix('.')?.strip_suffix(".tmp")?;
+    let mut parts = inner.rsplitn(3, '.');
+    let n = parts.next()?;
+    let pid = parts.next()?;
+    let document = parts.next()?;
+    n.parse::<u64>().ok()?;
+    (document.ends_with(".json") && document.len() > ".json".len()).then_some(())?;
+    pid.parse().ok()
+}
+
+/// Whether process `pid` runs (or may: true where `/proc` does not say).
+fn runs(pid: u32) -> bool {
+    pid == std::process::id()
+        || !Path::new("/proc/self").exists()
+        || Path::new(&format!("/proc/{pid}")).exists()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_names_of_our_temporary_files_have_a_writer() {
+        assert_eq!(writer_of(".application-config.json.4242.7.tmp"), Some(4242));
+        for other in [
+            "application-config.json",
+            ".application-config.json.4242.7",
+            ".json.4242.7.tmp",
+            ".application-config.json.x.7.tmp",
+            ".application-config.json.4242.x.tmp",
+            ".notes.txt.4242.7.tmp",
+            "application-config.json.4242.7.tmp",
+        ] {
+            assert_eq!(writer_of(other), None, "{other}");
+        }
+    }
 
     #[test]
     fn stores_and_loads_per_serial() {
