@@ -1,7 +1,10 @@
 //! The benchmarks behind `coapcam bench`: what each runs and measures, returned as values
 //! the command prints.
 //!
+//! - [`accuracy`]: seeded synthetic parcels measured end to end over CoAP, and their
+//!   errors;
 //! - [`transfer`]: whole-body GETs of our client's transfer modes, libcoap and QUIC, each
 //!   a child process, through emulated links.
 
+pub mod accuracy;
 pub mod transfer;

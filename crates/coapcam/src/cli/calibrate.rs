@@ -12,32 +12,18 @@
 //! - `--adjust`: the thesis's manual correction, the post rotation (roll, pitch, yaw in
 //!   degrees) and post translation (metres) of one camera's document.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context as _, bail};
-use bytes::Bytes;
 use clap::Args;
-use coap::{Code, ContentFormat};
-use geometry::{Point3, PointCloud, Transformation, dominant_plane, floor_transformation};
-use image::Rgb;
-use markers::{Detection, Family};
+use geometry::Transformation;
+use markers::Family;
 use serde_json::json;
 
 use super::{CameraArgs, Exit, TransmissionArgs, outln};
 use coapcam::client::CamClient;
-use coapcam::client::annotate::projector;
-use coapcam::client::measure::full_resolution;
-use coapcam::repr::Stream;
-use coapcam::repr::cbor::ColorCapture;
-use coapcam::repr::clouds::parts_from_depth_cloud;
-use coapcam::vision::calibration::{self, Calibration, CameraView, MarkerMap};
-use coapcam::vision::picture;
-
-/// Points this close to the floor plane are its inliers, metres (the D415's depth noise
-/// at 1-2 m is a few millimetres).
-const FLOOR_INLIER_M: f64 = 0.012;
-/// RANSAC samples.
-const ITERATIONS: usize = 400;
+use coapcam::client::calibrate;
+use coapcam::vision::calibration::MarkerMap;
 
 /// Flags of `calibrate`.
 #[derive(Debug, Args)]
@@ -101,11 +87,6 @@ pub(crate) struct CalibrateArgs {
     transmission: TransmissionArgs,
 }
 
-/// The resource of camera `sn`'s 3d-transformation.
-fn path(sn: &str) -> String {
-    format!("/cams/{sn}/3d-transformation")
-}
-
 /// Runs `calibrate`.
 pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
     if !(args.marker_size.is_finite() && args.marker_size > 0.0) {
@@ -130,9 +111,20 @@ pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
     }
     for sn in &serials {
         let (transformation, report) = if args.adjust {
-            (adjusted(&client, sn, &args).await?, json!({}))
+            let rotation = [args.roll, args.pitch, args.yaw];
+            let translation = [args.dx, args.dy, args.dz];
+            let t = calibrate::adjusted(&client, sn, rotation, translation).await?;
+            (t, json!({}))
         } else {
-            level(&client, sn).await?
+            let l = calibrate::level(&client, sn).await?;
+            let report = json!({
+                "method": "floor",
+                "floor_points": l.floor_points,
+                "floor_rms_mm": l.floor_rms_m * 1000.0,
+                "height_mm": l.height_m * 1000.0,
+                "tilt_deg": l.tilt_deg,
+            });
+            (l.transformation, report)
         };
         write(&client, sn, &transformation, report, &args).await?;
     }
@@ -149,7 +141,7 @@ async fn write(
 ) -> anyhow::Result<()> {
     let document = transformation.to_json();
     if !args.dry_run {
-        put(client, sn, &document).await?;
+        calibrate::put(client, sn, transformation).await?;
     }
     report["camera"] = sn.into();
     report["written"] = (!args.dry_run).into();
@@ -159,15 +151,6 @@ async fn write(
     } else {
         outln!("{}", text(&report));
     }
-    Ok(())
-}
-
-/// PUTs camera `sn`'s 3d-transformation `document`.
-pub(crate) async fn put(client: &CamClient, sn: &str, document: &str) -> anyhow::Result<()> {
-    let body = Bytes::from(document.as_bytes().to_vec());
-    client
-        .call(Code::PUT, &path(sn), body, Some(ContentFormat::JSON), None)
-        .await?;
     Ok(())
 }
 
@@ -184,16 +167,6 @@ fn marker_map(args: &CalibrateArgs) -> anyhow::Result<MarkerMap> {
     }
 }
 
-/// What one camera showed and where the markers place it.
-pub(crate) struct Placed {
-    serial: String,
-    capture: ColorCapture,
-    detections: Vec<Detection>,
-    points: Vec<Point3>,
-    /// Where the markers place the camera.
-    pub(crate) calibration: Calibration,
-}
-
 /// Places every camera by the markers it sees; writes them all, or none when one fails.
 async fn by_markers(
     client: &CamClient,
@@ -204,8 +177,13 @@ async fn by_markers(
     let mut placed = Vec::with_capacity(serials.len());
     let mut failed = Vec::new();
     for sn in serials {
-        match place(client, sn, &map).await {
-            Ok(p) => placed.push(p),
+        match calibrate::place(client, sn, &map).await {
+            Ok(p) => {
+                for w in &p.warnings {
+                    eprintln!("coapcam: warning: {w}");
+                }
+                placed.push(p);
+            }
             Err(e) => failed.push(format!("camera {sn}: {e:#}")),
         }
     }
@@ -237,199 +215,11 @@ async fn by_markers(
         write(client, &p.serial, &c.transformation(), report, args).await?;
     }
     if let Some(view) = &args.view {
-        draw_views(&placed, view)?;
+        for w in calibrate::draw_views(&placed, view)? {
+            eprintln!("coapcam: warning: {w}");
+        }
     }
     Ok(Exit::Success)
-}
-
-/// Grabs camera `sn`'s color (at full resolution) and depth, and places it.
-pub(crate) async fn place(client: &CamClient, sn: &str, map: &MarkerMap) -> anyhow::Result<Placed> {
-    let capture = full_resolution_color(client, sn).await?;
-    let gray = image::imageops::grayscale(&capture.image);
-    let (w, h) = gray.dimensions();
-    let detections = markers::detect(map.family, gray.as_raw(), w as usize, h as usize)?;
-    let points = depth_points(client, sn).await?;
-    let view = CameraView {
-        detections: &detections,
-        color: &capture.intrinsics,
-        depth_to_color: &capture.depth_to_color,
-        depth_points: &points,
-    };
-    let calibration = calibration::calibrate(&view, map)?;
-    Ok(Placed {
-        serial: sn.to_owned(),
-        capture,
-        detections,
-        points,
-        calibration,
-    })
-}
-
-/// A color frame of `sn` at full resolution ([`full_resolution`]), its color-settings put
-/// back afterwards; at the current settings, with a warning, if the camera refuses that
-/// mode.
-async fn full_resolution_color(client: &CamClient, sn: &str) -> anyhow::Result<ColorCapture> {
-    let current = client.get_json(sn, "color-settings").await?;
-    let full = full_resolution(&current);
-    let changed = full != current
-        && match client.put_json(sn, "color-settings", &full).await {
-            Ok(()) => true,
-            Err(e) => {
-                eprintln!(
-                    "coapcam: warning: camera {sn}: searching markers at {}x{}: {}x{} refused ({e:#})",
-                    current["width"], current["height"], full["width"], full["height"]
-                );
-                false
-            }
-        };
-    let grabbed = client
-        .grab(sn, Stream::Color, Some(ContentFormat::CBOR))
-        .await;
-    if changed {
-        client
-            .put_json(sn, "color-settings", &current)
-            .await
-            .with_context(|| format!("camera {sn}: putting its color-settings back"))?;
-    }
-    ColorCapture::from_cbor(&grabbed?.payload)
-}
-
-/// Camera `sn`'s depth points in its own frame, from one compact point-cloud grab (its
-/// depth window and intrinsics).
-async fn depth_points(client: &CamClient, sn: &str) -> anyhow::Result<Vec<Point3>> {
-    let r = client.grab_compact(sn, Stream::Pointcloud).await?;
-    if r.options.content_format() != Some(ContentFormat::DEPTH_CLOUD) {
-        bail!("the server sends no compact cloud (65103), which calibration needs");
-    }
-    let part = parts_from_depth_cloud(&r.payload)?
-        .into_iter()
-        .next()
-        .context("the cloud has no depth")?;
-    Ok(rgbd::deproject_frame(&part.depth, &part.intrinsics)?)
-}
-
-const YELLOW: Rgb<u8> = Rgb([255, 220, 0]);
-const RED: Rgb<u8> = Rgb([230, 40, 40]);
-const GREEN: Rgb<u8> = Rgb([40, 200, 60]);
-const BLUE: Rgb<u8> = Rgb([60, 110, 255]);
-
-/// How far from the origin the views show the merged cloud, metres (a tilted camera sees
-/// the floor for metres; the table is near the markers).
-const VIEW_REACH_M: f32 = 1.5;
-
-/// `--view`: each camera's color image with its markers and the world axes drawn, and
-/// the merged cloud (within [`VIEW_REACH_M`] of the origin in x and y) from above and
-/// from the side.
-fn draw_views(placed: &[Placed], path: &Path) -> anyhow::Result<()> {
-    let mut merged = PointCloud::default();
-    for p in placed {
-        let transform = p.calibration.transformation().to_transform()?;
-        let mut image = p.capture.image.clone();
-        let thickness = (image.width() / 600).max(2);
-        let scale = (image.width() / 640).max(1);
-        for d in &p.detections {
-            let known = p.calibration.used.contains(&d.id);
-            let colour = if known { YELLOW } else { RED };
-            let corner = |i: usize| d.corners[i % 4].map(|v| v as f32);
-            for i in 0..4 {
-                picture::draw_line(&mut image, corner(i), corner(i + 1), colour, thickness);
-            }
-            let at = corner(3).map(|v| v.max(0.0) as u32);
-            picture::draw_text(
-                &mut image,
-                (at[0], at[1].saturating_sub(10 * scale)),
-                &d.id.to_string(),
-                scale,
-                colour,
-            );
-        }
-        match projector(&p.capture, &transform) {
-            Ok(project) => {
-                if let Some(origin) = project([0.0; 3]) {
-                    for (tip, colour) in [
-                        ([0.1, 0.0, 0.0], RED),
-                        ([0.0, 0.1, 0.0], GREEN),
-                        ([0.0, 0.0, 0.1], BLUE),
-                    ] {
-                        if let Some(tip) = project(tip) {
-                            picture::draw_line(&mut image, origin, tip, colour, thickness);
-                        }
-                    }
-                }
-            }
-            Err(e) => eprintln!(
-                "coapcam: warning: camera {}: --view draws no axes: {e:#}",
-                p.serial
-            ),
-        }
-        picture::save(&image, &picture::sibling(path, &format!("-{}", p.serial)))?;
-        merged.points.extend(
-            p.points
-                .iter()
-                .map(|q| transform.apply(q))
-                .filter(|q| q.x.abs() <= VIEW_REACH_M && q.y.abs() <= VIEW_REACH_M),
-        );
-    }
-    picture::save(&picture::top_view(&merged, None), path)?;
-    picture::save(
-        &picture::side_view(&merged),
-        &picture::sibling(path, "-side"),
-    )
-}
-
-/// The floor of camera `sn`, from its depth points: the transformation, and what the fit
-/// found.
-async fn level(
-    client: &CamClient,
-    sn: &str,
-) -> anyhow::Result<(Transformation, serde_json::Value)> {
-    let points = depth_points(client, sn)
-        .await
-        .with_context(|| format!("camera {sn}"))?;
-    let floor = dominant_plane(&points, FLOOR_INLIER_M, ITERATIONS, 1)
-        .with_context(|| format!("camera {sn}: finding the floor in {} points", points.len()))?;
-    if floor.inliers < calibration::MIN_FLOOR_POINTS {
-        bail!(
-            "camera {sn}: only {} points lie on the floor; is its roi3d cutting it away?",
-            floor.inliers
-        );
-    }
-    let t = floor_transformation(&floor);
-    // The angle between the camera's view (its z axis) and straight down.
-    let view_down = t.rotation.column(2).dot(&-nalgebra::Vector3::z());
-    let report = json!({
-        "method": "floor",
-        "floor_points": floor.inliers,
-        "floor_rms_mm": floor.rms * 1000.0,
-        "height_mm": t.translation.z * 1000.0,
-        "tilt_deg": view_down.clamp(-1.0, 1.0).acos().to_degrees(),
-    });
-    Ok((t, report))
-}
-
-/// Camera `sn`'s document with the post rotation and translation of `args` set.
-async fn adjusted(
-    client: &CamClient,
-    sn: &str,
-    args: &CalibrateArgs,
-) -> anyhow::Result<Transformation> {
-    let current = client
-        .call(Code::GET, &path(sn), Bytes::new(), None, None)
-        .await?;
-    let mut t = Transformation::from_json(&current.payload)
-        .with_context(|| format!("camera {sn}: reading its 3d-transformation"))?;
-    for (i, value) in [args.roll, args.pitch, args.yaw].into_iter().enumerate() {
-        if let Some(v) = value {
-            t.post_rotation_deg[i] = v;
-        }
-    }
-    for (i, value) in [args.dx, args.dy, args.dz].into_iter().enumerate() {
-        if let Some(v) = value {
-            t.post_translation[i] = v;
-        }
-    }
-    t.validate()?;
-    Ok(t)
 }
 
 fn text(report: &serde_json::Value) -> String {

@@ -3,6 +3,7 @@
 //! and what is built on it: measuring, reading the parcel's codes, the annotated picture.
 
 pub mod annotate;
+pub mod calibrate;
 pub mod codes;
 pub mod measure;
 pub mod results;

@@ -1,0 +1,271 @@
+//! Calibration's client side: each camera's color (at full resolution) and depth grabbed
+//! from a server and placed by the markers it sees (`vision::calibration`), or levelled on
+//! the floor in its depth, or its document adjusted by hand; the 3d-transformation
+//! written back; `--view`'s pictures of what the markers placed.
+
+use std::path::Path;
+
+use anyhow::{Context as _, bail};
+use bytes::Bytes;
+use coap::{Code, ContentFormat};
+use geometry::{Point3, PointCloud, Transformation, dominant_plane, floor_transformation};
+use image::Rgb;
+use markers::Detection;
+
+use super::CamClient;
+use super::annotate::projector;
+use super::measure::full_resolution;
+use crate::repr::Stream;
+use crate::repr::cbor::ColorCapture;
+use crate::repr::clouds::parts_from_depth_cloud;
+use crate::vision::calibration::{self, Calibration, CameraView, MarkerMap};
+use crate::vision::picture;
+
+/// Points this close to the floor plane are its inliers, metres (the D415's depth noise
+/// at 1-2 m is a few millimetres).
+const FLOOR_INLIER_M: f64 = 0.012;
+/// RANSAC samples.
+const ITERATIONS: usize = 400;
+
+/// The resource of camera `sn`'s 3d-transformation.
+fn path(sn: &str) -> String {
+    format!("/cams/{sn}/3d-transformation")
+}
+
+/// PUTs camera `sn`'s 3d-transformation.
+pub async fn put(
+    client: &CamClient,
+    sn: &str,
+    transformation: &Transformation,
+) -> anyhow::Result<()> {
+    let body = Bytes::from(transformation.to_json().into_bytes());
+    client
+        .call(Code::PUT, &path(sn), body, Some(ContentFormat::JSON), None)
+        .await?;
+    Ok(())
+}
+
+/// What one camera showed and where the markers place it.
+pub struct Placed {
+    /// The camera's serial number.
+    pub serial: String,
+    /// Its color frame.
+    pub capture: ColorCapture,
+    /// The markers found in it.
+    pub detections: Vec<Detection>,
+    /// Its depth points, in its own frame.
+    pub points: Vec<Point3>,
+    /// Where the markers place the camera.
+    pub calibration: Calibration,
+    /// What did not go as asked but did not stop the placing (a camera that refused the
+    /// full resolution was searched at its current one).
+    pub warnings: Vec<String>,
+}
+
+/// Grabs camera `sn`'s color (at full resolution) and depth, and places it.
+pub async fn place(client: &CamClient, sn: &str, map: &MarkerMap) -> anyhow::Result<Placed> {
+    let mut warnings = Vec::new();
+    let capture = full_resolution_color(client, sn, &mut warnings).await?;
+    let gray = image::imageops::grayscale(&capture.image);
+    let (w, h) = gray.dimensions();
+    let detections = markers::detect(map.family, gray.as_raw(), w as usize, h as usize)?;
+    let points = depth_points(client, sn).await?;
+    let view = CameraView {
+        detections: &detections,
+        color: &capture.intrinsics,
+        depth_to_color: &capture.depth_to_color,
+        depth_points: &points,
+    };
+    let calibration = calibration::calibrate(&view, map)?;
+    Ok(Placed {
+        serial: sn.to_owned(),
+        capture,
+        detections,
+        points,
+        calibration,
+        warnings,
+    })
+}
+
+/// A color frame of `sn` at full resolution ([`full_resolution`]), its color-settings put
+/// back afterwards; at the current settings, with a warning, if the camera refuses that
+/// mode.
+async fn full_resolution_color(
+    client: &CamClient,
+    sn: &str,
+    warnings: &mut Vec<String>,
+) -> anyhow::Result<ColorCapture> {
+    let current = client.get_json(sn, "color-settings").await?;
+    let full = full_resolution(&current);
+    let changed = full != current
+        && match client.put_json(sn, "color-settings", &full).await {
+            Ok(()) => true,
+            Err(e) => {
+                warnings.push(format!(
+                    "camera {sn}: searching markers at {}x{}: {}x{} refused ({e:#})",
+                    current["width"], current["height"], full["width"], full["height"]
+                ));
+                false
+            }
+        };
+    let grabbed = client
+        .grab(sn, Stream::Color, Some(ContentFormat::CBOR))
+        .await;
+    if changed {
+        client
+            .put_json(sn, "color-settings", &current)
+            .await
+            .with_context(|| format!("camera {sn}: putting its color-settings back"))?;
+    }
+    ColorCapture::from_cbor(&grabbed?.payload)
+}
+
+/// Camera `sn`'s depth points in its own frame, from one compact point-cloud grab (its
+/// depth window and intrinsics).
+pub async fn depth_points(client: &CamClient, sn: &str) -> anyhow::Result<Vec<Point3>> {
+    let r = client.grab_compact(sn, Stream::Pointcloud).await?;
+    if r.options.content_format() != Some(ContentFormat::DEPTH_CLOUD) {
+        bail!("the server sends no compact cloud (65103), which calibration needs");
+    }
+    let part = parts_from_depth_cloud(&r.payload)?
+        .into_iter()
+        .next()
+        .context("the cloud has no depth")?;
+    Ok(rgbd::deproject_frame(&part.depth, &part.intrinsics)?)
+}
+
+const YELLOW: Rgb<u8> = Rgb([255, 220, 0]);
+const RED: Rgb<u8> = Rgb([230, 40, 40]);
+const GREEN: Rgb<u8> = Rgb([40, 200, 60]);
+const BLUE: Rgb<u8> = Rgb([60, 110, 255]);
+
+/// How far from the origin the views show the merged cloud, metres (a tilted camera sees
+/// the floor for metres; the table is near the markers).
+const VIEW_REACH_M: f32 = 1.5;
+
+/// `--view`: each camera's color image with its markers and the world axes drawn
+/// (`FILE-<sn>.png`), and the merged cloud (within [`VIEW_REACH_M`] of the origin in x
+/// and y) from above (`path`) and from the side (`FILE-side.png`). What could not be
+/// drawn (a camera's axes) is returned as warnings.
+pub fn draw_views(placed: &[Placed], path: &Path) -> anyhow::Result<Vec<String>> {
+    let mut warnings = Vec::new();
+    let mut merged = PointCloud::default();
+    for p in placed {
+        let transform = p.calibration.transformation().to_transform()?;
+        let mut image = p.capture.image.clone();
+        let thickness = (image.width() / 600).max(2);
+        let scale = (image.width() / 640).max(1);
+        for d in &p.detections {
+            let known = p.calibration.used.contains(&d.id);
+            let colour = if known { YELLOW } else { RED };
+            let corner = |i: usize| d.corners[i % 4].map(|v| v as f32);
+            for i in 0..4 {
+                picture::draw_line(&mut image, corner(i), corner(i + 1), colour, thickness);
+            }
+            let at = corner(3).map(|v| v.max(0.0) as u32);
+            picture::draw_text(
+                &mut image,
+                (at[0], at[1].saturating_sub(10 * scale)),
+                &d.id.to_string(),
+                scale,
+                colour,
+            );
+        }
+        match projector(&p.capture, &transform) {
+            Ok(project) => {
+                if let Some(origin) = project([0.0; 3]) {
+                    for (tip, colour) in [
+                        ([0.1, 0.0, 0.0], RED),
+                        ([0.0, 0.1, 0.0], GREEN),
+                        ([0.0, 0.0, 0.1], BLUE),
+                    ] {
+                        if let Some(tip) = project(tip) {
+                            picture::draw_line(&mut image, origin, tip, colour, thickness);
+                        }
+                    }
+                }
+            }
+            Err(e) => warnings.push(format!("camera {}: --view draws no axes: {e:#}", p.serial)),
+        }
+        picture::save(&image, &picture::sibling(path, &format!("-{}", p.serial)))?;
+        merged.points.extend(
+            p.points
+                .iter()
+                .map(|q| transform.apply(q))
+                .filter(|q| q.x.abs() <= VIEW_REACH_M && q.y.abs() <= VIEW_REACH_M),
+        );
+    }
+    picture::save(&picture::top_view(&merged, None), path)?;
+    picture::save(
+        &picture::side_view(&merged),
+        &picture::sibling(path, "-side"),
+    )?;
+    Ok(warnings)
+}
+
+/// A camera levelled on the floor it sees.
+#[derive(Debug, Clone)]
+pub struct Levelled {
+    /// The 3d-transformation that puts the floor at z = 0, z up.
+    pub transformation: Transformation,
+    /// Depth points on the floor plane.
+    pub floor_points: usize,
+    /// Their RMS distance from it, metres.
+    pub floor_rms_m: f64,
+    /// The camera's height above the floor, metres.
+    pub height_m: f64,
+    /// The angle between the camera's view and straight down, degrees.
+    pub tilt_deg: f64,
+}
+
+/// The floor of camera `sn`, from its depth points: roll, pitch and height.
+pub async fn level(client: &CamClient, sn: &str) -> anyhow::Result<Levelled> {
+    let points = depth_points(client, sn)
+        .await
+        .with_context(|| format!("camera {sn}"))?;
+    let floor = dominant_plane(&points, FLOOR_INLIER_M, ITERATIONS, 1)
+        .with_context(|| format!("camera {sn}: finding the floor in {} points", points.len()))?;
+    if floor.inliers < calibration::MIN_FLOOR_POINTS {
+        bail!(
+            "camera {sn}: only {} points lie on the floor; is its roi3d cutting it away?",
+            floor.inliers
+        );
+    }
+    let t = floor_transformation(&floor);
+    // The angle between the camera's view (its z axis) and straight down.
+    let view_down = t.rotation.column(2).dot(&-nalgebra::Vector3::z());
+    Ok(Levelled {
+        floor_points: floor.inliers,
+        floor_rms_m: floor.rms,
+        height_m: t.translation.z,
+        tilt_deg: view_down.clamp(-1.0, 1.0).acos().to_degrees(),
+        transformation: t,
+    })
+}
+
+/// Camera `sn`'s document with the post rotation (roll, pitch, yaw, degrees) and post
+/// translation (x, y, z, metres) given set, the rest kept.
+pub async fn adjusted(
+    client: &CamClient,
+    sn: &str,
+    rotation_deg: [Option<f64>; 3],
+    translation: [Option<f64>; 3],
+) -> anyhow::Result<Transformation> {
+    let current = client
+        .call(Code::GET, &path(sn), Bytes::new(), None, None)
+        .await?;
+    let mut t = Transformation::from_json(&current.payload)
+        .with_context(|| format!("camera {sn}: reading its 3d-transformation"))?;
+    for (i, value) in rotation_deg.into_iter().enumerate() {
+        if let Some(v) = value {
+            t.post_rotation_deg[i] = v;
+        }
+    }
+    for (i, value) in translation.into_iter().enumerate() {
+        if let Some(v) = value {
+            t.post_translation[i] = v;
+        }
+    }
+    t.validate()?;
+    Ok(t)
+}
