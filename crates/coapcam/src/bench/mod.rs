@@ -3,8 +3,11 @@
 //!
 //! - [`accuracy`]: seeded synthetic parcels measured end to end over CoAP, and their
 //!   errors;
+//! - [`load`]: many concurrent clients in four roles against a running server, every
+//!   transfer checked;
 //! - [`transfer`]: whole-body GETs of our client's transfer modes, libcoap and QUIC, each
 //!   a child process, through emulated links.
 
 pub mod accuracy;
+pub mod load;
 pub mod transfer;
