@@ -556,3 +556,43 @@ fn a_measurement_made_while_the_broker_is_down_arrives_after_it_is_back_20_times
     assert!(f.status.success(), "serve: {}", f.stderr);
     assert_eq!(retained(broker.port, "lane/dock-r/status"), "offline");
 }
+
+#[test]
+fn the_delivery_cursor_survives_a_restart_of_the_station() {
+    if !available("mqtt cursor across restarts", &[Peer::Mosquitto]) {
+        return;
+    }
+    let dir = TempDir::new("mqtt-cursor");
+    let mut broker = Broker::start(&dir, true);
+    runtime().block_on(async {
+        let mut sub =
+            Subscriber::start(broker.port, "test-cursor", "lane/+/measurements", true).await;
+        // Recorded while the broker is away, and the station stops before it is back.
+        broker.stop();
+        let log = open_log(&dir);
+        let publisher = Publisher::start(config(&broker, "dock-3"), log.clone()).expect("start");
+        for n in 0..3 {
+            record_async(&log, 400.0 + f64::from(n)).await;
+        }
+        publisher.stop().await;
+        drop(log);
+        broker.restart();
+        // A new station on the same file: the three follow.
+        let log = open_log(&dir);
+        let publisher = Publisher::start(config(&broker, "dock-3"), log.clone()).expect("start");
+        for id in 1..=3u64 {
+            assert_eq!(sub.next().await.json()["id"], id);
+        }
+        let deadline = Instant::now() + LIMIT;
+        while log.cursor(CONSUMER).expect("the cursor") != 3 {
+            assert!(Instant::now() < deadline, "the cursor stays below 3");
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        publisher.stop().await;
+        // And once more: what was acknowledged is not sent again.
+        let publisher = Publisher::start(config(&broker, "dock-3"), log.clone()).expect("start");
+        let id = record_async(&log, 410.0).await;
+        assert_eq!(sub.next().await.json()["id"], id);
+        publisher.stop().await;
+    });
+}
