@@ -7,7 +7,7 @@ use anyhow::Context as _;
 use clap::Args;
 use serde_json::json;
 
-use super::{Exit, outln};
+use crate::cli::{Exit, outln};
 use coapcam::bench::load::{self, Config};
 use coapcam::stats;
 

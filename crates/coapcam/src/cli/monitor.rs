@@ -7,16 +7,14 @@
 use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::{Context as _, bail};
-use bytes::Bytes;
 use clap::Args;
-use coap::{Code, ContentFormat, OptionNumber, Response};
-use geometry::DimensionConfig;
+use coap::ContentFormat;
 
-use coapcam::client::measure::{self, CloudMeasurement, Source};
+use coapcam::client::measure::{CloudMeasurement, Source};
+use coapcam::client::timed::{self, Repeat, Timed};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Billing, Measurement, Parcel};
 use coapcam::repr::Stream;
-use coapcam::station::log::ListQuery;
 use coapcam::station::record::Record;
 use coapcam::stats::{TransferStats, TransferSummary};
 
@@ -167,6 +165,17 @@ struct RecordLine {
     trigger: &'static str,
 }
 
+impl From<Timed> for Success {
+    fn from(t: Timed) -> Self {
+        Self {
+            bytes: t.bytes,
+            time: t.time,
+            measurement: t.measurement,
+            record: None,
+        }
+    }
+}
+
 /// What one request brought.
 struct Success {
     bytes: usize,
@@ -186,13 +195,6 @@ enum Plan {
     },
     /// `measure --observe`: the results log's new records.
     Records,
-}
-
-/// A request repeated every interval.
-enum Repeat {
-    Grab { serial: String, stream: Stream },
-    All,
-    Measure(Source),
 }
 
 impl Plan {
@@ -402,51 +404,6 @@ fn thousands(n: usize) -> String {
     out
 }
 
-/// One grab or measurement.
-async fn once(
-    client: &CamClient,
-    plan: &Repeat,
-    accept: Option<ContentFormat>,
-    config: &DimensionConfig,
-) -> anyhow::Result<Success> {
-    let started = Instant::now();
-    match plan {
-        Repeat::Grab { serial, stream } => {
-            let r = match accept {
-                Some(cf) => client.grab(serial, *stream, Some(cf)).await?,
-                None => client.grab_compact(serial, *stream).await?,
-            };
-            Ok(Success {
-                bytes: r.payload.len(),
-                time: started.elapsed(),
-                measurement: None,
-                record: None,
-            })
-        }
-        Repeat::All => {
-            let r = match accept {
-                Some(cf) => client.grab_all(Some(cf)).await?,
-                None => client.grab_cloud(None).await?,
-            };
-            Ok(Success {
-                bytes: r.payload.len(),
-                time: started.elapsed(),
-                measurement: None,
-                record: None,
-            })
-        }
-        Repeat::Measure(source) => {
-            let m = measure::measure_once(client, source, config).await?;
-            Ok(Success {
-                bytes: m.grabbed.bytes,
-                time: m.grab,
-                measurement: Some(m),
-                record: None,
-            })
-        }
-    }
-}
-
 /// Repeats the plan every `period` until `count` results.
 async fn repeat(
     client: &CamClient,
@@ -467,152 +424,8 @@ async fn repeat(
             ticks.tick().await;
         }
         let started = Instant::now();
-        let outcome = once(client, plan, args.accept, &config).await;
-        report.result(outcome, started.elapsed())?;
-    }
-    Ok(())
-}
-
-/// Observes `/cams/<serial>/<stream>` until `count` results or the end of the observation.
-async fn observe(
-    client: &CamClient,
-    serial: &str,
-    stream: Stream,
-    args: &MonitorArgs,
-    timeout: Duration,
-    report: &mut Report,
-) -> anyhow::Result<()> {
-    let path = format!("/cams/{serial}/{}", stream.name());
-    let mut request = client.request(Code::GET, &path, Bytes::new(), None, args.accept);
-    // The request's timeout would end the observation; only the first answer is bounded.
-    request.timeout = None;
-    let mut previous = Instant::now();
-    let mut observation = client
-        .coap()
-        .observe(client.server(), request)
-        .await
-        .with_context(|| format!("observing {path} on {}", client.server()))?;
-    let mut first = true;
-    while !report.done(args.count) {
-        let next = if first {
-            tokio::time::timeout(timeout, observation.next())
-                .await
-                .with_context(|| format!("no answer to the observation of {path} in {timeout:?}"))?
-        } else {
-            observation.next().await
-        };
-        let Some(next) = next else {
-            bail!("the observation of {path} ended");
-        };
-        let elapsed = previous.elapsed();
-        previous = Instant::now();
-        let response: Response = next.with_context(|| format!("observing {path}"))?;
-        let observing = response.options.contains(OptionNumber::OBSERVE);
-        let outcome = coapcam::client::check(&format!("GET {path}"), response).map(|r| Success {
-            bytes: r.payload.len(),
-            time: elapsed,
-            measurement: None,
-            record: None,
-        });
-        report.result(outcome, elapsed)?;
-        if !observing {
-            if first {
-                bail!("the server did not accept the observation of {path}");
-            }
-            bail!("the server ended the observation of {path}");
-        }
-        first = false;
-    }
-    Ok(())
-}
-
-/// Follows the results log (`measure --observe`): observes its newest record and reports
-/// each record added after the registration once, in id order, fetching those appended
-/// between two notifications (an observer is told the newest state, not every one).
-async fn observe_records(
-    client: &CamClient,
-    args: &MonitorArgs,
-    timeout: Duration,
-    report: &mut Report,
-) -> anyhow::Result<()> {
-    let path = results::LATEST;
-    let mut request = client.request(
-        Code::GET,
-        path,
-        Bytes::new(),
-        None,
-        Some(ContentFormat::CBOR),
-    );
-    request.timeout = None;
-    let mut previous = Instant::now();
-    let mut observation = client
-        .coap()
-        .observe(client.server(), request)
-        .await
-        .with_context(|| format!("observing {path} on {}", client.server()))?;
-    // The newest id reported (at first: the newest when the observation began).
-    let mut last: Option<u64> = None;
-    while !report.done(args.count) {
-        let next = if last.is_none() {
-            tokio::time::timeout(timeout, observation.next())
-                .await
-                .with_context(|| format!("no answer to the observation of {path} in {timeout:?}"))?
-        } else {
-            observation.next().await
-        };
-        let Some(next) = next else {
-            bail!("the observation of {path} ended");
-        };
-        let response = coapcam::client::check(
-            &format!("GET {path}"),
-            next.with_context(|| format!("observing {path}"))?,
-        )?;
-        let observing = response.options.contains(OptionNumber::OBSERVE);
-        let newest: Option<Record> = results::decode(&response.payload)?;
-        let Some(from) = last else {
-            let from = newest.as_ref().map_or(0, |r| r.id);
-            if !observing {
-                bail!("the server did not accept the observation of {path}");
-            }
-            eprintln!("coapcam: following {path} from record #{from}");
-            last = Some(from);
-            previous = Instant::now();
-            continue;
-        };
-        if let Some(newest) = newest.filter(|r| r.id > from) {
-            let mut records = Vec::new();
-            if newest.id > from + 1 {
-                let missed = ListQuery {
-                    since: Some(from),
-                    before: Some(newest.id),
-                    ..ListQuery::default()
-                };
-                let wanted = usize::try_from(newest.id - from - 1).unwrap_or(usize::MAX);
-                let mut got = results::list(client, &missed, wanted).await?;
-                got.reverse();
-                records = got;
-            }
-            records.push(newest);
-            for record in records {
-                let elapsed = previous.elapsed();
-                previous = Instant::now();
-                last = Some(record.id);
-                let bytes = response.payload.len();
-                let success = Success {
-                    bytes,
-                    time: elapsed,
-                    measurement: None,
-                    record: Some(record),
-                };
-                report.result(Ok(success), elapsed)?;
-                if report.done(args.count) {
-                    break;
-                }
-            }
-        }
-        if !observing {
-            bail!("the server ended the observation of {path}");
-        }
+        let outcome = timed::once(client, plan, args.accept, &config).await;
+        report.result(outcome.map(Success::from), started.elapsed())?;
     }
     Ok(())
 }
@@ -643,12 +456,30 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
     let work = async {
         match &plan {
             Plan::Observe { serial, stream } => {
-                observe(&client, serial, *stream, &args, timeout, &mut report).await
+                let on_result = |outcome: anyhow::Result<Timed>, elapsed| {
+                    report.result(outcome.map(Success::from), elapsed)?;
+                    Ok(report.done(args.count))
+                };
+                timed::observe(&client, serial, *stream, args.accept, timeout, on_result).await
             }
             Plan::Repeat(repeat_plan) => {
                 repeat(&client, repeat_plan, &args, period, &mut report).await
             }
-            Plan::Records => observe_records(&client, &args, timeout, &mut report).await,
+            Plan::Records => {
+                let on_start =
+                    |from| eprintln!("coapcam: following {} from record #{from}", results::LATEST);
+                let on_record = |record, bytes, elapsed| {
+                    let success = Success {
+                        bytes,
+                        time: elapsed,
+                        measurement: None,
+                        record: Some(record),
+                    };
+                    report.result(Ok(success), elapsed)?;
+                    Ok(report.done(args.count))
+                };
+                results::follow(&client, timeout, on_start, on_record).await
+            }
         }
     };
     let ended = tokio::select! {

@@ -7,6 +7,7 @@ pub mod calibrate;
 pub mod codes;
 pub mod measure;
 pub mod results;
+pub mod timed;
 
 use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;

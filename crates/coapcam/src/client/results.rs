@@ -2,8 +2,11 @@
 //! client's side: the records a query selects, paged, and what one notification of
 //! `/station/measurements/latest` holds.
 
-use anyhow::Context as _;
-use coap::ContentFormat;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, bail};
+use bytes::Bytes;
+use coap::{Code, ContentFormat, OptionNumber};
 
 use super::CamClient;
 use crate::station::log::{ListQuery, MAX_LIST};
@@ -56,4 +59,98 @@ pub async fn list(client: &CamClient, q: &ListQuery, limit: usize) -> anyhow::Re
         }
     }
     Ok(out)
+}
+
+/// Follows the results log: observes its newest record and reports
+/// each record added after the registration once, in id order, fetching those appended
+/// between two notifications (an observer is told the newest state, not every one).
+///
+/// The first answer must come within `timeout`; `on_start` gets the id the following
+/// starts after, `on_record` each record with the notification's size and the time since
+/// the previous record, until it says to stop (true) or the observation ends (an error).
+pub async fn follow(
+    client: &CamClient,
+    timeout: Duration,
+    on_start: impl FnOnce(u64),
+    mut on_record: impl FnMut(Record, usize, Duration) -> anyhow::Result<bool>,
+) -> anyhow::Result<()> {
+    let path = LATEST;
+    let mut on_start = Some(on_start);
+    let mut request = client.request(
+        Code::GET,
+        path,
+        Bytes::new(),
+        None,
+        Some(ContentFormat::CBOR),
+    );
+    request.timeout = None;
+    let mut previous = Instant::now();
+    let mut observation = client
+        .coap()
+        .observe(client.server(), request)
+        .await
+        .with_context(|| format!("observing {path} on {}", client.server()))?;
+    // The newest id reported (at first: the newest when the observation began).
+    let mut last: Option<u64> = None;
+    let mut stop = false;
+    loop {
+        let next = if last.is_none() {
+            tokio::time::timeout(timeout, observation.next())
+                .await
+                .with_context(|| format!("no answer to the observation of {path} in {timeout:?}"))?
+        } else {
+            observation.next().await
+        };
+        let Some(next) = next else {
+            bail!("the observation of {path} ended");
+        };
+        let response = super::check(
+            &format!("GET {path}"),
+            next.with_context(|| format!("observing {path}"))?,
+        )?;
+        let observing = response.options.contains(OptionNumber::OBSERVE);
+        let newest: Option<Record> = decode(&response.payload)?;
+        let Some(from) = last else {
+            let from = newest.as_ref().map_or(0, |r| r.id);
+            if !observing {
+                bail!("the server did not accept the observation of {path}");
+            }
+            if let Some(started) = on_start.take() {
+                started(from);
+            }
+            last = Some(from);
+            previous = Instant::now();
+            continue;
+        };
+        if let Some(newest) = newest.filter(|r| r.id > from) {
+            let mut records = Vec::new();
+            if newest.id > from + 1 {
+                let missed = ListQuery {
+                    since: Some(from),
+                    before: Some(newest.id),
+                    ..ListQuery::default()
+                };
+                let wanted = usize::try_from(newest.id - from - 1).unwrap_or(usize::MAX);
+                let mut got = list(client, &missed, wanted).await?;
+                got.reverse();
+                records = got;
+            }
+            records.push(newest);
+            for record in records {
+                let elapsed = previous.elapsed();
+                previous = Instant::now();
+                last = Some(record.id);
+                if on_record(record, response.payload.len(), elapsed)? {
+                    stop = true;
+                    break;
+                }
+            }
+        }
+        if !observing {
+            bail!("the server ended the observation of {path}");
+        }
+        if stop {
+            return Ok(());
+        }
+    }
 }

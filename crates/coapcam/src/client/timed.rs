@@ -1,0 +1,140 @@
+//! Requests timed as the thesis's test procedure (§3.4) times them: a grab or a
+//! measurement repeated, or the notifications of an observed resource.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, bail};
+use bytes::Bytes;
+use coap::{Code, ContentFormat, OptionNumber, Response};
+use geometry::DimensionConfig;
+
+use super::CamClient;
+use super::measure::{self, CloudMeasurement, Source};
+use crate::repr::Stream;
+
+/// A request repeated every interval.
+#[derive(Debug, Clone)]
+pub enum Repeat {
+    /// A grab of one camera's stream.
+    Grab {
+        /// The camera.
+        serial: String,
+        /// Its stream.
+        stream: Stream,
+    },
+    /// Every camera's cloud, merged (`POST /cams/pointclouds`).
+    All,
+    /// A measurement.
+    Measure(Source),
+}
+
+/// What one request brought.
+#[derive(Debug)]
+pub struct Timed {
+    /// The body's bytes (a measurement's: those of its grabs).
+    pub bytes: usize,
+    /// The time the statistics count.
+    pub time: Duration,
+    /// The measurement, if it was one.
+    pub measurement: Option<CloudMeasurement>,
+}
+
+/// One grab (in the representation `accept`, or the compact one) or measurement, timed:
+/// a grab from its request to its whole body, a measurement by its grabs.
+pub async fn once(
+    client: &CamClient,
+    what: &Repeat,
+    accept: Option<ContentFormat>,
+    config: &DimensionConfig,
+) -> anyhow::Result<Timed> {
+    let started = Instant::now();
+    match what {
+        Repeat::Grab { serial, stream } => {
+            let r = match accept {
+                Some(cf) => client.grab(serial, *stream, Some(cf)).await?,
+                None => client.grab_compact(serial, *stream).await?,
+            };
+            Ok(Timed {
+                bytes: r.payload.len(),
+                time: started.elapsed(),
+                measurement: None,
+            })
+        }
+        Repeat::All => {
+            let r = match accept {
+                Some(cf) => client.grab_all(Some(cf)).await?,
+                None => client.grab_cloud(None).await?,
+            };
+            Ok(Timed {
+                bytes: r.payload.len(),
+                time: started.elapsed(),
+                measurement: None,
+            })
+        }
+        Repeat::Measure(source) => {
+            let m = measure::measure_once(client, source, config).await?;
+            Ok(Timed {
+                bytes: m.grabbed.bytes,
+                time: m.grab,
+                measurement: Some(m),
+            })
+        }
+    }
+}
+
+/// Observes `/cams/<serial>/<stream>` (in the representation `accept`): each
+/// notification, the first within `timeout`, is handed to `on_result` with the time since
+/// the previous one (the first's since the request), until `on_result` says to stop
+/// (true) or the observation ends (an error).
+pub async fn observe(
+    client: &CamClient,
+    serial: &str,
+    stream: Stream,
+    accept: Option<ContentFormat>,
+    timeout: Duration,
+    mut on_result: impl FnMut(anyhow::Result<Timed>, Duration) -> anyhow::Result<bool>,
+) -> anyhow::Result<()> {
+    let path = format!("/cams/{serial}/{}", stream.name());
+    let mut request = client.request(Code::GET, &path, Bytes::new(), None, accept);
+    // The request's timeout would end the observation; only the first answer is bounded.
+    request.timeout = None;
+    let mut previous = Instant::now();
+    let mut observation = client
+        .coap()
+        .observe(client.server(), request)
+        .await
+        .with_context(|| format!("observing {path} on {}", client.server()))?;
+    let mut first = true;
+    loop {
+        let next = if first {
+            tokio::time::timeout(timeout, observation.next())
+                .await
+                .with_context(|| format!("no answer to the observation of {path} in {timeout:?}"))?
+        } else {
+            observation.next().await
+        };
+        let Some(next) = next else {
+            bail!("the observation of {path} ended");
+        };
+        let elapsed = previous.elapsed();
+        previous = Instant::now();
+        let response: Response = next.with_context(|| format!("observing {path}"))?;
+        let observing = response.options.contains(OptionNumber::OBSERVE);
+        let outcome = super::check(&format!("GET {path}"), response).map(|r| Timed {
+            bytes: r.payload.len(),
+            time: elapsed,
+            measurement: None,
+        });
+        let stop = on_result(outcome, elapsed)?;
+        if !observing {
+            if first {
+                bail!("the server did not accept the observation of {path}");
+            }
+            bail!("the server ended the observation of {path}");
+        }
+        if stop {
+            return Ok(());
+        }
+        first = false;
+    }
+}
