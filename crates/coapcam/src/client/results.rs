@@ -5,10 +5,10 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context as _, bail};
-use bytes::Bytes;
-use coap::{Code, ContentFormat, OptionNumber};
+use coap::{ContentFormat, OptionNumber};
 
 use super::CamClient;
+use super::timed::Watch;
 use crate::station::log::{ListQuery, MAX_LIST};
 use crate::station::record::Record;
 
@@ -76,38 +76,13 @@ pub async fn follow(
 ) -> anyhow::Result<()> {
     let path = LATEST;
     let mut on_start = Some(on_start);
-    let mut request = client.request(
-        Code::GET,
-        path,
-        Bytes::new(),
-        None,
-        Some(ContentFormat::CBOR),
-    );
-    request.timeout = None;
     let mut previous = Instant::now();
-    let mut observation = client
-        .coap()
-        .observe(client.server(), request)
-        .await
-        .with_context(|| format!("observing {path} on {}", client.server()))?;
+    let mut watch = Watch::start(client, path, Some(ContentFormat::CBOR), timeout).await?;
     // The newest id reported (at first: the newest when the observation began).
     let mut last: Option<u64> = None;
     let mut stop = false;
     loop {
-        let next = if last.is_none() {
-            tokio::time::timeout(timeout, observation.next())
-                .await
-                .with_context(|| format!("no answer to the observation of {path} in {timeout:?}"))?
-        } else {
-            observation.next().await
-        };
-        let Some(next) = next else {
-            bail!("the observation of {path} ended");
-        };
-        let response = super::check(
-            &format!("GET {path}"),
-            next.with_context(|| format!("observing {path}"))?,
-        )?;
+        let response = super::check(&format!("GET {path}"), watch.next().await?)?;
         let observing = response.options.contains(OptionNumber::OBSERVE);
         let newest: Option<Record> = decode(&response.payload)?;
         let Some(from) = last else {

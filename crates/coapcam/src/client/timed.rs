@@ -95,30 +95,14 @@ pub async fn observe(
     mut on_result: impl FnMut(anyhow::Result<Timed>, Duration) -> anyhow::Result<bool>,
 ) -> anyhow::Result<()> {
     let path = format!("/cams/{serial}/{}", stream.name());
-    let mut request = client.request(Code::GET, &path, Bytes::new(), None, accept);
-    // The request's timeout would end the observation; only the first answer is bounded.
-    request.timeout = None;
     let mut previous = Instant::now();
-    let mut observation = client
-        .coap()
-        .observe(client.server(), request)
-        .await
-        .with_context(|| format!("observing {path} on {}", client.server()))?;
+    let mut watch = Watch::start(client, &path, accept, timeout).await?;
     let mut first = true;
     loop {
-        let next = if first {
-            tokio::time::timeout(timeout, observation.next())
-                .await
-                .with_context(|| format!("no answer to the observation of {path} in {timeout:?}"))?
-        } else {
-            observation.next().await
-        };
-        let Some(next) = next else {
-            bail!("the observation of {path} ended");
-        };
+        let next = watch.next().await;
         let elapsed = previous.elapsed();
         previous = Instant::now();
-        let response: Response = next.with_context(|| format!("observing {path}"))?;
+        let response = next?;
         let observing = response.options.contains(OptionNumber::OBSERVE);
         let outcome = super::check(&format!("GET {path}"), response).map(|r| Timed {
             bytes: r.payload.len(),
@@ -136,5 +120,56 @@ pub async fn observe(
             return Ok(());
         }
         first = false;
+    }
+}
+
+/// An observation whose first answer must come within a timeout, and whose end is an
+/// error.
+pub(super) struct Watch {
+    observation: coap_net::Observation,
+    path: String,
+    /// For the first answer.
+    timeout: Option<Duration>,
+}
+
+impl Watch {
+    /// Registers as an observer of `path` (in the representation `accept`).
+    pub(super) async fn start(
+        client: &CamClient,
+        path: &str,
+        accept: Option<ContentFormat>,
+        timeout: Duration,
+    ) -> anyhow::Result<Self> {
+        let mut request = client.request(Code::GET, path, Bytes::new(), None, accept);
+        // The request's timeout would end the observation; only the first answer is
+        // bounded.
+        request.timeout = None;
+        let observation = client
+            .coap()
+            .observe(client.server(), request)
+            .await
+            .with_context(|| format!("observing {path} on {}", client.server()))?;
+        Ok(Self {
+            observation,
+            path: path.to_owned(),
+            timeout: Some(timeout),
+        })
+    }
+
+    /// The next answer or notification (not checked for success).
+    pub(super) async fn next(&mut self) -> anyhow::Result<Response> {
+        let path = &self.path;
+        let next = match self.timeout.take() {
+            Some(timeout) => tokio::time::timeout(timeout, self.observation.next())
+                .await
+                .with_context(|| {
+                    format!("no answer to the observation of {path} in {timeout:?}")
+                })?,
+            None => self.observation.next().await,
+        };
+        let Some(next) = next else {
+            bail!("the observation of {path} ended");
+        };
+        next.with_context(|| format!("observing {path}"))
     }
 }
