@@ -11,11 +11,12 @@ use clap::Args;
 use coap::ContentFormat;
 use rgbd::{Camera as _, Scene, SyntheticCamera};
 
-use super::{Exit, outln};
+use crate::cli::{Exit, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::prepare_cameras;
 use coapcam::repr::{CloudSource, cbor, clouds, packet, ply, raster, rvl};
 use coapcam::server::SceneServer;
+use coapcam::stats;
 
 /// Flags of `bench repr`.
 #[derive(Debug, Args)]
@@ -51,9 +52,8 @@ fn time<T>(runs: u32, mut f: impl FnMut() -> anyhow::Result<T>) -> anyhow::Resul
         last = Some(f()?);
         ms.push(started.elapsed().as_secs_f64() * 1000.0);
     }
-    ms.sort_by(f64::total_cmp);
     let result = last.context("no run")?;
-    Ok((ms[ms.len() / 2], result))
+    Ok((stats::median(&ms).unwrap_or(f64::NAN), result))
 }
 
 /// Times `encode`, then `decode` of what it made.
