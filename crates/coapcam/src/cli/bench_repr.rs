@@ -165,7 +165,7 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
         ContentFormat::CBOR,
         runs,
         || Ok(cbor::color_cbor(c, &color_k, &to_color, &serial)?),
-        |b| cbor::ColorCapture::from_cbor(b).map(drop),
+        |b| Ok(cbor::ColorCapture::from_cbor(b).map(drop)?),
     )?);
 
     // The merged cloud of every camera, as the cameras start and prepared as `measure
@@ -211,7 +211,7 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
             ContentFormat::CBOR,
             runs,
             || Ok(cbor::cloud_cbor(p, timestamp_us, source)?),
-            |b| cbor::Cloud::from_cbor(b).map(drop),
+            |b| Ok(cbor::Cloud::from_cbor(b).map(drop)?),
         )?);
         rows.push(row(
             what,

@@ -117,7 +117,7 @@ async fn full_resolution_color(
             .await
             .with_context(|| format!("camera {sn}: putting its color-settings back"))?;
     }
-    ColorCapture::from_cbor(&grabbed?.payload)
+    Ok(ColorCapture::from_cbor(&grabbed?.payload)?)
 }
 
 /// Camera `sn`'s depth points in its own frame, from one compact point-cloud grab (its

@@ -451,7 +451,7 @@ pub fn cloud_of(response: &Response) -> anyhow::Result<cbor::Cloud> {
     match response.options.content_format() {
         Some(ContentFormat::DEPTH_CLOUD) => Ok(clouds::cloud_from_depth_cloud(payload)?),
         Some(ContentFormat::CLOUD_MM) => Ok(clouds::cloud_from_mm(payload)?),
-        Some(ContentFormat::CBOR) => cbor::Cloud::from_cbor(payload),
+        Some(ContentFormat::CBOR) => Ok(cbor::Cloud::from_cbor(payload)?),
         Some(ContentFormat::PLY) => Ok(cbor::Cloud {
             cloud: geometry::decode_ply(payload)?,
             serials: Vec::new(),
