@@ -437,8 +437,10 @@ impl DepthCapture {
     pub fn from_cbor(body: &[u8]) -> Result<Self, CborError> {
         let what = "depth frame";
         let map: DepthMap = decode(body, what, TYPE_DEPTH, |m: &DepthMap| m.kind)?;
-        let pixels = map.width as usize * map.height as usize;
-        if map.pixel_size != 2 || map.data.0.len() != pixels * 2 {
+        let needed = (map.width as usize)
+            .checked_mul(map.height as usize)
+            .and_then(|n| n.checked_mul(2));
+        if map.pixel_size != 2 || needed != Some(map.data.0.len()) {
             return Err(CborError::Data {
                 what,
                 why: format!(

@@ -266,9 +266,10 @@ pub fn rgb_image(
     bytes_per_pixel: usize,
     format: &str,
 ) -> Result<RgbImage, String> {
-    if !(3..=4).contains(&bytes_per_pixel)
-        || pixels.len() != width as usize * height as usize * bytes_per_pixel
-    {
+    let needed = (width as usize)
+        .checked_mul(height as usize)
+        .and_then(|n| n.checked_mul(bytes_per_pixel));
+    if !(3..=4).contains(&bytes_per_pixel) || needed != Some(pixels.len()) {
         return Err(format!(
             "{} bytes are not {width}x{height} pixels of {bytes_per_pixel} bytes",
             pixels.len()
