@@ -251,7 +251,7 @@ impl One {
                 else {
                     return;
                 };
-                let parsed = serde_json::from_slice::<serde_json::Value>(&r.payload).is_ok();
+                let parsed = serde_json::from_slice::<serde::de::IgnoredAny>(&r.payload).is_ok();
                 self.record(|t| {
                     t.measurements += 1;
                     t.undecodable += u64::from(!parsed);
@@ -308,7 +308,7 @@ impl One {
                 () = wait => return false,
                 next = observation.next() => match next {
                     Some(Ok(r)) if r.code.is_success() => {
-                        let parsed = serde_json::from_slice::<serde_json::Value>(&r.payload).is_ok();
+                        let parsed = serde_json::from_slice::<serde::de::IgnoredAny>(&r.payload).is_ok();
                         self.record(|t| {
                             t.notifications += 1;
                             t.undecodable += u64::from(!parsed);

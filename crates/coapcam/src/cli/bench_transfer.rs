@@ -168,7 +168,7 @@ pub(super) async fn run(args: TransferArgs) -> anyhow::Result<Exit> {
         outln!("\n{pairs}");
     }
     if let Some(path) = &args.json {
-        let text = serde_json::to_string_pretty(&report.json()).context("encoding the JSON")?;
+        let text = report.json_text()?;
         std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(path) = &args.plot {

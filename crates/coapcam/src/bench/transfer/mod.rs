@@ -262,17 +262,18 @@ impl Report {
         (!self.pair_cells.is_empty()).then(|| table::pair_table(&self.config, &self.pair_cells))
     }
 
-    /// Every run, the links, the modes, the programs and the machine, as JSON.
-    pub fn json(&self) -> serde_json::Value {
+    /// Every run, the links, the modes, the programs and the machine, as pretty JSON.
+    pub fn json_text(&self) -> anyhow::Result<String> {
         let c = &self.config;
-        json::report_json(
+        let report = json::report_json(
             c,
             &c.links,
             &c.modes,
             &self.cells,
             &self.pair_cells,
             &self.programs,
-        )
+        );
+        serde_json::to_string_pretty(&report).context("encoding the JSON")
     }
 
     /// The medians against the loss rate, one panel per size.
