@@ -5,7 +5,7 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::thread;
 use std::time::{Duration, Instant};
 
@@ -302,11 +302,14 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
         // different moment of a measurement each cycle.
         let stop = Arc::new(AtomicBool::new(false));
         let count = Arc::new(AtomicUsize::new(0));
+        let took_ms = Arc::new(AtomicU64::new(0));
         let requests = {
             let (stop, count, c) = (Arc::clone(&stop), Arc::clone(&count), c.clone());
+            let took_ms = Arc::clone(&took_ms);
             rt.spawn(async move {
                 let mut answered = Vec::new();
                 loop {
+                    let sent = Instant::now();
                     let mut request = Request::new(Code::POST, "/cams/dimensions");
                     request.timeout = Some(Duration::from_secs(5));
                     request
@@ -315,6 +318,13 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
                     match c.send(addr, request).await {
                         Ok(r) if r.code == Code::CONTENT => {
                             answered.push(Measurement::from_cbor(&r.payload).expect("CBOR"));
+                            let ms = u64::try_from(sent.elapsed().as_millis()).unwrap_or(0);
+                            let _ = took_ms.compare_exchange(
+                                0,
+                                ms,
+                                Ordering::Relaxed,
+                                Ordering::Relaxed,
+                            );
                             count.fetch_add(1, Ordering::Relaxed);
                         }
                         Ok(r) => panic!("cycle {cycle}: {}", String::from_utf8_lossy(&r.payload)),
@@ -324,8 +334,9 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
                 }
             })
         };
-        // After the cycle's first answer, a little later each cycle (0-690 ms: within the
-        // next measurement's grab, measuring, recording or answer).
+        // After the cycle's first answer, by a different fraction of a measurement's
+        // duration each cycle (1/30 to 30/30, in a scattered order): the kills land all
+        // along the next measurement, its grab, measuring, recording and answer.
         let first = Instant::now();
         while count.load(Ordering::Relaxed) == 0 {
             assert!(
@@ -334,7 +345,9 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
             );
             thread::sleep(Duration::from_millis(5));
         }
-        thread::sleep(Duration::from_millis((cycle * 131) % 700));
+        let fraction = (cycle * 11) % CYCLES + 1;
+        let took = took_ms.load(Ordering::Relaxed);
+        thread::sleep(Duration::from_millis(took * fraction / CYCLES));
         stop.store(true, Ordering::Relaxed);
         server.process().kill().expect("kill -9");
         answered.extend(rt.block_on(requests).expect("the requests"));
