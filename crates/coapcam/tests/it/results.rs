@@ -311,7 +311,8 @@ fn kill_9_during_measurements_loses_no_answered_one_and_corrupts_nothing() {
                 loop {
                     let sent = Instant::now();
                     let mut request = Request::new(Code::POST, "/cams/dimensions");
-                    request.timeout = Some(Duration::from_secs(5));
+                    // A measurement with its photo and annotated picture, on a busy machine.
+                    request.timeout = Some(Duration::from_secs(20));
                     request
                         .options
                         .set_uint(OptionNumber::ACCEPT, u32::from(ContentFormat::CBOR.0));
