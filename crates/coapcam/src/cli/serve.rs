@@ -68,8 +68,9 @@ pub(crate) struct ServeArgs {
     /// (2.01 with Location-Path), DELETE removes one.
     #[arg(long, requires = "static_dir")]
     writable: bool,
-    /// With --writable: the most bytes the served files may hold together; a PUT or POST
-    /// that would go beyond it answers 4.13 and writes nothing.
+    /// With --writable: the most bytes the served files may take together; a PUT or POST
+    /// that would go beyond it answers 4.13 and writes nothing. Each file counts what it
+    /// takes: its bytes in whole 4 KiB blocks (at least one) and its link in discovery.
     #[arg(long, value_name = "BYTES", requires = "writable")]
     quota: Option<u64>,
     /// Join this multicast group on start (e.g. 224.0.1.187 or ff02::fd), on the server's

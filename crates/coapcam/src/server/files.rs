@@ -62,7 +62,8 @@ pub(crate) struct StaticFiles {
     dir: PathBuf,
     files: Arc<RwLock<HashMap<String, File>>>,
     writable: bool,
-    /// With `writable`: the most bytes the served files may hold together.
+    /// With `writable`: the most bytes the served files may be charged together
+    /// ([`charge`]).
     quota: Option<u64>,
     /// Held through a client's write, from the quota check to the new file's record.
     writes: Arc<Mutex<()>>,
@@ -253,13 +254,15 @@ impl StaticFiles {
         static WRITES: AtomicU64 = AtomicU64::new(0);
         let _write = self.writes.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(quota) = self.quota {
-            let others: u64 = (self.read().iter())
+            let (files, others) = (self.read().iter())
                 .filter(|(n, _)| *n != name)
-                .map(|(_, f)| f.stamp.len)
-                .sum();
-            if others + body.len() as u64 > quota {
+                .fold((0, 0), |(n, sum), (name, f)| {
+                    (n + 1, sum + charge(name, f.stamp.len))
+                });
+            let this = charge(name, body.len() as u64);
+            if others + this > quota {
                 let why = format!(
-                    "the directory's quota of {quota} bytes is full: {others} bytes are taken"
+                    "the directory's quota of {quota} bytes is full: its {files} other files are charged {others} bytes and this one {this} (each file its bytes in whole 4 KiB blocks, at least one, and its link in /.well-known/core)"
                 );
                 return Err(io::Error::new(io::ErrorKind::StorageFull, why));
             }
@@ -382,6 +385,19 @@ impl StaticFiles {
             _ => Ok(name),
         }
     }
+}
+
+/// A file system block: what a file's bytes are counted in.
+const BLOCK: u64 = 4096;
+
+/// What a file named `name` of `len` bytes is charged against `--quota`: what it takes on
+/// disk and in discovery, not only its bytes (4,000 one-byte files would otherwise count
+/// as 4,000 bytes while taking megabytes of disk and of `/.well-known/core`). Its bytes
+/// in whole blocks of 4 KiB, at least one (an empty file still takes an inode and a
+/// directory entry), and its link in discovery: `</files/NAME>;ct=..;sz=..;obs;title="NAME"`.
+fn charge(name: &str, len: u64) -> u64 {
+    const LINK: u64 = 48;
+    len.div_ceil(BLOCK).max(1) * BLOCK + LINK + 2 * name.len() as u64
 }
 
 /// The answer to a write that failed: 4.13 when there is no room (the quota, or the disk),
@@ -611,22 +627,47 @@ mod tests {
         let dir = crate::ScratchDir::new("files-quota");
         fs::write(dir.path().join("old.bin"), [1; 40]).unwrap();
         let (tx, _rx) = mpsc::unbounded_channel();
-        let files = StaticFiles::load(dir.path(), &Router::new(), true, Some(100), tx).unwrap();
+        // Room for three files of one block each (and their links).
+        let quota = 3 * (BLOCK + 100);
+        let files = StaticFiles::load(dir.path(), &Router::new(), true, Some(quota), tx).unwrap();
         let body = |n: usize| Bytes::from(vec![7; n]);
         files
             .store("a.bin", &body(60))
-            .expect("40 + 60 bytes fit 100");
+            .expect("two blocks fit three");
         let full = files
-            .store("b.bin", &body(1))
-            .expect_err("101 bytes do not");
+            .store("b.bin", &body(4097))
+            .expect_err("two more blocks do not");
         assert_eq!(full.kind(), io::ErrorKind::StorageFull);
         assert!(!dir.path().join("b.bin").exists(), "nothing written");
         // Replacing a file counts its new size, not both.
-        files.store("a.bin", &body(50)).expect("40 + 50 bytes");
-        files.store("b.bin", &body(10)).expect("40 + 50 + 10 bytes");
-        let r = write_error("c.bin", &files.store("c.bin", &body(1)).expect_err("full"));
+        files.store("a.bin", &body(4096)).expect("still one block");
+        files.store("b.bin", &body(10)).expect("the third block");
+        let r = write_error("c.bin", &files.store("c.bin", &body(0)).expect_err("full"));
         assert_eq!(r.code, Code::REQUEST_ENTITY_TOO_LARGE);
-        assert!(String::from_utf8_lossy(&r.payload).contains("quota of 100 bytes"));
+        let text = String::from_utf8_lossy(&r.payload).into_owned();
+        assert!(text.contains(&format!("quota of {quota} bytes")), "{text}");
+    }
+
+    #[test]
+    fn tiny_files_are_charged_what_they_take_so_a_quota_bounds_their_number() {
+        let dir = crate::ScratchDir::new("files-quota-tiny");
+        let (tx, _rx) = mpsc::unbounded_channel();
+        let files = StaticFiles::load(dir.path(), &Router::new(), true, Some(100_000), tx)
+            .expect("the directory");
+        // One-byte files: 100,000 bytes of quota would have held 100,000 of them, each
+        // taking a block of disk and a link in discovery.
+        let written = (0..100)
+            .take_while(|n| {
+                files
+                    .store(&format!("f{n:04}.txt"), &Bytes::from_static(b"x"))
+                    .is_ok()
+            })
+            .count();
+        assert!(
+            written <= (100_000 / BLOCK) as usize,
+            "{written} one-byte files within a quota of 100,000 bytes"
+        );
+        assert!(written > 0);
     }
 
     #[test]

@@ -88,7 +88,9 @@ fn only_regular_files_are_replaced_or_removed() {
 fn writes_beyond_the_quota_answer_4_13_and_write_nothing() {
     let served = TempDir::new("files-quota");
     let dir = served.path();
-    let (_server, addr) = our_server_with(dir, &["--writable", "--quota", "100"]);
+    // Each file is charged its bytes in whole 4 KiB blocks and its link in discovery:
+    // room for two small files.
+    let (_server, addr) = our_server_with(dir, &["--writable", "--quota", "8400"]);
     runtime().block_on(async {
         let c = client();
         let put = |name: &str, n: usize| {
@@ -97,12 +99,14 @@ fn writes_beyond_the_quota_answer_4_13_and_write_nothing() {
             async move { send(c, addr, Code::PUT, &path, &vec![7; n], None).await }
         };
         assert_eq!(put("a.bin", 60).await.code, Code::CREATED);
-        let r = put("b.bin", 41).await;
+        let r = put("b.bin", 4097).await;
         assert_eq!(r.code, Code::REQUEST_ENTITY_TOO_LARGE);
-        assert!(String::from_utf8_lossy(&r.payload).contains("quota of 100 bytes"));
-        let r = send(&c, addr, Code::POST, "/files", &[7; 41], None).await;
+        assert!(String::from_utf8_lossy(&r.payload).contains("quota of 8400 bytes"));
+        let r = send(&c, addr, Code::POST, "/files", &[7; 4097], None).await;
         assert_eq!(r.code, Code::REQUEST_ENTITY_TOO_LARGE);
         assert_eq!(put("b.bin", 40).await.code, Code::CREATED);
+        // A third file, however small, is past the quota: it would take a block too.
+        assert_eq!(put("c.bin", 1).await.code, Code::REQUEST_ENTITY_TOO_LARGE);
     });
     let mut names: Vec<String> = std::fs::read_dir(dir)
         .expect("the directory")
