@@ -251,13 +251,7 @@ impl FromStr for Link {
     type Err = UnknownName;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::ALL
-            .into_iter()
-            .find(|l| l.name() == s)
-            .ok_or_else(|| UnknownName {
-                given: s.to_owned(),
-                known: Self::ALL.map(Self::name).to_vec(),
-            })
+        by_name(&Self::ALL, Self::name, s)
     }
 }
 
@@ -265,19 +259,36 @@ impl FromStr for Mode {
     type Err = UnknownName;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| UnknownName {
-                given: s.to_owned(),
-                known: Self::ALL.map(Self::name).to_vec(),
-            })
+        by_name(&Self::ALL, Self::name, s)
     }
+}
+
+/// The one of `all` whose `name` is `given`.
+fn by_name<T: Copy>(all: &[T], name: fn(T) -> &'static str, given: &str) -> Result<T, UnknownName> {
+    all.iter()
+        .copied()
+        .find(|&t| name(t) == given)
+        .ok_or_else(|| UnknownName {
+            given: given.to_owned(),
+            known: all.iter().map(|&t| name(t)).collect(),
+        })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn links_and_modes_are_parsed_by_their_names() {
+        for link in Link::ALL {
+            assert_eq!(link.name().parse::<Link>(), Ok(link));
+        }
+        for mode in Mode::ALL {
+            assert_eq!(mode.name().parse::<Mode>(), Ok(mode));
+        }
+        let e = "20 ms".parse::<Link>().unwrap_err().to_string();
+        assert!(e.contains("\"20 ms\"") && e.contains("100ms-5%"), "{e}");
+    }
 
     #[test]
     fn links_are_the_issue_s_five() {
