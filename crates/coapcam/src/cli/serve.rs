@@ -148,6 +148,23 @@ pub(crate) struct ServeArgs {
     /// reader that falls 256 lines behind is disconnected.
     #[arg(long, value_name = "tcp://ADDR:PORT", value_parser = coapcam::station::line::parse_tcp_uri, conflicts_with = "no_cameras")]
     line_output: Option<SocketAddr>,
+    /// Serve the station's page and its HTTP API (docs/station.md "HTTP") on this
+    /// address; a bare port means 127.0.0.1:PORT. Reading is open to every client;
+    /// POST /api/measure only from this machine unless --allow-unauthenticated-config.
+    /// Plain HTTP/1.1, no TLS: put a TLS proxy in front to reach it across networks.
+    #[arg(long, value_name = "ADDR:PORT", value_parser = coapcam::station::http::parse_listen, conflicts_with = "no_cameras")]
+    http: Option<SocketAddr>,
+    /// POST every record of the results log as JSON to this http:// URL (no TLS), in id
+    /// order, each until it is answered 2xx (retrying 0.25 s, doubling to 5 s). The
+    /// position is kept in the log (cursor `webhook`), so nothing is lost while the
+    /// receiver is down or the station restarts; a record may come twice (same `id`).
+    /// A new log's whole history is sent first.
+    #[arg(
+        long,
+        value_name = "http://HOST[:PORT]/PATH",
+        conflicts_with = "no_cameras"
+    )]
+    webhook: Option<coapcam::station::webhook::Target>,
     /// Measure by itself: watch the table through the calibrated cameras' depth (a few
     /// looks a second, every fourth pixel or so) and, when a parcel has arrived and stood
     /// still for --still-ms, measure it once (dimensions, the codes, a photo and the
@@ -237,6 +254,8 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             },
             mqtt: args.mqtt.clone(),
             line_output: args.line_output,
+            http: args.http,
+            webhook: args.webhook.clone(),
         },
         auto_measure: args.auto_measure.then(|| {
             let mut auto = AutoConfig::default();
@@ -272,6 +291,17 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
     if let Some(a) = station.line_output_addr() {
         eprintln!("coapcam: line output on {a}");
+    }
+    if let Some(a) = station.http_addr() {
+        let who = if args.allow_unauthenticated_config {
+            "anyone may measure"
+        } else {
+            "measuring from this machine only"
+        };
+        eprintln!("coapcam: HTTP on http://{a}/ ({who})");
+    }
+    if let Some(target) = &args.webhook {
+        eprintln!("coapcam: webhook to {target}");
     }
     if let Some(target) = &args.mqtt {
         eprintln!("coapcam: publishing to {target}");

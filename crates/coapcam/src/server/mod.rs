@@ -126,6 +126,9 @@ pub struct Station {
     /// The log's MQTT publisher (`--mqtt`) and line output (`--line-output`).
     publisher: Option<station::mqtt::Publisher>,
     line_output: Option<station::line::LineOutput>,
+    /// The page and the HTTP API (`--http`), the webhook (`--webhook`).
+    http: Option<station::http::HttpServer>,
+    _webhook: Option<station::webhook::Webhook>,
     /// `--auto-measure`: the task watching the table, stopped with the station.
     _watcher: Option<AbortOnDrop>,
 }
@@ -196,6 +199,12 @@ impl Station {
             None => None,
         };
         let (publisher, line_output) = start_outputs(&config.station, results.as_ref()).await?;
+        let (http, webhook) = start_http(
+            &config.station,
+            cameras.as_ref().zip(recorder.as_ref()),
+            config.allow_unauthenticated_config,
+        )
+        .await?;
         let binds = &config.binds;
         let server = Server::bind(
             binds,
@@ -228,6 +237,8 @@ impl Station {
             results,
             publisher,
             line_output,
+            http,
+            _webhook: webhook,
             _watcher: watcher,
         })
     }
@@ -237,6 +248,13 @@ impl Station {
         self.line_output
             .as_ref()
             .map(station::line::LineOutput::local_addr)
+    }
+
+    /// Where the page and the HTTP API are served (`--http`).
+    pub fn http_addr(&self) -> Option<SocketAddr> {
+        self.http
+            .as_ref()
+            .map(station::http::HttpServer::local_addr)
     }
 
     /// The results log (when the server has cameras).
@@ -346,6 +364,37 @@ async fn start_outputs(
         None => None,
     };
     Ok((publisher, line_output))
+}
+
+/// The HTTP server and the webhook, as `config` asks; `open`: anyone may measure over
+/// HTTP (`--allow-unauthenticated-config`).
+async fn start_http(
+    config: &station::Config,
+    cameras: Option<(&CameraTree, &Recorder)>,
+    open: bool,
+) -> anyhow::Result<(
+    Option<station::http::HttpServer>,
+    Option<station::webhook::Webhook>,
+)> {
+    let Some((tree, recorder)) = cameras else {
+        if config.http.is_some() || config.webhook.is_some() {
+            bail!("--http and --webhook need cameras (and so a results log)");
+        }
+        return Ok((None, None));
+    };
+    let http = match config.http {
+        Some(addr) => Some(
+            station::http::HttpServer::start(addr, tree.cams.clone(), recorder.clone(), open)
+                .await
+                .with_context(|| format!("listening for HTTP on {addr}"))?,
+        ),
+        None => None,
+    };
+    let webhook = config
+        .webhook
+        .clone()
+        .map(|target| station::webhook::Webhook::start(target, recorder.log().clone()));
+    Ok((http, webhook))
 }
 
 /// Notifies the observers of `first` and of every other path changed meanwhile, each

@@ -4,10 +4,13 @@
 //! - [`resources`]: the log as CoAP resources (`/station/measurements...`);
 //! - [`mqtt`]: every record published to an MQTT broker, none lost while it is away;
 //! - [`line`]: a plain text line per measurement to the readers of a TCP port;
+//! - [`http`]: the page and the JSON API over HTTP (`serve --http`);
+//! - [`webhook`]: every record POSTed to an HTTP URL, none lost while it is away;
 //! - [`auto`]: automatic measurement's core: height maps of the table and the stillness
 //!   detector that says when a parcel stands still.
 
 pub mod auto;
+pub mod http;
 pub mod line;
 pub mod log;
 pub mod measure;
@@ -15,6 +18,7 @@ pub mod mqtt;
 pub mod record;
 pub(crate) mod resources;
 pub mod watch;
+pub mod webhook;
 
 use std::path::{Path, PathBuf};
 
@@ -38,6 +42,10 @@ pub struct Config {
     pub mqtt: Option<mqtt::Target>,
     /// Serve a text line per measurement on this TCP address (`--line-output`).
     pub line_output: Option<std::net::SocketAddr>,
+    /// Serve the page and the HTTP API on this address (`--http`).
+    pub http: Option<std::net::SocketAddr>,
+    /// POST every record to this URL (`--webhook`).
+    pub webhook: Option<webhook::Target>,
 }
 
 impl Default for Config {
@@ -48,6 +56,8 @@ impl Default for Config {
             retention: Retention::default(),
             mqtt: None,
             line_output: None,
+            http: None,
+            webhook: None,
         }
     }
 }

@@ -155,7 +155,7 @@ async fn list(log: ResultsLog, request: &IncomingRequest) -> Response {
         Ok(cf) => cf,
         Err(refused) => return refused,
     };
-    let query = match parse_query(request.options.uri_query()) {
+    let query = match parse_query(request.options.uri_query(), PATH) {
         Ok(q) => q,
         Err(why) => return Response::diagnostic(Code::BAD_REQUEST, &why),
     };
@@ -201,7 +201,11 @@ async fn one(log: ResultsLog, id: &str, request: &IncomingRequest) -> Response {
 }
 
 /// The records `items` (a request's Uri-Query) select; why not, for a bad item.
-fn parse_query<S: AsRef<str>>(items: impl IntoIterator<Item = S>) -> Result<ListQuery, String> {
+/// `path` names the resource in the refusal of an unknown item (the HTTP API shares this).
+pub(crate) fn parse_query<S: AsRef<str>>(
+    items: impl IntoIterator<Item = S>,
+    path: &str,
+) -> Result<ListQuery, String> {
     let mut q = ListQuery::default();
     let mut seen: Vec<String> = Vec::new();
     for item in items {
@@ -233,7 +237,7 @@ fn parse_query<S: AsRef<str>>(items: impl IntoIterator<Item = S>) -> Result<List
             "code" => return Err("code= needs the code's text".into()),
             _ => {
                 return Err(format!(
-                    "unknown query item {key}: {PATH} takes since=ID, before=ID, limit=N (1-{MAX_LIST}, default {}) and code=TEXT",
+                    "unknown query item {key}: {path} takes since=ID, before=ID, limit=N (1-{MAX_LIST}, default {}) and code=TEXT",
                     ListQuery::default().limit
                 ));
             }
@@ -344,8 +348,8 @@ mod tests {
 
     #[test]
     fn the_query_selects_and_refuses_with_the_reason() {
-        assert_eq!(parse_query([""; 0]), Ok(ListQuery::default()));
-        let q = parse_query(["since=3", "limit=2", "code=PKG-1", "before=9"]).expect("valid");
+        assert_eq!(parse_query([""; 0], PATH), Ok(ListQuery::default()));
+        let q = parse_query(["since=3", "limit=2", "code=PKG-1", "before=9"], PATH).expect("valid");
         assert_eq!(
             q,
             ListQuery {
@@ -364,10 +368,10 @@ mod tests {
             "colour=red",
             "before=",
         ] {
-            let why = parse_query([bad]).expect_err(bad);
+            let why = parse_query([bad], PATH).expect_err(bad);
             let key = bad.split('=').next().unwrap_or(bad);
             assert!(why.contains(key), "{why}");
         }
-        assert!(parse_query(["limit=1", "limit=2"]).is_err());
+        assert!(parse_query(["limit=1", "limit=2"], PATH).is_err());
     }
 }

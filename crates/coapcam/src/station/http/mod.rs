@@ -1,0 +1,780 @@
+//! The station over HTTP/1.1 (`serve --http`, docs/station.md "HTTP"): the page at `/`
+//! and a JSON API over the results log and the cameras, on hyper.
+//! - `GET /api/measurements` (`?since=ID&before=ID&limit=N&code=TEXT`), `GET
+//!   /api/measurements/<id>`, `.../<id>/photo.jpg`, `.../<id>/annotated.png`: the log, the
+//!   same records as `/station/measurements`;
+//! - `POST /api/measure`: measures now, as `POST /cams/dimensions` does, records it and
+//!   answers the record (201); from this machine only unless configuration is open;
+//! - `GET /api/cameras`, `GET /api/cameras/<serial>/color.jpg`: the cameras and a new
+//!   color image of one;
+//! - `GET /api/station`: the station's name and what this client may do;
+//! - `GET /api/events`: every new record as a Server-Sent Event (`event: measurement`,
+//!   `id:` the record's id; `Last-Event-ID` or `?since=ID` resumes).
+//!
+//! Errors are JSON, `{"error": "..."}`, with a 4xx or 5xx status.
+
+use std::collections::HashMap;
+use std::convert::Infallible;
+use std::net::{IpAddr, SocketAddr};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::task::{Context, Poll};
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use http_body_util::combinators::BoxBody;
+use http_body_util::{BodyExt as _, Full, Limited};
+use hyper::body::{Body, Frame, Incoming};
+use hyper::header::{self, HeaderValue};
+use hyper::{Method, Request, Response, StatusCode};
+use hyper_util::rt::{TokioIo, TokioTimer};
+use serde::Serialize;
+use tokio::net::TcpListener;
+use tokio::sync::{Semaphore, mpsc};
+use tokio::task::{JoinHandle, JoinSet};
+
+use super::Recorder;
+use super::log::{LogError, ResultsLog};
+use super::measure::Rig;
+use super::record::Trigger;
+use crate::report::EdgeQuery;
+use crate::repr::raster;
+
+/// The page, served at `/`.
+const PAGE: &str = include_str!("page.html");
+
+/// The most bytes a request's body may have (413 beyond).
+pub const MAX_BODY: usize = 64 * 1024;
+
+/// The most connections served at once; more wait to be accepted.
+const MAX_CONNECTIONS: usize = 1024;
+
+/// How long a client may take to send a request's head.
+const HEAD_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// How often an event stream without news says it is alive (a comment line).
+const KEEP_ALIVE: Duration = Duration::from_secs(15);
+
+/// How long a color image grabbed for `/api/cameras/<serial>/color.jpg` is served again
+/// to other requests (many pages open at once make one grab).
+const COLOR_FRESH: Duration = Duration::from_millis(300);
+
+/// JPEG quality of the cameras' live images.
+const COLOR_QUALITY: u8 = 80;
+
+/// The address of `--http`: `ADDR:PORT`, or a bare port for the loopback address.
+pub fn parse_listen(text: &str) -> Result<SocketAddr, String> {
+    if let Ok(port) = text.parse::<u16>() {
+        return Ok(SocketAddr::from(([127, 0, 0, 1], port)));
+    }
+    text.parse::<SocketAddr>().map_err(|_| {
+        format!("{text}: an HTTP address is ADDR:PORT (e.g. 127.0.0.1:8080, [::]:8080) or a port")
+    })
+}
+
+/// The HTTP server of a station: serving until dropped.
+#[derive(Debug)]
+pub struct HttpServer {
+    addr: SocketAddr,
+    task: JoinHandle<()>,
+}
+
+impl Drop for HttpServer {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// What the server serves.
+struct App<R> {
+    rig: Arc<R>,
+    recorder: Recorder,
+    /// Measuring and configuring from anywhere (`--allow-unauthenticated-config`), not
+    /// only from this machine.
+    open: bool,
+    /// The newest color image of each camera, for [`COLOR_FRESH`].
+    colors: Mutex<HashMap<String, ColorSlot>>,
+}
+
+/// A camera's newest live color image (JPEG) and when it was grabbed; held while a grab
+/// is under way, so that requests meanwhile wait for that grab.
+type ColorSlot = Arc<tokio::sync::Mutex<Option<(Instant, Bytes)>>>;
+
+type Answer = Response<BoxBody<Bytes, Infallible>>;
+
+impl HttpServer {
+    /// Listens on `addr` and serves the log of `recorder` and the cameras of `rig`;
+    /// `open` lets any client measure (otherwise only clients on this machine).
+    pub async fn start<R: Rig>(
+        addr: SocketAddr,
+        rig: Arc<R>,
+        recorder: Recorder,
+        open: bool,
+    ) -> std::io::Result<Self> {
+        let listener = TcpListener::bind(addr).await?;
+        let addr = listener.local_addr()?;
+        let app = Arc::new(App {
+            rig,
+            recorder,
+            open,
+            colors: Mutex::default(),
+        });
+        let task = tokio::spawn(accept(listener, app));
+        Ok(Self { addr, task })
+    }
+
+    /// The address it listens on.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+}
+
+/// Accepts connections and serves each on a task of its own; the connections end with
+/// this task (their set is dropped with it).
+async fn accept<R: Rig>(listener: TcpListener, app: Arc<App<R>>) {
+    let slots = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    let mut connections = JoinSet::new();
+    loop {
+        let Ok(slot) = slots.clone().acquire_owned().await else {
+            return;
+        };
+        while connections.try_join_next().is_some() {}
+        let (stream, peer) = match listener.accept().await {
+            Ok(accepted) => accepted,
+            Err(e) => {
+                // Out of descriptors and the like: wait instead of spinning.
+                tracing::warn!("http: accepting a connection: {e}");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let app = app.clone();
+        connections.spawn(async move {
+            let service = hyper::service::service_fn(move |request| {
+                let app = app.clone();
+                async move { Ok::<_, Infallible>(app.answer(request, peer).await) }
+            });
+            let served = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(HEAD_TIMEOUT)
+                .serve_connection(TokioIo::new(stream), service)
+                .await;
+            if let Err(e) = served {
+                tracing::debug!("http: connection from {peer}: {e}");
+            }
+            drop(slot);
+        });
+    }
+}
+
+/// Whether `peer` is on this machine.
+fn is_local(peer: SocketAddr) -> bool {
+    match peer.ip() {
+        IpAddr::V4(v4) => v4.is_loopback(),
+        IpAddr::V6(v6) => v6
+            .to_ipv4_mapped()
+            .map_or_else(|| v6.is_loopback(), |v4| v4.is_loopback()),
+    }
+}
+
+impl<R: Rig> App<R> {
+    async fn answer(&self, request: Request<Incoming>, peer: SocketAddr) -> Answer {
+        let path = request.uri().path().to_owned();
+        let query = request.uri().query().unwrap_or("").to_owned();
+        let segments: Vec<&str> = path.trim_end_matches('/').split('/').skip(1).collect();
+        let get = request.method() == Method::GET || request.method() == Method::HEAD;
+        let post = request.method() == Method::POST;
+        let mut answer = match (segments.as_slice(), get, post) {
+            ([] | [""], true, _) => page(),
+            (["api", "measurements"], true, _) => self.list(&query).await,
+            (["api", "measurements", id], true, _) => self.one(id).await,
+            (["api", "measurements", id, picture], true, _) => {
+                let if_none_match = request.headers().get(header::IF_NONE_MATCH).cloned();
+                self.picture(id, picture, if_none_match).await
+            }
+            (["api", "measure"], _, true) => self.measure(request, &query, peer).await,
+            (["api", "cameras"], true, _) => self.cameras(),
+            (["api", "cameras", serial, "color.jpg"], true, _) => self.color(serial).await,
+            (["api", "station"], true, _) => self.station(peer),
+            (["api", "events"], true, _) => {
+                let last = request
+                    .headers()
+                    .get("last-event-id")
+                    .and_then(|v| v.to_str().ok())
+                    .map(str::to_owned);
+                self.events(&query, last.as_deref())
+            }
+            ([] | [""] | ["api", ..], _, _) if known(&segments) => error(
+                StatusCode::METHOD_NOT_ALLOWED,
+                &format!("{} does not take {}", path, request.method()),
+            ),
+            _ => error(
+                StatusCode::NOT_FOUND,
+                &format!("no such page or resource: {path} (the API is under /api/)"),
+            ),
+        };
+        answer
+            .headers_mut()
+            .insert(header::SERVER, HeaderValue::from_static("coapcam"));
+        answer
+    }
+
+    /// `GET /api/measurements`.
+    async fn list(&self, query: &str) -> Answer {
+        let items = match query_items(query) {
+            Ok(items) => items,
+            Err(why) => return error(StatusCode::BAD_REQUEST, &why),
+        };
+        let q = match super::resources::parse_query(&items, "/api/measurements") {
+            Ok(q) => q,
+            Err(why) => return error(StatusCode::BAD_REQUEST, &why),
+        };
+        match self.read(move |log| log.list(&q)).await {
+            Ok(records) => json(StatusCode::OK, &records),
+            Err(e) => failed(&e),
+        }
+    }
+
+    /// `GET /api/measurements/<id>`.
+    async fn one(&self, id: &str) -> Answer {
+        let id = match record_id(id) {
+            Ok(id) => id,
+            Err(refused) => return *refused,
+        };
+        match self.read(move |log| log.get(id)).await {
+            Ok(Some(record)) => json(StatusCode::OK, &record),
+            Ok(None) => no_record(id),
+            Err(e) => failed(&e),
+        }
+    }
+
+    /// `GET /api/measurements/<id>/photo.jpg` and `.../annotated.png`.
+    async fn picture(&self, id: &str, name: &str, if_none_match: Option<HeaderValue>) -> Answer {
+        let id = match record_id(id) {
+            Ok(id) => id,
+            Err(refused) => return *refused,
+        };
+        let photo = match name {
+            "photo.jpg" => true,
+            "annotated.png" => false,
+            _ => {
+                return error(
+                    StatusCode::NOT_FOUND,
+                    &format!("a record has photo.jpg and annotated.png, not {name}"),
+                );
+            }
+        };
+        let found = self
+            .read(move |log| {
+                let Some(record) = log.get(id)? else {
+                    return Ok(None);
+                };
+                let data = if photo {
+                    log.photo(id)?
+                } else {
+                    log.annotated(id)?
+                };
+                Ok(Some((record, data)))
+            })
+            .await;
+        let (record, data) = match found {
+            Ok(Some(found)) => found,
+            Ok(None) => return no_record(id),
+            Err(e) => return failed(&e),
+        };
+        let (sha, ct, what) = if photo {
+            (&record.photo_sha256, "image/jpeg", "photo")
+        } else {
+            (&record.annotated_sha256, "image/png", "annotated picture")
+        };
+        let Some(data) = data else {
+            let why = if sha.is_some() {
+                format!(
+                    "record {id}'s {what} was pruned by the retention (its SHA-256 stays in the record)"
+                )
+            } else {
+                format!("record {id} has no {what}")
+            };
+            return error(StatusCode::NOT_FOUND, &why);
+        };
+        // A record's picture never changes: its SHA-256 is its ETag.
+        let etag = sha.as_ref().map(|s| format!("\"{s}\""));
+        let mut answer = match (&etag, if_none_match) {
+            (Some(etag), Some(given)) if given.as_bytes() == etag.as_bytes() => {
+                let mut a = Response::new(empty());
+                *a.status_mut() = StatusCode::NOT_MODIFIED;
+                a
+            }
+            _ => bytes(ct, data),
+        };
+        if let Some(etag) = etag.and_then(|e| HeaderValue::from_str(&e).ok()) {
+            answer.headers_mut().insert(header::ETAG, etag);
+        }
+        answer.headers_mut().insert(
+            header::CACHE_CONTROL,
+            HeaderValue::from_static("public, max-age=31536000, immutable"),
+        );
+        answer
+    }
+
+    /// `POST /api/measure`: measured, recorded, answered with the record.
+    async fn measure(&self, request: Request<Incoming>, query: &str, peer: SocketAddr) -> Answer {
+        if !self.open && !is_local(peer) {
+            return error(
+                StatusCode::FORBIDDEN,
+                "measuring is accepted only from the station's own machine (its operator can allow it with serve --allow-unauthenticated-config)",
+            );
+        }
+        if let Some(refused) = too_large(&request) {
+            return refused;
+        }
+        // The body says nothing (the query does) but is read, within bounds, so that the
+        // connection can go on.
+        if let Err(e) = Limited::new(request.into_body(), MAX_BODY).collect().await {
+            if e.downcast_ref::<http_body_util::LengthLimitError>()
+                .is_some()
+            {
+                return body_too_large();
+            }
+            return error(StatusCode::BAD_REQUEST, &format!("reading the body: {e}"));
+        }
+        let items = match query_items(query) {
+            Ok(items) => items,
+            Err(why) => return error(StatusCode::BAD_REQUEST, &why),
+        };
+        let query = match EdgeQuery::parse(&items) {
+            Ok(q) => q,
+            Err(why) => return error(StatusCode::BAD_REQUEST, &why),
+        };
+        let measured = match super::measure::measure(
+            self.rig.as_ref(),
+            &query,
+            Trigger::Request,
+            true,
+        )
+        .await
+        {
+            Ok(measured) => measured,
+            Err(e) => return error(StatusCode::SERVICE_UNAVAILABLE, &e.to_string()),
+        };
+        match self.recorder.record(measured).await {
+            Ok(record) => {
+                let mut answer = json(StatusCode::CREATED, &record);
+                if let Ok(location) =
+                    HeaderValue::from_str(&format!("/api/measurements/{}", record.id))
+                {
+                    answer.headers_mut().insert(header::LOCATION, location);
+                }
+                answer
+            }
+            Err(e) => {
+                tracing::error!("a measurement could not be recorded: {e}");
+                error(
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    &format!("measured, but the measurement could not be recorded: {e}"),
+                )
+            }
+        }
+    }
+
+    /// `GET /api/cameras`.
+    fn cameras(&self) -> Answer {
+        let cameras: Vec<CameraInfo> = self
+            .rig
+            .cameras()
+            .into_iter()
+            .map(|cam| {
+                let calibrated = cam.transformation != geometry::Transformation::identity();
+                let mut warnings = Vec::new();
+                if !calibrated {
+                    warnings.push(
+                        "not calibrated: its 3d-transformation is the identity (run coapcam calibrate); automatic measurement leaves it out"
+                            .to_owned(),
+                    );
+                }
+                let settings = |json: String| {
+                    serde_json::from_str(&json).unwrap_or(serde_json::Value::Null)
+                };
+                CameraInfo {
+                    serial: cam.serial.to_string(),
+                    model: cam.camera.model().to_owned(),
+                    color: settings(cam.camera.color_settings().to_json()),
+                    depth: settings(cam.camera.depth_settings().to_json()),
+                    calibrated,
+                    transformation: cam.transformation,
+                    warnings,
+                }
+            })
+            .collect();
+        json(StatusCode::OK, &cameras)
+    }
+
+    /// `GET /api/cameras/<serial>/color.jpg`: a new color image (or one at most
+    /// [`COLOR_FRESH`] old).
+    async fn color(&self, serial: &str) -> Answer {
+        let Some(cam) = self
+            .rig
+            .cameras()
+            .into_iter()
+            .find(|c| c.serial.to_string() == serial)
+        else {
+            return error(
+                StatusCode::NOT_FOUND,
+                &format!("no camera {serial} is connected"),
+            );
+        };
+        let slot = self
+            .colors
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .entry(serial.to_owned())
+            .or_default()
+            .clone();
+        let mut newest = slot.lock().await;
+        if let Some((at, jpeg)) = newest.as_ref()
+            && at.elapsed() < COLOR_FRESH
+        {
+            return bytes_no_store("image/jpeg", jpeg.clone());
+        }
+        let shot = match self.rig.shot(cam.serial).await {
+            Ok(shot) => shot,
+            Err(why) => return error(StatusCode::SERVICE_UNAVAILABLE, &why),
+        };
+        let encoded =
+            tokio::task::spawn_blocking(move || raster::color_jpeg(&shot.frame, COLOR_QUALITY))
+                .await;
+        match encoded {
+            Ok(Ok(jpeg)) => {
+                let jpeg = Bytes::from(jpeg);
+                *newest = Some((Instant::now(), jpeg.clone()));
+                bytes_no_store("image/jpeg", jpeg)
+            }
+            Ok(Err(e)) => error(StatusCode::INTERNAL_SERVER_ERROR, &format!("JPEG: {e}")),
+            Err(e) => error(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                &format!("JPEG task: {e}"),
+            ),
+        }
+    }
+
+    /// `GET /api/station`: who the station is and what this client may do.
+    fn station(&self, peer: SocketAddr) -> Answer {
+        let local = is_local(peer);
+        json(
+            StatusCode::OK,
+            &serde_json::json!({
+                "station": self.recorder.station(),
+                "version": env!("CARGO_PKG_VERSION"),
+                "newest": self.recorder.log().newest(),
+                "read": "open to every client",
+                "configure": if self.open { "open to every client (--allow-unauthenticated-config)" } else { "this machine only" },
+                "you_may_measure": self.open || local,
+            }),
+        )
+    }
+
+    /// `GET /api/events`: new records as Server-Sent Events, after `Last-Event-ID` or
+    /// `?since=ID`, else after the newest record now.
+    fn events(&self, query: &str, last_event_id: Option<&str>) -> Answer {
+        let items = match query_items(query) {
+            Ok(items) => items,
+            Err(why) => return error(StatusCode::BAD_REQUEST, &why),
+        };
+        let mut since = None;
+        for item in &items {
+            match item.split_once('=') {
+                Some(("since", v)) => match v.parse::<u64>() {
+                    Ok(id) => since = Some(id),
+                    Err(_) => {
+                        return error(
+                            StatusCode::BAD_REQUEST,
+                            &format!("since={v}: a record id, a whole number"),
+                        );
+                    }
+                },
+                _ => {
+                    return error(
+                        StatusCode::BAD_REQUEST,
+                        &format!("unknown query item {item}: /api/events takes since=ID"),
+                    );
+                }
+            }
+        }
+        let log = self.recorder.log().clone();
+        let start = last_event_id
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .or(since)
+            .unwrap_or_else(|| log.newest());
+        let (tx, rx) = mpsc::channel(16);
+        tokio::spawn(stream_events(log, start, tx));
+        let mut answer = Response::new(BoxBody::new(EventBody(rx)));
+        let h = answer.headers_mut();
+        h.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("text/event-stream"),
+        );
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+        answer
+    }
+
+    /// Runs `f` on the log off the executor.
+    async fn read<T: Send + 'static>(
+        &self,
+        f: impl FnOnce(&ResultsLog) -> Result<T, LogError> + Send + 'static,
+    ) -> Result<T, LogError> {
+        let log = self.recorder.log().clone();
+        let path = log.path().to_owned();
+        match tokio::task::spawn_blocking(move || f(&log)).await {
+            Ok(result) => result,
+            Err(e) => Err(LogError::Failed {
+                path,
+                why: format!("the reading task failed: {e}"),
+            }),
+        }
+    }
+}
+
+/// What `/api/cameras` says of a camera.
+#[derive(Serialize)]
+struct CameraInfo {
+    serial: String,
+    model: String,
+    color: serde_json::Value,
+    depth: serde_json::Value,
+    calibrated: bool,
+    transformation: geometry::Transformation,
+    warnings: Vec<String>,
+}
+
+/// Sends the records after `after` to `tx` as events, then each new one, until the
+/// client has gone.
+async fn stream_events(log: ResultsLog, mut after: u64, tx: mpsc::Sender<Bytes>) {
+    let mut newest = log.subscribe();
+    if tx
+        .send(Bytes::from_static(
+            b"retry: 2000\n: coapcam measurements\n\n",
+        ))
+        .await
+        .is_err()
+    {
+        return;
+    }
+    loop {
+        let from = after;
+        let reader = log.clone();
+        let batch = tokio::task::spawn_blocking(move || reader.after(from, 100)).await;
+        let records = match batch {
+            Ok(Ok(records)) => records,
+            Ok(Err(e)) => {
+                tracing::warn!("http: event stream: {e}");
+                return;
+            }
+            Err(_) => return,
+        };
+        let full = records.len() == 100;
+        for record in records {
+            after = record.id;
+            let Ok(data) = serde_json::to_string(&record) else {
+                continue;
+            };
+            let event = format!("id: {}\nevent: measurement\ndata: {data}\n\n", record.id);
+            if tx.send(Bytes::from(event)).await.is_err() {
+                return;
+            }
+        }
+        if full {
+            continue;
+        }
+        tokio::select! {
+            changed = newest.changed() => if changed.is_err() { return },
+            () = tokio::time::sleep(KEEP_ALIVE) => {
+                if tx.send(Bytes::from_static(b": alive\n\n")).await.is_err() {
+                    return;
+                }
+            }
+            () = tx.closed() => return,
+        }
+    }
+}
+
+/// The body of an event stream: what [`stream_events`] sends, as it comes.
+struct EventBody(mpsc::Receiver<Bytes>);
+
+impl Body for EventBody {
+    type Data = Bytes;
+    type Error = Infallible;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, Infallible>>> {
+        self.0.poll_recv(cx).map(|b| b.map(|b| Ok(Frame::data(b))))
+    }
+}
+
+/// Whether `segments` name a page or resource (for 405 rather than 404).
+fn known(segments: &[&str]) -> bool {
+    matches!(
+        segments,
+        [] | [""]
+            | ["api", "measurements"]
+            | ["api", "measurements", _]
+            | ["api", "measurements", _, _]
+            | ["api", "measure"]
+            | ["api", "cameras"]
+            | ["api", "cameras", _, "color.jpg"]
+            | ["api", "station"]
+            | ["api", "events"]
+    )
+}
+
+/// A query's items, percent-decoded (`+` a space); an item that is not UTF-8 is refused.
+fn query_items(query: &str) -> Result<Vec<String>, String> {
+    query
+        .split('&')
+        .filter(|item| !item.is_empty())
+        .map(|item| {
+            percent_decode(item)
+                .ok_or_else(|| format!("{item}: the query is not percent-encoded UTF-8"))
+        })
+        .collect()
+}
+
+fn percent_decode(text: &str) -> Option<String> {
+    let mut out = Vec::with_capacity(text.len());
+    let mut bytes = text.bytes();
+    while let Some(b) = bytes.next() {
+        match b {
+            b'%' => {
+                let hex = [bytes.next()?, bytes.next()?];
+                let hex = std::str::from_utf8(&hex).ok()?;
+                out.push(u8::from_str_radix(hex, 16).ok()?);
+            }
+            b'+' => out.push(b' '),
+            b => out.push(b),
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+fn record_id(text: &str) -> Result<u64, Box<Answer>> {
+    match text.parse::<u64>() {
+        Ok(id) if id > 0 => Ok(id),
+        _ => Err(Box::new(error(
+            StatusCode::BAD_REQUEST,
+            &format!("{text} is not a record id (a whole number from 1)"),
+        ))),
+    }
+}
+
+/// 413 for a request whose Content-Length is over [`MAX_BODY`].
+fn too_large(request: &Request<Incoming>) -> Option<Answer> {
+    let length = request.headers().get(header::CONTENT_LENGTH)?;
+    let length: u64 = length.to_str().ok()?.parse().ok()?;
+    (length > MAX_BODY as u64).then(body_too_large)
+}
+
+fn body_too_large() -> Answer {
+    let mut answer = error(
+        StatusCode::PAYLOAD_TOO_LARGE,
+        &format!("a request's body may have at most {MAX_BODY} bytes"),
+    );
+    // The rest of the body is not read: the connection cannot go on.
+    answer
+        .headers_mut()
+        .insert(header::CONNECTION, HeaderValue::from_static("close"));
+    answer
+}
+
+fn no_record(id: u64) -> Answer {
+    error(
+        StatusCode::NOT_FOUND,
+        &format!("no record {id} in the results log"),
+    )
+}
+
+fn failed(e: &LogError) -> Answer {
+    tracing::warn!("http: results log: {e}");
+    error(StatusCode::INTERNAL_SERVER_ERROR, &e.to_string())
+}
+
+fn empty() -> BoxBody<Bytes, Infallible> {
+    BoxBody::new(Full::new(Bytes::new()))
+}
+
+fn bytes(content_type: &'static str, body: impl Into<Bytes>) -> Answer {
+    let mut answer = Response::new(BoxBody::new(Full::new(body.into())));
+    answer
+        .headers_mut()
+        .insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
+    answer
+}
+
+fn bytes_no_store(content_type: &'static str, body: Bytes) -> Answer {
+    let mut answer = bytes(content_type, body);
+    answer
+        .headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    answer
+}
+
+fn json<T: Serialize + ?Sized>(status: StatusCode, value: &T) -> Answer {
+    match serde_json::to_vec(value) {
+        Ok(body) => {
+            let mut answer = bytes("application/json", body);
+            *answer.status_mut() = status;
+            answer
+                .headers_mut()
+                .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+            answer
+        }
+        Err(e) => error(StatusCode::INTERNAL_SERVER_ERROR, &format!("JSON: {e}")),
+    }
+}
+
+/// `{"error": why}` with `status`.
+fn error(status: StatusCode, why: &str) -> Answer {
+    let body = serde_json::to_vec(&serde_json::json!({ "error": why }))
+        .unwrap_or_else(|_| b"{\"error\":\"?\"}".to_vec());
+    let mut answer = bytes("application/json", body);
+    *answer.status_mut() = status;
+    answer
+}
+
+fn page() -> Answer {
+    let mut answer = bytes(
+        "text/html; charset=utf-8",
+        Bytes::from_static(PAGE.as_bytes()),
+    );
+    answer
+        .headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    answer
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn listen_addresses_and_queries() {
+        assert_eq!(
+            parse_listen("8080"),
+            Ok(SocketAddr::from(([127, 0, 0, 1], 8080)))
+        );
+        assert_eq!(
+            parse_listen("0.0.0.0:80"),
+            Ok(SocketAddr::from(([0, 0, 0, 0], 80)))
+        );
+        assert!(parse_listen("localhost").is_err());
+        assert_eq!(
+            query_items("code=PKG%2D1+x&limit=2&").unwrap(),
+            vec!["code=PKG-1 x".to_owned(), "limit=2".to_owned()]
+        );
+        assert!(query_items("code=%FF").is_err());
+        assert!(query_items("code=%4").is_err());
+        assert!(is_local("[::ffff:127.0.0.1]:1".parse().unwrap()));
+        assert!(is_local("[::1]:1".parse().unwrap()));
+        assert!(!is_local("192.0.2.1:1".parse().unwrap()));
+    }
+}

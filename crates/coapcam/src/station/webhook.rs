@@ -1,0 +1,250 @@
+//! Webhooks (`serve --webhook URL`): every record of the results log POSTed as JSON to an
+//! HTTP URL, in id order, each until it is answered 2xx. The position is a durable cursor
+//! in the log (consumer [`CONSUMER`]), moved past a record only once the receiver took it:
+//! a receiver that is down, a restart of the station, lose nothing; a record whose answer
+//! was lost is sent again (receivers drop an `id` they have).
+//!
+//! Plain `http://` only (no TLS); HTTP/1.1 through hyper's client connection, one
+//! connection kept while it works.
+
+use std::fmt;
+use std::str::FromStr;
+use std::time::Duration;
+
+use bytes::Bytes;
+use http_body_util::{BodyExt as _, Full};
+use hyper::client::conn::http1::SendRequest;
+use hyper::header::{self, HeaderValue};
+use hyper::{Method, Request, Uri};
+use hyper_util::rt::TokioIo;
+use tokio::net::TcpStream;
+use tokio::task::JoinHandle;
+
+use super::log::{LogError, ResultsLog};
+use super::record::Record;
+
+/// The cursor name of the webhook in the results log.
+pub const CONSUMER: &str = "webhook";
+
+/// How long connecting, or one request's answer, may take.
+const TIMEOUT: Duration = Duration::from_secs(10);
+
+/// The first wait after a failure; it doubles up to [`BACKOFF_MAX`].
+const BACKOFF_MIN: Duration = Duration::from_millis(250);
+const BACKOFF_MAX: Duration = Duration::from_secs(5);
+
+/// Records read from the log at a time.
+const BATCH: usize = 64;
+
+/// Where records are POSTed: an `http://HOST[:PORT][/PATH]` URL.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Target {
+    uri: Uri,
+    host: String,
+    port: u16,
+}
+
+impl FromStr for Target {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let uri: Uri = text
+            .parse()
+            .map_err(|e| format!("{text}: not a URL ({e})"))?;
+        match uri.scheme_str() {
+            Some("http") => {}
+            Some(other) => {
+                return Err(format!(
+                    "{text}: a webhook is http:// ({other}:// is not supported)"
+                ));
+            }
+            None => return Err(format!("{text}: a webhook URL is http://HOST[:PORT]/PATH")),
+        }
+        let host = uri
+            .host()
+            .ok_or_else(|| format!("{text}: the URL has no host"))?
+            .trim_start_matches('[')
+            .trim_end_matches(']')
+            .to_owned();
+        let port = uri.port_u16().unwrap_or(80);
+        Ok(Self { uri, host, port })
+    }
+}
+
+impl fmt::Display for Target {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.uri)
+    }
+}
+
+/// The webhook's task: delivering until dropped.
+#[derive(Debug)]
+pub struct Webhook {
+    task: JoinHandle<()>,
+}
+
+impl Drop for Webhook {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+impl Webhook {
+    /// Delivers the records of `log` after its cursor to `target`, then each new one.
+    pub fn start(target: Target, log: ResultsLog) -> Self {
+        Self {
+            task: tokio::spawn(deliver_forever(target, log)),
+        }
+    }
+}
+
+/// Why a delivery stopped.
+#[derive(Debug, thiserror::Error)]
+enum Failure {
+    #[error("{0}")]
+    Receiver(String),
+    #[error(transparent)]
+    Log(#[from] LogError),
+}
+
+async fn deliver_forever(target: Target, log: ResultsLog) {
+    let mut newest = log.subscribe();
+    let mut backoff = BACKOFF_MIN;
+    let mut failing = false;
+    let mut connection: Option<SendRequest<Full<Bytes>>> = None;
+    loop {
+        // Seen before reading: an append from here on wakes the wait below.
+        newest.borrow_and_update();
+        let reader = log.clone();
+        let pending = tokio::task::spawn_blocking(move || {
+            let cursor = reader.cursor(CONSUMER)?;
+            reader.after(cursor, BATCH)
+        })
+        .await;
+        let records = match pending {
+            Ok(Ok(records)) => records,
+            Ok(Err(e)) => {
+                tracing::warn!("webhook: reading the results log: {e}");
+                tokio::time::sleep(BACKOFF_MAX).await;
+                continue;
+            }
+            Err(_) => return,
+        };
+        if records.is_empty() {
+            if newest.changed().await.is_err() {
+                return;
+            }
+            continue;
+        }
+        match deliver(&target, &log, &records, &mut connection).await {
+            Ok(()) => {
+                if failing {
+                    tracing::info!("webhook: {target} takes the records again");
+                }
+                failing = false;
+                backoff = BACKOFF_MIN;
+            }
+            Err(e) => {
+                connection = None;
+                if !failing {
+                    tracing::warn!(
+                        "webhook: {target}: {e}; retrying (the records wait in the log)"
+                    );
+                }
+                failing = true;
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(BACKOFF_MAX);
+            }
+        }
+    }
+}
+
+/// POSTs `records` in order, moving the cursor past each answered 2xx.
+async fn deliver(
+    target: &Target,
+    log: &ResultsLog,
+    records: &[Record],
+    connection: &mut Option<SendRequest<Full<Bytes>>>,
+) -> Result<(), Failure> {
+    for record in records {
+        let usable = match connection.as_mut() {
+            Some(sender) => sender.ready().await.is_ok(),
+            None => false,
+        };
+        let sender = match connection {
+            Some(sender) if usable => sender,
+            _ => connection.insert(connect(target).await?),
+        };
+        let body = serde_json::to_vec(record)
+            .map_err(|e| Failure::Receiver(format!("encoding record {}: {e}", record.id)))?;
+        let mut request = Request::builder()
+            .method(Method::POST)
+            .uri(target.uri.path_and_query().map_or("/", |p| p.as_str()))
+            .header(header::CONTENT_TYPE, "application/json")
+            .header(
+                header::USER_AGENT,
+                concat!("coapcam/", env!("CARGO_PKG_VERSION")),
+            )
+            .header("x-coapcam-record", record.id)
+            .body(Full::new(Bytes::from(body)))
+            .map_err(|e| Failure::Receiver(format!("the request: {e}")))?;
+        if let Some(authority) = target.uri.authority()
+            && let Ok(host) = HeaderValue::from_str(authority.as_str())
+        {
+            request.headers_mut().insert(header::HOST, host);
+        }
+        let answer = tokio::time::timeout(TIMEOUT, sender.send_request(request))
+            .await
+            .map_err(|_| Failure::Receiver(format!("no answer within {TIMEOUT:?}")))?
+            .map_err(|e| Failure::Receiver(format!("sending record {}: {e}", record.id)))?;
+        let status = answer.status();
+        // The answer's body is read so that the connection can carry the next record.
+        let _ = tokio::time::timeout(TIMEOUT, answer.into_body().collect()).await;
+        if !status.is_success() {
+            return Err(Failure::Receiver(format!(
+                "record {} answered {status}",
+                record.id
+            )));
+        }
+        let (writer, id) = (log.clone(), record.id);
+        tokio::task::spawn_blocking(move || writer.set_cursor(CONSUMER, id))
+            .await
+            .map_err(|e| Failure::Receiver(format!("moving the cursor: {e}")))??;
+    }
+    Ok(())
+}
+
+async fn connect(target: &Target) -> Result<SendRequest<Full<Bytes>>, Failure> {
+    let stream = tokio::time::timeout(
+        TIMEOUT,
+        TcpStream::connect((target.host.as_str(), target.port)),
+    )
+    .await
+    .map_err(|_| Failure::Receiver(format!("connecting took over {TIMEOUT:?}")))?
+    .map_err(|e| Failure::Receiver(format!("connecting: {e}")))?;
+    let _ = stream.set_nodelay(true);
+    let (sender, connection) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
+        .await
+        .map_err(|e| Failure::Receiver(format!("HTTP handshake: {e}")))?;
+    tokio::spawn(async move {
+        if let Err(e) = connection.await {
+            tracing::debug!("webhook: connection: {e}");
+        }
+    });
+    Ok(sender)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn targets() {
+        let t: Target = "http://127.0.0.1:9000/hook?x=1".parse().unwrap();
+        assert_eq!((t.host.as_str(), t.port), ("127.0.0.1", 9000));
+        let t: Target = "http://[::1]/h".parse().unwrap();
+        assert_eq!((t.host.as_str(), t.port), ("::1", 80));
+        assert!("https://example.invalid/".parse::<Target>().is_err());
+        assert!("127.0.0.1:9000".parse::<Target>().is_err());
+    }
+}
