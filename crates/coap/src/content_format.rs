@@ -1,9 +1,10 @@
 //! The CoAP Content-Format registry (RFC 7252 §12.3): numbers, media types and short names.
 //!
 //! A [`ContentFormat`] is the 16-bit number carried in the Content-Format and Accept options.
-//! The registry below holds the formats coapcam speaks or is likely to meet, with the media
-//! type IANA registers for each, plus coapcam's experimental number for binary PLY point
-//! clouds. Numbers outside the table are still valid content formats; they just have no name.
+//! The registry below holds the registered formats coapcam speaks or is likely to meet, with
+//! the media type IANA registers for each. Numbers outside the table are still valid content
+//! formats; they just have no name here (an application names its own, e.g. from the
+//! experimental range 65000-65535).
 //!
 //! ```
 //! use coap::content_format::ContentFormat;
@@ -12,7 +13,7 @@
 //! assert_eq!(cf, ContentFormat::IMAGE_PNG);
 //! assert_eq!(cf.to_string(), "image/png");
 //! assert_eq!("application/json".parse::<ContentFormat>()?, ContentFormat::JSON);
-//! assert_eq!("65100".parse::<ContentFormat>()?.media_type(), Some("application/x-ply"));
+//! assert_eq!("65100".parse::<ContentFormat>()?.media_type(), None);
 //! # Ok::<(), coap::content_format::ParseError>(())
 //! ```
 
@@ -75,26 +76,6 @@ impl ContentFormat {
     pub const SENML_ETCH_JSON: Self = Self(320);
     /// 322: `application/senml-etch+cbor` (RFC 8790).
     pub const SENML_ETCH_CBOR: Self = Self(322);
-    /// 65100: `application/x-ply`, coapcam's binary little-endian PLY point cloud.
-    ///
-    /// The number is from the experimental range 65000-65535 (RFC 7252 §12.3), which is
-    /// reserved for experiments and never assigned by IANA, so it means "PLY" only between
-    /// coapcam peers.
-    pub const PLY: Self = Self(65100);
-    /// 65101: `application/x-rvl`, coapcam's RVL-compressed 16-bit depth image
-    /// (experimental range, as [`ContentFormat::PLY`]).
-    pub const RVL: Self = Self(65101);
-    /// 65102: `application/x-rvl+zstd`, that RVL image in a zstd frame (experimental
-    /// range).
-    pub const RVL_ZSTD: Self = Self(65102);
-    /// 65103: `application/x-depth-cloud+zstd`, coapcam's compact point cloud: each
-    /// camera's filtered depth (RVL) with the intrinsics, transform and region that turn
-    /// it into the points, in a zstd frame (experimental range).
-    pub const DEPTH_CLOUD: Self = Self(65103);
-    /// 65104: `application/x-cloud-mm+zstd`, coapcam's quantized point cloud: integer
-    /// millimetres, delta coded, in a zstd frame (experimental range).
-    pub const CLOUD_MM: Self = Self(65104);
-
     /// The registered media type, e.g. `"image/png"`, or `None` for a number this crate does
     /// not know.
     #[must_use]
@@ -200,7 +181,7 @@ pub enum ParseError {
     #[error(
         "unknown content format {0:?}: use a number (0-65535), a media type such as \
          application/json, or a short name such as json, cbor, png, jpeg, octet-stream, \
-         link-format, text or ply"
+         link-format or text"
     )]
     Unknown(String),
 }
@@ -305,23 +286,6 @@ const REGISTRY: &[Entry] = &[
         "application/senml-etch+cbor",
         "senml-etch+cbor",
     ),
-    e(ContentFormat::PLY, "application/x-ply", "ply"),
-    e(ContentFormat::RVL, "application/x-rvl", "rvl"),
-    e(
-        ContentFormat::RVL_ZSTD,
-        "application/x-rvl+zstd",
-        "rvl-zstd",
-    ),
-    e(
-        ContentFormat::DEPTH_CLOUD,
-        "application/x-depth-cloud+zstd",
-        "depth-cloud",
-    ),
-    e(
-        ContentFormat::CLOUD_MM,
-        "application/x-cloud-mm+zstd",
-        "cloud-mm",
-    ),
 ];
 
 /// Extra short names accepted by [`ContentFormat::from_name`], never printed.
@@ -393,11 +357,6 @@ mod tests {
             (272, "application/missing-blocks+cbor-seq"),
             (320, "application/senml-etch+json"),
             (322, "application/senml-etch+cbor"),
-            (65100, "application/x-ply"),
-            (65101, "application/x-rvl"),
-            (65102, "application/x-rvl+zstd"),
-            (65103, "application/x-depth-cloud+zstd"),
-            (65104, "application/x-cloud-mm+zstd"),
         ];
         for &(number, media_type) in expected {
             let cf = ContentFormat(number);
@@ -444,9 +403,6 @@ mod tests {
             ("link-format", ContentFormat::LINK_FORMAT),
             ("text", ContentFormat::TEXT_PLAIN),
             ("text/plain", ContentFormat::TEXT_PLAIN),
-            ("ply", ContentFormat::PLY),
-            ("rvl", ContentFormat::RVL),
-            ("rvl-zstd", ContentFormat::RVL_ZSTD),
             ("PNG", ContentFormat::IMAGE_PNG),
             (" cbor ", ContentFormat::CBOR),
         ];
@@ -454,7 +410,7 @@ mod tests {
             assert_eq!(input.parse::<ContentFormat>(), Ok(expected), "{input}");
         }
         assert_eq!(ContentFormat::IMAGE_PNG.name(), Some("png"));
-        assert_eq!(ContentFormat::PLY.name(), Some("ply"));
+        assert_eq!(ContentFormat(65100).name(), None);
     }
 
     #[test]
@@ -491,7 +447,7 @@ mod tests {
 
     #[test]
     fn experimental_range() {
-        assert!(ContentFormat::PLY.is_experimental());
+        assert!(ContentFormat(65100).is_experimental());
         assert!(ContentFormat(65000).is_experimental());
         assert!(ContentFormat(65535).is_experimental());
         assert!(!ContentFormat(64999).is_experimental());

@@ -18,13 +18,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use bytes::Bytes;
-use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
+use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::{Client, Uri};
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
 
 use crate::client::CamClient;
-use crate::repr::rvl;
+use crate::repr::{self, rvl};
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -258,7 +258,7 @@ impl One {
                 });
             } else {
                 let mut request = Request::new(Code::POST, &format!("/cams/{serial}/depth"));
-                let cf = ContentFormat::RVL_ZSTD;
+                let cf = repr::RVL_ZSTD;
                 request
                     .options
                     .set_uint(OptionNumber::ACCEPT, u32::from(cf.0));

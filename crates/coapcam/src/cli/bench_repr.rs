@@ -14,7 +14,7 @@ use rgbd::{Camera as _, Scene, SyntheticCamera};
 use crate::cli::{Exit, outln};
 use coapcam::client::CamClient;
 use coapcam::client::measure::prepare_cameras;
-use coapcam::repr::{CloudSource, cbor, clouds, packet, ply, raster, rvl};
+use coapcam::repr::{self, CloudSource, Format, cbor, clouds, packet, ply, raster, rvl};
 use coapcam::server::SceneServer;
 use coapcam::stats;
 
@@ -117,14 +117,14 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
     )?);
     rows.push(row(
         "depth",
-        ContentFormat::RVL,
+        repr::RVL,
         runs,
         || Ok(rvl::depth_rvl(d)),
         |b| Ok(rvl::depth_from_rvl(b).map(drop)?),
     )?);
     rows.push(row(
         "depth",
-        ContentFormat::RVL_ZSTD,
+        repr::RVL_ZSTD,
         runs,
         || Ok(rvl::depth_rvl_zstd(d)?),
         |b| Ok(rvl::depth_from_rvl_zstd(b).map(drop)?),
@@ -181,7 +181,7 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
         if prepare {
             prepare_cameras(&client, &serials, 1.0, false).await?;
         }
-        let merged = client.grab_all(Some(ContentFormat::DEPTH_CLOUD)).await?;
+        let merged = client.grab_all(Some(repr::DEPTH_CLOUD)).await?;
         let mut parts = clouds::parts_from_depth_cloud(&merged.payload)?;
         let mut cloud = Vec::new();
         let mut timestamp_us = 0;
@@ -201,7 +201,7 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
         )?);
         rows.push(row(
             what,
-            ContentFormat::PLY,
+            repr::PLY,
             runs,
             || Ok(ply::cloud_ply(p, timestamp_us, source)?),
             |b| Ok(geometry::decode_ply(b).map(drop)?),
@@ -215,14 +215,14 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
         )?);
         rows.push(row(
             what,
-            ContentFormat::DEPTH_CLOUD,
+            repr::DEPTH_CLOUD,
             runs,
             || Ok(clouds::depth_cloud(parts)?),
             |b| Ok(clouds::cloud_from_depth_cloud(b).map(drop)?),
         )?);
         rows.push(row(
             what,
-            ContentFormat::CLOUD_MM,
+            repr::CLOUD_MM,
             runs,
             || Ok(clouds::cloud_mm(p, timestamp_us, source)?),
             |b| Ok(clouds::cloud_from_mm(b).map(drop)?),
@@ -238,7 +238,7 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
                 serde_json::json!({
                     "what": r.what,
                     "content_format": r.format.0,
-                    "name": r.format.to_string(),
+                    "name": Format::describe(r.format),
                     "bytes": r.bytes,
                     "encode_ms": r.encode_ms,
                     "decode_ms": r.decode_ms,
@@ -277,7 +277,7 @@ pub(super) async fn run(args: ReprArgs) -> anyhow::Result<Exit> {
             "| {} | {} {} | {} | {:.3} | {:.2} | {:.2} |",
             r.what,
             r.format.0,
-            r.format,
+            Format::describe(r.format),
             r.bytes,
             r.bytes as f64 / packet as f64,
             r.encode_ms,

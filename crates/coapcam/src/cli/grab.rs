@@ -7,7 +7,7 @@ use anyhow::{Context as _, bail};
 use clap::Args;
 use coap::{ContentFormat, Response};
 use coapcam::client::{CamClient, cloud_of};
-use coapcam::repr::{Stream, packet, raster, rvl};
+use coapcam::repr::{self, Stream, packet, raster, rvl};
 use coapcam::vision::picture::{self, save, sibling};
 
 use super::{Bars, CameraArgs, Exit, TransmissionArgs};
@@ -181,8 +181,8 @@ async fn write_view(
         Stream::Depth => {
             let depth = match kind {
                 ContentFormat::IMAGE_PNG => raster::depth_from_png(&response.payload)?,
-                ContentFormat::RVL => rvl::depth_from_rvl(&response.payload)?,
-                ContentFormat::RVL_ZSTD => rvl::depth_from_rvl_zstd(&response.payload)?,
+                repr::RVL => rvl::depth_from_rvl(&response.payload)?,
+                repr::RVL_ZSTD => rvl::depth_from_rvl_zstd(&response.payload)?,
                 _ => packet::depth(&response.payload).context("reading the depth packet")?,
             };
             let colored = sibling(path, "-color");

@@ -11,6 +11,7 @@ use clap::Args;
 use coap::link_format;
 use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{BodyPart, Client, Uri};
+use coapcam::repr::Format;
 
 use super::{Bar, Exit, Interrupted, TransmissionArgs, outln};
 use coapcam::client::{check_size, describe};
@@ -28,10 +29,10 @@ pub(crate) struct RequestArgs {
     file: Option<PathBuf>,
     /// Content-Format of the payload: a number, a media type, or a short name
     /// (text, json, cbor, png, jpeg, octet-stream, link-format, ply).
-    #[arg(long, value_name = "CF")]
+    #[arg(long, value_name = "CF", value_parser = Format::parse)]
     content_format: Option<ContentFormat>,
     /// Accept: the Content-Format wanted in the response (same forms as --content-format).
-    #[arg(long, value_name = "CF")]
+    #[arg(long, value_name = "CF", value_parser = Format::parse)]
     accept: Option<ContentFormat>,
     /// Block size in bytes for block-wise transfers: 16, 32, 64, 128, 256, 512 or 1024.
     #[arg(long, value_name = "N", value_parser = parse_block_size)]

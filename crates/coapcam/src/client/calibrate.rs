@@ -124,7 +124,7 @@ async fn full_resolution_color(
 /// depth window and intrinsics).
 pub async fn depth_points(client: &CamClient, sn: &str) -> anyhow::Result<Vec<Point3>> {
     let r = client.grab_compact(sn, Stream::Pointcloud).await?;
-    if r.options.content_format() != Some(ContentFormat::DEPTH_CLOUD) {
+    if r.options.content_format() != Some(crate::repr::DEPTH_CLOUD) {
         bail!("the server sends no compact cloud (65103), which calibration needs");
     }
     let part = parts_from_depth_cloud(&r.payload)?

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
 use bytes::Bytes;
-use coap::{Code, ContentFormat};
+use coap::Code;
 use geometry::{DimensionConfig, Dimensions, PointCloud};
 use rgbd::Scene;
 
@@ -120,7 +120,7 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             expect,
             wait,
         } => {
-            let accept = Some(ContentFormat::DEPTH_CLOUD);
+            let accept = Some(crate::repr::DEPTH_CLOUD);
             let mut request =
                 client.request(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept);
             request.timeout = Some(*wait);

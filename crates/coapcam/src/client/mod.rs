@@ -21,7 +21,7 @@ use coap_net::{Client, Psk, Uri};
 
 use crate::report::{EdgeQuery, Measurement};
 use crate::repr::packet::{self, DepthImage};
-use crate::repr::{Stream, cbor, clouds, rvl};
+use crate::repr::{self, Stream, cbor, clouds, rvl};
 
 /// A client socket for `server`: plain for `coap://`, DTLS with `psk` for `coaps://`.
 pub fn secured_client(
@@ -358,7 +358,7 @@ impl CamClient {
     pub async fn grab_depth(&self, serial: &str) -> anyhow::Result<DepthImage> {
         let r = self.grab_compact(serial, Stream::Depth).await?;
         match r.options.content_format() {
-            Some(ContentFormat::RVL_ZSTD) => Ok(rvl::depth_from_rvl_zstd(&r.payload)?),
+            Some(repr::RVL_ZSTD) => Ok(rvl::depth_from_rvl_zstd(&r.payload)?),
             _ => Ok(packet::depth(&r.payload).context("reading the depth packet")?),
         }
     }
@@ -449,10 +449,10 @@ fn not_acceptable(e: &anyhow::Error) -> bool {
 pub fn cloud_of(response: &Response) -> anyhow::Result<cbor::Cloud> {
     let payload = &response.payload;
     match response.options.content_format() {
-        Some(ContentFormat::DEPTH_CLOUD) => Ok(clouds::cloud_from_depth_cloud(payload)?),
-        Some(ContentFormat::CLOUD_MM) => Ok(clouds::cloud_from_mm(payload)?),
+        Some(repr::DEPTH_CLOUD) => Ok(clouds::cloud_from_depth_cloud(payload)?),
+        Some(repr::CLOUD_MM) => Ok(clouds::cloud_from_mm(payload)?),
         Some(ContentFormat::CBOR) => Ok(cbor::Cloud::from_cbor(payload)?),
-        Some(ContentFormat::PLY) => Ok(cbor::Cloud {
+        Some(repr::PLY) => Ok(cbor::Cloud {
             cloud: geometry::decode_ply(payload)?,
             serials: Vec::new(),
             timestamp_us: 0,
@@ -465,7 +465,10 @@ pub fn cloud_of(response: &Response) -> anyhow::Result<cbor::Cloud> {
                 timestamp_us: u64::from(p.timestamp_s) * 1_000_000,
             })
         }
-        Some(other) => bail!("a point cloud in an unknown content format ({other})"),
+        Some(other) => bail!(
+            "a point cloud in an unknown content format ({})",
+            repr::Format::describe(other)
+        ),
     }
 }
 

@@ -66,26 +66,18 @@ impl Stream {
         self as usize
     }
 
-    /// The content formats its resources offer, the first being the default.
-    pub fn formats(self) -> &'static [ContentFormat] {
-        use ContentFormat as Cf;
-        match self {
-            Self::Color => &[Cf::OCTET_STREAM, Cf::IMAGE_PNG, Cf::IMAGE_JPEG, Cf::CBOR],
-            Self::Depth => &[
-                Cf::OCTET_STREAM,
-                Cf::IMAGE_PNG,
-                Cf::CBOR,
-                Cf::RVL,
-                Cf::RVL_ZSTD,
-            ],
-            Self::Pointcloud => &[
-                Cf::OCTET_STREAM,
-                Cf::CBOR,
-                Cf::PLY,
-                Cf::DEPTH_CLOUD,
-                Cf::CLOUD_MM,
-            ],
-        }
+    /// The content formats its resources offer, the first being the default: the rows of
+    /// [`FORMATS`] that serve it, in the table's order.
+    pub fn formats(self) -> impl Iterator<Item = ContentFormat> {
+        FORMATS
+            .iter()
+            .filter(move |f| f.streams.contains(&self))
+            .map(|f| f.format)
+    }
+
+    /// Whether its resources offer `cf`.
+    pub fn offers(self, cf: ContentFormat) -> bool {
+        self.formats().any(|f| f == cf)
     }
 
     /// Its compact form, which the typed client asks for first: JPEG (lossy, for
@@ -93,14 +85,14 @@ impl Stream {
     pub fn compact(self) -> ContentFormat {
         match self {
             Self::Color => ContentFormat::IMAGE_JPEG,
-            Self::Depth => ContentFormat::RVL_ZSTD,
-            Self::Pointcloud => ContentFormat::DEPTH_CLOUD,
+            Self::Depth => RVL_ZSTD,
+            Self::Pointcloud => DEPTH_CLOUD,
         }
     }
 
     /// Its resources' `ct` in discovery: every format it offers, the default first.
     pub fn ct(self) -> String {
-        let numbers: Vec<String> = self.formats().iter().map(|cf| cf.0.to_string()).collect();
+        let numbers: Vec<String> = self.formats().map(|cf| cf.0.to_string()).collect();
         numbers.join(" ")
     }
 
@@ -108,8 +100,8 @@ impl Stream {
     pub fn not_acceptable(self) -> String {
         let names: Vec<String> = self
             .formats()
-            .iter()
-            .map(|cf| format!("{} ({})", cf.0, format_name(*cf)))
+            .filter_map(Format::of)
+            .map(|f| format!("{} ({})", f.format.0, f.label))
             .collect();
         format!("{} is served as {}", self.name(), or_list(&names))
     }
@@ -117,52 +109,184 @@ impl Stream {
     /// The content format a file named `*.ext` holds (`png`, `jpg`, `ply`, `rvl`,
     /// `rvl.zst`, `bin` for the thesis packet), if the stream is offered in it.
     pub fn format_of_extension(self, ext: &str) -> Option<ContentFormat> {
+        let ext = ext.to_ascii_lowercase();
         self.formats()
-            .iter()
-            .copied()
-            .find(|cf| extensions(*cf).contains(&ext.to_ascii_lowercase().as_str()))
+            .filter_map(Format::of)
+            .find(|f| f.extensions.contains(&ext.as_str()))
+            .map(|f| f.format)
     }
 
     /// The file extensions it can be written to, e.g. `.png, .jpg or .bin`.
     pub fn extensions(self) -> String {
         let exts: Vec<String> = self
             .formats()
-            .iter()
-            .filter_map(|cf| extensions(*cf).first())
+            .filter_map(Format::of)
+            .filter_map(|f| f.extensions.first())
             .map(|e| format!(".{e}"))
             .collect();
         or_list(&exts)
     }
 }
 
-/// How a content format of [`Stream::formats`] is named for people.
-fn format_name(cf: ContentFormat) -> &'static str {
-    match cf {
-        ContentFormat::OCTET_STREAM => "thesis packet",
-        ContentFormat::IMAGE_PNG => "PNG",
-        ContentFormat::IMAGE_JPEG => "JPEG",
-        ContentFormat::CBOR => "CBOR",
-        ContentFormat::PLY => "PLY",
-        ContentFormat::RVL => "RVL",
-        ContentFormat::RVL_ZSTD => "RVL+zstd",
-        ContentFormat::DEPTH_CLOUD => "compact cloud",
-        ContentFormat::CLOUD_MM => "millimetre cloud",
-        _ => "other",
+/// 65100: `application/x-ply`, binary little-endian PLY. coapcam's own numbers are from
+/// the experimental range 65000-65535 (RFC 7252 §12.3), which IANA never assigns: they
+/// mean these formats only between coapcam peers.
+pub const PLY: ContentFormat = ContentFormat(65100);
+/// 65101: `application/x-rvl`, a 16-bit depth image RVL-compressed.
+pub const RVL: ContentFormat = ContentFormat(65101);
+/// 65102: `application/x-rvl+zstd`, that RVL image in a zstd frame.
+pub const RVL_ZSTD: ContentFormat = ContentFormat(65102);
+/// 65103: `application/x-depth-cloud+zstd`, the compact cloud: each camera's filtered
+/// depth (RVL) with the intrinsics, transform and region that make it the points, in a
+/// zstd frame.
+pub const DEPTH_CLOUD: ContentFormat = ContentFormat(65103);
+/// 65104: `application/x-cloud-mm+zstd`, the millimetre cloud: integer millimetres, delta
+/// coded, in a zstd frame.
+pub const CLOUD_MM: ContentFormat = ContentFormat(65104);
+
+/// One representation: a row of [`FORMATS`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Format {
+    /// Its content format number.
+    pub format: ContentFormat,
+    /// Its media type.
+    pub media_type: &'static str,
+    /// Its short name on the command line (`--accept ply`).
+    pub name: &'static str,
+    /// How people call it (the 4.06 diagnostic, tables).
+    pub label: &'static str,
+    /// File extensions that hold it, the usual one first (none: not written to files).
+    pub extensions: &'static [&'static str],
+    /// The streams served in it.
+    pub streams: &'static [Stream],
+}
+
+/// Every representation a camera's resources serve, the default (the thesis packet)
+/// first; a stream's formats are its rows in this order. Adding a representation is a
+/// module here and a row.
+pub const FORMATS: [Format; 9] = {
+    use Stream::{Color, Depth, Pointcloud};
+    const ALL: &[Stream] = &Stream::ALL;
+    [
+        row(
+            ContentFormat::OCTET_STREAM,
+            "application/octet-stream",
+            "octet-stream",
+            "thesis packet",
+            &["bin"],
+            ALL,
+        ),
+        row(
+            ContentFormat::IMAGE_PNG,
+            "image/png",
+            "png",
+            "PNG",
+            &["png"],
+            &[Color, Depth],
+        ),
+        row(
+            ContentFormat::IMAGE_JPEG,
+            "image/jpeg",
+            "jpeg",
+            "JPEG",
+            &["jpg", "jpeg"],
+            &[Color],
+        ),
+        row(
+            ContentFormat::CBOR,
+            "application/cbor",
+            "cbor",
+            "CBOR",
+            &[],
+            ALL,
+        ),
+        row(
+            PLY,
+            "application/x-ply",
+            "ply",
+            "PLY",
+            &["ply"],
+            &[Pointcloud],
+        ),
+        row(RVL, "application/x-rvl", "rvl", "RVL", &["rvl"], &[Depth]),
+        row(
+            RVL_ZSTD,
+            "application/x-rvl+zstd",
+            "rvl-zstd",
+            "RVL+zstd",
+            &["rvl.zst"],
+            &[Depth],
+        ),
+        row(
+            DEPTH_CLOUD,
+            "application/x-depth-cloud+zstd",
+            "depth-cloud",
+            "compact cloud",
+            &["dcl"],
+            &[Pointcloud],
+        ),
+        row(
+            CLOUD_MM,
+            "application/x-cloud-mm+zstd",
+            "cloud-mm",
+            "millimetre cloud",
+            &["qmm"],
+            &[Pointcloud],
+        ),
+    ]
+};
+
+const fn row(
+    format: ContentFormat,
+    media_type: &'static str,
+    name: &'static str,
+    label: &'static str,
+    extensions: &'static [&'static str],
+    streams: &'static [Stream],
+) -> Format {
+    Format {
+        format,
+        media_type,
+        name,
+        label,
+        extensions,
+        streams,
     }
 }
 
-/// File extensions of a content format of [`Stream::formats`], the usual one first.
-fn extensions(cf: ContentFormat) -> &'static [&'static str] {
-    match cf {
-        ContentFormat::OCTET_STREAM => &["bin"],
-        ContentFormat::IMAGE_PNG => &["png"],
-        ContentFormat::IMAGE_JPEG => &["jpg", "jpeg"],
-        ContentFormat::PLY => &["ply"],
-        ContentFormat::RVL => &["rvl"],
-        ContentFormat::RVL_ZSTD => &["rvl.zst"],
-        ContentFormat::DEPTH_CLOUD => &["dcl"],
-        ContentFormat::CLOUD_MM => &["qmm"],
-        _ => &[],
+impl Format {
+    /// The row of `cf`, if it is one of the representations.
+    pub fn of(cf: ContentFormat) -> Option<&'static Self> {
+        FORMATS.iter().find(|f| f.format == cf)
+    }
+
+    /// The media type of `cf`: coapcam's own from the table, else the CoAP registry's; the
+    /// number when neither knows it.
+    pub fn describe(cf: ContentFormat) -> String {
+        match Self::of(cf) {
+            Some(f) => f.media_type.to_owned(),
+            None => cf.to_string(),
+        }
+    }
+
+    /// A content format from the command line: a number, a media type or a short name,
+    /// coapcam's own ([`FORMATS`]) or the CoAP registry's.
+    pub fn parse(text: &str) -> Result<ContentFormat, String> {
+        let t = text.trim();
+        if let Some(f) = FORMATS
+            .iter()
+            .find(|f| f.name.eq_ignore_ascii_case(t) || f.media_type.eq_ignore_ascii_case(t))
+        {
+            return Ok(f.format);
+        }
+        t.parse::<ContentFormat>().map_err(|e| match e {
+            coap::content_format::ParseError::Unknown(_) => format!(
+                "unknown content format {t:?}: use a number (0-65535), a media type such as \
+                 application/json, or a short name such as json, cbor, png, jpeg, \
+                 octet-stream, link-format, text, ply, rvl, rvl-zstd, depth-cloud or cloud-mm"
+            ),
+            other => other.to_string(),
+        })
     }
 }
 
@@ -244,6 +368,21 @@ pub(crate) mod tests {
             Some(ContentFormat::IMAGE_JPEG)
         );
         assert_eq!(Stream::Depth.format_of_extension("jpg"), None);
+        assert_eq!(Stream::Depth.formats().last(), Some(RVL_ZSTD));
+        assert_eq!(Format::parse("ply"), Ok(PLY));
+        assert_eq!(Format::parse("application/x-rvl+zstd"), Ok(RVL_ZSTD));
+        assert_eq!(Format::parse(" 65104 "), Ok(CLOUD_MM));
+        assert_eq!(Format::parse("json"), Ok(ContentFormat::JSON));
+        assert!(Format::parse("tiff").is_err_and(|e| e.contains("depth-cloud")));
+        assert_eq!(
+            Format::describe(DEPTH_CLOUD),
+            "application/x-depth-cloud+zstd"
+        );
+        assert_eq!(Format::describe(ContentFormat::IMAGE_PNG), "image/png");
+        for f in &FORMATS {
+            assert_eq!(Format::parse(f.name), Ok(f.format));
+            assert_eq!(Format::parse(f.media_type), Ok(f.format));
+        }
         assert_eq!(Stream::of("pointcloud"), Some(Stream::Pointcloud));
     }
 }

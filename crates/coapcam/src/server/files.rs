@@ -533,7 +533,7 @@ fn content_format_of(path: &Path) -> ContentFormat {
         Some("png") => ContentFormat::IMAGE_PNG,
         Some("jpg" | "jpeg") => ContentFormat::IMAGE_JPEG,
         Some("cbor") => ContentFormat::CBOR,
-        Some("ply") => ContentFormat::PLY,
+        Some("ply") => crate::repr::PLY,
         Some("wlnk") => ContentFormat::LINK_FORMAT,
         _ => ContentFormat::OCTET_STREAM,
     }

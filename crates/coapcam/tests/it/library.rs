@@ -12,7 +12,7 @@ use coapcam::client::measure::{
     Source, grab_clouds, measure_once, prepare_cameras, truth, yaw_difference,
 };
 use coapcam::report::{Billing, EdgeQuery, Measurement};
-use coapcam::repr::{Stream, cbor, clouds, packet, raster, rvl};
+use coapcam::repr::{self, Stream, cbor, clouds, packet, raster, rvl};
 use coapcam::server::SceneServer;
 use geometry::DimensionConfig;
 use rgbd::Scene;
@@ -102,8 +102,8 @@ fn every_representation_decodes_to_the_same_frame() {
             (from_packet.width, from_packet.height)
         );
         for from_rvl in [
-            rvl::depth_from_rvl(&get(ContentFormat::RVL).await).expect("rvl"),
-            rvl::depth_from_rvl_zstd(&get(ContentFormat::RVL_ZSTD).await).expect("rvl+zstd"),
+            rvl::depth_from_rvl(&get(repr::RVL).await).expect("rvl"),
+            rvl::depth_from_rvl_zstd(&get(repr::RVL_ZSTD).await).expect("rvl+zstd"),
         ] {
             // Everything the packet carries, the depth scale and the second included.
             assert_eq!(from_rvl, from_packet);
@@ -117,20 +117,20 @@ fn every_representation_decodes_to_the_same_frame() {
         let mut clouds: Vec<geometry::PointCloud> = Vec::new();
         for cf in Stream::Pointcloud.formats() {
             let body = client
-                .call(Code::GET, &path, Bytes::new(), None, Some(*cf))
+                .call(Code::GET, &path, Bytes::new(), None, Some(cf))
                 .await
                 .expect("GET pointcloud")
                 .payload;
-            clouds.push(match *cf {
+            clouds.push(match cf {
                 ContentFormat::OCTET_STREAM => packet::cloud(&body).expect("packet").cloud,
                 ContentFormat::CBOR => cbor::Cloud::from_cbor(&body).expect("cbor").cloud,
-                ContentFormat::PLY => geometry::decode_ply(&body).expect("ply"),
-                ContentFormat::DEPTH_CLOUD => {
+                repr::PLY => geometry::decode_ply(&body).expect("ply"),
+                repr::DEPTH_CLOUD => {
                     clouds::cloud_from_depth_cloud(&body)
                         .expect("compact")
                         .cloud
                 }
-                ContentFormat::CLOUD_MM => {
+                repr::CLOUD_MM => {
                     let mm = clouds::cloud_from_mm(&body).expect("mm").cloud;
                     assert_eq!(mm.len(), clouds[0].len());
                     for (a, b) in mm.points.iter().zip(&clouds[0].points) {

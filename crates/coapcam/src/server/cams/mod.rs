@@ -593,7 +593,7 @@ impl Cams {
             Err(busy) => return busy.response(),
         };
         let merged = self.grab_merged(cams).await;
-        if cf == ContentFormat::DEPTH_CLOUD && merged.parts.is_empty() {
+        if cf == repr::DEPTH_CLOUD && merged.parts.is_empty() {
             // The compact cloud is made of cameras' depth: without one there is nothing
             // to send in it (the other formats send an empty cloud).
             return no_cloud(&merged.failed);
@@ -602,7 +602,7 @@ impl Cams {
             serials: &merged.serials,
         };
         let body = match cf {
-            ContentFormat::DEPTH_CLOUD => clouds::depth_cloud(&merged.parts),
+            repr::DEPTH_CLOUD => clouds::depth_cloud(&merged.parts),
             _ => cloud_body(cf, &merged.cloud.points, merged.timestamp_us, source),
         };
         let body = match body {
@@ -995,7 +995,7 @@ fn negotiate(kind: Stream, request: &IncomingRequest) -> Result<ContentFormat, R
         .options
         .accept()
         .unwrap_or(ContentFormat::OCTET_STREAM);
-    if kind.formats().contains(&accept) {
+    if kind.offers(accept) {
         Ok(accept)
     } else {
         Err(Response::diagnostic(
@@ -1030,11 +1030,11 @@ fn represent(
         (Frame::Color(f, k, e), ContentFormat::CBOR) => cbor::color_cbor(f, k, e, sn),
         (Frame::Color(f, ..), _) => Ok(packet::color_packet(f)),
         (Frame::Depth(f, _), ContentFormat::IMAGE_PNG) => raster::depth_png(f),
-        (Frame::Depth(f, _), ContentFormat::RVL) => Ok(rvl::depth_rvl(f)),
-        (Frame::Depth(f, _), ContentFormat::RVL_ZSTD) => rvl::depth_rvl_zstd(f),
+        (Frame::Depth(f, _), repr::RVL) => Ok(rvl::depth_rvl(f)),
+        (Frame::Depth(f, _), repr::RVL_ZSTD) => rvl::depth_rvl_zstd(f),
         (Frame::Depth(f, k), ContentFormat::CBOR) => cbor::depth_cbor(f, k, sn),
         (Frame::Depth(f, _), _) => Ok(packet::depth_packet(f)),
-        (Frame::Cloud { part, .. }, ContentFormat::DEPTH_CLOUD) => clouds::depth_cloud([part]),
+        (Frame::Cloud { part, .. }, repr::DEPTH_CLOUD) => clouds::depth_cloud([part]),
         (Frame::Cloud { points, part }, cf) => {
             let source = CloudSource::Camera {
                 serial: sn,
@@ -1085,8 +1085,8 @@ fn cloud_body(
 ) -> Result<Vec<u8>, repr::EncodeError> {
     match cf {
         ContentFormat::CBOR => cbor::cloud_cbor(points, timestamp_us, source),
-        ContentFormat::PLY => repr::ply::cloud_ply(points, timestamp_us, source),
-        ContentFormat::CLOUD_MM => clouds::cloud_mm(points, timestamp_us, source),
+        repr::PLY => repr::ply::cloud_ply(points, timestamp_us, source),
+        repr::CLOUD_MM => clouds::cloud_mm(points, timestamp_us, source),
         _ => Ok(packet::cloud_packet(
             points,
             packet::unix_seconds(timestamp_us),
