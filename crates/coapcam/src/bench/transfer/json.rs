@@ -11,7 +11,7 @@ use netem::Counters;
 use serde::Serialize;
 
 use super::config::{
-    BLOCK_BYTES, Config, FAIR_SHARE, Link, Mode, PAIR_LINK, RATE_50_MBIT, RELAY_QUEUE_LIMIT,
+    BLOCK_BYTES, Config, FAIR_SHARE, Link, PAIR_LINK, RATE_50_MBIT, RELAY_QUEUE_LIMIT,
 };
 use super::runs::{Cell, PairCell, PairRun, RunResult};
 use super::servers::Programs;
@@ -298,11 +298,9 @@ fn finite(x: f64) -> Option<f64> {
     x.is_finite().then_some(x)
 }
 
-/// The report of `cells` and `pair_cells` run with `args` by `programs`.
+/// The report of `cells` and `pair_cells` run with `config` by `programs`.
 pub(super) fn report_json<'a>(
-    args: &Config,
-    links: &[Link],
-    modes: &[Mode],
+    config: &Config,
     cells: &'a [Cell],
     pair_cells: &'a [PairCell],
     programs: &'a Programs,
@@ -327,10 +325,10 @@ pub(super) fn report_json<'a>(
         statistics: "median, min and max over the successful runs; the median of an even \
                      count is the mean of the middle two",
         block_bytes: BLOCK_BYTES,
-        runs: args.runs,
-        slow_runs: args.slow_runs,
-        cap_s: args.cap.as_secs_f64(),
-        seed: args.seed,
+        runs: config.runs,
+        slow_runs: config.slow_runs,
+        cap_s: config.cap.as_secs_f64(),
+        seed: config.seed,
         machine: Machine::now(),
         programs: ProgramsJson {
             coapcam: programs.coapcam.display().to_string(),
@@ -338,8 +336,9 @@ pub(super) fn report_json<'a>(
             libcoap_4_3_5_client: client(&programs.libcoap435),
             quic_bench: program(&programs.quic),
         },
-        links: links.iter().map(|&l| LinkJson::of(l)).collect(),
-        modes: modes
+        links: config.links.iter().map(|&l| LinkJson::of(l)).collect(),
+        modes: config
+            .modes
             .iter()
             .map(|&m| ModeJson {
                 name: m.name(),
@@ -350,7 +349,7 @@ pub(super) fn report_json<'a>(
             .collect(),
         cells: cells.iter().map(CellJson::of).collect(),
         pairs: PairsJson {
-            runs: args.pairs,
+            runs: config.pairs,
             link: PAIR_LINK.name(),
             rate_bytes_per_s: RATE_50_MBIT,
             what: "two clients of one mode started together through one relay of the link \

@@ -254,7 +254,7 @@ impl Report {
     /// The Markdown table, its heading and the failed runs under it.
     pub fn table(&self) -> String {
         let c = &self.config;
-        table::table(c, &c.links, &self.bodies, &c.modes, &self.cells)
+        table::table(c, &self.bodies, &self.cells)
     }
 
     /// The Markdown table of the pair runs, if any ran.
@@ -264,15 +264,7 @@ impl Report {
 
     /// Every run, the links, the modes, the programs and the machine, as pretty JSON.
     pub fn json_text(&self) -> anyhow::Result<String> {
-        let c = &self.config;
-        let report = json::report_json(
-            c,
-            &c.links,
-            &c.modes,
-            &self.cells,
-            &self.pair_cells,
-            &self.programs,
-        );
+        let report = json::report_json(&self.config, &self.cells, &self.pair_cells, &self.programs);
         serde_json::to_string_pretty(&report).context("encoding the JSON")
     }
 

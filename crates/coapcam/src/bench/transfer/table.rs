@@ -5,17 +5,12 @@
 use std::fmt::Write as _;
 
 use super::body::Body;
-use super::config::{BLOCK_BYTES, Config, FAIR_SHARE, Link, Mode, PAIR_LINK};
+use super::config::{BLOCK_BYTES, Config, FAIR_SHARE, Mode, PAIR_LINK};
 use super::runs::{Cell, PairCell};
 use crate::stats::Spread;
 
-pub(super) fn table(
-    args: &Config,
-    links: &[Link],
-    bodies: &[Body],
-    modes: &[Mode],
-    cells: &[Cell],
-) -> String {
+pub(super) fn table(config: &Config, bodies: &[Body], cells: &[Cell]) -> String {
+    let (links, modes) = (&config.links, &config.modes);
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -23,10 +18,10 @@ pub(super) fn table(
          seconds of the client's whole process, median of the successful runs [min-max] \
          successful/runs (runs per cell: {}, stop-and-wait and libcoap: {}; cap {} s; seed {}). \
          Every body compared bit-exact with the original.",
-        args.runs,
-        args.slow_runs,
-        args.cap.as_secs_f64(),
-        args.seed
+        config.runs,
+        config.slow_runs,
+        config.cap.as_secs_f64(),
+        config.seed
     );
     let _ = writeln!(s);
     let ratios = ratio_columns(modes);
@@ -141,7 +136,7 @@ fn markdown(header: &[String], rows: &[Vec<String>], text: usize) -> String {
 }
 
 /// The markdown table of the pair runs, its heading and the failures under it.
-pub(super) fn pair_table(args: &Config, cells: &[PairCell]) -> String {
+pub(super) fn pair_table(config: &Config, cells: &[PairCell]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -152,9 +147,9 @@ pub(super) fn pair_table(args: &Config, cells: &[PairCell]) -> String {
          bodies over the later client's time, as a fraction of 50 Mbit/s. Medians of the \
          successful runs (both clients bit-exact within the cap) [min-max].",
         PAIR_LINK.name(),
-        args.pairs,
-        args.cap.as_secs_f64(),
-        args.seed,
+        config.pairs,
+        config.cap.as_secs_f64(),
+        config.seed,
         FAIR_SHARE * 100.0
     );
     let _ = writeln!(s);
