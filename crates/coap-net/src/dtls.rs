@@ -8,8 +8,18 @@
 //! [`HANDSHAKE_TICK`]. A server keeps at most [`MAX_SESSIONS`] sessions, and drops one
 //! idle for [`IDLE`] to make room; a handshake that has not finished in [`HANDSHAKE_LIMIT`]
 //! is dropped.
+//!
+//! A server opens a session only for a peer that proved its address (RFC 6347 §4.2.1): a
+//! ClientHello without a valid cookie is answered here, without any state, by a
+//! HelloVerifyRequest carrying a cookie that is a keyed MAC of the peer's address and the
+//! time, smaller than the ClientHello. Only the ClientHello that returns it opens a
+//! session, at most [`MAX_HANDSHAKES`] of them handshaking at once. OpenSSL's own cookie
+//! exchange is on in that session and is walked through its first step with the
+//! ClientHello minus its cookie, so that its message numbers follow the exchange the
+//! client saw ([`cookie`]).
 
 use std::collections::{HashMap, VecDeque};
+use std::hash::{BuildHasher, RandomState};
 use std::io::{self, Read, Write};
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -32,6 +42,8 @@ const IDLE: Duration = Duration::from_secs(600);
 /// The largest DTLS record, so that a record and its UDP/IP headers fit a 1280-byte
 /// IPv6 path (RFC 7252 §4.6).
 const MTU: u32 = 1152;
+/// Handshakes a server runs at once (each for a peer that returned a cookie).
+const MAX_HANDSHAKES: usize = 256;
 /// Messages a session keeps for its peer until the handshake is done.
 const WAITING_MAX: usize = 64;
 /// RFC 7252 §9.1.3.1's mandatory suite first, then the GCM and CBC ones libcoap offers.
@@ -126,6 +138,8 @@ pub(crate) struct Dtls {
     ctx: SslContext,
     server: bool,
     sessions: HashMap<SocketAddr, Session>,
+    /// A server's cookies: the MAC key and when its clock started.
+    cookies: cookie::Maker,
 }
 
 impl std::fmt::Debug for Dtls {
@@ -148,6 +162,17 @@ fn identity_index() -> Result<openssl::ex_data::Index<Ssl, Arc<str>>, openssl::e
     Ok(*INDEX.get_or_init(|| i))
 }
 
+/// The cookie a server's session sends and expects, in the session's extra data.
+fn cookie_index() -> Result<openssl::ex_data::Index<Ssl, Vec<u8>>, openssl::error::ErrorStack> {
+    static INDEX: std::sync::OnceLock<openssl::ex_data::Index<Ssl, Vec<u8>>> =
+        std::sync::OnceLock::new();
+    if let Some(i) = INDEX.get() {
+        return Ok(*i);
+    }
+    let i = Ssl::new_ex_index()?;
+    Ok(*INDEX.get_or_init(|| i))
+}
+
 impl Dtls {
     pub(crate) fn new(psk: &Psk) -> io::Result<Self> {
         let err = |e: openssl::error::ErrorStack| io::Error::other(format!("DTLS setup: {e}"));
@@ -157,6 +182,21 @@ impl Dtls {
         let index = identity_index().map_err(err)?;
         let server = match psk {
             Psk::Server(keys) => {
+                // The session's cookie exchange: the cookie the peer already returned
+                // (checked before the session was made) is the one OpenSSL sends and
+                // expects.
+                let cookie_index = cookie_index().map_err(err)?;
+                b.set_options(SslOptions::COOKIE_EXCHANGE);
+                b.set_cookie_generate_cb(move |ssl, out| {
+                    let cookie = ssl.ex_data(cookie_index).cloned().unwrap_or_default();
+                    let n = cookie.len().min(out.len());
+                    out[..n].copy_from_slice(&cookie[..n]);
+                    Ok(n)
+                });
+                b.set_cookie_verify_cb(move |ssl, got| {
+                    ssl.ex_data(cookie_index)
+                        .is_some_and(|c| !c.is_empty() && c.as_slice() == got)
+                });
                 let keys = keys.clone();
                 b.set_psk_server_callback(move |ssl, identity, out| {
                     let identity = identity.unwrap_or_default();
@@ -190,6 +230,7 @@ impl Dtls {
             ctx: b.build(),
             server,
             sessions: HashMap::new(),
+            cookies: cookie::Maker::new(),
         })
     }
 
@@ -244,16 +285,48 @@ impl Dtls {
     /// A datagram from `peer`: the plaintext messages it carried and what to send back.
     pub(crate) fn receive(&mut self, now: Instant, peer: SocketAddr, datagram: &[u8]) -> Output {
         if !self.sessions.contains_key(&peer) {
-            if !self.server || !self.make_room(now) {
+            if !self.server {
                 return Output::default();
             }
-            let Some(session) = self.session(now, true) else {
-                return Output::default();
-            };
-            self.sessions.insert(peer, session);
+            return self.open(now, peer, datagram);
         }
         if let Some(s) = self.sessions.get_mut(&peer) {
             s.last_used = now;
+        }
+        self.drive(peer, Some(datagram))
+    }
+
+    /// A datagram from a peer without a session: a ClientHello whose cookie proves the
+    /// peer's address opens one; one without gets a HelloVerifyRequest and leaves no state;
+    /// anything else is dropped.
+    fn open(&mut self, now: Instant, peer: SocketAddr, datagram: &[u8]) -> Output {
+        let Some(hello) = cookie::ClientHello::parse(datagram) else {
+            return Output::default();
+        };
+        if !self.cookies.is_good(now, peer, hello.cookie()) {
+            let verify = hello.verify_request(&self.cookies.make(now, peer));
+            return Output {
+                send: vec![verify],
+                ..Output::default()
+            };
+        }
+        let handshaking = (self.sessions.values())
+            .filter(|s| matches!(s.state, State::Handshaking(_)))
+            .count();
+        if handshaking >= MAX_HANDSHAKES || !self.make_room(now) {
+            // The client sends its ClientHello again after its timer.
+            tracing::debug!(%peer, handshaking, "no room for another DTLS handshake");
+            return Output::default();
+        }
+        let Some(session) = self.session(now, true, hello.cookie()) else {
+            return Output::default();
+        };
+        self.sessions.insert(peer, session);
+        // OpenSSL's own exchange, first step: its HelloVerifyRequest is the one the client
+        // has had already.
+        let first = self.drive(peer, Some(&hello.without_cookie()));
+        if first.failed {
+            return first;
         }
         self.drive(peer, Some(datagram))
     }
@@ -271,7 +344,7 @@ impl Dtls {
                 // A server answers only peers that opened a session.
                 return Vec::new();
             }
-            let Some(session) = self.session(now, false) else {
+            let Some(session) = self.session(now, false, &[]) else {
                 return Vec::new();
             };
             self.sessions.insert(peer, session);
@@ -312,10 +385,14 @@ impl Dtls {
         idle.is_some_and(|p| self.sessions.remove(&p).is_some())
     }
 
-    /// A new session, its handshake started (a client's first flight is in its queue).
-    fn session(&self, now: Instant, accept: bool) -> Option<Session> {
+    /// A new session, its handshake started (a client's first flight is in its queue); a
+    /// server's with the `cookie` its peer returned.
+    fn session(&self, now: Instant, accept: bool, cookie: &[u8]) -> Option<Session> {
         let mut ssl = Ssl::new(&self.ctx).ok()?;
         ssl.set_mtu(MTU).ok()?;
+        if accept {
+            ssl.set_ex_data(cookie_index().ok()?, cookie.to_vec());
+        }
         let queues = Queues::default();
         let started = if accept {
             ssl.accept(queues)
@@ -409,5 +486,252 @@ impl Dtls {
             self.sessions.remove(&peer);
         }
         out
+    }
+}
+
+/// RFC 6347 §4.2.1's stateless cookie exchange, before OpenSSL sees anything: the
+/// ClientHello read from a datagram, the cookie made and checked, the HelloVerifyRequest
+/// written.
+mod cookie {
+    use super::{BuildHasher, Instant, RandomState, SocketAddr};
+
+    /// Seconds a cookie stays good (made in this period or the one before).
+    const PERIOD_SECS: u64 = 30;
+    /// Record header: type, version, epoch, sequence number, length.
+    const RECORD: usize = 13;
+    /// Handshake header: type, length, message sequence, fragment offset and length.
+    const HANDSHAKE: usize = 12;
+    /// What a cookie is: 16 bytes of keyed MAC.
+    const COOKIE_LEN: usize = 16;
+
+    /// Makes and checks cookies: a keyed SipHash of the peer's address and the period.
+    pub(super) struct Maker {
+        key: RandomState,
+        epoch: Option<Instant>,
+    }
+
+    impl Maker {
+        pub(super) fn new() -> Self {
+            Self {
+                key: RandomState::new(),
+                epoch: None,
+            }
+        }
+
+        fn period(&mut self, now: Instant) -> u64 {
+            let epoch = *self.epoch.get_or_insert(now);
+            now.saturating_duration_since(epoch).as_secs() / PERIOD_SECS
+        }
+
+        fn mac(&self, peer: SocketAddr, period: u64) -> [u8; COOKIE_LEN] {
+            let mut out = [0u8; COOKIE_LEN];
+            out[..8].copy_from_slice(&self.key.hash_one((peer, period, 0u8)).to_be_bytes());
+            out[8..].copy_from_slice(&self.key.hash_one((peer, period, 1u8)).to_be_bytes());
+            out
+        }
+
+        /// The cookie for `peer` now.
+        pub(super) fn make(&mut self, now: Instant, peer: SocketAddr) -> [u8; COOKIE_LEN] {
+            let period = self.period(now);
+            self.mac(peer, period)
+        }
+
+        /// Whether `cookie` was made for `peer` in this period or the one before.
+        pub(super) fn is_good(&mut self, now: Instant, peer: SocketAddr, cookie: &[u8]) -> bool {
+            let period = self.period(now);
+            [Some(period), period.checked_sub(1)]
+                .into_iter()
+                .flatten()
+                .any(|p| cookie == self.mac(peer, p))
+        }
+    }
+
+    /// A datagram that is one unfragmented ClientHello record of epoch 0.
+    pub(super) struct ClientHello<'a> {
+        datagram: &'a [u8],
+        /// Where the cookie's length byte is.
+        cookie_at: usize,
+    }
+
+    impl<'a> ClientHello<'a> {
+        pub(super) fn parse(datagram: &'a [u8]) -> Option<Self> {
+            let record = datagram.get(..RECORD)?;
+            let length = usize::from(u16::from_be_bytes([record[11], record[12]]));
+            // Handshake (22), DTLS 1.x (254, x), epoch 0, the datagram's only record.
+            if record[0] != 22 || record[1] != 254 || record[3..5] != [0, 0] {
+                return None;
+            }
+            if datagram.len() != RECORD + length {
+                return None;
+            }
+            let h = datagram.get(RECORD..RECORD + HANDSHAKE)?;
+            let u24 =
+                |b: &[u8]| usize::from(b[0]) << 16 | usize::from(b[1]) << 8 | usize::from(b[2]);
+            let body_len = u24(&h[1..4]);
+            // A ClientHello (1), whole: fragment offset 0 and length the message's.
+            if h[0] != 1 || u24(&h[6..9]) != 0 || u24(&h[9..12]) != body_len {
+                return None;
+            }
+            if RECORD + HANDSHAKE + body_len != datagram.len() {
+                return None;
+            }
+            // client_version (2), random (32), session_id (length byte and bytes).
+            let session_at = RECORD + HANDSHAKE + 34;
+            let session_len = usize::from(*datagram.get(session_at)?);
+            let cookie_at = session_at + 1 + session_len;
+            let cookie_len = usize::from(*datagram.get(cookie_at)?);
+            datagram.get(cookie_at + 1 + cookie_len)?;
+            Some(Self {
+                datagram,
+                cookie_at,
+            })
+        }
+
+        pub(super) fn cookie(&self) -> &'a [u8] {
+            let len = usize::from(self.datagram[self.cookie_at]);
+            &self.datagram[self.cookie_at + 1..self.cookie_at + 1 + len]
+        }
+
+        /// The HelloVerifyRequest with `cookie`: record sequence number the ClientHello's,
+        /// message sequence 0, version DTLS 1.0 (RFC 6347 §4.2.1).
+        pub(super) fn verify_request(&self, cookie: &[u8]) -> Vec<u8> {
+            let body = 3 + cookie.len();
+            let mut out = Vec::with_capacity(RECORD + HANDSHAKE + body);
+            out.extend_from_slice(&[22, 254, 255]);
+            out.extend_from_slice(&self.datagram[3..11]);
+            out.extend_from_slice(&((HANDSHAKE + body) as u16).to_be_bytes());
+            let body24 = [0, 0, body as u8];
+            out.push(3);
+            out.extend_from_slice(&body24);
+            out.extend_from_slice(&[0, 0, 0, 0, 0]);
+            out.extend_from_slice(&body24);
+            out.extend_from_slice(&[254, 255, cookie.len() as u8]);
+            out.extend_from_slice(cookie);
+            out
+        }
+
+        /// The same ClientHello as its client's first, without the cookie: message
+        /// sequence 0 and the record sequence number before this one's.
+        pub(super) fn without_cookie(&self) -> Vec<u8> {
+            let d = self.datagram;
+            let cookie_len = usize::from(d[self.cookie_at]);
+            let mut out = Vec::with_capacity(d.len() - cookie_len);
+            out.extend_from_slice(&d[..self.cookie_at]);
+            out.push(0);
+            out.extend_from_slice(&d[self.cookie_at + 1 + cookie_len..]);
+            let seq = u64::from_be_bytes([0, 0, d[5], d[6], d[7], d[8], d[9], d[10]]);
+            out[5..11].copy_from_slice(&seq.saturating_sub(1).to_be_bytes()[2..]);
+            let record_len = out.len() - RECORD;
+            out[11..13].copy_from_slice(&(record_len as u16).to_be_bytes());
+            let body = (record_len - HANDSHAKE) as u32;
+            out[RECORD + 1..RECORD + 4].copy_from_slice(&body.to_be_bytes()[1..]);
+            out[RECORD + 4..RECORD + 6].copy_from_slice(&[0, 0]);
+            out[RECORD + 9..RECORD + 12].copy_from_slice(&body.to_be_bytes()[1..]);
+            out
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn server() -> Dtls {
+        let keys: KeyStore = Arc::new(|id: &[u8]| (id == b"alice").then(|| b"secret".to_vec()));
+        Dtls::new(&Psk::Server(keys)).expect("a DTLS server")
+    }
+
+    fn client() -> Dtls {
+        Dtls::new(&Psk::Client {
+            identity: b"alice".to_vec(),
+            key: b"secret".to_vec(),
+        })
+        .expect("a DTLS client")
+    }
+
+    const SERVER: SocketAddr =
+        SocketAddr::new(std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST), 5684);
+
+    fn peer(n: u32) -> SocketAddr {
+        SocketAddr::from((std::net::Ipv4Addr::from(0xc000_0200 + n), 40_000))
+    }
+
+    /// A client's first flight: its ClientHello.
+    fn hello(now: Instant) -> Vec<u8> {
+        let mut c = client();
+        let mut flight = c.send(now, SERVER, b"request");
+        assert_eq!(flight.len(), 1, "one datagram");
+        flight.remove(0)
+    }
+
+    /// Runs a handshake between `c` (at `at`) and `s` and sends `message`; whether it
+    /// arrived.
+    fn talk(s: &mut Dtls, c: &mut Dtls, at: SocketAddr, now: Instant, message: &[u8]) -> bool {
+        let mut to_server = c.send(now, SERVER, message);
+        for _ in 0..20 {
+            let mut to_client = Vec::new();
+            for d in to_server.drain(..) {
+                let out = s.receive(now, at, &d);
+                if out.received.iter().any(|m| m == message) {
+                    return true;
+                }
+                to_client.extend(out.send);
+            }
+            for d in to_client {
+                to_server.extend(c.receive(now, SERVER, &d).send);
+            }
+            if to_server.is_empty() {
+                return false;
+            }
+        }
+        false
+    }
+
+    #[test]
+    fn rfc6347_4_2_1_a_spoofed_client_hello_draws_less_than_it_and_leaves_no_state() {
+        let now = Instant::now();
+        let mut s = server();
+        let hello = hello(now);
+        let out = s.receive(now, peer(1), &hello);
+        let sent: usize = out.send.iter().map(Vec::len).sum();
+        assert_eq!(out.send.len(), 1, "one HelloVerifyRequest");
+        assert!(
+            sent < hello.len(),
+            "{sent} B back for a {}-byte ClientHello",
+            hello.len()
+        );
+        assert_eq!(out.send[0][13], 3, "a HelloVerifyRequest");
+        assert!(s.sessions.is_empty(), "no state for an unproven address");
+        // Nothing is sent again: there is nothing to retransmit.
+        assert!(s.poll_timeout(now).is_none());
+        let (later, gave_up) = s.handle_timeout(now + Duration::from_secs(20));
+        assert!(later.is_empty() && gave_up.is_empty());
+    }
+
+    #[test]
+    fn spoofed_hellos_open_nothing_and_a_real_client_still_gets_in() {
+        let now = Instant::now();
+        let mut s = server();
+        let hello = hello(now);
+        let mut back = 0;
+        for n in 0..4200 {
+            back += s.receive(now, peer(n), &hello).send.len();
+        }
+        assert_eq!(back, 4200, "one HelloVerifyRequest each");
+        assert!(s.sessions.is_empty(), "{} sessions", s.sessions.len());
+        // A client that answers the cookie gets a session and its message through.
+        let mut c = client();
+        assert!(talk(&mut s, &mut c, peer(9999), now, b"hello, server"));
+        assert_eq!(s.sessions.len(), 1);
+        // A cookie made for one address does not open a session for another.
+        let mut c2 = client();
+        let first = c2.send(now, SERVER, b"x").remove(0);
+        let verify = s.receive(now, peer(1), &first).send.remove(0);
+        let second = c2.receive(now, SERVER, &verify).send.remove(0);
+        let out = s.receive(now, peer(2), &second);
+        assert_eq!(s.sessions.len(), 1, "a cookie taken to another address");
+        assert_eq!(out.send.len(), 1, "it gets a HelloVerifyRequest of its own");
+        assert!(!s.receive(now, peer(1), &second).send.is_empty());
+        assert_eq!(s.sessions.len(), 2, "the address it was made for");
     }
 }
