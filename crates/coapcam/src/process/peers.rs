@@ -12,6 +12,8 @@ pub const LIBCOAP_CLIENT: &str = "coap-client-notls";
 pub const LIBCOAP_SERVER: &str = "coap-server-notls";
 /// libcoap 4.3.1's client with DTLS (OpenSSL).
 pub const LIBCOAP_DTLS_CLIENT: &str = "coap-client-openssl";
+/// libcoap 4.3.1's client with DTLS through GnuTLS (the same package).
+pub const LIBCOAP_GNUTLS_CLIENT: &str = "coap-client-gnutls";
 /// libcoap 4.3.1's server with DTLS (OpenSSL).
 pub const LIBCOAP_DTLS_SERVER: &str = "coap-server-openssl";
 /// aiocoap's command-line client.

@@ -1,4 +1,4 @@
-//! DTLS with pre-shared keys (`coaps://`) against Debian's libcoap (OpenSSL), both
+//! DTLS with pre-shared keys (`coaps://`) against Debian's libcoap (OpenSSL, and GnuTLS as a client), both
 //! directions: libcoap's client against `coapcam serve --coaps --psk-file`, where only an
 //! identity of the `configure` role changes anything; our client against libcoap's
 //! server. Bodies of several blocks, checked bit-exact.
@@ -6,7 +6,8 @@
 use std::net::SocketAddr;
 
 use crate::support::{
-    self, COAPCAM, LIBCOAP_DTLS_CLIENT, LIMIT, Peer, Proc, TempDir, assert_file_is, random_file,
+    self, COAPCAM, LIBCOAP_DTLS_CLIENT, LIBCOAP_GNUTLS_CLIENT, LIMIT, Peer, Proc, TempDir,
+    assert_file_is, random_file,
 };
 
 const IDENTITIES: &str =
@@ -74,6 +75,23 @@ fn libcoap_over_dtls_reads_and_only_a_configure_identity_changes_files() {
         &["-o", out.to_str().expect("UTF-8"), &uri("big.bin")],
     )
     .expect_success("libcoap GET over DTLS");
+    assert_file_is(&out, &body);
+    // So does libcoap's GnuTLS client: both answer the server's cookie (RFC 6347 §4.2.1).
+    let out = dir.join("got-gnutls.bin");
+    Proc::run(
+        LIBCOAP_GNUTLS_CLIENT,
+        &[
+            "-u",
+            "bob",
+            "-k",
+            "secret-of-bob",
+            "-o",
+            out.to_str().expect("UTF-8"),
+            &uri("big.bin"),
+        ],
+        LIMIT,
+    )
+    .expect_success("libcoap (GnuTLS) GET over DTLS");
     assert_file_is(&out, &body);
 
     // It may not write: 4.03, and no file.

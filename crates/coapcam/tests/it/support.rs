@@ -24,8 +24,8 @@ const DRAIN: Duration = Duration::from_secs(5);
 
 pub(crate) const COAPCAM: &str = env!("CARGO_BIN_EXE_coapcam");
 pub(crate) use coapcam::process::peers::{
-    AIOCOAP_CLIENT, LIBCOAP_CLIENT, LIBCOAP_DTLS_CLIENT, LIBCOAP_DTLS_SERVER, LIBCOAP_SERVER,
-    MOSQUITTO_SUB,
+    AIOCOAP_CLIENT, LIBCOAP_CLIENT, LIBCOAP_DTLS_CLIENT, LIBCOAP_DTLS_SERVER,
+    LIBCOAP_GNUTLS_CLIENT, LIBCOAP_SERVER, MOSQUITTO_SUB,
 };
 
 /// A peer program the tests need.
@@ -86,6 +86,7 @@ fn missing(peer: Peer) -> Option<String> {
             LIBCOAP_CLIENT,
             LIBCOAP_DTLS_SERVER,
             LIBCOAP_DTLS_CLIENT,
+            LIBCOAP_GNUTLS_CLIENT,
         ]),
         Peer::Mosquitto => peers::mosquitto().err(),
         Peer::Libcoap435 => peers::libcoap435().err(),
