@@ -1,6 +1,7 @@
-//! DTLS with pre-shared keys (`coaps://`) against Debian's libcoap (OpenSSL, and GnuTLS as a client), both
-//! directions: libcoap's client against `coapcam serve --coaps --psk-file`, where only an
-//! identity of the `configure` role changes anything; our client against libcoap's
+//! DTLS with pre-shared keys (`coaps://`) against Debian's libcoap (OpenSSL, and GnuTLS as
+//! a client), both directions: libcoap's client against `coapcam serve --coaps
+//! --psk-file`, where only an identity of the `configure` role changes anything; our
+//! client against libcoap's
 //! server. Bodies of several blocks, checked bit-exact.
 
 use std::net::SocketAddr;
