@@ -68,6 +68,15 @@ else
       apt-get install -y --no-install-recommends mosquitto mosquitto-clients; } \
     || peer_failed "mosquitto mosquitto-clients"
 fi
+# The page's test (crates/coapcam/tests/it/http.rs) drives headless Chromium through
+# chromedriver's WebDriver API.
+if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then
+  echo "chromium, chromedriver: present"
+else
+  { as_root apt-get update && as_root env DEBIAN_FRONTEND=noninteractive \
+      apt-get install -y --no-install-recommends chromium chromium-driver; } \
+    || peer_failed "chromium chromium-driver"
+fi
 # librealsense for the rgbd differential tests (crates/rgbd/tests/it/librealsense.rs
 # regenerates its goldens with tools/rs_reference.py); its wheel needs libusb-1.0.
 PYREALSENSE2_VERSION=2.59.1.11053

@@ -12,6 +12,7 @@ mod files;
 mod formats;
 mod get;
 mod group;
+mod http;
 mod interop;
 mod lane;
 mod library;

@@ -42,6 +42,8 @@ pub(crate) enum Peer {
     Libcoap435,
     /// Debian mosquitto (the broker) and mosquitto-clients (mosquitto_sub).
     Mosquitto,
+    /// Debian chromium and chromium-driver (headless Chromium and chromedriver).
+    Chromium,
 }
 
 /// The path of libcoap 4.3.5's `coap-client` or `coap-server`.
@@ -89,6 +91,7 @@ fn missing(peer: Peer) -> Option<String> {
             LIBCOAP_GNUTLS_CLIENT,
         ]),
         Peer::Mosquitto => peers::mosquitto().err(),
+        Peer::Chromium => peers::missing_on_path(&["chromium", "chromedriver"]),
         Peer::Libcoap435 => peers::libcoap435().err(),
         Peer::Aiocoap => peers::aiocoap().err(),
     }

@@ -1,0 +1,710 @@
+//! The station over HTTP (`serve --http`, `serve --webhook`): the API answered by a real
+//! `coapcam serve`, the webhook delivering to a receiver that comes up late, and the page
+//! in headless Chromium driven through chromedriver's WebDriver API. Every socket is on
+//! 127.0.0.1; the HTTP client is a few lines over `std::net::TcpStream`.
+
+use std::io::{BufRead as _, BufReader, Read as _, Write as _};
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::sync::mpsc;
+use std::thread;
+use std::time::{Duration, Instant};
+
+use serde_json::{Value, json};
+
+use crate::support::{COAPCAM, LIMIT, Peer, Proc, TempDir, available};
+
+/// An HTTP answer.
+struct Reply {
+    status: u16,
+    headers: Vec<(String, String)>,
+    body: Vec<u8>,
+}
+
+impl Reply {
+    fn header(&self, name: &str) -> Option<&str> {
+        self.headers
+            .iter()
+            .find(|(n, _)| n.eq_ignore_ascii_case(name))
+            .map(|(_, v)| v.as_str())
+    }
+
+    fn json(&self) -> Value {
+        serde_json::from_slice(&self.body).unwrap_or_else(|e| {
+            panic!(
+                "{}: not JSON ({e}): {}",
+                self.status,
+                String::from_utf8_lossy(&self.body)
+            )
+        })
+    }
+
+    /// The `error` of a JSON error answer with `status`.
+    fn error(&self, status: u16) -> String {
+        assert_eq!(
+            self.status,
+            status,
+            "{}",
+            String::from_utf8_lossy(&self.body)
+        );
+        assert_eq!(self.header("content-type"), Some("application/json"));
+        self.json()["error"]
+            .as_str()
+            .unwrap_or_else(|| panic!("no error text in {}", self.json()))
+            .to_owned()
+    }
+}
+
+/// One request on a connection of its own (`Connection: close`); `headers` come first,
+/// then a Content-Length of `body` unless one is given.
+fn request(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &[u8],
+) -> Reply {
+    let mut stream = TcpStream::connect(addr).unwrap_or_else(|e| panic!("{addr}: {e}"));
+    stream.set_read_timeout(Some(LIMIT)).expect("timeout");
+    stream.set_write_timeout(Some(LIMIT)).expect("timeout");
+    let mut head = format!("{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n");
+    for (name, value) in headers {
+        head.push_str(&format!("{name}: {value}\r\n"));
+    }
+    if !headers
+        .iter()
+        .any(|(n, _)| n.eq_ignore_ascii_case("content-length"))
+    {
+        head.push_str(&format!("Content-Length: {}\r\n", body.len()));
+    }
+    head.push_str("\r\n");
+    stream.write_all(head.as_bytes()).expect("sending the head");
+    stream.write_all(body).expect("sending the body");
+    // Read until the answer is whole: some servers (chromedriver) keep the connection
+    // open despite `Connection: close`.
+    let mut raw = Vec::new();
+    let mut buf = [0; 16 * 1024];
+    loop {
+        if answer_is_whole(&raw) {
+            break;
+        }
+        match stream.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => raw.extend_from_slice(&buf[..n]),
+            Err(e) => panic!("{method} {path}: reading the answer: {e}"),
+        }
+    }
+    parse_reply(&raw).unwrap_or_else(|| {
+        panic!(
+            "{method} {path}: not an HTTP answer: {:?}",
+            String::from_utf8_lossy(&raw)
+        )
+    })
+}
+
+/// Whether `raw` holds a whole answer: its head and the body its Content-Length or
+/// chunked encoding says (an answer with neither ends with the connection).
+fn answer_is_whole(raw: &[u8]) -> bool {
+    let Some(end) = raw.windows(4).position(|w| w == b"\r\n\r\n") else {
+        return false;
+    };
+    let head = String::from_utf8_lossy(&raw[..end]).to_ascii_lowercase();
+    let body = &raw[end + 4..];
+    if head.starts_with("http/1.1 304") || head.starts_with("http/1.1 204") {
+        return true;
+    }
+    if let Some(length) = head
+        .lines()
+        .find_map(|l| l.strip_prefix("content-length:"))
+        .and_then(|v| v.trim().parse::<usize>().ok())
+    {
+        return body.len() >= length;
+    }
+    head.contains("transfer-encoding: chunked") && dechunk(body).is_some()
+}
+
+fn parse_reply(raw: &[u8]) -> Option<Reply> {
+    let end = raw.windows(4).position(|w| w == b"\r\n\r\n")?;
+    let head = std::str::from_utf8(&raw[..end]).ok()?;
+    let mut lines = head.split("\r\n");
+    let status = lines.next()?.split(' ').nth(1)?.parse().ok()?;
+    let headers: Vec<(String, String)> = lines
+        .filter_map(|l| l.split_once(':'))
+        .map(|(n, v)| (n.trim().to_owned(), v.trim().to_owned()))
+        .collect();
+    let rest = &raw[end + 4..];
+    let chunked = headers.iter().any(|(n, v)| {
+        n.eq_ignore_ascii_case("transfer-encoding") && v.eq_ignore_ascii_case("chunked")
+    });
+    let body = if chunked {
+        dechunk(rest)?
+    } else {
+        rest.to_vec()
+    };
+    Some(Reply {
+        status,
+        headers,
+        body,
+    })
+}
+
+fn dechunk(mut rest: &[u8]) -> Option<Vec<u8>> {
+    let mut body = Vec::new();
+    loop {
+        let line_end = rest.windows(2).position(|w| w == b"\r\n")?;
+        let size = usize::from_str_radix(
+            std::str::from_utf8(&rest[..line_end])
+                .ok()?
+                .split(';')
+                .next()?
+                .trim(),
+            16,
+        )
+        .ok()?;
+        rest = &rest[line_end + 2..];
+        if size == 0 {
+            return Some(body);
+        }
+        body.extend_from_slice(rest.get(..size)?);
+        rest = rest.get(size + 2..)?;
+    }
+}
+
+fn get(addr: SocketAddr, path: &str) -> Reply {
+    request(addr, "GET", path, &[], b"")
+}
+
+/// `coapcam serve` with `--http 127.0.0.1:0` and `flags`: the process and the HTTP
+/// address it printed.
+fn serve_http(state: &TempDir, flags: &[&str]) -> (Proc, SocketAddr) {
+    let dir = state.path().to_string_lossy().into_owned();
+    let mut args = vec![
+        "serve",
+        "--bind",
+        "127.0.0.1:0",
+        "--state-dir",
+        &dir,
+        "--http",
+        "127.0.0.1:0",
+        "--duration",
+        "150",
+    ];
+    args.extend_from_slice(flags);
+    let mut server = Proc::spawn(COAPCAM, &args);
+    let addr = server.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: HTTP on http://")
+            .and_then(|rest| rest.split('/').next())
+            .and_then(|a| a.parse::<SocketAddr>().ok())
+    });
+    (server, addr)
+}
+
+/// Reads a Server-Sent Events stream until the event with id `id`: its data.
+fn event_data(stream: &mut BufReader<TcpStream>, id: u64) -> Value {
+    let want = format!("id: {id}");
+    let mut found = false;
+    loop {
+        let mut line = String::new();
+        let n = stream
+            .read_line(&mut line)
+            .expect("reading the event stream");
+        assert!(n > 0, "the event stream ended before event {id}");
+        let line = line.trim_end();
+        if line == want {
+            found = true;
+        } else if found && let Some(data) = line.strip_prefix("data: ") {
+            return serde_json::from_str(data).expect("the event's data is JSON");
+        }
+    }
+}
+
+#[test]
+fn the_api_serves_the_log_measures_and_streams() {
+    let state = TempDir::new("http-api");
+    let (_server, addr) = serve_http(&state, &[]);
+
+    let empty = get(addr, "/api/measurements");
+    assert_eq!(empty.status, 200);
+    assert_eq!(empty.header("content-type"), Some("application/json"));
+    assert_eq!(empty.json(), json!([]));
+
+    // An event stream open before the measurement delivers it.
+    let mut events = TcpStream::connect(addr).expect("connecting");
+    events.set_read_timeout(Some(LIMIT)).expect("timeout");
+    write!(
+        events,
+        "GET /api/events HTTP/1.1\r\nHost: {addr}\r\nAccept: text/event-stream\r\n\r\n"
+    )
+    .expect("asking for events");
+    let mut events = BufReader::new(events);
+    let mut status = String::new();
+    events.read_line(&mut status).expect("status line");
+    assert!(status.starts_with("HTTP/1.1 200"), "{status}");
+    let mut content_type = None;
+    loop {
+        let mut line = String::new();
+        events.read_line(&mut line).expect("a header");
+        if line.trim().is_empty() {
+            break;
+        }
+        if let Some((n, v)) = line.split_once(':')
+            && n.eq_ignore_ascii_case("content-type")
+        {
+            content_type = Some(v.trim().to_owned());
+        }
+    }
+    assert_eq!(content_type.as_deref(), Some("text/event-stream"));
+
+    let measured = request(addr, "POST", "/api/measure?codes", &[], b"");
+    assert_eq!(
+        measured.status,
+        201,
+        "{}",
+        String::from_utf8_lossy(&measured.body)
+    );
+    let record = measured.json();
+    let id = record["id"].as_u64().expect("an id");
+    assert_eq!(id, 1);
+    assert_eq!(record["trigger"], "request");
+    assert_eq!(measured.header("location"), Some("/api/measurements/1"));
+    let m = &record["measurement"];
+    for (key, want) in [
+        ("length_mm", 400.0),
+        ("width_mm", 300.0),
+        ("height_mm", 200.0),
+    ] {
+        let got = m[key].as_f64().expect(key);
+        assert!((got - want).abs() <= 5.0, "{key} {got}");
+    }
+    assert_eq!(m["codes"][0]["text"], "PKG-0001", "{m}");
+    assert_eq!(
+        event_data(&mut events, id),
+        record,
+        "the event is the record"
+    );
+
+    let list = get(addr, "/api/measurements").json();
+    assert_eq!(list, json!([record]));
+    assert_eq!(get(addr, "/api/measurements/1").json(), record);
+    assert_eq!(
+        get(addr, "/api/measurements?code=PKG-0001").json(),
+        json!([record])
+    );
+    assert_eq!(
+        get(addr, "/api/measurements?code=PKG%2D0002").json(),
+        json!([])
+    );
+    assert_eq!(get(addr, "/api/measurements?since=1").json(), json!([]));
+
+    // The pictures, with their types; the photo's ETag is its SHA-256.
+    let photo = get(addr, "/api/measurements/1/photo.jpg");
+    assert_eq!(photo.status, 200);
+    assert_eq!(photo.header("content-type"), Some("image/jpeg"));
+    assert!(photo.body.starts_with(&[0xff, 0xd8, 0xff]), "a JPEG");
+    let etag = format!("\"{}\"", record["photo_sha256"].as_str().expect("sha"));
+    assert_eq!(photo.header("etag"), Some(etag.as_str()));
+    let unchanged = request(
+        addr,
+        "GET",
+        "/api/measurements/1/photo.jpg",
+        &[("If-None-Match", &etag)],
+        b"",
+    );
+    assert_eq!(unchanged.status, 304);
+    let annotated = get(addr, "/api/measurements/1/annotated.png");
+    assert_eq!(annotated.status, 200);
+    assert_eq!(annotated.header("content-type"), Some("image/png"));
+    assert!(annotated.body.starts_with(b"\x89PNG\r\n\x1a\n"), "a PNG");
+
+    // Errors: JSON with a message and the right status.
+    assert!(get(addr, "/api/measurements/99").error(404).contains("99"));
+    assert!(
+        get(addr, "/api/measurements/99/photo.jpg")
+            .error(404)
+            .contains("99")
+    );
+    assert!(
+        get(addr, "/api/measurements/1/x.gif")
+            .error(404)
+            .contains("x.gif")
+    );
+    assert!(
+        get(addr, "/api/measurements/abc")
+            .error(400)
+            .contains("abc")
+    );
+    assert!(
+        get(addr, "/api/measurements?limit=x")
+            .error(400)
+            .contains("limit")
+    );
+    assert!(
+        get(addr, "/api/measurements?limit=0")
+            .error(400)
+            .contains("limit")
+    );
+    assert!(
+        get(addr, "/api/measurements?since=-1")
+            .error(400)
+            .contains("since")
+    );
+    assert!(
+        get(addr, "/api/measurements?colour=red")
+            .error(400)
+            .contains("colour")
+    );
+    assert!(
+        get(addr, "/api/nothing")
+            .error(404)
+            .contains("/api/nothing")
+    );
+    assert!(
+        request(addr, "DELETE", "/api/measurements/1", &[], b"")
+            .error(405)
+            .contains("DELETE")
+    );
+    let huge = request(
+        addr,
+        "POST",
+        "/api/measure",
+        &[("Content-Length", "10000000")],
+        b"",
+    );
+    assert!(huge.error(413).contains("bytes"));
+    assert!(
+        request(addr, "POST", "/api/measure?min_height_mm=x", &[], b"")
+            .error(400)
+            .contains("min_height_mm")
+    );
+    // Nothing was recorded by the refused requests.
+    assert_eq!(
+        get(addr, "/api/measurements")
+            .json()
+            .as_array()
+            .map(Vec::len),
+        Some(1)
+    );
+
+    // The cameras, and a live image of one.
+    let cameras = get(addr, "/api/cameras").json();
+    let camera = &cameras[0];
+    assert_eq!(camera["serial"], crate::support::SN, "{cameras}");
+    assert_eq!(camera["calibrated"], true);
+    assert_eq!(camera["color"]["width"], 1280);
+    let serial = camera["serial"].as_str().expect("serial");
+    let color = get(addr, &format!("/api/cameras/{serial}/color.jpg"));
+    assert_eq!(color.status, 200);
+    assert_eq!(color.header("content-type"), Some("image/jpeg"));
+    assert!(color.body.starts_with(&[0xff, 0xd8, 0xff]), "a JPEG");
+    assert!(
+        get(addr, "/api/cameras/nope/color.jpg")
+            .error(404)
+            .contains("nope")
+    );
+
+    let station = get(addr, "/api/station").json();
+    assert_eq!(station["you_may_measure"], true, "{station}");
+    assert_eq!(station["configure"], "this machine only");
+
+    // A stream resumed from Last-Event-ID 0 has the record again.
+    let mut again = TcpStream::connect(addr).expect("connecting");
+    again.set_read_timeout(Some(LIMIT)).expect("timeout");
+    write!(
+        again,
+        "GET /api/events HTTP/1.1\r\nHost: {addr}\r\nLast-Event-ID: 0\r\n\r\n"
+    )
+    .expect("asking for events");
+    assert_eq!(event_data(&mut BufReader::new(again), 1), record);
+}
+
+/// What the webhook receiver saw: each request's record id and whether it was taken.
+fn receive(listener: TcpListener, refuse_first: bool, seen: mpsc::Sender<(u64, bool)>) {
+    let mut refused = !refuse_first;
+    for stream in listener.incoming() {
+        let Ok(stream) = stream else { return };
+        stream.set_read_timeout(Some(LIMIT)).expect("timeout");
+        let mut reader = BufReader::new(stream);
+        // Requests on this connection, one after the other (the webhook keeps it).
+        loop {
+            let mut length = 0;
+            let mut first = String::new();
+            if reader.read_line(&mut first).unwrap_or(0) == 0 {
+                break;
+            }
+            assert!(first.starts_with("POST /hook?x=1 HTTP/1.1"), "{first}");
+            loop {
+                let mut line = String::new();
+                if reader.read_line(&mut line).unwrap_or(0) == 0 {
+                    return;
+                }
+                if line.trim().is_empty() {
+                    break;
+                }
+                if let Some((n, v)) = line.split_once(':')
+                    && n.eq_ignore_ascii_case("content-length")
+                {
+                    length = v.trim().parse().expect("a length");
+                }
+            }
+            let mut body = vec![0; length];
+            reader.read_exact(&mut body).expect("the body");
+            let record: Value = serde_json::from_slice(&body).expect("a JSON record");
+            let id = record["id"].as_u64().expect("an id");
+            let take = refused;
+            refused = true;
+            let answer: &[u8] = if take {
+                b"HTTP/1.1 204 No Content\r\n\r\n"
+            } else {
+                b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 5\r\n\r\nlater"
+            };
+            if reader.get_mut().write_all(answer).is_err() || seen.send((id, take)).is_err() {
+                return;
+            }
+        }
+    }
+}
+
+#[test]
+fn the_webhook_delivers_every_record_in_order_once_the_receiver_is_up() {
+    // A port nobody listens on yet: the receiver is down.
+    let port = TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port();
+    let state = TempDir::new("http-webhook");
+    let hook = format!("http://127.0.0.1:{port}/hook?x=1");
+    let (_server, addr) = serve_http(&state, &["--webhook", &hook]);
+    for _ in 0..2 {
+        let made = request(addr, "POST", "/api/measure", &[], b"");
+        assert_eq!(made.status, 201, "{}", String::from_utf8_lossy(&made.body));
+    }
+    // The receiver comes up; it refuses the first request it gets (503), which is sent
+    // again, and takes the rest.
+    let listener = TcpListener::bind(("127.0.0.1", port)).expect("the receiver's port");
+    let (tx, rx) = mpsc::channel();
+    thread::spawn(move || receive(listener, true, tx));
+    let made = request(addr, "POST", "/api/measure", &[], b"");
+    assert_eq!(made.status, 201);
+    let mut taken = Vec::new();
+    let mut all = Vec::new();
+    let deadline = Instant::now() + LIMIT;
+    while taken.len() < 3 {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let (id, took) = rx
+            .recv_timeout(left)
+            .unwrap_or_else(|e| panic!("only {all:?} arrived: {e}"));
+        all.push((id, took));
+        if took {
+            taken.push(id);
+        }
+    }
+    assert_eq!(
+        taken,
+        [1, 2, 3],
+        "every record once it was taken, in order: {all:?}"
+    );
+    assert_eq!(all[0], (1, false), "the refused one came first: {all:?}");
+}
+
+/// chromedriver on a free port of 127.0.0.1, and its address.
+fn chromedriver() -> (Proc, SocketAddr) {
+    let port = TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port();
+    let mut driver = Proc::spawn(
+        "chromedriver",
+        &[&format!("--port={port}"), "--allowed-ips=127.0.0.1"],
+    );
+    driver.stdout_line(LIMIT, |l| l.contains("started successfully").then_some(()));
+    (driver, SocketAddr::from(([127, 0, 0, 1], port)))
+}
+
+/// A WebDriver session of headless Chromium.
+struct Browser {
+    driver: SocketAddr,
+    session: String,
+}
+
+impl Browser {
+    fn start(driver: SocketAddr, profile: &std::path::Path) -> Self {
+        let args = [
+            "--headless".to_owned(),
+            "--no-sandbox".to_owned(),
+            "--disable-gpu".to_owned(),
+            "--no-first-run".to_owned(),
+            "--disable-background-networking".to_owned(),
+            "--disable-component-update".to_owned(),
+            "--disable-sync".to_owned(),
+            "--window-size=1280,900".to_owned(),
+            format!("--user-data-dir={}", profile.display()),
+        ];
+        let mut options = json!({ "args": args });
+        if let Some(binary) = coapcam::process::peers::on_path("chromium") {
+            options["binary"] = json!(binary);
+        }
+        let caps = json!({ "capabilities": { "alwaysMatch": {
+            "browserName": "chrome", "goog:chromeOptions": options } } });
+        let started = Self::call(driver, "POST", "/session", Some(&caps));
+        let session = started["sessionId"]
+            .as_str()
+            .unwrap_or_else(|| panic!("no session: {started}"))
+            .to_owned();
+        Self { driver, session }
+    }
+
+    fn call(driver: SocketAddr, method: &str, path: &str, body: Option<&Value>) -> Value {
+        let body = body.map(Value::to_string).unwrap_or_default();
+        let reply = request(
+            driver,
+            method,
+            path,
+            &[("Content-Type", "application/json")],
+            body.as_bytes(),
+        );
+        let value = reply.json();
+        assert_eq!(reply.status, 200, "{method} {path}: {value}");
+        value["value"].clone()
+    }
+
+    fn session_call(&self, method: &str, path: &str, body: Option<&Value>) -> Value {
+        let path = format!("/session/{}{path}", self.session);
+        Self::call(self.driver, method, &path, body)
+    }
+
+    fn script(&self, script: &str) -> Value {
+        self.session_call(
+            "POST",
+            "/execute/sync",
+            Some(&json!({ "script": script, "args": [] })),
+        )
+    }
+
+    /// Runs `script` until it returns something other than null, at most [`LIMIT`].
+    fn wait_for(&self, what: &str, script: &str) -> Value {
+        let deadline = Instant::now() + LIMIT;
+        loop {
+            let v = self.script(script);
+            if !v.is_null() {
+                return v;
+            }
+            assert!(Instant::now() < deadline, "the page never showed {what}");
+            thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let path = format!("/session/{}", self.session);
+        let _ = request(self.driver, "DELETE", &path, &[], b"");
+    }
+}
+
+fn base64(text: &str) -> Vec<u8> {
+    let value = |c: u8| -> u32 {
+        match c {
+            b'A'..=b'Z' => u32::from(c - b'A'),
+            b'a'..=b'z' => u32::from(c - b'a') + 26,
+            b'0'..=b'9' => u32::from(c - b'0') + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => panic!("not base64: {c}"),
+        }
+    };
+    let clean: Vec<u8> = text.bytes().filter(|c| *c != b'=').collect();
+    let mut out = Vec::with_capacity(clean.len() * 3 / 4);
+    for group in clean.chunks(4) {
+        let n = group
+            .iter()
+            .enumerate()
+            .fold(0, |n, (i, c)| n | (value(*c) << (18 - 6 * i)));
+        out.extend(n.to_be_bytes()[1..group.len()].iter());
+    }
+    out
+}
+
+#[test]
+fn the_page_shows_the_parcel_and_measures_in_chromium() {
+    if !available(
+        "the_page_shows_the_parcel_and_measures_in_chromium",
+        &[Peer::Chromium],
+    ) {
+        return;
+    }
+    let state = TempDir::new("http-page");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/demo.toml");
+    let (_server, addr) = serve_http(&state, &["--scene", scene, "--auto-measure"]);
+    let (_driver, driver) = chromedriver();
+    let browser = Browser::start(driver, &state.join("chromium-profile"));
+    browser.session_call(
+        "POST",
+        "/url",
+        Some(&json!({ "url": format!("http://{addr}/") })),
+    );
+    // The station measures the parcel by itself; the page shows it when it is recorded,
+    // with the photo loaded.
+    let shown = browser.wait_for(
+        "the measured parcel with its photo",
+        "const l = document.querySelector('#latest-length');
+         const img = document.querySelector('#latest-photo');
+         if (!l || !img.complete || img.naturalWidth === 0) return null;
+         return { l: Number(l.dataset.mm),
+                  w: Number(document.querySelector('#latest-width').dataset.mm),
+                  h: Number(document.querySelector('#latest-height').dataset.mm),
+                  photo: img.naturalWidth,
+                  codes: document.querySelector('#latest-codes').textContent };",
+    );
+    for (key, want) in [("l", 400.0), ("w", 300.0), ("h", 200.0)] {
+        let got = shown[key].as_f64().expect(key);
+        assert!((got - want).abs() <= 5.0, "{key} {got}: {shown}");
+    }
+    assert!(shown["photo"].as_u64() > Some(0), "{shown}");
+    assert_eq!(shown["codes"], "PKG-0001", "{shown}");
+
+    // "Measure now" adds a row to the history.
+    let rows = "return document.querySelectorAll('#history tbody tr').length;";
+    let before = browser.script(rows).as_u64().expect("a count");
+    assert!(before >= 1);
+    let button = browser.session_call(
+        "POST",
+        "/element",
+        Some(&json!({ "using": "css selector", "value": "#measure-now" })),
+    );
+    let element = button
+        .as_object()
+        .and_then(|o| o.values().next())
+        .and_then(Value::as_str)
+        .expect("the button")
+        .to_owned();
+    browser.session_call(
+        "POST",
+        &format!("/element/{element}/click"),
+        Some(&json!({})),
+    );
+    let recorded = browser.wait_for(
+        "the new record",
+        "const m = /recorded #(\\d+)/.exec(document.querySelector('#status').textContent);
+         return m ? Number(m[1]) : null;",
+    );
+    let after = browser.script(rows).as_u64().expect("a count");
+    assert!(after > before, "{before} rows before, {after} after");
+    let first_row =
+        browser.script("return document.querySelector('#history tbody tr').dataset.id;");
+    assert_eq!(
+        first_row.as_str().map(str::parse::<u64>),
+        Some(Ok(recorded.as_u64().unwrap_or(0)))
+    );
+    let listed = get(addr, "/api/measurements").json();
+    assert_eq!(
+        listed.as_array().map(Vec::len),
+        Some(usize::try_from(after).unwrap_or(0))
+    );
+
+    let shot = browser.session_call("GET", "/screenshot", None);
+    let png = base64(shot.as_str().expect("a screenshot"));
+    assert!(png.starts_with(b"\x89PNG"), "a PNG");
+    // COAPCAM_SCREENSHOT=FILE keeps it (docs/station-page.png was made so).
+    if let Some(path) = std::env::var_os("COAPCAM_SCREENSHOT") {
+        std::fs::write(&path, &png).expect("writing the screenshot");
+    }
+}
