@@ -325,3 +325,29 @@ fn a_parcel_seen_by_two_cameras_is_measured_once_with_both() {
     assert_eq!(serials, ["840412060746", "840412060757"]);
     assert_eq!(records[0].measurement.cameras.len(), 2);
 }
+
+#[test]
+fn a_hand_that_reaches_in_beside_a_measured_parcel_makes_no_new_measurement() {
+    let dir = TempDir::new("lane-hand");
+    // The parcel stands from 3 s to 22 s; at 16 s a hand (a cylinder 30 cm tall) slides
+    // in beside it, rests half a second and is gone at 17 s.
+    let mut scene = format!(
+        "{ONE_CAMERA}{}",
+        parcel([0.34, 0.24, 0.15], 5.0, [-0.05, 0.0], [-0.5, 0.0], 2.0)
+    );
+    scene = scene.replace("remove_s = 11", "remove_s = 22");
+    scene.push_str(
+        "[[cylinder]]\nradius = 0.05\nheight = 0.30\ncenter = [0.2, 0.1]\nappear_s = 16.0\n\
+         from = [0.5, 0.3]\nstill_s = 16.5\nremove_s = 17.0\n",
+    );
+    let lane = Lane::start(&dir, &scene);
+    assert_eq!(lane.scene.boxes[0].timeline.remove_s, Some(22.0));
+    let records = lane.records_after_the_scene();
+    lane.expect_count(&records, 1);
+    lane.check(&records[0], &lane.scene.boxes[0]);
+    assert!(
+        lane.log().contains("what stood on the table moved"),
+        "the hand was seen:\n{}",
+        lane.log()
+    );
+}
