@@ -105,11 +105,13 @@ fn the_readme_blocks_are_understood() {
             .any(|l| l.contains("&& cargo run --release -- demo)")),
         "scripts/test.sh no longer runs `cargo run --release -- demo` literally"
     );
-    // mosquitto_sub reads the broker every_readme_example_runs starts (the integrators'
-    // example).
+    // mosquitto_sub reads the broker every_readme_example_runs starts, curl the HTTP API
+    // of the server an example started (the integrators' examples).
     for e in &all[2..] {
         assert!(
-            e.line.starts_with("coapcam ") || e.line.starts_with("mosquitto_sub "),
+            e.line.starts_with("coapcam ")
+                || e.line.starts_with("mosquitto_sub ")
+                || e.line.starts_with("curl "),
             "README example {:?} is not a coapcam command: run it in readme.rs, or mark \
              its block `<!-- not run by the tests: REASON -->`",
             e.line
