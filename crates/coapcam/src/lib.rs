@@ -4,6 +4,8 @@
 //! The `coapcam` binary is a thin layer of commands over this library:
 //! - [`repr`]: the wire formats, each encoder beside its decoder, and the one table of
 //!   which stream is served in which content format;
+//! - [`documents`]: the JSON documents of a camera's resources (application-config) as
+//!   serde types, for the server and the client;
 //! - [`server`]: the resource tree of a camera server (`/cams`, `/files`, `/coap-group`)
 //!   and its assembly from a configuration;
 //! - [`client`]: the typed client of a camera server, measuring (with the cameras'
@@ -21,6 +23,7 @@
 
 pub mod bench;
 pub mod client;
+pub mod documents;
 pub mod process;
 pub mod report;
 pub mod repr;

@@ -74,7 +74,10 @@ impl SensorFormat for DepthFormat {
 }
 
 /// A sensor's settings: its format and mode ([`ColorSettings`], [`DepthSettings`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+/// Deserializing reads a document without checking it against a camera's modes (a
+/// client's copy of what a server holds); [`Settings::from_json`] checks it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Settings<F> {
     /// Pixel format.
     pub format: F,

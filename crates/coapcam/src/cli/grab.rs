@@ -9,6 +9,7 @@ use coap::{ContentFormat, Response};
 use coapcam::client::{CamClient, cloud_of};
 use coapcam::repr::{self, Stream, packet, raster, rvl};
 use coapcam::vision::picture::{self, save, sibling};
+use rgbd::ColorSettings;
 
 use super::{Bars, CameraArgs, Exit, TransmissionArgs};
 
@@ -167,12 +168,8 @@ async fn write_view(
                 }
                 _ => {
                     let sn = sn.context("--all is for point clouds")?;
-                    let settings = client.get_json(sn, "color-settings").await?;
-                    let format = settings
-                        .get("format")
-                        .and_then(|f| f.as_str())
-                        .context("the color-settings have no format")?;
-                    packet::color(&response.payload, format)?
+                    let settings: ColorSettings = client.get_json(sn, "color-settings").await?;
+                    packet::color(&response.payload, settings.format.name())?
                 }
             };
             save(&image, path)?;

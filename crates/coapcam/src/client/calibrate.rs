@@ -11,6 +11,7 @@ use coap::{Code, ContentFormat};
 use geometry::{Point3, PointCloud, Transformation, dominant_plane, floor_transformation};
 use image::Rgb;
 use markers::Detection;
+use rgbd::ColorSettings;
 
 use super::CamClient;
 use super::annotate::projector;
@@ -95,7 +96,7 @@ async fn full_resolution_color(
     sn: &str,
     warnings: &mut Vec<String>,
 ) -> anyhow::Result<ColorCapture> {
-    let current = client.get_json(sn, "color-settings").await?;
+    let current: ColorSettings = client.get_json(sn, "color-settings").await?;
     let full = full_resolution(&current);
     let changed = full != current
         && match client.put_json(sn, "color-settings", &full).await {
@@ -103,7 +104,7 @@ async fn full_resolution_color(
             Err(e) => {
                 warnings.push(format!(
                     "camera {sn}: searching markers at {}x{}: {}x{} refused ({e:#})",
-                    current["width"], current["height"], full["width"], full["height"]
+                    current.width, current.height, full.width, full.height
                 ));
                 false
             }

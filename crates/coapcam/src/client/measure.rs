@@ -9,10 +9,12 @@ use std::time::{Duration, Instant};
 use anyhow::Context as _;
 use bytes::Bytes;
 use coap::Code;
-use geometry::{DimensionConfig, Dimensions, PointCloud};
-use rgbd::Scene;
+use geometry::{DimensionConfig, Dimensions, Point3, PointCloud, Roi3};
+use rgbd::filter::SpatialConfig;
+use rgbd::{ColorSettings, Scene};
 
 use super::{CamClient, NoAnswer, check, cloud_of};
+use crate::documents::AppConfig;
 use crate::report::{self, Billing, Measurement, Parcel};
 
 /// Where the clouds come from.
@@ -223,14 +225,14 @@ pub async fn measure_once(
 /// transmitted (thesis §3.3.5), which makes the clouds several times smaller.
 pub const FLOOR_CUT_M: f64 = 0.005;
 
-/// A color-settings document at the D415's largest color mode, 1920x1080 at 30 fps, its
-/// format kept.
-pub fn full_resolution(color_settings: &serde_json::Value) -> serde_json::Value {
-    let mut full = color_settings.clone();
-    full["width"] = serde_json::json!(1920);
-    full["height"] = serde_json::json!(1080);
-    full["fps"] = serde_json::json!(30);
-    full
+/// Color settings at the D415's largest color mode, 1920x1080 at 30 fps, the format kept.
+pub fn full_resolution(color_settings: &ColorSettings) -> ColorSettings {
+    ColorSettings {
+        width: 1920,
+        height: 1080,
+        fps: 30,
+        ..*color_settings
+    }
 }
 
 /// Prepares every camera for measuring as the thesis does (§3.3.5): roi3d becomes the
@@ -246,18 +248,19 @@ pub async fn prepare_cameras(
 ) -> anyhow::Result<()> {
     for sn in serials {
         if for_codes {
-            let color = client.get_json(sn, "color-settings").await?;
+            let color: ColorSettings = client.get_json(sn, "color-settings").await?;
             client
                 .put_json(sn, "color-settings", &full_resolution(&color))
                 .await?;
         }
-        let mut doc = client.get_json(sn, "application-config").await?;
-        doc["roi3d"] = serde_json::json!({
-            "min_x": -half_width_m, "max_x": half_width_m,
-            "min_y": -half_width_m, "max_y": half_width_m,
-            "min_z": FLOOR_CUT_M, "max_z": 3.0,
-        });
-        doc["postprocessing"]["spatial"] = serde_json::json!(1);
+        let mut doc: AppConfig = client.get_json(sn, "application-config").await?;
+        let (half, floor) = (half_width_m as f32, FLOOR_CUT_M as f32);
+        doc.roi3d = Roi3::new(
+            Point3::new(-half, -half, floor),
+            Point3::new(half, half, 3.0),
+        )
+        .with_context(|| format!("roi3d within {half_width_m} m"))?;
+        doc.postprocessing.spatial = Some(SpatialConfig::default());
         client.put_json(sn, "application-config", &doc).await?;
     }
     Ok(())

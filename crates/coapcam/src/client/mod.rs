@@ -299,8 +299,13 @@ impl CamClient {
         }
     }
 
-    /// GET a camera's JSON document (`color-settings`, `application-config`, ...).
-    pub async fn get_json(&self, serial: &str, name: &str) -> anyhow::Result<serde_json::Value> {
+    /// GET a camera's JSON document (`color-settings`, `application-config`, ...) as its
+    /// type ([`rgbd::ColorSettings`], [`crate::documents::AppConfig`], ...).
+    pub async fn get_json<T: serde::de::DeserializeOwned>(
+        &self,
+        serial: &str,
+        name: &str,
+    ) -> anyhow::Result<T> {
         let r = self
             .call(
                 Code::GET,
@@ -314,16 +319,17 @@ impl CamClient {
     }
 
     /// PUT a camera's JSON document.
-    pub async fn put_json(
+    pub async fn put_json<T: serde::Serialize>(
         &self,
         serial: &str,
         name: &str,
-        doc: &serde_json::Value,
+        doc: &T,
     ) -> anyhow::Result<()> {
+        let body = serde_json::to_vec(doc).with_context(|| format!("encoding {name}"))?;
         self.call(
             Code::PUT,
             &format!("/cams/{serial}/{name}"),
-            Bytes::from(doc.to_string()),
+            Bytes::from(body),
             Some(ContentFormat::JSON),
             None,
         )

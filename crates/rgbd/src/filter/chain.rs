@@ -141,15 +141,8 @@ impl PostProcessingConfig {
     /// The JSON form: `0` for an off stage, `1` for a stage with librealsense's
     /// defaults, an object otherwise.
     pub fn to_json(&self) -> String {
-        self.json_value().to_string()
-    }
-
-    fn json_value(&self) -> serde_json::Value {
-        serde_json::json!({
-            "decimation": stage_json(self.decimation),
-            "spatial": stage_json(self.spatial),
-            "holefilling": stage_json(self.holefilling),
-        })
+        // Numbers and names only: serializing cannot fail.
+        serde_json::to_string(self).unwrap_or_default()
     }
 
     /// Checks every parameter against librealsense's ranges.
@@ -197,17 +190,31 @@ impl PostProcessingConfig {
     }
 }
 
-impl Serialize for PostProcessingConfig {
-    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
-        self.json_value().serialize(serializer)
+/// A stage as the document gives it: `0` off, `1` librealsense's defaults, else its
+/// parameters.
+#[derive(Serialize)]
+#[serde(untagged)]
+enum Stage<T> {
+    Flag(u8),
+    Params(T),
+}
+
+fn stage<T: Default + PartialEq>(stage: Option<T>) -> Stage<T> {
+    match stage {
+        None => Stage::Flag(0),
+        Some(p) if p == T::default() => Stage::Flag(1),
+        Some(p) => Stage::Params(p),
     }
 }
 
-fn stage_json<T: Serialize + Default + PartialEq>(stage: Option<T>) -> serde_json::Value {
-    match stage {
-        None => 0.into(),
-        Some(p) if p == T::default() => 1.into(),
-        Some(p) => serde_json::to_value(p).unwrap_or_else(|_| 1.into()),
+impl Serialize for PostProcessingConfig {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeStruct as _;
+        let mut doc = s.serialize_struct("PostProcessingConfig", 3)?;
+        doc.serialize_field("decimation", &stage(self.decimation))?;
+        doc.serialize_field("spatial", &stage(self.spatial))?;
+        doc.serialize_field("holefilling", &stage(self.holefilling))?;
+        doc.end()
     }
 }
 

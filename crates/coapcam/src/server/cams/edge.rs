@@ -15,8 +15,8 @@ use rgbd::{Camera, Serial};
 use tokio::task::JoinHandle;
 
 use super::budget::Busy;
-use super::config::AppConfig;
 use super::grab::{self, Frame};
+use crate::documents::AppConfig;
 use crate::report::{Measurement, MeasurementError, Seen};
 use crate::repr::raster;
 use crate::vision::codes;

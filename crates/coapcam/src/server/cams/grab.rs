@@ -12,7 +12,7 @@ use rgbd::{
     PostProcessing,
 };
 
-use super::config::AppConfig;
+use crate::documents::AppConfig;
 
 /// A grabbed frame as the resources keep it; images with the intrinsics of their pixels
 /// (after the `roi2d` crop).

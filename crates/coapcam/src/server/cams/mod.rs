@@ -3,7 +3,6 @@
 //! `/cams/pointclouds`, and `/cams/dimensions` (measurement at the edge, an extension).
 
 mod budget;
-mod config;
 mod edge;
 mod grab;
 mod state;
@@ -35,8 +34,8 @@ use crate::station::measure::{self as station_measure, Rig, RigCamera, Shot};
 use crate::station::record::{CameraPose, Trigger};
 use crate::vision::calibration::pose_transformation;
 
+use crate::documents::AppConfig;
 pub use budget::Busy;
-use config::AppConfig;
 pub use edge::EdgeError;
 use grab::{Frame, GrabError};
 use state::StateDir;

@@ -223,7 +223,7 @@ fn icp_brings_a_displaced_camera_back_onto_the_cloud_merged_before_it() {
     let pose = crate::vision::calibration::pose_transformation(
         &cam.true_pose().expect("a calibrated camera"),
     );
-    let app = super::config::AppConfig::default();
+    let app = crate::documents::AppConfig::default();
     let Ok(super::grab::Frame::Cloud { points, part }) =
         super::grab::cloud(cam.as_ref(), &app, &pose)
     else {

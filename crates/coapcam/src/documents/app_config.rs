@@ -7,6 +7,7 @@ use geometry::{Point3, Roi3};
 use rgbd::PostProcessingConfig;
 use rgbd::filter::Roi2;
 use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 /// The keys of the document, all required in a PUT.
@@ -26,23 +27,23 @@ const MAX_TIMEOUT_MS: u64 = 600_000;
 /// what it accepts.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{0}")]
-pub(crate) struct AppConfigError(String);
+pub struct AppConfigError(String);
 
 /// A validated application config.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct AppConfig {
+pub struct AppConfig {
     /// Window of the images and of the depth pixels used for point clouds.
-    pub(crate) roi2d: Roi2,
+    pub roi2d: Roi2,
     /// Box of the points kept, in the output frame (after the 3D transformation).
-    pub(crate) roi3d: Roi3,
+    pub roi3d: Roi3,
     /// Longest wait for a depth frame.
-    pub(crate) depth_grab_timeout_ms: u64,
+    pub depth_grab_timeout_ms: u64,
     /// Longest wait for a color frame.
-    pub(crate) color_grab_timeout_ms: u64,
+    pub color_grab_timeout_ms: u64,
     /// Register this camera's cloud with ICP in `/cams/pointclouds`.
-    pub(crate) icp: bool,
+    pub icp: bool,
     /// Depth filters run before deprojection.
-    pub(crate) postprocessing: PostProcessingConfig,
+    pub postprocessing: PostProcessingConfig,
 }
 
 impl Default for AppConfig {
@@ -88,25 +89,64 @@ fn timeout(doc: &Map<String, Value>, key: &str) -> Result<u64, AppConfigError> {
     }
 }
 
+impl Serialize for AppConfig {
+    /// The document: `icp` as 0 or 1, the post-processing stages as 0, 1 or their
+    /// parameters.
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        #[derive(Serialize)]
+        struct Document<'a> {
+            roi2d: &'a Roi2,
+            roi3d: &'a Roi3,
+            depth_grab_timeout_ms: u64,
+            color_grab_timeout_ms: u64,
+            icp: u8,
+            postprocessing: &'a PostProcessingConfig,
+        }
+        Document {
+            roi2d: &self.roi2d,
+            roi3d: &self.roi3d,
+            depth_grab_timeout_ms: self.depth_grab_timeout_ms,
+            color_grab_timeout_ms: self.color_grab_timeout_ms,
+            icp: u8::from(self.icp),
+            postprocessing: &self.postprocessing,
+        }
+        .serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for AppConfig {
+    /// A complete document, validated as [`AppConfig::from_json`] does.
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let doc = Map::<String, Value>::deserialize(d)?;
+        Self::from_map(&doc).map_err(serde::de::Error::custom)
+    }
+}
+
 impl AppConfig {
     /// Parses and validates a complete document.
-    pub(crate) fn from_json(json: &[u8]) -> Result<Self, AppConfigError> {
+    pub fn from_json(json: &[u8]) -> Result<Self, AppConfigError> {
         let doc: Map<String, Value> = serde_json::from_slice(json)
             .map_err(|e| AppConfigError(format!("not a JSON object: {e}")))?;
+        Self::from_map(&doc)
+    }
+
+    /// Validates a complete document, read field by field so that an error names its
+    /// field.
+    fn from_map(doc: &Map<String, Value>) -> Result<Self, AppConfigError> {
         if let Some(unknown) = doc.keys().find(|k| !KEYS.contains(&k.as_str())) {
             return Err(AppConfigError(format!(
                 "unknown field {unknown:?}; the fields are {}",
                 KEYS.join(", ")
             )));
         }
-        let roi2d: Roi2 = field(&doc, "roi2d")?;
+        let roi2d: Roi2 = field(doc, "roi2d")?;
         if roi2d.width == 0 || roi2d.height == 0 {
             return Err(AppConfigError(
                 "roi2d.width and roi2d.height must be at least 1 pixel".to_string(),
             ));
         }
-        let roi3d: Roi3 = field(&doc, "roi3d")?;
-        let icp = match field::<u64>(&doc, "icp")? {
+        let roi3d: Roi3 = field(doc, "roi3d")?;
+        let icp = match field::<u64>(doc, "icp")? {
             0 => false,
             1 => true,
             other => {
@@ -126,40 +166,31 @@ impl AppConfig {
         Ok(Self {
             roi2d,
             roi3d,
-            depth_grab_timeout_ms: timeout(&doc, "depth_grab_timeout_ms")?,
-            color_grab_timeout_ms: timeout(&doc, "color_grab_timeout_ms")?,
+            depth_grab_timeout_ms: timeout(doc, "depth_grab_timeout_ms")?,
+            color_grab_timeout_ms: timeout(doc, "color_grab_timeout_ms")?,
             icp,
             postprocessing,
         })
     }
 
-    /// The document, with the keys of Listing A.3.
-    pub(crate) fn to_json(&self) -> String {
-        let postprocessing: Value =
-            serde_json::from_str(&self.postprocessing.to_json()).unwrap_or(Value::Null);
-        let doc = serde_json::json!({
-            "roi2d": self.roi2d,
-            "roi3d": self.roi3d,
-            "depth_grab_timeout_ms": self.depth_grab_timeout_ms,
-            "color_grab_timeout_ms": self.color_grab_timeout_ms,
-            "icp": u8::from(self.icp),
-            "postprocessing": postprocessing,
-        });
-        serde_json::to_string_pretty(&doc).unwrap_or_default()
+    /// The document, with the keys of Listing A.3, pretty-printed.
+    pub fn to_json(&self) -> String {
+        // Every field is a struct of numbers or a number: serializing cannot fail.
+        serde_json::to_string_pretty(self).unwrap_or_default()
     }
 
     /// The depth grab timeout.
-    pub(crate) fn depth_timeout(&self) -> Duration {
+    pub fn depth_timeout(&self) -> Duration {
         Duration::from_millis(self.depth_grab_timeout_ms)
     }
 
     /// The color grab timeout.
-    pub(crate) fn color_timeout(&self) -> Duration {
+    pub fn color_timeout(&self) -> Duration {
         Duration::from_millis(self.color_grab_timeout_ms)
     }
 
     /// `roi2d` clipped to a `width` x `height` frame; `None` when they do not overlap.
-    pub(crate) fn roi_in(&self, width: u32, height: u32) -> Option<Roi2> {
+    pub fn roi_in(&self, width: u32, height: u32) -> Option<Roi2> {
         let r = self.roi2d;
         (r.px < width && r.py < height).then(|| Roi2 {
             px: r.px,
