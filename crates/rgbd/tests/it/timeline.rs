@@ -268,9 +268,9 @@ fn the_lane_scene_places_two_parcels_one_after_the_other() {
     assert!(scene.is_timed());
     let [first, second] = [&scene.boxes[0], &scene.boxes[1]];
     assert!(first.timeline.remove_s.unwrap() < second.timeline.appear());
-    for t in [0.0, 1.9, 7.5, 8.9, 14.0, 20.0] {
+    for t in [0.0, 1.9, 9.5, 10.9, 18.0, 25.0] {
         assert!(scene.at(t).boxes.is_empty(), "{t} s");
     }
     assert_eq!(scene.at(5.0).boxes[0].center, first.center);
-    assert_eq!(scene.at(12.0).boxes[0].center, second.center);
+    assert_eq!(scene.at(14.0).boxes[0].center, second.center);
 }
