@@ -5,9 +5,12 @@
 //!   errors;
 //! - [`load`]: many concurrent clients in four roles against a running server, every
 //!   transfer checked;
+//! - [`repr`]: the bytes and encode and decode times of every representation of a
+//!   scene's frames and merged cloud;
 //! - [`transfer`]: whole-body GETs of our client's transfer modes, libcoap and QUIC, each
 //!   a child process, through emulated links.
 
 pub mod accuracy;
 pub mod load;
+pub mod repr;
 pub mod transfer;
