@@ -708,3 +708,146 @@ fn the_page_shows_the_parcel_and_measures_in_chromium() {
         std::fs::write(&path, &png).expect("writing the screenshot");
     }
 }
+
+/// A CoAP server that never answers: a UDP socket nobody reads.
+fn black_hole() -> (std::net::UdpSocket, SocketAddr) {
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("a UDP socket");
+    let addr = socket.local_addr().expect("its address");
+    (socket, addr)
+}
+
+#[test]
+fn the_proxy_maps_http_to_coaps_own_server() {
+    let state = TempDir::new("http-proxy");
+    let files = state.join("files");
+    std::fs::create_dir_all(&files).expect("files");
+    let big = crate::support::random_file(&files.join("big.bin"), 1 << 20, 34);
+    let files = files.to_string_lossy().into_owned();
+    let (mut server, http) = serve_http(&state, &["--static", &files, "--writable"]);
+    let coap = server.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: serving on ")
+            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
+    });
+    let hc = |path: &str| format!("/hc/coap://{coap}{path}");
+
+    let core = get(http, &hc("/.well-known/core"));
+    assert_eq!(core.status, 200);
+    assert_eq!(core.header("content-type"), Some("application/link-format"));
+    assert_eq!(core.header("cache-control"), Some("max-age=60"));
+    assert!(
+        String::from_utf8_lossy(&core.body).contains("</files/big.bin>"),
+        "{}",
+        String::from_utf8_lossy(&core.body)
+    );
+    // The whole target percent-encoded (RFC 8075 §5.3) is the same request.
+    let encoded = format!(
+        "/hc/coap%3A%2F%2F{}%2F.well-known%2Fcore",
+        coap.to_string().replace(':', "%3A")
+    );
+    assert_eq!(get(http, &encoded).status, 200);
+
+    // 1 MiB through block-wise transfer, whole; its ETag validates (304).
+    let whole = get(http, &hc("/files/big.bin"));
+    assert_eq!(whole.status, 200);
+    crate::support::assert_same(&whole.body, &big, "the 1 MiB file through the proxy");
+    let etag = whole.header("etag").expect("an ETag").to_owned();
+    let same = request(
+        http,
+        "GET",
+        &hc("/files/big.bin"),
+        &[("If-None-Match", &etag)],
+        b"",
+    );
+    assert_eq!(same.status, 304);
+    assert!(same.body.is_empty());
+
+    // A change from this machine: PUT creates (201), the content format maps both ways.
+    let put = request(
+        http,
+        "PUT",
+        &hc("/files/note.json"),
+        &[("Content-Type", "application/json")],
+        b"{\"a\": 1}",
+    );
+    assert_eq!(put.status, 201, "{}", String::from_utf8_lossy(&put.body));
+    let note = get(http, &hc("/files/note.json"));
+    assert_eq!(
+        (note.status, note.body.as_slice()),
+        (200, &b"{\"a\": 1}"[..])
+    );
+    let deleted = request(http, "DELETE", &hc("/files/note.json"), &[], b"");
+    assert_eq!(deleted.status, 204);
+
+    // CoAP errors map to HTTP ones, with the diagnostic as text.
+    let missing = get(http, &hc("/files/none"));
+    assert_eq!(missing.status, 404);
+    assert_eq!(
+        missing.header("content-type"),
+        Some("text/plain; charset=utf-8")
+    );
+    assert_eq!(
+        request(http, "PATCH", &hc("/files/big.bin"), &[], b"").status,
+        501
+    );
+    assert_eq!(get(http, "/hc/http://127.0.0.1/").status, 400);
+    let unsupported = request(
+        http,
+        "PUT",
+        &hc("/files/x"),
+        &[("Content-Type", "application/x-nothing")],
+        b"x",
+    );
+    assert_eq!(unsupported.status, 415);
+    let huge = request(
+        http,
+        "PUT",
+        &hc("/files/x"),
+        &[("Content-Length", "5000000")],
+        b"",
+    );
+    assert_eq!(huge.status, 413);
+
+    // Nothing listens: 502 at once (ICMP port unreachable); a server that never answers:
+    // 504 after the proxy's timeout (15 s).
+    let (_hole, silent) = black_hole();
+    let (_gone, unreachable) = {
+        let (s, a) = black_hole();
+        drop(s);
+        ((), a)
+    };
+    let bad = get(http, &format!("/hc/coap://{unreachable}/x"));
+    assert_eq!(bad.status, 502, "{}", String::from_utf8_lossy(&bad.body));
+    let late = get(http, &format!("/hc/coap://{silent}/x"));
+    assert!(late.error(504).contains("15 s"));
+}
+
+#[test]
+fn the_proxy_reaches_libcoap_block_wise() {
+    if !available("the_proxy_reaches_libcoap_block_wise", &[Peer::Libcoap]) {
+        return;
+    }
+    let (_libcoap, coap) = crate::support::libcoap_server();
+    let state = TempDir::new("http-proxy-libcoap");
+    let (_server, http) = serve_http(&state, &[]);
+    let core = get(http, &format!("/hc/coap://{coap}/.well-known/core"));
+    assert_eq!(core.status, 200);
+    assert_eq!(core.header("content-type"), Some("application/link-format"));
+    // A body of 300 kB: PUT (Block1 from the proxy), then GET (Block2 from libcoap).
+    let body = crate::support::random_bytes(300_000, 8075);
+    let put = request(
+        http,
+        "PUT",
+        &format!("/hc/coap://{coap}/big"),
+        &[("Content-Type", "application/octet-stream")],
+        &body,
+    );
+    assert!(
+        put.status == 201 || put.status == 204,
+        "{}: {}",
+        put.status,
+        String::from_utf8_lossy(&put.body)
+    );
+    let back = get(http, &format!("/hc/coap://{coap}/big"));
+    assert_eq!(back.status, 200);
+    crate::support::assert_same(&back.body, &body, "libcoap's resource through the proxy");
+}

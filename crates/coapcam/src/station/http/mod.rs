@@ -11,7 +11,11 @@
 //! - `GET /api/events`: every new record as a Server-Sent Event (`event: measurement`,
 //!   `id:` the record's id; `Last-Event-ID` or `?since=ID` resumes).
 //!
+//! - `/hc/<coap URI>`: the HTTP-CoAP proxy of RFC 8075 ([`proxy`]).
+//!
 //! Errors are JSON, `{"error": "..."}`, with a 4xx or 5xx status.
+
+pub mod proxy;
 
 use std::collections::HashMap;
 use std::convert::Infallible;
@@ -94,6 +98,8 @@ struct App<R> {
     open: bool,
     /// The newest color image of each camera, for [`COLOR_FRESH`].
     colors: Mutex<HashMap<String, ColorSlot>>,
+    /// The proxy's CoAP clients, for IPv4 and IPv6 servers, made at their first use.
+    coap: [tokio::sync::OnceCell<coap_net::Client>; 2],
 }
 
 /// A camera's newest live color image (JPEG) and when it was grabbed; held while a grab
@@ -118,6 +124,7 @@ impl HttpServer {
             recorder,
             open,
             colors: Mutex::default(),
+            coap: Default::default(),
         });
         let task = tokio::spawn(accept(listener, app));
         Ok(Self { addr, task })
@@ -180,6 +187,9 @@ fn is_local(peer: SocketAddr) -> bool {
 impl<R: Rig> App<R> {
     async fn answer(&self, request: Request<Incoming>, peer: SocketAddr) -> Answer {
         let path = request.uri().path().to_owned();
+        if path.starts_with(proxy::PREFIX) {
+            return self.proxy(request, peer).await;
+        }
         let query = request.uri().query().unwrap_or("").to_owned();
         let segments: Vec<&str> = path.trim_end_matches('/').split('/').skip(1).collect();
         let get = request.method() == Method::GET || request.method() == Method::HEAD;
@@ -517,6 +527,193 @@ impl<R: Rig> App<R> {
         answer
     }
 
+    /// `/hc/<coap URI>`: the request forwarded to that CoAP server, its answer mapped
+    /// back (RFC 8075). Methods other than GET and HEAD only from this machine unless
+    /// configuration is open, as the CoAP server on this machine takes the proxy's
+    /// requests as local ones.
+    async fn proxy(&self, request: Request<Incoming>, peer: SocketAddr) -> Answer {
+        let raw = request
+            .uri()
+            .path_and_query()
+            .map_or("", |p| p.as_str())
+            .to_owned();
+        let Some(target) = proxy::target(&raw) else {
+            return error(StatusCode::BAD_REQUEST, "the proxy's target is not a URI");
+        };
+        let uri = match coap_net::Uri::parse(&target) {
+            Ok(uri) if !uri.secure => uri,
+            Ok(_) => {
+                return error(
+                    StatusCode::BAD_GATEWAY,
+                    "the proxy reaches coap:// servers only (it has no DTLS keys)",
+                );
+            }
+            Err(e) => return error(StatusCode::BAD_REQUEST, &format!("{target}: {e}")),
+        };
+        let Some(method) = proxy::method(request.method()) else {
+            return error(
+                StatusCode::NOT_IMPLEMENTED,
+                &format!(
+                    "the proxy maps GET, HEAD, POST, PUT and DELETE, not {}",
+                    request.method()
+                ),
+            );
+        };
+        if method != coap::Code::GET && !self.open && !is_local(peer) {
+            return error(
+                StatusCode::FORBIDDEN,
+                "the proxy forwards changes (POST, PUT, DELETE) only for clients on the station's own machine (its operator can allow them with serve --allow-unauthenticated-config)",
+            );
+        }
+        let head = request.method() == Method::HEAD;
+        let headers = request.headers().clone();
+        let mut options = uri.options();
+        if let Some(ct) = headers.get(header::CONTENT_TYPE) {
+            let ct = ct.to_str().unwrap_or("");
+            match proxy::content_format(ct) {
+                Some(cf) => options.set_uint(coap::OptionNumber::CONTENT_FORMAT, u32::from(cf.0)),
+                None => {
+                    return error(
+                        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                        &format!("{ct} has no CoAP Content-Format"),
+                    );
+                }
+            }
+        }
+        if let Some(cf) = headers
+            .get(header::ACCEPT)
+            .and_then(|v| v.to_str().ok())
+            .and_then(proxy::accept)
+        {
+            options.set_uint(coap::OptionNumber::ACCEPT, u32::from(cf.0));
+        }
+        let conditional = headers.contains_key(header::IF_NONE_MATCH);
+        if let Some(v) = headers
+            .get(header::IF_NONE_MATCH)
+            .and_then(|v| v.to_str().ok())
+        {
+            // A GET that validates: the ETags it has (2.03 Valid then means 304).
+            for tag in proxy::etags(v) {
+                options.push(coap::OptionNumber::ETAG, tag);
+            }
+        }
+        if let Some(v) = headers.get(header::IF_MATCH).and_then(|v| v.to_str().ok()) {
+            for tag in proxy::etags(v) {
+                options.push(coap::OptionNumber::IF_MATCH, tag);
+            }
+        }
+        if let Some(length) = headers
+            .get(header::CONTENT_LENGTH)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.parse::<u64>().ok())
+            && length > proxy::MAX_REQUEST as u64
+        {
+            return proxy_too_large();
+        }
+        let body = match Limited::new(request.into_body(), proxy::MAX_REQUEST)
+            .collect()
+            .await
+        {
+            Ok(body) => body.to_bytes(),
+            Err(e)
+                if e.downcast_ref::<http_body_util::LengthLimitError>()
+                    .is_some() =>
+            {
+                return proxy_too_large();
+            }
+            Err(e) => return error(StatusCode::BAD_REQUEST, &format!("reading the body: {e}")),
+        };
+        let server = match uri.resolve().await {
+            Ok(addr) => addr,
+            Err(e) => return error(StatusCode::BAD_GATEWAY, &format!("{}: {e}", uri.host)),
+        };
+        let client = match self.coap_client(server).await {
+            Ok(client) => client,
+            Err(e) => {
+                return error(
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    &format!("the proxy's CoAP socket: {e}"),
+                );
+            }
+        };
+        let mut coap_request = coap::Request::new(method, "/").with_payload(body);
+        coap_request.options = options;
+        coap_request.timeout = Some(proxy::TIMEOUT);
+        let answer = match client.send(server, coap_request).await {
+            Ok(answer) => answer,
+            Err(coap_net::Error::Request(coap::RequestError::Timeout)) => {
+                return error(
+                    StatusCode::GATEWAY_TIMEOUT,
+                    &format!("{target}: no answer within {} s", proxy::TIMEOUT.as_secs()),
+                );
+            }
+            Err(e) => return error(StatusCode::BAD_GATEWAY, &format!("{target}: {e}")),
+        };
+        let status = if answer.code == coap::Code::VALID && !conditional {
+            StatusCode::OK
+        } else {
+            proxy::status(answer.code, answer.payload.is_empty())
+        };
+        let content_type = answer
+            .options
+            .uint(coap::OptionNumber::CONTENT_FORMAT)
+            .and_then(|cf| u16::try_from(cf).ok())
+            .map(|cf| proxy::media_type(coap::ContentFormat(cf)))
+            .or_else(|| {
+                // A diagnostic payload (RFC 7252 §5.5.2) is UTF-8 text.
+                (answer.code.0 >> 5 >= 4 && !answer.payload.is_empty())
+                    .then(|| "text/plain; charset=utf-8".to_owned())
+            });
+        let body = if head || status == StatusCode::NOT_MODIFIED || status == StatusCode::NO_CONTENT
+        {
+            Bytes::new()
+        } else {
+            answer.payload.clone()
+        };
+        let mut reply = Response::new(BoxBody::new(Full::new(body)));
+        *reply.status_mut() = status;
+        let h = reply.headers_mut();
+        if let Some(ct) = content_type.and_then(|ct| HeaderValue::from_str(&ct).ok()) {
+            h.insert(header::CONTENT_TYPE, ct);
+        }
+        if let Some(tag) = answer.options.first(coap::OptionNumber::ETAG)
+            && let Ok(tag) = HeaderValue::from_str(&proxy::etag(tag))
+        {
+            h.insert(header::ETAG, tag);
+        }
+        if answer.code.0 >> 5 == 2
+            && let Ok(cc) = HeaderValue::from_str(&proxy::cache_control(&answer.options))
+        {
+            h.insert(header::CACHE_CONTROL, cc);
+        }
+        let authority = match server {
+            SocketAddr::V6(a) => format!("[{}]:{}", a.ip(), a.port()),
+            SocketAddr::V4(a) => a.to_string(),
+        };
+        if let Some(loc) = proxy::location(&answer.options, "coap", &authority)
+            .and_then(|l| HeaderValue::from_str(&l).ok())
+        {
+            h.insert(header::LOCATION, loc);
+        }
+        reply
+    }
+
+    /// The proxy's CoAP client for `server`'s address family.
+    async fn coap_client(&self, server: SocketAddr) -> std::io::Result<coap_net::Client> {
+        let (slot, any) = if server.is_ipv4() {
+            (&self.coap[0], SocketAddr::from(([0, 0, 0, 0], 0)))
+        } else {
+            (&self.coap[1], SocketAddr::from(([0u16; 8], 0)))
+        };
+        slot.get_or_try_init(|| async {
+            let mut config = coap::EndpointConfig::default();
+            config.limits.client_body_bytes = proxy::MAX_RESPONSE;
+            coap_net::Client::bind(any, config)
+        })
+        .await
+        .cloned()
+    }
+
     /// Runs `f` on the log off the executor.
     async fn read<T: Send + 'static>(
         &self,
@@ -680,6 +877,20 @@ fn body_too_large() -> Answer {
         &format!("a request's body may have at most {MAX_BODY} bytes"),
     );
     // The rest of the body is not read: the connection cannot go on.
+    answer
+        .headers_mut()
+        .insert(header::CONNECTION, HeaderValue::from_static("close"));
+    answer
+}
+
+fn proxy_too_large() -> Answer {
+    let mut answer = error(
+        StatusCode::PAYLOAD_TOO_LARGE,
+        &format!(
+            "the proxy forwards bodies of at most {} bytes",
+            proxy::MAX_REQUEST
+        ),
+    );
     answer
         .headers_mut()
         .insert(header::CONNECTION, HeaderValue::from_static("close"));
