@@ -400,6 +400,15 @@ fn the_api_serves_the_log_measures_and_streams() {
             .error(404)
             .contains("nope")
     );
+    let depth = get(addr, &format!("/api/cameras/{serial}/depth.jpg"));
+    assert_eq!(
+        depth.status,
+        200,
+        "{}",
+        String::from_utf8_lossy(&depth.body)
+    );
+    assert_eq!(depth.header("content-type"), Some("image/jpeg"));
+    assert!(depth.body.starts_with(&[0xff, 0xd8, 0xff]), "a JPEG");
 
     let station = get(addr, "/api/station").json();
     assert_eq!(station["you_may_measure"], true, "{station}");

@@ -204,7 +204,12 @@ impl<R: Rig> App<R> {
             }
             (["api", "measure"], _, true) => self.measure(request, &query, peer).await,
             (["api", "cameras"], true, _) => self.cameras(),
-            (["api", "cameras", serial, "color.jpg"], true, _) => self.color(serial).await,
+            (["api", "cameras", serial, "color.jpg"], true, _) => {
+                self.live(serial, Live::Color).await
+            }
+            (["api", "cameras", serial, "depth.jpg"], true, _) => {
+                self.live(serial, Live::Depth).await
+            }
             (["api", "station"], true, _) => self.station(peer),
             (["api", "events"], true, _) => {
                 let last = request
@@ -419,9 +424,9 @@ impl<R: Rig> App<R> {
         json(StatusCode::OK, &cameras)
     }
 
-    /// `GET /api/cameras/<serial>/color.jpg`: a new color image (or one at most
-    /// [`COLOR_FRESH`] old).
-    async fn color(&self, serial: &str) -> Answer {
+    /// `GET /api/cameras/<serial>/color.jpg` and `depth.jpg`: a new image (or one at most
+    /// [`COLOR_FRESH`] old); depth colour-mapped, near blue and far red, with its scale.
+    async fn live(&self, serial: &str, kind: Live) -> Answer {
         let Some(cam) = self
             .rig
             .cameras()
@@ -437,7 +442,7 @@ impl<R: Rig> App<R> {
             .colors
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
-            .entry(serial.to_owned())
+            .entry(format!("{serial}/{kind:?}"))
             .or_default()
             .clone();
         let mut newest = slot.lock().await;
@@ -446,23 +451,32 @@ impl<R: Rig> App<R> {
         {
             return bytes_no_store("image/jpeg", jpeg.clone());
         }
-        let shot = match self.rig.shot(cam.serial).await {
-            Ok(shot) => shot,
-            Err(why) => return error(StatusCode::SERVICE_UNAVAILABLE, &why),
+        let encoded = match kind {
+            Live::Color => {
+                let shot = match self.rig.shot(cam.serial).await {
+                    Ok(shot) => shot,
+                    Err(why) => return error(StatusCode::SERVICE_UNAVAILABLE, &why),
+                };
+                tokio::task::spawn_blocking(move || {
+                    raster::color_jpeg(&shot.frame, COLOR_QUALITY).map_err(|e| e.to_string())
+                })
+                .await
+            }
+            Live::Depth => tokio::task::spawn_blocking(move || depth_jpeg(&cam)).await,
         };
-        let encoded =
-            tokio::task::spawn_blocking(move || raster::color_jpeg(&shot.frame, COLOR_QUALITY))
-                .await;
         match encoded {
             Ok(Ok(jpeg)) => {
                 let jpeg = Bytes::from(jpeg);
                 *newest = Some((Instant::now(), jpeg.clone()));
                 bytes_no_store("image/jpeg", jpeg)
             }
-            Ok(Err(e)) => error(StatusCode::INTERNAL_SERVER_ERROR, &format!("JPEG: {e}")),
+            Ok(Err(why)) => error(
+                StatusCode::SERVICE_UNAVAILABLE,
+                &format!("camera {serial}: {why}"),
+            ),
             Err(e) => error(
                 StatusCode::INTERNAL_SERVER_ERROR,
-                &format!("JPEG task: {e}"),
+                &format!("image task: {e}"),
             ),
         }
     }
@@ -731,6 +745,49 @@ impl<R: Rig> App<R> {
     }
 }
 
+/// A live image of a camera.
+#[derive(Debug, Clone, Copy)]
+enum Live {
+    Color,
+    Depth,
+}
+
+/// A new depth frame of `cam`, colour-mapped, as JPEG (blocking).
+fn depth_jpeg(cam: &super::measure::RigCamera) -> Result<Vec<u8>, String> {
+    let frame = cam
+        .camera
+        .grab_depth(Duration::from_secs(2))
+        .map_err(|e| format!("depth: {e}"))?;
+    let width = frame.width as usize;
+    let values = (0..frame.height as usize)
+        .flat_map(|y| {
+            let start = y * frame.stride;
+            frame
+                .data
+                .get(start..start + width)
+                .unwrap_or(&[])
+                .iter()
+                .copied()
+        })
+        .collect::<Vec<u16>>();
+    if values.len() != width * frame.height as usize {
+        return Err("depth: a frame shorter than its size".to_owned());
+    }
+    let image = crate::repr::packet::DepthImage {
+        width: frame.width,
+        height: frame.height,
+        timestamp_s: u32::try_from(frame.timestamp_us / 1_000_000).unwrap_or(u32::MAX),
+        depth_scale: frame.depth_scale,
+        values,
+    };
+    let (_, colored) = crate::vision::picture::depth_views(&image);
+    let mut out = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, COLOR_QUALITY)
+        .encode_image(&colored)
+        .map_err(|e| format!("JPEG: {e}"))?;
+    Ok(out)
+}
+
 /// What `/api/cameras` says of a camera.
 #[derive(Serialize)]
 struct CameraInfo {
@@ -819,7 +876,7 @@ fn known(segments: &[&str]) -> bool {
             | ["api", "measurements", _, _]
             | ["api", "measure"]
             | ["api", "cameras"]
-            | ["api", "cameras", _, "color.jpg"]
+            | ["api", "cameras", _, "color.jpg" | "depth.jpg"]
             | ["api", "station"]
             | ["api", "events"]
     )
