@@ -65,6 +65,9 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if matches!(cli.command, Command::Serve(_)) {
+        cli::serve::fix_malloc_threshold();
+    }
     // Logs go to standard error: warnings by default (a refused request, a failed grab);
     // RUST_LOG=debug adds every request the server answers.
     tracing_subscriber::fmt()

@@ -187,6 +187,38 @@ pub(crate) struct ServeArgs {
     transmission: TransmissionArgs,
 }
 
+/// The environment variable that fixes glibc's mmap threshold, and its value (128 KiB).
+const MALLOC_THRESHOLD: (&str, &str) = ("MALLOC_MMAP_THRESHOLD_", "131072");
+
+/// Makes glibc's malloc give freed large buffers back: its mmap threshold otherwise rises
+/// with each large block freed, later frames and clouds come from the heap, and what they
+/// free stays resident, so the server grew to 1.7 times what its limits count
+/// (docs/design.md, "Address verification, limits and the server under load"). glibc
+/// reads the setting from the environment only at start, so when it is not set `serve`
+/// sets it and runs itself again in the same process (`exec`, same process id). Nothing
+/// happens when it is set already (an operator's own value stays), off glibc, or if the
+/// exec fails.
+pub(crate) fn fix_malloc_threshold() {
+    use std::os::unix::process::CommandExt as _;
+    let (name, value) = MALLOC_THRESHOLD;
+    if !cfg!(all(target_os = "linux", target_env = "gnu")) || std::env::var_os(name).is_some() {
+        return;
+    }
+    let Ok(exe) = std::env::current_exe() else {
+        return;
+    };
+    let mut args = std::env::args_os();
+    let arg0 = args.next().unwrap_or_else(|| exe.clone().into_os_string());
+    let error = std::process::Command::new(&exe)
+        .arg0(arg0)
+        .args(args)
+        .env(name, value)
+        .exec();
+    eprintln!(
+        "coapcam: warning: not run again with {name}={value} ({error}); memory may grow past the limits"
+    );
+}
+
 /// Runs `serve` until a signal or `--duration`.
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let binds = if args.bind.is_empty() {

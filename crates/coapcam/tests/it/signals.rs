@@ -120,3 +120,16 @@ fn a_server_started_after_kill_9_removes_the_temporary_files_left_behind() {
     });
     assert_eq!(doc, before, "the stored document is intact");
 }
+
+#[test]
+fn serve_runs_with_a_fixed_malloc_threshold_so_its_limits_hold() {
+    let state = TempDir::new("malloc");
+    let (mut server, _addr) = serve(state.path());
+    let pid = server.process().id();
+    let environ = std::fs::read(format!("/proc/{pid}/environ")).expect("the environment");
+    let vars: Vec<&[u8]> = environ.split(|b| *b == 0).collect();
+    assert!(
+        vars.contains(&&b"MALLOC_MMAP_THRESHOLD_=131072"[..]),
+        "glibc's mmap threshold is not fixed: freed frames stay resident"
+    );
+}
