@@ -87,6 +87,7 @@ pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
         before: args.before,
         limit: log::MAX_LIST,
         code: args.code.clone(),
+        ..ListQuery::default()
     };
     let limit = usize::try_from(args.limit).unwrap_or(usize::MAX);
     let records = results::list(&client, &query, limit).await?;

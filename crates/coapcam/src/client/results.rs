@@ -31,6 +31,12 @@ pub fn query_items(q: &ListQuery) -> Vec<String> {
     if let Some(code) = &q.code {
         items.push(format!("code={code}"));
     }
+    if let Some(from) = q.from {
+        items.push(format!("from={from}"));
+    }
+    if let Some(to) = q.to {
+        items.push(format!("to={to}"));
+    }
     items
 }
 

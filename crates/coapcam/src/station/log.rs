@@ -15,7 +15,7 @@ use std::time::Duration;
 use rusqlite::{Connection, OpenFlags, OptionalExtension as _, TransactionBehavior, params};
 use tokio::sync::watch;
 
-use super::record::{GENESIS, NewRecord, Record, canonical_bytes, sha256_hex};
+use super::record::{GENESIS, NewRecord, Record, UtcTime, canonical_bytes, sha256_hex};
 
 /// The schema's version, kept in `meta`.
 const SCHEMA_VERSION: &str = "1";
@@ -112,6 +112,10 @@ pub struct ListQuery {
     pub limit: usize,
     /// Only records with a code of exactly this text.
     pub code: Option<String>,
+    /// Only records measured at this time or later.
+    pub from: Option<UtcTime>,
+    /// Only records measured before this time.
+    pub to: Option<UtcTime>,
 }
 
 impl Default for ListQuery {
@@ -121,6 +125,8 @@ impl Default for ListQuery {
             before: None,
             limit: 50,
             code: None,
+            from: None,
+            to: None,
         }
     }
 }
@@ -273,6 +279,8 @@ impl ResultsLog {
                 "{SELECT} WHERE r.id > ?1 AND r.id < ?2 AND (?3 IS NULL OR EXISTS (
                     SELECT 1 FROM json_each(r.body, '$.measurement.codes') c
                     WHERE json_extract(c.value, '$.text') = ?3))
+                 AND (?5 IS NULL OR json_extract(r.body, '$.time') >= ?5)
+                 AND (?6 IS NULL OR json_extract(r.body, '$.time') < ?6)
                  ORDER BY r.id DESC LIMIT ?4"
             ))
             .map_err(self.err())?;
@@ -284,6 +292,9 @@ impl ResultsLog {
                         .map_or(i64::MAX, |b| i64::try_from(b).unwrap_or(i64::MAX)),
                     q.code,
                     q.limit.clamp(1, MAX_LIST),
+                    // Times in the records' one form (UTC, milliseconds) compare as text.
+                    q.from.map(|t| t.to_string()),
+                    q.to.map(|t| t.to_string()),
                 ],
                 raw_row,
             )
@@ -789,6 +800,22 @@ mod tests {
             ..ListQuery::default()
         };
         assert_eq!(ids(code), [4, 2]);
+        let time = |t: &str| Some(UtcTime::parse(t).expect("a time"));
+        let past = ListQuery {
+            from: time("2000-01-01T00:00:00.000Z"),
+            ..ListQuery::default()
+        };
+        assert_eq!(ids(past), [5, 4, 3, 2, 1]);
+        let future = ListQuery {
+            from: time("2999-01-01T00:00:00.000Z"),
+            ..ListQuery::default()
+        };
+        assert_eq!(ids(future), [0u64; 0]);
+        let until_then = ListQuery {
+            to: time("2000-01-01T00:00:00.000Z"),
+            ..ListQuery::default()
+        };
+        assert_eq!(ids(until_then), [0u64; 0]);
         let after: Vec<u64> = log
             .after(2, 2)
             .expect("after")

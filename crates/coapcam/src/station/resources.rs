@@ -13,6 +13,7 @@ use coap_net::{Resource, Router, handler};
 use serde::Serialize;
 
 use super::log::{ListQuery, LogError, MAX_LIST, ResultsLog};
+use super::record::UtcTime;
 
 /// The list of records.
 pub(crate) const PATH: &str = "/station/measurements";
@@ -234,10 +235,14 @@ pub(crate) fn parse_query<S: AsRef<str>>(
                 };
             }
             "code" if !value.is_empty() => q.code = Some(value.to_owned()),
+            "from" => {
+                q.from = Some(UtcTime::parse(value).map_err(|e| format!("from={value}: {e}"))?)
+            }
+            "to" => q.to = Some(UtcTime::parse(value).map_err(|e| format!("to={value}: {e}"))?),
             "code" => return Err("code= needs the code's text".into()),
             _ => {
                 return Err(format!(
-                    "unknown query item {key}: {path} takes since=ID, before=ID, limit=N (1-{MAX_LIST}, default {}) and code=TEXT",
+                    "unknown query item {key}: {path} takes since=ID, before=ID, limit=N (1-{MAX_LIST}, default {}), code=TEXT, from=TIME and to=TIME",
                     ListQuery::default().limit
                 ));
             }
@@ -357,6 +362,7 @@ mod tests {
                 before: Some(9),
                 limit: 2,
                 code: Some("PKG-1".into()),
+                ..ListQuery::default()
             }
         );
         for bad in [
@@ -367,6 +373,8 @@ mod tests {
             "code=",
             "colour=red",
             "before=",
+            "from=yesterday",
+            "to=2026-11-27",
         ] {
             let why = parse_query([bad], PATH).expect_err(bad);
             let key = bad.split('=').next().unwrap_or(bad);

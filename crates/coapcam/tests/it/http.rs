@@ -294,6 +294,15 @@ fn the_api_serves_the_log_measures_and_streams() {
         json!([])
     );
     assert_eq!(get(addr, "/api/measurements?since=1").json(), json!([]));
+    let since_2000 = "/api/measurements?from=2000-01-01T00:00:00.000Z";
+    assert_eq!(get(addr, since_2000).json(), json!([record]));
+    let before_2000 = "/api/measurements?to=2000-01-01T00:00:00.000Z";
+    assert_eq!(get(addr, before_2000).json(), json!([]));
+    assert!(
+        get(addr, "/api/measurements?from=yesterday")
+            .error(400)
+            .contains("from")
+    );
 
     // The pictures, with their types; the photo's ETag is its SHA-256.
     let photo = get(addr, "/api/measurements/1/photo.jpg");
