@@ -718,6 +718,27 @@ fn the_page_shows_the_parcel_and_measures_in_chromium() {
         Some(usize::try_from(after).unwrap_or(0))
     );
 
+    // A record made elsewhere (here by a request of the test's own) arrives by itself over
+    // the event stream; how long after its recording is printed, not asserted.
+    let made = request(addr, "POST", "/api/measure", &[], b"").json();
+    let id = made["id"].as_u64().expect("an id");
+    let shown_at = browser.wait_for(
+        "the record measured by another client",
+        &format!(
+            "return document.querySelector('#latest-meta').textContent.startsWith('#{id} ')
+                 ? Date.now() : null;"
+        ),
+    );
+    let recorded_at = browser.script(&format!("return Date.parse({});", made["time"]));
+    if let (Some(shown), Some(recorded)) = (shown_at.as_f64(), recorded_at.as_f64()) {
+        eprintln!(
+            "record {id} shown by the page {:.0} ms after its time (polled every 100 ms)",
+            shown - recorded
+        );
+    }
+    let rows_now = browser.script(rows).as_u64().expect("a count");
+    assert_eq!(rows_now, after + 1, "the pushed record has its row");
+
     let shot = browser.session_call("GET", "/screenshot", None);
     let png = base64(shot.as_str().expect("a screenshot"));
     assert!(png.starts_with(b"\x89PNG"), "a PNG");
