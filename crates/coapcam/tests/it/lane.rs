@@ -46,9 +46,10 @@ look_at = [0.0, 0.0, 0.1]
 "#;
 
 /// How long each parcel stands still: a measurement (grabs, codes, photo, annotated
-/// picture) in a debug build on a busy 2-core machine takes 3 to 5 s, and one that
-/// is still running when its parcel is taken away is not recorded.
-pub(crate) const STILL_S: f64 = 10.0;
+/// picture) in a debug build on a busy 2-core machine takes 3 to 5 s (8 s seen while the
+/// machine also compiled), and one still running when its parcel is taken away is not
+/// recorded.
+pub(crate) const STILL_S: f64 = 16.0;
 
 /// A parcel `size` (metres) yawed `yaw`, slid from `from` to `center` between `appear`
 /// and `appear + 1`, standing still for [`STILL_S`], then taken away.
@@ -281,7 +282,13 @@ fn two_parcels_placed_one_after_the_other_are_measured_once_each_and_never_while
     let scene = format!(
         "{ONE_CAMERA}{}{}",
         parcel([0.40, 0.30, 0.20], 15.0, [0.0, 0.0], [0.45, 0.0], 2.0),
-        parcel([0.32, 0.22, 0.12], -20.0, [0.02, -0.03], [0.0, -0.45], 14.0),
+        parcel(
+            [0.32, 0.22, 0.12],
+            -20.0,
+            [0.02, -0.03],
+            [0.0, -0.45],
+            4.0 + STILL_S
+        ),
     );
     let lane = Lane::start(&dir, &scene);
     let records = lane.records_after_the_scene();
@@ -294,10 +301,17 @@ fn two_parcels_placed_one_after_the_other_are_measured_once_each_and_never_while
 #[test]
 fn a_parcel_moved_to_a_new_place_on_the_table_is_measured_again_there() {
     let dir = TempDir::new("lane-moved");
-    // The parcel stands at (-0.1, 0) from 3 s; at 13 s it is pushed to (0.12, 0.05)
-    // (the second box takes the first's place and slides), still there from 14 s.
+    // The parcel stands at (-0.1, 0) from 3 s; at 3 s + STILL_S it is pushed to
+    // (0.12, 0.05) (the second box takes the first's place and slides), still there a
+    // second later.
     let first = parcel([0.30, 0.25, 0.18], 10.0, [-0.1, 0.0], [-0.5, 0.0], 2.0);
-    let moved = parcel([0.30, 0.25, 0.18], 10.0, [0.12, 0.05], [-0.1, 0.0], 13.0);
+    let moved = parcel(
+        [0.30, 0.25, 0.18],
+        10.0,
+        [0.12, 0.05],
+        [-0.1, 0.0],
+        3.0 + STILL_S,
+    );
     let scene = format!("{ONE_CAMERA}{first}{moved}");
     let lane = Lane::start(&dir, &scene);
     let records = lane.records_after_the_scene();
@@ -329,19 +343,19 @@ fn a_parcel_seen_by_two_cameras_is_measured_once_with_both() {
 #[test]
 fn a_hand_that_reaches_in_beside_a_measured_parcel_makes_no_new_measurement() {
     let dir = TempDir::new("lane-hand");
-    // The parcel stands from 3 s to 24 s; at 18 s a hand (a cylinder 30 cm tall) slides
+    // The parcel stands from 3 s to 27 s; at 18 s a hand (a cylinder 30 cm tall) slides
     // in beside it, rests half a second and is gone at 19 s.
     let mut scene = format!(
         "{ONE_CAMERA}{}",
         parcel([0.34, 0.24, 0.15], 5.0, [-0.05, 0.0], [-0.5, 0.0], 2.0)
     );
-    scene = scene.replace("remove_s = 13", "remove_s = 24");
+    scene = scene.replace(&format!("remove_s = {}", 3.0 + STILL_S), "remove_s = 27");
     scene.push_str(
         "[[cylinder]]\nradius = 0.05\nheight = 0.30\ncenter = [0.2, 0.1]\nappear_s = 18.0\n\
          from = [0.5, 0.3]\nstill_s = 18.5\nremove_s = 19.0\n",
     );
     let lane = Lane::start(&dir, &scene);
-    assert_eq!(lane.scene.boxes[0].timeline.remove_s, Some(24.0));
+    assert_eq!(lane.scene.boxes[0].timeline.remove_s, Some(27.0));
     let records = lane.records_after_the_scene();
     lane.expect_count(&records, 1);
     lane.check(&records[0], &lane.scene.boxes[0]);
