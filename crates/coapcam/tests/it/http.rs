@@ -482,7 +482,7 @@ fn receive(listener: TcpListener, refuse_first: bool, seen: mpsc::Sender<(u64, b
 }
 
 #[test]
-fn the_webhook_delivers_every_record_in_order_once_the_receiver_is_up() {
+fn the_webhook_delivers_every_record_in_order_across_a_restart_once_the_receiver_is_up() {
     // A port nobody listens on yet: the receiver is down.
     let port = TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
@@ -490,11 +490,14 @@ fn the_webhook_delivers_every_record_in_order_once_the_receiver_is_up() {
         .port();
     let state = TempDir::new("http-webhook");
     let hook = format!("http://127.0.0.1:{port}/hook?x=1");
-    let (_server, addr) = serve_http(&state, &["--webhook", &hook]);
+    let (mut first, addr) = serve_http(&state, &["--webhook", &hook]);
     for _ in 0..2 {
         let made = request(addr, "POST", "/api/measure", &[], b"");
         assert_eq!(made.status, 201, "{}", String::from_utf8_lossy(&made.body));
     }
+    // The station stops and starts again (the records wait in its log, with the cursor).
+    first.interrupt();
+    let (_server, addr) = serve_http(&state, &["--webhook", &hook]);
     // The receiver comes up; it refuses the first request it gets (503), which is sent
     // again, and takes the rest.
     let listener = TcpListener::bind(("127.0.0.1", port)).expect("the receiver's port");
