@@ -1,23 +1,16 @@
 //! `coapcam bench`: the subcommands' flags; `bench accuracy` here, printing what
 //! `coapcam::bench::accuracy` measured (a line per scene and the summary, or JSON);
-//! `bench transfer`, `bench repr` and `bench load` are in their own files.
+//! `bench transfer`, `bench repr` and `bench load` are the files beside this one (a
+//! command with subcommands is a folder of `cli/`).
 
 use clap::{Args, Subcommand};
 
 use super::{DimensionArgs, Exit, outln};
 use coapcam::bench::accuracy::{self, Quantiles, Row, Summary};
 
-/// `bench transfer` (declared here, not in `cli/mod.rs`, with its file beside this one).
-#[path = "bench_transfer.rs"]
-mod transfer;
-
-/// `bench repr`, the same way.
-#[path = "bench_repr.rs"]
-mod repr;
-
-/// `bench load`, the same way.
-#[path = "bench_load.rs"]
 mod load;
+mod repr;
+mod transfer;
 
 /// Flags of `bench`.
 #[derive(Debug, Args)]
