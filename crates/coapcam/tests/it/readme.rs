@@ -232,17 +232,27 @@ fn every_readme_example_runs() {
         p
     })
     .collect();
-    // `get .../status.txt --observe 5` waits for five changes: the status changes.
-    let stop = Arc::new(AtomicBool::new(false));
+    // `get .../status.txt --observe 5` waits for five changes: the status changes once
+    // that example has registered (a GET within a rescan of a change is answered 5.03,
+    // "the file is changing"), a change every 400 ms, each past a 200 ms rescan.
+    let (observing, stop) = (
+        Arc::new(AtomicBool::new(false)),
+        Arc::new(AtomicBool::new(false)),
+    );
     let writer = {
-        let (stop, path) = (Arc::clone(&stop), dir.join("photos/status.txt"));
+        let (observing, stop) = (Arc::clone(&observing), Arc::clone(&stop));
+        let path = dir.join("photos/status.txt");
         thread::spawn(move || {
+            while !observing.load(Ordering::Relaxed) && !stop.load(Ordering::Relaxed) {
+                thread::sleep(Duration::from_millis(20));
+            }
+            thread::sleep(Duration::from_secs(1));
             for n in 0.. {
                 if stop.load(Ordering::Relaxed) {
                     break;
                 }
                 fs::write(&path, format!("parcels: {n}\n")).expect("status.txt");
-                thread::sleep(Duration::from_millis(300));
+                thread::sleep(Duration::from_millis(400));
             }
         })
     };
@@ -268,6 +278,9 @@ fn every_readme_example_runs() {
             background.push(p);
             lines.push(format!("started: {line}"));
             continue;
+        }
+        if line.contains("status.txt --observe") {
+            observing.store(true, Ordering::Relaxed);
         }
         let began = Instant::now();
         let f: Finished = Proc::run("sh", &["-c", &script], Duration::from_secs(120));
