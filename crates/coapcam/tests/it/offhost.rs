@@ -430,3 +430,96 @@ fn offhost_a_forged_loopback_source_configures_nothing() {
     mc0_sysctl("route_localnet", &localnet);
     mc0_sysctl("accept_local", &accept_local);
 }
+
+/// One HTTP/1.1 request from a socket bound to `from` (an address of this namespace
+/// that is not loopback, when the test says so) to `to`; the status code and the body.
+fn http_from(from: std::net::IpAddr, to: SocketAddr, method: &str, path: &str) -> (u16, String) {
+    use std::io::{Read as _, Write as _};
+    use std::net::TcpStream;
+
+    use nix::sys::socket::{
+        AddressFamily, SockFlag, SockType, SockaddrStorage, bind, connect, socket,
+    };
+
+    let family = if to.is_ipv6() {
+        AddressFamily::Inet6
+    } else {
+        AddressFamily::Inet
+    };
+    let fd = socket(family, SockType::Stream, SockFlag::SOCK_CLOEXEC, None).expect("socket");
+    bind(
+        std::os::fd::AsRawFd::as_raw_fd(&fd),
+        &SockaddrStorage::from(SocketAddr::new(from, 0)),
+    )
+    .expect("binding the client's address");
+    connect(
+        std::os::fd::AsRawFd::as_raw_fd(&fd),
+        &SockaddrStorage::from(to),
+    )
+    .expect("connecting");
+    let mut stream = TcpStream::from(fd);
+    stream.set_read_timeout(Some(LIMIT)).expect("timeout");
+    write!(
+        stream,
+        "{method} {path} HTTP/1.1\r\nHost: {to}\r\nConnection: close\r\nContent-Length: 0\r\n\r\n"
+    )
+    .expect("sending");
+    let mut raw = String::new();
+    stream.read_to_string(&mut raw).expect("reading the answer");
+    let status = raw
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("not an HTTP answer: {raw:?}"));
+    let body = raw
+        .split_once("\r\n\r\n")
+        .map_or("", |(_, b)| b)
+        .to_string();
+    (status, body)
+}
+
+#[test]
+#[ignore = "off-host: run inside scripts/netns-run (scripts/test.sh does)"]
+fn offhost_http_reads_for_everyone_and_measures_only_for_this_machine() {
+    let test = "offhost_http_reads_for_everyone_and_measures_only_for_this_machine";
+    if !in_namespace(test) {
+        return;
+    }
+    let dir = TempDir::new("offhost-http");
+    let port = std::net::TcpListener::bind("[::]:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free TCP port")
+        .port();
+    let http = format!("[::]:{port}");
+    let (_server, _coap) = serve_at("[::1]:0", &dir.join("state"), &["--http", &http]);
+    let local = SocketAddr::from((std::net::Ipv6Addr::LOCALHOST, port));
+    let remote: SocketAddr = format!("[fd00::2]:{port}").parse().expect("address");
+    let stranger: std::net::IpAddr = "fd00::3".parse().expect("address");
+    let deadline = Instant::now() + LIMIT;
+    while std::net::TcpStream::connect(local).is_err() {
+        assert!(Instant::now() < deadline, "no HTTP server on {local}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // A stranger reads, and is refused a measurement with a JSON error.
+    let (status, body) = http_from(stranger, remote, "GET", "/api/measurements");
+    assert_eq!(status, 200, "{body}");
+    let (status, body) = http_from(stranger, remote, "POST", "/api/measure");
+    assert_eq!(status, 403, "{body}");
+    let error: serde_json::Value = serde_json::from_str(&body).expect("a JSON error");
+    assert!(
+        error["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("own machine")),
+        "{body}"
+    );
+    let (_, body) = http_from(stranger, remote, "GET", "/api/measurements");
+    assert_eq!(body.trim(), "[]", "the stranger's POST recorded nothing");
+    // This machine measures, over loopback.
+    let (status, body) = http_from(
+        std::net::Ipv6Addr::LOCALHOST.into(),
+        local,
+        "POST",
+        "/api/measure",
+    );
+    assert_eq!(status, 201, "{body}");
+}
