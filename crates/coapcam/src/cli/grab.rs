@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context as _, bail};
 use clap::Args;
 use coap::{ContentFormat, Response};
-use coapcam::client::{CamClient, cloud_of};
-use coapcam::repr::{self, Stream, packet, raster, rvl};
+use coapcam::client::CamClient;
+use coapcam::repr::{self, ColorDecoder, Stream};
 use coapcam::vision::picture::{self, save, sibling};
 use rgbd::ColorSettings;
 
@@ -158,30 +158,22 @@ async fn write_view(
     response: &Response,
     path: &Path,
 ) -> anyhow::Result<Vec<PathBuf>> {
+    let row = repr::Format::received(Some(kind))?;
     match Stream::from(args.what) {
         Stream::Color => {
-            let image = match kind {
-                ContentFormat::IMAGE_PNG | ContentFormat::IMAGE_JPEG => {
-                    image::load_from_memory(&response.payload)
-                        .context("decoding the color image")?
-                        .to_rgb8()
-                }
-                _ => {
+            let image = match row.color_decoder()? {
+                ColorDecoder::Image(decode) => decode(&response.payload)?,
+                ColorDecoder::WithPixelFormat(decode) => {
                     let sn = sn.context("--all is for point clouds")?;
                     let settings: ColorSettings = client.get_json(sn, "color-settings").await?;
-                    packet::color(&response.payload, settings.format.name())?
+                    decode(&response.payload, settings.format.name())?
                 }
             };
             save(&image, path)?;
             Ok(vec![path.to_owned()])
         }
         Stream::Depth => {
-            let depth = match kind {
-                ContentFormat::IMAGE_PNG => raster::depth_from_png(&response.payload)?,
-                repr::RVL => rvl::depth_from_rvl(&response.payload)?,
-                repr::RVL_ZSTD => rvl::depth_from_rvl_zstd(&response.payload)?,
-                _ => packet::depth(&response.payload).context("reading the depth packet")?,
-            };
+            let depth = row.decode_depth(&response.payload)?;
             let colored = sibling(path, "-color");
             let (gray, colored_view) = picture::depth_views(&depth);
             save(&gray, path)?;
@@ -189,7 +181,7 @@ async fn write_view(
             Ok(vec![path.to_owned(), colored])
         }
         Stream::Pointcloud => {
-            let cloud = cloud_of(response)?.cloud;
+            let cloud = row.decode_cloud(&response.payload)?.cloud;
             save(&picture::top_view(&cloud, None), path)?;
             Ok(vec![path.to_owned()])
         }

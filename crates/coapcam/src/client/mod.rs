@@ -20,8 +20,8 @@ use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response}
 use coap_net::{Client, Psk, Uri};
 
 use crate::report::{EdgeQuery, Measurement};
-use crate::repr::packet::{self, DepthImage};
-use crate::repr::{self, Stream, cbor, clouds, rvl};
+use crate::repr::packet::DepthImage;
+use crate::repr::{self, Stream, cbor};
 
 /// A client socket for `server`: plain for `coap://`, DTLS with `psk` for `coaps://`.
 pub fn secured_client(
@@ -363,10 +363,7 @@ impl CamClient {
     /// Grabs a new depth frame of one camera (POST), compactly ([`Self::grab_compact`]).
     pub async fn grab_depth(&self, serial: &str) -> anyhow::Result<DepthImage> {
         let r = self.grab_compact(serial, Stream::Depth).await?;
-        match r.options.content_format() {
-            Some(repr::RVL_ZSTD) => Ok(rvl::depth_from_rvl_zstd(&r.payload)?),
-            _ => Ok(packet::depth(&r.payload).context("reading the depth packet")?),
-        }
+        repr::Format::received(r.options.content_format())?.decode_depth(&r.payload)
     }
 
     /// Grabs a new color frame of one camera (POST) as a JPEG of `quality` (1-100).
@@ -453,29 +450,14 @@ fn not_acceptable(e: &anyhow::Error) -> bool {
 /// no camera and has whole seconds). Deprojecting a compact cloud takes a few
 /// milliseconds: call it off the executor.
 pub fn cloud_of(response: &Response) -> anyhow::Result<cbor::Cloud> {
-    let payload = &response.payload;
-    match response.options.content_format() {
-        Some(repr::DEPTH_CLOUD) => Ok(clouds::cloud_from_depth_cloud(payload)?),
-        Some(repr::CLOUD_MM) => Ok(clouds::cloud_from_mm(payload)?),
-        Some(ContentFormat::CBOR) => Ok(cbor::Cloud::from_cbor(payload)?),
-        Some(repr::PLY) => Ok(cbor::Cloud {
-            cloud: geometry::decode_ply(payload)?,
-            serials: Vec::new(),
-            timestamp_us: 0,
-        }),
-        Some(ContentFormat::OCTET_STREAM) | None => {
-            let p = packet::cloud(payload).context("reading the point-cloud packet")?;
-            Ok(cbor::Cloud {
-                cloud: p.cloud,
-                serials: Vec::new(),
-                timestamp_us: u64::from(p.timestamp_s) * 1_000_000,
-            })
-        }
-        Some(other) => bail!(
+    let cf = response.options.content_format();
+    let Ok(row) = repr::Format::received(cf) else {
+        bail!(
             "a point cloud in an unknown content format ({})",
-            repr::Format::describe(other)
-        ),
-    }
+            repr::Format::describe(cf.unwrap_or(ContentFormat::OCTET_STREAM))
+        );
+    };
+    row.decode_cloud(&response.payload)
 }
 
 /// A request answered with an error response (4.xx, 5.xx).

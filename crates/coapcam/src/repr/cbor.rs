@@ -5,10 +5,12 @@
 //! client wants ([`ColorCapture`], [`DepthCapture`], [`Cloud`]) are read from them. A
 //! decoder ignores keys it does not know, so a map may gain keys.
 
-use geometry::{Point3, PointCloud};
+use geometry::Point3;
 use rgbd::{ColorFrame, DepthFrame, DistortionModel, Extrinsics, Intrinsics, Serial};
 use serde::{Deserialize, Serialize};
 
+pub use super::codec::Cloud;
+use super::codec::{Decoders, Subject};
 use super::packet::unix_seconds;
 use super::packet::{
     self, POINT_SIZE, TYPE_CLOUD, TYPE_COLOR, TYPE_DEPTH, append_depth_values, append_points,
@@ -349,17 +351,6 @@ pub fn cloud_cbor(
 
 // ---- reading
 
-/// A point cloud from its CBOR map, with the cameras that made it (`serial`, or
-/// `serials` of a merged cloud) and its timestamp.
-pub struct Cloud {
-    /// The points, metres.
-    pub cloud: PointCloud,
-    /// Serials of the cameras that made it.
-    pub serials: Vec<String>,
-    /// When it was grabbed, microseconds since the UNIX epoch.
-    pub timestamp_us: u64,
-}
-
 impl Cloud {
     /// Reads the CBOR point-cloud map, checking `points` against the data.
     pub fn from_cbor(body: &[u8]) -> Result<Self, CborError> {
@@ -472,6 +463,39 @@ impl DepthCapture {
         })
     }
 }
+
+// ---- the row of the table
+
+/// CBOR's encoder: every stream, with its camera, intrinsics and time.
+pub fn encode(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    match *subject {
+        Subject::Color {
+            frame,
+            intrinsics,
+            depth_to_color,
+            serial,
+            ..
+        } => color_cbor(frame, intrinsics, depth_to_color, serial),
+        Subject::Depth {
+            frame,
+            intrinsics,
+            serial,
+        } => depth_cbor(frame, intrinsics, serial),
+        Subject::Cloud {
+            points,
+            timestamp_us,
+            source,
+            ..
+        } => cloud_cbor(points, timestamp_us, source),
+    }
+}
+
+/// CBOR read back: a cloud (color and depth maps are read by [`ColorCapture`] and
+/// [`DepthCapture`]).
+pub const DECODERS: Decoders = Decoders {
+    cloud: Some(|body| Ok(Cloud::from_cbor(body)?)),
+    ..Decoders::NONE
+};
 
 #[cfg(test)]
 mod tests {

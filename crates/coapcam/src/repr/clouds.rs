@@ -14,29 +14,11 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use rgbd::{DepthFrame, DistortionModel, FilterError, Intrinsics};
 
-use super::cbor::Cloud;
-use super::{CloudSource, EncodeError};
+pub use super::codec::DepthPart;
+use super::codec::{Cloud, CloudSource, Decoders, EncodeError, Subject};
 
 pub use compact::WireError;
 pub use compact::cloud::CloudError;
-
-/// One camera's cloud as what it is computed from.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DepthPart {
-    /// The camera's serial number.
-    pub serial: String,
-    /// The depth image after `roi2d` and post-processing (its frame number and timestamp
-    /// those of the grab).
-    pub depth: DepthFrame,
-    /// The intrinsics of `depth`.
-    pub intrinsics: Intrinsics,
-    /// Camera frame to the common frame (the 3d-transformation).
-    pub transform: Transform,
-    /// The box kept (`roi3d`), in the common frame.
-    pub roi: Roi3,
-    /// Applied after the crop: the server's ICP registration of this camera, if any.
-    pub correction: Option<Transform>,
-}
 
 impl DepthPart {
     /// The cloud: each valid pixel deprojected, moved by the transform, kept when inside
@@ -244,6 +226,41 @@ pub fn cloud_from_mm(payload: &[u8]) -> Result<Cloud, WireError> {
         timestamp_us: c.timestamp_us,
     })
 }
+
+// ---- the rows of the table
+
+/// The compact cloud's encoder: the depth the points were computed from.
+pub fn encode_depth_cloud(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    match *subject {
+        Subject::Cloud { parts, .. } => depth_cloud(parts),
+        _ => Err(subject.not_served("compact cloud")),
+    }
+}
+
+/// The millimetre cloud's encoder: the points.
+pub fn encode_mm(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    match *subject {
+        Subject::Cloud {
+            points,
+            timestamp_us,
+            source,
+            ..
+        } => cloud_mm(points, timestamp_us, source),
+        _ => Err(subject.not_served("millimetre cloud")),
+    }
+}
+
+/// The compact cloud read back: deprojected, as the server did.
+pub const DEPTH_CLOUD_DECODERS: Decoders = Decoders {
+    cloud: Some(|body| Ok(cloud_from_depth_cloud(body)?)),
+    ..Decoders::NONE
+};
+
+/// The millimetre cloud read back.
+pub const MM_DECODERS: Decoders = Decoders {
+    cloud: Some(|body| Ok(cloud_from_mm(body)?)),
+    ..Decoders::NONE
+};
 
 #[cfg(test)]
 mod tests {

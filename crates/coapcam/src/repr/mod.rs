@@ -15,13 +15,18 @@
 
 pub mod cbor;
 pub mod clouds;
+pub mod codec;
 pub mod packet;
 pub mod ply;
 pub mod raster;
 pub mod rvl;
 
+use anyhow::bail;
 use coap::ContentFormat;
-use rgbd::Serial;
+
+pub use self::codec::{
+    Cloud, CloudSource, ColorDecoder, Decoders, DepthImage, DepthPart, Encode, EncodeError, Subject,
+};
 
 /// What a grab resource produces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -145,7 +150,7 @@ pub const DEPTH_CLOUD: ContentFormat = ContentFormat(65103);
 pub const CLOUD_MM: ContentFormat = ContentFormat(65104);
 
 /// One representation: a row of [`FORMATS`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy)]
 pub struct Format {
     /// Its content format number.
     pub format: ContentFormat,
@@ -159,6 +164,10 @@ pub struct Format {
     pub extensions: &'static [&'static str],
     /// The streams served in it.
     pub streams: &'static [Stream],
+    /// The server's encoder: a frame of one of [`Format::streams`] as a body.
+    pub encode: Encode,
+    /// The client's decoders: which streams it reads back from this format, and how.
+    pub decode: Decoders,
 }
 
 /// Every representation a camera's resources serve, the default (the thesis packet)
@@ -168,96 +177,142 @@ pub const FORMATS: [Format; 9] = {
     use Stream::{Color, Depth, Pointcloud};
     const ALL: &[Stream] = &Stream::ALL;
     [
-        row(
-            ContentFormat::OCTET_STREAM,
-            "application/octet-stream",
-            "octet-stream",
-            "thesis packet",
-            &["bin"],
-            ALL,
-        ),
-        row(
-            ContentFormat::IMAGE_PNG,
-            "image/png",
-            "png",
-            "PNG",
-            &["png"],
-            &[Color, Depth],
-        ),
-        row(
-            ContentFormat::IMAGE_JPEG,
-            "image/jpeg",
-            "jpeg",
-            "JPEG",
-            &["jpg", "jpeg"],
-            &[Color],
-        ),
-        row(
-            ContentFormat::CBOR,
-            "application/cbor",
-            "cbor",
-            "CBOR",
-            &[],
-            ALL,
-        ),
-        row(
-            PLY,
-            "application/x-ply",
-            "ply",
-            "PLY",
-            &["ply"],
-            &[Pointcloud],
-        ),
-        row(RVL, "application/x-rvl", "rvl", "RVL", &["rvl"], &[Depth]),
-        row(
-            RVL_ZSTD,
-            "application/x-rvl+zstd",
-            "rvl-zstd",
-            "RVL+zstd",
-            &["rvl.zst"],
-            &[Depth],
-        ),
-        row(
-            DEPTH_CLOUD,
-            "application/x-depth-cloud+zstd",
-            "depth-cloud",
-            "compact cloud",
-            &["dcl"],
-            &[Pointcloud],
-        ),
-        row(
-            CLOUD_MM,
-            "application/x-cloud-mm+zstd",
-            "cloud-mm",
-            "millimetre cloud",
-            &["qmm"],
-            &[Pointcloud],
-        ),
+        Format {
+            format: ContentFormat::OCTET_STREAM,
+            media_type: "application/octet-stream",
+            name: "octet-stream",
+            label: "thesis packet",
+            extensions: &["bin"],
+            streams: ALL,
+            encode: packet::encode,
+            decode: packet::DECODERS,
+        },
+        Format {
+            format: ContentFormat::IMAGE_PNG,
+            media_type: "image/png",
+            name: "png",
+            label: "PNG",
+            extensions: &["png"],
+            streams: &[Color, Depth],
+            encode: raster::encode_png,
+            decode: raster::PNG_DECODERS,
+        },
+        Format {
+            format: ContentFormat::IMAGE_JPEG,
+            media_type: "image/jpeg",
+            name: "jpeg",
+            label: "JPEG",
+            extensions: &["jpg", "jpeg"],
+            streams: &[Color],
+            encode: raster::encode_jpeg,
+            decode: raster::JPEG_DECODERS,
+        },
+        Format {
+            format: ContentFormat::CBOR,
+            media_type: "application/cbor",
+            name: "cbor",
+            label: "CBOR",
+            extensions: &[],
+            streams: ALL,
+            encode: cbor::encode,
+            decode: cbor::DECODERS,
+        },
+        Format {
+            format: PLY,
+            media_type: "application/x-ply",
+            name: "ply",
+            label: "PLY",
+            extensions: &["ply"],
+            streams: &[Pointcloud],
+            encode: ply::encode,
+            decode: ply::DECODERS,
+        },
+        Format {
+            format: RVL,
+            media_type: "application/x-rvl",
+            name: "rvl",
+            label: "RVL",
+            extensions: &["rvl"],
+            streams: &[Depth],
+            encode: rvl::encode_rvl,
+            decode: rvl::RVL_DECODERS,
+        },
+        Format {
+            format: RVL_ZSTD,
+            media_type: "application/x-rvl+zstd",
+            name: "rvl-zstd",
+            label: "RVL+zstd",
+            extensions: &["rvl.zst"],
+            streams: &[Depth],
+            encode: rvl::encode_rvl_zstd,
+            decode: rvl::RVL_ZSTD_DECODERS,
+        },
+        Format {
+            format: DEPTH_CLOUD,
+            media_type: "application/x-depth-cloud+zstd",
+            name: "depth-cloud",
+            label: "compact cloud",
+            extensions: &["dcl"],
+            streams: &[Pointcloud],
+            encode: clouds::encode_depth_cloud,
+            decode: clouds::DEPTH_CLOUD_DECODERS,
+        },
+        Format {
+            format: CLOUD_MM,
+            media_type: "application/x-cloud-mm+zstd",
+            name: "cloud-mm",
+            label: "millimetre cloud",
+            extensions: &["qmm"],
+            streams: &[Pointcloud],
+            encode: clouds::encode_mm,
+            decode: clouds::MM_DECODERS,
+        },
     ]
 };
-
-const fn row(
-    format: ContentFormat,
-    media_type: &'static str,
-    name: &'static str,
-    label: &'static str,
-    extensions: &'static [&'static str],
-    streams: &'static [Stream],
-) -> Format {
-    Format {
-        format,
-        media_type,
-        name,
-        label,
-        extensions,
-        streams,
-    }
-}
 
 impl Format {
     /// The row of `cf`, if it is one of the representations.
     pub fn of(cf: ContentFormat) -> Option<&'static Self> {
         FORMATS.iter().find(|f| f.format == cf)
+    }
+
+    /// The row of a received body's content format, the thesis packet's when it names
+    /// none (coapcam's servers then send the packet).
+    pub fn received(cf: Option<ContentFormat>) -> anyhow::Result<&'static Self> {
+        let cf = cf.unwrap_or(ContentFormat::OCTET_STREAM);
+        match Self::of(cf) {
+            Some(f) => Ok(f),
+            None => bail!("an unknown content format ({})", Self::describe(cf)),
+        }
+    }
+
+    /// Its body as a frame of `subject`'s stream.
+    pub fn encode(&self, subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+        (self.encode)(subject)
+    }
+
+    /// Reads a depth image back from a body in this format.
+    pub fn decode_depth(&self, body: &[u8]) -> anyhow::Result<DepthImage> {
+        match self.decode.depth {
+            Some(decode) => decode(body),
+            None => bail!("coapcam does not read depth from {}", self.label),
+        }
+    }
+
+    /// Reads a point cloud back from a body in this format.
+    pub fn decode_cloud(&self, body: &[u8]) -> anyhow::Result<Cloud> {
+        match self.decode.cloud {
+            Some(decode) => decode(body),
+            None => bail!("coapcam does not read a point cloud from {}", self.label),
+        }
+    }
+
+    /// How color is read back from a body in this format.
+    pub fn color_decoder(&self) -> anyhow::Result<ColorDecoder> {
+        match self.decode.color {
+            Some(decoder) => Ok(decoder),
+            None => bail!("coapcam does not read color from {}", self.label),
+        }
     }
 
     /// The media type of `cf`: coapcam's own from the table, else the CoAP registry's; the
@@ -299,49 +354,12 @@ fn or_list(items: &[String]) -> String {
     }
 }
 
-/// A representation could not be encoded.
-#[derive(Debug, thiserror::Error)]
-pub enum EncodeError {
-    #[error("encoding {format}: {source}")]
-    /// A PNG or JPEG encoder failed.
-    Image {
-        /// `PNG` or `JPEG`.
-        format: &'static str,
-        /// The encoder's error.
-        source: image::ImageError,
-    },
-    #[error("encoding CBOR: {0}")]
-    /// The CBOR writer failed.
-    Cbor(#[from] ciborium::ser::Error<std::io::Error>),
-    #[error("encoding PLY: {0}")]
-    /// The PLY writer failed.
-    Ply(#[from] geometry::PlyError),
-    #[error("compressing with zstd: {0}")]
-    /// zstd failed.
-    Zstd(#[from] std::io::Error),
-}
-
-/// Where a point cloud came from, for its CBOR map and PLY comment.
-#[derive(Debug, Clone, Copy)]
-pub enum CloudSource<'a> {
-    /// One camera's grab.
-    Camera {
-        /// The camera.
-        serial: &'a Serial,
-        /// The frame number of the depth frame.
-        frame: u64,
-    },
-    /// `/cams/pointclouds`: the cameras whose clouds were merged.
-    Merged {
-        /// The cameras, in the order they were merged.
-        serials: &'a [Serial],
-    },
-}
-
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use rgbd::{ColorFormat, ColorFrame};
+    use geometry::Point3;
+    use rgbd::Serial;
+    use rgbd::{ColorFormat, ColorFrame, DepthFrame, DistortionModel, Extrinsics, Intrinsics};
 
     /// A color frame of `width` x `height` pixels in `format`, rows `stride` bytes apart.
     pub(crate) fn color(format: ColorFormat, width: u32, height: u32, stride: usize) -> ColorFrame {
@@ -384,5 +402,97 @@ pub(crate) mod tests {
             assert_eq!(Format::parse(f.media_type), Ok(f.format));
         }
         assert_eq!(Stream::of("pointcloud"), Some(Stream::Pointcloud));
+    }
+
+    #[test]
+    fn each_row_encodes_its_streams_and_decodes_them_back() {
+        let serial = Serial::parse("840412060746").expect("a serial");
+        let k = Intrinsics {
+            width: 4,
+            height: 2,
+            ppx: 2.0,
+            ppy: 1.0,
+            fx: 3.0,
+            fy: 3.0,
+            model: DistortionModel::None,
+            coeffs: [0.0; 5],
+        };
+        let rgb = color(ColorFormat::Rgb8, 4, 2, 12);
+        let depth = DepthFrame {
+            width: 4,
+            height: 2,
+            stride: 4,
+            depth_scale: 0.001,
+            timestamp_us: 1_700_000_000_500_000,
+            frame_number: 1,
+            data: vec![0, 900, 901, 0, 1000, 1001, 1002, 0],
+        };
+        let points = [Point3::new(0.5, -0.25, 1.0), Point3::new(0.0, 0.125, 0.75)];
+        let subjects = [
+            Subject::Color {
+                frame: &rgb,
+                intrinsics: &k,
+                depth_to_color: &Extrinsics::IDENTITY,
+                serial: &serial,
+                quality: 90,
+            },
+            Subject::Depth {
+                frame: &depth,
+                intrinsics: &k,
+                serial: &serial,
+            },
+            Subject::Cloud {
+                points: &points,
+                timestamp_us: 1_700_000_000_500_000,
+                source: CloudSource::Camera {
+                    serial: &serial,
+                    frame: 1,
+                },
+                parts: &[],
+            },
+        ];
+        for row in &FORMATS {
+            for (subject, stream) in subjects.iter().zip(Stream::ALL) {
+                let body = row.encode(subject);
+                assert_eq!(
+                    body.is_ok(),
+                    row.streams.contains(&stream),
+                    "{} of {}: {body:?}",
+                    row.label,
+                    stream.name()
+                );
+                let Ok(body) = body else { continue };
+                match stream {
+                    Stream::Color => match row.color_decoder() {
+                        Ok(ColorDecoder::Image(decode)) => {
+                            assert_eq!(decode(&body).expect("decodes").dimensions(), (4, 2));
+                        }
+                        Ok(ColorDecoder::WithPixelFormat(decode)) => {
+                            let image = decode(&body, ColorFormat::Rgb8.name()).expect("decodes");
+                            assert_eq!(image.as_raw(), &rgb.data);
+                        }
+                        Err(_) => {}
+                    },
+                    Stream::Depth => {
+                        if let Ok(d) = row.decode_depth(&body) {
+                            assert_eq!(d.values, depth.data, "{}", row.label);
+                        }
+                    }
+                    Stream::Pointcloud => {
+                        // The compact cloud was given no camera's depth: no points.
+                        let want = if row.format == DEPTH_CLOUD { 0 } else { 2 };
+                        if let Ok(c) = row.decode_cloud(&body) {
+                            assert_eq!(c.cloud.points.len(), want, "{}", row.label);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(FORMATS[0].decode_cloud(b"short").is_err());
+        assert!(Format::received(Some(ContentFormat::JSON)).is_err());
+        assert_eq!(
+            Format::received(None).map(|f| f.format).ok(),
+            Some(ContentFormat::OCTET_STREAM)
+        );
     }
 }

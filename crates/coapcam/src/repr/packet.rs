@@ -8,9 +8,13 @@
 //! | 2 depth | as color with pixel size 2, then the depth scale (f32) | Z16 values little-endian |
 //! | 3 point cloud | type, point size 12, reserved (u16), points (u32), timestamp (u32 s) | x, y, z as f32 little-endian, metres |
 
+use anyhow::Context as _;
 use geometry::{Point3, PointCloud};
 use image::RgbImage;
 use rgbd::{ColorFrame, DepthFrame};
+
+pub use super::codec::DepthImage;
+use super::codec::{Cloud, ColorDecoder, Decoders, EncodeError, Subject};
 
 /// Packet type of a color image.
 pub const TYPE_COLOR: u8 = 1;
@@ -128,21 +132,6 @@ fn error(what: &'static str, problem: impl Into<String>) -> PacketError {
         what,
         problem: problem.into(),
     }
-}
-
-/// A depth image: Z16 values in raw units and the metres per unit.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DepthImage {
-    /// Pixels per row.
-    pub width: u32,
-    /// Rows.
-    pub height: u32,
-    /// Seconds since the UNIX epoch.
-    pub timestamp_s: u32,
-    /// Metres per depth unit.
-    pub depth_scale: f32,
-    /// Row-major, `width * height` values; 0 = no depth.
-    pub values: Vec<u16>,
 }
 
 /// A point cloud in metres and the second it was grabbed.
@@ -316,6 +305,38 @@ pub fn color(packet: &[u8], format: &str) -> Result<RgbImage, PacketError> {
     )
     .map_err(|problem| error(what, problem))
 }
+
+// ---- the row of the table
+
+/// The thesis packet's encoder: every stream.
+pub fn encode(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    Ok(match *subject {
+        Subject::Color { frame, .. } => color_packet(frame),
+        Subject::Depth { frame, .. } => depth_packet(frame),
+        Subject::Cloud {
+            points,
+            timestamp_us,
+            ..
+        } => cloud_packet(points, unix_seconds(timestamp_us)),
+    })
+}
+
+/// The thesis packet read back: color with the camera's pixel format, depth, and a cloud
+/// (no cameras, whole seconds).
+pub const DECODERS: Decoders = Decoders {
+    color: Some(ColorDecoder::WithPixelFormat(|body, pixel_format| {
+        Ok(color(body, pixel_format)?)
+    })),
+    depth: Some(|body| depth(body).context("reading the depth packet")),
+    cloud: Some(|body| {
+        let p = cloud(body).context("reading the point-cloud packet")?;
+        Ok(Cloud {
+            cloud: p.cloud,
+            serials: Vec::new(),
+            timestamp_us: u64::from(p.timestamp_s) * 1_000_000,
+        })
+    }),
+};
 
 #[cfg(test)]
 mod tests {

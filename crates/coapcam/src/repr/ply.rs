@@ -3,7 +3,7 @@
 
 use geometry::Point3;
 
-use super::{CloudSource, EncodeError};
+use super::codec::{Cloud, CloudSource, Decoders, EncodeError, Subject};
 
 /// A point cloud as binary little-endian PLY, its origin in the comment line.
 pub fn cloud_ply(
@@ -22,3 +22,28 @@ pub fn cloud_ply(
     };
     Ok(geometry::encode_ply(points, Some(&comment))?)
 }
+
+/// PLY's encoder: point clouds.
+pub fn encode(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    match *subject {
+        Subject::Cloud {
+            points,
+            timestamp_us,
+            source,
+            ..
+        } => cloud_ply(points, timestamp_us, source),
+        _ => Err(subject.not_served("PLY")),
+    }
+}
+
+/// PLY read back: a cloud (no cameras, no time).
+pub const DECODERS: Decoders = Decoders {
+    cloud: Some(|body| {
+        Ok(Cloud {
+            cloud: geometry::decode_ply(body)?,
+            serials: Vec::new(),
+            timestamp_us: 0,
+        })
+    }),
+    ..Decoders::NONE
+};

@@ -7,8 +7,10 @@ use image::codecs::png::PngEncoder;
 use image::{ExtendedColorType, ImageEncoder as _, ImageFormat};
 use rgbd::{ColorFormat, ColorFrame, DepthFrame};
 
-use super::EncodeError;
-use super::packet::{DepthImage, compact_pixels, depth_rows};
+use image::RgbImage;
+
+use super::codec::{ColorDecoder, Decoders, DepthImage, EncodeError, Subject};
+use super::packet::{compact_pixels, depth_rows};
 
 /// Quality of JPEG color images.
 /// The JPEG quality when the request names none (`q=N` on a color resource).
@@ -74,14 +76,14 @@ pub fn color_jpeg(frame: &ColorFrame, quality: u8) -> Result<Vec<u8>, EncodeErro
 }
 
 /// Color as an 8-bit RGB image (alpha dropped), to draw on.
-pub fn color_rgb(frame: &ColorFrame) -> image::RgbImage {
+pub fn color_rgb(frame: &ColorFrame) -> RgbImage {
     let (pixels, ty) = rgb_pixels(frame);
     let (w, h) = (frame.width, frame.height);
     let image = if ty == ExtendedColorType::Rgba8 {
         image::RgbaImage::from_raw(w, h, pixels)
             .map(|i| image::DynamicImage::ImageRgba8(i).to_rgb8())
     } else {
-        image::RgbImage::from_raw(w, h, pixels)
+        RgbImage::from_raw(w, h, pixels)
     };
     image.unwrap_or_default()
 }
@@ -94,7 +96,7 @@ pub fn color_gray(frame: &ColorFrame) -> image::GrayImage {
     let image = if ty == ExtendedColorType::Rgba8 {
         image::RgbaImage::from_raw(w, h, pixels).map(image::DynamicImage::ImageRgba8)
     } else {
-        image::RgbImage::from_raw(w, h, pixels).map(image::DynamicImage::ImageRgb8)
+        RgbImage::from_raw(w, h, pixels).map(image::DynamicImage::ImageRgb8)
     };
     image.map(|i| i.to_luma8()).unwrap_or_default()
 }
@@ -131,6 +133,45 @@ pub fn depth_from_png(png: &[u8]) -> anyhow::Result<DepthImage> {
         values: gray.into_raw(),
     })
 }
+
+// ---- the rows of the table
+
+/// PNG's encoder: color and depth.
+pub fn encode_png(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    match *subject {
+        Subject::Color { frame, .. } => color_png(frame),
+        Subject::Depth { frame, .. } => depth_png(frame),
+        Subject::Cloud { .. } => Err(subject.not_served("PNG")),
+    }
+}
+
+/// JPEG's encoder: color, at the subject's quality.
+pub fn encode_jpeg(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    match *subject {
+        Subject::Color { frame, quality, .. } => color_jpeg(frame, quality),
+        _ => Err(subject.not_served("JPEG")),
+    }
+}
+
+/// A PNG or JPEG color image as RGB.
+fn color_from_image(body: &[u8]) -> anyhow::Result<RgbImage> {
+    Ok(image::load_from_memory(body)
+        .context("decoding the color image")?
+        .to_rgb8())
+}
+
+/// PNG read back: color and depth.
+pub const PNG_DECODERS: Decoders = Decoders {
+    color: Some(ColorDecoder::Image(color_from_image)),
+    depth: Some(depth_from_png),
+    cloud: None,
+};
+
+/// JPEG read back: color.
+pub const JPEG_DECODERS: Decoders = Decoders {
+    color: Some(ColorDecoder::Image(color_from_image)),
+    ..Decoders::NONE
+};
 
 #[cfg(test)]
 mod tests {

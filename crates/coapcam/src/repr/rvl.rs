@@ -5,8 +5,8 @@
 use compact::rvl;
 use rgbd::DepthFrame;
 
-use super::EncodeError;
-use super::packet::{DepthImage, depth_rows, unix_seconds};
+use super::codec::{Decoders, DepthImage, EncodeError, Subject};
+use super::packet::{depth_rows, unix_seconds};
 
 pub use compact::rvl::RvlError;
 
@@ -54,6 +54,36 @@ fn image(d: rvl::DepthImage) -> DepthImage {
         values: d.values,
     }
 }
+
+// ---- the rows of the table
+
+/// RVL's encoder: depth.
+pub fn encode_rvl(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    match *subject {
+        Subject::Depth { frame, .. } => Ok(depth_rvl(frame)),
+        _ => Err(subject.not_served("RVL")),
+    }
+}
+
+/// RVL+zstd's encoder: depth.
+pub fn encode_rvl_zstd(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
+    match *subject {
+        Subject::Depth { frame, .. } => depth_rvl_zstd(frame),
+        _ => Err(subject.not_served("RVL+zstd")),
+    }
+}
+
+/// RVL read back: depth.
+pub const RVL_DECODERS: Decoders = Decoders {
+    depth: Some(|body| Ok(depth_from_rvl(body)?)),
+    ..Decoders::NONE
+};
+
+/// RVL+zstd read back: depth.
+pub const RVL_ZSTD_DECODERS: Decoders = Decoders {
+    depth: Some(|body| Ok(depth_from_rvl_zstd(body)?)),
+    ..Decoders::NONE
+};
 
 #[cfg(test)]
 mod tests {

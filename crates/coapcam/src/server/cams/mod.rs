@@ -27,8 +27,8 @@ use rgbd::{
 use tokio::sync::mpsc;
 
 use crate::report::{self, EdgeQuery, Measurement, Parcel};
-use crate::repr::clouds::{self, DepthPart};
-use crate::repr::{self, CloudSource, Stream, cbor, packet, raster, rvl};
+use crate::repr::clouds::DepthPart;
+use crate::repr::{self, CloudSource, Stream, Subject, raster};
 use crate::station::Recorder;
 use crate::station::measure::{self as station_measure, Rig, RigCamera, Shot};
 use crate::station::record::{CameraPose, Trigger};
@@ -600,10 +600,13 @@ impl Cams {
         let source = CloudSource::Merged {
             serials: &merged.serials,
         };
-        let body = match cf {
-            repr::DEPTH_CLOUD => clouds::depth_cloud(&merged.parts),
-            _ => cloud_body(cf, &merged.cloud.points, merged.timestamp_us, source),
+        let subject = Subject::Cloud {
+            points: &merged.cloud.points,
+            timestamp_us: merged.timestamp_us,
+            source,
+            parts: &merged.parts,
         };
+        let body = encode(cf, &subject);
         let body = match body {
             Ok(body) => body,
             Err(e) => return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
@@ -1021,27 +1024,30 @@ fn represent(
         Ok(q) => q,
         Err(refused) => return refused,
     };
-    let body = match (frame, cf) {
-        (Frame::Color(f, ..), ContentFormat::IMAGE_PNG) => raster::color_png(f),
-        (Frame::Color(f, ..), ContentFormat::IMAGE_JPEG) => {
-            raster::color_jpeg(f, quality.unwrap_or(raster::JPEG_QUALITY))
-        }
-        (Frame::Color(f, k, e), ContentFormat::CBOR) => cbor::color_cbor(f, k, e, sn),
-        (Frame::Color(f, ..), _) => Ok(packet::color_packet(f)),
-        (Frame::Depth(f, _), ContentFormat::IMAGE_PNG) => raster::depth_png(f),
-        (Frame::Depth(f, _), repr::RVL) => Ok(rvl::depth_rvl(f)),
-        (Frame::Depth(f, _), repr::RVL_ZSTD) => rvl::depth_rvl_zstd(f),
-        (Frame::Depth(f, k), ContentFormat::CBOR) => cbor::depth_cbor(f, k, sn),
-        (Frame::Depth(f, _), _) => Ok(packet::depth_packet(f)),
-        (Frame::Cloud { part, .. }, repr::DEPTH_CLOUD) => clouds::depth_cloud([part]),
-        (Frame::Cloud { points, part }, cf) => {
-            let source = CloudSource::Camera {
+    let subject = match frame {
+        Frame::Color(frame, intrinsics, depth_to_color) => Subject::Color {
+            frame,
+            intrinsics,
+            depth_to_color,
+            serial: sn,
+            quality: quality.unwrap_or(raster::JPEG_QUALITY),
+        },
+        Frame::Depth(frame, intrinsics) => Subject::Depth {
+            frame,
+            intrinsics,
+            serial: sn,
+        },
+        Frame::Cloud { points, part } => Subject::Cloud {
+            points,
+            timestamp_us: part.depth.timestamp_us,
+            source: CloudSource::Camera {
                 serial: sn,
                 frame: part.depth.frame_number,
-            };
-            cloud_body(cf, points, part.depth.timestamp_us, source)
-        }
+            },
+            parts: std::slice::from_ref(part),
+        },
     };
+    let body = encode(cf, &subject);
     match body {
         Ok(body) => content(body, cf, representation_etag(etag, cf, quality)),
         Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
@@ -1075,21 +1081,14 @@ fn jpeg_quality(request: &IncomingRequest, cf: ContentFormat) -> Result<Option<u
     }
 }
 
-/// A point cloud in content format `cf`: CBOR, PLY, millimetres, else the thesis packet.
-fn cloud_body(
-    cf: ContentFormat,
-    points: &[Point3],
-    timestamp_us: u64,
-    source: CloudSource<'_>,
-) -> Result<Vec<u8>, repr::EncodeError> {
-    match cf {
-        ContentFormat::CBOR => cbor::cloud_cbor(points, timestamp_us, source),
-        repr::PLY => repr::ply::cloud_ply(points, timestamp_us, source),
-        repr::CLOUD_MM => clouds::cloud_mm(points, timestamp_us, source),
-        _ => Ok(packet::cloud_packet(
-            points,
-            packet::unix_seconds(timestamp_us),
-        )),
+/// `subject` in content format `cf` (one that [`negotiate`] chose), by its row of the table.
+fn encode(cf: ContentFormat, subject: &Subject<'_>) -> Result<Vec<u8>, repr::EncodeError> {
+    match repr::Format::of(cf) {
+        Some(row) => row.encode(subject),
+        None => Err(repr::EncodeError::NotServed {
+            stream: subject.stream_name(),
+            format: "an unknown content format",
+        }),
     }
 }
 
