@@ -211,9 +211,10 @@ impl Serialize for PostProcessingConfig {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeStruct as _;
         let mut doc = s.serialize_struct("PostProcessingConfig", 3)?;
+        // In the names' order, as the document has always been written.
         doc.serialize_field("decimation", &stage(self.decimation))?;
-        doc.serialize_field("spatial", &stage(self.spatial))?;
         doc.serialize_field("holefilling", &stage(self.holefilling))?;
+        doc.serialize_field("spatial", &stage(self.spatial))?;
         doc.end()
     }
 }
