@@ -49,7 +49,7 @@ impl ServerLayer {
         if !req.continuation && !req.q_stateless() {
             self.replay_stage(cx, now, req)?;
         }
-        self.verify_stage(cx, now, req, size)?;
+        req.budget = self.verify_stage(cx, now, req, size)?;
         self.critical_options_stage(cx, now, req)?;
         req.msg.options.drop_bad_elective();
         let key = req.block_key();
@@ -82,18 +82,16 @@ impl ServerLayer {
         Ok(())
     }
 
-    /// RFC 9175 §2.4: a request from an unverified peer gets an Echo challenge of at most
-    /// three times its `size`, before any work: nothing is stored for it, and the
-    /// application does not run (a GET too: its answer, unknown until made, would rarely
-    /// fit three times a request in one block, so a forged source would make the server
-    /// work for nothing; a flood of them took a core).
+    /// RFC 9175 §2.4: an unverified peer gets at most three times `size` (the budget
+    /// returned; `None` for a verified one). What would send it more, keep state for it,
+    /// or change state gets an Echo challenge instead.
     fn verify_stage(
         &mut self,
         cx: &mut Context<'_>,
         now: Instant,
         req: &Incoming<'_>,
         size: usize,
-    ) -> Result<(), Answered> {
+    ) -> Result<Option<usize>, Answered> {
         let limits = cx.limits();
         let msg = &req.msg;
         let verified = !cx.config.verify_addresses
@@ -105,7 +103,15 @@ impl ServerLayer {
                 limits.verified_peers,
             );
         if verified {
-            return Ok(());
+            return Ok(None);
+        }
+        if matches!(msg.code, Code::GET | Code::FETCH)
+            && msg.options.uint(OptionNumber::OBSERVE) != Some(0)
+            && req.block1.is_none()
+            && !req.continuation
+            && !req.is_qblock()
+        {
+            return Ok(Some(3 * size));
         }
         let header = reply_header(cx, msg);
         let challenge = self.challenge(now, req.peer, msg.token, header, 3 * size);
@@ -137,7 +143,12 @@ impl ServerLayer {
         }
         let seen = if req.con {
             let text = format!("unrecognized or malformed critical option {}", bad.0);
-            reply(cx, req, Response::diagnostic(Code::BAD_OPTION, &text))
+            let mut response = Response::diagnostic(Code::BAD_OPTION, &text);
+            if req.budget.is_some() {
+                // The diagnostic could be many times a short request.
+                response.payload = Bytes::new();
+            }
+            reply(cx, req, response)
         } else if req.multicast {
             Seen::Silent
         } else {
@@ -292,6 +303,7 @@ impl ServerLayer {
             multicast,
             block2: req.block2,
             block1_echo: body.block1_echo,
+            budget: req.budget,
             // A response to a group request is stored for the client's port, whatever
             // address its unicast follow-ups come from.
             key: if multicast { key.for_group() } else { key },
@@ -380,6 +392,39 @@ impl ServerLayer {
             options: response.options,
             payload: response.payload,
         }
+    }
+
+    /// Answers request `p` of an unverified peer: the response when it fits in `budget`
+    /// bytes and one block, the Echo challenge otherwise. Nothing is stored for the peer,
+    /// and an answer after the empty ACK goes as a NON: a CON would be sent up to five
+    /// times to an address nobody verified.
+    fn respond_unverified(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        p: &Pending,
+        response: Response,
+        budget: usize,
+    ) {
+        let source = response.source.is_some();
+        let answer = self.pending_reply(cx, p, Type::Non, response);
+        let (ty, mid) = (answer.ty, answer.message_id);
+        let fits = !source
+            && answer.payload.len() <= BlockOpt::size_of(cx.config.max_block_szx)
+            && answer.encoded_len() <= budget;
+        let reply = if !fits {
+            self.challenge(now, p.peer, p.token, (ty, mid), budget)
+                .or_else(|| (ty == Type::Ack).then(|| Message::empty(Type::Rst, mid)))
+        } else if p.multicast && answer.code.is_error() {
+            None
+        } else {
+            Some(answer)
+        };
+        let seen = match reply {
+            Some(m) => cx.msg.reply_with(p.peer, m),
+            None => Seen::Silent,
+        };
+        cx.msg.dedup.set_reply(p.peer, p.mid, seen);
     }
 
     /// Makes sure the sweep runs no later than `at`.
@@ -659,6 +704,9 @@ impl ServerLayer {
     /// Sends the application's answer to request `p`.
     fn send_answer(&mut self, cx: &mut Context<'_>, now: Instant, p: Pending, response: Response) {
         let max_szx = cx.config.max_block_szx;
+        if let Some(budget) = p.budget {
+            return self.respond_unverified(cx, now, &p, response, budget);
+        }
         let mut q_rest = None;
         let mut response = if p.qblock2.is_empty() {
             self.blockwise_response(cx, now, p.key.clone(), p.block2, response, max_szx)

@@ -40,6 +40,9 @@ pub(super) struct Incoming<'p> {
     /// RFC 9177: its Q-Block2 options (repeatable) and Q-Block1.
     pub(super) q2: Vec<BlockOpt>,
     pub(super) q1: Option<BlockOpt>,
+    /// Once the address is checked: at most this many bytes may answer an unverified
+    /// peer (three times the request, RFC 9175 §2.4).
+    pub(super) budget: Option<usize>,
 }
 
 impl<'p> Incoming<'p> {
@@ -74,6 +77,7 @@ impl<'p> Incoming<'p> {
             continuation: matches!((block2, block1), (Some(b2), None) if b2.num > 0),
             q2,
             q1,
+            budget: None,
             msg,
         }
     }
@@ -110,6 +114,9 @@ pub(super) struct Pending {
     pub(super) multicast: bool,
     pub(super) block2: Option<BlockOpt>,
     pub(super) block1_echo: Option<BlockOpt>,
+    /// The peer's address is not verified: the answer may be at most this many bytes
+    /// (three times the request, RFC 9175 §2.4).
+    pub(super) budget: Option<usize>,
     pub(super) key: BlockKey,
     pub(super) observation: Option<u64>,
     /// The request's Q-Block2 options (RFC 9177): the response goes with Q-Block2.
