@@ -274,3 +274,33 @@ fn the_lane_scene_places_two_parcels_one_after_the_other() {
     assert_eq!(scene.at(5.0).boxes[0].center, first.center);
     assert_eq!(scene.at(14.0).boxes[0].center, second.center);
 }
+
+#[test]
+fn every_object_kind_takes_the_same_timeline_fields_and_refuses_unknown_ones() {
+    let timeline = "appear_s = 1\nfrom = [0.5, 0.25]\nstill_s = 2.5\nremove_s = 7";
+    let scene = Scene::from_toml(&format!(
+        "[[box]]\nsize = [0.2, 0.1, 0.1]\ncenter = [0.0, 0.0]\n{timeline}\n\
+         [[cylinder]]\nradius = 0.1\nheight = 0.2\ncenter = [0.3, 0.0]\n{timeline}\n\
+         [[marker]]\nfamily = \"tag36h11\"\nid = 3\nsize = 0.1\ncenter = [0.0, 0.4]\n{timeline}\n"
+    ))
+    .unwrap();
+    let expected = Timeline {
+        appear_s: Some(1.0),
+        remove_s: Some(7.0),
+        from: Some([0.5, 0.25]),
+        still_s: Some(2.5),
+    };
+    assert_eq!(scene.boxes[0].timeline, expected);
+    assert_eq!(scene.cylinders[0].timeline, expected);
+    assert_eq!(scene.markers[0].timeline, expected);
+    for object in [
+        "[[box]]\nsize = [0.2, 0.1, 0.1]\ncenter = [0.0, 0.0]",
+        "[[cylinder]]\nradius = 0.1\nheight = 0.2\ncenter = [0.3, 0.0]",
+        "[[marker]]\nfamily = \"tag36h11\"\nid = 3\nsize = 0.1\ncenter = [0.0, 0.4]",
+    ] {
+        let e = error_of(&format!("{object}\nappear = 1.0\n"));
+        assert!(e.contains("unknown field `appear`"), "{e}");
+        let e = error_of(&format!("{object}\nstill_s = \"soon\"\n"));
+        assert!(e.contains("invalid type"), "{e}");
+    }
+}

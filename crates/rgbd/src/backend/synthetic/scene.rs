@@ -233,6 +233,31 @@ impl Timeline {
     }
 }
 
+/// The timeline fields every object of a scene file may carry (flattened into the
+/// object's table).
+#[derive(Deserialize)]
+struct TimelineFile {
+    #[serde(default)]
+    appear_s: Option<f64>,
+    #[serde(default)]
+    remove_s: Option<f64>,
+    #[serde(default)]
+    from: Option<[f64; 2]>,
+    #[serde(default)]
+    still_s: Option<f64>,
+}
+
+impl From<TimelineFile> for Timeline {
+    fn from(f: TimelineFile) -> Self {
+        Self {
+            appear_s: f.appear_s,
+            remove_s: f.remove_s,
+            from: f.from,
+            still_s: f.still_s,
+        }
+    }
+}
+
 /// The floor plane.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -300,14 +325,8 @@ struct BoxFile {
     color: [u8; 3],
     #[serde(default)]
     label: Option<Label>,
-    #[serde(default)]
-    appear_s: Option<f64>,
-    #[serde(default)]
-    remove_s: Option<f64>,
-    #[serde(default)]
-    from: Option<[f64; 2]>,
-    #[serde(default)]
-    still_s: Option<f64>,
+    #[serde(flatten)]
+    timeline: TimelineFile,
 }
 
 impl From<BoxFile> for SceneBox {
@@ -318,12 +337,7 @@ impl From<BoxFile> for SceneBox {
             yaw_deg: f.yaw_deg,
             color: f.color,
             label: f.label,
-            timeline: Timeline {
-                appear_s: f.appear_s,
-                remove_s: f.remove_s,
-                from: f.from,
-                still_s: f.still_s,
-            },
+            timeline: f.timeline.into(),
         }
     }
 }
@@ -352,14 +366,8 @@ struct CylinderFile {
     center: [f64; 2],
     #[serde(default = "default_cylinder_color")]
     color: [u8; 3],
-    #[serde(default)]
-    appear_s: Option<f64>,
-    #[serde(default)]
-    remove_s: Option<f64>,
-    #[serde(default)]
-    from: Option<[f64; 2]>,
-    #[serde(default)]
-    still_s: Option<f64>,
+    #[serde(flatten)]
+    timeline: TimelineFile,
 }
 
 impl From<CylinderFile> for Cylinder {
@@ -369,12 +377,7 @@ impl From<CylinderFile> for Cylinder {
             height: f.height,
             center: f.center,
             color: f.color,
-            timeline: Timeline {
-                appear_s: f.appear_s,
-                remove_s: f.remove_s,
-                from: f.from,
-                still_s: f.still_s,
-            },
+            timeline: f.timeline.into(),
         }
     }
 }
@@ -406,14 +409,8 @@ struct MarkerFile {
     center: [f64; 2],
     #[serde(default)]
     yaw_deg: f64,
-    #[serde(default)]
-    appear_s: Option<f64>,
-    #[serde(default)]
-    remove_s: Option<f64>,
-    #[serde(default)]
-    from: Option<[f64; 2]>,
-    #[serde(default)]
-    still_s: Option<f64>,
+    #[serde(flatten)]
+    timeline: TimelineFile,
 }
 
 impl From<MarkerFile> for SceneMarker {
@@ -424,12 +421,7 @@ impl From<MarkerFile> for SceneMarker {
             size: f.size,
             center: f.center,
             yaw_deg: f.yaw_deg,
-            timeline: Timeline {
-                appear_s: f.appear_s,
-                remove_s: f.remove_s,
-                from: f.from,
-                still_s: f.still_s,
-            },
+            timeline: f.timeline.into(),
         }
     }
 }
