@@ -1,9 +1,11 @@
-//! Renders the built-in scenes to PNG for a visual check:
-//! `cargo run -p rgbd --example render_png [OUT_DIR]` (default `/tmp/rgbd-check`).
+//! Renders scenes to PNG for a visual check:
+//! `cargo run -p rgbd --example render_png [OUT_DIR [SCENE.toml ...]]` (default
+//! `/tmp/rgbd-check` and the built-in single-camera and demo scenes).
 //!
-//! For each camera of the single-camera and the demo scene it writes
-//! `<scene>-<serial>-color.png` (1280x720 RGB) and `<scene>-<serial>-depth.png`, a
-//! depth visualization: near = bright, far = dark, no depth (0) = red.
+//! For each camera of each scene it writes `<scene>-<serial>-color.png` (1280x720 RGB)
+//! and `<scene>-<serial>-depth.png`, a depth visualization: near = bright, far = dark, no
+//! depth (0) = red. It prints a hash (FNV-1a) of each frame's raw bytes, which tells
+//! whether a change of the renderer changed a frame.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -24,6 +26,13 @@ fn depth_image(frame: &DepthFrame) -> RgbImage {
     })
 }
 
+/// FNV-1a, 64 bits.
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
 fn render(name: &str, scene: &Scene, dir: &Path) -> Result<(), String> {
     let cams = SyntheticCamera::all(scene).map_err(|e| e.to_string())?;
     for cam in cams {
@@ -35,6 +44,7 @@ fn render(name: &str, scene: &Scene, dir: &Path) -> Result<(), String> {
         })
         .map_err(|e| e.to_string())?;
         let color = cam.render_color(1);
+        let color_hash = fnv1a(&color.data);
         let depth = cam.render_depth(1);
         let color_img = RgbImage::from_raw(color.width, color.height, color.data)
             .ok_or("color buffer does not match its size")?;
@@ -48,31 +58,51 @@ fn render(name: &str, scene: &Scene, dir: &Path) -> Result<(), String> {
             .save(&depth_path)
             .map_err(|e| format!("{}: {e}", depth_path.display()))?;
         let zeros = depth.data.iter().filter(|&&v| v == 0).count();
+        let depth_bytes: Vec<u8> = depth.data.iter().flat_map(|v| v.to_le_bytes()).collect();
         println!(
-            "{} {}: wrote {} and {} ({:.1} % of depth pixels are 0)",
+            "{} {}: wrote {} and {} ({:.1} % of depth pixels are 0; depth {:016x}, color {:016x})",
             name,
             cam.serial(),
             color_path.display(),
             depth_path.display(),
-            100.0 * zeros as f64 / depth.data.len() as f64
+            100.0 * zeros as f64 / depth.data.len() as f64,
+            fnv1a(&depth_bytes),
+            color_hash,
         );
     }
     Ok(())
 }
 
 fn main() -> ExitCode {
-    let dir = std::env::args()
-        .nth(1)
+    let mut args = std::env::args().skip(1);
+    let dir = args
+        .next()
         .map_or_else(|| PathBuf::from("/tmp/rgbd-check"), PathBuf::from);
+    let mut scenes = Vec::new();
+    for path in args {
+        let name = Path::new(&path)
+            .file_stem()
+            .map_or_else(|| path.clone(), |s| s.to_string_lossy().into_owned());
+        match Scene::load(Path::new(&path)) {
+            Ok(scene) => scenes.push((name, scene)),
+            Err(e) => {
+                eprintln!("{e}");
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+    if scenes.is_empty() {
+        scenes = vec![
+            ("single".to_owned(), Scene::default_single()),
+            ("demo".to_owned(), Scene::default_demo()),
+        ];
+    }
     if let Err(e) = std::fs::create_dir_all(&dir) {
         eprintln!("cannot create {}: {e}", dir.display());
         return ExitCode::FAILURE;
     }
-    for (name, scene) in [
-        ("single", Scene::default_single()),
-        ("demo", Scene::default_demo()),
-    ] {
-        if let Err(e) = render(name, &scene, &dir) {
+    for (name, scene) in &scenes {
+        if let Err(e) = render(name, scene, &dir) {
             eprintln!("{name}: {e}");
             return ExitCode::FAILURE;
         }

@@ -6,6 +6,7 @@ mod filters;
 mod hub;
 mod librealsense;
 mod modes;
+mod parcels;
 mod realsense;
 mod scene;
 mod support;

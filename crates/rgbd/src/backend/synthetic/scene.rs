@@ -443,6 +443,105 @@ pub struct Scene {
     pub markers: Vec<SceneMarker>,
 }
 
+/// What kind of object a [`Truth`] describes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum ObjectKind {
+    /// A `[[box]]`.
+    Box,
+    /// A `[[cylinder]]` standing upright.
+    Cylinder,
+}
+
+impl ObjectKind {
+    /// The name of the kind's table in a scene file (`box`, `cylinder`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Box => "box",
+            Self::Cylinder => "cylinder",
+        }
+    }
+}
+
+/// The true extent of an object standing on the floor: its smallest enclosing upright
+/// cuboid (what OIML R 129 measures for any shape), from the scene's numbers rather than
+/// from any rendering. For a box it is the box itself.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Truth {
+    /// What the object is.
+    pub kind: ObjectKind,
+    /// Its index among the scene's objects of its kind (`box[index]`).
+    pub index: usize,
+    /// Length, width, height of the enclosing cuboid in metres, length >= width.
+    pub size: [f64; 3],
+    /// Centre of the cuboid's footprint on the floor, (x, y) metres.
+    pub center: [f64; 2],
+    /// Direction of the length on the floor, degrees counter-clockwise from world x, in
+    /// (-90, 90].
+    pub yaw_deg: f64,
+    /// The footprint's corners on the floor, (x, y) metres, counter-clockwise seen from
+    /// above.
+    pub footprint: [[f64; 2]; 4],
+    /// Whether the object is itself a cuboid (a box), so a cuboid fits it exactly.
+    pub cuboid: bool,
+}
+
+impl Truth {
+    /// The truth of an object whose enclosing cuboid is `size` (along its own x, y, z)
+    /// turned by `yaw_deg` about `center`.
+    fn new(kind: ObjectKind, index: usize, size: [f64; 3], center: [f64; 2], yaw_deg: f64) -> Self {
+        let (length, width, yaw) = if size[0] >= size[1] {
+            (size[0], size[1], yaw_deg)
+        } else {
+            (size[1], size[0], yaw_deg + 90.0)
+        };
+        // Into (-90, 90].
+        let mut yaw = (yaw + 90.0).rem_euclid(180.0) - 90.0;
+        if yaw <= -90.0 {
+            yaw += 180.0;
+        }
+        let (sin, cos) = yaw.to_radians().sin_cos();
+        let corner = |a: f64, b: f64| {
+            let (x, y) = (a * length / 2.0, b * width / 2.0);
+            [center[0] + x * cos - y * sin, center[1] + x * sin + y * cos]
+        };
+        Self {
+            kind,
+            index,
+            size: [length, width, size[2]],
+            center,
+            yaw_deg: yaw,
+            footprint: [
+                corner(-1.0, -1.0),
+                corner(1.0, -1.0),
+                corner(1.0, 1.0),
+                corner(-1.0, 1.0),
+            ],
+            cuboid: kind == ObjectKind::Box,
+        }
+    }
+
+    /// Length in millimetres.
+    pub fn length_mm(&self) -> f64 {
+        self.size[0] * 1e3
+    }
+
+    /// Width in millimetres.
+    pub fn width_mm(&self) -> f64 {
+        self.size[1] * 1e3
+    }
+
+    /// Height in millimetres.
+    pub fn height_mm(&self) -> f64 {
+        self.size[2] * 1e3
+    }
+
+    /// Footprint area, square metres.
+    pub fn footprint_m2(&self) -> f64 {
+        self.size[0] * self.size[1]
+    }
+}
+
 /// Why a scene was refused.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -810,6 +909,29 @@ impl Scene {
             })
             .collect();
         scene
+    }
+
+    /// The true enclosing cuboid of every object standing on the floor (boxes, then
+    /// cylinders, each in file order; markers are printed on the floor and are no
+    /// objects), where each stands at rest (its `center`); `scene.at(t_s).truths()`
+    /// gives those of one moment.
+    pub fn truths(&self) -> Vec<Truth> {
+        let boxes = self
+            .boxes
+            .iter()
+            .enumerate()
+            .map(|(i, b)| Truth::new(ObjectKind::Box, i, b.size, b.center, b.yaw_deg));
+        let cylinders = self.cylinders.iter().enumerate().map(|(i, c)| {
+            let side = 2.0 * c.radius;
+            Truth::new(
+                ObjectKind::Cylinder,
+                i,
+                [side, side, c.height],
+                c.center,
+                0.0,
+            )
+        });
+        boxes.chain(cylinders).collect()
     }
 
     /// The camera with this serial.

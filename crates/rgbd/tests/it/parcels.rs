@@ -1,0 +1,177 @@
+//! Scenes that look like a lane: several parcels at once, parcels partly out of view,
+//! and the truth (smallest enclosing cuboid) of every object.
+
+use rgbd::scene::{ObjectKind, Truth};
+use rgbd::{Camera, DepthFrame, Scene, SyntheticCamera};
+
+use crate::support::only_camera;
+
+/// Height above the floor of the surface seen at depth pixel (u, v) by a camera looking
+/// straight down from `camera_z`; `None` for no depth.
+fn height_at(frame: &DepthFrame, camera_z: f64, u: u32, v: u32) -> Option<f64> {
+    frame.metres_at(u, v).map(|z| camera_z - f64::from(z))
+}
+
+/// The depth pixel a camera looking straight down (image up = world +y) sees world
+/// (x, y, z) at.
+fn pixel_below(cam: &SyntheticCamera, camera_z: f64, p: [f64; 3]) -> (u32, u32) {
+    let k = cam.depth_intrinsics().unwrap();
+    let depth = (camera_z - p[2]) as f32;
+    let px = k
+        .project([p[0] as f32, -p[1] as f32, depth])
+        .expect("in front of the camera");
+    (px[0].round() as u32, px[1].round() as u32)
+}
+
+/// Two boxes side by side (touching along a face) and a third one apart, under one
+/// camera 1.2 m above the floor.
+const THREE: &str = r#"
+seed = 9
+[[camera]]
+serial = "000000000001"
+position = [0.0, 0.0, 1.2]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+noise = "ideal"
+
+[[box]]
+size = [0.20, 0.30, 0.15]
+center = [-0.10, 0.05]
+
+[[box]]
+size = [0.20, 0.30, 0.25]
+center = [0.10, 0.05]
+
+[[box]]
+size = [0.25, 0.12, 0.10]
+center = [0.05, -0.30]
+yaw_deg = 20.0
+"#;
+
+#[test]
+fn parcels_touching_and_apart_are_each_seen_at_their_own_height() {
+    let scene = Scene::from_toml(THREE).unwrap();
+    let cam = only_camera(&scene);
+    let frame = cam.render_depth(1);
+    for b in &scene.boxes {
+        let (u, v) = pixel_below(&cam, 1.2, [b.center[0], b.center[1], b.size[2]]);
+        let h = height_at(&frame, 1.2, u, v).expect("depth on a lid");
+        assert!((h - b.size[2]).abs() < 0.001, "{h} on {b:?}");
+    }
+    // Across the shared face, from the low lid to the high one: no floor between them.
+    let (u0, v) = pixel_below(&cam, 1.2, [-0.15, 0.05, 0.15]);
+    let (u1, _) = pixel_below(&cam, 1.2, [0.15, 0.05, 0.25]);
+    let heights: Vec<f64> = (u0..=u1)
+        .map(|u| height_at(&frame, 1.2, u, v).expect("depth"))
+        .collect();
+    assert!(heights.iter().all(|h| *h > 0.149), "{heights:?}");
+    let steps = heights
+        .windows(2)
+        .filter(|w| (w[1] - w[0]).abs() > 0.05)
+        .count();
+    assert_eq!(steps, 1, "one step from the low lid up to the high one");
+    // Between the touching pair and the third box: the floor.
+    let (u, v) = pixel_below(&cam, 1.2, [0.05, -0.18, 0.0]);
+    let h = height_at(&frame, 1.2, u, v).expect("depth");
+    assert!(h.abs() < 0.001, "{h}");
+}
+
+#[test]
+fn a_parcel_partly_out_of_view_is_rendered_up_to_the_image_edge() {
+    // The camera 1 m up sees about +-0.64 m across; the box reaches from 0.45 to 1.05 m.
+    let scene = Scene::from_toml(
+        r#"
+seed = 4
+[[camera]]
+serial = "000000000001"
+position = [0.0, 0.0, 1.0]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+
+[[box]]
+size = [0.60, 0.40, 0.20]
+center = [0.75, 0.0]
+"#,
+    )
+    .unwrap();
+    let cam = only_camera(&scene);
+    let frame = cam.render_depth(1);
+    let (w, h) = (frame.width, frame.height);
+    let (_, v) = pixel_below(&cam, 1.0, [0.75, 0.0, 0.2]);
+    // The lid reaches the right edge of the image: most of the last column's pixels in
+    // the box's rows see it (D415 noise: a few drop out).
+    let rows: Vec<u32> = (v.saturating_sub(100)..(v + 100).min(h)).collect();
+    let on_lid = rows
+        .iter()
+        .filter(|&&row| height_at(&frame, 1.0, w - 1, row).is_some_and(|z| (z - 0.2).abs() < 0.01))
+        .count();
+    assert!(on_lid > rows.len() * 9 / 10, "{on_lid} of {}", rows.len());
+    // The color image renders too.
+    let color = cam.render_color(1);
+    assert_eq!(color.data.len(), color.stride * color.height as usize);
+    // The truth is the whole box, in view or not.
+    let truth = scene.truths();
+    assert_eq!(truth.len(), 1);
+    assert_eq!(truth[0].size, [0.60, 0.40, 0.20]);
+}
+
+#[test]
+fn the_truth_of_each_object_is_its_smallest_upright_enclosing_cuboid() {
+    let scene = Scene::from_toml(
+        r#"
+[[box]]
+size = [0.20, 0.50, 0.10]
+center = [0.1, 0.2]
+yaw_deg = 30.0
+
+[[cylinder]]
+radius = 0.08
+height = 0.30
+center = [-0.3, 0.0]
+appear_s = 2.0
+"#,
+    )
+    .unwrap();
+    let truths = scene.truths();
+    assert_eq!(truths.len(), 2);
+    let b: &Truth = &truths[0];
+    assert_eq!((b.kind, b.index, b.cuboid), (ObjectKind::Box, 0, true));
+    assert_eq!(b.size, [0.50, 0.20, 0.10]);
+    assert!((b.yaw_deg - -60.0).abs() < 1e-9, "{}", b.yaw_deg);
+    assert_eq!(
+        (b.length_mm(), b.width_mm(), b.height_mm()),
+        (500.0, 200.0, 100.0)
+    );
+    assert!((b.footprint_m2() - 0.1).abs() < 1e-12);
+    // Corners: half a length along yaw -60 and half a width across it, counter-clockwise.
+    let (s, c) = (-60.0f64).to_radians().sin_cos();
+    let expect = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].map(|(a, d)| {
+        [
+            0.1 + a * 0.25 * c - d * 0.1 * s,
+            0.2 + a * 0.25 * s + d * 0.1 * c,
+        ]
+    });
+    for (got, want) in b.footprint.iter().zip(expect) {
+        assert!((got[0] - want[0]).abs() < 1e-12 && (got[1] - want[1]).abs() < 1e-12);
+    }
+    let area2: f64 = (0..4)
+        .map(|i| {
+            let (p, q) = (b.footprint[i], b.footprint[(i + 1) % 4]);
+            p[0] * q[1] - q[0] * p[1]
+        })
+        .sum();
+    assert!(
+        (area2 / 2.0 - 0.1).abs() < 1e-12,
+        "counter-clockwise: {area2}"
+    );
+    let cyl = &truths[1];
+    assert_eq!(
+        (cyl.kind, cyl.index, cyl.cuboid),
+        (ObjectKind::Cylinder, 0, false)
+    );
+    assert_eq!(cyl.size, [0.16, 0.16, 0.30]);
+    assert_eq!(cyl.center, [-0.3, 0.0]);
+    // At a moment: only what is there then.
+    assert_eq!(scene.at(1.0).truths().len(), 1);
+    assert_eq!(scene.at(2.0).truths().len(), 2);
+}
