@@ -1,6 +1,7 @@
 //! Renders scenes to PNG for a visual check:
-//! `cargo run -p rgbd --example render_png [OUT_DIR [SCENE.toml ...]]` (default
-//! `/tmp/rgbd-check` and the built-in single-camera and demo scenes).
+//! `cargo run -p rgbd --example render_png [OUT_DIR [SCENE ...]]` (default
+//! `/tmp/rgbd-check` and the built-in single-camera and demo scenes), where a SCENE is a
+//! scene file or `lane:SEED:INDEX`, scene INDEX of the lane set of SEED ([`rgbd::lane`]).
 //!
 //! For each camera of each scene it writes `<scene>-<serial>-color.png` (1280x720 RGB)
 //! and `<scene>-<serial>-depth.png`, a depth visualization: near = bright, far = dark, no
@@ -80,6 +81,17 @@ fn main() -> ExitCode {
         .map_or_else(|| PathBuf::from("/tmp/rgbd-check"), PathBuf::from);
     let mut scenes = Vec::new();
     for path in args {
+        if let Some(lane) = path.strip_prefix("lane:") {
+            let numbers: Vec<Option<u64>> = lane.split(':').map(|n| n.parse().ok()).collect();
+            let [Some(seed), Some(index)] = numbers[..] else {
+                eprintln!("{path}: expected lane:SEED:INDEX");
+                return ExitCode::from(2);
+            };
+            let lane = rgbd::lane::lane_scene(seed, index as usize);
+            println!("{path}: {} {:?}", lane.case, lane.truths);
+            scenes.push((format!("lane-{seed}-{index}-{}", lane.case), lane.scene));
+            continue;
+        }
         let name = Path::new(&path)
             .file_stem()
             .map_or_else(|| path.clone(), |s| s.to_string_lossy().into_owned());

@@ -4,6 +4,7 @@ mod advanced;
 mod bag;
 mod filters;
 mod hub;
+mod lane;
 mod librealsense;
 mod modes;
 mod parcels;

@@ -45,6 +45,7 @@
 
 pub mod d415;
 mod label;
+pub mod lane;
 mod raycast;
 mod render;
 pub mod scene;
