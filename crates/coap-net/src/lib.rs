@@ -21,7 +21,7 @@ pub use client::{BodyPart, BodyStream, Client, Observation};
 pub use coap;
 pub use driver::{EndpointHandle, Progress};
 pub use dtls::Psk;
-pub use router::{Ctx, Policy, Resource, Router, handler};
+pub use router::{Around, Ctx, Policy, Resource, Router, handler};
 pub use server::{Server, ServerConfig};
 pub use uri::Uri;
 

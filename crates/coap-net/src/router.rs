@@ -177,11 +177,18 @@ struct Entry {
 pub struct Router {
     entries: RwLock<Vec<Entry>>,
     policy: RwLock<Option<Policy>>,
+    around: RwLock<Option<Around>>,
 }
 
 /// Who may change the configuration: the answer to a request it refuses, `None` for one
 /// it lets through.
 pub type Policy = Arc<dyn Fn(&IncomingRequest) -> Option<Response> + Send + Sync>;
+
+/// What the application does around every answer ([`Router::set_around`]): called with
+/// the request before anything answers it; the function it returns is called with the
+/// answer, whoever made it, just before the router hands it on.
+pub type Around =
+    Arc<dyn Fn(&IncomingRequest) -> Box<dyn FnOnce(&mut Response) + Send> + Send + Sync>;
 
 impl std::fmt::Debug for Router {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -214,6 +221,15 @@ impl Router {
             .policy
             .write()
             .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(policy);
+    }
+
+    /// Sets what is done around every answer (e.g. stamping the times of the exchange
+    /// into it); by default nothing.
+    pub fn set_around(&self, around: Around) {
+        *self
+            .around
+            .write()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(around);
     }
 
     /// Adds or replaces the resource at `pattern` (`/files/a.bin`, `/cams/{sn}/color`).
@@ -321,7 +337,20 @@ impl Router {
     /// Answers a request: `/.well-known/core`, the resource's handler, 4.04 for an unknown
     /// path, 4.05 for a method the resource lacks. A GET whose ETag option names the
     /// representation the handler produced is answered 2.03 Valid (RFC 7252 §5.10.6.1).
+    /// What [`Router::set_around`] set is done around it.
     pub async fn dispatch(&self, request: IncomingRequest) -> Response {
+        let around = (self.around.read())
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone();
+        let after = around.map(|around| around(&request));
+        let mut response = self.answer(request).await;
+        if let Some(after) = after {
+            after(&mut response);
+        }
+        response
+    }
+
+    async fn answer(&self, request: IncomingRequest) -> Response {
         let path: Vec<String> = request.options.uri_path().map(|s| s.into_owned()).collect();
         if path == [".well-known", "core"] {
             if request.method != Code::GET {

@@ -13,6 +13,8 @@
 //! - [`station`]: what the server does by itself for a parcel lane: the results log;
 //! - [`vision`]: pure image work: reading QR and Code 128 codes, pictures for people;
 //! - [`stats`]: medians, percentiles and running moments of repeated measurements;
+//! - [`timesync`]: the servers' clock offsets (NTP's four timestamps over CoAP) and the
+//!   check that a measurement's frames belong together in time;
 //! - [`bench`]: the benchmarks, and [`process`]: the child processes and peer programs
 //!   they and the integration tests run.
 //!
@@ -30,6 +32,7 @@ pub mod repr;
 pub mod server;
 pub mod station;
 pub mod stats;
+pub mod timesync;
 pub mod vision;
 
 /// An error and its causes, `: `-separated, each said once: many errors repeat their

@@ -180,6 +180,14 @@ pub(crate) struct ServeArgs {
     /// still; raise it where parcels are placed slowly or wobble.
     #[arg(long, value_name = "MS", requires = "auto_measure", value_parser = clap::value_parser!(u64).range(100..=60_000))]
     still_ms: Option<u64>,
+    /// Shift this server's clock as its clients see it by this many milliseconds (may be
+    /// negative): the receive and transmit times it stamps into its answers and its
+    /// frames' capture times move together, as on a host whose clock is off. For
+    /// testing clients' clock-offset estimation (`measure --max-skew-ms`); a real
+    /// server's clock is its system's.
+    #[arg(long, value_name = "MS", default_value_t = 0, allow_negative_numbers = true,
+          value_parser = clap::value_parser!(i64).range(-86_400_000..=86_400_000))]
+    clock_offset_ms: i64,
     /// Stop after this many seconds (default: run until interrupted).
     #[arg(long, value_name = "SECONDS")]
     duration: Option<f64>,
@@ -296,6 +304,7 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             }
             auto
         }),
+        clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
     })
     .await?;
     if args.no_address_check {

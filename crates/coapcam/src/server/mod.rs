@@ -5,6 +5,7 @@
 //! synthetic scene on one address inside another program (`demo`, `bench`, tests).
 
 mod cams;
+mod clock;
 mod files;
 mod group;
 pub mod identities;
@@ -29,6 +30,8 @@ use crate::report::{EdgeQuery, Measurement};
 use crate::station::log::ResultsLog;
 use crate::station::{self, Recorder};
 use cams::Cams;
+use clock::ServerClock;
+pub use clock::TIME_PATH;
 pub use cams::{Busy, EdgeError};
 use files::StaticFiles;
 use group::Groups;
@@ -96,6 +99,10 @@ pub struct StationConfig {
     /// Measure each parcel placed on the table by itself (`--auto-measure`,
     /// `--still-ms`); `None`: only when a client asks.
     pub auto_measure: Option<station::watch::AutoConfig>,
+    /// Shift the server's clock as its clients see it (the times it stamps into answers
+    /// and its frames' capture times) by this many µs (`--clock-offset-ms`: a server whose
+    /// clock is off, for tests); 0 for the system's clock.
+    pub clock_offset_us: i64,
 }
 
 /// The policy of a server without security configured: configuration changes (PUT and
@@ -163,6 +170,9 @@ impl Station {
         let (changed_tx, changed) = mpsc::unbounded_channel::<String>();
         let (membership_tx, memberships) = mpsc::unbounded_channel();
         let groups = Groups::register(&router, membership_tx);
+        let clock = Arc::new(ServerClock::default());
+        clock.set_offset_us(config.clock_offset_us);
+        clock.install(&router);
         let files = match &config.static_dir {
             Some(dir) => Some(StaticFiles::load(
                 dir,
@@ -178,6 +188,7 @@ impl Station {
                 cameras,
                 &config.state_dir,
                 &router,
+                &clock,
                 changed_tx.clone(),
                 config.grab_memory,
             )?),
@@ -422,6 +433,7 @@ pub struct SceneServer {
     server: Arc<Server>,
     hub: Arc<CameraHub>,
     cams: Arc<Cams>,
+    clock: Arc<ServerClock>,
     notifier: JoinHandle<()>,
 }
 
@@ -432,7 +444,9 @@ impl SceneServer {
         let router = Router::new();
         router.set_policy(Arc::new(loopback_only));
         let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
-        let (hub, cams) = start_hub(state_dir, &router, changed_tx)?;
+        let clock = Arc::new(ServerClock::default());
+        clock.install(&router);
+        let (hub, cams) = start_hub(state_dir, &router, changed_tx, &clock)?;
         load_scene(&hub, &router, scene)?;
         let server = Arc::new(
             Server::bind(&[bind], ServerConfig::default(), router)
@@ -448,6 +462,7 @@ impl SceneServer {
             server,
             hub,
             cams,
+            clock,
             notifier,
         })
     }
@@ -463,6 +478,18 @@ impl SceneServer {
     /// `received_bytes`), kept as the latest (`GET /cams/dimensions` and its observers).
     pub async fn measure_now(&self, query: &EdgeQuery) -> Result<Measurement, EdgeError> {
         self.cams.measure_now(query).await
+    }
+
+    /// Shifts the server's clock as its clients see it by `offset_us` (see
+    /// [`StationConfig::clock_offset_us`]).
+    pub fn set_clock_offset_us(&self, offset_us: i64) {
+        self.clock.set_offset_us(offset_us);
+    }
+
+    /// Requests answered so far; a Block2 continuation, answered from the endpoint's
+    /// store, is not one.
+    pub fn requests_answered(&self) -> u64 {
+        self.clock.answered()
     }
 
     /// The address the server answers on.
@@ -486,11 +513,12 @@ fn start_hub(
     state_dir: &Path,
     router: &Arc<Router>,
     changed: mpsc::UnboundedSender<String>,
+    clock: &Arc<ServerClock>,
 ) -> anyhow::Result<(Arc<CameraHub>, Arc<Cams>)> {
     std::fs::create_dir_all(state_dir)
         .with_context(|| format!("creating state directory {}", state_dir.display()))?;
     let hub = Arc::new(CameraHub::new());
-    let cams = Cams::start(hub.clone(), router.clone(), state_dir, changed)
+    let cams = Cams::start(hub.clone(), router.clone(), state_dir, changed, clock.clone())
         .context("starting the camera hub listener")?;
     Ok((hub, cams))
 }
@@ -541,10 +569,11 @@ fn start_cameras(
     cameras: Cameras,
     state_dir: &Path,
     router: &Arc<Router>,
+    clock: &Arc<ServerClock>,
     changed: mpsc::UnboundedSender<String>,
     grab_memory: u64,
 ) -> anyhow::Result<CameraTree> {
-    let (hub, cams) = start_hub(state_dir, router, changed)?;
+    let (hub, cams) = start_hub(state_dir, router, changed, clock)?;
     cams.set_grab_memory(grab_memory);
     let mut backend = None;
     match cameras {

@@ -13,6 +13,7 @@ use rgbd::{
 };
 
 use crate::documents::AppConfig;
+use crate::server::clock::ServerClock;
 
 /// A grabbed frame as the resources keep it; images with the intrinsics of their pixels
 /// (after the `roi2d` crop).
@@ -35,6 +36,18 @@ impl Frame {
             Self::Depth(f, _) => f.frame_number,
             Self::Cloud { part, .. } => part.depth.frame_number,
         }
+    }
+
+    /// The frame with its capture time on the server's clock (the backends stamp the
+    /// system's).
+    pub(crate) fn on_clock(mut self, clock: &ServerClock) -> Self {
+        let t = match &mut self {
+            Self::Color(f, ..) => &mut f.timestamp_us,
+            Self::Depth(f, _) => &mut f.timestamp_us,
+            Self::Cloud { part, .. } => &mut part.depth.timestamp_us,
+        };
+        *t = clock.shift(*t);
+        self
     }
 
     pub(crate) fn timestamp_us(&self) -> u64 {

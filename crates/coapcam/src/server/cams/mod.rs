@@ -13,7 +13,7 @@ use std::collections::BTreeMap;
 use std::hash::{Hash as _, Hasher as _};
 use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard, OnceLock, PoisonError};
-use std::time::{Instant, SystemTime};
+use std::time::Instant;
 
 use bytes::Bytes;
 use coap::link_format::Filter;
@@ -34,6 +34,7 @@ use crate::station::measure::{self as station_measure, Rig, RigCamera, Shot};
 use crate::station::record::{CameraPose, Trigger};
 use crate::vision::calibration::pose_transformation;
 
+use super::clock::ServerClock;
 use crate::documents::AppConfig;
 pub use budget::Busy;
 pub use edge::EdgeError;
@@ -83,6 +84,8 @@ pub(crate) struct Cams {
     budget: Arc<budget::Budget>,
     /// Where measurements are recorded (the results log), once the server has one.
     recorder: OnceLock<Recorder>,
+    /// The server's clock: frames' capture times are shifted onto it.
+    clock: Arc<ServerClock>,
 }
 
 impl Cams {
@@ -95,6 +98,7 @@ impl Cams {
         router: Arc<Router>,
         state_dir: &Path,
         changed: mpsc::UnboundedSender<String>,
+        clock: Arc<ServerClock>,
     ) -> std::io::Result<Arc<Self>> {
         let state = StateDir::new(state_dir);
         let removed = state.remove_leftovers();
@@ -113,6 +117,7 @@ impl Cams {
             measured: Mutex::default(),
             budget: budget::Budget::new(budget::DEFAULT_BYTES),
             recorder: OnceLock::new(),
+            clock,
         });
         me.register_fixed();
         let events = me.hub.subscribe();
@@ -428,7 +433,7 @@ impl Cams {
         })
         .await;
         let frame = match grabbed {
-            Ok(Ok(frame)) => frame,
+            Ok(Ok(frame)) => frame.on_clock(&self.clock),
             Ok(Err(e)) => return grab_error(&sn, &e),
             Err(e) => {
                 return Response::diagnostic(
@@ -644,7 +649,10 @@ impl Cams {
         let mut failed = Vec::new();
         for (sn, icp, task) in tasks {
             match task.await {
-                Ok(Ok(Frame::Cloud { points, part })) => parts.push((sn, icp, points, part)),
+                Ok(Ok(Frame::Cloud { points, mut part })) => {
+                    part.depth.timestamp_us = self.clock.shift(part.depth.timestamp_us);
+                    parts.push((sn, icp, points, part));
+                }
                 Ok(Ok(_)) => {}
                 Ok(Err(e)) => {
                     tracing::warn!(serial = %sn, "pointclouds: {e}");
@@ -661,11 +669,11 @@ impl Cams {
             .iter()
             .map(|(.., part)| part.depth.timestamp_us)
             .collect();
-        let timestamp_us = frames_us.iter().copied().max().unwrap_or_else(|| {
-            SystemTime::now()
-                .duration_since(SystemTime::UNIX_EPOCH)
-                .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX))
-        });
+        let timestamp_us = frames_us
+            .iter()
+            .copied()
+            .max()
+            .unwrap_or_else(|| u64::try_from(self.clock.now_us()).unwrap_or(0));
         let (cloud, parts) =
             match tokio::task::spawn_blocking(move || register_and_merge(parts)).await {
                 Ok(merged) => merged,
@@ -835,7 +843,7 @@ impl Rig for Cams {
         let grabbed = tokio::task::spawn_blocking(move || grab::color(cam.camera.as_ref(), &app))
             .await
             .map_err(|e| format!("camera {serial}: color grab task: {e}"))?;
-        match grabbed {
+        match grabbed.map(|f| f.on_clock(&self.clock)) {
             Ok(Frame::Color(frame, intrinsics, depth_to_color)) => Ok(Shot {
                 frame,
                 intrinsics,

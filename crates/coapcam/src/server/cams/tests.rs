@@ -31,7 +31,8 @@ impl Rig {
         let hub = Arc::new(CameraHub::new());
         let router = Router::new();
         let (changed, _) = mpsc::unbounded_channel();
-        let cams = Cams::start(hub.clone(), router.clone(), &state.0, changed).expect("cams");
+        let clock = std::sync::Arc::new(crate::server::clock::ServerClock::default());
+        let cams = Cams::start(hub.clone(), router.clone(), &state.0, changed, clock).expect("cams");
         let server = Server::bind(
             &[SocketAddr::from(([127, 0, 0, 1], 0))],
             ServerConfig::default(),
