@@ -312,9 +312,9 @@ impl Problem {
     /// The camera it names, with its server.
     pub fn camera(&self) -> &str {
         match self {
-            Self::Skew { camera, .. } | Self::Old { camera, .. } | Self::Repeated { camera, .. } => {
-                camera
-            }
+            Self::Skew { camera, .. }
+            | Self::Old { camera, .. }
+            | Self::Repeated { camera, .. } => camera,
         }
     }
 }
@@ -453,7 +453,10 @@ mod tests {
         let value = t.encode();
         assert_eq!(value.len(), 16);
         assert_eq!(ServerTimes::decode(&value), Ok(t));
-        assert_eq!(ServerTimes::decode(&value[..15]), Err(TimeError::Length(15)));
+        assert_eq!(
+            ServerTimes::decode(&value[..15]),
+            Err(TimeError::Length(15))
+        );
         assert_eq!(ServerTimes::decode(&[0; 17]), Err(TimeError::Length(17)));
         assert_eq!(
             ServerTimes::decode(&times(T0, T0 - 1).encode()),
@@ -560,7 +563,7 @@ mod tests {
         let found = check_frames(&frames, &limits, &mut FrameHistory::new());
         assert!(found.is_empty(), "{found:?}");
         // Uncorrected they are 400 ms apart: the later one is named.
-        let mut wrong = frames.clone();
+        let mut wrong = frames;
         wrong[1].clock = Some(Offset {
             offset_us: 0,
             error_us: 300,
@@ -580,7 +583,10 @@ mod tests {
 
     #[test]
     fn the_skew_allowed_is_one_period_of_the_slowest_camera_or_as_given() {
-        let mut frames = [frame("A", 1, T0, Some(0)), frame("B", 2, T0 + 100_000, Some(0))];
+        let mut frames = [
+            frame("A", 1, T0, Some(0)),
+            frame("B", 2, T0 + 100_000, Some(0)),
+        ];
         frames[1].fps = Some(6);
         let mut limits = Limits {
             max_skew_us: None,

@@ -30,9 +30,9 @@ use crate::report::{EdgeQuery, Measurement};
 use crate::station::log::ResultsLog;
 use crate::station::{self, Recorder};
 use cams::Cams;
+pub use cams::{Busy, EdgeError};
 use clock::ServerClock;
 pub use clock::TIME_PATH;
-pub use cams::{Busy, EdgeError};
 use files::StaticFiles;
 use group::Groups;
 pub use identities::{Identities, Role};
@@ -518,8 +518,14 @@ fn start_hub(
     std::fs::create_dir_all(state_dir)
         .with_context(|| format!("creating state directory {}", state_dir.display()))?;
     let hub = Arc::new(CameraHub::new());
-    let cams = Cams::start(hub.clone(), router.clone(), state_dir, changed, clock.clone())
-        .context("starting the camera hub listener")?;
+    let cams = Cams::start(
+        hub.clone(),
+        router.clone(),
+        state_dir,
+        changed,
+        clock.clone(),
+    )
+    .context("starting the camera hub listener")?;
     Ok((hub, cams))
 }
 

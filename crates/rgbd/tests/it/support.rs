@@ -19,6 +19,7 @@ pub(crate) fn floor_scene(height_m: f64, noise: Noise) -> Scene {
             up: Some([0.0, 1.0, 0.0]),
             noise,
             calibrated: true,
+            stall_s: None,
         }],
         boxes: Vec::new(),
         cylinders: Vec::new(),

@@ -304,3 +304,36 @@ fn every_object_kind_takes_the_same_timeline_fields_and_refuses_unknown_ones() {
         assert!(e.contains("invalid type"), "{e}");
     }
 }
+
+#[test]
+fn a_stalled_camera_serves_the_frame_of_its_stall_again() {
+    use rgbd::Camera as _;
+    let timeout = Duration::from_secs(5);
+    let stalled = SLIDING.replace("noise = \"ideal\"", "noise = \"d415\"\nstall_s = 0.0");
+    let scene = Scene::from_toml(&stalled).expect("scene");
+    assert_eq!(scene.cameras[0].stall_s, Some(0.0));
+    let cam = SyntheticCamera::all(&scene).expect("cameras").remove(0);
+    let first = cam.grab_depth(timeout).expect("grab");
+    std::thread::sleep(Duration::from_millis(5));
+    let again = cam.grab_depth(timeout).expect("grab");
+    assert_eq!(
+        again, first,
+        "number, capture time and noisy pixels all repeat"
+    );
+    let color = cam.grab_color(timeout).expect("grab");
+    assert_eq!(cam.grab_color(timeout).expect("grab"), color);
+
+    // Without a stall (the default) a noisy camera's frames change.
+    let moving = SLIDING.replace("noise = \"ideal\"", "noise = \"d415\"");
+    let scene = Scene::from_toml(&moving).expect("scene");
+    assert_eq!(scene.cameras[0].stall_s, None);
+    let cam = SyntheticCamera::all(&scene).expect("cameras").remove(0);
+    let first = cam.grab_depth(timeout).expect("grab");
+    let next = cam.grab_depth(timeout).expect("grab");
+    assert_eq!(next.frame_number, first.frame_number + 1);
+    assert!(next.timestamp_us > first.timestamp_us);
+    assert_ne!(next.data, first.data);
+
+    let e = error_of(&SLIDING.replace("noise = \"ideal\"", "stall_s = -1.0"));
+    assert!(e.contains("camera[0].stall_s"), "{e}");
+}

@@ -53,6 +53,7 @@ pub fn scene(seed: u64, index: usize) -> anyhow::Result<Scene> {
             up: Some(up),
             noise: Noise::D415,
             calibrated: true,
+            stall_s: None,
         })
     };
     let cameras = if two {
@@ -167,6 +168,7 @@ pub fn calibration_scenes(seed: u64, index: usize) -> anyhow::Result<(Scene, Sce
             up: None,
             noise: Noise::D415,
             calibrated: false,
+            stall_s: None,
         });
     }
     let parcel = parcel_scene(

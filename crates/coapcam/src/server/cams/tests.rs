@@ -31,8 +31,9 @@ impl Rig {
         let hub = Arc::new(CameraHub::new());
         let router = Router::new();
         let (changed, _) = mpsc::unbounded_channel();
-        let clock = std::sync::Arc::new(crate::server::clock::ServerClock::default());
-        let cams = Cams::start(hub.clone(), router.clone(), &state.0, changed, clock).expect("cams");
+        let clock = Arc::new(crate::server::clock::ServerClock::default());
+        let cams =
+            Cams::start(hub.clone(), router.clone(), &state.0, changed, clock).expect("cams");
         let server = Server::bind(
             &[SocketAddr::from(([127, 0, 0, 1], 0))],
             ServerConfig::default(),

@@ -37,6 +37,10 @@
 //! moment is rebuilt from the prepared objects only when something moved, appeared or
 //! left since the frame before.
 //!
+//! A scene camera with `stall_s` stalls at that scene time: from then on every grab
+//! returns the frame of that moment again (its number, capture time and pixels), as a
+//! camera whose driver keeps serving its last frame.
+//!
 //! Grabs deliver frames at once unless a frame delay is set
 //! ([`SyntheticCamera::set_frame_delay`]); a grab whose timeout is shorter than the
 //! delay fails with [`CameraError::Timeout`] after waiting the timeout. A camera set
@@ -72,6 +76,9 @@ struct State {
     clock: FrameClock,
     connected: bool,
     frame_delay: Duration,
+    /// Once stalled: the frame served again, per stream (depth, color): its number and
+    /// capture time.
+    frozen: [Option<(u64, u64)>; 2],
 }
 
 /// A synthetic Intel RealSense D415 looking at a scene.
@@ -85,6 +92,10 @@ pub struct SyntheticCamera {
     stage: Arc<Stage>,
     /// Scene time 0: when the scene's cameras were made.
     epoch: Instant,
+    /// The same moment on the system's clock, µs since the UNIX epoch.
+    epoch_unix_us: u64,
+    /// From this scene time on the camera serves its frame of that moment again.
+    stall: Option<Duration>,
     modes: ModeTable,
     state: Mutex<State>,
 }
@@ -137,6 +148,8 @@ impl SyntheticCamera {
             calibrated: cam.calibrated,
             stage,
             epoch,
+            epoch_unix_us: unix_us_at(epoch),
+            stall: cam.stall_s.map(Duration::from_secs_f64),
             modes: ModeTable::d415(),
             state: Mutex::new(State {
                 color: ColorSettings::default(),
@@ -145,6 +158,7 @@ impl SyntheticCamera {
                 clock: FrameClock::default(),
                 connected: true,
                 frame_delay: Duration::ZERO,
+                frozen: [None; 2],
             }),
         })
     }
@@ -238,9 +252,14 @@ impl SyntheticCamera {
         }
     }
 
-    /// Waits for the next frame (frame delay vs timeout) and returns
-    /// (frame number, wall-clock timestamp in µs).
-    fn next_frame(&self, stream: Stream, timeout: Duration) -> Result<(u64, u64), CameraError> {
+    /// Waits for the next frame (frame delay vs timeout) and returns (frame number,
+    /// wall-clock timestamp in µs, the scene time to render). A stalled camera returns
+    /// the frame of its stall again.
+    fn next_frame(
+        &self,
+        stream: Stream,
+        timeout: Duration,
+    ) -> Result<(u64, u64, Duration), CameraError> {
         let delay = {
             let s = self.lock();
             if !s.connected {
@@ -257,14 +276,44 @@ impl SyntheticCamera {
             });
         }
         std::thread::sleep(delay);
+        let scene_time = self.scene_time();
         let mut s = self.lock();
         if !s.connected {
             return Err(CameraError::Disconnected {
                 serial: self.serial,
             });
         }
-        Ok(s.clock.stamp(stream))
+        match self.stall.filter(|stall| scene_time >= *stall) {
+            Some(stall) => {
+                let slot = usize::from(stream == Stream::Color);
+                let (frame_number, timestamp_us) = match s.frozen[slot] {
+                    Some(frozen) => frozen,
+                    None => {
+                        // The frame of the stall's moment, stamped then.
+                        let (n, now_us) = s.clock.stamp(stream);
+                        let at_us = self.epoch_unix_us + stall.as_micros() as u64;
+                        let frozen = (n, at_us.min(now_us));
+                        s.frozen[slot] = Some(frozen);
+                        frozen
+                    }
+                };
+                Ok((frame_number, timestamp_us, stall))
+            }
+            None => {
+                let (frame_number, timestamp_us) = s.clock.stamp(stream);
+                Ok((frame_number, timestamp_us, scene_time))
+            }
+        }
     }
+}
+
+/// The system's clock at `instant` (read now, moved back by the time since), µs since
+/// the UNIX epoch.
+fn unix_us_at(instant: Instant) -> u64 {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    now.saturating_sub(instant.elapsed()).as_micros() as u64
 }
 
 /// Optical centre of the color camera in the depth frame.
@@ -311,15 +360,15 @@ impl Camera for SyntheticCamera {
     }
 
     fn grab_color(&self, timeout: Duration) -> Result<ColorFrame, CameraError> {
-        let (frame_number, timestamp_us) = self.next_frame(Stream::Color, timeout)?;
-        let mut frame = self.render_color(frame_number);
+        let (frame_number, timestamp_us, at) = self.next_frame(Stream::Color, timeout)?;
+        let mut frame = self.render_color_at(frame_number, at);
         frame.timestamp_us = timestamp_us;
         Ok(frame)
     }
 
     fn grab_depth(&self, timeout: Duration) -> Result<DepthFrame, CameraError> {
-        let (frame_number, timestamp_us) = self.next_frame(Stream::Depth, timeout)?;
-        let mut frame = self.render_depth(frame_number);
+        let (frame_number, timestamp_us, at) = self.next_frame(Stream::Depth, timeout)?;
+        let mut frame = self.render_depth_at(frame_number, at);
         frame.timestamp_us = timestamp_us;
         Ok(frame)
     }

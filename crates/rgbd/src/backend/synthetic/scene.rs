@@ -14,6 +14,7 @@
 //! up = [0.0, 1.0, 0.0]        # optional
 //! noise = "d415"              # or "ideal"
 //! calibrated = true           # false: starts with the identity 3d-transformation
+//! stall_s = 5.0               # optional: frames freeze from 5 s of scene time on
 //!
 //! [[box]]
 //! size = [0.40, 0.30, 0.20]   # length (along x before yaw), width, height
@@ -294,6 +295,10 @@ pub struct SceneCamera {
     pub noise: Noise,
     /// Whether the camera exposes its true pose ([`crate::Camera::true_pose`]).
     pub calibrated: bool,
+    /// From this scene time on (seconds) the camera is stuck: every grab returns the
+    /// frame of that moment again, its number and capture time included, as a camera
+    /// whose driver keeps serving its last frame. `None`: never.
+    pub stall_s: Option<f64>,
 }
 
 /// A box standing on the floor.
@@ -603,6 +608,8 @@ struct CameraFile {
     noise: Noise,
     #[serde(default = "default_calibrated")]
     calibrated: bool,
+    #[serde(default)]
+    stall_s: Option<f64>,
 }
 
 fn default_calibrated() -> bool {
@@ -725,6 +732,7 @@ impl Scene {
                 up: c.up,
                 noise: c.noise,
                 calibrated: c.calibrated,
+                stall_s: c.stall_s,
             });
         }
         let scene = Self {
@@ -784,6 +792,14 @@ impl Scene {
                 return Err(invalid(
                     at("serial"),
                     format!("{} is used by another camera", c.serial),
+                ));
+            }
+            if let Some(stall) = c.stall_s
+                && !(stall.is_finite() && stall >= 0.0)
+            {
+                return Err(invalid(
+                    at("stall_s"),
+                    format!("must be a time of 0 s or later, got {stall}"),
                 ));
             }
         }
@@ -953,6 +969,7 @@ impl Scene {
                 up: Some([0.0, 1.0, 0.0]),
                 noise: Noise::D415,
                 calibrated: true,
+                stall_s: None,
             }],
             boxes: vec![Self::default_box()],
             cylinders: Vec::new(),
@@ -970,6 +987,7 @@ impl Scene {
             up: None,
             noise: Noise::D415,
             calibrated: true,
+            stall_s: None,
         };
         Self {
             seed: 7,
