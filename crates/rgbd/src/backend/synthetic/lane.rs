@@ -183,6 +183,7 @@ fn cameras(
         up: Some(up),
         noise: Noise::D415,
         calibrated: true,
+        stall_s: None,
     };
     if two {
         vec![
