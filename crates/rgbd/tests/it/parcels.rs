@@ -175,3 +175,165 @@ appear_s = 2.0
     assert_eq!(scene.at(1.0).truths().len(), 1);
     assert_eq!(scene.at(2.0).truths().len(), 2);
 }
+
+/// One 0.4 x 0.3 x 0.2 m box right under a camera 1.2 m up, with `finish` (TOML lines).
+fn box_with(finish: &str, noise: &str) -> Scene {
+    Scene::from_toml(&format!(
+        r#"
+seed = 21
+[[camera]]
+serial = "000000000001"
+position = [0.0, 0.0, 1.2]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+noise = "{noise}"
+
+[[box]]
+size = [0.40, 0.30, 0.20]
+center = [0.0, 0.0]
+{finish}
+"#
+    ))
+    .unwrap()
+}
+
+/// Share of the lid's pixels (within `radius` m of the point (x, y) of the lid) with
+/// depth, and the RMS of their height error.
+fn lid_depth(scene: &Scene, at: [f64; 2], radius: f64, frame_number: u64) -> (f64, f64) {
+    let cam = only_camera(scene);
+    let frame = cam.render_depth(frame_number);
+    let k = cam.depth_intrinsics().unwrap();
+    let (u0, v0) = pixel_below(&cam, 1.2, [at[0], at[1], 0.2]);
+    let r = (radius * f64::from(k.fx) / 1.0) as i64;
+    let (mut valid, mut total, mut sq) = (0usize, 0usize, 0.0);
+    for dv in -r..=r {
+        for du in -r..=r {
+            if du * du + dv * dv > r * r {
+                continue;
+            }
+            let (u, v) = ((u0 as i64 + du) as u32, (v0 as i64 + dv) as u32);
+            total += 1;
+            if let Some(h) = height_at(&frame, 1.2, u, v) {
+                valid += 1;
+                sq += (h - 0.2).powi(2);
+            }
+        }
+    }
+    (
+        valid as f64 / total as f64,
+        (sq / valid.max(1) as f64).sqrt(),
+    )
+}
+
+#[test]
+fn a_dark_surface_returns_the_fewer_depth_pixels_the_darker_it_is() {
+    let shares: Vec<(f64, f64)> = [1.0, 0.3, 0.12, 0.07, 0.03]
+        .iter()
+        .map(|r| {
+            lid_depth(
+                &box_with(&format!("reflectivity = {r}"), "d415"),
+                [0.0, 0.0],
+                0.1,
+                1,
+            )
+        })
+        .collect();
+    // Reflectivity 1 is the matte default: only the 1 % random dropout.
+    assert!(shares[0].0 > 0.98, "{shares:?}");
+    assert!(
+        shares[1].0 > 0.97,
+        "0.3 at 1 m is bright enough: {shares:?}"
+    );
+    // The model: returned light r / (1 m)^2 between 0.02 (no pixel) and 0.15 (every
+    // pixel), a smoothstep between, then the 1 % random dropout.
+    for (r, (share, _)) in [0.12, 0.07, 0.03].iter().zip(&shares[2..]) {
+        let t: f64 = ((r - 0.02) / 0.13_f64).clamp(0.0, 1.0);
+        let expected = 0.99 * t * t * (3.0 - 2.0 * t);
+        assert!(
+            (share - expected).abs() < 0.03,
+            "{r}: {share} vs {expected}"
+        );
+    }
+    assert!(
+        shares[1..].windows(2).all(|w| w[1].0 < w[0].0),
+        "{shares:?}"
+    );
+    // What is left is noisier than on a bright surface, but still on the lid.
+    assert!(shares[3].1 > shares[0].1, "{shares:?}");
+    assert!(shares[3].1 < 0.005, "{shares:?}");
+    // The losses change from frame to frame.
+    let dark = box_with("reflectivity = 0.07", "d415");
+    let cam = only_camera(&dark);
+    assert_ne!(cam.render_depth(1).data, cam.render_depth(2).data);
+}
+
+#[test]
+fn a_glossy_lid_loses_its_depth_where_the_projector_glares_back_into_the_imagers() {
+    let glossy = box_with("gloss = 1.0", "d415");
+    // Straight under the camera the lid mirrors the projector into the imagers ...
+    let (under, _) = lid_depth(&glossy, [0.0, 0.0], 0.02, 1);
+    assert!(under < 0.2, "{under}");
+    // ... but 15 cm to the side the reflection goes past them.
+    let (aside, _) = lid_depth(&glossy, [0.15, 0.1], 0.02, 1);
+    assert!(aside > 0.97, "{aside}");
+    // Half the gloss, a smaller loss.
+    let (half, _) = lid_depth(&box_with("gloss = 0.5", "d415"), [0.0, 0.0], 0.02, 1);
+    assert!(half > under && half < 0.9, "{half} vs {under}");
+    // The color image shows a highlight: the glossy lid is brighter than the matte one.
+    let brightness = |scene: &Scene| -> u64 {
+        only_camera(scene)
+            .render_color(1)
+            .data
+            .iter()
+            .map(|&c| u64::from(c))
+            .sum()
+    };
+    assert!(brightness(&glossy) > brightness(&box_with("", "d415")));
+}
+
+#[test]
+fn finishes_default_to_matte_and_light_and_ideal_noise_ignores_them() {
+    let matte = box_with("", "d415");
+    assert_eq!(matte.boxes[0].finish, rgbd::scene::Finish::default());
+    assert_eq!(
+        (
+            matte.boxes[0].finish.reflectivity,
+            matte.boxes[0].finish.gloss
+        ),
+        (1.0, 0.0)
+    );
+    let spelled = box_with("reflectivity = 1.0\ngloss = 0.0", "d415");
+    assert_eq!(
+        only_camera(&matte).render_depth(1).data,
+        only_camera(&spelled).render_depth(1).data
+    );
+    let ideal_dark = box_with("reflectivity = 0.01\ngloss = 1.0", "ideal");
+    assert_eq!(
+        only_camera(&ideal_dark).render_depth(1).data,
+        only_camera(&box_with("", "ideal")).render_depth(1).data
+    );
+    for (line, error) in [
+        (
+            "reflectivity = 1.5",
+            "box[0].reflectivity: must be from 0 to 1, got 1.5",
+        ),
+        (
+            "reflectivity = -0.1",
+            "box[0].reflectivity: must be from 0 to 1, got -0.1",
+        ),
+        ("gloss = 2.0", "box[0].gloss: must be from 0 to 1, got 2"),
+    ] {
+        let e = Scene::from_toml(&format!(
+            "[[box]]\nsize = [0.1, 0.1, 0.1]\ncenter = [0.0, 0.0]\n{line}\n"
+        ))
+        .unwrap_err()
+        .to_string();
+        assert_eq!(e, format!("scene: {error}"));
+    }
+    let e = Scene::from_toml(
+        "[[cylinder]]\nradius = 0.1\nheight = 0.1\ncenter = [0.0, 0.0]\ngloss = 3\n",
+    )
+    .unwrap_err()
+    .to_string();
+    assert_eq!(e, "scene: cylinder[0].gloss: must be from 0 to 1, got 3");
+}

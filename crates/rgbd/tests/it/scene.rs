@@ -172,6 +172,7 @@ fn scene_bounds_coordinates_sizes_counts_and_label_text_naming_the_field() {
             height: 0.2,
             center: [0.0, 0.0],
             color: [0, 0, 0],
+            finish: rgbd::scene::Finish::default(),
             timeline: rgbd::scene::Timeline::default(),
         };
         57

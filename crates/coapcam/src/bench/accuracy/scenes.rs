@@ -4,7 +4,7 @@
 
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
-use rgbd::scene::{Noise, SceneBox, SceneCamera, SceneMarker, Timeline};
+use rgbd::scene::{Finish, Noise, SceneBox, SceneCamera, SceneMarker, Timeline};
 use rgbd::{Scene, Serial};
 
 /// Half fields of view of the D415 depth stream, degrees (wide and narrow axis).
@@ -90,6 +90,7 @@ fn parcel_scene(
             yaw_deg,
             color: [180, 140, 90],
             label: None,
+            finish: Finish::default(),
             timeline: Timeline::default(),
         }],
         ..Scene::default_single()

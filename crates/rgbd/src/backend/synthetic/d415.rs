@@ -10,6 +10,11 @@ pub const MODEL_NAME: &str = "Intel RealSense D415";
 /// Stereo baseline between the left and the right imager, metres (55 mm).
 pub const BASELINE_M: f32 = 0.055;
 
+/// Where the synthetic D415's infrared projector sits: between the two imagers, taken
+/// as midway along the baseline (metres along +x from the left imager). Only the
+/// specular glare of glossy surfaces depends on it.
+pub const PROJECTOR_X_M: f32 = BASELINE_M / 2.0;
+
 /// Typical subpixel accuracy of the D415's disparity, pixels (Intel tuning paper: ~0.08).
 pub const SUBPIXEL_RMS_PX: f32 = 0.08;
 

@@ -11,7 +11,7 @@
 
 use super::d415;
 use super::render::mix64;
-use super::scene::{Cylinder, Floor, Noise, Scene, SceneBox, SceneCamera, Timeline, Truth};
+use super::scene::{Cylinder, Finish, Floor, Noise, Scene, SceneBox, SceneCamera, Timeline, Truth};
 use crate::camera::Serial;
 
 /// What a lane scene is about: the situation the station has to measure (or refuse).
@@ -22,6 +22,11 @@ pub enum Case {
     Clean,
     /// One matte box over 600 mm long (600 to 800 mm).
     Large,
+    /// One dark box (reflectivity 0.03 to 0.35): from nearly whole depth to nearly none.
+    Dark,
+    /// One glossy box (gloss 0.4 to 1): the projector's glare takes depth where it
+    /// mirrors into the imagers.
+    Glossy,
     /// One cylinder standing upright.
     Cylinder,
     /// Two boxes on the table, 60 to 250 mm apart.
@@ -34,21 +39,25 @@ pub enum Case {
 
 impl Case {
     /// Every case, in the order the set cycles through them.
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 8] = [
         Self::Clean,
         Self::Large,
+        Self::Dark,
+        Self::Glossy,
         Self::Cylinder,
         Self::Apart,
         Self::Touching,
         Self::Cut,
     ];
 
-    /// The case's name in reports (`clean`, `large`, `cylinder`, `apart`, `touching`,
-    /// `cut`).
+    /// The case's name in reports (`clean`, `large`, `dark`, `glossy`, `cylinder`,
+    /// `apart`, `touching`, `cut`).
     pub fn name(self) -> &'static str {
         match self {
             Self::Clean => "clean",
             Self::Large => "large",
+            Self::Dark => "dark",
+            Self::Glossy => "glossy",
             Self::Cylinder => "cylinder",
             Self::Apart => "apart",
             Self::Touching => "touching",
@@ -213,6 +222,7 @@ fn matte_box(draw: &mut Draw, size: [f64; 3], center: [f64; 2], yaw_deg: f64) ->
         yaw_deg,
         color: draw.cardboard(),
         label: None,
+        finish: Finish::default(),
         timeline: Timeline::default(),
     }
 }
@@ -235,19 +245,23 @@ pub fn lane_scene(seed: u64, index: usize) -> LaneScene {
     let mut boxes = Vec::new();
     let mut cylinders = Vec::new();
     let cams = match case {
-        Case::Clean | Case::Large | Case::Cut => {
+        Case::Clean | Case::Large | Case::Dark | Case::Glossy | Case::Cut => {
             let (length, width) = if case == Case::Large {
                 (draw.uniform(0.60, 0.80), draw.uniform(0.30, 0.60))
             } else {
-                footprint(&mut draw, 0.10, 0.60)
+                let length = draw.uniform(0.10, 0.60);
+                (length, draw.uniform(0.08, length))
             };
             let height = draw.uniform(0.03, if case == Case::Large { 0.40 } else { 0.50 });
-            boxes.push(matte_box(
-                &mut draw,
-                [length, width, height],
-                center,
-                yaw_deg,
-            ));
+            let mut parcel = matte_box(&mut draw, [length, width, height], center, yaw_deg);
+            if case == Case::Dark {
+                let grey = draw.uniform(12.0, 60.0) as u8;
+                parcel.color = [grey, grey, grey.saturating_add(4)];
+                parcel.finish.reflectivity = draw.uniform(0.03, 0.35);
+            } else if case == Case::Glossy {
+                parcel.finish.gloss = draw.uniform(0.4, 1.0);
+            }
+            boxes.push(parcel);
             let group = Group {
                 center,
                 yaw_deg,
@@ -281,6 +295,7 @@ pub fn lane_scene(seed: u64, index: usize) -> LaneScene {
                 height,
                 center,
                 color: draw.cardboard(),
+                finish: Finish::default(),
                 timeline: Timeline::default(),
             });
             let group = Group {

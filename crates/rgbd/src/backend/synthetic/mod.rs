@@ -17,6 +17,24 @@
 //!    sigma = z^2 * 0.08 / (fx * 0.055 m), Intel's RMS formula;
 //! 7. rounded to depth units (0 if it does not fit in 16 bits).
 //!
+//! An object's finish (see [`scene::Finish`]) adds, with noise `"d415"`, a chance that the
+//! pixel loses its depth, decided after step 3 and growing the noise of step 6 by
+//! (1 + 1.5 x that chance):
+//!
+//! - reflectivity r < 1: the light coming back, s = r cos(incidence) / distance^2
+//!   (metres), is too weak to match below s = 0.02 (every pixel lost) and enough from
+//!   s = 0.15 on (none lost), a smoothstep between: r = 0.1 at 1 m loses a third of its
+//!   pixels, r = 0.05 at 1.2 m nearly all;
+//! - gloss g > 0: the projector (taken midway between the imagers) glares where the
+//!   surface mirrors it into either imager; the chance is min(1, 1.5 g (n.h)^600), h the
+//!   half-vector between the directions to the projector and to the imager: a patch
+//!   a few centimetres wide at 1 m where a glossy face looks straight at the camera.
+//!
+//! Losses cluster in 4 x 4 pixel patches (each patch draws one number, each pixel adds a
+//! little of its own) and change from frame to frame, as the holes of a real D415 on
+//! black or shiny parcels do. Reflectivity does not change the color image (the object's
+//! `color` says how it looks); gloss adds a highlight of the fixed light (Blinn-Phong).
+//!
 //! Every random choice comes from a counter-based hash of (scene seed, serial, frame
 //! number, pixel index), so a frame's bytes depend on nothing else (not on threads).
 //!
@@ -28,7 +46,7 @@
 //! Color is rendered from the color camera (15 mm from the left imager, see
 //! [`d415::DEPTH_TO_COLOR_X_M`]) with its own intrinsics: flat colors shaded by one
 //! fixed directional light (ambient + Lambert), labels as black and white modules on
-//! the box's top face. No noise.
+//! the box's top face, a highlight on glossy surfaces. No noise.
 //!
 //! A scene may have a timeline (objects that appear, slide in and are removed; see
 //! [`scene`]): a grab renders the scene as it stands at the frame's capture, in scene

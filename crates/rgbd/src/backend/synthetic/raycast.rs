@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use nalgebra::{Matrix3, Vector3};
 
 use super::label::{self, LabelTexture};
-use super::scene::{Scene, SceneError, Timeline};
+use super::scene::{Finish, Scene, SceneError, Timeline};
 use crate::intrinsics::{Intrinsics, Pose};
 
 pub(crate) type V3 = Vector3<f32>;
@@ -66,8 +66,28 @@ enum Shape {
 struct Prim {
     shape: Shape,
     color: [f32; 3],
+    /// The surface's finish; `None` for the default (matte, always enough light).
+    finish: Option<Surfacing>,
     sphere_center: V3,
     sphere_radius: f32,
+}
+
+/// A non-default finish, as the renderer uses it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Surfacing {
+    /// Share of the infrared light sent back, 0..=1.
+    pub(crate) reflectivity: f32,
+    /// How mirror-like, 0..=1.
+    pub(crate) gloss: f32,
+}
+
+impl Surfacing {
+    fn of(finish: &Finish) -> Option<Self> {
+        (!finish.is_default()).then_some(Self {
+            reflectivity: finish.reflectivity as f32,
+            gloss: finish.gloss as f32,
+        })
+    }
 }
 
 /// Which face of a primitive a ray enters through.
@@ -264,6 +284,8 @@ pub(crate) struct World {
     floor_color: [f32; 3],
     prims: Vec<Prim>,
     markers: Vec<FloorMarker>,
+    /// Whether any primitive has a finish other than the default.
+    finished: bool,
 }
 
 fn rgb(c: [u8; 3]) -> [f32; 3] {
@@ -335,6 +357,7 @@ impl Stage {
                         label,
                     }),
                     color: rgb(b.color),
+                    finish: Surfacing::of(&b.finish),
                     sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
                     sphere_radius: (half[0] * half[0] + half[1] * half[1] + height * height / 4.0)
                         .sqrt(),
@@ -355,6 +378,7 @@ impl Stage {
                         height,
                     }),
                     color: rgb(c.color),
+                    finish: Surfacing::of(&c.finish),
                     sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
                     sphere_radius: (radius * radius + height * height / 4.0).sqrt(),
                 },
@@ -427,7 +451,7 @@ impl Stage {
     /// The world of `placements` (as [`Stage::placements`] gives them).
     fn build(&self, placements: &[Placement]) -> World {
         let (of_prims, of_markers) = placements.split_at(self.prims.len());
-        let prims = self
+        let prims: Vec<Prim> = self
             .prims
             .iter()
             .zip(of_prims)
@@ -461,6 +485,7 @@ impl Stage {
         World {
             floor_z: self.floor_z,
             floor_color: self.floor_color,
+            finished: prims.iter().any(|p| p.finish.is_some()),
             prims,
             markers,
         }
@@ -484,6 +509,20 @@ impl World {
             floor_color: [0.0; 3],
             prims: Vec::new(),
             markers: Vec::new(),
+            finished: false,
+        }
+    }
+
+    /// Whether any primitive has a finish other than the default.
+    pub(crate) fn finished(&self) -> bool {
+        self.finished
+    }
+
+    /// The finish of what `hit` hit; `None` for the floor and default finishes.
+    pub(crate) fn surfacing(&self, hit: &Hit) -> Option<Surfacing> {
+        match hit.surface {
+            Surface::Prim { index, .. } => self.prims[index].finish,
+            Surface::Floor => None,
         }
     }
 
@@ -610,7 +649,25 @@ impl World {
         };
         let lambert = n.dot(light).max(0.0);
         let f = AMBIENT + (1.0 - AMBIENT) * lambert;
-        base.map(|c| (c * f).min(255.0))
+        let spec = if self.finished {
+            self.highlight(hit, &n, ray, light)
+        } else {
+            0.0
+        };
+        base.map(|c| (c * f + spec).min(255.0))
+    }
+
+    /// The highlight of the light on a glossy surface (Blinn-Phong), 8-bit levels; 0 on
+    /// a matte one. `n` is the normal facing the viewer.
+    #[inline(never)]
+    fn highlight(&self, hit: &Hit, n: &V3, ray: &V3, light: &V3) -> f32 {
+        match self.surfacing(hit) {
+            Some(s) if s.gloss > 0.0 => {
+                let half = (light - ray.normalize()).normalize();
+                s.gloss * HIGHLIGHT * n.dot(&half).max(0.0).powf(HIGHLIGHT_EXPONENT)
+            }
+            _ => 0.0,
+        }
     }
 
     /// Bounding spheres in a camera's frame (centre, radius), for row culling.
@@ -632,6 +689,10 @@ const LABEL_BLACK: [f32; 3] = [25.0, 25.0, 25.0];
 const LABEL_WHITE: [f32; 3] = [245.0, 245.0, 245.0];
 /// Share of light that reaches every surface.
 const AMBIENT: f32 = 0.35;
+/// Brightest highlight of a fully glossy surface in the color image, 8-bit levels.
+const HIGHLIGHT: f32 = 200.0;
+/// Sharpness of the color image's highlight (Blinn-Phong exponent).
+const HIGHLIGHT_EXPONENT: f32 = 150.0;
 
 /// Direction towards the light, world frame: high, from +x and -y.
 pub(crate) fn light_direction() -> V3 {

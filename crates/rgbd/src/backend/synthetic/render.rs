@@ -3,7 +3,7 @@
 use rayon::prelude::*;
 
 use super::d415;
-use super::raycast::{Hit, RowCandidate, Surface, V3, View, World, light_direction};
+use super::raycast::{Hit, RowCandidate, Surface, Surfacing, V3, View, World, light_direction};
 use super::scene::Noise;
 use crate::frame::ColorFormat;
 
@@ -45,6 +45,127 @@ fn gaussian(h: u64) -> f32 {
     (sum as f32 - 1.5 * 65535.0) * (2.0 / 65536.0)
 }
 
+/// A uniform sample in [0, 1) from the top 24 bits of a hash.
+fn unit(h: u64) -> f32 {
+    (h >> 40) as f32 / (1u32 << 24) as f32
+}
+
+/// Side of the square patches, pixels, in which a finish's depth losses cluster.
+const PATCH_PX: usize = 4;
+/// Hash key of the finish's patches.
+const PATCH_KEY: u64 = 0xa076_1d64_78bd_642f;
+/// How much a pixel's own draw adds to its patch's (the rest of the clustering).
+const PATCH_OWN: f32 = 0.35;
+/// Growth of the depth noise with a finish's loss (x 2.5 where the loss is whole).
+const WEAK_NOISE_GAIN: f32 = 1.5;
+/// Returned light (reflectivity x cos(incidence) / distance^2, metres) at and below which
+/// no pixel of a dark surface finds its match ...
+const SIGNAL_NONE: f32 = 0.02;
+/// ... and from which on every pixel does.
+const SIGNAL_FULL: f32 = 0.15;
+/// Sharpness of the projector's glare on a glossy surface (Blinn-Phong exponent of the
+/// half-vector between the projector and an imager).
+const GLARE_EXPONENT: f32 = 600.0;
+/// Loss at the glare's centre per unit of gloss (capped at 1).
+const GLARE_GAIN: f32 = 1.5;
+
+/// Where the light of a depth frame comes from and goes to, world frame.
+struct Eyes {
+    /// The left imager (the depth origin).
+    origin: V3,
+    /// The right imager.
+    right: V3,
+    /// The infrared projector.
+    projector: V3,
+}
+
+fn smoothstep(lo: f32, hi: f32, x: f32) -> f32 {
+    let t = ((x - lo) / (hi - lo)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// Chance that a pixel seeing `hit` along ray `d` loses its depth to the surface's
+/// finish: too little light back (dark, far, slanted), or the projector's glare in
+/// either imager (glossy).
+#[inline(never)]
+fn finish_loss(s: Surfacing, hit: &Hit, d: &V3, eyes: &Eyes) -> f32 {
+    let p = eyes.origin + d * hit.t;
+    let to_eye = eyes.origin - p;
+    let distance = to_eye.norm();
+    let view = to_eye / distance;
+    let n = if hit.normal.dot(&view) < 0.0 {
+        -hit.normal
+    } else {
+        hit.normal
+    };
+    let mut kept = 1.0;
+    if s.reflectivity < 1.0 {
+        let signal = s.reflectivity * n.dot(&view).max(0.0) / (distance * distance);
+        kept = smoothstep(SIGNAL_NONE, SIGNAL_FULL, signal);
+    }
+    if s.gloss > 0.0 {
+        let light = (eyes.projector - p).normalize();
+        let lobe = |eye: V3| {
+            n.dot(&(light + eye).normalize())
+                .max(0.0)
+                .powf(GLARE_EXPONENT)
+        };
+        let glare = lobe(view).max(lobe((eyes.right - p).normalize()));
+        kept *= 1.0 - (GLARE_GAIN * s.gloss * glare).min(1.0);
+    }
+    1.0 - kept
+}
+
+/// The first pass of a depth frame: what each pixel's ray meets.
+struct Exact<'a> {
+    world: &'a World,
+    view: &'a View,
+    spheres: &'a [(V3, f32)],
+    eyes: &'a Eyes,
+    ideal: bool,
+}
+
+impl Exact<'_> {
+    /// Row `v`: the depth at each pixel centre (negative: hidden from the right imager;
+    /// 0: no surface) into `row`, with `FINISHED` also the finish's loss into `loss`.
+    fn row<const FINISHED: bool>(
+        &self,
+        cands: &mut Vec<RowCandidate>,
+        v: usize,
+        row: &mut [f32],
+        loss: &mut [f32],
+    ) {
+        let (world, view) = (self.world, self.view);
+        view.row_candidates(self.spheres, v as u32, cands);
+        let (base, step) = view.row(v as f32);
+        // The segment from a point seen at column u to the right imager projects onto
+        // columns u.. of the left image, so only primitives reaching column u or beyond
+        // can hide it from the right imager.
+        let shadow_reach = cands.iter().map(|c| c.u_hi).max();
+        for (u, out) in row.iter_mut().enumerate() {
+            let d = base + step * u as f32;
+            let t = match first_seen(world, &view.origin, &d, cands, u) {
+                Some(Seen::Floor(t)) => t,
+                Some(Seen::Hit(hit)) => {
+                    if FINISHED && let Some(s) = world.surfacing(&hit) {
+                        loss[u] = finish_loss(s, &hit, &d, self.eyes);
+                    }
+                    hit.t
+                }
+                None => continue,
+            };
+            let shadowed = !self.ideal
+                && shadow_reach.is_some_and(|reach| u as i32 <= reach)
+                && world.occluded(
+                    &(view.origin + d * t),
+                    &self.eyes.right,
+                    cands.iter().filter(|c| may_shadow(c, u)).map(|c| c.prim),
+                );
+            *out = if shadowed { -t } else { t };
+        }
+    }
+}
+
 /// Renders the depth image of `view` (the left imager) as Z16 values.
 pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u16> {
     let (w, h) = (view.k.width as usize, view.k.height as usize);
@@ -53,35 +174,43 @@ pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u1
     let ideal = job.noise == Noise::Ideal;
 
     // Pass 1: exact depth at pixel centres; negative = hit but hidden from the right
-    // imager (occlusion shadow); 0 = no surface.
+    // imager (occlusion shadow); 0 = no surface. With D415 noise and any non-default
+    // finish in the world, also each pixel's chance to lose its depth to the finish.
     let mut exact = vec![0.0f32; w * h];
-    exact
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each_init(Vec::new, |cands, (v, row)| {
-            view.row_candidates(&spheres, v as u32, cands);
-            let (base, step) = view.row(v as f32);
-            // The segment from a point seen at column u to the right imager projects onto
-            // columns u.. of the left image, so only primitives reaching column u or beyond
-            // can hide it from the right imager.
-            let shadow_reach = cands.iter().map(|c| c.u_hi).max();
-            for (u, out) in row.iter_mut().enumerate() {
-                let d = base + step * u as f32;
-                let t = match first_seen(world, &view.origin, &d, cands, u) {
-                    Some(Seen::Floor(t)) => t,
-                    Some(Seen::Hit(hit)) => hit.t,
-                    None => continue,
-                };
-                let shadowed = !ideal
-                    && shadow_reach.is_some_and(|reach| u as i32 <= reach)
-                    && world.occluded(
-                        &(view.origin + d * t),
-                        &right_imager,
-                        cands.iter().filter(|c| may_shadow(c, u)).map(|c| c.prim),
-                    );
-                *out = if shadowed { -t } else { t };
-            }
-        });
+    let finished = !ideal && world.finished();
+    let mut loss = if finished {
+        vec![0.0f32; w * h]
+    } else {
+        Vec::new()
+    };
+    let eyes = Eyes {
+        origin: view.origin,
+        right: right_imager,
+        projector: view.origin + view.rot.column(0) * d415::PROJECTOR_X_M,
+    };
+    let pass = Exact {
+        world,
+        view,
+        spheres: &spheres,
+        eyes: &eyes,
+        ideal,
+    };
+    if finished {
+        exact
+            .par_chunks_mut(w)
+            .zip(loss.par_chunks_mut(w))
+            .enumerate()
+            .for_each_init(Vec::new, |cands, (v, (row, loss))| {
+                pass.row::<true>(cands, v, row, loss);
+            });
+    } else {
+        exact
+            .par_chunks_mut(w)
+            .enumerate()
+            .for_each_init(Vec::new, |cands, (v, row)| {
+                pass.row::<false>(cands, v, row, &mut []);
+            });
+    }
 
     // Pass 2: the sensor model.
     let mut raw = vec![0u16; w * h];
@@ -125,7 +254,21 @@ pub(crate) fn render_depth(world: &World, view: &View, job: &DepthJob) -> Vec<u1
             if !(min_range..=d415::MAX_RANGE_M).contains(&z) {
                 continue;
             }
-            let denominator = 1.0 + noise_per_z * gaussian(hash) * z;
+            // The finish: a dark or glaring surface loses depth, in patches of
+            // `PATCH_PX` pixels (a patch draws one number, each pixel adds a little of
+            // its own: still uniform, so the share lost is the loss), and what is left
+            // is noisier.
+            let lost = if finished { loss[v * w + u] } else { 0.0 };
+            if lost > 0.0 {
+                let patch = ((v / PATCH_PX) * (w / PATCH_PX + 1) + u / PATCH_PX) as u64;
+                let patch_draw = unit(mix64(job.key ^ PATCH_KEY ^ patch.wrapping_mul(PATCH_KEY)));
+                let own = unit(mix64(hash ^ PATCH_KEY));
+                if (patch_draw + PATCH_OWN * own).fract() < lost {
+                    continue;
+                }
+            }
+            let sigma_gain = 1.0 + WEAK_NOISE_GAIN * lost;
+            let denominator = 1.0 + noise_per_z * gaussian(hash) * z * sigma_gain;
             if denominator > 0.0 {
                 *out = quantize(z / denominator, inv_scale);
             }

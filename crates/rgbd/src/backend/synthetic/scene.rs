@@ -36,6 +36,12 @@
 //! yaw_deg = 0.0
 //! ```
 //!
+//! Boxes and cylinders take a finish, how their surface returns the D415's infrared
+//! light: `reflectivity` (0 black to 1, default 1: enough light everywhere) and `gloss`
+//! (0 matte, the default, to 1 mirror-like), e.g. `reflectivity = 0.08` for black shrink
+//! wrap, `gloss = 0.7` for glossy tape. The synthetic camera's module documentation says
+//! how they change depth and color.
+//!
 //! Defaults: `seed` 0, floor at z = 0 colored [120, 120, 120], `up` world +z unless the
 //! camera looks (nearly) straight up or down, then world +y; `noise` "d415";
 //! `calibrated` true (the camera exposes its true pose, which a server preloads as its
@@ -234,6 +240,55 @@ impl Timeline {
     }
 }
 
+/// How an object's surface returns the D415's light (see the module documentation): the
+/// default is a matte, light surface that always returns enough, as every object did
+/// before finishes existed.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+pub struct Finish {
+    /// Share of the infrared light the surface sends back, 0 (black) to 1 (the default:
+    /// bright enough everywhere). Below 1 a pixel's depth is missing the more often the
+    /// less light comes back (darker, farther, more slanted).
+    #[serde(default = "default_reflectivity")]
+    pub reflectivity: f64,
+    /// How mirror-like the surface is, 0 (matte, the default) to 1. Where the projector's
+    /// mirror image falls into the imagers the pixels saturate and lose their depth; the
+    /// color image shows a highlight.
+    #[serde(default)]
+    pub gloss: f64,
+}
+
+fn default_reflectivity() -> f64 {
+    1.0
+}
+
+impl Default for Finish {
+    fn default() -> Self {
+        Self {
+            reflectivity: 1.0,
+            gloss: 0.0,
+        }
+    }
+}
+
+impl Finish {
+    /// Whether it is the default (matte, always enough light).
+    pub fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
+
+    fn validate(&self, at: &dyn Fn(&str) -> String) -> Result<(), SceneError> {
+        for (name, value) in [("reflectivity", self.reflectivity), ("gloss", self.gloss)] {
+            if !(0.0..=1.0).contains(&value) {
+                return Err(invalid(
+                    at(name),
+                    format!("must be from 0 to 1, got {value}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The timeline fields every object of a scene file may carry (flattened into the
 /// object's table).
 #[derive(Deserialize)]
@@ -315,6 +370,8 @@ pub struct SceneBox {
     pub color: [u8; 3],
     /// Optional barcode label on the top face.
     pub label: Option<Label>,
+    /// How its surface returns the D415's light.
+    pub finish: Finish,
     /// When it is there, and whether it slides in.
     pub timeline: Timeline,
 }
@@ -331,6 +388,8 @@ struct BoxFile {
     #[serde(default)]
     label: Option<Label>,
     #[serde(flatten)]
+    finish: Finish,
+    #[serde(flatten)]
     timeline: TimelineFile,
 }
 
@@ -342,6 +401,7 @@ impl From<BoxFile> for SceneBox {
             yaw_deg: f.yaw_deg,
             color: f.color,
             label: f.label,
+            finish: f.finish,
             timeline: f.timeline.into(),
         }
     }
@@ -359,6 +419,8 @@ pub struct Cylinder {
     pub center: [f64; 2],
     /// Color.
     pub color: [u8; 3],
+    /// How its surface returns the D415's light.
+    pub finish: Finish,
     /// When it is there, and whether it slides in.
     pub timeline: Timeline,
 }
@@ -372,6 +434,8 @@ struct CylinderFile {
     #[serde(default = "default_cylinder_color")]
     color: [u8; 3],
     #[serde(flatten)]
+    finish: Finish,
+    #[serde(flatten)]
     timeline: TimelineFile,
 }
 
@@ -382,6 +446,7 @@ impl From<CylinderFile> for Cylinder {
             height: f.height,
             center: f.center,
             color: f.color,
+            finish: f.finish,
             timeline: f.timeline.into(),
         }
     }
@@ -808,6 +873,7 @@ impl Scene {
             positive(&at("size"), &b.size)?;
             coordinates(&at("center"), &b.center)?;
             finite(&at("yaw_deg"), &[b.yaw_deg])?;
+            b.finish.validate(&at)?;
             b.timeline.validate(&at)?;
             if let Some(label) = &b.label {
                 positive(&at("label.size"), &[label.size])?;
@@ -839,6 +905,7 @@ impl Scene {
             positive(&at("radius"), &[c.radius])?;
             positive(&at("height"), &[c.height])?;
             coordinates(&at("center"), &c.center)?;
+            c.finish.validate(&at)?;
             c.timeline.validate(&at)?;
         }
         if self.markers.len() > MAX_MARKERS {
@@ -1015,6 +1082,7 @@ impl Scene {
                 appear_s: None,
                 remove_s: None,
             }),
+            finish: Finish::default(),
             timeline: Timeline::default(),
         }
     }
