@@ -83,8 +83,24 @@ impl ServerLayer {
     }
 
     /// RFC 9175 §2.4: an unverified peer gets at most three times `size` (the budget
-    /// returned; `None` for a verified one). What would send it more, keep state for it,
-    /// or change state gets an Echo challenge instead.
+    /// returned for a request the application may work on; `None` for a verified peer).
+    ///
+    /// A unicast request from an unverified peer is challenged here, before any work,
+    /// whatever its method: the answer to a GET is known only once made and almost never
+    /// fits three times a request in one block, so working on it first would let forged
+    /// sources make the server grab for nothing (1,000 spoofed GETs a second took a
+    /// core). Nothing is stored for the peer and the application does not run.
+    ///
+    /// A GET or FETCH sent to a group is worked on first, within
+    /// [`Limits::unverified_group_requests`](crate::config::Limits::unverified_group_requests)
+    /// a second. A member must stay silent when its answer is an error (RFC 7390 §2.7: a
+    /// member that lacks the resource), which it learns only from the answer; challenged
+    /// first, the client's unicast retry with the Echo would draw the 4.04 that the group
+    /// request must not. The answer goes if it fits the budget in one block, nothing goes
+    /// for an error, else the challenge (`respond_unverified`). A group request comes only
+    /// from inside the group's scope (the link or the site), where a sender could as well
+    /// verify its own address and ask for the same work; the bound keeps a flood of them
+    /// to a small share of a core, and past it they are challenged before any work.
     fn verify_stage(
         &mut self,
         cx: &mut Context<'_>,
@@ -105,11 +121,13 @@ impl ServerLayer {
         if verified {
             return Ok(None);
         }
-        if matches!(msg.code, Code::GET | Code::FETCH)
+        if req.multicast
+            && matches!(msg.code, Code::GET | Code::FETCH)
             && msg.options.uint(OptionNumber::OBSERVE) != Some(0)
             && req.block1.is_none()
             && !req.continuation
             && !req.is_qblock()
+            && (self.verify).may_work_for_group(now, limits.unverified_group_requests)
         {
             return Ok(Some(3 * size));
         }
@@ -394,8 +412,9 @@ impl ServerLayer {
         }
     }
 
-    /// Answers request `p` of an unverified peer: the response when it fits in `budget`
-    /// bytes and one block, the Echo challenge otherwise. Nothing is stored for the peer,
+    /// Answers request `p` that an unverified peer sent to a group (`verify_stage`): the
+    /// response when it fits in `budget` bytes and one block, nothing for an error (RFC
+    /// 7390 §2.7), the Echo challenge otherwise. Nothing is stored for the peer,
     /// and an answer after the empty ACK goes as a NON: a CON would be sent up to five
     /// times to an address nobody verified.
     fn respond_unverified(
@@ -412,11 +431,13 @@ impl ServerLayer {
         let fits = !source
             && answer.payload.len() <= BlockOpt::size_of(cx.config.max_block_szx)
             && answer.encoded_len() <= budget;
-        let reply = if !fits {
+        // An error stays silent whatever its size: the challenge in its place would have
+        // the client retry by unicast and receive the error after all.
+        let reply = if p.multicast && answer.code.is_error() {
+            None
+        } else if !fits {
             self.challenge(now, p.peer, p.token, (ty, mid), budget)
                 .or_else(|| (ty == Type::Ack).then(|| Message::empty(Type::Rst, mid)))
-        } else if p.multicast && answer.code.is_error() {
-            None
         } else {
             Some(answer)
         };

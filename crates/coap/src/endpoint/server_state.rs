@@ -41,7 +41,7 @@ pub(super) struct Incoming<'p> {
     pub(super) q2: Vec<BlockOpt>,
     pub(super) q1: Option<BlockOpt>,
     /// Once the address is checked: at most this many bytes may answer an unverified
-    /// peer (three times the request, RFC 9175 §2.4).
+    /// peer's group request (three times the request, RFC 9175 §2.4).
     pub(super) budget: Option<usize>,
 }
 
@@ -114,8 +114,8 @@ pub(super) struct Pending {
     pub(super) multicast: bool,
     pub(super) block2: Option<BlockOpt>,
     pub(super) block1_echo: Option<BlockOpt>,
-    /// The peer's address is not verified: the answer may be at most this many bytes
-    /// (three times the request, RFC 9175 §2.4).
+    /// A group request of a peer whose address is not verified: the answer may be at
+    /// most this many bytes (three times the request, RFC 9175 §2.4).
     pub(super) budget: Option<usize>,
     pub(super) key: BlockKey,
     pub(super) observation: Option<u64>,

@@ -1,8 +1,8 @@
 //! Address verification (RFC 9175 §2.4, item 3): a server must not become an amplifier
 //! for a peer whose source address it has not seen answer. Until a peer has returned an
 //! Echo value the server gave it, the server sends that peer at most three times the
-//! bytes of each request; a larger answer, an Observe registration and anything that
-//! changes state wait for a round trip that proves the address.
+//! bytes of each request; its requests wait for a round trip that proves the address
+//! (but for a bounded number of GETs sent to a group, see below).
 //!
 //! The Echo value is stateless: the time it was made (whole seconds since the endpoint's
 //! first datagram) and a keyed 64-bit SipHash of that time and the peer's address, so a
@@ -13,6 +13,12 @@
 //! [`Limits::verified_peers`](crate::config::Limits::verified_peers) of them. Only a proof
 //! renews it: any request refreshing it would let whoever spoofs a once-verified address
 //! keep it open for reflection as long as they like.
+//!
+//! How much work an unverified peer may cause is decided before any: a unicast request
+//! is challenged before the application sees it, and of the GETs sent to a group only
+//! [`Limits::unverified_group_requests`](crate::config::Limits::unverified_group_requests)
+//! a second are handed over (`may_work_for_group`, a token bucket shared by all peers),
+//! so that a member can stay silent when its answer is an error (RFC 7390 §2.7).
 //!
 //! Loopback peers count as verified: the transport hands over a datagram with a loopback
 //! source only when it came in over the loopback interface (coap-net drops the others:
@@ -36,6 +42,10 @@ pub(super) struct AddressCheck {
     epoch: Option<Instant>,
     /// Verified peers and when they were last heard from.
     verified: FastMap<PeerKey, Instant>,
+    /// Group requests of unverified peers that may still be worked on now, and when the
+    /// bucket was last filled.
+    group_tokens: f64,
+    group_filled: Option<Instant>,
 }
 
 impl AddressCheck {
@@ -44,7 +54,29 @@ impl AddressCheck {
             key: RandomState::new(),
             epoch: None,
             verified: FastMap::default(),
+            group_tokens: 0.0,
+            group_filled: None,
         }
+    }
+
+    /// Whether the application may work on one more request that an unverified peer
+    /// sent to a group: `per_second` of them a second, as many at once (a bucket filled
+    /// at that rate, full at first). Takes one when it may.
+    pub(super) fn may_work_for_group(&mut self, now: Instant, per_second: u32) -> bool {
+        let rate = f64::from(per_second);
+        self.group_tokens = match self.group_filled {
+            None => rate,
+            Some(at) => {
+                let elapsed = now.saturating_duration_since(at).as_secs_f64();
+                (self.group_tokens + elapsed * rate).min(rate)
+            }
+        };
+        self.group_filled = Some(now);
+        if self.group_tokens < 1.0 {
+            return false;
+        }
+        self.group_tokens -= 1.0;
+        true
     }
 
     fn secs(&mut self, now: Instant) -> u32 {
@@ -152,6 +184,27 @@ mod tests {
         assert!(check.is_verified(at, peer(1), Some(&echo), LIFE, 8));
         assert!(check.is_verified(at + Duration::from_secs(599), peer(1), None, LIFE, 8));
         assert!(!check.is_verified(at + Duration::from_secs(600), peer(1), None, LIFE, 8));
+    }
+
+    #[test]
+    fn unverified_group_work_is_bounded_per_second() {
+        let t0 = crate::test_epoch();
+        let taken = |check: &mut AddressCheck, at: Instant, rate: u32| {
+            (0..100)
+                .filter(|_| check.may_work_for_group(at, rate))
+                .count()
+        };
+        let mut check = AddressCheck::new();
+        // A full second's worth at first, then nothing until time passes.
+        assert_eq!(taken(&mut check, t0, 20), 20);
+        assert_eq!(taken(&mut check, t0, 20), 0);
+        // Refilled at 20 a second: 5 in a quarter second, never more than 20 after a
+        // long quiet.
+        let later = t0 + Duration::from_millis(250);
+        assert_eq!(taken(&mut check, later, 20), 5);
+        assert_eq!(taken(&mut check, later + Duration::from_secs(60), 20), 20);
+        // Zero allows none.
+        assert_eq!(taken(&mut AddressCheck::new(), t0, 0), 0);
     }
 
     #[test]

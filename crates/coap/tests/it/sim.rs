@@ -282,6 +282,16 @@ impl Sim {
     /// Injects a raw datagram from `from` to node `to`, delivered after the link delay
     /// without loss.
     pub(crate) fn inject(&mut self, from: SocketAddr, to: usize, data: &[u8]) {
+        self.inject_to(from, to, data, false);
+    }
+
+    /// [`Sim::inject`], as sent to the group: node `to` receives it as a multicast
+    /// request.
+    pub(crate) fn inject_to_group(&mut self, from: SocketAddr, to: usize, data: &[u8]) {
+        self.inject_to(from, to, data, true);
+    }
+
+    fn inject_to(&mut self, from: SocketAddr, to: usize, data: &[u8], multicast: bool) {
         self.seq += 1;
         let at = self.now + self.link.delay;
         self.in_flight.push(Reverse((
@@ -289,7 +299,7 @@ impl Sim {
             self.seq,
             to,
             from,
-            false,
+            multicast,
             Bytes::copy_from_slice(data),
         )));
     }

@@ -87,10 +87,10 @@ pub(crate) struct ServeArgs {
     #[arg(long)]
     allow_unauthenticated_config: bool,
     /// Answer clients off this machine in full before their address is verified. By
-    /// default (RFC 9175) a client whose address has not been proven gets at most three
-    /// times the bytes it sent, and an Echo challenge (4.01) before a larger answer, an
-    /// Observe registration or a change; clients that implement Echo (coapcam, libcoap)
-    /// repeat the request once and go on. For clients that do not (aiocoap 0.4.17) on a
+    /// default (RFC 9175) a client whose address has not been proven gets an Echo
+    /// challenge (4.01) before the server works on its request, and at most three times
+    /// the bytes it sent; clients that implement Echo (coapcam, libcoap) repeat the
+    /// request once and go on. For clients that do not (aiocoap 0.4.17) on a
     /// network you trust; it lets a forged source address turn the server into an
     /// amplifier.
     #[arg(long)]

@@ -1,0 +1,105 @@
+#!/usr/bin/env bash
+# bench-spoof.sh [COAPCAM] [SECONDS] [GETS]: what a flood of GETs from unverified sources
+# costs the server (issue 32, item 3). Run it inside scripts/netns-run (root), which gives
+# the addresses fd00::2-9 on a veth:
+#   sudo scripts/netns-run scripts/bench-spoof.sh target/release/coapcam
+# A server on [::]:5683 (one synthetic camera) grabs a point cloud once; then
+#   - quiet: its CPU time over SECONDS (default 10), and GETS (default 15) GETs of the
+#     cloud over [::1], each timed by the client's wall clock;
+#   - flood: 1,000 GETs a second of the same cloud, sent from fd00::3-9 and never
+#     answered (as forged sources would be), and the same measurements meanwhile.
+# Prints the server's CPU share and the GETs' median, p95 and max for both.
+set -euo pipefail
+bin=${1:-target/release/coapcam}
+secs=${2:-10}
+gets=${3:-15}
+[ "${COAPCAM_NETNS:-}" = 1 ] || { echo "run inside scripts/netns-run" >&2; exit 2; }
+dir=$(mktemp -d)
+"$bin" serve --bind '[::]:5683' --state-dir "$dir/state" --results "$dir/results.sqlite" \
+  >"$dir/serve.log" 2>&1 &
+pid=$!
+trap 'kill $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
+for _ in $(seq 100); do
+  "$bin" get 'coap://[::1]/cams' -o "$dir/cams" 2>/dev/null && break
+  sleep 0.1
+done
+sn=$(grep -oE '[0-9]{12}' "$dir/cams" | head -1)
+[ -n "$sn" ] || { echo "no camera in /cams: $(cat "$dir/cams")" >&2; exit 1; }
+"$bin" post "coap://[::1]/cams/$sn/pointcloud" -o "$dir/grab.bin"
+python3 - "$bin" "$pid" "$sn" "$secs" "$gets" <<'EOF'
+import os, socket, statistics, struct, subprocess, sys, threading, time
+
+bin, pid, sn, secs, gets = sys.argv[1], int(sys.argv[2]), sys.argv[3], float(sys.argv[4]), int(sys.argv[5])
+tick = os.sysconf("SC_CLK_TCK")
+uri = f"coap://[::1]/cams/{sn}/pointcloud"
+
+def cpu():
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / tick  # utime + stime
+
+def coap_get(mid, path):
+    # CON GET, 2-byte token, Uri-Path options.
+    out = bytearray([0x42, 0x01]) + struct.pack(">H", mid) + struct.pack(">H", mid)
+    prev = 0
+    for seg in path:
+        s = seg.encode()
+        delta = 11 - prev
+        prev = 11
+        assert len(s) < 13
+        out += bytes([(delta << 4) | len(s)]) + s
+    return bytes(out)
+
+def flood(stop, sent):
+    socks = []
+    for n in range(3, 10):
+        s = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
+        s.bind((f"fd00::{n}", 0))
+        s.setblocking(False)
+        socks.append(s)
+    start = time.monotonic()
+    i = 0
+    while not stop.is_set():
+        # 1,000 a second, sent 10 every 10 ms.
+        due = start + i / 1000.0
+        delay = due - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        for _ in range(10):
+            msg = coap_get(i & 0xFFFF, ["cams", sn, "pointcloud"])
+            try:
+                socks[i % len(socks)].sendto(msg, ("fd00::2", 5683))
+            except BlockingIOError:
+                pass
+            i += 1
+        sent[0] = i
+
+def measure(label):
+    c0, t0 = cpu(), time.monotonic()
+    time.sleep(secs)
+    share = (cpu() - c0) / (time.monotonic() - t0)
+    times = []
+    size = 0
+    for _ in range(gets):
+        t = time.monotonic()
+        r = subprocess.run([bin, "get", uri, "-o", "/dev/stdout"], capture_output=True, timeout=120)
+        times.append(time.monotonic() - t)
+        if r.returncode != 0:
+            print(f"{label}: GET failed: {r.stderr.decode()[:300]}", file=sys.stderr)
+        size = len(r.stdout)
+    times.sort()
+    p95 = times[min(len(times) - 1, round(0.95 * (len(times) - 1)))]
+    print(f"{label}: server CPU {100 * share:.1f} % of a core over {secs:.0f} s; "
+          f"GET of {size:,} B x{gets}: median {statistics.median(times):.3f} s, "
+          f"p95 {p95:.3f} s, max {times[-1]:.3f} s")
+
+measure("quiet")
+stop, sent = threading.Event(), [0]
+t = threading.Thread(target=flood, args=(stop, sent))
+t0 = time.monotonic()
+t.start()
+time.sleep(1)
+measure("flood")
+stop.set()
+t.join()
+print(f"flood: {sent[0]:,} spoofed GETs in {time.monotonic() - t0:.1f} s")
+EOF
