@@ -3,20 +3,26 @@
 # costs the server (issue 32, item 3). Run it inside scripts/netns-run (root), which gives
 # the addresses fd00::2-9 on a veth:
 #   sudo scripts/netns-run scripts/bench-spoof.sh target/release/coapcam
-# A server on [::]:5683 (one synthetic camera) grabs a point cloud once; then
+# A server on [::]:5683 (one synthetic camera) grabs a color frame and a point cloud
+# once; then
 #   - quiet: its CPU time over SECONDS (default 10), and GETS (default 15) GETs of the
-#     cloud over [::1], each timed by the client's wall clock;
-#   - flood: 1,000 GETs a second of the same cloud, sent from fd00::3-9 and never
-#     answered (as forged sources would be), and the same measurements meanwhile.
-# Prints the server's CPU share and the GETs' median, p95 and max for both.
+#     color frame (2,764,810 B) over [::1], each timed by the client's wall clock;
+#   - flood: 1,000 GETs a second of the point cloud (an answer made anew each time),
+#     sent from fd00::3-9 and never answered (as forged sources would be), and the same
+#     measurements meanwhile.
+# With GROUP=1 the flood goes to the group ff02::fd on the veth (NON, as group requests
+# are), which the server joins. Prints the server's CPU share and the GETs' median, p95
+# and max for both.
 set -euo pipefail
 bin=${1:-target/release/coapcam}
 secs=${2:-10}
 gets=${3:-15}
 [ "${COAPCAM_NETNS:-}" = 1 ] || { echo "run inside scripts/netns-run" >&2; exit 2; }
 dir=$(mktemp -d)
+group=()
+[ "${GROUP:-0}" = 1 ] && group=(--group ff02::fd --group-interface "$COAPCAM_MC6_IF")
 "$bin" serve --bind '[::]:5683' --state-dir "$dir/state" --results "$dir/results.sqlite" \
-  >"$dir/serve.log" 2>&1 &
+  "${group[@]}" >"$dir/serve.log" 2>&1 &
 pid=$!
 trap 'kill $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
 for _ in $(seq 100); do
@@ -26,20 +32,25 @@ done
 sn=$(grep -oE '[0-9]{12}' "$dir/cams" | head -1)
 [ -n "$sn" ] || { echo "no camera in /cams: $(cat "$dir/cams")" >&2; exit 1; }
 "$bin" post "coap://[::1]/cams/$sn/pointcloud" -o "$dir/grab.bin"
+"$bin" post "coap://[::1]/cams/$sn/color" -o "$dir/grab.bin"
 python3 - "$bin" "$pid" "$sn" "$secs" "$gets" <<'EOF'
 import os, socket, statistics, struct, subprocess, sys, threading, time
 
 bin, pid, sn, secs, gets = sys.argv[1], int(sys.argv[2]), sys.argv[3], float(sys.argv[4]), int(sys.argv[5])
 tick = os.sysconf("SC_CLK_TCK")
-uri = f"coap://[::1]/cams/{sn}/pointcloud"
+uri = f"coap://[::1]/cams/{sn}/color"
 
 def cpu():
     fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / tick  # utime + stime
 
+group = os.environ.get("GROUP", "0") == "1"
+ifindex = int(os.environ.get("COAPCAM_MC6_IF", "0"))
+target = ("ff02::fd", 5683, 0, ifindex) if group else ("fd00::2", 5683)
+
 def coap_get(mid, path):
-    # CON GET, 2-byte token, Uri-Path options.
-    out = bytearray([0x42, 0x01]) + struct.pack(">H", mid) + struct.pack(">H", mid)
+    # GET (NON to a group, else CON), 2-byte token, Uri-Path options.
+    out = bytearray([0x52 if group else 0x42, 0x01]) + struct.pack(">H", mid) + struct.pack(">H", mid)
     prev = 0
     for seg in path:
         s = seg.encode()
@@ -54,6 +65,8 @@ def flood(stop, sent):
     for n in range(3, 10):
         s = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
         s.bind((f"fd00::{n}", 0))
+        if group:
+            s.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_IF, ifindex)
         s.setblocking(False)
         socks.append(s)
     start = time.monotonic()
@@ -67,7 +80,7 @@ def flood(stop, sent):
         for _ in range(10):
             msg = coap_get(i & 0xFFFF, ["cams", sn, "pointcloud"])
             try:
-                socks[i % len(socks)].sendto(msg, ("fd00::2", 5683))
+                socks[i % len(socks)].sendto(msg, target)
             except BlockingIOError:
                 pass
             i += 1

@@ -49,7 +49,7 @@ pub struct EndpointConfig {
     /// RFC 9175 §2.4 amplification mitigation: a peer not on loopback whose address is
     /// not verified gets at most three times what it sent. Its unicast requests get an
     /// Echo challenge (4.01) before any work; a GET or FETCH it sent to a group is worked
-    /// on (within [`Limits::unverified_group_requests`]) and answered if the answer fits
+    /// on (within [`Limits::unverified_group_work`]) and answered if the answer fits
     /// that budget in one block, silently if it is an error, else with the challenge.
     /// On by default.
     pub verify_addresses: bool,
@@ -93,12 +93,13 @@ pub struct Limits {
     /// How long a verified peer stays verified after the Echo value that proved it (other
     /// requests, which anyone could send in its name, do not extend it).
     pub verified_lifetime: Duration,
-    /// GETs and FETCHes sent to a group by peers whose address is not verified that the
-    /// application works on, per second (as many at once): their answer is known only
-    /// once made, and an error one must stay silent (RFC 7390). Past the bound they are
-    /// challenged before any work, as unicast requests always are. Such requests come
-    /// only from inside the group's scope (a link or a site).
-    pub unverified_group_requests: u32,
+    /// The application's time that GETs and FETCHes sent to a group by peers whose
+    /// address is not verified may take, per second over all peers (from the request's
+    /// hand-over to its answer; one at a time). Their answer is known only once made, and
+    /// an error one must stay silent (RFC 7390 §2.7), so they are worked on first; past
+    /// this share they are challenged before any work, as unicast requests always are.
+    /// Such requests come only from inside the group's scope (a link or a site).
+    pub unverified_group_work: Duration,
 }
 
 impl Default for EndpointConfig {
@@ -141,7 +142,7 @@ impl Default for Limits {
             observations: 1024,
             verified_peers: 16384,
             verified_lifetime: Duration::from_secs(600),
-            unverified_group_requests: 20,
+            unverified_group_work: Duration::from_millis(50),
         }
     }
 }

@@ -91,16 +91,20 @@ impl ServerLayer {
     /// sources make the server grab for nothing (1,000 spoofed GETs a second took a
     /// core). Nothing is stored for the peer and the application does not run.
     ///
-    /// A GET or FETCH sent to a group is worked on first, within
-    /// [`Limits::unverified_group_requests`](crate::config::Limits::unverified_group_requests)
+    /// A GET or FETCH sent to a group is worked on first, a few at a time, while such
+    /// requests take the application no more than
+    /// [`Limits::unverified_group_work`](crate::config::Limits::unverified_group_work)
     /// a second. A member must stay silent when its answer is an error (RFC 7390 §2.7: a
     /// member that lacks the resource), which it learns only from the answer; challenged
     /// first, the client's unicast retry with the Echo would draw the 4.04 that the group
     /// request must not. The answer goes if it fits the budget in one block, nothing goes
     /// for an error, else the challenge (`respond_unverified`). A group request comes only
     /// from inside the group's scope (the link or the site), where a sender could as well
-    /// verify its own address and ask for the same work; the bound keeps a flood of them
-    /// to a small share of a core, and past it they are challenged before any work.
+    /// verify its own address and ask for the same work. The bound is in time, not in
+    /// requests, because one GET may cost a thousand times another (a point cloud, a
+    /// small document), and the application's build (a debug one) as much again; it keeps
+    /// a flood of them to that share of a core. Past it they are challenged before any
+    /// work.
     fn verify_stage(
         &mut self,
         cx: &mut Context<'_>,
@@ -127,7 +131,8 @@ impl ServerLayer {
             && req.block1.is_none()
             && !req.continuation
             && !req.is_qblock()
-            && (self.verify).may_work_for_group(now, limits.unverified_group_requests)
+            && self.unverified_group_work() < UNVERIFIED_GROUP_WORK_AT_ONCE
+            && (self.verify).may_work_for_group(now, limits.unverified_group_work)
         {
             return Ok(Some(3 * size));
         }
@@ -322,6 +327,7 @@ impl ServerLayer {
             block2: req.block2,
             block1_echo: body.block1_echo,
             budget: req.budget,
+            since: now,
             // A response to a group request is stored for the client's port, whatever
             // address its unicast follow-ups come from.
             key: if multicast { key.for_group() } else { key },
@@ -707,6 +713,10 @@ impl ServerLayer {
         let Some(p) = self.pending.remove(&id.0) else {
             return;
         };
+        if p.budget.is_some() {
+            self.verify
+                .charge_group_work(now.saturating_duration_since(p.since));
+        }
         if let Some(at) = p.not_before.filter(|&at| at > now) {
             self.held.insert(id.0, (p, response));
             cx.msg.schedule(at, TimerKind::Leisure { id: id.0 });
@@ -769,6 +779,11 @@ impl ServerLayer {
         }
     }
 }
+
+/// Group requests of unverified peers the application works on at once: their time is
+/// charged when they are answered, so a burst admitted before that would overdraw the
+/// share by this many answers' time at most.
+const UNVERIFIED_GROUP_WORK_AT_ONCE: usize = 4;
 
 /// Marks a request answered (or dropped) by a stage of [`ServerLayer::on_request`]:
 /// nothing more is done with it.

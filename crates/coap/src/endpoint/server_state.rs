@@ -117,6 +117,8 @@ pub(super) struct Pending {
     /// A group request of a peer whose address is not verified: the answer may be at
     /// most this many bytes (three times the request, RFC 9175 §2.4).
     pub(super) budget: Option<usize>,
+    /// When it was handed to the application.
+    pub(super) since: Instant,
     pub(super) key: BlockKey,
     pub(super) observation: Option<u64>,
     /// The request's Q-Block2 options (RFC 9177): the response goes with Q-Block2.
@@ -166,6 +168,11 @@ impl ServerLayer {
     /// held for their leisure included).
     pub(super) fn unanswered(&self) -> usize {
         self.pending.len() + self.held.len()
+    }
+
+    /// Group requests of unverified peers that the application is working on.
+    pub(super) fn unverified_group_work(&self) -> usize {
+        self.pending.values().filter(|p| p.budget.is_some()).count()
     }
 
     /// Whether received request `id` still waits for the empty ACK of a CON.

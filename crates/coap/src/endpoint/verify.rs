@@ -15,10 +15,11 @@
 //! keep it open for reflection as long as they like.
 //!
 //! How much work an unverified peer may cause is decided before any: a unicast request
-//! is challenged before the application sees it, and of the GETs sent to a group only
-//! [`Limits::unverified_group_requests`](crate::config::Limits::unverified_group_requests)
-//! a second are handed over (`may_work_for_group`, a token bucket shared by all peers),
-//! so that a member can stay silent when its answer is an error (RFC 7390 §2.7).
+//! is challenged before the application sees it, and a GET sent to a group is handed
+//! over only while the application's time spent on such requests stays within
+//! [`Limits::unverified_group_work`](crate::config::Limits::unverified_group_work) a
+//! second (`may_work_for_group`, a bucket of time shared by all peers), so that a member
+//! can stay silent when its answer is an error (RFC 7390 §2.7).
 //!
 //! Loopback peers count as verified: the transport hands over a datagram with a loopback
 //! source only when it came in over the loopback interface (coap-net drops the others:
@@ -42,9 +43,9 @@ pub(super) struct AddressCheck {
     epoch: Option<Instant>,
     /// Verified peers and when they were last heard from.
     verified: FastMap<PeerKey, Instant>,
-    /// Group requests of unverified peers that may still be worked on now, and when the
-    /// bucket was last filled.
-    group_tokens: f64,
+    /// The application's time (seconds) that group requests of unverified peers may
+    /// still take (negative: overdrawn by the last one), and when it was last filled.
+    group_credit: f64,
     group_filled: Option<Instant>,
 }
 
@@ -54,29 +55,32 @@ impl AddressCheck {
             key: RandomState::new(),
             epoch: None,
             verified: FastMap::default(),
-            group_tokens: 0.0,
+            group_credit: 0.0,
             group_filled: None,
         }
     }
 
     /// Whether the application may work on one more request that an unverified peer
-    /// sent to a group: `per_second` of them a second, as many at once (a bucket filled
-    /// at that rate, full at first). Takes one when it may.
-    pub(super) fn may_work_for_group(&mut self, now: Instant, per_second: u32) -> bool {
-        let rate = f64::from(per_second);
-        self.group_tokens = match self.group_filled {
-            None => rate,
+    /// sent to a group: while the time such requests took stays within `per_second` of
+    /// every second (a bucket of time filled at that rate, up to ten seconds' worth, full
+    /// at first). The caller charges what each took ([`AddressCheck::charge_group_work`]).
+    pub(super) fn may_work_for_group(&mut self, now: Instant, per_second: Duration) -> bool {
+        let rate = per_second.as_secs_f64();
+        let full = 10.0 * rate;
+        self.group_credit = match self.group_filled {
+            None => full,
             Some(at) => {
                 let elapsed = now.saturating_duration_since(at).as_secs_f64();
-                (self.group_tokens + elapsed * rate).min(rate)
+                (self.group_credit + elapsed * rate).min(full)
             }
         };
         self.group_filled = Some(now);
-        if self.group_tokens < 1.0 {
-            return false;
-        }
-        self.group_tokens -= 1.0;
-        true
+        self.group_credit > 0.0
+    }
+
+    /// A request that [`AddressCheck::may_work_for_group`] let through took `took`.
+    pub(super) fn charge_group_work(&mut self, took: Duration) {
+        self.group_credit -= took.as_secs_f64();
     }
 
     fn secs(&mut self, now: Instant) -> u32 {
@@ -187,24 +191,29 @@ mod tests {
     }
 
     #[test]
-    fn unverified_group_work_is_bounded_per_second() {
+    fn unverified_group_work_is_bounded_in_time_per_second() {
         let t0 = crate::test_epoch();
-        let taken = |check: &mut AddressCheck, at: Instant, rate: u32| {
-            (0..100)
-                .filter(|_| check.may_work_for_group(at, rate))
-                .count()
-        };
+        let ms = Duration::from_millis;
         let mut check = AddressCheck::new();
-        // A full second's worth at first, then nothing until time passes.
-        assert_eq!(taken(&mut check, t0, 20), 20);
-        assert_eq!(taken(&mut check, t0, 20), 0);
-        // Refilled at 20 a second: 5 in a quarter second, never more than 20 after a
-        // long quiet.
-        let later = t0 + Duration::from_millis(250);
-        assert_eq!(taken(&mut check, later, 20), 5);
-        assert_eq!(taken(&mut check, later + Duration::from_secs(60), 20), 20);
+        // Ten seconds' worth of 50 ms at first: 500 ms. Two requests of 300 ms pass (the
+        // second overdraws), a third waits.
+        assert!(check.may_work_for_group(t0, ms(50)));
+        check.charge_group_work(ms(300));
+        assert!(check.may_work_for_group(t0 + ms(300), ms(50)));
+        check.charge_group_work(ms(300));
+        // 500 - 600 + 0.6 s x 50 ms/s = -70 ms: refilled after 1.4 s more.
+        assert!(!check.may_work_for_group(t0 + ms(600), ms(50)));
+        assert!(!check.may_work_for_group(t0 + ms(1900), ms(50)));
+        assert!(check.may_work_for_group(t0 + ms(2100), ms(50)));
+        // Never more than ten seconds' worth after a long quiet.
+        let mut quiet = AddressCheck::new();
+        assert!(quiet.may_work_for_group(t0, ms(50)));
+        let later = t0 + Duration::from_secs(600);
+        assert!(quiet.may_work_for_group(later, ms(50)));
+        quiet.charge_group_work(ms(501));
+        assert!(!quiet.may_work_for_group(later, ms(50)));
         // Zero allows none.
-        assert_eq!(taken(&mut AddressCheck::new(), t0, 0), 0);
+        assert!(!AddressCheck::new().may_work_for_group(t0, Duration::ZERO));
     }
 
     #[test]

@@ -476,13 +476,29 @@ fn rfc7390_2_7_an_unverified_group_get_is_worked_on_and_its_error_stays_silent()
     assert!(sent_to(&sim, &[v]) <= 3 * received);
 }
 
+/// A server whose every answer takes the application `took`: a 5,000-byte body. Counts
+/// the requests its handler ran.
+fn slow_server(sim: &mut Sim, took: Duration) -> (usize, Rc<Cell<usize>>) {
+    let ran = Rc::new(Cell::new(0));
+    let count = ran.clone();
+    let handler: Handler = Box::new(move |_| {
+        count.set(count.get() + 1);
+        Reply::After(
+            took,
+            Response::new(Code::CONTENT).with_payload(vec![7u8; 5000]),
+        )
+    });
+    (sim.add_at(SERVER, cfg(2), Some(handler)), ran)
+}
+
 #[test]
-fn rfc9175_2_4_a_flood_of_unverified_group_gets_is_worked_on_twenty_a_second() {
+fn rfc9175_2_4_a_flood_of_unverified_group_gets_takes_a_bounded_share_of_the_application() {
     let mut sim = Sim::new(LinkConfig::default());
-    let (s, ran) = server(&mut sim);
-    let limit = EndpointConfig::default().limits.unverified_group_requests as usize;
-    // Two seconds of 1,000 spoofed group GETs a second of the large resource.
-    let victims: Vec<SocketAddr> = (0..2000).map(victim).collect();
+    let took = Duration::from_millis(20);
+    let (s, ran) = slow_server(&mut sim, took);
+    let share = EndpointConfig::default().limits.unverified_group_work;
+    // Four seconds of 1,000 spoofed group GETs a second.
+    let victims: Vec<SocketAddr> = (0..4000).map(victim).collect();
     let mut received = 0;
     let t0 = sim.now;
     for (i, v) in victims.iter().enumerate() {
@@ -494,25 +510,53 @@ fn rfc9175_2_4_a_flood_of_unverified_group_gets_is_worked_on_twenty_a_second() {
         received += get.len();
         sim.run_until(Duration::from_millis(1), |_| false);
     }
+    let elapsed = sim.now - t0;
     sim.run_until(Duration::from_secs(2), |_| false);
-    // A second's worth at once, then the rate: at most 20 + 2 x 20 over two seconds,
-    // of 2,000.
+    // Ten seconds' worth of the share at first, then the share of every second; the
+    // last ones in progress (four at most) may overdraw it by their own time.
+    let allowed = share * 10 + share.mul_f64(elapsed.as_secs_f64()) + took * 4;
+    let worked = took * ran.get() as u32;
     eprintln!(
-        "{} of 2,000 spoofed group GETs worked on in {:?}",
-        ran.get(),
-        sim.now - t0
-    );
-    assert!(
-        (2 * limit..=3 * limit + 1).contains(&ran.get()),
-        "{} of 2,000 spoofed group GETs were worked on",
+        "{} of 4,000 spoofed group GETs worked on in {elapsed:?}: {worked:?}, {allowed:?} allowed",
         ran.get()
+    );
+    assert!(worked <= allowed, "{worked:?} of work, {allowed:?} allowed");
+    assert!(
+        worked + took * 4 >= allowed,
+        "the share was not used: {worked:?}"
     );
     // The rest were challenged before any work; nothing passed three times the bytes.
     let sent = sent_to(&sim, &victims);
     assert!(sent <= 3 * received, "{sent} B sent for {received} B");
-    for v in [victims[0], victims[1999]] {
+    for v in [victims[0], victims[3999]] {
         let replies = replies_to(&sim, v);
         assert_eq!(replies.len(), 1);
         assert_eq!(replies[0].code, Code::UNAUTHORIZED);
     }
+}
+
+#[test]
+fn rfc9175_2_4_unverified_group_gets_are_worked_on_a_few_at_a_time() {
+    let mut sim = Sim::new(LinkConfig::default());
+    // Each GET takes the application 10 s.
+    let (s, ran) = slow_server(&mut sim, Duration::from_secs(10));
+    // Five seconds of 100 spoofed group GETs a second.
+    let t0 = sim.now;
+    for i in 0..500u16 {
+        sim.now = sim.now.max(t0 + Duration::from_millis(10 * u64::from(i)));
+        sim.inject_to_group(victim(i), s, &raw(Type::Non, Code::GET, i, "/x", None));
+        sim.run_until(Duration::from_millis(10), |_| false);
+    }
+    // The share had room for the first four; the others found them in progress.
+    assert_eq!(ran.get(), 4, "GETs handed to the application");
+    // Once they answered, their 40 s overdrew the share: the next are challenged too.
+    sim.run_until(Duration::from_secs(6), |_| false);
+    let v = victim(600);
+    sim.inject_to_group(v, s, &raw(Type::Non, Code::GET, 600, "/x", None));
+    sim.run_until(Duration::from_secs(1), |_| false);
+    assert_eq!(ran.get(), 4);
+    assert_eq!(
+        replies_to(&sim, v).first().map(|m| m.code),
+        Some(Code::UNAUTHORIZED)
+    );
 }
