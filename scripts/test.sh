@@ -77,6 +77,15 @@ else
       apt-get install -y --no-install-recommends chromium chromium-driver; } \
     || peer_failed "chromium chromium-driver"
 fi
+# The markers sheet's test (crates/coapcam/tests/it/markers.rs) renders the PDF with
+# poppler's pdftoppm and detects the markers on the pages.
+if command -v pdftoppm >/dev/null; then
+  echo "pdftoppm: present"
+else
+  { as_root apt-get update && as_root env DEBIAN_FRONTEND=noninteractive \
+      apt-get install -y --no-install-recommends poppler-utils; } \
+    || peer_failed poppler-utils
+fi
 # librealsense for the rgbd differential tests (crates/rgbd/tests/it/librealsense.rs
 # regenerates its goldens with tools/rs_reference.py); its wheel needs libusb-1.0.
 PYREALSENSE2_VERSION=2.59.1.11053

@@ -83,7 +83,9 @@ impl Server {
         let plain = addrs.iter().map(|a| (a, None));
         let secure = config.secure.iter().map(|a| (a, config.psk.as_ref()));
         for (index, (addr, psk)) in plain.chain(secure).enumerate() {
-            let socket = Socket::bind(*addr)?;
+            // The error names the address: of several, which one is busy.
+            let socket = Socket::bind(*addr)
+                .map_err(|e| std::io::Error::new(e.kind(), format!("{addr}: {e}")))?;
             // The policy must know what came from this machine.
             socket.read_arrivals()?;
             let (tx, rx) = mpsc::unbounded_channel();

@@ -9,7 +9,7 @@ use std::process::ExitCode;
 
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
-use cli::{Deferred, Exit};
+use cli::{Deferred, Exit, interruptible};
 
 /// RGB-D cameras (Intel RealSense D400 and a synthetic D415) as CoAP resources.
 #[derive(Debug, Parser)]
@@ -42,6 +42,9 @@ enum Command {
     /// camera in the origin marker's frame; --floor: level each on the floor it sees;
     /// --adjust: correct by hand.
     Calibrate(Deferred<cli::calibrate::CalibrateArgs>),
+    /// Write a PDF of AprilTag markers to print for calibrate, at their true size (A4 or
+    /// Letter, with a 100 mm bar to check the printer kept the scale).
+    Markers(Deferred<cli::markers::MarkersArgs>),
     /// Repeat a grab or a measurement every --interval seconds, or observe a resource;
     /// print each result and the statistics of the transfer times (count, min, median,
     /// max, mean, standard deviation, coefficient of variation: the thesis's Table 4.x).
@@ -99,25 +102,38 @@ fn run(cli: Cli) -> anyhow::Result<Exit> {
         .context("starting the tokio runtime")?;
     match cli.command {
         Command::Get(Deferred(args)) => {
-            return runtime.block_on(cli::request::run(coap::Code::GET, args));
+            return runtime.block_on(interruptible(cli::request::run(coap::Code::GET, args)));
         }
         Command::Post(Deferred(args)) => {
-            return runtime.block_on(cli::request::run(coap::Code::POST, args));
+            return runtime.block_on(interruptible(cli::request::run(coap::Code::POST, args)));
         }
         Command::Put(Deferred(args)) => {
-            return runtime.block_on(cli::request::run(coap::Code::PUT, args));
+            return runtime.block_on(interruptible(cli::request::run(coap::Code::PUT, args)));
         }
         Command::Delete(Deferred(args)) => {
-            return runtime.block_on(cli::request::run(coap::Code::DELETE, args));
+            return runtime.block_on(interruptible(cli::request::run(coap::Code::DELETE, args)));
         }
-        Command::Discover(Deferred(args)) => return runtime.block_on(cli::request::discover(args)),
-        Command::Grab(Deferred(args)) => return runtime.block_on(cli::grab::run(args)),
-        Command::Measure(Deferred(args)) => return runtime.block_on(cli::measure::run(args)),
-        Command::Calibrate(Deferred(args)) => return runtime.block_on(cli::calibrate::run(args)),
+        Command::Discover(Deferred(args)) => {
+            return runtime.block_on(interruptible(cli::request::discover(args)));
+        }
+        Command::Grab(Deferred(args)) => {
+            return runtime.block_on(interruptible(cli::grab::run(args)));
+        }
+        Command::Measure(Deferred(args)) => {
+            return runtime.block_on(interruptible(cli::measure::run(args)));
+        }
+        Command::Calibrate(Deferred(args)) => {
+            return runtime.block_on(interruptible(cli::calibrate::run(args)));
+        }
+        Command::Markers(Deferred(args)) => return runtime.block_on(cli::markers::run(args)),
         Command::Bench(Deferred(args)) => return runtime.block_on(cli::bench::run(args)),
         Command::Monitor(Deferred(args)) => return runtime.block_on(cli::monitor::run(args)),
-        Command::Demo(Deferred(args)) => return runtime.block_on(cli::demo::run(args)),
-        Command::Results(Deferred(args)) => return runtime.block_on(cli::results::run(args)),
+        Command::Demo(Deferred(args)) => {
+            return runtime.block_on(interruptible(cli::demo::run(args)));
+        }
+        Command::Results(Deferred(args)) => {
+            return runtime.block_on(interruptible(cli::results::run(args)));
+        }
         Command::Serve(args) => {
             let Deferred(args) = *args;
             let served = runtime.block_on(cli::serve::run(args));

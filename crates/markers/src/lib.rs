@@ -3,12 +3,16 @@
 //! floor, and the detector, which `coapcam calibrate` runs on color images. Both sides
 //! use the library's own tables, so a synthetic marker is the marker one prints.
 //!
+//! `sheet` lays markers out on paper at a true size and writes them as a PDF to print.
+//!
 //! The marker frame, used by every function here: the pattern as printed, seen from the
 //! front, with x to the right, y up and z out of the paper; the origin at the centre.
 
 // The library's families are C structs; reading a pattern needs two FFI calls, kept in
 // `pattern` below. Detection goes through the `apriltag` crate's safe wrappers.
 #![allow(unsafe_code)]
+
+pub mod sheet;
 
 use std::fmt;
 use std::str::FromStr;

@@ -20,7 +20,7 @@ use geometry::Transformation;
 use markers::Family;
 use serde_json::json;
 
-use super::{CameraArgs, Exit, TransmissionArgs, outln};
+use super::{CameraArgs, Exit, TransmissionArgs, outln, usage, values};
 use coapcam::client::CamClient;
 use coapcam::client::calibrate;
 use coapcam::vision::calibration::MarkerMap;
@@ -31,14 +31,16 @@ pub(crate) struct CalibrateArgs {
     #[command(flatten)]
     cameras: CameraArgs,
     /// Markers (the default method): the family.
-    #[arg(long, value_name = "F", default_value = "tag36h11")]
-    family: String,
+    #[arg(long, value_name = "F", default_value = "tag36h11", value_parser = clap::value_parser!(Family))]
+    family: Family,
     /// Markers: the id of the marker whose centre and axes are the world's origin and
     /// axes (z up).
     #[arg(long, value_name = "N", default_value_t = 0)]
     origin_id: u32,
-    /// Markers, without --map: the side of the origin marker's black square, metres.
-    #[arg(long, value_name = "M", default_value_t = 0.16, conflicts_with = "map")]
+    /// Markers, without --map: the side of the origin marker's black square, metres
+    /// (0.005 to 2; `coapcam markers` prints markers at a given size).
+    #[arg(long, value_name = "M", default_value = "0.16", conflicts_with = "map",
+          value_parser = values::marker_metres)]
     marker_size: f64,
     /// Markers: where every marker lies, as `[[marker]]` tables (family, id, size,
     /// center, yaw_deg) in a TOML file; a synthetic scene file is one. Every mapped
@@ -89,9 +91,20 @@ pub(crate) struct CalibrateArgs {
 
 /// Runs `calibrate`.
 pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
-    if !(args.marker_size.is_finite() && args.marker_size > 0.0) {
-        bail!("--marker-size must be a positive number of metres");
+    if args.origin_id >= args.family.ids() {
+        usage!(
+            "--origin-id {}: {} has markers 0 to {}",
+            args.origin_id,
+            args.family,
+            args.family.ids() - 1
+        );
     }
+    // The map is read before anything is sent: a file that is not one fails first.
+    let map = if args.floor || args.adjust {
+        None
+    } else {
+        Some(marker_map(&args)?)
+    };
     let client = args.cameras.connect(&args.transmission).await?;
     let serials = match &args.cameras.camera {
         Some(sn) => vec![sn.clone()],
@@ -100,8 +113,8 @@ pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
     if serials.is_empty() {
         bail!("the server has no camera");
     }
-    if !(args.floor || args.adjust) {
-        return by_markers(&client, &serials, &args).await;
+    if let Some(map) = &map {
+        return by_markers(&client, &serials, map, &args).await;
     }
     if args.floor && serials.len() > 1 {
         eprintln!(
@@ -156,7 +169,7 @@ async fn write(
 
 /// The marker map of `args`: the `--map` file's markers, or the origin marker alone.
 fn marker_map(args: &CalibrateArgs) -> anyhow::Result<MarkerMap> {
-    let family: Family = args.family.parse()?;
+    let family = args.family;
     match &args.map {
         Some(file) => {
             let scene = rgbd::Scene::load(file)?;
@@ -171,31 +184,33 @@ fn marker_map(args: &CalibrateArgs) -> anyhow::Result<MarkerMap> {
 async fn by_markers(
     client: &CamClient,
     serials: &[String],
+    map: &MarkerMap,
     args: &CalibrateArgs,
 ) -> anyhow::Result<Exit> {
-    let map = marker_map(args)?;
     let mut placed = Vec::with_capacity(serials.len());
     let mut failed = Vec::new();
     for sn in serials {
-        match calibrate::place(client, sn, &map).await {
+        match calibrate::place(client, sn, map).await {
             Ok(p) => {
                 for w in &p.warnings {
                     eprintln!("coapcam: warning: {w}");
                 }
                 placed.push(p);
             }
-            Err(e) => failed.push(format!("camera {sn}: {e:#}")),
+            Err(e) => failed.push(e.context(format!("camera {sn}"))),
         }
     }
-    if !failed.is_empty() {
+    if let Some(last) = failed.pop() {
+        let count = failed.len() + 1;
         for f in &failed {
-            eprintln!("coapcam: {f}");
+            eprintln!("coapcam: {f:#}");
         }
-        bail!(
-            "{} of {} cameras could not be calibrated; nothing was written",
-            failed.len(),
+        // The run ends as its last failure does (a server's 4.04 for an unknown serial
+        // is status 3, as with --floor), with the count.
+        return Err(last.context(format!(
+            "{count} of {} cameras could not be calibrated; nothing was written",
             serials.len()
-        );
+        )));
     }
     for p in &placed {
         let c = &p.calibration;

@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context as _, bail};
+use anyhow::Context as _;
 use clap::Args;
 use coap::{ContentFormat, Response};
 use coapcam::client::CamClient;
@@ -11,7 +11,7 @@ use coapcam::repr::{self, ColorDecoder, Stream};
 use coapcam::vision::picture::{self, save, sibling};
 use rgbd::ColorSettings;
 
-use super::{Bars, CameraArgs, Exit, TransmissionArgs};
+use super::{Bars, CameraArgs, Exit, TransmissionArgs, usage};
 
 /// The streams, named for the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -46,8 +46,14 @@ pub(crate) struct GrabArgs {
     /// (color, lossless; depth as 16-bit PNG of raw units), .rvl and .rvl.zst (depth,
     /// lossless), .ply (point cloud, binary PLY), .dcl (the compact cloud: filtered depth
     /// and its geometry), .qmm (a cloud in whole millimetres), .bin (the thesis packet).
+    /// `-` writes to standard output, in the format of --format (the thesis packet
+    /// without it). Its folder must exist: that is checked before anything is grabbed.
     #[arg(short = 'o', long = "output", value_name = "FILE")]
     output: PathBuf,
+    /// With `-o -`: the format written to standard output, as an extension (jpg, png,
+    /// rvl, rvl.zst, ply, dcl, qmm, bin).
+    #[arg(long, value_name = "EXT")]
+    format: Option<String>,
     /// With a .jpg file: the JPEG quality, 1-100 (the server's default is 90).
     #[arg(long, value_name = "Q", value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: Option<u8>,
@@ -60,41 +66,125 @@ pub(crate) struct GrabArgs {
     transmission: TransmissionArgs,
 }
 
-/// The content format a file named `path` holds for `stream` (the extension decides, by
-/// the table of [`Stream::formats`]).
-fn file_format(path: &Path, stream: Stream) -> anyhow::Result<ContentFormat> {
+/// The extension of a file named `path` (`rvl.zst` for a double one).
+fn extension(path: &Path) -> &str {
     let name = path
         .file_name()
         .and_then(|n| n.to_str())
         .unwrap_or_default();
-    let ext = if name.to_ascii_lowercase().ends_with(".rvl.zst") {
+    if name.to_ascii_lowercase().ends_with(".rvl.zst") {
         "rvl.zst"
     } else {
         path.extension()
             .and_then(|e| e.to_str())
             .unwrap_or_default()
-    };
+    }
+}
+
+/// The content format a file with extension `ext` (named `name` in messages) holds for
+/// `stream`, by the table of [`Stream::formats`]; a [`Usage`] error names what fits.
+fn file_format(name: &str, ext: &str, stream: Stream) -> anyhow::Result<ContentFormat> {
+    let ext = ext.trim_start_matches('.');
     if Stream::ALL
         .iter()
         .all(|s| s.format_of_extension(ext).is_none())
     {
-        bail!(
-            "{}: the extension must be .jpg, .png, .rvl, .rvl.zst, .ply, .dcl, .qmm or .bin",
-            path.display()
+        usage!(
+            "{name}: the extension must be .jpg, .png, .rvl, .rvl.zst, .ply, .dcl, .qmm or .bin"
         );
     }
-    stream.format_of_extension(ext).with_context(|| {
-        let all: Vec<String> = Stream::ALL
-            .iter()
-            .map(|s| format!("{} as {}", s.name(), s.extensions()))
-            .collect();
-        format!(
-            "{}: {} cannot be written as .{ext}: {}",
-            path.display(),
-            stream.name(),
-            all.join("; ")
-        )
-    })
+    match stream.format_of_extension(ext) {
+        Some(cf) => Ok(cf),
+        None => {
+            let all: Vec<String> = Stream::ALL
+                .iter()
+                .map(|s| format!("{} as {}", s.name(), s.extensions()))
+                .collect();
+            usage!(
+                "{name}: {} cannot be written as .{ext}: {}",
+                stream.name(),
+                all.join("; ")
+            )
+        }
+    }
+}
+
+/// Where the grab goes: a temporary file beside the output, made before anything is
+/// grabbed (so a folder that does not exist or cannot be written fails first) and renamed
+/// to it once the body is written; removed if the command ends before. Or standard
+/// output (`-o -`).
+enum Destination {
+    File {
+        part: PathBuf,
+        target: PathBuf,
+        kept: bool,
+    },
+    Stdout,
+}
+
+impl Destination {
+    fn open(output: &Path) -> anyhow::Result<Self> {
+        if output.as_os_str() == "-" {
+            return Ok(Self::Stdout);
+        }
+        let name = output
+            .file_name()
+            .with_context(|| format!("{} names no file", output.display()))?;
+        let dir = output
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or_else(|| Path::new("."));
+        let mut part_name = std::ffi::OsString::from(".");
+        part_name.push(name);
+        part_name.push(format!(".{}.part", std::process::id()));
+        let part = dir.join(part_name);
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&part)
+            .with_context(|| format!("cannot write {}", output.display()))?;
+        Ok(Self::File {
+            part,
+            target: output.to_path_buf(),
+            kept: false,
+        })
+    }
+
+    /// Writes `body` and makes it the output.
+    fn write(&mut self, body: &[u8]) -> anyhow::Result<()> {
+        match self {
+            Self::Stdout => {
+                use std::io::Write as _;
+                let mut out = std::io::stdout().lock();
+                out.write_all(body)
+                    .and_then(|()| out.flush())
+                    .context("writing standard output")?;
+                eprintln!("coapcam: wrote {} bytes to standard output", body.len());
+            }
+            Self::File { part, target, kept } => {
+                std::fs::write(&*part, body)
+                    .with_context(|| format!("writing {}", part.display()))?;
+                std::fs::rename(&*part, &*target).with_context(|| {
+                    format!("renaming {} to {}", part.display(), target.display())
+                })?;
+                *kept = true;
+                eprintln!("coapcam: wrote {} ({} bytes)", target.display(), body.len());
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Destination {
+    fn drop(&mut self) {
+        if let Self::File {
+            part, kept: false, ..
+        } = self
+        {
+            // Best effort: a hidden leftover if this fails.
+            let _ = std::fs::remove_file(&*part);
+        }
+    }
 }
 
 /// The Accept option of a grab for a file in `cf`: none for the thesis packet, the
@@ -107,17 +197,30 @@ fn accept(cf: ContentFormat) -> Option<ContentFormat> {
 pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
     let stream = Stream::from(args.what);
     if args.cameras.all && stream != Stream::Pointcloud {
-        bail!("--all is for point clouds: every camera's cloud merged");
+        usage!("--all is for point clouds: every camera's cloud merged");
     }
-    let kind = file_format(&args.output, stream)?;
+    let stdout = args.output.as_os_str() == "-";
+    let kind = match (&args.format, stdout) {
+        (Some(ext), true) => file_format("--format", ext, stream)?,
+        (None, true) => ContentFormat::OCTET_STREAM,
+        (Some(_), false) => {
+            usage!("--format is for -o - (standard output); a file's extension chooses its format")
+        }
+        (None, false) => file_format(
+            &args.output.display().to_string(),
+            extension(&args.output),
+            stream,
+        )?,
+    };
     if let Some(v) = &args.view
-        && file_format(v, Stream::Color).ok() != Some(ContentFormat::IMAGE_PNG)
+        && !extension(v).eq_ignore_ascii_case("png")
     {
-        bail!("--view writes PNG: give a .png file name");
+        usage!("--view writes PNG: give a .png file name");
     }
     if args.jpeg_quality.is_some() && kind != ContentFormat::IMAGE_JPEG {
-        bail!("--jpeg-quality is for color written to a .jpg file");
+        usage!("--jpeg-quality is for color written to a .jpg file");
     }
+    let mut destination = Destination::open(&args.output)?;
     let client = args
         .cameras
         .connect(&args.transmission)
@@ -133,13 +236,7 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
         };
         (Some(sn), response)
     };
-    std::fs::write(&args.output, &response.payload)
-        .with_context(|| format!("writing {}", args.output.display()))?;
-    eprintln!(
-        "coapcam: wrote {} ({} bytes)",
-        args.output.display(),
-        response.payload.len()
-    );
+    destination.write(&response.payload)?;
     if let Some(path) = &args.view {
         for written in write_view(&client, sn.as_deref(), &args, kind, &response, path).await? {
             eprintln!("coapcam: wrote {}", written.display());

@@ -15,7 +15,7 @@ use coapcam::client::measure::{FLOOR_CUT_M, Source, measure_once, prepare_camera
 use coapcam::client::{CamClient, annotate, codes};
 use coapcam::report::{self, Billing, EdgeQuery, Measurement, Parcel};
 
-use super::{Bars, CameraArgs, DimensionArgs, Exit, TransmissionArgs, outln};
+use super::{Bars, CameraArgs, DimensionArgs, Exit, TransmissionArgs, outln, usage, values};
 
 /// Flags of `measure`.
 #[derive(Debug, Args)]
@@ -27,24 +27,26 @@ pub(crate) struct MeasureArgs {
     cameras: CameraArgs,
     /// Ask every server of this multicast group (e.g. 224.0.1.187 or
     /// coap://[ff02::fd%eth0]:5683) and merge the clouds of all that answer.
-    #[arg(long, value_name = "MCAST_ADDR", conflicts_with_all = ["server", "camera"])]
+    #[arg(long, value_name = "MCAST_ADDR", conflicts_with_all = ["server", "camera"],
+          value_parser = values::group)]
     group: Option<String>,
-    /// With --group: stop waiting once this many servers have answered.
-    #[arg(long, value_name = "N", requires = "group")]
-    expect: Option<usize>,
+    /// With --group: stop waiting once this many servers have answered (at least 1).
+    #[arg(long, value_name = "N", requires = "group",
+          value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    expect: Option<u64>,
     /// With --group: the local address to send from; by default the kernel chooses per
     /// destination (the servers accept the follow-ups of a group request from any of the
     /// client's addresses).
     #[arg(long, value_name = "ADDR", requires = "group")]
     bind: Option<std::net::IpAddr>,
-    /// With --group: how long to collect answers, in seconds.
+    /// With --group: how long to collect answers, in seconds (above 0; 3 by default).
     #[arg(
         long,
         value_name = "SECONDS",
-        default_value_t = 3.0,
-        requires = "group"
+        requires = "group",
+        value_parser = values::positive_seconds
     )]
-    wait: f64,
+    wait: Option<Duration>,
     /// First prepare the server's cameras as `demo` does (and the thesis's client
     /// expects): roi3d becomes the space above the floor within 1 m of the origin, so
     /// the floor is not sent, and the spatial filter runs; the rest of each camera's
@@ -74,18 +76,19 @@ pub(crate) struct MeasureArgs {
     #[arg(long)]
     codes: bool,
     /// Draw the measured box and its dimensions onto a new color image of the first
-    /// camera and write it as PNG.
+    /// camera and write it as PNG (the name must end in .png). With nothing on the table
+    /// nothing is drawn and no file written (said on standard error).
     #[arg(long, value_name = "FILE.png")]
     annotate: Option<PathBuf>,
-    /// Divisor of the volumetric weight, cm³ per kg (5000 is the common courier
-    /// convention, 6000 is used too).
-    #[arg(long, value_name = "CM3_PER_KG", default_value_t = 5000.0,
-          value_parser = parse_positive)]
+    /// Divisor of the volumetric weight, cm³ per kg, 100 to 100000 (5000 is the common
+    /// courier convention, 6000 is used too).
+    #[arg(long, value_name = "CM3_PER_KG", default_value = "5000",
+          value_parser = values::volumetric_divisor)]
     volumetric_divisor: f64,
-    /// Round each dimension up to a multiple of this many millimetres, as a scale with
-    /// this division reports it (e.g. 5); the volume and volumetric weight follow the
-    /// rounded dimensions.
-    #[arg(long, value_name = "MM", value_parser = parse_positive)]
+    /// Round each dimension up to a multiple of this many millimetres, 0.1 to 1000, as a
+    /// scale with this division reports it (e.g. 5); the volume and volumetric weight
+    /// follow the rounded dimensions.
+    #[arg(long, value_name = "MM", value_parser = values::round_up_mm)]
     round_up_mm: Option<f64>,
     #[command(flatten)]
     dimension: DimensionArgs,
@@ -93,18 +96,33 @@ pub(crate) struct MeasureArgs {
     transmission: TransmissionArgs,
 }
 
-fn parse_positive(text: &str) -> Result<f64, String> {
-    match text.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        Ok(v) => Err(format!("{v} is not a positive number")),
-        Err(e) => Err(format!("not a number ({e})")),
-    }
-}
-
 /// Runs `measure`: [`Exit::Empty`] when nothing is on the table, [`Exit::Fewer`] when
 /// fewer servers of a group answered than `--expect`.
 pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
-    let timeout = args.transmission.timeout()?;
+    if let Some(path) = &args.annotate
+        && !path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        usage!(
+            "--annotate writes PNG: give a file name ending in .png, not {}",
+            path.display()
+        );
+    }
+    // clap waives `requires = "group"` once --server, which conflicts with --group, is
+    // given: checked here.
+    if args.group.is_none() {
+        for (given, flag) in [
+            (args.expect.is_some(), "--expect"),
+            (args.bind.is_some(), "--bind"),
+            (args.wait.is_some(), "--wait"),
+        ] {
+            if given {
+                usage!("{flag} is for --group MCAST_ADDR");
+            }
+        }
+    }
+    let timeout = args.transmission.timeout();
     let config = args.transmission.endpoint_config();
     let billing = Billing {
         divisor_cm3_per_kg: args.volumetric_divisor,
@@ -113,10 +131,10 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     let (client, source) = match (&args.group, args.cameras.server()) {
         (Some(g), _) => {
             let group = group_address(g).await?;
-            let wait = Duration::try_from_secs_f64(args.wait).context("--wait")?;
+            let wait = args.wait.unwrap_or(Duration::from_secs(3));
             let client = CamClient::for_group(group, args.bind, config, timeout)?
                 .with_progress(Bars::shown());
-            let expect = args.expect;
+            let expect = args.expect.map(|n| n as usize);
             (
                 client,
                 Source::Group {
@@ -213,6 +231,11 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         let one = CamClient::unicast(&client, *server);
         annotate::from_server(&one, sn, dimensions, path).await?;
         eprintln!("coapcam: wrote {}", path.display());
+    } else if let Some(path) = &args.annotate {
+        eprintln!(
+            "coapcam: no parcel was measured, so nothing to draw: {} not written",
+            path.display()
+        );
     }
     Ok(if matches!(parcel, Parcel::Nothing { .. }) {
         Exit::Empty
@@ -242,16 +265,11 @@ async fn measure_here(
     Ok((m, missing))
 }
 
-/// `224.0.1.187`, `[ff02::fd]`, or a full `coap://group:port` URI; port 5683 by default.
-async fn group_address(text: &str) -> anyhow::Result<SocketAddr> {
-    let uri = if text.starts_with("coap://") {
-        text.to_owned()
-    } else if text.contains(':') && !text.starts_with('[') {
-        format!("coap://[{text}]")
-    } else {
-        format!("coap://{text}")
-    };
-    let addr = Uri::parse(&uri)?
+/// The group of `--group`, as [`values::group`] wrote it (a `coap://` URI; port 5683 by
+/// default), resolved.
+async fn group_address(uri: &str) -> anyhow::Result<SocketAddr> {
+    let text = uri;
+    let addr = Uri::parse(uri)?
         .resolve()
         .await
         .with_context(|| format!("resolving {text}"))?;

@@ -1,22 +1,26 @@
 //! The commands: one file per subcommand, with its clap flags and its `run`. The
 //! commands share only what this file holds: the flag groups (the server and its
-//! cameras, transmission parameters, the measurement's thresholds), the progress bars, `Deferred`, which builds a command's flags only when it
-//! is the one given, how a command ends (`Exit`, `exit_status`, `error_text`), and the
-//! output macros. None imports another, and what they do is the library's.
+//! cameras, transmission parameters, the measurement's thresholds), the value parsers
+//! (`values`), the progress bars, `Deferred`, which builds a command's flags only when it
+//! is the one given, how a command ends (`Exit`, `exit_status`, `error_text`, `Usage`),
+//! and the output macros. None imports another, and what they do is the library's.
 
 pub(crate) mod bench;
 pub(crate) mod calibrate;
 pub(crate) mod demo;
 pub(crate) mod grab;
+pub(crate) mod markers;
 pub(crate) mod measure;
 pub(crate) mod monitor;
 pub(crate) mod netem;
 pub(crate) mod request;
 pub(crate) mod results;
 pub(crate) mod serve;
+pub(crate) mod values;
 
 use std::time::Duration;
 
+use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
 use geometry::DimensionConfig;
@@ -41,8 +45,8 @@ pub(crate) struct TransmissionArgs {
     /// same default in every command: a few megabytes over a slow link take minutes
     /// block by block). A request that nothing acknowledges fails sooner, after
     /// MAX_RETRANSMIT retransmissions (45-93 s with the RFC 7252 defaults).
-    #[arg(long, value_name = "SECONDS", default_value_t = 300.0)]
-    timeout: f64,
+    #[arg(long, value_name = "SECONDS", default_value = "300", value_parser = values::positive_seconds)]
+    timeout: Duration,
     /// How a body that comes in blocks is moved: `window` (many block requests in
     /// flight, paced by a congestion controller, lost blocks asked for again within about
     /// a round trip; falls back to stop-and-wait with servers that refuse),
@@ -93,8 +97,8 @@ impl TransmissionArgs {
     }
 
     /// `--timeout`.
-    pub(crate) fn timeout(&self) -> anyhow::Result<Duration> {
-        anyhow::Context::context(Duration::try_from_secs_f64(self.timeout), "--timeout")
+    pub(crate) fn timeout(&self) -> Duration {
+        self.timeout
     }
 
     /// The endpoint configuration, with a seed that differs between processes started at
@@ -125,7 +129,7 @@ impl TransmissionArgs {
 pub(crate) struct CameraArgs {
     /// The server, coap://host[:port] (or coaps:// with --psk-identity and --psk-key).
     // Required, but an argument that conflicts with one given (measure's --group) is not.
-    #[arg(long, value_name = "URI", required = true)]
+    #[arg(long, value_name = "URI", required = true, value_parser = values::coap_uri)]
     server: Option<String>,
     /// Only this camera (12-digit serial). Without it, a command that grabs one frame
     /// takes the server's camera if it has only one; the others use every camera.
@@ -153,7 +157,7 @@ impl CameraArgs {
             server,
             transmission.endpoint_config(),
             transmission.psk().as_ref(),
-            transmission.timeout()?,
+            transmission.timeout(),
         )
         .await
     }
@@ -162,11 +166,13 @@ impl CameraArgs {
 /// Thresholds of the measurement.
 #[derive(Debug, Clone, Args)]
 pub(crate) struct DimensionArgs {
-    /// Points lower than this above the floor are floor, in millimetres.
-    #[arg(long, value_name = "MM", default_value_t = 10.0)]
+    /// Points lower than this above the floor are floor, in millimetres (0 to 1000).
+    #[arg(long, value_name = "MM", default_value = "10", value_parser = values::min_height_mm)]
     min_height_mm: f32,
-    /// Points closer than this belong to one object, in millimetres.
-    #[arg(long, value_name = "MM", default_value_t = 20.0)]
+    /// Points closer than this belong to one object, in millimetres (5 to 500: below 5
+    /// a D415's points at a metre or more lie too far apart and a parcel falls into
+    /// pieces; above 500 it merges with whatever stands beside it).
+    #[arg(long, value_name = "MM", default_value = "20", value_parser = values::cluster_mm)]
     cluster_mm: f32,
 }
 
@@ -222,13 +228,16 @@ fn keep_about(cmd: clap::Command, augment: fn(clap::Command) -> clap::Command) -
 }
 
 /// How a command ended, as its exit status; README.md's table lists them. A usage error
-/// is 2 (clap's); an error's status is [`exit_status`].
+/// is 2 (clap's, or [`Usage`] for what clap cannot check alone); an error's status is
+/// [`exit_status`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Exit {
     /// 0: done.
     Success,
     /// 1: failed: a network or file error, a malformed answer, a protocol violation.
     Failure,
+    /// 2: usage: a bad flag or value; nothing was sent.
+    Usage,
     /// 3: the server answered with an error response (4.xx, 5.xx) or refused what was
     /// asked (an observation it does not allow); the code and diagnostic were printed.
     Refused,
@@ -254,6 +263,7 @@ impl Exit {
         match self {
             Self::Success => 0,
             Self::Failure => 1,
+            Self::Usage => 2,
             Self::Refused => 3,
             Self::NoAnswer => 4,
             Self::Empty => 5,
@@ -272,6 +282,9 @@ pub(crate) fn exit_status(error: &anyhow::Error) -> Option<Exit> {
     for cause in error.chain() {
         if let Some(Interrupted(signal)) = cause.downcast_ref() {
             return Some(Exit::Interrupted(*signal));
+        }
+        if cause.is::<Usage>() {
+            return Some(Exit::Usage);
         }
         if cause.is::<coapcam::client::ErrorResponse>() {
             return Some(Exit::Refused);
@@ -300,10 +313,63 @@ pub(crate) fn exit_status(error: &anyhow::Error) -> Option<Exit> {
 
 pub(crate) use coapcam::error_text;
 
+/// A bad combination of flags or values that clap cannot see alone (a file name whose
+/// extension does not suit the stream, a flag for another mode): the command ends with
+/// status 2 before it sends anything. Checked first thing in each command's `run`.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub(crate) struct Usage(pub(crate) String);
+
+/// Returns a [`Usage`] error from the enclosing function.
+macro_rules! usage {
+    ($($arg:tt)*) => {
+        return Err($crate::cli::Usage(format!($($arg)*)).into())
+    };
+}
+pub(crate) use usage;
+
 /// A command stopped by a signal (its number).
 #[derive(Debug, thiserror::Error)]
 #[error("interrupted by signal {0}")]
 pub(crate) struct Interrupted(pub(crate) u8);
+
+/// SIGINT and SIGTERM, caught.
+pub(crate) struct Signals {
+    interrupt: tokio::signal::unix::Signal,
+    terminate: tokio::signal::unix::Signal,
+}
+
+impl Signals {
+    pub(crate) fn install() -> anyhow::Result<Self> {
+        use tokio::signal::unix::{SignalKind, signal};
+        Ok(Self {
+            interrupt: signal(SignalKind::interrupt()).context("installing the SIGINT handler")?,
+            terminate: signal(SignalKind::terminate()).context("installing the SIGTERM handler")?,
+        })
+    }
+
+    /// The next signal.
+    pub(crate) async fn recv(&mut self) -> Interrupted {
+        tokio::select! {
+            _ = self.interrupt.recv() => Interrupted(2),
+            _ = self.terminate.recv() => Interrupted(15),
+        }
+    }
+}
+
+/// Runs a command's `work` until it ends or SIGINT or SIGTERM comes: then `work` is
+/// dropped (with whatever it holds: a temporary file is removed, a request forgotten) and
+/// the command ends with [`Interrupted`] ("interrupted by signal 2", status 130), the same
+/// in every command.
+pub(crate) async fn interruptible(
+    work: impl Future<Output = anyhow::Result<Exit>>,
+) -> anyhow::Result<Exit> {
+    let mut signals = Signals::install()?;
+    tokio::select! {
+        done = work => done,
+        signal = signals.recv() => Err(signal.into()),
+    }
+}
 
 /// `println!` for command output, returning from the enclosing function with an error
 /// instead of panicking when standard output fails (a reader that went away).

@@ -6,7 +6,7 @@
 
 use std::time::{Duration, Instant, SystemTime};
 
-use anyhow::{Context as _, bail};
+use anyhow::bail;
 use clap::Args;
 use coap::ContentFormat;
 
@@ -19,7 +19,8 @@ use coapcam::station::record::Record;
 use coapcam::stats::{TransferStats, TransferSummary};
 
 use super::{
-    CameraArgs, DimensionArgs, Exit, TransmissionArgs, error_text, exit_status, out, outln,
+    CameraArgs, DimensionArgs, Exit, Interrupted, Signals, TransmissionArgs, error_text,
+    exit_status, out, outln, usage, values,
 };
 
 /// What `monitor` repeats.
@@ -61,10 +62,11 @@ pub(crate) struct MonitorArgs {
     #[arg(
         long,
         value_name = "SECONDS",
-        default_value_t = 1.0,
-        conflicts_with = "observe"
+        default_value = "1",
+        conflicts_with = "observe",
+        value_parser = values::seconds_or_zero
     )]
-    interval: f64,
+    interval: Duration,
     /// Stop after this many results (failed ones included); without it, run until Ctrl-C.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     count: Option<u64>,
@@ -199,9 +201,6 @@ enum Plan {
 
 impl Plan {
     async fn resolve(args: &MonitorArgs, client: &CamClient) -> anyhow::Result<Self> {
-        if args.accept.is_some() && args.target == Target::Measure {
-            bail!("--accept is for grabs: a measurement asks for the compact cloud");
-        }
         if let Some(stream) = args.target.stream() {
             let serial = client.one_camera(args.cameras.camera.as_deref()).await?;
             return Ok(if args.observe {
@@ -433,13 +432,25 @@ async fn repeat(
 /// Runs `monitor`: a success when at least one result succeeded, else as its last
 /// failure.
 pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
-    let timeout = args.transmission.timeout()?;
-    let period = Duration::try_from_secs_f64(args.interval).context("--interval")?;
+    let timeout = args.transmission.timeout();
+    let period = args.interval;
     if period.is_zero() && args.count.is_none() && !args.observe {
-        bail!("--interval 0 needs --count");
+        usage!("--interval 0 needs --count");
     }
-    let client = args.cameras.connect(&args.transmission).await?;
-    let plan = Plan::resolve(&args, &client).await?;
+    if args.accept.is_some() && args.target == Target::Measure {
+        usage!("--accept is for grabs: a measurement asks for the compact cloud");
+    }
+    // SIGINT and SIGTERM end the command from here on: before the first result as in
+    // every command (status 130 or 143), after it with the statistics.
+    let mut signals = Signals::install()?;
+    let (client, plan) = tokio::select! {
+        ready = async {
+            let client = args.cameras.connect(&args.transmission).await?;
+            let plan = Plan::resolve(&args, &client).await?;
+            anyhow::Ok((client, plan))
+        } => ready?,
+        signal = signals.recv() => return Err(signal.into()),
+    };
     let what = plan.describe();
     if !args.json {
         match args.count {
@@ -482,9 +493,13 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
             }
         }
     };
+    let mut interrupted = None;
     let ended = tokio::select! {
         ended = work => ended,
-        interrupted = tokio::signal::ctrl_c() => interrupted.context("waiting for Ctrl-C"),
+        signal = signals.recv() => {
+            interrupted = Some(signal);
+            Ok(())
+        }
     };
     let summary = report.stats.summary();
     if args.json {
@@ -500,6 +515,12 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
     ended?;
     Ok(if summary.count > 0 {
         Exit::Success
+    } else if let Some(Interrupted(signal)) = interrupted
+        && summary.failed == 0
+    {
+        // Stopped before any result: as every command stopped by a signal.
+        eprintln!("coapcam: interrupted by signal {signal}");
+        Exit::Interrupted(signal)
     } else {
         report.last_failure.unwrap_or(Exit::Failure)
     })

@@ -115,10 +115,7 @@ fn parse_probability(text: &str) -> Result<f64, String> {
 }
 
 pub(crate) fn parse_seconds(text: &str) -> Result<Duration, String> {
-    let seconds: f64 = text
-        .parse()
-        .map_err(|e| format!("not a number of seconds ({e})"))?;
-    Duration::try_from_secs_f64(seconds).map_err(|e| format!("{seconds} s: {e}"))
+    super::values::positive_seconds(text)
 }
 
 impl NetemArgs {

@@ -13,13 +13,14 @@ use coap::{BlockOpt, Code, ContentFormat, OptionNumber, Request, Response};
 use coap_net::{BodyPart, Client, Uri};
 use coapcam::repr::Format;
 
-use super::{Bar, Exit, Interrupted, TransmissionArgs, outln};
+use super::{Bar, Exit, Signals, TransmissionArgs, outln, usage, values};
 use coapcam::client::{check_size, describe};
 
 /// Flags shared by `get`, `post`, `put` and `delete`.
 #[derive(Debug, Args)]
 pub(crate) struct RequestArgs {
     /// The resource, e.g. coap://127.0.0.1:5683/cams/pointclouds?x=1 (IPv6: coap://[::1]/...).
+    #[arg(value_parser = values::coap_uri)]
     uri: String,
     /// Request payload as text.
     #[arg(long, conflicts_with = "file")]
@@ -66,13 +67,14 @@ fn parse_block_size(s: &str) -> Result<u8, String> {
 #[derive(Debug, Args)]
 pub(crate) struct DiscoverArgs {
     /// The server (coap://host[:port]); a multicast address asks every server in the group.
+    #[arg(value_parser = values::coap_uri)]
     uri: String,
     /// A /.well-known/core filter (RFC 6690 §4.1), e.g. rt=rgbd.color or href=/cams*.
     #[arg(long)]
     query: Option<String>,
-    /// How long to collect answers from a multicast group, in seconds.
-    #[arg(long, value_name = "SECONDS", default_value_t = 2.0)]
-    wait: f64,
+    /// How long to collect answers from a multicast group, in seconds (above 0).
+    #[arg(long, value_name = "SECONDS", default_value = "2", value_parser = values::positive_seconds)]
+    wait: Duration,
     /// Print JSON: one object per link with its server, target and attributes.
     #[arg(long)]
     json: bool,
@@ -83,6 +85,9 @@ pub(crate) struct DiscoverArgs {
 /// Runs `get|post|put|delete`: a success for a 2.xx whose body arrived whole,
 /// [`Exit::Refused`] for an error response.
 pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit> {
+    if args.observe.is_some() && method != Code::GET {
+        usage!("--observe needs GET");
+    }
     let uri = Uri::parse(&args.uri)?;
     let peer = uri
         .resolve()
@@ -92,7 +97,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
     request.options = uri.options();
     request.confirmable = !args.non;
     request.block_szx = args.block_size;
-    request.timeout = Some(args.transmission.timeout()?);
+    request.timeout = Some(args.transmission.timeout());
     if let Some(cf) = args.content_format {
         request
             .options
@@ -112,13 +117,21 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
     };
     let client = args.transmission.client(&uri, peer)?;
     let started = Instant::now();
-    if let Some(count) = args.observe {
-        if method != Code::GET {
-            bail!("--observe needs GET");
-        }
-        return observe(&client, peer, request, count, &args, started).await;
-    }
     let what = || format!("{} {}", method.name().unwrap_or("request"), args.uri);
+    // An error response names the method and the resource's path, as README.md shows.
+    let refused = format!(
+        "{} /{}{}",
+        method.name().unwrap_or("request"),
+        uri.path.join("/"),
+        if uri.query.is_empty() {
+            String::new()
+        } else {
+            format!("?{}", uri.query.join("&"))
+        }
+    );
+    if let Some(count) = args.observe {
+        return observe(&client, peer, request, count, &args, started, &refused).await;
+    }
     let bar = std::io::stderr().is_terminal() && !args.json;
     if let Some(path) = &args.output {
         // SIGINT and SIGTERM end the transfer through this select, which drops it and
@@ -131,7 +144,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
         };
         let path = path_json(&client, peer, args.json).await;
         output(&response, size, &args, started, path)?;
-        return Ok(report_code(&response));
+        return Ok(report_code(&response, &refused));
     }
     let response = if bar {
         send_with_bar(&client, peer, request).await
@@ -142,7 +155,7 @@ pub(crate) async fn run(method: Code, args: RequestArgs) -> anyhow::Result<Exit>
     check_size(&response, response.payload.len())?;
     let path = path_json(&client, peer, args.json).await;
     output(&response, response.payload.len(), &args, started, path)?;
-    Ok(report_code(&response))
+    Ok(report_code(&response, &refused))
 }
 
 /// Streams the body of a success response into a temporary file next to `path`, and
@@ -175,30 +188,6 @@ async fn to_file(
                 }
                 return Ok((*response, written));
             }
-        }
-    }
-}
-
-/// SIGINT and SIGTERM, caught.
-struct Signals {
-    interrupt: tokio::signal::unix::Signal,
-    terminate: tokio::signal::unix::Signal,
-}
-
-impl Signals {
-    fn install() -> anyhow::Result<Self> {
-        use tokio::signal::unix::{SignalKind, signal};
-        Ok(Self {
-            interrupt: signal(SignalKind::interrupt()).context("installing the SIGINT handler")?,
-            terminate: signal(SignalKind::terminate()).context("installing the SIGTERM handler")?,
-        })
-    }
-
-    /// The next signal.
-    async fn recv(&mut self) -> Interrupted {
-        tokio::select! {
-            _ = self.interrupt.recv() => Interrupted(2),
-            _ = self.terminate.recv() => Interrupted(15),
         }
     }
 }
@@ -312,6 +301,7 @@ async fn observe(
     count: usize,
     args: &RequestArgs,
     started: Instant,
+    what: &str,
 ) -> anyhow::Result<Exit> {
     let mut obs = client.observe(peer, request).await?;
     let mut seen = 0;
@@ -329,7 +319,7 @@ async fn observe(
             serde_json::Value::Null,
         )?;
         if !response.code.is_success() {
-            return Ok(report_code(&response));
+            return Ok(report_code(&response, what));
         }
         if !response.options.contains(OptionNumber::OBSERVE) {
             if seen == 0 {
@@ -361,13 +351,13 @@ async fn send_with_bar(
     response
 }
 
-/// A success for a 2.xx response, else [`Exit::Refused`] with the code and diagnostic
-/// printed.
-fn report_code(r: &Response) -> Exit {
+/// A success for a 2.xx response, else [`Exit::Refused`] with the request (`what`: its
+/// method and URI), the code and diagnostic printed.
+fn report_code(r: &Response, what: &str) -> Exit {
     if r.code.is_success() {
         return Exit::Success;
     }
-    eprintln!("coapcam: {}", describe(r));
+    eprintln!("coapcam: {what}: {}", describe(r));
     Exit::Refused
 }
 
@@ -478,10 +468,10 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
     }
     let client = args.transmission.client(&uri, peer)?;
     let answers: Vec<(SocketAddr, Response)> = if peer.ip().is_multicast() {
-        request.timeout = Some(Duration::try_from_secs_f64(args.wait).context("--wait")?);
+        request.timeout = Some(args.wait);
         client.multicast(peer, request).await?
     } else {
-        request.timeout = Some(args.transmission.timeout()?);
+        request.timeout = Some(args.transmission.timeout());
         vec![(
             peer,
             client
@@ -492,7 +482,7 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
     };
     let mut exit = Exit::NoAnswer;
     for (server, r) in &answers {
-        if report_code(r) != Exit::Success {
+        if report_code(r, &format!("GET {server}/.well-known/core")) != Exit::Success {
             if exit == Exit::NoAnswer {
                 exit = Exit::Refused;
             }
@@ -525,7 +515,10 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
         }
     }
     if answers.is_empty() {
-        eprintln!("coapcam: no server answered within {} s", args.wait);
+        eprintln!(
+            "coapcam: no server answered within {} s",
+            args.wait.as_secs_f64()
+        );
     }
     Ok(exit)
 }

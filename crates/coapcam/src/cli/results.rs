@@ -21,7 +21,7 @@ pub(crate) struct ResultsArgs {
     #[command(subcommand)]
     command: Option<ResultsCommand>,
     /// The station, coap://host[:port]: list its records, newest first.
-    #[arg(long, value_name = "URI", required = true)]
+    #[arg(long, value_name = "URI", required = true, value_parser = super::values::coap_uri)]
     server: Option<String>,
     /// Only records after this id.
     #[arg(long, value_name = "ID")]
@@ -79,7 +79,7 @@ pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
         server,
         args.transmission.endpoint_config(),
         args.transmission.psk().as_ref(),
-        args.transmission.timeout()?,
+        args.transmission.timeout(),
     )
     .await?;
     let query = ListQuery {

@@ -16,7 +16,7 @@ use rgbd::Scene;
 use rgbd::backend::realsense::LibrarySearch;
 use tokio::signal::unix::{SignalKind, signal};
 
-use super::TransmissionArgs;
+use super::{TransmissionArgs, usage, values};
 
 /// Flags of `serve`.
 #[derive(Debug, Args)]
@@ -112,7 +112,8 @@ pub(crate) struct ServeArgs {
     /// The memory grabs in progress may take together, in MiB. Each grab reserves its
     /// estimated peak (about 29 MiB for a 1280x720 point cloud) before it starts; one
     /// that would pass the budget answers 5.03 with Max-Age 1 (clients retry then).
-    #[arg(long, value_name = "MIB", default_value_t = 256)]
+    #[arg(long, value_name = "MIB", default_value_t = 256,
+          value_parser = clap::value_parser!(u64).range(1..=1_048_576))]
     grab_memory: u64,
     /// The station's name, in every record of the results log (default: the host name).
     #[arg(long, value_name = "NAME")]
@@ -188,9 +189,9 @@ pub(crate) struct ServeArgs {
     #[arg(long, value_name = "MS", default_value_t = 0, allow_negative_numbers = true,
           value_parser = clap::value_parser!(i64).range(-86_400_000..=86_400_000))]
     clock_offset_ms: i64,
-    /// Stop after this many seconds (default: run until interrupted).
-    #[arg(long, value_name = "SECONDS")]
-    duration: Option<f64>,
+    /// Stop after this many seconds, above 0 (default: run until interrupted).
+    #[arg(long, value_name = "SECONDS", value_parser = values::positive_seconds)]
+    duration: Option<Duration>,
     #[command(flatten)]
     transmission: TransmissionArgs,
 }
@@ -246,6 +247,14 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             }
             None => Scene::default_single(),
         };
+        if scene.cameras.is_empty() && !args.realsense && args.bag.is_empty() {
+            usage!(
+                "the scene {} has no [[camera]]: nothing to serve (--no-cameras serves none on purpose)",
+                args.scene
+                    .as_deref()
+                    .map_or_else(|| "built in".into(), |p| p.display().to_string())
+            );
+        }
         Some(if args.realsense {
             Cameras::RealSense(RealSenseOptions {
                 library: LibrarySearch {
@@ -359,9 +368,7 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     }
     let duration = async {
         match args.duration {
-            Some(s) => {
-                tokio::time::sleep(Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)).await
-            }
+            Some(d) => tokio::time::sleep(d).await,
             None => std::future::pending().await,
         }
     };

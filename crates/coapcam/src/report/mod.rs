@@ -156,12 +156,15 @@ impl EdgeQuery {
         Ok(q)
     }
 
-    /// The numeric query items and the values each takes (millimetres; cm³ per kg).
+    /// The numeric query items and the values each takes (millimetres; cm³ per kg); the
+    /// client's flags take the same. A cluster radius below 5 mm is finer than the
+    /// spacing of a D415's points at a metre or more (after decimation), so a parcel
+    /// falls apart into pieces; above 500 mm it merges whatever stands beside it.
     pub const RANGES: [(&str, f64, f64); 4] = [
-        ("min_height_mm", 0.0, 10_000.0),
-        ("cluster_mm", 0.1, 10_000.0),
-        ("volumetric_divisor", 1.0, 1e7),
-        ("round_up_mm", 0.1, 10_000.0),
+        ("min_height_mm", 0.0, 1_000.0),
+        ("cluster_mm", 5.0, 500.0),
+        ("volumetric_divisor", 100.0, 100_000.0),
+        ("round_up_mm", 0.1, 1_000.0),
     ];
 }
 

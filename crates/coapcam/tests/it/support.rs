@@ -44,6 +44,9 @@ pub(crate) enum Peer {
     Mosquitto,
     /// Debian chromium and chromium-driver (headless Chromium and chromedriver).
     Chromium,
+    /// Debian poppler-utils: pdftoppm, a PDF renderer of its own (the printed sheet of
+    /// markers).
+    Poppler,
 }
 
 /// The path of libcoap 4.3.5's `coap-client` or `coap-server`.
@@ -92,6 +95,10 @@ fn missing(peer: Peer) -> Option<String> {
         ]),
         Peer::Mosquitto => peers::mosquitto().err(),
         Peer::Chromium => peers::missing_on_path(&["chromium", "chromedriver"]),
+        Peer::Poppler => peers::on_path("pdftoppm").is_none().then(|| {
+            "pdftoppm is not on PATH (Debian package poppler-utils: apt-get install poppler-utils)"
+                .to_owned()
+        }),
         Peer::Libcoap435 => peers::libcoap435().err(),
         Peer::Aiocoap => peers::aiocoap().err(),
     }

@@ -3,11 +3,10 @@
 
 use std::time::Duration;
 
-use anyhow::Context as _;
 use clap::Args;
 use serde_json::json;
 
-use crate::cli::{Exit, outln};
+use crate::cli::{Exit, outln, values};
 use coapcam::bench::load::{self, Config};
 use coapcam::stats;
 
@@ -15,37 +14,37 @@ use coapcam::stats;
 #[derive(Debug, Args)]
 pub(crate) struct LoadArgs {
     /// The server, e.g. coap://127.0.0.1:5683 (started with --static DIR --writable).
-    #[arg(long, value_name = "URI")]
+    #[arg(long, value_name = "URI", value_parser = values::coap_uri)]
     server: String,
-    /// Concurrent clients, each with its own socket, a quarter in each role.
-    #[arg(long, default_value_t = 200)]
-    clients: usize,
+    /// Concurrent clients, each with its own socket, a quarter in each role (at least 1).
+    #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    clients: u32,
     /// How long the clients keep going, in seconds.
-    #[arg(long, default_value_t = 60.0)]
-    duration: f64,
+    #[arg(long, value_name = "SECONDS", default_value = "60", value_parser = values::positive_seconds)]
+    duration: Duration,
     /// Pause of each client between two of its requests, in milliseconds.
     #[arg(long, default_value_t = 50)]
     pause_ms: u64,
     /// Per-request timeout, in seconds.
-    #[arg(long, default_value_t = 60.0)]
-    timeout: f64,
+    #[arg(long, value_name = "SECONDS", default_value = "60", value_parser = values::positive_seconds)]
+    timeout: Duration,
 }
 
 /// Runs `bench load`.
 pub(crate) async fn run(args: LoadArgs) -> anyhow::Result<Exit> {
     let config = Config {
         server: args.server.clone(),
-        clients: args.clients,
-        duration: Duration::try_from_secs_f64(args.duration).context("--duration")?,
+        clients: args.clients as usize,
+        duration: args.duration,
         pause: Duration::from_millis(args.pause_ms),
-        timeout: Duration::try_from_secs_f64(args.timeout).context("--timeout")?,
+        timeout: args.timeout,
     };
     let t = load::run(&config).await?;
     let ms = &t.discovery_ms;
     let pct = |p: f64| stats::percentile(ms, p).unwrap_or(f64::NAN);
     let report = json!({
         "clients": args.clients,
-        "duration_s": args.duration,
+        "duration_s": args.duration.as_secs_f64(),
         "discovery": {
             "requests": ms.len(),
             "p50_ms": pct(0.5),

@@ -42,8 +42,8 @@ enum BenchKind {
 #[derive(Debug, Args)]
 struct AccuracyArgs {
     /// Number of scenes (at least 1).
-    #[arg(long, default_value_t = 40)]
-    scenes: usize,
+    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    scenes: u32,
     /// Seed of the scene generator.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -73,7 +73,7 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
 
 async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     let config = accuracy::Config {
-        scenes: args.scenes,
+        scenes: args.scenes as usize,
         seed: args.seed,
         calibrate: args.calibrate,
         dimension: args.dimension.config(),

@@ -120,14 +120,7 @@ pub(super) struct TransferArgs {
 }
 
 fn parse_cap(text: &str) -> Result<Duration, String> {
-    let seconds: f64 = text
-        .parse()
-        .map_err(|e| format!("not a number of seconds ({e})"))?;
-    let cap = Duration::try_from_secs_f64(seconds).map_err(|e| format!("{seconds} s: {e}"))?;
-    if cap.is_zero() {
-        return Err(format!("{text} s: the cap must be more than 0"));
-    }
-    Ok(cap)
+    crate::cli::values::positive_seconds(text)
 }
 
 fn parse_link(text: &str) -> Result<Link, String> {
