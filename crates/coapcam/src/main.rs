@@ -32,8 +32,8 @@ enum Command {
     Delete(Deferred<cli::request::RequestArgs>),
     /// List a server's resources (/.well-known/core), or every server in a multicast group.
     Discover(Deferred<cli::request::DiscoverArgs>),
-    /// Grab one new frame into a file (.png, .jpg, .ply, .rvl, .rvl.zst or .bin),
-    /// optionally with a picture for people (--view).
+    /// Grab one new frame into a file (.png, .jpg, .ply, .rvl, .rvl.zst, .dcl, .qmm or
+    /// .bin) or standard output (-o -), optionally with a picture for people (--view).
     Grab(Deferred<cli::grab::GrabArgs>),
     /// Measure the largest parcel below the cameras: length, width, height in millimetres.
     Measure(Deferred<cli::measure::MeasureArgs>),

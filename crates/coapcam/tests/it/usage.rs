@@ -293,3 +293,46 @@ fn a_busy_address_among_several_is_named() {
     assert!(f.stderr.contains(&format!("{busy}: ")), "{}", f.stderr);
     assert!(f.stderr.contains("in use"), "{}", f.stderr);
 }
+
+/// docs/usage.md's `monitor color` example: the command as written, against a server
+/// here, prints results of the size the page shows.
+#[test]
+fn the_monitor_example_of_usage_md_prints_the_size_it_shows() {
+    const USAGE: &str = include_str!("../../../../docs/usage.md");
+    let command = USAGE
+        .lines()
+        .find(|l| l.contains("coapcam monitor color"))
+        .expect("usage.md's monitor example");
+    let shown = USAGE
+        .lines()
+        .find(|l| l.starts_with("#1 "))
+        .and_then(|l| l.split_whitespace().nth(3))
+        .expect("the example's first result line")
+        .replace(',', "");
+    let state = TempDir::new("usage-monitor");
+    let (_server, addr) = serve(state.path());
+    let mut args: Vec<String> = command
+        .split_whitespace()
+        .skip_while(|w| !w.ends_with("coapcam"))
+        .skip(1)
+        .map(|w| w.replace("coap://127.0.0.1", &format!("coap://{addr}")))
+        .collect();
+    // Two results, at once, are enough to see their size.
+    let count = args.iter().position(|a| a == "--count").expect("--count") + 1;
+    args[count] = "2".into();
+    args.extend(["--interval".into(), "0".into()]);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let f = coapcam(&args);
+    assert_eq!(f.status.code(), Some(0), "{args:?}: {}", f.stderr);
+    let out = f.stdout_text();
+    let first = out
+        .lines()
+        .find(|l| l.starts_with("#1 "))
+        .and_then(|l| l.split_whitespace().nth(3))
+        .expect("a result line")
+        .replace(',', "");
+    assert_eq!(
+        first, shown,
+        "usage.md shows {shown} B per result, its command prints {first} B:\n{out}"
+    );
+}
