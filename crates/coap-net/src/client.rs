@@ -289,6 +289,13 @@ impl Client {
         rx.await.map_err(|_| Error::Closed)
     }
 
+    /// A round trip to `peer` remembered from before (another process's estimate): the
+    /// endpoint's first CON to it times out after about that instead of ACK_TIMEOUT, until
+    /// it measures one of its own ([`coap::Endpoint::remember_rtt`]).
+    pub fn remember_rtt(&self, peer: SocketAddr, rtt: std::time::Duration) -> Result<(), Error> {
+        self.handle.send(Command::RememberRtt { peer, rtt })
+    }
+
     /// A CoAP ping: `Ok` when the peer answers the empty CON.
     pub async fn ping(&self, peer: SocketAddr) -> Result<(), Error> {
         let (tx, rx) = oneshot::channel();

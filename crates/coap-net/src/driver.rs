@@ -98,6 +98,10 @@ pub(crate) enum Command {
         peer: SocketAddr,
         reply: oneshot::Sender<Option<coap::PathStats>>,
     },
+    RememberRtt {
+        peer: SocketAddr,
+        rtt: Duration,
+    },
     Membership {
         group: IpAddr,
         interface: u32,
@@ -227,6 +231,16 @@ const NO_SESSION: &str = "no DTLS session: the handshake failed or got no answer
 /// The same bound for a thread that has no waker.
 const POLL_WAIT: Duration = Duration::from_millis(10);
 
+/// Deadlines closer than this are waited for with a high-resolution timer
+/// ([`Socket::wait_readable`]): a receive's read timeout counts in the kernel's ticks and
+/// ends up to 12 ms late, which a paced window (requests due every few hundred
+/// microseconds) cannot afford. Beyond it the lateness is a few percent at most.
+const PRECISE_WAIT: Duration = Duration::from_millis(250);
+
+/// The target of the congestion controllers' round-by-round trace
+/// (`RUST_LOG=coap_net::congestion=trace`).
+const TRACE_TARGET: &str = "coap_net::congestion";
+
 /// Starts the thread for `socket`. Requests go to `server` when given; a client-only
 /// endpoint answers them 4.04.
 pub(crate) fn spawn(
@@ -249,6 +263,9 @@ fn start(
 ) -> std::io::Result<EndpointHandle> {
     let (tx, rx) = mpsc::unbounded_channel();
     let local = socket.local_addr();
+    let mut config = config;
+    config.trace_congestion |= tracing::enabled!(target: TRACE_TARGET, tracing::Level::TRACE);
+    let trace = config.trace_congestion.then(clock::now);
     let waker = Arc::new(waker);
     let wake_from = waker.source();
     let thread = Thread {
@@ -268,6 +285,7 @@ fn start(
         wait: None,
         dtls,
         dtls_tick: None,
+        trace,
     };
     std::thread::Builder::new()
         .name(format!("coap {local}"))
@@ -317,6 +335,8 @@ struct Thread {
     /// are to be driven next.
     dtls: Option<Dtls>,
     dtls_tick: Option<Instant>,
+    /// When the thread started, if the congestion controllers' rounds are traced.
+    trace: Option<Instant>,
 }
 
 impl Thread {
@@ -336,6 +356,9 @@ impl Thread {
             // Requests are taken right after the datagram that completed them (below);
             // any other is not known to have come over loopback.
             self.events(false);
+            if let Some(start) = self.trace {
+                self.trace_rounds(start);
+            }
             if !self.open
                 && self.replies.is_empty()
                 && self.pings.is_empty()
@@ -373,7 +396,20 @@ impl Thread {
                 self.ep.handle_timeout(now);
                 continue;
             }
-            self.arm(deadline.map_or_else(|| self.max_wait(), |d| d - now));
+            match deadline.map(|d| d - now) {
+                // A near deadline (pacing, a window's loss or probe timer) is waited for
+                // with a high-resolution timer; a far one, or none, by the receive's own
+                // timeout, whose few milliseconds of lateness do not matter there.
+                Some(left) if left < PRECISE_WAIT => match self.socket.wait_readable(left) {
+                    Ok(false) => continue,
+                    Ok(true) => {}
+                    Err(e) => {
+                        tracing::debug!(error = %e, "ppoll failed");
+                        self.arm(left);
+                    }
+                },
+                left => self.arm(left.unwrap_or_else(|| self.max_wait())),
+            }
             match self.socket.recv(&mut buf) {
                 Ok(d) => {
                     let now = clock::now();
@@ -420,6 +456,39 @@ impl Thread {
             if self.commands() {
                 return;
             }
+        }
+    }
+
+    /// Logs the rounds the congestion controllers recorded, one line each: rates in
+    /// blocks per second, times in milliseconds since the thread started.
+    fn trace_rounds(&mut self, start: Instant) {
+        let ms = |d: Duration| d.as_secs_f64() * 1000.0;
+        while let Some((peer, r)) = self.ep.poll_round_trace() {
+            let (sample, sample_app_limited) = r.max_sample.unwrap_or((0.0, false));
+            tracing::trace!(
+                target: TRACE_TARGET,
+                %peer,
+                t_ms = format_args!("{:.1}", ms(r.at.saturating_duration_since(start))),
+                round = r.round,
+                mode = r.mode,
+                gain = r.pacing_gain,
+                samples = r.samples,
+                app_limited_samples = r.app_limited_samples,
+                max_sample = format_args!("{sample:.0}"),
+                max_sample_app_limited = sample_app_limited,
+                bw = format_args!("{:.0}", r.bw.unwrap_or(0.0)),
+                pacing_rate = format_args!("{:.0}", r.pacing_rate.unwrap_or(0.0)),
+                window = r.window,
+                in_flight = r.in_flight,
+                max_in_flight = r.max_in_flight,
+                min_rtt_ms = format_args!("{:.2}", r.min_rtt.map_or(0.0, ms)),
+                sent = r.sent,
+                late_sends = r.late_sends,
+                lateness_ms = format_args!("{:.2}", ms(r.lateness)),
+                delivered = r.delivered,
+                lost = r.lost,
+                "round"
+            );
         }
     }
 
@@ -536,6 +605,7 @@ impl Thread {
             Command::PathStats { peer, reply } => {
                 let _ = reply.send(self.ep.path_stats(peer));
             }
+            Command::RememberRtt { peer, rtt } => self.ep.remember_rtt(now, peer, rtt),
             Command::Membership {
                 group,
                 interface,

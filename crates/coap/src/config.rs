@@ -42,6 +42,11 @@ pub struct EndpointConfig {
     pub transfer: Transfer,
     /// The congestion controller of each peer's windowed transfers: BBR by default.
     pub congestion: Congestion,
+    /// Whether each path's congestion controller records every round trip (rate samples,
+    /// app-limited marks, pacing rate, window, requests in flight, late sends), for
+    /// [`Endpoint::poll_round_trace`](crate::Endpoint::poll_round_trace). Off by default:
+    /// then nothing is recorded.
+    pub trace_congestion: bool,
     /// MAX_PAYLOADS (RFC 9177 §7.2): the payloads of a Q-Block body sent in one burst,
     /// one *set*, before the sender waits for the receiver's 'Continue' (RFC: 10; both
     /// ends must use the same value).
@@ -120,6 +125,7 @@ impl Default for EndpointConfig {
             notify_con_interval: 5,
             transfer: Transfer::default(),
             congestion: Congestion::default(),
+            trace_congestion: false,
             max_payloads: 10,
             verify_addresses: true,
             leisure: Duration::from_millis(500),

@@ -27,7 +27,7 @@ pub use config::{Congestion, EndpointConfig, Limits};
 pub use content_format::ContentFormat;
 pub use endpoint::{
     Endpoint, Event, IncomingId, IncomingRequest, ObservationId, PathStats, Request, RequestError,
-    RequestId, Response, ServerStats, Transfer, Transmit,
+    RequestId, Response, RoundTrace, ServerStats, Transfer, Transmit,
 };
 pub use msg::{BlockOpt, Code, Message, OptionNumber, Options, Token, Type};
 

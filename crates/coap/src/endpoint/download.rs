@@ -44,16 +44,21 @@ impl ClientLayer {
             let Some(r) = self.requests.get(&id) else {
                 return;
             };
-            let Some(num) = r.window.as_ref().and_then(Window::next_block) else {
+            let peer = r.peer;
+            let next = r.window.as_ref().and_then(Window::next_block);
+            let mid_wait = cx.msg.mid_free_at(now, cx.config.exchange_lifetime);
+            let cc = cx.msg.path(now, peer).controller(now, cx.config);
+            let (Some(num), None) = (next, mid_wait) else {
+                // Nothing to ask for (the tail of the body, or the reorder buffer full),
+                // or every message ID was used within EXCHANGE_LIFETIME (wait for the
+                // next): if the controller would have let a request go, what it measures
+                // now is the sender's shortage, not the path's rate.
+                if cc.in_flight() < cc.window() && cc.next_send(now).is_none() {
+                    cc.on_app_limited(now);
+                }
+                paced = paced.or(mid_wait);
                 break;
             };
-            let peer = r.peer;
-            if let Some(at) = cx.msg.mid_free_at(now, cx.config.exchange_lifetime) {
-                // Every message ID was used within EXCHANGE_LIFETIME: wait for the next.
-                paced = Some(at);
-                break;
-            }
-            let cc = cx.msg.path(now, peer).controller(now, cx.config);
             if cc.in_flight() >= cc.window() {
                 break;
             }

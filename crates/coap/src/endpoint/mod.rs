@@ -56,6 +56,7 @@ use std::net::SocketAddr;
 use std::time::Instant;
 
 pub use crate::config::Transfer;
+pub use congestion::RoundTrace;
 pub use types::{
     Event, IncomingId, IncomingRequest, ObservationId, PathStats, Request, RequestError, RequestId,
     Response, ServerStats, Transmit,
@@ -115,6 +116,18 @@ impl Endpoint {
     pub fn request(&mut self, now: Instant, peer: SocketAddr, req: Request) -> RequestId {
         let (mut cx, client, _) = self.parts();
         client.request(&mut cx, now, peer, req)
+    }
+
+    /// Tells the endpoint a round trip to `peer` remembered from before (another
+    /// process's estimate, as TCP's metrics cache keeps one per destination), so that its
+    /// first CON times out after about `SRTT + max(4 RTTVAR, 100 ms)` instead of
+    /// ACK_TIMEOUT. Taken only while the path has no estimate of its own, and as a weak
+    /// sample: the first measured round trip replaces it entirely.
+    pub fn remember_rtt(&mut self, now: Instant, peer: SocketAddr, rtt: std::time::Duration) {
+        let path = self.msg.path(now, peer);
+        if path.rtt.srtt().is_none() && !rtt.is_zero() {
+            path.rtt.on_sample(now, rtt, false);
+        }
     }
 
     /// Sends a CoAP ping (an empty CON, RFC 7252 §4.3): [`Event::Pong`] when the peer
@@ -202,6 +215,19 @@ impl Endpoint {
     /// The next event.
     pub fn poll_event(&mut self) -> Option<Event> {
         self.events.pop_front()
+    }
+
+    /// The next round trip a path's congestion controller recorded, with the peer, when
+    /// [`EndpointConfig::trace_congestion`] is on (each path's rounds oldest first; a
+    /// path keeps its last 4,096 untaken rounds).
+    pub fn poll_round_trace(&mut self) -> Option<(SocketAddr, RoundTrace)> {
+        if !self.config.trace_congestion {
+            return None;
+        }
+        self.msg.paths.iter_mut().find_map(|(peer, path)| {
+            let round = path.existing_controller()?.poll_round()?;
+            Some((peer.0, round))
+        })
     }
 
     /// What this endpoint knows of the path to `peer` (its round trip, what its windowed

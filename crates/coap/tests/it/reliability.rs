@@ -612,3 +612,48 @@ fn an_acknowledged_exchange_leaves_no_timer_to_wake_for() {
     assert!(sim.run_to_event(c, Duration::from_secs(10)));
     assert_eq!(sim.nodes[c].ep.poll_timeout(), None);
 }
+
+#[test]
+fn a_remembered_round_trip_times_out_a_lost_first_con_in_milliseconds() {
+    // The first CON is lost. Without an estimate it waits ACK_TIMEOUT (2-3 s); with a
+    // round trip remembered from an earlier process (10 ms each way), SRTT + max(4 RTTVAR,
+    // 100 ms) = 120 ms times the random factor (at most 1.5).
+    for remembered in [None, Some(Duration::from_millis(20))] {
+        let mut sim = Sim::new(LinkConfig {
+            delay: Duration::from_millis(10),
+            loss: 1.0,
+            ..LinkConfig::default()
+        });
+        let c = sim.add(cfg(1), None);
+        let s = sim.add(cfg(2), Some(echo_server()));
+        let server = sim.nodes[s].addr;
+        let now = sim.now;
+        if let Some(rtt) = remembered {
+            sim.nodes[c].ep.remember_rtt(now, server, rtt);
+        }
+        sim.nodes[c]
+            .ep
+            .request(now, server, Request::new(Code::GET, "/x"));
+        sim.run_until(Duration::from_millis(1), |_| false);
+        sim.link.loss = 0.0;
+        assert!(sim.run_to_event(c, Duration::from_secs(10)));
+        let sent: Vec<Duration> = sim
+            .log
+            .iter()
+            .filter(|r| r.from == sim.nodes[c].addr)
+            .map(|r| r.at)
+            .collect();
+        assert_eq!(sent.len(), 2, "{:?}", lines(&sim));
+        let wait = sent[1] - sent[0];
+        match remembered {
+            None => assert!(wait >= Duration::from_secs(2), "{wait:?}"),
+            Some(_) => assert!(
+                (Duration::from_millis(120)..=Duration::from_millis(180)).contains(&wait),
+                "{wait:?}"
+            ),
+        }
+        let stats = sim.nodes[c].ep.path_stats(server).expect("a path");
+        // The exchange gave a sample of its own (weak: its CON went twice), taken in.
+        assert!(stats.srtt.is_some_and(|s| s > Duration::from_millis(20)));
+    }
+}

@@ -182,6 +182,21 @@ fn cbor_uints(mut bytes: &[u8]) -> Vec<u64> {
     out
 }
 
+/// How a node's thread meets real time, which virtual time otherwise spares it: timers
+/// that fire late and on coarse ticks, and spans in which it does not run at all.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Wakeups {
+    /// Timers fire only on ticks of this length (counted from the start), at the second
+    /// tick after their due time: 1-2 ticks late, as a receive timeout counted in the
+    /// kernel's jiffies is (4 ms each at HZ=250). A datagram wakes the node at once, and
+    /// it then handles the timers due by then too. Zero: timers fire on time.
+    pub(crate) tick: Duration,
+    /// Spans `(start, length)` since the start in which the node's thread does not run (a
+    /// busy CPU, a page fault, a garbage collection elsewhere): what arrives meanwhile,
+    /// and its timers, wait until the span ends.
+    pub(crate) stalls: Vec<(Duration, Duration)>,
+}
+
 /// A simulated node: an endpoint, an optional request handler, and what it reported.
 pub(crate) struct Node {
     /// Its address.
@@ -193,6 +208,8 @@ pub(crate) struct Node {
     pub(crate) events: Vec<(Duration, Event)>,
     /// Requests the handler saw.
     pub(crate) requests_seen: usize,
+    /// How its thread wakes up (`None`: on time, every timer checked at every step).
+    pub(crate) wakeups: Option<Wakeups>,
 }
 
 /// A datagram on the link: arrival, sequence, destination node, sender, multicast, bytes.
@@ -265,6 +282,7 @@ impl Sim {
             handler,
             events: Vec::new(),
             requests_seen: 0,
+            wakeups: None,
         });
         self.uplinks.push((self.now, Default::default()));
         n
@@ -357,7 +375,7 @@ impl Sim {
                     for _ in 0..copies {
                         let jitter = self.link.jitter.mul_f64(self.unit());
                         self.seq += 1;
-                        let at = departs + self.link.delay + jitter;
+                        let at = self.awake_at(to, departs + self.link.delay + jitter);
                         let data = t.data.clone();
                         self.in_flight
                             .push(Reverse((at, self.seq, to, from, multicast, data)));
@@ -365,6 +383,37 @@ impl Sim {
                 }
             }
         }
+    }
+
+    /// The first instant at or after `at` at which node `i`'s thread runs (the end of a
+    /// stall it falls in).
+    fn awake_at(&self, i: usize, at: Instant) -> Instant {
+        let Some(w) = &self.nodes[i].wakeups else {
+            return at;
+        };
+        let mut at = at;
+        for &(from, len) in &w.stalls {
+            let (a, b) = (self.start + from, self.start + from + len);
+            if at >= a && at < b {
+                at = b;
+            }
+        }
+        at
+    }
+
+    /// When node `i` wakes up for a timer due at `due`.
+    fn timer_wakeup(&self, i: usize, due: Instant) -> Instant {
+        let Some(w) = &self.nodes[i].wakeups else {
+            return due;
+        };
+        let mut at = due;
+        if !w.tick.is_zero() {
+            let since = due.saturating_duration_since(self.start).as_nanos();
+            let tick = w.tick.as_nanos();
+            let ticks = (since / tick + 2) as u32;
+            at = self.start + w.tick * ticks;
+        }
+        self.awake_at(i, at)
     }
 
     /// When a datagram of `len` bytes sent now by node `i` leaves its uplink, or `None`
@@ -425,11 +474,12 @@ impl Sim {
                 return true;
             }
             let next_packet = self.in_flight.peek().map(|Reverse((at, ..))| *at);
-            let next_timer = self
-                .nodes
-                .iter_mut()
-                .filter_map(|n| n.ep.poll_timeout())
-                .min();
+            let mut timers = Vec::with_capacity(self.nodes.len());
+            for i in 0..self.nodes.len() {
+                let due = self.nodes[i].ep.poll_timeout();
+                timers.push(due.map(|d| self.timer_wakeup(i, d)));
+            }
+            let next_timer = timers.iter().flatten().min().copied();
             let next_delayed = self.delayed.peek().map(|Reverse((at, ..))| *at);
             let Some(next) = [next_packet, next_timer, next_delayed]
                 .into_iter()
@@ -444,6 +494,8 @@ impl Sim {
             }
             self.now = self.now.max(next);
             let now = self.now;
+            // Nodes whose thread runs now: a datagram arrived, or a timer woke it.
+            let mut woken: Vec<bool> = timers.iter().map(|t| t.is_some_and(|t| t <= now)).collect();
             while let Some(Reverse((at, _, to, from, multicast, data))) =
                 self.in_flight.peek().cloned()
             {
@@ -451,6 +503,7 @@ impl Sim {
                     break;
                 }
                 self.in_flight.pop();
+                woken[to] = true;
                 self.nodes[to].ep.handle(now, from, &data, multicast);
             }
             while let Some(Reverse((at, _, i, id, slot))) = self.delayed.peek().copied() {
@@ -462,8 +515,10 @@ impl Sim {
                     self.nodes[i].ep.respond(now, id, resp);
                 }
             }
-            for n in &mut self.nodes {
-                n.ep.handle_timeout(now);
+            for (n, woken) in self.nodes.iter_mut().zip(woken) {
+                if woken || n.wakeups.is_none() {
+                    n.ep.handle_timeout(now);
+                }
             }
         }
     }

@@ -7,10 +7,12 @@ use std::rc::Rc;
 use std::time::Duration;
 
 use bytes::Bytes;
-use coap::{Code, Congestion, Event, OptionNumber, PathStats, Request, Response, Transfer};
+use coap::{
+    Code, Congestion, Event, OptionNumber, PathStats, Request, Response, RoundTrace, Transfer,
+};
 
 use crate::blockwise::{body, cfg, no_store, response, serve};
-use crate::sim::{Handler, LinkConfig, Reply, Sim};
+use crate::sim::{Handler, LinkConfig, Reply, Sim, Wakeups};
 
 const TEN_MB: usize = 10_032_012;
 
@@ -38,6 +40,8 @@ pub(crate) struct Outcome {
     pub(crate) stats: PathStats,
     /// Every datagram, as `Record::line` prints it (when recorded).
     pub(crate) trace: Vec<String>,
+    /// The client's congestion controller, round by round.
+    pub(crate) rounds: Vec<RoundTrace>,
 }
 
 /// A GET of `data` with `transfer` through `link`.
@@ -47,9 +51,27 @@ pub(crate) fn download(
     transfer: Transfer,
     record: bool,
 ) -> Outcome {
+    download_waking(link, data, transfer, record, None)
+}
+
+/// The same, with the client's thread waking up as `wakeups` says.
+fn download_waking(
+    link: LinkConfig,
+    data: &Bytes,
+    transfer: Transfer,
+    record: bool,
+    wakeups: Option<Wakeups>,
+) -> Outcome {
     let mut sim = Sim::new(link);
     sim.record = record;
-    let c = sim.add(cfg(1), None);
+    let c = sim.add(
+        coap::EndpointConfig {
+            trace_congestion: true,
+            ..cfg(1)
+        },
+        None,
+    );
+    sim.nodes[c].wakeups = wakeups;
     let s = sim.add(cfg(2), Some(serve(data.clone(), Rc::new(Cell::new(0)))));
     let server = sim.nodes[s].addr;
     let now = sim.now;
@@ -58,7 +80,13 @@ pub(crate) fn download(
     sim.nodes[c].ep.request(now, server, req);
     assert!(sim.run_to_event(c, Duration::from_secs(3600)), "no outcome");
     let body = response(&sim, c).payload.clone();
+    let mut rounds = Vec::new();
+    while let Some((peer, round)) = sim.nodes[c].ep.poll_round_trace() {
+        assert_eq!(peer, server);
+        rounds.push(round);
+    }
     Outcome {
+        rounds,
         elapsed: sim.elapsed(),
         body,
         stats: sim.nodes[c].ep.path_stats(server).expect("a path"),
@@ -438,4 +466,96 @@ fn downloads_after_a_fallback_still_get_a_window() {
             sim.now - started
         );
     }
+}
+
+/// Issue 33's stall, in virtual time: a client whose timers wake 1-2 ticks of 4 ms late
+/// (a receive timeout counted in jiffies) and whose thread does not run for 30 ms during
+/// startup. Before the pacer learned how late its wake-ups are and before a sender behind
+/// its schedule marked its samples app-limited, this download took 2.09 s with at most 13
+/// requests in flight (the rate locked at what the first rounds showed); on time it takes
+/// 168 ms.
+#[test]
+fn a_window_keeps_its_rate_when_timers_wake_late_and_the_thread_stalls() {
+    let data = body(921_610, 9);
+    let on_time = download_waking(link(0.0, 2), &data, Transfer::Window, false, None);
+    let cases = [
+        (
+            0.0,
+            Wakeups {
+                tick: Duration::from_millis(4),
+                stalls: vec![(Duration::from_millis(60), Duration::from_millis(30))],
+            },
+        ),
+        (
+            0.02,
+            Wakeups {
+                tick: Duration::from_millis(8),
+                stalls: vec![
+                    (Duration::from_millis(30), Duration::from_millis(15)),
+                    (Duration::from_millis(60), Duration::from_millis(30)),
+                    (Duration::from_millis(120), Duration::from_millis(10)),
+                ],
+            },
+        ),
+    ];
+    for (loss, wakeups) in cases {
+        let stalled: Duration = wakeups.stalls.iter().map(|s| s.1).sum();
+        let o = download_waking(link(loss, 2), &data, Transfer::Window, false, Some(wakeups));
+        assert!(o.body == data);
+        // Within 1.3 times the on-time transfer, once the time the thread did not run
+        // is added, and loss's share (about a loss delay per lost block's tail).
+        let bound = (on_time.elapsed + stalled).mul_f64(if loss > 0.0 { 1.6 } else { 1.3 });
+        assert!(
+            o.elapsed <= bound,
+            "at {loss} loss: {:?} (on time {:?}), max window {}",
+            o.elapsed,
+            on_time.elapsed,
+            o.stats.max_window
+        );
+        // The 20 ms round trip carries over 5,000 blocks a second here: the window must
+        // grow far past the initial 10 (the stall left it at 13).
+        assert!(o.stats.max_window >= 200, "{:?}", o.stats);
+        let after_startup: Vec<&RoundTrace> =
+            o.rounds.iter().filter(|r| r.mode != "startup").collect();
+        assert!(
+            after_startup.iter().all(|r| r.window >= 100),
+            "a round's window fell: {after_startup:?}"
+        );
+    }
+}
+
+#[test]
+fn the_controllers_trace_has_a_round_per_round_trip_and_nothing_when_off() {
+    let data = body(100_000, 4);
+    let o = download_waking(link(0.0, 1), &data, Transfer::Window, false, None);
+    assert!(o.body == data);
+    // 97 blocks after block 0: startup doubles the initial 10 each round trip.
+    let rounds: Vec<u64> = o.rounds.iter().map(|r| r.round).collect();
+    assert!((3..=8).contains(&rounds.len()), "{rounds:?}");
+    assert_eq!(rounds, (1..=rounds.len() as u64).collect::<Vec<_>>());
+    // The first round: the initial window of 10 answered one round trip later (500
+    // blocks a second), and what startup's gain sent meanwhile.
+    let first = &o.rounds[0];
+    assert_eq!((first.mode, first.samples), ("startup", 10));
+    assert_eq!(first.max_sample, Some((500.0, false)));
+    assert_eq!(first.window, 29, "2.885 times 10 blocks in flight");
+    assert_eq!(first.min_rtt, Some(Duration::from_millis(20)));
+    assert!(
+        o.rounds.iter().all(|r| r.window >= 10 && r.late_sends == 0),
+        "{:#?}",
+        o.rounds
+    );
+    let sent: u32 = o.rounds.iter().map(|r| r.sent).sum();
+    assert!(u64::from(sent) <= o.stats.block_requests);
+    // Off (the default): nothing is recorded.
+    let mut sim = Sim::new(link(0.0, 1));
+    let c = sim.add(cfg(1), None);
+    let s = sim.add(cfg(2), Some(serve(data, Rc::new(Cell::new(0)))));
+    let server = sim.nodes[s].addr;
+    let now = sim.now;
+    sim.nodes[c]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/big"));
+    assert!(sim.run_to_event(c, Duration::from_secs(60)));
+    assert_eq!(sim.nodes[c].ep.poll_round_trace(), None);
 }

@@ -368,6 +368,8 @@ fn report_code(r: &Response, what: &str) -> Exit {
 /// window counted.
 async fn path_json(client: &Client, peer: SocketAddr, json: bool) -> serde_json::Value {
     let ms = |d: Duration| (d.as_secs_f64() * 1e4).round() / 10.0;
+    // The next process to this server starts from the round trip measured here.
+    coapcam::client::rtt_cache::save(client, peer).await;
     if !json {
         return serde_json::Value::Null;
     }

@@ -7,6 +7,7 @@ pub mod calibrate;
 pub mod codes;
 pub mod measure;
 pub mod results;
+pub mod rtt_cache;
 pub mod timed;
 
 use std::net::{IpAddr, SocketAddr};
@@ -35,7 +36,12 @@ pub fn secured_client(
         (true, psk) => psk,
         (false, _) => None,
     };
-    Client::for_peer_secured(server, config, psk).context("binding the client socket")
+    let client =
+        Client::for_peer_secured(server, config, psk).context("binding the client socket")?;
+    if !server.ip().is_multicast() {
+        rtt_cache::seed(&client, server);
+    }
+    Ok(client)
 }
 
 /// The longest Max-Age of a 5.03 that [`CamClient`] waits out and asks again after.
@@ -133,6 +139,7 @@ impl CamClient {
 
     /// A client of `server` sharing `other`'s socket and timeout.
     pub fn unicast(other: &Self, server: SocketAddr) -> Self {
+        rtt_cache::seed(&other.client, server);
         Self {
             client: other.client.clone(),
             server,
@@ -203,6 +210,7 @@ impl CamClient {
                 tokio::time::sleep(wait).await;
                 continue;
             }
+            rtt_cache::save(&self.client, self.server).await;
             return check(what, response);
         }
     }

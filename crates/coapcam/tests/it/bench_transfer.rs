@@ -50,6 +50,10 @@ fn bench_transfer_reports_bit_exact_runs_as_table_json_and_plot() {
             .find(|l| l.starts_with(link))
             .unwrap_or_else(|| panic!("no row {link} in {table}"));
         assert_eq!(row.matches(" 1/1 ").count(), 2, "{row}");
+        assert_eq!(row.matches(" p95 ").count(), 2, "{row}");
+        // One run per cell is too few for a ratio (15 at least).
+        let ratio = row.trim_end().trim_end_matches('|').rsplit('|').next();
+        assert_eq!(ratio.map(str::trim), Some("-"), "{row}");
     }
 
     let report: serde_json::Value = serde_json::from_slice(
@@ -82,6 +86,7 @@ fn bench_transfer_reports_bit_exact_runs_as_table_json_and_plot() {
             cell["median_s"].as_f64().is_some_and(|t| t > 0.0),
             "{cell:#}"
         );
+        assert_eq!(cell["p95_s"], cell["max_s"], "one run: {cell:#}");
         let run = &cell["results"][0];
         assert_eq!(run["ok"], true, "{cell:#}");
         assert_eq!(run["bit_exact"], true, "{cell:#}");

@@ -306,3 +306,33 @@ fn an_error_response_in_the_middle_of_a_transfer_is_reported_as_itself() {
     assert!(!out.exists());
     assert_eq!(leftovers(dir.path(), "body.bin"), Vec::<String>::new());
 }
+
+#[test]
+fn get_remembers_the_servers_round_trip_for_the_next_process_unless_turned_off() {
+    let served = TempDir::new("get-rtt-served");
+    support::random_file(&served.join("small.bin"), 3000, 5);
+    let (_server, addr) = support::our_server(served.path(), false);
+    let uri = format!("coap://{addr}/files/small.bin");
+    let out_dir = TempDir::new("get-rtt-out");
+    let out = out_dir.join("small.bin");
+    let cache = TempDir::new("get-rtt-cache");
+    let args = ["get", uri.as_str(), "-o", out.to_str().expect("UTF-8 path")];
+    let home = cache.path().to_str().expect("UTF-8 path");
+    let file = cache.join("coapcam").join("rtt.json");
+    for (switch, kept) in [("off", false), ("on", true)] {
+        let mut p = Proc::spawn_with_env(
+            COAPCAM,
+            &args,
+            &[("XDG_CACHE_HOME", home), ("COAPCAM_RTT_CACHE", switch)],
+        );
+        p.wait(LIMIT)
+            .unwrap_or_else(|| panic!("get did not finish"))
+            .expect_success("coapcam get");
+        assert_eq!(file.exists(), kept, "COAPCAM_RTT_CACHE={switch}");
+    }
+    let text = std::fs::read_to_string(&file).expect("the cache file");
+    let cache: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+    let entry = &cache[addr.to_string()];
+    assert!(entry["srtt_us"].as_u64().is_some_and(|us| us > 0), "{text}");
+    assert!(entry["written_unix_s"].as_u64().is_some(), "{text}");
+}

@@ -312,8 +312,11 @@ impl Proc {
     pub(crate) fn spawn_with_env(program: &str, args: &[&str], env: &[(&str, &str)]) -> Self {
         let name = format!("{program} {}", args.join(" "));
         let mut command = Command::new(program);
+        // Round trips remembered between processes (client::rtt_cache) stay out of the
+        // tests, unless one asks for them.
         command
             .args(args)
+            .env("COAPCAM_RTT_CACHE", "off")
             .envs(env.iter().copied())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());

@@ -37,6 +37,64 @@ pub(crate) trait Controller: Send {
     /// `n` requests in flight will never be answered (their transfer ended): no longer in
     /// flight, and no loss.
     fn on_abandoned(&mut self, n: usize);
+
+    /// The sender had nothing to ask for at `now` although the window and pacing would
+    /// have let a request go (the transfer's tail, or no message ID free): the delivery
+    /// rate measured over the requests in flight says what the sender offered, not what
+    /// the path carries (draft-cheng-iccrg-delivery-rate-estimation §3.4).
+    fn on_app_limited(&mut self, _now: Instant) {}
+
+    /// The next round the controller recorded, oldest first, when its trace is on
+    /// ([`EndpointConfig::trace_congestion`](crate::EndpointConfig::trace_congestion)).
+    fn poll_round(&mut self) -> Option<RoundTrace> {
+        None
+    }
+}
+
+/// One round trip of a controller as its trace records it (one per round: from the
+/// delivery that starts a round to the next such delivery). Rates are in requests (one
+/// block each) per second.
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct RoundTrace {
+    /// When the round ended (the delivery that started the next one).
+    pub at: Instant,
+    /// The round's number on its path, from 1.
+    pub round: u64,
+    /// The controller's state: `startup`, `drain`, or `probe_bw` with its pacing gain.
+    pub mode: &'static str,
+    /// The pacing gain during the round.
+    pub pacing_gain: f64,
+    /// Delivery-rate samples taken in the round.
+    pub samples: u32,
+    /// Of `samples`, those taken over requests sent while the sender was app-limited or
+    /// behind its pacing schedule.
+    pub app_limited_samples: u32,
+    /// The round's largest delivery-rate sample, and whether it was app-limited.
+    pub max_sample: Option<(f64, bool)>,
+    /// The bandwidth estimate (the windowed maximum) at the round's end.
+    pub bw: Option<f64>,
+    /// The pacing rate at the round's end (`None`: unpaced).
+    pub pacing_rate: Option<f64>,
+    /// The window at the round's end.
+    pub window: usize,
+    /// Requests in flight at the round's end.
+    pub in_flight: usize,
+    /// The most requests in flight during the round.
+    pub max_in_flight: usize,
+    /// The smallest round trip seen.
+    pub min_rtt: Option<Duration>,
+    /// Requests sent during the round.
+    pub sent: u32,
+    /// Of `sent`, those that left later than the pacing schedule allowed (the sender
+    /// woke late: a coarse timer, a busy CPU), and by how long in total.
+    pub late_sends: u32,
+    /// The total lateness of `late_sends`.
+    pub lateness: Duration,
+    /// Requests delivered during the round.
+    pub delivered: u32,
+    /// Requests declared lost during the round.
+    pub lost: u32,
 }
 
 /// What a controller recorded of a request when it left: the state of a delivery-rate
@@ -51,6 +109,9 @@ pub(crate) struct SendState {
     pub(crate) delivered_time: Instant,
     /// When the first request of the flight it went in was sent.
     pub(crate) first_sent_time: Instant,
+    /// Sent while the sender was app-limited (or behind its pacing schedule): a rate
+    /// sample over it says what was offered, not what the path carries.
+    pub(crate) app_limited: bool,
 }
 
 impl SendState {
@@ -61,6 +122,7 @@ impl SendState {
             delivered: 0,
             delivered_time: now,
             first_sent_time: now,
+            app_limited: false,
         }
     }
 

@@ -21,6 +21,7 @@ mod rtt;
 
 use std::time::Instant;
 
+pub use controller::RoundTrace;
 pub(crate) use controller::{Controller, SendState};
 pub(crate) use nstart::Nstart;
 pub(crate) use rtt::{Backoff, RttEstimator};
@@ -30,7 +31,7 @@ use crate::config::{Congestion, EndpointConfig};
 /// A new controller for the windowed transfers on one path, as `config` chooses.
 pub(crate) fn for_path(config: &EndpointConfig, now: Instant) -> Box<dyn Controller> {
     match config.congestion {
-        Congestion::Bbr => Box::new(bbr::Bbr::new(now)),
+        Congestion::Bbr => Box::new(bbr::Bbr::new(now, config.trace_congestion)),
         Congestion::Nstart => Box::new(Nstart::new(config.nstart)),
     }
 }

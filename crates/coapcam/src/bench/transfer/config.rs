@@ -25,6 +25,9 @@ pub(super) const QUEUE_64_KB: usize = 64_000;
 pub(super) const PAIR_LINK: Link = Link::Rtt20Loss2Rate50;
 /// A pair run holds when the smaller of the two clients' shares is at least this.
 pub(super) const FAIR_SHARE: f64 = 0.35;
+/// Successful runs both cells need before the table prints the ratio of their medians:
+/// with fewer, one slow run in a bimodal mode moves a median too far.
+pub(super) const MIN_RATIO_RUNS: usize = 15;
 /// Mixed into the seeds of the pair runs' relays, so that they differ from the single runs'.
 pub(super) const PAIR_SEED: u64 = 0x7061_6972;
 

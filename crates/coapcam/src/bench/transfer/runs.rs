@@ -177,6 +177,11 @@ impl Cell {
     pub(super) fn ok_count(&self) -> usize {
         self.runs.iter().filter(|r| r.ok).count()
     }
+
+    /// The 95th percentile (nearest rank) of the successful runs.
+    pub(super) fn p95(&self) -> Option<f64> {
+        crate::stats::percentile(&self.ok_times(), 0.95)
+    }
 }
 
 /// One pair run: two clients of one mode at once through one relay of [`PAIR_LINK`].

@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 
 use super::body::Body;
-use super::config::{BLOCK_BYTES, Config, FAIR_SHARE, Mode, PAIR_LINK};
+use super::config::{BLOCK_BYTES, Config, FAIR_SHARE, MIN_RATIO_RUNS, Mode, PAIR_LINK};
 use super::runs::{Cell, PairCell};
 use crate::stats::Spread;
 
@@ -15,9 +15,11 @@ pub(super) fn table(config: &Config, bodies: &[Body], cells: &[Cell]) -> String 
     let _ = writeln!(
         s,
         "Whole-body GETs, {BLOCK_BYTES}-byte blocks for CoAP, through netem (in process): \
-         seconds of the client's whole process, median of the successful runs [min-max] \
-         successful/runs (runs per cell: {}, stop-and-wait and libcoap: {}; cap {} s; seed {}). \
-         Every body compared bit-exact with the original.",
+         seconds of the client's whole process, median of the successful runs [min-max], \
+         their 95th percentile (nearest rank) and successful/runs (runs per cell: {}, \
+         stop-and-wait and libcoap: {}; cap {} s; seed {}). Ratios are of medians, and only \
+         where both cells have at least {MIN_RATIO_RUNS} successful runs. Every body compared \
+         bit-exact with the original.",
         config.runs,
         config.slow_runs,
         config.cap.as_secs_f64(),
@@ -47,7 +49,12 @@ pub(super) fn table(config: &Config, bodies: &[Body], cells: &[Cell]) -> String 
                     .map(|&m| cell(m).map_or_else(String::new, Cell::text)),
             );
             for &(a, b) in &ratios {
-                let median = |m| cell(m).and_then(Cell::stats).map(|s| s.median);
+                let median = |m| {
+                    cell(m)
+                        .filter(|c| c.ok_count() >= MIN_RATIO_RUNS)
+                        .and_then(Cell::stats)
+                        .map(|s| s.median)
+                };
                 row.push(match (median(a), median(b)) {
                     (Some(a), Some(b)) if b > 0.0 => format!("{:.2}x", a / b),
                     _ => "-".into(),
@@ -193,17 +200,17 @@ pub(super) fn pair_table(config: &Config, cells: &[PairCell]) -> String {
 }
 
 impl Cell {
-    /// The table's text: `median [min-max] ok/runs`.
+    /// The table's text: `median [min-max] p95 P ok/runs`.
     pub(super) fn text(&self) -> String {
         if self.skipped.is_some() {
             return "unavailable".into();
         }
         let count = format!("{}/{}", self.ok_count(), self.runs.len());
-        match self.stats() {
-            Some(Spread { median, min, max }) => {
-                format!("{median:.3} [{min:.3}-{max:.3}] {count}")
+        match (self.stats(), self.p95()) {
+            (Some(Spread { median, min, max }), Some(p95)) => {
+                format!("{median:.3} [{min:.3}-{max:.3}] p95 {p95:.3} {count}")
             }
-            None => format!("failed {count}"),
+            _ => format!("failed {count}"),
         }
     }
 }

@@ -63,8 +63,10 @@ least 35 %. Its link utilisation is both bodies (2 x size) over the later client
 as a fraction of 50 Mbit/s. The slow modes are not paired; --pairs 0 runs none.
 
 Output: the table on standard output, one row per (link, size), one column per mode: \
-the median of the successful runs in seconds, [min-max] of them and successful/runs, \
-then ratios of medians, and every failed run with its reason under the table. After it, \
+the median of the successful runs in seconds, [min-max] of them, their 95th percentile \
+(nearest rank) and successful/runs, then ratios of medians (only where both cells have \
+at least 15 successful runs; \"-\" otherwise), and every failed run with its reason under \
+the table. After it, \
 when pairs ran, the table of the pair runs, one row per (size, mode): the median smaller \
 share [min-max], the runs that held, the median link utilisation [min-max] and \
 successful/runs (successful: both clients), medians of the successful runs. Progress goes \
@@ -76,8 +78,9 @@ utilisation); --plot draws the medians against the loss rate, one panel per size
 Exit status: 0 when the benchmark ran, failed runs included (they are results); 1 when \
 it could not run (a body or output file could not be written, a relay could not bind).")]
 pub(super) struct TransferArgs {
-    /// Runs per cell of the fast modes (window, q-block, quic).
-    #[arg(long, value_name = "N", default_value_t = 5,
+    /// Runs per cell of the fast modes (window, q-block, quic); ratios of medians are
+    /// printed only for cells with at least 15 successful runs.
+    #[arg(long, value_name = "N", default_value_t = 15,
           value_parser = clap::value_parser!(u32).range(1..))]
     runs: u32,
     /// Runs per cell of the slow modes (stop-and-wait, libcoap-4.3.1, libcoap-4.3.5-qblock).
