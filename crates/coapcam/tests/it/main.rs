@@ -26,6 +26,7 @@ mod offhost;
 mod readme;
 mod realsense;
 mod results;
+mod service;
 mod signals;
 mod support;
 mod usage;

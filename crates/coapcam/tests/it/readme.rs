@@ -317,3 +317,34 @@ fn every_readme_example_runs() {
     assert!(broker.is_running(), "the MQTT broker exited");
     eprintln!("{}", lines.join("\n"));
 }
+
+#[test]
+fn every_file_the_readme_links_to_exists_and_the_users_pages_are_linked() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let mut linked = Vec::new();
+    for part in README.split("](").skip(1) {
+        let target = part.split(')').next().unwrap_or_default();
+        let file = target.split('#').next().unwrap_or_default();
+        if file.is_empty() || file.contains("://") {
+            continue;
+        }
+        assert!(
+            root.join(file).exists(),
+            "README.md links to {file}, which does not exist"
+        );
+        linked.push(file.to_owned());
+    }
+    for page in [
+        "docs/camera.md",
+        "docs/markers.md",
+        "docs/several-machines.md",
+        "docs/service.md",
+        "docs/scenes.md",
+        "contrib/coapcam.service",
+    ] {
+        assert!(
+            linked.iter().any(|l| l == page),
+            "README.md does not link to {page}"
+        );
+    }
+}

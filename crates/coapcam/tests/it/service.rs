@@ -1,0 +1,89 @@
+//! contrib/coapcam.service, the systemd unit docs/service.md installs: its ExecStart is a
+//! command line `coapcam serve` takes, run here as systemd would run it (with the unit's
+//! environment, without `--realsense`, as no camera is here, and on a free loopback
+//! port), and its KillSignal stops that server cleanly within TimeoutStopSec.
+
+use std::process::Command;
+use std::time::Duration;
+
+use crate::support::{COAPCAM, Proc, TempDir};
+
+const UNIT: &str = include_str!("../../../../contrib/coapcam.service");
+
+/// The values of `key` in `section` of the unit, in order.
+fn values(section: &str, key: &str) -> Vec<String> {
+    let mut current = "";
+    let mut out = Vec::new();
+    for line in UNIT.lines().map(str::trim) {
+        if line.starts_with('[') && line.ends_with(']') {
+            current = line;
+        } else if current == format!("[{section}]")
+            && let Some((k, v)) = line.split_once('=')
+            && k.trim() == key
+        {
+            out.push(v.trim().to_owned());
+        }
+    }
+    out
+}
+
+#[test]
+fn the_unit_file_starts_a_server_that_stops_cleanly() {
+    let exec = values("Service", "ExecStart");
+    assert_eq!(exec.len(), 1, "one ExecStart: {exec:?}");
+    let words: Vec<&str> = exec[0].split_whitespace().collect();
+    assert!(
+        words[0].starts_with('/') && words[0].ends_with("/coapcam"),
+        "{words:?}"
+    );
+    assert_eq!(words[1], "serve", "{words:?}");
+    assert!(
+        words.contains(&"--realsense"),
+        "the service serves real cameras: {words:?}"
+    );
+    let state = values("Service", "StateDirectory");
+    assert_eq!(state, ["coapcam"]);
+    let dir = TempDir::new("service");
+    let state_dir = dir.join("state");
+    let state_dir = state_dir.to_str().expect("UTF-8 path");
+    // The unit's command line, its state directory here, and no real camera.
+    let mut args: Vec<&str> = Vec::new();
+    let mut rest = words[1..].iter();
+    while let Some(&w) = rest.next() {
+        match w {
+            "--realsense" => {}
+            "--state-dir" => {
+                assert_eq!(rest.next(), Some(&"/var/lib/coapcam"), "StateDirectory's");
+                args.extend(["--state-dir", state_dir]);
+            }
+            _ => args.push(w),
+        }
+    }
+    args.extend(["--bind", "127.0.0.1:0"]);
+    let env: Vec<(String, String)> = values("Service", "Environment")
+        .iter()
+        .map(|e| {
+            let (k, v) = e.split_once('=').expect("Environment=KEY=VALUE");
+            (k.to_owned(), v.to_owned())
+        })
+        .collect();
+    let env: Vec<(&str, &str)> = env.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+    let mut server = Proc::spawn_with_env(COAPCAM, &args, &env);
+    server.stderr_line(Duration::from_secs(30), |l| {
+        l.contains("serving on 127.0.0.1:").then_some(())
+    });
+    let signal = values("Service", "KillSignal");
+    assert_eq!(signal, ["SIGTERM"]);
+    let stop: f64 = values("Service", "TimeoutStopSec")[0]
+        .parse()
+        .expect("TimeoutStopSec in seconds");
+    let pid = server.pid().to_string();
+    let sent = Command::new("kill").args(["-s", "TERM", &pid]).status();
+    assert!(sent.is_ok_and(|s| s.success()), "kill -s TERM {pid}");
+    let finished = server
+        .wait(Duration::from_secs_f64(stop))
+        .unwrap_or_else(|| panic!("still running {stop} s (TimeoutStopSec) after SIGTERM"));
+    assert_eq!(finished.status.code(), Some(0), "{}", finished.stderr);
+    // Restart=on-failure restarts it after a failure, not after this clean stop.
+    assert_eq!(values("Service", "Restart"), ["on-failure"]);
+}
