@@ -226,7 +226,8 @@ impl Client {
                 again.options.set(coap::OptionNumber::ECHO, echo);
                 *response = self.send(*peer, again).await?;
             }
-            self.rest_of_blocks(*peer, &follow_up, response).await?;
+            self.rest_of_blocks(*peer, &follow_up, response, false)
+                .await?;
         }
         Ok(out)
     }
@@ -234,12 +235,18 @@ impl Client {
     /// A multicast answer or a notification that came as Block2 block 0 with more to
     /// follow: the other blocks are asked of that server by unicast (RFC 7959 §2.8 with
     /// RFC 7390; §2.6 for Observe), one after the other, and must carry the first block's
-    /// ETag.
+    /// ETag. When one does not, the representation changed meanwhile: with `refetch` (an
+    /// observed resource, where that is the normal case) the new representation is
+    /// fetched whole by a GET without Block2, which the endpoint reassembles and starts
+    /// over a few times itself; the notification keeps its Observe number. Without it, or
+    /// when even that fetch keeps changing, it fails with
+    /// [`coap::RequestError::RepresentationChanged`].
     async fn rest_of_blocks(
         &self,
         peer: SocketAddr,
         original: &Request,
         response: &mut Response,
+        refetch: bool,
     ) -> Result<(), Error> {
         let Some(first) = response.options.block2().filter(|b| b.more && b.num == 0) else {
             return Ok(());
@@ -271,7 +278,19 @@ impl Client {
                 )));
             };
             if r.options.etag().map(<[u8]>::to_vec) != etag {
-                return Err(Error::Request(coap::RequestError::RepresentationChanged));
+                if !refetch {
+                    return Err(Error::Request(coap::RequestError::RepresentationChanged));
+                }
+                let mut whole = original.clone();
+                whole.multicast = false;
+                whole.payload = bytes::Bytes::new();
+                whole.options.remove(coap::OptionNumber::BLOCK2);
+                let observe = response.options.uint(coap::OptionNumber::OBSERVE);
+                *response = self.send(peer, whole).await?;
+                if let Some(seq) = observe {
+                    response.options.set_uint(coap::OptionNumber::OBSERVE, seq);
+                }
+                return Ok(());
             }
             body.extend_from_slice(&r.payload);
             block = got;
@@ -355,15 +374,17 @@ pub struct Observation {
 impl Observation {
     /// The next response or notification, whole; `None` when the observation ended. A
     /// notification sent block-wise is completed by GETs of its other blocks (RFC 7959
-    /// §2.6), which fail with [`coap::RequestError::RepresentationChanged`] when the
-    /// resource changes in between.
+    /// §2.6); when the resource changes in between, the new representation is fetched
+    /// whole instead (it fails with [`coap::RequestError::RepresentationChanged`] only
+    /// when that keeps changing too). An error completing a notification does not end
+    /// the observation: the next call gives the next notification.
     pub async fn next(&mut self) -> Option<Result<Response, Error>> {
         match self.rx.recv().await? {
             StreamItem::Response(peer, r) => {
                 let mut r = *r;
                 Some(
                     self.client
-                        .rest_of_blocks(peer, &self.follow_up, &mut r)
+                        .rest_of_blocks(peer, &self.follow_up, &mut r, true)
                         .await
                         .map(|()| r),
                 )

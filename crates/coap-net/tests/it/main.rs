@@ -307,6 +307,69 @@ async fn rfc7959_2_6_notifications_sent_block_wise_arrive_whole() {
     .await;
 }
 
+/// A notification sent block-wise whose resource changes before its other blocks are
+/// asked (the server stores the newer representation for the client, so block 1 carries
+/// another ETag): the observer fetches the new representation whole instead of failing,
+/// and the observation goes on.
+#[tokio::test]
+async fn rfc7959_2_6_a_notification_changed_mid_transfer_is_fetched_again() {
+    let counter = Arc::new(AtomicUsize::new(0));
+    let router = Router::new();
+    let n = counter.clone();
+    router.add(
+        "/big",
+        Resource::new()
+            .get(handler(move |_| {
+                let k = n.load(Ordering::SeqCst);
+                async move {
+                    let mut r = Response::new(Code::CONTENT).with_payload(body(3000 + 1000 * k));
+                    r.options.set(OptionNumber::ETAG, [k as u8]);
+                    r
+                }
+            }))
+            .observable(),
+    );
+    let (s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let mut obs = c
+            .observe(addr, Request::new(Code::GET, "/big"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        let first = obs.next().await.unwrap_or_else(|| panic!("ended"));
+        assert_eq!(first.unwrap_or_else(|e| panic!("{e}")).payload, body(3000));
+        // Two changes before the observer reads on: the first notification's block 0 is
+        // waiting, but the server already stores the second's body.
+        for k in 1..=2 {
+            counter.store(k, Ordering::SeqCst);
+            assert_eq!(s.notify("/big").await, 1);
+        }
+        let r = obs
+            .next()
+            .await
+            .unwrap_or_else(|| panic!("ended"))
+            .unwrap_or_else(|e| panic!("a changed notification ends the observer: {e}"));
+        assert_eq!(r.payload, body(5000), "the newest representation");
+        assert_eq!(r.options.etag(), Some(&[2u8][..]));
+        assert!(r.options.contains(OptionNumber::OBSERVE));
+        let r = obs
+            .next()
+            .await
+            .unwrap_or_else(|| panic!("ended"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.payload, body(5000));
+        counter.store(3, Ordering::SeqCst);
+        assert_eq!(s.notify("/big").await, 1);
+        let r = obs
+            .next()
+            .await
+            .unwrap_or_else(|| panic!("ended"))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.payload, body(6000), "observing after the change");
+    })
+    .await;
+}
+
 #[tokio::test]
 async fn rfc7252_5_10_6_matching_etag_gets_2_03_valid() {
     let router = Router::new();

@@ -102,7 +102,19 @@ pub async fn observe(
         let next = watch.next().await;
         let elapsed = previous.elapsed();
         previous = Instant::now();
-        let response = next?;
+        let response = match next {
+            Ok(response) => response,
+            // A notification that could not be completed (its other blocks lost, or the
+            // resource changing faster than it can be fetched) is a failed result, not
+            // the end: the observation goes on, and its end comes as `Ended`.
+            Err(e) if !first && !e.is::<Ended>() => {
+                if on_result(Err(e), elapsed)? {
+                    return Ok(());
+                }
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
         let observing = response.options.contains(OptionNumber::OBSERVE);
         let outcome = super::check(&format!("GET {path}"), response).map(|r| Timed {
             bytes: r.payload.len(),
@@ -122,6 +134,11 @@ pub async fn observe(
         first = false;
     }
 }
+
+/// The observation ended (the server or the path to it gave up).
+#[derive(Debug, thiserror::Error)]
+#[error("the observation of {0} ended")]
+pub(super) struct Ended(String);
 
 /// An observation whose first answer must come within a timeout, and whose end is an
 /// error.
@@ -168,7 +185,7 @@ impl Watch {
             None => self.observation.next().await,
         };
         let Some(next) = next else {
-            bail!("the observation of {path} ended");
+            return Err(Ended(path.clone()).into());
         };
         next.with_context(|| format!("observing {path}"))
     }
