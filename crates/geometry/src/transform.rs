@@ -72,6 +72,18 @@ pub enum TransformError {
         /// The offending value.
         value: f64,
     },
+    /// A scale is 0 (or nearly), or the rotation matrix is singular: the transform
+    /// would flatten the cloud onto a plane, a line or a point, so nothing could be
+    /// measured in it.
+    #[error(
+        "3d-transformation: `{field}` {what}; the transform would flatten every point cloud, so it is refused"
+    )]
+    Singular {
+        /// The JSON key.
+        field: &'static str,
+        /// What is wrong with it.
+        what: String,
+    },
     /// Every entry is finite, but the composed transform overflows `f32`.
     #[error(
         "3d-transformation: the scales, rotation and translations compose to a transform outside the f32 range; keep their products within ±3.4e38"
@@ -178,7 +190,26 @@ impl Transformation {
             "post_translation_matrix",
             self.post_translation.as_slice(),
             1,
-        )
+        )?;
+        for (field, scale) in [
+            ("scale_matrix", &self.scale),
+            ("post_scale_matrix", &self.post_scale),
+        ] {
+            if let Some(i) = scale.iter().position(|v| v.abs() < MIN_SCALE) {
+                return Err(TransformError::Singular {
+                    field,
+                    what: format!("[{i}][0] is {}, must not be 0", scale[i]),
+                });
+            }
+        }
+        let det = self.rotation.determinant();
+        if !det.is_finite() || det.abs() < MIN_SCALE.powi(3) {
+            return Err(TransformError::Singular {
+                field: "rotation_matrix",
+                what: format!("has determinant {det}, must be invertible"),
+            });
+        }
+        Ok(())
     }
 
     /// `Rpost = Rz(yaw) * Ry(pitch) * Rx(roll)` from the degrees of `post_rotation_matrix`.
@@ -220,6 +251,9 @@ impl Transformation {
         }
     }
 }
+
+/// The smallest scale (in absolute value) a document may have: a micrometre per metre.
+const MIN_SCALE: f64 = 1e-6;
 
 fn finite_f32(value: f64) -> bool {
     value.is_finite() && (value as f32).is_finite()

@@ -130,6 +130,9 @@ pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
             (t, json!({}))
         } else {
             let l = calibrate::level(&client, sn).await?;
+            for note in &l.notes {
+                eprintln!("coapcam: {note}");
+            }
             let report = json!({
                 "method": "floor",
                 "floor_points": l.floor_points,

@@ -11,9 +11,11 @@ use anyhow::{Context as _, bail};
 use clap::Args;
 use coap_net::Uri;
 
-use coapcam::client::measure::{FLOOR_CUT_M, Source, measure_once, prepare_cameras};
+use coapcam::client::measure::{
+    FLOOR_CUT_M, Source, calibration_of, measure_once, prepare_cameras,
+};
 use coapcam::client::{CamClient, annotate, codes};
-use coapcam::report::{self, Billing, EdgeQuery, Measurement, Parcel};
+use coapcam::report::{self, Billing, EdgeQuery, Found, Measurement, Parcel};
 
 use super::{Bars, CameraArgs, DimensionArgs, Exit, TransmissionArgs, outln, usage, values};
 
@@ -96,8 +98,9 @@ pub(crate) struct MeasureArgs {
     transmission: TransmissionArgs,
 }
 
-/// Runs `measure`: [`Exit::Empty`] when nothing is on the table, [`Exit::Fewer`] when
-/// fewer servers of a group answered than `--expect`.
+/// Runs `measure`: [`Exit::Uncalibrated`] when a camera is not calibrated (no
+/// dimensions), [`Exit::Empty`] when nothing is on the table, [`Exit::Fewer`] when fewer
+/// servers of a group answered than `--expect`.
 pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     if let Some(path) = &args.annotate
         && !path
@@ -237,7 +240,9 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             path.display()
         );
     }
-    Ok(if matches!(parcel, Parcel::Nothing { .. }) {
+    Ok(if matches!(m.parcel, Found::Uncalibrated { .. }) {
+        Exit::Uncalibrated
+    } else if matches!(parcel, Parcel::Nothing { .. }) {
         Exit::Empty
     } else if missing && matches!(source, Source::Group { .. }) {
         Exit::Fewer
@@ -255,7 +260,8 @@ async fn measure_here(
     billing: &Billing,
 ) -> anyhow::Result<(Measurement, bool)> {
     let here = measure_once(client, source, &args.dimension.config()).await?;
-    let mut m = here.report(billing);
+    let calibration = calibration_of(client, &here.grabbed.cameras).await;
+    let mut m = here.report_with(billing, &calibration);
     let missing = !here.grabbed.failed.is_empty();
     if args.codes {
         let started = Instant::now();

@@ -252,6 +252,9 @@ pub(crate) enum Exit {
     /// 7: `results verify`: the chain does not verify (a record was altered or is
     /// missing); the first such record was named.
     Altered,
+    /// 8: `measure`: the station is not calibrated (a camera's 3d-transformation is the
+    /// identity); no dimensions were given, the cameras were named.
+    Uncalibrated,
     /// 128 + the signal's number (130 for SIGINT, 143 for SIGTERM): stopped by a signal
     /// after cleaning up (`get -o FILE` removes its temporary file).
     Interrupted(u8),
@@ -269,6 +272,7 @@ impl Exit {
             Self::Empty => 5,
             Self::Fewer => 6,
             Self::Altered => 7,
+            Self::Uncalibrated => 8,
             Self::Interrupted(signal) => 128 + signal,
         }
     }

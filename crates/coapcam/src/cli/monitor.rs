@@ -13,7 +13,7 @@ use coap::ContentFormat;
 use coapcam::client::measure::{CloudMeasurement, Source};
 use coapcam::client::timed::{self, Repeat, Timed};
 use coapcam::client::{CamClient, results};
-use coapcam::report::{Billing, Measurement, Parcel};
+use coapcam::report::{Billing, Found, Measurement, Parcel};
 use coapcam::repr::Stream;
 use coapcam::station::record::Record;
 use coapcam::stats::{TransferStats, TransferSummary};
@@ -323,15 +323,23 @@ impl Report {
                         .as_ref()
                         .map(|m| m.parcel.clone())
                         .or_else(|| s.record.as_ref().map(|r| r.measurement.parcel()));
-                    match parcel {
-                        Some(Parcel::Measured(d)) => {
+                    let uncalibrated =
+                        s.record.as_ref().and_then(|r| match &r.measurement.parcel {
+                            Found::Uncalibrated { uncalibrated } => Some(uncalibrated.join(", ")),
+                            _ => None,
+                        });
+                    match (parcel, uncalibrated) {
+                        (_, Some(cameras)) => {
+                            line += &format!("  not calibrated ({cameras}): no dimensions");
+                        }
+                        (Some(Parcel::Measured(d)), None) => {
                             line += &format!(
                                 "  {:.1} x {:.1} x {:.1} mm, yaw {:.1} deg, {} points",
                                 d.length_mm, d.width_mm, d.height_mm, d.yaw_deg, d.points
                             );
                         }
-                        Some(Parcel::Nothing { .. }) => line += "  nothing on the table",
-                        None => {}
+                        (Some(Parcel::Nothing { .. }), None) => line += "  nothing on the table",
+                        (None, None) => {}
                     }
                     if let Some(codes) = s.record.as_ref().map(Record::code_texts)
                         && !codes.is_empty()

@@ -16,8 +16,9 @@ use rgbd::ColorSettings;
 use super::CamClient;
 use super::annotate::projector;
 use super::measure::full_resolution;
+use crate::documents::AppConfig;
 use crate::repr::Stream;
-use crate::repr::cbor::ColorCapture;
+use crate::repr::cbor::{ColorCapture, DepthCapture};
 use crate::repr::clouds::parts_from_depth_cloud;
 use crate::vision::calibration::{self, Calibration, CameraView, MarkerMap};
 use crate::vision::picture;
@@ -70,7 +71,7 @@ pub async fn place(client: &CamClient, sn: &str, map: &MarkerMap) -> anyhow::Res
     let gray = image::imageops::grayscale(&capture.image);
     let (w, h) = gray.dimensions();
     let detections = markers::detect(map.family, gray.as_raw(), w as usize, h as usize)?;
-    let points = depth_points(client, sn).await?;
+    let points = depth_points(client, sn, &mut warnings).await?;
     let view = CameraView {
         detections: &detections,
         color: &capture.intrinsics,
@@ -122,8 +123,29 @@ async fn full_resolution_color(
 }
 
 /// Camera `sn`'s depth points in its own frame, from one compact point-cloud grab (its
-/// depth window and intrinsics).
-pub async fn depth_points(client: &CamClient, sn: &str) -> anyhow::Result<Vec<Point3>> {
+/// depth window and intrinsics, filtered as the camera's application-config says).
+/// Calibration needs the floor, so when that config's `roi3d` keeps less than every
+/// point (`measure --prepare` cuts the floor and everything beside the table away; the
+/// parcel's lid would be taken for the floor) the points come from the whole depth image
+/// instead (`roi2d` still applies), unfiltered, and a note in `notes` says so.
+pub async fn depth_points(
+    client: &CamClient,
+    sn: &str,
+    notes: &mut Vec<String>,
+) -> anyhow::Result<Vec<Point3>> {
+    let app: AppConfig = client.get_json(sn, "application-config").await?;
+    if app.roi3d != AppConfig::default().roi3d {
+        let r = client
+            .grab(sn, Stream::Depth, Some(ContentFormat::CBOR))
+            .await?;
+        let depth = DepthCapture::from_cbor(&r.payload)?;
+        let (min, max) = (app.roi3d.min(), app.roi3d.max());
+        notes.push(format!(
+            "camera {sn}: its application-config's roi3d (x {:.3} to {:.3}, y {:.3} to {:.3}, z {:.3} to {:.3} m) would cut the floor away, so the whole depth image was used",
+            min.x, max.x, min.y, max.y, min.z, max.z
+        ));
+        return Ok(rgbd::deproject_frame(&depth.frame, &depth.intrinsics)?);
+    }
     let r = client.grab_compact(sn, Stream::Pointcloud).await?;
     if r.options.content_format() != Some(crate::repr::DEPTH_CLOUD) {
         bail!("the server sends no compact cloud (65103), which calibration needs");
@@ -217,11 +239,15 @@ pub struct Levelled {
     pub height_m: f64,
     /// The angle between the camera's view and straight down, degrees.
     pub tilt_deg: f64,
+    /// How the points were taken, when not as usual ([`depth_points`]).
+    pub notes: Vec<String>,
 }
 
-/// The floor of camera `sn`, from its depth points: roll, pitch and height.
+/// The floor of camera `sn`, from its depth points ([`depth_points`]): roll, pitch and
+/// height.
 pub async fn level(client: &CamClient, sn: &str) -> anyhow::Result<Levelled> {
-    let points = depth_points(client, sn)
+    let mut notes = Vec::new();
+    let points = depth_points(client, sn, &mut notes)
         .await
         .with_context(|| format!("camera {sn}"))?;
     let floor = dominant_plane(&points, FLOOR_INLIER_M, ITERATIONS, 1)
@@ -236,6 +262,7 @@ pub async fn level(client: &CamClient, sn: &str) -> anyhow::Result<Levelled> {
     // The angle between the camera's view (its z axis) and straight down.
     let view_down = t.rotation.column(2).dot(&-nalgebra::Vector3::z());
     Ok(Levelled {
+        notes,
         floor_points: floor.inliers,
         floor_rms_m: floor.rms,
         height_m: t.translation.z,

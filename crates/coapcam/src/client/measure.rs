@@ -85,8 +85,18 @@ impl CloudMeasurement {
     }
 
     /// What it reports (the document of `measure --json`, docs/design.md §6): the
-    /// parcel as `billing` says and where the clouds came from.
+    /// parcel as `billing` says and where the clouds came from. The clouds do not say
+    /// which camera is uncalibrated (the thesis packet carries no transform), so only a
+    /// floor far from z = 0 warns; [`CloudMeasurement::report_with`] knows more.
     pub fn report(&self, billing: &Billing) -> Measurement {
+        self.report_with(billing, &Calibration::default())
+    }
+
+    /// [`CloudMeasurement::report`] with what the cameras' documents said
+    /// ([`calibration_of`]): no dimensions when a camera is uncalibrated, and no floor
+    /// check on a cloud whose floor every camera's `roi3d` cut away (it would look
+    /// miscalibrated; the server's measurement checks the floor in the whole views).
+    pub fn report_with(&self, billing: &Billing, calibration: &Calibration) -> Measurement {
         let g = &self.grabbed;
         let cameras = g.cameras.iter().map(|(_, sn)| sn.clone()).collect();
         let mut m = Measurement::new(
@@ -100,13 +110,56 @@ impl CloudMeasurement {
         m.servers = g.cameras.iter().map(|(s, _)| *s).collect();
         m.cycle_ms = Some(report::ms(self.cycle));
         m.received_bytes = Some(g.bytes as u64);
-        // The clouds do not say which camera is uncalibrated (the thesis packet carries no
-        // transform); a floor far from z = 0 shows it.
         m.warnings = g.failed.clone();
-        m.warnings
-            .extend(report::calibration_warnings(&[], &g.cloud));
+        let floor = if calibration.floor_cut {
+            Vec::new()
+        } else {
+            vec![(
+                None,
+                report::floor_level(g.cloud.points.iter().map(|p| p.z)),
+            )]
+        };
+        m.warnings.extend(report::calibration_warnings(
+            &calibration.uncalibrated,
+            &floor,
+        ));
+        m.withhold_uncalibrated(&calibration.uncalibrated);
         m
     }
+}
+
+/// What the cameras' documents say about a measurement's calibration.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Calibration {
+    /// Cameras whose 3d-transformation is the identity.
+    pub uncalibrated: Vec<String>,
+    /// Every camera's `roi3d` starts above z = 0: the floor is not in the cloud.
+    pub floor_cut: bool,
+}
+
+/// Asks each camera of `cameras` (`(server, serial)`, as [`Grabbed`] names them) for its
+/// 3d-transformation and application-config: which are uncalibrated, and whether the
+/// floor was cut away. A camera whose documents cannot be read counts as calibrated and
+/// uncut (the cloud's floor is then checked).
+pub async fn calibration_of(client: &CamClient, cameras: &[(SocketAddr, String)]) -> Calibration {
+    let mut out = Calibration {
+        uncalibrated: Vec::new(),
+        floor_cut: !cameras.is_empty(),
+    };
+    for (server, sn) in cameras {
+        let one = CamClient::unicast(client, *server);
+        let transformation = one
+            .get_json::<geometry::Transformation>(sn, "3d-transformation")
+            .await;
+        if transformation.is_ok_and(|t| t == geometry::Transformation::identity()) {
+            out.uncalibrated.push(sn.clone());
+        }
+        let app = one.get_json::<AppConfig>(sn, "application-config").await;
+        if !app.is_ok_and(|a| a.roi3d.min().z > 0.0) {
+            out.floor_cut = false;
+        }
+    }
+    out
 }
 
 /// Grabs the clouds of `source` (`client` is the server's client; for a group, any

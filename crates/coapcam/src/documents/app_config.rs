@@ -189,6 +189,25 @@ impl AppConfig {
         Duration::from_millis(self.color_grab_timeout_ms)
     }
 
+    /// Checks that `roi2d` overlaps each of `frames` (a stream's name, its width and
+    /// height: the frames the camera sends now), so that no grab refuses it later.
+    pub fn check_frames(&self, frames: &[(&str, u32, u32)]) -> Result<(), AppConfigError> {
+        let r = self.roi2d;
+        for &(stream, width, height) in frames {
+            if r.px >= width || r.py >= height {
+                let (key, value, limit) = if r.px >= width {
+                    ("px", r.px, width)
+                } else {
+                    ("py", r.py, height)
+                };
+                return Err(AppConfigError(format!(
+                    "roi2d.{key} = {value} lies outside the {width}x{height} {stream} frame: it must be below {limit}"
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// `roi2d` clipped to a `width` x `height` frame; `None` when they do not overlap.
     pub fn roi_in(&self, width: u32, height: u32) -> Option<Roi2> {
         let r = self.roi2d;

@@ -29,7 +29,8 @@ pub struct Measurement {
     /// The document's version ([`VERSION`]; 1 when absent).
     #[serde(default = "first_version")]
     pub v: u32,
-    /// `"parcel": "measured"` with its dimensions, or `"parcel": "nothing"`.
+    /// `"parcel": "measured"` with its dimensions, `"parcel": "nothing"`, or `"parcel":
+    /// "uncalibrated"` with the cameras that are not.
     #[serde(flatten)]
     pub parcel: Found,
     /// Points of the parcel (the largest object above the floor; 0 when there is none).
@@ -78,6 +79,15 @@ pub enum Found {
     Measured(Reported),
     /// Nothing on the table.
     Nothing,
+    /// No dimensions: the station is not calibrated. A camera of the measurement has the
+    /// identity 3d-transformation (nothing was ever written for it, as every real camera,
+    /// recording and `calibrated = false` synthetic camera starts), so its points are in
+    /// its own frame, where the floor is not at z = 0 and any "parcel" is nonsense.
+    Uncalibrated {
+        /// The cameras with the identity 3d-transformation.
+        #[serde(default)]
+        uncalibrated: Vec<String>,
+    },
 }
 
 /// A measured parcel as reported: the dimensions rounded as its [`Billing`] says.
@@ -197,21 +207,37 @@ impl Measurement {
         self.codes_ms = Some(ms(took));
     }
 
-    /// The reported parcel; `None` when nothing is on the table.
+    /// The reported parcel; `None` when nothing is on the table or the station is not
+    /// calibrated.
     pub fn reported(&self) -> Option<&Reported> {
         match &self.parcel {
             Found::Measured(r) => Some(r),
-            Found::Nothing => None,
+            Found::Nothing | Found::Uncalibrated { .. } => None,
         }
     }
 
-    /// The parcel as reported (see [`Reported::dimensions`]).
+    /// The parcel as reported (see [`Reported::dimensions`]); an uncalibrated station's
+    /// measurement has none (`Nothing`, its `parcel_points` 0): ask [`Measurement::parcel`]
+    /// first where that matters.
     pub fn parcel(&self) -> Parcel {
         let points = usize::try_from(self.parcel_points).unwrap_or(usize::MAX);
         match &self.parcel {
             Found::Measured(r) => Parcel::Measured(r.dimensions(points)),
-            Found::Nothing => Parcel::Nothing { points },
+            Found::Nothing | Found::Uncalibrated { .. } => Parcel::Nothing { points },
         }
+    }
+
+    /// Withholds the dimensions because `cameras` are not calibrated (their
+    /// 3d-transformation is the identity): the parcel becomes `uncalibrated`, with no
+    /// parcel points; nothing if `cameras` is empty. The warnings stay as they are.
+    pub fn withhold_uncalibrated(&mut self, cameras: &[String]) {
+        if cameras.is_empty() {
+            return;
+        }
+        self.parcel = Found::Uncalibrated {
+            uncalibrated: cameras.to_vec(),
+        };
+        self.parcel_points = 0;
     }
 
     /// The document as JSON.
@@ -291,6 +317,10 @@ impl Measurement {
             Found::Nothing => format!(
                 "nothing on the table (the largest object above the floor has {} points)\n{provenance}",
                 self.parcel_points
+            ),
+            Found::Uncalibrated { uncalibrated } => format!(
+                "not calibrated: no dimensions (camera(s) {} have the identity 3d-transformation, so their points are not in the table's frame; run coapcam calibrate)\n{provenance}",
+                uncalibrated.join(", ")
             ),
         };
         if let Some(seen) = &self.codes {
@@ -416,6 +446,32 @@ mod tests {
         let back = Measurement::from_json(doc.to_string().as_bytes()).expect("reads");
         assert!(matches!(back.parcel(), Parcel::Nothing { points: 12 }));
         assert!(back.text().starts_with("nothing on the table"));
+    }
+
+    #[test]
+    fn an_uncalibrated_station_gives_no_dimensions() {
+        let mut m = measured();
+        m.withhold_uncalibrated(&[]);
+        assert!(m.reported().is_some(), "nothing withheld without cameras");
+        m.withhold_uncalibrated(&["840412060746".into()]);
+        let doc: serde_json::Value =
+            serde_json::from_str(&m.to_json().expect("JSON")).expect("parses");
+        assert_eq!(doc["parcel"], "uncalibrated");
+        assert_eq!(doc["uncalibrated"], serde_json::json!(["840412060746"]));
+        assert_eq!(doc["parcel_points"], 0);
+        assert!(doc.get("length_mm").is_none() && doc.get("volume_l").is_none());
+        let back = Measurement::from_json(doc.to_string().as_bytes()).expect("reads");
+        assert_eq!(back, m);
+        assert_eq!(
+            Measurement::from_cbor(&m.to_cbor().expect("CBOR")).expect("reads"),
+            m
+        );
+        assert!(back.reported().is_none());
+        assert!(
+            back.text().starts_with("not calibrated: no dimensions"),
+            "{}",
+            back.text()
+        );
     }
 
     #[test]

@@ -212,11 +212,26 @@ pub fn describe(seen: &[Seen]) -> String {
 /// common frame) before the measurement warns.
 const FLOOR_TOLERANCE_M: f32 = 0.05;
 
+/// The height of the lowest points of a view, metres: the 2nd percentile of their `z`;
+/// `None` for fewer than 100 points (too few to tell).
+pub fn floor_level(z: impl IntoIterator<Item = f32>) -> Option<f32> {
+    let mut z: Vec<f32> = z.into_iter().filter(|z| z.is_finite()).collect();
+    if z.len() < 100 {
+        return None;
+    }
+    let k = z.len() / 50;
+    let (_, low, _) = z.select_nth_unstable_by(k, f32::total_cmp);
+    Some(*low)
+}
+
 /// Warnings that the dimensions may be nonsense because the cameras are not calibrated:
 /// each camera of `uncalibrated` (its 3d-transformation the identity, as a real camera
-/// starts), and a `cloud` whose lowest points (the 2nd percentile of z) are not near the
-/// floor at z = 0.
-pub fn calibration_warnings(uncalibrated: &[String], cloud: &PointCloud) -> Vec<String> {
+/// starts), and each view of `floors` (a camera's serial, or `None` for a merged cloud,
+/// with its [`floor_level`]) whose lowest points are not near the floor at z = 0.
+pub fn calibration_warnings(
+    uncalibrated: &[String],
+    floors: &[(Option<String>, Option<f32>)],
+) -> Vec<String> {
     let mut out: Vec<String> = uncalibrated
         .iter()
         .map(|sn| {
@@ -225,16 +240,17 @@ pub fn calibration_warnings(uncalibrated: &[String], cloud: &PointCloud) -> Vec<
             )
         })
         .collect();
-    if cloud.points.len() >= 100 {
-        let mut z: Vec<f32> = cloud.points.iter().map(|p| p.z).collect();
-        let k = z.len() / 50;
-        let (_, low, _) = z.select_nth_unstable_by(k, f32::total_cmp);
-        if low.abs() > FLOOR_TOLERANCE_M {
-            out.push(format!(
-                "the floor is not near z = 0: the lowest points lie at {:.0} mm; check the cameras' 3d-transformation (coapcam calibrate)",
-                *low * 1000.0
-            ));
-        }
+    for (camera, low) in floors {
+        let Some(low) = low.filter(|low| low.abs() > FLOOR_TOLERANCE_M) else {
+            continue;
+        };
+        let whose = camera
+            .as_ref()
+            .map_or_else(String::new, |sn| format!("camera {sn}: "));
+        out.push(format!(
+            "{whose}the floor is not near z = 0: the lowest points lie at {:.0} mm; check the cameras' 3d-transformation (coapcam calibrate)",
+            low * 1000.0
+        ));
     }
     out
 }

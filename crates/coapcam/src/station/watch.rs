@@ -193,6 +193,13 @@ impl Watcher {
             tracing::info!("auto-measure: the measurement found no parcel; not recorded");
             return;
         }
+        if let Found::Uncalibrated { uncalibrated } = &measured.measurement.parcel {
+            tracing::warn!(
+                "auto-measure: camera(s) {} are not calibrated, so no dimensions; not recorded",
+                uncalibrated.join(", ")
+            );
+            return;
+        }
         match recorder.record(measured).await {
             Ok(record) => {
                 let dims = record.measurement.reported().map_or_else(String::new, |r| {

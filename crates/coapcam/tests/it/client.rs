@@ -569,36 +569,6 @@ fn demo_writes_its_files_and_the_table() {
 }
 
 #[test]
-fn measure_on_an_uncalibrated_camera_warns() {
-    // As a real camera starts: the 3d-transformation is the identity, so the "parcel" is
-    // measured in the camera's own frame (z forward, the floor about 1 m away).
-    let state = TempDir::new("client-uncalibrated");
-    let scene = crate::support::tilted_uncalibrated_scene(state.path());
-    let (_server, addr) = crate::support::serve_with(state.path(), &["--scene", path(&scene)]);
-    let uri = format!("coap://{addr}");
-    for how in ["--edge", "--clouds"] {
-        let f = ok(&["measure", "--server", &uri, how, "--json"]);
-        let warnings = f.json()["warnings"].to_string();
-        assert!(
-            warnings.contains("the floor is not near z = 0"),
-            "{how}: {warnings}"
-        );
-        assert!(
-            f.stderr.contains("coapcam: warning: "),
-            "{how}: {}",
-            f.stderr
-        );
-        if how == "--edge" {
-            // The server knows which camera it is.
-            assert!(
-                warnings.contains(&format!("camera {SN} is not calibrated")),
-                "{warnings}"
-            );
-        }
-    }
-}
-
-#[test]
 fn calibrate_floor_levels_a_tilted_camera_so_measure_is_within_5_mm() {
     let state = TempDir::new("client-calibrate");
     let scene = crate::support::tilted_uncalibrated_scene(state.path());

@@ -4,6 +4,7 @@
 
 mod bag;
 mod bench_transfer;
+mod calibrated;
 mod cams;
 mod client;
 mod dtls;
@@ -22,6 +23,7 @@ mod logs;
 mod markers;
 mod mqtt;
 mod netem;
+mod observe;
 mod offhost;
 mod readme;
 mod realsense;

@@ -210,7 +210,11 @@ fn a_virtual_d415_through_librealsense_is_calibrated_by_markers_and_on_the_floor
     );
     let uri = format!("coap://{addr}");
     let run = |args: &[&str]| Proc::run(COAPCAM, args, LIMIT).expect_success("coapcam");
-    let before = run(&["measure", "--server", &uri, "--json"]).json();
+    // Uncalibrated: no dimensions (exit status 8), the camera named.
+    let before = Proc::run(COAPCAM, &["measure", "--server", &uri, "--json"], LIMIT);
+    assert_eq!(before.status.code(), Some(8), "{}", before.stderr);
+    let before = before.json();
+    assert_eq!(before["parcel"], "uncalibrated", "{before}");
     let warnings = before["warnings"].to_string();
     assert!(
         warnings.contains(&format!("camera {SN} is not calibrated")),

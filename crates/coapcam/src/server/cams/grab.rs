@@ -22,10 +22,14 @@ pub(crate) enum Frame {
     /// The frame, its intrinsics, and the depth->color extrinsics of its camera.
     Color(ColorFrame, Intrinsics, Extrinsics),
     Depth(DepthFrame, Intrinsics),
-    /// The points and what they were computed from (the compact cloud sends that).
+    /// The points and what they were computed from (the compact cloud sends that), and
+    /// the height of the lowest points of the camera's whole view before `roi3d`
+    /// ([`crate::report::floor_level`]): the calibration check, which a region that cuts
+    /// the floor away would otherwise fool.
     Cloud {
         points: Vec<Point3>,
         part: DepthPart,
+        floor_m: Option<f32>,
     },
 }
 
@@ -154,6 +158,31 @@ pub(crate) fn cloud(
         roi: app.roi3d,
         correction: None,
     };
+    let floor_m = floor_level(&part);
     let points = part.points()?;
-    Ok(Frame::Cloud { points, part })
+    Ok(Frame::Cloud {
+        points,
+        part,
+        floor_m,
+    })
 }
+
+/// Every [`FLOOR_SAMPLE`]-th pixel of each [`FLOOR_SAMPLE`]-th row of the part's depth,
+/// deprojected and moved into the common frame, without the region: the height of the
+/// lowest points the camera sees ([`crate::report::floor_level`]).
+fn floor_level(part: &DepthPart) -> Option<f32> {
+    let d = &part.depth;
+    let k = &part.intrinsics;
+    let z = (0..d.height).step_by(FLOOR_SAMPLE).flat_map(|y| {
+        (0..d.width).step_by(FLOOR_SAMPLE).filter_map(move |x| {
+            let raw = d.raw_at(x, y).filter(|&raw| raw != 0)?;
+            let [px, py, pz] = k.deproject([x as f32, y as f32], f32::from(raw) * d.depth_scale);
+            Some(part.transform.apply(&Point3::new(px, py, pz)).z)
+        })
+    });
+    crate::report::floor_level(z)
+}
+
+/// The floor check looks at one pixel in this many, each way (1/16 of a 640x480 view,
+/// 19,200 points, is plenty for a percentile).
+const FLOOR_SAMPLE: usize = 4;

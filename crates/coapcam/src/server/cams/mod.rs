@@ -50,6 +50,23 @@ const CONFIGS: [&str; 5] = [
     "advanced-config",
 ];
 
+/// A camera's own configuration, before the server changed any of it.
+struct Defaults {
+    color: ColorSettings,
+    depth: DepthSettings,
+    /// Read when first needed: before a saved document is applied, or at the first PUT
+    /// (reading it may take a real camera a while).
+    advanced: Mutex<Option<AdvancedConfig>>,
+}
+
+/// The 3d-transformation a camera starts with: the pose a synthetic scene gives it
+/// (`calibrated = true`, the default), else the identity (a real camera, a recording).
+fn default_transformation(camera: &dyn Camera) -> Transformation {
+    camera
+        .true_pose()
+        .map_or_else(Transformation::identity, |p| pose_transformation(&p))
+}
+
 /// A grabbed frame with its ETag.
 type Stored = Arc<(Frame, [u8; 8])>;
 
@@ -59,6 +76,9 @@ struct CamState {
     app: Mutex<AppConfig>,
     transformation: Mutex<Transformation>,
     latest: Mutex<[Option<Stored>; 3]>,
+    /// What a DELETE of a configuration document goes back to: the camera's settings as
+    /// it connected, before any saved ones were applied.
+    defaults: Defaults,
     /// Held through a PUT's validation, change and persisting: PUTs of one camera take
     /// effect one after the other, in memory and on disk in the same order.
     writes: Mutex<()>,
@@ -249,13 +269,14 @@ impl Cams {
             ),
             transformation: Mutex::new(
                 self.restore(&sn, "3d-transformation", Transformation::from_json)
-                    .unwrap_or_else(|| {
-                        camera
-                            .true_pose()
-                            .map_or_else(Transformation::identity, |p| pose_transformation(&p))
-                    }),
+                    .unwrap_or_else(|| default_transformation(camera.as_ref())),
             ),
             latest: Mutex::default(),
+            defaults: Defaults {
+                color: camera.color_settings(),
+                depth: camera.depth_settings(),
+                advanced: Mutex::default(),
+            },
             writes: Mutex::default(),
             camera,
         });
@@ -271,6 +292,10 @@ impl Cams {
             warn_on(&sn, "depth-settings", cam.camera.set_depth_settings(s));
         }
         if let Some(a) = self.restore(&sn, "advanced-config", AdvancedConfig::from_json) {
+            match cam.camera.advanced_config() {
+                Ok(own) => *lock(&cam.defaults.advanced) = Some(own),
+                Err(e) => tracing::warn!(serial = %sn, "reading advanced-config: {e}"),
+            }
             warn_on(&sn, "advanced-config", cam.camera.set_advanced_config(&a));
         }
         lock(&self.cams).insert(sn, cam);
@@ -337,8 +362,26 @@ impl Cams {
         let delete = {
             let (me, path) = (self.clone(), path.clone());
             handler(move |_ctx| {
-                me.router.remove(&path);
-                async { Response::new(Code::DELETED) }
+                let (me, path) = (me.clone(), path.clone());
+                async move {
+                    if CONFIGS.contains(&name) {
+                        let reset = me.clone();
+                        let outcome =
+                            tokio::task::spawn_blocking(move || reset.reset(sn, name)).await;
+                        match outcome {
+                            Ok(Ok(())) => {}
+                            Ok(Err((code, why))) => return Response::diagnostic(code, &why),
+                            Err(e) => {
+                                return Response::diagnostic(
+                                    Code::INTERNAL_SERVER_ERROR,
+                                    &format!("{name}: {e}"),
+                                );
+                            }
+                        }
+                    }
+                    me.router.remove(&path);
+                    Response::new(Code::DELETED)
+                }
             })
         };
         let resource = if let Some(kind) = Stream::of(name) {
@@ -532,6 +575,8 @@ impl Cams {
         let (stored, undo): (String, Box<dyn FnOnce() + '_>) = match name {
             "color-settings" => {
                 let new = ColorSettings::from_json(body, modes).map_err(|e| bad(&e))?;
+                let frames = [("color", new.width, new.height)];
+                lock(&cam.app).check_frames(&frames).map_err(|e| bad(&e))?;
                 let old = camera.color_settings();
                 camera.set_color_settings(new).map_err(|e| bad(&e))?;
                 (
@@ -541,6 +586,8 @@ impl Cams {
             }
             "depth-settings" => {
                 let new = DepthSettings::from_json(body, modes).map_err(|e| bad(&e))?;
+                let frames = [("depth", new.width, new.height)];
+                lock(&cam.app).check_frames(&frames).map_err(|e| bad(&e))?;
                 let old = camera.depth_settings();
                 camera.set_depth_settings(new).map_err(|e| bad(&e))?;
                 (
@@ -550,6 +597,12 @@ impl Cams {
             }
             "application-config" => {
                 let new = AppConfig::from_json(body).map_err(|e| bad(&e))?;
+                let (color, depth) = (camera.color_settings(), camera.depth_settings());
+                new.check_frames(&[
+                    ("color", color.width, color.height),
+                    ("depth", depth.width, depth.height),
+                ])
+                .map_err(|e| bad(&e))?;
                 let json = new.to_json();
                 let old = std::mem::replace(&mut *lock(&cam.app), new);
                 (json, Box::new(move || *lock(&cam.app) = old))
@@ -566,6 +619,7 @@ impl Cams {
             _ => {
                 let new = AdvancedConfig::from_json(body).map_err(|e| bad(&e))?;
                 let old = camera.advanced_config().map_err(|e| camera_error(sn, &e))?;
+                lock(&cam.defaults.advanced).get_or_insert_with(|| old.clone());
                 camera.set_advanced_config(&new).map_err(|e| bad(&e))?;
                 let full = camera.advanced_config().map_err(|e| camera_error(sn, &e))?;
                 (
@@ -582,6 +636,44 @@ impl Cams {
                 &format!("{name}: cannot persist the document ({e}); nothing was changed"),
             ));
         }
+        Ok(())
+    }
+
+    /// `DELETE` of a configuration document: the camera's own (its defaults) again, at
+    /// once in memory, on the camera and in the state directory (so a restart or a
+    /// re-created resource does not bring the old one back).
+    /// A refusal is its code and diagnostic.
+    fn reset(&self, sn: Serial, name: &str) -> Result<(), (Code, String)> {
+        let Some(cam) = self.camera(&sn) else {
+            return Err((Code::NOT_FOUND, format!("camera {sn} is disconnected")));
+        };
+        let _one_at_a_time = lock(&cam.writes);
+        let failed = |e: &dyn std::fmt::Display| {
+            (
+                Code::INTERNAL_SERVER_ERROR,
+                format!("{name}: going back to the defaults: {e}"),
+            )
+        };
+        let camera = &cam.camera;
+        match name {
+            "color-settings" => camera
+                .set_color_settings(cam.defaults.color)
+                .map_err(|e| failed(&e))?,
+            "depth-settings" => camera
+                .set_depth_settings(cam.defaults.depth)
+                .map_err(|e| failed(&e))?,
+            "application-config" => *lock(&cam.app) = AppConfig::default(),
+            "3d-transformation" => {
+                *lock(&cam.transformation) = default_transformation(camera.as_ref());
+            }
+            _ => {
+                if let Some(own) = lock(&cam.defaults.advanced).clone() {
+                    camera.set_advanced_config(&own).map_err(|e| failed(&e))?;
+                }
+            }
+        }
+        self.state.remove(&sn, name).map_err(|e| failed(&e))?;
+        tracing::info!(serial = %sn, "{name} of camera {sn} back to the defaults");
         Ok(())
     }
 
@@ -646,11 +738,17 @@ impl Cams {
             })
             .collect();
         let mut parts = Vec::new();
+        let mut floors = Vec::new();
         let mut failed = Vec::new();
         for (sn, icp, task) in tasks {
             match task.await {
-                Ok(Ok(Frame::Cloud { points, mut part })) => {
+                Ok(Ok(Frame::Cloud {
+                    points,
+                    mut part,
+                    floor_m,
+                })) => {
                     part.depth.timestamp_us = self.clock.shift(part.depth.timestamp_us);
+                    floors.push((Some(sn.to_string()), floor_m));
                     parts.push((sn, icp, points, part));
                 }
                 Ok(Ok(_)) => {}
@@ -690,6 +788,7 @@ impl Cams {
             serials,
             frames_us,
             timestamp_us,
+            floors,
             failed,
         }
     }
@@ -796,7 +895,8 @@ impl Cams {
             merged.frames_us,
             grab,
         );
-        m.warnings = report::calibration_warnings(&uncalibrated, &merged.cloud);
+        m.warnings = report::calibration_warnings(&uncalibrated, &merged.floors);
+        m.withhold_uncalibrated(&uncalibrated);
         m.warnings.extend(merged.failed);
         if let Some(task) = codes {
             match task.await {
@@ -901,6 +1001,8 @@ struct Merged {
     frames_us: Vec<u64>,
     /// The newest frame's (now, when there is none).
     timestamp_us: u64,
+    /// Each camera's floor level, seen in its whole view ([`grab::Frame::Cloud`]).
+    floors: Vec<(Option<String>, Option<f32>)>,
     /// Why cameras were left out.
     failed: Vec<String>,
 }
@@ -1045,7 +1147,7 @@ fn represent(
             intrinsics,
             serial: sn,
         },
-        Frame::Cloud { points, part } => Subject::Cloud {
+        Frame::Cloud { points, part, .. } => Subject::Cloud {
             points,
             timestamp_us: part.depth.timestamp_us,
             source: CloudSource::Camera {

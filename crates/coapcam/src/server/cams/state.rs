@@ -132,6 +132,18 @@ impl StateDir {
     }
 }
 
+impl StateDir {
+    /// Forgets the stored document (the defaults apply from now on, also after a
+    /// restart); nothing to do when none is stored.
+    pub(crate) fn remove(&self, serial: &Serial, name: &str) -> io::Result<()> {
+        match std::fs::remove_file(self.path(serial, name)) {
+            Ok(()) => File::open(self.root.join(serial.as_str()))?.sync_all(),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(()),
+            Err(e) => Err(e),
+        }
+    }
+}
+
 /// The process that wrote the temporary file `name` (`.<name>.json.<pid>.<n>.tmp`, what
 /// [`StateDir::store`] makes); `None` for any other name.
 fn writer_of(name: &str) -> Option<u32> {

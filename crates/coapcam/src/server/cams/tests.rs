@@ -226,7 +226,7 @@ fn icp_brings_a_displaced_camera_back_onto_the_cloud_merged_before_it() {
         &cam.true_pose().expect("a calibrated camera"),
     );
     let app = crate::documents::AppConfig::default();
-    let Ok(super::grab::Frame::Cloud { points, part }) =
+    let Ok(super::grab::Frame::Cloud { points, part, .. }) =
         super::grab::cloud(cam.as_ref(), &app, &pose)
     else {
         panic!("no cloud")
