@@ -91,6 +91,13 @@ pub(crate) struct CalibrateArgs {
 
 /// Runs `calibrate`.
 pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
+    if let Some(view) = &args.view
+        && !view
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        usage!("--view writes PNG: give a file name ending in .png");
+    }
     if args.origin_id >= args.family.ids() {
         usage!(
             "--origin-id {}: {} has markers 0 to {}",

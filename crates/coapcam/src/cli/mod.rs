@@ -133,7 +133,7 @@ pub(crate) struct CameraArgs {
     server: Option<String>,
     /// Only this camera (12-digit serial). Without it, a command that grabs one frame
     /// takes the server's camera if it has only one; the others use every camera.
-    #[arg(long, value_name = "SN", conflicts_with = "all")]
+    #[arg(long, value_name = "SN", conflicts_with = "all", value_parser = values::serial)]
     pub(crate) camera: Option<String>,
     /// Every camera of the server: grab merges their point clouds (POST
     /// /cams/pointclouds); measure, calibrate and monitor do so by default.

@@ -60,6 +60,13 @@ pub(crate) fn group(text: &str) -> Result<String, String> {
     Ok(uri)
 }
 
+/// A camera's serial number: 12 digits (`--camera`).
+pub(crate) fn serial(text: &str) -> Result<String, String> {
+    rgbd::Serial::parse(text)
+        .map(|_| text.to_owned())
+        .map_err(|e| e.to_string())
+}
+
 /// A number from `lo` to `hi` (both included), finite.
 fn within(text: &str, lo: f64, hi: f64, unit: &str) -> Result<f64, String> {
     match text.trim().parse::<f64>() {
@@ -146,5 +153,7 @@ mod tests {
         assert!(min_height_mm("-10").is_err());
         assert!(round_up_mm("1e9").is_err());
         assert!(marker_metres("-0.16").is_err());
+        assert!(serial("840412060746").is_ok());
+        assert!(serial("84041206074").is_err() && serial("84041206074x").is_err());
     }
 }

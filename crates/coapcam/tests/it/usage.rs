@@ -129,6 +129,12 @@ fn every_bad_flag_or_value_exits_2_before_anything_is_sent() {
         vec!["calibrate", "--server", &s, "--marker-size", "0"],
         vec!["calibrate", "--server", &s, "--family", "aruco"],
         vec!["calibrate", "--server", &s, "--origin-id", "9999"],
+        vec!["calibrate", "--server", &s, "--view", &jpg],
+        // A serial is 12 digits.
+        vec![
+            "grab", "color", "--server", &s, "--camera", "12345", "-o", &png,
+        ],
+        vec!["measure", "--server", &s, "--camera", "abcdefghijkl"],
         // bench.
         vec!["bench", "accuracy", "--scenes", "0"],
         // markers.
