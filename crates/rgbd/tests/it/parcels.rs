@@ -337,3 +337,178 @@ fn finishes_default_to_matte_and_light_and_ideal_noise_ignores_them() {
     .to_string();
     assert_eq!(e, "scene: cylinder[0].gloss: must be from 0 to 1, got 3");
 }
+
+/// World points (x, y, z) of every depth pixel of the only camera of `scene`.
+fn points(scene: &Scene) -> Vec<[f64; 3]> {
+    let cam = only_camera(scene);
+    let frame = cam.render_depth(1);
+    let k = cam.depth_intrinsics().unwrap();
+    let pose = cam.true_pose().unwrap();
+    let mut out = Vec::new();
+    for v in 0..frame.height {
+        for u in 0..frame.width {
+            if let Some(z) = frame.metres_at(u, v) {
+                let p = k.deproject([u as f32, v as f32], z);
+                out.push(pose.transform_point(p.map(f64::from)));
+            }
+        }
+    }
+    out
+}
+
+/// Whether (x, y) lies within the truth's footprint grown by `margin` metres.
+fn within(t: &Truth, p: [f64; 3], margin: f64) -> bool {
+    let (s, c) = t.yaw_deg.to_radians().sin_cos();
+    let (dx, dy) = (p[0] - t.center[0], p[1] - t.center[1]);
+    let (a, b) = (c * dx + s * dy, -s * dx + c * dy);
+    a.abs() <= t.size[0] / 2.0 + margin && b.abs() <= t.size[1] / 2.0 + margin
+}
+
+const SHAPES: &str = r#"
+seed = 2
+[[camera]]
+serial = "000000000001"
+position = [0.05, 0.02, 1.3]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+noise = "ideal"
+
+[[bag]]
+size = [0.40, 0.28, 0.16]
+center = [-0.15, 0.12]
+yaw_deg = 25.0
+sag = 0.3
+
+[[tube]]
+radius = 0.05
+length = 0.60
+center = [0.10, -0.30]
+yaw_deg = -15.0
+"#;
+
+#[test]
+fn a_polybag_and_a_tube_are_seen_within_their_true_enclosing_cuboids_and_fill_them() {
+    let scene = Scene::from_toml(SHAPES).unwrap();
+    let truths = scene.truths();
+    let (bag, tube) = (&truths[1], &truths[0]);
+    assert_eq!((tube.kind, bag.kind), (ObjectKind::Tube, ObjectKind::Bag));
+    assert!(!bag.cuboid && !tube.cuboid);
+    assert_eq!(tube.size, [0.60, 0.10, 0.10]);
+    assert!((tube.yaw_deg - -15.0).abs() < 1e-9);
+    assert_eq!(&bag.size[..2], &[0.40, 0.28]);
+    assert!(bag.size[2] < 0.16 && bag.size[2] > 0.12, "{:?}", bag.size);
+    let pts = points(&scene);
+    for t in [bag, tube] {
+        let on: Vec<[f64; 3]> = pts
+            .iter()
+            .copied()
+            .filter(|p| p[2] > 0.003 && within(t, *p, 0.02))
+            .collect();
+        assert!(on.len() > 5000, "{:?}: {} points", t.kind, on.len());
+        // Nothing outside the truth (1 mm: a pixel's footprint, depth rounding).
+        let outside: Vec<&[f64; 3]> = on.iter().filter(|p| !within(t, **p, 0.001)).collect();
+        assert!(
+            outside.is_empty(),
+            "{:?}: {} outside, {:?}",
+            t.kind,
+            outside.len(),
+            &outside[..outside.len().min(5)]
+        );
+        let top = on.iter().map(|p| p[2]).fold(0.0, f64::max);
+        assert!(
+            top <= t.size[2] + 0.001 && top > t.size[2] - 0.002,
+            "{:?}: top {top}",
+            t.kind
+        );
+        // The points above 1 cm reach within 3 % of each side of the footprint (the
+        // camera looks over the top at the far side's steep shoulder).
+        let (s, c) = t.yaw_deg.to_radians().sin_cos();
+        let extent = |axis: usize| {
+            let along = on.iter().filter(|p| p[2] > 0.01).map(|p| {
+                let (dx, dy) = (p[0] - t.center[0], p[1] - t.center[1]);
+                if axis == 0 {
+                    c * dx + s * dy
+                } else {
+                    -s * dx + c * dy
+                }
+            });
+            let (lo, hi) = along.fold((f64::MAX, f64::MIN), |(lo, hi), a| (lo.min(a), hi.max(a)));
+            hi - lo
+        };
+        for axis in 0..2 {
+            let e = extent(axis);
+            assert!(
+                e > t.size[axis] * 0.97 && e <= t.size[axis] + 0.002,
+                "{:?} axis {axis}: {e} of {}",
+                t.kind,
+                t.size[axis]
+            );
+        }
+    }
+}
+
+#[test]
+fn a_bags_top_is_its_highest_point_and_its_fields_are_checked() {
+    use rgbd::scene::Bag;
+    let scene = Scene::from_toml(SHAPES).unwrap();
+    let full = Bag {
+        sag: 0.0,
+        ..scene.bags[0].clone()
+    };
+    assert!((full.top_m() - 0.16).abs() < 1e-12);
+    // With sag the middle sinks; a fine brute force agrees with the search.
+    let sagging = &scene.bags[0];
+    let mut brute: f64 = 0.0;
+    for i in -400..=400 {
+        for j in -400..=400 {
+            brute = brute.max(Bag::shape(f64::from(i) / 400.0, f64::from(j) / 400.0, 0.3));
+        }
+    }
+    assert!(
+        (sagging.top_m() - brute * 0.16).abs() < 1e-6,
+        "{} vs {}",
+        sagging.top_m(),
+        brute * 0.16
+    );
+    assert!(sagging.top_m() < 0.16 * 0.95);
+    // Defaults, and the errors naming the field.
+    let bag = Scene::from_toml("[[bag]]\nsize = [0.3, 0.2, 0.1]\ncenter = [0.0, 0.0]\n").unwrap();
+    assert_eq!((bag.bags[0].sag, bag.bags[0].yaw_deg), (0.0, 0.0));
+    assert!(bag.bags[0].finish.is_default());
+    for (text, error) in [
+        (
+            "[[bag]]\nsize = [0.3, 0.2, 0.1]\ncenter = [0.0, 0.0]\nsag = 0.7\n",
+            "scene: bag[0].sag: must be from 0 to 0.5, got 0.7",
+        ),
+        (
+            "[[bag]]\nsize = [0.3, 0.0, 0.1]\ncenter = [0.0, 0.0]\n",
+            "scene: bag[0].size: must be positive (metres) and at most 100 m, got [0.3, 0.0, 0.1]",
+        ),
+        (
+            "[[tube]]\nradius = 0.05\nlength = -1.0\ncenter = [0.0, 0.0]\n",
+            "scene: tube[0].length: must be positive (metres) and at most 100 m, got [-1.0]",
+        ),
+        (
+            "[[tube]]\nradius = 0.05\nlength = 0.5\ncenter = [0.0, 0.0]\nreflectivity = 2\n",
+            "scene: tube[0].reflectivity: must be from 0 to 1, got 2",
+        ),
+    ] {
+        assert_eq!(Scene::from_toml(text).unwrap_err().to_string(), error);
+    }
+    let e = Scene::from_toml(
+        "[[tube]]\nradius = 0.05\nlength = 0.5\ncenter = [0.0, 0.0]\nheight = 1\n",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("unknown field `height`"), "{e}");
+    // On a timeline like any object.
+    let timed = Scene::from_toml(
+        "[[tube]]\nradius = 0.05\nlength = 0.5\ncenter = [0.0, 0.0]\nappear_s = 2\n\
+         [[bag]]\nsize = [0.3, 0.2, 0.1]\ncenter = [0.5, 0.0]\nremove_s = 3\n",
+    )
+    .unwrap();
+    assert!(timed.is_timed());
+    assert_eq!(timed.at(1.0).truths().len(), 1);
+    assert_eq!(timed.at(2.5).truths().len(), 2);
+    assert_eq!(timed.at(3.5).truths()[0].kind, ObjectKind::Tube);
+}

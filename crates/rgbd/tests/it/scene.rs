@@ -180,7 +180,7 @@ fn scene_bounds_coordinates_sizes_counts_and_label_text_naming_the_field() {
     let e = scene.validate().unwrap_err().to_string();
     assert_eq!(
         e,
-        "scene: box, cylinder: at most 256 boxes and cylinders together, got 257"
+        "scene: box, cylinder, tube, bag: at most 256 boxes, cylinders, tubes and bags together, got 257"
     );
     scene.cylinders.pop();
     scene.validate().unwrap();

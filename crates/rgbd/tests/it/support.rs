@@ -23,6 +23,8 @@ pub(crate) fn floor_scene(height_m: f64, noise: Noise) -> Scene {
         }],
         boxes: Vec::new(),
         cylinders: Vec::new(),
+        tubes: Vec::new(),
+        bags: Vec::new(),
         markers: Vec::new(),
     }
 }

@@ -11,7 +11,9 @@
 
 use super::d415;
 use super::render::mix64;
-use super::scene::{Cylinder, Finish, Floor, Noise, Scene, SceneBox, SceneCamera, Timeline, Truth};
+use super::scene::{
+    Bag, Cylinder, Finish, Floor, Noise, Scene, SceneBox, SceneCamera, Timeline, Truth, Tube,
+};
 use crate::camera::Serial;
 
 /// What a lane scene is about: the situation the station has to measure (or refuse).
@@ -27,8 +29,11 @@ pub enum Case {
     /// One glossy box (gloss 0.4 to 1): the projector's glare takes depth where it
     /// mirrors into the imagers.
     Glossy,
-    /// One cylinder standing upright.
+    /// One cylinder: standing upright (turns 0, 1, 4, 5, ... of the case) or a tube
+    /// lying on the floor (turns 2, 3, 6, 7, ...).
     Cylinder,
+    /// One polybag (a pillow, sagging up to 30 %, a little glossy).
+    Polybag,
     /// Two boxes on the table, 60 to 250 mm apart.
     Apart,
     /// Two boxes side by side, touching along a face.
@@ -39,19 +44,20 @@ pub enum Case {
 
 impl Case {
     /// Every case, in the order the set cycles through them.
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 9] = [
         Self::Clean,
         Self::Large,
         Self::Dark,
         Self::Glossy,
         Self::Cylinder,
+        Self::Polybag,
         Self::Apart,
         Self::Touching,
         Self::Cut,
     ];
 
     /// The case's name in reports (`clean`, `large`, `dark`, `glossy`, `cylinder`,
-    /// `apart`, `touching`, `cut`).
+    /// `polybag`, `apart`, `touching`, `cut`).
     pub fn name(self) -> &'static str {
         match self {
             Self::Clean => "clean",
@@ -59,6 +65,7 @@ impl Case {
             Self::Dark => "dark",
             Self::Glossy => "glossy",
             Self::Cylinder => "cylinder",
+            Self::Polybag => "polybag",
             Self::Apart => "apart",
             Self::Touching => "touching",
             Self::Cut => "cut",
@@ -244,6 +251,8 @@ pub fn lane_scene(seed: u64, index: usize) -> LaneScene {
     let yaw_deg = draw.uniform(-90.0, 90.0);
     let mut boxes = Vec::new();
     let mut cylinders = Vec::new();
+    let mut tubes = Vec::new();
+    let mut bags = Vec::new();
     let cams = match case {
         Case::Clean | Case::Large | Case::Dark | Case::Glossy | Case::Cut => {
             let (length, width) = if case == Case::Large {
@@ -287,7 +296,8 @@ pub fn lane_scene(seed: u64, index: usize) -> LaneScene {
                 cameras(&mut draw, &group, two, 0.0, None)
             }
         }
-        Case::Cylinder => {
+        Case::Cylinder if (index / (2 * Case::ALL.len())).is_multiple_of(2) => {
+            // Standing upright.
             let radius = draw.uniform(0.04, 0.15);
             let height = draw.uniform(0.10, 0.50);
             cylinders.push(Cylinder {
@@ -305,6 +315,56 @@ pub fn lane_scene(seed: u64, index: usize) -> LaneScene {
                 width: 2.0 * radius,
                 height,
             };
+            cameras(&mut draw, &group, two, 0.0, None)
+        }
+        Case::Cylinder => {
+            // A mailing tube lying on the floor.
+            let radius = draw.uniform(0.03, 0.10);
+            let length = draw.uniform(0.30, 0.90);
+            tubes.push(Tube {
+                radius,
+                length,
+                center,
+                yaw_deg,
+                color: draw.cardboard(),
+                finish: Finish::default(),
+                timeline: Timeline::default(),
+            });
+            let group = Group {
+                center,
+                yaw_deg,
+                length,
+                width: 2.0 * radius,
+                height: 2.0 * radius,
+            };
+            cameras(&mut draw, &group, two, 0.0, None)
+        }
+        Case::Polybag => {
+            let (length, width) = footprint(&mut draw, 0.15, 0.60);
+            let bag = Bag {
+                size: [length, width, draw.uniform(0.04, 0.25)],
+                center,
+                yaw_deg,
+                sag: draw.uniform(0.0, 0.3),
+                color: [
+                    draw.uniform(190.0, 235.0) as u8,
+                    draw.uniform(190.0, 235.0) as u8,
+                    draw.uniform(200.0, 240.0) as u8,
+                ],
+                finish: Finish {
+                    reflectivity: 1.0,
+                    gloss: draw.uniform(0.0, 0.3),
+                },
+                timeline: Timeline::default(),
+            };
+            let group = Group {
+                center,
+                yaw_deg,
+                length,
+                width,
+                height: bag.size[2],
+            };
+            bags.push(bag);
             cameras(&mut draw, &group, two, 0.0, None)
         }
         Case::Apart | Case::Touching => {
@@ -359,6 +419,8 @@ pub fn lane_scene(seed: u64, index: usize) -> LaneScene {
         cameras: cams,
         boxes,
         cylinders,
+        tubes,
+        bags,
         markers: Vec::new(),
     };
     let mut truths = scene.truths();

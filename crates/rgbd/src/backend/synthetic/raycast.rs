@@ -1,5 +1,6 @@
-//! Ray casting of a scene: analytic intersections with the floor plane, yawed boxes
-//! and vertical cylinders; per-row culling of primitives by their bounding spheres.
+//! Ray casting of a scene: analytic intersections with the floor plane, yawed boxes,
+//! vertical cylinders and lying tubes, a marched height field for polybags; per-row
+//! culling of primitives by their bounding spheres.
 //! A [`Stage`] holds a scene prepared once (labels encoded, marker patterns read) and
 //! gives the [`World`] of any moment of its timeline.
 
@@ -56,10 +57,37 @@ struct CylPrim {
     height: f32,
 }
 
+/// A tube lying on the floor, its axis along local x.
+#[derive(Debug, Clone)]
+struct TubePrim {
+    /// Footprint centre on the floor.
+    center: V3,
+    cos: f32,
+    sin: f32,
+    /// Half its length.
+    half: f32,
+    radius: f32,
+}
+
+/// A polybag: the pillow height field of [`Bag`](super::scene::Bag) over a rectangle.
+#[derive(Debug, Clone)]
+struct BagPrim {
+    /// Footprint centre on the floor.
+    center: V3,
+    cos: f32,
+    sin: f32,
+    half: [f32; 2],
+    /// Greatest height without sag.
+    height: f32,
+    sag: f32,
+}
+
 #[derive(Debug, Clone)]
 enum Shape {
     Box(BoxPrim),
     Cylinder(CylPrim),
+    Tube(TubePrim),
+    Bag(BagPrim),
 }
 
 #[derive(Debug, Clone)]
@@ -99,8 +127,10 @@ enum Face {
     Y,
     /// A horizontal face (box or cylinder cap).
     Z,
-    /// The cylinder's side.
+    /// The cylinder's or the tube's curved side.
     Side,
+    /// A bag's surface.
+    Surface,
 }
 
 /// An entry/exit interval along a ray and the face at the entry.
@@ -116,6 +146,8 @@ impl Prim {
         match &self.shape {
             Shape::Box(b) => b.center,
             Shape::Cylinder(c) => c.center,
+            Shape::Tube(t) => t.center,
+            Shape::Bag(b) => b.center,
         }
     }
 
@@ -123,6 +155,8 @@ impl Prim {
         match &mut self.shape {
             Shape::Box(b) => b.center = to,
             Shape::Cylinder(c) => c.center = to,
+            Shape::Tube(t) => t.center = to,
+            Shape::Bag(b) => b.center = to,
         }
     }
 
@@ -130,6 +164,8 @@ impl Prim {
         match &self.shape {
             Shape::Box(b) => b.interval(o, d),
             Shape::Cylinder(c) => c.interval(o, d),
+            Shape::Tube(t) => t.interval(o, d),
+            Shape::Bag(b) => b.interval(o, d),
         }
     }
 
@@ -142,6 +178,19 @@ impl Prim {
                 let q = o + d * t - c.center;
                 (V3::new(q.x, q.y, 0.0) / c.radius, false)
             }
+            (Face::Side, Shape::Tube(tube)) => {
+                let q = to_local(tube.cos, tube.sin, &(o + d * t - tube.center));
+                let n = V3::new(0.0, q.y, q.z - tube.radius) / tube.radius;
+                (from_local(tube.cos, tube.sin, &n), false)
+            }
+            (_, Shape::Tube(tube)) => {
+                let nx = -to_local(tube.cos, tube.sin, d).x.signum();
+                (
+                    from_local(tube.cos, tube.sin, &V3::new(nx, 0.0, 0.0)),
+                    false,
+                )
+            }
+            (_, Shape::Bag(bag)) => (bag.normal(&(o + d * t)), false),
             (_, Shape::Box(b)) => {
                 let ld = b.to_local(d);
                 let (nx, ny) = if face == Face::X {
@@ -170,13 +219,131 @@ fn slab(o: f32, d: f32, lo: f32, hi: f32) -> Option<(f32, f32)> {
     Some(if t0 < t1 { (t0, t1) } else { (t1, t0) })
 }
 
+/// A world vector in a frame turned by the yaw whose cosine and sine are given.
+fn to_local(cos: f32, sin: f32, v: &V3) -> V3 {
+    V3::new(cos * v.x + sin * v.y, -sin * v.x + cos * v.y, v.z)
+}
+
+/// A vector of a frame turned by the yaw whose cosine and sine are given, in the world.
+fn from_local(cos: f32, sin: f32, v: &V3) -> V3 {
+    V3::new(cos * v.x - sin * v.y, sin * v.x + cos * v.y, v.z)
+}
+
+impl TubePrim {
+    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
+        let p = to_local(self.cos, self.sin, &(o - self.center)) - V3::new(0.0, 0.0, self.radius);
+        let ld = to_local(self.cos, self.sin, d);
+        let a = ld.y * ld.y + ld.z * ld.z;
+        let b = 2.0 * (p.y * ld.y + p.z * ld.z);
+        let c = p.y * p.y + p.z * p.z - self.radius * self.radius;
+        let (s0, s1) = if a < 1e-12 {
+            if c > 0.0 {
+                return None;
+            }
+            (f32::NEG_INFINITY, f32::INFINITY)
+        } else {
+            let disc = b * b - 4.0 * a * c;
+            if disc < 0.0 {
+                return None;
+            }
+            let sq = disc.sqrt();
+            ((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a))
+        };
+        let (x0, x1) = slab(p.x, ld.x, -self.half, self.half)?;
+        let near = s0.max(x0);
+        let far = s1.min(x1);
+        if near > far {
+            return None;
+        }
+        let face = if near == x0 { Face::X } else { Face::Side };
+        Some(Interval { near, far, face })
+    }
+}
+
+/// Height above the floor, as a share of the greatest, below which a bag's surface
+/// counts as not reached (keeps a ray that leaves the surface from meeting it again).
+const BAG_INSIDE: f32 = 2e-5;
+/// Bisection steps that place a ray's entry into a bag (each halves the uncertainty).
+const BAG_BISECTIONS: u32 = 16;
+
+impl BagPrim {
+    /// Height of the top over local point (x, y), metres; 0 off the footprint.
+    fn top(&self, x: f32, y: f32) -> f32 {
+        let (u, v) = (x / self.half[0], y / self.half[1]);
+        let profile = |s: f32| {
+            let s2 = s * s;
+            let r = 1.0 - s2 * s2;
+            if r <= 0.0 { 0.0 } else { r.sqrt().sqrt() }
+        };
+        self.height * profile(u) * profile(v) * (1.0 - self.sag * (1.0 - u * u) * (1.0 - v * v))
+    }
+
+    /// How far above the local point `p` the surface is (positive: `p` is inside).
+    fn inside(&self, p: &V3) -> f32 {
+        self.top(p.x, p.y) - p.z
+    }
+
+    /// The first entry of the ray into the bag within its bounding box: a march over
+    /// the box (steps by how far the ray travels across the footprint) to the first
+    /// sample inside, then bisection. `far` is the box's exit.
+    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
+        let lo = to_local(self.cos, self.sin, &(o - self.center));
+        let ld = to_local(self.cos, self.sin, d);
+        let (x0, x1) = slab(lo.x, ld.x, -self.half[0], self.half[0])?;
+        let (y0, y1) = slab(lo.y, ld.y, -self.half[1], self.half[1])?;
+        let (z0, z1) = slab(lo.z, ld.z, 0.0, self.height)?;
+        let start = x0.max(y0).max(z0).max(T_EPS);
+        let far = x1.min(y1).min(z1);
+        if start >= far {
+            return None;
+        }
+        let at = |t: f32| self.inside(&(lo + ld * t)) > BAG_INSIDE * self.height;
+        let span = far - start;
+        let across = span * (ld.x.abs() / self.half[0] + ld.y.abs() / self.half[1]);
+        let steps = ((across * 24.0).ceil() as u32).clamp(2, 96);
+        let mut before = start;
+        for k in 0..=steps {
+            let t = start + span * k as f32 / steps as f32;
+            if at(t) {
+                let near = if k == 0 {
+                    start
+                } else {
+                    let (mut out, mut inn) = (before, t);
+                    for _ in 0..BAG_BISECTIONS {
+                        let mid = 0.5 * (out + inn);
+                        if at(mid) {
+                            inn = mid;
+                        } else {
+                            out = mid;
+                        }
+                    }
+                    inn
+                };
+                return Some(Interval {
+                    near,
+                    far,
+                    face: Face::Surface,
+                });
+            }
+            before = t;
+        }
+        None
+    }
+
+    /// Unit normal (world) of the surface over world point `p` (from the height's
+    /// slopes by central differences).
+    fn normal(&self, p: &V3) -> V3 {
+        let l = to_local(self.cos, self.sin, &(p - self.center));
+        let h = 1e-3 * self.half[0].min(self.half[1]);
+        let dx = (self.top(l.x + h, l.y) - self.top(l.x - h, l.y)) / (2.0 * h);
+        let dy = (self.top(l.x, l.y + h) - self.top(l.x, l.y - h)) / (2.0 * h);
+        from_local(self.cos, self.sin, &V3::new(-dx, -dy, 1.0).normalize())
+    }
+}
+
 impl BoxPrim {
     fn to_local(&self, v: &V3) -> V3 {
-        V3::new(
-            self.cos * v.x + self.sin * v.y,
-            -self.sin * v.x + self.cos * v.y,
-            v.z,
-        )
+        to_local(self.cos, self.sin, v)
     }
 
     fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
@@ -384,6 +551,55 @@ impl Stage {
                 },
                 center: c.center,
                 timeline: c.timeline,
+                label: None,
+            });
+        }
+        for t in &scene.tubes {
+            let yaw = (t.yaw_deg as f32).to_radians();
+            let (radius, half) = (t.radius as f32, t.length as f32 / 2.0);
+            let center = V3::new(t.center[0] as f32, t.center[1] as f32, floor_z);
+            prims.push(Staged {
+                item: Prim {
+                    shape: Shape::Tube(TubePrim {
+                        center,
+                        cos: yaw.cos(),
+                        sin: yaw.sin(),
+                        half,
+                        radius,
+                    }),
+                    color: rgb(t.color),
+                    finish: Surfacing::of(&t.finish),
+                    sphere_center: center + V3::new(0.0, 0.0, radius),
+                    sphere_radius: (half * half + radius * radius).sqrt(),
+                },
+                center: t.center,
+                timeline: t.timeline,
+                label: None,
+            });
+        }
+        for b in &scene.bags {
+            let yaw = (b.yaw_deg as f32).to_radians();
+            let half = [b.size[0] as f32 / 2.0, b.size[1] as f32 / 2.0];
+            let height = b.size[2] as f32;
+            let center = V3::new(b.center[0] as f32, b.center[1] as f32, floor_z);
+            prims.push(Staged {
+                item: Prim {
+                    shape: Shape::Bag(BagPrim {
+                        center,
+                        cos: yaw.cos(),
+                        sin: yaw.sin(),
+                        half,
+                        height,
+                        sag: b.sag as f32,
+                    }),
+                    color: rgb(b.color),
+                    finish: Surfacing::of(&b.finish),
+                    sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
+                    sphere_radius: (half[0] * half[0] + half[1] * half[1] + height * height / 4.0)
+                        .sqrt(),
+                },
+                center: b.center,
+                timeline: b.timeline,
                 label: None,
             });
         }

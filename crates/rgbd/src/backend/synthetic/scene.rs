@@ -28,6 +28,18 @@
 //! height = 0.25
 //! center = [0.3, -0.2]
 //!
+//! [[tube]]                    # a cylinder lying on the floor
+//! radius = 0.05
+//! length = 0.60               # along its axis, which points along x turned by yaw_deg
+//! center = [0.0, -0.3]        # footprint centre on the floor
+//! yaw_deg = -15.0
+//!
+//! [[bag]]                     # a filled polybag: a pillow over its footprint
+//! size = [0.40, 0.28, 0.16]   # length, width, greatest height (without sag)
+//! center = [-0.2, 0.1]
+//! yaw_deg = 25.0
+//! sag = 0.2                   # 0 (full, default) to 0.5: how far the middle of the top sinks
+//!
 //! [[marker]]                  # a calibration marker printed on the floor
 //! family = "tag36h11"
 //! id = 0
@@ -36,7 +48,13 @@
 //! yaw_deg = 0.0
 //! ```
 //!
-//! Boxes and cylinders take a finish, how their surface returns the D415's infrared
+//! Tubes default to the cylinder color, bags to [215, 215, 222]. A bag's height over
+//! its footprint is `size[2] * q(u) q(v) (1 - sag (1 - u^2)(1 - v^2))`, u and v from -1
+//! to 1 across its length and width, q(s) = (1 - s^4)^(1/4): flat in the middle,
+//! shoulders rounding down to meet the floor upright, lower corners (see [`Bag`]).
+//! [`Scene::truths`] gives every object's smallest upright enclosing cuboid.
+//!
+//! Boxes, cylinders, tubes and bags take a finish, how their surface returns the D415's infrared
 //! light: `reflectivity` (0 black to 1, default 1: enough light everywhere) and `gloss`
 //! (0 matte, the default, to 1 mirror-like), e.g. `reflectivity = 0.08` for black shrink
 //! wrap, `gloss = 0.7` for glossy tape. The synthetic camera's module documentation says
@@ -51,9 +69,9 @@
 //! is its width in metres; a QR label is square, a Code 128 label is half as tall as
 //! wide. Both carry a white quiet zone.
 //!
-//! Objects on a timeline: every `[[box]]`, `[[cylinder]]` and `[[marker]]` (and a box's
-//! label) may say when it is there, in seconds of scene time (the time since the cameras
-//! were made, i.e. since the server started):
+//! Objects on a timeline: every `[[box]]`, `[[cylinder]]`, `[[tube]]`, `[[bag]]` and
+//! `[[marker]]` (and a box's label) may say when it is there, in seconds of scene time
+//! (the time since the cameras were made, i.e. since the server started):
 //!
 //! ```toml
 //! [[box]]
@@ -104,6 +122,9 @@ fn default_box_color() -> [u8; 3] {
 }
 fn default_cylinder_color() -> [u8; 3] {
     [70, 110, 160]
+}
+fn default_bag_color() -> [u8; 3] {
+    [215, 215, 222]
 }
 fn default_noise() -> Noise {
     Noise::D415
@@ -452,6 +473,157 @@ impl From<CylinderFile> for Cylinder {
     }
 }
 
+/// A tube lying on the floor: a cylinder whose axis is horizontal.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(from = "TubeFile")]
+pub struct Tube {
+    /// Radius, metres.
+    pub radius: f64,
+    /// Length along its axis, metres.
+    pub length: f64,
+    /// Centre of its footprint on the floor, (x, y) metres.
+    pub center: [f64; 2],
+    /// Direction of its axis, degrees counter-clockwise from world x.
+    pub yaw_deg: f64,
+    /// Color.
+    pub color: [u8; 3],
+    /// How its surface returns the D415's light.
+    pub finish: Finish,
+    /// When it is there, and whether it slides in.
+    pub timeline: Timeline,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TubeFile {
+    radius: f64,
+    length: f64,
+    center: [f64; 2],
+    #[serde(default)]
+    yaw_deg: f64,
+    #[serde(default = "default_cylinder_color")]
+    color: [u8; 3],
+    #[serde(flatten)]
+    finish: Finish,
+    #[serde(flatten)]
+    timeline: TimelineFile,
+}
+
+impl From<TubeFile> for Tube {
+    fn from(f: TubeFile) -> Self {
+        Self {
+            radius: f.radius,
+            length: f.length,
+            center: f.center,
+            yaw_deg: f.yaw_deg,
+            color: f.color,
+            finish: f.finish,
+            timeline: f.timeline.into(),
+        }
+    }
+}
+
+/// A soft, filled polybag lying on the floor, modelled as a pillow: over its rectangular
+/// footprint the height is `height * q(u) * q(v) * (1 - sag (1 - u^2) (1 - v^2))`, where
+/// u and v run from -1 to 1 across its length and width and q(s) = (1 - s^4)^(1/4). The
+/// top is nearly flat in the middle, the edges round down to meet the floor upright
+/// (q falls steeply near |s| = 1), the corners are lower than the middle of the sides,
+/// and `sag` lowers the middle of the top (a bag not quite full). Its smallest
+/// enclosing cuboid is the footprint times its highest point ([`Bag::top_m`]).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(from = "BagFile")]
+pub struct Bag {
+    /// Length (along x before yaw), width and greatest possible height (without sag),
+    /// metres.
+    pub size: [f64; 3],
+    /// Footprint centre on the floor, (x, y) metres.
+    pub center: [f64; 2],
+    /// Rotation about world z, degrees, counter-clockwise seen from above.
+    pub yaw_deg: f64,
+    /// How much the middle of the top sinks, 0 (a full pillow, the default) to 0.5.
+    pub sag: f64,
+    /// Color.
+    pub color: [u8; 3],
+    /// How its surface returns the D415's light.
+    pub finish: Finish,
+    /// When it is there, and whether it slides in.
+    pub timeline: Timeline,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BagFile {
+    size: [f64; 3],
+    center: [f64; 2],
+    #[serde(default)]
+    yaw_deg: f64,
+    #[serde(default)]
+    sag: f64,
+    #[serde(default = "default_bag_color")]
+    color: [u8; 3],
+    #[serde(flatten)]
+    finish: Finish,
+    #[serde(flatten)]
+    timeline: TimelineFile,
+}
+
+impl From<BagFile> for Bag {
+    fn from(f: BagFile) -> Self {
+        Self {
+            size: f.size,
+            center: f.center,
+            yaw_deg: f.yaw_deg,
+            sag: f.sag,
+            color: f.color,
+            finish: f.finish,
+            timeline: f.timeline.into(),
+        }
+    }
+}
+
+/// Most a bag's top may sink in the middle ([`Bag::sag`]).
+pub const MAX_SAG: f64 = 0.5;
+
+/// The pillow profile across a bag: (1 - s^4)^(1/4) for |s| < 1, else 0.
+pub fn bag_profile(s: f64) -> f64 {
+    let s2 = s * s;
+    let r = 1.0 - s2 * s2;
+    if r <= 0.0 { 0.0 } else { r.sqrt().sqrt() }
+}
+
+impl Bag {
+    /// Height of the bag's top at (u, v), each from -1 to 1 across its length and width,
+    /// as a share of `size[2]`.
+    pub fn shape(u: f64, v: f64, sag: f64) -> f64 {
+        bag_profile(u) * bag_profile(v) * (1.0 - sag * (1.0 - u * u) * (1.0 - v * v))
+    }
+
+    /// Its highest point above the floor, metres (`size[2]` without sag, lower with it),
+    /// found by a grid search refined twice (to far below a micrometre).
+    pub fn top_m(&self) -> f64 {
+        let mut best = (0.0, 0.0, Self::shape(0.0, 0.0, self.sag));
+        let mut step = 0.02;
+        let mut center = (0.0, 0.0);
+        for _ in 0..3 {
+            for i in -50..=50 {
+                for j in -50..=50 {
+                    let (u, v) = (
+                        (center.0 + f64::from(i) * step).clamp(-1.0, 1.0),
+                        (center.1 + f64::from(j) * step).clamp(-1.0, 1.0),
+                    );
+                    let h = Self::shape(u, v, self.sag);
+                    if h > best.2 {
+                        best = (u, v, h);
+                    }
+                }
+            }
+            center = (best.0, best.1);
+            step /= 50.0;
+        }
+        best.2 * self.size[2]
+    }
+}
+
 /// A calibration marker printed on the floor.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(from = "MarkerFile")]
@@ -509,6 +681,10 @@ pub struct Scene {
     pub boxes: Vec<SceneBox>,
     /// Cylinders.
     pub cylinders: Vec<Cylinder>,
+    /// Tubes lying on the floor.
+    pub tubes: Vec<Tube>,
+    /// Polybags.
+    pub bags: Vec<Bag>,
     /// Calibration markers on the floor.
     pub markers: Vec<SceneMarker>,
 }
@@ -521,14 +697,20 @@ pub enum ObjectKind {
     Box,
     /// A `[[cylinder]]` standing upright.
     Cylinder,
+    /// A `[[tube]]` lying on the floor.
+    Tube,
+    /// A `[[bag]]`, a polybag.
+    Bag,
 }
 
 impl ObjectKind {
-    /// The name of the kind's table in a scene file (`box`, `cylinder`).
+    /// The name of the kind's table in a scene file (`box`, `cylinder`, `tube`, `bag`).
     pub fn name(self) -> &'static str {
         match self {
             Self::Box => "box",
             Self::Cylinder => "cylinder",
+            Self::Tube => "tube",
+            Self::Bag => "bag",
         }
     }
 }
@@ -657,6 +839,10 @@ struct SceneFile {
     boxes: Vec<SceneBox>,
     #[serde(default)]
     cylinder: Vec<Cylinder>,
+    #[serde(default)]
+    tube: Vec<Tube>,
+    #[serde(default)]
+    bag: Vec<Bag>,
     #[serde(default)]
     marker: Vec<SceneMarker>,
 }
@@ -806,6 +992,8 @@ impl Scene {
             cameras,
             boxes: file.boxes,
             cylinders: file.cylinder,
+            tubes: file.tube,
+            bags: file.bag,
             markers: file.marker,
         };
         scene.validate()?;
@@ -830,11 +1018,13 @@ impl Scene {
                 format!("at most {MAX_CAMERAS} cameras, got {}", self.cameras.len()),
             ));
         }
-        let objects = self.boxes.len().saturating_add(self.cylinders.len());
+        let objects = self.boxes.len() + self.cylinders.len() + self.tubes.len() + self.bags.len();
         if objects > MAX_OBJECTS {
             return Err(invalid(
-                "box, cylinder",
-                format!("at most {MAX_OBJECTS} boxes and cylinders together, got {objects}"),
+                "box, cylinder, tube, bag",
+                format!(
+                    "at most {MAX_OBJECTS} boxes, cylinders, tubes and bags together, got {objects}"
+                ),
             ));
         }
         for (i, c) in self.cameras.iter().enumerate() {
@@ -908,6 +1098,29 @@ impl Scene {
             c.finish.validate(&at)?;
             c.timeline.validate(&at)?;
         }
+        for (i, t) in self.tubes.iter().enumerate() {
+            let at = |f: &str| format!("tube[{i}].{f}");
+            positive(&at("radius"), &[t.radius])?;
+            positive(&at("length"), &[t.length])?;
+            coordinates(&at("center"), &t.center)?;
+            finite(&at("yaw_deg"), &[t.yaw_deg])?;
+            t.finish.validate(&at)?;
+            t.timeline.validate(&at)?;
+        }
+        for (i, b) in self.bags.iter().enumerate() {
+            let at = |f: &str| format!("bag[{i}].{f}");
+            positive(&at("size"), &b.size)?;
+            coordinates(&at("center"), &b.center)?;
+            finite(&at("yaw_deg"), &[b.yaw_deg])?;
+            if !(0.0..=MAX_SAG).contains(&b.sag) {
+                return Err(invalid(
+                    at("sag"),
+                    format!("must be from 0 to {MAX_SAG}, got {}", b.sag),
+                ));
+            }
+            b.finish.validate(&at)?;
+            b.timeline.validate(&at)?;
+        }
         if self.markers.len() > MAX_MARKERS {
             return Err(invalid(
                 "marker",
@@ -940,6 +1153,8 @@ impl Scene {
         self.boxes.iter().any(|b| {
             !b.timeline.is_always() || b.label.as_ref().is_some_and(|l| !l.timeline().is_always())
         }) || self.cylinders.iter().any(|c| !c.timeline.is_always())
+            || self.tubes.iter().any(|t| !t.timeline.is_always())
+            || self.bags.iter().any(|b| !b.timeline.is_always())
             || self.markers.iter().any(|m| !m.timeline.is_always())
     }
 
@@ -980,6 +1195,28 @@ impl Scene {
                 })
             })
             .collect();
+        scene.tubes = self
+            .tubes
+            .iter()
+            .filter_map(|c| {
+                Some(Tube {
+                    center: c.timeline.position(c.center, t_s)?,
+                    timeline: Timeline::default(),
+                    ..c.clone()
+                })
+            })
+            .collect();
+        scene.bags = self
+            .bags
+            .iter()
+            .filter_map(|b| {
+                Some(Bag {
+                    center: b.timeline.position(b.center, t_s)?,
+                    timeline: Timeline::default(),
+                    ..b.clone()
+                })
+            })
+            .collect();
         scene.markers = self
             .markers
             .iter()
@@ -995,7 +1232,7 @@ impl Scene {
     }
 
     /// The true enclosing cuboid of every object standing on the floor (boxes, then
-    /// cylinders, each in file order; markers are printed on the floor and are no
+    /// cylinders, tubes and bags, each in file order; markers are printed on the floor and are no
     /// objects), where each stands at rest (its `center`); `scene.at(t_s).truths()`
     /// gives those of one moment.
     pub fn truths(&self) -> Vec<Truth> {
@@ -1014,7 +1251,26 @@ impl Scene {
                 0.0,
             )
         });
-        boxes.chain(cylinders).collect()
+        let tubes = self.tubes.iter().enumerate().map(|(i, t)| {
+            let side = 2.0 * t.radius;
+            Truth::new(
+                ObjectKind::Tube,
+                i,
+                [t.length, side, side],
+                t.center,
+                t.yaw_deg,
+            )
+        });
+        let bags = self.bags.iter().enumerate().map(|(i, b)| {
+            Truth::new(
+                ObjectKind::Bag,
+                i,
+                [b.size[0], b.size[1], b.top_m()],
+                b.center,
+                b.yaw_deg,
+            )
+        });
+        boxes.chain(cylinders).chain(tubes).chain(bags).collect()
     }
 
     /// The camera with this serial.
@@ -1040,6 +1296,8 @@ impl Scene {
             }],
             boxes: vec![Self::default_box()],
             cylinders: Vec::new(),
+            tubes: Vec::new(),
+            bags: Vec::new(),
             markers: Vec::new(),
         }
     }
@@ -1065,6 +1323,8 @@ impl Scene {
             ],
             boxes: vec![Self::default_box()],
             cylinders: Vec::new(),
+            tubes: Vec::new(),
+            bags: Vec::new(),
             markers: Vec::new(),
         }
     }
