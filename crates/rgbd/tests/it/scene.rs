@@ -195,3 +195,30 @@ fn scene_bounds_coordinates_sizes_counts_and_label_text_naming_the_field() {
         "scene: box[0].label.text: at most 256 characters, got 257"
     );
 }
+
+#[test]
+fn every_toml_example_of_docs_scenes_md_is_a_valid_scene() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/scenes.md");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let blocks: Vec<&str> = text
+        .split("```toml\n")
+        .skip(1)
+        .map(|b| b.split("```").next().unwrap())
+        .collect();
+    assert!(blocks.len() >= 3, "{} toml blocks", blocks.len());
+    for block in blocks {
+        if let Err(e) = Scene::from_toml(block) {
+            panic!("{e} in\n{block}");
+        }
+    }
+    let full = Scene::from_toml(
+        text.split("```toml\n")
+            .nth(1)
+            .unwrap()
+            .split("```")
+            .next()
+            .unwrap(),
+    )
+    .unwrap();
+    assert_eq!((full.tubes.len(), full.bags.len()), (1, 1));
+}
