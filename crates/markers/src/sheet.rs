@@ -179,6 +179,30 @@ impl Sheet {
         })
     }
 
+    /// Where the markers of a one-page sheet lie relative to each other once the page is
+    /// laid flat: each id and its centre in metres from the first marker's centre, x to
+    /// the right and y up the page (the frame `calibrate --map` reads, every marker's yaw
+    /// 0). `None` for a sheet of several pages, whose markers lie as the user lays them.
+    pub fn map(&self) -> Option<Vec<(u32, [f64; 2])>> {
+        let [page] = self.pages.as_slice() else {
+            return None;
+        };
+        let half = self.size_mm / 2.0;
+        let centre = |p: &Placed| [p.black_origin_mm[0] + half, p.black_origin_mm[1] + half];
+        let origin = centre(page.first()?);
+        Some(
+            page.iter()
+                .map(|p| {
+                    let c = centre(p);
+                    (
+                        p.id,
+                        [(c[0] - origin[0]) / 1000.0, (c[1] - origin[1]) / 1000.0],
+                    )
+                })
+                .collect(),
+        )
+    }
+
     /// The black rectangles of marker `placed`: `[x, y, width, height]` in mm, a run of
     /// black cells of one row each.
     pub fn black_rects(&self, placed: &Placed) -> Vec<[f64; 4]> {

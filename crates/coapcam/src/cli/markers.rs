@@ -33,6 +33,12 @@ pub(crate) struct MarkersArgs {
     /// check the 100 mm bar on each page with a ruler.
     #[arg(short = 'o', long = "output", value_name = "FILE.pdf")]
     output: PathBuf,
+    /// Also write where the markers lie on the page, as the `[[marker]]` tables of
+    /// calibrate's --map (metres from the first marker's centre; the markers must fit on
+    /// one page). Laid flat, one printed page then calibrates every camera that sees any
+    /// of its markers, with no measuring by hand.
+    #[arg(long, value_name = "FILE.toml")]
+    map: Option<PathBuf>,
 }
 
 /// Marker ids, in the order given.
@@ -84,8 +90,23 @@ pub(crate) async fn run(args: MarkersArgs) -> anyhow::Result<Exit> {
         }
         Err(e) => return Err(e.into()),
     };
+    let map = match (&args.map, sheet.map()) {
+        (None, _) => None,
+        (Some(path), Some(map)) => Some((path, map_toml(&sheet, &map, &args))),
+        (Some(_), None) => usage!(
+            "--map needs the markers on one page; these take {} (fewer or smaller markers, or lay them out by hand: docs/markers.md)",
+            sheet.pages.len()
+        ),
+    };
     std::fs::write(&args.output, sheet.pdf())
         .with_context(|| format!("writing {}", args.output.display()))?;
+    if let Some((path, text)) = map {
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+        eprintln!(
+            "coapcam: wrote {}: the map of the page for calibrate --map",
+            path.display()
+        );
+    }
     let per_page = sheet.pages.first().map_or(0, Vec::len);
     eprintln!(
         "coapcam: wrote {}: {} {} marker(s) on {} page(s) ({per_page} a page), black squares {} mm; print at 100 % and check the 100 mm bar",
@@ -96,6 +117,24 @@ pub(crate) async fn run(args: MarkersArgs) -> anyhow::Result<Exit> {
         sheet.size_mm
     );
     Ok(Exit::Success)
+}
+
+/// The map of a one-page sheet as calibrate's `--map` reads it.
+fn map_toml(sheet: &Sheet, map: &[(u32, [f64; 2])], args: &MarkersArgs) -> String {
+    let mut out = format!(
+        "# The markers of {} as printed on one page, laid flat: metres from marker {}'s\n\
+         # centre, x to the right and y up the page. For coapcam calibrate --map.\n",
+        args.output.display(),
+        map.first().map_or(0, |m| m.0)
+    );
+    for (id, [x, y]) in map {
+        out += &format!(
+            "\n[[marker]]\nfamily = \"{}\"\nid = {id}\nsize = {}\ncenter = [{x:.6}, {y:.6}]\nyaw_deg = 0.0\n",
+            sheet.family,
+            sheet.size_mm / 1000.0
+        );
+    }
+    out
 }
 
 #[cfg(test)]

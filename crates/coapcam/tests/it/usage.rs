@@ -143,6 +143,8 @@ fn every_bad_flag_or_value_exits_2_before_anything_is_sent() {
         vec!["markers", "--ids", "0-9999", "-o", &pdf],
         vec!["markers", "--ids", "3-1", "-o", &pdf],
         vec!["markers", "-o", &svg],
+        // A map is of one page; four 16 cm markers take four.
+        vec!["markers", "--size", "0.16", "-o", &pdf, "--map", &txt],
     ];
     let mut wrong = Vec::new();
     for args in &cases {
