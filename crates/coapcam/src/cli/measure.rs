@@ -232,7 +232,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             .zip(m.cameras.first())
             .context("no camera to take the color image from")?;
         let one = CamClient::unicast(&client, *server);
-        annotate::from_server(&one, sn, dimensions, path).await?;
+        annotate::from_server(&one, sn, dimensions, m.codes.as_deref(), path).await?;
         eprintln!("coapcam: wrote {}", path.display());
     } else if let Some(path) = &args.annotate {
         eprintln!(

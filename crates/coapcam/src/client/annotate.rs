@@ -8,6 +8,7 @@ use coap::Code;
 use geometry::Dimensions;
 
 use super::CamClient;
+use crate::report::Seen;
 use crate::repr::Stream;
 use crate::repr::cbor::ColorCapture;
 use crate::vision::picture;
@@ -22,11 +23,13 @@ pub fn projector(
     picture::projector(capture.intrinsics, capture.depth_to_color, depth_to_world)
 }
 
-/// Grabs a color frame of `serial` and draws `dims` onto it (`--annotate`).
+/// Grabs a color frame of `serial` and draws `dims` onto it (`--annotate`), with the
+/// codes read (`None` when they were not asked for).
 pub async fn from_server(
     client: &CamClient,
     serial: &str,
     dims: &Dimensions,
+    codes: Option<&[Seen]>,
     path: &std::path::Path,
 ) -> anyhow::Result<()> {
     let transformation_path = format!("/cams/{serial}/3d-transformation");
@@ -40,9 +43,12 @@ pub async fn from_server(
         .context("composing the 3d-transformation")?;
     let mut capture = ColorCapture::from_cbor(&color.payload)?;
     let mut image = std::mem::take(&mut capture.image);
+    let codes: Option<Vec<String>> =
+        codes.map(|seen| seen.iter().map(|s| s.code.to_string()).collect());
     picture::annotate_frame(
         &mut image,
         dims,
+        codes.as_deref(),
         capture.intrinsics,
         capture.depth_to_color,
         &transform,

@@ -210,6 +210,8 @@ pub fn draw_views(placed: &[Placed], path: &Path) -> anyhow::Result<Vec<String>>
             }
             Err(e) => warnings.push(format!("camera {}: --view draws no axes: {e:#}", p.serial)),
         }
+        let text = picture::text_scale(&image).max(scale);
+        picture::legend(&mut image, (0, 0), &view_legend(p), text);
         picture::save(&image, &picture::sibling(path, &format!("-{}", p.serial)))?;
         merged.points.extend(
             p.points
@@ -224,6 +226,35 @@ pub fn draw_views(placed: &[Placed], path: &Path) -> anyhow::Result<Vec<String>>
         &picture::sibling(path, "-side"),
     )?;
     Ok(warnings)
+}
+
+/// The key of a camera's `--view` picture: which markers placed it and what the axes are.
+fn view_legend(p: &Placed) -> Vec<(String, Rgb<u8>)> {
+    let ids = |used: bool| {
+        let ids: Vec<String> = p
+            .detections
+            .iter()
+            .filter(|d| p.calibration.used.contains(&d.id) == used)
+            .map(|d| d.id.to_string())
+            .collect();
+        if ids.is_empty() {
+            "none".to_owned()
+        } else {
+            ids.join(", ")
+        }
+    };
+    vec![
+        (format!("camera {}", p.serial), Rgb([255, 255, 255])),
+        (
+            format!("yellow: markers that placed it: {}", ids(true)),
+            YELLOW,
+        ),
+        (format!("red: markers seen, not used: {}", ids(false)), RED),
+        (
+            "axes from the origin, 10 cm: x red, y green, z blue".to_owned(),
+            Rgb([255, 255, 255]),
+        ),
+    ]
 }
 
 /// A camera levelled on the floor it sees.

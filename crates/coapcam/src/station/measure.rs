@@ -95,12 +95,18 @@ pub async fn measure<R: Rig>(
         Some(Ok(shot)) => {
             let found = measurement.parcel.clone();
             let points = usize::try_from(measurement.parcel_points).unwrap_or(usize::MAX);
-            let made = tokio::task::spawn_blocking(move || pictures_of(&shot, &found, points))
-                .await
-                .unwrap_or_else(|e| {
-                    let why = format!("the pictures' task failed: {e}");
-                    (Err(why.clone()), Err(why))
-                });
+            let codes: Option<Vec<String>> = measurement
+                .codes
+                .as_ref()
+                .map(|seen| seen.iter().map(|s| s.code.to_string()).collect());
+            let made = tokio::task::spawn_blocking(move || {
+                pictures_of(&shot, &found, points, codes.as_deref())
+            })
+            .await
+            .unwrap_or_else(|e| {
+                let why = format!("the pictures' task failed: {e}");
+                (Err(why.clone()), Err(why))
+            });
             let photo = made
                 .0
                 .map_err(|why| measurement.warnings.push(format!("no photo: {why}")))
@@ -135,6 +141,7 @@ fn pictures_of(
     shot: &Shot,
     found: &Found,
     points: usize,
+    codes: Option<&[String]>,
 ) -> (Picture<Vec<u8>>, Picture<Option<Vec<u8>>>) {
     let photo = raster::color_jpeg(&shot.frame, PHOTO_QUALITY).map_err(|e| e.to_string());
     let Found::Measured(reported) = found else {
@@ -149,6 +156,7 @@ fn pictures_of(
         picture::annotate_frame(
             &mut image,
             &reported.dimensions(points),
+            codes,
             shot.intrinsics,
             shot.depth_to_color,
             &transform,

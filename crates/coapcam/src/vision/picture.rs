@@ -43,8 +43,9 @@ pub fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
             _ => None,
         }
     };
-    let gray = GrayImage::from_fn(depth.width, depth.height, |x, y| {
-        Luma([at(x, y).map_or(0, |t| (255.0 - 215.0 * t) as u8)])
+    let shade = |t: f32| (255.0 - 215.0 * t) as u8;
+    let mut gray = GrayImage::from_fn(depth.width, depth.height, |x, y| {
+        Luma([at(x, y).map_or(0, shade)])
     });
     let mut colored = RgbImage::from_fn(depth.width, depth.height, |x, y| {
         Rgb(at(x, y).map_or([0, 0, 0], jet))
@@ -52,6 +53,7 @@ pub fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
     if let Some((lo, hi)) = range {
         let mm = |v: u16| f64::from(v) * f64::from(depth.depth_scale) * 1e3;
         let scale = text_scale(&colored);
+        gray_key(&mut gray, [mm(lo), mm(hi)], scale, shade);
         let bar = ColourBar {
             title: "depth",
             lo: format!("{:.0} mm near", mm(lo)),
@@ -64,6 +66,42 @@ pub fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
         }
     }
     (gray, colored)
+}
+
+/// The key of the grayscale depth picture in its bottom-right corner: the gray ramp from
+/// near (bright) to far (dark) with the depths at its ends, and that black is no depth.
+/// Drawn in colour, then turned gray.
+fn gray_key(gray: &mut GrayImage, mm: [f64; 2], scale: u32, shade: impl Fn(f32) -> u8) {
+    const STEPS: u32 = 128;
+    let near = format!("depth {:.0} mm near", mm[0]);
+    let far = format!("{:.0} mm far; black: no depth", mm[1]);
+    let width = text_width(&near, scale) + STEPS * scale + text_width(&far, scale) + 8 * scale;
+    let height = line_height(scale) + 2 * scale;
+    if gray.width() <= width || gray.height() <= height {
+        return;
+    }
+    let mut key = RgbImage::new(width, height);
+    let (mut x, y) = (2 * scale, 2 * scale);
+    draw_text(&mut key, (x, y), &near, scale, WHITE);
+    x += text_width(&near, scale) + 2 * scale;
+    for i in 0..STEPS {
+        let v = shade(i as f32 / (STEPS - 1) as f32);
+        fill(
+            &mut key,
+            (x + i * scale, y),
+            (scale, GLYPH_PX * scale),
+            Rgb([v; 3]),
+        );
+    }
+    x += STEPS * scale + 2 * scale;
+    draw_text(&mut key, (x, y), &far, scale, WHITE);
+    let at = (gray.width() - width, gray.height() - height);
+    image::imageops::replace(
+        gray,
+        &image::imageops::grayscale(&key),
+        i64::from(at.0),
+        i64::from(at.1),
+    );
 }
 
 /// The jet colour map: blue, cyan, green, yellow, red for `t` from 0 to 1.
@@ -166,7 +204,10 @@ fn plot(cloud: &PointCloud, measured: Option<&Dimensions>, looking: Looking) -> 
         heights_mm: [f64::from(lo[2]) * 1e3, f64::from(hi[2]) * 1e3],
         measured,
     };
-    let mut image = RgbImage::new(w.max(key.width(scale)), h + key.height(scale));
+    // A gap of a line between the plot and its key, so points on the plot's lowest row
+    // (a floor seen from the side) and the axes' names stay clear of the caption.
+    let gap = line_height(scale);
+    let mut image = RgbImage::new(w.max(key.width(scale)), h + gap + key.height(scale));
     image::imageops::replace(&mut image, &plot, 0, 0);
     if let Some(d) = measured {
         let corner = |i: usize| to_px(d.corners_m[i][0], d.corners_m[i][1]);
@@ -184,7 +225,7 @@ fn plot(cloud: &PointCloud, measured: Option<&Dimensions>, looking: Looking) -> 
             looking.axes(),
         );
     }
-    key.draw(&mut image, (0, h), scale);
+    key.draw(&mut image, (0, h + gap), scale);
     image
 }
 
@@ -303,12 +344,17 @@ impl ColourBar {
 /// a colour the height scale does not use.
 fn draw_axes(image: &mut RgbImage, origin: [f32; 2], len: f32, scale: u32, names: [&str; 2]) {
     let [ox, oy] = origin;
-    for (tip, colour, name) in [
-        ([ox + len, oy], MAGENTA, names[0]),
-        ([ox, oy - len], MAGENTA, names[1]),
+    for (tip, colour, name, above) in [
+        ([ox + len, oy], MAGENTA, names[0], true),
+        ([ox, oy - len], MAGENTA, names[1], false),
     ] {
         draw_line(image, origin, tip, colour, scale);
-        let at = (tip[0].max(0.0) as u32 + 2 * scale, tip[1].max(0.0) as u32);
+        // The x axis's name above its line, so it stays inside the plot.
+        let lift = if above { line_height(scale) } else { 0 };
+        let at = (
+            tip[0].max(0.0) as u32 + 2 * scale,
+            (tip[1].max(0.0) as u32).saturating_sub(lift),
+        );
         draw_text(image, at, name, scale, colour);
     }
 }
@@ -347,6 +393,7 @@ pub fn projector(
 pub fn annotate_frame(
     image: &mut RgbImage,
     dims: &Dimensions,
+    codes: Option<&[String]>,
     intrinsics: Intrinsics,
     depth_to_color: Extrinsics,
     depth_to_world: &Transform,
@@ -354,7 +401,7 @@ pub fn annotate_frame(
     // The camera in the world: where its depth frame's origin goes.
     let camera = depth_to_world.translation.map(f64::from);
     let project = projector(intrinsics, depth_to_color, depth_to_world)?;
-    annotate(image, dims, [camera.x, camera.y, camera.z], project);
+    annotate(image, dims, codes, [camera.x, camera.y, camera.z], project);
     Ok(())
 }
 
@@ -362,10 +409,12 @@ pub fn annotate_frame(
 /// pixel), seen from `camera` (the camera's position in the world): the footprint on the
 /// floor red, the lid green, the vertical edges yellow; an edge the box hides from the
 /// camera (no face it borders faces the camera) dashed. A legend in the top-left corner
-/// says so, with the dimensions.
+/// says so, with the dimensions and, when they were read (`codes`, each as
+/// `qr "PKG-0001"`), the codes found ("none" when none was).
 pub fn annotate(
     image: &mut RgbImage,
     dims: &Dimensions,
+    codes: Option<&[String]>,
     camera: [f64; 3],
     project: impl Fn([f64; 3]) -> Option<[f32; 2]>,
 ) {
@@ -418,24 +467,32 @@ pub fn annotate(
             }
         }
     }
-    let lines = [
-        (
-            format!(
-                "measured box {:.0} x {:.0} x {:.0} mm, yaw {:.1} deg",
-                dims.length_mm, dims.width_mm, dims.height_mm, dims.yaw_deg
-            ),
-            WHITE,
+    let mut lines = vec![(
+        format!(
+            "measured box {:.0} x {:.0} x {:.0} mm, yaw {:.1} deg",
+            dims.length_mm, dims.width_mm, dims.height_mm, dims.yaw_deg
         ),
+        WHITE,
+    )];
+    if let Some(codes) = codes {
+        let read = if codes.is_empty() {
+            "none read".to_owned()
+        } else {
+            codes.join(", ")
+        };
+        lines.push((format!("codes: {read}"), WHITE));
+    }
+    lines.extend([
         ("red: footprint on the floor".to_owned(), RED),
         ("green: lid".to_owned(), GREEN),
         ("yellow: vertical edges".to_owned(), YELLOW),
         ("dashed: edges hidden behind the box".to_owned(), WHITE),
-    ];
+    ]);
     legend(image, (0, 0), &lines, text_scale(image));
 }
 
-/// Lines of text on a black box at `at`.
-fn legend(image: &mut RgbImage, at: (u32, u32), lines: &[(String, Rgb<u8>)], scale: u32) {
+/// Lines of text, each in its colour, on a black box at `at`.
+pub fn legend(image: &mut RgbImage, at: (u32, u32), lines: &[(String, Rgb<u8>)], scale: u32) {
     let width = lines
         .iter()
         .map(|(l, _)| text_width(l, scale))
@@ -536,7 +593,8 @@ where
 const GLYPH_PX: u32 = 8;
 
 /// Font pixels per glyph pixel for text on `image`: larger on larger images.
-fn text_scale(image: &RgbImage) -> u32 {
+/// The text size for a picture of this size (1 up to 960 pixels wide, then larger).
+pub fn text_scale(image: &RgbImage) -> u32 {
     (image.width() / 640).max(1)
 }
 
@@ -687,6 +745,57 @@ mod tests {
         assert!(count(&c, 300..640, bottom, BLACK) > 100);
     }
 
+    #[test]
+    fn the_gray_depth_view_has_its_key() {
+        let values: Vec<u16> = (0..640 * 480).map(|i| 800 + (i % 640) as u16).collect();
+        let (g, _) = depth_views(&depth(values, 640));
+        let key: Vec<u8> = (440..480)
+            .flat_map(|y| (200..640).map(move |x| (x, y)))
+            .map(|(x, y)| g.get_pixel(x, y).0[0])
+            .collect();
+        // White text on black, and the ramp's shades between them.
+        assert!(key.iter().filter(|v| **v == 255).count() > 50);
+        assert!(key.iter().filter(|v| **v == 0).count() > 100);
+        assert!(key.iter().any(|v| (41..250).contains(v)));
+    }
+
+    #[test]
+    fn the_side_view_keeps_its_caption_clear_of_the_floor() {
+        // A floor 1 m wide at z = 0 (its points on the plot's lowest row) and a box.
+        let mut points = Vec::new();
+        for i in 0..=100 {
+            let x = -0.5 + i as f32 * 0.01;
+            points.push(geometry::Point3::new(x, 0.0, 0.0));
+            if x.abs() < 0.2 {
+                points.push(geometry::Point3::new(x, 0.0, 0.2));
+            }
+        }
+        let img = side_view(&points.into());
+        // The plot is 1001 x 201 pixels; a line's height below it holds no caption.
+        let gap = 201..201 + line_height(text_scale(&img).max(2));
+        assert_eq!(count(&img, 0..img.width(), gap.clone(), WHITE), 0);
+        assert!(count(&img, 0..img.width(), gap.end..img.height(), WHITE) > 100);
+    }
+
+    #[test]
+    fn the_annotated_legend_names_the_codes_read() {
+        let legend_pixels = |codes: Option<&[String]>| {
+            let mut img = RgbImage::new(640, 480);
+            annotate(
+                &mut img,
+                &measured_box(),
+                codes,
+                [0.0, 0.0, 1.0],
+                from_above(1.0),
+            );
+            count(&img, 0..640, 0..120, WHITE)
+        };
+        let without = legend_pixels(None);
+        let read = ["qr \"PKG-0001\"".to_owned()];
+        assert!(legend_pixels(Some(&read)) > without + 100);
+        assert!(legend_pixels(Some(&[])) > without + 50, "codes: none read");
+    }
+
     /// A camera `height` m above the origin looking down, 500 px focal length.
     fn from_above(height: f64) -> impl Fn([f64; 3]) -> Option<[f32; 2]> {
         move |[x, y, z]: [f64; 3]| {
@@ -701,7 +810,13 @@ mod tests {
     #[test]
     fn the_box_its_legend_and_its_numbers_are_drawn() {
         let mut img = RgbImage::new(640, 480);
-        annotate(&mut img, &measured_box(), [0.0, 0.0, 1.0], from_above(1.0));
+        annotate(
+            &mut img,
+            &measured_box(),
+            None,
+            [0.0, 0.0, 1.0],
+            from_above(1.0),
+        );
         // Lid edge at x = -0.2 m, 0.8 m away -> u = 195, drawn solid.
         assert_eq!(img.get_pixel(195, 240).0, GREEN.0);
         assert_eq!(img.get_pixel(320, 240).0, [0, 0, 0]);
@@ -718,7 +833,13 @@ mod tests {
         let mut img = RgbImage::new(640, 480);
         // Straight above: the sides face away, so the footprint on the floor and the
         // vertical edges are hidden under the lid.
-        annotate(&mut img, &measured_box(), [0.0, 0.0, 1.0], from_above(1.0));
+        annotate(
+            &mut img,
+            &measured_box(),
+            None,
+            [0.0, 0.0, 1.0],
+            from_above(1.0),
+        );
         // The floor edge at x = -0.2 m -> u = 220, from v = 165 to 315.
         let floor: Vec<bool> = (170..310).map(|v| img.get_pixel(220, v) == &RED).collect();
         let drawn = floor.iter().filter(|d| **d).count();
@@ -739,7 +860,7 @@ mod tests {
                 (240.0 - 500.0 * (z - 0.5) / d) as f32,
             ])
         };
-        annotate(&mut side, &measured_box(), [2.0, 0.0, 0.5], from_side);
+        annotate(&mut side, &measured_box(), None, [2.0, 0.0, 0.5], from_side);
         // Floor edge x = 0.2, z = 0: v = 240 + 500 * 0.5 / 1.8 = 378.9.
         assert!(
             (285..355).all(|u| side.get_pixel(u, 379) == &RED || side.get_pixel(u, 378) == &RED)
