@@ -98,6 +98,9 @@ pub(crate) async fn run(args: CalibrateArgs) -> anyhow::Result<Exit> {
     {
         usage!("--view writes PNG: give a file name ending in .png");
     }
+    if let Some(view) = &args.view {
+        super::folder_exists(view)?;
+    }
     if args.origin_id >= args.family.ids() {
         usage!(
             "--origin-id {}: {} has markers 0 to {}",

@@ -11,7 +11,7 @@ use coapcam::repr::{self, ColorDecoder, Stream};
 use coapcam::vision::picture::{self, save, sibling};
 use rgbd::ColorSettings;
 
-use super::{Bars, CameraArgs, Exit, TransmissionArgs, usage};
+use super::{Bars, CameraArgs, Exit, TransmissionArgs, folder_exists, usage};
 
 /// The streams, named for the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -219,6 +219,9 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
     }
     if args.jpeg_quality.is_some() && kind != ContentFormat::IMAGE_JPEG {
         usage!("--jpeg-quality is for color written to a .jpg file");
+    }
+    if let Some(v) = &args.view {
+        folder_exists(v)?;
     }
     let mut destination = Destination::open(&args.output)?;
     let client = args

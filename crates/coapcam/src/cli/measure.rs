@@ -17,7 +17,9 @@ use coapcam::client::measure::{
 use coapcam::client::{CamClient, annotate, codes};
 use coapcam::report::{self, Billing, EdgeQuery, Found, Measurement, Parcel};
 
-use super::{Bars, CameraArgs, DimensionArgs, Exit, TransmissionArgs, outln, usage, values};
+use super::{
+    Bars, CameraArgs, DimensionArgs, Exit, TransmissionArgs, folder_exists, outln, usage, values,
+};
 
 /// Flags of `measure`.
 #[derive(Debug, Args)]
@@ -124,6 +126,9 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
                 usage!("{flag} is for --group MCAST_ADDR");
             }
         }
+    }
+    if let Some(path) = &args.annotate {
+        folder_exists(path)?;
     }
     let timeout = args.transmission.timeout();
     let config = args.transmission.endpoint_config();

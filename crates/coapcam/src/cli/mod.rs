@@ -324,6 +324,21 @@ pub(crate) use coapcam::error_text;
 #[error("{0}")]
 pub(crate) struct Usage(pub(crate) String);
 
+/// Fails when the folder `path` would be written into does not exist: checked before
+/// anything is sent, so a picture that cannot be written does not cost a grab first.
+pub(crate) fn folder_exists(path: &std::path::Path) -> anyhow::Result<()> {
+    match path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(dir) if !dir.is_dir() => {
+            anyhow::bail!(
+                "cannot write {}: {} is not a folder",
+                path.display(),
+                dir.display()
+            )
+        }
+        _ => Ok(()),
+    }
+}
+
 /// Returns a [`Usage`] error from the enclosing function.
 macro_rules! usage {
     ($($arg:tt)*) => {

@@ -167,17 +167,21 @@ fn every_bad_flag_or_value_exits_2_before_anything_is_sent() {
 #[test]
 fn a_folder_that_does_not_exist_fails_before_the_grab() {
     let counter = Counter::new();
-    let f = coapcam(&[
-        "grab",
-        "color",
-        "--server",
-        &counter.uri(),
-        "-o",
-        "/nonexistent/dir/c.png",
-    ]);
-    assert_eq!(f.status.code(), Some(1), "{}", f.stderr);
-    assert!(f.stderr.contains("/nonexistent/dir/c.png"), "{}", f.stderr);
-    assert_eq!(counter.count(), 0, "the grab was sent: {}", f.stderr);
+    let s = counter.uri();
+    let missing = "/nonexistent/dir/c.png";
+    for args in [
+        vec!["grab", "color", "--server", &s, "-o", missing],
+        vec![
+            "grab", "color", "--server", &s, "-o", "-", "--view", missing,
+        ],
+        vec!["measure", "--server", &s, "--annotate", missing],
+        vec!["calibrate", "--server", &s, "--view", missing],
+    ] {
+        let f = coapcam(&args);
+        assert_eq!(f.status.code(), Some(1), "{args:?}: {}", f.stderr);
+        assert!(f.stderr.contains(missing), "{args:?}: {}", f.stderr);
+        assert_eq!(counter.count(), 0, "{args:?} sent: {}", f.stderr);
+    }
 }
 
 #[test]
