@@ -46,6 +46,11 @@ impl Client {
         })
     }
 
+    /// A client on an endpoint that already runs (a server's, [`crate::Server::client_for`]).
+    pub(crate) fn from_handle(handle: EndpointHandle) -> Self {
+        Self { handle }
+    }
+
     /// A client on an ephemeral port of the right address family for `peer`.
     pub fn for_peer(peer: SocketAddr, config: EndpointConfig) -> std::io::Result<Self> {
         Self::bind(any_for(peer), config)
@@ -190,8 +195,23 @@ impl Client {
     pub async fn multicast_expecting(
         &self,
         group: SocketAddr,
-        mut request: Request,
+        request: Request,
         expected: Option<usize>,
+    ) -> Result<Vec<(SocketAddr, Response)>, Error> {
+        self.multicast_until(group, request, |answers| {
+            expected.is_some_and(|n| answers.len() >= n)
+        })
+        .await
+    }
+
+    /// [`Client::multicast`] that stops collecting as soon as `done` says the answers so
+    /// far are enough (e.g. every member a directory lists has answered), or at the
+    /// timeout, whichever comes first.
+    pub async fn multicast_until(
+        &self,
+        group: SocketAddr,
+        mut request: Request,
+        mut done: impl FnMut(&[(SocketAddr, Response)]) -> bool,
     ) -> Result<Vec<(SocketAddr, Response)>, Error> {
         request.multicast = true;
         let follow_up = request.clone();
@@ -208,7 +228,7 @@ impl Client {
                 StreamItem::Response(peer, r) => out.push((peer, *r)),
                 StreamItem::Failed(e) => return Err(Error::Request(e)),
             }
-            if expected.is_some_and(|n| out.len() >= n) {
+            if done(&out) {
                 break;
             }
         }

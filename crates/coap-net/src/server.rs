@@ -54,6 +54,8 @@ impl Observers {
 pub struct Server {
     router: Arc<Router>,
     endpoints: Vec<EndpointHandle>,
+    /// How many of `endpoints` are plain (not DTLS): they come first.
+    plain: usize,
     observers: Arc<Observers>,
 }
 
@@ -106,8 +108,21 @@ impl Server {
         Ok(Self {
             router,
             endpoints,
+            plain: addrs.len(),
             observers,
         })
+    }
+
+    /// A client that sends from this server's own plain socket of `peer`'s address
+    /// family (the first such bound address), so `peer` sees the server's address and
+    /// port as the source: a resource directory derives the server's base URI from it
+    /// (RFC 9176 §5.3). `None` when no plain address of that family is bound.
+    pub fn client_for(&self, peer: SocketAddr) -> Option<crate::Client> {
+        self.endpoints
+            .iter()
+            .take(self.plain)
+            .find(|h| h.local_addr().is_ipv4() == peer.is_ipv4())
+            .map(|h| crate::Client::from_handle(h.clone()))
     }
 
     /// The bound addresses: those given to [`Server::bind`], then the DTLS ones.

@@ -27,6 +27,7 @@ pub mod bench;
 pub mod client;
 pub mod documents;
 pub mod process;
+pub mod rd;
 pub mod report;
 pub mod repr;
 pub mod server;

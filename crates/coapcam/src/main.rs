@@ -58,6 +58,10 @@ enum Command {
     Bench(Deferred<cli::bench::BenchArgs>),
     /// Run the CoAP server.
     Serve(Box<Deferred<cli::serve::ServeArgs>>),
+    /// Run a resource directory (RFC 9176): servers register their resources
+    /// (`serve --register`), clients look them up (`discover --rd`, `measure --group
+    /// --rd`).
+    Rd(Deferred<cli::rd::RdArgs>),
     /// A station's results log: list its records (--server URI), or verify a log file's
     /// hash chain (`results verify FILE`, exit status 7 naming the first altered record).
     Results(Deferred<cli::results::ResultsArgs>),
@@ -142,6 +146,7 @@ fn run(cli: Cli) -> anyhow::Result<Exit> {
             runtime.shutdown_timeout(std::time::Duration::from_secs(1));
             served?;
         }
+        Command::Rd(Deferred(args)) => runtime.block_on(cli::rd::run(args))?,
         Command::Netem(Deferred(args)) => {
             let json = args.json;
             let counters = runtime.block_on(cli::netem::run(args))?;

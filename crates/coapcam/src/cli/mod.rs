@@ -13,6 +13,7 @@ pub(crate) mod markers;
 pub(crate) mod measure;
 pub(crate) mod monitor;
 pub(crate) mod netem;
+pub(crate) mod rd;
 pub(crate) mod request;
 pub(crate) mod results;
 pub(crate) mod serve;
@@ -513,4 +514,21 @@ impl coapcam::client::ShowProgress for Bars {
             bar: None,
         })
     }
+}
+
+/// The default state directory of `serve` and `rd`: $XDG_STATE_HOME/coapcam,
+/// ~/.local/state/coapcam, else ./coapcam-state.
+pub(crate) fn default_state_dir() -> std::path::PathBuf {
+    let base = std::env::var_os("XDG_STATE_HOME")
+        .filter(|v| !v.is_empty())
+        .map(std::path::PathBuf::from)
+        .or_else(|| {
+            std::env::var_os("HOME")
+                .filter(|v| !v.is_empty())
+                .map(|h| std::path::PathBuf::from(h).join(".local").join("state"))
+        });
+    base.map_or_else(
+        || std::path::PathBuf::from("coapcam-state"),
+        |b| b.join("coapcam"),
+    )
 }

@@ -9,6 +9,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
+use coapcam::rd::registrant::RegistrantConfig;
 use coapcam::server::{Cameras, Identities, RealSenseOptions, Station, StationConfig};
 use coapcam::station::log::Retention;
 use coapcam::station::watch::AutoConfig;
@@ -189,6 +190,27 @@ pub(crate) struct ServeArgs {
     #[arg(long, value_name = "MS", default_value_t = 0, allow_negative_numbers = true,
           value_parser = clap::value_parser!(i64).range(-86_400_000..=86_400_000))]
     clock_offset_ms: i64,
+    /// Register with this resource directory (RFC 9176; `coapcam rd`, aiocoap-rd,
+    /// libcoap's coap-rd): the server's typed resources (its cameras', /cams/pointclouds,
+    /// /coap-group, ...) and the groups it joined (endpoint attribute grp=ADDR:PORT), sent
+    /// from the server's own socket so the directory sees its address. Renewed at three
+    /// quarters of --rd-lifetime, registered again when cameras come or go or a group is
+    /// joined or left, removed at shutdown. Without a path the registration resource is
+    /// discovered (/.well-known/core?rt=core.rd).
+    #[arg(long, value_name = "coap://HOST[:PORT][/PATH]")]
+    register: Option<String>,
+    /// With --register: the endpoint name, unique in the directory (at most 63 bytes;
+    /// default: the station's name).
+    #[arg(long, value_name = "NAME", requires = "register")]
+    rd_ep: Option<String>,
+    /// With --register: the sector (d) to register in.
+    #[arg(long, value_name = "NAME", requires = "register")]
+    rd_sector: Option<String>,
+    /// With --register: the registration's lifetime in seconds. A server stopped without
+    /// removing its registration (killed, cut off) is listed until it ends.
+    #[arg(long, value_name = "SECONDS", default_value_t = 120, requires = "register",
+          value_parser = clap::value_parser!(u32).range(1..))]
+    rd_lifetime: u32,
     /// Stop after this many seconds, above 0 (default: run until interrupted).
     #[arg(long, value_name = "SECONDS", value_parser = values::positive_seconds)]
     duration: Option<Duration>,
@@ -277,7 +299,10 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let station = Station::start(StationConfig {
         binds,
         cameras,
-        state_dir: args.state_dir.clone().unwrap_or_else(default_state_dir),
+        state_dir: args
+            .state_dir
+            .clone()
+            .unwrap_or_else(super::default_state_dir),
         static_dir: args.static_dir.clone(),
         writable: args.writable,
         quota: args.quota,
@@ -366,6 +391,29 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             eprintln!("coapcam: serving coaps on {a}");
         }
     }
+    let registrant = match &args.register {
+        Some(uri) => {
+            let ep = args.rd_ep.clone().unwrap_or_else(|| {
+                args.station_name
+                    .clone()
+                    .unwrap_or_else(coapcam::station::host_name)
+            });
+            let config = RegistrantConfig::from_uri(
+                uri,
+                ep.clone(),
+                args.rd_sector.clone(),
+                args.rd_lifetime,
+            )
+            .await
+            .context("--register")?;
+            eprintln!(
+                "coapcam: registering with {uri} as {ep} (lifetime {} s)",
+                args.rd_lifetime
+            );
+            Some(station.register_with(config)?)
+        }
+        None => None,
+    };
     let duration = async {
         match args.duration {
             Some(d) => tokio::time::sleep(d).await,
@@ -379,19 +427,11 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
                 _ = terminate.recv() => {}
                 () = duration => {}
             }
+            // Still serving: the directory's answer comes to the server's socket.
+            if let Some(registrant) = registrant {
+                registrant.remove().await;
+            }
         })
         .await;
     Ok(())
-}
-
-fn default_state_dir() -> PathBuf {
-    let base = std::env::var_os("XDG_STATE_HOME")
-        .filter(|v| !v.is_empty())
-        .map(PathBuf::from)
-        .or_else(|| {
-            std::env::var_os("HOME")
-                .filter(|v| !v.is_empty())
-                .map(|h| PathBuf::from(h).join(".local").join("state"))
-        });
-    base.map_or_else(|| PathBuf::from("coapcam-state"), |b| b.join("coapcam"))
 }

@@ -156,6 +156,16 @@ impl Groups {
         Ok(())
     }
 
+    /// The groups joined now, each once, as the address and port a request to it goes to.
+    pub(crate) async fn addrs(&self) -> Vec<SocketAddr> {
+        let mut addrs: Vec<SocketAddr> = (self.memberships.lock().await.by_index.values())
+            .map(|c| c.addr.socket_addr())
+            .collect();
+        addrs.sort_unstable();
+        addrs.dedup();
+        addrs
+    }
+
     async fn list(&self) -> Response {
         let body = encode_list(&self.memberships.lock().await.by_index);
         json(Code::CONTENT, body)

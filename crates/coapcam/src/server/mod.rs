@@ -17,6 +17,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::{Context as _, bail};
+use coap::link_format::Filter;
 use coap::{Code, EndpointConfig, IncomingRequest, Response};
 use coap_net::{Router, Server, ServerConfig};
 use rgbd::backend::playback::PlaybackCamera;
@@ -26,6 +27,7 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
 
+use crate::rd::registrant::{Announcement, Registrant, RegistrantConfig};
 use crate::report::{EdgeQuery, Measurement};
 use crate::station::log::ResultsLog;
 use crate::station::{self, Recorder};
@@ -123,6 +125,8 @@ pub fn loopback_only(request: &IncomingRequest) -> Option<Response> {
 /// A running camera server: bound, its cameras routed, its groups joined.
 pub struct Station {
     server: Server,
+    /// The `/coap-group` memberships (what `register_with` announces).
+    groups: Arc<Groups>,
     files: Option<StaticFiles>,
     changed: mpsc::UnboundedReceiver<String>,
     memberships: mpsc::UnboundedReceiver<group::MembershipChange>,
@@ -240,6 +244,7 @@ impl Station {
             };
         Ok(Self {
             server,
+            groups,
             files,
             changed,
             memberships,
@@ -276,6 +281,42 @@ impl Station {
     /// The addresses it answers on.
     pub fn local_addrs(&self) -> Vec<SocketAddr> {
         self.server.local_addrs()
+    }
+
+    /// Registers this server with a resource directory and keeps the registration alive
+    /// (`serve --register`; [`crate::rd::registrant`]): its typed links (those with an
+    /// `rt`: the cameras' resources, `/cams/pointclouds`, `/coap-group`, ...) and the
+    /// groups it joined, sent from its own socket so the directory sees its address.
+    /// The registration follows cameras that come and go and groups joined or left.
+    ///
+    /// # Errors
+    ///
+    /// When the server has no address of the directory's family.
+    pub fn register_with(&self, config: RegistrantConfig) -> anyhow::Result<Registrant> {
+        let client = self.server.client_for(config.rd).with_context(|| {
+            format!(
+                "no address of the family of the directory {} to register from",
+                config.rd
+            )
+        })?;
+        let router = Arc::clone(self.server.router());
+        let groups = Arc::clone(&self.groups);
+        Ok(Registrant::spawn(config, client, move || {
+            let router = Arc::clone(&router);
+            let groups = Arc::clone(&groups);
+            async move {
+                let typed = Filter::parse("rt").unwrap_or_default();
+                Announcement {
+                    links: router.links(&typed),
+                    groups: groups
+                        .addrs()
+                        .await
+                        .iter()
+                        .map(|a| crate::rd::registrant::group_key(*a))
+                        .collect(),
+                }
+            }
+        }))
     }
 
     /// Serves until `stop` completes: notifies observers of changed resources, applies

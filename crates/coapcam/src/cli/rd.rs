@@ -1,0 +1,149 @@
+//! `coapcam rd`: a resource directory (RFC 9176) until SIGINT, SIGTERM or `--duration`.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context as _;
+use clap::Args;
+use coap::EndpointConfig;
+use coap_net::{Client, Router, Server, ServerConfig};
+use coapcam::rd::Limits;
+use coapcam::rd::service::{self, Service, Store};
+use tokio::signal::unix::{SignalKind, signal};
+
+/// Flags of `rd`.
+#[derive(Debug, Args)]
+pub(crate) struct RdArgs {
+    /// Address to listen on; repeat for several (default 0.0.0.0:5683 and [::]:5683).
+    #[arg(long, value_name = "ADDR:PORT")]
+    bind: Vec<SocketAddr>,
+    /// Where the registrations are kept, one file each under DIR/rd/, so they outlive a
+    /// restart (default: $XDG_STATE_HOME/coapcam, ~/.local/state/coapcam, else
+    /// ./coapcam-state).
+    #[arg(long, value_name = "DIR")]
+    state_dir: Option<PathBuf>,
+    /// Keep the registrations in memory only: a restart forgets them.
+    #[arg(long, conflicts_with = "state_dir")]
+    no_state: bool,
+    /// The most registrations held at once; past it a registration answers 5.03 with
+    /// Max-Age 60.
+    #[arg(long, value_name = "N", default_value_t = Limits::default().max_registrations)]
+    max_registrations: usize,
+    /// The most memory the registrations may be counted for together, in MiB (each
+    /// counts its text and a share for the structures holding it).
+    #[arg(long, value_name = "MIB", default_value_t = Limits::default().max_bytes >> 20)]
+    max_mib: usize,
+    /// The most registrations one peer address may hold; past it 4.03.
+    #[arg(long, value_name = "N", default_value_t = Limits::default().per_peer)]
+    per_peer: usize,
+    /// The most KiB one peer address's registrations may be counted for; past it 4.03.
+    #[arg(long, value_name = "KIB", default_value_t = Limits::default().per_peer_bytes >> 10)]
+    per_peer_kib: usize,
+    /// The largest link-format document one registration may carry, in KiB; a larger one
+    /// answers 4.13.
+    #[arg(long, value_name = "KIB", default_value_t = Limits::default().max_document >> 10)]
+    max_document_kib: usize,
+    /// Answer clients off this machine in full before their address is verified (RFC
+    /// 9175 Echo), for lookup clients that do not implement Echo (aiocoap 0.4.17) on a
+    /// network you trust; a lookup's answer can be far larger than its request.
+    #[arg(long)]
+    no_address_check: bool,
+    /// Stop after this many seconds (default: run until interrupted).
+    #[arg(long, value_name = "SECONDS")]
+    duration: Option<f64>,
+}
+
+/// Runs `rd` until a signal or `--duration`.
+pub(crate) async fn run(args: RdArgs) -> anyhow::Result<()> {
+    let binds = if args.bind.is_empty() {
+        vec![
+            SocketAddr::from(([0, 0, 0, 0], 5683)),
+            SocketAddr::from(([0u16; 8], 5683)),
+        ]
+    } else {
+        args.bind.clone()
+    };
+    let limits = Limits {
+        max_registrations: args.max_registrations,
+        max_bytes: args.max_mib.saturating_mul(1 << 20),
+        per_peer: args.per_peer,
+        per_peer_bytes: args.per_peer_kib.saturating_mul(1 << 10),
+        max_document: args.max_document_kib.saturating_mul(1 << 10),
+    };
+    let store = if args.no_state {
+        None
+    } else {
+        let dir = args
+            .state_dir
+            .clone()
+            .unwrap_or_else(super::default_state_dir)
+            .join("rd");
+        Some(Store::open(&dir)?)
+    };
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+        ^ u64::from(std::process::id()).rotate_left(32);
+    let endpoint = EndpointConfig {
+        rng_seed: seed,
+        verify_addresses: !args.no_address_check,
+        ..EndpointConfig::default()
+    };
+    // Simple registration asks the endpoints for their links from a client socket of
+    // its own, one per address family in use.
+    let fetcher = Client::bind(
+        if binds.iter().all(SocketAddr::is_ipv4) {
+            SocketAddr::from(([0, 0, 0, 0], 0))
+        } else {
+            SocketAddr::from(([0u16; 8], 0))
+        },
+        endpoint.clone(),
+    )
+    .context("binding the client of simple registration")?;
+    let service = Service::new(limits, store, fetcher)?;
+    let held = service.directory().len();
+    let router = Router::new();
+    service.route(&router);
+    let server = Server::bind(
+        &binds,
+        ServerConfig {
+            endpoint,
+            ..ServerConfig::default()
+        },
+        router,
+    )
+    .with_context(|| format!("binding {binds:?}"))?;
+    let sweep = service::spawn_sweep(Arc::clone(&service));
+    let mut terminate =
+        signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
+    let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
+    if args.no_address_check {
+        eprintln!(
+            "coapcam: warning: clients are answered in full before their address is verified (--no-address-check)"
+        );
+    }
+    if held > 0 {
+        eprintln!("coapcam: {held} registrations kept from before");
+    }
+    for a in server.local_addrs() {
+        eprintln!("coapcam: resource directory on {a}");
+    }
+    let duration = async {
+        match args.duration {
+            Some(s) => {
+                tokio::time::sleep(Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)).await;
+            }
+            None => std::future::pending().await,
+        }
+    };
+    tokio::select! {
+        _ = interrupt.recv() => {}
+        _ = terminate.recv() => {}
+        () = duration => {}
+    }
+    sweep.abort();
+    drop(server);
+    Ok(())
+}

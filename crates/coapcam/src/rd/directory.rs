@@ -1,0 +1,865 @@
+//! The directory itself, sans-IO: registrations in, lookups out, every call given the
+//! time (`now`, milliseconds since the UNIX epoch, so lifetimes survive a restart).
+//!
+//! RFC 9176 in this module's terms:
+//! - [`Directory::register`] is the registration interface (§5.3): `ep`, `d`, `lt`,
+//!   `base` and any other parameter (stored as an endpoint attribute, `et` among them);
+//!   the same (`ep`, `d`) again replaces the links and keeps the location.
+//! - [`Directory::register_simple`] is simple registration (§5.1): the links come from
+//!   the endpoint's own `/.well-known/core`, fetched by the caller; `base` is refused.
+//! - [`Directory::update`] and [`Directory::remove`] are the operations on a
+//!   registration resource (§5.3.1, §5.3.2).
+//! - [`Directory::lookup`] is endpoint and resource lookup (§6) with the criteria of
+//!   §6.2 (every criterion must match; a resource link matches a criterion its endpoint
+//!   matches, an endpoint one that any of its resource links matches) and `page`/`count`.
+//! - [`Directory::expire`] drops registrations whose lifetime ended; lookups never show
+//!   them even before that.
+//!
+//! Bounds: the number of registrations and the bytes they take, in total and per peer
+//! address ([`Limits`]); a registration's document has a maximum size. Operations on a
+//! registration are accepted only from the address that made it.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::fmt::Write as _;
+use std::net::{IpAddr, SocketAddr};
+
+use coap::Code;
+use coap::link_format::{self, Filter, Link};
+use serde::{Deserialize, Serialize};
+
+/// RFC 9176 §5.3: the lifetime of a registration that gives none, in seconds (25 h).
+pub const DEFAULT_LIFETIME_S: u32 = 90_000;
+
+/// RFC 9176 §5.3: the most bytes of an endpoint name or a sector name.
+pub const MAX_NAME_BYTES: usize = 63;
+
+/// The resource type of an endpoint link in endpoint lookup (RFC 9176 §6.3).
+pub const RT_ENDPOINT: &str = "core.rd-ep";
+
+/// What the directory accepts, in total and from one peer address.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Registrations held at once.
+    pub max_registrations: usize,
+    /// Bytes the registrations take together (as [`Registration::cost`] counts them).
+    pub max_bytes: usize,
+    /// Registrations one peer address may hold.
+    pub per_peer: usize,
+    /// Bytes one peer address's registrations may take.
+    pub per_peer_bytes: usize,
+    /// The largest link-format document of one registration.
+    pub max_document: usize,
+}
+
+impl Default for Limits {
+    /// 20,000 registrations in 64 MiB; 64 registrations and 1 MiB per peer address; a
+    /// document of at most 32 KiB (a station with eight cameras registers about 6 KiB).
+    fn default() -> Self {
+        Self {
+            max_registrations: 20_000,
+            max_bytes: 64 << 20,
+            per_peer: 64,
+            per_peer_bytes: 1 << 20,
+            max_document: 32 << 10,
+        }
+    }
+}
+
+/// Why a request to the directory was refused; [`RdError::code`] is its CoAP answer.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum RdError {
+    /// A parameter is missing, repeated or malformed, or the document does not parse.
+    #[error("{0}")]
+    BadRequest(String),
+    /// The request came from another address than the registration's.
+    #[error("this registration was made from another address")]
+    NotOwner,
+    /// No registration at that location.
+    #[error("no such registration")]
+    NotFound,
+    /// The document is larger than [`Limits::max_document`].
+    #[error("the link-format document has {0} bytes; the most one registration may have is {1}")]
+    DocumentTooLarge(usize, usize),
+    /// The peer address holds as many registrations or bytes as it may.
+    #[error(
+        "this address holds {held} registrations ({bytes} bytes); the most one address may hold is {max} ({max_bytes} bytes)"
+    )]
+    PeerLimit {
+        /// Registrations it holds.
+        held: usize,
+        /// Their bytes.
+        bytes: usize,
+        /// [`Limits::per_peer`].
+        max: usize,
+        /// [`Limits::per_peer_bytes`].
+        max_bytes: usize,
+    },
+    /// The directory holds as many registrations or bytes as it may.
+    #[error("the directory is full ({0} registrations)")]
+    Full(usize),
+}
+
+impl RdError {
+    /// The response code that says it (one mapping, in one place).
+    #[must_use]
+    pub fn code(&self) -> Code {
+        match self {
+            Self::BadRequest(_) => Code::BAD_REQUEST,
+            Self::NotOwner | Self::PeerLimit { .. } => Code::FORBIDDEN,
+            Self::NotFound => Code::NOT_FOUND,
+            Self::DocumentTooLarge(..) => Code::REQUEST_ENTITY_TOO_LARGE,
+            Self::Full(_) => Code::SERVICE_UNAVAILABLE,
+        }
+    }
+}
+
+fn bad(text: impl Into<String>) -> RdError {
+    RdError::BadRequest(text.into())
+}
+
+/// One registration as it is kept and persisted.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Record {
+    /// Its number: the location is `/rd/<id>`.
+    pub id: u64,
+    /// The endpoint name (`ep`).
+    pub ep: String,
+    /// The sector (`d`), if given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub d: Option<String>,
+    /// The base URI (given, or made from the source address).
+    pub base: String,
+    /// Whether `base` was given (else an update from another port moves it).
+    pub base_given: bool,
+    /// The lifetime in seconds.
+    pub lt: u32,
+    /// When it expires, milliseconds since the UNIX epoch.
+    pub expires_ms: u64,
+    /// The other endpoint attributes (`et` and any extra), in the order given.
+    pub attrs: Vec<(String, Option<String>)>,
+    /// The links as registered, in link-format.
+    pub links: String,
+    /// The address it was made from: only it may update or remove it.
+    pub peer: IpAddr,
+    /// Made by simple registration (no location was given out).
+    #[serde(default)]
+    pub simple: bool,
+}
+
+/// A registration with what lookups need ready: its endpoint link and its links
+/// resolved against the base.
+#[derive(Debug, Clone)]
+pub struct Registration {
+    record: Record,
+    links: Vec<Link>,
+    ep_link: Link,
+    resolved: Vec<Link>,
+    cost: usize,
+}
+
+impl Registration {
+    fn new(record: Record, links: Vec<Link>) -> Self {
+        let mut r = Self {
+            record,
+            links,
+            ep_link: Link::default(),
+            resolved: Vec::new(),
+            cost: 0,
+        };
+        r.refresh();
+        r
+    }
+
+    /// Builds the endpoint link and the resolved links again (after a change of base or
+    /// attributes) and counts the bytes.
+    fn refresh(&mut self) {
+        let r = &self.record;
+        let mut ep = Link::new(format!("/rd/{}", r.id)).with_attr("ep", r.ep.clone());
+        if let Some(d) = &r.d {
+            ep = ep.with_attr("d", d.clone());
+        }
+        ep = ep.with_attr("base", r.base.clone());
+        ep.attrs.extend(r.attrs.iter().cloned());
+        self.ep_link = ep.with_rt(RT_ENDPOINT);
+        self.resolved = self.links.iter().map(|l| resolve(&r.base, l)).collect();
+        self.cost =
+            cost_of(&self.ep_link, &self.links) + cost_of_links(&self.resolved) + r.links.len();
+    }
+
+    /// The record (what is persisted).
+    #[must_use]
+    pub fn record(&self) -> &Record {
+        &self.record
+    }
+
+    /// The bytes it is counted for: its strings and a fixed share per link and
+    /// attribute for the structures that hold them.
+    #[must_use]
+    pub fn cost(&self) -> usize {
+        self.cost
+    }
+}
+
+/// Per link, and per attribute, what the vectors and strings holding them take beyond
+/// their text (a `String` is 24 bytes, a pair of them with the option 48, plus the
+/// allocator's rounding).
+const LINK_OVERHEAD: usize = 64;
+const ATTR_OVERHEAD: usize = 64;
+/// Per registration: the record's fixed fields and the indexes' entries.
+const REGISTRATION_OVERHEAD: usize = 512;
+
+fn cost_of_links(links: &[Link]) -> usize {
+    links
+        .iter()
+        .map(|l| {
+            LINK_OVERHEAD
+                + l.target.len()
+                + l.attrs
+                    .iter()
+                    .map(|(n, v)| ATTR_OVERHEAD + n.len() + v.as_ref().map_or(0, String::len))
+                    .sum::<usize>()
+        })
+        .sum()
+}
+
+fn cost_of(ep: &Link, links: &[Link]) -> usize {
+    REGISTRATION_OVERHEAD + cost_of_links(std::slice::from_ref(ep)) + cost_of_links(links)
+}
+
+/// Whether `target` is a URI (has a scheme) rather than a relative reference.
+fn has_scheme(target: &str) -> bool {
+    let Some((scheme, _)) = target.split_once(':') else {
+        return false;
+    };
+    let mut bytes = scheme.bytes();
+    bytes.next().is_some_and(|b| b.is_ascii_alphabetic())
+        && bytes.all(|b| b.is_ascii_alphanumeric() || b"+-.".contains(&b))
+}
+
+/// `reference` resolved against a base of the form `scheme://authority` (RFC 3986 §5.2
+/// for a base without path, which RFC 9176 §5.3 asks of a base).
+fn resolve_ref(base: &str, reference: &str) -> String {
+    if has_scheme(reference) {
+        reference.to_owned()
+    } else if reference.starts_with("//") {
+        let scheme = base.split_once(':').map_or("coap", |(s, _)| s);
+        format!("{scheme}:{reference}")
+    } else if reference.starts_with('/') {
+        format!("{base}{reference}")
+    } else if reference.is_empty() {
+        format!("{base}/")
+    } else {
+        format!("{base}/{reference}")
+    }
+}
+
+/// A registered link as resource lookup shows it (RFC 9176 §6.1): target and anchor
+/// resolved, the base as the anchor of a link without one.
+fn resolve(base: &str, link: &Link) -> Link {
+    let mut out = Link::new(resolve_ref(base, &link.target));
+    let mut anchored = false;
+    for (name, value) in &link.attrs {
+        if name.eq_ignore_ascii_case("anchor") {
+            anchored = true;
+            let value = value.as_deref().map(|v| resolve_ref(base, v));
+            out.attrs.push((name.clone(), value));
+        } else {
+            out.attrs.push((name.clone(), value.clone()));
+        }
+    }
+    if !anchored {
+        out.attrs.push(("anchor".to_owned(), Some(base.to_owned())));
+    }
+    out
+}
+
+/// `coap://ADDR[:PORT]` of a source address (RFC 9176 §5.3: scheme, address literal,
+/// the port unless the default).
+#[must_use]
+pub fn base_of(peer: SocketAddr) -> String {
+    let host = match peer.ip() {
+        IpAddr::V4(ip) => ip.to_string(),
+        IpAddr::V6(ip) => match ip.to_ipv4_mapped() {
+            Some(v4) => v4.to_string(),
+            None => format!("[{ip}]"),
+        },
+    };
+    if peer.port() == coap::group::DEFAULT_PORT {
+        format!("coap://{host}")
+    } else {
+        format!("coap://{host}:{}", peer.port())
+    }
+}
+
+/// A name of RFC 9176 §5.3: at most 63 bytes, no control characters.
+fn check_name(what: &str, value: &str) -> Result<(), RdError> {
+    if value.is_empty() {
+        return Err(bad(format!("{what} is empty")));
+    }
+    if value.len() > MAX_NAME_BYTES {
+        return Err(bad(format!(
+            "{what} has {} bytes; at most {MAX_NAME_BYTES}",
+            value.len()
+        )));
+    }
+    if value
+        .chars()
+        .any(|c| matches!(u32::from(c), 0..=31 | 127..=159))
+    {
+        return Err(bad(format!("{what} contains a control character")));
+    }
+    Ok(())
+}
+
+/// A base URI as RFC 9176 §5.3 wants it: a scheme and an authority, no query or
+/// fragment, no path (relative links could not be resolved with one).
+fn check_base(base: &str) -> Result<(), RdError> {
+    let Some((scheme, rest)) = base.split_once("://") else {
+        return Err(bad(format!("base {base:?} is not scheme://authority")));
+    };
+    if !has_scheme(&format!("{scheme}:")) || rest.is_empty() {
+        return Err(bad(format!("base {base:?} is not scheme://authority")));
+    }
+    if rest.contains(['/', '?', '#']) {
+        return Err(bad(format!(
+            "base {base:?} has a path, query or fragment; give scheme://authority"
+        )));
+    }
+    if rest.contains('%') && rest.starts_with('[') {
+        return Err(bad(format!("base {base:?} has a zone identifier")));
+    }
+    Ok(())
+}
+
+/// The registration parameters of a request's query (RFC 9176 §5.3).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Params {
+    /// `ep`.
+    pub ep: Option<String>,
+    /// `d`.
+    pub d: Option<String>,
+    /// `lt`.
+    pub lt: Option<u32>,
+    /// `base`.
+    pub base: Option<String>,
+    /// Every other parameter, in order (`et` among them).
+    pub extra: Vec<(String, Option<String>)>,
+}
+
+impl Params {
+    /// Reads the Uri-Query items of a registration or an update.
+    ///
+    /// # Errors
+    ///
+    /// [`RdError::BadRequest`] for a repeated `ep`, `d`, `lt` or `base`, a bad lifetime,
+    /// name or base, or a parameter without a name.
+    pub fn parse<'a>(items: impl IntoIterator<Item = &'a str>) -> Result<Self, RdError> {
+        let mut p = Self::default();
+        for item in items {
+            let (name, value) = match item.split_once('=') {
+                Some((n, v)) => (n, Some(v)),
+                None => (item, None),
+            };
+            if name.is_empty() {
+                return Err(bad(format!("query parameter {item:?} has no name")));
+            }
+            let once = |slot: &Option<String>| {
+                if slot.is_some() {
+                    Err(bad(format!("{name} is given twice")))
+                } else {
+                    Ok(())
+                }
+            };
+            let value_of = || {
+                value
+                    .map(str::to_owned)
+                    .ok_or_else(|| bad(format!("{name} needs a value")))
+            };
+            match name {
+                "ep" => {
+                    once(&p.ep)?;
+                    let v = value_of()?;
+                    check_name("ep", &v)?;
+                    p.ep = Some(v);
+                }
+                "d" => {
+                    once(&p.d)?;
+                    let v = value_of()?;
+                    check_name("d", &v)?;
+                    p.d = Some(v);
+                }
+                "base" => {
+                    once(&p.base)?;
+                    let v = value_of()?;
+                    check_base(&v)?;
+                    p.base = Some(v);
+                }
+                "lt" => {
+                    if p.lt.is_some() {
+                        return Err(bad("lt is given twice"));
+                    }
+                    let v = value_of()?;
+                    let lt = v
+                        .parse::<u32>()
+                        .ok()
+                        .filter(|lt| *lt >= 1)
+                        .ok_or_else(|| bad(format!("lt {v:?} is not 1-4294967295 seconds")))?;
+                    p.lt = Some(lt);
+                }
+                _ => {
+                    if !name
+                        .bytes()
+                        .all(|b| b.is_ascii_alphanumeric() || b"!#$&+-.^_`|~".contains(&b))
+                    {
+                        return Err(bad(format!("{name:?} is not a link attribute name")));
+                    }
+                    p.extra.push((name.to_owned(), value.map(str::to_owned)));
+                }
+            }
+        }
+        Ok(p)
+    }
+}
+
+/// Which lookup interface (RFC 9176 §6).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LookupKind {
+    /// Endpoint lookup: one link per registration (`core.rd-lookup-ep`).
+    Endpoints,
+    /// Resource lookup: the registered links, resolved (`core.rd-lookup-res`).
+    Resources,
+}
+
+/// A lookup's criteria and page.
+#[derive(Debug, Clone, Default)]
+pub struct Query {
+    terms: Vec<Filter>,
+    page: usize,
+    count: Option<usize>,
+}
+
+impl Query {
+    /// Reads the Uri-Query items of a lookup: `page`, `count` and the criteria (each
+    /// matched as RFC 6690 §4.1 says, `*` at the end a prefix).
+    ///
+    /// # Errors
+    ///
+    /// [`RdError::BadRequest`] for `page` without `count`, a number that is not one, or a
+    /// criterion that is not a valid filter.
+    pub fn parse<'a>(items: impl IntoIterator<Item = &'a str>) -> Result<Self, RdError> {
+        let mut q = Self::default();
+        let mut page = None;
+        for item in items {
+            let number = |v: &str, what: &str| {
+                v.parse::<usize>()
+                    .map_err(|_| bad(format!("{what} {v:?} is not a whole number")))
+            };
+            if let Some(v) = item.strip_prefix("page=") {
+                page = Some(number(v, "page")?);
+            } else if let Some(v) = item.strip_prefix("count=") {
+                q.count = Some(number(v, "count")?);
+            } else if !item.is_empty() {
+                q.terms
+                    .push(Filter::parse(item).map_err(|e| bad(e.to_string()))?);
+            }
+        }
+        if let Some(page) = page {
+            if q.count.is_none() {
+                return Err(bad("page needs count (RFC 9176 §6.2)"));
+            }
+            q.page = page;
+        }
+        Ok(q)
+    }
+}
+
+/// A lookup's answer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Found {
+    /// The links of the page, as a link-format document.
+    pub document: String,
+    /// How many links it holds.
+    pub links: usize,
+}
+
+/// The directory: registrations by location, by (sector, name), by expiry and by peer.
+#[derive(Debug, Default)]
+pub struct Directory {
+    limits: Limits,
+    regs: BTreeMap<u64, Registration>,
+    names: HashMap<(Option<String>, String), u64>,
+    expiry: BTreeSet<(u64, u64)>,
+    peers: HashMap<IpAddr, (usize, usize)>,
+    bytes: usize,
+    next_id: u64,
+}
+
+/// What a registration did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Registered {
+    /// The registration's number (location `/rd/<id>`).
+    pub id: u64,
+    /// A new registration (else the one of the same `ep` and `d` was replaced).
+    pub created: bool,
+}
+
+impl Directory {
+    /// An empty directory with these limits.
+    #[must_use]
+    pub fn new(limits: Limits) -> Self {
+        Self {
+            limits,
+            next_id: 1,
+            ..Self::default()
+        }
+    }
+
+    /// Registrations held (expired ones included until [`Directory::expire`]).
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.regs.len()
+    }
+
+    /// Whether it holds none.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.regs.is_empty()
+    }
+
+    /// The bytes its registrations are counted for.
+    #[must_use]
+    pub fn bytes(&self) -> usize {
+        self.bytes
+    }
+
+    /// The registration at `/rd/<id>`.
+    #[must_use]
+    pub fn get(&self, id: u64) -> Option<&Registration> {
+        self.regs.get(&id)
+    }
+
+    /// The registration of `ep` in sector `d`.
+    #[must_use]
+    pub fn find(&self, d: Option<&str>, ep: &str) -> Option<&Registration> {
+        let id = self.names.get(&(d.map(str::to_owned), ep.to_owned()))?;
+        self.regs.get(id)
+    }
+
+    /// The earliest time a registration expires, to set the next sweep.
+    #[must_use]
+    pub fn next_expiry(&self) -> Option<u64> {
+        self.expiry.first().map(|(at, _)| *at)
+    }
+
+    /// Registration (RFC 9176 §5.3) of `document` (link-format) by `peer`.
+    ///
+    /// # Errors
+    ///
+    /// [`RdError`]: no `ep`, a bad parameter or document, another address's registration
+    /// of the same name, or a limit.
+    pub fn register(
+        &mut self,
+        now_ms: u64,
+        peer: SocketAddr,
+        params: Params,
+        document: &str,
+    ) -> Result<Registered, RdError> {
+        self.insert(now_ms, peer, params, document, false)
+    }
+
+    /// Simple registration (RFC 9176 §5.1): `document` is what the endpoint's
+    /// `/.well-known/core` answered; the base is its address.
+    ///
+    /// # Errors
+    ///
+    /// As [`Directory::register`], and [`RdError::BadRequest`] when `base` is given.
+    pub fn register_simple(
+        &mut self,
+        now_ms: u64,
+        peer: SocketAddr,
+        params: Params,
+        document: &str,
+    ) -> Result<Registered, RdError> {
+        if params.base.is_some() {
+            return Err(bad("simple registration takes no base (RFC 9176 §5.1)"));
+        }
+        self.insert(now_ms, peer, params, document, true)
+    }
+
+    fn insert(
+        &mut self,
+        now_ms: u64,
+        peer: SocketAddr,
+        params: Params,
+        document: &str,
+        simple: bool,
+    ) -> Result<Registered, RdError> {
+        let Some(ep) = params.ep else {
+            return Err(bad("ep (the endpoint name) is missing"));
+        };
+        if document.len() > self.limits.max_document {
+            return Err(RdError::DocumentTooLarge(
+                document.len(),
+                self.limits.max_document,
+            ));
+        }
+        let links = link_format::parse(document).map_err(|e| bad(e.to_string()))?;
+        let key = (params.d.clone(), ep.clone());
+        let existing = self.names.get(&key).copied();
+        if let Some(id) = existing
+            && let Some(old) = self.regs.get(&id)
+            && old.record.peer != peer.ip()
+            && old.record.expires_ms > now_ms
+        {
+            return Err(RdError::NotOwner);
+        }
+        let lt = params.lt.unwrap_or(DEFAULT_LIFETIME_S);
+        let base_given = params.base.is_some();
+        let record = Record {
+            id: existing.unwrap_or(self.next_id),
+            ep,
+            d: params.d,
+            base: params.base.unwrap_or_else(|| base_of(peer)),
+            base_given,
+            lt,
+            expires_ms: now_ms.saturating_add(u64::from(lt) * 1000),
+            attrs: params.extra,
+            links: document.to_owned(),
+            peer: peer.ip(),
+            simple,
+        };
+        let reg = Registration::new(record, links);
+        let freed = existing.and_then(|id| self.regs.get(&id)).map(|old| {
+            let same_peer = old.record.peer == peer.ip();
+            (old.cost, same_peer)
+        });
+        let (held, held_bytes) = self.peers.get(&peer.ip()).copied().unwrap_or_default();
+        let (held, held_bytes) = match freed {
+            Some((cost, true)) => (held - 1, held_bytes - cost),
+            _ => (held, held_bytes),
+        };
+        if held + 1 > self.limits.per_peer || held_bytes + reg.cost > self.limits.per_peer_bytes {
+            return Err(RdError::PeerLimit {
+                held,
+                bytes: held_bytes,
+                max: self.limits.per_peer,
+                max_bytes: self.limits.per_peer_bytes,
+            });
+        }
+        let total = self.bytes - freed.map_or(0, |(c, _)| c);
+        let count = self.regs.len() - usize::from(freed.is_some());
+        if count + 1 > self.limits.max_registrations || total + reg.cost > self.limits.max_bytes {
+            return Err(RdError::Full(self.regs.len()));
+        }
+        if let Some(id) = existing {
+            self.take(id);
+        } else {
+            self.next_id += 1;
+        }
+        let id = reg.record.id;
+        self.put(reg);
+        Ok(Registered {
+            id,
+            created: existing.is_none(),
+        })
+    }
+
+    /// Adds a registration to every index.
+    fn put(&mut self, reg: Registration) {
+        let r = &reg.record;
+        self.names.insert((r.d.clone(), r.ep.clone()), r.id);
+        self.expiry.insert((r.expires_ms, r.id));
+        let held = self.peers.entry(r.peer).or_default();
+        held.0 += 1;
+        held.1 += reg.cost;
+        self.bytes += reg.cost;
+        self.next_id = self.next_id.max(r.id + 1);
+        self.regs.insert(r.id, reg);
+    }
+
+    /// Removes a registration from every index.
+    fn take(&mut self, id: u64) -> Option<Registration> {
+        let reg = self.regs.remove(&id)?;
+        let r = &reg.record;
+        self.names.remove(&(r.d.clone(), r.ep.clone()));
+        self.expiry.remove(&(r.expires_ms, r.id));
+        if let Some(held) = self.peers.get_mut(&r.peer) {
+            held.0 -= 1;
+            held.1 -= reg.cost;
+            if held.0 == 0 {
+                self.peers.remove(&r.peer);
+            }
+        }
+        self.bytes -= reg.cost;
+        Some(reg)
+    }
+
+    /// Registration update (RFC 9176 §5.3.1): a new lifetime (or the last one again),
+    /// base or endpoint attributes.
+    ///
+    /// # Errors
+    ///
+    /// [`RdError::NotFound`], [`RdError::NotOwner`], or a parameter that may not be
+    /// updated (`ep`, `d`) or is malformed, or a limit.
+    pub fn update(
+        &mut self,
+        now_ms: u64,
+        peer: SocketAddr,
+        id: u64,
+        params: Params,
+    ) -> Result<(), RdError> {
+        let reg = self.regs.get(&id).ok_or(RdError::NotFound)?;
+        if reg.record.peer != peer.ip() {
+            return Err(RdError::NotOwner);
+        }
+        if params.ep.is_some() || params.d.is_some() {
+            return Err(bad(
+                "ep and d cannot be changed by an update; register again",
+            ));
+        }
+        if reg.record.simple && params.base.is_some() {
+            return Err(bad("a simple registration takes no base"));
+        }
+        let mut record = reg.record.clone();
+        let links = reg.links.clone();
+        if let Some(lt) = params.lt {
+            record.lt = lt;
+        }
+        record.expires_ms = now_ms.saturating_add(u64::from(record.lt) * 1000);
+        match params.base {
+            Some(base) => {
+                record.base = base;
+                record.base_given = true;
+            }
+            None if !record.base_given => record.base = base_of(peer),
+            None => {}
+        }
+        for (name, value) in params.extra {
+            match record.attrs.iter_mut().find(|(n, _)| *n == name) {
+                Some(slot) => slot.1 = value,
+                None => record.attrs.push((name, value)),
+            }
+        }
+        let new = Registration::new(record, links);
+        let (_, held_bytes) = self.peers.get(&peer.ip()).copied().unwrap_or_default();
+        let old_cost = reg.cost;
+        if held_bytes - old_cost + new.cost > self.limits.per_peer_bytes
+            || self.bytes - old_cost + new.cost > self.limits.max_bytes
+        {
+            return Err(RdError::PeerLimit {
+                held: 0,
+                bytes: held_bytes,
+                max: self.limits.per_peer,
+                max_bytes: self.limits.per_peer_bytes,
+            });
+        }
+        self.take(id);
+        self.put(new);
+        Ok(())
+    }
+
+    /// Registration removal (RFC 9176 §5.3.2).
+    ///
+    /// # Errors
+    ///
+    /// [`RdError::NotFound`] or [`RdError::NotOwner`].
+    pub fn remove(&mut self, peer: SocketAddr, id: u64) -> Result<(), RdError> {
+        let reg = self.regs.get(&id).ok_or(RdError::NotFound)?;
+        if reg.record.peer != peer.ip() {
+            return Err(RdError::NotOwner);
+        }
+        self.take(id);
+        Ok(())
+    }
+
+    /// Drops every registration whose lifetime has ended; returns their numbers.
+    pub fn expire(&mut self, now_ms: u64) -> Vec<u64> {
+        let mut gone = Vec::new();
+        while let Some(&(at, id)) = self.expiry.first() {
+            if at > now_ms {
+                break;
+            }
+            self.take(id);
+            gone.push(id);
+        }
+        gone
+    }
+
+    /// Puts back registrations read from storage (those already expired are left out);
+    /// returns how many were put back.
+    pub fn restore(&mut self, now_ms: u64, records: impl IntoIterator<Item = Record>) -> usize {
+        let mut n = 0;
+        for record in records {
+            // An expired registration's number is not given out again.
+            self.next_id = self.next_id.max(record.id + 1);
+            if record.expires_ms <= now_ms || self.regs.contains_key(&record.id) {
+                continue;
+            }
+            let Ok(links) = link_format::parse(&record.links) else {
+                continue;
+            };
+            self.put(Registration::new(record, links));
+            n += 1;
+        }
+        n
+    }
+
+    /// Endpoint or resource lookup (RFC 9176 §6): the links that meet every criterion,
+    /// the page of them `page` and `count` ask for.
+    #[must_use]
+    pub fn lookup(&self, now_ms: u64, kind: LookupKind, query: &Query) -> Found {
+        let skip = query.page.saturating_mul(query.count.unwrap_or(0));
+        let take = query.count.unwrap_or(usize::MAX);
+        let mut document = String::new();
+        let mut seen = 0usize;
+        let mut links = 0usize;
+        let mut emit = |link: &Link| {
+            if seen >= skip && links < take {
+                if links > 0 {
+                    document.push(',');
+                }
+                let _ = write!(document, "{link}");
+                links += 1;
+            }
+            seen += 1;
+            links < take
+        };
+        for reg in self.regs.values() {
+            if reg.record.expires_ms <= now_ms {
+                continue;
+            }
+            let ep_matches = |t: &Filter| t.matches(&reg.ep_link);
+            match kind {
+                LookupKind::Endpoints => {
+                    let all = query
+                        .terms
+                        .iter()
+                        .all(|t| ep_matches(t) || reg.resolved.iter().any(|l| t.matches(l)));
+                    if all && !emit(&reg.ep_link) {
+                        break;
+                    }
+                }
+                LookupKind::Resources => {
+                    // The criteria the endpoint meets hold for every one of its links.
+                    let open: Vec<&Filter> =
+                        query.terms.iter().filter(|t| !ep_matches(t)).collect();
+                    let mut more = true;
+                    for link in &reg.resolved {
+                        if open.iter().all(|t| t.matches(link)) && !emit(link) {
+                            more = false;
+                            break;
+                        }
+                    }
+                    if !more {
+                        break;
+                    }
+                }
+            }
+        }
+        Found { document, links }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,388 @@
+//! The directory on literal times: registration, replacement, update, removal, expiry,
+//! lookups with their criteria and pages, the bounds, and restoring from records.
+
+use std::net::SocketAddr;
+
+use super::*;
+
+const T0: u64 = 1_800_000_000_000;
+
+fn addr(s: &str) -> SocketAddr {
+    s.parse().expect("an address")
+}
+
+fn params(query: &str) -> Params {
+    Params::parse(query.split('&').filter(|s| !s.is_empty())).expect("parameters")
+}
+
+fn query(q: &str) -> Query {
+    Query::parse(q.split('&').filter(|s| !s.is_empty())).expect("a query")
+}
+
+const STATION: &str = r#"</cams>;ct=40,</cams/000000000006/color>;rt="rgbd.color";obs,</coap-group>;rt="core.gp";ct=256"#;
+
+fn directory() -> Directory {
+    Directory::new(Limits::default())
+}
+
+#[test]
+fn a_registration_is_found_by_endpoint_and_by_resource() {
+    let mut rd = directory();
+    let peer = addr("127.0.0.6:5683");
+    let r = rd
+        .register(
+            T0,
+            peer,
+            params("ep=station-6&et=coapcam.station&grp=224.0.1.188:5683&lt=60"),
+            STATION,
+        )
+        .expect("registered");
+    assert_eq!(
+        r,
+        Registered {
+            id: 1,
+            created: true
+        }
+    );
+    let eps = rd.lookup(T0, LookupKind::Endpoints, &query(""));
+    assert_eq!(
+        eps.document,
+        r#"</rd/1>;ep=station-6;base=coap://127.0.0.6;et=coapcam.station;grp=224.0.1.188:5683;rt="core.rd-ep""#
+    );
+    let res = rd.lookup(T0, LookupKind::Resources, &query("rt=rgbd.color"));
+    assert_eq!(
+        res.document,
+        r#"<coap://127.0.0.6/cams/000000000006/color>;rt="rgbd.color";obs;anchor="coap://127.0.0.6""#
+    );
+    // A resource link matches what its endpoint matches, and an endpoint what any of its
+    // links matches.
+    assert_eq!(
+        rd.lookup(T0, LookupKind::Resources, &query("ep=station-6"))
+            .links,
+        3
+    );
+    assert_eq!(
+        rd.lookup(T0, LookupKind::Endpoints, &query("rt=rgbd.color"))
+            .links,
+        1
+    );
+    assert_eq!(
+        rd.lookup(T0, LookupKind::Endpoints, &query("rt=rgbd.depth"))
+            .links,
+        0
+    );
+    assert_eq!(
+        rd.lookup(T0, LookupKind::Resources, &query("ep=station-6&rt=core.gp"))
+            .links,
+        1
+    );
+    assert_eq!(
+        rd.lookup(T0, LookupKind::Endpoints, &query("grp=224.0.1.188*"))
+            .links,
+        1
+    );
+    assert_eq!(
+        rd.lookup(T0, LookupKind::Endpoints, &query("href=/rd/1"))
+            .links,
+        1
+    );
+}
+
+#[test]
+fn the_same_name_again_replaces_the_links_at_the_same_location() {
+    let mut rd = directory();
+    let peer = addr("[fd00::2]:5700");
+    rd.register(T0, peer, params("ep=a"), STATION)
+        .expect("first");
+    let again = rd
+        .register(T0 + 5, peer, params("ep=a&lt=30"), "</only>")
+        .expect("again");
+    assert_eq!(
+        again,
+        Registered {
+            id: 1,
+            created: false
+        }
+    );
+    assert_eq!(rd.len(), 1);
+    let res = rd.lookup(T0, LookupKind::Resources, &query(""));
+    assert_eq!(
+        res.document,
+        r#"<coap://[fd00::2]:5700/only>;anchor="coap://[fd00::2]:5700""#
+    );
+    // The same name in another sector is another endpoint.
+    let other = rd
+        .register(T0, peer, params("ep=a&d=floor-2"), "")
+        .expect("sector");
+    assert_eq!(
+        other,
+        Registered {
+            id: 2,
+            created: true
+        }
+    );
+    // Another address may not take a live name over.
+    assert_eq!(
+        rd.register(T0, addr("[fd00::3]:5700"), params("ep=a"), ""),
+        Err(RdError::NotOwner)
+    );
+}
+
+#[test]
+fn update_renews_and_changes_the_base_and_attributes_only_from_the_owner() {
+    let mut rd = directory();
+    let peer = addr("127.0.0.7:40000");
+    let id = rd
+        .register(
+            T0,
+            peer,
+            params("ep=b&lt=10&base=coap://127.0.0.7:5683&et=x"),
+            "</s>",
+        )
+        .expect("registered")
+        .id;
+    assert_eq!(
+        rd.update(T0, addr("127.0.0.8:1"), id, params("")),
+        Err(RdError::NotOwner)
+    );
+    assert_eq!(rd.update(T0, peer, 99, params("")), Err(RdError::NotFound));
+    assert!(matches!(
+        rd.update(T0, peer, id, params("ep=c")),
+        Err(RdError::BadRequest(_))
+    ));
+    // 9 s later the update gives another 10 s (the last lifetime).
+    rd.update(T0 + 9_000, peer, id, params("et=y&grp=g"))
+        .expect("update");
+    assert_eq!(
+        rd.lookup(T0 + 15_000, LookupKind::Endpoints, &query("et=y&grp=g"))
+            .links,
+        1
+    );
+    assert_eq!(
+        rd.lookup(T0 + 19_000, LookupKind::Endpoints, &query(""))
+            .links,
+        0
+    );
+    rd.update(
+        T0 + 10_000,
+        peer,
+        id,
+        params("lt=100&base=coap://[fd00::9]"),
+    )
+    .expect("update");
+    let res = rd.lookup(T0 + 50_000, LookupKind::Resources, &query(""));
+    assert_eq!(
+        res.document,
+        r#"<coap://[fd00::9]/s>;anchor="coap://[fd00::9]""#
+    );
+    assert_eq!(rd.remove(addr("127.0.0.8:1"), id), Err(RdError::NotOwner));
+    rd.remove(peer, id).expect("removed");
+    assert!(rd.is_empty());
+    assert_eq!(rd.bytes(), 0);
+    assert_eq!(rd.remove(peer, id), Err(RdError::NotFound));
+}
+
+#[test]
+fn a_registration_is_gone_after_its_lifetime() {
+    let mut rd = directory();
+    let peer = addr("127.0.0.2:5683");
+    rd.register(T0, peer, params("ep=short&lt=2"), "</x>")
+        .expect("short");
+    rd.register(T0, peer, params("ep=long&lt=60"), "</y>")
+        .expect("long");
+    assert_eq!(rd.next_expiry(), Some(T0 + 2_000));
+    assert_eq!(
+        rd.lookup(T0 + 1_999, LookupKind::Endpoints, &query(""))
+            .links,
+        2
+    );
+    // Not shown once the lifetime ended, even before the sweep.
+    assert_eq!(
+        rd.lookup(T0 + 2_000, LookupKind::Endpoints, &query(""))
+            .links,
+        1
+    );
+    assert_eq!(rd.expire(T0 + 2_000), [1]);
+    assert_eq!(rd.len(), 1);
+    assert_eq!(rd.next_expiry(), Some(T0 + 60_000));
+    // Once expired, the name is free for another address.
+    rd.register(T0, addr("127.0.0.3:5683"), params("ep=long2&lt=1"), "")
+        .expect("x");
+    assert!(
+        rd.register(T0 + 1_000, addr("127.0.0.4:5683"), params("ep=long2"), "")
+            .is_ok()
+    );
+}
+
+#[test]
+fn pages_hold_count_links_from_page_times_count() {
+    let mut rd = Directory::new(Limits {
+        per_peer: 100,
+        ..Limits::default()
+    });
+    let peer = addr("127.0.0.2:5683");
+    for i in 0..25 {
+        rd.register(T0, peer, params(&format!("ep=n{i:02}")), "</a>,</b>")
+            .expect("reg");
+    }
+    let page = |q: &str| {
+        let found = rd.lookup(T0, LookupKind::Endpoints, &query(q));
+        link_format::parse(&found.document)
+            .expect("parses")
+            .iter()
+            .map(|l| l.attr("ep").unwrap_or_default().to_owned())
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(page("count=3"), ["n00", "n01", "n02"]);
+    assert_eq!(page("page=2&count=10"), ["n20", "n21", "n22", "n23", "n24"]);
+    assert_eq!(page("page=3&count=10"), Vec::<String>::new());
+    assert_eq!(page("count=2&ep=n1*"), ["n10", "n11"]);
+    let res = rd.lookup(T0, LookupKind::Resources, &query("page=1&count=3"));
+    assert_eq!(
+        res.document,
+        r#"<coap://127.0.0.2/b>;anchor="coap://127.0.0.2",<coap://127.0.0.2/a>;anchor="coap://127.0.0.2",<coap://127.0.0.2/b>;anchor="coap://127.0.0.2""#
+    );
+    assert!(Query::parse(["page=1"]).is_err());
+    assert!(Query::parse(["count=x"]).is_err());
+}
+
+#[test]
+fn targets_and_anchors_resolve_against_the_base() {
+    let mut rd = directory();
+    let doc = r#"</sensors/temp>;rt="temperature-c",<http://www.example.com/t>;anchor="/sensors/temp";rel="describedby",<rel>"#;
+    rd.register(T0, addr("[2001:db8::1]:61616"), params("ep=node1"), doc)
+        .expect("registered");
+    assert_eq!(
+        rd.lookup(T0, LookupKind::Resources, &query("")).document,
+        concat!(
+            r#"<coap://[2001:db8::1]:61616/sensors/temp>;rt="temperature-c";anchor="coap://[2001:db8::1]:61616","#,
+            r#"<http://www.example.com/t>;anchor="coap://[2001:db8::1]:61616/sensors/temp";rel="describedby","#,
+            r#"<coap://[2001:db8::1]:61616/rel>;anchor="coap://[2001:db8::1]:61616""#
+        )
+    );
+    assert_eq!(
+        rd.lookup(
+            T0,
+            LookupKind::Resources,
+            &query("href=http://www.example.com/*")
+        )
+        .links,
+        1
+    );
+}
+
+#[test]
+fn bad_parameters_and_documents_are_refused() {
+    let mut rd = directory();
+    let peer = addr("127.0.0.2:5683");
+    for q in [
+        vec!["ep=a", "ep=b"],
+        vec!["lt=0"],
+        vec!["lt=4294967296"],
+        vec!["lt"],
+        vec!["base=coap://h/path"],
+        vec!["base=nothing"],
+        vec!["=x"],
+    ] {
+        assert!(
+            matches!(Params::parse(q.clone()), Err(RdError::BadRequest(_))),
+            "{q:?}"
+        );
+    }
+    let long = "e".repeat(64);
+    assert!(Params::parse([format!("ep={long}").as_str()]).is_err());
+    assert!(Params::parse(["ep=a\u{7}b"]).is_err());
+    assert!(Params::parse([format!("ep={}", &long[..63]).as_str()]).is_ok());
+    assert_eq!(
+        rd.register(T0, peer, params(""), "</a>")
+            .map_err(|e| e.code()),
+        Err(Code::BAD_REQUEST)
+    );
+    assert_eq!(
+        rd.register(T0, peer, params("ep=a"), "not link format")
+            .map_err(|e| e.code()),
+        Err(Code::BAD_REQUEST)
+    );
+    assert_eq!(
+        rd.register_simple(T0, peer, params("ep=a&base=coap://x"), "")
+            .map_err(|e| e.code()),
+        Err(Code::BAD_REQUEST)
+    );
+    let big = format!("<{}>", "x".repeat(40_000));
+    assert_eq!(
+        rd.register(T0, peer, params("ep=a"), &big)
+            .map_err(|e| e.code()),
+        Err(Code::REQUEST_ENTITY_TOO_LARGE)
+    );
+    assert!(rd.is_empty());
+}
+
+#[test]
+fn one_address_is_held_to_its_count_and_bytes_and_the_directory_to_its_own() {
+    let limits = Limits {
+        max_registrations: 5,
+        max_bytes: 1 << 20,
+        per_peer: 3,
+        per_peer_bytes: 4_000,
+        max_document: 32 << 10,
+    };
+    let mut rd = Directory::new(limits);
+    let a = addr("127.0.0.2:5683");
+    for i in 0..3 {
+        rd.register(T0, a, params(&format!("ep=a{i}")), "</x>")
+            .expect("within");
+    }
+    let err = rd
+        .register(T0, a, params("ep=a3"), "</x>")
+        .expect_err("fourth");
+    assert!(matches!(err, RdError::PeerLimit { held: 3, .. }), "{err:?}");
+    assert_eq!(err.code(), Code::FORBIDDEN);
+    // Replacing one of its own is not one more.
+    rd.register(T0, a, params("ep=a2"), "</y>")
+        .expect("replace");
+    // Bytes: a document that would take the address past 4,000 bytes.
+    let b = addr("127.0.0.3:5683");
+    let links: Vec<String> = (0..40).map(|i| format!("</r{i}>;rt=\"t\"")).collect();
+    let err = rd
+        .register(T0, b, params("ep=b0"), &links.join(","))
+        .expect_err("bytes");
+    assert!(matches!(err, RdError::PeerLimit { held: 0, .. }), "{err:?}");
+    rd.register(T0, b, params("ep=b0"), "</x>").expect("small");
+    rd.register(T0, b, params("ep=b1"), "</x>").expect("small");
+    let err = rd
+        .register(T0, addr("127.0.0.4:5683"), params("ep=c"), "</x>")
+        .expect_err("full");
+    assert_eq!(err, RdError::Full(5));
+    assert_eq!(err.code(), Code::SERVICE_UNAVAILABLE);
+    let counted: usize = (1..=6)
+        .filter_map(|id| rd.get(id))
+        .map(Registration::cost)
+        .sum();
+    assert_eq!(rd.bytes(), counted);
+}
+
+#[test]
+fn records_restore_what_was_registered_except_what_expired() {
+    let mut rd = directory();
+    let peer = addr("127.0.0.2:5683");
+    rd.register(T0, peer, params("ep=a&lt=100&et=coapcam.station"), STATION)
+        .expect("a");
+    rd.register(T0, peer, params("ep=b&lt=5"), "</x>")
+        .expect("b");
+    let records: Vec<Record> = [1, 2]
+        .iter()
+        .filter_map(|id| rd.get(*id))
+        .map(|r| r.record().clone())
+        .collect();
+    let json = serde_json::to_string(&records).expect("serializes");
+    let back: Vec<Record> = serde_json::from_str(&json).expect("parses");
+    let mut restored = directory();
+    assert_eq!(restored.restore(T0 + 10_000, back), 1);
+    assert_eq!(
+        restored.lookup(T0 + 10_000, LookupKind::Resources, &query("")),
+        rd.lookup(T0 + 10_000, LookupKind::Resources, &query(""))
+    );
+    // New registrations get new numbers.
+    let next = restored.register(T0, peer, params("ep=c"), "").expect("c");
+    assert_eq!(next.id, 3);
+}
