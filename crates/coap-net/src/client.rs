@@ -11,6 +11,9 @@ use crate::driver::{self, BodyItem, Command, EndpointHandle, Progress, Reply, St
 use crate::dtls::Psk;
 use crate::socket::Socket;
 
+/// How often [`Client::multicast_until`] asks again whether it is done.
+const RECHECK: std::time::Duration = std::time::Duration::from_millis(50);
+
 /// The wildcard address of `peer`'s family, any port.
 fn any_for(peer: SocketAddr) -> SocketAddr {
     if peer.is_ipv4() {
@@ -206,7 +209,8 @@ impl Client {
 
     /// [`Client::multicast`] that stops collecting as soon as `done` says the answers so
     /// far are enough (e.g. every member a directory lists has answered), or at the
-    /// timeout, whichever comes first.
+    /// timeout, whichever comes first. `done` is asked after each answer and every
+    /// 50 ms.
     pub async fn multicast_until(
         &self,
         group: SocketAddr,
@@ -223,10 +227,14 @@ impl Client {
             id_tx: None,
         })?;
         let mut out = Vec::new();
-        while let Some(item) = rx.recv().await {
-            match item {
-                StreamItem::Response(peer, r) => out.push((peer, *r)),
-                StreamItem::Failed(e) => return Err(Error::Request(e)),
+        loop {
+            // `done` is asked after each answer and every RECHECK: it may depend on what
+            // the caller learns meanwhile (a member found gone).
+            match tokio::time::timeout(RECHECK, rx.recv()).await {
+                Ok(Some(StreamItem::Response(peer, r))) => out.push((peer, *r)),
+                Ok(Some(StreamItem::Failed(e))) => return Err(Error::Request(e)),
+                Ok(None) => break,
+                Err(_) => {}
             }
             if done(&out) {
                 break;

@@ -15,6 +15,7 @@ use coapcam::client::measure::{
     FLOOR_CUT_M, Source, calibration_of, measure_once, prepare_cameras,
 };
 use coapcam::client::{CamClient, annotate, codes};
+use coapcam::rd::registrant::{Endpoint, GROUP_ATTR, group_key, lookup_endpoints};
 use coapcam::report::{self, Billing, EdgeQuery, Found, Measurement, Parcel};
 
 use super::{
@@ -35,9 +36,16 @@ pub(crate) struct MeasureArgs {
           value_parser = values::group)]
     group: Option<String>,
     /// With --group: stop waiting once this many servers have answered (at least 1).
-    #[arg(long, value_name = "N", requires = "group",
+    #[arg(long, value_name = "N", requires = "group", conflicts_with = "rd",
           value_parser = clap::value_parser!(u64).range(1..=10_000))]
     expect: Option<u64>,
+    /// With --group: ask this resource directory (RFC 9176) which servers joined the
+    /// group (those registered with grp=ADDR:PORT, `serve --register`), wait exactly for
+    /// them: stop as soon as each has answered (or at --wait), and name each that did not
+    /// by its endpoint name and address (exit status 6).
+    #[arg(long, value_name = "coap://HOST[:PORT]", requires = "group",
+          value_parser = values::coap_uri)]
+    rd: Option<String>,
     /// With --group: the local address to send from; by default the kernel chooses per
     /// destination (the servers accept the follow-ups of a group request from any of the
     /// client's addresses).
@@ -136,6 +144,8 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         divisor_cm3_per_kg: args.volumetric_divisor,
         division_mm: args.round_up_mm,
     };
+    // The members a directory lists (--rd).
+    let mut members: Vec<Endpoint> = Vec::new();
     let (client, source) = match (&args.group, args.cameras.server()) {
         (Some(g), _) => {
             let group = group_address(g).await?;
@@ -143,12 +153,16 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             let client = CamClient::for_group(group, args.bind, config, timeout)?
                 .with_progress(Bars::shown());
             let expect = args.expect.map(|n| n as usize);
+            if let Some(rd) = &args.rd {
+                members = group_members(rd, group, &client, timeout).await?;
+            }
             (
                 client,
                 Source::Group {
                     group,
                     expect,
                     wait,
+                    members: members.iter().filter_map(|m| m.addr).collect(),
                 },
             )
         }
@@ -221,6 +235,15 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             ));
         }
     }
+    for member in &members {
+        if member.addr.is_none_or(|a| !m.servers.contains(&a)) {
+            missing = true;
+            m.warnings.push(format!(
+                "{} ({}), a member of the group the directory lists, did not answer",
+                member.ep, member.base
+            ));
+        }
+    }
     for w in &m.warnings {
         eprintln!("coapcam: warning: {w}");
     }
@@ -274,6 +297,51 @@ async fn measure_here(
         m.set_codes(codes, started.elapsed());
     }
     Ok((m, missing))
+}
+
+/// The servers the directory `rd` lists as members of `group` (endpoint lookup with
+/// `grp=ADDR:PORT`).
+async fn group_members(
+    rd: &str,
+    group: SocketAddr,
+    client: &CamClient,
+    timeout: Duration,
+) -> anyhow::Result<Vec<Endpoint>> {
+    let uri = Uri::parse(rd).context("--rd")?;
+    let rd_addr = uri
+        .resolve()
+        .await
+        .with_context(|| format!("resolving {rd}"))?;
+    let query = [format!("{GROUP_ATTR}={}", group_key(group))];
+    let members = lookup_endpoints(client.coap(), rd_addr, &query, timeout)
+        .await
+        .with_context(|| format!("asking {rd} for the members of {group}"))?;
+    if members.is_empty() {
+        bail!(
+            "the directory {rd} lists no member of the group {}",
+            group_key(group)
+        );
+    }
+    for m in &members {
+        if m.addr.is_none() {
+            eprintln!(
+                "coapcam: warning: {} registered the base {:?}, not a coap:// address: its answer cannot be recognized",
+                m.ep, m.base
+            );
+        }
+    }
+    eprintln!(
+        "coapcam: {} lists {} member(s) of {}: {}",
+        rd,
+        members.len(),
+        group_key(group),
+        members
+            .iter()
+            .map(|m| format!("{} ({})", m.ep, m.base))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(members)
 }
 
 /// The group of `--group`, as [`values::group`] wrote it (a `coap://` URI; port 5683 by

@@ -67,9 +67,18 @@ fn parse_block_size(s: &str) -> Result<u8, String> {
 #[derive(Debug, Args)]
 pub(crate) struct DiscoverArgs {
     /// The server (coap://host[:port]); a multicast address asks every server in the group.
-    #[arg(value_parser = values::coap_uri)]
-    uri: String,
-    /// A /.well-known/core filter (RFC 6690 §4.1), e.g. rt=rgbd.color or href=/cams*.
+    #[arg(required_unless_present = "rd", value_parser = values::coap_uri)]
+    uri: Option<String>,
+    /// List the endpoints (stations) registered with this resource directory instead
+    /// (RFC 9176 endpoint lookup, its path discovered through rt=core.rd-lookup-ep): one
+    /// line per endpoint with its name (ep), base address and attributes, e.g. the
+    /// groups it joined (grp). --query narrows it, e.g. et=coapcam.station or
+    /// grp=224.0.1.187:5683.
+    #[arg(long, value_name = "coap://HOST[:PORT]", conflicts_with = "uri",
+          value_parser = values::coap_uri)]
+    rd: Option<String>,
+    /// A /.well-known/core filter (RFC 6690 §4.1), e.g. rt=rgbd.color or href=/cams*;
+    /// with --rd a lookup's criteria, `&`-separated.
     #[arg(long)]
     query: Option<String>,
     /// How long to collect answers from a multicast group, in seconds (above 0).
@@ -459,7 +468,13 @@ fn hex(b: &[u8]) -> String {
 /// Runs `discover`: a success when a server answered with its links,
 /// [`Exit::NoAnswer`] when no member of a group answered.
 pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
-    let uri = Uri::parse(&args.uri)?;
+    if let Some(rd) = &args.rd {
+        return discover_rd(rd, &args).await;
+    }
+    let Some(uri_text) = &args.uri else {
+        bail!("give a server URI or --rd");
+    };
+    let uri = Uri::parse(uri_text)?;
     let peer = uri
         .resolve()
         .await
@@ -479,7 +494,7 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
             client
                 .send(peer, request)
                 .await
-                .with_context(|| format!("discovering {}", args.uri))?,
+                .with_context(|| format!("discovering {uri_text}"))?,
         )]
     };
     let mut exit = Exit::NoAnswer;
@@ -523,4 +538,54 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
         );
     }
     Ok(exit)
+}
+
+/// `discover --rd`: the endpoints a resource directory lists.
+async fn discover_rd(rd_text: &str, args: &DiscoverArgs) -> anyhow::Result<Exit> {
+    let uri = Uri::parse(rd_text)?;
+    let rd = uri
+        .resolve()
+        .await
+        .with_context(|| format!("resolving {}", uri.host))?;
+    let client = args.transmission.client(&uri, rd)?;
+    let query: Vec<String> = args
+        .query
+        .iter()
+        .flat_map(|q| q.split('&'))
+        .filter(|q| !q.is_empty())
+        .map(str::to_owned)
+        .collect();
+    let endpoints =
+        coapcam::rd::registrant::lookup_endpoints(&client, rd, &query, args.transmission.timeout())
+            .await?;
+    for e in &endpoints {
+        if args.json {
+            let attrs: serde_json::Map<String, serde_json::Value> = e
+                .link
+                .attrs
+                .iter()
+                .map(|(k, v)| {
+                    (
+                        k.clone(),
+                        v.clone().map_or(serde_json::Value::Bool(true), Into::into),
+                    )
+                })
+                .collect();
+            let line = serde_json::json!({
+                "rd": rd.to_string(),
+                "ep": e.ep,
+                "base": e.base,
+                "target": e.link.target,
+                "attrs": attrs,
+            });
+            outln!("{line}");
+        } else {
+            outln!("{}", e.link);
+        }
+    }
+    if endpoints.is_empty() {
+        eprintln!("coapcam: no endpoint is registered with {rd_text} that matches");
+        return Ok(Exit::NoAnswer);
+    }
+    Ok(Exit::Success)
 }

@@ -4,6 +4,7 @@
 //! comparison with a synthetic scene's truth.
 
 use std::net::SocketAddr;
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use anyhow::Context as _;
@@ -32,7 +33,19 @@ pub enum Source {
         expect: Option<usize>,
         /// How long to collect answers.
         wait: Duration,
+        /// The members a resource directory lists (`measure --group --rd`): collecting
+        /// stops as soon as each of these addresses answered. Empty: not known.
+        members: Vec<SocketAddr>,
     },
+}
+
+/// A task aborted when dropped.
+struct AbortOnDrop(tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
 }
 
 /// The clouds of one measurement, merged, and where they came from.
@@ -174,16 +187,44 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             group,
             expect,
             wait,
+            members,
         } => {
             let accept = Some(crate::repr::DEPTH_CLOUD);
             let mut request =
                 client.request(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept);
             request.timeout = Some(*wait);
+            // A listed member that is gone without removing its registration: a ping
+            // meets its closed port (ICMP port unreachable), and it is not waited for.
+            let gone = Arc::new(Mutex::new(Vec::<SocketAddr>::new()));
+            let probes: Vec<_> = members
+                .iter()
+                .map(|m| {
+                    let (coap, gone, m) = (client.coap().clone(), gone.clone(), *m);
+                    AbortOnDrop(tokio::spawn(async move {
+                        if let Err(coap_net::Error::Request(coap::RequestError::Unreachable)) =
+                            coap.ping(m).await
+                        {
+                            gone.lock().unwrap_or_else(PoisonError::into_inner).push(m);
+                        }
+                    }))
+                })
+                .collect();
             let answers = client
                 .coap()
-                .multicast_expecting(*group, request, *expect)
+                .multicast_until(*group, request, |answers| {
+                    let gone = gone.lock().unwrap_or_else(PoisonError::into_inner);
+                    let all_members = !members.is_empty()
+                        && members
+                            .iter()
+                            .all(|m| gone.contains(m) || answers.iter().any(|(from, _)| from == m));
+                    all_members || expect.is_some_and(|n| answers.len() >= n)
+                })
                 .await
                 .with_context(|| format!("POST /cams/pointclouds to the group {group}"))?;
+            drop(probes);
+            for m in gone.lock().unwrap_or_else(PoisonError::into_inner).iter() {
+                failed.push(format!("{m}: port unreachable (the server is not running)"));
+            }
             if answers.is_empty() {
                 return Err(NoAnswer(format!(
                     "no server of the group {group} answered within {wait:?}"

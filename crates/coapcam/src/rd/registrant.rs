@@ -277,9 +277,16 @@ fn path_of(target: &str) -> String {
     }
 }
 
-/// A request with `path` and the query items.
+/// A request with `path` and the query items. The path's segments are kept as given,
+/// an empty last one too: aiocoap's directory is at `/resourcedirectory/`.
 fn request(method: Code, path: &str, query: &[String]) -> Request {
-    let mut r = Request::new(method, path);
+    let mut r = Request::new(method, "/");
+    let path = path.strip_prefix('/').unwrap_or(path);
+    if !path.is_empty() {
+        for seg in path.split('/') {
+            r.options.push(OptionNumber::URI_PATH, seg.as_bytes());
+        }
+    }
     for q in query {
         r.options.push(OptionNumber::URI_QUERY, q.as_bytes());
     }
