@@ -193,16 +193,22 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             let mut request =
                 client.request(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept);
             request.timeout = Some(*wait);
-            // A listed member that is gone without removing its registration: a ping
-            // meets its closed port (ICMP port unreachable), and it is not waited for.
+            // A listed member that is gone without removing its registration: a small
+            // unicast request meets its closed port (ICMP port unreachable), and it is
+            // not waited for.
             let gone = Arc::new(Mutex::new(Vec::<SocketAddr>::new()));
             let probes: Vec<_> = members
                 .iter()
                 .map(|m| {
                     let (coap, gone, m) = (client.coap().clone(), gone.clone(), *m);
+                    let mut probe = coap::Request::new(Code::GET, "/.well-known/core");
+                    probe
+                        .options
+                        .push(coap::OptionNumber::URI_QUERY, "href=/coap-group");
+                    probe.timeout = Some(*wait);
                     AbortOnDrop(tokio::spawn(async move {
                         if let Err(coap_net::Error::Request(coap::RequestError::Unreachable)) =
-                            coap.ping(m).await
+                            coap.send(m, probe).await
                         {
                             gone.lock().unwrap_or_else(PoisonError::into_inner).push(m);
                         }

@@ -298,7 +298,7 @@ fn multicast_grab_of_three_servers_in_one_group() {
 
 /// A scene with one calibrated camera `serial` at `position`, looking at the box every
 /// server of the multicast measurement sees.
-fn box_scene(serial: &str, position: [f64; 3]) -> String {
+pub(crate) fn box_scene(serial: &str, position: [f64; 3]) -> String {
     format!(
         r#"
 seed = 11

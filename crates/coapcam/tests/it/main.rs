@@ -25,6 +25,7 @@ mod mqtt;
 mod netem;
 mod observe;
 mod offhost;
+mod rd;
 mod readme;
 mod realsense;
 mod results;
