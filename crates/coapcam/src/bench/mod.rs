@@ -5,6 +5,8 @@
 //!   errors;
 //! - [`load`]: many concurrent clients in four roles against a running server, every
 //!   transfer checked;
+//! - [`rd`]: a resource directory filled with registrations, its memory and its lookups'
+//!   times;
 //! - [`repr`]: the bytes and encode and decode times of every representation of a
 //!   scene's frames and merged cloud;
 //! - [`transfer`]: whole-body GETs of our client's transfer modes, libcoap and QUIC, each
@@ -12,5 +14,6 @@
 
 pub mod accuracy;
 pub mod load;
+pub mod rd;
 pub mod repr;
 pub mod transfer;

@@ -52,12 +52,12 @@ pub struct Limits {
 }
 
 impl Default for Limits {
-    /// 20,000 registrations in 64 MiB; 64 registrations and 1 MiB per peer address; a
+    /// 20,000 registrations in 128 MiB; 64 registrations and 1 MiB per peer address; a
     /// document of at most 32 KiB (a station with eight cameras registers about 6 KiB).
     fn default() -> Self {
         Self {
             max_registrations: 20_000,
-            max_bytes: 64 << 20,
+            max_bytes: 128 << 20,
             per_peer: 64,
             per_peer_bytes: 1 << 20,
             max_document: 32 << 10,
@@ -152,28 +152,31 @@ pub struct Record {
 #[derive(Debug, Clone)]
 pub struct Registration {
     record: Record,
-    links: Vec<Link>,
     ep_link: Link,
     resolved: Vec<Link>,
+    /// The attribute names its links have, as a set of [`name_bit`]s: a criterion on a
+    /// name whose bit is not set cannot match any of its links.
+    link_attrs: u64,
     cost: usize,
 }
 
 impl Registration {
-    fn new(record: Record, links: Vec<Link>) -> Self {
+    /// `links` are the record's, parsed (the record keeps their text, parsed again only
+    /// when the base changes).
+    fn new(record: Record, links: &[Link]) -> Self {
         let mut r = Self {
             record,
-            links,
             ep_link: Link::default(),
             resolved: Vec::new(),
+            link_attrs: 0,
             cost: 0,
         };
-        r.refresh();
+        r.refresh(links);
         r
     }
 
-    /// Builds the endpoint link and the resolved links again (after a change of base or
-    /// attributes) and counts the bytes.
-    fn refresh(&mut self) {
+    /// Builds the endpoint link and the resolved links and counts the bytes.
+    fn refresh(&mut self, links: &[Link]) {
         let r = &self.record;
         let mut ep = Link::new(format!("/rd/{}", r.id)).with_attr("ep", r.ep.clone());
         if let Some(d) = &r.d {
@@ -182,9 +185,11 @@ impl Registration {
         ep = ep.with_attr("base", r.base.clone());
         ep.attrs.extend(r.attrs.iter().cloned());
         self.ep_link = ep.with_rt(RT_ENDPOINT);
-        self.resolved = self.links.iter().map(|l| resolve(&r.base, l)).collect();
-        self.cost =
-            cost_of(&self.ep_link, &self.links) + cost_of_links(&self.resolved) + r.links.len();
+        self.resolved = links.iter().map(|l| resolve(&r.base, l)).collect();
+        self.link_attrs = (self.resolved.iter())
+            .flat_map(|l| l.attrs.iter())
+            .fold(0, |bits, (n, _)| bits | name_bit(n));
+        self.cost = cost_of(&self.ep_link, &self.resolved) + r.links.len();
     }
 
     /// The record (what is persisted).
@@ -225,6 +230,15 @@ fn cost_of_links(links: &[Link]) -> usize {
 
 fn cost_of(ep: &Link, links: &[Link]) -> usize {
     REGISTRATION_OVERHEAD + cost_of_links(std::slice::from_ref(ep)) + cost_of_links(links)
+}
+
+/// An attribute name's bit in a registration's set of link attribute names: one of 64
+/// by a hash of the name in lower case (FNV-1a).
+fn name_bit(name: &str) -> u64 {
+    let hash = name.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+        (h ^ u64::from(b.to_ascii_lowercase())).wrapping_mul(0x0100_0000_01b3)
+    });
+    1 << (hash % 64)
 }
 
 /// Whether `target` is a URI (has a scheme) rather than a relative reference.
@@ -434,9 +448,44 @@ pub enum LookupKind {
 /// A lookup's criteria and page.
 #[derive(Debug, Clone, Default)]
 pub struct Query {
-    terms: Vec<Filter>,
+    terms: Vec<Term>,
     page: usize,
     count: Option<usize>,
+}
+
+/// One criterion: its filter, and what the indexes need to know of it.
+#[derive(Debug, Clone)]
+struct Term {
+    filter: Filter,
+    /// The attribute's name, lower case; empty when it was percent-encoded (then no
+    /// index is used for it).
+    name: String,
+    /// The value when it is matched exactly and was not percent-encoded.
+    exact: Option<String>,
+}
+
+impl Term {
+    fn parse(item: &str) -> Result<Self, RdError> {
+        let filter = Filter::parse(item).map_err(|e| bad(e.to_string()))?;
+        let (name, value) = item.split_once('=').unwrap_or((item, ""));
+        let plain = |t: &str| !t.contains('%');
+        Ok(Self {
+            filter,
+            name: if plain(name) {
+                name.to_ascii_lowercase()
+            } else {
+                String::new()
+            },
+            exact: (plain(value) && !value.ends_with('*') && item.contains('='))
+                .then(|| value.to_owned()),
+        })
+    }
+
+    /// Whether it can match any of `reg`'s links: only if one of them has the attribute
+    /// (or it is `href`).
+    fn may_match_links(&self, reg: &Registration) -> bool {
+        self.name.is_empty() || self.name == "href" || reg.link_attrs & name_bit(&self.name) != 0
+    }
 }
 
 impl Query {
@@ -460,8 +509,7 @@ impl Query {
             } else if let Some(v) = item.strip_prefix("count=") {
                 q.count = Some(number(v, "count")?);
             } else if !item.is_empty() {
-                q.terms
-                    .push(Filter::parse(item).map_err(|e| bad(e.to_string()))?);
+                q.terms.push(Term::parse(item)?);
             }
         }
         if let Some(page) = page {
@@ -489,6 +537,11 @@ pub struct Directory {
     limits: Limits,
     regs: BTreeMap<u64, Registration>,
     names: HashMap<(Option<String>, String), u64>,
+    /// Registrations by endpoint name (in every sector), for `ep=NAME` lookups.
+    by_ep: HashMap<String, Vec<u64>>,
+    /// How many registrations have links with an `ep` attribute themselves (then an
+    /// `ep=NAME` lookup must look at every registration).
+    ep_in_links: usize,
     expiry: BTreeSet<(u64, u64)>,
     peers: HashMap<IpAddr, (usize, usize)>,
     bytes: usize,
@@ -629,7 +682,7 @@ impl Directory {
             peer: peer.ip(),
             simple,
         };
-        let reg = Registration::new(record, links);
+        let reg = Registration::new(record, &links);
         let freed = existing.and_then(|id| self.regs.get(&id)).map(|old| {
             let same_peer = old.record.peer == peer.ip();
             (old.cost, same_peer)
@@ -669,6 +722,11 @@ impl Directory {
     fn put(&mut self, reg: Registration) {
         let r = &reg.record;
         self.names.insert((r.d.clone(), r.ep.clone()), r.id);
+        let ids = self.by_ep.entry(r.ep.clone()).or_default();
+        if let Err(at) = ids.binary_search(&r.id) {
+            ids.insert(at, r.id);
+        }
+        self.ep_in_links += usize::from(reg.link_attrs & name_bit("ep") != 0);
         self.expiry.insert((r.expires_ms, r.id));
         let held = self.peers.entry(r.peer).or_default();
         held.0 += 1;
@@ -683,6 +741,13 @@ impl Directory {
         let reg = self.regs.remove(&id)?;
         let r = &reg.record;
         self.names.remove(&(r.d.clone(), r.ep.clone()));
+        if let Some(ids) = self.by_ep.get_mut(&r.ep) {
+            ids.retain(|id| *id != r.id);
+            if ids.is_empty() {
+                self.by_ep.remove(&r.ep);
+            }
+        }
+        self.ep_in_links -= usize::from(reg.link_attrs & name_bit("ep") != 0);
         self.expiry.remove(&(r.expires_ms, r.id));
         if let Some(held) = self.peers.get_mut(&r.peer) {
             held.0 -= 1;
@@ -722,7 +787,8 @@ impl Directory {
             return Err(bad("a simple registration takes no base"));
         }
         let mut record = reg.record.clone();
-        let links = reg.links.clone();
+        // Stored only once it parsed.
+        let links = link_format::parse(&record.links).unwrap_or_default();
         if let Some(lt) = params.lt {
             record.lt = lt;
         }
@@ -741,7 +807,7 @@ impl Directory {
                 None => record.attrs.push((name, value)),
             }
         }
-        let new = Registration::new(record, links);
+        let new = Registration::new(record, &links);
         let (_, held_bytes) = self.peers.get(&peer.ip()).copied().unwrap_or_default();
         let old_cost = reg.cost;
         if held_bytes - old_cost + new.cost > self.limits.per_peer_bytes
@@ -799,7 +865,7 @@ impl Directory {
             let Ok(links) = link_format::parse(&record.links) else {
                 continue;
             };
-            self.put(Registration::new(record, links));
+            self.put(Registration::new(record, &links));
             n += 1;
         }
         n
@@ -825,28 +891,43 @@ impl Directory {
             seen += 1;
             links < take
         };
-        for reg in self.regs.values() {
+        // `ep=NAME` (exactly) looks at that name's registrations only, unless some
+        // registration's links carry `ep` themselves.
+        let by_name = query
+            .terms
+            .iter()
+            .find(|t| t.name == "ep" && self.ep_in_links == 0)
+            .and_then(|t| t.exact.as_ref())
+            .map(|name| self.by_ep.get(name).map_or(&[][..], Vec::as_slice));
+        let candidates: Box<dyn Iterator<Item = &Registration>> = match by_name {
+            Some(ids) => Box::new(ids.iter().filter_map(|id| self.regs.get(id))),
+            None => Box::new(self.regs.values()),
+        };
+        for reg in candidates {
             if reg.record.expires_ms <= now_ms {
                 continue;
             }
-            let ep_matches = |t: &Filter| t.matches(&reg.ep_link);
+            let ep_matches = |t: &Term| t.filter.matches(&reg.ep_link);
             match kind {
                 LookupKind::Endpoints => {
-                    let all = query
-                        .terms
-                        .iter()
-                        .all(|t| ep_matches(t) || reg.resolved.iter().any(|l| t.matches(l)));
+                    let all = query.terms.iter().all(|t| {
+                        ep_matches(t)
+                            || (t.may_match_links(reg)
+                                && reg.resolved.iter().any(|l| t.filter.matches(l)))
+                    });
                     if all && !emit(&reg.ep_link) {
                         break;
                     }
                 }
                 LookupKind::Resources => {
                     // The criteria the endpoint meets hold for every one of its links.
-                    let open: Vec<&Filter> =
-                        query.terms.iter().filter(|t| !ep_matches(t)).collect();
+                    let open: Vec<&Term> = query.terms.iter().filter(|t| !ep_matches(t)).collect();
+                    if !open.iter().all(|t| t.may_match_links(reg)) {
+                        continue;
+                    }
                     let mut more = true;
                     for link in &reg.resolved {
-                        if open.iter().all(|t| t.matches(link)) && !emit(link) {
+                        if open.iter().all(|t| t.filter.matches(link)) && !emit(link) {
                             more = false;
                             break;
                         }

@@ -270,9 +270,10 @@ pub async fn find_resource(client: &Client, rd: SocketAddr, rt: &str) -> Option<
 /// The path of a link target (`/rd`, or the path of `coap://host/rd`).
 fn path_of(target: &str) -> String {
     match target.split_once("://") {
-        Some((_, rest)) => rest
-            .find('/')
-            .map_or("/".to_owned(), |i| rest[i..].to_owned()),
+        Some((_, rest)) => rest.find('/').map_or_else(
+            || "/".to_owned(),
+            |i| rest.get(i..).unwrap_or("/").to_owned(),
+        ),
         None => target.to_owned(),
     }
 }

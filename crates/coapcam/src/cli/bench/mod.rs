@@ -9,6 +9,7 @@ use super::{DimensionArgs, Exit, outln};
 use coapcam::bench::accuracy::{self, Quantiles, Row, Summary};
 
 mod load;
+mod rd;
 mod repr;
 mod transfer;
 
@@ -37,6 +38,10 @@ enum BenchKind {
     /// running server for a while; print discovery latency and what each role counted,
     /// every transfer checked; exit 1 when anything failed, mismatched or was lost.
     Load(load::LoadArgs),
+    /// Fill a `coapcam rd` (a child process) with registrations over loopback (10,000 by
+    /// default) and time lookups of each kind; print its resident memory before and
+    /// after and each lookup's median, 95th percentile and longest time.
+    Rd(rd::RdArgs),
 }
 
 #[derive(Debug, Args)]
@@ -68,6 +73,7 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
         BenchKind::Transfer(a) => transfer::run(a).await,
         BenchKind::Repr(a) => repr::run(a).await,
         BenchKind::Load(a) => load::run(a).await,
+        BenchKind::Rd(a) => rd::run(a).await,
     }
 }
 

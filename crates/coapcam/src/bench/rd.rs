@@ -1,0 +1,284 @@
+//! `bench rd`: a `coapcam rd` child process filled with registrations over loopback,
+//! then timed lookups: its resident memory before and after, and each kind of lookup's
+//! median, 95th percentile and longest time over the client's round trip.
+//!
+//! Every registration is a station with one camera: the typed links `serve --register`
+//! sends for the built-in scene (about 900 bytes), `et=coapcam.station`, one of eight
+//! groups as `grp`, its own `base`.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, bail};
+use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request};
+use coap_net::Client;
+use serde::Serialize;
+
+use crate::process::{self, Proc};
+use crate::stats;
+
+/// What `bench rd` is asked to do.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// The `coapcam` executable to run as the directory.
+    pub exe: PathBuf,
+    /// Registrations to fill it with.
+    pub registrations: usize,
+    /// Lookups of each kind to time.
+    pub lookups: usize,
+    /// Registrations sent at once.
+    pub concurrency: usize,
+}
+
+/// One kind of lookup's times, milliseconds.
+#[derive(Debug, Clone, Serialize)]
+pub struct LookupRow {
+    /// What was looked up (the query, `N` standing for the varying part).
+    pub lookup: String,
+    /// Links in each answer (of the last one).
+    pub links: usize,
+    /// Median.
+    pub median_ms: f64,
+    /// Nearest-rank 95th percentile.
+    pub p95_ms: f64,
+    /// Longest.
+    pub max_ms: f64,
+}
+
+/// What `bench rd` measured.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    /// Registrations held.
+    pub registrations: usize,
+    /// The directory's resident memory before the first registration, KiB.
+    pub rss_idle_kib: u64,
+    /// And after the last.
+    pub rss_filled_kib: u64,
+    /// Its peak, KiB.
+    pub rss_peak_kib: u64,
+    /// Seconds to register them all.
+    pub fill_s: f64,
+    /// The lookups' times.
+    pub lookups: Vec<LookupRow>,
+}
+
+/// The links of a one-camera station (what `serve --register` registers).
+fn station_links(serial: &str) -> String {
+    let mut links = vec![
+        r#"</coap-group>;rt="core.gp";ct=256"#.to_owned(),
+        r#"</cams/pointclouds>;rt="rgbd.pointcloud";ct="42 60 65100 65103 65104""#.to_owned(),
+        r#"</cams/dimensions>;rt="coapcam.dimensions";ct="50 60";obs"#.to_owned(),
+        format!(r#"</cams/{serial}/color>;rt="rgbd.color";if="core.p";ct="42 23 22 60";obs"#),
+        format!(
+            r#"</cams/{serial}/depth>;rt="rgbd.depth";if="core.p";ct="42 23 60 65101 65102";obs"#
+        ),
+        format!(
+            r#"</cams/{serial}/pointcloud>;rt="rgbd.pointcloud";if="core.p";ct="42 60 65100 65103 65104";obs"#
+        ),
+    ];
+    for doc in [
+        "color-settings",
+        "depth-settings",
+        "application-config",
+        "3d-transformation",
+    ] {
+        links.push(format!(
+            r#"</cams/{serial}/{doc}>;rt="rgbd.config";if="core.p";ct=50"#
+        ));
+    }
+    links.join(",")
+}
+
+/// Resident and peak memory of process `pid`, KiB (`/proc/PID/status`).
+fn memory_kib(pid: u32) -> anyhow::Result<(u64, u64)> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .with_context(|| format!("reading /proc/{pid}/status"))?;
+    let field = |name: &str| {
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix(name))
+            .and_then(|v| v.split_whitespace().next())
+            .and_then(|v| v.parse::<u64>().ok())
+            .with_context(|| format!("{name} in /proc/{pid}/status"))
+    };
+    Ok((field("VmRSS:")?, field("VmHWM:")?))
+}
+
+fn request(method: Code, path: &str, query: &[String]) -> Request {
+    let mut r = Request::new(method, path);
+    for q in query {
+        r.options.push(OptionNumber::URI_QUERY, q.as_bytes());
+    }
+    r.timeout = Some(Duration::from_secs(30));
+    r
+}
+
+/// Starts the directory, fills it, times the lookups.
+///
+/// # Errors
+///
+/// When the directory does not start, or a registration or lookup fails.
+pub async fn run(config: &Config) -> anyhow::Result<Report> {
+    let port = process::free_udp_port()?;
+    let rd = SocketAddr::from(([127, 0, 0, 1], port));
+    let mut command = Command::new(&config.exe);
+    command
+        .args([
+            "rd",
+            "--bind",
+            &rd.to_string(),
+            "--no-state",
+            "--max-registrations",
+            &config.registrations.to_string(),
+            "--per-peer",
+            &config.registrations.to_string(),
+            "--per-peer-kib",
+            &(config.registrations * 8).to_string(),
+            "--duration",
+            "3600",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    let mut child = Proc::spawn(command, "coapcam rd")?;
+    let client = Client::bind(
+        SocketAddr::from(([127, 0, 0, 1], 0)),
+        EndpointConfig::default(),
+    )?;
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        child.check_running()?;
+        if client.ping(rd).await.is_ok() {
+            break;
+        }
+        if Instant::now() > deadline {
+            bail!("coapcam rd did not answer within 20 s");
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let (rss_idle_kib, _) = memory_kib(child.id())?;
+    let started = Instant::now();
+    let mut next = 0usize;
+    let mut running = tokio::task::JoinSet::new();
+    while next < config.registrations || !running.is_empty() {
+        while next < config.registrations && running.len() < config.concurrency.max(1) {
+            let i = next;
+            next += 1;
+            let client = client.clone();
+            running.spawn(async move {
+                let query = vec![
+                    format!("ep=station-{i}"),
+                    "et=coapcam.station".to_owned(),
+                    format!("grp=224.0.1.{}:5683", 180 + i % 8),
+                    format!("base=coap://10.{}.{}.1", i / 250, i % 250),
+                    "lt=86400".to_owned(),
+                ];
+                let mut post = request(Code::POST, "/rd", &query);
+                post.options.set_uint(
+                    OptionNumber::CONTENT_FORMAT,
+                    u32::from(ContentFormat::LINK_FORMAT.0),
+                );
+                post.payload = station_links(&format!("{:012}", i)).into();
+                let r = client.send(rd, post).await?;
+                if r.code != Code::CREATED {
+                    bail!(
+                        "registration {i} answered {} {}",
+                        r.code,
+                        String::from_utf8_lossy(&r.payload)
+                    );
+                }
+                Ok(())
+            });
+        }
+        if let Some(done) = running.join_next().await {
+            done.context("a registration task failed")??;
+        }
+    }
+    let fill_s = started.elapsed().as_secs_f64();
+    let (rss_filled_kib, _) = memory_kib(child.id())?;
+    let n = config.registrations.max(1);
+    let kinds: Vec<(String, Box<dyn Fn(usize) -> (&'static str, Vec<String>)>)> = vec![
+        (
+            "ep lookup ?ep=station-N".to_owned(),
+            Box::new(move |k| {
+                (
+                    "/rd-lookup/ep",
+                    vec![format!("ep=station-{}", (k * 7919) % n)],
+                )
+            }),
+        ),
+        (
+            "ep lookup ?grp=224.0.1.N:5683&count=50 (a group's members, first page)".to_owned(),
+            Box::new(|k| {
+                (
+                    "/rd-lookup/ep",
+                    vec![
+                        format!("grp=224.0.1.{}:5683", 180 + k % 8),
+                        "count=50".to_owned(),
+                    ],
+                )
+            }),
+        ),
+        (
+            "res lookup ?ep=station-N&rt=rgbd.color".to_owned(),
+            Box::new(move |k| {
+                (
+                    "/rd-lookup/res",
+                    vec![
+                        format!("ep=station-{}", (k * 7919) % n),
+                        "rt=rgbd.color".to_owned(),
+                    ],
+                )
+            }),
+        ),
+        (
+            "ep lookup ?page=N&count=100".to_owned(),
+            Box::new(move |k| {
+                (
+                    "/rd-lookup/ep",
+                    vec![
+                        format!("page={}", k % (n / 100).max(1)),
+                        "count=100".to_owned(),
+                    ],
+                )
+            }),
+        ),
+    ];
+    let mut lookups = Vec::new();
+    for (name, make) in &kinds {
+        let mut times = Vec::with_capacity(config.lookups);
+        let mut links = 0;
+        for k in 0..config.lookups {
+            let (path, query) = make(k);
+            let started = Instant::now();
+            let r = client.send(rd, request(Code::GET, path, &query)).await?;
+            times.push(started.elapsed().as_secs_f64() * 1e3);
+            if r.code != Code::CONTENT {
+                bail!("{name}: {}", r.code);
+            }
+            let text = std::str::from_utf8(&r.payload).context("lookup not UTF-8")?;
+            links = coap::link_format::parse(text)
+                .context("parsing a lookup")?
+                .len();
+        }
+        lookups.push(LookupRow {
+            lookup: name.clone(),
+            links,
+            median_ms: stats::median(&times).unwrap_or(f64::NAN),
+            p95_ms: stats::percentile(&times, 0.95).unwrap_or(f64::NAN),
+            max_ms: times.iter().copied().fold(0.0, f64::max),
+        });
+    }
+    let (_, rss_peak_kib) = memory_kib(child.id())?;
+    let _ = child.kill();
+    Ok(Report {
+        registrations: config.registrations,
+        rss_idle_kib,
+        rss_filled_kib,
+        rss_peak_kib,
+        fill_s,
+        lookups,
+    })
+}
