@@ -58,6 +58,8 @@ if command -v aiocoap-client >/dev/null \
 else
   python3 -m pip install "aiocoap==$AIOCOAP_VERSION" || peer_failed "aiocoap==$AIOCOAP_VERSION"
 fi
+# The resource directory tests (tests/it/rd.rs) run aiocoap-rd (aiocoap) and coap-rd-notls (libcoap3-bin).
+command -v aiocoap-rd >/dev/null && command -v coap-rd-notls >/dev/null || peer_failed "aiocoap-rd and coap-rd-notls"
 # The MQTT tests (crates/coapcam/tests/it/mqtt.rs) start Debian's mosquitto broker on a
 # free loopback port and read it with mosquitto_sub (mosquitto-clients).
 if { command -v mosquitto >/dev/null || [ -x /usr/sbin/mosquitto ]; } \
@@ -132,7 +134,7 @@ if ! command -v ip >/dev/null; then
 fi
 # The whole workspace, as in the step above, so the test binaries built there are reused
 # (`-p` alone unifies features differently and rebuilds ~300 MB of them).
-scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group:: offhost:: readme::
+scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group:: offhost:: readme:: rd::three_servers
 
 step "the README's main command, typed as the README gives it"
 # From a scratch folder under target/ (cargo finds the workspace above it), so the demo's
