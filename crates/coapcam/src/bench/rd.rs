@@ -91,6 +91,9 @@ fn station_links(serial: &str) -> String {
     links.join(",")
 }
 
+/// The path and query of a kind's `k`th lookup.
+type LookupOf = Box<dyn Fn(usize) -> (&'static str, Vec<String>)>;
+
 /// Resident and peak memory of process `pid`, KiB (`/proc/PID/status`).
 fn memory_kib(pid: u32) -> anyhow::Result<(u64, u64)> {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status"))
@@ -199,7 +202,7 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
     let fill_s = started.elapsed().as_secs_f64();
     let (rss_filled_kib, _) = memory_kib(child.id())?;
     let n = config.registrations.max(1);
-    let kinds: Vec<(String, Box<dyn Fn(usize) -> (&'static str, Vec<String>)>)> = vec![
+    let kinds: Vec<(String, LookupOf)> = vec![
         (
             "ep lookup ?ep=station-N".to_owned(),
             Box::new(move |k| {
