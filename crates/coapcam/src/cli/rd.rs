@@ -29,30 +29,35 @@ pub(crate) struct RdArgs {
     no_state: bool,
     /// The most registrations held at once; past it a registration answers 5.03 with
     /// Max-Age 60.
-    #[arg(long, value_name = "N", default_value_t = Limits::default().max_registrations)]
-    max_registrations: usize,
+    #[arg(long, value_name = "N", default_value_t = (Limits::default().max_registrations) as u64,
+          value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    max_registrations: u64,
     /// The most memory the registrations may be counted for together, in MiB (each
     /// counts its text and a share for the structures holding it).
-    #[arg(long, value_name = "MIB", default_value_t = Limits::default().max_bytes >> 20)]
-    max_mib: usize,
+    #[arg(long, value_name = "MIB", default_value_t = (Limits::default().max_bytes >> 20) as u64,
+          value_parser = clap::value_parser!(u64).range(1..=1_048_576))]
+    max_mib: u64,
     /// The most registrations one peer address may hold; past it 4.03.
-    #[arg(long, value_name = "N", default_value_t = Limits::default().per_peer)]
-    per_peer: usize,
+    #[arg(long, value_name = "N", default_value_t = (Limits::default().per_peer) as u64,
+          value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    per_peer: u64,
     /// The most KiB one peer address's registrations may be counted for; past it 4.03.
-    #[arg(long, value_name = "KIB", default_value_t = Limits::default().per_peer_bytes >> 10)]
-    per_peer_kib: usize,
+    #[arg(long, value_name = "KIB", default_value_t = (Limits::default().per_peer_bytes >> 10) as u64,
+          value_parser = clap::value_parser!(u64).range(1..=1_048_576))]
+    per_peer_kib: u64,
     /// The largest link-format document one registration may carry, in KiB; a larger one
     /// answers 4.13.
-    #[arg(long, value_name = "KIB", default_value_t = Limits::default().max_document >> 10)]
-    max_document_kib: usize,
+    #[arg(long, value_name = "KIB", default_value_t = (Limits::default().max_document >> 10) as u64,
+          value_parser = clap::value_parser!(u64).range(1..=1024))]
+    max_document_kib: u64,
     /// Answer clients off this machine in full before their address is verified (RFC
     /// 9175 Echo), for lookup clients that do not implement Echo (aiocoap 0.4.17) on a
     /// network you trust; a lookup's answer can be far larger than its request.
     #[arg(long)]
     no_address_check: bool,
-    /// Stop after this many seconds (default: run until interrupted).
-    #[arg(long, value_name = "SECONDS")]
-    duration: Option<f64>,
+    /// Stop after this many seconds, above 0 (default: run until interrupted).
+    #[arg(long, value_name = "SECONDS", value_parser = super::values::positive_seconds)]
+    duration: Option<Duration>,
 }
 
 /// Runs `rd` until a signal or `--duration`.
@@ -66,11 +71,11 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<()> {
         args.bind.clone()
     };
     let limits = Limits {
-        max_registrations: args.max_registrations,
-        max_bytes: args.max_mib.saturating_mul(1 << 20),
-        per_peer: args.per_peer,
-        per_peer_bytes: args.per_peer_kib.saturating_mul(1 << 10),
-        max_document: args.max_document_kib.saturating_mul(1 << 10),
+        max_registrations: usize::try_from(args.max_registrations)?,
+        max_bytes: usize::try_from(args.max_mib << 20)?,
+        per_peer: usize::try_from(args.per_peer)?,
+        per_peer_bytes: usize::try_from(args.per_peer_kib << 10)?,
+        max_document: usize::try_from(args.max_document_kib << 10)?,
     };
     let store = if args.no_state {
         None
@@ -132,9 +137,7 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<()> {
     }
     let duration = async {
         match args.duration {
-            Some(s) => {
-                tokio::time::sleep(Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)).await;
-            }
+            Some(d) => tokio::time::sleep(d).await,
             None => std::future::pending().await,
         }
     };

@@ -197,7 +197,7 @@ pub(crate) struct ServeArgs {
     /// quarters of --rd-lifetime, registered again when cameras come or go or a group is
     /// joined or left, removed at shutdown. Without a path the registration resource is
     /// discovered (/.well-known/core?rt=core.rd).
-    #[arg(long, value_name = "coap://HOST[:PORT][/PATH]")]
+    #[arg(long, value_name = "coap://HOST[:PORT][/PATH]", value_parser = super::values::coap_uri)]
     register: Option<String>,
     /// With --register: the endpoint name, unique in the directory (at most 63 bytes;
     /// default: the station's name).
