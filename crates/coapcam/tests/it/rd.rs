@@ -136,6 +136,46 @@ fn registrations_are_renewed_removed_at_shutdown_expire_when_killed_and_outlive_
     assert_eq!(lines.len(), 1, "{}", f.stdout_text());
     assert_eq!(lines[0]["ep"], "cams");
     assert_eq!(lines[0]["base"], format!("coap://{cams_addr}"));
+    // A resource that goes (as a camera's do when it is unplugged) and comes back: the
+    // registration follows.
+    let color_links = || {
+        runtime().block_on(async {
+            let c = client();
+            let mut get = Request::new(Code::GET, "/rd-lookup/res");
+            get.options.push(OptionNumber::URI_QUERY, "ep=cams");
+            get.options.push(OptionNumber::URI_QUERY, "rt=rgbd.color");
+            get.timeout = Some(LIMIT);
+            let r = c.send(rd, get).await.expect("resource lookup");
+            coap::link_format::parse(&String::from_utf8_lossy(&r.payload))
+                .expect("link-format")
+                .len()
+        })
+    };
+    let wait_links = |want: usize| {
+        let deadline = Instant::now() + SETTLE;
+        while color_links() != want {
+            assert!(
+                Instant::now() < deadline,
+                "the color link count stays not {want}"
+            );
+            thread::sleep(Duration::from_millis(100));
+        }
+    };
+    let color = format!("coap://{cams_addr}/cams/840412060746/color");
+    Proc::run(COAPCAM, &["delete", &color], LIMIT).expect_success("DELETE color");
+    wait_links(0);
+    Proc::run(
+        COAPCAM,
+        &[
+            "post",
+            &format!("coap://{cams_addr}/cams/color"),
+            "--payload",
+            "840412060746",
+        ],
+        LIMIT,
+    )
+    .expect_success("POST /cams/color");
+    wait_links(1);
     // Three lifetimes later the short one is still there, at the same location: renewed.
     thread::sleep(Duration::from_secs(18));
     let again = endpoints(rd, &["ep=short"]);
@@ -480,6 +520,29 @@ fn three_servers_of_a_group_are_found_through_the_directory_and_a_killed_one_is_
             "coap://127.0.0.23"
         ]
     );
+    // A group joined at run time (POST /coap-group) is registered again with it.
+    Proc::run(
+        COAPCAM,
+        &[
+            "post",
+            "coap://127.0.0.21/coap-group",
+            "--content-format",
+            "256",
+            "--payload",
+            r#"{"a": "224.0.1.193"}"#,
+        ],
+        LIMIT,
+    )
+    .expect_success("joining a group at run time");
+    let deadline = Instant::now() + SETTLE;
+    while endpoints(rd, &["grp=224.0.1.193:5683"]).len() != 1 {
+        assert!(
+            Instant::now() < deadline,
+            "the new group was not registered"
+        );
+        thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(endpoints(rd, &["grp=224.0.1.193:5683"])[0].ep, "station-21");
     // One is killed: it cannot remove its registration, and the directory still lists it.
     servers[2].kill();
     let started = Instant::now();
