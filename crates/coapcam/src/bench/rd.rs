@@ -17,6 +17,7 @@ use coap_net::Client;
 use serde::Serialize;
 
 use crate::process::{self, Proc};
+use crate::rd::{Directory, Limits, LookupKind, Params, Query};
 use crate::stats;
 
 /// What `bench rd` is asked to do.
@@ -45,6 +46,11 @@ pub struct LookupRow {
     pub p95_ms: f64,
     /// Longest.
     pub max_ms: f64,
+    /// The directory's own work of the same lookups (`Directory::lookup` in this process,
+    /// no network): median, milliseconds.
+    pub work_median_ms: f64,
+    /// Its 95th percentile.
+    pub work_p95_ms: f64,
 }
 
 /// What `bench rd` measured.
@@ -93,6 +99,17 @@ fn station_links(serial: &str) -> String {
 
 /// The path and query of a kind's `k`th lookup.
 type LookupOf = Box<dyn Fn(usize) -> (&'static str, Vec<String>)>;
+
+/// The query of registration `i`.
+fn registration_query(i: usize) -> Vec<String> {
+    vec![
+        format!("ep=station-{i}"),
+        "et=coapcam.station".to_owned(),
+        format!("grp=224.0.1.{}:5683", 180 + i % 8),
+        format!("base=coap://10.{}.{}.1", i / 250, i % 250),
+        "lt=86400".to_owned(),
+    ]
+}
 
 /// Resident and peak memory of process `pid`, KiB (`/proc/PID/status`).
 fn memory_kib(pid: u32) -> anyhow::Result<(u64, u64)> {
@@ -171,13 +188,7 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
             next += 1;
             let client = client.clone();
             running.spawn(async move {
-                let query = vec![
-                    format!("ep=station-{i}"),
-                    "et=coapcam.station".to_owned(),
-                    format!("grp=224.0.1.{}:5683", 180 + i % 8),
-                    format!("base=coap://10.{}.{}.1", i / 250, i % 250),
-                    "lt=86400".to_owned(),
-                ];
+                let query = registration_query(i);
                 let mut post = request(Code::POST, "/rd", &query);
                 post.options.set_uint(
                     OptionNumber::CONTENT_FORMAT,
@@ -249,6 +260,21 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
             }),
         ),
     ];
+    // The same registrations in a directory here, for the lookups' own work.
+    let now = crate::rd::service::now_ms();
+    let mut here = Directory::new(Limits {
+        max_registrations: n,
+        per_peer: n,
+        per_peer_bytes: usize::MAX,
+        max_bytes: usize::MAX,
+        ..Limits::default()
+    });
+    let peer = SocketAddr::from(([127, 0, 0, 1], 40_000));
+    for i in 0..n {
+        let query = registration_query(i);
+        let params = Params::parse(query.iter().map(String::as_str))?;
+        here.register(now, peer, params, &station_links(&format!("{i:012}")))?;
+    }
     let mut lookups = Vec::new();
     for (name, make) in &kinds {
         let mut times = Vec::with_capacity(config.lookups);
@@ -266,9 +292,30 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
                 .context("parsing a lookup")?
                 .len();
         }
+        let mut work = Vec::with_capacity(config.lookups);
+        for k in 0..config.lookups {
+            let (path, query) = make(k);
+            let kind = if path.ends_with("/res") {
+                LookupKind::Resources
+            } else {
+                LookupKind::Endpoints
+            };
+            let query = Query::parse(query.iter().map(String::as_str))?;
+            let started = Instant::now();
+            let found = here.lookup(now, kind, &query);
+            work.push(started.elapsed().as_secs_f64() * 1e3);
+            if found.links != links {
+                bail!(
+                    "{name}: {} links here, {links} from the directory",
+                    found.links
+                );
+            }
+        }
         lookups.push(LookupRow {
             lookup: name.clone(),
             links,
+            work_median_ms: stats::median(&work).unwrap_or(f64::NAN),
+            work_p95_ms: stats::percentile(&work, 0.95).unwrap_or(f64::NAN),
             median_ms: stats::median(&times).unwrap_or(f64::NAN),
             p95_ms: stats::percentile(&times, 0.95).unwrap_or(f64::NAN),
             max_ms: times.iter().copied().fold(0.0, f64::max),

@@ -48,16 +48,18 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<Exit> {
         per,
         report.rss_peak_kib as f64 / 1024.0
     );
-    outln!("| lookup | links | median ms | p95 ms | max ms |");
-    outln!("|---|---:|---:|---:|---:|");
+    outln!("| lookup | links | median ms | p95 ms | max ms | its work: median ms | p95 ms |");
+    outln!("|---|---:|---:|---:|---:|---:|---:|");
     for row in &report.lookups {
         outln!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} |",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.3} | {:.3} |",
             row.lookup,
             row.links,
             row.median_ms,
             row.p95_ms,
-            row.max_ms
+            row.max_ms,
+            row.work_median_ms,
+            row.work_p95_ms
         );
     }
     Ok(Exit::Success)
