@@ -23,7 +23,8 @@ prints one Markdown table: per (emulator, loss, size) the median, 95th percentil
 window run over QUIC's median, how many window runs took more than 3 times QUIC's median,
 the smallest max_window of the window's runs, and the machine's 1-minute load average
 (median and maximum over the row's runs). --demo-loop runs `coapcam demo` over and over
-beside the benchmark (issue 33's "machine load" case). --json FILE writes every run.
+beside the benchmark (issue 33's "machine load" case). --json FILE writes every run;
+--trace-dir DIR keeps each window run's congestion-controller trace, round by round.
 
 Exit status: 0 when the benchmark ran (failed runs are results), 1 when it could not
 (a program missing, a server that did not start).
@@ -144,7 +145,7 @@ def start_servers(coapcam, quic_bench, files, bodies, work):
     return procs, coap_addr, quic
 
 
-def run_client(mode, coapcam, quic_bench, addr, size, quic_cert, out, cap):
+def run_client(mode, coapcam, quic_bench, addr, size, quic_cert, out, cap, trace=None):
     if out.exists():
         out.unlink()
     if mode == "window":
@@ -152,10 +153,15 @@ def run_client(mode, coapcam, quic_bench, addr, size, quic_cert, out, cap):
                "--json", "--transfer", "window"]
     else:
         cmd = [str(quic_bench), "get", addr, str(quic_cert), str(out)]
+    env = None
+    if trace and mode == "window":
+        env = dict(os.environ, RUST_LOG="coap_net::congestion=trace")
     start = time.monotonic()
     try:
         done = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                              timeout=cap)
+                              timeout=cap, env=env)
+        if env:
+            trace.write_text(done.stderr)
         took = time.monotonic() - start
         status = done.returncode
         stdout = done.stdout
@@ -197,6 +203,9 @@ def main():
     parser.add_argument("--demo-loop", action="store_true",
                         help="run `coapcam demo` in a loop beside the benchmark")
     parser.add_argument("--json", type=Path, help="write every run here")
+    parser.add_argument("--trace-dir", type=Path,
+                        help="write each window run's controller trace (RUST_LOG="
+                             "coap_net::congestion=trace) into this directory")
     args = parser.parse_args()
 
     coapcam = args.coapcam.resolve()
@@ -254,8 +263,13 @@ def main():
                                           seed, args.jitter_ms if emulator == "netem-jitter" else 0)
                             load = loadavg()
                             try:
+                                trace = None
+                                if args.trace_dir:
+                                    args.trace_dir.mkdir(parents=True, exist_ok=True)
+                                    trace = args.trace_dir / (
+                                        f"{emulator}-{loss:g}-{size}-{run + 1}.log")
                                 r = run_client(mode, coapcam, quic_bench, relay.addr, size,
-                                               quic[size][1], out, args.cap)
+                                               quic[size][1], out, args.cap, trace)
                             finally:
                                 relay.stop()
                             if "ok" not in r:

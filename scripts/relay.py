@@ -155,11 +155,14 @@ def main():
     queue = []  # (due, seq, socket, data, destination)
     seq = 0
     dropped_clients = 0
-    stop = False
+
+    class Stop(Exception):
+        pass
 
     def on_signal(_signum, _frame):
-        nonlocal stop
-        stop = True
+        # Raised, not flagged: Python retries an interrupted select(2) by itself (PEP
+        # 475), so a flag would only be seen at the next datagram.
+        raise Stop()
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
@@ -176,52 +179,55 @@ def main():
             seq += 1
             heapq.heappush(queue, (now + direction.delay, seq, sock, data, dest))
 
-    while not stop:
-        now = time.monotonic()
-        while queue and queue[0][0] <= now:
-            _, _, sock, data, dest = heapq.heappop(queue)
-            try:
-                sock.sendto(data, dest)
-            except OSError:
-                pass  # a full buffer or an unreachable peer: the datagram is gone
-        if end is not None and now >= end:
-            break
-        timeout = None
-        if queue:
-            timeout = max(0.0, queue[0][0] - now)
-        if end is not None:
-            timeout = min(timeout if timeout is not None else end - now, max(0.0, end - now))
-        try:
-            ready, _, _ = select.select(readers, [], [], timeout)
-        except InterruptedError:
-            continue
-        now = time.monotonic()
-        for r in ready:
-            # Several datagrams per wake-up, each stamped with the time it was read.
-            for _ in range(64):
+    try:
+        while True:
+            now = time.monotonic()
+            while queue and queue[0][0] <= now:
+                _, _, sock, data, dest = heapq.heappop(queue)
                 try:
-                    data, peer = r.recvfrom(MAX_DATAGRAM)
-                except (BlockingIOError, InterruptedError):
-                    break
+                    sock.sendto(data, dest)
                 except OSError:
-                    break  # an ICMP error queued on an upstream socket
-                now = time.monotonic()
-                if r is listen:
-                    s = upstream.get(peer)
-                    if s is None:
-                        if len(upstream) >= MAX_CLIENTS:
-                            dropped_clients += 1
-                            continue
-                        bind = ("::", 0) if fwd_family == socket.AF_INET6 else ("0.0.0.0", 0)
-                        if args.forward[0] in ("127.0.0.1", "::1"):
-                            bind = (args.forward[0], 0)
-                        s = udp_socket(fwd_family, bind)
-                        upstream[peer] = s
-                        client_of[s.fileno()] = peer
-                        readers.append(s)
-                    take(up, s, data, args.forward, now)
-                else:
-                    take(down, listen, data, client_of[r.fileno()], now)
+                    pass  # a full buffer or an unreachable peer: the datagram is gone
+            if end is not None and now >= end:
+                break
+            timeout = None
+            if queue:
+                timeout = max(0.0, queue[0][0] - now)
+            if end is not None:
+                timeout = min(timeout if timeout is not None else end - now, max(0.0, end - now))
+            try:
+                ready, _, _ = select.select(readers, [], [], timeout)
+            except InterruptedError:
+                continue
+            now = time.monotonic()
+            for r in ready:
+                # Several datagrams per wake-up, each stamped with the time it was read.
+                for _ in range(64):
+                    try:
+                        data, peer = r.recvfrom(MAX_DATAGRAM)
+                    except (BlockingIOError, InterruptedError):
+                        break
+                    except OSError:
+                        break  # an ICMP error queued on an upstream socket
+                    now = time.monotonic()
+                    if r is listen:
+                        s = upstream.get(peer)
+                        if s is None:
+                            if len(upstream) >= MAX_CLIENTS:
+                                dropped_clients += 1
+                                continue
+                            bind = ("::", 0) if fwd_family == socket.AF_INET6 else ("0.0.0.0", 0)
+                            if args.forward[0] in ("127.0.0.1", "::1"):
+                                bind = (args.forward[0], 0)
+                            s = udp_socket(fwd_family, bind)
+                            upstream[peer] = s
+                            client_of[s.fileno()] = peer
+                            readers.append(s)
+                        take(up, s, data, args.forward, now)
+                    else:
+                        take(down, listen, data, client_of[r.fileno()], now)
+    except Stop:
+        pass
 
     if log:
         log.close()

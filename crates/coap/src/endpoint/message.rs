@@ -281,11 +281,34 @@ impl MessageLayer {
             self.paths
                 .retain(|_, p| p.controller.as_ref().is_some_and(|c| c.in_flight() > 0));
         }
-        self.paths.entry(PeerKey(peer)).or_insert_with(|| Path {
-            rtt: RttEstimator::new(now),
-            controller: None,
-            stats: PathStats::default(),
-        })
+        if !self.paths.contains_key(&PeerKey(peer)) {
+            // A new peer on a host this endpoint knows (another port: a new process of
+            // a client, each with a socket of its own) starts from that host's round
+            // trip, as a weak sample its first measured one replaces: its first CON
+            // then times out after about that, not ACK_TIMEOUT (TCP keeps its metrics
+            // per destination address too).
+            let host = self
+                .paths
+                .iter()
+                .filter(|(k, _)| k.0.ip() == peer.ip())
+                .filter_map(|(_, p)| p.rtt.srtt())
+                .min();
+            let mut rtt = RttEstimator::new(now);
+            if let Some(srtt) = host {
+                rtt.on_sample(now, srtt, false);
+            }
+            self.paths.insert(
+                PeerKey(peer),
+                Path {
+                    rtt,
+                    controller: None,
+                    stats: PathStats::default(),
+                },
+            );
+        }
+        self.paths
+            .get_mut(&PeerKey(peer))
+            .unwrap_or_else(|| unreachable!("inserted above"))
     }
 
     /// The path's probe timeout (`SRTT + 4 RTTVAR`) if it has a round-trip estimate:
@@ -310,8 +333,9 @@ impl MessageLayer {
         peer: SocketAddr,
         config: &EndpointConfig,
     ) -> (Duration, Backoff) {
-        let estimate = (self.paths.get(&PeerKey(peer)))
-            .and_then(|p| p.rtt.con_timeout(now, config.ack_timeout));
+        // The path is made if new: a peer on a host known already starts from its
+        // round trip ([`MessageLayer::path`]).
+        let estimate = (self.path(now, peer).rtt).con_timeout(now, config.ack_timeout);
         let base = estimate.unwrap_or(config.ack_timeout);
         let unit = self.unit();
         let spread = (config.ack_random_factor - 1.0).max(0.0);

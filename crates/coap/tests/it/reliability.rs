@@ -657,3 +657,48 @@ fn a_remembered_round_trip_times_out_a_lost_first_con_in_milliseconds() {
         assert!(stats.srtt.is_some_and(|s| s > Duration::from_millis(20)));
     }
 }
+
+#[test]
+fn a_new_port_on_a_known_host_starts_from_that_hosts_round_trip() {
+    // Client A's slow request gets a separate response, a CON whose ACK gives the server
+    // a round trip to A. Client B, another port of the same host (a later process),
+    // starts from it: its own first CON would time out after about that, not 2-3 s.
+    let mut sim = Sim::new(LinkConfig {
+        delay: Duration::from_millis(10),
+        ..LinkConfig::default()
+    });
+    let a = sim.add_at(([127, 0, 0, 1], 40001).into(), cfg(1), None);
+    let b = sim.add_at(([127, 0, 0, 1], 40002).into(), cfg(3), None);
+    let handler: crate::sim::Handler = Box::new(|_| {
+        Reply::After(
+            Duration::from_millis(1500),
+            Response::new(Code::CONTENT).with_payload("late"),
+        )
+    });
+    let s = sim.add_at(([127, 0, 0, 9], 5683).into(), cfg(2), Some(handler));
+    let server = sim.nodes[s].addr;
+    let (addr_a, addr_b) = (sim.nodes[a].addr, sim.nodes[b].addr);
+    let now = sim.now;
+    sim.nodes[a]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/slow"));
+    assert!(sim.run_to_event(a, Duration::from_secs(10)));
+    // The client's ACK reaches the server.
+    sim.run_until(Duration::from_millis(15), |_| false);
+    let to_a = sim.nodes[s].ep.path_stats(addr_a).and_then(|p| p.srtt);
+    assert!(
+        to_a.is_some_and(|d| d >= Duration::from_millis(20)),
+        "{to_a:?}"
+    );
+    let now = sim.now;
+    sim.nodes[b]
+        .ep
+        .request(now, server, Request::new(Code::GET, "/slow"));
+    // The server's separate response to B has left (at 1.5 s) and is not acknowledged
+    // yet: its timeout came from A's round trip.
+    sim.run_until(Duration::from_millis(1515), |_| false);
+    let to_b = sim.nodes[s].ep.path_stats(addr_b).and_then(|p| p.srtt);
+    assert_eq!(to_b, to_a);
+    // Another host learns nothing from it.
+    assert_eq!(sim.nodes[a].ep.path_stats(addr_b), None);
+}

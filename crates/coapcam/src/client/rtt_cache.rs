@@ -1,13 +1,17 @@
-//! Round trips remembered per server between processes, as TCP's metrics cache keeps
-//! them per destination: each CLI process starts with a new endpoint that knows no round
+//! Round trips remembered per server host between processes, as TCP's metrics cache
+//! keeps them per destination address: each CLI process starts with a new endpoint that knows no round
 //! trip, so a lost first CON waits ACK_TIMEOUT (2-3 s) where the path's estimate would
 //! have retransmitted it after about 120 ms (20 ms links). A process that has measured a
 //! server's round trip writes it into a small file; the next one to that server starts
 //! from it ([`coap_net::Client::remember_rtt`]), until it measures its own.
 //!
 //! The file is `$XDG_CACHE_HOME/coapcam/rtt.json` (`~/.cache/coapcam/rtt.json` without
-//! it): a JSON object from the server's `address:port` to its smoothed round trip, its
-//! variation and when it was written (Unix seconds). At most [`MAX_ENTRIES`] servers are
+//! it): a JSON object from the server's IP address to its smoothed round trip, its
+//! variation and when it was written (Unix seconds). The key is the address without the
+//! port, as TCP's is: servers (and relays) on other ports of one host share the path.
+//! A wrong estimate costs little: one too short sends the first CON once more than
+//! needed (its timeout is at least the estimate plus 100 ms), one too long waits at
+//! most what the estimate says instead of 2-3 s. At most [`MAX_ENTRIES`] servers are
 //! kept (the least recently written go first); an entry older than [`MAX_AGE`] is
 //! ignored, and so is a file that cannot be read or parsed (a warning in the debug log;
 //! the next write replaces it). Writes go to a temporary file renamed over the old one,
@@ -22,7 +26,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use coap_net::Client;
 use serde::{Deserialize, Serialize};
 
-/// Servers remembered at most.
+/// Hosts remembered at most.
 pub const MAX_ENTRIES: usize = 64;
 
 /// How long an entry is trusted: a round trip an hour old may describe another network.
@@ -54,6 +58,11 @@ pub fn default_path() -> Option<PathBuf> {
     Some(base.join("coapcam").join("rtt.json"))
 }
 
+/// The file's key of `server`: its IP address.
+fn key(server: SocketAddr) -> String {
+    server.ip().to_string()
+}
+
 fn unix_now() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
@@ -79,7 +88,7 @@ pub fn load(path: &Path) -> BTreeMap<String, Entry> {
 
 /// The remembered round trip of `server` in the file at `path`, if fresh at `now_unix_s`.
 pub fn lookup(path: &Path, server: SocketAddr, now_unix_s: u64) -> Option<Entry> {
-    let entry = *load(path).get(&server.to_string())?;
+    let entry = *load(path).get(&key(server))?;
     let age = now_unix_s.saturating_sub(entry.written_unix_s);
     (age <= MAX_AGE.as_secs() && entry.srtt_us > 0).then_some(entry)
 }
@@ -89,7 +98,7 @@ pub fn lookup(path: &Path, server: SocketAddr, now_unix_s: u64) -> Option<Entry>
 pub fn store(path: &Path, server: SocketAddr, entry: Entry) -> std::io::Result<()> {
     let mut all = load(path);
     all.retain(|_, e| entry.written_unix_s.saturating_sub(e.written_unix_s) <= MAX_AGE.as_secs());
-    all.insert(server.to_string(), entry);
+    all.insert(key(server), entry);
     while all.len() > MAX_ENTRIES {
         let oldest = all
             .iter()
@@ -157,17 +166,23 @@ mod tests {
     }
 
     #[test]
-    fn remembers_per_server_and_forgets_stale_ones() {
+    fn remembers_per_host_and_forgets_stale_ones() {
         let d = dir("per-server");
         let path = d.join("coapcam").join("rtt.json");
         let (a, b): (SocketAddr, SocketAddr) = (
             "127.0.0.1:5683".parse().unwrap(),
             "[::1]:5684".parse().unwrap(),
         );
+        let a_other_port: SocketAddr = "127.0.0.1:6000".parse().unwrap();
         assert_eq!(lookup(&path, a, 1000), None, "no file yet");
         store(&path, a, entry(21, 1000)).unwrap();
         store(&path, b, entry(55, 1001)).unwrap();
         assert_eq!(lookup(&path, a, 1000), Some(entry(21, 1000)));
+        assert_eq!(
+            lookup(&path, a_other_port, 1000),
+            Some(entry(21, 1000)),
+            "per host"
+        );
         assert_eq!(lookup(&path, b, 1002).map(|e| e.srtt_us), Some(55_000));
         // An hour and a second later it is stale.
         assert_eq!(lookup(&path, a, 1000 + 3601), None);
@@ -182,14 +197,14 @@ mod tests {
         std::fs::write(&path, b"{ not json").unwrap();
         let a: SocketAddr = "10.0.0.1:5683".parse().unwrap();
         assert_eq!(lookup(&path, a, 10), None);
-        for port in 0..70u16 {
-            let server = SocketAddr::from(([10, 0, 0, 1], 6000 + port));
-            store(&path, server, entry(20, 100 + u64::from(port))).unwrap();
+        for host in 0..70u8 {
+            let server = SocketAddr::from(([10, 0, 0, host], 5683));
+            store(&path, server, entry(20, 100 + u64::from(host))).unwrap();
         }
         let all = load(&path);
         assert_eq!(all.len(), MAX_ENTRIES);
-        assert!(!all.contains_key("10.0.0.1:6000"), "the oldest went first");
-        assert!(all.contains_key("10.0.0.1:6069"));
+        assert!(!all.contains_key("10.0.0.0"), "the oldest went first");
+        assert!(all.contains_key("10.0.0.69"));
         let _ = std::fs::remove_dir_all(&d);
     }
 }
