@@ -10,7 +10,7 @@ use anyhow::bail;
 use clap::Args;
 use coap::ContentFormat;
 
-use coapcam::client::measure::{CloudMeasurement, Source};
+use coapcam::client::measure::{self, Calibration, Source};
 use coapcam::client::timed::{self, Repeat, Timed};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Billing, Found, Measurement, Parcel};
@@ -167,12 +167,18 @@ struct RecordLine {
     trigger: &'static str,
 }
 
-impl From<Timed> for Success {
-    fn from(t: Timed) -> Self {
+impl Success {
+    /// A grab or a measurement; a measurement is reported as `calibration` says (an
+    /// uncalibrated camera's measurement has no dimensions, as with `measure`).
+    fn timed(t: Timed, calibration: &Calibration) -> Self {
         Self {
             bytes: t.bytes,
             time: t.time,
-            measurement: t.measurement,
+            measurement: t.measurement.map(|m| Measurement {
+                // The line's own.
+                received_bytes: None,
+                ..m.report_with(&Billing::default(), calibration)
+            }),
             record: None,
         }
     }
@@ -183,7 +189,7 @@ struct Success {
     bytes: usize,
     /// The time the statistics count.
     time: Duration,
-    measurement: Option<CloudMeasurement>,
+    measurement: Option<Measurement>,
     /// A record of the results log (`measure --observe`).
     record: Option<Record>,
 }
@@ -276,12 +282,7 @@ impl Report {
                 if self.json {
                     let measurement = s
                         .measurement
-                        .as_ref()
-                        .map(|m| Measurement {
-                            // The line's own.
-                            received_bytes: None,
-                            ..m.report(&Billing::default())
-                        })
+                        .clone()
                         .or_else(|| s.record.as_ref().map(|r| r.measurement.clone()));
                     let record = s.record.as_ref().map(|r| RecordLine {
                         id: r.id,
@@ -318,28 +319,25 @@ impl Report {
                             r.trigger.name()
                         );
                     }
-                    let parcel = s
+                    let measurement = s
                         .measurement
                         .as_ref()
-                        .map(|m| m.parcel.clone())
-                        .or_else(|| s.record.as_ref().map(|r| r.measurement.parcel()));
-                    let uncalibrated =
-                        s.record.as_ref().and_then(|r| match &r.measurement.parcel {
-                            Found::Uncalibrated { uncalibrated } => Some(uncalibrated.join(", ")),
-                            _ => None,
-                        });
-                    match (parcel, uncalibrated) {
-                        (_, Some(cameras)) => {
-                            line += &format!("  not calibrated ({cameras}): no dimensions");
+                        .or_else(|| s.record.as_ref().map(|r| &r.measurement));
+                    match measurement.map(|m| (&m.parcel, m.parcel())) {
+                        Some((Found::Uncalibrated { uncalibrated }, _)) => {
+                            line += &format!(
+                                "  not calibrated ({}): no dimensions",
+                                uncalibrated.join(", ")
+                            );
                         }
-                        (Some(Parcel::Measured(d)), None) => {
+                        Some((_, Parcel::Measured(d))) => {
                             line += &format!(
                                 "  {:.1} x {:.1} x {:.1} mm, yaw {:.1} deg, {} points",
                                 d.length_mm, d.width_mm, d.height_mm, d.yaw_deg, d.points
                             );
                         }
-                        (Some(Parcel::Nothing { .. }), None) => line += "  nothing on the table",
-                        (None, None) => {}
+                        Some((_, Parcel::Nothing { .. })) => line += "  nothing on the table",
+                        None => {}
                     }
                     if let Some(codes) = s.record.as_ref().map(Record::code_texts)
                         && !codes.is_empty()
@@ -426,13 +424,28 @@ async fn repeat(
         ticks
     });
     let config = args.dimension.config();
+    // Whether the measured cameras are calibrated, asked once at the first measurement
+    // (their documents, outside the timed requests).
+    let mut calibration = None;
     while !report.done(args.count) {
         if let Some(ticks) = &mut ticks {
             ticks.tick().await;
         }
         let started = Instant::now();
         let outcome = timed::once(client, plan, args.accept, &config).await;
-        report.result(outcome.map(Success::from), started.elapsed())?;
+        let elapsed = started.elapsed();
+        if let (
+            Ok(Timed {
+                measurement: Some(m),
+                ..
+            }),
+            None,
+        ) = (&outcome, &calibration)
+        {
+            calibration = Some(measure::calibration_of(client, &m.grabbed.cameras).await);
+        }
+        let calibration = calibration.clone().unwrap_or_default();
+        report.result(outcome.map(|t| Success::timed(t, &calibration)), elapsed)?;
     }
     Ok(())
 }
@@ -476,7 +489,8 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
         match &plan {
             Plan::Observe { serial, stream } => {
                 let on_result = |outcome: anyhow::Result<Timed>, elapsed| {
-                    report.result(outcome.map(Success::from), elapsed)?;
+                    let grab = outcome.map(|t| Success::timed(t, &Calibration::default()));
+                    report.result(grab, elapsed)?;
                     Ok(report.done(args.count))
                 };
                 timed::observe(&client, serial, *stream, args.accept, timeout, on_result).await

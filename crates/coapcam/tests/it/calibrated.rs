@@ -217,3 +217,46 @@ fn measure_on_an_uncalibrated_camera_gives_no_dimensions_and_exits_8() {
         f.stdout_text()
     );
 }
+
+#[test]
+fn monitor_measure_on_an_uncalibrated_camera_prints_no_dimensions() {
+    let state = TempDir::new("calibrated-monitor-uncalibrated");
+    let scene = crate::support::tilted_uncalibrated_scene(state.path());
+    let (_server, addr) = serve_with(state.path(), &["--scene", path(&scene)]);
+    let uri = format!("coap://{addr}");
+    let args = [
+        "monitor",
+        "measure",
+        "--server",
+        &uri,
+        "--count",
+        "2",
+        "--interval",
+        "0",
+    ];
+    let f = coapcam(&[&args[..], &["--json"]].concat());
+    assert_eq!(f.status.code(), Some(0), "{}", f.stderr);
+    let lines: Vec<serde_json::Value> = f
+        .stdout_text()
+        .lines()
+        .filter(|l| l.contains("\"parcel\""))
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 2, "{}", f.stdout_text());
+    for line in &lines {
+        // The measurement's fields are the line's.
+        assert_eq!(line["parcel"], "uncalibrated", "{line}");
+        assert_eq!(line["uncalibrated"], serde_json::json!([SN]), "{line}");
+        assert!(line.get("length_mm").is_none(), "{line}");
+    }
+    let f = coapcam(&args);
+    assert_eq!(f.status.code(), Some(0), "{}", f.stderr);
+    let text = f.stdout_text();
+    assert_eq!(
+        text.matches(&format!("not calibrated ({SN}): no dimensions"))
+            .count(),
+        2,
+        "{text}"
+    );
+    assert!(!text.contains(" mm, yaw "), "{text}");
+}
