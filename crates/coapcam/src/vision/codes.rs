@@ -711,6 +711,51 @@ mod tests {
         assert_eq!(read(&photograph(&scene, 0)), []);
     }
 
+    #[test]
+    fn labels_read_through_the_lane_sets_color_sensor_at_its_extremes() {
+        // The noisiest, blurriest, brightest and darkest color sensor of the lane set.
+        let [noise, blur_px] = [rgbd::lane::LANE_COLOR_NOISE[1], rgbd::lane::LANE_BLUR_PX[1]];
+        for exposure in rgbd::lane::LANE_EXPOSURE {
+            let sensor = rgbd::scene::ColorSensor {
+                noise,
+                blur_px,
+                exposure,
+            };
+            let mut scene = rgbd::Scene::default_demo();
+            for camera in &mut scene.cameras {
+                camera.color_sensor = sensor;
+            }
+            for index in 0..scene.cameras.len() {
+                assert_eq!(
+                    read(&photograph(&scene, index)),
+                    [Code {
+                        kind: CodeKind::Qr,
+                        text: "PKG-0001".into()
+                    }],
+                    "camera {index}, {sensor:?}"
+                );
+            }
+            let mut single = rgbd::Scene::default_single();
+            single.cameras[0].color_sensor = sensor;
+            single.boxes[0].yaw_deg = 35.0;
+            single.boxes[0].label = Some(rgbd::scene::Label {
+                kind: rgbd::scene::LabelKind::Code128,
+                text: "1Z999AA10123456784".into(),
+                size: 0.25,
+                appear_s: None,
+                remove_s: None,
+            });
+            assert_eq!(
+                read(&photograph(&single, 0)),
+                [Code {
+                    kind: CodeKind::Code128,
+                    text: "1Z999AA10123456784".into()
+                }],
+                "{sensor:?}"
+            );
+        }
+    }
+
     /// A Code 128 symbol of `modules` (with 10-module quiet zones), `module_px` pixels
     /// per module, its bars a quarter as tall as the symbol is long (the reader's scan
     /// lines cross bars at least a fifth as tall whole), turned `yaw_deg` about the

@@ -62,6 +62,12 @@ fn the_lane_set_is_reproducible_and_cycles_through_the_cases() {
         };
         assert_eq!(s.truths.len(), parcels, "{}", s.case);
         assert!(s.scene.cameras.iter().all(|c| c.calibrated));
+        for c in &s.scene.cameras {
+            let sensor = c.color_sensor;
+            assert!((1.5..3.0).contains(&sensor.noise), "{sensor:?}");
+            assert!((0.15..0.3).contains(&sensor.blur_px), "{sensor:?}");
+            assert!((0.85..1.1).contains(&sensor.exposure), "{sensor:?}");
+        }
         let cameras = s.scene.cameras.len();
         assert!(
             cameras == 1 || (cameras == 2 && s.case != Case::Cut),

@@ -20,6 +20,7 @@ pub(crate) fn floor_scene(height_m: f64, noise: Noise) -> Scene {
             noise,
             calibrated: true,
             stall_s: None,
+            color_sensor: rgbd::scene::ColorSensor::default(),
         }],
         boxes: Vec::new(),
         cylinders: Vec::new(),

@@ -339,3 +339,119 @@ fn a_floor_marker_is_drawn_with_its_family_pattern_where_the_color_camera_sees_i
         );
     }
 }
+
+/// Mean and standard deviation of the first channel over the whole frame.
+fn channel_stats(data: &[u8], bpp: usize) -> (f64, f64) {
+    let values: Vec<f64> = data.chunks(bpp).map(|p| f64::from(p[0])).collect();
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+    (mean, var.sqrt())
+}
+
+#[test]
+fn the_color_sensor_adds_noise_blur_and_exposure_only_when_asked() {
+    use rgbd::scene::ColorSensor;
+    let mut scene = floor_scene(1.0, Noise::D415);
+    let clean = only_camera(&scene).render_color(1);
+    assert!(scene.cameras[0].color_sensor.is_off());
+    let (level, spread) = channel_stats(&clean.data, 3);
+    assert_eq!(spread, 0.0, "the floor is evenly lit: one level");
+    // Noise: its standard deviation follows noise * sqrt((level + 16) / 144).
+    scene.cameras[0].color_sensor = ColorSensor {
+        noise: 4.0,
+        ..ColorSensor::default()
+    };
+    let cam = only_camera(&scene);
+    let noisy = cam.render_color(1);
+    let (mean, sigma) = channel_stats(&noisy.data, 3);
+    let expected = 4.0 * ((level + 16.0) / 144.0).sqrt();
+    assert!((mean - level).abs() < 0.1, "{mean} vs {level}");
+    assert!(
+        (sigma / expected - 1.0).abs() < 0.05,
+        "{sigma} vs {expected}"
+    );
+    // New each frame, the same for the same frame.
+    assert_eq!(noisy.data, cam.render_color(1).data);
+    assert_ne!(noisy.data, cam.render_color(2).data);
+    // Exposure multiplies the light, and clips at 255.
+    scene.cameras[0].color_sensor = ColorSensor {
+        exposure: 1.5,
+        ..ColorSensor::default()
+    };
+    let bright = only_camera(&scene).render_color(1);
+    let (mean, _) = channel_stats(&bright.data, 3);
+    assert!(
+        (mean - (level * 1.5).round()).abs() <= 1.0,
+        "{mean} vs {level}"
+    );
+    scene.cameras[0].color_sensor.exposure = 10.0;
+    assert!(
+        only_camera(&scene)
+            .render_color(1)
+            .data
+            .iter()
+            .all(|&c| c == 255)
+    );
+    // Blur spreads an edge: the box's outline gets levels between the box's and the
+    // floor's, which the sharp image has only where a pixel straddles it.
+    let mut boxed = Scene::default_single();
+    boxed.boxes[0].label = None;
+    let between = |scene: &Scene| {
+        let data = only_camera(scene).render_color(1).data;
+        let row = &data[360 * 1280 * 3..361 * 1280 * 3];
+        let floor = row[0];
+        let lid = row[640 * 3];
+        row.chunks(3)
+            .filter(|p| p[0] > floor.min(lid) + 2 && p[0] < floor.max(lid) - 2)
+            .count()
+    };
+    let sharp = between(&boxed);
+    boxed.cameras[0].color_sensor.blur_px = 2.0;
+    let blurred = between(&boxed);
+    assert!(blurred >= sharp + 8, "{sharp} -> {blurred}");
+    // Alpha stays opaque.
+    let cam = only_camera(&boxed);
+    cam.set_color_settings(ColorSettings {
+        format: ColorFormat::Rgba8,
+        fps: 30,
+        width: 640,
+        height: 480,
+    })
+    .unwrap();
+    assert!(cam.render_color(1).data.chunks(4).all(|p| p[3] == 255));
+}
+
+#[test]
+fn color_sensor_values_out_of_range_are_refused_naming_the_field() {
+    let camera = "[[camera]]\nserial = \"000000000001\"\nposition = [0.0, 0.0, 1.0]\nlook_at = [0.0, 0.0, 0.0]\n";
+    for (sensor, error) in [
+        (
+            "{ noise = -1.0 }",
+            "camera[0].color_sensor.noise: must be from 0 to 64 levels, got -1",
+        ),
+        (
+            "{ blur_px = 9.0 }",
+            "camera[0].color_sensor.blur_px: must be from 0 to 8 pixels, got 9",
+        ),
+        (
+            "{ exposure = 0.0 }",
+            "camera[0].color_sensor.exposure: must be from 0.1 to 10, got 0",
+        ),
+    ] {
+        let e = Scene::from_toml(&format!("{camera}color_sensor = {sensor}\n"))
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, format!("scene: {error}"));
+    }
+    let e = Scene::from_toml(&format!("{camera}color_sensor = {{ gain = 2.0 }}\n"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("unknown field `gain`"), "{e}");
+    let ok = Scene::from_toml(&format!(
+        "{camera}color_sensor = {{ noise = 2.5, blur_px = 0.7, exposure = 1.2 }}\n"
+    ))
+    .unwrap();
+    let s = ok.cameras[0].color_sensor;
+    assert_eq!((s.noise, s.blur_px, s.exposure), (2.5, 0.7, 1.2));
+}

@@ -54,6 +54,7 @@ pub fn scene(seed: u64, index: usize) -> anyhow::Result<Scene> {
             noise: Noise::D415,
             calibrated: true,
             stall_s: None,
+            color_sensor: rgbd::scene::ColorSensor::default(),
         })
     };
     let cameras = if two {
@@ -170,6 +171,7 @@ pub fn calibration_scenes(seed: u64, index: usize) -> anyhow::Result<(Scene, Sce
             noise: Noise::D415,
             calibrated: false,
             stall_s: None,
+            color_sensor: rgbd::scene::ColorSensor::default(),
         });
     }
     let parcel = parcel_scene(

@@ -46,7 +46,11 @@
 //! Color is rendered from the color camera (15 mm from the left imager, see
 //! [`d415::DEPTH_TO_COLOR_X_M`]) with its own intrinsics: flat colors shaded by one
 //! fixed directional light (ambient + Lambert), labels as black and white modules on
-//! the box's top face, a highlight on glossy surfaces. No noise.
+//! the box's top face, a highlight on glossy surfaces. A camera's `color_sensor` (off by
+//! default) then blurs it (Gaussian, `blur_px`), multiplies it by `exposure` and adds
+//! noise of standard deviation `noise * sqrt((level + 16) / 144)` per channel (photon
+//! noise over a read-noise floor; `noise` at mid grey), new each frame, clipping at 0
+//! and 255.
 //!
 //! A scene may have a timeline (objects that appear, slide in and are removed; see
 //! [`scene`]): a grab renders the scene as it stands at the frame's capture, in scene
@@ -84,7 +88,7 @@ use crate::mode::{ModeTable, Stream};
 use crate::settings::{ColorSettings, DepthSettings};
 use raycast::{Stage, View};
 use render::DepthJob;
-use scene::{Noise, Scene, SceneError};
+use scene::{ColorSensor, Noise, Scene, SceneError};
 
 #[derive(Debug)]
 struct State {
@@ -116,6 +120,8 @@ pub struct SyntheticCamera {
     stall: Option<Duration>,
     modes: ModeTable,
     state: Mutex<State>,
+    /// What the color sensor adds to the color image.
+    color_sensor: ColorSensor,
 }
 
 impl SyntheticCamera {
@@ -168,6 +174,7 @@ impl SyntheticCamera {
             epoch,
             epoch_unix_us: unix_us_at(epoch),
             stall: cam.stall_s.map(Duration::from_secs_f64),
+            color_sensor: cam.color_sensor,
             modes: ModeTable::d415(),
             state: Mutex::new(State {
                 color: ColorSettings::default(),
@@ -262,11 +269,21 @@ impl SyntheticCamera {
             stride: settings.width as usize * settings.format.bytes_per_pixel(),
             timestamp_us: device_time_us(frame_number, settings.fps),
             frame_number,
-            data: render::render_color(
-                &self.stage.world_at(scene_time.as_secs_f64()),
-                &view,
-                settings.format,
-            ),
+            data: {
+                let world = self.stage.world_at(scene_time.as_secs_f64());
+                let mut data = render::render_color(&world, &view, settings.format);
+                if !self.color_sensor.is_off() {
+                    render::apply_color_sensor(
+                        &mut data,
+                        settings.width as usize,
+                        settings.height as usize,
+                        settings.format,
+                        &self.color_sensor,
+                        render::frame_key(self.seed, self.serial.as_u64(), frame_number),
+                    );
+                }
+                data
+            },
         }
     }
 

@@ -4,7 +4,7 @@ use rayon::prelude::*;
 
 use super::d415;
 use super::raycast::{Hit, RowCandidate, Surface, Surfacing, V3, View, World, light_direction};
-use super::scene::Noise;
+use super::scene::{ColorSensor, Noise};
 use crate::frame::ColorFormat;
 
 /// Relative depth step between neighbouring pixels that counts as a discontinuity.
@@ -442,6 +442,106 @@ pub(crate) fn render_color(world: &World, view: &View, format: ColorFormat) -> V
             }
         });
     data
+}
+
+/// Hash key of the color sensor's noise (beside the depth frame's).
+const COLOR_NOISE_KEY: u64 = 0x3c6e_f372_fe94_f82b;
+
+/// What a color sensor does to the image `data` (`format`, `width` x `height`, rows
+/// packed) in place: the lens's Gaussian blur, the exposure's gain, then noise growing
+/// with the level (see [`ColorSensor`]), rounded and clipped to 0..=255. `key` seeds the
+/// noise (a frame's key: different noise each frame). Alpha bytes are left alone.
+pub(crate) fn apply_color_sensor(
+    data: &mut [u8],
+    width: usize,
+    height: usize,
+    format: ColorFormat,
+    sensor: &ColorSensor,
+    key: u64,
+) {
+    let bpp = format.bytes_per_pixel();
+    let row_len = width * 3;
+    if width == 0 || height == 0 || data.len() < width * height * bpp {
+        return;
+    }
+    // The three color channels as floats (their order does not matter: every channel
+    // gets the same treatment).
+    let mut img: Vec<f32> = data
+        .chunks_exact(bpp)
+        .flat_map(|px| [px[0], px[1], px[2]].map(f32::from))
+        .collect();
+    if sensor.blur_px > 0.0 {
+        img = blur(&img, width, height, sensor.blur_px as f32);
+    }
+    let gain = sensor.exposure as f32;
+    let noise = sensor.noise as f32;
+    data.par_chunks_mut(width * bpp)
+        .zip(img.par_chunks(row_len))
+        .enumerate()
+        .for_each(|(v, (out, row))| {
+            let row_key =
+                key ^ COLOR_NOISE_KEY ^ ((v * row_len) as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+            for (u, (px, rgb)) in out
+                .chunks_exact_mut(bpp)
+                .zip(row.chunks_exact(3))
+                .enumerate()
+            {
+                for (c, (byte, &level)) in px.iter_mut().zip(rgb).enumerate() {
+                    let mut level = level * gain;
+                    if noise > 0.0 {
+                        let i = (u * 3 + c) as u64;
+                        let h = mix64(row_key ^ i.wrapping_mul(0xd6e8_feb8_6659_fd93));
+                        let sigma = noise * ((level.min(255.0) + 16.0) / 144.0).sqrt();
+                        level += sigma * gaussian(h);
+                    }
+                    // `as u8` saturates: clipping at 0 and 255.
+                    *byte = (level + 0.5) as u8;
+                }
+            }
+        });
+}
+
+/// A separable Gaussian blur of standard deviation `sigma` pixels over an image of
+/// three interleaved channels; edges repeat the border pixel.
+fn blur(img: &[f32], width: usize, height: usize, sigma: f32) -> Vec<f32> {
+    let radius = (3.0 * sigma).ceil() as isize;
+    let mut kernel: Vec<f32> = (-radius..=radius)
+        .map(|k| (-((k * k) as f32) / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let total: f32 = kernel.iter().sum();
+    kernel.iter_mut().for_each(|k| *k /= total);
+    let row_len = width * 3;
+    let clamp = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
+    // Along rows.
+    let mut across = vec![0.0f32; img.len()];
+    across
+        .par_chunks_mut(row_len)
+        .zip(img.par_chunks(row_len))
+        .for_each(|(out, row)| {
+            for u in 0..width {
+                let mut sum = [0.0f32; 3];
+                for (k, w) in kernel.iter().enumerate() {
+                    let src = clamp(u as isize + k as isize - radius, width) * 3;
+                    for c in 0..3 {
+                        sum[c] += w * row[src + c];
+                    }
+                }
+                out[u * 3..u * 3 + 3].copy_from_slice(&sum);
+            }
+        });
+    // Along columns: each output row a weighted sum of whole input rows.
+    let mut out = vec![0.0f32; img.len()];
+    out.par_chunks_mut(row_len)
+        .enumerate()
+        .for_each(|(v, row)| {
+            for (k, w) in kernel.iter().enumerate() {
+                let src = clamp(v as isize + k as isize - radius, height) * row_len;
+                for (o, s) in row.iter_mut().zip(&across[src..src + row_len]) {
+                    *o += w * s;
+                }
+            }
+        });
+    out
 }
 
 #[cfg(test)]

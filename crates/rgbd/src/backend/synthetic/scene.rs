@@ -375,6 +375,88 @@ pub struct SceneCamera {
     /// frame of that moment again, its number and capture time included, as a camera
     /// whose driver keeps serving its last frame. `None`: never.
     pub stall_s: Option<f64>,
+    /// What its color sensor adds to the color image (default: nothing).
+    pub color_sensor: ColorSensor,
+}
+
+/// What the color sensor adds to the rendered image: blur, exposure and noise. The
+/// default is none of them, the clean image every scene rendered before.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColorSensor {
+    /// Standard deviation of the sensor noise at mid grey (level 128), 8-bit levels; it
+    /// grows with the square root of the level (photon noise) over a floor (read noise):
+    /// noise * sqrt((level + 16) / 144). 0 (the default) to 64.
+    #[serde(default)]
+    pub noise: f64,
+    /// Standard deviation of a Gaussian blur (focus, lens), pixels. 0 (the default) to 8.
+    #[serde(default)]
+    pub blur_px: f64,
+    /// Gain on the light before the sensor clips at 255: above 1 brighter (white labels
+    /// clip), below 1 darker. 1 (the default); from 0.1 to 10.
+    #[serde(default = "default_exposure")]
+    pub exposure: f64,
+}
+
+fn default_exposure() -> f64 {
+    1.0
+}
+
+impl Default for ColorSensor {
+    fn default() -> Self {
+        Self {
+            noise: 0.0,
+            blur_px: 0.0,
+            exposure: 1.0,
+        }
+    }
+}
+
+/// Largest color sensor noise, 8-bit levels.
+pub const MAX_COLOR_NOISE: f64 = 64.0;
+/// Largest color blur, pixels.
+pub const MAX_BLUR_PX: f64 = 8.0;
+/// Exposure gains allowed.
+pub const EXPOSURE_RANGE: std::ops::RangeInclusive<f64> = 0.1..=10.0;
+
+impl ColorSensor {
+    /// Whether it adds nothing (the default).
+    pub fn is_off(&self) -> bool {
+        *self == Self::default()
+    }
+
+    fn validate(&self, at: &dyn Fn(&str) -> String) -> Result<(), SceneError> {
+        if !(0.0..=MAX_COLOR_NOISE).contains(&self.noise) {
+            return Err(invalid(
+                at("color_sensor.noise"),
+                format!(
+                    "must be from 0 to {MAX_COLOR_NOISE} levels, got {}",
+                    self.noise
+                ),
+            ));
+        }
+        if !(0.0..=MAX_BLUR_PX).contains(&self.blur_px) {
+            return Err(invalid(
+                at("color_sensor.blur_px"),
+                format!(
+                    "must be from 0 to {MAX_BLUR_PX} pixels, got {}",
+                    self.blur_px
+                ),
+            ));
+        }
+        if !EXPOSURE_RANGE.contains(&self.exposure) {
+            return Err(invalid(
+                at("color_sensor.exposure"),
+                format!(
+                    "must be from {} to {}, got {}",
+                    EXPOSURE_RANGE.start(),
+                    EXPOSURE_RANGE.end(),
+                    self.exposure
+                ),
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// A box standing on the floor.
@@ -861,6 +943,8 @@ struct CameraFile {
     calibrated: bool,
     #[serde(default)]
     stall_s: Option<f64>,
+    #[serde(default)]
+    color_sensor: ColorSensor,
 }
 
 fn default_calibrated() -> bool {
@@ -984,6 +1068,7 @@ impl Scene {
                 noise: c.noise,
                 calibrated: c.calibrated,
                 stall_s: c.stall_s,
+                color_sensor: c.color_sensor,
             });
         }
         let scene = Self {
@@ -1057,6 +1142,7 @@ impl Scene {
                     format!("must be a time of 0 s or later, got {stall}"),
                 ));
             }
+            c.color_sensor.validate(&at)?;
         }
         for (i, b) in self.boxes.iter().enumerate() {
             let at = |f: &str| format!("box[{i}].{f}");
@@ -1293,6 +1379,7 @@ impl Scene {
                 noise: Noise::D415,
                 calibrated: true,
                 stall_s: None,
+                color_sensor: ColorSensor::default(),
             }],
             boxes: vec![Self::default_box()],
             cylinders: Vec::new(),
@@ -1313,6 +1400,7 @@ impl Scene {
             noise: Noise::D415,
             calibrated: true,
             stall_s: None,
+            color_sensor: ColorSensor::default(),
         };
         Self {
             seed: 7,
