@@ -230,6 +230,7 @@ fn from_local(cos: f32, sin: f32, v: &V3) -> V3 {
 }
 
 impl TubePrim {
+    #[inline(never)]
     fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
         let p = to_local(self.cos, self.sin, &(o - self.center)) - V3::new(0.0, 0.0, self.radius);
         let ld = to_local(self.cos, self.sin, d);
@@ -286,6 +287,7 @@ impl BagPrim {
     /// The first entry of the ray into the bag within its bounding box: a march over
     /// the box (steps by how far the ray travels across the footprint) to the first
     /// sample inside, then bisection. `far` is the box's exit.
+    #[inline(never)]
     fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
         let lo = to_local(self.cos, self.sin, &(o - self.center));
         let ld = to_local(self.cos, self.sin, d);
@@ -865,12 +867,12 @@ impl World {
         };
         let lambert = n.dot(light).max(0.0);
         let f = AMBIENT + (1.0 - AMBIENT) * lambert;
-        let spec = if self.finished {
-            self.highlight(hit, &n, ray, light)
+        if self.finished {
+            let spec = self.highlight(hit, &n, ray, light);
+            base.map(|c| (c * f + spec).min(255.0))
         } else {
-            0.0
-        };
-        base.map(|c| (c * f + spec).min(255.0))
+            base.map(|c| (c * f).min(255.0))
+        }
     }
 
     /// The highlight of the light on a glossy surface (Blinn-Phong), 8-bit levels; 0 on
