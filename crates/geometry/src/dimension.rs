@@ -25,7 +25,7 @@ pub struct DimensionConfig {
     /// Points lower than this (metres above the floor) are floor, not parcel.
     pub min_height_m: f32,
     /// Two points closer than this (metres) belong to one object (points up to about 3.5
-    /// times as far apart may; see the grid in `largest_cluster`).
+    /// times as far apart may; see the grid in `clusters`).
     pub cluster_radius_m: f32,
     /// Quantile of z taken as the top before the band median (in (0, 1]).
     pub height_quantile: f32,
@@ -42,11 +42,14 @@ pub struct DimensionConfig {
     /// A lid point with fewer other lid points than this within three typical point
     /// spacings is a flying pixel and not part of the footprint.
     pub min_neighbours: usize,
+    /// A parcel is complete when at least this share of the cells inside its footprint
+    /// hold points (in [0, 1]; holes from dark or shiny surfaces lower the share).
+    pub min_coverage: f32,
 }
 
 impl Default for DimensionConfig {
     /// 1 cm above the floor, 2 cm cluster radius, 99 % quantile, 1 cm top band, 50 points,
-    /// a 2 cm lid band, 4 neighbours.
+    /// a 2 cm lid band, 4 neighbours, 80 % coverage.
     fn default() -> Self {
         Self {
             min_height_m: 0.01,
@@ -56,6 +59,7 @@ impl Default for DimensionConfig {
             min_points: 50,
             lid_band_m: 0.02,
             min_neighbours: 4,
+            min_coverage: 0.8,
         }
     }
 }
@@ -113,7 +117,7 @@ pub struct Dimensions {
 }
 
 impl DimensionConfig {
-    fn validate(&self) -> Result<(), DimensionError> {
+    pub(crate) fn validate(&self) -> Result<(), DimensionError> {
         let checks = [
             (
                 self.min_height_m.is_finite(),
@@ -141,6 +145,11 @@ impl DimensionConfig {
                 "lid_band_m",
                 "a positive finite number of metres",
             ),
+            (
+                (0.0..=1.0).contains(&self.min_coverage),
+                "min_coverage",
+                "in [0, 1]",
+            ),
         ];
         match checks.into_iter().find(|(ok, _, _)| !ok) {
             None => Ok(()),
@@ -150,71 +159,80 @@ impl DimensionConfig {
 }
 
 /// Measures the largest object standing on the floor of `cloud` (output frame: z up,
-/// floor at z = 0, metres).
+/// floor at z = 0, metres): the first of [`crate::parcels`] without camera views.
 pub fn dimension(
     cloud: &PointCloud,
     config: &DimensionConfig,
 ) -> Result<Dimensions, DimensionError> {
-    config.validate()?;
-    let above: Vec<Point3> = cloud
+    let found = crate::parcels::parcels(cloud, config, &[])?;
+    Ok(found
+        .parcels
+        .into_iter()
+        .next()
+        .ok_or(DimensionError::TooFewPoints {
+            found: found.largest_points,
+            needed: config.min_points,
+        })?
+        .dimensions)
+}
+
+/// The points of `cloud` at or above `min_height_m` that are finite.
+pub(crate) fn above_floor(cloud: &PointCloud, config: &DimensionConfig) -> Vec<Point3> {
+    cloud
         .points
         .iter()
         .copied()
         .filter(|p| is_finite(p) && p.z >= config.min_height_m)
-        .collect();
-    let cluster = largest_cluster(&above, config.cluster_radius_m)?;
-    if cluster.len() < config.min_points {
-        return Err(DimensionError::TooFewPoints {
-            found: cluster.len(),
-            needed: config.min_points,
-        });
-    }
-    let height_m = robust_height(&cluster, config);
-    let lid = lid(&cluster, height_m, config)?;
-    if lid.len() < 3 {
-        return Err(DimensionError::Footprint);
-    }
+        .collect()
+}
 
-    let footprint: MultiPoint<f64> = lid
-        .iter()
-        .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
-        .collect();
+/// The minimum-area rectangle around `points` (x, y in metres), as its four corners in
+/// order around it; `None` when the points span no area.
+pub(crate) fn min_rect(points: impl Iterator<Item = [f64; 2]>) -> Option<[[f64; 2]; 4]> {
+    let footprint: MultiPoint<f64> = points.map(|[x, y]| Point::new(x, y)).collect();
     let hull = footprint.convex_hull();
-    let rect = hull
-        .minimum_rotated_rect()
-        .ok_or(DimensionError::Footprint)?;
-    let ring = &rect.exterior().0;
-    let [c0, c1, c2, c3] = match ring.as_slice() {
-        [a, b, c, d, ..] => [*a, *b, *c, *d],
-        _ => return Err(DimensionError::Footprint),
-    };
-    let (e0, e1) = (c1 - c0, c2 - c1);
-    let (n0, n1) = (e0.x.hypot(e0.y), e1.x.hypot(e1.y));
+    let rect = hull.minimum_rotated_rect()?;
+    match rect.exterior().0.as_slice() {
+        [a, b, c, d, ..] => Some([a, b, c, d].map(|c| [c.x, c.y])),
+        _ => None,
+    }
+}
+
+/// The dimensions of the rectangle `corners` (in order around it) at `height_m` over
+/// `points` points: length >= width, yaw of the long side in (-90, 90].
+pub(crate) fn rect_dimensions(corners: [[f64; 2]; 4], height_m: f64, points: usize) -> Dimensions {
+    let [c0, c1, c2, _] = corners;
+    let e0 = [c1[0] - c0[0], c1[1] - c0[1]];
+    let e1 = [c2[0] - c1[0], c2[1] - c1[1]];
+    let (n0, n1) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
     let (length_m, width_m, long) = if n0 >= n1 { (n0, n1, e0) } else { (n1, n0, e1) };
-    let mut yaw_deg = long.y.atan2(long.x).to_degrees();
+    let mut yaw_deg = long[1].atan2(long[0]).to_degrees();
     if yaw_deg <= -90.0 {
         yaw_deg += 180.0;
     } else if yaw_deg > 90.0 {
         yaw_deg -= 180.0;
     }
-    let height_m = f64::from(height_m);
-    Ok(Dimensions {
+    Dimensions {
         length_mm: length_m * 1e3,
         width_mm: width_m * 1e3,
         height_mm: height_m * 1e3,
         yaw_deg,
-        corners_m: [c0, c1, c2, c3].map(|c| [c.x, c.y]),
+        corners_m: corners,
         volume_l: length_m * width_m * height_m * 1e3,
-        points: cluster.len(),
-    })
+        points,
+    }
 }
 
-/// The largest set of points connected through a grid of `radius_m` cells: points in
-/// the same or touching cells (26-neighbourhood) belong together, so points closer than
-/// `radius_m` always do and points up to about 3.5 radii apart may. Linear in the
-/// number of points, where a neighbour search per point grows with the density. Ties go
-/// to the cluster holding the lowest input index; the points keep their input order.
-fn largest_cluster(points: &[Point3], radius_m: f32) -> Result<Vec<Point3>, DimensionError> {
+/// The sets of points connected through a grid of `radius_m` cells, the largest first:
+/// points in the same or touching cells (26-neighbourhood) belong together, so points
+/// closer than `radius_m` always do and points up to about 3.5 radii apart may. Linear in
+/// the number of points, where a neighbour search per point grows with the density. Sets
+/// of equal size go in the order of their lowest input index; the points of a set keep
+/// their input order.
+pub(crate) fn clusters(
+    points: &[Point3],
+    radius_m: f32,
+) -> Result<Vec<Vec<Point3>>, DimensionError> {
     if u32::try_from(points.len()).is_err() {
         return Err(DimensionError::TooManyPoints {
             points: points.len(),
@@ -253,29 +271,44 @@ fn largest_cluster(points: &[Point3], radius_m: f32) -> Result<Vec<Point3>, Dime
         let r = root(&mut parent, number[cell]);
         size[r] += members.len();
     }
-    // The first maximum holds the lowest input index.
-    let Some(best) = (0..size.len()).max_by(|&a, &b| size[a].cmp(&size[b]).then(b.cmp(&a))) else {
-        return Ok(Vec::new());
-    };
-    Ok(points
-        .iter()
-        .filter(|p| root(&mut parent, number[&grid.cell(p)]) == best)
-        .copied()
-        .collect())
+    // Roots in order of size, the lowest (first point) first among equals.
+    let mut roots: Vec<usize> = (0..size.len()).filter(|&r| size[r] > 0).collect();
+    roots.sort_by(|&a, &b| size[b].cmp(&size[a]).then(a.cmp(&b)));
+    let mut slot = vec![usize::MAX; cells.len()];
+    for (k, &r) in roots.iter().enumerate() {
+        slot[r] = k;
+    }
+    let mut out: Vec<Vec<Point3>> = roots.iter().map(|&r| Vec::with_capacity(size[r])).collect();
+    for p in points {
+        let r = root(&mut parent, number[&grid.cell(p)]);
+        out[slot[r]].push(*p);
+    }
+    Ok(out)
 }
 
-/// Points of the cluster in the lid band below `height_m` that have at least
+/// The lid: points of the cluster in the lid band below `height_m` that have at least
 /// `min_neighbours` other lid points within three typical point spacings (the median
 /// distance from a lid point to its nearest neighbour, over a sample).
-fn lid(
+pub(crate) struct Lid {
+    /// Its points.
+    pub(crate) points: Vec<Point3>,
+    /// The depth of the band, metres.
+    pub(crate) band_m: f32,
+}
+
+pub(crate) fn lid(
     cluster: &[Point3],
     height_m: f32,
     config: &DimensionConfig,
-) -> Result<Vec<Point3>, DimensionError> {
-    let floor = (height_m - lid_band(cluster, height_m, config)).max(config.min_height_m);
+) -> Result<Lid, DimensionError> {
+    let band_m = lid_band(cluster, height_m, config);
+    let floor = (height_m - band_m).max(config.min_height_m);
     let band: Vec<Point3> = cluster.iter().copied().filter(|p| p.z >= floor).collect();
     if band.len() < 2 || config.min_neighbours == 0 {
-        return Ok(band);
+        return Ok(Lid {
+            points: band,
+            band_m,
+        });
     }
     let index = Index::new(&band).map_err(|e| DimensionError::TooManyPoints { points: e.0 })?;
     const SAMPLES: usize = 1000;
@@ -295,13 +328,16 @@ fn lid(
         })
         .collect();
     spacing.sort_unstable_by(f32::total_cmp);
-    let Some(median) = spacing.get(spacing.len() / 2) else {
-        return Ok(band);
+    let Some(&median) = spacing.get(spacing.len() / 2) else {
+        return Ok(Lid {
+            points: band,
+            band_m,
+        });
     };
     let radius = 3.0 * median.max(1e-4);
     let grid = Grid::new(&band, radius);
     let needed = config.min_neighbours;
-    Ok(band
+    let points = band
         .par_iter()
         .enumerate()
         .filter(|&(i, p)| {
@@ -319,7 +355,8 @@ fn lid(
             false
         })
         .map(|(_, p)| *p)
-        .collect())
+        .collect();
+    Ok(Lid { points, band_m })
 }
 
 /// Four robust standard deviations (1.4826 x the median absolute deviation) of z over
@@ -340,7 +377,7 @@ fn lid_band(cluster: &[Point3], height_m: f32, config: &DimensionConfig) -> f32 
 }
 
 /// Median z of the points within `top_band_m` below the `height_quantile` quantile of z.
-fn robust_height(points: &[Point3], config: &DimensionConfig) -> f32 {
+pub(crate) fn robust_height(points: &[Point3], config: &DimensionConfig) -> f32 {
     let mut z: Vec<f32> = points.iter().map(|p| p.z).collect();
     z.sort_unstable_by(f32::total_cmp);
     let last = z.len().saturating_sub(1);

@@ -3,6 +3,7 @@
 mod cloud;
 mod dimension;
 mod icp;
+mod parcels;
 mod ply;
 mod roi;
 mod scene;
