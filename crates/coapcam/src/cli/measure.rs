@@ -16,7 +16,7 @@ use coapcam::client::measure::{
 };
 use coapcam::client::{CamClient, annotate, codes};
 use coapcam::rd::registrant::{Endpoint, GROUP_ATTR, group_key, lookup_endpoints};
-use coapcam::report::{self, Billing, EdgeQuery, Found, Measurement, Parcel};
+use coapcam::report::{self, Billing, Division, EdgeQuery, Found, Measurement, Parcel};
 
 use super::{
     Bars, CameraArgs, DimensionArgs, Exit, TransmissionArgs, folder_exists, outln, usage, values,
@@ -102,10 +102,32 @@ pub(crate) struct MeasureArgs {
     /// follow the rounded dimensions.
     #[arg(long, value_name = "MM", value_parser = values::round_up_mm)]
     round_up_mm: Option<f64>,
+    /// The accuracy division d of the `parcels` list, millimetres: each parcel's
+    /// dimensions are rounded to the nearest multiple of d, or of 2 d above 200 d (1,000
+    /// mm at d = 5). Dimensions below 10 d (length, width) or 2 d (height), or above 300 d
+    /// (length, width) or 200 d (height), are out of range, and the parcel is refused (exit
+    /// status 10 when it is the largest).
+    #[arg(long, value_name = "MM", default_value_t = 5.0, value_parser = parse_division)]
+    division_mm: f64,
     #[command(flatten)]
     dimension: DimensionArgs,
     #[command(flatten)]
     transmission: TransmissionArgs,
+}
+
+fn parse_division(text: &str) -> Result<f64, String> {
+    match parse_positive(text)? {
+        v if v <= 100.0 => Ok(v),
+        v => Err(format!("{v} mm is more than the 100 mm a division may be")),
+    }
+}
+
+fn parse_positive(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(v) => Err(format!("{v} is not a positive number")),
+        Err(e) => Err(format!("not a number ({e})")),
+    }
 }
 
 /// Runs `measure`: [`Exit::Uncalibrated`] when a camera is not calibrated (no
@@ -143,6 +165,9 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     let billing = Billing {
         divisor_cm3_per_kg: args.volumetric_divisor,
         division_mm: args.round_up_mm,
+        division: Division {
+            d_mm: args.division_mm,
+        },
     };
     // The members a directory lists (--rd).
     let mut members: Vec<Endpoint> = Vec::new();
@@ -272,6 +297,8 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         Exit::Uncalibrated
     } else if matches!(parcel, Parcel::Nothing { .. }) {
         Exit::Empty
+    } else if matches!(parcel, Parcel::Refused { .. }) {
+        Exit::Unsupported
     } else if missing && matches!(source, Source::Group { .. }) {
         Exit::Fewer
     } else {

@@ -256,6 +256,9 @@ pub(crate) enum Exit {
     /// 8: `measure`: the station is not calibrated (a camera's 3d-transformation is the
     /// identity); no dimensions were given, the cameras were named.
     Uncalibrated,
+    /// 10: `measure`: a parcel was found but the data cannot support a number (not seen
+    /// whole, holes, side by side, out of the measurable range); the reason was printed.
+    Unsupported,
     /// 128 + the signal's number (130 for SIGINT, 143 for SIGTERM): stopped by a signal
     /// after cleaning up (`get -o FILE` removes its temporary file).
     Interrupted(u8),
@@ -274,6 +277,7 @@ impl Exit {
             Self::Fewer => 6,
             Self::Altered => 7,
             Self::Uncalibrated => 8,
+            Self::Unsupported => 10,
             Self::Interrupted(signal) => 128 + signal,
         }
     }

@@ -337,6 +337,9 @@ impl Report {
                             );
                         }
                         Some((_, Parcel::Nothing { .. })) => line += "  nothing on the table",
+                        Some((_, Parcel::Refused { reason, .. })) => {
+                            line += &format!("  refused: {reason}");
+                        }
                         None => {}
                     }
                     if let Some(codes) = s.record.as_ref().map(Record::code_texts)

@@ -16,7 +16,7 @@ use rgbd::{ColorSettings, Scene};
 
 use super::{CamClient, NoAnswer, check, cloud_of};
 use crate::documents::AppConfig;
-use crate::report::{self, Billing, Measurement, Parcel};
+use crate::report::{self, Billing, Measurement, Parcel, Table};
 
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
@@ -67,8 +67,12 @@ pub struct Grabbed {
 /// timing ([`CloudMeasurement::report`] is what it reports).
 #[derive(Debug)]
 pub struct CloudMeasurement {
-    /// The parcel's dimensions, or that nothing is on the table.
+    /// The largest parcel's dimensions, or that nothing is on the table.
     pub parcel: Parcel,
+    /// Every parcel on the table.
+    pub table: Table,
+    /// The coverage below which a parcel is not complete.
+    pub min_coverage: f32,
     /// The clouds it was measured from.
     pub grabbed: Grabbed,
     /// From sending the first request until the result was known.
@@ -93,7 +97,7 @@ impl CloudMeasurement {
     pub fn dimensions(&self) -> Option<&Dimensions> {
         match &self.parcel {
             Parcel::Measured(d) => Some(d),
-            Parcel::Nothing { .. } => None,
+            Parcel::Nothing { .. } | Parcel::Refused { .. } => None,
         }
     }
 
@@ -112,9 +116,10 @@ impl CloudMeasurement {
     pub fn report_with(&self, billing: &Billing, calibration: &Calibration) -> Measurement {
         let g = &self.grabbed;
         let cameras = g.cameras.iter().map(|(_, sn)| sn.clone()).collect();
-        let mut m = Measurement::new(
-            &self.parcel,
+        let mut m = Measurement::of_table(
+            &self.table,
             billing,
+            self.min_coverage,
             g.cloud.len(),
             cameras,
             g.timestamps_us.clone(),
@@ -306,15 +311,17 @@ pub async fn measure_once(
     let started = Instant::now();
     let grabbed = grab_clouds(client, source).await?;
     let grab = started.elapsed();
-    let (parcel, grabbed) = tokio::task::spawn_blocking({
+    let (table, grabbed) = tokio::task::spawn_blocking({
         let config = *config;
-        move || (Parcel::measure(&grabbed.cloud, &config), grabbed)
+        move || (Table::measure(&grabbed.cloud, &config, &[]), grabbed)
     })
     .await
     .context("the measuring task failed")?;
-    let parcel = parcel.context("measuring the point cloud")?;
+    let table = table.context("measuring the point cloud")?;
     Ok(CloudMeasurement {
-        parcel,
+        parcel: table.largest(),
+        table,
+        min_coverage: config.min_coverage,
         grabbed,
         cycle: started.elapsed(),
         grab,

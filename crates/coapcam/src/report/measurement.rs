@@ -14,10 +14,10 @@ use std::fmt::Write as _;
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use geometry::Dimensions;
+use geometry::{Dimensions, ParcelFit, Shape};
 use serde::{Deserialize, Serialize};
 
-use super::{Billing, Parcel, Seen, describe, ms};
+use super::{Billing, Parcel, Seen, Table, describe, ms};
 
 /// The version of the document this program writes and the newest it reads.
 pub const VERSION: u32 = 1;
@@ -65,6 +65,85 @@ pub struct Measurement {
     /// What may make the result wrong or incomplete (cameras left out, uncalibrated).
     #[serde(default)]
     pub warnings: Vec<String>,
+    /// Every parcel on the table, the largest first (the top-level fields describe the
+    /// first), each rounded to its accuracy division or refused with the reason; absent
+    /// in documents from before the list.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub parcels: Vec<ParcelReport>,
+}
+
+/// One parcel of [`Measurement::parcels`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParcelReport {
+    /// `"measured"`, or `"refused"` with a `reason` and no dimensions.
+    pub parcel: String,
+    /// Why the data cannot support a number.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+    /// Length of its smallest enclosing cuboid, rounded to the nearest multiple of its
+    /// division, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub length_mm: Option<f64>,
+    /// Width, the same way.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub width_mm: Option<f64>,
+    /// Height, the same way.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height_mm: Option<f64>,
+    /// The division of length, width and height, mm (d, or 2 d above the switchover).
+    pub division_mm: [f64; 3],
+    /// Direction of the long side from +x towards +y, degrees in (-90, 90], to 0.01.
+    pub yaw_deg: f64,
+    /// The footprint's corners `[x, y]` in metres, to 0.1 mm.
+    pub corners_m: [[f64; 2]; 4],
+    /// `"cuboid"`, or `"irregular"` (measured as its smallest enclosing cuboid).
+    pub shape: String,
+    /// How well a cuboid fits: the lid's hull over its rectangle, to 0.001.
+    pub fit: f64,
+    /// False when it touches another parcel (side by side).
+    pub isolated: bool,
+    /// False when it reaches beyond the view or holes hide part of it.
+    pub complete: bool,
+    /// The share of its footprint's cells that hold points, to 0.001.
+    pub coverage: f64,
+    /// Its points.
+    pub points: u64,
+}
+
+impl ParcelReport {
+    /// `fit` as `billing` reports it: rounded to its division, or refused.
+    pub fn new(fit: &ParcelFit, billing: &Billing, min_coverage: f32) -> Self {
+        let d = &fit.dimensions;
+        let division = &billing.division;
+        let reason = division.refusal(fit, min_coverage);
+        let value = |v: f64| reason.is_none().then(|| division.round(v));
+        let thousandth = |v: f64| (v * 1000.0).round() / 1000.0;
+        Self {
+            parcel: if reason.is_some() {
+                "refused"
+            } else {
+                "measured"
+            }
+            .into(),
+            length_mm: value(d.length_mm),
+            width_mm: value(d.width_mm),
+            height_mm: value(d.height_mm),
+            reason,
+            division_mm: [d.length_mm, d.width_mm, d.height_mm].map(|v| division.of(v)),
+            yaw_deg: (d.yaw_deg * 100.0).round() / 100.0,
+            corners_m: d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4)),
+            shape: match fit.shape {
+                Shape::Cuboid => "cuboid",
+                Shape::Irregular => "irregular",
+            }
+            .into(),
+            fit: thousandth(fit.fit),
+            isolated: fit.isolated,
+            complete: fit.complete,
+            coverage: thousandth(fit.coverage),
+            points: d.points as u64,
+        }
+    }
 }
 
 fn first_version() -> u32 {
@@ -87,6 +166,12 @@ pub enum Found {
         /// The cameras with the identity 3d-transformation.
         #[serde(default)]
         uncalibrated: Vec<String>,
+    },
+    /// The largest object was found but the data cannot support a number: not seen
+    /// whole, holes, side by side, or out of the measurable range.
+    Refused {
+        /// Why.
+        reason: String,
     },
 }
 
@@ -182,6 +267,12 @@ impl Measurement {
         let (found, parcel_points) = match parcel {
             Parcel::Measured(d) => (Found::Measured(Reported::new(d, billing)), d.points),
             Parcel::Nothing { points } => (Found::Nothing, *points),
+            Parcel::Refused { reason, points } => (
+                Found::Refused {
+                    reason: reason.clone(),
+                },
+                *points,
+            ),
         };
         Self {
             v: VERSION,
@@ -198,7 +289,50 @@ impl Measurement {
             codes: None,
             codes_ms: None,
             warnings: Vec::new(),
+            parcels: Vec::new(),
         }
+    }
+
+    /// A measurement of every parcel of `table` (see [`Measurement::new`]): the top-level
+    /// fields describe the largest, refused (`"parcel": "refused"`) when its data cannot
+    /// support a number; `parcels` lists them all.
+    pub fn of_table(
+        table: &Table,
+        billing: &Billing,
+        min_coverage: f32,
+        cloud_points: usize,
+        cameras: Vec<String>,
+        frames_unix_us: Vec<u64>,
+        grab: Duration,
+    ) -> Self {
+        let parcels: Vec<ParcelReport> = table
+            .fits
+            .iter()
+            .map(|f| ParcelReport::new(f, billing, min_coverage))
+            .collect();
+        let largest = match (table.largest(), parcels.first()) {
+            (
+                Parcel::Measured(d),
+                Some(ParcelReport {
+                    reason: Some(reason),
+                    ..
+                }),
+            ) => Parcel::Refused {
+                reason: reason.clone(),
+                points: d.points,
+            },
+            (largest, _) => largest,
+        };
+        let mut m = Self::new(
+            &largest,
+            billing,
+            cloud_points,
+            cameras,
+            frames_unix_us,
+            grab,
+        );
+        m.parcels = parcels;
+        m
     }
 
     /// Adds the codes read, in `took`.
@@ -212,7 +346,7 @@ impl Measurement {
     pub fn reported(&self) -> Option<&Reported> {
         match &self.parcel {
             Found::Measured(r) => Some(r),
-            Found::Nothing | Found::Uncalibrated { .. } => None,
+            Found::Nothing | Found::Uncalibrated { .. } | Found::Refused { .. } => None,
         }
     }
 
@@ -224,12 +358,17 @@ impl Measurement {
         match &self.parcel {
             Found::Measured(r) => Parcel::Measured(r.dimensions(points)),
             Found::Nothing | Found::Uncalibrated { .. } => Parcel::Nothing { points },
+            Found::Refused { reason } => Parcel::Refused {
+                reason: reason.clone(),
+                points,
+            },
         }
     }
 
     /// Withholds the dimensions because `cameras` are not calibrated (their
     /// 3d-transformation is the identity): the parcel becomes `uncalibrated`, with no
-    /// parcel points; nothing if `cameras` is empty. The warnings stay as they are.
+    /// parcel points and no `parcels`; nothing if `cameras` is empty. The warnings stay
+    /// as they are.
     pub fn withhold_uncalibrated(&mut self, cameras: &[String]) {
         if cameras.is_empty() {
             return;
@@ -238,6 +377,7 @@ impl Measurement {
             uncalibrated: cameras.to_vec(),
         };
         self.parcel_points = 0;
+        self.parcels.clear();
     }
 
     /// The document as JSON.
@@ -322,7 +462,27 @@ impl Measurement {
                 "not calibrated: no dimensions (camera(s) {} have the identity 3d-transformation, so their points are not in the table's frame; run coapcam calibrate)\n{provenance}",
                 uncalibrated.join(", ")
             ),
+            Found::Refused { reason } => format!(
+                "refused: {reason}\nparcel {} points of {provenance}",
+                self.parcel_points
+            ),
         };
+        if self.parcels.len() > 1 {
+            for (k, p) in self.parcels.iter().enumerate() {
+                let what = match (p.length_mm, p.width_mm, p.height_mm) {
+                    (Some(l), Some(w), Some(h)) => format!("{l:.0} x {w:.0} x {h:.0} mm"),
+                    _ => format!("refused: {}", p.reason.as_deref().unwrap_or("")),
+                };
+                let _ = write!(
+                    out,
+                    "\nparcel {}: {what}, {}{}{}",
+                    k + 1,
+                    p.shape,
+                    if p.isolated { "" } else { ", side by side" },
+                    if p.complete { "" } else { ", not complete" },
+                );
+            }
+        }
         if let Some(seen) = &self.codes {
             let _ = write!(
                 out,

@@ -8,12 +8,12 @@ mod measurement;
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use geometry::{DimensionConfig, DimensionError, Dimensions, PointCloud};
+use geometry::{DimensionConfig, DimensionError, Dimensions, ParcelFit, PointCloud, View};
 use serde::{Deserialize, Serialize};
 
 use crate::vision::codes::Code;
 
-pub use measurement::{Found, Measurement, MeasurementError, Reported, VERSION};
+pub use measurement::{Found, Measurement, MeasurementError, ParcelReport, Reported, VERSION};
 
 /// How a measurement is reported to an integrator's billing: the volumetric divisor and
 /// the scale division the dimensions are rounded up to.
@@ -25,6 +25,8 @@ pub struct Billing {
     /// Round each dimension up to a multiple of this many millimetres (a scale
     /// division, e.g. 5); `None` reports them to 0.1 mm.
     pub division_mm: Option<f64>,
+    /// The accuracy division of the `parcels` list.
+    pub division: Division,
 }
 
 impl Default for Billing {
@@ -32,7 +34,85 @@ impl Default for Billing {
         Self {
             divisor_cm3_per_kg: 5000.0,
             division_mm: None,
+            division: Division::default(),
         }
+    }
+}
+
+/// The accuracy division `d` of the `parcels` list, as a legal-for-trade dimensioner
+/// states it: each dimension is rounded to the nearest multiple of its division, which is
+/// `d` up to 200 d (1,000 mm at d = 5) and 2 d above (the range switchover); a dimension
+/// below 10 d (length, width) or 2 d (height), or above 300 d (length, width) or 200 d
+/// (height), is outside the measurable range and refused.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Division {
+    /// `d`, millimetres (5 by default).
+    pub d_mm: f64,
+}
+
+impl Default for Division {
+    fn default() -> Self {
+        Self { d_mm: 5.0 }
+    }
+}
+
+impl Division {
+    /// Lengths above this many divisions take the doubled division.
+    pub const SWITCH: f64 = 200.0;
+
+    /// The division of a dimension of `value_mm`.
+    pub fn of(&self, value_mm: f64) -> f64 {
+        if value_mm > Self::SWITCH * self.d_mm {
+            2.0 * self.d_mm
+        } else {
+            self.d_mm
+        }
+    }
+
+    /// `value_mm` rounded to the nearest multiple of its division.
+    pub fn round(&self, value_mm: f64) -> f64 {
+        let step = self.of(value_mm);
+        (value_mm / step).round() * step
+    }
+
+    /// The smallest measurable length, width and height, mm.
+    pub fn min_mm(&self) -> [f64; 3] {
+        [10.0, 10.0, 2.0].map(|k| k * self.d_mm)
+    }
+
+    /// The largest measurable length, width and height, mm.
+    pub fn max_mm(&self) -> [f64; 3] {
+        [300.0, 300.0, 200.0].map(|k| k * self.d_mm)
+    }
+
+    /// Why `fit` cannot be given as a number, if it cannot: not seen whole, touching
+    /// another parcel, or outside the measurable range.
+    pub fn refusal(&self, fit: &ParcelFit, min_coverage: f32) -> Option<String> {
+        let d = &fit.dimensions;
+        if fit.out_of_view {
+            return Some("the parcel reaches beyond the cameras' view".into());
+        }
+        if fit.coverage < f64::from(min_coverage) {
+            return Some(format!(
+                "holes hide {:.0} % of the parcel's top (a dark or shiny surface returns no depth)",
+                (1.0 - fit.coverage) * 100.0
+            ));
+        }
+        if !fit.isolated {
+            return Some("parcels side by side: the parcel touches another one".into());
+        }
+        let values = [d.length_mm, d.width_mm, d.height_mm];
+        let names = ["length", "width", "height"];
+        let (lo, hi) = (self.min_mm(), self.max_mm());
+        for k in 0..3 {
+            if values[k] < lo[k] || values[k] > hi[k] {
+                return Some(format!(
+                    "the {} ({:.0} mm) is outside the measurable range {:.0}-{:.0} mm",
+                    names[k], values[k], lo[k], hi[k]
+                ));
+            }
+        }
+        None
     }
 }
 
@@ -69,15 +149,58 @@ pub enum Parcel {
         /// Points of the largest object above the floor (0 when there is none).
         points: usize,
     },
+    /// The largest object was found but the data cannot support a number.
+    Refused {
+        /// Why.
+        reason: String,
+        /// Its points.
+        points: usize,
+    },
 }
 
 impl Parcel {
     /// Measures the largest parcel in `cloud` (blocking: run it off the executor).
     pub fn measure(cloud: &PointCloud, config: &DimensionConfig) -> Result<Self, DimensionError> {
-        match geometry::dimension(cloud, config) {
-            Ok(d) => Ok(Self::Measured(d)),
-            Err(DimensionError::TooFewPoints { found, .. }) => Ok(Self::Nothing { points: found }),
+        Ok(Table::measure(cloud, config, &[])?.largest())
+    }
+}
+
+/// Every parcel on the table, measured (blocking: run it off the executor).
+#[derive(Debug, Clone, Default)]
+pub struct Table {
+    /// The parcels, the largest first (see [`geometry::parcels`]).
+    pub fits: Vec<ParcelFit>,
+    /// Points of the largest object above the floor.
+    pub largest_points: usize,
+}
+
+impl Table {
+    /// Measures every parcel in `cloud`; `views` are the cameras' when known.
+    pub fn measure(
+        cloud: &PointCloud,
+        config: &DimensionConfig,
+        views: &[View],
+    ) -> Result<Self, DimensionError> {
+        match geometry::parcels(cloud, config, views) {
+            Ok(found) => Ok(Self {
+                fits: found.parcels,
+                largest_points: found.largest_points,
+            }),
+            Err(DimensionError::TooFewPoints { found, .. }) => Ok(Self {
+                fits: Vec::new(),
+                largest_points: found,
+            }),
             Err(e) => Err(e),
+        }
+    }
+
+    /// The largest parcel as today's single result: its dimensions, or nothing.
+    pub fn largest(&self) -> Parcel {
+        match self.fits.first() {
+            Some(f) => Parcel::Measured(f.dimensions),
+            None => Parcel::Nothing {
+                points: self.largest_points,
+            },
         }
     }
 }
@@ -90,7 +213,7 @@ pub struct EdgeQuery {
     pub codes: bool,
     /// `min_height_mm=` and `cluster_mm=`.
     pub config: DimensionConfig,
-    /// `volumetric_divisor=` and `round_up_mm=`.
+    /// `volumetric_divisor=`, `round_up_mm=` and `division_mm=`.
     pub billing: Billing,
 }
 
@@ -119,6 +242,9 @@ impl EdgeQuery {
         if let Some(mm) = self.billing.division_mm {
             q.push(format!("round_up_mm={mm}"));
         }
+        if self.billing.division != d.billing.division {
+            q.push(format!("division_mm={}", self.billing.division.d_mm));
+        }
         q
     }
 
@@ -139,7 +265,7 @@ impl EdgeQuery {
             }
             let Some((_, lo, hi)) = Self::RANGES.iter().find(|(k, ..)| *k == key) else {
                 return Err(format!(
-                    "unknown query item {key}: /cams/dimensions takes codes, min_height_mm, cluster_mm, volumetric_divisor and round_up_mm"
+                    "unknown query item {key}: /cams/dimensions takes codes, min_height_mm, cluster_mm, volumetric_divisor, round_up_mm and division_mm"
                 ));
             };
             let v = match value.parse::<f64>() {
@@ -150,6 +276,7 @@ impl EdgeQuery {
                 "min_height_mm" => q.config.min_height_m = (v / 1e3) as f32,
                 "cluster_mm" => q.config.cluster_radius_m = (v / 1e3) as f32,
                 "volumetric_divisor" => q.billing.divisor_cm3_per_kg = v,
+                "division_mm" => q.billing.division.d_mm = v,
                 _ => q.billing.division_mm = Some(v),
             }
         }
@@ -160,11 +287,12 @@ impl EdgeQuery {
     /// client's flags take the same. A cluster radius below 5 mm is finer than the
     /// spacing of a D415's points at a metre or more (after decimation), so a parcel
     /// falls apart into pieces; above 500 mm it merges whatever stands beside it.
-    pub const RANGES: [(&str, f64, f64); 4] = [
+    pub const RANGES: [(&str, f64, f64); 5] = [
         ("min_height_mm", 0.0, 1_000.0),
         ("cluster_mm", 5.0, 500.0),
         ("volumetric_divisor", 100.0, 100_000.0),
         ("round_up_mm", 0.1, 1_000.0),
+        ("division_mm", 0.1, 100.0),
     ];
 }
 
@@ -263,6 +391,110 @@ pub fn ms(d: Duration) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn fit(l: f64, w: f64, h: f64) -> ParcelFit {
+        ParcelFit {
+            dimensions: Dimensions {
+                length_mm: l,
+                width_mm: w,
+                height_mm: h,
+                yaw_deg: 0.0,
+                corners_m: [[0.0; 2]; 4],
+                volume_l: l * w * h / 1e6,
+                points: 1000,
+            },
+            shape: geometry::Shape::Cuboid,
+            fit: 1.0,
+            tops: 1,
+            isolated: true,
+            coverage: 1.0,
+            out_of_view: false,
+            complete: true,
+        }
+    }
+
+    #[test]
+    fn the_division_doubles_above_200_d_and_bounds_the_range() {
+        let d = Division::default();
+        assert_eq!((d.of(1000.0), d.of(1000.1)), (5.0, 10.0));
+        assert_eq!(
+            (d.round(612.4), d.round(612.6), d.round(1234.0)),
+            (610.0, 615.0, 1230.0)
+        );
+        assert_eq!(
+            (d.min_mm(), d.max_mm()),
+            ([50.0, 50.0, 10.0], [1500.0, 1500.0, 1000.0])
+        );
+        assert_eq!(d.refusal(&fit(400.0, 300.0, 200.0), 0.8), None);
+        let small = d
+            .refusal(&fit(400.0, 40.0, 200.0), 0.8)
+            .expect("too narrow");
+        assert!(
+            small.contains("width (40 mm)") && small.contains("50-1500"),
+            "{small}"
+        );
+        let mut holed = fit(400.0, 300.0, 200.0);
+        holed.coverage = 0.6;
+        assert!(d.refusal(&holed, 0.8).expect("holes").contains("40 %"));
+        let mut touching = fit(400.0, 300.0, 200.0);
+        touching.isolated = false;
+        assert!(
+            d.refusal(&touching, 0.8)
+                .expect("side by side")
+                .contains("side by side")
+        );
+        let mut cut = fit(400.0, 300.0, 200.0);
+        cut.out_of_view = true;
+        assert!(d.refusal(&cut, 0.8).expect("out of view").contains("view"));
+    }
+
+    #[test]
+    fn a_table_reports_every_parcel_and_refuses_the_largest_when_it_must() {
+        let mut side = fit(400.0, 300.0, 200.0);
+        side.isolated = false;
+        let table = Table {
+            fits: vec![side, fit(1203.0, 251.0, 99.0)],
+            largest_points: 1000,
+        };
+        let m = Measurement::of_table(
+            &table,
+            &Billing::default(),
+            0.8,
+            5000,
+            Vec::new(),
+            Vec::new(),
+            Duration::ZERO,
+        );
+        let doc: serde_json::Value =
+            serde_json::from_str(&m.to_json().expect("JSON")).expect("parses");
+        assert_eq!(doc["parcel"], "refused");
+        assert!(
+            doc["reason"]
+                .as_str()
+                .expect("a reason")
+                .contains("side by side")
+        );
+        assert!(doc.get("length_mm").is_none());
+        assert_eq!(doc["parcels"][0]["parcel"], "refused");
+        assert_eq!(doc["parcels"][0]["isolated"], false);
+        assert_eq!(doc["parcels"][1]["parcel"], "measured");
+        assert_eq!(doc["parcels"][1]["length_mm"], 1200.0);
+        assert_eq!(doc["parcels"][1]["width_mm"], 250.0);
+        assert_eq!(doc["parcels"][1]["height_mm"], 100.0);
+        assert_eq!(
+            doc["parcels"][1]["division_mm"],
+            serde_json::json!([10.0, 5.0, 5.0])
+        );
+        assert_eq!(doc["parcels"][1]["shape"], "cuboid");
+        let back = Measurement::from_json(doc.to_string().as_bytes()).expect("reads");
+        assert_eq!(back, m);
+        assert!(matches!(back.parcel(), Parcel::Refused { .. }));
+        assert!(
+            m.text().contains("parcel 2: 1200 x 250 x 100 mm, cuboid"),
+            "{}",
+            m.text()
+        );
+    }
 
     #[test]
     fn the_query_round_trips_and_refuses_what_it_does_not_know() {

@@ -26,7 +26,7 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
-use crate::report::{self, EdgeQuery, Measurement, Parcel};
+use crate::report::{self, EdgeQuery, Measurement, Table};
 use crate::repr::clouds::DepthPart;
 use crate::repr::{self, CloudSource, Stream, Subject, raster};
 use crate::station::Recorder;
@@ -884,12 +884,14 @@ impl Cams {
         }
         let grab = started.elapsed();
         let config = query.config;
-        let (parcel, merged) =
-            tokio::task::spawn_blocking(move || (Parcel::measure(&merged.cloud, &config), merged))
-                .await?;
-        let mut m = Measurement::new(
-            &parcel?,
+        let (table, merged) = tokio::task::spawn_blocking(move || {
+            (Table::measure(&merged.cloud, &config, &[]), merged)
+        })
+        .await?;
+        let mut m = Measurement::of_table(
+            &table?,
             &query.billing,
+            config.min_coverage,
             merged.cloud.len(),
             merged.serials.iter().map(ToString::to_string).collect(),
             merged.frames_us,
