@@ -61,6 +61,8 @@ pub struct Grabbed {
     pub failed: Vec<String>,
     /// Bytes of point-cloud representations received.
     pub bytes: usize,
+    /// What the cameras saw, when the clouds came as the compact cloud.
+    pub views: Vec<geometry::View>,
 }
 
 /// One measurement made here from the clouds, with the clouds, their provenance and the
@@ -284,6 +286,7 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
         timestamps_us: Vec::new(),
         failed,
         bytes,
+        views: Vec::new(),
     };
     for (server, mut c) in decoded {
         if c.serials.is_empty() {
@@ -295,6 +298,7 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
         }
         grabbed.cloud.extend_from(&c.cloud);
         grabbed.timestamps_us.push(c.timestamp_us);
+        grabbed.views.extend(c.views.iter().copied());
         grabbed
             .cameras
             .extend(c.serials.into_iter().map(|sn| (server, sn)));
@@ -313,7 +317,15 @@ pub async fn measure_once(
     let grab = started.elapsed();
     let (table, grabbed) = tokio::task::spawn_blocking({
         let config = *config;
-        move || (Table::measure(&grabbed.cloud, &config, &[]), grabbed)
+        move || {
+            let views = if grabbed.views.len() == grabbed.cameras.len() {
+                &grabbed.views[..]
+            } else {
+                // Some cloud came without its views: no camera's view can be judged.
+                &[]
+            };
+            (Table::measure(&grabbed.cloud, &config, views), grabbed)
+        }
     })
     .await
     .context("the measuring task failed")?;

@@ -373,6 +373,7 @@ impl Cloud {
             cloud: packet::points(&map.data.0),
             serials,
             timestamp_us: map.timestamp_us,
+            views: Vec::new(),
         })
     }
 }

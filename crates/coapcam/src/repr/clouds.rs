@@ -21,6 +21,25 @@ pub use compact::WireError;
 pub use compact::cloud::CloudError;
 
 impl DepthPart {
+    /// What the camera saw: its pose in the common frame (the transform, then the
+    /// correction) and its depth intrinsics.
+    pub fn view(&self) -> geometry::View {
+        let k = &self.intrinsics;
+        let to_common = match &self.correction {
+            Some(c) => self.transform.then(c),
+            None => self.transform,
+        };
+        geometry::View {
+            to_common,
+            fx: k.fx,
+            fy: k.fy,
+            ppx: k.ppx,
+            ppy: k.ppy,
+            width: k.width,
+            height: k.height,
+        }
+    }
+
     /// The cloud: each valid pixel deprojected, moved by the transform, kept when inside
     /// the region (row-major order), then moved by the correction. Pixels whose points
     /// were not kept become 0 in `depth`.
@@ -190,9 +209,11 @@ pub fn cloud_from_depth_cloud(payload: &[u8]) -> Result<Cloud, DepthCloudError> 
         cloud: PointCloud::default(),
         serials: Vec::new(),
         timestamp_us: 0,
+        views: Vec::new(),
     };
     for mut part in parts_from_depth_cloud(payload)? {
         out.cloud.points.extend(part.points()?);
+        out.views.push(part.view());
         out.timestamp_us = out.timestamp_us.max(part.depth.timestamp_us);
         out.serials.push(part.serial);
     }
@@ -224,6 +245,7 @@ pub fn cloud_from_mm(payload: &[u8]) -> Result<Cloud, WireError> {
             .collect(),
         serials: c.serials,
         timestamp_us: c.timestamp_us,
+        views: Vec::new(),
     })
 }
 

@@ -158,6 +158,9 @@ pub struct Cloud {
     pub serials: Vec<String>,
     /// When it was grabbed, microseconds since the UNIX epoch.
     pub timestamp_us: u64,
+    /// What each camera saw (pose and intrinsics), where the representation carries it
+    /// (the compact cloud); empty otherwise.
+    pub views: Vec<geometry::View>,
 }
 
 /// A depth image: Z16 values in raw units and the metres per unit.

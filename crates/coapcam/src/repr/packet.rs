@@ -334,6 +334,7 @@ pub const DECODERS: Decoders = Decoders {
             cloud: p.cloud,
             serials: Vec::new(),
             timestamp_us: u64::from(p.timestamp_s) * 1_000_000,
+            views: Vec::new(),
         })
     }),
 };

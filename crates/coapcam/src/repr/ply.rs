@@ -43,6 +43,7 @@ pub const DECODERS: Decoders = Decoders {
             cloud: geometry::decode_ply(body)?,
             serials: Vec::new(),
             timestamp_us: 0,
+            views: Vec::new(),
         })
     }),
     ..Decoders::NONE

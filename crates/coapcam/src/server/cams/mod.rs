@@ -885,7 +885,8 @@ impl Cams {
         let grab = started.elapsed();
         let config = query.config;
         let (table, merged) = tokio::task::spawn_blocking(move || {
-            (Table::measure(&merged.cloud, &config, &[]), merged)
+            let views: Vec<geometry::View> = merged.parts.iter().map(DepthPart::view).collect();
+            (Table::measure(&merged.cloud, &config, &views), merged)
         })
         .await?;
         let mut m = Measurement::of_table(
