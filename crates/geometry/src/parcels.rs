@@ -27,7 +27,8 @@ use std::collections::HashMap;
 
 use foldhash::fast::FixedState;
 use geo::{
-    Area, ConvexHull, Coord, Distance as _, Euclidean, LineString, MultiPoint, Point, Polygon,
+    Area, ConvexHull, Coord, Distance as _, Euclidean, Intersects as _, LineString, MultiPoint,
+    Point, Polygon,
 };
 
 use crate::dimension::{
@@ -41,6 +42,9 @@ const CELL_M: f64 = 0.005;
 /// Neighbouring cells of one top differ in height by less than this (metres), or by the
 /// lid band when that is deeper.
 const TOP_STEP_M: f32 = 0.010;
+/// A cell is flat (may belong to a top) when the middle half of its points spans less
+/// than this (metres) or the lid band, whichever is more.
+const FLAT_M: f32 = 0.004;
 /// A top counts when this many of its cells have all eight neighbours in it (a core of
 /// about 2 x 2 cm), and it has at least [`TOP_SHARE`] of the largest top's cells.
 const TOP_CORE_CELLS: usize = 16;
@@ -50,16 +54,24 @@ const TOP_SHARE: f64 = 0.05;
 const CUBOID_FIT: f64 = 0.93;
 /// Of a cuboid, at most this share of the dense points lies farther outside the lid's
 /// rectangle than [`OUTSIDE_M`] (the sides of a lying tube or a polybag's belly do).
-const CUBOID_OUTSIDE: f64 = 0.01;
+const CUBOID_OUTSIDE: f64 = 0.05;
 /// See [`CUBOID_OUTSIDE`], metres.
-const OUTSIDE_M: f64 = 0.008;
+const OUTSIDE_M: f64 = 0.010;
 /// A cell is dense when it holds at least this share of the median cell's points.
 const DENSE_SHARE: f64 = 0.15;
 /// Objects with fewer points than this share of the largest one's are not parcels
 /// (fragments of flying pixels, specks).
 const MIN_SHARE: f64 = 0.005;
-/// Parcels whose footprints come closer than this (metres) are side by side.
-const TOUCH_M: f64 = 0.02;
+/// Parcels whose footprints come closer than this (metres) are side by side: a taller
+/// parcel hides a strip of the lower one beside it from an oblique camera.
+const TOUCH_M: f64 = 0.05;
+/// An object with fewer points than this share of a larger one's, whose footprint comes
+/// within [`TOUCH_M`] of the larger one's, is a fragment of it (a sliver of a side wall,
+/// flying pixels between its edge and the floor), not a parcel; so is any smaller object
+/// whose footprint overlaps a larger one's (a ring of flying pixels around it).
+const FRAGMENT_SHARE: f64 = 0.01;
+/// How far beyond a parcel's edges the cameras must see (metres) for it to be whole.
+const PROBE_M: f64 = 0.015;
 /// A top corner counts as seen when it projects at least this far inside an image.
 const VIEW_MARGIN_PX: f32 = 3.0;
 
@@ -125,11 +137,13 @@ pub struct ParcelFit {
     /// Flat tops found on it: 1 for one parcel, 2 or more for parcels side by side.
     pub tops: usize,
     /// False when it touches another parcel: more than one top, or another object's
-    /// footprint within 2 cm.
+    /// footprint within 5 cm.
     pub isolated: bool,
     /// The share of the footprint's cells that hold points (1 without holes).
     pub coverage: f64,
-    /// A top corner lies outside every camera's image (only known with views).
+    /// Just beyond an edge, at the top's height, lies a point outside every camera's
+    /// image, or behind another parcel from each camera that has it in its image: more of
+    /// the parcel may be there, unseen (only known with views).
     pub out_of_view: bool,
     /// Seen whole: in view, and coverage at least the configured minimum.
     pub complete: bool,
@@ -174,6 +188,21 @@ pub fn parcels(
     {
         return Err(e);
     }
+    // Fragments of larger objects (more points) go.
+    found.sort_by_key(|f| std::cmp::Reverse(f.dimensions.points));
+    let mut kept: Vec<ParcelFit> = Vec::with_capacity(found.len());
+    for f in found {
+        let p = polygon(&f.dimensions.corners_m);
+        let fragment = kept.iter().any(|k| {
+            let q = polygon(&k.dimensions.corners_m);
+            let small = (f.dimensions.points as f64) < FRAGMENT_SHARE * k.dimensions.points as f64;
+            p.intersects(&q) || (small && Euclidean.distance(&p, &q) < TOUCH_M)
+        });
+        if !fragment {
+            kept.push(f);
+        }
+    }
+    let mut found = kept;
     let area = |f: &ParcelFit| f.dimensions.length_mm * f.dimensions.width_mm;
     found.sort_by(|a, b| area(b).total_cmp(&area(a)));
     // Objects whose footprints come closer than TOUCH_M touch: one leans on the other,
@@ -187,6 +216,27 @@ pub fn parcels(
             if Euclidean.distance(&footprints[i], &footprints[j]) < TOUCH_M {
                 found[i].isolated = false;
                 found[j].isolated = false;
+            }
+        }
+    }
+    // Just beyond each edge, at the top's height: a point there that no camera has in
+    // its image, or that every camera that has it sees only through another parcel,
+    // might be more of the parcel, hidden.
+    if !views.is_empty() {
+        for i in 0..found.len() {
+            let hidden = probes(&found[i].dimensions).iter().any(|p| {
+                !views.iter().any(|v| {
+                    let eye = Point3::from(v.to_common.translation);
+                    v.sees(p, VIEW_MARGIN_PX)
+                        && !found
+                            .iter()
+                            .enumerate()
+                            .any(|(j, other)| j != i && blocks(other, &eye, p))
+                })
+            });
+            if hidden {
+                found[i].out_of_view = true;
+                found[i].complete = false;
             }
         }
     }
@@ -213,20 +263,42 @@ fn fit(
     // The edges from the points within a quarter band (about one noise deviation) of the
     // top, on both sides, so that noise moves as many outwards as inwards, and few of the
     // points piled up on a side wall's top count.
-    let slab = (lid.band_m / 4.0).max(0.001);
+    let slab = lid.band_m;
     let flat: Vec<Point3> = lid
         .points
         .iter()
         .filter(|p| (p.z - height_m).abs() <= slab)
         .copied()
         .collect();
-    let lid_rect = refine(hull_rect, &flat, margin);
+    // A pixel on the lid's edge sees the lid and the floor and reads a depth between
+    // them, off the lid: the lid's points end half a pixel inside its edge. With the
+    // cameras known, the edges move out by half the footprint of a pixel on the lid.
+    let centre = Point3::new(
+        (hull_rect.iter().map(|c| c[0]).sum::<f64>() / 4.0) as f32,
+        (hull_rect.iter().map(|c| c[1]).sum::<f64>() / 4.0) as f32,
+        height_m,
+    );
+    let pixels: Vec<f64> = views
+        .iter()
+        .filter(|v| v.sees(&centre, 0.0))
+        .map(|v| f64::from((v.to_common.translation - centre.coords).norm() / v.fx))
+        .collect();
+    let half_pixel = if pixels.is_empty() {
+        0.0
+    } else {
+        pixels.iter().sum::<f64>() / pixels.len() as f64 / 2.0
+    };
+    // Noise moves the outermost points out by a few deviations (the band is four) times
+    // the tangent of the ray's angle: the edges move in no farther than that. (A low
+    // parcel whose edge the spatial filter blurred into the floor keeps the hull's.)
+    let inward = (0.75 * f64::from(lid.band_m)).max(0.0015);
+    let lid_rect = grow(refine(hull_rect, &flat, margin, inward), half_pixel);
     let lid_area = hull_area(lid.points.iter().map(xy));
     let fit = (lid_area / rect_area(&hull_rect)).min(1.0);
 
     let map = HeightMap::new(cluster);
     let dense = map.dense_points(cluster);
-    let tops = map.tops(TOP_STEP_M.max(lid.band_m));
+    let tops = map.tops(TOP_STEP_M.max(lid.band_m), FLAT_M.max(lid.band_m));
     let outside = share_outside(&lid_rect, dense.iter().map(xy), OUTSIDE_M);
     let shape = if tops <= 1 && fit >= CUBOID_FIT && outside <= CUBOID_OUTSIDE {
         Shape::Cuboid
@@ -235,15 +307,21 @@ fn fit(
     };
     let corners = match shape {
         Shape::Cuboid => lid_rect,
-        Shape::Irregular => min_rect(dense.iter().map(xy)).unwrap_or(hull_rect),
+        // Around every dense point, each edge placed by the points' density as a lid's
+        // is: the thin fringe of flying pixels around a tall object counts little.
+        Shape::Irregular => min_rect(dense.iter().map(xy))
+            .map_or(hull_rect, |r| refine(r, &dense, margin.max(0.006), 0.003)),
     };
-    let coverage = map.coverage(&corners);
-    let top = height_m;
-    let out_of_view = !views.is_empty()
-        && corners.iter().any(|c| {
-            let p = Point3::new(c[0] as f32, c[1] as f32, top);
-            !views.iter().any(|v| v.sees(&p, VIEW_MARGIN_PX))
-        });
+    let coverage = match shape {
+        Shape::Cuboid => map.coverage(&polygon(&corners)),
+        Shape::Irregular => {
+            let all: MultiPoint<f64> = dense
+                .iter()
+                .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
+                .collect();
+            map.coverage(&all.convex_hull())
+        }
+    };
     Ok(ParcelFit {
         dimensions: rect_dimensions(corners, f64::from(height_m), cluster.len()),
         shape,
@@ -251,8 +329,8 @@ fn fit(
         tops,
         isolated: tops <= 1,
         coverage,
-        out_of_view,
-        complete: !out_of_view && coverage >= f64::from(config.min_coverage),
+        out_of_view: false,
+        complete: coverage >= f64::from(config.min_coverage),
     })
 }
 
@@ -275,8 +353,13 @@ fn hull_area(points: impl Iterator<Item = [f64; 2]>) -> f64 {
 }
 
 /// The rectangle `corners` (in order around it) with each edge moved to where `lid`'s
-/// points put it (see [`edges`]).
-pub(crate) fn refine(corners: [[f64; 2]; 4], lid: &[Point3], margin: f64) -> [[f64; 2]; 4] {
+/// points put it (see [`edges`]), at most `inward` inside the hull's.
+pub(crate) fn refine(
+    corners: [[f64; 2]; 4],
+    lid: &[Point3],
+    margin: f64,
+    inward: f64,
+) -> [[f64; 2]; 4] {
     let c0 = corners[0];
     let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
     let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
@@ -292,8 +375,8 @@ pub(crate) fn refine(corners: [[f64; 2]; 4], lid: &[Point3], margin: f64) -> [[f
         sa.push(dot(d, a));
         sb.push(dot(d, b));
     }
-    let (a0, a1) = edges(&mut sa, la, margin);
-    let (b0, b1) = edges(&mut sb, lb, margin);
+    let (a0, a1) = edges(&mut sa, la, margin, inward);
+    let (b0, b1) = edges(&mut sb, lb, margin, inward);
     let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
     [at(a0, b0), at(a1, b0), at(a1, b1), at(a0, b1)]
 }
@@ -305,7 +388,7 @@ pub(crate) fn refine(corners: [[f64; 2]; 4], lid: &[Point3], margin: f64) -> [[f
 /// adding any, so the count keeps the edge where the outermost points do not; the cap
 /// keeps points piled up on the edge itself (the top of a side wall seen from the side)
 /// from counting as lid. An axis too short for two such bands keeps the hull's edges.
-fn edges(s: &mut [f64], len: f64, margin: f64) -> (f64, f64) {
+fn edges(s: &mut [f64], len: f64, margin: f64, inward: f64) -> (f64, f64) {
     const BIN_M: f64 = 0.001;
     let window = (2.0 * margin).max(0.01);
     if len < 2.0 * (margin + window) {
@@ -313,9 +396,10 @@ fn edges(s: &mut [f64], len: f64, margin: f64) -> (f64, f64) {
     }
     s.sort_unstable_by(f64::total_cmp);
     let count = |lo: f64, hi: f64| s.partition_point(|v| *v < hi) - s.partition_point(|v| *v < lo);
-    // The edge moves at most `margin` inwards (holes along an edge thin it), and never
-    // beyond the outermost point.
+    // The edge moves at most `inward` (and `margin`) inwards (holes along an edge thin
+    // it), and never beyond the outermost point.
     let limit = margin;
+    let least = (margin - inward).max(0.0);
     let place = |line: f64, outwards: f64| {
         let (a, b) = if outwards > 0.0 {
             (line - window, line)
@@ -335,9 +419,92 @@ fn edges(s: &mut [f64], len: f64, margin: f64) -> (f64, f64) {
             mass += (count(x0.min(x1), x0.max(x1)) as f64).min(cap);
             at += BIN_M;
         }
-        line + outwards * (mass / density).min(limit)
+        line + outwards * (mass / density).clamp(least, limit)
     };
     (place(margin, -1.0), place(len - margin, 1.0))
+}
+
+/// Points [`PROBE_M`] outside the footprint of `d` at its height: beyond each corner and
+/// each edge's middle.
+fn probes(d: &Dimensions) -> Vec<Point3> {
+    let c = &d.corners_m;
+    let centre = [0, 1].map(|k| c.iter().map(|p| p[k]).sum::<f64>() / 4.0);
+    let z = (d.height_mm / 1e3) as f32;
+    let mut out = Vec::with_capacity(8);
+    for k in 0..4 {
+        let (p, q) = (c[k], c[(k + 1) % 4]);
+        for at in [p, [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0]] {
+            let away = sub(at, centre);
+            let n = away[0].hypot(away[1]).max(1e-9);
+            out.push(Point3::new(
+                (at[0] + away[0] / n * PROBE_M) as f32,
+                (at[1] + away[1] / n * PROBE_M) as f32,
+                z,
+            ));
+        }
+    }
+    out
+}
+
+/// Whether the upright box of `fit` (its footprint, from the floor to its height) lies
+/// on the segment from `from` to 1 cm short of `to`.
+fn blocks(fit: &ParcelFit, from: &Point3, to: &Point3) -> bool {
+    let c = &fit.dimensions.corners_m;
+    let c0 = c[0];
+    let (e0, e1) = (sub(c[1], c0), sub(c[3], c0));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 0.0 || lb <= 0.0 {
+        return false;
+    }
+    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+    let local = |p: &Point3| {
+        let d = sub([f64::from(p.x), f64::from(p.y)], c0);
+        [dot(d, a), dot(d, b), f64::from(p.z)]
+    };
+    let (p, q) = (local(from), local(to));
+    let length = ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt();
+    if length <= 0.01 {
+        return false;
+    }
+    let (mut t0, mut t1) = (0.0f64, 1.0 - 0.01 / length);
+    let high = [la, lb, fit.dimensions.height_mm / 1e3];
+    for k in 0..3 {
+        let d = q[k] - p[k];
+        if d.abs() < 1e-12 {
+            if p[k] < 0.0 || p[k] > high[k] {
+                return false;
+            }
+            continue;
+        }
+        let (mut u, mut v) = ((0.0 - p[k]) / d, (high[k] - p[k]) / d);
+        if u > v {
+            std::mem::swap(&mut u, &mut v);
+        }
+        t0 = t0.max(u);
+        t1 = t1.min(v);
+        if t0 > t1 {
+            return false;
+        }
+    }
+    true
+}
+
+/// The rectangle `corners` (in order around it) grown by `by` on every side.
+fn grow(corners: [[f64; 2]; 4], by: f64) -> [[f64; 2]; 4] {
+    let c0 = corners[0];
+    let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 0.0 || lb <= 0.0 || by == 0.0 {
+        return corners;
+    }
+    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+    [
+        at(-by, -by),
+        at(la + by, -by),
+        at(la + by, lb + by),
+        at(-by, lb + by),
+    ]
 }
 
 /// The share of `points` lying more than `tolerance` outside the rectangle `corners`.
@@ -373,9 +540,15 @@ fn polygon(corners: &[[f64; 2]; 4]) -> Polygon<f64> {
 
 type Cell2 = (i64, i64);
 
-/// The object's points binned into [`CELL_M`] cells in (x, y): count and highest z.
+/// The object's points binned into [`CELL_M`] cells in (x, y): count and median z (a
+/// cell where a higher parcel's side meets a lower one's lid holds a few side points and
+/// many lid points: its median is the lid's, where its highest point would make a
+/// staircase joining the two tops).
 struct HeightMap {
     cells: HashMap<Cell2, (u32, f32), FixedState>,
+    /// How far the middle half of each cell's points spans in z: a cell holding a side
+    /// wall, or the lids of two parcels, is not flat.
+    spread: HashMap<Cell2, f32, FixedState>,
     /// Cells with fewer points are not dense.
     dense_min: u32,
 }
@@ -386,14 +559,23 @@ fn cell_of(x: f64, y: f64) -> Cell2 {
 
 impl HeightMap {
     fn new(points: &[Point3]) -> Self {
-        let mut cells: HashMap<Cell2, (u32, f32), FixedState> = HashMap::default();
+        let mut heights: HashMap<Cell2, Vec<f32>, FixedState> = HashMap::default();
         for p in points {
-            let e = cells
+            heights
                 .entry(cell_of(f64::from(p.x), f64::from(p.y)))
-                .or_insert((0, f32::NEG_INFINITY));
-            e.0 += 1;
-            e.1 = e.1.max(p.z);
+                .or_default()
+                .push(p.z);
         }
+        let mut spread: HashMap<Cell2, f32, FixedState> = HashMap::default();
+        let cells: HashMap<Cell2, (u32, f32), FixedState> = heights
+            .into_iter()
+            .map(|(cell, mut z)| {
+                z.sort_unstable_by(f32::total_cmp);
+                let n = z.len();
+                spread.insert(cell, z[(3 * n) / 4] - z[n / 4]);
+                (cell, (n as u32, z[n / 2]))
+            })
+            .collect();
         let mut counts: Vec<u32> = cells.values().map(|c| c.0).collect();
         let mid = counts.len() / 2;
         let median = if counts.is_empty() {
@@ -402,7 +584,11 @@ impl HeightMap {
             *counts.select_nth_unstable(mid).1
         };
         let dense_min = ((f64::from(median) * DENSE_SHARE).ceil() as u32).max(2);
-        Self { cells, dense_min }
+        Self {
+            cells,
+            spread,
+            dense_min,
+        }
     }
 
     fn is_dense(&self, c: &Cell2) -> bool {
@@ -420,18 +606,15 @@ impl HeightMap {
     }
 
     /// The number of tops: regions of dense cells connected (8-neighbourhood) where
-    /// neighbouring highest points differ by less than `step`, counted when their core
+    /// neighbouring median heights differ by less than `step`, counted when their core
     /// (cells whose eight neighbours are all in the region) has [`TOP_CORE_CELLS`] and
     /// their cells are at least [`TOP_SHARE`] of the largest region's.
-    fn tops(&self, step: f32) -> usize {
+    fn tops(&self, step: f32, flatness: f32) -> usize {
+        let flat =
+            |c: &Cell2| self.is_dense(c) && self.spread.get(c).is_some_and(|s| *s < flatness);
         let mut region: HashMap<Cell2, usize, FixedState> = HashMap::default();
         let mut sizes: Vec<(usize, usize)> = Vec::new();
-        let mut dense: Vec<Cell2> = self
-            .cells
-            .iter()
-            .filter(|(_, v)| v.0 >= self.dense_min)
-            .map(|(c, _)| *c)
-            .collect();
+        let mut dense: Vec<Cell2> = self.cells.keys().filter(|c| flat(c)).copied().collect();
         dense.sort_unstable();
         let neighbours = |(x, y): Cell2| {
             (-1..=1)
@@ -451,7 +634,7 @@ impl HeightMap {
                 members.push(c);
                 let z = self.cells[&c].1;
                 for n in neighbours(c) {
-                    if region.contains_key(&n) || !self.is_dense(&n) {
+                    if region.contains_key(&n) || !flat(&n) {
                         continue;
                     }
                     if (self.cells[&n].1 - z).abs() < step {
@@ -474,16 +657,15 @@ impl HeightMap {
             .max(1)
     }
 
-    /// The share of the cells inside the rectangle `corners` (one cell in from its edges)
-    /// that hold points.
-    fn coverage(&self, corners: &[[f64; 2]; 4]) -> f64 {
-        let polygon = polygon(corners);
+    /// The share of the cells inside `polygon` (1.5 cells in from its edges) that hold
+    /// points.
+    fn coverage(&self, polygon: &Polygon<f64>) -> f64 {
         let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-        for c in corners {
-            x0 = x0.min(c[0]);
-            y0 = y0.min(c[1]);
-            x1 = x1.max(c[0]);
-            y1 = y1.max(c[1]);
+        for c in polygon.exterior().coords() {
+            x0 = x0.min(c.x);
+            y0 = y0.min(c.y);
+            x1 = x1.max(c.x);
+            y1 = y1.max(c.y);
         }
         let (lo, hi) = (cell_of(x0, y0), cell_of(x1, y1));
         let inside = |x: f64, y: f64| {
@@ -532,7 +714,7 @@ mod tests {
         let max = s.iter().copied().fold(f64::MIN, f64::max);
         assert!(max - min > 0.3035, "{min} {max}");
         let mut shifted: Vec<f64> = s.iter().map(|v| v - min).collect();
-        let (lo, hi) = edges(&mut shifted, max - min, 0.006);
+        let (lo, hi) = edges(&mut shifted, max - min, 0.006, 0.006);
         let (lo, hi) = (lo + min, hi + min);
         assert!((lo + 0.0005).abs() < 0.0003, "{lo}");
         assert!((hi - 0.3005).abs() < 0.0003, "{hi}");

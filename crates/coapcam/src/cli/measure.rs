@@ -107,27 +107,12 @@ pub(crate) struct MeasureArgs {
     /// mm at d = 5). Dimensions below 10 d (length, width) or 2 d (height), or above 300 d
     /// (length, width) or 200 d (height), are out of range, and the parcel is refused (exit
     /// status 10 when it is the largest).
-    #[arg(long, value_name = "MM", default_value_t = 5.0, value_parser = parse_division)]
+    #[arg(long, value_name = "MM", default_value = "5", value_parser = values::division_mm)]
     division_mm: f64,
     #[command(flatten)]
     dimension: DimensionArgs,
     #[command(flatten)]
     transmission: TransmissionArgs,
-}
-
-fn parse_division(text: &str) -> Result<f64, String> {
-    match parse_positive(text)? {
-        v if v <= 100.0 => Ok(v),
-        v => Err(format!("{v} mm is more than the 100 mm a division may be")),
-    }
-}
-
-fn parse_positive(text: &str) -> Result<f64, String> {
-    match text.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        Ok(v) => Err(format!("{v} is not a positive number")),
-        Err(e) => Err(format!("not a number ({e})")),
-    }
 }
 
 /// Runs `measure`: [`Exit::Uncalibrated`] when a camera is not calibrated (no

@@ -101,6 +101,12 @@ pub(crate) fn round_up_mm(text: &str) -> Result<f64, String> {
     within(text, lo, hi, " mm")
 }
 
+/// `--division-mm`, in the range the server takes.
+pub(crate) fn division_mm(text: &str) -> Result<f64, String> {
+    let (lo, hi) = edge_range("division_mm");
+    within(text, lo, hi, " mm")
+}
+
 /// `--volumetric-divisor`, in the range the server takes.
 pub(crate) fn volumetric_divisor(text: &str) -> Result<f64, String> {
     let (lo, hi) = edge_range("volumetric_divisor");

@@ -92,14 +92,14 @@ impl Division {
         if fit.out_of_view {
             return Some("the parcel reaches beyond the cameras' view".into());
         }
+        if !fit.isolated {
+            return Some("parcels side by side: the parcel touches another one".into());
+        }
         if fit.coverage < f64::from(min_coverage) {
             return Some(format!(
                 "holes hide {:.0} % of the parcel's top (a dark or shiny surface returns no depth)",
                 (1.0 - fit.coverage) * 100.0
             ));
-        }
-        if !fit.isolated {
-            return Some("parcels side by side: the parcel touches another one".into());
         }
         let values = [d.length_mm, d.width_mm, d.height_mm];
         let names = ["length", "width", "height"];

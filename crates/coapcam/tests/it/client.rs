@@ -766,3 +766,54 @@ fn bench_accuracy_calibrate_places_one_to_three_tilted_cameras_as_well_as_their_
     }
     assert_eq!(b["calibration"]["cameras"], 6, "{b}");
 }
+
+/// The lane set's first six scenes, one of each case: boxes and the cylinder measured
+/// close to their truth, the parcels side by side and the one partly out of view refused
+/// with the reason, nothing silently wrong; the two parcels apart both measured.
+#[test]
+fn bench_accuracy_on_the_lane_set_measures_refuses_and_is_never_silently_wrong() {
+    let f = ok(&[
+        "bench", "accuracy", "--set", "lane", "--scenes", "6", "--json",
+    ]);
+    let b = f.json();
+    let case = |name: &str| {
+        b["cases"]
+            .as_array()
+            .expect("cases")
+            .iter()
+            .find(|c| c["case"] == name)
+            .unwrap_or_else(|| panic!("no case {name}: {b}"))
+            .clone()
+    };
+    for name in ["clean", "large", "cylinder", "apart", "touching", "cut"] {
+        assert_eq!(case(name)["silently_wrong"], 0, "{name}: {b}");
+    }
+    for name in ["clean", "large", "apart"] {
+        let c = case(name);
+        assert_eq!(c["measured"], c["parcels"], "{name}: {b}");
+        for axis in ["length_mm", "width_mm", "height_mm"] {
+            assert!(
+                c[axis]["max"].as_f64().expect("max") <= 3.0,
+                "{name} {axis}: {b}"
+            );
+        }
+    }
+    assert_eq!(case("apart")["measured"], 2, "{b}");
+    assert!(
+        case("cylinder")["length_mm"]["max"].as_f64().expect("max") <= 10.0,
+        "{b}"
+    );
+    assert_eq!(case("touching")["measured"], 0, "{b}");
+    assert_eq!(case("cut")["refused"], 1, "{b}");
+    let scenes = b["scenes"].as_array().expect("scenes");
+    let touching = &scenes[4]["parcels"][0]["refused"];
+    assert!(
+        touching
+            .as_str()
+            .expect("a reason")
+            .contains("side by side"),
+        "{b}"
+    );
+    let cut = &scenes[5]["parcels"][0]["refused"];
+    assert!(cut.as_str().expect("a reason").contains("view"), "{b}");
+}

@@ -194,10 +194,11 @@ fn a_lying_tube_is_irregular_and_gets_its_enclosing_box() {
         parcels(&PointCloud::from(points), &DimensionConfig::default(), &[]).expect("measures");
     let p = &found.parcels[0];
     assert_eq!(p.shape, Shape::Irregular, "{p:?}");
+    // Within two divisions (2 d = 10 mm), as OIML R 129 allows an irregular item.
     let d = &p.dimensions;
-    assert!((d.length_mm - 500.0).abs() < 5.0, "{d:?}");
-    assert!((d.width_mm - 120.0).abs() < 5.0, "{d:?}");
-    assert!((d.height_mm - 120.0).abs() < 5.0, "{d:?}");
+    assert!((d.length_mm - 500.0).abs() < 10.0, "{d:?}");
+    assert!((d.width_mm - 120.0).abs() < 10.0, "{d:?}");
+    assert!((d.height_mm - 120.0).abs() < 10.0, "{d:?}");
 }
 
 #[test]

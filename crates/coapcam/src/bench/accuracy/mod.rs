@@ -1,6 +1,7 @@
 //! `bench accuracy`: a built-in, seeded set of synthetic parcel scenes ([`scenes`])
 //! measured end to end over CoAP on loopback, each scene's errors, and their summary.
 
+pub mod lane;
 pub mod scenes;
 
 use std::net::SocketAddr;
@@ -233,7 +234,8 @@ pub struct Quantiles {
 }
 
 impl Quantiles {
-    fn of(values: &[f64]) -> Self {
+    /// Of `values`.
+    pub fn of(values: &[f64]) -> Self {
         Self {
             median: stats::median(values).unwrap_or(f64::NAN),
             p95: stats::percentile(values, 0.95).unwrap_or(f64::NAN),

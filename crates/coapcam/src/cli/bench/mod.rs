@@ -6,7 +6,9 @@
 use clap::{Args, Subcommand};
 
 use super::{DimensionArgs, Exit, outln};
+use coapcam::bench::accuracy::lane::{self, CaseSummary, Outcome};
 use coapcam::bench::accuracy::{self, Quantiles, Row, Summary};
+use coapcam::report::{Billing, Division};
 
 mod load;
 mod rd;
@@ -46,9 +48,27 @@ enum BenchKind {
 
 #[derive(Debug, Args)]
 struct AccuracyArgs {
-    /// Number of scenes (at least 1).
-    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(1..=100_000))]
-    scenes: u32,
+    /// Number of scenes (at least 1; 40 of the boxes, the lane set's size of the lane
+    /// set).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    scenes: Option<u32>,
+    /// Which set: `boxes` (one plain box per scene, one or two cameras) or `lane`
+    /// (rgbd's lane set: clean and large boxes, cylinders, parcels apart and side by
+    /// side, parcels partly out of view, ...; every parcel of a scene held against its
+    /// truth, and per case the errors, refusals and silently wrong results).
+    #[arg(long, default_value = "boxes", value_parser = ["boxes", "lane"])]
+    set: String,
+    /// With --set lane: measure every scene this many times (new frames each time) and
+    /// print the spread of each parcel's dimensions.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    repeat: u32,
+    /// With --set lane: leave the cameras as they start (the floor sent, no spatial
+    /// filter), as `measure --all` without --prepare measures.
+    #[arg(long)]
+    raw: bool,
+    /// With --set lane: the accuracy division d, mm (see `measure --division-mm`).
+    #[arg(long, value_name = "MM", default_value = "5", value_parser = super::values::division_mm)]
+    division_mm: f64,
     /// Seed of the scene generator.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -78,8 +98,11 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
 }
 
 async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
+    if args.set == "lane" {
+        return accuracy_lane(args).await;
+    }
     let config = accuracy::Config {
-        scenes: args.scenes as usize,
+        scenes: args.scenes.map_or(40, |n| n as usize),
         seed: args.seed,
         calibrate: args.calibrate,
         dimension: args.dimension.config(),
@@ -169,6 +192,197 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
         }
     }
     Ok(if failed == 0 {
+        Exit::Success
+    } else {
+        Exit::Failure
+    })
+}
+
+async fn accuracy_lane(args: AccuracyArgs) -> anyhow::Result<Exit> {
+    if args.calibrate {
+        anyhow::bail!("--calibrate has its own scenes: leave out --set lane");
+    }
+    let billing = Billing {
+        division: Division {
+            d_mm: args.division_mm,
+        },
+        ..Billing::default()
+    };
+    let config = lane::Config {
+        scenes: args
+            .scenes
+            .map_or(rgbd::lane::LANE_SET_SIZE, |n| n as usize),
+        seed: args.seed,
+        repeat: args.repeat as usize,
+        raw: args.raw,
+        dimension: args.dimension.config(),
+        billing,
+    };
+    let rows = lane::run(&config, |row| {
+        if args.json {
+            return Ok(());
+        }
+        let each: Vec<String> = row
+            .objects
+            .iter()
+            .map(|o| {
+                let t = o.truth;
+                let what = match (&o.outcome, o.errors()) {
+                    (Outcome::Measured { shape, .. }, Some(e)) => format!(
+                        "{:+.1} {:+.1} {:+.1} mm {shape}{}",
+                        e[0],
+                        e[1],
+                        e[2],
+                        if o.silently_wrong(&billing) {
+                            " SILENTLY WRONG"
+                        } else {
+                            ""
+                        }
+                    ),
+                    (Outcome::Refused(why), _) => format!("refused: {why}"),
+                    _ => "MISSING".to_owned(),
+                };
+                format!("{:.0} x {:.0} x {:.0}: {what}", t[0], t[1], t[2])
+            })
+            .collect();
+        let failed = row
+            .error
+            .as_deref()
+            .map_or(String::new(), |e| format!(" FAILED: {e}"));
+        outln!(
+            "scene {:>2}.{} {:<9} {} cam {:>5.0} ms  {}{failed}",
+            row.index,
+            row.run,
+            row.case,
+            row.cameras,
+            row.cycle_ms,
+            each.join("; ")
+        );
+        Ok(())
+    })
+    .await?;
+    let mut cases: Vec<&str> = Vec::new();
+    for r in &rows {
+        if !cases.contains(&r.case) {
+            cases.push(r.case);
+        }
+    }
+    let mut summaries: Vec<CaseSummary> = cases
+        .iter()
+        .map(|c| CaseSummary::of(&rows, Some(c), &billing))
+        .collect();
+    summaries.push(CaseSummary::of(&rows, None, &billing));
+    let spreads = lane::spreads(&rows);
+    let cycles: Vec<f64> = rows.iter().map(|r| r.cycle_ms).collect();
+    let cycle = Quantiles::of(&cycles);
+    if args.json {
+        let json: Vec<serde_json::Value> = summaries
+            .iter()
+            .map(|s| {
+                let e = |k: usize| {
+                    serde_json::json!({"mean_signed": s.mean_signed[k], "mae": s.errors[k].mean,
+                        "p95": s.errors[k].p95, "max": s.errors[k].max})
+                };
+                serde_json::json!({"case": s.case, "parcels": s.objects, "measured": s.measured,
+                    "refused": s.refused, "missing": s.missing, "silently_wrong": s.silently_wrong,
+                    "length_mm": e(0), "width_mm": e(1), "height_mm": e(2)})
+            })
+            .collect();
+        let scenes: Vec<serde_json::Value> = rows
+            .iter()
+            .map(|r| {
+                let objects: Vec<serde_json::Value> = r
+                    .objects
+                    .iter()
+                    .map(|o| match &o.outcome {
+                        Outcome::Measured {
+                            raw,
+                            reported,
+                            shape,
+                        } => serde_json::json!({
+                            "truth": o.truth, "measured": raw, "reported": reported,
+                            "shape": shape, "silently_wrong": o.silently_wrong(&billing)}),
+                        Outcome::Refused(why) => {
+                            serde_json::json!({"truth": o.truth, "refused": why})
+                        }
+                        Outcome::Missing => serde_json::json!({"truth": o.truth, "missing": true}),
+                    })
+                    .collect();
+                serde_json::json!({"scene": r.index, "run": r.run, "case": r.case,
+                    "cameras": r.cameras, "cycle_ms": r.cycle_ms, "error": r.error,
+                    "parcels": objects})
+            })
+            .collect();
+        let spread: Vec<serde_json::Value> = spreads
+            .iter()
+            .map(|(i, p, rep, raw)| {
+                serde_json::json!({"scene": i, "parcel": p, "reported_mm": rep, "measured_mm": raw})
+            })
+            .collect();
+        outln!(
+            "{}",
+            serde_json::json!({"set": "lane", "seed": args.seed, "division_mm": args.division_mm,
+                "raw": args.raw, "scenes": scenes, "cases": json,
+                "cycle_ms": {"median": cycle.median, "p95": cycle.p95, "max": cycle.max},
+                "spreads": if args.repeat > 1 { serde_json::json!(spread) } else { serde_json::Value::Null }})
+        );
+    } else {
+        outln!("");
+        outln!(
+            "{:<9} {:>4} {:>4} {:>4} {:>4} {:>6} | {:>22} | {:>22} | {:>22}",
+            "case",
+            "n",
+            "ok",
+            "ref",
+            "miss",
+            "silent",
+            "length mean/MAE/p95/max",
+            "width",
+            "height"
+        );
+        for s in &summaries {
+            let e = |k: usize| {
+                format!(
+                    "{:+.1}/{:.1}/{:.1}/{:.1}",
+                    s.mean_signed[k], s.errors[k].mean, s.errors[k].p95, s.errors[k].max
+                )
+            };
+            outln!(
+                "{:<9} {:>4} {:>4} {:>4} {:>4} {:>6} | {:>22} | {:>22} | {:>22}",
+                s.case,
+                s.objects,
+                s.measured,
+                s.refused,
+                s.missing,
+                s.silently_wrong,
+                e(0),
+                e(1),
+                e(2)
+            );
+        }
+        outln!(
+            "errors in mm (unrounded); silent = a reported number more than 2 d from the truth with no flag (d = {} mm); cycle median {:.0} ms, p95 {:.0} ms",
+            args.division_mm,
+            cycle.median,
+            cycle.p95
+        );
+        if args.repeat > 1 {
+            for (i, p, rep, raw) in &spreads {
+                outln!(
+                    "scene {i} parcel {p}: spread over {} runs, reported {:.0} / {:.0} / {:.0} mm, measured {:.2} / {:.2} / {:.2} mm",
+                    args.repeat,
+                    rep[0],
+                    rep[1],
+                    rep[2],
+                    raw[0],
+                    raw[1],
+                    raw[2]
+                );
+            }
+        }
+    }
+    let wrong: usize = summaries.last().map_or(0, |s| s.silently_wrong);
+    Ok(if wrong == 0 {
         Exit::Success
     } else {
         Exit::Failure
