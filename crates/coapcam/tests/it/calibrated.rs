@@ -47,7 +47,12 @@ fn measure_after_prepare_gives_no_floor_alarm_but_a_raised_floor_warns() {
         serde_json::from_str(&ok(&["get", &doc]).stdout_text()).expect("JSON");
     t["post_translation_matrix"] = serde_json::json!([[0.0], [0.0], [0.3]]);
     ok(&["put", &doc, "--payload", &t.to_string()]);
-    let m = ok(&["measure", "--server", &uri, "--json"]).json();
+    // The floor, 300 mm up, is one object reaching beyond the view: refused (exit
+    // status 10), with the warning that says why.
+    let f = coapcam(&["measure", "--server", &uri, "--json"]);
+    assert_eq!(f.status.code(), Some(10), "{}", f.stderr);
+    let m = f.json();
+    assert_eq!(m["parcel"], "refused", "{m}");
     let w = warnings(&m);
     assert!(
         w.contains(&format!(
