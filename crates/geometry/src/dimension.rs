@@ -158,24 +158,6 @@ impl DimensionConfig {
     }
 }
 
-/// Measures the largest object standing on the floor of `cloud` (output frame: z up,
-/// floor at z = 0, metres): the first of [`crate::parcels`] without camera views.
-pub fn dimension(
-    cloud: &PointCloud,
-    config: &DimensionConfig,
-) -> Result<Dimensions, DimensionError> {
-    let found = crate::parcels::parcels(cloud, config, &[])?;
-    Ok(found
-        .parcels
-        .into_iter()
-        .next()
-        .ok_or(DimensionError::TooFewPoints {
-            found: found.largest_points,
-            needed: config.min_points,
-        })?
-        .dimensions)
-}
-
 /// The points of `cloud` at or above `min_height_m` that are finite.
 pub(crate) fn above_floor(cloud: &PointCloud, config: &DimensionConfig) -> Vec<Point3> {
     cloud

@@ -158,6 +158,24 @@ pub struct Parcels {
     pub largest_points: usize,
 }
 
+/// Measures the largest object standing on the floor of `cloud` (output frame: z up,
+/// floor at z = 0, metres): the first of [`crate::parcels`] without camera views.
+pub fn dimension(
+    cloud: &PointCloud,
+    config: &DimensionConfig,
+) -> Result<Dimensions, DimensionError> {
+    let found = parcels(cloud, config, &[])?;
+    Ok(found
+        .parcels
+        .into_iter()
+        .next()
+        .ok_or(DimensionError::TooFewPoints {
+            found: found.largest_points,
+            needed: config.min_points,
+        })?
+        .dimensions)
+}
+
 /// Measures every object standing on the floor of `cloud` (output frame: z up, floor at
 /// z = 0, metres). `views` are the cameras the cloud came from, if known: a parcel with a
 /// top corner outside all of them is not complete.
