@@ -19,7 +19,7 @@ use crate::grid::{Cell, CellMap, Grid};
 use crate::index::Index;
 use crate::{Point3, PointCloud};
 
-/// Thresholds of [`dimension`].
+/// Thresholds of [`crate::dimension()`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DimensionConfig {
     /// Points lower than this (metres above the floor) are floor, not parcel.

@@ -2,8 +2,8 @@
 //! measured as the smallest cuboid that encloses it, with how well a cuboid fits, whether
 //! it touches another parcel and whether the data show all of it.
 //!
-//! Per object (a cluster of [`crate::dimension`]'s grid):
-//! - the top: the lid band below a robust maximum of z, as [`crate::dimension`] has always
+//! Per object (a cluster of [`crate::dimension()`]'s grid):
+//! - the top: the lid band below a robust maximum of z, as [`crate::dimension()`] has always
 //!   taken it;
 //! - the footprint of a cuboid: the minimum-area rectangle around the lid gives the
 //!   directions; each of its four edges is then placed where the lid's points say, not
@@ -159,7 +159,7 @@ pub struct Parcels {
 }
 
 /// Measures the largest object standing on the floor of `cloud` (output frame: z up,
-/// floor at z = 0, metres): the first of [`crate::parcels`] without camera views.
+/// floor at z = 0, metres): the first of [`parcels()`] without camera views.
 pub fn dimension(
     cloud: &PointCloud,
     config: &DimensionConfig,

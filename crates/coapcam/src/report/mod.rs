@@ -168,7 +168,7 @@ impl Parcel {
 /// Every parcel on the table, measured (blocking: run it off the executor).
 #[derive(Debug, Clone, Default)]
 pub struct Table {
-    /// The parcels, the largest first (see [`geometry::parcels`]).
+    /// The parcels, the largest first (see [`geometry::parcels()`]).
     pub fits: Vec<ParcelFit>,
     /// Points of the largest object above the floor.
     pub largest_points: usize,
