@@ -10,7 +10,7 @@ use rgbd::{ColorFrame, DepthFrame, DistortionModel, Extrinsics, Intrinsics, Seri
 use serde::{Deserialize, Serialize};
 
 pub use super::codec::Cloud;
-use super::codec::{Decoders, Subject};
+use super::codec::{Decoders, Subject, checked_len};
 use super::packet::unix_seconds;
 use super::packet::{
     self, POINT_SIZE, TYPE_CLOUD, TYPE_COLOR, TYPE_DEPTH, append_depth_values, append_points,
@@ -358,7 +358,7 @@ impl Cloud {
         let map: CloudMap = decode(body, what, TYPE_CLOUD, |m: &CloudMap| m.kind)?;
         let count = map.points;
         let bytes = map.data.0.len();
-        if count.checked_mul(u64::from(POINT_SIZE)) != Some(bytes as u64) {
+        if checked_len(&[count, u64::from(POINT_SIZE)]) != Some(bytes as u64) {
             return Err(CborError::Data {
                 what,
                 why: format!("{count} points announced, {bytes} bytes of points arrived"),
@@ -429,10 +429,8 @@ impl DepthCapture {
     pub fn from_cbor(body: &[u8]) -> Result<Self, CborError> {
         let what = "depth frame";
         let map: DepthMap = decode(body, what, TYPE_DEPTH, |m: &DepthMap| m.kind)?;
-        let needed = (map.width as usize)
-            .checked_mul(map.height as usize)
-            .and_then(|n| n.checked_mul(2));
-        if map.pixel_size != 2 || needed != Some(map.data.0.len()) {
+        let needed = checked_len(&[map.width.into(), map.height.into(), 2]);
+        if map.pixel_size != 2 || needed != Some(map.data.0.len() as u64) {
             return Err(CborError::Data {
                 what,
                 why: format!(

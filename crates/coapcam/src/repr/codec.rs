@@ -195,3 +195,12 @@ pub struct DepthPart {
     /// Applied after the crop: the server's ICP registration of this camera, if any.
     pub correction: Option<Transform>,
 }
+
+/// The length a body must have: the product of `factors` (points x bytes a point, or
+/// width x height x bytes a pixel), `None` when it overflows. Decoders compare it with
+/// the bytes that arrived, so an announced size never wraps into a match.
+pub(crate) fn checked_len(factors: &[u64]) -> Option<u64> {
+    factors
+        .iter()
+        .try_fold(1u64, |len, &factor| len.checked_mul(factor))
+}

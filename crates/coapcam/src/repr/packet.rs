@@ -14,7 +14,7 @@ use image::RgbImage;
 use rgbd::{ColorFrame, DepthFrame};
 
 pub use super::codec::DepthImage;
-use super::codec::{Cloud, ColorDecoder, Decoders, EncodeError, Subject};
+use super::codec::{Cloud, ColorDecoder, Decoders, EncodeError, Subject, checked_len};
 
 /// Packet type of a color image.
 pub const TYPE_COLOR: u8 = 1;
@@ -222,7 +222,7 @@ pub fn cloud(packet: &[u8]) -> Result<CloudPacket, PacketError> {
     check_header(packet, what, HEADER, TYPE_CLOUD, ("point size", 1, 12))?;
     let count = be_u32(packet, 4) as usize;
     let body = &packet[HEADER..];
-    if count.checked_mul(12) != Some(body.len()) {
+    if checked_len(&[count as u64, 12]) != Some(body.len() as u64) {
         return Err(error(
             what,
             format!(
@@ -255,10 +255,8 @@ pub fn rgb_image(
     bytes_per_pixel: usize,
     format: &str,
 ) -> Result<RgbImage, String> {
-    let needed = (width as usize)
-        .checked_mul(height as usize)
-        .and_then(|n| n.checked_mul(bytes_per_pixel));
-    if !(3..=4).contains(&bytes_per_pixel) || needed != Some(pixels.len()) {
+    let needed = checked_len(&[width.into(), height.into(), bytes_per_pixel as u64]);
+    if !(3..=4).contains(&bytes_per_pixel) || needed != Some(pixels.len() as u64) {
         return Err(format!(
             "{} bytes are not {width}x{height} pixels of {bytes_per_pixel} bytes",
             pixels.len()
