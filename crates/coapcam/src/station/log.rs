@@ -840,15 +840,21 @@ mod tests {
         assert_eq!(reopened.append(new(6, "C", false)).expect("append").id, 6);
     }
 
-    #[test]
-    fn records_refuse_changes_and_verify_names_the_altered_one() {
-        let dir = ScratchDir::new("results-log-altered");
+    /// A closed results log of four records with pictures, in a scratch directory named
+    /// `name`: the directory (removed when dropped) and the log's path.
+    fn log_of_four(name: &str) -> (ScratchDir, PathBuf) {
+        let dir = ScratchDir::new(name);
         let path = dir.path().join("results.sqlite");
         let log = ResultsLog::open(&path).expect("open");
         for n in 1..=4 {
             log.append(new(n, "A", true)).expect("append");
         }
-        drop(log);
+        (dir, path)
+    }
+
+    #[test]
+    fn records_refuse_changes_and_verify_names_the_altered_one() {
+        let (_dir, path) = log_of_four("results-log-altered");
         let conn = Connection::open(&path).expect("sqlite");
         let refused = conn.execute("UPDATE records SET hash = 'x' WHERE id = 2", []);
         assert!(refused.is_err(), "an UPDATE went through");
@@ -870,13 +876,7 @@ mod tests {
 
     #[test]
     fn verify_names_a_deleted_record_and_a_changed_picture() {
-        let dir = ScratchDir::new("results-log-gap");
-        let path = dir.path().join("results.sqlite");
-        let log = ResultsLog::open(&path).expect("open");
-        for n in 1..=4 {
-            log.append(new(n, "A", true)).expect("append");
-        }
-        drop(log);
+        let (_dir, path) = log_of_four("results-log-gap");
         let conn = Connection::open(&path).expect("sqlite");
         conn.execute_batch(
             "DROP TRIGGER pictures_no_update;
