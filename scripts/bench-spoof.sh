@@ -5,11 +5,13 @@
 #   sudo scripts/netns-run scripts/bench-spoof.sh target/release/coapcam
 # A server on [::]:5683 (one synthetic camera) grabs a color frame and a point cloud
 # once; then
-#   - quiet: its CPU time over SECONDS (default 10), and GETS (default 15) GETs of the
-#     color frame (2,764,810 B) over [::1], each timed by the client's wall clock;
-#   - flood: 1,000 GETs a second of the point cloud (an answer made anew each time),
-#     sent from fd00::3-9 and never answered (as forged sources would be), and the same
-#     measurements meanwhile.
+#   - its CPU time over SECONDS (default 10) quiet, then over SECONDS of a flood: 1,000
+#     GETs a second of the point cloud (an answer made anew each time), sent from
+#     fd00::3-9 and never answered (as forged sources would be);
+#   - GETS (default 15) GETs of the color frame (2,764,810 B) over [::1] before any
+#     flood, then GETS pairs, one with the flood paused and one in it, alternating (so
+#     that the machine's other load weighs on both alike); each timed by the client's
+#     wall clock.
 # With GROUP=1 the flood goes to the group ff02::fd on the veth (NON, as group requests
 # are), which the server joins. Prints the server's CPU share and the GETs' median, p95
 # and max for both.
@@ -60,7 +62,7 @@ def coap_get(mid, path):
         out += bytes([(delta << 4) | len(s)]) + s
     return bytes(out)
 
-def flood(stop, sent):
+def flood(stop, on, sent):
     socks = []
     for n in range(3, 10):
         s = socket.socket(socket.AF_INET6, socket.SOCK_DGRAM)
@@ -69,50 +71,67 @@ def flood(stop, sent):
             s.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_IF, ifindex)
         s.setblocking(False)
         socks.append(s)
-    start = time.monotonic()
     i = 0
     while not stop.is_set():
+        if not on.wait(0.1):
+            continue
         # 1,000 a second, sent 10 every 10 ms.
-        due = start + i / 1000.0
-        delay = due - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        for _ in range(10):
-            msg = coap_get(i & 0xFFFF, ["cams", sn, "pointcloud"])
-            try:
-                socks[i % len(socks)].sendto(msg, target)
-            except BlockingIOError:
-                pass
-            i += 1
-        sent[0] = i
+        start, first = time.monotonic(), i
+        while on.is_set() and not stop.is_set():
+            delay = start + (i - first) / 1000.0 - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            for _ in range(10):
+                msg = coap_get(i & 0xFFFF, ["cams", sn, "pointcloud"])
+                try:
+                    socks[i % len(socks)].sendto(msg, target)
+                except BlockingIOError:
+                    pass
+                i += 1
+            sent[0] = i
 
-def measure(label):
+def cpu_share():
     c0, t0 = cpu(), time.monotonic()
     time.sleep(secs)
-    share = (cpu() - c0) / (time.monotonic() - t0)
-    times = []
-    size = 0
-    for _ in range(gets):
-        t = time.monotonic()
-        r = subprocess.run([bin, "get", uri, "-o", "/dev/stdout"], capture_output=True, timeout=120)
-        times.append(time.monotonic() - t)
-        if r.returncode != 0:
-            print(f"{label}: GET failed: {r.stderr.decode()[:300]}", file=sys.stderr)
-        size = len(r.stdout)
-    times.sort()
-    p95 = times[min(len(times) - 1, round(0.95 * (len(times) - 1)))]
-    print(f"{label}: server CPU {100 * share:.1f} % of a core over {secs:.0f} s; "
-          f"GET of {size:,} B x{gets}: median {statistics.median(times):.3f} s, "
-          f"p95 {p95:.3f} s, max {times[-1]:.3f} s")
+    return (cpu() - c0) / (time.monotonic() - t0)
 
-measure("quiet")
-stop, sent = threading.Event(), [0]
-t = threading.Thread(target=flood, args=(stop, sent))
-t0 = time.monotonic()
+def get():
+    t = time.monotonic()
+    r = subprocess.run([bin, "get", uri, "-o", "/dev/stdout"], capture_output=True, timeout=120)
+    took = time.monotonic() - t
+    if r.returncode != 0:
+        print(f"GET failed: {r.stderr.decode()[:300]}", file=sys.stderr)
+        return took, 0
+    return took, len(r.stdout)
+
+def summary(times):
+    times = sorted(times)
+    p95 = times[min(len(times) - 1, round(0.95 * (len(times) - 1)))]
+    return f"median {statistics.median(times):.3f} s, p95 {p95:.3f} s, max {times[-1]:.3f} s"
+
+stop, on, sent = threading.Event(), threading.Event(), [0]
+t = threading.Thread(target=flood, args=(stop, on, sent))
 t.start()
+quiet_cpu = cpu_share()
+baseline = [get()[0] for _ in range(gets)]
+on.set()
 time.sleep(1)
-measure("flood")
+flood_cpu = cpu_share()
+# The GETs alternate, quiet then in the flood, so that the machine's other load weighs
+# on both alike.
+times = {False: [], True: []}
+sizes = set()
+for _ in range(gets):
+    for flooding in (False, True):
+        (on.set if flooding else on.clear)()
+        time.sleep(0.5)
+        took, size = get()
+        times[flooding].append(took)
+        sizes.add(size)
 stop.set()
 t.join()
-print(f"flood: {sent[0]:,} spoofed GETs in {time.monotonic() - t0:.1f} s")
+print(f"server CPU: quiet {100 * quiet_cpu:.1f} %, flood {100 * flood_cpu:.1f} % of a core "
+      f"({sent[0]:,} spoofed GETs in all)")
+print(f"GET of {sorted(sizes)} B x{gets}: before any flood {summary(baseline)}; "
+      f"between floods {summary(times[False])}; in the flood {summary(times[True])}")
 EOF
