@@ -373,8 +373,9 @@ impl FrameHistory {
 /// Checks the frames of one measurement (and remembers them in `history`): a frame older
 /// than the grab that asked for it by more than the allowed skew plus one frame period
 /// (at its camera's rate) is stale, as is a frame served again; with `limits.skew`, a
-/// frame whose corrected capture time lies further than the allowed skew from the median
-/// frame's names its camera. Every problem found, stale cameras first.
+/// frame (of those not stale) whose corrected capture time lies further than the allowed
+/// skew from the median frame's names its camera. Every problem found, stale cameras
+/// first.
 pub fn check_frames(
     frames: &[FrameTime],
     limits: &Limits,
@@ -382,6 +383,7 @@ pub fn check_frames(
 ) -> Vec<Problem> {
     let max_skew = limits.skew_us(frames);
     let mut problems = Vec::new();
+    let mut live = Vec::with_capacity(frames.len());
     for f in frames {
         let period = frame_period_us(f.fps.unwrap_or(DEFAULT_FPS));
         let max_age = max_skew + period;
@@ -403,12 +405,15 @@ pub fn check_frames(
                 camera: f.who(),
                 frame_number: f.frame_number,
             });
+            continue;
         }
+        live.push(f);
     }
-    if !limits.skew || frames.len() < 2 {
+    // A stale camera is named as such; the others' times are compared among themselves.
+    if !limits.skew || live.len() < 2 {
         return problems;
     }
-    let mut order: Vec<&FrameTime> = frames.iter().collect();
+    let mut order = live;
     order.sort_by_key(|f| f.corrected_us());
     let median = order[(order.len() - 1) / 2];
     for f in &order {

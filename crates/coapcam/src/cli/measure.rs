@@ -12,11 +12,12 @@ use clap::Args;
 use coap_net::Uri;
 
 use coapcam::client::measure::{
-    FLOOR_CUT_M, Source, calibration_of, measure_once, prepare_cameras,
+    FLOOR_CUT_M, Source, calibration_of, measure_checked, prepare_cameras,
 };
 use coapcam::client::{CamClient, annotate, codes};
 use coapcam::rd::registrant::{Endpoint, GROUP_ATTR, group_key, lookup_endpoints};
 use coapcam::report::{self, Billing, Division, EdgeQuery, Found, Measurement, Parcel};
+use coapcam::timesync::Limits;
 
 use super::{
     Bars, CameraArgs, DimensionArgs, Exit, TransmissionArgs, folder_exists, outln, usage, values,
@@ -109,6 +110,15 @@ pub(crate) struct MeasureArgs {
     /// status 10 when it is the largest).
     #[arg(long, value_name = "MM", default_value = "5", value_parser = values::division_mm)]
     division_mm: f64,
+    /// The most the cameras' capture times may differ, in milliseconds, each corrected
+    /// by its server's clock offset (estimated from the exchanges: the server's receive
+    /// and transmit times ride in every answer); frames further apart are not merged
+    /// (exit status 9, the camera named). By default one frame period at the slowest
+    /// camera's rate (33.3 ms at 30 fps). A camera whose frame was captured more than
+    /// this plus a frame period before the grab asked for it, or that serves the same
+    /// frame again, is stale (exit status 9 too). From 0.001 to 10000.
+    #[arg(long, value_name = "MS", value_parser = values::max_skew_ms)]
+    max_skew_ms: Option<f64>,
     #[command(flatten)]
     dimension: DimensionArgs,
     #[command(flatten)]
@@ -175,6 +185,30 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
                     members: members.iter().filter_map(|m| m.addr).collect(),
                 },
             )
+        }
+        (None, Some(server)) if args.cameras.servers().len() > 1 => {
+            if args.edge || args.prepare || args.cameras.camera.is_some() {
+                bail!(
+                    "with several --server the clouds of every camera are merged here: leave out --edge, --prepare and --camera"
+                );
+            }
+            let psk = args.transmission.psk();
+            let client = CamClient::connect(server, config, psk.as_ref(), timeout)
+                .await?
+                .with_progress(Bars::shown());
+            let mut servers = vec![client.server()];
+            for uri in &args.cameras.servers()[1..] {
+                let parsed = Uri::parse(uri)?;
+                let addr = parsed
+                    .resolve()
+                    .await
+                    .with_context(|| format!("resolving {}", parsed.host))?;
+                if servers.contains(&addr) {
+                    bail!("--server {uri} is given twice");
+                }
+                servers.push(addr);
+            }
+            (client, Source::Servers(servers))
         }
         (None, Some(server)) => {
             let psk = args.transmission.psk();
@@ -278,7 +312,9 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             path.display()
         );
     }
-    Ok(if matches!(m.parcel, Found::Uncalibrated { .. }) {
+    Ok(if matches!(m.parcel, Found::Unsynced { .. }) {
+        Exit::Unsynced
+    } else if matches!(m.parcel, Found::Uncalibrated { .. }) {
         Exit::Uncalibrated
     } else if matches!(parcel, Parcel::Nothing { .. }) {
         Exit::Empty
@@ -299,11 +335,15 @@ async fn measure_here(
     args: &MeasureArgs,
     billing: &Billing,
 ) -> anyhow::Result<(Measurement, bool)> {
-    let here = measure_once(client, source, &args.dimension.config()).await?;
+    let limits = Limits {
+        max_skew_us: args.max_skew_ms.map(|ms| (ms * 1e3).round() as i64),
+        skew: true,
+    };
+    let here = measure_checked(client, source, &args.dimension.config(), &limits).await?;
     let calibration = calibration_of(client, &here.grabbed.cameras).await;
     let mut m = here.report_with(billing, &calibration);
     let missing = !here.grabbed.failed.is_empty();
-    if args.codes {
+    if args.codes && here.unsynced.is_empty() {
         let started = Instant::now();
         let codes = codes::read_cameras(client, &here.grabbed.cameras).await?;
         m.set_codes(codes, started.elapsed());

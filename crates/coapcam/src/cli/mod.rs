@@ -129,9 +129,10 @@ impl TransmissionArgs {
 #[derive(Debug, Clone, Args)]
 pub(crate) struct CameraArgs {
     /// The server, coap://host[:port] (or coaps:// with --psk-identity and --psk-key).
+    /// `measure` takes it more than once: every camera of each server, merged.
     // Required, but an argument that conflicts with one given (measure's --group) is not.
     #[arg(long, value_name = "URI", required = true, value_parser = values::coap_uri)]
-    server: Option<String>,
+    server: Vec<String>,
     /// Only this camera (12-digit serial). Without it, a command that grabs one frame
     /// takes the server's camera if it has only one; the others use every camera.
     #[arg(long, value_name = "SN", conflicts_with = "all", value_parser = values::serial)]
@@ -143,9 +144,15 @@ pub(crate) struct CameraArgs {
 }
 
 impl CameraArgs {
-    /// `--server`; `None` only where a flag that stands for it was given (`--group`).
+    /// `--server` (the first, when given more than once); `None` only where a flag that
+    /// stands for it was given (`--group`).
     pub(crate) fn server(&self) -> Option<&str> {
-        self.server.as_deref()
+        self.server.first().map(String::as_str)
+    }
+
+    /// Every `--server` given.
+    pub(crate) fn servers(&self) -> &[String] {
+        &self.server
     }
 
     /// A client of `--server`, with `transmission`'s parameters.
@@ -154,6 +161,9 @@ impl CameraArgs {
         transmission: &TransmissionArgs,
     ) -> anyhow::Result<coapcam::client::CamClient> {
         let server = anyhow::Context::context(self.server(), "give --server URI")?;
+        if self.server.len() > 1 {
+            anyhow::bail!("give --server once (only measure merges several servers)");
+        }
         coapcam::client::CamClient::connect(
             server,
             transmission.endpoint_config(),
@@ -259,6 +269,10 @@ pub(crate) enum Exit {
     /// 10: `measure`: a parcel was found but the data cannot support a number (not seen
     /// whole, holes, side by side, out of the measurable range); the reason was printed.
     Unsupported,
+    /// 9: `measure`: the frames do not belong together (capture times, corrected by
+    /// each server's clock offset, further apart than `--max-skew-ms`, or a stale
+    /// camera); nothing was measured, the camera was named.
+    Unsynced,
     /// 128 + the signal's number (130 for SIGINT, 143 for SIGTERM): stopped by a signal
     /// after cleaning up (`get -o FILE` removes its temporary file).
     Interrupted(u8),
@@ -278,6 +292,7 @@ impl Exit {
             Self::Altered => 7,
             Self::Uncalibrated => 8,
             Self::Unsupported => 10,
+            Self::Unsynced => 9,
             Self::Interrupted(signal) => 128 + signal,
         }
     }

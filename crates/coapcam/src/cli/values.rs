@@ -113,6 +113,11 @@ pub(crate) fn volumetric_divisor(text: &str) -> Result<f64, String> {
     within(text, lo, hi, " cm³ per kg")
 }
 
+/// `measure --max-skew-ms`: 0.001 ms (1 µs) to 10 s.
+pub(crate) fn max_skew_ms(text: &str) -> Result<f64, String> {
+    within(text, 0.001, 10_000.0, " ms")
+}
+
 /// A marker's side in metres: 5 mm to 2 m (`calibrate --marker-size`, `markers --size`).
 pub(crate) fn marker_metres(text: &str) -> Result<f64, String> {
     within(text, 0.005, 2.0, " m")

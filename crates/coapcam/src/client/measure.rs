@@ -14,9 +14,10 @@ use geometry::{DimensionConfig, Dimensions, Point3, PointCloud, Roi3};
 use rgbd::filter::SpatialConfig;
 use rgbd::{ColorSettings, Scene};
 
-use super::{CamClient, NoAnswer, check, cloud_of};
+use super::{CamClient, NoAnswer, check, clocks, cloud_of};
 use crate::documents::AppConfig;
-use crate::report::{self, Billing, Measurement, Parcel, Table};
+use crate::report::{self, Billing, Found, Measurement, Parcel, Table};
+use crate::timesync::{FrameTime, Limits, Problem, ServerTimes};
 
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
@@ -25,6 +26,8 @@ pub enum Source {
     Camera(String),
     /// Every camera of a server, merged by the server.
     All,
+    /// Every camera of each of these servers, asked at once, merged here.
+    Servers(Vec<SocketAddr>),
     /// Every server of a multicast group.
     Group {
         /// The group's address and port.
@@ -57,6 +60,12 @@ pub struct Grabbed {
     pub cameras: Vec<(SocketAddr, String)>,
     /// Frame timestamps, microseconds since the UNIX epoch (one per cloud received).
     pub timestamps_us: Vec<u64>,
+    /// Each camera's frame with its capture time on its server's clock, where the
+    /// representation tells (the compact cloud).
+    pub frames: Vec<FrameTime>,
+    /// Clouds whose representation does not tell each camera's capture time: their
+    /// frames are not checked.
+    pub untimed: Vec<String>,
     /// Servers of a group that answered with an error, and why: their clouds are missing.
     pub failed: Vec<String>,
     /// Bytes of point-cloud representations received.
@@ -81,6 +90,11 @@ pub struct CloudMeasurement {
     pub cycle: Duration,
     /// Of the cycle: until the last cloud arrived (the servers' grabs and the transfers).
     pub grab: Duration,
+    /// Why the frames do not belong together; when there is a reason, nothing was
+    /// measured (`parcel` is nothing with 0 points).
+    pub unsynced: Vec<Problem>,
+    /// What could not be checked of the frames' times.
+    pub unchecked: Vec<String>,
 }
 
 impl CloudMeasurement {
@@ -130,7 +144,19 @@ impl CloudMeasurement {
         m.servers = g.cameras.iter().map(|(s, _)| *s).collect();
         m.cycle_ms = Some(report::ms(self.cycle));
         m.received_bytes = Some(g.bytes as u64);
+        m.frames = g.frames.clone();
         m.warnings = g.failed.clone();
+        m.warnings.extend(self.unchecked.iter().cloned());
+        m.warnings.extend(g.untimed.iter().cloned());
+        if !self.unsynced.is_empty() {
+            let reasons: Vec<String> = self.unsynced.iter().map(ToString::to_string).collect();
+            m.parcel = Found::Unsynced {
+                reason: reasons.join("; "),
+            };
+            m.cloud_points = 0;
+            m.warnings.extend(reasons);
+            return m;
+        }
         let floor = if calibration.floor_cut {
             Vec::new()
         } else {
@@ -190,6 +216,23 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
     let answers = match source {
         Source::Camera(sn) => vec![(client.server(), client.grab_cloud(Some(sn)).await?)],
         Source::All => vec![(client.server(), client.grab_cloud(None).await?)],
+        Source::Servers(servers) => {
+            // All at once: frames asked for one after the other would be a transfer apart.
+            let mut grabs = tokio::task::JoinSet::new();
+            for (i, &server) in servers.iter().enumerate() {
+                let one = CamClient::unicast(client, server);
+                grabs.spawn(async move { (i, server, one.grab_cloud(None).await) });
+            }
+            let mut answers = Vec::with_capacity(servers.len());
+            while let Some(done) = grabs.join_next().await {
+                let (i, server, r) = done.context("a grab task failed")?;
+                let r = r.with_context(|| format!("grabbing the clouds of {server}"))?;
+                answers.push((i, server, r));
+            }
+            answers.sort_by_key(|(i, ..)| *i);
+            let answers: Vec<_> = answers.into_iter().map(|(_, s, r)| (s, r)).collect();
+            answers
+        }
         Source::Group {
             group,
             expect,
@@ -222,6 +265,7 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                     }))
                 })
                 .collect();
+            let sent_us = clocks::unix_now_us();
             let answers = client
                 .coap()
                 .multicast_until(*group, request, |answers| {
@@ -237,6 +281,14 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             drop(probes);
             for m in gone.lock().unwrap_or_else(PoisonError::into_inner).iter() {
                 failed.push(format!("{m}: port unreachable (the server is not running)"));
+            }
+            // Samples of the servers' clocks, loose ones: the answers were collected
+            // until the last (the filter prefers the quick exchanges that follow).
+            let received_us = clocks::unix_now_us();
+            for (server, r) in &answers {
+                client
+                    .clocks()
+                    .exchanged(*server, sent_us, &r.options, received_us);
             }
             if answers.is_empty() {
                 return Err(NoAnswer(format!(
@@ -272,9 +324,10 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
         answers
             .into_iter()
             .map(|(server, r)| {
+                let asked = ServerTimes::of(&r.options).and_then(Result::ok);
                 let c =
                     cloud_of(&r).with_context(|| format!("reading the point cloud of {server}"));
-                c.map(|c| (server, c))
+                c.map(|c| (server, asked.map(|t| t.received_us), c))
             })
             .collect::<anyhow::Result<Vec<_>>>()
     })
@@ -284,11 +337,29 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
         cloud: PointCloud::default(),
         cameras: Vec::new(),
         timestamps_us: Vec::new(),
+        frames: Vec::new(),
+        untimed: Vec::new(),
         failed,
         bytes,
         views: Vec::new(),
     };
-    for (server, mut c) in decoded {
+    for (server, requested_unix_us, mut c) in decoded {
+        for f in &c.frames {
+            grabbed.frames.push(FrameTime {
+                camera: f.serial.clone(),
+                server: Some(server),
+                frame_number: f.frame_number,
+                captured_unix_us: i64::try_from(f.timestamp_us).unwrap_or(i64::MAX),
+                requested_unix_us,
+                clock: None,
+                fps: None,
+            });
+        }
+        if c.frames.is_empty() {
+            grabbed.untimed.push(format!(
+                "the cloud of {server} does not tell each camera's capture time (not the compact cloud): its frames were not checked"
+            ));
+        }
         if c.serials.is_empty() {
             // The thesis packet names no camera.
             c.serials = match source {
@@ -306,15 +377,54 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
     Ok(grabbed)
 }
 
-/// Grabs and measures once.
+/// Grabs and measures once, refusing frames that do not belong together as the default
+/// [`Limits`] say (one frame period; see [`measure_checked`]).
 pub async fn measure_once(
     client: &CamClient,
     source: &Source,
     config: &DimensionConfig,
 ) -> anyhow::Result<CloudMeasurement> {
+    let limits = Limits {
+        max_skew_us: None,
+        skew: true,
+    };
+    measure_checked(client, source, config, &limits).await
+}
+
+/// Grabs, checks that the frames belong together (capture times, corrected by each
+/// server's clock offset, no further apart than `limits` allow; no stale camera), and
+/// measures if they do; if they do not, nothing is measured and
+/// [`CloudMeasurement::unsynced`] says why.
+pub async fn measure_checked(
+    client: &CamClient,
+    source: &Source,
+    config: &DimensionConfig,
+    limits: &Limits,
+) -> anyhow::Result<CloudMeasurement> {
     let started = Instant::now();
-    let grabbed = grab_clouds(client, source).await?;
+    let mut grabbed = grab_clouds(client, source).await?;
     let grab = started.elapsed();
+    // A group's servers answer a multicast request each after a random Leisure (RFC 7252
+    // §8.2), and a server that first verifies the client's address (RFC 9175) grabs only
+    // when the client's retry comes, so their frames lie up to a Leisure apart: their
+    // times are compared only when --max-skew-ms asks; staleness is always checked.
+    let mut limits = *limits;
+    if matches!(source, Source::Group { .. }) && limits.max_skew_us.is_none() {
+        limits.skew = false;
+    }
+    let checked = clocks::check_frames(client, &mut grabbed.frames, &limits).await;
+    if !checked.problems.is_empty() {
+        return Ok(CloudMeasurement {
+            parcel: Parcel::Nothing { points: 0 },
+            table: Table::default(),
+            min_coverage: config.min_coverage,
+            grabbed,
+            cycle: started.elapsed(),
+            grab,
+            unsynced: checked.problems,
+            unchecked: checked.unchecked,
+        });
+    }
     let (table, grabbed) = tokio::task::spawn_blocking({
         let config = *config;
         move || {
@@ -337,6 +447,8 @@ pub async fn measure_once(
         grabbed,
         cycle: started.elapsed(),
         grab,
+        unsynced: Vec::new(),
+        unchecked: checked.unchecked,
     })
 }
 

@@ -4,6 +4,7 @@
 
 pub mod annotate;
 pub mod calibrate;
+pub mod clocks;
 pub mod codes;
 pub mod measure;
 pub mod results;
@@ -23,6 +24,7 @@ use coap_net::{Client, Psk, Uri};
 use crate::report::{EdgeQuery, Measurement};
 use crate::repr::packet::DepthImage;
 use crate::repr::{self, Stream, cbor};
+use crate::timesync::SERVER_TIME;
 
 /// A client socket for `server`: plain for `coap://`, DTLS with `psk` for `coaps://`.
 pub fn secured_client(
@@ -54,6 +56,8 @@ pub struct CamClient {
     timeout: Duration,
     /// What shows the progress of answers, when the command shows it.
     progress: Option<Arc<dyn ShowProgress>>,
+    /// What this client learnt of its servers' clocks and cameras.
+    clocks: Arc<clocks::Clocks>,
 }
 
 /// What shows the progress of a client's transfers (the command line's bars; the library
@@ -90,6 +94,7 @@ impl CamClient {
             server,
             timeout,
             progress: None,
+            clocks: Arc::default(),
         })
     }
 
@@ -103,6 +108,7 @@ impl CamClient {
             server,
             timeout,
             progress: None,
+            clocks: Arc::default(),
         })
     }
 
@@ -134,6 +140,7 @@ impl CamClient {
             server: group,
             timeout,
             progress: None,
+            clocks: Arc::default(),
         })
     }
 
@@ -145,6 +152,7 @@ impl CamClient {
             server,
             timeout: other.timeout,
             progress: other.progress.clone(),
+            clocks: other.clocks.clone(),
         }
     }
 
@@ -156,6 +164,12 @@ impl CamClient {
     /// The underlying CoAP client (for multicast requests).
     pub fn coap(&self) -> &Client {
         &self.client
+    }
+
+    /// What this client (and every client sharing its socket) learnt of its servers'
+    /// clocks and cameras.
+    pub fn clocks(&self) -> &clocks::Clocks {
+        &self.clocks
     }
 
     /// Sends `method path` and returns the response if it is a 2.xx whose body arrived
@@ -180,6 +194,8 @@ impl CamClient {
     async fn exchange(&self, request: Request, what: &str) -> anyhow::Result<Response> {
         let deadline = tokio::time::Instant::now() + self.timeout;
         loop {
+            let sent_us = clocks::unix_now_us();
+            let started = std::time::Instant::now();
             let response = match &self.progress {
                 Some(shown) => {
                     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
@@ -198,6 +214,10 @@ impl CamClient {
                 None => self.client.send(self.server, request.clone()).await,
             };
             let response = response.with_context(|| format!("{what} on {}", self.server))?;
+            // T4 from the monotonic clock: a step of the wall clock meanwhile is not a delay.
+            let took = i64::try_from(started.elapsed().as_micros()).unwrap_or(i64::MAX);
+            self.clocks
+                .exchanged(self.server, sent_us, &response.options, sent_us + took);
             if response.code == Code::SERVICE_UNAVAILABLE
                 && let Some(wait) = response
                     .options
@@ -226,6 +246,8 @@ impl CamClient {
     ) -> Request {
         let mut request = Request::new(method, path).with_payload(payload);
         request.timeout = Some(self.timeout);
+        // Every answer tells the server's times of the exchange (crate::timesync).
+        request.options.set(SERVER_TIME, b"");
         if let Some(cf) = content_format {
             request
                 .options

@@ -18,6 +18,7 @@ use geometry::{Dimensions, ParcelFit, Shape};
 use serde::{Deserialize, Serialize};
 
 use super::{Billing, Parcel, Seen, Table, describe, ms};
+use crate::timesync::FrameTime;
 
 /// The version of the document this program writes and the newest it reads.
 pub const VERSION: u32 = 1;
@@ -45,6 +46,11 @@ pub struct Measurement {
     pub servers: Vec<SocketAddr>,
     /// The frames' times, microseconds since the UNIX epoch (one per cloud).
     pub frames_unix_us: Vec<u64>,
+    /// Each camera's frame: its number and capture time on its server's clock, the
+    /// server's clock offset where the client estimated it (docs/design.md, "Frames that
+    /// belong together").
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub frames: Vec<FrameTime>,
     /// Until the last cloud was grabbed (and, on the client, received), ms.
     pub grab_ms: f64,
     /// On the client: from the first request until the result was known, ms.
@@ -173,6 +179,12 @@ pub enum Found {
         /// Why.
         reason: String,
     },
+    /// Not measured: the frames do not belong together (capture times further apart
+    /// than the allowed skew, or a stale camera); `reason` names the camera.
+    Unsynced {
+        /// Why, naming the camera(s).
+        reason: String,
+    },
 }
 
 /// A measured parcel as reported: the dimensions rounded as its [`Billing`] says.
@@ -282,6 +294,7 @@ impl Measurement {
             cameras,
             servers: Vec::new(),
             frames_unix_us,
+            frames: Vec::new(),
             grab_ms: ms(grab),
             cycle_ms: None,
             received_bytes: None,
@@ -346,7 +359,10 @@ impl Measurement {
     pub fn reported(&self) -> Option<&Reported> {
         match &self.parcel {
             Found::Measured(r) => Some(r),
-            Found::Nothing | Found::Uncalibrated { .. } | Found::Refused { .. } => None,
+            Found::Nothing
+            | Found::Uncalibrated { .. }
+            | Found::Refused { .. }
+            | Found::Unsynced { .. } => None,
         }
     }
 
@@ -357,7 +373,9 @@ impl Measurement {
         let points = usize::try_from(self.parcel_points).unwrap_or(usize::MAX);
         match &self.parcel {
             Found::Measured(r) => Parcel::Measured(r.dimensions(points)),
-            Found::Nothing | Found::Uncalibrated { .. } => Parcel::Nothing { points },
+            Found::Nothing | Found::Uncalibrated { .. } | Found::Unsynced { .. } => {
+                Parcel::Nothing { points }
+            }
             Found::Refused { reason } => Parcel::Refused {
                 reason: reason.clone(),
                 points,
@@ -466,6 +484,9 @@ impl Measurement {
                 "refused: {reason}\nparcel {} points of {provenance}",
                 self.parcel_points
             ),
+            Found::Unsynced { reason } => {
+                format!("not measured: the frames do not belong together: {reason}\n{provenance}")
+            }
         };
         if self.parcels.len() > 1 {
             for (k, p) in self.parcels.iter().enumerate() {

@@ -374,6 +374,7 @@ impl Cloud {
             serials,
             timestamp_us: map.timestamp_us,
             views: Vec::new(),
+            frames: Vec::new(),
         })
     }
 }

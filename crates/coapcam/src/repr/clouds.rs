@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use rgbd::{DepthFrame, DistortionModel, FilterError, Intrinsics};
 
 pub use super::codec::DepthPart;
-use super::codec::{Cloud, CloudSource, Decoders, EncodeError, Subject};
+use super::codec::{CameraFrame, Cloud, CloudSource, Decoders, EncodeError, Subject};
 
 pub use compact::WireError;
 pub use compact::cloud::CloudError;
@@ -210,11 +210,17 @@ pub fn cloud_from_depth_cloud(payload: &[u8]) -> Result<Cloud, DepthCloudError> 
         serials: Vec::new(),
         timestamp_us: 0,
         views: Vec::new(),
+        frames: Vec::new(),
     };
     for mut part in parts_from_depth_cloud(payload)? {
         out.cloud.points.extend(part.points()?);
         out.views.push(part.view());
         out.timestamp_us = out.timestamp_us.max(part.depth.timestamp_us);
+        out.frames.push(CameraFrame {
+            serial: part.serial.clone(),
+            frame_number: part.depth.frame_number,
+            timestamp_us: part.depth.timestamp_us,
+        });
         out.serials.push(part.serial);
     }
     Ok(out)
@@ -246,6 +252,7 @@ pub fn cloud_from_mm(payload: &[u8]) -> Result<Cloud, WireError> {
         serials: c.serials,
         timestamp_us: c.timestamp_us,
         views: Vec::new(),
+        frames: Vec::new(),
     })
 }
 

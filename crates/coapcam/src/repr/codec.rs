@@ -161,6 +161,20 @@ pub struct Cloud {
     /// What each camera saw (pose and intrinsics), where the representation carries it
     /// (the compact cloud); empty otherwise.
     pub views: Vec<geometry::View>,
+    /// Each camera's frame, where the representation tells them apart (the compact
+    /// cloud); empty otherwise.
+    pub frames: Vec<CameraFrame>,
+}
+
+/// One camera's frame in a cloud: which, and when it was captured.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CameraFrame {
+    /// The camera's serial.
+    pub serial: String,
+    /// The depth frame's number.
+    pub frame_number: u64,
+    /// Its capture time, µs since the UNIX epoch on the server's clock.
+    pub timestamp_us: u64,
 }
 
 /// A depth image: Z16 values in raw units and the metres per unit.

@@ -25,7 +25,8 @@ use anyhow::bail;
 use coap::ContentFormat;
 
 pub use self::codec::{
-    Cloud, CloudSource, ColorDecoder, Decoders, DepthImage, DepthPart, Encode, EncodeError, Subject,
+    CameraFrame, Cloud, CloudSource, ColorDecoder, Decoders, DepthImage, DepthPart, Encode,
+    EncodeError, Subject,
 };
 
 /// What a grab resource produces.

@@ -333,6 +333,7 @@ pub const DECODERS: Decoders = Decoders {
             serials: Vec::new(),
             timestamp_us: u64::from(p.timestamp_s) * 1_000_000,
             views: Vec::new(),
+            frames: Vec::new(),
         })
     }),
 };

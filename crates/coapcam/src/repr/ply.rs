@@ -44,6 +44,7 @@ pub const DECODERS: Decoders = Decoders {
             serials: Vec::new(),
             timestamp_us: 0,
             views: Vec::new(),
+            frames: Vec::new(),
         })
     }),
     ..Decoders::NONE

@@ -189,6 +189,9 @@ impl Watcher {
             self.detector.forget(Instant::now());
             return;
         }
+        if let Found::Unsynced { reason } = &measured.measurement.parcel {
+            tracing::warn!("auto-measure: not measured, recorded as such: {reason}");
+        }
         if measured.measurement.parcel == Found::Nothing {
             tracing::info!("auto-measure: the measurement found no parcel; not recorded");
             return;

@@ -11,6 +11,7 @@ mod dtls;
 mod exits;
 mod files;
 mod formats;
+mod frames;
 mod get;
 mod group;
 mod http;

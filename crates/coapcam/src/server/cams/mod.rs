@@ -36,6 +36,7 @@ use crate::vision::calibration::pose_transformation;
 
 use super::clock::ServerClock;
 use crate::documents::AppConfig;
+use crate::timesync::{self, FrameHistory, FrameTime, Limits};
 pub use budget::Busy;
 pub use edge::EdgeError;
 use grab::{Frame, GrabError};
@@ -106,6 +107,9 @@ pub(crate) struct Cams {
     recorder: OnceLock<Recorder>,
     /// The server's clock: frames' capture times are shifted onto it.
     clock: Arc<ServerClock>,
+    /// The last frame of each camera measured at the edge: a camera that serves it again
+    /// is stale.
+    frames: Mutex<FrameHistory>,
 }
 
 impl Cams {
@@ -138,6 +142,7 @@ impl Cams {
             budget: budget::Budget::new(budget::DEFAULT_BYTES),
             recorder: OnceLock::new(),
             clock,
+            frames: Mutex::default(),
         });
         me.register_fixed();
         let events = me.hub.subscribe();
@@ -865,6 +870,11 @@ impl Cams {
         };
         let _held = self.reserve(&cams, kinds)?;
         let started = Instant::now();
+        let asked_us = self.clock.now_us();
+        let rates: BTreeMap<Serial, u32> = cams
+            .iter()
+            .map(|(sn, cam)| (*sn, cam.camera.depth_settings().fps))
+            .collect();
         // The color images for the codes are grabbed and read while the clouds are.
         let codes = query.codes.then(|| {
             let cameras = cams
@@ -883,6 +893,52 @@ impl Cams {
             return Err(EdgeError::NoCloud(merged.failed));
         }
         let grab = started.elapsed();
+        // One host, one clock: only staleness is checked (its grabs start together).
+        let frames: Vec<FrameTime> = merged
+            .parts
+            .iter()
+            .map(|part| FrameTime {
+                camera: part.serial.clone(),
+                server: None,
+                frame_number: part.depth.frame_number,
+                captured_unix_us: i64::try_from(part.depth.timestamp_us).unwrap_or(i64::MAX),
+                requested_unix_us: Some(asked_us),
+                clock: None,
+                fps: Serial::parse(&part.serial)
+                    .ok()
+                    .and_then(|sn| rates.get(&sn).copied()),
+            })
+            .collect();
+        let limits = Limits {
+            max_skew_us: None,
+            skew: false,
+        };
+        let stale = timesync::check_frames(&frames, &limits, &mut lock(&self.frames));
+        if !stale.is_empty() {
+            let reasons: Vec<String> = stale.iter().map(ToString::to_string).collect();
+            let mut m = Measurement::new(
+                &report::Parcel::Nothing { points: 0 },
+                &query.billing,
+                0,
+                merged.serials.iter().map(ToString::to_string).collect(),
+                merged.frames_us,
+                grab,
+            );
+            m.parcel = report::Found::Unsynced {
+                reason: reasons.join("; "),
+            };
+            m.frames = frames;
+            m.warnings = reasons;
+            m.warnings.extend(merged.failed);
+            if let Some(task) = codes {
+                task.abort();
+            }
+            m.measure_ms = Some(report::ms(started.elapsed()));
+            let stored = Arc::new(edge::stored(m.clone())?);
+            *lock(&self.measured) = Some(stored);
+            let _ = self.changed.send(edge::PATH.to_string());
+            return Ok(m);
+        }
         let config = query.config;
         let (table, merged) = tokio::task::spawn_blocking(move || {
             let views: Vec<geometry::View> = merged.parts.iter().map(DepthPart::view).collect();
@@ -898,6 +954,7 @@ impl Cams {
             merged.frames_us,
             grab,
         );
+        m.frames = frames;
         m.warnings = report::calibration_warnings(&uncalibrated, &merged.floors);
         m.withhold_uncalibrated(&uncalibrated);
         m.warnings.extend(merged.failed);

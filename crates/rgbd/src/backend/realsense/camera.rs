@@ -511,8 +511,10 @@ impl Camera for RealSenseCamera {
         let frame = self.color.grab(&self.lib, want, self.mode, timeout)?;
         let bpp = settings.format.bytes_per_pixel();
         let data = packed_rows(&frame, &want, bpp)?;
+        let captured_us = frame.host_time_us()?;
         drop(frame);
-        let (frame_number, timestamp_us) = self.lock().clock.stamp(Stream::Color);
+        let (frame_number, arrived_us) = self.lock().clock.stamp(Stream::Color);
+        let timestamp_us = captured_us.unwrap_or(arrived_us);
         Ok(ColorFrame {
             format: settings.format,
             width: settings.width,
@@ -530,9 +532,11 @@ impl Camera for RealSenseCamera {
         let want = Wanted::depth(&settings);
         let frame = self.depth.grab(&self.lib, want, self.mode, timeout)?;
         let bytes = packed_rows(&frame, &want, 2)?;
+        let captured_us = frame.host_time_us()?;
         drop(frame);
         let depth_scale = self.refresh_depth_scale()?;
-        let (frame_number, timestamp_us) = self.lock().clock.stamp(Stream::Depth);
+        let (frame_number, arrived_us) = self.lock().clock.stamp(Stream::Depth);
+        let timestamp_us = captured_us.unwrap_or(arrived_us);
         Ok(DepthFrame {
             width: settings.width,
             height: settings.height,

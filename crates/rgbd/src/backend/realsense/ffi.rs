@@ -53,8 +53,12 @@ pub(crate) const OPTION_DEPTH_UNITS: c_int = 28;
 pub(crate) const OPTION_STEREO_BASELINE: c_int = 40;
 /// `RS2_EXTENSION_ADVANCED_MODE`.
 const EXTENSION_ADVANCED_MODE: c_int = 13;
-/// `RS2_TIMESTAMP_DOMAIN_HARDWARE_CLOCK`.
+/// `RS2_TIMESTAMP_DOMAIN_HARDWARE_CLOCK`: the camera's own clock, from its power-on.
 const TIMESTAMP_DOMAIN_HARDWARE_CLOCK: c_int = 0;
+/// `RS2_TIMESTAMP_DOMAIN_SYSTEM_TIME`: the host's clock when the frame arrived.
+const TIMESTAMP_DOMAIN_SYSTEM_TIME: c_int = 1;
+/// `RS2_TIMESTAMP_DOMAIN_GLOBAL_TIME`: the camera's clock mapped onto the host's.
+const TIMESTAMP_DOMAIN_GLOBAL_TIME: c_int = 2;
 
 macro_rules! opaque {
     ($($name:ident),*) => {$(
@@ -208,6 +212,8 @@ api! {
     fn rs2_get_frame_height(*const RawFrame, *mut *mut RawError) -> c_int;
     fn rs2_get_frame_stride_in_bytes(*const RawFrame, *mut *mut RawError) -> c_int;
     fn rs2_get_frame_stream_profile(*const RawFrame, *mut *mut RawError) -> *const RawProfile;
+    fn rs2_get_frame_timestamp(*const RawFrame, *mut *mut RawError) -> f64;
+    fn rs2_get_frame_timestamp_domain(*const RawFrame, *mut *mut RawError) -> c_int;
     fn rs2_is_device_extendable_to(*const RawDevice, c_int, *mut *mut RawError) -> c_int;
     fn rs2_is_enabled(*mut RawDevice, *mut c_int, *mut *mut RawError);
     fn rs2_load_json(*mut RawDevice, *const c_void, c_uint, *mut *mut RawError);
@@ -856,6 +862,20 @@ impl Frame {
         // SAFETY: librealsense keeps `size` bytes at `p` until the frame is released,
         // which needs `self`.
         Ok(unsafe { std::slice::from_raw_parts(p.cast::<u8>(), size) })
+    }
+
+    /// The frame's capture time on the host's clock, µs since the UNIX epoch, when
+    /// librealsense gives it in a host domain: global time (the camera's clock mapped
+    /// onto the host's, D400 cameras with frame metadata) or system time (the host's
+    /// clock at the frame's arrival). `None` for the camera's own clock (no metadata, or
+    /// a software device), which no other host shares.
+    pub(crate) fn host_time_us(&self) -> Result<Option<u64>, RsError> {
+        let domain = call!(self.lib, rs2_get_frame_timestamp_domain(self.raw))?;
+        if domain != TIMESTAMP_DOMAIN_GLOBAL_TIME && domain != TIMESTAMP_DOMAIN_SYSTEM_TIME {
+            return Ok(None);
+        }
+        let ms = call!(self.lib, rs2_get_frame_timestamp(self.raw))?;
+        Ok((ms.is_finite() && ms > 0.0).then(|| (ms * 1e3).round() as u64))
     }
 
     /// Width and height in pixels, and bytes per row.
