@@ -156,6 +156,9 @@ fn a_stalled_camera_is_refused_by_name_at_the_client_and_at_the_edge() {
     let scene = scene.to_string_lossy().into_owned();
     let (_a, a) = serve_with(&state.path().join("a"), &[]);
     let (_b, b) = serve_with(&state.path().join("b"), &["--scene", &scene]);
+    // The camera stalled when it was made; its frame is at least this old by the grab
+    // (age only grows), well past the 66.7 ms a frame may be.
+    std::thread::sleep(Duration::from_millis(300));
     let (ua, ub) = (format!("coap://{a}"), format!("coap://{b}"));
     let f = coapcam(&["measure", "--server", &ua, "--server", &ub, "--json"]);
     assert_eq!(
