@@ -278,10 +278,10 @@ fn fit(
     let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
     let hull_rect = min_rect(lid.points.iter().map(xy)).ok_or(DimensionError::Footprint)?;
     let margin = f64::from(lid.band_m) + 0.003;
-    // The edges from the points within a quarter band (about one noise deviation) of the
-    // top, on both sides, so that noise moves as many outwards as inwards, and few of the
-    // points piled up on a side wall's top count.
-    let slab = lid.band_m;
+    // The edges from the points within a quarter band (about one noise deviation, at
+    // least 3 mm) of the top, on both sides, so that noise moves as many outwards as
+    // inwards, and few of the points piled up on a side wall's top count.
+    let slab = (lid.band_m / 4.0).max(0.003);
     let flat: Vec<Point3> = lid
         .points
         .iter()
