@@ -393,8 +393,8 @@ pub(crate) fn refine(
         sa.push(dot(d, a));
         sb.push(dot(d, b));
     }
-    let (a0, a1) = edges(&mut sa, la, margin, inward);
-    let (b0, b1) = edges(&mut sb, lb, margin, inward);
+    let (a0, a1) = edges(&sa, la, margin, inward);
+    let (b0, b1) = edges(&sb, lb, margin, inward);
     let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
     [at(a0, b0), at(a1, b0), at(a1, b1), at(a0, b1)]
 }
@@ -406,14 +406,22 @@ pub(crate) fn refine(
 /// adding any, so the count keeps the edge where the outermost points do not; the cap
 /// keeps points piled up on the edge itself (the top of a side wall seen from the side)
 /// from counting as lid. An axis too short for two such bands keeps the hull's edges.
-fn edges(s: &mut [f64], len: f64, margin: f64, inward: f64) -> (f64, f64) {
+fn edges(s: &[f64], len: f64, margin: f64, inward: f64) -> (f64, f64) {
     const BIN_M: f64 = 0.001;
     let window = (2.0 * margin).max(0.01);
     if len < 2.0 * (margin + window) {
         return (0.0, len);
     }
-    s.sort_unstable_by(f64::total_cmp);
-    let count = |lo: f64, hi: f64| s.partition_point(|v| *v < hi) - s.partition_point(|v| *v < lo);
+    // Only the points near the ends are counted: sort those.
+    let reach = margin + window;
+    let mut near: Vec<f64> = s
+        .iter()
+        .copied()
+        .filter(|v| *v <= reach || *v >= len - reach)
+        .collect();
+    near.sort_unstable_by(f64::total_cmp);
+    let count =
+        |lo: f64, hi: f64| near.partition_point(|v| *v < hi) - near.partition_point(|v| *v < lo);
     // The edge moves at most `inward` (and `margin`) inwards (holes along an edge thin
     // it), and never beyond the outermost point.
     let limit = margin;
@@ -731,8 +739,8 @@ mod tests {
         let min = s.iter().copied().fold(f64::MAX, f64::min);
         let max = s.iter().copied().fold(f64::MIN, f64::max);
         assert!(max - min > 0.3035, "{min} {max}");
-        let mut shifted: Vec<f64> = s.iter().map(|v| v - min).collect();
-        let (lo, hi) = edges(&mut shifted, max - min, 0.006, 0.006);
+        let shifted: Vec<f64> = s.iter().map(|v| v - min).collect();
+        let (lo, hi) = edges(&shifted, max - min, 0.006, 0.006);
         let (lo, hi) = (lo + min, hi + min);
         assert!((lo + 0.0005).abs() < 0.0003, "{lo}");
         assert!((hi - 0.3005).abs() < 0.0003, "{hi}");
