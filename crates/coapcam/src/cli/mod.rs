@@ -344,6 +344,19 @@ pub(crate) use coapcam::error_text;
 #[error("{0}")]
 pub(crate) struct Usage(pub(crate) String);
 
+/// The addresses `--bind` gave, or by default CoAP's port 5683 on every IPv4 and IPv6
+/// address (`serve`, `rd`).
+pub(crate) fn binds_or_default(bind: &[std::net::SocketAddr]) -> Vec<std::net::SocketAddr> {
+    if bind.is_empty() {
+        vec![
+            std::net::SocketAddr::from(([0, 0, 0, 0], 5683)),
+            std::net::SocketAddr::from(([0u16; 8], 5683)),
+        ]
+    } else {
+        bind.to_vec()
+    }
+}
+
 /// Fails when the folder `path` would be written into does not exist: checked before
 /// anything is sent, so a picture that cannot be written does not cost a grab first.
 pub(crate) fn folder_exists(path: &std::path::Path) -> anyhow::Result<()> {

@@ -62,14 +62,7 @@ pub(crate) struct RdArgs {
 
 /// Runs `rd` until a signal or `--duration`.
 pub(crate) async fn run(args: RdArgs) -> anyhow::Result<()> {
-    let binds = if args.bind.is_empty() {
-        vec![
-            SocketAddr::from(([0, 0, 0, 0], 5683)),
-            SocketAddr::from(([0u16; 8], 5683)),
-        ]
-    } else {
-        args.bind.clone()
-    };
+    let binds = super::binds_or_default(&args.bind);
     let limits = Limits {
         max_registrations: usize::try_from(args.max_registrations)?,
         max_bytes: usize::try_from(args.max_mib << 20)?,

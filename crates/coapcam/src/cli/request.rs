@@ -512,16 +512,7 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
             link_format::parse(text).with_context(|| format!("parsing the answer of {server}"))?;
         for l in links {
             if args.json {
-                let attrs: serde_json::Map<String, serde_json::Value> = l
-                    .attrs
-                    .iter()
-                    .map(|(k, v)| {
-                        (
-                            k.clone(),
-                            v.clone().map_or(serde_json::Value::Bool(true), Into::into),
-                        )
-                    })
-                    .collect();
+                let attrs = attrs_json(&l.attrs);
                 let link = serde_json::json!({"server": server.to_string(), "target": l.target, "attrs": attrs});
                 outln!("{link}");
             } else if answers.len() > 1 {
@@ -538,6 +529,20 @@ pub(crate) async fn discover(args: DiscoverArgs) -> anyhow::Result<Exit> {
         );
     }
     Ok(exit)
+}
+
+/// A link's attributes as a JSON object: each value a string, or `true` for an
+/// attribute given without one.
+fn attrs_json(attrs: &[(String, Option<String>)]) -> serde_json::Map<String, serde_json::Value> {
+    attrs
+        .iter()
+        .map(|(k, v)| {
+            (
+                k.clone(),
+                v.clone().map_or(serde_json::Value::Bool(true), Into::into),
+            )
+        })
+        .collect()
 }
 
 /// `discover --rd`: the endpoints a resource directory lists.
@@ -560,17 +565,7 @@ async fn discover_rd(rd_text: &str, args: &DiscoverArgs) -> anyhow::Result<Exit>
             .await?;
     for e in &endpoints {
         if args.json {
-            let attrs: serde_json::Map<String, serde_json::Value> = e
-                .link
-                .attrs
-                .iter()
-                .map(|(k, v)| {
-                    (
-                        k.clone(),
-                        v.clone().map_or(serde_json::Value::Bool(true), Into::into),
-                    )
-                })
-                .collect();
+            let attrs = attrs_json(&e.link.attrs);
             let line = serde_json::json!({
                 "rd": rd.to_string(),
                 "ep": e.ep,

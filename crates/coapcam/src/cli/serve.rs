@@ -252,14 +252,7 @@ pub(crate) fn fix_malloc_threshold() {
 
 /// Runs `serve` until a signal or `--duration`.
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
-    let binds = if args.bind.is_empty() {
-        vec![
-            SocketAddr::from(([0, 0, 0, 0], 5683)),
-            SocketAddr::from(([0u16; 8], 5683)),
-        ]
-    } else {
-        args.bind.clone()
-    };
+    let binds = super::binds_or_default(&args.bind);
     let cameras = if args.no_cameras {
         None
     } else {
