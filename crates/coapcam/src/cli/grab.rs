@@ -11,6 +11,7 @@ use coapcam::repr::{self, ColorDecoder, Stream};
 use coapcam::vision::picture::{self, save, sibling};
 use rgbd::ColorSettings;
 
+use super::request::PartFile;
 use super::{Bars, CameraArgs, Exit, TransmissionArgs, folder_exists, usage};
 
 /// The streams, named for the command line.
@@ -109,16 +110,13 @@ fn file_format(name: &str, ext: &str, stream: Stream) -> anyhow::Result<ContentF
     }
 }
 
-/// Where the grab goes: a temporary file beside the output, made before anything is
-/// grabbed (so a folder that does not exist or cannot be written fails first) and renamed
-/// to it once the body is written; removed if the command ends before. Or standard
-/// output (`-o -`).
+/// Where the grab goes: a [`PartFile`] beside the output, made before anything is grabbed
+/// (so a folder that does not exist or cannot be written fails first) and renamed to it
+/// once the body is written; removed if the command ends before. Or standard output
+/// (`-o -`).
 enum Destination {
-    File {
-        part: PathBuf,
-        target: PathBuf,
-        kept: bool,
-    },
+    /// The temporary file, and the output as named.
+    File(PartFile, PathBuf),
     Stdout,
 }
 
@@ -127,31 +125,11 @@ impl Destination {
         if output.as_os_str() == "-" {
             return Ok(Self::Stdout);
         }
-        let name = output
-            .file_name()
-            .with_context(|| format!("{} names no file", output.display()))?;
-        let dir = output
-            .parent()
-            .filter(|d| !d.as_os_str().is_empty())
-            .unwrap_or_else(|| Path::new("."));
-        let mut part_name = std::ffi::OsString::from(".");
-        part_name.push(name);
-        part_name.push(format!(".{}.part", std::process::id()));
-        let part = dir.join(part_name);
-        std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&part)
-            .with_context(|| format!("cannot write {}", output.display()))?;
-        Ok(Self::File {
-            part,
-            target: output.to_path_buf(),
-            kept: false,
-        })
+        Ok(Self::File(PartFile::create(output)?, output.to_path_buf()))
     }
 
     /// Writes `body` and makes it the output.
-    fn write(&mut self, body: &[u8]) -> anyhow::Result<()> {
+    fn write(self, body: &[u8]) -> anyhow::Result<()> {
         match self {
             Self::Stdout => {
                 use std::io::Write as _;
@@ -161,29 +139,13 @@ impl Destination {
                     .context("writing standard output")?;
                 eprintln!("coapcam: wrote {} bytes to standard output", body.len());
             }
-            Self::File { part, target, kept } => {
-                std::fs::write(&*part, body)
-                    .with_context(|| format!("writing {}", part.display()))?;
-                std::fs::rename(&*part, &*target).with_context(|| {
-                    format!("renaming {} to {}", part.display(), target.display())
-                })?;
-                *kept = true;
-                eprintln!("coapcam: wrote {} ({} bytes)", target.display(), body.len());
+            Self::File(mut part, output) => {
+                part.write(body)?;
+                part.keep()?;
+                eprintln!("coapcam: wrote {} ({} bytes)", output.display(), body.len());
             }
         }
         Ok(())
-    }
-}
-
-impl Drop for Destination {
-    fn drop(&mut self) {
-        if let Self::File {
-            part, kept: false, ..
-        } = self
-        {
-            // Best effort: a hidden leftover if this fails.
-            let _ = std::fs::remove_file(&*part);
-        }
     }
 }
 
@@ -223,7 +185,7 @@ pub(crate) async fn run(args: GrabArgs) -> anyhow::Result<Exit> {
     if let Some(v) = &args.view {
         folder_exists(v)?;
     }
-    let mut destination = Destination::open(&args.output)?;
+    let destination = Destination::open(&args.output)?;
     let client = args
         .cameras
         .connect(&args.transmission)

@@ -205,7 +205,7 @@ async fn to_file(
 /// through a symbolic link), renamed to it only when the body arrived whole and removed
 /// otherwise; or FILE itself when it is not a regular file (a device such as /dev/null, a
 /// pipe), which must not be replaced and where a partial body cannot be taken back.
-struct PartFile {
+pub(super) struct PartFile {
     /// The file written.
     path: PathBuf,
     /// The file it becomes; `None` when `path` is the output itself.
@@ -214,7 +214,7 @@ struct PartFile {
 }
 
 impl PartFile {
-    fn create(output: &Path) -> anyhow::Result<Self> {
+    pub(super) fn create(output: &Path) -> anyhow::Result<Self> {
         let existing = match std::fs::metadata(output) {
             Ok(m) => Some(m),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
@@ -253,7 +253,13 @@ impl PartFile {
             .write(true)
             .create_new(true)
             .open(&path)
-            .with_context(|| format!("creating {}", path.display()))?;
+            .with_context(|| {
+                format!(
+                    "cannot write {} (creating {})",
+                    output.display(),
+                    path.display()
+                )
+            })?;
         let part = Self {
             path,
             target: Some(target),
@@ -267,7 +273,7 @@ impl PartFile {
         Ok(part)
     }
 
-    fn write(&mut self, data: &[u8]) -> anyhow::Result<()> {
+    pub(super) fn write(&mut self, data: &[u8]) -> anyhow::Result<()> {
         if let Some(f) = &mut self.file {
             f.write_all(data)
                 .with_context(|| format!("writing {}", self.path.display()))?;
@@ -276,7 +282,7 @@ impl PartFile {
     }
 
     /// Flushes the file and renames it to the output.
-    fn keep(mut self) -> anyhow::Result<()> {
+    pub(super) fn keep(mut self) -> anyhow::Result<()> {
         if let Some(f) = self.file.take() {
             f.into_inner()
                 .map_err(std::io::IntoInnerError::into_error)
