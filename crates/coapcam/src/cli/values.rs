@@ -1,8 +1,8 @@
 //! The value parsers the commands' flags share: each turns a flag's text into a typed,
 //! checked value while clap parses, so a bad value ends the command with status 2 (usage)
 //! before it sends anything, and says which flag and why in words (never Rust's own
-//! message for a failed conversion). README.md's "Values and where they are checked" lists
-//! them.
+//! message for a failed conversion). docs/usage.md's "Values and where they are checked"
+//! lists them.
 
 use std::time::Duration;
 

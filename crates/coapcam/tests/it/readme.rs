@@ -1,6 +1,7 @@
-//! README.md's commands, as the README gives them. The `sh` blocks are read from the file
-//! at test time, so an example that stops working, or a new one that never did, fails
-//! here. A block may be skipped only when a `<!-- not run by the tests: REASON -->` line
+//! README.md's commands, as the README gives them, and then those of docs/station.md (the
+//! integrators' examples: MQTT, the line output, the HTTP API). The `sh` blocks are read
+//! from the files at test time, so an example that stops working, or a new one that never
+//! did, fails here. A block may be skipped only when a `<!-- not run by the tests: REASON -->` line
 //! stands right before it (a real camera, say). The CLI synopsis is checked against each
 //! command's `--help`.
 //!
@@ -20,6 +21,7 @@ use std::time::{Duration, Instant};
 use crate::support::{COAPCAM, Finished, Peer, Proc, TempDir, available, mosquitto_broker};
 
 const README: &str = include_str!("../../../../README.md");
+const STATION: &str = include_str!("../../../../docs/station.md");
 const TEST_SH: &str = include_str!("../../../../scripts/test.sh");
 
 /// A command of one of README.md's `sh` blocks: continuation lines joined, the trailing
@@ -31,10 +33,19 @@ struct Example {
     background: bool,
 }
 
-/// The commands of README.md's `sh` blocks, but for blocks marked as not run.
+/// The commands of README.md's `sh` blocks and then docs/station.md's, in order, but for
+/// blocks marked as not run.
 fn examples() -> Vec<Example> {
+    [README, STATION]
+        .into_iter()
+        .flat_map(examples_of)
+        .collect()
+}
+
+/// The commands of one Markdown page's `sh` blocks, but for blocks marked as not run.
+fn examples_of(page: &str) -> Vec<Example> {
     let mut out = Vec::new();
-    let mut lines = README.lines().peekable();
+    let mut lines = page.lines().peekable();
     let mut previous = "";
     while let Some(line) = lines.next() {
         if line.trim() == "```sh" {
@@ -112,12 +123,16 @@ fn the_readme_blocks_are_understood() {
             e.line.starts_with("coapcam ")
                 || e.line.starts_with("mosquitto_sub ")
                 || e.line.starts_with("curl "),
-            "README example {:?} is not a coapcam command: run it in readme.rs, or mark \
-             its block `<!-- not run by the tests: REASON -->`",
+            "example {:?} (README.md, docs/station.md) is not a coapcam command: run it in \
+             readme.rs, or mark its block `<!-- not run by the tests: REASON -->`",
             e.line
         );
     }
     assert!(all.len() > 10, "only {} README commands found", all.len());
+    assert!(
+        all.iter().any(|e| e.line.starts_with("mosquitto_sub ")),
+        "docs/station.md's integrators' examples were not found"
+    );
 }
 
 #[test]
@@ -286,7 +301,7 @@ fn every_readme_example_runs() {
         let f: Finished = Proc::run("sh", &["-c", &script], Duration::from_secs(120));
         assert!(
             f.status.success(),
-            "README example `{line}` failed ({}):\n{}\n{}",
+            "example `{line}` (README.md, docs/station.md) failed ({}):\n{}\n{}",
             f.status,
             f.stdout_text(),
             f.stderr
