@@ -16,7 +16,7 @@ use coapcam::timesync::Limits;
 use geometry::DimensionConfig;
 use rgbd::Scene;
 
-use crate::support::{COAPCAM, Finished, LIMIT, Proc, SN, TempDir, runtime, serve_with};
+use crate::support::{COAPCAM, Finished, LIMIT, Proc, SN, TempDir, TwoServers, runtime};
 
 fn coapcam(args: &[&str]) -> Finished {
     Proc::run(COAPCAM, args, LIMIT)
@@ -50,33 +50,27 @@ fn scene_file(dir: &Path, name: &str, text: &str) -> PathBuf {
     path
 }
 
+/// A server in this process on an ephemeral port of 127.0.0.1: the default scene's box
+/// under one camera of serial `serial`, its state in `state`.
+async fn scene_server(serial: &str, state: &Path) -> SceneServer {
+    let scene = Scene::from_toml(&scene_text(serial, "d415", None)).expect("scene");
+    SceneServer::start(&scene, state, SocketAddr::from(([127, 0, 0, 1], 0)))
+        .await
+        .unwrap_or_else(|e| panic!("server of {serial}: {e}"))
+}
+
 #[test]
 fn two_servers_one_400_ms_ahead_merge_once_the_offset_is_corrected() {
     let state = TempDir::new("frames-offset");
-    let (_a, a) = serve_with(&state.path().join("a"), &[]);
-    let (_b, b) = serve_with(&state.path().join("b"), &["--clock-offset-ms", "400"]);
-    let (ua, ub) = (format!("coap://{a}"), format!("coap://{b}"));
+    let servers = TwoServers::start(state.path(), &["--clock-offset-ms", "400"]);
+    let (a, b) = (servers.a, servers.b);
     // The servers render on this machine's shared cores, so their grabs may start tens of
     // milliseconds apart (on separate hosts they start within a frame period); 200 ms
     // still refuses the uncorrected 400 ms.
-    let f = coapcam(&[
-        "measure",
-        "--server",
-        &ua,
-        "--server",
-        &ub,
-        "--max-skew-ms",
-        "200",
-        "--json",
-    ]);
-    assert_eq!(
-        f.status.code(),
-        Some(0),
-        "{}\n{}",
-        f.stdout_text(),
-        f.stderr
-    );
-    let m = f.json();
+    let m = servers
+        .measure(&["--max-skew-ms", "200", "--json"])
+        .expect_success("merged once the offset is corrected")
+        .json();
     assert_eq!(m["parcel"], "measured", "{m}");
     assert_eq!(m["servers"].as_array().map(Vec::len), Some(2), "{m}");
     let frames = m["frames"].as_array().expect("frames");
@@ -120,22 +114,9 @@ fn two_servers_one_400_ms_ahead_merge_once_the_offset_is_corrected() {
     assert!(skew.abs() <= 200_000, "{m}");
 
     // Told not to allow even 1 µs, the same frames are refused, the later camera named.
-    let f = coapcam(&[
-        "measure",
-        "--server",
-        &ua,
-        "--server",
-        &ub,
-        "--max-skew-ms",
-        "0.001",
-    ]);
-    assert_eq!(
-        f.status.code(),
-        Some(9),
-        "{}\n{}",
-        f.stdout_text(),
-        f.stderr
-    );
+    let f = servers
+        .measure(&["--max-skew-ms", "0.001"])
+        .expect_status(9, "unsynced within 1 µs");
     assert!(f.stderr.contains("--max-skew-ms"), "{}", f.stderr);
     assert!(
         f.stdout_text().contains("do not belong together"),
@@ -154,20 +135,15 @@ fn a_stalled_camera_is_refused_by_name_at_the_client_and_at_the_edge() {
         &scene_text(stalled_sn, "d415", Some(0.0)),
     );
     let scene = scene.to_string_lossy().into_owned();
-    let (_a, a) = serve_with(&state.path().join("a"), &[]);
-    let (_b, b) = serve_with(&state.path().join("b"), &["--scene", &scene]);
+    let servers = TwoServers::start(state.path(), &["--scene", &scene]);
+    let b = servers.b;
     // The camera stalled when it was made; its frame is at least this old by the grab
     // (age only grows), well past the 66.7 ms a frame may be.
     std::thread::sleep(Duration::from_millis(300));
-    let (ua, ub) = (format!("coap://{a}"), format!("coap://{b}"));
-    let f = coapcam(&["measure", "--server", &ua, "--server", &ub, "--json"]);
-    assert_eq!(
-        f.status.code(),
-        Some(9),
-        "{}\n{}",
-        f.stdout_text(),
-        f.stderr
-    );
+    let (ua, ub) = (format!("coap://{}", servers.a), format!("coap://{b}"));
+    let f = servers
+        .measure(&["--json"])
+        .expect_status(9, "a stalled camera");
     let m = f.json();
     assert_eq!(m["parcel"], "unsynced", "{m}");
     let reason = m["reason"].as_str().expect("reason");
@@ -186,15 +162,9 @@ fn a_stalled_camera_is_refused_by_name_at_the_client_and_at_the_edge() {
     );
 
     // Its own server, measuring at the edge (one clock: staleness only), refuses too.
-    let f = coapcam(&["measure", "--server", &ub, "--json"]);
-    assert_eq!(
-        f.status.code(),
-        Some(9),
-        "{}\n{}",
-        f.stdout_text(),
-        f.stderr
-    );
-    let m = f.json();
+    let m = coapcam(&["measure", "--server", &ub, "--json"])
+        .expect_status(9, "the stalled camera's own server")
+        .json();
     assert_eq!(m["parcel"], "unsynced", "{m}");
     assert!(m["measure_ms"].is_number(), "measured at the edge: {m}");
     assert!(
@@ -202,29 +172,15 @@ fn a_stalled_camera_is_refused_by_name_at_the_client_and_at_the_edge() {
         "{m}"
     );
     // The healthy server alone measures.
-    let f = coapcam(&["measure", "--server", &ua, "--json"]);
-    assert_eq!(
-        f.status.code(),
-        Some(0),
-        "{}\n{}",
-        f.stdout_text(),
-        f.stderr
-    );
+    coapcam(&["measure", "--server", &ua, "--json"]).expect_success("the healthy server");
 }
 
 #[test]
 fn once_the_offsets_are_known_a_measurement_costs_only_its_grabs() {
     let state = TempDir::new("frames-exchanges");
     runtime().block_on(async {
-        let bind = SocketAddr::from(([127, 0, 0, 1], 0));
-        let a_scene = Scene::from_toml(&scene_text(SN, "d415", None)).expect("scene");
-        let b_scene = Scene::from_toml(&scene_text("840412060748", "d415", None)).expect("scene");
-        let a = SceneServer::start(&a_scene, &state.path().join("a"), bind)
-            .await
-            .expect("server a");
-        let b = SceneServer::start(&b_scene, &state.path().join("b"), bind)
-            .await
-            .expect("server b");
+        let a = scene_server(SN, &state.path().join("a")).await;
+        let b = scene_server("840412060748", &state.path().join("b")).await;
         b.set_clock_offset_us(AHEAD_US);
         let (aa, ba) = (a.addr().expect("a"), b.addr().expect("b"));
         let client = CamClient::connect(

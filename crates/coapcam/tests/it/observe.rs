@@ -46,14 +46,9 @@ fn monitor_observe_goes_on_when_a_notification_changes_mid_transfer() {
             break;
         }
     }
-    let f = finished.unwrap_or_else(|| monitor.kill());
-    assert_eq!(
-        f.status.code(),
-        Some(0),
-        "{}\n{}",
-        f.stdout_text(),
-        f.stderr
-    );
+    let f = finished
+        .unwrap_or_else(|| monitor.kill())
+        .expect_success("monitor --observe");
     let lines = f.json_lines();
     let last = lines.last().expect("the statistics");
     assert_eq!(lines.len(), 5, "four results and the statistics");

@@ -292,8 +292,14 @@ impl Finished {
 
     /// Panics with everything the process printed unless it exited 0.
     pub(crate) fn expect_success(self, what: &str) -> Self {
-        assert!(
-            self.status.success(),
+        self.expect_status(0, what)
+    }
+
+    /// Panics with everything the process printed unless it exited with `code`.
+    pub(crate) fn expect_status(self, code: i32, what: &str) -> Self {
+        assert_eq!(
+            self.status.code(),
+            Some(code),
             "{what}: {}\nstdout: {}\nstderr: {}",
             self.status,
             self.stdout_text(),
@@ -672,6 +678,35 @@ pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, Soc
         .expect("coapcam serve printed no address");
     thread::spawn(move || lines.for_each(drop));
     (server, addr)
+}
+
+/// Two servers of the default scene on ephemeral ports of 127.0.0.1, their state in
+/// `state`'s folders `a` and `b`, `b` started with the further flags `b_extra`: for
+/// measuring with several servers at once. Both are killed on drop.
+pub(crate) struct TwoServers {
+    _servers: [Server; 2],
+    pub(crate) a: SocketAddr,
+    pub(crate) b: SocketAddr,
+}
+
+impl TwoServers {
+    pub(crate) fn start(state: &Path, b_extra: &[&str]) -> Self {
+        let (server_a, a) = serve_with(&state.join("a"), &[]);
+        let (server_b, b) = serve_with(&state.join("b"), b_extra);
+        Self {
+            _servers: [server_a, server_b],
+            a,
+            b,
+        }
+    }
+
+    /// `coapcam measure --server A --server B` and then `args`.
+    pub(crate) fn measure(&self, args: &[&str]) -> Finished {
+        let (a, b) = (format!("coap://{}", self.a), format!("coap://{}", self.b));
+        let mut all = vec!["measure", "--server", &a, "--server", &b];
+        all.extend_from_slice(args);
+        Proc::run(COAPCAM, &all, LIMIT)
+    }
 }
 
 pub(crate) fn runtime() -> tokio::runtime::Runtime {
