@@ -229,35 +229,48 @@ fn from_local(cos: f32, sin: f32, v: &V3) -> V3 {
     V3::new(cos * v.x - sin * v.y, sin * v.x + cos * v.y, v.z)
 }
 
+/// The ray parameters within which a ray is within `radius` of an axis: `p` and `d` are
+/// the ray's origin and direction in the two coordinates across the axis. `None` when it
+/// never is; a ray along the axis is within it throughout or never.
+fn across_axis(p: [f32; 2], d: [f32; 2], radius: f32) -> Option<(f32, f32)> {
+    let a = d[0] * d[0] + d[1] * d[1];
+    let b = 2.0 * (p[0] * d[0] + p[1] * d[1]);
+    let c = p[0] * p[0] + p[1] * p[1] - radius * radius;
+    if a < 1e-12 {
+        if c > 0.0 {
+            return None;
+        }
+        return Some((f32::NEG_INFINITY, f32::INFINITY));
+    }
+    let disc = b * b - 4.0 * a * c;
+    if disc < 0.0 {
+        return None;
+    }
+    let sq = disc.sqrt();
+    Some(((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)))
+}
+
+/// Where a ray is inside a capped cylinder: both `across` the axis (from
+/// [`across_axis`]) and `along` it between the caps (from [`slab`]). It enters through
+/// `cap` when it crosses a cap last, else through the curved side.
+fn capped(across: (f32, f32), along: (f32, f32), cap: Face) -> Option<Interval> {
+    let near = across.0.max(along.0);
+    let far = across.1.min(along.1);
+    if near > far {
+        return None;
+    }
+    let face = if near == along.0 { cap } else { Face::Side };
+    Some(Interval { near, far, face })
+}
+
 impl TubePrim {
     #[inline(never)]
     fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
         let p = to_local(self.cos, self.sin, &(o - self.center)) - V3::new(0.0, 0.0, self.radius);
         let ld = to_local(self.cos, self.sin, d);
-        let a = ld.y * ld.y + ld.z * ld.z;
-        let b = 2.0 * (p.y * ld.y + p.z * ld.z);
-        let c = p.y * p.y + p.z * p.z - self.radius * self.radius;
-        let (s0, s1) = if a < 1e-12 {
-            if c > 0.0 {
-                return None;
-            }
-            (f32::NEG_INFINITY, f32::INFINITY)
-        } else {
-            let disc = b * b - 4.0 * a * c;
-            if disc < 0.0 {
-                return None;
-            }
-            let sq = disc.sqrt();
-            ((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a))
-        };
-        let (x0, x1) = slab(p.x, ld.x, -self.half, self.half)?;
-        let near = s0.max(x0);
-        let far = s1.min(x1);
-        if near > far {
-            return None;
-        }
-        let face = if near == x0 { Face::X } else { Face::Side };
-        Some(Interval { near, far, face })
+        let across = across_axis([p.y, p.z], [ld.y, ld.z], self.radius)?;
+        let along = slab(p.x, ld.x, -self.half, self.half)?;
+        capped(across, along, Face::X)
     }
 }
 
@@ -392,30 +405,9 @@ impl BoxPrim {
 impl CylPrim {
     fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
         let p = o - self.center;
-        let a = d.x * d.x + d.y * d.y;
-        let b = 2.0 * (p.x * d.x + p.y * d.y);
-        let c = p.x * p.x + p.y * p.y - self.radius * self.radius;
-        let (s0, s1) = if a < 1e-12 {
-            if c > 0.0 {
-                return None;
-            }
-            (f32::NEG_INFINITY, f32::INFINITY)
-        } else {
-            let disc = b * b - 4.0 * a * c;
-            if disc < 0.0 {
-                return None;
-            }
-            let sq = disc.sqrt();
-            ((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a))
-        };
-        let (z0, z1) = slab(p.z, d.z, 0.0, self.height)?;
-        let near = s0.max(z0);
-        let far = s1.min(z1);
-        if near > far {
-            return None;
-        }
-        let face = if near == z0 { Face::Z } else { Face::Side };
-        Some(Interval { near, far, face })
+        let across = across_axis([p.x, p.y], [d.x, d.y], self.radius)?;
+        let along = slab(p.z, d.z, 0.0, self.height)?;
+        capped(across, along, Face::Z)
     }
 }
 
