@@ -1048,6 +1048,50 @@ fn positive(field: &str, values: &[f64]) -> Result<(), SceneError> {
     }
 }
 
+/// Checks where an object stands, `at` naming its fields: its centre on the floor and
+/// its yaw (`None` for a vertical cylinder, which has none).
+fn check_place(
+    at: &dyn Fn(&str) -> String,
+    center: &[f64; 2],
+    yaw_deg: Option<f64>,
+) -> Result<(), SceneError> {
+    coordinates(&at("center"), center)?;
+    match yaw_deg {
+        Some(yaw) => finite(&at("yaw_deg"), &[yaw]),
+        None => Ok(()),
+    }
+}
+
+/// Checks how an object's surface returns light and when it is there, `at` naming its
+/// fields.
+fn check_surface(
+    at: &dyn Fn(&str) -> String,
+    finish: &Finish,
+    timeline: &Timeline,
+) -> Result<(), SceneError> {
+    finish.validate(at)?;
+    timeline.validate(at)
+}
+
+/// The objects of `objects` there at scene time `t_s`, each where it stands then and
+/// without a timeline; `place` gives an object's centre and timeline.
+fn placed_at<T: Clone>(
+    objects: &[T],
+    t_s: f64,
+    place: fn(&mut T) -> (&mut [f64; 2], &mut Timeline),
+) -> Vec<T> {
+    objects
+        .iter()
+        .filter_map(|o| {
+            let mut o = o.clone();
+            let (center, timeline) = place(&mut o);
+            *center = timeline.position(*center, t_s)?;
+            *timeline = Timeline::default();
+            Some(o)
+        })
+        .collect()
+}
+
 impl Scene {
     /// Parses and validates a scene from TOML text.
     pub fn from_toml(text: &str) -> Result<Self, SceneError> {
@@ -1147,10 +1191,8 @@ impl Scene {
         for (i, b) in self.boxes.iter().enumerate() {
             let at = |f: &str| format!("box[{i}].{f}");
             positive(&at("size"), &b.size)?;
-            coordinates(&at("center"), &b.center)?;
-            finite(&at("yaw_deg"), &[b.yaw_deg])?;
-            b.finish.validate(&at)?;
-            b.timeline.validate(&at)?;
+            check_place(&at, &b.center, Some(b.yaw_deg))?;
+            check_surface(&at, &b.finish, &b.timeline)?;
             if let Some(label) = &b.label {
                 positive(&at("label.size"), &[label.size])?;
                 label
@@ -1180,32 +1222,27 @@ impl Scene {
             let at = |f: &str| format!("cylinder[{i}].{f}");
             positive(&at("radius"), &[c.radius])?;
             positive(&at("height"), &[c.height])?;
-            coordinates(&at("center"), &c.center)?;
-            c.finish.validate(&at)?;
-            c.timeline.validate(&at)?;
+            check_place(&at, &c.center, None)?;
+            check_surface(&at, &c.finish, &c.timeline)?;
         }
         for (i, t) in self.tubes.iter().enumerate() {
             let at = |f: &str| format!("tube[{i}].{f}");
             positive(&at("radius"), &[t.radius])?;
             positive(&at("length"), &[t.length])?;
-            coordinates(&at("center"), &t.center)?;
-            finite(&at("yaw_deg"), &[t.yaw_deg])?;
-            t.finish.validate(&at)?;
-            t.timeline.validate(&at)?;
+            check_place(&at, &t.center, Some(t.yaw_deg))?;
+            check_surface(&at, &t.finish, &t.timeline)?;
         }
         for (i, b) in self.bags.iter().enumerate() {
             let at = |f: &str| format!("bag[{i}].{f}");
             positive(&at("size"), &b.size)?;
-            coordinates(&at("center"), &b.center)?;
-            finite(&at("yaw_deg"), &[b.yaw_deg])?;
+            check_place(&at, &b.center, Some(b.yaw_deg))?;
             if !(0.0..=MAX_SAG).contains(&b.sag) {
                 return Err(invalid(
                     at("sag"),
                     format!("must be from 0 to {MAX_SAG}, got {}", b.sag),
                 ));
             }
-            b.finish.validate(&at)?;
-            b.timeline.validate(&at)?;
+            check_surface(&at, &b.finish, &b.timeline)?;
         }
         if self.markers.len() > MAX_MARKERS {
             return Err(invalid(
@@ -1226,8 +1263,7 @@ impl Scene {
                 ));
             }
             positive(&at("size"), &[m.size])?;
-            coordinates(&at("center"), &m.center)?;
-            finite(&at("yaw_deg"), &[m.yaw_deg])?;
+            check_place(&at, &m.center, Some(m.yaw_deg))?;
             m.timeline.validate(&at)?;
         }
         Ok(())
@@ -1248,72 +1284,22 @@ impl Scene {
     /// is then, without timelines (labels not yet stuck on, or peeled off, left out).
     pub fn at(&self, t_s: f64) -> Self {
         let mut scene = self.clone();
-        scene.boxes = self
-            .boxes
-            .iter()
-            .filter_map(|b| {
-                let center = b.timeline.position(b.center, t_s)?;
-                let label = b
-                    .label
-                    .as_ref()
-                    .filter(|l| l.timeline().present(t_s))
-                    .map(|l| Label {
-                        appear_s: None,
-                        remove_s: None,
-                        ..l.clone()
-                    });
-                Some(SceneBox {
-                    center,
-                    label,
-                    timeline: Timeline::default(),
-                    ..b.clone()
-                })
-            })
-            .collect();
-        scene.cylinders = self
-            .cylinders
-            .iter()
-            .filter_map(|c| {
-                Some(Cylinder {
-                    center: c.timeline.position(c.center, t_s)?,
-                    timeline: Timeline::default(),
-                    ..c.clone()
-                })
-            })
-            .collect();
-        scene.tubes = self
-            .tubes
-            .iter()
-            .filter_map(|c| {
-                Some(Tube {
-                    center: c.timeline.position(c.center, t_s)?,
-                    timeline: Timeline::default(),
-                    ..c.clone()
-                })
-            })
-            .collect();
-        scene.bags = self
-            .bags
-            .iter()
-            .filter_map(|b| {
-                Some(Bag {
-                    center: b.timeline.position(b.center, t_s)?,
-                    timeline: Timeline::default(),
-                    ..b.clone()
-                })
-            })
-            .collect();
-        scene.markers = self
-            .markers
-            .iter()
-            .filter_map(|m| {
-                Some(SceneMarker {
-                    center: m.timeline.position(m.center, t_s)?,
-                    timeline: Timeline::default(),
-                    ..m.clone()
-                })
-            })
-            .collect();
+        scene.boxes = placed_at(&self.boxes, t_s, |b| (&mut b.center, &mut b.timeline));
+        for b in &mut scene.boxes {
+            b.label = b
+                .label
+                .take()
+                .filter(|l| l.timeline().present(t_s))
+                .map(|l| Label {
+                    appear_s: None,
+                    remove_s: None,
+                    ..l
+                });
+        }
+        scene.cylinders = placed_at(&self.cylinders, t_s, |c| (&mut c.center, &mut c.timeline));
+        scene.tubes = placed_at(&self.tubes, t_s, |t| (&mut t.center, &mut t.timeline));
+        scene.bags = placed_at(&self.bags, t_s, |b| (&mut b.center, &mut b.timeline));
+        scene.markers = placed_at(&self.markers, t_s, |m| (&mut m.center, &mut m.timeline));
         scene
     }
 
