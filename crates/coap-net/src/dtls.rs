@@ -5,18 +5,18 @@
 //!
 //! OpenSSL keeps the handshake's retransmission timer itself and acts on it when the
 //! handshake is driven, so while any handshake is under way the driver ticks every
-//! [`HANDSHAKE_TICK`]. A server keeps at most [`MAX_SESSIONS`] sessions, and drops one
-//! idle for [`IDLE`] to make room; a handshake that has not finished in [`HANDSHAKE_LIMIT`]
+//! `HANDSHAKE_TICK`. A server keeps at most `MAX_SESSIONS` sessions, and drops one
+//! idle for `IDLE` to make room; a handshake that has not finished in `HANDSHAKE_LIMIT`
 //! is dropped.
 //!
 //! A server opens a session only for a peer that proved its address (RFC 6347 §4.2.1): a
 //! ClientHello without a valid cookie is answered here, without any state, by a
 //! HelloVerifyRequest carrying a cookie that is a keyed MAC of the peer's address and the
 //! time, smaller than the ClientHello. Only the ClientHello that returns it opens a
-//! session, at most [`MAX_HANDSHAKES`] of them handshaking at once. OpenSSL's own cookie
+//! session, at most `MAX_HANDSHAKES` of them handshaking at once. OpenSSL's own cookie
 //! exchange is on in that session and is walked through its first step with the
 //! ClientHello minus its cookie, so that its message numbers follow the exchange the
-//! client saw ([`cookie`]).
+//! client saw (`cookie`).
 
 use std::collections::{HashMap, VecDeque};
 use std::hash::{BuildHasher, RandomState};

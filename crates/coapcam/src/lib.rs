@@ -15,7 +15,7 @@
 //! - [`stats`]: medians, percentiles and running moments of repeated measurements;
 //! - [`timesync`]: the servers' clock offsets (NTP's four timestamps over CoAP) and the
 //!   check that a measurement's frames belong together in time;
-//! - [`bench`]: the benchmarks, and [`process`]: the child processes and peer programs
+//! - [`bench`](mod@bench): the benchmarks, and [`process`]: the child processes and peer programs
 //!   they and the integration tests run.
 //!
 //! The protocol lives in the `coap` and `coap-net` crates, the cameras in `rgbd`, the

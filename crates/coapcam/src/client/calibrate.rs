@@ -167,7 +167,7 @@ const BLUE: Rgb<u8> = Rgb([60, 110, 255]);
 const VIEW_REACH_M: f32 = 1.5;
 
 /// `--view`: each camera's color image with its markers and the world axes drawn
-/// (`FILE-<sn>.png`), and the merged cloud (within [`VIEW_REACH_M`] of the origin in x
+/// (`FILE-<sn>.png`), and the merged cloud (within `VIEW_REACH_M` of the origin in x
 /// and y) from above (`path`) and from the side (`FILE-side.png`). What could not be
 /// drawn (a camera's axes) is returned as warnings.
 pub fn draw_views(placed: &[Placed], path: &Path) -> anyhow::Result<Vec<String>> {

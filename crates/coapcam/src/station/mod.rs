@@ -1,9 +1,9 @@
 //! The station: what a camera server does by itself for a parcel lane (docs/station.md).
 //! - [`record`]: one recorded measurement and the chain's encoding;
 //! - [`log`]: the results log, append-only and hash-chained in SQLite, with retention;
-//! - [`resources`]: the log as CoAP resources (`/station/measurements...`);
+//! - `resources`: the log as CoAP resources (`/station/measurements...`);
 //! - [`mqtt`]: every record published to an MQTT broker, none lost while it is away;
-//! - [`line`]: a plain text line per measurement to the readers of a TCP port;
+//! - [`line`](mod@line): a plain text line per measurement to the readers of a TCP port;
 //! - [`http`]: the page and the JSON API over HTTP (`serve --http`);
 //! - [`webhook`]: every record POSTed to an HTTP URL, none lost while it is away;
 //! - [`auto`]: automatic measurement's core: height maps of the table and the stillness

@@ -128,7 +128,7 @@ fn marker_grid() -> Vec<SceneMarker> {
 /// box 10-60 cm wide and 2-40 cm high near the origin, seen by one to three uncalibrated
 /// cameras spread around it, each 0.8-1.6 m from the centre of its lid (far enough that
 /// the whole lid is in view) and tilted 0-35 degrees from straight down; the table has
-/// the same cameras and [`marker_grid`] instead of the box.
+/// the same cameras and `marker_grid` instead of the box.
 pub fn calibration_scenes(seed: u64, index: usize) -> anyhow::Result<(Scene, Scene)> {
     let mut rng = ChaCha8Rng::seed_from_u64(
         seed.wrapping_mul(1_000_033)

@@ -44,7 +44,7 @@ pub struct Config {
     pub links: Vec<Link>,
     /// The modes: the table's columns in this order.
     pub modes: Vec<Mode>,
-    /// Pair runs per size and fast mode (none when [`PAIR_LINK`] is not among the links).
+    /// Pair runs per size and fast mode (none when `PAIR_LINK` is not among the links).
     pub pairs: u32,
     /// How long a run may take; a client still running then is killed and the run failed.
     pub cap: Duration,

@@ -6,7 +6,7 @@
 //! side fails, 504 when it does not answer within [`TIMEOUT`].
 //!
 //! The mappings are functions without IO, tested here; the forwarding is in
-//! [`super::App`].
+//! `super::App`.
 
 use std::time::Duration;
 
