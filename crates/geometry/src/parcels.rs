@@ -67,9 +67,13 @@ const MIN_SHARE: f64 = 0.005;
 const TOUCH_M: f64 = 0.05;
 /// An object with fewer points than this share of a larger one's, whose footprint comes
 /// within [`TOUCH_M`] of the larger one's, is a fragment of it (a sliver of a side wall,
-/// flying pixels between its edge and the floor), not a parcel; so is any smaller object
-/// whose footprint overlaps a larger one's (a ring of flying pixels around it).
+/// flying pixels between its edge and the floor), not a parcel (see [`fragment_of`]).
 const FRAGMENT_SHARE: f64 = 0.01;
+/// An object whose footprint and a larger one's overlap by at least this share of the
+/// smaller footprint is a ring of flying pixels or floor speckle around it (see
+/// [`fragment_of`]); parcels side by side overlap by the few millimetres of noise on
+/// their edges, a share of a few per cent.
+const OVERLAP_SHARE: f64 = 0.2;
 /// How far beyond a parcel's edges the cameras must see (metres) for it to be whole.
 const PROBE_M: f64 = 0.015;
 /// A top corner counts as seen when it projects at least this far inside an image.
@@ -195,7 +199,7 @@ pub fn parcels(
     let mut first_error = None;
     for cluster in clusters.iter().take_while(|c| c.len() >= needed) {
         match fit(cluster, config, views) {
-            Ok(f) => found.push(f),
+            Ok(f) => found.push((f, &cluster[..])),
             Err(e) => {
                 first_error.get_or_insert(e);
             }
@@ -207,16 +211,10 @@ pub fn parcels(
         return Err(e);
     }
     // Fragments of larger objects (more points) go.
-    found.sort_by_key(|f| std::cmp::Reverse(f.dimensions.points));
+    found.sort_by_key(|(f, _)| std::cmp::Reverse(f.dimensions.points));
     let mut kept: Vec<ParcelFit> = Vec::with_capacity(found.len());
-    for f in found {
-        let p = polygon(&f.dimensions.corners_m);
-        let fragment = kept.iter().any(|k| {
-            let q = polygon(&k.dimensions.corners_m);
-            let small = (f.dimensions.points as f64) < FRAGMENT_SHARE * k.dimensions.points as f64;
-            p.intersects(&q) || (small && Euclidean.distance(&p, &q) < TOUCH_M)
-        });
-        if !fragment {
+    for (f, points) in found {
+        if !kept.iter().any(|k| fragment_of(&f, points, k)) {
             kept.push(f);
         }
     }
@@ -262,6 +260,30 @@ pub fn parcels(
         parcels: found,
         largest_points,
     })
+}
+
+/// Whether the object `f` (of `points`) is a piece of the larger object `k` rather than a
+/// parcel of its own:
+/// - most of its points lie within [`OUTSIDE_M`] of `k`'s footprint: a strip of `k`'s
+///   side wall that holes (a dark or glaring finish) cut off from its lid, or points
+///   under its edge; a parcel beside `k` has its lid away from it;
+/// - its footprint and `k`'s overlap by at least [`OVERLAP_SHARE`] of the smaller one's
+///   area: a ring of flying pixels around `k`, or the speckle of floor noise above the
+///   floor cut spread around it (two parcels side by side overlap by a sliver at most);
+/// - it has fewer than [`FRAGMENT_SHARE`] of `k`'s points and comes within [`TOUCH_M`].
+fn fragment_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
+    use geo::BooleanOps as _;
+    let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
+    let (p, q) = (
+        polygon(&f.dimensions.corners_m),
+        polygon(&k.dimensions.corners_m),
+    );
+    let under = share_outside(&k.dimensions.corners_m, points.iter().map(xy), OUTSIDE_M) < 0.5;
+    let least = p.unsigned_area().min(q.unsigned_area());
+    let overlap = p.intersects(&q)
+        && (least <= 0.0 || p.intersection(&q).unsigned_area() >= OVERLAP_SHARE * least);
+    let small = (f.dimensions.points as f64) < FRAGMENT_SHARE * k.dimensions.points as f64;
+    under || overlap || (small && Euclidean.distance(&p, &q) < TOUCH_M)
 }
 
 /// Measures one object.
@@ -744,6 +766,49 @@ mod tests {
         let (lo, hi) = (lo + min, hi + min);
         assert!((lo + 0.0005).abs() < 0.0003, "{lo}");
         assert!((hi - 0.3005).abs() < 0.0003, "{hi}");
+    }
+
+    /// Points every 2 mm over the rectangle [x0, x1] x [y0, y1] at height z.
+    fn lid_points(x: [f64; 2], y: [f64; 2], z: f64) -> Vec<Point3> {
+        let steps = |r: [f64; 2]| ((r[1] - r[0]) / 0.002).round() as usize;
+        let mut out = Vec::new();
+        for i in 0..=steps(x) {
+            for j in 0..=steps(y) {
+                out.push(Point3::new(
+                    (x[0] + i as f64 * 0.002) as f32,
+                    (y[0] + j as f64 * 0.002) as f32,
+                    z as f32,
+                ));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_lower_parcel_beside_a_higher_one_is_found_and_both_are_flagged() {
+        // Noise makes the lower lid reach 2 mm into the higher one's footprint: the two
+        // rectangles overlap by a sliver, which does not make the lower one a fragment.
+        let mut points = lid_points([-0.32, 0.0], [-0.085, 0.085], 0.225);
+        points.extend(lid_points([-0.002, 0.35], [-0.075, 0.075], 0.177));
+        let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+        assert_eq!(found.parcels.len(), 2, "{found:?}");
+        assert!(found.parcels.iter().all(|p| !p.isolated), "{found:?}");
+    }
+
+    #[test]
+    fn a_strip_of_side_wall_cut_off_by_holes_is_part_of_its_parcel() {
+        // A dark box 100 x 95 x 66 mm whose side wall kept points only low down, 3 cm
+        // below its lid (too far to join it): that strip stands under the lid's edge.
+        let mut points = lid_points([0.0, 0.1], [0.0, 0.095], 0.066);
+        for i in 0..50 {
+            for k in 0..10 {
+                let (y, z) = (i as f32 * 0.002, 0.012 + k as f32 * 0.002);
+                points.push(Point3::new(0.1005, y, z));
+            }
+        }
+        let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+        assert_eq!(found.parcels.len(), 1, "{found:?}");
+        assert!(found.parcels[0].isolated);
     }
 
     #[test]

@@ -89,11 +89,13 @@ impl Division {
     /// another parcel, or outside the measurable range.
     pub fn refusal(&self, fit: &ParcelFit, min_coverage: f32) -> Option<String> {
         let d = &fit.dimensions;
-        if fit.out_of_view {
-            return Some("the parcel reaches beyond the cameras' view".into());
-        }
+        // Side by side first: a lower parcel beside a higher one is also hidden behind
+        // it (out of view), and separating them is what makes both measurable.
         if !fit.isolated {
             return Some("parcels side by side: the parcel touches another one".into());
+        }
+        if fit.out_of_view {
+            return Some("the parcel reaches beyond the cameras' view".into());
         }
         if fit.coverage < f64::from(min_coverage) {
             return Some(format!(
