@@ -1,6 +1,10 @@
 //! A uniform grid of cubic cells over a slice of points: the points of a cell and of its
 //! 26 neighbours, in time linear in the number of points (where a k-d tree query per point
-//! costs microseconds each on dense, nearly planar clouds).
+//! costs microseconds each on dense, nearly planar clouds). [`Grid`] keeps the occupied
+//! cells in a hash map, whatever the points' extent; [`Block`] numbers every cell of the
+//! points' bounding box and sorts the points by cell, so that the points of three cells
+//! side by side along x lie next to each other, found without hashing (a lid's neighbour
+//! filter looked up 27 cells of a hash map for each of 150,000 points).
 
 use std::collections::HashMap;
 
@@ -38,7 +42,7 @@ impl Grid {
 
     /// The cell holding `p`.
     pub(crate) fn cell(&self, p: &Point3) -> Cell {
-        let k = |v: f32| (v / self.size_m).floor() as i64;
+        let k = |v: f32| coordinate(v, self.size_m);
         (k(p.x), k(p.y), k(p.z))
     }
 
@@ -66,5 +70,132 @@ impl Grid {
     pub(crate) fn around(&self, cell: Cell) -> impl Iterator<Item = &[u32]> {
         self.occupied_around(cell)
             .filter_map(|c| self.cells.get(&c).map(Vec::as_slice))
+    }
+}
+
+/// `(v / size).floor() as i64`, the same value for every `v` (NaN and the infinities
+/// too), without the library call that `floor` is on x86-64 without SSE4.1.
+fn coordinate(v: f32, size: f32) -> i64 {
+    let q = v / size;
+    // Saturating, towards zero; one less when that rounded a negative fraction up.
+    let t = q as i64;
+    if (t as f32) > q {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
+}
+
+/// Points sorted by cell into a dense block of cells of one size: every cell of the
+/// points' bounding box has a number, x varying fastest, so each row of three cells
+/// along x is one run of sorted points. Cells are those of [`Grid`] (the same
+/// coordinates for the same size), so both find the same points around a cell.
+pub(crate) struct Block {
+    /// Cells along each axis.
+    dims: [usize; 3],
+    /// Where each cell's points start in `points`, and one past the last cell's end.
+    start: Vec<u32>,
+    /// The points, sorted by cell (in input order within a cell).
+    points: Vec<Point3>,
+    /// Each sorted point's index in the slice the block was built from.
+    index: Vec<u32>,
+    /// Each sorted point's cell, counted from the lowest.
+    cells: Vec<[u32; 3]>,
+}
+
+impl Block {
+    /// Sorts finite `points` (fewer than `u32::MAX`) into cells of `size_m` (> 0);
+    /// `None` when their bounding box holds more than `max_cells` cells (a sparse cloud
+    /// spread wide, for which [`Grid`] is the better index).
+    pub(crate) fn new(points: &[Point3], size_m: f32, max_cells: usize) -> Option<Self> {
+        let coords: Vec<[i64; 3]> = points
+            .iter()
+            .map(|p| [p.x, p.y, p.z].map(|v| coordinate(v, size_m)))
+            .collect();
+        let (mut low, mut high) = ([i64::MAX; 3], [i64::MIN; 3]);
+        for c in &coords {
+            for k in 0..3 {
+                low[k] = low[k].min(c[k]);
+                high[k] = high[k].max(c[k]);
+            }
+        }
+        if coords.is_empty() {
+            (low, high) = ([0; 3], [-1; 3]);
+        }
+        let mut dims = [0usize; 3];
+        let mut total = 1usize;
+        for k in 0..3 {
+            let n = u32::try_from(high[k].checked_sub(low[k])?.checked_add(1)?).ok()?;
+            dims[k] = n as usize;
+            total = total.checked_mul(dims[k])?;
+        }
+        if total > max_cells || u32::try_from(points.len()).is_err() {
+            return None;
+        }
+        // Counting sort by cell number: counts, their running sums, then each point at
+        // its cell's next free place.
+        let relative: Vec<[u32; 3]> = coords
+            .iter()
+            .map(|c| [0, 1, 2].map(|k| (c[k] - low[k]) as u32))
+            .collect();
+        let number =
+            |c: &[u32; 3]| c[0] as usize + dims[0] * (c[1] as usize + dims[1] * c[2] as usize);
+        let mut start = vec![0u32; total + 1];
+        for c in &relative {
+            start[number(c) + 1] += 1;
+        }
+        for i in 1..start.len() {
+            start[i] += start[i - 1];
+        }
+        let mut next = start.clone();
+        let mut sorted = vec![Point3::origin(); points.len()];
+        let mut index = vec![0u32; points.len()];
+        let mut cells = vec![[0u32; 3]; points.len()];
+        for (i, (p, c)) in points.iter().zip(&relative).enumerate() {
+            let slot = &mut next[number(c)];
+            let at = *slot as usize;
+            *slot += 1;
+            sorted[at] = *p;
+            index[at] = i as u32;
+            cells[at] = *c;
+        }
+        Some(Self {
+            dims,
+            start,
+            points: sorted,
+            index,
+            cells,
+        })
+    }
+
+    /// The points, sorted by cell.
+    pub(crate) fn points(&self) -> &[Point3] {
+        &self.points
+    }
+
+    /// The index of sorted point `at` in the slice the block was built from.
+    pub(crate) fn index(&self, at: usize) -> usize {
+        self.index[at] as usize
+    }
+
+    /// The runs of sorted points in the cells around sorted point `at` (its cell and the
+    /// 26 touching it), as up to nine ranges into [`Block::points`]; the row through its
+    /// own cell first.
+    pub(crate) fn around(&self, at: usize) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+        let [x, y, z] = self.cells[at].map(|v| v as usize);
+        let span = |v: usize, k: usize| v.saturating_sub(1)..=(v + 1).min(self.dims[k] - 1);
+        let (x0, x1) = (x.saturating_sub(1), (x + 1).min(self.dims[0] - 1));
+        let row = move |(yy, zz): (usize, usize)| {
+            let first = x0 + self.dims[0] * (yy + self.dims[1] * zz);
+            let last = x1 + self.dims[0] * (yy + self.dims[1] * zz);
+            self.start[first] as usize..self.start[last + 1] as usize
+        };
+        std::iter::once((y, z))
+            .chain(
+                span(z, 2)
+                    .flat_map(move |zz| span(y, 1).map(move |yy| (yy, zz)))
+                    .filter(move |c| *c != (y, z)),
+            )
+            .map(row)
     }
 }
