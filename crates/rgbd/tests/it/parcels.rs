@@ -1,6 +1,8 @@
 //! Scenes that look like a lane: several parcels at once, parcels partly out of view,
 //! and the truth (smallest enclosing cuboid) of every object.
 
+use geometry::{DimensionConfig, Point3, PointCloud, Shape, Transform, View, parcels};
+use nalgebra::{Matrix3, Vector3};
 use rgbd::scene::{ObjectKind, Truth};
 use rgbd::{Camera, DepthFrame, Scene, SyntheticCamera};
 
@@ -511,4 +513,85 @@ fn a_bags_top_is_its_highest_point_and_its_fields_are_checked() {
     assert_eq!(timed.at(1.0).truths().len(), 1);
     assert_eq!(timed.at(2.5).truths().len(), 2);
     assert_eq!(timed.at(3.5).truths()[0].kind, ObjectKind::Tube);
+}
+
+/// A filled polybag, a little sagging, under one D415 1.2 m above the floor.
+const PILLOW: &str = r#"
+seed = 3
+[[camera]]
+serial = "000000000001"
+position = [0.0, 0.0, 1.2]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+noise = "d415"
+
+[[bag]]
+size = [0.44, 0.30, 0.17]
+center = [0.02, -0.01]
+yaw_deg = 10.0
+sag = 0.15
+"#;
+
+#[test]
+fn a_polybag_is_measured_to_its_enclosing_cuboid_from_where_the_camera_loses_its_sides() {
+    let scene = Scene::from_toml(PILLOW).unwrap();
+    let truth = &scene.truths()[0];
+    let cam = only_camera(&scene);
+    let k = cam.depth_intrinsics().unwrap();
+    let pose = cam.true_pose().unwrap();
+    let frame = cam.render_depth(1);
+    // The world points above a 5 mm floor cut, as a prepared camera sends them.
+    let mut cloud = PointCloud::default();
+    for v in 0..frame.height {
+        for u in 0..frame.width {
+            if let Some(z) = frame.metres_at(u, v) {
+                let p = pose.transform_point(k.deproject([u as f32, v as f32], z).map(f64::from));
+                if p[2] >= 0.005 {
+                    cloud
+                        .points
+                        .push(Point3::new(p[0] as f32, p[1] as f32, p[2] as f32));
+                }
+            }
+        }
+    }
+    let r = pose.rotation.map(|row| row.map(|v| v as f32));
+    let t = pose.translation.map(|v| v as f32);
+    let view = View {
+        to_common: Transform {
+            linear: Matrix3::new(
+                r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
+            ),
+            translation: Vector3::new(t[0], t[1], t[2]),
+        },
+        fx: k.fx,
+        fy: k.fy,
+        ppx: k.ppx,
+        ppy: k.ppy,
+        width: k.width,
+        height: k.height,
+    };
+    let config = DimensionConfig::default();
+    let measure = |views: &[View]| parcels(&cloud, &config, views).unwrap().parcels[0].clone();
+    let fit = measure(&[view]);
+    assert_eq!(fit.shape, Shape::Irregular);
+    let d = fit.dimensions;
+    let errors = [
+        d.length_mm - truth.length_mm(),
+        d.width_mm - truth.width_mm(),
+        d.height_mm - truth.height_mm(),
+    ];
+    // Within 2 d (d = 5 mm) of the smallest enclosing cuboid on every axis.
+    assert!(errors.iter().all(|e| e.abs() <= 10.0), "{errors:?}");
+    // Without the camera, nothing says how much of the sides it could not see: the
+    // footprint ends near where the seen surface does, short on both axes.
+    let blind = measure(&[]).dimensions;
+    let blind_errors = [
+        blind.length_mm - truth.length_mm(),
+        blind.width_mm - truth.width_mm(),
+    ];
+    assert!(
+        blind_errors.iter().all(|e| *e < -2.0)
+            && (0..2).all(|i| errors[i].abs() < blind_errors[i].abs()),
+        "{blind_errors:?} {errors:?}"
+    );
 }
