@@ -21,7 +21,10 @@
 //!   where the cameras lose it is continued to the floor within the band the cameras'
 //!   grazing rays leave unseen (see `shoulders`); an irregular object's height is the
 //!   apex of its top (the highest mean of a 15 mm patch of the height map), where a
-//!   band's median lies below a domed top;
+//!   band's median lies below a domed top. A tube lying on the floor is irregular too,
+//!   though its top strip fills a rectangle: across the strip its points lie on a circle
+//!   resting on the floor, whose diameter is its width and height, and the strip gives
+//!   its length (the flying pixels off its round ends lie below it);
 //! - tops: flat regions of a height map of the object, connected where neighbouring cells
 //!   differ by less than a step; two large ones mean two parcels side by side;
 //! - coverage: the share of cells inside the footprint that hold points (holes from dark
@@ -348,16 +351,26 @@ fn fit(
     let dense = map.dense_points(cluster);
     let tops = map.tops(TOP_STEP_M.max(lid.band_m), FLAT_M.max(lid.band_m));
     let outside = share_outside(&lid_rect, dense.iter().map(xy), OUTSIDE_M);
-    let shape = if tops <= 1 && fit >= CUBOID_FIT && outside <= CUBOID_OUTSIDE {
+    // A tube lying on the floor has a lid strip that fills its rectangle, and with a deep
+    // lid band nothing reaches beyond it: its curved top tells it from a box.
+    let tube = if tops <= 1 {
+        lying_tube(&lid_rect, &dense, height_m, lid.band_m)
+    } else {
+        None
+    };
+    let shape = if tube.is_none() && tops <= 1 && fit >= CUBOID_FIT && outside <= CUBOID_OUTSIDE {
         Shape::Cuboid
     } else {
         Shape::Irregular
     };
-    let corners = match shape {
-        Shape::Cuboid => lid_rect,
+    let corners = match (shape, &tube) {
+        // Along its axis the lid strip, which runs the tube's whole length at its top
+        // (the flying pixels beyond its round ends lie lower); across it the circle.
+        (_, Some(t)) => t.footprint(&lid_rect),
+        (Shape::Cuboid, None) => lid_rect,
         // Around every dense point, each edge placed by the points' density as a lid's
         // is: the thin fringe of flying pixels around a tall object counts little.
-        Shape::Irregular => {
+        (Shape::Irregular, None) => {
             let around = min_rect(dense.iter().map(xy))
                 .map_or(hull_rect, |r| refine(r, &dense, margin.max(0.006), 0.003));
             // A lid with rounded corners is a pillow's: its sides curve down to the floor.
@@ -370,13 +383,17 @@ fn fit(
         }
     };
     let peak = map.peak();
-    let top_m = match shape {
-        Shape::Cuboid => height_m,
-        Shape::Irregular => peak.map_or(height_m, |p| p.max(height_m)),
+    let top_m = match (shape, &tube) {
+        // The circle's top, where the noise is averaged over the whole section.
+        (_, Some(t)) => (2.0 * t.radius) as f32,
+        (Shape::Cuboid, None) => height_m,
+        (Shape::Irregular, None) => peak.map_or(height_m, |p| p.max(height_m)),
     };
-    let coverage = match shape {
-        Shape::Cuboid => map.coverage(&polygon(&corners)),
-        Shape::Irregular => {
+    // A box or a tube seen from above covers its footprint; other shapes their dense
+    // points' hull (a raw camera's floor noise joined to a tube is no hole in it).
+    let coverage = match (shape, &tube) {
+        (Shape::Cuboid, _) | (_, Some(_)) => map.coverage(&polygon(&corners)),
+        (Shape::Irregular, None) => {
             let all: MultiPoint<f64> = dense
                 .iter()
                 .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
@@ -565,6 +582,164 @@ fn quantile(v: &mut [f32], q: f64) -> Option<f32> {
     }
     let at = ((v.len() - 1) as f64 * q).round() as usize;
     Some(*v.select_nth_unstable_by(at, f32::total_cmp).1)
+}
+
+/// A tube lying on the floor: its cross-section, in the frame of the lid's rectangle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct LyingTube {
+    /// Whether the axis runs along the rectangle's first edge (corner 0 to 1).
+    along_first: bool,
+    /// The axis's position across the rectangle, from corner 0, metres.
+    centre: f64,
+    /// The radius, metres: the tube rests on the floor, so its top is at twice this.
+    radius: f64,
+}
+
+impl LyingTube {
+    /// The footprint: the lid's rectangle along the axis, the circle's diameter across.
+    fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
+        let c0 = rect[0];
+        let (mut e0, mut e1) = (sub(rect[1], c0), sub(rect[3], c0));
+        if !self.along_first {
+            std::mem::swap(&mut e0, &mut e1);
+        }
+        let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+        if la <= 0.0 || lb <= 0.0 {
+            return *rect;
+        }
+        let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+        let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+        let (t0, t1) = (self.centre - self.radius, self.centre + self.radius);
+        [at(0.0, t0), at(la, t0), at(la, t1), at(0.0, t1)]
+    }
+}
+
+/// Profile points used for the circle (a sample is as good and keeps this cheap).
+const TUBE_SAMPLE: usize = 4000;
+/// The circle's residuals may reach this (metres) or a quarter of the lid band (about one
+/// depth-noise deviation), whichever is more: a box's edges or a bag's flat top miss
+/// a circle resting on the floor by centimetres.
+const TUBE_RMS_M: f64 = 0.002;
+/// Of a tube, the points above half its height (inliers of the circle) span at least this
+/// share of its diameter across the axis: the camera sees its top half from above.
+const TUBE_SPAN: f64 = 0.8;
+
+/// Whether the object is a tube lying on the floor (a cylinder with a horizontal axis along
+/// the lid rectangle `rect`'s long side): the dense points above half its height, across
+/// the middle of its length (away from the round ends' flying pixels), lie on a circle
+/// that rests on the floor (centre at the radius's height) and whose top is the
+/// object's height. Depth noise moves each point along its ray by about a quarter of the
+/// lid band, so the circle fits to that; the height read from the top band is a median
+/// of the strip below the crest (about a quarter of the band low on a circle), the
+/// circle's top is not.
+fn lying_tube(
+    rect: &[[f64; 2]; 4],
+    dense: &[Point3],
+    height_m: f32,
+    band_m: f32,
+) -> Option<LyingTube> {
+    let c0 = rect[0];
+    let (e0, e1) = (sub(rect[1], c0), sub(rect[3], c0));
+    let (l0, l1) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if l0 <= 0.0 || l1 <= 0.0 {
+        return None;
+    }
+    let along_first = l0 >= l1;
+    let (long, across, len) = if along_first {
+        (e0, e1, l0)
+    } else {
+        (e1, e0, l1)
+    };
+    let a = [long[0] / len, long[1] / len];
+    let la = across[0].hypot(across[1]);
+    let b = [across[0] / la, across[1] / la];
+    let height = f64::from(height_m);
+    let profile: Vec<[f64; 2]> = dense
+        .iter()
+        .filter_map(|p| {
+            let d = sub([f64::from(p.x), f64::from(p.y)], c0);
+            let s = dot(d, a);
+            (s >= 0.2 * len && s <= 0.8 * len && f64::from(p.z) >= height / 2.0)
+                .then(|| [dot(d, b), f64::from(p.z)])
+        })
+        .collect();
+    let step = (profile.len() / TUBE_SAMPLE).max(1);
+    let profile: Vec<[f64; 2]> = profile.into_iter().step_by(step).collect();
+    if profile.len() < 50 {
+        return None;
+    }
+    // Start at the crest: the middle of the points near the top, half the height.
+    let crest: Vec<f64> = profile
+        .iter()
+        .filter(|q| q[1] >= height - f64::from(band_m))
+        .map(|q| q[0])
+        .collect();
+    if crest.is_empty() {
+        return None;
+    }
+    let mut centre = crest.iter().sum::<f64>() / crest.len() as f64;
+    let mut radius = height / 2.0;
+    let residual = |q: &[f64; 2], c: f64, r: f64| (q[0] - c).hypot(q[1] - r) - r;
+    // Gauss-Newton on (centre, radius), three rounds, each after the first on the points
+    // within three robust deviations (at least 2 mm) of the last round's circle.
+    let mut keep = f64::INFINITY;
+    for _ in 0..3 {
+        for _ in 0..10 {
+            let (mut h00, mut h01, mut h11, mut g0, mut g1) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for q in &profile {
+                let (dt, dz) = (q[0] - centre, q[1] - radius);
+                let rho = dt.hypot(dz).max(1e-9);
+                let r = rho - radius;
+                if r.abs() > keep {
+                    continue;
+                }
+                let (j0, j1) = (-dt / rho, -dz / rho - 1.0);
+                h00 += j0 * j0;
+                h01 += j0 * j1;
+                h11 += j1 * j1;
+                g0 += j0 * r;
+                g1 += j1 * r;
+            }
+            let det = h00 * h11 - h01 * h01;
+            if det.abs() < 1e-18 {
+                return None;
+            }
+            centre -= (h11 * g0 - h01 * g1) / det;
+            radius -= (h00 * g1 - h01 * g0) / det;
+            if !(radius > 0.005 && radius.is_finite()) {
+                return None;
+            }
+        }
+        let mut spread: Vec<f64> = profile
+            .iter()
+            .map(|q| residual(q, centre, radius).abs())
+            .collect();
+        let mid = spread.len() / 2;
+        let mad = *spread.select_nth_unstable_by(mid, f64::total_cmp).1;
+        keep = (3.0 * 1.4826 * mad).max(0.002);
+    }
+    let inliers: Vec<&[f64; 2]> = profile
+        .iter()
+        .filter(|q| residual(q, centre, radius).abs() <= keep)
+        .collect();
+    let rms = (inliers
+        .iter()
+        .map(|q| residual(q, centre, radius).powi(2))
+        .sum::<f64>()
+        / inliers.len().max(1) as f64)
+        .sqrt();
+    let (lo, hi) = inliers.iter().fold((f64::MAX, f64::MIN), |(lo, hi), q| {
+        (lo.min(q[0]), hi.max(q[0]))
+    });
+    let round = inliers.len() as f64 >= 0.9 * profile.len() as f64
+        && rms <= TUBE_RMS_M.max(f64::from(band_m) / 4.0)
+        && hi - lo >= TUBE_SPAN * 2.0 * radius
+        && (2.0 * radius - height).abs() <= (0.05 * height).max(0.006);
+    round.then_some(LyingTube {
+        along_first,
+        centre,
+        radius,
+    })
 }
 
 fn sub(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {

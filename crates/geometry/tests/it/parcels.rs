@@ -179,13 +179,15 @@ fn a_lying_tube_is_irregular_and_gets_its_enclosing_box() {
     let (radius, length) = (0.06f32, 0.5f32);
     let mut sampler = Sampler::new(9);
     let mut points = Vec::new();
-    // The upper half of the tube as a camera above sees it, 2 mm apart.
+    // The upper half of the tube as a camera above sees it, about 2 mm apart (a camera's
+    // pixels do not line up with the 1 mm bins that place a lid's ends).
     let mut x = -length / 2.0;
     while x <= length / 2.0 {
         let mut y = -radius;
         while y <= radius {
             let z = radius + (radius * radius - y * y).max(0.0).sqrt();
-            points.push(Point3::new(x, y, z + sampler.normal(0.001)));
+            let along = (x + sampler.normal(0.0007)).clamp(-length / 2.0, length / 2.0);
+            points.push(Point3::new(along, y, z + sampler.normal(0.001)));
             y += 0.002;
         }
         x += 0.002;
@@ -194,11 +196,12 @@ fn a_lying_tube_is_irregular_and_gets_its_enclosing_box() {
         parcels(&PointCloud::from(points), &DimensionConfig::default(), &[]).expect("measures");
     let p = &found.parcels[0];
     assert_eq!(p.shape, Shape::Irregular, "{p:?}");
-    // Within two divisions (2 d = 10 mm), as OIML R 129 allows an irregular item.
+    // Its length from the crest's strip, its width and height from the circle across it:
+    // within one division (d = 5 mm), though OIML R 129 allows an irregular item two.
     let d = &p.dimensions;
-    assert!((d.length_mm - 500.0).abs() < 10.0, "{d:?}");
-    assert!((d.width_mm - 120.0).abs() < 10.0, "{d:?}");
-    assert!((d.height_mm - 120.0).abs() < 10.0, "{d:?}");
+    assert!((d.length_mm - 500.0).abs() < 5.0, "{d:?}");
+    assert!((d.width_mm - 120.0).abs() < 5.0, "{d:?}");
+    assert!((d.height_mm - 120.0).abs() < 5.0, "{d:?}");
 }
 
 #[test]

@@ -595,3 +595,60 @@ fn a_polybag_is_measured_to_its_enclosing_cuboid_from_where_the_camera_loses_its
         "{blind_errors:?} {errors:?}"
     );
 }
+
+/// A tube lying on the floor beside a box as high as it is, under one camera off to the
+/// tube's side, with a D415's depth noise (the floor sent, no spatial filter).
+const TUBE_BESIDE_A_BOX: &str = r#"
+seed = 5
+[[camera]]
+serial = "000000000001"
+position = [0.20, 0.10, 1.3]
+look_at = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+
+[[tube]]
+radius = 0.045
+length = 0.70
+center = [0.0, -0.12]
+yaw_deg = 20.0
+
+[[box]]
+size = [0.30, 0.20, 0.09]
+center = [0.05, 0.22]
+yaw_deg = -10.0
+"#;
+
+#[test]
+fn a_lying_tube_is_measured_as_irregular_with_its_diameter_across_and_up() {
+    use geometry::{DimensionConfig, Point3, PointCloud, Shape, parcels};
+    let scene = Scene::from_toml(TUBE_BESIDE_A_BOX).unwrap();
+    let cloud = PointCloud::from(
+        points(&scene)
+            .into_iter()
+            .map(|p| Point3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+            .collect::<Vec<_>>(),
+    );
+    let found = parcels(&cloud, &DimensionConfig::default(), &[]).expect("measures");
+    assert_eq!(found.parcels.len(), 2, "{:?}", found.parcels);
+    let (tube, parcel) = match &found.parcels[..] {
+        [a, b] if a.dimensions.length_mm > b.dimensions.length_mm => (a, b),
+        [a, b] => (b, a),
+        _ => unreachable!("two parcels"),
+    };
+    let mm = |f: &geometry::ParcelFit| {
+        let d = &f.dimensions;
+        [d.length_mm, d.width_mm, d.height_mm]
+    };
+    // Its lid strip alone fills a rectangle, 75 mm of its 90 mm wide: a curved top that
+    // rests on the floor makes it a tube, as wide as it is high.
+    assert_eq!(tube.shape, Shape::Irregular, "{:?}", mm(tube));
+    for (got, truth) in mm(tube).into_iter().zip([700.0, 90.0, 90.0]) {
+        assert!((got - truth).abs() <= 5.0, "tube {:?}", mm(tube));
+    }
+    assert!(tube.complete, "{tube:?}");
+    // A flat lid as high as the tube stays a cuboid.
+    assert_eq!(parcel.shape, Shape::Cuboid, "{:?}", mm(parcel));
+    for (got, truth) in mm(parcel).into_iter().zip([300.0, 200.0, 90.0]) {
+        assert!((got - truth).abs() <= 3.0, "box {:?}", mm(parcel));
+    }
+}
