@@ -1,7 +1,7 @@
 //! Every parcel on the table: footprints unbiased by depth noise along camera rays,
 //! several parcels, side by side, irregular shapes, holes and views.
 
-use geometry::{DimensionConfig, Point3, PointCloud, Shape, Transform, View, parcels};
+use geometry::{DimensionConfig, Parcels, Point3, PointCloud, Shape, Transform, View, parcels};
 use nalgebra::{Matrix3, Vector3};
 
 use crate::scene::{BoxSpec, Sampler};
@@ -66,6 +66,17 @@ fn camera_cloud(
     PointCloud::from(points)
 }
 
+/// What a camera 1 m above (`x`, 0) sees of `boxes`, as [`camera_cloud`] gives it: 500
+/// pixels per unit of tan angle, depth noise 2 mm at 1 m.
+fn seen_from(x: f32, boxes: &[BoxSpec], seed: u64) -> PointCloud {
+    camera_cloud(Point3::new(x, 0.0, 1.0), boxes, 500.0, 0.002, seed)
+}
+
+/// Every parcel of `cloud`, with the default configuration and no camera views.
+fn measure(cloud: &PointCloud) -> Parcels {
+    parcels(cloud, &DimensionConfig::default(), &[]).expect("measures")
+}
+
 fn errors(found: &geometry::Dimensions, b: &BoxSpec) -> [f64; 3] {
     [
         found.length_mm - f64::from(b.length_m.max(b.width_m)) * 1e3,
@@ -80,19 +91,13 @@ fn errors(found: &geometry::Dimensions, b: &BoxSpec) -> [f64; 3] {
 /// each axis; the footprint read from the points' density does not.
 #[test]
 fn a_large_box_is_not_measured_large_by_noise_along_the_rays() {
-    let b = BoxSpec {
-        center_xy: [0.02, -0.01],
-        length_m: 0.735,
-        width_m: 0.512,
-        height_m: 0.25,
-        yaw_deg: 12.0,
-    };
+    let b = BoxSpec::new([0.02, -0.01], [0.735, 0.512, 0.25], 12.0);
     let mut sum = [0.0; 3];
     let runs = 3;
     for seed in 0..runs {
         // 3 mm deviation at 1 m (a D415 without the spatial filter at about 1.4 m).
         let cloud = camera_cloud(Point3::new(0.0, 0.0, 1.3), &[b], 500.0, 0.003, seed);
-        let found = parcels(&cloud, &DimensionConfig::default(), &[]).expect("measures");
+        let found = measure(&cloud);
         assert_eq!(found.parcels.len(), 1, "{found:?}");
         let p = &found.parcels[0];
         assert_eq!(p.shape, Shape::Cuboid, "{p:?}");
@@ -111,22 +116,10 @@ fn a_large_box_is_not_measured_large_by_noise_along_the_rays() {
 
 #[test]
 fn two_parcels_apart_are_both_measured_the_larger_first() {
-    let big = BoxSpec {
-        center_xy: [-0.18, 0.0],
-        length_m: 0.3,
-        width_m: 0.2,
-        height_m: 0.15,
-        yaw_deg: 80.0,
-    };
-    let small = BoxSpec {
-        center_xy: [0.2, 0.05],
-        length_m: 0.2,
-        width_m: 0.15,
-        height_m: 0.1,
-        yaw_deg: 20.0,
-    };
-    let cloud = camera_cloud(Point3::new(0.0, 0.0, 1.0), &[small, big], 500.0, 0.002, 7);
-    let found = parcels(&cloud, &DimensionConfig::default(), &[]).expect("measures");
+    let big = BoxSpec::new([-0.18, 0.0], [0.3, 0.2, 0.15], 80.0);
+    let small = BoxSpec::new([0.2, 0.05], [0.2, 0.15, 0.1], 20.0);
+    let cloud = seen_from(0.0, &[small, big], 7);
+    let found = measure(&cloud);
     assert_eq!(found.parcels.len(), 2, "{found:?}");
     for (p, b) in found.parcels.iter().zip([big, small]) {
         assert!(p.isolated && p.shape == Shape::Cuboid, "{p:?}");
@@ -139,28 +132,16 @@ fn two_parcels_apart_are_both_measured_the_larger_first() {
 /// the higher one's side, or two objects with no gap between their footprints.
 #[test]
 fn parcels_side_by_side_are_not_isolated() {
-    let a = BoxSpec {
-        center_xy: [-0.1, 0.0],
-        length_m: 0.2,
-        width_m: 0.3,
-        height_m: 0.2,
-        yaw_deg: 0.0,
-    };
-    let b = BoxSpec {
-        center_xy: [0.1, 0.0],
-        length_m: 0.2,
-        width_m: 0.25,
-        height_m: 0.12,
-        yaw_deg: 0.0,
-    };
+    let a = BoxSpec::new([-0.1, 0.0], [0.2, 0.3, 0.2], 0.0);
+    let b = BoxSpec::new([0.1, 0.0], [0.2, 0.25, 0.12], 0.0);
     // Straight above the seam: no side is seen, two objects.
-    let cloud = camera_cloud(Point3::new(0.0, 0.0, 1.0), &[a, b], 500.0, 0.002, 8);
-    let found = parcels(&cloud, &DimensionConfig::default(), &[]).expect("measures");
+    let cloud = seen_from(0.0, &[a, b], 8);
+    let found = measure(&cloud);
     assert_eq!(found.parcels.len(), 2, "{found:?}");
     assert!(found.parcels.iter().all(|p| !p.isolated), "{found:?}");
     // From the lower one's side: the higher one's side joins them, one object, two tops.
-    let cloud = camera_cloud(Point3::new(0.15, 0.0, 1.0), &[a, b], 500.0, 0.002, 8);
-    let found = parcels(&cloud, &DimensionConfig::default(), &[]).expect("measures");
+    let cloud = seen_from(0.15, &[a, b], 8);
+    let found = measure(&cloud);
     assert_eq!(found.parcels.len(), 1, "{found:?}");
     let p = &found.parcels[0];
     assert!(!p.isolated && p.tops == 2, "{p:?}");
@@ -192,8 +173,7 @@ fn a_lying_tube_is_irregular_and_gets_its_enclosing_box() {
         }
         x += 0.002;
     }
-    let found =
-        parcels(&PointCloud::from(points), &DimensionConfig::default(), &[]).expect("measures");
+    let found = measure(&PointCloud::from(points));
     let p = &found.parcels[0];
     assert_eq!(p.shape, Shape::Irregular, "{p:?}");
     // Its length from the crest's strip, its width and height from the circle across it:
@@ -206,15 +186,9 @@ fn a_lying_tube_is_irregular_and_gets_its_enclosing_box() {
 
 #[test]
 fn holes_in_the_top_make_a_parcel_incomplete() {
-    let b = BoxSpec {
-        center_xy: [0.0, 0.0],
-        length_m: 0.4,
-        width_m: 0.3,
-        height_m: 0.1,
-        yaw_deg: 0.0,
-    };
-    let mut cloud = camera_cloud(Point3::new(0.0, 0.0, 1.0), &[b], 500.0, 0.002, 10);
-    let whole = parcels(&cloud, &DimensionConfig::default(), &[]).expect("measures");
+    let b = BoxSpec::new([0.0, 0.0], [0.4, 0.3, 0.1], 0.0);
+    let mut cloud = seen_from(0.0, &[b], 10);
+    let whole = measure(&cloud);
     assert!(
         whole.parcels[0].complete && whole.parcels[0].coverage > 0.95,
         "{whole:?}"
@@ -223,21 +197,15 @@ fn holes_in_the_top_make_a_parcel_incomplete() {
     cloud
         .points
         .retain(|p| !(p.x > -0.12 && p.x < 0.08 && p.y > -0.1 && p.y < 0.1));
-    let holed = parcels(&cloud, &DimensionConfig::default(), &[]).expect("measures");
+    let holed = measure(&cloud);
     let p = &holed.parcels[0];
     assert!(!p.complete && p.coverage < 0.8, "{p:?}");
 }
 
 #[test]
 fn a_parcel_reaching_beyond_the_view_is_incomplete() {
-    let b = BoxSpec {
-        center_xy: [0.0, 0.0],
-        length_m: 0.4,
-        width_m: 0.3,
-        height_m: 0.1,
-        yaw_deg: 0.0,
-    };
-    let cloud = camera_cloud(Point3::new(0.0, 0.0, 1.0), &[b], 500.0, 0.002, 11);
+    let b = BoxSpec::new([0.0, 0.0], [0.4, 0.3, 0.1], 0.0);
+    let cloud = seen_from(0.0, &[b], 11);
     let down = Transform {
         linear: Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
         translation: Vector3::new(0.0, 0.0, 1.0),

@@ -42,6 +42,17 @@ pub(crate) struct BoxSpec {
 }
 
 impl BoxSpec {
+    /// A box at `center_xy`, `size` its length (along x before yaw), width and height.
+    pub(crate) fn new(center_xy: [f32; 2], size: [f32; 3], yaw_deg: f32) -> Self {
+        Self {
+            center_xy,
+            length_m: size[0],
+            width_m: size[1],
+            height_m: size[2],
+            yaw_deg,
+        }
+    }
+
     pub(crate) fn world_point(&self, local_x: f32, local_y: f32, z: f32) -> Point3 {
         let (s, c) = self.yaw_deg.to_radians().sin_cos();
         Point3::new(
