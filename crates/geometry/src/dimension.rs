@@ -11,11 +11,11 @@
 
 use std::num::NonZeroUsize;
 
-use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point};
+use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point, Polygon};
 use rayon::prelude::*;
 
 use crate::cloud::is_finite;
-use crate::grid::{Block, Cell, CellMap, Grid};
+use crate::grid::{Block, Cell, CellMap, Grid, cell_of};
 use crate::index::Index;
 use crate::{Point3, PointCloud};
 
@@ -171,8 +171,17 @@ pub(crate) fn above_floor(cloud: &PointCloud, config: &DimensionConfig) -> Vec<P
 /// The minimum-area rectangle around `points` (x, y in metres), as its four corners in
 /// order around it; `None` when the points span no area.
 pub(crate) fn min_rect(points: impl Iterator<Item = [f64; 2]>) -> Option<[[f64; 2]; 4]> {
+    rect_around(&hull(points))
+}
+
+/// The convex hull of `points` (x, y in metres).
+pub(crate) fn hull(points: impl Iterator<Item = [f64; 2]>) -> Polygon<f64> {
     let footprint: MultiPoint<f64> = points.map(|[x, y]| Point::new(x, y)).collect();
-    let hull = footprint.convex_hull();
+    footprint.convex_hull()
+}
+
+/// [`min_rect`] of the points whose convex hull is `hull`.
+pub(crate) fn rect_around(hull: &Polygon<f64>) -> Option<[[f64; 2]; 4]> {
     let rect = hull.minimum_rotated_rect()?;
     match rect.exterior().0.as_slice() {
         [a, b, c, d, ..] => Some([a, b, c, d].map(|c| [c.x, c.y])),
@@ -292,23 +301,16 @@ pub(crate) fn lid(
             band_m,
         });
     }
-    let index = Index::new(&band).map_err(|e| DimensionError::TooManyPoints { points: e.0 })?;
+    if u32::try_from(band.len()).is_err() {
+        return Err(DimensionError::TooManyPoints { points: band.len() });
+    }
     const SAMPLES: usize = 1000;
     let step = (band.len() / SAMPLES).max(1);
-    // The spacing to the nearest other point that is not the same point again: a cloud
-    // merged from cameras that see the same thing (the same camera served twice) holds
-    // exact duplicates, whose distance 0 would shrink the radius to nothing.
-    let four = NonZeroUsize::new(4).unwrap_or(NonZeroUsize::MIN);
-    let mut spacing: Vec<f32> = band
-        .iter()
-        .step_by(step)
-        .filter_map(|p| {
-            let near = index.nearest_n(p, four);
-            near.iter()
-                .map(|&j| (band[j] - p).norm())
-                .find(|d| *d > 0.0)
-        })
-        .collect();
+    let samples: Vec<usize> = (0..band.len()).step_by(step).collect();
+    let mut spacing = match spacings_near(&band, &samples) {
+        Some(found) => found,
+        None => spacings_indexed(&band, &samples)?,
+    };
     spacing.sort_unstable_by(f32::total_cmp);
     let Some(&median) = spacing.get(spacing.len() / 2) else {
         return Ok(Lid {
@@ -324,6 +326,83 @@ pub(crate) fn lid(
         .filter_map(|(p, keep)| keep.then_some(*p))
         .collect();
     Ok(Lid { points, band_m })
+}
+
+/// The distance from each of `samples` (indices into `points`) to its nearest other point
+/// that is not at the same place: a cloud merged from cameras that see the same thing (the
+/// same camera served twice) holds exact duplicates, whose distance 0 would shrink the
+/// radius to nothing. A sample with three or more duplicates has none (its four nearest
+/// points are all at its place). Through a k-d tree of all the points.
+fn spacings_indexed(points: &[Point3], samples: &[usize]) -> Result<Vec<f32>, DimensionError> {
+    let index = Index::new(points).map_err(|e| DimensionError::TooManyPoints { points: e.0 })?;
+    let four = NonZeroUsize::new(4).unwrap_or(NonZeroUsize::MIN);
+    Ok(samples
+        .iter()
+        .filter_map(|&i| {
+            let p = &points[i];
+            let near = index.nearest_n(p, four);
+            near.iter()
+                .map(|&j| (points[j] - p).norm())
+                .find(|d| *d > 0.0)
+        })
+        .collect())
+}
+
+/// [`spacings_indexed`] without the tree: the points in the 27 cells around each sample,
+/// of a grid whose cells are four spacings wide were the points spread evenly over
+/// their bounding box in (x, y), are all looked at (one pass over the points, where
+/// building the tree cost as much as the lid's neighbour filter). `None` when a sample's
+/// nearest point might lie beyond those cells (a sparse or uneven cloud).
+fn spacings_near(points: &[Point3], samples: &[usize]) -> Option<Vec<f32>> {
+    let (mut low, mut high) = ([f32::MAX; 2], [f32::MIN; 2]);
+    for p in points {
+        low = [low[0].min(p.x), low[1].min(p.y)];
+        high = [high[0].max(p.x), high[1].max(p.y)];
+    }
+    let area = f64::from(high[0] - low[0]) * f64::from(high[1] - low[1]);
+    let size = (4.0 * (area / points.len().max(1) as f64).sqrt()).max(1e-4) as f32;
+    // A point outside the 27 cells lies more than a cell away along some axis (less the
+    // rounding of the cell coordinates): a nearest point within 0.9 cells is the nearest.
+    let certain = 0.9 * size;
+    let around = |(x, y, z): Cell| {
+        (-1..=1).flat_map(move |dx| {
+            (-1..=1).flat_map(move |dy| (-1..=1).map(move |dz| (x + dx, y + dy, z + dz)))
+        })
+    };
+    let mut near: CellMap<Vec<u32>> = CellMap::default();
+    for &i in samples {
+        for c in around(cell_of(&points[i], size)) {
+            near.entry(c).or_default();
+        }
+    }
+    for (j, p) in points.iter().enumerate() {
+        if let Some(members) = near.get_mut(&cell_of(p, size)) {
+            members.push(j as u32);
+        }
+    }
+    let mut out = Vec::with_capacity(samples.len());
+    for &i in samples {
+        let p = &points[i];
+        let (mut same, mut best) = (0usize, f32::INFINITY);
+        for c in around(cell_of(p, size)) {
+            for &j in near.get(&c).map_or(&[][..], Vec::as_slice) {
+                let d = (points[j as usize] - p).norm();
+                if d > 0.0 {
+                    best = best.min(d);
+                } else {
+                    same += 1;
+                }
+            }
+        }
+        if same >= 4 {
+            continue;
+        }
+        if best > certain {
+            return None;
+        }
+        out.push(best);
+    }
+    Some(out)
 }
 
 /// At most this many cells per point make a [`Block`] for the neighbour filter (4 bytes
@@ -420,10 +499,8 @@ pub(crate) fn robust_height(points: &[Point3], config: &DimensionConfig) -> f32 
 mod tests {
     use super::*;
 
-    #[test]
-    fn the_neighbour_filter_counts_as_a_search_of_every_pair_does() {
-        // A noisy 6 x 4 cm patch at 1 mm spacing, exact duplicates of some points, points
-        // on cell boundaries, and sparse strays above it.
+    /// A noisy 6 x 4 cm patch at 1 mm spacing.
+    fn patch() -> Vec<Point3> {
         let mut points = Vec::new();
         let jitter =
             |k: u64| ((k.wrapping_mul(2_654_435_761) % 1000) as f32 / 1000.0 - 0.5) * 0.0008;
@@ -437,6 +514,46 @@ mod tests {
                 ));
             }
         }
+        points
+    }
+
+    #[test]
+    fn spacings_near_the_samples_are_the_trees() {
+        // Exact duplicates: once, and three times (four at one place: no spacing there).
+        let mut points = patch();
+        for k in (0..points.len()).step_by(37) {
+            let copies = if k % 2 == 0 { 1 } else { 3 };
+            for _ in 0..copies {
+                points.push(points[k]);
+            }
+        }
+        let samples: Vec<usize> = (0..points.len()).step_by(7).collect();
+        let every_pair: Vec<f32> = samples
+            .iter()
+            .filter_map(|&i| {
+                let p = &points[i];
+                let same = points.iter().filter(|q| (*q - p).norm() == 0.0).count();
+                let nearest = points
+                    .iter()
+                    .map(|q| (q - p).norm())
+                    .filter(|d| *d > 0.0)
+                    .fold(f32::INFINITY, f32::min);
+                (same < 4).then_some(nearest)
+            })
+            .collect();
+        assert!(every_pair.len() < samples.len());
+        assert_eq!(spacings_near(&points, &samples), Some(every_pair.clone()));
+        assert_eq!(spacings_indexed(&points, &samples), Ok(every_pair));
+        // A stray sample whose nearest point lies beyond its cells: the tree answers.
+        points.push(Point3::new(0.2, 0.0, 0.2));
+        assert_eq!(spacings_near(&points, &[points.len() - 1]), None);
+    }
+
+    #[test]
+    fn the_neighbour_filter_counts_as_a_search_of_every_pair_does() {
+        // The patch, exact duplicates of some points, points on cell boundaries, and
+        // sparse strays above it.
+        let mut points = patch();
         for k in (0..points.len()).step_by(37) {
             points.push(points[k]);
         }

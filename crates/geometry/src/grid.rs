@@ -42,8 +42,7 @@ impl Grid {
 
     /// The cell holding `p`.
     pub(crate) fn cell(&self, p: &Point3) -> Cell {
-        let k = |v: f32| coordinate(v, self.size_m);
-        (k(p.x), k(p.y), k(p.z))
+        cell_of(p, self.size_m)
     }
 
     /// Every occupied cell with its points.
@@ -71,6 +70,12 @@ impl Grid {
         self.occupied_around(cell)
             .filter_map(|c| self.cells.get(&c).map(Vec::as_slice))
     }
+}
+
+/// The cell holding `p` among cells of `size_m`.
+pub(crate) fn cell_of(p: &Point3, size_m: f32) -> Cell {
+    let k = |v: f32| coordinate(v, size_m);
+    (k(p.x), k(p.y), k(p.z))
 }
 
 /// `(v / size).floor() as i64`, the same value for every `v` (NaN and the infinities

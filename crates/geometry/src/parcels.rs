@@ -40,8 +40,8 @@ use geo::{
 };
 
 use crate::dimension::{
-    DimensionConfig, DimensionError, Dimensions, above_floor, clusters, lid, min_rect,
-    rect_dimensions, robust_height,
+    DimensionConfig, DimensionError, Dimensions, above_floor, clusters, hull, lid, min_rect,
+    rect_around, rect_dimensions, robust_height,
 };
 use crate::{Point3, PointCloud, Transform};
 
@@ -309,7 +309,9 @@ fn fit(
         return Err(DimensionError::Footprint);
     }
     let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
-    let hull_rect = min_rect(lid.points.iter().map(xy)).ok_or(DimensionError::Footprint)?;
+    // One hull of the lid for its rectangle and its area.
+    let lid_hull = hull(lid.points.iter().map(xy));
+    let hull_rect = rect_around(&lid_hull).ok_or(DimensionError::Footprint)?;
     let margin = f64::from(lid.band_m) + 0.003;
     // The edges from the points within a quarter band (about one noise deviation, at
     // least 3 mm) of the top, on both sides, so that noise moves as many outwards as
@@ -344,7 +346,7 @@ fn fit(
     // parcel whose edge the spatial filter blurred into the floor keeps the hull's.)
     let inward = (0.75 * f64::from(lid.band_m)).max(0.0015);
     let lid_rect = grow(refine(hull_rect, &flat, margin, inward), half_pixel);
-    let lid_area = hull_area(lid.points.iter().map(xy));
+    let lid_area = lid_hull.unsigned_area();
     let fit = (lid_area / rect_area(&hull_rect)).min(1.0);
 
     let map = HeightMap::new(cluster);
@@ -753,11 +755,6 @@ fn dot(a: [f64; 2], b: [f64; 2]) -> f64 {
 fn rect_area(c: &[[f64; 2]; 4]) -> f64 {
     let (e0, e1) = (sub(c[1], c[0]), sub(c[3], c[0]));
     (e0[0] * e1[1] - e0[1] * e1[0]).abs()
-}
-
-fn hull_area(points: impl Iterator<Item = [f64; 2]>) -> f64 {
-    let all: MultiPoint<f64> = points.map(|[x, y]| Point::new(x, y)).collect();
-    all.convex_hull().unsigned_area()
 }
 
 /// The rectangle `corners` (in order around it) with each edge moved to where `lid`'s
