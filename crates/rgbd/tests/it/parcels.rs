@@ -6,7 +6,7 @@ use nalgebra::{Matrix3, Vector3};
 use rgbd::scene::{ObjectKind, Truth};
 use rgbd::{Camera, DepthFrame, Scene, SyntheticCamera};
 
-use crate::support::only_camera;
+use crate::support::{only_camera, under_one_camera};
 
 /// Height above the floor of the surface seen at depth pixel (u, v) by a camera looking
 /// straight down from `camera_z`; `None` for no depth.
@@ -28,14 +28,6 @@ fn pixel_below(cam: &SyntheticCamera, camera_z: f64, p: [f64; 3]) -> (u32, u32) 
 /// Two boxes side by side (touching along a face) and a third one apart, under one
 /// camera 1.2 m above the floor.
 const THREE: &str = r#"
-seed = 9
-[[camera]]
-serial = "000000000001"
-position = [0.0, 0.0, 1.2]
-look_at = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-noise = "ideal"
-
 [[box]]
 size = [0.20, 0.30, 0.15]
 center = [-0.10, 0.05]
@@ -52,7 +44,7 @@ yaw_deg = 20.0
 
 #[test]
 fn parcels_touching_and_apart_are_each_seen_at_their_own_height() {
-    let scene = Scene::from_toml(THREE).unwrap();
+    let scene = under_one_camera(9, [0.0, 0.0, 1.2], "ideal", THREE);
     let cam = only_camera(&scene);
     let frame = cam.render_depth(1);
     for b in &scene.boxes {
@@ -81,21 +73,12 @@ fn parcels_touching_and_apart_are_each_seen_at_their_own_height() {
 #[test]
 fn a_parcel_partly_out_of_view_is_rendered_up_to_the_image_edge() {
     // The camera 1 m up sees about +-0.64 m across; the box reaches from 0.45 to 1.05 m.
-    let scene = Scene::from_toml(
-        r#"
-seed = 4
-[[camera]]
-serial = "000000000001"
-position = [0.0, 0.0, 1.0]
-look_at = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-
-[[box]]
-size = [0.60, 0.40, 0.20]
-center = [0.75, 0.0]
-"#,
-    )
-    .unwrap();
+    let scene = under_one_camera(
+        4,
+        [0.0, 0.0, 1.0],
+        "d415",
+        "[[box]]\nsize = [0.60, 0.40, 0.20]\ncenter = [0.75, 0.0]\n",
+    );
     let cam = only_camera(&scene);
     let frame = cam.render_depth(1);
     let (w, h) = (frame.width, frame.height);
@@ -180,23 +163,12 @@ appear_s = 2.0
 
 /// One 0.4 x 0.3 x 0.2 m box right under a camera 1.2 m up, with `finish` (TOML lines).
 fn box_with(finish: &str, noise: &str) -> Scene {
-    Scene::from_toml(&format!(
-        r#"
-seed = 21
-[[camera]]
-serial = "000000000001"
-position = [0.0, 0.0, 1.2]
-look_at = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-noise = "{noise}"
-
-[[box]]
-size = [0.40, 0.30, 0.20]
-center = [0.0, 0.0]
-{finish}
-"#
-    ))
-    .unwrap()
+    under_one_camera(
+        21,
+        [0.0, 0.0, 1.2],
+        noise,
+        &format!("[[box]]\nsize = [0.40, 0.30, 0.20]\ncenter = [0.0, 0.0]\n{finish}\n"),
+    )
 }
 
 /// Share of the lid's pixels (within `radius` m of the point (x, y) of the lid) with
@@ -367,14 +339,6 @@ fn within(t: &Truth, p: [f64; 3], margin: f64) -> bool {
 }
 
 const SHAPES: &str = r#"
-seed = 2
-[[camera]]
-serial = "000000000001"
-position = [0.05, 0.02, 1.3]
-look_at = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-noise = "ideal"
-
 [[bag]]
 size = [0.40, 0.28, 0.16]
 center = [-0.15, 0.12]
@@ -388,9 +352,14 @@ center = [0.10, -0.30]
 yaw_deg = -15.0
 "#;
 
+/// [`SHAPES`] under a camera 1.3 m up, a little off their middle, without noise.
+fn shapes() -> Scene {
+    under_one_camera(2, [0.05, 0.02, 1.3], "ideal", SHAPES)
+}
+
 #[test]
 fn a_polybag_and_a_tube_are_seen_within_their_true_enclosing_cuboids_and_fill_them() {
-    let scene = Scene::from_toml(SHAPES).unwrap();
+    let scene = shapes();
     let truths = scene.truths();
     let (bag, tube) = (&truths[1], &truths[0]);
     assert_eq!((tube.kind, bag.kind), (ObjectKind::Tube, ObjectKind::Bag));
@@ -452,7 +421,7 @@ fn a_polybag_and_a_tube_are_seen_within_their_true_enclosing_cuboids_and_fill_th
 #[test]
 fn a_bags_top_is_its_highest_point_and_its_fields_are_checked() {
     use rgbd::scene::Bag;
-    let scene = Scene::from_toml(SHAPES).unwrap();
+    let scene = shapes();
     let full = Bag {
         sag: 0.0,
         ..scene.bags[0].clone()
@@ -517,14 +486,6 @@ fn a_bags_top_is_its_highest_point_and_its_fields_are_checked() {
 
 /// A filled polybag, a little sagging, under one D415 1.2 m above the floor.
 const PILLOW: &str = r#"
-seed = 3
-[[camera]]
-serial = "000000000001"
-position = [0.0, 0.0, 1.2]
-look_at = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-noise = "d415"
-
 [[bag]]
 size = [0.44, 0.30, 0.17]
 center = [0.02, -0.01]
@@ -534,7 +495,7 @@ sag = 0.15
 
 #[test]
 fn a_polybag_is_measured_to_its_enclosing_cuboid_from_where_the_camera_loses_its_sides() {
-    let scene = Scene::from_toml(PILLOW).unwrap();
+    let scene = under_one_camera(3, [0.0, 0.0, 1.2], "d415", PILLOW);
     let truth = &scene.truths()[0];
     let cam = only_camera(&scene);
     let k = cam.depth_intrinsics().unwrap();
@@ -599,13 +560,6 @@ fn a_polybag_is_measured_to_its_enclosing_cuboid_from_where_the_camera_loses_its
 /// A tube lying on the floor beside a box as high as it is, under one camera off to the
 /// tube's side, with a D415's depth noise (the floor sent, no spatial filter).
 const TUBE_BESIDE_A_BOX: &str = r#"
-seed = 5
-[[camera]]
-serial = "000000000001"
-position = [0.20, 0.10, 1.3]
-look_at = [0.0, 0.0, 0.0]
-up = [0.0, 1.0, 0.0]
-
 [[tube]]
 radius = 0.045
 length = 0.70
@@ -621,7 +575,7 @@ yaw_deg = -10.0
 #[test]
 fn a_lying_tube_is_measured_as_irregular_with_its_diameter_across_and_up() {
     use geometry::{DimensionConfig, Point3, PointCloud, Shape, parcels};
-    let scene = Scene::from_toml(TUBE_BESIDE_A_BOX).unwrap();
+    let scene = under_one_camera(5, [0.20, 0.10, 1.3], "d415", TUBE_BESIDE_A_BOX);
     let cloud = PointCloud::from(
         points(&scene)
             .into_iter()

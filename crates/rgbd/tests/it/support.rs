@@ -30,6 +30,17 @@ pub(crate) fn floor_scene(height_m: f64, noise: Noise) -> Scene {
     }
 }
 
+/// A scene of `objects` (TOML tables) under one camera, serial 000000000001, at
+/// `position`, looking at the origin with world +y up in its image, with `noise` (`d415`
+/// or `ideal`); its random choices seeded with `seed`.
+pub(crate) fn under_one_camera(seed: u64, position: [f64; 3], noise: &str, objects: &str) -> Scene {
+    let camera = format!(
+        "seed = {seed}\n[[camera]]\nserial = \"000000000001\"\nposition = {position:?}\n\
+         look_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\nnoise = \"{noise}\"\n"
+    );
+    Scene::from_toml(&format!("{camera}\n{objects}")).unwrap()
+}
+
 /// The only camera of a scene.
 pub(crate) fn only_camera(scene: &Scene) -> SyntheticCamera {
     SyntheticCamera::new(scene, &scene.cameras[0].serial).unwrap()
