@@ -90,6 +90,22 @@ const PROBE_M: f64 = 0.015;
 /// A top corner counts as seen when it projects at least this far inside an image.
 const VIEW_MARGIN_PX: f32 = 3.0;
 
+/// The stretch (metres) inside an edge over which [`edges`] takes the lid's density, at
+/// least: a camera's points lie in rows a pixel apart (1-2 mm at 1-2 m), and a window
+/// of 1 cm holds one row more or less (10-20 %) depending on where the rows fall; over
+/// 2 cm that is half as much, and the density still is the edge's where it changes
+/// across the lid (a glossy lid loses more depth near its middle, where the projector
+/// glares: windows of 3-5 cm read the edges of glossy boxes 1-2 mm out).
+const DENSITY_WINDOW_M: f64 = 0.02;
+/// An edge whose outward normal is more than this cosine away from a camera's x axis
+/// (towards its right imager), negatively, lies wholly in that camera's stereo shadow.
+const SHADOW_COS: f64 = 0.25;
+
+/// How far from a side of the lid's rectangle [`walls`] looks for its wall's points
+/// (metres): the lid's density places the side within about 2 mm; the flying pixels
+/// beyond a side seen from the other side lie centimetres out.
+const WALL_REACH_M: f64 = 0.006;
+
 /// How well a cuboid describes the object.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Shape {
@@ -136,6 +152,37 @@ impl View {
             && v >= margin_px
             && u <= self.width as f32 - margin_px
             && v <= self.height as f32 - margin_px
+    }
+}
+
+impl View {
+    /// The footprint on the horizontal plane through `p` (common frame) of the pixel
+    /// that sees `p`: how far the plane's point moves (x, y, metres) from one pixel to
+    /// the next along the image's u and along its v. `None` when the camera does not
+    /// have `p` in its image.
+    pub fn footprint(&self, p: &Point3) -> Option<[[f64; 2]; 2]> {
+        if !self.sees(p, 0.0) {
+            return None;
+        }
+        let inverse = self.to_common.linear.try_inverse()?;
+        let q = inverse * (p.coords - self.to_common.translation);
+        let (u, v) = (
+            self.fx * q.x / q.z + self.ppx,
+            self.fy * q.y / q.z + self.ppy,
+        );
+        let on_plane = |u: f32, v: f32| {
+            let ray = self.to_common.linear
+                * nalgebra::Vector3::new((u - self.ppx) / self.fx, (v - self.ppy) / self.fy, 1.0);
+            let t = (p.z - self.to_common.translation.z) / ray.z;
+            (t.is_finite() && t > 0.0).then(|| self.to_common.translation + ray * t)
+        };
+        let (here, right, down) = (
+            on_plane(u, v)?,
+            on_plane(u + 1.0, v)?,
+            on_plane(u, v + 1.0)?,
+        );
+        let d = |a: nalgebra::Vector3<f32>| [f64::from(a.x - here.x), f64::from(a.y - here.y)];
+        Some([d(right), d(down)])
     }
 }
 
@@ -323,29 +370,34 @@ fn fit(
         .filter(|p| (p.z - height_m).abs() <= slab)
         .copied()
         .collect();
-    // A pixel on the lid's edge sees the lid and the floor and reads a depth between
-    // them, off the lid: the lid's points end half a pixel inside its edge. With the
-    // cameras known, the edges move out by half the footprint of a pixel on the lid.
+    // Each point stands for its pixel's footprint: the edges lie where the points'
+    // density says, up to half a pixel beyond the outermost point (where a camera's rows
+    // run along an edge, the outermost row lies anywhere up to a pixel inside where the
+    // density ends, half a pixel on average; further out, the density only says that the
+    // lid thins towards its middle, as a glossy lid's glare does); then each edge moves
+    // out by what its cameras' pixels hide there (see `pixel_offsets`), or to its wall
+    // (see `walls`).
     let centre = Point3::new(
         (hull_rect.iter().map(|c| c[0]).sum::<f64>() / 4.0) as f32,
         (hull_rect.iter().map(|c| c[1]).sum::<f64>() / 4.0) as f32,
         height_m,
     );
-    let pixels: Vec<f64> = views
+    let pixel = views
         .iter()
         .filter(|v| v.sees(&centre, 0.0))
         .map(|v| f64::from((v.to_common.translation - centre.coords).norm() / v.fx))
-        .collect();
-    let half_pixel = if pixels.is_empty() {
-        0.0
-    } else {
-        pixels.iter().sum::<f64>() / pixels.len() as f64 / 2.0
-    };
+        .fold(0.0, f64::max);
     // Noise moves the outermost points out by a few deviations (the band is four) times
     // the tangent of the ray's angle: the edges move in no farther than that. (A low
     // parcel whose edge the spatial filter blurred into the floor keeps the hull's.)
     let inward = (0.75 * f64::from(lid.band_m)).max(0.0015);
-    let lid_rect = grow(refine(hull_rect, &flat, margin, inward), half_pixel);
+    let refined = refine(hull_rect, &flat, margin, inward, pixel / 2.0);
+    let offsets = pixel_offsets(&refined, height_m, views);
+    let walls = walls(&refined, cluster, height_m, views, pixel);
+    let lid_rect = move_sides(
+        refined,
+        [0, 1, 2, 3].map(|k| walls[k].unwrap_or(offsets[k])),
+    );
     let lid_area = lid_hull.unsigned_area();
     let fit = (lid_area / rect_area(&hull_rect)).min(1.0);
 
@@ -373,8 +425,9 @@ fn fit(
         // Around every dense point, each edge placed by the points' density as a lid's
         // is: the thin fringe of flying pixels around a tall object counts little.
         (Shape::Irregular, None) => {
-            let around = min_rect(dense.iter().map(xy))
-                .map_or(hull_rect, |r| refine(r, &dense, margin.max(0.006), 0.003));
+            let around = min_rect(dense.iter().map(xy)).map_or(hull_rect, |r| {
+                refine(r, &dense, margin.max(0.006), 0.003, 0.0)
+            });
             // A lid with rounded corners is a pillow's: its sides curve down to the floor.
             // (A lying tube's lid fills its rectangle; it is irregular for its sides.)
             if fit < CUBOID_FIT {
@@ -758,12 +811,14 @@ fn rect_area(c: &[[f64; 2]; 4]) -> f64 {
 }
 
 /// The rectangle `corners` (in order around it) with each edge moved to where `lid`'s
-/// points put it (see [`edges`]), at most `inward` inside the hull's.
+/// points put it (see [`edges`]), at most `inward` inside the hull's and `beyond`
+/// outside it.
 pub(crate) fn refine(
     corners: [[f64; 2]; 4],
     lid: &[Point3],
     margin: f64,
     inward: f64,
+    beyond: f64,
 ) -> [[f64; 2]; 4] {
     let c0 = corners[0];
     let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
@@ -780,8 +835,8 @@ pub(crate) fn refine(
         sa.push(dot(d, a));
         sb.push(dot(d, b));
     }
-    let (a0, a1) = edges(&sa, la, margin, inward);
-    let (b0, b1) = edges(&sb, lb, margin, inward);
+    let (a0, a1) = edges(&sa, la, margin, inward, beyond);
+    let (b0, b1) = edges(&sb, lb, margin, inward, beyond);
     let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
     [at(a0, b0), at(a1, b0), at(a1, b1), at(a0, b1)]
 }
@@ -792,11 +847,16 @@ pub(crate) fn refine(
 /// many points at that density would end. Noise moves points about an edge without
 /// adding any, so the count keeps the edge where the outermost points do not; the cap
 /// keeps points piled up on the edge itself (the top of a side wall seen from the side)
-/// from counting as lid. An axis too short for two such bands keeps the hull's edges.
-fn edges(s: &[f64], len: f64, margin: f64, inward: f64) -> (f64, f64) {
+/// from counting as lid. The density is taken over up to [`DENSITY_WINDOW_M`] inside
+/// the line: a camera's points lie in rows a pixel apart, and a short window holds one
+/// row more or less depending on where the rows fall. An axis too short for two such
+/// bands keeps the hull's edges. An edge lies at most `inward` inside the outermost
+/// point and `beyond` outside it.
+fn edges(s: &[f64], len: f64, margin: f64, inward: f64, beyond: f64) -> (f64, f64) {
     const BIN_M: f64 = 0.001;
-    let window = (2.0 * margin).max(0.01);
-    if len < 2.0 * (margin + window) {
+    let shortest = (2.0 * margin).max(0.01);
+    let window = (len / 2.0 - margin).min(shortest.max(DENSITY_WINDOW_M));
+    if window < shortest {
         return (0.0, len);
     }
     // Only the points near the ends are counted: sort those.
@@ -810,8 +870,8 @@ fn edges(s: &[f64], len: f64, margin: f64, inward: f64) -> (f64, f64) {
     let count =
         |lo: f64, hi: f64| near.partition_point(|v| *v < hi) - near.partition_point(|v| *v < lo);
     // The edge moves at most `inward` (and `margin`) inwards (holes along an edge thin
-    // it), and never beyond the outermost point.
-    let limit = margin;
+    // it), and at most `beyond` past the outermost point.
+    let limit = margin + beyond;
     let least = (margin - inward).max(0.0);
     let place = |line: f64, outwards: f64| {
         let (a, b) = if outwards > 0.0 {
@@ -827,7 +887,7 @@ fn edges(s: &[f64], len: f64, margin: f64, inward: f64) -> (f64, f64) {
         let cap = 1.5 * density * BIN_M;
         let mut mass = 0.0;
         let mut at = 0.0;
-        while at < limit {
+        while at < margin {
             let (x0, x1) = (line + outwards * at, line + outwards * (at + BIN_M));
             mass += (count(x0.min(x1), x0.max(x1)) as f64).min(cap);
             at += BIN_M;
@@ -837,6 +897,60 @@ fn edges(s: &[f64], len: f64, margin: f64, inward: f64) -> (f64, f64) {
     (place(margin, -1.0), place(len - margin, 1.0))
 }
 
+/// How far each side of the lid's rectangle `corners` (side `k` from corner `k` to
+/// `k + 1`) lies beyond where its points' density ends, metres, from the cameras that
+/// see it. A pixel across the edge sees the lid and the floor and reads a depth between
+/// them, off the lid: the lid's points end half a pixel's footprint (across the edge)
+/// inside it. Not so on the side away from a camera's right imager: the floor beside it
+/// there is hidden from the right imager (the stereo shadow), so the pixel across the
+/// edge matches the lid alone and reads the lid's depth. The cameras are weighted by
+/// their points' density there.
+fn pixel_offsets(corners: &[[f64; 2]; 4], height_m: f32, views: &[View]) -> [f64; 4] {
+    let centre = [0, 1].map(|k| corners.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let mut out = [0.0; 4];
+    for (k, offset) in out.iter_mut().enumerate() {
+        let (p, q) = (corners[k], corners[(k + 1) % 4]);
+        let mid = [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0];
+        let away = sub(mid, centre);
+        let n = away[0].hypot(away[1]);
+        if n <= 0.0 {
+            continue;
+        }
+        let normal = [away[0] / n, away[1] / n];
+        let at = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
+        let (mut sum, mut weights) = (0.0, 0.0);
+        for v in views {
+            let Some(footprint) = v.footprint(&at) else {
+                continue;
+            };
+            let [du, dv] = footprint;
+            let across = dot(du, normal).abs() + dot(dv, normal).abs();
+            let area = (du[0] * dv[1] - du[1] * dv[0]).abs();
+            if across <= 0.0 || area <= 0.0 {
+                continue;
+            }
+            // The camera's x axis (towards its right imager) on the floor.
+            let x = v.to_common.linear.column(0);
+            let (xx, xy) = (f64::from(x.x), f64::from(x.y));
+            let xn = xx.hypot(xy);
+            let facing = if xn > 0.0 {
+                dot([xx / xn, xy / xn], normal)
+            } else {
+                0.0
+            };
+            // The shadow spans several pixels along x beside a parcel over about 5 cm
+            // high: it hides the floor across the edge unless the edge runs almost
+            // along x.
+            let shadowed = (-facing / SHADOW_COS).clamp(0.0, 1.0);
+            sum += (1.0 - shadowed) * across / 2.0 / area;
+            weights += 1.0 / area;
+        }
+        if weights > 0.0 {
+            *offset = sum / weights;
+        }
+    }
+    out
+}
 /// Points [`PROBE_M`] outside the footprint of `d` at its height: beyond each corner and
 /// each edge's middle.
 fn probes(d: &Dimensions) -> Vec<Point3> {
@@ -902,21 +1016,93 @@ fn blocks(fit: &ParcelFit, from: &Point3, to: &Point3) -> bool {
     true
 }
 
-/// The rectangle `corners` (in order around it) grown by `by` on every side.
-fn grow(corners: [[f64; 2]; 4], by: f64) -> [[f64; 2]; 4] {
+/// Where the side walls under the sides of the lid's rectangle `corners` (side `k` from
+/// corner `k` to `k + 1`) stand, as how far each lies outside its side (metres), for
+/// the sides whose wall a camera sees from outside: the median position across the side
+/// of the points on the wall's middle half (from a quarter to three quarters of the
+/// `height_m`), within [`WALL_REACH_M`] of the side and 1 cm in from its ends. A
+/// camera beyond a side sees the wall join the lid with no step in depth, and the
+/// spatial filter rounds that corner: the lid's last pixels sink below its top and its
+/// points end 1-2 mm short (the demo's oblique cameras; parcels apart, off the axis of
+/// a camera between them), while the wall's middle, flat and seen whole, is where the
+/// side is. `None` for a side whose wall has fewer points than two per pixel of its
+/// length (none seen, or seen edge-on), or without cameras.
+fn walls(
+    corners: &[[f64; 2]; 4],
+    cluster: &[Point3],
+    height_m: f32,
+    views: &[View],
+    pixel: f64,
+) -> [Option<f64>; 4] {
+    let mut out = [None; 4];
+    if pixel <= 0.0 {
+        return out;
+    }
+    let centre = [0, 1].map(|k| corners.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let (low, high) = (0.25 * height_m, 0.75 * height_m);
+    let wall: Vec<[f64; 2]> = cluster
+        .iter()
+        .filter(|p| p.z >= low && p.z <= high)
+        .map(|p| [f64::from(p.x), f64::from(p.y)])
+        .collect();
+    for (k, found) in out.iter_mut().enumerate() {
+        let (p, q) = (corners[k], corners[(k + 1) % 4]);
+        let along = sub(q, p);
+        let span = along[0].hypot(along[1]);
+        if span <= 0.02 {
+            continue;
+        }
+        let dir = [along[0] / span, along[1] / span];
+        let mut normal = [dir[1], -dir[0]];
+        if dot(sub(p, centre), normal) < 0.0 {
+            normal = [-normal[0], -normal[1]];
+        }
+        let line = dot(p, normal);
+        let mid = [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0];
+        let middle = Point3::new(mid[0] as f32, mid[1] as f32, height_m / 2.0);
+        let seen = views.iter().any(|v| {
+            let eye = v.to_common.translation;
+            dot([f64::from(eye.x), f64::from(eye.y)], normal) > line && v.sees(&middle, 0.0)
+        });
+        if !seen {
+            continue;
+        }
+        let mut across: Vec<f64> = wall
+            .iter()
+            .filter(|w| {
+                let t = dot(sub(**w, p), dir);
+                t >= 0.01 && t <= span - 0.01
+            })
+            .map(|w| dot(*w, normal) - line)
+            .filter(|d| d.abs() <= WALL_REACH_M)
+            .collect();
+        if (across.len() as f64) < 2.0 * span / pixel {
+            continue;
+        }
+        let mid = across.len() / 2;
+        let (_, median, _) = across.select_nth_unstable_by(mid, f64::total_cmp);
+        *found = Some(*median);
+    }
+    out
+}
+
+/// The rectangle `corners` (in order around it) with side `k` (from corner `k` to
+/// `k + 1`) moved out by `by[k]`.
+fn move_sides(corners: [[f64; 2]; 4], by: [f64; 4]) -> [[f64; 2]; 4] {
     let c0 = corners[0];
     let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
     let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
-    if la <= 0.0 || lb <= 0.0 || by == 0.0 {
+    if la <= 0.0 || lb <= 0.0 {
         return corners;
     }
     let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
     let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+    // Side 0 lies at t = 0, side 1 at s = la, side 2 at t = lb, side 3 at s = 0.
     [
-        at(-by, -by),
-        at(la + by, -by),
-        at(la + by, lb + by),
-        at(-by, lb + by),
+        at(-by[3], -by[0]),
+        at(la + by[1], -by[0]),
+        at(la + by[1], lb + by[2]),
+        at(-by[3], lb + by[2]),
     ]
 }
 
@@ -1153,7 +1339,7 @@ mod tests {
         let max = s.iter().copied().fold(f64::MIN, f64::max);
         assert!(max - min > 0.3035, "{min} {max}");
         let shifted: Vec<f64> = s.iter().map(|v| v - min).collect();
-        let (lo, hi) = edges(&shifted, max - min, 0.006, 0.006);
+        let (lo, hi) = edges(&shifted, max - min, 0.006, 0.006, 0.0);
         let (lo, hi) = (lo + min, hi + min);
         assert!((lo + 0.0005).abs() < 0.0003, "{lo}");
         assert!((hi - 0.3005).abs() < 0.0003, "{hi}");
