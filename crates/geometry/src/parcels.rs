@@ -1389,6 +1389,50 @@ mod tests {
     }
 
     #[test]
+    fn a_wall_seen_from_outside_places_its_side_where_the_lid_ends_short() {
+        // A 300 x 200 x 200 mm box from x = y = 0; the lid's points stop 2 mm short of
+        // x = 0.3 (the filter rounded that corner), the wall at x = 0.3 is seen by a
+        // camera beyond it (x = 0.8, 1 m up, looking down and back at the box).
+        let mut cluster = Vec::new();
+        for i in 0..=149 {
+            for j in 0..=100 {
+                cluster.push(Point3::new(i as f32 * 0.002, j as f32 * 0.002, 0.2));
+            }
+        }
+        for k in 0..100 {
+            for j in 0..=100 {
+                let x = 0.3 + 0.0005 * ((k + j) % 3) as f32 - 0.0005;
+                cluster.push(Point3::new(x, j as f32 * 0.002, k as f32 * 0.002));
+            }
+        }
+        // The camera's z axis (looking) from (0.8, 0.1, 1.0) towards (0.15, 0.1, 0.1).
+        let look = nalgebra::Vector3::new(-0.65f32, 0.0, -0.9).normalize();
+        let x_axis = nalgebra::Vector3::new(0.0f32, 1.0, 0.0);
+        let y_axis = look.cross(&x_axis);
+        let view = View {
+            to_common: Transform {
+                linear: nalgebra::Matrix3::from_columns(&[x_axis, y_axis, look]),
+                translation: nalgebra::Vector3::new(0.8, 0.1, 1.0),
+            },
+            fx: 900.0,
+            fy: 900.0,
+            ppx: 640.0,
+            ppy: 360.0,
+            width: 1280,
+            height: 720,
+        };
+        let lid = [[0.0, 0.0], [0.298, 0.0], [0.298, 0.2], [0.0, 0.2]];
+        let found = walls(&lid, &cluster, 0.2, &[view], 0.0015);
+        // Side 1 runs from corner 1 to corner 2, at x = 0.298: its wall lies 2 mm out.
+        let out = found[1].expect("the wall facing the camera");
+        assert!((out - 0.002).abs() < 0.0003, "{out}");
+        // The camera stands beyond no other side.
+        assert_eq!([found[0], found[2], found[3]], [None, None, None]);
+        // Without cameras no wall is trusted.
+        assert_eq!(walls(&lid, &cluster, 0.2, &[], 0.0015), [None; 4]);
+    }
+
+    #[test]
     fn a_view_sees_what_lies_inside_its_image() {
         let down = Transform {
             linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
