@@ -59,9 +59,11 @@ const TOP_CORE_CELLS: usize = 16;
 /// See [`TOP_CORE_CELLS`].
 const TOP_SHARE: f64 = 0.05;
 /// A cuboid's lid covers at least this share of its rectangle (a disc covers 0.785).
-/// Boxes of the lane set, dark and glossy ones too, read 0.984 to 1 (the noise of their
-/// edges); a filled polybag's lid misses its lower, rounded corners and reads 0.94 to
-/// 0.966, even a low, flat one whose shoulders hold too few points to count as outside.
+/// So do the lid's flattest points (see `flat_fit` in `fit`). Boxes of the lane set
+/// (seeds 1 and 2, prepared and raw), dark and glossy ones too, read 0.983 to 1 (the
+/// noise of their edges); a filled polybag's lid misses its lower, rounded corners and
+/// reads 0.94 to 0.969, even a low, flat one whose shoulders hold too few points to
+/// count as outside, or one whose lid band raw noise deepens down to its corners.
 const CUBOID_FIT: f64 = 0.975;
 /// Of a cuboid, at most this share of the dense points lies farther outside the lid's
 /// rectangle than [`OUTSIDE_M`] (the sides of a lying tube or a polybag's belly do).
@@ -400,6 +402,12 @@ fn fit(
     );
     let lid_area = lid_hull.unsigned_area();
     let fit = (lid_area / rect_area(&hull_rect)).min(1.0);
+    // The same of the lid's flattest points (within a quarter band of the top): on a
+    // box they are spread over the whole lid; on a domed or sagging top, where raw noise
+    // deepens the band down to its rounded corners, only the plateau holds them.
+    let flat_fit = min_rect(flat.iter().map(xy)).map_or(fit, |r| {
+        (hull_area(flat.iter().map(xy)) / rect_area(&r)).min(1.0)
+    });
 
     let map = HeightMap::new(cluster);
     let dense = map.dense_points(cluster);
@@ -412,7 +420,11 @@ fn fit(
     } else {
         None
     };
-    let shape = if tube.is_none() && tops <= 1 && fit >= CUBOID_FIT && outside <= CUBOID_OUTSIDE {
+    let shape = if tube.is_none()
+        && tops <= 1
+        && fit.min(flat_fit) >= CUBOID_FIT
+        && outside <= CUBOID_OUTSIDE
+    {
         Shape::Cuboid
     } else {
         Shape::Irregular
@@ -430,7 +442,7 @@ fn fit(
             });
             // A lid with rounded corners is a pillow's: its sides curve down to the floor.
             // (A lying tube's lid fills its rectangle; it is irregular for its sides.)
-            if fit < CUBOID_FIT {
+            if fit.min(flat_fit) < CUBOID_FIT {
                 shoulders(around, &dense, height_m, views)
             } else {
                 around
