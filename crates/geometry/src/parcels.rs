@@ -406,7 +406,11 @@ fn fit(
     // box they are spread over the whole lid; on a domed or sagging top, where raw noise
     // deepens the band down to its rounded corners, only the plateau holds them.
     let flat_fit = min_rect(flat.iter().map(xy)).map_or(fit, |r| {
-        (hull_area(flat.iter().map(xy)) / rect_area(&r)).min(1.0)
+        let all: MultiPoint<f64> = flat
+            .iter()
+            .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
+            .collect();
+        (all.convex_hull().unsigned_area() / rect_area(&r)).min(1.0)
     });
 
     let map = HeightMap::new(cluster);
