@@ -437,7 +437,13 @@ fn fit(
         // Along its axis the lid strip, which runs the tube's whole length at its top
         // (the flying pixels beyond its round ends lie lower); across it the circle.
         (_, Some(t)) => t.footprint(&lid_rect),
-        (Shape::Cuboid, None) => lid_rect,
+        (Shape::Cuboid, None) => unblur(
+            lid_rect,
+            cluster,
+            height_m,
+            (views, pixel),
+            config.min_height_m,
+        ),
         // Around every dense point, each edge placed by the points' density as a lid's
         // is: the thin fringe of flying pixels around a tall object counts little.
         (Shape::Irregular, None) => {
@@ -811,6 +817,165 @@ fn lying_tube(
         centre,
         radius,
     })
+}
+
+/// The lid rectangle `rect` of a parcel `height_m` high with each edge that the spatial
+/// filter blurred into the floor moved out to where the blur says the step was.
+///
+/// The filter (an edge-preserving moving average over neighbouring pixels, run both ways
+/// along rows and columns) leaves a step alone only where the disparity changes by more
+/// than its threshold (20/32 pixel by default): from 1.5 to 2 m up, a lid lower than
+/// about 3 to 4.5 cm is smoothed into the floor, and its points fall below the lid band
+/// well inside the edge (scene 64: a 35 mm lid ended 8-10 mm short on each blurred side).
+/// The smoothing is symmetric, so across the blur the depth passes half the step at the
+/// pixel where the step was; that pixel's ray met the lid's edge and, for an edge facing
+/// away from the camera, reaches half the height `height / 2 x tan(angle)` farther out.
+/// An edge is moved when, outwards from 8 mm inside it, every bin (two pixels wide, at
+/// least 2.5 mm, so that rows of pixels do not alias) holds points (at least a quarter of
+/// the lid's density) on one surface (the middle half of their heights within a quarter
+/// of the height: not a side wall, nor flying pixels spread over the height) down to a
+/// bin below half the height (or, where the floor cut emptied the bins beyond, down to
+/// one below three quarters of it). Edges that end sharply (a tall step, the stereo
+/// shadow's holes) and lids too low for half their height to clear the floor cut by
+/// 3 mm stay as they are.
+fn unblur(
+    rect: [[f64; 2]; 4],
+    cluster: &[Point3],
+    height_m: f32,
+    (views, pixel_m): (&[View], f64),
+    min_height_m: f32,
+) -> [[f64; 2]; 4] {
+    const REACH_M: f64 = 0.03;
+    const INSET_M: f64 = 0.02;
+    let bin_m = (2.0 * pixel_m).max(0.0025);
+    let from_m = (2.0 * bin_m).max(0.008);
+    let half = height_m / 2.0;
+    // Half the height must clear the floor cut for its crossing to be seen.
+    if half < min_height_m + 0.003 {
+        return rect;
+    }
+    let c0 = rect[0];
+    let (e0, e1) = (sub(rect[1], c0), sub(rect[3], c0));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 2.0 * INSET_M || lb <= 2.0 * INSET_M {
+        return rect;
+    }
+    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+    let local: Vec<(f64, f64, f32)> = cluster
+        .iter()
+        .map(|p| {
+            let d = sub([f64::from(p.x), f64::from(p.y)], c0);
+            (dot(d, a), dot(d, b), p.z)
+        })
+        .collect();
+    let bins = ((from_m + REACH_M) / bin_m).round() as usize;
+    // Where, outwards of the edge, the blurred step passes half the height.
+    let crossing = |along_b: bool, high: bool| -> Option<f64> {
+        let (len, other) = if along_b { (lb, la) } else { (la, lb) };
+        let mut z: Vec<Vec<f32>> = vec![Vec::new(); bins];
+        let mut sum = vec![0.0f64; bins];
+        for &(s, t, pz) in &local {
+            let (across, along) = if along_b { (t, s) } else { (s, t) };
+            if along < INSET_M || along > other - INSET_M {
+                continue;
+            }
+            let out = if high { across - len } else { -across };
+            let k = ((out + from_m) / bin_m).floor();
+            if k >= 0.0 && (k as usize) < bins {
+                z[k as usize].push(pz);
+                sum[k as usize] += out;
+            }
+        }
+        let inside = 2;
+        let density = z[..inside].iter().map(Vec::len).sum::<usize>() as f64 / inside as f64;
+        // (centre, median) of the bins at or above half the height.
+        let mut last: Vec<(f64, f32)> = Vec::new();
+        for (k, bin) in z.iter_mut().enumerate() {
+            // Where the bin's points lie on average (rows of pixels fill bins unevenly).
+            let centre = sum[k] / bin.len().max(1) as f64;
+            if (bin.len() as f64) < 0.25 * density || bin.len() < 3 {
+                return match last[..] {
+                    // The floor cut may empty the bins beyond one well down the ramp:
+                    // the line through the last two bins then meets half the height
+                    // within a bin.
+                    [.., (c0, m0), (c1, m1)] if m1 < 0.75 * height_m && m1 < m0 => {
+                        let t = f64::from(m1 - half) / f64::from(m0 - m1);
+                        (t <= 1.0).then_some(c1 + t * (c1 - c0))
+                    }
+                    _ => None,
+                };
+            }
+            bin.sort_unstable_by(f32::total_cmp);
+            let n = bin.len();
+            let (q1, median, q3) = (bin[n / 4], bin[n / 2], bin[(3 * n) / 4]);
+            if q3 - q1 > height_m / 4.0 {
+                return None;
+            }
+            if median < half {
+                let &(c, m) = last.last()?;
+                let t = f64::from(m - half) / f64::from(m - median).max(1e-6);
+                return Some(c + t * (centre - c));
+            }
+            last.push((centre, median));
+        }
+        None
+    };
+    // Half the height times the outward tangent of the rays of the cameras that see the
+    // edge (0 for a camera beyond the edge: it sees the side wall, whose middle is at
+    // the edge).
+    let reach = |mid: [f64; 2], outward: [f64; 2]| -> f64 {
+        let p = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
+        let slopes: Vec<f64> = views
+            .iter()
+            .filter(|v| v.sees(&p, 0.0))
+            .map(|v| {
+                let eye = v.to_common.translation;
+                let rise = f64::from(eye.z - height_m).max(1e-3);
+                let d = [mid[0] - f64::from(eye.x), mid[1] - f64::from(eye.y)];
+                (dot(d, outward) / rise).max(0.0)
+            })
+            .collect();
+        if slopes.is_empty() {
+            0.0
+        } else {
+            f64::from(half) * slopes.iter().sum::<f64>() / slopes.len() as f64
+        }
+    };
+    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+    let mut lo = [0.0, 0.0];
+    let mut hi = [la, lb];
+    for (axis, along_b) in [(0, false), (1, true)] {
+        let len = if along_b { lb } else { la };
+        let (dir, mid_other) = if along_b {
+            (b, la / 2.0)
+        } else {
+            (a, lb / 2.0)
+        };
+        for high in [false, true] {
+            let Some(c) = crossing(along_b, high) else {
+                continue;
+            };
+            let outward = if high { dir } else { [-dir[0], -dir[1]] };
+            let edge = if high { len } else { 0.0 };
+            let mid = if along_b {
+                at(mid_other, edge)
+            } else {
+                at(edge, mid_other)
+            };
+            let moved = (c - reach(mid, outward)).clamp(0.0, REACH_M);
+            if high {
+                hi[axis] = len + moved;
+            } else {
+                lo[axis] = -moved;
+            }
+        }
+    }
+    [
+        at(lo[0], lo[1]),
+        at(hi[0], lo[1]),
+        at(hi[0], hi[1]),
+        at(lo[0], hi[1]),
+    ]
 }
 
 fn sub(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
@@ -1446,6 +1611,31 @@ mod tests {
         assert_eq!([found[0], found[2], found[3]], [None, None, None]);
         // Without cameras no wall is trusted.
         assert_eq!(walls(&lid, &cluster, 0.2, &[], 0.0015), [None; 4]);
+    }
+
+    #[test]
+    fn a_low_lid_blurred_into_the_floor_is_measured_to_its_step() {
+        // A 300 x 200 x 35 mm box whose edges the spatial filter smoothed: the height
+        // falls from the lid to the floor over about 2 cm around each edge, passing half
+        // the height at the edge (seen from straight above; 2 mm between points as a D415
+        // 1.8 m up); the floor cut drops what is
+        // lower than 1 cm.
+        let mut points = Vec::new();
+        for i in 0..=180 {
+            for j in 0..=130 {
+                let (x, y) = (-0.03 + i as f64 * 0.002, -0.03 + j as f64 * 0.002);
+                let out = (-x).max(x - 0.3).max(-y).max(y - 0.2);
+                let z = 0.035 * 0.5 * (1.0 - (out / 0.006).tanh());
+                if z >= 0.01 {
+                    points.push(Point3::new(x as f32, y as f32, z as f32));
+                }
+            }
+        }
+        let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+        let d = &found.parcels[0].dimensions;
+        assert_eq!(found.parcels[0].shape, Shape::Cuboid);
+        assert!((d.length_mm - 300.0).abs() < 1.5, "{d:?}");
+        assert!((d.width_mm - 200.0).abs() < 1.5, "{d:?}");
     }
 
     #[test]
