@@ -108,6 +108,10 @@ const SHADOW_COS: f64 = 0.25;
 /// beyond a side seen from the other side lie centimetres out.
 const WALL_REACH_M: f64 = 0.006;
 
+/// The distance between a stereo camera's imagers (metres): a D415's 55 mm (a D435's is
+/// 50 mm); it sets how wide the stereo shadow beside a parcel is.
+const STEREO_BASELINE_M: f64 = 0.055;
+
 /// How well a cuboid describes the object.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Shape {
@@ -1119,10 +1123,15 @@ fn pixel_offsets(corners: &[[f64; 2]; 4], height_m: f32, views: &[View]) -> [f64
             } else {
                 0.0
             };
-            // The shadow spans several pixels along x beside a parcel over about 5 cm
-            // high: it hides the floor across the edge unless the edge runs almost
-            // along x.
-            let shadowed = (-facing / SHADOW_COS).clamp(0.0, 1.0);
+            // The shadow spans fx B (1 / lid depth - 1 / floor depth) pixels along x:
+            // several beside a parcel over about 5 cm high, less than the pixel across
+            // the edge beside a lower one. It hides the floor across the edge unless the
+            // edge runs almost along x.
+            let eye = v.to_common.translation;
+            let lid_m = f64::from((eye - at.coords).norm());
+            let floor_m = f64::from((eye - nalgebra::Vector3::new(at.x, at.y, 0.0)).norm());
+            let shadow_px = f64::from(v.fx) * STEREO_BASELINE_M * (1.0 / lid_m - 1.0 / floor_m);
+            let shadowed = (-facing / SHADOW_COS).clamp(0.0, 1.0) * shadow_px.clamp(0.0, 1.0);
             sum += (1.0 - shadowed) * across / 2.0 / area;
             weights += 1.0 / area;
         }
