@@ -504,10 +504,18 @@ fn fit(
     } else {
         Shape::Irregular
     };
+    // A standing cylinder: a disc of a lid with nothing of the object beyond it.
+    let disc = if tube.is_none() && tops <= 1 && shape == Shape::Irregular {
+        standing_disc(&hull_rect, &lid.points, &flat, &dense, margin, inward)
+            .map(|d| d.grown(pixel / 2.0))
+    } else {
+        None
+    };
     let corners = match (shape, &tube) {
         // Along its axis the lid strip, which runs the tube's whole length at its top
         // (the flying pixels beyond its round ends lie lower); across it the circle.
         (_, Some(t)) => t.footprint(&lid_rect),
+        _ if disc.is_some() => disc.map_or(hull_rect, |d| d.footprint(&hull_rect)),
         (Shape::Cuboid, None) => unblur(
             lid_rect,
             cluster,
@@ -534,13 +542,17 @@ fn fit(
     let top_m = match (shape, &tube) {
         // The circle's top, where the noise is averaged over the whole section.
         (_, Some(t)) => (2.0 * t.radius) as f32,
+        // A flat lid: the band's median, as a box's.
+        _ if disc.is_some() => height_m,
         (Shape::Cuboid, None) => height_m,
         (Shape::Irregular, None) => peak.map_or(height_m, |p| p.max(height_m)),
     };
-    // A box or a tube seen from above covers its footprint; other shapes their dense
-    // points' hull (a raw camera's floor noise joined to a tube is no hole in it).
+    // A box or a tube seen from above covers its footprint, a standing cylinder its
+    // disc; other shapes their dense points' hull (a raw camera's floor noise joined to
+    // a tube is no hole in it).
     let coverage = match (shape, &tube) {
         (Shape::Cuboid, _) | (_, Some(_)) => map.coverage(&polygon(&corners)),
+        _ if disc.is_some() => disc.map_or(1.0, |d| map.coverage(&d.polygon())),
         (Shape::Irregular, None) => {
             let all: MultiPoint<f64> = dense
                 .iter()
@@ -760,6 +772,156 @@ impl LyingTube {
         let (t0, t1) = (self.centre - self.radius, self.centre + self.radius);
         [at(0.0, t0), at(la, t0), at(la, t1), at(0.0, t1)]
     }
+}
+
+/// A standing cylinder's lid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Disc {
+    centre: [f64; 2],
+    radius: f64,
+}
+
+impl Disc {
+    fn grown(self, by: f64) -> Self {
+        Self {
+            radius: self.radius + by,
+            ..self
+        }
+    }
+
+    /// The square around it, along the rectangle `rect`'s edges.
+    fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
+        let e = sub(rect[1], rect[0]);
+        let n = e[0].hypot(e[1]);
+        let a = if n > 0.0 {
+            [e[0] / n, e[1] / n]
+        } else {
+            [1.0, 0.0]
+        };
+        let b = [-a[1], a[0]];
+        let r = self.radius;
+        let at = |s: f64, t: f64| {
+            [
+                self.centre[0] + a[0] * s + b[0] * t,
+                self.centre[1] + a[1] * s + b[1] * t,
+            ]
+        };
+        [at(-r, -r), at(r, -r), at(r, r), at(-r, r)]
+    }
+
+    /// The disc as a polygon of 64 sides.
+    fn polygon(&self) -> Polygon<f64> {
+        let ring: Vec<Coord<f64>> = (0..64)
+            .map(|k| {
+                let a = f64::from(k) * std::f64::consts::TAU / 64.0;
+                Coord {
+                    x: self.centre[0] + self.radius * a.cos(),
+                    y: self.centre[1] + self.radius * a.sin(),
+                }
+            })
+            .collect();
+        Polygon::new(LineString::from(ring), Vec::new())
+    }
+}
+
+/// A disc's lid hull fills this share of its rectangle at least (pi / 4 = 0.785; a
+/// square lid 1, a lying tube's strip about 0.99) ...
+const DISC_FIT: [f64; 2] = [0.72, 0.86];
+/// ... its hull's corners lie this close to one circle (share of the radius, at least
+/// [`DISC_ROUND_M`]) ...
+const DISC_ROUND: f64 = 0.04;
+/// See [`DISC_ROUND`], metres.
+const DISC_ROUND_M: f64 = 0.004;
+
+/// Whether the lid (`points`, its rectangle `rect`) is a disc with nothing of the object
+/// beyond it (a standing cylinder), and its radius. The radius is placed as a box's edges
+/// are ([`edges`]), in rings instead of strips: depth noise moves the lid's points
+/// sideways without adding or losing any, so the edge lies where the `flat` points
+/// beyond a circle `margin` inside the outermost ones, at the density of the ring just
+/// inside it, would end; each 1 mm ring counts at most 1.5 times that density (the top
+/// of the side wall seen from the side is no lid). Where the disc's rectangle was placed
+/// by strips, a disc thins towards each extreme as a square root, and the strip count put
+/// its edges about 3 mm inside: cylinders came out 3.5-6.7 mm narrow.
+fn standing_disc(
+    rect: &[[f64; 2]; 4],
+    points: &[Point3],
+    flat: &[Point3],
+    dense: &[Point3],
+    margin: f64,
+    inward: f64,
+) -> Option<Disc> {
+    let (e0, e1) = (sub(rect[1], rect[0]), sub(rect[3], rect[0]));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 0.0 || lb <= 0.0 || la.max(lb) > 1.1 * la.min(lb) {
+        return None;
+    }
+    let hull = points
+        .iter()
+        .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
+        .collect::<MultiPoint<f64>>()
+        .convex_hull();
+    let fit = hull.unsigned_area() / (la * lb);
+    if !(DISC_FIT[0]..=DISC_FIT[1]).contains(&fit) {
+        return None;
+    }
+    let centre = [0, 1].map(|k| rect.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let radii: Vec<f64> = hull
+        .exterior()
+        .coords()
+        .map(|c| (c.x - centre[0]).hypot(c.y - centre[1]))
+        .collect();
+    let outer = radii.iter().copied().fold(0.0, f64::max);
+    let inner = radii.iter().copied().fold(f64::MAX, f64::min);
+    if outer - inner > (DISC_ROUND * outer).max(DISC_ROUND_M) {
+        return None;
+    }
+    let reach = |p: &Point3| (f64::from(p.x) - centre[0]).hypot(f64::from(p.y) - centre[1]);
+    // Nothing of the object beyond the lid (as of a cuboid).
+    let beyond = dense
+        .iter()
+        .filter(|p| reach(p) > outer + OUTSIDE_M)
+        .count();
+    if beyond as f64 > CUBOID_OUTSIDE * dense.len() as f64 {
+        return None;
+    }
+    const BIN_M: f64 = 0.001;
+    let window = (2.0 * margin).max(0.01);
+    let line = outer - margin;
+    if line - window <= 0.0 {
+        return None;
+    }
+    let r: Vec<f64> = flat.iter().map(reach).collect();
+    let ring = |lo: f64, hi: f64| std::f64::consts::PI * (hi * hi - lo * lo);
+    let inside = r
+        .iter()
+        .filter(|v| **v >= line - window && **v < line)
+        .count();
+    if inside == 0 {
+        return None;
+    }
+    let density = inside as f64 / ring(line - window, line);
+    let mut bins = vec![0usize; (margin / BIN_M).ceil() as usize + 1];
+    for v in &r {
+        if *v >= line {
+            let k = ((v - line) / BIN_M) as usize;
+            if let Some(b) = bins.get_mut(k) {
+                *b += 1;
+            }
+        }
+    }
+    let mass: f64 = bins
+        .iter()
+        .enumerate()
+        .map(|(k, n)| {
+            let lo = line + k as f64 * BIN_M;
+            (*n as f64).min(1.5 * density * ring(lo, lo + BIN_M))
+        })
+        .sum();
+    let radius = (line * line + mass / (std::f64::consts::PI * density)).sqrt();
+    Some(Disc {
+        centre,
+        radius: radius.clamp(outer - inward.min(margin), outer),
+    })
 }
 
 /// Profile points used for the circle (a sample is as good and keeps this cheap).

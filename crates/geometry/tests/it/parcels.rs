@@ -184,6 +184,41 @@ fn a_lying_tube_is_irregular_and_gets_its_enclosing_box() {
     assert!((d.height_mm - 120.0).abs() < 5.0, "{d:?}");
 }
 
+/// A cylinder standing on the floor under a camera straight above, which sees its lid, a
+/// disc whose points thin out towards each extreme of a strip across it, and none of its
+/// side wall.
+#[test]
+fn a_standing_cylinder_gets_its_whole_diameter() {
+    let (radius, height) = (0.09f32, 0.30f32);
+    let mut sampler = Sampler::new(11);
+    let mut points = Vec::new();
+    // The lid about 2 mm apart (a camera's pixels do not line up with the axes), each
+    // depth noisy.
+    let mut x = -radius;
+    while x <= radius {
+        let mut y = -radius;
+        while y <= radius {
+            let (px, py) = (x + sampler.normal(0.0007), y + sampler.normal(0.0007));
+            if px.hypot(py) <= radius {
+                points.push(Point3::new(px, py, height + sampler.normal(0.001)));
+            }
+            y += 0.002;
+        }
+        x += 0.002;
+    }
+    let found =
+        parcels(&PointCloud::from(points), &DimensionConfig::default(), &[]).expect("measures");
+    let p = &found.parcels[0];
+    assert_eq!(p.shape, Shape::Irregular, "{p:?}");
+    let d = &p.dimensions;
+    for (got, truth) in [d.length_mm, d.width_mm, d.height_mm]
+        .into_iter()
+        .zip([180.0, 180.0, 300.0])
+    {
+        assert!((got - truth).abs() < 2.0, "{d:?}");
+    }
+}
+
 #[test]
 fn holes_in_the_top_make_a_parcel_incomplete() {
     let b = BoxSpec::new([0.0, 0.0], [0.4, 0.3, 0.1], 0.0);
