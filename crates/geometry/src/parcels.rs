@@ -26,7 +26,9 @@
 //!   resting on the floor, whose diameter is its width and height, and the strip gives
 //!   its length (the flying pixels off its round ends lie below it);
 //! - tops: flat regions of a height map of the object, connected where neighbouring cells
-//!   differ by less than a step; two large ones mean two parcels side by side;
+//!   differ by less than a step; two large ones mean two parcels side by side, and so
+//!   does one flat top that reaches out to the object's walls but leaves a notch in its
+//!   rectangle (an L or a step: the lids of two boxes of nearly one height);
 //! - coverage: the share of cells inside the footprint that hold points (holes from dark
 //!   or shiny surfaces lower it); with camera views, whether every top corner is inside
 //!   some camera's image.
@@ -87,6 +89,18 @@ const FRAGMENT_SHARE: f64 = 0.01;
 /// [`fragment_of`]); parcels side by side overlap by the few millimetres of noise on
 /// their edges, a share of a few per cent.
 const OVERLAP_SHARE: f64 = 0.2;
+/// One plateau that holds at least this share of its object's dense cells reaches out
+/// to its walls: a box's lid does (0.95-1 in the lane set, the rest its walls' cells);
+/// a polybag's domed lid ends well inside its shoulders (0.54-0.78).
+const PLATEAU_REACH: f64 = 0.9;
+/// ... and leaves this share of its rectangle in notches cut in from its sides: not one
+/// box. A box's ragged edges or a polybag's rounded corners leave a few per cent (no
+/// single parcel of the lane set's 720 scenes reaches this); two boxes side by side in
+/// an L or a step leave their missing corner (0.06 to 0.65 in its touching pairs).
+const NOTCH_SHARE: f64 = 0.05;
+/// ... and holds lid points in this share of the rest of its rectangle (a scatter of
+/// flying pixels, whose lid is sparse, is no plateau).
+const PLATEAU_SOLID: f64 = 0.8;
 /// Side of the columns in which the floor's speckle is told from a parcel (metres; see
 /// [`without_speckle`]).
 const SPECKLE_CELL_M: f64 = 0.01;
@@ -511,6 +525,15 @@ fn fit(
     } else {
         None
     };
+    // One flat plateau that reaches out to the object's walls but leaves a notch cut
+    // into its rectangle from a side: lids of boxes are rectangles, so this is most
+    // likely two parcels of nearly the same height side by side (their lids joined
+    // into one top), or an item no cuboid describes. A polybag's lid is a dome that
+    // ends well inside its shoulders; a disc's lid is taken above.
+    let several = shape == Shape::Irregular && tube.is_none() && disc.is_none() && tops <= 1 && {
+        let (reach, notch, solid) = map.plateau(&lid.points, &hull_rect);
+        reach >= PLATEAU_REACH && notch >= NOTCH_SHARE && solid >= PLATEAU_SOLID
+    };
     let corners = match (shape, &tube) {
         // Along its axis the lid strip, which runs the tube's whole length at its top
         // (the flying pixels beyond its round ends lie lower); across it the circle.
@@ -566,7 +589,7 @@ fn fit(
         shape,
         fit,
         tops,
-        isolated: tops <= 1,
+        isolated: tops <= 1 && !several,
         coverage,
         out_of_view: false,
         complete: coverage >= f64::from(config.min_coverage),
@@ -1719,6 +1742,83 @@ impl HeightMap {
             .max(1)
     }
 
+    /// How a flat lid (`lid`, its rectangle `rect`) lies on the object: the share of the
+    /// dense cells that hold lid points (how far the lid reaches out towards the
+    /// object's walls), and the share of the rectangle's cells in notches cut into it
+    /// from its sides (cells with no lid point in their 3 x 3 neighbourhood, connected
+    /// to a cell within two cells of the rectangle's border; a hole in a dark lid's
+    /// middle is no notch, nor the ragged cell or two along a lid's edge), and the share
+    /// of the rectangle's other cells that hold lid points (a solid lid, not a sparse
+    /// scatter of flying pixels).
+    fn plateau(&self, lid: &[Point3], rect: &[[f64; 2]; 4]) -> (f64, f64, f64) {
+        use geo::Contains as _;
+        let lid_cells: std::collections::HashSet<Cell2, FixedState> = lid
+            .iter()
+            .map(|p| cell_of(f64::from(p.x), f64::from(p.y)))
+            .collect();
+        let dense: Vec<&Cell2> = self.cells.keys().filter(|c| self.is_dense(c)).collect();
+        let reach = if dense.is_empty() {
+            0.0
+        } else {
+            dense.iter().filter(|c| lid_cells.contains(c)).count() as f64 / dense.len() as f64
+        };
+        let poly = polygon(rect);
+        let centre = |(i, j): Cell2| ((i as f64 + 0.5) * CELL_M, (j as f64 + 0.5) * CELL_M);
+        let inside = |c: Cell2| {
+            let (x, y) = centre(c);
+            poly.contains(&Point::new(x, y))
+        };
+        let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
+        for c in rect {
+            let (i, j) = cell_of(c[0], c[1]);
+            lo = (lo.0.min(i), lo.1.min(j));
+            hi = (hi.0.max(i), hi.1.max(j));
+        }
+        let (mut total, mut held) = (0usize, 0usize);
+        let mut empty: std::collections::HashSet<Cell2, FixedState> = Default::default();
+        let mut seeds = Vec::new();
+        for i in lo.0..=hi.0 {
+            for j in lo.1..=hi.1 {
+                if !inside((i, j)) {
+                    continue;
+                }
+                total += 1;
+                held += usize::from(lid_cells.contains(&(i, j)));
+                let bare =
+                    (-1..=1).all(|di| (-1..=1).all(|dj| !lid_cells.contains(&(i + di, j + dj))));
+                if bare {
+                    empty.insert((i, j));
+                    if (-2..=2).any(|di| (-2..=2).any(|dj| !inside((i + di, j + dj)))) {
+                        seeds.push((i, j));
+                    }
+                }
+            }
+        }
+        let mut notch: std::collections::HashSet<Cell2, FixedState> = Default::default();
+        while let Some(c) = seeds.pop() {
+            if !notch.insert(c) {
+                continue;
+            }
+            for di in -1..=1 {
+                for dj in -1..=1 {
+                    let n = (c.0 + di, c.1 + dj);
+                    if empty.contains(&n) && !notch.contains(&n) {
+                        seeds.push(n);
+                    }
+                }
+            }
+        }
+        if total == 0 {
+            return (reach, 0.0, 0.0);
+        }
+        let rest = (total - notch.len()).max(1);
+        (
+            reach,
+            notch.len() as f64 / total as f64,
+            held as f64 / rest as f64,
+        )
+    }
+
     /// The share of the cells inside `polygon` (1.5 cells in from its edges) that hold
     /// points.
     fn coverage(&self, polygon: &Polygon<f64>) -> f64 {
@@ -1850,6 +1950,23 @@ mod tests {
         let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
         assert_eq!(found.parcels.len(), 2, "{found:?}");
         assert!(found.parcels.iter().all(|p| !p.isolated), "{found:?}");
+    }
+
+    #[test]
+    fn two_boxes_of_one_height_side_by_side_in_an_l_are_not_one_isolated_parcel() {
+        // 377 x 166 and 217 x 113 mm, both 114 mm high, touching along a face: their lids
+        // make one flat top whose outline is an L, no box's.
+        let mut points = lid_points([0.0, 0.377], [0.0, 0.166], 0.114);
+        points.extend(lid_points([0.379, 0.594], [0.0, 0.113], 0.114));
+        let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+        assert_eq!(found.parcels.len(), 1, "{found:?}");
+        assert_eq!(found.parcels[0].shape, Shape::Irregular, "{found:?}");
+        assert!(!found.parcels[0].isolated, "{found:?}");
+        // One box of the L's whole rectangle is one parcel.
+        let points = lid_points([0.0, 0.594], [0.0, 0.166], 0.114);
+        let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+        assert_eq!(found.parcels.len(), 1, "{found:?}");
+        assert!(found.parcels[0].isolated, "{found:?}");
     }
 
     #[test]
