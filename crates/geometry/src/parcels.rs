@@ -84,6 +84,10 @@ const TOUCH_M: f64 = 0.05;
 /// within [`TOUCH_M`] of the larger one's, is a fragment of it (a sliver of a side wall,
 /// flying pixels between its edge and the floor), not a parcel (see [`fragment_of`]).
 const FRAGMENT_SHARE: f64 = 0.01;
+/// An object dropped as overlapping a larger one, with at least this share of its points
+/// and most of them beyond its footprint, is a parcel standing beside it that could not be
+/// told apart (a ring of flying pixels or a strip of side wall holds a few per cent).
+const NEIGHBOUR_SHARE: f64 = 0.1;
 /// An object whose footprint and a larger one's overlap by at least this share of the
 /// smaller footprint is a ring of flying pixels or floor speckle around it (see
 /// [`fragment_of`]); parcels side by side overlap by the few millimetres of noise on
@@ -299,8 +303,13 @@ pub fn parcels(
     found.sort_by_key(|(f, _)| std::cmp::Reverse(f.dimensions.points));
     let mut kept: Vec<ParcelFit> = Vec::with_capacity(found.len());
     for (f, points) in found {
-        if !kept.iter().any(|k| fragment_of(&f, points, k)) {
-            kept.push(f);
+        match kept.iter().position(|k| fragment_of(&f, points, k)) {
+            None => kept.push(f),
+            Some(i) => {
+                if neighbour_of(&f, points, &kept[i]) {
+                    kept[i].isolated = false;
+                }
+            }
         }
     }
     let mut found = kept;
@@ -429,6 +438,16 @@ fn fragment_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
         && (least <= 0.0 || p.intersection(&q).unsigned_area() >= OVERLAP_SHARE * least);
     let small = (f.dimensions.points as f64) < FRAGMENT_SHARE * k.dimensions.points as f64;
     under || overlap || (small && Euclidean.distance(&p, &q) < TOUCH_M)
+}
+
+/// Whether `f`, dropped as a fragment of `k` (with its `points`), is rather a parcel
+/// standing beside `k` that could not be told apart: a parcel's worth of points, most of
+/// them beyond `k`'s footprint (a lower parcel whose outline ran into the higher one's
+/// wall, so that their rectangles overlap). Nothing is said of it, so `k` is not alone.
+fn neighbour_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
+    let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
+    let beside = share_outside(&k.dimensions.corners_m, points.iter().map(xy), OUTSIDE_M) >= 0.5;
+    beside && f.dimensions.points as f64 >= NEIGHBOUR_SHARE * k.dimensions.points as f64
 }
 
 /// Measures one object.
@@ -2104,6 +2123,46 @@ mod tests {
             assert!(p.isolated, "{found:?}");
             assert!((p.dimensions.length_mm - 200.0).abs() < 10.0, "{found:?}");
         }
+    }
+
+    #[test]
+    fn a_dropped_object_standing_beside_the_kept_one_takes_its_isolation() {
+        let rect = |x0: f64, y0: f64, x1: f64, y1: f64| [[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
+        let fit = |corners, points| ParcelFit {
+            dimensions: rect_dimensions(corners, 0.2, points),
+            shape: Shape::Cuboid,
+            fit: 1.0,
+            tops: 1,
+            isolated: true,
+            coverage: 1.0,
+            out_of_view: false,
+            complete: true,
+        };
+        // The kept parcel: 0.3 x 0.3 m, 10,000 points.
+        let kept = fit(rect(0.0, 0.0, 0.3, 0.3), 10_000);
+        // Points on a 1 cm grid over x0..x1, y 0..0.2 m.
+        let grid = |x0: f64, x1: f64| -> Vec<Point3> {
+            let mut v = Vec::new();
+            let mut x = x0;
+            while x < x1 {
+                for j in 0..20 {
+                    v.push(Point3::new(x as f32, j as f32 * 0.01, 0.1));
+                }
+                x += 0.01;
+            }
+            v
+        };
+        // A lower box beside it whose outline ran 10 cm into the kept one: a neighbour.
+        let beside = grid(0.31, 0.55);
+        let lower = fit(rect(0.2, 0.0, 0.55, 0.2), 3_000);
+        assert!(neighbour_of(&lower, &beside, &kept));
+        // The same points but a few of them (a ring of flying pixels): not a parcel.
+        let ring = fit(rect(0.2, 0.0, 0.55, 0.2), 500);
+        assert!(!neighbour_of(&ring, &beside, &kept));
+        // A strip of the kept one's own wall, under its edge: not beside it.
+        let under = grid(0.22, 0.3);
+        let strip = fit(rect(0.2, 0.0, 0.3, 0.2), 3_000);
+        assert!(!neighbour_of(&strip, &under, &kept));
     }
 
     #[test]
