@@ -1,0 +1,423 @@
+//! Where a lid's edges lie: placed by the lid points' density, then moved out by what the
+//! cameras' pixels, the side walls and the spatial filter's blur say.
+
+use super::rect::{dot, sub};
+use super::view::View;
+use crate::Point3;
+
+/// The stretch (metres) inside an edge over which [`edges`] takes the lid's density, at
+/// least: a camera's points lie in rows a pixel apart (1-2 mm at 1-2 m), and a window
+/// of 1 cm holds one row more or less (10-20 %) depending on where the rows fall; over
+/// 2 cm that is half as much, and the density still is the edge's where it changes
+/// across the lid (a glossy lid loses more depth near its middle, where the projector
+/// glares: windows of 3-5 cm read the edges of glossy boxes 1-2 mm out).
+const DENSITY_WINDOW_M: f64 = 0.02;
+
+/// An edge whose outward normal is more than this cosine away from a camera's x axis
+/// (towards its right imager), negatively, lies wholly in that camera's stereo shadow.
+const SHADOW_COS: f64 = 0.25;
+
+/// How far from a side of the lid's rectangle [`walls`] looks for its wall's points
+/// (metres): the lid's density places the side within about 2 mm; the flying pixels
+/// beyond a side seen from the other side lie centimetres out.
+const WALL_REACH_M: f64 = 0.006;
+
+/// The distance between a stereo camera's imagers (metres): a D415's 55 mm (a D435's is
+/// 50 mm); it sets how wide the stereo shadow beside a parcel is.
+const STEREO_BASELINE_M: f64 = 0.055;
+
+/// The rectangle `corners` (in order around it) with each edge moved to where `lid`'s
+/// points put it (see [`edges`]), at most `inward` inside the hull's and `beyond`
+/// outside it.
+pub(super) fn refine(
+    corners: [[f64; 2]; 4],
+    lid: &[Point3],
+    margin: f64,
+    inward: f64,
+    beyond: f64,
+) -> [[f64; 2]; 4] {
+    let c0 = corners[0];
+    let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 0.0 || lb <= 0.0 {
+        return corners;
+    }
+    let a = [e0[0] / la, e0[1] / la];
+    let b = [e1[0] / lb, e1[1] / lb];
+    let mut sa = Vec::with_capacity(lid.len());
+    let mut sb = Vec::with_capacity(lid.len());
+    for p in lid {
+        let d = sub([f64::from(p.x), f64::from(p.y)], c0);
+        sa.push(dot(d, a));
+        sb.push(dot(d, b));
+    }
+    let (a0, a1) = edges(&sa, la, margin, inward, beyond);
+    let (b0, b1) = edges(&sb, lb, margin, inward, beyond);
+    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+    [at(a0, b0), at(a1, b0), at(a1, b1), at(a0, b1)]
+}
+
+/// The two edges along one axis of positions `s` in about [0, `len`]. From a line
+/// `margin` inside each end, the points beyond it are counted in 1 mm bins, each bin
+/// at most 1.5 times the density of the band just inside the line; the edge lies where that
+/// many points at that density would end. Noise moves points about an edge without
+/// adding any, so the count keeps the edge where the outermost points do not; the cap
+/// keeps points piled up on the edge itself (the top of a side wall seen from the side)
+/// from counting as lid. The density is taken over up to [`DENSITY_WINDOW_M`] inside
+/// the line: a camera's points lie in rows a pixel apart, and a short window holds one
+/// row more or less depending on where the rows fall. An axis too short for two such
+/// bands keeps the hull's edges. An edge lies at most `inward` inside the outermost
+/// point and `beyond` outside it.
+pub(super) fn edges(s: &[f64], len: f64, margin: f64, inward: f64, beyond: f64) -> (f64, f64) {
+    const BIN_M: f64 = 0.001;
+    let shortest = (2.0 * margin).max(0.01);
+    let window = (len / 2.0 - margin).min(shortest.max(DENSITY_WINDOW_M));
+    if window < shortest {
+        return (0.0, len);
+    }
+    // Only the points near the ends are counted: sort those.
+    let reach = margin + window;
+    let mut near: Vec<f64> = s
+        .iter()
+        .copied()
+        .filter(|v| *v <= reach || *v >= len - reach)
+        .collect();
+    near.sort_unstable_by(f64::total_cmp);
+    let count =
+        |lo: f64, hi: f64| near.partition_point(|v| *v < hi) - near.partition_point(|v| *v < lo);
+    // The edge moves at most `inward` (and `margin`) inwards (holes along an edge thin
+    // it), and at most `beyond` past the outermost point.
+    let limit = margin + beyond;
+    let least = (margin - inward).max(0.0);
+    let place = |line: f64, outwards: f64| {
+        let (a, b) = if outwards > 0.0 {
+            (line - window, line)
+        } else {
+            (line, line + window)
+        };
+        let inside = count(a, b);
+        if inside == 0 {
+            return line + outwards * margin;
+        }
+        let density = inside as f64 / window;
+        let cap = 1.5 * density * BIN_M;
+        let mut mass = 0.0;
+        let mut at = 0.0;
+        while at < margin {
+            let (x0, x1) = (line + outwards * at, line + outwards * (at + BIN_M));
+            mass += (count(x0.min(x1), x0.max(x1)) as f64).min(cap);
+            at += BIN_M;
+        }
+        line + outwards * (mass / density).clamp(least, limit)
+    };
+    (place(margin, -1.0), place(len - margin, 1.0))
+}
+
+/// How far each side of the lid's rectangle `corners` (side `k` from corner `k` to
+/// `k + 1`) lies beyond where its points' density ends, metres, from the cameras that
+/// see it. A pixel across the edge sees the lid and the floor and reads a depth between
+/// them, off the lid: the lid's points end half a pixel's footprint (across the edge)
+/// inside it. Not so on the side away from a camera's right imager: the floor beside it
+/// there is hidden from the right imager (the stereo shadow), so the pixel across the
+/// edge matches the lid alone and reads the lid's depth. The cameras are weighted by
+/// their points' density there.
+pub(super) fn pixel_offsets(corners: &[[f64; 2]; 4], height_m: f32, views: &[View]) -> [f64; 4] {
+    let centre = [0, 1].map(|k| corners.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let mut out = [0.0; 4];
+    for (k, offset) in out.iter_mut().enumerate() {
+        let (p, q) = (corners[k], corners[(k + 1) % 4]);
+        let mid = [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0];
+        let away = sub(mid, centre);
+        let n = away[0].hypot(away[1]);
+        if n <= 0.0 {
+            continue;
+        }
+        let normal = [away[0] / n, away[1] / n];
+        let at = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
+        let (mut sum, mut weights) = (0.0, 0.0);
+        for v in views {
+            let Some(footprint) = v.footprint(&at) else {
+                continue;
+            };
+            let [du, dv] = footprint;
+            let across = dot(du, normal).abs() + dot(dv, normal).abs();
+            let area = (du[0] * dv[1] - du[1] * dv[0]).abs();
+            if across <= 0.0 || area <= 0.0 {
+                continue;
+            }
+            // The camera's x axis (towards its right imager) on the floor.
+            let x = v.to_common.linear.column(0);
+            let (xx, xy) = (f64::from(x.x), f64::from(x.y));
+            let xn = xx.hypot(xy);
+            let facing = if xn > 0.0 {
+                dot([xx / xn, xy / xn], normal)
+            } else {
+                0.0
+            };
+            // The shadow spans fx B (1 / lid depth - 1 / floor depth) pixels along x:
+            // several beside a parcel over about 5 cm high, less than the pixel across
+            // the edge beside a lower one. It hides the floor across the edge unless the
+            // edge runs almost along x.
+            let eye = v.to_common.translation;
+            let lid_m = f64::from((eye - at.coords).norm());
+            let floor_m = f64::from((eye - nalgebra::Vector3::new(at.x, at.y, 0.0)).norm());
+            let shadow_px = f64::from(v.fx) * STEREO_BASELINE_M * (1.0 / lid_m - 1.0 / floor_m);
+            let shadowed = (-facing / SHADOW_COS).clamp(0.0, 1.0) * shadow_px.clamp(0.0, 1.0);
+            sum += (1.0 - shadowed) * across / 2.0 / area;
+            weights += 1.0 / area;
+        }
+        if weights > 0.0 {
+            *offset = sum / weights;
+        }
+    }
+    out
+}
+
+/// Where the side walls under the sides of the lid's rectangle `corners` (side `k` from
+/// corner `k` to `k + 1`) stand, as how far each lies outside its side (metres), for
+/// the sides whose wall a camera sees from outside: the median position across the side
+/// of the points on the wall's middle half (from a quarter to three quarters of the
+/// `height_m`), within [`WALL_REACH_M`] of the side and 1 cm in from its ends. A
+/// camera beyond a side sees the wall join the lid with no step in depth, and the
+/// spatial filter rounds that corner: the lid's last pixels sink below its top and its
+/// points end 1-2 mm short (the demo's oblique cameras; parcels apart, off the axis of
+/// a camera between them), while the wall's middle, flat and seen whole, is where the
+/// side is. `None` for a side whose wall has fewer points than two per pixel of its
+/// length (none seen, or seen edge-on), or without cameras.
+pub(super) fn walls(
+    corners: &[[f64; 2]; 4],
+    cluster: &[Point3],
+    height_m: f32,
+    views: &[View],
+    pixel: f64,
+) -> [Option<f64>; 4] {
+    let mut out = [None; 4];
+    if pixel <= 0.0 {
+        return out;
+    }
+    let centre = [0, 1].map(|k| corners.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let (low, high) = (0.25 * height_m, 0.75 * height_m);
+    let wall: Vec<[f64; 2]> = cluster
+        .iter()
+        .filter(|p| p.z >= low && p.z <= high)
+        .map(|p| [f64::from(p.x), f64::from(p.y)])
+        .collect();
+    for (k, found) in out.iter_mut().enumerate() {
+        let (p, q) = (corners[k], corners[(k + 1) % 4]);
+        let along = sub(q, p);
+        let span = along[0].hypot(along[1]);
+        if span <= 0.02 {
+            continue;
+        }
+        let dir = [along[0] / span, along[1] / span];
+        let mut normal = [dir[1], -dir[0]];
+        if dot(sub(p, centre), normal) < 0.0 {
+            normal = [-normal[0], -normal[1]];
+        }
+        let line = dot(p, normal);
+        let mid = [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0];
+        let middle = Point3::new(mid[0] as f32, mid[1] as f32, height_m / 2.0);
+        let seen = views.iter().any(|v| {
+            let eye = v.to_common.translation;
+            dot([f64::from(eye.x), f64::from(eye.y)], normal) > line && v.sees(&middle, 0.0)
+        });
+        if !seen {
+            continue;
+        }
+        let mut across: Vec<f64> = wall
+            .iter()
+            .filter(|w| {
+                let t = dot(sub(**w, p), dir);
+                t >= 0.01 && t <= span - 0.01
+            })
+            .map(|w| dot(*w, normal) - line)
+            .filter(|d| d.abs() <= WALL_REACH_M)
+            .collect();
+        if (across.len() as f64) < 2.0 * span / pixel {
+            continue;
+        }
+        let mid = across.len() / 2;
+        let (_, median, _) = across.select_nth_unstable_by(mid, f64::total_cmp);
+        *found = Some(*median);
+    }
+    out
+}
+
+/// The rectangle `corners` (in order around it) with side `k` (from corner `k` to
+/// `k + 1`) moved out by `by[k]`.
+pub(super) fn move_sides(corners: [[f64; 2]; 4], by: [f64; 4]) -> [[f64; 2]; 4] {
+    let c0 = corners[0];
+    let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 0.0 || lb <= 0.0 {
+        return corners;
+    }
+    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+    // Side 0 lies at t = 0, side 1 at s = la, side 2 at t = lb, side 3 at s = 0.
+    [
+        at(-by[3], -by[0]),
+        at(la + by[1], -by[0]),
+        at(la + by[1], lb + by[2]),
+        at(-by[3], lb + by[2]),
+    ]
+}
+
+/// The lid rectangle `rect` of a parcel `height_m` high with each edge that the spatial
+/// filter blurred into the floor moved out to where the blur says the step was.
+///
+/// The filter (an edge-preserving moving average over neighbouring pixels, run both ways
+/// along rows and columns) leaves a step alone only where the disparity changes by more
+/// than its threshold (20/32 pixel by default): from 1.5 to 2 m up, a lid lower than
+/// about 3 to 4.5 cm is smoothed into the floor, and its points fall below the lid band
+/// well inside the edge (scene 64: a 35 mm lid ended 8-10 mm short on each blurred side).
+/// The smoothing is symmetric, so across the blur the depth passes half the step at the
+/// pixel where the step was; that pixel's ray met the lid's edge and, for an edge facing
+/// away from the camera, reaches half the height `height / 2 x tan(angle)` farther out.
+/// An edge is moved when, outwards from 8 mm inside it, every bin (two pixels wide, at
+/// least 2.5 mm, so that rows of pixels do not alias) holds points (at least a quarter of
+/// the lid's density) on one surface (the middle half of their heights within a quarter
+/// of the height: not a side wall, nor flying pixels spread over the height) down to a
+/// bin below half the height (or, where the floor cut emptied the bins beyond, down to
+/// one below three quarters of it). Edges that end sharply (a tall step, the stereo
+/// shadow's holes) and lids too low for half their height to clear the floor cut by
+/// 3 mm stay as they are.
+pub(super) fn unblur(
+    rect: [[f64; 2]; 4],
+    cluster: &[Point3],
+    height_m: f32,
+    (views, pixel_m): (&[View], f64),
+    min_height_m: f32,
+) -> [[f64; 2]; 4] {
+    const REACH_M: f64 = 0.03;
+    const INSET_M: f64 = 0.02;
+    let bin_m = (2.0 * pixel_m).max(0.0025);
+    let from_m = (2.0 * bin_m).max(0.008);
+    let half = height_m / 2.0;
+    // Half the height must clear the floor cut for its crossing to be seen.
+    if half < min_height_m + 0.003 {
+        return rect;
+    }
+    let c0 = rect[0];
+    let (e0, e1) = (sub(rect[1], c0), sub(rect[3], c0));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 2.0 * INSET_M || lb <= 2.0 * INSET_M {
+        return rect;
+    }
+    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+    let local: Vec<(f64, f64, f32)> = cluster
+        .iter()
+        .map(|p| {
+            let d = sub([f64::from(p.x), f64::from(p.y)], c0);
+            (dot(d, a), dot(d, b), p.z)
+        })
+        .collect();
+    let bins = ((from_m + REACH_M) / bin_m).round() as usize;
+    // Where, outwards of the edge, the blurred step passes half the height.
+    let crossing = |along_b: bool, high: bool| -> Option<f64> {
+        let (len, other) = if along_b { (lb, la) } else { (la, lb) };
+        let mut z: Vec<Vec<f32>> = vec![Vec::new(); bins];
+        let mut sum = vec![0.0f64; bins];
+        for &(s, t, pz) in &local {
+            let (across, along) = if along_b { (t, s) } else { (s, t) };
+            if along < INSET_M || along > other - INSET_M {
+                continue;
+            }
+            let out = if high { across - len } else { -across };
+            let k = ((out + from_m) / bin_m).floor();
+            if k >= 0.0 && (k as usize) < bins {
+                z[k as usize].push(pz);
+                sum[k as usize] += out;
+            }
+        }
+        let inside = 2;
+        let density = z[..inside].iter().map(Vec::len).sum::<usize>() as f64 / inside as f64;
+        // (centre, median) of the bins at or above half the height.
+        let mut last: Vec<(f64, f32)> = Vec::new();
+        for (k, bin) in z.iter_mut().enumerate() {
+            // Where the bin's points lie on average (rows of pixels fill bins unevenly).
+            let centre = sum[k] / bin.len().max(1) as f64;
+            if (bin.len() as f64) < 0.25 * density || bin.len() < 3 {
+                return match last[..] {
+                    // The floor cut may empty the bins beyond one well down the ramp:
+                    // the line through the last two bins then meets half the height
+                    // within a bin.
+                    [.., (c0, m0), (c1, m1)] if m1 < 0.75 * height_m && m1 < m0 => {
+                        let t = f64::from(m1 - half) / f64::from(m0 - m1);
+                        (t <= 1.0).then_some(c1 + t * (c1 - c0))
+                    }
+                    _ => None,
+                };
+            }
+            bin.sort_unstable_by(f32::total_cmp);
+            let n = bin.len();
+            let (q1, median, q3) = (bin[n / 4], bin[n / 2], bin[(3 * n) / 4]);
+            if q3 - q1 > height_m / 4.0 {
+                return None;
+            }
+            if median < half {
+                let &(c, m) = last.last()?;
+                let t = f64::from(m - half) / f64::from(m - median).max(1e-6);
+                return Some(c + t * (centre - c));
+            }
+            last.push((centre, median));
+        }
+        None
+    };
+    // Half the height times the outward tangent of the rays of the cameras that see the
+    // edge (0 for a camera beyond the edge: it sees the side wall, whose middle is at
+    // the edge).
+    let reach = |mid: [f64; 2], outward: [f64; 2]| -> f64 {
+        let p = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
+        let slopes: Vec<f64> = views
+            .iter()
+            .filter(|v| v.sees(&p, 0.0))
+            .map(|v| {
+                let eye = v.to_common.translation;
+                let rise = f64::from(eye.z - height_m).max(1e-3);
+                let d = [mid[0] - f64::from(eye.x), mid[1] - f64::from(eye.y)];
+                (dot(d, outward) / rise).max(0.0)
+            })
+            .collect();
+        if slopes.is_empty() {
+            0.0
+        } else {
+            f64::from(half) * slopes.iter().sum::<f64>() / slopes.len() as f64
+        }
+    };
+    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+    let mut lo = [0.0, 0.0];
+    let mut hi = [la, lb];
+    for (axis, along_b) in [(0, false), (1, true)] {
+        let len = if along_b { lb } else { la };
+        let (dir, mid_other) = if along_b {
+            (b, la / 2.0)
+        } else {
+            (a, lb / 2.0)
+        };
+        for high in [false, true] {
+            let Some(c) = crossing(along_b, high) else {
+                continue;
+            };
+            let outward = if high { dir } else { [-dir[0], -dir[1]] };
+            let edge = if high { len } else { 0.0 };
+            let mid = if along_b {
+                at(mid_other, edge)
+            } else {
+                at(edge, mid_other)
+            };
+            let moved = (c - reach(mid, outward)).clamp(0.0, REACH_M);
+            if high {
+                hi[axis] = len + moved;
+            } else {
+                lo[axis] = -moved;
+            }
+        }
+    }
+    [
+        at(lo[0], lo[1]),
+        at(hi[0], lo[1]),
+        at(hi[0], hi[1]),
+        at(lo[0], hi[1]),
+    ]
+}

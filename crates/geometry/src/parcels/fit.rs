@@ -1,0 +1,247 @@
+//! One object measured: its top, its footprint, its shape.
+
+use geo::{Area, ConvexHull, MultiPoint, Point};
+
+use super::edges::{move_sides, pixel_offsets, refine, unblur, walls};
+use super::height_map::HeightMap;
+use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
+use super::rect::{polygon, rect_area, share_outside};
+use super::round::{lying_tube, standing_disc};
+use super::shoulders::shoulders;
+use super::view::View;
+use crate::Point3;
+use crate::dimension::{
+    DimensionConfig, DimensionError, Dimensions, hull, lid, min_rect, rect_around, rect_dimensions,
+    robust_height,
+};
+
+/// A cuboid's lid covers at least this share of its rectangle (a disc covers 0.785).
+/// So do the lid's flattest points (see `flat_fit` in `fit`). Boxes of the lane set
+/// (seeds 1 and 2, prepared and raw), dark and glossy ones too, read 0.983 to 1 (the
+/// noise of their edges); a filled polybag's lid misses its lower, rounded corners and
+/// reads 0.94 to 0.969, even a low, flat one whose shoulders hold too few points to
+/// count as outside, or one whose lid band raw noise deepens down to its corners.
+const CUBOID_FIT: f64 = 0.975;
+
+/// How well a cuboid describes the object.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Shape {
+    /// A box: its lid fills its rectangle and nothing reaches beyond it.
+    Cuboid,
+    /// Anything else (tubes, bags, several parcels together), measured as the smallest
+    /// enclosing cuboid.
+    Irregular,
+}
+
+/// One object on the table, measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParcelFit {
+    /// Its smallest enclosing cuboid.
+    pub dimensions: Dimensions,
+    /// Cuboid or irregular.
+    pub shape: Shape,
+    /// How well a cuboid fits: the area of the lid's hull over its rectangle's (1 for a
+    /// box seen whole; a disc 0.785).
+    pub fit: f64,
+    /// Flat tops found on it: 1 for one parcel, 2 or more for parcels side by side.
+    pub tops: usize,
+    /// False when it touches another parcel: more than one top, or another object's
+    /// footprint within 5 cm.
+    pub isolated: bool,
+    /// The share of the footprint's cells that hold points (1 without holes).
+    pub coverage: f64,
+    /// Just beyond an edge, at the top's height, lies a point outside every camera's
+    /// image, or behind another parcel from each camera that has it in its image: more of
+    /// the parcel may be there, unseen (only known with views).
+    pub out_of_view: bool,
+    /// Seen whole: in view, and coverage at least the configured minimum.
+    pub complete: bool,
+}
+
+/// Neighbouring cells of one top differ in height by less than this (metres), or by the
+/// lid band when that is deeper.
+const TOP_STEP_M: f32 = 0.010;
+
+/// A cell is flat (may belong to a top) when the middle half of its points spans less
+/// than this (metres) or the lid band, whichever is more.
+const FLAT_M: f32 = 0.004;
+
+/// One plateau that holds at least this share of its object's dense cells reaches out
+/// to its walls: a box's lid does (0.95-1 in the lane set, the rest its walls' cells);
+/// a polybag's domed lid ends well inside its shoulders (0.54-0.78).
+const PLATEAU_REACH: f64 = 0.9;
+
+/// ... and leaves this share of its rectangle in notches cut in from its sides: not one
+/// box. A box's ragged edges or a polybag's rounded corners leave a few per cent (no
+/// single parcel of the lane set's 720 scenes reaches this); two boxes side by side in
+/// an L or a step leave their missing corner (0.06 to 0.65 in its touching pairs).
+const NOTCH_SHARE: f64 = 0.05;
+
+/// ... and holds lid points in this share of the rest of its rectangle (a scatter of
+/// flying pixels, whose lid is sparse, is no plateau).
+const PLATEAU_SOLID: f64 = 0.8;
+
+/// Measures one object.
+pub(super) fn fit(
+    cluster: &[Point3],
+    config: &DimensionConfig,
+    views: &[View],
+) -> Result<ParcelFit, DimensionError> {
+    let height_m = robust_height(cluster, config);
+    let lid = lid(cluster, height_m, config)?;
+    if lid.points.len() < 3 {
+        return Err(DimensionError::Footprint);
+    }
+    let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
+    // One hull of the lid for its rectangle and its area.
+    let lid_hull = hull(lid.points.iter().map(xy));
+    let hull_rect = rect_around(&lid_hull).ok_or(DimensionError::Footprint)?;
+    let margin = f64::from(lid.band_m) + 0.003;
+    // The edges from the points within a quarter band (about one noise deviation, at
+    // least 3 mm) of the top, on both sides, so that noise moves as many outwards as
+    // inwards, and few of the points piled up on a side wall's top count.
+    let slab = (lid.band_m / 4.0).max(0.003);
+    let flat: Vec<Point3> = lid
+        .points
+        .iter()
+        .filter(|p| (p.z - height_m).abs() <= slab)
+        .copied()
+        .collect();
+    // Each point stands for its pixel's footprint: the edges lie where the points'
+    // density says, up to half a pixel beyond the outermost point (where a camera's rows
+    // run along an edge, the outermost row lies anywhere up to a pixel inside where the
+    // density ends, half a pixel on average; further out, the density only says that the
+    // lid thins towards its middle, as a glossy lid's glare does); then each edge moves
+    // out by what its cameras' pixels hide there (see `pixel_offsets`), or to its wall
+    // (see `walls`).
+    let centre = Point3::new(
+        (hull_rect.iter().map(|c| c[0]).sum::<f64>() / 4.0) as f32,
+        (hull_rect.iter().map(|c| c[1]).sum::<f64>() / 4.0) as f32,
+        height_m,
+    );
+    let pixel = views
+        .iter()
+        .filter(|v| v.sees(&centre, 0.0))
+        .map(|v| f64::from((v.to_common.translation - centre.coords).norm() / v.fx))
+        .fold(0.0, f64::max);
+    // Noise moves the outermost points out by a few deviations (the band is four) times
+    // the tangent of the ray's angle: the edges move in no farther than that. (A low
+    // parcel whose edge the spatial filter blurred into the floor keeps the hull's.)
+    let inward = (0.75 * f64::from(lid.band_m)).max(0.0015);
+    let refined = refine(hull_rect, &flat, margin, inward, pixel / 2.0);
+    let offsets = pixel_offsets(&refined, height_m, views);
+    let walls = walls(&refined, cluster, height_m, views, pixel);
+    let lid_rect = move_sides(
+        refined,
+        [0, 1, 2, 3].map(|k| walls[k].unwrap_or(offsets[k])),
+    );
+    let lid_area = lid_hull.unsigned_area();
+    let fit = (lid_area / rect_area(&hull_rect)).min(1.0);
+    // The same of the lid's flattest points (within a quarter band of the top): on a
+    // box they are spread over the whole lid; on a domed or sagging top, where raw noise
+    // deepens the band down to its rounded corners, only the plateau holds them.
+    let flat_fit = min_rect(flat.iter().map(xy)).map_or(fit, |r| {
+        let all: MultiPoint<f64> = flat
+            .iter()
+            .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
+            .collect();
+        (all.convex_hull().unsigned_area() / rect_area(&r)).min(1.0)
+    });
+
+    let map = HeightMap::new(cluster);
+    let dense = map.dense_points(cluster);
+    let tops = map.tops(TOP_STEP_M.max(lid.band_m), FLAT_M.max(lid.band_m));
+    let outside = share_outside(&lid_rect, dense.iter().map(xy), OUTSIDE_M);
+    // A tube lying on the floor has a lid strip that fills its rectangle, and with a deep
+    // lid band nothing reaches beyond it: its curved top tells it from a box.
+    let tube = if tops <= 1 {
+        lying_tube(&lid_rect, &dense, height_m, lid.band_m)
+    } else {
+        None
+    };
+    let shape = if tube.is_none()
+        && tops <= 1
+        && fit.min(flat_fit) >= CUBOID_FIT
+        && outside <= CUBOID_OUTSIDE
+    {
+        Shape::Cuboid
+    } else {
+        Shape::Irregular
+    };
+    // A standing cylinder: a disc of a lid with nothing of the object beyond it.
+    let disc = if tube.is_none() && tops <= 1 && shape == Shape::Irregular {
+        standing_disc(&hull_rect, &lid.points, &flat, &dense, margin, inward)
+            .map(|d| d.grown(pixel / 2.0))
+    } else {
+        None
+    };
+    // One flat plateau that reaches out to the object's walls but leaves a notch cut
+    // into its rectangle from a side: lids of boxes are rectangles, so this is most
+    // likely two parcels of nearly the same height side by side (their lids joined
+    // into one top), or an item no cuboid describes. A polybag's lid is a dome that
+    // ends well inside its shoulders; a disc's lid is taken above.
+    let several = shape == Shape::Irregular && tube.is_none() && disc.is_none() && tops <= 1 && {
+        let (reach, notch, solid) = map.plateau(&lid.points, &hull_rect);
+        reach >= PLATEAU_REACH && notch >= NOTCH_SHARE && solid >= PLATEAU_SOLID
+    };
+    let corners = match (shape, &tube) {
+        // Along its axis the lid strip, which runs the tube's whole length at its top
+        // (the flying pixels beyond its round ends lie lower); across it the circle.
+        (_, Some(t)) => t.footprint(&lid_rect),
+        _ if disc.is_some() => disc.map_or(hull_rect, |d| d.footprint(&hull_rect)),
+        (Shape::Cuboid, None) => unblur(
+            lid_rect,
+            cluster,
+            height_m,
+            (views, pixel),
+            config.min_height_m,
+        ),
+        // Around every dense point, each edge placed by the points' density as a lid's
+        // is: the thin fringe of flying pixels around a tall object counts little.
+        (Shape::Irregular, None) => {
+            let around = min_rect(dense.iter().map(xy)).map_or(hull_rect, |r| {
+                refine(r, &dense, margin.max(0.006), 0.003, 0.0)
+            });
+            // A lid with rounded corners is a pillow's: its sides curve down to the floor.
+            // (A lying tube's lid fills its rectangle; it is irregular for its sides.)
+            if fit.min(flat_fit) < CUBOID_FIT {
+                shoulders(around, &dense, height_m, views)
+            } else {
+                around
+            }
+        }
+    };
+    let peak = map.peak();
+    let top_m = match (shape, &tube) {
+        // The circle's top, where the noise is averaged over the whole section.
+        (_, Some(t)) => (2.0 * t.radius) as f32,
+        // A flat lid: the band's median, as a box's.
+        _ if disc.is_some() => height_m,
+        (Shape::Cuboid, None) => height_m,
+        (Shape::Irregular, None) => peak.map_or(height_m, |p| p.max(height_m)),
+    };
+    // A box or a tube seen from above covers its footprint, a standing cylinder its
+    // disc; other shapes their dense points' hull (a raw camera's floor noise joined to
+    // a tube is no hole in it).
+    let coverage = match (shape, &tube) {
+        (Shape::Cuboid, _) | (_, Some(_)) => map.coverage(&polygon(&corners)),
+        _ if disc.is_some() => disc.map_or(1.0, |d| map.coverage(&d.polygon())),
+        (Shape::Irregular, None) => {
+            let all: MultiPoint<f64> = dense
+                .iter()
+                .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
+                .collect();
+            map.coverage(&all.convex_hull())
+        }
+    };
+    Ok(ParcelFit {
+        dimensions: rect_dimensions(corners, f64::from(top_m), cluster.len()),
+        shape,
+        fit,
+        tops,
+        isolated: tops <= 1 && !several,
+        coverage,
+        out_of_view: false,
+        complete: coverage >= f64::from(config.min_coverage),
+    })
+}

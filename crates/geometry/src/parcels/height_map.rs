@@ -1,0 +1,282 @@
+//! The object's height map: cells of its points in (x, y), their tops, peak and coverage.
+
+use std::collections::HashMap;
+
+use foldhash::fast::FixedState;
+use geo::{Point, Polygon};
+
+use super::rect::polygon;
+use crate::Point3;
+
+/// Side of a height-map cell, metres.
+const CELL_M: f64 = 0.005;
+
+/// A cell is dense when it holds at least this share of the median cell's points.
+const DENSE_SHARE: f64 = 0.15;
+
+/// A top counts when this many of its cells have all eight neighbours in it (a core of
+/// about 2 x 2 cm), and it has at least [`TOP_SHARE`] of the largest top's cells.
+const TOP_CORE_CELLS: usize = 16;
+
+/// See [`TOP_CORE_CELLS`].
+const TOP_SHARE: f64 = 0.05;
+
+pub(super) type Cell2 = (i64, i64);
+
+pub(super) fn cell_of(x: f64, y: f64) -> Cell2 {
+    ((x / CELL_M).floor() as i64, (y / CELL_M).floor() as i64)
+}
+
+/// The object's points binned into [`CELL_M`] cells in (x, y): count and median z (a
+/// cell where a higher parcel's side meets a lower one's lid holds a few side points and
+/// many lid points: its median is the lid's, where its highest point would make a
+/// staircase joining the two tops).
+pub(super) struct HeightMap {
+    cells: HashMap<Cell2, (u32, f32), FixedState>,
+    /// How far the middle half of each cell's points spans in z: a cell holding a side
+    /// wall, or the lids of two parcels, is not flat.
+    spread: HashMap<Cell2, f32, FixedState>,
+    /// Cells with fewer points are not dense.
+    dense_min: u32,
+}
+
+impl HeightMap {
+    pub(super) fn new(points: &[Point3]) -> Self {
+        let mut heights: HashMap<Cell2, Vec<f32>, FixedState> = HashMap::default();
+        for p in points {
+            heights
+                .entry(cell_of(f64::from(p.x), f64::from(p.y)))
+                .or_default()
+                .push(p.z);
+        }
+        let mut spread: HashMap<Cell2, f32, FixedState> = HashMap::default();
+        let cells: HashMap<Cell2, (u32, f32), FixedState> = heights
+            .into_iter()
+            .map(|(cell, mut z)| {
+                z.sort_unstable_by(f32::total_cmp);
+                let n = z.len();
+                spread.insert(cell, z[(3 * n) / 4] - z[n / 4]);
+                (cell, (n as u32, z[n / 2]))
+            })
+            .collect();
+        let mut counts: Vec<u32> = cells.values().map(|c| c.0).collect();
+        let mid = counts.len() / 2;
+        let median = if counts.is_empty() {
+            0
+        } else {
+            *counts.select_nth_unstable(mid).1
+        };
+        let dense_min = ((f64::from(median) * DENSE_SHARE).ceil() as u32).max(2);
+        Self {
+            cells,
+            spread,
+            dense_min,
+        }
+    }
+
+    fn is_dense(&self, c: &Cell2) -> bool {
+        self.cells.get(c).is_some_and(|v| v.0 >= self.dense_min)
+    }
+
+    /// The points of `points` in dense cells (flying pixels between an edge and the floor
+    /// scatter thinly and are left out).
+    pub(super) fn dense_points(&self, points: &[Point3]) -> Vec<Point3> {
+        points
+            .iter()
+            .filter(|p| self.is_dense(&cell_of(f64::from(p.x), f64::from(p.y))))
+            .copied()
+            .collect()
+    }
+
+    /// The highest point of a smooth top: the greatest mean of the median heights of a
+    /// dense cell and its eight neighbours (all dense), `None` when no cell has them.
+    /// Averaging nine medians leaves little of the depth noise, where the points' own
+    /// maximum would read a few deviations high; a domed top keeps its apex, where the
+    /// median of a band below the highest points lies lower.
+    pub(super) fn peak(&self) -> Option<f32> {
+        let mut best: Option<f32> = None;
+        for (&(x, y), _) in self.cells.iter().filter(|(c, _)| self.is_dense(c)) {
+            let mut sum = 0.0;
+            let mut all = true;
+            for dx in -1..=1 {
+                for dy in -1..=1 {
+                    match self.cells.get(&(x + dx, y + dy)) {
+                        Some(&(n, z)) if n >= self.dense_min => sum += z,
+                        _ => all = false,
+                    }
+                }
+            }
+            if all {
+                let mean = sum / 9.0;
+                best = Some(best.map_or(mean, |b| b.max(mean)));
+            }
+        }
+        best
+    }
+
+    /// The number of tops: regions of dense cells connected (8-neighbourhood) where
+    /// neighbouring median heights differ by less than `step`, counted when their core
+    /// (cells whose eight neighbours are all in the region) has [`TOP_CORE_CELLS`] and
+    /// their cells are at least [`TOP_SHARE`] of the largest region's.
+    pub(super) fn tops(&self, step: f32, flatness: f32) -> usize {
+        let flat =
+            |c: &Cell2| self.is_dense(c) && self.spread.get(c).is_some_and(|s| *s < flatness);
+        let mut region: HashMap<Cell2, usize, FixedState> = HashMap::default();
+        let mut sizes: Vec<(usize, usize)> = Vec::new();
+        let mut dense: Vec<Cell2> = self.cells.keys().filter(|c| flat(c)).copied().collect();
+        dense.sort_unstable();
+        let neighbours = |(x, y): Cell2| {
+            (-1..=1)
+                .flat_map(move |dx| (-1..=1).map(move |dy| (x + dx, y + dy)))
+                .filter(move |c| *c != (x, y))
+        };
+        let mut stack = Vec::new();
+        for start in dense {
+            if region.contains_key(&start) {
+                continue;
+            }
+            let id = sizes.len();
+            let mut members = Vec::new();
+            region.insert(start, id);
+            stack.push(start);
+            while let Some(c) = stack.pop() {
+                members.push(c);
+                let z = self.cells[&c].1;
+                for n in neighbours(c) {
+                    if region.contains_key(&n) || !flat(&n) {
+                        continue;
+                    }
+                    if (self.cells[&n].1 - z).abs() < step {
+                        region.insert(n, id);
+                        stack.push(n);
+                    }
+                }
+            }
+            let core = members
+                .iter()
+                .filter(|c| neighbours(**c).all(|n| region.get(&n) == Some(&id)))
+                .count();
+            sizes.push((members.len(), core));
+        }
+        let largest = sizes.iter().map(|s| s.0).max().unwrap_or(0);
+        sizes
+            .iter()
+            .filter(|(n, core)| *core >= TOP_CORE_CELLS && *n as f64 >= TOP_SHARE * largest as f64)
+            .count()
+            .max(1)
+    }
+
+    /// How a flat lid (`lid`, its rectangle `rect`) lies on the object: the share of the
+    /// dense cells that hold lid points (how far the lid reaches out towards the
+    /// object's walls), and the share of the rectangle's cells in notches cut into it
+    /// from its sides (cells with no lid point in their 3 x 3 neighbourhood, connected
+    /// to a cell within two cells of the rectangle's border; a hole in a dark lid's
+    /// middle is no notch, nor the ragged cell or two along a lid's edge), and the share
+    /// of the rectangle's other cells that hold lid points (a solid lid, not a sparse
+    /// scatter of flying pixels).
+    pub(super) fn plateau(&self, lid: &[Point3], rect: &[[f64; 2]; 4]) -> (f64, f64, f64) {
+        use geo::Contains as _;
+        let lid_cells: std::collections::HashSet<Cell2, FixedState> = lid
+            .iter()
+            .map(|p| cell_of(f64::from(p.x), f64::from(p.y)))
+            .collect();
+        let dense: Vec<&Cell2> = self.cells.keys().filter(|c| self.is_dense(c)).collect();
+        let reach = if dense.is_empty() {
+            0.0
+        } else {
+            dense.iter().filter(|c| lid_cells.contains(c)).count() as f64 / dense.len() as f64
+        };
+        let poly = polygon(rect);
+        let centre = |(i, j): Cell2| ((i as f64 + 0.5) * CELL_M, (j as f64 + 0.5) * CELL_M);
+        let inside = |c: Cell2| {
+            let (x, y) = centre(c);
+            poly.contains(&Point::new(x, y))
+        };
+        let (mut lo, mut hi) = ((i64::MAX, i64::MAX), (i64::MIN, i64::MIN));
+        for c in rect {
+            let (i, j) = cell_of(c[0], c[1]);
+            lo = (lo.0.min(i), lo.1.min(j));
+            hi = (hi.0.max(i), hi.1.max(j));
+        }
+        let (mut total, mut held) = (0usize, 0usize);
+        let mut empty: std::collections::HashSet<Cell2, FixedState> = Default::default();
+        let mut seeds = Vec::new();
+        for i in lo.0..=hi.0 {
+            for j in lo.1..=hi.1 {
+                if !inside((i, j)) {
+                    continue;
+                }
+                total += 1;
+                held += usize::from(lid_cells.contains(&(i, j)));
+                let bare =
+                    (-1..=1).all(|di| (-1..=1).all(|dj| !lid_cells.contains(&(i + di, j + dj))));
+                if bare {
+                    empty.insert((i, j));
+                    if (-2..=2).any(|di| (-2..=2).any(|dj| !inside((i + di, j + dj)))) {
+                        seeds.push((i, j));
+                    }
+                }
+            }
+        }
+        let mut notch: std::collections::HashSet<Cell2, FixedState> = Default::default();
+        while let Some(c) = seeds.pop() {
+            if !notch.insert(c) {
+                continue;
+            }
+            for di in -1..=1 {
+                for dj in -1..=1 {
+                    let n = (c.0 + di, c.1 + dj);
+                    if empty.contains(&n) && !notch.contains(&n) {
+                        seeds.push(n);
+                    }
+                }
+            }
+        }
+        if total == 0 {
+            return (reach, 0.0, 0.0);
+        }
+        let rest = (total - notch.len()).max(1);
+        (
+            reach,
+            notch.len() as f64 / total as f64,
+            held as f64 / rest as f64,
+        )
+    }
+
+    /// The share of the cells inside `polygon` (1.5 cells in from its edges) that hold
+    /// points.
+    pub(super) fn coverage(&self, polygon: &Polygon<f64>) -> f64 {
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        for c in polygon.exterior().coords() {
+            x0 = x0.min(c.x);
+            y0 = y0.min(c.y);
+            x1 = x1.max(c.x);
+            y1 = y1.max(c.y);
+        }
+        let (lo, hi) = (cell_of(x0, y0), cell_of(x1, y1));
+        let inside = |x: f64, y: f64| {
+            use geo::Contains as _;
+            polygon.contains(&Point::new(x, y))
+        };
+        let (mut cells, mut held) = (0usize, 0usize);
+        for i in lo.0..=hi.0 {
+            for j in lo.1..=hi.1 {
+                // The cell and a cell's width around it inside the rectangle.
+                let (cx, cy) = ((i as f64 + 0.5) * CELL_M, (j as f64 + 0.5) * CELL_M);
+                let d = 1.5 * CELL_M;
+                if [(-d, -d), (d, -d), (d, d), (-d, d)]
+                    .iter()
+                    .all(|(dx, dy)| inside(cx + dx, cy + dy))
+                {
+                    cells += 1;
+                    held += usize::from(self.cells.contains_key(&(i, j)));
+                }
+            }
+        }
+        if cells == 0 {
+            1.0
+        } else {
+            held as f64 / cells as f64
+        }
+    }
+}

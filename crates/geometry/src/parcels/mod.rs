@@ -1,0 +1,371 @@
+//! Every parcel on the table (docs/design.md §6): the objects standing on the floor, each
+//! measured as the smallest cuboid that encloses it, with how well a cuboid fits, whether
+//! it touches another parcel and whether the data show all of it.
+//!
+//! Per object (a cluster of [`crate::dimension()`]'s grid):
+//! - the top: the lid band below a robust maximum of z, as [`crate::dimension()`] has always
+//!   taken it;
+//! - the footprint of a cuboid: the minimum-area rectangle around the lid gives the
+//!   directions; each of its four edges is then placed where the lid's points say, not
+//!   where the outermost one lies. Depth noise moves a point along its camera ray, so a
+//!   lid point off the camera's axis also moves sideways (by the depth error times the
+//!   tangent of the ray's angle); the outermost point of hundreds along an edge is the one
+//!   that moved outwards most, and a hull grows by about three noise deviations on every
+//!   side, more the farther the edge is from the axis: large boxes came out too big. The
+//!   points are not lost, only moved, so the edge lies where the lid's points beyond a line
+//!   well inside it, at the density just inside that line, would end (mass conservation);
+//! - the shape: a cuboid when the lid fills its rectangle and nothing of the object
+//!   reaches beyond it; otherwise `irregular`, measured as the minimum-area rectangle
+//!   around all its dense points (OIML R 129: the smallest enclosing box); where such an
+//!   object's lid has rounded corners (a polybag), each side that still slopes down
+//!   where the cameras lose it is continued to the floor within the band the cameras'
+//!   grazing rays leave unseen (see `shoulders`); an irregular object's height is the
+//!   apex of its top (the highest mean of a 15 mm patch of the height map), where a
+//!   band's median lies below a domed top. A tube lying on the floor is irregular too,
+//!   though its top strip fills a rectangle: across the strip its points lie on a circle
+//!   resting on the floor, whose diameter is its width and height, and the strip gives
+//!   its length (the flying pixels off its round ends lie below it);
+//! - tops: flat regions of a height map of the object, connected where neighbouring cells
+//!   differ by less than a step; two large ones mean two parcels side by side, and so
+//!   does one flat top that reaches out to the object's walls but leaves a notch in its
+//!   rectangle (an L or a step: the lids of two boxes of nearly one height);
+//! - coverage: the share of cells inside the footprint that hold points (holes from dark
+//!   or shiny surfaces lower it); with camera views, whether every top corner is inside
+//!   some camera's image.
+
+mod edges;
+mod fit;
+mod height_map;
+mod rect;
+mod round;
+mod shoulders;
+mod view;
+
+use std::collections::HashMap;
+
+use foldhash::fast::FixedState;
+use geo::{Area, Distance as _, Euclidean, Intersects as _, Polygon};
+
+use crate::dimension::{DimensionConfig, DimensionError, Dimensions, above_floor, clusters};
+use crate::{Point3, PointCloud};
+
+use fit::fit;
+pub use fit::{ParcelFit, Shape};
+use height_map::Cell2;
+use rect::{OUTSIDE_M, dot, polygon, share_outside, sub};
+pub use view::View;
+
+/// Objects with fewer points than this share of the largest one's are not parcels
+/// (fragments of flying pixels, specks).
+const MIN_SHARE: f64 = 0.005;
+
+/// Parcels whose footprints come closer than this (metres) are side by side: a taller
+/// parcel hides a strip of the lower one beside it from an oblique camera.
+const TOUCH_M: f64 = 0.05;
+
+/// An object with fewer points than this share of a larger one's, whose footprint comes
+/// within [`TOUCH_M`] of the larger one's, is a fragment of it (a sliver of a side wall,
+/// flying pixels between its edge and the floor), not a parcel (see [`fragment_of`]).
+const FRAGMENT_SHARE: f64 = 0.01;
+
+/// An object dropped as overlapping a larger one, with at least this share of its points
+/// and most of them beyond its footprint, is a parcel standing beside it that could not be
+/// told apart (a ring of flying pixels or a strip of side wall holds a few per cent).
+const NEIGHBOUR_SHARE: f64 = 0.1;
+
+/// An object whose footprint and a larger one's overlap by at least this share of the
+/// smaller footprint is a ring of flying pixels or floor speckle around it (see
+/// [`fragment_of`]); parcels side by side overlap by the few millimetres of noise on
+/// their edges, a share of a few per cent.
+const OVERLAP_SHARE: f64 = 0.2;
+
+/// Side of the columns in which the floor's speckle is told from a parcel (metres; see
+/// [`without_speckle`]).
+const SPECKLE_CELL_M: f64 = 0.01;
+
+/// In a column of the floor, the points just above the floor cut are speckle when they
+/// are fewer than this share of the column's points near the floor (raw scene 15, 1.8 m
+/// up: speckle columns hold 2-9 %, median 4 %).
+const SPECKLE_SHARE: f64 = 0.25;
+
+/// How far beyond a parcel's edges the cameras must see (metres) for it to be whole.
+const PROBE_M: f64 = 0.015;
+
+/// A top corner counts as seen when it projects at least this far inside an image.
+const VIEW_MARGIN_PX: f32 = 3.0;
+
+/// What [`parcels`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Parcels {
+    /// The objects with enough points, the largest footprint first.
+    pub parcels: Vec<ParcelFit>,
+    /// Points of the largest object above the floor (0 when there is none).
+    pub largest_points: usize,
+}
+
+/// Measures the largest object standing on the floor of `cloud` (output frame: z up,
+/// floor at z = 0, metres): the first of [`parcels()`] without camera views.
+pub fn dimension(
+    cloud: &PointCloud,
+    config: &DimensionConfig,
+) -> Result<Dimensions, DimensionError> {
+    let found = parcels(cloud, config, &[])?;
+    Ok(found
+        .parcels
+        .into_iter()
+        .next()
+        .ok_or(DimensionError::TooFewPoints {
+            found: found.largest_points,
+            needed: config.min_points,
+        })?
+        .dimensions)
+}
+
+/// Measures every object standing on the floor of `cloud` (output frame: z up, floor at
+/// z = 0, metres). `views` are the cameras the cloud came from, if known: a parcel with a
+/// top corner outside all of them is not complete.
+pub fn parcels(
+    cloud: &PointCloud,
+    config: &DimensionConfig,
+    views: &[View],
+) -> Result<Parcels, DimensionError> {
+    config.validate()?;
+    let above = without_speckle(cloud, above_floor(cloud, config), config);
+    let clusters = clusters(&above, config.cluster_radius_m)?;
+    let largest_points = clusters.first().map_or(0, Vec::len);
+    let needed = config
+        .min_points
+        .max((largest_points as f64 * MIN_SHARE).ceil() as usize);
+    let mut found = Vec::new();
+    let mut first_error = None;
+    for cluster in clusters.iter().take_while(|c| c.len() >= needed) {
+        match fit(cluster, config, views) {
+            Ok(f) => found.push((f, &cluster[..])),
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    if found.is_empty()
+        && let Some(e) = first_error
+    {
+        return Err(e);
+    }
+    // Fragments of larger objects (more points) go.
+    found.sort_by_key(|(f, _)| std::cmp::Reverse(f.dimensions.points));
+    let mut kept: Vec<ParcelFit> = Vec::with_capacity(found.len());
+    for (f, points) in found {
+        match kept.iter().position(|k| fragment_of(&f, points, k)) {
+            None => kept.push(f),
+            Some(i) => {
+                if neighbour_of(&f, points, &kept[i]) {
+                    kept[i].isolated = false;
+                }
+            }
+        }
+    }
+    let mut found = kept;
+    let area = |f: &ParcelFit| f.dimensions.length_mm * f.dimensions.width_mm;
+    found.sort_by(|a, b| area(b).total_cmp(&area(a)));
+    // Objects whose footprints come closer than TOUCH_M touch: one leans on the other,
+    // or a lower one stands beside a higher one with nothing seen between them.
+    let footprints: Vec<Polygon<f64>> = found
+        .iter()
+        .map(|f| polygon(&f.dimensions.corners_m))
+        .collect();
+    for i in 0..found.len() {
+        for j in i + 1..found.len() {
+            if Euclidean.distance(&footprints[i], &footprints[j]) < TOUCH_M {
+                found[i].isolated = false;
+                found[j].isolated = false;
+            }
+        }
+    }
+    // Just beyond each edge, at the top's height: a point there that no camera has in
+    // its image, or that every camera that has it sees only through another parcel,
+    // might be more of the parcel, hidden.
+    if !views.is_empty() {
+        for i in 0..found.len() {
+            let hidden = probes(&found[i].dimensions).iter().any(|p| {
+                !views.iter().any(|v| {
+                    let eye = Point3::from(v.to_common.translation);
+                    v.sees(p, VIEW_MARGIN_PX)
+                        && !found
+                            .iter()
+                            .enumerate()
+                            .any(|(j, other)| j != i && blocks(other, &eye, p))
+                })
+            });
+            if hidden {
+                found[i].out_of_view = true;
+                found[i].complete = false;
+            }
+        }
+    }
+    Ok(Parcels {
+        parcels: found,
+        largest_points,
+    })
+}
+
+/// `above` (the points of `cloud` above the floor cut) without the floor's speckle, when
+/// the floor itself is in the cloud (unprepared cameras send it).
+///
+/// Depth noise grows with the square of the range (a D415 1.9 m from the floor: about
+/// 5.5 mm), and a few per cent of the floor's points then land above the floor cut: at
+/// some millimetres apart they join into one object across the whole floor, with every
+/// parcel in it (raw scenes 15, 51, 64 were refused as reaching beyond the view). Such a
+/// point lies within a few noise deviations of the floor, in a column of the floor's
+/// points: where fewer than [`SPECKLE_SHARE`] of a [`SPECKLE_CELL_M`] column's points
+/// near the floor lie above the cut, those are floor. A parcel's side or lid there is
+/// higher, or fills its column.
+fn without_speckle(
+    cloud: &PointCloud,
+    above: Vec<Point3>,
+    config: &DimensionConfig,
+) -> Vec<Point3> {
+    let cut = config.min_height_m;
+    let mut floor: Vec<f32> = cloud
+        .points
+        .iter()
+        .filter(|p| crate::cloud::is_finite(p) && p.z.abs() < cut)
+        .map(|p| p.z)
+        .collect();
+    // The floor is in the cloud when half its noise, below zero, is.
+    let below = floor.iter().filter(|z| **z < 0.0).count();
+    if below < config.min_points || floor.is_empty() {
+        return above;
+    }
+    let mid = floor.len() / 2;
+    let (_, median, _) = floor.select_nth_unstable_by(mid, f32::total_cmp);
+    let median = *median;
+    let mut deviations: Vec<f32> = floor.iter().map(|z| (z - median).abs()).collect();
+    let (_, mad, _) = deviations.select_nth_unstable_by(mid, f32::total_cmp);
+    let reach = cut + 3.0 * 1.4826 * *mad;
+    let cell = |p: &Point3| {
+        (
+            (f64::from(p.x) / SPECKLE_CELL_M).floor() as i64,
+            (f64::from(p.y) / SPECKLE_CELL_M).floor() as i64,
+        )
+    };
+    let mut counts: HashMap<Cell2, (u32, u32), FixedState> = HashMap::default();
+    for p in &cloud.points {
+        if crate::cloud::is_finite(p) && p.z.abs() < cut {
+            counts.entry(cell(p)).or_default().0 += 1;
+        }
+    }
+    for p in above.iter().filter(|p| p.z < reach) {
+        counts.entry(cell(p)).or_default().1 += 1;
+    }
+    above
+        .into_iter()
+        .filter(|p| {
+            p.z >= reach
+                || counts.get(&cell(p)).is_none_or(|&(floor, high)| {
+                    f64::from(high) >= SPECKLE_SHARE * f64::from(floor + high)
+                })
+        })
+        .collect()
+}
+
+/// Whether the object `f` (of `points`) is a piece of the larger object `k` rather than a
+/// parcel of its own:
+/// - most of its points lie within [`OUTSIDE_M`] of `k`'s footprint: a strip of `k`'s
+///   side wall that holes (a dark or glaring finish) cut off from its lid, or points
+///   under its edge; a parcel beside `k` has its lid away from it;
+/// - its footprint and `k`'s overlap by at least [`OVERLAP_SHARE`] of the smaller one's
+///   area: a ring of flying pixels around `k`, or the speckle of floor noise above the
+///   floor cut spread around it (two parcels side by side overlap by a sliver at most);
+/// - it has fewer than [`FRAGMENT_SHARE`] of `k`'s points and comes within [`TOUCH_M`].
+fn fragment_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
+    use geo::BooleanOps as _;
+    let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
+    let (p, q) = (
+        polygon(&f.dimensions.corners_m),
+        polygon(&k.dimensions.corners_m),
+    );
+    let under = share_outside(&k.dimensions.corners_m, points.iter().map(xy), OUTSIDE_M) < 0.5;
+    let least = p.unsigned_area().min(q.unsigned_area());
+    let overlap = p.intersects(&q)
+        && (least <= 0.0 || p.intersection(&q).unsigned_area() >= OVERLAP_SHARE * least);
+    let small = (f.dimensions.points as f64) < FRAGMENT_SHARE * k.dimensions.points as f64;
+    under || overlap || (small && Euclidean.distance(&p, &q) < TOUCH_M)
+}
+
+/// Whether `f`, dropped as a fragment of `k` (with its `points`), is rather a parcel
+/// standing beside `k` that could not be told apart: a parcel's worth of points, most of
+/// them beyond `k`'s footprint (a lower parcel whose outline ran into the higher one's
+/// wall, so that their rectangles overlap). Nothing is said of it, so `k` is not alone.
+fn neighbour_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
+    let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
+    let beside = share_outside(&k.dimensions.corners_m, points.iter().map(xy), OUTSIDE_M) >= 0.5;
+    beside && f.dimensions.points as f64 >= NEIGHBOUR_SHARE * k.dimensions.points as f64
+}
+
+/// Points [`PROBE_M`] outside the footprint of `d` at its height: beyond each corner and
+/// each edge's middle.
+fn probes(d: &Dimensions) -> Vec<Point3> {
+    let c = &d.corners_m;
+    let centre = [0, 1].map(|k| c.iter().map(|p| p[k]).sum::<f64>() / 4.0);
+    let z = (d.height_mm / 1e3) as f32;
+    let mut out = Vec::with_capacity(8);
+    for k in 0..4 {
+        let (p, q) = (c[k], c[(k + 1) % 4]);
+        for at in [p, [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0]] {
+            let away = sub(at, centre);
+            let n = away[0].hypot(away[1]).max(1e-9);
+            out.push(Point3::new(
+                (at[0] + away[0] / n * PROBE_M) as f32,
+                (at[1] + away[1] / n * PROBE_M) as f32,
+                z,
+            ));
+        }
+    }
+    out
+}
+
+/// Whether the upright box of `fit` (its footprint, from the floor to its height) lies
+/// on the segment from `from` to 1 cm short of `to`.
+fn blocks(fit: &ParcelFit, from: &Point3, to: &Point3) -> bool {
+    let c = &fit.dimensions.corners_m;
+    let c0 = c[0];
+    let (e0, e1) = (sub(c[1], c0), sub(c[3], c0));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 0.0 || lb <= 0.0 {
+        return false;
+    }
+    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+    let local = |p: &Point3| {
+        let d = sub([f64::from(p.x), f64::from(p.y)], c0);
+        [dot(d, a), dot(d, b), f64::from(p.z)]
+    };
+    let (p, q) = (local(from), local(to));
+    let length = ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt();
+    if length <= 0.01 {
+        return false;
+    }
+    let (mut t0, mut t1) = (0.0f64, 1.0 - 0.01 / length);
+    let high = [la, lb, fit.dimensions.height_mm / 1e3];
+    for k in 0..3 {
+        let d = q[k] - p[k];
+        if d.abs() < 1e-12 {
+            if p[k] < 0.0 || p[k] > high[k] {
+                return false;
+            }
+            continue;
+        }
+        let (mut u, mut v) = ((0.0 - p[k]) / d, (high[k] - p[k]) / d);
+        if u > v {
+            std::mem::swap(&mut u, &mut v);
+        }
+        t0 = t0.max(u);
+        t1 = t1.min(v);
+        if t0 > t1 {
+            return false;
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests;

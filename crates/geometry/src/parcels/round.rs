@@ -1,0 +1,338 @@
+//! Round parcels: a tube lying on the floor, a cylinder standing on it.
+
+use geo::{Area, ConvexHull, Coord, LineString, MultiPoint, Point, Polygon};
+
+use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
+use super::rect::{dot, sub};
+use crate::Point3;
+
+/// A tube lying on the floor: its cross-section, in the frame of the lid's rectangle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct LyingTube {
+    /// Whether the axis runs along the rectangle's first edge (corner 0 to 1).
+    along_first: bool,
+    /// The axis's position across the rectangle, from corner 0, metres.
+    centre: f64,
+    /// The radius, metres: the tube rests on the floor, so its top is at twice this.
+    pub(super) radius: f64,
+}
+
+impl LyingTube {
+    /// The footprint: the lid's rectangle along the axis, the circle's diameter across.
+    pub(super) fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
+        let c0 = rect[0];
+        let (mut e0, mut e1) = (sub(rect[1], c0), sub(rect[3], c0));
+        if !self.along_first {
+            std::mem::swap(&mut e0, &mut e1);
+        }
+        let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+        if la <= 0.0 || lb <= 0.0 {
+            return *rect;
+        }
+        let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+        let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+        let (t0, t1) = (self.centre - self.radius, self.centre + self.radius);
+        [at(0.0, t0), at(la, t0), at(la, t1), at(0.0, t1)]
+    }
+}
+
+/// A standing cylinder's lid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Disc {
+    centre: [f64; 2],
+    pub(super) radius: f64,
+}
+
+impl Disc {
+    pub(super) fn grown(self, by: f64) -> Self {
+        Self {
+            radius: self.radius + by,
+            ..self
+        }
+    }
+
+    /// The square around it, along the rectangle `rect`'s edges.
+    pub(super) fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
+        let e = sub(rect[1], rect[0]);
+        let n = e[0].hypot(e[1]);
+        let a = if n > 0.0 {
+            [e[0] / n, e[1] / n]
+        } else {
+            [1.0, 0.0]
+        };
+        let b = [-a[1], a[0]];
+        let r = self.radius;
+        let at = |s: f64, t: f64| {
+            [
+                self.centre[0] + a[0] * s + b[0] * t,
+                self.centre[1] + a[1] * s + b[1] * t,
+            ]
+        };
+        [at(-r, -r), at(r, -r), at(r, r), at(-r, r)]
+    }
+
+    /// The disc as a polygon of 64 sides.
+    pub(super) fn polygon(&self) -> Polygon<f64> {
+        let ring: Vec<Coord<f64>> = (0..64)
+            .map(|k| {
+                let a = f64::from(k) * std::f64::consts::TAU / 64.0;
+                Coord {
+                    x: self.centre[0] + self.radius * a.cos(),
+                    y: self.centre[1] + self.radius * a.sin(),
+                }
+            })
+            .collect();
+        Polygon::new(LineString::from(ring), Vec::new())
+    }
+}
+
+/// A disc's lid hull fills this share of its rectangle at least (pi / 4 = 0.785; a
+/// square lid 1, a lying tube's strip about 0.99) ...
+const DISC_FIT: [f64; 2] = [0.72, 0.86];
+
+/// ... its hull's corners lie this close to one circle (share of the radius, at least
+/// [`DISC_ROUND_M`]) ...
+const DISC_ROUND: f64 = 0.04;
+
+/// See [`DISC_ROUND`], metres.
+const DISC_ROUND_M: f64 = 0.004;
+
+/// Whether the lid (`points`, its rectangle `rect`) is a disc with nothing of the object
+/// beyond it (a standing cylinder), and its radius. The radius is placed as a box's edges
+/// are ([`super::edges::edges`]), in rings instead of strips: depth noise moves the lid's points
+/// sideways without adding or losing any, so the edge lies where the `flat` points
+/// beyond a circle `margin` inside the outermost ones, at the density of the ring just
+/// inside it, would end; each 1 mm ring counts at most 1.5 times that density (the top
+/// of the side wall seen from the side is no lid). Where the disc's rectangle was placed
+/// by strips, a disc thins towards each extreme as a square root, and the strip count put
+/// its edges about 3 mm inside: cylinders came out 3.5-6.7 mm narrow.
+pub(super) fn standing_disc(
+    rect: &[[f64; 2]; 4],
+    points: &[Point3],
+    flat: &[Point3],
+    dense: &[Point3],
+    margin: f64,
+    inward: f64,
+) -> Option<Disc> {
+    let (e0, e1) = (sub(rect[1], rect[0]), sub(rect[3], rect[0]));
+    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if la <= 0.0 || lb <= 0.0 || la.max(lb) > 1.1 * la.min(lb) {
+        return None;
+    }
+    let hull = points
+        .iter()
+        .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
+        .collect::<MultiPoint<f64>>()
+        .convex_hull();
+    let fit = hull.unsigned_area() / (la * lb);
+    if !(DISC_FIT[0]..=DISC_FIT[1]).contains(&fit) {
+        return None;
+    }
+    let centre = [0, 1].map(|k| rect.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let radii: Vec<f64> = hull
+        .exterior()
+        .coords()
+        .map(|c| (c.x - centre[0]).hypot(c.y - centre[1]))
+        .collect();
+    let outer = radii.iter().copied().fold(0.0, f64::max);
+    let inner = radii.iter().copied().fold(f64::MAX, f64::min);
+    if outer - inner > (DISC_ROUND * outer).max(DISC_ROUND_M) {
+        return None;
+    }
+    let reach = |p: &Point3| (f64::from(p.x) - centre[0]).hypot(f64::from(p.y) - centre[1]);
+    // Nothing of the object beyond the lid (as of a cuboid).
+    let beyond = dense
+        .iter()
+        .filter(|p| reach(p) > outer + OUTSIDE_M)
+        .count();
+    if beyond as f64 > CUBOID_OUTSIDE * dense.len() as f64 {
+        return None;
+    }
+    const BIN_M: f64 = 0.001;
+    let window = (2.0 * margin).max(0.01);
+    let line = outer - margin;
+    if line - window <= 0.0 {
+        return None;
+    }
+    let r: Vec<f64> = flat.iter().map(reach).collect();
+    let ring = |lo: f64, hi: f64| std::f64::consts::PI * (hi * hi - lo * lo);
+    let inside = r
+        .iter()
+        .filter(|v| **v >= line - window && **v < line)
+        .count();
+    if inside == 0 {
+        return None;
+    }
+    let density = inside as f64 / ring(line - window, line);
+    let mut bins = vec![0usize; (margin / BIN_M).ceil() as usize + 1];
+    for v in &r {
+        if *v >= line {
+            let k = ((v - line) / BIN_M) as usize;
+            if let Some(b) = bins.get_mut(k) {
+                *b += 1;
+            }
+        }
+    }
+    let mass: f64 = bins
+        .iter()
+        .enumerate()
+        .map(|(k, n)| {
+            let lo = line + k as f64 * BIN_M;
+            (*n as f64).min(1.5 * density * ring(lo, lo + BIN_M))
+        })
+        .sum();
+    let radius = (line * line + mass / (std::f64::consts::PI * density)).sqrt();
+    Some(Disc {
+        centre,
+        radius: radius.clamp(outer - inward.min(margin), outer),
+    })
+}
+
+/// Profile points used for the circle (a sample is as good and keeps this cheap).
+const TUBE_SAMPLE: usize = 4000;
+
+/// The circle's residuals may reach this (metres) or a quarter of the lid band (about one
+/// depth-noise deviation), whichever is more: a box's edges or a bag's flat top miss
+/// a circle resting on the floor by centimetres.
+const TUBE_RMS_M: f64 = 0.002;
+
+/// Of a tube, the points above half its height (inliers of the circle) span at least this
+/// share of its diameter across the axis: the camera sees its top half from above.
+const TUBE_SPAN: f64 = 0.8;
+
+/// Of a tube, at most this share of its dense points lies more than [`OUTSIDE_M`] beyond
+/// its lid strip's ends (lane sets: lying tubes 0 to 0.2 %, flying pixels off their
+/// ends; a tall polybag whose cross-section is round, 18 %: its rounded ends).
+const TUBE_BEYOND_SHARE: f64 = 0.02;
+
+/// Whether the object is a tube lying on the floor (a cylinder with a horizontal axis along
+/// the lid rectangle `rect`'s long side): the dense points above half its height, across
+/// the middle of its length (away from the round ends' flying pixels), lie on a circle
+/// that rests on the floor (centre at the radius's height) and whose top is the
+/// object's height, and nothing of it lies beyond the ends of its lid strip (a bag as
+/// high as it is wide has a round section too, but its top curves down to rounded ends
+/// beyond the strip: polybag scene 644 of the 720, 349 mm long, read as a tube 248 mm
+/// long). Depth noise moves each point along its ray by about a quarter of the
+/// lid band, so the circle fits to that; the height read from the top band is a median
+/// of the strip below the crest (about a quarter of the band low on a circle), the
+/// circle's top is not.
+pub(super) fn lying_tube(
+    rect: &[[f64; 2]; 4],
+    dense: &[Point3],
+    height_m: f32,
+    band_m: f32,
+) -> Option<LyingTube> {
+    let c0 = rect[0];
+    let (e0, e1) = (sub(rect[1], c0), sub(rect[3], c0));
+    let (l0, l1) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    if l0 <= 0.0 || l1 <= 0.0 {
+        return None;
+    }
+    let along_first = l0 >= l1;
+    let (long, across, len) = if along_first {
+        (e0, e1, l0)
+    } else {
+        (e1, e0, l1)
+    };
+    let a = [long[0] / len, long[1] / len];
+    let la = across[0].hypot(across[1]);
+    let b = [across[0] / la, across[1] / la];
+    let height = f64::from(height_m);
+    let profile: Vec<[f64; 2]> = dense
+        .iter()
+        .filter_map(|p| {
+            let d = sub([f64::from(p.x), f64::from(p.y)], c0);
+            let s = dot(d, a);
+            (s >= 0.2 * len && s <= 0.8 * len && f64::from(p.z) >= height / 2.0)
+                .then(|| [dot(d, b), f64::from(p.z)])
+        })
+        .collect();
+    let step = (profile.len() / TUBE_SAMPLE).max(1);
+    let profile: Vec<[f64; 2]> = profile.into_iter().step_by(step).collect();
+    if profile.len() < 50 {
+        return None;
+    }
+    // Start at the crest: the middle of the points near the top, half the height.
+    let crest: Vec<f64> = profile
+        .iter()
+        .filter(|q| q[1] >= height - f64::from(band_m))
+        .map(|q| q[0])
+        .collect();
+    if crest.is_empty() {
+        return None;
+    }
+    let mut centre = crest.iter().sum::<f64>() / crest.len() as f64;
+    let mut radius = height / 2.0;
+    let residual = |q: &[f64; 2], c: f64, r: f64| (q[0] - c).hypot(q[1] - r) - r;
+    // Gauss-Newton on (centre, radius), three rounds, each after the first on the points
+    // within three robust deviations (at least 2 mm) of the last round's circle.
+    let mut keep = f64::INFINITY;
+    for _ in 0..3 {
+        for _ in 0..10 {
+            let (mut h00, mut h01, mut h11, mut g0, mut g1) = (0.0, 0.0, 0.0, 0.0, 0.0);
+            for q in &profile {
+                let (dt, dz) = (q[0] - centre, q[1] - radius);
+                let rho = dt.hypot(dz).max(1e-9);
+                let r = rho - radius;
+                if r.abs() > keep {
+                    continue;
+                }
+                let (j0, j1) = (-dt / rho, -dz / rho - 1.0);
+                h00 += j0 * j0;
+                h01 += j0 * j1;
+                h11 += j1 * j1;
+                g0 += j0 * r;
+                g1 += j1 * r;
+            }
+            let det = h00 * h11 - h01 * h01;
+            if det.abs() < 1e-18 {
+                return None;
+            }
+            centre -= (h11 * g0 - h01 * g1) / det;
+            radius -= (h00 * g1 - h01 * g0) / det;
+            if !(radius > 0.005 && radius.is_finite()) {
+                return None;
+            }
+        }
+        let mut spread: Vec<f64> = profile
+            .iter()
+            .map(|q| residual(q, centre, radius).abs())
+            .collect();
+        let mid = spread.len() / 2;
+        let mad = *spread.select_nth_unstable_by(mid, f64::total_cmp).1;
+        keep = (3.0 * 1.4826 * mad).max(0.002);
+    }
+    let inliers: Vec<&[f64; 2]> = profile
+        .iter()
+        .filter(|q| residual(q, centre, radius).abs() <= keep)
+        .collect();
+    let rms = (inliers
+        .iter()
+        .map(|q| residual(q, centre, radius).powi(2))
+        .sum::<f64>()
+        / inliers.len().max(1) as f64)
+        .sqrt();
+    let (lo, hi) = inliers.iter().fold((f64::MAX, f64::MIN), |(lo, hi), q| {
+        (lo.min(q[0]), hi.max(q[0]))
+    });
+    let round = inliers.len() as f64 >= 0.9 * profile.len() as f64
+        && rms <= TUBE_RMS_M.max(f64::from(band_m) / 4.0)
+        && hi - lo >= TUBE_SPAN * 2.0 * radius
+        && (2.0 * radius - height).abs() <= (0.05 * height).max(0.006);
+    // A tube's crest runs its whole length and its ends are upright discs: beyond the
+    // lid strip's ends only a few flying pixels stay dense. A bag's top curves down along
+    // its length as across it, and its rounded ends lie beyond the strip.
+    let beyond = dense
+        .iter()
+        .filter(|p| {
+            let s = dot(sub([f64::from(p.x), f64::from(p.y)], c0), a);
+            s < -OUTSIDE_M || s > len + OUTSIDE_M
+        })
+        .count() as f64
+        / dense.len().max(1) as f64;
+    (round && beyond <= TUBE_BEYOND_SHARE).then_some(LyingTube {
+        along_first,
+        centre,
+        radius,
+    })
+}

@@ -1,0 +1,311 @@
+use super::edges::{edges, walls};
+use super::round::lying_tube;
+use super::*;
+use crate::Transform;
+use crate::dimension::rect_dimensions;
+
+#[test]
+fn edges_land_where_the_points_end_not_where_noise_threw_the_outermost() {
+    // Twenty rows of points 1 mm apart over 0..300 mm (standing for 300.0 +- 0.5
+    // mm), each moved by up to +-2 mm: the extremes lie 2 mm beyond the ends.
+    let mut s: Vec<f64> = Vec::new();
+    for row in 0..20u64 {
+        for i in 0..=300u64 {
+            let k = (row * 301 + i).wrapping_mul(7919) % 1000;
+            s.push(i as f64 * 0.001 + 0.002 * (k as f64 / 500.0 - 1.0));
+        }
+    }
+    let min = s.iter().copied().fold(f64::MAX, f64::min);
+    let max = s.iter().copied().fold(f64::MIN, f64::max);
+    assert!(max - min > 0.3035, "{min} {max}");
+    let shifted: Vec<f64> = s.iter().map(|v| v - min).collect();
+    let (lo, hi) = edges(&shifted, max - min, 0.006, 0.006, 0.0);
+    let (lo, hi) = (lo + min, hi + min);
+    assert!((lo + 0.0005).abs() < 0.0003, "{lo}");
+    assert!((hi - 0.3005).abs() < 0.0003, "{hi}");
+}
+
+/// The top of an object 160 mm across lying along x from -0.2 to 0.2 m, every 2 mm:
+/// across, a circle resting on the floor; along, level up to `level` from the middle,
+/// then (a bag's rounded end) a quarter ellipse down to the floor at 0.2 m.
+fn lying_top(level: f64) -> Vec<Point3> {
+    let r = 0.08;
+    let mut out = Vec::new();
+    for i in 0..=200 {
+        let x = -0.2 + f64::from(i) * 0.002;
+        let end = if x.abs() <= level {
+            1.0
+        } else {
+            let u = (x.abs() - level) / (0.2 - level);
+            (1.0 - u * u).max(0.0).sqrt()
+        };
+        for j in 0..=80 {
+            let y = -r + f64::from(j) * 0.002;
+            let z = (r + (r * r - y * y).max(0.0).sqrt()) * end;
+            out.push(Point3::new(x as f32, y as f32, z as f32));
+        }
+    }
+    out
+}
+
+#[test]
+fn a_bag_with_a_round_section_and_rounded_ends_is_no_lying_tube() {
+    // The lid strip: the crest's 5 cm wide band within 1 cm of the top.
+    let strip = |half: f64| {
+        [
+            [-half, -0.025],
+            [half, -0.025],
+            [half, 0.025],
+            [-half, 0.025],
+        ]
+    };
+    let tube = lying_top(0.2);
+    let found = lying_tube(&strip(0.2), &tube, 0.16, 0.01).expect("a tube");
+    assert!((found.radius - 0.08).abs() < 0.002, "{}", found.radius);
+    // The same section, but the top curves down over the last 6 cm of each end: the
+    // crest strip is 28 cm long and the bag's ends lie beyond it.
+    let bag = lying_top(0.14);
+    assert!(lying_tube(&strip(0.14), &bag, 0.16, 0.01).is_none());
+}
+
+/// Points every 2 mm over the rectangle [x0, x1] x [y0, y1] at height z.
+fn lid_points(x: [f64; 2], y: [f64; 2], z: f64) -> Vec<Point3> {
+    let steps = |r: [f64; 2]| ((r[1] - r[0]) / 0.002).round() as usize;
+    let mut out = Vec::new();
+    for i in 0..=steps(x) {
+        for j in 0..=steps(y) {
+            out.push(Point3::new(
+                (x[0] + i as f64 * 0.002) as f32,
+                (y[0] + j as f64 * 0.002) as f32,
+                z as f32,
+            ));
+        }
+    }
+    out
+}
+
+#[test]
+fn a_lower_parcel_beside_a_higher_one_is_found_and_both_are_flagged() {
+    // Noise makes the lower lid reach 2 mm into the higher one's footprint: the two
+    // rectangles overlap by a sliver, which does not make the lower one a fragment.
+    let mut points = lid_points([-0.32, 0.0], [-0.085, 0.085], 0.225);
+    points.extend(lid_points([-0.002, 0.35], [-0.075, 0.075], 0.177));
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 2, "{found:?}");
+    assert!(found.parcels.iter().all(|p| !p.isolated), "{found:?}");
+}
+
+#[test]
+fn two_boxes_of_one_height_side_by_side_in_an_l_are_not_one_isolated_parcel() {
+    // 377 x 166 and 217 x 113 mm, both 114 mm high, touching along a face: their lids
+    // make one flat top whose outline is an L, no box's.
+    let mut points = lid_points([0.0, 0.377], [0.0, 0.166], 0.114);
+    points.extend(lid_points([0.379, 0.594], [0.0, 0.113], 0.114));
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 1, "{found:?}");
+    assert_eq!(found.parcels[0].shape, Shape::Irregular, "{found:?}");
+    assert!(!found.parcels[0].isolated, "{found:?}");
+    // One box of the L's whole rectangle is one parcel.
+    let points = lid_points([0.0, 0.594], [0.0, 0.166], 0.114);
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 1, "{found:?}");
+    assert!(found.parcels[0].isolated, "{found:?}");
+}
+
+#[test]
+fn a_strip_of_side_wall_cut_off_by_holes_is_part_of_its_parcel() {
+    // A dark box 100 x 95 x 66 mm whose side wall kept points only low down, 3 cm
+    // below its lid (too far to join it): that strip stands under the lid's edge.
+    let mut points = lid_points([0.0, 0.1], [0.0, 0.095], 0.066);
+    for i in 0..50 {
+        for k in 0..10 {
+            let (y, z) = (i as f32 * 0.002, 0.012 + k as f32 * 0.002);
+            points.push(Point3::new(0.1005, y, z));
+        }
+    }
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 1, "{found:?}");
+    assert!(found.parcels[0].isolated);
+}
+
+#[test]
+fn a_wall_seen_from_outside_places_its_side_where_the_lid_ends_short() {
+    // A 300 x 200 x 200 mm box from x = y = 0; the lid's points stop 2 mm short of
+    // x = 0.3 (the filter rounded that corner), the wall at x = 0.3 is seen by a
+    // camera beyond it (x = 0.8, 1 m up, looking down and back at the box).
+    let mut cluster = Vec::new();
+    for i in 0..=149 {
+        for j in 0..=100 {
+            cluster.push(Point3::new(i as f32 * 0.002, j as f32 * 0.002, 0.2));
+        }
+    }
+    for k in 0..100 {
+        for j in 0..=100 {
+            let x = 0.3 + 0.0005 * ((k + j) % 3) as f32 - 0.0005;
+            cluster.push(Point3::new(x, j as f32 * 0.002, k as f32 * 0.002));
+        }
+    }
+    // The camera's z axis (looking) from (0.8, 0.1, 1.0) towards (0.15, 0.1, 0.1).
+    let look = nalgebra::Vector3::new(-0.65f32, 0.0, -0.9).normalize();
+    let x_axis = nalgebra::Vector3::new(0.0f32, 1.0, 0.0);
+    let y_axis = look.cross(&x_axis);
+    let view = View {
+        to_common: Transform {
+            linear: nalgebra::Matrix3::from_columns(&[x_axis, y_axis, look]),
+            translation: nalgebra::Vector3::new(0.8, 0.1, 1.0),
+        },
+        fx: 900.0,
+        fy: 900.0,
+        ppx: 640.0,
+        ppy: 360.0,
+        width: 1280,
+        height: 720,
+    };
+    let lid = [[0.0, 0.0], [0.298, 0.0], [0.298, 0.2], [0.0, 0.2]];
+    let found = walls(&lid, &cluster, 0.2, &[view], 0.0015);
+    // Side 1 runs from corner 1 to corner 2, at x = 0.298: its wall lies 2 mm out.
+    let out = found[1].expect("the wall facing the camera");
+    assert!((out - 0.002).abs() < 0.0003, "{out}");
+    // The camera stands beyond no other side.
+    assert_eq!([found[0], found[2], found[3]], [None, None, None]);
+    // Without cameras no wall is trusted.
+    assert_eq!(walls(&lid, &cluster, 0.2, &[], 0.0015), [None; 4]);
+}
+
+#[test]
+fn a_low_lid_blurred_into_the_floor_is_measured_to_its_step() {
+    // A 300 x 200 x 35 mm box whose edges the spatial filter smoothed: the height
+    // falls from the lid to the floor over about 2 cm around each edge, passing half
+    // the height at the edge (seen from straight above; 2 mm between points as a D415
+    // 1.8 m up); the floor cut drops what is
+    // lower than 1 cm.
+    let mut points = Vec::new();
+    for i in 0..=180 {
+        for j in 0..=130 {
+            let (x, y) = (-0.03 + i as f64 * 0.002, -0.03 + j as f64 * 0.002);
+            let out = (-x).max(x - 0.3).max(-y).max(y - 0.2);
+            let z = 0.035 * 0.5 * (1.0 - (out / 0.006).tanh());
+            if z >= 0.01 {
+                points.push(Point3::new(x as f32, y as f32, z as f32));
+            }
+        }
+    }
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    let d = &found.parcels[0].dimensions;
+    assert_eq!(found.parcels[0].shape, Shape::Cuboid);
+    assert!((d.length_mm - 300.0).abs() < 1.5, "{d:?}");
+    assert!((d.width_mm - 200.0).abs() < 1.5, "{d:?}");
+}
+
+#[test]
+fn the_speckle_of_a_noisy_floor_in_the_cloud_does_not_join_parcels_apart() {
+    // An unprepared camera far up sends the floor with 5.5 mm of noise: 3.5 % of its
+    // points land above the 1 cm cut, a few millimetres apart, all over the floor.
+    // Two 200 x 200 x 100 mm boxes stand 200 mm apart on it.
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let on_box = |x: f64, y: f64| (0.1..0.3).contains(&x.abs()) && (-0.1..0.1).contains(&y);
+    let mut points = Vec::new();
+    for i in 0..400 {
+        for j in 0..400 {
+            let (x, y) = (-0.4 + i as f64 * 0.002, -0.4 + j as f64 * 0.002);
+            let noise = (-2.0 * uniform().max(1e-12).ln()).sqrt()
+                * (std::f64::consts::TAU * uniform()).cos();
+            // (The lids, nearer, get a millimetre.)
+            let z = if on_box(x, y) {
+                0.1 + 0.001 * noise
+            } else {
+                0.0055 * noise
+            };
+            points.push(Point3::new(x as f32, y as f32, z as f32));
+        }
+    }
+    // Their side walls, seen from the floor up to the lids, join each lid to the floor.
+    for k in 0..50 {
+        let z = k as f32 * 0.002;
+        for i in 0..100 {
+            for x0 in [-0.3f32, 0.1] {
+                let x = x0 + i as f32 * 0.002;
+                points.push(Point3::new(x, -0.1, z));
+                points.push(Point3::new(x, 0.1, z));
+            }
+            let y = -0.1 + i as f32 * 0.002;
+            for x in [-0.3f32, -0.1, 0.1, 0.3] {
+                points.push(Point3::new(x, y, z));
+            }
+        }
+    }
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    // Joined through the speckle they would be one object with two tops.
+    assert_eq!(found.parcels.len(), 2, "{found:?}");
+    for p in &found.parcels {
+        assert!(p.isolated, "{found:?}");
+        assert!((p.dimensions.length_mm - 200.0).abs() < 10.0, "{found:?}");
+    }
+}
+
+#[test]
+fn a_dropped_object_standing_beside_the_kept_one_takes_its_isolation() {
+    let rect = |x0: f64, y0: f64, x1: f64, y1: f64| [[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
+    let fit = |corners, points| ParcelFit {
+        dimensions: rect_dimensions(corners, 0.2, points),
+        shape: Shape::Cuboid,
+        fit: 1.0,
+        tops: 1,
+        isolated: true,
+        coverage: 1.0,
+        out_of_view: false,
+        complete: true,
+    };
+    // The kept parcel: 0.3 x 0.3 m, 10,000 points.
+    let kept = fit(rect(0.0, 0.0, 0.3, 0.3), 10_000);
+    // Points on a 1 cm grid over x0..x1, y 0..0.2 m.
+    let grid = |x0: f64, x1: f64| -> Vec<Point3> {
+        let mut v = Vec::new();
+        let mut x = x0;
+        while x < x1 {
+            for j in 0..20 {
+                v.push(Point3::new(x as f32, j as f32 * 0.01, 0.1));
+            }
+            x += 0.01;
+        }
+        v
+    };
+    // A lower box beside it whose outline ran 10 cm into the kept one: a neighbour.
+    let beside = grid(0.31, 0.55);
+    let lower = fit(rect(0.2, 0.0, 0.55, 0.2), 3_000);
+    assert!(neighbour_of(&lower, &beside, &kept));
+    // The same points but a few of them (a ring of flying pixels): not a parcel.
+    let ring = fit(rect(0.2, 0.0, 0.55, 0.2), 500);
+    assert!(!neighbour_of(&ring, &beside, &kept));
+    // A strip of the kept one's own wall, under its edge: not beside it.
+    let under = grid(0.22, 0.3);
+    let strip = fit(rect(0.2, 0.0, 0.3, 0.2), 3_000);
+    assert!(!neighbour_of(&strip, &under, &kept));
+}
+
+#[test]
+fn a_view_sees_what_lies_inside_its_image() {
+    let down = Transform {
+        linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
+        translation: nalgebra::Vector3::new(0.0, 0.0, 1.0),
+    };
+    let v = View {
+        to_common: down,
+        fx: 600.0,
+        fy: 600.0,
+        ppx: 320.0,
+        ppy: 240.0,
+        width: 640,
+        height: 480,
+    };
+    assert!(v.sees(&Point3::new(0.0, 0.0, 0.0), 3.0));
+    assert!(v.sees(&Point3::new(0.5, 0.0, 0.0), 3.0));
+    assert!(!v.sees(&Point3::new(0.6, 0.0, 0.0), 3.0));
+    assert!(!v.sees(&Point3::new(0.0, 0.0, 2.0), 3.0));
+}

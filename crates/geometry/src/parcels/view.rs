@@ -1,0 +1,73 @@
+//! What a camera sees of the table: its pose and pinhole intrinsics.
+
+use crate::{Point3, Transform};
+
+/// What a camera sees: its pose and pinhole intrinsics (the depth stream's).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct View {
+    /// The camera's frame to the common frame.
+    pub to_common: Transform,
+    /// Focal lengths, pixels.
+    pub fx: f32,
+    /// See `fx`.
+    pub fy: f32,
+    /// Principal point, pixels.
+    pub ppx: f32,
+    /// See `ppx`.
+    pub ppy: f32,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+}
+
+impl View {
+    /// Whether `p` (common frame) lies in front of the camera and projects at least
+    /// `margin_px` inside the image.
+    pub fn sees(&self, p: &Point3, margin_px: f32) -> bool {
+        let Some(inverse) = self.to_common.linear.try_inverse() else {
+            return false;
+        };
+        let q = inverse * (p.coords - self.to_common.translation);
+        if q.z <= 0.0 {
+            return false;
+        }
+        let u = self.fx * q.x / q.z + self.ppx;
+        let v = self.fy * q.y / q.z + self.ppy;
+        u >= margin_px
+            && v >= margin_px
+            && u <= self.width as f32 - margin_px
+            && v <= self.height as f32 - margin_px
+    }
+}
+
+impl View {
+    /// The footprint on the horizontal plane through `p` (common frame) of the pixel
+    /// that sees `p`: how far the plane's point moves (x, y, metres) from one pixel to
+    /// the next along the image's u and along its v. `None` when the camera does not
+    /// have `p` in its image.
+    pub fn footprint(&self, p: &Point3) -> Option<[[f64; 2]; 2]> {
+        if !self.sees(p, 0.0) {
+            return None;
+        }
+        let inverse = self.to_common.linear.try_inverse()?;
+        let q = inverse * (p.coords - self.to_common.translation);
+        let (u, v) = (
+            self.fx * q.x / q.z + self.ppx,
+            self.fy * q.y / q.z + self.ppy,
+        );
+        let on_plane = |u: f32, v: f32| {
+            let ray = self.to_common.linear
+                * nalgebra::Vector3::new((u - self.ppx) / self.fx, (v - self.ppy) / self.fy, 1.0);
+            let t = (p.z - self.to_common.translation.z) / ray.z;
+            (t.is_finite() && t > 0.0).then(|| self.to_common.translation + ray * t)
+        };
+        let (here, right, down) = (
+            on_plane(u, v)?,
+            on_plane(u + 1.0, v)?,
+            on_plane(u, v + 1.0)?,
+        );
+        let d = |a: nalgebra::Vector3<f32>| [f64::from(a.x - here.x), f64::from(a.y - here.y)];
+        Some([d(right), d(down)])
+    }
+}
