@@ -1,7 +1,7 @@
 //! Where a lid's edges lie: placed by the lid points' density, then moved out by what the
 //! cameras' pixels, the side walls and the spatial filter's blur say.
 
-use super::rect::{dot, sub};
+use super::rect::{RectFrame, centre, dot, sub};
 use super::view::View;
 use crate::Point3;
 
@@ -36,25 +36,19 @@ pub(super) fn refine(
     inward: f64,
     beyond: f64,
 ) -> [[f64; 2]; 4] {
-    let c0 = corners[0];
-    let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
-    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
-    if la <= 0.0 || lb <= 0.0 {
+    let Some(frame) = RectFrame::new(&corners) else {
         return corners;
-    }
-    let a = [e0[0] / la, e0[1] / la];
-    let b = [e1[0] / lb, e1[1] / lb];
+    };
     let mut sa = Vec::with_capacity(lid.len());
     let mut sb = Vec::with_capacity(lid.len());
     for p in lid {
-        let d = sub([f64::from(p.x), f64::from(p.y)], c0);
-        sa.push(dot(d, a));
-        sb.push(dot(d, b));
+        let (s, t) = frame.local_point(p);
+        sa.push(s);
+        sb.push(t);
     }
-    let (a0, a1) = edges(&sa, la, margin, inward, beyond);
-    let (b0, b1) = edges(&sb, lb, margin, inward, beyond);
-    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
-    [at(a0, b0), at(a1, b0), at(a1, b1), at(a0, b1)]
+    let (a0, a1) = edges(&sa, frame.la, margin, inward, beyond);
+    let (b0, b1) = edges(&sb, frame.lb, margin, inward, beyond);
+    frame.corners(a0, a1, b0, b1)
 }
 
 /// The two edges along one axis of positions `s` in about [0, `len`]. From a line
@@ -122,7 +116,7 @@ pub(super) fn edges(s: &[f64], len: f64, margin: f64, inward: f64, beyond: f64) 
 /// edge matches the lid alone and reads the lid's depth. The cameras are weighted by
 /// their points' density there.
 pub(super) fn pixel_offsets(corners: &[[f64; 2]; 4], height_m: f32, views: &[View]) -> [f64; 4] {
-    let centre = [0, 1].map(|k| corners.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let centre = centre(corners);
     let mut out = [0.0; 4];
     for (k, offset) in out.iter_mut().enumerate() {
         let (p, q) = (corners[k], corners[(k + 1) % 4]);
@@ -195,7 +189,7 @@ pub(super) fn walls(
     if pixel <= 0.0 {
         return out;
     }
-    let centre = [0, 1].map(|k| corners.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let centre = centre(corners);
     let (low, high) = (0.25 * height_m, 0.75 * height_m);
     let wall: Vec<[f64; 2]> = cluster
         .iter()
@@ -246,21 +240,11 @@ pub(super) fn walls(
 /// The rectangle `corners` (in order around it) with side `k` (from corner `k` to
 /// `k + 1`) moved out by `by[k]`.
 pub(super) fn move_sides(corners: [[f64; 2]; 4], by: [f64; 4]) -> [[f64; 2]; 4] {
-    let c0 = corners[0];
-    let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
-    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
-    if la <= 0.0 || lb <= 0.0 {
+    let Some(frame) = RectFrame::new(&corners) else {
         return corners;
-    }
-    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
-    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+    };
     // Side 0 lies at t = 0, side 1 at s = la, side 2 at t = lb, side 3 at s = 0.
-    [
-        at(-by[3], -by[0]),
-        at(la + by[1], -by[0]),
-        at(la + by[1], lb + by[2]),
-        at(-by[3], lb + by[2]),
-    ]
+    frame.corners(-by[3], frame.la + by[1], -by[0], frame.lb + by[2])
 }
 
 /// The lid rectangle `rect` of a parcel `height_m` high with each edge that the spatial
@@ -298,18 +282,18 @@ pub(super) fn unblur(
     if half < min_height_m + 0.003 {
         return rect;
     }
-    let c0 = rect[0];
-    let (e0, e1) = (sub(rect[1], c0), sub(rect[3], c0));
-    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
+    let Some(frame) = RectFrame::new(&rect) else {
+        return rect;
+    };
+    let (la, lb) = (frame.la, frame.lb);
     if la <= 2.0 * INSET_M || lb <= 2.0 * INSET_M {
         return rect;
     }
-    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
     let local: Vec<(f64, f64, f32)> = cluster
         .iter()
         .map(|p| {
-            let d = sub([f64::from(p.x), f64::from(p.y)], c0);
-            (dot(d, a), dot(d, b), p.z)
+            let (s, t) = frame.local_point(p);
+            (s, t, p.z)
         })
         .collect();
     let bins = ((from_m + REACH_M) / bin_m).round() as usize;
@@ -385,26 +369,21 @@ pub(super) fn unblur(
             f64::from(half) * slopes.iter().sum::<f64>() / slopes.len() as f64
         }
     };
-    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
     let mut lo = [0.0, 0.0];
     let mut hi = [la, lb];
-    for (axis, along_b) in [(0, false), (1, true)] {
-        let len = if along_b { lb } else { la };
-        let (dir, mid_other) = if along_b {
-            (b, la / 2.0)
-        } else {
-            (a, lb / 2.0)
-        };
+    for axis in [0, 1] {
+        let along_b = axis == 1;
+        let (len, mid_other) = (frame.len(axis), frame.len(1 - axis) / 2.0);
         for high in [false, true] {
             let Some(c) = crossing(along_b, high) else {
                 continue;
             };
-            let outward = if high { dir } else { [-dir[0], -dir[1]] };
+            let outward = frame.outward(axis, high);
             let edge = if high { len } else { 0.0 };
             let mid = if along_b {
-                at(mid_other, edge)
+                frame.at(mid_other, edge)
             } else {
-                at(edge, mid_other)
+                frame.at(edge, mid_other)
             };
             let moved = (c - reach(mid, outward)).clamp(0.0, REACH_M);
             if high {
@@ -414,10 +393,5 @@ pub(super) fn unblur(
             }
         }
     }
-    [
-        at(lo[0], lo[1]),
-        at(hi[0], lo[1]),
-        at(hi[0], hi[1]),
-        at(lo[0], hi[1]),
-    ]
+    frame.corners(lo[0], hi[0], lo[1], hi[1])
 }

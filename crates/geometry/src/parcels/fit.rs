@@ -5,7 +5,7 @@ use geo::{Area, ConvexHull, MultiPoint, Point};
 use super::edges::{move_sides, pixel_offsets, refine, unblur, walls};
 use super::height_map::HeightMap;
 use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
-use super::rect::{polygon, rect_area, share_outside};
+use super::rect::{centre, polygon, rect_area, share_outside};
 use super::round::{lying_tube, standing_disc};
 use super::shoulders::shoulders;
 use super::view::View;
@@ -114,11 +114,8 @@ pub(super) fn fit(
     // lid thins towards its middle, as a glossy lid's glare does); then each edge moves
     // out by what its cameras' pixels hide there (see `pixel_offsets`), or to its wall
     // (see `walls`).
-    let centre = Point3::new(
-        (hull_rect.iter().map(|c| c[0]).sum::<f64>() / 4.0) as f32,
-        (hull_rect.iter().map(|c| c[1]).sum::<f64>() / 4.0) as f32,
-        height_m,
-    );
+    let middle = centre(&hull_rect);
+    let centre = Point3::new(middle[0] as f32, middle[1] as f32, height_m);
     let pixel = views
         .iter()
         .filter(|v| v.sees(&centre, 0.0))

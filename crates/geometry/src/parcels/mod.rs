@@ -52,7 +52,7 @@ use crate::{Point3, PointCloud};
 use fit::fit;
 pub use fit::{ParcelFit, Shape};
 use height_map::Cell2;
-use rect::{OUTSIDE_M, dot, polygon, share_outside, sub};
+use rect::{OUTSIDE_M, RectFrame, centre, polygon, share_outside, sub};
 pub use view::View;
 
 /// Objects with fewer points than this share of the largest one's are not parcels
@@ -306,7 +306,7 @@ fn neighbour_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
 /// each edge's middle.
 fn probes(d: &Dimensions) -> Vec<Point3> {
     let c = &d.corners_m;
-    let centre = [0, 1].map(|k| c.iter().map(|p| p[k]).sum::<f64>() / 4.0);
+    let centre = centre(c);
     let z = (d.height_mm / 1e3) as f32;
     let mut out = Vec::with_capacity(8);
     for k in 0..4 {
@@ -327,17 +327,12 @@ fn probes(d: &Dimensions) -> Vec<Point3> {
 /// Whether the upright box of `fit` (its footprint, from the floor to its height) lies
 /// on the segment from `from` to 1 cm short of `to`.
 fn blocks(fit: &ParcelFit, from: &Point3, to: &Point3) -> bool {
-    let c = &fit.dimensions.corners_m;
-    let c0 = c[0];
-    let (e0, e1) = (sub(c[1], c0), sub(c[3], c0));
-    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
-    if la <= 0.0 || lb <= 0.0 {
+    let Some(frame) = RectFrame::new(&fit.dimensions.corners_m) else {
         return false;
-    }
-    let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
+    };
     let local = |p: &Point3| {
-        let d = sub([f64::from(p.x), f64::from(p.y)], c0);
-        [dot(d, a), dot(d, b), f64::from(p.z)]
+        let (s, t) = frame.local_point(p);
+        [s, t, f64::from(p.z)]
     };
     let (p, q) = (local(from), local(to));
     let length = ((q[0] - p[0]).powi(2) + (q[1] - p[1]).powi(2) + (q[2] - p[2]).powi(2)).sqrt();
@@ -345,7 +340,7 @@ fn blocks(fit: &ParcelFit, from: &Point3, to: &Point3) -> bool {
         return false;
     }
     let (mut t0, mut t1) = (0.0f64, 1.0 - 0.01 / length);
-    let high = [la, lb, fit.dimensions.height_mm / 1e3];
+    let high = [frame.la, frame.lb, fit.dimensions.height_mm / 1e3];
     for k in 0..3 {
         let d = q[k] - p[k];
         if d.abs() < 1e-12 {

@@ -3,7 +3,7 @@
 use geo::{Area, ConvexHull, Coord, LineString, MultiPoint, Point, Polygon};
 
 use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
-use super::rect::{dot, sub};
+use super::rect::{RectFrame, centre, sub};
 use crate::Point3;
 
 /// A tube lying on the floor: its cross-section, in the frame of the lid's rectangle.
@@ -20,19 +20,16 @@ pub(super) struct LyingTube {
 impl LyingTube {
     /// The footprint: the lid's rectangle along the axis, the circle's diameter across.
     pub(super) fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
-        let c0 = rect[0];
-        let (mut e0, mut e1) = (sub(rect[1], c0), sub(rect[3], c0));
-        if !self.along_first {
-            std::mem::swap(&mut e0, &mut e1);
-        }
-        let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
-        if la <= 0.0 || lb <= 0.0 {
+        let Some(frame) = RectFrame::new(rect) else {
             return *rect;
-        }
-        let (a, b) = ([e0[0] / la, e0[1] / la], [e1[0] / lb, e1[1] / lb]);
-        let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
+        };
+        let frame = if self.along_first {
+            frame
+        } else {
+            frame.swapped()
+        };
         let (t0, t1) = (self.centre - self.radius, self.centre + self.radius);
-        [at(0.0, t0), at(la, t0), at(la, t1), at(0.0, t1)]
+        frame.corners(0.0, frame.la, t0, t1)
     }
 }
 
@@ -114,9 +111,8 @@ pub(super) fn standing_disc(
     margin: f64,
     inward: f64,
 ) -> Option<Disc> {
-    let (e0, e1) = (sub(rect[1], rect[0]), sub(rect[3], rect[0]));
-    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
-    if la <= 0.0 || lb <= 0.0 || la.max(lb) > 1.1 * la.min(lb) {
+    let RectFrame { la, lb, .. } = RectFrame::new(rect)?;
+    if la.max(lb) > 1.1 * la.min(lb) {
         return None;
     }
     let hull = points
@@ -128,7 +124,7 @@ pub(super) fn standing_disc(
     if !(DISC_FIT[0]..=DISC_FIT[1]).contains(&fit) {
         return None;
     }
-    let centre = [0, 1].map(|k| rect.iter().map(|c| c[k]).sum::<f64>() / 4.0);
+    let centre = centre(rect);
     let radii: Vec<f64> = hull
         .exterior()
         .coords()
@@ -222,29 +218,18 @@ pub(super) fn lying_tube(
     height_m: f32,
     band_m: f32,
 ) -> Option<LyingTube> {
-    let c0 = rect[0];
-    let (e0, e1) = (sub(rect[1], c0), sub(rect[3], c0));
-    let (l0, l1) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
-    if l0 <= 0.0 || l1 <= 0.0 {
-        return None;
-    }
-    let along_first = l0 >= l1;
-    let (long, across, len) = if along_first {
-        (e0, e1, l0)
-    } else {
-        (e1, e0, l1)
-    };
-    let a = [long[0] / len, long[1] / len];
-    let la = across[0].hypot(across[1]);
-    let b = [across[0] / la, across[1] / la];
+    // The frame along the long side.
+    let frame = RectFrame::new(rect)?;
+    let along_first = frame.la >= frame.lb;
+    let frame = if along_first { frame } else { frame.swapped() };
+    let len = frame.la;
     let height = f64::from(height_m);
     let profile: Vec<[f64; 2]> = dense
         .iter()
         .filter_map(|p| {
-            let d = sub([f64::from(p.x), f64::from(p.y)], c0);
-            let s = dot(d, a);
+            let (s, t) = frame.local_point(p);
             (s >= 0.2 * len && s <= 0.8 * len && f64::from(p.z) >= height / 2.0)
-                .then(|| [dot(d, b), f64::from(p.z)])
+                .then(|| [t, f64::from(p.z)])
         })
         .collect();
     let step = (profile.len() / TUBE_SAMPLE).max(1);
@@ -325,7 +310,7 @@ pub(super) fn lying_tube(
     let beyond = dense
         .iter()
         .filter(|p| {
-            let s = dot(sub([f64::from(p.x), f64::from(p.y)], c0), a);
+            let (s, _) = frame.local_point(p);
             s < -OUTSIDE_M || s > len + OUTSIDE_M
         })
         .count() as f64

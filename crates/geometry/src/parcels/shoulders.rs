@@ -1,6 +1,6 @@
 //! A soft parcel's sides (a polybag's shoulders), continued to the floor.
 
-use super::rect::{dot, sub};
+use super::rect::{RectFrame, dot, sub};
 use super::view::View;
 use crate::Point3;
 
@@ -45,19 +45,15 @@ pub(super) fn shoulders(
     height_m: f32,
     views: &[View],
 ) -> [[f64; 2]; 4] {
-    let c0 = corners[0];
-    let (e0, e1) = (sub(corners[1], c0), sub(corners[3], c0));
-    let (la, lb) = (e0[0].hypot(e0[1]), e1[0].hypot(e1[1]));
-    if views.is_empty() || la <= 0.0 || lb <= 0.0 {
+    let Some(frame) = RectFrame::new(&corners).filter(|_| !views.is_empty()) else {
         return corners;
-    }
-    let a = [e0[0] / la, e0[1] / la];
-    let b = [e1[0] / lb, e1[1] / lb];
+    };
+    let (la, lb) = (frame.la, frame.lb);
     let local: Vec<(f64, f64, f32)> = points
         .iter()
         .map(|p| {
-            let d = sub([f64::from(p.x), f64::from(p.y)], c0);
-            (dot(d, a), dot(d, b), p.z)
+            let (s, t) = frame.local_point(p);
+            (s, t, p.z)
         })
         .collect();
     let mut moved = [[0.0f64; 2]; 2];
@@ -123,13 +119,8 @@ pub(super) fn shoulders(
             } else {
                 (mid_along, at)
             };
-            let m = [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
-            let outward = match (axis, side) {
-                (0, 0) => [-a[0], -a[1]],
-                (0, _) => a,
-                (_, 0) => [-b[0], -b[1]],
-                _ => b,
-            };
+            let m = frame.at(s, t);
+            let outward = frame.outward(axis, side == 1);
             let p = Point3::new(m[0] as f32, m[1] as f32, z_end);
             let run = views
                 .iter()
@@ -150,10 +141,9 @@ pub(super) fn shoulders(
             }
         }
     }
-    let at = |s: f64, t: f64| [c0[0] + a[0] * s + b[0] * t, c0[1] + a[1] * s + b[1] * t];
     let (s0, s1) = (-moved[0][0], la + moved[0][1]);
     let (t0, t1) = (-moved[1][0], lb + moved[1][1]);
-    [at(s0, t0), at(s1, t0), at(s1, t1), at(s0, t1)]
+    frame.corners(s0, s1, t0, t1)
 }
 
 /// The median of `v` (reordered), `None` when empty.
