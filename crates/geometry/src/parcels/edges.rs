@@ -27,13 +27,14 @@ const WALL_REACH_M: f64 = 0.006;
 const STEREO_BASELINE_M: f64 = 0.055;
 
 /// The rectangle `corners` (in order around it) with each edge moved to where `lid`'s
-/// points put it (see [`edges`]), at most `inward` inside the hull's and `beyond`
-/// outside it.
+/// points put it (see [`edges`]): at most `inward` inside the rectangle's and `beyond`
+/// outside it, and side `k` (from corner `k` to `k + 1`) at most `noise[k]` inside the
+/// outermost of `lid`'s points.
 pub(super) fn refine(
     corners: [[f64; 2]; 4],
     lid: &[Point3],
     margin: f64,
-    inward: f64,
+    (inward, noise): (f64, [f64; 4]),
     beyond: f64,
 ) -> [[f64; 2]; 4] {
     let Some(frame) = RectFrame::new(&corners) else {
@@ -46,9 +47,61 @@ pub(super) fn refine(
         sa.push(s);
         sb.push(t);
     }
-    let (a0, a1) = edges(&sa, frame.la, margin, inward, beyond);
-    let (b0, b1) = edges(&sb, frame.lb, margin, inward, beyond);
+    // Side 3 lies at s = 0, side 1 at s = la; side 0 at t = 0, side 2 at t = lb.
+    let (a0, a1) = edges(
+        &sa,
+        frame.la,
+        margin,
+        (inward, [noise[3], noise[1]]),
+        beyond,
+    );
+    let (b0, b1) = edges(
+        &sb,
+        frame.lb,
+        margin,
+        (inward, [noise[0], noise[2]]),
+        beyond,
+    );
     frame.corners(a0, a1, b0, b1)
+}
+
+/// How far (metres) the outermost of the lid's points within `slab` of its height
+/// `height_m` can lie beyond each side of the rectangle `corners` (side `k` from corner
+/// `k` to `k + 1`) by their noise alone: depth noise moves a point along its camera's ray,
+/// and a point kept within `slab` of the lid moved at most `slab` up or down, so at most
+/// `slab` times the ray's slope across the side sideways (the slope is the same all
+/// along a side of a level lid). The largest over the cameras that see the side's middle;
+/// `None` for a side no camera sees.
+pub(super) fn noise_reach(
+    corners: &[[f64; 2]; 4],
+    height_m: f32,
+    slab: f32,
+    views: &[View],
+) -> [Option<f64>; 4] {
+    let centre = centre(corners);
+    let mut out = [None; 4];
+    for (k, reach) in out.iter_mut().enumerate() {
+        let (p, q) = (corners[k], corners[(k + 1) % 4]);
+        let mid = [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0];
+        let away = sub(mid, centre);
+        let n = away[0].hypot(away[1]);
+        if n <= 0.0 {
+            continue;
+        }
+        let normal = [away[0] / n, away[1] / n];
+        let at = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
+        for v in views.iter().filter(|v| v.sees(&at, 0.0)) {
+            let eye = v.to_common.translation;
+            let rise = f64::from(eye.z - height_m);
+            if rise <= 0.0 {
+                continue;
+            }
+            let d = [mid[0] - f64::from(eye.x), mid[1] - f64::from(eye.y)];
+            let sideways = f64::from(slab) * dot(d, normal).abs() / rise;
+            *reach = Some(reach.map_or(sideways, |r: f64| r.max(sideways)));
+        }
+    }
+    out
 }
 
 /// The two edges along one axis of positions `s` in about [0, `len`]. From a line
@@ -60,9 +113,17 @@ pub(super) fn refine(
 /// from counting as lid. The density is taken over up to [`DENSITY_WINDOW_M`] inside
 /// the line: a camera's points lie in rows a pixel apart, and a short window holds one
 /// row more or less depending on where the rows fall. An axis too short for two such
-/// bands keeps the hull's edges. An edge lies at most `inward` inside the outermost
-/// point and `beyond` outside it.
-pub(super) fn edges(s: &[f64], len: f64, margin: f64, inward: f64, beyond: f64) -> (f64, f64) {
+/// bands keeps the hull's edges. An edge lies at most `inward` inside its end of
+/// [0, `len`] and `beyond` outside it, and the low edge at most `noise[0]` inside the
+/// outermost point of `s`, the high one `noise[1]` (what noise can have moved that point
+/// out: holes never move a point out, but they thin the band beyond the line unevenly).
+pub(super) fn edges(
+    s: &[f64],
+    len: f64,
+    margin: f64,
+    (inward, noise): (f64, [f64; 2]),
+    beyond: f64,
+) -> (f64, f64) {
     const BIN_M: f64 = 0.001;
     let shortest = (2.0 * margin).max(0.01);
     let window = (len / 2.0 - margin).min(shortest.max(DENSITY_WINDOW_M));
@@ -82,8 +143,15 @@ pub(super) fn edges(s: &[f64], len: f64, margin: f64, inward: f64, beyond: f64) 
     // The edge moves at most `inward` (and `margin`) inwards (holes along an edge thin
     // it), and at most `beyond` past the outermost point.
     let limit = margin + beyond;
-    let least = (margin - inward).max(0.0);
-    let place = |line: f64, outwards: f64| {
+    let place = |line: f64, outwards: f64, noise: f64| {
+        let outermost = if outwards > 0.0 {
+            near.last().map(|v| v - line)
+        } else {
+            near.first().map(|v| line - v)
+        };
+        let least = (margin - inward)
+            .max(outermost.map_or(0.0, |o| o - noise))
+            .clamp(0.0, limit);
         let (a, b) = if outwards > 0.0 {
             (line - window, line)
         } else {
@@ -104,7 +172,10 @@ pub(super) fn edges(s: &[f64], len: f64, margin: f64, inward: f64, beyond: f64) 
         }
         line + outwards * (mass / density).clamp(least, limit)
     };
-    (place(margin, -1.0), place(len - margin, 1.0))
+    (
+        place(margin, -1.0, noise[0]),
+        place(len - margin, 1.0, noise[1]),
+    )
 }
 
 /// How far each side of the lid's rectangle `corners` (side `k` from corner `k` to
