@@ -3,7 +3,7 @@
 use geo::{Area, ConvexHull, MultiPoint, Point};
 
 use super::edges::{move_sides, noise_reach, pixel_offsets, refine, unblur, walls};
-use super::height_map::HeightMap;
+use super::height_map::{HeightMap, opened};
 use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
 use super::rect::{centre, polygon, rect_area, share_outside};
 use super::round::{lying_tube, standing_disc};
@@ -11,8 +11,8 @@ use super::shoulders::shoulders;
 use super::view::View;
 use crate::Point3;
 use crate::dimension::{
-    DimensionConfig, DimensionError, Dimensions, hull, lid, min_rect, rect_around, rect_dimensions,
-    robust_height,
+    DimensionConfig, DimensionError, Dimensions, Lid, hull, lid, min_rect, rect_around,
+    rect_dimensions, robust_height,
 };
 
 /// A cuboid's lid covers at least this share of its rectangle (a disc covers 0.785).
@@ -81,6 +81,42 @@ const NOTCH_SHARE: f64 = 0.05;
 /// flying pixels, whose lid is sparse, is no plateau).
 const PLATEAU_SOLID: f64 = 0.8;
 
+/// An object whose points, opened (see `height_map::opened`), have a rectangle of at
+/// most this share of all its points' one holds lines of points reaching out from it
+/// (see [`core_of`]).
+const CORE_SHRINK: f64 = 0.9;
+
+/// The object without lines of points reaching out from it, with its height and lid,
+/// when its lid does not fill its rectangle (`CUBOID_FIT`) but the object's opened
+/// points (see `height_map::opened`) have a rectangle at most [`CORE_SHRINK`] of its
+/// own and a lid that does. A lower box beside a higher one holds such lines: single
+/// rows of depth pixels that run on from its lid over the floor, and strips of the
+/// higher box's side wall (lane set, 720 scenes: lower boxes of 223-287 mm read 427-754
+/// mm long, their rectangles over the higher box's, and were dropped as its fragments;
+/// where those lines held more than a hundredth of its points they set its height too).
+fn core_of(
+    cluster: &[Point3],
+    lid: &Lid,
+    config: &DimensionConfig,
+) -> Option<(Vec<Point3>, f32, Lid)> {
+    let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
+    let filled = |points: &[Point3]| {
+        let hull = hull(points.iter().map(xy));
+        rect_around(&hull).map(|r| (hull.unsigned_area() / rect_area(&r), rect_area(&r)))
+    };
+    if filled(&lid.points)?.0 >= CUBOID_FIT {
+        return None;
+    }
+    let core = opened(cluster);
+    if core.len() < 3 || filled(&core)?.1 > CORE_SHRINK * filled(cluster)?.1 {
+        return None;
+    }
+    let height_m = robust_height(&core, config);
+    let mut lid = crate::dimension::lid(&core, height_m, config).ok()?;
+    lid.points = opened(&lid.points);
+    (lid.points.len() >= 3 && filled(&lid.points)?.0 >= CUBOID_FIT).then_some((core, height_m, lid))
+}
+
 /// Measures one object.
 pub(super) fn fit(
     cluster: &[Point3],
@@ -92,6 +128,20 @@ pub(super) fn fit(
     if lid.points.len() < 3 {
         return Err(DimensionError::Footprint);
     }
+    match core_of(cluster, &lid, config) {
+        Some((core, height_m, lid)) => measure(&core, height_m, lid, config, views),
+        None => measure(cluster, height_m, lid, config, views),
+    }
+}
+
+/// Measures one object of the points `cluster`, its lid at `height_m`.
+fn measure(
+    cluster: &[Point3],
+    height_m: f32,
+    lid: Lid,
+    config: &DimensionConfig,
+    views: &[View],
+) -> Result<ParcelFit, DimensionError> {
     let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
     // One hull of the lid for its rectangle and its area.
     let lid_hull = hull(lid.points.iter().map(xy));

@@ -1,6 +1,6 @@
 //! The object's height map: cells of its points in (x, y), their tops, peak and coverage.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use foldhash::fast::FixedState;
 use geo::{Point, Polygon};
@@ -25,6 +25,30 @@ pub(super) type Cell2 = (i64, i64);
 
 pub(super) fn cell_of(x: f64, y: f64) -> Cell2 {
     ((x / CELL_M).floor() as i64, (y / CELL_M).floor() as i64)
+}
+
+/// The points of `points` whose cells survive an opening of the occupied cells (each
+/// cell kept that lies in some 3 x 3 block of occupied cells): an area such as a lid
+/// keeps its cells, corners and straight edges too; a line of points a pixel or two
+/// wide (a row of depth pixels the filter carried out over the floor, a strip of a side
+/// wall) is left out.
+pub(super) fn opened(points: &[Point3]) -> Vec<Point3> {
+    let occupied: HashSet<Cell2, FixedState> = points
+        .iter()
+        .map(|p| cell_of(f64::from(p.x), f64::from(p.y)))
+        .collect();
+    let block =
+        |(x, y): Cell2| (-1..=1).all(|dx| (-1..=1).all(|dy| occupied.contains(&(x + dx, y + dy))));
+    let kept: HashSet<Cell2, FixedState> = occupied
+        .iter()
+        .filter(|c| (-1..=1).any(|dx| (-1..=1).any(|dy| block((c.0 + dx, c.1 + dy)))))
+        .copied()
+        .collect();
+    points
+        .iter()
+        .filter(|p| kept.contains(&cell_of(f64::from(p.x), f64::from(p.y))))
+        .copied()
+        .collect()
 }
 
 /// The object's points binned into [`CELL_M`] cells in (x, y): count and median z (a
@@ -176,7 +200,7 @@ impl HeightMap {
     /// scatter of flying pixels).
     pub(super) fn plateau(&self, lid: &[Point3], rect: &[[f64; 2]; 4]) -> (f64, f64, f64) {
         use geo::Contains as _;
-        let lid_cells: std::collections::HashSet<Cell2, FixedState> = lid
+        let lid_cells: HashSet<Cell2, FixedState> = lid
             .iter()
             .map(|p| cell_of(f64::from(p.x), f64::from(p.y)))
             .collect();
@@ -199,7 +223,7 @@ impl HeightMap {
             hi = (hi.0.max(i), hi.1.max(j));
         }
         let (mut total, mut held) = (0usize, 0usize);
-        let mut empty: std::collections::HashSet<Cell2, FixedState> = Default::default();
+        let mut empty: HashSet<Cell2, FixedState> = Default::default();
         let mut seeds = Vec::new();
         for i in lo.0..=hi.0 {
             for j in lo.1..=hi.1 {
@@ -218,7 +242,7 @@ impl HeightMap {
                 }
             }
         }
-        let mut notch: std::collections::HashSet<Cell2, FixedState> = Default::default();
+        let mut notch: HashSet<Cell2, FixedState> = Default::default();
         while let Some(c) = seeds.pop() {
             if !notch.insert(c) {
                 continue;
