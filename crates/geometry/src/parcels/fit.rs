@@ -238,6 +238,9 @@ fn measure(
         let (reach, notch, solid) = map.plateau(&lid.points, &hull_rect);
         reach >= PLATEAU_REACH && notch >= NOTCH_SHARE && solid >= PLATEAU_SOLID
     };
+    // Two lids side by side, their step blurred into one top (the lid band may hold
+    // both): parcels side by side whatever the shape says.
+    let seam = map.seam(&hull_rect, height_m, FLAT_M.max(lid.band_m));
     let corners = match (shape, &tube) {
         // Along its axis the lid strip, which runs the tube's whole length at its top
         // (the flying pixels beyond its round ends lie lower); across it the circle.
@@ -298,8 +301,8 @@ fn measure(
         dimensions: rect_dimensions(corners, f64::from(top_m), cluster.len()),
         shape,
         fit,
-        tops,
-        isolated: tops <= 1 && !several,
+        tops: if seam { tops.max(2) } else { tops },
+        isolated: tops <= 1 && !several && !seam,
         coverage,
         out_of_view: false,
         complete: coverage >= f64::from(config.min_coverage),

@@ -21,6 +21,37 @@ const TOP_CORE_CELLS: usize = 16;
 /// See [`TOP_CORE_CELLS`].
 const TOP_SHARE: f64 = 0.05;
 
+/// How far below the top a seam between two lids is looked for (metres): the spatial
+/// filter smooths a step whose disparity changes by less than its delta (20/32 pixel),
+/// which at the lane's 2 m is a step of up to about 50 mm; higher steps stay sharp and
+/// [`HeightMap::tops`] finds them.
+const SEAM_REACH_M: f32 = 0.06;
+
+/// Slices of the profile across a seam that its blur leaves out on each side (10 mm:
+/// the filter spreads a step of a few centimetres over 10-20 mm).
+const SEAM_BLUR_SLICES: i64 = 2;
+
+/// Slices (100 mm) on each side of a seam over which each lid's level is fitted: a lid
+/// is level edge to edge, a polybag's or a tube's top curves over that length.
+const SEAM_SIDE_SLICES: i64 = 20;
+
+/// Each side must have this many slices (40 mm) holding lid cells.
+const SEAM_MIN_SLICES: usize = 8;
+
+/// A lid is level: the line through either side's profile rises by at most this
+/// (0.02 = 1.1 degrees; the lids of the lane set's touching pairs by 0.0001-0.01, the
+/// curved tops of bags and tubes more where they are steady).
+const SEAM_SLOPE: f64 = 0.02;
+
+/// The step between the two lids is at least this (metres): twice a D415's depth unit
+/// (1 mm), by which the quantized depths of one level lid can step.
+const SEAM_MIN_M: f64 = 0.002;
+
+/// ... and at least this many times the residual of the two lines through the profile
+/// (the lane set, seed 1, prepared and raw: one box, tube or bag reads at most 5; the
+/// lids of two boxes side by side 48 and more, 3.6 mm apart at the least).
+const SEAM_SIGMAS: f64 = 15.0;
+
 pub(super) type Cell2 = (i64, i64);
 
 pub(super) fn cell_of(x: f64, y: f64) -> Cell2 {
@@ -190,6 +221,45 @@ impl HeightMap {
             .max(1)
     }
 
+    /// Whether the object's top holds a seam: two level lids side by side, one a step
+    /// higher than the other, that the spatial filter has blurred into one surface (a
+    /// step of a few millimetres to a few centimetres, too gradual from cell to cell
+    /// for [`Self::tops`]). Along each axis of `rect`, the profile of the flat dense
+    /// cells within [`SEAM_REACH_M`] of `top_m` (per 5 mm slice, the mean of the cells'
+    /// medians within 2 mm of the slice's median) is fitted on each side of every
+    /// slice boundary by a line, leaving out the blur next to it: a seam is where both
+    /// lines are level and meet the boundary [`SEAM_MIN_M`] and [`SEAM_SIGMAS`] of
+    /// their residual apart. Two boxes of one height, or within a depth unit or two,
+    /// leave no such step and are not found (nor is there anything else in the depth
+    /// to tell them from one box).
+    pub(super) fn seam(&self, rect: &[[f64; 2]; 4], top_m: f32, flatness: f32) -> bool {
+        let c0 = rect[0];
+        let cells: Vec<([f64; 2], f64)> = self
+            .cells
+            .iter()
+            .filter(|(c, v)| {
+                v.0 >= self.dense_min
+                    && v.1 >= top_m - SEAM_REACH_M
+                    && self.spread.get(c).is_some_and(|s| *s < flatness)
+            })
+            .map(|(&(i, j), v)| {
+                let centre = [(i as f64 + 0.5) * CELL_M, (j as f64 + 0.5) * CELL_M];
+                ([centre[0] - c0[0], centre[1] - c0[1]], f64::from(v.1))
+            })
+            .collect();
+        [rect[1], rect[3]].iter().any(|to| {
+            let e = [to[0] - c0[0], to[1] - c0[1]];
+            let n = e[0].hypot(e[1]);
+            n > 0.0 && {
+                let axis = [e[0] / n, e[1] / n];
+                let along = cells
+                    .iter()
+                    .map(|(d, z)| (d[0] * axis[0] + d[1] * axis[1], *z));
+                step_in(&profile(along))
+            }
+        })
+    }
+
     /// How a flat lid (`lid`, its rectangle `rect`) lies on the object: the share of the
     /// dense cells that hold lid points (how far the lid reaches out towards the
     /// object's walls), and the share of the rectangle's cells in notches cut into it
@@ -303,4 +373,93 @@ impl HeightMap {
             held as f64 / cells as f64
         }
     }
+}
+
+/// The profile of `(position, height)` pairs: per [`CELL_M`] slice of position, its
+/// index, the mean of the heights within 2 mm of the slice's median, and how many.
+fn profile(along: impl Iterator<Item = (f64, f64)>) -> Vec<(i64, f64, usize)> {
+    let mut slices: HashMap<i64, Vec<f64>, FixedState> = HashMap::default();
+    for (s, z) in along {
+        slices
+            .entry((s / CELL_M).floor() as i64)
+            .or_default()
+            .push(z);
+    }
+    let mut out: Vec<(i64, f64, usize)> = slices
+        .into_iter()
+        .filter_map(|(k, mut z)| {
+            z.sort_unstable_by(f64::total_cmp);
+            let median = z[z.len() / 2];
+            let near: Vec<f64> = z
+                .into_iter()
+                .filter(|v| (v - median).abs() <= 0.002)
+                .collect();
+            (near.len() >= 3).then(|| (k, near.iter().sum::<f64>() / near.len() as f64, near.len()))
+        })
+        .collect();
+    out.sort_unstable_by_key(|s| s.0);
+    out
+}
+
+/// Whether `profile` (see [`profile`]) steps between two level lines (see
+/// [`HeightMap::seam`]).
+fn step_in(profile: &[(i64, f64, usize)]) -> bool {
+    let (Some(first), Some(last)) = (profile.first(), profile.last()) else {
+        return false;
+    };
+    let mut counts: Vec<usize> = profile.iter().map(|s| s.2).collect();
+    let mid = counts.len() / 2;
+    let typical = *counts.select_nth_unstable(mid).1;
+    let least = 3.max((0.2 * typical as f64).ceil() as usize);
+    let held: Vec<(f64, f64)> = profile
+        .iter()
+        .filter(|s| s.2 >= least)
+        .map(|s| (s.0 as f64 + 0.5, s.1))
+        .collect();
+    let side = |lo: f64, hi: f64| -> Vec<(f64, f64)> {
+        held.iter()
+            .filter(|(x, _)| *x >= lo && *x < hi)
+            .copied()
+            .collect()
+    };
+    (first.0..=last.0 + 1).any(|split| {
+        let at = split as f64;
+        let left = side(
+            at - (SEAM_BLUR_SLICES + SEAM_SIDE_SLICES) as f64,
+            at - SEAM_BLUR_SLICES as f64,
+        );
+        let right = side(
+            at + SEAM_BLUR_SLICES as f64,
+            at + (SEAM_BLUR_SLICES + SEAM_SIDE_SLICES) as f64,
+        );
+        if left.len() < SEAM_MIN_SLICES || right.len() < SEAM_MIN_SLICES {
+            return false;
+        }
+        let (Some((l0, l1, lr)), Some((r0, r1, rr))) = (line(&left), line(&right)) else {
+            return false;
+        };
+        let level = l1.abs().max(r1.abs()) / CELL_M < SEAM_SLOPE;
+        let gap = ((r0 + r1 * at) - (l0 + l1 * at)).abs();
+        let residual = ((lr + rr) / (left.len() + right.len()) as f64).sqrt();
+        level && gap >= SEAM_MIN_M && gap >= SEAM_SIGMAS * residual
+    })
+}
+
+/// The least-squares line `y = a + b x` through `points`, and its sum of squared
+/// residuals.
+fn line(points: &[(f64, f64)]) -> Option<(f64, f64, f64)> {
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(x, y), p| (x + p.0 / n, y + p.1 / n));
+    let (sxx, sxy) = points.iter().fold((0.0, 0.0), |(xx, xy), p| {
+        (xx + (p.0 - mx).powi(2), xy + (p.0 - mx) * (p.1 - my))
+    });
+    if sxx <= 0.0 {
+        return None;
+    }
+    let b = sxy / sxx;
+    let a = my - b * mx;
+    let ss = points.iter().map(|p| (p.1 - a - b * p.0).powi(2)).sum();
+    Some((a, b, ss))
 }

@@ -28,7 +28,12 @@
 //! - tops: flat regions of a height map of the object, connected where neighbouring cells
 //!   differ by less than a step; two large ones mean two parcels side by side, and so
 //!   does one flat top that reaches out to the object's walls but leaves a notch in its
-//!   rectangle (an L or a step: the lids of two boxes of nearly one height);
+//!   rectangle (an L or a step: the lids of two boxes of nearly one height), and so
+//!   does a seam: two level lids a step apart that the spatial filter blurred into one
+//!   top;
+//! - an object whose lid does not fill its rectangle but whose opened cells (thin lines
+//!   of points reaching out of it left out) have a lid that does is measured from those
+//!   (a lower box beside a higher one, with flying pixels along the higher one's side);
 //! - coverage: the share of cells inside the footprint that hold points (holes from dark
 //!   or shiny surfaces lower it); with camera views, whether every top corner is inside
 //!   some camera's image.

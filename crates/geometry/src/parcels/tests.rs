@@ -142,6 +142,52 @@ fn a_lower_box_is_measured_by_its_lid_without_the_row_of_pixels_running_on_from_
     assert!(found.parcels.iter().all(|p| !p.isolated), "{found:?}");
 }
 
+/// `lid_points` with its heights on a depth unit's 1 mm steps after pseudo-random noise
+/// of up to 0.6 mm, as a camera looking straight down reports them.
+fn quantized(points: Vec<Point3>) -> Vec<Point3> {
+    points
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let k = (i as u64).wrapping_mul(2_654_435_761) % 1000;
+            let z = f64::from(p.z) + 0.0006 * (k as f64 / 500.0 - 1.0);
+            Point3::new(p.x, p.y, ((z * 1e3).round() / 1e3) as f32)
+        })
+        .collect()
+}
+
+#[test]
+fn two_boxes_a_few_millimetres_apart_in_height_making_one_rectangle_are_not_one_parcel() {
+    // Lane set, 720 scenes, scene 421: 310 and 356 mm long, both 176 mm wide, face to
+    // face, 368 and 364 mm high: their lids make one rectangle, and one top (4 mm is
+    // no step from cell to cell), but each is level and the seam steps between them.
+    let mut points = quantized(lid_points([-0.31, 0.0], [0.0, 0.176], 0.368));
+    points.extend(quantized(lid_points([0.002, 0.358], [0.0, 0.176], 0.364)));
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 1, "{found:?}");
+    assert!(!found.parcels[0].isolated, "{found:?}");
+    assert!(found.parcels[0].tops >= 2, "{found:?}");
+    // One box of that rectangle, one height (its depths stepping by the unit) is one.
+    let points = quantized(lid_points([-0.31, 0.358], [0.0, 0.176], 0.3665));
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 1, "{found:?}");
+    assert!(found.parcels[0].isolated, "{found:?}");
+    // Nor does a lid tilted by 2 mm over its length hold a seam.
+    let points: Vec<Point3> = lid_points([-0.31, 0.358], [0.0, 0.176], 0.366)
+        .into_iter()
+        .map(|p| Point3::new(p.x, p.y, p.z + 0.003 * p.x))
+        .collect();
+    let found = parcels(
+        &PointCloud {
+            points: quantized(points),
+        },
+        &DimensionConfig::default(),
+        &[],
+    )
+    .unwrap();
+    assert!(found.parcels[0].isolated, "{found:?}");
+}
+
 #[test]
 fn a_strip_of_side_wall_cut_off_by_holes_is_part_of_its_parcel() {
     // A dark box 100 x 95 x 66 mm whose side wall kept points only low down, 3 cm

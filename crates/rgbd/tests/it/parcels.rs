@@ -606,3 +606,40 @@ fn a_lying_tube_is_measured_as_irregular_with_its_diameter_across_and_up() {
         assert!((got - truth).abs() <= 3.0, "box {:?}", mm(parcel));
     }
 }
+
+/// Two boxes face to face, as wide as each other, their lids 4 mm apart in height (the
+/// lane set's 720 scenes, scene 421: one rectangle, one top), and one box of their whole
+/// rectangle, each under a D415 1.6 m up (the floor sent, no spatial filter).
+#[test]
+fn two_boxes_a_few_millimetres_apart_in_height_are_told_from_one_box_by_their_seam() {
+    const PAIR: &str = r#"
+[[box]]
+size = [0.31, 0.176, 0.368]
+center = [-0.155, 0.0]
+
+[[box]]
+size = [0.356, 0.176, 0.364]
+center = [0.178, 0.0]
+"#;
+    const ONE: &str = "[[box]]\nsize = [0.666, 0.176, 0.366]\ncenter = [0.023, 0.0]\n";
+    let measure = |objects: &str| {
+        let scene = under_one_camera(6, [0.05, 0.08, 1.6], "d415", objects);
+        let cloud = PointCloud::from(
+            points(&scene)
+                .into_iter()
+                .map(|p| Point3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+                .collect::<Vec<_>>(),
+        );
+        parcels(&cloud, &DimensionConfig::default(), &[])
+            .expect("measures")
+            .parcels
+    };
+    let pair = measure(PAIR);
+    assert!(
+        !pair.is_empty() && pair.iter().all(|p| !p.isolated),
+        "{pair:?}"
+    );
+    let one = measure(ONE);
+    assert_eq!(one.len(), 1, "{one:?}");
+    assert!(one[0].isolated, "{one:?}");
+}
