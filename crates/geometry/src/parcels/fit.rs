@@ -239,8 +239,9 @@ fn measure(
         reach >= PLATEAU_REACH && notch >= NOTCH_SHARE && solid >= PLATEAU_SOLID
     };
     // Two lids side by side, their step blurred into one top (the lid band may hold
-    // both): parcels side by side whatever the shape says.
-    let seam = map.seam(&hull_rect, height_m, FLAT_M.max(lid.band_m));
+    // both): parcels side by side whatever the shape says (looked for only where
+    // nothing has said so yet: the profile costs a pass over the height map).
+    let seam = tops <= 1 && !several && map.seam(&hull_rect, height_m, FLAT_M.max(lid.band_m));
     let corners = match (shape, &tube) {
         // Along its axis the lid strip, which runs the tube's whole length at its top
         // (the flying pixels beyond its round ends lie lower); across it the circle.
