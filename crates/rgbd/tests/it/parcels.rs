@@ -484,6 +484,89 @@ fn a_bags_top_is_its_highest_point_and_its_fields_are_checked() {
     assert_eq!(timed.at(3.5).truths()[0].kind, ObjectKind::Tube);
 }
 
+/// A filled polybag under a camera 1.55 m up, its +x side 0.15 m off the camera's
+/// axis; exact depth.
+const BAG_SIDE_SEEN_FROM_ABOVE: &str = r#"
+[[bag]]
+size = [0.56, 0.42, 0.16]
+center = [-0.13, 0.0]
+"#;
+
+#[test]
+fn every_pixel_whose_ray_meets_a_bags_side_sees_it() {
+    let scene = under_one_camera(3, [0.0, 0.0, 1.55], "ideal", BAG_SIDE_SEEN_FROM_ABOVE);
+    let bag = &scene.bags[0];
+    let (h, half) = (bag.size[2], [bag.size[0] / 2.0, bag.size[1] / 2.0]);
+    let top = |x: f64, y: f64| {
+        let (u, v) = ((x - bag.center[0]) / half[0], (y - bag.center[1]) / half[1]);
+        if u.abs() < 1.0 && v.abs() < 1.0 {
+            h * rgbd::scene::Bag::shape(u, v, 0.0)
+        } else {
+            0.0
+        }
+    };
+    let cam = only_camera(&scene);
+    let frame = cam.render_depth(1);
+    let k = cam.depth_intrinsics().unwrap();
+    let pose = cam.true_pose().unwrap();
+    let eye = pose.translation;
+    let (mut seen, mut checked) = (0, 0);
+    for v in 0..frame.height {
+        for u in 0..frame.width {
+            // Where the pixel's ray is at depth 1 m: the ray at depth s is eye + s * dir.
+            let one = pose.transform_point(k.deproject([u as f32, v as f32], 1.0).map(f64::from));
+            let dir = [one[0] - eye[0], one[1] - eye[1], one[2] - eye[2]];
+            let at = |s: f64| {
+                [
+                    eye[0] + s * dir[0],
+                    eye[1] + s * dir[1],
+                    eye[2] + s * dir[2],
+                ]
+            };
+            let floor = -eye[2] / dir[2];
+            let foot = at(floor);
+            // Rays that reach the floor within 3 cm beyond the side's middle.
+            if foot[1].abs() > 0.1 || foot[0] < 0.15 - 0.01 || foot[0] > 0.15 + 0.03 {
+                continue;
+            }
+            // Marched in 0.05 mm steps of depth: where the ray enters the bag, and how
+            // far it falls inside it (a ray that grazes the side passes through a sliver).
+            let n = 4000;
+            let start = (eye[2] - h) / -dir[2];
+            let step = (floor - start) / f64::from(n);
+            let inside = |s: f64| {
+                let p = at(s);
+                p[2] < top(p[0], p[1])
+            };
+            let Some(enter) = (0..=n)
+                .map(|i| start + f64::from(i) * step)
+                .find(|s| inside(*s))
+            else {
+                continue;
+            };
+            let leave = (0..=n)
+                .map(|i| enter + f64::from(i) * step)
+                .find(|s| !inside(*s))
+                .unwrap_or(floor);
+            if (at(enter)[2] - at(leave)[2]) < 0.02 {
+                continue;
+            }
+            checked += 1;
+            let got = f64::from(frame.metres_at(u, v).expect("depth"));
+            if (got - enter).abs() < 0.002 {
+                seen += 1;
+            }
+        }
+    }
+    // The rays fall past the side at about a tenth of their fall outwards, so they meet
+    // it down to about 0.45 of its height (where it is ten times as steep as it is
+    // wide), each through at least 2 cm of its height here. A march too coarse for rays
+    // falling nearly straight down (steps by how far they cross the footprint alone)
+    // passed over the side's lower half to the floor.
+    assert!(checked > 100, "{checked} rays through the side");
+    assert_eq!(seen, checked, "rays through the side that see it");
+}
+
 /// A filled polybag, a little sagging, under one D415 1.2 m above the floor.
 const PILLOW: &str = r#"
 [[bag]]

@@ -298,8 +298,12 @@ impl BagPrim {
     }
 
     /// The first entry of the ray into the bag within its bounding box: a march over
-    /// the box (steps by how far the ray travels across the footprint) to the first
-    /// sample inside, then bisection. `far` is the box's exit.
+    /// the box to the first sample inside, then bisection. `far` is the box's exit.
+    /// The march takes 24 steps for each footprint the ray crosses and each height it
+    /// falls (the two added): a ray from a camera above falls nearly straight past
+    /// a shoulder, crossing little of the footprint, and steps by the footprint alone
+    /// (two or three samples down such a ray) passed over the shoulder's lower half,
+    /// so rays that meet a side below about 0.6 of its height met the floor instead.
     #[inline(never)]
     fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
         let lo = to_local(self.cos, self.sin, &(o - self.center));
@@ -315,7 +319,8 @@ impl BagPrim {
         let at = |t: f32| self.inside(&(lo + ld * t)) > BAG_INSIDE * self.height;
         let span = far - start;
         let across = span * (ld.x.abs() / self.half[0] + ld.y.abs() / self.half[1]);
-        let steps = ((across * 24.0).ceil() as u32).clamp(2, 96);
+        let fall = span * ld.z.abs() / self.height;
+        let steps = (((across + fall) * 24.0).ceil() as u32).clamp(2, 96);
         let mut before = start;
         for k in 0..=steps {
             let t = start + span * k as f32 / steps as f32;
