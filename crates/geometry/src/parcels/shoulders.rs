@@ -31,15 +31,16 @@ const FALL_M: f32 = 0.005;
 /// density is 1 - m t of a level top's, m its slope, t the rays' run over their fall),
 /// until the rays graze it; of the last pixels before the floor a D415 keeps little (the
 /// right imager cannot see them, or they straddle the depth step and fly). The seen
-/// surface ends at a height `z` some millimetres inside the true edge, still sloping. Below that the side cannot reach beyond the camera's grazing ray, which
-/// meets the floor `z * t` farther out (t the ray's run over its fall, from the camera
-/// that looks down on the edge most steeply); where in that band it stands upright is
-/// not seen. The side is taken as a quarter ellipse, a filled pillow's section: level at
-/// the top's height `h`, upright on the floor, along the grazing ray where the seen
-/// surface ends. Such an arc reaches `c / (1 + c)` of the band farther out, c = sqrt(1 -
-/// (z / h)^2): half the band for a side seen nearly down to the floor, less the higher
-/// up the camera loses it. An edge whose surface arrives level (a lid) stays where it is.
-/// Without views the band is unknown and the rectangle stays.
+/// surface ends at a height `z` some millimetres inside the true edge, still sloping.
+/// Below that the side cannot reach beyond the camera's grazing ray, which meets the
+/// floor `z * t` farther out (t from the camera that looks down on the edge most
+/// steeply); where in that band it stands upright is not seen. The side is taken as a
+/// quarter ellipse, a filled pillow's section: level at the top's height `h`, upright on
+/// the floor, along the grazing ray where the seen surface ends. Such an arc reaches
+/// `c / (1 + c)` of the band farther out, c = sqrt(1 - (z / h)^2): half the band for a
+/// side seen nearly down to the floor, less the higher up the camera loses it. An edge
+/// whose surface arrives level (a lid) stays where it is. Without views the band is
+/// unknown and the rectangle stays.
 pub(super) fn shoulders(
     corners: [[f64; 2]; 4],
     points: &[Point3],
