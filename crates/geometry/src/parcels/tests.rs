@@ -433,3 +433,62 @@ fn holes_that_thin_a_dark_lids_edges_do_not_pull_them_in() {
     assert!((d.length_mm - 300.0).abs() < 1.5, "{d:?}");
     assert!((d.width_mm - 201.0).abs() < 1.5, "{d:?}");
 }
+
+#[test]
+fn a_low_bags_foot_seen_down_to_the_floor_keeps_its_edge() {
+    use super::shoulders::shoulders;
+    // A pillow 300 x 200 mm and 50 mm high, (1 - s^4)^(1/4) across each axis, seen
+    // every 2 mm from straight above down to 10 mm over the floor (its sides fall the
+    // last 10 mm within a fraction of a millimetre of the edge), and along each side a
+    // row of mixed pixels at 8 mm, within the 2 mm beyond it that straddle the step
+    // down to the floor: half the surface's count per bin there.
+    let q = |s: f64| (1.0 - s.powi(4)).max(0.0).powf(0.25);
+    let (hx, hy, h) = (0.15, 0.10, 0.05);
+    let mut points = Vec::new();
+    for i in -75..75 {
+        for j in -50..50 {
+            let (x, y) = (f64::from(i) * 0.002 + 0.001, f64::from(j) * 0.002 + 0.001);
+            let z = h * q(x / hx) * q(y / hy);
+            if z > 0.010 {
+                points.push(Point3::new(x as f32, y as f32, z as f32));
+            }
+        }
+    }
+    for k in -50..50 {
+        let t = f64::from(k) * 0.002 + 0.001;
+        for (x, y) in [
+            (hx + 0.001, t),
+            (-hx - 0.001, t),
+            (t * 1.5, hy + 0.001),
+            (t * 1.5, -hy - 0.001),
+        ] {
+            if x.abs() <= hx + 0.0015 && y.abs() <= hy + 0.0015 {
+                points.push(Point3::new(x as f32, y as f32, 0.008));
+            }
+        }
+    }
+    // A camera 1.5 m up over the middle, looking straight down.
+    let view = View {
+        to_common: Transform {
+            linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
+            translation: nalgebra::Vector3::new(0.0, 0.0, 1.5),
+        },
+        fx: 900.0,
+        fy: 900.0,
+        ppx: 640.0,
+        ppy: 360.0,
+        width: 1280,
+        height: 720,
+    };
+    // The rectangle the points' density placed: the footprint.
+    let around = [[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]];
+    let got = shoulders(around, &points, h as f32, &[view]);
+    // Seen down to the floor, the sides stay where they are (within the millimetre the
+    // camera's grazing rays leave unseen below 10 mm); a bin beyond the edge that held a
+    // fifth of the surface's count moved each out by the whole 4 mm bin.
+    for (g, a) in got.iter().zip(around) {
+        for k in 0..2 {
+            assert!((g[k] - a[k]).abs() < 0.0015, "{got:?}");
+        }
+    }
+}
