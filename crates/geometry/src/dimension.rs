@@ -15,7 +15,7 @@ use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point, Polygon};
 use rayon::prelude::*;
 
 use crate::cloud::is_finite;
-use crate::grid::{Block, Cell, CellMap, Grid, cell_of};
+use crate::grid::{Block, Cell, CellMap, Columns, Grid, cell_of};
 use crate::index::Index;
 use crate::{Point3, PointCloud};
 
@@ -168,19 +168,14 @@ pub(crate) fn above_floor(cloud: &PointCloud, config: &DimensionConfig) -> Vec<P
         .collect()
 }
 
-/// The minimum-area rectangle around `points` (x, y in metres), as its four corners in
-/// order around it; `None` when the points span no area.
-pub(crate) fn min_rect(points: impl Iterator<Item = [f64; 2]>) -> Option<[[f64; 2]; 4]> {
-    rect_around(&hull(points))
-}
-
 /// The convex hull of `points` (x, y in metres).
 pub(crate) fn hull(points: impl Iterator<Item = [f64; 2]>) -> Polygon<f64> {
     let footprint: MultiPoint<f64> = points.map(|[x, y]| Point::new(x, y)).collect();
     footprint.convex_hull()
 }
 
-/// [`min_rect`] of the points whose convex hull is `hull`.
+/// The minimum-area rectangle around the points whose convex hull is `hull` (x, y in
+/// metres), as its four corners in order around it; `None` when they span no area.
 pub(crate) fn rect_around(hull: &Polygon<f64>) -> Option<[[f64; 2]; 4]> {
     let rect = hull.minimum_rotated_rect()?;
     match rect.exterior().0.as_slice() {
@@ -354,6 +349,18 @@ fn spacings_indexed(points: &[Point3], samples: &[usize]) -> Result<Vec<f32>, Di
 /// building the tree cost as much as the lid's neighbour filter). `None` when a sample's
 /// nearest point might lie beyond those cells (a sparse or uneven cloud).
 fn spacings_near(points: &[Point3], samples: &[usize]) -> Option<Vec<f32>> {
+    spacings_in_cells(points, samples, CELLS_PER_POINT)
+}
+
+/// [`spacings_near`], through a [`Block`] when its box holds at most `cells_per_point`
+/// cells a point (the points sorted by cell once, without hashing each to find it among
+/// the samples' cells), else through a hash map of the samples' cells: both look at the
+/// same cells, so the answers are the same.
+fn spacings_in_cells(
+    points: &[Point3],
+    samples: &[usize],
+    cells_per_point: usize,
+) -> Option<Vec<f32>> {
     let (mut low, mut high) = ([f32::MAX; 2], [f32::MIN; 2]);
     for p in points {
         low = [low[0].min(p.x), low[1].min(p.y)];
@@ -364,6 +371,42 @@ fn spacings_near(points: &[Point3], samples: &[usize]) -> Option<Vec<f32>> {
     // A point outside the 27 cells lies more than a cell away along some axis (less the
     // rounding of the cell coordinates): a nearest point within 0.9 cells is the nearest.
     let certain = 0.9 * size;
+    // The nearest distance of sample `p` among `others` (it among them), `None` for a
+    // sample with three or more duplicates.
+    let nearest = |p: &Point3, others: &mut dyn Iterator<Item = &Point3>| {
+        let (mut same, mut best) = (0usize, f32::INFINITY);
+        for q in others {
+            let d = (q - p).norm();
+            if d > 0.0 {
+                best = best.min(d);
+            } else {
+                same += 1;
+            }
+        }
+        (same < 4).then_some(best)
+    };
+    let max_cells = cells_per_point
+        .saturating_mul(points.len())
+        .saturating_add(64);
+    if let Some(block) = Block::new(points, size, max_cells) {
+        let mut at_of = vec![0u32; points.len()];
+        for at in 0..points.len() {
+            at_of[block.index(at)] = at as u32;
+        }
+        let sorted = block.points();
+        let mut out = Vec::with_capacity(samples.len());
+        for &i in samples {
+            let runs = block.around(at_of[i] as usize);
+            let Some(best) = nearest(&points[i], &mut runs.flat_map(|r| &sorted[r])) else {
+                continue;
+            };
+            if best > certain {
+                return None;
+            }
+            out.push(best);
+        }
+        return Some(out);
+    }
     let around = |(x, y, z): Cell| {
         (-1..=1).flat_map(move |dx| {
             (-1..=1).flat_map(move |dy| (-1..=1).map(move |dz| (x + dx, y + dy, z + dz)))
@@ -383,20 +426,15 @@ fn spacings_near(points: &[Point3], samples: &[usize]) -> Option<Vec<f32>> {
     let mut out = Vec::with_capacity(samples.len());
     for &i in samples {
         let p = &points[i];
-        let (mut same, mut best) = (0usize, f32::INFINITY);
-        for c in around(cell_of(p, size)) {
-            for &j in near.get(&c).map_or(&[][..], Vec::as_slice) {
-                let d = (points[j as usize] - p).norm();
-                if d > 0.0 {
-                    best = best.min(d);
-                } else {
-                    same += 1;
-                }
-            }
-        }
-        if same >= 4 {
+        let mut others = around(cell_of(p, size)).flat_map(|c| {
+            near.get(&c)
+                .map_or(&[][..], Vec::as_slice)
+                .iter()
+                .map(|&j| &points[j as usize])
+        });
+        let Some(best) = nearest(p, &mut others) else {
             continue;
-        }
+        };
         if best > certain {
             return None;
         }
@@ -492,14 +530,20 @@ fn lid_band(cluster: &[Point3], height_m: f32, config: &DimensionConfig) -> f32 
 /// lies above it.
 pub(crate) fn robust_height(points: &[Point3], config: &DimensionConfig) -> f32 {
     let mut z: Vec<f32> = points.iter().map(|p| p.z).collect();
-    z.sort_unstable_by(f32::total_cmp);
     let last = z.len().saturating_sub(1);
     let q_index = ((last as f64) * f64::from(config.height_quantile)).round() as usize;
-    let top = z[q_index.min(last)];
+    // The quantile and the values below it, unordered (what a sort would put there).
+    let (below, top, _) = z.select_nth_unstable_by(q_index.min(last), f32::total_cmp);
+    let top = *top;
     let median_below = |depth: f32| {
-        let band_start = z.partition_point(|v| *v < top - depth);
-        let band = &z[band_start..=q_index.min(last)];
-        band[band.len() / 2]
+        let mut band: Vec<f32> = below
+            .iter()
+            .copied()
+            .filter(|v| *v >= top - depth)
+            .chain([top])
+            .collect();
+        let mid = band.len() / 2;
+        *band.select_nth_unstable_by(mid, f32::total_cmp).1
     };
     let first = median_below(config.top_band_m);
     let noise = depth_noise(points, first - config.top_band_m);
@@ -539,16 +583,21 @@ const MAX_BAND_DEPTHS: f32 = 3.0;
 /// spreads over centimetres); 0 without such cells.
 fn depth_noise(points: &[Point3], above: f32) -> f32 {
     const CELL_M: f32 = 0.005;
-    let mut cells: std::collections::HashMap<(i32, i32), Vec<f32>, foldhash::fast::FixedState> =
-        std::collections::HashMap::default();
-    for p in points.iter().filter(|p| p.z >= above) {
-        cells
-            .entry(((p.x / CELL_M).floor() as i32, (p.y / CELL_M).floor() as i32))
-            .or_default()
-            .push(p.z);
-    }
-    let mut deviations = Vec::new();
-    for cell in cells.values_mut().filter(|c| c.len() >= NOISE_CELL_POINTS) {
+    let items: Vec<((i64, i64), f32)> = points
+        .iter()
+        .filter(|p| p.z >= above)
+        .map(|p| {
+            let cell = ((p.x / CELL_M).floor() as i32, (p.y / CELL_M).floor() as i32);
+            ((i64::from(cell.0), i64::from(cell.1)), p.z)
+        })
+        .collect();
+    let mut cells = Columns::new(&items);
+    let mut deviations = Vec::with_capacity(items.len());
+    for k in 0..cells.cells.len() {
+        let cell = cells.values_mut(k);
+        if cell.len() < NOISE_CELL_POINTS {
+            continue;
+        }
         let mid = cell.len() / 2;
         let (_, median, _) = cell.select_nth_unstable_by(mid, f32::total_cmp);
         let median = *median;
@@ -682,10 +731,16 @@ mod tests {
             .collect();
         assert!(every_pair.len() < samples.len());
         assert_eq!(spacings_near(&points, &samples), Some(every_pair.clone()));
+        // Through the hash map of the samples' cells too.
+        assert_eq!(
+            spacings_in_cells(&points, &samples, 0),
+            Some(every_pair.clone())
+        );
         assert_eq!(spacings_indexed(&points, &samples), Ok(every_pair));
         // A stray sample whose nearest point lies beyond its cells: the tree answers.
         points.push(Point3::new(0.2, 0.0, 0.2));
         assert_eq!(spacings_near(&points, &[points.len() - 1]), None);
+        assert_eq!(spacings_in_cells(&points, &[points.len() - 1], 0), None);
     }
 
     #[test]

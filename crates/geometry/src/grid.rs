@@ -204,3 +204,143 @@ impl Block {
             .map(row)
     }
 }
+
+/// Values grouped by the column (a 2-D cell) each belongs to, in one buffer: column `k`
+/// holds `values[start[k]..start[k + 1]]`, in input order. Columns are numbered in order
+/// of their first value, and each input's column is kept. Where the columns' bounding box
+/// holds few cells per value, they are found by their place in it, else through a hash
+/// map (a height map of 200,000 points pushed into a vector per cell of a hash map, and
+/// looked each point up again for its cell's count).
+pub(crate) struct Columns {
+    /// Each column's cell.
+    pub(crate) cells: Vec<(i64, i64)>,
+    /// Where each column's values start in `values`, and one past the last one's end.
+    start: Vec<usize>,
+    /// The values, by column.
+    values: Vec<f32>,
+    /// Each input's column.
+    pub(crate) column_of: Vec<u32>,
+}
+
+/// At most this many cells of the bounding box per value are numbered by their place.
+const COLUMN_CELLS_PER_VALUE: usize = 8;
+
+impl Columns {
+    /// Groups `items` (cell, value), fewer than `u32::MAX`.
+    pub(crate) fn new(items: &[((i64, i64), f32)]) -> Self {
+        let (mut low, mut high) = ([i64::MAX; 2], [i64::MIN; 2]);
+        for ((x, y), _) in items {
+            low = [low[0].min(*x), low[1].min(*y)];
+            high = [high[0].max(*x), high[1].max(*y)];
+        }
+        let span = |k: usize| {
+            high[k]
+                .checked_sub(low[k])
+                .and_then(|d| d.checked_add(1))
+                .and_then(|d| usize::try_from(d).ok())
+        };
+        let boxed = match (span(0), span(1)) {
+            (Some(w), Some(h)) => w
+                .checked_mul(h)
+                .filter(|n| *n <= COLUMN_CELLS_PER_VALUE * items.len() + 64)
+                .map(|_| w),
+            _ => None,
+        };
+        let mut cells: Vec<(i64, i64)> = Vec::new();
+        let mut column_of: Vec<u32> = Vec::with_capacity(items.len());
+        let mut number = |cell: (i64, i64), found: &mut u32| {
+            if *found == u32::MAX {
+                *found = cells.len() as u32;
+                cells.push(cell);
+            }
+            *found
+        };
+        match boxed {
+            Some(w) => {
+                let h = span(1).unwrap_or(0);
+                let mut numbers = vec![u32::MAX; w * h];
+                for (cell, _) in items {
+                    let at = (cell.0 - low[0]) as usize + w * (cell.1 - low[1]) as usize;
+                    column_of.push(number(*cell, &mut numbers[at]));
+                }
+            }
+            None => {
+                let mut numbers: HashMap<(i64, i64), u32, FixedState> = HashMap::default();
+                for (cell, _) in items {
+                    column_of.push(number(*cell, numbers.entry(*cell).or_insert(u32::MAX)));
+                }
+            }
+        }
+        // Counting sort by column.
+        let mut start = vec![0usize; cells.len() + 1];
+        for c in &column_of {
+            start[*c as usize + 1] += 1;
+        }
+        for i in 1..start.len() {
+            start[i] += start[i - 1];
+        }
+        let mut next = start.clone();
+        let mut values = vec![0.0f32; items.len()];
+        for ((_, v), c) in items.iter().zip(&column_of) {
+            let slot = &mut next[*c as usize];
+            values[*slot] = *v;
+            *slot += 1;
+        }
+        Self {
+            cells,
+            start,
+            values,
+            column_of,
+        }
+    }
+
+    /// The values of column `k`, to reorder.
+    pub(crate) fn values_mut(&mut self, k: usize) -> &mut [f32] {
+        &mut self.values[self.start[k]..self.start[k + 1]]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The columns as (cell, values in input order), in column order.
+    fn groups(items: &[((i64, i64), f32)]) -> Vec<((i64, i64), Vec<f32>)> {
+        let mut c = Columns::new(items);
+        for (i, (cell, _)) in items.iter().enumerate() {
+            assert_eq!(c.cells[c.column_of[i] as usize], *cell);
+        }
+        (0..c.cells.len())
+            .map(|k| (c.cells[k], c.values_mut(k).to_vec()))
+            .collect()
+    }
+
+    #[test]
+    fn columns_group_values_by_cell_in_input_order_near_and_far_apart() {
+        let near = [
+            ((3, -2), 1.0),
+            ((4, -2), 2.0),
+            ((3, -2), 3.0),
+            ((-1, 5), 4.0),
+        ];
+        assert_eq!(
+            groups(&near),
+            vec![
+                ((3, -2), vec![1.0, 3.0]),
+                ((4, -2), vec![2.0]),
+                ((-1, 5), vec![4.0]),
+            ]
+        );
+        // Cells too far apart for a box of cells: the same through the hash map.
+        let far = near.map(|((x, y), v)| ((x * 1_000_000, y * 1_000_000), v));
+        let scaled = |g: Vec<((i64, i64), Vec<f32>)>| {
+            g.into_iter()
+                .map(|((x, y), v)| ((x * 1_000_000, y * 1_000_000), v))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(groups(&far), scaled(groups(&near)));
+        assert!(groups(&[]).is_empty());
+        let extreme = [((i64::MIN, 0), 1.0), ((i64::MAX, 0), 2.0)];
+        assert_eq!(groups(&extreme).len(), 2);
+    }
+}

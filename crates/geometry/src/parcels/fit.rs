@@ -1,6 +1,6 @@
 //! One object measured: its top, its footprint, its shape.
 
-use geo::{Area, ConvexHull, MultiPoint, Point};
+use geo::Area;
 
 use super::edges::{move_sides, noise_reach, pixel_offsets, refine, unblur, walls};
 use super::height_map::{HeightMap, opened};
@@ -11,8 +11,8 @@ use super::shoulders::shoulders;
 use super::view::View;
 use crate::Point3;
 use crate::dimension::{
-    DimensionConfig, DimensionError, Dimensions, Lid, hull, lid, min_rect, rect_around,
-    rect_dimensions, robust_height,
+    DimensionConfig, DimensionError, Dimensions, Lid, hull, lid, rect_around, rect_dimensions,
+    robust_height,
 };
 
 /// A cuboid's lid covers at least this share of its rectangle (a disc covers 0.785).
@@ -194,18 +194,19 @@ fn measure(
     // The same of the lid's flattest points (within a quarter band of the top): on a
     // box they are spread over the whole lid; on a domed or sagging top, where raw noise
     // deepens the band down to its rounded corners, only the plateau holds them.
-    let flat_fit = min_rect(flat.iter().map(xy)).map_or(fit, |r| {
-        let all: MultiPoint<f64> = flat
-            .iter()
-            .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
-            .collect();
-        (all.convex_hull().unsigned_area() / rect_area(&r)).min(1.0)
+    // (One hull for the rectangle and the area.)
+    let flat_hull = hull(flat.iter().map(xy));
+    let flat_fit = rect_around(&flat_hull).map_or(fit, |r| {
+        (flat_hull.unsigned_area() / rect_area(&r)).min(1.0)
     });
 
     let map = HeightMap::new(cluster);
     let dense = map.dense_points(cluster);
     let tops = map.tops(TOP_STEP_M.max(lid.band_m), FLAT_M.max(lid.band_m));
     let outside = share_outside(&lid_rect, dense.iter().map(xy), OUTSIDE_M);
+    // The dense points' hull, when needed (an irregular object's rectangle and coverage).
+    let dense_hull_once = std::cell::OnceCell::new();
+    let dense_hull = || dense_hull_once.get_or_init(|| hull(dense.iter().map(xy)));
     // A tube lying on the floor has a lid strip that fills its rectangle, and with a deep
     // lid band nothing reaches beyond it: its curved top tells it from a box.
     let tube = if tops <= 1 {
@@ -224,7 +225,7 @@ fn measure(
     };
     // A standing cylinder: a disc of a lid with nothing of the object beyond it.
     let disc = if tube.is_none() && tops <= 1 && shape == Shape::Irregular {
-        standing_disc(&hull_rect, &lid.points, &flat, &dense, margin, inward)
+        standing_disc(&hull_rect, &lid_hull, &flat, &dense, margin, inward)
             .map(|d| d.grown(pixel / 2.0))
     } else {
         None
@@ -257,7 +258,7 @@ fn measure(
         // Around every dense point, each edge placed by the points' density as a lid's
         // is: the thin fringe of flying pixels around a tall object counts little.
         (Shape::Irregular, None) => {
-            let around = min_rect(dense.iter().map(xy)).map_or(hull_rect, |r| {
+            let around = rect_around(dense_hull()).map_or(hull_rect, |r| {
                 refine(
                     r,
                     &dense,
@@ -290,13 +291,7 @@ fn measure(
     let coverage = match (shape, &tube) {
         (Shape::Cuboid, _) | (_, Some(_)) => map.coverage(&polygon(&corners)),
         _ if disc.is_some() => disc.map_or(1.0, |d| map.coverage(&d.polygon())),
-        (Shape::Irregular, None) => {
-            let all: MultiPoint<f64> = dense
-                .iter()
-                .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
-                .collect();
-            map.coverage(&all.convex_hull())
-        }
+        (Shape::Irregular, None) => map.coverage(dense_hull()),
     };
     Ok(ParcelFit {
         dimensions: rect_dimensions(corners, f64::from(top_m), cluster.len()),

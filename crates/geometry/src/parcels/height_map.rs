@@ -7,6 +7,7 @@ use geo::{Point, Polygon};
 
 use super::rect::polygon;
 use crate::Point3;
+use crate::grid::Columns;
 
 /// Side of a height-map cell, metres.
 const CELL_M: f64 = 0.005;
@@ -93,39 +94,44 @@ pub(super) struct HeightMap {
     spread: HashMap<Cell2, f32, FixedState>,
     /// Cells with fewer points are not dense.
     dense_min: u32,
+    /// Of the points the map was made of: each one's column, and whether each column
+    /// is dense.
+    of_points: (Vec<u32>, Vec<bool>),
 }
 
 impl HeightMap {
     pub(super) fn new(points: &[Point3]) -> Self {
-        let mut heights: HashMap<Cell2, Vec<f32>, FixedState> = HashMap::default();
-        for p in points {
-            heights
-                .entry(cell_of(f64::from(p.x), f64::from(p.y)))
-                .or_default()
-                .push(p.z);
-        }
-        let mut spread: HashMap<Cell2, f32, FixedState> = HashMap::default();
-        let cells: HashMap<Cell2, (u32, f32), FixedState> = heights
-            .into_iter()
-            .map(|(cell, mut z)| {
-                z.sort_unstable_by(f32::total_cmp);
-                let n = z.len();
-                spread.insert(cell, z[(3 * n) / 4] - z[n / 4]);
-                (cell, (n as u32, z[n / 2]))
-            })
+        let items: Vec<(Cell2, f32)> = points
+            .iter()
+            .map(|p| (cell_of(f64::from(p.x), f64::from(p.y)), p.z))
             .collect();
-        let mut counts: Vec<u32> = cells.values().map(|c| c.0).collect();
-        let mid = counts.len() / 2;
-        let median = if counts.is_empty() {
+        let mut columns = Columns::new(&items);
+        let mut spread: HashMap<Cell2, f32, FixedState> = HashMap::default();
+        let mut cells: HashMap<Cell2, (u32, f32), FixedState> = HashMap::default();
+        let mut counts: Vec<u32> = Vec::with_capacity(columns.cells.len());
+        for k in 0..columns.cells.len() {
+            let cell = columns.cells[k];
+            let z = columns.values_mut(k);
+            z.sort_unstable_by(f32::total_cmp);
+            let n = z.len();
+            spread.insert(cell, z[(3 * n) / 4] - z[n / 4]);
+            cells.insert(cell, (n as u32, z[n / 2]));
+            counts.push(n as u32);
+        }
+        let mut sorted = counts.clone();
+        let mid = sorted.len() / 2;
+        let median = if sorted.is_empty() {
             0
         } else {
-            *counts.select_nth_unstable(mid).1
+            *sorted.select_nth_unstable(mid).1
         };
         let dense_min = ((f64::from(median) * DENSE_SHARE).ceil() as u32).max(2);
+        let dense_columns = counts.iter().map(|n| *n >= dense_min).collect();
         Self {
             cells,
             spread,
             dense_min,
+            of_points: (columns.column_of, dense_columns),
         }
     }
 
@@ -136,6 +142,16 @@ impl HeightMap {
     /// The points of `points` in dense cells (flying pixels between an edge and the floor
     /// scatter thinly and are left out).
     pub(super) fn dense_points(&self, points: &[Point3]) -> Vec<Point3> {
+        let (column_of, dense) = &self.of_points;
+        if column_of.len() == points.len() {
+            // The points the map was made of: their columns are known.
+            return points
+                .iter()
+                .zip(column_of)
+                .filter(|(_, c)| dense[**c as usize])
+                .map(|(p, _)| *p)
+                .collect();
+        }
         points
             .iter()
             .filter(|p| self.is_dense(&cell_of(f64::from(p.x), f64::from(p.y))))

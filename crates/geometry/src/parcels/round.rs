@@ -1,6 +1,6 @@
 //! Round parcels: a tube lying on the floor, a cylinder standing on it.
 
-use geo::{Area, ConvexHull, Coord, LineString, MultiPoint, Point, Polygon};
+use geo::{Area, Coord, LineString, Polygon};
 
 use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
 use super::rect::{RectFrame, centre, sub};
@@ -94,7 +94,7 @@ const DISC_ROUND: f64 = 0.04;
 /// See [`DISC_ROUND`], metres.
 const DISC_ROUND_M: f64 = 0.004;
 
-/// Whether the lid (`points`, its rectangle `rect`) is a disc with nothing of the object
+/// Whether the lid (its points' convex `hull`, its rectangle `rect`) is a disc with nothing of the object
 /// beyond it (a standing cylinder), and its radius. The radius is placed as a box's edges
 /// are ([`super::edges::edges`]), in rings instead of strips: depth noise moves the lid's points
 /// sideways without adding or losing any, so the edge lies where the `flat` points
@@ -105,7 +105,7 @@ const DISC_ROUND_M: f64 = 0.004;
 /// its edges about 3 mm inside: cylinders came out 3.5-6.7 mm narrow.
 pub(super) fn standing_disc(
     rect: &[[f64; 2]; 4],
-    points: &[Point3],
+    hull: &Polygon<f64>,
     flat: &[Point3],
     dense: &[Point3],
     margin: f64,
@@ -115,11 +115,6 @@ pub(super) fn standing_disc(
     if la.max(lb) > 1.1 * la.min(lb) {
         return None;
     }
-    let hull = points
-        .iter()
-        .map(|p| Point::new(f64::from(p.x), f64::from(p.y)))
-        .collect::<MultiPoint<f64>>()
-        .convex_hull();
     let fit = hull.unsigned_area() / (la * lb);
     if !(DISC_FIT[0]..=DISC_FIT[1]).contains(&fit) {
         return None;
