@@ -1,6 +1,6 @@
 //! One object measured: its top, its footprint, its shape.
 
-use geo::Area;
+use geo::{Area, Polygon};
 
 use super::edges::{move_sides, noise_reach, pixel_offsets, refine, unblur, walls};
 use super::height_map::{HeightMap, opened};
@@ -96,15 +96,15 @@ const CORE_SHRINK: f64 = 0.9;
 /// where those lines held more than a hundredth of its points they set its height too).
 fn core_of(
     cluster: &[Point3],
-    lid: &Lid,
+    lid_hull: &Polygon<f64>,
     config: &DimensionConfig,
-) -> Option<(Vec<Point3>, f32, Lid)> {
+) -> Option<(Vec<Point3>, f32, Lid, Polygon<f64>)> {
     let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
-    let filled = |points: &[Point3]| {
-        let hull = hull(points.iter().map(xy));
-        rect_around(&hull).map(|r| (hull.unsigned_area() / rect_area(&r), rect_area(&r)))
+    let filled_hull = |hull: &Polygon<f64>| {
+        rect_around(hull).map(|r| (hull.unsigned_area() / rect_area(&r), rect_area(&r)))
     };
-    if filled(&lid.points)?.0 >= CUBOID_FIT {
+    let filled = |points: &[Point3]| filled_hull(&hull(points.iter().map(xy)));
+    if filled_hull(lid_hull)?.0 >= CUBOID_FIT {
         return None;
     }
     let core = opened(cluster);
@@ -112,9 +112,11 @@ fn core_of(
         return None;
     }
     let height_m = robust_height(&core, config);
-    let mut lid = crate::dimension::lid(&core, height_m, config).ok()?;
+    let mut lid = lid(&core, height_m, config).ok()?;
     lid.points = opened(&lid.points);
-    (lid.points.len() >= 3 && filled(&lid.points)?.0 >= CUBOID_FIT).then_some((core, height_m, lid))
+    let lid_hull = hull(lid.points.iter().map(xy));
+    (lid.points.len() >= 3 && filled_hull(&lid_hull)?.0 >= CUBOID_FIT)
+        .then_some((core, height_m, lid, lid_hull))
 }
 
 /// Measures one object.
@@ -128,23 +130,25 @@ pub(super) fn fit(
     if lid.points.len() < 3 {
         return Err(DimensionError::Footprint);
     }
-    match core_of(cluster, &lid, config) {
-        Some((core, height_m, lid)) => measure(&core, height_m, lid, config, views),
-        None => measure(cluster, height_m, lid, config, views),
+    // One hull of the lid, for its rectangle, its area and whether it fills it.
+    let lid_hull = hull(lid.points.iter().map(|p| [f64::from(p.x), f64::from(p.y)]));
+    match core_of(cluster, &lid_hull, config) {
+        Some((core, height_m, lid, lid_hull)) => {
+            measure(&core, height_m, (lid, lid_hull), config, views)
+        }
+        None => measure(cluster, height_m, (lid, lid_hull), config, views),
     }
 }
 
-/// Measures one object of the points `cluster`, its lid at `height_m`.
+/// Measures one object of the points `cluster`, its lid (and the lid's hull) at `height_m`.
 fn measure(
     cluster: &[Point3],
     height_m: f32,
-    lid: Lid,
+    (lid, lid_hull): (Lid, Polygon<f64>),
     config: &DimensionConfig,
     views: &[View],
 ) -> Result<ParcelFit, DimensionError> {
     let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
-    // One hull of the lid for its rectangle and its area.
-    let lid_hull = hull(lid.points.iter().map(xy));
     let hull_rect = rect_around(&lid_hull).ok_or(DimensionError::Footprint)?;
     let margin = f64::from(lid.band_m) + 0.003;
     // The edges from the points within a quarter band (about one noise deviation, at
