@@ -395,24 +395,15 @@ mod tests {
     use super::*;
 
     fn fit(l: f64, w: f64, h: f64) -> ParcelFit {
-        ParcelFit {
-            dimensions: Dimensions {
-                length_mm: l,
-                width_mm: w,
-                height_mm: h,
-                yaw_deg: 0.0,
-                corners_m: [[0.0; 2]; 4],
-                volume_l: l * w * h / 1e6,
-                points: 1000,
-            },
-            shape: geometry::Shape::Cuboid,
-            fit: 1.0,
-            tops: 1,
-            isolated: true,
-            coverage: 1.0,
-            out_of_view: false,
-            complete: true,
-        }
+        ParcelFit::whole_box(Dimensions {
+            length_mm: l,
+            width_mm: w,
+            height_mm: h,
+            yaw_deg: 0.0,
+            corners_m: [[0.0; 2]; 4],
+            volume_l: l * w * h / 1e6,
+            points: 1000,
+        })
     }
 
     #[test]

@@ -29,15 +29,7 @@ impl DepthPart {
             Some(c) => self.transform.then(c),
             None => self.transform,
         };
-        geometry::View {
-            to_common,
-            fx: k.fx,
-            fy: k.fy,
-            ppx: k.ppx,
-            ppy: k.ppy,
-            width: k.width,
-            height: k.height,
-        }
+        geometry::View::pinhole(to_common, k.fx, k.fy, k.ppx, k.ppy, k.width, k.height)
     }
 
     /// The cloud: each valid pixel deprojected, moved by the transform, kept when inside

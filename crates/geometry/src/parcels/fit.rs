@@ -58,6 +58,24 @@ pub struct ParcelFit {
     pub complete: bool,
 }
 
+impl ParcelFit {
+    /// A box measured as `dimensions` and seen whole and alone: a cuboid whose lid fills
+    /// its rectangle, one top, isolated, every cell covered, in view, complete (what a
+    /// fit of one box in clear view reads).
+    pub fn whole_box(dimensions: Dimensions) -> Self {
+        Self {
+            dimensions,
+            shape: Shape::Cuboid,
+            fit: 1.0,
+            tops: 1,
+            isolated: true,
+            coverage: 1.0,
+            out_of_view: false,
+            complete: true,
+        }
+    }
+}
+
 /// Neighbouring cells of one top differ in height by less than this (metres), or by the
 /// lid band when that is deeper.
 const TOP_STEP_M: f32 = 0.010;

@@ -225,18 +225,11 @@ fn a_wall_seen_from_outside_places_its_side_where_the_lid_ends_short() {
     let look = nalgebra::Vector3::new(-0.65f32, 0.0, -0.9).normalize();
     let x_axis = nalgebra::Vector3::new(0.0f32, 1.0, 0.0);
     let y_axis = look.cross(&x_axis);
-    let view = View {
-        to_common: Transform {
-            linear: nalgebra::Matrix3::from_columns(&[x_axis, y_axis, look]),
-            translation: nalgebra::Vector3::new(0.8, 0.1, 1.0),
-        },
-        fx: 900.0,
-        fy: 900.0,
-        ppx: 640.0,
-        ppy: 360.0,
-        width: 1280,
-        height: 720,
+    let to_common = Transform {
+        linear: nalgebra::Matrix3::from_columns(&[x_axis, y_axis, look]),
+        translation: nalgebra::Vector3::new(0.8, 0.1, 1.0),
     };
+    let view = View::pinhole(to_common, 900.0, 900.0, 640.0, 360.0, 1280, 720);
     let lid = [[0.0, 0.0], [0.298, 0.0], [0.298, 0.2], [0.0, 0.2]];
     let found = walls(&lid, &cluster, 0.2, &[view], 0.0015);
     // Side 1 runs from corner 1 to corner 2, at x = 0.298: its wall lies 2 mm out.
@@ -328,16 +321,7 @@ fn the_speckle_of_a_noisy_floor_in_the_cloud_does_not_join_parcels_apart() {
 #[test]
 fn a_dropped_object_standing_beside_the_kept_one_takes_its_isolation() {
     let rect = |x0: f64, y0: f64, x1: f64, y1: f64| [[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
-    let fit = |corners, points| ParcelFit {
-        dimensions: rect_dimensions(corners, 0.2, points),
-        shape: Shape::Cuboid,
-        fit: 1.0,
-        tops: 1,
-        isolated: true,
-        coverage: 1.0,
-        out_of_view: false,
-        complete: true,
-    };
+    let fit = |corners, points| ParcelFit::whole_box(rect_dimensions(corners, 0.2, points));
     // The kept parcel: 0.3 x 0.3 m, 10,000 points.
     let kept = fit(rect(0.0, 0.0, 0.3, 0.3), 10_000);
     // Points on a 1 cm grid over x0..x1, y 0..0.2 m.
@@ -371,15 +355,7 @@ fn a_view_sees_what_lies_inside_its_image() {
         linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
         translation: nalgebra::Vector3::new(0.0, 0.0, 1.0),
     };
-    let v = View {
-        to_common: down,
-        fx: 600.0,
-        fy: 600.0,
-        ppx: 320.0,
-        ppy: 240.0,
-        width: 640,
-        height: 480,
-    };
+    let v = View::pinhole(down, 600.0, 600.0, 320.0, 240.0, 640, 480);
     assert!(v.sees(&Point3::new(0.0, 0.0, 0.0), 3.0));
     assert!(v.sees(&Point3::new(0.5, 0.0, 0.0), 3.0));
     assert!(!v.sees(&Point3::new(0.6, 0.0, 0.0), 3.0));
@@ -399,15 +375,7 @@ fn holes_that_thin_a_dark_lids_edges_do_not_pull_them_in() {
         linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
         translation: nalgebra::Vector3::new(0.0, 0.0, 1.2),
     };
-    let view = View {
-        to_common: down,
-        fx: 700.0,
-        fy: 700.0,
-        ppx: 640.0,
-        ppy: 360.0,
-        width: 1280,
-        height: 720,
-    };
+    let view = View::pinhole(down, 700.0, 700.0, 640.0, 360.0, 1280, 720);
     let draw = |k: u64| (k.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40) as f64 / (1u64 << 24) as f64;
     let (nx, ny) = (201u64, 134u64);
     let mut points = Vec::new();
@@ -468,18 +436,11 @@ fn a_low_bags_foot_seen_down_to_the_floor_keeps_its_edge() {
         }
     }
     // A camera 1.5 m up over the middle, looking straight down.
-    let view = View {
-        to_common: Transform {
-            linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
-            translation: nalgebra::Vector3::new(0.0, 0.0, 1.5),
-        },
-        fx: 900.0,
-        fy: 900.0,
-        ppx: 640.0,
-        ppy: 360.0,
-        width: 1280,
-        height: 720,
+    let to_common = Transform {
+        linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
+        translation: nalgebra::Vector3::new(0.0, 0.0, 1.5),
     };
+    let view = View::pinhole(to_common, 900.0, 900.0, 640.0, 360.0, 1280, 720);
     // The rectangle the points' density placed: the footprint.
     let around = [[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]];
     let got = shoulders(around, &points, h as f32, &[view]);

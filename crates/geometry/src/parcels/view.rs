@@ -22,6 +22,29 @@ pub struct View {
 }
 
 impl View {
+    /// A pinhole camera at the pose `to_common` (its frame to the common frame: x right,
+    /// y down, z along the view) with focal lengths `fx`, `fy` and principal point
+    /// `ppx`, `ppy` (pixels), its image `width` x `height` pixels.
+    pub fn pinhole(
+        to_common: Transform,
+        fx: f32,
+        fy: f32,
+        ppx: f32,
+        ppy: f32,
+        width: u32,
+        height: u32,
+    ) -> Self {
+        Self {
+            to_common,
+            fx,
+            fy,
+            ppx,
+            ppy,
+            width,
+            height,
+        }
+    }
+
     /// Whether `p` (common frame) lies in front of the camera and projects at least
     /// `margin_px` inside the image.
     pub fn sees(&self, p: &Point3, margin_px: f32) -> bool {

@@ -245,15 +245,8 @@ fn a_parcel_reaching_beyond_the_view_is_incomplete() {
         linear: Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
         translation: Vector3::new(0.0, 0.0, 1.0),
     };
-    let view = |width: u32| View {
-        to_common: down,
-        fx: 500.0,
-        fy: 500.0,
-        ppx: width as f32 / 2.0,
-        ppy: 240.0,
-        width,
-        height: 480,
-    };
+    let view =
+        |width: u32| View::pinhole(down, 500.0, 500.0, width as f32 / 2.0, 240.0, width, 480);
     let wide = parcels(&cloud, &DimensionConfig::default(), &[view(640)]).expect("measures");
     assert!(wide.parcels[0].complete, "{wide:?}");
     // An image 180 px wide sees 16 cm of the 40: the lid's corners lie outside it.

@@ -600,20 +600,13 @@ fn a_polybag_is_measured_to_its_enclosing_cuboid_from_where_the_camera_loses_its
     }
     let r = pose.rotation.map(|row| row.map(|v| v as f32));
     let t = pose.translation.map(|v| v as f32);
-    let view = View {
-        to_common: Transform {
-            linear: Matrix3::new(
-                r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
-            ),
-            translation: Vector3::new(t[0], t[1], t[2]),
-        },
-        fx: k.fx,
-        fy: k.fy,
-        ppx: k.ppx,
-        ppy: k.ppy,
-        width: k.width,
-        height: k.height,
+    let to_common = Transform {
+        linear: Matrix3::new(
+            r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
+        ),
+        translation: Vector3::new(t[0], t[1], t[2]),
     };
+    let view = View::pinhole(to_common, k.fx, k.fy, k.ppx, k.ppy, k.width, k.height);
     let config = DimensionConfig::default();
     let measure = |views: &[View]| parcels(&cloud, &config, views).unwrap().parcels[0].clone();
     let fit = measure(&[view]);
