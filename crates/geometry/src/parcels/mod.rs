@@ -73,11 +73,6 @@ const TOUCH_M: f64 = 0.05;
 /// flying pixels between its edge and the floor), not a parcel (see [`fragment_of`]).
 const FRAGMENT_SHARE: f64 = 0.01;
 
-/// An object dropped as overlapping a larger one, with at least this share of its points
-/// and most of them beyond its footprint, is a parcel standing beside it that could not be
-/// told apart (a ring of flying pixels or a strip of side wall holds a few per cent).
-const NEIGHBOUR_SHARE: f64 = 0.1;
-
 /// An object whose footprint and a larger one's overlap by at least this share of the
 /// smaller footprint is a ring of flying pixels or floor speckle around it (see
 /// [`fragment_of`]); parcels side by side overlap by the few millimetres of noise on
@@ -160,13 +155,8 @@ pub fn parcels(
     found.sort_by_key(|(f, _)| std::cmp::Reverse(f.dimensions.points));
     let mut kept: Vec<ParcelFit> = Vec::with_capacity(found.len());
     for (f, points) in found {
-        match kept.iter().position(|k| fragment_of(&f, points, k)) {
-            None => kept.push(f),
-            Some(i) => {
-                if neighbour_of(&f, points, &kept[i]) {
-                    kept[i].isolated = false;
-                }
-            }
+        if !kept.iter().any(|k| fragment_of(&f, points, k)) {
+            kept.push(f);
         }
     }
     let mut found = kept;
@@ -295,16 +285,6 @@ fn fragment_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
         && (least <= 0.0 || p.intersection(&q).unsigned_area() >= OVERLAP_SHARE * least);
     let small = (f.dimensions.points as f64) < FRAGMENT_SHARE * k.dimensions.points as f64;
     under || overlap || (small && Euclidean.distance(&p, &q) < TOUCH_M)
-}
-
-/// Whether `f`, dropped as a fragment of `k` (with its `points`), is rather a parcel
-/// standing beside `k` that could not be told apart: a parcel's worth of points, most of
-/// them beyond `k`'s footprint (a lower parcel whose outline ran into the higher one's
-/// wall, so that their rectangles overlap). Nothing is said of it, so `k` is not alone.
-fn neighbour_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
-    let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
-    let beside = share_outside(&k.dimensions.corners_m, points.iter().map(xy), OUTSIDE_M) >= 0.5;
-    beside && f.dimensions.points as f64 >= NEIGHBOUR_SHARE * k.dimensions.points as f64
 }
 
 /// Points [`PROBE_M`] outside the footprint of `d` at its height: beyond each corner and

@@ -2,7 +2,6 @@ use super::edges::{edges, walls};
 use super::round::lying_tube;
 use super::*;
 use crate::Transform;
-use crate::dimension::rect_dimensions;
 
 #[test]
 fn edges_land_where_the_points_end_not_where_noise_threw_the_outermost() {
@@ -316,37 +315,6 @@ fn the_speckle_of_a_noisy_floor_in_the_cloud_does_not_join_parcels_apart() {
         assert!(p.isolated, "{found:?}");
         assert!((p.dimensions.length_mm - 200.0).abs() < 10.0, "{found:?}");
     }
-}
-
-#[test]
-fn a_dropped_object_standing_beside_the_kept_one_takes_its_isolation() {
-    let rect = |x0: f64, y0: f64, x1: f64, y1: f64| [[x0, y0], [x1, y0], [x1, y1], [x0, y1]];
-    let fit = |corners, points| ParcelFit::whole_box(rect_dimensions(corners, 0.2, points));
-    // The kept parcel: 0.3 x 0.3 m, 10,000 points.
-    let kept = fit(rect(0.0, 0.0, 0.3, 0.3), 10_000);
-    // Points on a 1 cm grid over x0..x1, y 0..0.2 m.
-    let grid = |x0: f64, x1: f64| -> Vec<Point3> {
-        let mut v = Vec::new();
-        let mut x = x0;
-        while x < x1 {
-            for j in 0..20 {
-                v.push(Point3::new(x as f32, j as f32 * 0.01, 0.1));
-            }
-            x += 0.01;
-        }
-        v
-    };
-    // A lower box beside it whose outline ran 10 cm into the kept one: a neighbour.
-    let beside = grid(0.31, 0.55);
-    let lower = fit(rect(0.2, 0.0, 0.55, 0.2), 3_000);
-    assert!(neighbour_of(&lower, &beside, &kept));
-    // The same points but a few of them (a ring of flying pixels): not a parcel.
-    let ring = fit(rect(0.2, 0.0, 0.55, 0.2), 500);
-    assert!(!neighbour_of(&ring, &beside, &kept));
-    // A strip of the kept one's own wall, under its edge: not beside it.
-    let under = grid(0.22, 0.3);
-    let strip = fit(rect(0.2, 0.0, 0.3, 0.2), 3_000);
-    assert!(!neighbour_of(&strip, &under, &kept));
 }
 
 #[test]
