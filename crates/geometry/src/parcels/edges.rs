@@ -318,7 +318,176 @@ pub(super) fn move_sides(corners: [[f64; 2]; 4], by: [f64; 4]) -> [[f64; 2]; 4] 
     frame.corners(-by[3], frame.la + by[1], -by[0], frame.lb + by[2])
 }
 
-/// The lid rectangle `rect` of a parcel `height_m` high with each edge that the spatial
+/// How far beyond a side [`unblur`] counts at most (metres): a 60 cm parcel's edge
+/// pixels reading half its height land up to 8 cm out on a ray at 15 degrees.
+const COUNT_REACH_M: f64 = 0.08;
+
+/// How far [`unblur`] moves a side out at most (metres): the blur of a low lid puts its
+/// points' end 8-10 mm inside the step.
+const COUNT_MOVE_M: f64 = 0.03;
+
+/// The lid rectangle `rect` of a parcel `height_m` high whose sides were placed from the
+/// points within `slab_m` of its top, each side moved out to where the pixels that see
+/// the lid end where those pixels sank out of the slab.
+///
+/// A pixel whose centre sees the lid reads nearer the lid than the floor, above half the
+/// height, however the spatial filter moved its depth. The filter (an edge-preserving
+/// moving average along rows and columns, both ways) smooths a step lower than its
+/// threshold (20/32 pixel of disparity: a lid lower than about 3 to 4.5 cm from 1.5 to 2
+/// m up) into the floor symmetrically, so the pixels on the lid's side of the step stay
+/// above half of it (a 37 mm lid's points ended 5-7 mm short of one such side). Where the
+/// pixel across an edge (mostly lid, its depth between lid and floor) reads within the
+/// threshold of the lid, the filter drags the lid's last pixels down towards it, 7-20 mm
+/// over 5-10 mm, out of the slab (a 75 mm box's side ended 5 mm short); the step beyond
+/// it stays. The pixels are counted where their points land (a pixel's point moves along
+/// its ray with its depth): in bins two pixels wide from a line inside the side out to
+/// where a point of the edge reading half the height lands on the steepest camera's ray
+/// (at most [`COUNT_REACH_M`]) and [`COUNT_MOVE_M`] beyond, each bin at most 1.5 times
+/// the density of the lid's first 2 cm inside that line (two bins in from the side: a
+/// glossy lid's glare thins it towards the middle); they end where that many points at
+/// that density would. The same count of the slab's points ends where the side was
+/// placed; when all of them end at least a pixel beyond that, the lid sank there and the
+/// side moves out (only out: the pixel across the edge of a lid taller than twice the
+/// cluster radius hangs too far below it to be in its cluster, so the count can fall a
+/// pixel short). A side a camera sees from outside (its wall's upper half reads above half
+/// the height too) goes where the blur's crossing of half the height puts it
+/// ([`blur_crossing`]); the sides of lids too low for half their height to clear the
+/// floor cut by 3 mm (the points between are cut) or too short across stay.
+pub(super) fn unblur(
+    rect: [[f64; 2]; 4],
+    cluster: &[Point3],
+    (height_m, slab_m): (f32, f32),
+    (views, pixel_m): (&[View], f64),
+    min_height_m: f32,
+) -> [[f64; 2]; 4] {
+    const INSET_M: f64 = 0.02;
+    // Two pixels a bin, and the density over whole bins: where a camera's rows run
+    // along a side, each bin holds two rows wherever they fall (without views, 2.5 mm).
+    let bin_m = if pixel_m > 0.0 { 2.0 * pixel_m } else { 0.0025 };
+    // The density over about 2 cm of whole bins (without views the points' rows may
+    // alias with the bins), the count from two bins farther in.
+    let reference = (DENSITY_WINDOW_M / bin_m).round().max(2.0);
+    let from_m = (reference + 2.0) * bin_m;
+    let half = height_m / 2.0;
+    // Half the height must clear the floor cut for the lid's pixels to be told apart.
+    if half < min_height_m + 0.003 {
+        return rect;
+    }
+    let Some(frame) = RectFrame::new(&rect) else {
+        return rect;
+    };
+    let (la, lb) = (frame.la, frame.lb);
+    let shortest = 2.0 * INSET_M.max(from_m);
+    if la <= shortest || lb <= shortest {
+        return rect;
+    }
+    // The points nearer the lid than the floor, in the rectangle's frame, and whether
+    // each lies within the slab of the top that placed the side.
+    let local: Vec<(f64, f64, bool)> = cluster
+        .iter()
+        .filter(|p| p.z > half)
+        .map(|p| {
+            let (s, t) = frame.local_point(p);
+            (s, t, p.z >= height_m - slab_m)
+        })
+        .collect();
+    // How far beyond the side the lid's pixels end (negative: inside), counted out to
+    // `reach_m` beyond it: all of them, and those within the slab.
+    let count = |along_b: bool, high: bool, reach_m: f64| -> Option<(f64, f64)> {
+        let (len, other) = if along_b { (lb, la) } else { (la, lb) };
+        let bins = ((from_m + reach_m) / bin_m).ceil() as usize;
+        let mut all = vec![0usize; bins.max(reference as usize)];
+        let mut flat = all.clone();
+        for &(s, t, level) in &local {
+            let (across, along) = if along_b { (t, s) } else { (s, t) };
+            if along < INSET_M || along > other - INSET_M {
+                continue;
+            }
+            let out = if high { across - len } else { -across } + from_m;
+            let k = (out / bin_m) as usize;
+            if out >= 0.0 && k < all.len() {
+                all[k] += 1;
+                if level {
+                    flat[k] += 1;
+                }
+            }
+        }
+        let end = |per_bin: &[usize]| -> Option<f64> {
+            let full = per_bin[..reference as usize].iter().sum::<usize>() as f64 / reference;
+            let mass: f64 = per_bin.iter().map(|&n| (n as f64).min(1.5 * full)).sum();
+            (full > 0.0).then(|| mass / full * bin_m - from_m)
+        };
+        Some((end(&all)?, end(&flat)?))
+    };
+    // How far out the cameras that have the side's middle in view put a point of the
+    // lid's edge that reads half the height (its ray's outward run over half the
+    // height); `None` when one of them stands beyond the side.
+    let reach = |mid: [f64; 2], outward: [f64; 2]| -> Option<f64> {
+        let p = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
+        let mut most = 0.0f64;
+        for v in views.iter().filter(|v| v.sees(&p, 0.0)) {
+            let eye = v.to_common.translation;
+            let run = dot(sub(mid, [f64::from(eye.x), f64::from(eye.y)]), outward);
+            if run < 0.0 {
+                return None;
+            }
+            let rise = f64::from(eye.z - height_m).max(1e-3);
+            most = most.max(f64::from(half) * run / rise);
+        }
+        Some(most)
+    };
+    // A side a camera sees from outside keeps where the blur's crossing of half the
+    // height puts it: its wall's upper half reads above half the height too.
+    let crossed = blur_crossing(rect, cluster, height_m, (views, pixel_m), min_height_m);
+    let (c_lo, c_hi) = (frame.local(crossed[0]), frame.local(crossed[2]));
+    let mut lo = [0.0, 0.0];
+    let mut hi = [la, lb];
+    for axis in [0, 1] {
+        let along_b = axis == 1;
+        let (len, mid_other) = (frame.len(axis), frame.len(1 - axis) / 2.0);
+        for high in [false, true] {
+            let outward = frame.outward(axis, high);
+            let edge = if high { len } else { 0.0 };
+            let mid = if along_b {
+                frame.at(mid_other, edge)
+            } else {
+                frame.at(edge, mid_other)
+            };
+            let Some(r) = reach(mid, outward) else {
+                let (l, h) = if axis == 0 {
+                    (c_lo.0, c_hi.0)
+                } else {
+                    (c_lo.1, c_hi.1)
+                };
+                if high {
+                    hi[axis] = h;
+                } else {
+                    lo[axis] = l;
+                }
+                continue;
+            };
+            let Some((moved, level)) = count(along_b, high, r.min(COUNT_REACH_M) + COUNT_MOVE_M)
+            else {
+                continue;
+            };
+            // Nothing sank here (or no more than the pixel across the edge): the slab's
+            // edge stands.
+            if moved - level < pixel_m.max(0.001) {
+                continue;
+            }
+            let moved = moved.clamp(0.0, COUNT_MOVE_M);
+            if high {
+                hi[axis] = len + moved;
+            } else {
+                lo[axis] = -moved;
+            }
+        }
+    }
+    frame.corners(lo[0], hi[0], lo[1], hi[1])
+}
+
+/// (For the sides [`unblur`] leaves: those a camera sees from outside.) The lid
+/// rectangle `rect` of a parcel `height_m` high with each edge that the spatial
 /// filter blurred into the floor moved out to where the blur says the step was.
 ///
 /// The filter (an edge-preserving moving average over neighbouring pixels, run both ways
@@ -337,7 +506,7 @@ pub(super) fn move_sides(corners: [[f64; 2]; 4], by: [f64; 4]) -> [[f64; 2]; 4] 
 /// one below three quarters of it). Edges that end sharply (a tall step, the stereo
 /// shadow's holes) and lids too low for half their height to clear the floor cut by
 /// 3 mm stay as they are.
-pub(super) fn unblur(
+fn blur_crossing(
     rect: [[f64; 2]; 4],
     cluster: &[Point3],
     height_m: f32,

@@ -273,7 +273,7 @@ fn measure(
         (Shape::Cuboid, None) => unblur(
             lid_rect,
             cluster,
-            height_m,
+            (height_m, slab),
             (views, pixel),
             config.min_height_m,
         ),

@@ -266,6 +266,44 @@ fn a_low_lid_blurred_into_the_floor_is_measured_to_its_step() {
 }
 
 #[test]
+fn a_lid_whose_last_pixels_the_filter_dragged_down_is_measured_to_its_step() {
+    // A 600 x 400 x 40 mm box seen from 1.8 m up, straight above its middle (a point at
+    // each pixel's centre, 2 mm apart). Along its far end the pixel across the edge saw
+    // mostly lid and read within the spatial filter's threshold of it, so the filter
+    // dragged the lid's last columns down towards it (14, 7, 3.5, ... mm below the lid);
+    // the step beyond it to the floor stayed, and the floor cut dropped the floor. The
+    // other edges end sharply, each pixel across them off the lid.
+    let view = View {
+        to_common: Transform {
+            linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
+            translation: nalgebra::Vector3::new(0.3, 0.2, 1.8),
+        },
+        fx: 880.0,
+        fy: 880.0,
+        ppx: 640.0,
+        ppy: 360.0,
+        width: 1280,
+        height: 720,
+    };
+    let mut points = Vec::new();
+    for i in 0..300 {
+        for j in 0..200 {
+            let (x, y) = ((i as f64 + 0.5) * 0.002, (j as f64 + 0.5) * 0.002);
+            let sink = 0.014 * 0.5f64.powi(299 - i);
+            points.push(Point3::new(x as f32, y as f32, (0.04 - sink) as f32));
+        }
+    }
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[view]).unwrap();
+    let d = &found.parcels[0].dimensions;
+    assert_eq!(found.parcels[0].shape, Shape::Cuboid);
+    // The far end where the step was, not where the lid's band ends (6 mm in).
+    let far = d.corners_m.iter().map(|c| c[0]).fold(f64::MIN, f64::max);
+    assert!((far - 0.6).abs() < 0.0005, "{d:?}");
+    assert!((d.length_mm - 600.0).abs() < 1.5, "{d:?}");
+    assert!((d.width_mm - 400.0).abs() < 1.5, "{d:?}");
+}
+
+#[test]
 fn the_speckle_of_a_noisy_floor_in_the_cloud_does_not_join_parcels_apart() {
     // An unprepared camera far up sends the floor with 5.5 mm of noise: 3.5 % of its
     // points land above the 1 cm cut, a few millimetres apart, all over the floor.
