@@ -2,6 +2,10 @@
 //! measured as the smallest cuboid that encloses it, with how well a cuboid fits, whether
 //! it touches another parcel and whether the data show all of it.
 //!
+//! Fragments of a larger object go (a ring of flying pixels, a sliver of wall, and with
+//! the cameras known a sheet of flying pixels on the rays through its edge, parted from
+//! it by holes).
+//!
 //! Per object (a cluster of [`crate::dimension()`]'s grid):
 //! - the top: the lid band below a robust maximum of z, as [`crate::dimension()`] has always
 //!   taken it;
@@ -79,6 +83,17 @@ const FRAGMENT_SHARE: f64 = 0.01;
 /// their edges, a share of a few per cent.
 const OVERLAP_SHARE: f64 = 0.2;
 
+/// Of an object of flying pixels off a parcel's edge (see [`curtain_of`]), at least this
+/// share lies on rays through that edge: the 720-scene set's dark boxes parted from
+/// theirs by holes, sheets 0.1-2 mm thick, up to 12 cm high and as long as the edge.
+const CURTAIN_SHARE: f64 = 0.9;
+
+/// ... within this many pixels of the edge (the pixel across it, and the next) ...
+const CURTAIN_PX: f64 = 2.0;
+
+/// ... and this far besides (metres): where the lid's outline was placed, give or take.
+const CURTAIN_M: f64 = 0.003;
+
 /// Side of the columns in which the floor's speckle is told from a parcel (metres; see
 /// [`without_speckle`]).
 const SPECKLE_CELL_M: f64 = 0.01;
@@ -155,7 +170,11 @@ pub fn parcels(
     found.sort_by_key(|(f, _)| std::cmp::Reverse(f.dimensions.points));
     let mut kept: Vec<ParcelFit> = Vec::with_capacity(found.len());
     for (f, points) in found {
-        if !kept.iter().any(|k| fragment_of(&f, points, k)) {
+        // Flying pixels that holes parted from a parcel's edge are nothing at all.
+        if !kept
+            .iter()
+            .any(|k| fragment_of(&f, points, k) || curtain_of(points, k, views))
+        {
             kept.push(f);
         }
     }
@@ -285,6 +304,50 @@ fn fragment_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
         && (least <= 0.0 || p.intersection(&q).unsigned_area() >= OVERLAP_SHARE * least);
     let small = (f.dimensions.points as f64) < FRAGMENT_SHARE * k.dimensions.points as f64;
     under || overlap || (small && Euclidean.distance(&p, &q) < TOUCH_M)
+}
+
+/// Whether `points` (an object's) are flying pixels off the lid of `k`, parted from it by
+/// holes (a dark box's lid and walls lose most of their depth): a pixel across an edge
+/// reads a depth between the lid and what lies behind, so its point lies on the pixel's
+/// ray through the edge, below the lid. From one of the `views`, at least
+/// [`CURTAIN_SHARE`] of the points lie below `k`'s top on rays that pass within
+/// [`CURTAIN_PX`] pixels (and the lid's own error, [`CURTAIN_M`]) of `k`'s outline at
+/// its height. A parcel beside `k` stands on the floor beside it, off those rays.
+fn curtain_of(points: &[Point3], k: &ParcelFit, views: &[View]) -> bool {
+    let Some(frame) = RectFrame::new(&k.dimensions.corners_m) else {
+        return false;
+    };
+    let top = k.dimensions.height_mm / 1e3;
+    views.iter().any(|v| {
+        let eye = v.to_common.translation;
+        let (ex, ey, ez) = (f64::from(eye.x), f64::from(eye.y), f64::from(eye.z));
+        if ez <= top {
+            return false;
+        }
+        let on = points
+            .iter()
+            .filter(|p| {
+                let (px, py, pz) = (f64::from(p.x), f64::from(p.y), f64::from(p.z));
+                if pz >= top {
+                    return false;
+                }
+                // Where the ray from the camera to the point crosses the lid's height.
+                let t = (ez - top) / (ez - pz);
+                let q = [ex + (px - ex) * t, ey + (py - ey) * t];
+                let pixel = (ez - top).hypot((q[0] - ex).hypot(q[1] - ey)) / f64::from(v.fx);
+                let (s, u) = frame.local(q);
+                let inside = s.min(frame.la - s).min(u).min(frame.lb - u);
+                let outline = if inside >= 0.0 {
+                    inside
+                } else {
+                    let beyond = |x: f64, len: f64| (-x).max(x - len).max(0.0);
+                    beyond(s, frame.la).hypot(beyond(u, frame.lb))
+                };
+                outline <= CURTAIN_PX * pixel + CURTAIN_M
+            })
+            .count();
+        on as f64 >= CURTAIN_SHARE * points.len() as f64
+    })
 }
 
 /// Points [`PROBE_M`] outside the footprint of `d` at its height: beyond each corner and

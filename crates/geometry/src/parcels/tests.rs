@@ -459,3 +459,45 @@ fn a_low_bags_foot_seen_down_to_the_floor_keeps_its_edge() {
         }
     }
 }
+
+#[test]
+fn flying_pixels_parted_from_a_dark_box_by_its_holes_are_no_parcel_beside_it() {
+    // A 200 x 150 mm lid 300 mm up under a camera 1.2 m up above x = 0.1, its walls lost
+    // to holes; below its +x edge, the pixels across that edge read depths between the
+    // lid and the floor: a sheet of points on the rays through the edge, 20-30 mm out,
+    // from 2 to 12 cm up, parted from the lid.
+    let eye = [0.1, 0.0, 1.2];
+    let mut points = lid_points([0.0, 0.2], [-0.075, 0.075], 0.3);
+    for j in 0..=75 {
+        let y = -0.075 + f64::from(j) * 0.002;
+        for k in 0..=20 {
+            let z = 0.02 + f64::from(k) * 0.005;
+            let t = (eye[2] - z) / (eye[2] - 0.3);
+            points.push(Point3::new(
+                (eye[0] + (0.2 - eye[0]) * t) as f32,
+                (eye[1] + (y - eye[1]) * t) as f32,
+                z as f32,
+            ));
+        }
+    }
+    let view = View {
+        to_common: Transform {
+            linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
+            translation: nalgebra::Vector3::new(0.1, 0.0, 1.2),
+        },
+        fx: 640.0,
+        fy: 640.0,
+        ppx: 640.0,
+        ppy: 360.0,
+        width: 1280,
+        height: 720,
+    };
+    let cloud = PointCloud { points };
+    let config = DimensionConfig::default();
+    let found = parcels(&cloud, &config, &[view]).unwrap();
+    assert_eq!(found.parcels.len(), 1, "{found:?}");
+    assert!(found.parcels[0].isolated, "{found:?}");
+    // Without the camera the sheet cannot be told from a parcel standing beside it.
+    let blind = parcels(&cloud, &config, &[]).unwrap();
+    assert!(blind.parcels.iter().all(|p| !p.isolated), "{blind:?}");
+}
