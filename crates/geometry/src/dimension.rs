@@ -620,18 +620,23 @@ const NOISE_CELL_POINTS: usize = 5;
 mod tests {
     use super::*;
 
+    /// Uniform values in [0, 1) from a 64-bit linear congruential generator seeded with
+    /// `state`.
+    fn uniforms(mut state: u64) -> impl FnMut() -> f32 {
+        move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f32 / (1u64 << 53) as f32
+        }
+    }
+
     #[test]
     fn a_noisy_lid_reads_its_middle_not_above_it() {
         // A 300 x 200 mm lid 200 mm up, points 2 mm apart, z with noise of 5 mm deviation
         // (an unfiltered D415 about 1.8 m away): the 99 % quantile lies 11-12 mm above
         // the lid, so a 1 cm band below it missed the lid's middle by about 3 mm.
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f32 / (1u64 << 53) as f32
-        };
+        let mut uniform = uniforms(0x2545_f491_4f6c_dd1d_u64);
         let mut points = Vec::new();
         for i in 0..150 {
             for j in 0..100 {
@@ -656,13 +661,7 @@ mod tests {
         // depth in patches of 4 x 4 points, and the spatial filter smoothed each patch
         // left alone: the points of a patch agree to 0.5 mm, the patches scatter by 5 mm.
         // Cells of 5 mm see the 0.5 mm, and a band of 1 cm below the quantile read high.
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut uniform = || {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (state >> 11) as f32 / (1u64 << 53) as f32
-        };
+        let mut uniform = uniforms(0x9e37_79b9_7f4a_7c15_u64);
         let mut points = Vec::new();
         for pi in 0..24 {
             for pj in 0..24 {

@@ -1,7 +1,7 @@
 //! Where a lid's edges lie: placed by the lid points' density, then moved out by what the
 //! cameras' pixels, the side walls and the spatial filter's blur say.
 
-use super::rect::{RectFrame, centre, dot, sub};
+use super::rect::{RectFrame, centre, dot, side_middles, sub};
 use super::view::View;
 use crate::Point3;
 
@@ -78,17 +78,11 @@ pub(super) fn noise_reach(
     slab: f32,
     views: &[View],
 ) -> [Option<f64>; 4] {
-    let centre = centre(corners);
     let mut out = [None; 4];
-    for (k, reach) in out.iter_mut().enumerate() {
-        let (p, q) = (corners[k], corners[(k + 1) % 4]);
-        let mid = [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0];
-        let away = sub(mid, centre);
-        let n = away[0].hypot(away[1]);
-        if n <= 0.0 {
+    for (reach, side) in out.iter_mut().zip(side_middles(corners)) {
+        let Some((mid, normal)) = side else {
             continue;
-        }
-        let normal = [away[0] / n, away[1] / n];
+        };
         let at = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
         for v in views.iter().filter(|v| v.sees(&at, 0.0)) {
             let eye = v.to_common.translation;
@@ -187,17 +181,11 @@ pub(super) fn edges(
 /// edge matches the lid alone and reads the lid's depth. The cameras are weighted by
 /// their points' density there.
 pub(super) fn pixel_offsets(corners: &[[f64; 2]; 4], height_m: f32, views: &[View]) -> [f64; 4] {
-    let centre = centre(corners);
     let mut out = [0.0; 4];
-    for (k, offset) in out.iter_mut().enumerate() {
-        let (p, q) = (corners[k], corners[(k + 1) % 4]);
-        let mid = [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0];
-        let away = sub(mid, centre);
-        let n = away[0].hypot(away[1]);
-        if n <= 0.0 {
+    for (offset, side) in out.iter_mut().zip(side_middles(corners)) {
+        let Some((mid, normal)) = side else {
             continue;
-        }
-        let normal = [away[0] / n, away[1] / n];
+        };
         let at = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
         let (mut sum, mut weights) = (0.0, 0.0);
         for v in views {
@@ -421,10 +409,12 @@ pub(super) fn unblur(
     };
     // How far out the cameras that have the side's middle in view put a point of the
     // lid's edge that reads half the height (its ray's outward run over half the
-    // height); `None` when one of them stands beyond the side.
+    // height); `None` when one of them stands beyond the side, or when none has it in
+    // view (without a camera's ray a sunk lid's pixels cannot be told from the upper
+    // half of a wall seen from outside).
     let reach = |mid: [f64; 2], outward: [f64; 2]| -> Option<f64> {
         let p = Point3::new(mid[0] as f32, mid[1] as f32, height_m);
-        let mut most = 0.0f64;
+        let mut most = None;
         for v in views.iter().filter(|v| v.sees(&p, 0.0)) {
             let eye = v.to_common.translation;
             let run = dot(sub(mid, [f64::from(eye.x), f64::from(eye.y)]), outward);
@@ -432,12 +422,14 @@ pub(super) fn unblur(
                 return None;
             }
             let rise = f64::from(eye.z - height_m).max(1e-3);
-            most = most.max(f64::from(half) * run / rise);
+            let r = f64::from(half) * run / rise;
+            most = Some(most.map_or(r, |m: f64| m.max(r)));
         }
-        Some(most)
+        most
     };
-    // A side a camera sees from outside keeps where the blur's crossing of half the
-    // height puts it: its wall's upper half reads above half the height too.
+    // A side a camera sees from outside (or that no camera has in view) keeps where the
+    // blur's crossing of half the height puts it: its wall's upper half reads above half
+    // the height too.
     let crossed = blur_crossing(rect, cluster, height_m, (views, pixel_m), min_height_m);
     let (c_lo, c_hi) = (frame.local(crossed[0]), frame.local(crossed[2]));
     let mut lo = [0.0, 0.0];
@@ -486,7 +478,7 @@ pub(super) fn unblur(
     frame.corners(lo[0], hi[0], lo[1], hi[1])
 }
 
-/// (For the sides [`unblur`] leaves: those a camera sees from outside.) The lid
+/// (For the sides [`unblur`] leaves: those a camera sees from outside, or that none has in view.) The lid
 /// rectangle `rect` of a parcel `height_m` high with each edge that the spatial
 /// filter blurred into the floor moved out to where the blur says the step was.
 ///

@@ -117,6 +117,20 @@ pub(super) fn centre(corners: &[[f64; 2]; 4]) -> [f64; 2] {
     [0, 1].map(|k| corners.iter().map(|c| c[k]).sum::<f64>() / 4.0)
 }
 
+/// Each side `k` of the rectangle `corners` (from corner `k` to `k + 1`): its middle and
+/// its outward unit normal, from the centre through the middle; `None` for a side whose
+/// middle is the centre.
+pub(super) fn side_middles(corners: &[[f64; 2]; 4]) -> [Option<([f64; 2], [f64; 2])>; 4] {
+    let centre = centre(corners);
+    std::array::from_fn(|k| {
+        let (p, q) = (corners[k], corners[(k + 1) % 4]);
+        let mid = [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0];
+        let away = sub(mid, centre);
+        let n = away[0].hypot(away[1]);
+        (n > 0.0).then(|| (mid, [away[0] / n, away[1] / n]))
+    })
+}
+
 pub(super) fn rect_area(c: &[[f64; 2]; 4]) -> f64 {
     let (e0, e1) = (sub(c[1], c[0]), sub(c[3], c[0]));
     (e0[0] * e1[1] - e0[1] * e1[0]).abs()
