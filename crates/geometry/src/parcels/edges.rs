@@ -478,9 +478,9 @@ pub(super) fn unblur(
     frame.corners(lo[0], hi[0], lo[1], hi[1])
 }
 
-/// (For the sides [`unblur`] leaves: those a camera sees from outside, or that none has in view.) The lid
-/// rectangle `rect` of a parcel `height_m` high with each edge that the spatial
-/// filter blurred into the floor moved out to where the blur says the step was.
+/// (For the sides [`unblur`] leaves: those a camera sees from outside, or that none has
+/// in view.) The lid rectangle `rect` of a parcel `height_m` high with each edge that the
+/// spatial filter blurred into the floor moved out to where the blur says the step was.
 ///
 /// The filter (an edge-preserving moving average over neighbouring pixels, run both ways
 /// along rows and columns) leaves a step alone only where the disparity changes by more
