@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """An aiocoap 0.4 server: the peer of coapcam's interop tests (crates/coapcam/tests/it/interop.rs).
 
-Usage: aiocoap_server.py PORT [BIG_FILE]
+Usage: aiocoap_server.py [BIG_FILE]
 
-Binds 127.0.0.1:PORT (UDP), prints "ready" on standard output once it listens, and serves
-until it is killed:
+Binds 127.0.0.1 on a port the system picks (UDP; aiocoap's TCP listener too), prints
+"ready PORT" on standard output once it listens, and serves until it is killed:
 
   /big      GET: the bytes of BIG_FILE (read once at start; empty without it), block-wise.
   /store    GET: the body last stored (4.04 before any); PUT: stores the body (2.01 when
@@ -23,6 +23,7 @@ import aiocoap
 import aiocoap.resource as resource
 from aiocoap.numbers.codes import Code
 from aiocoap.numbers.contentformat import ContentFormat
+from aiocoap.transports.udp6 import MessageInterfaceUDP6
 
 
 class Big(resource.Resource):
@@ -94,11 +95,19 @@ class Counter(resource.ObservableResource):
         )
 
 
+def udp_port(context):
+    """The port the context's UDP transport was given."""
+    for interface in context.request_interfaces:
+        messages = getattr(interface.token_interface, "message_interface", None)
+        if isinstance(messages, MessageInterfaceUDP6):
+            return messages.transport.get_extra_info("socket").getsockname()[1]
+    raise RuntimeError("aiocoap opened no UDP transport")
+
+
 async def main():
-    port = int(sys.argv[1])
     body = b""
-    if len(sys.argv) > 2:
-        with open(sys.argv[2], "rb") as f:
+    if len(sys.argv) > 1:
+        with open(sys.argv[1], "rb") as f:
             body = f.read()
     root = resource.Site()
     root.add_resource(
@@ -110,11 +119,11 @@ async def main():
     root.add_resource(["echo"], Echo())
     counter = Counter()
     root.add_resource(["counter"], counter)
-    await aiocoap.Context.create_server_context(
-        root, bind=("127.0.0.1", port)
+    context = await aiocoap.Context.create_server_context(
+        root, bind=("127.0.0.1", 0)
     )
     ticking = asyncio.ensure_future(counter.tick())
-    print("ready", flush=True)
+    print(f"ready {udp_port(context)}", flush=True)
     try:
         await asyncio.get_running_loop().create_future()
     finally:

@@ -245,26 +245,48 @@ pub async fn registration_path(client: &Client, config: &RegistrantConfig) -> St
     if let Some(p) = &config.path {
         return p.clone();
     }
-    find_resource(client, config.rd, "core.rd")
+    find_resource(client, config.rd, "core.rd", Duration::from_secs(5))
         .await
+        .ok()
+        .flatten()
         .unwrap_or_else(|| REGISTRATION_PATH.to_owned())
 }
 
-/// The path of the first link of `rt` in the directory's `/.well-known/core`.
-pub async fn find_resource(client: &Client, rd: SocketAddr, rt: &str) -> Option<String> {
+/// The path of the first link of `rt` in the directory's `/.well-known/core`: `None`
+/// when the directory answered but lists no such link.
+///
+/// # Errors
+///
+/// No answer within `timeout`, an error answer, or a document that does not parse.
+pub async fn find_resource(
+    client: &Client,
+    rd: SocketAddr,
+    rt: &str,
+    timeout: Duration,
+) -> anyhow::Result<Option<String>> {
     let mut get = Request::new(Code::GET, "/.well-known/core");
     get.options
         .push(OptionNumber::URI_QUERY, format!("rt={rt}"));
-    get.timeout = Some(Duration::from_secs(5));
-    let r = client.send(rd, get).await.ok()?;
+    get.timeout = Some(timeout);
+    let r = client
+        .send(rd, get)
+        .await
+        .with_context(|| format!("asking {rd} for /.well-known/core?rt={rt}"))?;
     if r.code != Code::CONTENT {
-        return None;
+        bail!(
+            "{rd} answered /.well-known/core?rt={rt} with {} {}",
+            r.code,
+            String::from_utf8_lossy(&r.payload)
+        );
     }
-    let links = link_format::parse(std::str::from_utf8(&r.payload).ok()?).ok()?;
-    links
+    let text = std::str::from_utf8(&r.payload)
+        .with_context(|| format!("{rd}'s /.well-known/core is not UTF-8"))?;
+    let links =
+        link_format::parse(text).with_context(|| format!("parsing {rd}'s /.well-known/core"))?;
+    Ok(links
         .into_iter()
         .find(|l| l.rt().any(|t| t == rt))
-        .map(|l| path_of(&l.target))
+        .map(|l| path_of(&l.target)))
 }
 
 /// The path of a link target (`/rd`, or the path of `coap://host/rd`).
@@ -450,8 +472,8 @@ pub async fn lookup_endpoints(
     query: &[String],
     timeout: Duration,
 ) -> anyhow::Result<Vec<Endpoint>> {
-    let path = find_resource(client, rd, "core.rd-lookup-ep")
-        .await
+    let path = find_resource(client, rd, "core.rd-lookup-ep", timeout)
+        .await?
         .with_context(|| {
             format!("{rd} lists no endpoint lookup (rt=core.rd-lookup-ep) in /.well-known/core")
         })?;

@@ -549,21 +549,20 @@ pub(crate) fn script(name: &str) -> String {
     path.to_str().expect("UTF-8 path").to_string()
 }
 
-/// `tests/peers/aiocoap_server.py PORT [BIG_FILE]`, ready once it printed "ready".
+/// `tests/peers/aiocoap_server.py [BIG_FILE]` on the port it picked and printed ("ready PORT").
 pub(crate) fn aiocoap_server(big: Option<&Path>) -> (Proc, SocketAddr) {
     let script = script("aiocoap_server.py");
     let big = big.map(|p| p.to_str().expect("UTF-8 path").to_string());
-    start_on_free_port(
-        |port| {
-            let port = port.to_string();
-            let mut args = vec![script.as_str(), port.as_str()];
-            args.extend(big.as_deref());
-            let mut p = Proc::spawn("python3", &args);
-            p.stdout_line(STARTUP, |l| (l == "ready").then_some(()));
-            p
-        },
-        "/.well-known/core",
-    )
+    let mut args = vec![script.as_str()];
+    args.extend(big.as_deref());
+    let mut p = Proc::spawn("python3", &args);
+    let port = p.stdout_line(STARTUP, |l| l.strip_prefix("ready ")?.parse::<u16>().ok());
+    let addr = SocketAddr::from(([127, 0, 0, 1], port));
+    assert!(
+        wait_until_serving(&mut p, addr, "/.well-known/core"),
+        "the aiocoap server exited"
+    );
+    (p, addr)
 }
 
 /// `coapcam serve --no-cameras --static DIR [--writable] --bind 127.0.0.1:0`, with the
