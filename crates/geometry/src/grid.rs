@@ -95,36 +95,41 @@ fn coordinate(v: f32, size: f32) -> i64 {
 /// points' bounding box has a number, x varying fastest, so each row of three cells
 /// along x is one run of sorted points. Cells are those of [`Grid`] (the same
 /// coordinates for the same size), so both find the same points around a cell.
+///
+/// It keeps 16 bytes a point and 4 a cell (a sorted point's cell is found again from the
+/// point): every buffer of a few MB is new memory to the kernel (the server's fixed
+/// malloc threshold maps each one afresh), and the page faults of a block that also kept
+/// each point's cell coordinates, twice, cost more than the sorting.
 pub(crate) struct Block {
     /// Cells along each axis.
     dims: [usize; 3],
+    /// The lowest cell's coordinates.
+    low: [i64; 3],
+    /// The cells' side, metres.
+    size_m: f32,
     /// Where each cell's points start in `points`, and one past the last cell's end.
     start: Vec<u32>,
     /// The points, sorted by cell (in input order within a cell).
     points: Vec<Point3>,
     /// Each sorted point's index in the slice the block was built from.
     index: Vec<u32>,
-    /// Each sorted point's cell, counted from the lowest.
-    cells: Vec<[u32; 3]>,
 }
 
 impl Block {
     /// Sorts finite `points` (fewer than `u32::MAX`) into cells of `size_m` (> 0);
     /// `None` when their bounding box holds more than `max_cells` cells (a sparse cloud
-    /// spread wide, for which [`Grid`] is the better index).
+    /// spread wide, for which [`Grid`] is the better index), or `u32::MAX` or more.
     pub(crate) fn new(points: &[Point3], size_m: f32, max_cells: usize) -> Option<Self> {
-        let coords: Vec<[i64; 3]> = points
-            .iter()
-            .map(|p| [p.x, p.y, p.z].map(|v| coordinate(v, size_m)))
-            .collect();
+        let cell = |p: &Point3| [p.x, p.y, p.z].map(|v| coordinate(v, size_m));
         let (mut low, mut high) = ([i64::MAX; 3], [i64::MIN; 3]);
-        for c in &coords {
+        for p in points {
+            let c = cell(p);
             for k in 0..3 {
                 low[k] = low[k].min(c[k]);
                 high[k] = high[k].max(c[k]);
             }
         }
-        if coords.is_empty() {
+        if points.is_empty() {
             (low, high) = ([0; 3], [-1; 3]);
         }
         let mut dims = [0usize; 3];
@@ -134,42 +139,45 @@ impl Block {
             dims[k] = n as usize;
             total = total.checked_mul(dims[k])?;
         }
-        if total > max_cells || u32::try_from(points.len()).is_err() {
+        if total > max_cells || u32::try_from(total).is_err() {
             return None;
         }
-        // Counting sort by cell number: counts, their running sums, then each point at
-        // its cell's next free place.
-        let relative: Vec<[u32; 3]> = coords
+        let n = u32::try_from(points.len()).ok()?;
+        // Counting sort by cell number: counts, their running sums (where each cell's
+        // points end), then each point, last first, at its cell's last free place, so
+        // that the running sums end where each cell's points start.
+        let numbers: Vec<u32> = points
             .iter()
-            .map(|c| [0, 1, 2].map(|k| (c[k] - low[k]) as u32))
+            .map(|p| {
+                let c = cell(p);
+                let r = [0, 1, 2].map(|k| (c[k] - low[k]) as usize);
+                (r[0] + dims[0] * (r[1] + dims[1] * r[2])) as u32
+            })
             .collect();
-        let number =
-            |c: &[u32; 3]| c[0] as usize + dims[0] * (c[1] as usize + dims[1] * c[2] as usize);
         let mut start = vec![0u32; total + 1];
-        for c in &relative {
-            start[number(c) + 1] += 1;
+        for &c in &numbers {
+            start[c as usize] += 1;
         }
         for i in 1..start.len() {
             start[i] += start[i - 1];
         }
-        let mut next = start.clone();
         let mut sorted = vec![Point3::origin(); points.len()];
         let mut index = vec![0u32; points.len()];
-        let mut cells = vec![[0u32; 3]; points.len()];
-        for (i, (p, c)) in points.iter().zip(&relative).enumerate() {
-            let slot = &mut next[number(c)];
+        for (i, (p, &c)) in points.iter().zip(&numbers).enumerate().rev() {
+            let slot = &mut start[c as usize];
+            *slot -= 1;
             let at = *slot as usize;
-            *slot += 1;
             sorted[at] = *p;
             index[at] = i as u32;
-            cells[at] = *c;
         }
+        debug_assert_eq!(start[total], n);
         Some(Self {
             dims,
+            low,
+            size_m,
             start,
             points: sorted,
             index,
-            cells,
         })
     }
 
@@ -187,7 +195,11 @@ impl Block {
     /// 26 touching it), as up to nine ranges into [`Block::points`]; the row through its
     /// own cell first.
     pub(crate) fn around(&self, at: usize) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
-        let [x, y, z] = self.cells[at].map(|v| v as usize);
+        let p = &self.points[at];
+        let [x, y, z] = [0, 1, 2].map(|k| {
+            let v = [p.x, p.y, p.z][k];
+            (coordinate(v, self.size_m) - self.low[k]) as usize
+        });
         let span = |v: usize, k: usize| v.saturating_sub(1)..=(v + 1).min(self.dims[k] - 1);
         let (x0, x1) = (x.saturating_sub(1), (x + 1).min(self.dims[0] - 1));
         let row = move |(yy, zz): (usize, usize)| {
