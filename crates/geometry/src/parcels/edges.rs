@@ -369,28 +369,29 @@ pub(super) fn unblur(
     if la <= shortest || lb <= shortest {
         return rect;
     }
-    // The points nearer the lid than the floor, in the rectangle's frame, and whether
-    // each lies within the slab of the top that placed the side.
-    let local: Vec<(f64, f64, bool)> = cluster
+    // The points in the rectangle's frame, once: the counts take those nearer the lid
+    // than the floor, the blur's crossing all of them.
+    let local: Vec<(f64, f64, f32)> = cluster
         .iter()
-        .filter(|p| p.z > half)
         .map(|p| {
             let (s, t) = frame.local_point(p);
-            (s, t, p.z >= height_m - slab_m)
+            (s, t, p.z)
         })
         .collect();
     // How far beyond the side the lid's pixels end (negative: inside), counted out to
-    // `reach_m` beyond it: all of them, and those within the slab.
+    // `reach_m` beyond it: all of them (nearer the lid than the floor), and those within
+    // the slab of the top that placed the side.
     let count = |along_b: bool, high: bool, reach_m: f64| -> Option<(f64, f64)> {
         let (len, other) = if along_b { (lb, la) } else { (la, lb) };
         let bins = ((from_m + reach_m) / bin_m).ceil() as usize;
         let mut all = vec![0usize; bins.max(reference as usize)];
         let mut flat = all.clone();
-        for &(s, t, level) in &local {
+        for &(s, t, z) in &local {
             let (across, along) = if along_b { (t, s) } else { (s, t) };
-            if along < INSET_M || along > other - INSET_M {
+            if z <= half || along < INSET_M || along > other - INSET_M {
                 continue;
             }
+            let level = z >= height_m - slab_m;
             let out = if high { across - len } else { -across } + from_m;
             let k = (out / bin_m) as usize;
             if out >= 0.0 && k < all.len() {
@@ -429,9 +430,14 @@ pub(super) fn unblur(
     };
     // A side a camera sees from outside (or that no camera has in view) keeps where the
     // blur's crossing of half the height puts it: its wall's upper half reads above half
-    // the height too.
-    let crossed = blur_crossing(rect, cluster, height_m, (views, pixel_m), min_height_m);
-    let (c_lo, c_hi) = (frame.local(crossed[0]), frame.local(crossed[2]));
+    // the height too (found when a side needs it).
+    let crossed = std::cell::OnceCell::new();
+    let crossed = || {
+        *crossed.get_or_init(|| {
+            let c = blur_crossing(&frame, &local, height_m, (views, pixel_m));
+            (frame.local(c[0]), frame.local(c[2]))
+        })
+    };
     let mut lo = [0.0, 0.0];
     let mut hi = [la, lb];
     for axis in [0, 1] {
@@ -446,6 +452,7 @@ pub(super) fn unblur(
                 frame.at(edge, mid_other)
             };
             let Some(r) = reach(mid, outward) else {
+                let (c_lo, c_hi) = crossed();
                 let (l, h) = if axis == 0 {
                     (c_lo.0, c_hi.0)
                 } else {
@@ -479,8 +486,9 @@ pub(super) fn unblur(
 }
 
 /// (For the sides [`unblur`] leaves: those a camera sees from outside, or that none has
-/// in view.) The lid rectangle `rect` of a parcel `height_m` high with each edge that the
-/// spatial filter blurred into the floor moved out to where the blur says the step was.
+/// in view.) The lid rectangle of `frame` (`local`: the parcel's points in that frame,
+/// with their heights) of a parcel `height_m` high with each edge that the spatial
+/// filter blurred into the floor moved out to where the blur says the step was.
 ///
 /// The filter (an edge-preserving moving average over neighbouring pixels, run both ways
 /// along rows and columns) leaves a step alone only where the disparity changes by more
@@ -496,45 +504,27 @@ pub(super) fn unblur(
 /// of the height: not a side wall, nor flying pixels spread over the height) down to a
 /// bin below half the height (or, where the floor cut emptied the bins beyond, down to
 /// one below three quarters of it). Edges that end sharply (a tall step, the stereo
-/// shadow's holes) and lids too low for half their height to clear the floor cut by
-/// 3 mm stay as they are.
+/// shadow's holes) stay as they are; so do (in [`unblur`]) lids too low for half their
+/// height to clear the floor cut by 3 mm, and rectangles too short across.
 fn blur_crossing(
-    rect: [[f64; 2]; 4],
-    cluster: &[Point3],
+    frame: &RectFrame,
+    local: &[(f64, f64, f32)],
     height_m: f32,
     (views, pixel_m): (&[View], f64),
-    min_height_m: f32,
 ) -> [[f64; 2]; 4] {
     const REACH_M: f64 = 0.03;
     const INSET_M: f64 = 0.02;
     let bin_m = (2.0 * pixel_m).max(0.0025);
     let from_m = (2.0 * bin_m).max(0.008);
     let half = height_m / 2.0;
-    // Half the height must clear the floor cut for its crossing to be seen.
-    if half < min_height_m + 0.003 {
-        return rect;
-    }
-    let Some(frame) = RectFrame::new(&rect) else {
-        return rect;
-    };
     let (la, lb) = (frame.la, frame.lb);
-    if la <= 2.0 * INSET_M || lb <= 2.0 * INSET_M {
-        return rect;
-    }
-    let local: Vec<(f64, f64, f32)> = cluster
-        .iter()
-        .map(|p| {
-            let (s, t) = frame.local_point(p);
-            (s, t, p.z)
-        })
-        .collect();
     let bins = ((from_m + REACH_M) / bin_m).round() as usize;
     // Where, outwards of the edge, the blurred step passes half the height.
     let crossing = |along_b: bool, high: bool| -> Option<f64> {
         let (len, other) = if along_b { (lb, la) } else { (la, lb) };
         let mut z: Vec<Vec<f32>> = vec![Vec::new(); bins];
         let mut sum = vec![0.0f64; bins];
-        for &(s, t, pz) in &local {
+        for &(s, t, pz) in local {
             let (across, along) = if along_b { (t, s) } else { (s, t) };
             if along < INSET_M || along > other - INSET_M {
                 continue;
