@@ -191,6 +191,15 @@ fn undistort(k: &Intrinsics, x0: f32, y0: f32) -> [f32; 2] {
     let c = &k.coeffs;
     match k.model {
         DistortionModel::None | DistortionModel::ModifiedBrownConrady => [x0, y0],
+        // With every coefficient +0 each iteration gives back (x0, y0) exactly (the
+        // factor is 1 / (1 + 0), the shift +0): D400 depth streams say Brown-Conrady
+        // with zero coefficients, and the ten iterations were most of the time the
+        // server's floor check took over its pixels.
+        DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady
+            if c.iter().all(|v| v.to_bits() == 0) =>
+        {
+            [x0, y0]
+        }
         DistortionModel::BrownConrady | DistortionModel::InverseBrownConrady => {
             let inverse = k.model == DistortionModel::InverseBrownConrady;
             let (mut x, mut y) = (x0, y0);
@@ -243,6 +252,25 @@ mod tests {
             model: DistortionModel::BrownConrady,
             coeffs: [0.0; 5],
         }
+    }
+
+    #[test]
+    fn zero_coefficients_deproject_as_a_pinhole_bit_for_bit() {
+        for model in [
+            DistortionModel::BrownConrady,
+            DistortionModel::InverseBrownConrady,
+        ] {
+            let k = Intrinsics { model, ..pinhole() };
+            for (u, v) in [(0.0, 0.0), (637.0, 364.0), (1279.5, 719.5), (100.25, 600.0)] {
+                let ray = pixel_to_ray(&k, [u, v]);
+                assert_eq!(ray, [(u - k.ppx) / k.fx, (v - k.ppy) / k.fy], "{model:?}");
+            }
+        }
+        // Any coefficient that is not +0 takes the iterations.
+        let mut k = pinhole();
+        k.coeffs[0] = 0.1;
+        let ray = pixel_to_ray(&k, [1200.0, 700.0]);
+        assert_ne!(ray, [(1200.0 - k.ppx) / k.fx, (700.0 - k.ppy) / k.fy]);
     }
 
     #[test]
