@@ -11,7 +11,8 @@
 
 use std::num::NonZeroUsize;
 
-use geo::{ConvexHull, MinimumRotatedRect, MultiPoint, Point, Polygon};
+use geo::algorithm::convex_hull::quick_hull;
+use geo::{Coord, MinimumRotatedRect, Polygon};
 use rayon::prelude::*;
 
 use crate::cloud::is_finite;
@@ -168,10 +169,12 @@ pub(crate) fn above_floor(cloud: &PointCloud, config: &DimensionConfig) -> Vec<P
         .collect()
 }
 
-/// The convex hull of `points` (x, y in metres).
+/// The convex hull of `points` (x, y in metres): geo's quick hull over them in their
+/// order, as `MultiPoint::convex_hull` runs it, without the multipoint (which it copies
+/// into coordinates first: two buffers of 16 bytes a point, where one does).
 pub(crate) fn hull(points: impl Iterator<Item = [f64; 2]>) -> Polygon<f64> {
-    let footprint: MultiPoint<f64> = points.map(|[x, y]| Point::new(x, y)).collect();
-    footprint.convex_hull()
+    let mut coords: Vec<Coord<f64>> = points.map(|[x, y]| Coord { x, y }).collect();
+    Polygon::new(quick_hull(&mut coords), Vec::new())
 }
 
 /// The minimum-area rectangle around the points whose convex hull is `hull` (x, y in
@@ -535,13 +538,12 @@ pub(crate) fn robust_height(points: &[Point3], config: &DimensionConfig) -> f32 
     // The quantile and the values below it, unordered (what a sort would put there).
     let (below, top, _) = z.select_nth_unstable_by(q_index.min(last), f32::total_cmp);
     let top = *top;
-    let median_below = |depth: f32| {
-        let mut band: Vec<f32> = below
-            .iter()
-            .copied()
-            .filter(|v| *v >= top - depth)
-            .chain([top])
-            .collect();
+    // One buffer for the bands (each as deep as the last or deeper).
+    let mut band: Vec<f32> = Vec::new();
+    let mut median_below = |depth: f32| {
+        band.clear();
+        band.extend(below.iter().copied().filter(|v| *v >= top - depth));
+        band.push(top);
         let mid = band.len() / 2;
         *band.select_nth_unstable_by(mid, f32::total_cmp).1
     };
@@ -583,16 +585,15 @@ const MAX_BAND_DEPTHS: f32 = 3.0;
 /// spreads over centimetres); 0 without such cells.
 fn depth_noise(points: &[Point3], above: f32) -> f32 {
     const CELL_M: f32 = 0.005;
-    let items: Vec<((i64, i64), f32)> = points
-        .iter()
-        .filter(|p| p.z >= above)
-        .map(|p| {
+    let lid = points.iter().filter(|p| p.z >= above);
+    let mut cells = Columns::new(
+        lid.clone().map(|p| {
             let cell = ((p.x / CELL_M).floor() as i32, (p.y / CELL_M).floor() as i32);
-            ((i64::from(cell.0), i64::from(cell.1)), p.z)
-        })
-        .collect();
-    let mut cells = Columns::new(&items);
-    let mut deviations = Vec::with_capacity(items.len());
+            (i64::from(cell.0), i64::from(cell.1))
+        }),
+        lid.map(|p| p.z),
+    );
+    let mut deviations = Vec::with_capacity(cells.column_of.len());
     for k in 0..cells.cells.len() {
         let cell = cells.values_mut(k);
         if cell.len() < NOISE_CELL_POINTS {

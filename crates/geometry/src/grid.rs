@@ -222,7 +222,9 @@ impl Block {
 /// of their first value, and each input's column is kept. Where the columns' bounding box
 /// holds few cells per value, they are found by their place in it, else through a hash
 /// map (a height map of 200,000 points pushed into a vector per cell of a hash map, and
-/// looked each point up again for its cell's count).
+/// looked each point up again for its cell's count). The cells and the values come as
+/// iterators, read twice and once: a list of (cell, value) pairs was 24 bytes a point
+/// more, new pages each time (see [`Block`]).
 pub(crate) struct Columns {
     /// Each column's cell.
     pub(crate) cells: Vec<(i64, i64)>,
@@ -238,12 +240,18 @@ pub(crate) struct Columns {
 const COLUMN_CELLS_PER_VALUE: usize = 8;
 
 impl Columns {
-    /// Groups `items` (cell, value), fewer than `u32::MAX`.
-    pub(crate) fn new(items: &[((i64, i64), f32)]) -> Self {
+    /// Groups the values `values` by their cells `cells` (the same number of each, fewer
+    /// than `u32::MAX`; `cells` is read twice).
+    pub(crate) fn new(
+        cells: impl Iterator<Item = (i64, i64)> + Clone,
+        values: impl Iterator<Item = f32>,
+    ) -> Self {
         let (mut low, mut high) = ([i64::MAX; 2], [i64::MIN; 2]);
-        for ((x, y), _) in items {
-            low = [low[0].min(*x), low[1].min(*y)];
-            high = [high[0].max(*x), high[1].max(*y)];
+        let mut len = 0usize;
+        for (x, y) in cells.clone() {
+            low = [low[0].min(x), low[1].min(y)];
+            high = [high[0].max(x), high[1].max(y)];
+            len += 1;
         }
         let span = |k: usize| {
             high[k]
@@ -254,16 +262,16 @@ impl Columns {
         let boxed = match (span(0), span(1)) {
             (Some(w), Some(h)) => w
                 .checked_mul(h)
-                .filter(|n| *n <= COLUMN_CELLS_PER_VALUE * items.len() + 64)
+                .filter(|n| *n <= COLUMN_CELLS_PER_VALUE * len + 64)
                 .map(|_| w),
             _ => None,
         };
-        let mut cells: Vec<(i64, i64)> = Vec::new();
-        let mut column_of: Vec<u32> = Vec::with_capacity(items.len());
+        let mut numbered: Vec<(i64, i64)> = Vec::new();
+        let mut column_of: Vec<u32> = Vec::with_capacity(len);
         let mut number = |cell: (i64, i64), found: &mut u32| {
             if *found == u32::MAX {
-                *found = cells.len() as u32;
-                cells.push(cell);
+                *found = numbered.len() as u32;
+                numbered.push(cell);
             }
             *found
         };
@@ -271,18 +279,19 @@ impl Columns {
             Some(w) => {
                 let h = span(1).unwrap_or(0);
                 let mut numbers = vec![u32::MAX; w * h];
-                for (cell, _) in items {
+                for cell in cells {
                     let at = (cell.0 - low[0]) as usize + w * (cell.1 - low[1]) as usize;
-                    column_of.push(number(*cell, &mut numbers[at]));
+                    column_of.push(number(cell, &mut numbers[at]));
                 }
             }
             None => {
                 let mut numbers: HashMap<(i64, i64), u32, FixedState> = HashMap::default();
-                for (cell, _) in items {
-                    column_of.push(number(*cell, numbers.entry(*cell).or_insert(u32::MAX)));
+                for cell in cells {
+                    column_of.push(number(cell, numbers.entry(cell).or_insert(u32::MAX)));
                 }
             }
         }
+        let cells = numbered;
         // Counting sort by column.
         let mut start = vec![0usize; cells.len() + 1];
         for c in &column_of {
@@ -292,12 +301,13 @@ impl Columns {
             start[i] += start[i - 1];
         }
         let mut next = start.clone();
-        let mut values = vec![0.0f32; items.len()];
-        for ((_, v), c) in items.iter().zip(&column_of) {
+        let mut sorted = vec![0.0f32; column_of.len()];
+        for (v, c) in values.zip(&column_of) {
             let slot = &mut next[*c as usize];
-            values[*slot] = *v;
+            sorted[*slot] = v;
             *slot += 1;
         }
+        let values = sorted;
         Self {
             cells,
             start,
@@ -318,7 +328,7 @@ mod tests {
 
     /// The columns as (cell, values in input order), in column order.
     fn groups(items: &[((i64, i64), f32)]) -> Vec<((i64, i64), Vec<f32>)> {
-        let mut c = Columns::new(items);
+        let mut c = Columns::new(items.iter().map(|i| i.0), items.iter().map(|i| i.1));
         for (i, (cell, _)) in items.iter().enumerate() {
             assert_eq!(c.cells[c.column_of[i] as usize], *cell);
         }

@@ -56,7 +56,20 @@ const SEAM_SIGMAS: f64 = 15.0;
 pub(super) type Cell2 = (i64, i64);
 
 pub(super) fn cell_of(x: f64, y: f64) -> Cell2 {
-    ((x / CELL_M).floor() as i64, (y / CELL_M).floor() as i64)
+    (floor_i64(x / CELL_M), floor_i64(y / CELL_M))
+}
+
+/// `q.floor() as i64` for every `q` (NaN and the infinities too), without the library
+/// call that `floor` is on x86-64 without SSE4.1 (the height map finds each point's cell
+/// several times).
+fn floor_i64(q: f64) -> i64 {
+    // Saturating, towards zero; one less when that rounded a negative fraction up.
+    let t = q as i64;
+    if (t as f64) > q {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
 }
 
 /// The points of `points` whose cells survive an opening of the occupied cells (each
@@ -101,11 +114,12 @@ pub(super) struct HeightMap {
 
 impl HeightMap {
     pub(super) fn new(points: &[Point3]) -> Self {
-        let items: Vec<(Cell2, f32)> = points
-            .iter()
-            .map(|p| (cell_of(f64::from(p.x), f64::from(p.y)), p.z))
-            .collect();
-        let mut columns = Columns::new(&items);
+        let mut columns = Columns::new(
+            points
+                .iter()
+                .map(|p| cell_of(f64::from(p.x), f64::from(p.y))),
+            points.iter().map(|p| p.z),
+        );
         let mut spread: HashMap<Cell2, f32, FixedState> = HashMap::default();
         let mut cells: HashMap<Cell2, (u32, f32), FixedState> = HashMap::default();
         let mut counts: Vec<u32> = Vec::with_capacity(columns.cells.len());
@@ -478,4 +492,39 @@ fn line(points: &[(f64, f64)]) -> Option<(f64, f64, f64)> {
     let a = my - b * mx;
     let ss = points.iter().map(|p| (p.1 - a - b * p.0).powi(2)).sum();
     Some((a, b, ss))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::floor_i64;
+
+    #[test]
+    fn floor_i64_is_floor_then_cast_everywhere() {
+        let mut values = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            -1.0 - f64::EPSILON,
+            2.0f64.powi(52) + 0.5,
+            -(2.0f64.powi(52)) - 0.5,
+            2.0f64.powi(63),
+            -(2.0f64.powi(63)),
+            -(2.0f64.powi(63)) * 1.5,
+            1e300,
+            -1e300,
+            f64::MIN_POSITIVE,
+            -f64::MIN_POSITIVE,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+        ];
+        // Cells of points a few metres either side of the origin, 5 mm each.
+        values.extend((-4000..4000).map(|k| f64::from(k) * 0.0013 / 0.005));
+        for q in values {
+            assert_eq!(floor_i64(q), q.floor() as i64, "{q}");
+        }
+    }
 }
