@@ -804,6 +804,12 @@ fn bench_accuracy_on_the_lane_set_measures_refuses_and_is_never_silently_wrong()
         "{b}"
     );
     assert_eq!(case("touching")["measured"], 0, "{b}");
+    // Nothing measured, no errors: null (JSON has no NaN).
+    for axis in ["length_mm", "width_mm", "height_mm"] {
+        for stat in ["mean_signed", "mae", "p95", "max"] {
+            assert!(case("touching")[axis][stat].is_null(), "{axis} {stat}: {b}");
+        }
+    }
     assert_eq!(case("cut")["refused"], 1, "{b}");
     let scenes = b["scenes"].as_array().expect("scenes");
     let reason = |name: &str| {
@@ -815,4 +821,32 @@ fn bench_accuracy_on_the_lane_set_measures_refuses_and_is_never_silently_wrong()
     };
     assert!(reason("touching").contains("side by side"), "{b}");
     assert!(reason("cut").contains("view"), "{b}");
+}
+
+/// The lane set's table prints "-" for the errors of a case whose every parcel was
+/// refused, never NaN.
+#[test]
+fn bench_accuracy_prints_no_errors_for_a_case_with_nothing_measured() {
+    let cases = rgbd::lane::Case::ALL.len().to_string();
+    let f = coapcam(&["bench", "accuracy", "--set", "lane", "--scenes", &cases]);
+    assert!(f.status.success(), "{}", f.stderr);
+    let text = f.stdout_text();
+    assert!(!text.contains("NaN"), "{text}");
+    let row = |name: &str| {
+        text.lines()
+            .find(|l| l.split_whitespace().next() == Some(name))
+            .unwrap_or_else(|| panic!("no row {name}: {text}"))
+            .to_owned()
+    };
+    // touching: 2 parcels, 0 measured, 2 refused; then "-" for each axis.
+    for name in ["touching", "cut"] {
+        let r = row(name);
+        let axes: Vec<&str> = r.split('|').skip(1).map(str::trim).collect();
+        assert_eq!(axes, ["-", "-", "-"], "{r}");
+    }
+    let clean = row("clean");
+    assert!(
+        clean.split('|').skip(1).all(|a| a.trim().contains('/')),
+        "{clean}"
+    );
 }

@@ -279,9 +279,11 @@ async fn accuracy_lane(args: AccuracyArgs) -> anyhow::Result<Exit> {
         let json: Vec<serde_json::Value> = summaries
             .iter()
             .map(|s| {
+                // A case with nothing measured has no errors: null, never NaN.
                 let e = |k: usize| {
-                    serde_json::json!({"mean_signed": s.mean_signed[k], "mae": s.errors[k].mean,
-                        "p95": s.errors[k].p95, "max": s.errors[k].max})
+                    serde_json::json!({"mean_signed": finite(s.mean_signed[k]),
+                        "mae": finite(s.errors[k].mean), "p95": finite(s.errors[k].p95),
+                        "max": finite(s.errors[k].max)})
                 };
                 serde_json::json!({"case": s.case, "parcels": s.objects, "measured": s.measured,
                     "refused": s.refused, "missing": s.missing, "silently_wrong": s.silently_wrong,
@@ -341,11 +343,16 @@ async fn accuracy_lane(args: AccuracyArgs) -> anyhow::Result<Exit> {
             "height"
         );
         for s in &summaries {
+            // A case with nothing measured (every parcel refused) has no errors: "-".
             let e = |k: usize| {
-                format!(
-                    "{:+.1}/{:.1}/{:.1}/{:.1}",
-                    s.mean_signed[k], s.errors[k].mean, s.errors[k].p95, s.errors[k].max
-                )
+                if s.measured == 0 {
+                    "-".to_owned()
+                } else {
+                    format!(
+                        "{:+.1}/{:.1}/{:.1}/{:.1}",
+                        s.mean_signed[k], s.errors[k].mean, s.errors[k].p95, s.errors[k].max
+                    )
+                }
             };
             outln!(
                 "{:<9} {:>4} {:>4} {:>4} {:>4} {:>6} | {:>22} | {:>22} | {:>22}",
@@ -387,6 +394,11 @@ async fn accuracy_lane(args: AccuracyArgs) -> anyhow::Result<Exit> {
     } else {
         Exit::Failure
     })
+}
+
+/// `v` when it is a number, `None` (JSON null) when it is NaN or infinite.
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
 }
 
 fn print_row(r: &Row) -> anyhow::Result<()> {
