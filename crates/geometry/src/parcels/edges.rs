@@ -370,12 +370,16 @@ pub(super) fn unblur(
         return rect;
     }
     // The points in the rectangle's frame, once: the counts take those nearer the lid
-    // than the floor, the blur's crossing all of them.
+    // than the floor, the blur's crossing all of them. Neither looks farther in from a
+    // side than its first bin begins: the lid's middle is left out (a millimetre more
+    // kept, for the rounding of the bins' arithmetic).
+    let ring = from_m.max(crossing_bins(pixel_m).1) + 0.001;
+    let near_side = |v: f64, len: f64| v <= ring || v >= len - ring;
     let local: Vec<(f64, f64, f32)> = cluster
         .iter()
-        .map(|p| {
+        .filter_map(|p| {
             let (s, t) = frame.local_point(p);
-            (s, t, p.z)
+            (near_side(s, la) || near_side(t, lb)).then_some((s, t, p.z))
         })
         .collect();
     // How far beyond the side the lid's pixels end (negative: inside), counted out to
@@ -485,6 +489,14 @@ pub(super) fn unblur(
     frame.corners(lo[0], hi[0], lo[1], hi[1])
 }
 
+/// [`blur_crossing`]'s bins: their width, two pixels and at least 2.5 mm (so that rows
+/// of pixels do not alias), and how far inside the edge the first begins (two bins, at
+/// least 8 mm), metres.
+fn crossing_bins(pixel_m: f64) -> (f64, f64) {
+    let bin_m = (2.0 * pixel_m).max(0.0025);
+    (bin_m, (2.0 * bin_m).max(0.008))
+}
+
 /// (For the sides [`unblur`] leaves: those a camera sees from outside, or that none has
 /// in view.) The lid rectangle of `frame` (`local`: the parcel's points in that frame,
 /// with their heights) of a parcel `height_m` high with each edge that the spatial
@@ -525,8 +537,7 @@ fn blur_crossing(
 ) -> [[f64; 2]; 4] {
     const REACH_M: f64 = 0.03;
     const INSET_M: f64 = 0.02;
-    let bin_m = (2.0 * pixel_m).max(0.0025);
-    let from_m = (2.0 * bin_m).max(0.008);
+    let (bin_m, from_m) = crossing_bins(pixel_m);
     let half = height_m / 2.0;
     let (la, lb) = (frame.la, frame.lb);
     let bins = ((from_m + REACH_M) / bin_m).round() as usize;
