@@ -17,6 +17,7 @@ use rgbd::{ColorSettings, Scene};
 use super::{CamClient, NoAnswer, check, clocks, cloud_of};
 use crate::documents::AppConfig;
 use crate::report::{self, Billing, Found, Measurement, Parcel, Table};
+use crate::repr::no_depth::{self, NoDepth};
 use crate::timesync::{FrameTime, Limits, Problem, ServerTimes};
 
 /// Where the clouds come from.
@@ -72,6 +73,9 @@ pub struct Grabbed {
     pub bytes: usize,
     /// What the cameras saw, when the clouds came as the compact cloud.
     pub views: Vec<geometry::View>,
+    /// The parts of the table from which the cameras' pixels returned no depth, as their
+    /// servers found them (the No-Depth option; none from a server without it).
+    pub no_depth: Vec<NoDepth>,
 }
 
 /// One measurement made here from the clouds, with the clouds, their provenance and the
@@ -325,9 +329,11 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             .into_iter()
             .map(|(server, r)| {
                 let asked = ServerTimes::of(&r.options).and_then(Result::ok);
+                let blind = no_depth::of_options(&r.options)
+                    .with_context(|| format!("reading the no-depth regions of {server}"))?;
                 let c =
                     cloud_of(&r).with_context(|| format!("reading the point cloud of {server}"));
-                c.map(|c| (server, asked.map(|t| t.received_us), c))
+                c.map(|c| (server, asked.map(|t| t.received_us), c, blind))
             })
             .collect::<anyhow::Result<Vec<_>>>()
     })
@@ -342,8 +348,10 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
         failed,
         bytes,
         views: Vec::new(),
+        no_depth: Vec::new(),
     };
-    for (server, requested_unix_us, mut c) in decoded {
+    for (server, requested_unix_us, mut c, blind) in decoded {
+        grabbed.no_depth.extend(blind);
         for f in &c.frames {
             grabbed.frames.push(FrameTime {
                 camera: f.serial.clone(),
@@ -434,7 +442,9 @@ pub async fn measure_checked(
                 // Some cloud came without its views: no camera's view can be judged.
                 &[]
             };
-            (Table::measure(&grabbed.cloud, &config, views), grabbed)
+            let table = Table::measure(&grabbed.cloud, &config, views)
+                .map(|t| t.with_no_depth(&grabbed.no_depth));
+            (table, grabbed)
         }
     })
     .await

@@ -11,6 +11,7 @@ use std::time::Duration;
 use geometry::{DimensionConfig, DimensionError, Dimensions, ParcelFit, PointCloud, View};
 use serde::{Deserialize, Serialize};
 
+use crate::repr::no_depth::NoDepth;
 use crate::vision::codes::Code;
 
 pub use measurement::{Found, Measurement, MeasurementError, ParcelReport, Reported, VERSION};
@@ -85,10 +86,13 @@ impl Division {
         [300.0, 300.0, 200.0].map(|k| k * self.d_mm)
     }
 
-    /// Why `fit` cannot be given as a number, if it cannot: not seen whole, touching
-    /// another parcel, or outside the measurable range.
+    /// Why `fit` cannot be given as a number, if it cannot: no depth from it at all, not
+    /// seen whole, touching another parcel, or outside the measurable range.
     pub fn refusal(&self, fit: &ParcelFit, min_coverage: f32) -> Option<String> {
         let d = &fit.dimensions;
+        if fit.no_depth {
+            return Some(NO_DEPTH_REASON.into());
+        }
         // Side by side first: a lower parcel beside a higher one is also hidden behind
         // it (out of view), and separating them is what makes both measurable.
         if !fit.isolated {
@@ -139,6 +143,10 @@ impl Billing {
         self.volume_l(d) * 1000.0 / self.divisor_cm3_per_kg
     }
 }
+
+/// The reason given for a part of the table that returned no depth at all.
+pub const NO_DEPTH_REASON: &str =
+    "no depth from part of the table (a parcel too dark or too shiny for the cameras?)";
 
 /// What a measurement found on the table.
 #[derive(Debug, Clone)]
@@ -196,9 +204,70 @@ impl Table {
         }
     }
 
+    /// The table with the parts of it that returned no depth (`regions`, every camera's;
+    /// those overlapping joined: one parcel under several cameras). A parcel found lies
+    /// in a region when half its footprint's rectangle does. When the parcels in a region
+    /// have at least as many points as the region has pixels, it is their holes, which
+    /// their coverage judges; otherwise those parcels are what little depth a parcel
+    /// that returns (almost) none gave (a sliver of wall, the flying pixels along its
+    /// edges), and the region with them is one parcel that gives no number
+    /// ([`ParcelFit::no_depth`]), placed among the others by footprint.
+    #[must_use]
+    pub fn with_no_depth(mut self, regions: &[NoDepth]) -> Self {
+        let footprint = |f: &ParcelFit| {
+            let c = f.dimensions.corners_m;
+            let lo = [0, 1].map(|k| c.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min));
+            let hi = [0, 1].map(|k| c.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max));
+            NoDepth {
+                min_m: lo.map(|v| v as f32),
+                max_m: hi.map(|v| v as f32),
+                area_m2: 0.0,
+                pixels: 0,
+            }
+        };
+        let mut joined: Vec<NoDepth> = Vec::new();
+        for r in regions {
+            let mut one = *r;
+            // Joining may make it overlap regions kept before: take them in until none.
+            while let Some(i) = joined.iter().position(|b| b.overlaps(&one)) {
+                one = one.joined(&joined.swap_remove(i));
+            }
+            joined.push(one);
+        }
+        let rects: Vec<NoDepth> = self.fits.iter().map(footprint).collect();
+        let mut taken = vec![false; self.fits.len()];
+        let mut blind = Vec::new();
+        for r in joined {
+            let inside: Vec<usize> = (0..rects.len())
+                .filter(|&i| !taken[i] && rects[i].intersection_m2(&r) >= 0.5 * rects[i].rect_m2())
+                .collect();
+            let points: usize = inside.iter().map(|&i| self.fits[i].dimensions.points).sum();
+            if points as u64 >= u64::from(r.pixels) {
+                continue;
+            }
+            let mut whole = r;
+            for i in inside {
+                taken[i] = true;
+                whole.min_m = [0, 1].map(|k| whole.min_m[k].min(rects[i].min_m[k]));
+                whole.max_m = [0, 1].map(|k| whole.max_m[k].max(rects[i].max_m[k]));
+            }
+            blind.push(ParcelFit::no_depth(whole.corners_m()));
+        }
+        let mut kept = taken.iter().map(|t| !t);
+        self.fits.retain(|_| kept.next().unwrap_or(true));
+        self.fits.extend(blind);
+        let area = |f: &ParcelFit| f.dimensions.length_mm * f.dimensions.width_mm;
+        self.fits.sort_by(|a, b| area(b).total_cmp(&area(a)));
+        self
+    }
+
     /// The largest parcel as today's single result: its dimensions, or nothing.
     pub fn largest(&self) -> Parcel {
         match self.fits.first() {
+            Some(f) if f.no_depth => Parcel::Refused {
+                reason: NO_DEPTH_REASON.into(),
+                points: 0,
+            },
             Some(f) => Parcel::Measured(f.dimensions),
             None => Parcel::Nothing {
                 points: self.largest_points,
@@ -439,6 +508,71 @@ mod tests {
         let mut cut = fit(400.0, 300.0, 200.0);
         cut.out_of_view = true;
         assert!(d.refusal(&cut, 0.8).expect("out of view").contains("view"));
+    }
+
+    /// A box `l` x `w` mm of `points` points whose footprint's corner nearest the
+    /// origin is at `at` (metres), its sides along x and y.
+    fn placed(l: f64, w: f64, at: [f64; 2], points: usize) -> ParcelFit {
+        let mut f = fit(l, w, 100.0);
+        let [x, y] = at;
+        let (l, w) = (l / 1e3, w / 1e3);
+        f.dimensions.corners_m = [[x, y], [x + l, y], [x + l, y + w], [x, y + w]];
+        f.dimensions.points = points;
+        f
+    }
+
+    fn region(min: [f32; 2], max: [f32; 2], pixels: u32) -> NoDepth {
+        NoDepth {
+            min_m: min,
+            max_m: max,
+            area_m2: (max[0] - min[0]) * (max[1] - min[1]),
+            pixels,
+        }
+    }
+
+    #[test]
+    fn a_part_of_the_table_without_depth_is_a_refused_parcel_unless_one_found_explains_it() {
+        let d = Division::default();
+        // A measured box whose dark walls lose depth around its lid: its holes.
+        let boxed = placed(400.0, 300.0, [0.2, 0.2], 20_000);
+        // The sliver of wall a box that returns no depth gave: 70 points in a region of
+        // 3,000 pixels (two cameras', overlapping: one parcel).
+        let sliver = placed(120.0, 2.0, [-0.30, -0.20], 70);
+        let table = Table {
+            fits: vec![boxed.clone(), sliver],
+            largest_points: 20_000,
+        }
+        .with_no_depth(&[
+            region([0.15, 0.15], [0.65, 0.55], 4_000),
+            region([-0.35, -0.25], [-0.15, -0.05], 1_500),
+            region([-0.33, -0.27], [-0.14, -0.06], 1_500),
+        ]);
+        assert_eq!(table.fits.len(), 2, "{:?}", table.fits);
+        assert_eq!(table.fits[0], boxed);
+        let blind = &table.fits[1];
+        assert!(blind.no_depth && !blind.complete, "{blind:?}");
+        // The joined regions' rectangle, with the sliver in it.
+        let c = blind.dimensions.corners_m;
+        let near = |a: f64, b: f64| (a - b).abs() < 1e-6;
+        assert!(near(c[0][0], -0.35) && near(c[0][1], -0.27), "{c:?}");
+        assert!(near(c[2][0], -0.14) && near(c[2][1], -0.05), "{c:?}");
+        assert_eq!(
+            d.refusal(blind, 0.8).as_deref(),
+            Some(NO_DEPTH_REASON),
+            "{blind:?}"
+        );
+        // Alone on the table, it is the answer: refused, not "nothing there".
+        let alone = Table::default().with_no_depth(&[region([0.0, 0.0], [0.2, 0.2], 2_000)]);
+        assert!(
+            matches!(alone.largest(), Parcel::Refused { reason, .. } if reason == NO_DEPTH_REASON)
+        );
+        // A region smaller in pixels than the parcel in it is that parcel's holes.
+        let holed = Table {
+            fits: vec![placed(400.0, 300.0, [0.0, 0.0], 5_000)],
+            largest_points: 5_000,
+        }
+        .with_no_depth(&[region([-0.05, -0.05], [0.45, 0.35], 4_999)]);
+        assert!(!holed.fits[0].no_depth && holed.fits.len() == 1);
     }
 
     #[test]

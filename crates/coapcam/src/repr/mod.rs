@@ -16,6 +16,7 @@
 pub mod cbor;
 pub mod clouds;
 pub mod codec;
+pub mod no_depth;
 pub mod packet;
 pub mod ply;
 pub mod raster;

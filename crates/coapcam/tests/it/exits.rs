@@ -159,6 +159,66 @@ fn nothing_on_the_table_is_a_result_with_exit_5() {
     );
 }
 
+/// A camera 1.65 m over a black box (reflectivity 0.01) that returns no depth at all.
+fn black_box(state: &TempDir) -> String {
+    let path = state.path().join("black.toml");
+    let mut f = std::fs::File::create(&path).expect("a scene file");
+    writeln!(
+        f,
+        "[[camera]]\nserial = \"{SN}\"\nposition = [0.0, 0.0, 1.65]\nlook_at = [0.0, 0.0, 0.0]\ncalibrated = true\n\n[[box]]\nsize = [0.30, 0.20, 0.15]\ncenter = [0.05, 0.0]\nyaw_deg = 20.0\nreflectivity = 0.01"
+    )
+    .expect("writing the scene");
+    path.to_str().expect("UTF-8 path").to_owned()
+}
+
+/// A parcel from which no pixel returns depth is neither "nothing on the table" nor the
+/// few flying pixels along its edges measured as a parcel (372 x 171 x 61 mm for this
+/// 300 x 200 x 150 box, before): the camera's server sees the hole in the floor before
+/// the floor cut zeroes the floor, and the answer is a refusal (10) with that reason,
+/// whether the client measures the clouds or the server does, prepared or not.
+#[test]
+fn a_parcel_that_returns_no_depth_is_refused_with_exit_10_not_nothing_there() {
+    let state = TempDir::new("exits-no-depth");
+    let scene = black_box(&state);
+    let (_server, addr) = serve_with(state.path(), &["--scene", &scene]);
+    let uri = format!("coap://{addr}");
+    let no_depth = |args: &[&str]| {
+        let f = coapcam(args);
+        assert_eq!(status(&f), Some(10), "{args:?}: {}", f.stderr);
+        let m = f.json();
+        assert_eq!(m["parcel"], "refused", "{args:?}: {m}");
+        assert!(
+            m["reason"]
+                .as_str()
+                .is_some_and(|r| r.contains("no depth from part of the table")),
+            "{args:?}: {m}"
+        );
+        let first = &m["parcels"][0];
+        assert_eq!(first["parcel"], "refused", "{m}");
+        assert!(first.get("length_mm").is_none(), "{m}");
+        // Its footprint (where the rays meet the floor) holds the box's centre.
+        let corners = first["corners_m"].as_array().expect("corners");
+        let xs: Vec<f64> = corners.iter().map(|c| c[0].as_f64().expect("x")).collect();
+        let ys: Vec<f64> = corners.iter().map(|c| c[1].as_f64().expect("y")).collect();
+        let within = |v: &[f64], at: f64| {
+            v.iter().copied().fold(f64::INFINITY, f64::min) < at
+                && v.iter().copied().fold(f64::NEG_INFINITY, f64::max) > at
+        };
+        assert!(within(&xs, 0.05) && within(&ys, 0.0), "{m}");
+    };
+    // Unprepared first: the floor is sent, and the wall pixels the floor cut drops.
+    no_depth(&["measure", "--server", &uri, "--clouds", "--json"]);
+    no_depth(&[
+        "measure",
+        "--server",
+        &uri,
+        "--prepare",
+        "--clouds",
+        "--json",
+    ]);
+    no_depth(&["measure", "--server", &uri, "--edge", "--json"]);
+}
+
 #[test]
 fn the_volumetric_divisor_and_the_scale_division_are_the_integrators() {
     let state = TempDir::new("exits-units");

@@ -56,6 +56,10 @@ pub struct ParcelFit {
     pub out_of_view: bool,
     /// Seen whole: in view, and coverage at least the configured minimum.
     pub complete: bool,
+    /// No point came from it: a part of the table from which the cameras' pixels returned
+    /// no depth at all (a parcel too dark or too shiny for the stereo match), its
+    /// footprint where their rays meet the floor, its height 0 ([`ParcelFit::no_depth`]).
+    pub no_depth: bool,
 }
 
 impl ParcelFit {
@@ -72,6 +76,24 @@ impl ParcelFit {
             coverage: 1.0,
             out_of_view: false,
             complete: true,
+            no_depth: false,
+        }
+    }
+
+    /// A part of the table that returned no depth, whose footprint `corners_m` (in order
+    /// around its rectangle) is where the cameras' rays meet the floor: no points, no
+    /// height, nothing covered, not complete.
+    pub fn no_depth(corners_m: [[f64; 2]; 4]) -> Self {
+        Self {
+            dimensions: rect_dimensions(corners_m, 0.0, 0),
+            shape: Shape::Irregular,
+            fit: 0.0,
+            tops: 0,
+            isolated: true,
+            coverage: 0.0,
+            out_of_view: false,
+            complete: false,
+            no_depth: true,
         }
     }
 }
@@ -324,5 +346,6 @@ fn measure(
         coverage,
         out_of_view: false,
         complete: coverage >= f64::from(config.min_coverage),
+        no_depth: false,
     })
 }

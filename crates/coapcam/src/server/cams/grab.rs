@@ -5,6 +5,7 @@
 use geometry::{Point3, TransformError, Transformation};
 
 use crate::repr::clouds::DepthPart;
+use crate::repr::no_depth::NoDepth;
 use rgbd::FrameFilter as _;
 use rgbd::filter::{Roi2, RoiCrop};
 use rgbd::{
@@ -25,11 +26,14 @@ pub(crate) enum Frame {
     /// The points and what they were computed from (the compact cloud sends that), and
     /// the height of the lowest points of the camera's whole view before `roi3d`
     /// ([`crate::report::floor_level`]): the calibration check, which a region that cuts
-    /// the floor away would otherwise fool.
+    /// the floor away would otherwise fool. And the parts of the table from which the
+    /// camera's pixels returned no depth ([`DepthPart::no_depth`]), found before the
+    /// region zeroes the floor's pixels.
     Cloud {
         points: Vec<Point3>,
         part: DepthPart,
         floor_m: Option<f32>,
+        no_depth: Vec<NoDepth>,
     },
 }
 
@@ -159,11 +163,13 @@ pub(crate) fn cloud(
         correction: None,
     };
     let floor_m = floor_level(&part);
+    let no_depth = part.no_depth(camera.stereo_baseline_m());
     let points = part.points()?;
     Ok(Frame::Cloud {
         points,
         part,
         floor_m,
+        no_depth,
     })
 }
 

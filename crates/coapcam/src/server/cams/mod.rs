@@ -28,6 +28,7 @@ use tokio::sync::mpsc;
 
 use crate::report::{self, EdgeQuery, Measurement, Table};
 use crate::repr::clouds::DepthPart;
+use crate::repr::no_depth::{self, NoDepth};
 use crate::repr::{self, CloudSource, Stream, Subject, raster};
 use crate::station::Recorder;
 use crate::station::measure::{self as station_measure, Rig, RigCamera, Shot};
@@ -715,7 +716,10 @@ impl Cams {
         };
         let mut h = std::collections::hash_map::DefaultHasher::new();
         body.hash(&mut h);
-        content(body, cf, h.finish().to_be_bytes())
+        with_no_depth(
+            content(body, cf, h.finish().to_be_bytes()),
+            &merged.no_depth,
+        )
     }
 
     /// The connected cameras, in merge order.
@@ -744,6 +748,7 @@ impl Cams {
             .collect();
         let mut parts = Vec::new();
         let mut floors = Vec::new();
+        let mut no_depth = Vec::new();
         let mut failed = Vec::new();
         for (sn, icp, task) in tasks {
             match task.await {
@@ -751,9 +756,11 @@ impl Cams {
                     points,
                     mut part,
                     floor_m,
+                    no_depth: blind,
                 })) => {
                     part.depth.timestamp_us = self.clock.shift(part.depth.timestamp_us);
                     floors.push((Some(sn.to_string()), floor_m));
+                    no_depth.extend(blind);
                     parts.push((sn, icp, points, part));
                 }
                 Ok(Ok(_)) => {}
@@ -794,6 +801,7 @@ impl Cams {
             frames_us,
             timestamp_us,
             floors,
+            no_depth,
             failed,
         }
     }
@@ -942,7 +950,9 @@ impl Cams {
         let config = query.config;
         let (table, merged) = tokio::task::spawn_blocking(move || {
             let views: Vec<geometry::View> = merged.parts.iter().map(DepthPart::view).collect();
-            (Table::measure(&merged.cloud, &config, &views), merged)
+            let table = Table::measure(&merged.cloud, &config, &views)
+                .map(|t| t.with_no_depth(&merged.no_depth));
+            (table, merged)
         })
         .await?;
         let mut m = Measurement::of_table(
@@ -1063,6 +1073,8 @@ struct Merged {
     timestamp_us: u64,
     /// Each camera's floor level, seen in its whole view ([`grab::Frame::Cloud`]).
     floors: Vec<(Option<String>, Option<f32>)>,
+    /// Every camera's parts of the table that returned no depth ([`grab::Frame::Cloud`]).
+    no_depth: Vec<NoDepth>,
     /// Why cameras were left out.
     failed: Vec<String>,
 }
@@ -1218,10 +1230,26 @@ fn represent(
         },
     };
     let body = encode(cf, &subject);
-    match body {
+    let response = match body {
         Ok(body) => content(body, cf, representation_etag(etag, cf, quality)),
-        Err(e) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
+        Err(e) => return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),
+    };
+    match frame {
+        Frame::Cloud { no_depth, .. } => with_no_depth(response, no_depth),
+        _ => response,
     }
+}
+
+/// `response` with the [`no_depth::NO_DEPTH`] option when `regions` are not empty.
+fn with_no_depth(mut response: Response, regions: &[NoDepth]) -> Response {
+    if !regions.is_empty() {
+        let mut largest = regions.to_vec();
+        largest.sort_by(|a, b| b.area_m2.total_cmp(&a.area_m2));
+        response
+            .options
+            .set(no_depth::NO_DEPTH, no_depth::encode(&largest));
+    }
+    response
 }
 
 /// The JPEG quality a request asks for with the query `q=N` (1-100), if it does; 4.00 for
