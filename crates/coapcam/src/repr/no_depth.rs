@@ -175,8 +175,9 @@ impl DepthPart {
         let raw = |x: usize, y: usize| d.data.get(y * d.stride + x).copied().unwrap_or(0);
         let metres = |v: u16| f32::from(v) * d.depth_scale;
         // Pixels without depth that are not a stereo shadow.
-        let mut hole = vec![false; w * h];
-        let mut any = false;
+        // Runs of rows (row, first, end) first: most frames have none, and then no image
+        // of flags is made.
+        let mut runs = Vec::new();
         let disparity = k.fx * baseline_m;
         for (y, row) in d.data.chunks(d.stride.max(1)).take(h).enumerate() {
             let row = &row[..w.min(row.len())];
@@ -201,16 +202,19 @@ impl DepthPart {
                     (x - start) as f32 <= width.max(0.0) + SHADOW_SLACK_PX
                 };
                 if !shadow {
-                    hole[y * w + start..y * w + x].fill(true);
-                    any = true;
+                    runs.push((y, start, x));
                 }
                 if x >= row.len() {
                     break;
                 }
             }
         }
-        if !any {
+        if runs.is_empty() {
             return Vec::new();
+        }
+        let mut hole = vec![false; w * h];
+        for &(y, start, end) in &runs {
+            hole[y * w + start..y * w + end].fill(true);
         }
         // Where each pixel's ray meets the floor (z = 0), and the floor's area it covers.
         // The transform's numbers as plain arrays: this runs per pixel of every hole.
@@ -242,15 +246,18 @@ impl DepthPart {
             let p = k.deproject([x as f32, y as f32], metres(raw(x, y)));
             origin[2] + moved(p, 2) <= FLOOR_BAND_M
         };
-        // Connected regions of holes (4-neighbours).
-        let mut seen = vec![false; w * h];
+        // Connected regions of holes (4-neighbours); a pixel taken into a region leaves
+        // `hole` (it has no depth, so it is no region's border either).
         let mut regions = Vec::new();
         let mut stack = Vec::new();
-        for start in 0..w * h {
-            if !hole[start] || seen[start] {
+        let pixels = runs
+            .iter()
+            .flat_map(|&(y, start, end)| y * w + start..y * w + end);
+        for start in pixels {
+            if !hole[start] {
                 continue;
             }
-            seen[start] = true;
+            hole[start] = false;
             stack.push(start);
             let mut region: Option<NoDepth> = None;
             let (mut floor_border, mut border) = (0u32, 0u32);
@@ -273,10 +280,8 @@ impl DepthPart {
                 ];
                 for n in neighbours.into_iter().flatten() {
                     if hole[n] {
-                        if !seen[n] {
-                            seen[n] = true;
-                            stack.push(n);
-                        }
+                        hole[n] = false;
+                        stack.push(n);
                     } else if raw(n % w, n / w) != 0 {
                         border += 1;
                         floor_border += u32::from(is_floor(n % w, n / w));
