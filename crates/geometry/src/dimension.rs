@@ -318,11 +318,10 @@ pub(crate) fn lid(
     };
     let radius = 3.0 * median.max(1e-4);
     let crowded = crowded(&band, radius, config.min_neighbours, CELLS_PER_POINT);
-    let points = band
-        .iter()
-        .zip(crowded)
-        .filter_map(|(p, keep)| keep.then_some(*p))
-        .collect();
+    // The lid in the band's own buffer, in order (a new one was fresh pages).
+    let mut points = band;
+    let mut keep = crowded.into_iter();
+    points.retain(|_| keep.next() == Some(true));
     Ok(Lid { points, band_m })
 }
 
