@@ -828,10 +828,18 @@ fn bench_accuracy_on_the_lane_set_measures_refuses_and_is_never_silently_wrong()
 #[test]
 fn bench_accuracy_prints_no_errors_for_a_case_with_nothing_measured() {
     let cases = rgbd::lane::Case::ALL.len().to_string();
-    let f = coapcam(&["bench", "accuracy", "--set", "lane", "--scenes", &cases]);
+    let f = coapcam(&[
+        "bench", "accuracy", "--set", "lane", "--scenes", &cases, "--repeat", "2",
+    ]);
     assert!(f.status.success(), "{}", f.stderr);
     let text = f.stdout_text();
     assert!(!text.contains("NaN"), "{text}");
+    // The spread of a parcel refused both times is no number either.
+    assert!(
+        text.lines()
+            .any(|l| l.ends_with("no number in any of 2 runs (refused or not found)")),
+        "{text}"
+    );
     let row = |name: &str| {
         text.lines()
             .find(|l| l.split_whitespace().next() == Some(name))

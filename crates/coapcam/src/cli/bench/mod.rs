@@ -375,6 +375,13 @@ async fn accuracy_lane(args: AccuracyArgs) -> anyhow::Result<Exit> {
         );
         if args.repeat > 1 {
             for (i, p, rep, raw) in &spreads {
+                if rep.iter().chain(raw).any(|v| v.is_nan()) {
+                    outln!(
+                        "scene {i} parcel {p}: no number in any of {} runs (refused or not found)",
+                        args.repeat
+                    );
+                    continue;
+                }
                 outln!(
                     "scene {i} parcel {p}: spread over {} runs, reported {:.0} / {:.0} / {:.0} mm, measured {:.2} / {:.2} / {:.2} mm",
                     args.repeat,
