@@ -74,6 +74,28 @@ pub trait WatchProgress: Send {
     fn show(&mut self, done: usize, total: Option<usize>);
 }
 
+/// A seed for a new client endpoint's message IDs and tokens
+/// ([`EndpointConfig::rng_seed`]) that no other client shares, in this process or another.
+/// A fixed seed makes every new socket send the same message IDs with the same tokens;
+/// when the kernel gives one the port of an earlier one (it reuses free ephemeral ports)
+/// within EXCHANGE_LIFETIME, the server takes its requests for that socket's duplicates
+/// (RFC 7252 §4.5) and answers them from its deduplication store: the old answers, say
+/// an earlier scene's frame, with nothing to tell them apart.
+pub fn fresh_seed() -> u64 {
+    use std::hash::{BuildHasher as _, RandomState};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static CLIENTS: AtomicU64 = AtomicU64::new(0);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos());
+    // RandomState's keys come from the OS, different in every process and thread.
+    RandomState::new().hash_one((
+        nanos,
+        std::process::id(),
+        CLIENTS.fetch_add(1, Ordering::Relaxed),
+    ))
+}
+
 impl CamClient {
     /// A client for the server at `uri` (`coap://host[:port]`); every request gives up
     /// after `timeout`.
@@ -99,10 +121,14 @@ impl CamClient {
     }
 
     /// A plain CoAP client of the server at `server` (an in-process one, for `demo` and
-    /// the benchmarks), with the default transmission parameters.
+    /// the benchmarks), with the default transmission parameters and message IDs and
+    /// tokens of its own ([`fresh_seed`]).
     pub fn at(server: SocketAddr, timeout: Duration) -> anyhow::Result<Self> {
-        let client = Client::for_peer(server, EndpointConfig::default())
-            .context("binding the client socket")?;
+        let config = EndpointConfig {
+            rng_seed: fresh_seed(),
+            ..EndpointConfig::default()
+        };
+        let client = Client::for_peer(server, config).context("binding the client socket")?;
         Ok(Self {
             client,
             server,

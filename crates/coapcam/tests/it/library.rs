@@ -467,3 +467,73 @@ fn bits(c: &geometry::PointCloud) -> Vec<[u32; 3]> {
         .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
         .collect()
 }
+
+/// The cameras `client` finds at `server` (`GET /.well-known/core?rt=rgbd.color`).
+async fn serials_at(client: &coap_net::Client, server: SocketAddr) -> Vec<String> {
+    let mut request = coap::Request::new(Code::GET, "/.well-known/core");
+    request
+        .options
+        .push(coap::OptionNumber::URI_QUERY, b"rt=rgbd.color");
+    let response = client.send(server, request).await.expect("discovery");
+    let text = std::str::from_utf8(&response.payload).expect("UTF-8");
+    let mut serials: Vec<String> = coap::link_format::parse(text)
+        .expect("link format")
+        .into_iter()
+        .filter_map(|l| {
+            let (sn, name) = l.target.strip_prefix("/cams/")?.split_once('/')?;
+            (name == "color").then(|| sn.to_owned())
+        })
+        .collect();
+    serials.sort();
+    serials
+}
+
+#[test]
+fn a_new_socket_on_an_earlier_ones_port_gets_todays_answers() {
+    // A server takes a request with the message ID and token of one it answered within
+    // EXCHANGE_LIFETIME from the same address and port for a duplicate and sends the
+    // stored answer again. A client socket given the port of an earlier one must therefore
+    // not start where that one started: with the seed of every client alike, this second
+    // client is answered with the first scene's cameras.
+    let state = TempDir::new("library-fresh-seed");
+    let serials = |s: &Scene| {
+        let mut v: Vec<String> = s.cameras.iter().map(|c| c.serial.to_string()).collect();
+        v.sort();
+        v
+    };
+    let first = rgbd::lane::lane_scene(1, 0).scene;
+    let second = (1..100)
+        .map(|i| rgbd::lane::lane_scene(1, i).scene)
+        .find(|s| serials(s) != serials(&first))
+        .expect("a scene with other cameras");
+    runtime().block_on(async {
+        let server =
+            SceneServer::start(&first, state.path(), SocketAddr::from(([127, 0, 0, 1], 0)))
+                .await
+                .expect("scene server");
+        let addr = server.addr().expect("its address");
+        let config = || EndpointConfig {
+            rng_seed: coapcam::client::fresh_seed(),
+            ..EndpointConfig::default()
+        };
+        let client = coap_net::Client::bind(SocketAddr::from(([127, 0, 0, 1], 0)), config())
+            .expect("a client");
+        let port = client.local_addr();
+        assert_eq!(serials_at(&client, addr).await, serials(&first));
+        drop(client);
+        server.load(&second).expect("the second scene");
+        // The first socket closes once its driver has seen the handle go.
+        let mut again = None;
+        for _ in 0..200 {
+            match coap_net::Client::bind(port, config()) {
+                Ok(c) => {
+                    again = Some(c);
+                    break;
+                }
+                Err(_) => tokio::time::sleep(Duration::from_millis(10)).await,
+            }
+        }
+        let again = again.expect("the first client's port, free again");
+        assert_eq!(serials_at(&again, addr).await, serials(&second));
+    });
+}

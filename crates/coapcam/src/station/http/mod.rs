@@ -720,7 +720,10 @@ impl<R: Rig> App<R> {
             (&self.coap[1], SocketAddr::from(([0u16; 8], 0)))
         };
         slot.get_or_try_init(|| async {
-            let mut config = coap::EndpointConfig::default();
+            let mut config = coap::EndpointConfig {
+                rng_seed: crate::client::fresh_seed(),
+                ..coap::EndpointConfig::default()
+            };
             config.limits.client_body_bytes = proxy::MAX_RESPONSE;
             coap_net::Client::bind(any, config)
         })
