@@ -102,15 +102,11 @@ impl TransmissionArgs {
         self.timeout
     }
 
-    /// The endpoint configuration, with a seed that differs between processes started at
-    /// the same time (so they do not pick the same message IDs and tokens).
+    /// The endpoint configuration, with message IDs and tokens of its own
+    /// ([`coapcam::client::fresh_seed`]).
     pub(crate) fn endpoint_config(&self) -> EndpointConfig {
-        let seed = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos() as u64)
-            ^ u64::from(std::process::id()).rotate_left(32);
         EndpointConfig {
-            rng_seed: seed,
+            rng_seed: coapcam::client::fresh_seed(),
             ack_timeout: Duration::from_millis(self.ack_timeout_ms),
             max_retransmit: self.max_retransmit,
             nstart: self.nstart as usize,

@@ -80,12 +80,8 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<()> {
             .join("rd");
         Some(Store::open(&dir)?)
     };
-    let seed = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64)
-        ^ u64::from(std::process::id()).rotate_left(32);
     let endpoint = EndpointConfig {
-        rng_seed: seed,
+        rng_seed: coapcam::client::fresh_seed(),
         verify_addresses: !args.no_address_check,
         ..EndpointConfig::default()
     };

@@ -210,7 +210,6 @@ pub async fn run(
     let first = lane_scene(config.seed, 0);
     let server =
         SceneServer::start(&first.scene, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
-    let client = CamClient::at(server.addr()?, Duration::from_secs(60))?;
     let mut rows = Vec::new();
     for index in 0..config.scenes {
         let lane = if index == 0 {
@@ -220,6 +219,12 @@ pub async fn run(
             server.load(&next.scene)?;
             next
         };
+        // Each scene from a socket of its own: a message ID may not be used again with
+        // the server within EXCHANGE_LIFETIME (247 s), so one endpoint sustains 265
+        // messages a second. Unprepared clouds (the floor too) take about 700 blocks a
+        // scene, and one socket for a whole 720-scene run ran out of IDs every ~90
+        // scenes and waited longer than a request may (3 scenes "timed out" each time).
+        let client = CamClient::at(server.addr()?, Duration::from_secs(60))?;
         for run in 0..config.repeat {
             let row = measure_scene(&client, &lane, run, config).await?;
             on_row(&row)?;
