@@ -580,33 +580,8 @@ sag = 0.15
 fn a_polybag_is_measured_to_its_enclosing_cuboid_from_where_the_camera_loses_its_sides() {
     let scene = under_one_camera(3, [0.0, 0.0, 1.2], "d415", PILLOW);
     let truth = &scene.truths()[0];
-    let cam = only_camera(&scene);
-    let k = cam.depth_intrinsics().unwrap();
-    let pose = cam.true_pose().unwrap();
-    let frame = cam.render_depth(1);
     // The world points above a 5 mm floor cut, as a prepared camera sends them.
-    let mut cloud = PointCloud::default();
-    for v in 0..frame.height {
-        for u in 0..frame.width {
-            if let Some(z) = frame.metres_at(u, v) {
-                let p = pose.transform_point(k.deproject([u as f32, v as f32], z).map(f64::from));
-                if p[2] >= 0.005 {
-                    cloud
-                        .points
-                        .push(Point3::new(p[0] as f32, p[1] as f32, p[2] as f32));
-                }
-            }
-        }
-    }
-    let r = pose.rotation.map(|row| row.map(|v| v as f32));
-    let t = pose.translation.map(|v| v as f32);
-    let to_common = Transform {
-        linear: Matrix3::new(
-            r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
-        ),
-        translation: Vector3::new(t[0], t[1], t[2]),
-    };
-    let view = View::pinhole(to_common, k.fx, k.fy, k.ppx, k.ppy, k.width, k.height);
+    let (cloud, view) = world_cloud(&scene, &only_camera(&scene).render_depth(1));
     let config = DimensionConfig::default();
     let measure = |views: &[View]| parcels(&cloud, &config, views).unwrap().parcels[0].clone();
     let fit = measure(&[view]);
@@ -728,7 +703,6 @@ fn prepared_cloud(scene: &Scene) -> (PointCloud, View) {
     use rgbd::{PostProcessing, PostProcessingConfig};
     let cam = only_camera(scene);
     let k = cam.depth_intrinsics().unwrap();
-    let pose = cam.true_pose().unwrap();
     let raw = cam.render_depth(1);
     let config = PostProcessingConfig {
         spatial: Some(SpatialConfig::default()),
@@ -736,6 +710,15 @@ fn prepared_cloud(scene: &Scene) -> (PointCloud, View) {
     };
     let mut chain = PostProcessing::new(&config, 55.0).unwrap();
     let (frame, _) = chain.process(&raw, &k).unwrap();
+    world_cloud(scene, frame)
+}
+
+/// The world points of `frame` (the scene's only camera's) above a 5 mm floor cut, and
+/// that camera's view.
+fn world_cloud(scene: &Scene, frame: &DepthFrame) -> (PointCloud, View) {
+    let cam = only_camera(scene);
+    let k = cam.depth_intrinsics().unwrap();
+    let pose = cam.true_pose().unwrap();
     let mut cloud = PointCloud::default();
     for v in 0..frame.height {
         for u in 0..frame.width {
