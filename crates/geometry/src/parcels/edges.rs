@@ -446,15 +446,9 @@ pub(super) fn unblur(
     let mut hi = [la, lb];
     for axis in [0, 1] {
         let along_b = axis == 1;
-        let (len, mid_other) = (frame.len(axis), frame.len(1 - axis) / 2.0);
+        let len = frame.len(axis);
         for high in [false, true] {
-            let outward = frame.outward(axis, high);
-            let edge = if high { len } else { 0.0 };
-            let mid = if along_b {
-                frame.at(mid_other, edge)
-            } else {
-                frame.at(edge, mid_other)
-            };
+            let (mid, outward) = frame.side_middle(axis, high);
             let Some(r) = reach(mid, outward) else {
                 let (c_lo, c_hi) = crossed();
                 let (l, h) = if axis == 0 {
@@ -632,15 +626,9 @@ fn blur_crossing(
     let mut hi = [la, lb];
     for axis in [0, 1] {
         let along_b = axis == 1;
-        let (len, mid_other) = (frame.len(axis), frame.len(1 - axis) / 2.0);
+        let len = frame.len(axis);
         for high in [false, true] {
-            let outward = frame.outward(axis, high);
-            let edge = if high { len } else { 0.0 };
-            let mid = if along_b {
-                frame.at(mid_other, edge)
-            } else {
-                frame.at(edge, mid_other)
-            };
+            let (mid, outward) = frame.side_middle(axis, high);
             let (back, wall_seen) = reach(mid, outward);
             let Some(c) = crossing(along_b, high, wall_seen) else {
                 continue;

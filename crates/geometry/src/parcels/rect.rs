@@ -110,6 +110,19 @@ impl RectFrame {
         let dir = self.axis(axis);
         if high { dir } else { [-dir[0], -dir[1]] }
     }
+
+    /// The middle of the side across axis `axis` at its `high` or low end, and that side's
+    /// outward normal ([`RectFrame::outward`]).
+    pub(super) fn side_middle(&self, axis: usize, high: bool) -> ([f64; 2], [f64; 2]) {
+        let mid_other = self.len(1 - axis) / 2.0;
+        let edge = if high { self.len(axis) } else { 0.0 };
+        let mid = if axis == 1 {
+            self.at(mid_other, edge)
+        } else {
+            self.at(edge, mid_other)
+        };
+        (mid, self.outward(axis, high))
+    }
 }
 
 /// The middle of the rectangle `corners`: the mean of its corners.
