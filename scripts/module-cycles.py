@@ -11,6 +11,7 @@ child is a cycle too. Inline modules (`mod tests { ... }`) are left out: nothing
 them, so they close no cycle. Usage: scripts/module-cycles.py [CRATE_DIR ...] (default: crates/*).
 """
 
+import bisect
 import glob
 import os
 import re
@@ -19,6 +20,7 @@ import sys
 MOD_DECL = re.compile(r"^\s*(?:pub(?:\([^)]*\))?\s+)?mod\s+(\w+)\s*;", re.M)
 INLINE_MOD = re.compile(r"^\s*(?:pub(?:\([^)]*\))?\s+)?mod\s+\w+\s*\{")
 REEXPORT = re.compile(r"^\s*pub(?:\([^)]*\))?\s+use\s+([^;]+);", re.M)
+RAW_STRING = re.compile(r'r(#*)"')
 PATH = re.compile(r"(?<![\w:])(crate|super|self|\w+)((?:::\w+)*)(::\{)?")
 
 
@@ -41,9 +43,65 @@ def module_tree(root_file):
     return modules
 
 
+def raw_prefix_starts(text, i):
+    """Whether the `r` at `i` starts a token (`r"`, or `br"`), not ends a name (`for_r"`)."""
+
+    def ident(at):
+        return at >= 0 and (text[at].isalnum() or text[at] == "_")
+
+    return not ident(i - 1) or (text[i - 1] == "b" and not ident(i - 2))
+
+
 def strip_comments(text):
-    text = re.sub(r"//[^\n]*", "", text)
-    return re.sub(r'"(?:\\.|[^"\\])*"', '""', text)
+    """The text with comments removed and every string and char literal emptied (`""`,
+    `' '`), newlines kept. A lexer, not patterns: `"coap://h"` holds no comment, `'"'` opens
+    no string, `/* /* */ */` nests, `r#"..."#` ends at its own hashes."""
+    out, i, n = [], 0, len(text)
+    while i < n:
+        c = text[i]
+        nxt = text[i + 1] if i + 1 < n else ""
+        if c == "/" and nxt == "/":
+            while i < n and text[i] != "\n":
+                i += 1
+        elif c == "/" and nxt == "*":
+            depth, i = 1, i + 2
+            while i < n and depth:
+                if text.startswith("/*", i):
+                    depth, i = depth + 1, i + 2
+                elif text.startswith("*/", i):
+                    depth, i = depth - 1, i + 2
+                else:
+                    out.append("\n" if text[i] == "\n" else "")
+                    i += 1
+        elif c == '"':
+            i += 1
+            while i < n and text[i] != '"':
+                out.append("\n" if text[i] == "\n" else "")
+                i += 2 if text[i] == "\\" else 1
+            out.append('""')
+            i += 1
+        elif c == "r" and RAW_STRING.match(text, i) and raw_prefix_starts(text, i):
+            raw = RAW_STRING.match(text, i)
+            end = '"' + raw.group(1)
+            j = text.find(end, i + len(raw.group(0)))
+            j = n if j < 0 else j
+            out.append('""' + "\n" * text.count("\n", i, j))
+            i = j + len(end)
+        elif c == "'":
+            if nxt == "\\":
+                j = text.find("'", i + 3)
+                i = n if j < 0 else j + 1
+                out.append("' '")
+            elif i + 2 < n and text[i + 2] == "'":
+                out.append("' '")
+                i += 3
+            else:
+                out.append(c)
+                i += 1
+        else:
+            out.append(c)
+            i += 1
+    return "".join(out)
 
 
 def group_heads(text, start):
@@ -84,7 +142,8 @@ def references(modules, source, text):
         head, rest, group = m.group(1), m.group(2), m.group(3)
         if not rest and not group:
             continue
-        if max((n for p, n in inline_at if p <= m.start()), default=0):
+        line = bisect.bisect_right(inline_at, (m.start(), float("inf"))) - 1
+        if line >= 0 and inline_at[line][1]:
             # Inside an inline module (`mod tests { ... }`): a module of its own, which
             # nothing imports, so it closes no cycle.
             continue
@@ -179,9 +238,52 @@ def cycles(graph):
     return out
 
 
-def main():
-    crates = sys.argv[1:] or sorted(glob.glob("crates/*"))
-    found = 0
+def folders(graph):
+    """The graph between a crate's top-level modules (a folder and all below it is one)."""
+    out = {}
+    for source, targets in graph.items():
+        out.setdefault(source[:1], set())
+        out[source[:1]].update(t[:1] for t in targets if t[:1] != source[:1])
+    return out
+
+
+def stated_layers(map_file):
+    """Crate root -> its top-level modules' layers, top first, from the map's fenced
+    blocks opened by ```` ```layers crates/x/src/lib.rs ````: one layer a line."""
+    out = {}
+    if not os.path.exists(map_file):
+        return out
+    for m in re.finditer(r"^```layers[ \t]+(\S+)[ \t]*\n(.*?)^```", open(map_file).read(), re.M | re.S):
+        out[m.group(1)] = [line.split() for line in m.group(2).splitlines() if line.split()]
+    return out
+
+
+def layer_problems(top, layers):
+    """What breaks "a module uses only the modules in the layers below its own" (the crate
+    root below them all, using none)."""
+    rank = {}
+    out = []
+    for i, layer in enumerate(layers):
+        for name in layer:
+            rank[(name,)] = i
+    rank[()] = len(layers)
+    for module in sorted(top):
+        if module not in rank:
+            out.append(f"{module[0]} is in no layer")
+    for name in sorted(n for n in rank if n not in top):
+        out.append(f"{name[0]} is in a layer but not a module of the crate")
+    for source in sorted(top):
+        for target in sorted(top[source]):
+            if source in rank and target in rank and rank[target] <= rank[source]:
+                where = "the same layer" if rank[target] == rank[source] else "a layer above"
+                out.append(f"{'::'.join(source) or '(root)'} uses {'::'.join(target) or '(root)'}, in {where}")
+    return out
+
+
+def check(crates, map_file, base="."):
+    """Every problem found, as lines of text."""
+    layers = stated_layers(map_file)
+    out = []
     for crate in crates:
         for root in ("src/lib.rs", "src/main.rs"):
             root_file = os.path.join(crate, root)
@@ -189,15 +291,88 @@ def main():
                 continue
             graph = edges(module_tree(root_file))
             for scc in cycles(graph):
-                found += 1
                 names = sorted("::".join(m) or "(root)" for m in scc)
-                print(f"{root_file}: import cycle among {', '.join(names)}")
+                out.append(f"{root_file}: import cycle among {', '.join(names)}")
                 for m in sorted(scc):
                     deps = sorted("::".join(t) or "(root)" for t in graph[m] if t in scc)
-                    print(f"    {'::'.join(m) or '(root)'} -> {', '.join(deps)}")
-    if found:
+                    out.append(f"    {'::'.join(m) or '(root)'} -> {', '.join(deps)}")
+            top = folders(graph)
+            for scc in cycles(top):
+                names = sorted("::".join(m) or "(root)" for m in scc)
+                out.append(f"{root_file}: top-level modules import each other: {', '.join(names)}")
+                for m in sorted(scc):
+                    for t in sorted(t for t in top[m] if t in scc):
+                        via = sorted(
+                            "::".join(s) + " -> " + "::".join(d)
+                            for s, ds in graph.items()
+                            if s[:1] == m
+                            for d in ds
+                            if d[:1] == t
+                        )
+                        out.append(f"    {'::'.join(m) or '(root)'} -> {'::'.join(t) or '(root)'} ({'; '.join(via)})")
+            key = os.path.relpath(root_file, base)
+            if key in layers:
+                for problem in layer_problems(top, layers[key]):
+                    out.append(f"{root_file}: not as {os.path.basename(map_file)} layers it: {problem}")
+    return out
+
+
+def self_test():
+    """The checker on small crates written for it: what it must find, and not find."""
+    import tempfile
+
+    cases = [
+        # A folder cycle: no file imports one that imports it back.
+        ({"lib.rs": "mod a;\nmod b;\n", "a/mod.rs": "mod x;", "a/x.rs": "use crate::b::Y;",
+          "b.rs": "pub struct Y; fn f() { crate::a::x::g() }"}, None, ["top-level modules import each other: a, b"]),
+        # A path after a URL in a string is a path; a char '"' opens no string.
+        ({"lib.rs": "mod a;\nmod b;\n", "a.rs": 'const U: &str = "coap://h"; use crate::b::Y; const Q: char = \'"\';',
+          "b.rs": "use crate::a::U;"}, None, ["import cycle among a, b"]),
+        # An inline test module before a real use leaves it a use.
+        ({"lib.rs": "mod a;\nmod b;\n", "a.rs": "mod tests {\n}\nuse crate::b::Y;\n", "b.rs": "use crate::a::Z;"}, None,
+         ["import cycle among a, b"]),
+        # Layers: upward and sideways uses, an unlisted module.
+        ({"lib.rs": "mod a;\nmod b;\nmod c;\nmod d;\n", "a.rs": "", "b.rs": "use crate::a::X;", "c.rs": "use crate::d::X;",
+          "d.rs": ""}, "a\nb\nc d\n", ["b uses a, in a layer above", "c uses d, in the same layer"]),
+        ({"lib.rs": "mod a;\nmod b;\n", "a.rs": "use crate::b::X;", "b.rs": ""}, "a\n", ["b is in no layer"]),
+        # Clean: downward only.
+        ({"lib.rs": "mod a;\nmod b;\n", "a.rs": "use crate::b::X;", "b.rs": ""}, "a\nb\n", []),
+    ]
+    failed = 0
+    for n, (files, layers, expected) in enumerate(cases):
+        with tempfile.TemporaryDirectory() as tmp:
+            crate = os.path.join(tmp, "crates", "t")
+            for name, text in files.items():
+                path = os.path.join(crate, "src", name)
+                os.makedirs(os.path.dirname(path), exist_ok=True)
+                with open(path, "w") as f:
+                    f.write(text)
+            map_file = os.path.join(tmp, "MAP.md")
+            with open(map_file, "w") as f:
+                if layers is not None:
+                    f.write(f"```layers crates/t/src/lib.rs\n{layers}```\n")
+            found = check([crate], map_file, tmp)
+            missing = [e for e in expected if not any(e in line for line in found)]
+            if missing or (not expected and found):
+                failed += 1
+                print(f"self-test case {n}: expected {expected}, found {found}")
+    if failed:
         sys.exit(1)
-    print(f"module-cycles: no import cycle in {len(crates)} crate(s)")
+    print(f"module-cycles: self-test passed ({len(cases)} cases)")
+
+
+def main():
+    if sys.argv[1:] == ["--self-test"]:
+        self_test()
+        return
+    crates = sys.argv[1:] or sorted(glob.glob("crates/*"))
+    repo = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+    problems = check(crates, os.path.join(repo, "ARCHITECTURE.md"), repo)
+    for line in problems:
+        print(line)
+    if problems:
+        sys.exit(1)
+    print(f"module-cycles: no import cycle, folders in one direction, in {len(crates)} crate(s)")
 
 
 if __name__ == "__main__":

@@ -116,7 +116,8 @@ fi
 step "cargo fmt --check"
 cargo fmt --all -- --check
 
-step "no module import cycles"
+step "no module import cycles, folders in the direction ARCHITECTURE.md states"
+python3 scripts/module-cycles.py --self-test
 python3 scripts/module-cycles.py
 
 step "cargo clippy -D warnings"

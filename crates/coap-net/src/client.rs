@@ -30,6 +30,22 @@ pub struct Client {
     handle: EndpointHandle,
 }
 
+/// A seed for a new client endpoint's message IDs and tokens
+/// ([`EndpointConfig::rng_seed`]) that no other client shares, in this process or another.
+/// A fixed seed makes every new socket send the same message IDs with the same tokens;
+/// when the kernel gives one the port of an earlier one (it reuses free ephemeral ports)
+/// within EXCHANGE_LIFETIME, the server takes its requests for that socket's duplicates
+/// (RFC 7252 §4.5) and answers them from its deduplication store: the old answers, say
+/// an earlier scene's frame, with nothing to tell them apart. The keys of std's
+/// `RandomState` come from the OS (different in every process and thread, and moved on
+/// by every `new`); the process id and a counter are hashed under them.
+pub fn fresh_seed() -> u64 {
+    use std::hash::{BuildHasher as _, RandomState};
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static CLIENTS: AtomicU64 = AtomicU64::new(0);
+    RandomState::new().hash_one((std::process::id(), CLIENTS.fetch_add(1, Ordering::Relaxed)))
+}
+
 impl Client {
     /// A client on a socket bound to `addr` (port 0 picks a free one).
     pub fn bind(addr: SocketAddr, config: EndpointConfig) -> std::io::Result<Self> {

@@ -17,7 +17,7 @@ pub mod server;
 pub mod socket;
 pub mod uri;
 
-pub use client::{BodyPart, BodyStream, Client, Observation};
+pub use client::{BodyPart, BodyStream, Client, Observation, fresh_seed};
 pub use coap;
 pub use driver::{EndpointHandle, Progress};
 pub use dtls::Psk;

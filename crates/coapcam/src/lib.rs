@@ -23,6 +23,7 @@
 
 #![forbid(unsafe_code)]
 
+pub mod api;
 pub mod bench;
 pub mod client;
 pub mod documents;

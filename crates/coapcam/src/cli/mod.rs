@@ -103,10 +103,10 @@ impl TransmissionArgs {
     }
 
     /// The endpoint configuration, with message IDs and tokens of its own
-    /// ([`coapcam::client::fresh_seed`]).
+    /// ([`coap_net::fresh_seed`]).
     pub(crate) fn endpoint_config(&self) -> EndpointConfig {
         EndpointConfig {
-            rng_seed: coapcam::client::fresh_seed(),
+            rng_seed: coap_net::fresh_seed(),
             ack_timeout: Duration::from_millis(self.ack_timeout_ms),
             max_retransmit: self.max_retransmit,
             nstart: self.nstart as usize,

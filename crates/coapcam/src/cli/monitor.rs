@@ -10,12 +10,12 @@ use anyhow::bail;
 use clap::Args;
 use coap::ContentFormat;
 
+use coapcam::api::record::Record;
 use coapcam::client::measure::{self, Calibration, Source};
 use coapcam::client::timed::{self, Repeat, Timed};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Billing, Found, Measurement, Parcel};
 use coapcam::repr::Stream;
-use coapcam::station::record::Record;
 use coapcam::stats::{TransferStats, TransferSummary};
 
 use super::{
@@ -251,7 +251,7 @@ impl Plan {
             Self::Observe { serial, stream } => {
                 format!("observe GET /cams/{serial}/{}", stream.name())
             }
-            Self::Records => format!("observe GET {}", results::LATEST),
+            Self::Records => format!("observe GET {}", coapcam::api::paths::LATEST),
         }
     }
 }
@@ -502,8 +502,12 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
                 repeat(&client, repeat_plan, &args, period, &mut report).await
             }
             Plan::Records => {
-                let on_start =
-                    |from| eprintln!("coapcam: following {} from record #{from}", results::LATEST);
+                let on_start = |from| {
+                    eprintln!(
+                        "coapcam: following {} from record #{from}",
+                        coapcam::api::paths::LATEST
+                    )
+                };
                 let on_record = |record, bytes, elapsed| {
                     let success = Success {
                         bytes,

@@ -81,7 +81,7 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<()> {
         Some(Store::open(&dir)?)
     };
     let endpoint = EndpointConfig {
-        rng_seed: coapcam::client::fresh_seed(),
+        rng_seed: coap_net::fresh_seed(),
         verify_addresses: !args.no_address_check,
         ..EndpointConfig::default()
     };

@@ -7,10 +7,11 @@ use std::path::PathBuf;
 use anyhow::{Context as _, bail};
 use clap::{Args, Subcommand};
 
+use coapcam::api::record::Record;
+use coapcam::api::results::{ListQuery, MAX_LIST};
 use coapcam::client::{CamClient, results};
 use coapcam::report::Reported;
-use coapcam::station::log::{self, ListQuery};
-use coapcam::station::record::Record;
+use coapcam::station::log;
 
 use super::{Exit, TransmissionArgs, out, outln};
 
@@ -85,7 +86,7 @@ pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
     let query = ListQuery {
         since: args.since,
         before: args.before,
-        limit: log::MAX_LIST,
+        limit: MAX_LIST,
         code: args.code.clone(),
         ..ListQuery::default()
     };

@@ -32,7 +32,7 @@ pub async fn from_server(
     codes: Option<&[Seen]>,
     path: &std::path::Path,
 ) -> anyhow::Result<()> {
-    let transformation_path = format!("/cams/{serial}/3d-transformation");
+    let transformation_path = crate::api::paths::camera(serial, "3d-transformation");
     let (color, transformation) = tokio::try_join!(
         client.grab(serial, Stream::Color, Some(coap::ContentFormat::CBOR)),
         client.call(Code::GET, &transformation_path, Bytes::new(), None, None),

@@ -31,7 +31,7 @@ const ITERATIONS: usize = 400;
 
 /// The resource of camera `sn`'s 3d-transformation.
 fn path(sn: &str) -> String {
-    format!("/cams/{sn}/3d-transformation")
+    crate::api::paths::camera(sn, "3d-transformation")
 }
 
 /// PUTs camera `sn`'s 3d-transformation.

@@ -244,8 +244,13 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             members,
         } => {
             let accept = Some(crate::repr::DEPTH_CLOUD);
-            let mut request =
-                client.request(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept);
+            let mut request = client.request(
+                Code::POST,
+                crate::api::paths::POINTCLOUDS,
+                Bytes::new(),
+                None,
+                accept,
+            );
             request.timeout = Some(*wait);
             // A listed member that is gone without removing its registration: a small
             // unicast request meets its closed port (ICMP port unreachable), and it is
@@ -420,7 +425,7 @@ pub async fn measure_checked(
     if matches!(source, Source::Group { .. }) && limits.max_skew_us.is_none() {
         limits.skew = false;
     }
-    let checked = clocks::check_frames(client, &mut grabbed.frames, &limits).await;
+    let checked = super::frames::check_frames(client, &mut grabbed.frames, &limits).await;
     if !checked.problems.is_empty() {
         return Ok(CloudMeasurement {
             parcel: Parcel::Nothing { points: 0 },

@@ -6,6 +6,7 @@ pub mod annotate;
 pub mod calibrate;
 pub mod clocks;
 pub mod codes;
+pub mod frames;
 pub mod measure;
 pub mod results;
 pub mod rtt_cache;
@@ -74,28 +75,6 @@ pub trait WatchProgress: Send {
     fn show(&mut self, done: usize, total: Option<usize>);
 }
 
-/// A seed for a new client endpoint's message IDs and tokens
-/// ([`EndpointConfig::rng_seed`]) that no other client shares, in this process or another.
-/// A fixed seed makes every new socket send the same message IDs with the same tokens;
-/// when the kernel gives one the port of an earlier one (it reuses free ephemeral ports)
-/// within EXCHANGE_LIFETIME, the server takes its requests for that socket's duplicates
-/// (RFC 7252 §4.5) and answers them from its deduplication store: the old answers, say
-/// an earlier scene's frame, with nothing to tell them apart.
-pub fn fresh_seed() -> u64 {
-    use std::hash::{BuildHasher as _, RandomState};
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static CLIENTS: AtomicU64 = AtomicU64::new(0);
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos());
-    // RandomState's keys come from the OS, different in every process and thread.
-    RandomState::new().hash_one((
-        nanos,
-        std::process::id(),
-        CLIENTS.fetch_add(1, Ordering::Relaxed),
-    ))
-}
-
 impl CamClient {
     /// A client for the server at `uri` (`coap://host[:port]`); every request gives up
     /// after `timeout`.
@@ -122,10 +101,10 @@ impl CamClient {
 
     /// A plain CoAP client of the server at `server` (an in-process one, for `demo` and
     /// the benchmarks), with the default transmission parameters and message IDs and
-    /// tokens of its own ([`fresh_seed`]).
+    /// tokens of its own ([`coap_net::fresh_seed`]).
     pub fn at(server: SocketAddr, timeout: Duration) -> anyhow::Result<Self> {
         let config = EndpointConfig {
-            rng_seed: fresh_seed(),
+            rng_seed: coap_net::fresh_seed(),
             ..EndpointConfig::default()
         };
         let client = Client::for_peer(server, config).context("binding the client socket")?;
@@ -365,7 +344,7 @@ impl CamClient {
         let r = self
             .call(
                 Code::GET,
-                &format!("/cams/{serial}/{name}"),
+                &crate::api::paths::camera(serial, name),
                 Bytes::new(),
                 None,
                 None,
@@ -384,7 +363,7 @@ impl CamClient {
         let body = serde_json::to_vec(doc).with_context(|| format!("encoding {name}"))?;
         self.call(
             Code::PUT,
-            &format!("/cams/{serial}/{name}"),
+            &crate::api::paths::camera(serial, name),
             Bytes::from(body),
             Some(ContentFormat::JSON),
             None,
@@ -401,7 +380,7 @@ impl CamClient {
         stream: Stream,
         accept: Option<ContentFormat>,
     ) -> anyhow::Result<Response> {
-        let path = format!("/cams/{serial}/{}", stream.name());
+        let path = crate::api::paths::camera(serial, stream.name());
         self.call(Code::POST, &path, Bytes::new(), None, accept)
             .await
     }
@@ -424,7 +403,7 @@ impl CamClient {
 
     /// Grabs a new color frame of one camera (POST) as a JPEG of `quality` (1-100).
     pub async fn grab_jpeg(&self, serial: &str, quality: u8) -> anyhow::Result<Response> {
-        let path = format!("/cams/{serial}/color");
+        let path = crate::api::paths::camera(serial, "color");
         let accept = Some(ContentFormat::IMAGE_JPEG);
         let mut request = self.request(Code::POST, &path, Bytes::new(), None, accept);
         request
@@ -436,8 +415,14 @@ impl CamClient {
 
     /// Grabs every camera of the server and merges their clouds (POST /cams/pointclouds).
     pub async fn grab_all(&self, accept: Option<ContentFormat>) -> anyhow::Result<Response> {
-        self.call(Code::POST, "/cams/pointclouds", Bytes::new(), None, accept)
-            .await
+        self.call(
+            Code::POST,
+            crate::api::paths::POINTCLOUDS,
+            Bytes::new(),
+            None,
+            accept,
+        )
+        .await
     }
 
     /// Grabs a new point cloud (POST) of camera `serial`, or of every camera merged
@@ -463,7 +448,7 @@ impl CamClient {
     ) -> anyhow::Result<Option<(Measurement, usize)>> {
         let mut request = self.request(
             Code::POST,
-            "/cams/dimensions",
+            crate::api::paths::DIMENSIONS,
             Bytes::new(),
             None,
             Some(ContentFormat::CBOR),

@@ -9,36 +9,9 @@ use coap::{ContentFormat, OptionNumber};
 
 use super::CamClient;
 use super::timed::Watch;
-use crate::station::log::{ListQuery, MAX_LIST};
-use crate::station::record::Record;
-
-/// The list's path.
-pub const PATH: &str = "/station/measurements";
-
-/// The newest record's path (observable).
-pub const LATEST: &str = "/station/measurements/latest";
-
-/// The Uri-Query items of `q`.
-pub fn query_items(q: &ListQuery) -> Vec<String> {
-    let mut items = Vec::new();
-    if let Some(since) = q.since {
-        items.push(format!("since={since}"));
-    }
-    if let Some(before) = q.before {
-        items.push(format!("before={before}"));
-    }
-    items.push(format!("limit={}", q.limit.clamp(1, MAX_LIST)));
-    if let Some(code) = &q.code {
-        items.push(format!("code={code}"));
-    }
-    if let Some(from) = q.from {
-        items.push(format!("from={from}"));
-    }
-    if let Some(to) = q.to {
-        items.push(format!("to={to}"));
-    }
-    items
-}
+use crate::api::paths::{LATEST, MEASUREMENTS as PATH};
+use crate::api::record::Record;
+use crate::api::results::{ListQuery, MAX_LIST};
 
 /// Records from a CBOR body: a list, one record, or `null` (no record yet).
 pub fn decode<T: serde::de::DeserializeOwned>(body: &[u8]) -> anyhow::Result<T> {
@@ -53,7 +26,7 @@ pub async fn list(client: &CamClient, q: &ListQuery, limit: usize) -> anyhow::Re
     while out.len() < limit {
         page.limit = (limit - out.len()).min(MAX_LIST);
         let response = client
-            .get_query(PATH, &query_items(&page), Some(ContentFormat::CBOR))
+            .get_query(PATH, &page.items(), Some(ContentFormat::CBOR))
             .await?;
         let records: Vec<Record> = decode(&response.payload)?;
         let Some(last) = records.last() else { break };

@@ -94,7 +94,7 @@ pub async fn observe(
     timeout: Duration,
     mut on_result: impl FnMut(anyhow::Result<Timed>, Duration) -> anyhow::Result<bool>,
 ) -> anyhow::Result<()> {
-    let path = format!("/cams/{serial}/{}", stream.name());
+    let path = crate::api::paths::camera(serial, stream.name());
     let mut previous = Instant::now();
     let mut watch = Watch::start(client, &path, accept, timeout).await?;
     let mut first = true;

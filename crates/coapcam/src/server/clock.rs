@@ -14,9 +14,6 @@ use coap_net::{Around, Resource, Router, handler};
 
 use crate::timesync::{SERVER_TIME, ServerTimes};
 
-/// The path of the time resource.
-pub const TIME_PATH: &str = "/time";
-
 /// The server's clock and its count of answered requests.
 #[derive(Debug, Default)]
 pub(crate) struct ServerClock {
@@ -74,7 +71,7 @@ impl ServerClock {
         router.set_around(around);
         let clock = self.clone();
         router.add(
-            TIME_PATH,
+            crate::api::paths::TIME,
             Resource::new()
                 .get(handler(move |_| {
                     let clock = clock.clone();

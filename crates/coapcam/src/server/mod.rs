@@ -34,7 +34,6 @@ use crate::station::{self, Recorder};
 use cams::Cams;
 pub use cams::{Busy, EdgeError};
 use clock::ServerClock;
-pub use clock::TIME_PATH;
 use files::StaticFiles;
 use group::Groups;
 pub use identities::{Identities, Role};
@@ -338,7 +337,7 @@ impl Station {
                     // One notification per new record: the observers of the newest record
                     // are told before the next append is looked at (appends that come
                     // faster than notifications go out are told once, with the newest).
-                    server.notify(station::resources::LATEST).await;
+                    server.notify(crate::api::paths::LATEST).await;
                 }
                 Some(path) = self.changed.recv() => {
                     notify_changed(server, path, &mut self.changed).await;
@@ -594,7 +593,7 @@ fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result
 fn wait_routed(router: &Router, serials: &[Serial], present: bool) -> anyhow::Result<()> {
     let paths: Vec<String> = serials
         .iter()
-        .map(|sn| format!("/cams/{sn}/color"))
+        .map(|sn| crate::api::paths::camera(sn, "color"))
         .collect();
     let done = || {
         let patterns = router.patterns();

@@ -20,7 +20,7 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
 use super::log::ResultsLog;
-use super::record::Record;
+use crate::api::record::Record;
 
 /// The address of `tcp://ADDR:PORT` (`serve --line-output`; an IPv6 address in brackets).
 pub fn parse_tcp_uri(uri: &str) -> Result<SocketAddr, String> {

@@ -15,16 +15,14 @@ use std::time::Duration;
 use rusqlite::{Connection, OpenFlags, OptionalExtension as _, TransactionBehavior, params};
 use tokio::sync::watch;
 
-use super::record::{GENESIS, NewRecord, Record, UtcTime, canonical_bytes, sha256_hex};
+use crate::api::record::{GENESIS, NewRecord, Record, canonical_bytes, sha256_hex};
+use crate::api::results::{ListQuery, MAX_LIST};
 
 /// The schema's version, kept in `meta`.
 const SCHEMA_VERSION: &str = "1";
 
 /// How long a writer waits for another process's transaction before failing.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
-
-/// The most records one list returns.
-pub const MAX_LIST: usize = 1000;
 
 /// The tables and triggers (created once, in one transaction).
 const SCHEMA: &str = "
@@ -99,36 +97,6 @@ pub struct Retention {
     /// Keep the bytes of the records' bodies and pictures within this many, pruning the
     /// oldest pictures first. SQLite's own pages come on top.
     pub max_bytes: Option<u64>,
-}
-
-/// Which records [`ResultsLog::list`] returns, newest first.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ListQuery {
-    /// Only records with a larger id.
-    pub since: Option<u64>,
-    /// Only records with a smaller id (paging back: the smallest id of the last page).
-    pub before: Option<u64>,
-    /// At most this many (1 to [`MAX_LIST`]).
-    pub limit: usize,
-    /// Only records with a code of exactly this text.
-    pub code: Option<String>,
-    /// Only records measured at this time or later.
-    pub from: Option<UtcTime>,
-    /// Only records measured before this time.
-    pub to: Option<UtcTime>,
-}
-
-impl Default for ListQuery {
-    fn default() -> Self {
-        Self {
-            since: None,
-            before: None,
-            limit: 50,
-            code: None,
-            from: None,
-            to: None,
-        }
-    }
 }
 
 /// The results log of one database file: a cheap handle to clone. Its calls block (on
@@ -745,7 +713,7 @@ fn check_record(
 mod tests {
     use super::*;
     use crate::ScratchDir;
-    use crate::station::record::{Trigger, UtcTime};
+    use crate::api::record::{Trigger, UtcTime};
 
     fn new(n: u64, code: &str, photo: bool) -> NewRecord {
         NewRecord {
@@ -754,7 +722,7 @@ mod tests {
             },
             station: "lane-1".into(),
             trigger: Trigger::Request,
-            measurement: crate::station::record::tests::measurement(300.0 + n as f64, code),
+            measurement: crate::api::record::tests::measurement(300.0 + n as f64, code),
             cameras: Vec::new(),
             version: NewRecord::VERSION.into(),
             photo_jpeg: photo.then(|| vec![n as u8; 1000]),

@@ -12,7 +12,7 @@ use geometry::Transformation;
 use rgbd::{Camera, ColorFrame, Extrinsics, Intrinsics, Serial};
 
 use super::Measured;
-use super::record::{CameraPose, Trigger};
+use crate::api::record::{CameraPose, Trigger};
 use crate::report::{EdgeQuery, Found, Measurement};
 use crate::repr::raster;
 use crate::vision::picture;

@@ -1,5 +1,5 @@
 //! The station: what a camera server does by itself for a parcel lane (docs/station.md).
-//! - [`record`]: one recorded measurement and the chain's encoding;
+//! - [`crate::api::record`] (the record of a measurement, shared with the client);
 //! - [`log`]: the results log, append-only and hash-chained in SQLite, with retention;
 //! - `resources`: the log as CoAP resources (`/station/measurements...`);
 //! - [`mqtt`]: every record published to an MQTT broker, none lost while it is away;
@@ -15,7 +15,6 @@ pub mod line;
 pub mod log;
 pub mod measure;
 pub mod mqtt;
-pub mod record;
 pub(crate) mod resources;
 pub mod watch;
 pub mod webhook;
@@ -23,7 +22,7 @@ pub mod webhook;
 use std::path::{Path, PathBuf};
 
 use self::log::{LogError, ResultsLog, Retention};
-use self::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
+use crate::api::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
 
 /// The name of the results log's file in the state directory.
 pub const RESULTS_FILE: &str = "results.sqlite";

@@ -12,15 +12,12 @@ use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Resource, Router, handler};
 use serde::Serialize;
 
-use super::log::{ListQuery, LogError, MAX_LIST, ResultsLog};
-use super::record::UtcTime;
+use super::log::{LogError, ResultsLog};
+use crate::api::paths::{LATEST, MEASUREMENTS};
+use crate::api::results::ListQuery;
 
 /// The list of records.
-pub(crate) const PATH: &str = "/station/measurements";
-
-/// The newest record, observable; [`crate::server::Station`] notifies it after each
-/// append.
-pub(crate) const LATEST: &str = "/station/measurements/latest";
+const PATH: &str = MEASUREMENTS;
 
 /// Adds the resources of `log` to `router`.
 pub(crate) fn register(router: &Router, log: &ResultsLog) {
@@ -156,7 +153,7 @@ async fn list(log: ResultsLog, request: &IncomingRequest) -> Response {
         Ok(cf) => cf,
         Err(refused) => return refused,
     };
-    let query = match parse_query(request.options.uri_query(), PATH) {
+    let query = match ListQuery::parse(request.options.uri_query(), PATH) {
         Ok(q) => q,
         Err(why) => return Response::diagnostic(Code::BAD_REQUEST, &why),
     };
@@ -199,56 +196,6 @@ async fn one(log: ResultsLog, id: &str, request: &IncomingRequest) -> Response {
         Ok(None) => no_record(id),
         Err(e) => failed(&e),
     }
-}
-
-/// The records `items` (a request's Uri-Query) select; why not, for a bad item.
-/// `path` names the resource in the refusal of an unknown item (the HTTP API shares this).
-pub(crate) fn parse_query<S: AsRef<str>>(
-    items: impl IntoIterator<Item = S>,
-    path: &str,
-) -> Result<ListQuery, String> {
-    let mut q = ListQuery::default();
-    let mut seen: Vec<String> = Vec::new();
-    for item in items {
-        let item = item.as_ref();
-        let (key, value) = item.split_once('=').unwrap_or((item, ""));
-        if seen.iter().any(|k| k == key) {
-            return Err(format!("{key} is given twice"));
-        }
-        seen.push(key.to_owned());
-        let id = |what: &str| {
-            value
-                .parse::<u64>()
-                .map_err(|_| format!("{key}={value}: {what} is a record id, a whole number"))
-        };
-        match key {
-            "since" => q.since = Some(id("since")?),
-            "before" => q.before = Some(id("before")?),
-            "limit" => {
-                q.limit = match value.parse::<usize>() {
-                    Ok(n @ 1..=MAX_LIST) => n,
-                    _ => {
-                        return Err(format!(
-                            "limit={value}: the most records to give, from 1 to {MAX_LIST}"
-                        ));
-                    }
-                };
-            }
-            "code" if !value.is_empty() => q.code = Some(value.to_owned()),
-            "from" => {
-                q.from = Some(UtcTime::parse(value).map_err(|e| format!("from={value}: {e}"))?)
-            }
-            "to" => q.to = Some(UtcTime::parse(value).map_err(|e| format!("to={value}: {e}"))?),
-            "code" => return Err("code= needs the code's text".into()),
-            _ => {
-                return Err(format!(
-                    "unknown query item {key}: {path} takes since=ID, before=ID, limit=N (1-{MAX_LIST}, default {}), code=TEXT, from=TIME and to=TIME",
-                    ListQuery::default().limit
-                ));
-            }
-        }
-    }
-    Ok(q)
 }
 
 #[expect(
@@ -345,41 +292,4 @@ fn content(body: Vec<u8>, cf: ContentFormat, etag: [u8; 8]) -> Response {
         .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
     r.options.set(OptionNumber::ETAG, etag);
     r
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_query_selects_and_refuses_with_the_reason() {
-        assert_eq!(parse_query([""; 0], PATH), Ok(ListQuery::default()));
-        let q = parse_query(["since=3", "limit=2", "code=PKG-1", "before=9"], PATH).expect("valid");
-        assert_eq!(
-            q,
-            ListQuery {
-                since: Some(3),
-                before: Some(9),
-                limit: 2,
-                code: Some("PKG-1".into()),
-                ..ListQuery::default()
-            }
-        );
-        for bad in [
-            "since=-1",
-            "since=x",
-            "limit=0",
-            "limit=1001",
-            "code=",
-            "colour=red",
-            "before=",
-            "from=yesterday",
-            "to=2026-11-27",
-        ] {
-            let why = parse_query([bad], PATH).expect_err(bad);
-            let key = bad.split('=').next().unwrap_or(bad);
-            assert!(why.contains(key), "{why}");
-        }
-        assert!(parse_query(["limit=1", "limit=2"], PATH).is_err());
-    }
 }

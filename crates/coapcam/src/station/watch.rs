@@ -19,7 +19,7 @@ use tokio::task::JoinHandle;
 use super::Recorder;
 use super::auto::{Event, Grid, HeightMap, Stillness, StillnessConfig};
 use super::measure::{self, Rig, RigCamera};
-use super::record::Trigger;
+use crate::api::record::Trigger;
 use crate::report::{EdgeQuery, Found};
 
 /// How long a look waits for a camera's depth frame.

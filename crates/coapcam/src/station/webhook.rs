@@ -21,7 +21,7 @@ use tokio::net::TcpStream;
 use tokio::task::JoinHandle;
 
 use super::log::{LogError, ResultsLog};
-use super::record::Record;
+use crate::api::record::Record;
 
 /// The cursor name of the webhook in the results log.
 pub const CONSUMER: &str = "webhook";

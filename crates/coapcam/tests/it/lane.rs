@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use coapcam::station::record::{Record, Trigger};
+use coapcam::api::record::{Record, Trigger};
 use rgbd::Scene;
 use rgbd::scene::SceneBox;
 

@@ -513,7 +513,7 @@ fn a_new_socket_on_an_earlier_ones_port_gets_todays_answers() {
                 .expect("scene server");
         let addr = server.addr().expect("its address");
         let config = || EndpointConfig {
-            rng_seed: coapcam::client::fresh_seed(),
+            rng_seed: coap_net::fresh_seed(),
             ..EndpointConfig::default()
         };
         let client = coap_net::Client::bind(SocketAddr::from(([127, 0, 0, 1], 0)), config())

@@ -9,10 +9,10 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use coap::Code;
+use coapcam::api::record::{NewRecord, Trigger, UtcTime};
 use coapcam::report::{Billing, Measurement, Parcel, Seen};
 use coapcam::station::log::ResultsLog;
 use coapcam::station::mqtt::{CONSUMER, Config, Publisher};
-use coapcam::station::record::{NewRecord, Trigger, UtcTime};
 use coapcam::vision::codes::{Code as Label, CodeKind};
 use geometry::Dimensions;
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};

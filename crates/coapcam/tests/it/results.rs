@@ -10,9 +10,10 @@ use std::thread;
 use std::time::{Duration, Instant};
 
 use coap::{Code, ContentFormat, OptionNumber, Request, Response};
+use coapcam::api::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
+use coapcam::api::results::ListQuery;
 use coapcam::report::Measurement;
-use coapcam::station::log::{ListQuery, ResultsLog, Retention};
-use coapcam::station::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
+use coapcam::station::log::{ResultsLog, Retention};
 
 use crate::support::{
     COAPCAM, DEPTH_640, LIMIT, Proc, SN, TempDir, client, runtime, send, serve_with,
@@ -164,7 +165,7 @@ fn requests_are_recorded_served_listed_and_verified() {
         assert_eq!(photo.code, Code::CONTENT);
         assert!(photo.payload.starts_with(&[0xFF, 0xD8]), "not a JPEG");
         assert_eq!(
-            Some(coapcam::station::record::sha256_hex(&photo.payload)),
+            Some(coapcam::api::record::sha256_hex(&photo.payload)),
             all[2].photo_sha256
         );
         let png = get(&c, addr, "/station/measurements/1/annotated", &[], None).await;

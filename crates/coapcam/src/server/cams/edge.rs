@@ -22,7 +22,7 @@ use crate::repr::raster;
 use crate::vision::codes;
 
 /// The path of the resource.
-pub(super) const PATH: &str = "/cams/dimensions";
+pub(super) const PATH: &str = crate::api::paths::DIMENSIONS;
 
 /// The latest measurement and its ETag.
 pub(super) type Latest = Option<Arc<(Measurement, [u8; 8])>>;

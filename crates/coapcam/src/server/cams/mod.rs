@@ -26,13 +26,13 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
+use crate::api::record::{CameraPose, Trigger};
 use crate::report::{self, EdgeQuery, Measurement, Table};
 use crate::repr::clouds::DepthPart;
 use crate::repr::no_depth::{self, NoDepth};
 use crate::repr::{self, CloudSource, Stream, Subject, raster};
 use crate::station::Recorder;
 use crate::station::measure::{self as station_measure, Rig, RigCamera, Shot};
-use crate::station::record::{CameraPose, Trigger};
 use crate::vision::calibration::pose_transformation;
 
 use super::clock::ServerClock;
@@ -196,7 +196,7 @@ impl Cams {
     fn register_fixed(self: &Arc<Self>) {
         let me = self.clone();
         self.router.add(
-            "/cams",
+            crate::api::paths::CAMS,
             Resource::new()
                 .get(handler(move |_ctx| {
                     let links = me
@@ -212,7 +212,7 @@ impl Cams {
         );
         let me = self.clone();
         self.router.add(
-            "/cams/pointclouds",
+            crate::api::paths::POINTCLOUDS,
             Resource::new()
                 .post(handler(move |ctx| {
                     let me = me.clone();
@@ -244,7 +244,7 @@ impl Cams {
         for name in Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS) {
             let me = self.clone();
             self.router.add(
-                &format!("/cams/{name}"),
+                &format!("{}/{name}", crate::api::paths::CAMS),
                 Resource::new()
                     .post(handler(move |ctx| {
                         let response = me.create(name, &ctx.request);
@@ -352,7 +352,7 @@ impl Cams {
         lock(&self.cams).remove(&sn);
         let names = Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS);
         self.router
-            .remove_all(names.map(|name| format!("/cams/{sn}/{name}")));
+            .remove_all(names.map(|name| crate::api::paths::camera(sn, name)));
         tracing::info!(serial = %sn, "camera disconnected: /cams/{sn} removed");
     }
 
@@ -364,7 +364,7 @@ impl Cams {
 
     /// The path `/cams/<sn>/<name>` and its resource.
     fn resource(self: &Arc<Self>, sn: Serial, name: &'static str) -> (String, Resource) {
-        let path = format!("/cams/{sn}/{name}");
+        let path = crate::api::paths::camera(sn, name);
         let delete = {
             let (me, path) = (self.clone(), path.clone());
             handler(move |_ctx| {

@@ -40,7 +40,8 @@ use tokio::task::{JoinHandle, JoinSet};
 use super::Recorder;
 use super::log::{LogError, ResultsLog};
 use super::measure::Rig;
-use super::record::Trigger;
+use crate::api::record::Trigger;
+use crate::api::results::ListQuery;
 use crate::report::EdgeQuery;
 use crate::repr::raster;
 
@@ -240,7 +241,7 @@ impl<R: Rig> App<R> {
             Ok(items) => items,
             Err(why) => return error(StatusCode::BAD_REQUEST, &why),
         };
-        let q = match super::resources::parse_query(&items, "/api/measurements") {
+        let q = match ListQuery::parse(&items, "/api/measurements") {
             Ok(q) => q,
             Err(why) => return error(StatusCode::BAD_REQUEST, &why),
         };
@@ -721,7 +722,7 @@ impl<R: Rig> App<R> {
         };
         slot.get_or_try_init(|| async {
             let mut config = coap::EndpointConfig {
-                rng_seed: crate::client::fresh_seed(),
+                rng_seed: coap_net::fresh_seed(),
                 ..coap::EndpointConfig::default()
             };
             config.limits.client_body_bytes = proxy::MAX_RESPONSE;

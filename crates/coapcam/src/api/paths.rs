@@ -1,0 +1,25 @@
+//! The resource paths of a camera server: the server registers them, the client asks
+//! them, both from here.
+
+/// The server's clock (Server-Time, NTP's four timestamps over CoAP).
+pub const TIME: &str = "/time";
+
+/// The cameras (link-format of every camera's resources).
+pub const CAMS: &str = "/cams";
+
+/// Every camera's cloud, merged (POST grabs).
+pub const POINTCLOUDS: &str = "/cams/pointclouds";
+
+/// The server's measurement of the parcel (POST measures).
+pub const DIMENSIONS: &str = "/cams/dimensions";
+
+/// The results log's list of records.
+pub const MEASUREMENTS: &str = "/station/measurements";
+
+/// The results log's newest record, observable: notified once per new record.
+pub const LATEST: &str = "/station/measurements/latest";
+
+/// The resource `name` (`color`, `depth-settings`, ...) of the camera `serial`.
+pub fn camera(serial: impl std::fmt::Display, name: &str) -> String {
+    format!("{CAMS}/{serial}/{name}")
+}
