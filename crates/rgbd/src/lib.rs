@@ -47,7 +47,7 @@ fn clip(s: &str, max: usize) -> std::borrow::Cow<'_, str> {
 }
 
 pub use advanced::{AdvancedConfig, AdvancedError, VisualPreset};
-pub use backend::synthetic::{SyntheticCamera, d415, lane, scene};
+pub use backend::synthetic::{SyntheticCamera, cert, d415, lane, scene};
 pub use camera::{
     Camera, CameraError, CameraHub, HubError, HubEvent, Serial, SerialError, SettingError,
 };

@@ -2,6 +2,7 @@
 
 mod advanced;
 mod bag;
+mod cert;
 mod filters;
 mod hub;
 mod lane;

@@ -108,7 +108,7 @@ pub struct Row {
 
 /// How far `p` lies outside the rectangle `corners` (in order around it), metres; 0
 /// inside.
-fn outside(corners: &[[f64; 2]; 4], p: [f64; 2]) -> f64 {
+pub(crate) fn outside(corners: &[[f64; 2]; 4], p: [f64; 2]) -> f64 {
     let c0 = corners[0];
     let axis = |to: [f64; 2]| {
         let e = [to[0] - c0[0], to[1] - c0[1]];

@@ -1,6 +1,7 @@
 //! `bench accuracy`: a built-in, seeded set of synthetic parcel scenes ([`scenes`])
 //! measured end to end over CoAP on loopback, each scene's errors, and their summary.
 
+pub mod cert;
 pub mod lane;
 pub mod scenes;
 

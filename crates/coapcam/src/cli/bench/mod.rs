@@ -10,6 +10,7 @@ use coapcam::bench::accuracy::lane::{self, CaseSummary, Outcome};
 use coapcam::bench::accuracy::{self, Quantiles, Row, Summary};
 use coapcam::report::{Billing, Division};
 
+mod cert;
 mod load;
 mod rd;
 mod repr;
@@ -49,15 +50,23 @@ enum BenchKind {
 #[derive(Debug, Args)]
 struct AccuracyArgs {
     /// Number of scenes (at least 1; 40 of the boxes, the lane set's size of the lane
-    /// set).
+    /// set, 500 of the cert set).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     scenes: Option<u32>,
-    /// Which set: `boxes` (one plain box per scene, one or two cameras) or `lane`
+    /// Which set: `boxes` (one plain box per scene, one or two cameras), `lane`
     /// (rgbd's lane set: clean and large boxes, cylinders, parcels apart and side by
     /// side, parcels partly out of view, ...; every parcel of a scene held against its
-    /// truth, and per case the errors, refusals and silently wrong results).
-    #[arg(long, default_value = "boxes", value_parser = ["boxes", "lane"])]
+    /// truth, and per case the errors, refusals and silently wrong results) or `cert`
+    /// (rgbd's certification set: random stations of 1 to 4 cameras 1.0-2.2 m high and
+    /// tilted up to 45 degrees, boxes, cylinders, tubes and bags of every surface, alone
+    /// and in groups 0-120 mm apart, labelled boxes; per class the first-pass rate, false
+    /// refusals, phantoms, merged pairs and silently wrong results).
+    #[arg(long, default_value = "boxes", value_parser = ["boxes", "lane", "cert"])]
     set: String,
+    /// With --set cert: the first scene's index (run part of a set, e.g. in two
+    /// processes at once).
+    #[arg(long, default_value_t = 0)]
+    first: u32,
     /// With --set lane: measure every scene this many times (new frames each time) and
     /// print the spread of each parcel's dimensions.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
@@ -66,7 +75,7 @@ struct AccuracyArgs {
     /// filter), as `measure --all` without --prepare measures.
     #[arg(long)]
     raw: bool,
-    /// With --set lane: the accuracy division d, mm (see `measure --division-mm`).
+    /// With --set lane or cert: the accuracy division d, mm (see `measure --division-mm`).
     #[arg(long, value_name = "MM", default_value = "5", value_parser = super::values::division_mm)]
     division_mm: f64,
     /// Seed of the scene generator.
@@ -100,6 +109,9 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
 async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     if args.set == "lane" {
         return accuracy_lane(args).await;
+    }
+    if args.set == "cert" {
+        return cert::run(args).await;
     }
     let config = accuracy::Config {
         scenes: args.scenes.map_or(40, |n| n as usize),

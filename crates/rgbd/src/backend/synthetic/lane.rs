@@ -103,22 +103,22 @@ pub fn lane_set(seed: u64, count: usize) -> Vec<LaneScene> {
 }
 
 /// Counter-based random numbers (SplitMix64) for the generator.
-struct Draw(u64);
+pub(super) struct Draw(pub(super) u64);
 
 impl Draw {
-    fn next(&mut self) -> u64 {
+    pub(super) fn next(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
         mix64(self.0)
     }
 
     /// Uniform in [lo, hi).
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+    pub(super) fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
         let unit = (self.next() >> 11) as f64 / (1u64 << 53) as f64;
         lo + (hi - lo) * unit
     }
 
     /// A parcel's matte color: cardboard browns and greys, lighter or darker.
-    fn cardboard(&mut self) -> [u8; 3] {
+    pub(super) fn cardboard(&mut self) -> [u8; 3] {
         let base = [
             [180.0, 140.0, 90.0],
             [200.0, 170.0, 120.0],
@@ -233,7 +233,7 @@ fn lane_color_sensor(draw: &mut Draw) -> ColorSensor {
 }
 
 /// Twelve ASCII digits of `n` (below 10^12).
-fn serial_digits(n: u64) -> [u8; 12] {
+pub(super) fn serial_digits(n: u64) -> [u8; 12] {
     let mut digits = [b'0'; 12];
     let mut n = n % 1_000_000_000_000;
     for d in digits.iter_mut().rev() {

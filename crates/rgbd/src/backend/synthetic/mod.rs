@@ -69,6 +69,7 @@
 //! disconnected ([`SyntheticCamera::set_connected`]) fails grabs with
 //! [`CameraError::Disconnected`].
 
+pub mod cert;
 pub mod d415;
 mod label;
 pub mod lane;

@@ -62,7 +62,7 @@ const WEAK_NOISE_GAIN: f32 = 1.5;
 /// no pixel of a dark surface finds its match ...
 const SIGNAL_NONE: f32 = 0.02;
 /// ... and from which on every pixel does.
-const SIGNAL_FULL: f32 = 0.15;
+pub(super) const SIGNAL_FULL: f32 = 0.15;
 /// Sharpness of the projector's glare on a glossy surface (Blinn-Phong exponent of the
 /// half-vector between the projector and an imager).
 const GLARE_EXPONENT: f32 = 600.0;

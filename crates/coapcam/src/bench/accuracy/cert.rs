@@ -1,0 +1,490 @@
+//! `bench accuracy --set cert`: the certification set (`rgbd::cert`: random stations of
+//! 1 to 4 cameras, objects of every shape and surface, alone and in groups at set
+//! spacings, boxes labelled) measured end to end over CoAP on loopback, the cameras
+//! prepared as `measure --prepare --codes` prepares them, the codes read from a new color
+//! image of every camera. Every object is held against its truth and against what a
+//! certified system accepts (isolated by 20 mm, in view, returning depth): per class the
+//! first-pass rate (within 1 d on each axis and its code read), false refusals, phantom
+//! parcels, merged pairs, silently wrong numbers and missing objects.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use anyhow::bail;
+use geometry::{DimensionConfig, ParcelFit};
+use rgbd::cert::{CertObject, CertScene, MIN_SPACING_M, SPACINGS_MM, cert_scene, footprint_gap};
+use rgbd::scene::Truth;
+
+use super::lane::{Outcome, outside};
+use crate::client::CamClient;
+use crate::client::codes;
+use crate::client::measure::{self, Source, prepare_cameras};
+use crate::report::{Billing, ParcelReport};
+use crate::server::SceneServer;
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Number of scenes (at least 1).
+    pub scenes: usize,
+    /// The first scene's index (a run may cover part of a set).
+    pub first: usize,
+    /// Seed of the set.
+    pub seed: u64,
+    /// The measurement's thresholds.
+    pub dimension: DimensionConfig,
+    /// The accuracy division.
+    pub billing: Billing,
+}
+
+/// What became of one object of a scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ObjectResult {
+    /// The object, its truth and what a certified system makes of it.
+    pub object: CertObject,
+    /// What the station said where it stands.
+    pub outcome: Outcome,
+    /// Whether its label's text was read by any camera; `None` without a label.
+    pub code_read: Option<bool>,
+    /// The parcel matched to it also holds another object 20 mm or more from it.
+    pub merged: bool,
+    /// Parcels reported that match no object, nearest to this one.
+    pub phantoms: usize,
+}
+
+impl ObjectResult {
+    /// Reported minus true, mm, per axis; `None` without a number.
+    pub fn reported_errors(&self) -> Option<[f64; 3]> {
+        let t = truth_mm(&self.object.truth);
+        match &self.outcome {
+            Outcome::Measured { reported, .. } => Some([0, 1, 2].map(|k| reported[k] - t[k])),
+            _ => None,
+        }
+    }
+
+    /// Measured (unrounded) minus true, mm.
+    pub fn raw_errors(&self) -> Option<[f64; 3]> {
+        let t = truth_mm(&self.object.truth);
+        match &self.outcome {
+            Outcome::Measured { raw, .. } => Some([0, 1, 2].map(|k| raw[k] - t[k])),
+            _ => None,
+        }
+    }
+
+    /// A number on every axis within `factor` divisions of the truth.
+    fn within(&self, billing: &Billing, factor: f64) -> bool {
+        let t = truth_mm(&self.object.truth);
+        self.reported_errors().is_some_and(|e| {
+            (0..3).all(|k| e[k].abs() <= factor * billing.division.of(t[k]) + 1e-6)
+        })
+    }
+
+    /// Measured within 1 d on each axis.
+    pub fn within_1d(&self, billing: &Billing) -> bool {
+        self.within(billing, 1.0)
+    }
+
+    /// A number more than 2 d from the truth, with no flag (the lane set's measure).
+    pub fn silently_wrong(&self, billing: &Billing) -> bool {
+        self.reported_errors().is_some() && !self.within(billing, 2.0)
+    }
+
+    /// Accepted, measured within 1 d on each axis, and its code (if it has a label) read.
+    pub fn first_pass(&self, billing: &Billing) -> bool {
+        self.object.accepted() && self.within_1d(billing) && self.code_read != Some(false)
+    }
+
+    /// Accepted and refused.
+    pub fn false_refusal(&self) -> bool {
+        self.object.accepted() && matches!(self.outcome, Outcome::Refused(_))
+    }
+
+    /// The classes it counts in, as (class, value).
+    pub fn classes(&self, cameras: usize) -> [(&'static str, String); 6] {
+        let o = &self.object;
+        let spacing = match o.judged.gap_m {
+            None => "alone".to_owned(),
+            Some(g) => {
+                let mm = g * 1e3 + 0.5;
+                let bucket = SPACINGS_MM
+                    .iter()
+                    .rev()
+                    .find(|s| **s <= mm)
+                    .copied()
+                    .unwrap_or(0.0);
+                format!("{bucket:.0} mm")
+            }
+        };
+        [
+            ("shape", o.truth.kind.name().to_owned()),
+            ("surface", o.surface.name().to_owned()),
+            ("height", if o.flat { "flat" } else { "tall" }.to_owned()),
+            ("spacing", spacing),
+            ("cameras", cameras.to_string()),
+            (
+                "label",
+                o.label.as_ref().map_or_else(
+                    || "none".to_owned(),
+                    |l| format!("{:?}", l.kind).to_lowercase(),
+                ),
+            ),
+        ]
+    }
+}
+
+fn truth_mm(t: &Truth) -> [f64; 3] {
+    [t.length_mm(), t.width_mm(), t.height_mm()]
+}
+
+/// One scene's measurement.
+#[derive(Debug, Clone)]
+pub struct Row {
+    /// The scene's index in the set.
+    pub index: usize,
+    /// Its cameras.
+    pub cameras: usize,
+    /// The spacing of its group, mm (`None`: one object).
+    pub spacing_mm: Option<f64>,
+    /// Its objects.
+    pub objects: Vec<ObjectResult>,
+    /// Parcels reported that match no object.
+    pub phantoms: usize,
+    /// The measurement's cycle (grabs and geometry), ms.
+    pub cycle_ms: f64,
+    /// Reading the codes, ms.
+    pub codes_ms: f64,
+    /// Why nothing could be measured.
+    pub error: Option<String>,
+}
+
+/// Share of `t`'s footprint that `fit`'s footprint covers, from a grid of 15 x 15
+/// points over it (a point within 5 mm of the fit's footprint counts).
+fn covered(t: &Truth, fit: &ParcelFit) -> f64 {
+    const N: usize = 15;
+    let [c0, c1, _, c3] = t.footprint;
+    let mut inside = 0;
+    for i in 0..N {
+        for j in 0..N {
+            let (a, b) = ((i as f64 + 0.5) / N as f64, (j as f64 + 0.5) / N as f64);
+            let p = [
+                c0[0] + a * (c1[0] - c0[0]) + b * (c3[0] - c0[0]),
+                c0[1] + a * (c1[1] - c0[1]) + b * (c3[1] - c0[1]),
+            ];
+            inside += usize::from(outside(&fit.dimensions.corners_m, p) <= 0.005);
+        }
+    }
+    inside as f64 / (N * N) as f64
+}
+
+/// For each truth, the fit covering most of its footprint (`None` when no fit covers
+/// any of it); and the fits no truth took (phantoms), by index.
+fn assign(truths: &[Truth], fits: &[ParcelFit]) -> (Vec<Option<usize>>, Vec<usize>) {
+    let matched: Vec<Option<usize>> = truths
+        .iter()
+        .map(|t| {
+            fits.iter()
+                .enumerate()
+                .map(|(i, f)| (i, covered(t, f)))
+                .filter(|(_, c)| *c > 0.0)
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(i, _)| i)
+        })
+        .collect();
+    let phantoms = (0..fits.len())
+        .filter(|i| !matched.contains(&Some(*i)))
+        .collect();
+    (matched, phantoms)
+}
+
+/// What the station's `fit` says, as an outcome.
+fn outcome(fit: &ParcelFit, config: &Config) -> Outcome {
+    let report = ParcelReport::new(fit, &config.billing, config.dimension.min_coverage);
+    match (
+        report.reason,
+        report.length_mm,
+        report.width_mm,
+        report.height_mm,
+    ) {
+        (None, Some(l), Some(w), Some(h)) => {
+            let d = &fit.dimensions;
+            Outcome::Measured {
+                raw: [d.length_mm, d.width_mm, d.height_mm],
+                reported: [l, w, h],
+                shape: report.shape,
+            }
+        }
+        (reason, ..) => Outcome::Refused(reason.unwrap_or_default()),
+    }
+}
+
+/// The centre of a fit's footprint.
+fn centre(fit: &ParcelFit) -> [f64; 2] {
+    let c = &fit.dimensions.corners_m;
+    [0, 1].map(|k| c.iter().map(|p| p[k]).sum::<f64>() / 4.0)
+}
+
+/// Holds what the station measured (`fits`) and read (`codes`, the texts) against the
+/// objects of `cert`.
+pub fn judge_scene(
+    cert: &CertScene,
+    fits: &[ParcelFit],
+    codes: &[String],
+    config: &Config,
+) -> (Vec<ObjectResult>, usize) {
+    let truths: Vec<Truth> = cert.objects.iter().map(|o| o.truth).collect();
+    let (matched, phantoms) = assign(&truths, fits);
+    let mut results: Vec<ObjectResult> = cert
+        .objects
+        .iter()
+        .enumerate()
+        .map(|(i, o)| {
+            let merged = matched[i].is_some_and(|f| {
+                (0..truths.len()).any(|j| {
+                    j != i
+                        && matched[j] == Some(f)
+                        && footprint_gap(&truths[i].footprint, &truths[j].footprint)
+                            >= MIN_SPACING_M - 1e-9
+                })
+            });
+            ObjectResult {
+                object: o.clone(),
+                outcome: matched[i].map_or(Outcome::Missing, |f| outcome(&fits[f], config)),
+                code_read: o.label.as_ref().map(|l| codes.contains(&l.text)),
+                merged,
+                phantoms: 0,
+            }
+        })
+        .collect();
+    for &p in &phantoms {
+        let at = centre(&fits[p]);
+        let nearest = (0..truths.len()).min_by(|a, b| {
+            outside(&truths[*a].footprint, at).total_cmp(&outside(&truths[*b].footprint, at))
+        });
+        if let Some(n) = nearest {
+            results[n].phantoms += 1;
+        }
+    }
+    (results, phantoms.len())
+}
+
+/// Measures scene `cert` through `client`: prepares its cameras (roi above the floor,
+/// spatial filter, color at 1920x1080), measures, reads the codes.
+async fn measure_scene(
+    client: &CamClient,
+    cert: &CertScene,
+    config: &Config,
+) -> anyhow::Result<Row> {
+    let serials: Vec<String> = cert
+        .scene
+        .cameras
+        .iter()
+        .map(|c| c.serial.to_string())
+        .collect();
+    prepare_cameras(client, &serials, 1.0, true).await?;
+    let mut row = Row {
+        index: cert.index,
+        cameras: serials.len(),
+        spacing_mm: cert.spacing_mm,
+        objects: Vec::new(),
+        phantoms: 0,
+        cycle_ms: f64::NAN,
+        codes_ms: f64::NAN,
+        error: None,
+    };
+    let failed = |row: &mut Row, e: &anyhow::Error| {
+        row.error = Some(crate::error_text(e));
+        row.objects = cert
+            .objects
+            .iter()
+            .map(|o| ObjectResult {
+                object: o.clone(),
+                outcome: Outcome::Missing,
+                code_read: o.label.as_ref().map(|_| false),
+                merged: false,
+                phantoms: 0,
+            })
+            .collect();
+    };
+    let m = match measure::measure_once(client, &Source::All, &config.dimension).await {
+        Ok(m) => m,
+        Err(e) => {
+            failed(&mut row, &e);
+            return Ok(row);
+        }
+    };
+    row.cycle_ms = m.cycle.as_secs_f64() * 1e3;
+    let started = Instant::now();
+    let seen = match codes::read_cameras(client, &m.grabbed.cameras).await {
+        Ok(seen) => seen,
+        Err(e) => {
+            failed(&mut row, &e);
+            return Ok(row);
+        }
+    };
+    row.codes_ms = started.elapsed().as_secs_f64() * 1e3;
+    let texts: Vec<String> = seen.into_iter().map(|s| s.code.text).collect();
+    let (objects, phantoms) = judge_scene(cert, &m.table.fits, &texts, config);
+    row.objects = objects;
+    row.phantoms = phantoms;
+    Ok(row)
+}
+
+/// Runs scenes `first .. first + scenes` of the set one after the other, handing each row
+/// to `on_row` as it is measured; every row.
+pub async fn run(
+    config: &Config,
+    mut on_row: impl FnMut(&Row) -> anyhow::Result<()>,
+) -> anyhow::Result<Vec<Row>> {
+    if config.scenes == 0 {
+        bail!("--scenes must be at least 1");
+    }
+    let state = std::env::temp_dir().join(format!("coapcam-bench-cert-{}", std::process::id()));
+    let first = cert_scene(config.seed, config.first);
+    let server =
+        SceneServer::start(&first.scene, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
+    let mut rows = Vec::new();
+    for index in config.first..config.first + config.scenes {
+        let cert = if index == config.first {
+            first.clone()
+        } else {
+            let next = cert_scene(config.seed, index);
+            server.load(&next.scene)?;
+            next
+        };
+        // A socket of its own per scene, as the lane set (message IDs).
+        let client = CamClient::at(server.addr()?, Duration::from_secs(60))?;
+        let row = measure_scene(&client, &cert, config).await?;
+        on_row(&row)?;
+        rows.push(row);
+    }
+    drop(server);
+    std::fs::remove_dir_all(&state).ok();
+    Ok(rows)
+}
+
+/// What the objects of one class say together.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClassSummary {
+    /// The class (`all`, `shape`, `surface`, `height`, `spacing`, `cameras`, `label`).
+    pub class: &'static str,
+    /// Its value (`box`, `black`, `20 mm`, `3`, ...).
+    pub value: String,
+    /// Objects.
+    pub objects: usize,
+    /// Of them, accepted by a certified system.
+    pub accepted: usize,
+    /// Accepted, within 1 d and read.
+    pub first_pass: usize,
+    /// Accepted and refused.
+    pub false_refusals: usize,
+    /// Accepted, given a number more than 1 d off on some axis.
+    pub off: usize,
+    /// Accepted, labelled, the code not read.
+    pub unread: usize,
+    /// Labelled objects whose code was read (accepted or not), and labelled objects.
+    pub read: [usize; 2],
+    /// Not found where they stand, or the scene failed.
+    pub missing: usize,
+    /// In a pair 20 mm or more apart measured as one parcel.
+    pub merged: usize,
+    /// Phantom parcels nearest to these objects.
+    pub phantoms: usize,
+    /// A number more than 2 d off, with no flag.
+    pub silently_wrong: usize,
+}
+
+impl ClassSummary {
+    /// First pass as a share of the accepted, percent (NaN with none accepted).
+    pub fn first_pass_pct(&self) -> f64 {
+        if self.accepted == 0 {
+            f64::NAN
+        } else {
+            100.0 * self.first_pass as f64 / self.accepted as f64
+        }
+    }
+
+    fn of<'a>(
+        class: &'static str,
+        value: String,
+        objects: impl Iterator<Item = &'a ObjectResult>,
+        billing: &Billing,
+    ) -> Self {
+        let mut s = Self {
+            class,
+            value,
+            objects: 0,
+            accepted: 0,
+            first_pass: 0,
+            false_refusals: 0,
+            off: 0,
+            unread: 0,
+            read: [0, 0],
+            missing: 0,
+            merged: 0,
+            phantoms: 0,
+            silently_wrong: 0,
+        };
+        for o in objects {
+            let accepted = o.object.accepted();
+            s.objects += 1;
+            s.accepted += usize::from(accepted);
+            s.first_pass += usize::from(o.first_pass(billing));
+            s.false_refusals += usize::from(o.false_refusal());
+            s.off +=
+                usize::from(accepted && o.reported_errors().is_some() && !o.within_1d(billing));
+            s.unread += usize::from(accepted && o.code_read == Some(false));
+            if let Some(read) = o.code_read {
+                s.read[0] += usize::from(read);
+                s.read[1] += 1;
+            }
+            s.missing += usize::from(o.outcome == Outcome::Missing);
+            s.merged += usize::from(o.merged);
+            s.phantoms += o.phantoms;
+            s.silently_wrong += usize::from(o.silently_wrong(billing));
+        }
+        s
+    }
+
+    /// Every class of `rows`: `all` first, then each class's values in a fixed order.
+    pub fn all(rows: &[Row], billing: &Billing) -> Vec<Self> {
+        let objects: Vec<(&ObjectResult, usize)> = rows
+            .iter()
+            .flat_map(|r| r.objects.iter().map(move |o| (o, r.cameras)))
+            .collect();
+        let mut out = vec![Self::of(
+            "all",
+            "all".to_owned(),
+            objects.iter().map(|(o, _)| *o),
+            billing,
+        )];
+        for k in 0..6 {
+            let mut values: Vec<(&'static str, String)> = Vec::new();
+            for (o, cameras) in &objects {
+                let c = o.classes(*cameras)[k].clone();
+                if !values.contains(&c) {
+                    values.push(c);
+                }
+            }
+            values.sort_by(|a, b| order(&a.1).cmp(&order(&b.1)).then(a.1.cmp(&b.1)));
+            for (class, value) in values {
+                let of = objects
+                    .iter()
+                    .filter(|(o, cameras)| o.classes(*cameras)[k].1 == value)
+                    .map(|(o, _)| *o);
+                out.push(Self::of(class, value.clone(), of, billing));
+            }
+        }
+        out
+    }
+}
+
+/// Sort key of a class value: spacings by their number, `alone` last.
+fn order(value: &str) -> (u8, u64) {
+    if value == "alone" {
+        return (2, 0);
+    }
+    match value.trim_end_matches(" mm").parse::<u64>() {
+        Ok(n) => (1, n),
+        Err(_) => (0, 0),
+    }
+}

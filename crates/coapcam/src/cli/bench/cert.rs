@@ -1,0 +1,229 @@
+//! `bench accuracy --set cert`: a line per scene, then per class the first-pass rate and
+//! what kept the rest from it (or one JSON object).
+
+use super::super::{Exit, outln};
+use super::{AccuracyArgs, finite};
+use coapcam::bench::accuracy::cert::{self, ClassSummary, ObjectResult, Row};
+use coapcam::bench::accuracy::lane::Outcome;
+use coapcam::report::{Billing, Division};
+
+/// One object in a scene's line: kind, truth, and what became of it.
+fn describe(o: &ObjectResult, billing: &Billing) -> String {
+    let t = &o.object.truth;
+    let mut text = format!(
+        "{} {} {:.0}x{:.0}x{:.0}",
+        o.object.surface.name(),
+        t.kind.name(),
+        t.length_mm(),
+        t.width_mm(),
+        t.height_mm()
+    );
+    if !o.object.accepted() {
+        let j = &o.object.judged;
+        let why: Vec<&str> = [
+            (!j.isolated(), "close"),
+            (!j.in_view, "out of view"),
+            (!j.returns_depth, "no depth"),
+        ]
+        .iter()
+        .filter(|(b, _)| *b)
+        .map(|(_, w)| *w)
+        .collect();
+        text.push_str(&format!(" (not accepted: {})", why.join(", ")));
+    }
+    text.push_str(": ");
+    text.push_str(&match (&o.outcome, o.raw_errors()) {
+        (Outcome::Measured { .. }, Some(e)) => format!(
+            "{:+.1} {:+.1} {:+.1} mm{}",
+            e[0],
+            e[1],
+            e[2],
+            if o.silently_wrong(billing) {
+                " SILENTLY WRONG"
+            } else if !o.within_1d(billing) {
+                " OFF"
+            } else {
+                ""
+            }
+        ),
+        (Outcome::Refused(why), _) => format!("refused: {why}"),
+        _ => "MISSING".to_owned(),
+    });
+    match o.code_read {
+        Some(true) => text.push_str(", code read"),
+        Some(false) => text.push_str(", CODE UNREAD"),
+        None => {}
+    }
+    if o.merged {
+        text.push_str(", MERGED");
+    }
+    if o.phantoms > 0 {
+        text.push_str(&format!(", {} PHANTOM", o.phantoms));
+    }
+    text
+}
+
+fn print_row(row: &Row, billing: &Billing) -> anyhow::Result<()> {
+    let each: Vec<String> = row.objects.iter().map(|o| describe(o, billing)).collect();
+    let failed = row
+        .error
+        .as_deref()
+        .map_or(String::new(), |e| format!(" FAILED: {e}"));
+    let spacing = row
+        .spacing_mm
+        .map_or_else(|| "alone".to_owned(), |s| format!("{s:.0} mm"));
+    outln!(
+        "scene {:>3} {} cam {:>6} {:>5.0} ms  {}{failed}",
+        row.index,
+        row.cameras,
+        spacing,
+        row.cycle_ms,
+        each.join("; ")
+    );
+    Ok(())
+}
+
+fn json_object(o: &ObjectResult, billing: &Billing) -> serde_json::Value {
+    let t = &o.object.truth;
+    let j = &o.object.judged;
+    let outcome = match &o.outcome {
+        Outcome::Measured {
+            raw,
+            reported,
+            shape,
+        } => {
+            serde_json::json!({"measured": raw, "reported": reported, "shape": shape})
+        }
+        Outcome::Refused(why) => serde_json::json!({"refused": why}),
+        Outcome::Missing => serde_json::json!({"missing": true}),
+    };
+    serde_json::json!({
+        "kind": t.kind.name(), "surface": o.object.surface.name(), "flat": o.object.flat,
+        "truth": [t.length_mm(), t.width_mm(), t.height_mm()], "center_m": t.center,
+        "label": o.object.label.as_ref().map(|l| serde_json::json!({
+            "kind": format!("{:?}", l.kind).to_lowercase(), "text": l.text, "size_m": l.size})),
+        "gap_mm": j.gap_m.map(|g| g * 1e3), "in_view": j.in_view,
+        "returns_depth": j.returns_depth, "accepted": j.accepted(),
+        "outcome": outcome, "code_read": o.code_read, "merged": o.merged,
+        "phantoms": o.phantoms, "first_pass": o.first_pass(billing),
+        "silently_wrong": o.silently_wrong(billing),
+    })
+}
+
+/// Runs `bench accuracy --set cert`.
+pub(super) async fn run(args: AccuracyArgs) -> anyhow::Result<Exit> {
+    if args.calibrate || args.raw || args.repeat != 1 {
+        anyhow::bail!("--set cert takes neither --calibrate, --raw nor --repeat");
+    }
+    let billing = Billing {
+        division: Division {
+            d_mm: args.division_mm,
+        },
+        ..Billing::default()
+    };
+    let config = cert::Config {
+        scenes: args
+            .scenes
+            .map_or(rgbd::cert::CERT_SET_SIZE, |n| n as usize),
+        first: args.first as usize,
+        seed: args.seed,
+        dimension: args.dimension.config(),
+        billing,
+    };
+    let rows = cert::run(&config, |row| {
+        if args.json {
+            Ok(())
+        } else {
+            print_row(row, &billing)
+        }
+    })
+    .await?;
+    let classes = ClassSummary::all(&rows, &billing);
+    let phantoms: usize = rows.iter().map(|r| r.phantoms).sum();
+    let failed = rows.iter().filter(|r| r.error.is_some()).count();
+    if args.json {
+        let scenes: Vec<serde_json::Value> = rows
+            .iter()
+            .map(|r| {
+                let objects: Vec<serde_json::Value> =
+                    r.objects.iter().map(|o| json_object(o, &billing)).collect();
+                serde_json::json!({"scene": r.index, "cameras": r.cameras,
+                    "spacing_mm": r.spacing_mm, "cycle_ms": finite(r.cycle_ms),
+                    "codes_ms": finite(r.codes_ms), "error": r.error, "phantoms": r.phantoms,
+                    "objects": objects})
+            })
+            .collect();
+        let summary: Vec<serde_json::Value> = classes
+            .iter()
+            .map(|c| {
+                serde_json::json!({"class": c.class, "value": c.value, "objects": c.objects,
+                    "accepted": c.accepted, "first_pass": c.first_pass,
+                    "first_pass_pct": finite(c.first_pass_pct()),
+                    "false_refusals": c.false_refusals, "off": c.off, "unread": c.unread,
+                    "codes_read": c.read[0], "labelled": c.read[1], "missing": c.missing,
+                    "merged": c.merged, "phantoms": c.phantoms,
+                    "silently_wrong": c.silently_wrong})
+            })
+            .collect();
+        outln!(
+            "{}",
+            serde_json::json!({"set": "cert", "seed": args.seed, "first": args.first,
+                "division_mm": args.division_mm, "scenes": scenes, "classes": summary,
+                "failed": failed})
+        );
+    } else {
+        outln!("");
+        outln!(
+            "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6} {:>4} {:>4} {:>6} {:>9} {:>4} {:>6} {:>7} {:>6}",
+            "class",
+            "value",
+            "n",
+            "acc",
+            "pass",
+            "pass%",
+            "ref",
+            "off",
+            "unread",
+            "read",
+            "miss",
+            "merged",
+            "phantom",
+            "silent"
+        );
+        for c in &classes {
+            outln!(
+                "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6.1} {:>4} {:>4} {:>6} {:>9} {:>4} {:>6} {:>7} {:>6}",
+                c.class,
+                c.value,
+                c.objects,
+                c.accepted,
+                c.first_pass,
+                c.first_pass_pct(),
+                c.false_refusals,
+                c.off,
+                c.unread,
+                format!("{}/{}", c.read[0], c.read[1]),
+                c.missing,
+                c.merged,
+                c.phantoms,
+                c.silently_wrong
+            );
+        }
+        outln!(
+            "acc = accepted by a certified system (isolated by 20 mm, wholly in a camera's view, \
+             returning depth); pass = accepted, every reported dimension within 1 d (d = {} mm) \
+             and its code read; ref = accepted but refused; off = accepted, a number more than 1 d \
+             off; unread = accepted, its code not read; read = codes read / labels (all objects); \
+             merged = in a pair 20 mm or more apart measured as one; silent = a number more than \
+             2 d off with no flag. {} scenes, {phantoms} phantom parcels, {failed} failed.",
+            args.division_mm,
+            rows.len()
+        );
+    }
+    let all = &classes[0];
+    Ok(if all.silently_wrong == 0 && failed == 0 {
+        Exit::Success
+    } else {
+        Exit::Failure
+    })
+}

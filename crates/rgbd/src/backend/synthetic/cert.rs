@@ -1,0 +1,672 @@
+//! The certification set: seeded random stations and parcels built the way a type test
+//! of a dimensioner (OIML R 129 style) would build them, and, from the scene alone, what
+//! a certified system is expected to accept. Scene `index` of seed `seed` is always the
+//! same scene and depends on nothing but the two numbers, so a seed kept back is a set
+//! that no one has seen.
+//!
+//! A station has 1 to 4 calibrated D415s (noise `"d415"`), each 1.0 to 2.2 m above the
+//! floor, tilted 0 to 45 degrees from straight down towards a point near the middle of
+//! the table, from any side, its image turned at random about its axis. The color
+//! sensors blur about 1 pixel (0.8 to 1.2), as real lenses do.
+//!
+//! On the table stands one object, or a group of 2 to 4 in a row with one spacing
+//! between neighbours (0, 10, 20, 30, 50, 80 or 120 mm between their enclosing
+//! footprints along the row): boxes, standing cylinders, lying tubes and polybags, flat
+//! (20 to 50 mm high) or tall, 50 mm (10 d at d = 5) long and wide up to the largest the
+//! cameras' view allows (drawn large and made smaller until the group is in view), turned
+//! at random, with a surface of cardboard, white, black (reflectivity 0.05 to 0.5),
+//! glossy (gloss 0.4 to 1) or a bright colour. Every box carries a label of a symbology
+//! from [`SYMBOLOGIES`] and a random size that fits its top face; cylinders, tubes and
+//! bags carry none (the synthetic scene puts labels on boxes only).
+//!
+//! [`judge`] decides, from any scene, what a certified system accepts: an object isolated
+//! by [`MIN_SPACING_M`] or more from every other, wholly inside the view of at least one
+//! camera, and returning depth.
+
+use super::d415;
+use super::lane::{Draw, serial_digits};
+use super::render::{SIGNAL_FULL, mix64};
+use super::scene::{
+    Bag, ColorSensor, Cylinder, Finish, Floor, Label, LabelKind, Noise, ObjectKind, Scene,
+    SceneBox, SceneCamera, Timeline, Truth, Tube,
+};
+use crate::camera::Serial;
+
+/// The symbologies the set's labels are drawn from. A new one is one more entry here
+/// (and its text in `label_text`).
+pub const SYMBOLOGIES: &[LabelKind] = &[LabelKind::Qr, LabelKind::Code128];
+
+/// The spacings of a group, millimetres between neighbouring footprints along its row.
+pub const SPACINGS_MM: [f64; 7] = [0.0, 10.0, 20.0, 30.0, 50.0, 80.0, 120.0];
+
+/// The least gap between an object's footprint and every other one for a certified
+/// system to measure it as a parcel of its own (Datalogic DM3610, Hikrobot: 20 mm).
+pub const MIN_SPACING_M: f64 = 0.02;
+
+/// The number of scenes `bench accuracy --set cert` measures by default.
+pub const CERT_SET_SIZE: usize = 500;
+
+/// Lowest and highest camera above the floor, metres.
+pub const CAMERA_Z_M: [f64; 2] = [1.0, 2.2];
+/// Largest tilt of a camera from straight down, degrees.
+pub const MAX_TILT_DEG: f64 = 45.0;
+/// Blur of the color sensors, pixels.
+pub const BLUR_PX: [f64; 2] = [0.8, 1.2];
+/// Half the side of the square on the table the objects stay in, metres (inside the
+/// region `measure --prepare` keeps, 1 m either side of the origin).
+const TABLE_HALF_M: f64 = 0.95;
+/// Pixels an object's corners keep from the image's edges to count as in view.
+const EDGE_PX: f64 = 1.0;
+/// Depth image the view is judged in (the D415's default 1280x720).
+const DEPTH_SIZE: [u32; 2] = [1280, 720];
+
+/// What an object's surface is made of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Surface {
+    /// Matte browns and greys.
+    Cardboard,
+    /// Matte white.
+    White,
+    /// Black: dark in color, reflectivity 0.05 to 0.5 in the infrared.
+    Black,
+    /// A cardboard colour with gloss 0.4 to 1.
+    Glossy,
+    /// A matte, bright, saturated colour.
+    Coloured,
+}
+
+impl Surface {
+    /// Every surface.
+    pub const ALL: [Self; 5] = [
+        Self::Cardboard,
+        Self::White,
+        Self::Black,
+        Self::Glossy,
+        Self::Coloured,
+    ];
+
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Cardboard => "cardboard",
+            Self::White => "white",
+            Self::Black => "black",
+            Self::Glossy => "glossy",
+            Self::Coloured => "coloured",
+        }
+    }
+}
+
+/// One object of a scene: its truth, how it was made, and what a certified system would
+/// make of it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CertObject {
+    /// Its smallest enclosing upright cuboid.
+    pub truth: Truth,
+    /// Its surface.
+    pub surface: Surface,
+    /// Whether it is flat (20 to 50 mm high).
+    pub flat: bool,
+    /// Its label (boxes only).
+    pub label: Option<Label>,
+    /// What [`judge`] says.
+    pub judged: Judged,
+}
+
+impl CertObject {
+    /// Whether a certified system measures it ([`Judged::accepted`]).
+    pub fn accepted(&self) -> bool {
+        self.judged.accepted()
+    }
+}
+
+/// One scene of the set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CertScene {
+    /// Its index in the set.
+    pub index: usize,
+    /// The scene.
+    pub scene: Scene,
+    /// Its objects, in the order of [`Scene::truths`].
+    pub objects: Vec<CertObject>,
+    /// The spacing its group was built with, mm; `None` for one object alone.
+    pub spacing_mm: Option<f64>,
+}
+
+/// What a certified system would make of one object of a scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Judged {
+    /// The gap from its enclosing footprint to the nearest other object's, metres (0 when
+    /// they touch or overlap); `None` when it stands alone.
+    pub gap_m: Option<f64>,
+    /// Every corner of its enclosing cuboid lies inside the depth image of at least one
+    /// camera, in front of it and beyond its minimum range.
+    pub in_view: bool,
+    /// Its top returns depth everywhere to a camera that has it in view: the light coming
+    /// back from the top's centre (reflectivity x cos(incidence) / distance^2) is at
+    /// least what the D415 needs to lose no pixel.
+    pub returns_depth: bool,
+}
+
+impl Judged {
+    /// Whether it is isolated: alone, or [`MIN_SPACING_M`] or more from every other.
+    pub fn isolated(&self) -> bool {
+        self.gap_m.is_none_or(|g| g >= MIN_SPACING_M - 1e-9)
+    }
+
+    /// Isolated, in view and returning depth: a parcel a certified system measures.
+    pub fn accepted(&self) -> bool {
+        self.isolated() && self.in_view && self.returns_depth
+    }
+}
+
+/// The first `count` scenes of the set of `seed`.
+pub fn cert_set(seed: u64, count: usize) -> Vec<CertScene> {
+    (0..count).map(|i| cert_scene(seed, i)).collect()
+}
+
+/// Where camera `c` sees world point `p` in its depth image (pixels) and how far in front
+/// of it (metres along its axis); `None` without a pose.
+fn project(c: &SceneCamera, p: [f64; 3]) -> Option<([f64; 2], f64)> {
+    let pose = c.pose()?;
+    let d = [0, 1, 2].map(|i| p[i] - pose.translation[i]);
+    let r = pose.rotation;
+    let q = [0, 1, 2].map(|j| r[0][j] * d[0] + r[1][j] * d[1] + r[2][j] * d[2]);
+    let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
+    if q[2] <= 0.0 {
+        return None;
+    }
+    let uv = [
+        f64::from(k.fx) * q[0] / q[2] + f64::from(k.ppx),
+        f64::from(k.fy) * q[1] / q[2] + f64::from(k.ppy),
+    ];
+    Some((uv, q[2]))
+}
+
+/// Whether camera `c` has every corner of `t`'s enclosing cuboid in its depth image.
+fn sees_whole(c: &SceneCamera, t: &Truth) -> bool {
+    let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
+    let near = f64::from(d415::min_range_m(k.fx));
+    let far = f64::from(d415::MAX_RANGE_M);
+    let (w, h) = (f64::from(DEPTH_SIZE[0]), f64::from(DEPTH_SIZE[1]));
+    t.footprint
+        .iter()
+        .flat_map(|f| [[f[0], f[1], 0.0], [f[0], f[1], t.size[2]]])
+        .all(|p| {
+            project(c, p).is_some_and(|(uv, z)| {
+                z > near
+                    && z < far
+                    && (EDGE_PX..w - EDGE_PX).contains(&uv[0])
+                    && (EDGE_PX..h - EDGE_PX).contains(&uv[1])
+            })
+        })
+}
+
+/// The finish of the object `t` describes.
+fn finish_of(scene: &Scene, t: &Truth) -> Finish {
+    match t.kind {
+        ObjectKind::Box => scene.boxes[t.index].finish,
+        ObjectKind::Cylinder => scene.cylinders[t.index].finish,
+        ObjectKind::Tube => scene.tubes[t.index].finish,
+        _ => scene.bags[t.index].finish,
+    }
+}
+
+/// Gap between two convex footprints (corners in order around each), metres; 0 when they
+/// touch or overlap.
+pub fn footprint_gap(a: &[[f64; 2]; 4], b: &[[f64; 2]; 4]) -> f64 {
+    separation(a, b).max(0.0)
+}
+
+/// The gap between two convex footprints when they are apart; when they overlap, minus
+/// how far they overlap along the axis that separates them best.
+fn separation(a: &[[f64; 2]; 4], b: &[[f64; 2]; 4]) -> f64 {
+    // Separating axes: the edges' normals of both.
+    let mut best = f64::NEG_INFINITY;
+    for poly in [a, b] {
+        for i in 0..4 {
+            let (p, q) = (poly[i], poly[(i + 1) % 4]);
+            let len = (q[0] - p[0]).hypot(q[1] - p[1]).max(1e-12);
+            let n = [(q[1] - p[1]) / len, (p[0] - q[0]) / len];
+            let along = |c: &[f64; 2]| c[0] * n[0] + c[1] * n[1];
+            let range = |r: &[[f64; 2]; 4]| {
+                r.iter()
+                    .map(along)
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                        (lo.min(v), hi.max(v))
+                    })
+            };
+            let ((a0, a1), (b0, b1)) = (range(a), range(b));
+            best = best.max((b0 - a1).max(a0 - b1));
+        }
+    }
+    if best <= 0.0 {
+        return best;
+    }
+    let to_segment = |p: [f64; 2], s: [f64; 2], e: [f64; 2]| {
+        let d = [e[0] - s[0], e[1] - s[1]];
+        let len2 = (d[0] * d[0] + d[1] * d[1]).max(1e-18);
+        let t = (((p[0] - s[0]) * d[0] + (p[1] - s[1]) * d[1]) / len2).clamp(0.0, 1.0);
+        (p[0] - s[0] - t * d[0]).hypot(p[1] - s[1] - t * d[1])
+    };
+    let mut best = f64::INFINITY;
+    for (from, to) in [(a, b), (b, a)] {
+        for p in from {
+            for i in 0..4 {
+                best = best.min(to_segment(*p, to[i], to[(i + 1) % 4]));
+            }
+        }
+    }
+    best
+}
+
+/// What a certified system would make of each object of `scene`, in the order of
+/// [`Scene::truths`].
+pub fn judge(scene: &Scene) -> Vec<Judged> {
+    let truths = scene.truths();
+    truths
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let gap_m = truths
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, o)| footprint_gap(&t.footprint, &o.footprint))
+                .reduce(f64::min);
+            let seeing: Vec<&SceneCamera> =
+                scene.cameras.iter().filter(|c| sees_whole(c, t)).collect();
+            let reflectivity = finish_of(scene, t).reflectivity;
+            let top = [t.center[0], t.center[1], t.size[2]];
+            let returns_depth = seeing.iter().any(|c| {
+                let d = [0, 1, 2].map(|k| c.position[k] - top[k]);
+                let distance = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                let signal = reflectivity * (d[2] / distance).max(0.0) / (distance * distance);
+                reflectivity >= 1.0 || signal >= f64::from(SIGNAL_FULL)
+            });
+            Judged {
+                gap_m,
+                in_view: !seeing.is_empty(),
+                returns_depth,
+            }
+        })
+        .collect()
+}
+
+/// The station: 1 to 4 cameras around a point near the middle of the table.
+fn station(draw: &mut Draw) -> (Vec<SceneCamera>, [f64; 2]) {
+    let count = 1 + (draw.next() % 4) as usize;
+    let middle = [draw.uniform(-0.1, 0.1), draw.uniform(-0.1, 0.1)];
+    let azimuth = draw.uniform(0.0, 360.0);
+    let cameras = (0..count)
+        .map(|k| {
+            let z = draw.uniform(CAMERA_Z_M[0], CAMERA_Z_M[1]);
+            let tilt = draw.uniform(0.0, MAX_TILT_DEG).to_radians();
+            let turn = (azimuth + 360.0 * k as f64 / count as f64 + draw.uniform(-25.0, 25.0))
+                .to_radians();
+            let look = [
+                middle[0] + draw.uniform(-0.1, 0.1),
+                middle[1] + draw.uniform(-0.1, 0.1),
+            ];
+            let out = z * tilt.tan();
+            let roll = draw.uniform(0.0, 360.0).to_radians();
+            SceneCamera {
+                serial: Serial::from_digits(serial_digits(840_412_062_000 + k as u64)),
+                position: [look[0] + out * turn.cos(), look[1] + out * turn.sin(), z],
+                look_at: [look[0], look[1], 0.0],
+                // Horizontal, so never parallel to a view at most 45 degrees from
+                // straight down.
+                up: Some([roll.cos(), roll.sin(), 0.0]),
+                noise: Noise::D415,
+                calibrated: true,
+                stall_s: None,
+                color_sensor: ColorSensor::default(),
+            }
+        })
+        .collect();
+    (cameras, middle)
+}
+
+/// An object before it is placed: standing at the origin.
+#[derive(Debug, Clone)]
+enum Piece {
+    Box(SceneBox),
+    Cylinder(Cylinder),
+    Tube(Tube),
+    Bag(Bag),
+}
+
+impl Piece {
+    /// Length and width of its enclosing footprint and the yaw of the length, degrees.
+    fn footprint(&self) -> (f64, f64, f64) {
+        match self {
+            Self::Box(b) => (b.size[0], b.size[1], b.yaw_deg),
+            Self::Cylinder(c) => (2.0 * c.radius, 2.0 * c.radius, 0.0),
+            Self::Tube(t) => (t.length, 2.0 * t.radius, t.yaw_deg),
+            Self::Bag(b) => (b.size[0], b.size[1], b.yaw_deg),
+        }
+    }
+
+    /// Its extent along and across a row turned `row_deg`, metres.
+    fn extent(&self, row_deg: f64) -> (f64, f64) {
+        let (l, w, yaw) = self.footprint();
+        let (s, c) = (yaw - row_deg).to_radians().sin_cos();
+        (l * c.abs() + w * s.abs(), l * s.abs() + w * c.abs())
+    }
+
+    /// Its enclosing footprint's corners, in order around it, standing at `at`.
+    fn corners(&self, at: [f64; 2]) -> [[f64; 2]; 4] {
+        let (l, w, yaw) = self.footprint();
+        let (s, c) = yaw.to_radians().sin_cos();
+        [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]].map(|[a, b]: [f64; 2]| {
+            let (x, y) = (a * l / 2.0, b * w / 2.0);
+            [at[0] + x * c - y * s, at[1] + x * s + y * c]
+        })
+    }
+
+    fn place(&mut self, at: [f64; 2]) {
+        match self {
+            Self::Box(b) => b.center = at,
+            Self::Cylinder(c) => c.center = at,
+            Self::Tube(t) => t.center = at,
+            Self::Bag(b) => b.center = at,
+        }
+    }
+}
+
+const ALNUM: &[u8] = b"0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ";
+
+/// `n` random digits and capitals.
+fn alnum(draw: &mut Draw, n: usize) -> String {
+    (0..n)
+        .map(|_| char::from(ALNUM[(draw.next() % ALNUM.len() as u64) as usize]))
+        .collect()
+}
+
+/// A shipping label's text for symbology `kind`, unique in its scene by `k`.
+fn label_text(draw: &mut Draw, kind: LabelKind, k: usize) -> String {
+    match kind {
+        // A tracking number: 18 characters, as a carrier's.
+        LabelKind::Code128 => format!("1Z{k}{}", alnum(draw, 15)),
+        // A URL-like reference of 20 to 40 characters.
+        LabelKind::Qr => {
+            let n = 14 + (draw.next() % 21) as usize;
+            format!("PKG-{k}-{}", alnum(draw, n))
+        }
+    }
+}
+
+/// A label of a random symbology and size on a box top `length` x `width` (metres).
+fn label(draw: &mut Draw, k: usize, length: f64, width: f64) -> Label {
+    let kind = SYMBOLOGIES[(draw.next() % SYMBOLOGIES.len() as u64) as usize];
+    let text = label_text(draw, kind, k);
+    let mut label = Label {
+        kind,
+        text,
+        size: 1.0,
+        appear_s: None,
+        remove_s: None,
+    };
+    // Extent per metre of size, along the box's length and width.
+    let (lx, ly) = label.extent_m();
+    let wanted = match kind {
+        LabelKind::Qr => draw.uniform(0.03, 0.10),
+        LabelKind::Code128 => draw.uniform(0.06, 0.20),
+    };
+    label.size = wanted.min(0.9 * length / lx).min(0.9 * width / ly);
+    label
+}
+
+/// Surface, color and finish drawn for one object.
+fn surface(draw: &mut Draw) -> (Surface, [u8; 3], Finish) {
+    let surface = Surface::ALL[(draw.next() % Surface::ALL.len() as u64) as usize];
+    let mut finish = Finish::default();
+    let color = match surface {
+        Surface::Cardboard => draw.cardboard(),
+        Surface::White => {
+            let v = draw.uniform(225.0, 250.0) as u8;
+            [v, v, v]
+        }
+        Surface::Black => {
+            finish.reflectivity = draw.uniform(0.05, 0.5);
+            let v = draw.uniform(15.0, 40.0) as u8;
+            [v, v, v.saturating_add(3)]
+        }
+        Surface::Glossy => {
+            finish.gloss = draw.uniform(0.4, 1.0);
+            draw.cardboard()
+        }
+        Surface::Coloured => [
+            [200, 40, 40],
+            [40, 90, 200],
+            [40, 160, 70],
+            [230, 200, 40],
+            [230, 120, 30],
+        ][(draw.next() % 5) as usize],
+    };
+    (surface, color, finish)
+}
+
+/// One object standing at the origin, its length and width at most `largest`, its height
+/// at most `tallest` (metres); with its surface and whether it is flat.
+fn piece(draw: &mut Draw, k: usize, largest: f64, tallest: f64) -> (Piece, Surface, bool) {
+    const SMALLEST: f64 = 0.05;
+    let largest = largest.max(SMALLEST + 0.01);
+    let flat = draw.uniform(0.0, 1.0) < 0.3;
+    let mut height = if flat {
+        draw.uniform(0.02, 0.05)
+    } else {
+        draw.uniform(0.05, tallest.max(0.06))
+    };
+    let yaw_deg = draw.uniform(-90.0, 90.0);
+    let (surface, color, finish) = surface(draw);
+    let shape = draw.uniform(0.0, 1.0);
+    let timeline = Timeline::default();
+    let piece = if shape < 0.4 {
+        let length = draw.uniform(SMALLEST, largest);
+        let width = draw.uniform(SMALLEST, length);
+        Piece::Box(SceneBox {
+            size: [length, width, height],
+            center: [0.0, 0.0],
+            yaw_deg,
+            color,
+            label: Some(label(draw, k, length, width)),
+            finish,
+            timeline,
+        })
+    } else if shape < 0.6 {
+        Piece::Cylinder(Cylinder {
+            radius: draw.uniform(SMALLEST, largest.min(0.4)) / 2.0,
+            height,
+            center: [0.0, 0.0],
+            color,
+            finish,
+            timeline,
+        })
+    } else if shape < 0.8 {
+        // A tube is as high as it is wide: at least 10 d, never flat.
+        let diameter = draw.uniform(SMALLEST, largest.min(0.2));
+        height = diameter;
+        Piece::Tube(Tube {
+            radius: diameter / 2.0,
+            length: draw.uniform((2.0 * diameter).max(0.15), largest.max(0.16)),
+            center: [0.0, 0.0],
+            yaw_deg,
+            color,
+            finish,
+            timeline,
+        })
+    } else {
+        let length = draw.uniform(0.1, largest.max(0.11));
+        let width = draw.uniform(0.1, length);
+        height = height.min(0.3);
+        let mut bag = Bag {
+            size: [length, width, height],
+            center: [0.0, 0.0],
+            yaw_deg,
+            sag: draw.uniform(0.0, 0.3),
+            color,
+            finish,
+            timeline,
+        };
+        // A sagging bag's top is lower than its size says: the top is the height drawn.
+        bag.size[2] *= height / bag.top_m();
+        Piece::Bag(bag)
+    };
+    (piece, surface, flat && height <= 0.05)
+}
+
+/// Scene `index` of the set of `seed`.
+pub fn cert_scene(seed: u64, index: usize) -> CertScene {
+    let mut draw = Draw(mix64(seed ^ 0x6365_7274) ^ mix64(index as u64));
+    let (mut cameras, middle) = station(&mut draw);
+    // The color sensors from a stream of their own.
+    let mut sensor = Draw(mix64(seed ^ 0x6365_7274_636f_6c6f) ^ mix64(index as u64));
+    for c in &mut cameras {
+        c.color_sensor = ColorSensor {
+            noise: sensor.uniform(1.5, 3.0),
+            blur_px: sensor.uniform(BLUR_PX[0], BLUR_PX[1]),
+            exposure: sensor.uniform(0.85, 1.1),
+        };
+    }
+    let count = match draw.uniform(0.0, 1.0) {
+        u if u < 0.35 => 1,
+        u if u < 0.7 => 2,
+        u if u < 0.9 => 3,
+        _ => 4,
+    };
+    let spacing_mm =
+        (count > 1).then(|| SPACINGS_MM[(draw.next() % SPACINGS_MM.len() as u64) as usize]);
+    // Most groups are wholly in view; some reach out of it.
+    let whole = draw.uniform(0.0, 1.0) >= 0.15;
+    let lowest = cameras
+        .iter()
+        .map(|c| c.position[2])
+        .fold(f64::INFINITY, f64::min);
+    let tallest = (lowest - 0.5).min(0.6);
+    let mut largest = 1.2 / (count as f64).sqrt();
+    let mut built = None;
+    for _ in 0..40 {
+        let pieces: Vec<(Piece, Surface, bool)> = (0..count)
+            .map(|k| piece(&mut draw, k, largest, tallest))
+            .collect();
+        let row_deg = draw.uniform(-90.0, 90.0);
+        let centre = [
+            middle[0] + draw.uniform(-0.1, 0.1),
+            middle[1] + draw.uniform(-0.1, 0.1),
+        ];
+        let gap = spacing_mm.unwrap_or(0.0) / 1e3;
+        let extents: Vec<(f64, f64)> = pieces.iter().map(|p| p.0.extent(row_deg)).collect();
+        let total: f64 = extents.iter().map(|e| e.0).sum::<f64>() + gap * (count - 1) as f64;
+        let narrowest = extents.iter().map(|e| e.1).fold(f64::INFINITY, f64::min);
+        let (s, c) = row_deg.to_radians().sin_cos();
+        let mut along = -total / 2.0;
+        let mut placed: Vec<[[f64; 2]; 4]> = Vec::new();
+        let mut previous: Option<f64> = None;
+        let mut scene = Scene {
+            seed: 0,
+            floor: Floor::default(),
+            cameras: cameras.clone(),
+            boxes: Vec::new(),
+            cylinders: Vec::new(),
+            tubes: Vec::new(),
+            bags: Vec::new(),
+            markers: Vec::new(),
+        };
+        let mut made: Vec<(ObjectKind, usize, Surface, bool)> = Vec::new();
+        for ((mut p, surface, flat), (ext, _)) in pieces.into_iter().zip(&extents) {
+            let across = draw.uniform(-0.2, 0.2) * narrowest;
+            let at = |m: f64| {
+                [
+                    centre[0] + m * c - across * s,
+                    centre[1] + m * s + across * c,
+                ]
+            };
+            // Along the row its extent keeps `gap` from the one before; slid back
+            // towards it until the nearest footprint is `gap` away (turned footprints
+            // otherwise keep more).
+            let mut mid = along + ext / 2.0;
+            if let Some(before) = previous {
+                let nearest = |m: f64| {
+                    let here = p.corners(at(m));
+                    placed
+                        .iter()
+                        .map(|f| separation(&here, f))
+                        .fold(f64::INFINITY, f64::min)
+                };
+                let (mut lo, mut hi) = (before, mid);
+                for _ in 0..50 {
+                    let m = (lo + hi) / 2.0;
+                    if nearest(m) < gap { lo = m } else { hi = m }
+                }
+                mid = hi;
+            }
+            p.place(at(mid));
+            placed.push(p.corners(at(mid)));
+            previous = Some(mid);
+            along = mid + ext / 2.0 + gap;
+            let (kind, at) = match p {
+                Piece::Box(b) => {
+                    scene.boxes.push(b);
+                    (ObjectKind::Box, scene.boxes.len())
+                }
+                Piece::Cylinder(x) => {
+                    scene.cylinders.push(x);
+                    (ObjectKind::Cylinder, scene.cylinders.len())
+                }
+                Piece::Tube(t) => {
+                    scene.tubes.push(t);
+                    (ObjectKind::Tube, scene.tubes.len())
+                }
+                Piece::Bag(b) => {
+                    scene.bags.push(b);
+                    (ObjectKind::Bag, scene.bags.len())
+                }
+            };
+            made.push((kind, at - 1, surface, flat));
+        }
+        let judged = judge(&scene);
+        let on_table = scene.truths().iter().all(|t| {
+            t.footprint
+                .iter()
+                .all(|p| p[0].abs() <= TABLE_HALF_M && p[1].abs() <= TABLE_HALF_M)
+        });
+        let seen = judged.iter().filter(|j| j.in_view).count();
+        let fits = on_table && if whole { seen == count } else { seen > 0 };
+        built = Some((scene, made, judged));
+        if fits {
+            break;
+        }
+        largest = (largest * 0.85).max(0.06);
+    }
+    let (mut scene, made, judged) = built.expect("at least one attempt");
+    scene.seed = draw.next();
+    let objects = scene
+        .truths()
+        .into_iter()
+        .zip(judged)
+        .map(|(truth, judged)| {
+            let &(_, _, surface, flat) = made
+                .iter()
+                .find(|m| m.0 == truth.kind && m.1 == truth.index)
+                .expect("every truth was made");
+            let label = match truth.kind {
+                ObjectKind::Box => scene.boxes[truth.index].label.clone(),
+                _ => None,
+            };
+            CertObject {
+                truth,
+                surface,
+                flat,
+                label,
+                judged,
+            }
+        })
+        .collect();
+    CertScene {
+        index,
+        scene,
+        objects,
+        spacing_mm,
+    }
+}

@@ -1,0 +1,255 @@
+//! The certification set (`rgbd::cert`): generated from the seed alone, within its
+//! ranges, and its judgement of what a certified system accepts right on scenes built by
+//! hand.
+
+use rgbd::cert::{
+    CAMERA_Z_M, MAX_TILT_DEG, MIN_SPACING_M, SPACINGS_MM, SYMBOLOGIES, Surface, cert_scene,
+    cert_set, footprint_gap, judge,
+};
+use rgbd::scene::{Finish, ObjectKind, Scene, SceneBox};
+
+/// The set is the same from the same seed, another from another seed.
+#[test]
+fn the_cert_set_is_made_from_the_seed_alone() {
+    let set = cert_set(11, 24);
+    assert_eq!(set[5], cert_scene(11, 5));
+    assert_eq!(set[23], cert_scene(11, 23));
+    assert_ne!(set[5].scene, cert_scene(12, 5).scene);
+    for (i, s) in set.iter().enumerate() {
+        assert_eq!(s.index, i);
+        assert_eq!(s.objects.len(), s.scene.truths().len());
+    }
+}
+
+/// Stations and objects stay in the ranges the set promises, every scene is valid, and
+/// the groups keep at least their spacing.
+#[test]
+fn the_cert_set_covers_its_ranges() {
+    let set = cert_set(3, 60);
+    let mut cameras = [0usize; 5];
+    let mut kinds = Vec::new();
+    let mut surfaces = Vec::new();
+    let mut spacings = Vec::new();
+    let mut symbologies = Vec::new();
+    let (mut accepted, mut refused_ones) = (0, 0);
+    for s in &set {
+        s.scene.validate().unwrap();
+        cameras[s.scene.cameras.len()] += 1;
+        for c in &s.scene.cameras {
+            assert!(c.calibrated);
+            let z = c.position[2];
+            assert!((CAMERA_Z_M[0]..CAMERA_Z_M[1]).contains(&z), "{c:?}");
+            let d: Vec<f64> = (0..3).map(|k| c.look_at[k] - c.position[k]).collect();
+            let tilt = (-d[2] / (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt())
+                .acos()
+                .to_degrees();
+            assert!(tilt <= MAX_TILT_DEG + 1e-9, "{tilt}");
+        }
+        for o in &s.objects {
+            let t = &o.truth;
+            assert!(t.size[1] >= 0.05 - 1e-9, "scene {}: {t:?}", s.index);
+            assert!(t.size[2] >= 0.02 - 1e-9, "scene {}: {t:?}", s.index);
+            if o.flat {
+                assert!(t.size[2] <= 0.05 + 1e-9, "{t:?}");
+            }
+            assert_eq!(o.label.is_some(), t.kind == ObjectKind::Box);
+            if let Some(l) = &o.label {
+                symbologies.push(l.kind);
+            }
+            kinds.push(t.kind);
+            surfaces.push(o.surface);
+            accepted += usize::from(o.accepted());
+            refused_ones += usize::from(!o.accepted());
+            for p in t.footprint {
+                assert!(p[0].abs() <= 1.0 && p[1].abs() <= 1.0, "{p:?}");
+            }
+        }
+        match s.spacing_mm {
+            None => assert_eq!(s.objects.len(), 1),
+            Some(mm) => {
+                assert!(SPACINGS_MM.contains(&mm));
+                assert!(s.objects.len() >= 2);
+                let gaps: Vec<f64> = s
+                    .objects
+                    .iter()
+                    .map(|o| o.judged.gap_m.expect("a group"))
+                    .collect();
+                // Every object is its spacing or more from the others, and the nearest
+                // two exactly that.
+                for gap in &gaps {
+                    assert!(*gap >= mm / 1e3 - 1e-9, "scene {}: {gap} < {mm}", s.index);
+                }
+                let nearest = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+                assert!(
+                    (nearest - mm / 1e3).abs() < 1e-6,
+                    "scene {}: {gaps:?}",
+                    s.index
+                );
+                spacings.push(mm);
+            }
+        }
+    }
+    assert!(cameras[1..].iter().all(|n| *n > 0), "{cameras:?}");
+    for k in [
+        ObjectKind::Box,
+        ObjectKind::Cylinder,
+        ObjectKind::Tube,
+        ObjectKind::Bag,
+    ] {
+        assert!(kinds.contains(&k), "{k:?}");
+    }
+    for surface in Surface::ALL {
+        assert!(surfaces.contains(&surface), "{surface:?}");
+    }
+    for kind in SYMBOLOGIES {
+        assert!(symbologies.contains(kind), "{kind:?}");
+    }
+    assert!(spacings.contains(&0.0) && spacings.iter().any(|s| *s >= 50.0));
+    // Most objects are what a certified system measures, not all.
+    assert!(
+        accepted > refused_ones && refused_ones > 0,
+        "{accepted} {refused_ones}"
+    );
+}
+
+/// One camera `z` metres straight above the origin.
+fn one_camera(z: f64) -> String {
+    format!(
+        "seed = 1\n[[camera]]\nserial = \"840412060746\"\nposition = [0.0, 0.0, {z:?}]\n\
+         look_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n"
+    )
+}
+
+fn boxed(size: [f64; 3], center: [f64; 2], yaw: f64) -> String {
+    format!("[[box]]\nsize = {size:?}\ncenter = {center:?}\nyaw_deg = {yaw:?}\n")
+}
+
+#[test]
+fn the_gap_between_footprints_is_their_least_distance() {
+    let square = |c: [f64; 2], half: f64, yaw: f64| {
+        let (s, co) = yaw.to_radians().sin_cos();
+        [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]].map(|[a, b]: [f64; 2]| {
+            let (x, y) = (a * half, b * half);
+            [c[0] + x * co - y * s, c[1] + x * s + y * co]
+        })
+    };
+    // Side by side, 20 mm apart.
+    let a = square([0.0, 0.0], 0.1, 0.0);
+    assert!((footprint_gap(&a, &square([0.22, 0.0], 0.1, 0.0)) - 0.02).abs() < 1e-12);
+    // Touching, overlapping: 0.
+    assert_eq!(footprint_gap(&a, &square([0.2, 0.05], 0.1, 0.0)), 0.0);
+    assert_eq!(footprint_gap(&a, &square([0.1, 0.0], 0.1, 30.0)), 0.0);
+    // Corner to corner along the diagonal: two squares turned 45 degrees whose tips are
+    // 30 mm apart, though their projections on x overlap.
+    let h = 0.1 / 2f64.sqrt();
+    let tip = 2.0 * h * 2f64.sqrt();
+    let b = square([0.0, 0.0], h, 45.0);
+    let c = square([tip + 0.03, 0.0], h, 45.0);
+    assert!((footprint_gap(&b, &c) - 0.03).abs() < 1e-9);
+    // Diagonally offset, corner to corner: the Euclidean distance.
+    let d = square([0.23, 0.24], 0.1, 0.0);
+    assert!((footprint_gap(&a, &d) - 0.03f64.hypot(0.04)).abs() < 1e-12);
+}
+
+#[test]
+fn isolated_means_20_mm_or_more_from_every_other_object() {
+    let scene = |second_x: f64| {
+        Scene::from_toml(&format!(
+            "{}{}{}",
+            one_camera(1.6),
+            boxed([0.2, 0.15, 0.1], [-0.1, 0.0], 0.0),
+            boxed([0.2, 0.15, 0.1], [second_x, 0.0], 0.0)
+        ))
+        .unwrap()
+    };
+    // The first box ends at x = 0: the second starts 19 mm, 20 mm, 0 mm after it.
+    let close = judge(&scene(0.119));
+    assert!((close[0].gap_m.unwrap() - 0.019).abs() < 1e-9);
+    assert!(!close[0].isolated() && !close[1].isolated() && !close[0].accepted());
+    assert!(close[0].in_view && close[0].returns_depth);
+    let apart = judge(&scene(0.12));
+    assert!(
+        apart.iter().all(|j| j.isolated() && j.accepted()),
+        "{apart:?}"
+    );
+    const { assert!(MIN_SPACING_M == 0.02) };
+    let touching = judge(&scene(0.1));
+    assert_eq!(touching[0].gap_m, Some(0.0));
+    assert!(!touching[1].accepted());
+    let alone = judge(
+        &Scene::from_toml(&format!(
+            "{}{}",
+            one_camera(1.0),
+            boxed([0.2, 0.1, 0.1], [0.0, 0.0], 10.0)
+        ))
+        .unwrap(),
+    );
+    assert_eq!(alone[0].gap_m, None);
+    assert!(alone[0].accepted());
+}
+
+#[test]
+fn in_view_means_every_corner_in_one_cameras_depth_image_beyond_its_minimum_range() {
+    // A D415 1 m up, 1280x720: the floor it sees spans about +-0.64 m across and +-0.37 m
+    // along its image's height (world y here).
+    let at = |center: [f64; 2], size: [f64; 3], z: f64| {
+        judge(&Scene::from_toml(&format!("{}{}", one_camera(z), boxed(size, center, 0.0))).unwrap())
+            [0]
+    };
+    assert!(at([0.0, 0.0], [0.3, 0.2, 0.2], 1.0).in_view);
+    // The lid's far corners leave the image sooner than the floor's: at 0.2 m high the
+    // lid is 0.8 m away and the image's half height there is about 0.29 m.
+    assert!(at([0.0, 0.15], [0.3, 0.2, 0.02], 1.0).in_view);
+    assert!(!at([0.0, 0.25], [0.3, 0.2, 0.2], 1.0).in_view);
+    assert!(!at([0.8, 0.0], [0.3, 0.2, 0.1], 1.0).in_view);
+    // A lid 0.35 m below the camera is nearer than the minimum range (0.39 m).
+    assert!(!at([0.0, 0.0], [0.2, 0.2, 0.65], 1.0).in_view);
+    assert!(at([0.0, 0.0], [0.2, 0.2, 0.55], 1.0).in_view);
+    // Out of one camera's view but wholly in another's.
+    let two = format!(
+        "{}[[camera]]\nserial = \"840412060757\"\nposition = [0.8, 0.0, 1.0]\n\
+         look_at = [0.8, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n{}",
+        one_camera(1.0),
+        boxed([0.3, 0.2, 0.1], [0.8, 0.0], 0.0)
+    );
+    assert!(judge(&Scene::from_toml(&two).unwrap())[0].in_view);
+}
+
+#[test]
+fn returning_depth_is_enough_light_back_from_the_top() {
+    let dark = |reflectivity: f64, z: f64| {
+        let mut scene = Scene::from_toml(&format!(
+            "{}{}",
+            one_camera(z),
+            boxed([0.3, 0.2, 0.2], [0.0, 0.0], 0.0)
+        ))
+        .unwrap();
+        scene.boxes[0].finish = Finish {
+            reflectivity,
+            gloss: 0.0,
+        };
+        judge(&scene)[0]
+    };
+    assert!(dark(1.0, 2.0).returns_depth);
+    // 0.3 from 0.8 m: 0.47 comes back, more than the 0.15 that loses no pixel.
+    assert!(dark(0.3, 1.0).returns_depth);
+    // 0.1 from 1.3 m: 0.059, some pixels lost.
+    let black = dark(0.1, 1.5);
+    assert!(!black.returns_depth && !black.accepted() && black.in_view);
+    // Glossy boxes return depth (their glare takes a patch, not the top).
+    let mut glossy = Scene::from_toml(&format!(
+        "{}{}",
+        one_camera(1.2),
+        boxed([0.3, 0.2, 0.2], [0.0, 0.0], 0.0)
+    ))
+    .unwrap();
+    glossy.boxes[0].finish.gloss = 0.9;
+    assert!(judge(&glossy)[0].accepted());
+    // Out of view, nothing returns depth to a camera that sees it whole.
+    let mut out = glossy.clone();
+    out.boxes[0] = SceneBox {
+        center: [0.9, 0.0],
+        ..out.boxes[0].clone()
+    };
+    assert!(!judge(&out)[0].in_view && !judge(&out)[0].returns_depth);
+}
