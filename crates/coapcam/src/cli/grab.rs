@@ -11,7 +11,7 @@ use coapcam::repr::{self, ColorDecoder, Stream};
 use coapcam::vision::picture::{self, save, sibling};
 use rgbd::ColorSettings;
 
-use super::request::PartFile;
+use super::part_file::PartFile;
 use super::{Bars, CameraArgs, Exit, TransmissionArgs, folder_exists, usage};
 
 /// The streams, named for the command line.

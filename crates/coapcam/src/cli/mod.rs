@@ -13,6 +13,7 @@ pub(crate) mod markers;
 pub(crate) mod measure;
 pub(crate) mod monitor;
 pub(crate) mod netem;
+pub(crate) mod part_file;
 pub(crate) mod rd;
 pub(crate) mod request;
 pub(crate) mod results;

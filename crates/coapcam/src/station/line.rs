@@ -19,6 +19,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
+use super::follow::{self, Sink};
 use super::log::ResultsLog;
 use crate::api::record::Record;
 
@@ -118,7 +119,7 @@ impl LineOutput {
     /// Listens on `addr` and follows `log`.
     pub async fn start(addr: SocketAddr, log: ResultsLog) -> io::Result<Self> {
         let server = Arc::new(LineServer::bind(addr).await?);
-        let follow = tokio::spawn(follow(log, server.clone()));
+        let follow = tokio::spawn(follow::run(log, Lines(server.clone())));
         Ok(Self { server, follow })
     }
 
@@ -139,38 +140,21 @@ impl Drop for LineOutput {
     }
 }
 
-/// Records read from the log at once.
-const BATCH: usize = 64;
+/// The line output as a [`Sink`]: a line to every reader for each record appended.
+struct Lines(Arc<LineServer>);
 
-async fn follow(log: ResultsLog, server: Arc<LineServer>) {
-    let mut newest = log.subscribe();
-    let mut last = *newest.borrow_and_update();
-    loop {
-        if newest.changed().await.is_err() {
-            return;
-        }
-        while *newest.borrow_and_update() > last {
-            let l = log.clone();
-            let batch = match tokio::task::spawn_blocking(move || l.after(last, BATCH)).await {
-                Ok(Ok(batch)) => batch,
-                Ok(Err(e)) => {
-                    tracing::warn!(error = %e, "line output: reading the results log failed");
-                    tokio::time::sleep(std::time::Duration::from_secs(1)).await;
-                    continue;
-                }
-                Err(e) => {
-                    tracing::warn!(error = %e, "line output: reading the results log failed");
-                    return;
-                }
-            };
-            let Some(end) = batch.last().map(|r| r.id) else {
-                break;
-            };
-            for record in &batch {
-                server.send(&format_line(&LineFields::of(record)));
-            }
-            last = end;
-        }
+impl Sink for Lines {
+    fn name(&self) -> String {
+        format!("line output on {}", self.0.local_addr())
+    }
+
+    fn cursor(&self) -> Option<&'static str> {
+        None
+    }
+
+    async fn deliver(&mut self, record: &Record) -> Result<(), String> {
+        self.0.send(&format_line(&LineFields::of(record)));
+        Ok(())
     }
 }
 

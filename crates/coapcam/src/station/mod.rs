@@ -10,6 +10,7 @@
 //!   detector that says when a parcel stands still.
 
 pub mod auto;
+pub mod follow;
 pub mod http;
 pub mod line;
 pub mod log;

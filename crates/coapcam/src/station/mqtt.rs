@@ -26,6 +26,7 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, sleep_until};
 
+use super::follow::Follower;
 use super::log::ResultsLog;
 
 /// The cursor name of the MQTT publisher in the results log.
@@ -374,7 +375,6 @@ async fn run(
     log: ResultsLog,
     mut stop: watch::Receiver<bool>,
 ) {
-    let mut newest = log.subscribe();
     let cursor = loop {
         let l = log.clone();
         match tokio::task::spawn_blocking(move || l.cursor(CONSUMER).map_err(|e| e.to_string()))
@@ -388,6 +388,7 @@ async fn run(
             return;
         }
     };
+    let mut follower = Follower::new(log.clone(), cursor);
     let mut delivery = Delivery::new(cursor, WINDOW);
     let mut backoff = BACKOFF_FIRST;
     let mut was_lost = false;
@@ -402,7 +403,13 @@ async fn run(
             delivery: &mut delivery,
         };
         let end = session
-            .run(events, &mut newest, &mut stop, &mut backoff, &mut was_lost)
+            .run(
+                events,
+                &mut follower,
+                &mut stop,
+                &mut backoff,
+                &mut was_lost,
+            )
             .await;
         delivery.disconnected();
         pump.abort();
@@ -468,7 +475,7 @@ impl Session<'_> {
     async fn run(
         &mut self,
         mut events: mpsc::Receiver<Result<Event, ConnectionError>>,
-        newest: &mut watch::Receiver<u64>,
+        follower: &mut Follower,
         stop: &mut watch::Receiver<bool>,
         backoff: &mut Duration,
         was_lost: &mut bool,
@@ -502,7 +509,7 @@ impl Session<'_> {
                     }
                 }
                 // (The publisher holds the log, so the watch never closes.)
-                Ok(()) = newest.changed() => {}
+                true = follower.changed() => {}
                 () = sleep_until(retry.unwrap_or_else(Instant::now)), if retry.is_some() => {
                     retry = None;
                 }
@@ -511,8 +518,7 @@ impl Session<'_> {
             if retry.is_some() {
                 continue;
             }
-            let up_to = *newest.borrow();
-            match self.fill(up_to).await {
+            match self.fill(follower).await {
                 Ok(()) => {}
                 Err(Stalled::Connection(e)) => return End::Lost(e),
                 Err(Stalled::Log(e)) => {
@@ -524,13 +530,12 @@ impl Session<'_> {
     }
 
     /// Hands the client the records after the last one sent, while the window has room.
-    async fn fill(&mut self, newest: u64) -> Result<(), Stalled> {
-        while self.delivery.room() > 0 && newest > self.delivery.sent_up_to() {
-            let (from, limit) = (self.delivery.sent_up_to(), self.delivery.room());
-            let l = self.log.clone();
-            let batch = tokio::task::spawn_blocking(move || l.after(from, limit))
+    async fn fill(&mut self, follower: &mut Follower) -> Result<(), Stalled> {
+        while self.delivery.room() > 0 && follower.newest() > self.delivery.sent_up_to() {
+            follower.seek(self.delivery.sent_up_to());
+            let batch = follower
+                .read(self.delivery.room())
                 .await
-                .map_err(|e| Stalled::Log(format!("reading the results log: {e}")))?
                 .map_err(|e| Stalled::Log(format!("reading the results log: {e}")))?;
             if batch.is_empty() {
                 return Ok(());

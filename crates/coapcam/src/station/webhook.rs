@@ -20,7 +20,8 @@ use hyper_util::rt::TokioIo;
 use tokio::net::TcpStream;
 use tokio::task::JoinHandle;
 
-use super::log::{LogError, ResultsLog};
+use super::follow::{self, Sink};
+use super::log::ResultsLog;
 use crate::api::record::Record;
 
 /// The cursor name of the webhook in the results log.
@@ -28,13 +29,6 @@ pub const CONSUMER: &str = "webhook";
 
 /// How long connecting, or one request's answer, may take.
 const TIMEOUT: Duration = Duration::from_secs(10);
-
-/// The first wait after a failure; it doubles up to [`BACKOFF_MAX`].
-const BACKOFF_MIN: Duration = Duration::from_millis(250);
-const BACKOFF_MAX: Duration = Duration::from_secs(5);
-
-/// Records read from the log at a time.
-const BATCH: usize = 64;
 
 /// Where records are POSTed: an `http://HOST[:PORT][/PATH]` URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -93,93 +87,57 @@ impl Webhook {
     /// Delivers the records of `log` after its cursor to `target`, then each new one.
     pub fn start(target: Target, log: ResultsLog) -> Self {
         Self {
-            task: tokio::spawn(deliver_forever(target, log)),
+            task: tokio::spawn(follow::run(
+                log,
+                Hook {
+                    target,
+                    connection: None,
+                },
+            )),
         }
     }
 }
 
-/// Why a delivery stopped.
-#[derive(Debug, thiserror::Error)]
-enum Failure {
-    #[error("{0}")]
-    Receiver(String),
-    #[error(transparent)]
-    Log(#[from] LogError),
+/// The webhook as a [`Sink`]: a record per POST, over one connection while it works.
+struct Hook {
+    target: Target,
+    connection: Option<SendRequest<Full<Bytes>>>,
 }
 
-async fn deliver_forever(target: Target, log: ResultsLog) {
-    let mut newest = log.subscribe();
-    let mut backoff = BACKOFF_MIN;
-    let mut failing = false;
-    let mut connection: Option<SendRequest<Full<Bytes>>> = None;
-    loop {
-        // Seen before reading: an append from here on wakes the wait below.
-        newest.borrow_and_update();
-        let reader = log.clone();
-        let pending = tokio::task::spawn_blocking(move || {
-            let cursor = reader.cursor(CONSUMER)?;
-            reader.after(cursor, BATCH)
-        })
-        .await;
-        let records = match pending {
-            Ok(Ok(records)) => records,
-            Ok(Err(e)) => {
-                tracing::warn!("webhook: reading the results log: {e}");
-                tokio::time::sleep(BACKOFF_MAX).await;
-                continue;
-            }
-            Err(_) => return,
-        };
-        if records.is_empty() {
-            if newest.changed().await.is_err() {
-                return;
-            }
-            continue;
+impl Sink for Hook {
+    fn name(&self) -> String {
+        format!("webhook: {}", self.target)
+    }
+
+    fn cursor(&self) -> Option<&'static str> {
+        Some(CONSUMER)
+    }
+
+    async fn deliver(&mut self, record: &Record) -> Result<(), String> {
+        let posted = self.post(record).await;
+        if posted.is_err() {
+            self.connection = None;
         }
-        match deliver(&target, &log, &records, &mut connection).await {
-            Ok(()) => {
-                if failing {
-                    tracing::info!("webhook: {target} takes the records again");
-                }
-                failing = false;
-                backoff = BACKOFF_MIN;
-            }
-            Err(e) => {
-                connection = None;
-                if !failing {
-                    tracing::warn!(
-                        "webhook: {target}: {e}; retrying (the records wait in the log)"
-                    );
-                }
-                failing = true;
-                tokio::time::sleep(backoff).await;
-                backoff = (backoff * 2).min(BACKOFF_MAX);
-            }
-        }
+        posted
     }
 }
 
-/// POSTs `records` in order, moving the cursor past each answered 2xx.
-async fn deliver(
-    target: &Target,
-    log: &ResultsLog,
-    records: &[Record],
-    connection: &mut Option<SendRequest<Full<Bytes>>>,
-) -> Result<(), Failure> {
-    for record in records {
-        let usable = match connection.as_mut() {
+impl Hook {
+    /// POSTs `record`; done when answered 2xx.
+    async fn post(&mut self, record: &Record) -> Result<(), String> {
+        let usable = match self.connection.as_mut() {
             Some(sender) => sender.ready().await.is_ok(),
             None => false,
         };
-        let sender = match connection {
+        let sender = match &mut self.connection {
             Some(sender) if usable => sender,
-            _ => connection.insert(connect(target).await?),
+            connection => connection.insert(connect(&self.target).await?),
         };
         let body = serde_json::to_vec(record)
-            .map_err(|e| Failure::Receiver(format!("encoding record {}: {e}", record.id)))?;
+            .map_err(|e| format!("encoding record {}: {e}", record.id))?;
         let mut request = Request::builder()
             .method(Method::POST)
-            .uri(target.uri.path_and_query().map_or("/", |p| p.as_str()))
+            .uri(self.target.uri.path_and_query().map_or("/", |p| p.as_str()))
             .header(header::CONTENT_TYPE, "application/json")
             .header(
                 header::USER_AGENT,
@@ -187,45 +145,38 @@ async fn deliver(
             )
             .header("x-coapcam-record", record.id)
             .body(Full::new(Bytes::from(body)))
-            .map_err(|e| Failure::Receiver(format!("the request: {e}")))?;
-        if let Some(authority) = target.uri.authority()
+            .map_err(|e| format!("the request: {e}"))?;
+        if let Some(authority) = self.target.uri.authority()
             && let Ok(host) = HeaderValue::from_str(authority.as_str())
         {
             request.headers_mut().insert(header::HOST, host);
         }
         let answer = tokio::time::timeout(TIMEOUT, sender.send_request(request))
             .await
-            .map_err(|_| Failure::Receiver(format!("no answer within {TIMEOUT:?}")))?
-            .map_err(|e| Failure::Receiver(format!("sending record {}: {e}", record.id)))?;
+            .map_err(|_| format!("no answer within {TIMEOUT:?}"))?
+            .map_err(|e| format!("sending record {}: {e}", record.id))?;
         let status = answer.status();
         // The answer's body is read so that the connection can carry the next record.
         let _ = tokio::time::timeout(TIMEOUT, answer.into_body().collect()).await;
         if !status.is_success() {
-            return Err(Failure::Receiver(format!(
-                "record {} answered {status}",
-                record.id
-            )));
+            return Err(format!("record {} answered {status}", record.id));
         }
-        let (writer, id) = (log.clone(), record.id);
-        tokio::task::spawn_blocking(move || writer.set_cursor(CONSUMER, id))
-            .await
-            .map_err(|e| Failure::Receiver(format!("moving the cursor: {e}")))??;
+        Ok(())
     }
-    Ok(())
 }
 
-async fn connect(target: &Target) -> Result<SendRequest<Full<Bytes>>, Failure> {
+async fn connect(target: &Target) -> Result<SendRequest<Full<Bytes>>, String> {
     let stream = tokio::time::timeout(
         TIMEOUT,
         TcpStream::connect((target.host.as_str(), target.port)),
     )
     .await
-    .map_err(|_| Failure::Receiver(format!("connecting took over {TIMEOUT:?}")))?
-    .map_err(|e| Failure::Receiver(format!("connecting: {e}")))?;
+    .map_err(|_| format!("connecting took over {TIMEOUT:?}"))?
+    .map_err(|e| format!("connecting: {e}"))?;
     let _ = stream.set_nodelay(true);
     let (sender, connection) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
         .await
-        .map_err(|e| Failure::Receiver(format!("HTTP handshake: {e}")))?;
+        .map_err(|e| format!("HTTP handshake: {e}"))?;
     tokio::spawn(async move {
         if let Err(e) = connection.await {
             tracing::debug!("webhook: connection: {e}");

@@ -38,6 +38,7 @@ use tokio::sync::{Semaphore, mpsc};
 use tokio::task::{JoinHandle, JoinSet};
 
 use super::Recorder;
+use super::follow::Follower;
 use super::log::{LogError, ResultsLog};
 use super::measure::Rig;
 use crate::api::record::Trigger;
@@ -806,8 +807,8 @@ struct CameraInfo {
 
 /// Sends the records after `after` to `tx` as events, then each new one, until the
 /// client has gone.
-async fn stream_events(log: ResultsLog, mut after: u64, tx: mpsc::Sender<Bytes>) {
-    let mut newest = log.subscribe();
+async fn stream_events(log: ResultsLog, after: u64, tx: mpsc::Sender<Bytes>) {
+    let mut follower = Follower::new(log, after);
     if tx
         .send(Bytes::from_static(
             b"retry: 2000\n: coapcam measurements\n\n",
@@ -818,20 +819,15 @@ async fn stream_events(log: ResultsLog, mut after: u64, tx: mpsc::Sender<Bytes>)
         return;
     }
     loop {
-        let from = after;
-        let reader = log.clone();
-        let batch = tokio::task::spawn_blocking(move || reader.after(from, 100)).await;
-        let records = match batch {
-            Ok(Ok(records)) => records,
-            Ok(Err(e)) => {
+        let records = match follower.read(100).await {
+            Ok(records) => records,
+            Err(e) => {
                 tracing::warn!("http: event stream: {e}");
                 return;
             }
-            Err(_) => return,
         };
         let full = records.len() == 100;
         for record in records {
-            after = record.id;
             let Ok(data) = serde_json::to_string(&record) else {
                 continue;
             };
@@ -844,7 +840,7 @@ async fn stream_events(log: ResultsLog, mut after: u64, tx: mpsc::Sender<Bytes>)
             continue;
         }
         tokio::select! {
-            changed = newest.changed() => if changed.is_err() { return },
+            appended = follower.appended() => if !appended { return },
             () = tokio::time::sleep(KEEP_ALIVE) => {
                 if tx.send(Bytes::from_static(b": alive\n\n")).await.is_err() {
                     return;
