@@ -1,8 +1,7 @@
 //! `bench accuracy --set cert`: a line per scene, then per class the first-pass rate and
 //! what kept the rest from it (or one JSON object).
 
-use super::super::{Exit, outln};
-use super::{AccuracyArgs, finite};
+use crate::cli::{Exit, outln};
 use coapcam::bench::accuracy::cert::{self, ClassSummary, ObjectResult, Row};
 use coapcam::bench::accuracy::lane::Outcome;
 use coapcam::report::{Billing, Division};
@@ -110,11 +109,23 @@ fn json_object(o: &ObjectResult, billing: &Billing) -> serde_json::Value {
     })
 }
 
+/// `v` when it is a number, `None` (JSON null) when it is NaN or infinite.
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+/// The flags of `bench accuracy` that `--set cert` takes.
+pub(super) struct Options {
+    pub(super) scenes: Option<u32>,
+    pub(super) first: u32,
+    pub(super) seed: u64,
+    pub(super) json: bool,
+    pub(super) division_mm: f64,
+    pub(super) dimension: geometry::DimensionConfig,
+}
+
 /// Runs `bench accuracy --set cert`.
-pub(super) async fn run(args: AccuracyArgs) -> anyhow::Result<Exit> {
-    if args.calibrate || args.raw || args.repeat != 1 {
-        anyhow::bail!("--set cert takes neither --calibrate, --raw nor --repeat");
-    }
+pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
     let billing = Billing {
         division: Division {
             d_mm: args.division_mm,
@@ -127,7 +138,7 @@ pub(super) async fn run(args: AccuracyArgs) -> anyhow::Result<Exit> {
             .map_or(rgbd::cert::CERT_SET_SIZE, |n| n as usize),
         first: args.first as usize,
         seed: args.seed,
-        dimension: args.dimension.config(),
+        dimension: args.dimension,
         billing,
     };
     let rows = cert::run(&config, |row| {

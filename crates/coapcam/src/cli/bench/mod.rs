@@ -111,7 +111,18 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
         return accuracy_lane(args).await;
     }
     if args.set == "cert" {
-        return cert::run(args).await;
+        if args.calibrate || args.raw || args.repeat != 1 {
+            anyhow::bail!("--set cert takes neither --calibrate, --raw nor --repeat");
+        }
+        return cert::run(cert::Options {
+            scenes: args.scenes,
+            first: args.first,
+            seed: args.seed,
+            json: args.json,
+            division_mm: args.division_mm,
+            dimension: args.dimension.config(),
+        })
+        .await;
     }
     let config = accuracy::Config {
         scenes: args.scenes.map_or(40, |n| n as usize),
