@@ -498,6 +498,12 @@ impl ClientLayer {
             r.echoes += 1;
             r.req.options.set(OptionNumber::ECHO, echo);
             r.block_head = None;
+            // A body sent in blocks goes again from its first block: a server that asks
+            // for the value once the whole body arrived (an application's own freshness
+            // check) has handed the body over and no longer holds its blocks.
+            if let Step::Upload { .. } = r.step {
+                r.step = Step::Upload { offset: 0 };
+            }
             r.generation += 1;
             return self.send_step(cx, now, id);
         }

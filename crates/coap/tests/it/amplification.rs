@@ -560,3 +560,42 @@ fn rfc9175_2_4_unverified_group_gets_are_worked_on_a_few_at_a_time() {
         Some(Code::UNAUTHORIZED)
     );
 }
+
+#[test]
+fn rfc9175_2_3_an_echo_asked_for_a_whole_block1_body_sends_the_body_again_with_it() {
+    // An application that wants its own fresh Echo value with the request, as coapcam's
+    // resource directory does with a registration: it sees the body only once all its
+    // blocks arrived, so its challenge answers the last block.
+    let mut sim = Sim::new(LinkConfig::default());
+    let ran = Rc::new(Cell::new(0));
+    let count = ran.clone();
+    let handler: Handler = Box::new(move |req| {
+        count.set(count.get() + 1);
+        if req.options.first(OptionNumber::ECHO) != Some(&b"app-value"[..]) {
+            let mut challenge = Response::new(Code::UNAUTHORIZED);
+            challenge.options.set(OptionNumber::ECHO, b"app-value");
+            return Reply::Now(challenge);
+        }
+        Reply::Now(Response::new(Code::CREATED).with_payload(req.payload.len().to_string()))
+    });
+    sim.add_at(SERVER, cfg(2), Some(handler));
+    let c = sim.add_at(SocketAddr::from(([192, 0, 2, 201], 5683)), cfg(1), None);
+    let body = vec![5u8; 3000];
+    let now = sim.now;
+    let id = sim.nodes[c].ep.request(
+        now,
+        SERVER,
+        Request::new(Code::POST, "/rd").with_payload(body.clone()),
+    );
+    assert!(sim.run_to_event(c, Duration::from_secs(30)));
+    let response = sim.nodes[c].events.iter().find_map(|(_, e)| match e {
+        Event::Response { id: got, response } if *got == id => Some(response.clone()),
+        _ => None,
+    });
+    let response = response.expect("an answer");
+    // The CoAP layer's challenge came first (this client is off loopback), then the
+    // application's: the whole body went again with its value, and was taken.
+    assert_eq!(response.code, Code::CREATED, "{response:?}");
+    assert_eq!(response.payload, body.len().to_string().as_bytes());
+    assert_eq!(ran.get(), 2, "the application saw the body twice");
+}
