@@ -37,11 +37,13 @@ pub(crate) struct RdArgs {
     #[arg(long, value_name = "MIB", default_value_t = (Limits::default().max_bytes >> 20) as u64,
           value_parser = clap::value_parser!(u64).range(1..=1_048_576))]
     max_mib: u64,
-    /// The most registrations one peer address may hold; past it 4.03.
+    /// The most registrations one client (an IPv4 address, an IPv6 /64) may hold; past
+    /// it 4.03.
     #[arg(long, value_name = "N", default_value_t = (Limits::default().per_peer) as u64,
           value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
     per_peer: u64,
-    /// The most KiB one peer address's registrations may be counted for; past it 4.03.
+    /// The most KiB one client's registrations (an IPv4 address, an IPv6 /64) may be
+    /// counted for; past it 4.03.
     #[arg(long, value_name = "KIB", default_value_t = (Limits::default().per_peer_bytes >> 10) as u64,
           value_parser = clap::value_parser!(u64).range(1..=1_048_576))]
     per_peer_kib: u64,
@@ -53,6 +55,7 @@ pub(crate) struct RdArgs {
     /// Answer clients off this machine in full before their address is verified (RFC
     /// 9175 Echo), for lookup clients that do not implement Echo (aiocoap 0.4.17) on a
     /// network you trust; a lookup's answer can be far larger than its request.
+    /// Registering, updating and removing still need a fresh Echo value.
     #[arg(long)]
     no_address_check: bool,
     /// Stop after this many seconds, above 0 (default: run until interrupted).
@@ -96,7 +99,7 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<()> {
         endpoint.clone(),
     )
     .context("binding the client of simple registration")?;
-    let service = Service::new(limits, store, fetcher)?;
+    let service = Service::new(limits, store, fetcher, !args.no_address_check)?;
     let held = service.directory().len();
     let router = Router::new();
     service.route(&router);

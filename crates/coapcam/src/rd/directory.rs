@@ -15,13 +15,18 @@
 //! - [`Directory::expire`] drops registrations whose lifetime ended; lookups never show
 //!   them even before that.
 //!
-//! Bounds: the number of registrations and the bytes they take, in total and per peer
-//! address ([`Limits`]); a registration's document has a maximum size. Operations on a
-//! registration are accepted only from the address that made it.
+//! Bounds: the number of registrations and the bytes they take, in total and per client
+//! (an IPv4 address, or an IPv6 /64: one host picks addresses from its /64 at will)
+//! ([`Limits`]); a registration's document has a maximum size; a lifetime is at most
+//! [`MAX_LIFETIME_S`]. Operations on a registration are accepted only from the IP
+//! address that made it (the service first makes the sender prove that address with a
+//! fresh Echo value, `freshness`); an update never moves the base of a registration made
+//! without one. A location is `/rd/<random 64-bit number>`, not guessable from others.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt::Write as _;
-use std::net::{IpAddr, SocketAddr};
+use std::hash::{BuildHasher, RandomState};
+use std::net::{IpAddr, Ipv6Addr, SocketAddr};
 
 use coap::Code;
 use coap::link_format::{self, Filter, Link};
@@ -30,29 +35,34 @@ use serde::{Deserialize, Serialize};
 /// RFC 9176 §5.3: the lifetime of a registration that gives none, in seconds (25 h).
 pub const DEFAULT_LIFETIME_S: u32 = 90_000;
 
+/// The longest lifetime kept, in seconds (25 h, the default): a longer `lt` is taken as
+/// this. A registrant renews well before it (at three quarters of its own lifetime, when
+/// that is up to 33 h), and nothing registered stays for years.
+pub const MAX_LIFETIME_S: u32 = DEFAULT_LIFETIME_S;
+
 /// RFC 9176 §5.3: the most bytes of an endpoint name or a sector name.
 pub const MAX_NAME_BYTES: usize = 63;
 
 /// The resource type of an endpoint link in endpoint lookup (RFC 9176 §6.3).
 pub const RT_ENDPOINT: &str = "core.rd-ep";
 
-/// What the directory accepts, in total and from one peer address.
+/// What the directory accepts, in total and from one client ([`client_of`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Limits {
     /// Registrations held at once.
     pub max_registrations: usize,
     /// Bytes the registrations take together (as [`Registration::cost`] counts them).
     pub max_bytes: usize,
-    /// Registrations one peer address may hold.
+    /// Registrations one client may hold.
     pub per_peer: usize,
-    /// Bytes one peer address's registrations may take.
+    /// Bytes one client's registrations may take.
     pub per_peer_bytes: usize,
     /// The largest link-format document of one registration.
     pub max_document: usize,
 }
 
 impl Default for Limits {
-    /// 20,000 registrations in 128 MiB; 64 registrations and 1 MiB per peer address; a
+    /// 20,000 registrations in 128 MiB; 64 registrations and 1 MiB per client; a
     /// document of at most 32 KiB (a station with eight cameras registers about 6 KiB).
     fn default() -> Self {
         Self {
@@ -81,9 +91,10 @@ pub enum RdError {
     /// The document is larger than [`Limits::max_document`].
     #[error("the link-format document has {0} bytes; the most one registration may have is {1}")]
     DocumentTooLarge(usize, usize),
-    /// The peer address holds as many registrations or bytes as it may.
+    /// The client (its IPv4 address or IPv6 /64) holds as many registrations or bytes
+    /// as it may.
     #[error(
-        "this address holds {held} registrations ({bytes} bytes); the most one address may hold is {max} ({max_bytes} bytes)"
+        "this client (an IPv4 address, an IPv6 /64) holds {held} registrations ({bytes} bytes); the most one may hold is {max} ({max_bytes} bytes)"
     )]
     PeerLimit {
         /// Registrations it holds.
@@ -98,6 +109,12 @@ pub enum RdError {
     /// The directory holds as many registrations or bytes as it may.
     #[error("the directory is full ({0} registrations)")]
     Full(usize),
+    /// An update gave a base to a registration made without one (its base is the
+    /// address that registered).
+    #[error(
+        "this registration was made without a base; an update cannot give it one (register again)"
+    )]
+    BaseFixed,
 }
 
 impl RdError {
@@ -106,7 +123,7 @@ impl RdError {
     pub fn code(&self) -> Code {
         match self {
             Self::BadRequest(_) => Code::BAD_REQUEST,
-            Self::NotOwner | Self::PeerLimit { .. } => Code::FORBIDDEN,
+            Self::NotOwner | Self::PeerLimit { .. } | Self::BaseFixed => Code::FORBIDDEN,
             Self::NotFound => Code::NOT_FOUND,
             Self::DocumentTooLarge(..) => Code::REQUEST_ENTITY_TOO_LARGE,
             Self::Full(_) => Code::SERVICE_UNAVAILABLE,
@@ -130,7 +147,7 @@ pub struct Record {
     pub d: Option<String>,
     /// The base URI (given, or made from the source address).
     pub base: String,
-    /// Whether `base` was given (else an update from another port moves it).
+    /// Whether `base` was given (else it stays the address that registered).
     pub base_given: bool,
     /// The lifetime in seconds.
     pub lt: u32,
@@ -158,6 +175,8 @@ pub struct Registration {
     /// name whose bit is not set cannot match any of its links.
     link_attrs: u64,
     cost: usize,
+    /// Its place in the order lookups list registrations in (0 until it is held).
+    seq: u64,
 }
 
 impl Registration {
@@ -170,6 +189,7 @@ impl Registration {
             resolved: Vec::new(),
             link_attrs: 0,
             cost: 0,
+            seq: 0,
         };
         r.refresh(links);
         r
@@ -189,7 +209,7 @@ impl Registration {
         self.link_attrs = (self.resolved.iter())
             .flat_map(|l| l.attrs.iter())
             .fold(0, |bits, (n, _)| bits | name_bit(n));
-        self.cost = cost_of(&self.ep_link, &self.resolved) + r.links.len();
+        self.cost = cost_of(self);
     }
 
     /// The record (what is persisted).
@@ -198,38 +218,70 @@ impl Registration {
         &self.record
     }
 
-    /// The bytes it is counted for: its strings and a fixed share per link and
-    /// attribute for the structures that hold them.
+    /// The bytes it is counted for: every allocation that holds it, as the allocator
+    /// rounds them, and its share of the directory's indexes.
     #[must_use]
     pub fn cost(&self) -> usize {
         self.cost
     }
 }
 
-/// Per link, and per attribute, what the vectors and strings holding them take beyond
-/// their text (a `String` is 24 bytes, a pair of them with the option 48, plus the
-/// allocator's rounding).
-const LINK_OVERHEAD: usize = 64;
-const ATTR_OVERHEAD: usize = 64;
-/// Per registration: the record's fixed fields and the indexes' entries.
-const REGISTRATION_OVERHEAD: usize = 512;
-
-fn cost_of_links(links: &[Link]) -> usize {
-    links
-        .iter()
-        .map(|l| {
-            LINK_OVERHEAD
-                + l.target.len()
-                + l.attrs
-                    .iter()
-                    .map(|(n, v)| ATTR_OVERHEAD + n.len() + v.as_ref().map_or(0, String::len))
-                    .sum::<usize>()
-        })
-        .sum()
+/// What the allocator takes for a block of `n` bytes: glibc's on 64-bit Linux puts an
+/// 8-byte header before each, rounds up to 16 and gives at least 32.
+fn heap(n: usize) -> usize {
+    if n == 0 {
+        0
+    } else {
+        ((n + 8 + 15) & !15).max(32)
+    }
 }
 
-fn cost_of(ep: &Link, links: &[Link]) -> usize {
-    REGISTRATION_OVERHEAD + cost_of_links(std::slice::from_ref(ep)) + cost_of_links(links)
+fn heap_of_string(s: &String) -> usize {
+    heap(s.capacity())
+}
+
+/// The attribute pairs of a link or record and their strings.
+fn heap_of_attrs(attrs: &Vec<(String, Option<String>)>) -> usize {
+    heap(attrs.capacity() * size_of::<(String, Option<String>)>())
+        + (attrs.iter())
+            .map(|(n, v)| heap_of_string(n) + v.as_ref().map_or(0, heap_of_string))
+            .sum::<usize>()
+}
+
+/// A link's strings and attributes (not the link itself, which its vector holds).
+fn heap_of_link(l: &Link) -> usize {
+    heap_of_string(&l.target) + heap_of_attrs(&l.attrs)
+}
+
+/// An index entry's share of its table: a hash table's buckets are a power of two at
+/// most 7/8 full, so an entry takes up to twice its size (and a control byte); a
+/// B-tree's nodes are at least half full, so an entry takes up to twice its size too.
+fn entry(size: usize) -> usize {
+    2 * size + 1
+}
+
+/// What a registration is counted for: every allocation it and the directory's indexes
+/// hold for it, with the allocator's rounding ([`heap`]), and its entries in the
+/// location, order, expiry, name and `ep` indexes.
+fn cost_of(reg: &Registration) -> usize {
+    let r = &reg.record;
+    let record = heap_of_string(&r.ep)
+        + r.d.as_ref().map_or(0, heap_of_string)
+        + heap_of_string(&r.base)
+        + heap_of_attrs(&r.attrs)
+        + heap_of_string(&r.links);
+    let links = heap_of_link(&reg.ep_link)
+        + heap(reg.resolved.capacity() * size_of::<Link>())
+        + reg.resolved.iter().map(heap_of_link).sum::<usize>();
+    // The name index holds a copy of (d, ep), the `ep` index one of ep and a vector.
+    let name_copies = 2 * heap_of_string(&r.ep) + r.d.as_ref().map_or(0, heap_of_string);
+    let indexes = entry(size_of::<u64>() + size_of::<Registration>())
+        + 2 * entry(2 * size_of::<u64>())
+        + entry(size_of::<(Option<String>, String)>() + size_of::<u64>())
+        + entry(size_of::<String>() + size_of::<Vec<u64>>())
+        + heap(size_of::<u64>())
+        + name_copies;
+    record + links + indexes
 }
 
 /// An attribute name's bit in a registration's set of link attribute names: one of 64
@@ -303,6 +355,16 @@ pub fn base_of(peer: SocketAddr) -> String {
         format!("coap://{host}")
     } else {
         format!("coap://{host}:{}", peer.port())
+    }
+}
+
+/// The client an address belongs to, as the per-client limits count: an IPv4 address
+/// (also written IPv4-mapped), or the /64 of an IPv6 address.
+#[must_use]
+pub fn client_of(ip: IpAddr) -> IpAddr {
+    match ip.to_canonical() {
+        IpAddr::V4(v4) => IpAddr::V4(v4),
+        IpAddr::V6(v6) => IpAddr::V6(Ipv6Addr::from(u128::from(v6) & !u128::from(u64::MAX))),
     }
 }
 
@@ -531,7 +593,7 @@ pub struct Found {
     pub links: usize,
 }
 
-/// The directory: registrations by location, by (sector, name), by expiry and by peer.
+/// The directory: registrations by location, by (sector, name), by expiry and by client.
 #[derive(Debug, Default)]
 pub struct Directory {
     limits: Limits,
@@ -543,15 +605,22 @@ pub struct Directory {
     /// `ep=NAME` lookup must look at every registration).
     ep_in_links: usize,
     expiry: BTreeSet<(u64, u64)>,
+    /// Registrations and bytes by client ([`client_of`]).
     peers: HashMap<IpAddr, (usize, usize)>,
     bytes: usize,
-    next_id: u64,
+    /// Locations are a keyed hash (SipHash, the key from the OS) of a counter.
+    ids: RandomState,
+    counter: u64,
+    /// Registrations in the order they were made (a registration made again keeps its
+    /// place), so pages stay in place as others come and go.
+    order: BTreeMap<u64, u64>,
+    next_seq: u64,
 }
 
 /// What a registration did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Registered {
-    /// The registration's number (location `/rd/<id>`).
+    /// The registration's number (location `/rd/<id>`), random.
     pub id: u64,
     /// A new registration (else the one of the same `ep` and `d` was replaced).
     pub created: bool,
@@ -563,8 +632,18 @@ impl Directory {
     pub fn new(limits: Limits) -> Self {
         Self {
             limits,
-            next_id: 1,
             ..Self::default()
+        }
+    }
+
+    /// A number for a new registration: unpredictable, not 0, not one held.
+    fn new_id(&mut self) -> u64 {
+        loop {
+            self.counter += 1;
+            let id = self.ids.hash_one(self.counter);
+            if id != 0 && !self.regs.contains_key(&id) {
+                return id;
+            }
         }
     }
 
@@ -667,10 +746,13 @@ impl Directory {
         {
             return Err(RdError::NotOwner);
         }
-        let lt = params.lt.unwrap_or(DEFAULT_LIFETIME_S);
+        let lt = params.lt.unwrap_or(DEFAULT_LIFETIME_S).min(MAX_LIFETIME_S);
         let base_given = params.base.is_some();
         let record = Record {
-            id: existing.unwrap_or(self.next_id),
+            id: match existing {
+                Some(id) => id,
+                None => self.new_id(),
+            },
             ep,
             d: params.d,
             base: params.base.unwrap_or_else(|| base_of(peer)),
@@ -682,12 +764,13 @@ impl Directory {
             peer: peer.ip(),
             simple,
         };
-        let reg = Registration::new(record, &links);
+        let mut reg = Registration::new(record, &links);
+        let client = client_of(peer.ip());
         let freed = existing.and_then(|id| self.regs.get(&id)).map(|old| {
-            let same_peer = old.record.peer == peer.ip();
-            (old.cost, same_peer)
+            let same_client = client_of(old.record.peer) == client;
+            (old.cost, same_client)
         });
-        let (held, held_bytes) = self.peers.get(&peer.ip()).copied().unwrap_or_default();
+        let (held, held_bytes) = self.peers.get(&client).copied().unwrap_or_default();
         let (held, held_bytes) = match freed {
             Some((cost, true)) => (held - 1, held_bytes - cost),
             _ => (held, held_bytes),
@@ -705,10 +788,8 @@ impl Directory {
         if count + 1 > self.limits.max_registrations || total + reg.cost > self.limits.max_bytes {
             return Err(RdError::Full(self.regs.len()));
         }
-        if let Some(id) = existing {
-            self.take(id);
-        } else {
-            self.next_id += 1;
+        if let Some(old) = existing.and_then(|id| self.take(id)) {
+            reg.seq = old.seq;
         }
         let id = reg.record.id;
         self.put(reg);
@@ -719,7 +800,12 @@ impl Directory {
     }
 
     /// Adds a registration to every index.
-    fn put(&mut self, reg: Registration) {
+    fn put(&mut self, mut reg: Registration) {
+        if reg.seq == 0 {
+            self.next_seq += 1;
+            reg.seq = self.next_seq;
+        }
+        self.order.insert(reg.seq, reg.record.id);
         let r = &reg.record;
         self.names.insert((r.d.clone(), r.ep.clone()), r.id);
         let ids = self.by_ep.entry(r.ep.clone()).or_default();
@@ -728,17 +814,17 @@ impl Directory {
         }
         self.ep_in_links += usize::from(reg.link_attrs & name_bit("ep") != 0);
         self.expiry.insert((r.expires_ms, r.id));
-        let held = self.peers.entry(r.peer).or_default();
+        let held = self.peers.entry(client_of(r.peer)).or_default();
         held.0 += 1;
         held.1 += reg.cost;
         self.bytes += reg.cost;
-        self.next_id = self.next_id.max(r.id + 1);
         self.regs.insert(r.id, reg);
     }
 
     /// Removes a registration from every index.
     fn take(&mut self, id: u64) -> Option<Registration> {
         let reg = self.regs.remove(&id)?;
+        self.order.remove(&reg.seq);
         let r = &reg.record;
         self.names.remove(&(r.d.clone(), r.ep.clone()));
         if let Some(ids) = self.by_ep.get_mut(&r.ep) {
@@ -749,11 +835,12 @@ impl Directory {
         }
         self.ep_in_links -= usize::from(reg.link_attrs & name_bit("ep") != 0);
         self.expiry.remove(&(r.expires_ms, r.id));
-        if let Some(held) = self.peers.get_mut(&r.peer) {
+        let client = client_of(r.peer);
+        if let Some(held) = self.peers.get_mut(&client) {
             held.0 -= 1;
             held.1 -= reg.cost;
             if held.0 == 0 {
-                self.peers.remove(&r.peer);
+                self.peers.remove(&client);
             }
         }
         self.bytes -= reg.cost;
@@ -761,12 +848,14 @@ impl Directory {
     }
 
     /// Registration update (RFC 9176 §5.3.1): a new lifetime (or the last one again),
-    /// base or endpoint attributes.
+    /// base or endpoint attributes. The base of a registration made without one stays
+    /// the address that registered: neither an update from another port nor a `base`
+    /// moves it.
     ///
     /// # Errors
     ///
-    /// [`RdError::NotFound`], [`RdError::NotOwner`], or a parameter that may not be
-    /// updated (`ep`, `d`) or is malformed, or a limit.
+    /// [`RdError::NotFound`], [`RdError::NotOwner`], [`RdError::BaseFixed`], or a
+    /// parameter that may not be updated (`ep`, `d`) or is malformed, or a limit.
     pub fn update(
         &mut self,
         now_ms: u64,
@@ -783,23 +872,18 @@ impl Directory {
                 "ep and d cannot be changed by an update; register again",
             ));
         }
-        if reg.record.simple && params.base.is_some() {
-            return Err(bad("a simple registration takes no base"));
+        if params.base.is_some() && !reg.record.base_given {
+            return Err(RdError::BaseFixed);
         }
         let mut record = reg.record.clone();
         // Stored only once it parsed.
         let links = link_format::parse(&record.links).unwrap_or_default();
         if let Some(lt) = params.lt {
-            record.lt = lt;
+            record.lt = lt.min(MAX_LIFETIME_S);
         }
         record.expires_ms = now_ms.saturating_add(u64::from(record.lt) * 1000);
-        match params.base {
-            Some(base) => {
-                record.base = base;
-                record.base_given = true;
-            }
-            None if !record.base_given => record.base = base_of(peer),
-            None => {}
+        if let Some(base) = params.base {
+            record.base = base;
         }
         for (name, value) in params.extra {
             match record.attrs.iter_mut().find(|(n, _)| *n == name) {
@@ -807,8 +891,11 @@ impl Directory {
                 None => record.attrs.push((name, value)),
             }
         }
-        let new = Registration::new(record, &links);
-        let (_, held_bytes) = self.peers.get(&peer.ip()).copied().unwrap_or_default();
+        let mut new = Registration::new(record, &links);
+        new.seq = reg.seq;
+        let (_, held_bytes) = (self.peers.get(&client_of(peer.ip())))
+            .copied()
+            .unwrap_or_default();
         let old_cost = reg.cost;
         if held_bytes - old_cost + new.cost > self.limits.per_peer_bytes
             || self.bytes - old_cost + new.cost > self.limits.max_bytes
@@ -852,16 +939,18 @@ impl Directory {
         gone
     }
 
-    /// Puts back registrations read from storage (those already expired are left out);
-    /// returns how many were put back.
+    /// Puts back registrations read from storage (those already expired are left out,
+    /// and none lives longer than [`MAX_LIFETIME_S`] from `now_ms`: a record written
+    /// before the cap keeps no longer); returns how many were put back.
     pub fn restore(&mut self, now_ms: u64, records: impl IntoIterator<Item = Record>) -> usize {
         let mut n = 0;
-        for record in records {
-            // An expired registration's number is not given out again.
-            self.next_id = self.next_id.max(record.id + 1);
+        for mut record in records {
             if record.expires_ms <= now_ms || self.regs.contains_key(&record.id) {
                 continue;
             }
+            record.lt = record.lt.min(MAX_LIFETIME_S);
+            record.expires_ms =
+                (record.expires_ms).min(now_ms.saturating_add(u64::from(MAX_LIFETIME_S) * 1000));
             let Ok(links) = link_format::parse(&record.links) else {
                 continue;
             };
@@ -901,7 +990,7 @@ impl Directory {
             .map(|name| self.by_ep.get(name).map_or(&[][..], Vec::as_slice));
         let candidates: Box<dyn Iterator<Item = &Registration>> = match by_name {
             Some(ids) => Box::new(ids.iter().filter_map(|id| self.regs.get(id))),
-            None => Box::new(self.regs.values()),
+            None => Box::new(self.order.values().filter_map(|id| self.regs.get(id))),
         };
         for reg in candidates {
             if reg.record.expires_ms <= now_ms {

@@ -5,6 +5,9 @@
 //! - [`service`]: the directory over CoAP (`coapcam rd`): its resources on a
 //!   `coap_net` server, simple registration's fetch, the registrations persisted one
 //!   file each, the sweep of expired ones;
+//! - [`freshness`]: the directory's own Echo values, which a request that changes a
+//!   registration (or draws a large lookup) must carry: proof, per request, that the
+//!   sender receives at its address;
 //! - [`registrant`]: a server's registration kept alive (`serve --register`): registered,
 //!   renewed before its lifetime ends, registered again when its links or groups
 //!   change, removed at shutdown; and the lookups clients make (`discover --rd`,
@@ -15,6 +18,7 @@
 //! group's members with one endpoint lookup, `?grp=224.0.1.188:5683`.
 
 pub mod directory;
+pub mod freshness;
 pub mod registrant;
 pub mod service;
 

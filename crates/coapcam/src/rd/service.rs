@@ -8,6 +8,13 @@
 //! (POST: update, DELETE: removal), `/rd-lookup/ep` and `/rd-lookup/res` (GET: lookups,
 //! `rt=core.rd-lookup-ep` / `core.rd-lookup-res`), `/.well-known/rd` (POST: simple
 //! registration).
+//!
+//! Every request that makes, changes or removes a registration must carry a fresh Echo
+//! value of the directory's own, made for its source address ([`super::freshness`]);
+//! without one it is answered 4.01 with a value and nothing else happens. So is a lookup
+//! whose first message would be more than three times the request, unless it came over
+//! the loopback interface (from this machine) or `coapcam rd --no-address-check` says
+//! to answer in full.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -20,6 +27,7 @@ use coap_net::{Client, Ctx, Resource, Router, handler};
 use tokio::sync::Semaphore;
 
 use super::directory::{Directory, Found, Limits, LookupKind, Params, Query, RdError, Record};
+use super::freshness::Freshness;
 
 /// The registration resource's path (RFC 9176 §5.3 leaves it to the directory).
 pub const REGISTRATION_PATH: &str = "/rd";
@@ -136,6 +144,10 @@ pub struct Service {
     writing: tokio::sync::Mutex<()>,
     fetcher: Client,
     fetching: Semaphore,
+    fresh: Freshness,
+    /// Whether a lookup from off this machine needs a fresh Echo value when its answer
+    /// is more than three times the request.
+    verify_lookups: bool,
 }
 
 impl std::fmt::Debug for Service {
@@ -149,12 +161,18 @@ impl std::fmt::Debug for Service {
 impl Service {
     /// A directory with `limits`, persisted in `store` when given (its registrations are
     /// read back first, the expired ones left out and their files removed). Simple
-    /// registration fetches through `fetcher`.
+    /// registration fetches through `fetcher`. `verify_lookups`: large lookup answers
+    /// go off this machine only to a sender that returned a fresh Echo value.
     ///
     /// # Errors
     ///
     /// When the store cannot be read.
-    pub fn new(limits: Limits, store: Option<Store>, fetcher: Client) -> anyhow::Result<Arc<Self>> {
+    pub fn new(
+        limits: Limits,
+        store: Option<Store>,
+        fetcher: Client,
+        verify_lookups: bool,
+    ) -> anyhow::Result<Arc<Self>> {
         let mut directory = Directory::new(limits);
         if let Some(store) = &store {
             let records = store.load()?;
@@ -178,7 +196,24 @@ impl Service {
             writing: tokio::sync::Mutex::new(()),
             fetcher,
             fetching: Semaphore::new(SIMPLE_AT_ONCE),
+            fresh: Freshness::new(),
+            verify_lookups,
         }))
+    }
+
+    /// Whether `request` carries a fresh Echo value the directory made for its sender.
+    fn proved(&self, request: &IncomingRequest) -> bool {
+        let echo = request.options.first(OptionNumber::ECHO);
+        self.fresh.is_fresh(now_ms(), request.peer, echo)
+    }
+
+    /// 4.01 with a new Echo value for the sender (RFC 9175 §2.3): the client sends the
+    /// request again with it. 4 bytes, the token and 19 for the option.
+    fn challenge(&self, request: &IncomingRequest) -> Response {
+        let mut r = Response::new(Code::UNAUTHORIZED);
+        let value = self.fresh.value(now_ms(), request.peer);
+        r.options.set(OptionNumber::ECHO, value);
+        r
     }
 
     /// The directory, locked.
@@ -277,6 +312,9 @@ impl Service {
     }
 
     async fn register(&self, request: &IncomingRequest) -> Response {
+        if !self.proved(request) {
+            return self.challenge(request);
+        }
         if let Some(refused) = link_format_only(request) {
             return refused;
         }
@@ -301,6 +339,9 @@ impl Service {
     }
 
     async fn register_simple(&self, request: &IncomingRequest) -> Response {
+        if !self.proved(request) {
+            return self.challenge(request);
+        }
         if !request.payload.is_empty() {
             return Response::diagnostic(
                 Code::BAD_REQUEST,
@@ -359,6 +400,9 @@ impl Service {
     }
 
     async fn update(&self, ctx: &Ctx) -> Response {
+        if !self.proved(&ctx.request) {
+            return self.challenge(&ctx.request);
+        }
         let Some(id) = ctx.param("id").and_then(|s| s.parse::<u64>().ok()) else {
             return Response::diagnostic(Code::NOT_FOUND, "no such registration");
         };
@@ -379,6 +423,9 @@ impl Service {
     }
 
     async fn remove(&self, ctx: &Ctx) -> Response {
+        if !self.proved(&ctx.request) {
+            return self.challenge(&ctx.request);
+        }
         let Some(id) = ctx.param("id").and_then(|s| s.parse::<u64>().ok()) else {
             return Response::diagnostic(Code::NOT_FOUND, "no such registration");
         };
@@ -400,6 +447,13 @@ impl Service {
             Err(e) => return refusal(&e),
         };
         let Found { document, .. } = self.directory().lookup(now_ms(), kind, &query);
+        if self.verify_lookups
+            && !request.loopback
+            && first_message_len(request, document.len()) > 3 * request_len(request)
+            && !self.proved(request)
+        {
+            return self.challenge(request);
+        }
         let mut r = Response::new(Code::CONTENT).with_payload(document);
         r.options.set_uint(
             OptionNumber::CONTENT_FORMAT,
@@ -407,6 +461,34 @@ impl Service {
         );
         r
     }
+}
+
+/// The bytes `request` took on the wire, at least: its header, options and payload (the
+/// token is not known here, so a request is counted a little short).
+fn request_len(request: &IncomingRequest) -> usize {
+    coap::Message {
+        ty: coap::Type::Con,
+        code: request.method,
+        message_id: 0,
+        token: coap::Token::EMPTY,
+        options: request.options.clone(),
+        payload: request.payload.clone(),
+    }
+    .encoded_len()
+}
+
+/// The most bytes the first message of a lookup's answer takes: the block the request
+/// asks for (1,024 bytes when it asks none) or the whole document if smaller, and 32
+/// for the header, an 8-byte token and the options (Content-Format, Block2, Size2, ETag
+/// is not sent).
+fn first_message_len(request: &IncomingRequest, document: usize) -> usize {
+    let block = request
+        .options
+        .block2()
+        .map_or(coap::BlockOpt::size_of(coap::BlockOpt::MAX_SZX), |b| {
+            coap::BlockOpt::size_of(b.szx.min(coap::BlockOpt::MAX_SZX))
+        });
+    32 + document.min(block)
 }
 
 /// The Uri-Query items of `request` as registration parameters.

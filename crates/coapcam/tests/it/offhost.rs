@@ -523,3 +523,183 @@ fn offhost_http_reads_for_everyone_and_measures_only_for_this_machine() {
     );
     assert_eq!(status, 201, "{body}");
 }
+
+/// The directory's endpoints of `query`, asked from `client`.
+fn rd_endpoints(
+    client: &coap_net::Client,
+    rd: SocketAddr,
+    query: &[&str],
+) -> Vec<coapcam::rd::registrant::Endpoint> {
+    let query: Vec<String> = query.iter().map(|q| (*q).to_owned()).collect();
+    support::runtime().block_on(async {
+        coapcam::rd::registrant::lookup_endpoints(client, rd, &query, LIMIT)
+            .await
+            .unwrap_or_else(|e| panic!("endpoint lookup at {rd}: {e:#}"))
+    })
+}
+
+#[test]
+#[ignore = "off-host: run inside scripts/netns-run (scripts/test.sh does)"]
+fn offhost_forged_directory_updates_and_removals_leave_the_station_at_its_own_base() {
+    let test = "offhost_forged_directory_updates_and_removals_leave_the_station_at_its_own_base";
+    if !in_namespace(test) {
+        return;
+    }
+    let dir = TempDir::new("rd-forged");
+    let mut rd_proc = Proc::spawn(
+        COAPCAM,
+        &[
+            "rd",
+            "--bind",
+            "[fd00::2]:0",
+            "--no-state",
+            "--duration",
+            "120",
+        ],
+    );
+    let rd: SocketAddr = rd_proc.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: resource directory on ")
+            .and_then(|a| a.trim().parse().ok())
+    });
+    // The station registers from its server socket on fd00::3; the directory's CoAP
+    // layer has verified that address, as in the issue.
+    let (_station, station) = serve_at(
+        "[fd00::3]:0",
+        &dir.join("station"),
+        &[
+            "--no-cameras",
+            "--register",
+            &format!("coap://{rd}"),
+            "--rd-ep",
+            "victim",
+            "--rd-lifetime",
+            "60",
+        ],
+    );
+    let own_base = format!("coap://{station}");
+    let looker = coap_net::Client::bind(
+        "[fd00::5]:0".parse().expect("an address"),
+        coap::EndpointConfig::default(),
+    )
+    .expect("a client on fd00::5");
+    let deadline = Instant::now() + LIMIT;
+    let location = loop {
+        if let Some(e) = rd_endpoints(&looker, rd, &["ep=victim"]).first() {
+            break e.link.target.clone();
+        }
+        assert!(Instant::now() < deadline, "the station never registered");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    // The location is a random 64-bit number, not /rd/1.
+    let number: u64 = location
+        .strip_prefix("/rd/")
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("location {location}"));
+    assert!(number > u64::from(u32::MAX), "{location}");
+
+    // Forged from the station's address and port: a NON update that moves the base
+    // and stretches the lifetime, a registration of its name elsewhere, registrations
+    // that would fill its quota, and a DELETE (each twice).
+    let attacker = "coap://[fd00::66]";
+    let non = |method: Code, path: &str, query: &[String], payload: &[u8], mid: u16| {
+        let mut msg = Message::empty(Type::Non, mid);
+        msg.code = method;
+        msg.token = Token::new(&mid.to_be_bytes()).unwrap_or_default();
+        msg.options.set_path(path);
+        for q in query {
+            msg.options.push(OptionNumber::URI_QUERY, q.as_bytes());
+        }
+        msg.payload = bytes::Bytes::copy_from_slice(payload);
+        msg
+    };
+    let mut forged = vec![
+        non(
+            Code::POST,
+            &location,
+            &[format!("base={attacker}"), "lt=100000".to_owned()],
+            b"",
+            0x5000,
+        ),
+        non(
+            Code::POST,
+            "/rd",
+            &[
+                "ep=victim".to_owned(),
+                format!("base={attacker}"),
+                "et=coapcam.station".to_owned(),
+                "lt=4294967295".to_owned(),
+            ],
+            b"</cams>",
+            0x5001,
+        ),
+    ];
+    for i in 0..64u16 {
+        forged.push(non(
+            Code::POST,
+            "/rd",
+            &[format!("ep=squat-{i}"), "lt=4294967295".to_owned()],
+            b"",
+            0x5100 + i,
+        ));
+    }
+    forged.push(non(Code::DELETE, &location, &[], b"", 0x5200));
+    let target = rd;
+    for msg in &forged {
+        for _ in 0..2 {
+            wire::inject(&wire::frame(station, target, &msg.encode()));
+        }
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let listed = rd_endpoints(&looker, rd, &[]);
+    assert_eq!(listed.len(), 1, "{listed:?}");
+    assert_eq!(listed[0].ep, "victim");
+    assert_eq!(listed[0].base, own_base, "{listed:?}");
+    assert_eq!(listed[0].link.target, location);
+
+    // A lookup from an address the CoAP layer has verified (as the station's is) but
+    // without the directory's own fresh Echo value: a small 4.01, at most three times
+    // the request, whoever sent it. With the value, the answer.
+    let socket = UdpSocket::bind("[fd00::6]:0").expect("bind fd00::6");
+    let lookup = |mid: u16, echo: Option<&[u8]>| {
+        let mut msg = get("/rd-lookup/res", mid);
+        if let Some(e) = echo {
+            msg.options.set(OptionNumber::ECHO, e);
+        }
+        msg
+    };
+    let answer = |replies: &[Vec<u8>]| Message::decode(&replies[0]).expect("a CoAP reply");
+    // The CoAP layer's challenge, then its Echo value back: the address is verified.
+    let first = answer(&exchange(&socket, rd, &lookup(1, None)));
+    assert_eq!(first.code, Code::UNAUTHORIZED);
+    let layer_echo = first
+        .options
+        .first(OptionNumber::ECHO)
+        .expect("Echo")
+        .to_vec();
+    let _ = exchange(&socket, rd, &lookup(2, Some(&layer_echo)));
+    let request = lookup(3, None);
+    let replies = exchange(&socket, rd, &request);
+    let (sent, got) = (
+        request.encode().len(),
+        replies.iter().map(Vec::len).sum::<usize>(),
+    );
+    eprintln!(
+        "a lookup from a verified address without a fresh Echo: {sent} B sent, {got} B back ({:.2}x)",
+        got as f64 / sent as f64
+    );
+    assert!(got <= 3 * sent, "{got} B back for a {sent}-byte lookup");
+    let challenge = answer(&replies);
+    assert_eq!(challenge.code, Code::UNAUTHORIZED);
+    let rd_echo = challenge
+        .options
+        .first(OptionNumber::ECHO)
+        .expect("Echo")
+        .to_vec();
+    let full = answer(&exchange(&socket, rd, &lookup(4, Some(&rd_echo))));
+    assert_eq!(full.code, Code::CONTENT);
+    assert!(
+        String::from_utf8_lossy(&full.payload).contains(&own_base),
+        "{full:?}"
+    );
+    rd_proc.kill();
+}

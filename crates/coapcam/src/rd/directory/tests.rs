@@ -1,6 +1,7 @@
 //! The directory on literal times: registration, replacement, update, removal, expiry,
 //! lookups with their criteria and pages, the bounds, and restoring from records.
 
+use std::collections::BTreeSet;
 use std::net::SocketAddr;
 
 use super::*;
@@ -37,17 +38,14 @@ fn a_registration_is_found_by_endpoint_and_by_resource() {
             STATION,
         )
         .expect("registered");
-    assert_eq!(
-        r,
-        Registered {
-            id: 1,
-            created: true
-        }
-    );
+    assert!(r.created);
     let eps = rd.lookup(T0, LookupKind::Endpoints, &query(""));
     assert_eq!(
         eps.document,
-        r#"</rd/1>;ep=station-6;base=coap://127.0.0.6;et=coapcam.station;grp=224.0.1.188:5683;rt="core.rd-ep""#
+        format!(
+            r#"</rd/{}>;ep=station-6;base=coap://127.0.0.6;et=coapcam.station;grp=224.0.1.188:5683;rt="core.rd-ep""#,
+            r.id
+        )
     );
     let res = rd.lookup(T0, LookupKind::Resources, &query("rt=rgbd.color"));
     assert_eq!(
@@ -82,8 +80,12 @@ fn a_registration_is_found_by_endpoint_and_by_resource() {
         1
     );
     assert_eq!(
-        rd.lookup(T0, LookupKind::Endpoints, &query("href=/rd/1"))
-            .links,
+        rd.lookup(
+            T0,
+            LookupKind::Endpoints,
+            &query(&format!("href=/rd/{}", r.id))
+        )
+        .links,
         1
     );
 }
@@ -92,7 +94,8 @@ fn a_registration_is_found_by_endpoint_and_by_resource() {
 fn the_same_name_again_replaces_the_links_at_the_same_location() {
     let mut rd = directory();
     let peer = addr("[fd00::2]:5700");
-    rd.register(T0, peer, params("ep=a"), STATION)
+    let first = rd
+        .register(T0, peer, params("ep=a"), STATION)
         .expect("first");
     let again = rd
         .register(T0 + 5, peer, params("ep=a&lt=30"), "</only>")
@@ -100,7 +103,7 @@ fn the_same_name_again_replaces_the_links_at_the_same_location() {
     assert_eq!(
         again,
         Registered {
-            id: 1,
+            id: first.id,
             created: false
         }
     );
@@ -114,13 +117,8 @@ fn the_same_name_again_replaces_the_links_at_the_same_location() {
     let other = rd
         .register(T0, peer, params("ep=a&d=floor-2"), "")
         .expect("sector");
-    assert_eq!(
-        other,
-        Registered {
-            id: 2,
-            created: true
-        }
-    );
+    assert!(other.created);
+    assert_ne!(other.id, first.id);
     // Another address may not take a live name over.
     assert_eq!(
         rd.register(T0, addr("[fd00::3]:5700"), params("ep=a"), ""),
@@ -186,7 +184,8 @@ fn update_renews_and_changes_the_base_and_attributes_only_from_the_owner() {
 fn a_registration_is_gone_after_its_lifetime() {
     let mut rd = directory();
     let peer = addr("127.0.0.2:5683");
-    rd.register(T0, peer, params("ep=short&lt=2"), "</x>")
+    let short = rd
+        .register(T0, peer, params("ep=short&lt=2"), "</x>")
         .expect("short");
     rd.register(T0, peer, params("ep=long&lt=60"), "</y>")
         .expect("long");
@@ -202,7 +201,7 @@ fn a_registration_is_gone_after_its_lifetime() {
             .links,
         1
     );
-    assert_eq!(rd.expire(T0 + 2_000), [1]);
+    assert_eq!(rd.expire(T0 + 2_000), [short.id]);
     assert_eq!(rd.len(), 1);
     assert_eq!(rd.next_expiry(), Some(T0 + 60_000));
     // Once expired, the name is free for another address.
@@ -323,7 +322,7 @@ fn one_address_is_held_to_its_count_and_bytes_and_the_directory_to_its_own() {
         max_registrations: 5,
         max_bytes: 1 << 20,
         per_peer: 3,
-        per_peer_bytes: 4_000,
+        per_peer_bytes: 8_000,
         max_document: 32 << 10,
     };
     let mut rd = Directory::new(limits);
@@ -340,7 +339,7 @@ fn one_address_is_held_to_its_count_and_bytes_and_the_directory_to_its_own() {
     // Replacing one of its own is not one more.
     rd.register(T0, a, params("ep=a2"), "</y>")
         .expect("replace");
-    // Bytes: a document that would take the address past 4,000 bytes.
+    // Bytes: a document that would take the address past 8,000 bytes.
     let b = addr("127.0.0.3:5683");
     let links: Vec<String> = (0..40).map(|i| format!("</r{i}>;rt=\"t\"")).collect();
     let err = rd
@@ -354,10 +353,7 @@ fn one_address_is_held_to_its_count_and_bytes_and_the_directory_to_its_own() {
         .expect_err("full");
     assert_eq!(err, RdError::Full(5));
     assert_eq!(err.code(), Code::SERVICE_UNAVAILABLE);
-    let counted: usize = (1..=6)
-        .filter_map(|id| rd.get(id))
-        .map(Registration::cost)
-        .sum();
+    let counted: usize = rd.regs.values().map(Registration::cost).sum();
     assert_eq!(rd.bytes(), counted);
 }
 
@@ -365,11 +361,13 @@ fn one_address_is_held_to_its_count_and_bytes_and_the_directory_to_its_own() {
 fn records_restore_what_was_registered_except_what_expired() {
     let mut rd = directory();
     let peer = addr("127.0.0.2:5683");
-    rd.register(T0, peer, params("ep=a&lt=100&et=coapcam.station"), STATION)
+    let a = rd
+        .register(T0, peer, params("ep=a&lt=100&et=coapcam.station"), STATION)
         .expect("a");
-    rd.register(T0, peer, params("ep=b&lt=5"), "</x>")
+    let b = rd
+        .register(T0, peer, params("ep=b&lt=5"), "</x>")
         .expect("b");
-    let records: Vec<Record> = [1, 2]
+    let records: Vec<Record> = [a.id, b.id]
         .iter()
         .filter_map(|id| rd.get(*id))
         .map(|r| r.record().clone())
@@ -384,5 +382,156 @@ fn records_restore_what_was_registered_except_what_expired() {
     );
     // New registrations get new numbers.
     let next = restored.register(T0, peer, params("ep=c"), "").expect("c");
-    assert_eq!(next.id, 3);
+    assert!(![a.id, b.id].contains(&next.id));
+}
+
+#[test]
+fn locations_are_random_64_bit_numbers_not_a_sequence() {
+    let peer = addr("127.0.0.2:5683");
+    let mut rd = Directory::new(Limits {
+        per_peer: 100,
+        ..Limits::default()
+    });
+    let ids: Vec<u64> = (0..50)
+        .map(|i| {
+            rd.register(T0, peer, params(&format!("ep=n{i}")), "")
+                .expect("registered")
+                .id
+        })
+        .collect();
+    let distinct: BTreeSet<u64> = ids.iter().copied().collect();
+    assert_eq!(distinct.len(), ids.len());
+    // Neither small nor one after another: knowing one location tells nothing of the
+    // next.
+    assert!(ids.iter().all(|id| *id > u64::from(u32::MAX)), "{ids:?}");
+    assert!(ids.windows(2).all(|w| w[1].abs_diff(w[0]) > 1), "{ids:?}");
+    // Another directory gives other numbers for the same registrations.
+    let mut other = directory();
+    let first = other
+        .register(T0, peer, params("ep=n0"), "")
+        .expect("registered");
+    assert_ne!(first.id, ids[0]);
+}
+
+#[test]
+fn an_update_never_moves_the_base_of_a_registration_made_without_one() {
+    let mut rd = directory();
+    let station = addr("[fd00::3]:5683");
+    let id = rd
+        .register(T0, station, params("ep=victim&lt=60"), "</cams>")
+        .expect("registered")
+        .id;
+    let base = |rd: &Directory| {
+        let found = rd.lookup(T0 + 1_000, LookupKind::Endpoints, &query("ep=victim"));
+        link_format::parse(&found.document).expect("parses")[0]
+            .attr("base")
+            .map(str::to_owned)
+    };
+    assert_eq!(base(&rd).as_deref(), Some("coap://[fd00::3]"));
+    // The issue's forged update: a base and a long lifetime, from the station's address.
+    assert_eq!(
+        rd.update(
+            T0 + 1_000,
+            station,
+            id,
+            params("base=coap://[fd00::66]&lt=100000")
+        ),
+        Err(RdError::BaseFixed)
+    );
+    assert_eq!(RdError::BaseFixed.code(), Code::FORBIDDEN);
+    // An update from another port of the same address renews, and the base stays.
+    rd.update(T0 + 1_000, addr("[fd00::3]:40000"), id, params("lt=30"))
+        .expect("renewed");
+    assert_eq!(base(&rd).as_deref(), Some("coap://[fd00::3]"));
+    // A simple registration has no base of its own either.
+    let simple = rd
+        .register_simple(T0, station, params("ep=simple"), "</s>")
+        .expect("simple")
+        .id;
+    assert_eq!(
+        rd.update(T0, station, simple, params("base=coap://[fd00::66]")),
+        Err(RdError::BaseFixed)
+    );
+}
+
+#[test]
+fn lifetimes_are_capped_at_25_hours_when_registered_updated_or_restored() {
+    let mut rd = directory();
+    let peer = addr("127.0.0.2:5683");
+    let cap_ms = u64::from(MAX_LIFETIME_S) * 1000;
+    let id = rd
+        .register(T0, peer, params("ep=long&lt=4294967295"), "</x>")
+        .expect("registered")
+        .id;
+    let record = |rd: &Directory| rd.get(id).expect("held").record().clone();
+    assert_eq!(record(&rd).lt, MAX_LIFETIME_S);
+    assert_eq!(record(&rd).expires_ms, T0 + cap_ms);
+    assert_eq!(rd.next_expiry(), Some(T0 + cap_ms));
+    rd.update(T0 + 1_000, peer, id, params("lt=100000"))
+        .expect("updated");
+    assert_eq!(record(&rd).lt, MAX_LIFETIME_S);
+    assert_eq!(record(&rd).expires_ms, T0 + 1_000 + cap_ms);
+    assert_eq!(rd.expire(T0 + 1_000 + cap_ms), [id]);
+    // A record written before the cap (2^32-1 s) lives at most the cap after a restart.
+    let mut old = only_record(&directory_with(peer, "ep=old&lt=60"));
+    old.lt = u32::MAX;
+    old.expires_ms = T0 + u64::from(u32::MAX) * 1000;
+    let mut restored = directory();
+    assert_eq!(restored.restore(T0, [old.clone()]), 1);
+    let back = restored.get(old.id).expect("restored").record();
+    assert_eq!((back.lt, back.expires_ms), (MAX_LIFETIME_S, T0 + cap_ms));
+}
+
+/// A directory holding one registration of `query` by `peer`.
+fn directory_with(peer: SocketAddr, query: &str) -> Directory {
+    let mut rd = directory();
+    rd.register(T0, peer, params(query), "</x>")
+        .expect("registered");
+    rd
+}
+
+/// The record of the only registration `rd` holds.
+fn only_record(rd: &Directory) -> Record {
+    rd.regs.values().next().expect("one").record().clone()
+}
+
+#[test]
+fn an_ipv6_slash_64_is_one_client_and_ipv4_mapped_is_ipv4() {
+    let limits = Limits {
+        per_peer: 3,
+        ..Limits::default()
+    };
+    let mut rd = Directory::new(limits);
+    // Four addresses of one /64, as one host may take: the fourth is over.
+    for i in 1..=3 {
+        rd.register(
+            T0,
+            addr(&format!("[fd00::1:0:0:{i}]:5683")),
+            params(&format!("ep=a{i}")),
+            "",
+        )
+        .expect("within");
+    }
+    let err = rd
+        .register(T0, addr("[fd00::ffff:0:0:9]:5683"), params("ep=a4"), "")
+        .expect_err("the same /64");
+    assert!(matches!(err, RdError::PeerLimit { held: 3, .. }), "{err:?}");
+    // Another /64 is another client.
+    rd.register(T0, addr("[fd00:0:0:1::1]:5683"), params("ep=b"), "")
+        .expect("another /64");
+    // 192.0.2.1 and ::ffff:192.0.2.1 are one.
+    for i in 0..3 {
+        rd.register(T0, addr("192.0.2.1:5683"), params(&format!("ep=c{i}")), "")
+            .expect("within");
+    }
+    let err = rd
+        .register(T0, addr("[::ffff:192.0.2.1]:5683"), params("ep=c3"), "")
+        .expect_err("the same IPv4 address");
+    assert!(matches!(err, RdError::PeerLimit { held: 3, .. }), "{err:?}");
+    // Removing one frees its place for the whole /64.
+    let id = rd.find(None, "a2").expect("a2").record().id;
+    rd.remove(addr("[fd00::1:0:0:2]:5683"), id)
+        .expect("removed");
+    rd.register(T0, addr("[fd00::ffff:0:0:9]:5683"), params("ep=a4"), "")
+        .expect("a place again");
 }
