@@ -1,6 +1,8 @@
-//! `bench rd`: a `coapcam rd` child process filled with registrations over loopback,
-//! then timed lookups: its resident memory before and after, and each kind of lookup's
-//! median, 95th percentile and longest time over the client's round trip.
+//! `bench rd`: a `coapcam rd` child process filled with registrations over loopback
+//! (until the number asked for, or until it answers 5.03 because its count reached
+//! `--max-mib`, 128 MiB), then timed lookups: its resident memory before and after
+//! beside the bytes it counts for them, and each kind of lookup's median, 95th
+//! percentile and longest time over the client's round trip.
 //!
 //! Every registration is a station with one camera: the typed links `serve --register`
 //! sends for the built-in scene (about 900 bytes), `et=coapcam.station`, one of eight
@@ -58,6 +60,11 @@ pub struct LookupRow {
 pub struct Report {
     /// Registrations held.
     pub registrations: usize,
+    /// Whether the directory was full before all asked for were registered (5.03).
+    pub full: bool,
+    /// The bytes the directory counts its registrations for (the same registrations in
+    /// a `Directory` in this process), KiB.
+    pub counted_kib: u64,
     /// The directory's resident memory before the first registration, KiB.
     pub rss_idle_kib: u64,
     /// And after the last.
@@ -155,7 +162,7 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
             "--per-peer",
             &config.registrations.to_string(),
             "--per-peer-kib",
-            &(config.registrations * 8).to_string(),
+            "1048576",
             "--duration",
             "3600",
         ])
@@ -181,9 +188,11 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
     let (rss_idle_kib, _) = memory_kib(child.id())?;
     let started = Instant::now();
     let mut next = 0usize;
+    let mut held = 0usize;
+    let mut full = false;
     let mut running = tokio::task::JoinSet::new();
-    while next < config.registrations || !running.is_empty() {
-        while next < config.registrations && running.len() < config.concurrency.max(1) {
+    while (next < config.registrations && !full) || !running.is_empty() {
+        while next < config.registrations && !full && running.len() < config.concurrency.max(1) {
             let i = next;
             next += 1;
             let client = client.clone();
@@ -196,6 +205,9 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
                 );
                 post.payload = station_links(&format!("{:012}", i)).into();
                 let r = client.send(rd, post).await?;
+                if r.code == Code::SERVICE_UNAVAILABLE {
+                    return Ok(false);
+                }
                 if r.code != Code::CREATED {
                     bail!(
                         "registration {i} answered {} {}",
@@ -203,16 +215,20 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
                         String::from_utf8_lossy(&r.payload)
                     );
                 }
-                Ok(())
+                Ok(true)
             });
         }
         if let Some(done) = running.join_next().await {
-            done.context("a registration task failed")??;
+            if done.context("a registration task failed")?? {
+                held += 1;
+            } else {
+                full = true;
+            }
         }
     }
     let fill_s = started.elapsed().as_secs_f64();
     let (rss_filled_kib, _) = memory_kib(child.id())?;
-    let n = config.registrations.max(1);
+    let n = held.max(1);
     let kinds: Vec<(String, LookupOf)> = vec![
         (
             "ep lookup ?ep=station-N".to_owned(),
@@ -270,6 +286,8 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
         ..Limits::default()
     });
     let peer = SocketAddr::from(([127, 0, 0, 1], 40_000));
+    // Those the directory took (when it was full, the last ones sent may not be all of
+    // them, but as many).
     for i in 0..n {
         let query = registration_query(i);
         let params = Params::parse(query.iter().map(String::as_str))?;
@@ -323,8 +341,11 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
     }
     let (_, rss_peak_kib) = memory_kib(child.id())?;
     let _ = child.kill();
+    let counted_kib = u64::try_from(here.bytes() / 1024).unwrap_or(u64::MAX);
     Ok(Report {
-        registrations: config.registrations,
+        registrations: held,
+        full,
+        counted_kib,
         rss_idle_kib,
         rss_filled_kib,
         rss_peak_kib,

@@ -479,15 +479,13 @@ fn request_len(request: &IncomingRequest) -> usize {
 
 /// The most bytes the first message of a lookup's answer takes: the block the request
 /// asks for (1,024 bytes when it asks none) or the whole document if smaller, and 32
-/// for the header, an 8-byte token and the options (Content-Format, Block2, Size2, ETag
-/// is not sent).
+/// for the header, an 8-byte token, the options (Content-Format, and for a body in
+/// blocks ETag, Block2 and Size2) and the payload marker.
 fn first_message_len(request: &IncomingRequest, document: usize) -> usize {
-    let block = request
-        .options
-        .block2()
-        .map_or(coap::BlockOpt::size_of(coap::BlockOpt::MAX_SZX), |b| {
-            coap::BlockOpt::size_of(b.szx.min(coap::BlockOpt::MAX_SZX))
-        });
+    let szx = (request.options.block2()).map_or(coap::BlockOpt::MAX_SZX, |b| {
+        b.szx.min(coap::BlockOpt::MAX_SZX)
+    });
+    let block = coap::BlockOpt::size_of(szx);
     32 + document.min(block)
 }
 

@@ -9,7 +9,7 @@ use coapcam::bench::rd::{self, Config};
 #[derive(Debug, Args)]
 pub(crate) struct RdArgs {
     /// Registrations to fill the directory with (each a one-camera station, about 900
-    /// bytes of links).
+    /// bytes of links); fewer when it is full first (its count at 128 MiB).
     #[arg(long, value_name = "N", default_value_t = 10_000)]
     registrations: usize,
     /// Lookups of each kind to time.
@@ -40,13 +40,20 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<Exit> {
     let per = (report.rss_filled_kib.saturating_sub(report.rss_idle_kib)) as f64 * 1024.0
         / report.registrations.max(1) as f64;
     outln!(
-        "{} registrations in {:.1} s; resident memory {:.1} MiB idle, {:.1} MiB filled ({:.0} bytes per registration), peak {:.1} MiB",
+        "{} registrations in {:.1} s{}; resident memory {:.1} MiB idle, {:.1} MiB filled ({:.0} bytes per registration), peak {:.1} MiB; the directory counts them for {:.1} MiB ({:.0} bytes each)",
         report.registrations,
         report.fill_s,
+        if report.full {
+            ", then full (5.03)"
+        } else {
+            ""
+        },
         report.rss_idle_kib as f64 / 1024.0,
         report.rss_filled_kib as f64 / 1024.0,
         per,
-        report.rss_peak_kib as f64 / 1024.0
+        report.rss_peak_kib as f64 / 1024.0,
+        report.counted_kib as f64 / 1024.0,
+        report.counted_kib as f64 * 1024.0 / report.registrations.max(1) as f64
     );
     outln!("| lookup | links | median ms | p95 ms | max ms | its work: median ms | p95 ms |");
     outln!("|---|---:|---:|---:|---:|---:|---:|");
