@@ -334,8 +334,11 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             .into_iter()
             .map(|(server, r)| {
                 let asked = ServerTimes::of(&r.options).and_then(Result::ok);
-                let blind = no_depth::of_options(&r.options)
-                    .with_context(|| format!("reading the no-depth regions of {server}"))?;
+                // An elective option (RFC 7252 §5.4.1): a malformed one is left out.
+                let blind = no_depth::of_options(&r.options).unwrap_or_else(|e| {
+                    tracing::warn!(%server, error = %e, "a malformed No-Depth option is ignored");
+                    Vec::new()
+                });
                 let c =
                     cloud_of(&r).with_context(|| format!("reading the point cloud of {server}"));
                 c.map(|c| (server, asked.map(|t| t.received_us), c, blind))

@@ -537,3 +537,52 @@ fn a_new_socket_on_an_earlier_ones_port_gets_todays_answers() {
         assert_eq!(serials_at(&again, addr).await, serials(&second));
     });
 }
+
+#[test]
+fn a_malformed_no_depth_option_is_ignored_as_the_elective_option_it_is() {
+    let state = TempDir::new("library-no-depth");
+    let scene = Scene::default_single();
+    runtime().block_on(async {
+        let (_server, client) = start(&scene, &state).await;
+        let sn = client.one_camera(None).await.expect("one camera");
+        let real = client.grab_cloud(Some(&sn)).await.expect("a cloud");
+        // A server (or a path) that sends the same cloud with a No-Depth option of 7 bytes,
+        // which is no whole region: elective, so it is left out, not fatal.
+        let router = coap_net::Router::new();
+        let (payload, options) = (real.payload.clone(), real.options.clone());
+        router.add(
+            &format!("/cams/{sn}/pointcloud"),
+            coap_net::Resource::new().post(coap_net::handler(move |_| {
+                let (payload, mut options) = (payload.clone(), options.clone());
+                async move {
+                    options.set(repr::no_depth::NO_DEPTH, [0u8; 7]);
+                    let mut r = coap::Response::new(Code::CONTENT).with_payload(payload);
+                    r.options = options;
+                    r
+                }
+            })),
+        );
+        let loopback = SocketAddr::from(([127, 0, 0, 1], 0));
+        let odd = coap_net::Server::bind(&[loopback], coap_net::ServerConfig::default(), router)
+            .expect("a server with a malformed option");
+        let uri = format!("coap://{}", odd.local_addrs()[0]);
+        let odd_client = CamClient::connect(
+            &uri,
+            EndpointConfig::default(),
+            None,
+            Duration::from_secs(10),
+        )
+        .await
+        .expect("client");
+        let through = grab_clouds(&odd_client, &Source::Camera(sn.clone()))
+            .await
+            .expect("the cloud, the malformed option left out");
+        assert!(through.no_depth.is_empty());
+        assert!(
+            through.cloud.len() > 10_000,
+            "{} points",
+            through.cloud.len()
+        );
+        assert_eq!(through.cameras, [(odd_client.server(), sn)]);
+    });
+}
