@@ -176,6 +176,56 @@ pub struct TransferSummary {
     pub times: Option<Times>,
 }
 
+impl TransferSummary {
+    /// The statistics as the last line of `--json`: times in nanoseconds as the thesis gives
+    /// them.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut stats = serde_json::json!({
+            "count": self.count,
+            "failed": self.failed,
+            "sd": "population",
+        });
+        if let Some(t) = &self.times {
+            stats["min_ns"] = t.min_ns.into();
+            stats["median_ns"] = (t.median_ns.round() as u64).into();
+            stats["max_ns"] = t.max_ns.into();
+            stats["mean_ns"] = (t.mean_ns.round() as u64).into();
+            stats["sd_ns"] = (t.sd_ns.round() as u64).into();
+            stats["cv"] = ((t.cv * 1e4).round() / 1e4).into();
+        }
+        serde_json::json!({ "statistics": stats })
+    }
+
+    /// The statistics as a table, times in milliseconds.
+    pub fn text(&self, what: &str) -> String {
+        let mut out = format!(
+            "{what} of {} result(s), {} failed (population standard deviation):\n",
+            self.count, self.failed
+        );
+        out += &format!(
+            "{:>7} {:>11} {:>11} {:>11} {:>11} {:>11} {:>6}\n",
+            "count", "min ms", "median ms", "max ms", "mean ms", "sd ms", "cv"
+        );
+        match &self.times {
+            Some(t) => {
+                let ms = |ns: f64| ns / 1e6;
+                out += &format!(
+                    "{:>7} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>6.2}\n",
+                    self.count,
+                    ms(t.min_ns as f64),
+                    ms(t.median_ns),
+                    ms(t.max_ns as f64),
+                    ms(t.mean_ns),
+                    ms(t.sd_ns),
+                    t.cv
+                );
+            }
+            None => out += &format!("{:>7} {:>11}\n", 0, "-"),
+        }
+        out
+    }
+}
+
 /// Transfer-time statistics, nanoseconds.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Times {
@@ -271,6 +321,45 @@ impl TransferStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn stats_of_ms(values: &[u64]) -> TransferStats {
+        let mut s = TransferStats::new();
+        for v in values {
+            s.record(Duration::from_millis(*v));
+        }
+        s
+    }
+
+    #[test]
+    fn a_summary_names_every_column_in_json_and_text() {
+        let s = stats_of_ms(&[100, 200, 300]).summary();
+        let json = s.to_json();
+        let st = &json["statistics"];
+        for key in [
+            "count",
+            "failed",
+            "min_ns",
+            "median_ns",
+            "max_ns",
+            "mean_ns",
+            "sd_ns",
+            "cv",
+        ] {
+            assert!(st.get(key).is_some(), "{key} missing in {json}");
+        }
+        assert_eq!(st["median_ns"], 200_000_000);
+        assert_eq!(st["sd"], "population");
+        let text = s.text("transfer times");
+        assert!(text.contains("median ms"), "{text}");
+        assert!(text.contains("200.000"), "{text}");
+        assert!(text.contains("0.41"), "{text}");
+        let mut failures = TransferStats::new();
+        failures.record_failure();
+        failures.record_failure();
+        let json = failures.summary().to_json();
+        assert_eq!(json["statistics"]["failed"], 2);
+        assert!(json["statistics"].get("mean_ns").is_none());
+    }
 
     #[test]
     fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {

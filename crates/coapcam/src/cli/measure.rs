@@ -129,6 +129,53 @@ pub(crate) struct MeasureArgs {
 /// dimensions), [`Exit::Empty`] when nothing is on the table, [`Exit::Fewer`] when fewer
 /// servers of a group answered than `--expect`.
 pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
+    check_flags(&args)?;
+    let billing = Billing {
+        divisor_cm3_per_kg: args.volumetric_divisor,
+        division_mm: args.round_up_mm,
+        division: Division {
+            d_mm: args.division_mm,
+        },
+    };
+    let (client, source, members) = connect(&args).await?;
+    let edge = match (&source, args.clouds) {
+        (Source::All, false) => measure_edge(&client, &args, &billing).await?,
+        _ => None,
+    };
+    // Servers of a group that failed: their cameras are missing (exit status 6).
+    let (mut m, mut missing) = match edge {
+        Some(m) => (m, false),
+        None => measure_here(&client, &source, &args, &billing).await?,
+    };
+    missing |= missing_servers(&mut m, &source, &members);
+    for w in &m.warnings {
+        eprintln!("coapcam: warning: {w}");
+    }
+    if args.json {
+        outln!("{}", m.to_json()?);
+    } else {
+        outln!("{}", m.text());
+    }
+    let parcel = m.parcel();
+    annotate_parcel(&client, &m, &parcel, &args).await?;
+    Ok(if matches!(m.parcel, Found::Unsynced { .. }) {
+        Exit::Unsynced
+    } else if matches!(m.parcel, Found::Uncalibrated { .. }) {
+        Exit::Uncalibrated
+    } else if matches!(parcel, Parcel::Nothing { .. }) {
+        Exit::Empty
+    } else if matches!(parcel, Parcel::Refused { .. }) {
+        Exit::Unsupported
+    } else if missing && matches!(source, Source::Group { .. }) {
+        Exit::Fewer
+    } else {
+        Exit::Success
+    })
+}
+
+/// What clap cannot check of the flags alone: a usage error (exit 2) before anything is
+/// sent.
+fn check_flags(args: &MeasureArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.annotate
         && !path
             .extension()
@@ -155,15 +202,13 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     if let Some(path) = &args.annotate {
         folder_exists(path)?;
     }
+    Ok(())
+}
+
+/// The client, what it measures, and the members of the group a directory lists (--rd).
+async fn connect(args: &MeasureArgs) -> anyhow::Result<(CamClient, Source, Vec<Endpoint>)> {
     let timeout = args.transmission.timeout();
     let config = args.transmission.endpoint_config();
-    let billing = Billing {
-        divisor_cm3_per_kg: args.volumetric_divisor,
-        division_mm: args.round_up_mm,
-        division: Division {
-            d_mm: args.division_mm,
-        },
-    };
     // The members a directory lists (--rd).
     let mut members: Vec<Endpoint> = Vec::new();
     let (client, source) = match (&args.group, args.cameras.server()) {
@@ -236,40 +281,46 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         }
         (None, None) => bail!("give --server URI or --group MCAST_ADDR"),
     };
-    let edge = match (&source, args.clouds) {
-        (Source::All, false) => {
-            let query = EdgeQuery {
-                codes: args.codes,
-                config: args.dimension.config(),
-                billing,
-            };
-            let started = Instant::now();
-            let measured = client.measure_edge(&query).await?;
-            if measured.is_none() && args.edge {
-                bail!(
-                    "{} does not offer /cams/dimensions (measurement at the edge); leave out --edge",
-                    client.server()
-                );
-            }
-            measured.map(|(mut m, bytes)| {
-                m.servers = vec![client.server(); m.cameras.len()];
-                m.cycle_ms = Some(report::ms(started.elapsed()));
-                m.received_bytes = Some(bytes as u64);
-                m
-            })
-        }
-        _ => None,
+    Ok((client, source, members))
+}
+
+/// The server's own measurement of every camera (/cams/dimensions), or `None` when it
+/// does not offer one.
+async fn measure_edge(
+    client: &CamClient,
+    args: &MeasureArgs,
+    billing: &Billing,
+) -> anyhow::Result<Option<Measurement>> {
+    let query = EdgeQuery {
+        codes: args.codes,
+        config: args.dimension.config(),
+        billing: *billing,
     };
-    // Servers of a group that failed: their cameras are missing (exit status 6).
-    let (mut m, mut missing) = match edge {
-        Some(m) => (m, false),
-        None => measure_here(&client, &source, &args, &billing).await?,
-    };
+    let started = Instant::now();
+    let measured = client.measure_edge(&query).await?;
+    if measured.is_none() && args.edge {
+        bail!(
+            "{} does not offer /cams/dimensions (measurement at the edge); leave out --edge",
+            client.server()
+        );
+    }
+    Ok(measured.map(|(mut m, bytes)| {
+        m.servers = vec![client.server(); m.cameras.len()];
+        m.cycle_ms = Some(report::ms(started.elapsed()));
+        m.received_bytes = Some(bytes as u64);
+        m
+    }))
+}
+
+/// Warns of the servers of a group that did not answer (fewer than --expect, or a member
+/// the directory lists); whether any did not.
+fn missing_servers(m: &mut Measurement, source: &Source, members: &[Endpoint]) -> bool {
+    let mut missing = false;
     if let Source::Group {
         group,
         expect: Some(expected),
         ..
-    } = &source
+    } = source
     {
         let answered = m.servers.iter().collect::<BTreeSet<_>>().len();
         if answered < *expected {
@@ -279,7 +330,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             ));
         }
     }
-    for member in &members {
+    for member in members {
         if member.addr.is_none_or(|a| !m.servers.contains(&a)) {
             missing = true;
             m.warnings.push(format!(
@@ -288,22 +339,23 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             ));
         }
     }
-    for w in &m.warnings {
-        eprintln!("coapcam: warning: {w}");
-    }
-    if args.json {
-        outln!("{}", m.to_json()?);
-    } else {
-        outln!("{}", m.text());
-    }
-    let parcel = m.parcel();
-    if let (Some(path), Parcel::Measured(dimensions)) = (&args.annotate, &parcel) {
+    missing
+}
+
+/// Draws the measured parcel onto a camera's color image (--annotate).
+async fn annotate_parcel(
+    client: &CamClient,
+    m: &Measurement,
+    parcel: &Parcel,
+    args: &MeasureArgs,
+) -> anyhow::Result<()> {
+    if let (Some(path), Parcel::Measured(dimensions)) = (&args.annotate, parcel) {
         let (server, sn) = m
             .servers
             .first()
             .zip(m.cameras.first())
             .context("no camera to take the color image from")?;
-        let one = CamClient::unicast(&client, *server);
+        let one = CamClient::unicast(client, *server);
         annotate::from_server(&one, sn, dimensions, m.codes.as_deref(), path).await?;
         eprintln!("coapcam: wrote {}", path.display());
     } else if let Some(path) = &args.annotate {
@@ -312,19 +364,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
             path.display()
         );
     }
-    Ok(if matches!(m.parcel, Found::Unsynced { .. }) {
-        Exit::Unsynced
-    } else if matches!(m.parcel, Found::Uncalibrated { .. }) {
-        Exit::Uncalibrated
-    } else if matches!(parcel, Parcel::Nothing { .. }) {
-        Exit::Empty
-    } else if matches!(parcel, Parcel::Refused { .. }) {
-        Exit::Unsupported
-    } else if missing && matches!(source, Source::Group { .. }) {
-        Exit::Fewer
-    } else {
-        Exit::Success
-    })
+    Ok(())
 }
 
 /// Grabs the clouds, measures them here, and reads the codes if asked: the measurement,

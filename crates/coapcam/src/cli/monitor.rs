@@ -16,7 +16,7 @@ use coapcam::client::timed::{self, Repeat, Timed};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Billing, Found, Measurement, Parcel};
 use coapcam::repr::Stream;
-use coapcam::stats::{TransferStats, TransferSummary};
+use coapcam::stats::TransferStats;
 
 use super::{
     CameraArgs, DimensionArgs, Exit, Interrupted, Signals, TransmissionArgs, error_text,
@@ -91,54 +91,6 @@ pub(crate) struct MonitorArgs {
     dimension: DimensionArgs,
     #[command(flatten)]
     transmission: TransmissionArgs,
-}
-
-/// The statistics as the last line of `--json`: times in nanoseconds as the thesis gives
-/// them.
-fn summary_json(summary: &TransferSummary) -> serde_json::Value {
-    let mut stats = serde_json::json!({
-        "count": summary.count,
-        "failed": summary.failed,
-        "sd": "population",
-    });
-    if let Some(t) = &summary.times {
-        stats["min_ns"] = t.min_ns.into();
-        stats["median_ns"] = (t.median_ns.round() as u64).into();
-        stats["max_ns"] = t.max_ns.into();
-        stats["mean_ns"] = (t.mean_ns.round() as u64).into();
-        stats["sd_ns"] = (t.sd_ns.round() as u64).into();
-        stats["cv"] = ((t.cv * 1e4).round() / 1e4).into();
-    }
-    serde_json::json!({ "statistics": stats })
-}
-
-/// The statistics as a table, times in milliseconds.
-fn summary_text(summary: &TransferSummary, what: &str) -> String {
-    let mut out = format!(
-        "{what} of {} result(s), {} failed (population standard deviation):\n",
-        summary.count, summary.failed
-    );
-    out += &format!(
-        "{:>7} {:>11} {:>11} {:>11} {:>11} {:>11} {:>6}\n",
-        "count", "min ms", "median ms", "max ms", "mean ms", "sd ms", "cv"
-    );
-    match &summary.times {
-        Some(t) => {
-            let ms = |ns: f64| ns / 1e6;
-            out += &format!(
-                "{:>7} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>11.3} {:>6.2}\n",
-                summary.count,
-                ms(t.min_ns as f64),
-                ms(t.median_ns),
-                ms(t.max_ns as f64),
-                ms(t.mean_ns),
-                ms(t.sd_ns),
-                t.cv
-            );
-        }
-        None => out += &format!("{:>7} {:>11}\n", 0, "-"),
-    }
-    out
 }
 
 /// A line of `--json` for a request that succeeded: with `--measure` the measurement's
@@ -532,14 +484,14 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
     };
     let summary = report.stats.summary();
     if args.json {
-        outln!("{}", summary_json(&summary));
+        outln!("{}", summary.to_json());
     } else {
         let times = if args.observe {
             "times between results"
         } else {
             "transfer times"
         };
-        out!("{}", summary_text(&summary, times));
+        out!("{}", summary.text(times));
     }
     ended?;
     Ok(if summary.count > 0 {
@@ -558,45 +510,6 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn ms(values: &[u64]) -> TransferStats {
-        let mut s = TransferStats::new();
-        for v in values {
-            s.record(Duration::from_millis(*v));
-        }
-        s
-    }
-
-    #[test]
-    fn the_outputs_name_every_column() {
-        let s = ms(&[100, 200, 300]).summary();
-        let json = summary_json(&s);
-        let st = &json["statistics"];
-        for key in [
-            "count",
-            "failed",
-            "min_ns",
-            "median_ns",
-            "max_ns",
-            "mean_ns",
-            "sd_ns",
-            "cv",
-        ] {
-            assert!(st.get(key).is_some(), "{key} missing in {json}");
-        }
-        assert_eq!(st["median_ns"], 200_000_000);
-        assert_eq!(st["sd"], "population");
-        let text = summary_text(&s, "transfer times");
-        assert!(text.contains("median ms"), "{text}");
-        assert!(text.contains("200.000"), "{text}");
-        assert!(text.contains("0.41"), "{text}");
-        let mut failures = TransferStats::new();
-        failures.record_failure();
-        failures.record_failure();
-        let json = summary_json(&failures.summary());
-        assert_eq!(json["statistics"]["failed"], 2);
-        assert!(json["statistics"].get("mean_ns").is_none());
-    }
 
     #[test]
     fn clock_and_thousands_format_as_printed() {

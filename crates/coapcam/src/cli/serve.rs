@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
-use coapcam::rd::registrant::RegistrantConfig;
+use coapcam::rd::registrant::{Registrant, RegistrantConfig};
 use coapcam::server::{Cameras, Identities, RealSenseOptions, Station, StationConfig};
 use coapcam::station::log::Retention;
 use coapcam::station::watch::AutoConfig;
@@ -252,6 +252,39 @@ pub(crate) fn fix_malloc_threshold() {
 
 /// Runs `serve` until a signal or `--duration`.
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
+    let station = Station::start(config(&args)?).await?;
+    warn_of_config(&args);
+    // Both handlers are in place before the server announces itself: a signal sent as soon
+    // as "serving on" appears stops the server cleanly instead of killing it.
+    let mut terminate =
+        signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
+    let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
+    announce(&args, &station);
+    let registrant = register(&args, &station).await?;
+    let duration = async {
+        match args.duration {
+            Some(d) => tokio::time::sleep(d).await,
+            None => std::future::pending().await,
+        }
+    };
+    station
+        .run(async {
+            tokio::select! {
+                _ = interrupt.recv() => {}
+                _ = terminate.recv() => {}
+                () = duration => {}
+            }
+            // Still serving: the directory's answer comes to the server's socket.
+            if let Some(registrant) = registrant {
+                registrant.remove().await;
+            }
+        })
+        .await;
+    Ok(())
+}
+
+/// The flags lowered, in this one place, to the server's configuration.
+fn config(args: &ServeArgs) -> anyhow::Result<StationConfig> {
     let binds = super::binds_or_default(&args.bind);
     let cameras = if args.no_cameras {
         None
@@ -289,7 +322,7 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         Some(path) => Some(Arc::new(Identities::load(path)?)),
         None => None,
     };
-    let station = Station::start(StationConfig {
+    Ok(StationConfig {
         binds,
         cameras,
         state_dir: args
@@ -333,7 +366,10 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
         }),
         clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
     })
-    .await?;
+}
+
+/// Who may change the configuration, and what is unusual.
+fn warn_of_config(args: &ServeArgs) {
     if args.no_address_check {
         eprintln!(
             "coapcam: warning: clients are answered in full before their address is verified (--no-address-check)"
@@ -352,11 +388,10 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             "coapcam: configuration changes are accepted only from this machine (--allow-unauthenticated-config accepts them from anywhere)"
         );
     }
-    // Both handlers are in place before the server announces itself: a signal sent as soon
-    // as "serving on" appears stops the server cleanly instead of killing it.
-    let mut terminate =
-        signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
-    let mut interrupt = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
+}
+
+/// Where the server and its outputs are.
+fn announce(args: &ServeArgs, station: &Station) {
     if let Some(a) = station.line_output_addr() {
         eprintln!("coapcam: line output on {a}");
     }
@@ -384,7 +419,11 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             eprintln!("coapcam: serving coaps on {a}");
         }
     }
-    let registrant = match &args.register {
+}
+
+/// Registers with the directory of --register.
+async fn register(args: &ServeArgs, station: &Station) -> anyhow::Result<Option<Registrant>> {
+    Ok(match &args.register {
         Some(uri) => {
             let ep = args.rd_ep.clone().unwrap_or_else(|| {
                 args.station_name
@@ -406,25 +445,5 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             Some(station.register_with(config)?)
         }
         None => None,
-    };
-    let duration = async {
-        match args.duration {
-            Some(d) => tokio::time::sleep(d).await,
-            None => std::future::pending().await,
-        }
-    };
-    station
-        .run(async {
-            tokio::select! {
-                _ = interrupt.recv() => {}
-                _ = terminate.recv() => {}
-                () = duration => {}
-            }
-            // Still serving: the directory's answer comes to the server's socket.
-            if let Some(registrant) = registrant {
-                registrant.remove().await;
-            }
-        })
-        .await;
-    Ok(())
+    })
 }
