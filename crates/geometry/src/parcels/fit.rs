@@ -6,7 +6,7 @@ use super::edges::{move_sides, noise_reach, pixel_offsets, refine, unblur, walls
 use super::height_map::{HeightMap, opened};
 use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
 use super::rect::{centre, polygon, rect_area, share_outside};
-use super::round::{lying_tube, standing_disc};
+use super::round::{DiscView, lying_tube, standing_disc};
 use super::shoulders::shoulders;
 use super::view::View;
 use crate::Point3;
@@ -269,8 +269,19 @@ fn measure(
     };
     // A standing cylinder: a disc of a lid with nothing of the object beyond it.
     let disc = if tube.is_none() && tops <= 1 && shape == Shape::Irregular {
-        standing_disc(&hull_rect, &lid_hull, &flat, &dense, margin, inward)
-            .map(|d| d.grown(pixel / 2.0))
+        standing_disc(
+            (&hull_rect, &lid_hull),
+            &flat,
+            &dense,
+            (margin, inward),
+            &DiscView {
+                views,
+                pixel,
+                height_m: f64::from(height_m),
+                band_m: f64::from(lid.band_m),
+            },
+        )
+        .map(|d| d.grown(pixel / 2.0))
     } else {
         None
     };

@@ -3,7 +3,8 @@
 use geo::{Area, Coord, LineString, Polygon};
 
 use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
-use super::rect::{RectFrame, centre, sub};
+use super::rect::{RectFrame, sub};
+use super::view::View;
 use crate::Point3;
 
 /// A tube lying on the floor: its cross-section, in the frame of the lid's rectangle.
@@ -88,28 +89,101 @@ impl Disc {
 const DISC_FIT: [f64; 2] = [0.72, 0.86];
 
 /// ... its hull's corners lie this close to one circle (share of the radius, at least
-/// [`DISC_ROUND_M`]) ...
+/// [`DISC_ROUND_M`]), besides what the cameras' pixels and noise put there
+/// ([`DISC_ROLL_PX`], and the lid band's noise along the rays) ...
 const DISC_ROUND: f64 = 0.04;
 
 /// See [`DISC_ROUND`], metres.
 const DISC_ROUND_M: f64 = 0.004;
 
-/// Whether the lid (its points' convex `hull`, its rectangle `rect`) is a disc with nothing of the object
-/// beyond it (a standing cylinder), and its radius. The radius is placed as a box's edges
-/// are ([`super::edges::edges`]), in rings instead of strips: depth noise moves the lid's points
-/// sideways without adding or losing any, so the edge lies where the `flat` points
-/// beyond a circle `margin` inside the outermost ones, at the density of the ring just
-/// inside it, would end; each 1 mm ring counts at most 1.5 times that density (the top
-/// of the side wall seen from the side is no lid). Where the disc's rectangle was placed
-/// by strips, a disc thins towards each extreme as a square root, and the strip count put
-/// its edges about 3 mm inside: cylinders came out 3.5-6.7 mm narrow.
+/// ... and the pixels of the lid's rim, of which the spatial filter rolls this many (at
+/// the camera's range) into a side wall that a camera sees beside it: the lid ends that
+/// much short on the walls' side and reaches the rim elsewhere. Cylinders of 30-200 mm
+/// radius under one to three D415s 1-2.2 m up, tilted up to 45 degrees (199 of them):
+/// their hull's corners lie within 1.2 pixels and the noise's reach beyond the first two
+/// terms around the circle through them, up to 8.1 mm apart in all (a cylinder of 123 mm radius,
+/// 369 mm high, under a camera 2.15 m up tilted 7 degrees: its lid ended 8 mm short on
+/// the camera's side).
+const DISC_ROLL_PX: f64 = 2.5;
+
+/// The centre and radius of the circle nearest to `points` (the algebraic least-squares
+/// fit), `None` for fewer than three or points on a line.
+fn circle_through(points: &[[f64; 2]]) -> Option<([f64; 2], f64)> {
+    if points.len() < 3 {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(x, y), p| (x + p[0] / n, y + p[1] / n));
+    let (mut suu, mut suv, mut svv, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for p in points {
+        let (u, v) = (p[0] - mx, p[1] - my);
+        suu += u * u;
+        suv += u * v;
+        svv += v * v;
+        b1 += 0.5 * u * (u * u + v * v);
+        b2 += 0.5 * v * (u * u + v * v);
+    }
+    let det = suu * svv - suv * suv;
+    if det.abs() < 1e-18 {
+        return None;
+    }
+    let (uc, vc) = ((b1 * svv - b2 * suv) / det, (suu * b2 - suv * b1) / det);
+    let radius = (uc * uc + vc * vc + (suu + svv) / n).sqrt();
+    radius.is_finite().then_some(([mx + uc, my + vc], radius))
+}
+
+/// How the cameras see a disc: the size of a pixel on it, and the lid band's noise
+/// (`band_m` deep) along their rays, sideways at its rim (metres; see
+/// `super::edges::noise_reach`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct DiscView<'a> {
+    /// The cameras.
+    pub(super) views: &'a [View],
+    /// A pixel's size at the lid, metres (0 without cameras).
+    pub(super) pixel: f64,
+    /// The lid's height and its band's depth, metres.
+    pub(super) height_m: f64,
+    /// See `height_m`.
+    pub(super) band_m: f64,
+}
+
+impl DiscView<'_> {
+    /// How far the lid band's noise can move a point on the rim of the disc at `centre`
+    /// of `radius` sideways: the band's depth times the slope of the steepest ray to its
+    /// far side.
+    fn reach(&self, centre: [f64; 2], radius: f64) -> f64 {
+        self.views
+            .iter()
+            .filter_map(|v| {
+                let eye = v.to_common.translation;
+                let rise = f64::from(eye.z) - self.height_m;
+                let out = (f64::from(eye.x) - centre[0]).hypot(f64::from(eye.y) - centre[1]);
+                (rise > 0.0).then(|| self.band_m * (out + radius) / rise)
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Whether the lid (its points' convex `hull`, its rectangle `rect`) is a disc with
+/// nothing of the object beyond it (a standing cylinder), and its radius. The disc's
+/// centre is that of the circle nearest the hull's corners, which lie within
+/// [`DISC_ROUND`] of it and what the cameras' pixels and noise can have moved them
+/// (`seen`: the lid band's noise along the rays, [`DISC_ROLL_PX`] pixels). The radius is
+/// placed as a box's edges are ([`super::edges::edges`]), in rings instead of strips:
+/// depth noise moves the lid's points sideways without adding or losing any, so the edge
+/// lies where the `flat` points beyond a circle `margin` inside the outermost ones, at the
+/// density of the ring just inside it, would end; each 1 mm ring counts at most 1.5 times
+/// that density (the top of the side wall seen from the side is no lid). Where the disc's
+/// rectangle was placed by strips, a disc thins towards each extreme as a square root, and
+/// the strip count put its edges about 3 mm inside: cylinders came out 3.5-6.7 mm narrow.
 pub(super) fn standing_disc(
-    rect: &[[f64; 2]; 4],
-    hull: &Polygon<f64>,
+    (rect, hull): (&[[f64; 2]; 4], &Polygon<f64>),
     flat: &[Point3],
     dense: &[Point3],
-    margin: f64,
-    inward: f64,
+    (margin, inward): (f64, f64),
+    seen: &DiscView<'_>,
 ) -> Option<Disc> {
     let RectFrame { la, lb, .. } = RectFrame::new(rect)?;
     if la.max(lb) > 1.1 * la.min(lb) {
@@ -119,15 +193,20 @@ pub(super) fn standing_disc(
     if !(DISC_FIT[0]..=DISC_FIT[1]).contains(&fit) {
         return None;
     }
-    let centre = centre(rect);
-    let radii: Vec<f64> = hull
-        .exterior()
-        .coords()
-        .map(|c| (c.x - centre[0]).hypot(c.y - centre[1]))
+    // The ring is closed: its first corner comes again at its end.
+    let mut corners: Vec<[f64; 2]> = hull.exterior().coords().map(|c| [c.x, c.y]).collect();
+    corners.pop();
+    let (centre, _) = circle_through(&corners)?;
+    let radii: Vec<f64> = corners
+        .iter()
+        .map(|c| (c[0] - centre[0]).hypot(c[1] - centre[1]))
         .collect();
     let outer = radii.iter().copied().fold(0.0, f64::max);
     let inner = radii.iter().copied().fold(f64::MAX, f64::min);
-    if outer - inner > (DISC_ROUND * outer).max(DISC_ROUND_M) {
+    let round = (DISC_ROUND * outer).max(DISC_ROUND_M)
+        + DISC_ROLL_PX * seen.pixel
+        + seen.reach(centre, outer);
+    if outer - inner > round {
         return None;
     }
     let reach = |p: &Point3| (f64::from(p.x) - centre[0]).hypot(f64::from(p.y) - centre[1]);

@@ -10,6 +10,7 @@ mod librealsense;
 mod modes;
 mod parcels;
 mod realsense;
+mod round;
 mod scene;
 mod support;
 mod synthetic;
