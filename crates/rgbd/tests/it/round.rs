@@ -110,7 +110,7 @@ impl Draw {
 /// two or three around it, each 1-2.2 m up (high enough to see the whole object) and
 /// tilted 0-45 degrees towards it. Its description and the scene.
 fn variant(index: u64) -> (String, Scene) {
-    let mut d = Draw(index.wrapping_mul(0x2545_f491_4f6c_dd1d) ^ 0x726f_756e_64);
+    let mut d = Draw(index.wrapping_mul(0x2545_f491_4f6c_dd1d) ^ 0x0072_6f75_6e64);
     let lying = index % 2 == 1;
     let centre = [d.uniform(-0.05, 0.05), d.uniform(-0.05, 0.05)];
     let (object, what, top, extent) = if lying {
