@@ -3,6 +3,8 @@
 //!
 //! - [`accuracy`]: seeded synthetic parcels measured end to end over CoAP, and their
 //!   errors;
+//! - [`codes`]: labels of every symbology at several module widths, read by our
+//!   reader, rxing and both;
 //! - [`load`]: many concurrent clients in four roles against a running server, every
 //!   transfer checked;
 //! - [`rd`]: a resource directory filled with registrations, its memory and its lookups'
@@ -13,6 +15,7 @@
 //!   a child process, through emulated links.
 
 pub mod accuracy;
+pub mod codes;
 pub mod load;
 pub mod rd;
 pub mod repr;

@@ -12,7 +12,7 @@ use clap::Args;
 use coap_net::Uri;
 
 use coapcam::client::measure::{
-    FLOOR_CUT_M, Source, calibration_of, measure_checked, prepare_cameras,
+    FLOOR_CUT_M, Source, calibration_of, color_for_codes, measure_checked, prepare_cameras,
 };
 use coapcam::client::{CamClient, annotate, codes};
 use coapcam::rd::registrant::{Endpoint, GROUP_ATTR, group_key, lookup_endpoints};
@@ -81,9 +81,9 @@ pub(crate) struct MeasureArgs {
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
-    /// Also read the QR and Code 128 codes on the parcel from a new color image of each
-    /// camera (`codes` in the JSON; at the edge the server reads them, while it grabs the
-    /// clouds). With --prepare the color stream first becomes
+    /// Also read the codes on the parcel (QR, Code 128, Data Matrix, EAN-13, UPC-A,
+    /// PDF417) from a new color image of each camera (`codes` in the JSON; at the edge the
+    /// server reads them, while it grabs the clouds). The color stream first becomes
     /// 1920x1080 (on the server, for every client), where a code may be a third smaller
     /// than at 1280x720.
     #[arg(long)]
@@ -272,6 +272,18 @@ async fn connect(args: &MeasureArgs) -> anyhow::Result<(CamClient, Source, Vec<E
                     FLOOR_CUT_M * 1e3,
                     if args.codes { ", color 1920x1080" } else { "" }
                 );
+            } else if args.codes && (args.cameras.camera.is_some() || args.clouds) {
+                // This client reads the codes: their color mode first (at the edge the
+                // server sets it itself).
+                let serials = match &args.cameras.camera {
+                    Some(sn) => vec![sn.clone()],
+                    None => client.cameras().await?,
+                };
+                for (sn, (w, h)) in color_for_codes(&client, &serials).await? {
+                    eprintln!(
+                        "coapcam: camera {sn}: color set to 1920x1080 for the codes (was {w}x{h}), on the server, for every client"
+                    );
+                }
             }
             let source = match &args.cameras.camera {
                 Some(sn) => Source::Camera(sn.clone()),

@@ -253,6 +253,21 @@ pub(crate) fn fix_malloc_threshold() {
 /// Runs `serve` until a signal or `--duration`.
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let station = Station::start(config(&args)?).await?;
+    // The station reads codes by itself: their color mode is set now and said.
+    if args.auto_measure {
+        for c in station.color_for_codes() {
+            let warning = if c.too_far() || c.failed.is_some() {
+                "warning: "
+            } else {
+                ""
+            };
+            eprintln!("coapcam: {warning}{c}");
+        }
+    } else if !args.no_cameras {
+        eprintln!(
+            "coapcam: a measurement with the codes (?codes, the page's Measure now) sets each camera's color to its largest resolution first"
+        );
+    }
     warn_of_config(&args);
     // Both handlers are in place before the server announces itself: a signal sent as soon
     // as "serving on" appears stops the server cleanly instead of killing it.

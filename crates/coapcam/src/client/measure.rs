@@ -484,6 +484,25 @@ pub fn full_resolution(color_settings: &ColorSettings) -> ColorSettings {
     }
 }
 
+/// Sets the color stream of each camera of `serials` that is not there yet to 1920x1080
+/// at 30 fps (its format stays), where the codes' modules span the most pixels; the
+/// cameras changed, each with the resolution it had.
+pub async fn color_for_codes(
+    client: &CamClient,
+    serials: &[String],
+) -> anyhow::Result<Vec<(String, (u32, u32))>> {
+    let mut changed = Vec::new();
+    for sn in serials {
+        let color: ColorSettings = client.get_json(sn, "color-settings").await?;
+        let full = full_resolution(&color);
+        if (color.width, color.height) != (full.width, full.height) {
+            client.put_json(sn, "color-settings", &full).await?;
+            changed.push((sn.clone(), (color.width, color.height)));
+        }
+    }
+    Ok(changed)
+}
+
 /// Prepares every camera for measuring as the thesis does (§3.3.5): roi3d becomes the
 /// box above the floor within `half_width_m` of the origin, and the spatial filter runs
 /// (librealsense's defaults: it smooths the depth noise that widens a footprint's hull);
@@ -495,13 +514,10 @@ pub async fn prepare_cameras(
     half_width_m: f64,
     for_codes: bool,
 ) -> anyhow::Result<()> {
+    if for_codes {
+        color_for_codes(client, serials).await?;
+    }
     for sn in serials {
-        if for_codes {
-            let color: ColorSettings = client.get_json(sn, "color-settings").await?;
-            client
-                .put_json(sn, "color-settings", &full_resolution(&color))
-                .await?;
-        }
         let mut doc: AppConfig = client.get_json(sn, "application-config").await?;
         let (half, floor) = (half_width_m as f32, FLOOR_CUT_M as f32);
         doc.roi3d = Roi3::new(

@@ -32,7 +32,7 @@ use crate::report::{EdgeQuery, Measurement};
 use crate::station::log::ResultsLog;
 use crate::station::{self, Recorder};
 use cams::Cams;
-pub use cams::{Busy, EdgeError};
+pub use cams::{Busy, CodeColor, EdgeError};
 use clock::ServerClock;
 use files::StaticFiles;
 use group::Groups;
@@ -256,6 +256,15 @@ impl Station {
             _webhook: webhook,
             _watcher: watcher,
         })
+    }
+
+    /// Sets every camera's color stream to the resolution the codes need and says what
+    /// each reads ([`CodeColor`]); none without cameras.
+    pub fn color_for_codes(&self) -> Vec<CodeColor> {
+        self.cameras
+            .as_ref()
+            .map(|tree| tree.cams.color_for_codes())
+            .unwrap_or_default()
     }
 
     /// Where the line output listens (`--line-output`).

@@ -17,6 +17,15 @@ pub enum CodeKind {
     Qr,
     /// Code 128 (ISO/IEC 15417).
     Code128,
+    /// Data Matrix ECC 200 (ISO/IEC 16022).
+    #[serde(rename = "datamatrix")]
+    DataMatrix,
+    /// EAN-13 (ISO/IEC 15420): 13 digits with the check digit.
+    Ean13,
+    /// UPC-A (ISO/IEC 15420): 12 digits with the check digit.
+    Upca,
+    /// PDF417 (ISO/IEC 15438).
+    Pdf417,
 }
 
 impl CodeKind {
@@ -25,6 +34,10 @@ impl CodeKind {
         match self {
             Self::Qr => "qr",
             Self::Code128 => "code128",
+            Self::DataMatrix => "datamatrix",
+            Self::Ean13 => "ean13",
+            Self::Upca => "upca",
+            Self::Pdf417 => "pdf417",
         }
     }
 }
@@ -35,6 +48,10 @@ impl From<rgbd::scene::LabelKind> for CodeKind {
         match kind {
             rgbd::scene::LabelKind::Qr => Self::Qr,
             rgbd::scene::LabelKind::Code128 => Self::Code128,
+            rgbd::scene::LabelKind::DataMatrix => Self::DataMatrix,
+            rgbd::scene::LabelKind::Ean13 => Self::Ean13,
+            rgbd::scene::LabelKind::Upca => Self::Upca,
+            rgbd::scene::LabelKind::Pdf417 => Self::Pdf417,
         }
     }
 }
@@ -56,11 +73,54 @@ impl fmt::Display for Code {
     }
 }
 
+/// The reader's limit: the narrowest module it reads, in pixels of the image, at 1 px of
+/// lens blur and sensor noise: QR, Code 128 and Data Matrix from 3 px (docs/station.md's
+/// "Codes"; `coapcam bench codes` measures it; EAN-13, UPC-A and PDF417 need more).
+pub const MIN_PX_PER_MODULE: f64 = 3.0;
+
+/// The narrowest module of a GS1 logistic label (a GS1-128 SSCC), millimetres: the
+/// station warns at start when its cameras cannot read modules this narrow.
+pub const LOGISTIC_MODULE_MM: f64 = 0.495;
+
+/// The narrowest module, millimetres, that the reader reads on a surface `distance_m`
+/// from a camera of focal length `fx_px` pixels, looked at square on.
+pub fn narrowest_module_mm(fx_px: f64, distance_m: f64) -> f64 {
+    MIN_PX_PER_MODULE * distance_m * 1e3 / fx_px
+}
+
+/// The farthest distance, metres, from which a camera of focal length `fx_px` pixels
+/// reads modules of `module_mm`.
+pub fn farthest_m(fx_px: f64, module_mm: f64) -> f64 {
+    module_mm * fx_px / (MIN_PX_PER_MODULE * 1e3)
+}
+
 /// Every code found in `image`, each once, in order of kind and text.
 pub fn read(image: &GrayImage) -> Vec<Code> {
+    read_with(image, Reader::Both)
+}
+
+/// Which reader reads the codes ([`read_with`]; `coapcam bench codes` compares them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Reader {
+    /// Ours: QR through `rqrr`, Code 128 along scan lines.
+    Ours,
+    /// rxing (the Rust port of ZXing): every symbology of [`CodeKind`].
+    Rxing,
+    /// Ours, then rxing; what either reads.
+    Both,
+}
+
+/// The codes `reader` finds in `image`, each once, in order of kind and text.
+pub fn read_with(image: &GrayImage, reader: Reader) -> Vec<Code> {
     let mut found = BTreeSet::new();
     if image.width() == 0 || image.height() == 0 {
         return Vec::new();
+    }
+    if reader != Reader::Ours {
+        found.extend(read_rxing(image));
+    }
+    if reader == Reader::Rxing {
+        return found.into_iter().collect();
     }
     // rqrr's finder search misses some sharp-edged codes it reads once the image is
     // slightly blurred (as a lens blurs): a second look, only when the first found none.
@@ -71,6 +131,52 @@ pub fn read(image: &GrayImage) -> Vec<Code> {
     found.extend(qr);
     read_code128(image, &mut found);
     found.into_iter().collect()
+}
+
+/// The codes rxing finds in `image`: several at once, trying harder (rotated
+/// symbols), only the symbologies of [`CodeKind`].
+fn read_rxing(image: &GrayImage) -> BTreeSet<Code> {
+    use rxing::BarcodeFormat as F;
+    let mut hints = rxing::DecodeHints {
+        PossibleFormats: Some(
+            [
+                F::QR_CODE,
+                F::CODE_128,
+                F::DATA_MATRIX,
+                F::EAN_13,
+                F::UPC_A,
+                F::PDF_417,
+            ]
+            .into_iter()
+            .collect(),
+        ),
+        ..Default::default()
+    };
+    let results = rxing::helpers::detect_multiple_in_luma_with_hints(
+        image.as_raw().clone(),
+        image.width(),
+        image.height(),
+        &mut hints,
+    )
+    .unwrap_or_default();
+    results
+        .into_iter()
+        .filter_map(|r| {
+            let kind = match r.getBarcodeFormat() {
+                F::QR_CODE => CodeKind::Qr,
+                F::CODE_128 => CodeKind::Code128,
+                F::DATA_MATRIX => CodeKind::DataMatrix,
+                F::EAN_13 => CodeKind::Ean13,
+                F::UPC_A => CodeKind::Upca,
+                F::PDF_417 => CodeKind::Pdf417,
+                _ => return None,
+            };
+            Some(Code {
+                kind,
+                text: r.getText().to_owned(),
+            })
+        })
+        .collect()
 }
 
 /// Standard deviation of the Gaussian blur of the QR reader's second look, pixels.

@@ -60,10 +60,22 @@ pub(crate) fn parcel(
     from: [f64; 2],
     appear: f64,
 ) -> String {
+    let label = format!("{{ kind = \"qr\", text = \"PKG-{appear}\", size = 0.08 }}");
+    labelled(size, yaw, center, from, appear, &label)
+}
+
+/// As [`parcel`], with `label` (a scene file's inline table).
+pub(crate) fn labelled(
+    size: [f64; 3],
+    yaw: f64,
+    center: [f64; 2],
+    from: [f64; 2],
+    appear: f64,
+    label: &str,
+) -> String {
     format!(
         "[[box]]\nsize = {size:?}\ncenter = {center:?}\nyaw_deg = {yaw}\nappear_s = {appear}\n\
-         from = {from:?}\nstill_s = {}\nremove_s = {}\n\
-         label = {{ kind = \"qr\", text = \"PKG-{appear}\", size = 0.08 }}\n",
+         from = {from:?}\nstill_s = {}\nremove_s = {}\nlabel = {label}\n",
         appear + 1.0,
         appear + 1.0 + STILL_S,
     )
@@ -128,15 +140,19 @@ impl Lane {
         let stderr = server.stderr.take().expect("stderr pipe");
         // The server stops by itself after --duration, which bounds this read.
         let mut lines = BufReader::new(stderr).lines().map_while(Result::ok);
+        let mut before = Vec::new();
         let addr = lines
             .by_ref()
             .find_map(|l| {
-                l.strip_prefix("coapcam: serving on ")
-                    .and_then(|a| a.trim().parse().ok())
+                let addr = l
+                    .strip_prefix("coapcam: serving on ")
+                    .and_then(|a| a.trim().parse().ok());
+                before.push(l);
+                addr
             })
             .expect("coapcam serve printed no address");
         let started_before_us = unix_us();
-        let log = Arc::new(Mutex::new(Vec::new()));
+        let log = Arc::new(Mutex::new(before));
         let keep = Arc::clone(&log);
         thread::spawn(move || {
             for line in lines {
@@ -296,6 +312,62 @@ fn two_parcels_placed_one_after_the_other_are_measured_once_each_and_never_while
     lane.check(&records[0], &lane.scene.boxes[0]);
     lane.check(&records[1], &lane.scene.boxes[1]);
     lane.verify();
+}
+
+/// scenes/lane.toml's parcels and labels on its timeline's pattern: the second parcel's
+/// Code 128 of 18 characters, 20 cm long, has modules of 0.79 mm, under one pixel of a
+/// 1280x720 color image 1.1 m above the table. The station reads it with no command
+/// given first: it set the color stream the codes need at start, and said so.
+#[test]
+fn the_lane_scenes_labels_are_read_with_no_extra_command() {
+    let dir = TempDir::new("lane-codes");
+    let code128 = "1Z999AA10123456784";
+    let scene = format!(
+        "{ONE_CAMERA}{}{}",
+        labelled(
+            [0.40, 0.30, 0.20],
+            15.0,
+            [0.0, 0.0],
+            [0.45, 0.0],
+            2.0,
+            r#"{ kind = "qr", text = "PKG-0001", size = 0.08 }"#
+        ),
+        labelled(
+            [0.32, 0.22, 0.12],
+            -20.0,
+            [0.02, -0.03],
+            [0.0, -0.45],
+            4.0 + STILL_S,
+            &format!(r#"{{ kind = "code128", text = "{code128}", size = 0.20 }}"#)
+        ),
+    );
+    let lane = Lane::start(&dir, &scene);
+    let records = lane.records_after_the_scene();
+    lane.expect_count(&records, 2);
+    for (record, (kind, text)) in records
+        .iter()
+        .zip([("qr", "PKG-0001"), ("code128", code128)])
+    {
+        let read: Vec<(&str, &str)> = record
+            .measurement
+            .codes
+            .iter()
+            .flatten()
+            .map(|c| (c.code.kind.name(), c.code.text.as_str()))
+            .collect();
+        assert_eq!(
+            read,
+            [(kind, text)],
+            "record {}\nthe station's log:\n{}",
+            record.id,
+            lane.log()
+        );
+    }
+    let log = lane.log();
+    assert!(
+        log.contains("camera 840412060746: codes read at color 1920x1080 (set from 1280x720)"),
+        "{log}"
+    );
 }
 
 #[test]

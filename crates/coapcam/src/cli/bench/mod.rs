@@ -11,6 +11,7 @@ use coapcam::bench::accuracy::{self, Quantiles, Row, Summary};
 use coapcam::report::{Billing, Division};
 
 mod cert;
+mod codes;
 mod load;
 mod rd;
 mod repr;
@@ -37,6 +38,10 @@ enum BenchKind {
     /// Print the bytes of every representation of one depth frame, one color frame and
     /// the merged point cloud of a scene, and the milliseconds to encode and decode each.
     Repr(repr::ReprArgs),
+    /// Read labels of every symbology (QR, Code 128, Data Matrix, EAN-13, UPC-A, PDF417)
+    /// at several module widths through a blurred, noisy synthetic color sensor, with our
+    /// reader, rxing and both; print each one's read rate.
+    Codes(codes::CodesArgs),
     /// Run many concurrent clients (discovery, uploads, grabs, observers) against a
     /// running server for a while; print discovery latency and what each role counted,
     /// every transfer checked; exit 1 when anything failed, mismatched or was lost.
@@ -101,6 +106,7 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
         BenchKind::Accuracy(a) => accuracy(a).await,
         BenchKind::Transfer(a) => transfer::run(a).await,
         BenchKind::Repr(a) => repr::run(a).await,
+        BenchKind::Codes(a) => codes::run(a).await,
         BenchKind::Load(a) => load::run(a).await,
         BenchKind::Rd(a) => rd::run(a).await,
     }

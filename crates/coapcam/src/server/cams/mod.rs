@@ -34,6 +34,7 @@ use crate::repr::{self, CloudSource, Stream, Subject, raster};
 use crate::station::Recorder;
 use crate::station::measure::{self as station_measure, Rig, RigCamera, Shot};
 use crate::vision::calibration::pose_transformation;
+use crate::vision::codes;
 
 use super::clock::ServerClock;
 use crate::documents::AppConfig;
@@ -861,6 +862,61 @@ impl Cams {
             .collect()
     }
 
+    /// Sets every camera's color stream to its largest resolution (the frame rate kept
+    /// where it is offered there, else the highest one that is), where a code's modules
+    /// span the most pixels: the codes the station reads (`?codes`, `--auto-measure`, the
+    /// page) decide the color mode, not a setting someone must remember. What each camera
+    /// reads at its distance from the table, one entry per camera.
+    pub(crate) fn color_for_codes(&self) -> Vec<CodeColor> {
+        self.snapshot()
+            .into_iter()
+            .map(|(sn, cam)| {
+                let camera = &cam.camera;
+                let old = camera.color_settings();
+                let largest = camera.stream_modes().color.first().map(|m| ColorSettings {
+                    width: m.width,
+                    height: m.height,
+                    fps: if m.fps.contains(&old.fps) {
+                        old.fps
+                    } else {
+                        m.fps
+                            .iter()
+                            .copied()
+                            .filter(|&f| f <= old.fps)
+                            .max()
+                            .or_else(|| m.fps.first().copied())
+                            .unwrap_or(old.fps)
+                    },
+                    ..old
+                });
+                let mut changed = None;
+                let mut failed = None;
+                if let Some(new) = largest
+                    && (new.width, new.height) != (old.width, old.height)
+                {
+                    match camera.set_color_settings(new) {
+                        Ok(()) => changed = Some((old.width, old.height)),
+                        Err(e) => failed = Some(e.to_string()),
+                    }
+                }
+                let now = camera.color_settings();
+                let distance_m = table_distance_m(&lock(&cam.transformation));
+                let fx = camera.color_intrinsics().ok().map(|i| f64::from(i.fx));
+                CodeColor {
+                    serial: sn.to_string(),
+                    from: changed,
+                    to: (now.width, now.height),
+                    failed,
+                    distance_m,
+                    narrowest_mm: fx
+                        .zip(distance_m)
+                        .map(|(fx, d)| codes::narrowest_module_mm(fx, d)),
+                    logistic_reach_m: fx.map(|fx| codes::farthest_m(fx, codes::LOGISTIC_MODULE_MM)),
+                }
+            })
+            .collect()
+    }
+
     /// Measures with every camera of this server, as `query` asks ([`edge`]): grabs and
     /// merges their clouds (reading the codes from new color images meanwhile when asked),
     /// measures the largest parcel, and keeps the result as the latest measurement
@@ -870,6 +926,13 @@ impl Cams {
         let cams = self.snapshot();
         if cams.is_empty() {
             return Err(EdgeError::NoCamera);
+        }
+        if query.codes {
+            for c in self.color_for_codes() {
+                if c.from.is_some() || c.failed.is_some() {
+                    tracing::info!("{c}");
+                }
+            }
         }
         let kinds: &[Stream] = if query.codes {
             &[Stream::Pointcloud, Stream::Color]
@@ -1321,4 +1384,79 @@ fn frame_etag(sn: &Serial, kind: Stream, frame: &Frame) -> [u8; 8] {
     )
         .hash(&mut h);
     h.finish().to_be_bytes()
+}
+
+/// How far along its optical axis camera's 3d-transformation puts the table (the plane
+/// z = 0) in front of it, metres; `None` for an uncalibrated camera (the identity) or
+/// one that looks along or above the table.
+fn table_distance_m(transformation: &Transformation) -> Option<f64> {
+    if *transformation == Transformation::identity() {
+        return None;
+    }
+    let t = transformation.to_transform().ok()?;
+    let centre = t.apply(&Point3::new(0.0, 0.0, 0.0));
+    let ahead = t.apply(&Point3::new(0.0, 0.0, 1.0));
+    let (c, a) = (centre.coords.cast::<f64>(), ahead.coords.cast::<f64>());
+    let axis = a - c;
+    // The axis must come down towards the table, at least 6 degrees below level.
+    (axis.z < -0.1 * axis.norm() && c.z > 0.0).then(|| c.z / -axis.z * axis.norm())
+}
+
+/// A camera's color stream as the codes need it ([`Cams::color_for_codes`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CodeColor {
+    /// The camera's serial.
+    pub serial: String,
+    /// The resolution it had when this changed it; `None` when it was already there.
+    pub from: Option<(u32, u32)>,
+    /// Its color resolution now.
+    pub to: (u32, u32),
+    /// Why the camera refused the largest resolution.
+    pub failed: Option<String>,
+    /// The table's distance along its optical axis, metres; `None` uncalibrated.
+    pub distance_m: Option<f64>,
+    /// The narrowest module read on the table, millimetres (nearer surfaces, a parcel's
+    /// lid, show narrower ones).
+    pub narrowest_mm: Option<f64>,
+    /// The farthest distance that reads a GS1 logistic label's narrowest module.
+    pub logistic_reach_m: Option<f64>,
+}
+
+impl CodeColor {
+    /// Whether the table is too far for a GS1 logistic label's narrowest module.
+    pub fn too_far(&self) -> bool {
+        self.narrowest_mm
+            .is_some_and(|mm| mm > codes::LOGISTIC_MODULE_MM)
+    }
+}
+
+impl std::fmt::Display for CodeColor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (w, h) = self.to;
+        write!(f, "camera {}: codes read at color {w}x{h}", self.serial)?;
+        if let Some((ow, oh)) = self.from {
+            write!(f, " (set from {ow}x{oh})")?;
+        }
+        if let Some(e) = &self.failed {
+            write!(f, " (the largest resolution refused: {e})")?;
+        }
+        match (self.distance_m, self.narrowest_mm) {
+            (Some(d), Some(mm)) => write!(
+                f,
+                "; the table {d:.2} m away: modules from {mm:.2} mm read at 1 px of lens blur ({} px a module)",
+                codes::MIN_PX_PER_MODULE
+            )?,
+            _ => write!(f, "; not calibrated: how far the table is, unknown")?,
+        }
+        if self.too_far()
+            && let Some(reach) = self.logistic_reach_m
+        {
+            write!(
+                f,
+                "; a GS1 logistic label's {} mm modules need the camera within {reach:.2} m of the label",
+                codes::LOGISTIC_MODULE_MM
+            )?;
+        }
+        Ok(())
+    }
 }

@@ -389,9 +389,25 @@ fn label_text(draw: &mut Draw, kind: LabelKind, k: usize) -> String {
         // A tracking number: 18 characters, as a carrier's.
         LabelKind::Code128 => format!("1Z{k}{}", alnum(draw, 15)),
         // A URL-like reference of 20 to 40 characters.
-        LabelKind::Qr => {
+        LabelKind::Qr | LabelKind::DataMatrix | LabelKind::Pdf417 => {
             let n = 14 + (draw.next() % 21) as usize;
             format!("PKG-{k}-{}", alnum(draw, n))
+        }
+        // A GTIN: 12 or 11 random digits and the GS1 check digit.
+        LabelKind::Ean13 | LabelKind::Upca => {
+            let n = if kind == LabelKind::Ean13 { 12 } else { 11 };
+            let digits: Vec<u64> = (0..n).map(|_| draw.next() % 10).collect();
+            let sum: u64 = digits
+                .iter()
+                .rev()
+                .enumerate()
+                .map(|(i, d)| if i % 2 == 0 { 3 * d } else { *d })
+                .sum();
+            digits
+                .iter()
+                .chain([&((10 - sum % 10) % 10)])
+                .map(u64::to_string)
+                .collect()
         }
     }
 }
@@ -410,8 +426,10 @@ fn label(draw: &mut Draw, k: usize, length: f64, width: f64) -> Label {
     // Extent per metre of size, along the box's length and width.
     let (lx, ly) = label.extent_m();
     let wanted = match kind {
-        LabelKind::Qr => draw.uniform(0.03, 0.10),
-        LabelKind::Code128 => draw.uniform(0.06, 0.20),
+        LabelKind::Qr | LabelKind::DataMatrix => draw.uniform(0.03, 0.10),
+        LabelKind::Code128 | LabelKind::Pdf417 => draw.uniform(0.06, 0.20),
+        // EAN-13 and UPC-A at 80 % to 200 % of their nominal 37 mm.
+        LabelKind::Ean13 | LabelKind::Upca => draw.uniform(0.03, 0.075),
     };
     label.size = wanted.min(0.9 * length / lx).min(0.9 * width / ly);
     label

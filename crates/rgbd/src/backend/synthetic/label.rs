@@ -1,4 +1,5 @@
-//! Barcode labels as textures: modules from the `qrcode` and `barcoders` encoders.
+//! Barcode labels as textures: modules from the `qrcode` and `barcoders` encoders (QR,
+//! Code 128) and from rxing's (Data Matrix, EAN-13, UPC-A, PDF417).
 
 use serde::Deserialize;
 
@@ -10,6 +11,32 @@ pub enum LabelKind {
     Qr,
     /// A Code 128 bar code (ASCII text).
     Code128,
+    /// A Data Matrix (ECC 200) code.
+    #[serde(rename = "datamatrix")]
+    DataMatrix,
+    /// An EAN-13 bar code: 13 digits, the last the check digit.
+    Ean13,
+    /// A UPC-A bar code: 12 digits, the last the check digit.
+    Upca,
+    /// A PDF417 code.
+    Pdf417,
+}
+
+impl LabelKind {
+    /// Every kind, in the order the scene files document them.
+    pub const ALL: [Self; 6] = [
+        Self::Qr,
+        Self::Code128,
+        Self::DataMatrix,
+        Self::Ean13,
+        Self::Upca,
+        Self::Pdf417,
+    ];
+
+    /// Whether the code is a row of bars (its modules are columns across the label).
+    pub fn is_linear(self) -> bool {
+        matches!(self, Self::Code128 | Self::Ean13 | Self::Upca)
+    }
 }
 
 /// A barcode label on a box's top face.
@@ -31,12 +58,23 @@ pub struct Label {
 }
 
 impl Label {
-    /// Label extent on the top face, metres: (along the box length, along its width).
+    /// Label extent on the top face, metres: (along the box length, along its width). A
+    /// bar code is half as tall as it is long; a 2D code's modules are square.
     pub fn extent_m(&self) -> (f64, f64) {
         match self.kind {
             LabelKind::Qr => (self.size, self.size),
-            LabelKind::Code128 => (self.size, self.size / 2.0),
+            k if k.is_linear() => (self.size, self.size / 2.0),
+            // A text that cannot be encoded is refused by the scene's validation.
+            _ => encode(self).map_or((self.size, self.size), |t| {
+                (self.size, self.size * t.rows as f64 / t.columns as f64)
+            }),
         }
+    }
+
+    /// How many modules the label spans along its width, quiet zones included: `size`
+    /// over this is the module's width.
+    pub fn modules_across(&self) -> Result<usize, String> {
+        encode(self).map(|t| t.columns)
     }
 }
 
@@ -46,6 +84,13 @@ const QR_QUIET: usize = 4;
 const CODE128_QUIET: usize = 10;
 /// Blank margin above and below Code 128 bars, as a fraction of the label height.
 const CODE128_MARGIN: f32 = 0.12;
+/// EAN-13 and UPC-A quiet zone on each side, modules (ISO/IEC 15420: 11 and 7; the
+/// larger on both).
+const EAN_QUIET: usize = 11;
+/// Data Matrix quiet zone, modules (ISO/IEC 16022: 1; two here).
+const DATAMATRIX_QUIET: usize = 2;
+/// PDF417 quiet zone, modules (ISO/IEC 15438: 2).
+const PDF417_QUIET: usize = 2;
 
 /// A label's black/white modules over its rectangle.
 #[derive(Debug, Clone, PartialEq)]
@@ -95,6 +140,30 @@ pub(crate) fn encode(label: &Label) -> Result<LabelTexture, String> {
                 margin: 0.0,
             })
         }
+        LabelKind::DataMatrix => {
+            let m = rxing_matrix(label, rxing::BarcodeFormat::DATA_MATRIX, "Data Matrix")?;
+            Ok(square_cells(&m, DATAMATRIX_QUIET))
+        }
+        LabelKind::Pdf417 => {
+            // rxing draws each PDF417 row 4 modules tall (the standard asks for 3 or more).
+            let m = rxing_matrix(label, rxing::BarcodeFormat::PDF_417, "PDF417")?;
+            Ok(square_cells(&m, PDF417_QUIET))
+        }
+        LabelKind::Ean13 | LabelKind::Upca => {
+            let (digits, format, name) = if label.kind == LabelKind::Ean13 {
+                (13, rxing::BarcodeFormat::EAN_13, "EAN-13")
+            } else {
+                (12, rxing::BarcodeFormat::UPC_A, "UPC-A")
+            };
+            if label.text.len() != digits || !label.text.bytes().all(|b| b.is_ascii_digit()) {
+                return Err(format!(
+                    "{name} text must be {digits} digits (the last the check digit), got {:?}",
+                    label.text
+                ));
+            }
+            let m = rxing_matrix(label, format, name)?;
+            Ok(bars(&m, EAN_QUIET))
+        }
         LabelKind::Code128 => {
             if label.text.is_empty() || !label.text.bytes().all(|b| (32..=126).contains(&b)) {
                 return Err(format!(
@@ -118,6 +187,56 @@ pub(crate) fn encode(label: &Label) -> Result<LabelTexture, String> {
                 margin: CODE128_MARGIN,
             })
         }
+    }
+}
+
+/// The modules of `label`'s text in `format`, one bit a module, without quiet zone.
+fn rxing_matrix(
+    label: &Label,
+    format: rxing::BarcodeFormat,
+    name: &str,
+) -> Result<rxing::common::BitMatrix, String> {
+    use rxing::Writer as _;
+    let hints = rxing::EncodeHints {
+        Margin: Some("0".into()),
+        ..Default::default()
+    };
+    rxing::MultiFormatWriter
+        .encode_with_hints(&label.text, &format, 0, 0, &hints)
+        .map_err(|e| format!("cannot encode {:?} as {name}: {e}", label.text))
+}
+
+/// A 2D code's modules with `quiet` modules of white around them.
+fn square_cells(m: &rxing::common::BitMatrix, quiet: usize) -> LabelTexture {
+    let (w, h) = (m.getWidth() as usize, m.getHeight() as usize);
+    let (columns, rows) = (w + 2 * quiet, h + 2 * quiet);
+    let mut dark = vec![false; columns * rows];
+    for y in 0..h {
+        for x in 0..w {
+            dark[(y + quiet) * columns + x + quiet] = m.get(x as u32, y as u32);
+        }
+    }
+    LabelTexture {
+        columns,
+        rows,
+        dark,
+        margin: 0.0,
+    }
+}
+
+/// A bar code's bars (the matrix's first row) with `quiet` modules of white each side.
+fn bars(m: &rxing::common::BitMatrix, quiet: usize) -> LabelTexture {
+    let w = m.getWidth() as usize;
+    let columns = w + 2 * quiet;
+    let mut dark = vec![false; columns];
+    for x in 0..w {
+        dark[x + quiet] = m.get(x as u32, 0);
+    }
+    LabelTexture {
+        columns,
+        rows: 1,
+        dark,
+        margin: CODE128_MARGIN,
     }
 }
 
@@ -151,5 +270,61 @@ mod tests {
             remove_s: None,
         });
         assert!(e.unwrap_err().contains("printable ASCII"));
+    }
+
+    #[test]
+    fn every_kind_encodes_with_its_quiet_zone() {
+        for (kind, text) in [
+            (LabelKind::DataMatrix, "PKG-0001"),
+            (LabelKind::Pdf417, "1Z999AA10123456784"),
+            (LabelKind::Ean13, "4006381333931"),
+            (LabelKind::Upca, "036000291452"),
+        ] {
+            let label = Label {
+                kind,
+                text: text.into(),
+                size: 0.1,
+                appear_s: None,
+                remove_s: None,
+            };
+            let t = encode(&label).unwrap();
+            let dark = t.dark.iter().filter(|&&d| d).count();
+            assert!(
+                dark > 10 && dark < t.dark.len() / 2 + 200,
+                "{kind:?}: {dark}"
+            );
+            // The corners are quiet, and some module just inside the quiet zone is dark.
+            assert!(!t.is_dark(0.001, 0.5) && !t.is_dark(0.999, 0.5), "{kind:?}");
+            let (lx, ly) = label.extent_m();
+            assert!(lx == 0.1 && ly > 0.0 && ly <= 0.1, "{kind:?}: {lx} x {ly}");
+        }
+    }
+
+    #[test]
+    fn ean_and_upc_take_their_digits_with_the_check_digit_only() {
+        for (kind, text) in [
+            (LabelKind::Ean13, "400638133393"),
+            (LabelKind::Upca, "03600029145X"),
+        ] {
+            let e = encode(&Label {
+                kind,
+                text: text.into(),
+                size: 0.1,
+                appear_s: None,
+                remove_s: None,
+            });
+            assert!(e.unwrap_err().contains("digits"), "{kind:?}");
+        }
+        // A wrong check digit.
+        assert!(
+            encode(&Label {
+                kind: LabelKind::Ean13,
+                text: "4006381333932".into(),
+                size: 0.1,
+                appear_s: None,
+                remove_s: None,
+            })
+            .is_err()
+        );
     }
 }
