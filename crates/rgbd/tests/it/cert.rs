@@ -253,3 +253,31 @@ fn returning_depth_is_enough_light_back_from_the_top() {
     };
     assert!(!judge(&out)[0].in_view && !judge(&out)[0].returns_depth);
 }
+
+/// Every scene of the set written as a scene file reads back as the same scene, and so
+/// do the built-in scenes and one with every kind of object, a label and a timeline.
+#[test]
+fn cert_scenes_written_as_scene_files_read_back_the_same() {
+    for s in cert_set(5, 20) {
+        let text = s.scene.to_toml();
+        assert_eq!(Scene::from_toml(&text).unwrap(), s.scene, "{text}");
+    }
+    let every = Scene::from_toml(
+        "seed = 9\n[floor]\nz = 0.01\ncolor = [1, 2, 3]\n\
+         [[camera]]\nserial = \"840412060746\"\nposition = [0.1, 0.0, 1.0]\nlook_at = [0.0, 0.0, 0.0]\n\
+         noise = \"ideal\"\ncalibrated = false\nstall_s = 4.0\n\
+         color_sensor = { noise = 2.0, blur_px = 0.3, exposure = 1.1 }\n\
+         [[box]]\nsize = [0.4, 0.3, 0.2]\ncenter = [0.0, 0.0]\nyaw_deg = 15.0\nappear_s = 1.0\n\
+         from = [0.6, 0.0]\nstill_s = 2.0\nremove_s = 6.0\nreflectivity = 0.2\n\
+         label = { kind = \"code128\", text = \"A \\\"q\\\" \\\\ b\", size = 0.1, appear_s = 3.0 }\n\
+         [[cylinder]]\nradius = 0.1\nheight = 0.25\ncenter = [0.3, -0.2]\ngloss = 0.5\n\
+         [[tube]]\nradius = 0.05\nlength = 0.6\ncenter = [0.0, -0.3]\nyaw_deg = -15.0\n\
+         [[bag]]\nsize = [0.4, 0.28, 0.16]\ncenter = [-0.2, 0.1]\nyaw_deg = 25.0\nsag = 0.2\n\
+         [[marker]]\nfamily = \"tag36h11\"\nid = 3\nsize = 0.16\ncenter = [0.5, 0.5]\nyaw_deg = 30.0\n",
+    )
+    .unwrap();
+    for scene in [every, Scene::default_demo(), Scene::default_single()] {
+        let text = scene.to_toml();
+        assert_eq!(Scene::from_toml(&text).unwrap(), scene, "{text}");
+    }
+}

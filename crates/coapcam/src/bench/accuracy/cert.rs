@@ -488,3 +488,132 @@ fn order(value: &str) -> (u8, u64) {
         Err(_) => (0, 0),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geometry::Dimensions;
+    use rgbd::Scene;
+    use rgbd::cert::{Surface, judge};
+
+    /// A parcel measured `l` x `w` x `h` mm at `center` (metres), seen whole and alone.
+    fn fit(center: [f64; 2], l: f64, w: f64, h: f64) -> ParcelFit {
+        let (x, y) = (l / 2e3, w / 2e3);
+        ParcelFit::whole_box(Dimensions {
+            length_mm: l,
+            width_mm: w,
+            height_mm: h,
+            yaw_deg: 0.0,
+            corners_m: [[-x, -y], [x, -y], [x, y], [-x, y]]
+                .map(|[a, b]| [center[0] + a, center[1] + b]),
+            volume_l: l * w * h / 1e6,
+            points: 1000,
+        })
+    }
+
+    /// Two boxes 300 x 200 x 100 mm under one camera at (-0.17, 0) and (0.17, 0) (a gap
+    /// of 40 mm), the first labelled.
+    fn two_boxes() -> CertScene {
+        let scene = Scene::from_toml(
+            "[[camera]]\nserial = \"840412060746\"\nposition = [0.0, 0.0, 1.5]\n\
+             look_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n\
+             [[box]]\nsize = [0.3, 0.2, 0.1]\ncenter = [-0.17, 0.0]\n\
+             label = { kind = \"qr\", text = \"ONE\", size = 0.08 }\n\
+             [[box]]\nsize = [0.3, 0.2, 0.1]\ncenter = [0.17, 0.0]\n",
+        )
+        .unwrap();
+        let objects = scene
+            .truths()
+            .into_iter()
+            .zip(judge(&scene))
+            .map(|(truth, judged)| CertObject {
+                truth,
+                surface: Surface::Cardboard,
+                flat: false,
+                label: scene.boxes[truth.index].label.clone(),
+                judged,
+            })
+            .collect();
+        CertScene {
+            index: 0,
+            scene,
+            objects,
+            spacing_mm: Some(40.0),
+        }
+    }
+
+    fn config() -> Config {
+        Config {
+            scenes: 1,
+            first: 0,
+            seed: 1,
+            dimension: DimensionConfig::default(),
+            billing: Billing::default(),
+        }
+    }
+
+    #[test]
+    fn each_object_takes_the_parcel_over_it_and_the_rest_are_phantoms() {
+        let cert = two_boxes();
+        assert!(cert.objects.iter().all(CertObject::accepted));
+        let billing = Billing::default();
+        // Both measured, the first's code read; a sliver inside the first box and a
+        // parcel where nothing stands are phantoms, nearest to the first.
+        let fits = [
+            fit([-0.17, 0.0], 301.0, 199.0, 100.4),
+            fit([0.17, 0.0], 306.0, 200.0, 100.0),
+            fit([-0.25, 0.05], 40.0, 20.0, 3.0),
+            fit([-0.6, 0.3], 60.0, 60.0, 20.0),
+        ];
+        let (objects, phantoms) = judge_scene(&cert, &fits, &["ONE".to_owned()], &config());
+        assert_eq!(phantoms, 2);
+        assert_eq!(objects[0].phantoms, 2);
+        assert_eq!(objects[0].code_read, Some(true));
+        assert!(objects[0].first_pass(&billing));
+        // The second: 306 reads 305, 1 d off: within 1 d, no label.
+        assert_eq!(objects[1].code_read, None);
+        assert!(objects[1].first_pass(&billing));
+        // 308 reads 310: 2 d, not a first pass, not silently wrong; 313 reads 315: 3 d.
+        let (off, _) = judge_scene(
+            &cert,
+            &[fits[0].clone(), fit([0.17, 0.0], 308.0, 200.0, 100.0)],
+            &[],
+            &config(),
+        );
+        assert_eq!(off[0].code_read, Some(false));
+        assert!(!off[0].first_pass(&billing) && !off[1].first_pass(&billing));
+        assert!(!off[1].silently_wrong(&billing));
+        let (wrong, _) = judge_scene(
+            &cert,
+            &[fits[0].clone(), fit([0.17, 0.0], 313.0, 200.0, 100.0)],
+            &[],
+            &config(),
+        );
+        assert!(wrong[1].silently_wrong(&billing));
+    }
+
+    #[test]
+    fn one_parcel_over_two_objects_40_mm_apart_is_a_merged_pair() {
+        let cert = two_boxes();
+        let billing = Billing::default();
+        let (objects, phantoms) = judge_scene(
+            &cert,
+            &[fit([0.0, 0.0], 640.0, 200.0, 100.0)],
+            &[],
+            &config(),
+        );
+        assert_eq!(phantoms, 0);
+        assert!(objects.iter().all(|o| o.merged));
+        assert!(objects.iter().all(|o| o.silently_wrong(&billing)));
+        // Refused as side by side: false refusals, merged all the same.
+        let mut refused = fit([0.0, 0.0], 640.0, 200.0, 100.0);
+        refused.isolated = false;
+        let (objects, _) = judge_scene(&cert, &[refused], &[], &config());
+        assert!(objects.iter().all(|o| o.merged && o.false_refusal()));
+        assert!(!objects.iter().any(|o| o.silently_wrong(&billing)));
+        // Nothing measured: both missing.
+        let (objects, phantoms) = judge_scene(&cert, &[], &[], &config());
+        assert_eq!(phantoms, 0);
+        assert!(objects.iter().all(|o| o.outcome == Outcome::Missing));
+    }
+}

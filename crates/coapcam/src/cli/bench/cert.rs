@@ -122,10 +122,64 @@ pub(super) struct Options {
     pub(super) json: bool,
     pub(super) division_mm: f64,
     pub(super) dimension: geometry::DimensionConfig,
+    pub(super) write_scenes: Option<std::path::PathBuf>,
+}
+
+/// Writes scenes `first .. first + count` of the set of `seed` into `dir`, a line for
+/// each with its objects and what a certified system makes of them.
+fn write_scenes(
+    dir: &std::path::Path,
+    seed: u64,
+    first: usize,
+    count: usize,
+) -> anyhow::Result<Exit> {
+    use anyhow::Context as _;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    for index in first..first + count {
+        let cert = rgbd::cert::cert_scene(seed, index);
+        let path = dir.join(format!("cert-{seed}-{index}.toml"));
+        std::fs::write(&path, cert.scene.to_toml())
+            .with_context(|| format!("writing {}", path.display()))?;
+        let each: Vec<String> = cert
+            .objects
+            .iter()
+            .map(|o| {
+                let t = &o.truth;
+                let j = &o.judged;
+                format!(
+                    "{} {} {:.0}x{:.0}x{:.0} at ({:.3}, {:.3}) gap {} in view {} depth {} -> {}",
+                    o.surface.name(),
+                    t.kind.name(),
+                    t.length_mm(),
+                    t.width_mm(),
+                    t.height_mm(),
+                    t.center[0],
+                    t.center[1],
+                    j.gap_m
+                        .map_or_else(|| "-".to_owned(), |g| format!("{:.1} mm", g * 1e3)),
+                    j.in_view,
+                    j.returns_depth,
+                    if j.accepted() {
+                        "accepted"
+                    } else {
+                        "not accepted"
+                    }
+                )
+            })
+            .collect();
+        outln!("{}: {}", path.display(), each.join("; "));
+    }
+    Ok(Exit::Success)
 }
 
 /// Runs `bench accuracy --set cert`.
 pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
+    let count = args
+        .scenes
+        .map_or(rgbd::cert::CERT_SET_SIZE, |n| n as usize);
+    if let Some(dir) = &args.write_scenes {
+        return write_scenes(dir, args.seed, args.first as usize, count);
+    }
     let billing = Billing {
         division: Division {
             d_mm: args.division_mm,
@@ -133,9 +187,7 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
         ..Billing::default()
     };
     let config = cert::Config {
-        scenes: args
-            .scenes
-            .map_or(rgbd::cert::CERT_SET_SIZE, |n| n as usize),
+        scenes: count,
         first: args.first as usize,
         seed: args.seed,
         dimension: args.dimension,

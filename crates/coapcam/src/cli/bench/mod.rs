@@ -72,6 +72,10 @@ struct AccuracyArgs {
     /// processes at once).
     #[arg(long, default_value_t = 0)]
     first: u32,
+    /// With --set cert: write each scene as a scene file `cert-SEED-INDEX.toml` into DIR
+    /// (for `serve --scene`) instead of measuring it.
+    #[arg(long, value_name = "DIR")]
+    write_scenes: Option<std::path::PathBuf>,
     /// With --set lane: measure every scene this many times (new frames each time) and
     /// print the spread of each parcel's dimensions.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=1000))]
@@ -127,6 +131,7 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
             json: args.json,
             division_mm: args.division_mm,
             dimension: args.dimension.config(),
+            write_scenes: args.write_scenes,
         })
         .await;
     }

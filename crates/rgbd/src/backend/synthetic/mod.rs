@@ -76,6 +76,7 @@ pub mod lane;
 mod raycast;
 mod render;
 pub mod scene;
+mod scene_file;
 
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, Instant};
