@@ -398,7 +398,8 @@ fn the_api_serves_the_log_measures_and_streams() {
     let camera = &cameras[0];
     assert_eq!(camera["serial"], crate::support::SN, "{cameras}");
     assert_eq!(camera["calibrated"], true);
-    assert_eq!(camera["color"]["width"], 1280);
+    // The measurement with codes set the colour stream the codes need (1920x1080).
+    assert_eq!(camera["color"]["width"], 1920);
     let serial = camera["serial"].as_str().expect("serial");
     let color = get(addr, &format!("/api/cameras/{serial}/color.jpg"));
     assert_eq!(color.status, 200);
