@@ -192,7 +192,9 @@ pub fn interface_index(zone: &str) -> std::io::Result<u32> {
     })
 }
 
-fn percent_decode(s: &str) -> Option<String> {
+/// `s` with its `%XX` escapes decoded (RFC 3986 §2.1); `None` when an escape is broken or
+/// the result is not UTF-8.
+pub fn percent_decode(s: &str) -> Option<String> {
     let bytes = s.as_bytes();
     let mut out = Vec::with_capacity(bytes.len());
     let mut i = 0;

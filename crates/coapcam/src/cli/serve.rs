@@ -138,10 +138,10 @@ pub(crate) struct ServeArgs {
     /// and `online` / `offline` (retained; offline also as the last will) on
     /// PREFIX/<station-name>/status. While the broker is away the records wait in the
     /// log and follow in order once it is back: each is delivered at least once, with its
-    /// id.
+    /// id. USER:PASSWORD@ logs in to the broker (percent-encoded; never printed).
     #[arg(
         long,
-        value_name = "mqtt://HOST[:PORT][/PREFIX]",
+        value_name = "mqtt://[USER:PASSWORD@]HOST[:PORT][/PREFIX]",
         conflicts_with = "no_cameras"
     )]
     mqtt: Option<coapcam::station::mqtt::Target>,
@@ -160,10 +160,11 @@ pub(crate) struct ServeArgs {
     /// order, each until it is answered 2xx (retrying 0.25 s, doubling to 5 s). The
     /// position is kept in the log (cursor `webhook`), so nothing is lost while the
     /// receiver is down or the station restarts; a record may come twice (same `id`).
-    /// A new log's whole history is sent first.
+    /// A new log's whole history is sent first. USER:PASSWORD@ goes out as basic
+    /// authentication (never printed); an answer's body is read up to 64 KiB.
     #[arg(
         long,
-        value_name = "http://HOST[:PORT]/PATH",
+        value_name = "http://[USER:PASSWORD@]HOST[:PORT]/PATH",
         conflicts_with = "no_cameras"
     )]
     webhook: Option<coapcam::station::webhook::Target>,

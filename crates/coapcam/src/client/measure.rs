@@ -38,7 +38,9 @@ pub enum Source {
         /// How long to collect answers.
         wait: Duration,
         /// The members a resource directory lists (`measure --group --rd`): collecting
-        /// stops as soon as each of these addresses answered. Empty: not known.
+        /// stops as soon as each of these addresses answered, and an answer from any
+        /// other address is left out (anyone on the link can join a group; the directory
+        /// says who the stations are). Empty: not known, every answer counts.
         members: Vec<SocketAddr>,
     },
 }
@@ -288,6 +290,14 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                 .await
                 .with_context(|| format!("POST /cams/pointclouds to the group {group}"))?;
             drop(probes);
+            let (answers, strangers): (Vec<_>, Vec<_>) = answers
+                .into_iter()
+                .partition(|(from, _)| members.is_empty() || members.contains(from));
+            for (from, _) in &strangers {
+                failed.push(format!(
+                    "{from} answered the group {group} but the directory does not list it: left out"
+                ));
+            }
             for m in gone.lock().unwrap_or_else(PoisonError::into_inner).iter() {
                 failed.push(format!("{m}: port unreachable (the server is not running)"));
             }
@@ -300,8 +310,13 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                     .exchanged(*server, sent_us, &r.options, received_us);
             }
             if answers.is_empty() {
+                let also = if failed.is_empty() {
+                    String::new()
+                } else {
+                    format!(" ({})", failed.join("; "))
+                };
                 return Err(NoAnswer(format!(
-                    "no server of the group {group} answered within {wait:?}"
+                    "no server of the group {group} answered within {wait:?}{also}"
                 ))
                 .into());
             }

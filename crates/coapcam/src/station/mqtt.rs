@@ -57,7 +57,8 @@ const MAX_PACKET: usize = 1 << 20;
 /// How long a clean stop waits for the broker to acknowledge `offline`.
 const STOP_WAIT: Duration = Duration::from_secs(2);
 
-/// Where to publish: the broker and the topic prefix of `mqtt://HOST[:PORT][/PREFIX]`.
+/// Where to publish: the broker and the topic prefix of
+/// `mqtt://[USER[:PASSWORD]@]HOST[:PORT][/PREFIX]`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Target {
     /// The broker's host name or address (an IPv6 address in brackets).
@@ -66,6 +67,24 @@ pub struct Target {
     pub port: u16,
     /// The first topic levels, without a trailing `/`.
     pub prefix: String,
+    /// The user name and password the URI gives, sent in CONNECT.
+    pub credentials: Option<Credentials>,
+}
+
+/// A user name and password for the broker; the password is never shown (not by `Debug`
+/// either), so that it stays out of logs.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Credentials {
+    /// The user name.
+    pub user: String,
+    /// The password (may be empty).
+    pub password: String,
+}
+
+impl fmt::Debug for Credentials {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:<password>", self.user)
+    }
 }
 
 /// Why an `mqtt://` URI or a station name cannot be used.
@@ -81,6 +100,9 @@ pub enum TargetError {
     /// The port is not a number from 1 to 65535.
     #[error("{0:?}: the port is not a number from 1 to 65535")]
     Port(String),
+    /// The user or password is not percent-encoded UTF-8.
+    #[error("the user or password of the MQTT URI is not percent-encoded UTF-8")]
+    Credentials,
     /// The prefix or the station name cannot be part of a topic name.
     #[error(
         "{0:?} cannot be part of an MQTT topic name (no +, #, NUL, empty levels, or a / in the station name)"
@@ -96,6 +118,20 @@ impl FromStr for Target {
             .strip_prefix("mqtt://")
             .ok_or_else(|| TargetError::Scheme(uri.into()))?;
         let (authority, prefix) = rest.split_once('/').unwrap_or((rest, ""));
+        let (credentials, authority) = match authority.rsplit_once('@') {
+            Some((userinfo, hostport)) => {
+                let (user, password) = userinfo.split_once(':').unwrap_or((userinfo, ""));
+                let decode = |part: &str| {
+                    coap_net::uri::percent_decode(part).ok_or(TargetError::Credentials)
+                };
+                let credentials = Credentials {
+                    user: decode(user)?,
+                    password: decode(password)?,
+                };
+                (Some(credentials), hostport)
+            }
+            None => (None, authority),
+        };
         let (host, port) = if let Some(v6) = authority.strip_prefix('[') {
             let (addr, after) = v6
                 .split_once(']')
@@ -124,13 +160,26 @@ impl FromStr for Target {
             check_topic(prefix, true)?;
             prefix.to_owned()
         };
-        Ok(Self { host, port, prefix })
+        Ok(Self {
+            host,
+            port,
+            prefix,
+            credentials,
+        })
     }
 }
 
 impl fmt::Display for Target {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "mqtt://{}:{}/{}", self.host, self.port, self.prefix)
+        let user = match &self.credentials {
+            Some(c) => format!("{}@", c.user),
+            None => String::new(),
+        };
+        write!(
+            f,
+            "mqtt://{user}{}:{}/{}",
+            self.host, self.port, self.prefix
+        )
     }
 }
 
@@ -333,6 +382,9 @@ impl Publisher {
             config.target.host.clone(),
             config.target.port,
         );
+        if let Some(c) = &config.target.credentials {
+            options.set_credentials(c.user.clone(), c.password.clone());
+        }
         options
             .set_keep_alive(KEEP_ALIVE)
             .set_clean_session(true)
@@ -648,9 +700,17 @@ mod tests {
             Target {
                 host: "broker.local".into(),
                 port: 1883,
-                prefix: "coapcam".into()
+                prefix: "coapcam".into(),
+                credentials: None,
             }
         );
+        let t: Target = "mqtt://dock:p%40ss:w@broker.local:1884/x".parse().unwrap();
+        let c = t.credentials.clone().expect("credentials");
+        assert_eq!((c.user.as_str(), c.password.as_str()), ("dock", "p@ss:w"));
+        assert_eq!((t.host.as_str(), t.port), ("broker.local", 1884));
+        assert_eq!(t.to_string(), "mqtt://dock@broker.local:1884/x");
+        assert!(!format!("{t:?}").contains("p@ss"), "{t:?}");
+        assert!("mqtt://u:%ff@h".parse::<Target>().is_err());
         let t: Target = "mqtt://10.0.0.2:1884/site/hall-3/".parse().unwrap();
         assert_eq!((t.port, t.prefix.as_str()), (1884, "site/hall-3"));
         let t: Target = "mqtt://[::1]:1885".parse().unwrap();

@@ -5,14 +5,18 @@
 //! was lost is sent again (receivers drop an `id` they have).
 //!
 //! Plain `http://` only (no TLS); HTTP/1.1 through hyper's client connection, one
-//! connection kept while it works.
+//! connection kept while it works. A user and password in the URL
+//! (`http://USER:PASSWORD@HOST/PATH`) go out as basic authentication, never in the Host
+//! header or the log. Of an answer, only its status counts: its body is read up to
+//! [`ANSWER_LIMIT`] and a longer one ends the connection.
 
 use std::fmt;
 use std::str::FromStr;
 use std::time::Duration;
 
+use base64::prelude::{BASE64_STANDARD, Engine as _};
 use bytes::Bytes;
-use http_body_util::{BodyExt as _, Full};
+use http_body_util::{BodyExt as _, Full, Limited};
 use hyper::client::conn::http1::SendRequest;
 use hyper::header::{self, HeaderValue};
 use hyper::{Method, Request, Uri};
@@ -29,13 +33,19 @@ pub const CONSUMER: &str = "webhook";
 
 /// How long connecting, or one request's answer, may take.
 const TIMEOUT: Duration = Duration::from_secs(10);
+/// The most of an answer's body read; a receiver that sends more loses the connection
+/// (the record still counts as taken when the status was 2xx).
+pub const ANSWER_LIMIT: usize = 64 * 1024;
 
-/// Where records are POSTed: an `http://HOST[:PORT][/PATH]` URL.
+/// Where records are POSTed: an `http://[USER[:PASSWORD]@]HOST[:PORT][/PATH]` URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Target {
+    /// The URL without its user and password.
     uri: Uri,
     host: String,
     port: u16,
+    /// `Basic ...` of the URL's user and password.
+    authorization: Option<HeaderValue>,
 }
 
 impl FromStr for Target {
@@ -61,7 +71,34 @@ impl FromStr for Target {
             .trim_end_matches(']')
             .to_owned();
         let port = uri.port_u16().unwrap_or(80);
-        Ok(Self { uri, host, port })
+        let (uri, authorization) = match uri.authority().map(|a| a.as_str()) {
+            Some(authority) if authority.contains('@') => {
+                let (userinfo, hostport) = authority.rsplit_once('@').unwrap_or_default();
+                let (user, password) = userinfo.split_once(':').unwrap_or((userinfo, ""));
+                let decode = |part: &str| {
+                    coap_net::uri::percent_decode(part).ok_or_else(|| {
+                        "the URL's user or password is not percent-encoded UTF-8".to_owned()
+                    })
+                };
+                let credentials = format!("{}:{}", decode(user)?, decode(password)?);
+                let value = format!("Basic {}", BASE64_STANDARD.encode(credentials));
+                let mut value = HeaderValue::from_str(&value)
+                    .map_err(|_| "the URL's user or password cannot be sent".to_owned())?;
+                value.set_sensitive(true);
+                let path = uri.path_and_query().map_or("/", |p| p.as_str());
+                let bare: Uri = format!("http://{hostport}{path}")
+                    .parse()
+                    .map_err(|e| format!("the URL without its user: {e}"))?;
+                (bare, Some(value))
+            }
+            _ => (uri, None),
+        };
+        Ok(Self {
+            uri,
+            host,
+            port,
+            authorization,
+        })
     }
 }
 
@@ -151,13 +188,26 @@ impl Hook {
         {
             request.headers_mut().insert(header::HOST, host);
         }
+        if let Some(authorization) = &self.target.authorization {
+            request
+                .headers_mut()
+                .insert(header::AUTHORIZATION, authorization.clone());
+        }
         let answer = tokio::time::timeout(TIMEOUT, sender.send_request(request))
             .await
             .map_err(|_| format!("no answer within {TIMEOUT:?}"))?
             .map_err(|e| format!("sending record {}: {e}", record.id))?;
         let status = answer.status();
-        // The answer's body is read so that the connection can carry the next record.
-        let _ = tokio::time::timeout(TIMEOUT, answer.into_body().collect()).await;
+        // The answer's body is read (so that the connection can carry the next record) up
+        // to a bound, and dropped; a longer or slower one ends the connection.
+        let body = Limited::new(answer.into_body(), ANSWER_LIMIT);
+        if !matches!(
+            tokio::time::timeout(TIMEOUT, body.collect()).await,
+            Ok(Ok(_))
+        ) {
+            tracing::debug!("webhook: the answer to record {} was cut off", record.id);
+            self.connection = None;
+        }
         if !status.is_success() {
             return Err(format!("record {} answered {status}", record.id));
         }
@@ -197,5 +247,22 @@ mod tests {
         assert_eq!((t.host.as_str(), t.port), ("::1", 80));
         assert!("https://example.invalid/".parse::<Target>().is_err());
         assert!("127.0.0.1:9000".parse::<Target>().is_err());
+    }
+
+    #[test]
+    fn a_user_and_password_are_basic_authentication_and_never_shown() {
+        let t: Target = "http://station:s%40cret@127.0.0.1:9000/hook"
+            .parse()
+            .unwrap();
+        assert_eq!(t.to_string(), "http://127.0.0.1:9000/hook");
+        assert_eq!(
+            t.uri.authority().map(|a| a.as_str()),
+            Some("127.0.0.1:9000")
+        );
+        let value = t.authorization.expect("credentials");
+        // base64("station:s@cret")
+        assert_eq!(value.to_str().unwrap(), "Basic c3RhdGlvbjpzQGNyZXQ=");
+        assert!(value.is_sensitive());
+        assert!(!format!("{:?}", t.uri).contains("cret"));
     }
 }

@@ -894,3 +894,96 @@ fn the_proxy_reaches_libcoap_block_wise() {
     assert_eq!(back.status, 200);
     crate::support::assert_same(&back.body, &body, "libcoap's resource through the proxy");
 }
+
+/// One request of a webhook: its head's lines and its body.
+fn webhook_request(reader: &mut BufReader<TcpStream>) -> Option<(Vec<String>, Vec<u8>)> {
+    let mut head = Vec::new();
+    let mut length = 0;
+    loop {
+        let mut line = String::new();
+        if reader.read_line(&mut line).ok()? == 0 {
+            return None;
+        }
+        let line = line.trim_end().to_owned();
+        if line.is_empty() {
+            break;
+        }
+        if let Some((n, v)) = line.split_once(':')
+            && n.eq_ignore_ascii_case("content-length")
+        {
+            length = v.trim().parse().ok()?;
+        }
+        head.push(line);
+    }
+    let mut body = vec![0; length];
+    reader.read_exact(&mut body).ok()?;
+    Some((head, body))
+}
+
+#[test]
+fn a_webhook_sends_the_urls_user_as_basic_authentication_and_reads_no_answer_whole() {
+    let listener = TcpListener::bind("127.0.0.1:0").expect("the receiver's port");
+    let port = listener.local_addr().expect("an address").port();
+    let state = TempDir::new("http-webhook-answer");
+    let hook = format!("http://station:s%40cret@127.0.0.1:{port}/hook");
+    let (mut server, addr) = serve_http(&state, &["--webhook", &hook]);
+    let (tx, rx) = mpsc::channel();
+    thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(stream) = stream else { return };
+            stream.set_read_timeout(Some(LIMIT)).expect("timeout");
+            let mut reader = BufReader::new(stream);
+            let Some((head, body)) = webhook_request(&mut reader) else {
+                continue;
+            };
+            let record: Value = serde_json::from_slice(&body).expect("a JSON record");
+            // 200 with a body of 1 GiB, written until the station hangs up.
+            let mut stream = reader.into_inner();
+            let mut written = 0u64;
+            let chunk = vec![b'x'; 1 << 20];
+            if stream
+                .write_all(b"HTTP/1.1 200 OK\r\nContent-Length: 1073741824\r\n\r\n")
+                .is_ok()
+            {
+                while written < 1 << 30 && stream.write_all(&chunk).is_ok() {
+                    written += chunk.len() as u64;
+                }
+            }
+            if tx.send((record["id"].as_u64(), head, written)).is_err() {
+                return;
+            }
+        }
+    });
+    for _ in 0..2 {
+        let made = request(addr, "POST", "/api/measure", &[], b"");
+        assert_eq!(made.status, 201, "{}", String::from_utf8_lossy(&made.body));
+    }
+    for want in 1..=2u64 {
+        let (id, head, written) = rx.recv_timeout(LIMIT).expect("a webhook request");
+        assert_eq!(id, Some(want), "{head:?}");
+        let header = |name: &str| {
+            head.iter()
+                .find_map(|l| {
+                    let (n, v) = l.split_once(':')?;
+                    n.eq_ignore_ascii_case(name).then(|| v.trim().to_owned())
+                })
+                .unwrap_or_default()
+        };
+        assert_eq!(header("host"), format!("127.0.0.1:{port}"), "{head:?}");
+        // base64("station:s@cret")
+        assert_eq!(header("authorization"), "Basic c3RhdGlvbjpzQGNyZXQ=");
+        eprintln!(
+            "record {want}: the receiver wrote {written} B of a 1 GiB answer before the station hung up"
+        );
+        assert!(
+            written < 64 << 20,
+            "the station read {written} B of the answer"
+        );
+    }
+    let finished = server.interrupt();
+    assert!(
+        !finished.stderr.contains("cret"),
+        "the password in the log: {}",
+        finished.stderr
+    );
+}

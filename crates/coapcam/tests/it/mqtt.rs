@@ -36,6 +36,29 @@ impl Broker {
     /// Starts a broker; `persistent` keeps its sessions (and the messages queued for a
     /// subscriber's persistent session) across a stop and a start, in `dir`.
     fn start(dir: &TempDir, persistent: bool) -> Self {
+        Self::start_with(dir, persistent, "allow_anonymous true\n")
+    }
+
+    /// A broker that takes only the user `dock` with the password `s@cret:1` (a password
+    /// file made by `mosquitto_passwd`).
+    fn start_with_password(dir: &TempDir) -> Self {
+        let passwords = dir.join("passwords");
+        let made = std::process::Command::new("mosquitto_passwd")
+            .args(["-b", "-c", &passwords.to_string_lossy(), "dock", "s@cret:1"])
+            .status()
+            .expect("running mosquitto_passwd (Debian's mosquitto package has it)");
+        assert!(made.success(), "mosquitto_passwd failed");
+        let _ = std::process::Command::new("chmod")
+            .args(["0644", &passwords.to_string_lossy()])
+            .status();
+        let extra = format!(
+            "allow_anonymous false\npassword_file {}\n",
+            passwords.display()
+        );
+        Self::start_with(dir, false, &extra)
+    }
+
+    fn start_with(dir: &TempDir, persistent: bool, access: &str) -> Self {
         for _ in 0..10 {
             let port = free_tcp_port();
             let data = dir.join("broker-data");
@@ -48,7 +71,7 @@ impl Broker {
             std::fs::write(
                 &config,
                 format!(
-                    "listener {port} 127.0.0.1\nallow_anonymous true\npersistence {persistent}\n\
+                    "listener {port} 127.0.0.1\n{access}persistence {persistent}\n\
                      persistence_location {}/\nlog_dest stderr\nlog_type error\nlog_type warning\n",
                     data.display()
                 ),
@@ -357,6 +380,41 @@ fn records_arrive_in_order_as_json_with_ids_and_the_status_is_retained() {
         assert_eq!(offline.text(), "offline");
     });
     assert_eq!(retained(broker.port, "lane/dock-1/status"), "offline");
+}
+
+#[test]
+fn the_uris_user_and_password_log_in_to_a_broker_that_refuses_anonymous_clients() {
+    if !available("mqtt credentials", &[Peer::Mosquitto]) {
+        return;
+    }
+    let dir = TempDir::new("mqtt-credentials");
+    let broker = Broker::start_with_password(&dir);
+    let log = open_log(&dir);
+    record(&log, 401.0, None);
+    record(&log, 402.0, None);
+    let uri = format!("mqtt://dock:s%40cret%3A1@127.0.0.1:{}/lane", broker.port);
+    let target: coapcam::station::mqtt::Target = uri.parse().expect("mqtt URI");
+    assert!(!target.to_string().contains("cret"), "{target}");
+    runtime().block_on(async {
+        let publisher = Publisher::start(
+            Config {
+                target,
+                station: "dock-1".into(),
+            },
+            log.clone(),
+        )
+        .expect("start");
+        // The cursor moves only past records the broker acknowledged.
+        let deadline = Instant::now() + LIMIT;
+        while log.cursor(CONSUMER).expect("the cursor") != 2 {
+            assert!(
+                Instant::now() < deadline,
+                "the broker took no record: the login failed"
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        publisher.stop().await;
+    });
 }
 
 #[test]

@@ -492,6 +492,24 @@ fn three_servers_of_a_group_are_found_through_the_directory_and_a_killed_one_is_
             p
         })
         .collect();
+    // A server in the same group that the directory does not list (anyone on the link can
+    // join a group): a measurement through the directory leaves its answer out.
+    let stranger_scene = dir.join("scene-24.toml");
+    std::fs::write(
+        &stranger_scene,
+        crate::group::box_scene("000000000024", [0.3, 0.0, 1.0]),
+    )
+    .expect("writing the scene");
+    let (_stranger, _) = crate::support::serve_at(
+        "127.0.0.24:5683",
+        &dir.join("state-24"),
+        &[
+            "--scene",
+            stranger_scene.to_str().expect("UTF-8 path"),
+            "--group",
+            "224.0.1.192",
+        ],
+    );
     wait_for_names(rd, &["station-21", "station-22", "station-23"]);
     let f = Proc::run(
         COAPCAM,
@@ -579,6 +597,13 @@ fn three_servers_of_a_group_are_found_through_the_directory_and_a_killed_one_is_
     answered.sort_unstable();
     answered.dedup();
     assert_eq!(answered, ["127.0.0.21:5683", "127.0.0.22:5683"], "{m}");
+    assert!(
+        f.stderr.contains(
+            "127.0.0.24:5683 answered the group 224.0.1.192:5683 but the directory does not list it: left out"
+        ),
+        "{}",
+        f.stderr
+    );
     // After its lifetime the killed one is gone; the others renew theirs.
     wait_for_names(rd, &["station-21", "station-22"]);
 }
