@@ -466,7 +466,7 @@ pub async fn measure_checked(
                 &[]
             };
             let table = Table::measure(&grabbed.cloud, &config, views)
-                .map(|t| t.with_no_depth(&grabbed.no_depth));
+                .map(|t| t.with_no_depth(&grabbed.no_depth, views));
             (table, grabbed)
         }
     })

@@ -148,6 +148,11 @@ impl Billing {
 pub const NO_DEPTH_REASON: &str =
     "no depth from part of the table (a parcel too dark or too shiny for the cameras?)";
 
+/// A part of the table without depth is a measured parcel's own (its walls, glare or
+/// shadow) when at least this share of its rectangle lies where that parcel covers or
+/// hides the floor from a camera.
+pub const EXPLAINED_SHARE: f64 = 0.9;
+
 /// What a measurement found on the table.
 #[derive(Debug, Clone)]
 pub enum Parcel {
@@ -211,9 +216,12 @@ impl Table {
     /// their coverage judges; otherwise those parcels are what little depth a parcel
     /// that returns (almost) none gave (a sliver of wall, the flying pixels along its
     /// edges), and the region with them is one parcel that gives no number
-    /// ([`ParcelFit::no_depth`]), placed among the others by footprint.
+    /// ([`ParcelFit::no_depth`]), placed among the others by footprint. A region of
+    /// which at least [`EXPLAINED_SHARE`] lies where a measured parcel covers or hides
+    /// the floor from one of the cameras (`views`) is that parcel's walls at a grazing
+    /// angle, its glare or its shadow ([`geometry::hidden_share`]), not a parcel.
     #[must_use]
-    pub fn with_no_depth(mut self, regions: &[NoDepth]) -> Self {
+    pub fn with_no_depth(mut self, regions: &[NoDepth], views: &[View]) -> Self {
         let footprint = |f: &ParcelFit| {
             let c = f.dimensions.corners_m;
             let lo = [0, 1].map(|k| c.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min));
@@ -243,6 +251,15 @@ impl Table {
                 .collect();
             let points: usize = inside.iter().map(|&i| self.fits[i].dimensions.points).sum();
             if points as u64 >= u64::from(r.pixels) {
+                continue;
+            }
+            let (min, max) = (r.min_m.map(f64::from), r.max_m.map(f64::from));
+            let explained = self.fits.iter().enumerate().any(|(i, f)| {
+                !f.no_depth
+                    && !inside.contains(&i)
+                    && geometry::hidden_share(&f.dimensions, views, min, max) >= EXPLAINED_SHARE
+            });
+            if explained {
                 continue;
             }
             let mut whole = r;
@@ -530,6 +547,42 @@ mod tests {
         }
     }
 
+    /// A region of pixels that looked at a measured box's end wall at a grazing angle
+    /// (their rays meet the floor inside its footprint and in its shadow) is that box's,
+    /// not a parcel; the same region with no box there is a parcel that returned no
+    /// depth, refused.
+    #[test]
+    fn a_part_of_the_table_a_measured_parcel_hides_from_a_camera_is_no_parcel() {
+        // A 400 x 300 x 100 mm box from (0, 0); a camera 1 m up beyond its +x end.
+        let boxed = placed(400.0, 300.0, [0.0, 0.0], 20_000);
+        let eye = geometry::Transform {
+            linear: nalgebra::Matrix3::identity(),
+            translation: nalgebra::Vector3::new(0.9, 0.15, 1.0),
+        };
+        let view = View::pinhole(eye, 600.0, 600.0, 320.0, 240.0, 640, 480);
+        // Behind its far (-x) end wall: 100 mm high, the shadow reaches 0.9 * 0.1 / 0.9 =
+        // 0.1 m beyond it.
+        let wall = region([-0.05, 0.02], [0.03, 0.28], 3_000);
+        let table = Table {
+            fits: vec![boxed.clone()],
+            largest_points: 20_000,
+        };
+        let explained = table.clone().with_no_depth(&[wall], &[view]);
+        assert_eq!(explained.fits, vec![boxed.clone()]);
+        // Without the camera's view nothing explains it.
+        let unexplained = table.with_no_depth(&[wall], &[]);
+        assert_eq!(unexplained.fits.len(), 2);
+        // A black box beside the measured one, in no shadow of it: refused.
+        let black = region([-0.45, 0.0], [-0.15, 0.3], 6_000);
+        let beside = Table {
+            fits: vec![boxed],
+            largest_points: 20_000,
+        }
+        .with_no_depth(&[black], &[view]);
+        assert_eq!(beside.fits.len(), 2);
+        assert!(beside.fits.iter().any(|f| f.no_depth), "{:?}", beside.fits);
+    }
+
     #[test]
     fn a_part_of_the_table_without_depth_is_a_refused_parcel_unless_one_found_explains_it() {
         let d = Division::default();
@@ -542,11 +595,14 @@ mod tests {
             fits: vec![boxed.clone(), sliver],
             largest_points: 20_000,
         }
-        .with_no_depth(&[
-            region([0.15, 0.15], [0.65, 0.55], 4_000),
-            region([-0.35, -0.25], [-0.15, -0.05], 1_500),
-            region([-0.33, -0.27], [-0.14, -0.06], 1_500),
-        ]);
+        .with_no_depth(
+            &[
+                region([0.15, 0.15], [0.65, 0.55], 4_000),
+                region([-0.35, -0.25], [-0.15, -0.05], 1_500),
+                region([-0.33, -0.27], [-0.14, -0.06], 1_500),
+            ],
+            &[],
+        );
         assert_eq!(table.fits.len(), 2, "{:?}", table.fits);
         assert_eq!(table.fits[0], boxed);
         let blind = &table.fits[1];
@@ -562,7 +618,7 @@ mod tests {
             "{blind:?}"
         );
         // Alone on the table, it is the answer: refused, not "nothing there".
-        let alone = Table::default().with_no_depth(&[region([0.0, 0.0], [0.2, 0.2], 2_000)]);
+        let alone = Table::default().with_no_depth(&[region([0.0, 0.0], [0.2, 0.2], 2_000)], &[]);
         assert!(
             matches!(alone.largest(), Parcel::Refused { reason, .. } if reason == NO_DEPTH_REASON)
         );
@@ -571,7 +627,7 @@ mod tests {
             fits: vec![placed(400.0, 300.0, [0.0, 0.0], 5_000)],
             largest_points: 5_000,
         }
-        .with_no_depth(&[region([-0.05, -0.05], [0.45, 0.35], 4_999)]);
+        .with_no_depth(&[region([-0.05, -0.05], [0.45, 0.35], 4_999)], &[]);
         assert!(!holed.fits[0].no_depth && holed.fits.len() == 1);
     }
 

@@ -501,3 +501,37 @@ fn flying_pixels_parted_from_a_dark_box_by_its_holes_are_no_parcel_beside_it() {
     let blind = parcels(&cloud, &config, &[]).unwrap();
     assert!(blind.parcels.iter().all(|p| !p.isolated), "{blind:?}");
 }
+
+#[test]
+fn the_floor_a_box_hides_from_a_camera_is_its_footprint_and_its_shadow() {
+    // A camera 1 m up, 0.5 m beyond the +x end of a 0.4 x 0.3 x 0.2 m box at the origin:
+    // the box hides the floor out to its lid's corners projected from the eye, 1.25
+    // times as far from it (x down to -0.2 - 0.7 * 0.25 = -0.375).
+    let to_common = Transform {
+        linear: nalgebra::Matrix3::identity(),
+        translation: nalgebra::Vector3::new(0.5, 0.0, 1.0),
+    };
+    let view = View::pinhole(to_common, 600.0, 600.0, 320.0, 240.0, 640, 480);
+    let d = crate::dimension::rect_dimensions(
+        [[-0.2, -0.15], [0.2, -0.15], [0.2, 0.15], [-0.2, 0.15]],
+        0.2,
+        1000,
+    );
+    let share = |min, max| hidden_share(&d, &[view], min, max);
+    let inside = share([-0.1, -0.1], [0.1, 0.1]);
+    assert!((inside - 1.0).abs() < 1e-6, "{inside}");
+    assert!(
+        (share([-0.35, -0.05], [-0.25, 0.05]) - 1.0).abs() < 1e-6,
+        "in the shadow"
+    );
+    assert!(
+        share([-0.45, -0.05], [-0.4, 0.05]) < 1e-6,
+        "beyond the shadow"
+    );
+    assert!(
+        share([0.25, -0.05], [0.35, 0.05]) < 1e-6,
+        "on the camera's side"
+    );
+    assert!((share([0.1, -0.05], [0.3, 0.05]) - 0.5).abs() < 1e-6);
+    assert!(hidden_share(&d, &[], [-0.1, -0.1], [0.1, 0.1]) < 1e-9);
+}

@@ -94,3 +94,43 @@ impl View {
         Some([d(right), d(down)])
     }
 }
+
+/// The share of the axis-aligned rectangle `min`..`max` on the floor (metres) that the
+/// upright box of `d` (its footprint, from the floor up to its height) covers or hides
+/// from at least one of `views`: every ray of a camera that meets the box, its lid or a
+/// wall, would meet the floor within the footprint or the box's shadow from the camera's
+/// eye (the top corners projected from the eye onto the floor). A part of the table
+/// whose pixels returned no depth and whose rays meet the floor there is explained by the
+/// box (a wall at a grazing angle, a glare on the lid), not another parcel.
+pub fn hidden_share(d: &crate::Dimensions, views: &[View], min: [f64; 2], max: [f64; 2]) -> f64 {
+    use geo::{Area, BooleanOps as _, ConvexHull as _, MultiPoint, MultiPolygon, Rect};
+    let rect = Rect::new((min[0], min[1]), (max[0], max[1])).to_polygon();
+    let area = rect.unsigned_area();
+    let h = d.height_mm / 1e3;
+    if area <= 0.0 || h <= 0.0 {
+        return 0.0;
+    }
+    let mut hidden: Option<MultiPolygon<f64>> = None;
+    for v in views {
+        let eye = v.to_common.translation.map(f64::from);
+        if eye.z <= h {
+            continue;
+        }
+        let scale = eye.z / (eye.z - h);
+        let corners = d.corners_m.iter().flat_map(|c| {
+            let shadow = [
+                eye.x + (c[0] - eye.x) * scale,
+                eye.y + (c[1] - eye.y) * scale,
+            ];
+            [(c[0], c[1]), (shadow[0], shadow[1])]
+        });
+        let hull = MultiPolygon::new(vec![
+            MultiPoint::from(corners.collect::<Vec<_>>()).convex_hull(),
+        ]);
+        hidden = Some(match hidden {
+            Some(h) => h.union(&hull),
+            None => hull,
+        });
+    }
+    hidden.map_or(0.0, |h| h.intersection(&rect).unsigned_area() / area)
+}

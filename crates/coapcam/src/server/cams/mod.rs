@@ -1014,7 +1014,7 @@ impl Cams {
         let (table, merged) = tokio::task::spawn_blocking(move || {
             let views: Vec<geometry::View> = merged.parts.iter().map(DepthPart::view).collect();
             let table = Table::measure(&merged.cloud, &config, &views)
-                .map(|t| t.with_no_depth(&merged.no_depth));
+                .map(|t| t.with_no_depth(&merged.no_depth, &views));
             (table, merged)
         })
         .await?;
