@@ -3,8 +3,8 @@
 //! hand.
 
 use rgbd::cert::{
-    CAMERA_Z_M, MAX_TILT_DEG, MIN_SPACING_M, SPACINGS_MM, SYMBOLOGIES, Surface, cert_scene,
-    cert_set, footprint_gap, judge,
+    CAMERA_Z_M, DIVISION_M, MAX_TILT_DEG, MIN_M, MIN_SPACING_M, SPACINGS_MM, SYMBOLOGIES, Surface,
+    cert_scene, cert_set, footprint_gap, judge,
 };
 use rgbd::scene::{Finish, ObjectKind, Scene, SceneBox};
 
@@ -186,6 +186,33 @@ fn isolated_means_20_mm_or_more_from_every_other_object() {
     );
     assert_eq!(alone[0].gap_m, None);
     assert!(alone[0].accepted());
+}
+
+/// An instrument's minimum (10 d, 10 d, 2 d at d = 5 mm) applies to what it measures:
+/// a box 52 mm wide may read 49.x mm and be refused, so a certified system is held to
+/// measure it only from 55 mm (found by the set: 50.x mm boxes refused as under 50).
+#[test]
+fn measurable_means_a_division_or_more_above_the_smallest_object() {
+    let at = |size: [f64; 3]| {
+        judge(
+            &Scene::from_toml(&format!(
+                "{}{}",
+                one_camera(1.2),
+                boxed(size, [0.0, 0.0], 0.0)
+            ))
+            .unwrap(),
+        )[0]
+    };
+    assert!(at([0.2, 0.055, 0.1]).accepted());
+    for small in [[0.2, 0.052, 0.1], [0.054, 0.054, 0.1], [0.2, 0.1, 0.014]] {
+        let j = at(small);
+        assert!(
+            !j.measurable && !j.accepted() && j.in_view && j.returns_depth,
+            "{small:?}"
+        );
+    }
+    assert!(at([0.2, 0.1, 0.015]).measurable);
+    const { assert!(MIN_M[0] == 0.05 && MIN_M[2] == 0.01 && DIVISION_M == 0.005) };
 }
 
 #[test]

@@ -23,6 +23,7 @@ fn describe(o: &ObjectResult, billing: &Billing) -> String {
             (!j.isolated(), "close"),
             (!j.in_view, "out of view"),
             (!j.returns_depth, "no depth"),
+            (!j.measurable, "within 1 d of the minimum"),
         ]
         .iter()
         .filter(|(b, _)| *b)
@@ -102,7 +103,8 @@ fn json_object(o: &ObjectResult, billing: &Billing) -> serde_json::Value {
         "label": o.object.label.as_ref().map(|l| serde_json::json!({
             "kind": format!("{:?}", l.kind).to_lowercase(), "text": l.text, "size_m": l.size})),
         "gap_mm": j.gap_m.map(|g| g * 1e3), "in_view": j.in_view,
-        "returns_depth": j.returns_depth, "accepted": j.accepted(),
+        "returns_depth": j.returns_depth, "measurable": j.measurable,
+        "accepted": j.accepted(),
         "outcome": outcome, "code_read": o.code_read, "merged": o.merged,
         "phantoms": o.phantoms, "first_pass": o.first_pass(billing),
         "silently_wrong": o.silently_wrong(billing),

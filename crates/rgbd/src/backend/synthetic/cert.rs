@@ -21,7 +21,8 @@
 //!
 //! [`judge`] decides, from any scene, what a certified system accepts: an object isolated
 //! by [`MIN_SPACING_M`] or more from every other, wholly inside the view of at least one
-//! camera, and returning depth.
+//! camera, returning depth, and a division or more above the smallest measurable object
+//! on each axis ([`MIN_M`]).
 
 use super::d415;
 use super::lane::{Draw, serial_digits};
@@ -42,6 +43,16 @@ pub const SPACINGS_MM: [f64; 7] = [0.0, 10.0, 20.0, 30.0, 50.0, 80.0, 120.0];
 /// The least gap between an object's footprint and every other one for a certified
 /// system to measure it as a parcel of its own (Datalogic DM3610, Hikrobot: 20 mm).
 pub const MIN_SPACING_M: f64 = 0.02;
+
+/// The division the set is judged at (d = 5 mm), metres.
+pub const DIVISION_M: f64 = 0.005;
+
+/// The smallest measurable length, width and height (10 d, 10 d and 2 d, as certified
+/// dimensioners state them), metres. An instrument's minimum applies to what it measures
+/// (OIML R 129): an object that reads below it gets no number, and one within a division
+/// of it may read below, so a certified system is expected to measure only objects a
+/// division or more above it.
+pub const MIN_M: [f64; 3] = [0.05, 0.05, 0.01];
 
 /// The number of scenes `bench accuracy --set cert` measures by default.
 pub const CERT_SET_SIZE: usize = 500;
@@ -146,6 +157,9 @@ pub struct Judged {
     /// back from the top's centre (reflectivity x cos(incidence) / distance^2) is at
     /// least what the D415 needs to lose no pixel.
     pub returns_depth: bool,
+    /// Its length, width and height are each at least [`MIN_M`] plus one division
+    /// ([`DIVISION_M`]).
+    pub measurable: bool,
 }
 
 impl Judged {
@@ -154,9 +168,10 @@ impl Judged {
         self.gap_m.is_none_or(|g| g >= MIN_SPACING_M - 1e-9)
     }
 
-    /// Isolated, in view and returning depth: a parcel a certified system measures.
+    /// Isolated, in view, returning depth and measurable: a parcel a certified system
+    /// measures.
     pub fn accepted(&self) -> bool {
-        self.isolated() && self.in_view && self.returns_depth
+        self.isolated() && self.in_view && self.returns_depth && self.measurable
     }
 }
 
@@ -284,10 +299,13 @@ pub fn judge(scene: &Scene) -> Vec<Judged> {
                 let signal = reflectivity * (d[2] / distance).max(0.0) / (distance * distance);
                 reflectivity >= 1.0 || signal >= f64::from(SIGNAL_FULL)
             });
+            let lwh = [t.length_mm(), t.width_mm(), t.height_mm()];
+            let measurable = (0..3).all(|k| lwh[k] >= (MIN_M[k] + DIVISION_M) * 1e3 - 1e-9);
             Judged {
                 gap_m,
                 in_view: !seeing.is_empty(),
                 returns_depth,
+                measurable,
             }
         })
         .collect()
