@@ -74,6 +74,15 @@ pub enum LogError {
         /// What failed.
         why: String,
     },
+    /// The file was removed or replaced while the log was open: nothing more is recorded
+    /// into the unlinked file, so no result is answered without a record.
+    #[error(
+        "results log {path} was removed or replaced while the station ran: nothing is recorded (and no result answered) until the station is restarted"
+    )]
+    Gone {
+        /// The database file.
+        path: PathBuf,
+    },
     /// A stored record does not read back (its body is not a record's JSON).
     #[error("results log {path}: record {id} does not read back: {why}")]
     Unreadable {
@@ -84,6 +93,23 @@ pub enum LogError {
         /// Why.
         why: String,
     },
+}
+
+impl LogError {
+    /// What went wrong, without the file's path: for answers to clients, who have no
+    /// business knowing where the station keeps its files.
+    pub fn public_text(&self) -> String {
+        match self {
+            Self::Sqlite { source, .. } => format!("results log: {source}"),
+            Self::Format { why, .. } | Self::Failed { why, .. } => format!("results log: {why}"),
+            Self::Gone { .. } => {
+                "the results log was removed or replaced while the station ran: nothing is recorded until it is restarted".to_owned()
+            }
+            Self::Unreadable { id, why, .. } => {
+                format!("results log: record {id} does not read back: {why}")
+            }
+        }
+    }
 }
 
 /// How much the log keeps. Pictures are pruned oldest first to stay within it; records
@@ -112,6 +138,14 @@ struct Inner {
     retention: Mutex<Retention>,
     newest: watch::Sender<u64>,
     over_limit: std::sync::atomic::AtomicBool,
+    /// The file's device and inode when it was opened.
+    identity: (u64, u64),
+}
+
+/// The device and inode of the file at `path`, if there is one.
+fn identity(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt as _;
+    std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
 }
 
 impl std::fmt::Debug for ResultsLog {
@@ -136,8 +170,11 @@ impl ResultsLog {
                 why: format!("creating its directory: {e}"),
             })?;
         }
-        let conn = connect(path, true)?;
+        let conn = connect(path)?;
         let newest = newest_id(&conn).map_err(sql(path))?;
+        let identity = identity(path).ok_or_else(|| LogError::Gone {
+            path: path.to_owned(),
+        })?;
         let log = Self {
             inner: Arc::new(Inner {
                 path: path.to_owned(),
@@ -145,6 +182,7 @@ impl ResultsLog {
                 retention: Mutex::new(retention),
                 newest: watch::Sender::new(newest),
                 over_limit: std::sync::atomic::AtomicBool::new(false),
+                identity,
             }),
         };
         log.prune()?;
@@ -170,6 +208,13 @@ impl ResultsLog {
     /// Records `new` after the newest record, chained to it, and returns the record. It is
     /// on disk when this returns. Then prunes pictures as the retention says.
     pub fn append(&self, new: NewRecord) -> Result<Record, LogError> {
+        if identity(&self.inner.path) != Some(self.inner.identity) {
+            let gone = LogError::Gone {
+                path: self.inner.path.clone(),
+            };
+            tracing::error!("{gone}");
+            return Err(gone);
+        }
         let record = {
             let mut conn = self.conn();
             let tx = conn
@@ -478,14 +523,13 @@ fn content_bytes(conn: &Connection) -> rusqlite::Result<u64> {
     )
 }
 
-/// Opens the database at `path` in WAL mode with `synchronous=FULL`; `create` makes the
-/// file and its schema when missing, else a missing file is an error.
-fn connect(path: &Path, create: bool) -> Result<Connection, LogError> {
+/// Opens the database at `path` in WAL mode with `synchronous=FULL`, making the file and
+/// its schema when missing.
+fn connect(path: &Path) -> Result<Connection, LogError> {
     let err = sql(path);
-    let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX;
-    if create {
-        flags |= OpenFlags::SQLITE_OPEN_CREATE;
-    }
+    let flags = OpenFlags::SQLITE_OPEN_READ_WRITE
+        | OpenFlags::SQLITE_OPEN_NO_MUTEX
+        | OpenFlags::SQLITE_OPEN_CREATE;
     let mut conn = Connection::open_with_flags(path, flags).map_err(&err)?;
     conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
     // auto_vacuum takes effect only before the first table: a new file gets it, so pruned
@@ -536,7 +580,7 @@ fn connect(path: &Path, create: bool) -> Result<Connection, LogError> {
                 |r| r.get(0),
             )
             .map_err(&err)?;
-        if tables > 0 || !create {
+        if tables > 0 {
             return Err(LogError::Format {
                 path: path.to_owned(),
                 why: "not a coapcam results log (an SQLite database without its tables)".into(),
@@ -578,10 +622,56 @@ pub struct Altered {
     pub why: String,
 }
 
-/// Checks the chain of the log at `path` (the file must exist; it is not changed): ids
-/// 1, 2, 3, ... without gaps, each record's hash over its canonical content, each
+/// Opens the log at `path` for reading only, so that a copy on read-only media verifies
+/// and the file is never written. Without a `-wal` file beside it (no station has it
+/// open, or one closed it) it is opened immutable: SQLite then creates no `-shm` either.
+fn connect_read_only(path: &Path) -> Result<Connection, LogError> {
+    let err = sql(path);
+    let mut wal = path.as_os_str().to_owned();
+    wal.push("-wal");
+    let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let conn = if Path::new(&wal).exists() {
+        Connection::open_with_flags(path, flags)
+    } else {
+        let mut uri = String::from("file:");
+        for c in path.to_string_lossy().chars() {
+            match c {
+                '?' | '#' | '%' => uri.push_str(&format!("%{:02X}", u32::from(c))),
+                c => uri.push(c),
+            }
+        }
+        uri.push_str("?immutable=1");
+        Connection::open_with_flags(uri, flags | OpenFlags::SQLITE_OPEN_URI)
+    }
+    .map_err(&err)?;
+    conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
+    let version: Option<String> = conn
+        .query_row("SELECT value FROM meta WHERE key = 'schema'", [], |r| {
+            r.get(0)
+        })
+        .optional()
+        .map_err(&err)?;
+    if version.as_deref() != Some(SCHEMA_VERSION) {
+        return Err(LogError::Format {
+            path: path.to_owned(),
+            why: format!("its schema is {version:?}; this coapcam reads schema {SCHEMA_VERSION}"),
+        });
+    }
+    Ok(conn)
+}
+
+/// Whether SQLite failed because the file is cut off or its pages are damaged.
+fn damaged(e: &LogError) -> bool {
+    use rusqlite::ErrorCode::{DatabaseCorrupt, NotADatabase};
+    matches!(e, LogError::Sqlite { source: rusqlite::Error::SqliteFailure(f, _), .. }
+        if matches!(f.code, DatabaseCorrupt | NotADatabase))
+}
+
+/// Checks the chain of the log at `path` (the file must exist; it is opened read-only):
+/// ids 1, 2, 3, ... without gaps, each record's hash over its canonical content, each
 /// `prev_hash` the previous record's hash, each kept picture's SHA-256 the one its
-/// record holds. Stops at the first record that does not match and names it.
+/// record holds. Stops at the first record that does not match and names it; a file cut
+/// off or damaged is named as such (an altered log, not a failure to read one).
 pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
     if !path.is_file() {
         return Err(LogError::Format {
@@ -589,8 +679,6 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
             why: "no such file".into(),
         });
     }
-    let conn = connect(path, false)?;
-    let err = sql(path);
     let mut report = VerifyReport {
         records: 0,
         head: None,
@@ -598,6 +686,26 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
         pictures_checked: 0,
         first_altered: None,
     };
+    match connect_read_only(path).and_then(|conn| verify_chain(path, &conn, &mut report)) {
+        Err(e) if damaged(&e) => {
+            let id = report.head.as_ref().map_or(1, |(id, _)| id + 1);
+            let why = match &e {
+                LogError::Sqlite { source, .. } => source.to_string(),
+                other => other.to_string(),
+            };
+            report.first_altered = Some(Altered {
+                id,
+                why: format!("the file is cut off or damaged from record {id} on ({why})"),
+            });
+            Ok(report)
+        }
+        Err(e) => Err(e),
+        Ok(()) => Ok(report),
+    }
+}
+
+fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Result<(), LogError> {
+    let err = sql(path);
     let mut stmt = conn
         .prepare(
             "SELECT r.id, r.body, r.hash,
@@ -630,7 +738,7 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
             ));
             break;
         }
-        let check = check_record(id, &body, &hash, &prev, [photo, annotated], &mut report);
+        let check = check_record(id, &body, &hash, &prev, [photo, annotated], report);
         if let Err(why) = check {
             report.first_altered = Some(broken(id, why));
             break;
@@ -648,7 +756,7 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
             why: format!("a picture of record {id} is stored, but the record is not"),
         });
     }
-    Ok(report)
+    Ok(())
 }
 
 /// Checks one record: its body names it and its predecessor, hashes to `hash`, and its

@@ -221,7 +221,7 @@ fn no_record(id: u64) -> Response {
 
 fn failed(e: &LogError) -> Response {
     tracing::warn!("results log: {e}");
-    Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string())
+    Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.public_text())
 }
 
 /// Runs `f` on the log off the executor.

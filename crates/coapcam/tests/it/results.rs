@@ -628,3 +628,88 @@ fn the_chain_checks_out_by_its_documented_encoding_alone() {
     .expect_success("the independent check");
     assert_eq!(f.stdout_text().trim(), format!("4 {last}"));
 }
+
+#[test]
+fn verify_reads_a_read_only_copy_unchanged_and_names_a_cut_off_file() {
+    let dir = TempDir::new("results-read-only");
+    let file = dir.join("results.sqlite");
+    {
+        let log = ResultsLog::open(&file).expect("open");
+        for n in 0..60 {
+            crate::mqtt::record(&log, 400.0 + f64::from(n), Some("PKG"));
+        }
+    }
+    // A copy in a folder that neither it nor anything beside it can be written to (as an
+    // unprivileged user when the test runs as root, whom permissions do not stop).
+    let folder = dir.join("copy");
+    std::fs::create_dir(&folder).expect("a folder");
+    let copy = folder.join("results.sqlite");
+    std::fs::copy(&file, &copy).expect("copying the log");
+    let bytes = std::fs::read(&copy).expect("reading the copy");
+    let chmod = |mode: &str, path: &Path| {
+        let done = std::process::Command::new("chmod")
+            .args([mode, &path.to_string_lossy()])
+            .status();
+        assert!(done.is_ok_and(|s| s.success()), "chmod {mode}");
+    };
+    chmod("0444", &copy);
+    chmod("0555", &folder);
+    let copy_arg = copy.to_str().expect("UTF-8 path");
+    let args = ["results", "verify", copy_arg, "--json"];
+    let root = std::process::Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| o.stdout.starts_with(b"0\n"));
+    let f = if root {
+        let mut as_nobody = vec!["--reuid=65534", "--regid=65534", "--clear-groups", COAPCAM];
+        as_nobody.extend(args);
+        Proc::run("setpriv", &as_nobody, LIMIT)
+    } else {
+        Proc::run(COAPCAM, &args, LIMIT)
+    };
+    assert_eq!(f.status.code(), Some(0), "{}", f.stderr);
+    assert_eq!(f.json()["records"], 60, "{}", f.stdout_text());
+    assert_eq!(std::fs::read(&copy).expect("reading the copy"), bytes);
+    let beside: Vec<_> = std::fs::read_dir(&folder)
+        .expect("listing")
+        .map(|e| e.expect("an entry").file_name())
+        .collect();
+    assert_eq!(
+        beside,
+        ["results.sqlite"],
+        "verify left files beside the copy"
+    );
+    chmod("0755", &folder);
+
+    // Cut off in the middle: an altered log (7), not a failure to read one (1).
+    let cut = dir.join("cut.sqlite");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("writing the cut copy");
+    let (code, report) = verify(&cut);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["verified"], false, "{report}");
+    let why = report["first_altered"]["why"].as_str().unwrap_or_default();
+    assert!(why.contains("cut off or damaged"), "{report}");
+}
+
+#[test]
+fn a_log_removed_while_the_station_runs_stops_the_answers_and_says_so() {
+    let dir = TempDir::new("results-removed");
+    let (mut server, addr) = serve_with(dir.path(), &[]);
+    let file = dir.join("results.sqlite");
+    let rt = runtime();
+    let c = client();
+    rt.block_on(async {
+        measure(&c, addr).await;
+        std::fs::remove_file(&file).expect("removing the log");
+        let mut request = Request::new(Code::POST, "/cams/dimensions");
+        request.timeout = Some(LIMIT);
+        let r = c.send(addr, request).await.expect("an answer");
+        let text = String::from_utf8_lossy(&r.payload).into_owned();
+        assert_eq!(r.code, Code::INTERNAL_SERVER_ERROR, "{text}");
+        assert!(text.contains("removed or replaced"), "{text}");
+        // The answer does not tell where the station keeps its files.
+        assert!(!text.contains(&*dir.path().to_string_lossy()), "{text}");
+    });
+    let _ = server.process().kill();
+    let _ = server.process().wait();
+}

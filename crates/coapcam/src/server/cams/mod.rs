@@ -838,7 +838,10 @@ impl Cams {
             && let Err(e) = recorder.record(measured).await
         {
             tracing::error!("a measurement could not be recorded: {e}");
-            let why = format!("measured, but the measurement could not be recorded: {e}");
+            let why = format!(
+                "measured, but the measurement could not be recorded: {}",
+                e.public_text()
+            );
             return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
         }
         match edge::stored(m) {

@@ -388,7 +388,10 @@ impl<R: Rig> App<R> {
                 tracing::error!("a measurement could not be recorded: {e}");
                 error(
                     StatusCode::INTERNAL_SERVER_ERROR,
-                    &format!("measured, but the measurement could not be recorded: {e}"),
+                    &format!(
+                        "measured, but the measurement could not be recorded: {}",
+                        e.public_text()
+                    ),
                 )
             }
         }
@@ -963,7 +966,7 @@ fn no_record(id: u64) -> Answer {
 
 fn failed(e: &LogError) -> Answer {
     tracing::warn!("http: results log: {e}");
-    error(StatusCode::INTERNAL_SERVER_ERROR, &e.to_string())
+    error(StatusCode::INTERNAL_SERVER_ERROR, &e.public_text())
 }
 
 fn empty() -> BoxBody<Bytes, Infallible> {
