@@ -3,14 +3,15 @@
 //! synthetic D415 straight above at 1920x1080 through its color sensor (Gaussian blur and
 //! noise), each image read by our reader, by rxing, and by both
 //! ([`crate::vision::codes::Reader`]). A read counts when the label's own text comes out
-//! with its symbology.
+//! with its symbology ([`crate::vision::codes::Code::shows`]: an EAN-13 beginning with 0
+//! may come out as the UPC-A of the same bars).
 
 use rand_chacha::ChaCha8Rng;
 use rand_core::{RngCore as _, SeedableRng as _};
 use rgbd::scene::{Label, LabelKind};
 use rgbd::{Camera as _, ColorFormat, ColorSettings, Scene, SyntheticCamera};
 
-use crate::vision::codes::{CodeKind, Reader, read_with};
+use crate::vision::codes::{CodeKind, MIN_PX_PER_MODULE, Reader, read_with};
 
 /// The readers compared, in the order of [`Cell::read`].
 pub const READERS: [Reader; 3] = [Reader::Ours, Reader::Rxing, Reader::Both];
@@ -162,9 +163,7 @@ pub fn run(
                     let started = std::time::Instant::now();
                     let codes = read_with(&gray, reader);
                     cell.ms[i] += started.elapsed().as_secs_f64() * 1e3;
-                    hit[i] = codes
-                        .iter()
-                        .any(|c| c.kind == cell.kind && c.text == label.text);
+                    hit[i] = codes.iter().any(|c| c.shows(cell.kind, &label.text));
                 }
                 cell.ms[2] = cell.ms[0] + cell.ms[1];
                 for (i, read) in [hit[0], hit[1], hit[0] || hit[1]].into_iter().enumerate() {
@@ -185,6 +184,23 @@ pub fn run(
     Ok(cells)
 }
 
+/// Per symbology of `cells`, in their order: the labels read by both readers and the
+/// labels shown, over the cells whose modules span the reader's limit
+/// ([`MIN_PX_PER_MODULE`]) or more.
+pub fn at_the_limit(cells: &[Cell]) -> Vec<(CodeKind, u32, u32)> {
+    let mut out: Vec<(CodeKind, u32, u32)> = Vec::new();
+    for cell in cells.iter().filter(|c| c.module_px >= MIN_PX_PER_MODULE) {
+        match out.iter_mut().find(|(kind, ..)| *kind == cell.kind) {
+            Some((_, read, labels)) => {
+                *read += cell.read[2];
+                *labels += cell.labels;
+            }
+            None => out.push((cell.kind, cell.read[2], cell.labels)),
+        }
+    }
+    out
+}
+
 /// Sets `camera`'s color to 1920x1080 RGB and returns its intrinsics.
 fn color(camera: &SyntheticCamera) -> anyhow::Result<rgbd::Intrinsics> {
     camera.set_color_settings(ColorSettings {
@@ -194,4 +210,34 @@ fn color(camera: &SyntheticCamera) -> anyhow::Result<rgbd::Intrinsics> {
         height: 1080,
     })?;
     Ok(camera.color_intrinsics()?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cell(kind: CodeKind, module_px: f64, read: u32, labels: u32) -> Cell {
+        Cell {
+            kind,
+            module_px,
+            labels,
+            read: [0, 0, read],
+            ms: [0.0; 3],
+        }
+    }
+
+    #[test]
+    fn the_rate_at_the_limit_counts_only_cells_at_or_above_it() {
+        let cells = [
+            cell(CodeKind::Ean13, MIN_PX_PER_MODULE - 1.0, 0, 40),
+            cell(CodeKind::Ean13, MIN_PX_PER_MODULE, 38, 40),
+            cell(CodeKind::Ean13, MIN_PX_PER_MODULE + 1.0, 40, 40),
+            cell(CodeKind::Qr, MIN_PX_PER_MODULE - 0.5, 1, 40),
+            cell(CodeKind::Qr, MIN_PX_PER_MODULE + 2.0, 39, 40),
+        ];
+        assert_eq!(
+            at_the_limit(&cells),
+            [(CodeKind::Ean13, 78, 80), (CodeKind::Qr, 39, 40)]
+        );
+    }
 }

@@ -67,6 +67,29 @@ pub struct Code {
     pub text: String,
 }
 
+impl Code {
+    /// Whether a label of `kind` printing `text` shows this code. The same symbology and
+    /// text, or an EAN-13 whose first digit is 0 read as a UPC-A: the two are the same
+    /// bars (a UPC-A is an EAN-13 with a leading 0, ISO/IEC 15420), and a reader that
+    /// reads both names them UPC-A.
+    pub fn shows(&self, kind: CodeKind, text: &str) -> bool {
+        (self.kind == kind && self.text == text)
+            || (self.kind == CodeKind::Upca
+                && kind == CodeKind::Ean13
+                && text.strip_prefix('0') == Some(self.text.as_str()))
+    }
+
+    /// The texts a label showing this code carries ([`Code::shows`]): its own, and for a
+    /// UPC-A also the EAN-13 of the same bars.
+    pub fn label_texts(&self) -> Vec<String> {
+        let mut texts = vec![self.text.clone()];
+        if self.kind == CodeKind::Upca {
+            texts.push(format!("0{}", self.text));
+        }
+        texts
+    }
+}
+
 impl fmt::Display for Code {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{} {:?}", self.kind.name(), self.text)
@@ -133,9 +156,37 @@ pub fn read_with(image: &GrayImage, reader: Reader) -> Vec<Code> {
     found.into_iter().collect()
 }
 
-/// The codes rxing finds in `image`: several at once, trying harder (rotated
-/// symbols), only the symbologies of [`CodeKind`].
+/// The codes rxing finds in `image`: first in the whole image, then in each printed
+/// region of it ([`printed_regions`]) turned so that its bars stand upright
+/// ([`upright`]), as it is and binarised against its own surroundings ([`binarised`]).
+/// rxing's linear and PDF417 readers scan rows, and a row's threshold comes from the
+/// row's histogram: a code turned from the rows, or lying on a gray parcel, escapes them.
 fn read_rxing(image: &GrayImage) -> BTreeSet<Code> {
+    let mut found = rxing_codes(image);
+    for (x, y, width, height) in printed_regions(image) {
+        let crop = image::imageops::crop_imm(image, x, y, width, height).to_image();
+        let turned = upright(&crop);
+        let mut here = rxing_codes(&turned);
+        if here.is_empty() {
+            here = rxing_codes(&binarised(&turned));
+        }
+        // One label, two EAN-13 or UPC-A texts: one is a misread (their check digit
+        // catches one wrong digit, not two), and which is unknown.
+        let products = here
+            .iter()
+            .filter(|c| matches!(c.kind, CodeKind::Ean13 | CodeKind::Upca))
+            .count();
+        if products > 1 {
+            here.retain(|c| !matches!(c.kind, CodeKind::Ean13 | CodeKind::Upca));
+        }
+        found.extend(here);
+    }
+    found
+}
+
+/// The codes rxing finds in `image` as it is: several at once, trying harder (rxing's
+/// helper sets it), only the symbologies of [`CodeKind`].
+fn rxing_codes(image: &GrayImage) -> BTreeSet<Code> {
     use rxing::BarcodeFormat as F;
     let mut hints = rxing::DecodeHints {
         PossibleFormats: Some(
@@ -150,6 +201,7 @@ fn read_rxing(image: &GrayImage) -> BTreeSet<Code> {
             .into_iter()
             .collect(),
         ),
+        TryHarder: Some(true),
         ..Default::default()
     };
     let results = rxing::helpers::detect_multiple_in_luma_with_hints(
@@ -177,6 +229,162 @@ fn read_rxing(image: &GrayImage) -> BTreeSet<Code> {
             })
         })
         .collect()
+}
+
+/// Side of the square blocks in which [`printed_regions`] looks for print, pixels.
+const BLOCK_PX: u32 = 16;
+/// Smallest difference between a block's darkest and lightest pixel (0-255) for it to
+/// count as printed: a label's black on white differs by far more, a parcel's edge
+/// against the floor and sensor noise by less.
+const BLOCK_CONTRAST: u8 = 60;
+/// Fewest blocks of a printed region worth reading: smaller ones are text or edges.
+const MIN_REGION_BLOCKS: usize = 6;
+/// Blocks added around a region on each side: the quiet zones inside a label's border.
+const REGION_MARGIN_BLOCKS: u32 = 2;
+
+/// The rectangles (x, y, width, height) around each group of touching printed blocks
+/// of `image`, a margin added.
+fn printed_regions(image: &GrayImage) -> Vec<(u32, u32, u32, u32)> {
+    let (width, height) = (image.width(), image.height());
+    let (columns, rows) = (width / BLOCK_PX, height / BLOCK_PX);
+    let pixels = image.as_raw();
+    let mut printed = vec![false; (columns * rows) as usize];
+    for by in 0..rows {
+        for bx in 0..columns {
+            let (mut low, mut high) = (u8::MAX, u8::MIN);
+            for y in by * BLOCK_PX..(by + 1) * BLOCK_PX {
+                let row = (y * width) as usize;
+                let from = row + (bx * BLOCK_PX) as usize;
+                for &v in &pixels[from..from + BLOCK_PX as usize] {
+                    low = low.min(v);
+                    high = high.max(v);
+                }
+            }
+            printed[(by * columns + bx) as usize] = high - low >= BLOCK_CONTRAST;
+        }
+    }
+    let mut seen = vec![false; printed.len()];
+    let mut regions = Vec::new();
+    for start in 0..printed.len() {
+        if !printed[start] || seen[start] {
+            continue;
+        }
+        // The blocks touching this one, diagonals included, and theirs.
+        seen[start] = true;
+        let mut stack = vec![start];
+        let (mut x0, mut y0, mut x1, mut y1, mut blocks) = (u32::MAX, u32::MAX, 0, 0, 0);
+        while let Some(i) = stack.pop() {
+            let (bx, by) = (i as u32 % columns, i as u32 / columns);
+            (x0, y0, x1, y1) = (x0.min(bx), y0.min(by), x1.max(bx), y1.max(by));
+            blocks += 1;
+            for ny in by.saturating_sub(1)..=(by + 1).min(rows - 1) {
+                for nx in bx.saturating_sub(1)..=(bx + 1).min(columns - 1) {
+                    let j = (ny * columns + nx) as usize;
+                    if printed[j] && !seen[j] {
+                        seen[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        if blocks < MIN_REGION_BLOCKS {
+            continue;
+        }
+        let (left, top) = (
+            x0.saturating_sub(REGION_MARGIN_BLOCKS) * BLOCK_PX,
+            y0.saturating_sub(REGION_MARGIN_BLOCKS) * BLOCK_PX,
+        );
+        let right = ((x1 + 1 + REGION_MARGIN_BLOCKS) * BLOCK_PX).min(width);
+        let bottom = ((y1 + 1 + REGION_MARGIN_BLOCKS) * BLOCK_PX).min(height);
+        regions.push((left, top, right - left, bottom - top));
+    }
+    regions
+}
+
+/// `image` turned about its centre so that its dominant gradient runs along the rows
+/// (a bar code's bars stand upright), on a canvas that holds all of it, white outside.
+/// The direction is the structure tensor's: the mean of the gradients' doubled angles,
+/// weighted by their squared length.
+fn upright(image: &GrayImage) -> GrayImage {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    if w < 3 || h < 3 {
+        return image.clone();
+    }
+    let pixels = image.as_raw();
+    let p = |x: usize, y: usize| f32::from(pixels[y * w + x]);
+    let (mut along, mut across) = (0.0f64, 0.0f64);
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let gx = p(x + 1, y) - p(x - 1, y);
+            let gy = p(x, y + 1) - p(x, y - 1);
+            along += f64::from(gx * gx - gy * gy);
+            across += f64::from(2.0 * gx * gy);
+        }
+    }
+    let angle = 0.5 * across.atan2(along) as f32;
+    // Turning the image by -angle: a canvas pixel at d from the centre shows the
+    // image's pixel at d turned by +angle.
+    let (sin, cos) = angle.sin_cos();
+    let (wf, hf) = (w as f32, h as f32);
+    let side_w = (wf * cos.abs() + hf * sin.abs()).ceil() as u32;
+    let side_h = (wf * sin.abs() + hf * cos.abs()).ceil() as u32;
+    let (cx, cy) = (wf / 2.0, hf / 2.0);
+    let (ox, oy) = (side_w as f32 / 2.0, side_h as f32 / 2.0);
+    GrayImage::from_fn(side_w, side_h, |x, y| {
+        let (dx, dy) = (x as f32 + 0.5 - ox, y as f32 + 0.5 - oy);
+        let (sx, sy) = (
+            cos * dx - sin * dy + cx - 0.5,
+            sin * dx + cos * dy + cy - 0.5,
+        );
+        if sx < 0.0 || sy < 0.0 || sx >= wf - 1.0 || sy >= hf - 1.0 {
+            return image::Luma([u8::MAX]);
+        }
+        image::Luma([bilinear(pixels, w, sx, sy).round() as u8])
+    })
+}
+
+/// Half the side of the window whose mean is a pixel's threshold in [`binarised`]: some
+/// 20 modules at the limit, so that a window holds bars and spaces both.
+const BINARISE_HALF_WINDOW: usize = 30;
+/// Smallest standard deviation of that window (gray levels) for its pixels to count as
+/// printed; flat ones are white.
+const BINARISE_MIN_DEVIATION: f64 = 12.0;
+
+/// `image` in black and white: black where a pixel is darker than the mean of the
+/// window around it and the window is not flat. rxing's row readers then see a bar
+/// code's bars whatever the parcel's gray around the label.
+fn binarised(image: &GrayImage) -> GrayImage {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let pixels = image.as_raw();
+    // Sums of the pixels and of their squares over [0, x) x [0, y).
+    let stride = w + 1;
+    let mut sum = vec![0.0f64; stride * (h + 1)];
+    let mut squares = vec![0.0f64; stride * (h + 1)];
+    for y in 0..h {
+        let (mut row, mut row_squares) = (0.0, 0.0);
+        for x in 0..w {
+            let v = f64::from(pixels[y * w + x]);
+            row += v;
+            row_squares += v * v;
+            sum[(y + 1) * stride + x + 1] = sum[y * stride + x + 1] + row;
+            squares[(y + 1) * stride + x + 1] = squares[y * stride + x + 1] + row_squares;
+        }
+    }
+    let half = BINARISE_HALF_WINDOW;
+    GrayImage::from_fn(w as u32, h as u32, |x, y| {
+        let (x, y) = (x as usize, y as usize);
+        let (x0, y0) = (x.saturating_sub(half), y.saturating_sub(half));
+        let (x1, y1) = ((x + half + 1).min(w), (y + half + 1).min(h));
+        let n = ((x1 - x0) * (y1 - y0)) as f64;
+        let over = |t: &[f64]| {
+            t[y1 * stride + x1] - t[y0 * stride + x1] - t[y1 * stride + x0] + t[y0 * stride + x0]
+        };
+        let mean = over(&sum) / n;
+        let variance = over(&squares) / n - mean * mean;
+        let dark = variance > BINARISE_MIN_DEVIATION * BINARISE_MIN_DEVIATION
+            && f64::from(pixels[y * w + x]) < mean;
+        image::Luma([if dark { 0 } else { u8::MAX }])
+    })
 }
 
 /// Standard deviation of the Gaussian blur of the QR reader's second look, pixels.
@@ -859,6 +1067,81 @@ mod tests {
                 }],
                 "{sensor:?}"
             );
+        }
+    }
+
+    #[test]
+    fn a_upc_a_read_shows_the_ean_13_of_the_same_bars_and_nothing_else() {
+        let upca = Code {
+            kind: CodeKind::Upca,
+            text: "036000291452".into(),
+        };
+        assert!(upca.shows(CodeKind::Upca, "036000291452"));
+        assert!(upca.shows(CodeKind::Ean13, "0036000291452"));
+        assert!(!upca.shows(CodeKind::Ean13, "1036000291452"));
+        assert!(!upca.shows(CodeKind::Ean13, "036000291452"));
+        assert!(!upca.shows(CodeKind::Code128, "036000291452"));
+        assert_eq!(upca.label_texts(), ["036000291452", "0036000291452"]);
+        let ean = Code {
+            kind: CodeKind::Ean13,
+            text: "0036000291452".into(),
+        };
+        assert!(!ean.shows(CodeKind::Upca, "036000291452"));
+        assert_eq!(ean.label_texts(), ["0036000291452"]);
+    }
+
+    /// A parcel turned `yaw_deg` under a camera 0.6 m above its top, its label `kind`
+    /// of `text` sized so that a module spans `module_px` pixels of the 1920x1080 color
+    /// image, seen through 1 px of lens blur and 3 levels of noise.
+    fn labelled(
+        kind: rgbd::scene::LabelKind,
+        text: &str,
+        module_px: f64,
+        yaw_deg: f64,
+    ) -> GrayImage {
+        let mut label = rgbd::scene::Label {
+            kind,
+            text: text.into(),
+            size: 1.0,
+            appear_s: None,
+            remove_s: None,
+        };
+        // fx of the D415's color at 1920x1080.
+        let fx = 1368.75;
+        label.size = module_px * 0.6 / fx * label.modules_across().unwrap() as f64;
+        let (lx, ly) = label.extent_m();
+        let mut scene = rgbd::Scene::from_toml(&format!(
+            "seed = 7\n[[camera]]\nserial = \"840412060746\"\nposition = [0.0, 0.0, 0.7]\n\
+             look_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n\
+             color_sensor = {{ noise = 3.0, blur_px = 1.0 }}\n\
+             [[box]]\nsize = [{}, {}, 0.1]\ncenter = [0.0, 0.0]\nyaw_deg = {yaw_deg}\n",
+            lx + 0.02,
+            ly + 0.02
+        ))
+        .unwrap();
+        scene.boxes[0].label = Some(label);
+        photograph(&scene, 0)
+    }
+
+    #[test]
+    fn rxing_reads_turned_linear_and_pdf417_labels_at_the_limit_through_blur() {
+        use rgbd::scene::LabelKind;
+        for (kind, text) in [
+            (LabelKind::Ean13, "4006381333931"),
+            (LabelKind::Upca, "036000291452"),
+            (LabelKind::Pdf417, "PKG-7Q2L9XW4C1"),
+        ] {
+            for yaw in [20.0, 45.0, 70.0] {
+                let image = labelled(kind, text, MIN_PX_PER_MODULE, yaw);
+                assert_eq!(
+                    read_with(&image, Reader::Rxing),
+                    [Code {
+                        kind: kind.into(),
+                        text: text.into()
+                    }],
+                    "{kind:?} turned {yaw} deg"
+                );
+            }
         }
     }
 

@@ -21,6 +21,7 @@ use crate::client::codes;
 use crate::client::measure::{self, Source, prepare_cameras};
 use crate::report::{Billing, ParcelReport};
 use crate::server::SceneServer;
+use crate::vision::codes::MIN_PX_PER_MODULE;
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -46,6 +47,9 @@ pub struct ObjectResult {
     pub outcome: Outcome,
     /// Whether its label's text was read by any camera; `None` without a label.
     pub code_read: Option<bool>,
+    /// The widest its label's modules span in a camera's color image, pixels
+    /// ([`label_module_px`]); `None` without a label or when no camera sees it.
+    pub module_px: Option<f64>,
     /// The parcel matched to it also holds another object 20 mm or more from it.
     pub merged: bool,
     /// Parcels reported that match no object, nearest to this one.
@@ -223,6 +227,60 @@ fn centre(fit: &ParcelFit) -> [f64; 2] {
     [0, 1].map(|k| c.iter().map(|p| p[k]).sum::<f64>() / 4.0)
 }
 
+/// The widest a module of object `o`'s label spans in the 1920x1080 color image of a
+/// camera of `scene` that sees the label's centre, pixels: one module laid at the label's
+/// centre on the box's top face, along the label's width and (for a 2D code) across it,
+/// projected through the color intrinsics from the camera's pose (the 15 mm between the
+/// D415's color and depth sensors left out); the narrower of the two. `None` without a
+/// label, for a label off a box, or when no camera sees its centre.
+pub fn label_module_px(scene: &rgbd::Scene, o: &CertObject) -> Option<f64> {
+    let label = o.label.as_ref()?;
+    if o.truth.kind != rgbd::scene::ObjectKind::Box {
+        return None;
+    }
+    let parcel = scene.boxes.get(o.truth.index)?;
+    let module = label.size / label.modules_across().ok()? as f64;
+    let (sin, cos) = parcel.yaw_deg.to_radians().sin_cos();
+    let centre = [parcel.center[0], parcel.center[1], parcel.size[2]];
+    let along = [cos * module / 2.0, sin * module / 2.0, 0.0];
+    let across = [-sin * module / 2.0, cos * module / 2.0, 0.0];
+    let k = rgbd::d415::color_intrinsics(1920, 1080);
+    let (width, height) = (f64::from(k.width), f64::from(k.height));
+    scene
+        .cameras
+        .iter()
+        .filter_map(|camera| {
+            let pose = camera.pose()?;
+            let pixel = |p: [f64; 3]| -> Option<[f64; 2]> {
+                let d = [0, 1, 2].map(|i| p[i] - pose.translation[i]);
+                let r = pose.rotation;
+                let q = [0, 1, 2].map(|j| r[0][j] * d[0] + r[1][j] * d[1] + r[2][j] * d[2]);
+                (q[2] > 0.0).then(|| {
+                    [
+                        f64::from(k.fx) * q[0] / q[2] + f64::from(k.ppx),
+                        f64::from(k.fy) * q[1] / q[2] + f64::from(k.ppy),
+                    ]
+                })
+            };
+            let c = pixel(centre)?;
+            if !(0.0..width).contains(&c[0]) || !(0.0..height).contains(&c[1]) {
+                return None;
+            }
+            let span = |half: [f64; 3]| -> Option<f64> {
+                let a = pixel([0, 1, 2].map(|i| centre[i] - half[i]))?;
+                let b = pixel([0, 1, 2].map(|i| centre[i] + half[i]))?;
+                Some((a[0] - b[0]).hypot(a[1] - b[1]))
+            };
+            let wide = span(along)?;
+            Some(if label.kind.is_linear() {
+                wide
+            } else {
+                wide.min(span(across)?)
+            })
+        })
+        .max_by(f64::total_cmp)
+}
+
 /// Holds what the station measured (`fits`) and read (`codes`, the texts) against the
 /// objects of `cert`.
 pub fn judge_scene(
@@ -250,6 +308,7 @@ pub fn judge_scene(
                 object: o.clone(),
                 outcome: matched[i].map_or(Outcome::Missing, |f| outcome(&fits[f], config)),
                 code_read: o.label.as_ref().map(|l| codes.contains(&l.text)),
+                module_px: label_module_px(&cert.scene, o),
                 merged,
                 phantoms: 0,
             }
@@ -300,6 +359,7 @@ async fn measure_scene(
                 object: o.clone(),
                 outcome: Outcome::Missing,
                 code_read: o.label.as_ref().map(|_| false),
+                module_px: label_module_px(&cert.scene, o),
                 merged: false,
                 phantoms: 0,
             })
@@ -322,7 +382,8 @@ async fn measure_scene(
         }
     };
     row.codes_ms = started.elapsed().as_secs_f64() * 1e3;
-    let texts: Vec<String> = seen.into_iter().map(|s| s.code.text).collect();
+    // An EAN-13 label beginning with 0 may be read as the UPC-A of the same bars.
+    let texts: Vec<String> = seen.iter().flat_map(|s| s.code.label_texts()).collect();
     let (objects, phantoms) = judge_scene(cert, &m.table.fits, &texts, config);
     row.objects = objects;
     row.phantoms = phantoms;
@@ -383,6 +444,9 @@ pub struct ClassSummary {
     pub unread: usize,
     /// Labelled objects whose code was read (accepted or not), and labelled objects.
     pub read: [usize; 2],
+    /// The same over the labels whose modules span the reader's limit or more in some
+    /// camera (`module_px` at least [`MIN_PX_PER_MODULE`]).
+    pub read_at_limit: [usize; 2],
     /// Not found where they stand, or the scene failed.
     pub missing: usize,
     /// In a pair 20 mm or more apart measured as one parcel.
@@ -419,6 +483,7 @@ impl ClassSummary {
             off: 0,
             unread: 0,
             read: [0, 0],
+            read_at_limit: [0, 0],
             missing: 0,
             merged: 0,
             phantoms: 0,
@@ -436,6 +501,10 @@ impl ClassSummary {
             if let Some(read) = o.code_read {
                 s.read[0] += usize::from(read);
                 s.read[1] += 1;
+                if o.module_px.is_some_and(|px| px >= MIN_PX_PER_MODULE) {
+                    s.read_at_limit[0] += usize::from(read);
+                    s.read_at_limit[1] += 1;
+                }
             }
             s.missing += usize::from(o.outcome == Outcome::Missing);
             s.merged += usize::from(o.merged);
@@ -550,6 +619,23 @@ mod tests {
             dimension: DimensionConfig::default(),
             billing: Billing::default(),
         }
+    }
+
+    #[test]
+    fn a_labels_module_spans_focal_length_times_module_over_distance() {
+        let mut cert = two_boxes();
+        // The camera 1.5 m above the floor, the label on a lid 0.1 m up, 0.17 m off the
+        // axis: 1.4 m along the axis, seen nearly square on.
+        let label = cert.objects[0].label.clone().unwrap();
+        let module = label.size / label.modules_across().unwrap() as f64;
+        let fx = f64::from(rgbd::d415::color_intrinsics(1920, 1080).fx);
+        let px = label_module_px(&cert.scene, &cert.objects[0]).unwrap();
+        assert!((px - fx * module / 1.4).abs() < 0.01 * px, "{px}");
+        assert_eq!(label_module_px(&cert.scene, &cert.objects[1]), None);
+        // Out of the camera's view: seen by none.
+        cert.scene.boxes[0].center = [5.0, 0.0];
+        cert.objects[0].truth.index = 0;
+        assert_eq!(label_module_px(&cert.scene, &cert.objects[0]), None);
     }
 
     #[test]

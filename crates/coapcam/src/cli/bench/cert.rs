@@ -54,6 +54,12 @@ fn describe(o: &ObjectResult, billing: &Billing) -> String {
         Some(false) => text.push_str(", CODE UNREAD"),
         None => {}
     }
+    if o.code_read.is_some() {
+        match o.module_px {
+            Some(px) => text.push_str(&format!(" ({px:.1} px a module)")),
+            None => text.push_str(" (label seen by no camera)"),
+        }
+    }
     if o.merged {
         text.push_str(", MERGED");
     }
@@ -101,7 +107,8 @@ fn json_object(o: &ObjectResult, billing: &Billing) -> serde_json::Value {
         "kind": t.kind.name(), "surface": o.object.surface.name(), "flat": o.object.flat,
         "truth": [t.length_mm(), t.width_mm(), t.height_mm()], "center_m": t.center,
         "label": o.object.label.as_ref().map(|l| serde_json::json!({
-            "kind": format!("{:?}", l.kind).to_lowercase(), "text": l.text, "size_m": l.size})),
+            "kind": format!("{:?}", l.kind).to_lowercase(), "text": l.text, "size_m": l.size,
+            "module_px": o.module_px})),
         "gap_mm": j.gap_m.map(|g| g * 1e3), "in_view": j.in_view,
         "returns_depth": j.returns_depth, "measurable": j.measurable,
         "accepted": j.accepted(),
@@ -225,7 +232,9 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
                     "accepted": c.accepted, "first_pass": c.first_pass,
                     "first_pass_pct": finite(c.first_pass_pct()),
                     "false_refusals": c.false_refusals, "off": c.off, "unread": c.unread,
-                    "codes_read": c.read[0], "labelled": c.read[1], "missing": c.missing,
+                    "codes_read": c.read[0], "labelled": c.read[1],
+                    "codes_read_at_limit": c.read_at_limit[0],
+                    "labelled_at_limit": c.read_at_limit[1], "missing": c.missing,
                     "merged": c.merged, "phantoms": c.phantoms,
                     "silently_wrong": c.silently_wrong})
             })
@@ -239,7 +248,7 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
     } else {
         outln!("");
         outln!(
-            "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6} {:>4} {:>4} {:>6} {:>9} {:>4} {:>6} {:>7} {:>6}",
+            "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6} {:>4} {:>4} {:>6} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
             "class",
             "value",
             "n",
@@ -250,6 +259,7 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
             "off",
             "unread",
             "read",
+            "read>=lim",
             "miss",
             "merged",
             "phantom",
@@ -257,7 +267,7 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
         );
         for c in &classes {
             outln!(
-                "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6.1} {:>4} {:>4} {:>6} {:>9} {:>4} {:>6} {:>7} {:>6}",
+                "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6.1} {:>4} {:>4} {:>6} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
                 c.class,
                 c.value,
                 c.objects,
@@ -268,6 +278,7 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
                 c.off,
                 c.unread,
                 format!("{}/{}", c.read[0], c.read[1]),
+                format!("{}/{}", c.read_at_limit[0], c.read_at_limit[1]),
                 c.missing,
                 c.merged,
                 c.phantoms,
@@ -279,9 +290,11 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
              returning depth); pass = accepted, every reported dimension within 1 d (d = {} mm) \
              and its code read; ref = accepted but refused; off = accepted, a number more than 1 d \
              off; unread = accepted, its code not read; read = codes read / labels (all objects); \
-             merged = in a pair 20 mm or more apart measured as one; silent = a number more than \
+             read>=lim = the same over the labels whose modules span {} px or more in a camera's \
+             color image (the reader's limit); merged = in a pair 20 mm or more apart measured as one; silent = a number more than \
              2 d off with no flag. {} scenes, {phantoms} phantom parcels, {failed} failed.",
             args.division_mm,
+            coapcam::vision::codes::MIN_PX_PER_MODULE,
             rows.len()
         );
     }

@@ -6,6 +6,7 @@ use rgbd::scene::LabelKind;
 
 use crate::cli::{Exit, outln};
 use coapcam::bench::codes::{self, Sensor};
+use coapcam::vision::codes::MIN_PX_PER_MODULE;
 
 /// Flags of `bench codes`.
 #[derive(Debug, Args)]
@@ -85,6 +86,11 @@ pub(super) async fn run(args: CodesArgs) -> anyhow::Result<Exit> {
             ms(0),
             ms(1)
         );
+    }
+    outln!("\nAt the limit and above ({MIN_PX_PER_MODULE} px a module or more), both readers:");
+    for (kind, read, labels) in codes::at_the_limit(&cells) {
+        let rate = 100.0 * f64::from(read) / f64::from(labels.max(1));
+        outln!("- {}: {read} of {labels} read ({rate:.1} %)", kind.name());
     }
     Ok(Exit::Success)
 }
