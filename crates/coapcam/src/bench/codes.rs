@@ -16,8 +16,6 @@ use crate::vision::codes::{CodeKind, MIN_PX_PER_MODULE, Reader, read_with};
 /// The readers compared, in the order of [`Cell::read`].
 pub const READERS: [Reader; 3] = [Reader::Ours, Reader::Rxing, Reader::Both];
 
-// `Reader::Both` reads what either of the other two reads: the bench counts it from them.
-
 /// What the labels are seen through.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sensor {
@@ -157,26 +155,22 @@ pub fn run(
                     .ok_or_else(|| anyhow::anyhow!("a color frame of the wrong size"))?;
                 let gray = image::DynamicImage::from(rgb).to_luma8();
                 cell.labels += 1;
-                // Both readers' codes are what each reads (read_with(Both) runs the two).
-                let mut hit = [false; 2];
-                for (i, reader) in [Reader::Ours, Reader::Rxing].into_iter().enumerate() {
+                for (i, reader) in READERS.into_iter().enumerate() {
                     let started = std::time::Instant::now();
                     let codes = read_with(&gray, reader);
                     cell.ms[i] += started.elapsed().as_secs_f64() * 1e3;
-                    hit[i] = codes.iter().any(|c| c.shows(cell.kind, &label.text));
-                }
-                cell.ms[2] = cell.ms[0] + cell.ms[1];
-                for (i, read) in [hit[0], hit[1], hit[0] || hit[1]].into_iter().enumerate() {
-                    cell.read[i] += u32::from(read);
+                    let hit = codes.iter().any(|c| c.shows(cell.kind, &label.text));
+                    cell.read[i] += u32::from(hit);
                 }
             }
             eprintln!(
-                "coapcam: {} at {px} px a module: read {:?} of {} (ours, rxing, both); {:.0} and {:.0} ms an image",
+                "coapcam: {} at {px} px a module: read {:?} of {} (ours, rxing, both); {:.0}, {:.0} and {:.0} ms an image",
                 cell.kind.name(),
                 cell.read,
                 cell.labels,
                 cell.ms[0] / f64::from(cell.labels.max(1)),
                 cell.ms[1] / f64::from(cell.labels.max(1)),
+                cell.ms[2] / f64::from(cell.labels.max(1)),
             );
             cells.push(cell);
         }

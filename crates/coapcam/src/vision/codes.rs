@@ -1,6 +1,9 @@
-//! Reading the codes printed on a parcel from an image, a pure function of the pixels:
-//! QR codes through `rqrr`, Code 128 along scan lines at several angles. A Code 128 read
-//! counts only with its start and stop patterns and a matching check symbol.
+//! Reading the codes printed on a parcel from an image, a pure function of the pixels.
+//! The station reads with rxing (the Rust port of ZXing), over the whole image and over
+//! each printed region turned upright, and with our Code 128 reader (along scan lines at
+//! several angles; a read counts only with its start and stop patterns and a matching
+//! check symbol) over each printed region. Our QR reader (`rqrr`) and our Code 128 reader
+//! over the whole image stay for `coapcam bench codes` to compare.
 
 use std::collections::BTreeSet;
 use std::fmt;
@@ -117,34 +120,38 @@ pub fn farthest_m(fx_px: f64, module_mm: f64) -> f64 {
     module_mm * fx_px / (MIN_PX_PER_MODULE * 1e3)
 }
 
-/// Every code found in `image`, each once, in order of kind and text.
+/// Every code found in `image`, each once, in order of kind and text ([`Reader::Both`]).
 pub fn read(image: &GrayImage) -> Vec<Code> {
     read_with(image, Reader::Both)
 }
 
-/// Which reader reads the codes ([`read_with`]; `coapcam bench codes` compares them).
+/// Which reader reads the codes ([`read_with`]; `coapcam bench codes` compares them;
+/// the station reads with rxing, [`read`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Reader {
-    /// Ours: QR through `rqrr`, Code 128 along scan lines.
+    /// Ours over the whole image: QR through `rqrr`, Code 128 along scan lines.
     Ours,
-    /// rxing (the Rust port of ZXing): every symbology of [`CodeKind`].
+    /// rxing (the Rust port of ZXing): every symbology of [`CodeKind`], over the whole
+    /// image and each printed region turned upright.
     Rxing,
-    /// Ours, then rxing; what either reads.
+    /// rxing, and our Code 128 reader over each printed region: what the station reads
+    /// with ([`read`]). rxing reads every QR that `rqrr` reads (docs/station.md's "Codes");
+    /// our Code 128 reader reads narrower modules than rxing (scenes/lane.toml's label at
+    /// 1.1 px a module without blur).
     Both,
 }
 
 /// The codes `reader` finds in `image`, each once, in order of kind and text.
 pub fn read_with(image: &GrayImage, reader: Reader) -> Vec<Code> {
-    let mut found = BTreeSet::new();
     if image.width() == 0 || image.height() == 0 {
         return Vec::new();
     }
     if reader != Reader::Ours {
-        found.extend(read_rxing(image));
+        return read_rxing(image, reader == Reader::Both)
+            .into_iter()
+            .collect();
     }
-    if reader == Reader::Rxing {
-        return found.into_iter().collect();
-    }
+    let mut found = BTreeSet::new();
     // rqrr's finder search misses some sharp-edged codes it reads once the image is
     // slightly blurred (as a lens blurs): a second look, only when the first found none.
     let mut qr = read_qr_guarded(image);
@@ -152,19 +159,24 @@ pub fn read_with(image: &GrayImage, reader: Reader) -> Vec<Code> {
         qr = read_qr_guarded(&image::imageops::blur(image, QR_SECOND_LOOK_BLUR_PX));
     }
     found.extend(qr);
-    read_code128(image, &mut found);
+    read_code128(image, SCAN_SPACING_PX, &mut found);
     found.into_iter().collect()
 }
 
 /// The codes rxing finds in `image`: first in the whole image, then in each printed
 /// region of it ([`printed_regions`]) turned so that its bars stand upright
-/// ([`upright`]), as it is and binarised against its own surroundings ([`binarised`]).
+/// ([`upright`]), as it is and binarised against its own surroundings ([`binarised`]);
+/// with `our_code128`, our Code 128 reader also reads each region (it reads modules
+/// narrower than rxing does, and a region costs it a tenth of the whole image).
 /// rxing's linear and PDF417 readers scan rows, and a row's threshold comes from the
 /// row's histogram: a code turned from the rows, or lying on a gray parcel, escapes them.
-fn read_rxing(image: &GrayImage) -> BTreeSet<Code> {
+fn read_rxing(image: &GrayImage, our_code128: bool) -> BTreeSet<Code> {
     let mut found = rxing_codes(image);
     for (x, y, width, height) in printed_regions(image) {
         let crop = image::imageops::crop_imm(image, x, y, width, height).to_image();
+        if our_code128 {
+            read_code128(&crop, REGION_SCAN_SPACING_PX, &mut found);
+        }
         let turned = upright(&crop);
         let mut here = rxing_codes(&turned);
         if here.is_empty() {
@@ -422,8 +434,12 @@ fn read_qr(image: &GrayImage, found: &mut BTreeSet<Code>) {
 /// Directions of the scan lines; a bar code turned up to half a step from the nearest
 /// one is still crossed whole when its bars are at least a fifth as tall as it is long.
 const SCAN_ANGLES: usize = 8;
-/// Distance between parallel scan lines, pixels.
+/// Distance between parallel scan lines over a whole image, pixels.
 const SCAN_SPACING_PX: f32 = 6.0;
+/// The same over a printed region (a tenth of the image or less): a line crosses a code
+/// turned between two directions whole only near the code's middle, and finer lines
+/// find that middle for codes of modules near one pixel.
+const REGION_SCAN_SPACING_PX: f32 = 2.0;
 /// Half width of the window that sets a sample's threshold, samples.
 const THRESHOLD_HALF_WINDOW: usize = 16;
 /// Smallest difference between the darkest and the lightest gray level (0-255) in that
@@ -434,7 +450,7 @@ const QUIET_MODULES: f32 = 5.0;
 /// Largest summed deviation, in modules, of a symbol's six widths from its pattern.
 const MAX_SYMBOL_ERROR: f32 = 1.6;
 
-fn read_code128(image: &GrayImage, found: &mut BTreeSet<Code>) {
+fn read_code128(image: &GrayImage, spacing_px: f32, found: &mut BTreeSet<Code>) {
     let (w, h) = (image.width() as usize, image.height() as usize);
     if w < 2 || h < 2 {
         return;
@@ -449,9 +465,9 @@ fn read_code128(image: &GrayImage, found: &mut BTreeSet<Code>) {
         let angle = std::f32::consts::PI * a as f32 / SCAN_ANGLES as f32;
         let (dx, dy) = (angle.cos(), angle.sin());
         // Positions count in whole steps: an f32 that grows by 1 stops growing at 2^24.
-        let lines = (2.0 * half_diagonal / SCAN_SPACING_PX) as u32;
+        let lines = (2.0 * half_diagonal / spacing_px) as u32;
         for line in 0..=lines {
-            let offset = line as f32 * SCAN_SPACING_PX - half_diagonal;
+            let offset = line as f32 * spacing_px - half_diagonal;
             // The line through the centre's offset point, along (dx, dy), clipped to
             // the image.
             let (ox, oy) = (cx - dy * offset, cy + dx * offset);
@@ -831,6 +847,11 @@ mod tests {
 
     /// The bars of a Code 128 symbol as `barcoders` encodes them (one entry per module),
     /// with quiet zones, drawn `module_px` wide and `height` tall.
+    /// What our reader reads in `image` (the station reads with rxing: [`read`]).
+    fn ours(image: &GrayImage) -> Vec<Code> {
+        read_with(image, Reader::Ours)
+    }
+
     fn draw(modules: &[u8], module_px: u32, height: u32) -> GrayImage {
         let quiet = 10;
         let width = (modules.len() as u32 + 2 * quiet) * module_px;
@@ -854,7 +875,7 @@ mod tests {
             let text = std::str::from_utf8(chunk).unwrap();
             let image = draw(&encode(&format!("\u{0181}{text}")), 2, 20);
             assert_eq!(
-                read(&image),
+                ours(&image),
                 [Code {
                     kind: CodeKind::Code128,
                     text: text.into()
@@ -867,18 +888,18 @@ mod tests {
     #[test]
     fn digits_read_back_from_set_c_and_control_characters_from_set_a() {
         let image = draw(&encode("\u{0106}0123456789998877"), 3, 20);
-        assert_eq!(read(&image)[0].text, "0123456789998877");
+        assert_eq!(ours(&image)[0].text, "0123456789998877");
         let image = draw(&encode("\u{00C0}AB\u{0106}1234\u{0181}xy"), 2, 20);
-        assert_eq!(read(&image)[0].text, "AB1234xy");
+        assert_eq!(ours(&image)[0].text, "AB1234xy");
     }
 
     #[test]
     fn a_code_reads_right_to_left_and_turned() {
         let image = draw(&encode("\u{0181}PKG-0001"), 3, 120);
         let flipped = image::imageops::rotate180(&image);
-        assert_eq!(read(&flipped)[0].text, "PKG-0001");
+        assert_eq!(ours(&flipped)[0].text, "PKG-0001");
         let turned = image::imageops::rotate90(&image);
-        assert_eq!(read(&turned)[0].text, "PKG-0001");
+        assert_eq!(ours(&turned)[0].text, "PKG-0001");
     }
 
     #[test]
@@ -895,24 +916,24 @@ mod tests {
         let original = modules[check..check + 11].to_vec();
         assert_ne!(original, other, "pick another value");
         modules[check..check + 11].copy_from_slice(&other);
-        assert_eq!(read(&draw(&modules, 2, 20)), []);
+        assert_eq!(ours(&draw(&modules, 2, 20)), []);
         let mut cut = encode("\u{0181}PKG-0001");
         cut.truncate(cut.len() - 13);
-        assert_eq!(read(&draw(&cut, 2, 20)), []);
+        assert_eq!(ours(&draw(&cut, 2, 20)), []);
     }
 
     #[test]
     fn a_flat_image_and_noise_read_nothing() {
-        assert_eq!(
-            read(&GrayImage::from_pixel(200, 100, image::Luma([128]))),
-            []
-        );
+        let flat = GrayImage::from_pixel(200, 100, image::Luma([128]));
         let mut state = 12345u32;
         let noise = GrayImage::from_fn(300, 200, |_, _| {
             state = state.wrapping_mul(1_103_515_245).wrapping_add(12345);
             image::Luma([(state >> 24) as u8])
         });
-        assert_eq!(read(&noise), []);
+        for reader in [Reader::Ours, Reader::Rxing, Reader::Both] {
+            assert_eq!(read_with(&flat, reader), [], "{reader:?}");
+            assert_eq!(read_with(&noise, reader), [], "{reader:?}");
+        }
     }
 
     /// The modules of start symbol `start`, the data `values`, their check symbol and
@@ -942,7 +963,7 @@ mod tests {
         const B: usize = 104;
         const FNC4: usize = 100;
         let (a, b) = (33, 34);
-        let read_text = |values: &[usize]| read(&draw(&symbol_modules(B, values), 2, 20));
+        let read_text = |values: &[usize]| ours(&draw(&symbol_modules(B, values), 2, 20));
         assert_eq!(read_text(&[FNC4, a, b])[0].text, "\u{c1}B");
         assert_eq!(
             read_text(&[FNC4, FNC4, a, b, FNC4, a, FNC4, FNC4, b])[0].text,
@@ -958,7 +979,7 @@ mod tests {
             // Cut the right quiet zone down to `gap` modules.
             let width = drawn.width() - (10 - gap) * 2;
             let cut = image::imageops::crop_imm(&drawn, 0, 0, width, 20).to_image();
-            assert_eq!(read(&cut).len(), 1, "{gap} modules after the stop");
+            assert_eq!(ours(&cut).len(), 1, "{gap} modules after the stop");
         }
     }
 

@@ -71,23 +71,26 @@ pub(super) async fn run(args: CodesArgs) -> anyhow::Result<Exit> {
         args.labels,
         args.seed
     );
-    outln!("| symbology | module px | ours | rxing | both | ms ours | ms rxing |");
-    outln!("| --- | ---: | ---: | ---: | ---: | ---: | ---: |");
+    outln!("| symbology | module px | ours | rxing | both | ms ours | ms rxing | ms both |");
+    outln!("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
     for c in &cells {
         let rate = |i: usize| 100.0 * f64::from(c.read[i]) / f64::from(c.labels.max(1));
         let ms = |i: usize| c.ms[i] / f64::from(c.labels.max(1));
         outln!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} |",
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.0} |",
             c.kind.name(),
             c.module_px,
             rate(0),
             rate(1),
             rate(2),
             ms(0),
-            ms(1)
+            ms(1),
+            ms(2)
         );
     }
-    outln!("\nAt the limit and above ({MIN_PX_PER_MODULE} px a module or more), both readers:");
+    outln!(
+        "\nAt the limit and above ({MIN_PX_PER_MODULE} px a module or more), the station's reader (both):"
+    );
     for (kind, read, labels) in codes::at_the_limit(&cells) {
         let rate = 100.0 * f64::from(read) / f64::from(labels.max(1));
         outln!("- {}: {read} of {labels} read ({rate:.1} %)", kind.name());
