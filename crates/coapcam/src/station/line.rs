@@ -8,7 +8,11 @@
 //!
 //! ([`format_line`] says each field exactly). A reader that does not keep up, or that is
 //! gone, never holds up the station: each has a queue of [`QUEUE_LINES`] lines, and one
-//! whose queue is full is disconnected with a log line.
+//! whose queue is full, or that takes no bytes for [`WRITE_TIMEOUT`], is disconnected
+//! with a log line. No address holds more than [`MAX_PER_ADDRESS`] of the
+//! [`MAX_READERS`] places, and when all are taken a new reader takes the oldest place of
+//! the address that holds the most: idle connections from elsewhere cannot lock the
+//! plant's reader out.
 
 use std::io;
 use std::net::SocketAddr;
@@ -34,8 +38,13 @@ pub fn parse_tcp_uri(uri: &str) -> Result<SocketAddr, String> {
 
 /// Lines a reader may be behind before it is disconnected.
 pub const QUEUE_LINES: usize = 256;
-/// Readers served at once; one more is refused (closed at once, with a log line).
+/// Readers served at once.
 pub const MAX_READERS: usize = 64;
+/// Readers of one IP address at once; one more is refused (closed at once, with a log
+/// line).
+pub const MAX_PER_ADDRESS: usize = 4;
+/// How long a line may take to be written to a reader before it is disconnected.
+pub const WRITE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
 
 /// The fields of a line, in order (the first line of the documentation's example).
 pub const HEADER: &str = "id,time,length_mm,width_mm,height_mm,kg,code";
@@ -193,7 +202,9 @@ impl LineServer {
 
     /// How many readers are connected.
     pub fn readers(&self) -> usize {
-        lock(&self.readers).len()
+        let mut list = lock(&self.readers);
+        list.retain(|r| !r.lines.is_closed());
+        list.len()
     }
 
     /// Queues `line` to every reader; never waits. A reader whose queue is full is
@@ -241,9 +252,25 @@ async fn accept(listener: TcpListener, readers: Readers) {
         };
         let mut list = lock(&readers);
         list.retain(|r| !r.lines.is_closed());
-        if list.len() >= MAX_READERS {
-            tracing::warn!(reader = %peer, "line output: {MAX_READERS} readers already, refused");
+        let of = |list: &[Reader], ip| list.iter().filter(|r| r.peer.ip() == ip).count();
+        if of(&list, peer.ip()) >= MAX_PER_ADDRESS {
+            tracing::warn!(reader = %peer, "line output: {MAX_PER_ADDRESS} readers from this address already, refused");
             continue;
+        }
+        if list.len() >= MAX_READERS {
+            // The oldest reader of the address with the most (the list is in the order
+            // they came); dropping its queue ends its connection.
+            let mut most: Option<(usize, std::net::IpAddr)> = None;
+            for r in list.iter() {
+                let n = of(&list, r.peer.ip());
+                if most.is_none_or(|(m, _)| n > m) {
+                    most = Some((n, r.peer.ip()));
+                }
+            }
+            if let Some(i) = most.and_then(|(_, ip)| list.iter().position(|r| r.peer.ip() == ip)) {
+                let gone = list.remove(i);
+                tracing::warn!(reader = %gone.peer, "line output: {MAX_READERS} readers, the oldest of the address with the most disconnected for {peer}");
+            }
         }
         let (tx, rx) = mpsc::channel(QUEUE_LINES);
         list.push(Reader { peer, lines: tx });
@@ -262,9 +289,16 @@ async fn write(mut stream: TcpStream, peer: SocketAddr, mut lines: mpsc::Receive
         tokio::select! {
             line = lines.recv() => {
                 let Some(line) = line else { return };
-                if let Err(e) = write.write_all(line.as_bytes()).await {
-                    tracing::info!(reader = %peer, error = %e, "line output: reader gone");
-                    return;
+                match tokio::time::timeout(WRITE_TIMEOUT, write.write_all(line.as_bytes())).await {
+                    Ok(Ok(())) => {}
+                    Ok(Err(e)) => {
+                        tracing::info!(reader = %peer, error = %e, "line output: reader gone");
+                        return;
+                    }
+                    Err(_) => {
+                        tracing::warn!(reader = %peer, "line output: a line took over {WRITE_TIMEOUT:?} to write, reader disconnected");
+                        return;
+                    }
                 }
             }
             // What a reader sends is ignored; its end (0 bytes or an error) ends it.
@@ -373,5 +407,83 @@ mod tests {
             }
         }
         drop(a);
+    }
+
+    /// A reader connected from `ip` (a loopback address: every 127.x.y.z is this host's).
+    async fn reader_from(server: &LineServer, ip: [u8; 4]) -> tokio::io::BufReader<TcpStream> {
+        let socket = tokio::net::TcpSocket::new_v4().unwrap();
+        socket.bind(SocketAddr::from((ip, 0))).unwrap();
+        tokio::io::BufReader::new(socket.connect(server.local_addr()).await.unwrap())
+    }
+
+    /// Whether the server closed `reader` (end of stream within a short wait).
+    async fn closed(reader: &mut tokio::io::BufReader<TcpStream>) -> bool {
+        use tokio::io::AsyncBufReadExt as _;
+        let mut line = String::new();
+        let read = tokio::time::timeout(
+            std::time::Duration::from_millis(500),
+            reader.read_line(&mut line),
+        );
+        matches!(read.await, Ok(Ok(0)))
+    }
+
+    #[tokio::test]
+    async fn idle_readers_from_elsewhere_never_lock_the_plants_reader_out() {
+        use tokio::io::AsyncBufReadExt as _;
+        let server = LineServer::bind(SocketAddr::from(([127, 0, 0, 1], 0)))
+            .await
+            .unwrap();
+        // One address holds at most MAX_PER_ADDRESS places: the next is closed at once.
+        let mut own = Vec::new();
+        for _ in 0..MAX_PER_ADDRESS {
+            own.push(reader_from(&server, [127, 0, 0, 2]).await);
+        }
+        wait_for_readers(&server, MAX_PER_ADDRESS).await;
+        let mut extra = reader_from(&server, [127, 0, 0, 2]).await;
+        assert!(
+            closed(&mut extra).await,
+            "a fifth reader of one address was kept"
+        );
+        // Idle readers from many addresses fill every place...
+        let mut idle = Vec::new();
+        for n in 0..(MAX_READERS / MAX_PER_ADDRESS - 1) {
+            let ip = [127, 0, 1, u8::try_from(n).unwrap()];
+            for _ in 0..MAX_PER_ADDRESS {
+                idle.push(reader_from(&server, ip).await);
+            }
+        }
+        wait_for_readers(&server, MAX_READERS).await;
+        // ...and the plant's reader still gets in, and gets the next line.
+        let mut plant = reader_from(&server, [127, 0, 2, 1]).await;
+        assert!(
+            closed(&mut own[0]).await,
+            "the oldest place of 127.0.0.2 was kept"
+        );
+        wait_for_readers(&server, MAX_READERS).await;
+        server.send("7,x\r\n");
+        let mut line = String::new();
+        plant.read_line(&mut line).await.unwrap();
+        assert_eq!(line, "7,x\r\n");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_reader_that_takes_no_bytes_is_disconnected_after_the_write_timeout() {
+        let server = LineServer::bind(SocketAddr::from(([127, 0, 0, 1], 0)))
+            .await
+            .unwrap();
+        let socket = tokio::net::TcpSocket::new_v4().unwrap();
+        socket.set_recv_buffer_size(4096).unwrap();
+        let stalled = socket.connect(server.local_addr()).await.unwrap();
+        wait_for_readers(&server, 1).await;
+        // Lines past what the sockets' buffers hold (the queue keeps the rest), then time
+        // runs on with nothing read: the reader is dropped though its queue is not full.
+        let line = format!("{}\r\n", "y".repeat(64 * 1024));
+        for _ in 0..QUEUE_LINES / 2 {
+            server.send(&line);
+            tokio::task::yield_now().await;
+        }
+        tokio::time::sleep(WRITE_TIMEOUT * 2).await;
+        wait_for_readers(&server, 0).await;
+        drop(stalled);
     }
 }
