@@ -97,6 +97,12 @@ impl ServerTimes {
     }
 }
 
+/// How far a server's clock may be from the client's before the client stops believing
+/// its times (10 minutes): a clock that far off was never synchronised, or the times were
+/// forged on the way; its offset is not estimated and its frames' age not judged (said
+/// as a warning). Hosts kept by NTP or PTP are within milliseconds.
+pub const MAX_BELIEVED_APART_US: i64 = 10 * 60 * 1_000_000;
+
 /// One exchange's four times: NTP's T1 (the request left, client clock), T2 and T3 (the
 /// server's), T4 (the answer arrived, client clock).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -49,6 +49,9 @@ impl Clocks {
             Some(times) => times.and_then(|t| Sample::new(sent_us, t, received_us)),
         };
         match sample {
+            Ok(s) if s.offset_us().abs() > timesync::MAX_BELIEVED_APART_US => {
+                tracing::debug!(%server, offset_us = s.offset_us(), "a clock sample too far off to believe");
+            }
             Ok(s) => self.state().servers.entry(server).or_default().add(s),
             Err(e) => tracing::debug!(%server, "not a clock sample: {e}"),
         }

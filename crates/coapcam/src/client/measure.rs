@@ -18,7 +18,7 @@ use super::{CamClient, NoAnswer, check, clocks, cloud_of};
 use crate::documents::AppConfig;
 use crate::report::{self, Billing, Found, Measurement, Parcel, Table};
 use crate::repr::no_depth::{self, NoDepth};
-use crate::timesync::{FrameTime, Limits, Problem, ServerTimes};
+use crate::timesync::{FrameTime, Limits, MAX_BELIEVED_APART_US, Problem, ServerTimes};
 
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
@@ -349,6 +349,11 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             .into_iter()
             .map(|(server, r)| {
                 let asked = ServerTimes::of(&r.options).and_then(Result::ok);
+                // A server clock far from ours: its times are not believed (the age of
+                // its frames is then not judged, and a warning says so).
+                let apart_us = asked.map(|t| t.received_us - clocks::unix_now_us());
+                let believed = apart_us.is_none_or(|a| a.abs() <= MAX_BELIEVED_APART_US);
+                let asked = asked.filter(|_| believed);
                 // An elective option (RFC 7252 §5.4.1): a malformed one is left out.
                 let blind = no_depth::of_options(&r.options).unwrap_or_else(|e| {
                     tracing::warn!(%server, error = %e, "a malformed No-Depth option is ignored");
@@ -356,7 +361,8 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                 });
                 let c =
                     cloud_of(&r).with_context(|| format!("reading the point cloud of {server}"));
-                c.map(|c| (server, asked.map(|t| t.received_us), c, blind))
+                let distrusted = apart_us.filter(|_| !believed);
+                c.map(|c| (server, asked.map(|t| t.received_us), c, blind, distrusted))
             })
             .collect::<anyhow::Result<Vec<_>>>()
     })
@@ -373,8 +379,15 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
         views: Vec::new(),
         no_depth: Vec::new(),
     };
-    for (server, requested_unix_us, mut c, blind) in decoded {
+    for (server, requested_unix_us, mut c, blind, distrusted) in decoded {
         grabbed.no_depth.extend(blind);
+        if let Some(apart_us) = distrusted {
+            grabbed.untimed.push(format!(
+                "the clock of {server} is {:.0} s from this client's (more than {} min): its times are not believed and its frames' age was not checked",
+                apart_us as f64 / 1e6,
+                MAX_BELIEVED_APART_US / 60_000_000
+            ));
+        }
         for f in &c.frames {
             grabbed.frames.push(FrameTime {
                 camera: f.serial.clone(),

@@ -238,3 +238,24 @@ fn once_the_offsets_are_known_a_measurement_costs_only_its_grabs() {
         }
     });
 }
+
+#[test]
+fn a_server_clock_an_hour_off_is_not_believed_and_the_measurement_says_so() {
+    let state = TempDir::new("frames-far-clock");
+    let (_server, addr) =
+        crate::support::serve_with(state.path(), &["--clock-offset-ms", "3600000"]);
+    let uri = format!("coap://{addr}");
+    let f = Proc::run(
+        COAPCAM,
+        &["measure", "--server", &uri, "--clouds", "--json"],
+        LIMIT,
+    )
+    .expect_success("measured, with a warning");
+    let m = f.json();
+    assert_eq!(m["parcel"], "measured", "{m}");
+    let warnings = m["warnings"].to_string();
+    assert!(
+        warnings.contains("s from this client's (more than 10 min): its times are not believed"),
+        "{m}"
+    );
+}
