@@ -558,20 +558,7 @@ fn connect(path: &Path) -> Result<Connection, LogError> {
         )
         .map_err(&err)?;
     if has_meta {
-        let version: Option<String> = tx
-            .query_row("SELECT value FROM meta WHERE key = 'schema'", [], |r| {
-                r.get(0)
-            })
-            .optional()
-            .map_err(&err)?;
-        if version.as_deref() != Some(SCHEMA_VERSION) {
-            return Err(LogError::Format {
-                path: path.to_owned(),
-                why: format!(
-                    "its schema is {version:?}; this coapcam reads schema {SCHEMA_VERSION}"
-                ),
-            });
-        }
+        check_schema(&tx, path)?;
     } else {
         let tables: i64 = tx
             .query_row(
@@ -645,19 +632,25 @@ fn connect_read_only(path: &Path) -> Result<Connection, LogError> {
     }
     .map_err(&err)?;
     conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
+    check_schema(&conn, path)?;
+    Ok(conn)
+}
+
+/// Refuses a log of another schema than this coapcam's.
+fn check_schema(conn: &Connection, path: &Path) -> Result<(), LogError> {
     let version: Option<String> = conn
         .query_row("SELECT value FROM meta WHERE key = 'schema'", [], |r| {
             r.get(0)
         })
         .optional()
-        .map_err(&err)?;
+        .map_err(sql(path))?;
     if version.as_deref() != Some(SCHEMA_VERSION) {
         return Err(LogError::Format {
             path: path.to_owned(),
             why: format!("its schema is {version:?}; this coapcam reads schema {SCHEMA_VERSION}"),
         });
     }
-    Ok(conn)
+    Ok(())
 }
 
 /// Whether SQLite failed because the file is cut off or its pages are damaged.
