@@ -364,15 +364,15 @@ fn thousands(n: usize) -> String {
     out
 }
 
-/// Repeats the plan every `period` until `count` results.
+/// Repeats the plan every `args.interval` until `args.count` results.
 async fn repeat(
     client: &CamClient,
     plan: &Repeat,
     args: &MonitorArgs,
-    period: Duration,
     report: &mut Report,
 ) -> anyhow::Result<()> {
     // tokio's interval refuses a zero period: then the requests follow each other.
+    let period = args.interval;
     let mut ticks = (!period.is_zero()).then(|| {
         let mut ticks = tokio::time::interval(period);
         ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -405,12 +405,50 @@ async fn repeat(
     Ok(())
 }
 
+/// Carries out `plan` until `args.count` results (or for ever), each into `report`.
+async fn carry_out(
+    plan: &Plan,
+    client: &CamClient,
+    args: &MonitorArgs,
+    report: &mut Report,
+) -> anyhow::Result<()> {
+    let timeout = args.transmission.timeout();
+    match plan {
+        Plan::Observe { serial, stream } => {
+            let on_result = |outcome: anyhow::Result<Timed>, elapsed| {
+                let grab = outcome.map(|t| Success::timed(t, &Calibration::default()));
+                report.result(grab, elapsed)?;
+                Ok(report.done(args.count))
+            };
+            timed::observe(client, serial, *stream, args.accept, timeout, on_result).await
+        }
+        Plan::Repeat(repeat_plan) => repeat(client, repeat_plan, args, report).await,
+        Plan::Records => {
+            let on_start = |from| {
+                eprintln!(
+                    "coapcam: following {} from record #{from}",
+                    coapcam::api::paths::LATEST
+                )
+            };
+            let on_record = |record, bytes, elapsed| {
+                let success = Success {
+                    bytes,
+                    time: elapsed,
+                    measurement: None,
+                    record: Some(record),
+                };
+                report.result(Ok(success), elapsed)?;
+                Ok(report.done(args.count))
+            };
+            results::follow(client, timeout, on_start, on_record).await
+        }
+    }
+}
+
 /// Runs `monitor`: a success when at least one result succeeded, else as its last
 /// failure.
 pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
-    let timeout = args.transmission.timeout();
-    let period = args.interval;
-    if period.is_zero() && args.count.is_none() && !args.observe {
+    if args.interval.is_zero() && args.count.is_none() && !args.observe {
         usage!("--interval 0 needs --count");
     }
     if args.accept.is_some() && args.target == Target::Measure {
@@ -440,40 +478,7 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
         seen: 0,
         last_failure: None,
     };
-    let work = async {
-        match &plan {
-            Plan::Observe { serial, stream } => {
-                let on_result = |outcome: anyhow::Result<Timed>, elapsed| {
-                    let grab = outcome.map(|t| Success::timed(t, &Calibration::default()));
-                    report.result(grab, elapsed)?;
-                    Ok(report.done(args.count))
-                };
-                timed::observe(&client, serial, *stream, args.accept, timeout, on_result).await
-            }
-            Plan::Repeat(repeat_plan) => {
-                repeat(&client, repeat_plan, &args, period, &mut report).await
-            }
-            Plan::Records => {
-                let on_start = |from| {
-                    eprintln!(
-                        "coapcam: following {} from record #{from}",
-                        coapcam::api::paths::LATEST
-                    )
-                };
-                let on_record = |record, bytes, elapsed| {
-                    let success = Success {
-                        bytes,
-                        time: elapsed,
-                        measurement: None,
-                        record: Some(record),
-                    };
-                    report.result(Ok(success), elapsed)?;
-                    Ok(report.done(args.count))
-                };
-                results::follow(&client, timeout, on_start, on_record).await
-            }
-        }
-    };
+    let work = carry_out(&plan, &client, &args, &mut report);
     let mut interrupted = None;
     let ended = tokio::select! {
         ended = work => ended,

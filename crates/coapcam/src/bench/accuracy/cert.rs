@@ -7,8 +7,7 @@
 //! first-pass rate (within 1 d on each axis and its code read), false refusals, phantom
 //! parcels, merged pairs, silently wrong numbers and missing objects.
 
-use std::net::SocketAddr;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::bail;
 use geometry::{DimensionConfig, ParcelFit};
@@ -19,8 +18,7 @@ use super::lane::{Outcome, outside};
 use crate::client::CamClient;
 use crate::client::codes;
 use crate::client::measure::{self, Source, prepare_cameras};
-use crate::report::{Billing, ParcelReport};
-use crate::server::SceneServer;
+use crate::report::Billing;
 use crate::vision::codes::MIN_PX_PER_MODULE;
 
 /// What to run.
@@ -200,27 +198,6 @@ fn assign(truths: &[Truth], fits: &[ParcelFit]) -> (Vec<Option<usize>>, Vec<usiz
     (matched, phantoms)
 }
 
-/// What the station's `fit` says, as an outcome.
-fn outcome(fit: &ParcelFit, config: &Config) -> Outcome {
-    let report = ParcelReport::new(fit, &config.billing, config.dimension.min_coverage);
-    match (
-        report.reason,
-        report.length_mm,
-        report.width_mm,
-        report.height_mm,
-    ) {
-        (None, Some(l), Some(w), Some(h)) => {
-            let d = &fit.dimensions;
-            Outcome::Measured {
-                raw: [d.length_mm, d.width_mm, d.height_mm],
-                reported: [l, w, h],
-                shape: report.shape,
-            }
-        }
-        (reason, ..) => Outcome::Refused(reason.unwrap_or_default()),
-    }
-}
-
 /// The centre of a fit's footprint.
 fn centre(fit: &ParcelFit) -> [f64; 2] {
     let c = &fit.dimensions.corners_m;
@@ -306,7 +283,9 @@ pub fn judge_scene(
             });
             ObjectResult {
                 object: o.clone(),
-                outcome: matched[i].map_or(Outcome::Missing, |f| outcome(&fits[f], config)),
+                outcome: matched[i].map_or(Outcome::Missing, |f| {
+                    Outcome::of(&fits[f], &config.billing, config.dimension.min_coverage)
+                }),
                 code_read: o.label.as_ref().map(|l| codes.contains(&l.text)),
                 module_px: label_module_px(&cert.scene, o),
                 merged,
@@ -399,27 +378,22 @@ pub async fn run(
     if config.scenes == 0 {
         bail!("--scenes must be at least 1");
     }
-    let state = std::env::temp_dir().join(format!("coapcam-bench-cert-{}", std::process::id()));
-    let first = cert_scene(config.seed, config.first);
-    let server =
-        SceneServer::start(&first.scene, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
     let mut rows = Vec::new();
-    for index in config.first..config.first + config.scenes {
-        let cert = if index == config.first {
-            first.clone()
-        } else {
-            let next = cert_scene(config.seed, index);
-            server.load(&next.scene)?;
-            next
-        };
-        // A socket of its own per scene, as the lane set (message IDs).
-        let client = CamClient::at(server.addr()?, Duration::from_secs(60))?;
-        let row = measure_scene(&client, &cert, config).await?;
-        on_row(&row)?;
-        rows.push(row);
-    }
-    drop(server);
-    std::fs::remove_dir_all(&state).ok();
+    let indices = config.first..config.first + config.scenes;
+    let make = |index| cert_scene(config.seed, index);
+    super::each_scene(
+        "cert",
+        indices,
+        make,
+        |c| &c.scene,
+        async |client, cert| {
+            let row = measure_scene(client, cert, config).await?;
+            on_row(&row)?;
+            rows.push(row);
+            Ok(())
+        },
+    )
+    .await?;
     Ok(rows)
 }
 

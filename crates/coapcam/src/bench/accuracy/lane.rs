@@ -5,9 +5,6 @@
 //! station refused, and how often it was silently wrong (a number more than 2 d from the
 //! truth with no flag).
 
-use std::net::SocketAddr;
-use std::time::Duration;
-
 use anyhow::bail;
 use geometry::{DimensionConfig, ParcelFit};
 use rgbd::lane::{LaneScene, lane_scene};
@@ -16,7 +13,6 @@ use rgbd::scene::Truth;
 use crate::client::CamClient;
 use crate::client::measure::{self, Source, prepare_cameras};
 use crate::report::{Billing, ParcelReport};
-use crate::server::SceneServer;
 use crate::stats::{self, AbsSummary};
 
 /// What to run.
@@ -54,6 +50,29 @@ pub enum Outcome {
     Refused(String),
     /// Nothing was measured where the parcel stands.
     Missing,
+}
+
+impl Outcome {
+    /// What the station's report of `fit` says: its numbers, or its reason to give none.
+    pub fn of(fit: &ParcelFit, billing: &Billing, min_coverage: f32) -> Self {
+        let report = ParcelReport::new(fit, billing, min_coverage);
+        match (
+            report.reason,
+            report.length_mm,
+            report.width_mm,
+            report.height_mm,
+        ) {
+            (None, Some(l), Some(w), Some(h)) => {
+                let d = &fit.dimensions;
+                Self::Measured {
+                    raw: [d.length_mm, d.width_mm, d.height_mm],
+                    reported: [l, w, h],
+                    shape: report.shape,
+                }
+            }
+            (reason, ..) => Self::Refused(reason.unwrap_or_default()),
+        }
+    }
 }
 
 /// One parcel of one measurement of a scene.
@@ -168,25 +187,7 @@ async fn measure_scene(
     for truth in &lane.truths {
         let outcome = match matching(truth, &m.table.fits) {
             None => Outcome::Missing,
-            Some(fit) => {
-                let report = ParcelReport::new(fit, &config.billing, config.dimension.min_coverage);
-                match (
-                    report.reason,
-                    report.length_mm,
-                    report.width_mm,
-                    report.height_mm,
-                ) {
-                    (None, Some(l), Some(w), Some(h)) => {
-                        let d = &fit.dimensions;
-                        Outcome::Measured {
-                            raw: [d.length_mm, d.width_mm, d.height_mm],
-                            reported: [l, w, h],
-                            shape: report.shape,
-                        }
-                    }
-                    (reason, ..) => Outcome::Refused(reason.unwrap_or_default()),
-                }
-            }
+            Some(fit) => Outcome::of(fit, &config.billing, config.dimension.min_coverage),
         };
         row.objects.push(Object {
             truth: [truth.length_mm(), truth.width_mm(), truth.height_mm()],
@@ -206,33 +207,23 @@ pub async fn run(
     if config.scenes == 0 || config.repeat == 0 {
         bail!("--scenes and --repeat must be at least 1");
     }
-    let state = std::env::temp_dir().join(format!("coapcam-bench-lane-{}", std::process::id()));
-    let first = lane_scene(config.seed, 0);
-    let server =
-        SceneServer::start(&first.scene, &state, SocketAddr::from(([127, 0, 0, 1], 0))).await?;
     let mut rows = Vec::new();
-    for index in 0..config.scenes {
-        let lane = if index == 0 {
-            first.clone()
-        } else {
-            let next = lane_scene(config.seed, index);
-            server.load(&next.scene)?;
-            next
-        };
-        // Each scene from a socket of its own: a message ID may not be used again with
-        // the server within EXCHANGE_LIFETIME (247 s), so one endpoint sustains 265
-        // messages a second. Unprepared clouds (the floor too) take about 700 blocks a
-        // scene, and one socket for a whole 720-scene run ran out of IDs every ~90
-        // scenes and waited longer than a request may (3 scenes "timed out" each time).
-        let client = CamClient::at(server.addr()?, Duration::from_secs(60))?;
-        for run in 0..config.repeat {
-            let row = measure_scene(&client, &lane, run, config).await?;
-            on_row(&row)?;
-            rows.push(row);
-        }
-    }
-    drop(server);
-    std::fs::remove_dir_all(&state).ok();
+    let make = |index| lane_scene(config.seed, index);
+    super::each_scene(
+        "lane",
+        0..config.scenes,
+        make,
+        |l| &l.scene,
+        async |client, lane| {
+            for run in 0..config.repeat {
+                let row = measure_scene(client, lane, run, config).await?;
+                on_row(&row)?;
+                rows.push(row);
+            }
+            Ok(())
+        },
+    )
+    .await?;
     Ok(rows)
 }
 

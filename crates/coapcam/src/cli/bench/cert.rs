@@ -181,6 +181,110 @@ fn write_scenes(
     Ok(Exit::Success)
 }
 
+/// The whole run as one JSON object: every scene's objects, and per class the summary.
+fn print_json(
+    args: &Options,
+    rows: &[Row],
+    classes: &[ClassSummary],
+    billing: &Billing,
+    failed: usize,
+) -> anyhow::Result<()> {
+    let scenes: Vec<serde_json::Value> = rows
+        .iter()
+        .map(|r| {
+            let objects: Vec<serde_json::Value> =
+                r.objects.iter().map(|o| json_object(o, billing)).collect();
+            serde_json::json!({"scene": r.index, "cameras": r.cameras,
+                "spacing_mm": r.spacing_mm, "cycle_ms": finite(r.cycle_ms),
+                "codes_ms": finite(r.codes_ms), "error": r.error, "phantoms": r.phantoms,
+                "objects": objects})
+        })
+        .collect();
+    let summary: Vec<serde_json::Value> = classes
+        .iter()
+        .map(|c| {
+            serde_json::json!({"class": c.class, "value": c.value, "objects": c.objects,
+                "accepted": c.accepted, "first_pass": c.first_pass,
+                "first_pass_pct": finite(c.first_pass_pct()),
+                "false_refusals": c.false_refusals, "off": c.off, "unread": c.unread,
+                "codes_read": c.read[0], "labelled": c.read[1],
+                "codes_read_at_limit": c.read_at_limit[0],
+                "labelled_at_limit": c.read_at_limit[1], "missing": c.missing,
+                "merged": c.merged, "phantoms": c.phantoms,
+                "silently_wrong": c.silently_wrong})
+        })
+        .collect();
+    outln!(
+        "{}",
+        serde_json::json!({"set": "cert", "seed": args.seed, "first": args.first,
+            "division_mm": args.division_mm, "scenes": scenes, "classes": summary,
+            "failed": failed})
+    );
+    Ok(())
+}
+
+/// Per class a line of the table, then what its columns mean.
+fn print_table(
+    args: &Options,
+    rows: &[Row],
+    classes: &[ClassSummary],
+    phantoms: usize,
+    failed: usize,
+) -> anyhow::Result<()> {
+    outln!("");
+    outln!(
+        "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6} {:>4} {:>4} {:>6} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
+        "class",
+        "value",
+        "n",
+        "acc",
+        "pass",
+        "pass%",
+        "ref",
+        "off",
+        "unread",
+        "read",
+        "read>=lim",
+        "miss",
+        "merged",
+        "phantom",
+        "silent"
+    );
+    for c in classes {
+        outln!(
+            "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6.1} {:>4} {:>4} {:>6} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
+            c.class,
+            c.value,
+            c.objects,
+            c.accepted,
+            c.first_pass,
+            c.first_pass_pct(),
+            c.false_refusals,
+            c.off,
+            c.unread,
+            format!("{}/{}", c.read[0], c.read[1]),
+            format!("{}/{}", c.read_at_limit[0], c.read_at_limit[1]),
+            c.missing,
+            c.merged,
+            c.phantoms,
+            c.silently_wrong
+        );
+    }
+    outln!(
+        "acc = accepted by a certified system (isolated by 20 mm, wholly in a camera's view, \
+         returning depth); pass = accepted, every reported dimension within 1 d (d = {} mm) \
+         and its code read; ref = accepted but refused; off = accepted, a number more than 1 d \
+         off; unread = accepted, its code not read; read = codes read / labels (all objects); \
+         read>=lim = the same over the labels whose modules span {} px or more in a camera's \
+         color image (the reader's limit); merged = in a pair 20 mm or more apart measured as one; silent = a number more than \
+         2 d off with no flag. {} scenes, {phantoms} phantom parcels, {failed} failed.",
+        args.division_mm,
+        coapcam::vision::codes::MIN_PX_PER_MODULE,
+        rows.len()
+    );
+    Ok(())
+}
+
 /// Runs `bench accuracy --set cert`.
 pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
     let count = args
@@ -214,89 +318,9 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
     let phantoms: usize = rows.iter().map(|r| r.phantoms).sum();
     let failed = rows.iter().filter(|r| r.error.is_some()).count();
     if args.json {
-        let scenes: Vec<serde_json::Value> = rows
-            .iter()
-            .map(|r| {
-                let objects: Vec<serde_json::Value> =
-                    r.objects.iter().map(|o| json_object(o, &billing)).collect();
-                serde_json::json!({"scene": r.index, "cameras": r.cameras,
-                    "spacing_mm": r.spacing_mm, "cycle_ms": finite(r.cycle_ms),
-                    "codes_ms": finite(r.codes_ms), "error": r.error, "phantoms": r.phantoms,
-                    "objects": objects})
-            })
-            .collect();
-        let summary: Vec<serde_json::Value> = classes
-            .iter()
-            .map(|c| {
-                serde_json::json!({"class": c.class, "value": c.value, "objects": c.objects,
-                    "accepted": c.accepted, "first_pass": c.first_pass,
-                    "first_pass_pct": finite(c.first_pass_pct()),
-                    "false_refusals": c.false_refusals, "off": c.off, "unread": c.unread,
-                    "codes_read": c.read[0], "labelled": c.read[1],
-                    "codes_read_at_limit": c.read_at_limit[0],
-                    "labelled_at_limit": c.read_at_limit[1], "missing": c.missing,
-                    "merged": c.merged, "phantoms": c.phantoms,
-                    "silently_wrong": c.silently_wrong})
-            })
-            .collect();
-        outln!(
-            "{}",
-            serde_json::json!({"set": "cert", "seed": args.seed, "first": args.first,
-                "division_mm": args.division_mm, "scenes": scenes, "classes": summary,
-                "failed": failed})
-        );
+        print_json(&args, &rows, &classes, &billing, failed)?;
     } else {
-        outln!("");
-        outln!(
-            "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6} {:>4} {:>4} {:>6} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
-            "class",
-            "value",
-            "n",
-            "acc",
-            "pass",
-            "pass%",
-            "ref",
-            "off",
-            "unread",
-            "read",
-            "read>=lim",
-            "miss",
-            "merged",
-            "phantom",
-            "silent"
-        );
-        for c in &classes {
-            outln!(
-                "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6.1} {:>4} {:>4} {:>6} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
-                c.class,
-                c.value,
-                c.objects,
-                c.accepted,
-                c.first_pass,
-                c.first_pass_pct(),
-                c.false_refusals,
-                c.off,
-                c.unread,
-                format!("{}/{}", c.read[0], c.read[1]),
-                format!("{}/{}", c.read_at_limit[0], c.read_at_limit[1]),
-                c.missing,
-                c.merged,
-                c.phantoms,
-                c.silently_wrong
-            );
-        }
-        outln!(
-            "acc = accepted by a certified system (isolated by 20 mm, wholly in a camera's view, \
-             returning depth); pass = accepted, every reported dimension within 1 d (d = {} mm) \
-             and its code read; ref = accepted but refused; off = accepted, a number more than 1 d \
-             off; unread = accepted, its code not read; read = codes read / labels (all objects); \
-             read>=lim = the same over the labels whose modules span {} px or more in a camera's \
-             color image (the reader's limit); merged = in a pair 20 mm or more apart measured as one; silent = a number more than \
-             2 d off with no flag. {} scenes, {phantoms} phantom parcels, {failed} failed.",
-            args.division_mm,
-            coapcam::vision::codes::MIN_PX_PER_MODULE,
-            rows.len()
-        );
+        print_table(&args, &rows, &classes, phantoms, failed)?;
     }
     let all = &classes[0];
     Ok(if all.silently_wrong == 0 && failed == 0 {
