@@ -1,6 +1,8 @@
 //! The station: what a camera server does by itself for a parcel lane (docs/station.md).
 //! - [`crate::api::record`] (the record of a measurement, shared with the client);
 //! - [`log`]: the results log, append-only and hash-chained in SQLite, with retention;
+//! - `reads`: the log's read API (list, one record, pictures, refusals), once for both
+//!   front ends;
 //! - `resources`: the log as CoAP resources (`/station/measurements...`);
 //! - [`mqtt`]: every record published to an MQTT broker, none lost while it is away;
 //! - [`line`](mod@line): a plain text line per measurement to the readers of a TCP port;
@@ -16,6 +18,7 @@ pub mod line;
 pub mod log;
 pub mod measure;
 pub mod mqtt;
+pub(crate) mod reads;
 pub(crate) mod resources;
 pub mod watch;
 pub mod webhook;

@@ -12,9 +12,9 @@ use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Resource, Router, handler};
 use serde::Serialize;
 
-use super::log::{LogError, ResultsLog};
+use super::log::ResultsLog;
+use super::reads::{self, Kind, Picture, Refusal};
 use crate::api::paths::{LATEST, MEASUREMENTS};
-use crate::api::results::ListQuery;
 
 /// The list of records.
 const PATH: &str = MEASUREMENTS;
@@ -58,92 +58,57 @@ pub(crate) fn register(router: &Router, log: &ResultsLog) {
             async move { one(log, &id, &ctx.request).await }
         })),
     );
-    for picture in [Picture::Photo, Picture::Annotated] {
+    for which in [Picture::Photo, Picture::Annotated] {
         let me = log.clone();
         router.add(
-            &format!("{PATH}/{{id}}/{}", picture.name()),
+            &format!("{PATH}/{{id}}/{}", segment(which)),
             Resource::new().get(handler(move |ctx| {
                 let log = me.clone();
                 let id = ctx.param("id").unwrap_or_default().to_owned();
-                async move { picture.get(log, &id, &ctx.request).await }
+                async move { picture(log, &id, which, &ctx.request).await }
             })),
         );
     }
 }
 
-/// A record's picture.
-#[derive(Debug, Clone, Copy)]
-enum Picture {
-    Photo,
-    Annotated,
+/// `GET /station/measurements/<id>/photo` or `.../annotated`.
+async fn picture(
+    log: ResultsLog,
+    id: &str,
+    picture: Picture,
+    request: &IncomingRequest,
+) -> Response {
+    let cf = match picture {
+        Picture::Photo => ContentFormat::IMAGE_JPEG,
+        Picture::Annotated => ContentFormat::IMAGE_PNG,
+    };
+    if let Some(accept) = request.options.accept()
+        && accept != cf
+    {
+        return Response::diagnostic(
+            Code::NOT_ACCEPTABLE,
+            &format!(
+                "{PATH}/{id}/{} is {} only, not {}",
+                segment(picture),
+                cf.0,
+                accept.0
+            ),
+        );
+    }
+    match reads::picture(&log, id, picture).await {
+        Ok((_, data)) => {
+            let etag = etag_of(&data);
+            content(data, cf, etag)
+        }
+        Err(refused) => refusal(&refused),
+    }
 }
 
-impl Picture {
-    fn name(self) -> &'static str {
-        match self {
-            Self::Photo => "photo",
-            Self::Annotated => "annotated",
-        }
-    }
-
-    fn format(self) -> ContentFormat {
-        match self {
-            Self::Photo => ContentFormat::IMAGE_JPEG,
-            Self::Annotated => ContentFormat::IMAGE_PNG,
-        }
-    }
-
-    async fn get(self, log: ResultsLog, id: &str, request: &IncomingRequest) -> Response {
-        let id = match parse_id(id) {
-            Ok(id) => id,
-            Err(refused) => return refused,
-        };
-        let cf = self.format();
-        if let Some(accept) = request.options.accept()
-            && accept != cf
-        {
-            return Response::diagnostic(
-                Code::NOT_ACCEPTABLE,
-                &format!(
-                    "{PATH}/{id}/{} is {} only, not {}",
-                    self.name(),
-                    cf.0,
-                    accept.0
-                ),
-            );
-        }
-        let found = blocking(log, move |log| {
-            let record = log.get(id)?;
-            let data = match self {
-                Self::Photo => log.photo(id)?,
-                Self::Annotated => log.annotated(id)?,
-            };
-            Ok((record, data))
-        })
-        .await;
-        match found {
-            Ok((_, Some(data))) => {
-                let etag = etag_of(&data);
-                content(data, cf, etag)
-            }
-            Ok((None, _)) => no_record(id),
-            Ok((Some(record), None)) => {
-                let recorded = match self {
-                    Self::Photo => record.photo_sha256.is_some(),
-                    Self::Annotated => record.annotated_sha256.is_some(),
-                };
-                let why = if recorded {
-                    format!(
-                        "record {id}'s {} was pruned by the retention (its SHA-256 stays in the record)",
-                        self.name()
-                    )
-                } else {
-                    format!("record {id} has no {}", self.name())
-                };
-                Response::diagnostic(Code::NOT_FOUND, &why)
-            }
-            Err(e) => failed(&e),
-        }
+/// A picture's last path segment.
+fn segment(picture: Picture) -> &'static str {
+    match picture {
+        Picture::Photo => "photo",
+        Picture::Annotated => "annotated",
     }
 }
 
@@ -153,13 +118,9 @@ async fn list(log: ResultsLog, request: &IncomingRequest) -> Response {
         Ok(cf) => cf,
         Err(refused) => return refused,
     };
-    let query = match ListQuery::parse(request.options.uri_query(), PATH) {
-        Ok(q) => q,
-        Err(why) => return Response::diagnostic(Code::BAD_REQUEST, &why),
-    };
-    match blocking(log, move |log| log.list(&query)).await {
+    match reads::list(&log, request.options.uri_query(), PATH).await {
         Ok(records) => document(&records, cf),
-        Err(e) => failed(&e),
+        Err(refused) => refusal(&refused),
     }
 }
 
@@ -175,9 +136,9 @@ async fn latest(log: ResultsLog, request: &IncomingRequest) -> Response {
             &format!("{LATEST} takes no query ({item}); {PATH} does"),
         );
     }
-    match blocking(log, |log| log.latest()).await {
+    match reads::latest(&log).await {
         Ok(record) => document(&record, cf),
-        Err(e) => failed(&e),
+        Err(refused) => refusal(&refused),
     }
 }
 
@@ -187,56 +148,20 @@ async fn one(log: ResultsLog, id: &str, request: &IncomingRequest) -> Response {
         Ok(cf) => cf,
         Err(refused) => return refused,
     };
-    let id = match parse_id(id) {
-        Ok(id) => id,
-        Err(refused) => return refused,
+    match reads::one(&log, id).await {
+        Ok(record) => document(&record, cf),
+        Err(refused) => refusal(&refused),
+    }
+}
+
+/// A refusal of the results log as its CoAP response.
+fn refusal(refused: &Refusal) -> Response {
+    let code = match refused.kind {
+        Kind::BadRequest => Code::BAD_REQUEST,
+        Kind::NotFound => Code::NOT_FOUND,
+        Kind::Failed => Code::INTERNAL_SERVER_ERROR,
     };
-    match blocking(log, move |log| log.get(id)).await {
-        Ok(Some(record)) => document(&record, cf),
-        Ok(None) => no_record(id),
-        Err(e) => failed(&e),
-    }
-}
-
-#[expect(
-    clippy::result_large_err,
-    reason = "a refusal is the Response sent; it keeps its options inline"
-)]
-fn parse_id(text: &str) -> Result<u64, Response> {
-    match text.parse::<u64>() {
-        Ok(id) if id > 0 => Ok(id),
-        _ => Err(Response::diagnostic(
-            Code::BAD_REQUEST,
-            &format!("{text} is not a record id (a whole number from 1)"),
-        )),
-    }
-}
-
-fn no_record(id: u64) -> Response {
-    Response::diagnostic(
-        Code::NOT_FOUND,
-        &format!("no record {id} in the results log"),
-    )
-}
-
-fn failed(e: &LogError) -> Response {
-    tracing::warn!("results log: {e}");
-    Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.public_text())
-}
-
-/// Runs `f` on the log off the executor.
-async fn blocking<T: Send + 'static>(
-    log: ResultsLog,
-    f: impl FnOnce(&ResultsLog) -> Result<T, LogError> + Send + 'static,
-) -> Result<T, LogError> {
-    let path = log.path().to_owned();
-    match tokio::task::spawn_blocking(move || f(&log)).await {
-        Ok(result) => result,
-        Err(e) => Err(LogError::Failed {
-            path,
-            why: format!("the reading task failed: {e}"),
-        }),
-    }
+    Response::diagnostic(code, &refused.why)
 }
 
 /// JSON unless the request accepts CBOR; 4.06 for anything else.

@@ -39,10 +39,10 @@ use tokio::task::{JoinHandle, JoinSet};
 
 use super::Recorder;
 use super::follow::Follower;
-use super::log::{LogError, ResultsLog};
+use super::log::ResultsLog;
 use super::measure::Rig;
+use super::reads::{self, Kind, Picture, Refusal};
 use crate::api::record::Trigger;
-use crate::api::results::ListQuery;
 use crate::report::EdgeQuery;
 use crate::repr::raster;
 
@@ -242,38 +242,25 @@ impl<R: Rig> App<R> {
             Ok(items) => items,
             Err(why) => return error(StatusCode::BAD_REQUEST, &why),
         };
-        let q = match ListQuery::parse(&items, "/api/measurements") {
-            Ok(q) => q,
-            Err(why) => return error(StatusCode::BAD_REQUEST, &why),
-        };
-        match self.read(move |log| log.list(&q)).await {
+        match reads::list(self.recorder.log(), &items, "/api/measurements").await {
             Ok(records) => json(StatusCode::OK, &records),
-            Err(e) => failed(&e),
+            Err(refused) => refusal(&refused),
         }
     }
 
     /// `GET /api/measurements/<id>`.
     async fn one(&self, id: &str) -> Answer {
-        let id = match record_id(id) {
-            Ok(id) => id,
-            Err(refused) => return *refused,
-        };
-        match self.read(move |log| log.get(id)).await {
-            Ok(Some(record)) => json(StatusCode::OK, &record),
-            Ok(None) => no_record(id),
-            Err(e) => failed(&e),
+        match reads::one(self.recorder.log(), id).await {
+            Ok(record) => json(StatusCode::OK, &record),
+            Err(refused) => refusal(&refused),
         }
     }
 
     /// `GET /api/measurements/<id>/photo.jpg` and `.../annotated.png`.
     async fn picture(&self, id: &str, name: &str, if_none_match: Option<HeaderValue>) -> Answer {
-        let id = match record_id(id) {
-            Ok(id) => id,
-            Err(refused) => return *refused,
-        };
-        let photo = match name {
-            "photo.jpg" => true,
-            "annotated.png" => false,
+        let (picture, ct) = match name {
+            "photo.jpg" => (Picture::Photo, "image/jpeg"),
+            "annotated.png" => (Picture::Annotated, "image/png"),
             _ => {
                 return error(
                     StatusCode::NOT_FOUND,
@@ -281,38 +268,13 @@ impl<R: Rig> App<R> {
                 );
             }
         };
-        let found = self
-            .read(move |log| {
-                let Some(record) = log.get(id)? else {
-                    return Ok(None);
-                };
-                let data = if photo {
-                    log.photo(id)?
-                } else {
-                    log.annotated(id)?
-                };
-                Ok(Some((record, data)))
-            })
-            .await;
-        let (record, data) = match found {
-            Ok(Some(found)) => found,
-            Ok(None) => return no_record(id),
-            Err(e) => return failed(&e),
+        let (record, data) = match reads::picture(self.recorder.log(), id, picture).await {
+            Ok(found) => found,
+            Err(refused) => return refusal(&refused),
         };
-        let (sha, ct, what) = if photo {
-            (&record.photo_sha256, "image/jpeg", "photo")
-        } else {
-            (&record.annotated_sha256, "image/png", "annotated picture")
-        };
-        let Some(data) = data else {
-            let why = if sha.is_some() {
-                format!(
-                    "record {id}'s {what} was pruned by the retention (its SHA-256 stays in the record)"
-                )
-            } else {
-                format!("record {id} has no {what}")
-            };
-            return error(StatusCode::NOT_FOUND, &why);
+        let sha = match picture {
+            Picture::Photo => &record.photo_sha256,
+            Picture::Annotated => &record.annotated_sha256,
         };
         // A record's picture never changes: its SHA-256 is its ETag.
         let etag = sha.as_ref().map(|s| format!("\"{s}\""));
@@ -735,22 +697,6 @@ impl<R: Rig> App<R> {
         .await
         .cloned()
     }
-
-    /// Runs `f` on the log off the executor.
-    async fn read<T: Send + 'static>(
-        &self,
-        f: impl FnOnce(&ResultsLog) -> Result<T, LogError> + Send + 'static,
-    ) -> Result<T, LogError> {
-        let log = self.recorder.log().clone();
-        let path = log.path().to_owned();
-        match tokio::task::spawn_blocking(move || f(&log)).await {
-            Ok(result) => result,
-            Err(e) => Err(LogError::Failed {
-                path,
-                why: format!("the reading task failed: {e}"),
-            }),
-        }
-    }
 }
 
 /// A live image of a camera.
@@ -914,16 +860,6 @@ fn percent_decode(text: &str) -> Option<String> {
     String::from_utf8(out).ok()
 }
 
-fn record_id(text: &str) -> Result<u64, Box<Answer>> {
-    match text.parse::<u64>() {
-        Ok(id) if id > 0 => Ok(id),
-        _ => Err(Box::new(error(
-            StatusCode::BAD_REQUEST,
-            &format!("{text} is not a record id (a whole number from 1)"),
-        ))),
-    }
-}
-
 /// 413 for a request whose Content-Length is over [`MAX_BODY`].
 fn too_large(request: &Request<Incoming>) -> Option<Answer> {
     let length = request.headers().get(header::CONTENT_LENGTH)?;
@@ -957,16 +893,14 @@ fn proxy_too_large() -> Answer {
     answer
 }
 
-fn no_record(id: u64) -> Answer {
-    error(
-        StatusCode::NOT_FOUND,
-        &format!("no record {id} in the results log"),
-    )
-}
-
-fn failed(e: &LogError) -> Answer {
-    tracing::warn!("http: results log: {e}");
-    error(StatusCode::INTERNAL_SERVER_ERROR, &e.public_text())
+/// A refusal of the results log as its HTTP answer.
+fn refusal(refused: &Refusal) -> Answer {
+    let status = match refused.kind {
+        Kind::BadRequest => StatusCode::BAD_REQUEST,
+        Kind::NotFound => StatusCode::NOT_FOUND,
+        Kind::Failed => StatusCode::INTERNAL_SERVER_ERROR,
+    };
+    error(status, &refused.why)
 }
 
 fn empty() -> BoxBody<Bytes, Infallible> {
