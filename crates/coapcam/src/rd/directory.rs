@@ -863,7 +863,11 @@ impl Directory {
         id: u64,
         params: Params,
     ) -> Result<(), RdError> {
-        let reg = self.regs.get(&id).ok_or(RdError::NotFound)?;
+        // A registration whose lifetime ended is gone, swept or not: a late update (a
+        // retransmission from a registrant that has since died) does not bring it back.
+        let reg = (self.regs.get(&id))
+            .filter(|r| r.record.expires_ms > now_ms)
+            .ok_or(RdError::NotFound)?;
         if reg.record.peer != peer.ip() {
             return Err(RdError::NotOwner);
         }

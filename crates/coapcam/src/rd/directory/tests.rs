@@ -535,3 +535,23 @@ fn an_ipv6_slash_64_is_one_client_and_ipv4_mapped_is_ipv4() {
     rd.register(T0, addr("[fd00::ffff:0:0:9]:5683"), params("ep=a4"), "")
         .expect("a place again");
 }
+
+#[test]
+fn an_update_after_the_lifetime_ended_does_not_bring_the_registration_back() {
+    let mut rd = directory();
+    let peer = addr("127.0.0.2:5683");
+    let short = rd
+        .register(T0, peer, params("ep=short&lt=2"), "</x>")
+        .expect("short");
+    // The lifetime has ended, the sweep has not run yet: a late renewal is refused.
+    assert!(matches!(
+        rd.update(T0 + 2_500, peer, short.id, params("")),
+        Err(RdError::NotFound)
+    ));
+    assert_eq!(
+        rd.lookup(T0 + 2_500, LookupKind::Endpoints, &query(""))
+            .links,
+        0
+    );
+    assert_eq!(rd.expire(T0 + 2_500), [short.id]);
+}
