@@ -156,6 +156,14 @@ pub(crate) struct ServeArgs {
     /// Plain HTTP/1.1, no TLS: put a TLS proxy in front to reach it across networks.
     #[arg(long, value_name = "ADDR:PORT", value_parser = coapcam::station::http::parse_listen, conflicts_with = "no_cameras")]
     http: Option<SocketAddr>,
+    /// A CoAP server the HTTP-CoAP proxy (/hc/coap://...) may reach, besides this
+    /// server's own addresses (the only ones by default); repeatable. HOST is an IP
+    /// address or a name (resolved at each request); without PORT any port of it. The
+    /// decision is made on the address the target resolves to: loopback addresses other
+    /// than this server's own (another server of this machine) are refused unless named
+    /// here, multicast and broadcast always.
+    #[arg(long, value_name = "HOST[:PORT]", requires = "http")]
+    proxy_allow: Vec<coapcam::station::http::proxy::Allowed>,
     /// POST every record of the results log as JSON to this http:// URL (no TLS), in id
     /// order, each until it is answered 2xx (retrying 0.25 s, doubling to 5 s). The
     /// position is kept in the log (cursor `webhook`), so nothing is lost while the
@@ -371,6 +379,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<StationConfig> {
             mqtt: args.mqtt.clone(),
             line_output: args.line_output,
             http: args.http,
+            proxy_allow: args.proxy_allow.clone(),
             webhook: args.webhook.clone(),
         },
         auto_measure: args.auto_measure.then(|| {

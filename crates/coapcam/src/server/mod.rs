@@ -213,12 +213,6 @@ impl Station {
             None => None,
         };
         let (publisher, line_output) = start_outputs(&config.station, results.as_ref()).await?;
-        let (http, webhook) = start_http(
-            &config.station,
-            cameras.as_ref().zip(recorder.as_ref()),
-            config.allow_unauthenticated_config,
-        )
-        .await?;
         let binds = &config.binds;
         let server = Server::bind(
             binds,
@@ -230,6 +224,14 @@ impl Station {
             router,
         )
         .with_context(|| format!("binding {binds:?}"))?;
+        // After the bind: the proxy reaches the addresses the server answers on.
+        let (http, webhook) = start_http(
+            &config.station,
+            cameras.as_ref().zip(recorder.as_ref()),
+            config.allow_unauthenticated_config,
+            server.local_addrs(),
+        )
+        .await?;
         groups
             .start(&server, &config.groups, config.group_interface)
             .await?;
@@ -427,11 +429,13 @@ async fn start_outputs(
 }
 
 /// The HTTP server and the webhook, as `config` asks; `open`: anyone may measure over
-/// HTTP (`--allow-unauthenticated-config`).
+/// HTTP (`--allow-unauthenticated-config`); `own`: the CoAP server's addresses, which
+/// the proxy reaches besides the hosts of `--proxy-allow`.
 async fn start_http(
     config: &station::Config,
     cameras: Option<(&CameraTree, &Recorder)>,
     open: bool,
+    own: Vec<SocketAddr>,
 ) -> anyhow::Result<(
     Option<station::http::HttpServer>,
     Option<station::webhook::Webhook>,
@@ -444,9 +448,18 @@ async fn start_http(
     };
     let http = match config.http {
         Some(addr) => Some(
-            station::http::HttpServer::start(addr, tree.cams.clone(), recorder.clone(), open)
-                .await
-                .with_context(|| format!("listening for HTTP on {addr}"))?,
+            station::http::HttpServer::start(
+                addr,
+                tree.cams.clone(),
+                recorder.clone(),
+                open,
+                station::http::proxy::Reach {
+                    own,
+                    allowed: config.proxy_allow.clone(),
+                },
+            )
+            .await
+            .with_context(|| format!("listening for HTTP on {addr}"))?,
         ),
         None => None,
     };

@@ -47,6 +47,9 @@ pub struct Config {
     pub line_output: Option<std::net::SocketAddr>,
     /// Serve the page and the HTTP API on this address (`--http`).
     pub http: Option<std::net::SocketAddr>,
+    /// The hosts the HTTP-CoAP proxy reaches besides the station's own CoAP servers
+    /// (`--proxy-allow`).
+    pub proxy_allow: Vec<http::proxy::Allowed>,
     /// POST every record to this URL (`--webhook`).
     pub webhook: Option<webhook::Target>,
 }
@@ -60,6 +63,7 @@ impl Default for Config {
             mqtt: None,
             line_output: None,
             http: None,
+            proxy_allow: Vec::new(),
             webhook: None,
         }
     }

@@ -5,7 +5,8 @@
 
 use std::io::{BufRead as _, BufReader, Read as _, Write as _};
 use std::net::{SocketAddr, TcpListener, TcpStream};
-use std::sync::mpsc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, mpsc};
 use std::thread;
 use std::time::{Duration, Instant};
 
@@ -766,7 +767,27 @@ fn the_proxy_maps_http_to_coaps_own_server() {
     std::fs::create_dir_all(&files).expect("files");
     let big = crate::support::random_file(&files.join("big.bin"), 1 << 20, 34);
     let files = files.to_string_lossy().into_owned();
-    let (mut server, http) = serve_http(&state, &["--static", &files, "--writable"]);
+    // Two other servers of this machine, named to the proxy: one that never answers, one
+    // whose port nothing listens on.
+    let (_hole, silent) = black_hole();
+    let (_gone, unreachable) = {
+        let (s, a) = black_hole();
+        drop(s);
+        ((), a)
+    };
+    let (silent_flag, unreachable_flag) = (silent.to_string(), unreachable.to_string());
+    let (mut server, http) = serve_http(
+        &state,
+        &[
+            "--static",
+            &files,
+            "--writable",
+            "--proxy-allow",
+            &silent_flag,
+            "--proxy-allow",
+            &unreachable_flag,
+        ],
+    );
     let coap = server.stderr_line(LIMIT, |l| {
         l.strip_prefix("coapcam: serving on ")
             .and_then(|a| a.trim().parse::<SocketAddr>().ok())
@@ -852,16 +873,232 @@ fn the_proxy_maps_http_to_coaps_own_server() {
 
     // Nothing listens: 502 at once (ICMP port unreachable); a server that never answers:
     // 504 after the proxy's timeout (15 s).
-    let (_hole, silent) = black_hole();
-    let (_gone, unreachable) = {
-        let (s, a) = black_hole();
-        drop(s);
-        ((), a)
-    };
     let bad = get(http, &format!("/hc/coap://{unreachable}/x"));
     assert_eq!(bad.status, 502, "{}", String::from_utf8_lossy(&bad.body));
     let late = get(http, &format!("/hc/coap://{silent}/x"));
     assert!(late.error(504).contains("15 s"));
+}
+
+/// A CoAP server on `bind` (127.0.0.1:0 in [`CoapStub::new`]) that answers every request
+/// 2.05 with `body`, block-wise (the block a request's Block2 asks for, else blocks of
+/// 1 KiB) with Size2, and counts the requests and the payload bytes it sent; it stops when
+/// dropped.
+pub(crate) struct CoapStub {
+    pub(crate) addr: SocketAddr,
+    pub(crate) requests: Arc<AtomicUsize>,
+    sent: Arc<AtomicUsize>,
+    stop: Arc<AtomicBool>,
+    thread: Option<thread::JoinHandle<()>>,
+}
+
+impl CoapStub {
+    fn new(body: Vec<u8>) -> Self {
+        Self::on("127.0.0.1:0", body)
+    }
+
+    pub(crate) fn on(bind: &str, body: Vec<u8>) -> Self {
+        use coap::{BlockOpt, Code, Message, OptionNumber, Type};
+        let socket = std::net::UdpSocket::bind(bind).expect("a UDP socket");
+        socket
+            .set_read_timeout(Some(Duration::from_millis(50)))
+            .expect("timeout");
+        let addr = socket.local_addr().expect("its address");
+        let requests: Arc<AtomicUsize> = Arc::default();
+        let sent: Arc<AtomicUsize> = Arc::default();
+        let stop: Arc<AtomicBool> = Arc::default();
+        let (r, t, halt) = (Arc::clone(&requests), Arc::clone(&sent), Arc::clone(&stop));
+        let thread = thread::spawn(move || {
+            let mut buf = [0u8; 2048];
+            while !halt.load(Ordering::Relaxed) {
+                let Ok((n, from)) = socket.recv_from(&mut buf) else {
+                    continue;
+                };
+                let Ok(request) = Message::decode(&buf[..n]) else {
+                    continue;
+                };
+                if request.code.0 == 0 {
+                    continue;
+                }
+                r.fetch_add(1, Ordering::Relaxed);
+                let asked = request.options.block2().unwrap_or(BlockOpt {
+                    num: 0,
+                    more: false,
+                    szx: 6,
+                });
+                let start = (asked.offset()).min(body.len());
+                let end = (start + asked.size()).min(body.len());
+                let (ty, mid) = if request.ty == Type::Con {
+                    (Type::Ack, request.message_id)
+                } else {
+                    (Type::Non, request.message_id.wrapping_add(1))
+                };
+                let mut answer = Message::empty(ty, mid);
+                answer.code = Code::CONTENT;
+                answer.token = request.token;
+                if body.len() > asked.size() || request.options.block2().is_some() {
+                    let block = BlockOpt {
+                        more: end < body.len(),
+                        ..asked
+                    };
+                    answer.options.set_block(OptionNumber::BLOCK2, block);
+                    answer
+                        .options
+                        .set_uint(OptionNumber::SIZE2, body.len() as u32);
+                }
+                answer.payload = body[start..end].to_vec().into();
+                t.fetch_add(end - start, Ordering::Relaxed);
+                let _ = socket.send_to(&answer.encode(), from);
+            }
+        });
+        Self {
+            addr,
+            requests,
+            sent,
+            stop,
+            thread: Some(thread),
+        }
+    }
+}
+
+impl Drop for CoapStub {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+#[test]
+fn the_proxy_reaches_its_own_servers_and_the_named_hosts_only() {
+    let other = CoapStub::new(b"another server of this machine".to_vec());
+    let named = CoapStub::new(b"a named server".to_vec());
+    let state = TempDir::new("http-proxy-reach");
+    let (mut server, http) = serve_http(&state, &["--proxy-allow", &named.addr.to_string()]);
+    let coap = server.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: serving on ")
+            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
+    });
+    // The station's own server, also spelled otherwise.
+    let own = get(
+        http,
+        &format!("/hc/coap://127.1:{}/.well-known/core", coap.port()),
+    );
+    assert_eq!(own.status, 200, "{}", String::from_utf8_lossy(&own.body));
+    // A named one.
+    let reached = get(http, &format!("/hc/coap://{}/x", named.addr));
+    assert_eq!(reached.body, b"a named server");
+    assert!(named.requests.load(Ordering::Relaxed) >= 1);
+    // Another server of this machine, in every spelling of loopback: 403, nothing sent.
+    let port = other.addr.port();
+    for target in [
+        format!("coap://127.0.0.1:{port}/x"),
+        format!("coap://localhost:{port}/x"),
+        format!("coap://127.1:{port}/x"),
+        format!("coap%3A%2F%2F127.0.0.1%3A{port}%2Fx"),
+        format!("coap://[::1]:{port}/x"),
+        format!("coap://[::ffff:127.0.0.1]:{port}/x"),
+        format!("coap://127.0.0.2:{}/x", coap.port()),
+    ] {
+        for method in ["GET", "HEAD"] {
+            let refused = request(http, method, &format!("/hc/{target}"), &[], b"");
+            if method == "GET" {
+                let why = refused.error(403);
+                assert!(
+                    why.contains("another server of the station's machine")
+                        && why.contains("--proxy-allow"),
+                    "{target}: {why}"
+                );
+            } else {
+                assert_eq!(refused.status, 403, "HEAD {target}");
+            }
+        }
+    }
+    assert_eq!(
+        other.requests.load(Ordering::Relaxed),
+        0,
+        "the other server was reached"
+    );
+    // Groups, broadcast, the unspecified address, and hosts not named.
+    for (target, says) in [
+        ("coap://224.0.1.187/x", "multicast"),
+        ("coap://[ff02::fd]:5683/x", "multicast"),
+        ("coap://255.255.255.255/x", "broadcast"),
+        ("coap://0.0.0.0/x", "unspecified"),
+        ("coap://192.0.2.1/x", "not a server the proxy reaches"),
+        (
+            "coap://[2001:db8::1]:5683/x",
+            "not a server the proxy reaches",
+        ),
+    ] {
+        let why = get(http, &format!("/hc/{target}")).error(403);
+        assert!(why.contains(says), "{target}: {why}");
+    }
+}
+
+#[test]
+fn a_proxied_head_fetches_one_block_of_16_bytes() {
+    let body = crate::support::random_bytes(1 << 20, 46);
+    let stub = CoapStub::new(body.clone());
+    let state = TempDir::new("http-proxy-head");
+    let (_server, http) = serve_http(&state, &["--proxy-allow", &stub.addr.to_string()]);
+    let path = format!("/hc/coap://{}/big", stub.addr);
+    let head = request(http, "HEAD", &path, &[], b"");
+    assert_eq!(head.status, 200);
+    assert!(head.body.is_empty());
+    assert_eq!(head.header("content-length"), Some("1048576"), "Size2");
+    let (requests, sent) = (
+        stub.requests.load(Ordering::Relaxed),
+        stub.sent.load(Ordering::Relaxed),
+    );
+    eprintln!("a proxied HEAD of 1 MiB: {requests} request(s), {sent} payload bytes fetched");
+    assert_eq!((requests, sent), (1, 16));
+    // A GET fetches it whole.
+    let whole = get(http, &path);
+    assert_eq!(whole.status, 200);
+    crate::support::assert_same(&whole.body, &body, "1 MiB through the proxy");
+}
+
+/// Issue 46: after 6 concurrent fetches of 16 MB, every block-wise transfer through the
+/// proxy answered 504 for minutes: its one CoAP client had used more than the 65,536
+/// message IDs it may use in 247 s (EXCHANGE_LIFETIME), and waited for a free one.
+#[test]
+fn the_proxy_still_fetches_after_more_blocks_than_there_are_message_ids() {
+    let state = TempDir::new("http-proxy-mids");
+    let files = state.join("files");
+    std::fs::create_dir_all(&files).expect("files");
+    let big = crate::support::random_file(&files.join("big.bin"), 14 << 20, 46);
+    let small = crate::support::random_file(&files.join("small.bin"), 3000, 47);
+    let files = files.to_string_lossy().into_owned();
+    let (mut server, http) = serve_http(&state, &["--static", &files]);
+    let coap = server.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: serving on ")
+            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
+    });
+    // 5 x 14 MiB in blocks of 1 KiB: 71,680 block requests, two at a time.
+    for round in 0..3 {
+        let fetches: Vec<_> = (0..if round < 2 { 2 } else { 1 })
+            .map(|_| thread::spawn(move || get(http, &format!("/hc/coap://{coap}/files/big.bin"))))
+            .collect();
+        for fetch in fetches {
+            let whole = fetch.join().expect("a fetch");
+            assert_eq!(
+                whole.status,
+                200,
+                "{}",
+                String::from_utf8_lossy(&whole.body)
+            );
+            assert_eq!(whole.body.len(), big.len());
+        }
+    }
+    let after = get(http, &format!("/hc/coap://{coap}/files/small.bin"));
+    assert_eq!(
+        after.status,
+        200,
+        "{}",
+        String::from_utf8_lossy(&after.body)
+    );
+    assert_eq!(after.body, small);
 }
 
 #[test]
@@ -871,7 +1108,7 @@ fn the_proxy_reaches_libcoap_block_wise() {
     }
     let (_libcoap, coap) = crate::support::libcoap_server();
     let state = TempDir::new("http-proxy-libcoap");
-    let (_server, http) = serve_http(&state, &[]);
+    let (_server, http) = serve_http(&state, &["--proxy-allow", &coap.to_string()]);
     let core = get(http, &format!("/hc/coap://{coap}/.well-known/core"));
     assert_eq!(core.status, 200);
     assert_eq!(core.header("content-type"), Some("application/link-format"));

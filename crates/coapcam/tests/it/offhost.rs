@@ -524,6 +524,67 @@ fn offhost_http_reads_for_everyone_and_measures_only_for_this_machine() {
     assert_eq!(status, 201, "{body}");
 }
 
+#[test]
+#[ignore = "off-host: run inside scripts/netns-run (scripts/test.sh does)"]
+fn offhost_the_proxy_reaches_the_stations_own_server_only() {
+    let test = "offhost_the_proxy_reaches_the_stations_own_server_only";
+    if !in_namespace(test) {
+        return;
+    }
+    use std::sync::atomic::Ordering;
+    // Another server of the station's machine, on loopback only, and a host of the LAN.
+    let inside = crate::http::CoapStub::on("127.0.0.1:0", b"loopback only".to_vec());
+    let lan = crate::http::CoapStub::on("[fd00::4]:0", b"another host".to_vec());
+    let dir = TempDir::new("offhost-proxy");
+    let port = std::net::TcpListener::bind("[::]:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free TCP port")
+        .port();
+    let http = format!("[::]:{port}");
+    let (_server, coap) = serve_at("[fd00::2]:0", &dir.join("state"), &["--http", &http]);
+    let remote: SocketAddr = format!("[fd00::2]:{port}").parse().expect("address");
+    let stranger: std::net::IpAddr = "fd00::3".parse().expect("address");
+    let deadline = Instant::now() + LIMIT;
+    while std::net::TcpStream::connect(remote).is_err() {
+        assert!(Instant::now() < deadline, "no HTTP server on {remote}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // The station's own server, through the proxy, from another host.
+    let (status, body) = http_from(
+        stranger,
+        remote,
+        "GET",
+        &format!("/hc/coap://{coap}/.well-known/core"),
+    );
+    assert_eq!(status, 200, "{body}");
+    let other = inside.addr.port();
+    for target in [
+        format!("coap://127.0.0.1:{other}/x"),
+        format!("coap://localhost:{other}/x"),
+        format!("coap://127.1:{other}/x"),
+        format!("coap%3A%2F%2F127.0.0.1%3A{other}%2Fx"),
+        format!("coap://[::ffff:127.0.0.1]:{other}/x"),
+        format!("coap://{}/x", lan.addr),
+        format!("coap://[fd00::5]:{}/x", coap.port()),
+        "coap://[ff02::fd%25mc0]:5683/x".to_owned(),
+    ] {
+        for method in ["GET", "HEAD"] {
+            let (status, body) = http_from(stranger, remote, method, &format!("/hc/{target}"));
+            assert_eq!(status, 403, "{method} {target}: {body}");
+        }
+    }
+    assert_eq!(
+        inside.requests.load(Ordering::Relaxed),
+        0,
+        "the loopback server was reached"
+    );
+    assert_eq!(
+        lan.requests.load(Ordering::Relaxed),
+        0,
+        "the LAN host was reached"
+    );
+}
+
 /// The directory's endpoints of `query`, asked from `client`.
 fn rd_endpoints(
     client: &coap_net::Client,

@@ -100,8 +100,10 @@ struct App<R> {
     open: bool,
     /// The newest color image of each camera, for [`COLOR_FRESH`].
     colors: Mutex<HashMap<String, ColorSlot>>,
-    /// The proxy's CoAP clients, for IPv4 and IPv6 servers, made at their first use.
-    coap: [tokio::sync::OnceCell<coap_net::Client>; 2],
+    /// Whom the proxy reaches.
+    reach: proxy::Reach,
+    /// The proxy's requests under way, per client and in all.
+    fetches: Arc<Mutex<proxy::Fetches>>,
 }
 
 /// A camera's newest live color image (JPEG) and when it was grabbed; held while a grab
@@ -112,12 +114,14 @@ type Answer = Response<BoxBody<Bytes, Infallible>>;
 
 impl HttpServer {
     /// Listens on `addr` and serves the log of `recorder` and the cameras of `rig`;
-    /// `open` lets any client measure (otherwise only clients on this machine).
+    /// `open` lets any client measure (otherwise only clients on this machine); the proxy
+    /// reaches the servers of `reach`.
     pub async fn start<R: Rig>(
         addr: SocketAddr,
         rig: Arc<R>,
         recorder: Recorder,
         open: bool,
+        reach: proxy::Reach,
     ) -> std::io::Result<Self> {
         let listener = TcpListener::bind(addr).await?;
         let addr = listener.local_addr()?;
@@ -126,7 +130,8 @@ impl HttpServer {
             recorder,
             open,
             colors: Mutex::default(),
-            coap: Default::default(),
+            reach,
+            fetches: Arc::default(),
         });
         let task = tokio::spawn(accept(listener, app));
         Ok(Self { addr, task })
@@ -549,6 +554,26 @@ impl<R: Rig> App<R> {
         let head = request.method() == Method::HEAD;
         let headers = request.headers().clone();
         let mut options = uri.options();
+        if head {
+            // The first block of 16 bytes and the size, no more blocks (the client does
+            // not go on when the request names its Block2).
+            options.set_block(
+                coap::OptionNumber::BLOCK2,
+                coap::BlockOpt {
+                    num: 0,
+                    more: false,
+                    szx: 0,
+                },
+            );
+            options.set_uint(coap::OptionNumber::SIZE2, 0);
+        }
+        let server = match uri.resolve().await {
+            Ok(addr) => proxy::canonical(addr),
+            Err(e) => return error(StatusCode::BAD_GATEWAY, &format!("{}: {e}", uri.host)),
+        };
+        if let Err(why) = self.reach.check(server).await {
+            return error(StatusCode::FORBIDDEN, &why);
+        }
         if let Some(ct) = headers.get(header::CONTENT_TYPE) {
             let ct = ct.to_str().unwrap_or("");
             match proxy::content_format(ct) {
@@ -604,11 +629,18 @@ impl<R: Rig> App<R> {
             }
             Err(e) => return error(StatusCode::BAD_REQUEST, &format!("reading the body: {e}")),
         };
-        let server = match uri.resolve().await {
-            Ok(addr) => addr,
-            Err(e) => return error(StatusCode::BAD_GATEWAY, &format!("{}: {e}", uri.host)),
+        let Some(_fetch) = proxy::Fetches::start(&self.fetches, peer.ip()) else {
+            return error(
+                StatusCode::TOO_MANY_REQUESTS,
+                &format!(
+                    "the proxy already forwards {} requests for this client ({} in all), each answer up to {} MiB: try again when one has ended",
+                    proxy::PER_CLIENT,
+                    proxy::IN_ALL,
+                    proxy::MAX_RESPONSE >> 20
+                ),
+            );
         };
-        let client = match self.coap_client(server).await {
+        let client = match proxy_client(server) {
             Ok(client) => client,
             Err(e) => {
                 return error(
@@ -626,6 +658,15 @@ impl<R: Rig> App<R> {
                 return error(
                     StatusCode::GATEWAY_TIMEOUT,
                     &format!("{target}: no answer within {} s", proxy::TIMEOUT.as_secs()),
+                );
+            }
+            Err(coap_net::Error::Request(coap::RequestError::TooLarge { .. })) => {
+                return error(
+                    StatusCode::BAD_GATEWAY,
+                    &format!(
+                        "{target}: the answer is larger than the {} MiB the proxy passes on",
+                        proxy::MAX_RESPONSE >> 20
+                    ),
                 );
             }
             Err(e) => return error(StatusCode::BAD_GATEWAY, &format!("{target}: {e}")),
@@ -654,6 +695,15 @@ impl<R: Rig> App<R> {
         let mut reply = Response::new(BoxBody::new(Full::new(body)));
         *reply.status_mut() = status;
         let h = reply.headers_mut();
+        if head
+            && let Some(size) = answer.options.uint(coap::OptionNumber::SIZE2).or_else(|| {
+                let whole = answer.options.block2().is_none_or(|b| !b.more);
+                whole.then(|| u32::try_from(answer.payload.len()).unwrap_or(u32::MAX))
+            })
+        {
+            // What a GET would bring (RFC 9110 §9.3.2).
+            h.insert(header::CONTENT_LENGTH, HeaderValue::from(size));
+        }
         if let Some(ct) = content_type.and_then(|ct| HeaderValue::from_str(&ct).ok()) {
             h.insert(header::CONTENT_TYPE, ct);
         }
@@ -678,25 +728,21 @@ impl<R: Rig> App<R> {
         }
         reply
     }
+}
 
-    /// The proxy's CoAP client for `server`'s address family.
-    async fn coap_client(&self, server: SocketAddr) -> std::io::Result<coap_net::Client> {
-        let (slot, any) = if server.is_ipv4() {
-            (&self.coap[0], SocketAddr::from(([0, 0, 0, 0], 0)))
-        } else {
-            (&self.coap[1], SocketAddr::from(([0u16; 8], 0)))
-        };
-        slot.get_or_try_init(|| async {
-            let mut config = coap::EndpointConfig {
-                rng_seed: coap_net::fresh_seed(),
-                ..coap::EndpointConfig::default()
-            };
-            config.limits.client_body_bytes = proxy::MAX_RESPONSE;
-            coap_net::Client::bind(any, config)
-        })
-        .await
-        .cloned()
-    }
+/// A CoAP client of the proxy's own for one request to `server`, which ends with it. Not
+/// one client for every request: a client's message IDs come round every 65,536 and may
+/// not be used again within EXCHANGE_LIFETIME (247 s), so a shared one that forwarded
+/// 6 answers of 16 MB (about 96,000 block requests) had to wait minutes for a free ID,
+/// and every block-wise transfer through it ended in 504 until then (issue 46). An
+/// answer of [`proxy::MAX_RESPONSE`] takes 16,384.
+fn proxy_client(server: SocketAddr) -> std::io::Result<coap_net::Client> {
+    let mut config = coap::EndpointConfig {
+        rng_seed: coap_net::fresh_seed(),
+        ..coap::EndpointConfig::default()
+    };
+    config.limits.client_body_bytes = proxy::MAX_RESPONSE;
+    coap_net::Client::for_peer(server, config)
 }
 
 /// A live image of a camera.

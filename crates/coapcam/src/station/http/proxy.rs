@@ -5,9 +5,17 @@
 //! type, ETag, Max-Age (as `Cache-Control: max-age`), Location-Path. 502 when the CoAP
 //! side fails, 504 when it does not answer within [`TIMEOUT`].
 //!
+//! Whom it reaches ([`Reach`]): the station's own CoAP servers and the hosts the operator
+//! names (`serve --proxy-allow HOST[:PORT]`), decided on the address the target resolves
+//! to, so that no spelling of a loopback address (`localhost`, `127.1`, `[::1]`,
+//! `[::ffff:127.0.0.1]`, percent-encoded) reaches another server of this machine, and no
+//! request goes to a multicast group. 403 otherwise.
+//!
 //! The mappings are functions without IO, tested here; the forwarding is in
 //! `super::App`.
 
+use std::net::{IpAddr, SocketAddr};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use coap::{Code, ContentFormat, OptionNumber, Options};
@@ -24,6 +32,207 @@ pub const MAX_REQUEST: usize = 1 << 20;
 
 /// The path prefix of the proxy.
 pub const PREFIX: &str = "/hc/";
+
+/// The most requests the proxy forwards for one client at once (an IPv4 address or an
+/// IPv6 /64): with [`MAX_RESPONSE`], at most 32 MiB fetched for it at a time (429 beyond).
+pub const PER_CLIENT: usize = 2;
+
+/// The most requests the proxy forwards at once in all: at most 128 MiB of answers held
+/// (429 beyond).
+pub const IN_ALL: usize = 8;
+
+/// The requests under way, per client and in all ([`PER_CLIENT`], [`IN_ALL`]).
+#[derive(Debug, Default)]
+pub struct Fetches {
+    by_client: std::collections::HashMap<IpAddr, usize>,
+    total: usize,
+}
+
+/// A request counted in [`Fetches`] until dropped.
+#[derive(Debug)]
+pub struct Fetch {
+    fetches: Arc<Mutex<Fetches>>,
+    client: IpAddr,
+}
+
+impl Fetches {
+    /// Counts a request of the client at `ip`, unless that client or the proxy has as
+    /// many under way as it may.
+    pub fn start(fetches: &Arc<Mutex<Self>>, ip: IpAddr) -> Option<Fetch> {
+        let client = client_of(ip);
+        let mut f = fetches.lock().unwrap_or_else(PoisonError::into_inner);
+        let mine = f.by_client.get(&client).copied().unwrap_or(0);
+        if mine >= PER_CLIENT || f.total >= IN_ALL {
+            return None;
+        }
+        f.by_client.insert(client, mine + 1);
+        f.total += 1;
+        Some(Fetch {
+            fetches: fetches.clone(),
+            client,
+        })
+    }
+}
+
+impl Drop for Fetch {
+    fn drop(&mut self) {
+        let mut f = self.fetches.lock().unwrap_or_else(PoisonError::into_inner);
+        f.total -= 1;
+        if let Some(n) = f.by_client.get_mut(&self.client) {
+            *n -= 1;
+            if *n == 0 {
+                f.by_client.remove(&self.client);
+            }
+        }
+    }
+}
+
+/// The client an address counts as: an IPv4 address (also written IPv4-mapped), or the
+/// /64 of an IPv6 address (one host picks addresses from its /64 at will).
+fn client_of(ip: IpAddr) -> IpAddr {
+    match ip.to_canonical() {
+        IpAddr::V4(v4) => IpAddr::V4(v4),
+        IpAddr::V6(v6) => IpAddr::V6((u128::from(v6) & !u128::from(u64::MAX)).into()),
+    }
+}
+
+/// A host the proxy may reach besides the station's own CoAP servers (`--proxy-allow
+/// HOST[:PORT]`): an IP address or a name (resolved at each request), any port when none
+/// is given.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Allowed {
+    /// An IP literal (IPv6 without brackets) or a name.
+    pub host: String,
+    /// The port, or any.
+    pub port: Option<u16>,
+}
+
+impl std::str::FromStr for Allowed {
+    type Err = String;
+
+    /// `HOST`, `HOST:PORT`, `[IPV6]`, `[IPV6]:PORT` or a bare IPv6 address.
+    fn from_str(text: &str) -> Result<Self, String> {
+        let bad = || {
+            format!(
+                "{text}: a proxy target is HOST[:PORT] (e.g. 192.0.2.7:5683, [fd00::7], sensors.lan)"
+            )
+        };
+        let (host, port) = if let Some(rest) = text.strip_prefix('[') {
+            let (host, after) = rest.split_once(']').ok_or_else(bad)?;
+            match after {
+                "" => (host, None),
+                _ => (host, Some(after.strip_prefix(':').ok_or_else(bad)?)),
+            }
+        } else if text.matches(':').count() > 1 {
+            (text, None)
+        } else {
+            match text.split_once(':') {
+                Some((host, port)) => (host, Some(port)),
+                None => (text, None),
+            }
+        };
+        let port = port
+            .map(|p| p.parse::<u16>().ok().filter(|&p| p != 0).ok_or_else(bad))
+            .transpose()?;
+        let valid = !host.is_empty()
+            && host
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | '_' | ':'));
+        if !valid || (host.contains(':') && host.parse::<std::net::Ipv6Addr>().is_err()) {
+            return Err(bad());
+        }
+        Ok(Self {
+            host: host.to_owned(),
+            port,
+        })
+    }
+}
+
+/// Whom the proxy reaches: the station's own CoAP servers (the addresses they are bound
+/// to) and the hosts of `--proxy-allow`.
+#[derive(Debug, Clone, Default)]
+pub struct Reach {
+    /// The addresses the station's CoAP servers are bound to.
+    pub own: Vec<SocketAddr>,
+    /// `--proxy-allow`.
+    pub allowed: Vec<Allowed>,
+}
+
+impl Reach {
+    /// Whether the proxy may send to `target` (an address resolved already, in its
+    /// canonical form: [`canonical`]); the refusal's text otherwise.
+    pub async fn check(&self, target: SocketAddr) -> Result<(), String> {
+        let mut allowed = Vec::new();
+        for a in &self.allowed {
+            let port = a.port.unwrap_or(0);
+            match a.host.parse::<IpAddr>() {
+                Ok(ip) => allowed.push((ip, a.port)),
+                Err(_) => match tokio::net::lookup_host((a.host.as_str(), port)).await {
+                    Ok(addrs) => allowed.extend(addrs.map(|s| (s.ip(), a.port))),
+                    Err(e) => tracing::debug!("proxy: --proxy-allow {}: {e}", a.host),
+                },
+            }
+        }
+        decide(&self.own, &allowed, target, is_this_host)
+    }
+}
+
+/// `addr` with an IPv4-mapped IPv6 address written as IPv4 (where it goes).
+pub fn canonical(addr: SocketAddr) -> SocketAddr {
+    SocketAddr::new(addr.ip().to_canonical(), addr.port())
+}
+
+/// Whether `ip` is an address of this machine: loopback, or one a socket can be bound to.
+fn is_this_host(ip: IpAddr) -> bool {
+    ip.is_loopback() || std::net::UdpSocket::bind(SocketAddr::new(ip, 0)).is_ok()
+}
+
+/// The proxy's policy: `target` (canonical) is reached when it is one of the `own`
+/// servers (a wildcard bind: that port on any address of this machine, `this_host`), or
+/// when `allowed` names it (an address, and a port unless any) and it is not a group,
+/// a broadcast or the unspecified address. Loopback addresses not named are refused
+/// with their own text, since they are this machine's other servers.
+fn decide(
+    own: &[SocketAddr],
+    allowed: &[(IpAddr, Option<u16>)],
+    target: SocketAddr,
+    this_host: impl Fn(IpAddr) -> bool,
+) -> Result<(), String> {
+    let ip = target.ip().to_canonical();
+    let port = target.port();
+    let is_own = own.iter().any(|o| {
+        let bound = o.ip().to_canonical();
+        o.port() == port
+            && (bound == ip
+                || (bound.is_unspecified() && bound.is_ipv4() == ip.is_ipv4() && this_host(ip)))
+    });
+    if is_own {
+        return Ok(());
+    }
+    let broadcast = matches!(ip, IpAddr::V4(v4) if v4.is_broadcast());
+    if ip.is_multicast() || broadcast || ip.is_unspecified() {
+        return Err(format!(
+            "{target}: a multicast, broadcast or unspecified address; the proxy sends to single servers only"
+        ));
+    }
+    if allowed
+        .iter()
+        .any(|&(a, p)| a.to_canonical() == ip && p.is_none_or(|p| p == port))
+    {
+        return Ok(());
+    }
+    let own: Vec<String> = own.iter().map(ToString::to_string).collect();
+    if ip.is_loopback() {
+        return Err(format!(
+            "{target}: another server of the station's machine; the proxy reaches the station's own CoAP servers ({}) and the hosts its operator names (serve --proxy-allow)",
+            own.join(", ")
+        ));
+    }
+    Err(format!(
+        "{target}: not a server the proxy reaches; it reaches the station's own CoAP servers ({}) and the hosts its operator names (serve --proxy-allow)",
+        own.join(", ")
+    ))
+}
 
 /// The target URI of a request-target under [`PREFIX`] (path and query): as written, or
 /// percent-decoded when the scheme itself is encoded (`coap%3A%2F%2F...`).
@@ -221,6 +430,116 @@ mod tests {
             status(Code::SERVICE_UNAVAILABLE, false),
             StatusCode::SERVICE_UNAVAILABLE
         );
+    }
+
+    #[test]
+    fn the_proxy_reaches_its_own_servers_and_the_named_hosts_only() {
+        let addr = |s: &str| s.parse::<SocketAddr>().unwrap();
+        let ip = |s: &str| s.parse::<IpAddr>().unwrap();
+        let own = [addr("127.0.0.1:5683"), addr("[::]:5690")];
+        let allowed = [(ip("192.0.2.7"), None), (ip("fd00::7"), Some(5683))];
+        // Only 192.0.2.1 and the loopback addresses are this machine's.
+        let here = |i: IpAddr| i.is_loopback() || i == ip("192.0.2.1") || i == ip("fd00::1");
+        let check = |target: &str| decide(&own, &allowed, canonical(addr(target)), here);
+        assert_eq!(check("127.0.0.1:5683"), Ok(()));
+        assert_eq!(check("[::ffff:127.0.0.1]:5683"), Ok(()));
+        assert_eq!(check("[::1]:5690"), Ok(()), "the wildcard bind on loopback");
+        assert_eq!(
+            check("[fd00::1]:5690"),
+            Ok(()),
+            "the wildcard bind, another address"
+        );
+        assert_eq!(check("192.0.2.7:9999"), Ok(()), "named, any port");
+        assert_eq!(check("[fd00::7]:5683"), Ok(()));
+        for refused in [
+            "127.0.0.1:5700",
+            "127.0.0.2:5683",
+            "[::ffff:127.0.0.1]:5700",
+            "[::1]:5683",
+            "[::1]:5700",
+        ] {
+            let why = check(refused).unwrap_err();
+            assert!(
+                why.contains("another server of the station's machine"),
+                "{refused}: {why}"
+            );
+        }
+        for refused in [
+            "192.0.2.8:5683",
+            "[fd00::7]:5684",
+            "[fd00::1]:5683",
+            "192.0.2.1:5690",
+        ] {
+            let why = check(refused).unwrap_err();
+            assert!(
+                why.contains("not a server the proxy reaches"),
+                "{refused}: {why}"
+            );
+        }
+        let own_named = [(ip("224.0.1.187"), None), (ip("0.0.0.0"), None)];
+        for refused in [
+            "224.0.1.187:5683",
+            "[ff02::fd]:5683",
+            "255.255.255.255:5683",
+            "0.0.0.0:5683",
+        ] {
+            let why = decide(&own, &own_named, canonical(addr(refused)), here).unwrap_err();
+            assert!(why.contains("multicast"), "{refused}: {why}");
+        }
+    }
+
+    #[test]
+    fn a_client_has_two_requests_under_way_and_the_proxy_eight() {
+        let fetches = Arc::default();
+        let ip = |s: &str| s.parse::<IpAddr>().unwrap();
+        let a = Fetches::start(&fetches, ip("192.0.2.1")).unwrap();
+        let b = Fetches::start(&fetches, ip("::ffff:192.0.2.1")).unwrap();
+        assert!(Fetches::start(&fetches, ip("192.0.2.1")).is_none());
+        let c = Fetches::start(&fetches, ip("fd00::1")).unwrap();
+        let _d = Fetches::start(&fetches, ip("fd00::2:1")).unwrap();
+        assert!(
+            Fetches::start(&fetches, ip("fd00::ffff")).is_none(),
+            "one /64"
+        );
+        drop(a);
+        let _a = Fetches::start(&fetches, ip("192.0.2.1")).unwrap();
+        let more: Vec<Fetch> = (3..7)
+            .filter_map(|n| Fetches::start(&fetches, ip(&format!("192.0.2.{n}"))))
+            .collect();
+        assert_eq!(more.len(), 4, "8 in all");
+        assert!(Fetches::start(&fetches, ip("192.0.2.9")).is_none());
+        drop((b, c));
+        assert!(Fetches::start(&fetches, ip("192.0.2.9")).is_some());
+    }
+
+    #[test]
+    fn proxy_allow_takes_hosts_with_or_without_a_port() {
+        let a = |s: &str| s.parse::<Allowed>();
+        let allowed = |host: &str, port: Option<u16>| {
+            Ok(Allowed {
+                host: host.to_owned(),
+                port,
+            })
+        };
+        assert_eq!(a("192.0.2.7"), allowed("192.0.2.7", None));
+        assert_eq!(a("192.0.2.7:5683"), allowed("192.0.2.7", Some(5683)));
+        assert_eq!(a("[fd00::7]:5683"), allowed("fd00::7", Some(5683)));
+        assert_eq!(a("[fd00::7]"), allowed("fd00::7", None));
+        assert_eq!(a("fd00::7"), allowed("fd00::7", None));
+        assert_eq!(a("sensors.lan:5700"), allowed("sensors.lan", Some(5700)));
+        for bad in [
+            "",
+            ":5683",
+            "host:0",
+            "host:x",
+            "[fd00::7",
+            "[fd00::7]5683",
+            "a/b",
+            "u@h",
+            "fd00::g",
+        ] {
+            assert!(a(bad).is_err(), "{bad}");
+        }
     }
 
     #[test]
