@@ -15,6 +15,7 @@
 //!
 //! Errors are JSON, `{"error": "..."}`, with a 4xx or 5xx status.
 
+pub mod limits;
 pub mod proxy;
 
 use std::collections::HashMap;
@@ -42,7 +43,8 @@ use super::follow::Follower;
 use super::log::ResultsLog;
 use super::measure::Rig;
 use super::reads::{self, Kind, Picture, Refusal};
-use crate::api::record::Trigger;
+use crate::api::record::{Record, Trigger};
+use crate::api::results::{ListQuery, MAX_LIST};
 use crate::report::EdgeQuery;
 use crate::repr::raster;
 
@@ -52,8 +54,39 @@ const PAGE: &str = include_str!("page.html");
 /// The most bytes a request's body may have (413 beyond).
 pub const MAX_BODY: usize = 64 * 1024;
 
-/// The most connections served at once; more wait to be accepted.
-const MAX_CONNECTIONS: usize = 1024;
+/// The most connections served at once; more are answered 503 and closed.
+pub const MAX_CONNECTIONS: usize = 1024;
+
+/// The most connections one client (an IPv4 address or an IPv6 /64) has served at once;
+/// more are answered 429 and closed.
+pub const CONNECTIONS_PER_CLIENT: usize = 64;
+
+/// The most event streams (`/api/events`) open at once: a quarter of the connections, so
+/// that streams never take every place (503 beyond).
+pub const MAX_EVENT_STREAMS: usize = 256;
+
+/// The most event streams one client has open at once (429 beyond). A browser keeps at
+/// most 6 connections to a server, one a page for its stream.
+pub const EVENT_STREAMS_PER_CLIENT: usize = 16;
+
+/// How long a client may take no bytes of an answer or an event stream before its
+/// connection is dropped, and what was held for it freed.
+pub const WRITE_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// What hyper buffers of an answer for one connection, at most (and the longest request
+/// head it reads).
+const CONNECTION_BUFFER: usize = 64 * 1024;
+
+/// Records read from the log and written at a time by a streamed list (about 2 KB each).
+const LIST_PAGE: usize = 16;
+
+/// Refused connections whose answer (429, 503) is under way at once (each waits at most
+/// [`REFUSE_WAIT`] for the request's head, a few KiB); beyond, a refused connection is
+/// closed without one.
+const REFUSING: usize = 1024;
+
+/// How long a refused connection may take to get its answer.
+const REFUSE_WAIT: Duration = Duration::from_secs(2);
 
 /// How long a client may take to send a request's head.
 const HEAD_TIMEOUT: Duration = Duration::from_secs(10);
@@ -103,14 +136,20 @@ struct App<R> {
     /// Whom the proxy reaches.
     reach: proxy::Reach,
     /// The proxy's requests under way, per client and in all.
-    fetches: Arc<Mutex<proxy::Fetches>>,
+    fetches: Arc<Mutex<limits::Counter>>,
+    /// The event streams open, per client and in all.
+    streams: Arc<Mutex<limits::Counter>>,
 }
 
 /// A camera's newest live color image (JPEG) and when it was grabbed; held while a grab
 /// is under way, so that requests meanwhile wait for that grab.
 type ColorSlot = Arc<tokio::sync::Mutex<Option<(Instant, Bytes)>>>;
 
-type Answer = Response<BoxBody<Bytes, Infallible>>;
+/// An answer's body: its bytes, or an error that aborts the connection (a streamed list
+/// that could not be read on).
+type AnswerBody = BoxBody<Bytes, std::io::Error>;
+
+type Answer = Response<AnswerBody>;
 
 impl HttpServer {
     /// Listens on `addr` and serves the log of `recorder` and the cameras of `rig`;
@@ -131,7 +170,12 @@ impl HttpServer {
             open,
             colors: Mutex::default(),
             reach,
-            fetches: Arc::default(),
+            fetches: limits::Counter::new("proxied requests", proxy::PER_CLIENT, proxy::IN_ALL),
+            streams: limits::Counter::new(
+                "event streams",
+                EVENT_STREAMS_PER_CLIENT,
+                MAX_EVENT_STREAMS,
+            ),
         });
         let task = tokio::spawn(accept(listener, app));
         Ok(Self { addr, task })
@@ -143,15 +187,14 @@ impl HttpServer {
     }
 }
 
-/// Accepts connections and serves each on a task of its own; the connections end with
-/// this task (their set is dropped with it).
+/// Accepts connections and serves each on a task of its own, within
+/// [`CONNECTIONS_PER_CLIENT`] and [`MAX_CONNECTIONS`]; the connections end with this task
+/// (their set is dropped with it).
 async fn accept<R: Rig>(listener: TcpListener, app: Arc<App<R>>) {
-    let slots = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    let counter = limits::Counter::new("connections", CONNECTIONS_PER_CLIENT, MAX_CONNECTIONS);
+    let refusing = Arc::new(Semaphore::new(REFUSING));
     let mut connections = JoinSet::new();
     loop {
-        let Ok(slot) = slots.clone().acquire_owned().await else {
-            return;
-        };
         while connections.try_join_next().is_some() {}
         let (stream, peer) = match listener.accept().await {
             Ok(accepted) => accepted,
@@ -162,16 +205,30 @@ async fn accept<R: Rig>(listener: TcpListener, app: Arc<App<R>>) {
                 continue;
             }
         };
+        let slot = match limits::Counter::start(&counter, peer.ip()) {
+            Ok(slot) => slot,
+            Err(full) => {
+                if let Ok(permit) = refusing.clone().try_acquire_owned() {
+                    connections.spawn(async move {
+                        refuse(stream, full).await;
+                        drop(permit);
+                    });
+                }
+                continue;
+            }
+        };
         let app = app.clone();
         connections.spawn(async move {
             let service = hyper::service::service_fn(move |request| {
                 let app = app.clone();
                 async move { Ok::<_, Infallible>(app.answer(request, peer).await) }
             });
+            let io = limits::WriteTimeout::new(stream, WRITE_TIMEOUT);
             let served = hyper::server::conn::http1::Builder::new()
                 .timer(TokioTimer::new())
                 .header_read_timeout(HEAD_TIMEOUT)
-                .serve_connection(TokioIo::new(stream), service)
+                .max_buf_size(CONNECTION_BUFFER)
+                .serve_connection(TokioIo::new(io), service)
                 .await;
             if let Err(e) = served {
                 tracing::debug!("http: connection from {peer}: {e}");
@@ -179,6 +236,45 @@ async fn accept<R: Rig>(listener: TcpListener, app: Arc<App<R>>) {
             drop(slot);
         });
     }
+}
+
+/// Answers a connection over its bound 429 (its client's) or 503 (the station's) and
+/// closes it, within [`REFUSE_WAIT`]. The request's head is read first (up to 8 KiB), so
+/// that closing does not reset the connection before the client has read the answer.
+async fn refuse(mut stream: tokio::net::TcpStream, full: limits::Full) {
+    use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
+    let (status, why) = match full {
+        limits::Full::Client => (
+            "429 Too Many Requests",
+            format!(
+                "this client (its IPv4 address or IPv6 /64) has {CONNECTIONS_PER_CLIENT} connections open, the most the station serves one client: close one, or try again later"
+            ),
+        ),
+        limits::Full::All => (
+            "503 Service Unavailable",
+            format!(
+                "the station serves {MAX_CONNECTIONS} connections already, the most it serves: try again later"
+            ),
+        ),
+    };
+    let body = serde_json::json!({ "error": why }).to_string();
+    let answer = format!(
+        "HTTP/1.1 {status}\r\nServer: coapcam\r\nContent-Type: application/json\r\nContent-Length: {}\r\nRetry-After: 10\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    let _ = tokio::time::timeout(REFUSE_WAIT, async {
+        let mut head = Vec::new();
+        let mut buf = [0u8; 1024];
+        while head.len() < 8 * 1024 && !head.windows(4).any(|w| w == b"\r\n\r\n") {
+            match stream.read(&mut buf).await? {
+                0 => break,
+                n => head.extend_from_slice(&buf[..n]),
+            }
+        }
+        stream.write_all(answer.as_bytes()).await?;
+        stream.shutdown().await
+    })
+    .await;
 }
 
 /// Whether `peer` is on this machine.
@@ -224,7 +320,7 @@ impl<R: Rig> App<R> {
                     .get("last-event-id")
                     .and_then(|v| v.to_str().ok())
                     .map(str::to_owned);
-                self.events(&query, last.as_deref())
+                self.events(&query, last.as_deref(), peer)
             }
             ([] | [""] | ["api", ..], _, _) if known(&segments) => error(
                 StatusCode::METHOD_NOT_ALLOWED,
@@ -247,10 +343,34 @@ impl<R: Rig> App<R> {
             Ok(items) => items,
             Err(why) => return error(StatusCode::BAD_REQUEST, &why),
         };
-        match reads::list(self.recorder.log(), &items, "/api/measurements").await {
-            Ok(records) => json(StatusCode::OK, &records),
-            Err(refused) => refusal(&refused),
-        }
+        let mut query = match ListQuery::parse(&items, "/api/measurements") {
+            Ok(query) => query,
+            Err(why) => return error(StatusCode::BAD_REQUEST, &why),
+        };
+        // The first page before the answer, so that a log that cannot be read is a 500.
+        let wanted = query.limit.clamp(1, MAX_LIST);
+        query.limit = wanted.min(LIST_PAGE);
+        let first = match reads::list(self.recorder.log(), query.items(), "/api/measurements").await
+        {
+            Ok(records) => records,
+            Err(refused) => return refusal(&refused),
+        };
+        let (tx, rx) = mpsc::channel(1);
+        tokio::spawn(stream_list(
+            self.recorder.log().clone(),
+            query,
+            wanted,
+            first,
+            tx,
+        ));
+        let mut answer = Response::new(BoxBody::new(Streamed(rx)));
+        let h = answer.headers_mut();
+        h.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        );
+        h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+        answer
     }
 
     /// `GET /api/measurements/<id>`.
@@ -471,7 +591,7 @@ impl<R: Rig> App<R> {
 
     /// `GET /api/events`: new records as Server-Sent Events, after `Last-Event-ID` or
     /// `?since=ID`, else after the newest record now.
-    fn events(&self, query: &str, last_event_id: Option<&str>) -> Answer {
+    fn events(&self, query: &str, last_event_id: Option<&str>, peer: SocketAddr) -> Answer {
         let items = match query_items(query) {
             Ok(items) => items,
             Err(why) => return error(StatusCode::BAD_REQUEST, &why),
@@ -501,9 +621,31 @@ impl<R: Rig> App<R> {
             .and_then(|v| v.trim().parse::<u64>().ok())
             .or(since)
             .unwrap_or_else(|| log.newest());
+        let stream = match limits::Counter::start(&self.streams, peer.ip()) {
+            Ok(counted) => counted,
+            Err(limits::Full::Client) => {
+                return error(
+                    StatusCode::TOO_MANY_REQUESTS,
+                    &format!(
+                        "this client (its IPv4 address or IPv6 /64) has {EVENT_STREAMS_PER_CLIENT} event streams open, the most the station serves one client: close one first"
+                    ),
+                );
+            }
+            Err(limits::Full::All) => {
+                return error(
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    &format!(
+                        "the station serves {MAX_EVENT_STREAMS} event streams already, the most it serves: try again later"
+                    ),
+                );
+            }
+        };
         let (tx, rx) = mpsc::channel(16);
-        tokio::spawn(stream_events(log, start, tx));
-        let mut answer = Response::new(BoxBody::new(EventBody(rx)));
+        tokio::spawn(async move {
+            stream_events(log, start, tx).await;
+            drop(stream);
+        });
+        let mut answer = Response::new(BoxBody::new(Streamed(rx)));
         let h = answer.headers_mut();
         h.insert(
             header::CONTENT_TYPE,
@@ -629,7 +771,7 @@ impl<R: Rig> App<R> {
             }
             Err(e) => return error(StatusCode::BAD_REQUEST, &format!("reading the body: {e}")),
         };
-        let Some(_fetch) = proxy::Fetches::start(&self.fetches, peer.ip()) else {
+        let Ok(_fetch) = limits::Counter::start(&self.fetches, peer.ip()) else {
             return error(
                 StatusCode::TOO_MANY_REQUESTS,
                 &format!(
@@ -692,7 +834,7 @@ impl<R: Rig> App<R> {
         } else {
             answer.payload.clone()
         };
-        let mut reply = Response::new(BoxBody::new(Full::new(body)));
+        let mut reply = Response::new(full(body));
         *reply.status_mut() = status;
         let h = reply.headers_mut();
         if head
@@ -800,14 +942,69 @@ struct CameraInfo {
     warnings: Vec<String>,
 }
 
+/// The JSON array of the records `query` selects, up to `wanted` of them, newest first,
+/// to `tx` a page of [`LIST_PAGE`] at a time (the same bytes as the array written whole),
+/// `first` the first page; until the client has gone. A page that cannot be read ends
+/// the body with an error, which aborts the connection: the client sees a cut-off answer,
+/// not a shorter list.
+async fn stream_list(
+    log: ResultsLog,
+    mut query: ListQuery,
+    wanted: usize,
+    first: Vec<Record>,
+    tx: mpsc::Sender<Result<Bytes, std::io::Error>>,
+) {
+    let mut page = first;
+    let mut sent = 0;
+    let mut out = b"[".to_vec();
+    loop {
+        let last = page.len() < query.limit;
+        for record in &page {
+            if sent > 0 {
+                out.push(b',');
+            }
+            if let Err(e) = serde_json::to_writer(&mut out, record) {
+                let _ = tx.send(Err(std::io::Error::other(e))).await;
+                return;
+            }
+            sent += 1;
+        }
+        if last || sent >= wanted {
+            out.push(b']');
+            let _ = tx.send(Ok(Bytes::from(out))).await;
+            return;
+        }
+        if tx
+            .send(Ok(Bytes::from(std::mem::take(&mut out))))
+            .await
+            .is_err()
+        {
+            return;
+        }
+        query.before = page.last().map(|r| r.id);
+        query.limit = (wanted - sent).min(LIST_PAGE);
+        page = match reads::list(&log, query.items(), "/api/measurements").await {
+            Ok(records) => records,
+            Err(refused) => {
+                let _ = tx.send(Err(std::io::Error::other(refused.why))).await;
+                return;
+            }
+        };
+    }
+}
+
 /// Sends the records after `after` to `tx` as events, then each new one, until the
 /// client has gone.
-async fn stream_events(log: ResultsLog, after: u64, tx: mpsc::Sender<Bytes>) {
+async fn stream_events(
+    log: ResultsLog,
+    after: u64,
+    tx: mpsc::Sender<Result<Bytes, std::io::Error>>,
+) {
     let mut follower = Follower::new(log, after);
     if tx
-        .send(Bytes::from_static(
+        .send(Ok(Bytes::from_static(
             b"retry: 2000\n: coapcam measurements\n\n",
-        ))
+        )))
         .await
         .is_err()
     {
@@ -827,7 +1024,7 @@ async fn stream_events(log: ResultsLog, after: u64, tx: mpsc::Sender<Bytes>) {
                 continue;
             };
             let event = format!("id: {}\nevent: measurement\ndata: {data}\n\n", record.id);
-            if tx.send(Bytes::from(event)).await.is_err() {
+            if tx.send(Ok(Bytes::from(event))).await.is_err() {
                 return;
             }
         }
@@ -837,7 +1034,7 @@ async fn stream_events(log: ResultsLog, after: u64, tx: mpsc::Sender<Bytes>) {
         tokio::select! {
             appended = follower.appended() => if !appended { return },
             () = tokio::time::sleep(KEEP_ALIVE) => {
-                if tx.send(Bytes::from_static(b": alive\n\n")).await.is_err() {
+                if tx.send(Ok(Bytes::from_static(b": alive\n\n"))).await.is_err() {
                     return;
                 }
             }
@@ -846,18 +1043,18 @@ async fn stream_events(log: ResultsLog, after: u64, tx: mpsc::Sender<Bytes>) {
     }
 }
 
-/// The body of an event stream: what [`stream_events`] sends, as it comes.
-struct EventBody(mpsc::Receiver<Bytes>);
+/// A body sent as it comes: what [`stream_events`] or [`stream_list`] send.
+struct Streamed(mpsc::Receiver<Result<Bytes, std::io::Error>>);
 
-impl Body for EventBody {
+impl Body for Streamed {
     type Data = Bytes;
-    type Error = Infallible;
+    type Error = std::io::Error;
 
     fn poll_frame(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,
-    ) -> Poll<Option<Result<Frame<Bytes>, Infallible>>> {
-        self.0.poll_recv(cx).map(|b| b.map(|b| Ok(Frame::data(b))))
+    ) -> Poll<Option<Result<Frame<Bytes>, std::io::Error>>> {
+        self.0.poll_recv(cx).map(|b| b.map(|b| b.map(Frame::data)))
     }
 }
 
@@ -949,12 +1146,16 @@ fn refusal(refused: &Refusal) -> Answer {
     error(status, &refused.why)
 }
 
-fn empty() -> BoxBody<Bytes, Infallible> {
-    BoxBody::new(Full::new(Bytes::new()))
+fn full(body: Bytes) -> AnswerBody {
+    BoxBody::new(Full::new(body).map_err(|never| match never {}))
+}
+
+fn empty() -> AnswerBody {
+    full(Bytes::new())
 }
 
 fn bytes(content_type: &'static str, body: impl Into<Bytes>) -> Answer {
-    let mut answer = Response::new(BoxBody::new(Full::new(body.into())));
+    let mut answer = Response::new(full(body.into()));
     answer
         .headers_mut()
         .insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));

@@ -15,7 +15,6 @@
 //! `super::App`.
 
 use std::net::{IpAddr, SocketAddr};
-use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use coap::{Code, ContentFormat, OptionNumber, Options};
@@ -34,67 +33,12 @@ pub const MAX_REQUEST: usize = 1 << 20;
 pub const PREFIX: &str = "/hc/";
 
 /// The most requests the proxy forwards for one client at once (an IPv4 address or an
-/// IPv6 /64): with [`MAX_RESPONSE`], at most 32 MiB fetched for it at a time (429 beyond).
+/// IPv6 /64, [`super::limits::client_of`]): with [`MAX_RESPONSE`], at most 32 MiB fetched for it at a time (429 beyond).
 pub const PER_CLIENT: usize = 2;
 
 /// The most requests the proxy forwards at once in all: at most 128 MiB of answers held
 /// (429 beyond).
 pub const IN_ALL: usize = 8;
-
-/// The requests under way, per client and in all ([`PER_CLIENT`], [`IN_ALL`]).
-#[derive(Debug, Default)]
-pub struct Fetches {
-    by_client: std::collections::HashMap<IpAddr, usize>,
-    total: usize,
-}
-
-/// A request counted in [`Fetches`] until dropped.
-#[derive(Debug)]
-pub struct Fetch {
-    fetches: Arc<Mutex<Fetches>>,
-    client: IpAddr,
-}
-
-impl Fetches {
-    /// Counts a request of the client at `ip`, unless that client or the proxy has as
-    /// many under way as it may.
-    pub fn start(fetches: &Arc<Mutex<Self>>, ip: IpAddr) -> Option<Fetch> {
-        let client = client_of(ip);
-        let mut f = fetches.lock().unwrap_or_else(PoisonError::into_inner);
-        let mine = f.by_client.get(&client).copied().unwrap_or(0);
-        if mine >= PER_CLIENT || f.total >= IN_ALL {
-            return None;
-        }
-        f.by_client.insert(client, mine + 1);
-        f.total += 1;
-        Some(Fetch {
-            fetches: fetches.clone(),
-            client,
-        })
-    }
-}
-
-impl Drop for Fetch {
-    fn drop(&mut self) {
-        let mut f = self.fetches.lock().unwrap_or_else(PoisonError::into_inner);
-        f.total -= 1;
-        if let Some(n) = f.by_client.get_mut(&self.client) {
-            *n -= 1;
-            if *n == 0 {
-                f.by_client.remove(&self.client);
-            }
-        }
-    }
-}
-
-/// The client an address counts as: an IPv4 address (also written IPv4-mapped), or the
-/// /64 of an IPv6 address (one host picks addresses from its /64 at will).
-fn client_of(ip: IpAddr) -> IpAddr {
-    match ip.to_canonical() {
-        IpAddr::V4(v4) => IpAddr::V4(v4),
-        IpAddr::V6(v6) => IpAddr::V6((u128::from(v6) & !u128::from(u64::MAX)).into()),
-    }
-}
 
 /// A host the proxy may reach besides the station's own CoAP servers (`--proxy-allow
 /// HOST[:PORT]`): an IP address or a name (resolved at each request), any port when none
@@ -486,30 +430,6 @@ mod tests {
             let why = decide(&own, &own_named, canonical(addr(refused)), here).unwrap_err();
             assert!(why.contains("multicast"), "{refused}: {why}");
         }
-    }
-
-    #[test]
-    fn a_client_has_two_requests_under_way_and_the_proxy_eight() {
-        let fetches = Arc::default();
-        let ip = |s: &str| s.parse::<IpAddr>().unwrap();
-        let a = Fetches::start(&fetches, ip("192.0.2.1")).unwrap();
-        let b = Fetches::start(&fetches, ip("::ffff:192.0.2.1")).unwrap();
-        assert!(Fetches::start(&fetches, ip("192.0.2.1")).is_none());
-        let c = Fetches::start(&fetches, ip("fd00::1")).unwrap();
-        let _d = Fetches::start(&fetches, ip("fd00::2:1")).unwrap();
-        assert!(
-            Fetches::start(&fetches, ip("fd00::ffff")).is_none(),
-            "one /64"
-        );
-        drop(a);
-        let _a = Fetches::start(&fetches, ip("192.0.2.1")).unwrap();
-        let more: Vec<Fetch> = (3..7)
-            .filter_map(|n| Fetches::start(&fetches, ip(&format!("192.0.2.{n}"))))
-            .collect();
-        assert_eq!(more.len(), 4, "8 in all");
-        assert!(Fetches::start(&fetches, ip("192.0.2.9")).is_none());
-        drop((b, c));
-        assert!(Fetches::start(&fetches, ip("192.0.2.9")).is_some());
     }
 
     #[test]
