@@ -13,6 +13,11 @@
 //! rumqttc connection. Each connection is a fresh clean session: what was unacknowledged
 //! when a connection was lost is sent again, from the cursor, on the next one, and the
 //! client library keeps nothing of its own across connections.
+//!
+//! Troubles are said once, not at each reconnection: a broker that closes the connection
+//! soon after accepting it, again and again (3 times within 5 s each: another client has
+//! the station's id), and a broker that acknowledges nothing for 20 s (the publisher then
+//! connects again).
 
 use std::collections::VecDeque;
 use std::fmt;
@@ -56,6 +61,16 @@ const KEEP_ALIVE: Duration = Duration::from_secs(15);
 const MAX_PACKET: usize = 1 << 20;
 /// How long a clean stop waits for the broker to acknowledge `offline`.
 const STOP_WAIT: Duration = Duration::from_secs(2);
+/// The longest the broker may leave the messages in flight unacknowledged (no PUBACK
+/// for the oldest); then the publisher says so and connects again, sending them again
+/// from the cursor.
+const ACK_TIMEOUT: Duration = Duration::from_secs(20);
+/// A connection the broker closes within this long of accepting it counts as kicked: a
+/// broker closes a client's connection when another client connects with the same id.
+const KICKED_WITHIN: Duration = Duration::from_secs(5);
+/// Connections kicked in a row (each accepted at the first attempt, so the broker did not
+/// restart meanwhile) before the publisher reports another client with its id.
+const KICKS: u32 = 3;
 
 /// Where to publish: the broker and the topic prefix of
 /// `mqtt://[USER[:PASSWORD]@]HOST[:PORT][/PREFIX]`.
@@ -319,6 +334,11 @@ impl Delivery {
         }
     }
 
+    /// Whether a message in flight waits for its acknowledgement.
+    pub fn waiting(&self) -> bool {
+        self.flights.iter().any(|f| !f.acked)
+    }
+
     /// Whether a status message waits for its acknowledgement.
     pub fn status_in_flight(&self) -> bool {
         self.flights
@@ -418,6 +438,23 @@ enum End {
     Stopped,
     /// Lost, or never made: reconnect after the back-off.
     Lost(String),
+    /// The broker acknowledged nothing for [`ACK_TIMEOUT`] (this says what waited):
+    /// reconnect after the back-off.
+    Unacknowledged(String),
+}
+
+/// What the publisher has said of its broker, so that each trouble is said once and not
+/// at every reconnection.
+#[derive(Debug, Default)]
+struct Said {
+    /// That the connection is lost; until a connection lasts [`KICKED_WITHIN`].
+    lost: bool,
+    /// Connections kicked in a row ([`KICKED_WITHIN`]).
+    kicks: u32,
+    /// That another client has the station's client id; until a connection lasts.
+    collision: bool,
+    /// That the broker acknowledges nothing; until it acknowledges a message.
+    silent: bool,
 }
 
 async fn run(
@@ -443,7 +480,8 @@ async fn run(
     let mut follower = Follower::new(log.clone(), cursor);
     let mut delivery = Delivery::new(cursor, WINDOW);
     let mut backoff = BACKOFF_FIRST;
-    let mut was_lost = false;
+    let mut said = Said::default();
+    let client_id = options.client_id();
     loop {
         let (client, eventloop) = AsyncClient::new(options.clone(), WINDOW + 4);
         let (events_tx, events) = mpsc::channel(64);
@@ -453,24 +491,46 @@ async fn run(
             topics: &topics,
             log: &log,
             delivery: &mut delivery,
+            connected_at: None,
+            waiting_since: None,
         };
         let end = session
-            .run(
-                events,
-                &mut follower,
-                &mut stop,
-                &mut backoff,
-                &mut was_lost,
-            )
+            .run(events, &mut follower, &mut stop, &mut backoff, &mut said)
             .await;
+        let lasted = session.connected_at.map(|at| at.elapsed());
         delivery.disconnected();
         pump.abort();
+        if lasted.is_some_and(|d| d >= KICKED_WITHIN) {
+            // A connection that lasted: troubles are news again.
+            said = Said {
+                silent: said.silent,
+                ..Said::default()
+            };
+        }
         match end {
             End::Stopped => return,
+            End::Unacknowledged(what) => {
+                if said.silent {
+                    tracing::debug!(broker = %target, "MQTT: still no acknowledgement ({what})");
+                } else {
+                    tracing::warn!(broker = %target, "MQTT: the broker acknowledged nothing (no PUBACK) for {} s while {what} waited: delivery stalls there, so the station connects again and sends from record {} on; the log keeps the measurements. A broker that takes QoS 1 messages without acknowledging them is overloaded or broken (said once, until it acknowledges one)", ACK_TIMEOUT.as_secs(), delivery.cursor() + 1);
+                    said.silent = true;
+                }
+            }
             End::Lost(why) => {
-                if !was_lost {
+                // Kicked: closed soon after it was accepted. A connection not made at all
+                // (the broker restarting) breaks the run.
+                said.kicks = match lasted {
+                    Some(d) if d < KICKED_WITHIN => said.kicks + 1,
+                    _ => 0,
+                };
+                if said.kicks >= KICKS && !said.collision {
+                    tracing::warn!(broker = %target, "MQTT: the broker closed the station's connection {} times in a row within {} s of accepting it ({why}): most likely another client connects with the station's client id {client_id}. A broker closes the older connection when a client id connects again, so the two take turns and the station's status flaps between online and offline. Give the other client another id, or this station another name (serve --station-name; the id is coapcam-<name>). Said once; the station keeps reconnecting", said.kicks, KICKED_WITHIN.as_secs());
+                    said.collision = true;
+                    said.lost = true;
+                } else if !said.lost {
                     tracing::warn!(broker = %target, "MQTT: no connection ({why}); retrying, the log keeps the measurements");
-                    was_lost = true;
+                    said.lost = true;
                 } else {
                     tracing::debug!(broker = %target, "MQTT: no connection ({why})");
                 }
@@ -521,6 +581,11 @@ struct Session<'a> {
     topics: &'a Topics,
     log: &'a ResultsLog,
     delivery: &'a mut Delivery,
+    /// When the broker accepted the connection (CONNACK).
+    connected_at: Option<Instant>,
+    /// Since when the oldest message in flight waits for its PUBACK (since the last
+    /// acknowledgement, or since it was handed over when nothing waited).
+    waiting_since: Option<Instant>,
 }
 
 impl Session<'_> {
@@ -530,10 +595,11 @@ impl Session<'_> {
         follower: &mut Follower,
         stop: &mut watch::Receiver<bool>,
         backoff: &mut Duration,
-        was_lost: &mut bool,
+        said: &mut Said,
     ) -> End {
         let mut retry: Option<Instant> = None;
         loop {
+            let unacknowledged = self.waiting_since.map(|at| at + ACK_TIMEOUT);
             tokio::select! {
                 event = events.recv() => {
                     let event = match event {
@@ -543,9 +609,13 @@ impl Session<'_> {
                     };
                     match event {
                         Event::Incoming(Packet::ConnAck(_)) => {
-                            tracing::info!(topic = %self.topics.status, "MQTT: connected, publishing from record {}", self.delivery.cursor() + 1);
+                            if said.collision {
+                                tracing::debug!(topic = %self.topics.status, "MQTT: connected, publishing from record {}", self.delivery.cursor() + 1);
+                            } else {
+                                tracing::info!(topic = %self.topics.status, "MQTT: connected, publishing from record {}", self.delivery.cursor() + 1);
+                            }
                             *backoff = BACKOFF_FIRST;
-                            *was_lost = false;
+                            self.connected_at = Some(Instant::now());
                             self.delivery.connected();
                             if let Err(e) = self.publish_status(ONLINE).await {
                                 return End::Lost(e);
@@ -553,12 +623,20 @@ impl Session<'_> {
                         }
                         Event::Outgoing(Outgoing::Publish(pkid)) => self.delivery.written(pkid),
                         Event::Incoming(Packet::PubAck(ack)) => {
-                            if let (_, Some(cursor)) = self.delivery.acked(ack.pkid) {
+                            let (carried, cursor) = self.delivery.acked(ack.pkid);
+                            if carried.is_some() {
+                                said.silent = false;
+                                self.waiting_since = self.delivery.waiting().then(Instant::now);
+                            }
+                            if let Some(cursor) = cursor {
                                 self.save_cursor(cursor).await;
                             }
                         }
                         _ => {}
                     }
+                }
+                () = sleep_until(unacknowledged.unwrap_or_else(Instant::now)), if unacknowledged.is_some() => {
+                    return End::Unacknowledged(self.waiting_text());
                 }
                 // (The publisher holds the log, so the watch never closes.)
                 true = follower.changed() => {}
@@ -606,7 +684,7 @@ impl Session<'_> {
                     .publish(&self.topics.measurements, QoS::AtLeastOnce, false, json)
                     .await
                     .map_err(|e| Stalled::Connection(e.to_string()))?;
-                self.delivery.sending(Carried::Record(id));
+                self.handed(Carried::Record(id));
             }
         }
         Ok(())
@@ -617,8 +695,33 @@ impl Session<'_> {
             .publish(&self.topics.status, QoS::AtLeastOnce, true, status)
             .await
             .map_err(|e| e.to_string())?;
-        self.delivery.sending(Carried::Status);
+        self.handed(Carried::Status);
         Ok(())
+    }
+
+    /// `carried` was handed to the client: it waits for its PUBACK from now, unless an
+    /// older one waits already.
+    fn handed(&mut self, carried: Carried) {
+        self.delivery.sending(carried);
+        self.waiting_since.get_or_insert_with(Instant::now);
+    }
+
+    /// What waits for an acknowledgement, in words.
+    fn waiting_text(&self) -> String {
+        let records = self.delivery.sent_up_to() - self.delivery.cursor();
+        let status = if self.delivery.status_in_flight() {
+            "the status message"
+        } else {
+            ""
+        };
+        match (records, status.is_empty()) {
+            (0, _) => status.to_owned(),
+            (n, true) => format!("{n} records from {} on", self.delivery.cursor() + 1),
+            (n, false) => format!(
+                "{status} and {n} records from {} on",
+                self.delivery.cursor() + 1
+            ),
+        }
     }
 
     async fn save_cursor(&self, cursor: u64) {
@@ -750,6 +853,7 @@ mod tests {
             d.sending(Carried::Record(id));
         }
         assert_eq!((d.room(), d.sent_up_to()), (0, 7));
+        assert!(d.waiting());
         for pkid in 1..=4 {
             d.written(pkid);
         }
@@ -771,5 +875,6 @@ mod tests {
         d.sending(Carried::Record(7));
         d.written(1);
         assert_eq!(d.acked(1), (Some(Carried::Record(7)), Some(7)));
+        assert!(!d.waiting(), "all acknowledged");
     }
 }

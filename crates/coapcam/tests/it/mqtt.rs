@@ -654,3 +654,158 @@ fn the_delivery_cursor_survives_a_restart_of_the_station() {
         publisher.stop().await;
     });
 }
+
+/// Issue 46: another MQTT client with the station's client id made its status flap every
+/// second (the broker closes the older connection of an id) without a word. Now the
+/// station says once what happens and what to do.
+#[test]
+fn another_client_with_the_stations_client_id_is_reported_once() {
+    if !available("mqtt client-id collision", &[Peer::Mosquitto]) {
+        return;
+    }
+    let dir = TempDir::new("mqtt-twin");
+    let broker = Broker::start(&dir, false);
+    let uri = broker.uri("lane");
+    let (mut server, _, _) = serve_station(&dir, &["--mqtt", &uri, "--station-name", "dock-twin"]);
+    let said = "another client connects with the station's client id coapcam-dock-twin";
+    runtime().block_on(async {
+        // The twin: reconnects whenever the broker closes it, as the station does.
+        let mut options = MqttOptions::new("coapcam-dock-twin", "127.0.0.1", broker.port);
+        options.set_keep_alive(Duration::from_secs(5));
+        let (_client, mut eventloop) = AsyncClient::new(options, 16);
+        let twin = tokio::spawn(async move {
+            loop {
+                if eventloop.poll().await.is_err() {
+                    tokio::time::sleep(Duration::from_millis(200)).await;
+                }
+            }
+        });
+        tokio::task::block_in_place(|| {
+            server.stderr_line(Duration::from_secs(60), |l| l.contains(said).then_some(()));
+            // The flapping goes on a while, said no more.
+            std::thread::sleep(Duration::from_secs(5));
+        });
+        twin.abort();
+    });
+    let stderr = server.kill().stderr;
+    let lines = |what: &str| stderr.lines().filter(|l| l.contains(what)).count();
+    assert_eq!(lines(said), 1, "{stderr}");
+    assert_eq!(lines("Give the other client another id"), 1, "{stderr}");
+    assert!(lines("MQTT: no connection") <= 1, "{stderr}");
+}
+
+/// A broker of the test's own that accepts every connection (CONNACK) and answers
+/// PINGREQ, but never acknowledges a message: counts the connections until dropped.
+struct SilentBroker {
+    addr: SocketAddr,
+    connections: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl SilentBroker {
+    fn start() -> Self {
+        use std::io::{Read as _, Write as _};
+        use std::sync::atomic::Ordering;
+        let listener = TcpListener::bind("127.0.0.1:0").expect("binding");
+        listener.set_nonblocking(true).expect("non-blocking");
+        let addr = listener.local_addr().expect("address");
+        let connections = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let (count, stopped) = (connections.clone(), stop.clone());
+        std::thread::spawn(move || {
+            while !stopped.load(Ordering::Relaxed) {
+                let Ok((mut s, _)) = listener.accept() else {
+                    std::thread::sleep(Duration::from_millis(20));
+                    continue;
+                };
+                count.fetch_add(1, Ordering::Relaxed);
+                let stopped = stopped.clone();
+                std::thread::spawn(move || {
+                    let _ = s.set_nonblocking(false);
+                    let _ = s.set_read_timeout(Some(Duration::from_millis(200)));
+                    let mut buf = Vec::new();
+                    let mut chunk = [0u8; 4096];
+                    while !stopped.load(Ordering::Relaxed) {
+                        match s.read(&mut chunk) {
+                            Ok(0) => return,
+                            Ok(n) => buf.extend_from_slice(&chunk[..n]),
+                            Err(e)
+                                if e.kind() == std::io::ErrorKind::WouldBlock
+                                    || e.kind() == std::io::ErrorKind::TimedOut =>
+                            {
+                                continue;
+                            }
+                            Err(_) => return,
+                        }
+                        // Whole packets: a type byte, a variable-length remaining length.
+                        loop {
+                            let (mut len, mut shift, mut at) = (0usize, 0, 1);
+                            while let Some(&b) = buf.get(at) {
+                                len |= usize::from(b & 0x7f) << shift;
+                                shift += 7;
+                                at += 1;
+                                if b & 0x80 == 0 {
+                                    break;
+                                }
+                            }
+                            if at == 1
+                                || buf.get(at - 1).is_some_and(|b| b & 0x80 != 0)
+                                || buf.len() < at + len
+                            {
+                                break;
+                            }
+                            let answer: &[u8] = match buf[0] >> 4 {
+                                1 => &[0x20, 0x02, 0x00, 0x00],
+                                12 => &[0xd0, 0x00],
+                                _ => &[],
+                            };
+                            if s.write_all(answer).is_err() {
+                                return;
+                            }
+                            buf.drain(..at + len);
+                        }
+                    }
+                });
+            }
+        });
+        Self {
+            addr,
+            connections,
+            stop,
+        }
+    }
+
+    fn connections(&self) -> usize {
+        self.connections.load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
+impl Drop for SilentBroker {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// Issue 46: a broker that accepts the connection and never acknowledges stalled delivery
+/// without a word. Now the station says so after 20 s and connects again.
+#[test]
+fn a_broker_that_never_acknowledges_is_reported_and_connected_again() {
+    let dir = TempDir::new("mqtt-silent");
+    let broker = SilentBroker::start();
+    let uri = format!("mqtt://{}/lane", broker.addr);
+    let (mut server, _, _) =
+        serve_station(&dir, &["--mqtt", &uri, "--station-name", "dock-silent"]);
+    let said = server.stderr_line(Duration::from_secs(60), |l| {
+        l.contains("acknowledged nothing (no PUBACK)")
+            .then(|| l.to_owned())
+    });
+    assert!(said.contains("the status message"), "{said}");
+    let deadline = Instant::now() + LIMIT;
+    while broker.connections() < 2 {
+        assert!(
+            Instant::now() < deadline,
+            "the station did not connect again"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}

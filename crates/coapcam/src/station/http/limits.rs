@@ -76,8 +76,8 @@ impl Counter {
     }
 
     /// Counts one more for the client at `ip`, unless that client or all of them have as
-    /// many as they may. A refusal is logged at most once every [`WARN_EVERY`], with the
-    /// number refused since.
+    /// many as they may. Refusals are logged at most once a minute, with the number
+    /// refused since the last message.
     pub fn start(counter: &Arc<Mutex<Self>>, ip: IpAddr) -> Result<Counted, Full> {
         let client = client_of(ip);
         let mut c = counter.lock().unwrap_or_else(PoisonError::into_inner);
