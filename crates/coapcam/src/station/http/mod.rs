@@ -80,6 +80,11 @@ const CONNECTION_BUFFER: usize = 64 * 1024;
 /// Records read from the log and written at a time by a streamed list (about 2 KB each).
 const LIST_PAGE: usize = 16;
 
+/// Pages of lists read from the log at once. The log has one database connection, so
+/// more would only wait for it, each holding a thread of the blocking pool (300 clients
+/// asking at once held 300 threads).
+const LIST_READERS: usize = 2;
+
 /// Refused connections whose answer (429, 503) is under way at once (each waits at most
 /// [`REFUSE_WAIT`] for the request's head, a few KiB); beyond, a refused connection is
 /// closed without one.
@@ -139,6 +144,8 @@ struct App<R> {
     fetches: Arc<Mutex<limits::Counter>>,
     /// The event streams open, per client and in all.
     streams: Arc<Mutex<limits::Counter>>,
+    /// The reads of lists' pages under way ([`LIST_READERS`]).
+    list_readers: Arc<Semaphore>,
 }
 
 /// A camera's newest live color image (JPEG) and when it was grabbed; held while a grab
@@ -176,6 +183,7 @@ impl HttpServer {
                 EVENT_STREAMS_PER_CLIENT,
                 MAX_EVENT_STREAMS,
             ),
+            list_readers: Arc::new(Semaphore::new(LIST_READERS)),
         });
         let task = tokio::spawn(accept(listener, app));
         Ok(Self { addr, task })
@@ -350,14 +358,14 @@ impl<R: Rig> App<R> {
         // The first page before the answer, so that a log that cannot be read is a 500.
         let wanted = query.limit.clamp(1, MAX_LIST);
         query.limit = wanted.min(LIST_PAGE);
-        let first = match reads::list(self.recorder.log(), query.items(), "/api/measurements").await
-        {
+        let first = match read_page(self.recorder.log(), &query, &self.list_readers).await {
             Ok(records) => records,
             Err(refused) => return refusal(&refused),
         };
         let (tx, rx) = mpsc::channel(1);
         tokio::spawn(stream_list(
             self.recorder.log().clone(),
+            self.list_readers.clone(),
             query,
             wanted,
             first,
@@ -949,6 +957,7 @@ struct CameraInfo {
 /// not a shorter list.
 async fn stream_list(
     log: ResultsLog,
+    readers: Arc<Semaphore>,
     mut query: ListQuery,
     wanted: usize,
     first: Vec<Record>,
@@ -983,7 +992,7 @@ async fn stream_list(
         }
         query.before = page.last().map(|r| r.id);
         query.limit = (wanted - sent).min(LIST_PAGE);
-        page = match reads::list(&log, query.items(), "/api/measurements").await {
+        page = match read_page(&log, &query, &readers).await {
             Ok(records) => records,
             Err(refused) => {
                 let _ = tx.send(Err(std::io::Error::other(refused.why))).await;
@@ -991,6 +1000,16 @@ async fn stream_list(
             }
         };
     }
+}
+
+/// A page of a list, read when one of `readers` is free.
+async fn read_page(
+    log: &ResultsLog,
+    query: &ListQuery,
+    readers: &Semaphore,
+) -> Result<Vec<Record>, Refusal> {
+    let _reading = readers.acquire().await;
+    reads::list(log, query.items(), "/api/measurements").await
 }
 
 /// Sends the records after `after` to `tx` as events, then each new one, until the
