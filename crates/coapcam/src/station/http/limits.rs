@@ -164,11 +164,18 @@ impl<T> WriteTimeout<T> {
         }
     }
 
-    /// After a write made progress (`Ready`): no deadline; while it cannot (`Pending`):
-    /// the deadline's, an error once it is past.
-    fn watch<R>(&mut self, cx: &mut Context<'_>, poll: Poll<io::Result<R>>) -> Poll<io::Result<R>> {
+    /// While a write cannot go on (`Pending`): the deadline's, an error once it is past.
+    /// `wrote`: the call writes bytes, so that its `Ready` is progress (a flush's is not).
+    fn watch<R>(
+        &mut self,
+        cx: &mut Context<'_>,
+        poll: Poll<io::Result<R>>,
+        wrote: bool,
+    ) -> Poll<io::Result<R>> {
         if poll.is_ready() {
-            self.stalled = None;
+            if wrote {
+                self.stalled = None;
+            }
             return poll;
         }
         let timeout = self.timeout;
@@ -205,7 +212,7 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for WriteTimeout<T> {
         buf: &[u8],
     ) -> Poll<io::Result<usize>> {
         let poll = Pin::new(&mut self.io).poll_write(cx, buf);
-        self.watch(cx, poll)
+        self.watch(cx, poll, true)
     }
 
     fn poll_write_vectored(
@@ -214,7 +221,7 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for WriteTimeout<T> {
         bufs: &[io::IoSlice<'_>],
     ) -> Poll<io::Result<usize>> {
         let poll = Pin::new(&mut self.io).poll_write_vectored(cx, bufs);
-        self.watch(cx, poll)
+        self.watch(cx, poll, true)
     }
 
     fn is_write_vectored(&self) -> bool {
@@ -223,18 +230,39 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for WriteTimeout<T> {
 
     fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
         let poll = Pin::new(&mut self.io).poll_flush(cx);
-        self.watch(cx, poll)
+        self.watch(cx, poll, false)
     }
 
     fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
         let poll = Pin::new(&mut self.io).poll_shutdown(cx);
-        self.watch(cx, poll)
+        self.watch(cx, poll, false)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[tokio::test(start_paused = true)]
+    async fn a_peer_that_takes_no_bytes_fails_the_write_after_the_timeout() {
+        use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
+        let (near, mut far) = tokio::io::duplex(1024);
+        let mut io = WriteTimeout::new(near, Duration::from_secs(10));
+        // The peer takes bytes now and then: each write goes on.
+        for _ in 0..3 {
+            io.write_all(&[7; 1024]).await.expect("room");
+            tokio::time::sleep(Duration::from_secs(9)).await;
+            let mut got = [0; 1024];
+            far.read_exact(&mut got).await.expect("the bytes");
+        }
+        // Then it takes none: the write fails once 10 s passed without progress.
+        io.write_all(&[7; 1024]).await.expect("room");
+        let started = tokio::time::Instant::now();
+        let e = io.write_all(&[7; 1]).await.expect_err("no room, ever");
+        assert_eq!(e.kind(), io::ErrorKind::TimedOut);
+        // The runtime's paused clock, which jumps to each timer: no wall-clock time.
+        assert_eq!(started.elapsed(), Duration::from_secs(10));
+    }
 
     #[test]
     fn a_client_is_an_ipv4_address_or_an_ipv6_slash_64_and_each_bound_holds() {
