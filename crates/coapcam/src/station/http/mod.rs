@@ -14,6 +14,11 @@
 //! - `/hc/<coap URI>`: the HTTP-CoAP proxy of RFC 8075 ([`proxy`]).
 //!
 //! Errors are JSON, `{"error": "..."}`, with a 4xx or 5xx status.
+//!
+//! Bounds ([`limits`]): connections per client and in all ([`CONNECTIONS_PER_CLIENT`],
+//! [`MAX_CONNECTIONS`]; over them 429 or 503 and closed), event streams likewise
+//! ([`EVENT_STREAMS_PER_CLIENT`], [`MAX_EVENT_STREAMS`]), a write timeout on every
+//! connection ([`WRITE_TIMEOUT`]), and lists longer than a page written as they are read.
 
 pub mod limits;
 pub mod proxy;
