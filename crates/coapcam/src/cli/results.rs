@@ -53,7 +53,8 @@ pub(crate) struct ResultsArgs {
 enum ResultsCommand {
     /// Check a results log file's chain: every record's SHA-256 over its content, every
     /// link to the record before, every picture kept. Names the first record that was
-    /// altered or is missing and exits 7; exits 0 when the whole chain verifies.
+    /// altered or is missing and exits 7; exits 0 when the whole chain verifies. Ids the
+    /// station skipped because a lost log had issued them (gaps it recorded) are named.
     Verify(VerifyArgs),
 }
 
@@ -127,8 +128,20 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
         if let Some(a) = &report.first_altered {
             doc["first_altered"] = serde_json::json!({ "id": a.id, "why": a.why });
         }
+        doc["gaps"] = report
+            .gaps
+            .iter()
+            .map(|g| {
+                serde_json::json!({
+                    "from": g.from, "to": g.to, "last_hash": g.last_hash, "time": g.time,
+                })
+            })
+            .collect();
         outln!("{doc}");
     } else {
+        for gap in &report.gaps {
+            outln!("{}: {gap}", file.display());
+        }
         match &report.first_altered {
             None => out!(
                 "{}: the chain verifies: {} record(s){}, {} picture(s) checked, {} pruned\n",

@@ -7,6 +7,11 @@
 //! and SQLite's recovery leaves the file consistent. Triggers refuse to change or delete
 //! a record; the only deletions are retention's, of pictures (their SHA-256s stay in
 //! the records, so the chain still verifies).
+//!
+//! Ids are never reused: a station keeps the last id it issued in a small file of its
+//! state directory ([`ResultsLog::open_station`]), written before each append commits, and
+//! a log that starts below it (a new file after a lost one, an older copy put back) goes on
+//! past it and records the ids it skipped (table `gaps`), which [`verify`] accepts.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -46,6 +51,27 @@ BEGIN SELECT RAISE(ABORT, 'the results log is append-only: records cannot be del
 CREATE TRIGGER pictures_no_update BEFORE UPDATE ON pictures
 BEGIN SELECT RAISE(ABORT, 'pictures cannot be changed, only pruned'); END;
 ";
+
+/// The ids a log skipped because another log (or an older state of this file) had issued
+/// them: after record `after` (0: before the first) comes `next`. Created in logs made
+/// before it too, so it goes with the schema's version 1.
+const GAPS: &str = "
+CREATE TABLE IF NOT EXISTS gaps (
+    after INTEGER PRIMARY KEY,
+    next INTEGER NOT NULL,
+    last_hash TEXT NOT NULL,
+    time TEXT NOT NULL
+);
+CREATE TRIGGER IF NOT EXISTS gaps_no_update BEFORE UPDATE ON gaps
+BEGIN SELECT RAISE(ABORT, 'the results log is append-only: gaps cannot be changed'); END;
+CREATE TRIGGER IF NOT EXISTS gaps_no_delete BEFORE DELETE ON gaps
+BEGIN SELECT RAISE(ABORT, 'the results log is append-only: gaps cannot be deleted'); END;
+";
+
+/// The newest id the log accounts for, records and gaps (0 for a new log): the next
+/// record's id is one more.
+const TAKEN: &str = "SELECT MAX(COALESCE((SELECT MAX(id) FROM records), 0),
+    COALESCE((SELECT MAX(next) FROM gaps), 1) - 1)";
 
 /// What went wrong with the results log.
 #[derive(Debug, thiserror::Error)]
@@ -140,6 +166,66 @@ struct Inner {
     over_limit: std::sync::atomic::AtomicBool,
     /// The file's device and inode when it was opened.
     identity: (u64, u64),
+    /// The station's file of the last id issued, if it keeps one.
+    last_id: Option<LastId>,
+}
+
+/// A station's file of the last id its results log issued and that record's hash
+/// (`ID HASH` and a newline), kept outside the log so that a log lost with its file does
+/// not make the station issue the same ids again. Replaced whole (a temporary file
+/// fsynced, renamed over it, the directory fsynced), so it reads as the old or the new.
+#[derive(Debug, Clone)]
+struct LastId {
+    path: PathBuf,
+}
+
+impl LastId {
+    fn failed(&self, why: String) -> LogError {
+        LogError::Failed {
+            path: self.path.clone(),
+            why,
+        }
+    }
+
+    /// The id and hash it holds; `None` when there is no such file.
+    fn read(&self) -> Result<Option<(u64, String)>, LogError> {
+        let text = match std::fs::read_to_string(&self.path) {
+            Ok(text) => text,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(self.failed(format!("reading the last id issued: {e}"))),
+        };
+        let parsed = text.trim_end().split_once(' ').and_then(|(id, hash)| {
+            let hex = hash.len() == 64 && hash.bytes().all(|b| b.is_ascii_hexdigit());
+            // SQLite's ids are signed 64-bit: one more than the file's must fit.
+            let id = id.parse::<u64>().ok().filter(|id| *id < i64::MAX as u64)?;
+            Some((id, hash.to_owned())).filter(|_| hex)
+        });
+        parsed.map(Some).ok_or_else(|| {
+            self.failed(format!(
+                "the last id issued reads {text:?}, not an id and a record's hash: fix or remove it (removing it lets a new log issue ids again from 1)"
+            ))
+        })
+    }
+
+    /// Makes the file say `id` and `hash`, durably.
+    fn write(&self, id: u64, hash: &str) -> Result<(), LogError> {
+        use std::io::Write as _;
+        let mut temp = self.path.as_os_str().to_owned();
+        temp.push(format!(".{}.tmp", std::process::id()));
+        let temp = PathBuf::from(temp);
+        let written = (|| {
+            let mut file = std::fs::File::create(&temp)?;
+            file.write_all(format!("{id} {hash}\n").as_bytes())?;
+            file.sync_all()?;
+            std::fs::rename(&temp, &self.path)?;
+            let dir = self.path.parent().filter(|d| !d.as_os_str().is_empty());
+            std::fs::File::open(dir.unwrap_or_else(|| Path::new(".")))?.sync_all()
+        })();
+        written.map_err(|e| {
+            let _ = std::fs::remove_file(&temp);
+            self.failed(format!("keeping the last id issued ({id}): {e}"))
+        })
+    }
 }
 
 /// The device and inode of the file at `path`, if there is one.
@@ -164,13 +250,40 @@ impl ResultsLog {
 
     /// Opens the log at `path` with `retention` (applied at once, then after each append).
     pub fn open_with(path: &Path, retention: Retention) -> Result<Self, LogError> {
+        Self::open_keeping(path, retention, None)
+    }
+
+    /// Opens the log at `path` for a station that keeps the last id it issued in the file
+    /// `last_id` (created with the first record). When the log accounts for fewer ids
+    /// than that file (a new file after a lost one, an older copy put back), the ids
+    /// between are recorded as a gap, said in a warning, and the next record's id is one
+    /// past the file's. Each append updates the file before it commits.
+    pub fn open_station(
+        path: &Path,
+        retention: Retention,
+        last_id: &Path,
+    ) -> Result<Self, LogError> {
+        let last_id = LastId {
+            path: last_id.to_owned(),
+        };
+        Self::open_keeping(path, retention, Some(last_id))
+    }
+
+    fn open_keeping(
+        path: &Path,
+        retention: Retention,
+        last_id: Option<LastId>,
+    ) -> Result<Self, LogError> {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| LogError::Format {
                 path: path.to_owned(),
                 why: format!("creating its directory: {e}"),
             })?;
         }
-        let conn = connect(path)?;
+        let mut conn = connect(path)?;
+        if let Some(last_id) = &last_id {
+            account_for(&mut conn, path, last_id)?;
+        }
         let newest = newest_id(&conn).map_err(sql(path))?;
         let identity = identity(path).ok_or_else(|| LogError::Gone {
             path: path.to_owned(),
@@ -183,6 +296,7 @@ impl ResultsLog {
                 newest: watch::Sender::new(newest),
                 over_limit: std::sync::atomic::AtomicBool::new(false),
                 identity,
+                last_id,
             }),
         };
         log.prune()?;
@@ -228,10 +342,9 @@ impl ResultsLog {
                 )
                 .optional()
                 .map_err(self.err())?;
-            let (id, prev) = match &last {
-                Some((id, hash)) => (id + 1, hash.as_str()),
-                None => (1, GENESIS),
-            };
+            let taken: u64 = tx.query_row(TAKEN, [], |r| r.get(0)).map_err(self.err())?;
+            let id = taken + 1;
+            let prev = last.as_ref().map_or(GENESIS, |(_, hash)| hash.as_str());
             let record = Record::chain(&new, id, prev);
             tx.execute(
                 "INSERT INTO records (id, body, hash) VALUES (?1, ?2, ?3)",
@@ -253,6 +366,13 @@ impl ResultsLog {
                     )
                     .map_err(self.err())?;
                 }
+            }
+            // Before the commit: the file never says less than an id a consumer saw (a
+            // commit that fails then leaves one id unused, never one issued twice).
+            if let Some(last_id) = &self.inner.last_id {
+                last_id.write(id, &record.hash).inspect_err(|e| {
+                    tracing::error!("{e}: nothing is recorded until it can be written");
+                })?;
             }
             tx.commit().map_err(self.err())?;
             record
@@ -415,11 +535,12 @@ impl ResultsLog {
         let conn = self.conn();
         let mut pruned = 0;
         if let Some(keep) = retention.keep_pictures {
-            let newest = newest_id(&conn).map_err(self.err())?;
+            // The newest `keep` records by count: ids skip where a gap is.
             pruned += conn
                 .execute(
-                    "DELETE FROM pictures WHERE record <= ?1",
-                    [newest.saturating_sub(keep)],
+                    "DELETE FROM pictures WHERE record NOT IN
+                        (SELECT id FROM records ORDER BY id DESC LIMIT ?1)",
+                    [keep],
                 )
                 .map_err(self.err())?;
         }
@@ -514,6 +635,49 @@ fn newest_id(conn: &Connection) -> rusqlite::Result<u64> {
     conn.query_row("SELECT COALESCE(MAX(id), 0) FROM records", [], |r| r.get(0))
 }
 
+/// Makes the log at `path` account for every id `last_id` says was issued: a gap from its
+/// newest id to one past the file's, recorded and warned about, when the file is ahead;
+/// the file brought up to the log's newest record when it is behind (or missing).
+fn account_for(conn: &mut Connection, path: &Path, last_id: &LastId) -> Result<(), LogError> {
+    let err = sql(path);
+    let kept = last_id.read()?;
+    let tx = conn
+        .transaction_with_behavior(TransactionBehavior::Immediate)
+        .map_err(&err)?;
+    let taken: u64 = tx.query_row(TAKEN, [], |r| r.get(0)).map_err(&err)?;
+    let head: Option<(u64, String)> = tx
+        .query_row(
+            "SELECT id, hash FROM records ORDER BY id DESC LIMIT 1",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )
+        .optional()
+        .map_err(&err)?;
+    match (kept, head) {
+        (Some((issued, last_hash)), _) if issued > taken => {
+            let now = crate::api::record::UtcTime::now();
+            tx.execute(
+                "INSERT INTO gaps (after, next, last_hash, time) VALUES (?1, ?2, ?3, ?4)",
+                params![taken, issued + 1, last_hash, now.to_string()],
+            )
+            .map_err(&err)?;
+            tx.commit().map_err(&err)?;
+            tracing::warn!(
+                "results log {}: ids {}..{issued} were issued by a log that is gone ({} says {issued} was the last, with hash {last_hash}); this log goes on from id {} and records the gap",
+                path.display(),
+                taken + 1,
+                last_id.path.display(),
+                issued + 1,
+            );
+        }
+        (kept, Some((id, hash))) if kept.as_ref().is_none_or(|(issued, _)| *issued < id) => {
+            last_id.write(id, &hash)?;
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
 fn content_bytes(conn: &Connection) -> rusqlite::Result<u64> {
     conn.query_row(
         "SELECT COALESCE((SELECT SUM(length(body)) FROM records), 0)
@@ -580,6 +744,7 @@ fn connect(path: &Path) -> Result<Connection, LogError> {
         )
         .map_err(&err)?;
     }
+    tx.execute_batch(GAPS).map_err(&err)?;
     tx.commit().map_err(&err)?;
     Ok(conn)
 }
@@ -598,6 +763,32 @@ pub struct VerifyReport {
     pub pictures_checked: u64,
     /// The first record that breaks the chain, if any.
     pub first_altered: Option<Altered>,
+    /// The ids the log skipped because another log had issued them, oldest first.
+    pub gaps: Vec<Gap>,
+}
+
+/// Ids a log skipped because a log that is gone (or an older state of the file) had
+/// issued them: the station found them issued when it opened this log.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Gap {
+    /// The first id skipped.
+    pub from: u64,
+    /// The last id skipped (the last the station had issued).
+    pub to: u64,
+    /// The hash of record `to` as the station kept it (compare it with one published).
+    pub last_hash: String,
+    /// When the station recorded the gap (UTC, as a record's `time`).
+    pub time: String,
+}
+
+impl std::fmt::Display for Gap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "ids {}..{} were issued by a log that is gone (the last with hash {}); recorded {}",
+            self.from, self.to, self.last_hash, self.time
+        )
+    }
 }
 
 /// A record that breaks the chain, and how.
@@ -661,7 +852,7 @@ fn damaged(e: &LogError) -> bool {
 }
 
 /// Checks the chain of the log at `path` (the file must exist; it is opened read-only):
-/// ids 1, 2, 3, ... without gaps, each record's hash over its canonical content, each
+/// ids 1, 2, 3, ... without gaps but the ones the log recorded, each record's hash over its canonical content, each
 /// `prev_hash` the previous record's hash, each kept picture's SHA-256 the one its
 /// record holds. Stops at the first record that does not match and names it; a file cut
 /// off or damaged is named as such (an altered log, not a failure to read one).
@@ -678,6 +869,7 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
         pictures_pruned: 0,
         pictures_checked: 0,
         first_altered: None,
+        gaps: Vec::new(),
     };
     match connect_read_only(path).and_then(|conn| verify_chain(path, &conn, &mut report)) {
         Err(e) if damaged(&e) => {
@@ -707,6 +899,7 @@ fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Re
              FROM records r ORDER BY r.id",
         )
         .map_err(&err)?;
+    report.gaps = gaps(conn).map_err(&err)?;
     let mut rows = stmt.query([]).map_err(&err)?;
     let mut expected_id = 1u64;
     let mut prev = GENESIS.to_owned();
@@ -724,6 +917,12 @@ fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Re
         let photo: Option<Vec<u8>> = row.get(3).map_err(&err)?;
         let annotated: Option<Vec<u8>> = row.get(4).map_err(&err)?;
         let broken = |id: u64, why: String| Altered { id, why };
+        // A gap the log recorded where the next id was expected: the ids skipped were
+        // another log's (the chain still runs on: a gap cannot hide a record removed).
+        while let Some(gap) = (report.gaps.iter()).find(|g| g.from == expected_id && g.to >= g.from)
+        {
+            expected_id = gap.to + 1;
+        }
         if id != expected_id {
             report.first_altered = Some(broken(
                 expected_id,
@@ -731,7 +930,15 @@ fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Re
             ));
             break;
         }
-        let check = check_record(id, &body, &hash, &prev, [photo, annotated], report);
+        let before = report.head.as_ref().map(|(id, _)| *id);
+        let check = check_record(
+            id,
+            &body,
+            &hash,
+            (before, &prev),
+            [photo, annotated],
+            report,
+        );
         if let Err(why) = check {
             report.first_altered = Some(broken(id, why));
             break;
@@ -752,13 +959,37 @@ fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Re
     Ok(())
 }
 
+/// The gaps the log recorded (none in a log made before they were).
+fn gaps(conn: &Connection) -> rusqlite::Result<Vec<Gap>> {
+    let has_gaps: bool = conn.query_row(
+        "SELECT EXISTS (SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'gaps')",
+        [],
+        |r| r.get(0),
+    )?;
+    if !has_gaps {
+        return Ok(Vec::new());
+    }
+    let mut stmt = conn.prepare("SELECT after, next, last_hash, time FROM gaps ORDER BY after")?;
+    stmt.query_map([], |r| {
+        let after: u64 = r.get(0)?;
+        let next: u64 = r.get(1)?;
+        Ok(Gap {
+            from: after + 1,
+            to: next.saturating_sub(1),
+            last_hash: r.get(2)?,
+            time: r.get(3)?,
+        })
+    })?
+    .collect()
+}
+
 /// Checks one record: its body names it and its predecessor, hashes to `hash`, and its
 /// kept pictures hash to the SHA-256s it holds.
 fn check_record(
     id: u64,
     body: &[u8],
     hash: &str,
-    prev: &str,
+    (before, prev): (Option<u64>, &str),
     pictures: [Option<Vec<u8>>; 2],
     report: &mut VerifyReport,
 ) -> Result<(), String> {
@@ -776,10 +1007,14 @@ fn check_record(
         ));
     }
     if content["prev_hash"].as_str() != Some(prev) {
-        return Err(format!(
-            "record {id}'s prev_hash is not the hash of record {} ({prev}): the record before it was rewritten, or this one",
-            id - 1
-        ));
+        return Err(match before {
+            Some(before) => format!(
+                "record {id}'s prev_hash is not the hash of record {before} ({prev}): the record before it was rewritten, or this one"
+            ),
+            None => format!(
+                "record {id}'s prev_hash is not the first record's ({prev}): records before it were removed, or it was rewritten"
+            ),
+        });
     }
     if canonical_bytes(&content) != body {
         // The same content in other bytes (keys reordered, spaces): not what the log
@@ -919,6 +1154,194 @@ mod tests {
             log.append(new(n, "A", true)).expect("append");
         }
         (dir, path)
+    }
+
+    /// Removes the log at `path` with its WAL and shared-memory files: a log that is gone.
+    fn lose(path: &Path) {
+        for end in ["", "-wal", "-shm"] {
+            let mut file = path.as_os_str().to_owned();
+            file.push(end);
+            match std::fs::remove_file(&file) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => panic!("{e}"),
+                _ => {}
+            }
+        }
+    }
+
+    #[test]
+    fn a_new_log_after_a_lost_one_goes_on_past_the_last_id_issued_and_verifies() {
+        let dir = ScratchDir::new("results-log-lost");
+        let path = dir.path().join("results.sqlite");
+        let last_id = dir.path().join("results.last-id");
+        let log = ResultsLog::open_station(&path, Retention::default(), &last_id).expect("open");
+        for n in 1..=2 {
+            log.append(new(n, "A", false)).expect("append");
+        }
+        let third = log.append(new(3, "A", false)).expect("append");
+        assert_eq!(
+            std::fs::read_to_string(&last_id).expect("kept"),
+            format!("3 {}\n", third.hash)
+        );
+        drop(log);
+        lose(&path);
+        let log = ResultsLog::open_station(&path, Retention::default(), &last_id).expect("open");
+        assert_eq!(log.newest(), 0);
+        let fourth = log.append(new(4, "A", true)).expect("append");
+        assert_eq!((fourth.id, fourth.prev_hash.as_str()), (4, GENESIS));
+        assert_eq!(log.append(new(5, "A", false)).expect("append").id, 5);
+        drop(log);
+        // Opened again with nothing lost: no second gap.
+        let log = ResultsLog::open_station(&path, Retention::default(), &last_id).expect("open");
+        assert_eq!(log.append(new(6, "A", false)).expect("append").id, 6);
+        drop(log);
+        let report = verify(&path).expect("verify");
+        assert_eq!((report.first_altered, report.records), (None, 3));
+        let [gap] = report.gaps.as_slice() else {
+            panic!("{:?}", report.gaps)
+        };
+        assert_eq!((gap.from, gap.to), (1, 3));
+        assert_eq!(gap.last_hash, third.hash);
+        assert!(
+            gap.to_string()
+                .starts_with("ids 1..3 were issued by a log that is gone")
+        );
+        // The gap recorded in the file is what explains the ids: without it, record 1 is
+        // missing as before.
+        let conn = Connection::open(&path).expect("sqlite");
+        conn.execute_batch("DROP TRIGGER gaps_no_delete; DELETE FROM gaps;")
+            .expect("by hand");
+        drop(conn);
+        let altered = verify(&path).expect("verify").first_altered.expect("found");
+        assert_eq!(altered.id, 1, "{altered:?}");
+        assert!(altered.why.contains("missing"), "{altered:?}");
+    }
+
+    #[test]
+    fn a_recorded_gap_hides_no_record_removed_from_the_front() {
+        let (_dir, path) = log_of_four("results-log-forged-gap");
+        let conn = Connection::open(&path).expect("sqlite");
+        conn.execute_batch(
+            "DELETE FROM pictures WHERE record <= 2;
+             DROP TRIGGER records_no_delete;
+             DELETE FROM records WHERE id <= 2;
+             INSERT INTO gaps (after, next, last_hash, time) VALUES (0, 3, 'x', 'then');",
+        )
+        .expect("by hand");
+        drop(conn);
+        let report = verify(&path).expect("verify");
+        let altered = report.first_altered.expect("found");
+        assert_eq!(altered.id, 3, "{altered:?}");
+        assert!(altered.why.contains("removed"), "{altered:?}");
+        // A gap that skips nothing (or goes back) is no gap.
+        let conn = Connection::open(&path).expect("sqlite");
+        conn.execute_batch(
+            "INSERT INTO gaps (after, next, last_hash, time) VALUES (2, 3, 'x', 'then');",
+        )
+        .expect("by hand");
+        drop(conn);
+        assert_eq!(
+            verify(&path).expect("verify").first_altered.map(|a| a.id),
+            Some(3)
+        );
+    }
+
+    #[test]
+    fn an_older_copy_put_back_goes_on_past_the_last_id_and_keeps_the_newest_pictures() {
+        let dir = ScratchDir::new("results-log-older");
+        let path = dir.path().join("results.sqlite");
+        let copy = dir.path().join("copy.sqlite");
+        let last_id = dir.path().join("results.last-id");
+        let keep_two = Retention {
+            keep_pictures: Some(2),
+            max_bytes: None,
+        };
+        let log = ResultsLog::open_station(&path, keep_two, &last_id).expect("open");
+        for n in 1..=2 {
+            log.append(new(n, "A", true)).expect("append");
+        }
+        drop(log);
+        std::fs::copy(&path, &copy).expect("copy");
+        let log = ResultsLog::open_station(&path, keep_two, &last_id).expect("open");
+        for n in 3..=4 {
+            log.append(new(n, "A", true)).expect("append");
+        }
+        drop(log);
+        lose(&path);
+        std::fs::rename(&copy, &path).expect("put back");
+        let log = ResultsLog::open_station(&path, keep_two, &last_id).expect("open");
+        assert_eq!(log.newest(), 2);
+        assert_eq!(log.append(new(5, "A", true)).expect("append").id, 5);
+        // The pictures of the newest two records by count: 2 and 5.
+        let kept: Vec<bool> = [1, 2, 5]
+            .map(|id| log.get(id).expect("get").expect("there").has_photo)
+            .to_vec();
+        assert_eq!(kept, [false, true, true]);
+        drop(log);
+        let report = verify(&path).expect("verify");
+        assert_eq!((report.first_altered, report.records), (None, 3));
+        let gaps: Vec<(u64, u64)> = report.gaps.iter().map(|g| (g.from, g.to)).collect();
+        assert_eq!(gaps, [(3, 4)]);
+    }
+
+    #[test]
+    fn the_last_id_file_is_made_from_a_log_before_it_and_must_be_written_for_an_append() {
+        let (dir, path) = log_of_four("results-log-last-id");
+        let last_id = dir.path().join("results.last-id");
+        let log = ResultsLog::open_station(&path, Retention::default(), &last_id).expect("open");
+        let head = log.latest().expect("latest").expect("four");
+        assert_eq!(
+            std::fs::read_to_string(&last_id).expect("made"),
+            format!("4 {}\n", head.hash)
+        );
+        drop(log);
+        std::fs::write(&last_id, "four\n").expect("garbage");
+        let refused = ResultsLog::open_station(&path, Retention::default(), &last_id);
+        assert!(
+            matches!(refused, Err(LogError::Failed { .. })),
+            "{refused:?}"
+        );
+        // A file that cannot be written: a log with records does not open, an empty one
+        // records nothing.
+        let nowhere = dir.path().join("no-such-dir").join("results.last-id");
+        let refused = ResultsLog::open_station(&path, Retention::default(), &nowhere);
+        assert!(
+            matches!(refused, Err(LogError::Failed { .. })),
+            "{refused:?}"
+        );
+        let empty = dir.path().join("empty.sqlite");
+        let log = ResultsLog::open_station(&empty, Retention::default(), &nowhere);
+        let log = log.expect("open");
+        assert!(matches!(
+            log.append(new(1, "A", false)),
+            Err(LogError::Failed { .. })
+        ));
+        assert_eq!(log.latest().expect("latest"), None);
+        assert_eq!(log.newest(), 0);
+    }
+
+    /// What keeping the last id costs an append (docs/station.md): 200 appends without
+    /// and with the file, twice, in a scratch directory. A measurement, not a check:
+    /// `cargo test -p coapcam --lib append_cost -- --ignored --nocapture`.
+    #[test]
+    #[ignore = "a measurement"]
+    fn append_cost_with_and_without_the_last_id_file() {
+        for keeping in [false, true, false, true] {
+            let dir = ScratchDir::new("results-log-cost");
+            let path = dir.path().join("results.sqlite");
+            let last_id = dir.path().join("results.last-id");
+            let log = if keeping {
+                ResultsLog::open_station(&path, Retention::default(), &last_id)
+            } else {
+                ResultsLog::open(&path)
+            };
+            let log = log.expect("open");
+            let start = std::time::Instant::now();
+            for n in 1..=200 {
+                log.append(new(n, "A", false)).expect("append");
+            }
+            let ms = start.elapsed().as_secs_f64() * 1000.0 / 200.0;
+            println!("last-id file {keeping}: {ms:.2} ms per append");
+        }
     }
 
     #[test]

@@ -31,6 +31,10 @@ use crate::api::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
 /// The name of the results log's file in the state directory.
 pub const RESULTS_FILE: &str = "results.sqlite";
 
+/// The name of the file in the state directory that keeps the last id the results log
+/// issued, so that a log lost with its file is not followed by ids issued again.
+pub const LAST_ID_FILE: &str = "results.last-id";
+
 /// The station's part of a server's configuration (`serve`'s station flags).
 #[derive(Debug, Clone)]
 pub struct Config {

@@ -713,3 +713,67 @@ fn a_log_removed_while_the_station_runs_stops_the_answers_and_says_so() {
     let _ = server.process().kill();
     let _ = server.process().wait();
 }
+
+#[test]
+fn a_new_log_after_a_lost_one_goes_on_past_the_last_id_and_records_the_gap() {
+    let dir = TempDir::new("results-lost");
+    let state = dir.path().to_str().expect("UTF-8 path");
+    let file = dir.join("results.sqlite");
+    let start = || {
+        let args = [
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--state-dir",
+            state,
+            "--duration",
+            "120",
+        ];
+        let mut server = Proc::spawn(COAPCAM, &args);
+        let addr: std::net::SocketAddr = server.stderr_line(LIMIT, |l| {
+            l.strip_prefix("coapcam: serving on ")
+                .and_then(|a| a.trim().parse().ok())
+        });
+        (server, addr)
+    };
+    let rt = runtime();
+    let c = client();
+    let (mut server, addr) = start();
+    rt.block_on(async {
+        for _ in 0..3 {
+            measure(&c, addr).await;
+        }
+    });
+    server.kill();
+    // The log is gone: its file, and the WAL and shared memory beside it.
+    for end in ["", "-wal", "-shm"] {
+        let mut lost = file.clone().into_os_string();
+        lost.push(end);
+        let _ = std::fs::remove_file(lost);
+    }
+    let (mut server, addr) = start();
+    rt.block_on(async {
+        measure(&c, addr).await;
+        let latest = get(&c, addr, "/station/measurements/latest", &[], None).await;
+        let record: Record = serde_json::from_slice(&latest.payload).expect("a record");
+        assert_eq!(record.id, 4, "an id issued before was issued again");
+        let all = records_of(&get(&c, addr, "/station/measurements", &[], None).await);
+        assert_eq!(ids(&all), [4]);
+    });
+    let stopped = server.kill();
+    assert!(
+        stopped
+            .stderr
+            .contains("ids 1..3 were issued by a log that is gone"),
+        "{}",
+        stopped.stderr
+    );
+    let (code, report) = verify(&file);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["records"], 1, "{report}");
+    assert_eq!(
+        (&report["gaps"][0]["from"], &report["gaps"][0]["to"]),
+        (&1.into(), &3.into()),
+        "{report}"
+    );
+}
