@@ -202,12 +202,13 @@ impl HeightMap {
     /// The number of tops: regions of dense cells connected (8-neighbourhood) where
     /// neighbouring median heights differ by less than `step`, counted when their core
     /// (cells whose eight neighbours are all in the region) has [`TOP_CORE_CELLS`] and
-    /// their cells are at least [`TOP_SHARE`] of the largest region's.
+    /// their cells are at least [`TOP_SHARE`] of the largest region's, or they are the
+    /// highest such region.
     pub(super) fn tops(&self, step: f32, flatness: f32) -> usize {
         let flat =
             |c: &Cell2| self.is_dense(c) && self.spread.get(c).is_some_and(|s| *s < flatness);
         let mut region: HashMap<Cell2, usize, FixedState> = HashMap::default();
-        let mut sizes: Vec<(usize, usize)> = Vec::new();
+        let mut sizes: Vec<(usize, usize, f32)> = Vec::new();
         let mut dense: Vec<Cell2> = self.cells.keys().filter(|c| flat(c)).copied().collect();
         dense.sort_unstable();
         let neighbours = |(x, y): Cell2| {
@@ -241,12 +242,23 @@ impl HeightMap {
                 .iter()
                 .filter(|c| neighbours(**c).all(|n| region.get(&n) == Some(&id)))
                 .count();
-            sizes.push((members.len(), core));
+            let mean = members.iter().map(|c| self.cells[c].1).sum::<f32>() / members.len() as f32;
+            sizes.push((members.len(), core, mean));
         }
         let largest = sizes.iter().map(|s| s.0).max().unwrap_or(0);
+        // The highest top counts however small: a thin post beside a wide, low parcel
+        // (its disc a few per cent of the other's lid) is a top of its own.
+        let highest = sizes
+            .iter()
+            .filter(|s| s.1 >= TOP_CORE_CELLS)
+            .map(|s| s.2)
+            .fold(f32::NEG_INFINITY, f32::max);
         sizes
             .iter()
-            .filter(|(n, core)| *core >= TOP_CORE_CELLS && *n as f64 >= TOP_SHARE * largest as f64)
+            .filter(|(n, core, mean)| {
+                *core >= TOP_CORE_CELLS
+                    && (*n as f64 >= TOP_SHARE * largest as f64 || *mean >= highest)
+            })
             .count()
             .max(1)
     }
