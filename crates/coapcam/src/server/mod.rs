@@ -201,7 +201,7 @@ impl Station {
         let results = match &cameras {
             Some(tree) => {
                 let path = config.station.results_path(&config.state_dir);
-                let last_id = config.state_dir.join(station::LAST_ID_FILE);
+                let last_id = station::last_id_path(&config.state_dir, &path);
                 let log = ResultsLog::open_station(&path, config.station.retention, &last_id)
                     .with_context(|| format!("opening the results log {}", path.display()))?;
                 station::resources::register(&router, &log);

@@ -31,9 +31,17 @@ use crate::api::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
 /// The name of the results log's file in the state directory.
 pub const RESULTS_FILE: &str = "results.sqlite";
 
-/// The name of the file in the state directory that keeps the last id the results log
-/// issued, so that a log lost with its file is not followed by ids issued again.
-pub const LAST_ID_FILE: &str = "results.last-id";
+/// The file in the state directory `state_dir` that keeps the last id the results log
+/// at `log` issued, so that a log lost with its file is not followed by ids issued again:
+/// the log's file name and `.last-id` (`results.sqlite.last-id`), one for each log, so
+/// that two stations sharing a state directory with logs of their own (`--results`)
+/// keep apart.
+pub fn last_id_path(state_dir: &Path, log: &Path) -> PathBuf {
+    let name = log
+        .file_name()
+        .map_or_else(|| RESULTS_FILE.into(), |n| n.to_string_lossy().into_owned());
+    state_dir.join(format!("{name}.last-id"))
+}
 
 /// The station's part of a server's configuration (`serve`'s station flags).
 #[derive(Debug, Clone)]
