@@ -1,5 +1,5 @@
-//! `coapcam serve`: the camera server (the library's [`Station`]) until SIGINT, SIGTERM or
-//! `--duration`.
+//! `coapcam serve`: the station (the library's [`Station`]: a camera server, and with
+//! cameras its results log and outputs) until SIGINT, SIGTERM or `--duration`.
 
 use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
@@ -10,9 +10,10 @@ use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
 use coapcam::rd::registrant::{Registrant, RegistrantConfig};
-use coapcam::server::{Cameras, Identities, RealSenseOptions, Station, StationConfig};
+use coapcam::server::{self, Cameras, Identities, RealSenseOptions};
 use coapcam::station::log::Retention;
 use coapcam::station::watch::AutoConfig;
+use coapcam::station::{self, Station};
 use rgbd::Scene;
 use rgbd::backend::realsense::LibrarySearch;
 use tokio::signal::unix::{SignalKind, signal};
@@ -144,17 +145,17 @@ pub(crate) struct ServeArgs {
         value_name = "mqtt://[USER:PASSWORD@]HOST[:PORT][/PREFIX]",
         conflicts_with = "no_cameras"
     )]
-    mqtt: Option<coapcam::station::mqtt::Target>,
+    mqtt: Option<station::mqtt::Target>,
     /// Serve one text line per measurement (id,time,length_mm,width_mm,height_mm,kg,code
     /// and CR LF; docs/station.md) to every reader connected to this TCP address. A
     /// reader that falls 256 lines behind is disconnected.
-    #[arg(long, value_name = "tcp://ADDR:PORT", value_parser = coapcam::station::line::parse_tcp_uri, conflicts_with = "no_cameras")]
+    #[arg(long, value_name = "tcp://ADDR:PORT", value_parser = station::line::parse_tcp_uri, conflicts_with = "no_cameras")]
     line_output: Option<SocketAddr>,
     /// Serve the station's page and its HTTP API (docs/station.md "HTTP") on this
     /// address; a bare port means 127.0.0.1:PORT. Reading is open to every client;
     /// POST /api/measure only from this machine unless --allow-unauthenticated-config.
     /// Plain HTTP/1.1, no TLS: put a TLS proxy in front to reach it across networks.
-    #[arg(long, value_name = "ADDR:PORT", value_parser = coapcam::station::http::parse_listen, conflicts_with = "no_cameras")]
+    #[arg(long, value_name = "ADDR:PORT", value_parser = station::http::parse_listen, conflicts_with = "no_cameras")]
     http: Option<SocketAddr>,
     /// A CoAP server the HTTP-CoAP proxy (/hc/coap://...) may reach, besides this
     /// server's own addresses (the only ones by default); repeatable. HOST is an IP
@@ -163,7 +164,7 @@ pub(crate) struct ServeArgs {
     /// than this server's own (another server of this machine) are refused unless named
     /// here, multicast and broadcast always.
     #[arg(long, value_name = "HOST[:PORT]", requires = "http")]
-    proxy_allow: Vec<coapcam::station::http::proxy::Allowed>,
+    proxy_allow: Vec<station::http::proxy::Allowed>,
     /// POST every record of the results log as JSON to this http:// URL (no TLS), in id
     /// order, each until it is answered 2xx (retrying 0.25 s, doubling to 5 s). The
     /// position is kept in the log (cursor `webhook`), so nothing is lost while the
@@ -175,7 +176,7 @@ pub(crate) struct ServeArgs {
         value_name = "http://[USER:PASSWORD@]HOST[:PORT]/PATH",
         conflicts_with = "no_cameras"
     )]
-    webhook: Option<coapcam::station::webhook::Target>,
+    webhook: Option<station::webhook::Target>,
     /// Measure by itself: watch the table through the calibrated cameras' depth (a few
     /// looks a second, every fourth pixel or so) and, when a parcel has arrived and stood
     /// still for --still-ms, measure it once (dimensions, the codes, a photo and the
@@ -261,7 +262,8 @@ pub(crate) fn fix_malloc_threshold() {
 
 /// Runs `serve` until a signal or `--duration`.
 pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
-    let station = Station::start(config(&args)?).await?;
+    let (server, config) = config(&args)?;
+    let station = Station::start(server, config).await?;
     // The station reads codes by itself: their color mode is set now and said.
     if args.auto_measure {
         for c in station.color_for_codes() {
@@ -307,8 +309,9 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The flags lowered, in this one place, to the server's configuration.
-fn config(args: &ServeArgs) -> anyhow::Result<StationConfig> {
+/// The flags lowered, in this one place, to the camera server's and the station's
+/// configuration.
+fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)> {
     let binds = super::binds_or_default(&args.bind);
     let cameras = if args.no_cameras {
         None
@@ -346,7 +349,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<StationConfig> {
         Some(path) => Some(Arc::new(Identities::load(path)?)),
         None => None,
     };
-    Ok(StationConfig {
+    let server = server::Config {
         binds,
         cameras,
         state_dir: args
@@ -366,22 +369,20 @@ fn config(args: &ServeArgs) -> anyhow::Result<StationConfig> {
         grab_memory: args.grab_memory.saturating_mul(1 << 20),
         secure_binds: args.coaps.clone(),
         identities,
-        station: coapcam::station::Config {
-            name: args
-                .station_name
-                .clone()
-                .unwrap_or_else(coapcam::station::host_name),
-            results: args.results.clone(),
-            retention: Retention {
-                keep_pictures: args.results_keep_pictures,
-                max_bytes: args.results_max_bytes,
-            },
-            mqtt: args.mqtt.clone(),
-            line_output: args.line_output,
-            http: args.http,
-            proxy_allow: args.proxy_allow.clone(),
-            webhook: args.webhook.clone(),
+        clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
+    };
+    let station = station::Config {
+        name: args.station_name.clone().unwrap_or_else(station::host_name),
+        results: args.results.clone(),
+        retention: Retention {
+            keep_pictures: args.results_keep_pictures,
+            max_bytes: args.results_max_bytes,
         },
+        mqtt: args.mqtt.clone(),
+        line_output: args.line_output,
+        http: args.http,
+        proxy_allow: args.proxy_allow.clone(),
+        webhook: args.webhook.clone(),
         auto_measure: args.auto_measure.then(|| {
             let mut auto = AutoConfig::default();
             if let Some(ms) = args.still_ms {
@@ -389,8 +390,8 @@ fn config(args: &ServeArgs) -> anyhow::Result<StationConfig> {
             }
             auto
         }),
-        clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
-    })
+    };
+    Ok((server, station))
 }
 
 /// Who may change the configuration, and what is unusual.
@@ -450,11 +451,10 @@ fn announce(args: &ServeArgs, station: &Station) {
 async fn register(args: &ServeArgs, station: &Station) -> anyhow::Result<Option<Registrant>> {
     Ok(match &args.register {
         Some(uri) => {
-            let ep = args.rd_ep.clone().unwrap_or_else(|| {
-                args.station_name
-                    .clone()
-                    .unwrap_or_else(coapcam::station::host_name)
-            });
+            let ep = args
+                .rd_ep
+                .clone()
+                .unwrap_or_else(|| args.station_name.clone().unwrap_or_else(station::host_name));
             let config = RegistrantConfig::from_uri(
                 uri,
                 ep.clone(),

@@ -1,14 +1,17 @@
 //! A camera server: the resource tree of the thesis (docs/design.md §5) over `coap_net`.
-//! [`Station`] assembles one from its configuration ([`StationConfig`]): the `/cams`
+//! [`CameraServer`] assembles one from its configuration ([`Config`]): the `/cams`
 //! tree of its cameras (`cams`), files under `/files` (`files`), the group memberships
 //! of `/coap-group` (`group`). [`SceneServer`] is the same tree for a
 //! synthetic scene on one address inside another program (`demo`, `bench`, tests).
+//! [`measure`] is the one way a measurement to record is made; the station, above the
+//! server, keeps them ([`measure::Records`]) and adds its own resources and outputs.
 
 mod cams;
 mod clock;
 mod files;
 mod group;
 pub mod identities;
+pub mod measure;
 
 use std::future::Future;
 use std::net::{IpAddr, SocketAddr};
@@ -23,20 +26,19 @@ use coap_net::{Router, Server, ServerConfig};
 use rgbd::backend::playback::PlaybackCamera;
 use rgbd::backend::realsense::LibrarySearch;
 use rgbd::{Camera as _, CameraHub, Scene, Serial, SyntheticCamera};
-use tokio::sync::{mpsc, watch};
+use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
 
 use crate::rd::registrant::{Announcement, Registrant, RegistrantConfig};
 use crate::report::{EdgeQuery, Measurement};
-use crate::station::log::ResultsLog;
-use crate::station::{self, Recorder};
 use cams::Cams;
 pub use cams::{Busy, CodeColor, EdgeError};
 use clock::ServerClock;
 use files::StaticFiles;
 use group::Groups;
 pub use identities::{Identities, Role};
+use measure::{Records, Rig};
 
 /// How often `/files` looks for new, changed and vanished files.
 const RESCAN: Duration = Duration::from_millis(200);
@@ -63,8 +65,8 @@ pub struct RealSenseOptions {
     pub software: Option<Scene>,
 }
 
-/// What a [`Station`] serves, and where.
-pub struct StationConfig {
+/// What a [`CameraServer`] serves, and where.
+pub struct Config {
     /// The addresses to answer on.
     pub binds: Vec<SocketAddr>,
     /// The cameras under `/cams`; none for a plain CoAP server.
@@ -94,12 +96,6 @@ pub struct StationConfig {
     /// The DTLS identities with their keys and roles; with them, configuration changes
     /// need an identity of the `configure` role (or this machine).
     pub identities: Option<Arc<Identities>>,
-    /// What the station does by itself: its name, the results log that records every
-    /// measurement (opened when there are cameras), the log's retention.
-    pub station: station::Config,
-    /// Measure each parcel placed on the table by itself (`--auto-measure`,
-    /// `--still-ms`); `None`: only when a client asks.
-    pub auto_measure: Option<station::watch::AutoConfig>,
     /// Shift the server's clock as its clients see it (the times it stamps into answers
     /// and its frames' capture times) by this many µs (`--clock-offset-ms`: a server whose
     /// clock is off, for tests); 0 for the system's clock.
@@ -122,37 +118,20 @@ pub fn loopback_only(request: &IncomingRequest) -> Option<Response> {
 }
 
 /// A running camera server: bound, its cameras routed, its groups joined.
-pub struct Station {
+pub struct CameraServer {
     server: Server,
     /// The `/coap-group` memberships (what `register_with` announces).
     groups: Arc<Groups>,
     files: Option<StaticFiles>,
     changed: mpsc::UnboundedReceiver<String>,
+    /// The sending side of `changed`, for paths changed outside the server.
+    changes: mpsc::UnboundedSender<String>,
     memberships: mpsc::UnboundedReceiver<group::MembershipChange>,
     group_interface: u32,
     cameras: Option<CameraTree>,
-    /// The results log, when there are cameras, and the newest record's id it follows.
-    results: Option<(ResultsLog, watch::Receiver<u64>)>,
-    /// The log's MQTT publisher (`--mqtt`) and line output (`--line-output`).
-    publisher: Option<station::mqtt::Publisher>,
-    line_output: Option<station::line::LineOutput>,
-    /// The page and the HTTP API (`--http`), the webhook (`--webhook`).
-    http: Option<station::http::HttpServer>,
-    _webhook: Option<station::webhook::Webhook>,
-    /// `--auto-measure`: the task watching the table, stopped with the station.
-    _watcher: Option<AbortOnDrop>,
 }
 
-/// A task aborted when this is dropped.
-struct AbortOnDrop(JoinHandle<()>);
-
-impl Drop for AbortOnDrop {
-    fn drop(&mut self) {
-        self.0.abort();
-    }
-}
-
-impl Station {
+impl CameraServer {
     /// Measures with every camera of this server, in process, as `POST /cams/dimensions`
     /// does (and keeps it as its latest measurement); see [`SceneServer::measure_now`].
     pub async fn measure_now(&self, query: &EdgeQuery) -> Result<Measurement, EdgeError> {
@@ -163,7 +142,7 @@ impl Station {
     }
 
     /// Builds the resource tree of `config`, binds every address and joins the groups.
-    pub async fn start(config: StationConfig) -> anyhow::Result<Self> {
+    pub async fn start(config: Config) -> anyhow::Result<Self> {
         let router = Router::new();
         match (&config.identities, config.allow_unauthenticated_config) {
             (Some(ids), _) => router.set_policy(Arc::new(identities::by_role(ids.clone()))),
@@ -197,23 +176,6 @@ impl Station {
             )?),
             None => None,
         };
-        let mut recorder = None;
-        let results = match &cameras {
-            Some(tree) => {
-                let path = config.station.results_path(&config.state_dir);
-                let last_id = station::last_id_path(&config.state_dir, &path);
-                let log = ResultsLog::open_station(&path, config.station.retention, &last_id)
-                    .with_context(|| format!("opening the results log {}", path.display()))?;
-                station::resources::register(&router, &log);
-                let records = Recorder::new(log.clone(), config.station.name.clone());
-                tree.cams.set_recorder(records.clone());
-                recorder = Some(records);
-                let newest = log.subscribe();
-                Some((log, newest))
-            }
-            None => None,
-        };
-        let (publisher, line_output) = start_outputs(&config.station, results.as_ref()).await?;
         let binds = &config.binds;
         let server = Server::bind(
             binds,
@@ -225,40 +187,49 @@ impl Station {
             router,
         )
         .with_context(|| format!("binding {binds:?}"))?;
-        // After the bind: the proxy reaches the addresses the server answers on.
-        let (http, webhook) = start_http(
-            &config.station,
-            cameras.as_ref().zip(recorder.as_ref()),
-            config.allow_unauthenticated_config,
-            server.local_addrs(),
-        )
-        .await?;
         groups
             .start(&server, &config.groups, config.group_interface)
             .await?;
-        // The station watches the table once the server answers.
-        let watcher =
-            match (&cameras, recorder, config.auto_measure) {
-                (Some(tree), Some(recorder), Some(auto)) => Some(AbortOnDrop(
-                    station::watch::spawn(tree.cams.clone(), recorder, auto),
-                )),
-                _ => None,
-            };
         Ok(Self {
             server,
             groups,
             files,
             changed,
+            changes: changed_tx,
             memberships,
             group_interface: config.group_interface,
             cameras,
-            results,
-            publisher,
-            line_output,
-            http,
-            _webhook: webhook,
-            _watcher: watcher,
         })
+    }
+
+    /// The router: what the station adds to the server (its resources) goes on it.
+    pub fn router(&self) -> &Arc<Router> {
+        self.server.router()
+    }
+
+    /// The cameras, to measure through (none without cameras).
+    pub(crate) fn rig(&self) -> Option<Arc<impl Rig>> {
+        self.cameras.as_ref().map(|tree| tree.cams.clone())
+    }
+
+    /// Whether the server serves cameras (`/cams`).
+    pub fn has_cameras(&self) -> bool {
+        self.cameras.is_some()
+    }
+
+    /// Keeps every measurement made for a client (`POST /cams/dimensions`) in `records`
+    /// before answering it, with its photo and annotated picture; set once, and nothing
+    /// without cameras.
+    pub fn set_records(&self, records: Arc<dyn Records>) {
+        if let Some(tree) = &self.cameras {
+            tree.cams.set_records(records);
+        }
+    }
+
+    /// Where to send the path of a resource that changed outside the server (the
+    /// station's): its observers are notified, once for all the sends meanwhile.
+    pub fn changes(&self) -> mpsc::UnboundedSender<String> {
+        self.changes.clone()
     }
 
     /// Sets every camera's color stream to the resolution the codes need and says what
@@ -268,25 +239,6 @@ impl Station {
             .as_ref()
             .map(|tree| tree.cams.color_for_codes())
             .unwrap_or_default()
-    }
-
-    /// Where the line output listens (`--line-output`).
-    pub fn line_output_addr(&self) -> Option<SocketAddr> {
-        self.line_output
-            .as_ref()
-            .map(station::line::LineOutput::local_addr)
-    }
-
-    /// Where the page and the HTTP API are served (`--http`).
-    pub fn http_addr(&self) -> Option<SocketAddr> {
-        self.http
-            .as_ref()
-            .map(station::http::HttpServer::local_addr)
-    }
-
-    /// The results log (when the server has cameras).
-    pub fn results(&self) -> Option<&ResultsLog> {
-        self.results.as_ref().map(|(log, _)| log)
     }
 
     /// The addresses it answers on.
@@ -341,16 +293,9 @@ impl Station {
         let mut tick = tokio::time::interval_at(Instant::now() + RESCAN, RESCAN);
         tick.set_missed_tick_behavior(MissedTickBehavior::Delay);
         let mut scan: Option<JoinHandle<Vec<String>>> = None;
-        let mut newest = self.results.as_ref().map(|(_, newest)| newest.clone());
         loop {
             tokio::select! {
                 () = &mut stop => break,
-                Ok(()) = async { newest.as_mut().expect("guarded by is_some").changed().await }, if newest.is_some() => {
-                    // One notification per new record: the observers of the newest record
-                    // are told before the next append is looked at (appends that come
-                    // faster than notifications go out are told once, with the newest).
-                    server.notify(crate::api::paths::LATEST).await;
-                }
                 Some(path) = self.changed.recv() => {
                     notify_changed(server, path, &mut self.changed).await;
                 }
@@ -384,91 +329,7 @@ impl Station {
         if let Some(scan) = scan {
             let _ = scan.await;
         }
-        // `offline` on the status topic, within a bounded time.
-        if let Some(publisher) = self.publisher.take() {
-            publisher.stop().await;
-        }
     }
-}
-
-/// The MQTT publisher and the line output of the results log, as `config` asks.
-async fn start_outputs(
-    config: &station::Config,
-    results: Option<&(ResultsLog, watch::Receiver<u64>)>,
-) -> anyhow::Result<(
-    Option<station::mqtt::Publisher>,
-    Option<station::line::LineOutput>,
-)> {
-    let Some((log, _)) = results else {
-        if config.mqtt.is_some() || config.line_output.is_some() {
-            bail!("--mqtt and --line-output need cameras (and so a results log)");
-        }
-        return Ok((None, None));
-    };
-    let publisher = match &config.mqtt {
-        Some(target) => Some(
-            station::mqtt::Publisher::start(
-                station::mqtt::Config {
-                    target: target.clone(),
-                    station: config.name.clone(),
-                },
-                log.clone(),
-            )
-            .context("the station's name as an MQTT topic level (--station-name)")?,
-        ),
-        None => None,
-    };
-    let line_output = match config.line_output {
-        Some(addr) => Some(
-            station::line::LineOutput::start(addr, log.clone())
-                .await
-                .with_context(|| format!("listening for line output readers on {addr}"))?,
-        ),
-        None => None,
-    };
-    Ok((publisher, line_output))
-}
-
-/// The HTTP server and the webhook, as `config` asks; `open`: anyone may measure over
-/// HTTP (`--allow-unauthenticated-config`); `own`: the CoAP server's addresses, which
-/// the proxy reaches besides the hosts of `--proxy-allow`.
-async fn start_http(
-    config: &station::Config,
-    cameras: Option<(&CameraTree, &Recorder)>,
-    open: bool,
-    own: Vec<SocketAddr>,
-) -> anyhow::Result<(
-    Option<station::http::HttpServer>,
-    Option<station::webhook::Webhook>,
-)> {
-    let Some((tree, recorder)) = cameras else {
-        if config.http.is_some() || config.webhook.is_some() {
-            bail!("--http and --webhook need cameras (and so a results log)");
-        }
-        return Ok((None, None));
-    };
-    let http = match config.http {
-        Some(addr) => Some(
-            station::http::HttpServer::start(
-                addr,
-                tree.cams.clone(),
-                recorder.clone(),
-                open,
-                station::http::proxy::Reach {
-                    own,
-                    allowed: config.proxy_allow.clone(),
-                },
-            )
-            .await
-            .with_context(|| format!("listening for HTTP on {addr}"))?,
-        ),
-        None => None,
-    };
-    let webhook = config
-        .webhook
-        .clone()
-        .map(|target| station::webhook::Webhook::start(target, recorder.log().clone()));
-    Ok((http, webhook))
 }
 
 /// Notifies the observers of `first` and of every other path changed meanwhile, each
@@ -544,7 +405,7 @@ impl SceneServer {
     }
 
     /// Shifts the server's clock as its clients see it by `offset_us` (see
-    /// [`StationConfig::clock_offset_us`]).
+    /// [`Config::clock_offset_us`]).
     pub fn set_clock_offset_us(&self, offset_us: i64) {
         self.clock.set_offset_us(offset_us);
     }

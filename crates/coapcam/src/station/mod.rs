@@ -1,6 +1,13 @@
-//! The station: what a camera server does by itself for a parcel lane (docs/station.md).
+//! The station: a camera server and what it does by itself for a parcel lane
+//! (docs/station.md). The station is above the server: it uses the server, the server
+//! never the station.
+//! - `start`: [`Station`], the composition: the camera server ([`crate::server`]), the
+//!   results log, its resources and outputs, the watcher;
 //! - [`crate::api::record`] (the record of a measurement, shared with the client);
 //! - [`log`]: the results log, append-only and hash-chained in SQLite, with retention;
+//! - `recorder`: [`Recorder`], which appends a measurement under the station's name (and
+//!   is how the camera server keeps what it measures for clients);
+//! - [`follow`]: the one follower of the log, and the `Sink` trait of its outputs;
 //! - `reads`: the log's read API (list, one record, pictures, refusals), once for both
 //!   front ends;
 //! - `resources`: the log as CoAP resources (`/station/measurements...`);
@@ -9,24 +16,26 @@
 //! - [`http`]: the page and the JSON API over HTTP (`serve --http`);
 //! - [`webhook`]: every record POSTed to an HTTP URL, none lost while it is away;
 //! - [`auto`]: automatic measurement's core: height maps of the table and the stillness
-//!   detector that says when a parcel stands still.
+//!   detector that says when a parcel stands still; [`watch`]: the task that drives it.
 
 pub mod auto;
 pub mod follow;
 pub mod http;
 pub mod line;
 pub mod log;
-pub mod measure;
 pub mod mqtt;
 pub(crate) mod reads;
+mod recorder;
 pub(crate) mod resources;
+mod start;
 pub mod watch;
 pub mod webhook;
 
 use std::path::{Path, PathBuf};
 
-use self::log::{LogError, ResultsLog, Retention};
-use crate::api::record::{CameraPose, NewRecord, Record, Trigger, UtcTime};
+use self::log::Retention;
+pub use recorder::Recorder;
+pub use start::Station;
 
 /// The name of the results log's file in the state directory.
 pub const RESULTS_FILE: &str = "results.sqlite";
@@ -43,7 +52,7 @@ pub fn last_id_path(state_dir: &Path, log: &Path) -> PathBuf {
     state_dir.join(format!("{name}.last-id"))
 }
 
-/// The station's part of a server's configuration (`serve`'s station flags).
+/// What the station adds to its camera server (`serve`'s station flags).
 #[derive(Debug, Clone)]
 pub struct Config {
     /// The station's name, in every record (`--station-name`).
@@ -64,6 +73,9 @@ pub struct Config {
     pub proxy_allow: Vec<http::proxy::Allowed>,
     /// POST every record to this URL (`--webhook`).
     pub webhook: Option<webhook::Target>,
+    /// Measure each parcel placed on the table by itself (`--auto-measure`,
+    /// `--still-ms`); `None`: only when a client asks.
+    pub auto_measure: Option<watch::AutoConfig>,
 }
 
 impl Default for Config {
@@ -77,6 +89,7 @@ impl Default for Config {
             http: None,
             proxy_allow: Vec::new(),
             webhook: None,
+            auto_measure: None,
         }
     }
 }
@@ -99,68 +112,4 @@ pub fn host_name() -> String {
         .filter(|s| !s.is_empty())
         .or_else(|| std::env::var("HOSTNAME").ok().filter(|s| !s.is_empty()))
         .unwrap_or_else(|| "coapcam".to_owned())
-}
-
-/// Records measurements in the log under the station's name: what every measurement
-/// path (a client's `POST /cams/dimensions`, the automatic one) calls once it has
-/// measured, before it tells anyone.
-#[derive(Debug, Clone)]
-pub struct Recorder {
-    log: ResultsLog,
-    station: String,
-}
-
-/// What a measurement path hands [`Recorder::record`].
-#[derive(Debug, Clone)]
-pub struct Measured {
-    /// What made it.
-    pub trigger: Trigger,
-    /// The measurement.
-    pub measurement: crate::report::Measurement,
-    /// Each camera's serial and 3d-transformation.
-    pub cameras: Vec<CameraPose>,
-    /// The photo, JPEG.
-    pub photo_jpeg: Option<Vec<u8>>,
-    /// The annotated picture, PNG.
-    pub annotated_png: Option<Vec<u8>>,
-}
-
-impl Recorder {
-    /// Records into `log` as station `station`.
-    pub fn new(log: ResultsLog, station: String) -> Self {
-        Self { log, station }
-    }
-
-    /// The log.
-    pub fn log(&self) -> &ResultsLog {
-        &self.log
-    }
-
-    /// The station's name.
-    pub fn station(&self) -> &str {
-        &self.station
-    }
-
-    /// Appends `measured`, timed now, on the blocking pool; the record is on disk when
-    /// this returns.
-    pub async fn record(&self, measured: Measured) -> Result<Record, LogError> {
-        let new = NewRecord {
-            time: UtcTime::now(),
-            station: self.station.clone(),
-            trigger: measured.trigger,
-            measurement: measured.measurement,
-            cameras: measured.cameras,
-            version: NewRecord::VERSION.to_owned(),
-            photo_jpeg: measured.photo_jpeg,
-            annotated_png: measured.annotated_png,
-        };
-        let log = self.log.clone();
-        match tokio::task::spawn_blocking(move || log.append(new)).await {
-            Ok(appended) => appended,
-            Err(e) => Err(LogError::Failed {
-                path: self.log.path().to_owned(),
-                why: format!("the appending task failed: {e}"),
-            }),
-        }
-    }
 }

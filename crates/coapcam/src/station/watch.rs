@@ -4,7 +4,7 @@
 //! the [`Rig`], i.e. the `Camera` the server serves, librealsense's or the synthetic
 //! one), places every fourth pixel or so on the table with the camera's
 //! 3d-transformation into one [`HeightMap`], and feeds it to the detector. On
-//! [`Event::Still`] it makes the measurement ([`super::measure::measure`], with the
+//! [`Event::Still`] it makes the measurement ([`measure::measure`], with the
 //! codes, the photo and the annotated picture), looks once more, and records the
 //! measurement only if the table is still as it was: something that moved during the
 //! measurement is not recorded, and is measured again once it stands still.
@@ -18,9 +18,9 @@ use tokio::task::JoinHandle;
 
 use super::Recorder;
 use super::auto::{Event, Grid, HeightMap, Stillness, StillnessConfig};
-use super::measure::{self, Rig, RigCamera};
 use crate::api::record::Trigger;
 use crate::report::{EdgeQuery, Found};
+use crate::server::measure::{self, Rig, RigCamera};
 
 /// How long a look waits for a camera's depth frame.
 const GRAB_TIMEOUT: Duration = Duration::from_secs(5);

@@ -26,13 +26,12 @@ use rgbd::{
 };
 use tokio::sync::mpsc;
 
+use super::measure::{self, Records, Rig, RigCamera, Shot};
 use crate::api::record::{CameraPose, Trigger};
 use crate::report::{self, EdgeQuery, Measurement, Table};
 use crate::repr::clouds::DepthPart;
 use crate::repr::no_depth::{self, NoDepth};
 use crate::repr::{self, CloudSource, Stream, Subject, raster};
-use crate::station::Recorder;
-use crate::station::measure::{self as station_measure, Rig, RigCamera, Shot};
 use crate::vision::calibration::pose_transformation;
 use crate::vision::codes;
 
@@ -105,8 +104,8 @@ pub(crate) struct Cams {
     measured: Mutex<edge::Latest>,
     /// The memory grabs in progress may take together.
     budget: Arc<budget::Budget>,
-    /// Where measurements are recorded (the results log), once the server has one.
-    recorder: OnceLock<Recorder>,
+    /// Where measurements are kept (the station's results log), once it is set.
+    records: OnceLock<Arc<dyn Records>>,
     /// The server's clock: frames' capture times are shifted onto it.
     clock: Arc<ServerClock>,
     /// The last frame of each camera measured at the edge: a camera that serves it again
@@ -142,7 +141,7 @@ impl Cams {
             changed,
             measured: Mutex::default(),
             budget: budget::Budget::new(budget::DEFAULT_BYTES),
-            recorder: OnceLock::new(),
+            records: OnceLock::new(),
             clock,
             frames: Mutex::default(),
         });
@@ -169,10 +168,10 @@ impl Cams {
         self.budget.set_limit(bytes);
     }
 
-    /// Records every measurement made for a client (`POST /cams/dimensions`) with
-    /// `recorder` before answering it; set once.
-    pub(crate) fn set_recorder(&self, recorder: Recorder) {
-        let _ = self.recorder.set(recorder);
+    /// Keeps every measurement made for a client (`POST /cams/dimensions`) in `records`
+    /// before answering it; set once.
+    pub(crate) fn set_records(&self, records: Arc<dyn Records>) {
+        let _ = self.records.set(records);
     }
 
     /// Reserves the memory of grabbing `kinds` from each of `cams`, or the 5.03 refusal.
@@ -820,28 +819,18 @@ impl Cams {
         };
         // Its own measurement, not the latest: another may have ended meanwhile. With a
         // results log it comes with the photo and the annotated picture to record.
-        let recorder = self.recorder.get();
-        let measured = match station_measure::measure(
-            self,
-            &query,
-            Trigger::Request,
-            recorder.is_some(),
-        )
-        .await
-        {
-            Ok(measured) => measured,
-            Err(e) => return e.response(),
-        };
+        let records = self.records.get();
+        let measured =
+            match measure::measure(self, &query, Trigger::Request, records.is_some()).await {
+                Ok(measured) => measured,
+                Err(e) => return e.response(),
+            };
         let m = measured.measurement.clone();
-        // Recorded before it is answered: an answered measurement is in the log.
-        if let Some(recorder) = recorder
-            && let Err(e) = recorder.record(measured).await
+        // Kept before it is answered: an answered measurement is in the log.
+        if let Some(records) = records
+            && let Err(why) = records.keep(measured).await
         {
-            tracing::error!("a measurement could not be recorded: {e}");
-            let why = format!(
-                "measured, but the measurement could not be recorded: {}",
-                e.public_text()
-            );
+            let why = format!("measured, but the measurement could not be recorded: {why}");
             return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
         }
         match edge::stored(m) {

@@ -46,12 +46,12 @@ use tokio::task::{JoinHandle, JoinSet};
 use super::Recorder;
 use super::follow::Follower;
 use super::log::ResultsLog;
-use super::measure::Rig;
 use super::reads::{self, Kind, Picture, Refusal};
 use crate::api::record::{Record, Trigger};
 use crate::api::results::{ListQuery, MAX_LIST};
 use crate::report::EdgeQuery;
 use crate::repr::raster;
+use crate::server::measure::Rig;
 
 /// The page, served at `/`.
 const PAGE: &str = include_str!("page.html");
@@ -467,7 +467,7 @@ impl<R: Rig> App<R> {
             Ok(q) => q,
             Err(why) => return error(StatusCode::BAD_REQUEST, &why),
         };
-        let measured = match super::measure::measure(
+        let measured = match crate::server::measure::measure(
             self.rig.as_ref(),
             &query,
             Trigger::Request,
@@ -912,7 +912,7 @@ enum Live {
 }
 
 /// A new depth frame of `cam`, colour-mapped, as JPEG (blocking).
-fn depth_jpeg(cam: &super::measure::RigCamera) -> Result<Vec<u8>, String> {
+fn depth_jpeg(cam: &crate::server::measure::RigCamera) -> Result<Vec<u8>, String> {
     let frame = cam
         .camera
         .grab_depth(Duration::from_secs(2))

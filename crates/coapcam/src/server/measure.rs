@@ -1,21 +1,49 @@
 //! Making a measurement to record, the one way every measurement path does it (a client's
-//! `POST /cams/dimensions`, the automatic one): the edge measurement of every camera
-//! (with the codes when asked), a photo (JPEG) of the first camera in merge order, taken
-//! while the clouds are grabbed, and the measured box drawn onto that photo (PNG). The
-//! cameras are a [`Rig`], which the server's `/cams` tree is; the result is a
-//! [`Measured`] for [`super::Recorder::record`].
+//! `POST /cams/dimensions`, the station's HTTP and automatic ones): the edge measurement
+//! of every camera (with the codes when asked), a photo (JPEG) of the first camera in
+//! merge order, taken while the clouds are grabbed, and the measured box drawn onto that
+//! photo (PNG). The cameras are a [`Rig`], which the server's `/cams` tree is; the result
+//! is a [`Measured`]. The server keeps what it measures for a client through
+//! [`Records`], which the station above it implements with its results log.
 
 use std::future::Future;
+use std::pin::Pin;
 use std::sync::Arc;
 
 use geometry::Transformation;
 use rgbd::{Camera, ColorFrame, Extrinsics, Intrinsics, Serial};
 
-use super::Measured;
 use crate::api::record::{CameraPose, Trigger};
 use crate::report::{EdgeQuery, Found, Measurement};
 use crate::repr::raster;
 use crate::vision::picture;
+
+/// A measurement made to be recorded: what [`measure`] hands on.
+#[derive(Debug, Clone)]
+pub struct Measured {
+    /// What made it.
+    pub trigger: Trigger,
+    /// The measurement.
+    pub measurement: Measurement,
+    /// Each camera's serial and 3d-transformation.
+    pub cameras: Vec<CameraPose>,
+    /// The photo, JPEG.
+    pub photo_jpeg: Option<Vec<u8>>,
+    /// The annotated picture, PNG.
+    pub annotated_png: Option<Vec<u8>>,
+}
+
+/// Where a camera server keeps each measurement it makes for a client
+/// (`POST /cams/dimensions`) before it answers: the station's results log. With none set
+/// the server measures without pictures and keeps nothing.
+pub trait Records: Send + Sync + 'static {
+    /// Keeps `measured`; the error says, in words fit for the client, why it was not
+    /// kept (the client is then told that it was measured but not recorded).
+    fn keep(
+        &self,
+        measured: Measured,
+    ) -> Pin<Box<dyn Future<Output = Result<(), String>> + Send + '_>>;
+}
 
 /// JPEG quality of the photo: a legible label and parcel at a tenth of the PNG's bytes.
 pub const PHOTO_QUALITY: u8 = 85;
@@ -45,7 +73,7 @@ pub struct RigCamera {
 }
 
 /// What measuring needs of a server's cameras. The `/cams` tree is the one there is; the
-/// trait keeps the station's code free of the server's.
+/// station's watcher and HTTP side measure through it.
 pub trait Rig: Send + Sync + 'static {
     /// Why a measurement failed.
     type Error: std::error::Error + Send + Sync + 'static;

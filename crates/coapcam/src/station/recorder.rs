@@ -1,0 +1,73 @@
+//! [`Recorder`]: what every measurement path calls once it has measured, and how the
+//! camera server keeps what it measures for clients ([`Records`]).
+
+use std::future::Future;
+use std::pin::Pin;
+
+use super::log::{LogError, ResultsLog};
+use crate::api::record::{NewRecord, Record, UtcTime};
+use crate::server::measure::{Measured, Records};
+
+/// Records measurements in the log under the station's name: what every measurement
+/// path (a client's `POST /cams/dimensions`, the automatic one) calls once it has
+/// measured, before it tells anyone.
+#[derive(Debug, Clone)]
+pub struct Recorder {
+    log: ResultsLog,
+    station: String,
+}
+
+impl Recorder {
+    /// Records into `log` as station `station`.
+    pub fn new(log: ResultsLog, station: String) -> Self {
+        Self { log, station }
+    }
+
+    /// The log.
+    pub fn log(&self) -> &ResultsLog {
+        &self.log
+    }
+
+    /// The station's name.
+    pub fn station(&self) -> &str {
+        &self.station
+    }
+
+    /// Appends `measured`, timed now, on the blocking pool; the record is on disk when
+    /// this returns.
+    pub async fn record(&self, measured: Measured) -> Result<Record, LogError> {
+        let new = NewRecord {
+            time: UtcTime::now(),
+            station: self.station.clone(),
+            trigger: measured.trigger,
+            measurement: measured.measurement,
+            cameras: measured.cameras,
+            version: NewRecord::VERSION.to_owned(),
+            photo_jpeg: measured.photo_jpeg,
+            annotated_png: measured.annotated_png,
+        };
+        let log = self.log.clone();
+        match tokio::task::spawn_blocking(move || log.append(new)).await {
+            Ok(appended) => appended,
+            Err(e) => Err(LogError::Failed {
+                path: self.log.path().to_owned(),
+                why: format!("the appending task failed: {e}"),
+            }),
+        }
+    }
+}
+
+/// The camera server keeps what it measures for a client in the log.
+impl Records for Recorder {
+    fn keep(
+        &self,
+        measured: Measured,
+    ) -> Pin<Box<dyn Future<Output = Result<(), String>> + Send + '_>> {
+        Box::pin(async move {
+            self.record(measured).await.map(drop).map_err(|e| {
+                tracing::error!("a measurement could not be recorded: {e}");
+                e.public_text()
+            })
+        })
+    }
+}

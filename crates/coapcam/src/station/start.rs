@@ -1,0 +1,224 @@
+//! [`Station`]: the camera server and what the station adds to it, composed in one place.
+//! The camera server starts first (its cameras, files, groups, the bind); then, when it
+//! has cameras, the results log (its CoAP resources on the server's router, the server
+//! keeping what it measures for clients in it), the outputs that follow it (MQTT, the
+//! line output, the webhook), the HTTP side and the watcher of `--auto-measure`.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use anyhow::{Context as _, bail};
+use tokio::task::JoinHandle;
+
+use super::log::ResultsLog;
+use super::{Config, Recorder, http, last_id_path, line, mqtt, resources, watch, webhook};
+use crate::api::paths;
+use crate::rd::registrant::{Registrant, RegistrantConfig};
+use crate::report::{EdgeQuery, Measurement};
+use crate::server::{self, CameraServer, CodeColor, EdgeError};
+
+/// A running station: its camera server, and with cameras its results log and outputs.
+pub struct Station {
+    server: CameraServer,
+    results: Option<ResultsLog>,
+    /// The log's MQTT publisher (`--mqtt`) and line output (`--line-output`).
+    publisher: Option<mqtt::Publisher>,
+    line_output: Option<line::LineOutput>,
+    /// The page and the HTTP API (`--http`), the webhook (`--webhook`).
+    http: Option<http::HttpServer>,
+    _webhook: Option<webhook::Webhook>,
+    /// The tasks that end with the station: the one that tells the server of each new
+    /// record (the observers of `/station/measurements/latest`), and `--auto-measure`'s
+    /// watcher.
+    _tasks: Tasks,
+}
+
+/// Tasks aborted when this is dropped.
+struct Tasks(Vec<JoinHandle<()>>);
+
+impl Drop for Tasks {
+    fn drop(&mut self) {
+        for task in &self.0 {
+            task.abort();
+        }
+    }
+}
+
+impl Station {
+    /// Starts the camera server of `server` and what `config` adds to it.
+    pub async fn start(server: server::Config, config: Config) -> anyhow::Result<Self> {
+        let open = server.allow_unauthenticated_config;
+        let state_dir = server.state_dir.clone();
+        let server = CameraServer::start(server).await?;
+        let mut tasks = Vec::new();
+        let recorder = match server.rig() {
+            Some(_) => {
+                let path = config.results_path(&state_dir);
+                let last_id = last_id_path(&state_dir, &path);
+                let log = ResultsLog::open_station(&path, config.retention, &last_id)
+                    .with_context(|| format!("opening the results log {}", path.display()))?;
+                resources::register(server.router(), &log);
+                let recorder = Recorder::new(log.clone(), config.name.clone());
+                server.set_records(Arc::new(recorder.clone()));
+                // One notification per new record: appends that come faster than
+                // notifications go out are told once, with the newest.
+                let (mut newest, changes) = (log.subscribe(), server.changes());
+                tasks.push(tokio::spawn(async move {
+                    while newest.changed().await.is_ok()
+                        && changes.send(paths::LATEST.to_owned()).is_ok()
+                    {}
+                }));
+                Some(recorder)
+            }
+            None => None,
+        };
+        let (publisher, line_output) = start_outputs(&config, recorder.as_ref()).await?;
+        let (http, webhook) = start_http(&config, &server, recorder.as_ref(), open).await?;
+        // The station watches the table once the server answers.
+        if let (Some(rig), Some(recorder), Some(auto)) =
+            (server.rig(), recorder.clone(), config.auto_measure)
+        {
+            tasks.push(watch::spawn(rig, recorder, auto));
+        }
+        Ok(Self {
+            server,
+            results: recorder.map(|r| r.log().clone()),
+            publisher,
+            line_output,
+            http,
+            _webhook: webhook,
+            _tasks: Tasks(tasks),
+        })
+    }
+
+    /// Measures with every camera, in process, as `POST /cams/dimensions` does (and
+    /// keeps it as the latest measurement).
+    pub async fn measure_now(&self, query: &EdgeQuery) -> Result<Measurement, EdgeError> {
+        self.server.measure_now(query).await
+    }
+
+    /// Sets every camera's color stream to the resolution the codes need and says what
+    /// each reads; none without cameras.
+    pub fn color_for_codes(&self) -> Vec<CodeColor> {
+        self.server.color_for_codes()
+    }
+
+    /// Where the line output listens (`--line-output`).
+    pub fn line_output_addr(&self) -> Option<SocketAddr> {
+        self.line_output.as_ref().map(line::LineOutput::local_addr)
+    }
+
+    /// Where the page and the HTTP API are served (`--http`).
+    pub fn http_addr(&self) -> Option<SocketAddr> {
+        self.http.as_ref().map(http::HttpServer::local_addr)
+    }
+
+    /// The results log (when there are cameras).
+    pub fn results(&self) -> Option<&ResultsLog> {
+        self.results.as_ref()
+    }
+
+    /// The addresses the camera server answers on.
+    pub fn local_addrs(&self) -> Vec<SocketAddr> {
+        self.server.local_addrs()
+    }
+
+    /// Registers the camera server with a resource directory
+    /// ([`CameraServer::register_with`]).
+    ///
+    /// # Errors
+    ///
+    /// When the server has no address of the directory's family.
+    pub fn register_with(&self, config: RegistrantConfig) -> anyhow::Result<Registrant> {
+        self.server.register_with(config)
+    }
+
+    /// Serves until `stop` completes ([`CameraServer::run`]), then stops the MQTT
+    /// publisher (`offline` on the status topic, within a bounded time).
+    pub async fn run(self, stop: impl Future<Output = ()>) {
+        // The outputs, the HTTP side and the tasks live until the end (`..` keeps them in
+        // `self`).
+        let Self {
+            server, publisher, ..
+        } = self;
+        server.run(stop).await;
+        if let Some(publisher) = publisher {
+            publisher.stop().await;
+        }
+    }
+}
+
+/// The MQTT publisher and the line output of the results log, as `config` asks.
+async fn start_outputs(
+    config: &Config,
+    recorder: Option<&Recorder>,
+) -> anyhow::Result<(Option<mqtt::Publisher>, Option<line::LineOutput>)> {
+    let Some(log) = recorder.map(Recorder::log) else {
+        if config.mqtt.is_some() || config.line_output.is_some() {
+            bail!("--mqtt and --line-output need cameras (and so a results log)");
+        }
+        return Ok((None, None));
+    };
+    let publisher = match &config.mqtt {
+        Some(target) => Some(
+            mqtt::Publisher::start(
+                mqtt::Config {
+                    target: target.clone(),
+                    station: config.name.clone(),
+                },
+                log.clone(),
+            )
+            .context("the station's name as an MQTT topic level (--station-name)")?,
+        ),
+        None => None,
+    };
+    let line_output = match config.line_output {
+        Some(addr) => Some(
+            line::LineOutput::start(addr, log.clone())
+                .await
+                .with_context(|| format!("listening for line output readers on {addr}"))?,
+        ),
+        None => None,
+    };
+    Ok((publisher, line_output))
+}
+
+/// The HTTP server and the webhook, as `config` asks; `open`: anyone may measure over
+/// HTTP (`--allow-unauthenticated-config`). The proxy reaches the camera server's
+/// addresses besides the hosts of `--proxy-allow`.
+async fn start_http(
+    config: &Config,
+    server: &CameraServer,
+    recorder: Option<&Recorder>,
+    open: bool,
+) -> anyhow::Result<(Option<http::HttpServer>, Option<webhook::Webhook>)> {
+    let (Some(rig), Some(recorder)) = (server.rig(), recorder) else {
+        if config.http.is_some() || config.webhook.is_some() {
+            bail!("--http and --webhook need cameras (and so a results log)");
+        }
+        return Ok((None, None));
+    };
+    let http = match config.http {
+        Some(addr) => Some(
+            http::HttpServer::start(
+                addr,
+                rig,
+                recorder.clone(),
+                open,
+                http::proxy::Reach {
+                    own: server.local_addrs(),
+                    allowed: config.proxy_allow.clone(),
+                },
+            )
+            .await
+            .with_context(|| format!("listening for HTTP on {addr}"))?,
+        ),
+        None => None,
+    };
+    let webhook = config
+        .webhook
+        .clone()
+        .map(|target| webhook::Webhook::start(target, recorder.log().clone()));
+    Ok((http, webhook))
+}
