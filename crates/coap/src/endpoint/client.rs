@@ -106,7 +106,7 @@ impl ClientLayer {
         peer: SocketAddr,
     ) -> RequestId {
         let id = cx.new_id();
-        let mid = cx.msg.next_mid();
+        let mid = cx.msg.next_mid(now, peer);
         cx.msg.send_con(
             now,
             peer,
@@ -158,7 +158,10 @@ impl ClientLayer {
     }
 
     pub(super) fn send_step(&mut self, cx: &mut Context<'_>, now: Instant, id: u64) {
-        let mid = cx.msg.next_mid();
+        let Some(peer) = self.requests.get(&id).map(|r| r.peer) else {
+            return;
+        };
+        let mid = cx.msg.next_mid(now, peer);
         let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
@@ -355,7 +358,8 @@ impl ClientLayer {
             } if tx < max => {
                 // A NON request gets no ACK; resend it (new message ID, same token) after
                 // the timeout a CON would start with, doubling each time.
-                let mid = cx.msg.next_mid();
+                let peer = r.peer;
+                let mid = cx.msg.next_mid(now, peer);
                 let Some(r) = self.requests.get_mut(&id) else {
                     return;
                 };
@@ -364,7 +368,6 @@ impl ClientLayer {
                     non_tx: Some(tx + 1),
                     mid,
                 };
-                let peer = r.peer;
                 let t = cx.msg.initial_timeout(now, peer, cx.config).0 * (1u32 << (tx + 1));
                 cx.msg.schedule(now + t, TimerKind::Step { id, generation });
             }

@@ -46,13 +46,13 @@ impl ClientLayer {
             };
             let peer = r.peer;
             let next = r.window.as_ref().and_then(Window::next_block);
-            let mid_wait = cx.msg.mid_free_at(now, cx.config.exchange_lifetime);
+            let mid_wait = cx.msg.mid_free_at(now, peer);
             let cc = cx.msg.path(now, peer).controller(now, cx.config);
             let (Some(num), None) = (next, mid_wait) else {
                 // Nothing to ask for (the tail of the body, or the reorder buffer full),
-                // or every message ID was used within EXCHANGE_LIFETIME (wait for the
-                // next): if the controller would have let a request go, what it measures
-                // now is the sender's shortage, not the path's rate.
+                // or every message ID to the peer was used within EXCHANGE_LIFETIME (wait
+                // for the next): if the controller would have let a request go, what it
+                // measures now is the sender's shortage, not the path's rate.
                 if cc.in_flight() < cc.window() && cc.next_send(now).is_none() {
                     cc.on_app_limited(now);
                 }
@@ -67,7 +67,7 @@ impl ClientLayer {
                 break;
             }
             let state = cc.on_sent(now);
-            let mid = cx.msg.next_mid();
+            let mid = cx.msg.next_mid(now, peer);
             let Some(r) = self.requests.get_mut(&id) else {
                 return;
             };

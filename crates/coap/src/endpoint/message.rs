@@ -157,16 +157,36 @@ pub(super) enum Due {
 /// How many message IDs apart [`MessageLayer::mid_free_at`] records the time.
 const MID_SAMPLE: u64 = 256;
 
-/// Paths remembered at most; past it, those without requests in flight are forgotten.
+/// Paths remembered at most; past it, those without requests in flight are forgotten,
+/// those given a message ID within EXCHANGE_LIFETIME last ([`MessageLayer::path`]).
 const MAX_PATHS: usize = 4096;
 
+/// The message IDs this endpoint issues to one peer. RFC 7252 §4.4 asks an ID be unique
+/// per pair of source and destination endpoints within EXCHANGE_LIFETIME, so each peer
+/// (a multicast group too: a request to a group is one such pair) has an ID space of its
+/// own, starting at a random ID: a client that fetches from several servers uses up 65,536
+/// IDs per EXCHANGE_LIFETIME with each, not with all of them together.
+struct MessageIds {
+    next: u16,
+    /// IDs issued so far, and a sample of when: (time, count) every [`MID_SAMPLE`] IDs,
+    /// kept for EXCHANGE_LIFETIME ([`MessageLayer::mid_free_at`]).
+    issued: u64,
+    recorded: u64,
+    expired: u64,
+    samples: VecDeque<(Instant, u64)>,
+    /// When the last was issued: the path is not forgotten within EXCHANGE_LIFETIME of it
+    /// unless it must be ([`MessageLayer::path`]).
+    last: Option<Instant>,
+}
+
 /// What the endpoint knows of the path to one peer: its round-trip estimate, the
-/// congestion controller of its windowed transfers (made by the first), and their
-/// counters.
+/// congestion controller of its windowed transfers (made by the first), their counters,
+/// and the message IDs issued to the peer.
 pub(super) struct Path {
     pub(super) rtt: RttEstimator,
     controller: Option<Box<dyn Controller>>,
     pub(super) stats: PathStats,
+    mids: MessageIds,
 }
 
 impl Path {
@@ -201,13 +221,8 @@ impl Path {
 pub(super) struct MessageLayer {
     pub(super) paths: FastMap<PeerKey, Path>,
     pub(super) rng: ChaCha8Rng,
-    next_mid: u16,
-    /// Message IDs issued so far, and a sample of when: (time, count) every
-    /// [`MID_SAMPLE`] IDs, kept for EXCHANGE_LIFETIME ([`MessageLayer::mid_free_at`]).
-    mids_issued: u64,
-    mids_recorded: u64,
-    mids_expired: u64,
-    mid_samples: VecDeque<(Instant, u64)>,
+    /// EXCHANGE_LIFETIME: how long a path keeps the record of its message IDs.
+    exchange_lifetime: Duration,
     timer_seq: u64,
     pub(super) timers: BinaryHeap<Reverse<(Instant, u64, TimerKind)>>,
     pub(super) outbox: Outbox,
@@ -216,17 +231,11 @@ pub(super) struct MessageLayer {
 }
 
 impl MessageLayer {
-    pub(super) fn new(seed: u64) -> Self {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let next_mid = rng.next_u32() as u16;
+    pub(super) fn new(seed: u64, exchange_lifetime: Duration) -> Self {
         Self {
             paths: FastMap::default(),
-            rng,
-            next_mid,
-            mids_issued: 0,
-            mids_recorded: 0,
-            mids_expired: 0,
-            mid_samples: VecDeque::new(),
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            exchange_lifetime,
             timer_seq: 0,
             timers: BinaryHeap::new(),
             outbox: Outbox::default(),
@@ -235,38 +244,43 @@ impl MessageLayer {
         }
     }
 
-    pub(super) fn next_mid(&mut self) -> u16 {
-        self.next_mid = self.next_mid.wrapping_add(1);
-        self.mids_issued += 1;
-        self.next_mid
+    /// A new message ID for a message to `peer` (the next of the peer's own ID space).
+    pub(super) fn next_mid(&mut self, now: Instant, peer: SocketAddr) -> u16 {
+        let ids = &mut self.path(now, peer).mids;
+        ids.next = ids.next.wrapping_add(1);
+        ids.issued += 1;
+        ids.last = Some(now);
+        ids.next
     }
 
-    /// When the next message ID is free to use again (RFC 7252 §4.4: not within
+    /// When the next message ID to `peer` is free to use again (RFC 7252 §4.4: not within
     /// EXCHANGE_LIFETIME of its last use; the IDs come round every 65,536), or `None` if it
     /// is now. Called by the senders that can wait (a window's block requests), which also
     /// keep the record: every [`MID_SAMPLE`] IDs, the time they see. An ID issued between
     /// two records counts as used at the later one, so the answer errs on the safe side.
-    pub(super) fn mid_free_at(&mut self, now: Instant, lifetime: Duration) -> Option<Instant> {
-        if self.mids_issued >= self.mids_recorded + MID_SAMPLE {
-            self.mid_samples.push_back((now, self.mids_issued));
-            self.mids_recorded = self.mids_issued;
+    pub(super) fn mid_free_at(&mut self, now: Instant, peer: SocketAddr) -> Option<Instant> {
+        let lifetime = self.exchange_lifetime;
+        let ids = &mut self.path(now, peer).mids;
+        if ids.issued >= ids.recorded + MID_SAMPLE {
+            ids.samples.push_back((now, ids.issued));
+            ids.recorded = ids.issued;
         }
-        while let Some(&(at, n)) = self.mid_samples.front() {
+        while let Some(&(at, n)) = ids.samples.front() {
             if at + lifetime > now {
                 break;
             }
-            self.mid_samples.pop_front();
-            self.mids_expired = n;
+            ids.samples.pop_front();
+            ids.expired = n;
         }
-        // The next ID was last issued as number `mids_issued + 1 - 65,536`; the first
-        // record at or after that count is no earlier than its use. If that record has
-        // expired, so has the use.
-        let last_use = (self.mids_issued + 1).checked_sub(1 << 16)?;
-        if last_use <= self.mids_expired {
+        // The next ID was last issued as number `issued + 1 - 65,536`; the first record at
+        // or after that count is no earlier than its use. If that record has expired, so
+        // has the use.
+        let last_use = (ids.issued + 1).checked_sub(1 << 16)?;
+        if last_use <= ids.expired {
             return None;
         }
-        let i = self.mid_samples.partition_point(|&(_, n)| n < last_use);
-        let &(at, _) = self.mid_samples.get(i)?;
+        let i = ids.samples.partition_point(|&(_, n)| n < last_use);
+        let &(at, _) = ids.samples.get(i)?;
         Some(at + lifetime).filter(|&free| free > now)
     }
 
@@ -278,8 +292,21 @@ impl MessageLayer {
     /// The path to `peer`, created if new.
     pub(super) fn path(&mut self, now: Instant, peer: SocketAddr) -> &mut Path {
         if self.paths.len() >= MAX_PATHS && !self.paths.contains_key(&PeerKey(peer)) {
+            let busy = |p: &Path| p.controller.as_ref().is_some_and(|c| c.in_flight() > 0);
+            // Forgotten first: the paths with nothing in flight and no message ID issued
+            // within EXCHANGE_LIFETIME.
+            let lifetime = self.exchange_lifetime;
             self.paths
-                .retain(|_, p| p.controller.as_ref().is_some_and(|c| c.in_flight() > 0));
+                .retain(|_, p| busy(p) || p.mids.last.is_some_and(|at| at + lifetime > now));
+            if self.paths.len() >= MAX_PATHS {
+                // Still full (more than MAX_PATHS peers got an ID within EXCHANGE_LIFETIME):
+                // those with nothing in flight are forgotten all the same. Such a peer, met
+                // again, starts at a new random ID, which may be one it got within
+                // EXCHANGE_LIFETIME (about n in 65,536 for each message, after n IDs to it):
+                // the peer would take that message for a duplicate of the earlier one, and
+                // a CON of it still awaiting its ACK would be replaced by the new one.
+                self.paths.retain(|_, p| busy(p));
+            }
         }
         if !self.paths.contains_key(&PeerKey(peer)) {
             // A new peer on a host this endpoint knows (another port: a new process of
@@ -297,12 +324,21 @@ impl MessageLayer {
             if let Some(srtt) = host {
                 rtt.on_sample(now, srtt, false);
             }
+            let mids = MessageIds {
+                next: self.rng.next_u32() as u16,
+                issued: 0,
+                recorded: 0,
+                expired: 0,
+                samples: VecDeque::new(),
+                last: None,
+            };
             self.paths.insert(
                 PeerKey(peer),
                 Path {
                     rtt,
                     controller: None,
                     stats: PathStats::default(),
+                    mids,
                 },
             );
         }
@@ -487,5 +523,61 @@ impl MessageLayer {
             return None;
         }
         self.exchanges.remove(&MidKey(peer, mid)).map(|x| x.purpose)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn peer(n: usize) -> SocketAddr {
+        SocketAddr::from(([10, 0, (n >> 8) as u8, n as u8], 5683))
+    }
+
+    #[test]
+    fn each_peer_counts_its_own_message_ids() {
+        let lifetime = Duration::from_secs(60);
+        let mut ml = MessageLayer::new(1, lifetime);
+        let now = crate::test_epoch();
+        let (a, b) = (peer(1), peer(2));
+        let first = ml.next_mid(now, a);
+        for _ in 0..1000 {
+            ml.next_mid(now, b);
+        }
+        assert_eq!(ml.next_mid(now, a), first.wrapping_add(1));
+        // 65,535 more to `a` within the lifetime: its next ID waits, `b`'s does not.
+        for _ in 0..65_535 {
+            ml.next_mid(now, a);
+            ml.mid_free_at(now, a);
+        }
+        assert_eq!(ml.mid_free_at(now, a), Some(now + lifetime));
+        assert_eq!(ml.mid_free_at(now, b), None);
+    }
+
+    #[test]
+    fn a_peer_given_an_id_within_the_lifetime_is_forgotten_last() {
+        let lifetime = Duration::from_secs(60);
+        let mut ml = MessageLayer::new(2, lifetime);
+        let now = crate::test_epoch();
+        let a = peer(0);
+        let mid = ml.next_mid(now, a);
+        // The table fills with paths that got no ID: they go, `a` stays and goes on.
+        for n in 1..=MAX_PATHS {
+            ml.path(now, peer(n));
+        }
+        assert!(ml.paths.len() < MAX_PATHS);
+        assert_eq!(ml.next_mid(now, a), mid.wrapping_add(1));
+        // A lifetime later `a` may go too.
+        let later = now + lifetime;
+        for n in 1..=MAX_PATHS {
+            ml.path(later, peer(MAX_PATHS + n));
+        }
+        assert!(!ml.paths.contains_key(&PeerKey(a)));
+        // More peers with IDs within the lifetime than the table holds: they are
+        // forgotten all the same (nothing is in flight).
+        for n in 0..=MAX_PATHS {
+            ml.next_mid(later, peer(3 * MAX_PATHS + n));
+        }
+        assert!(ml.paths.len() < MAX_PATHS);
     }
 }

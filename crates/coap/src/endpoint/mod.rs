@@ -86,7 +86,7 @@ impl Endpoint {
     /// Echo values, which must be unpredictable (`verify`).
     pub fn new(config: EndpointConfig) -> Self {
         Self {
-            msg: MessageLayer::new(config.rng_seed),
+            msg: MessageLayer::new(config.rng_seed, config.exchange_lifetime),
             client: ClientLayer::default(),
             server: ServerLayer::new(),
             config,

@@ -301,8 +301,11 @@ impl ClientLayer {
 
     /// Sends a NON request for the body with these Q-Block2 options and a new token.
     fn qdown_ask(&mut self, cx: &mut Context<'_>, now: Instant, id: u64, opts: &[BlockOpt]) {
+        let Some(peer) = self.requests.get(&id).map(|r| r.peer) else {
+            return;
+        };
         let token = self.new_token(cx);
-        let mid = cx.msg.next_mid();
+        let mid = cx.msg.next_mid(now, peer);
         let Some(r) = self.requests.get_mut(&id) else {
             return;
         };
@@ -433,13 +436,17 @@ impl ClientLayer {
     fn qup_send_block(
         &mut self,
         cx: &mut Context<'_>,
+        now: Instant,
         id: u64,
         num: u32,
         again: Option<(u16, Token)>,
     ) {
+        let Some(peer) = self.requests.get(&id).map(|r| r.peer) else {
+            return;
+        };
         let (mid, token) = match again {
             Some(x) => x,
-            None => (cx.msg.next_mid(), self.new_token(cx)),
+            None => (cx.msg.next_mid(now, peer), self.new_token(cx)),
         };
         let Some(r) = self.requests.get_mut(&id) else {
             return;
@@ -464,7 +471,7 @@ impl ClientLayer {
         let start = u.next_new;
         let end = ((start / mp + 1) * mp).min(u.blocks);
         for num in start..end {
-            self.qup_send_block(cx, id, num, None);
+            self.qup_send_block(cx, now, id, num, None);
         }
         if let Some(peer) = self.requests.get(&id).map(|r| r.peer) {
             let stats = &mut cx.msg.path(now, peer).stats;
@@ -546,7 +553,7 @@ impl ClientLayer {
             // Blocks not sent yet are the next set, asked for early.
             let resent: Vec<u32> = missing.iter().copied().filter(|&n| n < next_new).collect();
             for &num in &resent {
-                self.qup_send_block(cx, id, num, None);
+                self.qup_send_block(cx, now, id, num, None);
             }
             cx.msg.path(now, peer).stats.blocks_lost += resent.len() as u64;
             if let Some(u) = self.qup_mut(id) {
@@ -589,7 +596,7 @@ impl ClientLayer {
         }
         u.tries += 1;
         if let Some((num, mid, token)) = u.last_sent {
-            self.qup_send_block(cx, id, num, Some((mid, token)));
+            self.qup_send_block(cx, now, id, num, Some((mid, token)));
         }
         self.arm_qup(cx, now, id);
     }

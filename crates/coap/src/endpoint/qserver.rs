@@ -179,7 +179,7 @@ impl ServerLayer {
                 options.set_block(OptionNumber::Q_BLOCK2, opt);
                 let (ty, message_id) = match reply {
                     Reply::Ack(mid) => (Type::Ack, mid),
-                    Reply::Non => (Type::Non, msg.next_mid()),
+                    Reply::Non => (Type::Non, msg.next_mid(now, peer)),
                 };
                 let m = Message {
                     ty,
@@ -585,11 +585,11 @@ impl ServerLayer {
             };
             r.options.set_block(OptionNumber::Q_BLOCK1, opt);
             u.continued_at = Some(now);
-            self.q_reply(cx, peer, msg.token, r);
+            self.q_reply(cx, now, peer, msg.token, r);
         } else if let Some(end) = immediate_report(u, q, set, mp, again)
             && let Some(r) = q_missing_response(u, mp, end)
         {
-            self.q_reply(cx, peer, msg.token, r);
+            self.q_reply(cx, now, peer, msg.token, r);
         }
         let estimate = cx.msg.estimate(peer);
         let u = self.quploads.get_mut(&id)?;
@@ -632,16 +632,23 @@ impl ServerLayer {
         let at = u.at;
         cx.msg.schedule(at, TimerKind::QReceive { id, at });
         if let Some(r) = r {
-            self.q_reply(cx, peer, token, r);
+            self.q_reply(cx, now, peer, token, r);
         }
     }
 
     /// Sends a NON response to the request with `token` (2.31, 4.08).
-    fn q_reply(&mut self, cx: &mut Context<'_>, peer: SocketAddr, token: Token, r: Response) {
+    fn q_reply(
+        &mut self,
+        cx: &mut Context<'_>,
+        now: Instant,
+        peer: SocketAddr,
+        token: Token,
+        r: Response,
+    ) {
         let m = Message {
             ty: Type::Non,
             code: r.code,
-            message_id: cx.msg.next_mid(),
+            message_id: cx.msg.next_mid(now, peer),
             token,
             options: r.options,
             payload: r.payload,

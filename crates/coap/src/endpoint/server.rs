@@ -136,7 +136,7 @@ impl ServerLayer {
         {
             return Ok(Some(3 * size));
         }
-        let header = reply_header(cx, msg);
+        let header = reply_header(cx, now, req.peer, msg);
         let challenge = self.challenge(now, req.peer, msg.token, header, 3 * size);
         let seen = match challenge {
             Some(reply) => cx.msg.reply_with(req.peer, reply),
@@ -171,7 +171,7 @@ impl ServerLayer {
                 // The diagnostic could be many times a short request.
                 response.payload = Bytes::new();
             }
-            reply(cx, req, response)
+            reply(cx, now, req, response)
         } else if req.multicast {
             Seen::Silent
         } else {
@@ -196,7 +196,7 @@ impl ServerLayer {
         let Some(b2) = req.block2 else { return Ok(()) };
         let (peer, msg) = (req.peer, &req.msg);
         let szx = b2.szx.min(cx.config.max_block_szx);
-        let (ty, mid) = reply_header(cx, msg);
+        let (ty, mid) = reply_header(cx, now, peer, msg);
         // Stored for this peer, or for a request this peer sent to a group.
         let group_key;
         let stored_key = if self.block2.contains(key) {
@@ -228,7 +228,7 @@ impl ServerLayer {
             Some(Slice::Block(..)) => return Err(Answered),
             // RFC 7959 §2.2: a block past the end is a bad option.
             Some(Slice::PastEnd) => {
-                if let Some(reply) = reply_message(cx, msg, req.multicast, past_end()) {
+                if let Some(reply) = reply_message(cx, now, peer, msg, req.multicast, past_end()) {
                     cx.msg.send(peer, &reply);
                 }
                 return Err(Answered);
@@ -399,14 +399,15 @@ impl ServerLayer {
     fn pending_reply(
         &mut self,
         cx: &mut Context<'_>,
+        now: Instant,
         p: &Pending,
         late: Type,
         response: Response,
     ) -> Message {
         let (ty, message_id) = match (p.confirmable, p.acked) {
             (true, false) => (Type::Ack, p.mid),
-            (true, true) => (late, cx.msg.next_mid()),
-            (false, _) => (Type::Non, cx.msg.next_mid()),
+            (true, true) => (late, cx.msg.next_mid(now, p.peer)),
+            (false, _) => (Type::Non, cx.msg.next_mid(now, p.peer)),
         };
         Message {
             ty,
@@ -432,7 +433,7 @@ impl ServerLayer {
         budget: usize,
     ) {
         let source = response.source.is_some();
-        let answer = self.pending_reply(cx, p, Type::Non, response);
+        let answer = self.pending_reply(cx, now, p, Type::Non, response);
         let (ty, mid) = (answer.ty, answer.message_id);
         let fits = !source
             && answer.payload.len() <= BlockOpt::size_of(cx.config.max_block_szx)
@@ -599,7 +600,7 @@ impl ServerLayer {
         let msg = Message {
             ty,
             code: response.code,
-            message_id: cx.msg.next_mid(),
+            message_id: cx.msg.next_mid(now, peer),
             token,
             options: response.options,
             payload: response.payload,
@@ -766,7 +767,7 @@ impl ServerLayer {
             cx.msg.dedup.set_reply(p.peer, p.mid, Seen::Silent);
             return;
         }
-        let msg = self.pending_reply(cx, &p, Type::Con, response);
+        let msg = self.pending_reply(cx, now, &p, Type::Con, response);
         if msg.ty == Type::Con {
             cx.msg
                 .send_con(now, p.peer, &msg, Purpose::SeparateResponse, cx.config);

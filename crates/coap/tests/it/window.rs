@@ -225,34 +225,34 @@ fn the_window_and_its_loss_timer_for_a_fixed_seed() {
     let o = download(link(0.15, 3), &data, Transfer::Window, true);
     assert!(o.body == data);
     let expected = [
-        "0 ms CON 0.01 mid=3506",
-        "11 ms ACK 2.05 mid=3506 b2=0/1/1024 LOST",
-        "2211 ms CON 0.01 mid=3506",
-        "2221 ms ACK 2.05 mid=3506 b2=0/1/1024",
-        "2232 ms NON 0.01 mid=3507 b2=1/0/1024",
-        "2232 ms NON 0.01 mid=3508 b2=2/0/1024",
-        "2232 ms NON 0.01 mid=3509 b2=3/0/1024",
-        "2232 ms NON 0.01 mid=3510 b2=4/0/1024",
-        "2232 ms NON 0.01 mid=3511 b2=5/0/1024",
-        "2232 ms NON 0.01 mid=3512 b2=6/0/1024",
-        "2232 ms NON 0.01 mid=3513 b2=7/0/1024",
-        "2232 ms NON 0.01 mid=3514 b2=8/0/1024",
-        "2232 ms NON 0.01 mid=3515 b2=9/0/1024",
-        "2232 ms NON 0.01 mid=3516 b2=10/0/1024",
-        "2243 ms NON 2.05 mid=7110 b2=8/1/1024",
-        "2243 ms NON 2.05 mid=7111 b2=2/1/1024 LOST",
-        "2244 ms NON 2.05 mid=7112 b2=7/1/1024",
-        "2244 ms NON 2.05 mid=7113 b2=5/1/1024",
-        "2244 ms NON 2.05 mid=7114 b2=1/1/1024",
-        "2245 ms NON 2.05 mid=7115 b2=4/1/1024",
-        "2245 ms NON 2.05 mid=7116 b2=9/1/1024",
-        "2245 ms NON 2.05 mid=7117 b2=6/1/1024",
-        "2245 ms NON 2.05 mid=7118 b2=10/1/1024",
-        "2246 ms NON 2.05 mid=7119 b2=3/1/1024",
-        "2255 ms NON 0.01 mid=3517 b2=11/0/1024",
-        "2267 ms NON 2.05 mid=7120 b2=11/0/1024",
-        "2273 ms NON 0.01 mid=3518 b2=2/0/1024",
-        "2285 ms NON 2.05 mid=7121 b2=2/1/1024",
+        "0 ms CON 0.01 mid=36460",
+        "11 ms ACK 2.05 mid=36460 b2=0/1/1024 LOST",
+        "2211 ms CON 0.01 mid=36460",
+        "2221 ms ACK 2.05 mid=36460 b2=0/1/1024",
+        "2232 ms NON 0.01 mid=36461 b2=1/0/1024",
+        "2232 ms NON 0.01 mid=36462 b2=2/0/1024",
+        "2232 ms NON 0.01 mid=36463 b2=3/0/1024",
+        "2232 ms NON 0.01 mid=36464 b2=4/0/1024",
+        "2232 ms NON 0.01 mid=36465 b2=5/0/1024",
+        "2232 ms NON 0.01 mid=36466 b2=6/0/1024",
+        "2232 ms NON 0.01 mid=36467 b2=7/0/1024",
+        "2232 ms NON 0.01 mid=36468 b2=8/0/1024",
+        "2232 ms NON 0.01 mid=36469 b2=9/0/1024",
+        "2232 ms NON 0.01 mid=36470 b2=10/0/1024",
+        "2243 ms NON 2.05 mid=35786 b2=8/1/1024",
+        "2243 ms NON 2.05 mid=35787 b2=2/1/1024 LOST",
+        "2244 ms NON 2.05 mid=35788 b2=7/1/1024",
+        "2244 ms NON 2.05 mid=35789 b2=5/1/1024",
+        "2244 ms NON 2.05 mid=35790 b2=1/1/1024",
+        "2245 ms NON 2.05 mid=35791 b2=4/1/1024",
+        "2245 ms NON 2.05 mid=35792 b2=9/1/1024",
+        "2245 ms NON 2.05 mid=35793 b2=6/1/1024",
+        "2245 ms NON 2.05 mid=35794 b2=10/1/1024",
+        "2246 ms NON 2.05 mid=35795 b2=3/1/1024",
+        "2255 ms NON 0.01 mid=36471 b2=11/0/1024",
+        "2267 ms NON 2.05 mid=35796 b2=11/0/1024",
+        "2273 ms NON 0.01 mid=36472 b2=2/0/1024",
+        "2285 ms NON 2.05 mid=35797 b2=2/1/1024",
     ];
     assert_eq!(o.trace, expected);
     assert_eq!(o.elapsed.as_millis(), 2296);
@@ -391,6 +391,50 @@ fn no_message_id_comes_round_within_the_exchange_lifetime() {
         took > lifetime && took < lifetime + Duration::from_secs(5),
         "{took:?}"
     );
+}
+
+#[test]
+fn each_server_has_message_ids_of_its_own() {
+    // Two 40 MB downloads at once from two servers are 78,000 block requests: more than the
+    // 65,536 message IDs in all, 39,000 with each server. An ID must be unique per pair of
+    // endpoints within EXCHANGE_LIFETIME (RFC 7252 §4.4), so neither download waits for
+    // the lifetime of 60 s; counted over both servers together, the IDs ran out and the
+    // downloads waited for the first ones to be free again.
+    let a = body(40_000_000, 7);
+    let b = body(40_000_000, 8);
+    let mut sim = Sim::new(link(0.0, 1));
+    sim.record = false;
+    let lifetime = Duration::from_secs(60);
+    let c = sim.add(
+        coap::EndpointConfig {
+            exchange_lifetime: lifetime,
+            ..cfg(1)
+        },
+        None,
+    );
+    let sa = sim.add(cfg(2), Some(serve(a.clone(), Rc::new(Cell::new(0)))));
+    let sb = sim.add(cfg(3), Some(serve(b.clone(), Rc::new(Cell::new(0)))));
+    let (server_a, server_b) = (sim.nodes[sa].addr, sim.nodes[sb].addr);
+    let now = sim.now;
+    let ia = sim.nodes[c]
+        .ep
+        .request(now, server_a, Request::new(Code::GET, "/big"));
+    let ib = sim.nodes[c]
+        .ep
+        .request(now, server_b, Request::new(Code::GET, "/big"));
+    assert!(
+        sim.run_until(Duration::from_secs(3600), |sim| sim.nodes[c].events.len()
+            == 2)
+    );
+    for (_, e) in &sim.nodes[c].events {
+        match e {
+            Event::Response { id, response } if *id == ia => assert!(response.payload == a),
+            Event::Response { id, response } if *id == ib => assert!(response.payload == b),
+            other => panic!("expected the two bodies, got {other:?}"),
+        }
+    }
+    let took = sim.elapsed();
+    assert!(took < lifetime, "{took:?}");
 }
 
 #[test]
