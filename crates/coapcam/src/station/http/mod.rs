@@ -1108,27 +1108,11 @@ fn query_items(query: &str) -> Result<Vec<String>, String> {
         .split('&')
         .filter(|item| !item.is_empty())
         .map(|item| {
-            percent_decode(item)
+            // `+` is a space in a form's query; an escaped one (%2B) stays a plus.
+            coap_net::uri::percent_decode(&item.replace('+', " "))
                 .ok_or_else(|| format!("{item}: the query is not percent-encoded UTF-8"))
         })
         .collect()
-}
-
-fn percent_decode(text: &str) -> Option<String> {
-    let mut out = Vec::with_capacity(text.len());
-    let mut bytes = text.bytes();
-    while let Some(b) = bytes.next() {
-        match b {
-            b'%' => {
-                let hex = [bytes.next()?, bytes.next()?];
-                let hex = std::str::from_utf8(&hex).ok()?;
-                out.push(u8::from_str_radix(hex, 16).ok()?);
-            }
-            b'+' => out.push(b' '),
-            b => out.push(b),
-        }
-    }
-    String::from_utf8(out).ok()
 }
 
 /// 413 for a request whose Content-Length is over [`MAX_BODY`].
@@ -1251,6 +1235,7 @@ mod tests {
             query_items("code=PKG%2D1+x&limit=2&").unwrap(),
             vec!["code=PKG-1 x".to_owned(), "limit=2".to_owned()]
         );
+        assert_eq!(query_items("code=A%2BB").unwrap(), ["code=A+B"]);
         assert!(query_items("code=%FF").is_err());
         assert!(query_items("code=%4").is_err());
         assert!(is_local("[::ffff:127.0.0.1]:1".parse().unwrap()));
