@@ -1,14 +1,16 @@
 //! The one follower of the results log: its records in id order from a position, read on
-//! the blocking pool in batches, waking on each append. Every output reads the log
-//! through it: the [`Sink`]s (the line output, the webhook) through [`run`], which also
-//! keeps a sink's durable cursor and backs off while it fails; the MQTT publisher (its
-//! window of unacknowledged records) and the HTTP event stream (one per client) through
-//! a [`Follower`] of their own.
+//! the blocking pool in batches, waking on each append. Every output is a [`Sink`] that
+//! [`run`] drives through a `Follower` (private: no output reads the log another way):
+//! the line output, the webhook, the MQTT publisher (a window of records in flight, the
+//! cursor moved by acknowledgements, its connection's events) and the HTTP event stream
+//! of each client (its keep-alives). [`run`] keeps a sink's durable cursor when it has
+//! one and backs off while it fails.
 
 use std::future::Future;
 use std::time::Duration;
 
 use tokio::sync::watch;
+use tokio::time::{Instant, sleep_until};
 
 use super::log::{LogError, ResultsLog};
 use crate::api::record::Record;
@@ -19,11 +21,11 @@ const BACKOFF_MIN: Duration = Duration::from_millis(250);
 /// The longest wait after a failure, and the wait after the log could not be read.
 const BACKOFF_MAX: Duration = Duration::from_secs(5);
 
-/// Records read from the log at a time by [`run`].
+/// Records read from the log at a time by [`run`] for a sink with room for more.
 const BATCH: usize = 64;
 
 /// The records of a results log after a position, in id order.
-pub struct Follower {
+struct Follower {
     log: ResultsLog,
     newest: watch::Receiver<u64>,
     after: u64,
@@ -31,29 +33,29 @@ pub struct Follower {
 
 impl Follower {
     /// From the record after `after` (0: from the first).
-    pub fn new(log: ResultsLog, after: u64) -> Self {
+    fn new(log: ResultsLog, after: u64) -> Self {
         let newest = log.subscribe();
         Self { log, newest, after }
     }
 
     /// The id of the last record read (or sought): the next read starts after it.
-    pub fn position(&self) -> u64 {
+    fn position(&self) -> u64 {
         self.after
     }
 
     /// Reads on from the record after `after`.
-    pub fn seek(&mut self, after: u64) {
+    fn seek(&mut self, after: u64) {
         self.after = after;
     }
 
     /// The newest record's id in the log (0 while there is none).
-    pub fn newest(&self) -> u64 {
+    fn newest(&self) -> u64 {
         *self.newest.borrow()
     }
 
     /// Up to `max` records after the position, read on the blocking pool; the position
     /// moves past them. Empty when there are none yet.
-    pub async fn read(&mut self, max: usize) -> Result<Vec<Record>, LogError> {
+    async fn read(&mut self, max: usize) -> Result<Vec<Record>, LogError> {
         let (log, after) = (self.log.clone(), self.after);
         let path = log.path().to_path_buf();
         let batch = tokio::task::spawn_blocking(move || log.after(after, max))
@@ -70,7 +72,7 @@ impl Follower {
 
     /// Waits until the log holds a record after the position (at once when it does).
     /// False when the log is gone.
-    pub async fn appended(&mut self) -> bool {
+    async fn appended(&mut self) -> bool {
         loop {
             if *self.newest.borrow_and_update() > self.after {
                 return true;
@@ -80,93 +82,193 @@ impl Follower {
             }
         }
     }
-
-    /// Waits for the next append, whatever the position. False when the log is gone.
-    pub async fn changed(&mut self) -> bool {
-        self.newest.changed().await.is_ok()
-    }
 }
 
-/// An output that takes the records one by one, in id order, and that [`run`] drives.
+/// Where a [`Sink`] starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Start {
+    /// After its durable cursor of this name in the log, which [`run`] moves past each
+    /// record it takes: it gets every record, across restarts and failures.
+    Cursor(&'static str),
+    /// After the record with this id.
+    After(u64),
+    /// After the newest record at its start: the records appended from then on.
+    Newest,
+}
+
+/// What a [`Sink`] says after it was handed a record or handled an event of its own.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Next {
+    /// Go on: the record was taken (or, for a sink that rewinds with [`Next::After`], left
+    /// to it).
+    Go,
+    /// The record was not taken, for this reason: [`run`] waits (longer while it keeps
+    /// failing) and hands it again. (After an event, as [`Next::Go`].)
+    Retry(String),
+    /// Hand it the records after this id next.
+    After(u64),
+    /// It is done (its client left, it was stopped): [`run`] returns.
+    End,
+}
+
+/// An output of the results log, which [`run`] hands the records one by one, in id order.
 /// A new output is a file with a `Sink` and one line that starts [`run`] with it
 /// (`Station::start`).
 pub trait Sink: Send + 'static {
+    /// An event of its own (a broker's packet, a keep-alive's time), between records.
+    type Event: Send;
+
     /// Who it is, for the log's messages (`webhook: http://...`).
     fn name(&self) -> String;
 
-    /// Its durable cursor in the log (it then gets every record after it, across
-    /// restarts and failures), or `None`: it gets the records appended from its start,
-    /// and none twice.
-    fn cursor(&self) -> Option<&'static str>;
+    /// Where it starts.
+    fn start(&self) -> Start;
 
-    /// Hands `record` on; an error means it was not taken: [`run`] waits and hands it
-    /// again.
-    fn deliver(&mut self, record: &Record) -> impl Future<Output = Result<(), String>> + Send;
+    /// How many records it takes now: 0 while it cannot (a publisher not connected, its
+    /// window full), until one of its events says otherwise.
+    fn room(&self) -> usize {
+        BATCH
+    }
+
+    /// Hands `record` on.
+    fn deliver(&mut self, record: &Record) -> impl Future<Output = Next> + Send;
+
+    /// Waits for its next event; cancel-safe (it may be dropped for an append and asked
+    /// again). None by default.
+    fn event(&mut self) -> impl Future<Output = Self::Event> + Send {
+        std::future::pending()
+    }
+
+    /// Handles an event [`Sink::event`] returned.
+    fn handle(&mut self, event: Self::Event) -> impl Future<Output = Next> + Send;
 }
 
-/// Follows `log` into `sink` for as long as the log is open: from its cursor (moved past
-/// each record taken), or from the next record appended.
-pub async fn run(log: ResultsLog, mut sink: impl Sink) {
+/// Follows `log` into `sink` until the sink is done or the log is gone: from its
+/// [`Start`], handing it records while it has room, its events between them.
+pub async fn run<S: Sink>(log: ResultsLog, mut sink: S) {
     let name = sink.name();
-    let start = match sink.cursor() {
-        Some(consumer) => loop {
+    let (start, consumer) = match sink.start() {
+        Start::Cursor(consumer) => loop {
             let l = log.clone();
             match tokio::task::spawn_blocking(move || l.cursor(consumer)).await {
-                Ok(Ok(cursor)) => break cursor,
+                Ok(Ok(cursor)) => break (cursor, Some(consumer)),
                 Ok(Err(e)) => tracing::warn!("{name}: reading its cursor: {e}"),
                 Err(e) => tracing::warn!("{name}: reading its cursor: {e}"),
             }
             tokio::time::sleep(BACKOFF_MAX).await;
         },
-        None => log.newest(),
+        Start::After(id) => (id, None),
+        Start::Newest => (log.newest(), None),
     };
-    let mut follower = Follower::new(log.clone(), start);
-    let mut backoff = BACKOFF_MIN;
-    let mut failing = false;
-    while follower.appended().await {
-        let records = match follower.read(BATCH).await {
-            Ok(records) => records,
-            Err(e) => {
-                tracing::warn!("{name}: reading the results log: {e}");
-                tokio::time::sleep(BACKOFF_MAX).await;
+    let mut run = Run {
+        name,
+        log: log.clone(),
+        consumer,
+        follower: Follower::new(log, start),
+        backoff: BACKOFF_MIN,
+        failing: false,
+        paused: None,
+    };
+    loop {
+        if run.paused.is_none() && !run.hand_over(&mut sink).await {
+            return;
+        }
+        let next = tokio::select! {
+            appended = run.follower.appended(), if run.paused.is_none() && sink.room() > 0 => {
+                if appended { continue } else { return }
+            }
+            () = sleep_until(run.paused.unwrap_or_else(Instant::now)), if run.paused.is_some() => {
+                run.paused = None;
                 continue;
             }
+            event = sink.event() => sink.handle(event).await,
         };
-        for record in &records {
-            let taken = match sink.deliver(record).await {
-                Ok(()) => match sink.cursor() {
-                    Some(consumer) => {
-                        let (l, id) = (log.clone(), record.id);
-                        match tokio::task::spawn_blocking(move || l.set_cursor(consumer, id)).await
-                        {
-                            Ok(Ok(())) => Ok(()),
-                            Ok(Err(e)) => Err(format!("moving the cursor: {e}")),
-                            Err(e) => Err(format!("moving the cursor: {e}")),
-                        }
-                    }
-                    None => Ok(()),
-                },
-                Err(e) => Err(e),
-            };
-            match taken {
-                Ok(()) => {
-                    if failing {
-                        tracing::info!("{name} takes the records again");
-                    }
-                    failing = false;
-                    backoff = BACKOFF_MIN;
-                }
+        match next {
+            Next::Go | Next::Retry(_) => {}
+            Next::After(id) => run.follower.seek(id),
+            Next::End => return,
+        }
+    }
+}
+
+/// What [`run`] keeps of one sink.
+struct Run {
+    name: String,
+    log: ResultsLog,
+    /// Its durable cursor's name, when [`run`] keeps one.
+    consumer: Option<&'static str>,
+    follower: Follower,
+    /// The next wait after a failure.
+    backoff: Duration,
+    /// Whether the last hand-over failed (said once until one works).
+    failing: bool,
+    /// No records are handed over before this (after a failure).
+    paused: Option<Instant>,
+}
+
+impl Run {
+    /// Hands `sink` the records after the position while it has room; false when it is
+    /// done.
+    async fn hand_over<S: Sink>(&mut self, sink: &mut S) -> bool {
+        while sink.room() > 0 && self.follower.newest() > self.follower.position() {
+            let records = match self.follower.read(sink.room()).await {
+                Ok(records) => records,
                 Err(e) => {
-                    if !failing {
-                        tracing::warn!("{name}: {e}; retrying (the records wait in the log)");
+                    tracing::warn!("{}: reading the results log: {e}", self.name);
+                    self.paused = Some(Instant::now() + BACKOFF_MAX);
+                    return true;
+                }
+            };
+            if records.is_empty() {
+                return true;
+            }
+            for record in &records {
+                let next = match sink.deliver(record).await {
+                    Next::Go => self.move_cursor(record.id).await,
+                    other => other,
+                };
+                match next {
+                    Next::Go => {
+                        if self.failing {
+                            tracing::info!("{} takes the records again", self.name);
+                        }
+                        self.failing = false;
+                        self.backoff = BACKOFF_MIN;
                     }
-                    failing = true;
-                    follower.seek(record.id - 1);
-                    tokio::time::sleep(backoff).await;
-                    backoff = (backoff * 2).min(BACKOFF_MAX);
-                    break;
+                    Next::Retry(e) => {
+                        if !self.failing {
+                            tracing::warn!(
+                                "{}: {e}; retrying (the records wait in the log)",
+                                self.name
+                            );
+                        }
+                        self.failing = true;
+                        self.follower.seek(record.id - 1);
+                        self.paused = Some(Instant::now() + self.backoff);
+                        self.backoff = (self.backoff * 2).min(BACKOFF_MAX);
+                        return true;
+                    }
+                    Next::After(id) => {
+                        self.follower.seek(id);
+                        break;
+                    }
+                    Next::End => return false,
                 }
             }
+        }
+        true
+    }
+
+    /// Moves the durable cursor, when there is one, past record `id`.
+    async fn move_cursor(&self, id: u64) -> Next {
+        let Some(consumer) = self.consumer else {
+            return Next::Go;
+        };
+        let log = self.log.clone();
+        match tokio::task::spawn_blocking(move || log.set_cursor(consumer, id)).await {
+            Ok(Ok(())) => Next::Go,
+            Ok(Err(e)) => Next::Retry(format!("moving the cursor: {e}")),
+            Err(e) => Next::Retry(format!("moving the cursor: {e}")),
         }
     }
 }
@@ -202,22 +304,130 @@ mod tests {
     }
 
     impl Sink for Flaky {
+        type Event = std::convert::Infallible;
+
         fn name(&self) -> String {
             "flaky".into()
         }
 
-        fn cursor(&self) -> Option<&'static str> {
-            self.durable.then_some("flaky")
+        fn start(&self) -> Start {
+            if self.durable {
+                Start::Cursor("flaky")
+            } else {
+                Start::Newest
+            }
         }
 
-        async fn deliver(&mut self, record: &Record) -> Result<(), String> {
+        async fn deliver(&mut self, record: &Record) -> Next {
             self.tries += 1;
             if self.tries % 2 == 1 {
-                return Err("not now".into());
+                return Next::Retry("not now".into());
             }
             let _ = self.took.send(record.id);
-            Ok(())
+            Next::Go
         }
+
+        async fn handle(&mut self, event: Self::Event) -> Next {
+            match event {}
+        }
+    }
+
+    /// What the test tells a [`Windowed`] sink.
+    enum Told {
+        /// The oldest record in flight is acknowledged.
+        Ack,
+        /// The connection was lost and made again: what is in flight is sent again.
+        Again,
+    }
+
+    /// A window of two records in flight, acknowledged by the test, as the MQTT
+    /// publisher's: it says which it was handed, and which were acknowledged.
+    struct Windowed {
+        told: mpsc::UnboundedReceiver<Told>,
+        in_flight: Vec<u64>,
+        acked: u64,
+        took: mpsc::UnboundedSender<u64>,
+    }
+
+    impl Sink for Windowed {
+        type Event = Option<Told>;
+
+        fn name(&self) -> String {
+            "windowed".into()
+        }
+
+        fn start(&self) -> Start {
+            Start::After(self.acked)
+        }
+
+        fn room(&self) -> usize {
+            2 - self.in_flight.len()
+        }
+
+        async fn deliver(&mut self, record: &Record) -> Next {
+            self.in_flight.push(record.id);
+            let _ = self.took.send(record.id);
+            Next::Go
+        }
+
+        async fn event(&mut self) -> Option<Told> {
+            self.told.recv().await
+        }
+
+        async fn handle(&mut self, event: Option<Told>) -> Next {
+            match event {
+                Some(Told::Ack) => {
+                    self.acked = self.in_flight.remove(0);
+                    Next::Go
+                }
+                Some(Told::Again) => {
+                    self.in_flight.clear();
+                    Next::After(self.acked)
+                }
+                None => Next::End,
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn a_sink_with_a_window_gets_records_as_its_events_make_room_and_again_after_a_rewind() {
+        let dir = ScratchDir::new("follow-window");
+        let log = ResultsLog::open(&dir.path().join("log.db")).expect("log");
+        for n in 1..=5 {
+            log.append(new(n)).expect("append");
+        }
+        let (took, mut rx) = mpsc::unbounded_channel();
+        let (tell, told) = mpsc::unbounded_channel();
+        let sink = Windowed {
+            told,
+            in_flight: Vec::new(),
+            acked: 0,
+            took,
+        };
+        let task = tokio::spawn(run(log.clone(), sink));
+        assert_eq!(taken(&mut rx, 2).await, [1, 2], "the window's two");
+        tokio::task::yield_now().await;
+        assert!(rx.try_recv().is_err(), "a record beyond the window");
+        tell.send(Told::Ack).expect("ack");
+        assert_eq!(taken(&mut rx, 1).await, [3], "room for one after an ack");
+        // 2 and 3 are in flight and lost: they come again, after 1.
+        tell.send(Told::Again).expect("again");
+        assert_eq!(taken(&mut rx, 2).await, [2, 3]);
+        tell.send(Told::Ack).expect("ack");
+        tell.send(Told::Ack).expect("ack");
+        assert_eq!(taken(&mut rx, 2).await, [4, 5]);
+        log.append(new(6)).expect("append");
+        tell.send(Told::Ack).expect("ack");
+        assert_eq!(
+            taken(&mut rx, 1).await,
+            [6],
+            "an append after the window had room"
+        );
+        drop(tell);
+        tokio::time::timeout(Duration::from_secs(30), task)
+            .await
+            .expect("run ends when the sink says End")
+            .expect("the task");
     }
 
     async fn taken(rx: &mut mpsc::UnboundedReceiver<u64>, n: usize) -> Vec<u64> {

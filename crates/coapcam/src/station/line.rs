@@ -23,7 +23,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::follow::{self, Sink};
+use super::follow::{self, Next, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::Record;
 
@@ -153,17 +153,23 @@ impl Drop for LineOutput {
 struct Lines(Arc<LineServer>);
 
 impl Sink for Lines {
+    type Event = std::convert::Infallible;
+
     fn name(&self) -> String {
         format!("line output on {}", self.0.local_addr())
     }
 
-    fn cursor(&self) -> Option<&'static str> {
-        None
+    fn start(&self) -> Start {
+        Start::Newest
     }
 
-    async fn deliver(&mut self, record: &Record) -> Result<(), String> {
+    async fn deliver(&mut self, record: &Record) -> Next {
         self.0.send(&format_line(&LineFields::of(record)));
-        Ok(())
+        Next::Go
+    }
+
+    async fn handle(&mut self, event: Self::Event) -> Next {
+        match event {}
     }
 }
 

@@ -31,8 +31,9 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, sleep_until};
 
-use super::follow::Follower;
+use super::follow::{self, Next, Sink, Start};
 use super::log::ResultsLog;
+use crate::api::record::Record;
 
 /// The cursor name of the MQTT publisher in the results log.
 pub const CONSUMER: &str = "mqtt";
@@ -434,8 +435,6 @@ impl Publisher {
 
 /// How one connection ended.
 enum End {
-    /// Stopping (after `offline` and DISCONNECT when connected).
-    Stopped,
     /// Lost, or never made: reconnect after the back-off.
     Lost(String),
     /// The broker acknowledged nothing for [`ACK_TIMEOUT`] (this says what waited):
@@ -457,6 +456,7 @@ struct Said {
     silent: bool,
 }
 
+/// Reads the delivery cursor, then publishes from it as a [`Sink`] of the log.
 async fn run(
     options: MqttOptions,
     topics: Topics,
@@ -477,70 +477,19 @@ async fn run(
             return;
         }
     };
-    let mut follower = Follower::new(log.clone(), cursor);
-    let mut delivery = Delivery::new(cursor, WINDOW);
-    let mut backoff = BACKOFF_FIRST;
-    let mut said = Said::default();
-    let client_id = options.client_id();
-    loop {
-        let (client, eventloop) = AsyncClient::new(options.clone(), WINDOW + 4);
-        let (events_tx, events) = mpsc::channel(64);
-        let pump = tokio::spawn(pump(eventloop, events_tx));
-        let mut session = Session {
-            client: &client,
-            topics: &topics,
-            log: &log,
-            delivery: &mut delivery,
-            connected_at: None,
-            waiting_since: None,
-        };
-        let end = session
-            .run(events, &mut follower, &mut stop, &mut backoff, &mut said)
-            .await;
-        let lasted = session.connected_at.map(|at| at.elapsed());
-        delivery.disconnected();
-        pump.abort();
-        if lasted.is_some_and(|d| d >= KICKED_WITHIN) {
-            // A connection that lasted: troubles are news again.
-            said = Said {
-                silent: said.silent,
-                ..Said::default()
-            };
-        }
-        match end {
-            End::Stopped => return,
-            End::Unacknowledged(what) => {
-                if said.silent {
-                    tracing::debug!(broker = %target, "MQTT: still no acknowledgement ({what})");
-                } else {
-                    tracing::warn!(broker = %target, "MQTT: the broker acknowledged nothing (no PUBACK) for {} s while {what} waited: delivery stalls there, so the station connects again and sends from record {} on; the log keeps the measurements. A broker that takes QoS 1 messages without acknowledging them is overloaded or broken (said once, until it acknowledges one)", ACK_TIMEOUT.as_secs(), delivery.cursor() + 1);
-                    said.silent = true;
-                }
-            }
-            End::Lost(why) => {
-                // Kicked: closed soon after it was accepted. A connection not made at all
-                // (the broker restarting) breaks the run.
-                said.kicks = match lasted {
-                    Some(d) if d < KICKED_WITHIN => said.kicks + 1,
-                    _ => 0,
-                };
-                if said.kicks >= KICKS && !said.collision {
-                    tracing::warn!(broker = %target, "MQTT: the broker closed the station's connection {} times in a row within {} s of accepting it ({why}): most likely another client connects with the station's client id {client_id}. A broker closes the older connection when a client id connects again, so the two take turns and the station's status flaps between online and offline. Give the other client another id, or this station another name (serve --station-name; the id is coapcam-<name>). Said once; the station keeps reconnecting", said.kicks, KICKED_WITHIN.as_secs());
-                    said.collision = true;
-                    said.lost = true;
-                } else if !said.lost {
-                    tracing::warn!(broker = %target, "MQTT: no connection ({why}); retrying, the log keeps the measurements");
-                    said.lost = true;
-                } else {
-                    tracing::debug!(broker = %target, "MQTT: no connection ({why})");
-                }
-            }
-        }
-        if wait_or_stop(backoff, &mut stop).await {
-            return;
-        }
-        backoff = (backoff * 2).min(BACKOFF_MAX);
-    }
+    let publishing = Publishing {
+        options,
+        topics,
+        target,
+        log: log.clone(),
+        stop,
+        delivery: Delivery::new(cursor, WINDOW),
+        backoff: BACKOFF_FIRST,
+        said: Said::default(),
+        connection: None,
+        reconnect_at: Instant::now(),
+    };
+    follow::run(log, publishing).await;
 }
 
 /// Polls the client's event loop, handing each event over, until the first error (the
@@ -566,21 +515,12 @@ async fn wait_or_stop(pause: Duration, stop: &mut watch::Receiver<bool>) -> bool
     }
 }
 
-/// Why records could not be handed to the client.
-enum Stalled {
-    /// The connection is unusable: reconnect.
-    Connection(String),
-    /// The log could not be read (or a record not written as a message): keep the
-    /// connection and try again after [`BACKOFF_MAX`]; nothing is skipped.
-    Log(String),
-}
-
-/// One connection's worth of publishing.
-struct Session<'a> {
-    client: &'a AsyncClient,
-    topics: &'a Topics,
-    log: &'a ResultsLog,
-    delivery: &'a mut Delivery,
+/// One connection: its client, the events of its event loop (polled by a task of its
+/// own, ended with it), and when things happened on it.
+struct Connection {
+    client: AsyncClient,
+    events: mpsc::Receiver<Result<Event, ConnectionError>>,
+    pump: JoinHandle<()>,
     /// When the broker accepted the connection (CONNACK).
     connected_at: Option<Instant>,
     /// Since when the oldest message in flight waits for its PUBACK (since the last
@@ -588,110 +528,234 @@ struct Session<'a> {
     waiting_since: Option<Instant>,
 }
 
-impl Session<'_> {
-    async fn run(
-        &mut self,
-        mut events: mpsc::Receiver<Result<Event, ConnectionError>>,
-        follower: &mut Follower,
-        stop: &mut watch::Receiver<bool>,
-        backoff: &mut Duration,
-        said: &mut Said,
-    ) -> End {
-        let mut retry: Option<Instant> = None;
-        loop {
-            let unacknowledged = self.waiting_since.map(|at| at + ACK_TIMEOUT);
-            tokio::select! {
-                event = events.recv() => {
-                    let event = match event {
-                        Some(Ok(event)) => event,
-                        Some(Err(e)) => return End::Lost(e.to_string()),
-                        None => return End::Lost("the client's event loop ended".into()),
-                    };
-                    match event {
-                        Event::Incoming(Packet::ConnAck(_)) => {
-                            if said.collision {
-                                tracing::debug!(topic = %self.topics.status, "MQTT: connected, publishing from record {}", self.delivery.cursor() + 1);
-                            } else {
-                                tracing::info!(topic = %self.topics.status, "MQTT: connected, publishing from record {}", self.delivery.cursor() + 1);
-                            }
-                            *backoff = BACKOFF_FIRST;
-                            self.connected_at = Some(Instant::now());
-                            self.delivery.connected();
-                            if let Err(e) = self.publish_status(ONLINE).await {
-                                return End::Lost(e);
-                            }
-                        }
-                        Event::Outgoing(Outgoing::Publish(pkid)) => self.delivery.written(pkid),
-                        Event::Incoming(Packet::PubAck(ack)) => {
-                            let (carried, cursor) = self.delivery.acked(ack.pkid);
-                            if carried.is_some() {
-                                said.silent = false;
-                                self.waiting_since = self.delivery.waiting().then(Instant::now);
-                            }
-                            if let Some(cursor) = cursor {
-                                self.save_cursor(cursor).await;
-                            }
-                        }
-                        _ => {}
+impl Drop for Connection {
+    fn drop(&mut self) {
+        self.pump.abort();
+    }
+}
+
+/// The publisher as a [`Sink`] of the results log: it takes records while its window
+/// has room on a connection, and its events are the connection's (CONNACK, the
+/// PUBACKs that move the cursor, its loss), the time to connect again, the
+/// acknowledgement that does not come, and the stop. After each event the follower
+/// reads on from the newest record sent on this connection (the cursor after a new one).
+struct Publishing {
+    options: MqttOptions,
+    topics: Topics,
+    target: Target,
+    log: ResultsLog,
+    stop: watch::Receiver<bool>,
+    delivery: Delivery,
+    /// The wait before the next connection after this one is lost.
+    backoff: Duration,
+    said: Said,
+    /// The connection; `None` until `reconnect_at`.
+    connection: Option<Connection>,
+    reconnect_at: Instant,
+}
+
+/// What the publisher waits for between records.
+enum Wake {
+    /// The time to connect (again).
+    Connect,
+    /// An event of the connection's event loop (`None`: the loop ended).
+    Event(Option<Result<Event, ConnectionError>>),
+    /// The oldest message in flight waited [`ACK_TIMEOUT`] for its PUBACK.
+    Unacknowledged,
+    /// [`Publisher::stop`].
+    Stop,
+}
+
+impl Sink for Publishing {
+    type Event = Wake;
+
+    fn name(&self) -> String {
+        "MQTT".into()
+    }
+
+    fn start(&self) -> Start {
+        Start::After(self.delivery.cursor())
+    }
+
+    fn room(&self) -> usize {
+        self.delivery.room()
+    }
+
+    async fn deliver(&mut self, record: &Record) -> Next {
+        let id = record.id;
+        let json = match serde_json::to_vec(record) {
+            Ok(json) => json,
+            Err(e) => return Next::Retry(format!("record {id} as JSON: {e}")),
+        };
+        if json.len() + self.topics.measurements.len() + 16 > MAX_PACKET {
+            return Next::Retry(format!(
+                "record {id} is {} bytes as JSON, more than an MQTT message of the station may hold ({MAX_PACKET})",
+                json.len()
+            ));
+        }
+        let published = match &self.connection {
+            Some(c) => c
+                .client
+                .publish(&self.topics.measurements, QoS::AtLeastOnce, false, json)
+                .await
+                .map_err(|e| e.to_string()),
+            None => Err("no connection".into()),
+        };
+        match published {
+            Ok(()) => {
+                self.handed(Carried::Record(id));
+                Next::Go
+            }
+            Err(e) => {
+                self.lose(End::Lost(e));
+                Next::After(self.delivery.sent_up_to())
+            }
+        }
+    }
+
+    async fn event(&mut self) -> Wake {
+        let stop = &mut self.stop;
+        match &mut self.connection {
+            None => tokio::select! {
+                () = sleep_until(self.reconnect_at) => Wake::Connect,
+                _ = stop.changed() => Wake::Stop,
+            },
+            Some(c) => {
+                let unacknowledged = c.waiting_since.map(|at| at + ACK_TIMEOUT);
+                tokio::select! {
+                    event = c.events.recv() => Wake::Event(event),
+                    () = sleep_until(unacknowledged.unwrap_or_else(Instant::now)), if unacknowledged.is_some() => {
+                        Wake::Unacknowledged
                     }
-                }
-                () = sleep_until(unacknowledged.unwrap_or_else(Instant::now)), if unacknowledged.is_some() => {
-                    return End::Unacknowledged(self.waiting_text());
-                }
-                // (The publisher holds the log, so the watch never closes.)
-                true = follower.changed() => {}
-                () = sleep_until(retry.unwrap_or_else(Instant::now)), if retry.is_some() => {
-                    retry = None;
-                }
-                _ = stop.changed() => return self.stop(&mut events).await,
-            }
-            if retry.is_some() {
-                continue;
-            }
-            match self.fill(follower).await {
-                Ok(()) => {}
-                Err(Stalled::Connection(e)) => return End::Lost(e),
-                Err(Stalled::Log(e)) => {
-                    tracing::error!("MQTT: {e}; trying again in {BACKOFF_MAX:?}");
-                    retry = Some(Instant::now() + BACKOFF_MAX);
+                    _ = stop.changed() => Wake::Stop,
                 }
             }
         }
     }
 
-    /// Hands the client the records after the last one sent, while the window has room.
-    async fn fill(&mut self, follower: &mut Follower) -> Result<(), Stalled> {
-        while self.delivery.room() > 0 && follower.newest() > self.delivery.sent_up_to() {
-            follower.seek(self.delivery.sent_up_to());
-            let batch = follower
-                .read(self.delivery.room())
-                .await
-                .map_err(|e| Stalled::Log(format!("reading the results log: {e}")))?;
-            if batch.is_empty() {
-                return Ok(());
+    async fn handle(&mut self, wake: Wake) -> Next {
+        match wake {
+            Wake::Connect => self.connect(),
+            Wake::Event(Some(Ok(event))) => self.on_event(event).await,
+            Wake::Event(Some(Err(e))) => self.lose(End::Lost(e.to_string())),
+            Wake::Event(None) => self.lose(End::Lost("the client's event loop ended".into())),
+            Wake::Unacknowledged => {
+                let what = self.waiting_text();
+                self.lose(End::Unacknowledged(what));
             }
-            for record in batch {
-                let id = record.id;
-                let json = serde_json::to_vec(&record)
-                    .map_err(|e| Stalled::Log(format!("record {id} as JSON: {e}")))?;
-                if json.len() + self.topics.measurements.len() + 16 > MAX_PACKET {
-                    return Err(Stalled::Log(format!(
-                        "record {id} is {} bytes as JSON, more than an MQTT message of the station may hold ({MAX_PACKET})",
-                        json.len()
-                    )));
-                }
-                self.client
-                    .publish(&self.topics.measurements, QoS::AtLeastOnce, false, json)
-                    .await
-                    .map_err(|e| Stalled::Connection(e.to_string()))?;
-                self.handed(Carried::Record(id));
+            Wake::Stop => {
+                self.stop().await;
+                return Next::End;
             }
         }
-        Ok(())
+        Next::After(self.delivery.sent_up_to())
+    }
+}
+
+impl Publishing {
+    /// A new client and its event loop, which connects.
+    fn connect(&mut self) {
+        let (client, eventloop) = AsyncClient::new(self.options.clone(), WINDOW + 4);
+        let (events_tx, events) = mpsc::channel(64);
+        self.connection = Some(Connection {
+            client,
+            events,
+            pump: tokio::spawn(pump(eventloop, events_tx)),
+            connected_at: None,
+            waiting_since: None,
+        });
+    }
+
+    async fn on_event(&mut self, event: Event) {
+        match event {
+            Event::Incoming(Packet::ConnAck(_)) => {
+                if self.said.collision {
+                    tracing::debug!(topic = %self.topics.status, "MQTT: connected, publishing from record {}", self.delivery.cursor() + 1);
+                } else {
+                    tracing::info!(topic = %self.topics.status, "MQTT: connected, publishing from record {}", self.delivery.cursor() + 1);
+                }
+                self.backoff = BACKOFF_FIRST;
+                if let Some(c) = &mut self.connection {
+                    c.connected_at = Some(Instant::now());
+                }
+                self.delivery.connected();
+                if let Err(e) = self.publish_status(ONLINE).await {
+                    self.lose(End::Lost(e));
+                }
+            }
+            Event::Outgoing(Outgoing::Publish(pkid)) => self.delivery.written(pkid),
+            Event::Incoming(Packet::PubAck(ack)) => {
+                let (carried, cursor) = self.delivery.acked(ack.pkid);
+                if carried.is_some() {
+                    self.said.silent = false;
+                    let waiting = self.delivery.waiting();
+                    if let Some(c) = &mut self.connection {
+                        c.waiting_since = waiting.then(Instant::now);
+                    }
+                }
+                if let Some(cursor) = cursor {
+                    self.save_cursor(cursor).await;
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// The connection ended as `end` says: says so (once per trouble), and connects
+    /// again after the back-off; what was not acknowledged is sent again from the cursor.
+    fn lose(&mut self, end: End) {
+        let Some(connection) = self.connection.take() else {
+            return;
+        };
+        let lasted = connection.connected_at.map(|at| at.elapsed());
+        drop(connection);
+        self.delivery.disconnected();
+        let client_id = self.options.client_id();
+        let (said, target) = (&mut self.said, &self.target);
+        if lasted.is_some_and(|d| d >= KICKED_WITHIN) {
+            // A connection that lasted: troubles are news again.
+            *said = Said {
+                silent: said.silent,
+                ..Said::default()
+            };
+        }
+        match end {
+            End::Unacknowledged(what) => {
+                if said.silent {
+                    tracing::debug!(broker = %target, "MQTT: still no acknowledgement ({what})");
+                } else {
+                    tracing::warn!(broker = %target, "MQTT: the broker acknowledged nothing (no PUBACK) for {} s while {what} waited: delivery stalls there, so the station connects again and sends from record {} on; the log keeps the measurements. A broker that takes QoS 1 messages without acknowledging them is overloaded or broken (said once, until it acknowledges one)", ACK_TIMEOUT.as_secs(), self.delivery.cursor() + 1);
+                    said.silent = true;
+                }
+            }
+            End::Lost(why) => {
+                // Kicked: closed soon after it was accepted. A connection not made at all
+                // (the broker restarting) breaks the run.
+                said.kicks = match lasted {
+                    Some(d) if d < KICKED_WITHIN => said.kicks + 1,
+                    _ => 0,
+                };
+                if said.kicks >= KICKS && !said.collision {
+                    tracing::warn!(broker = %target, "MQTT: the broker closed the station's connection {} times in a row within {} s of accepting it ({why}): most likely another client connects with the station's client id {client_id}. A broker closes the older connection when a client id connects again, so the two take turns and the station's status flaps between online and offline. Give the other client another id, or this station another name (serve --station-name; the id is coapcam-<name>). Said once; the station keeps reconnecting", said.kicks, KICKED_WITHIN.as_secs());
+                    said.collision = true;
+                    said.lost = true;
+                } else if !said.lost {
+                    tracing::warn!(broker = %target, "MQTT: no connection ({why}); retrying, the log keeps the measurements");
+                    said.lost = true;
+                } else {
+                    tracing::debug!(broker = %target, "MQTT: no connection ({why})");
+                }
+            }
+        }
+        self.reconnect_at = Instant::now() + self.backoff;
+        self.backoff = (self.backoff * 2).min(BACKOFF_MAX);
     }
 
     async fn publish_status(&mut self, status: &str) -> Result<(), String> {
-        self.client
+        let Some(c) = &self.connection else {
+            return Err("no connection".into());
+        };
+        c.client
             .publish(&self.topics.status, QoS::AtLeastOnce, true, status)
             .await
             .map_err(|e| e.to_string())?;
@@ -703,7 +767,9 @@ impl Session<'_> {
     /// older one waits already.
     fn handed(&mut self, carried: Carried) {
         self.delivery.sending(carried);
-        self.waiting_since.get_or_insert_with(Instant::now);
+        if let Some(c) = &mut self.connection {
+            c.waiting_since.get_or_insert_with(Instant::now);
+        }
     }
 
     /// What waits for an acknowledgement, in words.
@@ -738,16 +804,24 @@ impl Session<'_> {
         }
     }
 
+    /// The next event of the connection's event loop (`None` without one).
+    async fn next_event(&mut self) -> Option<Result<Event, ConnectionError>> {
+        match &mut self.connection {
+            Some(c) => c.events.recv().await,
+            None => None,
+        }
+    }
+
     /// Publishes `offline` and disconnects, when connected; waits at most [`STOP_WAIT`].
-    async fn stop(&mut self, events: &mut mpsc::Receiver<Result<Event, ConnectionError>>) -> End {
+    async fn stop(&mut self) {
         if !self.delivery.connected {
-            return End::Stopped;
+            return;
         }
         let wait = async {
             self.publish_status(OFFLINE).await?;
             // The acknowledgements of records still in flight move the cursor too.
             loop {
-                match events.recv().await {
+                match self.next_event().await {
                     Some(Ok(Event::Outgoing(Outgoing::Publish(pkid)))) => {
                         self.delivery.written(pkid);
                     }
@@ -765,10 +839,13 @@ impl Session<'_> {
                     None => return Err("the client's event loop ended".into()),
                 }
             }
-            self.client.disconnect().await.map_err(|e| e.to_string())?;
+            let client = self.connection.as_ref().map(|c| c.client.clone());
+            if let Some(client) = client {
+                client.disconnect().await.map_err(|e| e.to_string())?;
+            }
             // The DISCONNECT is written (and flushed) when its event comes.
             loop {
-                match events.recv().await {
+                match self.next_event().await {
                     Some(Ok(Event::Outgoing(Outgoing::Disconnect))) => return Ok(()),
                     Some(Ok(_)) => {}
                     Some(Err(e)) => return Err(e.to_string()),
@@ -787,7 +864,6 @@ impl Session<'_> {
                 "MQTT: the broker did not acknowledge offline within {STOP_WAIT:?}; it publishes the last will"
             ),
         }
-        End::Stopped
     }
 }
 

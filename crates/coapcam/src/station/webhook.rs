@@ -24,7 +24,7 @@ use hyper_util::rt::TokioIo;
 use tokio::net::TcpStream;
 use tokio::task::JoinHandle;
 
-use super::follow::{self, Sink};
+use super::follow::{self, Next, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::Record;
 
@@ -142,20 +142,28 @@ struct Hook {
 }
 
 impl Sink for Hook {
+    type Event = std::convert::Infallible;
+
     fn name(&self) -> String {
         format!("webhook: {}", self.target)
     }
 
-    fn cursor(&self) -> Option<&'static str> {
-        Some(CONSUMER)
+    fn start(&self) -> Start {
+        Start::Cursor(CONSUMER)
     }
 
-    async fn deliver(&mut self, record: &Record) -> Result<(), String> {
-        let posted = self.post(record).await;
-        if posted.is_err() {
-            self.connection = None;
+    async fn deliver(&mut self, record: &Record) -> Next {
+        match self.post(record).await {
+            Ok(()) => Next::Go,
+            Err(why) => {
+                self.connection = None;
+                Next::Retry(why)
+            }
         }
-        posted
+    }
+
+    async fn handle(&mut self, event: Self::Event) -> Next {
+        match event {}
     }
 }
 

@@ -44,7 +44,7 @@ use tokio::sync::{Semaphore, mpsc};
 use tokio::task::{JoinHandle, JoinSet};
 
 use super::Recorder;
-use super::follow::Follower;
+use super::follow::{self, Next, Sink, Start};
 use super::log::ResultsLog;
 use super::reads::{self, Kind, Picture, Refusal};
 use crate::api::record::{Record, Trigger};
@@ -1028,7 +1028,6 @@ async fn stream_events(
     after: u64,
     tx: mpsc::Sender<Result<Bytes, std::io::Error>>,
 ) {
-    let mut follower = Follower::new(log, after);
     if tx
         .send(Ok(Bytes::from_static(
             b"retry: 2000\n: coapcam measurements\n\n",
@@ -1038,35 +1037,60 @@ async fn stream_events(
     {
         return;
     }
-    loop {
-        let records = match follower.read(100).await {
-            Ok(records) => records,
-            Err(e) => {
-                tracing::warn!("http: event stream: {e}");
-                return;
-            }
+    follow::run(log, Events { after, tx }).await;
+}
+
+/// One client's event stream as a [`Sink`]: a `measurement` event per record, and a
+/// comment line when there was no news for [`KEEP_ALIVE`]; done when the client has gone.
+struct Events {
+    after: u64,
+    tx: mpsc::Sender<Result<Bytes, std::io::Error>>,
+}
+
+/// What an event stream waits for besides records.
+enum Quiet {
+    /// No news for [`KEEP_ALIVE`].
+    KeepAlive,
+    /// The client has gone.
+    Gone,
+}
+
+impl Sink for Events {
+    type Event = Quiet;
+
+    fn name(&self) -> String {
+        "http: event stream".into()
+    }
+
+    fn start(&self) -> Start {
+        Start::After(self.after)
+    }
+
+    async fn deliver(&mut self, record: &Record) -> Next {
+        let Ok(data) = serde_json::to_string(record) else {
+            return Next::Go;
         };
-        let full = records.len() == 100;
-        for record in records {
-            let Ok(data) = serde_json::to_string(&record) else {
-                continue;
-            };
-            let event = format!("id: {}\nevent: measurement\ndata: {data}\n\n", record.id);
-            if tx.send(Ok(Bytes::from(event))).await.is_err() {
-                return;
-            }
+        let event = format!("id: {}\nevent: measurement\ndata: {data}\n\n", record.id);
+        match self.tx.send(Ok(Bytes::from(event))).await {
+            Ok(()) => Next::Go,
+            Err(_) => Next::End,
         }
-        if full {
-            continue;
-        }
+    }
+
+    async fn event(&mut self) -> Quiet {
         tokio::select! {
-            appended = follower.appended() => if !appended { return },
-            () = tokio::time::sleep(KEEP_ALIVE) => {
-                if tx.send(Ok(Bytes::from_static(b": alive\n\n"))).await.is_err() {
-                    return;
-                }
-            }
-            () = tx.closed() => return,
+            () = tokio::time::sleep(KEEP_ALIVE) => Quiet::KeepAlive,
+            () = self.tx.closed() => Quiet::Gone,
+        }
+    }
+
+    async fn handle(&mut self, event: Quiet) -> Next {
+        match event {
+            Quiet::KeepAlive => match self.tx.send(Ok(Bytes::from_static(b": alive\n\n"))).await {
+                Ok(()) => Next::Go,
+                Err(_) => Next::End,
+            },
+            Quiet::Gone => Next::End,
         }
     }
 }
