@@ -51,7 +51,8 @@ impl Station {
         let open = server.allow_unauthenticated_config;
         let state_dir = server.state_dir.clone();
         let server = CameraServer::start(server).await?;
-        let mut tasks = Vec::new();
+        // Aborted on an early return too.
+        let mut tasks = Tasks(Vec::new());
         let recorder = match server.rig() {
             Some(_) => {
                 let path = config.results_path(&state_dir);
@@ -64,7 +65,7 @@ impl Station {
                 // One notification per new record: appends that come faster than
                 // notifications go out are told once, with the newest.
                 let (mut newest, changes) = (log.subscribe(), server.changes());
-                tasks.push(tokio::spawn(async move {
+                tasks.0.push(tokio::spawn(async move {
                     while newest.changed().await.is_ok()
                         && changes.send(paths::LATEST.to_owned()).is_ok()
                     {}
@@ -79,7 +80,7 @@ impl Station {
         if let (Some(rig), Some(recorder), Some(auto)) =
             (server.rig(), recorder.clone(), config.auto_measure)
         {
-            tasks.push(watch::spawn(rig, recorder, auto));
+            tasks.0.push(watch::spawn(rig, recorder, auto));
         }
         Ok(Self {
             server,
@@ -88,7 +89,7 @@ impl Station {
             line_output,
             http,
             _webhook: webhook,
-            _tasks: Tasks(tasks),
+            _tasks: tasks,
         })
     }
 
