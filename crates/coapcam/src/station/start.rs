@@ -18,10 +18,9 @@ use crate::rd::registrant::{Registrant, RegistrantConfig};
 use crate::report::{EdgeQuery, Measurement};
 use crate::server::{self, CameraServer, CodeColor, EdgeError};
 
-/// A running station: its camera server, and with cameras its results log and outputs.
+/// A running station: its camera server, and with cameras the outputs of its results log.
 pub struct Station {
     server: CameraServer,
-    results: Option<ResultsLog>,
     /// The log's MQTT publisher (`--mqtt`) and line output (`--line-output`).
     publisher: Option<mqtt::Publisher>,
     line_output: Option<line::LineOutput>,
@@ -84,7 +83,6 @@ impl Station {
         }
         Ok(Self {
             server,
-            results: recorder.map(|r| r.log().clone()),
             publisher,
             line_output,
             http,
@@ -113,11 +111,6 @@ impl Station {
     /// Where the page and the HTTP API are served (`--http`).
     pub fn http_addr(&self) -> Option<SocketAddr> {
         self.http.as_ref().map(http::HttpServer::local_addr)
-    }
-
-    /// The results log (when there are cameras).
-    pub fn results(&self) -> Option<&ResultsLog> {
-        self.results.as_ref()
     }
 
     /// The addresses the camera server answers on.
