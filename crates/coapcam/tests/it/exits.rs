@@ -157,6 +157,11 @@ fn nothing_on_the_table_is_a_result_with_exit_5() {
         "{}",
         f.stdout_text()
     );
+    // Setting up on an empty table is no result: the results log (and so MQTT, the line
+    // output and the webhooks, which follow it) holds no record of either measurement.
+    let f = coapcam(&["results", "--server", &uri]);
+    assert_eq!(status(&f), Some(0), "{}", f.stderr);
+    assert_eq!(f.stdout_text().trim(), "no records", "{}", f.stdout_text());
 }
 
 /// A camera 1.65 m over a black box (reflectivity 0.01) that returns no depth at all.

@@ -826,8 +826,15 @@ impl Cams {
                 Err(e) => return e.response(),
             };
         let m = measured.measurement.clone();
-        // Kept before it is answered: an answered measurement is in the log.
-        if let Some(records) = records
+        // Kept before it is answered: an answered measurement is in the log. One that
+        // found no parcel (an empty table, e.g. `measure --prepare` while setting up) is
+        // no result: not kept, as the automatic measurement keeps none either.
+        let found = m.parcel != report::Found::Nothing;
+        if !found && records.is_some() {
+            tracing::info!("POST /cams/dimensions found no parcel: not recorded");
+        }
+        if found
+            && let Some(records) = records
             && let Err(why) = records.keep(measured).await
         {
             let why = format!("measured, but the measurement could not be recorded: {why}");
