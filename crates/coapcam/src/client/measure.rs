@@ -3,6 +3,7 @@
 //! the preparation of the cameras that makes the clouds small (docs/design.md §6); and the
 //! comparison with a synthetic scene's truth.
 
+use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
@@ -152,6 +153,7 @@ impl CloudMeasurement {
         m.received_bytes = Some(g.bytes as u64);
         m.frames = g.frames.clone();
         m.warnings = g.failed.clone();
+        m.warnings.extend(duplicate_serials(&g.cameras));
         m.warnings.extend(self.unchecked.iter().cloned());
         m.warnings.extend(g.untimed.iter().cloned());
         if !self.unsynced.is_empty() {
@@ -178,6 +180,27 @@ impl CloudMeasurement {
         m.withhold_uncalibrated(&calibration.uncalibrated);
         m
     }
+}
+
+/// A warning for each serial that more than one server answered for (two scene files
+/// that share a serial, a copied state): the clouds are all merged, but the serial does
+/// not say which camera is meant (`--camera`, the calibration, the record's cameras).
+fn duplicate_serials(cameras: &[(SocketAddr, String)]) -> Vec<String> {
+    let mut servers: BTreeMap<&str, Vec<String>> = BTreeMap::new();
+    for (server, sn) in cameras {
+        servers.entry(sn).or_default().push(server.to_string());
+    }
+    servers
+        .into_iter()
+        .filter(|(_, at)| at.len() > 1)
+        .map(|(sn, at)| {
+            format!(
+                "camera serial {sn} came from {} servers ({}): each camera is merged, but the serial does not tell them apart; give each camera its own serial (a synthetic camera's `serial` in its scene file)",
+                at.len(),
+                at.join(", ")
+            )
+        })
+        .collect()
 }
 
 /// What the cameras' documents say about a measurement's calibration.

@@ -73,6 +73,16 @@ fn two_servers_one_400_ms_ahead_merge_once_the_offset_is_corrected() {
         .json();
     assert_eq!(m["parcel"], "measured", "{m}");
     assert_eq!(m["servers"].as_array().map(Vec::len), Some(2), "{m}");
+    // Both servers run the default scene, so both cameras say they are SN: merged, but
+    // a warning names the serial and both servers (issue 51, item 8).
+    let twice = format!("camera serial {SN} came from 2 servers (");
+    let warnings = m["warnings"].to_string();
+    assert!(
+        warnings.contains(&twice)
+            && warnings.contains(&a.to_string())
+            && warnings.contains(&b.to_string()),
+        "{m}"
+    );
     let frames = m["frames"].as_array().expect("frames");
     assert_eq!(frames.len(), 2, "{m}");
     let of = |server: SocketAddr| {
