@@ -72,7 +72,8 @@ pub(crate) struct MonitorArgs {
     count: Option<u64>,
     /// Observe the camera's color, depth or pointcloud resource (GET with Observe) instead
     /// of grabbing: the latest frame, then each frame anyone grabs, is a result; its time
-    /// is the time since the previous result. With `measure`: follow the station's
+    /// is the time since the previous result. A camera with no frame yet is waited for
+    /// (said on standard error) until someone grabs one. With `measure`: follow the station's
     /// results log (/station/measurements/latest) instead of measuring: each measurement
     /// recorded from then on (by a client or the station itself) is a result, none
     /// skipped (records appended between two notifications are fetched).
@@ -420,7 +421,21 @@ async fn carry_out(
                 report.result(grab, elapsed)?;
                 Ok(report.done(args.count))
             };
-            timed::observe(client, serial, *stream, args.accept, timeout, on_result).await
+            let on_waiting = |path: &str| {
+                eprintln!(
+                    "coapcam: camera {serial} has no frame yet: waiting for the first one anyone grabs (POST {path} grabs one)"
+                );
+            };
+            timed::observe(
+                client,
+                serial,
+                *stream,
+                args.accept,
+                timeout,
+                on_waiting,
+                on_result,
+            )
+            .await
         }
         Plan::Repeat(repeat_plan) => repeat(client, repeat_plan, args, report).await,
         Plan::Records => {

@@ -82,22 +82,31 @@ pub async fn once(
     }
 }
 
+/// How often [`observe`] asks again while the camera has no frame yet.
+pub const FIRST_FRAME_POLL: Duration = Duration::from_millis(250);
+
 /// Observes `/cams/<serial>/<stream>` (in the representation `accept`): each
 /// notification, the first within `timeout`, is handed to `on_result` with the time since
 /// the previous one (the first's since the request), until `on_result` says to stop
-/// (true) or the observation ends (an error).
+/// (true) or the observation ends (an error). While the camera (one the server lists)
+/// has no frame yet (4.04: nobody grabbed one), it waits for the first frame anyone
+/// grabs, asking again every [`FIRST_FRAME_POLL`]; `on_waiting` is called once when it
+/// starts to wait.
 pub async fn observe(
     client: &CamClient,
     serial: &str,
     stream: Stream,
     accept: Option<ContentFormat>,
     timeout: Duration,
+    mut on_waiting: impl FnMut(&str),
     mut on_result: impl FnMut(anyhow::Result<Timed>, Duration) -> anyhow::Result<bool>,
 ) -> anyhow::Result<()> {
     let path = crate::api::paths::camera(serial, stream.name());
     let mut previous = Instant::now();
     let mut watch = Watch::start(client, &path, accept, timeout).await?;
     let mut first = true;
+    // Whether the server lists the camera: asked at the first 4.04.
+    let mut listed = None;
     loop {
         let next = watch.next().await;
         let elapsed = previous.elapsed();
@@ -116,6 +125,21 @@ pub async fn observe(
             Err(e) => return Err(e),
         };
         let observing = response.options.contains(OptionNumber::OBSERVE);
+        if first && !observing && response.code == Code::NOT_FOUND {
+            if listed.is_none() {
+                let is_listed = client.cameras().await?.iter().any(|sn| sn == serial);
+                if is_listed {
+                    on_waiting(&path);
+                }
+                listed = Some(is_listed);
+            }
+            if listed == Some(true) {
+                tokio::time::sleep(FIRST_FRAME_POLL).await;
+                watch = Watch::start(client, &path, accept, timeout).await?;
+                previous = Instant::now();
+                continue;
+            }
+        }
         let outcome = super::check(&format!("GET {path}"), response).map(|r| Timed {
             bytes: r.payload.len(),
             time: elapsed,

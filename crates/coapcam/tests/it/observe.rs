@@ -54,3 +54,57 @@ fn monitor_observe_goes_on_when_a_notification_changes_mid_transfer() {
     assert_eq!(lines.len(), 5, "four results and the statistics");
     assert!(last["statistics"]["count"].as_u64() >= Some(1), "{last}");
 }
+
+/// Issue 51, item 5: `monitor color --observe --count 20` on a freshly started server,
+/// whose camera nobody has grabbed yet, waits for the first frame (and says so) instead
+/// of failing at once with "4.04 Not Found: no frame grabbed yet"; with another client
+/// grabbing every 0.1 s it ends with 20 results, none failed. (JPEG keeps the test
+/// light; the thesis packet is the same path.)
+#[test]
+fn monitor_observe_on_a_camera_not_grabbed_yet_waits_for_the_first_frame() {
+    let state = TempDir::new("observe-fresh");
+    let (_server, addr) = serve(state.path());
+    let uri = format!("coap://{addr}");
+    let color = format!("{uri}/cams/{SN}/color");
+    let mut monitor = Proc::spawn(
+        COAPCAM,
+        &[
+            "monitor",
+            "color",
+            "--observe",
+            "--server",
+            &uri,
+            "--count",
+            "20",
+            "--accept",
+            "jpeg",
+            "--json",
+        ],
+    );
+    // Nothing was grabbed: it says that it waits, and for which camera.
+    monitor.stderr_line(crate::support::LIMIT, |l| {
+        (l.contains(&format!("camera {SN} has no frame yet: waiting"))).then_some(())
+    });
+    let mut finished = None;
+    for _ in 0..600 {
+        Proc::run(
+            COAPCAM,
+            &["post", &color, "--accept", "jpeg", "-o", "/dev/null"],
+            crate::support::LIMIT,
+        )
+        .expect_success("a grab");
+        std::thread::sleep(Duration::from_millis(100));
+        finished = monitor.wait(Duration::ZERO);
+        if finished.is_some() {
+            break;
+        }
+    }
+    let f = finished
+        .unwrap_or_else(|| monitor.kill())
+        .expect_success("monitor --observe on a fresh server");
+    let lines = f.json_lines();
+    assert_eq!(lines.len(), 21, "20 results and the statistics");
+    let stats = &lines[20]["statistics"];
+    assert_eq!(stats["count"], 20, "{stats}");
+    assert_eq!(stats["failed"], 0, "{stats}");
+}
