@@ -427,6 +427,17 @@ async fn register(
     );
     post.payload = announced.links.clone().into();
     let r = client.send(config.rd, post).await?;
+    if r.code == Code::FORBIDDEN {
+        // coapcam's directory refuses a name registered from another address: most often
+        // a second server of one host, where every server defaults to the host's name.
+        bail!(
+            "{} answered {} {}: the endpoint name {:?} may be taken by another server (every server of one host is named after the host unless told otherwise): give each server its own name with serve --rd-ep NAME (or --station-name NAME)",
+            config.rd,
+            r.code,
+            String::from_utf8_lossy(&r.payload),
+            config.ep
+        );
+    }
     if r.code != Code::CREATED && r.code != Code::CHANGED {
         bail!(
             "{} answered {} {}",

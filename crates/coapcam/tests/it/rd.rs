@@ -209,6 +209,46 @@ fn registrations_are_renewed_removed_at_shutdown_expire_when_killed_and_outlive_
     assert_eq!(names(rd), ["kept"]);
 }
 
+/// Issue 51, item 12: a second server registering a name another server holds (as the
+/// servers of one host on their own addresses do by default, all named after the host)
+/// is told that the name is taken and how to choose its own; the first stays listed.
+#[test]
+fn a_name_another_server_holds_is_refused_with_how_to_choose_one() {
+    let dir = TempDir::new("rd-taken");
+    let (_rd_proc, rd) = start_rd("127.0.0.1:0", None);
+    let rd_uri = format!("coap://{rd}");
+    let (_first, first_addr) =
+        start_registered(&rd_uri, "dock", &dir.join("s1"), &["--no-cameras"]);
+    wait_for_names(rd, &["dock"]);
+    // The second on another address of this host (the directory owns a name by address).
+    let state = dir.join("s2");
+    let mut second = Proc::spawn(
+        COAPCAM,
+        &[
+            "serve",
+            "--bind",
+            "127.0.0.2:0",
+            "--state-dir",
+            state.to_str().expect("UTF-8 path"),
+            "--duration",
+            "150",
+            "--no-cameras",
+            "--register",
+            &rd_uri,
+            "--rd-ep",
+            "dock",
+        ],
+    );
+    let said = second.stderr_line(LIMIT, |l| l.contains("4.03").then(|| l.to_owned()));
+    assert!(
+        said.contains("\"dock\" may be taken by another server") && said.contains("--rd-ep NAME"),
+        "{said}"
+    );
+    let listed = endpoints(rd, &["ep=dock"]);
+    assert_eq!(listed.len(), 1, "{listed:?}");
+    assert_eq!(listed[0].addr, Some(first_addr), "{listed:?}");
+}
+
 #[test]
 fn simple_registration_fetches_the_endpoints_own_links() {
     let (_rd_proc, rd) = start_rd("127.0.0.1:0", None);
