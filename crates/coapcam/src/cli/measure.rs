@@ -145,7 +145,9 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     // Servers of a group that failed: their cameras are missing (exit status 6).
     let (mut m, mut missing) = match edge {
         Some(m) => (m, false),
-        None => measure_here(&client, &source, &args, &billing).await?,
+        None => measure_here(&client, &source, &args, &billing)
+            .await
+            .map_err(|e| loopback_hint(e, &args))?,
     };
     missing |= missing_servers(&mut m, &source, &members);
     for w in &m.warnings {
@@ -403,6 +405,42 @@ async fn measure_here(
     Ok((m, missing))
 }
 
+/// Where Linux shows the loopback interface's flags (hexadecimal).
+const LOOPBACK_FLAGS: &str = "/sys/class/net/lo/flags";
+
+/// A group that no server answered, sent without --bind from a machine whose loopback
+/// interface has no MULTICAST flag (the kernel's default for `lo`): servers on this
+/// machine's loopback addresses are not reached that way, but are from 127.0.0.1. The
+/// error says so; any other error is returned as it is.
+fn loopback_hint(e: anyhow::Error, args: &MeasureArgs) -> anyhow::Error {
+    if args.group.is_none() || args.bind.is_some() {
+        return e;
+    }
+    let flags = std::fs::read_to_string(LOOPBACK_FLAGS).unwrap_or_default();
+    with_loopback_hint(e, lacks_multicast(&flags))
+}
+
+/// Whether interface flags as Linux writes them (`0x9`) lack IFF_MULTICAST; `false` when
+/// they do not read as flags.
+fn lacks_multicast(flags: &str) -> bool {
+    /// IFF_MULTICAST of <linux/if.h>.
+    const IFF_MULTICAST: u32 = 0x1000;
+    let hex = flags.trim().trim_start_matches("0x");
+    u32::from_str_radix(hex, 16).is_ok_and(|f| f & IFF_MULTICAST == 0)
+}
+
+/// `e` with the --bind advice when no member answered and the loopback interface `lacks`
+/// MULTICAST; still a [`NoAnswer`](coapcam::client::NoAnswer) (exit status 4).
+fn with_loopback_hint(e: anyhow::Error, lacks: bool) -> anyhow::Error {
+    if !lacks || !e.chain().any(|c| c.is::<coapcam::client::NoAnswer>()) {
+        return e;
+    }
+    coapcam::client::NoAnswer(format!(
+        "{e:#}; the loopback interface lo has no MULTICAST flag, so servers on this machine's loopback addresses do not get a group request sent this way: add --bind 127.0.0.1 to reach them"
+    ))
+    .into()
+}
+
 /// The servers the directory `rd` lists as members of `group` (endpoint lookup with
 /// `grp=ADDR:PORT`).
 async fn group_members(
@@ -460,4 +498,37 @@ async fn group_address(uri: &str) -> anyhow::Result<SocketAddr> {
         bail!("{} is not a multicast address", addr.ip());
     }
     Ok(addr)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn no_answer_with_a_loopback_without_multicast_advises_bind() {
+        assert!(lacks_multicast("0x9\n"));
+        assert!(!lacks_multicast("0x1009\n"));
+        assert!(!lacks_multicast(""));
+        let none = || -> anyhow::Error {
+            coapcam::client::NoAnswer(
+                "no server of the group 224.0.1.187:5683 answered within 1s".to_owned(),
+            )
+            .into()
+        };
+        let hinted = with_loopback_hint(none(), true);
+        let text = format!("{hinted:#}");
+        assert!(
+            text.starts_with("no server of the group 224.0.1.187:5683 answered within 1s; ")
+                && text.contains("lo has no MULTICAST flag")
+                && text.contains("--bind 127.0.0.1"),
+            "{text}"
+        );
+        assert!(
+            hinted.is::<coapcam::client::NoAnswer>(),
+            "still exit status 4"
+        );
+        assert!(!format!("{:#}", with_loopback_hint(none(), false)).contains("--bind"));
+        let other = with_loopback_hint(anyhow::anyhow!("a file error"), true);
+        assert_eq!(format!("{other:#}"), "a file error");
+    }
 }
