@@ -89,8 +89,9 @@ pub(crate) struct MeasureArgs {
     #[arg(long)]
     codes: bool,
     /// Draw the measured box and its dimensions onto a new color image of the first
-    /// camera and write it as PNG (the name must end in .png). With nothing on the table
-    /// nothing is drawn and no file written (said on standard error).
+    /// camera and write it as PNG (the name must end in .png). A refused parcel is drawn
+    /// as its footprint on the floor, with the reason. With nothing on the table nothing
+    /// is drawn and no file written (said on standard error).
     #[arg(long, value_name = "FILE.png")]
     annotate: Option<PathBuf>,
     /// Divisor of the volumetric weight, cm³ per kg, 100 to 100000 (5000 is the common
@@ -356,27 +357,46 @@ fn missing_servers(m: &mut Measurement, source: &Source, members: &[Endpoint]) -
     missing
 }
 
-/// Draws the measured parcel onto a camera's color image (--annotate).
+/// Draws the measured parcel onto a camera's color image (--annotate); a refused one as
+/// its footprint, with why.
 async fn annotate_parcel(
     client: &CamClient,
     m: &Measurement,
     parcel: &Parcel,
     args: &MeasureArgs,
 ) -> anyhow::Result<()> {
-    if let (Some(path), Parcel::Measured(dimensions)) = (&args.annotate, parcel) {
-        let (server, sn) = m
-            .servers
-            .first()
-            .zip(m.cameras.first())
-            .context("no camera to take the color image from")?;
-        let one = CamClient::unicast(client, *server);
-        annotate::from_server(&one, sn, dimensions, m.codes.as_deref(), path).await?;
-        eprintln!("coapcam: wrote {}", path.display());
-    } else if let Some(path) = &args.annotate {
+    let Some(path) = &args.annotate else {
+        return Ok(());
+    };
+    if !matches!(parcel, Parcel::Measured(_) | Parcel::Refused { .. }) {
         eprintln!(
             "coapcam: no parcel was measured, so nothing to draw: {} not written",
             path.display()
         );
+        return Ok(());
+    }
+    let (server, sn) = m
+        .servers
+        .first()
+        .zip(m.cameras.first())
+        .context("no camera to take the color image from")?;
+    let one = CamClient::unicast(client, *server);
+    match parcel {
+        Parcel::Measured(dimensions) => {
+            annotate::from_server(&one, sn, dimensions, m.codes.as_deref(), path).await?;
+            eprintln!("coapcam: wrote {}", path.display());
+        }
+        Parcel::Refused { reason, .. } => {
+            // The refused parcel is the largest, the first of the list.
+            let corners = m.parcels.first().map(|p| &p.corners_m);
+            annotate::refused_from_server(&one, sn, corners, reason, m.codes.as_deref(), path)
+                .await?;
+            eprintln!(
+                "coapcam: wrote {}: the refused parcel and why",
+                path.display()
+            );
+        }
+        Parcel::Nothing { .. } => {}
     }
     Ok(())
 }

@@ -32,6 +32,52 @@ pub async fn from_server(
     codes: Option<&[Seen]>,
     path: &std::path::Path,
 ) -> anyhow::Result<()> {
+    let (mut image, capture, transform) = frame(client, serial).await?;
+    picture::annotate_frame(
+        &mut image,
+        dims,
+        code_texts(codes).as_deref(),
+        capture.intrinsics,
+        capture.depth_to_color,
+        &transform,
+    )?;
+    picture::save(&image, path)
+}
+
+/// Grabs a color frame of `serial` and draws onto it the parcel the measurement refused
+/// (its footprint `corners_m` when known) and `reason` (`--annotate` of a refusal).
+pub async fn refused_from_server(
+    client: &CamClient,
+    serial: &str,
+    corners_m: Option<&[[f64; 2]; 4]>,
+    reason: &str,
+    codes: Option<&[Seen]>,
+    path: &std::path::Path,
+) -> anyhow::Result<()> {
+    let (mut image, capture, transform) = frame(client, serial).await?;
+    picture::annotate_refused_frame(
+        &mut image,
+        corners_m,
+        reason,
+        code_texts(codes).as_deref(),
+        capture.intrinsics,
+        capture.depth_to_color,
+        &transform,
+    )?;
+    picture::save(&image, path)
+}
+
+/// The codes' texts as the legend shows them.
+fn code_texts(codes: Option<&[Seen]>) -> Option<Vec<String>> {
+    codes.map(|seen| seen.iter().map(|s| s.code.to_string()).collect())
+}
+
+/// A new color frame of `serial` (its image taken out of the capture) and the camera's
+/// 3d-transformation.
+async fn frame(
+    client: &CamClient,
+    serial: &str,
+) -> anyhow::Result<(image::RgbImage, ColorCapture, geometry::Transform)> {
     let transformation_path = crate::api::paths::camera(serial, "3d-transformation");
     let (color, transformation) = tokio::try_join!(
         client.grab(serial, Stream::Color, Some(coap::ContentFormat::CBOR)),
@@ -42,16 +88,6 @@ pub async fn from_server(
         .to_transform()
         .context("composing the 3d-transformation")?;
     let mut capture = ColorCapture::from_cbor(&color.payload)?;
-    let mut image = std::mem::take(&mut capture.image);
-    let codes: Option<Vec<String>> =
-        codes.map(|seen| seen.iter().map(|s| s.code.to_string()).collect());
-    picture::annotate_frame(
-        &mut image,
-        dims,
-        codes.as_deref(),
-        capture.intrinsics,
-        capture.depth_to_color,
-        &transform,
-    )?;
-    picture::save(&image, path)
+    let image = std::mem::take(&mut capture.image);
+    Ok((image, capture, transform))
 }

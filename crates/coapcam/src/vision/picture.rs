@@ -491,6 +491,81 @@ pub fn annotate(
     legend(image, (0, 0), &lines, text_scale(image));
 }
 
+/// Draws onto `image` (a color frame, as [`annotate_frame`]) the parcel the measurement
+/// refused: its footprint on the floor (`corners_m`, when the measurement has it) in
+/// magenta, and a legend that says it was refused and why, with the codes read.
+pub fn annotate_refused_frame(
+    image: &mut RgbImage,
+    corners_m: Option<&[[f64; 2]; 4]>,
+    reason: &str,
+    codes: Option<&[String]>,
+    intrinsics: Intrinsics,
+    depth_to_color: Extrinsics,
+    depth_to_world: &Transform,
+) -> anyhow::Result<()> {
+    let project = projector(intrinsics, depth_to_color, depth_to_world)?;
+    annotate_refused(image, corners_m, reason, codes, project);
+    Ok(())
+}
+
+/// [`annotate_refused_frame`] through `project` (world point in metres -> pixel).
+pub fn annotate_refused(
+    image: &mut RgbImage,
+    corners_m: Option<&[[f64; 2]; 4]>,
+    reason: &str,
+    codes: Option<&[String]>,
+    project: impl Fn([f64; 3]) -> Option<[f32; 2]>,
+) {
+    let thickness = (image.width() / 400).max(2);
+    if let Some(c) = corners_m {
+        for i in 0..4 {
+            let j = (i + 1) % 4;
+            let (a, b) = (
+                project([c[i][0], c[i][1], 0.0]),
+                project([c[j][0], c[j][1], 0.0]),
+            );
+            if let (Some(a), Some(b)) = (a, b) {
+                draw_line(image, a, b, MAGENTA, thickness);
+            }
+        }
+    }
+    let scale = text_scale(image);
+    // The reason in lines that fit the image's width.
+    let room = (image.width() * 9 / 10).max(1);
+    let mut lines: Vec<(String, Rgb<u8>)> = vec![("refused: no dimensions".to_owned(), WHITE)];
+    let mut line = String::new();
+    for word in reason.split_whitespace() {
+        let longer = if line.is_empty() {
+            word.to_owned()
+        } else {
+            format!("{line} {word}")
+        };
+        if !line.is_empty() && text_width(&longer, scale) > room {
+            lines.push((std::mem::replace(&mut line, word.to_owned()), WHITE));
+        } else {
+            line = longer;
+        }
+    }
+    if !line.is_empty() {
+        lines.push((line, WHITE));
+    }
+    if let Some(codes) = codes {
+        let read = if codes.is_empty() {
+            "none read".to_owned()
+        } else {
+            codes.join(", ")
+        };
+        lines.push((format!("codes: {read}"), WHITE));
+    }
+    let footprint = if corners_m.is_some() {
+        "magenta: footprint of the refused parcel"
+    } else {
+        "no footprint to draw"
+    };
+    lines.push((footprint.to_owned(), MAGENTA));
+    legend(image, (0, 0), &lines, scale);
+}
+
 /// Lines of text, each in its colour, on a black box at `at`.
 pub fn legend(image: &mut RgbImage, at: (u32, u32), lines: &[(String, Rgb<u8>)], scale: u32) {
     let width = lines

@@ -222,6 +222,23 @@ fn a_parcel_that_returns_no_depth_is_refused_with_exit_10_not_nothing_there() {
         "--json",
     ]);
     no_depth(&["measure", "--server", &uri, "--edge", "--json"]);
+    // --annotate draws what was refused: its footprint in magenta on the camera's
+    // picture, with the reason in the legend (issue 51, item 11; nothing was written).
+    let picture = state.path().join("refused.png");
+    let picture_arg = picture.to_str().expect("UTF-8 path");
+    let f = coapcam(&["measure", "--server", &uri, "--annotate", picture_arg]);
+    assert_eq!(status(&f), Some(10), "{}", f.stderr);
+    assert!(
+        f.stderr.contains("the refused parcel and why"),
+        "{}",
+        f.stderr
+    );
+    let image = image::open(&picture)
+        .expect("the annotated picture")
+        .to_rgb8();
+    let magenta = image.pixels().filter(|p| p.0 == [255, 0, 255]).count();
+    // Four edges of the footprint, a line of the legend: hundreds of pixels.
+    assert!(magenta > 500, "{magenta} magenta pixels");
 }
 
 #[test]
