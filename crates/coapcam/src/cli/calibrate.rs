@@ -185,7 +185,8 @@ fn marker_map(args: &CalibrateArgs) -> anyhow::Result<MarkerMap> {
     let family = args.family;
     match &args.map {
         Some(file) => {
-            let scene = rgbd::Scene::load(file)?;
+            let scene = rgbd::Scene::load(file)
+                .with_context(|| format!("--map {}: the marker map", file.display()))?;
             MarkerMap::from_scene(&scene, family, args.origin_id)
                 .with_context(|| format!("--map {}", file.display()))
         }

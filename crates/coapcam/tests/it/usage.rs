@@ -184,6 +184,36 @@ fn a_folder_that_does_not_exist_fails_before_the_grab() {
     }
 }
 
+/// Issue 51, item 13: a missing `calibrate --map` file is named as the marker map (it
+/// said only "cannot read scene file"), before anything is sent; `bench accuracy
+/// --help` says each set's default number of scenes in words that parse.
+#[test]
+fn small_messages_say_what_they_mean() {
+    let counter = Counter::new();
+    let s = counter.uri();
+    let missing = "/nonexistent/nope.toml";
+    let f = coapcam(&["calibrate", "--server", &s, "--map", missing]);
+    assert_eq!(f.status.code(), Some(1), "{}", f.stderr);
+    assert!(
+        f.stderr
+            .contains(&format!("--map {missing}: the marker map: cannot read")),
+        "{}",
+        f.stderr
+    );
+    assert_eq!(counter.count(), 0, "sent: {}", f.stderr);
+    let help = coapcam(&["bench", "accuracy", "--help"]).stdout_text();
+    let scenes = help
+        .lines()
+        .find(|l| l.trim_start().starts_with("--scenes"))
+        .unwrap_or_else(|| panic!("no --scenes line: {help}"));
+    assert!(
+        scenes.contains(
+            "by default 40 for `boxes`, every scene of the lane set for `lane`, 500 for `cert`"
+        ),
+        "{scenes}"
+    );
+}
+
 #[test]
 fn grab_writes_to_standard_output_and_errors_name_their_request() {
     let state = TempDir::new("usage-stdout");

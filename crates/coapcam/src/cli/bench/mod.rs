@@ -54,8 +54,8 @@ enum BenchKind {
 
 #[derive(Debug, Args)]
 struct AccuracyArgs {
-    /// Number of scenes (at least 1; 40 of the boxes, the lane set's size of the lane
-    /// set, 500 of the cert set).
+    /// Number of scenes, at least 1 (by default 40 for `boxes`, every scene of the lane
+    /// set for `lane`, 500 for `cert`).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     scenes: Option<u32>,
     /// Which set: `boxes` (one plain box per scene, one or two cameras), `lane`
