@@ -23,6 +23,7 @@ use crate::support::{COAPCAM, Finished, Peer, Proc, TempDir, available, mosquitt
 const README: &str = include_str!("../../../../README.md");
 const STATION: &str = include_str!("../../../../docs/station.md");
 const TEST_SH: &str = include_str!("../../../../scripts/test.sh");
+const CARGO_TOML: &str = include_str!("../../../../Cargo.toml");
 
 /// A command of one of README.md's `sh` blocks: continuation lines joined, the trailing
 /// comment removed.
@@ -106,8 +107,8 @@ fn the_readme_blocks_are_understood() {
     let first: Vec<&str> = all.iter().take(2).map(|e| e.line.as_str()).collect();
     assert_eq!(
         first,
-        ["scripts/test.sh", "cargo run --release -- demo"],
-        "the README's two commands come first"
+        ["cargo run --release -- demo", "scripts/test.sh"],
+        "the README's two commands come first, the demo first"
     );
     // scripts/test.sh is the test command itself; it runs the demo exactly as written.
     assert!(
@@ -132,6 +133,54 @@ fn the_readme_blocks_are_understood() {
     assert!(
         all.iter().any(|e| e.line.starts_with("mosquitto_sub ")),
         "docs/station.md's integrators' examples were not found"
+    );
+}
+
+/// The README's set-up facts (issue 51, item 1): the Rust version Cargo.toml requires,
+/// and every package scripts/test.sh installs (apt-get and pip), so that a newcomer knows
+/// what the two commands need before running them.
+#[test]
+fn the_readme_names_the_rust_version_and_what_the_test_command_installs() {
+    let version = CARGO_TOML
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("rust-version = "))
+        .map(|v| v.trim_matches('"'))
+        .expect("Cargo.toml's rust-version");
+    assert!(
+        README.contains(&format!("Rust {version} or newer")),
+        "README.md does not say Rust {version} or newer"
+    );
+    let mut installed = Vec::new();
+    for line in TEST_SH.lines() {
+        if let Some(rest) = line.split("--no-install-recommends ").nth(1) {
+            // The package names, up to the end of the command (`;`, `}`, `\\`).
+            for word in rest.split_whitespace() {
+                let name = word.trim_end_matches(';');
+                if name.is_empty()
+                    || !name
+                        .chars()
+                        .all(|c| c.is_ascii_alphanumeric() || "-.+".contains(c))
+                {
+                    break;
+                }
+                installed.push(name.to_owned());
+                if name.len() < word.len() {
+                    break;
+                }
+            }
+        }
+        if let Some(rest) = line.split("pip install \"").nth(1) {
+            installed.extend(rest.split("==").next().map(str::to_owned));
+        }
+    }
+    assert!(installed.len() >= 10, "{installed:?}");
+    let missing: Vec<&String> = installed
+        .iter()
+        .filter(|p| !README.contains(p.as_str()))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "scripts/test.sh installs {missing:?}, which README.md does not name"
     );
 }
 
