@@ -134,23 +134,8 @@ pub(crate) struct ServeArgs {
     /// pruned, recording goes on and the server warns. Default: no limit.
     #[arg(long, value_name = "BYTES", conflicts_with = "no_cameras")]
     results_max_bytes: Option<u64>,
-    /// Publish every record of the results log to an MQTT broker, as JSON with QoS 1, on
-    /// PREFIX/<station-name>/measurements (PREFIX default coapcam, port default 1883),
-    /// and `online` / `offline` (retained; offline also as the last will) on
-    /// PREFIX/<station-name>/status. While the broker is away the records wait in the
-    /// log and follow in order once it is back: each is delivered at least once, with its
-    /// id. USER:PASSWORD@ logs in to the broker (percent-encoded; never printed).
-    #[arg(
-        long,
-        value_name = "mqtt://[USER:PASSWORD@]HOST[:PORT][/PREFIX]",
-        conflicts_with = "no_cameras"
-    )]
-    mqtt: Option<station::mqtt::Target>,
-    /// Serve one text line per measurement (id,time,length_mm,width_mm,height_mm,kg,code
-    /// and CR LF; docs/station.md) to every reader connected to this TCP address. A
-    /// reader that falls 256 lines behind is disconnected.
-    #[arg(long, value_name = "tcp://ADDR:PORT", value_parser = station::line::parse_tcp_uri, conflicts_with = "no_cameras")]
-    line_output: Option<SocketAddr>,
+    #[command(flatten)]
+    outputs: station::Outputs,
     /// Serve the station's page and its HTTP API (docs/station.md "HTTP") on this
     /// address; a bare port means 127.0.0.1:PORT. Reading is open to every client;
     /// POST /api/measure only from this machine unless --allow-unauthenticated-config.
@@ -165,18 +150,6 @@ pub(crate) struct ServeArgs {
     /// here, multicast and broadcast always.
     #[arg(long, value_name = "HOST[:PORT]", requires = "http")]
     proxy_allow: Vec<station::http::proxy::Allowed>,
-    /// POST every record of the results log as JSON to this http:// URL (no TLS), in id
-    /// order, each until it is answered 2xx (retrying 0.25 s, doubling to 5 s). The
-    /// position is kept in the log (cursor `webhook`), so nothing is lost while the
-    /// receiver is down or the station restarts; a record may come twice (same `id`).
-    /// A new log's whole history is sent first. USER:PASSWORD@ goes out as basic
-    /// authentication (never printed); an answer's body is read up to 64 KiB.
-    #[arg(
-        long,
-        value_name = "http://[USER:PASSWORD@]HOST[:PORT]/PATH",
-        conflicts_with = "no_cameras"
-    )]
-    webhook: Option<station::webhook::Target>,
     /// Measure by itself: watch the table through the calibrated cameras' depth (a few
     /// looks a second, every fourth pixel or so) and, when a parcel has arrived and stood
     /// still for --still-ms, measure it once (dimensions, the codes, a photo and the
@@ -314,6 +287,9 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
 fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)> {
     let binds = super::binds_or_default(&args.bind);
     let cameras = if args.no_cameras {
+        if args.outputs.any() {
+            usage!("--no-cameras keeps no results log for an output to follow");
+        }
         None
     } else {
         let scene = match &args.scene {
@@ -378,11 +354,9 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
             keep_pictures: args.results_keep_pictures,
             max_bytes: args.results_max_bytes,
         },
-        mqtt: args.mqtt.clone(),
-        line_output: args.line_output,
+        outputs: args.outputs.clone(),
         http: args.http,
         proxy_allow: args.proxy_allow.clone(),
-        webhook: args.webhook.clone(),
         auto_measure: args.auto_measure.then(|| {
             let mut auto = AutoConfig::default();
             if let Some(ms) = args.still_ms {
@@ -418,8 +392,8 @@ fn warn_of_config(args: &ServeArgs) {
 
 /// Where the server and its outputs are.
 fn announce(args: &ServeArgs, station: &Station) {
-    if let Some(a) = station.line_output_addr() {
-        eprintln!("coapcam: line output on {a}");
+    for output in station.outputs() {
+        eprintln!("coapcam: {output}");
     }
     if let Some(a) = station.http_addr() {
         let who = if args.allow_unauthenticated_config {
@@ -428,12 +402,6 @@ fn announce(args: &ServeArgs, station: &Station) {
             "measuring from this machine only"
         };
         eprintln!("coapcam: HTTP on http://{a}/ ({who})");
-    }
-    if let Some(target) = &args.webhook {
-        eprintln!("coapcam: webhook to {target}");
-    }
-    if let Some(target) = &args.mqtt {
-        eprintln!("coapcam: publishing to {target}");
     }
     // The DTLS addresses come last.
     let addrs = station.local_addrs();

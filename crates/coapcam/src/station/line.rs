@@ -23,9 +23,41 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
+use anyhow::Context as _;
+
 use super::follow::{self, Next, Sink, Start};
 use super::log::ResultsLog;
+use super::outputs::{Feed, Output};
 use crate::api::record::Record;
+
+/// The flag of the line output (`serve --line-output`).
+#[derive(Debug, Clone, Default, clap::Args)]
+#[group(skip)]
+pub struct Args {
+    /// Serve one text line per measurement (id,time,length_mm,width_mm,height_mm,kg,code
+    /// and CR LF; docs/station.md) to every reader connected to this TCP address. A
+    /// reader that falls 256 lines behind is disconnected.
+    #[arg(long, value_name = "tcp://ADDR:PORT", value_parser = parse_tcp_uri)]
+    line_output: Option<SocketAddr>,
+}
+
+impl Args {
+    /// Whether `--line-output` is given.
+    pub(super) fn configured(&self) -> bool {
+        self.line_output.is_some()
+    }
+
+    /// The line output `--line-output` asks for, listening.
+    pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
+        let Some(addr) = self.line_output else {
+            return Ok(None);
+        };
+        let output = LineOutput::start(addr, feed.log.clone())
+            .await
+            .with_context(|| format!("listening for line output readers on {addr}"))?;
+        Ok(Some(Box::new(output)))
+    }
+}
 
 /// The address of `tcp://ADDR:PORT` (`serve --line-output`; an IPv6 address in brackets).
 pub fn parse_tcp_uri(uri: &str) -> Result<SocketAddr, String> {
@@ -140,6 +172,12 @@ impl LineOutput {
     /// How many readers are connected.
     pub fn readers(&self) -> usize {
         self.server.readers()
+    }
+}
+
+impl Output for LineOutput {
+    fn describe(&self) -> String {
+        format!("line output on {}", self.local_addr())
     }
 }
 

@@ -8,6 +8,7 @@
 //! - `recorder`: [`Recorder`], which appends a measurement under the station's name (and
 //!   is how the camera server keeps what it measures for clients);
 //! - [`follow`]: the one follower of the log, and the `Sink` trait of its outputs;
+//! - [`outputs`]: the list of the outputs, each with its flags ([`Outputs`]);
 //! - `reads`: the log's read API (list, one record, pictures, refusals), once for both
 //!   front ends;
 //! - `resources`: the log as CoAP resources (`/station/measurements...`);
@@ -24,6 +25,7 @@ pub mod http;
 pub mod line;
 pub mod log;
 pub mod mqtt;
+pub mod outputs;
 pub(crate) mod reads;
 mod recorder;
 pub(crate) mod resources;
@@ -34,6 +36,7 @@ pub mod webhook;
 use std::path::{Path, PathBuf};
 
 use self::log::Retention;
+pub use outputs::Outputs;
 pub use recorder::Recorder;
 pub use start::Station;
 
@@ -62,17 +65,13 @@ pub struct Config {
     pub results: Option<PathBuf>,
     /// How much of the log is kept (`--results-keep-pictures`, `--results-max-bytes`).
     pub retention: Retention,
-    /// Publish every record to this MQTT broker (`--mqtt`).
-    pub mqtt: Option<mqtt::Target>,
-    /// Serve a text line per measurement on this TCP address (`--line-output`).
-    pub line_output: Option<std::net::SocketAddr>,
+    /// The outputs that follow the log (`--mqtt`, `--line-output`, `--webhook`).
+    pub outputs: Outputs,
     /// Serve the page and the HTTP API on this address (`--http`).
     pub http: Option<std::net::SocketAddr>,
     /// The hosts the HTTP-CoAP proxy reaches besides the station's own CoAP servers
     /// (`--proxy-allow`).
     pub proxy_allow: Vec<http::proxy::Allowed>,
-    /// POST every record to this URL (`--webhook`).
-    pub webhook: Option<webhook::Target>,
     /// Measure each parcel placed on the table by itself (`--auto-measure`,
     /// `--still-ms`); `None`: only when a client asks.
     pub auto_measure: Option<watch::AutoConfig>,
@@ -84,11 +83,9 @@ impl Default for Config {
             name: host_name(),
             results: None,
             retention: Retention::default(),
-            mqtt: None,
-            line_output: None,
+            outputs: Outputs::default(),
             http: None,
             proxy_allow: Vec::new(),
-            webhook: None,
             auto_measure: None,
         }
     }

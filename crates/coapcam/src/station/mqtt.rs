@@ -21,6 +21,8 @@
 
 use std::collections::VecDeque;
 use std::fmt;
+use std::future::Future;
+use std::pin::Pin;
 use std::str::FromStr;
 use std::time::Duration;
 
@@ -31,8 +33,11 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, sleep_until};
 
+use anyhow::Context as _;
+
 use super::follow::{self, Next, Sink, Start};
 use super::log::ResultsLog;
+use super::outputs::{Feed, Output};
 use crate::api::record::Record;
 
 /// The cursor name of the MQTT publisher in the results log.
@@ -376,6 +381,41 @@ impl Delivery {
     }
 }
 
+/// The flag of the MQTT output (`serve --mqtt`).
+#[derive(Debug, Clone, Default, clap::Args)]
+#[group(skip)]
+pub struct Args {
+    /// Publish every record of the results log to an MQTT broker, as JSON with QoS 1, on
+    /// PREFIX/<station-name>/measurements (PREFIX default coapcam, port default 1883),
+    /// and `online` / `offline` (retained; offline also as the last will) on
+    /// PREFIX/<station-name>/status. While the broker is away the records wait in the
+    /// log and follow in order once it is back: each is delivered at least once, with its
+    /// id. USER:PASSWORD@ logs in to the broker (percent-encoded; never printed).
+    #[arg(long, value_name = "mqtt://[USER:PASSWORD@]HOST[:PORT][/PREFIX]")]
+    mqtt: Option<Target>,
+}
+
+impl Args {
+    /// Whether `--mqtt` is given.
+    pub(super) fn configured(&self) -> bool {
+        self.mqtt.is_some()
+    }
+
+    /// The publisher `--mqtt` asks for.
+    pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
+        let Some(target) = &self.mqtt else {
+            return Ok(None);
+        };
+        let config = Config {
+            target: target.clone(),
+            station: feed.station.to_owned(),
+        };
+        let publisher = Publisher::start(config, feed.log.clone())
+            .context("the station's name as an MQTT topic level (--station-name)")?;
+        Ok(Some(Box::new(publisher)))
+    }
+}
+
 /// How the publisher connects.
 #[derive(Debug, Clone)]
 pub struct Config {
@@ -390,6 +430,8 @@ pub struct Config {
 pub struct Publisher {
     stop: watch::Sender<bool>,
     task: JoinHandle<()>,
+    /// The broker, as said when the station starts.
+    target: Target,
 }
 
 impl Publisher {
@@ -419,8 +461,9 @@ impl Publisher {
                 true,
             ));
         let (stop, stopped) = watch::channel(false);
+        let target = config.target.clone();
         let task = tokio::spawn(run(options, topics, config.target, log, stopped));
-        Ok(Self { stop, task })
+        Ok(Self { stop, task, target })
     }
 
     /// Stops: publishes `offline` (retained) and disconnects when connected, within
@@ -430,6 +473,16 @@ impl Publisher {
         if let Err(e) = self.task.await {
             tracing::warn!(error = %e, "the MQTT publisher ended abnormally");
         }
+    }
+}
+
+impl Output for Publisher {
+    fn describe(&self) -> String {
+        format!("publishing to {}", self.target)
+    }
+
+    fn stop(self: Box<Self>) -> Pin<Box<dyn Future<Output = ()> + Send>> {
+        Box::pin(Self::stop(*self))
     }
 }
 

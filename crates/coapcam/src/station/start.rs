@@ -1,8 +1,8 @@
 //! [`Station`]: the camera server and what the station adds to it, composed in one place.
 //! The camera server starts first (its cameras, files, groups, the bind); then, when it
 //! has cameras, the results log (its CoAP resources on the server's router, the server
-//! keeping what it measures for clients in it), the outputs that follow it (MQTT, the
-//! line output, the webhook), the HTTP side and the watcher of `--auto-measure`.
+//! keeping what it measures for clients in it), the outputs that follow it (the list in
+//! `outputs.rs`), the HTTP side and the watcher of `--auto-measure`.
 
 use std::future::Future;
 use std::net::SocketAddr;
@@ -12,7 +12,8 @@ use anyhow::{Context as _, bail};
 use tokio::task::JoinHandle;
 
 use super::log::ResultsLog;
-use super::{Config, Recorder, http, last_id_path, line, mqtt, resources, watch, webhook};
+use super::outputs::{Feed, Output};
+use super::{Config, Recorder, http, last_id_path, resources, watch};
 use crate::api::paths;
 use crate::rd::registrant::{Registrant, RegistrantConfig};
 use crate::report::{EdgeQuery, Measurement};
@@ -21,12 +22,10 @@ use crate::server::{self, CameraServer, CodeColor, EdgeError};
 /// A running station: its camera server, and with cameras the outputs of its results log.
 pub struct Station {
     server: CameraServer,
-    /// The log's MQTT publisher (`--mqtt`) and line output (`--line-output`).
-    publisher: Option<mqtt::Publisher>,
-    line_output: Option<line::LineOutput>,
-    /// The page and the HTTP API (`--http`), the webhook (`--webhook`).
+    /// The outputs that follow the log, in the order of their list.
+    outputs: Vec<Box<dyn Output>>,
+    /// The page and the HTTP API (`--http`).
     http: Option<http::HttpServer>,
-    _webhook: Option<webhook::Webhook>,
     /// The tasks that end with the station: the one that tells the server of each new
     /// record (the observers of `/station/measurements/latest`), and `--auto-measure`'s
     /// watcher.
@@ -73,8 +72,20 @@ impl Station {
             }
             None => None,
         };
-        let (publisher, line_output) = start_outputs(&config, recorder.as_ref()).await?;
-        let (http, webhook) = start_http(&config, &server, recorder.as_ref(), open).await?;
+        let outputs = match &recorder {
+            Some(recorder) => {
+                let feed = Feed {
+                    log: recorder.log(),
+                    station: &config.name,
+                };
+                config.outputs.start(&feed).await?
+            }
+            None if config.outputs.any() => {
+                bail!("the outputs of the results log need cameras (and so a results log)")
+            }
+            None => Vec::new(),
+        };
+        let http = start_http(&config, &server, recorder.as_ref(), open).await?;
         // The station watches the table once the server answers.
         if let (Some(rig), Some(recorder), Some(auto)) =
             (server.rig(), recorder.clone(), config.auto_measure)
@@ -83,10 +94,8 @@ impl Station {
         }
         Ok(Self {
             server,
-            publisher,
-            line_output,
+            outputs,
             http,
-            _webhook: webhook,
             _tasks: tasks,
         })
     }
@@ -103,9 +112,9 @@ impl Station {
         self.server.color_for_codes()
     }
 
-    /// Where the line output listens (`--line-output`).
-    pub fn line_output_addr(&self) -> Option<SocketAddr> {
-        self.line_output.as_ref().map(line::LineOutput::local_addr)
+    /// What each output does (`line output on ADDR`), in the order of their list.
+    pub fn outputs(&self) -> Vec<String> {
+        self.outputs.iter().map(|o| o.describe()).collect()
     }
 
     /// Where the page and the HTTP API are served (`--http`).
@@ -128,72 +137,36 @@ impl Station {
         self.server.register_with(config)
     }
 
-    /// Serves until `stop` completes ([`CameraServer::run`]), then stops the MQTT
-    /// publisher (`offline` on the status topic, within a bounded time).
+    /// Serves until `stop` completes ([`CameraServer::run`]), then stops the outputs
+    /// (the MQTT publisher says `offline` on its status topic, within a bounded time).
     pub async fn run(self, stop: impl Future<Output = ()>) {
-        // The outputs, the HTTP side and the tasks live until the end (`..` keeps them in
-        // `self`).
+        // The HTTP side and the tasks live until the end (`..` keeps them in `self`).
         let Self {
-            server, publisher, ..
+            server, outputs, ..
         } = self;
         server.run(stop).await;
-        if let Some(publisher) = publisher {
-            publisher.stop().await;
+        for output in outputs {
+            output.stop().await;
         }
     }
 }
 
-/// The MQTT publisher and the line output of the results log, as `config` asks.
-async fn start_outputs(
-    config: &Config,
-    recorder: Option<&Recorder>,
-) -> anyhow::Result<(Option<mqtt::Publisher>, Option<line::LineOutput>)> {
-    let Some(log) = recorder.map(Recorder::log) else {
-        if config.mqtt.is_some() || config.line_output.is_some() {
-            bail!("--mqtt and --line-output need cameras (and so a results log)");
-        }
-        return Ok((None, None));
-    };
-    let publisher = match &config.mqtt {
-        Some(target) => Some(
-            mqtt::Publisher::start(
-                mqtt::Config {
-                    target: target.clone(),
-                    station: config.name.clone(),
-                },
-                log.clone(),
-            )
-            .context("the station's name as an MQTT topic level (--station-name)")?,
-        ),
-        None => None,
-    };
-    let line_output = match config.line_output {
-        Some(addr) => Some(
-            line::LineOutput::start(addr, log.clone())
-                .await
-                .with_context(|| format!("listening for line output readers on {addr}"))?,
-        ),
-        None => None,
-    };
-    Ok((publisher, line_output))
-}
-
-/// The HTTP server and the webhook, as `config` asks; `open`: anyone may measure over
-/// HTTP (`--allow-unauthenticated-config`). The proxy reaches the camera server's
+/// The HTTP server, as `config` asks; `open`: anyone may measure over HTTP
+/// (`--allow-unauthenticated-config`). The proxy reaches the camera server's
 /// addresses besides the hosts of `--proxy-allow`.
 async fn start_http(
     config: &Config,
     server: &CameraServer,
     recorder: Option<&Recorder>,
     open: bool,
-) -> anyhow::Result<(Option<http::HttpServer>, Option<webhook::Webhook>)> {
+) -> anyhow::Result<Option<http::HttpServer>> {
     let (Some(rig), Some(recorder)) = (server.rig(), recorder) else {
-        if config.http.is_some() || config.webhook.is_some() {
-            bail!("--http and --webhook need cameras (and so a results log)");
+        if config.http.is_some() {
+            bail!("--http needs cameras (and so a results log)");
         }
-        return Ok((None, None));
+        return Ok(None);
     };
-    let http = match config.http {
+    Ok(match config.http {
         Some(addr) => Some(
             http::HttpServer::start(
                 addr,
@@ -209,10 +182,5 @@ async fn start_http(
             .with_context(|| format!("listening for HTTP on {addr}"))?,
         ),
         None => None,
-    };
-    let webhook = config
-        .webhook
-        .clone()
-        .map(|target| webhook::Webhook::start(target, recorder.log().clone()));
-    Ok((http, webhook))
+    })
 }

@@ -26,6 +26,7 @@ use tokio::task::JoinHandle;
 
 use super::follow::{self, Next, Sink, Start};
 use super::log::ResultsLog;
+use super::outputs::{Feed, Output};
 use crate::api::record::Record;
 
 /// The cursor name of the webhook in the results log.
@@ -108,10 +109,47 @@ impl fmt::Display for Target {
     }
 }
 
+/// The flag of the webhook (`serve --webhook`).
+#[derive(Debug, Clone, Default, clap::Args)]
+#[group(skip)]
+pub struct Args {
+    /// POST every record of the results log as JSON to this http:// URL (no TLS), in id
+    /// order, each until it is answered 2xx (retrying 0.25 s, doubling to 5 s). The
+    /// position is kept in the log (cursor `webhook`), so nothing is lost while the
+    /// receiver is down or the station restarts; a record may come twice (same `id`).
+    /// A new log's whole history is sent first. USER:PASSWORD@ goes out as basic
+    /// authentication (never printed); an answer's body is read up to 64 KiB.
+    #[arg(long, value_name = "http://[USER:PASSWORD@]HOST[:PORT]/PATH")]
+    webhook: Option<Target>,
+}
+
+impl Args {
+    /// Whether `--webhook` is given.
+    pub(super) fn configured(&self) -> bool {
+        self.webhook.is_some()
+    }
+
+    /// The webhook `--webhook` asks for.
+    pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
+        Ok(self
+            .webhook
+            .clone()
+            .map(|target| Box::new(Webhook::start(target, feed.log.clone())) as Box<dyn Output>))
+    }
+}
+
 /// The webhook's task: delivering until dropped.
 #[derive(Debug)]
 pub struct Webhook {
     task: JoinHandle<()>,
+    /// The receiver, as said when the station starts.
+    target: Target,
+}
+
+impl Output for Webhook {
+    fn describe(&self) -> String {
+        format!("webhook to {}", self.target)
+    }
 }
 
 impl Drop for Webhook {
@@ -127,10 +165,11 @@ impl Webhook {
             task: tokio::spawn(follow::run(
                 log,
                 Hook {
-                    target,
+                    target: target.clone(),
                     connection: None,
                 },
             )),
+            target,
         }
     }
 }

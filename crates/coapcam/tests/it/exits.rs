@@ -337,3 +337,25 @@ fn a_second_server_on_a_busy_port_fails_at_once() {
     assert!(f.stderr.contains("in use"), "{}", f.stderr);
     assert!(!f.stderr.contains("serving on"), "{}", f.stderr);
 }
+
+#[test]
+fn an_output_of_the_results_log_without_cameras_is_a_usage_error() {
+    for output in [
+        ["--mqtt", "mqtt://127.0.0.1:1"],
+        ["--line-output", "tcp://127.0.0.1:0"],
+        ["--webhook", "http://127.0.0.1:1/hook"],
+    ] {
+        let f = coapcam(&[
+            "serve",
+            "--no-cameras",
+            output[0],
+            output[1],
+            "--bind",
+            "127.0.0.1:0",
+            "--duration",
+            "30",
+        ]);
+        assert_eq!(status(&f), Some(2), "{output:?}: {}", f.stderr);
+        assert!(!f.stderr.contains("serving on"), "{}", f.stderr);
+    }
+}
