@@ -7,6 +7,7 @@
 //! one and backs off while it fails.
 
 use std::future::Future;
+use std::pin::Pin;
 use std::time::Duration;
 
 use tokio::sync::watch;
@@ -112,8 +113,8 @@ pub enum Next {
 }
 
 /// An output of the results log, which [`run`] hands the records one by one, in id order.
-/// A new output is a file with a `Sink` and one line that starts [`run`] with it
-/// (`Station::start`).
+/// A new output is a file with a `Sink`, its flags and an [`Output`], and its name in the
+/// list of `outputs.rs`.
 pub trait Sink: Send + 'static {
     /// An event of its own (a broker's packet, a keep-alive's time), between records.
     type Event: Send;
@@ -141,6 +142,23 @@ pub trait Sink: Send + 'static {
 
     /// Handles an event [`Sink::event`] returned.
     fn handle(&mut self, event: Self::Event) -> impl Future<Output = Next> + Send;
+}
+
+/// A started output, kept while the station runs.
+pub trait Output: Send {
+    /// What it does, said once when the station starts (`line output on ADDR`).
+    fn describe(&self) -> String;
+
+    /// Ends it within a bounded time; by default it ends when dropped.
+    fn stop(self: Box<Self>) -> Pin<Box<dyn Future<Output = ()> + Send>> {
+        Box::pin(async {})
+    }
+}
+
+/// What an output starts from: the results log and the station's name.
+pub(super) struct Feed<'a> {
+    pub(super) log: &'a ResultsLog,
+    pub(super) station: &'a str,
 }
 
 /// Follows `log` into `sink` until the sink is done or the log is gone: from its

@@ -25,9 +25,8 @@ use tokio::task::JoinHandle;
 
 use anyhow::Context as _;
 
-use super::follow::{self, Next, Sink, Start};
+use super::follow::{self, Feed, Next, Output, Sink, Start};
 use super::log::ResultsLog;
-use super::outputs::{Feed, Output};
 use crate::api::record::Record;
 
 /// The flag of the line output (`serve --line-output`).

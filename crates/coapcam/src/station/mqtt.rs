@@ -35,9 +35,8 @@ use tokio::time::{Instant, sleep_until};
 
 use anyhow::Context as _;
 
-use super::follow::{self, Next, Sink, Start};
+use super::follow::{self, Feed, Next, Output, Sink, Start};
 use super::log::ResultsLog;
-use super::outputs::{Feed, Output};
 use crate::api::record::Record;
 
 /// The cursor name of the MQTT publisher in the results log.

@@ -1,30 +1,11 @@
 //! The outputs of the results log, as one list. An output is a file of this folder with
 //! its flags (a clap `Args` struct, which `serve` takes in through [`Outputs`]), how it
 //! starts from them (`Args::configured`, and `Args::start`, following the log through
-//! [`follow::run`](super::follow::run)) and what it is once started (an [`Output`]).
+//! [`follow::run`](super::follow::run)) and what it is once started (an [`Output`]). The
+//! outputs use `follow`, never this list, which uses them.
 //! Adding one is its file and its name in the `outputs!` line below.
 
-use std::future::Future;
-use std::pin::Pin;
-
-use super::log::ResultsLog;
-
-/// A started output, kept while the station runs.
-pub trait Output: Send {
-    /// What it does, said once when the station starts (`line output on ADDR`).
-    fn describe(&self) -> String;
-
-    /// Ends it within a bounded time; by default it ends when dropped.
-    fn stop(self: Box<Self>) -> Pin<Box<dyn Future<Output = ()> + Send>> {
-        Box::pin(async {})
-    }
-}
-
-/// What an output starts from: the results log and the station's name.
-pub(super) struct Feed<'a> {
-    pub(super) log: &'a ResultsLog,
-    pub(super) station: &'a str,
-}
+use super::follow::{Feed, Output};
 
 /// [`Outputs`]: every output's flags, flattened, and the outputs they ask for started in
 /// this order.

@@ -11,8 +11,8 @@ use std::sync::Arc;
 use anyhow::{Context as _, bail};
 use tokio::task::JoinHandle;
 
+use super::follow::{Feed, Output};
 use super::log::ResultsLog;
-use super::outputs::{Feed, Output};
 use super::{Config, Recorder, http, last_id_path, resources, watch};
 use crate::api::paths;
 use crate::rd::registrant::{Registrant, RegistrantConfig};

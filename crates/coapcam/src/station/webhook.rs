@@ -24,9 +24,8 @@ use hyper_util::rt::TokioIo;
 use tokio::net::TcpStream;
 use tokio::task::JoinHandle;
 
-use super::follow::{self, Next, Sink, Start};
+use super::follow::{self, Feed, Next, Output, Sink, Start};
 use super::log::ResultsLog;
-use super::outputs::{Feed, Output};
 use crate::api::record::Record;
 
 /// The cursor name of the webhook in the results log.
