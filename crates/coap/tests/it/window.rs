@@ -8,7 +8,8 @@ use std::time::Duration;
 
 use bytes::Bytes;
 use coap::{
-    Code, Congestion, Event, OptionNumber, PathStats, Request, Response, RoundTrace, Transfer,
+    Code, Congestion, Event, OptionNumber, PathStats, Request, RequestId, Response, RoundTrace,
+    Transfer,
 };
 
 use crate::blockwise::{body, cfg, no_store, response, serve};
@@ -348,14 +349,22 @@ fn two_downloads_from_one_peer_share_its_window() {
     let ib = sim.nodes[c]
         .ep
         .request(now, server, Request::new(Code::GET, "/b"));
-    assert!(
-        sim.run_until(Duration::from_secs(60), |sim| sim.nodes[c].events.len()
-            == 2)
-    );
+    both_bodies(&mut sim, c, Duration::from_secs(60), [(ia, &a), (ib, &b)]);
+}
+
+/// Runs `sim` for at most `limit` until client `c` holds two events, and checks that they
+/// are the responses to the two requests, each with its body.
+fn both_bodies(sim: &mut Sim, c: usize, limit: Duration, expected: [(RequestId, &Bytes); 2]) {
+    assert!(sim.run_until(limit, |sim| sim.nodes[c].events.len() == 2));
     for (_, e) in &sim.nodes[c].events {
         match e {
-            Event::Response { id, response } if *id == ia => assert!(response.payload == a),
-            Event::Response { id, response } if *id == ib => assert!(response.payload == b),
+            Event::Response { id, response } => {
+                let (_, body) = expected
+                    .iter()
+                    .find(|(want, _)| want == id)
+                    .unwrap_or_else(|| panic!("a response to no request of the two: {id:?}"));
+                assert!(&response.payload == *body);
+            }
             other => panic!("expected the two bodies, got {other:?}"),
         }
     }
@@ -422,17 +431,7 @@ fn each_server_has_message_ids_of_its_own() {
     let ib = sim.nodes[c]
         .ep
         .request(now, server_b, Request::new(Code::GET, "/big"));
-    assert!(
-        sim.run_until(Duration::from_secs(3600), |sim| sim.nodes[c].events.len()
-            == 2)
-    );
-    for (_, e) in &sim.nodes[c].events {
-        match e {
-            Event::Response { id, response } if *id == ia => assert!(response.payload == a),
-            Event::Response { id, response } if *id == ib => assert!(response.payload == b),
-            other => panic!("expected the two bodies, got {other:?}"),
-        }
-    }
+    both_bodies(&mut sim, c, Duration::from_secs(3600), [(ia, &a), (ib, &b)]);
     let took = sim.elapsed();
     assert!(took < lifetime, "{took:?}");
 }
