@@ -363,7 +363,7 @@ fn both_bodies(sim: &mut Sim, c: usize, limit: Duration, expected: [(RequestId, 
                     .iter()
                     .find(|(want, _)| want == id)
                     .unwrap_or_else(|| panic!("a response to no request of the two: {id:?}"));
-                assert!(&response.payload == *body);
+                assert!(response.payload == **body);
             }
             other => panic!("expected the two bodies, got {other:?}"),
         }
