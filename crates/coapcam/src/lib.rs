@@ -8,6 +8,8 @@
 //!   serde types, for the server and the client;
 //! - [`server`]: the resource tree of a camera server (`/cams`, `/files`, `/coap-group`)
 //!   and its assembly from a configuration;
+//! - [`backends`]: where a server's cameras come from (a scene's synthetic cameras,
+//!   recordings, librealsense), one file each, with their flags;
 //! - [`client`]: the typed client of a camera server, measuring (with the cameras'
 //!   preparation), the codes of the cameras and the annotated picture;
 //! - [`station`]: what the server does by itself for a parcel lane: the results log;
@@ -24,6 +26,7 @@
 #![forbid(unsafe_code)]
 
 pub mod api;
+pub mod backends;
 pub mod bench;
 pub mod client;
 pub mod documents;

@@ -10,12 +10,11 @@ use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
 use coapcam::rd::registrant::{Registrant, RegistrantConfig};
-use coapcam::server::{self, Cameras, Identities, RealSenseOptions};
+use coapcam::server::{self, Identities};
 use coapcam::station::log::Retention;
 use coapcam::station::watch::AutoConfig;
 use coapcam::station::{self, Station};
 use rgbd::Scene;
-use rgbd::backend::realsense::LibrarySearch;
 use tokio::signal::unix::{SignalKind, signal};
 
 use super::{TransmissionArgs, usage, values};
@@ -32,31 +31,8 @@ pub(crate) struct ServeArgs {
     /// Synthetic cameras of this scene file (default: the built-in single-camera scene).
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
-    /// Serve the Intel RealSense D400 cameras librealsense2 finds (loaded at run time;
-    /// hot-plug followed) instead of synthetic ones.
-    #[arg(long, conflicts_with = "no_cameras")]
-    realsense: bool,
-    /// The librealsense2 library for --realsense (default: $LIBREALSENSE2_PATH, then
-    /// librealsense2.so.2.* / librealsense2.so on the system library path).
-    #[arg(long, value_name = "PATH", requires = "realsense")]
-    librealsense: Option<PathBuf>,
-    /// A library to load globally before librealsense2 (repeatable), e.g. the libpython
-    /// a pyrealsense2 wheel's module needs when that module is --librealsense.
-    #[arg(long, value_name = "PATH", requires = "realsense")]
-    librealsense_preload: Vec<PathBuf>,
-    /// With --realsense: keep the sensors streaming and serve the newest frame, instead
-    /// of opening and closing a sensor per grab.
-    #[arg(long, requires = "realsense")]
-    realsense_streaming: bool,
-    /// With --realsense: also put a virtual D415 per camera of the scene into
-    /// librealsense (a software device fed by the synthetic renderer), served through
-    /// the same librealsense code path as a real camera. For testing without hardware.
-    #[arg(long, requires = "realsense")]
-    realsense_software: bool,
-    /// Play a librealsense recording (.bag or .db3) as cameras, one per recorded
-    /// device, instead of synthetic ones; repeatable.
-    #[arg(long, value_name = "FILE", conflicts_with_all = ["scene", "no_cameras", "realsense"])]
-    bag: Vec<PathBuf>,
+    #[command(flatten)]
+    backends: coapcam::backends::Backends,
     /// Where camera configuration is persisted per serial (default:
     /// $XDG_STATE_HOME/coapcam, ~/.local/state/coapcam, else ./coapcam-state).
     #[arg(long, value_name = "DIR")]
@@ -290,7 +266,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
         if args.outputs.any() {
             usage!("--no-cameras keeps no results log for an output to follow");
         }
-        None
+        Vec::new()
     } else {
         let scene = match &args.scene {
             Some(path) => {
@@ -298,7 +274,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
             }
             None => Scene::default_single(),
         };
-        if scene.cameras.is_empty() && !args.realsense && args.bag.is_empty() {
+        if scene.cameras.is_empty() && !args.backends.any() {
             usage!(
                 "the scene {} has no [[camera]]: nothing to serve (--no-cameras serves none on purpose)",
                 args.scene
@@ -306,20 +282,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
                     .map_or_else(|| "built in".into(), |p| p.display().to_string())
             );
         }
-        Some(if args.realsense {
-            Cameras::RealSense(RealSenseOptions {
-                library: LibrarySearch {
-                    explicit: args.librealsense.clone(),
-                    preload: args.librealsense_preload.clone(),
-                },
-                streaming: args.realsense_streaming,
-                software: args.realsense_software.then_some(scene),
-            })
-        } else if !args.bag.is_empty() {
-            Cameras::Recordings(args.bag.clone())
-        } else {
-            Cameras::Scene(scene)
-        })
+        args.backends.chosen(scene)
     };
     let identities = match &args.psk_file {
         Some(path) => Some(Arc::new(Identities::load(path)?)),

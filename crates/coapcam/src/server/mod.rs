@@ -23,13 +23,12 @@ use anyhow::{Context as _, bail};
 use coap::link_format::Filter;
 use coap::{Code, EndpointConfig, IncomingRequest, Response};
 use coap_net::{Router, Server, ServerConfig};
-use rgbd::backend::playback::PlaybackCamera;
-use rgbd::backend::realsense::LibrarySearch;
-use rgbd::{Camera as _, CameraHub, Scene, Serial, SyntheticCamera};
+use rgbd::{CameraHub, Scene, Serial};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
 
+use crate::backends::{Backend, synthetic};
 use crate::rd::registrant::{Announcement, Registrant, RegistrantConfig};
 use crate::report::{EdgeQuery, Measurement};
 use cams::Cams;
@@ -43,34 +42,13 @@ use measure::{Records, Rig};
 /// How often `/files` looks for new, changed and vanished files.
 const RESCAN: Duration = Duration::from_millis(200);
 
-/// The cameras a server serves.
-pub enum Cameras {
-    /// The synthetic cameras of a scene.
-    Scene(Scene),
-    /// librealsense recordings (`.bag`, `.db3`), a camera per recorded device.
-    Recordings(Vec<PathBuf>),
-    /// The Intel RealSense D400 cameras librealsense finds.
-    RealSense(RealSenseOptions),
-}
-
-/// How the RealSense cameras are served.
-pub struct RealSenseOptions {
-    /// Where librealsense2 is loaded from.
-    pub library: LibrarySearch,
-    /// Keep the sensors streaming and serve the newest frame, instead of opening and
-    /// closing a sensor per grab.
-    pub streaming: bool,
-    /// Also put a virtual D415 per camera of this scene into librealsense (a software
-    /// device fed by the synthetic renderer).
-    pub software: Option<Scene>,
-}
-
 /// What a [`CameraServer`] serves, and where.
 pub struct Config {
     /// The addresses to answer on.
     pub binds: Vec<SocketAddr>,
-    /// The cameras under `/cams`; none for a plain CoAP server.
-    pub cameras: Option<Cameras>,
+    /// The backends of the cameras under `/cams`, each started in this order; none for a
+    /// plain CoAP server (no `/cams`).
+    pub cameras: Vec<Box<dyn Backend>>,
     /// Where each camera's configuration is persisted, per serial.
     pub state_dir: PathBuf,
     /// Serve the regular files of this directory at `/files/<name>`.
@@ -165,16 +143,17 @@ impl CameraServer {
             )?),
             None => None,
         };
-        let cameras = match config.cameras {
-            Some(cameras) => Some(start_cameras(
-                cameras,
+        let cameras = if config.cameras.is_empty() {
+            None
+        } else {
+            Some(start_cameras(
+                config.cameras,
                 &config.state_dir,
                 &router,
                 &clock,
                 changed_tx.clone(),
                 config.grab_memory,
-            )?),
-            None => None,
+            )?)
         };
         let binds = &config.binds;
         let server = Server::bind(
@@ -458,17 +437,12 @@ fn start_hub(
 /// thread, so a client that starts after this (or after "serving on") never sees a 4.04
 /// for a camera that is there, nor a resource of one that left.
 fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result<()> {
-    let cameras = SyntheticCamera::all(scene).context("building the scene's cameras")?;
     let gone = hub.serials();
     for sn in &gone {
         hub.remove(sn);
     }
     wait_routed(router, &gone, false)?;
-    let mut expected = Vec::new();
-    for camera in cameras {
-        expected.push(camera.serial());
-        hub.add(camera).context("adding a camera")?;
-    }
+    let expected = synthetic::add(hub, scene)?;
     wait_routed(router, &expected, true)
 }
 
@@ -493,10 +467,10 @@ fn wait_routed(router: &Router, serials: &[Serial], present: bool) -> anyhow::Re
     Ok(())
 }
 
-/// The cameras of `cameras` in a hub, and the `/cams` tree following it; returns once every
-/// camera present at start is routed.
+/// The cameras of `backends` in a hub, and the `/cams` tree following it; returns once
+/// every camera present at start is routed.
 fn start_cameras(
-    cameras: Cameras,
+    mut backends: Vec<Box<dyn Backend>>,
     state_dir: &Path,
     router: &Arc<Router>,
     clock: &Arc<ServerClock>,
@@ -505,30 +479,12 @@ fn start_cameras(
 ) -> anyhow::Result<CameraTree> {
     let (hub, cams) = start_hub(state_dir, router, changed, clock)?;
     cams.set_grab_memory(grab_memory);
-    let mut backend = None;
-    match cameras {
-        Cameras::RealSense(options) => {
-            let realsense = realsense::start(options, hub.clone())?;
-            wait_routed(router, &realsense.serials, true)?;
-            backend = Some(realsense);
-        }
-        Cameras::Recordings(paths) => {
-            let mut expected = Vec::new();
-            for path in &paths {
-                let cameras = PlaybackCamera::open(path)
-                    .with_context(|| format!("opening recording {}", path.display()))?;
-                for camera in cameras {
-                    expected.push(camera.serial());
-                    hub.add(Arc::new(camera))
-                        .with_context(|| format!("adding the camera of {}", path.display()))?;
-                }
-            }
-            wait_routed(router, &expected, true)?;
-        }
-        Cameras::Scene(scene) => load_scene(&hub, router, &scene)?,
+    for backend in &mut backends {
+        let serials = backend.start(&hub)?;
+        wait_routed(router, &serials, true)?;
     }
     Ok(CameraTree {
-        _backend: backend,
+        _backends: backends,
         _hub: hub,
         cams,
     })
@@ -536,68 +492,7 @@ fn start_cameras(
 
 /// What serves the cameras; kept alive as long as the server.
 struct CameraTree {
-    _backend: Option<realsense::Backend>,
+    _backends: Vec<Box<dyn Backend>>,
     _hub: Arc<CameraHub>,
     cams: Arc<Cams>,
-}
-
-/// `--realsense`: librealsense's cameras in the hub.
-mod realsense {
-    use std::sync::Arc;
-    use std::time::Duration;
-
-    use anyhow::Context as _;
-    use rgbd::backend::realsense::{GrabMode, RealSense, RealSenseLibrary, SoftwareD415};
-    use rgbd::{CameraHub, Serial, SyntheticCamera};
-
-    use super::RealSenseOptions;
-
-    /// How long librealsense gets to announce the first camera.
-    const FIRST_CAMERA: Duration = Duration::from_secs(3);
-
-    /// The running backend, its virtual cameras and the serials served at start.
-    pub(super) struct Backend {
-        pub(super) serials: Vec<Serial>,
-        // Dropped before the context: stops injecting.
-        _software: Vec<SoftwareD415>,
-        _realsense: RealSense,
-    }
-
-    pub(super) fn start(options: RealSenseOptions, hub: Arc<CameraHub>) -> anyhow::Result<Backend> {
-        let library = RealSenseLibrary::load(&options.library)?;
-        let mode = if options.streaming {
-            GrabMode::Streaming
-        } else {
-            GrabMode::PerRequest
-        };
-        let realsense = RealSense::start(&library, hub, mode)
-            .with_context(|| format!("starting librealsense {}", library.version()))?;
-        let mut software = Vec::new();
-        if let Some(scene) = &options.software {
-            for camera in SyntheticCamera::all(scene).context("building the scene's cameras")? {
-                software.push(
-                    realsense
-                        .add_software_d415(camera)
-                        .context("adding a virtual D415 to librealsense")?,
-                );
-            }
-        }
-        let mut serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
-        // Every virtual camera is announced on librealsense's thread; wait for all.
-        let deadline = std::time::Instant::now() + FIRST_CAMERA;
-        while software.iter().any(|s| !serials.contains(&s.serial()))
-            && std::time::Instant::now() < deadline
-        {
-            std::thread::sleep(Duration::from_millis(10));
-            serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
-        }
-        for reason in realsense.rejected() {
-            tracing::warn!("librealsense device not served: {reason}");
-        }
-        Ok(Backend {
-            serials,
-            _software: software,
-            _realsense: realsense,
-        })
-    }
 }

@@ -586,3 +586,75 @@ fn a_malformed_no_depth_option_is_ignored_as_the_elective_option_it_is() {
         assert_eq!(through.cameras, [(odd_client.server(), sn)]);
     });
 }
+
+/// A backend of the test's own: the synthetic cameras of a scene, and a flag set when it
+/// is dropped.
+struct Flagged {
+    scene: Scene,
+    dropped: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl coapcam::backends::Backend for Flagged {
+    fn start(
+        &mut self,
+        hub: &std::sync::Arc<rgbd::CameraHub>,
+    ) -> anyhow::Result<Vec<rgbd::Serial>> {
+        coapcam::backends::synthetic::add(hub, &self.scene)
+    }
+}
+
+impl Drop for Flagged {
+    fn drop(&mut self) {
+        self.dropped
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+#[test]
+fn a_camera_server_serves_the_cameras_of_every_backend_in_its_list_until_it_is_dropped() {
+    let state = TempDir::new("library-backends");
+    let single = Scene::default_single();
+    let mut other = single.clone();
+    other.cameras[0].serial = "111111111111".parse().expect("a serial");
+    let dropped = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let cameras: Vec<Box<dyn coapcam::backends::Backend>> = vec![
+        Box::new(coapcam::backends::synthetic::Synthetic(other)),
+        Box::new(Flagged {
+            scene: single,
+            dropped: dropped.clone(),
+        }),
+    ];
+    runtime().block_on(async {
+        let server = coapcam::server::CameraServer::start(coapcam::server::Config {
+            binds: vec![SocketAddr::from(([127, 0, 0, 1], 0))],
+            cameras,
+            state_dir: state.path().to_path_buf(),
+            static_dir: None,
+            writable: false,
+            quota: None,
+            groups: Vec::new(),
+            group_interface: 0,
+            endpoint: EndpointConfig::default(),
+            allow_unauthenticated_config: false,
+            grab_memory: 1 << 28,
+            secure_binds: Vec::new(),
+            identities: None,
+            clock_offset_us: 0,
+        })
+        .await
+        .expect("camera server");
+        let addr = server.local_addrs()[0];
+        let client = coap_net::Client::bind(
+            SocketAddr::from(([127, 0, 0, 1], 0)),
+            EndpointConfig::default(),
+        )
+        .expect("a client");
+        assert_eq!(
+            serials_at(&client, addr).await,
+            ["111111111111", "840412060746"]
+        );
+        assert!(!dropped.load(std::sync::atomic::Ordering::SeqCst));
+        drop(server);
+        assert!(dropped.load(std::sync::atomic::Ordering::SeqCst));
+    });
+}
