@@ -277,6 +277,46 @@ fn color_pixel_of(cam: &SyntheticCamera, w: [f64; 3]) -> [f32; 2] {
     cam.color_intrinsics().unwrap().project(c).unwrap()
 }
 
+/// Issue 51, item 2: a marker at the world origin (where docs/markers.md lays marker 0)
+/// is drawn where it lies, not over the whole floor: a floor pixel far from it has the
+/// colour it has with no marker at all (it had the marker's centre cell's, near black).
+#[test]
+fn a_marker_at_the_origin_leaves_the_rest_of_the_floor_its_colour() {
+    let render = |markers: Vec<rgbd::scene::SceneMarker>| {
+        let mut scene = floor_scene(1.2, Noise::D415);
+        scene.markers = markers;
+        scene.validate().unwrap();
+        only_camera(&scene).render_color(1)
+    };
+    let marker = rgbd::scene::SceneMarker {
+        family: "tag36h11".to_owned(),
+        id: 0,
+        size: 0.16,
+        center: [0.0, 0.0],
+        yaw_deg: 0.0,
+        timeline: rgbd::scene::Timeline::default(),
+    };
+    let (with, without) = (render(vec![marker]), render(Vec::new()));
+    // Image corners and edge middles: the floor, over 0.5 m from the marker.
+    let (w, h) = (with.width - 1, with.height - 1);
+    for (u, v) in [(0, 0), (w, 0), (0, h), (w, h), (w / 2, 0), (0, h / 2)] {
+        let level = |f: &rgbd::ColorFrame| {
+            f.rgb_at(u, v)
+                .unwrap()
+                .iter()
+                .map(|&c| i32::from(c))
+                .sum::<i32>()
+                / 3
+        };
+        assert!(
+            (level(&with) - level(&without)).abs() <= 12,
+            "({u}, {v}): {} with the marker, {} without",
+            level(&with),
+            level(&without)
+        );
+    }
+}
+
 #[test]
 fn a_floor_marker_is_drawn_with_its_family_pattern_where_the_color_camera_sees_it() {
     let mut scene = floor_scene(1.2, Noise::D415);

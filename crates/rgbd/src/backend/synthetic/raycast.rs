@@ -856,6 +856,17 @@ impl World {
                 }
             }
         };
+        self.lit(hit, base, ray, light)
+    }
+
+    /// The floor's own color (where no marker lies) shaded for a floor `hit` seen along
+    /// `ray`: the same everywhere, as the floor is flat and evenly lit.
+    pub(crate) fn shade_bare_floor(&self, hit: &Hit, ray: &V3, light: &V3) -> [f32; 3] {
+        self.lit(hit, self.floor_color, ray, light)
+    }
+
+    /// `base` as `hit` shows it along `ray` with the light from `light`.
+    fn lit(&self, hit: &Hit, base: [f32; 3], ray: &V3, light: &V3) -> [f32; 3] {
         // Face the normal towards the viewer, then Lambert from a fixed light.
         let n = if hit.normal.dot(ray) > 0.0 {
             -hit.normal

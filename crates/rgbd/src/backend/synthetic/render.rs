@@ -406,14 +406,15 @@ pub(crate) fn render_color(world: &World, view: &View, format: ColorFormat) -> V
     let spheres = world.spheres_in(view);
     let light = light_direction();
     // The floor is flat and evenly lit: one color for rays that come down on it, one
-    // for rays that come up (a camera below the floor).
+    // for rays that come up (a camera below the floor). Its own color: a marker where
+    // it is shaded (at the origin, say) is drawn only where it lies.
     let floor_hit = Hit {
         t: 1.0,
         normal: V3::new(0.0, 0.0, 1.0),
         surface: Surface::Floor,
     };
     let floor_rgb = [V3::new(0.0, 0.0, -1.0), V3::new(0.0, 0.0, 1.0)]
-        .map(|ray| rounded(world.shade(&floor_hit, &V3::zeros(), &ray, &light)));
+        .map(|ray| rounded(world.shade_bare_floor(&floor_hit, &ray, &light)));
     let mut data = vec![0u8; w * h * bpp];
     data.par_chunks_mut(w * bpp)
         .enumerate()
