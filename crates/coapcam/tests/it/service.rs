@@ -9,6 +9,7 @@ use std::time::Duration;
 use crate::support::{COAPCAM, Proc, TempDir};
 
 const UNIT: &str = include_str!("../../../../contrib/coapcam.service");
+const SERVICE_MD: &str = include_str!("../../../../docs/service.md");
 
 /// The values of `key` in `section` of the unit, in order.
 fn values(section: &str, key: &str) -> Vec<String> {
@@ -86,4 +87,31 @@ fn the_unit_file_starts_a_server_that_stops_cleanly() {
     assert_eq!(finished.status.code(), Some(0), "{}", finished.stderr);
     // Restart=on-failure restarts it after a failure, not after this clean stop.
     assert_eq!(values("Service", "Restart"), ["on-failure"]);
+}
+
+/// Issue 51, item 6: the unit lets the server hold the files its limits allow (every HTTP
+/// connection and line reader is one), above systemd's default soft limit of 1,024; and
+/// docs/service.md's drop-in, which measures automatically with real cameras, keeps them
+/// streaming as docs/station.md asks.
+#[test]
+fn the_unit_allows_the_open_files_the_station_may_hold_and_the_drop_in_streams() {
+    let limit: usize = values("Service", "LimitNOFILE")
+        .first()
+        .and_then(|v| v.parse().ok())
+        .expect("a LimitNOFILE number in [Service]");
+    let held = coapcam::station::http::MAX_CONNECTIONS + coapcam::station::line::MAX_READERS;
+    // Beside them: the sockets, the cameras, the log, MQTT, the webhooks.
+    assert!(
+        limit >= held + 256,
+        "LimitNOFILE={limit} for {held} connections"
+    );
+    let dropin = SERVICE_MD
+        .split("```ini")
+        .nth(1)
+        .and_then(|b| b.split("```").next())
+        .expect("docs/service.md's drop-in");
+    assert!(
+        dropin.contains("--auto-measure") && dropin.contains("--realsense-streaming"),
+        "{dropin}"
+    );
 }
