@@ -33,7 +33,7 @@ pub enum UriError {
     #[error("no host in {0:?}")]
     Host(String),
     /// A port that is not a number from 1 to 65535.
-    #[error("bad port in {0:?}")]
+    #[error("bad port in {0:?}: a port is a number from 1 to 65535")]
     Port(String),
     /// A `%` not followed by two hex digits, or bytes that are not UTF-8.
     #[error("bad percent-encoding in {0:?}")]
@@ -244,6 +244,13 @@ mod tests {
             Uri::parse("coap://x:99999/"),
             Err(UriError::Port(_))
         ));
+        // The message says what a port may be (issue 51, item 13).
+        let e = Uri::parse("coap://x:99999/").expect_err("a bad port");
+        assert!(
+            e.to_string()
+                .ends_with(": a port is a number from 1 to 65535"),
+            "{e}"
+        );
         assert!(matches!(Uri::parse("coap:///a"), Err(UriError::Host(_))));
         assert!(matches!(
             Uri::parse("coap://x/a%zz"),
