@@ -155,10 +155,10 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
                 report.pictures_checked,
                 report.pictures_pruned,
             ),
+            // The reason names the record (altered, missing, or where the file breaks).
             Some(a) => out!(
-                "{}: record {} was altered or is missing: {}\n({} record(s) before it verify)\n",
+                "{}: {}\n({} record(s) before it verify)\n",
                 file.display(),
-                a.id,
                 a.why,
                 report.records
             ),
