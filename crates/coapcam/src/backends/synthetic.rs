@@ -13,17 +13,17 @@ pub struct Synthetic(pub Scene);
 
 impl Backend for Synthetic {
     fn start(&mut self, hub: &Arc<CameraHub>) -> anyhow::Result<Vec<Serial>> {
-        add(hub, &self.0)
+        let cameras = SyntheticCamera::all(&self.0).context("building the scene's cameras")?;
+        add(hub, cameras)
     }
 }
 
-/// Puts the synthetic cameras of `scene` into `hub`; returns their serials.
+/// Puts `cameras` (a scene's, built) into `hub`; returns their serials.
 ///
 /// # Errors
 ///
-/// When the scene's cameras cannot be built, or one of them is in the hub already.
-pub fn add(hub: &CameraHub, scene: &Scene) -> anyhow::Result<Vec<Serial>> {
-    let cameras = SyntheticCamera::all(scene).context("building the scene's cameras")?;
+/// When one of them is in the hub already.
+pub fn add(hub: &CameraHub, cameras: Vec<Arc<SyntheticCamera>>) -> anyhow::Result<Vec<Serial>> {
     let mut serials = Vec::new();
     for camera in cameras {
         serials.push(camera.serial());

@@ -23,7 +23,7 @@ use anyhow::{Context as _, bail};
 use coap::link_format::Filter;
 use coap::{Code, EndpointConfig, IncomingRequest, Response};
 use coap_net::{Router, Server, ServerConfig};
-use rgbd::{CameraHub, Scene, Serial};
+use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
@@ -437,12 +437,14 @@ fn start_hub(
 /// thread, so a client that starts after this (or after "serving on") never sees a 4.04
 /// for a camera that is there, nor a resource of one that left.
 fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result<()> {
+    // Built before the old cameras go: a scene that cannot be built leaves them served.
+    let cameras = SyntheticCamera::all(scene).context("building the scene's cameras")?;
     let gone = hub.serials();
     for sn in &gone {
         hub.remove(sn);
     }
     wait_routed(router, &gone, false)?;
-    let expected = synthetic::add(hub, scene)?;
+    let expected = synthetic::add(hub, cameras)?;
     wait_routed(router, &expected, true)
 }
 

@@ -599,7 +599,8 @@ impl coapcam::backends::Backend for Flagged {
         &mut self,
         hub: &std::sync::Arc<rgbd::CameraHub>,
     ) -> anyhow::Result<Vec<rgbd::Serial>> {
-        coapcam::backends::synthetic::add(hub, &self.scene)
+        let cameras = rgbd::SyntheticCamera::all(&self.scene)?;
+        coapcam::backends::synthetic::add(hub, cameras)
     }
 }
 
@@ -656,5 +657,33 @@ fn a_camera_server_serves_the_cameras_of_every_backend_in_its_list_until_it_is_d
         assert!(!dropped.load(std::sync::atomic::Ordering::SeqCst));
         drop(server);
         assert!(dropped.load(std::sync::atomic::Ordering::SeqCst));
+    });
+}
+
+#[test]
+fn a_scene_that_cannot_be_built_leaves_the_cameras_served_before_it() {
+    let state = TempDir::new("library-bad-scene");
+    let first = Scene::default_single();
+    let mut bad = first.clone();
+    bad.cameras[0].serial = "111111111111".parse().expect("a serial");
+    // Looking at its own position: no pose, so no camera.
+    bad.cameras[0].look_at = bad.cameras[0].position;
+    runtime().block_on(async {
+        let server =
+            SceneServer::start(&first, state.path(), SocketAddr::from(([127, 0, 0, 1], 0)))
+                .await
+                .expect("scene server");
+        let addr = server.addr().expect("its address");
+        let client = coap_net::Client::bind(
+            SocketAddr::from(([127, 0, 0, 1], 0)),
+            EndpointConfig::default(),
+        )
+        .expect("a client");
+        let e = server.load(&bad).expect_err("a camera without a pose");
+        assert!(
+            coapcam::error_text(&e).starts_with("building the scene's cameras"),
+            "{e:#}"
+        );
+        assert_eq!(serials_at(&client, addr).await, ["840412060746"]);
     });
 }
