@@ -184,6 +184,43 @@ fn the_readme_names_the_rust_version_and_what_the_test_command_installs() {
     );
 }
 
+/// docs/station.md gives one figure for the delay from a parcel standing still to its
+/// result (issue 51, item 3: it gave three), with the command that reproduces it: every
+/// paragraph that puts seconds on that delay names `scripts/bench-lane.sh`, and the
+/// script exists.
+#[test]
+fn station_md_times_standing_still_to_the_message_once_with_its_command() {
+    let timed = |p: &str| {
+        let words: Vec<&str> = p.split_whitespace().collect();
+        words.windows(2).any(|w| {
+            w[1].trim_end_matches([',', '.', ';', ')']) == "s"
+                && w[0].chars().all(|c| c.is_ascii_digit() || c == '.')
+        })
+    };
+    let text = STATION.split_whitespace().collect::<Vec<_>>().join(" ");
+    let mut figures = 0;
+    for sentence in text.split(". ") {
+        let lower = sentence.to_lowercase();
+        let about = lower.contains("stood still") || lower.contains("standing still");
+        if about && timed(sentence) {
+            figures += 1;
+            assert!(
+                sentence.contains("scripts/bench-lane.sh"),
+                "a delay from standing still without its command: {sentence}"
+            );
+        }
+    }
+    assert_eq!(
+        figures, 1,
+        "docs/station.md times that delay in {figures} sentences"
+    );
+    assert!(
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../scripts/bench-lane.sh")
+            .exists()
+    );
+}
+
 #[test]
 fn every_flag_of_the_synopsis_is_in_the_commands_help() {
     let synopsis = README
