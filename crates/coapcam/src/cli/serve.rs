@@ -242,19 +242,22 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
             None => std::future::pending().await,
         }
     };
+    let mut why = "";
     station
         .run(async {
-            tokio::select! {
-                _ = interrupt.recv() => {}
-                _ = terminate.recv() => {}
-                () = duration => {}
-            }
+            why = tokio::select! {
+                _ = interrupt.recv() => "SIGINT",
+                _ = terminate.recv() => "SIGTERM",
+                () = duration => "--duration",
+            };
             // Still serving: the directory's answer comes to the server's socket.
             if let Some(registrant) = registrant {
                 registrant.remove().await;
             }
         })
         .await;
+    // Said, so that a log shows a stop asked for apart from a crash.
+    eprintln!("coapcam: stopped cleanly ({why})");
     Ok(())
 }
 

@@ -85,6 +85,14 @@ fn the_unit_file_starts_a_server_that_stops_cleanly() {
         .wait(Duration::from_secs_f64(stop))
         .unwrap_or_else(|| panic!("still running {stop} s (TimeoutStopSec) after SIGTERM"));
     assert_eq!(finished.status.code(), Some(0), "{}", finished.stderr);
+    // The log says so (issue 51, item 13: it said nothing on a clean stop).
+    assert!(
+        finished
+            .stderr
+            .contains("coapcam: stopped cleanly (SIGTERM)"),
+        "{}",
+        finished.stderr
+    );
     // Restart=on-failure restarts it after a failure, not after this clean stop.
     assert_eq!(values("Service", "Restart"), ["on-failure"]);
 }
