@@ -329,6 +329,9 @@ async fn keep<F, Fut>(
     let lifetime = Duration::from_secs(u64::from(config.lt));
     let mut schedule = Schedule::new(Instant::now(), lifetime);
     let mut path: Option<String> = None;
+    // Failures in a row: the first is a warning, the retries that fail the same way
+    // are debug lines until one succeeds.
+    let mut failures = 0u32;
     loop {
         let current = announce().await;
         let now = Instant::now();
@@ -344,11 +347,18 @@ async fn keep<F, Fut>(
                 };
                 match register(&client, &config, &p, &current).await {
                     Ok(location) => {
-                        tracing::info!(rd = %config.rd, %location, ep = %config.ep, "registered");
+                        tracing::info!(rd = %config.rd, %location, ep = %config.ep, failures, "registered");
+                        failures = 0;
                         schedule.registered(Instant::now(), location, current);
                     }
                     Err(e) => {
-                        tracing::warn!(rd = %config.rd, error = %format!("{e:#}"), "registering with the directory failed; trying again");
+                        let error = format!("{e:#}");
+                        if failures == 0 {
+                            tracing::warn!(rd = %config.rd, %error, "registering with the directory failed; trying again, at longer intervals, without saying so again until it succeeds");
+                        } else {
+                            tracing::debug!(rd = %config.rd, %error, failures, "registering with the directory failed again");
+                        }
+                        failures += 1;
                         // The path is looked up again: the directory may have restarted
                         // elsewhere or with other paths.
                         path = None;

@@ -247,6 +247,15 @@ fn a_name_another_server_holds_is_refused_with_how_to_choose_one() {
     let listed = endpoints(rd, &["ep=dock"]);
     assert_eq!(listed.len(), 1, "{listed:?}");
     assert_eq!(listed[0].addr, Some(first_addr), "{listed:?}");
+    // It goes on trying (after 1, 2, 4 s ...) but warns once (issue 51, item 13: it
+    // warned at every retry).
+    thread::sleep(Duration::from_secs(4));
+    let stopped = second.interrupt();
+    let warned = stopped
+        .stderr
+        .matches("registering with the directory failed")
+        .count();
+    assert_eq!(warned, 1, "{}", stopped.stderr);
 }
 
 #[test]
