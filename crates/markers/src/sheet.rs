@@ -87,6 +87,9 @@ const CAPTION_MM: f64 = 6.0;
 const FOOTER_MM: f64 = 14.0;
 /// The scale bar's length.
 pub const BAR_MM: f64 = 100.0;
+/// The scale bar's height above the paper's bottom edge: clear of a half-inch (12.7 mm)
+/// printer margin, so that the one check of the true size is printed (it was 7 mm).
+pub const BAR_FROM_EDGE_MM: f64 = 13.0;
 
 /// One marker on a page.
 #[derive(Debug, Clone, PartialEq)]
@@ -320,7 +323,7 @@ impl Sheet {
         }
         // The scale bar: BAR_MM long, with end ticks.
         let bar_x = (w - BAR_MM) / 2.0;
-        let bar_y = EDGE_MM + 2.0;
+        let bar_y = BAR_FROM_EDGE_MM;
         let _ = writeln!(
             s,
             "{} {} {} 0.6 re {} {} 0.3 2.5 re {} {} 0.3 2.5 re f",
@@ -332,10 +335,11 @@ impl Sheet {
             num(bar_x + BAR_MM - 0.3),
             num(bar_y)
         );
+        // The note under the bar, within the footer.
         text(
             &mut s,
             bar_x,
-            bar_y + 4.0,
+            bar_y - 4.5,
             2.8,
             &format!(
                 "Print at 100 % (not fit to page): this bar is 100 mm. Page {number} of {}.",
@@ -394,6 +398,29 @@ mod tests {
             }
         }
         (wp, hp, image)
+    }
+
+    /// Issue 51, item 13: the 100 mm bar stands clear of a half-inch printer margin (it
+    /// was 7 mm from the edge), its note below it, both within the footer.
+    #[test]
+    fn the_scale_bar_is_clear_of_the_printers_margin() {
+        for paper in [Paper::A4, Paper::Letter] {
+            let sheet = Sheet::layout(Family::Tag36h11, &[0, 1, 2, 3], 0.16, paper).expect("fits");
+            let content = sheet.page_content(&sheet.pages[0], 1);
+            let bar = content
+                .lines()
+                .find(|l| l.contains(&format!(" {} 0.6 re ", num(BAR_MM))))
+                .expect("the bar");
+            let y: f64 = bar.split_whitespace().nth(1).unwrap().parse().unwrap();
+            assert!((12.7..EDGE_MM + FOOTER_MM - 2.5).contains(&y), "{bar}");
+            // Every marker's caption and border stay above the footer.
+            for placed in &sheet.pages[0] {
+                assert!(
+                    placed.black_origin_mm[1] > EDGE_MM + FOOTER_MM,
+                    "{placed:?}"
+                );
+            }
+        }
     }
 
     #[test]
