@@ -353,7 +353,7 @@ impl EdgeQuery {
             }
             let Some((_, lo, hi)) = Self::RANGES.iter().find(|(k, ..)| *k == key) else {
                 return Err(format!(
-                    "unknown query item {key}: /cams/dimensions takes codes, min_height_mm, cluster_mm, volumetric_divisor, round_up_mm and division_mm"
+                    "unknown query item {key}: a measurement takes codes, min_height_mm, cluster_mm, volumetric_divisor, round_up_mm and division_mm"
                 ));
             };
             let v = match value.parse::<f64>() {
@@ -706,5 +706,12 @@ mod tests {
             let why = EdgeQuery::parse([bad]).expect_err(bad);
             assert!(why.contains(bad.split('=').next().unwrap_or(bad)), "{why}");
         }
+        // The page's POST /api/measure takes the same query: the error names no path
+        // (issue 51, item 13: `/api/measure?cdoes` was told about /cams/dimensions).
+        let why = EdgeQuery::parse(["cdoes"]).expect_err("a typo");
+        assert!(
+            why.starts_with("unknown query item cdoes: a measurement takes codes,"),
+            "{why}"
+        );
     }
 }
