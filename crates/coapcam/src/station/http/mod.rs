@@ -685,6 +685,17 @@ impl<R: Rig> App<R> {
         let Some(target) = proxy::target(&raw) else {
             return error(StatusCode::BAD_REQUEST, "the proxy's target is not a URI");
         };
+        // Another scheme is told what the proxy reaches (coap:// alone), not what a CoAP
+        // URI may be.
+        let scheme = target
+            .split_once("://")
+            .map(|(s, _)| s.to_ascii_lowercase());
+        if !matches!(scheme.as_deref(), Some("coap" | "coaps")) {
+            return error(
+                StatusCode::BAD_REQUEST,
+                &format!("{target}: the proxy reaches coap:// servers only"),
+            );
+        }
         let uri = match coap_net::Uri::parse(&target) {
             Ok(uri) if !uri.secure => uri,
             Ok(_) => {
