@@ -22,6 +22,11 @@ const TOP_CORE_CELLS: usize = 16;
 /// See [`TOP_CORE_CELLS`].
 const TOP_SHARE: f64 = 0.05;
 
+/// A top at least this much (metres) lower than the highest counts however small: a
+/// level lid well below the object's top is another parcel's (a small box beside a
+/// polybag, whose dome holds many times its cells), not a shelf of the same parcel.
+const LOWER_LID_M: f32 = 0.03;
+
 /// How far below the top a seam between two lids is looked for (metres): the spatial
 /// filter smooths a step whose disparity changes by less than its delta (20/32 pixel),
 /// which at the lane's 2 m is a step of up to about 50 mm; higher steps stay sharp and
@@ -203,7 +208,7 @@ impl HeightMap {
     /// neighbouring median heights differ by less than `step`, counted when their core
     /// (cells whose eight neighbours are all in the region) has [`TOP_CORE_CELLS`] and
     /// their cells are at least [`TOP_SHARE`] of the largest region's, or they are the
-    /// highest such region.
+    /// highest such region, or at least [`LOWER_LID_M`] below it.
     pub(super) fn tops(&self, step: f32, flatness: f32) -> usize {
         let flat =
             |c: &Cell2| self.is_dense(c) && self.spread.get(c).is_some_and(|s| *s < flatness);
@@ -257,7 +262,9 @@ impl HeightMap {
             .iter()
             .filter(|(n, core, mean)| {
                 *core >= TOP_CORE_CELLS
-                    && (*n as f64 >= TOP_SHARE * largest as f64 || *mean >= highest)
+                    && (*n as f64 >= TOP_SHARE * largest as f64
+                        || *mean >= highest
+                        || *mean <= highest - LOWER_LID_M)
             })
             .count()
             .max(1)

@@ -565,3 +565,37 @@ fn a_thin_post_beside_a_wide_low_parcel_is_a_top_of_its_own() {
     let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
     assert!(found.parcels.iter().all(|p| !p.isolated), "{found:?}");
 }
+
+#[test]
+fn a_small_low_lid_against_a_wide_dome_is_a_top_of_its_own() {
+    // A pillow 700 x 600 mm and 300 mm high (a polybag) and, against its end, a lid 100 x
+    // 90 mm at 154 mm (the certification set's scene 139: a 109 x 90 x 154 mm box 20 mm
+    // from a 787 x 709 x 300 mm bag, joined by the pixels between them, was measured as
+    // one parcel 862 x 796 x 301 mm with no flag). The lid holds under 5 % of the dome's
+    // flat cells, yet it lies well below the dome's top: another parcel's.
+    let (a, b, h) = (0.35, 0.30, 0.300);
+    let mut points = Vec::new();
+    for i in -175..=175 {
+        for j in -150..=150 {
+            let (x, y) = (f64::from(i) * 0.002, f64::from(j) * 0.002);
+            let r = (x / a).powi(2) + (y / b).powi(2);
+            if r < 1.0 {
+                let z = h * (1.0 - r * r).sqrt();
+                if z > 0.011 {
+                    points.push(Point3::new(x as f32, y as f32, z as f32));
+                }
+            }
+        }
+    }
+    points.extend(lid_points([0.34, 0.44], [-0.045, 0.045], 0.154));
+    for k in 0..=77 {
+        let z = 0.154 - f64::from(k) * 0.002;
+        for j in 0..=45 {
+            for x in [0.34, 0.44] {
+                points.push(Point3::new(x, (-0.045 + f64::from(j) * 0.002) as f32, z as f32));
+            }
+        }
+    }
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert!(found.parcels.iter().all(|p| !p.isolated), "{found:?}");
+}
