@@ -592,7 +592,11 @@ fn a_small_low_lid_against_a_wide_dome_is_a_top_of_its_own() {
         let z = 0.154 - f64::from(k) * 0.002;
         for j in 0..=45 {
             for x in [0.34, 0.44] {
-                points.push(Point3::new(x, (-0.045 + f64::from(j) * 0.002) as f32, z as f32));
+                points.push(Point3::new(
+                    x,
+                    (-0.045 + f64::from(j) * 0.002) as f32,
+                    z as f32,
+                ));
             }
         }
     }
