@@ -8,7 +8,7 @@ mod cli;
 use std::process::ExitCode;
 
 use anyhow::Context as _;
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory as _, Parser, Subcommand};
 use cli::{Deferred, Exit, interruptible};
 
 /// RGB-D cameras (Intel RealSense D400 and a synthetic D415) as CoAP resources.
@@ -71,7 +71,8 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    // `serve --config FILE`'s keys come in as flags here.
+    let cli = Cli::parse_from(cli::config::command_line(Cli::command()));
     if matches!(cli.command, Command::Serve(_)) {
         cli::serve::fix_malloc_threshold();
     }

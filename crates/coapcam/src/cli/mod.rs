@@ -7,6 +7,7 @@
 
 pub(crate) mod bench;
 pub(crate) mod calibrate;
+pub(crate) mod config;
 pub(crate) mod demo;
 pub(crate) mod grab;
 pub(crate) mod markers;

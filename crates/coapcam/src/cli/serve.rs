@@ -22,6 +22,18 @@ use super::{TransmissionArgs, usage, values};
 /// Flags of `serve`.
 #[derive(Debug, Args)]
 pub(crate) struct ServeArgs {
+    /// Take the flags from this TOML file: each key is a flag without its -- (`bind =
+    /// ["0.0.0.0:5683"]`, `auto-measure = true`, `grab-memory = 512`); a flag given on
+    /// the command line overrides its key. An unknown key or a bad value exits 2 naming
+    /// it and its line (docs/station.md, "A configuration file").
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Print the configuration in effect (the flags given, with --config's keys) as a
+    /// file for --config, and exit: passwords in URLs are masked, files of keys are
+    /// named by their path.
+    #[arg(long)]
+    #[allow(dead_code, reason = "done by cli::config before serve is parsed")]
+    print_config: bool,
     /// Address to listen on; repeat for several (default 0.0.0.0:5683 and [::]:5683).
     #[arg(long, value_name = "ADDR:PORT")]
     bind: Vec<SocketAddr>,
@@ -226,6 +238,12 @@ pub(crate) async fn run(args: ServeArgs) -> anyhow::Result<()> {
     } else if !args.no_cameras {
         eprintln!(
             "coapcam: a measurement with the codes (?codes, the page's Measure now) sets each camera's color to its largest resolution first"
+        );
+    }
+    if let Some(path) = &args.config {
+        eprintln!(
+            "coapcam: configuration from {} (the flags given override it)",
+            path.display()
         );
     }
     warn_of_config(&args);

@@ -7,6 +7,7 @@ mod bench_transfer;
 mod calibrated;
 mod cams;
 mod client;
+mod config;
 mod dtls;
 mod exits;
 mod files;

@@ -1,7 +1,8 @@
-//! contrib/coapcam.service, the systemd unit docs/service.md installs: its ExecStart is a
-//! command line `coapcam serve` takes, run here as systemd would run it (with the unit's
-//! environment, without `--realsense`, as no camera is here, and on a free loopback
-//! port), and its KillSignal stops that server cleanly within TimeoutStopSec.
+//! contrib/coapcam.service, the systemd unit docs/service.md installs: its ExecStart is
+//! `coapcam serve --config` of contrib/station.toml, run here as systemd would run it
+//! (with the unit's environment, the file without `realsense`, as no camera is here, and
+//! on a free loopback port), and its KillSignal stops that server cleanly within
+//! TimeoutStopSec.
 
 use std::process::Command;
 use std::time::Duration;
@@ -10,6 +11,7 @@ use crate::support::{COAPCAM, Proc, TempDir};
 
 const UNIT: &str = include_str!("../../../../contrib/coapcam.service");
 const SERVICE_MD: &str = include_str!("../../../../docs/service.md");
+const STATION: &str = include_str!("../../../../contrib/station.toml");
 
 /// The values of `key` in `section` of the unit, in order.
 fn values(section: &str, key: &str) -> Vec<String> {
@@ -37,30 +39,43 @@ fn the_unit_file_starts_a_server_that_stops_cleanly() {
         words[0].starts_with('/') && words[0].ends_with("/coapcam"),
         "{words:?}"
     );
-    assert_eq!(words[1], "serve", "{words:?}");
-    assert!(
-        words.contains(&"--realsense"),
-        "the service serves real cameras: {words:?}"
+    assert_eq!(
+        words[1..],
+        ["serve", "--config", "/etc/coapcam/station.toml"],
+        "the station's settings are in its file"
     );
     let state = values("Service", "StateDirectory");
     assert_eq!(state, ["coapcam"]);
+    assert!(
+        STATION.lines().any(|l| l == "realsense = true"),
+        "the service serves real cameras: {STATION}"
+    );
+    assert!(
+        STATION
+            .lines()
+            .any(|l| l == "state-dir = \"/var/lib/coapcam\""),
+        "StateDirectory's: {STATION}"
+    );
+    // The unit's file without real cameras; its state directory and a loopback port
+    // given as flags, which override the file's keys.
     let dir = TempDir::new("service");
+    let file = dir.join("station.toml");
+    let station: String = STATION
+        .lines()
+        .filter(|l| *l != "realsense = true")
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&file, station).expect("writing the station's file");
     let state_dir = dir.join("state");
-    let state_dir = state_dir.to_str().expect("UTF-8 path");
-    // The unit's command line, its state directory here, and no real camera.
-    let mut args: Vec<&str> = Vec::new();
-    let mut rest = words[1..].iter();
-    while let Some(&w) = rest.next() {
-        match w {
-            "--realsense" => {}
-            "--state-dir" => {
-                assert_eq!(rest.next(), Some(&"/var/lib/coapcam"), "StateDirectory's");
-                args.extend(["--state-dir", state_dir]);
-            }
-            _ => args.push(w),
-        }
-    }
-    args.extend(["--bind", "127.0.0.1:0"]);
+    let args = [
+        "serve",
+        "--config",
+        file.to_str().expect("UTF-8 path"),
+        "--state-dir",
+        state_dir.to_str().expect("UTF-8 path"),
+        "--bind",
+        "127.0.0.1:0",
+    ];
     let env: Vec<(String, String)> = values("Service", "Environment")
         .iter()
         .map(|e| {
@@ -99,8 +114,8 @@ fn the_unit_file_starts_a_server_that_stops_cleanly() {
 
 /// Issue 51, item 6: the unit lets the server hold the files its limits allow (every HTTP
 /// connection and line reader is one), above systemd's default soft limit of 1,024; and
-/// docs/service.md's drop-in, which measures automatically with real cameras, keeps them
-/// streaming as docs/station.md asks.
+/// docs/service.md's station file, which measures automatically with real cameras, keeps
+/// them streaming as docs/station.md asks, and is a file `serve --config` takes.
 #[test]
 fn the_unit_allows_the_open_files_the_station_may_hold_and_the_drop_in_streams() {
     let limit: usize = values("Service", "LimitNOFILE")
@@ -113,13 +128,24 @@ fn the_unit_allows_the_open_files_the_station_may_hold_and_the_drop_in_streams()
         limit >= held + 256,
         "LimitNOFILE={limit} for {held} connections"
     );
-    let dropin = SERVICE_MD
-        .split("```ini")
+    let example = SERVICE_MD
+        .split("```toml")
         .nth(1)
         .and_then(|b| b.split("```").next())
-        .expect("docs/service.md's drop-in");
+        .expect("docs/service.md's station.toml");
     assert!(
-        dropin.contains("--auto-measure") && dropin.contains("--realsense-streaming"),
-        "{dropin}"
+        example.contains("auto-measure = true") && example.contains("realsense-streaming = true"),
+        "{example}"
     );
+    // A file serve takes.
+    let dir = TempDir::new("service-example");
+    let file = dir.join("station.toml");
+    std::fs::write(&file, example).expect("writing the example");
+    let file = file.to_str().expect("UTF-8 path");
+    let done = Proc::run(
+        COAPCAM,
+        &["serve", "--config", file, "--print-config"],
+        Duration::from_secs(60),
+    );
+    assert_eq!(done.status.code(), Some(0), "{}", done.stderr);
 }
