@@ -9,10 +9,18 @@
 //! (`http://USER:PASSWORD@HOST/PATH`) go out as basic authentication, never in the Host
 //! header or the log. Of an answer, only its status counts: its body is read up to
 //! [`ANSWER_LIMIT`] and a longer one ends the connection.
+//!
+//! With a secret (`--webhook-secret-file`) each POST is signed: [`SIGNATURE_HEADER`] is
+//! `t=UNIX,v1=HEX`, HEX the HMAC-SHA256 (RFC 2104) under the secret of the time, a dot
+//! and the body, the convention of the large webhook senders. With a template
+//! (`--webhook-template`, a [`Template`]) the body is the receiver's own fields.
 
 use std::fmt;
+use std::path::{Path, PathBuf};
 use std::str::FromStr;
-use std::time::Duration;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use anyhow::Context as _;
 
 use base64::prelude::{BASE64_STANDARD, Engine as _};
 use bytes::Bytes;
@@ -21,6 +29,8 @@ use hyper::client::conn::http1::SendRequest;
 use hyper::header::{self, HeaderValue};
 use hyper::{Method, Request, Uri};
 use hyper_util::rt::TokioIo;
+use serde_json::Value;
+use sha2::{Digest as _, Sha256};
 use tokio::net::TcpStream;
 use tokio::task::JoinHandle;
 
@@ -36,6 +46,8 @@ const TIMEOUT: Duration = Duration::from_secs(10);
 /// The most of an answer's body read; a receiver that sends more loses the connection
 /// (the record still counts as taken when the status was 2xx).
 pub const ANSWER_LIMIT: usize = 64 * 1024;
+/// The header of the signature: `t=UNIX,v1=HEX`.
+pub const SIGNATURE_HEADER: &str = "x-coapcam-signature";
 
 /// Where records are POSTed: an `http://[USER[:PASSWORD]@]HOST[:PORT][/PATH]` URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -120,6 +132,18 @@ pub struct Args {
     /// authentication (never printed); an answer's body is read up to 64 KiB.
     #[arg(long, value_name = "http://[USER:PASSWORD@]HOST[:PORT]/PATH")]
     webhook: Option<Target>,
+    /// With --webhook: sign each POST with the secret this file holds (its bytes, without
+    /// a final line break): the header X-Coapcam-Signature: t=UNIX,v1=HEX, HEX the
+    /// HMAC-SHA256 of "UNIX.BODY" (UNIX the sending time in seconds). Keep the file
+    /// readable by the station only.
+    #[arg(long, value_name = "FILE", requires = "webhook")]
+    webhook_secret_file: Option<PathBuf>,
+    /// With --webhook: POST this JSON object instead of the record, each string value
+    /// replaced by the record's value at that JSON Pointer (RFC 6901), e.g. {"barcode":
+    /// "/measurement/codes/0/text", "length": "/measurement/length_mm"}; one that points
+    /// at nothing is null, other values are sent as they are (docs/station.md).
+    #[arg(long, value_name = "FILE", requires = "webhook")]
+    webhook_template: Option<PathBuf>,
 }
 
 impl Args {
@@ -130,11 +154,134 @@ impl Args {
 
     /// The webhook `--webhook` asks for.
     pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
-        Ok(self
-            .webhook
-            .clone()
-            .map(|target| Box::new(Webhook::start(target, feed.log.clone())) as Box<dyn Output>))
+        let Some(target) = self.webhook.clone() else {
+            return Ok(None);
+        };
+        let secret = match &self.webhook_secret_file {
+            Some(path) => Some(read_secret(path)?),
+            None => None,
+        };
+        let template = match &self.webhook_template {
+            Some(path) => Some(Template::load(path)?),
+            None => None,
+        };
+        let body = Body { secret, template };
+        Ok(Some(Box::new(Webhook::start_with(
+            target,
+            feed.log.clone(),
+            body,
+        ))))
     }
+}
+
+/// The secret in the file at `path`: its bytes without a final line break; never empty.
+fn read_secret(path: &Path) -> anyhow::Result<Vec<u8>> {
+    let name = path.display();
+    let mut secret = std::fs::read(path).with_context(|| format!("reading {name}"))?;
+    while secret.last().is_some_and(|b| matches!(b, b'\n' | b'\r')) {
+        secret.pop();
+    }
+    anyhow::ensure!(!secret.is_empty(), "{name}: the webhook's secret is empty");
+    Ok(secret)
+}
+
+/// A body of the receiver's own: a JSON object whose string values are JSON Pointers
+/// (RFC 6901) into the record's JSON, replaced by what they point at (null for
+/// nothing); objects inside are templates too; other values stay as they are.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Template(serde_json::Map<String, Value>);
+
+impl Template {
+    /// The template of `text`: a JSON object whose pointers start with `/`.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let value: Value = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        let Value::Object(map) = value else {
+            return Err("a template is a JSON object".into());
+        };
+        fn check(map: &serde_json::Map<String, Value>) -> Result<(), String> {
+            for (key, value) in map {
+                match value {
+                    Value::String(p) if !p.starts_with('/') => {
+                        return Err(format!(
+                            "`{key}`: {p:?} is no JSON Pointer (they start with /, e.g. \"/measurement/length_mm\")"
+                        ));
+                    }
+                    Value::Object(inner) => check(inner)?,
+                    _ => {}
+                }
+            }
+            Ok(())
+        }
+        check(&map)?;
+        Ok(Self(map))
+    }
+
+    /// The template in the file at `path`.
+    pub fn load(path: &Path) -> anyhow::Result<Self> {
+        let name = path.display();
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {name}"))?;
+        Self::parse(&text).map_err(|e| anyhow::anyhow!("{name}: {e}"))
+    }
+
+    /// The body for `record` (its JSON).
+    pub fn fill(&self, record: &Value) -> Value {
+        fn fill(map: &serde_json::Map<String, Value>, record: &Value) -> Value {
+            Value::Object(
+                map.iter()
+                    .map(|(k, v)| {
+                        let v = match v {
+                            Value::String(p) => record.pointer(p).cloned().unwrap_or(Value::Null),
+                            Value::Object(inner) => fill(inner, record),
+                            other => other.clone(),
+                        };
+                        (k.clone(), v)
+                    })
+                    .collect(),
+            )
+        }
+        fill(&self.0, record)
+    }
+}
+
+/// What a webhook POSTs for a record and how it signs it.
+#[derive(Debug, Clone, Default)]
+pub struct Body {
+    /// The shared secret of the signature; none: unsigned.
+    pub secret: Option<Vec<u8>>,
+    /// The receiver's fields; none: the record's JSON.
+    pub template: Option<Template>,
+}
+
+/// HMAC-SHA256 (RFC 2104) of `message` under `key`.
+pub fn hmac_sha256(key: &[u8], message: &[u8]) -> [u8; 32] {
+    const BLOCK: usize = 64;
+    let mut block = [0u8; BLOCK];
+    if key.len() > BLOCK {
+        block[..32].copy_from_slice(&Sha256::digest(key));
+    } else {
+        block[..key.len()].copy_from_slice(key);
+    }
+    let pad = |byte: u8| block.map(|b| b ^ byte);
+    let inner = Sha256::new()
+        .chain_update(pad(0x36))
+        .chain_update(message)
+        .finalize();
+    Sha256::new()
+        .chain_update(pad(0x5c))
+        .chain_update(inner)
+        .finalize()
+        .into()
+}
+
+/// The value of [`SIGNATURE_HEADER`] for `body` sent at `unix` seconds.
+pub fn signature(secret: &[u8], unix: u64, body: &[u8]) -> String {
+    let mut message = format!("{unix}.").into_bytes();
+    message.extend_from_slice(body);
+    let hex: String = hmac_sha256(secret, &message)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    format!("t={unix},v1={hex}")
 }
 
 /// The webhook's task: delivering until dropped.
@@ -160,12 +307,18 @@ impl Drop for Webhook {
 impl Webhook {
     /// Delivers the records of `log` after its cursor to `target`, then each new one.
     pub fn start(target: Target, log: ResultsLog) -> Self {
+        Self::start_with(target, log, Body::default())
+    }
+
+    /// As [`Webhook::start`], each record's body made and signed as `body` says.
+    pub fn start_with(target: Target, log: ResultsLog, body: Body) -> Self {
         Self {
             task: tokio::spawn(follow::run(
                 log,
                 Hook {
                     target: target.clone(),
                     connection: None,
+                    body,
                 },
             )),
             target,
@@ -177,6 +330,7 @@ impl Webhook {
 struct Hook {
     target: Target,
     connection: Option<SendRequest<Full<Bytes>>>,
+    body: Body,
 }
 
 impl Sink for Hook {
@@ -216,8 +370,18 @@ impl Hook {
             Some(sender) if usable => sender,
             connection => connection.insert(connect(&self.target).await?),
         };
-        let body = serde_json::to_vec(record)
-            .map_err(|e| format!("encoding record {}: {e}", record.id))?;
+        let encoded = match &self.body.template {
+            Some(template) => serde_json::to_value(record)
+                .and_then(|json| serde_json::to_vec(&template.fill(&json))),
+            None => serde_json::to_vec(record),
+        };
+        let body = encoded.map_err(|e| format!("encoding record {}: {e}", record.id))?;
+        let signed = self.body.secret.as_deref().map(|secret| {
+            let unix = SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs());
+            signature(secret, unix, &body)
+        });
         let mut request = Request::builder()
             .method(Method::POST)
             .uri(self.target.uri.path_and_query().map_or("/", |p| p.as_str()))
@@ -233,6 +397,11 @@ impl Hook {
             && let Ok(host) = HeaderValue::from_str(authority.as_str())
         {
             request.headers_mut().insert(header::HOST, host);
+        }
+        if let Some(signed) = signed
+            && let Ok(value) = HeaderValue::from_str(&signed)
+        {
+            request.headers_mut().insert(SIGNATURE_HEADER, value);
         }
         if let Some(authorization) = &self.target.authorization {
             request
@@ -293,6 +462,53 @@ mod tests {
         assert_eq!((t.host.as_str(), t.port), ("::1", 80));
         assert!("https://example.invalid/".parse::<Target>().is_err());
         assert!("127.0.0.1:9000".parse::<Target>().is_err());
+    }
+
+    /// RFC 4231's test cases 1, 2 and 6 (a key longer than a block).
+    #[test]
+    fn hmac_sha256_gives_rfc_4231s_values() {
+        let hex = |b: [u8; 32]| b.iter().map(|b| format!("{b:02x}")).collect::<String>();
+        assert_eq!(
+            hex(hmac_sha256(&[0x0b; 20], b"Hi There")),
+            "b0344c61d8db38535ca8afceaf0bf12b881dc200c9833da726e9376c2e32cff7"
+        );
+        assert_eq!(
+            hex(hmac_sha256(b"Jefe", b"what do ya want for nothing?")),
+            "5bdcc146bf60754e6a042426089575c75a003f089d2739839dec58b964ec3843"
+        );
+        assert_eq!(
+            hex(hmac_sha256(
+                &[0xaa; 131],
+                b"Test Using Larger Than Block-Size Key - Hash Key First"
+            )),
+            "60e431591ee0b67f0d8a26aacbf5b77f8e0bc6213728c5140546040f0ee37f54"
+        );
+        let s = signature(b"Jefe", 1_700_000_000, b"{}");
+        assert!(
+            s.starts_with("t=1700000000,v1=") && s.len() == 16 + 64,
+            "{s}"
+        );
+    }
+
+    #[test]
+    fn a_template_takes_the_records_fields_by_pointer() {
+        let t = Template::parse(
+            r#"{"barcode": "/measurement/codes/0/text", "length": "/measurement/length_mm",
+                "unit": 1, "site": {"station": "/station"}, "none": "/no/such"}"#,
+        )
+        .unwrap();
+        let record = serde_json::json!({
+            "station": "dock-1",
+            "measurement": {"length_mm": 400.5, "codes": [{"text": "PKG-1"}]}
+        });
+        assert_eq!(
+            t.fill(&record),
+            serde_json::json!({"barcode": "PKG-1", "length": 400.5, "unit": 1,
+                               "site": {"station": "dock-1"}, "none": null})
+        );
+        assert!(Template::parse("[1]").is_err());
+        assert!(Template::parse(r#"{"length": "length_mm"}"#).is_err());
+        assert!(Template::parse("{").is_err());
     }
 
     #[test]

@@ -35,3 +35,4 @@ mod service;
 mod signals;
 mod support;
 mod usage;
+mod webhook;
