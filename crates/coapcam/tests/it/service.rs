@@ -117,7 +117,7 @@ fn the_unit_file_starts_a_server_that_stops_cleanly() {
 /// docs/service.md's station file, which measures automatically with real cameras, keeps
 /// them streaming as docs/station.md asks, and is a file `serve --config` takes.
 #[test]
-fn the_unit_allows_the_open_files_the_station_may_hold_and_the_drop_in_streams() {
+fn the_unit_allows_the_open_files_the_station_may_hold_and_the_example_file_streams() {
     let limit: usize = values("Service", "LimitNOFILE")
         .first()
         .and_then(|v| v.parse().ok())
