@@ -39,32 +39,47 @@ pub(crate) fn command_line(cmd: Command) -> Vec<OsString> {
         .find_subcommand(SERVE)
         .expect("serve is a subcommand")
         .clone();
-    let config = serve.get_one::<PathBuf>("config");
-    let argv = match config {
+    let at = argv
+        .iter()
+        .skip(1)
+        .position(|a| a == SERVE)
+        .map_or(argv.len(), |i| i + 2);
+    let merged = |keys: &[FileKey], except: Option<usize>| {
+        let mut merged = argv[..at].to_vec();
+        for (i, key) in keys.iter().enumerate() {
+            if Some(i) != except {
+                merged.extend(key.words.iter().map(OsString::from));
+            }
+        }
+        merged.extend_from_slice(&argv[at..]);
+        merged
+    };
+    let (argv, matches) = match serve.get_one::<PathBuf>("config") {
         Some(path) => {
-            let flags = file_flags(path, &serve_cmd, serve).unwrap_or_else(|e| {
+            let keys = file_keys(path, &serve_cmd, serve).unwrap_or_else(|e| {
                 eprintln!("coapcam: {e}");
                 std::process::exit(2)
             });
-            let at = argv
-                .iter()
-                .skip(1)
-                .position(|a| a == SERVE)
-                .map_or(argv.len(), |i| i + 2);
-            let mut merged = argv[..at].to_vec();
-            merged.extend(flags);
-            merged.extend_from_slice(&argv[at..]);
-            merged
+            let all = merged(&keys, None);
+            // The rules between flags (one requires another, two conflict), with the
+            // file's: the keys without which the error goes are named.
+            match cmd.clone().try_get_matches_from(&all) {
+                Ok(matches) => (all, matches),
+                Err(e) => {
+                    for (i, key) in keys.iter().enumerate() {
+                        if cmd
+                            .clone()
+                            .try_get_matches_from(merged(&keys, Some(i)))
+                            .is_ok()
+                        {
+                            eprintln!("coapcam: {}:{}: `{}`:", path.display(), key.line, key.name);
+                        }
+                    }
+                    e.exit()
+                }
+            }
         }
-        None => argv,
-    };
-    // The rules between flags (one requires another, two conflict), with the file's.
-    let matches = match config {
-        Some(path) => cmd.try_get_matches_from(&argv).unwrap_or_else(|e| {
-            eprintln!("coapcam: with the keys of {} as flags:", path.display());
-            e.exit()
-        }),
-        None => matches,
+        None => (argv, matches),
     };
     let (_, serve) = matches.subcommand().expect("serve");
     if serve.get_flag("print_config") {
@@ -81,9 +96,17 @@ pub(crate) fn command_line(cmd: Command) -> Vec<OsString> {
     argv
 }
 
+/// A key of the file, as the flags it stands for.
+struct FileKey {
+    name: String,
+    line: usize,
+    /// `--key=VALUE`, once per value; nothing for `false`.
+    words: Vec<String>,
+}
+
 /// The keys of the file at `path`, in its order, as flags of `cmd`; those given on the
 /// command line (`given`) are left out.
-fn file_flags(path: &Path, cmd: &Command, given: &ArgMatches) -> Result<Vec<OsString>, String> {
+fn file_keys(path: &Path, cmd: &Command, given: &ArgMatches) -> Result<Vec<FileKey>, String> {
     let name = path.display();
     let text = std::fs::read_to_string(path).map_err(|e| format!("reading {name}: {e}"))?;
     let keys = keys(&text).map_err(|e| format!("{name}: {e}"))?;
@@ -104,7 +127,11 @@ fn file_flags(path: &Path, cmd: &Command, given: &ArgMatches) -> Result<Vec<OsSt
         let words = arg_words(arg, key.get_ref(), value.get_ref()).map_err(at)?;
         check(arg, &words).map_err(|e| at(format!("`{}`: {e}", key.get_ref())))?;
         if given.value_source(arg.get_id().as_str()) != Some(ValueSource::CommandLine) {
-            flags.extend(words.into_iter().map(OsString::from));
+            flags.push(FileKey {
+                name: key.into_inner(),
+                line,
+                words,
+            });
         }
     }
     Ok(flags)

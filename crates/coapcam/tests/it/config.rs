@@ -83,10 +83,24 @@ fn a_bad_value_exits_2_naming_the_key_and_its_line() {
     std::fs::write(&file, "station-name = \"a\"\nbind = \n").expect("writing the file");
     let done = serve(&["--config", path(&file)]).expect_status(2, "not TOML");
     assert!(done.stderr.contains("line 2"), "{}", done.stderr);
-    // The rules between flags hold for keys as for flags.
-    std::fs::write(&file, "writable = true\n").expect("writing the file");
+    // The rules between flags hold for keys as for flags, and name the keys at fault.
+    std::fs::write(&file, "station-name = \"a\"\nwritable = true\n").expect("writing the file");
     let done = serve(&["--config", path(&file)]).expect_status(2, "writable without static");
-    assert!(done.stderr.contains("--static"), "{}", done.stderr);
+    assert!(
+        done.stderr.contains("station.toml:2: `writable`")
+            && done.stderr.contains("--static")
+            && !done.stderr.contains("`station-name`"),
+        "{}",
+        done.stderr
+    );
+    // A key in conflict with a flag given.
+    std::fs::write(&file, "scene = \"lane.toml\"\n").expect("writing the file");
+    let done = serve(&["--config", path(&file), "--no-cameras"]).expect_status(2, "a conflict");
+    assert!(
+        done.stderr.contains("station.toml:1: `scene`"),
+        "{}",
+        done.stderr
+    );
     // A missing file.
     serve(&["--config", path(&dir.join("none.toml"))]).expect_status(2, "no file");
 }
