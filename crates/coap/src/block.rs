@@ -386,9 +386,53 @@ pub(crate) struct Stored {
     /// For a body sent with Q-Block2 (RFC 9177), the options of every block (Size2
     /// included), which a Block2 continuation must not be cut from.
     pub(crate) q_options: Option<Options>,
-    /// What `body` held when it was stored (its [`BlockSource::held`]).
+    /// What the entry holds: `body` when it was stored (its [`BlockSource::held`]), its
+    /// key, options and bookkeeping; `next`'s not included.
     held: usize,
     last_used: Instant,
+    /// A block before the last was the latest served: a client is partway through this
+    /// representation.
+    partway: bool,
+    /// A newer representation a notification brought while a client was partway through
+    /// this one ([`ServerCache::insert_notification`]).
+    next: Option<Box<Self>>,
+}
+
+impl Stored {
+    fn new(
+        now: Instant,
+        key: &BlockKey,
+        code: Code,
+        options: Options,
+        body: Source,
+        q_block: bool,
+    ) -> Self {
+        let head = BlockHead::new(&options, OptionNumber::BLOCK2);
+        let q_options = q_block.then_some(options);
+        // The body, and what the entry holds besides: its key, the options encoded once,
+        // the Q-Block options.
+        let held = body.0.held()
+            + key.held()
+            + ENTRY_OVERHEAD
+            + size_of::<Self>()
+            + head.held()
+            + q_options.as_ref().map_or(0, Options::held);
+        Self {
+            code,
+            head,
+            q_options,
+            body,
+            held,
+            last_used: now,
+            partway: false,
+            next: None,
+        }
+    }
+
+    /// What the entry holds with the representation waiting behind it.
+    fn held_with_next(&self) -> usize {
+        self.held + self.next.as_ref().map_or(0, |n| n.held)
+    }
 }
 
 /// Block2 representations keyed by request, bounded in bytes, least recently used out
@@ -411,7 +455,7 @@ impl ServerCache {
         self.entries.retain(|_, s| {
             let keep = now.saturating_duration_since(s.last_used) < limits.blockwise_lifetime;
             if !keep {
-                *bytes -= s.held;
+                *bytes -= s.held_with_next();
             }
             keep
         });
@@ -439,16 +483,8 @@ impl ServerCache {
     ) {
         self.expire(now, limits);
         self.remove(&key);
-        let head = BlockHead::new(&options, OptionNumber::BLOCK2);
-        let q_options = q_block.then_some(options);
-        // The body, and what the entry holds besides: its key, the options encoded once,
-        // the Q-Block options.
-        let held = body.0.held()
-            + key.held()
-            + ENTRY_OVERHEAD
-            + size_of::<Stored>()
-            + head.held()
-            + q_options.as_ref().map_or(0, Options::held);
+        let stored = Stored::new(now, &key, code, options, body, q_block);
+        let held = stored.held;
         if held > limits.block2_store_bytes {
             return;
         }
@@ -464,23 +500,78 @@ impl ServerCache {
             self.remove(&oldest);
         }
         self.bytes += held;
-        self.entries.insert(
-            key,
-            Stored {
-                code,
-                head,
-                q_options,
-                body,
-                held,
-                last_used: now,
-            },
-        );
+        self.entries.insert(key, stored);
+    }
+
+    /// Stores the representation a notification carries (RFC 7959 §2.6). When a client
+    /// has been partway through the one stored for the same request within `pause`, the
+    /// new one waits behind it (replacing any that waited before) and takes its place when
+    /// the last block has been served or the transfer pauses longer
+    /// ([`ServerCache::settle`]): replaced at once, a resource that changes faster than its
+    /// blocks arrive could never be fetched whole, and every try costs the client message
+    /// IDs. Otherwise, and when the store has no room for both, as [`ServerCache::insert`].
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn insert_notification(
+        &mut self,
+        now: Instant,
+        key: BlockKey,
+        code: Code,
+        options: Options,
+        body: Source,
+        limits: &Limits,
+        pause: Duration,
+    ) {
+        let room = limits.block2_store_bytes.saturating_sub(self.bytes);
+        if let Some(current) = self.entries.get_mut(&key).filter(|s| {
+            s.partway && s.q_options.is_none() && now.saturating_duration_since(s.last_used) < pause
+        }) {
+            let next = Stored::new(now, &key, code, options.clone(), body.clone(), false);
+            let freed = current.next.as_ref().map_or(0, |n| n.held);
+            if next.held <= room + freed {
+                self.bytes = self.bytes - freed + next.held;
+                current.next = Some(Box::new(next));
+                return;
+            }
+        }
+        self.insert(now, key, code, options, body, false, limits);
+    }
+
+    /// Before a continuation of `key` is served: a representation waiting behind the
+    /// stored one takes its place when no block of that was asked for within `pause` (its
+    /// client gave up or went on to the newer one).
+    pub(crate) fn settle(&mut self, now: Instant, key: &BlockKey, pause: Duration) {
+        if let Some(s) = self.entries.get_mut(key)
+            && s.next.is_some()
+            && now.saturating_duration_since(s.last_used) >= pause
+        {
+            Self::promote(&mut self.bytes, s, now);
+        }
+    }
+
+    /// Block `num` (`more` unless the last) of the representation stored for `key` was
+    /// served: after the last, the one waiting behind it takes its place.
+    pub(crate) fn served(&mut self, now: Instant, key: &BlockKey, num: u32, more: bool) {
+        if let Some(s) = self.entries.get_mut(key) {
+            s.partway = more && num > 0;
+            if !more {
+                Self::promote(&mut self.bytes, s, now);
+            }
+        }
+    }
+
+    /// The representation waiting behind `s`, if any, replaces it.
+    fn promote(bytes: &mut usize, s: &mut Stored, now: Instant) {
+        if let Some(mut next) = s.next.take() {
+            *bytes -= s.held;
+            next.last_used = now;
+            *s = *next;
+        }
     }
 
     /// Drops the representation stored for a request (its source could not be read).
     pub(crate) fn remove(&mut self, key: &BlockKey) {
         if let Some(old) = self.entries.remove(key) {
-            self.bytes -= old.held;
+            self.bytes -= old.held_with_next();
         }
     }
 
@@ -878,6 +969,102 @@ mod tests {
         assert_eq!(c.bytes(), 60 + o, "the body, the key, the entry");
         let later = now + l.blockwise_lifetime + Duration::from_secs(2);
         assert!(c.with_stored(later, &key(2), &l, |_| ()).is_none());
+        assert_eq!(c.bytes(), 0);
+    }
+
+    /// A notification's representation waiting behind one a client is partway through
+    /// counts against the store until it takes that one's place; then only it does.
+    #[test]
+    fn a_waiting_notification_is_counted_and_takes_the_place_after_the_last_block() {
+        let now = crate::test_epoch();
+        let o = stored_overhead();
+        let l = Limits {
+            block2_store_bytes: 200 + 2 * o,
+            ..Limits::default()
+        };
+        let pause = Duration::from_secs(3);
+        let body = |n: u8, len: usize| Source::new(Bytes::from(vec![n; len]));
+        let first_byte = |c: &mut ServerCache| {
+            c.with_stored(now, &key(1), &l, |s| s.body.0.read(0..1))
+                .flatten()
+                .map(|b| b[0])
+        };
+        let mut c = ServerCache::new();
+        c.insert(
+            now,
+            key(1),
+            Code::CONTENT,
+            Options::new(),
+            body(1, 60),
+            false,
+            &l,
+        );
+        c.served(now, &key(1), 1, true);
+        c.insert_notification(
+            now,
+            key(1),
+            Code::CONTENT,
+            Options::new(),
+            body(2, 80),
+            &l,
+            pause,
+        );
+        assert_eq!(c.bytes(), 140 + 2 * o, "both held");
+        assert_eq!(first_byte(&mut c), Some(1), "the one partway through stays");
+        // A third replaces the one waiting, not the one partway through.
+        c.insert_notification(
+            now,
+            key(1),
+            Code::CONTENT,
+            Options::new(),
+            body(3, 90),
+            &l,
+            pause,
+        );
+        assert_eq!(c.bytes(), 150 + 2 * o);
+        // No room for a fourth beside it: it replaces at once.
+        c.insert_notification(
+            now,
+            key(1),
+            Code::CONTENT,
+            Options::new(),
+            body(4, 150),
+            &l,
+            pause,
+        );
+        assert_eq!((first_byte(&mut c), c.bytes()), (Some(4), 150 + o));
+        c.served(now, &key(1), 1, true);
+        c.insert_notification(
+            now,
+            key(1),
+            Code::CONTENT,
+            Options::new(),
+            body(5, 40),
+            &l,
+            pause,
+        );
+        c.served(now, &key(1), 2, false);
+        assert_eq!(
+            (first_byte(&mut c), c.bytes()),
+            (Some(5), 40 + o),
+            "after the last"
+        );
+        // A transfer that pauses longer: the waiting one takes its place before a block.
+        c.served(now, &key(1), 1, true);
+        c.insert_notification(
+            now,
+            key(1),
+            Code::CONTENT,
+            Options::new(),
+            body(6, 50),
+            &l,
+            pause,
+        );
+        c.settle(now + pause / 2, &key(1), pause);
+        assert_eq!(first_byte(&mut c), Some(5));
+        c.settle(now + pause * 2, &key(1), pause);
+        assert_eq!((first_byte(&mut c), c.bytes()), (Some(6), 50 + o));
+        c.remove(&key(1));
         assert_eq!(c.bytes(), 0);
     }
 

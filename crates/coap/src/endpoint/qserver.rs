@@ -333,7 +333,7 @@ impl ServerLayer {
             // found it).
             let key = p.key.clone();
             return (
-                self.blockwise_response(cx, now, key, None, response, szx),
+                self.blockwise_response(cx, now, key, None, response, szx, false),
                 None,
             );
         }

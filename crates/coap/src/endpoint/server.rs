@@ -205,6 +205,7 @@ impl ServerLayer {
             group_key = key.for_group();
             &group_key
         };
+        self.block2.settle(now, stored_key, block_pause(cx.config));
         let stored = self.block2.with_stored(now, stored_key, cx.limits(), |s| {
             if s.q_options.is_some() {
                 // Stored for Q-Block2: not a body to cut Block2 blocks from.
@@ -225,7 +226,10 @@ impl ServerLayer {
             // Served from the store, which is idempotent (RFC 7252 §4.5 allows relaxing
             // deduplication then): a duplicate is cut again from the same bytes, and a
             // 10 MB transfer leaves no 10,000 dedup entries behind.
-            Some(Slice::Block(..)) => return Err(Answered),
+            Some(Slice::Block(_, opt)) => {
+                self.block2.served(now, stored_key, opt.num, opt.more);
+                return Err(Answered);
+            }
             // RFC 7959 §2.2: a block past the end is a bad option.
             Some(Slice::PastEnd) => {
                 if let Some(reply) = reply_message(cx, now, peer, msg, req.multicast, past_end()) {
@@ -591,7 +595,7 @@ impl ServerLayer {
         o.sent += 1;
         let con = interval > 0 && o.sent % interval == 0;
         let (peer, token, key, seq) = (o.peer, o.token, o.key.clone(), o.seq);
-        let mut response = self.blockwise_response(cx, now, key, None, response, szx);
+        let mut response = self.blockwise_response(cx, now, key, None, response, szx, true);
         let success = response.code.is_success();
         if success {
             response.options.set_uint(OptionNumber::OBSERVE, seq);
@@ -624,7 +628,10 @@ impl ServerLayer {
     }
 
     /// Cuts a response into its first (or requested) block when it does not fit one, adding
-    /// an ETag and storing the representation for the continuations.
+    /// an ETag and storing the representation for the continuations; a `notification`'s
+    /// waits while a client is partway through the one stored before
+    /// ([`ServerCache::insert_notification`]).
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn blockwise_response(
         &mut self,
         cx: &mut Context<'_>,
@@ -633,6 +640,7 @@ impl ServerLayer {
         block2: Option<BlockOpt>,
         mut response: Response,
         max_szx: u8,
+        notification: bool,
     ) -> Response {
         let limits = cx.limits();
         let szx = block2.map_or(max_szx, |b| b.szx.min(max_szx));
@@ -673,15 +681,13 @@ impl ServerLayer {
         };
         if len > BlockOpt::size_of(szx) {
             self.arm_sweep(cx, now + limits.blockwise_lifetime);
-            self.block2.insert(
-                now,
-                key,
-                response.code,
-                response.options,
-                body,
-                false,
-                limits,
-            );
+            let (code, options) = (response.code, response.options);
+            if notification {
+                let pause = block_pause(cx.config);
+                (self.block2).insert_notification(now, key, code, options, body, limits, pause);
+            } else {
+                (self.block2).insert(now, key, code, options, body, false, limits);
+            }
         }
         // The reply is remembered for duplicates for EXCHANGE_LIFETIME; a slice would keep
         // the whole representation (or a source's read-ahead window) alive that long.
@@ -741,7 +747,7 @@ impl ServerLayer {
         }
         let mut q_rest = None;
         let mut response = if p.qblock2.is_empty() {
-            self.blockwise_response(cx, now, p.key.clone(), p.block2, response, max_szx)
+            self.blockwise_response(cx, now, p.key.clone(), p.block2, response, max_szx, false)
         } else {
             let (first, rest) = self.q_first_response(cx, now, &p, response);
             q_rest = rest;
@@ -796,4 +802,12 @@ pub(super) struct Answered;
 struct Assembled {
     bytes: Option<Bytes>,
     block1_echo: Option<BlockOpt>,
+}
+
+/// How long a client partway through a stored representation may go without asking for
+/// a block before a newer notification's representation takes its place: the longest
+/// first retransmission timeout (ACK_TIMEOUT × ACK_RANDOM_FACTOR), so a block request lost
+/// once still finds the representation it began.
+fn block_pause(config: &crate::config::EndpointConfig) -> std::time::Duration {
+    config.ack_timeout.mul_f64(config.ack_random_factor)
 }

@@ -235,6 +235,71 @@ fn rfc7959_2_6_large_notification_first_block_then_continuations_from_store() {
     assert_eq!(first.options.uint(OptionNumber::SIZE2), Some(5000));
 }
 
+/// Block `num` of `/temp` (1 KiB blocks), asked by the client as RFC 7959 §2.6 has the
+/// rest of a notification asked: a GET without Observe.
+fn block_of_temp(sim: &mut Sim, c: usize, s: usize, num: u32) -> Response {
+    let mut req = Request::new(Code::GET, "/temp");
+    let opt = coap::BlockOpt {
+        num,
+        more: false,
+        szx: 6,
+    };
+    req.options.set_block(OptionNumber::BLOCK2, opt);
+    sim.nodes[c].events.clear();
+    let (now, server) = (sim.now, sim.nodes[s].addr);
+    let id = sim.nodes[c].ep.request(now, server, req);
+    assert!(sim.run_to_event(c, Duration::from_secs(10)));
+    let answer = sim.nodes[c].events.iter().find_map(|(_, e)| match e {
+        Event::Response { id: got, response } if *got == id => Some(response.clone()),
+        _ => None,
+    });
+    answer.unwrap_or_else(|| panic!("no answer to block {num}"))
+}
+
+/// RFC 7959 §2.6: a client fetching the rest of a large notification must not have it
+/// replaced under it by the next notification. While it is partway through, the newer
+/// representation waits; its blocks are served once the last block of the one being
+/// fetched has been. (Replaced at once, every notification of a resource that changes
+/// faster than its blocks arrive was fetched again whole, and a client ran out of
+/// message IDs: 65,536 per EXCHANGE_LIFETIME.)
+#[test]
+fn rfc7959_2_6_a_notification_being_fetched_is_not_replaced_by_the_next() {
+    let (mut sim, c, s, obs) = observed(LinkConfig::default());
+    let notify = |sim: &mut Sim, byte: u8| {
+        let now = sim.now;
+        sim.nodes[c].events.clear();
+        let body = Response::new(Code::CONTENT).with_payload(vec![byte; 5000]);
+        assert!(sim.nodes[s].ep.notify(now, obs, body));
+        assert!(sim.run_to_event(c, Duration::from_secs(1)));
+        let first = sim.nodes[c].events.iter().find_map(|(_, e)| match e {
+            Event::Notification { response, .. } => Some(response.clone()),
+            _ => None,
+        });
+        let first = first.unwrap_or_else(|| panic!("no notification"));
+        assert_eq!(first.payload[0], byte);
+        first.options.etag().map(<[u8]>::to_vec)
+    };
+    let etag = |r: &Response| r.options.etag().map(<[u8]>::to_vec);
+    let a = notify(&mut sim, 1);
+    let b1 = block_of_temp(&mut sim, c, s, 1);
+    assert_eq!((etag(&b1), b1.payload[0]), (a.clone(), 1));
+    // The next notification comes while the client is partway through the first.
+    let b = notify(&mut sim, 2);
+    assert_ne!(a, b);
+    for num in 2..=4 {
+        let r = block_of_temp(&mut sim, c, s, num);
+        assert_eq!(etag(&r), a, "block {num} of the first notification");
+        assert_eq!(r.payload[0], 1, "block {num}");
+        assert_eq!(r.options.block2().map(|o| o.more), Some(num < 4));
+    }
+    // The first was fetched whole: the second's blocks are served now.
+    for num in 1..=4 {
+        let r = block_of_temp(&mut sim, c, s, num);
+        assert_eq!(etag(&r), b, "block {num} of the second notification");
+        assert_eq!(r.payload[0], 2, "block {num}");
+    }
+}
+
 #[test]
 fn rfc7390_2_5_multicast_request_collects_every_servers_response() {
     let mut sim = Sim::new(LinkConfig::default());
