@@ -106,6 +106,7 @@ pub(crate) struct ServeArgs {
           value_parser = clap::value_parser!(u64).range(1..=1_048_576))]
     grab_memory: u64,
     /// The station's name, in every record of the results log (default: the host name).
+    /// With --mqtt it is one topic level, so no /, + or #.
     #[arg(long, value_name = "NAME")]
     station_name: Option<String>,
     /// The results log: every measurement is recorded in this SQLite file, append-only
@@ -331,8 +332,12 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
         identities,
         clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
     };
+    let name = args.station_name.clone().unwrap_or_else(station::host_name);
+    if let Err(e) = args.outputs.check_station(&name) {
+        usage!("--station-name with --mqtt: {e}");
+    }
     let station = station::Config {
-        name: args.station_name.clone().unwrap_or_else(station::host_name),
+        name,
         results: args.results.clone(),
         retention: Retention {
             keep_pictures: args.results_keep_pictures,

@@ -400,6 +400,14 @@ impl Args {
         self.mqtt.is_some()
     }
 
+    /// With `--mqtt`: refuses a station name that cannot be one topic level.
+    pub(super) fn check_station(&self, station: &str) -> Result<(), TargetError> {
+        match &self.mqtt {
+            Some(target) => Topics::new(target, station).map(drop),
+            None => Ok(()),
+        }
+    }
+
     /// The publisher `--mqtt` asks for.
     pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
         let Some(target) = &self.mqtt else {

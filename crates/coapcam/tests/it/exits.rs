@@ -338,6 +338,46 @@ fn a_second_server_on_a_busy_port_fails_at_once() {
     assert!(!f.stderr.contains("serving on"), "{}", f.stderr);
 }
 
+/// Issue 51, item 13: with `--mqtt` the station's name is one topic level
+/// (PREFIX/<station>/measurements, matched with `+`), so `dock/1` is a bad value: status
+/// 2 before anything is served (it was 1, from the publisher). Without `--mqtt` the name
+/// is only a record's text, and `dock/1` serves.
+#[test]
+fn a_station_name_that_cannot_be_a_topic_level_with_mqtt_is_a_usage_error() {
+    let dir = TempDir::new("exits-station-name");
+    let state = dir.path().to_str().expect("UTF-8");
+    for name in ["dock/1", "dock+", "#"] {
+        let f = coapcam(&[
+            "serve",
+            "--station-name",
+            name,
+            "--mqtt",
+            "mqtt://127.0.0.1:1",
+            "--state-dir",
+            state,
+            "--bind",
+            "127.0.0.1:0",
+            "--duration",
+            "30",
+        ]);
+        assert_eq!(status(&f), Some(2), "{name}: {}", f.stderr);
+        assert!(f.stderr.contains("--station-name"), "{}", f.stderr);
+        assert!(!f.stderr.contains("serving on"), "{}", f.stderr);
+    }
+    let f = coapcam(&[
+        "serve",
+        "--station-name",
+        "dock/1",
+        "--state-dir",
+        state,
+        "--bind",
+        "127.0.0.1:0",
+        "--duration",
+        "1",
+    ]);
+    assert_eq!(status(&f), Some(0), "{}", f.stderr);
+}
+
 #[test]
 fn an_output_of_the_results_log_without_cameras_is_a_usage_error() {
     for output in [
