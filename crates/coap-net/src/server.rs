@@ -247,9 +247,15 @@ async fn serve(
                     let response = router.dispatch(request).await;
                     // The path and the diagnostic are the peer's text: escaped (`?`, Debug),
                     // so a newline or a terminal escape in them cannot forge a log line.
-                    if response.code.is_error() {
+                    // A client error (4.xx: nothing there, not allowed, a bad request) is
+                    // the answer the client asked for, said to it; only the server's own
+                    // failures (5.xx) are warnings.
+                    if response.code.class() == 5 {
                         let diagnostic = String::from_utf8_lossy(&response.payload);
-                        tracing::warn!(%peer, %method, ?path, code = %response.code, ?diagnostic, "request refused");
+                        tracing::warn!(%peer, %method, ?path, code = %response.code, ?diagnostic, "request failed");
+                    } else if response.code.is_error() {
+                        let diagnostic = String::from_utf8_lossy(&response.payload);
+                        tracing::info!(%peer, %method, ?path, code = %response.code, ?diagnostic, "request refused");
                     } else {
                         tracing::debug!(%peer, %method, ?path, code = %response.code, bytes = response.payload.len(), "request");
                     }

@@ -76,8 +76,9 @@ fn main() -> ExitCode {
     if matches!(cli.command, Command::Serve(_)) {
         cli::serve::fix_malloc_threshold();
     }
-    // Logs go to standard error: warnings by default (a refused request, a failed grab);
-    // RUST_LOG=debug adds every request the server answers.
+    // Logs go to standard error: warnings by default (a request the server failed (5.xx),
+    // a failed grab); RUST_LOG=info adds refused requests (4.xx), RUST_LOG=debug every
+    // request the server answers.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))

@@ -38,7 +38,7 @@ fn server(state: &TempDir, rust_log: &str, extra: &[&str]) -> (Proc, SocketAddr,
 #[test]
 fn a_path_with_newlines_and_escapes_cannot_forge_log_lines() {
     let state = TempDir::new("logs-forge");
-    let (mut p, addr, _) = server(&state, "warn", &["--no-cameras"]);
+    let (mut p, addr, _) = server(&state, "info", &["--no-cameras"]);
     let forged = "x\nWARN forged: admin logged in\u{1b}[2J";
     runtime().block_on(async {
         let r = send(&client(), addr, Code::GET, &format!("/{forged}"), b"", None).await;
@@ -58,6 +58,42 @@ fn a_path_with_newlines_and_escapes_cannot_forge_log_lines() {
         "{}",
         finished.stderr
     );
+}
+
+/// Issue 51, item 13: a 4.04 (or any 4.xx) is the answer the client asked for, not a
+/// fault of the server: at the default level (warnings) it is not logged, at
+/// `RUST_LOG=info` it is.
+#[test]
+fn a_client_error_is_no_warning() {
+    for (level, logged) in [("warn", false), ("info", true)] {
+        let state = TempDir::new("logs-4xx");
+        let (mut p, addr, _) = server(&state, level, &[]);
+        runtime().block_on(async {
+            let r = send(&client(), addr, Code::GET, "/nope", b"", None).await;
+            assert_eq!(r.code, Code::NOT_FOUND);
+            let color = format!("/cams/{SN}/color");
+            let r = send(&client(), addr, Code::GET, &color, b"", None).await;
+            assert_eq!(r.code, Code::NOT_FOUND, "no frame grabbed yet");
+        });
+        // Logged before the answer was sent, if at all.
+        let finished = p.kill();
+        let refused = finished
+            .stderr
+            .lines()
+            .filter(|l| l.contains("4.04"))
+            .collect::<Vec<_>>();
+        assert_eq!(
+            refused.len(),
+            if logged { 2 } else { 0 },
+            "{level}: {refused:?}"
+        );
+        assert!(
+            refused
+                .iter()
+                .all(|l| l.contains("INFO") && !l.contains("WARN")),
+            "{refused:?}"
+        );
+    }
 }
 
 #[test]
