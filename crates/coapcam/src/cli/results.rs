@@ -36,7 +36,8 @@ pub(crate) struct ResultsArgs {
     /// Only records with a code of exactly this text.
     #[arg(long, value_name = "TEXT")]
     code: Option<String>,
-    /// One JSON record per line (the record as the station serves it).
+    /// One JSON record per line (the record as the station serves it); none, and "no
+    /// records" on standard error, when nothing matches.
     #[arg(long, conflicts_with = "csv")]
     json: bool,
     /// Comma-separated values with a header line (RFC 4180): id, time, station,
@@ -105,8 +106,14 @@ pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
             outln!("{}", text(record));
         }
     }
-    if !args.json && !args.csv && records.is_empty() {
-        outln!("no records");
+    if records.is_empty() {
+        if args.json || args.csv {
+            // Said aside: what standard output holds stays JSON Lines (none) or the CSV
+            // header alone, which a reader takes as it is.
+            eprintln!("coapcam: no records");
+        } else {
+            outln!("no records");
+        }
     }
     Ok(Exit::Success)
 }

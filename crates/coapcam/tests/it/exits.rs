@@ -162,6 +162,16 @@ fn nothing_on_the_table_is_a_result_with_exit_5() {
     let f = coapcam(&["results", "--server", &uri]);
     assert_eq!(status(&f), Some(0), "{}", f.stderr);
     assert_eq!(f.stdout_text().trim(), "no records", "{}", f.stdout_text());
+    // Issue 51, item 13: with --json (JSON Lines) and --csv standard output holds no
+    // record and no header line more; that there are none is said on standard error
+    // (before: nothing at all with --json).
+    let f = coapcam(&["results", "--server", &uri, "--json"]);
+    assert_eq!(status(&f), Some(0), "{}", f.stderr);
+    assert_eq!(f.stdout_text(), "", "JSON Lines of no record");
+    assert_eq!(f.stderr.trim(), "coapcam: no records", "{}", f.stderr);
+    let f = coapcam(&["results", "--server", &uri, "--csv"]);
+    assert_eq!(f.stdout_text().lines().count(), 1, "{}", f.stdout_text());
+    assert_eq!(f.stderr.trim(), "coapcam: no records", "{}", f.stderr);
 }
 
 /// A camera 1.65 m over a black box (reflectivity 0.01) that returns no depth at all.
