@@ -117,22 +117,10 @@ fn a_closed_standard_output_ends_quietly() {
     assert!(!stderr.contains("panicked"), "{stderr}");
 }
 
-/// A scene with the demo's camera and nothing on the table.
-fn empty_table(state: &TempDir) -> String {
-    let path = state.path().join("empty.toml");
-    let mut f = std::fs::File::create(&path).expect("a scene file");
-    writeln!(
-        f,
-        "[[camera]]\nserial = \"{SN}\"\nposition = [0.0, 0.0, 1.0]\nlook_at = [0.0, 0.0, 0.0]\ncalibrated = true"
-    )
-    .expect("writing the scene");
-    path.to_str().expect("UTF-8 path").to_owned()
-}
-
 #[test]
 fn nothing_on_the_table_is_a_result_with_exit_5() {
     let state = TempDir::new("exits-empty");
-    let scene = empty_table(&state);
+    let scene = support::empty_table(&state);
     let (_server, addr) = serve_with(state.path(), &["--scene", &scene]);
     let uri = format!("coap://{addr}");
     let f = coapcam(&["measure", "--server", &uri, "--prepare", "--json"]);

@@ -199,6 +199,25 @@ fn serve_http(state: &TempDir, flags: &[&str]) -> (Proc, SocketAddr) {
     (server, addr)
 }
 
+/// Issue 51, items 7 and 13: `POST /api/measure` on an empty table (setting up) is
+/// answered 200 with the measurement, `"parcel": "nothing"`, and recorded nowhere, as
+/// `POST /cams/dimensions` answers it. Before: 201 and a record of nothing (published
+/// on MQTT, a line to line readers).
+#[test]
+fn measuring_an_empty_table_over_http_records_nothing() {
+    let state = TempDir::new("http-empty");
+    let scene = crate::support::empty_table(&state);
+    let (_server, addr) = serve_http(&state, &["--scene", &scene]);
+    let measured = request(addr, "POST", "/api/measure", &[], b"");
+    let body = String::from_utf8_lossy(&measured.body).into_owned();
+    assert_eq!(measured.status, 200, "{body}");
+    assert_eq!(measured.header("location"), None);
+    let m = measured.json();
+    assert_eq!(m["parcel"], "nothing", "{m}");
+    assert!(m.get("id").is_none(), "{m}");
+    assert_eq!(get(addr, "/api/measurements").json(), json!([]));
+}
+
 /// Reads a Server-Sent Events stream until the event with id `id`: its data.
 fn event_data(stream: &mut BufReader<TcpStream>, id: u64) -> Value {
     let want = format!("id: {id}");

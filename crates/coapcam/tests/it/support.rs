@@ -4,7 +4,7 @@
 //! scratch directories and bodies. Every process is killed and reaped on drop, every wait
 //! is bounded, and every socket is on 127.0.0.1.
 
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, BufReader, Read, Write as _};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -792,4 +792,16 @@ pub(crate) fn assert_box_within_5_mm(m: &serde_json::Value) {
         assert!((got - truth).abs() <= 5.0, "{key} {got}: {m}");
     }
     assert_eq!(m["warnings"], serde_json::json!([]), "{m}");
+}
+
+/// A scene with the demo's camera and nothing on the table.
+pub(crate) fn empty_table(state: &TempDir) -> String {
+    let path = state.path().join("empty.toml");
+    let mut f = std::fs::File::create(&path).expect("a scene file");
+    writeln!(
+        f,
+        "[[camera]]\nserial = \"{SN}\"\nposition = [0.0, 0.0, 1.0]\nlook_at = [0.0, 0.0, 0.0]\ncalibrated = true"
+    )
+    .expect("writing the scene");
+    path.to_str().expect("UTF-8 path").to_owned()
 }

@@ -4,7 +4,8 @@
 //!   /api/measurements/<id>`, `.../<id>/photo.jpg`, `.../<id>/annotated.png`: the log, the
 //!   same records as `/station/measurements`;
 //! - `POST /api/measure`: measures now, as `POST /cams/dimensions` does, records it and
-//!   answers the record (201); from this machine only unless configuration is open;
+//!   answers the record (201), or 200 with the measurement and no record when it found
+//!   no parcel; from this machine only unless configuration is open;
 //! - `GET /api/cameras`, `GET /api/cameras/<serial>/color.jpg`: the cameras and a new
 //!   color image of one;
 //! - `GET /api/station`: the station's name and what this client may do;
@@ -438,7 +439,8 @@ impl<R: Rig> App<R> {
         answer
     }
 
-    /// `POST /api/measure`: measured, recorded, answered with the record.
+    /// `POST /api/measure`: measured, recorded, answered with the record (a measurement
+    /// that found no parcel: answered, not recorded).
     async fn measure(&self, request: Request<Incoming>, query: &str, peer: SocketAddr) -> Answer {
         if !self.open && !is_local(peer) {
             return error(
@@ -478,6 +480,13 @@ impl<R: Rig> App<R> {
             Ok(measured) => measured,
             Err(e) => return error(StatusCode::SERVICE_UNAVAILABLE, &e.to_string()),
         };
+        // An empty table (setting up) is no result, as over CoAP and for --auto-measure:
+        // answered 200 with the measurement ("parcel": "nothing"), not recorded, and so
+        // not published.
+        if measured.measurement.parcel == crate::report::Found::Nothing {
+            tracing::info!("POST /api/measure found no parcel: not recorded");
+            return json(StatusCode::OK, &measured.measurement);
+        }
         match self.recorder.record(measured).await {
             Ok(record) => {
                 let mut answer = json(StatusCode::CREATED, &record);
