@@ -111,8 +111,9 @@ pub(crate) struct ServeArgs {
     station_name: Option<String>,
     /// The results log: every measurement is recorded in this SQLite file, append-only
     /// and hash-chained (`coapcam results verify FILE` checks it) and served at
-    /// /station/measurements (default: results.sqlite in the state directory).
-    #[arg(long, value_name = "FILE", conflicts_with = "no_cameras")]
+    /// /station/measurements (default: results.sqlite in the state directory). With
+    /// --no-cameras: an archived log (the file must exist), served to read as it is.
+    #[arg(long, value_name = "FILE")]
     results: Option<PathBuf>,
     /// Keep the photo and annotated picture of the newest N records only; older ones are
     /// pruned (their SHA-256s stay in the records). Default: keep every picture.

@@ -70,7 +70,19 @@ impl Station {
                 }));
                 Some(recorder)
             }
-            None => None,
+            None => {
+                // Without cameras (`serve --no-cameras --results FILE`) an archived log is
+                // served to read, as it is: nothing records into it or prunes it.
+                if let Some(path) = &config.results {
+                    if !path.is_file() {
+                        bail!("no results log at {}", path.display());
+                    }
+                    let log = ResultsLog::open(path)
+                        .with_context(|| format!("opening the results log {}", path.display()))?;
+                    resources::register(server.router(), &log);
+                }
+                None
+            }
         };
         let outputs = match &recorder {
             Some(recorder) => {

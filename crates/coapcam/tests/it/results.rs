@@ -780,3 +780,52 @@ fn a_new_log_after_a_lost_one_goes_on_past_the_last_id_and_records_the_gap() {
         "{report}"
     );
 }
+
+/// Issue 51, item 13: `serve --no-cameras --results FILE` serves an archived log to read
+/// (it was refused as conflicting flags, status 2): the records are listed as the station
+/// served them, nothing is recorded, and a file that is not there is an error, not a new
+/// empty log.
+#[test]
+fn an_archived_log_is_served_without_cameras() {
+    let state = TempDir::new("results-archived");
+    let file = state.join("archive.sqlite");
+    let file = file.to_str().expect("UTF-8");
+    let recorded = {
+        let (_station, addr) = serve_with(state.path(), &["--results", file]);
+        runtime().block_on(measure(&client(), addr));
+        let f = Proc::run(
+            COAPCAM,
+            &["results", "--server", &format!("coap://{addr}"), "--json"],
+            LIMIT,
+        );
+        f.expect_success("results of the station").json_lines()
+    };
+    assert_eq!(recorded.len(), 1);
+    let (_archive, addr) = serve_with(state.path(), &["--no-cameras", "--results", file]);
+    let uri = format!("coap://{addr}");
+    let f = Proc::run(COAPCAM, &["results", "--server", &uri, "--json"], LIMIT);
+    assert_eq!(
+        f.expect_success("results of the archive").json_lines(),
+        recorded
+    );
+    let f = Proc::run(COAPCAM, &["measure", "--server", &uri], LIMIT);
+    assert_ne!(f.status.code(), Some(0), "no cameras to measure with");
+    let missing = state.join("missing.sqlite");
+    let f = Proc::run(
+        COAPCAM,
+        &[
+            "serve",
+            "--no-cameras",
+            "--results",
+            missing.to_str().expect("UTF-8"),
+            "--bind",
+            "127.0.0.1:0",
+            "--duration",
+            "30",
+        ],
+        LIMIT,
+    );
+    assert_eq!(f.status.code(), Some(1), "{}", f.stderr);
+    assert!(f.stderr.contains("missing.sqlite"), "{}", f.stderr);
+    assert!(!missing.exists());
+}
