@@ -30,6 +30,7 @@ pub mod backends;
 pub mod bench;
 pub mod client;
 pub mod documents;
+pub mod identity;
 pub mod process;
 pub mod rd;
 pub mod report;

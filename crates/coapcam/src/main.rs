@@ -13,7 +13,7 @@ use cli::{Deferred, Exit, interruptible};
 
 /// RGB-D cameras (Intel RealSense D400 and a synthetic D415) as CoAP resources.
 #[derive(Debug, Parser)]
-#[command(version, about)]
+#[command(version = coapcam::identity::VERSION_LINE, about)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

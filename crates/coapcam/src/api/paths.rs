@@ -13,6 +13,10 @@ pub const POINTCLOUDS: &str = "/cams/pointclouds";
 /// The server's measurement of the parcel (POST measures).
 pub const DIMENSIONS: &str = "/cams/dimensions";
 
+/// The station: its name, its software (version and checksum of the legally relevant
+/// part) and the results log's head.
+pub const STATION: &str = "/station";
+
 /// The results log's list of records.
 pub const MEASUREMENTS: &str = "/station/measurements";
 

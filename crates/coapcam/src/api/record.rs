@@ -67,6 +67,9 @@ pub struct NewRecord {
     pub cameras: Vec<CameraPose>,
     /// The software's version (`coapcam` crate version).
     pub version: String,
+    /// SHA-256 (hex) of the legally relevant software that measured it
+    /// ([`crate::identity::SOFTWARE_SHA256`] of this build).
+    pub software_sha256: String,
     /// The photo, JPEG.
     pub photo_jpeg: Option<Vec<u8>>,
     /// The annotated picture, PNG.
@@ -96,6 +99,10 @@ pub struct Record {
     pub cameras: Vec<CameraPose>,
     /// The software's version.
     pub version: String,
+    /// SHA-256 (hex) of the legally relevant software that measured it; `None` in records
+    /// made before builds carried it (absent from their JSON, so their hashes stand).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub software_sha256: Option<String>,
     /// SHA-256 (hex) of the photo (JPEG), if one was taken; kept after the photo is
     /// pruned.
     pub photo_sha256: Option<String>,
@@ -124,6 +131,7 @@ impl Record {
             measurement: new.measurement.clone(),
             cameras: new.cameras.clone(),
             version: new.version.clone(),
+            software_sha256: Some(new.software_sha256.clone()),
             photo_sha256: new.photo_jpeg.as_deref().map(sha256_hex),
             annotated_sha256: new.annotated_png.as_deref().map(sha256_hex),
             prev_hash: prev_hash.to_owned(),
@@ -432,6 +440,7 @@ pub(crate) mod tests {
                 transformation: Transformation::identity(),
             }],
             version: NewRecord::VERSION.into(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.into(),
             photo_jpeg: Some(vec![1, 2, 3]),
             annotated_png: None,
         }
@@ -459,6 +468,34 @@ pub(crate) mod tests {
         let back = Record::from_stored(&body, r.hash.clone(), true, false).expect("reads");
         assert_eq!(back, r);
         assert_eq!(back.code_texts(), ["PKG-1"]);
+    }
+
+    #[test]
+    fn records_carry_the_software_checksum_and_older_ones_still_verify() {
+        let r = Record::chain(&new_record(), 1, GENESIS);
+        assert_eq!(
+            r.software_sha256.as_deref(),
+            Some(crate::identity::SOFTWARE_SHA256)
+        );
+        let mut other = r.clone();
+        other.software_sha256 = Some("0".repeat(64));
+        assert_ne!(
+            Record::compute_hash(&other.content()),
+            r.hash,
+            "it is hashed"
+        );
+        // A record from before the field: its body has no such key, and reads back to the
+        // same canonical bytes and hash.
+        let mut old = r.content();
+        old.as_object_mut()
+            .expect("an object")
+            .remove("software_sha256");
+        let body = canonical_bytes(&old);
+        let hash = Record::hash_of(&body);
+        let back = Record::from_stored(&body, hash.clone(), true, false).expect("reads");
+        assert_eq!(back.software_sha256, None);
+        assert_eq!(back.stored_body(), body);
+        assert_eq!(Record::compute_hash(&back.content()), hash);
     }
 
     #[test]

@@ -309,6 +309,7 @@ mod tests {
             measurement: crate::api::record::tests::measurement(300.0 + n as f64, "PKG"),
             cameras: Vec::new(),
             version: NewRecord::VERSION.into(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.into(),
             photo_jpeg: None,
             annotated_png: None,
         }

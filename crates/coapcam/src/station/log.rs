@@ -1061,6 +1061,7 @@ mod tests {
             measurement: crate::api::record::tests::measurement(300.0 + n as f64, code),
             cameras: Vec::new(),
             version: NewRecord::VERSION.into(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.into(),
             photo_jpeg: photo.then(|| vec![n as u8; 1000]),
             annotated_png: photo.then(|| vec![n as u8; 500]),
         }

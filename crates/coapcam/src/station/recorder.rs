@@ -43,6 +43,7 @@ impl Recorder {
             measurement: measured.measurement,
             cameras: measured.cameras,
             version: NewRecord::VERSION.to_owned(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
             photo_jpeg: measured.photo_jpeg,
             annotated_png: measured.annotated_png,
         };

@@ -1,4 +1,5 @@
 //! The results log as CoAP resources (docs/design.md §5, docs/station.md):
+//! - `/station`: the station's name, version and software checksum;
 //! - `/station/measurements`: GET the records, newest first; the query selects
 //!   (`since=ID`, `before=ID`, `limit=N`, `code=TEXT`); JSON, or CBOR by Accept;
 //! - `/station/measurements/latest`: the newest record (`null` before the first),
@@ -14,13 +15,25 @@ use serde::Serialize;
 
 use super::log::ResultsLog;
 use super::reads::{self, Kind, Picture, Refusal};
-use crate::api::paths::{LATEST, MEASUREMENTS};
+use crate::api::paths::{LATEST, MEASUREMENTS, STATION};
 
 /// The list of records.
 const PATH: &str = MEASUREMENTS;
 
 /// Adds the resources of `log` to `router`.
-pub(crate) fn register(router: &Router, log: &ResultsLog) {
+pub(crate) fn register(router: &Router, log: &ResultsLog, station: &str) {
+    let name = station.to_owned();
+    router.add(
+        STATION,
+        Resource::new()
+            .get(handler(move |ctx| {
+                let name = name.clone();
+                async move { identity(&name, &ctx.request) }
+            }))
+            .attr("rt", "coapcam.station")
+            .attr("ct", "50 60")
+            .attr("title", "the station: name, version, software checksum"),
+    );
     let me = log.clone();
     router.add(
         PATH,
@@ -109,6 +122,34 @@ fn segment(picture: Picture) -> &'static str {
     match picture {
         Picture::Photo => "photo",
         Picture::Annotated => "annotated",
+    }
+}
+
+/// `GET /station`.
+fn identity(station: &str, request: &IncomingRequest) -> Response {
+    let cf = match negotiate(request) {
+        Ok(cf) => cf,
+        Err(refused) => return refused,
+    };
+    document(&Identity::now(station), cf)
+}
+
+/// The station and its software, as `GET /station` (CoAP) and `/api/station` (HTTP)
+/// name them.
+#[derive(Debug, Serialize)]
+pub(crate) struct Identity<'a> {
+    station: &'a str,
+    version: &'static str,
+    software_sha256: &'static str,
+}
+
+impl<'a> Identity<'a> {
+    pub(crate) fn now(station: &'a str) -> Self {
+        Self {
+            station,
+            version: crate::identity::VERSION,
+            software_sha256: crate::identity::SOFTWARE_SHA256,
+        }
     }
 }
 

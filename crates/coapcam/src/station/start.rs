@@ -57,7 +57,7 @@ impl Station {
                 let last_id = last_id_path(&state_dir, &path);
                 let log = ResultsLog::open_station(&path, config.retention, &last_id)
                     .with_context(|| format!("opening the results log {}", path.display()))?;
-                resources::register(server.router(), &log);
+                resources::register(server.router(), &log, &config.name);
                 let recorder = Recorder::new(log.clone(), config.name.clone());
                 server.set_records(Arc::new(recorder.clone()));
                 // One notification per new record: appends that come faster than
@@ -79,7 +79,7 @@ impl Station {
                     }
                     let log = ResultsLog::open(path)
                         .with_context(|| format!("opening the results log {}", path.display()))?;
-                    resources::register(server.router(), &log);
+                    resources::register(server.router(), &log, &config.name);
                 }
                 None
             }

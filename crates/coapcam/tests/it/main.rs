@@ -16,6 +16,7 @@ mod frames;
 mod get;
 mod group;
 mod http;
+mod identity;
 mod interop;
 mod lane;
 mod library;

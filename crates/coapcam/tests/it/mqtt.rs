@@ -310,6 +310,7 @@ pub(crate) fn record(log: &ResultsLog, length_mm: f64, code: Option<&str>) -> u6
         measurement,
         cameras: Vec::new(),
         version: NewRecord::VERSION.into(),
+        software_sha256: coapcam::identity::SOFTWARE_SHA256.into(),
         photo_jpeg: Some(vec![0xff; 2000]),
         annotated_png: None,
     })

@@ -475,6 +475,7 @@ fn with_pictures(n: u8, measurement: &Measurement) -> NewRecord {
             transformation: geometry::Transformation::identity(),
         }],
         version: NewRecord::VERSION.into(),
+        software_sha256: coapcam::identity::SOFTWARE_SHA256.into(),
         photo_jpeg: Some(vec![0xFF, 0xD8, n, 0xFF, 0xD9]),
         annotated_png: Some([&b"\x89PNG\r\n\x1a\n"[..], &[n; 64]].concat()),
     }

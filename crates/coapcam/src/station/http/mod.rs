@@ -606,7 +606,8 @@ impl<R: Rig> App<R> {
             StatusCode::OK,
             &serde_json::json!({
                 "station": self.recorder.station(),
-                "version": env!("CARGO_PKG_VERSION"),
+                "version": crate::identity::VERSION,
+                "software_sha256": crate::identity::SOFTWARE_SHA256,
                 "newest": self.recorder.log().newest(),
                 "read": "open to every client",
                 "configure": if self.open { "open to every client (--allow-unauthenticated-config)" } else { "this machine only" },

@@ -1,0 +1,178 @@
+//! The software identity (issue 48, item 1): the checksum of the legally relevant sources
+//! that `coapcam --version` prints and every record carries, computed by the same function
+//! the build script runs.
+
+use std::io::{Read as _, Write as _};
+use std::net::{SocketAddr, TcpStream};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use coapcam::identity::{self, sources};
+
+use crate::support::{COAPCAM, LIMIT, Proc, TempDir};
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// Copies the legally relevant sources and a CLI source of the workspace into `dir`.
+fn copy_tree(dir: &Path) {
+    let root = workspace();
+    let mut files = sources::legal_sources(&root).expect("the sources");
+    files.push("crates/coapcam/src/cli/results.rs".to_owned());
+    for file in files {
+        let to = dir.join(&file);
+        std::fs::create_dir_all(to.parent().expect("a folder")).expect("mkdir");
+        std::fs::copy(root.join(&file), &to).expect("copy");
+    }
+}
+
+/// Replaces the first line of `path` that contains `old` with one where it is `new`.
+fn change_line(path: &Path, old: &str, new: &str) {
+    let text = std::fs::read_to_string(path).expect("read");
+    let at = text
+        .find(old)
+        .unwrap_or_else(|| panic!("{old} in {}", path.display()));
+    let mut changed = text;
+    changed.replace_range(at..at + old.len(), new);
+    std::fs::write(path, changed).expect("write");
+}
+
+#[test]
+fn a_geometry_line_changes_the_checksum_and_a_cli_string_does_not() {
+    let (built, files) = sources::legal_checksum(&workspace()).expect("checksum");
+    assert_eq!(
+        built,
+        identity::SOFTWARE_SHA256,
+        "the build's checksum is of these sources"
+    );
+    for part in [
+        "crates/geometry/src/",
+        "crates/rgbd/src/filter/",
+        "crates/coapcam/src/report/",
+    ] {
+        assert!(files.iter().any(|f| f.starts_with(part)), "{part} counts");
+    }
+    assert!(
+        !files.iter().any(|f| f.contains("/cli/")),
+        "the CLI does not count"
+    );
+
+    let dir = TempDir::new("identity");
+    copy_tree(dir.path());
+    let (copied, _) = sources::legal_checksum(dir.path()).expect("checksum");
+    assert_eq!(copied, built, "a copy of the same sources");
+
+    change_line(
+        &dir.join("crates/coapcam/src/cli/results.rs"),
+        "the chain verifies",
+        "the chain holds",
+    );
+    let (cli_changed, _) = sources::legal_checksum(dir.path()).expect("checksum");
+    assert_eq!(cli_changed, built, "a CLI string is not legally relevant");
+
+    change_line(
+        &dir.join("crates/geometry/src/dimension.rs"),
+        "pub ",
+        "pub  ",
+    );
+    let (geometry_changed, _) = sources::legal_checksum(dir.path()).expect("checksum");
+    assert_ne!(geometry_changed, built, "one line of geometry changed");
+
+    std::fs::write(dir.join("crates/geometry/src/parcels/extra.rs"), "").expect("write");
+    let (added, _) = sources::legal_checksum(dir.path()).expect("checksum");
+    assert_ne!(added, geometry_changed, "a new geometry file counts");
+}
+
+#[test]
+fn version_prints_the_version_and_the_checksum() {
+    let out =
+        Proc::run(COAPCAM, &["--version"], Duration::from_secs(30)).expect_success("--version");
+    assert_eq!(
+        out.stdout_text().trim(),
+        format!(
+            "coapcam {} (legally relevant software SHA-256 {})",
+            identity::VERSION,
+            identity::SOFTWARE_SHA256
+        )
+    );
+}
+
+/// A station with `--http`: the process, its CoAP and its HTTP address.
+pub(crate) fn station_with_http(state: &TempDir, flags: &[&str]) -> (Proc, SocketAddr, SocketAddr) {
+    let dir = state.path().to_string_lossy().into_owned();
+    let mut args = vec![
+        "serve",
+        "--bind",
+        "127.0.0.1:0",
+        "--state-dir",
+        &dir,
+        "--http",
+        "127.0.0.1:0",
+        "--duration",
+        "150",
+    ];
+    args.extend_from_slice(flags);
+    let mut server = Proc::spawn(COAPCAM, &args);
+    let http = server.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: HTTP on http://")
+            .and_then(|rest| rest.split('/').next())
+            .and_then(|a| a.parse::<SocketAddr>().ok())
+    });
+    let coap = server.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: serving on ")
+            .and_then(|a| a.trim().parse().ok())
+    });
+    (server, coap, http)
+}
+
+/// The JSON body of `GET path` over HTTP/1.1, with its status.
+pub(crate) fn http_json(addr: SocketAddr, path: &str) -> (u16, serde_json::Value) {
+    let mut stream = TcpStream::connect(addr).expect("connecting");
+    stream.set_read_timeout(Some(LIMIT)).expect("timeout");
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .expect("asking");
+    let mut raw = Vec::new();
+    stream.read_to_end(&mut raw).expect("reading");
+    let text = String::from_utf8_lossy(&raw);
+    let status = text.get(9..12).and_then(|s| s.parse().ok()).unwrap_or(0);
+    let (head, body) = text.split_once("\r\n\r\n").expect("a whole answer");
+    assert!(!head.to_ascii_lowercase().contains("chunked"), "{head}");
+    (
+        status,
+        serde_json::from_str(body).unwrap_or(serde_json::Value::Null),
+    )
+}
+
+/// The JSON body of `coapcam get coap://ADDR/PATH`.
+pub(crate) fn coap_json(addr: SocketAddr, path: &str) -> serde_json::Value {
+    let uri = format!("coap://{addr}{path}");
+    Proc::run(COAPCAM, &["get", &uri], LIMIT)
+        .expect_success("get")
+        .json()
+}
+
+#[test]
+fn the_station_names_its_software_over_http_and_coap() {
+    let state = TempDir::new("identity-station");
+    let (_server, coap, http) = station_with_http(&state, &["--station-name", "dock-9"]);
+    let (status, station) = http_json(http, "/api/station");
+    assert_eq!(status, 200, "{station}");
+    assert_eq!(
+        station["software_sha256"],
+        identity::SOFTWARE_SHA256,
+        "{station}"
+    );
+    assert_eq!(station["version"], identity::VERSION);
+    let station = coap_json(coap, "/station");
+    assert_eq!(station["station"], "dock-9", "{station}");
+    assert_eq!(
+        station["software_sha256"],
+        identity::SOFTWARE_SHA256,
+        "{station}"
+    );
+    assert_eq!(station["version"], identity::VERSION);
+}
