@@ -17,6 +17,9 @@ pub const DIMENSIONS: &str = "/cams/dimensions";
 /// part) and the results log's head.
 pub const STATION: &str = "/station";
 
+/// The results log's head (newest id and hash), observable: notified once per new record.
+pub const HEAD: &str = "/station/head";
+
 /// The results log's list of records.
 pub const MEASUREMENTS: &str = "/station/measurements";
 

@@ -202,6 +202,51 @@ impl Record {
     }
 }
 
+/// A results log's head: its newest record's id and hash (id 0 and [`GENESIS`] before the
+/// first), as the station publishes it (`/api/log/head`, CoAP `/station/head`, MQTT
+/// `PREFIX/<station>/head`) and `results verify --head` checks a log against it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Head {
+    /// The record's id.
+    pub id: u64,
+    /// Its hash.
+    pub hash: String,
+}
+
+impl Head {
+    /// Reads `ID:HASH`, or the JSON object `{"id":ID,"hash":HASH}` the station publishes.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let text = text.trim();
+        let bad = || {
+            format!(
+                "{text:?} is not a head: ID:HASH (HASH 64 hex digits), or {{\"id\":ID,\"hash\":HASH}}"
+            )
+        };
+        let head = if text.starts_with('{') {
+            serde_json::from_str::<Self>(text).map_err(|_| bad())?
+        } else {
+            let (id, hash) = text.split_once(':').ok_or_else(bad)?;
+            Self {
+                id: id.trim().parse().map_err(|_| bad())?,
+                hash: hash.trim().to_owned(),
+            }
+        };
+        if head.hash.len() != 64 || !head.hash.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Err(bad());
+        }
+        Ok(Self {
+            hash: head.hash.to_ascii_lowercase(),
+            ..head
+        })
+    }
+}
+
+impl fmt::Display for Head {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}", self.id, self.hash)
+    }
+}
+
 /// The canonical bytes of a JSON value: compact (no whitespace), object keys sorted by
 /// their UTF-8 bytes at every level, strings escaped and numbers written as serde_json
 /// writes them (integers as integers, other numbers in the shortest form that reads back
@@ -496,6 +541,28 @@ pub(crate) mod tests {
         assert_eq!(back.software_sha256, None);
         assert_eq!(back.stored_body(), body);
         assert_eq!(Record::compute_hash(&back.content()), hash);
+    }
+
+    #[test]
+    fn a_head_reads_as_id_colon_hash_or_as_the_json_the_station_publishes() {
+        let hash = "AB".repeat(32);
+        let head = Head::parse(&format!("20:{hash}")).expect("ID:HASH");
+        assert_eq!(
+            (head.id, head.hash.as_str()),
+            (20, "ab".repeat(32).as_str())
+        );
+        assert_eq!(head.to_string(), format!("20:{}", "ab".repeat(32)));
+        let json = serde_json::to_string(&head).expect("JSON");
+        assert_eq!(Head::parse(&json), Ok(head));
+        for bad in [
+            "",
+            "20",
+            "x:ab",
+            "20:abc",
+            &format!("20:{}", "g".repeat(64)),
+        ] {
+            assert!(Head::parse(bad).is_err(), "{bad}");
+        }
     }
 
     #[test]

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{Context as _, bail};
 use clap::{Args, Subcommand};
 
-use coapcam::api::record::Record;
+use coapcam::api::record::{Head, Record};
 use coapcam::api::results::{ListQuery, MAX_LIST};
 use coapcam::client::{CamClient, results};
 use coapcam::report::Reported;
@@ -65,9 +65,41 @@ struct VerifyArgs {
     /// The results log (serve's --results; by default results.sqlite in the state
     /// directory).
     file: PathBuf,
+    /// A head the station published earlier, ID:HASH (its `/api/log/head`, CoAP
+    /// `/station/head` or MQTT `PREFIX/<station>/head`): the log must hold record ID with
+    /// that hash, so a log cut off before it or rewritten at or before it fails.
+    /// Repeatable.
+    #[arg(long, value_name = "ID:HASH", value_parser = head)]
+    head: Vec<Head>,
+    /// A file of heads, one a line: ID:HASH, or the JSON the station publishes
+    /// ({"id":ID,"hash":HASH}, as `mosquitto_sub -t PREFIX/STATION/head` prints it);
+    /// blank lines and lines starting with # are skipped.
+    #[arg(long, value_name = "FILE")]
+    heads: Option<PathBuf>,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
+}
+
+fn head(text: &str) -> Result<Head, String> {
+    Head::parse(text)
+}
+
+/// The heads of `--heads FILE`.
+fn heads_of(file: &std::path::Path) -> anyhow::Result<Vec<Head>> {
+    let text = std::fs::read_to_string(file)
+        .with_context(|| format!("reading the heads {}", file.display()))?;
+    let mut out = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let head = Head::parse(line)
+            .map_err(|why| anyhow::anyhow!("{} line {}: {why}", file.display(), n + 1))?;
+        out.push(head);
+    }
+    Ok(out)
 }
 
 /// Runs `results`.
@@ -120,7 +152,12 @@ pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
 
 fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
     let file = &args.file;
-    let report = log::verify(file).with_context(|| format!("verifying {}", file.display()))?;
+    let mut heads = args.head.clone();
+    if let Some(list) = &args.heads {
+        heads.extend(heads_of(list)?);
+    }
+    let report = log::verify_against(file, &heads)
+        .with_context(|| format!("verifying {}", file.display()))?;
     if args.json {
         let mut doc = serde_json::json!({
             "file": file.display().to_string(),
@@ -128,6 +165,7 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
             "records": report.records,
             "pictures_checked": report.pictures_checked,
             "pictures_pruned": report.pictures_pruned,
+            "heads_checked": report.heads_checked,
         });
         if let Some((id, hash)) = &report.head {
             doc["head"] = serde_json::json!({ "id": id, "hash": hash });
@@ -151,7 +189,7 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
         }
         match &report.first_altered {
             None => out!(
-                "{}: the chain verifies: {} record(s){}, {} picture(s) checked, {} pruned\n",
+                "{}: the chain verifies: {} record(s){}, {} picture(s) checked, {} pruned{}\n",
                 file.display(),
                 report.records,
                 report
@@ -161,6 +199,11 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
                     .unwrap_or_default(),
                 report.pictures_checked,
                 report.pictures_pruned,
+                if heads.is_empty() {
+                    String::new()
+                } else {
+                    format!(", {} head(s) published earlier held", report.heads_checked)
+                },
             ),
             // The reason names the record (altered, missing, or where the file breaks).
             Some(a) => out!(

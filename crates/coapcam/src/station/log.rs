@@ -20,7 +20,7 @@ use std::time::Duration;
 use rusqlite::{Connection, OpenFlags, OptionalExtension as _, TransactionBehavior, params};
 use tokio::sync::watch;
 
-use crate::api::record::{GENESIS, NewRecord, Record, canonical_bytes, sha256_hex};
+use crate::api::record::{GENESIS, Head, NewRecord, Record, canonical_bytes, sha256_hex};
 use crate::api::results::{ListQuery, MAX_LIST};
 
 /// The schema's version, kept in `meta`.
@@ -404,6 +404,27 @@ impl ResultsLog {
         row.map(|raw| self.decode(raw)).transpose()
     }
 
+    /// The log's head: the newest record's id and hash (id 0 and [`GENESIS`] before the
+    /// first).
+    pub fn head(&self) -> Result<Head, LogError> {
+        let conn = self.conn();
+        let row: Option<(u64, String)> = conn
+            .query_row(
+                "SELECT id, hash FROM records ORDER BY id DESC LIMIT 1",
+                [],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()
+            .map_err(self.err())?;
+        Ok(match row {
+            Some((id, hash)) => Head { id, hash },
+            None => Head {
+                id: 0,
+                hash: GENESIS.to_owned(),
+            },
+        })
+    }
+
     /// Records newest first, as `q` selects.
     pub fn list(&self, q: &ListQuery) -> Result<Vec<Record>, LogError> {
         let conn = self.conn();
@@ -765,6 +786,8 @@ pub struct VerifyReport {
     pub first_altered: Option<Altered>,
     /// The ids the log skipped because another log had issued them, oldest first.
     pub gaps: Vec<Gap>,
+    /// Heads published earlier that the log was checked against ([`verify_against`]).
+    pub heads_checked: u64,
 }
 
 /// Ids a log skipped because a log that is gone (or an older state of the file) had
@@ -870,6 +893,7 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
         pictures_checked: 0,
         first_altered: None,
         gaps: Vec::new(),
+        heads_checked: 0,
     };
     match connect_read_only(path).and_then(|conn| verify_chain(path, &conn, &mut report)) {
         Err(e) if damaged(&e) => {
@@ -887,6 +911,81 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
         Err(e) => Err(e),
         Ok(()) => Ok(report),
     }
+}
+
+/// [`verify`], and then, when the chain verifies, the log against heads published
+/// earlier (each an id and the hash the station published for it): the log must hold
+/// record `id` with that hash. A log cut off before a head, or rewritten (every later hash
+/// recomputed) from any record at or before it, fails; so does a head whose id lies in a
+/// gap the log recorded (the log does not hold that record, so it cannot confirm it).
+/// The first head that fails is the report's `first_altered`.
+pub fn verify_against(path: &Path, heads: &[Head]) -> Result<VerifyReport, LogError> {
+    let mut report = verify(path)?;
+    if report.first_altered.is_some() || heads.is_empty() {
+        return Ok(report);
+    }
+    let conn = connect_read_only(path)?;
+    let mut heads = heads.to_vec();
+    heads.sort_by_key(|h| h.id);
+    for head in &heads {
+        if let Some(altered) = check_head(path, &conn, &report, head)? {
+            report.first_altered = Some(altered);
+            break;
+        }
+        report.heads_checked += 1;
+    }
+    Ok(report)
+}
+
+/// Why the verified log does not hold `head`, if it does not.
+fn check_head(
+    path: &Path,
+    conn: &Connection,
+    report: &VerifyReport,
+    head: &Head,
+) -> Result<Option<Altered>, LogError> {
+    let id = head.id;
+    if id == 0 {
+        return Ok((head.hash != GENESIS).then(|| Altered {
+            id: 1,
+            why: format!("head {head}: before the first record the hash is 64 zeros"),
+        }));
+    }
+    if let Some(gap) = report.gaps.iter().find(|g| g.from <= id && id <= g.to) {
+        return Ok(Some(Altered {
+            id,
+            why: format!(
+                "head {head}: record {id} is not in this log ({gap}), so it cannot be confirmed"
+            ),
+        }));
+    }
+    let newest = report.head.as_ref().map_or(0, |(id, _)| *id);
+    if id > newest {
+        return Ok(Some(Altered {
+            id: newest + 1,
+            why: format!(
+                "head {head}: the log ends at record {newest}: the records from {} to {id} at least were cut off",
+                newest + 1
+            ),
+        }));
+    }
+    let hash: Option<String> = conn
+        .query_row("SELECT hash FROM records WHERE id = ?1", [id], |r| r.get(0))
+        .optional()
+        .map_err(sql(path))?;
+    Ok(match hash {
+        Some(hash) if hash == head.hash => None,
+        Some(hash) => Some(Altered {
+            id,
+            why: format!(
+                "head {head}: record {id} has hash {hash}, not the one published: the log was rewritten at or before record {id}"
+            ),
+        }),
+        None => Some(Altered {
+            id,
+            why: format!("head {head}: record {id} is missing"),
+        }),
+    })
 }
 
 fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Result<(), LogError> {

@@ -1,7 +1,9 @@
 //! MQTT to the warehouse (`serve --mqtt mqtt://HOST[:PORT][/PREFIX]`): every record of the
 //! results log, as JSON with its id, published with QoS 1 to `PREFIX/<station>/measurements`
 //! in the log's order, and the station's state on `PREFIX/<station>/status` (`online` when
-//! connected, `offline` as the last will and on a clean stop; both retained).
+//! connected, `offline` as the last will and on a clean stop; both retained), and after each
+//! record the log's head (`{"id":ID,"hash":HASH}`, that record's) on `PREFIX/<station>/head`,
+//! retained, QoS 1: a copy of the chain's newest hash outside the station.
 //!
 //! Nothing is lost while the broker is away: the publisher reads the log from a durable
 //! per-consumer cursor ([`CONSUMER`]) that moves only past records the broker
@@ -37,7 +39,7 @@ use anyhow::Context as _;
 
 use super::follow::{self, Feed, Next, Output, Sink, Start};
 use super::log::ResultsLog;
-use crate::api::record::Record;
+use crate::api::record::{Head, Record};
 
 /// The cursor name of the MQTT publisher in the results log.
 pub const CONSUMER: &str = "mqtt";
@@ -223,6 +225,9 @@ pub struct Topics {
     pub measurements: String,
     /// `PREFIX/<station>/status`: `online` or `offline`, retained, QoS 1.
     pub status: String,
+    /// `PREFIX/<station>/head`: the id and hash of the newest record published,
+    /// retained, QoS 1.
+    pub head: String,
 }
 
 impl Topics {
@@ -233,6 +238,7 @@ impl Topics {
         Ok(Self {
             measurements: format!("{base}/measurements"),
             status: format!("{base}/status"),
+            head: format!("{base}/head"),
         })
     }
 }
@@ -244,6 +250,8 @@ pub enum Carried {
     Status,
     /// The record with this id.
     Record(u64),
+    /// The head after the record with this id.
+    Head(u64),
 }
 
 #[derive(Debug)]
@@ -661,9 +669,28 @@ impl Sink for Publishing {
                 .map_err(|e| e.to_string()),
             None => Err("no connection".into()),
         };
+        if let Err(e) = published {
+            self.lose(End::Lost(e));
+            return Next::After(self.delivery.sent_up_to());
+        }
+        self.handed(Carried::Record(id));
+        // The head after it, retained: the newest hash a consumer holds.
+        let head = serde_json::to_vec(&Head {
+            id,
+            hash: record.hash.clone(),
+        })
+        .unwrap_or_default();
+        let published = match &self.connection {
+            Some(c) => c
+                .client
+                .publish(&self.topics.head, QoS::AtLeastOnce, true, head)
+                .await
+                .map_err(|e| e.to_string()),
+            None => Err("no connection".into()),
+        };
         match published {
             Ok(()) => {
-                self.handed(Carried::Record(id));
+                self.handed(Carried::Head(id));
                 Next::Go
             }
             Err(e) => {

@@ -5,7 +5,7 @@
 //! 5.00/500) and writes the document in its own format.
 
 use super::log::{LogError, ResultsLog};
-use crate::api::record::Record;
+use crate::api::record::{Head, Record};
 use crate::api::results::ListQuery;
 
 /// What kind of refusal: the code each front end gives it.
@@ -72,6 +72,11 @@ pub(crate) async fn list<S: AsRef<str>>(
 /// The newest record (`None` before the first).
 pub(crate) async fn latest(log: &ResultsLog) -> Result<Option<Record>, Refusal> {
     blocking(log, ResultsLog::latest).await
+}
+
+/// The log's head: the newest record's id and hash.
+pub(crate) async fn head(log: &ResultsLog) -> Result<Head, Refusal> {
+    blocking(log, ResultsLog::head).await
 }
 
 /// The record of id `text`.

@@ -1,5 +1,7 @@
 //! The results log as CoAP resources (docs/design.md §5, docs/station.md):
 //! - `/station`: the station's name, version and software checksum;
+//! - `/station/head`: the log's head (newest id and hash), observable: published so a
+//!   verifier can later find a log cut off or rewritten before it;
 //! - `/station/measurements`: GET the records, newest first; the query selects
 //!   (`since=ID`, `before=ID`, `limit=N`, `code=TEXT`); JSON, or CBOR by Accept;
 //! - `/station/measurements/latest`: the newest record (`null` before the first),
@@ -15,7 +17,7 @@ use serde::Serialize;
 
 use super::log::ResultsLog;
 use super::reads::{self, Kind, Picture, Refusal};
-use crate::api::paths::{LATEST, MEASUREMENTS, STATION};
+use crate::api::paths::{HEAD, LATEST, MEASUREMENTS, STATION};
 
 /// The list of records.
 const PATH: &str = MEASUREMENTS;
@@ -48,6 +50,22 @@ pub(crate) fn register(router: &Router, log: &ResultsLog, station: &str) {
                 "title",
                 "the results log, newest first: ?since=ID ?before=ID ?limit=N ?code=TEXT",
             ),
+    );
+    let me = log.clone();
+    router.add(
+        HEAD,
+        Resource::new()
+            .get(handler(move |ctx| {
+                let log = me.clone();
+                async move { head(log, &ctx.request).await }
+            }))
+            .attr("rt", "coapcam.head")
+            .attr("ct", "50 60")
+            .attr(
+                "title",
+                "the results log's newest id and hash; observe for each new one",
+            )
+            .observable(),
     );
     let me = log.clone();
     router.add(
@@ -179,6 +197,18 @@ async fn latest(log: ResultsLog, request: &IncomingRequest) -> Response {
     }
     match reads::latest(&log).await {
         Ok(record) => document(&record, cf),
+        Err(refused) => refusal(&refused),
+    }
+}
+
+/// `GET /station/head`.
+async fn head(log: ResultsLog, request: &IncomingRequest) -> Response {
+    let cf = match negotiate(request) {
+        Ok(cf) => cf,
+        Err(refused) => return refused,
+    };
+    match reads::head(&log).await {
+        Ok(head) => document(&head, cf),
         Err(refused) => refusal(&refused),
     }
 }

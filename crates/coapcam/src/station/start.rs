@@ -66,6 +66,7 @@ impl Station {
                 tasks.0.push(tokio::spawn(async move {
                     while newest.changed().await.is_ok()
                         && changes.send(paths::LATEST.to_owned()).is_ok()
+                        && changes.send(paths::HEAD.to_owned()).is_ok()
                     {}
                 }));
                 Some(recorder)

@@ -176,3 +176,21 @@ fn the_station_names_its_software_over_http_and_coap() {
     );
     assert_eq!(station["version"], identity::VERSION);
 }
+
+/// Issue 48, item 4: the station publishes its log's head (the newest id and hash) over
+/// HTTP and CoAP, before the first record and after each.
+#[test]
+fn the_station_publishes_its_head_over_http_and_coap() {
+    let state = TempDir::new("identity-head");
+    let (_server, coap, http) = station_with_http(&state, &[]);
+    let genesis = serde_json::json!({"id": 0, "hash": coapcam::api::record::GENESIS});
+    assert_eq!(http_json(http, "/api/log/head"), (200, genesis.clone()));
+    assert_eq!(coap_json(coap, "/station/head"), genesis);
+    let server = format!("coap://{coap}");
+    Proc::run(COAPCAM, &["measure", "--server", &server], LIMIT).expect_success("measure");
+    let (status, record) = http_json(http, "/api/measurements/1");
+    assert_eq!(status, 200, "{record}");
+    let head = serde_json::json!({"id": 1, "hash": record["hash"]});
+    assert_eq!(http_json(http, "/api/log/head"), (200, head.clone()));
+    assert_eq!(coap_json(coap, "/station/head"), head);
+}

@@ -376,6 +376,11 @@ fn records_arrive_in_order_as_json_with_ids_and_the_status_is_retained() {
             assert!(Instant::now() < deadline, "the cursor stays below 5");
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
+        // The head after the newest record, retained (issue 48, item 4).
+        let head = retained(broker.port, "lane/dock-1/head");
+        let head = coapcam::api::record::Head::parse(&head).expect("a head");
+        let newest = log.get(5).expect("reading").expect("recorded");
+        assert_eq!((head.id, head.hash), (5, newest.hash));
         publisher.stop().await;
         let offline = sub.next_on("lane/dock-1/status").await;
         assert_eq!(offline.text(), "offline");

@@ -241,11 +241,11 @@ fn every_flag_of_the_synopsis_is_in_the_commands_help() {
     assert!(entries.len() > 10, "synopsis entries: {entries:?}");
     for entry in &entries {
         let words: Vec<&str> = entry.split_whitespace().collect();
-        // `get|post|put|delete` lists commands with one help; `bench accuracy` has a
-        // subcommand.
+        // `get|post|put|delete` lists commands with one help; `bench accuracy` and
+        // `results verify` are subcommands with their own.
         let command = words[1].split('|').next().expect("a command");
         let mut help_args = vec![command];
-        if command == "bench" {
+        if command == "bench" || (command == "results" && words[2] == "verify") {
             help_args.push(words[2]);
         }
         help_args.push("--help");

@@ -830,3 +830,125 @@ fn an_archived_log_is_served_without_cameras() {
     assert!(f.stderr.contains("missing.sqlite"), "{}", f.stderr);
     assert!(!missing.exists());
 }
+
+/// `coapcam results verify FILE --json` and then `more`.
+fn verify_with(file: &Path, more: &[&str]) -> (Option<i32>, serde_json::Value) {
+    let mut args = vec![
+        "results",
+        "verify",
+        file.to_str().expect("UTF-8 path"),
+        "--json",
+    ];
+    args.extend_from_slice(more);
+    let f = Proc::run(COAPCAM, &args, LIMIT);
+    (f.status.code(), f.json())
+}
+
+/// Rewrites the log from record `from` on as someone who drops the append-only triggers
+/// would: record `from`'s height changed, every hash from it on recomputed by the
+/// documented encoding (SHA-256 over `coapcam-record-v1\n` and the canonical bytes), each
+/// `prev_hash` the new hash before it.
+fn rewrite_from(file: &Path, from: u64) {
+    use coapcam::api::record::{canonical_bytes, sha256_hex};
+    let db = rusqlite::Connection::open(file).expect("sqlite");
+    db.execute_batch("DROP TRIGGER records_no_update;")
+        .expect("drop trigger");
+    let rows: Vec<(u64, String)> = {
+        let mut stmt = db
+            .prepare("SELECT id, CAST(body AS TEXT) FROM records WHERE id >= ?1 ORDER BY id")
+            .expect("select");
+        stmt.query_map([from], |r| Ok((r.get(0)?, r.get(1)?)))
+            .expect("rows")
+            .collect::<Result<_, _>>()
+            .expect("rows")
+    };
+    let mut prev: String = db
+        .query_row("SELECT hash FROM records WHERE id = ?1", [from - 1], |r| {
+            r.get(0)
+        })
+        .expect("the hash before");
+    for (id, body) in rows {
+        let mut v: serde_json::Value = serde_json::from_str(&body).expect("JSON");
+        if id == from {
+            v["measurement"]["height_mm"] = serde_json::json!(99.0);
+        }
+        v["prev_hash"] = prev.clone().into();
+        let bytes = canonical_bytes(&v);
+        let hash = sha256_hex(&[&b"coapcam-record-v1\n"[..], &bytes].concat());
+        db.execute(
+            "UPDATE records SET body = ?1, hash = ?2 WHERE id = ?3",
+            rusqlite::params![String::from_utf8(bytes).expect("UTF-8"), hash, id],
+        )
+        .expect("rewritten");
+        prev = hash;
+    }
+}
+
+/// Issue 48, item 4: a log rewritten consistently from record 5 of 20 passes `verify` and
+/// fails `verify --head` given the head published before the rewrite; a log cut off
+/// before a head fails too; a head older than the rewrite still holds.
+#[test]
+fn a_consistent_rewrite_and_a_cut_off_tail_fail_verify_against_a_head_published_earlier() {
+    let dir = TempDir::new("results-anchored");
+    let file = dir.join("results.sqlite");
+    let (head_4, head_20) = {
+        let log = ResultsLog::open(&file).expect("open");
+        for n in 0..20 {
+            crate::mqtt::record(&log, 400.0 + f64::from(n), Some("PKG"));
+        }
+        let head_4 = log.get(4).expect("get").expect("there").hash;
+        let head = log.head().expect("the head");
+        assert_eq!(head.id, 20);
+        (format!("4:{head_4}"), head.to_string())
+    };
+    let (code, report) = verify_with(&file, &["--head", &head_20, "--head", &head_4]);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["heads_checked"], 2, "{report}");
+
+    let copy = dir.join("copy.sqlite");
+    std::fs::copy(&file, &copy).expect("copy");
+    rewrite_from(&file, 5);
+    let (code, report) = verify_with(&file, &[]);
+    assert_eq!(
+        code,
+        Some(0),
+        "the rewrite passes the chain alone: {report}"
+    );
+    let (code, report) = verify_with(&file, &["--head", &head_20]);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 20, "{report}");
+    let why = report["first_altered"]["why"].as_str().expect("why");
+    assert!(why.contains("rewritten at or before record 20"), "{why}");
+    // A head from before the rewrite holds: it proves records 1-4 only.
+    assert_eq!(verify_with(&file, &["--head", &head_4]).0, Some(0));
+    // The heads as a file of what MQTT carried (JSON lines) and ID:HASH.
+    let heads = dir.join("heads.txt");
+    let (id, hash) = head_20.split_once(':').expect("ID:HASH");
+    std::fs::write(
+        &heads,
+        format!("# collected\n{head_4}\n{{\"id\":{id},\"hash\":\"{hash}\"}}\n"),
+    )
+    .expect("heads");
+    let heads = heads.to_str().expect("UTF-8");
+    assert_eq!(verify_with(&file, &["--heads", heads]).0, Some(7));
+    assert_eq!(verify_with(&copy, &["--heads", heads]).0, Some(0));
+
+    // Cut off after record 17: the chain still verifies, the head does not.
+    let db = rusqlite::Connection::open(&copy).expect("sqlite");
+    db.execute_batch(
+        "DROP TRIGGER records_no_delete; DELETE FROM pictures WHERE record > 17;
+         DELETE FROM records WHERE id > 17;",
+    )
+    .expect("cut off");
+    drop(db);
+    assert_eq!(verify_with(&copy, &[]).0, Some(0));
+    let (code, report) = verify_with(&copy, &["--head", &head_20]);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 18, "{report}");
+    assert!(
+        report["first_altered"]["why"]
+            .as_str()
+            .is_some_and(|w| w.contains("cut off")),
+        "{report}"
+    );
+}

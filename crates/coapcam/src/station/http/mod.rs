@@ -9,6 +9,7 @@
 //! - `GET /api/cameras`, `GET /api/cameras/<serial>/color.jpg`: the cameras and a new
 //!   color image of one;
 //! - `GET /api/station`: the station's name and what this client may do;
+//! - `GET /api/log/head`: the results log's head (newest id and hash);
 //! - `GET /api/events`: every new record as a Server-Sent Event (`event: measurement`,
 //!   `id:` the record's id; `Last-Event-ID` or `?since=ID` resumes).
 //!
@@ -328,6 +329,10 @@ impl<R: Rig> App<R> {
                 self.live(serial, Live::Depth).await
             }
             (["api", "station"], true, _) => self.station(peer),
+            (["api", "log", "head"], true, _) => match reads::head(self.recorder.log()).await {
+                Ok(head) => json(StatusCode::OK, &head),
+                Err(refused) => refusal(&refused),
+            },
             (["api", "events"], true, _) => {
                 let last = request
                     .headers()
@@ -1143,6 +1148,7 @@ fn known(segments: &[&str]) -> bool {
             | ["api", "cameras"]
             | ["api", "cameras", _, "color.jpg" | "depth.jpg"]
             | ["api", "station"]
+            | ["api", "log", "head"]
             | ["api", "events"]
     )
 }
