@@ -474,14 +474,7 @@ pub fn annotate(
         ),
         WHITE,
     )];
-    if let Some(codes) = codes {
-        let read = if codes.is_empty() {
-            "none read".to_owned()
-        } else {
-            codes.join(", ")
-        };
-        lines.push((format!("codes: {read}"), WHITE));
-    }
+    lines.extend(codes_line(codes));
     lines.extend([
         ("red: footprint on the floor".to_owned(), RED),
         ("green: lid".to_owned(), GREEN),
@@ -549,14 +542,7 @@ pub fn annotate_refused(
     if !line.is_empty() {
         lines.push((line, WHITE));
     }
-    if let Some(codes) = codes {
-        let read = if codes.is_empty() {
-            "none read".to_owned()
-        } else {
-            codes.join(", ")
-        };
-        lines.push((format!("codes: {read}"), WHITE));
-    }
+    lines.extend(codes_line(codes));
     let footprint = if corners_m.is_some() {
         "magenta: footprint of the refused parcel"
     } else {
@@ -564,6 +550,15 @@ pub fn annotate_refused(
     };
     lines.push((footprint.to_owned(), MAGENTA));
     legend(image, (0, 0), &lines, scale);
+}
+
+/// The legend's line of the codes read, when they were looked for (`Some`).
+fn codes_line(codes: Option<&[String]>) -> Option<(String, Rgb<u8>)> {
+    let read = match codes? {
+        [] => "none read".to_owned(),
+        codes => codes.join(", "),
+    };
+    Some((format!("codes: {read}"), WHITE))
 }
 
 /// Lines of text, each in its colour, on a black box at `at`.
