@@ -32,16 +32,17 @@ pub async fn from_server(
     codes: Option<&[Seen]>,
     path: &std::path::Path,
 ) -> anyhow::Result<()> {
-    let (mut image, capture, transform) = frame(client, serial).await?;
-    picture::annotate_frame(
-        &mut image,
-        dims,
-        code_texts(codes).as_deref(),
-        capture.intrinsics,
-        capture.depth_to_color,
-        &transform,
-    )?;
-    picture::save(&image, path)
+    drawn_on_a_frame(client, serial, path, |image, capture, transform| {
+        picture::annotate_frame(
+            image,
+            dims,
+            code_texts(codes).as_deref(),
+            capture.intrinsics,
+            capture.depth_to_color,
+            transform,
+        )
+    })
+    .await
 }
 
 /// Grabs a color frame of `serial` and draws onto it the parcel the measurement refused
@@ -54,22 +55,36 @@ pub async fn refused_from_server(
     codes: Option<&[Seen]>,
     path: &std::path::Path,
 ) -> anyhow::Result<()> {
-    let (mut image, capture, transform) = frame(client, serial).await?;
-    picture::annotate_refused_frame(
-        &mut image,
-        corners_m,
-        reason,
-        code_texts(codes).as_deref(),
-        capture.intrinsics,
-        capture.depth_to_color,
-        &transform,
-    )?;
-    picture::save(&image, path)
+    drawn_on_a_frame(client, serial, path, |image, capture, transform| {
+        picture::annotate_refused_frame(
+            image,
+            corners_m,
+            reason,
+            code_texts(codes).as_deref(),
+            capture.intrinsics,
+            capture.depth_to_color,
+            transform,
+        )
+    })
+    .await
 }
 
 /// The codes' texts as the legend shows them.
 fn code_texts(codes: Option<&[Seen]>) -> Option<Vec<String>> {
     codes.map(|seen| seen.iter().map(|s| s.code.to_string()).collect())
+}
+
+/// Grabs a color frame of `serial`, has `draw` mark it (given the capture's calibration
+/// and the camera's 3d-transformation), and saves it to `path`.
+async fn drawn_on_a_frame(
+    client: &CamClient,
+    serial: &str,
+    path: &std::path::Path,
+    draw: impl FnOnce(&mut image::RgbImage, &ColorCapture, &geometry::Transform) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let (mut image, capture, transform) = frame(client, serial).await?;
+    draw(&mut image, &capture, &transform)?;
+    picture::save(&image, path)
 }
 
 /// A new color frame of `serial` (its image taken out of the capture) and the camera's
