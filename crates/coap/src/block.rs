@@ -984,6 +984,11 @@ mod tests {
         };
         let pause = Duration::from_secs(3);
         let body = |n: u8, len: usize| Source::new(Bytes::from(vec![n; len]));
+        // A notification of `len` bytes, each `n`.
+        let notify = |c: &mut ServerCache, n: u8, len: usize| {
+            let options = Options::new();
+            c.insert_notification(now, key(1), Code::CONTENT, options, body(n, len), &l, pause);
+        };
         let first_byte = |c: &mut ServerCache| {
             c.with_stored(now, &key(1), &l, |s| s.body.0.read(0..1))
                 .flatten()
@@ -1000,49 +1005,17 @@ mod tests {
             &l,
         );
         c.served(now, &key(1), 1, true);
-        c.insert_notification(
-            now,
-            key(1),
-            Code::CONTENT,
-            Options::new(),
-            body(2, 80),
-            &l,
-            pause,
-        );
+        notify(&mut c, 2, 80);
         assert_eq!(c.bytes(), 140 + 2 * o, "both held");
         assert_eq!(first_byte(&mut c), Some(1), "the one partway through stays");
         // A third replaces the one waiting, not the one partway through.
-        c.insert_notification(
-            now,
-            key(1),
-            Code::CONTENT,
-            Options::new(),
-            body(3, 90),
-            &l,
-            pause,
-        );
+        notify(&mut c, 3, 90);
         assert_eq!(c.bytes(), 150 + 2 * o);
         // No room for a fourth beside it: it replaces at once.
-        c.insert_notification(
-            now,
-            key(1),
-            Code::CONTENT,
-            Options::new(),
-            body(4, 150),
-            &l,
-            pause,
-        );
+        notify(&mut c, 4, 150);
         assert_eq!((first_byte(&mut c), c.bytes()), (Some(4), 150 + o));
         c.served(now, &key(1), 1, true);
-        c.insert_notification(
-            now,
-            key(1),
-            Code::CONTENT,
-            Options::new(),
-            body(5, 40),
-            &l,
-            pause,
-        );
+        notify(&mut c, 5, 40);
         c.served(now, &key(1), 2, false);
         assert_eq!(
             (first_byte(&mut c), c.bytes()),
@@ -1051,15 +1024,7 @@ mod tests {
         );
         // A transfer that pauses longer: the waiting one takes its place before a block.
         c.served(now, &key(1), 1, true);
-        c.insert_notification(
-            now,
-            key(1),
-            Code::CONTENT,
-            Options::new(),
-            body(6, 50),
-            &l,
-            pause,
-        );
+        notify(&mut c, 6, 50);
         c.settle(now + pause / 2, &key(1), pause);
         assert_eq!(first_byte(&mut c), Some(5));
         c.settle(now + pause * 2, &key(1), pause);
