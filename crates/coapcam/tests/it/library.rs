@@ -611,12 +611,19 @@ impl Drop for Flagged {
     }
 }
 
-#[test]
-fn a_camera_server_serves_the_cameras_of_every_backend_in_its_list_until_it_is_dropped() {
-    let state = TempDir::new("library-backends");
+/// The built-in single-camera scene, and the same with its camera's serial
+/// 111111111111 (served beside it, or instead of it).
+fn default_and_another() -> (Scene, Scene) {
     let single = Scene::default_single();
     let mut other = single.clone();
     other.cameras[0].serial = "111111111111".parse().expect("a serial");
+    (single, other)
+}
+
+#[test]
+fn a_camera_server_serves_the_cameras_of_every_backend_in_its_list_until_it_is_dropped() {
+    let state = TempDir::new("library-backends");
+    let (single, other) = default_and_another();
     let dropped = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let cameras: Vec<Box<dyn coapcam::backends::Backend>> = vec![
         Box::new(coapcam::backends::synthetic::Synthetic(other)),
@@ -663,9 +670,7 @@ fn a_camera_server_serves_the_cameras_of_every_backend_in_its_list_until_it_is_d
 #[test]
 fn a_scene_that_cannot_be_built_leaves_the_cameras_served_before_it() {
     let state = TempDir::new("library-bad-scene");
-    let first = Scene::default_single();
-    let mut bad = first.clone();
-    bad.cameras[0].serial = "111111111111".parse().expect("a serial");
+    let (first, mut bad) = default_and_another();
     // Looking at its own position: no pose, so no camera.
     bad.cameras[0].look_at = bad.cameras[0].position;
     runtime().block_on(async {
