@@ -15,6 +15,7 @@
 //! - [`mqtt`]: every record published to an MQTT broker, none lost while it is away;
 //! - [`line`](mod@line): a plain text line per measurement to the readers of a TCP port;
 //! - [`http`]: the page and the JSON API over HTTP (`serve --http`);
+//! - [`writer`]: the lock that makes a station its results log's one writer;
 //! - [`webhook`]: every record POSTed to an HTTP URL, none lost while it is away;
 //! - [`auto`]: automatic measurement's core: height maps of the table and the stillness
 //!   detector that says when a parcel stands still; [`watch`]: the task that drives it.
@@ -32,6 +33,7 @@ pub(crate) mod resources;
 mod start;
 pub mod watch;
 pub mod webhook;
+pub mod writer;
 
 use std::path::{Path, PathBuf};
 

@@ -13,6 +13,7 @@ use tokio::task::JoinHandle;
 
 use super::follow::{Feed, Output};
 use super::log::ResultsLog;
+use super::writer::WriterLock;
 use super::{Config, Recorder, http, last_id_path, resources, watch};
 use crate::api::paths;
 use crate::rd::registrant::{Registrant, RegistrantConfig};
@@ -26,6 +27,8 @@ pub struct Station {
     outputs: Vec<Box<dyn Output>>,
     /// The page and the HTTP API (`--http`).
     http: Option<http::HttpServer>,
+    /// The lock of the results log this station writes: one log, one writer.
+    _writer: Option<WriterLock>,
     /// The tasks that end with the station: the one that tells the server of each new
     /// record (the observers of `/station/measurements/latest`), and `--auto-measure`'s
     /// watcher.
@@ -51,9 +54,19 @@ impl Station {
         let server = CameraServer::start(server).await?;
         // Aborted on an early return too.
         let mut tasks = Tasks(Vec::new());
+        let mut writer = None;
         let recorder = match server.rig() {
             Some(_) => {
                 let path = config.results_path(&state_dir);
+                // Before the log opens: a second station on it refuses to start.
+                let mut lock = WriterLock::take(&path)?;
+                let addrs: Vec<String> = server
+                    .local_addrs()
+                    .iter()
+                    .map(ToString::to_string)
+                    .collect();
+                lock.write(&format!("coap {}", addrs.join(" ")))?;
+                writer = Some(lock);
                 let last_id = last_id_path(&state_dir, &path);
                 let log = ResultsLog::open_station(&path, config.retention, &last_id)
                     .with_context(|| format!("opening the results log {}", path.display()))?;
@@ -109,6 +122,7 @@ impl Station {
             server,
             outputs,
             http,
+            _writer: writer,
             _tasks: tasks,
         })
     }

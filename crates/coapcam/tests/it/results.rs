@@ -952,3 +952,46 @@ fn a_consistent_rewrite_and_a_cut_off_tail_fail_verify_against_a_head_published_
         "{report}"
     );
 }
+
+/// Issue 48, item 3: one log, one writer. A second station started on the state folder of
+/// a running one (so on its log) refuses to start with status 1, naming the first by its
+/// process id and address; once the first is gone, a station starts on the folder again.
+#[test]
+fn a_second_station_on_the_same_log_refuses_to_start_and_names_the_first() {
+    let dir = TempDir::new("results-one-writer");
+    let state = dir.path().to_str().expect("UTF-8").to_owned();
+    let second = || {
+        Proc::run(
+            COAPCAM,
+            &[
+                "serve",
+                "--bind",
+                "127.0.0.1:0",
+                "--state-dir",
+                &state,
+                "--duration",
+                "1",
+            ],
+            LIMIT,
+        )
+    };
+    {
+        let (mut first, addr) = serve_with(dir.path(), &[]);
+        let pid = first.process().id();
+        let f = second();
+        assert_eq!(f.status.code(), Some(1), "{}", f.stderr);
+        for named in [
+            format!("pid {pid}"),
+            format!("coap {addr}"),
+            "one writer".into(),
+        ] {
+            assert!(f.stderr.contains(&named), "{named} in: {}", f.stderr);
+        }
+        // The first goes on recording.
+        runtime().block_on(measure(&client(), addr));
+        let _ = first.process().kill();
+        let _ = first.process().wait();
+    }
+    let f = second();
+    assert_eq!(f.status.code(), Some(0), "{}", f.stderr);
+}
