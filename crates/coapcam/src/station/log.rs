@@ -103,7 +103,7 @@ pub enum LogError {
     /// The file was removed or replaced while the log was open: nothing more is recorded
     /// into the unlinked file, so no result is answered without a record.
     #[error(
-        "results log {path} was removed or replaced while the station ran: nothing is recorded (and no result answered) until the station is restarted"
+        "results log {path} was removed or replaced while the station ran: this measurement is not recorded (nor answered); a removed file is followed by a new one for the next, a replaced one until the station is restarted"
     )]
     Gone {
         /// The database file.
@@ -129,7 +129,7 @@ impl LogError {
             Self::Sqlite { source, .. } => format!("results log: {source}"),
             Self::Format { why, .. } | Self::Failed { why, .. } => format!("results log: {why}"),
             Self::Gone { .. } => {
-                "the results log was removed or replaced while the station ran: nothing is recorded until it is restarted".to_owned()
+                "the results log was removed or replaced while the station ran: this measurement is not recorded (a removed log is started anew for the next one)".to_owned()
             }
             Self::Unreadable { id, why, .. } => {
                 format!("results log: record {id} does not read back: {why}")
@@ -164,8 +164,9 @@ struct Inner {
     retention: Mutex<Retention>,
     newest: watch::Sender<u64>,
     over_limit: std::sync::atomic::AtomicBool,
-    /// The file's device and inode when it was opened.
-    identity: (u64, u64),
+    /// The file's device and inode when it was opened (or a new file made after it was
+    /// removed).
+    identity: Mutex<(u64, u64)>,
     /// The station's file of the last id issued, if it keeps one.
     last_id: Option<LastId>,
 }
@@ -295,7 +296,7 @@ impl ResultsLog {
                 retention: Mutex::new(retention),
                 newest: watch::Sender::new(newest),
                 over_limit: std::sync::atomic::AtomicBool::new(false),
-                identity,
+                identity: Mutex::new(identity),
                 last_id,
             }),
         };
@@ -319,14 +320,56 @@ impl ResultsLog {
         sql(&self.inner.path)
     }
 
+    /// Makes a new log file where the removed one was, past the last id issued (the gap
+    /// recorded), and appends into it from now on.
+    fn reopen(&self, last_id: &LastId) -> Result<(), LogError> {
+        let path = &self.inner.path;
+        let mut conn = self.conn();
+        // The connection to the removed file is closed first: SQLite then removes its
+        // write-ahead log and shared memory, which a new file of that name would otherwise
+        // take for its own.
+        let placeholder = Connection::open_in_memory().map_err(sql(path))?;
+        drop(std::mem::replace(&mut *conn, placeholder));
+        let mut new = connect(path)?;
+        account_for(&mut new, path, last_id)?;
+        let made = identity(path).ok_or_else(|| LogError::Gone {
+            path: path.to_owned(),
+        })?;
+        *conn = new;
+        *self
+            .inner
+            .identity
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = made;
+        Ok(())
+    }
+
     /// Records `new` after the newest record, chained to it, and returns the record. It is
     /// on disk when this returns. Then prunes pictures as the retention says.
     pub fn append(&self, new: NewRecord) -> Result<Record, LogError> {
-        if identity(&self.inner.path) != Some(self.inner.identity) {
+        let opened = *self
+            .inner
+            .identity
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if identity(&self.inner.path) != Some(opened) {
             let gone = LogError::Gone {
                 path: self.inner.path.clone(),
             };
             tracing::error!("{gone}");
+            // A removed file (not one replaced by another) is followed by a new one for
+            // the next measurement, past the last id issued: this one is refused.
+            if let Some(last_id) = &self.inner.last_id
+                && !self.inner.path.exists()
+            {
+                match self.reopen(last_id) {
+                    Ok(()) => tracing::warn!(
+                        "results log {}: a new file was made; the next measurement is recorded in it",
+                        self.inner.path.display()
+                    ),
+                    Err(e) => tracing::error!("{e}"),
+                }
+            }
             return Err(gone);
         }
         let record = {

@@ -709,13 +709,23 @@ fn a_log_removed_while_the_station_runs_stops_the_answers_and_says_so() {
         request.timeout = Some(LIMIT);
         let r = c.send(addr, request).await.expect("an answer");
         let text = String::from_utf8_lossy(&r.payload).into_owned();
-        assert_eq!(r.code, Code::INTERNAL_SERVER_ERROR, "{text}");
+        // Issue 48, item 3: no result without its record, and 5.03 (it was 5.00): the
+        // station recovers by itself.
+        assert_eq!(r.code, Code::SERVICE_UNAVAILABLE, "{text}");
         assert!(text.contains("removed or replaced"), "{text}");
         // The answer does not tell where the station keeps its files.
         assert!(!text.contains(&*dir.path().to_string_lossy()), "{text}");
+        // The next measurement goes into a new file, past the id issued before.
+        measure(&c, addr).await;
     });
     let _ = server.process().kill();
     let _ = server.process().wait();
+    let (code, report) = verify(&file);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["records"], 1, "{report}");
+    assert_eq!(report["head"]["id"], 2, "{report}");
+    assert_eq!(report["gaps"][0]["from"], 1, "{report}");
+    assert_eq!(report["gaps"][0]["to"], 1, "{report}");
 }
 
 #[test]

@@ -837,8 +837,10 @@ impl Cams {
             && let Some(records) = records
             && let Err(why) = records.keep(measured).await
         {
+            // 5.03: the station gives no result without its record, for now (the log may
+            // write again: a new file after a removed one, a disk with room again).
             let why = format!("measured, but the measurement could not be recorded: {why}");
-            return Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why);
+            return Response::diagnostic(Code::SERVICE_UNAVAILABLE, &why);
         }
         match edge::stored(m) {
             Ok(stored) => measurement(&stored, cf),

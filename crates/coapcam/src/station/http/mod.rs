@@ -505,7 +505,7 @@ impl<R: Rig> App<R> {
             Err(e) => {
                 tracing::error!("a measurement could not be recorded: {e}");
                 error(
-                    StatusCode::INTERNAL_SERVER_ERROR,
+                    StatusCode::SERVICE_UNAVAILABLE,
                     &format!(
                         "measured, but the measurement could not be recorded: {}",
                         e.public_text()
