@@ -763,6 +763,15 @@ fn the_page_shows_the_parcel_and_measures_in_chromium() {
     let rows_now = browser.script(rows).as_u64().expect("a count");
     assert_eq!(rows_now, after + 1, "the pushed record has its row");
 
+    // The footer names the software (issue 48, item 1).
+    let footer = browser.script("return document.querySelector('#software').textContent;");
+    let want = format!(
+        "coapcam {} · legally relevant software SHA-256 {}",
+        coapcam::identity::VERSION,
+        coapcam::identity::SOFTWARE_SHA256
+    );
+    assert_eq!(footer.as_str(), Some(want.as_str()), "{footer}");
+
     let shot = browser.session_call("GET", "/screenshot", None);
     let png = base64(shot.as_str().expect("a screenshot"));
     assert!(png.starts_with(b"\x89PNG"), "a PNG");
