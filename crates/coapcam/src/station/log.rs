@@ -164,6 +164,8 @@ struct Inner {
     retention: Mutex<Retention>,
     newest: watch::Sender<u64>,
     over_limit: std::sync::atomic::AtomicBool,
+    /// Whether the records alone take 80 % of the retention's `max_bytes` or more.
+    near_limit: std::sync::atomic::AtomicBool,
     /// The file's device and inode when it was opened (or a new file made after it was
     /// removed).
     identity: Mutex<(u64, u64)>,
@@ -296,6 +298,7 @@ impl ResultsLog {
                 retention: Mutex::new(retention),
                 newest: watch::Sender::new(newest),
                 over_limit: std::sync::atomic::AtomicBool::new(false),
+                near_limit: std::sync::atomic::AtomicBool::new(false),
                 identity: Mutex::new(identity),
                 last_id,
             }),
@@ -580,6 +583,14 @@ impl ResultsLog {
             .load(std::sync::atomic::Ordering::Relaxed)
     }
 
+    /// Whether the records alone take 80 % of the retention's `max_bytes` or more (a
+    /// warning in the server's log when they first do): past the limit no picture is kept.
+    pub fn near_limit(&self) -> bool {
+        self.inner
+            .near_limit
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     /// The bytes the records' bodies and the kept pictures hold.
     pub fn content_bytes(&self) -> Result<u64, LogError> {
         content_bytes(&self.conn()).map_err(self.err())
@@ -610,6 +621,26 @@ impl ResultsLog {
         }
         let mut over = false;
         if let Some(max) = retention.max_bytes {
+            let records: u64 = conn
+                .query_row(
+                    "SELECT COALESCE(SUM(length(body)), 0) FROM records",
+                    [],
+                    |r| r.get(0),
+                )
+                .map_err(self.err())?;
+            let near = records.saturating_mul(5) >= max.saturating_mul(4);
+            let was = self
+                .inner
+                .near_limit
+                .swap(near, std::sync::atomic::Ordering::Relaxed);
+            if near && !was {
+                tracing::warn!(
+                    path = %self.inner.path.display(),
+                    records_bytes = records,
+                    max_bytes = max,
+                    "the results log's records alone take 80 % of --results-max-bytes or more: past it no picture is kept (records always are); raise the limit or move the file"
+                );
+            }
             loop {
                 let total = content_bytes(&conn).map_err(self.err())?;
                 if total <= max {
@@ -1598,14 +1629,34 @@ mod tests {
         assert!(!log.get(4).expect("get").expect("there").has_photo);
         assert!(log.get(5).expect("get").expect("there").has_photo);
         assert!(!log.over_limit());
+        assert!(
+            !log.near_limit(),
+            "the records take {bodies} of {}",
+            bodies + 1600
+        );
+        drop(log);
+        // Records that take 80 % of the limit: warned of before the limit is reached.
+        for (max, near) in [(bodies * 5 / 4 + 1, false), (bodies * 5 / 4, true)] {
+            let retention = Retention {
+                keep_pictures: None,
+                max_bytes: Some(max),
+            };
+            let log = ResultsLog::open_with(&path, retention).expect("open");
+            assert_eq!(
+                log.near_limit(),
+                near,
+                "{bodies} bytes of records, limit {max}"
+            );
+            assert!(!log.over_limit());
+        }
         // Below the records themselves: every picture goes, every record stays.
         let retention = Retention {
             keep_pictures: None,
             max_bytes: Some(10),
         };
-        drop(log);
         let log = ResultsLog::open_with(&path, retention).expect("open");
         assert!(log.over_limit());
+        assert!(log.near_limit());
         log.append(new(6, "A", true)).expect("append");
         assert_eq!(log.list(&ListQuery::default()).expect("list").len(), 6);
         assert!(!log.get(6).expect("get").expect("there").has_photo);
