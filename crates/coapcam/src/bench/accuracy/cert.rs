@@ -91,9 +91,21 @@ impl ObjectResult {
         self.reported_errors().is_some() && !self.within(billing, 2.0)
     }
 
-    /// Accepted, measured within 1 d on each axis, and its code (if it has a label) read.
+    /// Whether its label's modules span the reader's limit ([`MIN_PX_PER_MODULE`]) in some
+    /// camera: a label below it no camera of the station can resolve, whatever reads it.
+    pub fn label_in_reach(&self) -> bool {
+        self.module_px.is_some_and(|px| px >= MIN_PX_PER_MODULE)
+    }
+
+    /// Its label is in reach and its code was not read.
+    pub fn unread(&self) -> bool {
+        self.code_read == Some(false) && self.label_in_reach()
+    }
+
+    /// Accepted, measured within 1 d on each axis, and its code read if its label is in
+    /// reach ([`ObjectResult::label_in_reach`]; a label below it is counted apart).
     pub fn first_pass(&self, billing: &Billing) -> bool {
-        self.object.accepted() && self.within_1d(billing) && self.code_read != Some(false)
+        self.object.accepted() && self.within_1d(billing) && !self.unread()
     }
 
     /// Accepted and refused.
@@ -414,8 +426,10 @@ pub struct ClassSummary {
     pub false_refusals: usize,
     /// Accepted, given a number more than 1 d off on some axis.
     pub off: usize,
-    /// Accepted, labelled, the code not read.
+    /// Accepted, its label in reach, the code not read.
     pub unread: usize,
+    /// Accepted, labelled, the label below the reader's limit in every camera.
+    pub out_of_reach: usize,
     /// Labelled objects whose code was read (accepted or not), and labelled objects.
     pub read: [usize; 2],
     /// The same over the labels whose modules span the reader's limit or more in some
@@ -456,6 +470,7 @@ impl ClassSummary {
             false_refusals: 0,
             off: 0,
             unread: 0,
+            out_of_reach: 0,
             read: [0, 0],
             read_at_limit: [0, 0],
             missing: 0,
@@ -471,11 +486,12 @@ impl ClassSummary {
             s.false_refusals += usize::from(o.false_refusal());
             s.off +=
                 usize::from(accepted && o.reported_errors().is_some() && !o.within_1d(billing));
-            s.unread += usize::from(accepted && o.code_read == Some(false));
+            s.unread += usize::from(accepted && o.unread());
+            s.out_of_reach += usize::from(accepted && o.code_read.is_some() && !o.label_in_reach());
             if let Some(read) = o.code_read {
                 s.read[0] += usize::from(read);
                 s.read[1] += 1;
-                if o.module_px.is_some_and(|px| px >= MIN_PX_PER_MODULE) {
+                if o.label_in_reach() {
                     s.read_at_limit[0] += usize::from(read);
                     s.read_at_limit[1] += 1;
                 }
@@ -561,7 +577,7 @@ mod tests {
             "[[camera]]\nserial = \"840412060746\"\nposition = [0.0, 0.0, 1.5]\n\
              look_at = [0.0, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n\
              [[box]]\nsize = [0.3, 0.2, 0.1]\ncenter = [-0.17, 0.0]\n\
-             label = { kind = \"qr\", text = \"ONE\", size = 0.08 }\n\
+             label = { kind = \"qr\", text = \"ONE\", size = 0.12 }\n\
              [[box]]\nsize = [0.3, 0.2, 0.1]\ncenter = [0.17, 0.0]\n",
         )
         .unwrap();
@@ -650,6 +666,38 @@ mod tests {
             &config(),
         );
         assert!(wrong[1].silently_wrong(&billing));
+    }
+
+    #[test]
+    fn a_label_below_the_readers_limit_is_counted_apart_not_against_the_first_pass() {
+        let mut cert = two_boxes();
+        let billing = Billing::default();
+        let fits = [
+            fit([-0.17, 0.0], 301.0, 199.0, 100.4),
+            fit([0.17, 0.0], 301.0, 200.0, 100.0),
+        ];
+        // The QR of 21 modules 1 cm wide from 1.4 m: under half a pixel a module.
+        if let Some(l) = cert.scene.boxes[0].label.as_mut() {
+            l.size = 0.01;
+        }
+        cert.objects[0].label = cert.scene.boxes[0].label.clone();
+        let (small, _) = judge_scene(&cert, &fits, &[], &config());
+        assert!(small[0].module_px.is_some_and(|px| px < MIN_PX_PER_MODULE));
+        assert_eq!(small[0].code_read, Some(false));
+        assert!(!small[0].unread() && small[0].first_pass(&billing));
+        let rows = [Row {
+            index: 0,
+            cameras: 1,
+            spacing_mm: None,
+            cycle_ms: 0.0,
+            codes_ms: 0.0,
+            error: None,
+            phantoms: 0,
+            objects: small,
+        }];
+        let all = &ClassSummary::all(&rows, &billing)[0];
+        assert_eq!((all.first_pass, all.unread, all.out_of_reach), (2, 0, 1));
+        assert_eq!((all.read, all.read_at_limit), ([0, 1], [0, 0]));
     }
 
     #[test]

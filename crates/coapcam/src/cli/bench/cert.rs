@@ -207,6 +207,7 @@ fn print_json(
                 "accepted": c.accepted, "first_pass": c.first_pass,
                 "first_pass_pct": finite(c.first_pass_pct()),
                 "false_refusals": c.false_refusals, "off": c.off, "unread": c.unread,
+                "out_of_reach": c.out_of_reach,
                 "codes_read": c.read[0], "labelled": c.read[1],
                 "codes_read_at_limit": c.read_at_limit[0],
                 "labelled_at_limit": c.read_at_limit[1], "missing": c.missing,
@@ -233,7 +234,7 @@ fn print_table(
 ) -> anyhow::Result<()> {
     outln!("");
     outln!(
-        "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6} {:>4} {:>4} {:>6} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
+        "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6} {:>4} {:>4} {:>6} {:>5} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
         "class",
         "value",
         "n",
@@ -243,6 +244,7 @@ fn print_table(
         "ref",
         "off",
         "unread",
+        "small",
         "read",
         "read>=lim",
         "miss",
@@ -252,7 +254,7 @@ fn print_table(
     );
     for c in classes {
         outln!(
-            "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6.1} {:>4} {:>4} {:>6} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
+            "{:<8} {:<10} {:>5} {:>5} {:>5} {:>6.1} {:>4} {:>4} {:>6} {:>5} {:>9} {:>9} {:>4} {:>6} {:>7} {:>6}",
             c.class,
             c.value,
             c.objects,
@@ -262,6 +264,7 @@ fn print_table(
             c.false_refusals,
             c.off,
             c.unread,
+            c.out_of_reach,
             format!("{}/{}", c.read[0], c.read[1]),
             format!("{}/{}", c.read_at_limit[0], c.read_at_limit[1]),
             c.missing,
@@ -273,14 +276,16 @@ fn print_table(
     outln!(
         "acc = accepted by a certified system (isolated by 20 mm, wholly in a camera's view, \
          returning depth); pass = accepted, every reported dimension within 1 d (d = {} mm) \
-         and its code read; ref = accepted but refused; off = accepted, a number more than 1 d \
-         off; unread = accepted, its code not read; read = codes read / labels (all objects); \
-         read>=lim = the same over the labels whose modules span {} px or more in a camera's \
-         color image (the reader's limit); merged = in a pair 20 mm or more apart measured as one; silent = a number more than \
+         and its code read if its label is in reach (modules of {lim} px or more in a camera's \
+         color image, the reader's limit); ref = accepted but refused; off = accepted, a number \
+         more than 1 d off; unread = accepted, its label in reach, its code not read; small = \
+         accepted, its label below the limit in every camera (no reader resolves it: a station \
+         that must read it needs the camera nearer or a larger label); read = codes read / labels (all objects); \
+         read>=lim = the same over the labels in reach; merged = in a pair 20 mm or more apart measured as one; silent = a number more than \
          2 d off with no flag. {} scenes, {phantoms} phantom parcels, {failed} failed.",
         args.division_mm,
-        coapcam::vision::codes::MIN_PX_PER_MODULE,
-        rows.len()
+        rows.len(),
+        lim = coapcam::vision::codes::MIN_PX_PER_MODULE,
     );
     Ok(())
 }
