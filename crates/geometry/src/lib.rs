@@ -27,7 +27,9 @@ pub mod voxel;
 pub use cloud::PointCloud;
 pub use dimension::{DimensionConfig, DimensionError, Dimensions};
 pub use icp::{IcpConfig, IcpError, IcpMethod, IcpOutcome, icp};
-pub use parcels::{ParcelFit, Parcels, Shape, View, dimension, hidden_share, parcels};
+pub use parcels::{
+    ParcelFit, Parcels, Shape, View, dimension, hidden_bounds, hidden_share, parcels,
+};
 pub use plane::{Plane, PlaneError, dominant_plane, floor_transformation, plane_near};
 pub use ply::{PlyError, decode_ply, encode_ply, write_ply};
 pub use pose::{Sighting, planar_pnp, reprojection_rms, rigid_2d};

@@ -11,7 +11,7 @@ use std::time::Duration;
 use geometry::{DimensionConfig, DimensionError, Dimensions, ParcelFit, PointCloud, View};
 use serde::{Deserialize, Serialize};
 
-use crate::repr::no_depth::NoDepth;
+use crate::repr::no_depth::{NoDepth, PARCEL_FLOOR_BORDER};
 use crate::vision::codes::Code;
 
 pub use measurement::{Found, Measurement, MeasurementError, ParcelReport, Reported, VERSION};
@@ -153,6 +153,11 @@ pub const NO_DEPTH_REASON: &str =
 /// hides the floor from a camera.
 pub const EXPLAINED_SHARE: f64 = 0.9;
 
+/// A no-depth region reaching this far (metres) beyond what the parcels in it cover or
+/// hide is more than their holes: part of them returned no depth where they were
+/// measured to end (a pixel's footprint and the edge's noise are a few millimetres).
+const BEYOND_M: f64 = 0.005;
+
 /// What a measurement found on the table.
 #[derive(Debug, Clone)]
 pub enum Parcel {
@@ -211,9 +216,13 @@ impl Table {
 
     /// The table with the parts of it that returned no depth (`regions`, every camera's;
     /// those overlapping joined: one parcel under several cameras). A parcel found lies
-    /// in a region when half its footprint's rectangle does. When the parcels in a region
-    /// have at least as many points as the region has pixels, it is their holes, which
-    /// their coverage judges; otherwise those parcels are what little depth a parcel
+    /// in a region when half its footprint's rectangle does. A region with no parcel in it
+    /// is one only when bordered mostly by floor ([`PARCEL_FLOOR_BORDER`]). When the
+    /// parcels in a region
+    /// have at least as many points as the region has pixels, and the region lies within
+    /// what they cover or hide from the cameras ([`geometry::hidden_bounds`], give or
+    /// take [`BEYOND_M`]), it is their holes, which their coverage judges; otherwise
+    /// those parcels are what little depth a parcel
     /// that returns (almost) none gave (a sliver of wall, the flying pixels along its
     /// edges), and the region with them is one parcel that gives no number
     /// ([`ParcelFit::no_depth`]), placed among the others by footprint. A region of
@@ -230,6 +239,7 @@ impl Table {
                 min_m: lo.map(|v| v as f32),
                 max_m: hi.map(|v| v as f32),
                 area_m2: 0.0,
+                floor_border: 0.0,
                 pixels: 0,
             }
         };
@@ -249,8 +259,24 @@ impl Table {
             let inside: Vec<usize> = (0..rects.len())
                 .filter(|&i| !taken[i] && rects[i].intersection_m2(&r) >= 0.5 * rects[i].rect_m2())
                 .collect();
+            // Bordered mostly by depth that is not floor, with no parcel in it: a hole in
+            // a surface the cloud holds (a wall at a grazing angle), not a parcel.
+            if inside.is_empty() && r.floor_border < PARCEL_FLOOR_BORDER {
+                continue;
+            }
             let points: usize = inside.iter().map(|&i| self.fits[i].dimensions.points).sum();
-            if points as u64 >= u64::from(r.pixels) {
+            // Every pixel that sees a parcel meets the floor within what the parcel
+            // covers or hides: a region reaching beyond that comes from more parcel than
+            // was measured (a black bag's rim, read short).
+            let within = inside.iter().all(|&i| {
+                geometry::hidden_bounds(&self.fits[i].dimensions, views).is_none_or(|(lo, hi)| {
+                    (0..2).all(|k| {
+                        f64::from(r.min_m[k]) >= lo[k] - BEYOND_M
+                            && f64::from(r.max_m[k]) <= hi[k] + BEYOND_M
+                    })
+                })
+            });
+            if points as u64 >= u64::from(r.pixels) && within {
                 continue;
             }
             let (min, max) = (r.min_m.map(f64::from), r.max_m.map(f64::from));
@@ -543,8 +569,33 @@ mod tests {
             min_m: min,
             max_m: max,
             area_m2: (max[0] - min[0]) * (max[1] - min[1]),
+            floor_border: 1.0,
             pixels,
         }
+    }
+
+    /// A region bordered mostly by depth that is not floor, with no parcel in it (a hole
+    /// in a tall box's wall whose rays leave its shadow), is no parcel; bordered by floor,
+    /// the same region is one that returned no depth.
+    #[test]
+    fn a_region_bordered_mostly_by_a_surface_is_a_parcel_only_around_one() {
+        let table = Table {
+            fits: vec![placed(400.0, 300.0, [0.0, 0.0], 20_000)],
+            largest_points: 20_000,
+        };
+        let hole = NoDepth {
+            floor_border: 0.2,
+            ..region([0.6, 0.6], [0.7, 0.7], 2_000)
+        };
+        let kept = table.clone().with_no_depth(&[hole], &[]);
+        assert!(
+            kept.fits.len() == 1 && !kept.fits[0].no_depth,
+            "{:?}",
+            kept.fits
+        );
+        let parcel = region([0.6, 0.6], [0.7, 0.7], 2_000);
+        let refused = table.with_no_depth(&[parcel], &[]);
+        assert!(refused.fits.len() == 2 && refused.fits.iter().any(|f| f.no_depth));
     }
 
     /// A region of pixels that looked at a measured box's end wall at a grazing angle
@@ -581,6 +632,39 @@ mod tests {
         .with_no_depth(&[black], &[view]);
         assert_eq!(beside.fits.len(), 2);
         assert!(beside.fits.iter().any(|f| f.no_depth), "{:?}", beside.fits);
+    }
+
+    /// A black bag returns depth from the middle of its top only: it is measured short,
+    /// and the ring of its rim that returned none reaches beyond what the short parcel
+    /// covers or hides. Its number is refused, not given.
+    #[test]
+    fn a_parcel_whose_no_depth_rim_reaches_beyond_it_is_refused() {
+        // Measured 400 x 300 x 100 mm from (0, 0); a camera 1 m up beyond its +x end.
+        let eye = geometry::Transform {
+            linear: nalgebra::Matrix3::identity(),
+            translation: nalgebra::Vector3::new(0.9, 0.15, 1.0),
+        };
+        let view = View::pinhole(eye, 600.0, 600.0, 320.0, 240.0, 640, 480);
+        let table = Table {
+            fits: vec![placed(400.0, 300.0, [0.0, 0.0], 20_000)],
+            largest_points: 20_000,
+        };
+        // Holes inside its footprint and shadow: its own.
+        let holes = region([-0.05, 0.01], [0.39, 0.29], 5_000);
+        let kept = table.clone().with_no_depth(&[holes], &[view]);
+        assert!(
+            kept.fits.len() == 1 && !kept.fits[0].no_depth,
+            "{:?}",
+            kept.fits
+        );
+        // The rim 20 mm beyond its near (+x) end and its sides: refused.
+        let rim = region([-0.05, -0.02], [0.42, 0.32], 5_000);
+        let refused = table.with_no_depth(&[rim], &[view]);
+        assert!(
+            refused.fits.len() == 1 && refused.fits[0].no_depth,
+            "{:?}",
+            refused.fits
+        );
     }
 
     #[test]

@@ -19,16 +19,16 @@ use super::codec::DepthPart;
 
 /// The response option that carries a cloud's no-depth regions (experimental range,
 /// elective and safe to forward: a client that does not know it ignores it). Its value is
-/// up to [`MAX_REGIONS`] regions of five little-endian f32: min x, min y, max x, max y
-/// (metres, the common frame) and the floor's area under the region (m²), then a u32:
-/// its pixels.
+/// up to [`MAX_REGIONS`] regions of six little-endian f32: min x, min y, max x, max y
+/// (metres, the common frame), the floor's area under the region (m²) and the share of
+/// its border that reads floor, then a u32: its pixels.
 pub const NO_DEPTH: OptionNumber = OptionNumber(65004);
 
-/// Most regions an option carries (the largest): 16 x 24 bytes.
+/// Most regions an option carries (the largest): 16 x 28 bytes.
 pub const MAX_REGIONS: usize = 16;
 
 /// Bytes of one region in the option.
-const REGION_LEN: usize = 24;
+const REGION_LEN: usize = 28;
 
 /// A part of the table from which one camera's pixels returned no depth: where their rays
 /// meet the floor.
@@ -40,6 +40,10 @@ pub struct NoDepth {
     pub max_m: [f32; 2],
     /// The floor's area under the region's pixels, m².
     pub area_m2: f32,
+    /// The share of the pixels with depth around it that read floor (0 to 1; of regions
+    /// joined, the largest): at least [`PARCEL_FLOOR_BORDER`] for a parcel that returns
+    /// nothing, less for the rim of one that returns a little.
+    pub floor_border: f32,
     /// Its pixels.
     pub pixels: u32,
 }
@@ -70,6 +74,7 @@ impl NoDepth {
             min_m: [0, 1].map(|k| self.min_m[k].min(other.min_m[k])),
             max_m: [0, 1].map(|k| self.max_m[k].max(other.max_m[k])),
             area_m2: self.area_m2 + other.area_m2,
+            floor_border: self.floor_border.max(other.floor_border),
             pixels: self.pixels.saturating_add(other.pixels),
         }
     }
@@ -85,7 +90,14 @@ impl NoDepth {
 pub fn encode(regions: &[NoDepth]) -> Vec<u8> {
     let mut out = Vec::with_capacity(regions.len().min(MAX_REGIONS) * REGION_LEN);
     for r in regions.iter().take(MAX_REGIONS) {
-        for v in [r.min_m[0], r.min_m[1], r.max_m[0], r.max_m[1], r.area_m2] {
+        for v in [
+            r.min_m[0],
+            r.min_m[1],
+            r.max_m[0],
+            r.max_m[1],
+            r.area_m2,
+            r.floor_border,
+        ] {
             out.extend_from_slice(&v.to_le_bytes());
         }
         out.extend_from_slice(&r.pixels.to_le_bytes());
@@ -99,7 +111,8 @@ pub enum NoDepthError {
     /// Not a whole number of regions, or more than [`MAX_REGIONS`].
     #[error("a No-Depth option of {0} bytes (a multiple of {REGION_LEN}, at most {max})", max = MAX_REGIONS * REGION_LEN)]
     Length(usize),
-    /// A value that is not finite, a minimum above its maximum, or a negative area.
+    /// A value that is not finite, a minimum above its maximum, a negative area, or a
+    /// share outside 0 to 1.
     #[error("a No-Depth option with a region that is not one")]
     Region,
 }
@@ -118,10 +131,16 @@ pub fn decode(value: &[u8]) -> Result<Vec<NoDepth>, NoDepthError> {
                 min_m: [f(0), f(1)],
                 max_m: [f(2), f(3)],
                 area_m2: f(4),
-                pixels: u32::from_le_bytes(word(5)),
+                floor_border: f(5),
+                pixels: u32::from_le_bytes(word(6)),
             };
-            let finite = [f(0), f(1), f(2), f(3), f(4)].iter().all(|v| v.is_finite());
-            if finite && r.min_m[0] <= r.max_m[0] && r.min_m[1] <= r.max_m[1] && r.area_m2 >= 0.0 {
+            let finite = (0..6).all(|i| f(i).is_finite());
+            if finite
+                && r.min_m[0] <= r.max_m[0]
+                && r.min_m[1] <= r.max_m[1]
+                && r.area_m2 >= 0.0
+                && (0.0..=1.0).contains(&r.floor_border)
+            {
                 Ok(r)
             } else {
                 Err(NoDepthError::Region)
@@ -146,10 +165,19 @@ const FLOOR_BAND_M: f32 = 0.02;
 /// leave 0.1-0.5 m² (box, its own shadow and the floor its lid hides).
 const MIN_AREA_M2: f32 = 0.05 * 0.05;
 
-/// At least this share of the pixels with depth around a region read floor: a hole in a
-/// lid is bordered by the lid (a parcel found in the cloud, whose holes its coverage
-/// judges); a parcel that returns nothing is bordered by floor.
-const MIN_FLOOR_BORDER: f32 = 0.5;
+/// A parcel that returns no depth is bordered by floor: at least this share of the pixels
+/// with depth around its region read floor. A region bordered less by floor is a hole in
+/// a surface the cloud holds (a lid, a wall at a grazing angle) or the rim of a parcel
+/// measured inside it, never a parcel of its own (`report::Table::with_no_depth`).
+pub const PARCEL_FLOOR_BORDER: f32 = 0.5;
+
+/// At least this share of the pixels with depth around a region read floor, or it is
+/// not sent: a hole in a lid is bordered by the lid alone. A parcel that returns a
+/// little (a black bag: the middle of its top and a speckle of its sides) leaves a rim
+/// bordered by floor outside and mostly by its own speckle (16 to 31 % floor in the
+/// certification set's black bags), which the client judges against the parcel measured
+/// inside it.
+const MIN_FLOOR_BORDER: f32 = 0.1;
 
 /// A run of a row without depth this much wider (pixels) than the stereo shadow the
 /// depths at its ends give is not that shadow: the spatial filter and the pixels mixing
@@ -268,6 +296,7 @@ impl DepthPart {
                         min_m: p,
                         max_m: p,
                         area_m2: area,
+                        floor_border: 0.0,
                         pixels: 1,
                     };
                     region = Some(region.map_or(one, |r| r.joined(&one)));
@@ -292,7 +321,10 @@ impl DepthPart {
                 && r.area_m2 >= MIN_AREA_M2
                 && floor_border as f32 >= MIN_FLOOR_BORDER * border as f32
             {
-                regions.push(r);
+                regions.push(NoDepth {
+                    floor_border: floor_border as f32 / border.max(1) as f32,
+                    ..r
+                });
             }
         }
         regions.sort_by(|a, b| b.area_m2.total_cmp(&a.area_m2));
@@ -385,12 +417,46 @@ mod tests {
         );
         // Each pixel covers (1.5 / 400)^2 of floor.
         assert!((r.area_m2 - 2000.0 * 1.40625e-5).abs() < 1e-5, "{r:?}");
+        assert_eq!(r.floor_border, 1.0, "bordered by floor alone");
         // A narrower shadow rule would take the shadow for a parcel (400 pixels, 0.0056
         // m²), and without the border rule the lid's hole would be one (200 pixels).
         assert!(
             part.no_depth(0.0).len() > 1,
             "a baseline of 0 casts no shadow"
         );
+    }
+
+    /// A black bag returns depth from the middle of its top and a speckle of its sides
+    /// only: the region of its rim is bordered by floor outside, by the bag inside and
+    /// around every speckle. It is a region all the same (the client judges it against the
+    /// parcel measured inside it); a lid's hole, bordered by lid alone, is still not one.
+    #[test]
+    fn a_dark_parcels_rim_bordered_mostly_by_its_own_speckle_is_a_region() {
+        let inside = |x: usize, y: usize, xs: (usize, usize), ys: (usize, usize)| {
+            (xs.0..xs.1).contains(&x) && (ys.0..ys.1).contains(&y)
+        };
+        let part = looking_down(|x, y| {
+            if inside(x, y, (115, 125), (50, 70)) {
+                0
+            } else if inside(x, y, (100, 140), (10, 110)) {
+                1200
+            } else if inside(x, y, (30, 50), (55, 75)) {
+                // The bag's top.
+                1200
+            } else if inside(x, y, (20, 60), (40, 90)) {
+                // Its sides: a pixel in twelve returns depth.
+                if x % 6 == 0 && y % 2 == 0 { 1250 } else { 0 }
+            } else {
+                1500
+            }
+        });
+        let found = part.no_depth(0.0);
+        assert_eq!(found.len(), 1, "{found:?}");
+        let r = found[0];
+        // The rim reaches the bag's edges: pixel x 20..59 at 1.5 m.
+        assert!((r.min_m[0] + 0.225).abs() < 0.01, "{r:?}");
+        assert!((r.max_m[0] + 0.07875).abs() < 0.01, "{r:?}");
+        assert!(r.floor_border < PARCEL_FLOOR_BORDER, "{r:?}");
     }
 
     #[test]
@@ -400,12 +466,14 @@ mod tests {
                 min_m: [-0.2, 0.1],
                 max_m: [0.05, 0.3],
                 area_m2: 0.04,
+                floor_border: 0.8,
                 pixels: 2500,
             },
             NoDepth {
                 min_m: [0.3, -0.4],
                 max_m: [0.5, -0.1],
                 area_m2: 0.03,
+                floor_border: 0.25,
                 pixels: 1900,
             },
         ];

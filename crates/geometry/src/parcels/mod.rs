@@ -62,7 +62,7 @@ use fit::fit;
 pub use fit::{ParcelFit, Shape};
 use height_map::Cell2;
 use rect::{OUTSIDE_M, RectFrame, centre, polygon, share_outside, sub};
-pub use view::{View, hidden_share};
+pub use view::{View, hidden_bounds, hidden_share};
 
 /// Objects with fewer points than this share of the largest one's are not parcels
 /// (fragments of flying pixels, specks).

@@ -112,20 +112,11 @@ pub fn hidden_share(d: &crate::Dimensions, views: &[View], min: [f64; 2], max: [
     }
     let mut hidden: Option<MultiPolygon<f64>> = None;
     for v in views {
-        let eye = v.to_common.translation.map(f64::from);
-        if eye.z <= h {
+        let Some(corners) = with_shadow(d, v) else {
             continue;
-        }
-        let scale = eye.z / (eye.z - h);
-        let corners = d.corners_m.iter().flat_map(|c| {
-            let shadow = [
-                eye.x + (c[0] - eye.x) * scale,
-                eye.y + (c[1] - eye.y) * scale,
-            ];
-            [(c[0], c[1]), (shadow[0], shadow[1])]
-        });
+        };
         let hull = MultiPolygon::new(vec![
-            MultiPoint::from(corners.collect::<Vec<_>>()).convex_hull(),
+            MultiPoint::from(corners.map(|c| (c[0], c[1])).to_vec()).convex_hull(),
         ]);
         hidden = Some(match hidden {
             Some(h) => h.union(&hull),
@@ -133,4 +124,43 @@ pub fn hidden_share(d: &crate::Dimensions, views: &[View], min: [f64; 2], max: [
         });
     }
     hidden.map_or(0.0, |h| h.intersection(&rect).unsigned_area() / area)
+}
+
+/// The axis-aligned rectangle (min, max, metres) around what the upright box of `d`
+/// covers or hides from `views` (see [`hidden_share`]): every floor point a ray that
+/// meets the box would reach lies inside it. `None` without a camera above the box.
+pub fn hidden_bounds(d: &crate::Dimensions, views: &[View]) -> Option<([f64; 2], [f64; 2])> {
+    let points: Vec<[f64; 2]> = views
+        .iter()
+        .filter_map(|v| with_shadow(d, v))
+        .flatten()
+        .collect();
+    let first = points.first()?;
+    Some(points.iter().fold((*first, *first), |(lo, hi), p| {
+        (
+            [lo[0].min(p[0]), lo[1].min(p[1])],
+            [hi[0].max(p[0]), hi[1].max(p[1])],
+        )
+    }))
+}
+
+/// The footprint's corners of the upright box of `d` and their shadows on the floor
+/// from `v`'s eye (the top corners projected from the eye), `None` when the eye is not
+/// above the box's top.
+fn with_shadow(d: &crate::Dimensions, v: &View) -> Option<[[f64; 2]; 8]> {
+    let eye = v.to_common.translation.map(f64::from);
+    let h = d.height_mm / 1e3;
+    if eye.z <= h {
+        return None;
+    }
+    let scale = eye.z / (eye.z - h);
+    let mut out = [[0.0; 2]; 8];
+    for (k, c) in d.corners_m.iter().enumerate() {
+        out[2 * k] = *c;
+        out[2 * k + 1] = [
+            eye.x + (c[0] - eye.x) * scale,
+            eye.y + (c[1] - eye.y) * scale,
+        ];
+    }
+    Some(out)
 }
