@@ -271,7 +271,7 @@ fn json_resources_refuse_bad_documents_and_survive_a_restart() {
             (before, color)
         })
     };
-    let (_server, addr) = serve(state.path());
+    let (server, addr) = serve(state.path());
     runtime().block_on(async {
         let c = client();
         assert_eq!(
@@ -292,6 +292,9 @@ fn json_resources_refuse_bad_documents_and_survive_a_restart() {
         .payload;
         assert_eq!(color, color_doc);
     });
+
+    // Stopped before the next one starts: one server to a state folder's log.
+    drop(server);
 
     // A document broken on disk: the server starts, serves the defaults, and keeps the
     // broken file aside under a new name for a person to look at.
