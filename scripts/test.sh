@@ -9,7 +9,24 @@ cd "$(dirname "$0")/.."
 # target/ (CI machines have little disk).
 export CARGO_INCREMENTAL=0
 
-step() { printf '\n== %s\n' "$*"; }
+# Each step's wall time, printed as a table when the script ends (also when a step fails),
+# so a slow CI run shows where its minutes went.
+step_name="" step_started=$SECONDS step_times=()
+end_step() {
+  [ -z "$step_name" ] || step_times+=("$(printf '%6d s  %s' $((SECONDS - step_started)) "$step_name")")
+  step_name=""
+}
+print_step_times() {
+  end_step
+  printf '\n== step times (total %d s)\n' "$SECONDS"
+  printf '%s\n' "${step_times[@]}"
+}
+trap print_step_times EXIT
+step() {
+  end_step
+  step_name="$*" step_started=$SECONDS
+  printf '\n== %s\n' "$*"
+}
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
 step "toolchain"
