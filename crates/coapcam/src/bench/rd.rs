@@ -33,6 +33,10 @@ pub struct Config {
     pub lookups: usize,
     /// Registrations sent at once.
     pub concurrency: usize,
+    /// Full lookups (`/rd-lookup/res`, no query: every link of every registration) after the timed ones,
+    /// each from a client of its own (as many clients would: the directory keeps each
+    /// answer for its block-wise transfer), four at a time.
+    pub full_lookups: usize,
 }
 
 /// One kind of lookup's times, milliseconds.
@@ -75,6 +79,16 @@ pub struct Report {
     pub fill_s: f64,
     /// The lookups' times.
     pub lookups: Vec<LookupRow>,
+    /// Full lookups made.
+    pub full_lookups: usize,
+    /// Bytes of each full lookup's answer (the last one's).
+    pub full_lookup_bytes: usize,
+    /// Seconds the full lookups took together.
+    pub full_lookups_s: f64,
+    /// The directory's resident memory after the timed lookups, before the full ones, KiB.
+    pub rss_looked_up_kib: u64,
+    /// And after the full lookups.
+    pub rss_full_kib: u64,
 }
 
 /// The links of a one-camera station (what `serve --register` registers).
@@ -339,7 +353,34 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
             max_ms: times.iter().copied().fold(0.0, f64::max),
         });
     }
-    let (_, rss_peak_kib) = memory_kib(child.id())?;
+    let (rss_looked_up_kib, _) = memory_kib(child.id())?;
+    let started = Instant::now();
+    let mut full_lookup_bytes = 0;
+    let mut next = 0;
+    let mut running = tokio::task::JoinSet::new();
+    while next < config.full_lookups || !running.is_empty() {
+        while next < config.full_lookups && running.len() < 4 {
+            next += 1;
+            running.spawn(async move {
+                let client = Client::bind(
+                    SocketAddr::from(([127, 0, 0, 1], 0)),
+                    EndpointConfig::default(),
+                )?;
+                let mut get = request(Code::GET, "/rd-lookup/res", &[]);
+                get.timeout = Some(Duration::from_secs(600));
+                let r = client.send(rd, get).await?;
+                if r.code != Code::CONTENT {
+                    bail!("full lookup: {}", r.code);
+                }
+                Ok(r.payload.len())
+            });
+        }
+        if let Some(done) = running.join_next().await {
+            full_lookup_bytes = done.context("a full lookup failed")??;
+        }
+    }
+    let full_lookups_s = started.elapsed().as_secs_f64();
+    let (rss_full_kib, rss_peak_kib) = memory_kib(child.id())?;
     let _ = child.kill();
     let counted_kib = u64::try_from(here.bytes() / 1024).unwrap_or(u64::MAX);
     Ok(Report {
@@ -351,5 +392,10 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
         rss_peak_kib,
         fill_s,
         lookups,
+        full_lookups: config.full_lookups,
+        full_lookup_bytes,
+        full_lookups_s,
+        rss_looked_up_kib,
+        rss_full_kib,
     })
 }

@@ -18,6 +18,10 @@ pub(crate) struct RdArgs {
     /// Registrations sent at once.
     #[arg(long, value_name = "N", default_value_t = 16)]
     concurrency: usize,
+    /// Full lookups (every link of every registration, `/rd-lookup/res` without a query) after the
+    /// timed ones, each from a client of its own, four at a time.
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    full_lookups: usize,
     /// Print one JSON object instead of the table.
     #[arg(long)]
     json: bool,
@@ -31,6 +35,7 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<Exit> {
         registrations: args.registrations,
         lookups: args.lookups,
         concurrency: args.concurrency,
+        full_lookups: args.full_lookups,
     })
     .await?;
     if args.json {
@@ -67,6 +72,16 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<Exit> {
             row.max_ms,
             row.work_median_ms,
             row.work_p95_ms
+        );
+    }
+    if report.full_lookups > 0 {
+        outln!(
+            "{} full lookups of {:.1} MB each in {:.1} s: resident memory {:.1} MiB before them, {:.1} MiB after",
+            report.full_lookups,
+            report.full_lookup_bytes as f64 / 1e6,
+            report.full_lookups_s,
+            report.rss_looked_up_kib as f64 / 1024.0,
+            report.rss_full_kib as f64 / 1024.0
         );
     }
     Ok(Exit::Success)
