@@ -7,7 +7,10 @@ the module files, reads each file's paths into the crate (`crate::a::b`, `super:
 resolves each to the module that defines the item (through `pub use` re-exports, which are
 a facade and make no edge themselves), and looks for strongly connected components in that
 graph. A child that uses its parent's own items (`super::Type`) while the parent uses the
-child is a cycle too. Inline modules (`mod tests { ... }`) are left out: nothing imports
+child is a cycle too. A path in a `macro_rules!` body that names a macro variable
+(`super::$name::Args`, `$name::Args`) is read once for each identifier the macro's
+invocations in the same file pass (`outputs!(mqtt, line)`: `super::mqtt::Args`,
+`super::line::Args`); `$crate::a` is `crate::a`. Inline modules (`mod tests { ... }`) are left out: nothing imports
 them, so they close no cycle. Usage: scripts/module-cycles.py [CRATE_DIR ...] (default: crates/*).
 """
 
@@ -22,6 +25,10 @@ INLINE_MOD = re.compile(r"^\s*(?:pub(?:\([^)]*\))?\s+)?mod\s+\w+\s*\{")
 REEXPORT = re.compile(r"^\s*pub(?:\([^)]*\))?\s+use\s+([^;]+);", re.M)
 RAW_STRING = re.compile(r'r(#*)"')
 PATH = re.compile(r"(?<![\w:])(crate|super|self|\w+)((?:::\w+)*)(::\{)?")
+MACRO_DEF = re.compile(r"macro_rules!\s*(\w+)\s*\{")
+MACRO_PATH = re.compile(r"(?<![\w:$])\$?\w+(?:::\$?\w+)+")
+MACRO_VAR = re.compile(r"\$(?!crate\b)\w+")
+CLOSE = {"{": "}", "(": ")", "[": "]"}
 
 
 def module_tree(root_file):
@@ -125,6 +132,37 @@ def group_heads(text, start):
     return [h.strip().split("::") for h in heads if h.strip()]
 
 
+def closing(text, start):
+    """The index of the bracket that closes the one at `start` (the text's end if none)."""
+    depth = 0
+    for i in range(start, len(text)):
+        if text[i] in CLOSE:
+            depth += 1
+        elif text[i] in CLOSE.values():
+            depth -= 1
+            if depth == 0:
+                return i
+    return len(text)
+
+
+def macro_paths(text):
+    """(position, path) for each path in a `macro_rules!` body of `text` that names a macro
+    variable, once with each identifier that the macro's invocations in `text` pass in
+    place of the variables."""
+    out = []
+    for d in MACRO_DEF.finditer(text):
+        end = closing(text, d.end() - 1)
+        passed = set()
+        for call in re.finditer(r"(?<![\w$])" + d.group(1) + r"!\s*([({\[])", text):
+            if d.start() <= call.start() <= end:
+                continue
+            passed.update(re.findall(r"\w+", text[call.end() : closing(text, call.end() - 1)]))
+        for p in MACRO_PATH.finditer(text, d.end(), end):
+            if MACRO_VAR.search(p.group(0)):
+                out.extend((p.start(), MACRO_VAR.sub(ident, p.group(0))) for ident in sorted(passed))
+    return out
+
+
 def references(modules, source, text):
     """(base module, path segments) of every path into the crate in a module's text."""
     inline_at = []
@@ -138,11 +176,14 @@ def references(modules, source, text):
             stack.pop()
         pos += len(line)
     out = []
-    for m in PATH.finditer(text):
+    found = [(m.start(), text, m) for m in PATH.finditer(text)]
+    for at, path in macro_paths(text):
+        found.extend((at, path, m) for m in PATH.finditer(path))
+    for at, within, m in found:
         head, rest, group = m.group(1), m.group(2), m.group(3)
         if not rest and not group:
             continue
-        line = bisect.bisect_right(inline_at, (m.start(), float("inf"))) - 1
+        line = bisect.bisect_right(inline_at, (at, float("inf"))) - 1
         if line >= 0 and inline_at[line][1]:
             # Inside an inline module (`mod tests { ... }`): a module of its own, which
             # nothing imports, so it closes no cycle.
@@ -159,10 +200,10 @@ def references(modules, source, text):
             continue
         prefix = [seg for seg in rest.split("::") if seg]
         if group:
-            tails = [prefix + h for h in group_heads(text, m.end() - 1)]
+            tails = [prefix + h for h in group_heads(within, m.end() - 1)]
         else:
             tails = [prefix]
-        out.extend((m.start(), base, tail) for tail in tails)
+        out.extend((at, base, tail) for tail in tails)
     return out
 
 
@@ -335,6 +376,14 @@ def self_test():
         ({"lib.rs": "mod a;\nmod b;\nmod c;\nmod d;\n", "a.rs": "", "b.rs": "use crate::a::X;", "c.rs": "use crate::d::X;",
           "d.rs": ""}, "a\nb\nc d\n", ["b uses a, in a layer above", "c uses d, in the same layer"]),
         ({"lib.rs": "mod a;\nmod b;\n", "a.rs": "use crate::b::X;", "b.rs": ""}, "a\n", ["b is in no layer"]),
+        # A macro's paths through its variables, with the identifiers its invocation passes.
+        ({"lib.rs": "mod s;\n", "s/mod.rs": "mod a;\nmod b;\n",
+          "s/a.rs": "macro_rules! all { ($($n:ident),+) => { $(use super::$n::Args;)+ }; }\nall!(b);\n",
+          "s/b.rs": "use super::a::X;"}, None, ["import cycle among s::a, s::b"]),
+        ({"lib.rs": "mod a;\n", "a/mod.rs": "mod b;\nmacro_rules! m { ($n:ident) => { $n::Y }; }\nfn f() { m!(b) }\n",
+          "a/b.rs": "use super::X;"}, None, ["import cycle among a, a::b"]),
+        ({"lib.rs": "mod a;\nmod b;\n", "a.rs": "macro_rules! m { () => { $crate::b::Y }; }\n",
+          "b.rs": "use crate::a::X;"}, None, ["import cycle among a, b"]),
         # Clean: downward only.
         ({"lib.rs": "mod a;\nmod b;\n", "a.rs": "use crate::b::X;", "b.rs": ""}, "a\nb\n", []),
     ]
