@@ -359,6 +359,30 @@ impl Source {
     pub fn new(source: impl BlockSource + 'static) -> Self {
         Self(Arc::new(source))
     }
+
+    /// The body's length ([`BlockSource::len`]).
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// Whether the body is empty.
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// Bytes `range` of the body ([`BlockSource::read`]).
+    #[must_use]
+    pub fn read(&self, range: Range<usize>) -> Option<Bytes> {
+        self.0.read(range)
+    }
+
+    /// What the source holds, counted against the Block2 store ([`BlockSource::held`]).
+    #[must_use]
+    pub fn held(&self) -> usize {
+        self.0.held()
+    }
 }
 
 impl PartialEq for Source {

@@ -177,6 +177,9 @@ pub struct Registration {
     cost: usize,
     /// Its place in the order lookups list registrations in (0 until it is held).
     seq: u64,
+    /// Changes when what lookups show of it changes (0 until it is held): a
+    /// [`Listing`] made before renders it again only while this stays.
+    version: u64,
 }
 
 impl Registration {
@@ -190,6 +193,7 @@ impl Registration {
             link_attrs: 0,
             cost: 0,
             seq: 0,
+            version: 0,
         };
         r.refresh(links);
         r
@@ -210,6 +214,13 @@ impl Registration {
             .flat_map(|l| l.attrs.iter())
             .fold(0, |bits, (n, _)| bits | name_bit(n));
         self.cost = cost_of(self);
+    }
+
+    /// Keeps `old`'s version when lookups show both the same (a renewal, say).
+    fn keep_version_of(&mut self, old: &Self) {
+        if self.ep_link == old.ep_link && self.resolved == old.resolved {
+            self.version = old.version;
+        }
     }
 
     /// The record (what is persisted).
@@ -524,6 +535,8 @@ struct Term {
     name: String,
     /// The value when it is matched exactly and was not percent-encoded.
     exact: Option<String>,
+    /// The bytes of the criterion as given.
+    given: usize,
 }
 
 impl Term {
@@ -540,7 +553,17 @@ impl Term {
             },
             exact: (plain(value) && !value.ends_with('*') && item.contains('='))
                 .then(|| value.to_owned()),
+            given: item.len(),
         })
+    }
+
+    /// What its strings hold, and its filter's (a name and a value, at most
+    /// the criterion's bytes each, in a vector of one).
+    fn held(&self) -> usize {
+        heap_of_string(&self.name)
+            + self.exact.as_ref().map_or(0, heap_of_string)
+            + heap(64)
+            + 2 * heap(self.given)
     }
 
     /// Whether it can match any of `reg`'s links: only if one of them has the attribute
@@ -615,6 +638,7 @@ pub struct Directory {
     /// place), so pages stay in place as others come and go.
     order: BTreeMap<u64, u64>,
     next_seq: u64,
+    next_version: u64,
 }
 
 /// What a registration did.
@@ -790,6 +814,7 @@ impl Directory {
         }
         if let Some(old) = existing.and_then(|id| self.take(id)) {
             reg.seq = old.seq;
+            reg.keep_version_of(&old);
         }
         let id = reg.record.id;
         self.put(reg);
@@ -804,6 +829,10 @@ impl Directory {
         if reg.seq == 0 {
             self.next_seq += 1;
             reg.seq = self.next_seq;
+        }
+        if reg.version == 0 {
+            self.next_version += 1;
+            reg.version = self.next_version;
         }
         self.order.insert(reg.seq, reg.record.id);
         let r = &reg.record;
@@ -897,6 +926,7 @@ impl Directory {
         }
         let mut new = Registration::new(record, &links);
         new.seq = reg.seq;
+        new.keep_version_of(reg);
         let (_, held_bytes) = (self.peers.get(&client_of(peer.ip())))
             .copied()
             .unwrap_or_default();
@@ -968,22 +998,79 @@ impl Directory {
     /// the page of them `page` and `count` ask for.
     #[must_use]
     pub fn lookup(&self, now_ms: u64, kind: LookupKind, query: &Query) -> Found {
-        let skip = query.page.saturating_mul(query.count.unwrap_or(0));
-        let take = query.count.unwrap_or(usize::MAX);
         let mut document = String::new();
-        let mut seen = 0usize;
-        let mut links = 0usize;
-        let mut emit = |link: &Link| {
-            if seen >= skip && links < take {
-                if links > 0 {
-                    document.push(',');
-                }
-                let _ = write!(document, "{link}");
-                links += 1;
+        let mut links = 0;
+        for (i, part) in self.select(now_ms, kind, query).iter().enumerate() {
+            if let Some(reg) = self.regs.get(&part.id) {
+                links += render(reg, kind, query, part, i == 0, &mut document);
             }
-            seen += 1;
-            links < take
-        };
+        }
+        Found { document, links }
+    }
+
+    /// The same lookup as [`Directory::lookup`], kept as the registrations it lists
+    /// rather than their text: a large answer goes out block by block
+    /// ([`Directory::read`]), and the whole of it is never held.
+    #[must_use]
+    pub fn listing(&self, now_ms: u64, kind: LookupKind, query: &Query) -> Listing {
+        let mut parts = self.select(now_ms, kind, query);
+        let (mut len, mut links) = (0, 0);
+        let mut text = String::new();
+        for (i, part) in parts.iter_mut().enumerate() {
+            if let Some(reg) = self.regs.get(&part.id) {
+                text.clear();
+                links += render(reg, kind, query, part, i == 0, &mut text);
+                len += text.len();
+            }
+            part.end = len;
+        }
+        parts.shrink_to_fit();
+        Listing {
+            kind,
+            query: query.clone(),
+            parts,
+            len,
+            links,
+        }
+    }
+
+    /// Bytes `range` of `listing`'s document, rendered from the registrations it lists;
+    /// `None` when one of them has since changed what lookups show of it or is gone (the
+    /// document can no longer be read as it was).
+    #[must_use]
+    pub fn read(&self, listing: &Listing, range: std::ops::Range<usize>) -> Option<Vec<u8>> {
+        let first = listing.parts.partition_point(|p| p.end <= range.start);
+        let mut start = first
+            .checked_sub(1)
+            .map_or(0, |before| listing.parts[before].end);
+        let mut text = String::new();
+        for (i, part) in listing.parts.iter().enumerate().skip(first) {
+            if start >= range.end {
+                break;
+            }
+            let reg = self
+                .regs
+                .get(&part.id)
+                .filter(|r| r.version == part.version)?;
+            let from = text.len();
+            render(reg, listing.kind, &listing.query, part, i == 0, &mut text);
+            if text.len() - from != part.end - start {
+                return None;
+            }
+            start = part.end;
+        }
+        let skip = range.start - listing.parts[..first].last().map_or(0, |p| p.end);
+        (text.as_bytes())
+            .get(skip..skip + range.len())
+            .map(<[u8]>::to_vec)
+    }
+
+    /// The registrations a lookup lists, in order, each with the range of its links
+    /// shown (of those that meet the criteria).
+    fn select(&self, now_ms: u64, kind: LookupKind, query: &Query) -> Vec<Part> {
+        let mut skip = query.page.saturating_mul(query.count.unwrap_or(0));
+        let mut left = query.count.unwrap_or(usize::MAX);
+        let mut parts = Vec::new();
         // `ep=NAME` (exactly) looks at that name's registrations only, unless some
         // registration's links carry `ep` themselves.
         let by_name = query
@@ -997,41 +1084,132 @@ impl Directory {
             None => Box::new(self.order.values().filter_map(|id| self.regs.get(id))),
         };
         for reg in candidates {
+            if left == 0 {
+                break;
+            }
             if reg.record.expires_ms <= now_ms {
                 continue;
             }
-            let ep_matches = |t: &Term| t.filter.matches(&reg.ep_link);
-            match kind {
-                LookupKind::Endpoints => {
-                    let all = query.terms.iter().all(|t| {
-                        ep_matches(t)
-                            || (t.may_match_links(reg)
-                                && reg.resolved.iter().any(|l| t.filter.matches(l)))
-                    });
-                    if all && !emit(&reg.ep_link) {
-                        break;
-                    }
-                }
-                LookupKind::Resources => {
-                    // The criteria the endpoint meets hold for every one of its links.
-                    let open: Vec<&Term> = query.terms.iter().filter(|t| !ep_matches(t)).collect();
-                    if !open.iter().all(|t| t.may_match_links(reg)) {
-                        continue;
-                    }
-                    let mut more = true;
-                    for link in &reg.resolved {
-                        if open.iter().all(|t| t.filter.matches(link)) && !emit(link) {
-                            more = false;
-                            break;
-                        }
-                    }
-                    if !more {
-                        break;
-                    }
-                }
+            let matching = match kind {
+                LookupKind::Endpoints => usize::from(endpoint_matches(reg, query)),
+                LookupKind::Resources => resources_matching(reg, query).count(),
+            };
+            let shown = matching.saturating_sub(skip).min(left);
+            if shown > 0 {
+                parts.push(Part {
+                    id: reg.record.id,
+                    version: reg.version,
+                    skip: u32::try_from(matching.min(skip)).unwrap_or(u32::MAX),
+                    take: u32::try_from(shown).unwrap_or(u32::MAX),
+                    end: 0,
+                });
             }
+            skip = skip.saturating_sub(matching);
+            left -= shown;
         }
-        Found { document, links }
+        parts
+    }
+}
+
+/// Whether `reg` meets every criterion of an endpoint lookup: the endpoint itself, or
+/// one of its links.
+fn endpoint_matches(reg: &Registration, query: &Query) -> bool {
+    query.terms.iter().all(|t| {
+        t.filter.matches(&reg.ep_link)
+            || (t.may_match_links(reg) && reg.resolved.iter().any(|l| t.filter.matches(l)))
+    })
+}
+
+/// The links of `reg` a resource lookup lists: the criteria the endpoint meets hold for
+/// every one of them.
+fn resources_matching<'a>(
+    reg: &'a Registration,
+    query: &'a Query,
+) -> Box<dyn Iterator<Item = &'a Link> + 'a> {
+    let open: Vec<&Term> = (query.terms.iter())
+        .filter(|t| !t.filter.matches(&reg.ep_link))
+        .collect();
+    if !open.iter().all(|t| t.may_match_links(reg)) {
+        return Box::new(std::iter::empty());
+    }
+    Box::new((reg.resolved.iter()).filter(move |l| open.iter().all(|t| t.filter.matches(l))))
+}
+
+/// Appends `part` of a lookup's document to `out` (a comma first unless it is the
+/// document's `first`); returns how many links it wrote.
+fn render(
+    reg: &Registration,
+    kind: LookupKind,
+    query: &Query,
+    part: &Part,
+    first: bool,
+    out: &mut String,
+) -> usize {
+    let links: Box<dyn Iterator<Item = &Link>> = match kind {
+        LookupKind::Endpoints => Box::new(std::iter::once(&reg.ep_link)),
+        LookupKind::Resources => resources_matching(reg, query),
+    };
+    let mut n = 0;
+    for link in links.skip(part.skip as usize).take(part.take as usize) {
+        if n > 0 || !first {
+            out.push(',');
+        }
+        let _ = write!(out, "{link}");
+        n += 1;
+    }
+    n
+}
+
+/// One registration in a [`Listing`].
+#[derive(Debug, Clone)]
+struct Part {
+    id: u64,
+    /// Its [`Registration::version`] when listed.
+    version: u64,
+    /// Of its links that meet the criteria, those skipped (the page starts in it) and
+    /// those shown.
+    skip: u32,
+    take: u32,
+    /// Where its text ends in the document.
+    end: usize,
+}
+
+/// A lookup's answer as the registrations it lists ([`Directory::listing`]).
+#[derive(Debug, Clone)]
+pub struct Listing {
+    kind: LookupKind,
+    query: Query,
+    parts: Vec<Part>,
+    len: usize,
+    links: usize,
+}
+
+impl Listing {
+    /// The bytes of its document.
+    #[must_use]
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether its document is empty (no link met the criteria).
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The links it lists.
+    #[must_use]
+    pub fn links(&self) -> usize {
+        self.links
+    }
+
+    /// The bytes it holds: itself, an entry per registration, and its criteria.
+    #[must_use]
+    pub fn held(&self) -> usize {
+        size_of::<Self>()
+            + heap(self.parts.capacity() * size_of::<Part>())
+            + heap(self.query.terms.capacity() * size_of::<Term>())
+            + self.query.terms.iter().map(Term::held).sum::<usize>()
     }
 }
 

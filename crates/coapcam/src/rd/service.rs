@@ -22,11 +22,11 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use anyhow::Context as _;
-use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Request, Response};
+use coap::{BlockSource, Code, ContentFormat, IncomingRequest, OptionNumber, Request, Response};
 use coap_net::{Client, Ctx, Resource, Router, handler};
 use tokio::sync::Semaphore;
 
-use super::directory::{Directory, Found, Limits, LookupKind, Params, Query, RdError, Record};
+use super::directory::{Directory, Limits, Listing, LookupKind, Params, Query, RdError, Record};
 use super::freshness::Freshness;
 
 /// The registration resource's path (RFC 9176 §5.3 leaves it to the directory).
@@ -260,7 +260,7 @@ impl Service {
                 Resource::new()
                     .get(handler(move |ctx| {
                         let me = me.clone();
-                        async move { me.lookup(kind, &ctx.request) }
+                        async move { Self::lookup(&me, kind, &ctx.request) }
                     }))
                     .attr("rt", rt)
                     .attr("ct", ct.clone()),
@@ -436,7 +436,12 @@ impl Service {
         }
     }
 
-    fn lookup(&self, kind: LookupKind, request: &IncomingRequest) -> Response {
+    /// A lookup's answer: a source that renders each block from the registrations it
+    /// lists when a client asks for it ([`Directory::listing`], a window of 16 KiB at a
+    /// time), so the CoAP layer keeps 32 bytes per registration listed and the window for
+    /// the block-wise transfer, not the document (17.3 MB for every link of 14,896
+    /// stations, kept whole for each client before).
+    fn lookup(me: &Arc<Self>, kind: LookupKind, request: &IncomingRequest) -> Response {
         let items: Vec<String> = request
             .options
             .uri_query()
@@ -446,20 +451,59 @@ impl Service {
             Ok(q) => q,
             Err(e) => return refusal(&e),
         };
-        let Found { document, .. } = self.directory().lookup(now_ms(), kind, &query);
-        if self.verify_lookups
+        let listing = me.directory().listing(now_ms(), kind, &query);
+        if me.verify_lookups
             && !request.loopback
-            && first_message_len(request, document.len()) > 3 * request_len(request)
-            && !self.proved(request)
+            && first_message_len(request, listing.len()) > 3 * request_len(request)
+            && !me.proved(request)
         {
-            return self.challenge(request);
+            return me.challenge(request);
         }
-        let mut r = Response::new(Code::CONTENT).with_payload(document);
+        let answer = Answer {
+            service: Arc::clone(me),
+            listing,
+            window: Mutex::new((0, bytes::Bytes::new())),
+        };
+        let mut r = Response::new(Code::CONTENT).with_source(answer);
         r.options.set_uint(
             OptionNumber::CONTENT_FORMAT,
             u32::from(ContentFormat::LINK_FORMAT.0),
         );
         r
+    }
+}
+
+/// The bytes of a lookup's document rendered at once for the blocks that follow (a
+/// block's registrations are rendered whole, and one spans blocks).
+const WINDOW: usize = 16 << 10;
+
+/// A lookup's document, read from the directory a window at a time.
+struct Answer {
+    service: Arc<Service>,
+    listing: Listing,
+    /// The last window read: its offset in the document and its bytes.
+    window: Mutex<(usize, bytes::Bytes)>,
+}
+
+impl BlockSource for Answer {
+    fn len(&self) -> usize {
+        self.listing.len()
+    }
+
+    fn read(&self, range: std::ops::Range<usize>) -> Option<bytes::Bytes> {
+        let mut window = self.window.lock().unwrap_or_else(PoisonError::into_inner);
+        let (start, bytes) = &*window;
+        if range.start < *start || range.end > start + bytes.len() {
+            let end = range.end.max(range.start + WINDOW).min(self.len());
+            let text = (self.service.directory()).read(&self.listing, range.start..end)?;
+            *window = (range.start, text.into());
+        }
+        let (start, bytes) = &*window;
+        Some(bytes.slice(range.start - start..range.end - start))
+    }
+
+    fn held(&self) -> usize {
+        self.listing.held() + WINDOW.min(self.len())
     }
 }
 
@@ -534,4 +578,86 @@ pub fn spawn_sweep(service: Arc<Service>) -> tokio::task::JoinHandle<()> {
             service.sweep().await;
         }
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::net::SocketAddr;
+
+    use coap::{EndpointConfig, IncomingId, Options, Source};
+
+    use super::*;
+
+    /// A GET of every link, from this machine.
+    fn full_lookup() -> IncomingRequest {
+        let mut options = Options::new();
+        options.push(OptionNumber::URI_PATH, "rd-lookup");
+        options.push(OptionNumber::URI_PATH, "res");
+        IncomingRequest {
+            id: IncomingId(1),
+            peer: SocketAddr::from(([127, 0, 0, 1], 40_000)),
+            method: Code::GET,
+            options,
+            payload: bytes::Bytes::new(),
+            multicast: false,
+            confirmable: true,
+            observe: None,
+            identity: None,
+            loopback: true,
+        }
+    }
+
+    #[tokio::test]
+    async fn a_full_lookup_is_read_block_by_block_and_never_kept_whole() {
+        let fetcher = Client::bind(
+            SocketAddr::from(([127, 0, 0, 1], 0)),
+            EndpointConfig::default(),
+        )
+        .expect("a client");
+        let limits = Limits {
+            per_peer: 2_000,
+            per_peer_bytes: usize::MAX,
+            ..Limits::default()
+        };
+        let service = Service::new(limits, None, fetcher, true).expect("a directory");
+        let peer = SocketAddr::from(([10, 0, 0, 1], 5683));
+        for i in 0..2_000 {
+            let params = Params::parse([format!("ep=station-{i}").as_str()]).expect("params");
+            // A camera's three streams and three documents.
+            let links = [
+                "color",
+                "depth",
+                "pointcloud",
+                "color-settings",
+                "depth-settings",
+                "3d-transformation",
+            ]
+            .map(|r| format!(r#"</cams/{i:012}/{r}>;rt="rgbd.{r}";if="core.p";obs"#))
+            .join(",");
+            (service.directory())
+                .register(now_ms(), peer, params, &links)
+                .expect("registered");
+        }
+        let everything = Query::parse(std::iter::empty()).expect("a query");
+        let whole = (service.directory())
+            .lookup(now_ms(), LookupKind::Resources, &everything)
+            .document;
+        let r = Service::lookup(&service, LookupKind::Resources, &full_lookup());
+        assert_eq!(r.code, Code::CONTENT);
+        // What the CoAP layer keeps for the block-wise transfer (before: the whole
+        // document as the payload).
+        let kept = r.payload.len() + r.source.as_ref().map_or(0, Source::held);
+        assert!(
+            kept * 8 < whole.len(),
+            "{kept} bytes kept for a document of {}",
+            whole.len()
+        );
+        let source = r.source.expect("a source");
+        let mut read = Vec::new();
+        for start in (0..source.len()).step_by(1024) {
+            let end = (start + 1024).min(source.len());
+            read.extend_from_slice(&source.read(start..end).expect("readable"));
+        }
+        assert_eq!(read, whole.as_bytes());
+    }
 }

@@ -555,3 +555,81 @@ fn an_update_after_the_lifetime_ended_does_not_bring_the_registration_back() {
     );
     assert_eq!(rd.expire(T0 + 2_500), [short.id]);
 }
+
+/// `listing`'s document read in blocks of `size` bytes.
+fn read_all(rd: &Directory, listing: &Listing, size: usize) -> Option<Vec<u8>> {
+    let mut read = Vec::new();
+    for start in (0..listing.len()).step_by(size) {
+        read.extend(rd.read(listing, start..(start + size).min(listing.len()))?);
+    }
+    Some(read)
+}
+
+#[test]
+fn a_listing_reads_as_the_lookups_document_until_a_registration_in_it_changes() {
+    let mut rd = directory();
+    let peer = addr("127.0.0.9:5683");
+    let mut ids = Vec::new();
+    for i in 0..5 {
+        let links = format!(r#"</a{i}>;rt="x";title="café {i}",</b{i}>;rt="y",</c{i}>;rt="x""#);
+        let q = format!("ep=e{i}&base=coap://127.0.0.{i}&lt=100");
+        ids.push(
+            rd.register(T0, peer, params(&q), &links)
+                .expect("registered")
+                .id,
+        );
+    }
+    let queries = [
+        "",
+        "rt=x",
+        "page=1&count=4",
+        "page=2&count=3",
+        "ep=e3",
+        "title=caf*",
+    ];
+    for kind in [LookupKind::Endpoints, LookupKind::Resources] {
+        for q in queries {
+            let found = rd.lookup(T0, kind, &query(q));
+            let listing = rd.listing(T0, kind, &query(q));
+            assert_eq!(
+                (listing.len(), listing.links()),
+                (found.document.len(), found.links)
+            );
+            // Blocks cut through links, and through the two bytes of "é".
+            for size in [1, 7, 16, 1024] {
+                let read = read_all(&rd, &listing, size).expect("readable");
+                assert_eq!(read, found.document.as_bytes(), "{kind:?} {q:?} in {size}");
+            }
+        }
+    }
+    let listing = rd.listing(T0, LookupKind::Resources, &query(""));
+    let whole = rd.lookup(T0, LookupKind::Resources, &query("")).document;
+    // Registration 2's links: from the comma before its first link to registration 3's.
+    let at = |i: usize| {
+        whole
+            .find(&format!("<coap://127.0.0.{i}/a{i}>"))
+            .expect("listed")
+            - 1
+    };
+    let (two, three) = (at(2)..at(3), at(3)..whole.len());
+    // A renewal shows the same: still readable.
+    rd.update(T0 + 1_000, peer, ids[2], params("lt=100"))
+        .expect("renewed");
+    assert_eq!(
+        read_all(&rd, &listing, 16).expect("readable"),
+        whole.as_bytes()
+    );
+    // A new base changes what registration 2 shows: its blocks are gone, the others not.
+    rd.update(T0 + 2_000, peer, ids[2], params("base=coap://127.0.0.99"))
+        .expect("updated");
+    assert_eq!(rd.read(&listing, two.start + 1..two.start + 2), None);
+    assert_eq!(
+        rd.read(&listing, 0..two.start).as_deref(),
+        Some(&whole.as_bytes()[..two.start])
+    );
+    rd.remove(peer, ids[3]).expect("removed");
+    assert_eq!(rd.read(&listing, three), None);
+    // A listing holds a few words per registration, not the text.
+    let big = rd.listing(T0 + 3_000, LookupKind::Resources, &query(""));
+    assert!(big.held() < 1024, "{} bytes held", big.held());
+}
