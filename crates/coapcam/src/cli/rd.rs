@@ -86,6 +86,7 @@ pub(crate) async fn run(args: RdArgs) -> anyhow::Result<()> {
     let endpoint = EndpointConfig {
         rng_seed: coap_net::fresh_seed(),
         verify_addresses: !args.no_address_check,
+        limits: service::endpoint_limits(&limits),
         ..EndpointConfig::default()
     };
     // Simple registration asks the endpoints for their links from a client socket of

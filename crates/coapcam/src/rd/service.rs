@@ -45,6 +45,32 @@ const SIMPLE_AT_ONCE: usize = 16;
 /// How long simple registration waits for the endpoint's `/.well-known/core`.
 const SIMPLE_FETCH_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// Bytes of lookup answers the CoAP layer keeps for their block-wise transfer: a listing
+/// of every one of 20,000 registrations holds 640 KB and a window of 16 KiB, so about 50
+/// full lookups at once (a page of 100 holds 20 KB).
+pub const ANSWERS_KEPT: usize = 32 << 20;
+
+/// Bytes of registrations being received in blocks (Block1) over all clients: 512
+/// documents of 32 KiB.
+pub const UPLOADS: usize = 16 << 20;
+
+/// The CoAP layer's limits for a directory with `limits`: the answers kept for
+/// block-wise transfer and the bodies received in blocks sized for it (the defaults are a
+/// camera server's, 256 and 64 MiB), and no body larger than a registration's document,
+/// neither received nor fetched by simple registration (the default for a fetched one is
+/// 256 MiB). With the deduplication store (16 MiB), the process holds at most 64 MiB on
+/// top of the registrations' count for them.
+#[must_use]
+pub fn endpoint_limits(limits: &Limits) -> coap::Limits {
+    coap::Limits {
+        block2_store_bytes: ANSWERS_KEPT,
+        block1_peer_bytes: limits.max_document,
+        block1_total_bytes: UPLOADS,
+        client_body_bytes: limits.max_document,
+        ..coap::Limits::default()
+    }
+}
+
 /// Milliseconds since the UNIX epoch (the directory's time: lifetimes outlive a restart).
 #[must_use]
 pub fn now_ms() -> u64 {
@@ -375,6 +401,14 @@ impl Service {
                 return Response::diagnostic(
                     Code::BAD_GATEWAY,
                     &format!("GET /.well-known/core of {peer} answered {}", r.code),
+                );
+            }
+            Err(coap_net::Error::Request(coap::RequestError::TooLarge { limit })) => {
+                return Response::diagnostic(
+                    Code::REQUEST_ENTITY_TOO_LARGE,
+                    &format!(
+                        "the /.well-known/core of {peer} has more than {limit} bytes, the most one registration may have"
+                    ),
                 );
             }
             Err(e) => {

@@ -313,6 +313,76 @@ fn simple_registration_fetches_the_endpoints_own_links() {
     });
 }
 
+/// A link-format document of `len` bytes that counts the bytes read of it.
+struct CountedLinks {
+    len: usize,
+    read: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl coap::BlockSource for CountedLinks {
+    fn len(&self) -> usize {
+        self.len
+    }
+
+    fn read(&self, range: std::ops::Range<usize>) -> Option<bytes::Bytes> {
+        (self.read).fetch_add(range.len(), std::sync::atomic::Ordering::Relaxed);
+        // `</r0000000>,` over and over.
+        let link = b"</r0000000>,";
+        let text: Vec<u8> = range.map(|i| link[i % link.len()]).collect();
+        Some(text.into())
+    }
+
+    fn held(&self) -> usize {
+        0
+    }
+}
+
+#[test]
+fn simple_registration_reads_no_more_of_the_endpoints_links_than_a_registration_may_hold() {
+    let (_rd_proc, rd) = start_rd("127.0.0.1:0", None);
+    runtime().block_on(async {
+        // An endpoint whose /.well-known/core has 4 MiB; a registration's document may
+        // have 32 KiB.
+        let read = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let router = Router::new();
+        let counted = read.clone();
+        router.set_around(std::sync::Arc::new(move |_: &coap::IncomingRequest| {
+            let read = counted.clone();
+            Box::new(move |r: &mut coap::Response| {
+                if r.code == Code::CONTENT {
+                    let links = CountedLinks { len: 4 << 20, read };
+                    *r = coap::Response::new(Code::CONTENT).with_source(links);
+                }
+            })
+        }));
+        let server = Server::bind(
+            &[SocketAddr::from(([127, 0, 0, 1], 0))],
+            ServerConfig::default(),
+            router,
+        )
+        .expect("binding");
+        let own = server
+            .client_for(rd)
+            .expect("a client on the server's socket");
+        let mut simple = Request::new(Code::POST, "/.well-known/rd");
+        simple.options.push(OptionNumber::URI_QUERY, "ep=large");
+        simple.timeout = Some(LIMIT);
+        let r = own.send(rd, simple).await.expect("simple registration");
+        assert_eq!(
+            r.code,
+            Code::REQUEST_ENTITY_TOO_LARGE,
+            "{}",
+            String::from_utf8_lossy(&r.payload)
+        );
+        // Before: the directory fetched all 4 MiB (and then refused the document).
+        let read = read.load(std::sync::atomic::Ordering::Relaxed);
+        assert!(
+            read <= 64 << 10,
+            "{read} bytes of the endpoint's links read"
+        );
+    });
+}
+
 /// Whether the directories and clients of both peers are installed (as [`available`]).
 fn rd_peers(test: &str) -> bool {
     if !available(test, &[Peer::Libcoap, Peer::Aiocoap]) {
