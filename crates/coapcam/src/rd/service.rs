@@ -58,8 +58,8 @@ pub const UPLOADS: usize = 16 << 20;
 /// block-wise transfer and the bodies received in blocks sized for it (the defaults are a
 /// camera server's, 256 and 64 MiB), and no body larger than a registration's document,
 /// neither received nor fetched by simple registration (the default for a fetched one is
-/// 256 MiB). With the deduplication store (16 MiB), the process holds at most 64 MiB on
-/// top of the registrations' count for them.
+/// 256 MiB). With the deduplication store (16 MiB), these stores come to 64 MiB on top
+/// of the registrations' count.
 #[must_use]
 pub fn endpoint_limits(limits: &Limits) -> coap::Limits {
     coap::Limits {

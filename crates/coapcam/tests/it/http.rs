@@ -1255,6 +1255,10 @@ fn a_webhook_sends_the_urls_user_as_basic_authentication_and_reads_no_answer_who
             "the station read {written} B of the answer"
         );
     }
+    // docs/threat-model.md's webhook row: the station's peak (before: it read the whole
+    // answer, 1,528 MB resident in issue 46).
+    let (now, peak) = rss_mb(server.pid());
+    eprintln!("the station's resident memory: {now:.1} MB, peak {peak:.1} MB");
     let finished = server.interrupt();
     assert!(
         !finished.stderr.contains("cret"),
