@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
 
-use crate::support::{COAPCAM, LIMIT, Peer, Proc, TempDir, available};
+use crate::support::{LIMIT, Peer, Proc, TempDir, available, station_with_http};
 
 /// An HTTP answer.
 struct Reply {
@@ -174,31 +174,6 @@ fn get(addr: SocketAddr, path: &str) -> Reply {
     request(addr, "GET", path, &[], b"")
 }
 
-/// `coapcam serve` with `--http 127.0.0.1:0` and `flags`: the process and the HTTP
-/// address it printed.
-fn serve_http(state: &TempDir, flags: &[&str]) -> (Proc, SocketAddr) {
-    let dir = state.path().to_string_lossy().into_owned();
-    let mut args = vec![
-        "serve",
-        "--bind",
-        "127.0.0.1:0",
-        "--state-dir",
-        &dir,
-        "--http",
-        "127.0.0.1:0",
-        "--duration",
-        "150",
-    ];
-    args.extend_from_slice(flags);
-    let mut server = Proc::spawn(COAPCAM, &args);
-    let addr = server.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: HTTP on http://")
-            .and_then(|rest| rest.split('/').next())
-            .and_then(|a| a.parse::<SocketAddr>().ok())
-    });
-    (server, addr)
-}
-
 /// Issue 51, items 7 and 13: `POST /api/measure` on an empty table (setting up) is
 /// answered 200 with the measurement, `"parcel": "nothing"`, and recorded nowhere, as
 /// `POST /cams/dimensions` answers it. Before: 201 and a record of nothing (published
@@ -207,7 +182,7 @@ fn serve_http(state: &TempDir, flags: &[&str]) -> (Proc, SocketAddr) {
 fn measuring_an_empty_table_over_http_records_nothing() {
     let state = TempDir::new("http-empty");
     let scene = crate::support::empty_table(&state);
-    let (_server, addr) = serve_http(&state, &["--scene", &scene]);
+    let (_server, _, addr) = station_with_http(state.path(), &["--scene", &scene]);
     let measured = request(addr, "POST", "/api/measure", &[], b"");
     let body = String::from_utf8_lossy(&measured.body).into_owned();
     assert_eq!(measured.status, 200, "{body}");
@@ -240,7 +215,7 @@ fn event_data(stream: &mut BufReader<TcpStream>, id: u64) -> Value {
 #[test]
 fn the_api_serves_the_log_measures_and_streams() {
     let state = TempDir::new("http-api");
-    let (_server, addr) = serve_http(&state, &[]);
+    let (_server, _, addr) = station_with_http(state.path(), &[]);
 
     let empty = get(addr, "/api/measurements");
     assert_eq!(empty.status, 200);
@@ -511,14 +486,14 @@ fn the_webhook_delivers_every_record_in_order_across_a_restart_once_the_receiver
         .port();
     let state = TempDir::new("http-webhook");
     let hook = format!("http://127.0.0.1:{port}/hook?x=1");
-    let (mut first, addr) = serve_http(&state, &["--webhook", &hook]);
+    let (mut first, _, addr) = station_with_http(state.path(), &["--webhook", &hook]);
     for _ in 0..2 {
         let made = request(addr, "POST", "/api/measure", &[], b"");
         assert_eq!(made.status, 201, "{}", String::from_utf8_lossy(&made.body));
     }
     // The station stops and starts again (the records wait in its log, with the cursor).
     first.interrupt();
-    let (_server, addr) = serve_http(&state, &["--webhook", &hook]);
+    let (_server, _, addr) = station_with_http(state.path(), &["--webhook", &hook]);
     // The receiver comes up; it refuses the first request it gets (503), which is sent
     // again, and takes the rest.
     let listener = TcpListener::bind(("127.0.0.1", port)).expect("the receiver's port");
@@ -675,7 +650,7 @@ fn the_page_shows_the_parcel_and_measures_in_chromium() {
     }
     let state = TempDir::new("http-page");
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/demo.toml");
-    let (_server, addr) = serve_http(&state, &["--scene", scene, "--auto-measure"]);
+    let (_server, _, addr) = station_with_http(state.path(), &["--scene", scene, "--auto-measure"]);
     let (_driver, driver) = chromedriver();
     let browser = Browser::start(driver, &state.join("chromium-profile"));
     browser.session_call(
@@ -804,8 +779,8 @@ fn the_proxy_maps_http_to_coaps_own_server() {
         ((), a)
     };
     let (silent_flag, unreachable_flag) = (silent.to_string(), unreachable.to_string());
-    let (mut server, http) = serve_http(
-        &state,
+    let (_server, coap, http) = station_with_http(
+        state.path(),
         &[
             "--static",
             &files,
@@ -816,10 +791,6 @@ fn the_proxy_maps_http_to_coaps_own_server() {
             &unreachable_flag,
         ],
     );
-    let coap = server.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: serving on ")
-            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
-    });
     let hc = |path: &str| format!("/hc/coap://{coap}{path}");
 
     let core = get(http, &hc("/.well-known/core"));
@@ -1010,11 +981,8 @@ fn the_proxy_reaches_its_own_servers_and_the_named_hosts_only() {
     let other = CoapStub::new(b"another server of this machine".to_vec());
     let named = CoapStub::new(b"a named server".to_vec());
     let state = TempDir::new("http-proxy-reach");
-    let (mut server, http) = serve_http(&state, &["--proxy-allow", &named.addr.to_string()]);
-    let coap = server.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: serving on ")
-            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
-    });
+    let (_server, coap, http) =
+        station_with_http(state.path(), &["--proxy-allow", &named.addr.to_string()]);
     // The station's own server, also spelled otherwise.
     let own = get(
         http,
@@ -1077,7 +1045,8 @@ fn a_proxied_head_fetches_one_block_of_16_bytes() {
     let body = crate::support::random_bytes(1 << 20, 46);
     let stub = CoapStub::new(body.clone());
     let state = TempDir::new("http-proxy-head");
-    let (_server, http) = serve_http(&state, &["--proxy-allow", &stub.addr.to_string()]);
+    let (_server, _, http) =
+        station_with_http(state.path(), &["--proxy-allow", &stub.addr.to_string()]);
     let path = format!("/hc/coap://{}/big", stub.addr);
     let head = request(http, "HEAD", &path, &[], b"");
     assert_eq!(head.status, 200);
@@ -1106,11 +1075,7 @@ fn the_proxy_still_fetches_after_more_blocks_than_there_are_message_ids() {
     let big = crate::support::random_file(&files.join("big.bin"), 7 << 20, 46);
     let small = crate::support::random_file(&files.join("small.bin"), 3000, 47);
     let files = files.to_string_lossy().into_owned();
-    let (mut server, http) = serve_http(&state, &["--static", &files]);
-    let coap = server.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: serving on ")
-            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
-    });
+    let (_server, coap, http) = station_with_http(state.path(), &["--static", &files]);
     // 10 x 7 MiB in blocks of 1 KiB: 71,680 block requests, two at a time (the proxy
     // answers when it holds the whole file: each fetch within the reader's timeout, on a
     // busy machine too).
@@ -1146,7 +1111,7 @@ fn the_proxy_reaches_libcoap_block_wise() {
     }
     let (_libcoap, coap) = crate::support::libcoap_server();
     let state = TempDir::new("http-proxy-libcoap");
-    let (_server, http) = serve_http(&state, &["--proxy-allow", &coap.to_string()]);
+    let (_server, _, http) = station_with_http(state.path(), &["--proxy-allow", &coap.to_string()]);
     let core = get(http, &format!("/hc/coap://{coap}/.well-known/core"));
     assert_eq!(core.status, 200);
     assert_eq!(core.header("content-type"), Some("application/link-format"));
@@ -1201,7 +1166,7 @@ fn a_webhook_sends_the_urls_user_as_basic_authentication_and_reads_no_answer_who
     let port = listener.local_addr().expect("an address").port();
     let state = TempDir::new("http-webhook-answer");
     let hook = format!("http://station:s%40cret@127.0.0.1:{port}/hook");
-    let (mut server, addr) = serve_http(&state, &["--webhook", &hook]);
+    let (mut server, _, addr) = station_with_http(state.path(), &["--webhook", &hook]);
     let (tx, rx) = mpsc::channel();
     thread::spawn(move || {
         for stream in listener.incoming() {
@@ -1326,7 +1291,7 @@ fn status_of(stream: &mut BufReader<TcpStream>) -> u16 {
 #[test]
 fn a_client_with_1024_event_streams_locks_no_other_client_out() {
     let state = TempDir::new("http-streams");
-    let (mut server, addr) = serve_http(&state, &[]);
+    let (mut server, _, addr) = station_with_http(state.path(), &[]);
     let mut streams: Vec<BufReader<TcpStream>> = (0..1024)
         .map(|n| {
             let mut s = TcpStream::connect(addr).expect("connecting");
@@ -1414,7 +1379,7 @@ fn a_client_that_never_reads_a_long_list_is_dropped_after_the_write_timeout() {
             );
         }
     }
-    let (_server, addr) = serve_http(&state, &[]);
+    let (_server, _, addr) = station_with_http(state.path(), &[]);
     // Read whole, the list is the 1,000 records, newest first.
     let list = get(addr, "/api/measurements?limit=1000").json();
     let ids: Vec<u64> = list
@@ -1487,7 +1452,7 @@ fn http_memory_with_300_clients_that_never_read_and_1024_idle_event_streams() {
             crate::mqtt::record(&log, 400.0 + f64::from(n), Some(&"7".repeat(1000)));
         }
     }
-    let (server, addr) = serve_http(&state, &[]);
+    let (server, _, addr) = station_with_http(state.path(), &[]);
     let pid = server.pid();
     let whole = get(addr, "/api/measurements?limit=1000");
     assert_eq!(whole.status, 200);

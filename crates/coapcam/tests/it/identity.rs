@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use coapcam::identity::{self, sources};
 
-use crate::support::{COAPCAM, LIMIT, Proc, TempDir};
+use crate::support::{COAPCAM, LIMIT, Proc, TempDir, station_with_http};
 
 fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -98,34 +98,6 @@ fn version_prints_the_version_and_the_checksum() {
     );
 }
 
-/// A station with `--http`: the process, its CoAP and its HTTP address.
-pub(crate) fn station_with_http(state: &TempDir, flags: &[&str]) -> (Proc, SocketAddr, SocketAddr) {
-    let dir = state.path().to_string_lossy().into_owned();
-    let mut args = vec![
-        "serve",
-        "--bind",
-        "127.0.0.1:0",
-        "--state-dir",
-        &dir,
-        "--http",
-        "127.0.0.1:0",
-        "--duration",
-        "150",
-    ];
-    args.extend_from_slice(flags);
-    let mut server = Proc::spawn(COAPCAM, &args);
-    let http = server.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: HTTP on http://")
-            .and_then(|rest| rest.split('/').next())
-            .and_then(|a| a.parse::<SocketAddr>().ok())
-    });
-    let coap = server.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: serving on ")
-            .and_then(|a| a.trim().parse().ok())
-    });
-    (server, coap, http)
-}
-
 /// The JSON body of `GET path` over HTTP/1.1, with its status.
 pub(crate) fn http_json(addr: SocketAddr, path: &str) -> (u16, serde_json::Value) {
     let mut stream = TcpStream::connect(addr).expect("connecting");
@@ -158,7 +130,7 @@ pub(crate) fn coap_json(addr: SocketAddr, path: &str) -> serde_json::Value {
 #[test]
 fn the_station_names_its_software_over_http_and_coap() {
     let state = TempDir::new("identity-station");
-    let (_server, coap, http) = station_with_http(&state, &["--station-name", "dock-9"]);
+    let (_server, coap, http) = station_with_http(state.path(), &["--station-name", "dock-9"]);
     let (status, station) = http_json(http, "/api/station");
     assert_eq!(status, 200, "{station}");
     assert_eq!(
@@ -182,7 +154,7 @@ fn the_station_names_its_software_over_http_and_coap() {
 #[test]
 fn the_station_publishes_its_head_over_http_and_coap() {
     let state = TempDir::new("identity-head");
-    let (_server, coap, http) = station_with_http(&state, &[]);
+    let (_server, coap, http) = station_with_http(state.path(), &[]);
     let genesis = serde_json::json!({"id": 0, "hash": coapcam::api::record::GENESIS});
     assert_eq!(http_json(http, "/api/log/head"), (200, genesis.clone()));
     assert_eq!(coap_json(coap, "/station/head"), genesis);

@@ -25,8 +25,8 @@ use std::thread;
 use std::time::Duration;
 
 use crate::support::{
-    self, AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, Peer, Proc, TempDir, assert_file_is,
-    assert_same, random_file,
+    self, AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, Peer, Proc, Station, TempDir, assert_file_is,
+    assert_same, random_file, station,
 };
 
 const BIG: usize = 10_032_012;
@@ -1039,24 +1039,11 @@ fn libcoap_client_drives_the_camera_api() {
         return;
     }
     let dir = TempDir::new("cams-lc");
-    let state = dir.join("state");
-    let state = state.to_str().expect("UTF-8 path");
-    let mut server = Proc::spawn(
-        COAPCAM,
-        &[
-            "serve",
-            "--bind",
-            "127.0.0.1:0",
-            "--state-dir",
-            state,
-            "--duration",
-            "600",
-        ],
-    );
-    let addr = server.stderr_line(QUICK, |l| {
-        l.strip_prefix("coapcam: serving on ")
-            .and_then(|a| a.trim().parse::<std::net::SocketAddr>().ok())
-    });
+    let Station {
+        process: server,
+        coap: addr,
+        ..
+    } = station(&dir.join("state"), &[]);
     let sn = "840412060746";
     let base = format!("coap://{addr}");
 

@@ -19,7 +19,8 @@ use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::{mpsc, watch};
 
 use crate::support::{
-    COAPCAM, MOSQUITTO_SUB, Peer, Proc, TempDir, available, client, mosquitto_broker, runtime, send,
+    MOSQUITTO_SUB, Peer, Proc, Station, TempDir, available, client, mosquitto_broker, runtime,
+    send, station,
 };
 
 /// Longest wait for a message that should come.
@@ -461,34 +462,6 @@ fn bursts_recorded_while_the_broker_is_down_arrive_in_order_after_it_is_back() {
     });
 }
 
-/// `coapcam serve` of the default scene with `flags`, its state in `state`: the process,
-/// its CoAP address, and the line output's when `flags` ask for one.
-fn serve_station(state: &TempDir, flags: &[&str]) -> (Proc, SocketAddr, Option<SocketAddr>) {
-    let dir = state.path().to_string_lossy().into_owned();
-    let mut args = vec![
-        "serve",
-        "--bind",
-        "127.0.0.1:0",
-        "--state-dir",
-        &dir,
-        "--duration",
-        "600",
-    ];
-    args.extend_from_slice(flags);
-    let mut p = Proc::spawn(COAPCAM, &args);
-    let line = flags.contains(&"--line-output").then(|| {
-        p.stderr_line(LIMIT, |l| {
-            l.strip_prefix("coapcam: line output on ")
-                .and_then(|a| a.trim().parse::<SocketAddr>().ok())
-        })
-    });
-    let addr = p.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: serving on ")
-            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
-    });
-    (p, addr, line)
-}
-
 /// `POST /cams/dimensions`: a measurement, which the server records.
 async fn measure(client: &coap_net::Client, addr: SocketAddr) {
     let r = send(client, addr, Code::POST, "/cams/dimensions", b"", None).await;
@@ -518,8 +491,13 @@ fn serve_publishes_every_measurement_and_its_line_and_the_broker_tells_when_it_d
     let dir = TempDir::new("serve-mqtt");
     let broker = Broker::start(&dir, false);
     let uri = broker.uri("lane");
-    let (mut server, addr, line) = serve_station(
-        &dir,
+    let Station {
+        process: mut server,
+        coap: addr,
+        line,
+        ..
+    } = station(
+        dir.path(),
         &[
             "--mqtt",
             &uri,
@@ -589,7 +567,11 @@ fn a_measurement_made_while_the_broker_is_down_arrives_after_it_is_back_20_times
     let dir = TempDir::new("serve-mqtt-restarts");
     let mut broker = Broker::start(&dir, true);
     let uri = broker.uri("lane");
-    let (mut server, addr, _) = serve_station(&dir, &["--mqtt", &uri, "--station-name", "dock-r"]);
+    let Station {
+        process: mut server,
+        coap: addr,
+        ..
+    } = station(dir.path(), &["--mqtt", &uri, "--station-name", "dock-r"]);
     runtime().block_on(async {
         let mut sub =
             Subscriber::start(broker.port, "test-e2e-durable", "lane/+/measurements", true).await;
@@ -672,7 +654,7 @@ fn another_client_with_the_stations_client_id_is_reported_once() {
     let dir = TempDir::new("mqtt-twin");
     let broker = Broker::start(&dir, false);
     let uri = broker.uri("lane");
-    let (mut server, _, _) = serve_station(&dir, &["--mqtt", &uri, "--station-name", "dock-twin"]);
+    let mut server = station(dir.path(), &["--mqtt", &uri, "--station-name", "dock-twin"]).process;
     let said = "another client connects with the station's client id coapcam-dock-twin";
     runtime().block_on(async {
         // The twin: reconnects whenever the broker closes it, as the station does.
@@ -799,8 +781,11 @@ fn a_broker_that_never_acknowledges_is_reported_and_connected_again() {
     let dir = TempDir::new("mqtt-silent");
     let broker = SilentBroker::start();
     let uri = format!("mqtt://{}/lane", broker.addr);
-    let (mut server, _, _) =
-        serve_station(&dir, &["--mqtt", &uri, "--station-name", "dock-silent"]);
+    let mut server = station(
+        dir.path(),
+        &["--mqtt", &uri, "--station-name", "dock-silent"],
+    )
+    .process;
     let said = server.stderr_line(Duration::from_secs(60), |l| {
         l.contains("acknowledged nothing (no PUBACK)")
             .then(|| l.to_owned())

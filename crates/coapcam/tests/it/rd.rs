@@ -16,7 +16,8 @@ use coapcam::process::peers;
 use coapcam::rd::registrant::{Endpoint, lookup_endpoints};
 
 use crate::support::{
-    AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, LIMIT, Peer, Proc, TempDir, available, client, runtime,
+    AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, LIMIT, Peer, Proc, TempDir, available, client,
+    runtime, station,
 };
 
 /// How long a registration may take to show or to go.
@@ -43,27 +44,8 @@ fn start_rd(bind: &str, state: Option<&Path>) -> (Proc, SocketAddr) {
 
 /// `coapcam serve --register coap://RD --rd-ep EP` with more flags, on 127.0.0.1.
 fn start_registered(rd: &str, ep: &str, state: &Path, extra: &[&str]) -> (Proc, SocketAddr) {
-    let state = state.to_str().expect("UTF-8 path");
-    let mut args = vec![
-        "serve",
-        "--bind",
-        "127.0.0.1:0",
-        "--state-dir",
-        state,
-        "--duration",
-        "150",
-        "--register",
-        rd,
-        "--rd-ep",
-        ep,
-    ];
-    args.extend_from_slice(extra);
-    let mut p = Proc::spawn(COAPCAM, &args);
-    let addr = p.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: serving on ")
-            .and_then(|a| a.trim().parse::<SocketAddr>().ok())
-    });
-    (p, addr)
+    let s = station(state, &[&["--register", rd, "--rd-ep", ep], extra].concat());
+    (s.process, s.coap)
 }
 
 /// The endpoints `rd` lists for `query`.

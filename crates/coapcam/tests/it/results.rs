@@ -16,7 +16,7 @@ use coapcam::report::Measurement;
 use coapcam::station::log::{ResultsLog, Retention};
 
 use crate::support::{
-    COAPCAM, DEPTH_640, LIMIT, Proc, SN, TempDir, client, runtime, send, serve_with,
+    COAPCAM, DEPTH_640, LIMIT, Proc, SN, TempDir, client, runtime, send, serve_with, station,
 };
 
 /// `POST /cams/dimensions` (CBOR), the measurement it answered.
@@ -731,24 +731,10 @@ fn a_log_removed_while_the_station_runs_stops_the_answers_and_says_so() {
 #[test]
 fn a_new_log_after_a_lost_one_goes_on_past_the_last_id_and_records_the_gap() {
     let dir = TempDir::new("results-lost");
-    let state = dir.path().to_str().expect("UTF-8 path");
     let file = dir.join("results.sqlite");
     let start = || {
-        let args = [
-            "serve",
-            "--bind",
-            "127.0.0.1:0",
-            "--state-dir",
-            state,
-            "--duration",
-            "120",
-        ];
-        let mut server = Proc::spawn(COAPCAM, &args);
-        let addr: std::net::SocketAddr = server.stderr_line(LIMIT, |l| {
-            l.strip_prefix("coapcam: serving on ")
-                .and_then(|a| a.trim().parse().ok())
-        });
-        (server, addr)
+        let s = station(dir.path(), &[]);
+        (s.process, s.coap)
     };
     let rt = runtime();
     let c = client();

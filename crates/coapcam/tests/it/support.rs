@@ -679,6 +679,69 @@ pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, Soc
     (server, addr)
 }
 
+/// A running `coapcam serve` (a [`Proc`]: its standard error can still be read) and the
+/// addresses it announced.
+pub(crate) struct Station {
+    pub(crate) process: Proc,
+    /// Its (first) CoAP address.
+    pub(crate) coap: SocketAddr,
+    /// Its HTTP address, when the flags have `--http`.
+    pub(crate) http: Option<SocketAddr>,
+    /// Its line output's address, when the flags have `--line-output`.
+    pub(crate) line: Option<SocketAddr>,
+}
+
+/// `coapcam serve --bind 127.0.0.1:0 --state-dir STATE --duration 600` and `flags`, once
+/// it announced where it is: the outputs, then HTTP, then the CoAP address, in that order.
+/// Without `--scene` or `--no-cameras` in `flags` it serves the default scene.
+pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
+    let dir = state.to_string_lossy().into_owned();
+    let mut args = vec![
+        "serve",
+        "--bind",
+        "127.0.0.1:0",
+        "--state-dir",
+        &dir,
+        "--duration",
+        "600",
+    ];
+    args.extend_from_slice(flags);
+    let mut process = Proc::spawn(COAPCAM, &args);
+    let (mut http, mut line) = (None, None);
+    let coap = loop {
+        let (what, addr) = process.stderr_line(LIMIT, |l| {
+            let l = l.strip_prefix("coapcam: ")?;
+            let (what, rest) = [
+                ("line", "line output on "),
+                ("http", "HTTP on http://"),
+                ("coap", "serving on "),
+            ]
+            .into_iter()
+            .find_map(|(what, prefix)| Some((what, l.strip_prefix(prefix)?)))?;
+            let addr = rest.split('/').next()?.trim().parse::<SocketAddr>().ok()?;
+            Some((what, addr))
+        });
+        match what {
+            "line" => line = line.or(Some(addr)),
+            "http" => http = Some(addr),
+            _ => break addr,
+        }
+    };
+    Station {
+        process,
+        coap,
+        http,
+        line,
+    }
+}
+
+/// [`station`] with `--http 127.0.0.1:0`: the process, its CoAP and its HTTP address.
+pub(crate) fn station_with_http(state: &Path, flags: &[&str]) -> (Proc, SocketAddr, SocketAddr) {
+    let s = station(state, &[&["--http", "127.0.0.1:0"], flags].concat());
+    let http = s.http.expect("an HTTP address");
+    (s.process, s.coap, http)
+}
+
 /// Two servers of the default scene on ephemeral ports of 127.0.0.1, their state in
 /// `state`'s folders `a` and `b`, `b` started with the further flags `b_extra`: for
 /// measuring with several servers at once. Both are killed on drop.
