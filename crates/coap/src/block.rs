@@ -418,7 +418,7 @@ pub(crate) struct Stored {
     /// representation.
     partway: bool,
     /// A newer representation a notification brought while a client was partway through
-    /// this one ([`ServerCache::insert_notification`]).
+    /// this one ([`Storing::Notification`]).
     next: Option<Box<Self>>,
 }
 
@@ -459,6 +459,18 @@ impl Stored {
     }
 }
 
+/// How [`ServerCache::insert`] stores a representation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Storing {
+    /// A response's, sent with Block2: it replaces the one stored before at once.
+    Block2,
+    /// A response's, sent with Q-Block2 (RFC 9177): it replaces at once too.
+    QBlock2,
+    /// A notification's, sent with Block2: it may wait behind the one a client is partway
+    /// through (paused no longer than `pause`).
+    Notification { pause: Duration },
+}
+
 /// Block2 representations keyed by request, bounded in bytes, least recently used out
 /// first, expired after an idle lifetime.
 pub(crate) struct ServerCache {
@@ -492,8 +504,15 @@ impl ServerCache {
 
     /// Stores a representation, replacing the previous one for the same request and
     /// evicting the least recently used ones to stay within the byte limit. A
-    /// representation larger than the whole store is not stored. `q_block`: its blocks
-    /// go with Q-Block2 (RFC 9177), not Block2.
+    /// representation larger than the whole store is not stored.
+    ///
+    /// A notification's (RFC 7959 §2.6, [`Storing::Notification`]) waits instead behind the
+    /// one stored for the same request when a client has been partway through that within
+    /// `pause` and the store has room for both (replacing any that waited before), and
+    /// takes its place when the last block has been served or the transfer pauses longer
+    /// ([`ServerCache::settle`]): replaced at once, a resource that changes faster than its
+    /// blocks arrive could never be fetched whole, and every try costs the client message
+    /// IDs.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn insert(
         &mut self,
@@ -502,12 +521,28 @@ impl ServerCache {
         code: Code,
         options: Options,
         body: Source,
-        q_block: bool,
+        how: Storing,
         limits: &Limits,
     ) {
+        let q_block = how == Storing::QBlock2;
+        let stored = Stored::new(now, &key, code, options, body, q_block);
+        if let Storing::Notification { pause } = how {
+            let room = limits.block2_store_bytes.saturating_sub(self.bytes);
+            if let Some(current) = self.entries.get_mut(&key).filter(|s| {
+                s.partway
+                    && s.q_options.is_none()
+                    && now.saturating_duration_since(s.last_used) < pause
+            }) {
+                let freed = current.next.as_ref().map_or(0, |n| n.held);
+                if stored.held <= room + freed {
+                    self.bytes = self.bytes - freed + stored.held;
+                    current.next = Some(Box::new(stored));
+                    return;
+                }
+            }
+        }
         self.expire(now, limits);
         self.remove(&key);
-        let stored = Stored::new(now, &key, code, options, body, q_block);
         let held = stored.held;
         if held > limits.block2_store_bytes {
             return;
@@ -525,39 +560,6 @@ impl ServerCache {
         }
         self.bytes += held;
         self.entries.insert(key, stored);
-    }
-
-    /// Stores the representation a notification carries (RFC 7959 §2.6). When a client
-    /// has been partway through the one stored for the same request within `pause`, the
-    /// new one waits behind it (replacing any that waited before) and takes its place when
-    /// the last block has been served or the transfer pauses longer
-    /// ([`ServerCache::settle`]): replaced at once, a resource that changes faster than its
-    /// blocks arrive could never be fetched whole, and every try costs the client message
-    /// IDs. Otherwise, and when the store has no room for both, as [`ServerCache::insert`].
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn insert_notification(
-        &mut self,
-        now: Instant,
-        key: BlockKey,
-        code: Code,
-        options: Options,
-        body: Source,
-        limits: &Limits,
-        pause: Duration,
-    ) {
-        let room = limits.block2_store_bytes.saturating_sub(self.bytes);
-        if let Some(current) = self.entries.get_mut(&key).filter(|s| {
-            s.partway && s.q_options.is_none() && now.saturating_duration_since(s.last_used) < pause
-        }) {
-            let next = Stored::new(now, &key, code, options.clone(), body.clone(), false);
-            let freed = current.next.as_ref().map_or(0, |n| n.held);
-            if next.held <= room + freed {
-                self.bytes = self.bytes - freed + next.held;
-                current.next = Some(Box::new(next));
-                return;
-            }
-        }
-        self.insert(now, key, code, options, body, false, limits);
     }
 
     /// Before a continuation of `key` is served: a representation waiting behind the
@@ -939,7 +941,7 @@ mod tests {
                 Code::CONTENT,
                 Options::new(),
                 body,
-                false,
+                Storing::Block2,
                 &l,
             );
             let r = uploads.handle(now, long_key(n, 51_000), b(0, true, 0), None, &[1; 16], &c);
@@ -974,7 +976,7 @@ mod tests {
             Code::CONTENT,
             Options::new(),
             Source::new(Bytes::from(vec![0; 60])),
-            false,
+            Storing::Block2,
             &l,
         );
         c.insert(
@@ -983,7 +985,7 @@ mod tests {
             Code::CONTENT,
             Options::new(),
             Source::new(Bytes::from(vec![0; 60])),
-            false,
+            Storing::Block2,
             &l,
         );
         assert!(
@@ -1011,7 +1013,8 @@ mod tests {
         // A notification of `len` bytes, each `n`.
         let notify = |c: &mut ServerCache, n: u8, len: usize| {
             let options = Options::new();
-            c.insert_notification(now, key(1), Code::CONTENT, options, body(n, len), &l, pause);
+            let how = Storing::Notification { pause };
+            c.insert(now, key(1), Code::CONTENT, options, body(n, len), how, &l);
         };
         let first_byte = |c: &mut ServerCache| {
             c.with_stored(now, &key(1), &l, |s| s.body.0.read(0..1))
@@ -1025,7 +1028,7 @@ mod tests {
             Code::CONTENT,
             Options::new(),
             body(1, 60),
-            false,
+            Storing::Block2,
             &l,
         );
         c.served(now, &key(1), 1, true);
@@ -1114,7 +1117,7 @@ mod tests {
             Code::CONTENT,
             Options::new(),
             Source(source.clone()),
-            false,
+            Storing::Block2,
             &l,
         );
         assert_eq!(

@@ -31,7 +31,7 @@ use super::reply::answer;
 use super::server_state::ServerLayer;
 use super::server_state::{Incoming, Pending, past_end, unreadable};
 use super::types::Response;
-use crate::block::{self, BlockKey, Slice, Source};
+use crate::block::{self, BlockKey, Slice, Source, Storing};
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
 
 /// How the first block of a Q-Block2 answer goes: piggybacked on the ACK of a CON
@@ -385,7 +385,7 @@ impl ServerLayer {
             response.code,
             response.options,
             body,
-            true,
+            Storing::QBlock2,
             limits,
         );
         let sets = last / mp + 1;

@@ -15,7 +15,7 @@ use super::server_state::{
     Incoming, Observation, Pending, ServerLayer, block2_response, past_end, unreadable,
 };
 use super::types::{Event, IncomingId, IncomingRequest, ObservationId, Response};
-use crate::block::{self, Block1Outcome, BlockKey, Slice, Source};
+use crate::block::{self, Block1Outcome, BlockKey, Slice, Source, Storing};
 use crate::dedup::{Fingerprint, Seen};
 use crate::msg::{BlockOpt, Code, Message, OptionNumber, Token, Type};
 
@@ -630,7 +630,7 @@ impl ServerLayer {
     /// Cuts a response into its first (or requested) block when it does not fit one, adding
     /// an ETag and storing the representation for the continuations; a `notification`'s
     /// waits while a client is partway through the one stored before
-    /// ([`ServerCache::insert_notification`]).
+    /// ([`block::ServerCache::insert`]).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn blockwise_response(
         &mut self,
@@ -682,12 +682,14 @@ impl ServerLayer {
         if len > BlockOpt::size_of(szx) {
             self.arm_sweep(cx, now + limits.blockwise_lifetime);
             let (code, options) = (response.code, response.options);
-            if notification {
-                let pause = block_pause(cx.config);
-                (self.block2).insert_notification(now, key, code, options, body, limits, pause);
+            let how = if notification {
+                Storing::Notification {
+                    pause: block_pause(cx.config),
+                }
             } else {
-                (self.block2).insert(now, key, code, options, body, false, limits);
-            }
+                Storing::Block2
+            };
+            (self.block2).insert(now, key, code, options, body, how, limits);
         }
         // The reply is remembered for duplicates for EXCHANGE_LIFETIME; a slice would keep
         // the whole representation (or a source's read-ahead window) alive that long.
