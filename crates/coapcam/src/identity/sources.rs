@@ -18,10 +18,20 @@ pub const LEGAL_DIRS: [&str; 3] = [
 ];
 
 /// Single legally relevant files outside those folders, from the workspace's root: depth
-/// to points (the deprojection and the intrinsics it uses).
-pub const LEGAL_FILES: [&str; 2] = [
+/// to points (the deprojection and the intrinsics it uses), and how the server makes a
+/// measurement of its cameras' depth: the grab's chain from depth to a cloud in the common
+/// frame with the floor check (`grab.rs`, `clouds.rs`), the parts of the table without
+/// depth that turn a measurement into a refusal (`no_depth.rs`), the merge of the clouds
+/// and the table measured from it (`merge.rs`), and the check of the frames' times that
+/// refuses frames too far apart (`timesync.rs`).
+pub const LEGAL_FILES: [&str; 7] = [
     "crates/rgbd/src/deproject.rs",
     "crates/rgbd/src/intrinsics.rs",
+    "crates/coapcam/src/server/cams/grab.rs",
+    "crates/coapcam/src/repr/clouds.rs",
+    "crates/coapcam/src/repr/no_depth.rs",
+    "crates/coapcam/src/server/cams/merge.rs",
+    "crates/coapcam/src/timesync.rs",
 ];
 
 /// What the hashed bytes start with: the encoding's name and version.

@@ -84,6 +84,34 @@ fn a_geometry_line_changes_the_checksum_and_a_cli_string_does_not() {
     assert_ne!(added, geometry_changed, "a new geometry file counts");
 }
 
+/// Issue 48: what decides a measured or a refused number on the server counts (the
+/// cloud of a grab, the no-depth regions, the merge and the table measured from it, the
+/// frames' times); how the answer is sent (`edge.rs`) does not.
+#[test]
+fn the_servers_measuring_files_count_and_its_transport_does_not() {
+    let root = workspace();
+    let (built, _) = sources::legal_checksum(&root).expect("checksum");
+    let dir = TempDir::new("identity-server");
+    copy_tree(dir.path());
+    let transport = "crates/coapcam/src/server/cams/edge.rs";
+    std::fs::copy(root.join(transport), dir.join(transport)).expect("copy");
+    change_line(&dir.join(transport), "pub(super) ", "pub(super)  ");
+    let (sent, _) = sources::legal_checksum(dir.path()).expect("checksum");
+    assert_eq!(sent, built, "{transport} is not legally relevant");
+    for file in [
+        "crates/coapcam/src/repr/no_depth.rs",
+        "crates/coapcam/src/repr/clouds.rs",
+        "crates/coapcam/src/server/cams/grab.rs",
+        "crates/coapcam/src/server/cams/merge.rs",
+        "crates/coapcam/src/timesync.rs",
+    ] {
+        let before = sources::legal_checksum(dir.path()).expect("checksum").0;
+        change_line(&dir.join(file), "fn ", "fn  ");
+        let (changed, _) = sources::legal_checksum(dir.path()).expect("checksum");
+        assert_ne!(changed, before, "a line of {file} changed");
+    }
+}
+
 #[test]
 fn version_prints_the_version_and_the_checksum() {
     let out =

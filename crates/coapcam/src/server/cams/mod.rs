@@ -5,6 +5,7 @@
 mod budget;
 mod edge;
 mod grab;
+mod merge;
 mod state;
 #[cfg(test)]
 mod tests;
@@ -19,8 +20,7 @@ use bytes::Bytes;
 use coap::link_format::Filter;
 use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Resource, Router, handler};
-use geometry::{IcpConfig, IcpMethod, Point3, PointCloud, Transform, Transformation};
-use nalgebra::Isometry3;
+use geometry::{Point3, PointCloud, Transformation};
 use rgbd::{
     AdvancedConfig, Camera, CameraError, CameraHub, ColorSettings, DepthSettings, HubEvent, Serial,
 };
@@ -28,8 +28,7 @@ use tokio::sync::mpsc;
 
 use super::measure::{self, Records, Rig, RigCamera, Shot};
 use crate::api::record::{CameraPose, Trigger};
-use crate::report::{self, EdgeQuery, Measurement, Table};
-use crate::repr::clouds::DepthPart;
+use crate::report::{self, EdgeQuery, Measurement};
 use crate::repr::no_depth::{self, NoDepth};
 use crate::repr::{self, CloudSource, Stream, Subject, raster};
 use crate::vision::calibration::pose_transformation;
@@ -41,6 +40,7 @@ use crate::timesync::{self, FrameHistory, FrameTime, Limits};
 pub use budget::Busy;
 pub use edge::EdgeError;
 use grab::{Frame, GrabError};
+use merge::{Merged, register_and_merge};
 use state::StateDir;
 
 /// JSON configuration resources of a camera.
@@ -1012,13 +1012,8 @@ impl Cams {
             return Ok(m);
         }
         let config = query.config;
-        let (table, merged) = tokio::task::spawn_blocking(move || {
-            let views: Vec<geometry::View> = merged.parts.iter().map(DepthPart::view).collect();
-            let table = Table::measure(&merged.cloud, &config, &views)
-                .map(|t| t.with_no_depth(&merged.no_depth, &views));
-            (table, merged)
-        })
-        .await?;
+        let (table, merged) =
+            tokio::task::spawn_blocking(move || (merged.table(&config), merged)).await?;
         let mut m = Measurement::of_table(
             &table?,
             &query.billing,
@@ -1123,68 +1118,6 @@ fn measurement(stored: &(Measurement, [u8; 8]), cf: ContentFormat) -> Response {
         Ok((body, etag)) => content(body, cf, etag),
         Err(why) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &why.to_string()),
     }
-}
-
-/// What [`Cams::grab_merged`] collected.
-struct Merged {
-    cloud: PointCloud,
-    parts: Vec<DepthPart>,
-    /// The cameras in the cloud, in merge order.
-    serials: Vec<Serial>,
-    /// Their frames' timestamps, microseconds since the UNIX epoch.
-    frames_us: Vec<u64>,
-    /// The newest frame's (now, when there is none).
-    timestamp_us: u64,
-    /// Each camera's floor level, seen in its whole view ([`grab::Frame::Cloud`]).
-    floors: Vec<(Option<String>, Option<f32>)>,
-    /// Every camera's parts of the table that returned no depth ([`grab::Frame::Cloud`]).
-    no_depth: Vec<NoDepth>,
-    /// Why cameras were left out.
-    failed: Vec<String>,
-}
-
-/// ICP finds a camera's correction on clouds thinned to one point per cube of this edge
-/// (metres), point-to-plane, then moves the whole cloud. On two 640x480 clouds (600,000
-/// points) point-to-point ICP on every point took 13 s and, on a view displaced by 15 mm
-/// and 1 degree, stopped 9 mm off after its 30 iterations; thinned and point-to-plane it
-/// takes a fraction of a second and ends within 2 mm (the floor dominates these scenes,
-/// and point-to-point slides along it).
-const ICP_VOXEL_M: f32 = 0.01;
-
-/// Merges clouds already in the common frame; a cloud whose camera has `icp` on is first
-/// registered onto the clouds merged before it, and its part keeps that correction.
-fn register_and_merge(
-    clouds: Vec<(Serial, bool, Vec<Point3>, DepthPart)>,
-) -> (PointCloud, Vec<DepthPart>) {
-    let mut merged = PointCloud::default();
-    let mut parts = Vec::with_capacity(clouds.len());
-    for (sn, icp, points, mut part) in clouds {
-        let mut cloud = PointCloud::from(points);
-        if icp && !merged.is_empty() {
-            match icp_correction(&cloud, &merged) {
-                Ok(correction) => {
-                    let correction = Transform::from(correction);
-                    correction.apply_in_place(&mut cloud);
-                    part.correction = Some(correction);
-                }
-                Err(e) => tracing::warn!(serial = %sn, "ICP skipped: {e:#}"),
-            }
-        }
-        merged.extend_from(&cloud);
-        parts.push(part);
-    }
-    (merged, parts)
-}
-
-/// The transform that registers `cloud` onto `merged`, found on both thinned.
-fn icp_correction(cloud: &PointCloud, merged: &PointCloud) -> anyhow::Result<Isometry3<f32>> {
-    let source = geometry::voxel_downsample(cloud, ICP_VOXEL_M)?;
-    let target = geometry::voxel_downsample(merged, ICP_VOXEL_M)?;
-    let config = IcpConfig {
-        method: IcpMethod::PointToPlane,
-        ..IcpConfig::default()
-    };
-    Ok(geometry::icp(&source, &target, &Isometry3::identity(), &config)?.transform)
 }
 
 fn warn_on(sn: &Serial, name: &str, result: Result<(), CameraError>) {
