@@ -8,7 +8,7 @@ mod cli;
 use std::process::ExitCode;
 
 use anyhow::Context as _;
-use clap::{CommandFactory as _, Parser, Subcommand};
+use clap::{CommandFactory as _, FromArgMatches as _, Parser, Subcommand};
 use cli::{Deferred, Exit, interruptible};
 
 /// RGB-D cameras (Intel RealSense D400 and a synthetic D415) as CoAP resources.
@@ -72,7 +72,9 @@ enum Command {
 
 fn main() -> ExitCode {
     // `serve --config FILE`'s keys come in as flags here.
-    let cli = Cli::parse_from(cli::config::command_line(Cli::command()));
+    let mut matches = cli::config::command_line(Cli::command());
+    let cli = Cli::from_arg_matches_mut(&mut matches)
+        .unwrap_or_else(|e| e.format(&mut Cli::command()).exit());
     if matches!(cli.command, Command::Serve(_)) {
         cli::serve::fix_malloc_threshold();
     }

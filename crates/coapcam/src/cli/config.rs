@@ -23,15 +23,16 @@ const NOT_KEYS: [&str; 3] = ["help", "config", "print_config"];
 /// What a masked password reads as.
 const MASK: &str = "********";
 
-/// The command line to parse: the process's, with the keys of `serve --config FILE` put
-/// in as the flags they name (those given as flags are left out: the flags win).
+/// The process's command line parsed by `cmd`, exiting as clap does on an error. For
+/// `serve --config FILE`, parsed again with the file's keys put in as the flags they name
+/// (those given as flags are left out: the flags win); only then is it parsed twice.
 /// `serve --print-config` prints the flags in effect as a file and exits 0; a file that
 /// cannot be read, or a key or value it refuses, exits 2, as clap does for a bad flag.
-pub(crate) fn command_line(cmd: Command) -> Vec<OsString> {
+pub(crate) fn command_line(cmd: Command) -> ArgMatches {
     let argv: Vec<OsString> = std::env::args_os().collect();
     let matches = cmd.clone().get_matches_from(&argv);
     let Some((SERVE, serve)) = matches.subcommand() else {
-        return argv;
+        return matches;
     };
     let mut serve_cmd = cmd.clone();
     serve_cmd.build();
@@ -54,7 +55,7 @@ pub(crate) fn command_line(cmd: Command) -> Vec<OsString> {
         merged.extend_from_slice(&argv[at..]);
         merged
     };
-    let (argv, matches) = match serve.get_one::<PathBuf>("config") {
+    let matches = match serve.get_one::<PathBuf>("config") {
         Some(path) => {
             let keys = file_keys(path, &serve_cmd, serve).unwrap_or_else(|e| {
                 eprintln!("coapcam: {e}");
@@ -64,7 +65,7 @@ pub(crate) fn command_line(cmd: Command) -> Vec<OsString> {
             // The rules between flags (one requires another, two conflict), with the
             // file's: the keys without which the error goes are named.
             match cmd.clone().try_get_matches_from(&all) {
-                Ok(matches) => (all, matches),
+                Ok(matches) => matches,
                 Err(e) => {
                     for (i, key) in keys.iter().enumerate() {
                         if cmd
@@ -79,7 +80,7 @@ pub(crate) fn command_line(cmd: Command) -> Vec<OsString> {
                 }
             }
         }
-        None => (argv, matches),
+        None => matches,
     };
     let (_, serve) = matches.subcommand().expect("serve");
     if serve.get_flag("print_config") {
@@ -93,7 +94,7 @@ pub(crate) fn command_line(cmd: Command) -> Vec<OsString> {
         }
         std::process::exit(0);
     }
-    argv
+    matches
 }
 
 /// A key of the file, as the flags it stands for.
