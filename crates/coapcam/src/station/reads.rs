@@ -129,6 +129,9 @@ pub(crate) async fn picture(
 /// A record id: a whole number from 1.
 fn parse_id(text: &str) -> Result<u64, Refusal> {
     match text.parse::<u64>() {
+        // SQLite's ids are signed 64-bit: one past them is no record (it was a 500 with
+        // the database's error).
+        Ok(id) if id > i64::MAX as u64 => Err(no_record(id)),
         Ok(id) if id > 0 => Ok(id),
         _ => Err(Refusal::new(
             Kind::BadRequest,

@@ -321,6 +321,9 @@ fn the_api_serves_the_log_measures_and_streams() {
 
     // Errors: JSON with a message and the right status.
     assert!(get(addr, "/api/measurements/99").error(404).contains("99"));
+    // Past SQLite's signed 64-bit ids too (issue 46: 500 naming the database's path).
+    let past = "/api/measurements/9223372036854775808";
+    assert!(get(addr, past).error(404).contains("9223372036854775808"));
     assert!(
         get(addr, "/api/measurements/99/photo.jpg")
             .error(404)
