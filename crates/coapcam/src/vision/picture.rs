@@ -11,9 +11,16 @@ use rgbd::{Extrinsics, Intrinsics};
 
 use crate::repr::packet::DepthImage;
 
+/// The shortest depth range a picture spreads its shades over, metres: an empty table's
+/// depths span only its noise (8 mm from above), which stretched over every shade is
+/// colour noise (and a JPEG of 1.5 MB); over 30 cm the floor is one far colour and a
+/// parcel 2 cm high stands out from it.
+const MIN_RANGE_M: f32 = 0.3;
+
 /// The depth values at the 1st and 99th percentile of the valid (non-zero) pixels, so a
-/// few flying pixels do not flatten the picture; `None` without valid pixels.
-fn depth_range(values: &[u16]) -> Option<(u16, u16)> {
+/// few flying pixels do not flatten the picture, widened towards the camera to at least
+/// [`MIN_RANGE_M`]; `None` without valid pixels.
+fn depth_range(values: &[u16], depth_scale: f32) -> Option<(u16, u16)> {
     let mut valid: Vec<u16> = values.iter().copied().filter(|v| *v != 0).collect();
     if valid.is_empty() {
         return None;
@@ -23,7 +30,11 @@ fn depth_range(values: &[u16]) -> Option<(u16, u16)> {
     let (_, lo, _) = valid.select_nth_unstable(lo_at);
     let lo = *lo;
     let (_, hi, _) = valid.select_nth_unstable(hi_at);
-    Some((lo, (*hi).max(lo + 1)))
+    let hi = (*hi).max(lo + 1);
+    let min_units = (MIN_RANGE_M / depth_scale.max(f32::EPSILON))
+        .round()
+        .min(65535.0) as u16;
+    Some((lo.min(hi.saturating_sub(min_units)), hi))
 }
 
 /// 0 at `lo` (near) to 1 at `hi` (far), clamped.
@@ -34,7 +45,7 @@ fn normalized(v: u16, lo: u16, hi: u16) -> f32 {
 /// Depth as 8-bit grayscale (near bright, far dark) and colour-mapped (near blue, far red,
 /// as librealsense's "Jet" colorizer) over one depth range; pixels without depth black.
 pub fn depth_views(depth: &DepthImage) -> (GrayImage, RgbImage) {
-    let range = depth_range(&depth.values);
+    let range = depth_range(&depth.values, depth.depth_scale);
     // 0 (near) to 1 (far) at a pixel with depth.
     let at = |x: u32, y: u32| {
         let v = depth.values[(y * depth.width + x) as usize];
@@ -725,6 +736,34 @@ mod tests {
         assert_eq!(c.get_pixel(0, 0).0, jet(0.0));
         assert_eq!(c.get_pixel(1, 0).0, jet(1.0));
         assert_eq!(c.get_pixel(2, 0).0, [0, 0, 0]);
+    }
+
+    #[test]
+    fn an_empty_tables_floor_is_one_far_colour_and_a_parcel_stands_out() {
+        // A floor 1.5 m away, its depth noise 8 mm from end to end (issue 51: stretched
+        // over every colour, the page showed colour noise for an empty table).
+        let floor: Vec<u16> = (0..400u32)
+            .map(|i| 1496 + ((i * 7919) % 9) as u16)
+            .collect();
+        let (gray, colored) = depth_views(&depth(floor.clone(), 20));
+        let far = jet(1.0);
+        for p in colored.pixels().take(20 * 10) {
+            let off = (0..3).map(|k| p.0[k].abs_diff(far[k])).max().unwrap();
+            assert!(off <= 40, "{:?} is not the far end's {far:?}", p.0);
+        }
+        let shades: std::collections::BTreeSet<u8> =
+            gray.pixels().take(200).map(|p| p.0[0]).collect();
+        assert!(shades.len() <= 8, "{} shades of floor noise", shades.len());
+        // A parcel 20 mm high on it is told apart.
+        let mut with_parcel = floor;
+        with_parcel[..40].fill(1480);
+        let (_, colored) = depth_views(&depth(with_parcel, 20));
+        let (parcel, table) = (colored.get_pixel(0, 0).0, colored.get_pixel(0, 10).0);
+        let diff = (0..3).map(|k| parcel[k].abs_diff(table[k])).max().unwrap();
+        assert!(
+            diff >= 20,
+            "parcel {parcel:?} and floor {table:?} look alike"
+        );
     }
 
     #[test]

@@ -750,6 +750,23 @@ fn the_page_shows_the_parcel_and_measures_in_chromium() {
     );
     assert_eq!(footer.as_str(), Some(want.as_str()), "{footer}");
 
+    // Before the first record the photo is hidden, and hidden means not drawn: the
+    // page's own `display: block` drew an empty dark box with a broken-image icon
+    // (issue 51, item 10).
+    let drawn = browser.script(
+        "const img = document.querySelector('#latest-photo');
+         const was = img.hidden;
+         img.hidden = true;
+         const display = getComputedStyle(img).display;
+         img.hidden = was;
+         return display;",
+    );
+    assert_eq!(
+        drawn.as_str(),
+        Some("none"),
+        "a hidden photo is drawn: {drawn}"
+    );
+
     let shot = browser.session_call("GET", "/screenshot", None);
     let png = base64(shot.as_str().expect("a screenshot"));
     assert!(png.starts_with(b"\x89PNG"), "a PNG");
