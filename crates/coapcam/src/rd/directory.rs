@@ -180,6 +180,10 @@ pub struct Registration {
     /// Changes when what lookups show of it changes (0 until it is held): a
     /// [`Listing`] made before renders it again only while this stays.
     version: u64,
+    /// The bytes of its endpoint link's text, and of its resolved links' together
+    /// (without commas): a listing of whole registrations is sized without rendering them.
+    ep_text: usize,
+    links_text: usize,
 }
 
 impl Registration {
@@ -194,6 +198,8 @@ impl Registration {
             cost: 0,
             seq: 0,
             version: 0,
+            ep_text: 0,
+            links_text: 0,
         };
         r.refresh(links);
         r
@@ -213,6 +219,8 @@ impl Registration {
         self.link_attrs = (self.resolved.iter())
             .flat_map(|l| l.attrs.iter())
             .fold(0, |bits, (n, _)| bits | name_bit(n));
+        self.ep_text = self.ep_link.to_string().len();
+        self.links_text = self.resolved.iter().map(|l| l.to_string().len()).sum();
         self.cost = cost_of(self);
     }
 
@@ -1018,9 +1026,22 @@ impl Directory {
         let mut text = String::new();
         for (i, part) in parts.iter_mut().enumerate() {
             if let Some(reg) = self.regs.get(&part.id) {
-                text.clear();
-                links += render(reg, kind, query, part, i == 0, &mut text);
-                len += text.len();
+                let take = part.take as usize;
+                // A comma before every link but the document's first.
+                let commas = take - usize::from(i == 0);
+                let whole = match kind {
+                    LookupKind::Endpoints => Some(reg.ep_text),
+                    LookupKind::Resources => (take == reg.resolved.len()).then_some(reg.links_text),
+                };
+                len += match whole {
+                    Some(bytes) => bytes + commas,
+                    None => {
+                        text.clear();
+                        render(reg, kind, query, part, i == 0, &mut text);
+                        text.len()
+                    }
+                };
+                links += take;
             }
             part.end = len;
         }
