@@ -253,20 +253,7 @@ fn simple_registration_fetches_the_endpoints_own_links() {
                 .get(handler(|_| async { coap::Response::new(Code::CONTENT) }))
                 .attr("rt", "example.sensor"),
         );
-        let server = Server::bind(
-            &[SocketAddr::from(([127, 0, 0, 1], 0))],
-            ServerConfig::default(),
-            router,
-        )
-        .expect("binding");
-        let own = server
-            .client_for(rd)
-            .expect("a client on the server's socket");
-        let mut simple = Request::new(Code::POST, "/.well-known/rd");
-        simple.options.push(OptionNumber::URI_QUERY, "ep=simple");
-        simple.options.push(OptionNumber::URI_QUERY, "lt=60");
-        simple.timeout = Some(LIMIT);
-        let r = own.send(rd, simple).await.expect("simple registration");
+        let (server, r) = simple_registration(router, rd, &["ep=simple", "lt=60"]).await;
         assert_eq!(
             r.code,
             Code::CHANGED,
@@ -293,6 +280,31 @@ fn simple_registration_fetches_the_endpoints_own_links() {
         let r = c.send(rd, with_base).await.expect("answered");
         assert_eq!(r.code, Code::BAD_REQUEST);
     });
+}
+
+/// A CoAP server of `router` on 127.0.0.1 and its simple registration (RFC 9176 §5.1)
+/// with the directory `rd`, sent from the server's own socket with the query `items`.
+async fn simple_registration(
+    router: std::sync::Arc<Router>,
+    rd: SocketAddr,
+    items: &[&str],
+) -> (Server, coap::Response) {
+    let server = Server::bind(
+        &[SocketAddr::from(([127, 0, 0, 1], 0))],
+        ServerConfig::default(),
+        router,
+    )
+    .expect("binding");
+    let own = server
+        .client_for(rd)
+        .expect("a client on the server's socket");
+    let mut simple = Request::new(Code::POST, "/.well-known/rd");
+    for item in items {
+        simple.options.push(OptionNumber::URI_QUERY, *item);
+    }
+    simple.timeout = Some(LIMIT);
+    let r = own.send(rd, simple).await.expect("simple registration");
+    (server, r)
 }
 
 /// A link-format document of `len` bytes that counts the bytes read of it.
@@ -337,19 +349,7 @@ fn simple_registration_reads_no_more_of_the_endpoints_links_than_a_registration_
                 }
             })
         }));
-        let server = Server::bind(
-            &[SocketAddr::from(([127, 0, 0, 1], 0))],
-            ServerConfig::default(),
-            router,
-        )
-        .expect("binding");
-        let own = server
-            .client_for(rd)
-            .expect("a client on the server's socket");
-        let mut simple = Request::new(Code::POST, "/.well-known/rd");
-        simple.options.push(OptionNumber::URI_QUERY, "ep=large");
-        simple.timeout = Some(LIMIT);
-        let r = own.send(rd, simple).await.expect("simple registration");
+        let (_server, r) = simple_registration(router, rd, &["ep=large"]).await;
         assert_eq!(
             r.code,
             Code::REQUEST_ENTITY_TOO_LARGE,
