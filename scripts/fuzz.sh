@@ -9,7 +9,7 @@ set -euo pipefail
 secs="${1:-600}"
 shift || true
 here="$(dirname "$0")"
-bash "$here/fuzz-build.sh"
+bash "$here/fuzz-build.sh" -O
 cd "$here/../fuzz"
 export RUSTC_BOOTSTRAP=1
 
