@@ -472,6 +472,35 @@ pub(crate) mod tests {
         .expect("a measurement")
     }
 
+    /// The record of issue 51, item 4: a parcel measured 322.6 x 241.3 x 99.8 mm, billed
+    /// at the default 5 mm division, with a code.
+    pub(crate) fn billed_record() -> Record {
+        let fit = geometry::ParcelFit::whole_box(geometry::Dimensions {
+            length_mm: 322.6,
+            width_mm: 241.3,
+            height_mm: 99.8,
+            yaw_deg: 0.0,
+            corners_m: [[0.0, 0.0], [0.3226, 0.0], [0.3226, 0.2413], [0.0, 0.2413]],
+            volume_l: 0.3226 * 0.2413 * 0.0998 * 1e3,
+            points: 4000,
+        });
+        let table = crate::report::Table {
+            fits: vec![fit],
+            largest_points: 4000,
+        };
+        let mut new = new_record();
+        new.measurement = Measurement::of_table(
+            &table,
+            &crate::report::Billing::default(),
+            0.8,
+            5000,
+            vec!["840412060746".into()],
+            vec![1],
+            std::time::Duration::ZERO,
+        );
+        Record::chain(&new, 7, GENESIS)
+    }
+
     fn new_record() -> NewRecord {
         NewRecord {
             time: UtcTime {

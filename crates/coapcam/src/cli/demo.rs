@@ -110,7 +110,8 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
     let Some(dimensions) = m.dimensions() else {
         bail!("nothing on the table: the scene's box was not seen");
     };
-    annotate::from_server(&client, first, dimensions, Some(&codes), &annotated).await?;
+    // The demo's own unrounded measurement, beside the scene's truth.
+    annotate::from_server(&client, first, dimensions, None, Some(&codes), &annotated).await?;
     outln!("wrote {} (camera {first})", annotated.display());
     outln!("");
     out!("{}", report(&m, dimensions, truth(&scene)));

@@ -99,14 +99,14 @@ pub(crate) struct MeasureArgs {
     #[arg(long, value_name = "CM3_PER_KG", default_value = "5000",
           value_parser = values::volumetric_divisor)]
     volumetric_divisor: f64,
-    /// Round each dimension up to a multiple of this many millimetres, 0.1 to 1000, as a
-    /// scale with this division reports it (e.g. 5); the volume and volumetric weight
-    /// follow the rounded dimensions.
+    /// Round each dimension up to a multiple of this many millimetres, 0.1 to 1000 (a
+    /// carrier's rule, e.g. 10), instead of to the nearest multiple of its division; the
+    /// volume and volumetric weight follow the rounded dimensions.
     #[arg(long, value_name = "MM", value_parser = values::round_up_mm)]
     round_up_mm: Option<f64>,
-    /// The accuracy division d of the `parcels` list, millimetres: each parcel's
-    /// dimensions are rounded to the nearest multiple of d, or of 2 d above 200 d (1,000
-    /// mm at d = 5). Dimensions below 10 d (length, width) or 2 d (height), or above 300 d
+    /// The accuracy division d, millimetres: each parcel's dimensions (the numbers to bill
+    /// on) are rounded to the nearest multiple of d, or of 2 d above 200 d (1,000 mm at
+    /// d = 5). Dimensions below 10 d (length, width) or 2 d (height), or above 300 d
     /// (length, width) or 200 d (height), are out of range, and the parcel is refused (exit
     /// status 10 when it is the largest).
     #[arg(long, value_name = "MM", default_value = "5", value_parser = values::division_mm)]
@@ -133,7 +133,7 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
     check_flags(&args)?;
     let billing = Billing {
         divisor_cm3_per_kg: args.volumetric_divisor,
-        division_mm: args.round_up_mm,
+        round_up_mm: args.round_up_mm,
         division: Division {
             d_mm: args.division_mm,
         },
@@ -383,7 +383,8 @@ async fn annotate_parcel(
     let one = CamClient::unicast(client, *server);
     match parcel {
         Parcel::Measured(dimensions) => {
-            annotate::from_server(&one, sn, dimensions, m.codes.as_deref(), path).await?;
+            let division = m.reported().and_then(|r| r.division_mm);
+            annotate::from_server(&one, sn, dimensions, division, m.codes.as_deref(), path).await?;
             eprintln!("coapcam: wrote {}", path.display());
         }
         Parcel::Refused { reason, .. } => {

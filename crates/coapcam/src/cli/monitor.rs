@@ -14,7 +14,7 @@ use coapcam::api::record::Record;
 use coapcam::client::measure::{self, Calibration, Source};
 use coapcam::client::timed::{self, Repeat, Timed};
 use coapcam::client::{CamClient, results};
-use coapcam::report::{Billing, Found, Measurement, Parcel};
+use coapcam::report::{Billing, Found, Measurement, Parcel, Reported};
 use coapcam::repr::Stream;
 use coapcam::stats::TransferStats;
 
@@ -284,10 +284,11 @@ impl Report {
                             );
                         }
                         Some((_, Parcel::Measured(d))) => {
-                            line += &format!(
-                                "  {:.1} x {:.1} x {:.1} mm, yaw {:.1} deg, {} points",
-                                d.length_mm, d.width_mm, d.height_mm, d.yaw_deg, d.points
-                            );
+                            let dims = measurement
+                                .and_then(Measurement::reported)
+                                .map_or_else(String::new, Reported::dimensions_text);
+                            line +=
+                                &format!("  {dims}, yaw {:.1} deg, {} points", d.yaw_deg, d.points);
                         }
                         Some((_, Parcel::Nothing { .. })) => line += "  nothing on the table",
                         Some((_, Parcel::Refused { reason, .. })) => {

@@ -10,7 +10,7 @@ use clap::{Args, Subcommand};
 use coapcam::api::record::{Head, Record};
 use coapcam::api::results::{ListQuery, MAX_LIST};
 use coapcam::client::{CamClient, results};
-use coapcam::report::Reported;
+use coapcam::report::{Reported, format_mm};
 use coapcam::station::log;
 
 use super::{Exit, TransmissionArgs, out, outln};
@@ -41,7 +41,8 @@ pub(crate) struct ResultsArgs {
     #[arg(long, conflicts_with = "csv")]
     json: bool,
     /// Comma-separated values with a header line (RFC 4180): id, time, station,
-    /// trigger, parcel, length_mm, width_mm, height_mm, volume_l, volumetric_weight_kg,
+    /// trigger, parcel, length_mm, width_mm, height_mm (the numbers to bill on, with the
+    /// decimals of their division), volume_l, volumetric_weight_kg,
     /// volumetric_divisor_cm3_per_kg, codes (`;`-separated), warnings (count), hash.
     #[arg(long)]
     csv: bool,
@@ -226,10 +227,8 @@ fn text(r: &Record) -> String {
     let m = &r.measurement;
     let parcel = match m.reported() {
         Some(p) => format!(
-            "{:.1} x {:.1} x {:.1} mm  {:.2} l  {:.2} kg (divisor {})",
-            p.length_mm,
-            p.width_mm,
-            p.height_mm,
+            "{}  {:.2} l  {:.2} kg (divisor {})",
+            p.dimensions_text(),
             p.volume_l,
             p.volumetric_weight_kg,
             p.volumetric_divisor_cm3_per_kg
@@ -276,15 +275,19 @@ fn csv_row(r: &Record) -> String {
     let m = &r.measurement;
     let p = m.reported();
     let number = |f: fn(&Reported) -> f64| p.map(|p| f(p).to_string()).unwrap_or_default();
+    let dimension = |f: fn(&Reported) -> f64| {
+        p.map(|p| format_mm(f(p), p.division_mm))
+            .unwrap_or_default()
+    };
     let fields = [
         r.id.to_string(),
         r.time.to_string(),
         r.station.clone(),
         r.trigger.name().to_owned(),
         if p.is_some() { "measured" } else { "nothing" }.to_owned(),
-        number(|p| p.length_mm),
-        number(|p| p.width_mm),
-        number(|p| p.height_mm),
+        dimension(|p| p.length_mm),
+        dimension(|p| p.width_mm),
+        dimension(|p| p.height_mm),
         number(|p| p.volume_l),
         number(|p| p.volumetric_weight_kg),
         number(|p| p.volumetric_divisor_cm3_per_kg),

@@ -23,12 +23,14 @@ pub fn projector(
     picture::projector(capture.intrinsics, capture.depth_to_color, depth_to_world)
 }
 
-/// Grabs a color frame of `serial` and draws `dims` onto it (`--annotate`), with the
-/// codes read (`None` when they were not asked for).
+/// Grabs a color frame of `serial` and draws `dims` onto it (`--annotate`), written with
+/// the decimals of `division_mm` (the division they were rounded to; `None`: unrounded),
+/// with the codes read (`None` when they were not asked for).
 pub async fn from_server(
     client: &CamClient,
     serial: &str,
     dims: &Dimensions,
+    division_mm: Option<f64>,
     codes: Option<&[Seen]>,
     path: &std::path::Path,
 ) -> anyhow::Result<()> {
@@ -36,6 +38,7 @@ pub async fn from_server(
         picture::annotate_frame(
             image,
             dims,
+            division_mm,
             code_texts(codes).as_deref(),
             capture.intrinsics,
             capture.depth_to_color,

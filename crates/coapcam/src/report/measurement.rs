@@ -17,7 +17,7 @@ use std::time::Duration;
 use geometry::{Dimensions, ParcelFit, Shape};
 use serde::{Deserialize, Serialize};
 
-use super::{Billing, Parcel, Seen, Table, describe, ms};
+use super::{Billing, Parcel, Seen, Table, describe, format_mm, ms};
 use crate::timesync::FrameTime;
 
 /// The version of the document this program writes and the newest it reads.
@@ -72,8 +72,8 @@ pub struct Measurement {
     #[serde(default)]
     pub warnings: Vec<String>,
     /// Every parcel on the table, the largest first (the top-level fields describe the
-    /// first), each rounded to its accuracy division or refused with the reason; absent
-    /// in documents from before the list.
+    /// first, with the same numbers), each rounded as [`Billing`] says or refused with the
+    /// reason; absent in documents from before the list.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub parcels: Vec<ParcelReport>,
 }
@@ -86,8 +86,8 @@ pub struct ParcelReport {
     /// Why the data cannot support a number.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
-    /// Length of its smallest enclosing cuboid, rounded to the nearest multiple of its
-    /// division, mm.
+    /// Length of its smallest enclosing cuboid, mm, as billed ([`Billing::billed_mm`]:
+    /// rounded to the nearest multiple of its division).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub length_mm: Option<f64>,
     /// Width, the same way.
@@ -96,8 +96,14 @@ pub struct ParcelReport {
     /// Height, the same way.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub height_mm: Option<f64>,
-    /// The division of length, width and height, mm (d, or 2 d above the switchover).
+    /// The division of length, width and height, mm (d, or 2 d above the switchover; the
+    /// step of `round_up_mm` when that was asked for).
     pub division_mm: [f64; 3],
+    /// Length, width and height as measured, to 0.1 mm, before the rounding: to check
+    /// accuracy with, not to bill on; absent for a refused parcel and in documents from
+    /// before the field.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unrounded_mm: Option<[f64; 3]>,
     /// Direction of the long side from +x towards +y, degrees in (-90, 90], to 0.01.
     pub yaw_deg: f64,
     /// The footprint's corners `[x, y]` in metres, to 0.1 mm.
@@ -120,10 +126,10 @@ impl ParcelReport {
     /// `fit` as `billing` reports it: rounded to its division, or refused.
     pub fn new(fit: &ParcelFit, billing: &Billing, min_coverage: f32) -> Self {
         let d = &fit.dimensions;
-        let division = &billing.division;
-        let reason = division.refusal(fit, min_coverage);
-        let value = |v: f64| reason.is_none().then(|| division.round(v));
+        let reason = billing.division.refusal(fit, min_coverage);
+        let value = |v: f64| reason.is_none().then(|| billing.billed_mm(v));
         let thousandth = |v: f64| (v * 1000.0).round() / 1000.0;
+        let unrounded_mm = reason.is_none().then(|| unrounded(d));
         Self {
             parcel: if reason.is_some() {
                 "refused"
@@ -135,7 +141,8 @@ impl ParcelReport {
             width_mm: value(d.width_mm),
             height_mm: value(d.height_mm),
             reason,
-            division_mm: [d.length_mm, d.width_mm, d.height_mm].map(|v| division.of(v)),
+            division_mm: [d.length_mm, d.width_mm, d.height_mm].map(|v| billing.division_of(v)),
+            unrounded_mm,
             yaw_deg: (d.yaw_deg * 100.0).round() / 100.0,
             corners_m: d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4)),
             shape: match fit.shape {
@@ -154,6 +161,11 @@ impl ParcelReport {
 
 fn first_version() -> u32 {
     1
+}
+
+/// Length, width and height to 0.1 mm, unrounded otherwise.
+fn unrounded(d: &Dimensions) -> [f64; 3] {
+    [d.length_mm, d.width_mm, d.height_mm].map(|v| (v * 10.0).round() / 10.0)
 }
 
 /// What a measurement found on the table.
@@ -187,17 +199,25 @@ pub enum Found {
     },
 }
 
-/// A measured parcel as reported: the dimensions rounded as its [`Billing`] says.
+/// A measured parcel as reported: the dimensions rounded as its [`Billing`] says, the
+/// numbers to bill on (the same as the first of [`Measurement::parcels`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Reported {
-    /// Longer side of the footprint, mm.
+    /// Longer side of the footprint, mm, as billed ([`Billing::billed_mm`]).
     pub length_mm: f64,
-    /// Shorter side of the footprint, mm.
+    /// Shorter side of the footprint, mm, as billed.
     pub width_mm: f64,
-    /// Height above the floor, mm.
+    /// Height above the floor, mm, as billed.
     pub height_mm: f64,
-    /// The scale division the dimensions were rounded up to; `null` for 0.1 mm.
+    /// The division the dimensions were rounded to: the accuracy division d (a dimension
+    /// above 200 d takes 2 d, as `parcels[0].division_mm` gives each), or the step of
+    /// `round_up_mm`; `null` in documents made before the rounding to the division (their
+    /// dimensions to 0.1 mm).
     pub division_mm: Option<f64>,
+    /// Length, width and height as measured, to 0.1 mm, before the rounding: to check
+    /// accuracy with, not to bill on; absent in documents from before the field.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unrounded_mm: Option<[f64; 3]>,
     /// Direction of the long side from +x towards +y, degrees in (-90, 90], to 0.01.
     pub yaw_deg: f64,
     /// The footprint's corners `[x, y]` in metres, around the rectangle, to 0.1 mm.
@@ -219,7 +239,8 @@ impl Reported {
             length_mm,
             width_mm,
             height_mm,
-            division_mm: billing.division_mm,
+            division_mm: Some(billing.division_mm()),
+            unrounded_mm: Some(unrounded(d)),
             yaw_deg: (d.yaw_deg * 100.0).round() / 100.0,
             // To 0.1 mm, as the dimensions.
             corners_m: d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4)),
@@ -227,6 +248,18 @@ impl Reported {
             volumetric_weight_kg: milli(billing.volumetric_weight_kg(d)),
             volumetric_divisor_cm3_per_kg: billing.divisor_cm3_per_kg,
         }
+    }
+
+    /// The numbers to bill on as every output writes them ([`format_mm`]): `325 x 240 x
+    /// 100 mm`.
+    pub fn dimensions_text(&self) -> String {
+        let mm = |v: f64| format_mm(v, self.division_mm);
+        format!(
+            "{} x {} x {} mm",
+            mm(self.length_mm),
+            mm(self.width_mm),
+            mm(self.height_mm)
+        )
     }
 
     /// The reported parcel as dimensions of `points` points (the volume of the reported
@@ -447,9 +480,14 @@ impl Measurement {
         );
         let mut out = match &self.parcel {
             Found::Measured(r) => {
-                let rounded = r
-                    .division_mm
-                    .map_or_else(String::new, |s| format!(" (rounded up to {s} mm)"));
+                let mm = |v: f64| format_mm(v, r.division_mm);
+                let rounded = match (r.division_mm, r.unrounded_mm) {
+                    (Some(s), Some([l, w, h])) => {
+                        format!("  (division {s} mm; unrounded {l:.1} x {w:.1} x {h:.1} mm)")
+                    }
+                    (Some(s), None) => format!("  (division {s} mm)"),
+                    (None, _) => String::new(),
+                };
                 let mut corners = String::new();
                 for [x, y] in r.corners_m {
                     if !corners.is_empty() {
@@ -458,13 +496,13 @@ impl Measurement {
                     let _ = write!(corners, "({x:.3}, {y:.3})");
                 }
                 format!(
-                    "length {:.1} mm  width {:.1} mm  height {:.1} mm{rounded}\n\
+                    "length {} mm  width {} mm  height {} mm{rounded}\n\
                      yaw {:.1} deg  volume {:.2} l  volumetric weight {:.2} kg (divisor {} cm3/kg)\n\
                      footprint corners (m): {corners}\n\
                      parcel {} points of {provenance}",
-                    r.length_mm,
-                    r.width_mm,
-                    r.height_mm,
+                    mm(r.length_mm),
+                    mm(r.width_mm),
+                    mm(r.height_mm),
                     r.yaw_deg,
                     r.volume_l,
                     r.volumetric_weight_kg,
@@ -491,7 +529,15 @@ impl Measurement {
         if self.parcels.len() > 1 {
             for (k, p) in self.parcels.iter().enumerate() {
                 let what = match (p.length_mm, p.width_mm, p.height_mm) {
-                    (Some(l), Some(w), Some(h)) => format!("{l:.0} x {w:.0} x {h:.0} mm"),
+                    (Some(l), Some(w), Some(h)) => {
+                        let [dl, dw, dh] = p.division_mm.map(Some);
+                        format!(
+                            "{} x {} x {} mm",
+                            format_mm(l, dl),
+                            format_mm(w, dw),
+                            format_mm(h, dh)
+                        )
+                    }
                     _ => format!("refused: {}", p.reason.as_deref().unwrap_or("")),
                 };
                 let _ = write!(
@@ -587,7 +633,11 @@ mod tests {
         assert_eq!(doc["v"], 1);
         assert_eq!(doc["parcel"], "measured");
         assert_eq!(doc["length_mm"], 400.0);
-        assert_eq!(doc["division_mm"], serde_json::Value::Null);
+        assert_eq!(doc["division_mm"], 5.0);
+        assert_eq!(
+            doc["unrounded_mm"],
+            serde_json::json!([400.0, 300.0, 200.0])
+        );
         assert_eq!(doc["yaw_deg"], 15.0);
         assert_eq!(doc["corners_m"][3][1], 0.5);
         assert_eq!(doc["volume_l"], 24.0);
@@ -688,7 +738,9 @@ mod tests {
     fn the_text_names_the_dimensions_codes_and_timing() {
         let text = measured().text();
         assert!(
-            text.starts_with("length 400.0 mm  width 300.0 mm  height 200.0 mm\n"),
+            text.starts_with(
+                "length 400 mm  width 300 mm  height 200 mm  (division 5 mm; unrounded 400.0 x 300.0 x 200.0 mm)\n"
+            ),
             "{text}"
         );
         assert!(text.contains("volumetric weight 4.80 kg (divisor 5000 cm3/kg)"));

@@ -17,16 +17,20 @@ use crate::vision::codes::Code;
 pub use measurement::{Found, Measurement, MeasurementError, ParcelReport, Reported, VERSION};
 
 /// How a measurement is reported to an integrator's billing: the volumetric divisor and
-/// the scale division the dimensions are rounded up to.
+/// the division the dimensions are rounded to. Each dimension is given as the number to
+/// bill on, the legal result ([`Billing::billed_mm`]): rounded to the nearest multiple of
+/// its accuracy division, as a certified dimensioner displays it, or up to a multiple of
+/// `round_up_mm` when that is asked for.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Billing {
     /// Divisor of the volumetric weight, cm³ per kg: 5000 by default (the courier
     /// convention), 6000 with some carriers.
     pub divisor_cm3_per_kg: f64,
-    /// Round each dimension up to a multiple of this many millimetres (a scale
-    /// division, e.g. 5); `None` reports them to 0.1 mm.
-    pub division_mm: Option<f64>,
-    /// The accuracy division of the `parcels` list.
+    /// Round each dimension up to a multiple of this many millimetres instead of to the
+    /// nearest multiple of its division (a carrier's rule, e.g. 10); `None` rounds to the
+    /// division.
+    pub round_up_mm: Option<f64>,
+    /// The accuracy division the dimensions are rounded to, and which bounds the range.
     pub division: Division,
 }
 
@@ -34,7 +38,7 @@ impl Default for Billing {
     fn default() -> Self {
         Self {
             divisor_cm3_per_kg: 5000.0,
-            division_mm: None,
+            round_up_mm: None,
             division: Division::default(),
         }
     }
@@ -123,25 +127,68 @@ impl Division {
 }
 
 impl Billing {
-    /// Length, width and height in millimetres as reported: rounded up to the division,
-    /// else to 0.1 mm.
-    pub fn dimensions_mm(&self, d: &Dimensions) -> [f64; 3] {
-        [d.length_mm, d.width_mm, d.height_mm].map(|v| match self.division_mm {
-            Some(step) => (v / step - 1e-9).ceil() * step,
-            None => (v * 10.0).round() / 10.0,
-        })
+    /// The division the dimensions are given in: `round_up_mm`, or the accuracy division
+    /// `d` (a dimension above the switchover takes 2 d: [`Billing::division_of`]).
+    pub fn division_mm(&self) -> f64 {
+        self.round_up_mm.unwrap_or(self.division.d_mm)
     }
 
-    /// The volume of the reported dimensions, litres.
+    /// The division of a dimension of `value_mm`: `round_up_mm`, or d or 2 d
+    /// ([`Division::of`]).
+    pub fn division_of(&self, value_mm: f64) -> f64 {
+        self.round_up_mm
+            .unwrap_or_else(|| self.division.of(value_mm))
+    }
+
+    /// A dimension as the number to bill on, the legal result: `value_mm` rounded up to a
+    /// multiple of `round_up_mm`, else to the nearest multiple of its division, written
+    /// with no more decimals than the division has (320, not 320.00000000000006).
+    pub fn billed_mm(&self, value_mm: f64) -> f64 {
+        let step = self.division_of(value_mm);
+        let steps = match self.round_up_mm {
+            Some(_) => (value_mm / step - 1e-9).ceil(),
+            None => (value_mm / step).round(),
+        };
+        let scale = 10f64.powi(decimals(step) as i32);
+        (steps * step * scale).round() / scale
+    }
+
+    /// Length, width and height as billed ([`Billing::billed_mm`]), mm.
+    pub fn dimensions_mm(&self, d: &Dimensions) -> [f64; 3] {
+        [d.length_mm, d.width_mm, d.height_mm].map(|v| self.billed_mm(v))
+    }
+
+    /// The volume of the billed dimensions, litres.
     pub fn volume_l(&self, d: &Dimensions) -> f64 {
         let [l, w, h] = self.dimensions_mm(d);
         l * w * h / 1e6
     }
 
-    /// The volumetric weight of the reported dimensions: cm³ over the divisor, kg.
+    /// The volumetric weight of the billed dimensions: cm³ over the divisor, kg.
     pub fn volumetric_weight_kg(&self, d: &Dimensions) -> f64 {
         self.volume_l(d) * 1000.0 / self.divisor_cm3_per_kg
     }
+}
+
+/// How many decimals a multiple of `division_mm` needs: 0 for 5 or 10 mm, 1 for 0.5 or
+/// 0.1 mm, 2 for 0.25 mm (at most 4).
+pub fn decimals(division_mm: f64) -> usize {
+    (0..4)
+        .find(|&k| {
+            let scaled = division_mm * 10f64.powi(k as i32);
+            (scaled - scaled.round()).abs() < 1e-6 * scaled.max(1.0)
+        })
+        .unwrap_or(4)
+}
+
+/// A dimension as every output writes it (the record's text, the line output, `results`
+/// and its CSV, the annotated picture's legend; the page does the same in JavaScript):
+/// with the decimals of its division (`320` at 5 mm, `322.5` at 2.5 mm), so the number
+/// shown is the number billed; a record made before the division was given (`None`, to
+/// 0.1 mm) with one decimal.
+pub fn format_mm(value_mm: f64, division_mm: Option<f64>) -> String {
+    let places = division_mm.map_or(1, decimals);
+    format!("{value_mm:.places$}")
 }
 
 /// The reason given for a part of the table that returned no depth at all.
@@ -353,7 +400,7 @@ impl EdgeQuery {
                 self.billing.divisor_cm3_per_kg
             ));
         }
-        if let Some(mm) = self.billing.division_mm {
+        if let Some(mm) = self.billing.round_up_mm {
             q.push(format!("round_up_mm={mm}"));
         }
         if self.billing.division != d.billing.division {
@@ -391,7 +438,7 @@ impl EdgeQuery {
                 "cluster_mm" => q.config.cluster_radius_m = (v / 1e3) as f32,
                 "volumetric_divisor" => q.billing.divisor_cm3_per_kg = v,
                 "division_mm" => q.billing.division.d_mm = v,
-                _ => q.billing.division_mm = Some(v),
+                _ => q.billing.round_up_mm = Some(v),
             }
         }
         Ok(q)
@@ -763,13 +810,114 @@ mod tests {
         );
     }
 
+    /// Issue 51, item 4: one record gave 320.2 at the top level (the line output, MQTT,
+    /// CSV), 320 on the page and 320.0 with a 5 mm division in `parcels`, while the top
+    /// level said `"division_mm": null`. The top level bills the numbers of `parcels[0]`
+    /// and names its division; the unrounded numbers are kept, named so.
+    #[test]
+    fn the_top_level_bills_the_numbers_of_its_parcel_and_names_the_division() {
+        let doc = |table: &Table, billing: &Billing| -> serde_json::Value {
+            let m = Measurement::of_table(
+                table,
+                billing,
+                0.8,
+                5000,
+                Vec::new(),
+                Vec::new(),
+                Duration::ZERO,
+            );
+            serde_json::from_str(&m.to_json().expect("JSON")).expect("parses")
+        };
+        let one = |l, w, h| Table {
+            fits: vec![fit(l, w, h)],
+            largest_points: 1000,
+        };
+        let table = one(322.6, 241.3, 99.8);
+        let m = doc(&table, &Billing::default());
+        for key in ["length_mm", "width_mm", "height_mm"] {
+            assert_eq!(m[key], m["parcels"][0][key], "{key}: {m}");
+        }
+        assert_eq!(
+            [&m["length_mm"], &m["width_mm"], &m["height_mm"]],
+            [325.0, 240.0, 100.0]
+                .map(serde_json::Value::from)
+                .each_ref()
+        );
+        assert_eq!(m["division_mm"], 5.0, "{m}");
+        assert_eq!(
+            m["parcels"][0]["division_mm"],
+            serde_json::json!([5.0, 5.0, 5.0])
+        );
+        assert_eq!(m["unrounded_mm"], serde_json::json!([322.6, 241.3, 99.8]));
+        assert_eq!(m["parcels"][0]["unrounded_mm"], m["unrounded_mm"]);
+        // The volume and the volumetric weight are those of the billed numbers.
+        assert_eq!(m["volume_l"], 7.8);
+        assert_eq!(m["volumetric_weight_kg"], 1.56);
+        let text = Measurement::from_json(m.to_string().as_bytes())
+            .expect("reads")
+            .text();
+        assert!(
+            text.starts_with("length 325 mm  width 240 mm  height 100 mm  (division 5 mm; unrounded 322.6 x 241.3 x 99.8 mm)\n"),
+            "{text}"
+        );
+
+        // Rounded up to a carrier's 10 mm: the same numbers at the top and in the list.
+        let up = Billing {
+            round_up_mm: Some(10.0),
+            ..Billing::default()
+        };
+        let m = doc(&table, &up);
+        for key in ["length_mm", "width_mm", "height_mm"] {
+            assert_eq!(m[key], m["parcels"][0][key], "{key}: {m}");
+        }
+        assert_eq!(m["length_mm"], 330.0);
+        assert_eq!(m["height_mm"], 100.0);
+        assert_eq!(
+            (&m["division_mm"], &m["parcels"][0]["division_mm"][0]),
+            (&10.0.into(), &10.0.into())
+        );
+
+        // Above the switchover the length takes 2 d; the top level names d.
+        let m = doc(&one(1203.0, 251.0, 99.0), &Billing::default());
+        assert_eq!(
+            (&m["length_mm"], &m["parcels"][0]["length_mm"]),
+            (&1200.0.into(), &1200.0.into())
+        );
+        assert_eq!(m["division_mm"], 5.0);
+        assert_eq!(
+            m["parcels"][0]["division_mm"],
+            serde_json::json!([10.0, 5.0, 5.0])
+        );
+
+        // A division of 0.1 mm gives 322.6, not 322.6000000000000X.
+        let fine = Billing {
+            division: Division { d_mm: 0.1 },
+            ..Billing::default()
+        };
+        assert_eq!(fine.billed_mm(322.63), 322.6);
+        assert_eq!(fine.billed_mm(0.3 + 0.6), 0.9);
+    }
+
+    #[test]
+    fn a_dimension_is_written_with_the_decimals_of_its_division() {
+        assert_eq!(format_mm(325.0, Some(5.0)), "325");
+        assert_eq!(format_mm(1200.0, Some(10.0)), "1200");
+        assert_eq!(format_mm(320.5, Some(0.5)), "320.5");
+        assert_eq!(format_mm(320.0, Some(0.5)), "320.0");
+        assert_eq!(format_mm(320.25, Some(0.25)), "320.25");
+        assert_eq!(format_mm(322.6, Some(0.1)), "322.6");
+        // A record made before the division: its 0.1 mm.
+        assert_eq!(format_mm(322.6, None), "322.6");
+        assert_eq!(format_mm(400.0, None), "400.0");
+    }
+
     #[test]
     fn the_query_round_trips_and_refuses_what_it_does_not_know() {
         assert_eq!(EdgeQuery::parse([""; 0]), Ok(EdgeQuery::default()));
         let q = EdgeQuery::parse(["codes", "cluster_mm=30", "round_up_mm=5"]).expect("valid");
         assert!(q.codes);
         assert_eq!(q.config.cluster_radius_m, 0.03);
-        assert_eq!(q.billing.division_mm, Some(5.0));
+        assert_eq!(q.billing.round_up_mm, Some(5.0));
         let items = q.to_query();
         assert_eq!(items, ["codes", "cluster_mm=30", "round_up_mm=5"]);
         assert_eq!(

@@ -28,6 +28,7 @@ use anyhow::Context as _;
 use super::follow::{self, Feed, Next, Output, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::Record;
+use crate::report::format_mm;
 
 /// The flag of the line output (`serve --line-output`).
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -87,8 +88,10 @@ pub struct LineFields {
     pub id: u64,
     /// UTC time of the measurement, RFC 3339 (e.g. `2026-11-27T09:41:07.250Z`).
     pub time: String,
-    /// Length, width and height as reported, mm; `None` when nothing was measured.
+    /// Length, width and height as billed, mm; `None` when nothing was measured.
     pub dimensions_mm: Option<[f64; 3]>,
+    /// The division they were rounded to (`None` in records made before it was given).
+    pub division_mm: Option<f64>,
     /// The volumetric weight, kg; `None` when nothing was measured.
     pub volumetric_weight_kg: Option<f64>,
     /// The first code read, if any.
@@ -103,6 +106,7 @@ impl LineFields {
             id: record.id,
             time: record.time.to_string(),
             dimensions_mm: reported.map(|r| [r.length_mm, r.width_mm, r.height_mm]),
+            division_mm: reported.and_then(|r| r.division_mm),
             volumetric_weight_kg: reported.map(|r| r.volumetric_weight_kg),
             code: record.code_texts().into_iter().next(),
         }
@@ -111,8 +115,10 @@ impl LineFields {
 
 /// The line of a measurement, with its `\r\n`:
 /// - `id`: decimal; `time`: as recorded (RFC 3339, UTC, `Z`);
-/// - `length_mm`, `width_mm`, `height_mm`: one decimal (`400.0`); `kg`: the volumetric
-///   weight, three decimals (`4.800`); all four empty when nothing was measured;
+/// - `length_mm`, `width_mm`, `height_mm`: the numbers to bill on, with the decimals of
+///   their division ([`format_mm`]: `400` at 5 mm; one decimal in records made before the
+///   division); `kg`: the volumetric weight, three decimals (`4.800`); all four empty
+///   when nothing was measured;
 /// - `code`: the text of the first code read, empty when none was. It is written between
 ///   double quotes when it holds a comma, a double quote, or starts or ends with a space,
 ///   each double quote inside doubled (RFC 4180); a control character in it (below U+0020,
@@ -120,7 +126,7 @@ impl LineFields {
 pub fn format_line(f: &LineFields) -> String {
     let dims = f.dimensions_mm.map_or_else(
         || ",,".to_owned(),
-        |[l, w, h]| format!("{l:.1},{w:.1},{h:.1}"),
+        |dims| dims.map(|v| format_mm(v, f.division_mm)).join(","),
     );
     let kg = f
         .volumetric_weight_kg
@@ -385,6 +391,7 @@ mod tests {
             id: 12,
             time: "2026-11-27T09:41:07.250Z".into(),
             dimensions_mm: Some([400.04, 300.0, 199.96]),
+            division_mm: None,
             volumetric_weight_kg: Some(4.8),
             code: Some("PKG-0001".into()),
         };
@@ -403,6 +410,23 @@ mod tests {
         f.volumetric_weight_kg = None;
         f.code = None;
         assert_eq!(format_line(&f), "12,2026-11-27T09:41:07.250Z,,,,,\r\n");
+    }
+
+    /// Issue 51, item 4: the line gave 320.2 where the record's parcel was billed at 320
+    /// (its 5 mm division); it gives the numbers to bill on, as the record and its
+    /// `parcels` do, written as the division has them.
+    #[test]
+    fn a_line_gives_the_numbers_to_bill_on() {
+        let record = crate::api::record::tests::billed_record();
+        let m = &record.measurement;
+        let line = format_line(&LineFields::of(&record));
+        let fields: Vec<&str> = line.trim_end().split(',').collect();
+        assert_eq!(fields[2..5], ["325", "240", "100"], "{line:?}");
+        let parcel = &m.parcels[0];
+        let billed = [parcel.length_mm, parcel.width_mm, parcel.height_mm]
+            .map(|v| format_mm(v.expect("measured"), Some(5.0)));
+        assert_eq!(fields[2..5], billed, "{line:?}");
+        assert_eq!(fields[5], "1.560", "{line:?}");
     }
 
     async fn wait_for_readers(server: &LineServer, n: usize) {

@@ -19,7 +19,7 @@ use tokio::task::JoinHandle;
 use super::Recorder;
 use super::auto::{Event, Grid, HeightMap, Stillness, StillnessConfig};
 use crate::api::record::Trigger;
-use crate::report::{EdgeQuery, Found};
+use crate::report::{EdgeQuery, Found, Reported};
 use crate::server::measure::{self, Rig, RigCamera};
 
 /// How long a look waits for a camera's depth frame.
@@ -205,12 +205,10 @@ impl Watcher {
         }
         match recorder.record(measured).await {
             Ok(record) => {
-                let dims = record.measurement.reported().map_or_else(String::new, |r| {
-                    format!(
-                        "{:.1} x {:.1} x {:.1} mm",
-                        r.length_mm, r.width_mm, r.height_mm
-                    )
-                });
+                let dims = record
+                    .measurement
+                    .reported()
+                    .map_or_else(String::new, Reported::dimensions_text);
                 tracing::info!(
                     id = record.id,
                     "auto-measure: recorded measurement {}: {dims}",

@@ -9,6 +9,7 @@ use geometry::{Dimensions, PointCloud, Transform};
 use image::{GrayImage, ImageFormat, Luma, Rgb, RgbImage};
 use rgbd::{Extrinsics, Intrinsics};
 
+use crate::report::format_mm;
 use crate::repr::packet::DepthImage;
 
 /// The shortest depth range a picture spreads its shades over, metres: an empty table's
@@ -404,6 +405,7 @@ pub fn projector(
 pub fn annotate_frame(
     image: &mut RgbImage,
     dims: &Dimensions,
+    division_mm: Option<f64>,
     codes: Option<&[String]>,
     intrinsics: Intrinsics,
     depth_to_color: Extrinsics,
@@ -412,7 +414,14 @@ pub fn annotate_frame(
     // The camera in the world: where its depth frame's origin goes.
     let camera = depth_to_world.translation.map(f64::from);
     let project = projector(intrinsics, depth_to_color, depth_to_world)?;
-    annotate(image, dims, codes, [camera.x, camera.y, camera.z], project);
+    annotate(
+        image,
+        dims,
+        division_mm,
+        codes,
+        [camera.x, camera.y, camera.z],
+        project,
+    );
     Ok(())
 }
 
@@ -420,11 +429,12 @@ pub fn annotate_frame(
 /// pixel), seen from `camera` (the camera's position in the world): the footprint on the
 /// floor red, the lid green, the vertical edges yellow; an edge the box hides from the
 /// camera (no face it borders faces the camera) dashed. A legend in the top-left corner
-/// says so, with the dimensions and, when they were read (`codes`, each as
-/// `qr "PKG-0001"`), the codes found ("none" when none was).
+/// says so, with the dimensions ([`box_caption`]) and, when they were read (`codes`, each
+/// as `qr "PKG-0001"`), the codes found ("none" when none was).
 pub fn annotate(
     image: &mut RgbImage,
     dims: &Dimensions,
+    division_mm: Option<f64>,
     codes: Option<&[String]>,
     camera: [f64; 3],
     project: impl Fn([f64; 3]) -> Option<[f32; 2]>,
@@ -478,13 +488,7 @@ pub fn annotate(
             }
         }
     }
-    let mut lines = vec![(
-        format!(
-            "measured box {:.0} x {:.0} x {:.0} mm, yaw {:.1} deg",
-            dims.length_mm, dims.width_mm, dims.height_mm, dims.yaw_deg
-        ),
-        WHITE,
-    )];
+    let mut lines = vec![(box_caption(dims, division_mm), WHITE)];
     lines.extend(codes_line(codes));
     lines.extend([
         ("red: footprint on the floor".to_owned(), RED),
@@ -493,6 +497,20 @@ pub fn annotate(
         ("dashed: edges hidden behind the box".to_owned(), WHITE),
     ]);
     legend(image, (0, 0), &lines, text_scale(image));
+}
+
+/// The legend's line of a measured box: its dimensions as every output writes them
+/// ([`format_mm`]: the numbers to bill on with the decimals of `division_mm`, one
+/// decimal without a division) and its yaw.
+pub fn box_caption(dims: &Dimensions, division_mm: Option<f64>) -> String {
+    let mm = |v: f64| format_mm(v, division_mm);
+    format!(
+        "measured box {} x {} x {} mm, yaw {:.1} deg",
+        mm(dims.length_mm),
+        mm(dims.width_mm),
+        mm(dims.height_mm),
+        dims.yaw_deg
+    )
 }
 
 /// Draws onto `image` (a color frame, as [`annotate_frame`]) the parcel the measurement
@@ -886,6 +904,22 @@ mod tests {
         assert!(count(&img, 0..img.width(), gap.end..img.height(), WHITE) > 100);
     }
 
+    /// Issue 51, item 4: the legend wrote whole millimetres whatever the division; it
+    /// writes the numbers to bill on as every output does.
+    #[test]
+    fn the_legend_writes_the_dimensions_as_every_output_does() {
+        let mut d = measured_box();
+        d.length_mm = 322.5;
+        assert_eq!(
+            box_caption(&d, Some(2.5)),
+            "measured box 322.5 x 300.0 x 200.0 mm, yaw 0.0 deg"
+        );
+        assert_eq!(
+            box_caption(&measured_box(), Some(5.0)),
+            "measured box 400 x 300 x 200 mm, yaw 0.0 deg"
+        );
+    }
+
     #[test]
     fn the_annotated_legend_names_the_codes_read() {
         let legend_pixels = |codes: Option<&[String]>| {
@@ -893,6 +927,7 @@ mod tests {
             annotate(
                 &mut img,
                 &measured_box(),
+                Some(5.0),
                 codes,
                 [0.0, 0.0, 1.0],
                 from_above(1.0),
@@ -922,6 +957,7 @@ mod tests {
         annotate(
             &mut img,
             &measured_box(),
+            Some(5.0),
             None,
             [0.0, 0.0, 1.0],
             from_above(1.0),
@@ -945,6 +981,7 @@ mod tests {
         annotate(
             &mut img,
             &measured_box(),
+            Some(5.0),
             None,
             [0.0, 0.0, 1.0],
             from_above(1.0),
@@ -969,7 +1006,14 @@ mod tests {
                 (240.0 - 500.0 * (z - 0.5) / d) as f32,
             ])
         };
-        annotate(&mut side, &measured_box(), None, [2.0, 0.0, 0.5], from_side);
+        annotate(
+            &mut side,
+            &measured_box(),
+            Some(5.0),
+            None,
+            [2.0, 0.0, 0.5],
+            from_side,
+        );
         // Floor edge x = 0.2, z = 0: v = 240 + 500 * 0.5 / 1.8 = 378.9.
         assert!(
             (285..355).all(|u| side.get_pixel(u, 379) == &RED || side.get_pixel(u, 378) == &RED)

@@ -776,6 +776,69 @@ fn the_page_shows_the_parcel_and_measures_in_chromium() {
     }
 }
 
+/// Issue 51, item 4: the page showed 323 (the unrounded 322.6 to a whole millimetre) for
+/// a parcel whose record bills 325 (rounded to its 5 mm division), and the line output,
+/// MQTT and the CSV gave 322.6. The page shows the record's numbers to bill on, large and
+/// in the history, with the decimals of their division as every other output writes
+/// them: 325 at 5 mm, 322.5 at 2.5 mm.
+#[test]
+fn the_page_shows_the_numbers_to_bill_on() {
+    if !available("the_page_shows_the_numbers_to_bill_on", &[Peer::Chromium]) {
+        return;
+    }
+    let state = TempDir::new("http-page-billed");
+    let file = state.join("archived.sqlite");
+    {
+        let log = coapcam::station::log::ResultsLog::open(&file).expect("the results log");
+        crate::mqtt::record(&log, 322.6, Some("PKG-9"));
+        let fine = coapcam::report::Billing {
+            division: coapcam::report::Division { d_mm: 2.5 },
+            ..coapcam::report::Billing::default()
+        };
+        crate::mqtt::record_billed(&log, 322.6, Some("PKG-10"), &fine);
+    }
+    let file = file.to_str().expect("UTF-8 path");
+    // The default scene's station, not measuring by itself, on that log.
+    let (_server, _, addr) = station_with_http(state.path(), &["--results", file]);
+    let first = get(addr, "/api/measurements/1").json();
+    let billed = crate::support::billed_numbers(&first["measurement"]);
+    assert_eq!(billed, ["325", "300", "200"], "{first}");
+    let second = get(addr, "/api/measurements/2").json();
+    let m = &second["measurement"];
+    assert_eq!(m["division_mm"], 2.5, "{second}");
+    for (key, want) in [
+        ("length_mm", 322.5),
+        ("width_mm", 300.0),
+        ("height_mm", 200.0),
+    ] {
+        assert_eq!(
+            (&m[key], &m["parcels"][0][key]),
+            (&want.into(), &want.into()),
+            "{second}"
+        );
+    }
+    let (_driver, driver) = chromedriver();
+    let browser = Browser::start(driver, &state.join("chromium-profile"));
+    browser.session_call(
+        "POST",
+        "/url",
+        Some(&json!({ "url": format!("http://{addr}/") })),
+    );
+    let shown = browser.wait_for(
+        "the newest record large, both in the history",
+        "const l = document.querySelector('#latest-length');
+         const rows = document.querySelectorAll('#history tbody tr');
+         if (!l || rows.length < 2) return null;
+         const cells = (row) => [...row.querySelectorAll('td')].map((td) => td.textContent).slice(2, 5);
+         return { latest: ['length', 'width', 'height'].map(
+                    (k) => document.querySelector(`#latest-${k}`).textContent),
+                  history: [...rows].map(cells) };",
+    );
+    let fine = ["322.5", "300.0", "200.0"];
+    assert_eq!(shown["latest"], json!(fine), "{shown}");
+    assert_eq!(shown["history"], json!([fine, billed]), "{shown}");
+}
+
 /// A CoAP server that never answers: a UDP socket nobody reads.
 fn black_hole() -> (std::net::UdpSocket, SocketAddr) {
     let socket = std::net::UdpSocket::bind("127.0.0.1:0").expect("a UDP socket");

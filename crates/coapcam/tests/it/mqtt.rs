@@ -10,11 +10,11 @@ use std::time::{Duration, Instant};
 
 use coap::Code;
 use coapcam::api::record::{NewRecord, Trigger, UtcTime};
-use coapcam::report::{Billing, Measurement, Parcel, Seen};
+use coapcam::report::{Billing, Measurement, Seen, Table};
 use coapcam::station::log::ResultsLog;
 use coapcam::station::mqtt::{CONSUMER, Config, Publisher};
 use coapcam::vision::codes::{Code as Label, CodeKind};
-use geometry::Dimensions;
+use geometry::{Dimensions, ParcelFit};
 use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
 use tokio::sync::{mpsc, watch};
 
@@ -277,6 +277,16 @@ fn open_log(dir: &TempDir) -> ResultsLog {
 /// Records a measurement of `length_mm` (with code `code`, if any), as a measurement
 /// path does; returns its id. Blocking: call it off the runtime's threads.
 pub(crate) fn record(log: &ResultsLog, length_mm: f64, code: Option<&str>) -> u64 {
+    record_billed(log, length_mm, code, &Billing::default())
+}
+
+/// [`record`] with the dimensions reported as `billing` says.
+pub(crate) fn record_billed(
+    log: &ResultsLog,
+    length_mm: f64,
+    code: Option<&str>,
+    billing: &Billing,
+) -> u64 {
     let dimensions = Dimensions {
         length_mm,
         width_mm: 300.0,
@@ -286,9 +296,15 @@ pub(crate) fn record(log: &ResultsLog, length_mm: f64, code: Option<&str>) -> u6
         volume_l: length_mm * 0.06,
         points: 5000,
     };
-    let mut measurement = Measurement::new(
-        &Parcel::Measured(dimensions),
-        &Billing::default(),
+    // As the station's measurement path makes it: the top level and `parcels`.
+    let table = Table {
+        fits: vec![ParcelFit::whole_box(dimensions)],
+        largest_points: dimensions.points,
+    };
+    let mut measurement = Measurement::of_table(
+        &table,
+        billing,
+        0.8,
         20_000,
         vec!["840412060746".into()],
         vec![1],
@@ -362,7 +378,7 @@ fn records_arrive_in_order_as_json_with_ids_and_the_status_is_retained() {
             assert_eq!(json, serde_json::to_value(&kept).unwrap());
             assert_eq!(json["id"], id, "{json}");
             assert_eq!(
-                json["measurement"]["length_mm"],
+                json["measurement"]["unrounded_mm"][0],
                 400.0 + id as f64,
                 "{json}"
             );
@@ -532,7 +548,7 @@ fn serve_publishes_every_measurement_and_its_line_and_the_broker_tells_when_it_d
             assert_eq!(json["measurement"]["parcel"], "measured", "{json}");
             let time = UtcTime::parse(json["time"].as_str().expect("a time")).expect("RFC 3339");
             delays.push(m.arrived_unix_ms - time.unix_ms);
-            let length = json["measurement"]["length_mm"].as_f64().expect("a length");
+            let billed = crate::support::billed_numbers(&json["measurement"]);
             for reader in &mut readers {
                 let mut text = String::new();
                 reader.read_line(&mut text).expect("a line");
@@ -541,7 +557,7 @@ fn serve_publishes_every_measurement_and_its_line_and_the_broker_tells_when_it_d
                 assert_eq!(fields.len(), 7, "{text:?}");
                 assert_eq!(fields[0], id.to_string(), "{text:?}");
                 assert_eq!(fields[1], json["time"], "{text:?}");
-                assert_eq!(fields[2], format!("{length:.1}"), "{text:?}");
+                assert_eq!(fields[2..5], billed, "{text:?}");
             }
         }
         delays.sort_unstable();

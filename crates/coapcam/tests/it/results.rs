@@ -203,6 +203,10 @@ fn requests_are_recorded_served_listed_and_verified() {
         rows[1].starts_with("3,") && rows[1].contains(",lane-7,request,measured,"),
         "{text}"
     );
+    // The CSV's dimensions are the record's numbers to bill on (issue 51, item 4).
+    let billed = crate::support::billed_numbers(&lines[0]["measurement"]);
+    let fields: Vec<&str> = rows[1].split(',').collect();
+    assert_eq!(fields[5..8], billed, "{text}");
     let (code, report) = verify(&results);
     assert_eq!(code, Some(0), "{report}");
     assert_eq!(report["records"], 3);

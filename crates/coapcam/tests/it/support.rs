@@ -868,3 +868,18 @@ pub(crate) fn empty_table(state: &TempDir) -> String {
     .expect("writing the scene");
     path.to_str().expect("UTF-8 path").to_owned()
 }
+
+/// Issue 51, item 4: a measured parcel's document gives the numbers to bill on at its top
+/// level, the same as its `parcels[0]`, and names the division they were rounded to
+/// (the station's default, 5 mm). The numbers of those as an output writes them (their
+/// division's decimals: none at 5 mm).
+pub(crate) fn billed_numbers(m: &serde_json::Value) -> [String; 3] {
+    assert_eq!(m["parcel"], "measured", "{m}");
+    assert_eq!(m["division_mm"], 5.0, "the division at the top level: {m}");
+    ["length_mm", "width_mm", "height_mm"].map(|key| {
+        assert_eq!(m[key], m["parcels"][0][key], "{key}: {m}");
+        let mm = m[key].as_f64().unwrap_or_else(|| panic!("{key}: {m}"));
+        assert_eq!(mm % 5.0, 0.0, "{key} is not a multiple of 5 mm: {m}");
+        format!("{mm:.0}")
+    })
+}

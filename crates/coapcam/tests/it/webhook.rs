@@ -79,6 +79,7 @@ fn every_post_is_signed_and_a_tampered_body_fails_the_receivers_check() {
             (body["id"].as_u64(), &body["station"]),
             (Some(id), &"dock-a".into())
         );
+        support::billed_numbers(&body["measurement"]);
         received.push(got);
     }
     drop(station);
