@@ -23,6 +23,9 @@ pub const HEAD: &str = "/station/head";
 /// The results log's list of records.
 pub const MEASUREMENTS: &str = "/station/measurements";
 
+/// The results log's events: the changes of legally relevant parameters.
+pub const EVENTS: &str = "/station/events";
+
 /// The results log's newest record, observable: notified once per new record.
 pub const LATEST: &str = "/station/measurements/latest";
 

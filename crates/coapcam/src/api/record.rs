@@ -74,6 +74,9 @@ pub struct NewRecord {
     pub photo_jpeg: Option<Vec<u8>>,
     /// The annotated picture, PNG.
     pub annotated_png: Option<Vec<u8>>,
+    /// SHA-256 (hex) of the legally relevant parameters in force when it was measured
+    /// ([`parameters_sha256`]); `None` where the measuring path does not know them.
+    pub parameters_sha256: Option<String>,
 }
 
 impl NewRecord {
@@ -103,6 +106,15 @@ pub struct Record {
     /// made before builds carried it (absent from their JSON, so their hashes stand).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub software_sha256: Option<String>,
+    /// How many parameter events the log held before this record: the counter of the
+    /// changes to legally relevant parameters; `None` in records made before the log
+    /// kept events (absent from their JSON, so their hashes stand).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub events: Option<u64>,
+    /// SHA-256 (hex) of the legally relevant parameters it was measured with
+    /// ([`parameters_sha256`]); `None` in records made before (absent from their JSON).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parameters_sha256: Option<String>,
     /// SHA-256 (hex) of the photo (JPEG), if one was taken; kept after the photo is
     /// pruned.
     pub photo_sha256: Option<String>,
@@ -121,8 +133,9 @@ pub struct Record {
 }
 
 impl Record {
-    /// The record `new` becomes with `id` after `prev_hash`, its hash computed.
-    pub fn chain(new: &NewRecord, id: u64, prev_hash: &str) -> Self {
+    /// The record `new` becomes with `id` after `prev_hash`, the log holding `events`
+    /// events before it, its hash computed.
+    pub fn chain(new: &NewRecord, id: u64, prev_hash: &str, events: u64) -> Self {
         let mut record = Self {
             id,
             time: new.time,
@@ -132,6 +145,8 @@ impl Record {
             cameras: new.cameras.clone(),
             version: new.version.clone(),
             software_sha256: Some(new.software_sha256.clone()),
+            events: Some(events),
+            parameters_sha256: new.parameters_sha256.clone(),
             photo_sha256: new.photo_jpeg.as_deref().map(sha256_hex),
             annotated_sha256: new.annotated_png.as_deref().map(sha256_hex),
             prev_hash: prev_hash.to_owned(),
@@ -200,6 +215,137 @@ impl Record {
             .map(|seen| seen.code.text.clone())
             .collect()
     }
+}
+
+/// What was done to a parameter document.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Change {
+    /// A new document (`PUT`).
+    Put,
+    /// Back to the camera's own (`DELETE`).
+    Delete,
+}
+
+impl Change {
+    /// `PUT` or `DELETE`, the method that made it.
+    pub fn method(self) -> &'static str {
+        match self {
+            Self::Put => "PUT",
+            Self::Delete => "DELETE",
+        }
+    }
+}
+
+/// A change of a legally relevant parameter: which document, its content's SHA-256
+/// before and after, who changed it, and the parameters in force after it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Event {
+    /// The document: its CoAP path (`/cams/840412060746/3d-transformation`).
+    pub document: String,
+    /// `put` or `delete`.
+    pub change: Change,
+    /// SHA-256 (hex) of the document before the change, as `GET` served it.
+    pub old_sha256: String,
+    /// SHA-256 (hex) of the document after the change, as `GET` serves it.
+    pub new_sha256: String,
+    /// Who changed it: `coap://ADDR`, with its DTLS PSK identity when it had one
+    /// (`coaps://ADDR psk-identity NAME`).
+    pub by: String,
+    /// SHA-256 (hex) of the legally relevant parameters in force after the change
+    /// ([`parameters_sha256`]): what the next measurement records.
+    pub parameters_sha256: String,
+}
+
+/// An event to record: what the camera server hands
+/// [`crate::station::log::ResultsLog::append_event`].
+#[derive(Debug, Clone)]
+pub struct NewEvent {
+    /// When the change was made.
+    pub time: UtcTime,
+    /// The station's name.
+    pub station: String,
+    /// What changed.
+    pub event: Event,
+}
+
+/// A recorded event: a row of the results log in the same chain (and id sequence) as
+/// the measurements, told apart by its `event` field.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct EventRecord {
+    /// Its id, from the same sequence as the measurements'.
+    pub id: u64,
+    /// When the change was made.
+    pub time: UtcTime,
+    /// The station's name.
+    pub station: String,
+    /// The event counter: 1 for the log's first event, one more for each next (the
+    /// `events` of the measurements after it).
+    pub counter: u64,
+    /// What changed.
+    pub event: Event,
+    /// The software's version.
+    pub version: String,
+    /// SHA-256 (hex) of the legally relevant software that recorded it.
+    pub software_sha256: String,
+    /// The previous record's `hash`.
+    pub prev_hash: String,
+    /// SHA-256 (hex) of its canonical bytes, as a measurement's.
+    pub hash: String,
+}
+
+impl EventRecord {
+    /// The record `new` becomes with `id` after `prev_hash` as event number `counter`,
+    /// its hash computed.
+    pub fn chain(new: &NewEvent, id: u64, prev_hash: &str, counter: u64) -> Self {
+        let mut record = Self {
+            id,
+            time: new.time,
+            station: new.station.clone(),
+            counter,
+            event: new.event.clone(),
+            version: NewRecord::VERSION.to_owned(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
+            prev_hash: prev_hash.to_owned(),
+            hash: String::new(),
+        };
+        record.hash = Record::compute_hash(&record.content());
+        record
+    }
+
+    /// The hashed content: its JSON without `hash`.
+    pub fn content(&self) -> Value {
+        let mut v = serde_json::to_value(self).unwrap_or(Value::Null);
+        if let Value::Object(map) = &mut v {
+            map.remove("hash");
+        }
+        v
+    }
+
+    /// The record's content as stored: its canonical bytes.
+    pub fn stored_body(&self) -> Vec<u8> {
+        canonical_bytes(&self.content())
+    }
+
+    /// An event from its stored body and hash.
+    pub fn from_stored(body: &[u8], hash: String) -> Result<Self, serde_json::Error> {
+        let mut v: Value = serde_json::from_slice(body)?;
+        if let Value::Object(map) = &mut v {
+            map.insert("hash".into(), hash.into());
+        }
+        serde_json::from_value(v)
+    }
+}
+
+/// SHA-256 (hex) of a set of legally relevant parameters: over the canonical bytes
+/// ([`canonical_bytes`]) of the JSON object that maps each document's path to the
+/// SHA-256 (hex) of its content. `documents` gives each path with its content.
+pub fn parameters_sha256<'a>(documents: impl IntoIterator<Item = (String, &'a [u8])>) -> String {
+    let map: Map<String, Value> = documents
+        .into_iter()
+        .map(|(path, content)| (path, Value::String(sha256_hex(content))))
+        .collect();
+    sha256_hex(&canonical_bytes(&Value::Object(map)))
 }
 
 /// A results log's head: its newest record's id and hash (id 0 and [`GENESIS`] before the
@@ -498,7 +644,7 @@ pub(crate) mod tests {
             vec![1],
             std::time::Duration::ZERO,
         );
-        Record::chain(&new, 7, GENESIS)
+        Record::chain(&new, 7, GENESIS, 0)
     }
 
     fn new_record() -> NewRecord {
@@ -517,12 +663,13 @@ pub(crate) mod tests {
             software_sha256: crate::identity::SOFTWARE_SHA256.into(),
             photo_jpeg: Some(vec![1, 2, 3]),
             annotated_png: None,
+            parameters_sha256: None,
         }
     }
 
     #[test]
     fn the_hash_covers_the_content_and_not_the_pictures_kept() {
-        let r = Record::chain(&new_record(), 1, GENESIS);
+        let r = Record::chain(&new_record(), 1, GENESIS, 0);
         assert_eq!(r.hash.len(), 64);
         assert_eq!(
             r.photo_sha256.as_deref(),
@@ -536,7 +683,7 @@ pub(crate) mod tests {
         let mut altered = r.clone();
         altered.measurement = measurement(300.2, "PKG-1");
         assert_ne!(Record::compute_hash(&altered.content()), r.hash);
-        let next = Record::chain(&new_record(), 2, &r.hash);
+        let next = Record::chain(&new_record(), 2, &r.hash, 0);
         assert_ne!(next.hash, r.hash);
         let body = r.stored_body();
         let back = Record::from_stored(&body, r.hash.clone(), true, false).expect("reads");
@@ -546,7 +693,7 @@ pub(crate) mod tests {
 
     #[test]
     fn records_carry_the_software_checksum_and_older_ones_still_verify() {
-        let r = Record::chain(&new_record(), 1, GENESIS);
+        let r = Record::chain(&new_record(), 1, GENESIS, 0);
         assert_eq!(
             r.software_sha256.as_deref(),
             Some(crate::identity::SOFTWARE_SHA256)
@@ -558,16 +705,21 @@ pub(crate) mod tests {
             r.hash,
             "it is hashed"
         );
-        // A record from before the field: its body has no such key, and reads back to the
-        // same canonical bytes and hash.
+        // A record from before the fields (the software's checksum, the events and the
+        // parameters): its body has no such keys, and reads back to the same canonical
+        // bytes and hash.
         let mut old = r.content();
-        old.as_object_mut()
-            .expect("an object")
-            .remove("software_sha256");
+        for key in ["software_sha256", "events", "parameters_sha256"] {
+            old.as_object_mut().expect("an object").remove(key);
+        }
         let body = canonical_bytes(&old);
         let hash = Record::hash_of(&body);
         let back = Record::from_stored(&body, hash.clone(), true, false).expect("reads");
         assert_eq!(back.software_sha256, None);
+        assert_eq!(
+            (back.events, back.parameters_sha256.as_deref()),
+            (None, None)
+        );
         assert_eq!(back.stored_body(), body);
         assert_eq!(Record::compute_hash(&back.content()), hash);
     }
@@ -602,7 +754,7 @@ pub(crate) mod tests {
             let length = 300.0 + f64::from(k) * 0.000_006_1;
             let mut new = new_record();
             new.measurement = measurement(length, "PKG-1");
-            let r = Record::chain(&new, u64::from(k) + 1, GENESIS);
+            let r = Record::chain(&new, u64::from(k) + 1, GENESIS, 0);
             let body = r.stored_body();
             let back = Record::from_stored(&body, r.hash.clone(), true, false).expect("reads");
             assert_eq!(back, r, "{length}");

@@ -1,5 +1,5 @@
 //! `coapcam results`: a station's results log. `results --server URI` lists the records
-//! (`/station/measurements`); `results verify FILE` checks a log file's chain and names
+//! (`/station/measurements`) and the events beside them (`/station/events`); `results verify FILE` checks a log file's chain and names
 //! the first altered record (docs/station.md).
 
 use std::path::PathBuf;
@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{Context as _, bail};
 use clap::{Args, Subcommand};
 
-use coapcam::api::record::{Head, Record};
+use coapcam::api::record::{EventRecord, Head, Record};
 use coapcam::api::results::{ListQuery, MAX_LIST};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Reported, format_mm};
@@ -21,7 +21,8 @@ use super::{Exit, TransmissionArgs, out, outln};
 pub(crate) struct ResultsArgs {
     #[command(subcommand)]
     command: Option<ResultsCommand>,
-    /// The station, coap://host[:port]: list its records, newest first.
+    /// The station, coap://host[:port]: list its records, newest first, with the events
+    /// (changes of a camera's 3d-transformation or application-config) among them.
     #[arg(long, value_name = "URI", required = true, value_parser = super::values::coap_uri)]
     server: Option<String>,
     /// Only records after this id.
@@ -33,17 +34,18 @@ pub(crate) struct ResultsArgs {
     /// At most this many records (asked for in pages of up to 1000).
     #[arg(long, value_name = "N", default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..))]
     limit: u64,
-    /// Only records with a code of exactly this text.
+    /// Only records with a code of exactly this text (no events then).
     #[arg(long, value_name = "TEXT")]
     code: Option<String>,
-    /// One JSON record per line (the record as the station serves it); none, and "no
-    /// records" on standard error, when nothing matches.
+    /// One JSON record per line (the record as the station serves it; an event's has
+    /// `event`); none, and "no records" on standard error, when nothing matches.
     #[arg(long, conflicts_with = "csv")]
     json: bool,
     /// Comma-separated values with a header line (RFC 4180): id, time, station,
     /// trigger, parcel, length_mm, width_mm, height_mm (the numbers to bill on, with the
     /// decimals of their division), volume_l, volumetric_weight_kg,
     /// volumetric_divisor_cm3_per_kg, codes (`;`-separated), warnings (count), hash.
+    /// Measurements only.
     #[arg(long)]
     csv: bool,
     #[command(flatten)]
@@ -127,10 +129,33 @@ pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
     };
     let limit = usize::try_from(args.limit).unwrap_or(usize::MAX);
     let records = results::list(&client, &query, limit).await?;
+    // The events beside them: those among the ids the list spans (back to the oldest
+    // record listed when the list is cut at --limit). A code selects measurements only,
+    // and the CSV's columns are a measurement's.
+    let events = if args.code.is_some() || args.csv {
+        Vec::new()
+    } else {
+        let oldest = records.last().map(|r| r.id.saturating_sub(1));
+        let since = match oldest {
+            Some(oldest) if records.len() == limit => Some(oldest.max(args.since.unwrap_or(0))),
+            _ => args.since,
+        };
+        let range = ListQuery {
+            since,
+            before: args.before,
+            ..ListQuery::default()
+        };
+        results::events(&client, &range, limit).await?
+    };
     if args.csv {
         outln!("{}", CSV_HEADER.join(","));
     }
+    let nothing = records.is_empty() && events.is_empty();
+    let mut events = events.iter().peekable();
     for record in &records {
+        while let Some(event) = events.next_if(|e| e.id > record.id) {
+            print_event(event, args.json)?;
+        }
         if args.json {
             outln!("{}", serde_json::to_string(record)?);
         } else if args.csv {
@@ -139,7 +164,10 @@ pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
             outln!("{}", text(record));
         }
     }
-    if records.is_empty() {
+    for event in events {
+        print_event(event, args.json)?;
+    }
+    if nothing {
         if args.json || args.csv {
             // Said aside: what standard output holds stays JSON Lines (none) or the CSV
             // header alone, which a reader takes as it is.
@@ -164,6 +192,7 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
             "file": file.display().to_string(),
             "verified": report.first_altered.is_none(),
             "records": report.records,
+            "events": report.events,
             "pictures_checked": report.pictures_checked,
             "pictures_pruned": report.pictures_pruned,
             "heads_checked": report.heads_checked,
@@ -190,9 +219,10 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
         }
         match &report.first_altered {
             None => out!(
-                "{}: the chain verifies: {} record(s){}, {} picture(s) checked, {} pruned{}\n",
+                "{}: the chain verifies: {} record(s) ({} event(s)){}, {} picture(s) checked, {} pruned{}\n",
                 file.display(),
                 report.records,
+                report.events,
                 report
                     .head
                     .as_ref()
@@ -222,6 +252,39 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
     })
 }
 
+/// An event's line: its JSON, or text.
+fn print_event(event: &EventRecord, json: bool) -> anyhow::Result<()> {
+    if json {
+        outln!("{}", serde_json::to_string(event)?);
+    } else {
+        outln!("{}", event_text(event));
+    }
+    Ok(())
+}
+
+/// One line of text for an event.
+fn event_text(r: &EventRecord) -> String {
+    let e = &r.event;
+    format!(
+        "#{:<5} {}  {}  event {}  {} {} by {}  sha256 {} -> {}  parameters {}",
+        r.id,
+        r.time,
+        r.station,
+        r.counter,
+        e.change.method(),
+        e.document,
+        e.by,
+        short(&e.old_sha256),
+        short(&e.new_sha256),
+        short(&e.parameters_sha256),
+    )
+}
+
+/// The first 12 hex digits of a SHA-256.
+fn short(hash: &str) -> &str {
+    hash.get(..12).unwrap_or(hash)
+}
+
 /// One line of text for a record.
 fn text(r: &Record) -> String {
     let m = &r.measurement;
@@ -249,6 +312,13 @@ fn text(r: &Record) -> String {
     let warnings = m.warnings.len();
     if warnings > 0 {
         line += &format!("  ({warnings} warning(s))");
+    }
+    if let Some(parameters) = &r.parameters_sha256 {
+        line += &format!(
+            "  parameters {} after event {}",
+            short(parameters),
+            r.events.unwrap_or(0)
+        );
     }
     line
 }

@@ -9,8 +9,8 @@ use coap::{ContentFormat, OptionNumber};
 
 use super::CamClient;
 use super::timed::Watch;
-use crate::api::paths::{LATEST, MEASUREMENTS as PATH};
-use crate::api::record::Record;
+use crate::api::paths::{EVENTS, LATEST, MEASUREMENTS as PATH};
+use crate::api::record::{EventRecord, Record};
 use crate::api::results::{ListQuery, MAX_LIST};
 
 /// Records from a CBOR body: a list, one record, or `null` (no record yet).
@@ -21,16 +21,42 @@ pub fn decode<T: serde::de::DeserializeOwned>(body: &[u8]) -> anyhow::Result<T> 
 /// Up to `limit` records newest first, as `q` selects (its `limit` ignored), asking page
 /// after page of at most [`MAX_LIST`].
 pub async fn list(client: &CamClient, q: &ListQuery, limit: usize) -> anyhow::Result<Vec<Record>> {
-    let mut out: Vec<Record> = Vec::new();
+    pages(client, PATH, q, limit, |r: &Record| r.id).await
+}
+
+/// Up to `limit` events (`/station/events`) newest first, as `q`'s `since` and `before`
+/// select, asking page after page of at most [`MAX_LIST`].
+pub async fn events(
+    client: &CamClient,
+    q: &ListQuery,
+    limit: usize,
+) -> anyhow::Result<Vec<EventRecord>> {
+    let q = ListQuery {
+        since: q.since,
+        before: q.before,
+        ..ListQuery::default()
+    };
+    pages(client, EVENTS, &q, limit, |e: &EventRecord| e.id).await
+}
+
+/// Up to `limit` items of the list at `path`, newest first, page after page.
+async fn pages<T: serde::de::DeserializeOwned>(
+    client: &CamClient,
+    path: &str,
+    q: &ListQuery,
+    limit: usize,
+    id: impl Fn(&T) -> u64,
+) -> anyhow::Result<Vec<T>> {
+    let mut out: Vec<T> = Vec::new();
     let mut page = q.clone();
     while out.len() < limit {
         page.limit = (limit - out.len()).min(MAX_LIST);
         let response = client
-            .get_query(PATH, &page.items(), Some(ContentFormat::CBOR))
+            .get_query(path, &page.items(), Some(ContentFormat::CBOR))
             .await?;
-        let records: Vec<Record> = decode(&response.payload)?;
+        let records: Vec<T> = decode(&response.payload)?;
         let Some(last) = records.last() else { break };
-        page.before = Some(last.id);
+        page.before = Some(id(last));
         let full = records.len() == page.limit;
         out.extend(records);
         if !full || page.before == Some(1) {

@@ -13,7 +13,7 @@ use std::sync::Arc;
 use geometry::Transformation;
 use rgbd::{Camera, ColorFrame, Extrinsics, Intrinsics, Serial};
 
-use crate::api::record::{CameraPose, Trigger};
+use crate::api::record::{CameraPose, Event, Trigger};
 use crate::report::{EdgeQuery, Found, Measurement};
 use crate::repr::raster;
 use crate::vision::picture;
@@ -31,6 +31,9 @@ pub struct Measured {
     pub photo_jpeg: Option<Vec<u8>>,
     /// The annotated picture, PNG.
     pub annotated_png: Option<Vec<u8>>,
+    /// SHA-256 (hex) of the legally relevant parameters in force when it was measured
+    /// ([`Rig::parameters_sha256`]).
+    pub parameters_sha256: String,
 }
 
 /// Where a camera server keeps each measurement it makes for a client
@@ -43,6 +46,11 @@ pub trait Records: Send + Sync + 'static {
         &self,
         measured: Measured,
     ) -> Pin<Box<dyn Future<Output = Result<(), String>> + Send + '_>>;
+
+    /// Keeps the change of a legally relevant parameter, before it is answered; it
+    /// blocks (call it on the blocking pool). The error says, in words fit for the
+    /// client, why it was not kept (the change is then undone).
+    fn change(&self, event: Event) -> Result<(), String>;
 }
 
 /// JPEG quality of the photo: a legible label and parcel at a tenth of the PNG's bytes.
@@ -92,6 +100,10 @@ pub trait Rig: Send + Sync + 'static {
 
     /// The connected cameras, in merge order.
     fn cameras(&self) -> Vec<RigCamera>;
+
+    /// SHA-256 (hex) of the legally relevant parameters in force now
+    /// ([`crate::api::record::parameters_sha256`] of every connected camera's documents).
+    fn parameters_sha256(&self) -> String;
 }
 
 /// Measures with every camera of `rig` as `query` asks and, with `pictures`, takes the
@@ -153,6 +165,7 @@ pub async fn measure<R: Rig>(
     };
     Ok(Measured {
         trigger,
+        parameters_sha256: rig.parameters_sha256(),
         cameras: rig.poses(&measurement.cameras),
         measurement,
         photo_jpeg,

@@ -312,6 +312,7 @@ mod tests {
             software_sha256: crate::identity::SOFTWARE_SHA256.into(),
             photo_jpeg: None,
             annotated_png: None,
+            parameters_sha256: None,
         }
     }
 

@@ -1,5 +1,8 @@
-//! The results log: every measurement the station makes, append-only and hash-chained,
-//! in an embedded SQLite database (docs/station.md has the schema and the encoding).
+//! The results log: every measurement the station makes, and every change of a legally
+//! relevant parameter (an event), append-only and hash-chained in one sequence of ids, in
+//! an embedded SQLite database (docs/station.md has the schema and the encoding). The
+//! reads of measurements ([`ResultsLog::list`], [`ResultsLog::after`], ...) leave the
+//! events out; [`ResultsLog::list_events`] lists them.
 //!
 //! Durability: the database is in WAL mode with `synchronous=FULL`, so each append's
 //! commit is on disk (the WAL fsynced) before [`ResultsLog::append`] returns; a process
@@ -20,7 +23,9 @@ use std::time::Duration;
 use rusqlite::{Connection, OpenFlags, OptionalExtension as _, TransactionBehavior, params};
 use tokio::sync::watch;
 
-use crate::api::record::{GENESIS, Head, NewRecord, Record, canonical_bytes, sha256_hex};
+use crate::api::record::{
+    EventRecord, GENESIS, Head, NewEvent, NewRecord, Record, canonical_bytes, sha256_hex,
+};
 use crate::api::results::{ListQuery, MAX_LIST};
 
 /// The schema's version, kept in `meta`.
@@ -72,6 +77,14 @@ BEGIN SELECT RAISE(ABORT, 'the results log is append-only: gaps cannot be delete
 /// record's id is one more.
 const TAKEN: &str = "SELECT MAX(COALESCE((SELECT MAX(id) FROM records), 0),
     COALESCE((SELECT MAX(next) FROM gaps), 1) - 1)";
+
+/// Whether the row `r` holds a measurement (not an event).
+const MEASUREMENT: &str = "json_extract(r.body, '$.event') IS NULL";
+
+/// The newest event's counter (0 before the first).
+const EVENT_COUNTER: &str =
+    "SELECT COALESCE((SELECT json_extract(r.body, '$.counter') FROM records r
+    WHERE json_extract(r.body, '$.event') IS NOT NULL ORDER BY r.id DESC LIMIT 1), 0)";
 
 /// What went wrong with the results log.
 #[derive(Debug, thiserror::Error)]
@@ -163,6 +176,11 @@ struct Inner {
     conn: Mutex<Connection>,
     retention: Mutex<Retention>,
     newest: watch::Sender<u64>,
+    /// The newest row's id, measurement or event (the head's).
+    head: watch::Sender<u64>,
+    /// The newest event's counter (0 before the first); changed with the connection
+    /// locked.
+    events: std::sync::atomic::AtomicU64,
     over_limit: std::sync::atomic::AtomicBool,
     /// Whether the records alone take 80 % of the retention's `max_bytes` or more.
     near_limit: std::sync::atomic::AtomicBool,
@@ -288,6 +306,7 @@ impl ResultsLog {
             account_for(&mut conn, path, last_id)?;
         }
         let newest = newest_id(&conn).map_err(sql(path))?;
+        let events = event_counter(&conn).map_err(sql(path))?;
         let identity = identity(path).ok_or_else(|| LogError::Gone {
             path: path.to_owned(),
         })?;
@@ -297,6 +316,8 @@ impl ResultsLog {
                 conn: Mutex::new(conn),
                 retention: Mutex::new(retention),
                 newest: watch::Sender::new(newest),
+                head: watch::Sender::new(0),
+                events: std::sync::atomic::AtomicU64::new(events),
                 over_limit: std::sync::atomic::AtomicBool::new(false),
                 near_limit: std::sync::atomic::AtomicBool::new(false),
                 identity: Mutex::new(identity),
@@ -335,6 +356,10 @@ impl ResultsLog {
         drop(std::mem::replace(&mut *conn, placeholder));
         let mut new = connect(path)?;
         account_for(&mut new, path, last_id)?;
+        let events = event_counter(&new).map_err(sql(path))?;
+        self.inner
+            .events
+            .store(events, std::sync::atomic::Ordering::Relaxed);
         let made = identity(path).ok_or_else(|| LogError::Gone {
             path: path.to_owned(),
         })?;
@@ -350,6 +375,49 @@ impl ResultsLog {
     /// Records `new` after the newest record, chained to it, and returns the record. It is
     /// on disk when this returns. Then prunes pictures as the retention says.
     pub fn append(&self, new: NewRecord) -> Result<Record, LogError> {
+        let pictures = [
+            ("photo", new.photo_jpeg.as_deref()),
+            ("annotated", new.annotated_png.as_deref()),
+        ];
+        let record = self.append_row(
+            |id, prev, events| {
+                let record = Record::chain(&new, id, prev, events);
+                (record.stored_body(), record.hash.clone(), record)
+            },
+            pictures,
+            false,
+        )?;
+        self.inner.newest.send_replace(record.id);
+        if let Err(e) = self.prune() {
+            tracing::warn!("results log: pruning pictures failed: {e}");
+        }
+        Ok(record)
+    }
+
+    /// Records the change of a legally relevant parameter `new` after the newest record,
+    /// chained to it as the next event (its counter one more than the last event's), and
+    /// returns it. It is on disk when this returns. The measurements recorded after it
+    /// carry its counter as their `events`.
+    pub fn append_event(&self, new: NewEvent) -> Result<EventRecord, LogError> {
+        self.append_row(
+            |id, prev, events| {
+                let record = EventRecord::chain(&new, id, prev, events + 1);
+                (record.stored_body(), record.hash.clone(), record)
+            },
+            [("photo", None), ("annotated", None)],
+            true,
+        )
+    }
+
+    /// Appends a row made by `make` (from its id, the previous hash and the newest event's
+    /// counter: its body, its hash and what to return) with `pictures`, in one
+    /// transaction; an `event` moves the counter on once it is committed.
+    fn append_row<T>(
+        &self,
+        make: impl FnOnce(u64, &str, u64) -> (Vec<u8>, String, T),
+        pictures: [(&str, Option<&[u8]>); 2],
+        event: bool,
+    ) -> Result<T, LogError> {
         let opened = *self
             .inner
             .identity
@@ -375,66 +443,109 @@ impl ResultsLog {
             }
             return Err(gone);
         }
-        let record = {
-            let mut conn = self.conn();
-            let tx = conn
-                .transaction_with_behavior(TransactionBehavior::Immediate)
-                .map_err(self.err())?;
-            let last: Option<(u64, String)> = tx
-                .query_row(
-                    "SELECT id, hash FROM records ORDER BY id DESC LIMIT 1",
-                    [],
-                    |r| Ok((r.get(0)?, r.get(1)?)),
+        let mut conn = self.conn();
+        let tx = conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(self.err())?;
+        let last: Option<(u64, String)> = tx
+            .query_row(
+                "SELECT id, hash FROM records ORDER BY id DESC LIMIT 1",
+                [],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()
+            .map_err(self.err())?;
+        let taken: u64 = tx.query_row(TAKEN, [], |r| r.get(0)).map_err(self.err())?;
+        let id = taken + 1;
+        let prev = last.as_ref().map_or(GENESIS, |(_, hash)| hash.as_str());
+        let events = self.inner.events.load(std::sync::atomic::Ordering::Relaxed);
+        let (body, hash, made) = make(id, prev, events);
+        tx.execute(
+            "INSERT INTO records (id, body, hash) VALUES (?1, ?2, ?3)",
+            params![id, String::from_utf8_lossy(&body), hash],
+        )
+        .map_err(self.err())?;
+        for (kind, data) in pictures {
+            if let Some(data) = data {
+                tx.execute(
+                    "INSERT INTO pictures (record, kind, data) VALUES (?1, ?2, ?3)",
+                    params![id, kind, data],
                 )
-                .optional()
                 .map_err(self.err())?;
-            let taken: u64 = tx.query_row(TAKEN, [], |r| r.get(0)).map_err(self.err())?;
-            let id = taken + 1;
-            let prev = last.as_ref().map_or(GENESIS, |(_, hash)| hash.as_str());
-            let record = Record::chain(&new, id, prev);
-            tx.execute(
-                "INSERT INTO records (id, body, hash) VALUES (?1, ?2, ?3)",
-                params![
-                    id,
-                    String::from_utf8_lossy(&record.stored_body()),
-                    record.hash
-                ],
+            }
+        }
+        // Before the commit: the file never says less than an id a consumer saw (a
+        // commit that fails then leaves one id unused, never one issued twice).
+        if let Some(last_id) = &self.inner.last_id {
+            last_id.write(id, &hash).inspect_err(|e| {
+                tracing::error!("{e}: nothing is recorded until it can be written");
+            })?;
+        }
+        tx.commit().map_err(self.err())?;
+        self.inner.head.send_replace(id);
+        if event {
+            self.inner
+                .events
+                .store(events + 1, std::sync::atomic::Ordering::Relaxed);
+        }
+        Ok(made)
+    }
+
+    /// The newest event's counter: how many changes of legally relevant parameters the
+    /// log holds (0 before the first).
+    pub fn events(&self) -> u64 {
+        self.inner.events.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Events newest first, as `q`'s `since`, `before` and `limit` select.
+    pub fn list_events(&self, q: &ListQuery) -> Result<Vec<EventRecord>, LogError> {
+        let conn = self.conn();
+        let mut stmt = conn
+            .prepare_cached(
+                "SELECT r.id, r.body, r.hash FROM records r
+                 WHERE r.id > ?1 AND r.id < ?2 AND json_extract(r.body, '$.event') IS NOT NULL
+                 ORDER BY r.id DESC LIMIT ?3",
             )
             .map_err(self.err())?;
-            for (kind, data) in [
-                ("photo", &new.photo_jpeg),
-                ("annotated", &new.annotated_png),
-            ] {
-                if let Some(data) = data {
-                    tx.execute(
-                        "INSERT INTO pictures (record, kind, data) VALUES (?1, ?2, ?3)",
-                        params![id, kind, data],
-                    )
-                    .map_err(self.err())?;
-                }
-            }
-            // Before the commit: the file never says less than an id a consumer saw (a
-            // commit that fails then leaves one id unused, never one issued twice).
-            if let Some(last_id) = &self.inner.last_id {
-                last_id.write(id, &record.hash).inspect_err(|e| {
-                    tracing::error!("{e}: nothing is recorded until it can be written");
-                })?;
-            }
-            tx.commit().map_err(self.err())?;
-            record
-        };
-        self.inner.newest.send_replace(record.id);
-        if let Err(e) = self.prune() {
-            tracing::warn!("results log: pruning pictures failed: {e}");
-        }
-        Ok(record)
+        let rows = stmt
+            .query_map(
+                params![
+                    q.since.unwrap_or(0),
+                    q.before
+                        .map_or(i64::MAX, |b| i64::try_from(b).unwrap_or(i64::MAX)),
+                    q.limit.clamp(1, MAX_LIST),
+                ],
+                |r| {
+                    Ok((
+                        r.get::<_, u64>(0)?,
+                        body_bytes(r, 1)?,
+                        r.get::<_, String>(2)?,
+                    ))
+                },
+            )
+            .map_err(self.err())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.err())?;
+        rows.into_iter()
+            .map(|(id, body, hash)| {
+                EventRecord::from_stored(&body, hash).map_err(|e| LogError::Unreadable {
+                    path: self.inner.path.clone(),
+                    id,
+                    why: e.to_string(),
+                })
+            })
+            .collect()
     }
 
     /// The record `id`, if there is one.
     pub fn get(&self, id: u64) -> Result<Option<Record>, LogError> {
         let conn = self.conn();
         let row = conn
-            .query_row(&format!("{SELECT} WHERE r.id = ?1"), [id], raw_row)
+            .query_row(
+                &format!("{SELECT} WHERE r.id = ?1 AND {MEASUREMENT}"),
+                [id],
+                raw_row,
+            )
             .optional()
             .map_err(self.err())?;
         row.map(|raw| self.decode(raw)).transpose()
@@ -444,7 +555,11 @@ impl ResultsLog {
     pub fn latest(&self) -> Result<Option<Record>, LogError> {
         let conn = self.conn();
         let row = conn
-            .query_row(&format!("{SELECT} ORDER BY r.id DESC LIMIT 1"), [], raw_row)
+            .query_row(
+                &format!("{SELECT} WHERE {MEASUREMENT} ORDER BY r.id DESC LIMIT 1"),
+                [],
+                raw_row,
+            )
             .optional()
             .map_err(self.err())?;
         row.map(|raw| self.decode(raw)).transpose()
@@ -476,7 +591,7 @@ impl ResultsLog {
         let conn = self.conn();
         let mut stmt = conn
             .prepare_cached(&format!(
-                "{SELECT} WHERE r.id > ?1 AND r.id < ?2 AND (?3 IS NULL OR EXISTS (
+                "{SELECT} WHERE r.id > ?1 AND r.id < ?2 AND {MEASUREMENT} AND (?3 IS NULL OR EXISTS (
                     SELECT 1 FROM json_each(r.body, '$.measurement.codes') c
                     WHERE json_extract(c.value, '$.text') = ?3))
                  AND (?5 IS NULL OR json_extract(r.body, '$.time') >= ?5)
@@ -509,7 +624,9 @@ impl ResultsLog {
     pub fn after(&self, id: u64, limit: usize) -> Result<Vec<Record>, LogError> {
         let conn = self.conn();
         let mut stmt = conn
-            .prepare_cached(&format!("{SELECT} WHERE r.id > ?1 ORDER BY r.id LIMIT ?2"))
+            .prepare_cached(&format!(
+                "{SELECT} WHERE r.id > ?1 AND {MEASUREMENT} ORDER BY r.id LIMIT ?2"
+            ))
             .map_err(self.err())?;
         let rows = stmt
             .query_map(params![id, limit.clamp(1, MAX_LIST)], raw_row)
@@ -565,12 +682,19 @@ impl ResultsLog {
             .map_err(self.err())
     }
 
-    /// The newest record's id (0 while there is none), following every append.
+    /// The newest measurement's id (0 while there is none), following every measurement
+    /// appended (an event leaves it: publishers of measurements wait on it).
     pub fn subscribe(&self) -> watch::Receiver<u64> {
         self.inner.newest.subscribe()
     }
 
-    /// The newest record's id (0 while there is none).
+    /// The id of the newest row, measurement or event, following every append (0 until
+    /// the first after opening): the head changes with each.
+    pub fn subscribe_head(&self) -> watch::Receiver<u64> {
+        self.inner.head.subscribe()
+    }
+
+    /// The newest measurement's id (0 while there is none).
     pub fn newest(&self) -> u64 {
         *self.inner.newest.borrow()
     }
@@ -726,8 +850,20 @@ fn sql(path: &Path) -> impl Fn(rusqlite::Error) -> LogError + '_ {
     }
 }
 
+/// The newest measurement's id (0 while there is none).
 fn newest_id(conn: &Connection) -> rusqlite::Result<u64> {
-    conn.query_row("SELECT COALESCE(MAX(id), 0) FROM records", [], |r| r.get(0))
+    conn.query_row(
+        &format!(
+            "SELECT COALESCE((SELECT r.id FROM records r WHERE {MEASUREMENT}
+                ORDER BY r.id DESC LIMIT 1), 0)"
+        ),
+        [],
+        |r| r.get(0),
+    )
+}
+
+fn event_counter(conn: &Connection) -> rusqlite::Result<u64> {
+    conn.query_row(EVENT_COUNTER, [], |r| r.get(0))
 }
 
 /// Makes the log at `path` account for every id `last_id` says was issued: a gap from its
@@ -847,8 +983,10 @@ fn connect(path: &Path) -> Result<Connection, LogError> {
 /// What [`verify`] found.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct VerifyReport {
-    /// Records read.
+    /// Records read (measurements and events).
     pub records: u64,
+    /// Of them, events (changes of legally relevant parameters).
+    pub events: u64,
     /// The newest record's id and hash (compare the hash with one published earlier to
     /// know the tail was not cut off).
     pub head: Option<(u64, String)>,
@@ -962,6 +1100,7 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
     }
     let mut report = VerifyReport {
         records: 0,
+        events: 0,
         head: None,
         pictures_pruned: 0,
         pictures_checked: 0,
@@ -1196,6 +1335,26 @@ fn check_record(
             "record {id}'s stored bytes are not the canonical encoding of its content"
         ));
     }
+    // Events count 1, 2, 3, ... in the chain, and a measurement names how many came
+    // before it: an event removed (the chain rewritten around it) or made up shows.
+    if content.get("event").is_some() {
+        let counter = content["counter"].as_u64();
+        if counter != Some(report.events + 1) {
+            return Err(format!(
+                "record {id} is event {} of the log, but its counter says {}: an event before it was removed or added",
+                report.events + 1,
+                content["counter"]
+            ));
+        }
+        report.events += 1;
+    } else if let Some(events) = content.get("events")
+        && events.as_u64() != Some(report.events)
+    {
+        return Err(format!(
+            "record {id} was measured after {events} event(s), but the log holds {} before it: an event was removed or added",
+            report.events
+        ));
+    }
     for (kind, data) in ["photo", "annotated"].into_iter().zip(pictures) {
         let key = format!("{kind}_sha256");
         match (content[&key].as_str(), data) {
@@ -1237,7 +1396,103 @@ mod tests {
             software_sha256: crate::identity::SOFTWARE_SHA256.into(),
             photo_jpeg: photo.then(|| vec![n as u8; 1000]),
             annotated_png: photo.then(|| vec![n as u8; 500]),
+            parameters_sha256: None,
         }
+    }
+
+    fn event(n: u8) -> NewEvent {
+        use crate::api::record::{Change, Event};
+        NewEvent {
+            time: UtcTime {
+                unix_ms: 1_795_734_229_500,
+            },
+            station: "lane-1".into(),
+            event: Event {
+                document: "/cams/840412060746/3d-transformation".into(),
+                change: Change::Put,
+                old_sha256: sha256_hex(&[n]),
+                new_sha256: sha256_hex(&[n + 1]),
+                by: "coap://127.0.0.1:40000".into(),
+                parameters_sha256: sha256_hex(&[n, n]),
+            },
+        }
+    }
+
+    #[test]
+    fn events_chain_with_the_measurements_which_count_them_and_reads_leave_them_out() {
+        let dir = ScratchDir::new("results-log-events");
+        let path = dir.path().join("results.sqlite");
+        let log = ResultsLog::open(&path).expect("open");
+        let mut newest = log.subscribe();
+        let mut head = log.subscribe_head();
+        let first = log.append(new(1, "A", true)).expect("append");
+        assert_eq!(first.events, Some(0));
+        newest.mark_unchanged();
+        head.mark_unchanged();
+        let e1 = log.append_event(event(1)).expect("an event");
+        assert_eq!(
+            (e1.id, e1.counter, e1.prev_hash.as_str()),
+            (2, 1, first.hash.as_str())
+        );
+        // The head moves; the measurements' newest does not (publishers wait on it).
+        assert!(head.has_changed().expect("open"));
+        assert!(!newest.has_changed().expect("open"));
+        assert_eq!(log.newest(), 1);
+        assert_eq!(log.head().expect("head").hash, e1.hash);
+        let e2 = log.append_event(event(2)).expect("an event");
+        assert_eq!((e2.id, e2.counter), (3, 2));
+        let second = log.append(new(4, "B", false)).expect("append");
+        assert_eq!((second.id, second.events), (4, Some(2)));
+        assert_eq!(second.prev_hash, e2.hash);
+        let ids = |records: Vec<Record>| records.iter().map(|r| r.id).collect::<Vec<_>>();
+        assert_eq!(ids(log.list(&ListQuery::default()).expect("list")), [4, 1]);
+        assert_eq!(ids(log.after(0, 10).expect("after")), [1, 4]);
+        assert_eq!(log.get(2).expect("get"), None);
+        assert_eq!(log.latest().expect("latest").map(|r| r.id), Some(4));
+        let events = log.list_events(&ListQuery::default()).expect("events");
+        assert_eq!(events, [e2.clone(), e1]);
+        let since = ListQuery {
+            since: Some(2),
+            ..ListQuery::default()
+        };
+        assert_eq!(log.list_events(&since).expect("events"), [e2]);
+        drop(log);
+        // Opened again, the counter goes on.
+        let log = ResultsLog::open(&path).expect("open");
+        assert_eq!(log.events(), 2);
+        assert_eq!(log.newest(), 4);
+        assert_eq!(log.append_event(event(3)).expect("an event").counter, 3);
+        drop(log);
+        let report = verify(&path).expect("verify");
+        assert_eq!(report.first_altered, None);
+        assert_eq!((report.records, report.events), (5, 3));
+        // A measurement that names an event the chain does not hold (a log forged
+        // without it, every hash consistent) is named.
+        let forged = dir.path().join("forged.sqlite");
+        let log = ResultsLog::open(&forged).expect("open");
+        log.append(new(1, "A", false)).expect("append");
+        log.append_event(event(1)).expect("an event");
+        log.append(new(3, "A", false)).expect("append");
+        drop(log);
+        let db = Connection::open(&forged).expect("sqlite");
+        db.execute_batch("DROP TRIGGER records_no_update;")
+            .expect("drop");
+        let body: String = db
+            .query_row("SELECT body FROM records WHERE id = 3", [], |r| r.get(0))
+            .expect("body");
+        let mut v: serde_json::Value = serde_json::from_str(&body).expect("JSON");
+        v["events"] = 2.into();
+        let body = canonical_bytes(&v);
+        db.execute(
+            "UPDATE records SET body = ?1, hash = ?2 WHERE id = 3",
+            params![String::from_utf8_lossy(&body), Record::hash_of(&body)],
+        )
+        .expect("forged");
+        drop(db);
+        let report = verify(&forged).expect("verify");
+        let altered = report.first_altered.expect("named");
+        assert_eq!(altered.id, 3);
+        assert!(altered.why.contains("after 2 event(s)"), "{}", altered.why);
     }
 
     #[test]

@@ -5,7 +5,7 @@
 //! 5.00/500) and writes the document in its own format.
 
 use super::log::{LogError, ResultsLog};
-use crate::api::record::{Head, Record};
+use crate::api::record::{EventRecord, Head, Record};
 use crate::api::results::ListQuery;
 
 /// What kind of refusal: the code each front end gives it.
@@ -67,6 +67,23 @@ pub(crate) async fn list<S: AsRef<str>>(
 ) -> Result<Vec<Record>, Refusal> {
     let query = ListQuery::parse(items, path).map_err(|why| Refusal::new(Kind::BadRequest, why))?;
     blocking(log, move |log| log.list(&query)).await
+}
+
+/// The events `items` (a request's query: `since`, `before`, `limit`) select, newest
+/// first; `path` names the resource in a refusal.
+pub(crate) async fn events<S: AsRef<str>>(
+    log: &ResultsLog,
+    items: impl IntoIterator<Item = S>,
+    path: &str,
+) -> Result<Vec<EventRecord>, Refusal> {
+    let query = ListQuery::parse(items, path).map_err(|why| Refusal::new(Kind::BadRequest, why))?;
+    if query.code.is_some() || query.from.is_some() || query.to.is_some() {
+        return Err(Refusal::new(
+            Kind::BadRequest,
+            format!("{path} takes since=ID, before=ID and limit=N only"),
+        ));
+    }
+    blocking(log, move |log| log.list_events(&query)).await
 }
 
 /// The newest record (`None` before the first).

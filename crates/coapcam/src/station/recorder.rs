@@ -5,7 +5,7 @@ use std::future::Future;
 use std::pin::Pin;
 
 use super::log::{LogError, ResultsLog};
-use crate::api::record::{NewRecord, Record, UtcTime};
+use crate::api::record::{Event, NewEvent, NewRecord, Record, UtcTime};
 use crate::server::measure::{Measured, Records};
 
 /// Records measurements in the log under the station's name: what every measurement
@@ -46,6 +46,7 @@ impl Recorder {
             software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
             photo_jpeg: measured.photo_jpeg,
             annotated_png: measured.annotated_png,
+            parameters_sha256: Some(measured.parameters_sha256),
         };
         let log = self.log.clone();
         match tokio::task::spawn_blocking(move || log.append(new)).await {
@@ -70,5 +71,30 @@ impl Records for Recorder {
                 e.public_text()
             })
         })
+    }
+
+    fn change(&self, event: Event) -> Result<(), String> {
+        let new = NewEvent {
+            time: UtcTime::now(),
+            station: self.station.clone(),
+            event,
+        };
+        match self.log.append_event(new) {
+            Ok(recorded) => {
+                tracing::info!(
+                    id = recorded.id,
+                    counter = recorded.counter,
+                    "event: {} {} by {}",
+                    recorded.event.change.method(),
+                    recorded.event.document,
+                    recorded.event.by
+                );
+                Ok(())
+            }
+            Err(e) => {
+                tracing::error!("a parameter change could not be recorded: {e}");
+                Err(e.public_text())
+            }
+        }
     }
 }

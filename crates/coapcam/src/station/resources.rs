@@ -4,6 +4,8 @@
 //!   verifier can later find a log cut off or rewritten before it;
 //! - `/station/measurements`: GET the records, newest first; the query selects
 //!   (`since=ID`, `before=ID`, `limit=N`, `code=TEXT`); JSON, or CBOR by Accept;
+//! - `/station/events`: GET the events (changes of legally relevant parameters), newest
+//!   first (`since=ID`, `before=ID`, `limit=N`);
 //! - `/station/measurements/latest`: the newest record (`null` before the first),
 //!   observable: the server notifies once per new record (see [`LATEST`]);
 //! - `/station/measurements/<id>`: one record; `/photo` (image/jpeg) and `/annotated`
@@ -17,7 +19,7 @@ use serde::Serialize;
 
 use super::log::ResultsLog;
 use super::reads::{self, Kind, Picture, Refusal};
-use crate::api::paths::{HEAD, LATEST, MEASUREMENTS, STATION};
+use crate::api::paths::{EVENTS, HEAD, LATEST, MEASUREMENTS, STATION};
 
 /// The list of records.
 const PATH: &str = MEASUREMENTS;
@@ -49,6 +51,21 @@ pub(crate) fn register(router: &Router, log: &ResultsLog, station: &str) {
             .attr(
                 "title",
                 "the results log, newest first: ?since=ID ?before=ID ?limit=N ?code=TEXT",
+            ),
+    );
+    let me = log.clone();
+    router.add(
+        EVENTS,
+        Resource::new()
+            .get(handler(move |ctx| {
+                let log = me.clone();
+                async move { events(log, &ctx.request).await }
+            }))
+            .attr("rt", "coapcam.events")
+            .attr("ct", "50 60")
+            .attr(
+                "title",
+                "the changes of legally relevant parameters, newest first: ?since=ID ?before=ID ?limit=N",
             ),
     );
     let me = log.clone();
@@ -179,6 +196,18 @@ async fn list(log: ResultsLog, request: &IncomingRequest) -> Response {
     };
     match reads::list(&log, request.options.uri_query(), PATH).await {
         Ok(records) => document(&records, cf),
+        Err(refused) => refusal(&refused),
+    }
+}
+
+/// `GET /station/events`.
+async fn events(log: ResultsLog, request: &IncomingRequest) -> Response {
+    let cf = match negotiate(request) {
+        Ok(cf) => cf,
+        Err(refused) => return refused,
+    };
+    match reads::events(&log, request.options.uri_query(), EVENTS).await {
+        Ok(events) => document(&events, cf),
         Err(refused) => refusal(&refused),
     }
 }

@@ -79,6 +79,12 @@ impl Station {
                 tasks.0.push(tokio::spawn(async move {
                     while newest.changed().await.is_ok()
                         && changes.send(paths::LATEST.to_owned()).is_ok()
+                    {}
+                }));
+                // The head moves with events too.
+                let (mut head, changes) = (log.subscribe_head(), server.changes());
+                tasks.0.push(tokio::spawn(async move {
+                    while head.changed().await.is_ok()
                         && changes.send(paths::HEAD.to_owned()).is_ok()
                     {}
                 }));

@@ -330,6 +330,7 @@ pub(crate) fn record_billed(
         software_sha256: coapcam::identity::SOFTWARE_SHA256.into(),
         photo_jpeg: Some(vec![0xff; 2000]),
         annotated_png: None,
+        parameters_sha256: None,
     })
     .expect("appending a record")
     .id

@@ -482,6 +482,7 @@ fn with_pictures(n: u8, measurement: &Measurement) -> NewRecord {
         software_sha256: coapcam::identity::SOFTWARE_SHA256.into(),
         photo_jpeg: Some(vec![0xFF, 0xD8, n, 0xFF, 0xD9]),
         annotated_png: Some([&b"\x89PNG\r\n\x1a\n"[..], &[n; 64]].concat()),
+        parameters_sha256: None,
     }
 }
 
@@ -994,4 +995,200 @@ fn a_second_station_on_the_same_log_refuses_to_start_and_names_the_first() {
     }
     let f = second();
     assert_eq!(f.status.code(), Some(0), "{}", f.stderr);
+}
+
+/// `method path` with `payload`, the response.
+async fn change(
+    c: &coap_net::Client,
+    addr: std::net::SocketAddr,
+    method: Code,
+    path: &str,
+    payload: &[u8],
+) -> Response {
+    let mut request = Request::new(method, path);
+    request.timeout = Some(LIMIT);
+    request.payload = payload.to_vec().into();
+    c.send(addr, request).await.expect("an answer")
+}
+
+/// `doc` with the last number of its `post_translation_matrix` (the height) moved by
+/// `by_m` metres.
+fn raised(doc: &[u8], by_m: f64) -> Vec<u8> {
+    fn last_number(v: &mut serde_json::Value) -> Option<&mut serde_json::Value> {
+        match v {
+            serde_json::Value::Array(items) => items.iter_mut().rev().find_map(last_number),
+            serde_json::Value::Number(_) => Some(v),
+            _ => None,
+        }
+    }
+    let mut v: serde_json::Value = serde_json::from_slice(doc).expect("a JSON document");
+    let z = last_number(&mut v["post_translation_matrix"]).expect("a number");
+    *z = serde_json::json!(z.as_f64().expect("a number") + by_m);
+    serde_json::to_vec(&v).expect("JSON")
+}
+
+/// Removes record `gone` from the log and rewrites every later one as someone who drops
+/// the append-only triggers would: its id one less, its `prev_hash` the new hash before
+/// it, its hash recomputed by the documented encoding.
+fn remove_and_rechain(file: &Path, gone: u64) {
+    use coapcam::api::record::{canonical_bytes, sha256_hex};
+    let db = rusqlite::Connection::open(file).expect("sqlite");
+    db.execute_batch(
+        "DROP TRIGGER records_no_update; DROP TRIGGER records_no_delete;
+         DROP TRIGGER pictures_no_update; PRAGMA foreign_keys = OFF;",
+    )
+    .expect("drop triggers");
+    let rows: Vec<(u64, String)> = {
+        let mut stmt = db
+            .prepare("SELECT id, CAST(body AS TEXT) FROM records WHERE id > ?1 ORDER BY id")
+            .expect("select");
+        stmt.query_map([gone], |r| Ok((r.get(0)?, r.get(1)?)))
+            .expect("rows")
+            .collect::<Result<_, _>>()
+            .expect("rows")
+    };
+    let mut prev: String = db
+        .query_row("SELECT hash FROM records WHERE id = ?1", [gone - 1], |r| {
+            r.get(0)
+        })
+        .expect("the hash before");
+    db.execute("DELETE FROM records WHERE id = ?1", [gone])
+        .expect("removed");
+    for (id, body) in rows {
+        let mut v: serde_json::Value = serde_json::from_str(&body).expect("JSON");
+        v["id"] = (id - 1).into();
+        v["prev_hash"] = prev.clone().into();
+        let bytes = canonical_bytes(&v);
+        let hash = sha256_hex(&[&b"coapcam-record-v1\n"[..], &bytes].concat());
+        db.execute(
+            "UPDATE records SET id = ?1, body = ?2, hash = ?3 WHERE id = ?4",
+            rusqlite::params![id - 1, String::from_utf8(bytes).expect("UTF-8"), hash, id],
+        )
+        .expect("rewritten");
+        db.execute(
+            "UPDATE pictures SET record = ?1 WHERE record = ?2",
+            [id - 1, id],
+        )
+        .expect("pictures moved");
+        prev = hash;
+    }
+}
+
+/// Issue 48, item 2: a PUT and a DELETE of a 3d-transformation over CoAP are events in
+/// the chain (which document, the SHA-256 of the old and new content, who, when); the
+/// next measurement names the event counter and the parameters' hash; `results` lists
+/// the events beside the measurements; `verify` fails when an event is removed, also when
+/// every later record is rewritten consistently around it.
+#[test]
+fn a_changed_transformation_is_an_event_that_the_next_measurement_names() {
+    use coapcam::api::record::{EventRecord, sha256_hex};
+    let dir = TempDir::new("results-events");
+    let file = dir.join("results.sqlite");
+    let (mut server, addr) = serve_with(dir.path(), &["--station-name", "lane-3"]);
+    let rt = runtime();
+    let c = client();
+    let doc = format!("/cams/{SN}/3d-transformation");
+    let (old, new, events) = rt.block_on(async {
+        measure(&c, addr).await;
+        let old = get(&c, addr, &doc, &[], None).await.payload.to_vec();
+        let put = change(&c, addr, Code::PUT, &doc, &raised(&old, 0.002)).await;
+        assert_eq!(
+            put.code,
+            Code::CHANGED,
+            "{}",
+            String::from_utf8_lossy(&put.payload)
+        );
+        let new = get(&c, addr, &doc, &[], None).await.payload.to_vec();
+        assert_ne!(old, new);
+        measure(&c, addr).await;
+        let events = get(&c, addr, "/station/events", &[], None).await;
+        assert_eq!(events.code, Code::CONTENT);
+        let events: Vec<EventRecord> = serde_json::from_slice(&events.payload).expect("events");
+        (old, new, events)
+    });
+    assert_eq!(events.len(), 1, "{events:?}");
+    let event = &events[0];
+    assert_eq!((event.id, event.counter), (2, 1));
+    assert_eq!(event.station, "lane-3");
+    assert_eq!(event.event.document, doc);
+    assert_eq!(event.event.change.method(), "PUT");
+    assert_eq!(event.event.old_sha256, sha256_hex(&old));
+    assert_eq!(event.event.new_sha256, sha256_hex(&new));
+    assert!(
+        event.event.by.starts_with("coap://127.0.0.1:"),
+        "{}",
+        event.event.by
+    );
+    let records =
+        rt.block_on(async { records_of(&get(&c, addr, "/station/measurements", &[], None).await) });
+    // The measurements only, each naming the events before it and the parameters.
+    assert_eq!(ids(&records), [3, 1]);
+    let (after, before) = (&records[0], &records[1]);
+    assert_eq!((before.events, after.events), (Some(0), Some(1)));
+    assert_eq!(
+        after.parameters_sha256.as_deref(),
+        Some(event.event.parameters_sha256.as_str())
+    );
+    assert_ne!(before.parameters_sha256, after.parameters_sha256);
+    assert_eq!(after.prev_hash, event.hash);
+    assert_eq!(event.prev_hash, before.hash);
+    // DELETE: the camera's own again, a second event.
+    rt.block_on(async {
+        let deleted = change(&c, addr, Code::DELETE, &doc, b"").await;
+        assert_eq!(deleted.code, Code::DELETED);
+        measure(&c, addr).await;
+    });
+    // `results` lists them beside the measurements, newest first.
+    let uri = format!("coap://{addr}");
+    let f = Proc::run(COAPCAM, &["results", "--server", &uri, "--json"], LIMIT)
+        .expect_success("results --json");
+    let lines = f.json_lines();
+    let listed: Vec<(u64, bool)> = lines
+        .iter()
+        .map(|l| (l["id"].as_u64().expect("an id"), l.get("event").is_some()))
+        .collect();
+    assert_eq!(
+        listed,
+        [(5, false), (4, true), (3, false), (2, true), (1, false)]
+    );
+    assert_eq!(lines[1]["event"]["change"], "delete");
+    assert_eq!(
+        lines[1]["event"]["old_sha256"],
+        lines[3]["event"]["new_sha256"]
+    );
+    assert_eq!(lines[0]["events"], 2);
+    let f = Proc::run(COAPCAM, &["results", "--server", &uri], LIMIT).expect_success("results");
+    let text = f.stdout_text();
+    assert!(
+        text.contains(&format!("event 2  DELETE {doc} by coap://127.0.0.1:")),
+        "{text}"
+    );
+    let _ = server.process().kill();
+    let _ = server.process().wait();
+    let (code, report) = verify(&file);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(
+        (report["records"].as_u64(), report["events"].as_u64()),
+        (Some(5), Some(2))
+    );
+    // An event removed breaks the chain; rewritten around it (ids and hashes), the next
+    // measurement's counter still names it.
+    let copy = dir.join("removed.sqlite");
+    rusqlite::Connection::open(&file)
+        .expect("sqlite")
+        .execute("VACUUM INTO ?1", [copy.to_str().expect("UTF-8")])
+        .expect("a copy");
+    let db = rusqlite::Connection::open(&copy).expect("sqlite");
+    db.execute_batch("DROP TRIGGER records_no_delete; DELETE FROM records WHERE id = 4;")
+        .expect("removed");
+    drop(db);
+    let (code, report) = verify(&copy);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 4, "{report}");
+    remove_and_rechain(&file, 4);
+    let (code, report) = verify(&file);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 4, "{report}");
+    let why = report["first_altered"]["why"].as_str().unwrap_or_default();
+    assert!(why.contains("after 2 event(s)"), "{why}");
 }

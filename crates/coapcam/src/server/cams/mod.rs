@@ -27,7 +27,7 @@ use rgbd::{
 use tokio::sync::mpsc;
 
 use super::measure::{self, Records, Rig, RigCamera, Shot};
-use crate::api::record::{CameraPose, Trigger};
+use crate::api::record::{CameraPose, Change, Event, Trigger, parameters_sha256, sha256_hex};
 use crate::report::{self, EdgeQuery, Measurement};
 use crate::repr::no_depth::{self, NoDepth};
 use crate::repr::{self, CloudSource, Stream, Subject, raster};
@@ -51,6 +51,21 @@ const CONFIGS: [&str; 5] = [
     "3d-transformation",
     "advanced-config",
 ];
+
+/// The documents of a camera that hold legally relevant parameters (docs/station.md,
+/// "The audit trail"): its 3d-transformation, and its application-config (the regions of
+/// interest and the depth filters). A `PUT` or `DELETE` of one is an event of the
+/// results log.
+const LEGAL: [&str; 2] = ["application-config", "3d-transformation"];
+
+/// Who sent `request`, as an event names them: `coap://ADDR`, or `coaps://ADDR
+/// psk-identity NAME` when DTLS authenticated it.
+fn sender(request: &IncomingRequest) -> String {
+    match &request.identity {
+        Some(identity) => format!("coaps://{} psk-identity {identity}", request.peer),
+        None => format!("coap://{}", request.peer),
+    }
+}
 
 /// A camera's own configuration, before the server changed any of it.
 struct Defaults {
@@ -367,13 +382,14 @@ impl Cams {
         let path = crate::api::paths::camera(sn, name);
         let delete = {
             let (me, path) = (self.clone(), path.clone());
-            handler(move |_ctx| {
+            handler(move |ctx| {
                 let (me, path) = (me.clone(), path.clone());
+                let by = sender(&ctx.request);
                 async move {
                     if CONFIGS.contains(&name) {
                         let reset = me.clone();
                         let outcome =
-                            tokio::task::spawn_blocking(move || reset.reset(sn, name)).await;
+                            tokio::task::spawn_blocking(move || reset.reset(sn, name, &by)).await;
                         match outcome {
                             Ok(Ok(())) => {}
                             Ok(Err((code, why))) => return Response::diagnostic(code, &why),
@@ -417,7 +433,8 @@ impl Cams {
                 }))
                 .put(handler(move |ctx| {
                     let me = put_me.clone();
-                    async move { me.put_config(sn, name, ctx.request.payload).await }
+                    let by = sender(&ctx.request);
+                    async move { me.put_config(sn, name, ctx.request.payload, by).await }
                 }))
                 .delete(delete)
                 .attr("rt", "rgbd.config")
@@ -545,12 +562,18 @@ impl Cams {
         clippy::result_large_err,
         reason = "a refusal is the Response sent; it keeps its options inline"
     )]
-    async fn put_config(self: &Arc<Self>, sn: Serial, name: &'static str, body: Bytes) -> Response {
+    async fn put_config(
+        self: &Arc<Self>,
+        sn: Serial,
+        name: &'static str,
+        body: Bytes,
+        by: String,
+    ) -> Response {
         let Some(cam) = self.camera(&sn) else {
             return Response::diagnostic(Code::NOT_FOUND, &format!("camera {sn} is disconnected"));
         };
         let me = self.clone();
-        match tokio::task::spawn_blocking(move || me.replace(&sn, &cam, name, &body)).await {
+        match tokio::task::spawn_blocking(move || me.replace(&sn, &cam, name, &body, &by)).await {
             Ok(Ok(())) => {
                 tracing::info!(serial = %sn, "{name} of camera {sn} changed");
                 Response::new(Code::CHANGED)
@@ -570,11 +593,13 @@ impl Cams {
         cam: &CamState,
         name: &str,
         body: &[u8],
+        by: &str,
     ) -> Result<(), Response> {
         let bad = |e: &dyn std::fmt::Display| {
             Response::diagnostic(Code::BAD_REQUEST, &format!("{name}: {e}"))
         };
         let _one_at_a_time = lock(&cam.writes);
+        let audited = self.audited(sn, cam, name)?;
         let camera = &cam.camera;
         let modes = camera.stream_modes();
         // Validate, and keep what undoes the change if persisting fails.
@@ -642,18 +667,97 @@ impl Cams {
                 &format!("{name}: cannot persist the document ({e}); nothing was changed"),
             ));
         }
+        if let Some(before) = audited
+            && let Err(why) = self.record_change(sn, name, Change::Put, &before, by)
+        {
+            undo();
+            return Err(self.unrecorded(sn, name, &before, &why));
+        }
         Ok(())
+    }
+
+    /// What an event of a change to `name` needs from before it: the document as `GET`
+    /// serves it, and as the state directory holds it; `None` when `name` holds no legally
+    /// relevant parameter or no results log is set.
+    #[expect(
+        clippy::result_large_err,
+        reason = "a refusal is the Response sent; it keeps its options inline"
+    )]
+    fn audited(&self, sn: &Serial, cam: &CamState, name: &str) -> Result<Option<Before>, Response> {
+        if !LEGAL.contains(&name) || self.records.get().is_none() {
+            return Ok(None);
+        }
+        let stored = self.state.load(sn, name).map_err(|e| {
+            Response::diagnostic(
+                Code::INTERNAL_SERVER_ERROR,
+                &format!("{name}: reading the document kept: {e}; nothing was changed"),
+            )
+        })?;
+        Ok(Some(Before {
+            served: legal_document(cam, name),
+            stored,
+            app: lock(&cam.app).clone(),
+            transformation: *lock(&cam.transformation),
+        }))
+    }
+
+    /// Records the change of `name` (made, `before` it) in the results log: which
+    /// document, the SHA-256 of its content before and after, `by` whom, and the
+    /// parameters in force now.
+    fn record_change(
+        &self,
+        sn: &Serial,
+        name: &str,
+        change: Change,
+        before: &Before,
+        by: &str,
+    ) -> Result<(), String> {
+        let Some(records) = self.records.get() else {
+            return Ok(());
+        };
+        let Some(cam) = self.camera(sn) else {
+            return Err(format!("camera {sn} is disconnected"));
+        };
+        let after = legal_document(&cam, name);
+        records.change(Event {
+            document: crate::api::paths::camera(*sn, name),
+            change,
+            old_sha256: sha256_hex(before.served.as_bytes()),
+            new_sha256: sha256_hex(after.as_bytes()),
+            by: by.to_owned(),
+            parameters_sha256: Rig::parameters_sha256(self),
+        })
+    }
+
+    /// The refusal of a change that could not be recorded, after putting back in the
+    /// state directory what it held `before` (the caller has undone the change in memory).
+    fn unrecorded(&self, sn: &Serial, name: &str, before: &Before, why: &str) -> Response {
+        let restored = match &before.stored {
+            Some(bytes) => self.state.store(sn, name, bytes),
+            None => self.state.remove(sn, name),
+        };
+        if let Err(e) = restored {
+            tracing::error!(serial = %sn, name, "putting the kept document back: {e}");
+        }
+        // 5.03, as a measurement that cannot be recorded: no change without its event.
+        Response::diagnostic(
+            Code::SERVICE_UNAVAILABLE,
+            &format!("{name}: the change could not be recorded ({why}); nothing was changed"),
+        )
     }
 
     /// `DELETE` of a configuration document: the camera's own (its defaults) again, at
     /// once in memory, on the camera and in the state directory (so a restart or a
     /// re-created resource does not bring the old one back).
     /// A refusal is its code and diagnostic.
-    fn reset(&self, sn: Serial, name: &str) -> Result<(), (Code, String)> {
+    fn reset(&self, sn: Serial, name: &str, by: &str) -> Result<(), (Code, String)> {
         let Some(cam) = self.camera(&sn) else {
             return Err((Code::NOT_FOUND, format!("camera {sn} is disconnected")));
         };
         let _one_at_a_time = lock(&cam.writes);
+        let audited = self
+            .audited(&sn, &cam, name)
+            .map_err(|r| (r.code, String::from_utf8_lossy(&r.payload).into_owned()))?;
         let failed = |e: &dyn std::fmt::Display| {
             (
                 Code::INTERNAL_SERVER_ERROR,
@@ -679,6 +783,17 @@ impl Cams {
             }
         }
         self.state.remove(&sn, name).map_err(|e| failed(&e))?;
+        if let Some(before) = audited
+            && let Err(why) = self.record_change(&sn, name, Change::Delete, &before, by)
+        {
+            *lock(&cam.app) = before.app.clone();
+            *lock(&cam.transformation) = before.transformation;
+            let refused = self.unrecorded(&sn, name, &before, &why);
+            return Err((
+                refused.code,
+                String::from_utf8_lossy(&refused.payload).into_owned(),
+            ));
+        }
         tracing::info!(serial = %sn, "{name} of camera {sn} back to the defaults");
         Ok(())
     }
@@ -1100,6 +1215,49 @@ impl Rig for Cams {
             })
             .collect()
     }
+
+    fn parameters_sha256(&self) -> String {
+        let documents: Vec<(String, String)> = self
+            .snapshot()
+            .into_iter()
+            .flat_map(|(sn, cam)| {
+                LEGAL.map(|name| {
+                    (
+                        crate::api::paths::camera(sn, name),
+                        legal_document(&cam, name),
+                    )
+                })
+            })
+            .collect();
+        parameters_sha256(
+            documents
+                .iter()
+                .map(|(path, doc)| (path.clone(), doc.as_bytes())),
+        )
+    }
+}
+
+/// A camera's document of legally relevant parameters `name` (one of [`LEGAL`]) as `GET`
+/// serves it.
+fn legal_document(cam: &CamState, name: &str) -> String {
+    if name == "application-config" {
+        lock(&cam.app).to_json()
+    } else {
+        lock(&cam.transformation).to_json()
+    }
+}
+
+/// What a change of legally relevant parameters needs from before it, to record it and
+/// to undo it when it cannot be recorded.
+struct Before {
+    /// The document as `GET` served it.
+    served: String,
+    /// The document as the state directory held it (`None`: none, the camera's own).
+    stored: Option<Vec<u8>>,
+    /// The camera's application-config.
+    app: AppConfig,
+    /// The camera's 3d-transformation.
+    transformation: Transformation,
 }
 
 /// 5.03 for a request that needs a camera's cloud when no camera gave one, with why.

@@ -448,3 +448,106 @@ fn grabs_past_the_memory_budget_answer_5_03_with_max_age_until_memory_is_free() 
         assert_eq!(cloud.code, Code::CONTENT);
     });
 }
+
+/// A results log that keeps the events it is given, or refuses them.
+#[derive(Default)]
+struct Audit {
+    refuse: std::sync::atomic::AtomicBool,
+    events: std::sync::Mutex<Vec<crate::api::record::Event>>,
+}
+
+impl crate::server::measure::Records for Audit {
+    fn keep(
+        &self,
+        _measured: crate::server::measure::Measured,
+    ) -> std::pin::Pin<Box<dyn Future<Output = Result<(), String>> + Send + '_>> {
+        Box::pin(async { Ok(()) })
+    }
+
+    fn change(&self, event: crate::api::record::Event) -> Result<(), String> {
+        if self.refuse.load(std::sync::atomic::Ordering::SeqCst) {
+            return Err("the disk is full".into());
+        }
+        self.events.lock().expect("events").push(event);
+        Ok(())
+    }
+}
+
+/// Issue 48, item 2: a PUT or DELETE of a legally relevant document is handed to the log
+/// as an event (the document, its SHA-256 before and after as GET serves it, who); one
+/// the log cannot keep is undone, in memory and in the state directory, and answered
+/// 5.03. Other documents are no events.
+#[test]
+fn a_change_of_a_legal_document_is_an_event_and_undone_when_it_cannot_be_recorded() {
+    use crate::api::record::{Change, sha256_hex};
+    let state = ScratchDir::new("audited-puts");
+    runtime().block_on(async {
+        let rig = Rig::start(&state);
+        let audit = Arc::new(Audit::default());
+        rig.cams.set_records(audit.clone());
+        let camera = cameras().swap_remove(0);
+        let sn = camera.serial();
+        rig.hub.add(camera).expect("plug in");
+        let config = format!("/cams/{sn}/application-config");
+        let transformation = format!("/cams/{sn}/3d-transformation");
+        rig.routed(&transformation, true).await;
+        let before = rig.send(Code::GET, &config, b"").await.payload;
+        let mut doc: serde_json::Value = serde_json::from_slice(&before).expect("JSON");
+        doc["depth_grab_timeout_ms"] = 1234.into();
+        let put = rig
+            .send(Code::PUT, &config, doc.to_string().as_bytes())
+            .await;
+        assert_eq!(put.code, Code::CHANGED);
+        let after = rig.send(Code::GET, &config, b"").await.payload;
+        {
+            let events = audit.events.lock().expect("events");
+            assert_eq!(events.len(), 1);
+            let e = &events[0];
+            assert_eq!(e.document, config);
+            assert_eq!(e.change, Change::Put);
+            assert_eq!(e.old_sha256, sha256_hex(&before));
+            assert_eq!(e.new_sha256, sha256_hex(&after));
+            assert!(e.by.starts_with("coap://127.0.0.1:"), "{}", e.by);
+            assert_eq!(
+                e.parameters_sha256,
+                crate::server::measure::Rig::parameters_sha256(&*rig.cams)
+            );
+        }
+        // The log refuses: nothing changes.
+        audit
+            .refuse
+            .store(true, std::sync::atomic::Ordering::SeqCst);
+        let pose = rig.send(Code::GET, &transformation, b"").await.payload;
+        let mut moved: serde_json::Value = serde_json::from_slice(&pose).expect("JSON");
+        moved["translation_matrix"] = serde_json::json!([[0.5], [0.5], [0.5]]);
+        let put = rig
+            .send(Code::PUT, &transformation, moved.to_string().as_bytes())
+            .await;
+        assert_eq!(put.code, Code::SERVICE_UNAVAILABLE);
+        let why = String::from_utf8_lossy(&put.payload);
+        assert!(
+            why.contains("could not be recorded (the disk is full)"),
+            "{why}"
+        );
+        assert_eq!(
+            rig.send(Code::GET, &transformation, b"").await.payload,
+            pose
+        );
+        let dir = state.0.join(sn.as_str());
+        assert!(!dir.join("3d-transformation.json").exists());
+        let deleted = rig.send(Code::DELETE, &config, b"").await;
+        assert_eq!(deleted.code, Code::SERVICE_UNAVAILABLE);
+        assert_eq!(rig.send(Code::GET, &config, b"").await.payload, after);
+        let kept = std::fs::read(dir.join("application-config.json")).expect("kept");
+        assert_eq!(kept, after);
+        assert!(rig.router.patterns().contains(&config));
+        // Not a legally relevant document: no event, and the refusal does not matter.
+        let depth = format!("/cams/{sn}/depth-settings");
+        let settings = rig.send(Code::GET, &depth, b"").await.payload;
+        assert_eq!(
+            rig.send(Code::PUT, &depth, &settings).await.code,
+            Code::CHANGED
+        );
+        assert_eq!(audit.events.lock().expect("events").len(), 1);
+    });
+}
