@@ -29,6 +29,12 @@ pub const EVENTS: &str = "/station/events";
 /// The results log's newest record, observable: notified once per new record.
 pub const LATEST: &str = "/station/measurements/latest";
 
+/// The option the station's HTTP-CoAP proxy adds to the requests it forwards: the HTTP
+/// client's address (`http://ADDR:PORT`), so that an event of the results log names whom
+/// a change came from. Experimental range, elective and safe to forward; a server takes
+/// it only from a request that came over loopback (the proxy on its own machine).
+pub const FORWARDED_FOR: coap::OptionNumber = coap::OptionNumber(65008);
+
 /// The resource `name` (`color`, `depth-settings`, ...) of the camera `serial`.
 pub fn camera(serial: impl std::fmt::Display, name: &str) -> String {
     format!("{CAMS}/{serial}/{name}")

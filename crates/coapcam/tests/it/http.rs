@@ -1599,3 +1599,34 @@ fn http_memory_with_300_clients_that_never_read_and_1024_idle_event_streams() {
     );
     assert_eq!(count(200) + count(503) + count(429), 1024);
 }
+
+/// Issue 48, item 2: a 3d-transformation PUT through the station's HTTP-CoAP proxy is an
+/// event that names the HTTP client beside the proxy's CoAP address.
+#[test]
+fn a_change_through_the_proxy_is_an_event_naming_the_http_client() {
+    let state = TempDir::new("http-proxy-event");
+    let (_server, coap, http) = station_with_http(state.path(), &[]);
+    let doc = format!(
+        "/hc/coap://{coap}/cams/{}/3d-transformation",
+        crate::support::SN
+    );
+    let old = get(http, &doc);
+    assert_eq!(old.status, 200);
+    let put = request(
+        http,
+        "PUT",
+        &doc,
+        &[("Content-Type", "application/json")],
+        &old.body,
+    );
+    assert_eq!(put.status, 204, "{}", String::from_utf8_lossy(&put.body));
+    let events = get(http, &format!("/hc/coap://{coap}/station/events"));
+    assert_eq!(events.status, 200);
+    let events = events.json();
+    let by = events[0]["event"]["by"].as_str().unwrap_or_default();
+    assert!(
+        by.starts_with("coap://127.0.0.1:") && by.contains(" for http://127.0.0.1:"),
+        "{events}"
+    );
+    assert_eq!(events[0]["event"]["change"], "put");
+}

@@ -59,12 +59,26 @@ const CONFIGS: [&str; 5] = [
 const LEGAL: [&str; 2] = ["application-config", "3d-transformation"];
 
 /// Who sent `request`, as an event names them: `coap://ADDR`, or `coaps://ADDR
-/// psk-identity NAME` when DTLS authenticated it.
+/// psk-identity NAME` when DTLS authenticated it; followed by `for http://ADDR` when it
+/// came over loopback from the station's HTTP-CoAP proxy, which names its client
+/// ([`crate::api::paths::FORWARDED_FOR`]).
 fn sender(request: &IncomingRequest) -> String {
-    match &request.identity {
+    let mut by = match &request.identity {
         Some(identity) => format!("coaps://{} psk-identity {identity}", request.peer),
         None => format!("coap://{}", request.peer),
+    };
+    let forwarded = request
+        .options
+        .first(crate::api::paths::FORWARDED_FOR)
+        .and_then(|v| std::str::from_utf8(v).ok())
+        .filter(|v| v.len() <= 64 && v.starts_with("http://") && !v.contains(char::is_whitespace));
+    if request.loopback
+        && let Some(client) = forwarded
+    {
+        by.push_str(" for ");
+        by.push_str(client);
     }
+    by
 }
 
 /// A camera's own configuration, before the server changed any of it.

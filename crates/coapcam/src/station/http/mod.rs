@@ -739,6 +739,8 @@ impl<R: Rig> App<R> {
         let head = request.method() == Method::HEAD;
         let headers = request.headers().clone();
         let mut options = uri.options();
+        // Whom a change came from, for the results log's events.
+        options.set(crate::api::paths::FORWARDED_FOR, format!("http://{peer}"));
         if head {
             // The first block of 16 bytes and the size, no more blocks (the client does
             // not go on when the request names its Block2).
