@@ -1629,4 +1629,9 @@ fn a_change_through_the_proxy_is_an_event_naming_the_http_client() {
         "{events}"
     );
     assert_eq!(events[0]["event"]["change"], "put");
+    // The same list from the HTTP API.
+    let listed = get(http, "/api/log/events?since=0");
+    assert_eq!(listed.status, 200);
+    assert_eq!(listed.json(), events);
+    assert_eq!(get(http, "/api/log/events?code=A").status, 400);
 }

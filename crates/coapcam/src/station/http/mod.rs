@@ -333,6 +333,15 @@ impl<R: Rig> App<R> {
                 Ok(head) => json(StatusCode::OK, &head),
                 Err(refused) => refusal(&refused),
             },
+            (["api", "log", "events"], true, _) => match query_items(&query) {
+                Ok(items) => {
+                    match reads::events(self.recorder.log(), &items, "/api/log/events").await {
+                        Ok(events) => json(StatusCode::OK, &events),
+                        Err(refused) => refusal(&refused),
+                    }
+                }
+                Err(why) => error(StatusCode::BAD_REQUEST, &why),
+            },
             (["api", "events"], true, _) => {
                 let last = request
                     .headers()
