@@ -1,5 +1,6 @@
 //! The results log as CoAP resources (docs/design.md §5, docs/station.md):
-//! - `/station`: the station's name, version and software checksum;
+//! - `/station`: the station's name, version and software checksum, the event counter and
+//!   the hash of the legally relevant parameters in force;
 //! - `/station/head`: the log's head (newest id and hash), observable: published so a
 //!   verifier can later find a log cut off or rewritten before it;
 //! - `/station/measurements`: GET the records, newest first; the query selects
@@ -12,6 +13,7 @@
 //!   (image/png) its pictures while retention keeps them.
 
 use std::hash::{Hash as _, Hasher as _};
+use std::sync::Arc;
 
 use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Resource, Router, handler};
@@ -24,15 +26,25 @@ use crate::api::paths::{EVENTS, HEAD, LATEST, MEASUREMENTS, STATION};
 /// The list of records.
 const PATH: &str = MEASUREMENTS;
 
-/// Adds the resources of `log` to `router`.
-pub(crate) fn register(router: &Router, log: &ResultsLog, station: &str) {
+/// What gives the hash of the legally relevant parameters in force (the cameras'), for
+/// `/station`.
+pub(crate) type Parameters = Arc<dyn Fn() -> String + Send + Sync>;
+
+/// Adds the resources of `log` to `router`; `parameters`, when the station has cameras.
+pub(crate) fn register(
+    router: &Router,
+    log: &ResultsLog,
+    station: &str,
+    parameters: Option<Parameters>,
+) {
     let name = station.to_owned();
+    let me = log.clone();
     router.add(
         STATION,
         Resource::new()
             .get(handler(move |ctx| {
-                let name = name.clone();
-                async move { identity(&name, &ctx.request) }
+                let (name, log, parameters) = (name.clone(), me.clone(), parameters.clone());
+                async move { identity(&name, &log, parameters.as_ref(), &ctx.request) }
             }))
             .attr("rt", "coapcam.station")
             .attr("ct", "50 60")
@@ -161,31 +173,37 @@ fn segment(picture: Picture) -> &'static str {
 }
 
 /// `GET /station`.
-fn identity(station: &str, request: &IncomingRequest) -> Response {
+fn identity(
+    station: &str,
+    log: &ResultsLog,
+    parameters: Option<&Parameters>,
+    request: &IncomingRequest,
+) -> Response {
     let cf = match negotiate(request) {
         Ok(cf) => cf,
         Err(refused) => return refused,
     };
-    document(&Identity::now(station), cf)
+    let identity = Identity {
+        station,
+        version: crate::identity::VERSION,
+        software_sha256: crate::identity::SOFTWARE_SHA256,
+        events: log.events(),
+        parameters_sha256: parameters.map(|p| p()),
+    };
+    document(&identity, cf)
 }
 
-/// The station and its software, as `GET /station` (CoAP) and `/api/station` (HTTP)
-/// name them.
+/// The station and its software, as `GET /station` names them.
 #[derive(Debug, Serialize)]
-pub(crate) struct Identity<'a> {
+struct Identity<'a> {
     station: &'a str,
     version: &'static str,
     software_sha256: &'static str,
-}
-
-impl<'a> Identity<'a> {
-    pub(crate) fn now(station: &'a str) -> Self {
-        Self {
-            station,
-            version: crate::identity::VERSION,
-            software_sha256: crate::identity::SOFTWARE_SHA256,
-        }
-    }
+    /// The event counter: the changes of legally relevant parameters the log holds.
+    events: u64,
+    /// The hash of the legally relevant parameters in force (none without cameras).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    parameters_sha256: Option<String>,
 }
 
 /// `GET /station/measurements`.

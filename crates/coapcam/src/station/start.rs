@@ -18,6 +18,7 @@ use super::{Config, Recorder, http, last_id_path, resources, watch};
 use crate::api::paths;
 use crate::rd::registrant::{Registrant, RegistrantConfig};
 use crate::report::{EdgeQuery, Measurement};
+use crate::server::measure::Rig as _;
 use crate::server::{self, CameraServer, CodeColor, EdgeError};
 
 /// A running station: its camera server, and with cameras the outputs of its results log.
@@ -70,7 +71,10 @@ impl Station {
                 let last_id = last_id_path(&state_dir, &path);
                 let log = ResultsLog::open_station(&path, config.retention, &last_id)
                     .with_context(|| format!("opening the results log {}", path.display()))?;
-                resources::register(server.router(), &log, &config.name);
+                let parameters: Option<resources::Parameters> = server
+                    .rig()
+                    .map(|rig| Arc::new(move || rig.parameters_sha256()) as resources::Parameters);
+                resources::register(server.router(), &log, &config.name, parameters);
                 let recorder = Recorder::new(log.clone(), config.name.clone());
                 server.set_records(Arc::new(recorder.clone()));
                 // One notification per new record: appends that come faster than
@@ -99,7 +103,7 @@ impl Station {
                     }
                     let log = ResultsLog::open(path)
                         .with_context(|| format!("opening the results log {}", path.display()))?;
-                    resources::register(server.router(), &log, &config.name);
+                    resources::register(server.router(), &log, &config.name, None);
                 }
                 None
             }

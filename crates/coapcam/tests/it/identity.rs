@@ -167,6 +167,7 @@ fn the_station_names_its_software_over_http_and_coap() {
         "{station}"
     );
     assert_eq!(station["version"], identity::VERSION);
+    let over_http = station;
     let station = coap_json(coap, "/station");
     assert_eq!(station["station"], "dock-9", "{station}");
     assert_eq!(
@@ -175,6 +176,27 @@ fn the_station_names_its_software_over_http_and_coap() {
         "{station}"
     );
     assert_eq!(station["version"], identity::VERSION);
+    // The event counter and the parameters in force, shown on demand (issue 48, item 2).
+    assert_eq!(
+        (&station["events"], &over_http["events"]),
+        (&0.into(), &0.into())
+    );
+    let parameters = station["parameters_sha256"].clone();
+    assert_eq!(parameters.as_str().map(str::len), Some(64), "{station}");
+    assert_eq!(over_http["parameters_sha256"], parameters);
+    let doc = format!(
+        "coap://{coap}/cams/{}/application-config",
+        crate::support::SN
+    );
+    Proc::run(COAPCAM, &["delete", &doc], LIMIT).expect_success("delete");
+    let station = coap_json(coap, "/station");
+    assert_eq!(station["events"], 1, "{station}");
+    let event = &coap_json(coap, "/station/events")[0];
+    assert_eq!(
+        event["event"]["parameters_sha256"],
+        station["parameters_sha256"]
+    );
+    assert_eq!(http_json(http, "/api/station").1["events"], 1);
 }
 
 /// Issue 48, item 4: the station publishes its log's head (the newest id and hash) over

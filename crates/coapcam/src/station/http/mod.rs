@@ -623,6 +623,8 @@ impl<R: Rig> App<R> {
                 "version": crate::identity::VERSION,
                 "software_sha256": crate::identity::SOFTWARE_SHA256,
                 "newest": self.recorder.log().newest(),
+                "events": self.recorder.log().events(),
+                "parameters_sha256": self.rig.parameters_sha256(),
                 "read": "open to every client",
                 "configure": if self.open { "open to every client (--allow-unauthenticated-config)" } else { "this machine only" },
                 "you_may_measure": self.open || local,
