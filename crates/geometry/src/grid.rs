@@ -50,6 +50,11 @@ impl Grid {
         self.cells.iter()
     }
 
+    /// The points of `cell` (none when it is empty).
+    pub(crate) fn members(&self, cell: Cell) -> &[u32] {
+        self.cells.get(&cell).map_or(&[], Vec::as_slice)
+    }
+
     /// `cell` first, then the cells touching it, those that hold points.
     pub(crate) fn occupied_around(&self, cell: Cell) -> impl Iterator<Item = Cell> + '_ {
         let (x, y, z) = cell;

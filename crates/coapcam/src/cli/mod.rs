@@ -181,7 +181,7 @@ pub(crate) struct DimensionArgs {
     /// Points closer than this belong to one object, in millimetres (5 to 500: below 5
     /// a D415's points at a metre or more lie too far apart and a parcel falls into
     /// pieces; above 500 it merges with whatever stands beside it).
-    #[arg(long, value_name = "MM", default_value = "20", value_parser = values::cluster_mm)]
+    #[arg(long, value_name = "MM", default_value = "10", value_parser = values::cluster_mm)]
     cluster_mm: f32,
 }
 

@@ -46,7 +46,7 @@ pub struct ParcelFit {
     /// Flat tops found on it: 1 for one parcel, 2 or more for parcels side by side.
     pub tops: usize,
     /// False when it touches another parcel: more than one top, or another object's
-    /// footprint within 5 cm.
+    /// outline within 20 mm.
     pub isolated: bool,
     /// The share of the footprint's cells that hold points (1 without holes).
     pub coverage: f64,

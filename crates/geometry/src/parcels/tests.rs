@@ -603,3 +603,74 @@ fn a_small_low_lid_against_a_wide_dome_is_a_top_of_its_own() {
     let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
     assert!(found.parcels.iter().all(|p| !p.isolated), "{found:?}");
 }
+
+/// An upright box's lid every 2 mm over [x0, x1] x [y0, y1] at `z`, and its four walls
+/// down to the floor cut.
+fn box_points(x: [f64; 2], y: [f64; 2], z: f64) -> Vec<Point3> {
+    let mut out = lid_points(x, y, z);
+    let levels = ((z - 0.012) / 0.002).floor() as usize;
+    for k in 0..=levels {
+        let h = 0.012 + k as f64 * 0.002;
+        for p in lid_points(x, y, h) {
+            let on = |v: f32, r: [f64; 2]| {
+                (f64::from(v) - r[0]).abs() < 1e-4 || (f64::from(v) - r[1]).abs() < 1e-4
+            };
+            if on(p.x, x) || on(p.y, y) {
+                out.push(p);
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn two_boxes_25_mm_apart_are_two_parcels_each_alone() {
+    // Touching cells of the grouping grid joined points up to 3.5 cell sides apart: two
+    // parcels 25 mm apart were one object with two tops.
+    let mut points = box_points([-0.2, -0.0125], [-0.1, 0.1], 0.15);
+    points.extend(box_points([0.0125, 0.2], [-0.1, 0.1], 0.15));
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 2, "{found:?}");
+    for p in &found.parcels {
+        assert!(p.isolated, "{found:?}");
+        assert!((p.dimensions.length_mm - 200.0).abs() < 4.0, "{found:?}");
+        assert!((p.dimensions.width_mm - 187.5).abs() < 4.0, "{found:?}");
+    }
+}
+
+/// A standing cylinder of `radius` about `centre`, `height` high: its lid every 2 mm and
+/// its wall every 2 mm around and up, down to the floor cut.
+fn cylinder_points(centre: [f64; 2], radius: f64, height: f64) -> Vec<Point3> {
+    let mut out: Vec<Point3> = lid_points([-radius, radius], [-radius, radius], height)
+        .into_iter()
+        .filter(|p| f64::from(p.x).hypot(f64::from(p.y)) <= radius)
+        .map(|p| Point3::new(p.x + centre[0] as f32, p.y + centre[1] as f32, p.z))
+        .collect();
+    let around = (std::f64::consts::TAU * radius / 0.002).round() as usize;
+    let levels = ((height - 0.012) / 0.002).floor() as usize;
+    for k in 0..=levels {
+        for i in 0..around {
+            let a = std::f64::consts::TAU * i as f64 / around as f64;
+            out.push(Point3::new(
+                (centre[0] + radius * a.cos()) as f32,
+                (centre[1] + radius * a.sin()) as f32,
+                (0.012 + k as f64 * 0.002) as f32,
+            ));
+        }
+    }
+    out
+}
+
+#[test]
+fn two_cylinders_30_mm_apart_are_not_side_by_side() {
+    // Along the diagonal: upright squares around the two discs overlap by their corners,
+    // though the cylinders' walls stay 30 mm apart.
+    let step = (0.2 + 0.03) / std::f64::consts::SQRT_2;
+    let mut points = cylinder_points([0.0, 0.0], 0.1, 0.25);
+    points.extend(cylinder_points([step, step], 0.1, 0.2));
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 2, "{found:?}");
+    for p in &found.parcels {
+        assert!(p.isolated, "{found:?}");
+    }
+}
