@@ -25,7 +25,8 @@ pub async fn list(client: &CamClient, q: &ListQuery, limit: usize) -> anyhow::Re
 }
 
 /// Up to `limit` events (`/station/events`) newest first, as `q`'s `since` and `before`
-/// select, asking page after page of at most [`MAX_LIST`].
+/// select, asking page after page of at most [`MAX_LIST`]; none from a station that
+/// answers 4.04 (one from before events).
 pub async fn events(
     client: &CamClient,
     q: &ListQuery,
@@ -36,7 +37,16 @@ pub async fn events(
         before: q.before,
         ..ListQuery::default()
     };
-    pages(client, EVENTS, &q, limit, |e: &EventRecord| e.id).await
+    match pages(client, EVENTS, &q, limit, |e: &EventRecord| e.id).await {
+        // A station from before events has no such resource: it has none.
+        Err(e)
+            if e.downcast_ref::<super::ErrorResponse>()
+                .is_some_and(|r| r.response.code == coap::Code::NOT_FOUND) =>
+        {
+            Ok(Vec::new())
+        }
+        other => other,
+    }
 }
 
 /// Up to `limit` items of the list at `path`, newest first, page after page.

@@ -1192,3 +1192,48 @@ fn a_changed_transformation_is_an_event_that_the_next_measurement_names() {
     let why = report["first_altered"]["why"].as_str().unwrap_or_default();
     assert!(why.contains("after 2 event(s)"), "{why}");
 }
+
+/// A station from before events answers 4.04 for `/station/events`: `results` lists its
+/// measurements as before.
+#[test]
+fn results_lists_the_measurements_of_a_station_from_before_events() {
+    let dir = TempDir::new("results-no-events");
+    let (_server, addr) = serve_with(dir.path(), &[]);
+    let rt = runtime();
+    let c = client();
+    let list = rt.block_on(async {
+        measure(&c, addr).await;
+        get(&c, addr, "/station/measurements", &[], Some(60))
+            .await
+            .payload
+    });
+    // The measurements alone, as a station before events serves them.
+    let router = coap_net::Router::new();
+    router.add(
+        "/station/measurements",
+        coap_net::Resource::new().get(coap_net::handler(move |_ctx| {
+            let list = list.clone();
+            async move {
+                let mut r = Response::new(Code::CONTENT).with_payload(list);
+                r.options.set_uint(
+                    OptionNumber::CONTENT_FORMAT,
+                    u32::from(ContentFormat::CBOR.0),
+                );
+                r
+            }
+        })),
+    );
+    let _guard = rt.enter();
+    let old = coap_net::Server::bind(
+        &[std::net::SocketAddr::from(([127, 0, 0, 1], 0))],
+        coap_net::ServerConfig::default(),
+        router,
+    )
+    .expect("a station from before events");
+    let uri = format!("coap://{}", old.local_addrs()[0]);
+    let f = Proc::run(COAPCAM, &["results", "--server", &uri, "--json"], LIMIT)
+        .expect_success("results --json");
+    let lines = f.json_lines();
+    assert_eq!(lines.len(), 1);
+    assert_eq!(lines[0]["id"], 1);
+}
