@@ -147,13 +147,25 @@ fn nothing_on_the_table_is_a_result_with_exit_5() {
     );
     // Setting up on an empty table is no result: the results log (and so MQTT, the line
     // output and the webhooks, which follow it) holds no record of either measurement.
+    // What --prepare changed on the server is there: events, which the listing shows
+    // (issue 48, item 2).
     let f = coapcam(&["results", "--server", &uri]);
     assert_eq!(status(&f), Some(0), "{}", f.stderr);
-    assert_eq!(f.stdout_text().trim(), "no records", "{}", f.stdout_text());
+    let text = f.stdout_text();
+    assert!(!text.is_empty(), "{text}");
+    let event = format!(" PUT /cams/{SN}/application-config by coap://");
+    assert!(text.lines().all(|l| l.contains(&event)), "{text}");
+    let f = coapcam(&["results", "--server", &uri, "--json"]);
+    assert_eq!(status(&f), Some(0), "{}", f.stderr);
+    assert!(
+        f.json_lines().iter().all(|l| l.get("event").is_some()),
+        "{}",
+        f.stdout_text()
+    );
     // Issue 51, item 13: with --json (JSON Lines) and --csv standard output holds no
     // record and no header line more; that there are none is said on standard error
-    // (before: nothing at all with --json).
-    let f = coapcam(&["results", "--server", &uri, "--json"]);
+    // (before: nothing at all with --json). A code selects measurements alone.
+    let f = coapcam(&["results", "--server", &uri, "--json", "--code", "PKG-1"]);
     assert_eq!(status(&f), Some(0), "{}", f.stderr);
     assert_eq!(f.stdout_text(), "", "JSON Lines of no record");
     assert_eq!(f.stderr.trim(), "coapcam: no records", "{}", f.stderr);
