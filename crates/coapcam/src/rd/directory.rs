@@ -1061,9 +1061,11 @@ impl Directory {
     #[must_use]
     pub fn read(&self, listing: &Listing, range: std::ops::Range<usize>) -> Option<Vec<u8>> {
         let first = listing.parts.partition_point(|p| p.end <= range.start);
-        let mut start = first
+        // Where the text rendered from part `first` on begins in the document.
+        let base = first
             .checked_sub(1)
             .map_or(0, |before| listing.parts[before].end);
+        let mut start = base;
         let mut text = String::new();
         for (i, part) in listing.parts.iter().enumerate().skip(first) {
             if start >= range.end {
@@ -1080,7 +1082,7 @@ impl Directory {
             }
             start = part.end;
         }
-        let skip = range.start - listing.parts[..first].last().map_or(0, |p| p.end);
+        let skip = range.start - base;
         (text.as_bytes())
             .get(skip..skip + range.len())
             .map(<[u8]>::to_vec)
