@@ -38,7 +38,7 @@ pub async fn from_server(
         picture::annotate_frame(
             image,
             dims,
-            division_mm,
+            &crate::report::box_caption(dims, division_mm),
             code_texts(codes).as_deref(),
             capture.intrinsics,
             capture.depth_to_color,

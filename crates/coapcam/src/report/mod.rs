@@ -191,6 +191,20 @@ pub fn format_mm(value_mm: f64, division_mm: Option<f64>) -> String {
     format!("{value_mm:.places$}")
 }
 
+/// The line of a measured box in an annotated picture's legend: its dimensions as every
+/// output writes them ([`format_mm`]: the numbers to bill on with the decimals of
+/// `division_mm`, one decimal without a division) and its yaw.
+pub fn box_caption(dims: &Dimensions, division_mm: Option<f64>) -> String {
+    let mm = |v: f64| format_mm(v, division_mm);
+    format!(
+        "measured box {} x {} x {} mm, yaw {:.1} deg",
+        mm(dims.length_mm),
+        mm(dims.width_mm),
+        mm(dims.height_mm),
+        dims.yaw_deg
+    )
+}
+
 /// The reason given for a part of the table that returned no depth at all.
 pub const NO_DEPTH_REASON: &str =
     "no depth from part of the table (a parcel too dark or too shiny for the cameras?)";
@@ -896,6 +910,29 @@ mod tests {
         };
         assert_eq!(fine.billed_mm(322.63), 322.6);
         assert_eq!(fine.billed_mm(0.3 + 0.6), 0.9);
+    }
+
+    /// Issue 51, item 4: the picture's legend wrote whole millimetres whatever the
+    /// division; it writes the numbers to bill on as every output does.
+    #[test]
+    fn the_legend_writes_the_dimensions_as_every_output_does() {
+        let d = |length_mm| Dimensions {
+            length_mm,
+            width_mm: 300.0,
+            height_mm: 200.0,
+            yaw_deg: 0.0,
+            corners_m: [[-0.2, -0.15], [0.2, -0.15], [0.2, 0.15], [-0.2, 0.15]],
+            volume_l: 24.0,
+            points: 1000,
+        };
+        assert_eq!(
+            box_caption(&d(322.5), Some(2.5)),
+            "measured box 322.5 x 300.0 x 200.0 mm, yaw 0.0 deg"
+        );
+        assert_eq!(
+            box_caption(&d(400.0), Some(5.0)),
+            "measured box 400 x 300 x 200 mm, yaw 0.0 deg"
+        );
     }
 
     #[test]

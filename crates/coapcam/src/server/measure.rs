@@ -197,7 +197,7 @@ fn pictures_of(
         picture::annotate_frame(
             &mut image,
             &reported.dimensions(points),
-            reported.division_mm,
+            &crate::report::box_caption(&reported.dimensions(points), reported.division_mm),
             codes,
             shot.intrinsics,
             shot.depth_to_color,

@@ -9,7 +9,6 @@ use geometry::{Dimensions, PointCloud, Transform};
 use image::{GrayImage, ImageFormat, Luma, Rgb, RgbImage};
 use rgbd::{Extrinsics, Intrinsics};
 
-use crate::report::format_mm;
 use crate::repr::packet::DepthImage;
 
 /// The shortest depth range a picture spreads its shades over, metres: an empty table's
@@ -405,7 +404,7 @@ pub fn projector(
 pub fn annotate_frame(
     image: &mut RgbImage,
     dims: &Dimensions,
-    division_mm: Option<f64>,
+    caption: &str,
     codes: Option<&[String]>,
     intrinsics: Intrinsics,
     depth_to_color: Extrinsics,
@@ -417,7 +416,7 @@ pub fn annotate_frame(
     annotate(
         image,
         dims,
-        division_mm,
+        caption,
         codes,
         [camera.x, camera.y, camera.z],
         project,
@@ -429,12 +428,12 @@ pub fn annotate_frame(
 /// pixel), seen from `camera` (the camera's position in the world): the footprint on the
 /// floor red, the lid green, the vertical edges yellow; an edge the box hides from the
 /// camera (no face it borders faces the camera) dashed. A legend in the top-left corner
-/// says so, with the dimensions ([`box_caption`]) and, when they were read (`codes`, each
+/// says so, with `caption` (the dimensions, as `report::box_caption` writes them) and, when they were read (`codes`, each
 /// as `qr "PKG-0001"`), the codes found ("none" when none was).
 pub fn annotate(
     image: &mut RgbImage,
     dims: &Dimensions,
-    division_mm: Option<f64>,
+    caption: &str,
     codes: Option<&[String]>,
     camera: [f64; 3],
     project: impl Fn([f64; 3]) -> Option<[f32; 2]>,
@@ -488,7 +487,7 @@ pub fn annotate(
             }
         }
     }
-    let mut lines = vec![(box_caption(dims, division_mm), WHITE)];
+    let mut lines = vec![(caption.to_owned(), WHITE)];
     lines.extend(codes_line(codes));
     lines.extend([
         ("red: footprint on the floor".to_owned(), RED),
@@ -497,20 +496,6 @@ pub fn annotate(
         ("dashed: edges hidden behind the box".to_owned(), WHITE),
     ]);
     legend(image, (0, 0), &lines, text_scale(image));
-}
-
-/// The legend's line of a measured box: its dimensions as every output writes them
-/// ([`format_mm`]: the numbers to bill on with the decimals of `division_mm`, one
-/// decimal without a division) and its yaw.
-pub fn box_caption(dims: &Dimensions, division_mm: Option<f64>) -> String {
-    let mm = |v: f64| format_mm(v, division_mm);
-    format!(
-        "measured box {} x {} x {} mm, yaw {:.1} deg",
-        mm(dims.length_mm),
-        mm(dims.width_mm),
-        mm(dims.height_mm),
-        dims.yaw_deg
-    )
 }
 
 /// Draws onto `image` (a color frame, as [`annotate_frame`]) the parcel the measurement
@@ -904,22 +889,6 @@ mod tests {
         assert!(count(&img, 0..img.width(), gap.end..img.height(), WHITE) > 100);
     }
 
-    /// Issue 51, item 4: the legend wrote whole millimetres whatever the division; it
-    /// writes the numbers to bill on as every output does.
-    #[test]
-    fn the_legend_writes_the_dimensions_as_every_output_does() {
-        let mut d = measured_box();
-        d.length_mm = 322.5;
-        assert_eq!(
-            box_caption(&d, Some(2.5)),
-            "measured box 322.5 x 300.0 x 200.0 mm, yaw 0.0 deg"
-        );
-        assert_eq!(
-            box_caption(&measured_box(), Some(5.0)),
-            "measured box 400 x 300 x 200 mm, yaw 0.0 deg"
-        );
-    }
-
     #[test]
     fn the_annotated_legend_names_the_codes_read() {
         let legend_pixels = |codes: Option<&[String]>| {
@@ -927,7 +896,7 @@ mod tests {
             annotate(
                 &mut img,
                 &measured_box(),
-                Some(5.0),
+                "measured box 400 x 300 x 200 mm, yaw 0.0 deg",
                 codes,
                 [0.0, 0.0, 1.0],
                 from_above(1.0),
@@ -957,7 +926,7 @@ mod tests {
         annotate(
             &mut img,
             &measured_box(),
-            Some(5.0),
+            "measured box 400 x 300 x 200 mm, yaw 0.0 deg",
             None,
             [0.0, 0.0, 1.0],
             from_above(1.0),
@@ -981,7 +950,7 @@ mod tests {
         annotate(
             &mut img,
             &measured_box(),
-            Some(5.0),
+            "measured box 400 x 300 x 200 mm, yaw 0.0 deg",
             None,
             [0.0, 0.0, 1.0],
             from_above(1.0),
@@ -1009,7 +978,7 @@ mod tests {
         annotate(
             &mut side,
             &measured_box(),
-            Some(5.0),
+            "measured box 400 x 300 x 200 mm, yaw 0.0 deg",
             None,
             [2.0, 0.0, 0.5],
             from_side,
