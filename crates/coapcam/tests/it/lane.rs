@@ -204,10 +204,14 @@ impl Lane {
             Duration::from_secs(60),
         )
         .expect_success("coapcam results");
+        // The listing holds the events too (a camera's application-config PUT): their
+        // lines carry `event`.
         let mut records: Vec<Record> = out
             .stdout_text()
             .lines()
-            .map(|l| serde_json::from_str(l).expect("a record"))
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).expect("a JSON line"))
+            .filter(|line| line.get("event").is_none())
+            .map(|line| serde_json::from_value(line).expect("a record"))
             .collect();
         records.sort_by_key(|r| r.id);
         records
