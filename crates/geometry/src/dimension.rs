@@ -219,9 +219,8 @@ pub(crate) fn rect_dimensions(corners: [[f64; 2]; 4], height_m: f64, points: usi
 /// through others. (Touching cells alone joined points up to 3.5 radii apart: with the
 /// 20 mm radius of before, parcels 60-70 mm apart under several cameras were one object.)
 /// Near linear in the number of points: on a surface the first points compared are
-/// neighbours. Sets
-/// of equal size go in the order of their lowest input index; the points of a set keep
-/// their input order.
+/// neighbours. Sets of equal size go in the order of their lowest input index; the points
+/// of a set keep their input order.
 pub(crate) fn clusters(
     points: &[Point3],
     radius_m: f32,

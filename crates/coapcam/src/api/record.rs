@@ -257,8 +257,8 @@ pub struct Event {
     pub parameters_sha256: String,
 }
 
-/// An event to record: what the camera server hands
-/// [`crate::station::log::ResultsLog::append_event`].
+/// An event to record: what the camera server hands the results log to append (the
+/// station's `ResultsLog::append_event`; `api` names no module above it).
 #[derive(Debug, Clone)]
 pub struct NewEvent {
     /// When the change was made.

@@ -916,15 +916,7 @@ mod tests {
     /// division; it writes the numbers to bill on as every output does.
     #[test]
     fn the_legend_writes_the_dimensions_as_every_output_does() {
-        let d = |length_mm| Dimensions {
-            length_mm,
-            width_mm: 300.0,
-            height_mm: 200.0,
-            yaw_deg: 0.0,
-            corners_m: [[-0.2, -0.15], [0.2, -0.15], [0.2, 0.15], [-0.2, 0.15]],
-            volume_l: 24.0,
-            points: 1000,
-        };
+        let d = |length_mm| fit(length_mm, 300.0, 200.0).dimensions;
         assert_eq!(
             box_caption(&d(322.5), Some(2.5)),
             "measured box 322.5 x 300.0 x 200.0 mm, yaw 0.0 deg"
