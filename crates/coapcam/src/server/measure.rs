@@ -194,10 +194,11 @@ fn pictures_of(
             .to_transform()
             .map_err(|e| format!("the 3d-transformation: {e}"))?;
         let mut image = raster::color_rgb(&shot.frame);
+        let dims = reported.dimensions(points);
         picture::annotate_frame(
             &mut image,
-            &reported.dimensions(points),
-            &crate::report::box_caption(&reported.dimensions(points), reported.division_mm),
+            &dims,
+            &crate::report::box_caption(&dims, reported.division_mm),
             codes,
             shot.intrinsics,
             shot.depth_to_color,
