@@ -539,14 +539,29 @@ fn chromedriver() -> (Proc, SocketAddr) {
     (driver, SocketAddr::from(([127, 0, 0, 1], port)))
 }
 
-/// A WebDriver session of headless Chromium.
+/// A WebDriver session of headless Chromium, and the chromedriver it runs in (stopped
+/// after the session is deleted).
 struct Browser {
     driver: SocketAddr,
     session: String,
+    _chromedriver: Proc,
 }
 
 impl Browser {
-    fn start(driver: SocketAddr, profile: &std::path::Path) -> Self {
+    /// Headless Chromium, with a profile under `state`, showing the station's page at
+    /// `http://addr/`.
+    fn open(addr: SocketAddr, state: &TempDir) -> Self {
+        let (chromedriver, driver) = chromedriver();
+        let browser = Self::start(chromedriver, driver, &state.join("chromium-profile"));
+        browser.session_call(
+            "POST",
+            "/url",
+            Some(&json!({ "url": format!("http://{addr}/") })),
+        );
+        browser
+    }
+
+    fn start(chromedriver: Proc, driver: SocketAddr, profile: &std::path::Path) -> Self {
         let args = [
             "--headless".to_owned(),
             "--no-sandbox".to_owned(),
@@ -569,7 +584,11 @@ impl Browser {
             .as_str()
             .unwrap_or_else(|| panic!("no session: {started}"))
             .to_owned();
-        Self { driver, session }
+        Self {
+            driver,
+            session,
+            _chromedriver: chromedriver,
+        }
     }
 
     fn call(driver: SocketAddr, method: &str, path: &str, body: Option<&Value>) -> Value {
@@ -654,13 +673,7 @@ fn the_page_shows_the_parcel_and_measures_in_chromium() {
     let state = TempDir::new("http-page");
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/demo.toml");
     let (_server, _, addr) = station_with_http(state.path(), &["--scene", scene, "--auto-measure"]);
-    let (_driver, driver) = chromedriver();
-    let browser = Browser::start(driver, &state.join("chromium-profile"));
-    browser.session_call(
-        "POST",
-        "/url",
-        Some(&json!({ "url": format!("http://{addr}/") })),
-    );
+    let browser = Browser::open(addr, &state);
     // The station measures the parcel by itself; the page shows it when it is recorded,
     // with the photo loaded.
     let shown = browser.wait_for(
@@ -817,13 +830,7 @@ fn the_page_shows_the_numbers_to_bill_on() {
             "{second}"
         );
     }
-    let (_driver, driver) = chromedriver();
-    let browser = Browser::start(driver, &state.join("chromium-profile"));
-    browser.session_call(
-        "POST",
-        "/url",
-        Some(&json!({ "url": format!("http://{addr}/") })),
-    );
+    let browser = Browser::open(addr, &state);
     let shown = browser.wait_for(
         "the newest record large, both in the history",
         "const l = document.querySelector('#latest-length');
