@@ -97,6 +97,31 @@ fn scene_parse_errors_are_clear() {
     assert!(e.contains("unknown field `yaw`"), "{e}");
     assert!(e.contains("line"), "the TOML error points at the line: {e}");
 
+    // At the key's own line (issue 51, item 13: an object's table also takes its finish
+    // and timeline, and the error pointed at the table's `[[box]]` line).
+    let line = unknown
+        .lines()
+        .position(|l| l.starts_with("yaw = "))
+        .expect("the line")
+        + 1;
+    assert!(
+        e.contains(&format!("at line {line}, column 1\n")),
+        "not at line {line}: {e}"
+    );
+    assert!(e.contains(&format!("{line} | yaw = 15.0\n")), "{e}");
+    let glossy =
+        DESIGN_EXAMPLE.replace("center = [0.3, -0.2]", "center = [0.3, -0.2]\n  glos = 0.5");
+    let e = error_of(&glossy);
+    let line = glossy
+        .lines()
+        .position(|l| l.trim_start().starts_with("glos = "))
+        .expect("the line")
+        + 1;
+    assert!(
+        e.contains(&format!("at line {line}, column 3\n")) && e.contains("unknown field `glos`"),
+        "not at line {line}: {e}"
+    );
+
     let noise = DESIGN_EXAMPLE.replace("noise = \"d415\"", "noise = \"d435\"");
     let e = error_of(&noise);
     assert!(e.contains("d435") && e.contains("ideal"), "{e}");

@@ -1092,10 +1092,59 @@ fn placed_at<T: Clone>(
         .collect()
 }
 
+/// toml's error for `text`, at the line of the key it names. serde reports a key that an
+/// object's table does not take without the key's place when the table also takes
+/// flattened fields (the finish and the timeline), so toml points at the table's header;
+/// here such a key is found in its table and pointed at, in toml's own layout.
+fn parse_error(text: &str, e: &toml::de::Error) -> String {
+    let key = e
+        .message()
+        .strip_prefix("unknown field `")
+        .and_then(|rest| rest.split('`').next());
+    let (Some(key), Some(span)) = (key, e.span()) else {
+        return e.to_string();
+    };
+    // The table runs from its header to the next header (or the span's end, if later).
+    let start = span.start.min(text.len());
+    let body_start = text[start..]
+        .find('\n')
+        .map_or(text.len(), |n| start + n + 1);
+    let next_header = text[body_start..]
+        .match_indices('\n')
+        .map(|(n, _)| body_start + n + 1)
+        .chain([body_start])
+        .filter(|&at| text[at..].trim_start_matches([' ', '\t']).starts_with('['))
+        .min()
+        .unwrap_or(text.len());
+    let end = next_header.max(span.end.min(text.len()));
+    let table = &text[start..end];
+    let Some(at) = table.match_indices(key).map(|(i, _)| start + i).find(|&i| {
+        let before = text[..i].trim_end_matches([' ', '\t']);
+        let after = text[i + key.len()..].trim_start_matches([' ', '\t']);
+        (before.is_empty() || before.ends_with(['\n', '{', ','])) && after.starts_with('=')
+    }) else {
+        return e.to_string();
+    };
+    let line_start = text[..at].rfind('\n').map_or(0, |n| n + 1);
+    let line_end = text[at..].find('\n').map_or(text.len(), |n| at + n);
+    let line = text[..at].matches('\n').count() + 1;
+    let column = text[line_start..at].chars().count() + 1;
+    let number = line.to_string();
+    let gutter = " ".repeat(number.len());
+    format!(
+        "TOML parse error at line {line}, column {column}\n{gutter} |\n{number} | {}\n{gutter} | {}{}\n{}\n",
+        text[line_start..line_end].trim_end_matches('\r'),
+        " ".repeat(column - 1),
+        "^".repeat(key.chars().count()),
+        e.message().trim_end(),
+    )
+}
+
 impl Scene {
     /// Parses and validates a scene from TOML text.
     pub fn from_toml(text: &str) -> Result<Self, SceneError> {
-        let file: SceneFile = toml::from_str(text).map_err(|e| SceneError::Parse(e.to_string()))?;
+        let file: SceneFile =
+            toml::from_str(text).map_err(|e| SceneError::Parse(parse_error(text, &e)))?;
         let mut cameras = Vec::with_capacity(file.camera.len());
         for (i, c) in file.camera.into_iter().enumerate() {
             let serial = Serial::parse(&c.serial).map_err(|_| {
