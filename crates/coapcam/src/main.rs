@@ -78,17 +78,11 @@ fn main() -> ExitCode {
     if matches!(cli.command, Command::Serve(_)) {
         cli::serve::fix_malloc_threshold();
     }
-    // Logs go to standard error: warnings by default (a request the server failed (5.xx),
-    // a failed grab); RUST_LOG=info adds refused requests (4.xx), RUST_LOG=debug every
+    // Logs go to standard error: warnings and a few changes of state by default (a request
+    // the server failed (5.xx), a failed grab, a directory registration, an MQTT
+    // connection); RUST_LOG=info adds refused requests (4.xx), RUST_LOG=debug every
     // request the server answers.
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
-        )
-        .init();
+    cli::log::init();
     match run(cli) {
         Ok(exit) => ExitCode::from(exit.code()),
         Err(e) => match cli::exit_status(&e) {

@@ -10,6 +10,7 @@ pub(crate) mod calibrate;
 pub(crate) mod config;
 pub(crate) mod demo;
 pub(crate) mod grab;
+pub(crate) mod log;
 pub(crate) mod markers;
 pub(crate) mod measure;
 pub(crate) mod monitor;

@@ -39,7 +39,7 @@ fn server(state: &TempDir, rust_log: &str, extra: &[&str]) -> (Proc, SocketAddr,
 fn a_path_with_newlines_and_escapes_cannot_forge_log_lines() {
     let state = TempDir::new("logs-forge");
     let (mut p, addr, _) = server(&state, "info", &["--no-cameras"]);
-    let forged = "x\nWARN forged: admin logged in\u{1b}[2J";
+    let forged = "x\ncoapcam: warning: forged: admin logged in\u{1b}[2J";
     runtime().block_on(async {
         let r = send(&client(), addr, Code::GET, &format!("/{forged}"), b"", None).await;
         assert_eq!(r.code, Code::NOT_FOUND);
@@ -47,14 +47,17 @@ fn a_path_with_newlines_and_escapes_cannot_forge_log_lines() {
     let refused = p.stderr_line(LIMIT, |l| {
         l.contains("request refused").then(|| l.to_owned())
     });
-    assert!(refused.contains(r"x\nWARN forged"), "{refused}");
+    assert!(
+        refused.contains(r"x\ncoapcam: warning: forged"),
+        "{refused}"
+    );
     assert!(!refused.contains('\u{1b}'), "{refused:?}");
     let finished = p.kill();
     assert!(
         !finished
             .stderr
             .lines()
-            .any(|l| l.starts_with("WARN forged")),
+            .any(|l| l.starts_with("coapcam: warning: forged")),
         "{}",
         finished.stderr
     );
@@ -87,10 +90,12 @@ fn a_client_error_is_no_warning() {
             if logged { 2 } else { 0 },
             "{level}: {refused:?}"
         );
+        // Information: the commands' prefix and no level (issue 51, item 13: the log's
+        // lines had a format of their own).
         assert!(
             refused
                 .iter()
-                .all(|l| l.contains("INFO") && !l.contains("WARN")),
+                .all(|l| l.starts_with("coapcam: ") && !l.contains("warning")),
             "{refused:?}"
         );
     }

@@ -618,6 +618,21 @@ fn a_measurement_made_while_the_broker_is_down_arrives_after_it_is_back_20_times
     let f = server.interrupt();
     assert!(f.status.success(), "serve: {}", f.stderr);
     assert_eq!(retained(broker.port, "lane/dock-r/status"), "offline");
+    // At the default level each connection is said, the first and every one after the
+    // broker came back, and the last disconnection (issue 51, item 13: a reconnection
+    // was not).
+    let said = |what: &str| {
+        f.stderr
+            .lines()
+            .filter(|l| l.starts_with(&format!("coapcam: MQTT: {what}")))
+            .count()
+    };
+    assert!(
+        said("connected, publishing from record") >= 21,
+        "{}",
+        f.stderr
+    );
+    assert_eq!(said("offline published, disconnected"), 1, "{}", f.stderr);
 }
 
 #[test]

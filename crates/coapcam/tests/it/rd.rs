@@ -240,6 +240,44 @@ fn a_name_another_server_holds_is_refused_with_how_to_choose_one() {
     assert_eq!(warned, 1, "{}", stopped.stderr);
 }
 
+/// Issue 51, item 13: at the default level (no `RUST_LOG`) the server said nothing when it
+/// registered with the directory or removed its registration, and its log lines were of
+/// another format than its own (`coapcam: serving on ...`). Now both are said, and every
+/// line it writes begins with `coapcam: `.
+#[test]
+fn a_registration_is_said_at_the_default_level_in_the_commands_format() {
+    let dir = TempDir::new("rd-said");
+    let (_rd_proc, rd) = start_rd("127.0.0.1:0", None);
+    let (mut server, _) = start_registered(
+        &format!("coap://{rd}"),
+        "said",
+        &dir.join("s"),
+        &["--no-cameras"],
+    );
+    let registered = server.stderr_line(LIMIT, |l| l.contains("registered").then(|| l.to_owned()));
+    assert!(
+        registered.starts_with("coapcam: registered "),
+        "{registered}"
+    );
+    wait_for_names(rd, &["said"]);
+    let stopped = server.interrupt();
+    assert!(stopped.status.success(), "{}", stopped.stderr);
+    assert!(
+        stopped
+            .stderr
+            .lines()
+            .any(|l| l.starts_with("coapcam: registration removed")),
+        "{}",
+        stopped.stderr
+    );
+    let other: Vec<&str> = stopped
+        .stderr
+        .lines()
+        .filter(|l| !l.starts_with("coapcam: "))
+        .collect();
+    assert!(other.is_empty(), "lines of another format: {other:?}");
+}
+
 #[test]
 fn simple_registration_fetches_the_endpoints_own_links() {
     let (_rd_proc, rd) = start_rd("127.0.0.1:0", None);
