@@ -566,6 +566,26 @@ fn demo_writes_its_files_and_the_table() {
         ),
         "{text}"
     );
+    // Everything the demo leaves in its folder is named in the README's paragraph on
+    // it (issue 51, item 13: the server's state/ folder was not).
+    let readme = include_str!("../../../../README.md");
+    let mut unnamed = Vec::new();
+    for entry in std::fs::read_dir(&out).expect("the demo's folder") {
+        let name = entry.expect("an entry").file_name();
+        let name = name.to_str().expect("UTF-8 name");
+        let named = if out.join(name).is_dir() {
+            readme.contains(&format!("`./coapcam-demo/{name}/`"))
+        } else {
+            readme.contains(&format!("`{name}`"))
+        };
+        if !named {
+            unnamed.push(name.to_owned());
+        }
+    }
+    assert!(
+        unnamed.is_empty(),
+        "the demo writes {unnamed:?}, which README.md does not name"
+    );
 }
 
 #[test]

@@ -638,6 +638,27 @@ fn the_chain_checks_out_by_its_documented_encoding_alone() {
     assert_eq!(f.stdout_text().trim(), format!("4 {last}"));
 }
 
+/// Issue 51, item 13: `results verify` of a file that is no SQLite database printed
+/// SQLite's error twice. It is an altered log (7) whose reason is said once.
+#[test]
+fn verify_says_once_that_a_file_is_no_database() {
+    let dir = TempDir::new("results-no-database");
+    let file = dir.join("notes.sqlite");
+    std::fs::write(&file, "not a results log\n").expect("writing the file");
+    let f = Proc::run(
+        COAPCAM,
+        &["results", "verify", file.to_str().expect("UTF-8 path")],
+        LIMIT,
+    );
+    assert_eq!(f.status.code(), Some(7), "{}", f.stderr);
+    let said = format!("{}{}", f.stdout_text(), f.stderr);
+    assert_eq!(said.matches("not a database").count(), 1, "{said}");
+    assert!(
+        said.contains("the file is cut off or damaged from record 1 on"),
+        "{said}"
+    );
+}
+
 #[test]
 fn verify_reads_a_read_only_copy_unchanged_and_names_a_cut_off_file() {
     let dir = TempDir::new("results-read-only");
