@@ -4,6 +4,7 @@
 //! (`values`), the progress bars, `Deferred`, which builds a command's flags only when it
 //! is the one given, how a command ends (`Exit`, `exit_status`, `error_text`, `Usage`),
 //! and the output macros. None imports another, and what they do is the library's.
+//! `config` and `log` are `main.rs`'s: `serve --config`'s keys as flags, and the log.
 
 pub(crate) mod bench;
 pub(crate) mod calibrate;
