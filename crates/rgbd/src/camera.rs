@@ -13,45 +13,97 @@ use crate::intrinsics::{Extrinsics, Intrinsics, Pose};
 use crate::mode::{ModeError, ModeTable};
 use crate::settings::{ColorSettings, DepthSettings};
 
-/// A camera serial number: exactly 12 ASCII digits (thesis §3.3.3).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct Serial([u8; 12]);
+/// A camera serial number: 1 to [`Serial::MAX_LEN`] ASCII letters, digits, `-` and `_`,
+/// the first a letter or a digit. A D400's is 12 digits (thesis §3.3.3); another backend
+/// names its cameras as it likes within these bounds, which keep a serial usable as it is
+/// in a URI path (`/cams/<serial>/color`), a file name (the state directory) and a
+/// command-line value.
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Serial {
+    /// The text, then zeros.
+    bytes: [u8; Self::MAX_LEN],
+    len: u8,
+}
 
 /// Why a text is not a serial number.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("serial number must be 12 ASCII digits, got {:?}", crate::echo(.0))]
+#[error(
+    "a serial number is 1 to {max} ASCII letters, digits, '-' and '_', the first a letter or digit; got {:?}",
+    crate::echo(.0),
+    max = Serial::MAX_LEN
+)]
 pub struct SerialError(pub String);
 
 impl Serial {
-    /// Parses exactly 12 ASCII digits (no surrounding whitespace).
+    /// The longest serial number, characters.
+    pub const MAX_LEN: usize = 32;
+
+    /// Parses a serial number (no surrounding whitespace; see [`Serial`]).
     pub fn parse(text: &str) -> Result<Self, SerialError> {
-        let bytes: [u8; 12] = text
-            .as_bytes()
-            .try_into()
-            .map_err(|_| SerialError(text.to_owned()))?;
-        if bytes.iter().all(u8::is_ascii_digit) {
-            Ok(Self(bytes))
-        } else {
-            Err(SerialError(text.to_owned()))
-        }
-    }
-
-    /// A serial from digits the caller knows are ASCII digits (built-in scenes).
-    pub(crate) const fn from_digits(digits: [u8; 12]) -> Self {
-        Self(digits)
-    }
-
-    /// The 12 digits.
-    pub fn as_str(&self) -> &str {
-        // The bytes are ASCII digits (checked in `parse`), so this never falls back.
-        std::str::from_utf8(&self.0).unwrap_or_default()
-    }
-
-    /// The serial as a number (for seeding).
-    pub fn as_u64(&self) -> u64 {
-        self.0
+        let b = text.as_bytes();
+        let first_ok = b.first().is_some_and(u8::is_ascii_alphanumeric);
+        let rest_ok = b
             .iter()
-            .fold(0, |acc, d| acc * 10 + u64::from(d - b'0'))
+            .all(|&c| c.is_ascii_alphanumeric() || c == b'-' || c == b'_');
+        if !(first_ok && rest_ok && b.len() <= Self::MAX_LEN) {
+            return Err(SerialError(text.to_owned()));
+        }
+        let mut bytes = [0; Self::MAX_LEN];
+        bytes[..b.len()].copy_from_slice(b);
+        Ok(Self {
+            bytes,
+            // At most MAX_LEN (32), checked above.
+            len: b.len() as u8,
+        })
+    }
+
+    /// A D400-style serial from digits the caller knows are ASCII digits (built-in
+    /// scenes).
+    pub(crate) const fn from_digits(digits: [u8; 12]) -> Self {
+        let mut bytes = [0; Self::MAX_LEN];
+        let mut i = 0;
+        while i < digits.len() {
+            bytes[i] = digits[i];
+            i += 1;
+        }
+        Self { bytes, len: 12 }
+    }
+
+    /// The serial's text.
+    pub fn as_str(&self) -> &str {
+        // The bytes are ASCII (checked in `parse`), so this never falls back.
+        std::str::from_utf8(&self.bytes[..usize::from(self.len)]).unwrap_or_default()
+    }
+
+    /// The serial as a number, for seeding and hashing: a serial of 12 digits (a D400's)
+    /// is its value; any other, the 64-bit FNV-1a hash of its text.
+    pub fn as_u64(&self) -> u64 {
+        let text = self.as_str().as_bytes();
+        if text.len() == 12 && text.iter().all(u8::is_ascii_digit) {
+            return text.iter().fold(0, |acc, d| acc * 10 + u64::from(d - b'0'));
+        }
+        text.iter().fold(0xcbf2_9ce4_8422_2325, |h, &c| {
+            (h ^ u64::from(c)).wrapping_mul(0x0000_0100_0000_01b3)
+        })
+    }
+}
+
+impl PartialOrd for Serial {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+/// In the order of their text: the order a client sorting the serials it discovers has.
+impl Ord for Serial {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.as_str().cmp(other.as_str())
+    }
+}
+
+impl fmt::Debug for Serial {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_tuple("Serial").field(&self.as_str()).finish()
     }
 }
 
@@ -288,7 +340,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn serial_takes_exactly_twelve_digits() {
+    fn serial_takes_a_d400_s_twelve_digits_and_other_backends_names() {
         assert_eq!(
             Serial::parse("840412060746").unwrap().as_str(),
             "840412060746"
@@ -297,14 +349,40 @@ mod tests {
             Serial::parse("840412060746").unwrap().as_u64(),
             840_412_060_746
         );
+        assert_eq!(
+            Serial::from_digits(*b"840412060746"),
+            Serial::parse("840412060746").unwrap()
+        );
+        let longest = "a".repeat(Serial::MAX_LEN);
+        for good in ["rec-01", "cam_2", "A", "84041206074", longest.as_str()] {
+            assert_eq!(Serial::parse(good).unwrap().as_str(), good);
+        }
+        let too_long = "a".repeat(Serial::MAX_LEN + 1);
         for bad in [
-            "84041206074",
-            "8404120607460",
-            "84041206074a",
-            " 84041206074",
             "",
+            " 84041206074",
+            "-rec",
+            "_rec",
+            "rec.01",
+            "rec/01",
+            "rec 01",
+            "..",
+            "kamera-ä",
+            too_long.as_str(),
         ] {
             assert!(Serial::parse(bad).is_err(), "{bad:?}");
         }
+        // Other serials seed by their text; they differ from one another and from the
+        // 12-digit numbers.
+        let seeds = ["rec-01", "rec-02", "84041206074"].map(|t| Serial::parse(t).unwrap().as_u64());
+        assert!(seeds[0] != seeds[1] && seeds[1] != seeds[2] && seeds[0] != seeds[2]);
+        // Ordered as text, whatever the lengths.
+        let mut serials =
+            ["rec-01", "840412060746", "b", "840412060745"].map(|t| Serial::parse(t).unwrap());
+        serials.sort();
+        assert_eq!(
+            serials.map(|s| s.to_string()),
+            ["840412060745", "840412060746", "b", "rec-01"]
+        );
     }
 }

@@ -133,7 +133,7 @@ pub(crate) struct CameraArgs {
     // Required, but an argument that conflicts with one given (measure's --group) is not.
     #[arg(long, value_name = "URI", required = true, value_parser = values::coap_uri)]
     server: Vec<String>,
-    /// Only this camera (12-digit serial). Without it, a command that grabs one frame
+    /// Only this camera (its serial: a D400's 12 digits). Without it, a command that grabs one frame
     /// takes the server's camera if it has only one; the others use every camera.
     #[arg(long, value_name = "SN", conflicts_with = "all", value_parser = values::serial)]
     pub(crate) camera: Option<String>,

@@ -60,7 +60,8 @@ pub(crate) fn group(text: &str) -> Result<String, String> {
     Ok(uri)
 }
 
-/// A camera's serial number: 12 digits (`--camera`).
+/// A camera's serial number (`--camera`): a D400's 12 digits, or another backend's name
+/// for it ([`rgbd::Serial`]).
 pub(crate) fn serial(text: &str) -> Result<String, String> {
     rgbd::Serial::parse(text)
         .map(|_| text.to_owned())
@@ -165,6 +166,7 @@ mod tests {
         assert!(round_up_mm("1e9").is_err());
         assert!(marker_metres("-0.16").is_err());
         assert!(serial("840412060746").is_ok());
-        assert!(serial("84041206074").is_err() && serial("84041206074x").is_err());
+        assert!(serial("rec-01").is_ok());
+        assert!(serial("rec/01").is_err() && serial("-rec").is_err() && serial("").is_err());
     }
 }

@@ -502,3 +502,90 @@ fn pointclouds_merges_every_camera_of_a_scene_and_notifies_observers() {
         }
     });
 }
+
+#[test]
+fn a_camera_named_otherwise_than_a_d400_is_served_under_its_name() {
+    let state = TempDir::new("cams-named");
+    let scene = state.join("scene.toml");
+    std::fs::write(&scene, crate::group::box_scene("rec-01", [0.0, 0.0, 1.0]))
+        .expect("writing the scene");
+    let scene = scene.to_str().expect("UTF-8 path").to_owned();
+    let states = state.join("state");
+    let app_config = "/cams/rec-01/application-config";
+    let custom = r#"{"roi2d": {"px": 10, "py": 20, "width": 300, "height": 200},
+        "roi3d": {"min_x": -0.5, "max_x": 0.5, "min_y": -0.5, "max_y": 0.5, "min_z": -0.1, "max_z": 0.5},
+        "depth_grab_timeout_ms": 5000, "color_grab_timeout_ms": 4000, "icp": 0,
+        "postprocessing": {"decimation": 1, "spatial": 1, "holefilling": 0}}"#;
+    let first_doc = {
+        let (_server, addr) = serve_with(&states, &["--scene", &scene]);
+        runtime().block_on(async {
+            let c = client();
+            let links = send(&c, addr, Code::GET, "/.well-known/core", b"", None).await;
+            let links = String::from_utf8_lossy(&links.payload).into_owned();
+            for name in ["color", "depth", "pointcloud", "application-config"] {
+                assert!(links.contains(&format!("</cams/rec-01/{name}>")), "{links}");
+            }
+            let put = |path: &'static str, body: &'static str| {
+                let c = &c;
+                async move { send(c, addr, Code::PUT, path, body.as_bytes(), None).await }
+            };
+            assert_eq!(
+                put("/cams/rec-01/color-settings", COLOR_640).await.code,
+                Code::CHANGED
+            );
+            assert_eq!(
+                put("/cams/rec-01/depth-settings", DEPTH_640).await.code,
+                Code::CHANGED
+            );
+            assert_eq!(put(app_config, custom).await.code, Code::CHANGED);
+            for name in ["color", "depth", "pointcloud"] {
+                let path = format!("/cams/rec-01/{name}");
+                let r = send(&c, addr, Code::POST, &path, b"", None).await;
+                assert_eq!(r.code, Code::CONTENT, "POST {path}");
+            }
+            // The creation resources take the name as they take a D400's serial.
+            let r = send(&c, addr, Code::DELETE, "/cams/rec-01/color", b"", None).await;
+            assert_eq!(r.code, Code::DELETED);
+            let r = send(&c, addr, Code::POST, "/cams/color", b"rec-01", None).await;
+            assert_eq!(r.code, Code::CREATED);
+            let location: Vec<&[u8]> = r.options.values(OptionNumber::LOCATION_PATH).collect();
+            assert_eq!(location, [b"cams".as_slice(), b"rec-01", b"color"]);
+            let r = send(&c, addr, Code::POST, "/cams/color", b"rec/01", None).await;
+            assert_eq!(r.code, Code::BAD_REQUEST);
+            send(&c, addr, Code::GET, app_config, b"", None)
+                .await
+                .payload
+        })
+    };
+    let saved = states.join("rec-01").join("application-config.json");
+    assert!(saved.is_file(), "kept under the camera's name");
+    // Persisted under its name, and named so by the client's flags and outputs.
+    let (_server, addr) = serve_with(&states, &["--scene", &scene]);
+    runtime().block_on(async {
+        let c = client();
+        let doc = send(&c, addr, Code::GET, app_config, b"", None).await;
+        assert_eq!(doc.payload, first_doc);
+        let r = send(&c, addr, Code::DELETE, app_config, b"", None).await;
+        assert_eq!(r.code, Code::DELETED);
+    });
+    let uri = format!("coap://{addr}");
+    let png = state.join("color.png");
+    let png = png.to_str().expect("UTF-8 path");
+    crate::support::Proc::run(
+        crate::support::COAPCAM,
+        &[
+            "grab", "color", "--server", &uri, "--camera", "rec-01", "-o", png,
+        ],
+        LIMIT,
+    )
+    .expect_success("grab color --camera rec-01");
+    assert!(std::fs::metadata(png).is_ok_and(|m| m.len() > 0));
+    let m = crate::support::Proc::run(
+        crate::support::COAPCAM,
+        &["measure", "--server", &uri, "--camera", "rec-01", "--json"],
+        LIMIT,
+    )
+    .expect_success("measure --camera rec-01")
+    .json();
+    assert_eq!(m["cameras"], serde_json::json!(["rec-01"]), "{m}");
+}

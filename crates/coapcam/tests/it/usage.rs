@@ -130,11 +130,18 @@ fn every_bad_flag_or_value_exits_2_before_anything_is_sent() {
         vec!["calibrate", "--server", &s, "--family", "aruco"],
         vec!["calibrate", "--server", &s, "--origin-id", "9999"],
         vec!["calibrate", "--server", &s, "--view", &jpg],
-        // A serial is 12 digits.
+        // A serial is letters, digits, '-' and '_', at most 32 of them.
         vec![
-            "grab", "color", "--server", &s, "--camera", "12345", "-o", &png,
+            "grab", "color", "--server", &s, "--camera", "rec/01", "-o", &png,
         ],
-        vec!["measure", "--server", &s, "--camera", "abcdefghijkl"],
+        vec!["measure", "--server", &s, "--camera", "rec.01"],
+        vec![
+            "measure",
+            "--server",
+            &s,
+            "--camera",
+            "a-serial-longer-than-thirty-two-characters",
+        ],
         // bench.
         vec!["bench", "accuracy", "--scenes", "0"],
         // markers.

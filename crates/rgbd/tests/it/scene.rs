@@ -71,10 +71,11 @@ fn the_built_in_scenes_are_valid() {
 
 #[test]
 fn scene_parse_errors_are_clear() {
-    let bad_serial = DESIGN_EXAMPLE.replace("\"840412060746\"", "\"84041206\"");
+    let bad_serial = DESIGN_EXAMPLE.replace("\"840412060746\"", "\"8404/1206\"");
     assert_eq!(
         error_of(&bad_serial),
-        "scene: camera[0].serial: must be 12 ASCII digits, got \"84041206\""
+        "scene: camera[0].serial: a serial number is 1 to 32 ASCII letters, digits, '-' and '_', \
+         the first a letter or digit; got \"8404/1206\""
     );
 
     let negative =

@@ -467,7 +467,7 @@ impl Cams {
             Err(e) => {
                 return Response::diagnostic(
                     Code::BAD_REQUEST,
-                    &format!("the payload must be a 12-digit serial number: {e}"),
+                    &format!("the payload must be a camera's serial number: {e}"),
                 );
             }
         };

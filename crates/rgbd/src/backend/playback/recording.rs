@@ -68,7 +68,7 @@ pub enum PlaybackError {
         /// The limit.
         limit: u64,
     },
-    /// The recorded serial number is not 12 digits.
+    /// The recorded serial number is not a valid [`Serial`].
     #[error("recorded serial number: {0}")]
     Serial(#[from] SerialError),
 }

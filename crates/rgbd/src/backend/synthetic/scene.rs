@@ -1147,12 +1147,8 @@ impl Scene {
             toml::from_str(text).map_err(|e| SceneError::Parse(parse_error(text, &e)))?;
         let mut cameras = Vec::with_capacity(file.camera.len());
         for (i, c) in file.camera.into_iter().enumerate() {
-            let serial = Serial::parse(&c.serial).map_err(|_| {
-                invalid(
-                    format!("camera[{i}].serial"),
-                    format!("must be 12 ASCII digits, got {:?}", c.serial),
-                )
-            })?;
+            let serial = Serial::parse(&c.serial)
+                .map_err(|e| invalid(format!("camera[{i}].serial"), e.to_string()))?;
             cameras.push(SceneCamera {
                 serial,
                 position: c.position,
