@@ -101,7 +101,7 @@ fn depth(c: &mut Criterion) {
     let input = input();
     export(&input);
     let baseline_mm = d415::BASELINE_M * 1000.0;
-    let Ok(mut chain) = PostProcessing::new(&chain_config(), baseline_mm) else {
+    let Ok(mut chain) = PostProcessing::new(&chain_config(), Some(baseline_mm)) else {
         panic!("a valid chain");
     };
     let mut deprojector = Deprojector::new();

@@ -240,9 +240,6 @@ const WRAPPER_KEYS: [&str; 2] = ["device", "schema version"];
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]
 pub enum AdvancedError {
-    /// The camera has no advanced mode (a recording).
-    #[error("advanced-config: {0}")]
-    NotSupported(String),
     /// Not valid JSON.
     #[error("advanced-config: not JSON: {0}")]
     Json(String),

@@ -1,5 +1,6 @@
-//! The `Camera` trait every backend implements, and the `CameraHub` that tracks
-//! which cameras are connected (hot-plug).
+//! The `Camera` trait every backend implements (what every depth camera has), the
+//! capabilities only some cameras have ([`AdvancedMode`], a D400's), and the `CameraHub`
+//! that tracks which cameras are connected (hot-plug).
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -154,8 +155,8 @@ pub enum CameraError {
     /// The device or its driver library failed (e.g. a librealsense call).
     #[error("device error: {0}")]
     Device(String),
-    /// The advanced config needs the D400 advanced mode, which this device does not
-    /// have or has disabled.
+    /// The advanced config ([`AdvancedMode`]) needs the D400's advanced mode, which this
+    /// device has disabled.
     #[error("camera {serial} has no advanced mode enabled (needed for the advanced config)")]
     AdvancedModeUnavailable {
         /// Its serial number.
@@ -175,8 +176,10 @@ impl From<AdvancedError> for CameraError {
     }
 }
 
-/// An RGB-D camera. Object-safe; shared as `Arc<dyn Camera>` between threads.
-/// Methods block (a grab waits for a frame); call them off async executors.
+/// An RGB-D camera: what every depth camera has. What only some have, a camera hands out
+/// as a capability (`None` when it has not got it): [`Camera::advanced_mode`].
+/// Object-safe; shared as `Arc<dyn Camera>` between threads. Methods block (a grab waits
+/// for a frame); call them off async executors.
 pub trait Camera: Send + Sync {
     /// Serial number.
     fn serial(&self) -> Serial;
@@ -218,19 +221,32 @@ pub trait Camera: Send + Sync {
     fn depth_scale(&self) -> f32;
 
     /// The distance between the two imagers of the depth stereo pair, metres (55 mm on a
-    /// D415, 50 mm on a D435): the filters that work on disparity need it.
-    fn stereo_baseline_m(&self) -> f32;
+    /// D415, 50 mm on a D435), or `None` for a camera that measures depth without a
+    /// stereo pair (time of flight, one imager and a projected pattern). What works on
+    /// disparity needs it: the spatial filter, and telling stereo shadows from surfaces
+    /// that return no depth.
+    fn stereo_baseline_m(&self) -> Option<f32>;
 
-    /// The complete advanced-config document (Listing A.5).
-    fn advanced_config(&self) -> Result<AdvancedConfig, CameraError>;
-
-    /// Loads an advanced-config document (possibly partial, as `rs2_load_json`).
-    fn set_advanced_config(&self, config: &AdvancedConfig) -> Result<(), CameraError>;
+    /// The D400's advanced mode, when the camera has it; `None` (the default) otherwise.
+    fn advanced_mode(&self) -> Option<&dyn AdvancedMode> {
+        None
+    }
 
     /// The calibrated pose of the depth frame in the world, when the camera knows it
     /// (a synthetic camera with `calibrated = true`), so a server can preload its
     /// 3d-transformation; `None` otherwise.
     fn true_pose(&self) -> Option<Pose>;
+}
+
+/// The advanced mode of an Intel RealSense D400 camera: the depth unit, the stereo
+/// matcher's thresholds and the rest of the advanced-config document (thesis Listing
+/// A.5). A camera that has it hands it out through [`Camera::advanced_mode`].
+pub trait AdvancedMode: Send + Sync {
+    /// The complete advanced-config document (Listing A.5).
+    fn advanced_config(&self) -> Result<AdvancedConfig, CameraError>;
+
+    /// Loads an advanced-config document (possibly partial, as `rs2_load_json`).
+    fn set_advanced_config(&self, config: &AdvancedConfig) -> Result<(), CameraError>;
 }
 
 /// A camera appeared or disappeared.

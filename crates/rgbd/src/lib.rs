@@ -49,7 +49,8 @@ fn clip(s: &str, max: usize) -> std::borrow::Cow<'_, str> {
 pub use advanced::{AdvancedConfig, AdvancedError, VisualPreset};
 pub use backend::synthetic::{SyntheticCamera, cert, d415, lane, scene};
 pub use camera::{
-    Camera, CameraError, CameraHub, HubError, HubEvent, Serial, SerialError, SettingError,
+    AdvancedMode, Camera, CameraError, CameraHub, HubError, HubEvent, Serial, SerialError,
+    SettingError,
 };
 pub use deproject::{Deprojector, deproject_frame};
 pub use filter::{FilterError, FrameFilter, PostProcessing, PostProcessingConfig};

@@ -366,7 +366,7 @@ mod tests {
             let config: PostProcessingConfig = serde_json::from_str(chain).expect(chain);
             for model in DistortionModel::ALL {
                 let raw = frame(seed as u64);
-                let mut post = PostProcessing::new(&config, 55.0).expect("chain");
+                let mut post = PostProcessing::new(&config, Some(55.0)).expect("chain");
                 let (processed, k) = post.process(&raw, &intrinsics(model)).expect("filters");
                 // What the server computed before compact clouds existed.
                 let all = rgbd::deproject_frame(processed, &k).expect("deprojects");

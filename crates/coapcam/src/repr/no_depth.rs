@@ -188,8 +188,9 @@ impl DepthPart {
     /// The parts of the table from which this camera's pixels returned no depth (see the
     /// module), the largest first. Call it before [`DepthPart::points`], which zeroes the
     /// pixels outside the region (the floor of a camera with a floor cut among them).
-    /// `baseline_m` is the camera's stereo baseline.
-    pub fn no_depth(&self, baseline_m: f32) -> Vec<NoDepth> {
+    /// `baseline_m` is the camera's stereo baseline; a camera without a stereo pair
+    /// (`None`) casts no stereo shadow, so every run of pixels without depth counts.
+    pub fn no_depth(&self, baseline_m: Option<f32>) -> Vec<NoDepth> {
         let d = &self.depth;
         let k = &self.intrinsics;
         let (w, h) = (d.width as usize, d.height as usize);
@@ -206,7 +207,7 @@ impl DepthPart {
         // Runs of rows (row, first, end) first: most frames have none, and then no image
         // of flags is made.
         let mut runs = Vec::new();
-        let disparity = k.fx * baseline_m;
+        let disparity = k.fx * baseline_m.unwrap_or(0.0);
         for (y, row) in d.data.chunks(d.stride.max(1)).take(h).enumerate() {
             let row = &row[..w.min(row.len())];
             let mut x = 0;
@@ -400,7 +401,7 @@ mod tests {
                 1500
             }
         });
-        let found = part.no_depth(0.055);
+        let found = part.no_depth(Some(0.055));
         assert_eq!(found.len(), 1, "{found:?}");
         let r = found[0];
         assert_eq!(r.pixels, 40 * 50);
@@ -421,8 +422,8 @@ mod tests {
         // A narrower shadow rule would take the shadow for a parcel (400 pixels, 0.0056
         // m²), and without the border rule the lid's hole would be one (200 pixels).
         assert!(
-            part.no_depth(0.0).len() > 1,
-            "a baseline of 0 casts no shadow"
+            part.no_depth(None).len() > 1,
+            "a camera without a stereo pair casts no shadow"
         );
     }
 
@@ -450,7 +451,7 @@ mod tests {
                 1500
             }
         });
-        let found = part.no_depth(0.0);
+        let found = part.no_depth(None);
         assert_eq!(found.len(), 1, "{found:?}");
         let r = found[0];
         // The rim reaches the bag's edges: pixel x 20..59 at 1.5 m.

@@ -3,7 +3,8 @@
 //! then hole filling, each optional.
 //!
 //! The spatial filter runs in the disparity domain (depth -> disparity -> spatial ->
-//! depth), as librealsense's documentation recommends; hole filling runs after the
+//! depth), as librealsense's documentation recommends, so only a stereo camera has it
+//! (another refuses a chain with it, [`FilterError::NoStereoPair`]); hole filling runs after the
 //! conversion back to depth, where its mode names mean what they say (on disparity
 //! "farest" would pick the nearest surface).
 //!
@@ -425,10 +426,14 @@ pub struct PostProcessing {
 }
 
 impl PostProcessing {
-    /// The chain of `config` for a stereo camera with this baseline (millimetres; the
+    /// The chain of `config` for a camera with this stereo baseline (millimetres; the
     /// D415's is 55), used by the depth <-> disparity conversion around the spatial
+    /// filter; `None` for a camera without a stereo pair, which cannot have the spatial
     /// filter.
-    pub fn new(config: &PostProcessingConfig, baseline_mm: f32) -> Result<Self, FilterError> {
+    pub fn new(
+        config: &PostProcessingConfig,
+        baseline_mm: Option<f32>,
+    ) -> Result<Self, FilterError> {
         let decimation = config
             .decimation
             .map(|d| Decimation::new(d.magnitude))
@@ -436,7 +441,7 @@ impl PostProcessing {
         let spatial = match config.spatial {
             None => None,
             Some(s) => Some((
-                DepthToDisparity::new(baseline_mm)?,
+                DepthToDisparity::new(baseline_mm.ok_or(FilterError::NoStereoPair)?)?,
                 SpatialFilter::new(s.into())?,
                 DisparityToDepth::new(),
             )),

@@ -109,6 +109,12 @@ pub enum FilterError {
         /// Frame height.
         frame_height: u32,
     },
+    /// The spatial filter was asked of a camera without a stereo pair: it works on
+    /// disparity, which only a stereo baseline gives.
+    #[error(
+        "postprocessing.spatial works on disparity and needs a stereo pair, which this camera has not got"
+    )]
+    NoStereoPair,
 }
 
 /// A depth frame whose buffer holds its pixels, with intrinsics of its size: only

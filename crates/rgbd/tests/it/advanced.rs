@@ -1,6 +1,6 @@
 use rgbd::{
-    AdvancedConfig, AdvancedError, Camera, CameraError, ModeError, Scene, SettingError,
-    SyntheticCamera, VisualPreset,
+    AdvancedConfig, AdvancedError, AdvancedMode, Camera, CameraError, ModeError, Scene,
+    SettingError, SyntheticCamera, VisualPreset,
 };
 
 /// Thesis Listing A.5 as printed (including its four odd key spellings).

@@ -164,9 +164,26 @@ fn a_chain_with_every_stage_off_returns_the_frame() {
     let k = d415::depth_intrinsics(640, 360);
     let f = frame(640, 360, |x, _| if x % 7 == 0 { 0 } else { 900 });
     let config = PostProcessingConfig::from_json(b"{}").unwrap();
-    let mut chain = PostProcessing::new(&config, 55.0).unwrap();
+    let mut chain = PostProcessing::new(&config, Some(55.0)).unwrap();
     let (out, kout) = chain.process(&f, &k).unwrap();
     assert_eq!((out, kout), (&f, k));
+}
+
+#[test]
+fn a_camera_without_a_stereo_pair_has_every_stage_but_the_spatial_filter() {
+    let k = d415::depth_intrinsics(640, 360);
+    let f = frame(640, 360, |x, _| if x % 7 == 0 { 0 } else { 900 });
+    let config =
+        PostProcessingConfig::from_json(br#"{"decimation": 1, "holefilling": 1}"#).unwrap();
+    let mut chain = PostProcessing::new(&config, None).unwrap();
+    let (out, _) = chain.process(&f, &k).unwrap();
+    assert_eq!((out.width, out.height), (320, 180));
+    let spatial = PostProcessingConfig::from_json(br#"{"spatial": 1}"#).unwrap();
+    assert_eq!(
+        PostProcessing::new(&spatial, None).err(),
+        Some(FilterError::NoStereoPair)
+    );
+    assert!(PostProcessing::new(&spatial, Some(55.0)).is_ok());
 }
 
 #[test]

@@ -277,7 +277,7 @@ fn check_case(dir: &Path, case: &Case) -> Option<String> {
                 "holefilling": {"mode": case.params["holefilling"]},
             });
             let config = PostProcessingConfig::from_json(json.to_string().as_bytes()).unwrap();
-            let mut chain = PostProcessing::new(&config, input.baseline_mm).unwrap();
+            let mut chain = PostProcessing::new(&config, Some(input.baseline_mm)).unwrap();
             let (out, k) = chain.process(frame, k).unwrap();
             same_depth(case, &golden, out, &k)
         }

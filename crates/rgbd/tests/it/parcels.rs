@@ -708,7 +708,7 @@ fn prepared_cloud(scene: &Scene) -> (PointCloud, View) {
         spatial: Some(SpatialConfig::default()),
         ..PostProcessingConfig::from_json(b"{}").unwrap()
     };
-    let mut chain = PostProcessing::new(&config, 55.0).unwrap();
+    let mut chain = PostProcessing::new(&config, Some(55.0)).unwrap();
     let (frame, _) = chain.process(&raw, &k).unwrap();
     world_cloud(scene, frame)
 }

@@ -169,7 +169,7 @@ fn the_software_d415_is_grabbed_through_the_per_request_path() {
     assert_eq!(depth.depth_scale, 0.001);
     assert_eq!(camera.depth_scale(), 0.001);
     // Read through librealsense's option, in millimetres.
-    assert!((camera.stereo_baseline_m() - d415::BASELINE_M).abs() < 1e-6);
+    assert!((camera.stereo_baseline_m().expect("a stereo pair") - d415::BASELINE_M).abs() < 1e-6);
     assert_eq!(
         camera.depth_intrinsics().unwrap(),
         d415::depth_intrinsics(640, 480)
@@ -222,8 +222,9 @@ fn the_software_d415_is_grabbed_through_the_per_request_path() {
         matches!(refused, Err(CameraError::InvalidSetting(_))),
         "{refused:?}"
     );
-    // The software device has no advanced mode.
-    let e = camera.advanced_config().unwrap_err();
+    // A D400 has the advanced mode; the software device has it disabled.
+    let advanced = camera.advanced_mode().expect("a D400's advanced mode");
+    let e = advanced.advanced_config().unwrap_err();
     assert_eq!(e, CameraError::AdvancedModeUnavailable { serial: sn });
     assert!(device.frames_injected() >= 3);
 }

@@ -20,7 +20,7 @@ fn prepared_clouds(scene: &Scene) -> (PointCloud, Vec<View>) {
             spatial: Some(SpatialConfig::default()),
             ..PostProcessingConfig::from_json(b"{}").unwrap()
         };
-        let mut chain = PostProcessing::new(&config, 55.0).unwrap();
+        let mut chain = PostProcessing::new(&config, Some(55.0)).unwrap();
         let (frame, _) = chain.process(&raw, &k).unwrap();
         let pose = cam.true_pose().unwrap();
         for v in 0..frame.height {

@@ -148,7 +148,8 @@ pub(crate) fn cloud(
     let r = roi(app, frame.width, frame.height)?;
     let mut crop = RoiCrop::new(r);
     let (cropped, k) = crop.process(&frame, &intrinsics)?;
-    let mut chain = PostProcessing::new(&app.postprocessing, camera.stereo_baseline_m() * 1000.0)?;
+    let baseline_m = camera.stereo_baseline_m();
+    let mut chain = PostProcessing::new(&app.postprocessing, baseline_m.map(|b| b * 1000.0))?;
     let (processed, k) = chain.process(cropped, &k)?;
     let mut part = DepthPart {
         serial: camera.serial().to_string(),
@@ -163,7 +164,7 @@ pub(crate) fn cloud(
         correction: None,
     };
     let floor_m = floor_level(&part);
-    let no_depth = part.no_depth(camera.stereo_baseline_m());
+    let no_depth = part.no_depth(baseline_m);
     let points = part.points()?;
     Ok(Frame::Cloud {
         points,

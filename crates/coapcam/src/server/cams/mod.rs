@@ -22,7 +22,8 @@ use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Resource, Router, handler};
 use geometry::{Point3, PointCloud, Transformation};
 use rgbd::{
-    AdvancedConfig, Camera, CameraError, CameraHub, ColorSettings, DepthSettings, HubEvent, Serial,
+    AdvancedConfig, AdvancedMode, Camera, CameraError, CameraHub, ColorSettings, DepthSettings,
+    FilterError, HubEvent, PostProcessing, Serial,
 };
 use tokio::sync::mpsc;
 
@@ -43,14 +44,31 @@ use grab::{Frame, GrabError};
 use merge::{Merged, register_and_merge};
 use state::StateDir;
 
-/// JSON configuration resources of a camera.
+/// JSON configuration resources of a camera; the last, [`ADVANCED`], only of a camera
+/// with the advanced mode.
 const CONFIGS: [&str; 5] = [
     "color-settings",
     "depth-settings",
     "application-config",
     "3d-transformation",
-    "advanced-config",
+    ADVANCED,
 ];
+
+/// The advanced-config resource: the camera's [`AdvancedMode`], a D400's.
+const ADVANCED: &str = "advanced-config";
+
+/// The names of `camera`'s resources: the grabs and the configuration documents it has.
+fn names(camera: &dyn Camera) -> impl Iterator<Item = &'static str> {
+    let advanced = camera.advanced_mode().is_some();
+    (Stream::ALL.iter().map(|s| s.name()))
+        .chain(CONFIGS)
+        .filter(move |name| advanced || *name != ADVANCED)
+}
+
+/// Why a camera without the advanced mode has no advanced-config.
+fn no_advanced_mode(sn: &Serial) -> String {
+    format!("camera {sn} has no advanced-config: it has no advanced mode (a D400's)")
+}
 
 /// The documents of a camera that hold legally relevant parameters (docs/station.md,
 /// "The audit trail"): its 3d-transformation, and its application-config (the regions of
@@ -286,6 +304,29 @@ impl Cams {
                     .configuring(&[Code::POST]),
             );
         }
+        // What answers for an advanced-config no camera has (a pattern: literal paths,
+        // the cameras' own, come first, and discovery lists none): the reason, when the
+        // camera has no advanced mode.
+        let me = self.clone();
+        let absent = handler(move |ctx| {
+            let why = ctx
+                .param("sn")
+                .and_then(|sn| Serial::parse(sn).ok())
+                .filter(|sn| {
+                    me.camera(sn)
+                        .is_some_and(|cam| cam.camera.advanced_mode().is_none())
+                })
+                .map_or_else(|| "no such resource".to_owned(), |sn| no_advanced_mode(&sn));
+            async move { Response::diagnostic(Code::NOT_FOUND, &why) }
+        });
+        let mut resource = Resource::new();
+        for method in [Code::GET, Code::POST, Code::PUT, Code::DELETE] {
+            resource = resource.on(method, absent.clone());
+        }
+        self.router.add(
+            &format!("{}/{{sn}}/{ADVANCED}", crate::api::paths::CAMS),
+            resource,
+        );
     }
 
     fn camera(&self, sn: &Serial) -> Option<Arc<CamState>> {
@@ -326,18 +367,20 @@ impl Cams {
         }) {
             warn_on(&sn, "depth-settings", cam.camera.set_depth_settings(s));
         }
-        if let Some(a) = self.restore(&sn, "advanced-config", AdvancedConfig::from_json) {
-            match cam.camera.advanced_config() {
+        if let Some(advanced) = cam.camera.advanced_mode()
+            && let Some(a) = self.restore(&sn, ADVANCED, AdvancedConfig::from_json)
+        {
+            match advanced.advanced_config() {
                 Ok(own) => *lock(&cam.defaults.advanced) = Some(own),
                 Err(e) => tracing::warn!(serial = %sn, "reading advanced-config: {e}"),
             }
-            warn_on(&sn, "advanced-config", cam.camera.set_advanced_config(&a));
+            warn_on(&sn, ADVANCED, advanced.set_advanced_config(&a));
         }
+        let names: Vec<&'static str> = names(cam.camera.as_ref()).collect();
         lock(&self.cams).insert(sn, cam);
         // All at once: a client that finds one of them finds the others.
-        let names = Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS);
         self.router
-            .add_all(names.map(|name| self.resource(sn, name)));
+            .add_all(names.into_iter().map(|name| self.resource(sn, name)));
         tracing::info!(serial = %sn, "camera connected: /cams/{sn} added");
     }
 
@@ -471,11 +514,14 @@ impl Cams {
                 );
             }
         };
-        if self.camera(&sn).is_none() {
+        let Some(cam) = self.camera(&sn) else {
             return Response::diagnostic(
                 Code::BAD_REQUEST,
                 &format!("no camera with serial {sn} is connected"),
             );
+        };
+        if !names(cam.camera.as_ref()).any(|n| n == name) {
+            return Response::diagnostic(Code::BAD_REQUEST, &no_advanced_mode(&sn));
         }
         self.add_resource(sn, name);
         let mut r = Response::new(Code::CREATED);
@@ -554,9 +600,13 @@ impl Cams {
             "3d-transformation" => Ok(lock(&cam.transformation).to_json()),
             _ => {
                 let camera = cam.camera.clone();
-                match tokio::task::spawn_blocking(move || camera.advanced_config()).await {
-                    Ok(Ok(a)) => Ok(a.to_json()),
-                    Ok(Err(e)) => Err(e.to_string()),
+                let read = move || camera.advanced_mode().map(AdvancedMode::advanced_config);
+                match tokio::task::spawn_blocking(read).await {
+                    Ok(Some(Ok(a))) => Ok(a.to_json()),
+                    Ok(Some(Err(e))) => Err(e.to_string()),
+                    Ok(None) => {
+                        return Response::diagnostic(Code::NOT_FOUND, &no_advanced_mode(&sn));
+                    }
                     Err(e) => Err(e.to_string()),
                 }
             }
@@ -648,6 +698,9 @@ impl Cams {
                     ("depth", depth.width, depth.height),
                 ])
                 .map_err(|e| bad(&e))?;
+                // The filters this camera can run: the spatial filter needs a stereo pair.
+                let baseline_mm = camera.stereo_baseline_m().map(|b| b * 1000.0);
+                PostProcessing::new(&new.postprocessing, baseline_mm).map_err(|e| bad(&e))?;
                 let json = new.to_json();
                 let old = std::mem::replace(&mut *lock(&cam.app), new);
                 (json, Box::new(move || *lock(&cam.app) = old))
@@ -662,14 +715,21 @@ impl Cams {
                 )
             }
             _ => {
+                let advanced = camera
+                    .advanced_mode()
+                    .ok_or_else(|| Response::diagnostic(Code::NOT_FOUND, &no_advanced_mode(sn)))?;
                 let new = AdvancedConfig::from_json(body).map_err(|e| bad(&e))?;
-                let old = camera.advanced_config().map_err(|e| camera_error(sn, &e))?;
+                let old = advanced
+                    .advanced_config()
+                    .map_err(|e| camera_error(sn, &e))?;
                 lock(&cam.defaults.advanced).get_or_insert_with(|| old.clone());
-                camera.set_advanced_config(&new).map_err(|e| bad(&e))?;
-                let full = camera.advanced_config().map_err(|e| camera_error(sn, &e))?;
+                advanced.set_advanced_config(&new).map_err(|e| bad(&e))?;
+                let full = advanced
+                    .advanced_config()
+                    .map_err(|e| camera_error(sn, &e))?;
                 (
                     full.to_json(),
-                    Box::new(move || warn_on(sn, name, camera.set_advanced_config(&old))),
+                    Box::new(move || warn_on(sn, name, advanced.set_advanced_config(&old))),
                 )
             }
         };
@@ -791,8 +851,10 @@ impl Cams {
                 *lock(&cam.transformation) = default_transformation(camera.as_ref());
             }
             _ => {
-                if let Some(own) = lock(&cam.defaults.advanced).clone() {
-                    camera.set_advanced_config(&own).map_err(|e| failed(&e))?;
+                if let Some(advanced) = camera.advanced_mode()
+                    && let Some(own) = lock(&cam.defaults.advanced).clone()
+                {
+                    advanced.set_advanced_config(&own).map_err(|e| failed(&e))?;
                 }
             }
         }
@@ -1326,7 +1388,9 @@ fn grab_error(sn: &Serial, e: &GrabError) -> Response {
     tracing::warn!(serial = %sn, "grab: {e}");
     match e {
         GrabError::Camera(c) => camera_error(sn, c),
-        GrabError::RoiOutside { .. } | GrabError::Transform(_) => {
+        GrabError::RoiOutside { .. }
+        | GrabError::Transform(_)
+        | GrabError::Filter(FilterError::NoStereoPair) => {
             Response::diagnostic(Code::BAD_REQUEST, &e.to_string())
         }
         GrabError::Filter(_) => Response::diagnostic(Code::INTERNAL_SERVER_ERROR, &e.to_string()),

@@ -551,3 +551,121 @@ fn a_change_of_a_legal_document_is_an_event_and_undone_when_it_cannot_be_recorde
         assert_eq!(audit.events.lock().expect("events").len(), 1);
     });
 }
+
+/// A camera with only what every depth camera has, under a name no D400 has: a synthetic
+/// camera's frames, without a stereo pair or the advanced mode (as a time-of-flight
+/// camera of another backend would be).
+struct Plain(SyntheticCamera);
+
+impl rgbd::Camera for Plain {
+    fn serial(&self) -> rgbd::Serial {
+        self.0.serial()
+    }
+    fn model(&self) -> &str {
+        "a camera without a stereo pair"
+    }
+    fn stream_modes(&self) -> &rgbd::ModeTable {
+        self.0.stream_modes()
+    }
+    fn color_settings(&self) -> rgbd::ColorSettings {
+        self.0.color_settings()
+    }
+    fn set_color_settings(&self, s: rgbd::ColorSettings) -> Result<(), rgbd::CameraError> {
+        self.0.set_color_settings(s)
+    }
+    fn depth_settings(&self) -> rgbd::DepthSettings {
+        self.0.depth_settings()
+    }
+    fn set_depth_settings(&self, s: rgbd::DepthSettings) -> Result<(), rgbd::CameraError> {
+        self.0.set_depth_settings(s)
+    }
+    fn grab_color(&self, timeout: Duration) -> Result<rgbd::ColorFrame, rgbd::CameraError> {
+        self.0.grab_color(timeout)
+    }
+    fn grab_depth(&self, timeout: Duration) -> Result<rgbd::DepthFrame, rgbd::CameraError> {
+        self.0.grab_depth(timeout)
+    }
+    fn depth_intrinsics(&self) -> Result<rgbd::Intrinsics, rgbd::CameraError> {
+        self.0.depth_intrinsics()
+    }
+    fn color_intrinsics(&self) -> Result<rgbd::Intrinsics, rgbd::CameraError> {
+        self.0.color_intrinsics()
+    }
+    fn depth_to_color(&self) -> Result<rgbd::Extrinsics, rgbd::CameraError> {
+        self.0.depth_to_color()
+    }
+    fn depth_scale(&self) -> f32 {
+        self.0.depth_scale()
+    }
+    fn stereo_baseline_m(&self) -> Option<f32> {
+        None
+    }
+    fn true_pose(&self) -> Option<rgbd::Pose> {
+        self.0.true_pose()
+    }
+}
+
+#[test]
+fn a_camera_without_the_d400_extras_serves_all_else_and_says_what_it_lacks() {
+    let state = ScratchDir::new("plain");
+    runtime().block_on(async {
+        let rig = Rig::start(&state);
+        let mut scene = Scene::default_single();
+        let sn = rgbd::Serial::parse("rec-01").expect("a serial");
+        scene.cameras[0].serial = sn;
+        let plain = Plain(SyntheticCamera::new(&scene, &sn).expect("the camera"));
+        rig.hub.add(Arc::new(plain)).expect("plug in");
+        rig.routed("/cams/rec-01/color", true).await;
+        let links = rig.discovery().await;
+        for name in ["color", "depth", "pointcloud", "application-config"] {
+            assert!(links.contains(&format!("</cams/rec-01/{name}>")), "{links}");
+        }
+        assert!(!links.contains("</cams/rec-01/advanced-config>"), "{links}");
+
+        // The advanced-config: 4.04 with the reason, whatever the method; creating it is
+        // refused with the same reason.
+        for method in [Code::GET, Code::PUT, Code::DELETE] {
+            let r = rig
+                .send(method, "/cams/rec-01/advanced-config", b"{}")
+                .await;
+            assert_eq!(r.code, Code::NOT_FOUND, "{method:?}");
+            let text = String::from_utf8_lossy(&r.payload);
+            assert!(text.contains("has no advanced mode"), "{method:?}: {text}");
+        }
+        let r = rig
+            .send(Code::POST, "/cams/advanced-config", b"rec-01")
+            .await;
+        assert_eq!(r.code, Code::BAD_REQUEST);
+        assert!(String::from_utf8_lossy(&r.payload).contains("has no advanced mode"));
+        let r = rig
+            .send(Code::GET, "/cams/rec-02/advanced-config", b"")
+            .await;
+        assert_eq!(
+            (r.code, String::from_utf8_lossy(&r.payload).as_ref()),
+            (Code::NOT_FOUND, "no such resource")
+        );
+
+        // The spatial filter works on disparity: refused; the other filters run.
+        let config = "/cams/rec-01/application-config";
+        let doc = rig.send(Code::GET, config, b"").await.payload;
+        let mut doc: serde_json::Value = serde_json::from_slice(&doc).expect("JSON");
+        doc["postprocessing"] = serde_json::json!({"spatial": 1});
+        let r = rig
+            .send(Code::PUT, config, doc.to_string().as_bytes())
+            .await;
+        assert_eq!(r.code, Code::BAD_REQUEST);
+        let text = String::from_utf8_lossy(&r.payload);
+        assert!(text.contains("needs a stereo pair"), "{text}");
+        doc["postprocessing"] = serde_json::json!({"decimation": 1, "holefilling": 1});
+        let r = rig
+            .send(Code::PUT, config, doc.to_string().as_bytes())
+            .await;
+        assert_eq!(r.code, Code::CHANGED);
+        for grab in ["color", "depth", "pointcloud"] {
+            let path = format!("/cams/rec-01/{grab}");
+            assert_eq!(rig.send(Code::POST, &path, b"").await.code, Code::CONTENT);
+        }
+        let r = rig.send(Code::POST, "/cams/pointclouds", b"").await;
+        assert_eq!(r.code, Code::CONTENT);
+    });
+}

@@ -22,7 +22,8 @@
 //! Settings: the recorded mode is the only mode of each stream; a settings document
 //! asking for anything else is refused with the mode table's error (4.00 on the wire).
 //! Depth and color streams are both required (the `/cams` resources need both); other
-//! streams (infrared, motion) are ignored.
+//! streams (infrared, motion) are ignored. A recording has the recorded stereo baseline
+//! but no advanced mode ([`Camera::advanced_mode`] is `None`).
 
 pub mod bag;
 pub mod db3;
@@ -34,7 +35,6 @@ use std::path::Path;
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use crate::advanced::{AdvancedConfig, AdvancedError};
 use crate::backend::FrameClock;
 use crate::camera::{Camera, CameraError, Serial};
 use crate::frame::{ColorFrame, DepthFrame};
@@ -42,8 +42,6 @@ use crate::intrinsics::{Extrinsics, Intrinsics, Pose};
 use crate::mode::{ModeTable, Stream};
 use crate::settings::{ColorSettings, DepthSettings};
 use recording::{DeviceBuilder, RecordedDevice};
-
-const NO_ADVANCED_MODE: &str = "a recording has no advanced mode";
 
 #[derive(Debug, Default)]
 struct State {
@@ -218,17 +216,10 @@ impl Camera for PlaybackCamera {
         self.recorded.depth_scale
     }
 
-    fn stereo_baseline_m(&self) -> f32 {
-        // A recording without the option (librealsense records it): the D415's nominal.
-        self.recorded.baseline_m.unwrap_or(crate::d415::BASELINE_M)
-    }
-
-    fn advanced_config(&self) -> Result<AdvancedConfig, CameraError> {
-        Err(AdvancedError::NotSupported(NO_ADVANCED_MODE.into()).into())
-    }
-
-    fn set_advanced_config(&self, _config: &AdvancedConfig) -> Result<(), CameraError> {
-        Err(AdvancedError::NotSupported(NO_ADVANCED_MODE.into()).into())
+    fn stereo_baseline_m(&self) -> Option<f32> {
+        // A recording without the option (librealsense records it): the D415's nominal,
+        // as librealsense records D400 cameras only.
+        Some(self.recorded.baseline_m.unwrap_or(crate::d415::BASELINE_M))
     }
 
     fn true_pose(&self) -> Option<Pose> {

@@ -12,7 +12,7 @@ use super::ffi::{
 use super::{D400, GrabMode};
 use crate::advanced::{AdvancedConfig, AdvancedError};
 use crate::backend::FrameClock;
-use crate::camera::{Camera, CameraError, Serial};
+use crate::camera::{AdvancedMode, Camera, CameraError, Serial};
 use crate::frame::{ColorFormat, ColorFrame, DepthFrame};
 use crate::intrinsics::{DistortionModel, Extrinsics, Intrinsics, Pose};
 use crate::mode::{ModeTable, Stream};
@@ -583,8 +583,8 @@ impl Camera for RealSenseCamera {
         )))
     }
 
-    fn stereo_baseline_m(&self) -> f32 {
-        self.baseline_m
+    fn stereo_baseline_m(&self) -> Option<f32> {
+        Some(self.baseline_m)
     }
 
     fn depth_scale(&self) -> f32 {
@@ -593,6 +593,18 @@ impl Camera for RealSenseCamera {
         self.lock().depth_scale
     }
 
+    fn advanced_mode(&self) -> Option<&dyn AdvancedMode> {
+        Some(self)
+    }
+
+    fn true_pose(&self) -> Option<Pose> {
+        None
+    }
+}
+
+/// Every D400 has the advanced mode; while it is disabled on the device, both calls
+/// answer [`CameraError::AdvancedModeUnavailable`].
+impl AdvancedMode for RealSenseCamera {
     fn advanced_config(&self) -> Result<AdvancedConfig, CameraError> {
         self.require_advanced()?;
         let mut doc = device_config(&self.device.serialize_json()?)?;
@@ -611,9 +623,5 @@ impl Camera for RealSenseCamera {
         self.lock().depth = depth;
         self.refresh_depth_scale()?;
         Ok(())
-    }
-
-    fn true_pose(&self) -> Option<Pose> {
-        None
     }
 }

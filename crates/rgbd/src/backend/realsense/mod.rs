@@ -28,9 +28,10 @@
 //! frame queue, wait for one frame, stop, close; the thesis's way) or streaming (keep
 //! the sensor open and return the newest frame). Intrinsics come from the profile,
 //! depth->color extrinsics from `rs2_get_extrinsics`, the depth scale from the depth
-//! sensor's `RS2_OPTION_DEPTH_UNITS`, and the advanced config from
-//! `rs2_serialize_json` / `rs2_load_json` (a device without advanced mode, or with it
-//! disabled, answers [`CameraError::AdvancedModeUnavailable`]).
+//! sensor's `RS2_OPTION_DEPTH_UNITS`, and the advanced config (the camera's
+//! [`AdvancedMode`](crate::AdvancedMode)) from `rs2_serialize_json` / `rs2_load_json` (a
+//! device with the advanced mode disabled answers
+//! [`CameraError::AdvancedModeUnavailable`]).
 //!
 //! [`SoftwareD415`] puts a virtual D415 into the same context: a librealsense software
 //! device whose frames a [`SyntheticCamera`](crate::SyntheticCamera) renders. It goes

@@ -153,10 +153,9 @@ impl SoftwareD415 {
         depth
             .sensor
             .add_read_only_option(ffi::OPTION_DEPTH_UNITS, synthetic.depth_scale())?;
-        depth.sensor.add_read_only_option(
-            ffi::OPTION_STEREO_BASELINE,
-            synthetic.stereo_baseline_m() * 1000.0,
-        )?;
+        depth
+            .sensor
+            .add_read_only_option(ffi::OPTION_STEREO_BASELINE, d415::BASELINE_M * 1000.0)?;
         let mut color = Injected {
             sensor: device.add_sensor("RGB Camera")?,
             modes: Vec::new(),

@@ -83,7 +83,7 @@ use std::time::{Duration, Instant};
 
 use crate::advanced::{AdvancedConfig, VisualPreset};
 use crate::backend::FrameClock;
-use crate::camera::{Camera, CameraError, Serial};
+use crate::camera::{AdvancedMode, Camera, CameraError, Serial};
 use crate::frame::{ColorFrame, DepthFrame};
 use crate::intrinsics::{Extrinsics, Intrinsics, Pose};
 use crate::mode::{ModeTable, Stream};
@@ -428,10 +428,22 @@ impl Camera for SyntheticCamera {
         Self::depth_scale_of(&self.lock())
     }
 
-    fn stereo_baseline_m(&self) -> f32 {
-        d415::BASELINE_M
+    fn stereo_baseline_m(&self) -> Option<f32> {
+        Some(d415::BASELINE_M)
     }
 
+    fn advanced_mode(&self) -> Option<&dyn AdvancedMode> {
+        Some(self)
+    }
+
+    fn true_pose(&self) -> Option<Pose> {
+        self.calibrated.then_some(self.pose)
+    }
+}
+
+/// A D415's advanced mode, as a model: the document is kept, and its depth mode is the
+/// camera's.
+impl AdvancedMode for SyntheticCamera {
     fn advanced_config(&self) -> Result<AdvancedConfig, CameraError> {
         let s = self.lock();
         let mut doc = s.advanced.clone();
@@ -447,9 +459,5 @@ impl Camera for SyntheticCamera {
         s.advanced.merge(config);
         s.depth = depth;
         Ok(())
-    }
-
-    fn true_pose(&self) -> Option<Pose> {
-        self.calibrated.then_some(self.pose)
     }
 }
