@@ -51,7 +51,8 @@ pub struct CameraPose {
     pub transformation: Transformation,
 }
 
-/// A measurement to record: what a measurement path hands [`super::log::ResultsLog::append`].
+/// A measurement to record: what a measurement path hands the station's
+/// results log (`ResultsLog::append` in `station::log`).
 #[derive(Debug, Clone)]
 pub struct NewRecord {
     /// When it was measured.

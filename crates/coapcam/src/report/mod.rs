@@ -282,7 +282,7 @@ impl Table {
     /// parcels in a region
     /// have at least as many points as the region has pixels, and the region lies within
     /// what they cover or hide from the cameras ([`geometry::hidden_bounds`], give or
-    /// take [`BEYOND_M`]), it is their holes, which their coverage judges; otherwise
+    /// take `BEYOND_M`, 5 mm), it is their holes, which their coverage judges; otherwise
     /// those parcels are what little depth a parcel
     /// that returns (almost) none gave (a sliver of wall, the flying pixels along its
     /// edges), and the region with them is one parcel that gives no number

@@ -393,9 +393,9 @@ impl Delivery {
 #[group(skip)]
 pub struct Args {
     /// Publish every record of the results log to an MQTT broker, as JSON with QoS 1, on
-    /// PREFIX/<station-name>/measurements (PREFIX default coapcam, port default 1883),
+    /// `PREFIX/<station-name>/measurements` (PREFIX default coapcam, port default 1883),
     /// and `online` / `offline` (retained; offline also as the last will) on
-    /// PREFIX/<station-name>/status. While the broker is away the records wait in the
+    /// `PREFIX/<station-name>/status`. While the broker is away the records wait in the
     /// log and follow in order once it is back: each is delivered at least once, with its
     /// id. USER:PASSWORD@ logs in to the broker (percent-encoded; never printed).
     #[arg(long, value_name = "mqtt://[USER:PASSWORD@]HOST[:PORT][/PREFIX]")]

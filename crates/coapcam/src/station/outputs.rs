@@ -44,7 +44,7 @@ outputs!(mqtt, line, webhook);
 impl Outputs {
     /// Refuses a station name an output asked for cannot carry: MQTT topic names allow a
     /// `/` (it separates levels), but the station's name is one level of
-    /// PREFIX/<station>/measurements, which subscribers match with `+`.
+    /// `PREFIX/<station>/measurements`, which subscribers match with `+`.
     pub fn check_station(&self, station: &str) -> Result<(), super::mqtt::TargetError> {
         self.mqtt.check_station(station)
     }

@@ -1572,7 +1572,7 @@ fn table_distance_m(transformation: &Transformation) -> Option<f64> {
     (axis.z < -0.1 * axis.norm() && c.z > 0.0).then(|| c.z / -axis.z * axis.norm())
 }
 
-/// A camera's color stream as the codes need it ([`Cams::color_for_codes`]).
+/// A camera's color stream as the codes need it (`Cams::color_for_codes`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CodeColor {
     /// The camera's serial.
