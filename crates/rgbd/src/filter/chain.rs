@@ -1,6 +1,7 @@
 //! The post-processing chain of the application-config resource (thesis §3.3.3,
-//! Figure 3.10, Listing A.3 `postprocessing`): decimation, then the spatial filter,
-//! then hole filling, each optional.
+//! Figure 3.10, Listing A.3 `postprocessing`): decimation, then the flying-pixel filter
+//! (coapcam's own stage, [`super::flying`]), then the spatial filter, then hole filling,
+//! each optional.
 //!
 //! The spatial filter runs in the disparity domain (depth -> disparity -> spatial ->
 //! depth), as librealsense's documentation recommends, so only a stereo camera has it
@@ -14,8 +15,12 @@
 //! ```json
 //! { "decimation": {"magnitude": 2},
 //!   "spatial": {"alpha": 0.5, "delta": 20, "iterations": 2, "holes_fill": 0},
-//!   "holefilling": {"mode": "farest_from_around"} }
+//!   "holefilling": {"mode": "farest_from_around"},
+//!   "flying_pixels": {"step": 0.02} }
 //! ```
+//!
+//! `flying_pixels` is written only when it is on, so a document without it reads and
+//! writes as before.
 //!
 //! Omitted parameters take librealsense's defaults; out-of-range values are refused
 //! with an error naming the field and what it accepts.
@@ -28,6 +33,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 use super::decimation::Decimation;
 use super::disparity::{DepthToDisparity, DisparityToDepth, copy_compact};
+use super::flying::FlyingPixels;
 use super::hole_fill::{HoleFilling, HoleFillingMode};
 use super::spatial::{SpatialFilter, SpatialParams};
 use super::{FilterError, FrameFilter as _, check_frame, empty_frame};
@@ -100,6 +106,22 @@ impl Default for HoleFillingConfig {
     }
 }
 
+/// Parameters of the flying-pixel stage.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FlyingPixelsConfig {
+    /// A pixel more than this share of its depth behind a neighbour is dropped, 0.005..=0.5
+    /// (default 0.02).
+    pub step: f32,
+}
+
+impl Default for FlyingPixelsConfig {
+    fn default() -> Self {
+        Self {
+            step: FlyingPixels::DEFAULT_STEP,
+        }
+    }
+}
+
 /// The `postprocessing` section of the application config. `None` = stage off.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Deserialize)]
 #[serde(try_from = "RawConfig")]
@@ -110,6 +132,8 @@ pub struct PostProcessingConfig {
     pub spatial: Option<SpatialConfig>,
     /// Hole filling.
     pub holefilling: Option<HoleFillingConfig>,
+    /// The flying-pixel filter (after decimation, before the spatial filter).
+    pub flying_pixels: Option<FlyingPixelsConfig>,
 }
 
 /// A `postprocessing` document that is not valid.
@@ -156,6 +180,15 @@ impl PostProcessingConfig {
                 8,
                 "an integer from 1 to 8",
             )?;
+        }
+        if let Some(f) = self.flying_pixels
+            && !(0.005..=0.5).contains(&f.step)
+        {
+            return Err(PostProcessingError::Invalid {
+                field: "postprocessing.flying_pixels.step",
+                found: f.step.to_string(),
+                allowed: "a share of the depth from 0.005 to 0.5",
+            });
         }
         if let Some(s) = self.spatial {
             if !(0.25..=1.0).contains(&s.alpha) {
@@ -211,9 +244,16 @@ fn stage<T: Default + PartialEq>(stage: Option<T>) -> Stage<T> {
 impl Serialize for PostProcessingConfig {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeStruct as _;
-        let mut doc = s.serialize_struct("PostProcessingConfig", 3)?;
-        // In the names' order, as the document has always been written.
+        let fields = 3 + usize::from(self.flying_pixels.is_some());
+        let mut doc = s.serialize_struct("PostProcessingConfig", fields)?;
+        // In the names' order, as the document has always been written; the flying-pixel
+        // stage only when on, so documents without it stay as they were.
         doc.serialize_field("decimation", &stage(self.decimation))?;
+        if self.flying_pixels.is_some() {
+            doc.serialize_field("flying_pixels", &stage(self.flying_pixels))?;
+        } else {
+            doc.skip_field("flying_pixels")?;
+        }
         doc.serialize_field("holefilling", &stage(self.holefilling))?;
         doc.serialize_field("spatial", &stage(self.spatial))?;
         doc.end()
@@ -248,6 +288,14 @@ struct RawConfig {
     spatial: RawStage<RawSpatial>,
     #[serde(default)]
     holefilling: RawStage<RawHoleFilling>,
+    #[serde(default)]
+    flying_pixels: RawStage<RawFlyingPixels>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFlyingPixels {
+    step: Option<f64>,
 }
 
 #[derive(Deserialize)]
@@ -293,6 +341,11 @@ impl StageShape for RawDecimation {
 impl StageShape for RawSpatial {
     const EXPECTING: &'static str = "postprocessing.spatial: 0 (off), 1 (librealsense's defaults) \
          or {\"alpha\": 0.25..1, \"delta\": 1..50, \"iterations\": 1..5, \"holes_fill\": 0..5}";
+}
+
+impl StageShape for RawFlyingPixels {
+    const EXPECTING: &'static str =
+        "postprocessing.flying_pixels: 0 (off), 1 (step 0.02) or {\"step\": 0.005..0.5}";
 }
 
 impl StageShape for RawHoleFilling {
@@ -405,10 +458,19 @@ impl TryFrom<RawConfig> for PostProcessingConfig {
                 mode: p.mode.unwrap_or_else(|| HoleFillingConfig::default().mode),
             }),
         };
+        let flying_pixels = match raw.flying_pixels {
+            RawStage::Off => None,
+            RawStage::Defaults => Some(FlyingPixelsConfig::default()),
+            // f64 -> f32 as the filter computes; range checked below.
+            RawStage::Params(p) => Some(FlyingPixelsConfig {
+                step: p.step.map_or(FlyingPixels::DEFAULT_STEP, |s| s as f32),
+            }),
+        };
         let config = Self {
             decimation,
             spatial,
             holefilling,
+            flying_pixels,
         };
         config.validate()?;
         Ok(config)
@@ -420,6 +482,7 @@ impl TryFrom<RawConfig> for PostProcessingConfig {
 pub struct PostProcessing {
     config: PostProcessingConfig,
     decimation: Option<Decimation>,
+    flying_pixels: Option<FlyingPixels>,
     spatial: Option<(DepthToDisparity, SpatialFilter, DisparityToDepth)>,
     hole_filling: Option<HoleFilling>,
     work: DepthFrame,
@@ -438,6 +501,10 @@ impl PostProcessing {
             .decimation
             .map(|d| Decimation::new(d.magnitude))
             .transpose()?;
+        let flying_pixels = config
+            .flying_pixels
+            .map(|f| FlyingPixels::new(f.step))
+            .transpose()?;
         let spatial = match config.spatial {
             None => None,
             Some(s) => Some((
@@ -449,6 +516,7 @@ impl PostProcessing {
         Ok(Self {
             config: *config,
             decimation,
+            flying_pixels,
             spatial,
             hole_filling: config.holefilling.map(|h| HoleFilling::new(h.mode)),
             work: empty_frame(),
@@ -470,6 +538,7 @@ impl PostProcessing {
         check_frame(frame, Some(intrinsics))?;
         let Self {
             decimation,
+            flying_pixels,
             spatial,
             hole_filling,
             work,
@@ -478,6 +547,9 @@ impl PostProcessing {
         let (mut current, mut k) = (frame, *intrinsics);
         if let Some(d) = decimation {
             (current, k) = d.process(current, &k)?;
+        }
+        if let Some(f) = flying_pixels {
+            (current, k) = f.process(current, &k)?;
         }
         let mutable: Option<&'a mut DepthFrame> = match spatial {
             Some((to_disparity, filter, to_depth)) => {

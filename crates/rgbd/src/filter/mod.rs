@@ -1,6 +1,8 @@
 //! Depth post-processing as librealsense's processing blocks do it, bit for bit where
 //! librealsense is deterministic (threshold, decimation, hole filling, depth <->
-//! disparity) and to the last float rounding for the spatial filter.
+//! disparity) and to the last float rounding for the spatial filter. One stage is
+//! coapcam's own, with no librealsense counterpart: [`flying`], which drops the pixels
+//! that float between a depth step's two surfaces.
 //!
 //! Every filter owns its output or scratch buffers and reuses them from one frame to
 //! the next; the work is spread over rayon's pool. Filters take a [`DepthFrame`] with
@@ -17,17 +19,19 @@
 pub mod chain;
 pub mod decimation;
 pub mod disparity;
+pub mod flying;
 pub mod hole_fill;
 pub mod roi;
 pub mod spatial;
 pub mod threshold;
 
 pub use chain::{
-    DecimationConfig, HoleFillingConfig, PostProcessing, PostProcessingConfig, PostProcessingError,
-    SpatialConfig,
+    DecimationConfig, FlyingPixelsConfig, HoleFillingConfig, PostProcessing, PostProcessingConfig,
+    PostProcessingError, SpatialConfig,
 };
 pub use decimation::Decimation;
 pub use disparity::{DepthToDisparity, DisparityFrame, DisparityToDepth};
+pub use flying::FlyingPixels;
 pub use hole_fill::{HoleFilling, HoleFillingMode};
 pub use roi::{Roi2, RoiCrop};
 pub use spatial::{SpatialFilter, SpatialParams};

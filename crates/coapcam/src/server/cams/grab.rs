@@ -149,6 +149,18 @@ pub(crate) fn cloud(
     let mut crop = RoiCrop::new(r);
     let (cropped, k) = crop.process(&frame, &intrinsics)?;
     let baseline_m = camera.stereo_baseline_m();
+    // The parts of the table without depth, from the pixels as the camera returned them:
+    // the flying-pixel stage drops pixels at depth steps, which returned depth, and hole
+    // filling fills the holes a dark parcel leaves.
+    let no_depth = DepthPart {
+        serial: String::new(),
+        depth: cropped.clone(),
+        intrinsics: k,
+        transform,
+        roi: app.roi3d,
+        correction: None,
+    }
+    .no_depth(baseline_m);
     let mut chain = PostProcessing::new(&app.postprocessing, baseline_m.map(|b| b * 1000.0))?;
     let (processed, k) = chain.process(cropped, &k)?;
     let mut part = DepthPart {
@@ -164,7 +176,6 @@ pub(crate) fn cloud(
         correction: None,
     };
     let floor_m = floor_level(&part);
-    let no_depth = part.no_depth(baseline_m);
     let points = part.points()?;
     Ok(Frame::Cloud {
         points,
