@@ -15,6 +15,9 @@
 
 use coap::{OptionNumber, Options};
 
+use geometry::{Roi3, Transform};
+use rgbd::{DepthFrame, Intrinsics};
+
 use super::codec::DepthPart;
 
 /// The response option that carries a cloud's no-depth regions (experimental range,
@@ -191,146 +194,161 @@ impl DepthPart {
     /// `baseline_m` is the camera's stereo baseline; a camera without a stereo pair
     /// (`None`) casts no stereo shadow, so every run of pixels without depth counts.
     pub fn no_depth(&self, baseline_m: Option<f32>) -> Vec<NoDepth> {
-        let d = &self.depth;
-        let k = &self.intrinsics;
-        let (w, h) = (d.width as usize, d.height as usize);
-        if w == 0 || h == 0 {
-            return Vec::new();
-        }
         let to_common = match &self.correction {
             Some(c) => self.transform.then(c),
             None => self.transform,
         };
-        let raw = |x: usize, y: usize| d.data.get(y * d.stride + x).copied().unwrap_or(0);
-        let metres = |v: u16| f32::from(v) * d.depth_scale;
-        // Pixels without depth that are not a stereo shadow.
-        // Runs of rows (row, first, end) first: most frames have none, and then no image
-        // of flags is made.
-        let mut runs = Vec::new();
-        let disparity = k.fx * baseline_m.unwrap_or(0.0);
-        for (y, row) in d.data.chunks(d.stride.max(1)).take(h).enumerate() {
-            let row = &row[..w.min(row.len())];
-            let mut x = 0;
-            while let Some(from) = row[x..].iter().position(|&v| v == 0) {
-                let start = x + from;
-                x = row[start..]
-                    .iter()
-                    .position(|&v| v != 0)
-                    .map_or(row.len(), |n| start + n);
-                // The run is start..x; the shadow lies left of a nearer surface, and at
-                // the image's left edge (where the right imager sees nothing) the far
-                // side's disparity is 0.
-                let shadow = x < row.len() && {
-                    let near = metres(row[x]);
-                    let far_inverse = if start == 0 {
-                        0.0
-                    } else {
-                        1.0 / metres(row[start - 1])
-                    };
-                    let width = disparity * (1.0 / near - far_inverse);
-                    (x - start) as f32 <= width.max(0.0) + SHADOW_SLACK_PX
-                };
-                if !shadow {
-                    runs.push((y, start, x));
-                }
-                if x >= row.len() {
-                    break;
-                }
-            }
-        }
-        if runs.is_empty() {
-            return Vec::new();
-        }
-        let mut hole = vec![false; w * h];
-        for &(y, start, end) in &runs {
-            hole[y * w + start..y * w + end].fill(true);
-        }
-        // Where each pixel's ray meets the floor (z = 0), and the floor's area it covers.
-        // The transform's numbers as plain arrays: this runs per pixel of every hole.
-        let l = &to_common.linear;
-        let rows = [0, 1, 2].map(|r| [l[(r, 0)], l[(r, 1)], l[(r, 2)]]);
-        let origin = [0, 1, 2].map(|r| to_common.translation[r]);
-        let moved =
-            |v: [f32; 3], r: usize| rows[r][0] * v[0] + rows[r][1] * v[1] + rows[r][2] * v[2];
-        let floor_of = |x: usize, y: usize| -> Option<([f32; 2], f32)> {
-            let ray = k.deproject([x as f32, y as f32], 1.0);
-            let dz = moved(ray, 2);
-            if dz >= -1e-6 {
-                return None;
-            }
-            let t = -origin[2] / dz;
-            if t <= 0.0 {
-                return None;
-            }
-            let p = [0, 1].map(|r| origin[r] + moved(ray, r) * t);
-            // The pixel's solid angle is 1 / (fx fy |ray|^3) for a ray (x, y, 1), its
-            // footprint at distance t |ray| on a floor tilted from it by cos = |dz| /
-            // |ray|: t^2 / (fx fy |dz|).
-            Some((p, t * t / (k.fx * k.fy * -dz)))
-        };
-        let (min, max) = (self.roi.min(), self.roi.max());
-        let on_table =
-            |p: [f32; 2]| (min.x..=max.x).contains(&p[0]) && (min.y..=max.y).contains(&p[1]);
-        let is_floor = |x: usize, y: usize| {
-            let p = k.deproject([x as f32, y as f32], metres(raw(x, y)));
-            origin[2] + moved(p, 2) <= FLOOR_BAND_M
-        };
-        // Connected regions of holes (4-neighbours); a pixel taken into a region leaves
-        // `hole` (it has no depth, so it is no region's border either).
-        let mut regions = Vec::new();
-        let mut stack = Vec::new();
-        let pixels = runs
-            .iter()
-            .flat_map(|&(y, start, end)| y * w + start..y * w + end);
-        for start in pixels {
-            if !hole[start] {
-                continue;
-            }
-            hole[start] = false;
-            stack.push(start);
-            let mut region: Option<NoDepth> = None;
-            let (mut floor_border, mut border) = (0u32, 0u32);
-            while let Some(i) = stack.pop() {
-                let (x, y) = (i % w, i / w);
-                if let Some((p, area)) = floor_of(x, y).filter(|(p, _)| on_table(*p)) {
-                    let one = NoDepth {
-                        min_m: p,
-                        max_m: p,
-                        area_m2: area,
-                        floor_border: 0.0,
-                        pixels: 1,
-                    };
-                    region = Some(region.map_or(one, |r| r.joined(&one)));
-                }
-                let neighbours = [
-                    (x > 0).then(|| i - 1),
-                    (x + 1 < w).then_some(i + 1),
-                    (y > 0).then(|| i - w),
-                    (y + 1 < h).then_some(i + w),
-                ];
-                for n in neighbours.into_iter().flatten() {
-                    if hole[n] {
-                        hole[n] = false;
-                        stack.push(n);
-                    } else if raw(n % w, n / w) != 0 {
-                        border += 1;
-                        floor_border += u32::from(is_floor(n % w, n / w));
-                    }
-                }
-            }
-            if let Some(r) = region
-                && r.area_m2 >= MIN_AREA_M2
-                && floor_border as f32 >= MIN_FLOOR_BORDER * border as f32
-            {
-                regions.push(NoDepth {
-                    floor_border: floor_border as f32 / border.max(1) as f32,
-                    ..r
-                });
-            }
-        }
-        regions.sort_by(|a, b| b.area_m2.total_cmp(&a.area_m2));
-        regions
+        no_depth(
+            &self.depth,
+            &self.intrinsics,
+            &to_common,
+            &self.roi,
+            baseline_m,
+        )
     }
+}
+
+/// [`DepthPart::no_depth`] of a frame the caller keeps: `d` with its intrinsics `k`, moved
+/// into the common frame by `to_common`, inside `roi` (the server finds the regions on
+/// the depth as the camera returned it, before the post-processing stages).
+pub fn no_depth(
+    d: &DepthFrame,
+    k: &Intrinsics,
+    to_common: &Transform,
+    roi: &Roi3,
+    baseline_m: Option<f32>,
+) -> Vec<NoDepth> {
+    let (w, h) = (d.width as usize, d.height as usize);
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
+    let raw = |x: usize, y: usize| d.data.get(y * d.stride + x).copied().unwrap_or(0);
+    let metres = |v: u16| f32::from(v) * d.depth_scale;
+    // Pixels without depth that are not a stereo shadow.
+    // Runs of rows (row, first, end) first: most frames have none, and then no image
+    // of flags is made.
+    let mut runs = Vec::new();
+    let disparity = k.fx * baseline_m.unwrap_or(0.0);
+    for (y, row) in d.data.chunks(d.stride.max(1)).take(h).enumerate() {
+        let row = &row[..w.min(row.len())];
+        let mut x = 0;
+        while let Some(from) = row[x..].iter().position(|&v| v == 0) {
+            let start = x + from;
+            x = row[start..]
+                .iter()
+                .position(|&v| v != 0)
+                .map_or(row.len(), |n| start + n);
+            // The run is start..x; the shadow lies left of a nearer surface, and at
+            // the image's left edge (where the right imager sees nothing) the far
+            // side's disparity is 0.
+            let shadow = x < row.len() && {
+                let near = metres(row[x]);
+                let far_inverse = if start == 0 {
+                    0.0
+                } else {
+                    1.0 / metres(row[start - 1])
+                };
+                let width = disparity * (1.0 / near - far_inverse);
+                (x - start) as f32 <= width.max(0.0) + SHADOW_SLACK_PX
+            };
+            if !shadow {
+                runs.push((y, start, x));
+            }
+            if x >= row.len() {
+                break;
+            }
+        }
+    }
+    if runs.is_empty() {
+        return Vec::new();
+    }
+    let mut hole = vec![false; w * h];
+    for &(y, start, end) in &runs {
+        hole[y * w + start..y * w + end].fill(true);
+    }
+    // Where each pixel's ray meets the floor (z = 0), and the floor's area it covers.
+    // The transform's numbers as plain arrays: this runs per pixel of every hole.
+    let l = &to_common.linear;
+    let rows = [0, 1, 2].map(|r| [l[(r, 0)], l[(r, 1)], l[(r, 2)]]);
+    let origin = [0, 1, 2].map(|r| to_common.translation[r]);
+    let moved = |v: [f32; 3], r: usize| rows[r][0] * v[0] + rows[r][1] * v[1] + rows[r][2] * v[2];
+    let floor_of = |x: usize, y: usize| -> Option<([f32; 2], f32)> {
+        let ray = k.deproject([x as f32, y as f32], 1.0);
+        let dz = moved(ray, 2);
+        if dz >= -1e-6 {
+            return None;
+        }
+        let t = -origin[2] / dz;
+        if t <= 0.0 {
+            return None;
+        }
+        let p = [0, 1].map(|r| origin[r] + moved(ray, r) * t);
+        // The pixel's solid angle is 1 / (fx fy |ray|^3) for a ray (x, y, 1), its
+        // footprint at distance t |ray| on a floor tilted from it by cos = |dz| /
+        // |ray|: t^2 / (fx fy |dz|).
+        Some((p, t * t / (k.fx * k.fy * -dz)))
+    };
+    let (min, max) = (roi.min(), roi.max());
+    let on_table = |p: [f32; 2]| (min.x..=max.x).contains(&p[0]) && (min.y..=max.y).contains(&p[1]);
+    let is_floor = |x: usize, y: usize| {
+        let p = k.deproject([x as f32, y as f32], metres(raw(x, y)));
+        origin[2] + moved(p, 2) <= FLOOR_BAND_M
+    };
+    // Connected regions of holes (4-neighbours); a pixel taken into a region leaves
+    // `hole` (it has no depth, so it is no region's border either).
+    let mut regions = Vec::new();
+    let mut stack = Vec::new();
+    let pixels = runs
+        .iter()
+        .flat_map(|&(y, start, end)| y * w + start..y * w + end);
+    for start in pixels {
+        if !hole[start] {
+            continue;
+        }
+        hole[start] = false;
+        stack.push(start);
+        let mut region: Option<NoDepth> = None;
+        let (mut floor_border, mut border) = (0u32, 0u32);
+        while let Some(i) = stack.pop() {
+            let (x, y) = (i % w, i / w);
+            if let Some((p, area)) = floor_of(x, y).filter(|(p, _)| on_table(*p)) {
+                let one = NoDepth {
+                    min_m: p,
+                    max_m: p,
+                    area_m2: area,
+                    floor_border: 0.0,
+                    pixels: 1,
+                };
+                region = Some(region.map_or(one, |r| r.joined(&one)));
+            }
+            let neighbours = [
+                (x > 0).then(|| i - 1),
+                (x + 1 < w).then_some(i + 1),
+                (y > 0).then(|| i - w),
+                (y + 1 < h).then_some(i + w),
+            ];
+            for n in neighbours.into_iter().flatten() {
+                if hole[n] {
+                    hole[n] = false;
+                    stack.push(n);
+                } else if raw(n % w, n / w) != 0 {
+                    border += 1;
+                    floor_border += u32::from(is_floor(n % w, n / w));
+                }
+            }
+        }
+        if let Some(r) = region
+            && r.area_m2 >= MIN_AREA_M2
+            && floor_border as f32 >= MIN_FLOOR_BORDER * border as f32
+        {
+            regions.push(NoDepth {
+                floor_border: floor_border as f32 / border.max(1) as f32,
+                ..r
+            });
+        }
+    }
+    regions.sort_by(|a, b| b.area_m2.total_cmp(&a.area_m2));
+    regions
 }
 
 #[cfg(test)]
@@ -347,7 +365,7 @@ mod tests {
         let data = (0..w * h).map(|i| depth(i % w, i / w)).collect();
         DepthPart {
             serial: "840412060746".into(),
-            depth: rgbd::DepthFrame {
+            depth: DepthFrame {
                 width: w as u32,
                 height: h as u32,
                 stride: w,
@@ -356,7 +374,7 @@ mod tests {
                 frame_number: 1,
                 data,
             },
-            intrinsics: rgbd::Intrinsics {
+            intrinsics: Intrinsics {
                 width: w as u32,
                 height: h as u32,
                 ppx: 80.0,
@@ -366,11 +384,11 @@ mod tests {
                 model: rgbd::DistortionModel::None,
                 coeffs: [0.0; 5],
             },
-            transform: geometry::Transform {
+            transform: Transform {
                 linear: nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0),
                 translation: nalgebra::Vector3::new(0.0, 0.0, 1.5),
             },
-            roi: geometry::Roi3::new(Point3::new(-1.0, -1.0, 0.005), Point3::new(1.0, 1.0, 3.0))
+            roi: Roi3::new(Point3::new(-1.0, -1.0, 0.005), Point3::new(1.0, 1.0, 3.0))
                 .expect("a region"),
             correction: None,
         }

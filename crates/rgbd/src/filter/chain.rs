@@ -182,7 +182,7 @@ impl PostProcessingConfig {
             )?;
         }
         if let Some(f) = self.flying_pixels
-            && !(0.005..=0.5).contains(&f.step)
+            && !FlyingPixels::STEPS.contains(&f.step)
         {
             return Err(PostProcessingError::Invalid {
                 field: "postprocessing.flying_pixels.step",

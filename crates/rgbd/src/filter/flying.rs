@@ -34,11 +34,13 @@ pub struct FlyingPixels {
 impl FlyingPixels {
     /// The default step, as a share of the pixel's depth.
     pub const DEFAULT_STEP: f32 = 0.02;
+    /// The steps a filter takes.
+    pub const STEPS: std::ops::RangeInclusive<f32> = 0.005..=0.5;
 
     /// A filter dropping pixels more than `step` (a share of their depth, 0.005 to 0.5)
     /// behind a neighbour.
     pub fn new(step: f32) -> Result<Self, FilterError> {
-        if !(0.005..=0.5).contains(&step) {
+        if !Self::STEPS.contains(&step) {
             return Err(FilterError::Parameter {
                 field: "step",
                 value: step.to_string(),

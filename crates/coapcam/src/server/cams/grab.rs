@@ -152,15 +152,7 @@ pub(crate) fn cloud(
     // The parts of the table without depth, from the pixels as the camera returned them:
     // the flying-pixel stage drops pixels at depth steps, which returned depth, and hole
     // filling fills the holes a dark parcel leaves.
-    let no_depth = DepthPart {
-        serial: String::new(),
-        depth: cropped.clone(),
-        intrinsics: k,
-        transform,
-        roi: app.roi3d,
-        correction: None,
-    }
-    .no_depth(baseline_m);
+    let no_depth = crate::repr::no_depth::no_depth(cropped, &k, &transform, &app.roi3d, baseline_m);
     let mut chain = PostProcessing::new(&app.postprocessing, baseline_m.map(|b| b * 1000.0))?;
     let (processed, k) = chain.process(cropped, &k)?;
     let mut part = DepthPart {
