@@ -18,9 +18,10 @@ pub const GENESIS: &str = "00000000000000000000000000000000000000000000000000000
 /// What the hashed bytes of a record start with: the encoding's name and version.
 const DOMAIN: &[u8] = b"coapcam-record-v1\n";
 
-/// Fields of a record's JSON that are not hashed: the hash itself, and whether the
-/// pictures are still kept (retention prunes them; their SHA-256s stay hashed).
-const UNHASHED: [&str; 3] = ["hash", "has_photo", "has_annotated"];
+/// Fields of a record's JSON that are not hashed: the hash itself, the station's
+/// signature (made over the hashed bytes), and whether the pictures are still kept
+/// (retention prunes them; their SHA-256s stay hashed).
+const UNHASHED: [&str; 4] = ["hash", "signature", "has_photo", "has_annotated"];
 
 /// What made a measurement.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -125,6 +126,11 @@ pub struct Record {
     pub prev_hash: String,
     /// SHA-256 (hex) of this record's canonical bytes ([`Record::compute_hash`]).
     pub hash: String,
+    /// The station key's Ed25519 signature (hex) of the bytes [`Record::hash_of`] hashes
+    /// ([`Record::hashed_bytes`]); `None` when the station signs nothing (absent from
+    /// the JSON). Not hashed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signature: Option<String>,
     /// Whether the photo is still kept (not hashed: retention prunes pictures).
     #[serde(default)]
     pub has_photo: bool,
@@ -152,6 +158,7 @@ impl Record {
             annotated_sha256: new.annotated_png.as_deref().map(sha256_hex),
             prev_hash: prev_hash.to_owned(),
             hash: String::new(),
+            signature: None,
             has_photo: new.photo_jpeg.is_some(),
             has_annotated: new.annotated_png.is_some(),
         };
@@ -184,6 +191,12 @@ impl Record {
         h.update(DOMAIN);
         h.update(canonical);
         hex(&h.finalize())
+    }
+
+    /// The bytes a record's hash is taken over, and its signature made over: the
+    /// record-encoding tag and `canonical`.
+    pub fn hashed_bytes(canonical: &[u8]) -> Vec<u8> {
+        [DOMAIN, canonical].concat()
     }
 
     /// The record's content as stored: its canonical bytes.
@@ -293,6 +306,9 @@ pub struct EventRecord {
     pub prev_hash: String,
     /// SHA-256 (hex) of its canonical bytes, as a measurement's.
     pub hash: String,
+    /// The station key's signature, as a measurement's; not hashed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signature: Option<String>,
 }
 
 impl EventRecord {
@@ -309,16 +325,18 @@ impl EventRecord {
             software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
             prev_hash: prev_hash.to_owned(),
             hash: String::new(),
+            signature: None,
         };
         record.hash = Record::compute_hash(&record.content());
         record
     }
 
-    /// The hashed content: its JSON without `hash`.
+    /// The hashed content: its JSON without `hash` and `signature`.
     pub fn content(&self) -> Value {
         let mut v = serde_json::to_value(self).unwrap_or(Value::Null);
         if let Value::Object(map) = &mut v {
             map.remove("hash");
+            map.remove("signature");
         }
         v
     }

@@ -12,6 +12,7 @@ use coapcam::api::results::{ListQuery, MAX_LIST};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Reported, format_mm};
 use coapcam::station::log;
+use coapcam::station::signing::{PublicKey, StationKey};
 
 use super::{Exit, TransmissionArgs, out, outln};
 
@@ -59,7 +60,19 @@ enum ResultsCommand {
     /// link to the record before, every picture kept. Names the first record that was
     /// altered or is missing and exits 7; exits 0 when the whole chain verifies. Ids the
     /// station skipped because a lost log had issued them (gaps it recorded) are named.
-    Verify(VerifyArgs),
+    Verify(Box<VerifyArgs>),
+    /// Make a station key for `serve --signing-key FILE`: writes its secret half to FILE
+    /// (64 hex digits, mode 0600; an existing file is never replaced) and prints the
+    /// public half, which `results verify --public-key` takes.
+    Keygen(KeygenArgs),
+}
+
+/// Flags of `results keygen`.
+#[derive(Debug, Args)]
+struct KeygenArgs {
+    /// Where to write the secret key (outside the results log's folder if you can: a
+    /// copy of the log should not carry the key that signs it).
+    file: PathBuf,
 }
 
 /// Flags of `results verify`.
@@ -79,6 +92,11 @@ struct VerifyArgs {
     /// blank lines and lines starting with # are skipped.
     #[arg(long, value_name = "FILE")]
     heads: Option<PathBuf>,
+    /// The station key's public half (64 hex digits, or a file holding them; as
+    /// `results keygen` printed it and /api/station publishes it): every record must
+    /// carry its signature, so a record without one or with another fails.
+    #[arg(long, value_name = "KEY", value_parser = public_key)]
+    public_key: Option<PublicKey>,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -86,6 +104,10 @@ struct VerifyArgs {
 
 fn head(text: &str) -> Result<Head, String> {
     Head::parse(text)
+}
+
+fn public_key(text: &str) -> Result<PublicKey, String> {
+    PublicKey::parse(text)
 }
 
 /// The heads of `--heads FILE`.
@@ -107,8 +129,19 @@ fn heads_of(file: &std::path::Path) -> anyhow::Result<Vec<Head>> {
 
 /// Runs `results`.
 pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
-    if let Some(ResultsCommand::Verify(v)) = &args.command {
-        return verify(v);
+    match &args.command {
+        Some(ResultsCommand::Verify(v)) => return verify(v),
+        Some(ResultsCommand::Keygen(k)) => {
+            let key = StationKey::generate(&k.file).map_err(anyhow::Error::msg)?;
+            outln!("{}", key.public());
+            eprintln!(
+                "coapcam: the station key is in {}; its public key (above) checks the records: results verify LOG --public-key {}",
+                k.file.display(),
+                key.public()
+            );
+            return Ok(Exit::Success);
+        }
+        None => {}
     }
     let Some(server) = &args.server else {
         bail!("give --server URI to list a station's records, or `results verify FILE`");
@@ -185,7 +218,7 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
     if let Some(list) = &args.heads {
         heads.extend(heads_of(list)?);
     }
-    let report = log::verify_against(file, &heads)
+    let report = log::verify_against(file, &heads, args.public_key.as_ref())
         .with_context(|| format!("verifying {}", file.display()))?;
     if args.json {
         let mut doc = serde_json::json!({
@@ -196,6 +229,7 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
             "pictures_checked": report.pictures_checked,
             "pictures_pruned": report.pictures_pruned,
             "heads_checked": report.heads_checked,
+            "signatures_checked": report.signatures_checked,
         });
         if let Some((id, hash)) = &report.head {
             doc["head"] = serde_json::json!({ "id": id, "hash": hash });
@@ -219,7 +253,7 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
         }
         match &report.first_altered {
             None => out!(
-                "{}: the chain verifies: {} record(s) ({} event(s)){}, {} picture(s) checked, {} pruned{}\n",
+                "{}: the chain verifies: {} record(s) ({} event(s)){}, {} picture(s) checked, {} pruned{}{}\n",
                 file.display(),
                 report.records,
                 report.events,
@@ -234,6 +268,11 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
                     String::new()
                 } else {
                     format!(", {} head(s) published earlier held", report.heads_checked)
+                },
+                if args.public_key.is_some() {
+                    format!(", {} signature(s) checked", report.signatures_checked)
+                } else {
+                    String::new()
                 },
             ),
             // The reason names the record (altered, missing, or where the file breaks).

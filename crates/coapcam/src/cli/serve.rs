@@ -124,6 +124,13 @@ pub(crate) struct ServeArgs {
     /// pruned, recording goes on and the server warns. Default: no limit.
     #[arg(long, value_name = "BYTES", conflicts_with = "no_cameras")]
     results_max_bytes: Option<u64>,
+    /// Sign every record of the results log with the station key in FILE (Ed25519; the
+    /// key stays outside the log). The file must exist, readable by its owner only: make
+    /// it once with `coapcam results keygen FILE`, which prints the public key. The
+    /// public key is published at /api/station and CoAP /station, and
+    /// `coapcam results verify LOG --public-key KEY` checks every signature.
+    #[arg(long, value_name = "FILE", conflicts_with = "no_cameras")]
+    signing_key: Option<PathBuf>,
     #[command(flatten)]
     outputs: station::Outputs,
     /// Serve the station's page and its HTTP API (docs/station.md "HTTP") on this
@@ -344,6 +351,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
             keep_pictures: args.results_keep_pictures,
             max_bytes: args.results_max_bytes,
         },
+        signing_key: args.signing_key.clone(),
         outputs: args.outputs.clone(),
         http: args.http,
         proxy_allow: args.proxy_allow.clone(),

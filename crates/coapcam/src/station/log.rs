@@ -23,6 +23,7 @@ use std::time::Duration;
 use rusqlite::{Connection, OpenFlags, OptionalExtension as _, TransactionBehavior, params};
 use tokio::sync::watch;
 
+use super::signing::{PublicKey, StationKey};
 use crate::api::record::{
     EventRecord, GENESIS, Head, NewEvent, NewRecord, Record, canonical_bytes, sha256_hex,
 };
@@ -72,6 +73,12 @@ BEGIN SELECT RAISE(ABORT, 'the results log is append-only: gaps cannot be change
 CREATE TRIGGER IF NOT EXISTS gaps_no_delete BEFORE DELETE ON gaps
 BEGIN SELECT RAISE(ABORT, 'the results log is append-only: gaps cannot be deleted'); END;
 ";
+
+/// Whether `records` has the column `signature` (the station key's signature of each
+/// record, NULL when unsigned): added to logs made before it when a station opens them,
+/// so it goes with the schema's version 1 too.
+const HAS_SIGNATURES: &str =
+    "SELECT EXISTS (SELECT 1 FROM pragma_table_info('records') WHERE name = 'signature')";
 
 /// The newest id the log accounts for, records and gaps (0 for a new log): the next
 /// record's id is one more.
@@ -189,6 +196,25 @@ struct Inner {
     identity: Mutex<(u64, u64)>,
     /// The station's file of the last id issued, if it keeps one.
     last_id: Option<LastId>,
+    /// The station key that signs each record appended, if the station has one.
+    signer: std::sync::OnceLock<StationKey>,
+}
+
+/// A row the log appends, which takes the station key's signature once it is made.
+trait Signed {
+    fn set_signature(&mut self, signature: String);
+}
+
+impl Signed for Record {
+    fn set_signature(&mut self, signature: String) {
+        self.signature = Some(signature);
+    }
+}
+
+impl Signed for EventRecord {
+    fn set_signature(&mut self, signature: String) {
+        self.signature = Some(signature);
+    }
 }
 
 /// A station's file of the last id its results log issued and that record's hash
@@ -322,6 +348,7 @@ impl ResultsLog {
                 near_limit: std::sync::atomic::AtomicBool::new(false),
                 identity: Mutex::new(identity),
                 last_id,
+                signer: std::sync::OnceLock::new(),
             }),
         };
         log.prune()?;
@@ -331,6 +358,21 @@ impl ResultsLog {
     /// The database file.
     pub fn path(&self) -> &Path {
         &self.inner.path
+    }
+
+    /// Signs every record appended from now on with `key` (its signature in the
+    /// column `signature` beside the record, and in its JSON). A log takes one key, once:
+    /// a second one is refused.
+    pub fn sign_with(&self, key: StationKey) -> Result<(), LogError> {
+        self.inner.signer.set(key).map_err(|_| LogError::Failed {
+            path: self.inner.path.clone(),
+            why: "it already has a station key".into(),
+        })
+    }
+
+    /// The public half of the station key that signs the records, if there is one.
+    pub fn public_key(&self) -> Option<PublicKey> {
+        self.inner.signer.get().map(StationKey::public)
     }
 
     fn conn(&self) -> MutexGuard<'_, Connection> {
@@ -412,7 +454,7 @@ impl ResultsLog {
     /// Appends a row made by `make` (from its id, the previous hash and the newest event's
     /// counter: its body, its hash and what to return) with `pictures`, in one
     /// transaction; an `event` moves the counter on once it is committed.
-    fn append_row<T>(
+    fn append_row<T: Signed>(
         &self,
         make: impl FnOnce(u64, &str, u64) -> (Vec<u8>, String, T),
         pictures: [(&str, Option<&[u8]>); 2],
@@ -459,10 +501,14 @@ impl ResultsLog {
         let id = taken + 1;
         let prev = last.as_ref().map_or(GENESIS, |(_, hash)| hash.as_str());
         let events = self.inner.events.load(std::sync::atomic::Ordering::Relaxed);
-        let (body, hash, made) = make(id, prev, events);
+        let (body, hash, mut made) = make(id, prev, events);
+        let signature = self.inner.signer.get().map(|key| key.sign(&body));
+        if let Some(signature) = &signature {
+            made.set_signature(signature.clone());
+        }
         tx.execute(
-            "INSERT INTO records (id, body, hash) VALUES (?1, ?2, ?3)",
-            params![id, String::from_utf8_lossy(&body), hash],
+            "INSERT INTO records (id, body, hash, signature) VALUES (?1, ?2, ?3, ?4)",
+            params![id, String::from_utf8_lossy(&body), hash, signature],
         )
         .map_err(self.err())?;
         for (kind, data) in pictures {
@@ -502,7 +548,7 @@ impl ResultsLog {
         let conn = self.conn();
         let mut stmt = conn
             .prepare_cached(
-                "SELECT r.id, r.body, r.hash FROM records r
+                "SELECT r.id, r.body, r.hash, r.signature FROM records r
                  WHERE r.id > ?1 AND r.id < ?2 AND json_extract(r.body, '$.event') IS NOT NULL
                  ORDER BY r.id DESC LIMIT ?3",
             )
@@ -520,6 +566,7 @@ impl ResultsLog {
                         r.get::<_, u64>(0)?,
                         body_bytes(r, 1)?,
                         r.get::<_, String>(2)?,
+                        r.get::<_, Option<String>>(3)?,
                     ))
                 },
             )
@@ -527,12 +574,15 @@ impl ResultsLog {
             .collect::<Result<Vec<_>, _>>()
             .map_err(self.err())?;
         rows.into_iter()
-            .map(|(id, body, hash)| {
-                EventRecord::from_stored(&body, hash).map_err(|e| LogError::Unreadable {
-                    path: self.inner.path.clone(),
-                    id,
-                    why: e.to_string(),
-                })
+            .map(|(id, body, hash, signature)| {
+                let mut event =
+                    EventRecord::from_stored(&body, hash).map_err(|e| LogError::Unreadable {
+                        path: self.inner.path.clone(),
+                        id,
+                        why: e.to_string(),
+                    })?;
+                event.signature = signature;
+                Ok(event)
             })
             .collect()
     }
@@ -801,13 +851,14 @@ impl ResultsLog {
     }
 
     fn decode(&self, raw: RawRow) -> Result<Record, LogError> {
-        Record::from_stored(&raw.body, raw.hash, raw.has_photo, raw.has_annotated).map_err(|e| {
-            LogError::Unreadable {
+        let mut record = Record::from_stored(&raw.body, raw.hash, raw.has_photo, raw.has_annotated)
+            .map_err(|e| LogError::Unreadable {
                 path: self.inner.path.clone(),
                 id: raw.id,
                 why: e.to_string(),
-            }
-        })
+            })?;
+        record.signature = raw.signature;
+        Ok(record)
     }
 }
 
@@ -816,6 +867,7 @@ struct RawRow {
     id: u64,
     body: Vec<u8>,
     hash: String,
+    signature: Option<String>,
     has_photo: bool,
     has_annotated: bool,
 }
@@ -823,7 +875,8 @@ struct RawRow {
 /// The columns [`raw_row`] reads, from `records r`.
 const SELECT: &str = "SELECT r.id, r.body, r.hash,
     EXISTS (SELECT 1 FROM pictures p WHERE p.record = r.id AND p.kind = 'photo'),
-    EXISTS (SELECT 1 FROM pictures p WHERE p.record = r.id AND p.kind = 'annotated')
+    EXISTS (SELECT 1 FROM pictures p WHERE p.record = r.id AND p.kind = 'annotated'),
+    r.signature
     FROM records r";
 
 fn raw_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RawRow> {
@@ -833,6 +886,7 @@ fn raw_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RawRow> {
         hash: r.get(2)?,
         has_photo: r.get(3)?,
         has_annotated: r.get(4)?,
+        signature: r.get(5)?,
     })
 }
 
@@ -976,6 +1030,13 @@ fn connect(path: &Path) -> Result<Connection, LogError> {
         .map_err(&err)?;
     }
     tx.execute_batch(GAPS).map_err(&err)?;
+    let has_signatures: bool = tx
+        .query_row(HAS_SIGNATURES, [], |r| r.get(0))
+        .map_err(&err)?;
+    if !has_signatures {
+        tx.execute_batch("ALTER TABLE records ADD COLUMN signature TEXT")
+            .map_err(&err)?;
+    }
     tx.commit().map_err(&err)?;
     Ok(conn)
 }
@@ -1000,6 +1061,9 @@ pub struct VerifyReport {
     pub gaps: Vec<Gap>,
     /// Heads published earlier that the log was checked against ([`verify_against`]).
     pub heads_checked: u64,
+    /// Records whose signature was checked against the public key given to
+    /// [`verify_against`] (0 without one).
+    pub signatures_checked: u64,
 }
 
 /// Ids a log skipped because a log that is gone (or an older state of the file) had
@@ -1092,6 +1156,12 @@ fn damaged(e: &LogError) -> bool {
 /// record holds. Stops at the first record that does not match and names it; a file cut
 /// off or damaged is named as such (an altered log, not a failure to read one).
 pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
+    verify_signed(path, None)
+}
+
+/// [`verify`], and with `key` every record's signature too: a record without one, or with
+/// one this key did not make, is the first altered.
+fn verify_signed(path: &Path, key: Option<&PublicKey>) -> Result<VerifyReport, LogError> {
     if !path.is_file() {
         return Err(LogError::Format {
             path: path.to_owned(),
@@ -1107,8 +1177,9 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
         first_altered: None,
         gaps: Vec::new(),
         heads_checked: 0,
+        signatures_checked: 0,
     };
-    match connect_read_only(path).and_then(|conn| verify_chain(path, &conn, &mut report)) {
+    match connect_read_only(path).and_then(|conn| verify_chain(path, &conn, key, &mut report)) {
         Err(e) if damaged(&e) => {
             let id = report.head.as_ref().map_or(1, |(id, _)| id + 1);
             let why = match &e {
@@ -1131,9 +1202,14 @@ pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
 /// record `id` with that hash. A log cut off before a head, or rewritten (every later hash
 /// recomputed) from any record at or before it, fails; so does a head whose id lies in a
 /// gap the log recorded (the log does not hold that record, so it cannot confirm it).
-/// The first head that fails is the report's `first_altered`.
-pub fn verify_against(path: &Path, heads: &[Head]) -> Result<VerifyReport, LogError> {
-    let mut report = verify(path)?;
+/// The first head that fails is the report's `first_altered`. With `key`, every record
+/// must carry that key's signature (checked with the chain, before the heads).
+pub fn verify_against(
+    path: &Path,
+    heads: &[Head],
+    key: Option<&PublicKey>,
+) -> Result<VerifyReport, LogError> {
+    let mut report = verify_signed(path, key)?;
     if report.first_altered.is_some() || heads.is_empty() {
         return Ok(report);
     }
@@ -1201,15 +1277,30 @@ fn check_head(
     })
 }
 
-fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Result<(), LogError> {
+fn verify_chain(
+    path: &Path,
+    conn: &Connection,
+    key: Option<&PublicKey>,
+    report: &mut VerifyReport,
+) -> Result<(), LogError> {
     let err = sql(path);
+    // A log no station opened since signatures were kept has no column for them.
+    let has_signatures: bool = conn
+        .query_row(HAS_SIGNATURES, [], |r| r.get(0))
+        .map_err(&err)?;
+    let signature = if has_signatures {
+        "r.signature"
+    } else {
+        "NULL"
+    };
     let mut stmt = conn
-        .prepare(
+        .prepare(&format!(
             "SELECT r.id, r.body, r.hash,
                 (SELECT data FROM pictures p WHERE p.record = r.id AND p.kind = 'photo'),
-                (SELECT data FROM pictures p WHERE p.record = r.id AND p.kind = 'annotated')
-             FROM records r ORDER BY r.id",
-        )
+                (SELECT data FROM pictures p WHERE p.record = r.id AND p.kind = 'annotated'),
+                {signature}
+             FROM records r ORDER BY r.id"
+        ))
         .map_err(&err)?;
     report.gaps = gaps(conn).map_err(&err)?;
     let mut rows = stmt.query([]).map_err(&err)?;
@@ -1228,6 +1319,7 @@ fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Re
         let hash: String = row.get(2).map_err(&err)?;
         let photo: Option<Vec<u8>> = row.get(3).map_err(&err)?;
         let annotated: Option<Vec<u8>> = row.get(4).map_err(&err)?;
+        let signature: Option<String> = row.get(5).map_err(&err)?;
         let broken = |id: u64, why: String| Altered { id, why };
         // A gap the log recorded where the next id was expected: the ids skipped were
         // another log's (the chain still runs on: a gap cannot hide a record removed).
@@ -1251,6 +1343,19 @@ fn verify_chain(path: &Path, conn: &Connection, report: &mut VerifyReport) -> Re
             [photo, annotated],
             report,
         );
+        let check = check.and_then(|()| match (key, &signature) {
+            (None, _) => Ok(()),
+            (Some(_), None) => Err(format!(
+                "record {id} has no signature, and a public key was given: it was recorded without a station key (serve --signing-key), or its signature was removed"
+            )),
+            (Some(key), Some(signature)) => {
+                key.check(&body, signature).map_err(|why| {
+                    format!("record {id}'s signature is not the station key's: {why}")
+                })?;
+                report.signatures_checked += 1;
+                Ok(())
+            }
+        });
         if let Err(why) = check {
             report.first_altered = Some(broken(id, why));
             break;

@@ -16,6 +16,7 @@
 //! - [`line`](mod@line): a plain text line per measurement to the readers of a TCP port;
 //! - [`http`]: the page and the JSON API over HTTP (`serve --http`);
 //! - [`writer`]: the lock that makes a station its results log's one writer;
+//! - [`signing`]: the station key that signs the records, and its public half;
 //! - [`webhook`]: every record POSTed to an HTTP URL, none lost while it is away;
 //! - [`auto`]: automatic measurement's core: height maps of the table and the stillness
 //!   detector that says when a parcel stands still; [`watch`]: the task that drives it.
@@ -30,6 +31,7 @@ pub mod outputs;
 pub(crate) mod reads;
 mod recorder;
 pub(crate) mod resources;
+pub mod signing;
 mod start;
 pub mod watch;
 pub mod webhook;
@@ -67,6 +69,8 @@ pub struct Config {
     pub results: Option<PathBuf>,
     /// How much of the log is kept (`--results-keep-pictures`, `--results-max-bytes`).
     pub retention: Retention,
+    /// The station key's file: every record is signed with it (`--signing-key`).
+    pub signing_key: Option<PathBuf>,
     /// The outputs that follow the log (`--mqtt`, `--line-output`, `--webhook`).
     pub outputs: Outputs,
     /// Serve the page and the HTTP API on this address (`--http`).
@@ -85,6 +89,7 @@ impl Default for Config {
             name: host_name(),
             results: None,
             retention: Retention::default(),
+            signing_key: None,
             outputs: Outputs::default(),
             http: None,
             proxy_allow: Vec::new(),

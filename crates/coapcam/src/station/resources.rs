@@ -189,6 +189,7 @@ fn identity(
         software_sha256: crate::identity::SOFTWARE_SHA256,
         events: log.events(),
         parameters_sha256: parameters.map(|p| p()),
+        public_key: log.public_key().map(|k| k.to_string()),
     };
     document(&identity, cf)
 }
@@ -204,6 +205,9 @@ struct Identity<'a> {
     /// The hash of the legally relevant parameters in force (none without cameras).
     #[serde(skip_serializing_if = "Option::is_none")]
     parameters_sha256: Option<String>,
+    /// The public half of the station key that signs the records (none when unsigned).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    public_key: Option<String>,
 }
 
 /// `GET /station/measurements`.

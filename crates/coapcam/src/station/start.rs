@@ -13,6 +13,7 @@ use tokio::task::JoinHandle;
 
 use super::follow::{Feed, Output};
 use super::log::ResultsLog;
+use super::signing::StationKey;
 use super::writer::WriterLock;
 use super::{Config, Recorder, http, last_id_path, resources, watch};
 use crate::api::paths;
@@ -59,6 +60,10 @@ impl Station {
         let recorder = match server.rig() {
             Some(_) => {
                 let path = config.results_path(&state_dir);
+                let key = match &config.signing_key {
+                    Some(file) => Some(StationKey::load(file).map_err(anyhow::Error::msg)?),
+                    None => None,
+                };
                 // Before the log opens: a second station on it refuses to start.
                 let mut lock = WriterLock::take(&path)?;
                 let addrs: Vec<String> = server
@@ -71,6 +76,14 @@ impl Station {
                 let last_id = last_id_path(&state_dir, &path);
                 let log = ResultsLog::open_station(&path, config.retention, &last_id)
                     .with_context(|| format!("opening the results log {}", path.display()))?;
+                if let Some(key) = key {
+                    tracing::info!(
+                        "results log {}: every record is signed with the station key {}",
+                        path.display(),
+                        key.public()
+                    );
+                    log.sign_with(key)?;
+                }
                 let parameters: Option<resources::Parameters> = server
                     .rig()
                     .map(|rig| Arc::new(move || rig.parameters_sha256()) as resources::Parameters);

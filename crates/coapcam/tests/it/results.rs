@@ -1258,3 +1258,117 @@ fn results_lists_the_measurements_of_a_station_from_before_events() {
     assert_eq!(lines.len(), 1);
     assert_eq!(lines[0]["id"], 1);
 }
+
+/// Issue 48, item 4's signing: a station started with `--signing-key` (made by `results
+/// keygen`) publishes the key's public half at `/api/station` and CoAP `/station` and
+/// signs every record; `verify --public-key` checks each signature, so a consistent
+/// rewrite (every hash recomputed) that passes the chain fails at the record rewritten,
+/// another key fails at record 1, and so does a log whose records are unsigned. A missing
+/// key file stops the station at start, naming `results keygen`.
+#[test]
+fn a_signed_log_fails_verify_with_the_public_key_where_it_was_rewritten() {
+    use crate::identity::{coap_json, http_json};
+    let dir = TempDir::new("results-signed");
+    let key = dir.join("station.key");
+    let key = key.to_str().expect("UTF-8");
+    let made = Proc::run(COAPCAM, &["results", "keygen", key], LIMIT).expect_success("keygen");
+    let public = made.stdout_text().trim().to_owned();
+    assert_eq!(public.len(), 64, "{public}");
+    let again = Proc::run(COAPCAM, &["results", "keygen", key], LIMIT);
+    assert_ne!(again.status.code(), Some(0), "a key is never replaced");
+
+    let state = dir.join("state");
+    let missing = dir.join("none.key");
+    let missing = missing.to_str().expect("UTF-8");
+    let state_text = state.to_str().expect("UTF-8");
+    let f = Proc::run(
+        COAPCAM,
+        &[
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--state-dir",
+            state_text,
+            "--duration",
+            "1",
+            "--signing-key",
+            missing,
+        ],
+        LIMIT,
+    );
+    assert_eq!(f.status.code(), Some(1), "{}", f.stderr);
+    assert!(
+        f.stderr
+            .contains(&format!("coapcam results keygen {missing}")),
+        "{}",
+        f.stderr
+    );
+
+    let file = state.join("results.sqlite");
+    {
+        let (_server, coap, http) =
+            crate::support::station_with_http(&state, &["--signing-key", key]);
+        let (status, station) = http_json(http, "/api/station");
+        assert_eq!(status, 200, "{station}");
+        assert_eq!(station["public_key"], public.as_str(), "{station}");
+        assert_eq!(coap_json(coap, "/station")["public_key"], public.as_str());
+        let server = format!("coap://{coap}");
+        for _ in 0..3 {
+            Proc::run(COAPCAM, &["measure", "--server", &server], LIMIT).expect_success("measure");
+        }
+        let (status, record) = http_json(http, "/api/measurements/2");
+        assert_eq!(status, 200, "{record}");
+        assert_eq!(
+            record["signature"].as_str().map(str::len),
+            Some(128),
+            "{record}"
+        );
+    }
+    let (code, report) = verify_with(&file, &["--public-key", &public]);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["signatures_checked"], 3, "{report}");
+    // The public key from a file, as keygen's output saved.
+    let public_file = dir.join("station.pub");
+    std::fs::write(&public_file, format!("{public}\n")).expect("public key file");
+    let (code, _) = verify_with(
+        &file,
+        &["--public-key", public_file.to_str().expect("UTF-8")],
+    );
+    assert_eq!(code, Some(0));
+
+    let other = dir.join("other.key");
+    let other = Proc::run(
+        COAPCAM,
+        &["results", "keygen", other.to_str().expect("UTF-8")],
+        LIMIT,
+    )
+    .expect_success("keygen");
+    let (code, report) = verify_with(&file, &["--public-key", other.stdout_text().trim()]);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 1, "{report}");
+
+    rewrite_from(&file, 2);
+    assert_eq!(
+        verify_with(&file, &[]).0,
+        Some(0),
+        "the rewrite passes the chain"
+    );
+    let (code, report) = verify_with(&file, &["--public-key", &public]);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 2, "{report}");
+    let why = report["first_altered"]["why"].as_str().expect("why");
+    assert!(why.contains("signature"), "{why}");
+
+    // A log recorded without a key: it verifies, but not as signed.
+    let unsigned = dir.join("unsigned.sqlite");
+    {
+        let log = ResultsLog::open(&unsigned).expect("open");
+        crate::mqtt::record(&log, 400.0, Some("PKG"));
+    }
+    assert_eq!(verify_with(&unsigned, &[]).0, Some(0));
+    let (code, report) = verify_with(&unsigned, &["--public-key", &public]);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 1, "{report}");
+    let why = report["first_altered"]["why"].as_str().expect("why");
+    assert!(why.contains("has no signature"), "{why}");
+}

@@ -625,6 +625,7 @@ impl<R: Rig> App<R> {
                 "newest": self.recorder.log().newest(),
                 "events": self.recorder.log().events(),
                 "parameters_sha256": self.rig.parameters_sha256(),
+                "public_key": self.recorder.log().public_key().map(|k| k.to_string()),
                 "read": "open to every client",
                 "configure": if self.open { "open to every client (--allow-unauthenticated-config)" } else { "this machine only" },
                 "you_may_measure": self.open || local,
