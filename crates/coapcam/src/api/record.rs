@@ -117,6 +117,10 @@ pub struct Record {
     /// ([`parameters_sha256`]); `None` in records made before (absent from their JSON).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub parameters_sha256: Option<String>,
+    /// Whether the kernel said the station's clock was synchronised when the record was
+    /// appended; `None` in records made before (absent from their JSON).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock_synced: Option<bool>,
     /// SHA-256 (hex) of the photo (JPEG), if one was taken; kept after the photo is
     /// pruned.
     pub photo_sha256: Option<String>,
@@ -141,8 +145,20 @@ pub struct Record {
 
 impl Record {
     /// The record `new` becomes with `id` after `prev_hash`, the log holding `events`
-    /// events before it, its hash computed.
+    /// events before it, its hash computed (without `clock_synced`: see
+    /// [`Record::chain_synced`]).
     pub fn chain(new: &NewRecord, id: u64, prev_hash: &str, events: u64) -> Self {
+        Self::chain_synced(new, id, prev_hash, events, None)
+    }
+
+    /// [`Record::chain`] with `clock_synced`.
+    pub fn chain_synced(
+        new: &NewRecord,
+        id: u64,
+        prev_hash: &str,
+        events: u64,
+        clock_synced: Option<bool>,
+    ) -> Self {
         let mut record = Self {
             id,
             time: new.time,
@@ -154,6 +170,7 @@ impl Record {
             software_sha256: Some(new.software_sha256.clone()),
             events: Some(events),
             parameters_sha256: new.parameters_sha256.clone(),
+            clock_synced,
             photo_sha256: new.photo_jpeg.as_deref().map(sha256_hex),
             annotated_sha256: new.annotated_png.as_deref().map(sha256_hex),
             prev_hash: prev_hash.to_owned(),
@@ -302,6 +319,10 @@ pub struct EventRecord {
     pub version: String,
     /// SHA-256 (hex) of the legally relevant software that recorded it.
     pub software_sha256: String,
+    /// Whether the kernel said the station's clock was synchronised when it was
+    /// appended; `None` in events made before (absent from their JSON).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock_synced: Option<bool>,
     /// The previous record's `hash`.
     pub prev_hash: String,
     /// SHA-256 (hex) of its canonical bytes, as a measurement's.
@@ -313,8 +334,14 @@ pub struct EventRecord {
 
 impl EventRecord {
     /// The record `new` becomes with `id` after `prev_hash` as event number `counter`,
-    /// its hash computed.
-    pub fn chain(new: &NewEvent, id: u64, prev_hash: &str, counter: u64) -> Self {
+    /// the kernel having said `clock_synced`, its hash computed.
+    pub fn chain(
+        new: &NewEvent,
+        id: u64,
+        prev_hash: &str,
+        counter: u64,
+        clock_synced: Option<bool>,
+    ) -> Self {
         let mut record = Self {
             id,
             time: new.time,
@@ -323,6 +350,7 @@ impl EventRecord {
             event: new.event.clone(),
             version: NewRecord::VERSION.to_owned(),
             software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
+            clock_synced,
             prev_hash: prev_hash.to_owned(),
             hash: String::new(),
             signature: None,
@@ -353,6 +381,101 @@ impl EventRecord {
             map.insert("hash".into(), hash.into());
         }
         serde_json::from_value(v)
+    }
+}
+
+/// A jump of the station's wall clock, as the log noted it: the wall clock's time at the
+/// record before and now, and the monotonic time between them.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ClockJump {
+    /// `back` (the wall clock is earlier than at the record before, or moved on less
+    /// than the monotonic clock did) or `forward` (it moved on more).
+    pub jump: String,
+    /// The wall clock when the record before was appended (after a restart: that
+    /// record's `time`).
+    pub previous: UtcTime,
+    /// The wall clock now.
+    pub now: UtcTime,
+    /// The monotonic clock's time since the record before, ms; `None` after a restart
+    /// (the station's monotonic clock started anew).
+    pub monotonic_elapsed_ms: Option<u64>,
+}
+
+/// A row of the results log that notes a jump of the station's wall clock, in the same
+/// chain (and id sequence) as the measurements, told apart by its `clock` field; appended
+/// just before the record whose time showed the jump.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ClockRecord {
+    /// Its id, from the same sequence as the measurements'.
+    pub id: u64,
+    /// The wall clock's time now (as `clock.now`).
+    pub time: UtcTime,
+    /// The station's name.
+    pub station: String,
+    /// The jump.
+    pub clock: ClockJump,
+    /// Whether the kernel said the clock was synchronised.
+    pub clock_synced: bool,
+    /// The software's version.
+    pub version: String,
+    /// SHA-256 (hex) of the legally relevant software that recorded it.
+    pub software_sha256: String,
+    /// The previous record's `hash`.
+    pub prev_hash: String,
+    /// SHA-256 (hex) of its canonical bytes, as a measurement's.
+    pub hash: String,
+    /// The station key's signature, as a measurement's; not hashed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signature: Option<String>,
+}
+
+impl ClockRecord {
+    /// The row noting `jump` with `id` after `prev_hash`, its hash computed.
+    pub fn chain(
+        station: &str,
+        jump: ClockJump,
+        clock_synced: bool,
+        id: u64,
+        prev_hash: &str,
+    ) -> Self {
+        let mut record = Self {
+            id,
+            time: jump.now,
+            station: station.to_owned(),
+            clock: jump,
+            clock_synced,
+            version: NewRecord::VERSION.to_owned(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
+            prev_hash: prev_hash.to_owned(),
+            hash: String::new(),
+            signature: None,
+        };
+        record.hash = Record::hash_of(&record.stored_body());
+        record
+    }
+
+    /// The record's content as stored: its canonical bytes.
+    pub fn stored_body(&self) -> Vec<u8> {
+        let mut content = serde_json::to_value(self).unwrap_or(Value::Null);
+        if let Value::Object(map) = &mut content {
+            map.remove("hash");
+            map.remove("signature");
+        }
+        canonical_bytes(&content)
+    }
+}
+
+impl fmt::Display for ClockJump {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "the wall clock jumped {} from {} to {}",
+            self.jump, self.previous, self.now
+        )?;
+        match self.monotonic_elapsed_ms {
+            Some(ms) => write!(f, " while the monotonic clock moved on {ms} ms"),
+            None => f.write_str(" (across a restart of the station)"),
+        }
     }
 }
 

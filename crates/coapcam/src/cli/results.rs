@@ -237,6 +237,16 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
         if let Some(a) = &report.first_altered {
             doc["first_altered"] = serde_json::json!({ "id": a.id, "why": a.why });
         }
+        doc["clock_jumps"] = report
+            .clock_jumps
+            .iter()
+            .map(|(id, j)| {
+                serde_json::json!({
+                    "id": id, "jump": j.jump, "previous": j.previous, "now": j.now,
+                    "monotonic_elapsed_ms": j.monotonic_elapsed_ms,
+                })
+            })
+            .collect();
         doc["gaps"] = report
             .gaps
             .iter()
@@ -250,6 +260,9 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
     } else {
         for gap in &report.gaps {
             outln!("{}: {gap}", file.display());
+        }
+        for (id, jump) in &report.clock_jumps {
+            outln!("{}: record {id}: {jump}", file.display());
         }
         match &report.first_altered {
             None => out!(

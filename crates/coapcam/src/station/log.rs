@@ -23,9 +23,11 @@ use std::time::Duration;
 use rusqlite::{Connection, OpenFlags, OptionalExtension as _, TransactionBehavior, params};
 use tokio::sync::watch;
 
+use super::clock::{Clock, Reading, SystemClock};
 use super::signing::{PublicKey, StationKey};
 use crate::api::record::{
-    EventRecord, GENESIS, Head, NewEvent, NewRecord, Record, canonical_bytes, sha256_hex,
+    ClockJump, ClockRecord, EventRecord, GENESIS, Head, NewEvent, NewRecord, Record, UtcTime,
+    canonical_bytes, sha256_hex,
 };
 use crate::api::results::{ListQuery, MAX_LIST};
 
@@ -85,8 +87,15 @@ const HAS_SIGNATURES: &str =
 const TAKEN: &str = "SELECT MAX(COALESCE((SELECT MAX(id) FROM records), 0),
     COALESCE((SELECT MAX(next) FROM gaps), 1) - 1)";
 
-/// Whether the row `r` holds a measurement (not an event).
-const MEASUREMENT: &str = "json_extract(r.body, '$.event') IS NULL";
+/// Whether the row `r` holds a measurement (not an event, nor a note of a clock jump).
+const MEASUREMENT: &str =
+    "json_extract(r.body, '$.event') IS NULL AND json_extract(r.body, '$.clock') IS NULL";
+
+/// How far the wall clock may move on more or less than the monotonic clock between two
+/// appends before the log notes a jump (any move back is noted). Both clocks run at the
+/// rate time daemons slew them to; only a clock set (stepped), or a machine suspended,
+/// parts them.
+const JUMP_TOLERANCE_MS: i64 = 1000;
 
 /// The newest event's counter (0 before the first).
 const EVENT_COUNTER: &str =
@@ -198,6 +207,11 @@ struct Inner {
     last_id: Option<LastId>,
     /// The station key that signs each record appended, if the station has one.
     signer: std::sync::OnceLock<StationKey>,
+    /// Where the time of records and the clock's state are read.
+    clock: Mutex<Arc<dyn Clock>>,
+    /// The clocks when the newest record was appended by this process (none before its
+    /// first append).
+    last_reading: Mutex<Option<Reading>>,
 }
 
 /// A row the log appends, which takes the station key's signature once it is made.
@@ -349,6 +363,8 @@ impl ResultsLog {
                 identity: Mutex::new(identity),
                 last_id,
                 signer: std::sync::OnceLock::new(),
+                clock: Mutex::new(Arc::new(SystemClock::default())),
+                last_reading: Mutex::new(None),
             }),
         };
         log.prune()?;
@@ -368,6 +384,29 @@ impl ResultsLog {
             path: self.inner.path.clone(),
             why: "it already has a station key".into(),
         })
+    }
+
+    /// Reads the time of the records, the monotonic time and the clock's state from
+    /// `clock` from now on (the system's clocks by default).
+    pub fn set_clock(&self, clock: Arc<dyn Clock>) {
+        *self
+            .inner
+            .clock
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = clock;
+    }
+
+    fn read_clock(&self) -> Reading {
+        self.inner
+            .clock
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .read()
+    }
+
+    /// The wall clock's time now, from the log's clock: a record's `time`.
+    pub fn now(&self) -> UtcTime {
+        self.read_clock().wall
     }
 
     /// The public half of the station key that signs the records, if there is one.
@@ -422,10 +461,11 @@ impl ResultsLog {
             ("annotated", new.annotated_png.as_deref()),
         ];
         let record = self.append_row(
-            |id, prev, events| {
-                let record = Record::chain(&new, id, prev, events);
+            |id, prev, events, synced| {
+                let record = Record::chain_synced(&new, id, prev, events, Some(synced));
                 (record.stored_body(), record.hash.clone(), record)
             },
+            &new.station,
             pictures,
             false,
         )?;
@@ -442,21 +482,25 @@ impl ResultsLog {
     /// carry its counter as their `events`.
     pub fn append_event(&self, new: NewEvent) -> Result<EventRecord, LogError> {
         self.append_row(
-            |id, prev, events| {
-                let record = EventRecord::chain(&new, id, prev, events + 1);
+            |id, prev, events, synced| {
+                let record = EventRecord::chain(&new, id, prev, events + 1, Some(synced));
                 (record.stored_body(), record.hash.clone(), record)
             },
+            &new.station,
             [("photo", None), ("annotated", None)],
             true,
         )
     }
 
-    /// Appends a row made by `make` (from its id, the previous hash and the newest event's
-    /// counter: its body, its hash and what to return) with `pictures`, in one
-    /// transaction; an `event` moves the counter on once it is committed.
+    /// Appends a row made by `make` (from its id, the previous hash, the newest event's
+    /// counter and whether the clock is synchronised: its body, its hash and what to
+    /// return) with `pictures`, in one transaction; an `event` moves the counter on once
+    /// it is committed. When the clock jumped since the row before, a row noting the jump
+    /// (for `station`) goes first, in the same transaction.
     fn append_row<T: Signed>(
         &self,
-        make: impl FnOnce(u64, &str, u64) -> (Vec<u8>, String, T),
+        make: impl FnOnce(u64, &str, u64, bool) -> (Vec<u8>, String, T),
+        station: &str,
         pictures: [(&str, Option<&[u8]>); 2],
         event: bool,
     ) -> Result<T, LogError> {
@@ -498,10 +542,29 @@ impl ResultsLog {
             .optional()
             .map_err(self.err())?;
         let taken: u64 = tx.query_row(TAKEN, [], |r| r.get(0)).map_err(self.err())?;
-        let id = taken + 1;
-        let prev = last.as_ref().map_or(GENESIS, |(_, hash)| hash.as_str());
+        let mut id = taken + 1;
+        let mut prev = last.map_or_else(|| GENESIS.to_owned(), |(_, hash)| hash);
         let events = self.inner.events.load(std::sync::atomic::Ordering::Relaxed);
-        let (body, hash, mut made) = make(id, prev, events);
+        // Read under the transaction's lock: appends take their readings in id order.
+        let reading = self.read_clock();
+        if let Some(jump) = self.jump(&tx, &reading)? {
+            let noted = ClockRecord::chain(station, jump, reading.synced, id, &prev);
+            let body = noted.stored_body();
+            let signature = self.inner.signer.get().map(|key| key.sign(&body));
+            tx.execute(
+                "INSERT INTO records (id, body, hash, signature) VALUES (?1, ?2, ?3, ?4)",
+                params![id, String::from_utf8_lossy(&body), noted.hash, signature],
+            )
+            .map_err(self.err())?;
+            tracing::warn!(
+                "results log {}: {} (noted as record {id})",
+                self.inner.path.display(),
+                noted.clock
+            );
+            prev = noted.hash;
+            id += 1;
+        }
+        let (body, hash, mut made) = make(id, &prev, events, reading.synced);
         let signature = self.inner.signer.get().map(|key| key.sign(&body));
         if let Some(signature) = &signature {
             made.set_signature(signature.clone());
@@ -528,6 +591,11 @@ impl ResultsLog {
             })?;
         }
         tx.commit().map_err(self.err())?;
+        *self
+            .inner
+            .last_reading
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = Some(reading);
         self.inner.head.send_replace(id);
         if event {
             self.inner
@@ -535,6 +603,55 @@ impl ResultsLog {
                 .store(events + 1, std::sync::atomic::Ordering::Relaxed);
         }
         Ok(made)
+    }
+
+    /// The jump of the wall clock `now` shows against the clocks at the row before, if
+    /// it jumped: earlier than then, or moved on more or less than the monotonic clock
+    /// by more than [`JUMP_TOLERANCE_MS`]. Before this process appended a row, against
+    /// the newest row's `time`: only earlier than it shows (the monotonic clock started
+    /// anew with the process).
+    fn jump(
+        &self,
+        tx: &rusqlite::Transaction<'_>,
+        now: &Reading,
+    ) -> Result<Option<ClockJump>, LogError> {
+        let last = *self
+            .inner
+            .last_reading
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let Some(last) = last {
+            let wall_ms = now.wall.unix_ms.saturating_sub(last.wall.unix_ms);
+            let monotonic = now.monotonic.saturating_sub(last.monotonic);
+            let monotonic_ms = u64::try_from(monotonic.as_millis()).unwrap_or(u64::MAX);
+            let apart = wall_ms.saturating_sub(i64::try_from(monotonic_ms).unwrap_or(i64::MAX));
+            if wall_ms >= 0 && apart.abs() <= JUMP_TOLERANCE_MS {
+                return Ok(None);
+            }
+            return Ok(Some(ClockJump {
+                jump: if apart < 0 { "back" } else { "forward" }.to_owned(),
+                previous: last.wall,
+                now: now.wall,
+                monotonic_elapsed_ms: Some(monotonic_ms),
+            }));
+        }
+        let newest: Option<Option<String>> = tx
+            .query_row(
+                "SELECT json_extract(body, '$.time') FROM records ORDER BY id DESC LIMIT 1",
+                [],
+                |r| r.get(0),
+            )
+            .optional()
+            .map_err(self.err())?;
+        let previous = newest.flatten().and_then(|t| UtcTime::parse(&t).ok());
+        Ok(previous
+            .filter(|previous| now.wall < *previous)
+            .map(|previous| ClockJump {
+                jump: "back".to_owned(),
+                previous,
+                now: now.wall,
+                monotonic_elapsed_ms: None,
+            }))
     }
 
     /// The newest event's counter: how many changes of legally relevant parameters the
@@ -940,7 +1057,7 @@ fn account_for(conn: &mut Connection, path: &Path, last_id: &LastId) -> Result<(
         .map_err(&err)?;
     match (kept, head) {
         (Some((issued, last_hash)), _) if issued > taken => {
-            let now = crate::api::record::UtcTime::now();
+            let now = UtcTime::now();
             tx.execute(
                 "INSERT INTO gaps (after, next, last_hash, time) VALUES (?1, ?2, ?3, ?4)",
                 params![taken, issued + 1, last_hash, now.to_string()],
@@ -1064,6 +1181,8 @@ pub struct VerifyReport {
     /// Records whose signature was checked against the public key given to
     /// [`verify_against`] (0 without one).
     pub signatures_checked: u64,
+    /// The jumps of the station's wall clock the log noted, each with its row's id.
+    pub clock_jumps: Vec<(u64, ClockJump)>,
 }
 
 /// Ids a log skipped because a log that is gone (or an older state of the file) had
@@ -1178,6 +1297,7 @@ fn verify_signed(path: &Path, key: Option<&PublicKey>) -> Result<VerifyReport, L
         gaps: Vec::new(),
         heads_checked: 0,
         signatures_checked: 0,
+        clock_jumps: Vec::new(),
     };
     match connect_read_only(path).and_then(|conn| verify_chain(path, &conn, key, &mut report)) {
         Err(e) if damaged(&e) => {
@@ -1442,7 +1562,11 @@ fn check_record(
     }
     // Events count 1, 2, 3, ... in the chain, and a measurement names how many came
     // before it: an event removed (the chain rewritten around it) or made up shows.
-    if content.get("event").is_some() {
+    if let Some(clock) = content.get("clock") {
+        let jump = serde_json::from_value::<ClockJump>(clock.clone())
+            .map_err(|e| format!("record {id} notes a clock jump that does not read ({e})"))?;
+        report.clock_jumps.push((id, jump));
+    } else if content.get("event").is_some() {
         let counter = content["counter"].as_u64();
         if counter != Some(report.events + 1) {
             return Err(format!(

@@ -5,6 +5,7 @@
 //!   results log, its resources and outputs, the watcher;
 //! - [`crate::api::record`] (the record of a measurement, shared with the client);
 //! - [`log`]: the results log, append-only and hash-chained in SQLite, with retention;
+//! - [`clock`]: the clocks the log reads (wall, monotonic, synchronised or not);
 //! - `recorder`: [`Recorder`], which appends a measurement under the station's name (and
 //!   is how the camera server keeps what it measures for clients);
 //! - [`follow`]: the one follower of the log, and the `Sink` trait of its outputs;
@@ -22,6 +23,7 @@
 //!   detector that says when a parcel stands still; [`watch`]: the task that drives it.
 
 pub mod auto;
+pub mod clock;
 pub mod follow;
 pub mod http;
 pub mod line;

@@ -5,7 +5,7 @@ use std::future::Future;
 use std::pin::Pin;
 
 use super::log::{LogError, ResultsLog};
-use crate::api::record::{Event, NewEvent, NewRecord, Record, UtcTime};
+use crate::api::record::{Event, NewEvent, NewRecord, Record};
 use crate::server::measure::{Measured, Records};
 
 /// Records measurements in the log under the station's name: what every measurement
@@ -37,7 +37,7 @@ impl Recorder {
     /// this returns.
     pub async fn record(&self, measured: Measured) -> Result<Record, LogError> {
         let new = NewRecord {
-            time: UtcTime::now(),
+            time: self.log.now(),
             station: self.station.clone(),
             trigger: measured.trigger,
             measurement: measured.measurement,
@@ -75,7 +75,7 @@ impl Records for Recorder {
 
     fn change(&self, event: Event) -> Result<(), String> {
         let new = NewEvent {
-            time: UtcTime::now(),
+            time: self.log.now(),
             station: self.station.clone(),
             event,
         };

@@ -321,7 +321,7 @@ pub(crate) fn record_billed(
         );
     }
     log.append(NewRecord {
-        time: UtcTime::now(),
+        time: log.now(),
         station: "dock".into(),
         trigger: Trigger::Request,
         measurement,

@@ -1372,3 +1372,89 @@ fn a_signed_log_fails_verify_with_the_public_key_where_it_was_rewritten() {
     let why = report["first_altered"]["why"].as_str().expect("why");
     assert!(why.contains("has no signature"), "{why}");
 }
+
+/// Issue 48, item 5: ids are counters, so a wall clock set back an hour (or a day
+/// forward) leaves them in order; the log notes each jump in a row of its own, with the
+/// wall clock's time before and after and the monotonic time between, and each record says
+/// whether the clock was synchronised. A station restarted with its clock behind the
+/// newest record notes that too. The clock is the test's, set by hand.
+#[test]
+fn a_clock_set_back_an_hour_leaves_the_ids_in_order_and_the_jump_noted() {
+    use coapcam::station::clock::ManualClock;
+    let dir = TempDir::new("results-clock");
+    let file = dir.join("results.sqlite");
+    let start = UtcTime::parse("2026-11-30T10:00:00.000Z").expect("a time");
+    let clock = Arc::new(ManualClock::new(start));
+    let log = ResultsLog::open(&file).expect("open");
+    log.set_clock(clock.clone());
+    let record = |length_mm| crate::mqtt::record(&log, length_mm, None);
+    let tick = Duration::from_secs(10);
+    let mut made = vec![record(401.0)];
+    clock.advance(tick);
+    made.push(record(402.0));
+    clock.advance(tick);
+    clock.set_wall_by(-3_600_000);
+    made.push(record(403.0));
+    clock.advance(tick);
+    clock.set_synced(false);
+    made.push(record(404.0));
+    clock.advance(tick);
+    clock.set_wall_by(86_400_000);
+    made.push(record(405.0));
+    // The rows noting the jumps take ids 3 and 6.
+    assert_eq!(made, [1, 2, 4, 5, 7]);
+    let listed = log.list(&ListQuery::default()).expect("list");
+    assert_eq!(ids(&listed), [7, 5, 4, 2, 1]);
+    let time = |id: u64| log.get(id).expect("get").expect("there").time;
+    assert_eq!(time(4).unix_ms, time(2).unix_ms + 10_000 - 3_600_000);
+    let synced: Vec<_> = listed.iter().rev().map(|r| r.clock_synced).collect();
+    assert_eq!(
+        synced,
+        [Some(true), Some(true), Some(true), Some(false), Some(false)]
+    );
+    drop(log);
+
+    // Started again with the clock two hours behind the newest record.
+    let behind = Arc::new(ManualClock::new(UtcTime {
+        unix_ms: start.unix_ms + 86_400_000 - 7_200_000,
+    }));
+    let log = ResultsLog::open(&file).expect("open again");
+    log.set_clock(behind);
+    assert_eq!(
+        crate::mqtt::record(&log, 410.0, None),
+        9,
+        "row 8 notes the jump across the restart"
+    );
+    drop(log);
+
+    let (code, report) = verify_with(&file, &[]);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["records"], 9, "{report}");
+    let jumps = report["clock_jumps"].as_array().expect("clock_jumps");
+    let t = |ms: i64| UtcTime { unix_ms: ms }.to_string();
+    let s = start.unix_ms;
+    assert_eq!(
+        *jumps,
+        [
+            serde_json::json!({"id": 3, "jump": "back", "previous": t(s + 10_000),
+                "now": t(s + 20_000 - 3_600_000), "monotonic_elapsed_ms": 10_000}),
+            serde_json::json!({"id": 6, "jump": "forward", "previous": t(s + 30_000 - 3_600_000),
+                "now": t(s + 40_000 - 3_600_000 + 86_400_000), "monotonic_elapsed_ms": 10_000}),
+            serde_json::json!({"id": 8, "jump": "back", "previous": t(s + 40_000 - 3_600_000 + 86_400_000),
+                "now": t(s + 86_400_000 - 7_200_000), "monotonic_elapsed_ms": null}),
+        ],
+        "{report}"
+    );
+    let f = Proc::run(
+        COAPCAM,
+        &["results", "verify", file.to_str().expect("UTF-8")],
+        LIMIT,
+    )
+    .expect_success("verify");
+    assert!(
+        f.stdout_text()
+            .contains("record 3: the wall clock jumped back from"),
+        "{}",
+        f.stdout_text()
+    );
+}
