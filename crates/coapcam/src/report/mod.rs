@@ -219,6 +219,56 @@ pub const EXPLAINED_SHARE: f64 = 0.9;
 /// measured to end (a pixel's footprint and the edge's noise are a few millimetres).
 const BEYOND_M: f64 = 0.005;
 
+/// The part of region `r` beyond the rectangle `lo`-`hi` (what a measured parcel covers
+/// or hides, give or take [`BEYOND_M`]) on the side where most of it lies, when that part
+/// is at least as wide as the smallest measurable parcel (`MIN_SIDE_M`) across the whole
+/// of `r`, and `r` ends within it on the opposite side: another parcel there returned no
+/// depth. `None` when every part of `r` beyond it is narrower, or `r` reaches beyond it
+/// on opposite sides (a rim around the parcel, its holes).
+fn beyond(r: &NoDepth, lo: [f64; 2], hi: [f64; 2]) -> Option<NoDepth> {
+    let (min, max) = (r.min_m.map(f64::from), r.max_m.map(f64::from));
+    // The four strips of r outside lo-hi: (axis, low side, width).
+    let strips = [0, 1].into_iter().flat_map(|k| {
+        [
+            (k, true, lo[k] - BEYOND_M - min[k]),
+            (k, false, max[k] - hi[k] - BEYOND_M),
+        ]
+    });
+    let (k, low, width) = strips.max_by(|a, b| a.2.total_cmp(&b.2))?;
+    // A rim reaches beyond it on the opposite side too.
+    let opposite = if low {
+        max[k] - hi[k] - BEYOND_M
+    } else {
+        lo[k] - BEYOND_M - min[k]
+    };
+    if width < MIN_SIDE_M || opposite > 0.0 {
+        return None;
+    }
+    let mut cut = *r;
+    let share = (width / (max[k] - min[k])).clamp(0.0, 1.0) as f32;
+    if low {
+        cut.max_m[k] = (lo[k] - BEYOND_M) as f32;
+    } else {
+        cut.min_m[k] = (hi[k] + BEYOND_M) as f32;
+    }
+    cut.area_m2 *= share;
+    cut.pixels = (f64::from(cut.pixels) * f64::from(share)).round() as u32;
+    Some(cut)
+}
+
+/// A parcel that returned depth from all of it: a box whose lid fills its rectangle,
+/// seen whole. What little depth a dark parcel returns (its middle, a sliver of wall, a
+/// rim) is not.
+fn returned_whole(f: &ParcelFit) -> bool {
+    f.shape == geometry::Shape::Cuboid && f.complete && f.coverage >= WHOLE_COVERAGE
+}
+
+/// See [`returned_whole`].
+const WHOLE_COVERAGE: f64 = 0.95;
+
+/// The side of the smallest measurable parcel (10 d at d = 5), metres.
+const MIN_SIDE_M: f64 = 0.05;
+
 /// What a measurement found on the table.
 #[derive(Debug, Clone)]
 pub enum Parcel {
@@ -316,9 +366,32 @@ impl Table {
         let rects: Vec<NoDepth> = self.fits.iter().map(footprint).collect();
         let mut taken = vec![false; self.fits.len()];
         let mut blind = Vec::new();
-        for r in joined {
+        for mut r in joined {
+            // A box measured whole beside a parcel that returned no depth: the region
+            // reaches a parcel's width beyond what the box covers or hides, on one side.
+            // The region is the other parcel's, cut back to beyond the box.
+            let mut beside = vec![false; rects.len()];
+            for i in 0..rects.len() {
+                let f = &self.fits[i];
+                if taken[i]
+                    || rects[i].intersection_m2(&r) < 0.5 * rects[i].rect_m2()
+                    || !returned_whole(f)
+                {
+                    continue;
+                }
+                if let Some(cut) = geometry::hidden_bounds(&self.fits[i].dimensions, views)
+                    .and_then(|(lo, hi)| beyond(&r, lo, hi))
+                {
+                    r = cut;
+                    beside[i] = true;
+                }
+            }
             let inside: Vec<usize> = (0..rects.len())
-                .filter(|&i| !taken[i] && rects[i].intersection_m2(&r) >= 0.5 * rects[i].rect_m2())
+                .filter(|&i| {
+                    !taken[i]
+                        && !beside[i]
+                        && rects[i].intersection_m2(&r) >= 0.5 * rects[i].rect_m2()
+                })
                 .collect();
             // Bordered mostly by depth that is not floor, with no parcel in it: a hole in
             // a surface the cloud holds (a wall at a grazing angle), not a parcel.
@@ -693,6 +766,56 @@ mod tests {
         .with_no_depth(&[black], &[view]);
         assert_eq!(beside.fits.len(), 2);
         assert!(beside.fits.iter().any(|f| f.no_depth), "{:?}", beside.fits);
+    }
+
+    /// A black box 50 mm beside a box measured whole: four cameras' regions of the black
+    /// box, joined, reach over most of the measured box (each camera's rays through the
+    /// black box meet the floor beyond it). The measured box keeps its number and the
+    /// black box is refused on its own (cert scene 10: both were one refusal).
+    #[test]
+    fn a_box_measured_whole_beside_one_that_returned_no_depth_keeps_its_number() {
+        let eye = geometry::Transform {
+            linear: nalgebra::Matrix3::identity(),
+            translation: nalgebra::Vector3::new(0.1, 0.1, 1.5),
+        };
+        let view = View::pinhole(eye, 600.0, 600.0, 320.0, 240.0, 640, 480);
+        let boxed = placed(212.0, 173.0, [0.0, 0.0], 20_000);
+        let table = Table {
+            fits: vec![boxed.clone()],
+            largest_points: 20_000,
+        };
+        let black = region([0.05, -0.05], [0.8, 0.25], 30_000);
+        let beside = table.with_no_depth(&[black], &[view]);
+        assert_eq!(beside.fits.len(), 2, "{:?}", beside.fits);
+        assert!(beside.fits.contains(&boxed), "{:?}", beside.fits);
+        let blind = beside
+            .fits
+            .iter()
+            .find(|f| f.no_depth)
+            .expect("the black box");
+        // Cut back to beyond what the measured box covers or hides.
+        let min_x = blind
+            .dimensions
+            .corners_m
+            .iter()
+            .map(|c| c[0])
+            .fold(1.0, f64::min);
+        assert!(min_x > 0.212, "{:?}", blind.dimensions.corners_m);
+        // A box that is not whole (a dark parcel's middle, read short) stays inside.
+        let part = ParcelFit {
+            coverage: 0.6,
+            ..boxed
+        };
+        let inside = Table {
+            fits: vec![part],
+            largest_points: 20_000,
+        }
+        .with_no_depth(&[black], &[view]);
+        assert!(
+            inside.fits.len() == 1 && inside.fits[0].no_depth,
+            "{:?}",
+            inside.fits
+        );
     }
 
     /// A black bag returns depth from the middle of its top only: it is measured short,

@@ -497,9 +497,11 @@ fn flying_pixels_parted_from_a_dark_box_by_its_holes_are_no_parcel_beside_it() {
     let found = parcels(&cloud, &config, &[view]).unwrap();
     assert_eq!(found.parcels.len(), 1, "{found:?}");
     assert!(found.parcels[0].isolated, "{found:?}");
-    // Without the camera the sheet cannot be told from a parcel standing beside it.
+    // Without the camera the sheet cannot be told from a parcel standing 20 mm beside
+    // it: a second object, 5 mm thin (outside every measurable range).
     let blind = parcels(&cloud, &config, &[]).unwrap();
-    assert!(blind.parcels.iter().all(|p| !p.isolated), "{blind:?}");
+    assert_eq!(blind.parcels.len(), 2, "{blind:?}");
+    assert!(blind.parcels[1].dimensions.width_mm < 10.0, "{blind:?}");
 }
 
 #[test]
@@ -673,4 +675,15 @@ fn two_cylinders_30_mm_apart_are_not_side_by_side() {
     for p in &found.parcels {
         assert!(p.isolated, "{found:?}");
     }
+}
+
+#[test]
+fn parcels_whose_outlines_read_17_mm_apart_are_measured_each() {
+    // A pair 20 mm apart whose facing edges are each read 1.5 mm out: certified
+    // dimensioners state 20 mm as the spacing they measure at.
+    let mut points = box_points([-0.2, -0.0085], [-0.1, 0.1], 0.15);
+    points.extend(box_points([0.0085, 0.2], [-0.1, 0.1], 0.15));
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 2, "{found:?}");
+    assert!(found.parcels.iter().all(|p| p.isolated), "{found:?}");
 }
