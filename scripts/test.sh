@@ -143,16 +143,20 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 step "cargo test"
 cargo test --workspace --locked
 
-step "multicast and off-host tests in a private network namespace"
+step "multicast, off-host and full-disk tests in a private network namespace"
 # Group traffic must never leave through a real interface: these tests run only inside a
-# namespace of their own (scripts/netns-run), which needs root and iproute2.
+# namespace of their own (scripts/netns-run), which needs root and iproute2. Its
+# `ip netns exec` also gives them a mount namespace of their own, where the results-log
+# tests mount a small tmpfs (a full disk) and an ext4 image (a disk turned read-only)
+# that nothing outside sees.
 if ! command -v ip >/dev/null; then
   as_root apt-get update && as_root env DEBIAN_FRONTEND=noninteractive \
     apt-get install -y --no-install-recommends iproute2
 fi
 # The whole workspace, as in the step above, so the test binaries built there are reused
 # (`-p` alone unifies features differently and rebuilds ~300 MB of them).
-scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group:: offhost:: readme:: rd::three_servers
+scripts/netns-run cargo test --workspace --test it --locked -- --ignored multicast:: group:: offhost:: readme:: rd::three_servers \
+  results::a_full_disk results::a_disk_turned_read_only
 
 step "the README's main command, typed as the README gives it"
 # From a scratch folder under target/ (cargo finds the workspace above it), so the demo's
