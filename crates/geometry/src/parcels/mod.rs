@@ -78,9 +78,14 @@ const MIN_SHARE: f64 = 0.005;
 const TOUCH_M: f64 = 0.01;
 
 /// An object with fewer points than this share of a larger one's, whose footprint comes
-/// within [`TOUCH_M`] of the larger one's, is a fragment of it (a sliver of a side wall,
-/// flying pixels between its edge and the floor), not a parcel (see [`fragment_of`]).
+/// within [`FRAGMENT_M`] of the larger one's, is a fragment of it (a sliver of a side
+/// wall, flying pixels between its edge and the floor), not a parcel (see
+/// [`fragment_of`]).
 const FRAGMENT_SHARE: f64 = 0.01;
+
+/// See [`FRAGMENT_SHARE`] (metres): the certified spacing, as far as flying pixels off an
+/// edge reach.
+const FRAGMENT_M: f64 = 0.02;
 
 /// An object whose footprint and a larger one's overlap by at least this share of the
 /// smaller footprint is a ring of flying pixels or floor speckle around it (see
@@ -316,7 +321,7 @@ fn without_speckle(
 /// - its footprint and `k`'s overlap by at least [`OVERLAP_SHARE`] of the smaller one's
 ///   area: a ring of flying pixels around `k`, or the speckle of floor noise above the
 ///   floor cut spread around it (two parcels side by side overlap by a sliver at most);
-/// - it has fewer than [`FRAGMENT_SHARE`] of `k`'s points and comes within [`TOUCH_M`].
+/// - it has fewer than [`FRAGMENT_SHARE`] of `k`'s points and comes within [`FRAGMENT_M`].
 fn fragment_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
     use geo::BooleanOps as _;
     let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
@@ -329,7 +334,7 @@ fn fragment_of(f: &ParcelFit, points: &[Point3], k: &ParcelFit) -> bool {
     let overlap = p.intersects(&q)
         && (least <= 0.0 || p.intersection(&q).unsigned_area() >= OVERLAP_SHARE * least);
     let small = (f.dimensions.points as f64) < FRAGMENT_SHARE * k.dimensions.points as f64;
-    under || overlap || (small && Euclidean.distance(&p, &q) < TOUCH_M)
+    under || overlap || (small && Euclidean.distance(&p, &q) < FRAGMENT_M)
 }
 
 /// Whether `points` (an object's) are flying pixels off the lid of `k`, parted from it by
