@@ -339,7 +339,10 @@ impl Table {
     /// ([`ParcelFit::no_depth`]), placed among the others by footprint. A region of
     /// which at least [`EXPLAINED_SHARE`] lies where a measured parcel covers or hides
     /// the floor from one of the cameras (`views`) is that parcel's walls at a grazing
-    /// angle, its glare or its shadow ([`geometry::hidden_share`]), not a parcel.
+    /// angle, its glare or its shadow ([`geometry::hidden_share`]), not a parcel. A box
+    /// measured whole (`returned_whole`) is no part of a region that reaches a parcel's
+    /// side beyond what it covers or hides on one side only: that is another parcel
+    /// beside it, and the region is cut back to it (`beyond`).
     #[must_use]
     pub fn with_no_depth(mut self, regions: &[NoDepth], views: &[View]) -> Self {
         let footprint = |f: &ParcelFit| {
@@ -379,7 +382,7 @@ impl Table {
                 {
                     continue;
                 }
-                if let Some(cut) = geometry::hidden_bounds(&self.fits[i].dimensions, views)
+                if let Some(cut) = geometry::hidden_bounds(&f.dimensions, views)
                     .and_then(|(lo, hi)| beyond(&r, lo, hi))
                 {
                     r = cut;
