@@ -12,7 +12,7 @@ use anyhow::Context as _;
 use bytes::Bytes;
 use coap::Code;
 use geometry::{DimensionConfig, Dimensions, Point3, PointCloud, Roi3};
-use rgbd::filter::SpatialConfig;
+use rgbd::filter::{FlyingPixelsConfig, SpatialConfig};
 use rgbd::{ColorSettings, Scene};
 
 use super::{CamClient, NoAnswer, check, clocks, cloud_of};
@@ -556,8 +556,10 @@ pub async fn color_for_codes(
 
 /// Prepares every camera for measuring as the thesis does (§3.3.5): roi3d becomes the
 /// box above the floor within `half_width_m` of the origin, and the spatial filter runs
-/// (librealsense's defaults: it smooths the depth noise that widens a footprint's hull);
-/// the rest of each application-config stays. With `for_codes` the color stream becomes
+/// (librealsense's defaults: it smooths the depth noise that widens a footprint's hull),
+/// after the flying-pixel stage (which drops the pixels that straddle a parcel's edge and
+/// float on their rays beyond it, widening it and bridging it to its neighbours); the
+/// rest of each application-config stays. With `for_codes` the color stream becomes
 /// 1920x1080 at 30 fps (its format stays), so smaller codes can be read.
 pub async fn prepare_cameras(
     client: &CamClient,
@@ -577,6 +579,7 @@ pub async fn prepare_cameras(
         )
         .with_context(|| format!("roi3d within {half_width_m} m"))?;
         doc.postprocessing.spatial = Some(SpatialConfig::default());
+        doc.postprocessing.flying_pixels = Some(FlyingPixelsConfig::default());
         client.put_json(sn, "application-config", &doc).await?;
     }
     Ok(())

@@ -96,8 +96,9 @@ pub struct ParcelReport {
     /// Height, the same way.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub height_mm: Option<f64>,
-    /// The division of length, width and height, mm (d, or 2 d above the switchover; the
-    /// step of `round_up_mm` when that was asked for).
+    /// The division of length, width and height, mm (d, or 2 d above the switchover and
+    /// for an irregular item's length and width; the step of `round_up_mm` when that was
+    /// asked for).
     pub division_mm: [f64; 3],
     /// Length, width and height as measured, to 0.1 mm, before the rounding: to check
     /// accuracy with, not to bill on; absent for a refused parcel and in documents from
@@ -108,7 +109,8 @@ pub struct ParcelReport {
     pub yaw_deg: f64,
     /// The footprint's corners `[x, y]` in metres, to 0.1 mm.
     pub corners_m: [[f64; 2]; 4],
-    /// `"cuboid"`, or `"irregular"` (measured as its smallest enclosing cuboid).
+    /// `"cuboid"`, `"round"` (a tube or a cylinder) or `"irregular"` (a bag: its length
+    /// and width take 2 d), each measured as its smallest enclosing cuboid.
     pub shape: String,
     /// How well a cuboid fits: the lid's hull over its rectangle, to 0.001.
     pub fit: f64,
@@ -126,8 +128,9 @@ impl ParcelReport {
     /// `fit` as `billing` reports it: rounded to its division, or refused.
     pub fn new(fit: &ParcelFit, billing: &Billing, min_coverage: f32) -> Self {
         let d = &fit.dimensions;
+        let billing = billing.for_shape(fit.shape);
         let reason = billing.division.refusal(fit, min_coverage);
-        let value = |v: f64| reason.is_none().then(|| billing.billed_mm(v));
+        let value = |k: usize, v: f64| reason.is_none().then(|| billing.billed_mm(k, v));
         let thousandth = |v: f64| (v * 1000.0).round() / 1000.0;
         let unrounded_mm = reason.is_none().then(|| unrounded(d));
         Self {
@@ -137,16 +140,18 @@ impl ParcelReport {
                 "measured"
             }
             .into(),
-            length_mm: value(d.length_mm),
-            width_mm: value(d.width_mm),
-            height_mm: value(d.height_mm),
+            length_mm: value(0, d.length_mm),
+            width_mm: value(1, d.width_mm),
+            height_mm: value(2, d.height_mm),
             reason,
-            division_mm: [d.length_mm, d.width_mm, d.height_mm].map(|v| billing.division_of(v)),
+            division_mm: [(0, d.length_mm), (1, d.width_mm), (2, d.height_mm)]
+                .map(|(k, v)| billing.division_of(k, v)),
             unrounded_mm,
             yaw_deg: (d.yaw_deg * 100.0).round() / 100.0,
             corners_m: d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4)),
             shape: match fit.shape {
                 Shape::Cuboid => "cuboid",
+                Shape::Round => "round",
                 Shape::Irregular => "irregular",
             }
             .into(),
@@ -209,8 +214,9 @@ pub struct Reported {
     pub width_mm: f64,
     /// Height above the floor, mm, as billed.
     pub height_mm: f64,
-    /// The division the dimensions were rounded to: the accuracy division d (a dimension
-    /// above 200 d takes 2 d, as `parcels[0].division_mm` gives each), or the step of
+    /// The division the length and width were rounded to: the accuracy division d (2 d for
+    /// an irregular item; a dimension above 200 d takes 2 d, as `parcels[0].division_mm`
+    /// gives each), or the step of
     /// `round_up_mm`; `null` in documents made before the rounding to the division (their
     /// dimensions to 0.1 mm).
     pub division_mm: Option<f64>,
@@ -369,9 +375,14 @@ impl Measurement {
             },
             (largest, _) => largest,
         };
+        // The top level is the largest's numbers, billed as its own shape says.
+        let billing = table
+            .fits
+            .first()
+            .map_or(*billing, |f| billing.for_shape(f.shape));
         let mut m = Self::new(
             &largest,
-            billing,
+            &billing,
             cloud_points,
             cameras,
             frames_unix_us,

@@ -8,7 +8,7 @@ mod measurement;
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use geometry::{DimensionConfig, DimensionError, Dimensions, ParcelFit, PointCloud, View};
+use geometry::{DimensionConfig, DimensionError, Dimensions, ParcelFit, PointCloud, Shape, View};
 use serde::{Deserialize, Serialize};
 
 use crate::repr::no_depth::{NoDepth, PARCEL_FLOOR_BORDER};
@@ -48,16 +48,23 @@ impl Default for Billing {
 /// states it: each dimension is rounded to the nearest multiple of its division, which is
 /// `d` up to 200 d (1,000 mm at d = 5) and 2 d above (the range switchover); a dimension
 /// below 10 d (length, width) or 2 d (height), or above 300 d (length, width) or 200 d
-/// (height), is outside the measurable range and refused.
+/// (height), is outside the measurable range and refused. An irregular item's length and
+/// width take 2 d ([`Division::IRREGULAR`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Division {
     /// `d`, millimetres (5 by default).
     pub d_mm: f64,
+    /// These are the divisions of an irregular item (neither a box nor round: a bag, a
+    /// pillow), set by [`Billing::for_shape`] from the parcel's fit, never by a query.
+    pub irregular: bool,
 }
 
 impl Default for Division {
     fn default() -> Self {
-        Self { d_mm: 5.0 }
+        Self {
+            d_mm: 5.0,
+            irregular: false,
+        }
     }
 }
 
@@ -65,12 +72,32 @@ impl Division {
     /// Lengths above this many divisions take the doubled division.
     pub const SWITCH: f64 = 200.0;
 
-    /// The division of a dimension of `value_mm`.
+    /// An irregular item's length and width take this many d, as certificates of
+    /// dimensioners state a division of its own for such items (10 mm where boxes have 5).
+    /// A camera above sees a bag's top and where its sides start to curve down, not its
+    /// foot below them: under a camera straight above, the seen surface of a 167 mm bag
+    /// ends at about 80 % of its height, and where the foot lies is known to 3-7 mm, more
+    /// than d. Its height, the top of what is seen, keeps d.
+    pub const IRREGULAR: f64 = 2.0;
+
+    /// The division of a dimension of `value_mm` (a box's or a height).
     pub fn of(&self, value_mm: f64) -> f64 {
         if value_mm > Self::SWITCH * self.d_mm {
             2.0 * self.d_mm
         } else {
             self.d_mm
+        }
+    }
+
+    /// The division of dimension `axis` (0 length, 1 width, 2 height) of `value_mm`:
+    /// [`Division::of`], or [`Division::IRREGULAR`] d for an irregular item's length
+    /// and width.
+    pub fn of_axis(&self, axis: usize, value_mm: f64) -> f64 {
+        let of = self.of(value_mm);
+        if self.irregular && axis < 2 {
+            of.max(Self::IRREGULAR * self.d_mm)
+        } else {
+            of
         }
     }
 
@@ -127,24 +154,35 @@ impl Division {
 }
 
 impl Billing {
-    /// The division the dimensions are given in: `round_up_mm`, or the accuracy division
-    /// `d` (a dimension above the switchover takes 2 d: [`Billing::division_of`]).
+    /// The billing of a parcel of `shape`: an irregular item's length and width take
+    /// their own division ([`Division::IRREGULAR`]).
+    pub fn for_shape(&self, shape: Shape) -> Self {
+        let mut b = *self;
+        b.division.irregular = shape == Shape::Irregular;
+        b
+    }
+
+    /// The division the length and width are given in: `round_up_mm`, or the accuracy
+    /// division `d` (2 d for an irregular item's; a dimension above the switchover takes
+    /// 2 d: [`Billing::division_of`]).
     pub fn division_mm(&self) -> f64 {
-        self.round_up_mm.unwrap_or(self.division.d_mm)
-    }
-
-    /// The division of a dimension of `value_mm`: `round_up_mm`, or d or 2 d
-    /// ([`Division::of`]).
-    pub fn division_of(&self, value_mm: f64) -> f64 {
         self.round_up_mm
-            .unwrap_or_else(|| self.division.of(value_mm))
+            .unwrap_or_else(|| self.division.of_axis(0, 0.0))
     }
 
-    /// A dimension as the number to bill on, the legal result: `value_mm` rounded up to a
-    /// multiple of `round_up_mm`, else to the nearest multiple of its division, written
-    /// with no more decimals than the division has (320, not 320.00000000000006).
-    pub fn billed_mm(&self, value_mm: f64) -> f64 {
-        let step = self.division_of(value_mm);
+    /// The division of dimension `axis` (0 length, 1 width, 2 height) of `value_mm`:
+    /// `round_up_mm`, or d or 2 d ([`Division::of_axis`]).
+    pub fn division_of(&self, axis: usize, value_mm: f64) -> f64 {
+        self.round_up_mm
+            .unwrap_or_else(|| self.division.of_axis(axis, value_mm))
+    }
+
+    /// Dimension `axis` as the number to bill on, the legal result: `value_mm` rounded up
+    /// to a multiple of `round_up_mm`, else to the nearest multiple of its division,
+    /// written with no more decimals than the division has (320, not
+    /// 320.00000000000006).
+    pub fn billed_mm(&self, axis: usize, value_mm: f64) -> f64 {
+        let step = self.division_of(axis, value_mm);
         let steps = match self.round_up_mm {
             Some(_) => (value_mm / step - 1e-9).ceil(),
             None => (value_mm / step).round(),
@@ -155,7 +193,8 @@ impl Billing {
 
     /// Length, width and height as billed ([`Billing::billed_mm`]), mm.
     pub fn dimensions_mm(&self, d: &Dimensions) -> [f64; 3] {
-        [d.length_mm, d.width_mm, d.height_mm].map(|v| self.billed_mm(v))
+        let lwh = [d.length_mm, d.width_mm, d.height_mm];
+        [0, 1, 2].map(|k| self.billed_mm(k, lwh[k]))
     }
 
     /// The volume of the billed dimensions, litres.
@@ -260,7 +299,7 @@ fn beyond(r: &NoDepth, lo: [f64; 2], hi: [f64; 2]) -> Option<NoDepth> {
 /// seen whole. What little depth a dark parcel returns (its middle, a sliver of wall, a
 /// rim) is not.
 fn returned_whole(f: &ParcelFit) -> bool {
-    f.shape == geometry::Shape::Cuboid && f.complete && f.coverage >= WHOLE_COVERAGE
+    f.shape == Shape::Cuboid && f.complete && f.coverage >= WHOLE_COVERAGE
 }
 
 /// See [`returned_whole`].
@@ -1029,13 +1068,43 @@ mod tests {
             serde_json::json!([10.0, 5.0, 5.0])
         );
 
+        // A bag's length and width take 2 d, its height d, at the top level as in the list;
+        // a tube or a cylinder keeps d.
+        let mut bag = one(322.6, 241.3, 99.8);
+        bag.fits[0].shape = Shape::Irregular;
+        let m = doc(&bag, &Billing::default());
+        assert_eq!(
+            [&m["length_mm"], &m["width_mm"], &m["height_mm"]],
+            [320.0, 240.0, 100.0]
+                .map(serde_json::Value::from)
+                .each_ref()
+        );
+        for key in ["length_mm", "width_mm", "height_mm"] {
+            assert_eq!(m[key], m["parcels"][0][key], "{key}: {m}");
+        }
+        assert_eq!(
+            (&m["division_mm"], &m["parcels"][0]["division_mm"]),
+            (&10.0.into(), &serde_json::json!([10.0, 10.0, 5.0]))
+        );
+        assert_eq!(m["parcels"][0]["shape"], "irregular");
+        bag.fits[0].shape = Shape::Round;
+        let m = doc(&bag, &Billing::default());
+        assert_eq!(
+            (&m["length_mm"], &m["division_mm"]),
+            (&325.0.into(), &5.0.into())
+        );
+        assert_eq!(m["parcels"][0]["shape"], "round");
+
         // A division of 0.1 mm gives 322.6, not 322.6000000000000X.
         let fine = Billing {
-            division: Division { d_mm: 0.1 },
+            division: Division {
+                d_mm: 0.1,
+                ..Division::default()
+            },
             ..Billing::default()
         };
-        assert_eq!(fine.billed_mm(322.63), 322.6);
-        assert_eq!(fine.billed_mm(0.3 + 0.6), 0.9);
+        assert_eq!(fine.billed_mm(0, 322.63), 322.6);
+        assert_eq!(fine.billed_mm(0, 0.3 + 0.6), 0.9);
     }
 
     /// Issue 51, item 4: the picture's legend wrote whole millimetres whatever the

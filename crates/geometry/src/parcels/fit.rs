@@ -28,8 +28,12 @@ const CUBOID_FIT: f64 = 0.975;
 pub enum Shape {
     /// A box: its lid fills its rectangle and nothing reaches beyond it.
     Cuboid,
-    /// Anything else (tubes, bags, several parcels together), measured as the smallest
-    /// enclosing cuboid.
+    /// A tube lying on the floor or a standing cylinder: its footprint from the circle
+    /// its top describes, measured as the smallest enclosing cuboid.
+    Round,
+    /// Anything else (bags, pillows, several parcels together), measured as the smallest
+    /// enclosing cuboid. Its sides curve down under its top, out of a camera's sight
+    /// above, so its length and width are known less well than a box's.
     Irregular,
 }
 
@@ -38,7 +42,7 @@ pub enum Shape {
 pub struct ParcelFit {
     /// Its smallest enclosing cuboid.
     pub dimensions: Dimensions,
-    /// Cuboid or irregular.
+    /// Cuboid, round or irregular.
     pub shape: Shape,
     /// How well a cuboid fits: the area of the lid's hull over its rectangle's (1 for a
     /// box seen whole; a disc 0.785).
@@ -312,7 +316,7 @@ fn measure(
         ),
         // Around every dense point, each edge placed by the points' density as a lid's
         // is: the thin fringe of flying pixels around a tall object counts little.
-        (Shape::Irregular, None) => {
+        (_, None) => {
             let around = rect_around(dense_hull()).map_or(hull_rect, |r| {
                 refine(
                     r,
@@ -338,7 +342,7 @@ fn measure(
         // A flat lid: the band's median, as a box's.
         _ if disc.is_some() => height_m,
         (Shape::Cuboid, None) => height_m,
-        (Shape::Irregular, None) => peak.map_or(height_m, |p| p.max(height_m)),
+        (_, None) => peak.map_or(height_m, |p| p.max(height_m)),
     };
     // A box or a tube seen from above covers its footprint, a standing cylinder its
     // disc; other shapes their dense points' hull (a raw camera's floor noise joined to
@@ -346,11 +350,15 @@ fn measure(
     let coverage = match (shape, &tube) {
         (Shape::Cuboid, _) | (_, Some(_)) => map.coverage(&polygon(&corners)),
         _ if disc.is_some() => disc.map_or(1.0, |d| map.coverage(&d.polygon())),
-        (Shape::Irregular, None) => map.coverage(dense_hull()),
+        (_, None) => map.coverage(dense_hull()),
     };
     Ok(ParcelFit {
         dimensions: rect_dimensions(corners, f64::from(top_m), cluster.len()),
-        shape,
+        shape: if tube.is_some() || disc.is_some() {
+            Shape::Round
+        } else {
+            shape
+        },
         fit,
         tops: if seam { tops.max(2) } else { tops },
         isolated: tops <= 1 && !several && !seam,

@@ -156,7 +156,7 @@ fn parcels_side_by_side_are_not_isolated() {
 
 /// A tube lying on the floor: its top is a narrow strip, its sides bulge beyond it.
 #[test]
-fn a_lying_tube_is_irregular_and_gets_its_enclosing_box() {
+fn a_lying_tube_is_round_and_gets_its_enclosing_box() {
     let (radius, length) = (0.06f32, 0.5f32);
     let mut sampler = Sampler::new(9);
     let mut points = Vec::new();
@@ -175,7 +175,7 @@ fn a_lying_tube_is_irregular_and_gets_its_enclosing_box() {
     }
     let found = measure(&PointCloud::from(points));
     let p = &found.parcels[0];
-    assert_eq!(p.shape, Shape::Irregular, "{p:?}");
+    assert_eq!(p.shape, Shape::Round, "{p:?}");
     // Its length from the crest's strip, its width and height from the circle across it:
     // within one division (d = 5 mm), though OIML R 129 allows an irregular item two.
     let d = &p.dimensions;
@@ -209,7 +209,7 @@ fn a_standing_cylinder_gets_its_whole_diameter() {
     let found =
         parcels(&PointCloud::from(points), &DimensionConfig::default(), &[]).expect("measures");
     let p = &found.parcels[0];
-    assert_eq!(p.shape, Shape::Irregular, "{p:?}");
+    assert_eq!(p.shape, Shape::Round, "{p:?}");
     let d = &p.dimensions;
     for (got, truth) in [d.length_mm, d.width_mm, d.height_mm]
         .into_iter()

@@ -624,7 +624,7 @@ yaw_deg = -10.0
 "#;
 
 #[test]
-fn a_lying_tube_is_measured_as_irregular_with_its_diameter_across_and_up() {
+fn a_lying_tube_is_measured_as_round_with_its_diameter_across_and_up() {
     use geometry::{DimensionConfig, Point3, PointCloud, Shape, parcels};
     let scene = under_one_camera(5, [0.20, 0.10, 1.3], "d415", TUBE_BESIDE_A_BOX);
     let cloud = PointCloud::from(
@@ -646,7 +646,7 @@ fn a_lying_tube_is_measured_as_irregular_with_its_diameter_across_and_up() {
     };
     // Its lid strip alone fills a rectangle, 75 mm of its 90 mm wide: a curved top that
     // rests on the floor makes it a tube, as wide as it is high.
-    assert_eq!(tube.shape, Shape::Irregular, "{:?}", mm(tube));
+    assert_eq!(tube.shape, Shape::Round, "{:?}", mm(tube));
     for (got, truth) in mm(tube).into_iter().zip([700.0, 90.0, 90.0]) {
         assert!((got - truth).abs() <= 5.0, "tube {:?}", mm(tube));
     }

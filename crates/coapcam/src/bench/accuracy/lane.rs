@@ -8,11 +8,11 @@
 use anyhow::bail;
 use geometry::{DimensionConfig, ParcelFit};
 use rgbd::lane::{LaneScene, lane_scene};
-use rgbd::scene::Truth;
+use rgbd::scene::{ObjectKind, Truth};
 
 use crate::client::CamClient;
 use crate::client::measure::{self, Source, prepare_cameras};
-use crate::report::{Billing, ParcelReport};
+use crate::report::{Billing, Division, ParcelReport};
 use crate::stats::{self, AbsSummary};
 
 /// What to run.
@@ -43,7 +43,7 @@ pub enum Outcome {
         raw: [f64; 3],
         /// As reported, mm.
         reported: [f64; 3],
-        /// `cuboid` or `irregular`.
+        /// `cuboid`, `round` or `irregular`.
         shape: String,
     },
     /// The station said why it gives no number.
@@ -82,6 +82,8 @@ pub struct Object {
     pub truth: [f64; 3],
     /// Whether it is a box.
     pub cuboid: bool,
+    /// What it is: the division it is judged in ([`judged_division`]).
+    pub kind: ObjectKind,
     /// What the station said.
     pub outcome: Outcome,
 }
@@ -97,12 +99,23 @@ impl Object {
 
     /// A number more than twice its division from the truth, with no flag.
     pub fn silently_wrong(&self, billing: &Billing) -> bool {
+        let division = judged_division(billing, self.kind);
         match &self.outcome {
             Outcome::Measured { reported, .. } => (0..3).any(|k| {
-                (reported[k] - self.truth[k]).abs() > 2.0 * billing.division.of(self.truth[k])
+                (reported[k] - self.truth[k]).abs() > 2.0 * division.of_axis(k, self.truth[k])
             }),
             _ => false,
         }
+    }
+}
+
+/// The division an object of `kind` is judged in, as a certificate states it: a bag's
+/// length and width take their own ([`Division::IRREGULAR`]), whatever shape the station
+/// read.
+pub fn judged_division(billing: &Billing, kind: ObjectKind) -> Division {
+    Division {
+        irregular: kind == ObjectKind::Bag,
+        ..billing.division
     }
 }
 
@@ -192,6 +205,7 @@ async fn measure_scene(
         row.objects.push(Object {
             truth: [truth.length_mm(), truth.width_mm(), truth.height_mm()],
             cuboid: truth.cuboid,
+            kind: truth.kind,
             outcome,
         });
     }
