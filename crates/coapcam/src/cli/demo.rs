@@ -86,7 +86,7 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
     };
     prepare_cameras(&client, &serials, 1.0, true).await?;
     outln!(
-        "application-config: roi3d from {:.0} mm above the floor (the floor is not sent), spatial filter on; color 1920x1080",
+        "application-config: roi3d from {:.0} mm above the floor (the floor is not sent), flying-pixel stage and spatial filter on; color 1920x1080",
         FLOOR_CUT_M * 1e3
     );
 

@@ -62,8 +62,9 @@ pub(crate) struct MeasureArgs {
     wait: Option<Duration>,
     /// First prepare the server's cameras as `demo` does (and the thesis's client
     /// expects): roi3d becomes the space above the floor within 1 m of the origin, so
-    /// the floor is not sent, and the spatial filter runs; the rest of each camera's
-    /// application-config stays. This changes the cameras' settings on the server, for
+    /// the floor is not sent, and the flying-pixel stage and the spatial filter run
+    /// (the first drops the pixels that float beyond a parcel's edge); the rest of each
+    /// camera's application-config stays. This changes the cameras' settings on the server, for
     /// every client and across restarts (the server persists them); what changed is
     /// printed on standard error. Not with --group.
     #[arg(long, conflicts_with = "group")]
@@ -271,7 +272,7 @@ async fn connect(args: &MeasureArgs) -> anyhow::Result<(CamClient, Source, Vec<E
                 };
                 prepare_cameras(&client, &serials, 1.0, args.codes).await?;
                 eprintln!(
-                    "coapcam: prepared camera(s) {} on the server, for every client: roi3d from {:.0} mm above the floor, spatial filter on{}",
+                    "coapcam: prepared camera(s) {} on the server, for every client: roi3d from {:.0} mm above the floor, flying-pixel stage and spatial filter on{}",
                     serials.join(", "),
                     FLOOR_CUT_M * 1e3,
                     if args.codes { ", color 1920x1080" } else { "" }
