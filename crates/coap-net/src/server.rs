@@ -7,7 +7,10 @@ use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use coap::{EndpointConfig, IncomingRequest, ObservationId, OptionNumber};
+use bytes::Bytes;
+use coap::{
+    Code, ContentFormat, EndpointConfig, IncomingRequest, ObservationId, OptionNumber, Response,
+};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::Error;
@@ -31,6 +34,40 @@ struct Observer {
     id: ObservationId,
     endpoint: usize,
     request: IncomingRequest,
+    /// What the observer was last sent: the registration's answer, then each
+    /// notification.
+    last: Sent,
+}
+
+/// What tells one representation from another for an observer: the code, the
+/// Content-Format and the ETag, and the body when there is no ETag. A body read block by
+/// block (a [`Response::source`]) without an ETag is never taken for the last one.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct Sent {
+    code: Code,
+    format: Option<ContentFormat>,
+    etag: Option<Vec<u8>>,
+    /// `None` when the ETag names the body, or when the body is read block by block.
+    payload: Option<Bytes>,
+}
+
+impl Sent {
+    fn of(response: &Response) -> Self {
+        let etag = response.options.etag().map(<[u8]>::to_vec);
+        let payload =
+            (etag.is_none() && response.source.is_none()).then(|| response.payload.clone());
+        Self {
+            code: response.code,
+            format: response.options.content_format(),
+            etag,
+            payload,
+        }
+    }
+
+    /// Whether `next` is the representation this observer already has.
+    fn repeats(&self, next: &Self) -> bool {
+        self == next && (self.etag.is_some() || self.payload.is_some())
+    }
 }
 
 #[derive(Default)]
@@ -48,6 +85,24 @@ impl Observers {
             list.retain(|o| !(o.endpoint == endpoint && o.id == id));
         }
     }
+
+    /// Takes `next` as the observer's newest representation, unless it is the one the
+    /// observer has already (or the observer is gone): then false, and nothing is to go
+    /// out.
+    fn advance(&self, path: &str, endpoint: usize, id: ObservationId, next: Sent) -> bool {
+        let mut by_path = self.lock();
+        let Some(o) = by_path
+            .get_mut(path)
+            .and_then(|l| l.iter_mut().find(|o| o.endpoint == endpoint && o.id == id))
+        else {
+            return false;
+        };
+        if o.last.repeats(&next) {
+            return false;
+        }
+        o.last = next;
+        true
+    }
 }
 
 /// A running CoAP server.
@@ -57,6 +112,9 @@ pub struct Server {
     /// How many of `endpoints` are plain (not DTLS): they come first.
     plain: usize,
     observers: Arc<Observers>,
+    /// Held through [`Server::notify`]: one round of notifications at a time, so an
+    /// observer's representations go out in the order they were read.
+    notifying: tokio::sync::Mutex<()>,
 }
 
 impl std::fmt::Debug for Server {
@@ -110,6 +168,7 @@ impl Server {
             endpoints,
             plain: addrs.len(),
             observers,
+            notifying: tokio::sync::Mutex::new(()),
         })
     }
 
@@ -169,8 +228,14 @@ impl Server {
     }
 
     /// Tells the observers of `path` that it changed: the GET handler runs again for each
-    /// registration and the result goes out as a notification. Returns how many were sent.
+    /// registration and the result goes out as a notification, unless it is the
+    /// representation that observer was sent last (the registration's answer or the last
+    /// notification: the same code, Content-Format and ETag, or the same body when there
+    /// is no ETag). A change that crosses the registration, or a notification that
+    /// already read the next change, thus sends nothing twice. Calls run one at a time.
+    /// Returns how many were sent.
     pub async fn notify(&self, path: &str) -> usize {
+        let _round = self.notifying.lock().await;
         let targets: Vec<(usize, ObservationId, IncomingRequest)> = self
             .observers
             .lock()
@@ -186,10 +251,16 @@ impl Server {
         let mut handed = Vec::with_capacity(targets.len());
         for (endpoint, id, request) in targets {
             let response = self.router.dispatch(request).await;
-            let (done, rx) = oneshot::channel();
             let Some(h) = self.endpoints.get(endpoint) else {
                 continue;
             };
+            if !self
+                .observers
+                .advance(path, endpoint, id, Sent::of(&response))
+            {
+                continue;
+            }
+            let (done, rx) = oneshot::channel();
             if h.send(Command::Notify { id, response, done }).is_ok() {
                 handed.push((endpoint, id, rx));
             }
@@ -267,6 +338,7 @@ async fn serve(
                             id: obs,
                             endpoint,
                             request,
+                            last: Sent::of(&response),
                         });
                     }
                     let _ = handle.send(Command::Respond { id, response });

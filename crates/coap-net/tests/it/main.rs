@@ -257,6 +257,7 @@ async fn rfc7641_observe_five_notifications_then_cancel() {
         }
         drop(obs);
         // The next notification is answered with a Reset and the observation ends.
+        counter.store(6, Ordering::SeqCst);
         s.notify("/counter").await;
         for _ in 0..50 {
             if s.observed_paths().is_empty() {
@@ -265,6 +266,99 @@ async fn rfc7641_observe_five_notifications_then_cancel() {
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         assert!(s.observed_paths().is_empty());
+    })
+    .await;
+}
+
+async fn next(obs: &mut coap_net::Observation) -> Response {
+    obs.next()
+        .await
+        .unwrap_or_else(|| panic!("ended"))
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// A change notified after the registration was answered with its state, or a second
+/// notify of a state already sent: nothing goes out twice. The next notification the
+/// observer gets is the next state.
+#[tokio::test]
+async fn rfc7641_an_observer_is_not_sent_the_representation_it_has() {
+    let counter = Arc::new(AtomicUsize::new(0));
+    let router = Router::new();
+    let n = counter.clone();
+    router.add(
+        "/counter",
+        Resource::new()
+            .get(handler(move |_| {
+                let v = n.load(Ordering::SeqCst);
+                async move { Response::new(Code::CONTENT).with_payload(v.to_string()) }
+            }))
+            .observable(),
+    );
+    let tagged = counter.clone();
+    router.add(
+        "/tagged",
+        Resource::new()
+            .get(handler(move |_| {
+                // The body changes on every read; the ETag names the state.
+                let v = tagged.load(Ordering::SeqCst);
+                let read = READS.fetch_add(1, Ordering::SeqCst);
+                async move {
+                    let mut r =
+                        Response::new(Code::CONTENT).with_payload(format!("{v} read {read}"));
+                    r.options.set(OptionNumber::ETAG, [v as u8]);
+                    r
+                }
+            }))
+            .observable(),
+    );
+    static READS: AtomicUsize = AtomicUsize::new(0);
+    let (s, addr) = server(router);
+    let c = client(addr);
+    within(async {
+        let mut plain = c
+            .observe(addr, Request::new(Code::GET, "/counter"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut tagged = c
+            .observe(addr, Request::new(Code::GET, "/tagged"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(&next(&mut plain).await.payload[..], b"0");
+        assert!(next(&mut tagged).await.payload.starts_with(b"0 read"));
+        // The change that led to state 0 reaches the notifier after the registrations
+        // were answered with it.
+        assert_eq!(
+            s.notify("/counter").await,
+            0,
+            "the registration's state again"
+        );
+        assert_eq!(
+            s.notify("/tagged").await,
+            0,
+            "the registration's ETag again"
+        );
+        counter.store(1, Ordering::SeqCst);
+        assert_eq!(s.notify("/counter").await, 1);
+        assert_eq!(s.notify("/tagged").await, 1);
+        // The notification of the next change read state 1 already.
+        assert_eq!(
+            s.notify("/counter").await,
+            0,
+            "the last notification's state again"
+        );
+        assert_eq!(
+            s.notify("/tagged").await,
+            0,
+            "the last notification's ETag again"
+        );
+        counter.store(2, Ordering::SeqCst);
+        assert_eq!(s.notify("/counter").await, 1);
+        assert_eq!(s.notify("/tagged").await, 1);
+        for want in ["1", "2"] {
+            assert_eq!(next(&mut plain).await.payload, want.as_bytes());
+            let r = next(&mut tagged).await;
+            assert!(r.payload.starts_with(format!("{want} read").as_bytes()));
+        }
     })
     .await;
 }

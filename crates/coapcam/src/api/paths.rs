@@ -17,7 +17,7 @@ pub const DIMENSIONS: &str = "/cams/dimensions";
 /// part) and the results log's head.
 pub const STATION: &str = "/station";
 
-/// The results log's head (newest id and hash), observable: notified after each new record.
+/// The results log's head (newest id and hash), observable: notified once per new record.
 pub const HEAD: &str = "/station/head";
 
 /// The results log's list of records.
@@ -26,8 +26,8 @@ pub const MEASUREMENTS: &str = "/station/measurements";
 /// The results log's events: the changes of legally relevant parameters.
 pub const EVENTS: &str = "/station/events";
 
-/// The results log's newest record, observable: notified after each new record (a
-/// notification may repeat the record an observer has; never an older one).
+/// The results log's newest record, observable: notified once per new record (the CoAP
+/// server sends no observer the representation it has already).
 pub const LATEST: &str = "/station/measurements/latest";
 
 /// The option the station's HTTP-CoAP proxy adds to the requests it forwards: the HTTP

@@ -8,7 +8,7 @@
 //! - `/station/events`: GET the events (changes of legally relevant parameters), newest
 //!   first (`since=ID`, `before=ID`, `limit=N`);
 //! - `/station/measurements/latest`: the newest record (`null` before the first),
-//!   observable: the server notifies after each new record (see [`LATEST`]);
+//!   observable: the server notifies once per new record (see [`LATEST`]);
 //! - `/station/measurements/<id>`: one record; `/photo` (image/jpeg) and `/annotated`
 //!   (image/png) its pictures while retention keeps them.
 
