@@ -92,11 +92,13 @@ struct VerifyArgs {
     /// blank lines and lines starting with # are skipped.
     #[arg(long, value_name = "FILE")]
     heads: Option<PathBuf>,
-    /// The station key's public half (64 hex digits, or a file holding them; as
+    /// The station key's public half (64 hex digits, or a file of keys, one a line; as
     /// `results keygen` printed it and /api/station publishes it): every record must
-    /// carry its signature, so a record without one or with another fails.
-    #[arg(long, value_name = "KEY", value_parser = public_key)]
-    public_key: Option<PublicKey>,
+    /// carry the signature of one of the keys given, so a record without one or with
+    /// another fails. Repeatable: a station re-keyed verifies with its old key and its
+    /// new, and verify says which key signed which records.
+    #[arg(long, value_name = "KEY", value_parser = public_keys)]
+    public_key: Vec<PublicKeys>,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -106,8 +108,12 @@ fn head(text: &str) -> Result<Head, String> {
     Head::parse(text)
 }
 
-fn public_key(text: &str) -> Result<PublicKey, String> {
-    PublicKey::parse(text)
+/// The keys of one `--public-key`: one, or a file's.
+#[derive(Debug, Clone)]
+struct PublicKeys(Vec<PublicKey>);
+
+fn public_keys(text: &str) -> Result<PublicKeys, String> {
+    PublicKey::parse_all(text).map(PublicKeys)
 }
 
 /// The heads of `--heads FILE`.
@@ -218,7 +224,13 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
     if let Some(list) = &args.heads {
         heads.extend(heads_of(list)?);
     }
-    let report = log::verify_against(file, &heads, args.public_key.as_ref())
+    let mut keys: Vec<PublicKey> = Vec::new();
+    for key in args.public_key.iter().flat_map(|k| &k.0) {
+        if !keys.contains(key) {
+            keys.push(*key);
+        }
+    }
+    let report = log::verify_against(file, &heads, &keys)
         .with_context(|| format!("verifying {}", file.display()))?;
     if args.json {
         let mut doc = serde_json::json!({
@@ -231,6 +243,15 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
             "heads_checked": report.heads_checked,
             "signatures_checked": report.signatures_checked,
         });
+        if !keys.is_empty() {
+            doc["signed"] = report
+                .signed
+                .iter()
+                .map(
+                    |r| serde_json::json!({ "key": r.key.to_string(), "from": r.from, "to": r.to }),
+                )
+                .collect();
+        }
         if let Some((id, hash)) = &report.head {
             doc["head"] = serde_json::json!({ "id": id, "hash": hash });
         }
@@ -264,6 +285,12 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
         for (id, jump) in &report.clock_jumps {
             outln!("{}: record {id}: {jump}", file.display());
         }
+        // Which key signed which records, with several keys given (one key signs all).
+        if keys.len() > 1 {
+            for run in &report.signed {
+                outln!("{}: {run}", file.display());
+            }
+        }
         match &report.first_altered {
             None => out!(
                 "{}: the chain verifies: {} record(s) ({} event(s)){}, {} picture(s) checked, {} pruned{}{}\n",
@@ -282,7 +309,7 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
                 } else {
                     format!(", {} head(s) published earlier held", report.heads_checked)
                 },
-                if args.public_key.is_some() {
+                if !keys.is_empty() {
                     format!(", {} signature(s) checked", report.signatures_checked)
                 } else {
                     String::new()

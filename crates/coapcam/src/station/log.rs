@@ -1178,9 +1178,12 @@ pub struct VerifyReport {
     pub gaps: Vec<Gap>,
     /// Heads published earlier that the log was checked against ([`verify_against`]).
     pub heads_checked: u64,
-    /// Records whose signature was checked against the public key given to
+    /// Records whose signature was checked against the public keys given to
     /// [`verify_against`] (0 without one).
     pub signatures_checked: u64,
+    /// Which of the public keys given signed which records: runs of consecutive records
+    /// signed by one key, oldest first (a station re-keyed shows as two runs).
+    pub signed: Vec<SignedRun>,
     /// The jumps of the station's wall clock the log noted, each with its row's id.
     pub clock_jumps: Vec<(u64, ClockJump)>,
 }
@@ -1205,6 +1208,28 @@ impl std::fmt::Display for Gap {
             f,
             "ids {}..{} were issued by a log that is gone (the last with hash {}); recorded {}",
             self.from, self.to, self.last_hash, self.time
+        )
+    }
+}
+
+/// Consecutive records signed by one key: records `from` to `to` (ids the log skipped
+/// in between, [`Gap`]s, are none of its records).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SignedRun {
+    /// The public key whose signature each of them carries.
+    pub key: PublicKey,
+    /// The first record's id.
+    pub from: u64,
+    /// The last record's id.
+    pub to: u64,
+}
+
+impl std::fmt::Display for SignedRun {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "records {}..{} are signed by {}",
+            self.from, self.to, self.key
         )
     }
 }
@@ -1275,12 +1300,12 @@ fn damaged(e: &LogError) -> bool {
 /// record holds. Stops at the first record that does not match and names it; a file cut
 /// off or damaged is named as such (an altered log, not a failure to read one).
 pub fn verify(path: &Path) -> Result<VerifyReport, LogError> {
-    verify_signed(path, None)
+    verify_signed(path, &[])
 }
 
-/// [`verify`], and with `key` every record's signature too: a record without one, or with
-/// one this key did not make, is the first altered.
-fn verify_signed(path: &Path, key: Option<&PublicKey>) -> Result<VerifyReport, LogError> {
+/// [`verify`], and with `keys` every record's signature too: a record without one, or with
+/// one none of these keys made, is the first altered. No keys, no signatures checked.
+fn verify_signed(path: &Path, keys: &[PublicKey]) -> Result<VerifyReport, LogError> {
     if !path.is_file() {
         return Err(LogError::Format {
             path: path.to_owned(),
@@ -1297,9 +1322,10 @@ fn verify_signed(path: &Path, key: Option<&PublicKey>) -> Result<VerifyReport, L
         gaps: Vec::new(),
         heads_checked: 0,
         signatures_checked: 0,
+        signed: Vec::new(),
         clock_jumps: Vec::new(),
     };
-    match connect_read_only(path).and_then(|conn| verify_chain(path, &conn, key, &mut report)) {
+    match connect_read_only(path).and_then(|conn| verify_chain(path, &conn, keys, &mut report)) {
         Err(e) if damaged(&e) => {
             let id = report.head.as_ref().map_or(1, |(id, _)| id + 1);
             let why = match &e {
@@ -1322,14 +1348,16 @@ fn verify_signed(path: &Path, key: Option<&PublicKey>) -> Result<VerifyReport, L
 /// record `id` with that hash. A log cut off before a head, or rewritten (every later hash
 /// recomputed) from any record at or before it, fails; so does a head whose id lies in a
 /// gap the log recorded (the log does not hold that record, so it cannot confirm it).
-/// The first head that fails is the report's `first_altered`. With `key`, every record
-/// must carry that key's signature (checked with the chain, before the heads).
+/// The first head that fails is the report's `first_altered`. With `keys`, every record
+/// must carry the signature of one of them (checked with the chain, before the heads): a
+/// log whose station was re-keyed verifies with the old key and the new, and the report
+/// says which signed which records ([`VerifyReport::signed`]).
 pub fn verify_against(
     path: &Path,
     heads: &[Head],
-    key: Option<&PublicKey>,
+    keys: &[PublicKey],
 ) -> Result<VerifyReport, LogError> {
-    let mut report = verify_signed(path, key)?;
+    let mut report = verify_signed(path, keys)?;
     if report.first_altered.is_some() || heads.is_empty() {
         return Ok(report);
     }
@@ -1400,7 +1428,7 @@ fn check_head(
 fn verify_chain(
     path: &Path,
     conn: &Connection,
-    key: Option<&PublicKey>,
+    keys: &[PublicKey],
     report: &mut VerifyReport,
 ) -> Result<(), LogError> {
     let err = sql(path);
@@ -1463,16 +1491,19 @@ fn verify_chain(
             [photo, annotated],
             report,
         );
-        let check = check.and_then(|()| match (key, &signature) {
-            (None, _) => Ok(()),
-            (Some(_), None) => Err(format!(
+        let check = check.and_then(|()| match (keys, &signature) {
+            ([], _) => Ok(()),
+            (_, None) => Err(format!(
                 "record {id} has no signature, and a public key was given: it was recorded without a station key (serve --signing-key), or its signature was removed"
             )),
-            (Some(key), Some(signature)) => {
-                key.check(&body, signature).map_err(|why| {
-                    format!("record {id}'s signature is not the station key's: {why}")
-                })?;
+            (keys, Some(signature)) => {
+                let key = signer(keys, &body, signature, report.signed.last())
+                    .map_err(|why| format!("record {id}'s signature is not the station key's: {why}"))?;
                 report.signatures_checked += 1;
+                match report.signed.last_mut() {
+                    Some(run) if run.key == key => run.to = id,
+                    _ => report.signed.push(SignedRun { key, from: id, to: id }),
+                }
                 Ok(())
             }
         });
@@ -1494,6 +1525,36 @@ fn verify_chain(
         });
     }
     Ok(())
+}
+
+/// The one of `keys` whose signature `signature` is (the key of the run before first:
+/// most records are signed by the key the one before was), or why none.
+fn signer(
+    keys: &[PublicKey],
+    body: &[u8],
+    signature: &str,
+    before: Option<&SignedRun>,
+) -> Result<PublicKey, String> {
+    let mut first_why = None;
+    let run_key = before.map(|run| run.key);
+    for key in run_key
+        .iter()
+        .chain(keys.iter().filter(|k| Some(**k) != run_key))
+    {
+        match key.check(body, signature) {
+            Ok(()) => return Ok(*key),
+            Err(why) => {
+                first_why.get_or_insert(why);
+            }
+        }
+    }
+    Err(match keys {
+        [_] => first_why.unwrap_or_default(),
+        keys => format!(
+            "its signature holds for none of the {} public keys given",
+            keys.len()
+        ),
+    })
 }
 
 /// The gaps the log recorded (none in a log made before they were).

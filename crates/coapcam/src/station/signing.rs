@@ -108,23 +108,48 @@ impl PublicKey {
     /// Reads 64 hex digits, or a file holding them (as `results keygen` prints them and
     /// the station publishes them).
     pub fn parse(text: &str) -> Result<Self, String> {
+        match Self::parse_all(text)?.as_slice() {
+            [key] => Ok(*key),
+            keys => Err(format!(
+                "{:?} holds {} public keys, not one",
+                text.trim(),
+                keys.len()
+            )),
+        }
+    }
+
+    /// Reads 64 hex digits, or a file of public keys: one a line, blank lines and lines
+    /// starting with # skipped (a file holding one key, as keygen's output saved, is such
+    /// a file).
+    pub fn parse_all(text: &str) -> Result<Vec<Self>, String> {
         let text = text.trim();
-        let from_file;
-        let digits = if text.len() == 64 && text.bytes().all(|b| b.is_ascii_hexdigit()) {
-            text
-        } else {
-            from_file = std::fs::read_to_string(text).map_err(|e| {
-                format!(
-                    "{text:?} is neither a public key (64 hex digits) nor a file holding one ({e})"
-                )
-            })?;
-            from_file.trim()
-        };
+        if text.len() == 64 && text.bytes().all(|b| b.is_ascii_hexdigit()) {
+            return Self::from_hex(text, text).map(|k| vec![k]);
+        }
+        let file = std::fs::read_to_string(text).map_err(|e| {
+            format!("{text:?} is neither a public key (64 hex digits) nor a file holding one ({e})")
+        })?;
+        let mut keys = Vec::new();
+        for (n, line) in file.lines().enumerate() {
+            let line = line.trim();
+            if line.is_empty() || line.starts_with('#') {
+                continue;
+            }
+            keys.push(Self::from_hex(line, &format!("{text} line {}", n + 1))?);
+        }
+        if keys.is_empty() {
+            return Err(format!("{text:?} holds no public key (64 hex digits)"));
+        }
+        Ok(keys)
+    }
+
+    /// The key of 64 hex digits; `source` names where they came from when they are not.
+    fn from_hex(digits: &str, source: &str) -> Result<Self, String> {
         let bytes = unhex::<32>(digits)
-            .ok_or_else(|| format!("{text:?} does not hold a public key (64 hex digits)"))?;
+            .ok_or_else(|| format!("{source:?} does not hold a public key (64 hex digits)"))?;
         VerifyingKey::from_bytes(&bytes)
             .map(Self)
-            .map_err(|e| format!("{text:?} is not an Ed25519 public key ({e})"))
+            .map_err(|e| format!("{source:?} is not an Ed25519 public key ({e})"))
     }
 
     /// Whether `signature` (hex) is this key's signature of the record whose canonical

@@ -1378,6 +1378,70 @@ fn a_signed_log_fails_verify_with_the_public_key_where_it_was_rewritten() {
     assert!(why.contains("has no signature"), "{why}");
 }
 
+/// A station re-keyed partway: records 1-2 signed by one key, 3-5 by the next. One key
+/// alone fails at the first record of the other; both (given twice, or in a file of
+/// keys) verify, and verify says which key signed which records.
+#[test]
+fn a_log_whose_station_was_re_keyed_verifies_with_both_keys_and_names_their_records() {
+    use coapcam::station::signing::StationKey;
+    let dir = TempDir::new("results-rekeyed");
+    let file = dir.join("results.sqlite");
+    let mut publics = Vec::new();
+    for (n, records) in [(0, 2), (1, 3)] {
+        let key = StationKey::generate(&dir.join(&format!("station{n}.key"))).expect("keygen");
+        publics.push(key.public().to_string());
+        let log = ResultsLog::open(&file).expect("open");
+        log.sign_with(key).expect("sign");
+        for _ in 0..records {
+            crate::mqtt::record(&log, 400.0, None);
+        }
+    }
+    let [old, new] = [publics[0].as_str(), publics[1].as_str()];
+    let (code, report) = verify_with(&file, &["--public-key", old]);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 3, "{report}");
+    let (code, report) = verify_with(&file, &["--public-key", new]);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 1, "{report}");
+
+    let runs = serde_json::json!([
+        { "key": old, "from": 1, "to": 2 },
+        { "key": new, "from": 3, "to": 5 },
+    ]);
+    let (code, report) = verify_with(&file, &["--public-key", new, "--public-key", old]);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["signatures_checked"], 5, "{report}");
+    assert_eq!(report["signed"], runs, "{report}");
+    let keys = dir.join("station.pubs");
+    std::fs::write(&keys, format!("# lane 3\n{old}\n\n{new}\n")).expect("keys file");
+    let keys = keys.to_str().expect("UTF-8");
+    let (code, report) = verify_with(&file, &["--public-key", keys]);
+    assert_eq!(code, Some(0), "{report}");
+    assert_eq!(report["signed"], runs, "{report}");
+    let f = Proc::run(
+        COAPCAM,
+        &[
+            "results",
+            "verify",
+            file.to_str().expect("UTF-8"),
+            "--public-key",
+            keys,
+        ],
+        LIMIT,
+    )
+    .expect_success("verify");
+    let text = f.stdout_text();
+    assert!(
+        text.contains(&format!("records 1..2 are signed by {old}")),
+        "{text}"
+    );
+    assert!(
+        text.contains(&format!("records 3..5 are signed by {new}")),
+        "{text}"
+    );
+    assert!(text.contains("5 signature(s) checked"), "{text}");
+}
+
 /// Issue 48, item 5: ids are counters, so a wall clock set back an hour (or a day
 /// forward) leaves them in order; the log notes each jump in a row of its own, with the
 /// wall clock's time before and after and the monotonic time between, and each record says
