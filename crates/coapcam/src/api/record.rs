@@ -465,6 +465,84 @@ impl ClockRecord {
     }
 }
 
+/// Ids a log skipped because a log that is gone (or an older state of the file) had
+/// issued them, as the log noted them in its chain.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SkippedIds {
+    /// The first id skipped.
+    pub from: u64,
+    /// The last id skipped (the last the station had issued).
+    pub to: u64,
+    /// The hash of record `to` as the station kept it.
+    pub last_hash: String,
+}
+
+/// A row of the results log that notes the ids skipped just before it (the log's table
+/// `gaps` says the same, for counting ids), in the same chain (and id sequence) as the
+/// measurements, told apart by its `gap` field; appended with the first record after the
+/// gap, so its time is read from the same clock, in the same transaction.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GapRecord {
+    /// Its id: one past the last id skipped.
+    pub id: u64,
+    /// When the gap was recorded.
+    pub time: UtcTime,
+    /// The station's name.
+    pub station: String,
+    /// The ids skipped.
+    pub gap: SkippedIds,
+    /// Whether the kernel said the clock was synchronised.
+    pub clock_synced: bool,
+    /// The software's version.
+    pub version: String,
+    /// SHA-256 (hex) of the legally relevant software that recorded it.
+    pub software_sha256: String,
+    /// The previous record's `hash` (the newest record before the gap).
+    pub prev_hash: String,
+    /// SHA-256 (hex) of its canonical bytes, as a measurement's.
+    pub hash: String,
+    /// The station key's signature, as a measurement's; not hashed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signature: Option<String>,
+}
+
+impl GapRecord {
+    /// The row noting `gap` at `time` with `id` after `prev_hash`, its hash computed.
+    pub fn chain(
+        station: &str,
+        gap: SkippedIds,
+        time: UtcTime,
+        clock_synced: bool,
+        id: u64,
+        prev_hash: &str,
+    ) -> Self {
+        let mut record = Self {
+            id,
+            time,
+            station: station.to_owned(),
+            gap,
+            clock_synced,
+            version: NewRecord::VERSION.to_owned(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
+            prev_hash: prev_hash.to_owned(),
+            hash: String::new(),
+            signature: None,
+        };
+        record.hash = Record::hash_of(&record.stored_body());
+        record
+    }
+
+    /// The record's content as stored: its canonical bytes.
+    pub fn stored_body(&self) -> Vec<u8> {
+        let mut content = serde_json::to_value(self).unwrap_or(Value::Null);
+        if let Value::Object(map) = &mut content {
+            map.remove("hash");
+            map.remove("signature");
+        }
+        canonical_bytes(&content)
+    }
+}
+
 impl fmt::Display for ClockJump {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(

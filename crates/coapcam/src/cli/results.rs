@@ -274,6 +274,7 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
             .map(|g| {
                 serde_json::json!({
                     "from": g.from, "to": g.to, "last_hash": g.last_hash, "time": g.time,
+                    "note": g.note,
                 })
             })
             .collect();

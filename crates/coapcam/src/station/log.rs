@@ -14,7 +14,8 @@
 //! Ids are never reused: a station keeps the last id it issued in a small file of its
 //! state directory ([`ResultsLog::open_station`]), written before each append commits, and
 //! a log that starts below it (a new file after a lost one, an older copy put back) goes on
-//! past it and records the ids it skipped (table `gaps`), which [`verify`] accepts.
+//! past it and records the ids it skipped (table `gaps`, and a chained row noting them
+//! before its next record), which [`verify`] accepts.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
@@ -26,8 +27,8 @@ use tokio::sync::watch;
 use super::clock::{Clock, Reading, SystemClock};
 use super::signing::{PublicKey, StationKey};
 use crate::api::record::{
-    ClockJump, ClockRecord, EventRecord, GENESIS, Head, NewEvent, NewRecord, Record, UtcTime,
-    canonical_bytes, sha256_hex,
+    ClockJump, ClockRecord, EventRecord, GENESIS, GapRecord, Head, NewEvent, NewRecord, Record,
+    SkippedIds, UtcTime, canonical_bytes, sha256_hex,
 };
 use crate::api::results::{ListQuery, MAX_LIST};
 
@@ -87,9 +88,10 @@ const HAS_SIGNATURES: &str =
 const TAKEN: &str = "SELECT MAX(COALESCE((SELECT MAX(id) FROM records), 0),
     COALESCE((SELECT MAX(next) FROM gaps), 1) - 1)";
 
-/// Whether the row `r` holds a measurement (not an event, nor a note of a clock jump).
-const MEASUREMENT: &str =
-    "json_extract(r.body, '$.event') IS NULL AND json_extract(r.body, '$.clock') IS NULL";
+/// Whether the row `r` holds a measurement (not an event, nor a note of a clock jump or
+/// of ids skipped).
+const MEASUREMENT: &str = "json_extract(r.body, '$.event') IS NULL
+    AND json_extract(r.body, '$.clock') IS NULL AND json_extract(r.body, '$.gap') IS NULL";
 
 /// How far the wall clock may move on more or less than the monotonic clock between two
 /// appends before the log notes a jump (any move back is noted). Both clocks run at the
@@ -212,6 +214,19 @@ struct Inner {
     /// The clocks when the newest record was appended by this process (none before its
     /// first append).
     last_reading: Mutex<Option<Reading>>,
+    /// Ids found issued when the log was opened that it does not account for yet: the
+    /// next append records them (table `gaps` and a chained row) before its record.
+    pending_gap: Mutex<Option<PendingGap>>,
+}
+
+/// Ids issued by a log that is gone, to be recorded with the next append: every id
+/// below `next` is accounted for then.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct PendingGap {
+    /// One past the last id issued.
+    next: u64,
+    /// The hash of the last id issued, as the station kept it.
+    last_hash: String,
 }
 
 /// A row the log appends, which takes the station key's signature once it is made.
@@ -342,9 +357,10 @@ impl ResultsLog {
             })?;
         }
         let mut conn = connect(path)?;
-        if let Some(last_id) = &last_id {
-            account_for(&mut conn, path, last_id)?;
-        }
+        let pending_gap = match &last_id {
+            Some(last_id) => account_for(&mut conn, path, last_id)?,
+            None => None,
+        };
         let newest = newest_id(&conn).map_err(sql(path))?;
         let events = event_counter(&conn).map_err(sql(path))?;
         let identity = identity(path).ok_or_else(|| LogError::Gone {
@@ -365,6 +381,7 @@ impl ResultsLog {
                 signer: std::sync::OnceLock::new(),
                 clock: Mutex::new(Arc::new(SystemClock::default())),
                 last_reading: Mutex::new(None),
+                pending_gap: Mutex::new(pending_gap),
             }),
         };
         log.prune()?;
@@ -436,7 +453,12 @@ impl ResultsLog {
         let placeholder = Connection::open_in_memory().map_err(sql(path))?;
         drop(std::mem::replace(&mut *conn, placeholder));
         let mut new = connect(path)?;
-        account_for(&mut new, path, last_id)?;
+        let pending_gap = account_for(&mut new, path, last_id)?;
+        *self
+            .inner
+            .pending_gap
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = pending_gap;
         let events = event_counter(&new).map_err(sql(path))?;
         self.inner
             .events
@@ -495,8 +517,10 @@ impl ResultsLog {
     /// Appends a row made by `make` (from its id, the previous hash, the newest event's
     /// counter and whether the clock is synchronised: its body, its hash and what to
     /// return) with `pictures`, in one transaction; an `event` moves the counter on once
-    /// it is committed. When the clock jumped since the row before, a row noting the jump
-    /// (for `station`) goes first, in the same transaction.
+    /// it is committed. Ids found issued at open that the log does not account for yet
+    /// go first, in the same transaction: a row of `gaps` and a chained row noting them,
+    /// timed by the same clock reading as the record. When the clock jumped since the row
+    /// before, a row noting the jump (for `station`) goes next.
     fn append_row<T: Signed>(
         &self,
         make: impl FnOnce(u64, &str, u64, bool) -> (Vec<u8>, String, T),
@@ -547,7 +571,39 @@ impl ResultsLog {
         let events = self.inner.events.load(std::sync::atomic::Ordering::Relaxed);
         // Read under the transaction's lock: appends take their readings in id order.
         let reading = self.read_clock();
-        if let Some(jump) = self.jump(&tx, &reading)? {
+        // Against the newest row before the gap's note (whose time is now).
+        let jump = self.jump(&tx, &reading)?;
+        let pending_gap = self
+            .inner
+            .pending_gap
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+            .filter(|gap| gap.next > id);
+        if let Some(gap) = pending_gap {
+            tx.execute(
+                "INSERT INTO gaps (after, next, last_hash, time) VALUES (?1, ?2, ?3, ?4)",
+                params![taken, gap.next, gap.last_hash, reading.wall.to_string()],
+            )
+            .map_err(self.err())?;
+            let skipped = SkippedIds {
+                from: id,
+                to: gap.next - 1,
+                last_hash: gap.last_hash,
+            };
+            id = gap.next;
+            let noted = GapRecord::chain(station, skipped, reading.wall, reading.synced, id, &prev);
+            let body = noted.stored_body();
+            let signature = self.inner.signer.get().map(|key| key.sign(&body));
+            tx.execute(
+                "INSERT INTO records (id, body, hash, signature) VALUES (?1, ?2, ?3, ?4)",
+                params![id, String::from_utf8_lossy(&body), noted.hash, signature],
+            )
+            .map_err(self.err())?;
+            prev = noted.hash;
+            id += 1;
+        }
+        if let Some(jump) = jump {
             let noted = ClockRecord::chain(station, jump, reading.synced, id, &prev);
             let body = noted.stored_body();
             let signature = self.inner.signer.get().map(|key| key.sign(&body));
@@ -591,6 +647,11 @@ impl ResultsLog {
             })?;
         }
         tx.commit().map_err(self.err())?;
+        *self
+            .inner
+            .pending_gap
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = None;
         *self
             .inner
             .last_reading
@@ -1037,10 +1098,15 @@ fn event_counter(conn: &Connection) -> rusqlite::Result<u64> {
     conn.query_row(EVENT_COUNTER, [], |r| r.get(0))
 }
 
-/// Makes the log at `path` account for every id `last_id` says was issued: a gap from its
-/// newest id to one past the file's, recorded and warned about, when the file is ahead;
-/// the file brought up to the log's newest record when it is behind (or missing).
-fn account_for(conn: &mut Connection, path: &Path, last_id: &LastId) -> Result<(), LogError> {
+/// Makes the log at `path` account for every id `last_id` says was issued: when the file
+/// is ahead, the gap from the log's newest id to one past the file's, warned about and
+/// returned for the next append to record (with its time from the log's clock, in the
+/// chain); the file brought up to the log's newest record when it is behind (or missing).
+fn account_for(
+    conn: &mut Connection,
+    path: &Path,
+    last_id: &LastId,
+) -> Result<Option<PendingGap>, LogError> {
     let err = sql(path);
     let kept = last_id.read()?;
     let tx = conn
@@ -1057,27 +1123,24 @@ fn account_for(conn: &mut Connection, path: &Path, last_id: &LastId) -> Result<(
         .map_err(&err)?;
     match (kept, head) {
         (Some((issued, last_hash)), _) if issued > taken => {
-            let now = UtcTime::now();
-            tx.execute(
-                "INSERT INTO gaps (after, next, last_hash, time) VALUES (?1, ?2, ?3, ?4)",
-                params![taken, issued + 1, last_hash, now.to_string()],
-            )
-            .map_err(&err)?;
-            tx.commit().map_err(&err)?;
             tracing::warn!(
-                "results log {}: ids {}..{issued} were issued by a log that is gone ({} says {issued} was the last, with hash {last_hash}); this log goes on from id {} and records the gap",
+                "results log {}: ids {}..{issued} were issued by a log that is gone ({} says {issued} was the last, with hash {last_hash}); this log goes on from id {} and records the gap with its next record",
                 path.display(),
                 taken + 1,
                 last_id.path.display(),
                 issued + 1,
             );
+            return Ok(Some(PendingGap {
+                next: issued + 1,
+                last_hash,
+            }));
         }
         (kept, Some((id, hash))) if kept.as_ref().is_none_or(|(issued, _)| *issued < id) => {
             last_id.write(id, &hash)?;
         }
         _ => {}
     }
-    Ok(())
+    Ok(None)
 }
 
 fn content_bytes(conn: &Connection) -> rusqlite::Result<u64> {
@@ -1200,6 +1263,9 @@ pub struct Gap {
     pub last_hash: String,
     /// When the station recorded the gap (UTC, as a record's `time`).
     pub time: String,
+    /// The id of the chained row that notes the gap (signed with the records when they
+    /// are); `None` for a gap recorded before gaps were noted in the chain.
+    pub note: Option<u64>,
 }
 
 impl std::fmt::Display for Gap {
@@ -1208,7 +1274,11 @@ impl std::fmt::Display for Gap {
             f,
             "ids {}..{} were issued by a log that is gone (the last with hash {}); recorded {}",
             self.from, self.to, self.last_hash, self.time
-        )
+        )?;
+        match self.note {
+            Some(id) => write!(f, "; noted in the chain as record {id}"),
+            None => f.write_str("; not noted in the chain (recorded before gaps were)"),
+        }
     }
 }
 
@@ -1557,6 +1627,51 @@ fn signer(
     })
 }
 
+/// Checks the row `id` noting ids skipped (`gap`, its `content`'s field) against the
+/// log's table of gaps: the row there before `id` must say the same ids, hash and time.
+fn check_gap(
+    id: u64,
+    content: &serde_json::Value,
+    gap: &serde_json::Value,
+    report: &mut VerifyReport,
+) -> Result<(), String> {
+    let noted = serde_json::from_value::<SkippedIds>(gap.clone())
+        .map_err(|e| format!("record {id} notes ids skipped that do not read ({e})"))?;
+    let time = content["time"]
+        .as_str()
+        .and_then(|t| UtcTime::parse(t).ok());
+    let Some(kept) = report
+        .gaps
+        .iter_mut()
+        .find(|g| g.to.checked_add(1) == Some(id))
+    else {
+        return Err(format!(
+            "record {id} notes ids {}..{} skipped, but the log's table of gaps has no gap before it: the table was altered",
+            noted.from, noted.to
+        ));
+    };
+    let same = kept.from == noted.from
+        && kept.to == noted.to
+        && kept.last_hash == noted.last_hash
+        && time.is_some()
+        && UtcTime::parse(&kept.time).ok() == time;
+    if !same {
+        return Err(format!(
+            "the gap before record {id} was altered: the log's table of gaps says ids {}..{} (last hash {}, recorded {}), record {id} noted ids {}..{} (last hash {}, recorded {})",
+            kept.from,
+            kept.to,
+            kept.last_hash,
+            kept.time,
+            noted.from,
+            noted.to,
+            noted.last_hash,
+            content["time"].as_str().unwrap_or("?")
+        ));
+    }
+    kept.note = Some(id);
+    Ok(())
+}
+
 /// The gaps the log recorded (none in a log made before they were).
 fn gaps(conn: &Connection) -> rusqlite::Result<Vec<Gap>> {
     let has_gaps: bool = conn.query_row(
@@ -1576,6 +1691,7 @@ fn gaps(conn: &Connection) -> rusqlite::Result<Vec<Gap>> {
             to: next.saturating_sub(1),
             last_hash: r.get(2)?,
             time: r.get(3)?,
+            note: None,
         })
     })?
     .collect()
@@ -1623,6 +1739,9 @@ fn check_record(
     }
     // Events count 1, 2, 3, ... in the chain, and a measurement names how many came
     // before it: an event removed (the chain rewritten around it) or made up shows.
+    if let Some(gap) = content.get("gap") {
+        check_gap(id, &content, gap, report)?;
+    }
     if let Some(clock) = content.get("clock") {
         let jump = serde_json::from_value::<ClockJump>(clock.clone())
             .map_err(|e| format!("record {id} notes a clock jump that does not read ({e})"))?;
@@ -1672,6 +1791,7 @@ mod tests {
     use super::*;
     use crate::ScratchDir;
     use crate::api::record::{Trigger, UtcTime};
+    use crate::station::clock::ManualClock;
 
     fn new(n: u64, code: &str, photo: bool) -> NewRecord {
         NewRecord {
@@ -1904,26 +2024,60 @@ mod tests {
         drop(log);
         lose(&path);
         let log = ResultsLog::open_station(&path, Retention::default(), &last_id).expect("open");
+        // The gap is recorded with the next record, at the time of the log's clock.
+        log.set_clock(Arc::new(ManualClock::new(UtcTime { unix_ms: 1_000_000 })));
         assert_eq!(log.newest(), 0);
-        let fourth = log.append(new(4, "A", true)).expect("append");
-        assert_eq!((fourth.id, fourth.prev_hash.as_str()), (4, GENESIS));
-        assert_eq!(log.append(new(5, "A", false)).expect("append").id, 5);
+        let fifth = log.append(new(4, "A", true)).expect("append");
+        // Record 4 notes the gap, chained to nothing before it.
+        assert_eq!(fifth.id, 5);
+        let (note, note_hash): (serde_json::Value, String) = {
+            let conn = Connection::open(&path).expect("sqlite");
+            let (body, hash): (String, String) = conn
+                .query_row("SELECT body, hash FROM records WHERE id = 4", [], |r| {
+                    Ok((r.get(0)?, r.get(1)?))
+                })
+                .expect("the note");
+            (serde_json::from_str(&body).expect("JSON"), hash)
+        };
+        assert_eq!(note["prev_hash"], GENESIS, "{note}");
+        assert_eq!(fifth.prev_hash, note_hash);
+        assert_eq!(note["gap"]["from"], 1, "{note}");
+        assert_eq!(note["time"], "1970-01-01T00:16:40.000Z", "{note}");
+        assert_eq!(log.append(new(5, "A", false)).expect("append").id, 6);
+        assert_eq!(log.newest(), 6);
         drop(log);
         // Opened again with nothing lost: no second gap.
         let log = ResultsLog::open_station(&path, Retention::default(), &last_id).expect("open");
-        assert_eq!(log.append(new(6, "A", false)).expect("append").id, 6);
+        assert_eq!(log.append(new(6, "A", false)).expect("append").id, 7);
         drop(log);
         let report = verify(&path).expect("verify");
-        assert_eq!((report.first_altered, report.records), (None, 3));
+        assert_eq!((report.first_altered, report.records), (None, 4));
         let [gap] = report.gaps.as_slice() else {
             panic!("{:?}", report.gaps)
         };
-        assert_eq!((gap.from, gap.to), (1, 3));
+        assert_eq!((gap.from, gap.to, gap.note), (1, 3, Some(4)));
         assert_eq!(gap.last_hash, third.hash);
+        assert_eq!(gap.time, "1970-01-01T00:16:40.000Z");
         assert!(
             gap.to_string()
                 .starts_with("ids 1..3 were issued by a log that is gone")
         );
+        // A row of the table of gaps rewritten (its time, its hash) fails at the note.
+        for change in [
+            "UPDATE gaps SET time = '2026-01-01T00:00:00.000Z'",
+            "UPDATE gaps SET last_hash = '00'",
+        ] {
+            let copy = dir.path().join("rewritten.sqlite");
+            std::fs::copy(&path, &copy).expect("copy");
+            let conn = Connection::open(&copy).expect("sqlite");
+            conn.execute_batch(&format!("DROP TRIGGER gaps_no_update; {change};"))
+                .expect("by hand");
+            drop(conn);
+            let altered = verify(&copy).expect("verify").first_altered.expect("found");
+            assert_eq!(altered.id, 4, "{change}: {altered:?}");
+            assert!(altered.why.contains("gap"), "{altered:?}");
+            std::fs::remove_file(&copy).expect("remove");
+        }
         // The gap recorded in the file is what explains the ids: without it, record 1 is
         // missing as before.
         let conn = Connection::open(&path).expect("sqlite");
@@ -1970,34 +2124,36 @@ mod tests {
         let path = dir.path().join("results.sqlite");
         let copy = dir.path().join("copy.sqlite");
         let last_id = dir.path().join("results.last-id");
-        let keep_two = Retention {
-            keep_pictures: Some(2),
+        let keep_three = Retention {
+            keep_pictures: Some(3),
             max_bytes: None,
         };
-        let log = ResultsLog::open_station(&path, keep_two, &last_id).expect("open");
+        let log = ResultsLog::open_station(&path, keep_three, &last_id).expect("open");
         for n in 1..=2 {
             log.append(new(n, "A", true)).expect("append");
         }
         drop(log);
         std::fs::copy(&path, &copy).expect("copy");
-        let log = ResultsLog::open_station(&path, keep_two, &last_id).expect("open");
+        let log = ResultsLog::open_station(&path, keep_three, &last_id).expect("open");
         for n in 3..=4 {
             log.append(new(n, "A", true)).expect("append");
         }
         drop(log);
         lose(&path);
         std::fs::rename(&copy, &path).expect("put back");
-        let log = ResultsLog::open_station(&path, keep_two, &last_id).expect("open");
+        let log = ResultsLog::open_station(&path, keep_three, &last_id).expect("open");
         assert_eq!(log.newest(), 2);
-        assert_eq!(log.append(new(5, "A", true)).expect("append").id, 5);
-        // The pictures of the newest two records by count: 2 and 5.
-        let kept: Vec<bool> = [1, 2, 5]
+        // Record 5 notes the gap.
+        assert_eq!(log.append(new(5, "A", true)).expect("append").id, 6);
+        // The pictures of the newest three records by count (ids skip where a gap is):
+        // 2, 5 (the gap's note, without pictures) and 6.
+        let kept: Vec<bool> = [1, 2, 6]
             .map(|id| log.get(id).expect("get").expect("there").has_photo)
             .to_vec();
         assert_eq!(kept, [false, true, true]);
         drop(log);
         let report = verify(&path).expect("verify");
-        assert_eq!((report.first_altered, report.records), (None, 3));
+        assert_eq!((report.first_altered, report.records), (None, 4));
         let gaps: Vec<(u64, u64)> = report.gaps.iter().map(|g| (g.from, g.to)).collect();
         assert_eq!(gaps, [(3, 4)]);
     }

@@ -751,12 +751,14 @@ fn a_log_removed_while_the_station_runs_stops_the_answers_and_says_so() {
     });
     let _ = server.process().kill();
     let _ = server.process().wait();
+    // Record 2 notes the gap, the measurement is record 3.
     let (code, report) = verify(&file);
     assert_eq!(code, Some(0), "{report}");
-    assert_eq!(report["records"], 1, "{report}");
-    assert_eq!(report["head"]["id"], 2, "{report}");
+    assert_eq!(report["records"], 2, "{report}");
+    assert_eq!(report["head"]["id"], 3, "{report}");
     assert_eq!(report["gaps"][0]["from"], 1, "{report}");
     assert_eq!(report["gaps"][0]["to"], 1, "{report}");
+    assert_eq!(report["gaps"][0]["note"], 2, "{report}");
 }
 
 #[test]
@@ -787,9 +789,10 @@ fn a_new_log_after_a_lost_one_goes_on_past_the_last_id_and_records_the_gap() {
         measure(&c, addr).await;
         let latest = get(&c, addr, "/station/measurements/latest", &[], None).await;
         let record: Record = serde_json::from_slice(&latest.payload).expect("a record");
-        assert_eq!(record.id, 4, "an id issued before was issued again");
+        // Record 4 notes the gap (ids 1..3), chained and signed as the records are.
+        assert_eq!(record.id, 5, "an id issued before was issued again");
         let all = records_of(&get(&c, addr, "/station/measurements", &[], None).await);
-        assert_eq!(ids(&all), [4]);
+        assert_eq!(ids(&all), [5]);
     });
     let stopped = server.kill();
     assert!(
@@ -801,12 +804,23 @@ fn a_new_log_after_a_lost_one_goes_on_past_the_last_id_and_records_the_gap() {
     );
     let (code, report) = verify(&file);
     assert_eq!(code, Some(0), "{report}");
-    assert_eq!(report["records"], 1, "{report}");
+    assert_eq!(report["records"], 2, "{report}");
     assert_eq!(
         (&report["gaps"][0]["from"], &report["gaps"][0]["to"]),
         (&1.into(), &3.into()),
         "{report}"
     );
+    assert_eq!(report["gaps"][0]["note"], 4, "{report}");
+    // The table's row rewritten by hand (its time): verify names the note.
+    let db = rusqlite::Connection::open(&file).expect("sqlite");
+    db.execute_batch(
+        "DROP TRIGGER gaps_no_update; UPDATE gaps SET time = '2026-01-01T00:00:00.000Z';",
+    )
+    .expect("by hand");
+    drop(db);
+    let (code, report) = verify(&file);
+    assert_eq!(code, Some(7), "{report}");
+    assert_eq!(report["first_altered"]["id"], 4, "{report}");
 }
 
 /// Issue 51, item 13: `serve --no-cameras --results FILE` serves an archived log to read
