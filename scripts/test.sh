@@ -87,6 +87,17 @@ else
       apt-get install -y --no-install-recommends mosquitto mosquitto-clients; } \
     || peer_failed "mosquitto mosquitto-clients"
 fi
+# The PostgreSQL output's test (crates/coapcam/tests/it/postgres.rs) makes a cluster with
+# Debian's initdb and serves it with postgres on a free loopback port (as root, as the user
+# nobody); Debian puts them in /usr/lib/postgresql/<version>/bin, not on PATH.
+if command -v initdb >/dev/null && command -v postgres >/dev/null \
+  || ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1; then
+  echo "postgresql: present"
+else
+  { as_root apt-get update && as_root env DEBIAN_FRONTEND=noninteractive \
+      apt-get install -y --no-install-recommends postgresql; } \
+    || peer_failed postgresql
+fi
 # The page's test (crates/coapcam/tests/it/http.rs) drives headless Chromium through
 # chromedriver's WebDriver API.
 if command -v chromium >/dev/null && command -v chromedriver >/dev/null; then

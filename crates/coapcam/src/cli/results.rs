@@ -11,8 +11,8 @@ use coapcam::api::record::{EventRecord, Head, Record};
 use coapcam::api::results::{ListQuery, MAX_LIST};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Reported, format_mm};
-use coapcam::station::log;
 use coapcam::station::signing::{PublicKey, StationKey};
+use coapcam::station::{log, postgres};
 
 use super::{Exit, TransmissionArgs, out, outln};
 
@@ -99,6 +99,17 @@ struct VerifyArgs {
     /// new, and verify says which key signed which records.
     #[arg(long, value_name = "KEY", value_parser = public_keys)]
     public_key: Vec<PublicKeys>,
+    /// Also compare the log with the PostgreSQL table `serve --postgres URL` fills: once
+    /// the chain verifies, the table must hold each of the station's records (same ids,
+    /// same hashes, bodies that hash to them, arrived in id order) and no other; the first
+    /// difference is named (exit status 7). A table that lags names the first record
+    /// not yet copied.
+    #[arg(long, value_name = "URL")]
+    postgres: Option<postgres::Target>,
+    /// With --postgres: the station whose rows are compared (the table may hold many);
+    /// by default the one named in the log's newest record.
+    #[arg(long, value_name = "NAME", requires = "postgres")]
+    station: Option<String>,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -136,7 +147,7 @@ fn heads_of(file: &std::path::Path) -> anyhow::Result<Vec<Head>> {
 /// Runs `results`.
 pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
     match &args.command {
-        Some(ResultsCommand::Verify(v)) => return verify(v),
+        Some(ResultsCommand::Verify(v)) => return verify(v).await,
         Some(ResultsCommand::Keygen(k)) => {
             let key = StationKey::generate(&k.file).map_err(anyhow::Error::msg)?;
             outln!("{}", key.public());
@@ -218,7 +229,7 @@ pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
     Ok(Exit::Success)
 }
 
-fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
+async fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
     let file = &args.file;
     let mut heads = args.head.clone();
     if let Some(list) = &args.heads {
@@ -232,6 +243,13 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
     }
     let report = log::verify_against(file, &heads, &keys)
         .with_context(|| format!("verifying {}", file.display()))?;
+    let table = match &args.postgres {
+        Some(target) if report.first_altered.is_none() => {
+            Some(compare_table(file, target, args.station.as_deref()).await?)
+        }
+        _ => None,
+    };
+    let differs = table.as_ref().is_some_and(|t| t.first_difference.is_some());
     if args.json {
         let mut doc = serde_json::json!({
             "file": file.display().to_string(),
@@ -257,6 +275,17 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
         }
         if let Some(a) = &report.first_altered {
             doc["first_altered"] = serde_json::json!({ "id": a.id, "why": a.why });
+        }
+        if let (Some(target), Some(t)) = (&args.postgres, &table) {
+            doc["postgres"] = serde_json::json!({
+                "url": target.to_string(),
+                "station": t.station,
+                "verified": t.first_difference.is_none(),
+                "rows": t.rows,
+            });
+            if let Some((id, why)) = &t.first_difference {
+                doc["postgres"]["first_difference"] = serde_json::json!({ "id": id, "why": why });
+            }
         }
         doc["clock_jumps"] = report
             .clock_jumps
@@ -324,12 +353,54 @@ fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
                 report.records
             ),
         }
+        if let (Some(target), Some(t)) = (&args.postgres, &table) {
+            match &t.first_difference {
+                None => outln!(
+                    "{target}: table {} holds the same {} record(s) of station {} as the log, in order",
+                    postgres::TABLE,
+                    t.rows,
+                    t.station
+                ),
+                Some((_, why)) => outln!(
+                    "{target}: station {}: {why}\n({} record(s) before it match)",
+                    t.station,
+                    t.rows
+                ),
+            }
+        }
     }
-    Ok(if report.first_altered.is_none() {
+    Ok(if report.first_altered.is_none() && !differs {
         Exit::Success
     } else {
         Exit::Altered
     })
+}
+
+/// The table at `target` compared with the log `file`'s measurements of `station` (by
+/// default the station of the newest one).
+async fn compare_table(
+    file: &std::path::Path,
+    target: &postgres::Target,
+    station: Option<&str>,
+) -> anyhow::Result<postgres::TableReport> {
+    let logged = log::measurement_hashes(file)
+        .with_context(|| format!("reading the records of {}", file.display()))?;
+    let station = match station {
+        Some(name) => name.to_owned(),
+        None => match logged.last() {
+            Some((_, name, _)) => name.clone(),
+            None => bail!(
+                "{} holds no record, so it names no station: give --station NAME",
+                file.display()
+            ),
+        },
+    };
+    let records: Vec<(u64, String)> = logged
+        .into_iter()
+        .filter(|(_, name, _)| *name == station)
+        .map(|(id, _, hash)| (id, hash))
+        .collect();
+    postgres::compare(target, &station, &records).await
 }
 
 /// An event's line: its JSON, or text.

@@ -1,6 +1,6 @@
 //! Where the peer programs are: libcoap 4.3.1 (Debian libcoap3-bin, on PATH), libcoap
 //! 4.3.5 built from source (Q-Block, RFC 9177), aiocoap (PyPI) and `quic-bench` (this
-//! workspace), Mosquitto (Debian). Each lookup says why a program cannot be used when it cannot: the
+//! workspace), Mosquitto and PostgreSQL (Debian). Each lookup says why a program cannot be used when it cannot: the
 //! benchmarks report that mode as unavailable, the tests skip or (in CI) fail with it.
 
 use std::path::{Path, PathBuf};
@@ -136,4 +136,32 @@ pub fn mosquitto() -> Result<PathBuf, String> {
             "{MOSQUITTO_SUB} is not on PATH (Debian package mosquitto-clients)"
         )),
     }
+}
+
+/// The folder of PostgreSQL's server programs (Debian postgresql): `initdb`, `postgres`,
+/// `pg_ctl`. The folder of PATH's `initdb` when `postgres` is beside it, else Debian's
+/// `/usr/lib/postgresql/<version>/bin` of the newest version (not on PATH there).
+pub fn postgres_bin() -> Result<PathBuf, String> {
+    let complete = |dir: &Path| ["initdb", "postgres"].iter().all(|p| dir.join(p).is_file());
+    if let Some(dir) = on_path("initdb").and_then(|p| p.parent().map(Path::to_path_buf))
+        && complete(&dir)
+    {
+        return Ok(dir);
+    }
+    let mut versions: Vec<(u32, PathBuf)> = std::fs::read_dir("/usr/lib/postgresql")
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let version = e.file_name().to_str()?.parse().ok()?;
+            Some((version, e.path().join("bin")))
+        })
+        .filter(|(_, bin)| complete(bin))
+        .collect();
+    versions.sort();
+    versions.pop().map(|(_, bin)| bin).ok_or_else(|| {
+        "initdb and postgres are neither on PATH nor in /usr/lib/postgresql/<version>/bin \
+         (Debian package postgresql)"
+            .into()
+    })
 }

@@ -1444,6 +1444,22 @@ pub fn verify_against(
     Ok(report)
 }
 
+/// The measurements of the log at `path` (opened read-only), oldest first: each one's id,
+/// station and hash (what `results verify --postgres` compares a table with).
+pub fn measurement_hashes(path: &Path) -> Result<Vec<(u64, String, String)>, LogError> {
+    let conn = connect_read_only(path)?;
+    let mut stmt = conn
+        .prepare(&format!(
+            "SELECT r.id, json_extract(r.body, '$.station'), r.hash FROM records r
+             WHERE {MEASUREMENT} ORDER BY r.id"
+        ))
+        .map_err(sql(path))?;
+    stmt.query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+        .map_err(sql(path))?
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(sql(path))
+}
+
 /// Why the verified log does not hold `head`, if it does not.
 fn check_head(
     path: &Path,

@@ -19,6 +19,8 @@
 //! - [`writer`]: the lock that makes a station its results log's one writer;
 //! - [`signing`]: the station key that signs the records, and its public half;
 //! - [`webhook`]: every record POSTed to an HTTP URL, none lost while it is away;
+//! - [`postgres`]: every record copied into a PostgreSQL table, once, none lost while the
+//!   server is away;
 //! - [`auto`]: automatic measurement's core: height maps of the table and the stillness
 //!   detector that says when a parcel stands still; [`watch`]: the task that drives it.
 
@@ -30,6 +32,7 @@ pub mod line;
 pub mod log;
 pub mod mqtt;
 pub mod outputs;
+pub mod postgres;
 pub(crate) mod reads;
 mod recorder;
 pub(crate) mod resources;
@@ -73,7 +76,8 @@ pub struct Config {
     pub retention: Retention,
     /// The station key's file: every record is signed with it (`--signing-key`).
     pub signing_key: Option<PathBuf>,
-    /// The outputs that follow the log (`--mqtt`, `--line-output`, `--webhook`).
+    /// The outputs that follow the log (`--mqtt`, `--line-output`, `--webhook`,
+    /// `--postgres`).
     pub outputs: Outputs,
     /// Serve the page and the HTTP API on this address (`--http`).
     pub http: Option<std::net::SocketAddr>,

@@ -39,7 +39,7 @@ macro_rules! outputs {
     };
 }
 
-outputs!(mqtt, line, webhook);
+outputs!(mqtt, line, webhook, postgres);
 
 impl Outputs {
     /// Refuses a station name an output asked for cannot carry: MQTT topic names allow a

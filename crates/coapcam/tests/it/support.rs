@@ -47,6 +47,8 @@ pub(crate) enum Peer {
     /// Debian poppler-utils: pdftoppm, a PDF renderer of its own (the printed sheet of
     /// markers).
     Poppler,
+    /// Debian postgresql: initdb and postgres (on PATH or in /usr/lib/postgresql/*/bin).
+    Postgres,
 }
 
 /// The path of libcoap 4.3.5's `coap-client` or `coap-server`.
@@ -101,6 +103,7 @@ fn missing(peer: Peer) -> Option<String> {
         }),
         Peer::Libcoap435 => peers::libcoap435().err(),
         Peer::Aiocoap => peers::aiocoap().err(),
+        Peer::Postgres => peers::postgres_bin().err(),
     }
 }
 
@@ -323,9 +326,15 @@ impl Proc {
         command
             .args(args)
             .env("COAPCAM_RTT_CACHE", "off")
-            .envs(env.iter().copied())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped());
+            .envs(env.iter().copied());
+        Self::spawn_command(command, &name)
+    }
+
+    /// Starts `command` as it is set up (another user, a working directory), its output
+    /// piped and collected as [`Proc::spawn`]'s.
+    pub(crate) fn spawn_command(mut command: Command, name: &str) -> Self {
+        let name = name.to_owned();
+        command.stdout(Stdio::piped()).stderr(Stdio::piped());
         let mut child = process::Proc::spawn(command, &name).unwrap_or_else(|e| panic!("{e:#}"));
         let (out_tx, stdout_lines) = mpsc::channel();
         let (err_tx, stderr_lines) = mpsc::channel();

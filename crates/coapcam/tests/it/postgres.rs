@@ -1,0 +1,336 @@
+//! The PostgreSQL output (issue 47, item 4) against a real server: Debian's postgresql,
+//! a cluster made per test by `initdb` in a scratch folder and served by `postgres` on a
+//! free port of 127.0.0.1 (its socket in the same folder), stopped and started again
+//! while the station records. initdb and postgres refuse to run as root: as root the
+//! test runs them as the user `nobody`. The server missing fails in CI (`CI=true`) and
+//! skips loudly elsewhere.
+
+use std::net::{TcpListener, TcpStream};
+use std::os::unix::process::CommandExt as _;
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use coapcam::process::peers;
+use coapcam::station::log::ResultsLog;
+use coapcam::station::postgres::CONSUMER;
+use serde_json::Value;
+
+use crate::support::{COAPCAM, LIMIT, Peer, Proc, TempDir, available, runtime, station};
+
+/// The cluster's superuser (initdb -U), trusted on loopback.
+const USER: &str = "coapcam";
+
+/// A PostgreSQL server of its own: a cluster in a scratch folder, on one port throughout.
+struct Server {
+    bin: PathBuf,
+    /// The folder of the cluster (`data`) and the server's socket.
+    root: PathBuf,
+    port: u16,
+    /// The user and group the programs run as (`nobody` when the test runs as root).
+    owner: Option<(u32, u32)>,
+    process: Option<Proc>,
+}
+
+impl Server {
+    /// A new cluster in `dir`, started.
+    fn start(dir: &TempDir) -> Self {
+        let bin = peers::postgres_bin().expect("checked by available()");
+        let root = dir.join("pg");
+        std::fs::create_dir_all(&root).expect("the cluster's folder");
+        let owner = (id(&["-u"]) == 0).then(|| (id(&["-u", "nobody"]), id(&["-g", "nobody"])));
+        if let Some((uid, gid)) = owner {
+            std::os::unix::fs::chown(&root, Some(uid), Some(gid)).expect("chown to nobody");
+        }
+        let mut server = Self {
+            bin,
+            root,
+            port: 0,
+            owner,
+            process: None,
+        };
+        let data = server.root.join("data");
+        let mut initdb = server.command("initdb");
+        initdb.args(["-D", &data.to_string_lossy(), "-U", USER, "--auth=trust"]);
+        initdb.args(["-E", "UTF8", "--locale=C", "--no-sync"]);
+        let mut p = Proc::spawn_command(initdb, "initdb");
+        let f = p
+            .wait(LIMIT)
+            .unwrap_or_else(|| panic!("initdb took over {LIMIT:?}"));
+        f.expect_success("initdb");
+        for _ in 0..10 {
+            server.port = free_tcp_port();
+            if server.try_start() {
+                return server;
+            }
+        }
+        panic!("postgres did not start on any of 10 free ports");
+    }
+
+    /// `program` of the server's folder, run as the cluster's owner in its folder.
+    fn command(&self, program: &str) -> Command {
+        let mut command = Command::new(self.bin.join(program));
+        command.current_dir(&self.root);
+        if let Some((uid, gid)) = self.owner {
+            command.uid(uid).gid(gid);
+        }
+        command
+    }
+
+    /// Starts the server on its port; false if it exited (the port was taken meanwhile).
+    fn try_start(&mut self) -> bool {
+        let mut postgres = self.command("postgres");
+        let port = self.port.to_string();
+        let (data, socket) = (self.root.join("data"), self.root.to_string_lossy());
+        postgres.args(["-D", &data.to_string_lossy(), "-p", &port, "-k", &socket]);
+        postgres.args(["-c", "listen_addresses=127.0.0.1", "-c", "fsync=off"]);
+        let mut p = Proc::spawn_command(postgres, "postgres");
+        let deadline = Instant::now() + LIMIT;
+        while Instant::now() < deadline {
+            if !p.is_running() {
+                let f = p.kill();
+                eprintln!("postgres on port {port} exited: {}", f.stderr);
+                return false;
+            }
+            if TcpStream::connect(("127.0.0.1", self.port)).is_ok() {
+                self.process = Some(p);
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        panic!("postgres did not listen on port {port} within {LIMIT:?}");
+    }
+
+    /// Stops the server: SIGINT is its fast shutdown (clients cut off, the data
+    /// written), SIGQUIT its immediate one (as a crash: recovered from the WAL at the
+    /// next start).
+    fn stop(&mut self, signal: &str) {
+        let mut p = self.process.take().expect("the server runs");
+        let pid = p.pid().to_string();
+        let sent = Command::new("kill").args([signal, &pid]).status();
+        assert!(sent.is_ok_and(|s| s.success()), "kill {signal} {pid}");
+        if p.wait(LIMIT).is_none() {
+            p.kill();
+            panic!("postgres still ran {LIMIT:?} after {signal}");
+        }
+    }
+
+    fn restart(&mut self) {
+        assert!(
+            self.try_start(),
+            "postgres did not start again on port {}",
+            self.port
+        );
+    }
+
+    fn url(&self) -> String {
+        format!("postgres://{USER}@127.0.0.1:{}/postgres", self.port)
+    }
+}
+
+/// `id ARGS`' number.
+fn id(args: &[&str]) -> u32 {
+    let out = Command::new("id").args(args).output().expect("running id");
+    String::from_utf8_lossy(&out.stdout)
+        .trim()
+        .parse()
+        .unwrap_or_else(|e| panic!("id {args:?}: {e}"))
+}
+
+fn free_tcp_port() -> u16 {
+    let l = TcpListener::bind("127.0.0.1:0").expect("binding 127.0.0.1:0");
+    l.local_addr().expect("local address").port()
+}
+
+/// One measurement recorded by the station at `addr`.
+fn measure(addr: std::net::SocketAddr) {
+    let uri = format!("coap://{addr}/cams/dimensions");
+    Proc::run(COAPCAM, &["post", &uri, "-o", "/dev/null"], LIMIT).expect_success("POST");
+}
+
+/// Runs `sql` on the server at `url` and returns its rows as text columns.
+fn query(url: &str, sql: &str) -> Vec<Vec<Option<String>>> {
+    try_query(url, sql).unwrap_or_else(|e| panic!("{sql}: {e}"))
+}
+
+/// [`query`], or the server's error (with its message).
+fn try_query(url: &str, sql: &str) -> Result<Vec<Vec<Option<String>>>, String> {
+    runtime().block_on(async {
+        let (client, connection) =
+            tokio::time::timeout(LIMIT, tokio_postgres::connect(url, tokio_postgres::NoTls))
+                .await
+                .expect("connecting in time")
+                .expect("connecting");
+        let connection = tokio::spawn(connection);
+        let messages = tokio::time::timeout(LIMIT, client.simple_query(sql))
+            .await
+            .expect("an answer in time")
+            .map_err(|e| match e.as_db_error() {
+                Some(db) => db.to_string(),
+                None => e.to_string(),
+            });
+        drop(client);
+        let _ = tokio::time::timeout(LIMIT, connection).await;
+        Ok(messages?
+            .into_iter()
+            .filter_map(|m| match m {
+                tokio_postgres::SimpleQueryMessage::Row(row) => Some(
+                    (0..row.len())
+                        .map(|i| row.get(i).map(str::to_owned))
+                        .collect(),
+                ),
+                _ => None,
+            })
+            .collect())
+    })
+}
+
+/// `coapcam results verify LOG --postgres URL --json`: its exit status and document.
+fn verify(log: &str, url: &str) -> (Option<i32>, Value) {
+    let f = Proc::run(
+        COAPCAM,
+        &["results", "verify", log, "--postgres", url, "--json"],
+        LIMIT,
+    );
+    let doc = serde_json::from_str(f.stdout_text().trim())
+        .unwrap_or_else(|e| panic!("{e}: {}\n{}", f.stdout_text(), f.stderr));
+    (f.status.code(), doc)
+}
+
+/// The station's records while the server is stopped and started 10 times (every other
+/// time as a crash): each is in the table once, in id order, and `results verify
+/// --postgres` agrees; a cursor moved back (a station that stopped before it saved its
+/// cursor) sends records the table has and adds no row; a row deleted or altered fails
+/// the check, naming the record.
+#[test]
+fn every_record_reaches_the_table_once_across_ten_restarts_and_verify_checks_it() {
+    let test = "every_record_reaches_the_table_once_across_ten_restarts_and_verify_checks_it";
+    if !available(test, &[Peer::Postgres]) {
+        return;
+    }
+    let dir = TempDir::new("postgres");
+    let mut server = Server::start(&dir);
+    let url = server.url();
+    let state = dir.join("state");
+    let flags = ["--station-name", "dock-pg", "--postgres", &url];
+    let s = station(&state, &flags);
+    let (mut process, addr) = (s.process, s.coap);
+    let log_path = state.join("results.sqlite");
+    let log = log_path.to_string_lossy().into_owned();
+
+    // No rows while the output has not made the table.
+    let in_table = || -> Vec<String> {
+        try_query(
+            &url,
+            "SELECT id FROM coapcam_records WHERE station = 'dock-pg' ORDER BY arrival",
+        )
+        .unwrap_or_default()
+        .into_iter()
+        .filter_map(|row| row.into_iter().next().flatten())
+        .collect()
+    };
+    // Waits (bounded) until the table holds `made` rows; their ids in arrival order.
+    let copied = |made: usize| {
+        let deadline = Instant::now() + LIMIT;
+        let mut ids = in_table();
+        while ids.len() < made && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(100));
+            ids = in_table();
+        }
+        ids
+    };
+    let started = Instant::now();
+    let mut made = 0;
+    for restart in 0..10 {
+        measure(addr);
+        made += 1;
+        // Copied while the server is up: the output is connected again after each
+        // restart, and each stop cuts a connection it uses.
+        assert_eq!(copied(made).len(), made, "rows before stop {}", restart + 1);
+        server.stop(if restart % 2 == 0 { "-INT" } else { "-QUIT" });
+        // Records made while the server is down wait in the log.
+        for _ in 0..2 {
+            measure(addr);
+            made += 1;
+        }
+        server.restart();
+    }
+    measure(addr);
+    made += 1;
+
+    // Every record arrives (the output retries at most 5 s apart), once, in id order.
+    let mut wanted: Vec<String> = (1..=made).map(|id| id.to_string()).collect();
+    assert_eq!(copied(made), wanted, "the rows in the order they arrived");
+    eprintln!(
+        "postgres: {made} records made and copied across 10 restarts of the server in {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    let (status, doc) = verify(&log, &url);
+    assert_eq!(status, Some(0), "{doc}");
+    assert_eq!(doc["postgres"]["rows"], made, "{doc}");
+    assert_eq!(doc["postgres"]["station"], "dock-pg", "{doc}");
+
+    // The station stops with its cursor moved back, as if it had died between a commit
+    // and the cursor's save: the records are sent again, and no row is added.
+    let f = process.interrupt().expect_success("serve");
+    let failures = f
+        .stderr
+        .matches("retrying (the records wait in the log)")
+        .count();
+    assert!(failures >= 10, "a failure said for each stop: {}", f.stderr);
+    ResultsLog::open(&log_path)
+        .and_then(|l| l.set_cursor(CONSUMER, 3))
+        .expect("moving the cursor back");
+    let arrivals = query(&url, "SELECT id, arrival FROM coapcam_records ORDER BY id");
+    let s = station(&state, &flags);
+    let (mut process, addr) = (s.process, s.coap);
+    // A new record is copied after those sent again (the output goes in id order).
+    measure(addr);
+    made += 1;
+    wanted.push(made.to_string());
+    assert_eq!(
+        copied(made),
+        wanted,
+        "rows after records 4 on were sent again"
+    );
+    let now = query(&url, "SELECT id, arrival FROM coapcam_records ORDER BY id");
+    assert_eq!(
+        now[..arrivals.len()],
+        arrivals[..],
+        "the rows sent again were kept as they were"
+    );
+    let (status, doc) = verify(&log, &url);
+    assert_eq!(status, Some(0), "{doc}");
+    assert_eq!(doc["postgres"]["rows"], made, "{doc}");
+    process.interrupt().expect_success("serve");
+
+    // A row altered in the table (its body, the hash left) fails the check.
+    let original = query(&url, "SELECT body FROM coapcam_records WHERE id = 7");
+    let original = original[0][0].clone().expect("record 7's body");
+    query(
+        &url,
+        "UPDATE coapcam_records SET body = replace(body, '\"trigger\":\"request\"', '\"trigger\":\"auto\"') WHERE id = 7",
+    );
+    let (status, doc) = verify(&log, &url);
+    assert_eq!(status, Some(7), "{doc}");
+    assert_eq!(doc["postgres"]["first_difference"]["id"], 7, "{doc}");
+    assert_eq!(doc["postgres"]["rows"], 6, "{doc}");
+    let body = original.replace('\'', "''");
+    query(
+        &url,
+        &format!("UPDATE coapcam_records SET body = '{body}' WHERE id = 7"),
+    );
+    assert_eq!(verify(&log, &url).0, Some(0), "record 7 put back");
+
+    // A row deleted fails it, naming the record.
+    query(&url, "DELETE FROM coapcam_records WHERE id = 12");
+    let (status, doc) = verify(&log, &url);
+    assert_eq!(status, Some(7), "{doc}");
+    assert_eq!(doc["postgres"]["first_difference"]["id"], 12, "{doc}");
+    let why = doc["postgres"]["first_difference"]["why"]
+        .as_str()
+        .unwrap_or_default();
+    assert!(why.contains("record 12 is not in the table"), "{why}");
+
+    server.stop("-INT");
+}
