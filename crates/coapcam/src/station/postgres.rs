@@ -419,6 +419,37 @@ pub async fn compare(
 mod tests {
     use super::*;
 
+    /// The `sql` blocks of docs/station.md's section on PostgreSQL, in its order.
+    fn documented_sql() -> Vec<String> {
+        let doc = include_str!("../../../../docs/station.md");
+        let section = doc
+            .split("\n## PostgreSQL\n")
+            .nth(1)
+            .and_then(|s| s.split("\n## ").next())
+            .expect("docs/station.md has a section ## PostgreSQL");
+        section
+            .split("```sql\n")
+            .skip(1)
+            .filter_map(|b| b.split("```").next())
+            .map(str::to_owned)
+            .collect()
+    }
+
+    #[test]
+    fn the_documented_table_is_the_one_made() {
+        let words = |sql: &str| {
+            sql.lines()
+                .map(|l| l.split("--").next().unwrap_or_default())
+                .collect::<Vec<_>>()
+                .join(" ")
+                .split_whitespace()
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        let blocks = documented_sql();
+        assert_eq!(words(&blocks[0]), words(SCHEMA));
+    }
+
     #[test]
     fn urls_are_checked_and_shown_without_their_password() {
         let t: Target = "postgres://dock:s3cret@127.0.0.1:5433/plant"

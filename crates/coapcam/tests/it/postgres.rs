@@ -270,6 +270,47 @@ fn every_record_reaches_the_table_once_across_ten_restarts_and_verify_checks_it(
     assert_eq!(doc["postgres"]["rows"], made, "{doc}");
     assert_eq!(doc["postgres"]["station"], "dock-pg", "{doc}");
 
+    // The queries docs/station.md gives: every body hashes to its hash; today's parcels
+    // per station (all of them, unless the day changed meanwhile); a code's records.
+    let doc = include_str!("../../../../docs/station.md");
+    let section = doc
+        .split("\n## PostgreSQL\n")
+        .nth(1)
+        .and_then(|s| s.split("\n## ").next())
+        .expect("docs/station.md's section on PostgreSQL");
+    let blocks: Vec<&str> = section
+        .split("```sql\n")
+        .skip(1)
+        .filter_map(|b| b.split("```").next())
+        .collect();
+    assert_eq!(blocks.len(), 3, "the table, the hash check, two questions");
+    assert_eq!(
+        query(&url, blocks[1]),
+        Vec::<Vec<Option<String>>>::new(),
+        "{}",
+        blocks[1]
+    );
+    let (today, code) = blocks[2].split_once(";\n\n").expect("two queries");
+    let yesterday = query(
+        &url,
+        "SELECT count(*) FROM coapcam_records WHERE time < date_trunc('day', now())",
+    );
+    if yesterday[0][0].as_deref() == Some("0") {
+        let rows = query(&url, today);
+        assert_eq!(rows.len(), 1, "{today}");
+        assert_eq!(
+            rows[0][..2],
+            [Some("dock-pg".to_owned()), Some(made.to_string())]
+        );
+        let litres: f64 = rows[0][2]
+            .as_deref()
+            .and_then(|l| l.parse().ok())
+            .expect("litres");
+        assert!(litres > 0.0, "{rows:?}");
+    }
+    // No code is read without ?codes: none found, and the query runs.
+    assert!(query(&url, code).is_empty(), "{code}");
+
     // The station stops with its cursor moved back, as if it had died between a commit
     // and the cursor's save: the records are sent again, and no row is added.
     let f = process.interrupt().expect_success("serve");
