@@ -344,11 +344,12 @@ fn measure(
         (Shape::Cuboid, None) => height_m,
         (_, None) => peak.map_or(height_m, |p| p.max(height_m)),
     };
-    // A box or a tube seen from above covers its footprint, a standing cylinder its
-    // disc; other shapes their dense points' hull (a raw camera's floor noise joined to
-    // a tube is no hole in it).
+    // A box seen from above covers its footprint, a tube the strip of it where its
+    // circle was seen (a raw camera's floor noise joined to it is no hole in it), a
+    // standing cylinder its disc; other shapes their dense points' hull.
     let coverage = match (shape, &tube) {
-        (Shape::Cuboid, _) | (_, Some(_)) => map.coverage(&polygon(&corners)),
+        (_, Some(t)) => map.coverage(&polygon(&t.seen(&lid_rect))),
+        (Shape::Cuboid, _) => map.coverage(&polygon(&corners)),
         _ if disc.is_some() => disc.map_or(1.0, |d| map.coverage(&d.polygon())),
         (_, None) => map.coverage(dense_hull()),
     };
