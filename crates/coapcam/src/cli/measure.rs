@@ -70,8 +70,8 @@ pub(crate) struct MeasureArgs {
     #[arg(long, conflicts_with = "group")]
     prepare: bool,
     /// Measure on the server (`POST /cams/dimensions`, an extension of coapcam): it
-    /// grabs and merges its cameras, measures, and sends only the result, a few hundred
-    /// bytes instead of the point clouds. The default when the server offers it and
+    /// grabs and merges its cameras, measures, and sends only the result, about a
+    /// kilobyte instead of the point clouds. The default when the server offers it and
     /// neither --camera nor --group is given; with --edge a server without it is an
     /// error.
     #[arg(long, conflicts_with_all = ["camera", "group", "clouds"])]

@@ -267,7 +267,8 @@ fn the_server_measures_at_the_edge_as_the_client_does() {
             .expect("POST /cams/dimensions")
             .expect("the server offers it");
         let doc = serde_json::to_value(&measured).expect("a document");
-        assert!(bytes < 1000, "{bytes} bytes");
+        // About a kilobyte (two cameras' frames, a parcel, a code), not the clouds' megabytes.
+        assert!(bytes < 2000, "{bytes} bytes");
         let [length, width, height, _] = truth(&scene).expect("the scene has a box");
         for (key, want) in [
             ("length_mm", length),

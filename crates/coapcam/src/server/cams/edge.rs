@@ -1,7 +1,7 @@
 //! `/cams/dimensions`, measurement at the edge (an extension; docs/design.md §6): `POST`
 //! grabs every camera of this server, merges the clouds in the common frame, measures the
 //! parcel and, when asked, reads the codes; the answer is the document of
-//! `measure --json` (JSON, or CBOR by Accept), a few hundred bytes instead of the clouds.
+//! `measure --json` (JSON, or CBOR by Accept), about a kilobyte instead of the clouds.
 //! `GET` (and Observe) gives the latest measurement. `Cams` serves it with these parts;
 //! `Cams::measure_now` makes one in process, and the `POST` handler wraps it.
 
