@@ -126,11 +126,7 @@ pub struct Args {
     /// (retrying 0.25 s, doubling to 5 s), and a record sent again is not a second row.
     /// A new log's whole history is copied first. `results verify LOG --postgres URL`
     /// compares the table with the log.
-    #[arg(
-        long,
-        value_name = "postgres://[USER:PASSWORD@]HOST[:PORT]/DATABASE",
-        verbatim_doc_comment
-    )]
+    #[arg(long, value_name = "postgres://[USER:PASSWORD@]HOST[:PORT]/DATABASE")]
     postgres: Option<Target>,
 }
 
