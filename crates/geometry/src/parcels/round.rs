@@ -27,19 +27,16 @@ impl LyingTube {
     /// along the axis, across it where the circle's points lie. (Beyond the far side's
     /// turn no camera above sees anything, hole or not.)
     pub(super) fn seen(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
-        let Some(frame) = RectFrame::new(rect) else {
-            return *rect;
-        };
-        let frame = if self.along_first {
-            frame
-        } else {
-            frame.swapped()
-        };
-        frame.corners(0.0, frame.la, self.seen[0], self.seen[1])
+        self.across(rect, self.seen)
     }
 
     /// The footprint: the lid's rectangle along the axis, the circle's diameter across.
     pub(super) fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
+        self.across(rect, [self.centre - self.radius, self.centre + self.radius])
+    }
+
+    /// The lid's rectangle `rect` along the axis, from `t[0]` to `t[1]` across it.
+    fn across(&self, rect: &[[f64; 2]; 4], t: [f64; 2]) -> [[f64; 2]; 4] {
         let Some(frame) = RectFrame::new(rect) else {
             return *rect;
         };
@@ -48,8 +45,7 @@ impl LyingTube {
         } else {
             frame.swapped()
         };
-        let (t0, t1) = (self.centre - self.radius, self.centre + self.radius);
-        frame.corners(0.0, frame.la, t0, t1)
+        frame.corners(0.0, frame.la, t[0], t[1])
     }
 }
 
