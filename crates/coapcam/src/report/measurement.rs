@@ -216,9 +216,8 @@ pub struct Reported {
     pub height_mm: f64,
     /// The division the length and width were rounded to: the accuracy division d (2 d for
     /// an irregular item; a dimension above 200 d takes 2 d, as `parcels[0].division_mm`
-    /// gives each), or the step of
-    /// `round_up_mm`; `null` in documents made before the rounding to the division (their
-    /// dimensions to 0.1 mm).
+    /// gives each), or the step of `round_up_mm`; `null` in documents made before the
+    /// rounding to the division (their dimensions to 0.1 mm).
     pub division_mm: Option<f64>,
     /// Length, width and height as measured, to 0.1 mm, before the rounding: to check
     /// accuracy with, not to bill on; absent in documents from before the field.
