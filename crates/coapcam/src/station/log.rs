@@ -26,6 +26,7 @@ use tokio::sync::watch;
 
 use super::clock::{Clock, Reading, SystemClock};
 use super::signing::{PublicKey, StationKey};
+use super::writer::{WriterError, WriterLock};
 use crate::api::record::{
     ClockJump, ClockRecord, EventRecord, GENESIS, GapRecord, Head, NewEvent, NewRecord, Record,
     SkippedIds, UtcTime, canonical_bytes, sha256_hex,
@@ -217,6 +218,30 @@ struct Inner {
     /// Ids found issued when the log was opened that it does not account for yet: the
     /// next append records them (table `gaps` and a chained row) before its record.
     pending_gap: Mutex<Option<PendingGap>>,
+    /// The ids the log accounted for and its newest record (id, hash) as this process
+    /// last knew them (at open, then after each append): a file found at the log's path
+    /// in place of the one opened is taken up only when it says the same.
+    committed: Mutex<Committed>,
+    /// The writer's lock of a file taken up in place of the one opened (the station's
+    /// own lock is on the file system the log was on when it started).
+    resumed_lock: Mutex<Option<WriterLock>>,
+}
+
+/// What a log holds at its end: the ids it accounts for (records and gaps) and its newest
+/// record's id and hash.
+type Committed = (u64, Option<(u64, String)>);
+
+/// The end of the log `conn` is connected to.
+fn committed(conn: &Connection) -> rusqlite::Result<Committed> {
+    let taken: u64 = conn.query_row(TAKEN, [], |r| r.get(0))?;
+    let head = conn
+        .query_row(
+            "SELECT id, hash FROM records ORDER BY id DESC LIMIT 1",
+            [],
+            |r| Ok((r.get(0)?, r.get(1)?)),
+        )
+        .optional()?;
+    Ok((taken, head))
 }
 
 /// Ids issued by a log that is gone, to be recorded with the next append: every id
@@ -304,6 +329,20 @@ impl LastId {
     }
 }
 
+/// A log's newest record, said.
+fn describe_end(head: Option<&(u64, String)>) -> String {
+    head.map_or_else(
+        || "no record".to_owned(),
+        |(id, hash)| format!("record {id} with hash {hash}"),
+    )
+}
+
+/// Whether a writer's lock held by `holder` (what its file says) is this process's.
+fn is_this_process(holder: &str) -> bool {
+    let pid = format!("pid {}", std::process::id());
+    holder == pid || holder.starts_with(&format!("{pid},"))
+}
+
 /// The device and inode of the file at `path`, if there is one.
 fn identity(path: &Path) -> Option<(u64, u64)> {
     use std::os::unix::fs::MetadataExt as _;
@@ -363,6 +402,7 @@ impl ResultsLog {
         };
         let newest = newest_id(&conn).map_err(sql(path))?;
         let events = event_counter(&conn).map_err(sql(path))?;
+        let end = committed(&conn).map_err(sql(path))?;
         let identity = identity(path).ok_or_else(|| LogError::Gone {
             path: path.to_owned(),
         })?;
@@ -382,6 +422,8 @@ impl ResultsLog {
                 clock: Mutex::new(Arc::new(SystemClock::default())),
                 last_reading: Mutex::new(None),
                 pending_gap: Mutex::new(pending_gap),
+                committed: Mutex::new(end),
+                resumed_lock: Mutex::new(None),
             }),
         };
         log.prune()?;
@@ -459,6 +501,12 @@ impl ResultsLog {
             .pending_gap
             .lock()
             .unwrap_or_else(PoisonError::into_inner) = pending_gap;
+        let end = committed(&new).map_err(sql(path))?;
+        *self
+            .inner
+            .committed
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = end;
         let events = event_counter(&new).map_err(sql(path))?;
         self.inner
             .events
@@ -473,6 +521,82 @@ impl ResultsLog {
             .lock()
             .unwrap_or_else(PoisonError::into_inner) = made;
         Ok(())
+    }
+
+    /// Takes up the file now at the log's path in place of the one opened (a disk
+    /// repaired and mounted again after it turned read-only, or a copy put in place) when
+    /// it holds exactly what this process last appended: the same ids accounted for and
+    /// the same newest record, id and hash. Then the log goes on in it, and true. False,
+    /// and the file untouched, when it holds anything else (an older copy, another log,
+    /// something that is no log), when no file is there, or when another process holds
+    /// its writer's lock.
+    fn take_up_replaced(&self) -> bool {
+        let path = &self.inner.path;
+        let Some(found) = identity(path) else {
+            return false;
+        };
+        let end = self
+            .inner
+            .committed
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
+        // Read first, without writing: a file that is not this log's end stays as it is.
+        match connect_read_only(path).and_then(|c| committed(&c).map_err(sql(path))) {
+            Ok(there) if there == end => {}
+            Ok((_, there)) => {
+                tracing::error!(
+                    "results log {}: the file now there ends at {} where this station's log ended at {}: not taken up",
+                    path.display(),
+                    describe_end(there.as_ref()),
+                    describe_end(end.1.as_ref()),
+                );
+                return false;
+            }
+            Err(e) => {
+                tracing::error!("{e}: not taken up in place of the log opened");
+                return false;
+            }
+        }
+        // One log, one writer: the lock beside the file taken up is this process's, or
+        // free (a lock on the file system the log was on before is no lock of this one).
+        let lock = match WriterLock::take(path) {
+            Ok(lock) => Some(lock),
+            Err(WriterError::Held { holder, .. }) if is_this_process(&holder) => None,
+            Err(e) => {
+                tracing::error!("{e}: not taken up in place of the log opened");
+                return false;
+            }
+        };
+        // The connection to the file opened before is never closed: closing it would let
+        // SQLite checkpoint and remove the `-wal` beside the path, which is the new
+        // file's now. It holds descriptors of that file until the process ends.
+        let new = match connect(path) {
+            Ok(new) => new,
+            Err(e) => {
+                tracing::error!("{e}: not taken up in place of the log opened");
+                return false;
+            }
+        };
+        if let Some(lock) = lock {
+            *self
+                .inner
+                .resumed_lock
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner) = Some(lock);
+        }
+        std::mem::forget(std::mem::replace(&mut *self.conn(), new));
+        *self
+            .inner
+            .identity
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = found;
+        tracing::warn!(
+            "results log {}: the file there now is another than the one opened, and it holds the log as this station last appended it (newest {}): going on in it",
+            path.display(),
+            describe_end(end.1.as_ref()),
+        );
+        true
     }
 
     /// Records `new` after the newest record, chained to it, and returns the record. It is
@@ -533,7 +657,7 @@ impl ResultsLog {
             .identity
             .lock()
             .unwrap_or_else(PoisonError::into_inner);
-        if identity(&self.inner.path) != Some(opened) {
+        if identity(&self.inner.path) != Some(opened) && !self.take_up_replaced() {
             let gone = LogError::Gone {
                 path: self.inner.path.clone(),
             };
@@ -652,6 +776,11 @@ impl ResultsLog {
             .pending_gap
             .lock()
             .unwrap_or_else(PoisonError::into_inner) = None;
+        *self
+            .inner
+            .committed
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner) = (id, Some((id, hash)));
         *self
             .inner
             .last_reading
@@ -2021,6 +2150,72 @@ mod tests {
                 _ => {}
             }
         }
+    }
+
+    /// The log's folder as a disk mounted again after a repair: the same files, another
+    /// device or inode. `from` is copied into a new folder at `disk` (the folder there
+    /// before moved to `away`).
+    fn mount_again(disk: &Path, away: &Path, from: &Path) {
+        std::fs::rename(disk, away).expect("unmounted");
+        std::fs::create_dir(disk).expect("mount point");
+        for end in ["", "-wal"] {
+            let name = format!("results.sqlite{end}");
+            if from.join(&name).exists() {
+                std::fs::copy(from.join(&name), disk.join(&name)).expect("copy");
+            }
+        }
+    }
+
+    #[test]
+    fn a_log_replaced_by_the_same_chain_is_taken_up_and_any_other_is_refused() {
+        let dir = ScratchDir::new("results-log-taken-up");
+        let disk = dir.path().join("disk");
+        std::fs::create_dir(&disk).expect("disk");
+        let path = disk.join("results.sqlite");
+        let last_id = dir.path().join("results.last-id");
+        let log = ResultsLog::open_station(&path, Retention::default(), &last_id).expect("open");
+        for n in 1..=2 {
+            log.append(new(n, "A", true)).expect("append");
+        }
+        // The same chain in another file (a disk repaired and mounted again): the log goes
+        // on in it.
+        mount_again(
+            &disk,
+            &dir.path().join("before"),
+            &dir.path().join("before"),
+        );
+        assert_eq!(log.append(new(3, "A", false)).expect("taken up").id, 3);
+        // An older state in its place (records 1 and 2): refused, and left as it is.
+        let older = dir.path().join("older");
+        std::fs::create_dir(&older).expect("older");
+        for end in ["", "-wal"] {
+            let name = format!("results.sqlite{end}");
+            let before = dir.path().join("before").join(&name);
+            if before.exists() {
+                std::fs::copy(&before, older.join(&name)).expect("copy");
+            }
+        }
+        mount_again(&disk, &dir.path().join("three"), &older);
+        let bytes = std::fs::read(&path).expect("the older file");
+        for n in 4..=5 {
+            match log.append(new(n, "A", false)) {
+                Err(LogError::Gone { .. }) => {}
+                other => panic!("{other:?}"),
+            }
+        }
+        assert_eq!(std::fs::read(&path).expect("the older file"), bytes);
+        let report = verify(&path).expect("verify");
+        assert_eq!((report.first_altered, report.records), (None, 2));
+        // The log as it last appended it, back in place: it goes on.
+        mount_again(
+            &disk,
+            &dir.path().join("older-away"),
+            &dir.path().join("three"),
+        );
+        assert_eq!(log.append(new(6, "A", false)).expect("taken up").id, 4);
+        drop(log);
+        let report = verify(&path).expect("verify");
+        assert_eq!((report.first_altered, report.records), (None, 4));
     }
 
     #[test]

@@ -1607,6 +1607,39 @@ impl Mounted {
         )
         .expect("triggering an ext4 error");
     }
+
+    /// The repair of a disk that turned read-only: the file system detached from its
+    /// folder (lazily: the files open on it keep it alive), `image` checked and repaired
+    /// (`e2fsck -fy`), and mounted on the folder again through a loop device of its own,
+    /// so its files are on another device.
+    fn mount_again(&self, image: &Path) {
+        let image = image.to_str().expect("UTF-8");
+        run("umount", &["--lazy"], self.0.path());
+        let fsck = std::process::Command::new("e2fsck")
+            .args(["-fy", image])
+            .output()
+            .expect("running e2fsck");
+        // 0: nothing to repair; 1: errors corrected.
+        assert!(
+            matches!(fsck.status.code(), Some(0 | 1)),
+            "e2fsck: {}\n{}",
+            fsck.status,
+            String::from_utf8_lossy(&fsck.stdout)
+        );
+        let device = std::process::Command::new("losetup")
+            .args(["--find", "--show", image])
+            .output()
+            .expect("running losetup");
+        assert!(device.status.success(), "losetup: {}", device.status);
+        let device = String::from_utf8_lossy(&device.stdout).trim().to_owned();
+        run(
+            "mount",
+            &["-o", "errors=remount-ro", &device],
+            self.0.path(),
+        );
+        // Detached now, the loop device goes once the file system is unmounted.
+        run("losetup", &["-d", &device], Path::new(""));
+    }
 }
 
 /// `program args... last` (`last` left out when empty), which must succeed.
@@ -1743,8 +1776,10 @@ fn a_full_disk_refuses_measurements_until_there_is_room_again() {
 /// `errors=remount-ro` after an error; a file system cannot be remounted read-only by hand
 /// while the log is open for writing, and root ignores a file's modes): the measurement is
 /// answered 5.03 with the reason and listed nowhere, and so is the next. The kernel lets
-/// such a file system write again only once it is unmounted (and checked), which the open
-/// log prevents: recovering takes a restart on a repaired disk.
+/// such a file system write again only once it is unmounted and mounted again; the open
+/// log keeps the old mount alive, so it is detached (`umount --lazy`), checked (`e2fsck`)
+/// and mounted again on another loop device: the log file there holds the chain the
+/// station last appended, and the station goes on in it by itself.
 #[test]
 #[ignore = "mounts an ext4 image on a loop device: run as root inside scripts/netns-run (scripts/test.sh does)"]
 fn a_disk_turned_read_only_refuses_measurements() {
@@ -1774,11 +1809,20 @@ fn a_disk_turned_read_only_refuses_measurements() {
             assert!(!text.contains(&*disk.0.path().to_string_lossy()), "{text}");
             assert_eq!(listed(&c, addr, http).await, [2, 1]);
         }
+        // Repaired and mounted again: the next measurement is recorded, without a restart.
+        disk.mount_again(&state.join("disk.img"));
+        measure(&c, addr).await;
+        assert_eq!(listed(&c, addr, http).await, [3, 2, 1]);
     });
     let stopped = station.kill();
+    assert!(
+        stopped.stderr.contains("going on in it"),
+        "{}",
+        stopped.stderr
+    );
     // What was answered is on the disk, and nothing else.
     let (code, report) = verify(&file);
     assert_eq!(code, Some(0), "{report}\n{}", stopped.stderr);
-    assert_eq!(report["records"], 2, "{report}");
-    assert_eq!(report["head"]["id"], 2, "{report}");
+    assert_eq!(report["records"], 3, "{report}");
+    assert_eq!(report["head"]["id"], 3, "{report}");
 }
