@@ -361,12 +361,7 @@ impl EventRecord {
 
     /// The hashed content: its JSON without `hash` and `signature`.
     pub fn content(&self) -> Value {
-        let mut v = serde_json::to_value(self).unwrap_or(Value::Null);
-        if let Value::Object(map) = &mut v {
-            map.remove("hash");
-            map.remove("signature");
-        }
-        v
+        unhashed(self)
     }
 
     /// The record's content as stored: its canonical bytes.
@@ -456,12 +451,7 @@ impl ClockRecord {
 
     /// The record's content as stored: its canonical bytes.
     pub fn stored_body(&self) -> Vec<u8> {
-        let mut content = serde_json::to_value(self).unwrap_or(Value::Null);
-        if let Value::Object(map) = &mut content {
-            map.remove("hash");
-            map.remove("signature");
-        }
-        canonical_bytes(&content)
+        canonical_bytes(&unhashed(self))
     }
 }
 
@@ -534,12 +524,7 @@ impl GapRecord {
 
     /// The record's content as stored: its canonical bytes.
     pub fn stored_body(&self) -> Vec<u8> {
-        let mut content = serde_json::to_value(self).unwrap_or(Value::Null);
-        if let Value::Object(map) = &mut content {
-            map.remove("hash");
-            map.remove("signature");
-        }
-        canonical_bytes(&content)
+        canonical_bytes(&unhashed(self))
     }
 }
 
@@ -611,6 +596,17 @@ impl fmt::Display for Head {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}:{}", self.id, self.hash)
     }
+}
+
+/// `row` as JSON without its `hash` and `signature`: what a chained row's hash is taken
+/// over (an event's, a clock jump's, a gap's).
+fn unhashed(row: &impl Serialize) -> Value {
+    let mut v = serde_json::to_value(row).unwrap_or(Value::Null);
+    if let Value::Object(map) = &mut v {
+        map.remove("hash");
+        map.remove("signature");
+    }
+    v
 }
 
 /// The canonical bytes of a JSON value: compact (no whitespace), object keys sorted by

@@ -704,6 +704,16 @@ impl ResultsLog {
             .unwrap_or_else(PoisonError::into_inner)
             .clone()
             .filter(|gap| gap.next > id);
+        // One row of the chain, signed with the station's key when it has one.
+        let insert = |id: u64, body: &[u8], hash: &str| -> Result<Option<String>, LogError> {
+            let signature = self.inner.signer.get().map(|key| key.sign(body));
+            tx.execute(
+                "INSERT INTO records (id, body, hash, signature) VALUES (?1, ?2, ?3, ?4)",
+                params![id, String::from_utf8_lossy(body), hash, signature],
+            )
+            .map_err(self.err())?;
+            Ok(signature)
+        };
         if let Some(gap) = pending_gap {
             tx.execute(
                 "INSERT INTO gaps (after, next, last_hash, time) VALUES (?1, ?2, ?3, ?4)",
@@ -717,25 +727,13 @@ impl ResultsLog {
             };
             id = gap.next;
             let noted = GapRecord::chain(station, skipped, reading.wall, reading.synced, id, &prev);
-            let body = noted.stored_body();
-            let signature = self.inner.signer.get().map(|key| key.sign(&body));
-            tx.execute(
-                "INSERT INTO records (id, body, hash, signature) VALUES (?1, ?2, ?3, ?4)",
-                params![id, String::from_utf8_lossy(&body), noted.hash, signature],
-            )
-            .map_err(self.err())?;
+            insert(id, &noted.stored_body(), &noted.hash)?;
             prev = noted.hash;
             id += 1;
         }
         if let Some(jump) = jump {
             let noted = ClockRecord::chain(station, jump, reading.synced, id, &prev);
-            let body = noted.stored_body();
-            let signature = self.inner.signer.get().map(|key| key.sign(&body));
-            tx.execute(
-                "INSERT INTO records (id, body, hash, signature) VALUES (?1, ?2, ?3, ?4)",
-                params![id, String::from_utf8_lossy(&body), noted.hash, signature],
-            )
-            .map_err(self.err())?;
+            insert(id, &noted.stored_body(), &noted.hash)?;
             tracing::warn!(
                 "results log {}: {} (noted as record {id})",
                 self.inner.path.display(),
@@ -745,15 +743,9 @@ impl ResultsLog {
             id += 1;
         }
         let (body, hash, mut made) = make(id, &prev, events, reading.synced);
-        let signature = self.inner.signer.get().map(|key| key.sign(&body));
-        if let Some(signature) = &signature {
-            made.set_signature(signature.clone());
+        if let Some(signature) = insert(id, &body, &hash)? {
+            made.set_signature(signature);
         }
-        tx.execute(
-            "INSERT INTO records (id, body, hash, signature) VALUES (?1, ?2, ?3, ?4)",
-            params![id, String::from_utf8_lossy(&body), hash, signature],
-        )
-        .map_err(self.err())?;
         for (kind, data) in pictures {
             if let Some(data) = data {
                 tx.execute(
