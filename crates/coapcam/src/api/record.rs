@@ -396,19 +396,15 @@ pub struct ClockJump {
     pub monotonic_elapsed_ms: Option<u64>,
 }
 
-/// A row of the results log that notes a jump of the station's wall clock, in the same
-/// chain (and id sequence) as the measurements, told apart by its `clock` field; appended
-/// just before the record whose time showed the jump.
+/// The chain fields of a row of the results log that notes something about the log itself
+/// (a jump of the clock, ids skipped) rather than a measurement: the same in every such
+/// row, flattened into its JSON beside the row's own note and time.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ClockRecord {
+pub struct NoteHeader {
     /// Its id, from the same sequence as the measurements'.
     pub id: u64,
-    /// The wall clock's time now (as `clock.now`).
-    pub time: UtcTime,
     /// The station's name.
     pub station: String,
-    /// The jump.
-    pub clock: ClockJump,
     /// Whether the kernel said the clock was synchronised.
     pub clock_synced: bool,
     /// The software's version.
@@ -424,6 +420,55 @@ pub struct ClockRecord {
     pub signature: Option<String>,
 }
 
+impl NoteHeader {
+    /// The header of row `id` of `station` after `prev_hash`, made by this build, the
+    /// kernel having said `clock_synced`; its hash still to compute ([`Note::chained`]).
+    fn new(station: &str, id: u64, prev_hash: &str, clock_synced: bool) -> Self {
+        Self {
+            id,
+            station: station.to_owned(),
+            clock_synced,
+            version: NewRecord::VERSION.to_owned(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
+            prev_hash: prev_hash.to_owned(),
+            hash: String::new(),
+            signature: None,
+        }
+    }
+}
+
+/// A row that notes something about the log ([`ClockRecord`], [`GapRecord`]): its
+/// [`NoteHeader`] flattened beside its own fields.
+pub trait Note: Serialize + Sized {
+    /// Its chain fields, to set its hash.
+    fn header_mut(&mut self) -> &mut NoteHeader;
+
+    /// The row with its hash computed over its stored body.
+    fn chained(mut self) -> Self {
+        self.header_mut().hash = Record::hash_of(&self.stored_body());
+        self
+    }
+
+    /// The row's content as stored: its canonical bytes (without `hash` and `signature`).
+    fn stored_body(&self) -> Vec<u8> {
+        canonical_bytes(&unhashed(self))
+    }
+}
+
+/// A row of the results log that notes a jump of the station's wall clock, in the same
+/// chain (and id sequence) as the measurements, told apart by its `clock` field; appended
+/// just before the record whose time showed the jump.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ClockRecord {
+    /// Its id, station, software, place in the chain, hash and signature.
+    #[serde(flatten)]
+    pub header: NoteHeader,
+    /// The wall clock's time now (as `clock.now`).
+    pub time: UtcTime,
+    /// The jump.
+    pub clock: ClockJump,
+}
+
 impl ClockRecord {
     /// The row noting `jump` with `id` after `prev_hash`, its hash computed.
     pub fn chain(
@@ -433,25 +478,18 @@ impl ClockRecord {
         id: u64,
         prev_hash: &str,
     ) -> Self {
-        let mut record = Self {
-            id,
+        Self {
+            header: NoteHeader::new(station, id, prev_hash, clock_synced),
             time: jump.now,
-            station: station.to_owned(),
             clock: jump,
-            clock_synced,
-            version: NewRecord::VERSION.to_owned(),
-            software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
-            prev_hash: prev_hash.to_owned(),
-            hash: String::new(),
-            signature: None,
-        };
-        record.hash = Record::hash_of(&record.stored_body());
-        record
+        }
+        .chained()
     }
+}
 
-    /// The record's content as stored: its canonical bytes.
-    pub fn stored_body(&self) -> Vec<u8> {
-        canonical_bytes(&unhashed(self))
+impl Note for ClockRecord {
+    fn header_mut(&mut self) -> &mut NoteHeader {
+        &mut self.header
     }
 }
 
@@ -470,30 +508,17 @@ pub struct SkippedIds {
 /// A row of the results log that notes the ids skipped just before it (the log's table
 /// `gaps` says the same, for counting ids), in the same chain (and id sequence) as the
 /// measurements, told apart by its `gap` field; appended with the first record after the
-/// gap, so its time is read from the same clock, in the same transaction.
+/// gap, so its time is read from the same clock, in the same transaction. Its id is one
+/// past the last id skipped, its `prev_hash` the newest record's before the gap.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct GapRecord {
-    /// Its id: one past the last id skipped.
-    pub id: u64,
+    /// Its id, station, software, place in the chain, hash and signature.
+    #[serde(flatten)]
+    pub header: NoteHeader,
     /// When the gap was recorded.
     pub time: UtcTime,
-    /// The station's name.
-    pub station: String,
     /// The ids skipped.
     pub gap: SkippedIds,
-    /// Whether the kernel said the clock was synchronised.
-    pub clock_synced: bool,
-    /// The software's version.
-    pub version: String,
-    /// SHA-256 (hex) of the legally relevant software that recorded it.
-    pub software_sha256: String,
-    /// The previous record's `hash` (the newest record before the gap).
-    pub prev_hash: String,
-    /// SHA-256 (hex) of its canonical bytes, as a measurement's.
-    pub hash: String,
-    /// The station key's signature, as a measurement's; not hashed.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub signature: Option<String>,
 }
 
 impl GapRecord {
@@ -506,25 +531,18 @@ impl GapRecord {
         id: u64,
         prev_hash: &str,
     ) -> Self {
-        let mut record = Self {
-            id,
+        Self {
+            header: NoteHeader::new(station, id, prev_hash, clock_synced),
             time,
-            station: station.to_owned(),
             gap,
-            clock_synced,
-            version: NewRecord::VERSION.to_owned(),
-            software_sha256: crate::identity::SOFTWARE_SHA256.to_owned(),
-            prev_hash: prev_hash.to_owned(),
-            hash: String::new(),
-            signature: None,
-        };
-        record.hash = Record::hash_of(&record.stored_body());
-        record
+        }
+        .chained()
     }
+}
 
-    /// The record's content as stored: its canonical bytes.
-    pub fn stored_body(&self) -> Vec<u8> {
-        canonical_bytes(&unhashed(self))
+impl Note for GapRecord {
+    fn header_mut(&mut self) -> &mut NoteHeader {
+        &mut self.header
     }
 }
 
@@ -979,6 +997,60 @@ pub(crate) mod tests {
             assert_eq!(Record::hash_of(&body), r.hash);
         }
     }
+
+    #[test]
+    fn clock_and_gap_notes_keep_their_stored_bytes() {
+        // The bodies these rows were stored with before they shared their chain fields:
+        // a log written then verifies now.
+        let at = |unix_ms| UtcTime { unix_ms };
+        let jump = ClockJump {
+            jump: "back".into(),
+            previous: at(1_795_734_229_123),
+            now: at(1_795_734_228_000),
+            monotonic_elapsed_ms: Some(1200),
+        };
+        let clock = ClockRecord::chain("lane-1", jump, true, 5, &"ab".repeat(32));
+        let gap = SkippedIds {
+            from: 3,
+            to: 8,
+            last_hash: "cd".repeat(32),
+        };
+        let gap = GapRecord::chain("lane-1", gap, at(1_795_734_230_456), false, 9, GENESIS);
+        let ours = |text: &str| {
+            text.replace("VERSION", NewRecord::VERSION)
+                .replace("SOFTWARE", crate::identity::SOFTWARE_SHA256)
+        };
+        for (body, hash, old) in [
+            (clock.stored_body(), &clock.header.hash, ours(CLOCK_ROW)),
+            (gap.stored_body(), &gap.header.hash, ours(GAP_ROW)),
+        ] {
+            assert_eq!(String::from_utf8_lossy(&body), old);
+            assert_eq!(*hash, Record::hash_of(old.as_bytes()));
+        }
+        let json = serde_json::to_value(&clock).expect("JSON");
+        assert_eq!(json["hash"], clock.header.hash.as_str(), "flattened");
+        assert_eq!(
+            serde_json::from_value::<ClockRecord>(json).ok(),
+            Some(clock)
+        );
+        let json = serde_json::to_value(&gap).expect("JSON");
+        assert_eq!(serde_json::from_value::<GapRecord>(json).ok(), Some(gap));
+    }
+
+    const CLOCK_ROW: &str = concat!(
+        r#"{"clock":{"jump":"back","monotonic_elapsed_ms":1200,"now":"2026-11-26T23:03:48.000Z","#,
+        r#""previous":"2026-11-26T23:03:49.123Z"},"clock_synced":true,"id":5,"#,
+        r#""prev_hash":"abababababababababababababababababababababababababababababababab","#,
+        r#""software_sha256":"SOFTWARE","station":"lane-1","time":"2026-11-26T23:03:48.000Z","#,
+        r#""version":"VERSION"}"#
+    );
+    const GAP_ROW: &str = concat!(
+        r#"{"clock_synced":false,"gap":{"from":3,"#,
+        r#""last_hash":"cdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcdcd","to":8},"#,
+        r#""id":9,"prev_hash":"0000000000000000000000000000000000000000000000000000000000000000","#,
+        r#""software_sha256":"SOFTWARE","station":"lane-1","time":"2026-11-26T23:03:50.456Z","#,
+        r#""version":"VERSION"}"#
+    );
 
     #[test]
     fn canonical_bytes_sort_keys_at_every_level_and_have_no_whitespace() {

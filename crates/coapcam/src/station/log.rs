@@ -28,8 +28,8 @@ use super::clock::{Clock, Reading, SystemClock};
 use super::signing::{PublicKey, StationKey};
 use super::writer::{WriterError, WriterLock};
 use crate::api::record::{
-    ClockJump, ClockRecord, EventRecord, GENESIS, GapRecord, Head, NewEvent, NewRecord, Record,
-    SkippedIds, UtcTime, canonical_bytes, sha256_hex,
+    ClockJump, ClockRecord, EventRecord, GENESIS, GapRecord, Head, NewEvent, NewRecord, Note as _,
+    Record, SkippedIds, UtcTime, canonical_bytes, sha256_hex,
 };
 use crate::api::results::{ListQuery, MAX_LIST};
 
@@ -727,19 +727,19 @@ impl ResultsLog {
             };
             id = gap.next;
             let noted = GapRecord::chain(station, skipped, reading.wall, reading.synced, id, &prev);
-            insert(id, &noted.stored_body(), &noted.hash)?;
-            prev = noted.hash;
+            insert(id, &noted.stored_body(), &noted.header.hash)?;
+            prev = noted.header.hash;
             id += 1;
         }
         if let Some(jump) = jump {
             let noted = ClockRecord::chain(station, jump, reading.synced, id, &prev);
-            insert(id, &noted.stored_body(), &noted.hash)?;
+            insert(id, &noted.stored_body(), &noted.header.hash)?;
             tracing::warn!(
                 "results log {}: {} (noted as record {id})",
                 self.inner.path.display(),
                 noted.clock
             );
-            prev = noted.hash;
+            prev = noted.header.hash;
             id += 1;
         }
         let (body, hash, mut made) = make(id, &prev, events, reading.synced);
