@@ -242,6 +242,49 @@ fn in_view_means_every_corner_in_one_cameras_depth_image_beyond_its_minimum_rang
     assert!(judge(&Scene::from_toml(&two).unwrap())[0].in_view);
 }
 
+/// A camera at `position` looking at (0.1, 0, 0), its image's rows along world y.
+fn camera_at(serial: &str, position: [f64; 3]) -> String {
+    format!(
+        "[[camera]]\nserial = \"{serial}\"\nposition = {position:?}\n\
+         look_at = [0.1, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n"
+    )
+}
+
+/// In view is what a camera sees: a low box 40 mm behind a 500 mm one, from the only
+/// camera (tilted 30 degrees, on the tall box's side), is hidden though every corner of
+/// it lies in the camera's image; alone, or with a second camera on its own side, it is
+/// in view and accepted (scenes 182 and 379 of seed 1 before: counted accepted, 0 and 4
+/// pixels of depth from them).
+#[test]
+fn in_view_means_seen_past_every_other_object() {
+    let judged = |cameras: &str, tall: bool| {
+        let objects = format!(
+            "{}{}",
+            boxed([0.1, 0.1, 0.05], [0.19, 0.0], 0.0),
+            if tall {
+                boxed([0.2, 0.3, 0.5], [0.0, 0.0], 0.0)
+            } else {
+                String::new()
+            }
+        );
+        judge(&Scene::from_toml(&format!("seed = 1\n{cameras}{objects}")).unwrap())
+    };
+    let one = camera_at("840412060746", [-0.6, 0.0, 1.2]);
+    let hidden = judged(&one, true);
+    assert!((hidden[0].gap_m.unwrap() - 0.04).abs() < 1e-9);
+    assert!(
+        hidden[0].isolated() && hidden[0].returns_depth && hidden[0].measurable,
+        "{hidden:?}"
+    );
+    assert!(!hidden[0].in_view && !hidden[0].accepted(), "{hidden:?}");
+    assert!(hidden[1].in_view && hidden[1].accepted(), "{hidden:?}");
+    let alone = judged(&one, false);
+    assert!(alone[0].in_view && alone[0].accepted(), "{alone:?}");
+    let two = format!("{one}{}", camera_at("840412060757", [0.8, 0.0, 1.2]));
+    let seen = judged(&two, true);
+    assert!(seen[0].in_view && seen[0].accepted(), "{seen:?}");
+}
+
 #[test]
 fn returning_depth_is_enough_light_back_from_the_top() {
     let dark = |reflectivity: f64, z: f64| {

@@ -21,17 +21,20 @@
 //!
 //! [`judge`] decides, from any scene, what a certified system accepts: an object isolated
 //! by [`MIN_SPACING_M`] or more from every other, wholly inside the view of at least one
-//! camera, returning depth, and a division or more above the smallest measurable object
-//! on each axis ([`MIN_M`]).
+//! camera and every point of its top seen by some camera past every other object,
+//! returning depth, and a division or more above the smallest measurable object on each
+//! axis ([`MIN_M`]).
 
 use super::d415;
 use super::lane::{Draw, serial_digits};
+use super::raycast::{Stage, V3, World};
 use super::render::{SIGNAL_FULL, mix64};
 use super::scene::{
     Bag, ColorSensor, Cylinder, Finish, Floor, Label, LabelKind, Noise, ObjectKind, Scene,
     SceneBox, SceneCamera, Timeline, Truth, Tube,
 };
 use crate::camera::Serial;
+use crate::intrinsics::Pose;
 
 /// The symbologies the set's labels are drawn from. A new one is one more entry here
 /// (and its text in `label_text`).
@@ -70,6 +73,11 @@ const TABLE_HALF_M: f64 = 0.95;
 const EDGE_PX: f64 = 1.0;
 /// Depth image the view is judged in (the D415's default 1280x720).
 const DEPTH_SIZE: [u32; 2] = [1280, 720];
+/// Largest side of the cells of an object's top whose centres are judged in view, metres
+/// (two divisions: a strip of the outline narrower than one division goes unjudged).
+const TOP_STEP_M: f64 = 0.01;
+/// Most cells along an object's length or width (a 1.2 m side is judged every 30 mm).
+const TOP_CELLS: usize = 40;
 
 /// What an object's surface is made of.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -151,7 +159,9 @@ pub struct Judged {
     /// they touch or overlap); `None` when it stands alone.
     pub gap_m: Option<f64>,
     /// Every corner of its enclosing cuboid lies inside the depth image of at least one
-    /// camera, in front of it and beyond its minimum range.
+    /// camera, in front of it and beyond its minimum range, and each point of its top is
+    /// in some camera's depth image with no other object between ([`judge`] says which
+    /// points).
     pub in_view: bool,
     /// Its top returns depth everywhere to a camera that has it in view: the light coming
     /// back from the top's centre (reflectivity x cos(incidence) / distance^2) is at
@@ -180,41 +190,93 @@ pub fn cert_set(seed: u64, count: usize) -> Vec<CertScene> {
     (0..count).map(|i| cert_scene(seed, i)).collect()
 }
 
-/// Where camera `c` sees world point `p` in its depth image (pixels) and how far in front
-/// of it (metres along its axis); `None` without a pose.
-fn project(c: &SceneCamera, p: [f64; 3]) -> Option<([f64; 2], f64)> {
-    let pose = c.pose()?;
-    let d = [0, 1, 2].map(|i| p[i] - pose.translation[i]);
-    let r = pose.rotation;
-    let q = [0, 1, 2].map(|j| r[0][j] * d[0] + r[1][j] * d[1] + r[2][j] * d[2]);
-    let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
-    if q[2] <= 0.0 {
-        return None;
-    }
-    let uv = [
-        f64::from(k.fx) * q[0] / q[2] + f64::from(k.ppx),
-        f64::from(k.fy) * q[1] / q[2] + f64::from(k.ppy),
-    ];
-    Some((uv, q[2]))
+/// A camera as the judge looks through it: its pose, and its position for the ray
+/// caster.
+struct Eye {
+    pose: Pose,
+    from: V3,
 }
 
-/// Whether camera `c` has every corner of `t`'s enclosing cuboid in its depth image.
-fn sees_whole(c: &SceneCamera, t: &Truth) -> bool {
-    let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
-    let near = f64::from(d415::min_range_m(k.fx));
-    let far = f64::from(d415::MAX_RANGE_M);
-    let (w, h) = (f64::from(DEPTH_SIZE[0]), f64::from(DEPTH_SIZE[1]));
-    t.footprint
-        .iter()
-        .flat_map(|f| [[f[0], f[1], 0.0], [f[0], f[1], t.size[2]]])
-        .all(|p| {
-            project(c, p).is_some_and(|(uv, z)| {
-                z > near
-                    && z < far
-                    && (EDGE_PX..w - EDGE_PX).contains(&uv[0])
-                    && (EDGE_PX..h - EDGE_PX).contains(&uv[1])
+impl Eye {
+    /// `None` without a pose.
+    fn of(c: &SceneCamera) -> Option<Self> {
+        Some(Self {
+            pose: c.pose()?,
+            from: c.position.map(|v| v as f32).into(),
+        })
+    }
+
+    /// Where it sees world point `p` in its depth image (pixels) and how far in front of
+    /// it (metres along its axis).
+    fn project(&self, p: [f64; 3]) -> Option<([f64; 2], f64)> {
+        let d = [0, 1, 2].map(|i| p[i] - self.pose.translation[i]);
+        let r = self.pose.rotation;
+        let q = [0, 1, 2].map(|j| r[0][j] * d[0] + r[1][j] * d[1] + r[2][j] * d[2]);
+        let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
+        if q[2] <= 0.0 {
+            return None;
+        }
+        let uv = [
+            f64::from(k.fx) * q[0] / q[2] + f64::from(k.ppx),
+            f64::from(k.fy) * q[1] / q[2] + f64::from(k.ppy),
+        ];
+        Some((uv, q[2]))
+    }
+
+    /// Whether it has world point `p` in its depth image, [`EDGE_PX`] or more from the
+    /// image's edges, in front of it beyond its minimum range and within its greatest.
+    fn holds(&self, p: [f64; 3]) -> bool {
+        let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
+        let near = f64::from(d415::min_range_m(k.fx));
+        let far = f64::from(d415::MAX_RANGE_M);
+        let (w, h) = (f64::from(DEPTH_SIZE[0]), f64::from(DEPTH_SIZE[1]));
+        self.project(p).is_some_and(|(uv, z)| {
+            z > near
+                && z < far
+                && (EDGE_PX..w - EDGE_PX).contains(&uv[0])
+                && (EDGE_PX..h - EDGE_PX).contains(&uv[1])
+        })
+    }
+
+    /// Whether it has every corner of `t`'s enclosing cuboid in its depth image.
+    fn sees_whole(&self, t: &Truth) -> bool {
+        t.footprint
+            .iter()
+            .flat_map(|f| [[f[0], f[1], 0.0], [f[0], f[1], t.size[2]]])
+            .all(|p| self.holds(p))
+    }
+}
+
+/// The scene's cameras that have a pose (every camera of a valid scene).
+fn eyes(scene: &Scene) -> Vec<Eye> {
+    scene.cameras.iter().filter_map(Eye::of).collect()
+}
+
+/// Whether each point of the top of the object `t` describes, primitive `index` of
+/// `world`, is seen by one of `eyes`: in its depth image ([`Eye::holds`]) with no other
+/// primitive on the segment from the camera to it. The points are the centres of a grid
+/// of cells over its enclosing footprint, at most [`TOP_STEP_M`] a side (at most
+/// [`TOP_CELLS`] along a side of the footprint); each is where a ray straight down first
+/// meets the object (a box's or a cylinder's lid, a tube's or a bag's upper surface out
+/// to its outline), and a cell the object does not stand over has none.
+fn top_seen(eyes: &[Eye], world: &World, index: usize, t: &Truth) -> bool {
+    let others = || world.all().filter(move |j| *j != index);
+    let (s, c) = t.yaw_deg.to_radians().sin_cos();
+    let cells = |side: f64| ((side / TOP_STEP_M).ceil() as usize).clamp(1, TOP_CELLS);
+    let (nl, nw) = (cells(t.size[0]), cells(t.size[1]));
+    (0..nl).all(|a| {
+        let along = t.size[0] * ((a as f64 + 0.5) / nl as f64 - 0.5);
+        (0..nw).all(|b| {
+            let across = t.size[1] * ((b as f64 + 0.5) / nw as f64 - 0.5);
+            let x = t.center[0] + along * c - across * s;
+            let y = t.center[1] + along * s + across * c;
+            world.top_of(index, x as f32, y as f32).is_none_or(|p| {
+                let at = [p.x, p.y, p.z].map(f64::from);
+                eyes.iter()
+                    .any(|e| e.holds(at) && !world.occluded(&e.from, &p, others()))
             })
         })
+    })
 }
 
 /// The finish of the object `t` describes.
@@ -276,9 +338,35 @@ fn separation(a: &[[f64; 2]; 4], b: &[[f64; 2]; 4]) -> f64 {
 }
 
 /// What a certified system would make of each object of `scene`, in the order of
-/// [`Scene::truths`].
+/// [`Scene::truths`] ([`Judged`] says what each part means).
+///
+/// In view asks what the cameras see, not only where they look: the object's enclosing
+/// cuboid wholly inside one camera's depth image (its corners), and every point of its
+/// top seen by some camera, inside its depth image with the segment from the camera to
+/// the point passing through no other object. The points are the centres of 10 mm cells
+/// over its footprint (40 along a side at most), each on the surface a ray straight down
+/// meets first: a box's or a cylinder's lid, a tube's or a bag's upper surface out to its
+/// outline. A low object that a taller neighbour hides from the only camera looking at it
+/// is not in view, nor is one whose top is partly hidden from every camera: a
+/// dimensioner cannot measure what it does not see. The object is not counted as hiding
+/// its own top (a tube's far flank from a tilted camera), a camera's position stands for
+/// both its imagers, and every object stands where the scene puts it, whatever its
+/// timeline.
+///
+/// # Panics
+///
+/// If `scene` is not valid ([`Scene::validate`]).
 pub fn judge(scene: &Scene) -> Vec<Judged> {
     let truths = scene.truths();
+    // The objects alone: labels do not change what hides what.
+    let mut bare = scene.clone();
+    for b in &mut bare.boxes {
+        b.label = None;
+    }
+    let world = Stage::new(&bare)
+        .expect("the judge is given a valid scene")
+        .every_object();
+    let eyes = eyes(scene);
     truths
         .iter()
         .enumerate()
@@ -289,12 +377,11 @@ pub fn judge(scene: &Scene) -> Vec<Judged> {
                 .filter(|(j, _)| *j != i)
                 .map(|(_, o)| footprint_gap(&t.footprint, &o.footprint))
                 .reduce(f64::min);
-            let seeing: Vec<&SceneCamera> =
-                scene.cameras.iter().filter(|c| sees_whole(c, t)).collect();
+            let seeing: Vec<&Eye> = eyes.iter().filter(|e| e.sees_whole(t)).collect();
             let reflectivity = finish_of(scene, t).reflectivity;
             let top = [t.center[0], t.center[1], t.size[2]];
-            let returns_depth = seeing.iter().any(|c| {
-                let d = [0, 1, 2].map(|k| c.position[k] - top[k]);
+            let returns_depth = seeing.iter().any(|e| {
+                let d = [0, 1, 2].map(|k| e.pose.translation[k] - top[k]);
                 let distance = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
                 let signal = reflectivity * (d[2] / distance).max(0.0) / (distance * distance);
                 reflectivity >= 1.0 || signal >= f64::from(SIGNAL_FULL)
@@ -303,7 +390,7 @@ pub fn judge(scene: &Scene) -> Vec<Judged> {
             let measurable = (0..3).all(|k| lwh[k] >= (MIN_M[k] + DIVISION_M) * 1e3 - 1e-9);
             Judged {
                 gap_m,
-                in_view: !seeing.is_empty(),
+                in_view: !seeing.is_empty() && top_seen(&eyes, &world, i, t),
                 returns_depth,
                 measurable,
             }
@@ -661,21 +748,28 @@ pub fn cert_scene(seed: u64, index: usize) -> CertScene {
             };
             made.push((kind, at - 1, surface, flat));
         }
-        let judged = judge(&scene);
-        let on_table = scene.truths().iter().all(|t| {
+        // Whether the group fits the view asks where the cameras look, not what hides
+        // what (the judgement's occlusion leaves the scenes as they were drawn).
+        let eyes = eyes(&scene);
+        let truths = scene.truths();
+        let framed = truths
+            .iter()
+            .filter(|t| eyes.iter().any(|e| e.sees_whole(t)))
+            .count();
+        let on_table = truths.iter().all(|t| {
             t.footprint
                 .iter()
                 .all(|p| p[0].abs() <= TABLE_HALF_M && p[1].abs() <= TABLE_HALF_M)
         });
-        let seen = judged.iter().filter(|j| j.in_view).count();
-        let fits = on_table && if whole { seen == count } else { seen > 0 };
-        built = Some((scene, made, judged));
+        let fits = on_table && if whole { framed == count } else { framed > 0 };
+        built = Some((scene, made));
         if fits {
             break;
         }
         largest = (largest * 0.85).max(0.06);
     }
-    let (mut scene, made, judged) = built.expect("at least one attempt");
+    let (mut scene, made) = built.expect("at least one attempt");
+    let judged = judge(&scene);
     // Within TOML's integers, so the scene can be written as a file.
     scene.seed = draw.next() >> 1;
     let objects = scene

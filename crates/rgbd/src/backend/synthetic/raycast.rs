@@ -654,6 +654,22 @@ impl Stage {
         Arc::clone(&posed.1)
     }
 
+    /// The world with every object where the scene puts it, whatever its timeline, and
+    /// no labels: primitive `i` is the object of [`Scene::truths`]`[i]`.
+    pub(crate) fn every_object(&self) -> World {
+        let placements: Vec<Placement> = self
+            .prims
+            .iter()
+            .map(|p| p.center)
+            .chain(self.markers.iter().map(|m| m.center))
+            .map(|at| Placement {
+                at: Some(at),
+                label: false,
+            })
+            .collect();
+        self.build(&placements)
+    }
+
     /// Where every object (prims, then markers) is at `t_s`.
     fn placements(&self, t_s: f64) -> Vec<Placement> {
         self.prims
@@ -807,6 +823,26 @@ impl World {
                 .interval(from, &d)
                 .is_some_and(|iv| iv.far > T_EPS && iv.near < 1.0 - T_EPS)
         })
+    }
+
+    /// Where a ray straight down through the floor point (`x`, `y`) first meets primitive
+    /// `index` alone (its top over that point); `None` when it misses it.
+    pub(crate) fn top_of(&self, index: usize, x: f32, y: f32) -> Option<V3> {
+        let prim = &self.prims[index];
+        if let Shape::Bag(bag) = &prim.shape {
+            // A height field: straight down meets it at its height, where it counts as
+            // reached (the march's test, without the march).
+            let l = to_local(
+                bag.cos,
+                bag.sin,
+                &(V3::new(x, y, bag.center.z) - bag.center),
+            );
+            let h = bag.top(l.x, l.y);
+            return (h > BAG_INSIDE * bag.height).then(|| V3::new(x, y, bag.center.z + h));
+        }
+        let o = V3::new(x, y, prim.sphere_center.z + prim.sphere_radius + 1.0);
+        let d = V3::new(0.0, 0.0, -1.0);
+        prim.interval(&o, &d).map(|iv| o + d * iv.near)
     }
 
     /// Whether a hit at `point` lies on a label (whose modules need more than one ray
