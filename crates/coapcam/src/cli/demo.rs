@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::{Context as _, bail};
 use clap::Args;
 use coap::ContentFormat;
-use geometry::{DimensionConfig, Dimensions};
+use geometry::{DimensionConfig, Dimensions, Shape};
 use rgbd::Scene;
 
 use super::{Exit, out, outln};
@@ -156,7 +156,8 @@ async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Res
     Ok(())
 }
 
-/// The measurement of `d` next to the truth, as a table.
+/// The measurement of `d`, the scene's box (its volume billed as a box's), next to the
+/// truth, as a table.
 fn report(m: &CloudMeasurement, d: &Dimensions, truth: Option<[f64; 4]>) -> String {
     let billing = Billing::default();
     let measured = [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg];
@@ -183,8 +184,8 @@ fn report(m: &CloudMeasurement, d: &Dimensions, truth: Option<[f64; 4]>) -> Stri
     }
     out += &format!(
         "volume {:.2} l, volumetric weight {:.2} kg, {} points from {} camera(s), cycle {:.0} ms ({:.2} MB)\n",
-        billing.volume_l(d),
-        billing.volumetric_weight_kg(d),
+        billing.volume_l(d, Shape::Cuboid),
+        billing.volumetric_weight_kg(d, Shape::Cuboid),
         d.points,
         m.grabbed.cameras.len(),
         m.cycle.as_secs_f64() * 1e3,

@@ -137,7 +137,6 @@ pub(crate) async fn run(args: MeasureArgs) -> anyhow::Result<Exit> {
         round_up_mm: args.round_up_mm,
         division: Division {
             d_mm: args.division_mm,
-            ..Division::default()
         },
     };
     let (client, source, members) = connect(&args).await?;

@@ -128,9 +128,8 @@ impl ParcelReport {
     /// `fit` as `billing` reports it: rounded to its division, or refused.
     pub fn new(fit: &ParcelFit, billing: &Billing, min_coverage: f32) -> Self {
         let d = &fit.dimensions;
-        let billing = billing.for_shape(fit.shape);
         let reason = billing.division.refusal(fit, min_coverage);
-        let value = |k: usize, v: f64| reason.is_none().then(|| billing.billed_mm(k, v));
+        let value = |k: usize, v: f64| reason.is_none().then(|| billing.billed_mm(k, v, fit.shape));
         let thousandth = |v: f64| (v * 1000.0).round() / 1000.0;
         let unrounded_mm = reason.is_none().then(|| unrounded(d));
         Self {
@@ -145,7 +144,7 @@ impl ParcelReport {
             height_mm: value(2, d.height_mm),
             reason,
             division_mm: [(0, d.length_mm), (1, d.width_mm), (2, d.height_mm)]
-                .map(|(k, v)| billing.division_of(k, v)),
+                .map(|(k, v)| billing.division_of(k, v, fit.shape)),
             unrounded_mm,
             yaw_deg: (d.yaw_deg * 100.0).round() / 100.0,
             corners_m: d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4)),
@@ -236,21 +235,21 @@ pub struct Reported {
 }
 
 impl Reported {
-    /// `d` as `billing` reports it.
-    pub fn new(d: &Dimensions, billing: &Billing) -> Self {
-        let [length_mm, width_mm, height_mm] = billing.dimensions_mm(d);
+    /// `d`, of a parcel of `shape`, as `billing` reports it.
+    pub fn new(d: &Dimensions, shape: Shape, billing: &Billing) -> Self {
+        let [length_mm, width_mm, height_mm] = billing.dimensions_mm(d, shape);
         let milli = |v: f64| (v * 1000.0).round() / 1000.0;
         Self {
             length_mm,
             width_mm,
             height_mm,
-            division_mm: Some(billing.division_mm()),
+            division_mm: Some(billing.division_mm(shape)),
             unrounded_mm: Some(unrounded(d)),
             yaw_deg: (d.yaw_deg * 100.0).round() / 100.0,
             // To 0.1 mm, as the dimensions.
             corners_m: d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4)),
-            volume_l: milli(billing.volume_l(d)),
-            volumetric_weight_kg: milli(billing.volumetric_weight_kg(d)),
+            volume_l: milli(billing.volume_l(d, shape)),
+            volumetric_weight_kg: milli(billing.volumetric_weight_kg(d, shape)),
             volumetric_divisor_cm3_per_kg: billing.divisor_cm3_per_kg,
         }
     }
@@ -303,11 +302,13 @@ pub enum MeasurementError {
 }
 
 impl Measurement {
-    /// A measurement of `parcel` (reported as `billing` says) in a merged cloud of
-    /// `cloud_points` points from `cameras`, whose frames are of `frames_unix_us`, grabbed
-    /// in `grab`; no codes, no warnings, no client's fields yet.
+    /// A measurement of `parcel` (reported as `billing` says; a measured parcel's `shape`
+    /// picks the division of its length and width) in a merged cloud of `cloud_points`
+    /// points from `cameras`, whose frames are of `frames_unix_us`, grabbed in `grab`; no
+    /// codes, no warnings, no client's fields yet.
     pub fn new(
         parcel: &Parcel,
+        shape: Shape,
         billing: &Billing,
         cloud_points: usize,
         cameras: Vec<String>,
@@ -315,7 +316,7 @@ impl Measurement {
         grab: Duration,
     ) -> Self {
         let (found, parcel_points) = match parcel {
-            Parcel::Measured(d) => (Found::Measured(Reported::new(d, billing)), d.points),
+            Parcel::Measured(d) => (Found::Measured(Reported::new(d, shape, billing)), d.points),
             Parcel::Nothing { points } => (Found::Nothing, *points),
             Parcel::Refused { reason, points } => (
                 Found::Refused {
@@ -375,13 +376,11 @@ impl Measurement {
             (largest, _) => largest,
         };
         // The top level is the largest's numbers, billed as its own shape says.
-        let billing = table
-            .fits
-            .first()
-            .map_or(*billing, |f| billing.for_shape(f.shape));
+        let shape = table.fits.first().map_or(Shape::Cuboid, |f| f.shape);
         let mut m = Self::new(
             &largest,
-            &billing,
+            shape,
+            billing,
             cloud_points,
             cameras,
             frames_unix_us,
@@ -613,6 +612,7 @@ mod tests {
         };
         let mut m = Measurement::new(
             &Parcel::Measured(d),
+            Shape::Cuboid,
             &Billing::default(),
             5000,
             vec!["840412060746".into()],
@@ -672,6 +672,7 @@ mod tests {
     fn nothing_on_the_table_has_no_dimensions() {
         let mut m = Measurement::new(
             &Parcel::Nothing { points: 12 },
+            Shape::Cuboid,
             &Billing::default(),
             100,
             Vec::new(),

@@ -49,22 +49,17 @@ impl Default for Billing {
 /// `d` up to 200 d (1,000 mm at d = 5) and 2 d above (the range switchover); a dimension
 /// below 10 d (length, width) or 2 d (height), or above 300 d (length, width) or 200 d
 /// (height), is outside the measurable range and refused. An irregular item's length and
-/// width take 2 d ([`Division::IRREGULAR`]).
+/// width take 2 d ([`Division::IRREGULAR`]): the parcel's shape is given with each axis
+/// ([`Division::of_axis`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Division {
     /// `d`, millimetres (5 by default).
     pub d_mm: f64,
-    /// These are the divisions of an irregular item (neither a box nor round: a bag, a
-    /// pillow), set by [`Billing::for_shape`] from the parcel's fit, never by a query.
-    pub irregular: bool,
 }
 
 impl Default for Division {
     fn default() -> Self {
-        Self {
-            d_mm: 5.0,
-            irregular: false,
-        }
+        Self { d_mm: 5.0 }
     }
 }
 
@@ -89,12 +84,13 @@ impl Division {
         }
     }
 
-    /// The division of dimension `axis` (0 length, 1 width, 2 height) of `value_mm`:
-    /// [`Division::of`], or [`Division::IRREGULAR`] d for an irregular item's length
-    /// and width.
-    pub fn of_axis(&self, axis: usize, value_mm: f64) -> f64 {
+    /// The division of dimension `axis` (0 length, 1 width, 2 height) of `value_mm` of a
+    /// parcel of `shape`: [`Division::of`], or [`Division::IRREGULAR`] d for the length
+    /// and width of an irregular item (neither a box nor round: a bag, a pillow). The one
+    /// place a shape picks a division.
+    pub fn of_axis(&self, axis: usize, value_mm: f64, shape: Shape) -> f64 {
         let of = self.of(value_mm);
-        if self.irregular && axis < 2 {
+        if shape == Shape::Irregular && axis < 2 {
             of.max(Self::IRREGULAR * self.d_mm)
         } else {
             of
@@ -154,35 +150,27 @@ impl Division {
 }
 
 impl Billing {
-    /// The billing of a parcel of `shape`: an irregular item's length and width take
-    /// their own division ([`Division::IRREGULAR`]).
-    pub fn for_shape(&self, shape: Shape) -> Self {
-        let mut b = *self;
-        b.division.irregular = shape == Shape::Irregular;
-        b
-    }
-
-    /// The division the length and width are given in: `round_up_mm`, or the accuracy
-    /// division `d` (2 d for an irregular item's; a dimension above the switchover takes
-    /// 2 d: [`Billing::division_of`]).
-    pub fn division_mm(&self) -> f64 {
+    /// The division the length and width of a parcel of `shape` are given in:
+    /// `round_up_mm`, or the accuracy division `d` (2 d for an irregular item's; a
+    /// dimension above the switchover takes 2 d: [`Billing::division_of`]).
+    pub fn division_mm(&self, shape: Shape) -> f64 {
         self.round_up_mm
-            .unwrap_or_else(|| self.division.of_axis(0, 0.0))
+            .unwrap_or_else(|| self.division.of_axis(0, 0.0, shape))
     }
 
-    /// The division of dimension `axis` (0 length, 1 width, 2 height) of `value_mm`:
-    /// `round_up_mm`, or d or 2 d ([`Division::of_axis`]).
-    pub fn division_of(&self, axis: usize, value_mm: f64) -> f64 {
+    /// The division of dimension `axis` (0 length, 1 width, 2 height) of `value_mm` of a
+    /// parcel of `shape`: `round_up_mm`, or d or 2 d ([`Division::of_axis`]).
+    pub fn division_of(&self, axis: usize, value_mm: f64, shape: Shape) -> f64 {
         self.round_up_mm
-            .unwrap_or_else(|| self.division.of_axis(axis, value_mm))
+            .unwrap_or_else(|| self.division.of_axis(axis, value_mm, shape))
     }
 
-    /// Dimension `axis` as the number to bill on, the legal result: `value_mm` rounded up
-    /// to a multiple of `round_up_mm`, else to the nearest multiple of its division,
-    /// written with no more decimals than the division has (320, not
-    /// 320.00000000000006).
-    pub fn billed_mm(&self, axis: usize, value_mm: f64) -> f64 {
-        let step = self.division_of(axis, value_mm);
+    /// Dimension `axis` of a parcel of `shape` as the number to bill on, the legal
+    /// result: `value_mm` rounded up to a multiple of `round_up_mm`, else to the nearest
+    /// multiple of its division, written with no more decimals than the division has
+    /// (320, not 320.00000000000006).
+    pub fn billed_mm(&self, axis: usize, value_mm: f64, shape: Shape) -> f64 {
+        let step = self.division_of(axis, value_mm, shape);
         let steps = match self.round_up_mm {
             Some(_) => (value_mm / step - 1e-9).ceil(),
             None => (value_mm / step).round(),
@@ -191,21 +179,23 @@ impl Billing {
         (steps * step * scale).round() / scale
     }
 
-    /// Length, width and height as billed ([`Billing::billed_mm`]), mm.
-    pub fn dimensions_mm(&self, d: &Dimensions) -> [f64; 3] {
+    /// Length, width and height of a parcel of `shape` as billed ([`Billing::billed_mm`]),
+    /// mm.
+    pub fn dimensions_mm(&self, d: &Dimensions, shape: Shape) -> [f64; 3] {
         let lwh = [d.length_mm, d.width_mm, d.height_mm];
-        [0, 1, 2].map(|k| self.billed_mm(k, lwh[k]))
+        [0, 1, 2].map(|k| self.billed_mm(k, lwh[k], shape))
     }
 
-    /// The volume of the billed dimensions, litres.
-    pub fn volume_l(&self, d: &Dimensions) -> f64 {
-        let [l, w, h] = self.dimensions_mm(d);
+    /// The volume of the billed dimensions of a parcel of `shape`, litres.
+    pub fn volume_l(&self, d: &Dimensions, shape: Shape) -> f64 {
+        let [l, w, h] = self.dimensions_mm(d, shape);
         l * w * h / 1e6
     }
 
-    /// The volumetric weight of the billed dimensions: cm³ over the divisor, kg.
-    pub fn volumetric_weight_kg(&self, d: &Dimensions) -> f64 {
-        self.volume_l(d) * 1000.0 / self.divisor_cm3_per_kg
+    /// The volumetric weight of the billed dimensions of a parcel of `shape`: cm³ over
+    /// the divisor, kg.
+    pub fn volumetric_weight_kg(&self, d: &Dimensions, shape: Shape) -> f64 {
+        self.volume_l(d, shape) * 1000.0 / self.divisor_cm3_per_kg
     }
 }
 
@@ -1097,14 +1087,11 @@ mod tests {
 
         // A division of 0.1 mm gives 322.6, not 322.6000000000000X.
         let fine = Billing {
-            division: Division {
-                d_mm: 0.1,
-                ..Division::default()
-            },
+            division: Division { d_mm: 0.1 },
             ..Billing::default()
         };
-        assert_eq!(fine.billed_mm(0, 322.63), 322.6);
-        assert_eq!(fine.billed_mm(0, 0.3 + 0.6), 0.9);
+        assert_eq!(fine.billed_mm(0, 322.63, Shape::Cuboid), 322.6);
+        assert_eq!(fine.billed_mm(0, 0.3 + 0.6, Shape::Cuboid), 0.9);
     }
 
     /// Issue 51, item 4: the picture's legend wrote whole millimetres whatever the

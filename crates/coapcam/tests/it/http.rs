@@ -866,10 +866,7 @@ fn the_page_shows_the_numbers_to_bill_on() {
         let log = coapcam::station::log::ResultsLog::open(&file).expect("the results log");
         crate::mqtt::record(&log, 322.6, Some("PKG-9"));
         let fine = coapcam::report::Billing {
-            division: coapcam::report::Division {
-                d_mm: 2.5,
-                ..coapcam::report::Division::default()
-            },
+            division: coapcam::report::Division { d_mm: 2.5 },
             ..coapcam::report::Billing::default()
         };
         crate::mqtt::record_billed(&log, 322.6, Some("PKG-10"), &fine);

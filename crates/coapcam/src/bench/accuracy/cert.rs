@@ -14,7 +14,7 @@ use geometry::{DimensionConfig, ParcelFit};
 use rgbd::cert::{CertObject, CertScene, MIN_SPACING_M, SPACINGS_MM, cert_scene, footprint_gap};
 use rgbd::scene::Truth;
 
-use super::lane::{Outcome, judged_division, outside};
+use super::lane::{Outcome, judged_shape, outside};
 use crate::client::CamClient;
 use crate::client::codes;
 use crate::client::measure::{self, Source, prepare_cameras};
@@ -76,9 +76,9 @@ impl ObjectResult {
     /// A number on every axis within `factor` divisions of the truth.
     fn within(&self, billing: &Billing, factor: f64) -> bool {
         let t = truth_mm(&self.object.truth);
-        let division = judged_division(billing, self.object.truth.kind);
+        let shape = judged_shape(self.object.truth.kind);
         self.reported_errors().is_some_and(|e| {
-            (0..3).all(|k| e[k].abs() <= factor * division.of_axis(k, t[k]) + 1e-6)
+            (0..3).all(|k| e[k].abs() <= factor * billing.division.of_axis(k, t[k], shape) + 1e-6)
         })
     }
 

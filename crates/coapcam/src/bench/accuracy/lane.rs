@@ -6,13 +6,13 @@
 //! truth with no flag).
 
 use anyhow::bail;
-use geometry::{DimensionConfig, ParcelFit};
+use geometry::{DimensionConfig, ParcelFit, Shape};
 use rgbd::lane::{LaneScene, lane_scene};
 use rgbd::scene::{ObjectKind, Truth};
 
 use crate::client::CamClient;
 use crate::client::measure::{self, Source, prepare_cameras};
-use crate::report::{Billing, Division, ParcelReport};
+use crate::report::{Billing, ParcelReport};
 use crate::stats::{self, AbsSummary};
 
 /// What to run.
@@ -82,7 +82,7 @@ pub struct Object {
     pub truth: [f64; 3],
     /// Whether it is a box.
     pub cuboid: bool,
-    /// What it is: the division it is judged in ([`judged_division`]).
+    /// What it is: the shape it is judged as ([`judged_shape`]).
     pub kind: ObjectKind,
     /// What the station said.
     pub outcome: Outcome,
@@ -99,23 +99,26 @@ impl Object {
 
     /// A number more than twice its division from the truth, with no flag.
     pub fn silently_wrong(&self, billing: &Billing) -> bool {
-        let division = judged_division(billing, self.kind);
+        let shape = judged_shape(self.kind);
         match &self.outcome {
             Outcome::Measured { reported, .. } => (0..3).any(|k| {
-                (reported[k] - self.truth[k]).abs() > 2.0 * division.of_axis(k, self.truth[k])
+                (reported[k] - self.truth[k]).abs()
+                    > 2.0 * billing.division.of_axis(k, self.truth[k], shape)
             }),
             _ => false,
         }
     }
 }
 
-/// The division an object of `kind` is judged in, as a certificate states it: a bag's
-/// length and width take their own ([`Division::IRREGULAR`]), whatever shape the station
-/// read.
-pub fn judged_division(billing: &Billing, kind: ObjectKind) -> Division {
-    Division {
-        irregular: kind == ObjectKind::Bag,
-        ..billing.division
+/// The shape an object of `kind` is judged as, which picks the division of each axis
+/// ([`Division::of_axis`](crate::report::Division::of_axis)), as a certificate states it:
+/// a bag is irregular (its length and width take their own division), whatever shape the
+/// station read.
+pub fn judged_shape(kind: ObjectKind) -> Shape {
+    match kind {
+        ObjectKind::Bag => Shape::Irregular,
+        ObjectKind::Cylinder | ObjectKind::Tube => Shape::Round,
+        _ => Shape::Cuboid,
     }
 }
 

@@ -301,7 +301,6 @@ pub(super) async fn run(args: Options) -> anyhow::Result<Exit> {
     let billing = Billing {
         division: Division {
             d_mm: args.division_mm,
-            ..Division::default()
         },
         ..Billing::default()
     };

@@ -239,7 +239,6 @@ async fn accuracy_lane(args: AccuracyArgs) -> anyhow::Result<Exit> {
     let billing = Billing {
         division: Division {
             d_mm: args.division_mm,
-            ..Division::default()
         },
         ..Billing::default()
     };
