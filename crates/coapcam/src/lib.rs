@@ -20,8 +20,9 @@
 //! - [`bench`](mod@bench): the benchmarks, and [`process`]: the child processes and peer programs
 //!   they and the integration tests run.
 //!
-//! The protocol lives in the `coap` and `coap-net` crates, the cameras in `rgbd`, the
-//! point-cloud geometry in `geometry`, the link emulator in `netem`.
+//! The protocol lives in the `coap` and `coap-net` crates, the resource directory in
+//! `coap-rd`, the cameras in `rgbd`, the point-cloud geometry in `geometry`, the link
+//! emulator in `netem`.
 
 #![forbid(unsafe_code)]
 
@@ -32,7 +33,6 @@ pub mod client;
 pub mod documents;
 pub mod identity;
 pub mod process;
-pub mod rd;
 pub mod report;
 pub mod repr;
 pub mod server;

@@ -16,10 +16,10 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, bail};
 use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request};
 use coap_net::Client;
+use coap_rd::{Directory, Limits, LookupKind, Params, Query};
 use serde::Serialize;
 
 use crate::process::{self, Proc};
-use crate::rd::{Directory, Limits, LookupKind, Params, Query};
 use crate::stats;
 
 /// What `bench rd` is asked to do.
@@ -291,7 +291,7 @@ pub async fn run(config: &Config) -> anyhow::Result<Report> {
         ),
     ];
     // The same registrations in a directory here, for the lookups' own work.
-    let now = crate::rd::service::now_ms();
+    let now = coap_rd::service::now_ms();
     let mut here = Directory::new(Limits {
         max_registrations: n,
         per_peer: n,

@@ -16,8 +16,7 @@ use tracing_subscriber::registry::LookupSpan;
 /// What is logged when `RUST_LOG` is not set: warnings, and the few changes of state an
 /// operator wants to see without asking: registered with a resource directory or its
 /// registration removed, connected to the MQTT broker (again) or disconnected from it.
-pub(crate) const DEFAULT_FILTER: &str =
-    "warn,coapcam::rd::registrant=info,coapcam::station::mqtt=info";
+pub(crate) const DEFAULT_FILTER: &str = "warn,coap_rd::registrant=info,coapcam::station::mqtt=info";
 
 /// Starts the log: `RUST_LOG`'s filter, else [`DEFAULT_FILTER`].
 pub(crate) fn init() {

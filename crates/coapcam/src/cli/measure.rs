@@ -10,12 +10,12 @@ use std::time::{Duration, Instant};
 use anyhow::{Context as _, bail};
 use clap::Args;
 use coap_net::Uri;
+use coap_rd::registrant::{Endpoint, GROUP_ATTR, group_key, lookup_endpoints};
 
 use coapcam::client::measure::{
     FLOOR_CUT_M, Source, calibration_of, color_for_codes, measure_checked, prepare_cameras,
 };
 use coapcam::client::{CamClient, annotate, codes};
-use coapcam::rd::registrant::{Endpoint, GROUP_ATTR, group_key, lookup_endpoints};
 use coapcam::report::{self, Billing, Division, EdgeQuery, Found, Measurement, Parcel};
 use coapcam::timesync::Limits;
 

@@ -9,8 +9,8 @@ use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
 use coap_net::{Client, Router, Server, ServerConfig};
-use coapcam::rd::Limits;
-use coapcam::rd::service::{self, Service, Store};
+use coap_rd::Limits;
+use coap_rd::service::{self, Service, Store};
 use tokio::signal::unix::{SignalKind, signal};
 
 /// Flags of `rd`.

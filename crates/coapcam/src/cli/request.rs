@@ -460,7 +460,7 @@ async fn discover_rd(rd_text: &str, args: &DiscoverArgs) -> anyhow::Result<Exit>
         .map(str::to_owned)
         .collect();
     let endpoints =
-        coapcam::rd::registrant::lookup_endpoints(&client, rd, &query, args.transmission.timeout())
+        coap_rd::registrant::lookup_endpoints(&client, rd, &query, args.transmission.timeout())
             .await?;
     for e in &endpoints {
         if args.json {

@@ -9,7 +9,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use clap::Args;
 use coap::EndpointConfig;
-use coapcam::rd::registrant::{Registrant, RegistrantConfig};
+use coap_rd::registrant::{Registrant, RegistrantConfig};
 use coapcam::server::{self, Identities};
 use coapcam::station::log::Retention;
 use coapcam::station::watch::AutoConfig;

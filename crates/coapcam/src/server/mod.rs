@@ -23,13 +23,13 @@ use anyhow::{Context as _, bail};
 use coap::link_format::Filter;
 use coap::{Code, EndpointConfig, IncomingRequest, Response};
 use coap_net::{Router, Server, ServerConfig};
+use coap_rd::registrant::{Announcement, Registrant, RegistrantConfig};
 use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
 
 use crate::backends::{Backend, synthetic};
-use crate::rd::registrant::{Announcement, Registrant, RegistrantConfig};
 use crate::report::{EdgeQuery, Measurement};
 use cams::Cams;
 pub use cams::{Busy, CodeColor, EdgeError};
@@ -226,7 +226,7 @@ impl CameraServer {
     }
 
     /// Registers this server with a resource directory and keeps the registration alive
-    /// (`serve --register`; [`crate::rd::registrant`]): its typed links (those with an
+    /// (`serve --register`; [`coap_rd::registrant`]): its typed links (those with an
     /// `rt`: the cameras' resources, `/cams/pointclouds`, `/coap-group`, ...) and the
     /// groups it joined, sent from its own socket so the directory sees its address.
     /// The registration follows cameras that come and go and groups joined or left.
@@ -254,7 +254,7 @@ impl CameraServer {
                         .addrs()
                         .await
                         .iter()
-                        .map(|a| crate::rd::registrant::group_key(*a))
+                        .map(|a| coap_rd::registrant::group_key(*a))
                         .collect(),
                 }
             }

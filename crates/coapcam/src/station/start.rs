@@ -9,6 +9,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 
 use anyhow::{Context as _, bail};
+use coap_rd::registrant::{Registrant, RegistrantConfig};
 use tokio::task::JoinHandle;
 
 use super::follow::{Feed, Output};
@@ -17,7 +18,6 @@ use super::signing::StationKey;
 use super::writer::WriterLock;
 use super::{Config, Recorder, http, last_id_path, resources, watch};
 use crate::api::paths;
-use crate::rd::registrant::{Registrant, RegistrantConfig};
 use crate::report::{EdgeQuery, Measurement};
 use crate::server::measure::Rig as _;
 use crate::server::{self, CameraServer, CodeColor, EdgeError};

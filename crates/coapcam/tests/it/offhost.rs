@@ -590,10 +590,10 @@ fn rd_endpoints(
     client: &coap_net::Client,
     rd: SocketAddr,
     query: &[&str],
-) -> Vec<coapcam::rd::registrant::Endpoint> {
+) -> Vec<coap_rd::registrant::Endpoint> {
     let query: Vec<String> = query.iter().map(|q| (*q).to_owned()).collect();
     support::runtime().block_on(async {
-        coapcam::rd::registrant::lookup_endpoints(client, rd, &query, LIMIT)
+        coap_rd::registrant::lookup_endpoints(client, rd, &query, LIMIT)
             .await
             .unwrap_or_else(|e| panic!("endpoint lookup at {rd}: {e:#}"))
     })

@@ -12,8 +12,8 @@ use std::time::{Duration, Instant};
 
 use coap::{Code, OptionNumber, Request};
 use coap_net::{Resource, Router, Server, ServerConfig, handler};
+use coap_rd::registrant::{Endpoint, lookup_endpoints};
 use coapcam::process::peers;
-use coapcam::rd::registrant::{Endpoint, lookup_endpoints};
 
 use crate::support::{
     AIOCOAP_CLIENT, COAPCAM, LIBCOAP_CLIENT, LIMIT, Peer, Proc, TempDir, available, client,

@@ -1,4 +1,4 @@
-//! A resource directory (RFC 9176) and the client side of one.
+//! A resource directory (RFC 9176) and the client side of one, over [`coap_net`].
 //!
 //! - [`directory`]: the directory itself, sans-IO: registrations, lookups, lifetimes and
 //!   bounds, every call given the time;
@@ -16,6 +16,11 @@
 //! Group members (docs/fleet.md): each server registers the groups it joined as the
 //! endpoint attribute `grp`, one per group (`grp=224.0.1.188:5683`); a client finds a
 //! group's members with one endpoint lookup, `?grp=224.0.1.188:5683`.
+//!
+//! Uses `coap` (messages, link format) and `coap-net` (client, router), nothing of
+//! coapcam: coapcam's `rd` command runs the service, its camera servers the registrant.
+
+#![forbid(unsafe_code)]
 
 pub mod directory;
 pub mod freshness;
