@@ -97,6 +97,13 @@ impl Division {
         }
     }
 
+    /// The division of the length and width of a parcel of `shape` up to the switchover:
+    /// d, or [`Division::IRREGULAR`] d for an irregular item's ([`Division::of_axis`] of
+    /// a short length).
+    pub fn footprint_of(&self, shape: Shape) -> f64 {
+        self.of_axis(0, 0.0, shape)
+    }
+
     /// `value_mm` rounded to the nearest multiple of its division.
     pub fn round(&self, value_mm: f64) -> f64 {
         let step = self.of(value_mm);
@@ -151,11 +158,12 @@ impl Division {
 
 impl Billing {
     /// The division the length and width of a parcel of `shape` are given in:
-    /// `round_up_mm`, or the accuracy division `d` (2 d for an irregular item's; a
-    /// dimension above the switchover takes 2 d: [`Billing::division_of`]).
+    /// `round_up_mm`, or the accuracy division `d` (2 d for an irregular item's:
+    /// [`Division::footprint_of`]; a dimension above the switchover takes 2 d:
+    /// [`Billing::division_of`]).
     pub fn division_mm(&self, shape: Shape) -> f64 {
         self.round_up_mm
-            .unwrap_or_else(|| self.division.of_axis(0, 0.0, shape))
+            .unwrap_or_else(|| self.division.footprint_of(shape))
     }
 
     /// The division of dimension `axis` (0 length, 1 width, 2 height) of `value_mm` of a
@@ -688,6 +696,10 @@ mod tests {
     fn the_division_doubles_above_200_d_and_bounds_the_range() {
         let d = Division::default();
         assert_eq!((d.of(1000.0), d.of(1000.1)), (5.0, 10.0));
+        assert_eq!(
+            [Shape::Cuboid, Shape::Round, Shape::Irregular].map(|s| d.footprint_of(s)),
+            [5.0, 5.0, 10.0]
+        );
         assert_eq!(
             (d.round(612.4), d.round(612.6), d.round(1234.0)),
             (610.0, 615.0, 1230.0)
