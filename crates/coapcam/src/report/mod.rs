@@ -439,15 +439,22 @@ impl Table {
                 continue;
             }
             let points: usize = inside.iter().map(|&i| self.fits[i].dimensions.points).sum();
-            // Every pixel that sees a parcel meets the floor within what the parcel
-            // covers or hides: a region reaching beyond that comes from more parcel than
-            // was measured (a black bag's rim, read short).
-            let within = inside.iter().all(|&i| {
-                geometry::hidden_bounds(&self.fits[i].dimensions, views).is_none_or(|(lo, hi)| {
-                    (0..2).all(|k| {
-                        f64::from(r.min_m[k]) >= lo[k] - BEYOND_M
-                            && f64::from(r.max_m[k]) <= hi[k] + BEYOND_M
-                    })
+            // Every pixel that sees one of the parcels meets the floor within what they
+            // cover or hide: a region reaching beyond that comes from more parcel than
+            // was measured (a black bag's rim, read short). With several parcels in the
+            // region (one's holes reaching under another's), beyond all of them.
+            let bounds: Option<Vec<_>> = inside
+                .iter()
+                .map(|&i| geometry::hidden_bounds(&self.fits[i].dimensions, views))
+                .collect();
+            let within = bounds.is_none_or(|bounds| {
+                (0..2).all(|k| {
+                    let lo = bounds.iter().map(|b| b.0[k]).fold(f64::INFINITY, f64::min);
+                    let hi = bounds
+                        .iter()
+                        .map(|b| b.1[k])
+                        .fold(f64::NEG_INFINITY, f64::max);
+                    f64::from(r.min_m[k]) >= lo - BEYOND_M && f64::from(r.max_m[k]) <= hi + BEYOND_M
                 })
             });
             if points as u64 >= u64::from(r.pixels) && within {
@@ -888,6 +895,43 @@ mod tests {
         // The rim 20 mm beyond its near (+x) end and its sides: refused.
         let rim = region([-0.05, -0.02], [0.42, 0.32], 5_000);
         let refused = table.with_no_depth(&[rim], &[view]);
+        assert!(
+            refused.fits.len() == 1 && refused.fits[0].no_depth,
+            "{:?}",
+            refused.fits
+        );
+    }
+
+    /// A tall box's holes reach the floor far into its shadow, under a low box standing
+    /// there: the region holds both, and lies within what the two cover or hide (cert
+    /// scenes 415 and 205: a black cylinder's region took a measured neighbour with it
+    /// into a refusal). A region reaching beyond both is still more parcel than measured.
+    #[test]
+    fn holes_reaching_under_a_neighbour_are_the_parcels_own() {
+        // A camera 1 m up at (0.9, 0.1); a 200 x 200 x 400 mm box from (0, 0), which
+        // hides the floor to x = -0.6 from it, and a 100 x 100 x 100 mm box 200 mm
+        // beyond, in that shadow.
+        let eye = geometry::Transform {
+            linear: nalgebra::Matrix3::identity(),
+            translation: nalgebra::Vector3::new(0.9, 0.1, 1.0),
+        };
+        let view = View::pinhole(eye, 600.0, 600.0, 320.0, 240.0, 640, 480);
+        let mut tall = placed(200.0, 200.0, [0.0, 0.0], 20_000);
+        tall.dimensions.height_mm = 400.0;
+        let low = placed(100.0, 100.0, [-0.3, 0.0], 5_000);
+        let table = Table {
+            fits: vec![tall, low],
+            largest_points: 20_000,
+        };
+        let holes = region([-0.55, -0.03], [0.19, 0.25], 5_000);
+        let kept = table.clone().with_no_depth(&[holes], &[view]);
+        assert!(
+            kept.fits.len() == 2 && kept.fits.iter().all(|f| !f.no_depth),
+            "{:?}",
+            kept.fits
+        );
+        let beyond = region([-0.55, -0.03], [0.19, 0.30], 5_000);
+        let refused = table.with_no_depth(&[beyond], &[view]);
         assert!(
             refused.fits.len() == 1 && refused.fits[0].no_depth,
             "{:?}",

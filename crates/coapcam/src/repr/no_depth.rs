@@ -11,7 +11,9 @@
 //! it is at least as large as the smallest measurable parcel. The stereo shadow is not
 //! one: a D415's depth is the left imager's, and beside a parcel's left edge (in the
 //! image) the right imager cannot see the floor; that run of a row is at most as wide as
-//! the disparities of the parcel's edge and of the floor behind it differ.
+//! the disparities of the parcel's edge and of the floor behind it differ. Where the
+//! parcel's own wall returned no depth either, the run holds both: its first pixels, that
+//! wide, are the shadow and are left out, and count as floor on the region's border.
 
 use coap::{OptionNumber, Options};
 
@@ -183,8 +185,9 @@ pub const PARCEL_FLOOR_BORDER: f32 = 0.5;
 const MIN_FLOOR_BORDER: f32 = 0.1;
 
 /// A run of a row without depth this much wider (pixels) than the stereo shadow the
-/// depths at its ends give is not that shadow: the spatial filter and the pixels mixing
-/// an edge with the floor move the ends by a pixel or so.
+/// depths at its ends give is not that shadow alone: the spatial filter and the pixels
+/// mixing an edge with the floor move the ends by a pixel or so. Of a wider run, the
+/// shadow's width is left out.
 const SHADOW_SLACK_PX: f32 = 2.0;
 
 impl DepthPart {
@@ -224,10 +227,22 @@ pub fn no_depth(
     }
     let raw = |x: usize, y: usize| d.data.get(y * d.stride + x).copied().unwrap_or(0);
     let metres = |v: u16| f32::from(v) * d.depth_scale;
+    // The transform's numbers as plain arrays: this runs per pixel of every hole.
+    let l = &to_common.linear;
+    let rows = [0, 1, 2].map(|r| [l[(r, 0)], l[(r, 1)], l[(r, 2)]]);
+    let origin = [0, 1, 2].map(|r| to_common.translation[r]);
+    let moved = |v: [f32; 3], r: usize| rows[r][0] * v[0] + rows[r][1] * v[1] + rows[r][2] * v[2];
+    let is_floor = |x: usize, y: usize| {
+        let p = k.deproject([x as f32, y as f32], metres(raw(x, y)));
+        origin[2] + moved(p, 2) <= FLOOR_BAND_M
+    };
     // Pixels without depth that are not a stereo shadow.
     // Runs of rows (row, first, end) first: most frames have none, and then no image
     // of flags is made.
     let mut runs = Vec::new();
+    // The shadows left out of wider runs: floor the left imager sees, so a region
+    // bordering one borders floor.
+    let mut shades = Vec::new();
     let disparity = k.fx * baseline_m.unwrap_or(0.0);
     for (y, row) in d.data.chunks(d.stride.max(1)).take(h).enumerate() {
         let row = &row[..w.min(row.len())];
@@ -238,21 +253,34 @@ pub fn no_depth(
                 .iter()
                 .position(|&v| v != 0)
                 .map_or(row.len(), |n| start + n);
-            // The run is start..x; the shadow lies left of a nearer surface, and at
-            // the image's left edge (where the right imager sees nothing) the far
-            // side's disparity is 0.
-            let shadow = x < row.len() && {
+            // The run is start..x; the stereo shadow lies left of a nearer surface, as
+            // wide as the two disparities differ (at the image's left edge, where the
+            // right imager sees nothing, the far side's disparity is 0). A run no wider
+            // is that shadow. A wider one beside floor holds the shadow and the nearer
+            // surface's own near part that returned no depth (a dark parcel's wall):
+            // its first pixels, the shadow's width, are left out.
+            let shadow = if x < row.len() {
                 let near = metres(row[x]);
                 let far_inverse = if start == 0 {
                     0.0
                 } else {
                     1.0 / metres(row[start - 1])
                 };
-                let width = disparity * (1.0 / near - far_inverse);
-                (x - start) as f32 <= width.max(0.0) + SHADOW_SLACK_PX
+                (disparity * (1.0 / near - far_inverse)).max(0.0)
+            } else {
+                0.0
             };
-            if !shadow {
-                runs.push((y, start, x));
+            if x >= row.len() || (x - start) as f32 > shadow + SHADOW_SLACK_PX {
+                let beside_floor = start == 0 || is_floor(start - 1, y);
+                let from = if beside_floor {
+                    start + shadow.floor() as usize
+                } else {
+                    start
+                };
+                runs.push((y, from, x));
+                if from > start {
+                    shades.push((y, start, from));
+                }
             }
             if x >= row.len() {
                 break;
@@ -266,12 +294,11 @@ pub fn no_depth(
     for &(y, start, end) in &runs {
         hole[y * w + start..y * w + end].fill(true);
     }
+    let mut shade = vec![false; if shades.is_empty() { 0 } else { w * h }];
+    for &(y, start, end) in &shades {
+        shade[y * w + start..y * w + end].fill(true);
+    }
     // Where each pixel's ray meets the floor (z = 0), and the floor's area it covers.
-    // The transform's numbers as plain arrays: this runs per pixel of every hole.
-    let l = &to_common.linear;
-    let rows = [0, 1, 2].map(|r| [l[(r, 0)], l[(r, 1)], l[(r, 2)]]);
-    let origin = [0, 1, 2].map(|r| to_common.translation[r]);
-    let moved = |v: [f32; 3], r: usize| rows[r][0] * v[0] + rows[r][1] * v[1] + rows[r][2] * v[2];
     let floor_of = |x: usize, y: usize| -> Option<([f32; 2], f32)> {
         let ray = k.deproject([x as f32, y as f32], 1.0);
         let dz = moved(ray, 2);
@@ -290,10 +317,6 @@ pub fn no_depth(
     };
     let (min, max) = (roi.min(), roi.max());
     let on_table = |p: [f32; 2]| (min.x..=max.x).contains(&p[0]) && (min.y..=max.y).contains(&p[1]);
-    let is_floor = |x: usize, y: usize| {
-        let p = k.deproject([x as f32, y as f32], metres(raw(x, y)));
-        origin[2] + moved(p, 2) <= FLOOR_BAND_M
-    };
     // Connected regions of holes (4-neighbours); a pixel taken into a region leaves
     // `hole` (it has no depth, so it is no region's border either).
     let mut regions = Vec::new();
@@ -334,6 +357,9 @@ pub fn no_depth(
                 } else if raw(n % w, n / w) != 0 {
                     border += 1;
                     floor_border += u32::from(is_floor(n % w, n / w));
+                } else if shade.get(n) == Some(&true) {
+                    border += 1;
+                    floor_border += 1;
                 }
             }
         }
@@ -476,6 +502,40 @@ mod tests {
         assert!((r.min_m[0] + 0.225).abs() < 0.01, "{r:?}");
         assert!((r.max_m[0] + 0.07875).abs() < 0.01, "{r:?}");
         assert!(r.floor_border < PARCEL_FLOOR_BORDER, "{r:?}");
+    }
+
+    /// A dark box's wall returns no depth where it meets the stereo shadow beside it: one
+    /// run of each row holds both. The region is the wall's: its floor points start where
+    /// the shadow ends, not where the shadow starts (a black cylinder's region reached 23
+    /// mm beyond what it hides, and took in the parcel standing there; cert scene 462).
+    #[test]
+    fn the_stereo_shadow_beside_a_dark_wall_is_left_out_of_its_region() {
+        let inside = |x: usize, y: usize, xs: (usize, usize), ys: (usize, usize)| {
+            (xs.0..xs.1).contains(&x) && (ys.0..ys.1).contains(&y)
+        };
+        let part = looking_down(|x, y| {
+            if inside(x, y, (96, 110), (10, 110)) {
+                // 3.7 pixels of shadow (as above), then the box's dark left part.
+                0
+            } else if inside(x, y, (110, 140), (10, 110)) {
+                1200
+            } else {
+                1500
+            }
+        });
+        let found = part.no_depth(Some(0.055));
+        assert_eq!(found.len(), 1, "{found:?}");
+        let r = found[0];
+        // Pixel 99 on, at 1.5 m: x from (99 - 80) / 400 x 1.5.
+        assert!((r.min_m[0] - 0.07125).abs() < 1e-4, "{r:?}");
+        assert_eq!(r.pixels, 11 * 100);
+        // The shadow left out is floor the left imager sees: the region borders floor
+        // there (else a black parcel bordered by its shadow and a neighbour was no region,
+        // and went missing: cert scene 467).
+        assert!((r.floor_border - 122.0 / 222.0).abs() < 1e-6, "{r:?}");
+        // Without a stereo pair there is no shadow: the run is a hole from its start.
+        let all = part.no_depth(None);
+        assert!((all[0].min_m[0] - 0.06).abs() < 1e-4, "{all:?}");
     }
 
     #[test]
