@@ -195,14 +195,24 @@ pub fn cert_set(seed: u64, count: usize) -> Vec<CertScene> {
 struct Eye {
     pose: Pose,
     from: V3,
+    /// The depth stream's intrinsics at [`DEPTH_SIZE`].
+    k: crate::Intrinsics,
+    /// The depth range, metres: the minimum range at `k`, the maximum.
+    range: (f64, f64),
 }
 
 impl Eye {
     /// `None` without a pose.
     fn of(c: &SceneCamera) -> Option<Self> {
+        let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
         Some(Self {
             pose: c.pose()?,
             from: c.position.map(|v| v as f32).into(),
+            range: (
+                f64::from(d415::min_range_m(k.fx)),
+                f64::from(d415::MAX_RANGE_M),
+            ),
+            k,
         })
     }
 
@@ -212,7 +222,7 @@ impl Eye {
         let d = [0, 1, 2].map(|i| p[i] - self.pose.translation[i]);
         let r = self.pose.rotation;
         let q = [0, 1, 2].map(|j| r[0][j] * d[0] + r[1][j] * d[1] + r[2][j] * d[2]);
-        let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
+        let k = &self.k;
         if q[2] <= 0.0 {
             return None;
         }
@@ -226,9 +236,7 @@ impl Eye {
     /// Whether it has world point `p` in its depth image, [`EDGE_PX`] or more from the
     /// image's edges, in front of it beyond its minimum range and within its greatest.
     fn holds(&self, p: [f64; 3]) -> bool {
-        let k = d415::depth_intrinsics(DEPTH_SIZE[0], DEPTH_SIZE[1]);
-        let near = f64::from(d415::min_range_m(k.fx));
-        let far = f64::from(d415::MAX_RANGE_M);
+        let (near, far) = self.range;
         let (w, h) = (f64::from(DEPTH_SIZE[0]), f64::from(DEPTH_SIZE[1]));
         self.project(p).is_some_and(|(uv, z)| {
             z > near
