@@ -18,7 +18,7 @@ use coapcam::client::measure::{
     self, CloudMeasurement, FLOOR_CUT_M, Source, prepare_cameras, truth, yaw_difference,
 };
 use coapcam::client::{annotate, codes};
-use coapcam::report::{Billing, describe};
+use coapcam::report::{Billing, Parcel, describe};
 use coapcam::repr::Stream;
 use coapcam::server::SceneServer;
 use coapcam::vision::codes::Code;
@@ -107,14 +107,14 @@ pub(crate) async fn run(args: DemoArgs) -> anyhow::Result<Exit> {
     save(&picture::top_view(&m.grabbed.cloud, m.dimensions()), &top)?;
     outln!("wrote {}", top.display());
     let annotated = dir.join("annotated.png");
-    let Some(dimensions) = m.dimensions() else {
+    let Parcel::Measured(dimensions, shape) = &m.parcel else {
         bail!("nothing on the table: the scene's box was not seen");
     };
     // The demo's own unrounded measurement, beside the scene's truth.
     annotate::from_server(&client, first, dimensions, None, Some(&codes), &annotated).await?;
     outln!("wrote {} (camera {first})", annotated.display());
     outln!("");
-    out!("{}", report(&m, dimensions, truth(&scene)));
+    out!("{}", report(&m, dimensions, *shape, truth(&scene)));
     outln!(
         "codes: {}; on the scene's parcels: {}",
         describe(&codes),
@@ -156,9 +156,9 @@ async fn save_grabs(client: &CamClient, serial: &str, dir: &Path) -> anyhow::Res
     Ok(())
 }
 
-/// The measurement of `d`, the scene's box (its volume billed as a box's), next to the
-/// truth, as a table.
-fn report(m: &CloudMeasurement, d: &Dimensions, truth: Option<[f64; 4]>) -> String {
+/// The measurement of `d`, the scene's box (its volume billed as its measured `shape`
+/// says), next to the truth, as a table.
+fn report(m: &CloudMeasurement, d: &Dimensions, shape: Shape, truth: Option<[f64; 4]>) -> String {
     let billing = Billing::default();
     let measured = [d.length_mm, d.width_mm, d.height_mm, d.yaw_deg];
     let names = ["length mm", "width mm", "height mm", "yaw deg"];
@@ -184,8 +184,8 @@ fn report(m: &CloudMeasurement, d: &Dimensions, truth: Option<[f64; 4]>) -> Stri
     }
     out += &format!(
         "volume {:.2} l, volumetric weight {:.2} kg, {} points from {} camera(s), cycle {:.0} ms ({:.2} MB)\n",
-        billing.volume_l(d, Shape::Cuboid),
-        billing.volumetric_weight_kg(d, Shape::Cuboid),
+        billing.volume_l(d, shape),
+        billing.volumetric_weight_kg(d, shape),
         d.points,
         m.grabbed.cameras.len(),
         m.cycle.as_secs_f64() * 1e3,

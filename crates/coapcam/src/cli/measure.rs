@@ -369,7 +369,7 @@ async fn annotate_parcel(
     let Some(path) = &args.annotate else {
         return Ok(());
     };
-    if !matches!(parcel, Parcel::Measured(_) | Parcel::Refused { .. }) {
+    if !matches!(parcel, Parcel::Measured(..) | Parcel::Refused { .. }) {
         eprintln!(
             "coapcam: no parcel was measured, so nothing to draw: {} not written",
             path.display()
@@ -383,7 +383,7 @@ async fn annotate_parcel(
         .context("no camera to take the color image from")?;
     let one = CamClient::unicast(client, *server);
     match parcel {
-        Parcel::Measured(dimensions) => {
+        Parcel::Measured(dimensions, _) => {
             let division = m.reported().and_then(|r| r.division_mm);
             annotate::from_server(&one, sn, dimensions, division, m.codes.as_deref(), path).await?;
             eprintln!("coapcam: wrote {}", path.display());

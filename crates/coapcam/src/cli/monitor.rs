@@ -283,7 +283,7 @@ impl Report {
                                 uncalibrated.join(", ")
                             );
                         }
-                        Some((_, Parcel::Measured(d))) => {
+                        Some((_, Parcel::Measured(d, _))) => {
                             let dims = measurement
                                 .and_then(Measurement::reported)
                                 .map_or_else(String::new, Reported::dimensions_text);

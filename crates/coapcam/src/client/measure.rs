@@ -119,7 +119,7 @@ impl CloudMeasurement {
     /// The parcel's dimensions; `None` when nothing is on the table.
     pub fn dimensions(&self) -> Option<&Dimensions> {
         match &self.parcel {
-            Parcel::Measured(d) => Some(d),
+            Parcel::Measured(d, _) => Some(d),
             Parcel::Nothing { .. } | Parcel::Refused { .. } => None,
         }
     }

@@ -148,18 +148,22 @@ impl ParcelReport {
             unrounded_mm,
             yaw_deg: (d.yaw_deg * 100.0).round() / 100.0,
             corners_m: d.corners_m.map(|c| c.map(|v| (v * 1e4).round() / 1e4)),
-            shape: match fit.shape {
-                Shape::Cuboid => "cuboid",
-                Shape::Round => "round",
-                Shape::Irregular => "irregular",
-            }
-            .into(),
+            shape: shape_name(fit.shape).into(),
             fit: thousandth(fit.fit),
             isolated: fit.isolated,
             complete: fit.complete,
             coverage: thousandth(fit.coverage),
             points: d.points as u64,
         }
+    }
+}
+
+/// A shape's name in [`ParcelReport::shape`].
+fn shape_name(shape: Shape) -> &'static str {
+    match shape {
+        Shape::Cuboid => "cuboid",
+        Shape::Round => "round",
+        Shape::Irregular => "irregular",
     }
 }
 
@@ -302,13 +306,12 @@ pub enum MeasurementError {
 }
 
 impl Measurement {
-    /// A measurement of `parcel` (reported as `billing` says; a measured parcel's `shape`
+    /// A measurement of `parcel` (reported as `billing` says; a measured parcel's shape
     /// picks the division of its length and width) in a merged cloud of `cloud_points`
     /// points from `cameras`, whose frames are of `frames_unix_us`, grabbed in `grab`; no
     /// codes, no warnings, no client's fields yet.
     pub fn new(
         parcel: &Parcel,
-        shape: Shape,
         billing: &Billing,
         cloud_points: usize,
         cameras: Vec<String>,
@@ -316,7 +319,9 @@ impl Measurement {
         grab: Duration,
     ) -> Self {
         let (found, parcel_points) = match parcel {
-            Parcel::Measured(d) => (Found::Measured(Reported::new(d, shape, billing)), d.points),
+            Parcel::Measured(d, shape) => {
+                (Found::Measured(Reported::new(d, *shape, billing)), d.points)
+            }
             Parcel::Nothing { points } => (Found::Nothing, *points),
             Parcel::Refused { reason, points } => (
                 Found::Refused {
@@ -364,7 +369,7 @@ impl Measurement {
             .collect();
         let largest = match (table.largest(), parcels.first()) {
             (
-                Parcel::Measured(d),
+                Parcel::Measured(d, _),
                 Some(ParcelReport {
                     reason: Some(reason),
                     ..
@@ -376,10 +381,8 @@ impl Measurement {
             (largest, _) => largest,
         };
         // The top level is the largest's numbers, billed as its own shape says.
-        let shape = table.fits.first().map_or(Shape::Cuboid, |f| f.shape);
         let mut m = Self::new(
             &largest,
-            shape,
             billing,
             cloud_points,
             cameras,
@@ -414,7 +417,7 @@ impl Measurement {
     pub fn parcel(&self) -> Parcel {
         let points = usize::try_from(self.parcel_points).unwrap_or(usize::MAX);
         match &self.parcel {
-            Found::Measured(r) => Parcel::Measured(r.dimensions(points)),
+            Found::Measured(r) => Parcel::Measured(r.dimensions(points), self.reported_shape()),
             Found::Nothing | Found::Uncalibrated { .. } | Found::Unsynced { .. } => {
                 Parcel::Nothing { points }
             }
@@ -423,6 +426,21 @@ impl Measurement {
                 points,
             },
         }
+    }
+
+    /// The shape of the reported parcel, the first of `parcels`: a box in a document from
+    /// before the list, when every parcel was measured as one (and for a shape this
+    /// program does not know).
+    fn reported_shape(&self) -> Shape {
+        let named = |name: &str| {
+            [Shape::Cuboid, Shape::Round, Shape::Irregular]
+                .into_iter()
+                .find(|&s| shape_name(s) == name)
+        };
+        self.parcels
+            .first()
+            .and_then(|p| named(&p.shape))
+            .unwrap_or(Shape::Cuboid)
     }
 
     /// Withholds the dimensions because `cameras` are not calibrated (their
@@ -611,8 +629,7 @@ mod tests {
             points: 1234,
         };
         let mut m = Measurement::new(
-            &Parcel::Measured(d),
-            Shape::Cuboid,
+            &Parcel::Measured(d, Shape::Cuboid),
             &Billing::default(),
             5000,
             vec!["840412060746".into()],
@@ -672,7 +689,6 @@ mod tests {
     fn nothing_on_the_table_has_no_dimensions() {
         let mut m = Measurement::new(
             &Parcel::Nothing { points: 12 },
-            Shape::Cuboid,
             &Billing::default(),
             100,
             Vec::new(),

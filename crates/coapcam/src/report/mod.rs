@@ -309,8 +309,9 @@ const MIN_SIDE_M: f64 = 0.05;
 /// What a measurement found on the table.
 #[derive(Debug, Clone)]
 pub enum Parcel {
-    /// The largest object above the floor, measured.
-    Measured(Dimensions),
+    /// The largest object above the floor, measured: its smallest enclosing cuboid, and
+    /// its shape, which picks the division of its length and width ([`Billing`]).
+    Measured(Dimensions, Shape),
     /// Nothing on the table: the largest object above the floor has fewer points than a
     /// measurement needs.
     Nothing {
@@ -492,7 +493,7 @@ impl Table {
                 reason: NO_DEPTH_REASON.into(),
                 points: 0,
             },
-            Some(f) => Parcel::Measured(f.dimensions),
+            Some(f) => Parcel::Measured(f.dimensions, f.shape),
             None => Parcel::Nothing {
                 points: self.largest_points,
             },
@@ -1148,6 +1149,39 @@ mod tests {
         };
         assert_eq!(fine.billed_mm(0, 322.63, Shape::Cuboid), 322.6);
         assert_eq!(fine.billed_mm(0, 0.3 + 0.6, Shape::Cuboid), 0.9);
+    }
+
+    /// The largest parcel carries its shape from the fit to the document and back: a
+    /// document read again gives the shape it was billed as; one from before the list of
+    /// parcels (and its shapes), a box's.
+    #[test]
+    fn the_reported_parcel_keeps_its_shape_through_the_document() {
+        for shape in [Shape::Cuboid, Shape::Round, Shape::Irregular] {
+            let mut one = fit(322.6, 241.3, 99.8);
+            one.shape = shape;
+            let table = Table {
+                fits: vec![one],
+                largest_points: 1000,
+            };
+            assert!(matches!(table.largest(), Parcel::Measured(_, s) if s == shape));
+            let m = Measurement::of_table(
+                &table,
+                &Billing::default(),
+                0.8,
+                5000,
+                Vec::new(),
+                Vec::new(),
+                Duration::ZERO,
+            );
+            let mut back =
+                Measurement::from_json(m.to_json().expect("JSON").as_bytes()).expect("reads");
+            assert!(
+                matches!(back.parcel(), Parcel::Measured(_, s) if s == shape),
+                "{shape:?}"
+            );
+            back.parcels.clear();
+            assert!(matches!(back.parcel(), Parcel::Measured(_, Shape::Cuboid)));
+        }
     }
 
     /// Issue 51, item 4: the picture's legend wrote whole millimetres whatever the

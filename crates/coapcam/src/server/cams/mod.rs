@@ -1181,8 +1181,6 @@ impl Cams {
             let reasons: Vec<String> = stale.iter().map(ToString::to_string).collect();
             let mut m = Measurement::new(
                 &report::Parcel::Nothing { points: 0 },
-                // No parcel: no shape picks a division.
-                geometry::Shape::Cuboid,
                 &query.billing,
                 0,
                 merged.serials.iter().map(ToString::to_string).collect(),
