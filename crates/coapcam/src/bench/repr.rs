@@ -114,7 +114,7 @@ pub async fn run(scene: &Scene, runs: u32) -> anyhow::Result<Report> {
         ContentFormat::IMAGE_PNG,
         runs,
         || Ok(raster::depth_png(d)?),
-        |b| raster::depth_from_png(b).map(drop),
+        |b| Ok(raster::depth_from_png(b).map(drop)?),
     )?);
     rows.push(row(
         "depth",

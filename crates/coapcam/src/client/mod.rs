@@ -398,7 +398,7 @@ impl CamClient {
     /// Grabs a new depth frame of one camera (POST), compactly ([`Self::grab_compact`]).
     pub async fn grab_depth(&self, serial: &str) -> anyhow::Result<DepthImage> {
         let r = self.grab_compact(serial, Stream::Depth).await?;
-        repr::Format::received(r.options.content_format())?.decode_depth(&r.payload)
+        Ok(repr::Format::received(r.options.content_format())?.decode_depth(&r.payload)?)
     }
 
     /// Grabs a new color frame of one camera (POST) as a JPEG of `quality` (1-100).
@@ -498,7 +498,7 @@ pub fn cloud_of(response: &Response) -> anyhow::Result<cbor::Cloud> {
             repr::Format::describe(cf.unwrap_or(ContentFormat::OCTET_STREAM))
         );
     };
-    row.decode_cloud(&response.payload)
+    Ok(row.decode_cloud(&response.payload)?)
 }
 
 /// A request answered with an error response (4.xx, 5.xx).

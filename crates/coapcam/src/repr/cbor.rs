@@ -9,7 +9,7 @@ use geometry::Point3;
 use rgbd::{ColorFrame, DepthFrame, DistortionModel, Extrinsics, Intrinsics, Serial};
 use serde::{Deserialize, Serialize};
 
-pub use super::codec::Cloud;
+pub use super::codec::{CborError, Cloud};
 use super::codec::{Decoders, Subject, checked_len};
 use super::packet::unix_seconds;
 use super::packet::{
@@ -201,43 +201,6 @@ pub struct CloudMap {
     pub serials: Option<Vec<String>>,
     /// The points.
     pub data: ByteString,
-}
-
-/// Why a CBOR map could not be read.
-#[derive(Debug, thiserror::Error)]
-pub enum CborError {
-    /// Not CBOR, or not a map of this kind (a key missing, a value of the wrong type).
-    #[error("decoding the CBOR {what}: {source}")]
-    Decode {
-        /// `color frame`, `depth frame` or `point cloud`.
-        what: &'static str,
-        /// ciborium's description.
-        source: ciborium::de::Error<std::io::Error>,
-    },
-    /// A map of another kind (its `type`).
-    #[error("the CBOR map is of type {found}, not a {what} ({expected})")]
-    Type {
-        /// What was expected.
-        what: &'static str,
-        /// Its `type`.
-        expected: u8,
-        /// The map's `type`.
-        found: u8,
-    },
-    /// The data does not hold what the header announces.
-    #[error("the CBOR {what}: {why}")]
-    Data {
-        /// What was read.
-        what: &'static str,
-        /// What does not fit.
-        why: String,
-    },
-    /// A point-cloud map that names no camera.
-    #[error("the CBOR point cloud has neither serial nor serials")]
-    NoCamera,
-    /// An intrinsics map with an unknown distortion model.
-    #[error("unknown distortion model {0:?}")]
-    Model(String),
 }
 
 fn decode<T: serde::de::DeserializeOwned>(

@@ -14,8 +14,8 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use rgbd::{DepthFrame, DistortionModel, FilterError, Intrinsics};
 
-pub use super::codec::DepthPart;
 use super::codec::{CameraFrame, Cloud, CloudSource, Decoders, EncodeError, Subject};
+pub use super::codec::{DepthCloudError, DepthPart};
 
 pub use compact::WireError;
 pub use compact::cloud::CloudError;
@@ -180,21 +180,6 @@ pub fn parts_from_depth_cloud(payload: &[u8]) -> Result<Vec<DepthPart>, DepthClo
             })
         })
         .collect()
-}
-
-/// Why a compact cloud gave no points.
-#[derive(Debug, thiserror::Error)]
-pub enum DepthCloudError {
-    /// The payload.
-    #[error(transparent)]
-    Payload(#[from] CloudError),
-    /// A part's region (the payload's decoder checks the same rules first).
-    #[error("compact cloud: {0}")]
-    Region(#[from] geometry::RoiError),
-    /// A part's depth does not fit its intrinsics (the payload's decoder checks this
-    /// first).
-    #[error("compact cloud: {0}")]
-    Deproject(#[from] FilterError),
 }
 
 /// The merged cloud of a compact cloud (65103): every part's points in order, the

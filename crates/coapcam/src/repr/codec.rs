@@ -79,9 +79,9 @@ pub struct Decoders {
 }
 
 /// A decoder of depth images.
-pub type DecodeDepth = fn(&[u8]) -> anyhow::Result<DepthImage>;
+pub type DecodeDepth = fn(&[u8]) -> Result<DepthImage, DecodeError>;
 /// A decoder of point clouds.
-pub type DecodeCloud = fn(&[u8]) -> anyhow::Result<Cloud>;
+pub type DecodeCloud = fn(&[u8]) -> Result<Cloud, DecodeError>;
 
 impl Decoders {
     /// Decodes nothing.
@@ -96,10 +96,61 @@ impl Decoders {
 #[derive(Debug, Clone, Copy)]
 pub enum ColorDecoder {
     /// From the body alone.
-    Image(fn(&[u8]) -> anyhow::Result<RgbImage>),
+    Image(fn(&[u8]) -> Result<RgbImage, DecodeError>),
     /// From the body and the camera's pixel format (`rgb8`, ...), which it does not carry:
     /// the reader asks the camera's `color-settings` for it.
-    WithPixelFormat(fn(&[u8], &str) -> anyhow::Result<RgbImage>),
+    WithPixelFormat(fn(&[u8], &str) -> Result<RgbImage, DecodeError>),
+}
+
+/// A body could not be read back as the frame or cloud it was asked for.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DecodeError {
+    /// The body's content format is none of the representations.
+    #[error("an unknown content format ({0})")]
+    UnknownFormat(String),
+    /// The format does not carry the stream asked for, or coapcam does not read it back.
+    #[error("coapcam does not read {stream} from {format}")]
+    NotRead {
+        /// `color`, `depth` or `a point cloud`.
+        stream: &'static str,
+        /// The format's label.
+        format: &'static str,
+    },
+    /// A thesis packet does not hold what its header says.
+    #[error("reading the {what} packet")]
+    Packet {
+        /// `color`, `depth` or `point-cloud`.
+        what: &'static str,
+        /// What does not fit.
+        source: PacketError,
+    },
+    /// A PNG or JPEG body is not an image.
+    #[error("decoding the {what}")]
+    Image {
+        /// `depth PNG` or `color image`.
+        what: &'static str,
+        /// The image decoder's error.
+        source: image::ImageError,
+    },
+    /// A depth PNG that is not 16-bit grayscale (raw depth units).
+    #[error("the depth PNG is not 16-bit grayscale")]
+    DepthNotGray16,
+    /// A CBOR map.
+    #[error(transparent)]
+    Cbor(#[from] CborError),
+    /// A compact cloud.
+    #[error(transparent)]
+    DepthCloud(#[from] DepthCloudError),
+    /// A millimetre cloud.
+    #[error(transparent)]
+    Mm(#[from] compact::WireError),
+    /// RVL depth, plain or in zstd.
+    #[error(transparent)]
+    Rvl(#[from] compact::rvl::RvlError),
+    /// A PLY cloud.
+    #[error(transparent)]
+    Ply(#[from] geometry::PlyError),
 }
 
 /// A representation could not be encoded.
@@ -130,6 +181,66 @@ pub enum EncodeError {
         /// The format's label.
         format: &'static str,
     },
+}
+
+/// A packet that does not hold what its header says.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{what} packet: {problem}")]
+pub struct PacketError {
+    pub(super) what: &'static str,
+    pub(super) problem: String,
+}
+
+/// Why a CBOR map could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum CborError {
+    /// Not CBOR, or not a map of this kind (a key missing, a value of the wrong type).
+    #[error("decoding the CBOR {what}: {source}")]
+    Decode {
+        /// `color frame`, `depth frame` or `point cloud`.
+        what: &'static str,
+        /// ciborium's description.
+        source: ciborium::de::Error<std::io::Error>,
+    },
+    /// A map of another kind (its `type`).
+    #[error("the CBOR map is of type {found}, not a {what} ({expected})")]
+    Type {
+        /// What was expected.
+        what: &'static str,
+        /// Its `type`.
+        expected: u8,
+        /// The map's `type`.
+        found: u8,
+    },
+    /// The data does not hold what the header announces.
+    #[error("the CBOR {what}: {why}")]
+    Data {
+        /// What was read.
+        what: &'static str,
+        /// What does not fit.
+        why: String,
+    },
+    /// A point-cloud map that names no camera.
+    #[error("the CBOR point cloud has neither serial nor serials")]
+    NoCamera,
+    /// An intrinsics map with an unknown distortion model.
+    #[error("unknown distortion model {0:?}")]
+    Model(String),
+}
+
+/// Why a compact cloud gave no points.
+#[derive(Debug, thiserror::Error)]
+pub enum DepthCloudError {
+    /// The payload.
+    #[error(transparent)]
+    Payload(#[from] compact::cloud::CloudError),
+    /// A part's region (the payload's decoder checks the same rules first).
+    #[error("compact cloud: {0}")]
+    Region(#[from] geometry::RoiError),
+    /// A part's depth does not fit its intrinsics (the payload's decoder checks this
+    /// first).
+    #[error("compact cloud: {0}")]
+    Deproject(#[from] rgbd::FilterError),
 }
 
 /// Where a point cloud came from, for its CBOR map and PLY comment.

@@ -22,12 +22,11 @@ pub mod ply;
 pub mod raster;
 pub mod rvl;
 
-use anyhow::bail;
 use coap::ContentFormat;
 
 pub use self::codec::{
-    CameraFrame, Cloud, CloudSource, ColorDecoder, Decoders, DepthImage, DepthPart, Encode,
-    EncodeError, Subject,
+    CameraFrame, Cloud, CloudSource, ColorDecoder, DecodeError, Decoders, DepthImage, DepthPart,
+    Encode, EncodeError, Subject,
 };
 
 /// What a grab resource produces.
@@ -280,12 +279,9 @@ impl Format {
 
     /// The row of a received body's content format, the thesis packet's when it names
     /// none (coapcam's servers then send the packet).
-    pub fn received(cf: Option<ContentFormat>) -> anyhow::Result<&'static Self> {
+    pub fn received(cf: Option<ContentFormat>) -> Result<&'static Self, DecodeError> {
         let cf = cf.unwrap_or(ContentFormat::OCTET_STREAM);
-        match Self::of(cf) {
-            Some(f) => Ok(f),
-            None => bail!("an unknown content format ({})", Self::describe(cf)),
-        }
+        Self::of(cf).ok_or_else(|| DecodeError::UnknownFormat(Self::describe(cf)))
     }
 
     /// Its body as a frame of `subject`'s stream.
@@ -294,26 +290,29 @@ impl Format {
     }
 
     /// Reads a depth image back from a body in this format.
-    pub fn decode_depth(&self, body: &[u8]) -> anyhow::Result<DepthImage> {
-        match self.decode.depth {
-            Some(decode) => decode(body),
-            None => bail!("coapcam does not read depth from {}", self.label),
-        }
+    pub fn decode_depth(&self, body: &[u8]) -> Result<DepthImage, DecodeError> {
+        let decode = self.decode.depth.ok_or_else(|| self.not_read("depth"))?;
+        decode(body)
     }
 
     /// Reads a point cloud back from a body in this format.
-    pub fn decode_cloud(&self, body: &[u8]) -> anyhow::Result<Cloud> {
-        match self.decode.cloud {
-            Some(decode) => decode(body),
-            None => bail!("coapcam does not read a point cloud from {}", self.label),
-        }
+    pub fn decode_cloud(&self, body: &[u8]) -> Result<Cloud, DecodeError> {
+        let decode = self
+            .decode
+            .cloud
+            .ok_or_else(|| self.not_read("a point cloud"))?;
+        decode(body)
     }
 
     /// How color is read back from a body in this format.
-    pub fn color_decoder(&self) -> anyhow::Result<ColorDecoder> {
-        match self.decode.color {
-            Some(decoder) => Ok(decoder),
-            None => bail!("coapcam does not read color from {}", self.label),
+    pub fn color_decoder(&self) -> Result<ColorDecoder, DecodeError> {
+        self.decode.color.ok_or_else(|| self.not_read("color"))
+    }
+
+    fn not_read(&self, stream: &'static str) -> DecodeError {
+        DecodeError::NotRead {
+            stream,
+            format: self.label,
         }
     }
 
@@ -374,6 +373,59 @@ pub(crate) mod tests {
             frame_number: 1,
             data: vec![7; stride * height as usize],
         }
+    }
+
+    /// The words of an error and its causes, as the commands print them.
+    fn words(e: DecodeError) -> String {
+        crate::error_text(&anyhow::Error::new(e))
+    }
+
+    #[test]
+    fn a_body_that_cannot_be_read_says_which_and_why() {
+        let unknown = Format::received(Some(ContentFormat(65_000))).map(|f| f.label);
+        assert!(
+            matches!(&unknown, Err(DecodeError::UnknownFormat(cf)) if cf == "65000"),
+            "{unknown:?}"
+        );
+        let ply = Format::of(PLY).expect("PLY's row");
+        let depth = ply.decode_depth(b"ply");
+        assert!(matches!(
+            depth,
+            Err(DecodeError::NotRead {
+                stream: "depth",
+                format: "PLY"
+            })
+        ));
+        assert_eq!(
+            words(depth.expect_err("PLY carries no depth")),
+            "coapcam does not read depth from PLY"
+        );
+        let packet = Format::of(ContentFormat::OCTET_STREAM).expect("the packet's row");
+        assert_eq!(
+            words(packet.decode_depth(&[2, 0, 1]).expect_err("3 bytes")),
+            "reading the depth packet: depth packet: 3 bytes, the header alone is 14"
+        );
+        assert_eq!(
+            words(
+                packet
+                    .decode_cloud(&[3, 11, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+                    .err()
+                    .expect("point size 11")
+            ),
+            "reading the point-cloud packet: point-cloud packet: point size 11, expected 12"
+        );
+        let png = Format::of(ContentFormat::IMAGE_PNG).expect("PNG's row");
+        let not_png = png.decode_depth(b"not a PNG");
+        assert!(
+            matches!(
+                &not_png,
+                Err(DecodeError::Image {
+                    what: "depth PNG",
+                    ..
+                })
+            ),
+            "{not_png:?}"
+        );
     }
 
     #[test]

@@ -8,13 +8,13 @@
 //! | 2 depth | as color with pixel size 2, then the depth scale (f32) | Z16 values little-endian |
 //! | 3 point cloud | type, point size 12, reserved (u16), points (u32), timestamp (u32 s) | x, y, z as f32 little-endian, metres |
 
-use anyhow::Context as _;
 use geometry::{Point3, PointCloud};
 use image::RgbImage;
 use rgbd::{ColorFrame, DepthFrame};
 
 pub use super::codec::DepthImage;
-use super::codec::{Cloud, ColorDecoder, Decoders, EncodeError, Subject, checked_len};
+pub use super::codec::PacketError;
+use super::codec::{Cloud, ColorDecoder, DecodeError, Decoders, EncodeError, Subject, checked_len};
 
 /// Packet type of a color image.
 pub const TYPE_COLOR: u8 = 1;
@@ -118,14 +118,6 @@ pub fn cloud_packet(points: &[Point3], timestamp_s: u32) -> Vec<u8> {
 }
 
 // ---- reading
-
-/// A packet that does not hold what its header says.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{what} packet: {problem}")]
-pub struct PacketError {
-    what: &'static str,
-    problem: String,
-}
 
 fn error(what: &'static str, problem: impl Into<String>) -> PacketError {
     PacketError {
@@ -306,6 +298,10 @@ pub fn color(packet: &[u8], format: &str) -> Result<RgbImage, PacketError> {
 
 // ---- the row of the table
 
+fn read_error(what: &'static str) -> impl FnOnce(PacketError) -> DecodeError {
+    move |source| DecodeError::Packet { what, source }
+}
+
 /// The thesis packet's encoder: every stream.
 pub fn encode(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
     Ok(match *subject {
@@ -323,11 +319,11 @@ pub fn encode(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
 /// (no cameras, whole seconds).
 pub const DECODERS: Decoders = Decoders {
     color: Some(ColorDecoder::WithPixelFormat(|body, pixel_format| {
-        Ok(color(body, pixel_format)?)
+        color(body, pixel_format).map_err(read_error("color"))
     })),
-    depth: Some(|body| depth(body).context("reading the depth packet")),
+    depth: Some(|body| depth(body).map_err(read_error("depth"))),
     cloud: Some(|body| {
-        let p = cloud(body).context("reading the point-cloud packet")?;
+        let p = cloud(body).map_err(read_error("point-cloud"))?;
         Ok(Cloud {
             cloud: p.cloud,
             serials: Vec::new(),

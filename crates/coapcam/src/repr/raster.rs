@@ -1,7 +1,6 @@
 //! PNG and JPEG: color as 8-bit RGB(A) PNG or JPEG, depth as 16-bit grayscale PNG of the
 //! raw units.
 
-use anyhow::{Context as _, bail};
 use image::codecs::jpeg::JpegEncoder;
 use image::codecs::png::PngEncoder;
 use image::{ExtendedColorType, ImageEncoder as _, ImageFormat};
@@ -9,7 +8,7 @@ use rgbd::{ColorFormat, ColorFrame, DepthFrame};
 
 use image::RgbImage;
 
-use super::codec::{ColorDecoder, Decoders, DepthImage, EncodeError, Subject};
+use super::codec::{ColorDecoder, DecodeError, Decoders, DepthImage, EncodeError, Subject};
 use super::packet::{compact_pixels, depth_rows};
 
 /// Quality of JPEG color images.
@@ -119,11 +118,15 @@ pub fn depth_png(frame: &DepthFrame) -> Result<Vec<u8>, EncodeError> {
 // ---- reading
 
 /// A 16-bit grayscale PNG of raw depth units (the server's `image/png` depth).
-pub fn depth_from_png(png: &[u8]) -> anyhow::Result<DepthImage> {
-    let image = image::load_from_memory_with_format(png, ImageFormat::Png)
-        .context("decoding the depth PNG")?;
+pub fn depth_from_png(png: &[u8]) -> Result<DepthImage, DecodeError> {
+    let image = image::load_from_memory_with_format(png, ImageFormat::Png).map_err(|source| {
+        DecodeError::Image {
+            what: "depth PNG",
+            source,
+        }
+    })?;
     let image::DynamicImage::ImageLuma16(gray) = image else {
-        bail!("the depth PNG is not 16-bit grayscale");
+        return Err(DecodeError::DepthNotGray16);
     };
     Ok(DepthImage {
         width: gray.width(),
@@ -154,10 +157,12 @@ pub fn encode_jpeg(subject: &Subject<'_>) -> Result<Vec<u8>, EncodeError> {
 }
 
 /// A PNG or JPEG color image as RGB.
-fn color_from_image(body: &[u8]) -> anyhow::Result<RgbImage> {
-    Ok(image::load_from_memory(body)
-        .context("decoding the color image")?
-        .to_rgb8())
+fn color_from_image(body: &[u8]) -> Result<RgbImage, DecodeError> {
+    let image = image::load_from_memory(body).map_err(|source| DecodeError::Image {
+        what: "color image",
+        source,
+    })?;
+    Ok(image.to_rgb8())
 }
 
 /// PNG read back: color and depth.
