@@ -20,7 +20,11 @@ pub fn projector(
     capture: &ColorCapture,
     depth_to_world: &geometry::Transform,
 ) -> anyhow::Result<impl Fn([f64; 3]) -> Option<[f32; 2]> + use<>> {
-    picture::projector(capture.intrinsics, capture.depth_to_color, depth_to_world)
+    Ok(picture::projector(
+        capture.intrinsics,
+        capture.depth_to_color,
+        depth_to_world,
+    )?)
 }
 
 /// Grabs a color frame of `serial` and draws `dims` onto it (`--annotate`), written with
@@ -83,11 +87,15 @@ async fn drawn_on_a_frame(
     client: &CamClient,
     serial: &str,
     path: &std::path::Path,
-    draw: impl FnOnce(&mut image::RgbImage, &ColorCapture, &geometry::Transform) -> anyhow::Result<()>,
+    draw: impl FnOnce(
+        &mut image::RgbImage,
+        &ColorCapture,
+        &geometry::Transform,
+    ) -> Result<(), picture::ProjectError>,
 ) -> anyhow::Result<()> {
     let (mut image, capture, transform) = frame(client, serial).await?;
     draw(&mut image, &capture, &transform)?;
-    picture::save(&image, path)
+    Ok(picture::save(&image, path)?)
 }
 
 /// A new color frame of `serial` (its image taken out of the capture) and the camera's

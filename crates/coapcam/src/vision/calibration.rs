@@ -58,6 +58,30 @@ pub struct MarkerMap {
     markers: Vec<MapMarker>,
 }
 
+/// A scene's markers do not make a map.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MapError {
+    /// The origin marker is not among the scene's markers of the family.
+    #[error("the map has no {family} marker {origin} (the origin); it has {ids:?}")]
+    NoOrigin {
+        /// The markers' family.
+        family: Family,
+        /// The origin's id.
+        origin: u32,
+        /// The ids of the family's markers the scene has.
+        ids: Vec<u32>,
+    },
+    /// Two markers of the family have the same id.
+    #[error("the map has {family} marker {id} twice")]
+    Twice {
+        /// The markers' family.
+        family: Family,
+        /// The id.
+        id: u32,
+    },
+}
+
 impl MarkerMap {
     /// A map of the origin marker alone, `size` metres wide.
     pub fn single(family: Family, origin: u32, size: f64) -> Self {
@@ -75,21 +99,22 @@ impl MarkerMap {
 
     /// The markers of `family` in a scene file's `[[marker]]` tables, expressed in the
     /// frame of marker `origin`, which must be among them.
-    pub fn from_scene(scene: &Scene, family: Family, origin: u32) -> anyhow::Result<Self> {
+    pub fn from_scene(scene: &Scene, family: Family, origin: u32) -> Result<Self, MapError> {
         let name = family.to_string();
         let of_family: Vec<_> = scene.markers.iter().filter(|m| m.family == name).collect();
         let Some(o) = of_family.iter().find(|m| m.id == origin) else {
-            anyhow::bail!(
-                "the map has no {family} marker {origin} (the origin); it has {:?}",
-                of_family.iter().map(|m| m.id).collect::<Vec<_>>()
-            );
+            return Err(MapError::NoOrigin {
+                family,
+                origin,
+                ids: of_family.iter().map(|m| m.id).collect(),
+            });
         };
         let (o_center, o_yaw) = (Vector2::from(o.center), o.yaw_deg.to_radians());
         let to_origin = Rotation2::new(-o_yaw);
         let mut markers = Vec::with_capacity(of_family.len());
         for m in &of_family {
             if markers.iter().any(|k: &MapMarker| k.id == m.id) {
-                anyhow::bail!("the map has {family} marker {} twice", m.id);
+                return Err(MapError::Twice { family, id: m.id });
             }
             markers.push(MapMarker {
                 id: m.id,
@@ -373,6 +398,31 @@ mod tests {
             points,
             truth: cam.true_pose().expect("pose"),
         }
+    }
+
+    #[test]
+    fn a_map_without_its_origin_or_with_a_marker_twice_says_so() {
+        let scene = scene([0.9, -1.1, 1.3], [0.1, 0.1, 0.0]);
+        let no_origin = MarkerMap::from_scene(&scene, Family::Tag36h11, 7).map(|m| m.origin);
+        assert_eq!(
+            no_origin,
+            Err(MapError::NoOrigin {
+                family: Family::Tag36h11,
+                origin: 7,
+                ids: vec![0, 5],
+            })
+        );
+        assert_eq!(
+            no_origin.expect_err("no marker 7").to_string(),
+            "the map has no tag36h11 marker 7 (the origin); it has [0, 5]"
+        );
+        let mut twice = scene.clone();
+        twice.markers.push(scene.markers[1].clone());
+        let twice = MarkerMap::from_scene(&twice, Family::Tag36h11, 0).map(|m| m.origin);
+        assert_eq!(
+            twice.expect_err("marker 5 twice").to_string(),
+            "the map has tag36h11 marker 5 twice"
+        );
     }
 
     #[test]

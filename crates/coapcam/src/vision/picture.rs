@@ -4,7 +4,6 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context as _, bail};
 use geometry::{Dimensions, PointCloud, Transform};
 use image::{GrayImage, ImageFormat, Luma, Rgb, RgbImage};
 use rgbd::{Extrinsics, Intrinsics};
@@ -370,6 +369,18 @@ fn draw_axes(image: &mut RgbImage, origin: [f32; 2], len: f32, scale: u32, names
     }
 }
 
+/// A camera's calibration through which world points cannot be drawn on its color frames.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ProjectError {
+    /// The camera's 3d-transformation has no inverse.
+    #[error("the 3d-transformation cannot be inverted")]
+    NotInvertible,
+    /// The color stream is distorted (the model's name).
+    #[error("the color stream's {0} distortion cannot be drawn through")]
+    Distorted(&'static str),
+}
+
 /// The pixel at which a world point (the 3d-transformation's output frame) is seen by a
 /// color camera with `intrinsics`, `depth_to_color` from its depth camera, whose
 /// 3d-transformation is `depth_to_world`; `None` behind the camera. Fails for a
@@ -378,17 +389,14 @@ pub fn projector(
     intrinsics: Intrinsics,
     depth_to_color: Extrinsics,
     depth_to_world: &Transform,
-) -> anyhow::Result<impl Fn([f64; 3]) -> Option<[f32; 2]> + use<>> {
+) -> Result<impl Fn([f64; 3]) -> Option<[f32; 2]> + use<>, ProjectError> {
     let inverse = depth_to_world
         .linear
         .try_inverse()
-        .context("the 3d-transformation cannot be inverted")?;
+        .ok_or(ProjectError::NotInvertible)?;
     let translation = depth_to_world.translation;
     if !intrinsics.is_pinhole() {
-        bail!(
-            "the color stream's {} distortion cannot be drawn through",
-            intrinsics.model.name()
-        );
+        return Err(ProjectError::Distorted(intrinsics.model.name()));
     }
     Ok(move |[x, y, z]: [f64; 3]| {
         let world = nalgebra::Vector3::new(x as f32, y as f32, z as f32);
@@ -409,7 +417,7 @@ pub fn annotate_frame(
     intrinsics: Intrinsics,
     depth_to_color: Extrinsics,
     depth_to_world: &Transform,
-) -> anyhow::Result<()> {
+) -> Result<(), ProjectError> {
     // The camera in the world: where its depth frame's origin goes.
     let camera = depth_to_world.translation.map(f64::from);
     let project = projector(intrinsics, depth_to_color, depth_to_world)?;
@@ -509,7 +517,7 @@ pub fn annotate_refused_frame(
     intrinsics: Intrinsics,
     depth_to_color: Extrinsics,
     depth_to_world: &Transform,
-) -> anyhow::Result<()> {
+) -> Result<(), ProjectError> {
     let project = projector(intrinsics, depth_to_color, depth_to_world)?;
     annotate_refused(image, corners_m, reason, codes, project);
     Ok(())
@@ -662,7 +670,7 @@ pub fn sibling(path: &Path, suffix: &str) -> PathBuf {
 }
 
 /// Saves a picture as PNG (quietly: callers say what they wrote where their output goes).
-pub fn save<P, C>(image: &image::ImageBuffer<P, C>, path: &Path) -> anyhow::Result<()>
+pub fn save<P, C>(image: &image::ImageBuffer<P, C>, path: &Path) -> Result<(), SaveError>
 where
     P: image::PixelWithColorType,
     [P::Subpixel]: image::EncodableLayout,
@@ -670,7 +678,20 @@ where
 {
     image
         .save_with_format(path, ImageFormat::Png)
-        .with_context(|| format!("writing {}", path.display()))
+        .map_err(|source| SaveError {
+            path: path.to_owned(),
+            source,
+        })
+}
+
+/// A picture could not be written.
+#[derive(Debug, thiserror::Error)]
+#[error("writing {}", path.display())]
+pub struct SaveError {
+    /// Where it was to go.
+    pub path: PathBuf,
+    /// The encoder's or the file system's error.
+    pub source: image::ImageError,
 }
 
 /// Side of a glyph of the 8x8 font, in font pixels.
