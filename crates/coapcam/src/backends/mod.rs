@@ -13,7 +13,7 @@ pub mod synthetic;
 
 use rgbd::Scene;
 
-pub use backend::Backend;
+pub use backend::{Backend, StartError};
 
 /// [`Backends`]: every backend's flags, flattened, and the backends they ask for.
 macro_rules! backends {

@@ -6,13 +6,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::Context as _;
 use rgbd::backend::realsense::{
     GrabMode, LibrarySearch, RealSense, RealSenseLibrary, SoftwareD415,
 };
 use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
 
-use super::backend::Backend;
+use super::backend::{Backend, StartError};
 
 /// How long librealsense gets to announce the first camera.
 const FIRST_CAMERA: Duration = Duration::from_secs(3);
@@ -102,7 +101,7 @@ struct Running {
 }
 
 impl Backend for RealSenseCameras {
-    fn start(&mut self, hub: &Arc<CameraHub>) -> anyhow::Result<Vec<Serial>> {
+    fn start(&mut self, hub: &Arc<CameraHub>) -> Result<Vec<Serial>, StartError> {
         let options = &self.options;
         let library = RealSenseLibrary::load(&options.library)?;
         let mode = if options.streaming {
@@ -110,15 +109,19 @@ impl Backend for RealSenseCameras {
         } else {
             GrabMode::PerRequest
         };
-        let realsense = RealSense::start(&library, hub.clone(), mode)
-            .with_context(|| format!("starting librealsense {}", library.version()))?;
+        let realsense = RealSense::start(&library, hub.clone(), mode).map_err(|source| {
+            StartError::StartRealSense {
+                version: library.version(),
+                source,
+            }
+        })?;
         let mut software = Vec::new();
         if let Some(scene) = &options.software {
-            for camera in SyntheticCamera::all(scene).context("building the scene's cameras")? {
+            for camera in SyntheticCamera::all(scene).map_err(StartError::Scene)? {
                 software.push(
                     realsense
                         .add_software_d415(camera)
-                        .context("adding a virtual D415 to librealsense")?,
+                        .map_err(StartError::Software)?,
                 );
             }
         }

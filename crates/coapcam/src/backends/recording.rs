@@ -4,11 +4,10 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use anyhow::Context as _;
 use rgbd::backend::playback::PlaybackCamera;
 use rgbd::{Camera as _, CameraHub, Scene, Serial};
 
-use super::backend::Backend;
+use super::backend::{Backend, StartError};
 
 /// The flags of the recordings.
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -37,15 +36,20 @@ impl Args {
 pub struct Recordings(pub Vec<PathBuf>);
 
 impl Backend for Recordings {
-    fn start(&mut self, hub: &Arc<CameraHub>) -> anyhow::Result<Vec<Serial>> {
+    fn start(&mut self, hub: &Arc<CameraHub>) -> Result<Vec<Serial>, StartError> {
         let mut serials = Vec::new();
         for path in &self.0 {
-            let cameras = PlaybackCamera::open(path)
-                .with_context(|| format!("opening recording {}", path.display()))?;
+            let cameras = PlaybackCamera::open(path).map_err(|source| StartError::Recording {
+                path: path.clone(),
+                source,
+            })?;
             for camera in cameras {
                 serials.push(camera.serial());
                 hub.add(Arc::new(camera))
-                    .with_context(|| format!("adding the camera of {}", path.display()))?;
+                    .map_err(|source| StartError::AddRecorded {
+                        path: path.clone(),
+                        source,
+                    })?;
             }
         }
         Ok(serials)

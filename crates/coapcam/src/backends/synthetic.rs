@@ -3,17 +3,16 @@
 
 use std::sync::Arc;
 
-use anyhow::Context as _;
 use rgbd::{Camera as _, CameraHub, Scene, Serial, SyntheticCamera};
 
-use super::backend::Backend;
+use super::backend::{Backend, StartError};
 
 /// The synthetic cameras of a scene.
 pub struct Synthetic(pub Scene);
 
 impl Backend for Synthetic {
-    fn start(&mut self, hub: &Arc<CameraHub>) -> anyhow::Result<Vec<Serial>> {
-        let cameras = SyntheticCamera::all(&self.0).context("building the scene's cameras")?;
+    fn start(&mut self, hub: &Arc<CameraHub>) -> Result<Vec<Serial>, StartError> {
+        let cameras = SyntheticCamera::all(&self.0).map_err(StartError::Scene)?;
         add(hub, cameras)
     }
 }
@@ -23,11 +22,11 @@ impl Backend for Synthetic {
 /// # Errors
 ///
 /// When one of them is in the hub already.
-pub fn add(hub: &CameraHub, cameras: Vec<Arc<SyntheticCamera>>) -> anyhow::Result<Vec<Serial>> {
+pub fn add(hub: &CameraHub, cameras: Vec<Arc<SyntheticCamera>>) -> Result<Vec<Serial>, StartError> {
     let mut serials = Vec::new();
     for camera in cameras {
         serials.push(camera.serial());
-        hub.add(camera).context("adding a camera")?;
+        hub.add(camera).map_err(StartError::Add)?;
     }
     Ok(serials)
 }

@@ -601,8 +601,9 @@ impl coapcam::backends::Backend for Flagged {
     fn start(
         &mut self,
         hub: &std::sync::Arc<rgbd::CameraHub>,
-    ) -> anyhow::Result<Vec<rgbd::Serial>> {
-        let cameras = rgbd::SyntheticCamera::all(&self.scene)?;
+    ) -> Result<Vec<rgbd::Serial>, coapcam::backends::StartError> {
+        let cameras = rgbd::SyntheticCamera::all(&self.scene)
+            .map_err(coapcam::backends::StartError::Scene)?;
         coapcam::backends::synthetic::add(hub, cameras)
     }
 }
