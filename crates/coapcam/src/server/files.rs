@@ -13,12 +13,13 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::SystemTime;
 
-use anyhow::bail;
 use bytes::Bytes;
 use coap::{BlockSource, Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::router::check_preconditions;
 use coap_net::{Ctx, Resource, Router, handler};
 use tokio::sync::mpsc;
+
+use super::error::StartError;
 
 /// Bytes read from a file at a time: one read serves 64 blocks of 1024 bytes.
 const WINDOW: usize = 64 << 10;
@@ -80,9 +81,9 @@ impl StaticFiles {
         writable: bool,
         quota: Option<u64>,
         changed: mpsc::UnboundedSender<String>,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, StartError> {
         if !dir.is_dir() {
-            bail!("--static {}: not a directory", dir.display());
+            return Err(StartError::NotADirectory(dir.to_owned()));
         }
         let me = Self {
             dir: dir.to_path_buf(),

@@ -18,6 +18,8 @@ use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
 use coap_net::{Ctx, Resource, Router, Server, handler};
 use tokio::sync::{Mutex, mpsc, oneshot};
 
+use super::error::StartError;
+
 /// Most memberships held at once (Linux allows 20 IPv4 groups per socket by default).
 pub(crate) const MAX_MEMBERSHIPS: usize = 16;
 
@@ -134,7 +136,7 @@ impl Groups {
         server: &Server,
         groups: &[IpAddr],
         interface: u32,
-    ) -> anyhow::Result<()> {
+    ) -> Result<(), StartError> {
         let local = server.local_addrs();
         let mut memberships = self.memberships.lock().await;
         for ip in groups {
@@ -142,12 +144,12 @@ impl Groups {
                 .iter()
                 .find(|a| a.is_ipv4() == ip.is_ipv4())
                 .map(SocketAddr::port)
-                .ok_or_else(|| anyhow::anyhow!("--group {ip}: no bound address of its family"))?;
-            let addr =
-                GroupAddr::new(*ip, port).map_err(|e| anyhow::anyhow!("--group {ip}: {e}"))?;
+                .ok_or(StartError::NoGroupFamily { ip: *ip })?;
+            let addr = GroupAddr::new(*ip, port)
+                .map_err(|source| StartError::Group { ip: *ip, source })?;
             if memberships.uses(*ip) == 0 {
                 let joined = server.join(*ip, interface).await;
-                joined.map_err(|e| anyhow::anyhow!("joining {ip}: {e}"))?;
+                joined.map_err(|source| StartError::Join { ip: *ip, source })?;
             }
             memberships.insert(GroupConfig { name: None, addr });
         }

@@ -6,10 +6,9 @@
 //! creation resources). Identities and keys are text, as libcoap's tools take them.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::{Context as _, bail};
 use coap::{Code, IncomingRequest, Response};
 use coap_net::Psk;
 
@@ -22,6 +21,65 @@ pub enum Role {
     Configure,
 }
 
+/// A `--psk-file` that could not be read.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LoadError {
+    /// The file could not be read.
+    #[error("reading {}", path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Its text is not a list of identities.
+    #[error("in {}", path.display())]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong, and on which line.
+        source: ParseError,
+    },
+}
+
+/// The text of a `--psk-file` is not a list of identities (lines counted from 1).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ParseError {
+    /// A line without three fields.
+    #[error("line {line}: expected IDENTITY KEY ROLE")]
+    Fields {
+        /// The line.
+        line: usize,
+    },
+    /// A role other than `read` and `configure`.
+    #[error("line {line}: role {role:?} is neither read nor configure")]
+    Role {
+        /// The line.
+        line: usize,
+        /// The role given.
+        role: String,
+    },
+    /// An identity or key longer than OpenSSL takes.
+    #[error("line {line}: identities are at most 128 bytes, keys 64")]
+    TooLong {
+        /// The line.
+        line: usize,
+    },
+    /// An identity given twice.
+    #[error("line {line}: identity {identity:?} appears twice")]
+    Twice {
+        /// The line of the second.
+        line: usize,
+        /// The identity.
+        identity: String,
+    },
+    /// No line names an identity.
+    #[error("no identities")]
+    Empty,
+}
+
 /// The identities of a server, with their keys and roles.
 #[derive(Debug, Default)]
 pub struct Identities {
@@ -30,14 +88,19 @@ pub struct Identities {
 
 impl Identities {
     /// Reads a `--psk-file`.
-    pub fn load(path: &Path) -> anyhow::Result<Self> {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        Self::parse(&text).with_context(|| format!("in {}", path.display()))
+    pub fn load(path: &Path) -> Result<Self, LoadError> {
+        let text = std::fs::read_to_string(path).map_err(|source| LoadError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::parse(&text).map_err(|source| LoadError::Parse {
+            path: path.to_owned(),
+            source,
+        })
     }
 
     /// Parses the text of a `--psk-file`.
-    pub fn parse(text: &str) -> anyhow::Result<Self> {
+    pub fn parse(text: &str) -> Result<Self, ParseError> {
         let mut by_name = HashMap::new();
         for (n, line) in text.lines().enumerate() {
             let line = line.split('#').next().unwrap_or_default().trim();
@@ -45,30 +108,36 @@ impl Identities {
                 continue;
             }
             let fields: Vec<&str> = line.split_whitespace().collect();
+            let line = n + 1;
             let [identity, key, role] = fields[..] else {
-                bail!("line {}: expected IDENTITY KEY ROLE", n + 1);
+                return Err(ParseError::Fields { line });
             };
             let role = match role {
                 "read" => Role::Read,
                 "configure" => Role::Configure,
-                other => bail!(
-                    "line {}: role {other:?} is neither read nor configure",
-                    n + 1
-                ),
+                other => {
+                    return Err(ParseError::Role {
+                        line,
+                        role: other.to_owned(),
+                    });
+                }
             };
             // OpenSSL's limits: an identity of up to 128 bytes, a key of up to 64.
             if identity.len() > 128 || key.len() > 64 {
-                bail!("line {}: identities are at most 128 bytes, keys 64", n + 1);
+                return Err(ParseError::TooLong { line });
             }
             if by_name
                 .insert(identity.to_string(), (key.as_bytes().to_vec(), role))
                 .is_some()
             {
-                bail!("line {}: identity {identity:?} appears twice", n + 1);
+                return Err(ParseError::Twice {
+                    line,
+                    identity: identity.to_owned(),
+                });
             }
         }
         if by_name.is_empty() {
-            bail!("no identities");
+            return Err(ParseError::Empty);
         }
         Ok(Self { by_name })
     }
@@ -117,14 +186,27 @@ mod tests {
         assert_eq!(ids.role("alice"), Some(Role::Configure));
         assert_eq!(ids.role("bob"), Some(Role::Read));
         assert_eq!(ids.role("carol"), None);
-        for bad in [
-            "alice key admin",
-            "alice key",
-            "a k read\na k2 read",
-            "# nothing",
+        for (bad, why) in [
+            (
+                "alice key admin",
+                r#"line 1: role "admin" is neither read nor configure"#,
+            ),
+            ("# a\nalice key", "line 2: expected IDENTITY KEY ROLE"),
+            (
+                "a k read\na k2 read",
+                r#"line 2: identity "a" appears twice"#,
+            ),
+            ("# nothing", "no identities"),
         ] {
-            assert!(Identities::parse(bad).is_err(), "{bad:?}");
+            let said = Identities::parse(bad)
+                .map(|_| ())
+                .map_err(|e| e.to_string());
+            assert_eq!(said, Err(why.to_owned()), "{bad:?}");
         }
+        assert!(matches!(
+            Identities::parse(&format!("{} k read", "i".repeat(129))),
+            Err(ParseError::TooLong { line: 1 })
+        ));
     }
 
     #[test]

@@ -8,6 +8,7 @@
 
 mod cams;
 mod clock;
+mod error;
 mod files;
 mod group;
 pub mod identities;
@@ -19,7 +20,6 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{Context as _, bail};
 use coap::link_format::Filter;
 use coap::{Code, EndpointConfig, IncomingRequest, Response};
 use coap_net::{Router, Server, ServerConfig};
@@ -29,11 +29,12 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, MissedTickBehavior};
 
-use crate::backends::{Backend, synthetic};
+use crate::backends::{self, Backend, synthetic};
 use crate::report::{EdgeQuery, Measurement};
 use cams::Cams;
 pub use cams::{Busy, CodeColor, EdgeError};
 use clock::ServerClock;
+pub use error::{AddressError, StartError};
 use files::StaticFiles;
 use group::Groups;
 pub use identities::{Identities, Role};
@@ -120,7 +121,7 @@ impl CameraServer {
     }
 
     /// Builds the resource tree of `config`, binds every address and joins the groups.
-    pub async fn start(config: Config) -> anyhow::Result<Self> {
+    pub async fn start(config: Config) -> Result<Self, StartError> {
         let router = Router::new();
         match (&config.identities, config.allow_unauthenticated_config) {
             (Some(ids), _) => router.set_policy(Arc::new(identities::by_role(ids.clone()))),
@@ -165,7 +166,10 @@ impl CameraServer {
             },
             router,
         )
-        .with_context(|| format!("binding {binds:?}"))?;
+        .map_err(|source| StartError::Bind {
+            binds: binds.clone(),
+            source,
+        })?;
         groups
             .start(&server, &config.groups, config.group_interface)
             .await?;
@@ -234,13 +238,11 @@ impl CameraServer {
     /// # Errors
     ///
     /// When the server has no address of the directory's family.
-    pub fn register_with(&self, config: RegistrantConfig) -> anyhow::Result<Registrant> {
-        let client = self.server.client_for(config.rd).with_context(|| {
-            format!(
-                "no address of the family of the directory {} to register from",
-                config.rd
-            )
-        })?;
+    pub fn register_with(&self, config: RegistrantConfig) -> Result<Registrant, AddressError> {
+        let client = self
+            .server
+            .client_for(config.rd)
+            .ok_or(AddressError::ForDirectory { rd: config.rd })?;
         let router = Arc::clone(self.server.router());
         let groups = Arc::clone(&self.groups);
         Ok(Registrant::spawn(config, client, move || {
@@ -343,7 +345,11 @@ pub struct SceneServer {
 impl SceneServer {
     /// Serves `scene` on `bind` (port 0 picks a free one), persisting configuration in
     /// `state_dir`.
-    pub async fn start(scene: &Scene, state_dir: &Path, bind: SocketAddr) -> anyhow::Result<Self> {
+    pub async fn start(
+        scene: &Scene,
+        state_dir: &Path,
+        bind: SocketAddr,
+    ) -> Result<Self, StartError> {
         let router = Router::new();
         router.set_policy(Arc::new(loopback_only));
         let (changed_tx, mut changed_rx) = mpsc::unbounded_channel::<String>();
@@ -352,8 +358,12 @@ impl SceneServer {
         let (hub, cams) = start_hub(state_dir, &router, changed_tx, &clock)?;
         load_scene(&hub, &router, scene)?;
         let server = Arc::new(
-            Server::bind(&[bind], ServerConfig::default(), router)
-                .with_context(|| format!("binding {bind}"))?,
+            Server::bind(&[bind], ServerConfig::default(), router).map_err(|source| {
+                StartError::Bind {
+                    binds: vec![bind],
+                    source,
+                }
+            })?,
         );
         let notify = server.clone();
         let notifier = tokio::spawn(async move {
@@ -372,7 +382,7 @@ impl SceneServer {
 
     /// Replaces the cameras with those of `scene` (they disconnect and connect, as when
     /// cameras are unplugged and plugged in).
-    pub fn load(&self, scene: &Scene) -> anyhow::Result<()> {
+    pub fn load(&self, scene: &Scene) -> Result<(), StartError> {
         load_scene(&self.hub, self.server.router(), scene)
     }
 
@@ -396,12 +406,12 @@ impl SceneServer {
     }
 
     /// The address the server answers on.
-    pub fn addr(&self) -> anyhow::Result<SocketAddr> {
+    pub fn addr(&self) -> Result<SocketAddr, AddressError> {
         self.server
             .local_addrs()
             .into_iter()
             .next()
-            .context("the server has no address")
+            .ok_or(AddressError::None)
     }
 }
 
@@ -417,9 +427,11 @@ fn start_hub(
     router: &Arc<Router>,
     changed: mpsc::UnboundedSender<String>,
     clock: &Arc<ServerClock>,
-) -> anyhow::Result<(Arc<CameraHub>, Arc<Cams>)> {
-    std::fs::create_dir_all(state_dir)
-        .with_context(|| format!("creating state directory {}", state_dir.display()))?;
+) -> Result<(Arc<CameraHub>, Arc<Cams>), StartError> {
+    std::fs::create_dir_all(state_dir).map_err(|source| StartError::StateDir {
+        path: state_dir.to_owned(),
+        source,
+    })?;
     let hub = Arc::new(CameraHub::new());
     let cams = Cams::start(
         hub.clone(),
@@ -428,7 +440,7 @@ fn start_hub(
         changed,
         clock.clone(),
     )
-    .context("starting the camera hub listener")?;
+    .map_err(StartError::HubListener)?;
     Ok((hub, cams))
 }
 
@@ -436,9 +448,9 @@ fn start_hub(
 /// the router follows: the hub listener adds and removes per-camera resources on its own
 /// thread, so a client that starts after this (or after "serving on") never sees a 4.04
 /// for a camera that is there, nor a resource of one that left.
-fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result<()> {
+fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> Result<(), StartError> {
     // Built before the old cameras go: a scene that cannot be built leaves them served.
-    let cameras = SyntheticCamera::all(scene).context("building the scene's cameras")?;
+    let cameras = SyntheticCamera::all(scene).map_err(backends::StartError::Scene)?;
     let gone = hub.serials();
     for sn in &gone {
         hub.remove(sn);
@@ -450,7 +462,7 @@ fn load_scene(hub: &CameraHub, router: &Router, scene: &Scene) -> anyhow::Result
 
 /// Waits until `/cams/{sn}/color` of every camera of `serials` is routed (`present`), or
 /// of none of them (not `present`).
-fn wait_routed(router: &Router, serials: &[Serial], present: bool) -> anyhow::Result<()> {
+fn wait_routed(router: &Router, serials: &[Serial], present: bool) -> Result<(), StartError> {
     let paths: Vec<String> = serials
         .iter()
         .map(|sn| crate::api::paths::camera(sn, "color"))
@@ -462,7 +474,7 @@ fn wait_routed(router: &Router, serials: &[Serial], present: bool) -> anyhow::Re
     let deadline = std::time::Instant::now() + Duration::from_secs(10);
     while !done() {
         if std::time::Instant::now() > deadline {
-            bail!("the cameras' resources did not follow the hub within 10 s");
+            return Err(StartError::NotRouted);
         }
         std::thread::sleep(Duration::from_millis(2));
     }
@@ -478,7 +490,7 @@ fn start_cameras(
     clock: &Arc<ServerClock>,
     changed: mpsc::UnboundedSender<String>,
     grab_memory: u64,
-) -> anyhow::Result<CameraTree> {
+) -> Result<CameraTree, StartError> {
     let (hub, cams) = start_hub(state_dir, router, changed, clock)?;
     cams.set_grab_memory(grab_memory);
     for backend in &mut backends {

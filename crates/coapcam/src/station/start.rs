@@ -183,7 +183,10 @@ impl Station {
     /// # Errors
     ///
     /// When the server has no address of the directory's family.
-    pub fn register_with(&self, config: RegistrantConfig) -> anyhow::Result<Registrant> {
+    pub fn register_with(
+        &self,
+        config: RegistrantConfig,
+    ) -> Result<Registrant, server::AddressError> {
         self.server.register_with(config)
     }
 

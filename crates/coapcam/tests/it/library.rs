@@ -690,6 +690,14 @@ fn a_scene_that_cannot_be_built_leaves_the_cameras_served_before_it() {
         .expect("a client");
         let e = server.load(&bad).expect_err("a camera without a pose");
         assert!(
+            matches!(
+                e,
+                coapcam::server::StartError::Cameras(coapcam::backends::StartError::Scene(_))
+            ),
+            "{e:?}"
+        );
+        let e = anyhow::Error::new(e);
+        assert!(
             coapcam::error_text(&e).starts_with("building the scene's cameras"),
             "{e:#}"
         );

@@ -14,6 +14,17 @@ use crate::report::Table;
 use crate::repr::clouds::DepthPart;
 use crate::repr::no_depth::NoDepth;
 
+/// Why a camera's cloud was merged without its ICP registration.
+#[derive(Debug, thiserror::Error)]
+enum IcpSkipped {
+    /// A cloud could not be thinned.
+    #[error(transparent)]
+    Thinning(#[from] geometry::VoxelError),
+    /// The registration failed.
+    #[error(transparent)]
+    Registration(#[from] geometry::IcpError),
+}
+
 /// What [`super::Cams::grab_merged`] collected.
 pub(super) struct Merged {
     pub(super) cloud: PointCloud,
@@ -66,7 +77,7 @@ pub(super) fn register_and_merge(
 }
 
 /// The transform that registers `cloud` onto `merged`, found on both thinned.
-fn icp_correction(cloud: &PointCloud, merged: &PointCloud) -> anyhow::Result<Isometry3<f32>> {
+fn icp_correction(cloud: &PointCloud, merged: &PointCloud) -> Result<Isometry3<f32>, IcpSkipped> {
     let source = geometry::voxel_downsample(cloud, ICP_VOXEL_M)?;
     let target = geometry::voxel_downsample(merged, ICP_VOXEL_M)?;
     let config = IcpConfig {
