@@ -9,15 +9,98 @@ pub mod peers;
 
 use std::fs::File;
 use std::net::{Ipv4Addr, SocketAddr, UdpSocket};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, bail};
-
 /// How often a running child is checked for its exit: the resolution of the times.
 pub const POLL: Duration = Duration::from_millis(1);
+
+/// A child process that could not be started, waited for, or that failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ProcError {
+    /// The program could not be started.
+    #[error("starting {name}")]
+    Spawn {
+        /// The process's name.
+        name: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// Its state could not be read.
+    #[error("waiting for {name}")]
+    Wait {
+        /// The process's name.
+        name: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// It exited while it should run.
+    #[error("{name} exited ({status})")]
+    Exited {
+        /// The process's name.
+        name: String,
+        /// How it ended.
+        status: ExitStatus,
+    },
+    /// It ended without success.
+    #[error("{name} failed ({status}): {log_tail}")]
+    Failed {
+        /// The process's name.
+        name: String,
+        /// How it ended.
+        status: ExitStatus,
+        /// The last lines of its standard error ([`tail`]).
+        log_tail: String,
+    },
+    /// It did not end in time (it was killed).
+    #[error("{name} did not end within {limit_s} s")]
+    TimedOut {
+        /// The process's name.
+        name: String,
+        /// The time it had, seconds.
+        limit_s: u64,
+    },
+    /// A server did not answer a CoAP ping in time.
+    #[error("{name} did not answer on {addr} within {startup_s} s")]
+    NoAnswer {
+        /// The server's name.
+        name: String,
+        /// Where it should answer.
+        addr: SocketAddr,
+        /// The time it had, seconds.
+        startup_s: u64,
+    },
+    /// A server did not start on any of the ports tried: the last lines of its
+    /// standard error, and why the last try failed.
+    #[error("{log_tail}")]
+    Startup {
+        /// The last lines of its standard error ([`tail`]).
+        log_tail: String,
+        /// Why the last try failed.
+        source: Box<Self>,
+    },
+    /// The file for a standard error could not be created.
+    #[error("creating {}", path.display())]
+    Log {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// No UDP port of 127.0.0.1 could be had.
+    #[error("finding a free UDP port")]
+    FreePort(#[source] std::io::Error),
+}
+
+fn create_log(path: &Path) -> Result<File, ProcError> {
+    File::create(path).map_err(|source| ProcError::Log {
+        path: path.to_owned(),
+        source,
+    })
+}
 
 /// A child process, killed and reaped on drop.
 #[derive(Debug)]
@@ -31,11 +114,14 @@ pub struct Proc {
 impl Proc {
     /// Starts `command` (standard input closed; its output goes where `command` says),
     /// named `name` in errors.
-    pub fn spawn(mut command: Command, name: &str) -> anyhow::Result<Self> {
+    pub fn spawn(mut command: Command, name: &str) -> Result<Self, ProcError> {
         let child = command
             .stdin(Stdio::null())
             .spawn()
-            .with_context(|| format!("starting {name}"))?;
+            .map_err(|source| ProcError::Spawn {
+                name: name.to_owned(),
+                source,
+            })?;
         Ok(Self {
             child,
             name: name.to_owned(),
@@ -59,10 +145,17 @@ impl Proc {
     }
 
     /// Its exit status if it has exited, without waiting.
-    pub fn try_status(&mut self) -> anyhow::Result<Option<ExitStatus>> {
+    pub fn try_status(&mut self) -> Result<Option<ExitStatus>, ProcError> {
         self.child
             .try_wait()
-            .with_context(|| format!("waiting for {}", self.name))
+            .map_err(|source| self.wait_error(source))
+    }
+
+    fn wait_error(&self, source: std::io::Error) -> ProcError {
+        ProcError::Wait {
+            name: self.name.clone(),
+            source,
+        }
     }
 
     /// Whether it still runs.
@@ -71,16 +164,19 @@ impl Proc {
     }
 
     /// An error if it has exited.
-    pub fn check_running(&mut self) -> anyhow::Result<()> {
+    pub fn check_running(&mut self) -> Result<(), ProcError> {
         match self.try_status()? {
             None => Ok(()),
-            Some(status) => bail!("{} exited ({status})", self.name),
+            Some(status) => Err(ProcError::Exited {
+                name: self.name.clone(),
+                status,
+            }),
         }
     }
 
     /// Waits at most `limit` for it to exit; `None` if it still runs then (it is not
     /// killed).
-    pub fn wait_for(&mut self, limit: Duration) -> anyhow::Result<Option<ExitStatus>> {
+    pub fn wait_for(&mut self, limit: Duration) -> Result<Option<ExitStatus>, ProcError> {
         let deadline = Instant::now() + limit;
         loop {
             if let Some(status) = self.try_status()? {
@@ -94,11 +190,9 @@ impl Proc {
     }
 
     /// Kills it (if it still runs) and reaps it; its exit status.
-    pub fn kill(&mut self) -> anyhow::Result<ExitStatus> {
+    pub fn kill(&mut self) -> Result<ExitStatus, ProcError> {
         let _ = self.child.kill();
-        self.child
-            .wait()
-            .with_context(|| format!("waiting for {}", self.name))
+        self.child.wait().map_err(|source| self.wait_error(source))
     }
 }
 
@@ -116,7 +210,7 @@ pub fn wait_all_capped(
     procs: &mut [Proc],
     cap: Duration,
     on_first_end: impl FnOnce(),
-) -> anyhow::Result<Vec<(Option<ExitStatus>, Duration)>> {
+) -> Result<Vec<(Option<ExitStatus>, Duration)>, ProcError> {
     let mut ended: Vec<Option<(Option<ExitStatus>, Duration)>> = vec![None; procs.len()];
     let mut on_first_end = Some(on_first_end);
     loop {
@@ -150,23 +244,35 @@ pub fn wait_all_capped(
 pub fn wait_capped(
     proc: &mut Proc,
     cap: Duration,
-) -> anyhow::Result<(Option<ExitStatus>, Duration)> {
+) -> Result<(Option<ExitStatus>, Duration), ProcError> {
     let ended = wait_all_capped(std::slice::from_mut(proc), cap, || {})?;
     Ok(ended[0])
 }
 
 /// Runs `command` to its end within `limit`, its standard error into `log`; an error says
 /// why it failed (with the log's last lines).
-pub fn run_to_end(command: Command, name: &str, log: &Path, limit: Duration) -> anyhow::Result<()> {
+pub fn run_to_end(
+    command: Command,
+    name: &str,
+    log: &Path,
+    limit: Duration,
+) -> Result<(), ProcError> {
     let mut command = command;
-    let stderr = File::create(log).with_context(|| format!("creating {}", log.display()))?;
+    let stderr = create_log(log)?;
     command.stdout(Stdio::null()).stderr(stderr);
     let mut proc = Proc::spawn(command, name)?;
     let (status, _) = wait_capped(&mut proc, limit)?;
     match status {
         Some(s) if s.success() => Ok(()),
-        Some(s) => bail!("{name} failed ({s}): {}", tail(log)),
-        None => bail!("{name} did not end within {} s", limit.as_secs()),
+        Some(status) => Err(ProcError::Failed {
+            name: name.to_owned(),
+            status,
+            log_tail: tail(log),
+        }),
+        None => Err(ProcError::TimedOut {
+            name: name.to_owned(),
+            limit_s: limit.as_secs(),
+        }),
     }
 }
 
@@ -193,12 +299,9 @@ pub fn tail(path: &Path) -> String {
 /// A UDP port that was free on 127.0.0.1 a moment ago (for programs that cannot bind
 /// port 0 and report it; a server started on it may still lose it to another program,
 /// which [`start_coap_server`] retries).
-pub fn free_udp_port() -> anyhow::Result<u16> {
-    let socket = UdpSocket::bind((Ipv4Addr::LOCALHOST, 0)).context("finding a free UDP port")?;
-    Ok(socket
-        .local_addr()
-        .context("finding a free UDP port")?
-        .port())
+pub fn free_udp_port() -> Result<u16, ProcError> {
+    let socket = UdpSocket::bind((Ipv4Addr::LOCALHOST, 0)).map_err(ProcError::FreePort)?;
+    Ok(socket.local_addr().map_err(ProcError::FreePort)?.port())
 }
 
 /// Whether a CoAP server answers at `addr` within 100 ms: an empty CON (a CoAP ping,
@@ -224,13 +327,15 @@ pub fn start_coap_server(
     log: &Path,
     startup: Duration,
     command: impl Fn(u16) -> Command,
-) -> anyhow::Result<(Proc, SocketAddr)> {
-    let mut last = None;
-    for _ in 0..3 {
+) -> Result<(Proc, SocketAddr), ProcError> {
+    const TRIES: u32 = 3;
+    let mut tried = 0;
+    loop {
+        tried += 1;
         let port = free_udp_port()?;
         let addr = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
         let mut cmd = command(port);
-        let stderr = File::create(log).with_context(|| format!("creating {}", log.display()))?;
+        let stderr = create_log(log)?;
         cmd.stdout(Stdio::null()).stderr(stderr);
         let mut server = Proc::spawn(cmd, name)?;
         let started = Instant::now();
@@ -242,18 +347,24 @@ pub fn start_coap_server(
                 break Ok(());
             }
             if started.elapsed() > startup {
-                break Err(anyhow::anyhow!(
-                    "{name} did not answer on {addr} within {} s",
-                    startup.as_secs()
-                ));
+                break Err(ProcError::NoAnswer {
+                    name: name.to_owned(),
+                    addr,
+                    startup_s: startup.as_secs(),
+                });
             }
         };
         match up {
             Ok(()) => return Ok((server, addr)),
-            Err(e) => last = Some(e.context(tail(log))),
+            Err(e) if tried >= TRIES => {
+                return Err(ProcError::Startup {
+                    log_tail: tail(log),
+                    source: Box::new(e),
+                });
+            }
+            Err(_) => {}
         }
     }
-    Err(last.unwrap_or_else(|| anyhow::anyhow!("{name} did not start")))
 }
 
 #[cfg(test)]
@@ -280,7 +391,11 @@ mod tests {
         let mut cmd = Command::new("sh");
         cmd.args(["-c", "echo first >&2; echo the reason >&2; exit 3"]);
         let e = run_to_end(cmd, "sh", &log, Duration::from_secs(30)).unwrap_err();
-        let text = format!("{e:#}");
+        assert!(
+            matches!(&e, ProcError::Failed { name, status, .. } if name == "sh" && status.code() == Some(3)),
+            "{e:?}"
+        );
+        let text = e.to_string();
         assert!(
             text.contains("the reason") && text.contains("first"),
             "{text}"
