@@ -400,7 +400,7 @@ async fn compare_table(
         .filter(|(_, name, _)| *name == station)
         .map(|(id, _, hash)| (id, hash))
         .collect();
-    postgres::compare(target, &station, &records).await
+    Ok(postgres::compare(target, &station, &records).await?)
 }
 
 /// An event's line: its JSON, or text.

@@ -23,12 +23,20 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use anyhow::Context as _;
-
 use super::follow::{self, Feed, Next, Output, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::Record;
 use crate::report::format_mm;
+
+/// The line output's address could not be listened on.
+#[derive(Debug, thiserror::Error)]
+#[error("listening for line output readers on {addr}")]
+pub struct ListenError {
+    /// The address.
+    pub addr: SocketAddr,
+    /// Why.
+    pub source: io::Error,
+}
 
 /// The flag of the line output (`serve --line-output`).
 #[derive(Debug, Clone, Default, clap::Args)]
@@ -48,13 +56,16 @@ impl Args {
     }
 
     /// The line output `--line-output` asks for, listening.
-    pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
+    pub(super) async fn start(
+        &self,
+        feed: &Feed<'_>,
+    ) -> Result<Option<Box<dyn Output>>, ListenError> {
         let Some(addr) = self.line_output else {
             return Ok(None);
         };
         let output = LineOutput::start(addr, feed.log.clone())
             .await
-            .with_context(|| format!("listening for line output readers on {addr}"))?;
+            .map_err(|source| ListenError { addr, source })?;
         Ok(Some(Box::new(output)))
     }
 }

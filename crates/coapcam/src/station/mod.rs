@@ -45,9 +45,9 @@ pub mod writer;
 use std::path::{Path, PathBuf};
 
 use self::log::Retention;
-pub use outputs::Outputs;
+pub use outputs::{OutputError, Outputs};
 pub use recorder::Recorder;
-pub use start::Station;
+pub use start::{StartError, Station};
 
 /// The name of the results log's file in the state directory.
 pub const RESULTS_FILE: &str = "results.sqlite";

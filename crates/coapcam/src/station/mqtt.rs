@@ -35,8 +35,6 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, sleep_until};
 
-use anyhow::Context as _;
-
 use super::follow::{self, Feed, Next, Output, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::{Head, Record};
@@ -417,7 +415,10 @@ impl Args {
     }
 
     /// The publisher `--mqtt` asks for.
-    pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
+    pub(super) async fn start(
+        &self,
+        feed: &Feed<'_>,
+    ) -> Result<Option<Box<dyn Output>>, TargetError> {
         let Some(target) = &self.mqtt else {
             return Ok(None);
         };
@@ -425,8 +426,7 @@ impl Args {
             target: target.clone(),
             station: feed.station.to_owned(),
         };
-        let publisher = Publisher::start(config, feed.log.clone())
-            .context("the station's name as an MQTT topic level (--station-name)")?;
+        let publisher = Publisher::start(config, feed.log.clone())?;
         Ok(Some(Box::new(publisher)))
     }
 }

@@ -5,6 +5,8 @@
 //! outputs use `follow`, never this list, which uses them.
 //! Adding one is its file and its name in the `outputs!` line below.
 
+use std::convert::Infallible;
+
 use super::follow::{Feed, Output};
 
 /// [`Outputs`]: every output's flags, flattened, and the outputs they ask for started in
@@ -30,7 +32,7 @@ macro_rules! outputs {
             pub(super) async fn start(
                 &self,
                 feed: &Feed<'_>,
-            ) -> anyhow::Result<Vec<Box<dyn Output>>> {
+            ) -> Result<Vec<Box<dyn Output>>, OutputError> {
                 let mut started = Vec::new();
                 $(started.extend(self.$name.start(feed).await?);)+
                 Ok(started)
@@ -40,6 +42,28 @@ macro_rules! outputs {
 }
 
 outputs!(mqtt, line, webhook, postgres);
+
+/// An output asked for could not start.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum OutputError {
+    /// The line output's address could not be listened on.
+    #[error(transparent)]
+    Line(#[from] super::line::ListenError),
+    /// The station's name cannot be an MQTT topic level.
+    #[error("the station's name as an MQTT topic level (--station-name)")]
+    Mqtt(#[from] super::mqtt::TargetError),
+    /// The webhook's secret or template could not be read.
+    #[error(transparent)]
+    Webhook(#[from] super::webhook::SetupError),
+}
+
+/// An output that always starts (PostgreSQL: it connects, and reconnects, as it runs).
+impl From<Infallible> for OutputError {
+    fn from(never: Infallible) -> Self {
+        match never {}
+    }
+}
 
 impl Outputs {
     /// Refuses a station name an output asked for cannot carry: MQTT topic names allow a

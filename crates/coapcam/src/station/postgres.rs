@@ -137,7 +137,10 @@ impl Args {
     }
 
     /// The output `--postgres` asks for.
-    pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
+    pub(super) async fn start(
+        &self,
+        feed: &Feed<'_>,
+    ) -> Result<Option<Box<dyn Output>>, std::convert::Infallible> {
         Ok(self
             .postgres
             .clone()
@@ -313,6 +316,28 @@ pub struct TableReport {
     pub first_difference: Option<(u64, String)>,
 }
 
+/// The table could not be compared: the database did not answer, or refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum CompareError {
+    /// No connection.
+    #[error("connecting to {target}: {why}")]
+    Connect {
+        /// The target, as it is shown (without a password).
+        target: String,
+        /// The client's words, with their causes, or the timeout.
+        why: String,
+    },
+    /// The table could not be read.
+    #[error("reading {TABLE} at {target}: {why}")]
+    Read {
+        /// The target, as it is shown.
+        target: String,
+        /// The server's words, with their causes, or the timeout.
+        why: String,
+    },
+}
+
 /// Compares the table at `target` with `records`, a log's measurements of `station`
 /// (id and hash, in id order): the table must hold a row for each, with the same hash,
 /// a body that hashes to it, arrived in id order, and no other row of the station.
@@ -324,10 +349,14 @@ pub async fn compare(
     target: &Target,
     station: &str,
     records: &[(u64, String)],
-) -> anyhow::Result<TableReport> {
-    let (client, connection) = timed(target.config.connect(NoTls))
-        .await
-        .map_err(|e| anyhow::anyhow!("connecting to {target}: {e}"))?;
+) -> Result<TableReport, CompareError> {
+    let (client, connection) =
+        timed(target.config.connect(NoTls))
+            .await
+            .map_err(|why| CompareError::Connect {
+                target: target.to_string(),
+                why,
+            })?;
     let connection = tokio::spawn(connection);
     let mut report = TableReport {
         station: station.to_owned(),
@@ -343,7 +372,10 @@ pub async fn compare(
             &[&station, &after, &PAGE],
         ))
         .await
-        .map_err(|e| anyhow::anyhow!("reading {TABLE} at {target}: {e}"))?;
+        .map_err(|why| CompareError::Read {
+            target: target.to_string(),
+            why,
+        })?;
         let Some(last) = rows.last() else { break };
         after = last.get(0);
         for row in &rows {

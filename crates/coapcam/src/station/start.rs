@@ -6,21 +6,69 @@
 
 use std::future::Future;
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::sync::Arc;
 
-use anyhow::{Context as _, bail};
 use coap_rd::registrant::{Registrant, RegistrantConfig};
 use tokio::task::JoinHandle;
 
 use super::follow::{Feed, Output};
-use super::log::ResultsLog;
+use super::log::{LogError, ResultsLog};
+use super::outputs::OutputError;
 use super::signing::StationKey;
-use super::writer::WriterLock;
+use super::writer::{WriterError, WriterLock};
 use super::{Config, Recorder, http, last_id_path, resources, watch};
 use crate::api::paths;
 use crate::report::{EdgeQuery, Measurement};
 use crate::server::measure::Rig as _;
 use crate::server::{self, CameraServer, CodeColor, EdgeError};
+
+/// A station could not start: its camera server, its results log, an output or the HTTP
+/// side.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum StartError {
+    /// The camera server did not start.
+    #[error(transparent)]
+    Server(#[from] server::StartError),
+    /// The station key (`--signing-key`) is missing or not kept secret (its words).
+    #[error("{0}")]
+    Key(String),
+    /// Another station writes the results log, or its lock could not be taken.
+    #[error(transparent)]
+    Writer(#[from] WriterError),
+    /// The results log could not be opened.
+    #[error("opening the results log {}", path.display())]
+    Log {
+        /// The log's file.
+        path: PathBuf,
+        /// Why.
+        source: LogError,
+    },
+    /// The results log cannot sign with the station key.
+    #[error(transparent)]
+    Signing(LogError),
+    /// `--results` names no file (without cameras, the log is only read).
+    #[error("no results log at {}", .0.display())]
+    NoLog(PathBuf),
+    /// Outputs asked for without cameras.
+    #[error("the outputs of the results log need cameras (and so a results log)")]
+    OutputsNeedCameras,
+    /// An output did not start.
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    /// `--http` asked for without cameras.
+    #[error("--http needs cameras (and so a results log)")]
+    HttpNeedsCameras,
+    /// The HTTP address could not be listened on.
+    #[error("listening for HTTP on {addr}")]
+    Http {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+}
 
 /// A running station: its camera server, and with cameras the outputs of its results log.
 pub struct Station {
@@ -50,7 +98,7 @@ impl Drop for Tasks {
 
 impl Station {
     /// Starts the camera server of `server` and what `config` adds to it.
-    pub async fn start(server: server::Config, config: Config) -> anyhow::Result<Self> {
+    pub async fn start(server: server::Config, config: Config) -> Result<Self, StartError> {
         let open = server.allow_unauthenticated_config;
         let state_dir = server.state_dir.clone();
         let server = CameraServer::start(server).await?;
@@ -61,7 +109,7 @@ impl Station {
             Some(_) => {
                 let path = config.results_path(&state_dir);
                 let key = match &config.signing_key {
-                    Some(file) => Some(StationKey::load(file).map_err(anyhow::Error::msg)?),
+                    Some(file) => Some(StationKey::load(file).map_err(StartError::Key)?),
                     None => None,
                 };
                 // Before the log opens: a second station on it refuses to start.
@@ -74,15 +122,19 @@ impl Station {
                 lock.write(&format!("coap {}", addrs.join(" ")))?;
                 writer = Some(lock);
                 let last_id = last_id_path(&state_dir, &path);
-                let log = ResultsLog::open_station(&path, config.retention, &last_id)
-                    .with_context(|| format!("opening the results log {}", path.display()))?;
+                let log = ResultsLog::open_station(&path, config.retention, &last_id).map_err(
+                    |source| StartError::Log {
+                        path: path.clone(),
+                        source,
+                    },
+                )?;
                 if let Some(key) = key {
                     tracing::info!(
                         "results log {}: every record is signed with the station key {}",
                         path.display(),
                         key.public()
                     );
-                    log.sign_with(key)?;
+                    log.sign_with(key).map_err(StartError::Signing)?;
                 }
                 let parameters: Option<resources::Parameters> = server
                     .rig()
@@ -112,10 +164,12 @@ impl Station {
                 // served to read, as it is: nothing records into it or prunes it.
                 if let Some(path) = &config.results {
                     if !path.is_file() {
-                        bail!("no results log at {}", path.display());
+                        return Err(StartError::NoLog(path.clone()));
                     }
-                    let log = ResultsLog::open(path)
-                        .with_context(|| format!("opening the results log {}", path.display()))?;
+                    let log = ResultsLog::open(path).map_err(|source| StartError::Log {
+                        path: path.clone(),
+                        source,
+                    })?;
                     resources::register(server.router(), &log, &config.name, None);
                 }
                 None
@@ -130,7 +184,7 @@ impl Station {
                 config.outputs.start(&feed).await?
             }
             None if config.outputs.any() => {
-                bail!("the outputs of the results log need cameras (and so a results log)")
+                return Err(StartError::OutputsNeedCameras);
             }
             None => Vec::new(),
         };
@@ -212,10 +266,10 @@ async fn start_http(
     server: &CameraServer,
     recorder: Option<&Recorder>,
     open: bool,
-) -> anyhow::Result<Option<http::HttpServer>> {
+) -> Result<Option<http::HttpServer>, StartError> {
     let (Some(rig), Some(recorder)) = (server.rig(), recorder) else {
         if config.http.is_some() {
-            bail!("--http needs cameras (and so a results log)");
+            return Err(StartError::HttpNeedsCameras);
         }
         return Ok(None);
     };
@@ -232,7 +286,7 @@ async fn start_http(
                 },
             )
             .await
-            .with_context(|| format!("listening for HTTP on {addr}"))?,
+            .map_err(|source| StartError::Http { addr, source })?,
         ),
         None => None,
     })

@@ -20,8 +20,6 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use anyhow::Context as _;
-
 use base64::prelude::{BASE64_STANDARD, Engine as _};
 use bytes::Bytes;
 use http_body_util::{BodyExt as _, Full, Limited};
@@ -153,7 +151,10 @@ impl Args {
     }
 
     /// The webhook `--webhook` asks for.
-    pub(super) async fn start(&self, feed: &Feed<'_>) -> anyhow::Result<Option<Box<dyn Output>>> {
+    pub(super) async fn start(
+        &self,
+        feed: &Feed<'_>,
+    ) -> Result<Option<Box<dyn Output>>, SetupError> {
         let Some(target) = self.webhook.clone() else {
             return Ok(None);
         };
@@ -174,14 +175,43 @@ impl Args {
     }
 }
 
+/// The webhook's secret or template could not be read.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SetupError {
+    /// A file (the secret, the template) could not be read.
+    #[error("reading {}", path.display())]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The secret file holds nothing but line breaks.
+    #[error("{}: the webhook's secret is empty", .0.display())]
+    EmptySecret(PathBuf),
+    /// The template is not one (the JSON parser's or the template's words).
+    #[error("{}: {reason}", path.display())]
+    Template {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
 /// The secret in the file at `path`: its bytes without a final line break; never empty.
-fn read_secret(path: &Path) -> anyhow::Result<Vec<u8>> {
-    let name = path.display();
-    let mut secret = std::fs::read(path).with_context(|| format!("reading {name}"))?;
+fn read_secret(path: &Path) -> Result<Vec<u8>, SetupError> {
+    let mut secret = std::fs::read(path).map_err(|source| SetupError::File {
+        path: path.to_owned(),
+        source,
+    })?;
     while secret.last().is_some_and(|b| matches!(b, b'\n' | b'\r')) {
         secret.pop();
     }
-    anyhow::ensure!(!secret.is_empty(), "{name}: the webhook's secret is empty");
+    if secret.is_empty() {
+        return Err(SetupError::EmptySecret(path.to_owned()));
+    }
     Ok(secret)
 }
 
@@ -217,10 +247,15 @@ impl Template {
     }
 
     /// The template in the file at `path`.
-    pub fn load(path: &Path) -> anyhow::Result<Self> {
-        let name = path.display();
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {name}"))?;
-        Self::parse(&text).map_err(|e| anyhow::anyhow!("{name}: {e}"))
+    pub fn load(path: &Path) -> Result<Self, SetupError> {
+        let text = std::fs::read_to_string(path).map_err(|source| SetupError::File {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::parse(&text).map_err(|reason| SetupError::Template {
+            path: path.to_owned(),
+            reason,
+        })
     }
 
     /// The body for `record` (its JSON).
