@@ -43,20 +43,40 @@ pub mod vision;
 
 /// An error and its causes, `: `-separated, each said once: many errors repeat their
 /// cause's text in their own (`cannot read x: No such file (os error 2)`) and also
-/// return it as their source, which `{:#}` would print twice.
-pub fn error_text(error: &anyhow::Error) -> String {
+/// return it as their source, which `{:#}` would print twice. Any error: an
+/// `anyhow::Error` is given as `e.as_ref()`.
+pub fn error_text(error: &(dyn std::error::Error + 'static)) -> String {
     let mut out = String::new();
-    for cause in error.chain() {
-        let text = cause.to_string();
-        if out.contains(&text) {
-            continue;
+    let mut cause = Some(error);
+    while let Some(e) = cause {
+        let text = e.to_string();
+        if !out.contains(&text) {
+            if !out.is_empty() {
+                out.push_str(": ");
+            }
+            out.push_str(&text);
         }
-        if !out.is_empty() {
-            out.push_str(": ");
-        }
-        out.push_str(&text);
+        cause = e.source();
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::error_text;
+
+    #[test]
+    fn an_error_and_its_causes_are_said_once_each_whether_typed_or_anyhow() {
+        let typed = crate::process::ProcError::FreePort(std::io::Error::other("no port"));
+        assert_eq!(error_text(&typed), "finding a free UDP port: no port");
+        let wrapped = anyhow::Error::new(typed).context("starting coap-server");
+        assert_eq!(
+            error_text(wrapped.as_ref()),
+            "starting coap-server: finding a free UDP port: no port"
+        );
+        let repeated = anyhow::Error::new(std::io::Error::other("gone")).context("reading x: gone");
+        assert_eq!(error_text(repeated.as_ref()), "reading x: gone");
+    }
 }
 
 /// A directory of a unit test's own under the system's temporary directory, removed on

@@ -87,7 +87,7 @@ fn main() -> ExitCode {
         Ok(exit) => ExitCode::from(exit.code()),
         Err(e) => match cli::exit_status(&e) {
             Some(exit) => {
-                eprintln!("coapcam: {}", cli::error_text(&e));
+                eprintln!("coapcam: {}", cli::error_text(e.as_ref()));
                 ExitCode::from(exit.code())
             }
             // Standard output's reader went away (`| head`): nothing more to say.

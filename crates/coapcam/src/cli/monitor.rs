@@ -313,7 +313,7 @@ impl Report {
                         "at_unix_ms": unix_ms,
                         "ok": false,
                         "time_ms": millis(elapsed),
-                        "error": error_text(&e),
+                        "error": error_text(e.as_ref()),
                     });
                     outln!("{line}");
                 } else {
@@ -322,7 +322,7 @@ impl Report {
                         self.seen,
                         clock(unix_ms),
                         millis(elapsed),
-                        error_text(&e)
+                        error_text(e.as_ref())
                     );
                 }
             }

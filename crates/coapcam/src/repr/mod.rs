@@ -377,7 +377,7 @@ pub(crate) mod tests {
 
     /// The words of an error and its causes, as the commands print them.
     fn words(e: DecodeError) -> String {
-        crate::error_text(&anyhow::Error::new(e))
+        crate::error_text(&e)
     }
 
     #[test]

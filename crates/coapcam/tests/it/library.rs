@@ -696,7 +696,6 @@ fn a_scene_that_cannot_be_built_leaves_the_cameras_served_before_it() {
             ),
             "{e:?}"
         );
-        let e = anyhow::Error::new(e);
         assert!(
             coapcam::error_text(&e).starts_with("building the scene's cameras"),
             "{e:#}"

@@ -343,7 +343,7 @@ async fn measure_scene(
         error: None,
     };
     let failed = |row: &mut Row, e: &anyhow::Error| {
-        row.error = Some(crate::error_text(e));
+        row.error = Some(crate::error_text(e.as_ref()));
         row.objects = cert
             .objects
             .iter()

@@ -114,7 +114,7 @@ async fn measure_scene(
     row.error = match &result {
         Ok(m) if m.dimensions().is_none() => Some("nothing on the table".into()),
         Ok(_) => None,
-        Err(e) => Some(crate::error_text(e)),
+        Err(e) => Some(crate::error_text(e.as_ref())),
     };
     Ok(row)
 }

@@ -91,7 +91,7 @@ pub(super) fn time_clients(
         match Proc::spawn(cmd, name) {
             Ok(proc) => procs.push(proc),
             Err(e) => {
-                let why = crate::error_text(&anyhow::Error::new(e));
+                let why = crate::error_text(&e);
                 let result = |j| {
                     if j == i {
                         RunResult::failed(why.clone())

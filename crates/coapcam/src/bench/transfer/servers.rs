@@ -95,7 +95,7 @@ impl Servers {
                 }
             }
             Err(e) => {
-                let why = crate::error_text(&e);
+                let why = crate::error_text(e.as_ref());
                 progress(format!("coapcam: bench transfer: {}: {why}", mode.name()));
                 for body in bodies {
                     targets.push((mode, body.size, Err(why.clone())));
