@@ -1037,6 +1037,60 @@ pub(crate) mod tests {
         assert_eq!(serde_json::from_value::<GapRecord>(json).ok(), Some(gap));
     }
 
+    #[test]
+    fn events_keep_their_stored_bytes() {
+        // The bodies events were stored with before they shared the notes' hashing: a log
+        // written then verifies now. An event from before `clock_synced` has none.
+        let new = NewEvent {
+            time: UtcTime {
+                unix_ms: 1_795_734_231_789,
+            },
+            station: "lane-1".into(),
+            event: Event {
+                document: "/cams/840412060746/3d-transformation".into(),
+                change: Change::Put,
+                old_sha256: "01".repeat(32),
+                new_sha256: "02".repeat(32),
+                by: "coaps://127.0.0.1:40000 psk-identity lane".into(),
+                parameters_sha256: "03".repeat(32),
+            },
+        };
+        let ours = |text: &str| {
+            text.replace("VERSION", NewRecord::VERSION)
+                .replace("SOFTWARE", crate::identity::SOFTWARE_SHA256)
+        };
+        let unsynced = EVENT_ROW.replace(r#""clock_synced":false,"#, "");
+        assert_ne!(unsynced, EVENT_ROW);
+        for (synced, row) in [(Some(false), EVENT_ROW), (None, &unsynced)] {
+            let mut event = EventRecord::chain(&new, 11, &"ef".repeat(32), 2, synced);
+            let body = event.stored_body();
+            let old = ours(row);
+            assert_eq!(String::from_utf8_lossy(&body), old);
+            assert_eq!(event.hash, Record::hash_of(old.as_bytes()));
+            event.signature = Some("signed".into());
+            assert_eq!(event.stored_body(), body, "the signature is not stored");
+            assert_eq!(
+                EventRecord::from_stored(&body, event.hash.clone()).ok(),
+                Some(EventRecord {
+                    signature: None,
+                    ..event
+                })
+            );
+        }
+    }
+
+    const EVENT_ROW: &str = concat!(
+        r#"{"clock_synced":false,"counter":2,"event":{"#,
+        r#""by":"coaps://127.0.0.1:40000 psk-identity lane","change":"put","#,
+        r#""document":"/cams/840412060746/3d-transformation","#,
+        r#""new_sha256":"0202020202020202020202020202020202020202020202020202020202020202","#,
+        r#""old_sha256":"0101010101010101010101010101010101010101010101010101010101010101","#,
+        r#""parameters_sha256":"0303030303030303030303030303030303030303030303030303030303030303"},"#,
+        r#""id":11,"prev_hash":"efefefefefefefefefefefefefefefefefefefefefefefefefefefefefefefef","#,
+        r#""software_sha256":"SOFTWARE","station":"lane-1","time":"2026-11-26T23:03:51.789Z","#,
+        r#""version":"VERSION"}"#
+    );
+
     const CLOCK_ROW: &str = concat!(
         r#"{"clock":{"jump":"back","monotonic_elapsed_ms":1200,"now":"2026-11-26T23:03:48.000Z","#,
         r#""previous":"2026-11-26T23:03:49.123Z"},"clock_synced":true,"id":5,"#,
