@@ -342,7 +342,7 @@ impl EventRecord {
         counter: u64,
         clock_synced: Option<bool>,
     ) -> Self {
-        let mut record = Self {
+        Self {
             id,
             time: new.time,
             station: new.station.clone(),
@@ -354,19 +354,8 @@ impl EventRecord {
             prev_hash: prev_hash.to_owned(),
             hash: String::new(),
             signature: None,
-        };
-        record.hash = Record::compute_hash(&record.content());
-        record
-    }
-
-    /// The hashed content: its JSON without `hash` and `signature`.
-    pub fn content(&self) -> Value {
-        unhashed(self)
-    }
-
-    /// The record's content as stored: its canonical bytes.
-    pub fn stored_body(&self) -> Vec<u8> {
-        canonical_bytes(&self.content())
+        }
+        .chained()
     }
 
     /// An event from its stored body and hash.
@@ -376,6 +365,12 @@ impl EventRecord {
             map.insert("hash".into(), hash.into());
         }
         serde_json::from_value(v)
+    }
+}
+
+impl Row for EventRecord {
+    fn hash_mut(&mut self) -> &mut String {
+        &mut self.hash
     }
 }
 
@@ -422,7 +417,7 @@ pub struct NoteHeader {
 
 impl NoteHeader {
     /// The header of row `id` of `station` after `prev_hash`, made by this build, the
-    /// kernel having said `clock_synced`; its hash still to compute ([`Note::chained`]).
+    /// kernel having said `clock_synced`; its hash still to compute ([`Row::chained`]).
     fn new(station: &str, id: u64, prev_hash: &str, clock_synced: bool) -> Self {
         Self {
             id,
@@ -437,15 +432,16 @@ impl NoteHeader {
     }
 }
 
-/// A row that notes something about the log ([`ClockRecord`], [`GapRecord`]): its
-/// [`NoteHeader`] flattened beside its own fields.
-pub trait Note: Serialize + Sized {
-    /// Its chain fields, to set its hash.
-    fn header_mut(&mut self) -> &mut NoteHeader;
+/// A row of the results log that is not a measurement: an event ([`EventRecord`]) or a
+/// note about the log ([`ClockRecord`], [`GapRecord`], their [`NoteHeader`] flattened
+/// beside their own fields). Its hash is taken over all of it but `hash` and `signature`.
+pub trait Row: Serialize + Sized {
+    /// Its hash, to set.
+    fn hash_mut(&mut self) -> &mut String;
 
     /// The row with its hash computed over its stored body.
     fn chained(mut self) -> Self {
-        self.header_mut().hash = Record::hash_of(&self.stored_body());
+        *self.hash_mut() = Record::hash_of(&self.stored_body());
         self
     }
 
@@ -487,9 +483,9 @@ impl ClockRecord {
     }
 }
 
-impl Note for ClockRecord {
-    fn header_mut(&mut self) -> &mut NoteHeader {
-        &mut self.header
+impl Row for ClockRecord {
+    fn hash_mut(&mut self) -> &mut String {
+        &mut self.header.hash
     }
 }
 
@@ -540,9 +536,9 @@ impl GapRecord {
     }
 }
 
-impl Note for GapRecord {
-    fn header_mut(&mut self) -> &mut NoteHeader {
-        &mut self.header
+impl Row for GapRecord {
+    fn hash_mut(&mut self) -> &mut String {
+        &mut self.header.hash
     }
 }
 
@@ -1039,8 +1035,9 @@ pub(crate) mod tests {
 
     #[test]
     fn events_keep_their_stored_bytes() {
-        // The bodies events were stored with before they shared the notes' hashing: a log
-        // written then verifies now. An event from before `clock_synced` has none.
+        // The bodies events were stored with before they shared the clock and gap rows'
+        // hashing (`Row`): a log written then verifies now. An event from before
+        // `clock_synced` has none.
         let new = NewEvent {
             time: UtcTime {
                 unix_ms: 1_795_734_231_789,

@@ -28,8 +28,8 @@ use super::clock::{Clock, Reading, SystemClock};
 use super::signing::{PublicKey, StationKey};
 use super::writer::{WriterError, WriterLock};
 use crate::api::record::{
-    ClockJump, ClockRecord, EventRecord, GENESIS, GapRecord, Head, NewEvent, NewRecord, Note as _,
-    Record, SkippedIds, UtcTime, canonical_bytes, sha256_hex,
+    ClockJump, ClockRecord, EventRecord, GENESIS, GapRecord, Head, NewEvent, NewRecord, Record,
+    Row as _, SkippedIds, UtcTime, canonical_bytes, sha256_hex,
 };
 use crate::api::results::{ListQuery, MAX_LIST};
 
