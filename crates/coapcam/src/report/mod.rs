@@ -443,19 +443,22 @@ impl Table {
             // Every pixel that sees one of the parcels meets the floor within what they
             // cover or hide: a region reaching beyond that comes from more parcel than
             // was measured (a black bag's rim, read short). With several parcels in the
-            // region (one's holes reaching under another's), beyond all of them.
-            let bounds: Option<Vec<_>> = inside
-                .iter()
-                .map(|&i| geometry::hidden_bounds(&self.fits[i].dimensions, views))
-                .collect();
-            let within = bounds.is_none_or(|bounds| {
+            // region (one's holes reaching under another's), beyond the union of what
+            // they cover or hide; not known (`None`) when no camera is above one of them.
+            let union = inside.iter().try_fold(
+                ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
+                |(lo, hi), &i| {
+                    let (l, h) = geometry::hidden_bounds(&self.fits[i].dimensions, views)?;
+                    Some((
+                        [0, 1].map(|k| lo[k].min(l[k])),
+                        [0, 1].map(|k| hi[k].max(h[k])),
+                    ))
+                },
+            );
+            let within = union.is_none_or(|(lo, hi)| {
                 (0..2).all(|k| {
-                    let lo = bounds.iter().map(|b| b.0[k]).fold(f64::INFINITY, f64::min);
-                    let hi = bounds
-                        .iter()
-                        .map(|b| b.1[k])
-                        .fold(f64::NEG_INFINITY, f64::max);
-                    f64::from(r.min_m[k]) >= lo - BEYOND_M && f64::from(r.max_m[k]) <= hi + BEYOND_M
+                    f64::from(r.min_m[k]) >= lo[k] - BEYOND_M
+                        && f64::from(r.max_m[k]) <= hi[k] + BEYOND_M
                 })
             });
             if points as u64 >= u64::from(r.pixels) && within {
