@@ -61,24 +61,6 @@ pub fn error_text(error: &(dyn std::error::Error + 'static)) -> String {
     out
 }
 
-#[cfg(test)]
-mod tests {
-    use super::error_text;
-
-    #[test]
-    fn an_error_and_its_causes_are_said_once_each_whether_typed_or_anyhow() {
-        let typed = crate::process::ProcError::FreePort(std::io::Error::other("no port"));
-        assert_eq!(error_text(&typed), "finding a free UDP port: no port");
-        let wrapped = anyhow::Error::new(typed).context("starting coap-server");
-        assert_eq!(
-            error_text(wrapped.as_ref()),
-            "starting coap-server: finding a free UDP port: no port"
-        );
-        let repeated = anyhow::Error::new(std::io::Error::other("gone")).context("reading x: gone");
-        assert_eq!(error_text(repeated.as_ref()), "reading x: gone");
-    }
-}
-
 /// A directory of a unit test's own under the system's temporary directory, removed on
 /// drop.
 #[cfg(test)]
@@ -102,5 +84,23 @@ impl ScratchDir {
 impl Drop for ScratchDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::error_text;
+
+    #[test]
+    fn an_error_and_its_causes_are_said_once_each_whether_typed_or_anyhow() {
+        let typed = crate::process::ProcError::FreePort(std::io::Error::other("no port"));
+        assert_eq!(error_text(&typed), "finding a free UDP port: no port");
+        let wrapped = anyhow::Error::new(typed).context("starting coap-server");
+        assert_eq!(
+            error_text(wrapped.as_ref()),
+            "starting coap-server: finding a free UDP port: no port"
+        );
+        let repeated = anyhow::Error::new(std::io::Error::other("gone")).context("reading x: gone");
+        assert_eq!(error_text(repeated.as_ref()), "reading x: gone");
     }
 }
