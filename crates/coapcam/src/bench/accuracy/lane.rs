@@ -335,3 +335,25 @@ pub fn spreads(rows: &[Row]) -> Vec<(usize, usize, [f64; 3], [f64; 3])> {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every kind of synthetic object, with the shape it is judged as: a kind added to
+    /// rgbd's scenes (and `ObjectKind::ALL`) fails here until it says how it is judged.
+    /// `ObjectKind` is non-exhaustive, so `judged_shape` ends in a wildcard that would
+    /// judge a new kind as a box without a word.
+    #[test]
+    fn every_kind_of_object_is_judged_as_a_shape_stated_here() {
+        assert_eq!(
+            ObjectKind::ALL.map(|kind| (kind, judged_shape(kind))),
+            [
+                (ObjectKind::Box, Shape::Cuboid),
+                (ObjectKind::Cylinder, Shape::Round),
+                (ObjectKind::Tube, Shape::Round),
+                (ObjectKind::Bag, Shape::Irregular),
+            ]
+        );
+    }
+}

@@ -786,6 +786,10 @@ pub enum ObjectKind {
 }
 
 impl ObjectKind {
+    /// Every kind, in the order of [`Scene`]'s tables (a kind added goes here too: what
+    /// judges the objects lists them from it).
+    pub const ALL: [Self; 4] = [Self::Box, Self::Cylinder, Self::Tube, Self::Bag];
+
     /// The name of the kind's table in a scene file (`box`, `cylinder`, `tube`, `bag`).
     pub fn name(self) -> &'static str {
         match self {
