@@ -3,7 +3,10 @@
 //! [`Stillness`]: every look grabs one depth frame of each calibrated camera (through
 //! the [`Rig`], i.e. the `Camera` the server serves, librealsense's or the synthetic
 //! one), places every fourth pixel or so on the table with the camera's
-//! 3d-transformation into one [`HeightMap`], and feeds it to the detector. On
+//! 3d-transformation into one [`HeightMap`], and feeds it to the detector with the time
+//! its frames were captured (not the time the look ended: rendering and placing a frame
+//! takes a varying while on a busy machine, and a hand that rested half a second must not
+//! look as if it had rested for `--still-ms`). On
 //! [`Event::Still`] it makes the measurement ([`measure::measure`], with the
 //! codes, the photo and the annotated picture), looks once more, and records the
 //! measurement only if the table is still as it was: something that moved during the
@@ -11,7 +14,7 @@
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use rgbd::Serial;
 use tokio::task::JoinHandle;
@@ -77,8 +80,8 @@ pub fn spawn<R: Rig>(rig: Arc<R>, recorder: Recorder, config: AutoConfig) -> Joi
 
 /// What one look saw.
 enum Look {
-    /// The table, as every calibrated camera saw it.
-    Map(HeightMap),
+    /// The table, as every calibrated camera saw it, and when ([`taken_at`]).
+    Map(HeightMap, Instant),
     /// No calibrated camera to look through.
     Blind,
     /// A camera's frame could not be had.
@@ -113,8 +116,8 @@ impl Watcher {
         );
         loop {
             let started = tokio::time::Instant::now();
-            if let Some(map) = self.look(rig).await {
-                match self.detector.observe(Instant::now(), &map) {
+            if let Some((map, taken)) = self.look(rig).await {
+                match self.detector.observe(taken, &map) {
                     Some(Event::Still) => self.measure(rig, recorder).await,
                     Some(event) => tracing::info!("auto-measure: {}", describe(event)),
                     None => {}
@@ -129,8 +132,9 @@ impl Watcher {
         }
     }
 
-    /// One look at the table; `None` (having said why, once) when there is no map.
-    async fn look<R: Rig>(&mut self, rig: &R) -> Option<HeightMap> {
+    /// One look at the table and when it was taken; `None` (having said why, once) when
+    /// there is no map.
+    async fn look<R: Rig>(&mut self, rig: &R) -> Option<(HeightMap, Instant)> {
         let cameras = rig.cameras();
         for c in cameras.iter().filter(|c| !calibrated(c)) {
             if self.warned.insert(c.serial) {
@@ -143,10 +147,10 @@ impl Watcher {
         }
         let watched: Vec<RigCamera> = cameras.into_iter().filter(calibrated).collect();
         match look(watched, self.config.grid).await {
-            Look::Map(map) => {
+            Look::Map(map, taken) => {
                 self.warned_blind = false;
                 self.last_failure = None;
-                Some(map)
+                Some((map, taken))
             }
             Look::Blind => {
                 if !std::mem::replace(&mut self.warned_blind, true) {
@@ -178,9 +182,8 @@ impl Watcher {
                 return;
             }
         };
-        if let Some(map) = self.look(rig).await
-            && let Some(event @ (Event::Moved | Event::Left)) =
-                self.detector.observe(Instant::now(), &map)
+        if let Some((map, taken)) = self.look(rig).await
+            && let Some(event @ (Event::Moved | Event::Left)) = self.detector.observe(taken, &map)
         {
             tracing::info!(
                 "auto-measure: {} during the measurement; it is not recorded",
@@ -233,16 +236,17 @@ fn describe(event: Event) -> &'static str {
     }
 }
 
-/// A depth frame of every camera of `cameras` at once, placed on one map; off the
-/// executor.
+/// A depth frame of every camera of `cameras` at once, placed on one map, taken when
+/// its oldest frame was captured; off the executor.
 async fn look(cameras: Vec<RigCamera>, grid: Grid) -> Look {
     if cameras.is_empty() {
         return Look::Blind;
     }
+    let asked = Instant::now();
     let tasks: Vec<_> = cameras
         .into_iter()
         .map(|c| {
-            tokio::task::spawn_blocking(move || -> Result<HeightMap, String> {
+            tokio::task::spawn_blocking(move || -> Result<(HeightMap, u64), String> {
                 let fail = |what: &str, e: &dyn std::fmt::Display| {
                     format!("camera {}: {what}: {e}", c.serial)
                 };
@@ -261,17 +265,86 @@ async fn look(cameras: Vec<RigCamera>, grid: Grid) -> Look {
                 let step = (depth.width / LOOK_WIDTH).max(1) as usize;
                 let mut map = HeightMap::new(grid);
                 map.add_depth(&depth, &k, &to_table, step);
-                Ok(map)
+                Ok((map, depth.timestamp_us))
             })
         })
         .collect();
     let mut merged = HeightMap::new(grid);
+    let mut oldest_us = u64::MAX;
     for task in tasks {
         match task.await {
-            Ok(Ok(map)) => merged.merge(&map),
+            Ok(Ok((map, captured_us))) => {
+                merged.merge(&map);
+                oldest_us = oldest_us.min(captured_us);
+            }
             Ok(Err(why)) => return Look::Failed(why),
             Err(e) => return Look::Failed(format!("a look's task failed: {e}")),
         }
     }
-    Look::Map(merged)
+    let now_us = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX));
+    Look::Map(merged, taken_at(oldest_us, now_us, asked, Instant::now()))
+}
+
+/// When a look was taken on the monotonic clock, its oldest frame having been captured at
+/// `captured_us` (µs since the UNIX epoch, as frames are stamped), the wall clock reading
+/// `now_us` at `now`: `now` less the frame's age, but within the look (from `asked`, when
+/// its grabs began, to `now`), so a step of the wall clock (or a frame a camera held
+/// before it was asked) moves it within the look only, and times never go backwards
+/// from one look to the next.
+fn taken_at(captured_us: u64, now_us: u64, asked: Instant, now: Instant) -> Instant {
+    let age = Duration::from_micros(now_us.saturating_sub(captured_us));
+    now.checked_sub(age).map_or(asked, |t| t.max(asked))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::station::auto::StillnessConfig;
+
+    /// A µs since the UNIX epoch and a moment of the monotonic clock that stand for scene
+    /// time `ms`.
+    fn clocks() -> (impl Fn(u64) -> u64, impl Fn(u64) -> Instant) {
+        let base = Instant::now();
+        (
+            |ms| 1_796_000_000_000_000 + ms * 1000,
+            move |ms| base + Duration::from_millis(ms),
+        )
+    }
+
+    #[test]
+    fn a_look_is_taken_when_its_frames_were_captured_within_the_look() {
+        let (us, at) = clocks();
+        // Asked at 1000 ms, the frame captured at 1020, placed by 1400.
+        assert_eq!(taken_at(us(1020), us(1400), at(1000), at(1400)), at(1020));
+        // A frame from before the look (held by the camera, or the wall clock stepped
+        // forward): its start.
+        assert_eq!(taken_at(us(900), us(1400), at(1000), at(1400)), at(1000));
+        // A frame after the wall clock's now (the wall clock stepped back): its end.
+        assert_eq!(taken_at(us(1500), us(1400), at(1000), at(1400)), at(1400));
+    }
+
+    /// The lane test's hand rests beside the parcel from 18.5 s to 19.0 s, shorter than
+    /// the still time (600 ms). On a busy machine the first look that saw it resting was
+    /// placed 100 ms after its frame, the last one 300 ms after: timed by the ends of the
+    /// looks it stood still 650 ms and was measured (and then, gone during the
+    /// measurement, the parcel was measured anew); timed by its frames, 450 ms.
+    #[test]
+    fn a_hand_resting_shorter_than_the_still_time_is_not_still_however_slow_the_looks() {
+        let (us, at) = clocks();
+        // 4 x 4 cells of 2 cm, 30 cm high (the test's hand, a cylinder 10 cm across).
+        let hand = HeightMap::from_rows(0.02, &vec![vec![Some(0.3); 4]; 4]);
+        let looks = [(18_450, 18_500, 18_600), (18_900, 18_950, 19_250)];
+        let mut by_frames = Stillness::new(StillnessConfig::default());
+        let mut by_ends = Stillness::new(StillnessConfig::default());
+        let mut events = (Vec::new(), Vec::new());
+        for (asked, captured, placed) in looks {
+            let taken = taken_at(us(captured), us(placed), at(asked), at(placed));
+            events.0.push(by_frames.observe(taken, &hand));
+            events.1.push(by_ends.observe(at(placed), &hand));
+        }
+        assert_eq!(events.0, [Some(Event::Arrived), None]);
+        assert_eq!(events.1, [Some(Event::Arrived), Some(Event::Still)]);
+    }
 }

@@ -420,7 +420,8 @@ fn a_parcel_seen_by_two_cameras_is_measured_once_with_both() {
 fn a_hand_that_reaches_in_beside_a_measured_parcel_makes_no_new_measurement() {
     let dir = TempDir::new("lane-hand");
     // The parcel stands from 3 s to 27 s; at 18 s a hand (a cylinder 30 cm tall) slides
-    // in beside it, rests half a second and is gone at 19 s.
+    // in beside it, rests half a second and is gone at 19 s: less than the still time
+    // (600 ms) however slow the looks, as the station times them by their frames.
     let mut scene = format!(
         "{ONE_CAMERA}{}",
         parcel([0.34, 0.24, 0.15], 5.0, [-0.05, 0.0], [-0.5, 0.0], 2.0)
