@@ -9,7 +9,7 @@ use std::net::SocketAddr;
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::thread;
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use coapcam::api::record::{Record, Trigger};
 use rgbd::Scene;
@@ -276,6 +276,31 @@ impl Lane {
             Duration::from_secs(60),
         )
         .expect_success("coapcam results verify");
+    }
+
+    /// Where the station keeps its results log.
+    pub(crate) fn results(&self) -> &std::path::Path {
+        &self.results
+    }
+
+    /// Stops the station as Ctrl-C does and waits for it to end (bounded): its exit
+    /// status.
+    pub(crate) fn interrupt(&mut self) -> std::process::ExitStatus {
+        let pid = self.server.id().to_string();
+        let sent = Command::new("kill").args(["-INT", &pid]).status();
+        assert!(sent.is_ok_and(|s| s.success()), "kill -INT {pid}");
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            if let Some(status) = self.server.try_wait().expect("waiting for the station") {
+                return status;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "the station still ran 60 s after SIGINT\n{}",
+                self.log()
+            );
+            thread::sleep(Duration::from_millis(50));
+        }
     }
 
     /// Checks that there are `n` records, with the station's log if not.
