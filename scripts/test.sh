@@ -87,8 +87,8 @@ else
       apt-get install -y --no-install-recommends mosquitto mosquitto-clients; } \
     || peer_failed "mosquitto mosquitto-clients"
 fi
-# The PostgreSQL output's test (crates/coapcam/tests/it/postgres.rs) makes a cluster with
-# Debian's initdb and serves it with postgres on a free loopback port (as root, as the user
+# The PostgreSQL output's tests (crates/coapcam/tests/it/postgres.rs) make a cluster with
+# Debian's initdb and serve it with postgres on a free loopback port (as root, as the user
 # nobody); Debian puts them in /usr/lib/postgresql/<version>/bin, not on PATH.
 if command -v initdb >/dev/null && command -v postgres >/dev/null \
   || ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1; then

@@ -1,7 +1,7 @@
 //! The PostgreSQL output (issue 47, item 4) against a real server: Debian's postgresql,
 //! a cluster made per test by `initdb` in a scratch folder and served by `postgres` on a
 //! free port of 127.0.0.1 (its socket in the same folder), stopped and started again
-//! while the station records. initdb and postgres refuse to run as root: as root the
+//! while the station records: on request, and by itself (`serve --auto-measure`). initdb and postgres refuse to run as root: as root the
 //! test runs them as the user `nobody`. The server missing fails in CI (`CI=true`) and
 //! skips loudly elsewhere.
 
@@ -483,10 +483,10 @@ fn auto_measured_records_reach_the_table_once_in_order_across_ten_restarts() {
     if !available(test, &[Peer::Postgres]) {
         return;
     }
+    let started = Instant::now();
     let dir = TempDir::new("postgres-auto");
     let mut server = Server::start(&dir);
     let url = server.url();
-    let started = Instant::now();
     let mut lane = Lane::start_with(&dir, &auto_scene(), &["--postgres", &url]);
     let (mut stops, mut made_while_down) = (0, 0);
     for k in 1..=PARCELS {
