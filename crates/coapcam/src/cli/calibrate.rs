@@ -217,7 +217,7 @@ async fn by_markers(
     if let Some(last) = failed.pop() {
         let count = failed.len() + 1;
         for f in &failed {
-            eprintln!("coapcam: {f:#}");
+            eprintln!("coapcam: {}", super::error_text(f.as_ref()));
         }
         // The run ends as its last failure does (a server's 4.04 for an unknown serial
         // is status 3, as with --floor), with the count.

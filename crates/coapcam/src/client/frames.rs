@@ -46,7 +46,12 @@ pub async fn check_frames(
                 .await
             {
                 Ok(s) => clocks.set_rate(server, &f.camera, s.fps),
-                Err(e) => tracing::debug!(%server, camera = %f.camera, "no frame rate: {e:#}"),
+                Err(e) => tracing::debug!(
+                    %server,
+                    camera = %f.camera,
+                    "no frame rate: {}",
+                    crate::error_text(e.as_ref())
+                ),
             }
         }
         f.fps = clocks.rate(server, &f.camera);
@@ -71,7 +76,7 @@ pub async fn check_frames(
                     .call(Code::GET, crate::api::paths::TIME, Bytes::new(), None, None)
                     .await;
                 if let Err(e) = asked {
-                    tracing::debug!(%server, "no time: {e:#}");
+                    tracing::debug!(%server, "no time: {}", crate::error_text(&e));
                     break;
                 }
             }

@@ -186,7 +186,7 @@ impl CamClient {
         payload: Bytes,
         content_format: Option<ContentFormat>,
         accept: Option<ContentFormat>,
-    ) -> anyhow::Result<Response> {
+    ) -> Result<Response, CallError> {
         let request = self.request(method, path, payload, content_format, accept);
         let what = format!("{} {path}", method.name().unwrap_or("request"));
         self.exchange(request, &what).await
@@ -196,7 +196,7 @@ impl CamClient {
     /// 2.xx whose body arrived whole. A server that is busy for a few seconds (5.03 with
     /// Max-Age up to [`BUSY_RETRY`], e.g. grabs past its memory budget) is asked again
     /// after Max-Age, within the request's timeout.
-    async fn exchange(&self, request: Request, what: &str) -> anyhow::Result<Response> {
+    async fn exchange(&self, request: Request, what: &str) -> Result<Response, CallError> {
         let deadline = tokio::time::Instant::now() + self.timeout;
         loop {
             let sent_us = clocks::unix_now_us();
@@ -218,7 +218,11 @@ impl CamClient {
                 }
                 None => self.client.send(self.server, request.clone()).await,
             };
-            let response = response.with_context(|| format!("{what} on {}", self.server))?;
+            let response = response.map_err(|source| CallError::Exchange {
+                what: what.to_owned(),
+                server: self.server,
+                source,
+            })?;
             // T4 from the monotonic clock: a step of the wall clock meanwhile is not a delay.
             let took = i64::try_from(started.elapsed().as_micros()).unwrap_or(i64::MAX);
             self.clocks
@@ -272,7 +276,7 @@ impl CamClient {
         path: &str,
         query: &[String],
         accept: Option<ContentFormat>,
-    ) -> anyhow::Result<Response> {
+    ) -> Result<Response, CallError> {
         let mut request = self.request(Code::GET, path, Bytes::new(), None, accept);
         for item in query {
             request
@@ -379,7 +383,7 @@ impl CamClient {
         serial: &str,
         stream: Stream,
         accept: Option<ContentFormat>,
-    ) -> anyhow::Result<Response> {
+    ) -> Result<Response, CallError> {
         let path = crate::api::paths::camera(serial, stream.name());
         self.call(Code::POST, &path, Bytes::new(), None, accept)
             .await
@@ -388,7 +392,7 @@ impl CamClient {
     /// Grabs a new frame of one camera (POST) in its stream's compact form ([`Stream::compact`]):
     /// color as JPEG at the server's quality, depth as RVL+zstd, a cloud as the compact
     /// cloud; the thesis packet from a server that does not offer it (4.06).
-    pub async fn grab_compact(&self, serial: &str, stream: Stream) -> anyhow::Result<Response> {
+    pub async fn grab_compact(&self, serial: &str, stream: Stream) -> Result<Response, CallError> {
         match self.grab(serial, stream, Some(stream.compact())).await {
             Err(e) if not_acceptable(&e) => self.grab(serial, stream, None).await,
             other => other,
@@ -402,7 +406,7 @@ impl CamClient {
     }
 
     /// Grabs a new color frame of one camera (POST) as a JPEG of `quality` (1-100).
-    pub async fn grab_jpeg(&self, serial: &str, quality: u8) -> anyhow::Result<Response> {
+    pub async fn grab_jpeg(&self, serial: &str, quality: u8) -> Result<Response, CallError> {
         let path = crate::api::paths::camera(serial, "color");
         let accept = Some(ContentFormat::IMAGE_JPEG);
         let mut request = self.request(Code::POST, &path, Bytes::new(), None, accept);
@@ -414,7 +418,7 @@ impl CamClient {
     }
 
     /// Grabs every camera of the server and merges their clouds (POST /cams/pointclouds).
-    pub async fn grab_all(&self, accept: Option<ContentFormat>) -> anyhow::Result<Response> {
+    pub async fn grab_all(&self, accept: Option<ContentFormat>) -> Result<Response, CallError> {
         self.call(
             Code::POST,
             crate::api::paths::POINTCLOUDS,
@@ -428,7 +432,7 @@ impl CamClient {
     /// Grabs a new point cloud (POST) of camera `serial`, or of every camera merged
     /// (`/cams/pointclouds`) when `None`; as the compact cloud (65103), or the thesis
     /// packet from a server that does not offer it (4.06). [`cloud_of`] reads either.
-    pub async fn grab_cloud(&self, serial: Option<&str>) -> anyhow::Result<Response> {
+    pub async fn grab_cloud(&self, serial: Option<&str>) -> Result<Response, CallError> {
         let Some(sn) = serial else {
             return match self.grab_all(Some(Stream::Pointcloud.compact())).await {
                 Err(e) if not_acceptable(&e) => self.grab_all(None).await,
@@ -460,15 +464,10 @@ impl CamClient {
         }
         let response = match self.exchange(request, "POST /cams/dimensions").await {
             Ok(r) => r,
-            Err(e)
-                if matches!(
-                    error_code(&e),
-                    Some(Code::NOT_FOUND | Code::METHOD_NOT_ALLOWED)
-                ) =>
-            {
+            Err(e) if matches!(e.code(), Some(Code::NOT_FOUND | Code::METHOD_NOT_ALLOWED)) => {
                 return Ok(None);
             }
-            Err(e) => return Err(e),
+            Err(e) => return Err(e.into()),
         };
         let m = Measurement::from_cbor(&response.payload)
             .context("reading the measurement from /cams/dimensions")?;
@@ -476,14 +475,9 @@ impl CamClient {
     }
 }
 
-/// The code of an [`ErrorResponse`], if `e` is one.
-fn error_code(e: &anyhow::Error) -> Option<Code> {
-    e.downcast_ref::<ErrorResponse>().map(|r| r.response.code)
-}
-
 /// True for an [`ErrorResponse`] 4.06 Not Acceptable: the server does not offer the format.
-fn not_acceptable(e: &anyhow::Error) -> bool {
-    error_code(e) == Some(Code::NOT_ACCEPTABLE)
+fn not_acceptable(e: &CallError) -> bool {
+    e.code() == Some(Code::NOT_ACCEPTABLE)
 }
 
 /// The point cloud of a response in any of its representations, with the cameras and
@@ -501,6 +495,46 @@ pub fn cloud_of(response: &Response) -> anyhow::Result<cbor::Cloud> {
     Ok(row.decode_cloud(&response.payload)?)
 }
 
+/// A request that failed: not answered, answered with an error response, or answered
+/// with a body shorter or longer than announced.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CallError {
+    /// Not sent, or not answered (the request timed out, the port is unreachable).
+    #[error("{what} on {server}")]
+    Exchange {
+        /// The request, e.g. `GET /cams/840412060746/depth-settings`.
+        what: String,
+        /// The server asked.
+        server: SocketAddr,
+        /// Why.
+        source: coap_net::Error,
+    },
+    /// Answered with an error response (4.xx, 5.xx). Said as the [`ErrorResponse`] says
+    /// itself, which is also the source (not `transparent`), so that the command's exit
+    /// status finds it among the causes; [`crate::error_text`] says it once.
+    #[error("{0}")]
+    Refused(#[source] ErrorResponse),
+    /// A successful answer whose body is not as long as its Size2 said.
+    #[error("{what}")]
+    Incomplete {
+        /// The request.
+        what: String,
+        /// How long it was and was said to be.
+        source: SizeError,
+    },
+}
+
+impl CallError {
+    /// The code of the error response, if the request was answered with one.
+    pub fn code(&self) -> Option<Code> {
+        match self {
+            Self::Refused(r) => Some(r.response.code),
+            _ => None,
+        }
+    }
+}
+
 /// A request answered with an error response (4.xx, 5.xx).
 #[derive(Debug, thiserror::Error)]
 #[error("{what}: {}", describe(.response))]
@@ -508,7 +542,7 @@ pub struct ErrorResponse {
     /// The request, e.g. `GET /cams/840412060746/depth-settings`.
     pub what: String,
     /// The response, its payload the diagnostic.
-    pub response: Response,
+    pub response: Box<Response>,
 }
 
 /// Nothing answered in time: no server at the address, or no member of a group.
@@ -518,15 +552,17 @@ pub struct NoAnswer(pub String);
 
 /// `response` if it is a 2.xx whose body is as long as its Size2 says; an error response
 /// becomes an [`ErrorResponse`].
-pub fn check(what: &str, response: Response) -> anyhow::Result<Response> {
+pub fn check(what: &str, response: Response) -> Result<Response, CallError> {
     if !response.code.is_success() {
-        return Err(ErrorResponse {
+        return Err(CallError::Refused(ErrorResponse {
             what: what.to_owned(),
-            response,
-        }
-        .into());
+            response: Box::new(response),
+        }));
     }
-    check_size(&response, response.payload.len()).with_context(|| what.to_owned())?;
+    check_size(&response, response.payload.len()).map_err(|source| CallError::Incomplete {
+        what: what.to_owned(),
+        source,
+    })?;
     Ok(response)
 }
 
@@ -542,12 +578,25 @@ pub fn describe(response: &Response) -> String {
 
 /// Refuses a successful body of `size` bytes when the server announced another size
 /// (Size2).
-pub fn check_size(response: &Response, size: usize) -> anyhow::Result<()> {
+pub fn check_size(response: &Response, size: usize) -> Result<(), SizeError> {
     if let Some(size2) = response.options.uint(OptionNumber::SIZE2)
         && response.code.is_success()
         && size2 as usize != size
     {
-        bail!("incomplete body: the server announced {size2} bytes (Size2), {size} arrived");
+        return Err(SizeError {
+            announced: size2,
+            arrived: size,
+        });
     }
     Ok(())
+}
+
+/// A body not as long as the server announced (Size2).
+#[derive(Debug, thiserror::Error)]
+#[error("incomplete body: the server announced {announced} bytes (Size2), {arrived} arrived")]
+pub struct SizeError {
+    /// The size announced.
+    pub announced: u32,
+    /// The bytes that arrived.
+    pub arrived: usize,
 }

@@ -40,8 +40,10 @@ pub async fn events(
     match pages(client, EVENTS, &q, limit, |e: &EventRecord| e.id).await {
         // A station from before events has no such resource: it has none.
         Err(e)
-            if e.downcast_ref::<super::ErrorResponse>()
-                .is_some_and(|r| r.response.code == coap::Code::NOT_FOUND) =>
+            if e.chain().any(|c| {
+                c.downcast_ref::<super::ErrorResponse>()
+                    .is_some_and(|r| r.response.code == coap::Code::NOT_FOUND)
+            }) =>
         {
             Ok(Vec::new())
         }

@@ -140,11 +140,13 @@ pub async fn observe(
                 continue;
             }
         }
-        let outcome = super::check(&format!("GET {path}"), response).map(|r| Timed {
-            bytes: r.payload.len(),
-            time: elapsed,
-            measurement: None,
-        });
+        let outcome = super::check(&format!("GET {path}"), response)
+            .map(|r| Timed {
+                bytes: r.payload.len(),
+                time: elapsed,
+                measurement: None,
+            })
+            .map_err(anyhow::Error::from);
         let stop = on_result(outcome, elapsed)?;
         if !observing {
             if first {
