@@ -2,16 +2,41 @@
 //! representation (color intrinsics and depth->color extrinsics) and the camera's
 //! 3d-transformation.
 
-use anyhow::Context as _;
 use bytes::Bytes;
 use coap::Code;
-use geometry::Dimensions;
+use geometry::{Dimensions, TransformError};
 
-use super::CamClient;
+use super::{CallError, CamClient};
 use crate::report::Seen;
 use crate::repr::Stream;
-use crate::repr::cbor::ColorCapture;
+use crate::repr::cbor::{CborError, ColorCapture};
 use crate::vision::picture;
+
+/// An annotated picture that could not be made: the frame or the camera's
+/// 3d-transformation not had or not read, the box not drawn, or the picture not saved.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum AnnotateError {
+    /// The color frame or the 3d-transformation was not had (transparent: the causes the
+    /// command's exit status looks for are the [`CallError`]'s sources, not itself).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// The 3d-transformation's document did not read.
+    #[error("reading the 3d-transformation")]
+    Transformation(#[source] TransformError),
+    /// The 3d-transformation did not compose into one transform.
+    #[error("composing the 3d-transformation")]
+    Compose(#[source] TransformError),
+    /// The color frame's CBOR did not read.
+    #[error(transparent)]
+    Capture(#[from] CborError),
+    /// The box could not be drawn in the frame's view.
+    #[error(transparent)]
+    Project(#[from] picture::ProjectError),
+    /// The picture could not be written.
+    #[error(transparent)]
+    Save(#[from] picture::SaveError),
+}
 
 /// The pixel at which a world point (the 3d-transformation's output frame) is seen in
 /// `capture`, given the camera's `depth_to_world` transformation; `None` behind the
@@ -19,12 +44,8 @@ use crate::vision::picture;
 pub fn projector(
     capture: &ColorCapture,
     depth_to_world: &geometry::Transform,
-) -> anyhow::Result<impl Fn([f64; 3]) -> Option<[f32; 2]> + use<>> {
-    Ok(picture::projector(
-        capture.intrinsics,
-        capture.depth_to_color,
-        depth_to_world,
-    )?)
+) -> Result<impl Fn([f64; 3]) -> Option<[f32; 2]> + use<>, picture::ProjectError> {
+    picture::projector(capture.intrinsics, capture.depth_to_color, depth_to_world)
 }
 
 /// Grabs a color frame of `serial` and draws `dims` onto it (`--annotate`), written with
@@ -37,7 +58,7 @@ pub async fn from_server(
     division_mm: Option<f64>,
     codes: Option<&[Seen]>,
     path: &std::path::Path,
-) -> anyhow::Result<()> {
+) -> Result<(), AnnotateError> {
     drawn_on_a_frame(client, serial, path, |image, capture, transform| {
         picture::annotate_frame(
             image,
@@ -61,7 +82,7 @@ pub async fn refused_from_server(
     reason: &str,
     codes: Option<&[Seen]>,
     path: &std::path::Path,
-) -> anyhow::Result<()> {
+) -> Result<(), AnnotateError> {
     drawn_on_a_frame(client, serial, path, |image, capture, transform| {
         picture::annotate_refused_frame(
             image,
@@ -92,7 +113,7 @@ async fn drawn_on_a_frame(
         &ColorCapture,
         &geometry::Transform,
     ) -> Result<(), picture::ProjectError>,
-) -> anyhow::Result<()> {
+) -> Result<(), AnnotateError> {
     let (mut image, capture, transform) = frame(client, serial).await?;
     draw(&mut image, &capture, &transform)?;
     Ok(picture::save(&image, path)?)
@@ -103,16 +124,16 @@ async fn drawn_on_a_frame(
 async fn frame(
     client: &CamClient,
     serial: &str,
-) -> anyhow::Result<(image::RgbImage, ColorCapture, geometry::Transform)> {
+) -> Result<(image::RgbImage, ColorCapture, geometry::Transform), AnnotateError> {
     let transformation_path = crate::api::paths::camera(serial, "3d-transformation");
     let (color, transformation) = tokio::try_join!(
         client.grab(serial, Stream::Color, Some(coap::ContentFormat::CBOR)),
         client.call(Code::GET, &transformation_path, Bytes::new(), None, None),
     )?;
     let transform = geometry::Transformation::from_json(&transformation.payload)
-        .context("reading the 3d-transformation")?
+        .map_err(AnnotateError::Transformation)?
         .to_transform()
-        .context("composing the 3d-transformation")?;
+        .map_err(AnnotateError::Compose)?;
     let mut capture = ColorCapture::from_cbor(&color.payload)?;
     let image = std::mem::take(&mut capture.image);
     Ok((image, capture, transform))

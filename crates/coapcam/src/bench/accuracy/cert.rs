@@ -369,7 +369,7 @@ async fn measure_scene(
     let seen = match codes::read_cameras(client, &m.grabbed.cameras).await {
         Ok(seen) => seen,
         Err(e) => {
-            failed(&mut row, &e);
+            failed(&mut row, &e.into());
             return Ok(row);
         }
     };
