@@ -498,10 +498,12 @@ fn flying_pixels_parted_from_a_dark_box_by_its_holes_are_no_parcel_beside_it() {
     assert_eq!(found.parcels.len(), 1, "{found:?}");
     assert!(found.parcels[0].isolated, "{found:?}");
     // Without the camera the sheet cannot be told from a parcel standing 20 mm beside
-    // it: a second object, 5 mm thin (outside every measurable range).
+    // it: a second object, 11 mm thin (the rays' run over its 10 cm of height; outside
+    // every measurable range), and no level lid.
     let blind = parcels(&cloud, &config, &[]).unwrap();
     assert_eq!(blind.parcels.len(), 2, "{blind:?}");
-    assert!(blind.parcels[1].dimensions.width_mm < 10.0, "{blind:?}");
+    assert!(blind.parcels[1].dimensions.width_mm < 12.0, "{blind:?}");
+    assert_eq!(blind.parcels[1].shape, Shape::Irregular, "{blind:?}");
 }
 
 #[test]
@@ -686,4 +688,58 @@ fn parcels_whose_outlines_read_17_mm_apart_are_measured_each() {
     let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
     assert_eq!(found.parcels.len(), 2, "{found:?}");
     assert!(found.parcels.iter().all(|p| p.isolated), "{found:?}");
+}
+
+#[test]
+fn a_few_points_beyond_a_small_lids_corner_do_not_make_it_irregular() {
+    // A 70 x 60 mm lid 150 mm up and, beyond one end by its corner, nine points at its
+    // height (the top of its wall within the lid band, seen obliquely): the hull's
+    // rectangle grows 6 mm for them, and the lid's hull fills 0.96 of it.
+    let mut points = lid_points([0.0, 0.070], [0.0, 0.060], 0.150);
+    for i in 1..=3 {
+        for j in 0..3 {
+            let (x, y) = (0.070 + f64::from(i) * 0.002, 0.060 - f64::from(j) * 0.002);
+            points.push(Point3::new(x as f32, y as f32, 0.150));
+        }
+    }
+    let found = parcels(&PointCloud { points }, &DimensionConfig::default(), &[]).unwrap();
+    assert_eq!(found.parcels.len(), 1, "{found:?}");
+    let p = &found.parcels[0];
+    assert_eq!(p.shape, Shape::Cuboid, "{p:?}");
+}
+
+#[test]
+fn a_low_bag_whose_lid_fills_its_rectangle_is_no_box() {
+    // A lid 140 x 130 mm, 29 mm up at its rim, whose middle sinks 3 mm (a polybag not
+    // quite full; every point lies within the lid band): it fills its rectangle as a
+    // box's does, but is not level.
+    let sagging = |sag: f64| {
+        let mut points = lid_points([-0.070, 0.070], [-0.065, 0.065], 0.029);
+        for p in &mut points {
+            let (u, v) = (f64::from(p.x) / 0.070, f64::from(p.y) / 0.065);
+            p.z -= (sag * (1.0 - u * u) * (1.0 - v * v)) as f32;
+        }
+        points
+    };
+    let found = parcels(
+        &PointCloud {
+            points: sagging(0.003),
+        },
+        &DimensionConfig::default(),
+        &[],
+    )
+    .unwrap();
+    assert_eq!(found.parcels.len(), 1, "{found:?}");
+    assert!(found.parcels[0].fit >= 0.99, "{found:?}");
+    assert_eq!(found.parcels[0].shape, Shape::Irregular, "{found:?}");
+    // The same lid level is a box's.
+    let found = parcels(
+        &PointCloud {
+            points: sagging(0.0),
+        },
+        &DimensionConfig::default(),
+        &[],
+    )
+    .unwrap();
+    assert_eq!(found.parcels[0].shape, Shape::Cuboid, "{found:?}");
 }
