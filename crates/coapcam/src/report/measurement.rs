@@ -112,7 +112,8 @@ pub struct ParcelReport {
     /// `"cuboid"`, `"round"` (a tube or a cylinder) or `"irregular"` (a bag: its length
     /// and width take 2 d), each measured as its smallest enclosing cuboid.
     pub shape: String,
-    /// How well a cuboid fits: the lid's hull over its rectangle, to 0.001.
+    /// How well a cuboid fits: the share of the lid's rectangle (its edges where the lid's
+    /// density puts them) that the lid's hull covers, to 0.001.
     pub fit: f64,
     /// False when it touches another parcel (side by side).
     pub isolated: bool,
