@@ -299,8 +299,8 @@ fn measure(
     // places them (at the outermost points' line, half a pixel inside `refined`): a few
     // points beyond a small lid's edge (the top of its wall within a deep band, seen
     // obliquely) widened its hull's rectangle by more than its lid fills (seed 1 of the
-    // certification set, scenes 0-499: 17 boxes of 51 to 545 mm read 0.90 to 0.974, and
-    // irregular; within their edges 0.983 to 1).
+    // certification set, scenes 0-499: 20 boxes of 51 to 545 mm read 0.90 to 0.974, and
+    // irregular; within their edges 0.979 to 1).
     let within = move_sides(refined, [-pixel / 2.0; 4]);
     let fill = filled_within(&lid.points, &within).unwrap_or(fit);
     let flat_fill = filled_within(&flat, &within).unwrap_or(flat_fit);
