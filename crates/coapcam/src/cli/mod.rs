@@ -89,7 +89,12 @@ impl TransmissionArgs {
         uri: &coap_net::Uri,
         peer: std::net::SocketAddr,
     ) -> anyhow::Result<coap_net::Client> {
-        coapcam::client::secured_client(uri, peer, self.endpoint_config(), self.psk().as_ref())
+        Ok(coapcam::client::secured_client(
+            uri,
+            peer,
+            self.endpoint_config(),
+            self.psk().as_ref(),
+        )?)
     }
 
     /// The DTLS client key of `--psk-identity` and `--psk-key`, if given.
@@ -164,13 +169,13 @@ impl CameraArgs {
         if self.server.len() > 1 {
             anyhow::bail!("give --server once (only measure merges several servers)");
         }
-        coapcam::client::CamClient::connect(
+        Ok(coapcam::client::CamClient::connect(
             server,
             transmission.endpoint_config(),
             transmission.psk().as_ref(),
             transmission.timeout(),
         )
-        .await
+        .await?)
     }
 }
 

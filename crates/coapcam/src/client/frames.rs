@@ -50,7 +50,7 @@ pub async fn check_frames(
                     %server,
                     camera = %f.camera,
                     "no frame rate: {}",
-                    crate::error_text(e.as_ref())
+                    crate::error_text(&e)
                 ),
             }
         }

@@ -16,15 +16,14 @@ use std::net::{IpAddr, SocketAddr};
 use std::sync::Arc;
 use std::time::Duration;
 
-use anyhow::{Context as _, bail};
 use bytes::Bytes;
 use coap::link_format;
 use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::{Client, Psk, Uri};
 
-use crate::report::{EdgeQuery, Measurement};
+use crate::report::{EdgeQuery, Measurement, MeasurementError};
 use crate::repr::packet::DepthImage;
-use crate::repr::{self, Stream, cbor};
+use crate::repr::{self, DecodeError, Stream, cbor};
 use crate::timesync::SERVER_TIME;
 
 /// A client socket for `server`: plain for `coap://`, DTLS with `psk` for `coaps://`.
@@ -33,14 +32,13 @@ pub fn secured_client(
     server: SocketAddr,
     config: EndpointConfig,
     psk: Option<&Psk>,
-) -> anyhow::Result<Client> {
+) -> Result<Client, ConnectError> {
     let psk = match (uri.secure, psk) {
-        (true, None) => bail!("coaps:// needs a pre-shared key: --psk-identity ID --psk-key KEY"),
+        (true, None) => return Err(ConnectError::NoKey),
         (true, psk) => psk,
         (false, _) => None,
     };
-    let client =
-        Client::for_peer_secured(server, config, psk).context("binding the client socket")?;
+    let client = Client::for_peer_secured(server, config, psk).map_err(ConnectError::Bind)?;
     if !server.ip().is_multicast() {
         rtt_cache::seed(&client, server);
     }
@@ -83,12 +81,15 @@ impl CamClient {
         config: EndpointConfig,
         psk: Option<&Psk>,
         timeout: Duration,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, ConnectError> {
         let uri = Uri::parse(uri)?;
         let server = uri
             .resolve()
             .await
-            .with_context(|| format!("resolving {}", uri.host))?;
+            .map_err(|source| ConnectError::Resolve {
+                host: uri.host.clone(),
+                source,
+            })?;
         let client = secured_client(&uri, server, config, psk)?;
         Ok(Self {
             client,
@@ -102,12 +103,12 @@ impl CamClient {
     /// A plain CoAP client of the server at `server` (an in-process one, for `demo` and
     /// the benchmarks), with the default transmission parameters and message IDs and
     /// tokens of its own ([`coap_net::fresh_seed`]).
-    pub fn at(server: SocketAddr, timeout: Duration) -> anyhow::Result<Self> {
+    pub fn at(server: SocketAddr, timeout: Duration) -> Result<Self, ConnectError> {
         let config = EndpointConfig {
             rng_seed: coap_net::fresh_seed(),
             ..EndpointConfig::default()
         };
-        let client = Client::for_peer(server, config).context("binding the client socket")?;
+        let client = Client::for_peer(server, config).map_err(ConnectError::Bind)?;
         Ok(Self {
             client,
             server,
@@ -134,11 +135,11 @@ impl CamClient {
         bind: Option<IpAddr>,
         config: EndpointConfig,
         timeout: Duration,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, ConnectError> {
         let client = match bind {
             Some(ip) => Client::bind(SocketAddr::new(ip, 0), config)
-                .with_context(|| format!("binding the client socket to {ip}"))?,
-            None => Client::for_peer(group, config).context("binding the client socket")?,
+                .map_err(|source| ConnectError::BindTo { ip, source })?,
+            None => Client::for_peer(group, config).map_err(ConnectError::Bind)?,
         };
         Ok(Self {
             client,
@@ -292,7 +293,7 @@ impl CamClient {
     }
 
     /// The serials of the server's cameras, from discovery (`rt=rgbd.color`), sorted.
-    pub async fn cameras(&self) -> anyhow::Result<Vec<String>> {
+    pub async fn cameras(&self) -> Result<Vec<String>, DiscoveryError> {
         let mut request = Request::new(Code::GET, "/.well-known/core");
         request
             .options
@@ -302,12 +303,14 @@ impl CamClient {
             .client
             .send(self.server, request)
             .await
-            .with_context(|| format!("discovering the cameras of {}", self.server))?;
+            .map_err(|source| DiscoveryError::Exchange {
+                server: self.server,
+                source,
+            })?;
         let response = check("discovery", response)?;
-        let text = std::str::from_utf8(&response.payload)
-            .context("the link-format document is not UTF-8")?;
+        let text = std::str::from_utf8(&response.payload).map_err(DiscoveryError::NotUtf8)?;
         let mut serials: Vec<String> = link_format::parse(text)
-            .context("parsing the link-format document")?
+            .map_err(DiscoveryError::LinkFormat)?
             .into_iter()
             .filter_map(|l| {
                 let rest = l.target.strip_prefix("/cams/")?;
@@ -321,20 +324,20 @@ impl CamClient {
     }
 
     /// The camera to use: `camera` if given, else the server's only camera.
-    pub async fn one_camera(&self, camera: Option<&str>) -> anyhow::Result<String> {
+    pub async fn one_camera(&self, camera: Option<&str>) -> Result<String, DiscoveryError> {
         if let Some(sn) = camera {
             return Ok(sn.to_owned());
         }
-        let serials = self.cameras().await?;
-        match serials.as_slice() {
-            [one] => Ok(one.clone()),
-            [] => bail!("{} has no camera", self.server),
-            many => bail!(
-                "{} has {} cameras ({}); choose one with --camera",
-                self.server,
-                many.len(),
-                many.join(", ")
-            ),
+        let mut serials = self.cameras().await?;
+        match serials.len() {
+            1 => Ok(serials.remove(0)),
+            0 => Err(DiscoveryError::NoCamera {
+                server: self.server,
+            }),
+            _ => Err(DiscoveryError::Several {
+                server: self.server,
+                serials,
+            }),
         }
     }
 
@@ -344,7 +347,7 @@ impl CamClient {
         &self,
         serial: &str,
         name: &str,
-    ) -> anyhow::Result<T> {
+    ) -> Result<T, DocumentError> {
         let r = self
             .call(
                 Code::GET,
@@ -354,7 +357,11 @@ impl CamClient {
                 None,
             )
             .await?;
-        serde_json::from_slice(&r.payload).with_context(|| format!("parsing {name} of {serial}"))
+        serde_json::from_slice(&r.payload).map_err(|source| DocumentError::Parse {
+            name: name.to_owned(),
+            serial: serial.to_owned(),
+            source,
+        })
     }
 
     /// PUT a camera's JSON document.
@@ -363,8 +370,11 @@ impl CamClient {
         serial: &str,
         name: &str,
         doc: &T,
-    ) -> anyhow::Result<()> {
-        let body = serde_json::to_vec(doc).with_context(|| format!("encoding {name}"))?;
+    ) -> Result<(), DocumentError> {
+        let body = serde_json::to_vec(doc).map_err(|source| DocumentError::Encode {
+            name: name.to_owned(),
+            source,
+        })?;
         self.call(
             Code::PUT,
             &crate::api::paths::camera(serial, name),
@@ -400,7 +410,7 @@ impl CamClient {
     }
 
     /// Grabs a new depth frame of one camera (POST), compactly ([`Self::grab_compact`]).
-    pub async fn grab_depth(&self, serial: &str) -> anyhow::Result<DepthImage> {
+    pub async fn grab_depth(&self, serial: &str) -> Result<DepthImage, FrameError> {
         let r = self.grab_compact(serial, Stream::Depth).await?;
         Ok(repr::Format::received(r.options.content_format())?.decode_depth(&r.payload)?)
     }
@@ -449,7 +459,7 @@ impl CamClient {
     pub async fn measure_edge(
         &self,
         query: &EdgeQuery,
-    ) -> anyhow::Result<Option<(Measurement, usize)>> {
+    ) -> Result<Option<(Measurement, usize)>, EdgeError> {
         let mut request = self.request(
             Code::POST,
             crate::api::paths::DIMENSIONS,
@@ -469,8 +479,7 @@ impl CamClient {
             }
             Err(e) => return Err(e.into()),
         };
-        let m = Measurement::from_cbor(&response.payload)
-            .context("reading the measurement from /cams/dimensions")?;
+        let m = Measurement::from_cbor(&response.payload).map_err(EdgeError::Measurement)?;
         Ok(Some((m, response.payload.len())))
     }
 }
@@ -484,15 +493,138 @@ fn not_acceptable(e: &CallError) -> bool {
 /// the time of the grab where the representation carries them (the thesis packet names
 /// no camera and has whole seconds). Deprojecting a compact cloud takes a few
 /// milliseconds: call it off the executor.
-pub fn cloud_of(response: &Response) -> anyhow::Result<cbor::Cloud> {
+pub fn cloud_of(response: &Response) -> Result<cbor::Cloud, FrameError> {
     let cf = response.options.content_format();
     let Ok(row) = repr::Format::received(cf) else {
-        bail!(
-            "a point cloud in an unknown content format ({})",
-            repr::Format::describe(cf.unwrap_or(ContentFormat::OCTET_STREAM))
-        );
+        return Err(FrameError::UnknownCloudFormat(repr::Format::describe(
+            cf.unwrap_or(ContentFormat::OCTET_STREAM),
+        )));
     };
     Ok(row.decode_cloud(&response.payload)?)
+}
+
+/// A client that could not be made.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConnectError {
+    /// The server's URI is not one.
+    #[error(transparent)]
+    Uri(#[from] coap_net::uri::UriError),
+    /// A `coaps://` URI without a key.
+    #[error("coaps:// needs a pre-shared key: --psk-identity ID --psk-key KEY")]
+    NoKey,
+    /// The URI's host did not resolve.
+    #[error("resolving {host}")]
+    Resolve {
+        /// The host.
+        host: String,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The client's socket could not be bound.
+    #[error("binding the client socket")]
+    Bind(#[source] std::io::Error),
+    /// The client's socket could not be bound to the address asked for.
+    #[error("binding the client socket to {ip}")]
+    BindTo {
+        /// The address.
+        ip: IpAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+/// The server's cameras could not be found, or not the one camera asked for.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DiscoveryError {
+    /// Discovery was not answered (the [`coap_net::Error`] a link of the chain, where the
+    /// command's exit status finds a timeout).
+    #[error("discovering the cameras of {server}")]
+    Exchange {
+        /// The server asked.
+        server: SocketAddr,
+        /// Why.
+        source: coap_net::Error,
+    },
+    /// Discovery was refused (transparent: the causes the command's exit status looks
+    /// for are the [`CallError`]'s sources, not itself).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// The document is not text.
+    #[error("the link-format document is not UTF-8")]
+    NotUtf8(#[source] std::str::Utf8Error),
+    /// The document is not link-format.
+    #[error("parsing the link-format document")]
+    LinkFormat(#[source] link_format::ParseError),
+    /// The server has no camera.
+    #[error("{server} has no camera")]
+    NoCamera {
+        /// The server.
+        server: SocketAddr,
+    },
+    /// No camera was named, and the server has several.
+    #[error("{server} has {} cameras ({}); choose one with --camera", serials.len(), serials.join(", "))]
+    Several {
+        /// The server.
+        server: SocketAddr,
+        /// Its cameras.
+        serials: Vec<String>,
+    },
+}
+
+/// A camera's JSON document could not be read or written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DocumentError {
+    /// The request failed (transparent, as [`DiscoveryError::Call`]).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// The document read is not one of its type.
+    #[error("parsing {name} of {serial}")]
+    Parse {
+        /// The document, e.g. `depth-settings`.
+        name: String,
+        /// The camera.
+        serial: String,
+        /// Why.
+        source: serde_json::Error,
+    },
+    /// The document to write did not encode.
+    #[error("encoding {name}")]
+    Encode {
+        /// The document.
+        name: String,
+        /// Why.
+        source: serde_json::Error,
+    },
+}
+
+/// A frame grabbed could not be had or read.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum FrameError {
+    /// The grab failed (transparent, as [`DiscoveryError::Call`]).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// A point cloud in a content format that is not one.
+    #[error("a point cloud in an unknown content format ({0})")]
+    UnknownCloudFormat(String),
+    /// The body did not decode.
+    #[error(transparent)]
+    Decode(#[from] DecodeError),
+}
+
+/// A measurement at the edge failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum EdgeError {
+    /// The request failed (transparent, as [`DiscoveryError::Call`]).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// The answer is not a measurement.
+    #[error("reading the measurement from /cams/dimensions")]
+    Measurement(#[source] MeasurementError),
 }
 
 /// A request that failed: not answered, answered with an error response, or answered
