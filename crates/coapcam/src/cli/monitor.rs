@@ -454,7 +454,7 @@ async fn carry_out(
                     record: Some(record),
                 };
                 report.result(Ok(success), elapsed)?;
-                Ok(report.done(args.count))
+                Ok::<_, anyhow::Error>(report.done(args.count))
             };
             results::follow(client, timeout, on_start, on_record).await
         }

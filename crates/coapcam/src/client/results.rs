@@ -4,23 +4,48 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, bail};
 use coap::{ContentFormat, OptionNumber};
 
-use super::CamClient;
-use super::timed::Watch;
+use super::timed::{Watch, WatchError};
+use super::{CallError, CamClient};
 use crate::api::paths::{EVENTS, LATEST, MEASUREMENTS as PATH};
 use crate::api::record::{EventRecord, Record};
 use crate::api::results::{ListQuery, MAX_LIST};
 
+/// The results log could not be read or followed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ResultsError {
+    /// A request failed (transparent: the causes the command's exit status looks for
+    /// are the [`CallError`]'s sources, not itself).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// The observation failed (transparent, as `Call`).
+    #[error(transparent)]
+    Watch(#[from] WatchError),
+    /// An answer is not records.
+    #[error("the results log's answer is not the CBOR of records")]
+    Decode(#[source] ciborium::de::Error<std::io::Error>),
+    /// The server answered without registering the observation.
+    #[error("the server did not accept the observation of {0}")]
+    NotAccepted(&'static str),
+    /// The server ended the observation.
+    #[error("the server ended the observation of {0}")]
+    Ended(&'static str),
+}
+
 /// Records from a CBOR body: a list, one record, or `null` (no record yet).
-pub fn decode<T: serde::de::DeserializeOwned>(body: &[u8]) -> anyhow::Result<T> {
-    ciborium::from_reader(body).context("the results log's answer is not the CBOR of records")
+pub fn decode<T: serde::de::DeserializeOwned>(body: &[u8]) -> Result<T, ResultsError> {
+    ciborium::from_reader(body).map_err(ResultsError::Decode)
 }
 
 /// Up to `limit` records newest first, as `q` selects (its `limit` ignored), asking page
 /// after page of at most [`MAX_LIST`].
-pub async fn list(client: &CamClient, q: &ListQuery, limit: usize) -> anyhow::Result<Vec<Record>> {
+pub async fn list(
+    client: &CamClient,
+    q: &ListQuery,
+    limit: usize,
+) -> Result<Vec<Record>, ResultsError> {
     pages(client, PATH, q, limit, |r: &Record| r.id).await
 }
 
@@ -31,7 +56,7 @@ pub async fn events(
     client: &CamClient,
     q: &ListQuery,
     limit: usize,
-) -> anyhow::Result<Vec<EventRecord>> {
+) -> Result<Vec<EventRecord>, ResultsError> {
     let q = ListQuery {
         since: q.since,
         before: q.before,
@@ -39,12 +64,7 @@ pub async fn events(
     };
     match pages(client, EVENTS, &q, limit, |e: &EventRecord| e.id).await {
         // A station from before events has no such resource: it has none.
-        Err(e)
-            if e.chain().any(|c| {
-                c.downcast_ref::<super::ErrorResponse>()
-                    .is_some_and(|r| r.response.code == coap::Code::NOT_FOUND)
-            }) =>
-        {
+        Err(e) if matches!(&e, ResultsError::Call(c) if c.code() == Some(coap::Code::NOT_FOUND)) => {
             Ok(Vec::new())
         }
         other => other,
@@ -58,7 +78,7 @@ async fn pages<T: serde::de::DeserializeOwned>(
     q: &ListQuery,
     limit: usize,
     id: impl Fn(&T) -> u64,
-) -> anyhow::Result<Vec<T>> {
+) -> Result<Vec<T>, ResultsError> {
     let mut out: Vec<T> = Vec::new();
     let mut page = q.clone();
     while out.len() < limit {
@@ -85,27 +105,31 @@ async fn pages<T: serde::de::DeserializeOwned>(
 /// The first answer must come within `timeout`; `on_start` gets the id the following
 /// starts after, `on_record` each record with the notification's size and the time since
 /// the previous record, until it says to stop (true) or the observation ends (an error).
-pub async fn follow(
+/// An error of `on_record` ends it as that error, untouched.
+pub async fn follow<E: From<ResultsError>>(
     client: &CamClient,
     timeout: Duration,
     on_start: impl FnOnce(u64),
-    mut on_record: impl FnMut(Record, usize, Duration) -> anyhow::Result<bool>,
-) -> anyhow::Result<()> {
+    mut on_record: impl FnMut(Record, usize, Duration) -> Result<bool, E>,
+) -> Result<(), E> {
     let path = LATEST;
     let mut on_start = Some(on_start);
     let mut previous = Instant::now();
-    let mut watch = Watch::start(client, path, Some(ContentFormat::CBOR), timeout).await?;
+    let mut watch = Watch::start(client, path, Some(ContentFormat::CBOR), timeout)
+        .await
+        .map_err(ResultsError::from)?;
     // The newest id reported (at first: the newest when the observation began).
     let mut last: Option<u64> = None;
     let mut stop = false;
     loop {
-        let response = super::check(&format!("GET {path}"), watch.next().await?)?;
+        let next = watch.next().await.map_err(ResultsError::from)?;
+        let response = super::check(&format!("GET {path}"), next).map_err(ResultsError::from)?;
         let observing = response.options.contains(OptionNumber::OBSERVE);
         let newest: Option<Record> = decode(&response.payload)?;
         let Some(from) = last else {
             let from = newest.as_ref().map_or(0, |r| r.id);
             if !observing {
-                bail!("the server did not accept the observation of {path}");
+                return Err(ResultsError::NotAccepted(path).into());
             }
             if let Some(started) = on_start.take() {
                 started(from);
@@ -139,7 +163,7 @@ pub async fn follow(
             }
         }
         if !observing {
-            bail!("the server ended the observation of {path}");
+            return Err(ResultsError::Ended(path).into());
         }
         if stop {
             return Ok(());

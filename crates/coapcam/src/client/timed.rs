@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Context as _, bail};
+use anyhow::bail;
 use bytes::Bytes;
 use coap::{Code, ContentFormat, OptionNumber, Response};
 use geometry::DimensionConfig;
@@ -116,13 +116,13 @@ pub async fn observe(
             // A notification that could not be completed (its other blocks lost, or the
             // resource changing faster than it can be fetched) is a failed result, not
             // the end: the observation goes on, and its end comes as `Ended`.
-            Err(e) if !first && !e.is::<Ended>() => {
-                if on_result(Err(e), elapsed)? {
+            Err(e) if !first && !matches!(e, WatchError::Ended(_)) => {
+                if on_result(Err(e.into()), elapsed)? {
                     return Ok(());
                 }
                 continue;
             }
-            Err(e) => return Err(e),
+            Err(e) => return Err(e.into()),
         };
         let observing = response.options.contains(OptionNumber::OBSERVE);
         if first && !observing && response.code == Code::NOT_FOUND {
@@ -161,10 +161,43 @@ pub async fn observe(
     }
 }
 
-/// The observation ended (the server or the path to it gave up).
+/// An observation that could not be registered, or did not go on.
 #[derive(Debug, thiserror::Error)]
-#[error("the observation of {0} ended")]
-pub(super) struct Ended(String);
+#[non_exhaustive]
+pub enum WatchError {
+    /// The registration was not sent or not answered.
+    #[error("observing {path} on {server}")]
+    Register {
+        /// The resource.
+        path: String,
+        /// The server.
+        server: std::net::SocketAddr,
+        /// Why.
+        source: coap_net::Error,
+    },
+    /// The first answer did not come in time.
+    #[error("no answer to the observation of {path} in {timeout:?}")]
+    FirstAnswer {
+        /// The resource.
+        path: String,
+        /// The time it had.
+        timeout: Duration,
+        /// The timeout's error.
+        source: tokio::time::error::Elapsed,
+    },
+    /// The observation ended (the server or the path to it gave up).
+    #[error("the observation of {0} ended")]
+    Ended(String),
+    /// A notification could not be completed (its other blocks lost, or the resource
+    /// changing faster than it can be fetched).
+    #[error("observing {path}")]
+    Notification {
+        /// The resource.
+        path: String,
+        /// Why.
+        source: coap_net::Error,
+    },
+}
 
 /// An observation whose first answer must come within a timeout, and whose end is an
 /// error.
@@ -182,7 +215,7 @@ impl Watch {
         path: &str,
         accept: Option<ContentFormat>,
         timeout: Duration,
-    ) -> anyhow::Result<Self> {
+    ) -> Result<Self, WatchError> {
         let mut request = client.request(Code::GET, path, Bytes::new(), None, accept);
         // The request's timeout would end the observation; only the first answer is
         // bounded.
@@ -191,7 +224,11 @@ impl Watch {
             .coap()
             .observe(client.server(), request)
             .await
-            .with_context(|| format!("observing {path} on {}", client.server()))?;
+            .map_err(|source| WatchError::Register {
+                path: path.to_owned(),
+                server: client.server(),
+                source,
+            })?;
         Ok(Self {
             observation,
             path: path.to_owned(),
@@ -200,19 +237,24 @@ impl Watch {
     }
 
     /// The next answer or notification (not checked for success).
-    pub(super) async fn next(&mut self) -> anyhow::Result<Response> {
+    pub(super) async fn next(&mut self) -> Result<Response, WatchError> {
         let path = &self.path;
         let next = match self.timeout.take() {
             Some(timeout) => tokio::time::timeout(timeout, self.observation.next())
                 .await
-                .with_context(|| {
-                    format!("no answer to the observation of {path} in {timeout:?}")
+                .map_err(|source| WatchError::FirstAnswer {
+                    path: path.clone(),
+                    timeout,
+                    source,
                 })?,
             None => self.observation.next().await,
         };
         let Some(next) = next else {
-            return Err(Ended(path.clone()).into());
+            return Err(WatchError::Ended(path.clone()));
         };
-        next.with_context(|| format!("observing {path}"))
+        next.map_err(|source| WatchError::Notification {
+            path: path.clone(),
+            source,
+        })
     }
 }
