@@ -188,6 +188,33 @@ pub fn parcels(
             kept.push((f, points));
         }
     }
+    // Pieces of one top that holes cut apart (a dark lid returns depth in patches) are one
+    // object: those that each miss much of their top and touch are measured together.
+    let groups = pieces(&kept);
+    let unions: Vec<Vec<Point3>> = groups
+        .iter()
+        .map(|g| g.iter().flat_map(|&i| kept[i].1.iter().copied()).collect())
+        .collect();
+    let joined: Vec<Option<ParcelFit>> =
+        unions.iter().map(|u| fit(u, config, views).ok()).collect();
+    let gone: Vec<usize> = groups
+        .iter()
+        .zip(&joined)
+        .filter(|(_, f)| f.is_some())
+        .flat_map(|(g, _)| g.iter().copied())
+        .collect();
+    let mut kept: Vec<(ParcelFit, &[Point3])> = kept
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !gone.contains(i))
+        .map(|(_, k)| k)
+        .chain(
+            joined
+                .into_iter()
+                .zip(&unions)
+                .filter_map(|(f, u)| Some((f?, &u[..]))),
+        )
+        .collect();
     let area = |f: &ParcelFit| f.dimensions.length_mm * f.dimensions.width_mm;
     kept.sort_by(|a, b| area(&b.0).total_cmp(&area(&a.0)));
     // Objects whose outlines come closer than TOUCH_M touch: one leans on the other, or
@@ -234,6 +261,48 @@ pub fn parcels(
         parcels: found,
         largest_points,
     })
+}
+
+/// The groups (two or more, by index into `objects`) of objects that each miss much of
+/// their top (coverage below the configured minimum) and whose outlines come within
+/// [`TOUCH_M`] of another of the group's: the patches of one dark or glossy top.
+fn pieces(objects: &[(ParcelFit, &[Point3])]) -> Vec<Vec<usize>> {
+    let holed: Vec<usize> = (0..objects.len())
+        .filter(|&i| !objects[i].0.complete)
+        .collect();
+    if holed.len() < 2 {
+        return Vec::new();
+    }
+    let outlines: Vec<Polygon<f64>> = holed
+        .iter()
+        .map(|&i| outline(&objects[i].0, objects[i].1))
+        .collect();
+    // Each holed object's group, by the smallest position (in `holed`) it is joined to.
+    let mut group: Vec<usize> = (0..holed.len()).collect();
+    for a in 0..holed.len() {
+        for b in a + 1..holed.len() {
+            if Euclidean.distance(&outlines[a], &outlines[b]) < TOUCH_M {
+                let (ga, gb) = (group[a], group[b]);
+                let (keep, drop) = (ga.min(gb), ga.max(gb));
+                for g in &mut group {
+                    if *g == drop {
+                        *g = keep;
+                    }
+                }
+            }
+        }
+    }
+    let mut out: Vec<Vec<usize>> = Vec::new();
+    for root in 0..holed.len() {
+        let members: Vec<usize> = (0..holed.len())
+            .filter(|&k| group[k] == root)
+            .map(|k| holed[k])
+            .collect();
+        if members.len() >= 2 {
+            out.push(members);
+        }
+    }
+    out
 }
 
 /// Where object `f` of `points` stands on the floor: its footprint's rectangle within

@@ -743,3 +743,40 @@ fn a_low_bag_whose_lid_fills_its_rectangle_is_no_box() {
     .unwrap();
     assert_eq!(found.parcels[0].shape, Shape::Cuboid, "{found:?}");
 }
+
+/// An object over [x0, x1] x [y0, y1] (metres) at 300 mm, with its lid's points, whole or
+/// missing much of its top.
+fn patch(x: [f64; 2], y: [f64; 2], whole: bool) -> (ParcelFit, Vec<Point3>) {
+    let corners_m = [[x[0], y[0]], [x[1], y[0]], [x[1], y[1]], [x[0], y[1]]];
+    let dimensions = Dimensions {
+        length_mm: (x[1] - x[0]) * 1e3,
+        width_mm: (y[1] - y[0]) * 1e3,
+        height_mm: 300.0,
+        yaw_deg: 0.0,
+        corners_m,
+        volume_l: 0.0,
+        points: 0,
+    };
+    let mut f = ParcelFit::whole_box(dimensions);
+    if !whole {
+        f.coverage = 0.5;
+        f.complete = false;
+    }
+    (f, lid_points(x, y, 0.3))
+}
+
+#[test]
+fn the_patches_of_one_dark_top_are_grouped_and_whole_or_distant_objects_are_not() {
+    let objects = [
+        patch([0.0, 0.1], [0.0, 0.2], false),
+        // 6 mm beyond the first, and missing much of its top: the same dark lid.
+        patch([0.106, 0.2], [0.0, 0.2], false),
+        // 50 mm beyond: another object.
+        patch([0.25, 0.35], [0.0, 0.2], false),
+        // Touching the first, but whole: a box beside it.
+        patch([0.0, 0.1], [0.204, 0.3], true),
+    ];
+    let borrowed: Vec<(ParcelFit, &[Point3])> =
+        objects.iter().map(|(f, p)| (f.clone(), &p[..])).collect();
+    assert_eq!(pieces(&borrowed), vec![vec![0, 1]]);
+}
