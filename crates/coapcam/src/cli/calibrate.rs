@@ -211,7 +211,7 @@ async fn by_markers(
                 }
                 placed.push(p);
             }
-            Err(e) => failed.push(e.context(format!("camera {sn}"))),
+            Err(e) => failed.push(anyhow::Error::from(e).context(format!("camera {sn}"))),
         }
     }
     if let Some(last) = failed.pop() {

@@ -452,13 +452,17 @@ fn lacks_multicast(flags: &str) -> bool {
 }
 
 /// `e` with the --bind advice when no member answered and the loopback interface `lacks`
-/// MULTICAST; still a [`NoAnswer`](coapcam::client::NoAnswer) (exit status 4).
+/// MULTICAST; still a [`NoAnswer`](coapcam::client::NoAnswer) (exit status 4). Its text
+/// is said once, though the measurement's error and its [`NoAnswer`] source say the same.
+///
+/// [`NoAnswer`]: coapcam::client::NoAnswer
 fn with_loopback_hint(e: anyhow::Error, lacks: bool) -> anyhow::Error {
     if !lacks || !e.chain().any(|c| c.is::<coapcam::client::NoAnswer>()) {
         return e;
     }
     coapcam::client::NoAnswer(format!(
-        "{e:#}; the loopback interface lo has no MULTICAST flag, so servers on this machine's loopback addresses do not get a group request sent this way: add --bind 127.0.0.1 to reach them"
+        "{}; the loopback interface lo has no MULTICAST flag, so servers on this machine's loopback addresses do not get a group request sent this way: add --bind 127.0.0.1 to reach them",
+        super::error_text(e.as_ref())
     ))
     .into()
 }
@@ -552,5 +556,30 @@ mod tests {
         assert!(!format!("{:#}", with_loopback_hint(none(), false)).contains("--bind"));
         let other = with_loopback_hint(anyhow::anyhow!("a file error"), true);
         assert_eq!(format!("{other:#}"), "a file error");
+    }
+
+    /// A group that nobody answered, as the measurement returns it (a [`MeasureError`]
+    /// whose source is the [`NoAnswer`]): exit status 4, and the hint says it once.
+    ///
+    /// [`MeasureError`]: coapcam::client::measure::MeasureError
+    /// [`NoAnswer`]: coapcam::client::NoAnswer
+    #[test]
+    fn a_measurement_nobody_answered_is_exit_4_said_once() {
+        let said = "no server of the group 224.0.1.187:5683 answered within 1s";
+        let none = || -> anyhow::Error {
+            coapcam::client::measure::MeasureError::NoAnswer(coapcam::client::NoAnswer(
+                said.to_owned(),
+            ))
+            .into()
+        };
+        assert_eq!(super::super::exit_status(&none()), Some(Exit::NoAnswer));
+        assert_eq!(super::super::error_text(none().as_ref()), said);
+        let hinted = with_loopback_hint(none(), true);
+        assert_eq!(super::super::exit_status(&hinted), Some(Exit::NoAnswer));
+        let text = format!("{hinted:#}");
+        assert!(
+            text.starts_with(&format!("{said}; the loopback interface")),
+            "{text}"
+        );
     }
 }

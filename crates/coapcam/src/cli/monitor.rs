@@ -12,7 +12,7 @@ use coap::ContentFormat;
 
 use coapcam::api::record::Record;
 use coapcam::client::measure::{self, Calibration, Source};
-use coapcam::client::timed::{self, Repeat, Timed};
+use coapcam::client::timed::{self, Repeat, Timed, TimedError};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Billing, Found, Measurement, Parcel, Reported};
 use coapcam::repr::Stream;
@@ -402,7 +402,8 @@ async fn repeat(
             calibration = Some(measure::calibration_of(client, &m.grabbed.cameras).await);
         }
         let calibration = calibration.clone().unwrap_or_default();
-        report.result(outcome.map(|t| Success::timed(t, &calibration)), elapsed)?;
+        let outcome = outcome.map(|t| Success::timed(t, &calibration));
+        report.result(outcome.map_err(anyhow::Error::from), elapsed)?;
     }
     Ok(())
 }
@@ -417,10 +418,10 @@ async fn carry_out(
     let timeout = args.transmission.timeout();
     match plan {
         Plan::Observe { serial, stream } => {
-            let on_result = |outcome: anyhow::Result<Timed>, elapsed| {
+            let on_result = |outcome: Result<Timed, TimedError>, elapsed| {
                 let grab = outcome.map(|t| Success::timed(t, &Calibration::default()));
-                report.result(grab, elapsed)?;
-                Ok(report.done(args.count))
+                report.result(grab.map_err(anyhow::Error::from), elapsed)?;
+                Ok::<_, anyhow::Error>(report.done(args.count))
             };
             let on_waiting = |path: &str| {
                 eprintln!(

@@ -5,29 +5,117 @@
 
 use std::path::Path;
 
-use anyhow::{Context as _, bail};
 use bytes::Bytes;
 use coap::{Code, ContentFormat};
-use geometry::{Point3, PointCloud, Transformation, dominant_plane, floor_transformation};
+use geometry::{
+    PlaneError, Point3, PointCloud, TransformError, Transformation, dominant_plane,
+    floor_transformation,
+};
 use image::Rgb;
 use markers::Detection;
 use rgbd::ColorSettings;
 
-use super::CamClient;
 use super::annotate::projector;
 use super::measure::full_resolution;
+use super::{CallError, CamClient, DocumentError};
 use crate::documents::AppConfig;
 use crate::repr::Stream;
 use crate::repr::cbor::{ColorCapture, DepthCapture};
 use crate::repr::clouds::parts_from_depth_cloud;
-use crate::vision::calibration::{self, Calibration, CameraView, MarkerMap};
-use crate::vision::picture;
+use crate::repr::codec::{CborError, DepthCloudError};
+use crate::vision::calibration::{self, Calibration, CalibrationError, CameraView, MarkerMap};
+use crate::vision::picture::{self, SaveError};
 
 /// Points this close to the floor plane are its inliers, metres (the D415's depth noise
 /// at 1-2 m is a few millimetres).
 const FLOOR_INLIER_M: f64 = 0.012;
 /// RANSAC samples.
 const ITERATIONS: usize = 400;
+
+/// A camera could not be placed, levelled, adjusted or written, or `--view`'s pictures
+/// not drawn.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CalibrateError {
+    /// A request failed (transparent: the causes the command's exit status looks for
+    /// are the [`CallError`]'s sources, not itself).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// A camera's document could not be read or written (transparent, as `Call`).
+    #[error(transparent)]
+    Document(#[from] DocumentError),
+    /// A color or depth frame did not decode.
+    #[error(transparent)]
+    Frame(#[from] CborError),
+    /// A compact cloud did not decode.
+    #[error(transparent)]
+    DepthCloud(#[from] DepthCloudError),
+    /// A depth image could not be deprojected.
+    #[error(transparent)]
+    Deproject(#[from] rgbd::FilterError),
+    /// The markers could not be searched.
+    #[error(transparent)]
+    Detect(#[from] markers::DetectError),
+    /// The markers seen do not place the camera.
+    #[error(transparent)]
+    Place(#[from] CalibrationError),
+    /// A 3d-transformation is not one.
+    #[error(transparent)]
+    Transformation(#[from] TransformError),
+    /// A picture could not be written.
+    #[error(transparent)]
+    Save(#[from] SaveError),
+    /// The camera's color-settings, changed for the markers, could not be put back.
+    #[error("camera {serial}: putting its color-settings back")]
+    PutBack {
+        /// The camera.
+        serial: String,
+        /// Why.
+        source: DocumentError,
+    },
+    /// The server does not offer the compact cloud.
+    #[error("the server sends no compact cloud (65103), which calibration needs")]
+    NoCompactCloud,
+    /// The compact cloud has no part.
+    #[error("the cloud has no depth")]
+    NoDepth,
+    /// Camera `serial`'s depth points could not be had.
+    #[error("camera {serial}")]
+    Camera {
+        /// The camera.
+        serial: String,
+        /// Why.
+        source: Box<Self>,
+    },
+    /// No floor plane was found in the camera's depth points.
+    #[error("camera {serial}: finding the floor in {points} points")]
+    Floor {
+        /// The camera.
+        serial: String,
+        /// How many points it was searched in.
+        points: usize,
+        /// Why.
+        source: PlaneError,
+    },
+    /// Too few points lie on the floor found.
+    #[error(
+        "camera {serial}: only {inliers} points lie on the floor; is its roi3d cutting it away?"
+    )]
+    FewFloorPoints {
+        /// The camera.
+        serial: String,
+        /// The points on the floor.
+        inliers: usize,
+    },
+    /// The camera's 3d-transformation, as the server sent it, is not one.
+    #[error("camera {serial}: reading its 3d-transformation")]
+    ReadTransformation {
+        /// The camera.
+        serial: String,
+        /// Why.
+        source: TransformError,
+    },
+}
 
 /// The resource of camera `sn`'s 3d-transformation.
 fn path(sn: &str) -> String {
@@ -39,7 +127,7 @@ pub async fn put(
     client: &CamClient,
     sn: &str,
     transformation: &Transformation,
-) -> anyhow::Result<()> {
+) -> Result<(), CalibrateError> {
     let body = Bytes::from(transformation.to_json().into_bytes());
     client
         .call(Code::PUT, &path(sn), body, Some(ContentFormat::JSON), None)
@@ -65,7 +153,11 @@ pub struct Placed {
 }
 
 /// Grabs camera `sn`'s color (at full resolution) and depth, and places it.
-pub async fn place(client: &CamClient, sn: &str, map: &MarkerMap) -> anyhow::Result<Placed> {
+pub async fn place(
+    client: &CamClient,
+    sn: &str,
+    map: &MarkerMap,
+) -> Result<Placed, CalibrateError> {
     let mut warnings = Vec::new();
     let capture = full_resolution_color(client, sn, &mut warnings).await?;
     let gray = image::imageops::grayscale(&capture.image);
@@ -96,7 +188,7 @@ async fn full_resolution_color(
     client: &CamClient,
     sn: &str,
     warnings: &mut Vec<String>,
-) -> anyhow::Result<ColorCapture> {
+) -> Result<ColorCapture, CalibrateError> {
     let current: ColorSettings = client.get_json(sn, "color-settings").await?;
     let full = full_resolution(&current);
     let changed = full != current
@@ -117,7 +209,10 @@ async fn full_resolution_color(
         client
             .put_json(sn, "color-settings", &current)
             .await
-            .with_context(|| format!("camera {sn}: putting its color-settings back"))?;
+            .map_err(|source| CalibrateError::PutBack {
+                serial: sn.to_owned(),
+                source,
+            })?;
     }
     Ok(ColorCapture::from_cbor(&grabbed?.payload)?)
 }
@@ -132,7 +227,7 @@ pub async fn depth_points(
     client: &CamClient,
     sn: &str,
     notes: &mut Vec<String>,
-) -> anyhow::Result<Vec<Point3>> {
+) -> Result<Vec<Point3>, CalibrateError> {
     let app: AppConfig = client.get_json(sn, "application-config").await?;
     if app.roi3d != AppConfig::default().roi3d {
         let r = client
@@ -148,12 +243,12 @@ pub async fn depth_points(
     }
     let r = client.grab_compact(sn, Stream::Pointcloud).await?;
     if r.options.content_format() != Some(crate::repr::DEPTH_CLOUD) {
-        bail!("the server sends no compact cloud (65103), which calibration needs");
+        return Err(CalibrateError::NoCompactCloud);
     }
     let part = parts_from_depth_cloud(&r.payload)?
         .into_iter()
         .next()
-        .context("the cloud has no depth")?;
+        .ok_or(CalibrateError::NoDepth)?;
     Ok(rgbd::deproject_frame(&part.depth, &part.intrinsics)?)
 }
 
@@ -170,7 +265,7 @@ const VIEW_REACH_M: f32 = 1.5;
 /// (`FILE-<sn>.png`), and the merged cloud (within `VIEW_REACH_M` of the origin in x
 /// and y) from above (`path`) and from the side (`FILE-side.png`). What could not be
 /// drawn (a camera's axes) is returned as warnings.
-pub fn draw_views(placed: &[Placed], path: &Path) -> anyhow::Result<Vec<String>> {
+pub fn draw_views(placed: &[Placed], path: &Path) -> Result<Vec<String>, CalibrateError> {
     let mut warnings = Vec::new();
     let mut merged = PointCloud::default();
     for p in placed {
@@ -276,18 +371,26 @@ pub struct Levelled {
 
 /// The floor of camera `sn`, from its depth points ([`depth_points`]): roll, pitch and
 /// height.
-pub async fn level(client: &CamClient, sn: &str) -> anyhow::Result<Levelled> {
+pub async fn level(client: &CamClient, sn: &str) -> Result<Levelled, CalibrateError> {
     let mut notes = Vec::new();
     let points = depth_points(client, sn, &mut notes)
         .await
-        .with_context(|| format!("camera {sn}"))?;
-    let floor = dominant_plane(&points, FLOOR_INLIER_M, ITERATIONS, 1)
-        .with_context(|| format!("camera {sn}: finding the floor in {} points", points.len()))?;
+        .map_err(|source| CalibrateError::Camera {
+            serial: sn.to_owned(),
+            source: Box::new(source),
+        })?;
+    let floor = dominant_plane(&points, FLOOR_INLIER_M, ITERATIONS, 1).map_err(|source| {
+        CalibrateError::Floor {
+            serial: sn.to_owned(),
+            points: points.len(),
+            source,
+        }
+    })?;
     if floor.inliers < calibration::MIN_FLOOR_POINTS {
-        bail!(
-            "camera {sn}: only {} points lie on the floor; is its roi3d cutting it away?",
-            floor.inliers
-        );
+        return Err(CalibrateError::FewFloorPoints {
+            serial: sn.to_owned(),
+            inliers: floor.inliers,
+        });
     }
     let t = floor_transformation(&floor);
     // The angle between the camera's view (its z axis) and straight down.
@@ -309,12 +412,16 @@ pub async fn adjusted(
     sn: &str,
     rotation_deg: [Option<f64>; 3],
     translation: [Option<f64>; 3],
-) -> anyhow::Result<Transformation> {
+) -> Result<Transformation, CalibrateError> {
     let current = client
         .call(Code::GET, &path(sn), Bytes::new(), None, None)
         .await?;
-    let mut t = Transformation::from_json(&current.payload)
-        .with_context(|| format!("camera {sn}: reading its 3d-transformation"))?;
+    let mut t = Transformation::from_json(&current.payload).map_err(|source| {
+        CalibrateError::ReadTransformation {
+            serial: sn.to_owned(),
+            source,
+        }
+    })?;
     for (i, value) in rotation_deg.into_iter().enumerate() {
         if let Some(v) = value {
             t.post_rotation_deg[i] = v;

@@ -8,18 +8,93 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
-use anyhow::Context as _;
 use bytes::Bytes;
 use coap::Code;
-use geometry::{DimensionConfig, Dimensions, Point3, PointCloud, Roi3};
+use geometry::{DimensionConfig, DimensionError, Dimensions, Point3, PointCloud, Roi3, RoiError};
 use rgbd::filter::{FlyingPixelsConfig, SpatialConfig};
 use rgbd::{ColorSettings, Scene};
 
-use super::{CamClient, NoAnswer, check, clocks, cloud_of};
+use super::{
+    CallError, CamClient, DiscoveryError, DocumentError, FrameError, NoAnswer, check, clocks,
+    cloud_of,
+};
 use crate::documents::AppConfig;
 use crate::report::{self, Billing, Found, Measurement, Parcel, Table};
 use crate::repr::no_depth::{self, NoDepth};
 use crate::timesync::{FrameTime, Limits, MAX_BELIEVED_APART_US, Problem, ServerTimes};
+
+/// A measurement, its grabs or the cameras' preparation failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum MeasureError {
+    /// A request failed (transparent: the causes the command's exit status looks for
+    /// are the [`CallError`]'s sources, not itself).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// The cameras of a server could not be listed (transparent, as `Call`).
+    #[error(transparent)]
+    Discovery(#[from] DiscoveryError),
+    /// A camera's document could not be read or written (transparent, as `Call`).
+    #[error(transparent)]
+    Document(#[from] DocumentError),
+    /// One server's grab failed ([`Source::Servers`]).
+    #[error("grabbing the clouds of {server}")]
+    Server {
+        /// The server.
+        server: SocketAddr,
+        /// Why.
+        source: CallError,
+    },
+    /// The group request was not sent, or failed.
+    #[error("POST /cams/pointclouds to the group {group}")]
+    Group {
+        /// The group.
+        group: SocketAddr,
+        /// Why.
+        source: coap_net::Error,
+    },
+    /// No server of the group answered. Said as the [`NoAnswer`] says itself, which is
+    /// also the source (not `transparent`), so that the command's exit status finds it
+    /// among the causes; [`crate::error_text`] says it once.
+    #[error("{0}")]
+    NoAnswer(#[source] NoAnswer),
+    /// Servers of the group answered, but none with a cloud.
+    #[error("no server of the group {group} sent a cloud: {}", failed.join("; "))]
+    NoCloud {
+        /// The group.
+        group: SocketAddr,
+        /// Why each server's answer was left out.
+        failed: Vec<String>,
+    },
+    /// A server's cloud did not decode.
+    #[error("reading the point cloud of {server}")]
+    Cloud {
+        /// The server.
+        server: SocketAddr,
+        /// Why.
+        source: FrameError,
+    },
+    /// A grab task panicked or was cancelled.
+    #[error("a grab task failed")]
+    GrabTask(#[source] tokio::task::JoinError),
+    /// The decoding task panicked or was cancelled.
+    #[error("the decoding task failed")]
+    DecodingTask(#[source] tokio::task::JoinError),
+    /// The measuring task panicked or was cancelled.
+    #[error("the measuring task failed")]
+    MeasuringTask(#[source] tokio::task::JoinError),
+    /// The merged cloud could not be measured.
+    #[error("measuring the point cloud")]
+    Measuring(#[source] DimensionError),
+    /// The box the cameras are prepared to keep is not one.
+    #[error("roi3d within {half_width_m} m")]
+    Roi {
+        /// The half width asked for.
+        half_width_m: f64,
+        /// Why.
+        source: RoiError,
+    },
+}
 
 /// Where the clouds come from.
 #[derive(Debug, Clone)]
@@ -240,7 +315,7 @@ pub async fn calibration_of(client: &CamClient, cameras: &[(SocketAddr, String)]
 /// Grabs the clouds of `source` (`client` is the server's client; for a group, any
 /// client) and merges them. Clouds come compactly (65103) from servers that offer it, as
 /// the thesis packet from the others.
-pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<Grabbed> {
+pub async fn grab_clouds(client: &CamClient, source: &Source) -> Result<Grabbed, MeasureError> {
     let mut failed = Vec::new();
     let answers = match source {
         Source::Camera(sn) => vec![(client.server(), client.grab_cloud(Some(sn)).await?)],
@@ -254,8 +329,8 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
             }
             let mut answers = Vec::with_capacity(servers.len());
             while let Some(done) = grabs.join_next().await {
-                let (i, server, r) = done.context("a grab task failed")?;
-                let r = r.with_context(|| format!("grabbing the clouds of {server}"))?;
+                let (i, server, r) = done.map_err(MeasureError::GrabTask)?;
+                let r = r.map_err(|source| MeasureError::Server { server, source })?;
                 answers.push((i, server, r));
             }
             answers.sort_by_key(|(i, ..)| *i);
@@ -311,7 +386,10 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                     all_members || expect.is_some_and(|n| answers.len() >= n)
                 })
                 .await
-                .with_context(|| format!("POST /cams/pointclouds to the group {group}"))?;
+                .map_err(|source| MeasureError::Group {
+                    group: *group,
+                    source,
+                })?;
             drop(probes);
             let (answers, strangers): (Vec<_>, Vec<_>) = answers
                 .into_iter()
@@ -338,10 +416,9 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                 } else {
                     format!(" ({})", failed.join("; "))
                 };
-                return Err(NoAnswer(format!(
+                return Err(MeasureError::NoAnswer(NoAnswer(format!(
                     "no server of the group {group} answered within {wait:?}{also}"
-                ))
-                .into());
+                ))));
             }
             let mut checked = Vec::with_capacity(answers.len());
             for (server, r) in answers {
@@ -358,10 +435,10 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                 }
             }
             if checked.is_empty() {
-                anyhow::bail!(
-                    "no server of the group {group} sent a cloud: {}",
-                    failed.join("; ")
-                );
+                return Err(MeasureError::NoCloud {
+                    group: *group,
+                    failed,
+                });
             }
             checked
         }
@@ -382,15 +459,14 @@ pub async fn grab_clouds(client: &CamClient, source: &Source) -> anyhow::Result<
                     tracing::warn!(%server, error = %e, "a malformed No-Depth option is ignored");
                     Vec::new()
                 });
-                let c =
-                    cloud_of(&r).with_context(|| format!("reading the point cloud of {server}"));
+                let c = cloud_of(&r).map_err(|source| MeasureError::Cloud { server, source });
                 let distrusted = apart_us.filter(|_| !believed);
                 c.map(|c| (server, asked.map(|t| t.received_us), c, blind, distrusted))
             })
-            .collect::<anyhow::Result<Vec<_>>>()
+            .collect::<Result<Vec<_>, _>>()
     })
     .await
-    .context("the decoding task failed")??;
+    .map_err(MeasureError::DecodingTask)??;
     let mut grabbed = Grabbed {
         cloud: PointCloud::default(),
         cameras: Vec::new(),
@@ -450,7 +526,7 @@ pub async fn measure_once(
     client: &CamClient,
     source: &Source,
     config: &DimensionConfig,
-) -> anyhow::Result<CloudMeasurement> {
+) -> Result<CloudMeasurement, MeasureError> {
     let limits = Limits {
         max_skew_us: None,
         skew: true,
@@ -467,7 +543,7 @@ pub async fn measure_checked(
     source: &Source,
     config: &DimensionConfig,
     limits: &Limits,
-) -> anyhow::Result<CloudMeasurement> {
+) -> Result<CloudMeasurement, MeasureError> {
     let started = Instant::now();
     let mut grabbed = grab_clouds(client, source).await?;
     let grab = started.elapsed();
@@ -507,8 +583,8 @@ pub async fn measure_checked(
         }
     })
     .await
-    .context("the measuring task failed")?;
-    let table = table.context("measuring the point cloud")?;
+    .map_err(MeasureError::MeasuringTask)?;
+    let table = table.map_err(MeasureError::Measuring)?;
     Ok(CloudMeasurement {
         parcel: table.largest(),
         table,
@@ -541,7 +617,7 @@ pub fn full_resolution(color_settings: &ColorSettings) -> ColorSettings {
 pub async fn color_for_codes(
     client: &CamClient,
     serials: &[String],
-) -> anyhow::Result<Vec<(String, (u32, u32))>> {
+) -> Result<Vec<(String, (u32, u32))>, MeasureError> {
     let mut changed = Vec::new();
     for sn in serials {
         let color: ColorSettings = client.get_json(sn, "color-settings").await?;
@@ -566,7 +642,7 @@ pub async fn prepare_cameras(
     serials: &[String],
     half_width_m: f64,
     for_codes: bool,
-) -> anyhow::Result<()> {
+) -> Result<(), MeasureError> {
     if for_codes {
         color_for_codes(client, serials).await?;
     }
@@ -577,7 +653,10 @@ pub async fn prepare_cameras(
             Point3::new(-half, -half, floor),
             Point3::new(half, half, 3.0),
         )
-        .with_context(|| format!("roi3d within {half_width_m} m"))?;
+        .map_err(|source| MeasureError::Roi {
+            half_width_m,
+            source,
+        })?;
         doc.postprocessing.spatial = Some(SpatialConfig::default());
         doc.postprocessing.flying_pixels = Some(FlyingPixelsConfig::default());
         client.put_json(sn, "application-config", &doc).await?;
@@ -623,6 +702,59 @@ mod tests {
         scene.boxes[0].size = [0.5, 0.3, 0.2];
         scene.boxes[0].yaw_deg = 100.0;
         assert_eq!(truth(&scene).map(|t| t[3].round()), Some(-80.0));
+    }
+
+    /// Whether a link of `e`'s chain of sources is a `T`.
+    fn among_the_causes<T: std::error::Error + 'static>(
+        e: &(dyn std::error::Error + 'static),
+    ) -> bool {
+        let mut cause = Some(e);
+        while let Some(c) = cause {
+            if c.is::<T>() {
+                return true;
+            }
+            cause = c.source();
+        }
+        false
+    }
+
+    /// The causes the command's exit status looks for (a server's error response: 3;
+    /// nobody answered: 4) stay links of a measurement's error, also within a timed
+    /// request's, and each is said once.
+    #[test]
+    fn refusals_and_no_answers_stay_among_the_causes() {
+        use crate::client::ErrorResponse;
+        use crate::client::timed::TimedError;
+        let refused = || {
+            check(
+                "POST /cams/pointclouds",
+                coap::Response::diagnostic(Code::NOT_FOUND, "no camera"),
+            )
+            .expect_err("a 4.04")
+        };
+        let said = "POST /cams/pointclouds: 4.04 Not Found: no camera";
+        let e = MeasureError::from(refused());
+        assert!(among_the_causes::<ErrorResponse>(&e));
+        assert_eq!(crate::error_text(&e), said);
+        let server = SocketAddr::from(([127, 0, 0, 1], 5683));
+        let e = MeasureError::Server {
+            server,
+            source: refused(),
+        };
+        assert!(among_the_causes::<ErrorResponse>(&e));
+        assert_eq!(
+            crate::error_text(&e),
+            format!("grabbing the clouds of {server}: {said}")
+        );
+        let e = TimedError::from(MeasureError::from(refused()));
+        assert!(among_the_causes::<ErrorResponse>(&e));
+        assert_eq!(crate::error_text(&e), said);
+
+        let none = "no server of the group 224.0.1.187:5683 answered within 1s";
+        let e = TimedError::from(MeasureError::NoAnswer(NoAnswer(none.to_owned())));
+        assert!(among_the_causes::<NoAnswer>(&e));
+        assert!(!among_the_causes::<ErrorResponse>(&e));
+        assert_eq!(crate::error_text(&e), none);
     }
 
     #[test]

@@ -3,14 +3,38 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::bail;
 use bytes::Bytes;
 use coap::{Code, ContentFormat, OptionNumber, Response};
 use geometry::DimensionConfig;
 
-use super::CamClient;
-use super::measure::{self, CloudMeasurement, Source};
+use super::measure::{self, CloudMeasurement, MeasureError, Source};
+use super::{CallError, CamClient, DiscoveryError};
 use crate::repr::Stream;
+
+/// A timed request or an observation failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum TimedError {
+    /// A request failed (transparent: the causes the command's exit status looks for
+    /// are the [`CallError`]'s sources, not itself).
+    #[error(transparent)]
+    Call(#[from] CallError),
+    /// A measurement failed (transparent, as `Call`).
+    #[error(transparent)]
+    Measure(#[from] MeasureError),
+    /// The observation failed (transparent, as `Call`).
+    #[error(transparent)]
+    Watch(#[from] WatchError),
+    /// The cameras could not be listed (transparent, as `Call`).
+    #[error(transparent)]
+    Discovery(#[from] DiscoveryError),
+    /// The server answered without registering the observation.
+    #[error("the server did not accept the observation of {0}")]
+    NotAccepted(String),
+    /// The server ended the observation.
+    #[error("the server ended the observation of {0}")]
+    Ended(String),
+}
 
 /// A request repeated every interval.
 #[derive(Debug, Clone)]
@@ -46,7 +70,7 @@ pub async fn once(
     what: &Repeat,
     accept: Option<ContentFormat>,
     config: &DimensionConfig,
-) -> anyhow::Result<Timed> {
+) -> Result<Timed, TimedError> {
     let started = Instant::now();
     match what {
         Repeat::Grab { serial, stream } => {
@@ -88,22 +112,25 @@ pub const FIRST_FRAME_POLL: Duration = Duration::from_millis(250);
 /// Observes `/cams/<serial>/<stream>` (in the representation `accept`): each
 /// notification, the first within `timeout`, is handed to `on_result` with the time since
 /// the previous one (the first's since the request), until `on_result` says to stop
-/// (true) or the observation ends (an error). While the camera (one the server lists)
+/// (true) or the observation ends (an error; an error of `on_result` ends it as that
+/// error, untouched). While the camera (one the server lists)
 /// has no frame yet (4.04: nobody grabbed one), it waits for the first frame anyone
 /// grabs, asking again every [`FIRST_FRAME_POLL`]; `on_waiting` is called once when it
 /// starts to wait.
-pub async fn observe(
+pub async fn observe<E: From<TimedError>>(
     client: &CamClient,
     serial: &str,
     stream: Stream,
     accept: Option<ContentFormat>,
     timeout: Duration,
     mut on_waiting: impl FnMut(&str),
-    mut on_result: impl FnMut(anyhow::Result<Timed>, Duration) -> anyhow::Result<bool>,
-) -> anyhow::Result<()> {
+    mut on_result: impl FnMut(Result<Timed, TimedError>, Duration) -> Result<bool, E>,
+) -> Result<(), E> {
     let path = crate::api::paths::camera(serial, stream.name());
     let mut previous = Instant::now();
-    let mut watch = Watch::start(client, &path, accept, timeout).await?;
+    let mut watch = Watch::start(client, &path, accept, timeout)
+        .await
+        .map_err(TimedError::from)?;
     let mut first = true;
     // Whether the server lists the camera: asked at the first 4.04.
     let mut listed = None;
@@ -122,12 +149,13 @@ pub async fn observe(
                 }
                 continue;
             }
-            Err(e) => return Err(e.into()),
+            Err(e) => return Err(TimedError::from(e).into()),
         };
         let observing = response.options.contains(OptionNumber::OBSERVE);
         if first && !observing && response.code == Code::NOT_FOUND {
             if listed.is_none() {
-                let is_listed = client.cameras().await?.iter().any(|sn| sn == serial);
+                let serials = client.cameras().await.map_err(TimedError::from)?;
+                let is_listed = serials.iter().any(|sn| sn == serial);
                 if is_listed {
                     on_waiting(&path);
                 }
@@ -135,7 +163,9 @@ pub async fn observe(
             }
             if listed == Some(true) {
                 tokio::time::sleep(FIRST_FRAME_POLL).await;
-                watch = Watch::start(client, &path, accept, timeout).await?;
+                watch = Watch::start(client, &path, accept, timeout)
+                    .await
+                    .map_err(TimedError::from)?;
                 previous = Instant::now();
                 continue;
             }
@@ -146,13 +176,15 @@ pub async fn observe(
                 time: elapsed,
                 measurement: None,
             })
-            .map_err(anyhow::Error::from);
+            .map_err(TimedError::from);
         let stop = on_result(outcome, elapsed)?;
         if !observing {
-            if first {
-                bail!("the server did not accept the observation of {path}");
+            return Err(if first {
+                TimedError::NotAccepted(path)
+            } else {
+                TimedError::Ended(path)
             }
-            bail!("the server ended the observation of {path}");
+            .into());
         }
         if stop {
             return Ok(());

@@ -342,8 +342,8 @@ async fn measure_scene(
         codes_ms: f64::NAN,
         error: None,
     };
-    let failed = |row: &mut Row, e: &anyhow::Error| {
-        row.error = Some(crate::error_text(e.as_ref()));
+    let failed = |row: &mut Row, e: &(dyn std::error::Error + 'static)| {
+        row.error = Some(crate::error_text(e));
         row.objects = cert
             .objects
             .iter()
@@ -369,7 +369,7 @@ async fn measure_scene(
     let seen = match codes::read_cameras(client, &m.grabbed.cameras).await {
         Ok(seen) => seen,
         Err(e) => {
-            failed(&mut row, &e.into());
+            failed(&mut row, &e);
             return Ok(row);
         }
     };

@@ -195,7 +195,7 @@ async fn measure_scene(
     let m = match measure::measure_once(client, &Source::All, &config.dimension).await {
         Ok(m) => m,
         Err(e) => {
-            row.error = Some(crate::error_text(e.as_ref()));
+            row.error = Some(crate::error_text(&e));
             return Ok(row);
         }
     };

@@ -114,7 +114,7 @@ async fn measure_scene(
     row.error = match &result {
         Ok(m) if m.dimensions().is_none() => Some("nothing on the table".into()),
         Ok(_) => None,
-        Err(e) => Some(crate::error_text(e.as_ref())),
+        Err(e) => Some(crate::error_text(e)),
     };
     Ok(row)
 }
@@ -148,7 +148,10 @@ async fn calibrate_and_measure(
                 errors.push(c.error_from(&truth));
             }
             Err(e) => {
-                failure = Some(format!("calibrating camera {sn}: {e:#}"));
+                failure = Some(format!(
+                    "calibrating camera {sn}: {}",
+                    crate::error_text(&e)
+                ));
                 break;
             }
         }
