@@ -144,20 +144,23 @@ fn heads_of(file: &std::path::Path) -> anyhow::Result<Vec<Head>> {
     Ok(out)
 }
 
+/// Runs `results keygen`: a new station key in its file, its public key printed.
+fn keygen(k: &KeygenArgs) -> anyhow::Result<Exit> {
+    let key = StationKey::generate(&k.file).map_err(anyhow::Error::msg)?;
+    outln!("{}", key.public());
+    eprintln!(
+        "coapcam: the station key is in {}; its public key (above) checks the records: results verify LOG --public-key {}",
+        k.file.display(),
+        key.public()
+    );
+    Ok(Exit::Success)
+}
+
 /// Runs `results`.
 pub(crate) async fn run(args: ResultsArgs) -> anyhow::Result<Exit> {
     match &args.command {
         Some(ResultsCommand::Verify(v)) => return verify(v).await,
-        Some(ResultsCommand::Keygen(k)) => {
-            let key = StationKey::generate(&k.file).map_err(anyhow::Error::msg)?;
-            outln!("{}", key.public());
-            eprintln!(
-                "coapcam: the station key is in {}; its public key (above) checks the records: results verify LOG --public-key {}",
-                k.file.display(),
-                key.public()
-            );
-            return Ok(Exit::Success);
-        }
+        Some(ResultsCommand::Keygen(k)) => return keygen(k),
         None => {}
     }
     let Some(server) = &args.server else {
@@ -251,129 +254,152 @@ async fn verify(args: &VerifyArgs) -> anyhow::Result<Exit> {
     };
     let differs = table.as_ref().is_some_and(|t| t.first_difference.is_some());
     if args.json {
-        let mut doc = serde_json::json!({
-            "file": file.display().to_string(),
-            "verified": report.first_altered.is_none(),
-            "records": report.records,
-            "events": report.events,
-            "pictures_checked": report.pictures_checked,
-            "pictures_pruned": report.pictures_pruned,
-            "heads_checked": report.heads_checked,
-            "signatures_checked": report.signatures_checked,
-        });
-        if !keys.is_empty() {
-            doc["signed"] = report
-                .signed
-                .iter()
-                .map(
-                    |r| serde_json::json!({ "key": r.key.to_string(), "from": r.from, "to": r.to }),
-                )
-                .collect();
-        }
-        if let Some((id, hash)) = &report.head {
-            doc["head"] = serde_json::json!({ "id": id, "hash": hash });
-        }
-        if let Some(a) = &report.first_altered {
-            doc["first_altered"] = serde_json::json!({ "id": a.id, "why": a.why });
-        }
-        if let (Some(target), Some(t)) = (&args.postgres, &table) {
-            doc["postgres"] = serde_json::json!({
-                "url": target.to_string(),
-                "station": t.station,
-                "verified": t.first_difference.is_none(),
-                "rows": t.rows,
-            });
-            if let Some((id, why)) = &t.first_difference {
-                doc["postgres"]["first_difference"] = serde_json::json!({ "id": id, "why": why });
-            }
-        }
-        doc["clock_jumps"] = report
-            .clock_jumps
-            .iter()
-            .map(|(id, j)| {
-                serde_json::json!({
-                    "id": id, "jump": j.jump, "previous": j.previous, "now": j.now,
-                    "monotonic_elapsed_ms": j.monotonic_elapsed_ms,
-                })
-            })
-            .collect();
-        doc["gaps"] = report
-            .gaps
-            .iter()
-            .map(|g| {
-                serde_json::json!({
-                    "from": g.from, "to": g.to, "last_hash": g.last_hash, "time": g.time,
-                    "note": g.note,
-                })
-            })
-            .collect();
-        outln!("{doc}");
+        outln!("{}", verify_document(args, &report, &keys, table.as_ref()));
     } else {
-        for gap in &report.gaps {
-            outln!("{}: {gap}", file.display());
-        }
-        for (id, jump) in &report.clock_jumps {
-            outln!("{}: record {id}: {jump}", file.display());
-        }
-        // Which key signed which records, with several keys given (one key signs all).
-        if keys.len() > 1 {
-            for run in &report.signed {
-                outln!("{}: {run}", file.display());
-            }
-        }
-        match &report.first_altered {
-            None => out!(
-                "{}: the chain verifies: {} record(s) ({} event(s)){}, {} picture(s) checked, {} pruned{}{}\n",
-                file.display(),
-                report.records,
-                report.events,
-                report
-                    .head
-                    .as_ref()
-                    .map(|(id, hash)| format!(", newest #{id} with hash {hash}"))
-                    .unwrap_or_default(),
-                report.pictures_checked,
-                report.pictures_pruned,
-                if heads.is_empty() {
-                    String::new()
-                } else {
-                    format!(", {} head(s) published earlier held", report.heads_checked)
-                },
-                if !keys.is_empty() {
-                    format!(", {} signature(s) checked", report.signatures_checked)
-                } else {
-                    String::new()
-                },
-            ),
-            // The reason names the record (altered, missing, or where the file breaks).
-            Some(a) => out!(
-                "{}: {}\n({} record(s) before it verify)\n",
-                file.display(),
-                a.why,
-                report.records
-            ),
-        }
-        if let (Some(target), Some(t)) = (&args.postgres, &table) {
-            match &t.first_difference {
-                None => outln!(
-                    "{target}: table {} holds the same {} record(s) of station {} as the log, in order",
-                    postgres::TABLE,
-                    t.rows,
-                    t.station
-                ),
-                Some((_, why)) => outln!(
-                    "{target}: station {}: {why}\n({} record(s) before it match)",
-                    t.station,
-                    t.rows
-                ),
-            }
-        }
+        print_verified(args, &report, &heads, &keys, table.as_ref())?;
     }
     Ok(if report.first_altered.is_none() && !differs {
         Exit::Success
     } else {
         Exit::Altered
     })
+}
+
+/// `results verify --json`'s document: what `report` found, and the table's comparison.
+fn verify_document(
+    args: &VerifyArgs,
+    report: &log::VerifyReport,
+    keys: &[PublicKey],
+    table: Option<&postgres::TableReport>,
+) -> serde_json::Value {
+    let file = &args.file;
+    let mut doc = serde_json::json!({
+        "file": file.display().to_string(),
+        "verified": report.first_altered.is_none(),
+        "records": report.records,
+        "events": report.events,
+        "pictures_checked": report.pictures_checked,
+        "pictures_pruned": report.pictures_pruned,
+        "heads_checked": report.heads_checked,
+        "signatures_checked": report.signatures_checked,
+    });
+    if !keys.is_empty() {
+        doc["signed"] = report
+            .signed
+            .iter()
+            .map(|r| serde_json::json!({ "key": r.key.to_string(), "from": r.from, "to": r.to }))
+            .collect();
+    }
+    if let Some((id, hash)) = &report.head {
+        doc["head"] = serde_json::json!({ "id": id, "hash": hash });
+    }
+    if let Some(a) = &report.first_altered {
+        doc["first_altered"] = serde_json::json!({ "id": a.id, "why": a.why });
+    }
+    if let (Some(target), Some(t)) = (&args.postgres, table) {
+        doc["postgres"] = serde_json::json!({
+            "url": target.to_string(),
+            "station": t.station,
+            "verified": t.first_difference.is_none(),
+            "rows": t.rows,
+        });
+        if let Some((id, why)) = &t.first_difference {
+            doc["postgres"]["first_difference"] = serde_json::json!({ "id": id, "why": why });
+        }
+    }
+    doc["clock_jumps"] = report
+        .clock_jumps
+        .iter()
+        .map(|(id, j)| {
+            serde_json::json!({
+                "id": id, "jump": j.jump, "previous": j.previous, "now": j.now,
+                "monotonic_elapsed_ms": j.monotonic_elapsed_ms,
+            })
+        })
+        .collect();
+    doc["gaps"] = report
+        .gaps
+        .iter()
+        .map(|g| {
+            serde_json::json!({
+                "from": g.from, "to": g.to, "last_hash": g.last_hash, "time": g.time,
+                "note": g.note,
+            })
+        })
+        .collect();
+    doc
+}
+
+/// What `results verify` prints without --json: the gaps and clock jumps, which key
+/// signed which records, whether the chain verifies, and the table's comparison.
+fn print_verified(
+    args: &VerifyArgs,
+    report: &log::VerifyReport,
+    heads: &[Head],
+    keys: &[PublicKey],
+    table: Option<&postgres::TableReport>,
+) -> anyhow::Result<()> {
+    let file = &args.file;
+    for gap in &report.gaps {
+        outln!("{}: {gap}", file.display());
+    }
+    for (id, jump) in &report.clock_jumps {
+        outln!("{}: record {id}: {jump}", file.display());
+    }
+    // Which key signed which records, with several keys given (one key signs all).
+    if keys.len() > 1 {
+        for run in &report.signed {
+            outln!("{}: {run}", file.display());
+        }
+    }
+    match &report.first_altered {
+        None => out!(
+            "{}: the chain verifies: {} record(s) ({} event(s)){}, {} picture(s) checked, {} pruned{}{}\n",
+            file.display(),
+            report.records,
+            report.events,
+            report
+                .head
+                .as_ref()
+                .map(|(id, hash)| format!(", newest #{id} with hash {hash}"))
+                .unwrap_or_default(),
+            report.pictures_checked,
+            report.pictures_pruned,
+            if heads.is_empty() {
+                String::new()
+            } else {
+                format!(", {} head(s) published earlier held", report.heads_checked)
+            },
+            if !keys.is_empty() {
+                format!(", {} signature(s) checked", report.signatures_checked)
+            } else {
+                String::new()
+            },
+        ),
+        // The reason names the record (altered, missing, or where the file breaks).
+        Some(a) => out!(
+            "{}: {}\n({} record(s) before it verify)\n",
+            file.display(),
+            a.why,
+            report.records
+        ),
+    }
+    if let (Some(target), Some(t)) = (&args.postgres, table) {
+        match &t.first_difference {
+            None => outln!(
+                "{target}: table {} holds the same {} record(s) of station {} as the log, in order",
+                postgres::TABLE,
+                t.rows,
+                t.station
+            ),
+            Some((_, why)) => outln!(
+                "{target}: station {}: {why}\n({} record(s) before it match)",
+                t.station,
+                t.rows
+            ),
+        }
+    }
+    Ok(())
 }
 
 /// The table at `target` compared with the log `file`'s measurements of `station` (by
