@@ -1,17 +1,17 @@
 //! `coapcam bench`: the subcommands' flags; `bench accuracy` here, printing what
-//! `coapcam::bench::accuracy` measured (a line per scene and the summary, or JSON);
-//! `bench transfer`, `bench repr` and `bench load` are the files beside this one (a
-//! command with subcommands is a folder of `cli/`).
+//! `coapcam::bench::accuracy` measured (a line per scene and the summary, or JSON), its
+//! `--set cert` and `--set lane` in `cert.rs` and `lane.rs`; `bench transfer`, `bench
+//! repr`, `bench codes`, `bench load` and `bench rd` are the other files beside this one
+//! (a command with subcommands is a folder of `cli/`).
 
 use clap::{Args, Subcommand};
 
 use super::{DimensionArgs, Exit, outln};
-use coapcam::bench::accuracy::lane::{self, CaseSummary, Outcome};
 use coapcam::bench::accuracy::{self, Quantiles, Row, Summary};
-use coapcam::report::{Billing, Division};
 
 mod cert;
 mod codes;
+mod lane;
 mod load;
 mod rd;
 mod repr;
@@ -118,7 +118,7 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
 
 async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     if args.set == "lane" {
-        return accuracy_lane(args).await;
+        return lane::run(&args).await;
     }
     if args.set == "cert" {
         if args.calibrate || args.raw || args.repeat != 1 {
@@ -149,292 +149,97 @@ async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     })
     .await?;
     let summary = Summary::of(&rows);
-    let failed = summary.failed;
-    let cycle = summary.cycle_ms;
-    let names = ["length_mm", "width_mm", "height_mm", "yaw_deg"];
     if args.json {
-        let scenes: Vec<serde_json::Value> = rows
-            .iter()
-            .map(|r| {
-                serde_json::json!({
-                    "scene": r.index, "cameras": r.cameras, "camera_z_m": r.camera_z,
-                    "truth": r.truth, "measured": r.measured, "cycle_ms": r.cycle_ms, "grab_ms": r.grab_ms,
-                    "error": r.error,
-                    "pose_errors_mm_deg": r.calibration.as_ref().map(|c| &c.0),
-                    "calibrate_ms": r.calibration.as_ref().map(|c| c.1),
-                    "measured_with_true_poses": r.with_true_poses,
-                })
-            })
-            .collect();
-        let errors: serde_json::Map<String, serde_json::Value> = names
-            .iter()
-            .zip(summary.errors)
-            .map(|(n, e)| {
-                let json = serde_json::json!({"mae": e.mean, "p95": e.p95, "max": e.max});
-                ((*n).to_owned(), json)
-            })
-            .collect();
-        let quantiles =
-            |q: Quantiles| serde_json::json!({"median": q.median, "p95": q.p95, "max": q.max});
-        outln!(
-            "{}",
-            serde_json::json!({
-                "scenes": scenes, "summary": errors, "failed": failed,
-                "cycle_ms": quantiles(cycle),
-                "calibration": summary.calibration.as_ref().map(|c| serde_json::json!({
-                    "cameras": c.cameras,
-                    "position_mm": quantiles(c.position_mm),
-                    "angle_deg": quantiles(c.angle_deg),
-                    "per_camera_ms": {"median": c.median_per_camera_ms, "max": c.max_per_camera_ms},
-                })),
-            })
-        );
+        outln!("{}", accuracy_document(&rows, &summary));
     } else {
-        outln!("");
-        outln!("{:<10} {:>8} {:>8} {:>8}", "", "MAE", "p95", "max");
-        for (name, e) in ["length mm", "width mm", "height mm", "yaw deg"]
-            .iter()
-            .zip(summary.errors)
-        {
-            outln!("{name:<10} {:>8.2} {:>8.2} {:>8.2}", e.mean, e.p95, e.max);
-        }
-        outln!(
-            "{} scenes, {failed} failed; cycle median {:.0} ms, p95 {:.0} ms, max {:.0} ms",
-            rows.len(),
-            cycle.median,
-            cycle.p95,
-            cycle.max
-        );
-        if let Some(c) = &summary.calibration {
-            outln!("");
-            outln!(
-                "{:<13} {:>8} {:>8} {:>8}",
-                "pose error",
-                "median",
-                "p95",
-                "max"
-            );
-            for (name, q) in [("position mm", c.position_mm), ("angle deg", c.angle_deg)] {
-                outln!("{name:<13} {:>8.2} {:>8.2} {:>8.3}", q.median, q.p95, q.max);
-            }
-            outln!(
-                "{} cameras calibrated; per camera median {:.0} ms, max {:.0} ms (grabs over CoAP, detection, fit)",
-                c.cameras,
-                c.median_per_camera_ms,
-                c.max_per_camera_ms
-            );
-        }
+        print_summary(&rows, &summary)?;
     }
-    Ok(if failed == 0 {
+    Ok(if summary.failed == 0 {
         Exit::Success
     } else {
         Exit::Failure
     })
 }
 
-async fn accuracy_lane(args: AccuracyArgs) -> anyhow::Result<Exit> {
-    if args.calibrate {
-        anyhow::bail!("--calibrate has its own scenes: leave out --set lane");
-    }
-    let billing = Billing {
-        division: Division {
-            d_mm: args.division_mm,
-        },
-        ..Billing::default()
-    };
-    let config = lane::Config {
-        scenes: args
-            .scenes
-            .map_or(rgbd::lane::LANE_SET_SIZE, |n| n as usize),
-        seed: args.seed,
-        repeat: args.repeat as usize,
-        raw: args.raw,
-        dimension: args.dimension.config(),
-        billing,
-    };
-    let rows = lane::run(&config, |row| {
-        if args.json {
-            return Ok(());
-        }
-        let each: Vec<String> = row
-            .objects
-            .iter()
-            .map(|o| {
-                let t = o.truth;
-                let what = match (&o.outcome, o.errors()) {
-                    (Outcome::Measured { shape, .. }, Some(e)) => format!(
-                        "{:+.1} {:+.1} {:+.1} mm {shape}{}",
-                        e[0],
-                        e[1],
-                        e[2],
-                        if o.silently_wrong(&billing) {
-                            " SILENTLY WRONG"
-                        } else {
-                            ""
-                        }
-                    ),
-                    (Outcome::Refused(why), _) => format!("refused: {why}"),
-                    _ => "MISSING".to_owned(),
-                };
-                format!("{:.0} x {:.0} x {:.0}: {what}", t[0], t[1], t[2])
-            })
-            .collect();
-        let failed = row
-            .error
-            .as_deref()
-            .map_or(String::new(), |e| format!(" FAILED: {e}"));
-        outln!(
-            "scene {:>2}.{} {:<9} {} cam {:>5.0} ms  {}{failed}",
-            row.index,
-            row.run,
-            row.case,
-            row.cameras,
-            row.cycle_ms,
-            each.join("; ")
-        );
-        Ok(())
-    })
-    .await?;
-    let mut cases: Vec<&str> = Vec::new();
-    for r in &rows {
-        if !cases.contains(&r.case) {
-            cases.push(r.case);
-        }
-    }
-    let mut summaries: Vec<CaseSummary> = cases
+/// `bench accuracy --json`'s document: each scene, and the summary of them all.
+fn accuracy_document(rows: &[Row], summary: &Summary) -> serde_json::Value {
+    let failed = summary.failed;
+    let cycle = summary.cycle_ms;
+    let names = ["length_mm", "width_mm", "height_mm", "yaw_deg"];
+    let scenes: Vec<serde_json::Value> = rows
         .iter()
-        .map(|c| CaseSummary::of(&rows, Some(c), &billing))
+        .map(|r| {
+            serde_json::json!({
+                "scene": r.index, "cameras": r.cameras, "camera_z_m": r.camera_z,
+                "truth": r.truth, "measured": r.measured, "cycle_ms": r.cycle_ms, "grab_ms": r.grab_ms,
+                "error": r.error,
+                "pose_errors_mm_deg": r.calibration.as_ref().map(|c| &c.0),
+                "calibrate_ms": r.calibration.as_ref().map(|c| c.1),
+                "measured_with_true_poses": r.with_true_poses,
+            })
+        })
         .collect();
-    summaries.push(CaseSummary::of(&rows, None, &billing));
-    let spreads = lane::spreads(&rows);
-    let cycles: Vec<f64> = rows.iter().map(|r| r.cycle_ms).collect();
-    let cycle = Quantiles::of(&cycles);
-    if args.json {
-        let json: Vec<serde_json::Value> = summaries
-            .iter()
-            .map(|s| {
-                // A case with nothing measured has no errors: null, never NaN.
-                let e = |k: usize| {
-                    serde_json::json!({"mean_signed": finite(s.mean_signed[k]),
-                        "mae": finite(s.errors[k].mean), "p95": finite(s.errors[k].p95),
-                        "max": finite(s.errors[k].max)})
-                };
-                serde_json::json!({"case": s.case, "parcels": s.objects, "measured": s.measured,
-                    "refused": s.refused, "missing": s.missing, "silently_wrong": s.silently_wrong,
-                    "length_mm": e(0), "width_mm": e(1), "height_mm": e(2)})
-            })
-            .collect();
-        let scenes: Vec<serde_json::Value> = rows
-            .iter()
-            .map(|r| {
-                let objects: Vec<serde_json::Value> = r
-                    .objects
-                    .iter()
-                    .map(|o| match &o.outcome {
-                        Outcome::Measured {
-                            raw,
-                            reported,
-                            shape,
-                        } => serde_json::json!({
-                            "truth": o.truth, "measured": raw, "reported": reported,
-                            "shape": shape, "silently_wrong": o.silently_wrong(&billing)}),
-                        Outcome::Refused(why) => {
-                            serde_json::json!({"truth": o.truth, "refused": why})
-                        }
-                        Outcome::Missing => serde_json::json!({"truth": o.truth, "missing": true}),
-                    })
-                    .collect();
-                serde_json::json!({"scene": r.index, "run": r.run, "case": r.case,
-                    "cameras": r.cameras, "cycle_ms": r.cycle_ms, "error": r.error,
-                    "parcels": objects})
-            })
-            .collect();
-        let spread: Vec<serde_json::Value> = spreads
-            .iter()
-            .map(|(i, p, rep, raw)| {
-                serde_json::json!({"scene": i, "parcel": p, "reported_mm": rep, "measured_mm": raw})
-            })
-            .collect();
-        outln!(
-            "{}",
-            serde_json::json!({"set": "lane", "seed": args.seed, "division_mm": args.division_mm,
-                "raw": args.raw, "scenes": scenes, "cases": json,
-                "cycle_ms": {"median": cycle.median, "p95": cycle.p95, "max": cycle.max},
-                "spreads": if args.repeat > 1 { serde_json::json!(spread) } else { serde_json::Value::Null }})
-        );
-    } else {
+    let errors: serde_json::Map<String, serde_json::Value> = names
+        .iter()
+        .zip(summary.errors)
+        .map(|(n, e)| {
+            let json = serde_json::json!({"mae": e.mean, "p95": e.p95, "max": e.max});
+            ((*n).to_owned(), json)
+        })
+        .collect();
+    let quantiles =
+        |q: Quantiles| serde_json::json!({"median": q.median, "p95": q.p95, "max": q.max});
+    serde_json::json!({
+        "scenes": scenes, "summary": errors, "failed": failed,
+        "cycle_ms": quantiles(cycle),
+        "calibration": summary.calibration.as_ref().map(|c| serde_json::json!({
+            "cameras": c.cameras,
+            "position_mm": quantiles(c.position_mm),
+            "angle_deg": quantiles(c.angle_deg),
+            "per_camera_ms": {"median": c.median_per_camera_ms, "max": c.max_per_camera_ms},
+        })),
+    })
+}
+
+/// `bench accuracy`'s summary after its lines: the errors, the cycle, the calibration.
+fn print_summary(rows: &[Row], summary: &Summary) -> anyhow::Result<()> {
+    let failed = summary.failed;
+    let cycle = summary.cycle_ms;
+    outln!("");
+    outln!("{:<10} {:>8} {:>8} {:>8}", "", "MAE", "p95", "max");
+    for (name, e) in ["length mm", "width mm", "height mm", "yaw deg"]
+        .iter()
+        .zip(summary.errors)
+    {
+        outln!("{name:<10} {:>8.2} {:>8.2} {:>8.2}", e.mean, e.p95, e.max);
+    }
+    outln!(
+        "{} scenes, {failed} failed; cycle median {:.0} ms, p95 {:.0} ms, max {:.0} ms",
+        rows.len(),
+        cycle.median,
+        cycle.p95,
+        cycle.max
+    );
+    if let Some(c) = &summary.calibration {
         outln!("");
         outln!(
-            "{:<9} {:>4} {:>4} {:>4} {:>4} {:>6} | {:>22} | {:>22} | {:>22}",
-            "case",
-            "n",
-            "ok",
-            "ref",
-            "miss",
-            "silent",
-            "length mean/MAE/p95/max",
-            "width",
-            "height"
+            "{:<13} {:>8} {:>8} {:>8}",
+            "pose error",
+            "median",
+            "p95",
+            "max"
         );
-        for s in &summaries {
-            // A case with nothing measured (every parcel refused) has no errors: "-".
-            let e = |k: usize| {
-                if s.measured == 0 {
-                    "-".to_owned()
-                } else {
-                    format!(
-                        "{:+.1}/{:.1}/{:.1}/{:.1}",
-                        s.mean_signed[k], s.errors[k].mean, s.errors[k].p95, s.errors[k].max
-                    )
-                }
-            };
-            outln!(
-                "{:<9} {:>4} {:>4} {:>4} {:>4} {:>6} | {:>22} | {:>22} | {:>22}",
-                s.case,
-                s.objects,
-                s.measured,
-                s.refused,
-                s.missing,
-                s.silently_wrong,
-                e(0),
-                e(1),
-                e(2)
-            );
+        for (name, q) in [("position mm", c.position_mm), ("angle deg", c.angle_deg)] {
+            outln!("{name:<13} {:>8.2} {:>8.2} {:>8.3}", q.median, q.p95, q.max);
         }
         outln!(
-            "errors in mm (unrounded); silent = a reported number more than 2 d from the truth with no flag (d = {} mm); cycle median {:.0} ms, p95 {:.0} ms",
-            args.division_mm,
-            cycle.median,
-            cycle.p95
+            "{} cameras calibrated; per camera median {:.0} ms, max {:.0} ms (grabs over CoAP, detection, fit)",
+            c.cameras,
+            c.median_per_camera_ms,
+            c.max_per_camera_ms
         );
-        if args.repeat > 1 {
-            for (i, p, rep, raw) in &spreads {
-                if rep.iter().chain(raw).any(|v| v.is_nan()) {
-                    outln!(
-                        "scene {i} parcel {p}: no number in any of {} runs (refused or not found)",
-                        args.repeat
-                    );
-                    continue;
-                }
-                outln!(
-                    "scene {i} parcel {p}: spread over {} runs, reported {:.0} / {:.0} / {:.0} mm, measured {:.2} / {:.2} / {:.2} mm",
-                    args.repeat,
-                    rep[0],
-                    rep[1],
-                    rep[2],
-                    raw[0],
-                    raw[1],
-                    raw[2]
-                );
-            }
-        }
     }
-    let wrong: usize = summaries.last().map_or(0, |s| s.silently_wrong);
-    Ok(if wrong == 0 {
-        Exit::Success
-    } else {
-        Exit::Failure
-    })
+    Ok(())
 }
 
 /// `v` when it is a number, `None` (JSON null) when it is NaN or infinite.
