@@ -6,17 +6,24 @@ use coapcam::bench::accuracy::Quantiles;
 use coapcam::bench::accuracy::lane::{self, CaseSummary, Outcome, Row};
 use coapcam::report::{Billing, Division};
 
-use super::{AccuracyArgs, finite};
 use crate::cli::{Exit, outln};
+
+/// What `bench accuracy --set lane` was asked.
+pub(super) struct Options {
+    pub(super) scenes: Option<u32>,
+    pub(super) seed: u64,
+    pub(super) repeat: u32,
+    pub(super) raw: bool,
+    pub(super) json: bool,
+    pub(super) division_mm: f64,
+    pub(super) dimension: geometry::DimensionConfig,
+}
 
 /// A parcel's spread over the runs: scene, parcel, reported and measured L x W x H, mm.
 type Spread = (usize, usize, [f64; 3], [f64; 3]);
 
 /// Runs `bench accuracy --set lane`: a failure when a number was silently wrong.
-pub(super) async fn run(args: &AccuracyArgs) -> anyhow::Result<Exit> {
-    if args.calibrate {
-        anyhow::bail!("--calibrate has its own scenes: leave out --set lane");
-    }
+pub(super) async fn run(args: &Options) -> anyhow::Result<Exit> {
     let billing = Billing {
         division: Division {
             d_mm: args.division_mm,
@@ -30,7 +37,7 @@ pub(super) async fn run(args: &AccuracyArgs) -> anyhow::Result<Exit> {
         seed: args.seed,
         repeat: args.repeat as usize,
         raw: args.raw,
-        dimension: args.dimension.config(),
+        dimension: args.dimension,
         billing,
     };
     let rows = lane::run(&config, |row| {
@@ -113,7 +120,7 @@ fn print_row(row: &Row, billing: &Billing) -> anyhow::Result<()> {
 
 /// The JSON object: the scenes, each case's summary, the cycle, the spreads.
 fn document(
-    args: &AccuracyArgs,
+    args: &Options,
     rows: &[Row],
     summaries: &[CaseSummary],
     spreads: &[Spread],
@@ -173,7 +180,7 @@ fn document(
 
 /// The table of the cases after the scenes' lines, and with --repeat the spreads.
 fn print_summary(
-    args: &AccuracyArgs,
+    args: &Options,
     summaries: &[CaseSummary],
     spreads: &[Spread],
     cycle: Quantiles,
@@ -244,4 +251,9 @@ fn print_summary(
         }
     }
     Ok(())
+}
+
+/// `v` when it is a number, `None` (JSON null) when it is NaN or infinite.
+fn finite(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
 }

@@ -118,7 +118,19 @@ pub(crate) async fn run(args: BenchArgs) -> anyhow::Result<Exit> {
 
 async fn accuracy(args: AccuracyArgs) -> anyhow::Result<Exit> {
     if args.set == "lane" {
-        return lane::run(&args).await;
+        if args.calibrate {
+            anyhow::bail!("--calibrate has its own scenes: leave out --set lane");
+        }
+        return lane::run(&lane::Options {
+            scenes: args.scenes,
+            seed: args.seed,
+            repeat: args.repeat,
+            raw: args.raw,
+            json: args.json,
+            division_mm: args.division_mm,
+            dimension: args.dimension.config(),
+        })
+        .await;
     }
     if args.set == "cert" {
         if args.calibrate || args.raw || args.repeat != 1 {
@@ -240,11 +252,6 @@ fn print_summary(rows: &[Row], summary: &Summary) -> anyhow::Result<()> {
         );
     }
     Ok(())
-}
-
-/// `v` when it is a number, `None` (JSON null) when it is NaN or infinite.
-fn finite(v: f64) -> Option<f64> {
-    v.is_finite().then_some(v)
 }
 
 fn print_row(r: &Row) -> anyhow::Result<()> {
