@@ -75,6 +75,14 @@ if command -v aiocoap-client >/dev/null \
 else
   python3 -m pip install "aiocoap==$AIOCOAP_VERSION" || peer_failed "aiocoap==$AIOCOAP_VERSION"
 fi
+# The OPC UA output's test (crates/coapcam/tests/it/opcua.rs) runs tests/peers/opcua_client.py on
+# asyncua, an OPC UA client library of its own.
+ASYNCUA_VERSION=2.1.0
+if python3 -c "import asyncua, sys; sys.exit(asyncua.__version__ != '$ASYNCUA_VERSION')" 2>/dev/null; then
+  echo "asyncua $ASYNCUA_VERSION: present"
+else
+  python3 -m pip install "asyncua==$ASYNCUA_VERSION" || peer_failed "asyncua==$ASYNCUA_VERSION"
+fi
 # The resource directory tests (tests/it/rd.rs) run aiocoap-rd (aiocoap) and coap-rd-notls (libcoap3-bin).
 command -v aiocoap-rd >/dev/null && command -v coap-rd-notls >/dev/null || peer_failed "aiocoap-rd and coap-rd-notls"
 # The MQTT tests (crates/coapcam/tests/it/mqtt.rs) start Debian's mosquitto broker on a

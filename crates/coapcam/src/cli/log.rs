@@ -16,7 +16,12 @@ use tracing_subscriber::registry::LookupSpan;
 /// What is logged when `RUST_LOG` is not set: warnings, and the few changes of state an
 /// operator wants to see without asking: registered with a resource directory or its
 /// registration removed, connected to the MQTT broker (again) or disconnected from it.
-pub(crate) const DEFAULT_FILTER: &str = "warn,coap_rd::registrant=info,coapcam::station::mqtt=info";
+/// The OPC UA library's complaints that the server has no certificate (at the start, and
+/// two errors for each connection) are left out: `--opcua` serves security mode None
+/// only, where no certificate is used.
+pub(crate) const DEFAULT_FILTER: &str = "warn,coap_rd::registrant=info,coapcam::station::mqtt=info,\
+     opcua_crypto::certificate_store=off,opcua_core::comms::secure_channel=off,\
+     opcua_server::server=error";
 
 /// Starts the log: `RUST_LOG`'s filter, else [`DEFAULT_FILTER`].
 pub(crate) fn init() {

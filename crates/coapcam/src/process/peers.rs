@@ -95,6 +95,21 @@ pub fn aiocoap() -> Result<(), String> {
     }
 }
 
+/// Whether asyncua (PyPI), the OPC UA client library of `tests/peers/opcua_client.py`,
+/// is importable by `python3`.
+pub fn asyncua() -> Result<(), String> {
+    let import = Command::new("python3")
+        .args(["-c", "import asyncua"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status();
+    match import {
+        Ok(s) if s.success() => Ok(()),
+        _ => Err("python3 cannot import asyncua (PyPI asyncua)".into()),
+    }
+}
+
 /// `quic-bench`: `COAPCAM_QUIC_BENCH`, or the file next to `coapcam` (the coapcam
 /// executable, where cargo builds it).
 pub fn quic_bench(coapcam: &Path) -> Result<PathBuf, String> {

@@ -7,7 +7,9 @@
 //! one and backs off while it fails.
 
 use std::future::Future;
+use std::path::Path;
 use std::pin::Pin;
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::sync::watch;
@@ -155,10 +157,19 @@ pub trait Output: Send {
     }
 }
 
-/// What an output starts from: the results log and the station's name.
+/// Measures with every camera now and records it, as a client's request does: the new
+/// record's id, `None` when the table was empty (nothing recorded), or why it failed.
+pub type MeasureNow = Arc<
+    dyn Fn() -> Pin<Box<dyn Future<Output = Result<Option<u64>, String>> + Send>> + Send + Sync,
+>;
+
+/// What an output starts from: the results log, the station's name, its state directory,
+/// and how to measure now.
 pub(super) struct Feed<'a> {
     pub(super) log: &'a ResultsLog,
     pub(super) station: &'a str,
+    pub(super) state_dir: &'a Path,
+    pub(super) measure: Option<MeasureNow>,
 }
 
 /// Follows `log` into `sink` until the sink is done or the log is gone: from its

@@ -21,6 +21,8 @@
 //! - [`webhook`]: every record POSTed to an HTTP URL, none lost while it is away;
 //! - [`postgres`]: every record copied into a PostgreSQL table, once, none lost while the
 //!   server is away;
+//! - [`opcua`]: an OPC UA server with the station's identity, its latest result, a
+//!   method to measure now and an event per record;
 //! - [`auto`]: automatic measurement's core: height maps of the table and the stillness
 //!   detector that says when a parcel stands still; [`watch`]: the task that drives it.
 
@@ -31,6 +33,7 @@ pub mod http;
 pub mod line;
 pub mod log;
 pub mod mqtt;
+pub mod opcua;
 pub mod outputs;
 pub mod postgres;
 pub(crate) mod reads;

@@ -41,7 +41,7 @@ macro_rules! outputs {
     };
 }
 
-outputs!(mqtt, line, webhook, postgres);
+outputs!(mqtt, line, webhook, postgres, opcua);
 
 /// An output asked for could not start.
 #[derive(Debug, thiserror::Error)]
@@ -56,6 +56,9 @@ pub enum OutputError {
     /// The webhook's secret or template could not be read.
     #[error(transparent)]
     Webhook(#[from] super::webhook::SetupError),
+    /// The OPC UA server could not start.
+    #[error(transparent)]
+    OpcUa(#[from] super::opcua::StartError),
 }
 
 /// An output that always starts (PostgreSQL: it connects, and reconnects, as it runs).

@@ -5,8 +5,9 @@ use std::future::Future;
 use std::pin::Pin;
 
 use super::log::{LogError, ResultsLog};
-use crate::api::record::{Event, NewEvent, NewRecord, Record};
-use crate::server::measure::{Measured, Records};
+use crate::api::record::{Event, NewEvent, NewRecord, Record, Trigger};
+use crate::report::{EdgeQuery, Found};
+use crate::server::measure::{self, Measured, Records, Rig};
 
 /// Records measurements in the log under the station's name: what every measurement
 /// path (a client's `POST /cams/dimensions`, the automatic one) calls once it has
@@ -56,6 +57,32 @@ impl Recorder {
                 why: format!("the appending task failed: {e}"),
             }),
         }
+    }
+}
+
+impl Recorder {
+    /// Measures with every camera of `rig` as `query` asks, with the photo and the
+    /// annotated picture, and records it, as a client's request (trigger `request`): the
+    /// new record, or `None` when it found no parcel (not recorded, as over CoAP and
+    /// HTTP); an error says why nothing was measured or recorded.
+    pub(crate) async fn measure_now<R: Rig>(
+        &self,
+        rig: &R,
+        query: &EdgeQuery,
+    ) -> Result<Option<Record>, String> {
+        let measured = measure::measure(rig, query, Trigger::Request, true)
+            .await
+            .map_err(|e| format!("measuring failed: {e}"))?;
+        if measured.measurement.parcel == Found::Nothing {
+            return Ok(None);
+        }
+        self.record(measured).await.map(Some).map_err(|e| {
+            tracing::error!("a measurement could not be recorded: {e}");
+            format!(
+                "measured, but the measurement could not be recorded: {}",
+                e.public_text()
+            )
+        })
     }
 }
 

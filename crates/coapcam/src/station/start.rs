@@ -12,7 +12,7 @@ use std::sync::Arc;
 use coap_rd::registrant::{Registrant, RegistrantConfig};
 use tokio::task::JoinHandle;
 
-use super::follow::{Feed, Output};
+use super::follow::{Feed, MeasureNow, Output};
 use super::log::{LogError, ResultsLog};
 use super::outputs::OutputError;
 use super::signing::StationKey;
@@ -20,7 +20,7 @@ use super::writer::{WriterError, WriterLock};
 use super::{Config, Recorder, http, last_id_path, resources, watch};
 use crate::api::paths;
 use crate::report::{EdgeQuery, Measurement};
-use crate::server::measure::Rig as _;
+use crate::server::measure::Rig;
 use crate::server::{self, CameraServer, CodeColor, EdgeError};
 
 /// A station could not start: its camera server, its results log, an output or the HTTP
@@ -180,6 +180,10 @@ impl Station {
                 let feed = Feed {
                     log: recorder.log(),
                     station: &config.name,
+                    state_dir: &state_dir,
+                    measure: server
+                        .rig()
+                        .map(|rig| measure_now(rig, recorder.clone(), config.auto_measure)),
                 };
                 config.outputs.start(&feed).await?
             }
@@ -289,5 +293,25 @@ async fn start_http(
             .map_err(|source| StartError::Http { addr, source })?,
         ),
         None => None,
+    })
+}
+
+/// Measuring now for an output (OPC UA's `MeasureNow`): with `rig`, recorded by
+/// `recorder`, as `--auto-measure`'s measurements ask (the codes, the thresholds, the
+/// billing), or with the codes and the defaults without it.
+fn measure_now(
+    rig: Arc<impl Rig>,
+    recorder: Recorder,
+    auto: Option<watch::AutoConfig>,
+) -> MeasureNow {
+    let query = auto.unwrap_or_default().query;
+    Arc::new(move || {
+        let (rig, recorder) = (rig.clone(), recorder.clone());
+        Box::pin(async move {
+            recorder
+                .measure_now(rig.as_ref(), &query)
+                .await
+                .map(|record| record.map(|r| r.id))
+        })
     })
 }

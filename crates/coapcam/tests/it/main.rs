@@ -28,6 +28,7 @@ mod mqtt;
 mod netem;
 mod observe;
 mod offhost;
+mod opcua;
 mod postgres;
 mod rd;
 mod readme;

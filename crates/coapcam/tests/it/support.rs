@@ -49,6 +49,8 @@ pub(crate) enum Peer {
     Poppler,
     /// Debian postgresql: initdb and postgres (on PATH or in /usr/lib/postgresql/*/bin).
     Postgres,
+    /// PyPI asyncua, an OPC UA client library (`tests/peers/opcua_client.py` uses it).
+    Asyncua,
 }
 
 /// The path of libcoap 4.3.5's `coap-client` or `coap-server`.
@@ -104,6 +106,7 @@ fn missing(peer: Peer) -> Option<String> {
         Peer::Libcoap435 => peers::libcoap435().err(),
         Peer::Aiocoap => peers::aiocoap().err(),
         Peer::Postgres => peers::postgres_bin().err(),
+        Peer::Asyncua => peers::asyncua().err(),
     }
 }
 
@@ -698,6 +701,8 @@ pub(crate) struct Station {
     pub(crate) http: Option<SocketAddr>,
     /// Its line output's address, when the flags have `--line-output`.
     pub(crate) line: Option<SocketAddr>,
+    /// Its OPC UA server's address, when the flags have `--opcua`.
+    pub(crate) opcua: Option<SocketAddr>,
 }
 
 /// `coapcam serve --bind 127.0.0.1:0 --state-dir STATE --duration 600` and `flags`, once
@@ -716,12 +721,13 @@ pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
     ];
     args.extend_from_slice(flags);
     let mut process = Proc::spawn(COAPCAM, &args);
-    let (mut http, mut line) = (None, None);
+    let (mut http, mut line, mut opcua) = (None, None, None);
     let coap = loop {
         let (what, addr) = process.stderr_line(LIMIT, |l| {
             let l = l.strip_prefix("coapcam: ")?;
             let (what, rest) = [
                 ("line", "line output on "),
+                ("opcua", "OPC UA server on opc.tcp://"),
                 ("http", "HTTP on http://"),
                 ("coap", "serving on "),
             ]
@@ -732,6 +738,7 @@ pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
         });
         match what {
             "line" => line = line.or(Some(addr)),
+            "opcua" => opcua = Some(addr),
             "http" => http = Some(addr),
             _ => break addr,
         }
@@ -741,6 +748,7 @@ pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
         coap,
         http,
         line,
+        opcua,
     }
 }
 

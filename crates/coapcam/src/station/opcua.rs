@@ -1,0 +1,622 @@
+//! OPC UA (`serve --opcua opc.tcp://ADDR:PORT`): an OPC UA server (async-opcua's) that
+//! shows the station to PLCs and SCADA systems. Under the Objects folder, the object
+//! `Station` of the namespace [`NAMESPACE`] holds
+//! - `Identity`: `StationName`, `SoftwareName`, `SoftwareVersion`, `SoftwareSha256`;
+//! - `LatestResult`: the newest record of the results log (`RecordId`, `Time`,
+//!   `LengthMm`, `WidthMm`, `HeightMm`, `DivisionMm`, `Shape`, `Codes`, `Status`,
+//!   `Trigger`), updated from the log's follower as each record is appended (a client's
+//!   subscription sees each change);
+//! - the method `MeasureNow`: measures with every camera as `POST /cams/dimensions` does
+//!   and records it; it answers the new record's id and `recorded` (0 and why, when the
+//!   table was empty), or a Bad status when measuring failed;
+//! - events: the object is an event notifier, and every record appended while the server
+//!   runs is an event (a `BaseEventType` whose `Message` starts with `record ID`, `Time`
+//!   the record's time), from `Station` and from the standard `Server` object.
+//!
+//! Security: the endpoint takes security mode None and anonymous users, so it is served
+//! on a loopback address only (`--opcua` refuses any other): signed and encrypted
+//! channels (Basic256Sha256 with certificates) and user names are not there yet.
+//!
+//! The names follow what OPC 40210 (Geometrical Measuring Systems) asks of a station (its
+//! identity, the latest result, an event per result, a method to measure), but the nodes
+//! are not typed with that specification's types.
+
+use std::convert::Infallible;
+use std::future::Future;
+use std::net::SocketAddr;
+use std::path::Path;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::Duration;
+
+use async_trait::async_trait;
+use opcua::server::address_space::{
+    AddressSpace, EventNotifier, MethodBuilder, ObjectBuilder, VariableBuilder,
+};
+use opcua::server::diagnostics::NamespaceMetadata;
+use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerImpl};
+use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
+use opcua::server::{ANONYMOUS_USER_TOKEN_ID, ServerBuilder, ServerEndpoint, ServerHandle};
+use opcua::sync::RwLock;
+use opcua::types::{
+    BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeId, ObjectId,
+    ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId, Variant,
+};
+use tokio::net::TcpListener;
+use tokio::task::JoinHandle;
+
+use super::follow::{self, Feed, MeasureNow, Next, Output, Sink, Start};
+use crate::api::record::Record;
+use crate::report::Found;
+
+/// The namespace of the station's nodes.
+pub const NAMESPACE: &str = "urn:coapcam:station";
+
+/// The folder of the state directory the OPC UA server keeps its certificate store in
+/// (empty while only security mode None is served).
+pub const PKI_DIR: &str = "opcua-pki";
+
+/// How long stopping the server may take.
+const STOP: Duration = Duration::from_secs(5);
+
+/// The OPC UA server could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// Its address could not be listened on.
+    #[error("listening for OPC UA clients on {addr}")]
+    Listen {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The library refused the configuration.
+    #[error("the OPC UA server on {addr}: {why}")]
+    Server {
+        /// The address.
+        addr: SocketAddr,
+        /// What the library said.
+        why: String,
+    },
+}
+
+/// The flag of the OPC UA output (`serve --opcua`).
+#[derive(Debug, Clone, Default, clap::Args)]
+#[group(skip)]
+pub struct Args {
+    /// Serve the station over OPC UA on this address (opc.tcp://127.0.0.1:4840; a
+    /// loopback address only: security mode None, anonymous): its identity, the latest
+    /// result, the method MeasureNow and an event per record (docs/station.md).
+    #[arg(long, value_name = "opc.tcp://ADDR:PORT", value_parser = parse_endpoint)]
+    opcua: Option<SocketAddr>,
+}
+
+impl Args {
+    /// Whether `--opcua` is given.
+    pub(super) fn configured(&self) -> bool {
+        self.opcua.is_some()
+    }
+
+    /// The OPC UA server `--opcua` asks for, listening.
+    pub(super) async fn start(
+        &self,
+        feed: &Feed<'_>,
+    ) -> Result<Option<Box<dyn Output>>, StartError> {
+        let Some(addr) = self.opcua else {
+            return Ok(None);
+        };
+        let output = OpcUaOutput::start(addr, feed).await?;
+        Ok(Some(Box::new(output)))
+    }
+}
+
+/// The address of `opc.tcp://ADDR:PORT` (`serve --opcua`; an IPv6 address in brackets),
+/// refused unless it is a loopback address: the server takes security mode None.
+pub fn parse_endpoint(uri: &str) -> Result<SocketAddr, String> {
+    let addr: SocketAddr = uri
+        .strip_prefix("opc.tcp://")
+        .and_then(|a| a.trim_end_matches('/').parse().ok())
+        .ok_or_else(|| {
+            format!("{uri:?} is not opc.tcp://ADDR:PORT (e.g. opc.tcp://127.0.0.1:4840)")
+        })?;
+    if !addr.ip().is_loopback() {
+        return Err(format!(
+            "{uri}: the OPC UA server takes security mode None and anonymous clients, so it \
+             listens on a loopback address only (127.0.0.1 or [::1]); signed and encrypted \
+             channels (Basic256Sha256 with certificates) are not there yet"
+        ));
+    }
+    Ok(addr)
+}
+
+/// The OPC UA server of a station and the follower that keeps its latest result. Dropping
+/// it stops both.
+pub struct OpcUaOutput {
+    addr: SocketAddr,
+    handle: ServerHandle,
+    server: Option<JoinHandle<()>>,
+    follow: JoinHandle<()>,
+}
+
+impl OpcUaOutput {
+    /// Listens on `addr` (port 0 picks a free one) and follows `feed.log`.
+    pub(super) async fn start(addr: SocketAddr, feed: &Feed<'_>) -> Result<Self, StartError> {
+        let listener = TcpListener::bind(addr)
+            .await
+            .map_err(|source| StartError::Listen { addr, source })?;
+        let addr = listener
+            .local_addr()
+            .map_err(|source| StartError::Listen { addr, source })?;
+        let nodes = Arc::new(Nodes::new(feed.station, feed.measure.clone()));
+        let (server, handle) = builder(addr, feed.station, feed.state_dir, nodes.clone())
+            .build()
+            .map_err(|why| StartError::Server { addr, why })?;
+        let manager = handle
+            .node_managers()
+            .get_of_type::<InMemoryNodeManager<StationNodes>>()
+            .ok_or_else(|| StartError::Server {
+                addr,
+                why: "the station's node manager is missing".into(),
+            })?;
+        let server = tokio::spawn(async move {
+            if let Err(e) = server.run_with(listener).await {
+                tracing::error!("the OPC UA server on {addr} stopped: {e}");
+            }
+        });
+        // The newest record is shown from the start, without an event.
+        let log = feed.log.clone();
+        let newest = log.newest();
+        let publisher = Publisher {
+            addr,
+            handle: handle.clone(),
+            manager,
+            nodes,
+            quiet_until: newest,
+        };
+        let follow = tokio::spawn(follow::run(log, publisher));
+        Ok(Self {
+            addr,
+            handle,
+            server: Some(server),
+            follow,
+        })
+    }
+
+    /// The address it listens on.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+}
+
+impl Output for OpcUaOutput {
+    fn describe(&self) -> String {
+        format!("OPC UA server on {}", endpoint_url(self.addr))
+    }
+
+    fn stop(mut self: Box<Self>) -> Pin<Box<dyn Future<Output = ()> + Send>> {
+        self.follow.abort();
+        self.handle.cancel();
+        let server = self.server.take();
+        Box::pin(async move {
+            if let Some(server) = server
+                && tokio::time::timeout(STOP, server).await.is_err()
+            {
+                tracing::warn!("the OPC UA server did not stop within {STOP:?}");
+            }
+        })
+    }
+}
+
+impl Drop for OpcUaOutput {
+    fn drop(&mut self) {
+        self.follow.abort();
+        self.handle.cancel();
+        if let Some(server) = &self.server {
+            server.abort();
+        }
+    }
+}
+
+/// `opc.tcp://ADDR:PORT/`.
+fn endpoint_url(addr: SocketAddr) -> String {
+    format!("opc.tcp://{addr}/")
+}
+
+/// The server: one endpoint, security mode None, anonymous; the core namespace and the
+/// station's nodes.
+fn builder(addr: SocketAddr, station: &str, state_dir: &Path, nodes: Arc<Nodes>) -> ServerBuilder {
+    let host = match addr {
+        SocketAddr::V4(a) => a.ip().to_string(),
+        SocketAddr::V6(a) => format!("[{}]", a.ip()),
+    };
+    ServerBuilder::new()
+        .application_name(format!("coapcam station {station}"))
+        .application_uri(format!("urn:coapcam:{station}"))
+        .product_uri("urn:coapcam")
+        .build_info(BuildInfo {
+            product_uri: "urn:coapcam".into(),
+            manufacturer_name: "coapcam".into(),
+            product_name: "coapcam".into(),
+            software_version: env!("CARGO_PKG_VERSION").into(),
+            build_number: crate::identity::SOFTWARE_SHA256.into(),
+            build_date: DateTime::null(),
+        })
+        .host(host)
+        .port(addr.port())
+        .pki_dir(state_dir.join(PKI_DIR))
+        .create_sample_keypair(false)
+        .add_endpoint(
+            "none",
+            ServerEndpoint::new_none("/", &[ANONYMOUS_USER_TOKEN_ID.to_owned()]),
+        )
+        .discovery_urls(vec![endpoint_url(addr)])
+        .with_node_manager(
+            opcua::server::node_manager::memory::InMemoryNodeManagerBuilder::new(
+                move |context: ServerContext, space: &mut AddressSpace| {
+                    let index = context
+                        .type_tree
+                        .write()
+                        .namespaces_mut()
+                        .add_namespace(NAMESPACE);
+                    space.add_namespace(NAMESPACE, index);
+                    StationNodes { index, nodes }
+                },
+            ),
+        )
+}
+
+/// What the station's nodes are made from: its name, and how to measure now.
+struct Nodes {
+    station: String,
+    measure: Option<MeasureNow>,
+}
+
+impl Nodes {
+    fn new(station: &str, measure: Option<MeasureNow>) -> Self {
+        Self {
+            station: station.to_owned(),
+            measure,
+        }
+    }
+}
+
+/// The station's node manager: its nodes, and the method `MeasureNow`.
+struct StationNodes {
+    index: u16,
+    nodes: Arc<Nodes>,
+}
+
+/// A variable of `LatestResult`: its name and data type.
+const RESULT_FIELDS: [(&str, DataTypeId); 10] = [
+    ("RecordId", DataTypeId::UInt64),
+    ("Time", DataTypeId::UtcTime),
+    ("LengthMm", DataTypeId::Double),
+    ("WidthMm", DataTypeId::Double),
+    ("HeightMm", DataTypeId::Double),
+    ("DivisionMm", DataTypeId::Double),
+    ("Shape", DataTypeId::String),
+    ("Codes", DataTypeId::String),
+    ("Status", DataTypeId::String),
+    ("Trigger", DataTypeId::String),
+];
+
+/// The node id of `path` (`Station.LatestResult.RecordId`) in namespace `index`.
+fn id(index: u16, path: &str) -> NodeId {
+    NodeId::new(index, path)
+}
+
+impl StationNodes {
+    fn id(&self, path: &str) -> NodeId {
+        id(self.index, path)
+    }
+
+    fn name(&self, name: &str) -> QualifiedName {
+        QualifiedName::new(self.index, name)
+    }
+
+    /// An object `path` (its last part its name), a component of `parent`.
+    fn object(&self, space: &mut AddressSpace, path: &str, parent: &NodeId, description: &str) {
+        let name = path.rsplit('.').next().unwrap_or(path);
+        ObjectBuilder::new(&self.id(path), self.name(name), name)
+            .description(description)
+            .has_type_definition(ObjectTypeId::BaseObjectType)
+            .component_of(parent.clone())
+            .insert(space);
+    }
+
+    /// A read-only variable `parent.name`.
+    fn variable(
+        &self,
+        space: &mut AddressSpace,
+        parent: &str,
+        name: &str,
+        data_type: DataTypeId,
+        value: Variant,
+    ) {
+        let mut builder =
+            VariableBuilder::new(&self.id(&format!("{parent}.{name}")), self.name(name), name)
+                .data_type(data_type)
+                .value(value)
+                .has_type_definition(VariableTypeId::BaseDataVariableType)
+                .component_of(self.id(parent));
+        if name == "Codes" {
+            builder = builder.value_rank(1);
+        }
+        builder.insert(space);
+    }
+}
+
+#[async_trait]
+impl InMemoryNodeManagerImpl for StationNodes {
+    async fn init(&self, space: &mut AddressSpace, _context: ServerContext) {
+        let objects: NodeId = ObjectId::ObjectsFolder.into();
+        let station = self.id("Station");
+        ObjectBuilder::new(&station, self.name("Station"), self.nodes.station.as_str())
+            .description("A parcel-dimensioning station (coapcam)")
+            .has_type_definition(ObjectTypeId::BaseObjectType)
+            .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+            .organized_by(objects)
+            .insert(space);
+        self.object(
+            space,
+            "Station.Identity",
+            &station,
+            "The station and its software",
+        );
+        let identity = [
+            ("StationName", self.nodes.station.clone()),
+            ("SoftwareName", "coapcam".to_owned()),
+            ("SoftwareVersion", env!("CARGO_PKG_VERSION").to_owned()),
+            (
+                "SoftwareSha256",
+                crate::identity::SOFTWARE_SHA256.to_owned(),
+            ),
+        ];
+        for (name, value) in identity {
+            self.variable(
+                space,
+                "Station.Identity",
+                name,
+                DataTypeId::String,
+                UAString::from(value).into(),
+            );
+        }
+        self.object(
+            space,
+            "Station.LatestResult",
+            &station,
+            "The newest record of the results log (RecordId 0: none yet)",
+        );
+        for (name, data_type) in RESULT_FIELDS {
+            let empty = match name {
+                "RecordId" => Variant::UInt64(0),
+                "Status" => UAString::from("none").into(),
+                _ => Variant::Empty,
+            };
+            self.variable(space, "Station.LatestResult", name, data_type, empty);
+        }
+        MethodBuilder::new(
+            &self.id("Station.MeasureNow"),
+            self.name("MeasureNow"),
+            "MeasureNow",
+        )
+        .description(
+            "Measures with every camera and records it: the new record's id and \
+             \"recorded\", or 0 and why nothing was recorded",
+        )
+        .component_of(station)
+        .output_args(
+            space,
+            &self.id("Station.MeasureNow.OutputArguments"),
+            &[
+                ("RecordId", DataTypeId::UInt64).into(),
+                ("Outcome", DataTypeId::String).into(),
+            ],
+        )
+        .executable(self.nodes.measure.is_some())
+        .user_executable(self.nodes.measure.is_some())
+        .insert(space);
+    }
+
+    fn name(&self) -> &str {
+        "coapcam station"
+    }
+
+    fn namespaces(&self) -> Vec<NamespaceMetadata> {
+        vec![NamespaceMetadata {
+            namespace_uri: NAMESPACE.to_owned(),
+            namespace_index: self.index,
+            ..Default::default()
+        }]
+    }
+
+    async fn call(
+        &self,
+        _context: &RequestContext,
+        _space: &RwLock<AddressSpace>,
+        methods: &mut [&mut &mut MethodCall],
+    ) -> Result<(), StatusCode> {
+        let measure_now = self.id("Station.MeasureNow");
+        for call in methods {
+            if call.method_id() != &measure_now {
+                call.set_status(StatusCode::BadMethodInvalid);
+                continue;
+            }
+            let Some(measure) = &self.nodes.measure else {
+                call.set_status(StatusCode::BadNotExecutable);
+                continue;
+            };
+            match measure().await {
+                Ok(Some(id)) => {
+                    call.set_outputs(vec![Variant::UInt64(id), UAString::from("recorded").into()]);
+                    call.set_status(StatusCode::Good);
+                }
+                Ok(None) => {
+                    call.set_outputs(vec![
+                        Variant::UInt64(0),
+                        UAString::from("nothing on the table: not recorded").into(),
+                    ]);
+                    call.set_status(StatusCode::Good);
+                }
+                Err(why) => {
+                    tracing::warn!("OPC UA MeasureNow: {why}");
+                    call.set_status(StatusCode::BadResourceUnavailable);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What a record shows in `LatestResult`, in the order of [`RESULT_FIELDS`].
+fn result_values(record: &Record) -> [Variant; 10] {
+    let reported = record.measurement.reported();
+    let mm = |v: Option<f64>| v.map_or(Variant::Empty, Variant::Double);
+    let time = DateTime::parse_from_rfc3339(&record.time.to_string())
+        .map_or(Variant::Empty, Variant::from);
+    let shape = match reported {
+        Some(_) => record
+            .measurement
+            .parcels
+            .first()
+            .map_or(Variant::Empty, |p| UAString::from(p.shape.as_str()).into()),
+        None => Variant::Empty,
+    };
+    let codes: Vec<UAString> = record
+        .code_texts()
+        .into_iter()
+        .map(UAString::from)
+        .collect();
+    [
+        Variant::UInt64(record.id),
+        time,
+        mm(reported.map(|r| r.length_mm)),
+        mm(reported.map(|r| r.width_mm)),
+        mm(reported.map(|r| r.height_mm)),
+        mm(reported.and_then(|r| r.division_mm)),
+        shape,
+        Variant::from(codes),
+        UAString::from(status(&record.measurement.parcel)).into(),
+        UAString::from(record.trigger.name()).into(),
+    ]
+}
+
+/// `measured`, or what else the measurement found (`refused`, ...), as in the record's
+/// JSON.
+fn status(found: &Found) -> &'static str {
+    match found {
+        Found::Measured(_) => "measured",
+        Found::Nothing => "nothing",
+        Found::Uncalibrated { .. } => "uncalibrated",
+        Found::Refused { .. } => "refused",
+        Found::Unsynced { .. } => "unsynced",
+    }
+}
+
+/// The OPC UA server as a [`Sink`]: each record becomes the latest result, and, once the
+/// records there at the start are shown, an event.
+struct Publisher {
+    addr: SocketAddr,
+    handle: ServerHandle,
+    manager: Arc<InMemoryNodeManager<StationNodes>>,
+    nodes: Arc<Nodes>,
+    /// The newest record when the server started: shown, but no event.
+    quiet_until: u64,
+}
+
+impl Publisher {
+    fn show(&self, record: &Record) -> Result<(), StatusCode> {
+        let index = self.manager.inner().index;
+        let ids: Vec<NodeId> = RESULT_FIELDS
+            .iter()
+            .map(|(name, _)| id(index, &format!("Station.LatestResult.{name}")))
+            .collect();
+        let now = DateTime::now();
+        let values = result_values(record).map(|v| {
+            let mut value = DataValue::new_at(v, now);
+            value.source_timestamp = Some(now);
+            value
+        });
+        self.manager.set_values(
+            self.handle.subscriptions(),
+            ids.iter().zip(values).map(|(id, v)| (id, None, v)),
+        )
+    }
+
+    fn announce(&self, record: &Record) {
+        let index = self.manager.inner().index;
+        let station = id(index, "Station");
+        let time = DateTime::parse_from_rfc3339(&record.time.to_string())
+            .unwrap_or_else(|_| DateTime::now());
+        let dims = record
+            .measurement
+            .reported()
+            .map_or_else(String::new, |r| format!(": {}", r.dimensions_text()));
+        let event = opcua::nodes::BaseEventType::new(
+            ObjectTypeId::BaseEventType,
+            ByteString::from(record.hash.as_bytes().to_vec()),
+            LocalizedText::from(format!("record {}{dims}", record.id)),
+            time,
+        )
+        .set_source_node(station.clone())
+        .set_source_name(UAString::from(self.nodes.station.as_str()))
+        .set_receive_time(DateTime::now())
+        .set_severity(100);
+        let server: NodeId = ObjectId::Server.into();
+        self.handle.subscriptions().notify_events(
+            [
+                (&event as &dyn opcua::nodes::Event, &station),
+                (&event as &dyn opcua::nodes::Event, &server),
+            ]
+            .into_iter(),
+        );
+    }
+}
+
+impl Sink for Publisher {
+    type Event = Infallible;
+
+    fn name(&self) -> String {
+        format!("OPC UA server on {}", endpoint_url(self.addr))
+    }
+
+    fn start(&self) -> Start {
+        Start::After(self.quiet_until.saturating_sub(1))
+    }
+
+    async fn deliver(&mut self, record: &Record) -> Next {
+        if let Err(status) = self.show(record) {
+            return Next::Retry(format!("showing record {}: {status}", record.id));
+        }
+        if record.id > self.quiet_until {
+            self.announce(record);
+        }
+        Next::Go
+    }
+
+    async fn handle(&mut self, event: Self::Event) -> Next {
+        match event {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_loopback_endpoints_are_taken() {
+        assert_eq!(
+            parse_endpoint("opc.tcp://127.0.0.1:4840"),
+            Ok("127.0.0.1:4840".parse().expect("addr"))
+        );
+        assert_eq!(
+            parse_endpoint("opc.tcp://[::1]:4840/"),
+            Ok("[::1]:4840".parse().expect("addr"))
+        );
+        let refused = parse_endpoint("opc.tcp://0.0.0.0:4840").expect_err("0.0.0.0");
+        assert!(refused.contains("loopback"), "{refused}");
+        assert!(parse_endpoint("opc.tcp://192.168.1.2:4840").is_err());
+        assert!(parse_endpoint("tcp://127.0.0.1:4840").is_err());
+        assert!(parse_endpoint("opc.tcp://localhost:4840").is_err());
+    }
+}

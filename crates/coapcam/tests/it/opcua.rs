@@ -1,0 +1,159 @@
+//! The OPC UA output (`serve --opcua`) against a client we did not write: PyPI's asyncua,
+//! driven by `tests/peers/opcua_client.py`, browses the station, reads its identity and
+//! latest result, calls MeasureNow and gets the event of the record it made. asyncua
+//! missing fails in CI (`CI=true`) and skips loudly elsewhere.
+
+use std::time::Duration;
+
+use coap::{Code, ContentFormat, OptionNumber, Request};
+use coapcam::report::Measurement;
+
+use crate::support::{
+    COAPCAM, Peer, Proc, Station, TempDir, available, client, runtime, script, station,
+};
+
+/// Longest wait for the client script, and for each of its steps.
+const LIMIT: Duration = Duration::from_secs(60);
+
+#[test]
+fn asyncua_browses_reads_the_latest_result_calls_measure_now_and_gets_its_event() {
+    if !available("serve --opcua with asyncua", &[Peer::Asyncua]) {
+        return;
+    }
+    let dir = TempDir::new("opcua");
+    let Station {
+        process: _server,
+        coap,
+        opcua,
+        ..
+    } = station(
+        dir.path(),
+        &[
+            "--opcua",
+            "opc.tcp://127.0.0.1:0",
+            "--station-name",
+            "dock-ua",
+        ],
+    );
+    let opcua = opcua.expect("the OPC UA server's address (its line at the start)");
+    // Record 1, made before the client connects: the latest result it reads.
+    let first = runtime().block_on(async {
+        let mut request = Request::new(Code::POST, "/cams/dimensions");
+        request.timeout = Some(LIMIT);
+        request.options.push(OptionNumber::URI_QUERY, b"codes");
+        request
+            .options
+            .set_uint(OptionNumber::ACCEPT, u32::from(ContentFormat::CBOR.0));
+        let r = client().send(coap, request).await.expect("an answer");
+        assert_eq!(
+            r.code,
+            Code::CONTENT,
+            "{}",
+            String::from_utf8_lossy(&r.payload)
+        );
+        Measurement::from_cbor(&r.payload).expect("CBOR")
+    });
+    let first = *first
+        .reported()
+        .expect("the default scene's parcel is measured");
+    let url = format!("opc.tcp://{opcua}/");
+    let seconds = LIMIT.as_secs().to_string();
+    let out = Proc::run(
+        "python3",
+        &[&script("opcua_client.py"), &url, &seconds],
+        LIMIT * 2,
+    )
+    .expect_success("opcua_client.py");
+    let steps = out.json_lines();
+    let step = |name: &str| -> Vec<&serde_json::Value> {
+        steps.iter().filter_map(|s| s.get(name)).collect()
+    };
+
+    let browse = step("browse")[0];
+    let has = |list: &serde_json::Value, name: &str| {
+        list.as_array()
+            .is_some_and(|l| l.iter().any(|n| n.as_str() == Some(name)))
+    };
+    for name in ["Server", "Station"] {
+        assert!(has(&browse["Objects"], name), "{name}: {browse}");
+    }
+    for name in ["Identity", "LatestResult", "MeasureNow"] {
+        assert!(has(&browse["Station"], name), "{name}: {browse}");
+    }
+    for name in [
+        "RecordId",
+        "Time",
+        "LengthMm",
+        "WidthMm",
+        "HeightMm",
+        "DivisionMm",
+        "Shape",
+        "Codes",
+        "Status",
+        "Trigger",
+    ] {
+        assert!(has(&browse["LatestResult"], name), "{name}: {browse}");
+    }
+    assert_eq!(step("display_name")[0], "dock-ua");
+
+    let identity = step("identity")[0];
+    assert_eq!(identity["StationName"], "dock-ua", "{identity}");
+    assert_eq!(identity["SoftwareName"], "coapcam", "{identity}");
+    assert_eq!(
+        identity["SoftwareVersion"],
+        env!("CARGO_PKG_VERSION"),
+        "{identity}"
+    );
+    assert_eq!(
+        identity["SoftwareSha256"].as_str().map(str::len),
+        Some(64),
+        "{identity}"
+    );
+
+    let latest = step("latest");
+    let before = latest[0];
+    assert_eq!(before["RecordId"], 1, "{before}");
+    assert_eq!(before["Status"], "measured", "{before}");
+    assert_eq!(before["Trigger"], "request", "{before}");
+    assert_eq!(before["Shape"], "cuboid", "{before}");
+    assert_eq!(before["LengthMm"], first.length_mm, "{before}");
+    assert_eq!(before["WidthMm"], first.width_mm, "{before}");
+    assert_eq!(before["HeightMm"], first.height_mm, "{before}");
+    assert_eq!(before["DivisionMm"].as_f64(), first.division_mm, "{before}");
+    assert_eq!(before["Codes"], serde_json::json!(["PKG-0001"]), "{before}");
+    assert!(before["Time"].as_f64().is_some(), "{before}");
+
+    let called = step("measure_now")[0];
+    assert_eq!(called["record_id"], 2, "{called}");
+    assert_eq!(called["outcome"], "recorded", "{called}");
+
+    // Record 1 was there before the subscription: the one event is record 2's.
+    let events = step("event");
+    assert_eq!(events.len(), 1, "{events:?}");
+    let event = events[0];
+    let message = event["message"].as_str().expect("a message");
+    assert!(message.starts_with("record 2: "), "{event}");
+    assert_eq!(event["source_name"], "dock-ua", "{event}");
+    let after = latest[1];
+    assert_eq!(after["RecordId"], 2, "{after}");
+    assert_eq!(after["Trigger"], "request", "{after}");
+    assert_eq!(after["Time"], event["time_unix_ms"], "{after} {event}");
+    let delay = event["arrived_unix_ms"].as_f64().expect("arrived")
+        - event["time_unix_ms"].as_f64().expect("time");
+    eprintln!("record to the asyncua client's event: {delay:.0} ms");
+}
+
+#[test]
+fn an_address_off_the_machine_is_refused_while_only_security_mode_none_is_served() {
+    let refused = Proc::run(
+        COAPCAM,
+        &["serve", "--opcua", "opc.tcp://0.0.0.0:4840"],
+        LIMIT,
+    )
+    .expect_status(2, "serve --opcua opc.tcp://0.0.0.0:4840");
+    assert!(
+        refused.stderr.contains("loopback") && refused.stderr.contains("--opcua"),
+        "{}",
+        refused.stderr
+    );
+}

@@ -1,0 +1,112 @@
+"""An OPC UA client of our own script on asyncua (PyPI), a library we did not write, for
+crates/coapcam/tests/it/opcua.rs: against `coapcam serve --opcua URL` it browses the
+Objects folder and the station, reads the latest result, subscribes to the station's
+events, calls MeasureNow and waits for the event of the record it made. Each step is one
+JSON object on a line of standard output; any failure exits non-zero with the reason on
+standard error.
+
+    python3 opcua_client.py opc.tcp://127.0.0.1:PORT TIMEOUT_S
+"""
+
+import asyncio
+import datetime
+import json
+import sys
+import time
+
+from asyncua import Client, ua
+
+NAMESPACE = "urn:coapcam:station"
+
+
+def say(**fields):
+    print(json.dumps(fields, default=str), flush=True)
+
+
+def unix_ms(t):
+    """Milliseconds since 1970 of an asyncua time (UTC, naive or aware)."""
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=datetime.timezone.utc)
+    return t.timestamp() * 1000.0
+
+
+def plain(value):
+    """A value as JSON takes it."""
+    if isinstance(value, datetime.datetime):
+        return unix_ms(value)
+    if isinstance(value, list):
+        return [plain(v) for v in value]
+    return value
+
+
+class Events:
+    """Puts each event into a queue, with when it arrived."""
+
+    def __init__(self):
+        self.queue = asyncio.Queue()
+
+    def event_notification(self, event):
+        self.queue.put_nowait((time.time() * 1000.0, event))
+
+
+async def names(node):
+    return [(await c.read_browse_name()).Name for c in await node.get_children()]
+
+
+async def main(url, timeout):
+    async with Client(url=url, timeout=timeout) as client:
+        ns = await client.get_namespace_index(NAMESPACE)
+        objects = client.nodes.objects
+        station = await objects.get_child([f"{ns}:Station"])
+        latest = await station.get_child([f"{ns}:LatestResult"])
+        identity = await station.get_child([f"{ns}:Identity"])
+        say(
+            browse={
+                "Objects": await names(objects),
+                "Station": await names(station),
+                "Identity": await names(identity),
+                "LatestResult": await names(latest),
+            },
+            display_name=(await station.read_display_name()).Text,
+        )
+
+        async def read(node):
+            out = {}
+            for child in await node.get_children():
+                name = (await child.read_browse_name()).Name
+                out[name] = plain(await child.read_value())
+            return out
+
+        say(identity=await read(identity))
+        say(latest=await read(latest))
+
+        events = Events()
+        subscription = await client.create_subscription(100, events)
+        await subscription.subscribe_events(station, ua.ObjectIds.BaseEventType)
+        method = await station.get_child([f"{ns}:MeasureNow"])
+        record_id, outcome = await station.call_method(method)
+        say(measure_now={"record_id": record_id, "outcome": outcome})
+        while True:
+            arrived, event = await asyncio.wait_for(events.queue.get(), timeout)
+            fields = event.get_event_props_as_fields_dict()
+            message = fields["Message"].Value.Text
+            say(
+                event={
+                    "message": message,
+                    "source_name": fields["SourceName"].Value,
+                    "time_unix_ms": unix_ms(fields["Time"].Value),
+                    "arrived_unix_ms": arrived,
+                }
+            )
+            if message.startswith(f"record {record_id}"):
+                break
+        say(latest=await read(latest))
+        await subscription.delete()
+
+
+if __name__ == "__main__":
+    try:
+        asyncio.run(main(sys.argv[1], float(sys.argv[2])))
+    except Exception as e:  # noqa: BLE001 - the test reads the reason
+        print(f"opcua_client.py: {type(e).__name__}: {e}", file=sys.stderr)
+        sys.exit(1)
