@@ -168,7 +168,11 @@ pub type MeasureNow = Arc<
 pub(super) struct Feed<'a> {
     pub(super) log: &'a ResultsLog,
     pub(super) station: &'a str,
+    /// Read by the OPC UA output only (feature `opcua`).
+    #[cfg_attr(not(feature = "opcua"), allow(dead_code))]
     pub(super) state_dir: &'a Path,
+    /// Read by the OPC UA output only (feature `opcua`).
+    #[cfg_attr(not(feature = "opcua"), allow(dead_code))]
     pub(super) measure: Option<MeasureNow>,
 }
 

@@ -33,6 +33,7 @@ pub mod http;
 pub mod line;
 pub mod log;
 pub mod mqtt;
+#[cfg(feature = "opcua")]
 pub mod opcua;
 pub mod outputs;
 pub mod postgres;

@@ -41,7 +41,10 @@ macro_rules! outputs {
     };
 }
 
+#[cfg(feature = "opcua")]
 outputs!(mqtt, line, webhook, postgres, opcua);
+#[cfg(not(feature = "opcua"))]
+outputs!(mqtt, line, webhook, postgres);
 
 /// An output asked for could not start.
 #[derive(Debug, thiserror::Error)]
@@ -57,6 +60,7 @@ pub enum OutputError {
     #[error(transparent)]
     Webhook(#[from] super::webhook::SetupError),
     /// The OPC UA server could not start.
+    #[cfg(feature = "opcua")]
     #[error(transparent)]
     OpcUa(#[from] super::opcua::StartError),
 }

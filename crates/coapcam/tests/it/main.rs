@@ -28,6 +28,7 @@ mod mqtt;
 mod netem;
 mod observe;
 mod offhost;
+#[cfg(feature = "opcua")]
 mod opcua;
 mod postgres;
 mod rd;
