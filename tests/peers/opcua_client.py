@@ -1,7 +1,7 @@
 """An OPC UA client of our own script on asyncua (PyPI), a library we did not write, for
 crates/coapcam/tests/it/opcua.rs: against `coapcam serve --opcua URL` it browses the
 Objects folder and the station, reads the latest result, subscribes to the station's
-events, calls MeasureNow and waits for the event of the record it made. Each step is one
+events (NewResultEventType's fields), calls MeasureNow and waits for the event of the record it made. Each step is one
 JSON object on a line of standard output; any failure exits non-zero with the reason on
 standard error.
 
@@ -82,7 +82,11 @@ async def main(url, timeout):
 
         events = Events()
         subscription = await client.create_subscription(100, events)
-        await subscription.subscribe_events(station, ua.ObjectIds.BaseEventType)
+        # The fields of NewResultEventType, without a where clause: async-opcua 0.19's
+        # event filters do not compare node ids (InList on EventType never matches), and
+        # every event of Station is of that type.
+        event_type = client.get_node(ua.NodeId("NewResultEventType", ns))
+        await subscription.subscribe_events(station, event_type, where_clause_generation=False)
         method = await station.get_child([f"{ns}:MeasureNow"])
         record_id, outcome = await station.call_method(method)
         say(measure_now={"record_id": record_id, "outcome": outcome})
@@ -96,6 +100,12 @@ async def main(url, timeout):
                     "source_name": fields["SourceName"].Value,
                     "time_unix_ms": unix_ms(fields["Time"].Value),
                     "arrived_unix_ms": arrived,
+                    "event_type": fields["EventType"].Value.Identifier,
+                    "fields": {
+                        name: plain(fields[name].Value)
+                        for name in ("RecordId", "LengthMm", "WidthMm", "HeightMm", "Status", "Codes")
+                        if name in fields
+                    },
                 }
             )
             if message.startswith(f"record {record_id}"):

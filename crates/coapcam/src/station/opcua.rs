@@ -10,8 +10,12 @@
 //!   and records it; it answers the new record's id and `recorded` (0 and why, when the
 //!   table was empty), or a Bad status when measuring failed;
 //! - events: the object is an event notifier, and every record appended while the server
-//!   runs is an event (a `BaseEventType` whose `Message` starts with `record ID`, `Time`
-//!   the record's time), from `Station` and from the standard `Server` object.
+//!   runs is an event of type `NewResultEventType` (a subtype of `BaseEventType` whose
+//!   `Message` starts with `record ID` and `Time` is the record's time, with the fields
+//!   `RecordId`, `LengthMm`, `WidthMm`, `HeightMm`, `Status` and `Codes`), from `Station`
+//!   and from the standard `Server` object. async-opcua 0.19's event filters do not
+//!   compare node ids, so a where clause on `EventType` matches nothing: clients
+//!   subscribe without one (asyncua: `where_clause_generation=False`).
 //!
 //! Security: the endpoint takes security mode None and anonymous users, so it is served
 //! on a loopback address only (`--opcua` refuses any other): signed and encrypted
@@ -30,8 +34,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use async_trait::async_trait;
+use opcua::nodes::BaseEventType;
 use opcua::server::address_space::{
-    AddressSpace, EventNotifier, MethodBuilder, ObjectBuilder, VariableBuilder,
+    AddressSpace, EventNotifier, MethodBuilder, ObjectBuilder, ObjectTypeBuilder, VariableBuilder,
 };
 use opcua::server::diagnostics::NamespaceMetadata;
 use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerImpl};
@@ -39,8 +44,8 @@ use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
 use opcua::server::{ANONYMOUS_USER_TOKEN_ID, ServerBuilder, ServerEndpoint, ServerHandle};
 use opcua::sync::RwLock;
 use opcua::types::{
-    BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeId, ObjectId,
-    ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId, Variant,
+    BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeClass, NodeId,
+    ObjectId, ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId, Variant,
 };
 use tokio::net::TcpListener;
 use tokio::task::JoinHandle;
@@ -259,7 +264,10 @@ fn builder(addr: SocketAddr, station: &str, state_dir: &Path, nodes: Arc<Nodes>)
                         .namespaces_mut()
                         .add_namespace(NAMESPACE);
                     space.add_namespace(NAMESPACE, index);
-                    StationNodes { index, nodes }
+                    let station = StationNodes { index, nodes };
+                    // Here, not in `init`, which runs with the type tree locked.
+                    station.event_type(space, &context);
+                    station
                 },
             ),
         )
@@ -300,6 +308,35 @@ const RESULT_FIELDS: [(&str, DataTypeId); 10] = [
     ("Trigger", DataTypeId::String),
 ];
 
+/// The browse name of the event type of a new record, and its node id's string.
+const EVENT_TYPE: &str = "NewResultEventType";
+
+/// The fields [`NewResultEvent`] adds to `BaseEventType`, as the type's properties.
+const EVENT_FIELDS: [(&str, DataTypeId); 6] = [
+    ("RecordId", DataTypeId::UInt64),
+    ("LengthMm", DataTypeId::Double),
+    ("WidthMm", DataTypeId::Double),
+    ("HeightMm", DataTypeId::Double),
+    ("Status", DataTypeId::String),
+    ("Codes", DataTypeId::String),
+];
+
+/// The event of a new record (`NewResultEventType`, a subtype of `BaseEventType`): its id,
+/// its dimensions (null without), its status and its codes, so that a client needs no
+/// read after the event, however fast records follow each other.
+#[derive(opcua::Event)]
+#[opcua(identifier = "s=NewResultEventType", namespace = "urn:coapcam:station")]
+struct NewResultEvent {
+    base: BaseEventType,
+    own_namespace_index: u16,
+    record_id: u64,
+    length_mm: Option<f64>,
+    width_mm: Option<f64>,
+    height_mm: Option<f64>,
+    status: UAString,
+    codes: Vec<UAString>,
+}
+
 /// The node id of `path` (`Station.LatestResult.RecordId`) in namespace `index`.
 fn id(index: u16, path: &str) -> NodeId {
     NodeId::new(index, path)
@@ -322,6 +359,33 @@ impl StationNodes {
             .has_type_definition(ObjectTypeId::BaseObjectType)
             .component_of(parent.clone())
             .insert(space);
+    }
+
+    /// `NewResultEventType` under `BaseEventType`, with a property per field, in the
+    /// address space (for clients that browse it to select the fields) and in the type
+    /// tree (for the server's event filters).
+    fn event_type(&self, space: &mut AddressSpace, context: &ServerContext) {
+        let base: NodeId = ObjectTypeId::BaseEventType.into();
+        let type_id = self.id(EVENT_TYPE);
+        ObjectTypeBuilder::new(&type_id, self.name(EVENT_TYPE), EVENT_TYPE)
+            .description("A record appended to the station's results log")
+            .subtype_of(base.clone())
+            .insert(space);
+        let mut tree = context.type_tree.write();
+        tree.add_type_node(&type_id, &base, NodeClass::ObjectType);
+        for (name, data_type) in EVENT_FIELDS {
+            let id = self.id(&format!("{EVENT_TYPE}.{name}"));
+            let mut builder = VariableBuilder::new(&id, self.name(name), name)
+                .data_type(data_type)
+                .has_type_definition(VariableTypeId::PropertyType)
+                .has_modelling_rule(ObjectId::ModellingRule_Mandatory)
+                .property_of(type_id.clone());
+            if name == "Codes" {
+                builder = builder.value_rank(1);
+            }
+            builder.insert(space);
+            tree.add_type_property(&id, &type_id, &[&self.name(name)], NodeClass::Variable);
+        }
     }
 
     /// A read-only variable `parent.name`.
@@ -552,8 +616,8 @@ impl Publisher {
             .measurement
             .reported()
             .map_or_else(String::new, |r| format!(": {}", r.dimensions_text()));
-        let event = opcua::nodes::BaseEventType::new(
-            ObjectTypeId::BaseEventType,
+        let base = BaseEventType::new(
+            id(index, EVENT_TYPE),
             ByteString::from(record.hash.as_bytes().to_vec()),
             LocalizedText::from(format!("record {}{dims}", record.id)),
             time,
@@ -562,6 +626,21 @@ impl Publisher {
         .set_source_name(UAString::from(self.nodes.station.as_str()))
         .set_receive_time(DateTime::now())
         .set_severity(100);
+        let reported = record.measurement.reported();
+        let event = NewResultEvent {
+            base,
+            own_namespace_index: index,
+            record_id: record.id,
+            length_mm: reported.map(|r| r.length_mm),
+            width_mm: reported.map(|r| r.width_mm),
+            height_mm: reported.map(|r| r.height_mm),
+            status: status(&record.measurement.parcel).into(),
+            codes: record
+                .code_texts()
+                .into_iter()
+                .map(UAString::from)
+                .collect(),
+        };
         let server: NodeId = ObjectId::Server.into();
         self.handle.subscriptions().notify_events(
             [

@@ -134,7 +134,14 @@ fn asyncua_browses_reads_the_latest_result_calls_measure_now_and_gets_its_event(
     let message = event["message"].as_str().expect("a message");
     assert!(message.starts_with("record 2: "), "{event}");
     assert_eq!(event["source_name"], "dock-ua", "{event}");
+    assert_eq!(event["event_type"], "NewResultEventType", "{event}");
     let after = latest[1];
+    // The event carries the record: the same as the latest result read after it.
+    let fields = &event["fields"];
+    assert_eq!(fields["RecordId"], 2, "{event}");
+    for name in ["LengthMm", "WidthMm", "HeightMm", "Status", "Codes"] {
+        assert_eq!(fields[name], after[name], "{name}: {event} {after}");
+    }
     assert_eq!(after["RecordId"], 2, "{after}");
     assert_eq!(after["Trigger"], "request", "{after}");
     assert_eq!(after["Time"], event["time_unix_ms"], "{after} {event}");
