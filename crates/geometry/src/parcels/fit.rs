@@ -6,7 +6,8 @@ use super::edges::{move_sides, noise_reach, pixel_offsets, refine, unblur, walls
 use super::height_map::{HeightMap, opened};
 use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
 use super::rect::{RectFrame, centre, polygon, rect_area, share_outside};
-use super::round::{DiscView, lying_tube, standing_disc};
+use super::round;
+use super::shape::{Object, Shape, ShapeFit, ShapeRule};
 use super::shoulders::shoulders;
 use super::view::View;
 use crate::Point3;
@@ -32,19 +33,11 @@ const CUBOID_FIT: f64 = 0.975;
 /// one lower.
 const LEVEL_SHARE: f64 = 0.15;
 
-/// How well a cuboid describes the object.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Shape {
-    /// A box: its lid fills its rectangle and nothing reaches beyond it.
-    Cuboid,
-    /// A tube lying on the floor or a standing cylinder: its footprint from the circle
-    /// its top describes, measured as the smallest enclosing cuboid.
-    Round,
-    /// Anything else (bags, pillows, several parcels together), measured as the smallest
-    /// enclosing cuboid. Its sides curve down under its top, out of a camera's sight
-    /// above, so its length and width are known less well than a box's.
-    Irregular,
-}
+/// The shape rules, tried in this order on an object with one top: the first that
+/// answers measures it. An object none answers is a cuboid when it passes the box test
+/// ([`cuboid`]), else irregular ([`irregular`]), as is every object with more than one
+/// top. A new shape is a module of its own with a [`ShapeRule`] and its line here.
+const SHAPES: &[ShapeRule] = &[round::rule];
 
 /// One object on the table, measured.
 #[derive(Debug, Clone, PartialEq)]
@@ -310,41 +303,25 @@ fn measure(
     let dense = map.dense_points(cluster);
     let tops = map.tops(TOP_STEP_M.max(lid.band_m), FLAT_M.max(lid.band_m));
     let outside = share_outside(&lid_rect, dense.iter().map(xy), OUTSIDE_M);
-    // The dense points' hull, when needed (an irregular object's rectangle and coverage).
-    let dense_hull_once = std::cell::OnceCell::new();
-    let dense_hull = || dense_hull_once.get_or_init(|| hull(dense.iter().map(xy)));
-    // A tube lying on the floor has a lid strip that fills its rectangle, and with a deep
-    // lid band nothing reaches beyond it: its curved top tells it from a box.
-    let tube = if tops <= 1 {
-        lying_tube(&lid_rect, &dense, height_m, lid.band_m)
-    } else {
-        None
+    let object = Object {
+        cluster,
+        dense: &dense,
+        map: &map,
+        height_m,
+        band_m: lid.band_m,
+        flat: &flat,
+        slab,
+        lid_hull: &lid_hull,
+        hull_rect,
+        lid_rect,
+        margin,
+        inward,
+        views,
+        pixel,
+        box_like: fill.min(flat_fill) >= CUBOID_FIT && level && outside <= CUBOID_OUTSIDE,
     };
-    let shape = if tube.is_none()
-        && tops <= 1
-        && fill.min(flat_fill) >= CUBOID_FIT
-        && level
-        && outside <= CUBOID_OUTSIDE
-    {
-        Shape::Cuboid
-    } else {
-        Shape::Irregular
-    };
-    // A standing cylinder: a disc of a lid with nothing of the object beyond it.
-    let disc = if tube.is_none() && tops <= 1 && shape == Shape::Irregular {
-        standing_disc(
-            (&hull_rect, &lid_hull),
-            &flat,
-            &dense,
-            (margin, inward),
-            &DiscView {
-                views,
-                pixel,
-                height_m: f64::from(height_m),
-                band_m: f64::from(lid.band_m),
-            },
-        )
-        .map(|d| d.grown(pixel / 2.0))
+    let ruled = if tops <= 1 {
+        SHAPES.iter().find_map(|rule| rule(&object))
     } else {
         None
     };
@@ -352,8 +329,8 @@ fn measure(
     // into its rectangle from a side: lids of boxes are rectangles, so this is most
     // likely two parcels of nearly the same height side by side (their lids joined
     // into one top), or an item no cuboid describes. A polybag's lid is a dome that
-    // ends well inside its shoulders; a disc's lid is taken above.
-    let several = shape == Shape::Irregular && tube.is_none() && disc.is_none() && tops <= 1 && {
+    // ends well inside its shoulders; a round lid is its rule's.
+    let several = tops <= 1 && ruled.is_none() && !object.box_like && {
         let (reach, notch, solid) = map.plateau(&lid.points, &hull_rect);
         reach >= PLATEAU_REACH && notch >= NOTCH_SHARE && solid >= PLATEAU_SOLID
     };
@@ -361,70 +338,74 @@ fn measure(
     // both): parcels side by side whatever the shape says (looked for only where
     // nothing has said so yet: the profile costs a pass over the height map).
     let seam = tops <= 1 && !several && map.seam(&hull_rect, height_m, FLAT_M.max(lid.band_m));
-    let corners = match (shape, &tube) {
-        // Along its axis the lid strip, which runs the tube's whole length at its top
-        // (the flying pixels beyond its round ends lie lower); across it the circle.
-        (_, Some(t)) => t.footprint(&lid_rect),
-        _ if disc.is_some() => disc.map_or(hull_rect, |d| d.footprint(&hull_rect)),
-        (Shape::Cuboid, None) => unblur(
-            lid_rect,
-            cluster,
-            (height_m, slab),
-            (views, pixel),
-            config.min_height_m,
-        ),
-        // Around every dense point, each edge placed by the points' density as a lid's
-        // is: the thin fringe of flying pixels around a tall object counts little.
-        (_, None) => {
-            let around = rect_around(dense_hull()).map_or(hull_rect, |r| {
-                refine(
-                    r,
-                    &dense,
-                    margin.max(0.006),
-                    (0.003, [f64::INFINITY; 4]),
-                    0.0,
-                )
-            });
-            // A lid with rounded corners is a pillow's: its sides curve down to the floor.
-            // (A lying tube's lid fills its rectangle; it is irregular for its sides.)
-            if fit.min(flat_fit) < CUBOID_FIT {
-                shoulders(around, &dense, height_m, views)
-            } else {
-                around
-            }
-        }
-    };
-    let peak = map.peak();
-    let top_m = match (shape, &tube) {
-        // The circle's top, where the noise is averaged over the whole section.
-        (_, Some(t)) => (2.0 * t.radius) as f32,
-        // A flat lid: the band's median, as a box's.
-        _ if disc.is_some() => height_m,
-        (Shape::Cuboid, None) => height_m,
-        (_, None) => peak.map_or(height_m, |p| p.max(height_m)),
-    };
-    // A box seen from above covers its footprint, a tube the strip of it where its
-    // circle was seen (a raw camera's floor noise joined to it is no hole in it), a
-    // standing cylinder its disc; other shapes their dense points' hull.
-    let coverage = match (shape, &tube) {
-        (_, Some(t)) => map.coverage(&polygon(&t.seen(&lid_rect))),
-        (Shape::Cuboid, _) => map.coverage(&polygon(&corners)),
-        _ if disc.is_some() => disc.map_or(1.0, |d| map.coverage(&d.polygon())),
-        (_, None) => map.coverage(dense_hull()),
+    let measured = match ruled {
+        Some(measured) => measured,
+        None if tops <= 1 && object.box_like => cuboid(&object, config.min_height_m),
+        None => irregular(&object, fit.min(flat_fit)),
     };
     Ok(ParcelFit {
-        dimensions: rect_dimensions(corners, f64::from(top_m), cluster.len()),
-        shape: if tube.is_some() || disc.is_some() {
-            Shape::Round
-        } else {
-            shape
-        },
+        dimensions: rect_dimensions(measured.footprint, f64::from(measured.top_m), cluster.len()),
+        shape: measured.shape,
         fit: fill,
         tops: if seam { tops.max(2) } else { tops },
         isolated: tops <= 1 && !several && !seam,
-        coverage,
+        coverage: measured.coverage,
         out_of_view: false,
-        complete: coverage >= f64::from(config.min_coverage),
+        complete: measured.coverage >= f64::from(config.min_coverage),
         no_depth: false,
     })
+}
+
+/// The cuboid fallback, for an object with one top that passes the box test: its lid's
+/// rectangle with the sides the spatial filter sank or rounded moved out (see `unblur`),
+/// its top the lid band's median, and it covers its footprint.
+fn cuboid(object: &Object<'_>, min_height_m: f32) -> ShapeFit {
+    let footprint = unblur(
+        object.lid_rect,
+        object.cluster,
+        (object.height_m, object.slab),
+        (object.views, object.pixel),
+        min_height_m,
+    );
+    ShapeFit {
+        shape: Shape::Cuboid,
+        footprint,
+        top_m: object.height_m,
+        coverage: object.map.coverage(&polygon(&footprint)),
+    }
+}
+
+/// The irregular fallback: the rectangle around every dense point, each edge placed by
+/// the points' density as a lid's is (the thin fringe of flying pixels around a tall
+/// object counts little), and where the lid has rounded corners, a pillow's (`lid_fill`,
+/// the lesser of the shares of their rectangles that the lid's hull and its flattest
+/// points' hull fill, under [`CUBOID_FIT`]), its sides continued down to the floor (see
+/// `shoulders`). Its top is its apex (the height map's `peak`, at least the lid's
+/// height); it covers its dense points' hull.
+fn irregular(object: &Object<'_>, lid_fill: f64) -> ShapeFit {
+    let xy = |p: &Point3| [f64::from(p.x), f64::from(p.y)];
+    let dense_hull = hull(object.dense.iter().map(xy));
+    let around = rect_around(&dense_hull).map_or(object.hull_rect, |r| {
+        refine(
+            r,
+            object.dense,
+            object.margin.max(0.006),
+            (0.003, [f64::INFINITY; 4]),
+            0.0,
+        )
+    });
+    let footprint = if lid_fill < CUBOID_FIT {
+        shoulders(around, object.dense, object.height_m, object.views)
+    } else {
+        around
+    };
+    ShapeFit {
+        shape: Shape::Irregular,
+        footprint,
+        top_m: object
+            .map
+            .peak()
+            .map_or(object.height_m, |p| p.max(object.height_m)),
+        coverage: object.map.coverage(&dense_hull),
+    }
 }

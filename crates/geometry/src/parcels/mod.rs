@@ -47,6 +47,7 @@ mod fit;
 mod height_map;
 mod rect;
 mod round;
+mod shape;
 mod shoulders;
 mod view;
 
@@ -58,10 +59,11 @@ use geo::{Area, Distance as _, Euclidean, Intersects as _, Polygon};
 use crate::dimension::{DimensionConfig, DimensionError, Dimensions, above_floor, clusters, hull};
 use crate::{Point3, PointCloud};
 
+pub use fit::ParcelFit;
 use fit::fit;
-pub use fit::{ParcelFit, Shape};
 use height_map::Cell2;
 use rect::{OUTSIDE_M, RectFrame, centre, polygon, share_outside, sub};
+pub use shape::Shape;
 pub use view::{View, hidden_bounds, hidden_share};
 
 /// Objects with fewer points than this share of the largest one's are not parcels

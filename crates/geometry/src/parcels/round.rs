@@ -1,11 +1,64 @@
-//! Round parcels: a tube lying on the floor, a cylinder standing on it.
+//! Round parcels: a tube lying on the floor, a cylinder standing on it. Its shape rule is
+//! [`rule`].
 
 use geo::{Area, Coord, LineString, Polygon};
 
 use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
-use super::rect::{RectFrame, sub};
+use super::rect::{RectFrame, polygon, sub};
+use super::shape::{Object, Shape, ShapeFit};
 use super::view::View;
 use crate::Point3;
+
+/// The round shape rule: a tube lying on the floor, or else, when the object fails the box
+/// test, a standing cylinder (a lid that passes as a box is a box).
+///
+/// A lying tube's lid strip fills its rectangle, and with a deep lid band nothing reaches
+/// beyond it: its curved top tells it from a box. Its footprint is the lid strip along
+/// its axis (the strip runs the tube's whole length at its top; the flying pixels beyond
+/// its round ends lie lower) and the circle across it; its top the circle's, where the
+/// noise is averaged over the whole section; it covers the strip where its circle was seen
+/// (a raw camera's floor noise joined to it is no hole in it).
+///
+/// A standing cylinder's lid is a disc with nothing of the object beyond it: its footprint
+/// the square around the disc (grown by half a pixel, as a box's edges are), its top the
+/// lid band's median, as a box's, and it covers its disc.
+pub(super) fn rule(object: &Object<'_>) -> Option<ShapeFit> {
+    if let Some(tube) = lying_tube(
+        &object.lid_rect,
+        object.dense,
+        object.height_m,
+        object.band_m,
+    ) {
+        return Some(ShapeFit {
+            shape: Shape::Round,
+            footprint: tube.footprint(&object.lid_rect),
+            top_m: (2.0 * tube.radius) as f32,
+            coverage: object.map.coverage(&polygon(&tube.seen(&object.lid_rect))),
+        });
+    }
+    if object.box_like {
+        return None;
+    }
+    let disc = standing_disc(
+        (&object.hull_rect, object.lid_hull),
+        object.flat,
+        object.dense,
+        (object.margin, object.inward),
+        &DiscView {
+            views: object.views,
+            pixel: object.pixel,
+            height_m: f64::from(object.height_m),
+            band_m: f64::from(object.band_m),
+        },
+    )?
+    .grown(object.pixel / 2.0);
+    Some(ShapeFit {
+        shape: Shape::Round,
+        footprint: disc.footprint(&object.hull_rect),
+        top_m: object.height_m,
+        coverage: object.map.coverage(&disc.polygon()),
+    })
+}
 
 /// A tube lying on the floor: its cross-section, in the frame of the lid's rectangle.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -26,12 +79,12 @@ impl LyingTube {
     /// The part of the footprint the cameras see the tube over: the lid's rectangle
     /// along the axis, across it where the circle's points lie. (Beyond the far side's
     /// turn no camera above sees anything, hole or not.)
-    pub(super) fn seen(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
+    fn seen(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
         self.across(rect, self.seen)
     }
 
     /// The footprint: the lid's rectangle along the axis, the circle's diameter across.
-    pub(super) fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
+    fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
         self.across(rect, [self.centre - self.radius, self.centre + self.radius])
     }
 
@@ -51,13 +104,13 @@ impl LyingTube {
 
 /// A standing cylinder's lid.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct Disc {
+struct Disc {
     centre: [f64; 2],
-    pub(super) radius: f64,
+    radius: f64,
 }
 
 impl Disc {
-    pub(super) fn grown(self, by: f64) -> Self {
+    fn grown(self, by: f64) -> Self {
         Self {
             radius: self.radius + by,
             ..self
@@ -65,7 +118,7 @@ impl Disc {
     }
 
     /// The square around it, along the rectangle `rect`'s edges.
-    pub(super) fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
+    fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
         let e = sub(rect[1], rect[0]);
         let n = e[0].hypot(e[1]);
         let a = if n > 0.0 {
@@ -85,7 +138,7 @@ impl Disc {
     }
 
     /// The disc as a polygon of 64 sides.
-    pub(super) fn polygon(&self) -> Polygon<f64> {
+    fn polygon(&self) -> Polygon<f64> {
         let ring: Vec<Coord<f64>> = (0..64)
             .map(|k| {
                 let a = f64::from(k) * std::f64::consts::TAU / 64.0;
@@ -153,15 +206,15 @@ fn circle_through(points: &[[f64; 2]]) -> Option<([f64; 2], f64)> {
 /// (`band_m` deep) along their rays, sideways at its rim (metres; see
 /// `super::edges::noise_reach`).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct DiscView<'a> {
+struct DiscView<'a> {
     /// The cameras.
-    pub(super) views: &'a [View],
+    views: &'a [View],
     /// A pixel's size at the lid, metres (0 without cameras).
-    pub(super) pixel: f64,
+    pixel: f64,
     /// The lid's height and its band's depth, metres.
-    pub(super) height_m: f64,
+    height_m: f64,
     /// See `height_m`.
-    pub(super) band_m: f64,
+    band_m: f64,
 }
 
 impl DiscView<'_> {
@@ -193,7 +246,7 @@ impl DiscView<'_> {
 /// that density (the top of the side wall seen from the side is no lid). Where the disc's
 /// rectangle was placed by strips, a disc thins towards each extreme as a square root, and
 /// the strip count put its edges about 3 mm inside: cylinders came out 3.5-6.7 mm narrow.
-pub(super) fn standing_disc(
+fn standing_disc(
     (rect, hull): (&[[f64; 2]; 4], &Polygon<f64>),
     flat: &[Point3],
     dense: &[Point3],
