@@ -380,7 +380,9 @@ impl Table {
     /// angle, its glare or its shadow ([`geometry::hidden_share`]), not a parcel. A box
     /// measured whole (`returned_whole`) is no part of a region that reaches a parcel's
     /// side beyond what it covers or hides on one side only: that is another parcel
-    /// beside it, and the region is cut back to it (`beyond`).
+    /// beside it, and the region is cut back to it (`beyond`). A soft parcel (irregular)
+    /// that the region rings is refused on its own: its sides returned no depth, so where
+    /// it meets the floor is not known.
     #[must_use]
     pub fn with_no_depth(mut self, regions: &[NoDepth], views: &[View]) -> Self {
         let footprint = |f: &ParcelFit| {
@@ -434,6 +436,30 @@ impl Table {
                         && rects[i].intersection_m2(&r) >= 0.5 * rects[i].rect_m2()
                 })
                 .collect();
+            // A soft parcel (irregular: a polybag), measured whole, that the region rings
+            // and that holds at least as many points as the region has pixels (its rim, not
+            // a parcel that returned almost nothing): its sides, which curve down to the
+            // floor, returned no depth (a black bag's shoulders), so where it meets the
+            // floor is not known. It is refused on its own, and the region is its rim: the
+            // parcels with sharp edges in it keep their numbers.
+            let soft: Vec<usize> = inside
+                .iter()
+                .copied()
+                .filter(|&i| {
+                    let f = &self.fits[i];
+                    f.shape == Shape::Irregular
+                        && f.complete
+                        && f.dimensions.points as u64 >= u64::from(r.pixels)
+                        && r.rings(&rects[i])
+                })
+                .collect();
+            if !soft.is_empty() {
+                for i in soft {
+                    taken[i] = true;
+                    blind.push(ParcelFit::no_depth(self.fits[i].dimensions.corners_m));
+                }
+                continue;
+            }
             // Bordered mostly by depth that is not floor, with no parcel in it: a hole in
             // a surface the cloud holds (a wall at a grazing angle), not a parcel.
             if inside.is_empty() && r.floor_border < PARCEL_FLOOR_BORDER {
@@ -903,6 +929,77 @@ mod tests {
             refused.fits.len() == 1 && refused.fits[0].no_depth,
             "{:?}",
             refused.fits
+        );
+    }
+
+    /// A black bag under a camera straight above: its top returned depth, its shoulders
+    /// none, so it reads short and the ring of its shoulders lies within what the short
+    /// parcel covers or hides (cert scenes 110, 442: read 25-67 mm short, billed). A soft
+    /// parcel ringed by pixels without depth is refused; a box with the same ring (a dark
+    /// box's walls) keeps its number, and so does a bag that a neighbour's region only
+    /// reaches under.
+    #[test]
+    fn a_soft_parcel_ringed_by_no_depth_is_refused() {
+        let eye = geometry::Transform {
+            linear: nalgebra::Matrix3::identity(),
+            translation: nalgebra::Vector3::new(0.2, 0.15, 1.5),
+        };
+        let view = View::pinhole(eye, 600.0, 600.0, 320.0, 240.0, 640, 480);
+        let mut bag = placed(400.0, 300.0, [0.0, 0.0], 20_000);
+        bag.dimensions.height_mm = 300.0;
+        bag.shape = Shape::Irregular;
+        let ring = region([-0.02, -0.02], [0.42, 0.32], 8_000);
+        let table = |f: &ParcelFit| Table {
+            fits: vec![f.clone()],
+            largest_points: 20_000,
+        };
+        let refused = table(&bag).with_no_depth(&[ring], &[view]);
+        assert!(
+            refused.fits.len() == 1 && refused.fits[0].no_depth,
+            "{:?}",
+            refused.fits
+        );
+        let boxed = ParcelFit {
+            shape: Shape::Cuboid,
+            ..bag
+        };
+        assert_eq!(
+            table(&boxed).with_no_depth(&[ring], &[view]).fits,
+            vec![boxed]
+        );
+        let under = region([0.3, -0.02], [0.6, 0.32], 8_000);
+        let beside = table(&bag).with_no_depth(&[under], &[view]);
+        assert!(beside.fits.contains(&bag), "{:?}", beside.fits);
+        // A box in the ring's region with the bag keeps its number.
+        let mut both = table(&bag);
+        let small = placed(100.0, 100.0, [0.25, 0.1], 5_000);
+        both.fits.push(small.clone());
+        let wide = region([-0.02, -0.02], [0.42, 0.32], 20_000);
+        let kept = both.with_no_depth(&[wide], &[view]);
+        assert!(
+            kept.fits.len() == 2 && kept.fits.contains(&small),
+            "{:?}",
+            kept.fits
+        );
+        // What little a parcel that returns almost nothing gave (fewer points than the
+        // region has pixels) is no rim of its own: the region with it is one refusal.
+        let sliver = ParcelFit {
+            dimensions: Dimensions {
+                points: 500,
+                ..bag.dimensions
+            },
+            ..bag
+        };
+        let one = table(&sliver).with_no_depth(&[ring], &[view]);
+        assert!(
+            one.fits.len() == 1 && one.fits[0].no_depth,
+            "{:?}",
+            one.fits
+        );
+        let c = one.fits[0].dimensions.corners_m;
+        assert!(
+            (c[0][0] + 0.02).abs() < 1e-6,
+            "the region's rectangle: {c:?}"
         );
     }
 

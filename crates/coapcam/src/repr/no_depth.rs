@@ -59,6 +59,11 @@ impl NoDepth {
         (0..2).all(|k| self.min_m[k] <= other.max_m[k] && other.min_m[k] <= self.max_m[k])
     }
 
+    /// Whether its rectangle reaches beyond `other`'s on every side: a rim around it.
+    pub fn rings(&self, other: &Self) -> bool {
+        (0..2).all(|k| self.min_m[k] < other.min_m[k] && self.max_m[k] > other.max_m[k])
+    }
+
     /// The area of its rectangle, m².
     pub fn rect_m2(&self) -> f32 {
         (self.max_m[0] - self.min_m[0]) * (self.max_m[1] - self.min_m[1])
