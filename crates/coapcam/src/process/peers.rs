@@ -83,30 +83,26 @@ pub fn aiocoap() -> Result<(), String> {
     if on_path(AIOCOAP_CLIENT).is_none() {
         return Err(format!("{AIOCOAP_CLIENT} is not on PATH (PyPI aiocoap)"));
     }
-    let import = Command::new("python3")
-        .args(["-c", "import aiocoap"])
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status();
-    match import {
-        Ok(s) if s.success() => Ok(()),
-        _ => Err("python3 cannot import aiocoap (PyPI aiocoap)".into()),
-    }
+    python_imports("aiocoap")
 }
 
 /// Whether asyncua (PyPI), the OPC UA client library of `tests/peers/opcua_client.py`,
 /// is importable by `python3`.
 pub fn asyncua() -> Result<(), String> {
+    python_imports("asyncua")
+}
+
+/// Whether `python3` imports `module`, a PyPI package of the same name.
+fn python_imports(module: &str) -> Result<(), String> {
     let import = Command::new("python3")
-        .args(["-c", "import asyncua"])
+        .args(["-c", &format!("import {module}")])
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .status();
     match import {
         Ok(s) if s.success() => Ok(()),
-        _ => Err("python3 cannot import asyncua (PyPI asyncua)".into()),
+        _ => Err(format!("python3 cannot import {module} (PyPI {module})")),
     }
 }
 

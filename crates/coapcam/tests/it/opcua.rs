@@ -5,11 +5,8 @@
 
 use std::time::Duration;
 
-use coap::{Code, ContentFormat, OptionNumber, Request};
-use coapcam::report::Measurement;
-
 use crate::support::{
-    COAPCAM, Peer, Proc, Station, TempDir, available, client, runtime, script, station,
+    COAPCAM, Peer, Proc, Station, TempDir, available, client, measure, runtime, script, station,
 };
 
 /// Longest wait for the client script, and for each of its steps.
@@ -37,22 +34,7 @@ fn asyncua_browses_reads_the_latest_result_calls_measure_now_and_gets_its_event(
     );
     let opcua = opcua.expect("the OPC UA server's address (its line at the start)");
     // Record 1, made before the client connects: the latest result it reads.
-    let first = runtime().block_on(async {
-        let mut request = Request::new(Code::POST, "/cams/dimensions");
-        request.timeout = Some(LIMIT);
-        request.options.push(OptionNumber::URI_QUERY, b"codes");
-        request
-            .options
-            .set_uint(OptionNumber::ACCEPT, u32::from(ContentFormat::CBOR.0));
-        let r = client().send(coap, request).await.expect("an answer");
-        assert_eq!(
-            r.code,
-            Code::CONTENT,
-            "{}",
-            String::from_utf8_lossy(&r.payload)
-        );
-        Measurement::from_cbor(&r.payload).expect("CBOR")
-    });
+    let first = runtime().block_on(measure(&client(), coap));
     let first = *first
         .reported()
         .expect("the default scene's parcel is measured");

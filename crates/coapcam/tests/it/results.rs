@@ -17,26 +17,9 @@ use coapcam::report::Measurement;
 use coapcam::station::log::{ResultsLog, Retention};
 
 use crate::support::{
-    COAPCAM, DEPTH_640, LIMIT, Proc, SN, TempDir, client, runtime, send, serve_with, station,
+    COAPCAM, DEPTH_640, LIMIT, Proc, SN, TempDir, client, measure, runtime, send, serve_with,
+    station,
 };
-
-/// `POST /cams/dimensions` (CBOR), the measurement it answered.
-async fn measure(c: &coap_net::Client, addr: std::net::SocketAddr) -> Measurement {
-    let mut request = Request::new(Code::POST, "/cams/dimensions");
-    request.timeout = Some(LIMIT);
-    request.options.push(OptionNumber::URI_QUERY, b"codes");
-    request
-        .options
-        .set_uint(OptionNumber::ACCEPT, u32::from(ContentFormat::CBOR.0));
-    let r = c.send(addr, request).await.expect("an answer");
-    assert_eq!(
-        r.code,
-        Code::CONTENT,
-        "{}",
-        String::from_utf8_lossy(&r.payload)
-    );
-    Measurement::from_cbor(&r.payload).expect("a measurement")
-}
 
 /// `GET path` with its query items and Accept.
 async fn get(

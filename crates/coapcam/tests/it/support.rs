@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex, mpsc};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use coap::{Code, EndpointConfig, OptionNumber, Request, Response};
+use coap::{Code, ContentFormat, EndpointConfig, OptionNumber, Request, Response};
 use coap_net::Client;
 use coapcam::process::{self, peers};
 
@@ -899,4 +899,22 @@ pub(crate) fn billed_numbers(m: &serde_json::Value) -> [String; 3] {
         assert_eq!(mm % 5.0, 0.0, "{key} is not a multiple of 5 mm: {m}");
         format!("{mm:.0}")
     })
+}
+
+/// `POST /cams/dimensions` (CBOR), the measurement it answered.
+pub(crate) async fn measure(c: &Client, addr: SocketAddr) -> coapcam::report::Measurement {
+    let mut request = Request::new(Code::POST, "/cams/dimensions");
+    request.timeout = Some(LIMIT);
+    request.options.push(OptionNumber::URI_QUERY, b"codes");
+    request
+        .options
+        .set_uint(OptionNumber::ACCEPT, u32::from(ContentFormat::CBOR.0));
+    let r = c.send(addr, request).await.expect("an answer");
+    assert_eq!(
+        r.code,
+        Code::CONTENT,
+        "{}",
+        String::from_utf8_lossy(&r.payload)
+    );
+    coapcam::report::Measurement::from_cbor(&r.payload).expect("a measurement")
 }
