@@ -11,15 +11,19 @@ use std::collections::BTreeMap;
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 
-use clap::builder::Resettable;
 use clap::parser::ValueSource;
-use clap::{Arg, ArgAction, ArgMatches, Command};
+use clap::{ArgAction, ArgMatches, Command};
+use coapcam::station::keys;
+use coapcam::station::outputs::{self, Entry};
 use toml::{Spanned, Value};
 
 /// The subcommand a configuration file is for.
 const SERVE: &str = "serve";
 /// Flags that are not keys: they say where the keys are, or end the command.
 const NOT_KEYS: [&str; 3] = ["help", "config", "print_config"];
+/// The key of the file's list of outputs, `[[output]]` (a hidden flag, `--output`, with
+/// one inline table per output).
+const OUTPUT: &str = "output";
 /// What a masked password reads as.
 const MASK: &str = "********";
 
@@ -110,11 +114,33 @@ struct FileKey {
 fn file_keys(path: &Path, cmd: &Command, given: &ArgMatches) -> Result<Vec<FileKey>, String> {
     let name = path.display();
     let text = std::fs::read_to_string(path).map_err(|e| format!("reading {name}: {e}"))?;
-    let keys = keys(&text).map_err(|e| format!("{name}: {e}"))?;
     let mut flags = Vec::new();
-    for (key, value) in keys {
+    for (key, value) in file_table(&text).map_err(|e| format!("{name}: {e}"))? {
         let line = line_of(&text, key.span().start);
         let at = |what: String| format!("{name}:{line}: {what}");
+        if key.get_ref() == OUTPUT {
+            if !matches!(value.get_ref(), Value::Array(tables) if tables.iter().all(Value::is_table))
+            {
+                return Err(at(format!(
+                    "`{OUTPUT}` is a list of tables: [[{OUTPUT}]] with `{}` = one of {}, and that kind's keys",
+                    outputs::KIND,
+                    outputs::KINDS.join(", ")
+                )));
+            }
+            let words = output_tables(&text)
+                .map_err(|(line, why)| format!("{name}:{line}: {why}"))?
+                .iter()
+                .map(|entry| format!("--{OUTPUT}={entry}"))
+                .collect();
+            if given.value_source(OUTPUT) != Some(ValueSource::CommandLine) {
+                flags.push(FileKey {
+                    name: key.into_inner(),
+                    line,
+                    words,
+                });
+            }
+            continue;
+        }
         let arg = cmd
             .get_arguments()
             .find(|a| a.get_long() == Some(key.get_ref().as_str()))
@@ -125,8 +151,8 @@ fn file_keys(path: &Path, cmd: &Command, given: &ArgMatches) -> Result<Vec<FileK
                     key.get_ref()
                 ))
             })?;
-        let words = arg_words(arg, key.get_ref(), value.get_ref()).map_err(at)?;
-        check(arg, &words).map_err(|e| at(format!("`{}`: {e}", key.get_ref())))?;
+        let words = keys::words(arg, key.get_ref(), value.get_ref()).map_err(at)?;
+        keys::check(arg, &words).map_err(|e| at(format!("`{}`: {e}", key.get_ref())))?;
         if given.value_source(arg.get_id().as_str()) != Some(ValueSource::CommandLine) {
             flags.push(FileKey {
                 name: key.into_inner(),
@@ -138,11 +164,54 @@ fn file_keys(path: &Path, cmd: &Command, given: &ArgMatches) -> Result<Vec<FileK
     Ok(flags)
 }
 
+/// The `[[output]]` tables of the file `text` as outputs, in its order; or the line at
+/// fault and why: a key or value of a table refused, or a name given twice.
+fn output_tables(text: &str) -> Result<Vec<Entry>, (usize, String)> {
+    type SpannedTable = Spanned<BTreeMap<Spanned<String>, Spanned<Value>>>;
+    #[derive(serde::Deserialize)]
+    struct File {
+        output: Vec<SpannedTable>,
+    }
+    let file: File = toml::from_str(text).map_err(|e| (1, e.message().to_owned()))?;
+    let mut entries: Vec<Entry> = Vec::new();
+    for spanned in file.output {
+        let table_line = line_of(text, spanned.span().start);
+        let key_line = |key: &str| {
+            spanned
+                .get_ref()
+                .keys()
+                .find(|k| k.get_ref() == key)
+                .map_or(table_line, |k| line_of(text, k.span().start))
+        };
+        let table = spanned
+            .get_ref()
+            .iter()
+            .map(|(k, v)| (k.get_ref().clone(), v.get_ref().clone()))
+            .collect();
+        let entry = Entry::from_table(table).map_err(|e| {
+            let line = e.key.as_deref().map_or(table_line, &key_line);
+            (line, format!("[[{OUTPUT}]]: {}", e.why))
+        })?;
+        if entries.iter().any(|e| e.name() == entry.name()) {
+            return Err((
+                key_line(outputs::ID),
+                format!(
+                    "[[{OUTPUT}]]: a second output named `{}`: give each output of a kind an `{}` of its own (it names the output's cursor in the results log)",
+                    entry.name(),
+                    outputs::ID
+                ),
+            ));
+        }
+        entries.push(entry);
+    }
+    Ok(entries)
+}
+
 /// A key of the file and its value, with where each is.
 type Key = (Spanned<String>, Spanned<Value>);
 
 /// The file's keys and values with where they are, in the file's order.
-fn keys(text: &str) -> Result<Vec<Key>, String> {
+fn file_table(text: &str) -> Result<Vec<Key>, String> {
     let table: BTreeMap<Spanned<String>, Spanned<Value>> =
         toml::from_str(text).map_err(|e| e.to_string().trim_end().to_owned())?;
     let mut keys: Vec<_> = table.into_iter().collect();
@@ -155,67 +224,14 @@ fn line_of(text: &str, offset: usize) -> usize {
     text.get(..offset).unwrap_or(text).matches('\n').count() + 1
 }
 
-/// `key = value` as the words of a command line: `--key=VALUE` once per value, a flag
-/// without a value when `true` and not at all when `false`.
-fn arg_words(arg: &Arg, key: &str, value: &Value) -> Result<Vec<String>, String> {
-    let flag = format!("--{key}");
-    if !arg.get_action().takes_values() {
-        return match value {
-            Value::Boolean(true) => Ok(vec![flag]),
-            Value::Boolean(false) => Ok(Vec::new()),
-            _ => Err(format!("`{key}` is true or false")),
-        };
-    }
-    let scalar = |v: &Value| match v {
-        Value::String(s) => Ok(s.clone()),
-        Value::Integer(i) => Ok(i.to_string()),
-        Value::Float(f) => Ok(f.to_string()),
-        Value::Boolean(b) => Ok(b.to_string()),
-        _ => Err(format!(
-            "`{key}` takes a string or a number, not {}",
-            v.type_str()
-        )),
-    };
-    let values = match (value, arg.get_action()) {
-        (Value::Array(items), ArgAction::Append) => {
-            items.iter().map(scalar).collect::<Result<_, _>>()?
-        }
-        (Value::Array(_), _) => return Err(format!("`{key}` takes one value, not a list")),
-        (v, _) => vec![scalar(v)?],
-    };
-    Ok(values.into_iter().map(|v| format!("{flag}={v}")).collect())
-}
-
-/// Parses `words` (one flag's) with the flag alone: its parser's error, or nothing. The
-/// rules between flags (requires, conflicts) are checked when all are parsed together.
-fn check(arg: &Arg, words: &[String]) -> Result<(), String> {
-    let alone = arg
-        .clone()
-        .required(false)
-        .requires(Resettable::Reset)
-        .conflicts_with(Resettable::Reset)
-        .overrides_with(Resettable::Reset)
-        .required_unless_present(Resettable::Reset);
-    Command::new(SERVE)
-        .no_binary_name(true)
-        .disable_help_flag(true)
-        .arg(alone)
-        .try_get_matches_from(words)
-        .map(drop)
-        .map_err(|e| {
-            let text = e.to_string();
-            let first = text.lines().next().unwrap_or_default();
-            first.trim_start_matches("error: ").to_owned()
-        })
-}
-
 /// The flags of `matches` in effect as a configuration file: those given (on the command
 /// line or in a file) as keys, the defaults as comments, in `cmd`'s order. Passwords in
 /// URLs are masked; the second value names the keys that had one.
 fn print(cmd: &Command, matches: &ArgMatches) -> (String, Vec<String>) {
     let mut text = String::from(
         "# coapcam serve --config: each key is a flag of `coapcam serve --help` without its\n\
-         # --; a flag given on the command line overrides the key. Commented: defaults.\n",
+         # --; a flag given on the command line overrides the key. Commented: defaults.\n\
+         # More outputs, several of a kind: [[output]] tables (docs/station.md).\n",
     );
     let mut masked = Vec::new();
     for arg in cmd.get_arguments() {
@@ -247,6 +263,19 @@ fn print(cmd: &Command, matches: &ArgMatches) -> (String, Vec<String>) {
             _ => "# ",
         };
         text.push_str(&format!("{comment}{key} = {value}\n"));
+    }
+    for entry in matches.get_many::<Entry>(OUTPUT).into_iter().flatten() {
+        text.push_str(&format!("\n[[{OUTPUT}]]\n"));
+        for (key, value) in entry.keys() {
+            let value = match value.as_str().and_then(mask) {
+                Some(hidden) => {
+                    masked.push(format!("the [[{OUTPUT}]] `{}`'s `{key}`", entry.name()));
+                    Value::String(hidden)
+                }
+                None => value.clone(),
+            };
+            text.push_str(&format!("{key} = {value}\n"));
+        }
     }
     (text, masked)
 }

@@ -87,12 +87,40 @@ impl Follower {
     }
 }
 
+/// Which output of its kind one is: the `id` a configuration file's `[[output]]` gives it,
+/// or none (an output given by its flag, or a table without an `id` or with its kind's
+/// name as one). It names the output's durable cursor in the log ([`OutputId::cursor`]),
+/// so that two outputs of a kind each keep their own position.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct OutputId(Option<String>);
+
+impl OutputId {
+    /// The output `id` of kind `kind`: none when `id` is the kind's name.
+    pub fn new(kind: &str, id: Option<&str>) -> Self {
+        Self(id.filter(|id| *id != kind).map(str::to_owned))
+    }
+
+    /// Its id, when it has one of its own.
+    pub fn id(&self) -> Option<&str> {
+        self.0.as_deref()
+    }
+
+    /// The name of its durable cursor in the log: `KIND` (the cursor of the output its
+    /// flag gives, as before there were lists), or `KIND/ID`.
+    pub fn cursor(&self, kind: &str) -> String {
+        match &self.0 {
+            None => kind.to_owned(),
+            Some(id) => format!("{kind}/{id}"),
+        }
+    }
+}
+
 /// Where a [`Sink`] starts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Start {
     /// After its durable cursor of this name in the log, which [`run`] moves past each
     /// record it takes: it gets every record, across restarts and failures.
-    Cursor(&'static str),
+    Cursor(String),
     /// After the record with this id.
     After(u64),
     /// After the newest record at its start: the records appended from then on.
@@ -183,7 +211,8 @@ pub async fn run<S: Sink>(log: ResultsLog, mut sink: S) {
     let (start, consumer) = match sink.start() {
         Start::Cursor(consumer) => loop {
             let l = log.clone();
-            match tokio::task::spawn_blocking(move || l.cursor(consumer)).await {
+            let c = consumer.clone();
+            match tokio::task::spawn_blocking(move || l.cursor(&c)).await {
                 Ok(Ok(cursor)) => break (cursor, Some(consumer)),
                 Ok(Err(e)) => tracing::warn!("{name}: reading its cursor: {e}"),
                 Err(e) => tracing::warn!("{name}: reading its cursor: {e}"),
@@ -229,7 +258,7 @@ struct Run {
     name: String,
     log: ResultsLog,
     /// Its durable cursor's name, when [`run`] keeps one.
-    consumer: Option<&'static str>,
+    consumer: Option<String>,
     follower: Follower,
     /// The next wait after a failure.
     backoff: Duration,
@@ -294,11 +323,11 @@ impl Run {
 
     /// Moves the durable cursor, when there is one, past record `id`.
     async fn move_cursor(&self, id: u64) -> Next {
-        let Some(consumer) = self.consumer else {
+        let Some(consumer) = self.consumer.clone() else {
             return Next::Go;
         };
         let log = self.log.clone();
-        match tokio::task::spawn_blocking(move || log.set_cursor(consumer, id)).await {
+        match tokio::task::spawn_blocking(move || log.set_cursor(&consumer, id)).await {
             Ok(Ok(())) => Next::Go,
             Ok(Err(e)) => Next::Retry(format!("moving the cursor: {e}")),
             Err(e) => Next::Retry(format!("moving the cursor: {e}")),
@@ -347,7 +376,7 @@ mod tests {
 
         fn start(&self) -> Start {
             if self.durable {
-                Start::Cursor("flaky")
+                Start::Cursor("flaky".into())
             } else {
                 Start::Newest
             }

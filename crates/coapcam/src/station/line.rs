@@ -23,7 +23,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
-use super::follow::{self, Feed, Next, Output, Sink, Start};
+use super::follow::{self, Feed, Next, Output, OutputId, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::Record;
 use crate::report::format_mm;
@@ -55,10 +55,12 @@ impl Args {
         self.line_output.is_some()
     }
 
-    /// The line output `--line-output` asks for, listening.
+    /// The line output `--line-output` asks for, listening (it keeps no
+    /// cursor: its id only tells it apart).
     pub(super) async fn start(
         &self,
         feed: &Feed<'_>,
+        _id: &OutputId,
     ) -> Result<Option<Box<dyn Output>>, ListenError> {
         let Some(addr) = self.line_output else {
             return Ok(None);

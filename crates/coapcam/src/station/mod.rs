@@ -9,7 +9,9 @@
 //! - `recorder`: [`Recorder`], which appends a measurement under the station's name (and
 //!   is how the camera server keeps what it measures for clients);
 //! - [`follow`]: the one follower of the log, and the `Sink` trait of its outputs;
-//! - [`outputs`]: the list of the outputs, each with its flags ([`Outputs`]);
+//! - [`outputs`]: the list of the outputs, each with its flags ([`Outputs`]), and a
+//!   configuration file's `[[output]]` tables;
+//! - [`keys`]: a configuration file's key as the flag it names (its value as words);
 //! - `reads`: the log's read API (list, one record, pictures, refusals), once for both
 //!   front ends;
 //! - `resources`: the log as CoAP resources (`/station/measurements...`);
@@ -30,6 +32,7 @@ pub mod auto;
 pub mod clock;
 pub mod follow;
 pub mod http;
+pub mod keys;
 pub mod line;
 pub mod log;
 pub mod mqtt;

@@ -35,11 +35,12 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::{Instant, sleep_until};
 
-use super::follow::{self, Feed, Next, Output, Sink, Start};
+use super::follow::{self, Feed, Next, Output, OutputId, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::{Head, Record};
 
-/// The cursor name of the MQTT publisher in the results log.
+/// The cursor name in the results log of the MQTT publisher its flag gives (of one with an
+/// `id` of its own: `mqtt/ID`).
 pub const CONSUMER: &str = "mqtt";
 /// The broker port when the URI names none (MQTT over TCP, IANA).
 pub const DEFAULT_PORT: u16 = 1883;
@@ -414,10 +415,11 @@ impl Args {
         }
     }
 
-    /// The publisher `--mqtt` asks for.
+    /// The publisher `--mqtt` asks for, as output `id`.
     pub(super) async fn start(
         &self,
         feed: &Feed<'_>,
+        id: &OutputId,
     ) -> Result<Option<Box<dyn Output>>, TargetError> {
         let Some(target) = &self.mqtt else {
             return Ok(None);
@@ -426,7 +428,7 @@ impl Args {
             target: target.clone(),
             station: feed.station.to_owned(),
         };
-        let publisher = Publisher::start(config, feed.log.clone())?;
+        let publisher = Publisher::start_as(config, feed.log.clone(), id)?;
         Ok(Some(Box::new(publisher)))
     }
 }
@@ -454,12 +456,20 @@ impl Publisher {
     /// background, and again whenever the connection is lost). Fails only on a station
     /// name that cannot be a topic level.
     pub fn start(config: Config, log: ResultsLog) -> Result<Self, TargetError> {
+        Self::start_as(config, log, &OutputId::default())
+    }
+
+    /// As [`Publisher::start`], as output `id`: with an id of its own, its cursor is
+    /// `mqtt/ID` and its client id `coapcam-<station>-ID`, so that two publishers of a
+    /// station neither share a position nor take turns on one broker.
+    pub fn start_as(config: Config, log: ResultsLog, id: &OutputId) -> Result<Self, TargetError> {
         let topics = Topics::new(&config.target, &config.station)?;
-        let mut options = MqttOptions::new(
-            format!("coapcam-{}", config.station),
-            config.target.host.clone(),
-            config.target.port,
-        );
+        let client_id = match id.id() {
+            Some(id) => format!("coapcam-{}-{id}", config.station),
+            None => format!("coapcam-{}", config.station),
+        };
+        let mut options =
+            MqttOptions::new(client_id, config.target.host.clone(), config.target.port);
         if let Some(c) = &config.target.credentials {
             options.set_credentials(c.user.clone(), c.password.clone());
         }
@@ -477,7 +487,8 @@ impl Publisher {
             ));
         let (stop, stopped) = watch::channel(false);
         let target = config.target.clone();
-        let task = tokio::spawn(run(options, topics, config.target, log, stopped));
+        let cursor = id.cursor(CONSUMER);
+        let task = tokio::spawn(run(options, topics, config.target, log, cursor, stopped));
         Ok(Self { stop, task, target })
     }
 
@@ -530,13 +541,12 @@ async fn run(
     topics: Topics,
     target: Target,
     log: ResultsLog,
+    consumer: String,
     mut stop: watch::Receiver<bool>,
 ) {
     let cursor = loop {
-        let l = log.clone();
-        match tokio::task::spawn_blocking(move || l.cursor(CONSUMER).map_err(|e| e.to_string()))
-            .await
-        {
+        let (l, c) = (log.clone(), consumer.clone());
+        match tokio::task::spawn_blocking(move || l.cursor(&c).map_err(|e| e.to_string())).await {
             Ok(Ok(c)) => break c,
             Ok(Err(e)) => tracing::error!(error = %e, "MQTT: reading the delivery cursor failed"),
             Err(e) => tracing::error!(error = %e, "MQTT: reading the delivery cursor failed"),
@@ -550,6 +560,7 @@ async fn run(
         topics,
         target,
         log: log.clone(),
+        consumer,
         stop,
         delivery: Delivery::new(cursor, WINDOW),
         backoff: BACKOFF_FIRST,
@@ -612,6 +623,8 @@ struct Publishing {
     topics: Topics,
     target: Target,
     log: ResultsLog,
+    /// Its durable cursor's name.
+    consumer: String,
     stop: watch::Receiver<bool>,
     delivery: Delivery,
     /// The wait before the next connection after this one is lost.
@@ -878,9 +891,9 @@ impl Publishing {
     }
 
     async fn save_cursor(&self, cursor: u64) {
-        let l = self.log.clone();
+        let (l, c) = (self.log.clone(), self.consumer.clone());
         let saved = tokio::task::spawn_blocking(move || {
-            l.set_cursor(CONSUMER, cursor).map_err(|e| e.to_string())
+            l.set_cursor(&c, cursor).map_err(|e| e.to_string())
         })
         .await;
         match saved {

@@ -50,7 +50,7 @@ use opcua::types::{
 use tokio::net::TcpListener;
 use tokio::task::JoinHandle;
 
-use super::follow::{self, Feed, MeasureNow, Next, Output, Sink, Start};
+use super::follow::{self, Feed, MeasureNow, Next, Output, OutputId, Sink, Start};
 use crate::api::record::Record;
 use crate::report::Found;
 
@@ -102,10 +102,12 @@ impl Args {
         self.opcua.is_some()
     }
 
-    /// The OPC UA server `--opcua` asks for, listening.
+    /// The OPC UA server `--opcua` asks for, listening (it keeps no
+    /// cursor: its id only tells it apart).
     pub(super) async fn start(
         &self,
         feed: &Feed<'_>,
+        _id: &OutputId,
     ) -> Result<Option<Box<dyn Output>>, StartError> {
         let Some(addr) = self.opcua else {
             return Ok(None);

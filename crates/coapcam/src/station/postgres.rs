@@ -19,11 +19,12 @@ use std::time::Duration;
 use tokio::task::JoinHandle;
 use tokio_postgres::{Client, NoTls};
 
-use super::follow::{self, Feed, Next, Output, Sink, Start};
+use super::follow::{self, Feed, Next, Output, OutputId, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::Record;
 
-/// The cursor name of the PostgreSQL output in the results log.
+/// The cursor name in the results log of the PostgreSQL output its flag gives (of one
+/// with an `id` of its own: `postgres/ID`).
 pub const CONSUMER: &str = "postgres";
 
 /// The table the records go into.
@@ -136,15 +137,19 @@ impl Args {
         self.postgres.is_some()
     }
 
-    /// The output `--postgres` asks for.
+    /// The output `--postgres` asks for, as output `id` (its cursor's name).
     pub(super) async fn start(
         &self,
         feed: &Feed<'_>,
+        id: &OutputId,
     ) -> Result<Option<Box<dyn Output>>, std::convert::Infallible> {
-        Ok(self
-            .postgres
-            .clone()
-            .map(|target| Box::new(Postgres::start(target, feed.log.clone())) as Box<dyn Output>))
+        Ok(self.postgres.clone().map(|target| {
+            Box::new(Postgres::start(
+                target,
+                feed.log.clone(),
+                id.cursor(CONSUMER),
+            )) as Box<dyn Output>
+        }))
     }
 }
 
@@ -168,11 +173,13 @@ impl Drop for Postgres {
 }
 
 impl Postgres {
-    /// Copies `log`'s records into `target`'s table from the cursor [`CONSUMER`].
-    pub fn start(target: Target, log: ResultsLog) -> Self {
+    /// Copies `log`'s records into `target`'s table from the cursor named `cursor`
+    /// ([`CONSUMER`] for the output of `--postgres`).
+    pub fn start(target: Target, log: ResultsLog, cursor: String) -> Self {
         let copier = Copier {
             target: target.clone(),
             client: None,
+            cursor,
         };
         Self {
             task: tokio::spawn(follow::run(log, copier)),
@@ -185,6 +192,8 @@ impl Postgres {
 struct Copier {
     target: Target,
     client: Option<Client>,
+    /// Its durable cursor's name.
+    cursor: String,
 }
 
 impl Sink for Copier {
@@ -195,7 +204,7 @@ impl Sink for Copier {
     }
 
     fn start(&self) -> Start {
-        Start::Cursor(CONSUMER)
+        Start::Cursor(self.cursor.clone())
     }
 
     async fn deliver(&mut self, record: &Record) -> Next {

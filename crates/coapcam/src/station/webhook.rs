@@ -32,11 +32,12 @@ use sha2::{Digest as _, Sha256};
 use tokio::net::TcpStream;
 use tokio::task::JoinHandle;
 
-use super::follow::{self, Feed, Next, Output, Sink, Start};
+use super::follow::{self, Feed, Next, Output, OutputId, Sink, Start};
 use super::log::ResultsLog;
 use crate::api::record::Record;
 
-/// The cursor name of the webhook in the results log.
+/// The cursor name in the results log of the webhook its flag gives (of one with an `id`
+/// of its own: `webhook/ID`).
 pub const CONSUMER: &str = "webhook";
 
 /// How long connecting, or one request's answer, may take.
@@ -150,10 +151,11 @@ impl Args {
         self.webhook.is_some()
     }
 
-    /// The webhook `--webhook` asks for.
+    /// The webhook `--webhook` asks for, as output `id` (its cursor's name).
     pub(super) async fn start(
         &self,
         feed: &Feed<'_>,
+        id: &OutputId,
     ) -> Result<Option<Box<dyn Output>>, SetupError> {
         let Some(target) = self.webhook.clone() else {
             return Ok(None);
@@ -171,6 +173,7 @@ impl Args {
             target,
             feed.log.clone(),
             body,
+            id.cursor(CONSUMER),
         ))))
     }
 }
@@ -342,11 +345,12 @@ impl Drop for Webhook {
 impl Webhook {
     /// Delivers the records of `log` after its cursor to `target`, then each new one.
     pub fn start(target: Target, log: ResultsLog) -> Self {
-        Self::start_with(target, log, Body::default())
+        Self::start_with(target, log, Body::default(), CONSUMER.to_owned())
     }
 
-    /// As [`Webhook::start`], each record's body made and signed as `body` says.
-    pub fn start_with(target: Target, log: ResultsLog, body: Body) -> Self {
+    /// As [`Webhook::start`], each record's body made and signed as `body` says, its
+    /// position kept in the cursor named `cursor`.
+    pub fn start_with(target: Target, log: ResultsLog, body: Body, cursor: String) -> Self {
         Self {
             task: tokio::spawn(follow::run(
                 log,
@@ -354,6 +358,7 @@ impl Webhook {
                     target: target.clone(),
                     connection: None,
                     body,
+                    cursor,
                 },
             )),
             target,
@@ -366,6 +371,8 @@ struct Hook {
     target: Target,
     connection: Option<SendRequest<Full<Bytes>>>,
     body: Body,
+    /// Its durable cursor's name.
+    cursor: String,
 }
 
 impl Sink for Hook {
@@ -376,7 +383,7 @@ impl Sink for Hook {
     }
 
     fn start(&self) -> Start {
-        Start::Cursor(CONSUMER)
+        Start::Cursor(self.cursor.clone())
     }
 
     async fn deliver(&mut self, record: &Record) -> Next {

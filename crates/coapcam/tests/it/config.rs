@@ -5,7 +5,10 @@
 use std::path::Path;
 use std::time::Duration;
 
-use crate::support::{COAPCAM, LIMIT, Proc, TempDir};
+use std::io::{BufRead as _, BufReader};
+use std::net::TcpStream;
+
+use crate::support::{COAPCAM, LIMIT, Proc, TempDir, client, measure, runtime, station};
 
 const STATION_MD: &str = include_str!("../../../../docs/station.md");
 
@@ -198,25 +201,179 @@ fn a_station_started_from_a_file_serves() {
 }
 
 #[test]
-fn the_example_of_the_docs_is_a_valid_file() {
-    let example = STATION_MD
+fn the_examples_of_the_docs_are_valid_files() {
+    let section = STATION_MD
         .split("## A configuration file")
         .nth(1)
-        .and_then(|s| s.split("```toml\n").nth(1))
-        .and_then(|s| s.split("```").next())
-        .expect("docs/station.md's example file");
+        .and_then(|s| s.split("\n## ").next())
+        .expect("docs/station.md's section");
+    let examples: Vec<&str> = section
+        .split("```toml\n")
+        .skip(1)
+        .filter_map(|s| s.split("```").next())
+        .collect();
+    assert_eq!(examples.len(), 2, "the file and the outputs as a list");
     let dir = TempDir::new("config-docs");
     let file = dir.join("station.toml");
-    std::fs::write(&file, example).expect("writing the file");
-    let printed = serve(&["--config", path(&file), "--print-config"])
-        .expect_success("the docs' example")
-        .stdout_text();
-    // Every key of the example is in effect.
-    for line in example.lines().filter(|l| !l.starts_with('#')) {
-        let key = line.split(" = ").next().expect("key = value");
-        assert!(
-            printed.lines().any(|l| l.starts_with(&format!("{key} = "))),
-            "{key} not in\n{printed}"
+    for example in examples {
+        std::fs::write(&file, example).expect("writing the file");
+        let printed = serve(&["--config", path(&file), "--print-config"])
+            .expect_success("the docs' example")
+            .stdout_text();
+        // Every key of the example is in effect; the [[output]] tables are printed as
+        // they are written, in their order.
+        let mut tables = false;
+        for line in example.lines().filter(|l| !l.starts_with('#')) {
+            let line = line.split(" # ").next().unwrap_or(line).trim_end();
+            tables |= line == "[[output]]";
+            if line.is_empty() {
+                continue;
+            }
+            let key = line.split(" = ").next().expect("key = value");
+            assert!(
+                printed.lines().any(|l| if tables {
+                    l == line
+                } else {
+                    l.starts_with(&format!("{key} = "))
+                }),
+                "{line} not in\n{printed}"
+            );
+        }
+        assert_eq!(
+            printed.matches("[[output]]\n").count(),
+            example.matches("[[output]]\n").count(),
+            "{printed}"
         );
     }
+}
+
+#[test]
+fn an_output_table_and_its_kinds_flag_are_two_outputs_each_getting_every_record() {
+    let dir = TempDir::new("config-outputs");
+    let file = dir.join("station.toml");
+    std::fs::write(
+        &file,
+        "[[output]]\nkind = \"line\"\nid = \"second\"\nline-output = \"tcp://127.0.0.1:0\"\n",
+    )
+    .expect("writing the file");
+    let s = station(
+        &dir.join("state"),
+        &[
+            "--config",
+            path(&file),
+            "--line-output",
+            "tcp://127.0.0.1:0",
+        ],
+    );
+    assert_eq!(s.lines.len(), 2, "two line outputs: {:?}", s.lines);
+    // A measurement takes far longer than the server takes to accept the readers.
+    let mut readers: Vec<BufReader<TcpStream>> = s
+        .lines
+        .iter()
+        .map(|addr| {
+            let stream = TcpStream::connect(addr).expect("connecting to a line output");
+            stream.set_read_timeout(Some(LIMIT)).expect("a timeout");
+            BufReader::new(stream)
+        })
+        .collect();
+    let client = client();
+    for id in 1..=2 {
+        runtime().block_on(measure(&client, s.coap));
+        for reader in &mut readers {
+            let mut line = String::new();
+            reader.read_line(&mut line).expect("a line");
+            assert!(line.starts_with(&format!("{id},")), "record {id}: {line:?}");
+        }
+    }
+}
+
+#[test]
+fn output_tables_print_and_read_back_and_bad_ones_exit_2_naming_the_line() {
+    let dir = TempDir::new("config-output-tables");
+    let file = dir.join("station.toml");
+    std::fs::write(
+        &file,
+        "station-name = \"dock-1\"\n\n[[output]]\nkind = \"line\"\nid = \"left\"\nline-output = \"tcp://127.0.0.1:4001\"\n\n\
+         [[output]]\nid = \"wms\"\nkind = \"webhook\"\nwebhook = \"http://u:s3cret@127.0.0.1:9/x\"\n\n\
+         [[output]]\nkind = \"webhook\"\nwebhook = \"http://127.0.0.1:9/y\"\n",
+    )
+    .expect("writing the file");
+    let first = serve(&["--config", path(&file), "--print-config"]).expect_success("print");
+    let text = first.stdout_text();
+    let tables: Vec<&str> = text.split("\n[[output]]\n").skip(1).collect();
+    assert_eq!(
+        tables,
+        [
+            "kind = \"line\"\nid = \"left\"\nline-output = \"tcp://127.0.0.1:4001\"\n",
+            "kind = \"webhook\"\nid = \"wms\"\nwebhook = \"http://u:********@127.0.0.1:9/x\"\n",
+            "kind = \"webhook\"\nwebhook = \"http://127.0.0.1:9/y\"\n",
+        ],
+        "{text}"
+    );
+    assert!(first.stderr.contains("`wms`"), "{}", first.stderr);
+    let printed = dir.join("printed.toml");
+    std::fs::write(&printed, &text).expect("writing the file");
+    let again = serve(&["--config", path(&printed), "--print-config"]).expect_success("again");
+    assert_eq!(again.stdout_text(), text, "print → file → print");
+
+    let table = "[[output]]\nkind = \"line\"\nline-output = \"tcp://127.0.0.1:0\"\n";
+    let cases = [
+        (
+            format!("{table}\n{table}"),
+            5,
+            "a second output named `line`",
+        ),
+        (
+            format!("{table}\n{table}id = \"line\"\n"),
+            8,
+            "a second output named `line`",
+        ),
+        (
+            "\n[[output]]\nkind = \"lines\"\n".into(),
+            3,
+            "\"mqtt\", \"line\", \"webhook\"",
+        ),
+        ("[[output]]\nid = \"x\"\n".into(), 1, "`kind` is missing"),
+        (
+            format!("{table}broker = 3\n"),
+            4,
+            "unknown key `broker` for kind \"line\"",
+        ),
+        (
+            "[[output]]\nkind = \"line\"\n\nline-output = \"udp://h:1\"\n".into(),
+            4,
+            "`line-output`",
+        ),
+        (
+            "[[output]]\nkind = \"webhook\"\n".into(),
+            1,
+            "needs `webhook`",
+        ),
+        ("output = 3\n".into(), 1, "[[output]]"),
+    ];
+    for (text, line, what) in cases {
+        std::fs::write(&file, &text).expect("writing the file");
+        let done = serve(&["--config", path(&file)]).expect_status(2, &text);
+        let want = format!("station.toml:{line}: ");
+        assert!(
+            done.stderr.contains(&want) && done.stderr.contains(what),
+            "{text:?}: want {want}{what}: {}",
+            done.stderr
+        );
+    }
+    // A flag and a table without an id: two outputs of one name, which would share a
+    // cursor.
+    std::fs::write(&file, table).expect("writing the file");
+    let done = serve(&[
+        "--config",
+        path(&file),
+        "--line-output",
+        "tcp://127.0.0.1:0",
+    ])
+    .expect_status(2, "a flag and a table of one name");
+    assert!(
+        done.stderr.contains("two outputs are named `line`"),
+        "{}",
+        done.stderr
+    );
 }

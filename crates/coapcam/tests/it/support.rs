@@ -701,6 +701,9 @@ pub(crate) struct Station {
     pub(crate) http: Option<SocketAddr>,
     /// Its line output's address, when the flags have `--line-output`.
     pub(crate) line: Option<SocketAddr>,
+    /// Every line output's address, in the order they were announced (a configuration
+    /// file's `[[output]]` tables may give more).
+    pub(crate) lines: Vec<SocketAddr>,
     /// Its OPC UA server's address, when the flags have `--opcua`.
     pub(crate) opcua: Option<SocketAddr>,
 }
@@ -721,7 +724,7 @@ pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
     ];
     args.extend_from_slice(flags);
     let mut process = Proc::spawn(COAPCAM, &args);
-    let (mut http, mut line, mut opcua) = (None, None, None);
+    let (mut http, mut opcua, mut lines) = (None, None, Vec::new());
     let coap = loop {
         let (what, addr) = process.stderr_line(LIMIT, |l| {
             let l = l.strip_prefix("coapcam: ")?;
@@ -737,7 +740,7 @@ pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
             Some((what, addr))
         });
         match what {
-            "line" => line = line.or(Some(addr)),
+            "line" => lines.push(addr),
             "opcua" => opcua = Some(addr),
             "http" => http = Some(addr),
             _ => break addr,
@@ -747,7 +750,8 @@ pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
         process,
         coap,
         http,
-        line,
+        line: lines.first().copied(),
+        lines,
         opcua,
     }
 }
