@@ -1,7 +1,8 @@
 """An OPC UA client of our own script on asyncua (PyPI), a library we did not write, for
 crates/coapcam/tests/it/opcua.rs: against `coapcam serve --opcua URL` it browses the
 Objects folder and the station, reads the latest result, subscribes to the station's
-events (NewResultEventType's fields), calls MeasureNow and waits for the event of the record it made. Each step is one
+events (NewResultEventType's fields), calls MeasureNow and waits for the event of the record it made,
+then reads the records by id (GetResultById) and by id and time (GetResultsSince). Each step is one
 JSON object on a line of standard output; any failure exits non-zero with the reason on
 standard error.
 
@@ -112,6 +113,44 @@ async def main(url, timeout):
                 break
         say(latest=await read(latest))
         await subscription.delete()
+
+        # Results by id and by time, from the station's log.
+        by_id = await station.get_child([f"{ns}:GetResultById"])
+        since = await station.get_child([f"{ns}:GetResultsSince"])
+        fields = ("RecordId", "Time", "LengthMm", "WidthMm", "HeightMm", "DivisionMm",
+                  "Shape", "Codes", "Status", "Trigger")
+        answers = {}
+        for record in (1, record_id):
+            values = await station.call_method(by_id, ua.Variant(record, ua.VariantType.UInt64))
+            answers[record] = dict(zip(fields, values))
+        say(result_by_id={str(r): {k: plain(v) for k, v in a.items()} for r, a in answers.items()})
+        try:
+            await station.call_method(by_id, ua.Variant(999999, ua.VariantType.UInt64))
+            say(result_by_id_missing="found")
+        except ua.UaStatusCodeError as e:
+            say(result_by_id_missing=type(e).__name__)
+
+        any_time = datetime.datetime(1601, 1, 1)
+        queries = {
+            "all": (0, any_time, 0),
+            "first_only": (0, any_time, 1),
+            "after_1": (1, any_time, 10),
+            "since_the_second": (0, answers[record_id]["Time"], 10),
+            "after_the_last": (record_id, any_time, 10),
+        }
+        out = {}
+        for name, (after, at, most) in queries.items():
+            ids, times, lengths, widths, heights, statuses = await station.call_method(
+                since,
+                ua.Variant(after, ua.VariantType.UInt64),
+                ua.Variant(at, ua.VariantType.DateTime),
+                ua.Variant(most, ua.VariantType.UInt32),
+            )
+            out[name] = {
+                "RecordIds": ids, "Times": plain(times), "LengthMm": lengths,
+                "WidthMm": widths, "HeightMm": heights, "Status": statuses,
+            }
+        say(results_since=out)
 
 
 if __name__ == "__main__":

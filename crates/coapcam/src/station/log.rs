@@ -985,6 +985,33 @@ impl ResultsLog {
         rows.into_iter().map(|raw| self.decode(raw)).collect()
     }
 
+    /// At most `limit` records after `id` measured at `from` or later, oldest first (the
+    /// OPC UA output's results by time).
+    pub fn after_from(
+        &self,
+        id: u64,
+        from: UtcTime,
+        limit: usize,
+    ) -> Result<Vec<Record>, LogError> {
+        let conn = self.conn();
+        let mut stmt = conn
+            .prepare_cached(&format!(
+                "{SELECT} WHERE r.id > ?1 AND {MEASUREMENT}
+                 AND json_extract(r.body, '$.time') >= ?3 ORDER BY r.id LIMIT ?2"
+            ))
+            .map_err(self.err())?;
+        // Times in the records' one form (UTC, milliseconds) compare as text.
+        let rows = stmt
+            .query_map(
+                params![id, limit.clamp(1, MAX_LIST), from.to_string()],
+                raw_row,
+            )
+            .map_err(self.err())?
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(self.err())?;
+        rows.into_iter().map(|raw| self.decode(raw)).collect()
+    }
+
     /// The photo (JPEG) of record `id`, if it was taken and is still kept.
     pub fn photo(&self, id: u64) -> Result<Option<Vec<u8>>, LogError> {
         self.picture(id, "photo")

@@ -9,6 +9,11 @@
 //! - the method `MeasureNow`: measures with every camera as `POST /cams/dimensions` does
 //!   and records it; it answers the new record's id and `recorded` (0 and why, when the
 //!   table was empty), or a Bad status when measuring failed;
+//! - the methods `GetResultById(RecordId)` (a record of the log, as `LatestResult` shows
+//!   one; `BadNotFound` without) and `GetResultsSince(AfterId, Since, MaxResults)` (the
+//!   records after an id, measured at a time or later, oldest first, an array per
+//!   field): results by id and by time from the log, as OPC 40001-101's result
+//!   management keeps them;
 //! - events: the object is an event notifier, and every record appended while the server
 //!   runs is an event of type `NewResultEventType` (a subtype of `BaseEventType` whose
 //!   `Message` starts with `record ID` and `Time` is the record's time, with the fields
@@ -22,8 +27,8 @@
 //! channels (Basic256Sha256 with certificates) and user names are not there yet.
 //!
 //! The names follow what OPC 40210 (Geometrical Measuring Systems) asks of a station (its
-//! identity, the latest result, an event per result, a method to measure), but the nodes
-//! are not typed with that specification's types.
+//! identity, the latest result, results by id and by time, an event per result, a method
+//! to measure), but the nodes are not typed with that specification's types.
 
 use std::convert::Infallible;
 use std::future::Future;
@@ -44,14 +49,16 @@ use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
 use opcua::server::{ANONYMOUS_USER_TOKEN_ID, ServerBuilder, ServerEndpoint, ServerHandle};
 use opcua::sync::RwLock;
 use opcua::types::{
-    BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeClass, NodeId,
-    ObjectId, ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId, Variant,
+    Argument, BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeClass,
+    NodeId, ObjectId, ObjectTypeId, QualifiedName, StatusCode, UAString, VariableTypeId, Variant,
 };
 use tokio::net::TcpListener;
 use tokio::task::JoinHandle;
 
 use super::follow::{self, Feed, MeasureNow, Next, Output, OutputId, Sink, Start};
-use crate::api::record::Record;
+use super::log::ResultsLog;
+use crate::api::record::{Record, UtcTime};
+use crate::api::results::MAX_LIST;
 use crate::report::Found;
 
 /// The namespace of the station's nodes.
@@ -154,7 +161,11 @@ impl OpcUaOutput {
         let addr = listener
             .local_addr()
             .map_err(|source| StartError::Listen { addr, source })?;
-        let nodes = Arc::new(Nodes::new(feed.station, feed.measure.clone()));
+        let nodes = Arc::new(Nodes::new(
+            feed.station,
+            feed.measure.clone(),
+            feed.log.clone(),
+        ));
         let (server, handle) = builder(addr, feed.station, feed.state_dir, nodes.clone())
             .build()
             .map_err(|why| StartError::Server { addr, why })?;
@@ -275,17 +286,20 @@ fn builder(addr: SocketAddr, station: &str, state_dir: &Path, nodes: Arc<Nodes>)
         )
 }
 
-/// What the station's nodes are made from: its name, and how to measure now.
+/// What the station's nodes are made from: its name, how to measure now, and its results
+/// log (read by `GetResultById` and `GetResultsSince`).
 struct Nodes {
     station: String,
     measure: Option<MeasureNow>,
+    log: ResultsLog,
 }
 
 impl Nodes {
-    fn new(station: &str, measure: Option<MeasureNow>) -> Self {
+    fn new(station: &str, measure: Option<MeasureNow>, log: ResultsLog) -> Self {
         Self {
             station: station.to_owned(),
             measure,
+            log,
         }
     }
 }
@@ -482,6 +496,65 @@ impl InMemoryNodeManagerImpl for StationNodes {
         .executable(self.nodes.measure.is_some())
         .user_executable(self.nodes.measure.is_some())
         .insert(space);
+        let result_outputs: Vec<Argument> = RESULT_FIELDS
+            .iter()
+            .map(|&(name, data_type)| argument(name, data_type, name == "Codes"))
+            .collect();
+        MethodBuilder::new(
+            &self.id("Station.GetResultById"),
+            self.name("GetResultById"),
+            "GetResultById",
+        )
+        .description(
+            "The record of this id in the results log, as LatestResult shows one \
+             (BadNotFound: no such record)",
+        )
+        .component_of(self.id("Station"))
+        .input_args(
+            space,
+            &self.id("Station.GetResultById.InputArguments"),
+            &[argument("RecordId", DataTypeId::UInt64, false)],
+        )
+        .output_args(
+            space,
+            &self.id("Station.GetResultById.OutputArguments"),
+            &result_outputs,
+        )
+        .executable(true)
+        .user_executable(true)
+        .insert(space);
+        let since_outputs: Vec<Argument> = SINCE_FIELDS
+            .iter()
+            .map(|&(name, data_type)| argument(name, data_type, true))
+            .collect();
+        MethodBuilder::new(
+            &self.id("Station.GetResultsSince"),
+            self.name("GetResultsSince"),
+            "GetResultsSince",
+        )
+        .description(
+            "The records after AfterId measured at Since or later (a null Since: at any \
+             time), oldest first, at most MaxResults (0: 1000): an array per field, \
+             NaN where nothing was measured",
+        )
+        .component_of(self.id("Station"))
+        .input_args(
+            space,
+            &self.id("Station.GetResultsSince.InputArguments"),
+            &[
+                argument("AfterId", DataTypeId::UInt64, false),
+                argument("Since", DataTypeId::UtcTime, false),
+                argument("MaxResults", DataTypeId::UInt32, false),
+            ],
+        )
+        .output_args(
+            space,
+            &self.id("Station.GetResultsSince.OutputArguments"),
+            &since_outputs,
+        )
+        .executable(true)
+        .user_executable(true)
+        .insert(space);
     }
 
     fn name(&self) -> &str {
@@ -502,35 +575,170 @@ impl InMemoryNodeManagerImpl for StationNodes {
         _space: &RwLock<AddressSpace>,
         methods: &mut [&mut &mut MethodCall],
     ) -> Result<(), StatusCode> {
-        let measure_now = self.id("Station.MeasureNow");
         for call in methods {
-            if call.method_id() != &measure_now {
-                call.set_status(StatusCode::BadMethodInvalid);
-                continue;
-            }
-            let Some(measure) = &self.nodes.measure else {
-                call.set_status(StatusCode::BadNotExecutable);
-                continue;
+            let method = call.method_id().clone();
+            let answer = if method == self.id("Station.MeasureNow") {
+                self.measure_now().await
+            } else if method == self.id("Station.GetResultById") {
+                self.result_by_id(call.arguments()).await
+            } else if method == self.id("Station.GetResultsSince") {
+                self.results_since(call.arguments()).await
+            } else {
+                Err(StatusCode::BadMethodInvalid)
             };
-            match measure().await {
-                Ok(Some(id)) => {
-                    call.set_outputs(vec![Variant::UInt64(id), UAString::from("recorded").into()]);
+            match answer {
+                Ok(outputs) => {
+                    call.set_outputs(outputs);
                     call.set_status(StatusCode::Good);
                 }
-                Ok(None) => {
-                    call.set_outputs(vec![
-                        Variant::UInt64(0),
-                        UAString::from("nothing on the table: not recorded").into(),
-                    ]);
-                    call.set_status(StatusCode::Good);
-                }
-                Err(why) => {
-                    tracing::warn!("OPC UA MeasureNow: {why}");
-                    call.set_status(StatusCode::BadResourceUnavailable);
-                }
+                Err(status) => call.set_status(status),
             }
         }
         Ok(())
+    }
+}
+
+/// The fields of `GetResultsSince`'s answer, an array each.
+const SINCE_FIELDS: [(&str, DataTypeId); 6] = [
+    ("RecordIds", DataTypeId::UInt64),
+    ("Times", DataTypeId::UtcTime),
+    ("LengthMm", DataTypeId::Double),
+    ("WidthMm", DataTypeId::Double),
+    ("HeightMm", DataTypeId::Double),
+    ("Status", DataTypeId::String),
+];
+
+/// A method's argument `name` of `data_type`, an array when `array`.
+fn argument(name: &str, data_type: DataTypeId, array: bool) -> Argument {
+    let mut argument: Argument = (name, data_type).into();
+    if array {
+        argument.value_rank = 1;
+        argument.array_dimensions = Some(vec![0]);
+    }
+    argument
+}
+
+/// An unsigned integer argument.
+fn unsigned(value: Option<&Variant>) -> Result<u64, StatusCode> {
+    match value {
+        Some(Variant::UInt64(v)) => Ok(*v),
+        Some(Variant::UInt32(v)) => Ok(u64::from(*v)),
+        Some(Variant::UInt16(v)) => Ok(u64::from(*v)),
+        Some(Variant::Byte(v)) => Ok(u64::from(*v)),
+        Some(Variant::Int64(v)) => u64::try_from(*v).map_err(|_| StatusCode::BadOutOfRange),
+        Some(Variant::Int32(v)) => u64::try_from(*v).map_err(|_| StatusCode::BadOutOfRange),
+        Some(_) => Err(StatusCode::BadTypeMismatch),
+        None => Err(StatusCode::BadArgumentsMissing),
+    }
+}
+
+impl StationNodes {
+    /// `MeasureNow`: the new record's id and `recorded`, or 0 and why nothing was.
+    async fn measure_now(&self) -> Result<Vec<Variant>, StatusCode> {
+        let measure = self
+            .nodes
+            .measure
+            .as_ref()
+            .ok_or(StatusCode::BadNotExecutable)?;
+        match measure().await {
+            Ok(Some(id)) => Ok(vec![Variant::UInt64(id), UAString::from("recorded").into()]),
+            Ok(None) => Ok(vec![
+                Variant::UInt64(0),
+                UAString::from("nothing on the table: not recorded").into(),
+            ]),
+            Err(why) => {
+                tracing::warn!("OPC UA MeasureNow: {why}");
+                Err(StatusCode::BadResourceUnavailable)
+            }
+        }
+    }
+
+    /// Reads the log on the blocking pool.
+    async fn read<T: Send + 'static>(
+        &self,
+        what: &'static str,
+        read: impl FnOnce(&ResultsLog) -> Result<T, super::log::LogError> + Send + 'static,
+    ) -> Result<T, StatusCode> {
+        let log = self.nodes.log.clone();
+        match tokio::task::spawn_blocking(move || read(&log)).await {
+            Ok(Ok(value)) => Ok(value),
+            Ok(Err(e)) => {
+                tracing::warn!("OPC UA {what}: reading the results log: {e}");
+                Err(StatusCode::BadResourceUnavailable)
+            }
+            Err(e) => {
+                tracing::warn!("OPC UA {what}: reading the results log: {e}");
+                Err(StatusCode::BadResourceUnavailable)
+            }
+        }
+    }
+
+    /// `GetResultById(RecordId)`: the record's fields as `LatestResult` shows them.
+    async fn result_by_id(&self, arguments: &[Variant]) -> Result<Vec<Variant>, StatusCode> {
+        if arguments.len() > 1 {
+            return Err(StatusCode::BadTooManyArguments);
+        }
+        let id = unsigned(arguments.first())?;
+        let record = self
+            .read("GetResultById", move |log| log.get(id))
+            .await?
+            .ok_or(StatusCode::BadNotFound)?;
+        Ok(result_values(&record).into())
+    }
+
+    /// `GetResultsSince(AfterId, Since, MaxResults)`: the records after `AfterId` measured
+    /// at `Since` or later, oldest first, an array per field of [`SINCE_FIELDS`].
+    async fn results_since(&self, arguments: &[Variant]) -> Result<Vec<Variant>, StatusCode> {
+        if arguments.len() > 3 {
+            return Err(StatusCode::BadTooManyArguments);
+        }
+        let after = unsigned(arguments.first())?;
+        let since = match arguments.get(1) {
+            Some(Variant::DateTime(t)) if t.is_null() => None,
+            Some(Variant::DateTime(t)) => Some(UtcTime {
+                unix_ms: t.as_chrono().timestamp_millis(),
+            }),
+            Some(Variant::Empty) => None,
+            Some(_) => return Err(StatusCode::BadTypeMismatch),
+            None => return Err(StatusCode::BadArgumentsMissing),
+        };
+        let max = match unsigned(arguments.get(2))? {
+            0 => MAX_LIST,
+            n => usize::try_from(n).unwrap_or(MAX_LIST).min(MAX_LIST),
+        };
+        let records = self
+            .read("GetResultsSince", move |log| match since {
+                Some(from) => log.after_from(after, from, max),
+                None => log.after(after, max),
+            })
+            .await?;
+        let mm = |pick: fn(&crate::report::Reported) -> f64| -> Variant {
+            let values: Vec<f64> = records
+                .iter()
+                .map(|r| r.measurement.reported().map_or(f64::NAN, pick))
+                .collect();
+            values.into()
+        };
+        let ids: Vec<u64> = records.iter().map(|r| r.id).collect();
+        let times: Vec<DateTime> = records
+            .iter()
+            .map(|r| {
+                DateTime::parse_from_rfc3339(&r.time.to_string())
+                    .unwrap_or_else(|_| DateTime::null())
+            })
+            .collect();
+        let statuses: Vec<UAString> = records
+            .iter()
+            .map(|r| UAString::from(status(&r.measurement.parcel)))
+            .collect();
+        Ok(vec![
+            ids.into(),
+            times.into(),
+            mm(|d| d.length_mm),
+            mm(|d| d.width_mm),
+            mm(|d| d.height_mm),
+            statuses.into(),
+        ])
     }
 }
 

@@ -1,6 +1,7 @@
 //! The OPC UA output (`serve --opcua`) against a client we did not write: PyPI's asyncua,
 //! driven by `tests/peers/opcua_client.py`, browses the station, reads its identity and
-//! latest result, calls MeasureNow and gets the event of the record it made. asyncua
+//! latest result, calls MeasureNow and gets the event of the record it made, and reads
+//! the log's records by id (GetResultById) and by id and time (GetResultsSince). asyncua
 //! missing fails in CI (`CI=true`) and skips loudly elsewhere.
 
 use std::time::Duration;
@@ -127,6 +128,28 @@ fn asyncua_browses_reads_the_latest_result_calls_measure_now_and_gets_its_event(
     assert_eq!(after["RecordId"], 2, "{after}");
     assert_eq!(after["Trigger"], "request", "{after}");
     assert_eq!(after["Time"], event["time_unix_ms"], "{after} {event}");
+    // Results by id, read from the log: record 1 as the latest result showed it first,
+    // record 2 as after MeasureNow; an id the log does not hold is BadNotFound.
+    let by_id = step("result_by_id")[0];
+    assert_eq!(&by_id["1"], before, "{by_id}");
+    assert_eq!(&by_id["2"], after, "{by_id}");
+    assert_eq!(step("result_by_id_missing")[0], "BadNotFound");
+    // Results by id and time: oldest first, at most MaxResults, after AfterId, at Since
+    // or later; each array's entry is the record's.
+    let since = step("results_since")[0];
+    let ids = |name: &str| since[name]["RecordIds"].clone();
+    assert_eq!(ids("all"), serde_json::json!([1, 2]), "{since}");
+    assert_eq!(ids("first_only"), serde_json::json!([1]), "{since}");
+    assert_eq!(ids("after_1"), serde_json::json!([2]), "{since}");
+    assert_eq!(ids("since_the_second"), serde_json::json!([2]), "{since}");
+    assert_eq!(ids("after_the_last"), serde_json::json!([]), "{since}");
+    for (i, record) in [before, after].into_iter().enumerate() {
+        let all = &since["all"];
+        assert_eq!(all["Times"][i], record["Time"], "{since}");
+        for name in ["LengthMm", "WidthMm", "HeightMm", "Status"] {
+            assert_eq!(all[name][i], record[name], "{name}: {since}");
+        }
+    }
     let delay = event["arrived_unix_ms"].as_f64().expect("arrived")
         - event["time_unix_ms"].as_f64().expect("time");
     eprintln!("record to the asyncua client's event: {delay:.0} ms");
