@@ -341,7 +341,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
         clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
     };
     let name = args.station_name.clone().unwrap_or_else(station::host_name);
-    if let Err(e) = args.outputs.check_names() {
+    if let Err(e) = args.outputs.check() {
         usage!("{e}");
     }
     if let Err(e) = args.outputs.check_station(&name) {

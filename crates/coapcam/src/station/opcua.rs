@@ -22,9 +22,11 @@
 //!   compare node ids, so a where clause on `EventType` matches nothing: clients
 //!   subscribe without one (asyncua: `where_clause_generation=False`).
 //!
-//! Security: the endpoint takes security mode None and anonymous users, so it is served
-//! on a loopback address only (`--opcua` refuses any other): signed and encrypted
-//! channels (Basic256Sha256 with certificates) and user names are not there yet.
+//! Security: without users, the endpoint takes security mode None and anonymous users,
+//! so it is served on a loopback address only (`serve` refuses any other); with
+//! `--opcua-users`, its one endpoint is Basic256Sha256 SignAndEncrypt to those user names,
+//! on any address, with the station's certificate (made by the library in [`PKI_DIR`] at
+//! the first start) and the clients' certificates trusted there by an operator.
 //!
 //! The names follow what OPC 40210 (Geometrical Measuring Systems) asks of a station (its
 //! identity, the latest result, results by id and by time, an event per result, a method
@@ -33,7 +35,7 @@
 use std::convert::Infallible;
 use std::future::Future;
 use std::net::SocketAddr;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
@@ -46,7 +48,9 @@ use opcua::server::address_space::{
 use opcua::server::diagnostics::NamespaceMetadata;
 use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerImpl};
 use opcua::server::node_manager::{MethodCall, RequestContext, ServerContext};
-use opcua::server::{ANONYMOUS_USER_TOKEN_ID, ServerBuilder, ServerEndpoint, ServerHandle};
+use opcua::server::{
+    ANONYMOUS_USER_TOKEN_ID, ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken,
+};
 use opcua::sync::RwLock;
 use opcua::types::{
     Argument, BuildInfo, ByteString, DataTypeId, DataValue, DateTime, LocalizedText, NodeClass,
@@ -64,8 +68,8 @@ use crate::report::Found;
 /// The namespace of the station's nodes.
 pub const NAMESPACE: &str = "urn:coapcam:station";
 
-/// The folder of the state directory the OPC UA server keeps its certificate store in
-/// (empty while only security mode None is served).
+/// The folder of the state directory the OPC UA server keeps its certificate store in:
+/// `own/` and `private/` (the station's), `trusted/` and `rejected/` (clients').
 pub const PKI_DIR: &str = "opcua-pki";
 
 /// How long stopping the server may take.
@@ -82,6 +86,14 @@ pub enum StartError {
         /// Why.
         source: std::io::Error,
     },
+    /// The users' file could not be read.
+    #[error("the OPC UA users' file {}: {why}", path.display())]
+    Users {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        why: String,
+    },
     /// The library refused the configuration.
     #[error("the OPC UA server on {addr}: {why}")]
     Server {
@@ -92,21 +104,45 @@ pub enum StartError {
     },
 }
 
-/// The flag of the OPC UA output (`serve --opcua`).
+/// The flags of the OPC UA output (`serve --opcua`).
 #[derive(Debug, Clone, Default, clap::Args)]
 #[group(skip)]
 pub struct Args {
-    /// Serve the station over OPC UA on this address (opc.tcp://127.0.0.1:4840; a
-    /// loopback address only: security mode None, anonymous): its identity, the latest
-    /// result, the method MeasureNow and an event per record (docs/station.md).
+    /// Serve the station over OPC UA on this address (opc.tcp://127.0.0.1:4840): its
+    /// identity, the latest result, results by id and time, the method MeasureNow and an
+    /// event per record (docs/station.md). Without --opcua-users: security mode None and
+    /// anonymous clients, on a loopback address only.
     #[arg(long, value_name = "opc.tcp://ADDR:PORT", value_parser = parse_endpoint)]
     opcua: Option<SocketAddr>,
+    /// With --opcua: serve it signed and encrypted only (Basic256Sha256, SignAndEncrypt)
+    /// to the users of FILE, one NAME:PASSWORD a line, on any address; no anonymous
+    /// clients, no security mode None. The server's certificate is made in
+    /// STATE/opcua-pki/own at the first start; a client's certificate is trusted once
+    /// moved from STATE/opcua-pki/rejected (where its first connection leaves it) to
+    /// STATE/opcua-pki/trusted. Keep FILE readable by the station only.
+    #[arg(long, value_name = "FILE", requires = "opcua")]
+    opcua_users: Option<PathBuf>,
 }
 
 impl Args {
     /// Whether `--opcua` is given.
     pub(super) fn configured(&self) -> bool {
         self.opcua.is_some()
+    }
+
+    /// Refuses an address off this machine for a server without users (security mode
+    /// None, anonymous).
+    pub(super) fn check(&self) -> Result<(), String> {
+        match self.opcua {
+            Some(addr) if !addr.ip().is_loopback() && self.opcua_users.is_none() => Err(format!(
+                "--opcua {}: without --opcua-users the OPC UA server takes security mode \
+                     None and anonymous clients, so it listens on a loopback address only \
+                     (127.0.0.1 or [::1]); with --opcua-users FILE it serves Basic256Sha256 \
+                     SignAndEncrypt to those users on any address",
+                endpoint_url(addr)
+            )),
+            _ => Ok(()),
+        }
     }
 
     /// The OPC UA server `--opcua` asks for, listening (it keeps no
@@ -119,28 +155,50 @@ impl Args {
         let Some(addr) = self.opcua else {
             return Ok(None);
         };
-        let output = OpcUaOutput::start(addr, feed).await?;
+        self.check()
+            .map_err(|why| StartError::Server { addr, why })?;
+        let users = match &self.opcua_users {
+            Some(path) => Some(read_users(path)?),
+            None => None,
+        };
+        let output = OpcUaOutput::start(addr, feed, users).await?;
         Ok(Some(Box::new(output)))
     }
 }
 
-/// The address of `opc.tcp://ADDR:PORT` (`serve --opcua`; an IPv6 address in brackets),
-/// refused unless it is a loopback address: the server takes security mode None.
+/// The users of `path`: `NAME:PASSWORD` lines (blank lines and `#` comments left out).
+fn read_users(path: &Path) -> Result<Vec<(String, String)>, StartError> {
+    let bad = |why: String| StartError::Users {
+        path: path.to_owned(),
+        why,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+    let mut users = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim_end_matches('\r');
+        if line.trim().is_empty() || line.starts_with('#') {
+            continue;
+        }
+        match line.split_once(':') {
+            Some((name, password)) if !name.is_empty() && !password.is_empty() => {
+                users.push((name.to_owned(), password.to_owned()));
+            }
+            _ => return Err(bad(format!("line {}: not NAME:PASSWORD", i + 1))),
+        }
+    }
+    if users.is_empty() {
+        return Err(bad("no NAME:PASSWORD line".into()));
+    }
+    Ok(users)
+}
+
+/// The address of `opc.tcp://ADDR:PORT` (`serve --opcua`; an IPv6 address in brackets).
 pub fn parse_endpoint(uri: &str) -> Result<SocketAddr, String> {
-    let addr: SocketAddr = uri
-        .strip_prefix("opc.tcp://")
+    uri.strip_prefix("opc.tcp://")
         .and_then(|a| a.trim_end_matches('/').parse().ok())
         .ok_or_else(|| {
             format!("{uri:?} is not opc.tcp://ADDR:PORT (e.g. opc.tcp://127.0.0.1:4840)")
-        })?;
-    if !addr.ip().is_loopback() {
-        return Err(format!(
-            "{uri}: the OPC UA server takes security mode None and anonymous clients, so it \
-             listens on a loopback address only (127.0.0.1 or [::1]); signed and encrypted \
-             channels (Basic256Sha256 with certificates) are not there yet"
-        ));
-    }
-    Ok(addr)
+        })
 }
 
 /// The OPC UA server of a station and the follower that keeps its latest result. Dropping
@@ -154,7 +212,12 @@ pub struct OpcUaOutput {
 
 impl OpcUaOutput {
     /// Listens on `addr` (port 0 picks a free one) and follows `feed.log`.
-    pub(super) async fn start(addr: SocketAddr, feed: &Feed<'_>) -> Result<Self, StartError> {
+    /// With `users`, it serves Basic256Sha256 SignAndEncrypt to them only.
+    pub(super) async fn start(
+        addr: SocketAddr,
+        feed: &Feed<'_>,
+        users: Option<Vec<(String, String)>>,
+    ) -> Result<Self, StartError> {
         let listener = TcpListener::bind(addr)
             .await
             .map_err(|source| StartError::Listen { addr, source })?;
@@ -166,9 +229,10 @@ impl OpcUaOutput {
             feed.measure.clone(),
             feed.log.clone(),
         ));
-        let (server, handle) = builder(addr, feed.station, feed.state_dir, nodes.clone())
+        let (server, handle) = builder(addr, feed.station, feed.state_dir, nodes.clone(), users)
             .build()
             .map_err(|why| StartError::Server { addr, why })?;
+        private_key_owner_only(&feed.state_dir.join(PKI_DIR));
         let manager = handle
             .node_managers()
             .get_of_type::<InMemoryNodeManager<StationNodes>>()
@@ -235,19 +299,38 @@ impl Drop for OpcUaOutput {
     }
 }
 
+/// Makes the station's private key (which the library writes readable by all, as the
+/// umask allows) readable by its owner only; a key that is not there (no users) is left.
+fn private_key_owner_only(pki: &Path) {
+    use std::os::unix::fs::PermissionsExt as _;
+    let key = pki.join("private").join("private.pem");
+    if key.is_file()
+        && let Err(e) = std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600))
+    {
+        tracing::warn!("the OPC UA server's key {}: {e}", key.display());
+    }
+}
+
 /// `opc.tcp://ADDR:PORT/`.
 fn endpoint_url(addr: SocketAddr) -> String {
     format!("opc.tcp://{addr}/")
 }
 
-/// The server: one endpoint, security mode None, anonymous; the core namespace and the
-/// station's nodes.
-fn builder(addr: SocketAddr, station: &str, state_dir: &Path, nodes: Arc<Nodes>) -> ServerBuilder {
+/// The server: one endpoint, security mode None and anonymous, or Basic256Sha256
+/// SignAndEncrypt to `users` (its certificate made at the first start); the core
+/// namespace and the station's nodes.
+fn builder(
+    addr: SocketAddr,
+    station: &str,
+    state_dir: &Path,
+    nodes: Arc<Nodes>,
+    users: Option<Vec<(String, String)>>,
+) -> ServerBuilder {
     let host = match addr {
         SocketAddr::V4(a) => a.ip().to_string(),
         SocketAddr::V6(a) => format!("[{}]", a.ip()),
     };
-    ServerBuilder::new()
+    let builder = ServerBuilder::new()
         .application_name(format!("coapcam station {station}"))
         .application_uri(format!("urn:coapcam:{station}"))
         .product_uri("urn:coapcam")
@@ -262,11 +345,27 @@ fn builder(addr: SocketAddr, station: &str, state_dir: &Path, nodes: Arc<Nodes>)
         .host(host)
         .port(addr.port())
         .pki_dir(state_dir.join(PKI_DIR))
-        .create_sample_keypair(false)
-        .add_endpoint(
+        .create_sample_keypair(users.is_some());
+    let builder = match users {
+        None => builder.add_endpoint(
             "none",
             ServerEndpoint::new_none("/", &[ANONYMOUS_USER_TOKEN_ID.to_owned()]),
-        )
+        ),
+        Some(users) => {
+            let mut builder = builder;
+            let mut ids = Vec::new();
+            for (i, (name, password)) in users.into_iter().enumerate() {
+                let id = format!("user-{i}");
+                builder = builder.add_user_token(&id, ServerUserToken::user_pass(name, password));
+                ids.push(id);
+            }
+            builder.add_endpoint(
+                "basic256sha256",
+                ServerEndpoint::new_basic256sha256_sign_encrypt("/", &ids),
+            )
+        }
+    };
+    builder
         .discovery_urls(vec![endpoint_url(addr)])
         .with_node_manager(
             opcua::server::node_manager::memory::InMemoryNodeManagerBuilder::new(
@@ -893,7 +992,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn only_loopback_endpoints_are_taken() {
+    fn only_loopback_endpoints_are_taken_without_users() {
         assert_eq!(
             parse_endpoint("opc.tcp://127.0.0.1:4840"),
             Ok("127.0.0.1:4840".parse().expect("addr"))
@@ -902,10 +1001,18 @@ mod tests {
             parse_endpoint("opc.tcp://[::1]:4840/"),
             Ok("[::1]:4840".parse().expect("addr"))
         );
-        let refused = parse_endpoint("opc.tcp://0.0.0.0:4840").expect_err("0.0.0.0");
-        assert!(refused.contains("loopback"), "{refused}");
-        assert!(parse_endpoint("opc.tcp://192.168.1.2:4840").is_err());
         assert!(parse_endpoint("tcp://127.0.0.1:4840").is_err());
         assert!(parse_endpoint("opc.tcp://localhost:4840").is_err());
+        let args = |addr: &str, users: bool| Args {
+            opcua: Some(parse_endpoint(addr).expect("an endpoint")),
+            opcua_users: users.then(|| PathBuf::from("users")),
+        };
+        assert_eq!(args("opc.tcp://127.0.0.1:4840", false).check(), Ok(()));
+        let refused = args("opc.tcp://0.0.0.0:4840", false)
+            .check()
+            .expect_err("0.0.0.0");
+        assert!(refused.contains("loopback"), "{refused}");
+        assert!(args("opc.tcp://192.168.1.2:4840", false).check().is_err());
+        assert_eq!(args("opc.tcp://0.0.0.0:4840", true).check(), Ok(()));
     }
 }

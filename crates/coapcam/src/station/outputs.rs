@@ -295,9 +295,19 @@ impl Outputs {
         !self.flagged().is_empty() || !self.output.is_empty()
     }
 
-    /// Refuses two outputs of one name (two of a kind without an `id`, two `id`s alike):
-    /// they would share a cursor.
-    pub fn check_names(&self) -> Result<(), String> {
+    /// Refuses two outputs of one name (two of a kind without an `id`, two `id`s alike:
+    /// they would share a cursor), and an OPC UA server without users off this machine.
+    pub fn check(&self) -> Result<(), String> {
+        #[cfg(feature = "opcua")]
+        for settings in self
+            .flagged()
+            .iter()
+            .chain(self.output.iter().map(|e| &e.settings))
+        {
+            if let Settings::opcua(args) = settings {
+                args.check()?;
+            }
+        }
         let mut names = BTreeSet::new();
         let flagged = self.flagged().into_iter().map(|s| s.kind().to_owned());
         for name in flagged.chain(self.output.iter().map(|e| e.name().to_owned())) {

@@ -156,7 +156,7 @@ fn asyncua_browses_reads_the_latest_result_calls_measure_now_and_gets_its_event(
 }
 
 #[test]
-fn an_address_off_the_machine_is_refused_while_only_security_mode_none_is_served() {
+fn an_address_off_the_machine_without_users_is_refused() {
     let refused = Proc::run(
         COAPCAM,
         &["serve", "--opcua", "opc.tcp://0.0.0.0:4840"],
@@ -164,8 +164,101 @@ fn an_address_off_the_machine_is_refused_while_only_security_mode_none_is_served
     )
     .expect_status(2, "serve --opcua opc.tcp://0.0.0.0:4840");
     assert!(
-        refused.stderr.contains("loopback") && refused.stderr.contains("--opcua"),
+        refused.stderr.contains("loopback") && refused.stderr.contains("--opcua-users"),
         "{}",
         refused.stderr
+    );
+}
+
+#[test]
+fn with_users_only_signed_and_encrypted_sessions_of_a_trusted_client_and_a_user_get_in() {
+    if !available("serve --opcua --opcua-users with asyncua", &[Peer::Asyncua]) {
+        return;
+    }
+    let dir = TempDir::new("opcua-secure");
+    let users = dir.join("opcua-users");
+    std::fs::write(&users, "# the PLC\nplc:s3cret\n").expect("writing the users");
+    let client_dir = dir.join("client");
+    std::fs::create_dir_all(&client_dir).expect("the client's folder");
+    let Station {
+        process: _server,
+        opcua,
+        ..
+    } = station(
+        &dir.join("state"),
+        &[
+            "--opcua",
+            "opc.tcp://127.0.0.1:0",
+            "--opcua-users",
+            users.to_str().expect("UTF-8"),
+        ],
+    );
+    let url = format!("opc.tcp://{}/", opcua.expect("the OPC UA server's address"));
+    let seconds = LIMIT.as_secs().to_string();
+    let attempt = |password: &str| {
+        let out = Proc::run(
+            "python3",
+            &[
+                &script("opcua_secure.py"),
+                &url,
+                &seconds,
+                client_dir.to_str().expect("UTF-8"),
+                "plc",
+                password,
+            ],
+            LIMIT * 2,
+        )
+        .expect_success("opcua_secure.py");
+        let lines = out.json_lines();
+        let anonymous = lines.iter().find_map(|l| l.get("anonymous").cloned());
+        let secure = lines.iter().find_map(|l| l.get("secure").cloned());
+        (anonymous.expect("anonymous"), secure.expect("secure"))
+    };
+    // The client's certificate is unknown: refused, and left where an operator trusts it.
+    let (anonymous, secure) = attempt("s3cret");
+    assert!(
+        anonymous.as_str().is_some_and(|a| a.starts_with("refused")),
+        "{anonymous}"
+    );
+    assert_eq!(secure["in"], false, "{secure}");
+    assert!(
+        secure["why"]
+            .as_str()
+            .is_some_and(|w| w.contains("BadCertificateUntrusted")),
+        "{secure}"
+    );
+    let pki = dir.join("state").join("opcua-pki");
+    assert!(
+        pki.join("own").join("cert.der").is_file(),
+        "the station's certificate"
+    );
+    let rejected: Vec<_> = std::fs::read_dir(pki.join("rejected"))
+        .expect("the rejected certificates")
+        .map(|e| e.expect("an entry").path())
+        .collect();
+    assert_eq!(rejected.len(), 1, "{rejected:?}");
+    let name = rejected[0].file_name().expect("a file name");
+    std::fs::rename(&rejected[0], pki.join("trusted").join(name)).expect("trusting it");
+    // Trusted, with a wrong password: the user is refused.
+    let (_, secure) = attempt("wrong");
+    assert_eq!(secure["in"], false, "{secure}");
+    assert!(
+        secure["why"]
+            .as_str()
+            .is_some_and(|w| w.contains("BadIdentityTokenRejected")),
+        "{secure}"
+    );
+    // Trusted, and the user's password: in, reading and measuring.
+    let (anonymous, secure) = attempt("s3cret");
+    assert!(
+        anonymous.as_str().is_some_and(|a| a.starts_with("refused")),
+        "{anonymous}"
+    );
+    assert_eq!(secure["in"], true, "{secure}");
+    assert_eq!(secure["latest"], 0, "{secure}");
+    assert_eq!(
+        secure["measure_now"],
+        serde_json::json!([1, "recorded"]),
+        "{secure}"
     );
 }
