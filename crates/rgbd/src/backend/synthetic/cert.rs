@@ -26,6 +26,7 @@
 //! axis ([`MIN_M`]).
 
 use super::d415;
+use super::kinds::Object;
 use super::lane::{Draw, serial_digits};
 use super::raycast::{Stage, V3, World};
 use super::render::{SIGNAL_FULL, mix64};
@@ -289,12 +290,11 @@ fn top_seen(eyes: &[Eye], world: &World, index: usize, t: &Truth) -> bool {
 
 /// The finish of the object `t` describes.
 fn finish_of(scene: &Scene, t: &Truth) -> Finish {
-    match t.kind {
-        ObjectKind::Box => scene.boxes[t.index].finish,
-        ObjectKind::Cylinder => scene.cylinders[t.index].finish,
-        ObjectKind::Tube => scene.tubes[t.index].finish,
-        _ => scene.bags[t.index].finish,
-    }
+    scene
+        .objects()
+        .find(|(i, o)| o.kind() == t.kind && *i == t.index)
+        .map(|(_, o)| *o.finish())
+        .expect("every truth is of an object of the scene")
 }
 
 /// Gap between two convex footprints (corners in order around each), metres; 0 when they
@@ -450,14 +450,20 @@ enum Piece {
 }
 
 impl Piece {
+    /// The object.
+    fn object(&self) -> &dyn Object {
+        match self {
+            Self::Box(b) => b,
+            Self::Cylinder(c) => c,
+            Self::Tube(t) => t,
+            Self::Bag(b) => b,
+        }
+    }
+
     /// Length and width of its enclosing footprint and the yaw of the length, degrees.
     fn footprint(&self) -> (f64, f64, f64) {
-        match self {
-            Self::Box(b) => (b.size[0], b.size[1], b.yaw_deg),
-            Self::Cylinder(c) => (2.0 * c.radius, 2.0 * c.radius, 0.0),
-            Self::Tube(t) => (t.length, 2.0 * t.radius, t.yaw_deg),
-            Self::Bag(b) => (b.size[0], b.size[1], b.yaw_deg),
-        }
+        let ([l, w], yaw) = self.object().footprint();
+        (l, w, yaw)
     }
 
     /// Its extent along and across a row turned `row_deg`, metres.
@@ -478,12 +484,13 @@ impl Piece {
     }
 
     fn place(&mut self, at: [f64; 2]) {
-        match self {
-            Self::Box(b) => b.center = at,
-            Self::Cylinder(c) => c.center = at,
-            Self::Tube(t) => t.center = at,
-            Self::Bag(b) => b.center = at,
-        }
+        let object: &mut dyn Object = match self {
+            Self::Box(b) => b,
+            Self::Cylinder(c) => c,
+            Self::Tube(t) => t,
+            Self::Bag(b) => b,
+        };
+        *object.place_mut().0 = at;
     }
 }
 

@@ -71,8 +71,11 @@
 
 pub mod cert;
 pub mod d415;
+mod fields;
+mod kinds;
 mod label;
 pub mod lane;
+mod ray;
 mod raycast;
 mod render;
 pub mod scene;

@@ -1,21 +1,18 @@
-//! Ray casting of a scene: analytic intersections with the floor plane, yawed boxes,
-//! vertical cylinders and lying tubes, a marched height field for polybags; per-row
+//! Ray casting of a scene: the floor plane, markers printed on it, and each object's
+//! primitive (its kind's file in `kinds/` intersects it, behind [`Primitive`]); per-row
 //! culling of primitives by their bounding spheres.
 //! A [`Stage`] holds a scene prepared once (labels encoded, marker patterns read) and
 //! gives the [`World`] of any moment of its timeline.
 
 use std::sync::{Arc, Mutex, PoisonError};
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Matrix3;
 
-use super::label::{self, LabelTexture};
-use super::scene::{Finish, Scene, SceneError, Timeline};
+use super::fields::{Finish, SceneError, Timeline};
+pub(crate) use super::ray::V3;
+use super::ray::{Face, Interval, Primitive, T_EPS};
+use super::scene::Scene;
 use crate::intrinsics::{Intrinsics, Pose};
-
-pub(crate) type V3 = Vector3<f32>;
-
-/// Parameter distance below which an intersection counts as the ray's own start.
-const T_EPS: f32 = 1e-4;
 
 /// Which surface a ray hit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -40,59 +37,8 @@ pub(crate) struct Hit {
 }
 
 #[derive(Debug, Clone)]
-struct BoxPrim {
-    /// Footprint centre on the floor.
-    center: V3,
-    cos: f32,
-    sin: f32,
-    half: [f32; 2],
-    height: f32,
-    label: Option<(Arc<LabelTexture>, [f32; 2])>,
-}
-
-#[derive(Debug, Clone)]
-struct CylPrim {
-    center: V3,
-    radius: f32,
-    height: f32,
-}
-
-/// A tube lying on the floor, its axis along local x.
-#[derive(Debug, Clone)]
-struct TubePrim {
-    /// Footprint centre on the floor.
-    center: V3,
-    cos: f32,
-    sin: f32,
-    /// Half its length.
-    half: f32,
-    radius: f32,
-}
-
-/// A polybag: the pillow height field of [`Bag`](super::scene::Bag) over a rectangle.
-#[derive(Debug, Clone)]
-struct BagPrim {
-    /// Footprint centre on the floor.
-    center: V3,
-    cos: f32,
-    sin: f32,
-    half: [f32; 2],
-    /// Greatest height without sag.
-    height: f32,
-    sag: f32,
-}
-
-#[derive(Debug, Clone)]
-enum Shape {
-    Box(BoxPrim),
-    Cylinder(CylPrim),
-    Tube(TubePrim),
-    Bag(BagPrim),
-}
-
-#[derive(Debug, Clone)]
 struct Prim {
-    shape: Shape,
+    shape: Arc<dyn Primitive>,
     color: [f32; 3],
     /// The surface's finish; `None` for the default (matte, always enough light).
     finish: Option<Surfacing>,
@@ -118,301 +64,15 @@ impl Surfacing {
     }
 }
 
-/// Which face of a primitive a ray enters through.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Face {
-    /// A box face across local x.
-    X,
-    /// A box face across local y.
-    Y,
-    /// A horizontal face (box or cylinder cap).
-    Z,
-    /// The cylinder's or the tube's curved side.
-    Side,
-    /// A bag's surface.
-    Surface,
-}
-
-/// An entry/exit interval along a ray and the face at the entry.
-struct Interval {
-    near: f32,
-    far: f32,
-    face: Face,
-}
-
 impl Prim {
-    /// The centre of the primitive's footprint on the floor.
-    fn shape_center(&self) -> V3 {
-        match &self.shape {
-            Shape::Box(b) => b.center,
-            Shape::Cylinder(c) => c.center,
-            Shape::Tube(t) => t.center,
-            Shape::Bag(b) => b.center,
-        }
-    }
-
-    fn set_center(&mut self, to: V3) {
-        match &mut self.shape {
-            Shape::Box(b) => b.center = to,
-            Shape::Cylinder(c) => c.center = to,
-            Shape::Tube(t) => t.center = to,
-            Shape::Bag(b) => b.center = to,
-        }
-    }
-
-    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
-        match &self.shape {
-            Shape::Box(b) => b.interval(o, d),
-            Shape::Cylinder(c) => c.interval(o, d),
-            Shape::Tube(t) => t.interval(o, d),
-            Shape::Bag(b) => b.interval(o, d),
-        }
-    }
-
     /// Unit normal (world) where the ray `o + t d` enters through `face` at `t`, and
     /// whether that is an upward face.
     fn normal(&self, face: Face, o: &V3, d: &V3, t: f32) -> (V3, bool) {
-        match (face, &self.shape) {
-            (Face::Z, _) => (V3::new(0.0, 0.0, -d.z.signum()), d.z < 0.0),
-            (Face::Side, Shape::Cylinder(c)) => {
-                let q = o + d * t - c.center;
-                (V3::new(q.x, q.y, 0.0) / c.radius, false)
-            }
-            (Face::Side, Shape::Tube(tube)) => {
-                let q = to_local(tube.cos, tube.sin, &(o + d * t - tube.center));
-                let n = V3::new(0.0, q.y, q.z - tube.radius) / tube.radius;
-                (from_local(tube.cos, tube.sin, &n), false)
-            }
-            (_, Shape::Tube(tube)) => {
-                let nx = -to_local(tube.cos, tube.sin, d).x.signum();
-                (
-                    from_local(tube.cos, tube.sin, &V3::new(nx, 0.0, 0.0)),
-                    false,
-                )
-            }
-            (_, Shape::Bag(bag)) => (bag.normal(&(o + d * t)), false),
-            (_, Shape::Box(b)) => {
-                let ld = b.to_local(d);
-                let (nx, ny) = if face == Face::X {
-                    (-ld.x.signum(), 0.0)
-                } else {
-                    (0.0, -ld.y.signum())
-                };
-                (
-                    V3::new(b.cos * nx - b.sin * ny, b.sin * nx + b.cos * ny, 0.0),
-                    false,
-                )
-            }
-            (_, Shape::Cylinder(_)) => (V3::new(0.0, 0.0, 1.0), false),
-        }
-    }
-}
-
-fn slab(o: f32, d: f32, lo: f32, hi: f32) -> Option<(f32, f32)> {
-    if d.abs() < 1e-12 {
-        return (lo..=hi)
-            .contains(&o)
-            .then_some((f32::NEG_INFINITY, f32::INFINITY));
-    }
-    let inv = 1.0 / d;
-    let (t0, t1) = ((lo - o) * inv, (hi - o) * inv);
-    Some(if t0 < t1 { (t0, t1) } else { (t1, t0) })
-}
-
-/// A world vector in a frame turned by the yaw whose cosine and sine are given.
-fn to_local(cos: f32, sin: f32, v: &V3) -> V3 {
-    V3::new(cos * v.x + sin * v.y, -sin * v.x + cos * v.y, v.z)
-}
-
-/// A vector of a frame turned by the yaw whose cosine and sine are given, in the world.
-fn from_local(cos: f32, sin: f32, v: &V3) -> V3 {
-    V3::new(cos * v.x - sin * v.y, sin * v.x + cos * v.y, v.z)
-}
-
-/// The ray parameters within which a ray is within `radius` of an axis: `p` and `d` are
-/// the ray's origin and direction in the two coordinates across the axis. `None` when it
-/// never is; a ray along the axis is within it throughout or never.
-fn across_axis(p: [f32; 2], d: [f32; 2], radius: f32) -> Option<(f32, f32)> {
-    let a = d[0] * d[0] + d[1] * d[1];
-    let b = 2.0 * (p[0] * d[0] + p[1] * d[1]);
-    let c = p[0] * p[0] + p[1] * p[1] - radius * radius;
-    if a < 1e-12 {
-        if c > 0.0 {
-            return None;
-        }
-        return Some((f32::NEG_INFINITY, f32::INFINITY));
-    }
-    let disc = b * b - 4.0 * a * c;
-    if disc < 0.0 {
-        return None;
-    }
-    let sq = disc.sqrt();
-    Some(((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a)))
-}
-
-/// Where a ray is inside a capped cylinder: both `across` the axis (from
-/// [`across_axis`]) and `along` it between the caps (from [`slab`]). It enters through
-/// `cap` when it crosses a cap last, else through the curved side.
-fn capped(across: (f32, f32), along: (f32, f32), cap: Face) -> Option<Interval> {
-    let near = across.0.max(along.0);
-    let far = across.1.min(along.1);
-    if near > far {
-        return None;
-    }
-    let face = if near == along.0 { cap } else { Face::Side };
-    Some(Interval { near, far, face })
-}
-
-impl TubePrim {
-    #[inline(never)]
-    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
-        let p = to_local(self.cos, self.sin, &(o - self.center)) - V3::new(0.0, 0.0, self.radius);
-        let ld = to_local(self.cos, self.sin, d);
-        let across = across_axis([p.y, p.z], [ld.y, ld.z], self.radius)?;
-        let along = slab(p.x, ld.x, -self.half, self.half)?;
-        capped(across, along, Face::X)
-    }
-}
-
-/// Height above the floor, as a share of the greatest, below which a bag's surface
-/// counts as not reached (keeps a ray that leaves the surface from meeting it again).
-const BAG_INSIDE: f32 = 2e-5;
-/// Bisection steps that place a ray's entry into a bag (each halves the uncertainty).
-const BAG_BISECTIONS: u32 = 16;
-
-impl BagPrim {
-    /// Height of the top over local point (x, y), metres; 0 off the footprint.
-    fn top(&self, x: f32, y: f32) -> f32 {
-        let (u, v) = (x / self.half[0], y / self.half[1]);
-        let profile = |s: f32| {
-            let s2 = s * s;
-            let r = 1.0 - s2 * s2;
-            if r <= 0.0 { 0.0 } else { r.sqrt().sqrt() }
-        };
-        self.height * profile(u) * profile(v) * (1.0 - self.sag * (1.0 - u * u) * (1.0 - v * v))
-    }
-
-    /// How far above the local point `p` the surface is (positive: `p` is inside).
-    fn inside(&self, p: &V3) -> f32 {
-        self.top(p.x, p.y) - p.z
-    }
-
-    /// The first entry of the ray into the bag within its bounding box: a march over
-    /// the box to the first sample inside, then bisection. `far` is the box's exit.
-    /// The march takes 24 steps for each footprint the ray crosses and each height it
-    /// falls (the two added): a ray from a camera above falls nearly straight past
-    /// a shoulder, crossing little of the footprint, and steps by the footprint alone
-    /// (two or three samples down such a ray) passed over the shoulder's lower half,
-    /// so rays that meet a side below about 0.6 of its height met the floor instead.
-    #[inline(never)]
-    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
-        let lo = to_local(self.cos, self.sin, &(o - self.center));
-        let ld = to_local(self.cos, self.sin, d);
-        let (x0, x1) = slab(lo.x, ld.x, -self.half[0], self.half[0])?;
-        let (y0, y1) = slab(lo.y, ld.y, -self.half[1], self.half[1])?;
-        let (z0, z1) = slab(lo.z, ld.z, 0.0, self.height)?;
-        let start = x0.max(y0).max(z0).max(T_EPS);
-        let far = x1.min(y1).min(z1);
-        if start >= far {
-            return None;
-        }
-        let at = |t: f32| self.inside(&(lo + ld * t)) > BAG_INSIDE * self.height;
-        let span = far - start;
-        let across = span * (ld.x.abs() / self.half[0] + ld.y.abs() / self.half[1]);
-        let fall = span * ld.z.abs() / self.height;
-        let steps = (((across + fall) * 24.0).ceil() as u32).clamp(2, 96);
-        let mut before = start;
-        for k in 0..=steps {
-            let t = start + span * k as f32 / steps as f32;
-            if at(t) {
-                let near = if k == 0 {
-                    start
-                } else {
-                    let (mut out, mut inn) = (before, t);
-                    for _ in 0..BAG_BISECTIONS {
-                        let mid = 0.5 * (out + inn);
-                        if at(mid) {
-                            inn = mid;
-                        } else {
-                            out = mid;
-                        }
-                    }
-                    inn
-                };
-                return Some(Interval {
-                    near,
-                    far,
-                    face: Face::Surface,
-                });
-            }
-            before = t;
-        }
-        None
-    }
-
-    /// Unit normal (world) of the surface over world point `p` (from the height's
-    /// slopes by central differences).
-    fn normal(&self, p: &V3) -> V3 {
-        let l = to_local(self.cos, self.sin, &(p - self.center));
-        let h = 1e-3 * self.half[0].min(self.half[1]);
-        let dx = (self.top(l.x + h, l.y) - self.top(l.x - h, l.y)) / (2.0 * h);
-        let dy = (self.top(l.x, l.y + h) - self.top(l.x, l.y - h)) / (2.0 * h);
-        from_local(self.cos, self.sin, &V3::new(-dx, -dy, 1.0).normalize())
-    }
-}
-
-impl BoxPrim {
-    fn to_local(&self, v: &V3) -> V3 {
-        to_local(self.cos, self.sin, v)
-    }
-
-    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
-        let lo = self.to_local(&(o - self.center));
-        let ld = self.to_local(d);
-        let (x0, x1) = slab(lo.x, ld.x, -self.half[0], self.half[0])?;
-        let (y0, y1) = slab(lo.y, ld.y, -self.half[1], self.half[1])?;
-        let (z0, z1) = slab(lo.z, ld.z, 0.0, self.height)?;
-        let near = x0.max(y0).max(z0);
-        let far = x1.min(y1).min(z1);
-        if near > far {
-            return None;
-        }
-        let face = if near == z0 {
-            Face::Z
-        } else if near == x0 {
-            Face::X
+        if face == Face::Z {
+            (V3::new(0.0, 0.0, -d.z.signum()), d.z < 0.0)
         } else {
-            Face::Y
-        };
-        Some(Interval { near, far, face })
-    }
-
-    /// Whether the label is black at world point `p` on the top face.
-    fn label_dark(&self, p: &V3) -> bool {
-        let Some((texture, extent)) = &self.label else {
-            return false;
-        };
-        let l = self.to_local(&(p - self.center));
-        let u = (l.x + extent[0] / 2.0) / extent[0];
-        let v = (extent[1] / 2.0 - l.y) / extent[1];
-        (0.0..1.0).contains(&u) && (0.0..1.0).contains(&v) && texture.is_dark(u, v)
-    }
-
-    fn on_label(&self, p: &V3) -> bool {
-        let Some((_, extent)) = &self.label else {
-            return false;
-        };
-        let l = self.to_local(&(p - self.center));
-        l.x.abs() <= extent[0] / 2.0 && l.y.abs() <= extent[1] / 2.0
-    }
-}
-
-impl CylPrim {
-    fn interval(&self, o: &V3, d: &V3) -> Option<Interval> {
-        let p = o - self.center;
-        let across = across_axis([p.x, p.y], [d.x, d.y], self.radius)?;
-        let along = slab(p.z, d.z, 0.0, self.height)?;
-        capped(across, along, Face::Z)
+            (self.shape.normal(face, o, d, t), false)
+        }
     }
 }
 
@@ -495,111 +155,21 @@ impl Stage {
     pub(crate) fn new(scene: &Scene) -> Result<Self, SceneError> {
         scene.validate()?;
         let floor_z = scene.floor.z as f32;
-        let mut prims = Vec::with_capacity(scene.boxes.len() + scene.cylinders.len());
-        for (i, b) in scene.boxes.iter().enumerate() {
-            let label = match &b.label {
-                Some(l) => {
-                    let texture = label::encode(l).map_err(|reason| SceneError::Invalid {
-                        field: format!("box[{i}].label.text"),
-                        reason,
-                    })?;
-                    let (lx, ly) = l.extent_m();
-                    Some((Arc::new(texture), [lx as f32, ly as f32]))
-                }
-                None => None,
-            };
-            let yaw = (b.yaw_deg as f32).to_radians();
-            let half = [b.size[0] as f32 / 2.0, b.size[1] as f32 / 2.0];
-            let height = b.size[2] as f32;
-            let center = V3::new(b.center[0] as f32, b.center[1] as f32, floor_z);
+        let mut prims = Vec::new();
+        for (i, o) in scene.objects() {
+            let shape = o.primitive(floor_z, &|f: &str| format!("{}[{i}].{f}", o.kind().name()))?;
+            let (sphere_center, sphere_radius) = shape.sphere();
             prims.push(Staged {
                 item: Prim {
-                    shape: Shape::Box(BoxPrim {
-                        center,
-                        cos: yaw.cos(),
-                        sin: yaw.sin(),
-                        half,
-                        height,
-                        label,
-                    }),
-                    color: rgb(b.color),
-                    finish: Surfacing::of(&b.finish),
-                    sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
-                    sphere_radius: (half[0] * half[0] + half[1] * half[1] + height * height / 4.0)
-                        .sqrt(),
+                    shape,
+                    color: rgb(o.color()),
+                    finish: Surfacing::of(o.finish()),
+                    sphere_center,
+                    sphere_radius,
                 },
-                center: b.center,
-                timeline: b.timeline,
-                label: b.label.as_ref().map(|l| l.timeline()),
-            });
-        }
-        for c in &scene.cylinders {
-            let (radius, height) = (c.radius as f32, c.height as f32);
-            let center = V3::new(c.center[0] as f32, c.center[1] as f32, floor_z);
-            prims.push(Staged {
-                item: Prim {
-                    shape: Shape::Cylinder(CylPrim {
-                        center,
-                        radius,
-                        height,
-                    }),
-                    color: rgb(c.color),
-                    finish: Surfacing::of(&c.finish),
-                    sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
-                    sphere_radius: (radius * radius + height * height / 4.0).sqrt(),
-                },
-                center: c.center,
-                timeline: c.timeline,
-                label: None,
-            });
-        }
-        for t in &scene.tubes {
-            let yaw = (t.yaw_deg as f32).to_radians();
-            let (radius, half) = (t.radius as f32, t.length as f32 / 2.0);
-            let center = V3::new(t.center[0] as f32, t.center[1] as f32, floor_z);
-            prims.push(Staged {
-                item: Prim {
-                    shape: Shape::Tube(TubePrim {
-                        center,
-                        cos: yaw.cos(),
-                        sin: yaw.sin(),
-                        half,
-                        radius,
-                    }),
-                    color: rgb(t.color),
-                    finish: Surfacing::of(&t.finish),
-                    sphere_center: center + V3::new(0.0, 0.0, radius),
-                    sphere_radius: (half * half + radius * radius).sqrt(),
-                },
-                center: t.center,
-                timeline: t.timeline,
-                label: None,
-            });
-        }
-        for b in &scene.bags {
-            let yaw = (b.yaw_deg as f32).to_radians();
-            let half = [b.size[0] as f32 / 2.0, b.size[1] as f32 / 2.0];
-            let height = b.size[2] as f32;
-            let center = V3::new(b.center[0] as f32, b.center[1] as f32, floor_z);
-            prims.push(Staged {
-                item: Prim {
-                    shape: Shape::Bag(BagPrim {
-                        center,
-                        cos: yaw.cos(),
-                        sin: yaw.sin(),
-                        half,
-                        height,
-                        sag: b.sag as f32,
-                    }),
-                    color: rgb(b.color),
-                    finish: Surfacing::of(&b.finish),
-                    sphere_center: center + V3::new(0.0, 0.0, height / 2.0),
-                    sphere_radius: (half[0] * half[0] + half[1] * half[1] + height * height / 4.0)
-                        .sqrt(),
-                },
-                center: b.center,
-                timeline: b.timeline,
-                label: None,
+                center: o.center(),
+                timeline: *o.timeline(),
+                label: o.label().map(|l| l.timeline()),
             });
         }
         let mut markers = Vec::with_capacity(scene.markers.len());
@@ -691,13 +261,13 @@ impl Stage {
                 let mut prim = p.item.clone();
                 if at != p.center {
                     let to = V3::new(at[0] as f32, at[1] as f32, self.floor_z);
-                    prim.sphere_center += to - prim.shape_center();
-                    prim.set_center(to);
+                    prim.sphere_center += to - prim.shape.center();
+                    prim.shape = prim.shape.moved(to);
                 }
                 if !place.label
-                    && let Shape::Box(b) = &mut prim.shape
+                    && let Some(bare) = prim.shape.unlabelled()
                 {
-                    b.label = None;
+                    prim.shape = bare;
                 }
                 Some(prim)
             })
@@ -780,7 +350,7 @@ impl World {
         });
         let mut nearest: Option<(usize, Interval)> = None;
         for index in candidates {
-            let Some(iv) = self.prims[index].interval(o, d) else {
+            let Some(iv) = self.prims[index].shape.interval(o, d) else {
                 continue;
             };
             let ahead_of_floor = best.is_none_or(|b| iv.near < b.t);
@@ -820,6 +390,7 @@ impl World {
         }
         candidates.into_iter().any(|i| {
             self.prims[i]
+                .shape
                 .interval(from, &d)
                 .is_some_and(|iv| iv.far > T_EPS && iv.near < 1.0 - T_EPS)
         })
@@ -829,29 +400,15 @@ impl World {
     /// `index` alone (its top over that point); `None` when it misses it.
     pub(crate) fn top_of(&self, index: usize, x: f32, y: f32) -> Option<V3> {
         let prim = &self.prims[index];
-        if let Shape::Bag(bag) = &prim.shape {
-            // A height field: straight down meets it at its height, where it counts as
-            // reached (the march's test, without the march).
-            let l = to_local(
-                bag.cos,
-                bag.sin,
-                &(V3::new(x, y, bag.center.z) - bag.center),
-            );
-            let h = bag.top(l.x, l.y);
-            return (h > BAG_INSIDE * bag.height).then(|| V3::new(x, y, bag.center.z + h));
-        }
-        let o = V3::new(x, y, prim.sphere_center.z + prim.sphere_radius + 1.0);
-        let d = V3::new(0.0, 0.0, -1.0);
-        prim.interval(&o, &d).map(|iv| o + d * iv.near)
+        prim.shape
+            .top_over(x, y, prim.sphere_center.z + prim.sphere_radius + 1.0)
     }
 
     /// Whether a hit at `point` lies on a label (whose modules need more than one ray
     /// per pixel to be drawn as a camera sees them).
     pub(crate) fn on_label(&self, hit: &Hit, point: &V3) -> bool {
         match hit.surface {
-            Surface::Prim { index, top: true } => {
-                matches!(&self.prims[index].shape, Shape::Box(b) if b.on_label(point))
-            }
+            Surface::Prim { index, top: true } => self.prims[index].shape.on_label(point),
             _ => false,
         }
     }
@@ -880,15 +437,14 @@ impl World {
             },
             Surface::Prim { index, top } => {
                 let prim = &self.prims[index];
-                match &prim.shape {
-                    Shape::Box(b) if top && b.on_label(point) => {
-                        if b.label_dark(point) {
-                            LABEL_BLACK
-                        } else {
-                            LABEL_WHITE
-                        }
+                if top && prim.shape.on_label(point) {
+                    if prim.shape.label_dark(point) {
+                        LABEL_BLACK
+                    } else {
+                        LABEL_WHITE
                     }
-                    _ => prim.color,
+                } else {
+                    prim.color
                 }
             }
         };
@@ -1101,11 +657,11 @@ remove_s = 4.0"#,
         let a = stage.world_at(1.25);
         let b = stage.world_at(1.5);
         assert!(!Arc::ptr_eq(&a, &b), "it slides");
-        assert!((a.prims[0].shape_center().x - 0.225).abs() < 1e-6);
+        assert!((a.prims[0].shape.center().x - 0.225).abs() < 1e-6);
         assert!((a.prims[0].sphere_center.x - 0.225).abs() < 1e-6);
         let still = stage.world_at(2.0);
         assert!(Arc::ptr_eq(&still, &stage.world_at(3.5)), "standing still");
-        assert_eq!(still.prims[0].shape_center(), V3::zeros());
+        assert_eq!(still.prims[0].shape.center(), V3::zeros());
         assert!(stage.world_at(4.0).prims.is_empty());
     }
 }

@@ -99,6 +99,14 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+pub use super::fields::{
+    Finish, MAX_COORDINATE_M, MAX_SCENE_TIME_S, MAX_SIZE_M, SceneError, Timeline,
+};
+use super::fields::{TimelineFile, check_place, coordinates, invalid, positive};
+pub use super::kinds::{
+    Bag, Cylinder, MAX_LABEL_CHARS, MAX_SAG, ObjectKind, SceneBox, Tube, bag_profile,
+};
+use super::kinds::{Object, default_box_color};
 pub use super::label::{Label, LabelKind};
 use crate::camera::Serial;
 use crate::intrinsics::Pose;
@@ -117,222 +125,8 @@ pub enum Noise {
 fn default_floor_color() -> [u8; 3] {
     [120, 120, 120]
 }
-fn default_box_color() -> [u8; 3] {
-    [180, 140, 90]
-}
-fn default_cylinder_color() -> [u8; 3] {
-    [70, 110, 160]
-}
-fn default_bag_color() -> [u8; 3] {
-    [215, 215, 222]
-}
 fn default_noise() -> Noise {
     Noise::D415
-}
-
-/// When an object is in the scene and how it gets to its place, in seconds of scene
-/// time (see the module documentation). The default is "there, still, all the time".
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Timeline {
-    /// When it appears; `None` = from the start.
-    pub appear_s: Option<f64>,
-    /// When it is removed; `None` = never.
-    pub remove_s: Option<f64>,
-    /// Where it appears, (x, y) metres, when it slides in to its centre.
-    pub from: Option<[f64; 2]>,
-    /// When it stands at its centre, having slid from `from` since `appear_s`.
-    pub still_s: Option<f64>,
-}
-
-impl Label {
-    /// When the label is on its box (it moves with the box: no `from`).
-    pub fn timeline(&self) -> Timeline {
-        Timeline {
-            appear_s: self.appear_s,
-            remove_s: self.remove_s,
-            from: None,
-            still_s: None,
-        }
-    }
-}
-
-/// Latest time a timeline may name, seconds (about 116 days).
-pub const MAX_SCENE_TIME_S: f64 = 1.0e7;
-
-impl Timeline {
-    /// Whether it is the default: there, still, all the time.
-    pub fn is_always(&self) -> bool {
-        *self == Self::default()
-    }
-
-    /// When it appears, seconds (0 when there from the start).
-    pub fn appear(&self) -> f64 {
-        self.appear_s.unwrap_or(0.0)
-    }
-
-    /// When it stands still at its centre: `still_s` when it slides in, else when it
-    /// appears.
-    pub fn still(&self) -> f64 {
-        self.still_s.unwrap_or_else(|| self.appear())
-    }
-
-    /// Whether it is in the scene at scene time `t_s`.
-    pub fn present(&self, t_s: f64) -> bool {
-        t_s >= self.appear() && self.remove_s.is_none_or(|r| t_s < r)
-    }
-
-    /// Whether it is in the scene and sliding at `t_s`.
-    pub fn moving(&self, t_s: f64) -> bool {
-        self.present(t_s) && self.from.is_some() && t_s < self.still()
-    }
-
-    /// Where an object resting at `center` stands at `t_s`; `None` when it is absent.
-    /// From `still_s` on (and always without `from`) exactly `center`.
-    pub fn position(&self, center: [f64; 2], t_s: f64) -> Option<[f64; 2]> {
-        if !self.present(t_s) {
-            return None;
-        }
-        match (self.from, self.still_s) {
-            (Some(from), Some(still)) if t_s < still => {
-                let f = (t_s - self.appear()) / (still - self.appear());
-                Some([
-                    from[0] + (center[0] - from[0]) * f,
-                    from[1] + (center[1] - from[1]) * f,
-                ])
-            }
-            _ => Some(center),
-        }
-    }
-
-    /// Checks the rules of a timeline; `at` names a field (`box[0].still_s`).
-    fn validate(&self, at: &dyn Fn(&str) -> String) -> Result<(), SceneError> {
-        for (name, value) in [
-            ("appear_s", self.appear_s),
-            ("remove_s", self.remove_s),
-            ("still_s", self.still_s),
-        ] {
-            if let Some(v) = value
-                && !(v.is_finite() && (0.0..=MAX_SCENE_TIME_S).contains(&v))
-            {
-                return Err(invalid(
-                    at(name),
-                    format!("must be seconds of scene time from 0 to {MAX_SCENE_TIME_S}, got {v}"),
-                ));
-            }
-        }
-        if let Some(from) = self.from {
-            coordinates(&at("from"), &from)?;
-        }
-        let appear = self.appear();
-        match (self.from, self.still_s) {
-            (Some(_), None) => {
-                return Err(invalid(
-                    at("from"),
-                    "needs still_s: the time it stands at its centre after sliding from `from`",
-                ));
-            }
-            (None, Some(_)) => {
-                return Err(invalid(
-                    at("still_s"),
-                    "needs from: the point it slides from, starting at appear_s",
-                ));
-            }
-            (Some(_), Some(still)) if still <= appear => {
-                return Err(invalid(
-                    at("still_s"),
-                    format!("must be after appear_s ({appear} s), got {still}"),
-                ));
-            }
-            _ => {}
-        }
-        if let Some(remove) = self.remove_s {
-            let (after, when) = match self.still_s {
-                Some(still) => ("still_s", still),
-                None => ("appear_s", appear),
-            };
-            if remove <= when {
-                return Err(invalid(
-                    at("remove_s"),
-                    format!("must be after {after} ({when} s), got {remove}"),
-                ));
-            }
-        }
-        Ok(())
-    }
-}
-
-/// How an object's surface returns the D415's light (see the module documentation): the
-/// default is a matte, light surface that always returns enough, as every object did
-/// before finishes existed.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-pub struct Finish {
-    /// Share of the infrared light the surface sends back, 0 (black) to 1 (the default:
-    /// bright enough everywhere). Below 1 a pixel's depth is missing the more often the
-    /// less light comes back (darker, farther, more slanted).
-    #[serde(default = "default_reflectivity")]
-    pub reflectivity: f64,
-    /// How mirror-like the surface is, 0 (matte, the default) to 1. Where the projector's
-    /// mirror image falls into the imagers the pixels saturate and lose their depth; the
-    /// color image shows a highlight.
-    #[serde(default)]
-    pub gloss: f64,
-}
-
-fn default_reflectivity() -> f64 {
-    1.0
-}
-
-impl Default for Finish {
-    fn default() -> Self {
-        Self {
-            reflectivity: 1.0,
-            gloss: 0.0,
-        }
-    }
-}
-
-impl Finish {
-    /// Whether it is the default (matte, always enough light).
-    pub fn is_default(&self) -> bool {
-        *self == Self::default()
-    }
-
-    fn validate(&self, at: &dyn Fn(&str) -> String) -> Result<(), SceneError> {
-        for (name, value) in [("reflectivity", self.reflectivity), ("gloss", self.gloss)] {
-            if !(0.0..=1.0).contains(&value) {
-                return Err(invalid(
-                    at(name),
-                    format!("must be from 0 to 1, got {value}"),
-                ));
-            }
-        }
-        Ok(())
-    }
-}
-
-/// The timeline fields every object of a scene file may carry (flattened into the
-/// object's table).
-#[derive(Deserialize)]
-struct TimelineFile {
-    #[serde(default)]
-    appear_s: Option<f64>,
-    #[serde(default)]
-    remove_s: Option<f64>,
-    #[serde(default)]
-    from: Option<[f64; 2]>,
-    #[serde(default)]
-    still_s: Option<f64>,
-}
-
-impl From<TimelineFile> for Timeline {
-    fn from(f: TimelineFile) -> Self {
-        Self {
-            appear_s: f.appear_s,
-            remove_s: f.remove_s,
-            from: f.from,
-            still_s: f.still_s,
-        }
-    }
 }
 
 /// The floor plane.
@@ -459,253 +253,6 @@ impl ColorSensor {
     }
 }
 
-/// A box standing on the floor.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(from = "BoxFile")]
-pub struct SceneBox {
-    /// Length (along x before yaw), width, height in metres.
-    pub size: [f64; 3],
-    /// Footprint centre on the floor, (x, y) metres.
-    pub center: [f64; 2],
-    /// Rotation about world z, degrees, counter-clockwise seen from above.
-    pub yaw_deg: f64,
-    /// Color.
-    pub color: [u8; 3],
-    /// Optional barcode label on the top face.
-    pub label: Option<Label>,
-    /// How its surface returns the D415's light.
-    pub finish: Finish,
-    /// When it is there, and whether it slides in.
-    pub timeline: Timeline,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct BoxFile {
-    size: [f64; 3],
-    center: [f64; 2],
-    #[serde(default)]
-    yaw_deg: f64,
-    #[serde(default = "default_box_color")]
-    color: [u8; 3],
-    #[serde(default)]
-    label: Option<Label>,
-    #[serde(flatten)]
-    finish: Finish,
-    #[serde(flatten)]
-    timeline: TimelineFile,
-}
-
-impl From<BoxFile> for SceneBox {
-    fn from(f: BoxFile) -> Self {
-        Self {
-            size: f.size,
-            center: f.center,
-            yaw_deg: f.yaw_deg,
-            color: f.color,
-            label: f.label,
-            finish: f.finish,
-            timeline: f.timeline.into(),
-        }
-    }
-}
-
-/// A vertical cylinder standing on the floor.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(from = "CylinderFile")]
-pub struct Cylinder {
-    /// Radius, metres.
-    pub radius: f64,
-    /// Height, metres.
-    pub height: f64,
-    /// Centre on the floor, (x, y) metres.
-    pub center: [f64; 2],
-    /// Color.
-    pub color: [u8; 3],
-    /// How its surface returns the D415's light.
-    pub finish: Finish,
-    /// When it is there, and whether it slides in.
-    pub timeline: Timeline,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct CylinderFile {
-    radius: f64,
-    height: f64,
-    center: [f64; 2],
-    #[serde(default = "default_cylinder_color")]
-    color: [u8; 3],
-    #[serde(flatten)]
-    finish: Finish,
-    #[serde(flatten)]
-    timeline: TimelineFile,
-}
-
-impl From<CylinderFile> for Cylinder {
-    fn from(f: CylinderFile) -> Self {
-        Self {
-            radius: f.radius,
-            height: f.height,
-            center: f.center,
-            color: f.color,
-            finish: f.finish,
-            timeline: f.timeline.into(),
-        }
-    }
-}
-
-/// A tube lying on the floor: a cylinder whose axis is horizontal.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(from = "TubeFile")]
-pub struct Tube {
-    /// Radius, metres.
-    pub radius: f64,
-    /// Length along its axis, metres.
-    pub length: f64,
-    /// Centre of its footprint on the floor, (x, y) metres.
-    pub center: [f64; 2],
-    /// Direction of its axis, degrees counter-clockwise from world x.
-    pub yaw_deg: f64,
-    /// Color.
-    pub color: [u8; 3],
-    /// How its surface returns the D415's light.
-    pub finish: Finish,
-    /// When it is there, and whether it slides in.
-    pub timeline: Timeline,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct TubeFile {
-    radius: f64,
-    length: f64,
-    center: [f64; 2],
-    #[serde(default)]
-    yaw_deg: f64,
-    #[serde(default = "default_cylinder_color")]
-    color: [u8; 3],
-    #[serde(flatten)]
-    finish: Finish,
-    #[serde(flatten)]
-    timeline: TimelineFile,
-}
-
-impl From<TubeFile> for Tube {
-    fn from(f: TubeFile) -> Self {
-        Self {
-            radius: f.radius,
-            length: f.length,
-            center: f.center,
-            yaw_deg: f.yaw_deg,
-            color: f.color,
-            finish: f.finish,
-            timeline: f.timeline.into(),
-        }
-    }
-}
-
-/// A soft, filled polybag lying on the floor, modelled as a pillow: over its rectangular
-/// footprint the height is `height * q(u) * q(v) * (1 - sag (1 - u^2) (1 - v^2))`, where
-/// u and v run from -1 to 1 across its length and width and q(s) = (1 - s^4)^(1/4). The
-/// top is nearly flat in the middle, the edges round down to meet the floor upright
-/// (q falls steeply near |s| = 1), the corners are lower than the middle of the sides,
-/// and `sag` lowers the middle of the top (a bag not quite full). Its smallest
-/// enclosing cuboid is the footprint times its highest point ([`Bag::top_m`]).
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(from = "BagFile")]
-pub struct Bag {
-    /// Length (along x before yaw), width and greatest possible height (without sag),
-    /// metres.
-    pub size: [f64; 3],
-    /// Footprint centre on the floor, (x, y) metres.
-    pub center: [f64; 2],
-    /// Rotation about world z, degrees, counter-clockwise seen from above.
-    pub yaw_deg: f64,
-    /// How much the middle of the top sinks, 0 (a full pillow, the default) to 0.5.
-    pub sag: f64,
-    /// Color.
-    pub color: [u8; 3],
-    /// How its surface returns the D415's light.
-    pub finish: Finish,
-    /// When it is there, and whether it slides in.
-    pub timeline: Timeline,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct BagFile {
-    size: [f64; 3],
-    center: [f64; 2],
-    #[serde(default)]
-    yaw_deg: f64,
-    #[serde(default)]
-    sag: f64,
-    #[serde(default = "default_bag_color")]
-    color: [u8; 3],
-    #[serde(flatten)]
-    finish: Finish,
-    #[serde(flatten)]
-    timeline: TimelineFile,
-}
-
-impl From<BagFile> for Bag {
-    fn from(f: BagFile) -> Self {
-        Self {
-            size: f.size,
-            center: f.center,
-            yaw_deg: f.yaw_deg,
-            sag: f.sag,
-            color: f.color,
-            finish: f.finish,
-            timeline: f.timeline.into(),
-        }
-    }
-}
-
-/// Most a bag's top may sink in the middle ([`Bag::sag`]).
-pub const MAX_SAG: f64 = 0.5;
-
-/// The pillow profile across a bag: (1 - s^4)^(1/4) for |s| < 1, else 0.
-pub fn bag_profile(s: f64) -> f64 {
-    let s2 = s * s;
-    let r = 1.0 - s2 * s2;
-    if r <= 0.0 { 0.0 } else { r.sqrt().sqrt() }
-}
-
-impl Bag {
-    /// Height of the bag's top at (u, v), each from -1 to 1 across its length and width,
-    /// as a share of `size[2]`.
-    pub fn shape(u: f64, v: f64, sag: f64) -> f64 {
-        bag_profile(u) * bag_profile(v) * (1.0 - sag * (1.0 - u * u) * (1.0 - v * v))
-    }
-
-    /// Its highest point above the floor, metres (`size[2]` without sag, lower with it),
-    /// found by a grid search refined twice (to far below a micrometre).
-    pub fn top_m(&self) -> f64 {
-        let mut best = (0.0, 0.0, Self::shape(0.0, 0.0, self.sag));
-        let mut step = 0.02;
-        let mut center = (0.0, 0.0);
-        for _ in 0..3 {
-            for i in -50..=50 {
-                for j in -50..=50 {
-                    let (u, v) = (
-                        (center.0 + f64::from(i) * step).clamp(-1.0, 1.0),
-                        (center.1 + f64::from(j) * step).clamp(-1.0, 1.0),
-                    );
-                    let h = Self::shape(u, v, self.sag);
-                    if h > best.2 {
-                        best = (u, v, h);
-                    }
-                }
-            }
-            center = (best.0, best.1);
-            step /= 50.0;
-        }
-        best.2 * self.size[2]
-    }
-}
-
 /// A calibration marker printed on the floor.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(from = "MarkerFile")]
@@ -769,36 +316,6 @@ pub struct Scene {
     pub bags: Vec<Bag>,
     /// Calibration markers on the floor.
     pub markers: Vec<SceneMarker>,
-}
-
-/// What kind of object a [`Truth`] describes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-#[non_exhaustive]
-pub enum ObjectKind {
-    /// A `[[box]]`.
-    Box,
-    /// A `[[cylinder]]` standing upright.
-    Cylinder,
-    /// A `[[tube]]` lying on the floor.
-    Tube,
-    /// A `[[bag]]`, a polybag.
-    Bag,
-}
-
-impl ObjectKind {
-    /// Every kind, in the order of [`Scene`]'s tables (a kind added goes here too: what
-    /// judges the objects lists them from it).
-    pub const ALL: [Self; 4] = [Self::Box, Self::Cylinder, Self::Tube, Self::Bag];
-
-    /// The name of the kind's table in a scene file (`box`, `cylinder`, `tube`, `bag`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Box => "box",
-            Self::Cylinder => "cylinder",
-            Self::Tube => "tube",
-            Self::Bag => "bag",
-        }
-    }
 }
 
 /// The true extent of an object standing on the floor: its smallest enclosing upright
@@ -877,38 +394,6 @@ impl Truth {
     /// Footprint area, square metres.
     pub fn footprint_m2(&self) -> f64 {
         self.size[0] * self.size[1]
-    }
-}
-
-/// Why a scene was refused.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum SceneError {
-    /// The file could not be read.
-    #[error("cannot read scene file {path}: {source}")]
-    Io {
-        /// The path.
-        path: String,
-        /// The OS error.
-        source: std::io::Error,
-    },
-    /// Not valid TOML of the scene shape (the message has line and column).
-    #[error("scene: {0}")]
-    Parse(String),
-    /// A value outside what the field allows.
-    #[error("scene: {field}: {reason}")]
-    Invalid {
-        /// Which field, e.g. `camera[1].serial`.
-        field: String,
-        /// What is wrong and what is allowed.
-        reason: String,
-    },
-}
-
-fn invalid(field: impl Into<String>, reason: impl Into<String>) -> SceneError {
-    SceneError::Invalid {
-        field: field.into(),
-        reason: reason.into(),
     }
 }
 
@@ -1003,97 +488,36 @@ impl SceneCamera {
     }
 }
 
-/// Largest coordinate magnitude of a position, point or direction, metres.
-pub const MAX_COORDINATE_M: f64 = 1000.0;
-/// Largest size (box edge, radius, height, label width), metres.
-pub const MAX_SIZE_M: f64 = 100.0;
 /// Most cameras in a scene.
 pub const MAX_CAMERAS: usize = 16;
-/// Most objects (boxes and cylinders together) in a scene.
+/// Most objects (boxes, cylinders, tubes and bags together) in a scene.
 pub const MAX_OBJECTS: usize = 256;
 /// Most markers in a scene.
 pub const MAX_MARKERS: usize = 256;
-/// Longest label text, characters.
-pub const MAX_LABEL_CHARS: usize = 256;
 
-fn finite(field: &str, values: &[f64]) -> Result<(), SceneError> {
-    if values.iter().all(|v| v.is_finite()) {
-        Ok(())
-    } else {
-        Err(invalid(field, "must be finite numbers"))
-    }
-}
-
-fn coordinates(field: &str, values: &[f64]) -> Result<(), SceneError> {
-    if values
+/// The markers of `markers` there at scene time `t_s`, each where it lies then and without
+/// a timeline.
+fn markers_at(markers: &[SceneMarker], t_s: f64) -> Vec<SceneMarker> {
+    markers
         .iter()
-        .all(|v| v.is_finite() && v.abs() <= MAX_COORDINATE_M)
-    {
-        Ok(())
-    } else {
-        Err(invalid(
-            field,
-            format!("must be finite numbers within ±{MAX_COORDINATE_M} m, got {values:?}"),
-        ))
-    }
-}
-
-fn positive(field: &str, values: &[f64]) -> Result<(), SceneError> {
-    if values
-        .iter()
-        .all(|v| v.is_finite() && *v > 0.0 && *v <= MAX_SIZE_M)
-    {
-        Ok(())
-    } else {
-        Err(invalid(
-            field,
-            format!("must be positive (metres) and at most {MAX_SIZE_M} m, got {values:?}"),
-        ))
-    }
-}
-
-/// Checks where an object stands, `at` naming its fields: its centre on the floor and
-/// its yaw (`None` for a vertical cylinder, which has none).
-fn check_place(
-    at: &dyn Fn(&str) -> String,
-    center: &[f64; 2],
-    yaw_deg: Option<f64>,
-) -> Result<(), SceneError> {
-    coordinates(&at("center"), center)?;
-    match yaw_deg {
-        Some(yaw) => finite(&at("yaw_deg"), &[yaw]),
-        None => Ok(()),
-    }
-}
-
-/// Checks how an object's surface returns light and when it is there, `at` naming its
-/// fields.
-fn check_surface(
-    at: &dyn Fn(&str) -> String,
-    finish: &Finish,
-    timeline: &Timeline,
-) -> Result<(), SceneError> {
-    finish.validate(at)?;
-    timeline.validate(at)
+        .filter_map(|m| {
+            let mut m = m.clone();
+            m.center = m.timeline.position(m.center, t_s)?;
+            m.timeline = Timeline::default();
+            Some(m)
+        })
+        .collect()
 }
 
 /// The objects of `objects` there at scene time `t_s`, each where it stands then and
-/// without a timeline; `place` gives an object's centre and timeline.
-fn placed_at<T: Clone>(
-    objects: &[T],
-    t_s: f64,
-    place: fn(&mut T) -> (&mut [f64; 2], &mut Timeline),
-) -> Vec<T> {
-    objects
-        .iter()
-        .filter_map(|o| {
-            let mut o = o.clone();
-            let (center, timeline) = place(&mut o);
-            *center = timeline.position(*center, t_s)?;
-            *timeline = Timeline::default();
-            Some(o)
-        })
-        .collect()
+/// without a timeline.
+fn objects_at<T: Object + Clone>(objects: &[T], t_s: f64) -> Vec<T> {
+    objects.iter().filter_map(|o| o.at(t_s)).collect()
+}
+
+/// Every object of `objects` as an [`Object`], with its index among them.
+fn each<T: Object>(objects: &[T]) -> impl Iterator<Item = (usize, &dyn Object)> {
+    objects.iter().map(|o| o as &dyn Object).enumerate()
 }
 
 /// toml's error for `text`, at the line of the key it names. serde reports a key that an
@@ -1196,7 +620,7 @@ impl Scene {
                 format!("at most {MAX_CAMERAS} cameras, got {}", self.cameras.len()),
             ));
         }
-        let objects = self.boxes.len() + self.cylinders.len() + self.tubes.len() + self.bags.len();
+        let objects = self.objects().count();
         if objects > MAX_OBJECTS {
             return Err(invalid(
                 "box, cylinder, tube, bag",
@@ -1237,61 +661,8 @@ impl Scene {
             }
             c.color_sensor.validate(&at)?;
         }
-        for (i, b) in self.boxes.iter().enumerate() {
-            let at = |f: &str| format!("box[{i}].{f}");
-            positive(&at("size"), &b.size)?;
-            check_place(&at, &b.center, Some(b.yaw_deg))?;
-            check_surface(&at, &b.finish, &b.timeline)?;
-            if let Some(label) = &b.label {
-                positive(&at("label.size"), &[label.size])?;
-                label
-                    .timeline()
-                    .validate(&|f: &str| at(&format!("label.{f}")))?;
-                let chars = label.text.chars().count();
-                if chars > MAX_LABEL_CHARS {
-                    return Err(invalid(
-                        at("label.text"),
-                        format!("at most {MAX_LABEL_CHARS} characters, got {chars}"),
-                    ));
-                }
-                let (lx, ly) = label.extent_m();
-                if lx > b.size[0] || ly > b.size[1] {
-                    return Err(invalid(
-                        at("label.size"),
-                        format!(
-                            "a {lx} x {ly} m label does not fit on the {} x {} m top face",
-                            b.size[0], b.size[1]
-                        ),
-                    ));
-                }
-                super::label::encode(label).map_err(|reason| invalid(at("label.text"), reason))?;
-            }
-        }
-        for (i, c) in self.cylinders.iter().enumerate() {
-            let at = |f: &str| format!("cylinder[{i}].{f}");
-            positive(&at("radius"), &[c.radius])?;
-            positive(&at("height"), &[c.height])?;
-            check_place(&at, &c.center, None)?;
-            check_surface(&at, &c.finish, &c.timeline)?;
-        }
-        for (i, t) in self.tubes.iter().enumerate() {
-            let at = |f: &str| format!("tube[{i}].{f}");
-            positive(&at("radius"), &[t.radius])?;
-            positive(&at("length"), &[t.length])?;
-            check_place(&at, &t.center, Some(t.yaw_deg))?;
-            check_surface(&at, &t.finish, &t.timeline)?;
-        }
-        for (i, b) in self.bags.iter().enumerate() {
-            let at = |f: &str| format!("bag[{i}].{f}");
-            positive(&at("size"), &b.size)?;
-            check_place(&at, &b.center, Some(b.yaw_deg))?;
-            if !(0.0..=MAX_SAG).contains(&b.sag) {
-                return Err(invalid(
-                    at("sag"),
-                    format!("must be from 0 to {MAX_SAG}, got {}", b.sag),
-                ));
-            }
-            check_surface(&at, &b.finish, &b.timeline)?;
+        for (i, o) in self.objects() {
+            o.validate(&|f: &str| format!("{}[{i}].{f}", o.kind().name()))?;
         }
         if self.markers.len() > MAX_MARKERS {
             return Err(invalid(
@@ -1321,34 +692,20 @@ impl Scene {
     /// Whether any object (or label) has a timeline: without one the scene is the same
     /// at every moment.
     pub fn is_timed(&self) -> bool {
-        self.boxes.iter().any(|b| {
-            !b.timeline.is_always() || b.label.as_ref().is_some_and(|l| !l.timeline().is_always())
-        }) || self.cylinders.iter().any(|c| !c.timeline.is_always())
-            || self.tubes.iter().any(|t| !t.timeline.is_always())
-            || self.bags.iter().any(|b| !b.timeline.is_always())
-            || self.markers.iter().any(|m| !m.timeline.is_always())
+        self.objects().any(|(_, o)| {
+            !o.timeline().is_always() || o.label().is_some_and(|l| !l.timeline().is_always())
+        }) || self.markers.iter().any(|m| !m.timeline.is_always())
     }
 
     /// The scene as it stands at scene time `t_s`: the objects there then, each where it
     /// is then, without timelines (labels not yet stuck on, or peeled off, left out).
     pub fn at(&self, t_s: f64) -> Self {
         let mut scene = self.clone();
-        scene.boxes = placed_at(&self.boxes, t_s, |b| (&mut b.center, &mut b.timeline));
-        for b in &mut scene.boxes {
-            b.label = b
-                .label
-                .take()
-                .filter(|l| l.timeline().present(t_s))
-                .map(|l| Label {
-                    appear_s: None,
-                    remove_s: None,
-                    ..l
-                });
-        }
-        scene.cylinders = placed_at(&self.cylinders, t_s, |c| (&mut c.center, &mut c.timeline));
-        scene.tubes = placed_at(&self.tubes, t_s, |t| (&mut t.center, &mut t.timeline));
-        scene.bags = placed_at(&self.bags, t_s, |b| (&mut b.center, &mut b.timeline));
-        scene.markers = placed_at(&self.markers, t_s, |m| (&mut m.center, &mut m.timeline));
+        scene.boxes = objects_at(&self.boxes, t_s);
+        scene.cylinders = objects_at(&self.cylinders, t_s);
+        scene.tubes = objects_at(&self.tubes, t_s);
+        scene.bags = objects_at(&self.bags, t_s);
+        scene.markers = markers_at(&self.markers, t_s);
         scene
     }
 
@@ -1357,41 +714,28 @@ impl Scene {
     /// objects), where each stands at rest (its `center`); `scene.at(t_s).truths()`
     /// gives those of one moment.
     pub fn truths(&self) -> Vec<Truth> {
-        let boxes = self
-            .boxes
-            .iter()
-            .enumerate()
-            .map(|(i, b)| Truth::new(ObjectKind::Box, i, b.size, b.center, b.yaw_deg));
-        let cylinders = self.cylinders.iter().enumerate().map(|(i, c)| {
-            let side = 2.0 * c.radius;
-            Truth::new(
-                ObjectKind::Cylinder,
-                i,
-                [side, side, c.height],
-                c.center,
-                0.0,
-            )
-        });
-        let tubes = self.tubes.iter().enumerate().map(|(i, t)| {
-            let side = 2.0 * t.radius;
-            Truth::new(
-                ObjectKind::Tube,
-                i,
-                [t.length, side, side],
-                t.center,
-                t.yaw_deg,
-            )
-        });
-        let bags = self.bags.iter().enumerate().map(|(i, b)| {
-            Truth::new(
-                ObjectKind::Bag,
-                i,
-                [b.size[0], b.size[1], b.top_m()],
-                b.center,
-                b.yaw_deg,
-            )
-        });
-        boxes.chain(cylinders).chain(tubes).chain(bags).collect()
+        self.objects()
+            .map(|(i, o)| {
+                let ([length, width], yaw_deg) = o.footprint();
+                Truth::new(
+                    o.kind(),
+                    i,
+                    [length, width, o.height()],
+                    o.center(),
+                    yaw_deg,
+                )
+            })
+            .collect()
+    }
+
+    /// Every object with its index among those of its kind: boxes, then cylinders, tubes
+    /// and bags, each in file order (the order of [`Scene::truths`]). A kind added is
+    /// listed here.
+    pub(crate) fn objects(&self) -> impl Iterator<Item = (usize, &dyn Object)> {
+        each(&self.boxes)
+            .chain(each(&self.cylinders))
+            .chain(each(&self.tubes))
+            .chain(each(&self.bags))
     }
 
     /// The camera with this serial.
