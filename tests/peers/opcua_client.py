@@ -1,16 +1,18 @@
 """An OPC UA client of our own script on asyncua (PyPI), a library we did not write, for
 crates/coapcam/tests/it/opcua.rs: against `coapcam serve --opcua URL` it browses the
-Objects folder and the station, reads the latest result, subscribes to the station's
-events (NewResultEventType's fields), calls MeasureNow and waits for the event of the record it made,
-then reads the records by id (GetResultById) and by id and time (GetResultsSince). Each step is one
-JSON object on a line of standard output; any failure exits non-zero with the reason on
-standard error.
+Objects folder and the station, reads its identity, its cameras and the latest result with
+its photo, subscribes to the station's events (NewResultEventType's fields), calls
+MeasureNow and waits for the event of the record it made, reads the latest result and its
+photo again, then reads the records by id (GetResultById) and by id and time
+(GetResultsSince). Each step is one JSON object on a line of standard output; any failure
+exits non-zero with the reason on standard error.
 
     python3 opcua_client.py opc.tcp://127.0.0.1:PORT TIMEOUT_S
 """
 
 import asyncio
 import datetime
+import hashlib
 import json
 import sys
 import time
@@ -71,15 +73,29 @@ async def main(url, timeout):
             display_name=(await station.read_display_name()).Text,
         )
 
-        async def read(node):
+        async def read(node, leave=()):
             out = {}
             for child in await node.get_children():
                 name = (await child.read_browse_name()).Name
-                out[name] = plain(await child.read_value())
+                if name not in leave:
+                    out[name] = plain(await child.read_value())
             return out
 
+        photo_node = await latest.get_child([f"{ns}:Photo"])
+
+        async def photo():
+            """The latest result's photo: its size, SHA-256 and first bytes."""
+            jpeg = await photo_node.read_value()
+            if jpeg is None:
+                return None
+            return {"bytes": len(jpeg), "sha256": hashlib.sha256(jpeg).hexdigest(),
+                    "head": jpeg[:2].hex()}
+
         say(identity=await read(identity))
-        say(latest=await read(latest))
+        cameras = await station.get_child([f"{ns}:Cameras"])
+        say(cameras={(await c.read_browse_name()).Name: await read(c)
+                     for c in await cameras.get_children()})
+        say(latest=await read(latest, leave=("Photo",)), photo=await photo())
 
         events = Events()
         subscription = await client.create_subscription(100, events)
@@ -111,7 +127,7 @@ async def main(url, timeout):
             )
             if message.startswith(f"record {record_id}"):
                 break
-        say(latest=await read(latest))
+        say(latest=await read(latest, leave=("Photo",)), photo=await photo())
         await subscription.delete()
 
         # Results by id and by time, from the station's log.

@@ -191,8 +191,39 @@ pub type MeasureNow = Arc<
     dyn Fn() -> Pin<Box<dyn Future<Output = Result<Option<u64>, String>> + Send>> + Send + Sync,
 >;
 
+/// The cameras connected now, as the camera server knows them (OPC UA's `Cameras`).
+pub type Cameras = Arc<dyn Fn() -> Vec<CameraView> + Send + Sync>;
+
+/// A connected camera as an output shows it: what `GET /api/cameras` says of it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CameraView {
+    /// Its serial.
+    pub serial: String,
+    /// Its product name.
+    pub model: String,
+    /// Whether it has a 3d-transformation other than the identity.
+    pub calibrated: bool,
+    /// Its color stream's settings.
+    pub color: StreamView,
+    /// Its depth stream's settings.
+    pub depth: StreamView,
+}
+
+/// A stream's settings: its format's name, frame rate and resolution.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StreamView {
+    /// `RGB8`, `Z16`, ...
+    pub format: &'static str,
+    /// Frames a second.
+    pub fps: u32,
+    /// Pixels.
+    pub width: u32,
+    /// Pixels.
+    pub height: u32,
+}
+
 /// What an output starts from: the results log, the station's name, its state directory,
-/// and how to measure now.
+/// how to measure now and its cameras.
 pub(super) struct Feed<'a> {
     pub(super) log: &'a ResultsLog,
     pub(super) station: &'a str,
@@ -202,6 +233,9 @@ pub(super) struct Feed<'a> {
     /// Read by the OPC UA output only (feature `opcua`).
     #[cfg_attr(not(feature = "opcua"), allow(dead_code))]
     pub(super) measure: Option<MeasureNow>,
+    /// Read by the OPC UA output only (feature `opcua`).
+    #[cfg_attr(not(feature = "opcua"), allow(dead_code))]
+    pub(super) cameras: Cameras,
 }
 
 /// Follows `log` into `sink` until the sink is done or the log is gone: from its

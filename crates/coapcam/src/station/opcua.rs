@@ -2,10 +2,16 @@
 //! shows the station to PLCs and SCADA systems. Under the Objects folder, the object
 //! `Station` of the namespace [`NAMESPACE`] holds
 //! - `Identity`: `StationName`, `SoftwareName`, `SoftwareVersion`, `SoftwareSha256`;
+//! - `Cameras`: a folder with an object per connected camera (its browse name its
+//!   serial) holding `Serial`, `Model`, `Calibrated`, and its streams' settings as the
+//!   camera server has them now (`ColorFormat`, `ColorWidth`, `ColorHeight`, `ColorFps`,
+//!   and the same four of depth); a camera connected or set otherwise shows within
+//!   [`CAMERAS_EVERY`];
 //! - `LatestResult`: the newest record of the results log (`RecordId`, `Time`,
 //!   `LengthMm`, `WidthMm`, `HeightMm`, `DivisionMm`, `Shape`, `Codes`, `Status`,
-//!   `Trigger`), updated from the log's follower as each record is appended (a client's
-//!   subscription sees each change);
+//!   `Trigger`, and `Photo`: its photo, the JPEG the log keeps, as a ByteString, null
+//!   when the log keeps none), updated from the log's follower as each record is appended
+//!   (a client's subscription sees each change);
 //! - the method `MeasureNow`: measures with every camera as `POST /cams/dimensions` does
 //!   and records it; it answers the new record's id and `recorded` (0 and why, when the
 //!   table was empty), or a Bad status when measuring failed;
@@ -59,7 +65,9 @@ use opcua::types::{
 use tokio::net::TcpListener;
 use tokio::task::JoinHandle;
 
-use super::follow::{self, Feed, MeasureNow, Next, Output, OutputId, Sink, Start};
+use super::follow::{
+    self, CameraView, Cameras, Feed, MeasureNow, Next, Output, OutputId, Sink, Start,
+};
 use super::log::ResultsLog;
 use crate::api::record::{Record, UtcTime};
 use crate::api::results::MAX_LIST;
@@ -74,6 +82,17 @@ pub const PKI_DIR: &str = "opcua-pki";
 
 /// How long stopping the server may take.
 const STOP: Duration = Duration::from_secs(5);
+
+/// How often the `Cameras` folder is compared with the cameras the server has.
+pub const CAMERAS_EVERY: Duration = Duration::from_secs(1);
+
+/// The largest photo `LatestResult.Photo` carries (a ByteString; a larger one is not
+/// served, and the variable is null). The library's default, 65,535 bytes, is less than
+/// the default scene's photo.
+const PHOTO_MAX: usize = 8 << 20;
+
+/// The largest message the server sends or takes: the photo and the rest of a response.
+const MESSAGE_MAX: usize = PHOTO_MAX + (1 << 20);
 
 /// The OPC UA server could not start.
 #[derive(Debug, thiserror::Error)]
@@ -109,8 +128,8 @@ pub enum StartError {
 #[group(skip)]
 pub struct Args {
     /// Serve the station over OPC UA on this address (opc.tcp://127.0.0.1:4840): its
-    /// identity, the latest result, results by id and time, the method MeasureNow and an
-    /// event per record (docs/station.md). Without --opcua-users: security mode None and
+    /// identity, its cameras, the latest result and its photo, results by id and time,
+    /// the method MeasureNow and an event per record (docs/station.md). Without --opcua-users: security mode None and
     /// anonymous clients, on a loopback address only.
     #[arg(long, value_name = "opc.tcp://ADDR:PORT", value_parser = parse_endpoint)]
     opcua: Option<SocketAddr>,
@@ -208,6 +227,7 @@ pub struct OpcUaOutput {
     handle: ServerHandle,
     server: Option<JoinHandle<()>>,
     follow: JoinHandle<()>,
+    cameras: JoinHandle<()>,
 }
 
 impl OpcUaOutput {
@@ -224,11 +244,11 @@ impl OpcUaOutput {
         let addr = listener
             .local_addr()
             .map_err(|source| StartError::Listen { addr, source })?;
-        let nodes = Arc::new(Nodes::new(
-            feed.station,
-            feed.measure.clone(),
-            feed.log.clone(),
-        ));
+        let nodes = Arc::new(Nodes {
+            station: feed.station.to_owned(),
+            measure: feed.measure.clone(),
+            log: feed.log.clone(),
+        });
         let (server, handle) = builder(addr, feed.station, feed.state_dir, nodes.clone(), users)
             .build()
             .map_err(|why| StartError::Server { addr, why })?;
@@ -245,6 +265,11 @@ impl OpcUaOutput {
                 tracing::error!("the OPC UA server on {addr} stopped: {e}");
             }
         });
+        let cameras = tokio::spawn(show_cameras(
+            feed.cameras.clone(),
+            manager.clone(),
+            handle.clone(),
+        ));
         // The newest record is shown from the start, without an event.
         let log = feed.log.clone();
         let newest = log.newest();
@@ -261,6 +286,7 @@ impl OpcUaOutput {
             handle,
             server: Some(server),
             follow,
+            cameras,
         })
     }
 
@@ -277,6 +303,7 @@ impl Output for OpcUaOutput {
 
     fn stop(mut self: Box<Self>) -> Pin<Box<dyn Future<Output = ()> + Send>> {
         self.follow.abort();
+        self.cameras.abort();
         self.handle.cancel();
         let server = self.server.take();
         Box::pin(async move {
@@ -292,6 +319,7 @@ impl Output for OpcUaOutput {
 impl Drop for OpcUaOutput {
     fn drop(&mut self) {
         self.follow.abort();
+        self.cameras.abort();
         self.handle.cancel();
         if let Some(server) = &self.server {
             server.abort();
@@ -345,6 +373,9 @@ fn builder(
         .host(host)
         .port(addr.port())
         .pki_dir(state_dir.join(PKI_DIR))
+        .max_byte_string_length(PHOTO_MAX)
+        .max_message_size(MESSAGE_MAX)
+        .max_chunk_count(MESSAGE_MAX.div_ceil(opcua::server::constants::SEND_BUFFER_SIZE))
         .create_sample_keypair(users.is_some());
     let builder = match users {
         None => builder.add_endpoint(
@@ -386,21 +417,11 @@ fn builder(
 }
 
 /// What the station's nodes are made from: its name, how to measure now, and its results
-/// log (read by `GetResultById` and `GetResultsSince`).
+/// log (read by `GetResultById` and `GetResultsSince`, and for the latest photo).
 struct Nodes {
     station: String,
     measure: Option<MeasureNow>,
     log: ResultsLog,
-}
-
-impl Nodes {
-    fn new(station: &str, measure: Option<MeasureNow>, log: ResultsLog) -> Self {
-        Self {
-            station: station.to_owned(),
-            measure,
-            log,
-        }
-    }
 }
 
 /// The station's node manager: its nodes, and the method `MeasureNow`.
@@ -422,6 +443,104 @@ const RESULT_FIELDS: [(&str, DataTypeId); 10] = [
     ("Status", DataTypeId::String),
     ("Trigger", DataTypeId::String),
 ];
+
+/// The variable of `LatestResult` that holds its photo (not one of `GetResultById`'s
+/// answers: a photo is large).
+const PHOTO: &str = "Photo";
+
+/// The node id's string of the folder of the cameras.
+const CAMERAS: &str = "Station.Cameras";
+
+/// A variable of a camera's object: its name and data type.
+const CAMERA_FIELDS: [(&str, DataTypeId); 11] = [
+    ("Serial", DataTypeId::String),
+    ("Model", DataTypeId::String),
+    ("Calibrated", DataTypeId::Boolean),
+    ("ColorFormat", DataTypeId::String),
+    ("ColorWidth", DataTypeId::UInt32),
+    ("ColorHeight", DataTypeId::UInt32),
+    ("ColorFps", DataTypeId::UInt32),
+    ("DepthFormat", DataTypeId::String),
+    ("DepthWidth", DataTypeId::UInt32),
+    ("DepthHeight", DataTypeId::UInt32),
+    ("DepthFps", DataTypeId::UInt32),
+];
+
+/// What a camera shows, in the order of [`CAMERA_FIELDS`].
+fn camera_values(camera: &CameraView) -> [Variant; 11] {
+    let text = |t: &str| Variant::from(UAString::from(t));
+    [
+        text(&camera.serial),
+        text(&camera.model),
+        Variant::Boolean(camera.calibrated),
+        text(camera.color.format),
+        Variant::UInt32(camera.color.width),
+        Variant::UInt32(camera.color.height),
+        Variant::UInt32(camera.color.fps),
+        text(camera.depth.format),
+        Variant::UInt32(camera.depth.width),
+        Variant::UInt32(camera.depth.height),
+        Variant::UInt32(camera.depth.fps),
+    ]
+}
+
+/// Keeps the `Cameras` folder as the camera server has its cameras: compared every
+/// [`CAMERAS_EVERY`], an object added for a camera connected, removed for one gone, and
+/// the variables of one whose settings changed set (which a subscription sees).
+async fn show_cameras(
+    cameras: Cameras,
+    manager: Arc<InMemoryNodeManager<StationNodes>>,
+    handle: ServerHandle,
+) {
+    let mut shown: Vec<CameraView> = Vec::new();
+    let mut every = tokio::time::interval(CAMERAS_EVERY);
+    every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        every.tick().await;
+        let now = cameras();
+        if now == shown {
+            continue;
+        }
+        let station = manager.inner();
+        let is_now = |serial: &str| now.iter().any(|c| c.serial == serial);
+        {
+            let mut space = manager.address_space().write();
+            for gone in shown.iter().filter(|c| !is_now(&c.serial)) {
+                let object = station.id(&format!("{CAMERAS}.{}", gone.serial));
+                for (name, _) in CAMERA_FIELDS {
+                    space.delete(
+                        &station.id(&format!("{CAMERAS}.{}.{name}", gone.serial)),
+                        true,
+                    );
+                }
+                space.delete(&object, true);
+            }
+            for new in now
+                .iter()
+                .filter(|c| !shown.iter().any(|s| s.serial == c.serial))
+            {
+                station.camera(&mut space, new);
+            }
+        }
+        for camera in now
+            .iter()
+            .filter(|c| shown.iter().any(|s| s != *c && s.serial == c.serial))
+        {
+            let ids: Vec<NodeId> = CAMERA_FIELDS
+                .iter()
+                .map(|(name, _)| station.id(&format!("{CAMERAS}.{}.{name}", camera.serial)))
+                .collect();
+            let values = camera_values(camera).map(DataValue::new_now);
+            if let Err(status) = manager.set_values(
+                handle.subscriptions(),
+                ids.iter().zip(values).map(|(id, v)| (id, None, v)),
+            ) {
+                tracing::warn!("OPC UA: showing camera {}: {status}", camera.serial);
+            }
+        }
+        shown = now;
+    }
+}
 
 /// The browse name of the event type of a new record, and its node id's string.
 const EVENT_TYPE: &str = "NewResultEventType";
@@ -503,6 +622,23 @@ impl StationNodes {
         }
     }
 
+    /// The object of `camera` in the `Cameras` folder, its variables set.
+    fn camera(&self, space: &mut AddressSpace, camera: &CameraView) {
+        let path = format!("{CAMERAS}.{}", camera.serial);
+        ObjectBuilder::new(
+            &self.id(&path),
+            self.name(&camera.serial),
+            format!("{} {}", camera.model, camera.serial),
+        )
+        .description("A camera of the station")
+        .has_type_definition(ObjectTypeId::BaseObjectType)
+        .organized_by(self.id(CAMERAS))
+        .insert(space);
+        for ((name, data_type), value) in CAMERA_FIELDS.into_iter().zip(camera_values(camera)) {
+            self.variable(space, &path, name, data_type, value);
+        }
+    }
+
     /// A read-only variable `parent.name`.
     fn variable(
         &self,
@@ -574,6 +710,18 @@ impl InMemoryNodeManagerImpl for StationNodes {
             };
             self.variable(space, "Station.LatestResult", name, data_type, empty);
         }
+        self.variable(
+            space,
+            "Station.LatestResult",
+            PHOTO,
+            DataTypeId::ByteString,
+            ByteString::null().into(),
+        );
+        ObjectBuilder::new(&self.id(CAMERAS), self.name("Cameras"), "Cameras")
+            .description("The cameras connected now, an object each (its name its serial)")
+            .has_type_definition(ObjectTypeId::FolderType)
+            .component_of(self.id("Station"))
+            .insert(space);
         MethodBuilder::new(
             &self.id("Station.MeasureNow"),
             self.name("MeasureNow"),
@@ -898,22 +1046,50 @@ struct Publisher {
 }
 
 impl Publisher {
-    fn show(&self, record: &Record) -> Result<(), StatusCode> {
+    /// Shows `record` and `photo` (null: none) as the latest result.
+    fn show(&self, record: &Record, photo: ByteString) -> Result<(), StatusCode> {
         let index = self.manager.inner().index;
         let ids: Vec<NodeId> = RESULT_FIELDS
             .iter()
-            .map(|(name, _)| id(index, &format!("Station.LatestResult.{name}")))
+            .map(|(name, _)| name)
+            .chain([&PHOTO])
+            .map(|name| id(index, &format!("Station.LatestResult.{name}")))
             .collect();
         let now = DateTime::now();
-        let values = result_values(record).map(|v| {
-            let mut value = DataValue::new_at(v, now);
-            value.source_timestamp = Some(now);
-            value
-        });
+        let values = result_values(record)
+            .into_iter()
+            .chain([Variant::from(photo)])
+            .map(|v| {
+                let mut value = DataValue::new_at(v, now);
+                value.source_timestamp = Some(now);
+                value
+            });
         self.manager.set_values(
             self.handle.subscriptions(),
             ids.iter().zip(values).map(|(id, v)| (id, None, v)),
         )
+    }
+
+    /// The photo of `record` the log keeps, read on the blocking pool; null without one
+    /// or when it is larger than [`PHOTO_MAX`].
+    async fn photo(&self, record: &Record) -> Result<ByteString, String> {
+        if !record.has_photo {
+            return Ok(ByteString::null());
+        }
+        let (log, id) = (self.nodes.log.clone(), record.id);
+        match tokio::task::spawn_blocking(move || log.photo(id)).await {
+            Ok(Ok(Some(jpeg))) if jpeg.len() <= PHOTO_MAX => Ok(ByteString::from(jpeg)),
+            Ok(Ok(Some(jpeg))) => {
+                tracing::warn!(
+                    "OPC UA: the photo of record {id} ({} bytes) is larger than {PHOTO_MAX}: not shown",
+                    jpeg.len()
+                );
+                Ok(ByteString::null())
+            }
+            Ok(Ok(None)) => Ok(ByteString::null()),
+            Ok(Err(e)) => Err(format!("reading the photo of record {id}: {e}")),
+            Err(e) => Err(format!("reading the photo of record {id}: {e}")),
+        }
     }
 
     fn announce(&self, record: &Record) {
@@ -973,7 +1149,11 @@ impl Sink for Publisher {
     }
 
     async fn deliver(&mut self, record: &Record) -> Next {
-        if let Err(status) = self.show(record) {
+        let photo = match self.photo(record).await {
+            Ok(photo) => photo,
+            Err(why) => return Next::Retry(why),
+        };
+        if let Err(status) = self.show(record, photo) {
             return Next::Retry(format!("showing record {}: {status}", record.id));
         }
         if record.id > self.quiet_until {

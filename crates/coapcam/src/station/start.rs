@@ -12,7 +12,7 @@ use std::sync::Arc;
 use coap_rd::registrant::{Registrant, RegistrantConfig};
 use tokio::task::JoinHandle;
 
-use super::follow::{Feed, MeasureNow, Output};
+use super::follow::{CameraView, Cameras, Feed, MeasureNow, Output, StreamView};
 use super::log::{LogError, ResultsLog};
 use super::outputs::OutputError;
 use super::signing::StationKey;
@@ -184,6 +184,10 @@ impl Station {
                     measure: server
                         .rig()
                         .map(|rig| measure_now(rig, recorder.clone(), config.auto_measure)),
+                    cameras: match server.rig() {
+                        Some(rig) => cameras(rig),
+                        None => Arc::new(Vec::new),
+                    },
                 };
                 config.outputs.start(&feed).await?
             }
@@ -313,5 +317,34 @@ fn measure_now(
                 .await
                 .map(|record| record.map(|r| r.id))
         })
+    })
+}
+
+/// The cameras of `rig` as an output shows them (OPC UA's `Cameras`), read at each call.
+fn cameras(rig: Arc<impl Rig>) -> Cameras {
+    Arc::new(move || {
+        rig.cameras()
+            .into_iter()
+            .map(|cam| {
+                let (color, depth) = (cam.camera.color_settings(), cam.camera.depth_settings());
+                CameraView {
+                    serial: cam.serial.to_string(),
+                    model: cam.camera.model().to_owned(),
+                    calibrated: cam.transformation != geometry::Transformation::identity(),
+                    color: StreamView {
+                        format: color.format.name(),
+                        fps: color.fps,
+                        width: color.width,
+                        height: color.height,
+                    },
+                    depth: StreamView {
+                        format: depth.format.name(),
+                        fps: depth.fps,
+                        width: depth.width,
+                        height: depth.height,
+                    },
+                }
+            })
+            .collect()
     })
 }

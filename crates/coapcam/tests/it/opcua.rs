@@ -1,13 +1,17 @@
 //! The OPC UA output (`serve --opcua`) against a client we did not write: PyPI's asyncua,
-//! driven by `tests/peers/opcua_client.py`, browses the station, reads its identity and
-//! latest result, calls MeasureNow and gets the event of the record it made, and reads
+//! driven by `tests/peers/opcua_client.py`, browses the station, reads its identity, its
+//! cameras and the latest result with its photo, calls MeasureNow and gets the event of the record it made, and reads
 //! the log's records by id (GetResultById) and by id and time (GetResultsSince). asyncua
 //! missing fails in CI (`CI=true`) and skips loudly elsewhere.
 
 use std::time::Duration;
 
+use coap::Code;
+use coapcam::api::record::sha256_hex;
+
 use crate::support::{
-    COAPCAM, Peer, Proc, Station, TempDir, available, client, measure, runtime, script, station,
+    COAPCAM, Peer, Proc, Station, TempDir, available, client, measure, runtime, script, send,
+    station,
 };
 
 /// Longest wait for the client script, and for each of its steps.
@@ -60,7 +64,7 @@ fn asyncua_browses_reads_the_latest_result_calls_measure_now_and_gets_its_event(
     for name in ["Server", "Station"] {
         assert!(has(&browse["Objects"], name), "{name}: {browse}");
     }
-    for name in ["Identity", "LatestResult", "MeasureNow"] {
+    for name in ["Identity", "Cameras", "LatestResult", "MeasureNow"] {
         assert!(has(&browse["Station"], name), "{name}: {browse}");
     }
     for name in [
@@ -74,6 +78,7 @@ fn asyncua_browses_reads_the_latest_result_calls_measure_now_and_gets_its_event(
         "Codes",
         "Status",
         "Trigger",
+        "Photo",
     ] {
         assert!(has(&browse["LatestResult"], name), "{name}: {browse}");
     }
@@ -91,6 +96,51 @@ fn asyncua_browses_reads_the_latest_result_calls_measure_now_and_gets_its_event(
         identity["SoftwareSha256"].as_str().map(str::len),
         Some(64),
         "{identity}"
+    );
+
+    // The cameras, as the camera server has them: the default scene's one camera.
+    let cameras = step("cameras")[0]
+        .as_object()
+        .expect("the cameras by serial");
+    assert_eq!(cameras.len(), 1, "{cameras:?}");
+    let (serial, camera) = cameras.iter().next().expect("a camera");
+    assert_eq!(camera["Serial"], serial.as_str(), "{camera}");
+    assert!(
+        camera["Model"]
+            .as_str()
+            .is_some_and(|m| m.starts_with("Intel RealSense")),
+        "{camera}"
+    );
+    assert!(camera["Calibrated"].is_boolean(), "{camera}");
+    let c = client();
+    for (stream, field) in [("color", "Color"), ("depth", "Depth")] {
+        let path = format!("/cams/{serial}/{stream}-settings");
+        let got = runtime().block_on(send(&c, coap, Code::GET, &path, &[], Some(50)));
+        let settings: serde_json::Value =
+            serde_json::from_slice(&got.payload).expect("the settings' JSON");
+        for name in ["format", "width", "height", "fps"] {
+            let mut key = format!("{field}{name}");
+            key[field.len()..=field.len()].make_ascii_uppercase();
+            assert_eq!(camera[&key], settings[name], "{key}: {camera} {settings}");
+        }
+    }
+    // A record's photo as the log keeps it (CoAP's /station/measurements/N/photo).
+    let photo_of = |id: u64| {
+        let path = format!("/station/measurements/{id}/photo");
+        let got = runtime().block_on(send(&c, coap, Code::GET, &path, &[], None));
+        assert_eq!(got.code, Code::CONTENT, "{path}");
+        serde_json::json!({
+            "bytes": got.payload.len(),
+            "sha256": sha256_hex(&got.payload),
+            "head": "ffd8",
+        })
+    };
+    let photos = step("photo");
+    assert_eq!(photos[0], &photo_of(1), "record 1's photo");
+    assert_eq!(photos[1], &photo_of(2), "record 2's photo");
+    eprintln!(
+        "the latest result's photo over OPC UA: {} bytes",
+        photos[1]["bytes"]
     );
 
     let latest = step("latest");
