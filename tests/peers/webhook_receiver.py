@@ -2,20 +2,23 @@
 """A webhook receiver that checks signatures with Python's own hmac module: the receiver of
 coapcam's signed-webhook test (crates/coapcam/tests/it/webhook.rs).
 
-Usage: webhook_receiver.py SECRET_FILE
+Usage: webhook_receiver.py SECRET_FILE [CERT_FILE KEY_FILE]
 
 Listens on a free port of 127.0.0.1 and prints "ready PORT". For each POST it checks the
 header X-Coapcam-Signature: t=UNIX,v1=HEX against HMAC-SHA256 of b"UNIX." + body under
 the file's secret (its bytes without a final line break) and a time within 300 s of its
 own clock; it answers 204 when both hold and 401 otherwise, and prints one JSON line per
 request: {"valid": true|false, "signature": HEADER, "body": BODY as text}. It runs until
-it is killed.
+it is killed. With CERT_FILE and KEY_FILE (PEM) it serves HTTPS with that certificate,
+and a client that gives up the TLS handshake (it does not trust the certificate) is a
+line {"tls_refused": REASON}.
 """
 
 import hashlib
 import hmac
 import http.server
 import json
+import ssl
 import sys
 import time
 
@@ -52,7 +55,24 @@ def main():
         def log_message(self, *args):
             pass
 
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    class Server(http.server.ThreadingHTTPServer):
+        tls = None
+
+        def get_request(self):
+            sock, addr = self.socket.accept()
+            if self.tls is None:
+                return sock, addr
+            try:
+                return self.tls.wrap_socket(sock, server_side=True), addr
+            except ssl.SSLError as e:
+                print(json.dumps({"tls_refused": e.reason}), flush=True)
+                sock.close()
+                raise
+
+    server = Server(("127.0.0.1", 0), Handler)
+    if len(sys.argv) == 4:
+        server.tls = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+        server.tls.load_cert_chain(sys.argv[2], sys.argv[3])
     print(f"ready {server.server_address[1]}", flush=True)
     server.serve_forever()
 

@@ -45,6 +45,7 @@ mod recorder;
 pub(crate) mod resources;
 pub mod signing;
 mod start;
+mod tls;
 pub mod watch;
 pub mod webhook;
 pub mod writer;

@@ -4,8 +4,9 @@
 //! a receiver that is down, a restart of the station, lose nothing; a record whose answer
 //! was lost is sent again (receivers drop an `id` they have).
 //!
-//! Plain `http://` only (no TLS); HTTP/1.1 through hyper's client connection, one
-//! connection kept while it works. A user and password in the URL
+//! `http://`, or `https://` (TLS on OpenSSL, [`super::tls`]: the server's certificate
+//! checked against the system's trust store and the URL's host); HTTP/1.1 through
+//! hyper's client connection, one connection kept while it works. A user and password in the URL
 //! (`http://USER:PASSWORD@HOST/PATH`) go out as basic authentication, never in the Host
 //! header or the log. Of an answer, only its status counts: its body is read up to
 //! [`ANSWER_LIMIT`] and a longer one ends the connection.
@@ -48,13 +49,15 @@ pub const ANSWER_LIMIT: usize = 64 * 1024;
 /// The header of the signature: `t=UNIX,v1=HEX`.
 pub const SIGNATURE_HEADER: &str = "x-coapcam-signature";
 
-/// Where records are POSTed: an `http://[USER[:PASSWORD]@]HOST[:PORT][/PATH]` URL.
+/// Where records are POSTed: an `http[s]://[USER[:PASSWORD]@]HOST[:PORT][/PATH]` URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Target {
     /// The URL without its user and password.
     uri: Uri,
     host: String,
     port: u16,
+    /// `https://`: over TLS.
+    tls: bool,
     /// `Basic ...` of the URL's user and password.
     authorization: Option<HeaderValue>,
 }
@@ -66,22 +69,27 @@ impl FromStr for Target {
         let uri: Uri = text
             .parse()
             .map_err(|e| format!("{text}: not a URL ({e})"))?;
-        match uri.scheme_str() {
-            Some("http") => {}
+        let tls = match uri.scheme_str() {
+            Some("http") => false,
+            Some("https") => true,
             Some(other) => {
                 return Err(format!(
-                    "{text}: a webhook is http:// ({other}:// is not supported)"
+                    "{text}: a webhook is http:// or https:// ({other}:// is not supported)"
                 ));
             }
-            None => return Err(format!("{text}: a webhook URL is http://HOST[:PORT]/PATH")),
-        }
+            None => {
+                return Err(format!(
+                    "{text}: a webhook URL is http[s]://HOST[:PORT]/PATH"
+                ));
+            }
+        };
         let host = uri
             .host()
             .ok_or_else(|| format!("{text}: the URL has no host"))?
             .trim_start_matches('[')
             .trim_end_matches(']')
             .to_owned();
-        let port = uri.port_u16().unwrap_or(80);
+        let port = uri.port_u16().unwrap_or(if tls { 443 } else { 80 });
         let (uri, authorization) = match uri.authority().map(|a| a.as_str()) {
             Some(authority) if authority.contains('@') => {
                 let (userinfo, hostport) = authority.rsplit_once('@').unwrap_or_default();
@@ -97,7 +105,8 @@ impl FromStr for Target {
                     .map_err(|_| "the URL's user or password cannot be sent".to_owned())?;
                 value.set_sensitive(true);
                 let path = uri.path_and_query().map_or("/", |p| p.as_str());
-                let bare: Uri = format!("http://{hostport}{path}")
+                let scheme = if tls { "https" } else { "http" };
+                let bare: Uri = format!("{scheme}://{hostport}{path}")
                     .parse()
                     .map_err(|e| format!("the URL without its user: {e}"))?;
                 (bare, Some(value))
@@ -108,6 +117,7 @@ impl FromStr for Target {
             uri,
             host,
             port,
+            tls,
             authorization,
         })
     }
@@ -123,13 +133,14 @@ impl fmt::Display for Target {
 #[derive(Debug, Clone, Default, clap::Args)]
 #[group(skip)]
 pub struct Args {
-    /// POST every record of the results log as JSON to this http:// URL (no TLS), in id
-    /// order, each until it is answered 2xx (retrying 0.25 s, doubling to 5 s). The
-    /// position is kept in the log (cursor `webhook`), so nothing is lost while the
+    /// POST every record of the results log as JSON to this http:// or https:// URL (TLS:
+    /// the server's certificate checked against the system's trust store), in id order,
+    /// each until it is answered 2xx (retrying 0.25 s, doubling to 5 s). The position
+    /// is kept in the log (cursor `webhook`), so nothing is lost while the
     /// receiver is down or the station restarts; a record may come twice (same `id`).
     /// A new log's whole history is sent first. USER:PASSWORD@ goes out as basic
     /// authentication (never printed); an answer's body is read up to 64 KiB.
-    #[arg(long, value_name = "http://[USER:PASSWORD@]HOST[:PORT]/PATH")]
+    #[arg(long, value_name = "http[s]://[USER:PASSWORD@]HOST[:PORT]/PATH")]
     webhook: Option<Target>,
     /// With --webhook: sign each POST with the secret this file holds (its bytes, without
     /// a final line break): the header X-Coapcam-Signature: t=UNIX,v1=HEX, HEX the
@@ -481,7 +492,22 @@ async fn connect(target: &Target) -> Result<SendRequest<Full<Bytes>>, String> {
     .map_err(|_| format!("connecting took over {TIMEOUT:?}"))?
     .map_err(|e| format!("connecting: {e}"))?;
     let _ = stream.set_nodelay(true);
-    let (sender, connection) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
+    if target.tls {
+        let tls = tokio::time::timeout(TIMEOUT, super::tls::connect(stream, &target.host))
+            .await
+            .map_err(|_| format!("the TLS handshake took over {TIMEOUT:?}"))??;
+        handshake(tls).await
+    } else {
+        handshake(stream).await
+    }
+}
+
+/// The HTTP/1.1 connection over `io`, driven by a task of its own.
+async fn handshake<T>(io: T) -> Result<SendRequest<Full<Bytes>>, String>
+where
+    T: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + Unpin + 'static,
+{
+    let (sender, connection) = hyper::client::conn::http1::handshake(TokioIo::new(io))
         .await
         .map_err(|e| format!("HTTP handshake: {e}"))?;
     tokio::spawn(async move {
@@ -502,7 +528,12 @@ mod tests {
         assert_eq!((t.host.as_str(), t.port), ("127.0.0.1", 9000));
         let t: Target = "http://[::1]/h".parse().unwrap();
         assert_eq!((t.host.as_str(), t.port), ("::1", 80));
-        assert!("https://example.invalid/".parse::<Target>().is_err());
+        let t: Target = "https://example.invalid/hook".parse().unwrap();
+        assert_eq!(
+            (t.host.as_str(), t.port, t.tls),
+            ("example.invalid", 443, true)
+        );
+        assert!("ftp://example.invalid/".parse::<Target>().is_err());
         assert!("127.0.0.1:9000".parse::<Target>().is_err());
     }
 

@@ -658,8 +658,27 @@ pub(crate) fn serve_with(state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
 
 /// A server bound to `bind` with its state in `state` and more flags.
 pub(crate) fn serve_at(bind: &str, state: &Path, extra: &[&str]) -> (Server, SocketAddr) {
+    serve_at_with_env(bind, state, extra, &[])
+}
+
+/// [`serve_with`] with the variables `env` set for the server.
+pub(crate) fn serve_with_env(
+    state: &Path,
+    extra: &[&str],
+    env: &[(&str, &Path)],
+) -> (Server, SocketAddr) {
+    serve_at_with_env("127.0.0.1:0", state, extra, env)
+}
+
+fn serve_at_with_env(
+    bind: &str,
+    state: &Path,
+    extra: &[&str],
+    env: &[(&str, &Path)],
+) -> (Server, SocketAddr) {
     let dir = state.to_string_lossy().into_owned();
     let mut command = Command::new(COAPCAM);
+    command.envs(env.iter().copied());
     command
         .args([
             "serve",

@@ -1,7 +1,8 @@
 //! Signed webhooks (issue 47, item 5): `serve --webhook URL --webhook-secret-file FILE`
 //! signs every POST; a receiver we did not write (Python's hmac module,
 //! tests/peers/webhook_receiver.py) checks each signature, and a body changed after
-//! signing fails it. `--webhook-template FILE` posts the receiver's own fields.
+//! signing fails it. `--webhook-template FILE` posts the receiver's own fields. An
+//! `https://` webhook checks the receiver's certificate.
 
 use std::io::{BufRead as _, BufReader, Write as _};
 use std::net::TcpStream;
@@ -9,7 +10,7 @@ use std::net::TcpStream;
 use coapcam::station::webhook::Template;
 use serde_json::Value;
 
-use crate::support::{self, COAPCAM, LIMIT, Proc, TempDir, serve_with};
+use crate::support::{self, COAPCAM, LIMIT, Proc, TempDir, serve_with, serve_with_env};
 
 /// The receiver's line for the next request it got.
 fn next_request(receiver: &mut Proc) -> Value {
@@ -143,6 +144,86 @@ fn every_post_is_signed_and_a_tampered_body_fails_the_receivers_check() {
             "{dimension}: {body}"
         );
     }
+}
+
+/// A self-signed certificate for 127.0.0.1 and its key, as the PEM files `NAME.pem` and
+/// `NAME.key` in `dir`.
+fn self_signed(dir: &std::path::Path, name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    use openssl::asn1::Asn1Time;
+    use openssl::hash::MessageDigest;
+    use openssl::pkey::PKey;
+    use openssl::rsa::Rsa;
+    use openssl::x509::extension::SubjectAlternativeName;
+    use openssl::x509::{X509Builder, X509NameBuilder};
+    let key = PKey::from_rsa(Rsa::generate(2048).expect("an RSA key")).expect("a key");
+    let mut subject = X509NameBuilder::new().expect("a name");
+    subject
+        .append_entry_by_text("CN", name)
+        .expect("the common name");
+    let subject = subject.build();
+    let mut cert = X509Builder::new().expect("a certificate");
+    cert.set_version(2).expect("v3");
+    cert.set_subject_name(&subject).expect("subject");
+    cert.set_issuer_name(&subject).expect("issuer");
+    cert.set_pubkey(&key).expect("its key");
+    cert.set_not_before(&Asn1Time::days_from_now(0).expect("now"))
+        .expect("not before");
+    cert.set_not_after(&Asn1Time::days_from_now(1).expect("tomorrow"))
+        .expect("not after");
+    let san = SubjectAlternativeName::new()
+        .ip("127.0.0.1")
+        .build(&cert.x509v3_context(None, None))
+        .expect("its address");
+    cert.append_extension(san).expect("the extension");
+    cert.sign(&key, MessageDigest::sha256()).expect("signing");
+    let (pem, private) = (
+        dir.join(format!("{name}.pem")),
+        dir.join(format!("{name}.key")),
+    );
+    std::fs::write(&pem, cert.build().to_pem().expect("PEM")).expect("writing the certificate");
+    std::fs::write(&private, key.private_key_to_pem_pkcs8().expect("PEM"))
+        .expect("writing the key");
+    (pem, private)
+}
+
+/// An `https://` webhook: a receiver whose certificate the station does not trust gets
+/// no record (the station gives up the handshake, and keeps the record); trusted
+/// (`SSL_CERT_FILE`, OpenSSL's trust store), it gets it, signed.
+#[test]
+fn an_https_webhook_posts_only_to_a_receiver_whose_certificate_it_trusts() {
+    let dir = TempDir::new("webhook-https");
+    let secret = dir.join("secret");
+    std::fs::write(&secret, "wh-tls-secret\n").expect("writing the secret");
+    let secret = secret.to_str().expect("UTF-8 path");
+    let (cert, key) = self_signed(dir.path(), "receiver");
+    let (other, _) = self_signed(dir.path(), "someone-else");
+    let script = support::script("webhook_receiver.py");
+    let path = |p: &std::path::Path| p.to_str().expect("UTF-8 path").to_owned();
+    let mut receiver = Proc::spawn("python3", &[&script, secret, &path(&cert), &path(&key)]);
+    let port: u16 = receiver.stdout_line(LIMIT, |l| l.strip_prefix("ready ")?.parse().ok());
+    let hook = format!("https://127.0.0.1:{port}/hook");
+    let flags = [
+        "--station-name",
+        "dock-tls",
+        "--webhook",
+        &hook,
+        "--webhook-secret-file",
+        secret,
+    ];
+    let state = dir.join("state");
+    let (station, addr) = serve_with_env(&state, &flags, &[("SSL_CERT_FILE", &other)]);
+    measure(addr);
+    let got = next_request(&mut receiver);
+    assert!(got["tls_refused"].is_string(), "{got}");
+    drop(station);
+    let (_station, _) = serve_with_env(&state, &flags, &[("SSL_CERT_FILE", &cert)]);
+    let got = next_request(&mut receiver);
+    assert_eq!(got["valid"], true, "{got}");
+    let body: Value = serde_json::from_str(got["body"].as_str().expect("a body")).expect("JSON");
+    assert_eq!(
+        (body["id"].as_u64(), &body["station"]),
+        (Some(1), &"dock-tls".into())
+    );
 }
 
 #[test]
