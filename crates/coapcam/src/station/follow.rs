@@ -263,6 +263,7 @@ pub async fn run<S: Sink>(log: ResultsLog, mut sink: S) {
         follower: Follower::new(log, start),
         backoff: BACKOFF_MIN,
         failing: false,
+        said_waiting: 0,
         paused: None,
     };
     loop {
@@ -298,11 +299,27 @@ struct Run {
     backoff: Duration,
     /// Whether the last hand-over failed (said once until one works).
     failing: bool,
+    /// The largest power of ten of records waiting said during this failure (0: none).
+    said_waiting: u64,
     /// No records are handed over before this (after a failure).
     paused: Option<Instant>,
 }
 
 impl Run {
+    /// While the sink fails, says how many records wait for it in the log (those after
+    /// `delivered`) each time that number reaches a power of ten from 10 on.
+    fn say_waiting(&mut self, delivered: u64) {
+        let waiting = self.follower.newest().saturating_sub(delivered);
+        let mut power = 1;
+        while power <= waiting / 10 {
+            power *= 10;
+        }
+        if power >= 10 && power > self.said_waiting {
+            self.said_waiting = power;
+            tracing::warn!("{}: {waiting} records wait in the log for it", self.name);
+        }
+    }
+
     /// Hands `sink` the records after the position while it has room; false when it is
     /// done.
     async fn hand_over<S: Sink>(&mut self, sink: &mut S) -> bool {
@@ -329,6 +346,7 @@ impl Run {
                             tracing::info!("{} takes the records again", self.name);
                         }
                         self.failing = false;
+                        self.said_waiting = 0;
                         self.backoff = BACKOFF_MIN;
                     }
                     Next::Retry(e) => {
@@ -339,6 +357,7 @@ impl Run {
                             );
                         }
                         self.failing = true;
+                        self.say_waiting(record.id - 1);
                         self.follower.seek(record.id - 1);
                         self.paused = Some(Instant::now() + self.backoff);
                         self.backoff = (self.backoff * 2).min(BACKOFF_MAX);
@@ -485,6 +504,110 @@ mod tests {
                 None => Next::End,
             }
         }
+    }
+
+    /// Refuses every record until told to take them.
+    struct Refusing {
+        take: Arc<std::sync::atomic::AtomicBool>,
+    }
+
+    impl Sink for Refusing {
+        type Event = std::convert::Infallible;
+
+        fn name(&self) -> String {
+            "refusing".into()
+        }
+
+        fn start(&self) -> Start {
+            Start::After(0)
+        }
+
+        async fn deliver(&mut self, _record: &Record) -> Next {
+            if self.take.load(std::sync::atomic::Ordering::SeqCst) {
+                Next::Go
+            } else {
+                Next::Retry("down".into())
+            }
+        }
+
+        async fn handle(&mut self, event: Self::Event) -> Next {
+            match event {}
+        }
+    }
+
+    /// What the station's messages say, kept for a test.
+    #[derive(Clone, Default)]
+    struct Said(Arc<std::sync::Mutex<Vec<u8>>>);
+
+    impl std::io::Write for Said {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .extend_from_slice(buf);
+            Ok(buf.len())
+        }
+
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Said {
+        fn lines(&self, containing: &str) -> Vec<String> {
+            let text = self.0.lock().map(|b| b.clone()).unwrap_or_default();
+            String::from_utf8_lossy(&text)
+                .lines()
+                .filter(|l| l.contains(containing))
+                .map(str::to_owned)
+                .collect()
+        }
+    }
+
+    /// Waits (on the paused clock) until `said` has `n` lines with `containing`.
+    async fn until_said(said: &Said, containing: &str, n: usize) -> Vec<String> {
+        for _ in 0..1000 {
+            let lines = said.lines(containing);
+            if lines.len() >= n {
+                return lines;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        panic!("never said {n} times {containing:?}: {:?}", said.lines(""));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn the_records_waiting_for_a_failing_sink_are_said_at_each_power_of_ten() {
+        let said = Said::default();
+        let writer = said.clone();
+        let _default = tracing::subscriber::set_default(
+            tracing_subscriber::fmt()
+                .with_writer(move || writer.clone())
+                .with_ansi(false)
+                .finish(),
+        );
+        let dir = ScratchDir::new("follow-waiting");
+        let log = ResultsLog::open(&dir.path().join("log.db")).expect("log");
+        for n in 1..=25 {
+            log.append(new(n)).expect("append");
+        }
+        let take = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let task = tokio::spawn(run(log.clone(), Refusing { take: take.clone() }));
+        let lines = until_said(&said, "wait in the log for it", 1).await;
+        assert!(lines[0].contains("refusing: 25 records wait"), "{lines:?}");
+        // More records, not yet a hundred waiting: said once, however often it retries.
+        for n in 26..=99 {
+            log.append(new(n)).expect("append");
+        }
+        tokio::time::sleep(BACKOFF_MAX * 4).await;
+        assert_eq!(said.lines("wait in the log for it").len(), 1, "{lines:?}");
+        log.append(new(100)).expect("append");
+        let lines = until_said(&said, "wait in the log for it", 2).await;
+        assert!(lines[1].contains("refusing: 100 records wait"), "{lines:?}");
+        // It takes them again.
+        take.store(true, std::sync::atomic::Ordering::SeqCst);
+        until_said(&said, "refusing takes the records again", 1).await;
+        task.abort();
     }
 
     #[tokio::test]
