@@ -107,7 +107,7 @@ impl ParcelFit {
 
 /// Neighbouring cells of one top differ in height by less than this (metres), or by the
 /// lid band when that is deeper.
-const TOP_STEP_M: f32 = 0.010;
+pub(super) const TOP_STEP_M: f32 = 0.010;
 
 /// A cell is flat (may belong to a top) when the middle half of its points spans less
 /// than this (metres) or the lid band, whichever is more.

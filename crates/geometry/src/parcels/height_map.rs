@@ -154,6 +154,15 @@ impl HeightMap {
         }
     }
 
+    /// Its dense cells.
+    pub(super) fn dense_cells(&self) -> Vec<Cell2> {
+        self.cells
+            .iter()
+            .filter(|(_, v)| v.0 >= self.dense_min)
+            .map(|(c, _)| *c)
+            .collect()
+    }
+
     fn is_dense(&self, c: &Cell2) -> bool {
         self.cells.get(c).is_some_and(|v| v.0 >= self.dense_min)
     }

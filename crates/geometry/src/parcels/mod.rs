@@ -49,6 +49,7 @@ mod rect;
 mod round;
 mod shape;
 mod shoulders;
+mod split;
 mod view;
 
 use std::collections::HashMap;
@@ -163,16 +164,41 @@ pub fn parcels(
     let needed = config
         .min_points
         .max((largest_points as f64 * MIN_SHARE).ceil() as usize);
-    let mut found = Vec::new();
+    let mut fits = Vec::new();
+    let mut objects: Vec<Vec<Point3>> = Vec::new();
     let mut first_error = None;
-    for cluster in clusters.iter().take_while(|c| c.len() >= needed) {
-        match fit(cluster, config, views) {
-            Ok(f) => found.push((f, &cluster[..])),
-            Err(e) => {
-                first_error.get_or_insert(e);
+    for cluster in clusters.into_iter().take_while(|c| c.len() >= needed) {
+        let fitted = fit(&cluster, config, views);
+        // Parcels side by side may be parcels apart that flying pixels joined: each
+        // part whose dense columns stand apart is measured on its own.
+        let parts = match &fitted {
+            Ok(f) if !f.isolated => split::apart(&cluster),
+            _ => None,
+        };
+        let measured = match parts {
+            Some(parts) => parts
+                .into_iter()
+                .filter(|p| p.len() >= needed)
+                .map(|p| (fit(&p, config, views), p))
+                .collect(),
+            None => vec![(fitted, cluster)],
+        };
+        for (fitted, points) in measured {
+            match fitted {
+                Ok(f) => {
+                    fits.push(f);
+                    objects.push(points);
+                }
+                Err(e) => {
+                    first_error.get_or_insert(e);
+                }
             }
         }
     }
+    let mut found: Vec<(ParcelFit, &[Point3])> = fits
+        .into_iter()
+        .zip(objects.iter().map(|o| &o[..]))
+        .collect();
     if found.is_empty()
         && let Some(e) = first_error
     {

@@ -8,7 +8,7 @@ use rgbd::{Camera, Scene, SyntheticCamera};
 /// The world points above a 5 mm floor cut of every camera of `scene` after the
 /// flying-pixel stage and the spatial filter (librealsense's defaults), as cameras
 /// prepared by `measure --prepare` send them, and their views.
-fn prepared_clouds(scene: &Scene) -> (PointCloud, Vec<View>) {
+pub(crate) fn prepared_clouds(scene: &Scene) -> (PointCloud, Vec<View>) {
     clouds(scene, true)
 }
 
