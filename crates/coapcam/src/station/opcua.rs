@@ -249,10 +249,16 @@ impl OpcUaOutput {
             measure: feed.measure.clone(),
             log: feed.log.clone(),
         });
+        // The library writes its key as any file; the folder it goes in is the owner's
+        // alone before that, and the key too afterwards.
+        let pki = feed.state_dir.join(PKI_DIR);
+        if users.is_some() {
+            owner_only(&pki.join("private"), true);
+        }
         let (server, handle) = builder(addr, feed.station, feed.state_dir, nodes.clone(), users)
             .build()
             .map_err(|why| StartError::Server { addr, why })?;
-        private_key_owner_only(&feed.state_dir.join(PKI_DIR));
+        owner_only(&pki.join("private").join("private.pem"), false);
         let manager = handle
             .node_managers()
             .get_of_type::<InMemoryNodeManager<StationNodes>>()
@@ -327,15 +333,22 @@ impl Drop for OpcUaOutput {
     }
 }
 
-/// Makes the station's private key (which the library writes readable by all, as the
-/// umask allows) readable by its owner only; a key that is not there (no users) is left.
-fn private_key_owner_only(pki: &Path) {
+/// Makes `path` the owner's alone (a folder 0700, created when `folder` and missing; a
+/// file 0600, when it exists); a failure is a warning.
+fn owner_only(path: &Path, folder: bool) {
     use std::os::unix::fs::PermissionsExt as _;
-    let key = pki.join("private").join("private.pem");
-    if key.is_file()
-        && let Err(e) = std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o600))
+    let made = if folder {
+        std::fs::create_dir_all(path)
+    } else if path.is_file() {
+        Ok(())
+    } else {
+        return;
+    };
+    let mode = if folder { 0o700 } else { 0o600 };
+    if let Err(e) =
+        made.and_then(|()| std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)))
     {
-        tracing::warn!("the OPC UA server's key {}: {e}", key.display());
+        tracing::warn!("the OPC UA server's {}: {e}", path.display());
     }
 }
 

@@ -157,16 +157,17 @@ impl AsyncRead for TlsStream {
     ) -> Poll<io::Result<()>> {
         let this = self.get_mut();
         loop {
-            let step = this.tls.ssl_read(buf.initialize_unfilled());
-            // Whatever OpenSSL wrote meanwhile (an alert, a key update) goes out first.
+            // Whatever OpenSSL wrote before (an alert, a key update) goes out first: once
+            // `ssl_read` has taken bytes, they must reach `buf` whatever the sending does.
             ready!(this.poll_send(cx))?;
-            match step {
+            match this.tls.ssl_read(buf.initialize_unfilled()) {
                 Ok(n) => {
                     buf.advance(n);
                     return Poll::Ready(Ok(()));
                 }
                 Err(e) if e.code() == ErrorCode::ZERO_RETURN => return Poll::Ready(Ok(())),
                 Err(e) if e.code() == ErrorCode::WANT_READ => {
+                    ready!(this.poll_send(cx))?;
                     if this.tls.get_ref().closed {
                         return Poll::Ready(Ok(()));
                     }

@@ -282,6 +282,18 @@ fn with_users_only_signed_and_encrypted_sessions_of_a_trusted_client_and_a_user_
         pki.join("own").join("cert.der").is_file(),
         "the station's certificate"
     );
+    // Its key in a folder no one else may enter, and itself the owner's alone.
+    let mode = |p: &std::path::Path| {
+        use std::os::unix::fs::PermissionsExt as _;
+        std::fs::metadata(p)
+            .expect("its metadata")
+            .permissions()
+            .mode()
+            & 0o777
+    };
+    let private = pki.join("private");
+    assert_eq!(mode(&private), 0o700, "{}", private.display());
+    assert_eq!(mode(&private.join("private.pem")), 0o600);
     let rejected: Vec<_> = std::fs::read_dir(pki.join("rejected"))
         .expect("the rejected certificates")
         .map(|e| e.expect("an entry").path())
