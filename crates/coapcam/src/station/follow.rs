@@ -578,6 +578,15 @@ mod tests {
 
     #[tokio::test(start_paused = true)]
     async fn the_records_waiting_for_a_failing_sink_are_said_at_each_power_of_ten() {
+        // With one subscriber alive in the process, tracing asks the thread that first
+        // meets a callsite whether anyone wants it: another test's thread, with none, would
+        // switch this test's messages off for good. A second one, never set as anyone's
+        // default, makes tracing ask every subscriber alive instead.
+        let _second = tracing::Dispatch::new(
+            tracing_subscriber::fmt()
+                .with_writer(std::io::sink)
+                .finish(),
+        );
         let said = Said::default();
         let writer = said.clone();
         let _default = tracing::subscriber::set_default(
