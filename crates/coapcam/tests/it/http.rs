@@ -1703,3 +1703,77 @@ fn a_change_through_the_proxy_is_an_event_naming_the_http_client() {
     assert_eq!(listed.json(), events);
     assert_eq!(get(http, "/api/log/events?code=A").status, 400);
 }
+
+/// Issue 51, item 6: with `ulimit -n 128`, 200 idle HTTP connections ran the station out
+/// of files: the API stopped answering and "Too many open files" was logged every
+/// 100 ms. Now the station serves fewer connections where it may open fewer files (they
+/// hold at most half of them), a client at another address is answered at once, and
+/// accepting never fails.
+#[test]
+fn with_128_open_files_200_idle_connections_leave_the_api_answering() {
+    let state = TempDir::new("http-nofile");
+    let dir = state.path().to_string_lossy().into_owned();
+    let mut server = Proc::spawn_with_env(
+        "prlimit",
+        &[
+            "--nofile=128:128",
+            "--",
+            crate::support::COAPCAM,
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--state-dir",
+            &dir,
+            "--duration",
+            "120",
+            "--http",
+            "127.0.0.1:0",
+        ],
+        &[("RUST_LOG", "info")],
+    );
+    let addr: SocketAddr = server.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: HTTP on http://")?
+            .split('/')
+            .next()?
+            .parse()
+            .ok()
+    });
+    let idle: Vec<TcpStream> = (0..200)
+        .map(|n| TcpStream::connect(addr).unwrap_or_else(|e| panic!("connection {n}: {e}")))
+        .collect();
+    thread::sleep(Duration::from_millis(500));
+    let asked = Instant::now();
+    let mut other = connect_from("127.0.0.2", addr, None);
+    write!(
+        other,
+        "GET /api/station HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .expect("asking");
+    let mut raw = Vec::new();
+    let read = other.read_to_end(&mut raw);
+    let took = asked.elapsed();
+    let reply = parse_reply(&raw).unwrap_or_else(|| {
+        panic!(
+            "no answer ({read:?}) while 200 idle connections were open: {:?}",
+            String::from_utf8_lossy(&raw)
+        )
+    });
+    assert_eq!(
+        reply.status,
+        200,
+        "after {took:?}: {}",
+        String::from_utf8_lossy(&reply.body)
+    );
+    thread::sleep(Duration::from_secs(1));
+    drop(idle);
+    let stderr = server.kill().stderr;
+    let failures: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.contains("accepting a connection"))
+        .collect();
+    assert!(failures.is_empty(), "{failures:#?}");
+    assert!(
+        stderr.contains("serving at most 51 connections, 25 to one client"),
+        "{stderr}"
+    );
+}

@@ -128,6 +128,21 @@ fn the_unit_allows_the_open_files_the_station_may_hold_and_the_example_file_stre
         limit >= held + 256,
         "LimitNOFILE={limit} for {held} connections"
     );
+    // Within it the HTTP side serves all its connections (with fewer files, fewer).
+    let http = coapcam::station::http::limits::Bounds::within(
+        Some(limit as u64),
+        coapcam::station::http::MAX_CONNECTIONS,
+        coapcam::station::http::CONNECTIONS_PER_CLIENT,
+        1024,
+    );
+    assert_eq!(
+        (http.connections, http.per_client),
+        (
+            coapcam::station::http::MAX_CONNECTIONS,
+            coapcam::station::http::CONNECTIONS_PER_CLIENT
+        ),
+        "LimitNOFILE={limit}"
+    );
     let example = SERVICE_MD
         .split("```toml")
         .nth(1)

@@ -28,6 +28,48 @@ pub fn client_of(ip: IpAddr) -> IpAddr {
     }
 }
 
+/// The most files this process may have open (its soft `RLIMIT_NOFILE`), when known.
+pub fn open_files() -> Option<u64> {
+    use nix::sys::resource::{Resource, getrlimit};
+    getrlimit(Resource::RLIMIT_NOFILE)
+        .ok()
+        .map(|(soft, _)| soft)
+}
+
+/// How many connections the HTTP side serves and answers with a refusal at once, each an
+/// open file: its own bounds, or less where the process may open fewer files than they
+/// take, so that its connections hold at most half of them (the other half for the
+/// cameras, the log, the sockets and the other outputs) and running out of files never
+/// stops it from answering.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Bounds {
+    /// Connections served at once, in all.
+    pub connections: usize,
+    /// Connections served at once to one client: at most half of `connections`, so that
+    /// one client never takes every place.
+    pub per_client: usize,
+    /// Refused connections whose answer is under way at once.
+    pub refusing: usize,
+}
+
+impl Bounds {
+    /// The bounds `connections`, `per_client` and `refusing`, within `open_files`.
+    pub fn within(
+        open_files: Option<u64>,
+        connections: usize,
+        per_client: usize,
+        refusing: usize,
+    ) -> Self {
+        let half = open_files.map_or(usize::MAX, |n| usize::try_from(n / 2).unwrap_or(usize::MAX));
+        let connections = connections.min(half.saturating_mul(4) / 5).max(2);
+        Self {
+            connections,
+            per_client: per_client.min(connections / 2).max(1),
+            refusing: refusing.min(half / 5).max(1),
+        }
+    }
+}
+
 /// Which bound a refused start met.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Full {
@@ -242,6 +284,45 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for WriteTimeout<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_connections_hold_at_most_half_the_files_the_process_may_open() {
+        assert_eq!(
+            Bounds::within(Some(4096), 1024, 64, 1024),
+            Bounds {
+                connections: 1024,
+                per_client: 64,
+                refusing: 409
+            }
+        );
+        assert_eq!(
+            Bounds::within(None, 1024, 64, 1024),
+            Bounds {
+                connections: 1024,
+                per_client: 64,
+                refusing: 1024
+            }
+        );
+        // systemd's default soft limit, and `ulimit -n 128`.
+        assert_eq!(
+            Bounds::within(Some(1024), 1024, 64, 1024),
+            Bounds {
+                connections: 409,
+                per_client: 64,
+                refusing: 102
+            }
+        );
+        let small = Bounds::within(Some(128), 1024, 64, 1024);
+        assert_eq!(
+            small,
+            Bounds {
+                connections: 51,
+                per_client: 25,
+                refusing: 12
+            }
+        );
+        assert!(small.connections + small.refusing <= 64);
+    }
 
     #[tokio::test(start_paused = true)]
     async fn a_peer_that_takes_no_bytes_fails_the_write_after_the_timeout() {

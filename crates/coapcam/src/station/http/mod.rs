@@ -97,6 +97,13 @@ const LIST_READERS: usize = 2;
 /// closed without one.
 const REFUSING: usize = 1024;
 
+/// The first wait after accepting a connection failed; it doubles up to
+/// [`ACCEPT_WAIT_MAX`] while accepting fails (a connection that ends cuts it short).
+const ACCEPT_WAIT_MIN: Duration = Duration::from_millis(100);
+
+/// The longest wait between two tries to accept a connection while accepting fails.
+const ACCEPT_WAIT_MAX: Duration = Duration::from_secs(2);
+
 /// How long a refused connection may take to get its answer.
 const REFUSE_WAIT: Duration = Duration::from_secs(2);
 
@@ -203,20 +210,51 @@ impl HttpServer {
 }
 
 /// Accepts connections and serves each on a task of its own, within
-/// [`CONNECTIONS_PER_CLIENT`] and [`MAX_CONNECTIONS`]; the connections end with this task
-/// (their set is dropped with it).
+/// [`CONNECTIONS_PER_CLIENT`] and [`MAX_CONNECTIONS`], or less when the process may open
+/// fewer files ([`limits::Bounds`]); the connections end with this task (their set is
+/// dropped with it). When accepting fails (out of files all the same: other outputs, other
+/// processes), it says so once, and tries again as a connection ends or after a wait that
+/// doubles up to [`ACCEPT_WAIT_MAX`].
 async fn accept<R: Rig>(listener: TcpListener, app: Arc<App<R>>) {
-    let counter = limits::Counter::new("connections", CONNECTIONS_PER_CLIENT, MAX_CONNECTIONS);
-    let refusing = Arc::new(Semaphore::new(REFUSING));
+    let files = limits::open_files();
+    let bounds = limits::Bounds::within(files, MAX_CONNECTIONS, CONNECTIONS_PER_CLIENT, REFUSING);
+    if bounds.connections < MAX_CONNECTIONS {
+        tracing::info!(
+            "http: serving at most {} connections, {} to one client: this process may open {} files (LimitNOFILE= of the unit, ulimit -n), and its connections take at most half of them ({MAX_CONNECTIONS} connections need a limit of {} or more)",
+            bounds.connections,
+            bounds.per_client,
+            files.unwrap_or_default(),
+            MAX_CONNECTIONS * 5 / 2,
+        );
+    }
+    let counter = limits::Counter::new("connections", bounds.per_client, bounds.connections);
+    let refusing = Arc::new(Semaphore::new(bounds.refusing));
     let mut connections = JoinSet::new();
+    // While accepting fails: the next wait.
+    let mut failing: Option<Duration> = None;
     loop {
         while connections.try_join_next().is_some() {}
         let (stream, peer) = match listener.accept().await {
-            Ok(accepted) => accepted,
+            Ok(accepted) => {
+                if failing.take().is_some() {
+                    tracing::info!("http: accepting connections again");
+                }
+                accepted
+            }
             Err(e) => {
-                // Out of descriptors and the like: wait instead of spinning.
-                tracing::warn!("http: accepting a connection: {e}");
-                tokio::time::sleep(Duration::from_millis(100)).await;
+                let wait = match failing {
+                    Some(wait) => (wait * 2).min(ACCEPT_WAIT_MAX),
+                    None => {
+                        say_accept_failed(&e, files);
+                        ACCEPT_WAIT_MIN
+                    }
+                };
+                failing = Some(wait);
+                // A connection that ends frees its file: try again then, or after the wait.
+                tokio::select! {
+                    _ = connections.join_next(), if !connections.is_empty() => {}
+                    () = tokio::time::sleep(wait) => {}
+                }
                 continue;
             }
         };
@@ -225,7 +263,7 @@ async fn accept<R: Rig>(listener: TcpListener, app: Arc<App<R>>) {
             Err(full) => {
                 if let Ok(permit) = refusing.clone().try_acquire_owned() {
                     connections.spawn(async move {
-                        refuse(stream, full).await;
+                        refuse(stream, full, bounds).await;
                         drop(permit);
                     });
                 }
@@ -253,22 +291,42 @@ async fn accept<R: Rig>(listener: TcpListener, app: Arc<App<R>>) {
     }
 }
 
+/// Says once that accepting a connection failed (`e`), and what to do when the process is
+/// out of files (it may open `files`).
+fn say_accept_failed(e: &std::io::Error, files: Option<u64>) {
+    let out_of_files = [nix::errno::Errno::EMFILE, nix::errno::Errno::ENFILE]
+        .into_iter()
+        .any(|n| e.raw_os_error() == Some(n as i32));
+    if out_of_files {
+        let limit = files.map_or_else(String::new, |n| format!(", of the {n} it may open"));
+        tracing::warn!(
+            "http: accepting a connection: {e} (this process has every file open{limit}): new connections wait until one ends; raise the limit (LimitNOFILE= of the unit, ulimit -n). Said once, until one is accepted"
+        );
+    } else {
+        tracing::warn!(
+            "http: accepting a connection: {e}; trying again. Said once, until one is accepted"
+        );
+    }
+}
+
 /// Answers a connection over its bound 429 (its client's) or 503 (the station's) and
 /// closes it, within [`REFUSE_WAIT`]. The request's head is read first (up to 8 KiB), so
 /// that closing does not reset the connection before the client has read the answer.
-async fn refuse(mut stream: tokio::net::TcpStream, full: limits::Full) {
+async fn refuse(mut stream: tokio::net::TcpStream, full: limits::Full, bounds: limits::Bounds) {
     use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
     let (status, why) = match full {
         limits::Full::Client => (
             "429 Too Many Requests",
             format!(
-                "this client (its IPv4 address or IPv6 /64) has {CONNECTIONS_PER_CLIENT} connections open, the most the station serves one client: close one, or try again later"
+                "this client (its IPv4 address or IPv6 /64) has {} connections open, the most the station serves one client: close one, or try again later",
+                bounds.per_client
             ),
         ),
         limits::Full::All => (
             "503 Service Unavailable",
             format!(
-                "the station serves {MAX_CONNECTIONS} connections already, the most it serves: try again later"
+                "the station serves {} connections already, the most it serves: try again later",
+                bounds.connections
             ),
         ),
     };
