@@ -11,13 +11,15 @@ own clock; it answers 204 when both hold and 401 otherwise, and prints one JSON 
 request: {"valid": true|false, "signature": HEADER, "body": BODY as text}. It runs until
 it is killed. With CERT_FILE and KEY_FILE (PEM) it serves HTTPS with that certificate,
 and a client that gives up the TLS handshake (it does not trust the certificate) is a
-line {"tls_refused": REASON}.
+line {"tls_refused": REASON}. With WEBHOOK_RECEIVER_CLOSE=1 in its environment it closes
+each connection after its answer (HTTP/1.0), so that every request comes on a new one.
 """
 
 import hashlib
 import hmac
 import http.server
 import json
+import os
 import ssl
 import sys
 import time
@@ -40,7 +42,7 @@ def main():
         secret = f.read().rstrip(b"\r\n")
 
     class Handler(http.server.BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"
+        protocol_version = "HTTP/1.0" if os.environ.get("WEBHOOK_RECEIVER_CLOSE") == "1" else "HTTP/1.1"
 
         def do_POST(self):
             body = self.rfile.read(int(self.headers.get("Content-Length", "0")))

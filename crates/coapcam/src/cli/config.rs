@@ -192,11 +192,15 @@ fn output_tables(text: &str) -> Result<Vec<Entry>, (usize, String)> {
             let line = e.key.as_deref().map_or(table_line, &key_line);
             (line, format!("[[{OUTPUT}]]: {}", e.why))
         })?;
-        if entries.iter().any(|e| e.name() == entry.name()) {
+        if entries
+            .iter()
+            .any(|e| (e.kind(), e.name()) == (entry.kind(), entry.name()))
+        {
             return Err((
                 key_line(outputs::ID),
                 format!(
-                    "[[{OUTPUT}]]: a second output named `{}`: give each output of a kind an `{}` of its own (it names the output's cursor in the results log)",
+                    "[[{OUTPUT}]]: a second output of kind \"{}\" named `{}`: give each output of a kind an `{}` of its own (it names the output's cursor in the results log)",
+                    entry.kind(),
                     entry.name(),
                     outputs::ID
                 ),
@@ -327,5 +331,24 @@ mod tests {
             assert_eq!(back["k"].as_str(), Some(text), "{}", scalar(text));
         }
         assert_eq!(line_of("a = 1\n\nb = 2\n", 7), 3);
+    }
+
+    #[test]
+    fn output_tables_of_two_kinds_may_share_a_name_but_not_of_one_kind() {
+        let line = "[[output]]\nkind = \"line\"\nline-output = \"tcp://127.0.0.1:0\"\n";
+        let webhook = |id: &str| {
+            format!("[[output]]\nkind = \"webhook\"\nid = \"{id}\"\nwebhook = \"http://h/x\"\n")
+        };
+        let text = format!("{line}{}{}", webhook("line"), webhook("a"));
+        let entries = output_tables(&text).expect("three outputs");
+        let names: Vec<_> = entries.iter().map(|e| (e.kind(), e.name())).collect();
+        assert_eq!(
+            names,
+            [("line", "line"), ("webhook", "line"), ("webhook", "a")]
+        );
+        let text = format!("{}{line}{}", webhook("a"), webhook("a"));
+        let (at, why) = output_tables(&text).expect_err("two webhooks named a");
+        assert_eq!(at, 10, "the second's id: {why}");
+        assert!(why.contains("\"webhook\" named `a`"), "{why}");
     }
 }

@@ -72,6 +72,17 @@ pub fn last_id_path(state_dir: &Path, log: &Path) -> PathBuf {
     state_dir.join(format!("{name}.last-id"))
 }
 
+/// An output's name in the station's messages, from what it is (`webhook`, `MQTT`) and
+/// its durable cursor's name (`webhook`, or `webhook/ID` for an `[[output]]` with an `id`
+/// of its own: [`follow::OutputId::cursor`]): `` webhook `ID` ``, so that the messages
+/// of two outputs of a kind (their backlog, their failures) say which one they are of.
+fn output_name(what: &str, cursor: &str) -> String {
+    match cursor.split_once('/') {
+        Some((_, id)) => format!("{what} `{id}`"),
+        None => what.to_owned(),
+    }
+}
+
 /// What the station adds to its camera server (`serve`'s station flags).
 #[derive(Debug, Clone)]
 pub struct Config {
@@ -130,4 +141,16 @@ pub fn host_name() -> String {
         .filter(|s| !s.is_empty())
         .or_else(|| std::env::var("HOSTNAME").ok().filter(|s| !s.is_empty()))
         .unwrap_or_else(|| "coapcam".to_owned())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_outputs_name_in_messages_carries_its_id_when_it_has_one() {
+        assert_eq!(output_name("webhook", "webhook"), "webhook");
+        assert_eq!(output_name("webhook", "webhook/wms"), "webhook `wms`");
+        assert_eq!(output_name("MQTT", "mqtt/plant"), "MQTT `plant`");
+    }
 }

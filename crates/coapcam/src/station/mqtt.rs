@@ -651,7 +651,7 @@ impl Sink for Publishing {
     type Event = Wake;
 
     fn name(&self) -> String {
-        "MQTT".into()
+        super::output_name("MQTT", &self.consumer)
     }
 
     fn start(&self) -> Start {

@@ -68,7 +68,7 @@ use tokio::task::JoinHandle;
 use super::follow::{
     self, CameraView, Cameras, Feed, MeasureNow, Next, Output, OutputId, Sink, Start,
 };
-use super::log::ResultsLog;
+use super::log::{LogError, ResultsLog};
 use crate::api::record::{Record, UtcTime};
 use crate::api::results::MAX_LIST;
 use crate::report::Found;
@@ -252,13 +252,23 @@ impl OpcUaOutput {
         // The library writes its key as any file; the folder it goes in is the owner's
         // alone before that, and the key too afterwards.
         let pki = feed.state_dir.join(PKI_DIR);
-        if users.is_some() {
-            owner_only(&pki.join("private"), true);
-        }
-        let (server, handle) = builder(addr, feed.station, feed.state_dir, nodes.clone(), users)
-            .build()
-            .map_err(|why| StartError::Server { addr, why })?;
-        owner_only(&pki.join("private").join("private.pem"), false);
+        let (station, state_dir) = (feed.station.to_owned(), feed.state_dir.to_owned());
+        let for_server = nodes.clone();
+        // With users, the first start makes the server's 2048-bit RSA key (a second or
+        // more of arithmetic): on the blocking pool, so that the runtime's threads go on
+        // serving meanwhile. (The library's builder cannot be sent to it: it is made there.)
+        let (server, handle) = tokio::task::spawn_blocking(move || {
+            if users.is_some() {
+                owner_only(&pki.join("private"), true);
+            }
+            let built = builder(addr, &station, &state_dir, for_server, users).build();
+            owner_only(&pki.join("private").join("private.pem"), false);
+            built
+        })
+        .await
+        .map_err(|e| e.to_string())
+        .and_then(|built| built)
+        .map_err(|why| StartError::Server { addr, why })?;
         let manager = handle
             .node_managers()
             .get_of_type::<InMemoryNodeManager<StationNodes>>()
@@ -913,24 +923,17 @@ impl StationNodes {
         }
     }
 
-    /// Reads the log on the blocking pool.
+    /// Reads the log on the blocking pool for method `what`; a failure is a warning and
+    /// `BadResourceUnavailable`.
     async fn read<T: Send + 'static>(
         &self,
         what: &'static str,
-        read: impl FnOnce(&ResultsLog) -> Result<T, super::log::LogError> + Send + 'static,
+        read: impl FnOnce(&ResultsLog) -> Result<T, LogError> + Send + 'static,
     ) -> Result<T, StatusCode> {
-        let log = self.nodes.log.clone();
-        match tokio::task::spawn_blocking(move || read(&log)).await {
-            Ok(Ok(value)) => Ok(value),
-            Ok(Err(e)) => {
-                tracing::warn!("OPC UA {what}: reading the results log: {e}");
-                Err(StatusCode::BadResourceUnavailable)
-            }
-            Err(e) => {
-                tracing::warn!("OPC UA {what}: reading the results log: {e}");
-                Err(StatusCode::BadResourceUnavailable)
-            }
-        }
+        read_log(&self.nodes.log, read).await.map_err(|why| {
+            tracing::warn!("OPC UA {what}: reading the results log: {why}");
+            StatusCode::BadResourceUnavailable
+        })
     }
 
     /// `GetResultById(RecordId)`: the record's fields as `LatestResult` shows them.
@@ -980,13 +983,7 @@ impl StationNodes {
             values.into()
         };
         let ids: Vec<u64> = records.iter().map(|r| r.id).collect();
-        let times: Vec<DateTime> = records
-            .iter()
-            .map(|r| {
-                DateTime::parse_from_rfc3339(&r.time.to_string())
-                    .unwrap_or_else(|_| DateTime::null())
-            })
-            .collect();
+        let times: Vec<DateTime> = records.iter().map(|r| record_time(r.time)).collect();
         let statuses: Vec<UAString> = records
             .iter()
             .map(|r| UAString::from(status(&r.measurement.parcel)))
@@ -1002,12 +999,39 @@ impl StationNodes {
     }
 }
 
+/// Runs `read` on `log` on the blocking pool: what it read, or why it could not (the log's
+/// error, or the task's).
+async fn read_log<T: Send + 'static>(
+    log: &ResultsLog,
+    read: impl FnOnce(&ResultsLog) -> Result<T, LogError> + Send + 'static,
+) -> Result<T, String> {
+    let log = log.clone();
+    match tokio::task::spawn_blocking(move || read(&log)).await {
+        Ok(read) => read.map_err(|e| e.to_string()),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// The OPC UA time of a record's time `time` (`LatestResult.Time`, `GetResultsSince`'s
+/// `Times`, an event's `Time`): the same instant to the millisecond, within OPC UA's
+/// range (1601 to 9999: a time outside is its first or last instant).
+fn record_time(time: UtcTime) -> DateTime {
+    /// Milliseconds from 1601-01-01, OPC UA's epoch, to 1970-01-01, UNIX's.
+    const UNIX_EPOCH_MS: i64 = 11_644_473_600_000;
+    /// OPC UA's ticks (100 ns) in a millisecond.
+    const TICKS_PER_MS: i64 = 10_000;
+    let ticks = time
+        .unix_ms
+        .saturating_add(UNIX_EPOCH_MS)
+        .saturating_mul(TICKS_PER_MS);
+    DateTime::from(ticks.clamp(0, DateTime::endtimes_ticks()))
+}
+
 /// What a record shows in `LatestResult`, in the order of [`RESULT_FIELDS`].
-fn result_values(record: &Record) -> [Variant; 10] {
+pub(super) fn result_values(record: &Record) -> [Variant; 10] {
     let reported = record.measurement.reported();
     let mm = |v: Option<f64>| v.map_or(Variant::Empty, Variant::Double);
-    let time = DateTime::parse_from_rfc3339(&record.time.to_string())
-        .map_or(Variant::Empty, Variant::from);
+    let time = Variant::from(record_time(record.time));
     let shape = match reported {
         Some(_) => record
             .measurement
@@ -1089,27 +1113,25 @@ impl Publisher {
         if !record.has_photo {
             return Ok(ByteString::null());
         }
-        let (log, id) = (self.nodes.log.clone(), record.id);
-        match tokio::task::spawn_blocking(move || log.photo(id)).await {
-            Ok(Ok(Some(jpeg))) if jpeg.len() <= PHOTO_MAX => Ok(ByteString::from(jpeg)),
-            Ok(Ok(Some(jpeg))) => {
+        let id = record.id;
+        match read_log(&self.nodes.log, move |log| log.photo(id)).await {
+            Ok(Some(jpeg)) if jpeg.len() <= PHOTO_MAX => Ok(ByteString::from(jpeg)),
+            Ok(Some(jpeg)) => {
                 tracing::warn!(
                     "OPC UA: the photo of record {id} ({} bytes) is larger than {PHOTO_MAX}: not shown",
                     jpeg.len()
                 );
                 Ok(ByteString::null())
             }
-            Ok(Ok(None)) => Ok(ByteString::null()),
-            Ok(Err(e)) => Err(format!("reading the photo of record {id}: {e}")),
-            Err(e) => Err(format!("reading the photo of record {id}: {e}")),
+            Ok(None) => Ok(ByteString::null()),
+            Err(why) => Err(format!("reading the photo of record {id}: {why}")),
         }
     }
 
     fn announce(&self, record: &Record) {
         let index = self.manager.inner().index;
         let station = id(index, "Station");
-        let time = DateTime::parse_from_rfc3339(&record.time.to_string())
-            .unwrap_or_else(|_| DateTime::now());
+        let time = record_time(record.time);
         let dims = record
             .measurement
             .reported()
@@ -1183,6 +1205,100 @@ impl Sink for Publisher {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_records_time_is_the_same_instant_in_opc_ua_within_its_range() {
+        let time = |text: &str| UtcTime::parse(text).expect("a time");
+        for text in [
+            "2026-11-30T02:40:00.123Z",
+            "1970-01-01T00:00:00.000Z",
+            "1601-01-01T00:00:00.001Z",
+        ] {
+            assert_eq!(
+                record_time(time(text)),
+                DateTime::parse_from_rfc3339(text).expect("RFC 3339"),
+                "{text}"
+            );
+        }
+        assert_eq!(
+            record_time(time("1600-12-31T23:59:59.999Z")).ticks(),
+            0,
+            "before 1601"
+        );
+        assert_eq!(
+            record_time(UtcTime { unix_ms: i64::MAX }).ticks(),
+            DateTime::endtimes_ticks(),
+            "after 9999"
+        );
+        // LatestResult shows the same time as GetResultsSince and the event.
+        let record = crate::api::record::tests::billed_record();
+        assert_eq!(
+            result_values(&record)[1],
+            Variant::from(record_time(record.time))
+        );
+    }
+
+    /// The first start with users makes the server's RSA key; the one thread of this
+    /// runtime keeps running its other tasks meanwhile: a ticker that stood still for the
+    /// whole start while the key was made on it.
+    #[tokio::test(flavor = "current_thread")]
+    async fn making_the_servers_key_leaves_the_runtimes_thread_free() {
+        use std::sync::Mutex;
+        use std::time::Instant;
+        let dir = crate::ScratchDir::new("opcua-key");
+        let log = ResultsLog::open(&dir.path().join("log.db")).expect("log");
+        let feed = Feed {
+            log: &log,
+            station: "dock-1",
+            state_dir: dir.path(),
+            measure: None,
+            cameras: Arc::new(Vec::new),
+        };
+        // When the ticker ticked.
+        let ticks = Arc::new(Mutex::new(vec![Instant::now()]));
+        let ticker = tokio::spawn({
+            let ticks = ticks.clone();
+            async move {
+                loop {
+                    tokio::time::sleep(Duration::from_millis(5)).await;
+                    ticks.lock().expect("ticks").push(Instant::now());
+                }
+            }
+        });
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let started = Instant::now();
+        let users = vec![("operator".to_owned(), "secret".to_owned())];
+        let output = OpcUaOutput::start("127.0.0.1:0".parse().expect("addr"), &feed, Some(users))
+            .await
+            .expect("the server");
+        let finished = Instant::now();
+        // Until the ticker has ticked after the start.
+        for _ in 0..1000 {
+            if ticks.lock().expect("ticks").last() > Some(&finished) {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        ticker.abort();
+        let key = dir.path().join(PKI_DIR).join("private").join("private.pem");
+        assert!(key.is_file(), "the key was made");
+        // The longest part of the start without a tick.
+        let ticks = ticks.lock().expect("ticks").clone();
+        let still = ticks
+            .windows(2)
+            .map(|w| {
+                w[1].min(finished)
+                    .saturating_duration_since(w[0].max(started))
+            })
+            .max()
+            .unwrap_or_default();
+        let took = finished - started;
+        assert!(
+            still * 3 < took,
+            "the runtime's thread stood still for {still:?} of the {took:?} the start took"
+        );
+        drop(output);
+    }
 
     #[test]
     fn only_loopback_endpoints_are_taken_without_users() {

@@ -245,6 +245,12 @@ impl Entry {
         self.id.id().unwrap_or_else(|| self.settings.kind())
     }
 
+    /// Its kind's name: with its name, what tells it apart from every other output (and
+    /// names its cursor): two outputs of different kinds may have one name.
+    pub fn kind(&self) -> &'static str {
+        self.settings.kind()
+    }
+
     /// Its keys and values: `kind`, `id`, then its kind's flags in their order.
     pub fn keys(&self) -> Vec<(&str, &Value)> {
         let order: Vec<String> = [KIND, ID]
@@ -295,8 +301,9 @@ impl Outputs {
         !self.flagged().is_empty() || !self.output.is_empty()
     }
 
-    /// Refuses two outputs of one name (two of a kind without an `id`, two `id`s alike:
+    /// Refuses two outputs of a kind with one name (two without an `id`, two `id`s alike:
     /// they would share a cursor), and an OPC UA server without users off this machine.
+    /// Outputs of different kinds may have one name.
     pub fn check(&self) -> Result<(), String> {
         #[cfg(feature = "opcua")]
         for settings in self
@@ -309,11 +316,15 @@ impl Outputs {
             }
         }
         let mut names = BTreeSet::new();
-        let flagged = self.flagged().into_iter().map(|s| s.kind().to_owned());
-        for name in flagged.chain(self.output.iter().map(|e| e.name().to_owned())) {
-            if !names.insert(name.clone()) {
+        let flagged = self
+            .flagged()
+            .into_iter()
+            .map(|s| (s.kind(), s.kind().to_owned()));
+        let listed = self.output.iter().map(|e| (e.kind(), e.name().to_owned()));
+        for (kind, name) in flagged.chain(listed) {
+            if !names.insert((kind, name.clone())) {
                 return Err(format!(
-                    "two outputs are named `{name}`: give each [[output]] of a kind an `{ID}` of its own"
+                    "two outputs of kind \"{kind}\" are named `{name}`: give each [[output]] of a kind an `{ID}` of its own"
                 ));
             }
         }
@@ -376,6 +387,65 @@ impl From<Infallible> for OutputError {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The outputs of `serve`'s output flags `words`.
+    fn outputs(words: &[&str]) -> Outputs {
+        use clap::Args as _;
+        let command = Outputs::augment_args(Command::new("serve").no_binary_name(true));
+        let matches = command.try_get_matches_from(words).expect("the flags");
+        Outputs::from_arg_matches(&matches).expect("the outputs")
+    }
+
+    #[test]
+    fn outputs_are_told_apart_by_their_kind_and_name_together() {
+        let webhook =
+            |id: &str| format!(r#"{{ kind = "webhook", id = "{id}", webhook = "http://h/x" }}"#);
+        let (webhook_line, webhook_a, webhook_webhook) =
+            (webhook("line"), webhook("a"), webhook("webhook"));
+        let mqtt_a = r#"{ kind = "mqtt", id = "a", mqtt = "mqtt://h" }"#;
+        let mqtt_webhook = r#"{ kind = "mqtt", id = "webhook", mqtt = "mqtt://h" }"#;
+        // One name, two kinds: two cursors (`line` and `webhook/line`, `mqtt/a` and
+        // `webhook/a`, `webhook` and `mqtt/webhook`).
+        let apart = [
+            vec![
+                "--line-output",
+                "tcp://127.0.0.1:0",
+                "--output",
+                &webhook_line,
+            ],
+            vec!["--output", mqtt_a, "--output", &webhook_a],
+            vec!["--webhook", "http://h/y", "--output", mqtt_webhook],
+        ];
+        for words in apart {
+            assert_eq!(outputs(&words).check(), Ok(()), "{words:?}");
+        }
+        // One kind, one name: one cursor.
+        let alike = [
+            (
+                vec!["--output", &webhook_a, "--output", &webhook_a],
+                "\"webhook\" are named `a`",
+            ),
+            (
+                vec![
+                    "--webhook",
+                    "http://h/y",
+                    "--output",
+                    r#"{ kind = "webhook", webhook = "http://h/x" }"#,
+                ],
+                "\"webhook\" are named `webhook`",
+            ),
+            (
+                vec!["--webhook", "http://h/y", "--output", &webhook_webhook],
+                "\"webhook\" are named `webhook`",
+            ),
+        ];
+        for (words, why) in alike {
+            let e = outputs(&words)
+                .check()
+                .expect_err("two outputs of one kind and name");
+            assert!(e.contains(why), "{words:?}: {e}");
+        }
+    }
 
     #[test]
     fn an_entry_reads_back_from_its_text_and_its_id_names_its_cursor() {

@@ -200,7 +200,11 @@ impl Sink for Copier {
     type Event = std::convert::Infallible;
 
     fn name(&self) -> String {
-        format!("postgres: {}", self.target)
+        format!(
+            "{}: {}",
+            super::output_name("postgres", &self.cursor),
+            self.target
+        )
     }
 
     fn start(&self) -> Start {

@@ -13,6 +13,13 @@ use openssl::ssl::{ErrorCode, SslConnector, SslMethod, SslStream};
 use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt as _, ReadBuf};
 use tokio::net::TcpStream;
 
+/// OpenSSL's verification result for a certificate of other host names
+/// (`X509_V_ERR_HOSTNAME_MISMATCH`).
+const HOSTNAME_MISMATCH: i32 = 62;
+/// OpenSSL's verification result for a certificate of other addresses
+/// (`X509_V_ERR_IP_ADDRESS_MISMATCH`).
+const IP_ADDRESS_MISMATCH: i32 = 64;
+
 /// The most read from the TCP connection at a time.
 const CHUNK: usize = 16 * 1024;
 
@@ -59,12 +66,21 @@ pub(super) struct TlsStream {
     tls: SslStream<Buffers>,
 }
 
-/// The TLS client connection to `host` over `tcp`, once its handshake is done and the
-/// server's certificate checked for `host`.
-pub(super) async fn connect(tcp: TcpStream, host: &str) -> Result<TlsStream, String> {
-    let connector = SslConnector::builder(SslMethod::tls_client())
+/// The TLS client side of an output, made once and used for each of its connections:
+/// OpenSSL's context with the system's trust store (read as it is made).
+pub(super) fn connector() -> Result<SslConnector, String> {
+    Ok(SslConnector::builder(SslMethod::tls_client())
         .map_err(|e| format!("TLS: {e}"))?
-        .build();
+        .build())
+}
+
+/// The TLS client connection to `host` over `tcp` made with `connector`, once its
+/// handshake is done and the server's certificate checked for `host`.
+pub(super) async fn connect(
+    connector: &SslConnector,
+    tcp: TcpStream,
+    host: &str,
+) -> Result<TlsStream, String> {
     let ssl = connector
         .configure()
         .and_then(|c| c.into_ssl(host))
@@ -85,6 +101,9 @@ pub(super) async fn connect(tcp: TcpStream, host: &str) -> Result<TlsStream, Str
                 let verify = stream.tls.ssl().verify_result();
                 return Err(match verify.as_raw() {
                     0 => format!("TLS handshake: {e}"),
+                    HOSTNAME_MISMATCH | IP_ADDRESS_MISMATCH => format!(
+                        "TLS handshake: the server's certificate is not for {host} ({verify}: it names other hosts)"
+                    ),
                     _ => format!("TLS handshake: the server's certificate: {verify}"),
                 });
             }

@@ -28,6 +28,7 @@ use hyper::client::conn::http1::SendRequest;
 use hyper::header::{self, HeaderValue};
 use hyper::{Method, Request, Uri};
 use hyper_util::rt::TokioIo;
+use openssl::ssl::SslConnector;
 use serde_json::Value;
 use sha2::{Digest as _, Sha256};
 use tokio::net::TcpStream;
@@ -368,6 +369,7 @@ impl Webhook {
                 Hook {
                     target: target.clone(),
                     connection: None,
+                    tls: None,
                     body,
                     cursor,
                 },
@@ -381,6 +383,9 @@ impl Webhook {
 struct Hook {
     target: Target,
     connection: Option<SendRequest<Full<Bytes>>>,
+    /// For an `https://` target: the TLS context, made at its first connection and kept
+    /// for the others (it reads the trust store).
+    tls: Option<SslConnector>,
     body: Body,
     /// Its durable cursor's name.
     cursor: String,
@@ -390,7 +395,11 @@ impl Sink for Hook {
     type Event = std::convert::Infallible;
 
     fn name(&self) -> String {
-        format!("webhook: {}", self.target)
+        format!(
+            "{}: {}",
+            super::output_name("webhook", &self.cursor),
+            self.target
+        )
     }
 
     fn start(&self) -> Start {
@@ -421,7 +430,7 @@ impl Hook {
         };
         let sender = match &mut self.connection {
             Some(sender) if usable => sender,
-            connection => connection.insert(connect(&self.target).await?),
+            connection => connection.insert(connect(&self.target, &mut self.tls).await?),
         };
         let encoded = match &self.body.template {
             Some(template) => serde_json::to_value(record)
@@ -483,7 +492,12 @@ impl Hook {
     }
 }
 
-async fn connect(target: &Target) -> Result<SendRequest<Full<Bytes>>, String> {
+/// A connection to `target`; over TLS with the context in `tls` (made there when it is
+/// none yet) for an `https://` one.
+async fn connect(
+    target: &Target,
+    tls: &mut Option<SslConnector>,
+) -> Result<SendRequest<Full<Bytes>>, String> {
     let stream = tokio::time::timeout(
         TIMEOUT,
         TcpStream::connect((target.host.as_str(), target.port)),
@@ -493,9 +507,16 @@ async fn connect(target: &Target) -> Result<SendRequest<Full<Bytes>>, String> {
     .map_err(|e| format!("connecting: {e}"))?;
     let _ = stream.set_nodelay(true);
     if target.tls {
-        let tls = tokio::time::timeout(TIMEOUT, super::tls::connect(stream, &target.host))
-            .await
-            .map_err(|_| format!("the TLS handshake took over {TIMEOUT:?}"))??;
+        let connector = match tls {
+            Some(connector) => connector,
+            none => none.insert(super::tls::connector()?),
+        };
+        let tls = tokio::time::timeout(
+            TIMEOUT,
+            super::tls::connect(connector, stream, &target.host),
+        )
+        .await
+        .map_err(|_| format!("the TLS handshake took over {TIMEOUT:?}"))??;
         handshake(tls).await
     } else {
         handshake(stream).await
@@ -521,6 +542,24 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn two_webhooks_to_one_url_say_in_their_messages_which_they_are() {
+        let target: Target = "http://127.0.0.1:9/in".parse().unwrap();
+        let hook = |cursor: &str| Hook {
+            target: target.clone(),
+            connection: None,
+            tls: None,
+            body: Body::default(),
+            cursor: cursor.into(),
+        };
+        // The name starts every message of `follow::run`: its failures, its backlog.
+        assert_eq!(hook(CONSUMER).name(), "webhook: http://127.0.0.1:9/in");
+        assert_eq!(
+            hook("webhook/wms").name(),
+            "webhook `wms`: http://127.0.0.1:9/in"
+        );
+    }
 
     #[test]
     fn targets() {

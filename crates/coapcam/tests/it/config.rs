@@ -321,12 +321,12 @@ fn output_tables_print_and_read_back_and_bad_ones_exit_2_naming_the_line() {
         (
             format!("{table}\n{table}"),
             5,
-            "a second output named `line`",
+            "a second output of kind \"line\" named `line`",
         ),
         (
             format!("{table}\n{table}id = \"line\"\n"),
             8,
-            "a second output named `line`",
+            "a second output of kind \"line\" named `line`",
         ),
         (
             "\n[[output]]\nkind = \"lines\"\n".into(),
@@ -372,7 +372,8 @@ fn output_tables_print_and_read_back_and_bad_ones_exit_2_naming_the_line() {
     ])
     .expect_status(2, "a flag and a table of one name");
     assert!(
-        done.stderr.contains("two outputs are named `line`"),
+        done.stderr
+            .contains("two outputs of kind \"line\" are named `line`"),
         "{}",
         done.stderr
     );

@@ -149,6 +149,15 @@ fn every_post_is_signed_and_a_tampered_body_fails_the_receivers_check() {
 /// A self-signed certificate for 127.0.0.1 and its key, as the PEM files `NAME.pem` and
 /// `NAME.key` in `dir`.
 fn self_signed(dir: &std::path::Path, name: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    self_signed_for(dir, name, None)
+}
+
+/// As [`self_signed`], for the host name `host` instead of 127.0.0.1 when one is given.
+fn self_signed_for(
+    dir: &std::path::Path,
+    name: &str,
+    host: Option<&str>,
+) -> (std::path::PathBuf, std::path::PathBuf) {
     use openssl::asn1::Asn1Time;
     use openssl::hash::MessageDigest;
     use openssl::pkey::PKey;
@@ -170,8 +179,12 @@ fn self_signed(dir: &std::path::Path, name: &str) -> (std::path::PathBuf, std::p
         .expect("not before");
     cert.set_not_after(&Asn1Time::days_from_now(1).expect("tomorrow"))
         .expect("not after");
-    let san = SubjectAlternativeName::new()
-        .ip("127.0.0.1")
+    let mut san = SubjectAlternativeName::new();
+    match host {
+        Some(host) => san.dns(host),
+        None => san.ip("127.0.0.1"),
+    };
+    let san = san
         .build(&cert.x509v3_context(None, None))
         .expect("its address");
     cert.append_extension(san).expect("the extension");
@@ -223,6 +236,104 @@ fn an_https_webhook_posts_only_to_a_receiver_whose_certificate_it_trusts() {
     assert_eq!(
         (body["id"].as_u64(), &body["station"]),
         (Some(1), &"dock-tls".into())
+    );
+}
+
+/// An `https://` webhook makes its TLS context once, with the trust store as it is at its
+/// first connection, and uses it for each connection after: a trust store changed while
+/// the station runs changes nothing until it starts again. (Before, each connection made
+/// a context of its own and read the trust store again.)
+#[test]
+fn an_https_webhook_reads_the_trust_store_once_for_all_its_connections() {
+    let dir = TempDir::new("webhook-https-once");
+    let secret = dir.join("secret");
+    std::fs::write(&secret, "wh-tls-secret\n").expect("writing the secret");
+    let secret = secret.to_str().expect("UTF-8 path");
+    let (cert, key) = self_signed(dir.path(), "receiver");
+    let (other, _) = self_signed(dir.path(), "someone-else");
+    let trust = dir.join("trust.pem");
+    std::fs::copy(&cert, &trust).expect("trusting the receiver");
+    let script = support::script("webhook_receiver.py");
+    let path = |p: &std::path::Path| p.to_str().expect("UTF-8 path").to_owned();
+    // A new connection for each record.
+    let mut receiver = Proc::spawn_with_env(
+        "python3",
+        &[&script, secret, &path(&cert), &path(&key)],
+        &[("WEBHOOK_RECEIVER_CLOSE", "1")],
+    );
+    let port: u16 = receiver.stdout_line(LIMIT, |l| l.strip_prefix("ready ")?.parse().ok());
+    let hook = format!("https://127.0.0.1:{port}/hook");
+    let (_station, addr) = serve_with_env(
+        &dir.join("state"),
+        &["--webhook", &hook, "--webhook-secret-file", secret],
+        &[("SSL_CERT_FILE", &trust)],
+    );
+    measure(addr);
+    let got = next_request(&mut receiver);
+    assert_eq!(got["valid"], true, "{got}");
+    // The trust store no longer holds the receiver's certificate: the context made at the
+    // first connection still does.
+    std::fs::copy(&other, &trust).expect("trusting someone else");
+    measure(addr);
+    let got = next_request(&mut receiver);
+    assert_eq!(
+        got["valid"], true,
+        "the second record, on a new connection: {got}"
+    );
+    let body: Value = serde_json::from_str(got["body"].as_str().expect("a body")).expect("JSON");
+    assert_eq!(body["id"], 2, "{body}");
+}
+
+/// An `https://` webhook to 127.0.0.1 whose receiver shows a trusted certificate for
+/// another host is refused: the handshake is given up, the record waits in the log, and
+/// the station's warning says that the certificate is not for 127.0.0.1.
+#[test]
+fn an_https_webhook_refuses_a_trusted_certificate_for_another_host_and_says_so() {
+    let dir = TempDir::new("webhook-https-host");
+    let secret = dir.join("secret");
+    std::fs::write(&secret, "wh-tls-secret\n").expect("writing the secret");
+    let secret = secret.to_str().expect("UTF-8 path");
+    let (cert, key) = self_signed_for(dir.path(), "elsewhere", Some("elsewhere.example"));
+    let script = support::script("webhook_receiver.py");
+    let path = |p: &std::path::Path| p.to_str().expect("UTF-8 path").to_owned();
+    let mut receiver = Proc::spawn("python3", &[&script, secret, &path(&cert), &path(&key)]);
+    let port: u16 = receiver.stdout_line(LIMIT, |l| l.strip_prefix("ready ")?.parse().ok());
+    let hook = format!("https://127.0.0.1:{port}/hook");
+    let state = dir.join("state");
+    let state = path(&state);
+    let mut station = Proc::spawn_with_env(
+        COAPCAM,
+        &[
+            "serve",
+            "--bind",
+            "127.0.0.1:0",
+            "--state-dir",
+            &state,
+            "--duration",
+            "120",
+            "--webhook",
+            &hook,
+            "--webhook-secret-file",
+            secret,
+        ],
+        &[("SSL_CERT_FILE", &path(&cert))],
+    );
+    let addr: std::net::SocketAddr = station.stderr_line(LIMIT, |l| {
+        l.strip_prefix("coapcam: serving on ")?
+            .split(',')
+            .next()?
+            .trim()
+            .parse()
+            .ok()
+    });
+    measure(addr);
+    let got = next_request(&mut receiver);
+    assert!(got["tls_refused"].is_string(), "{got}");
+    let warning = station.stderr_line(LIMIT, |l| l.contains("TLS handshake").then(|| l.to_owned()));
+    assert!(
+        warning.contains("the server's certificate is not for 127.0.0.1")
+            && warning.contains("records wait in the log"),
+        "{warning}"
     );
 }
 
