@@ -147,6 +147,64 @@ pub fn host_name() -> String {
 mod tests {
     use super::*;
 
+    /// Issue 51, item 4: one record, every output of the station, the same three numbers:
+    /// its parcel's, rounded to the division (5 mm), for the parcel measured 322.6 x 241.3
+    /// x 99.8 mm. The record's JSON (what the API, CoAP, MQTT, the webhook and the
+    /// PostgreSQL table's `body` carry) at its top level and in its first parcel, a
+    /// webhook template's pointers, the line output, OPC UA's `LatestResult` and its
+    /// event's message, and the text of `measure` and the picture's legend. (`results
+    /// --csv` and the page are outside the library: tests/it's
+    /// `requests_are_recorded_served_listed_and_verified` and
+    /// `the_page_shows_the_numbers_to_bill_on` check them against the record.)
+    #[test]
+    fn every_output_carries_the_same_numbers_to_bill_on() {
+        let record = crate::api::record::tests::billed_record();
+        let json = serde_json::to_value(&record).expect("JSON");
+        let m = &json["measurement"];
+        let keys = ["length_mm", "width_mm", "height_mm"];
+        let billed = [325.0, 240.0, 100.0];
+        assert_eq!(keys.map(|k| m[k].as_f64()), billed.map(Some), "{m}");
+        let parcel = &m["parcels"][0];
+        assert_eq!(keys.map(|k| parcel[k].as_f64()), billed.map(Some), "{m}");
+        assert_eq!(m["division_mm"].as_f64(), Some(5.0), "{m}");
+        let template = webhook::Template::parse(
+            r#"{"l": "/measurement/length_mm", "w": "/measurement/width_mm", "h": "/measurement/height_mm"}"#,
+        )
+        .expect("a template");
+        assert_eq!(
+            template.fill(&json),
+            serde_json::json!({"l": 325.0, "w": 240.0, "h": 100.0})
+        );
+        let text = "325 x 240 x 100 mm";
+        let line = line::format_line(&line::LineFields::of(&record));
+        assert_eq!(
+            line.split(',')
+                .skip(2)
+                .take(3)
+                .collect::<Vec<_>>()
+                .join(" x ")
+                + " mm",
+            text,
+            "{line:?}"
+        );
+        let reported = record.measurement.reported().expect("measured");
+        assert_eq!(reported.dimensions_text(), text);
+        assert_eq!(
+            crate::report::box_caption(&reported.dimensions(0), reported.division_mm),
+            format!("measured box {text}, yaw 0.0 deg")
+        );
+        #[cfg(feature = "opcua")]
+        {
+            use ::opcua::types::Variant;
+            let values = opcua::result_values(&record);
+            assert_eq!(
+                values[2..6],
+                [325.0, 240.0, 100.0, 5.0].map(Variant::Double),
+                "LengthMm, WidthMm, HeightMm, DivisionMm"
+            );
+        }
+    }
+
     #[test]
     fn an_outputs_name_in_messages_carries_its_id_when_it_has_one() {
         assert_eq!(output_name("webhook", "webhook"), "webhook");
