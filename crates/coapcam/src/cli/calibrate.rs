@@ -185,8 +185,16 @@ fn marker_map(args: &CalibrateArgs) -> anyhow::Result<MarkerMap> {
     let family = args.family;
     match &args.map {
         Some(file) => {
-            let scene = rgbd::Scene::load(file)
-                .with_context(|| format!("--map {}: the marker map", file.display()))?;
+            // A marker map is read as a scene file, but a file that cannot be read is
+            // the marker map to the user, not a scene.
+            let scene = rgbd::Scene::load(file).map_err(|e| match e {
+                rgbd::SceneError::Io { source, .. } => anyhow::anyhow!(
+                    "--map {}: cannot read the marker map: {source}",
+                    file.display()
+                ),
+                e => anyhow::Error::new(e)
+                    .context(format!("--map {}: the marker map", file.display())),
+            })?;
             MarkerMap::from_scene(&scene, family, args.origin_id)
                 .with_context(|| format!("--map {}", file.display()))
         }

@@ -191,9 +191,10 @@ fn a_folder_that_does_not_exist_fails_before_the_grab() {
     }
 }
 
-/// Issue 51, item 13: a missing `calibrate --map` file is named as the marker map (it
-/// said only "cannot read scene file"), before anything is sent; `bench accuracy
-/// --help` says each set's default number of scenes in words that parse.
+/// Issue 51, item 13: a missing `calibrate --map` file is named as the marker map, not
+/// as a scene file (it said "cannot read scene file"), before anything is sent; `bench
+/// accuracy --help` says each set's default number of scenes in words that parse, and
+/// its first line names every set, not the boxes alone.
 #[test]
 fn small_messages_say_what_they_mean() {
     let counter = Counter::new();
@@ -203,12 +204,22 @@ fn small_messages_say_what_they_mean() {
     assert_eq!(f.status.code(), Some(1), "{}", f.stderr);
     assert!(
         f.stderr
-            .contains(&format!("--map {missing}: the marker map: cannot read")),
+            .contains(&format!("--map {missing}: cannot read the marker map: ")),
         "{}",
         f.stderr
     );
+    assert!(!f.stderr.contains("scene file"), "{}", f.stderr);
     assert_eq!(counter.count(), 0, "sent: {}", f.stderr);
     let help = coapcam(&["bench", "accuracy", "--help"]).stdout_text();
+    let about = help.lines().next().unwrap_or_default();
+    for named in [
+        "--set",
+        "plain boxes",
+        "the lane set",
+        "the certification set",
+    ] {
+        assert!(about.contains(named), "{named:?} is not in {about:?}");
+    }
     let scenes = help
         .lines()
         .find(|l| l.trim_start().starts_with("--scenes"))

@@ -26,9 +26,10 @@ pub(crate) struct BenchArgs {
 
 #[derive(Debug, Subcommand)]
 enum BenchKind {
-    /// Measure a built-in set of synthetic parcels (10-80 cm, yaw 0-90 deg, 2-60 cm high,
-    /// one or two D415s 0.8-1.5 m above the floor) end to end over CoAP and print the
-    /// errors.
+    /// Measure a built-in set of synthetic scenes end to end over CoAP and print the errors
+    /// against each scene's truth: by --set, plain boxes (the default: 10-80 cm, yaw 0-90
+    /// deg, 2-60 cm high, one or two D415s 0.8-1.5 m above the floor), the lane set or the
+    /// certification set; with --calibrate, boxes on cameras calibrated by markers first.
     Accuracy(AccuracyArgs),
     /// Time whole-body GETs through emulated links (loopback, 20 ms, 2 % and 5 % loss, a
     /// 50 Mbit/s bottleneck) with our stop-and-wait, window and Q-Block2 clients, libcoap
