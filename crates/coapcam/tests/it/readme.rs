@@ -137,8 +137,9 @@ fn the_readme_blocks_are_understood() {
 }
 
 /// The README's set-up facts (issue 51, item 1): the Rust version Cargo.toml requires,
-/// and every package scripts/test.sh installs (apt-get and pip), so that a newcomer knows
-/// what the two commands need before running them.
+/// every package scripts/test.sh installs (apt-get and pip), so that a newcomer knows
+/// what the two commands need before running them, the build time as CI printed it (and
+/// in minutes the same), and how to put the demo's `coapcam` on PATH.
 #[test]
 fn the_readme_names_the_rust_version_and_what_the_test_command_installs() {
     let version = CARGO_TOML
@@ -185,10 +186,35 @@ fn the_readme_names_the_rust_version_and_what_the_test_command_installs() {
         .nth(1)
         .and_then(|rest| rest.split(" s`").next())
         .expect("README.md quotes CI's `release build and demo: N s`");
-    assert!(
-        quoted.parse::<u32>().is_ok_and(|s| s > 0),
-        "not a number of seconds: {quoted}"
+    let seconds: u32 = quoted
+        .parse()
+        .unwrap_or_else(|_| panic!("not a number of seconds: {quoted}"));
+    // The round figure a reader takes in first is that run's, in whole minutes.
+    let about = README
+        .split("The first release build takes about ")
+        .nth(1)
+        .and_then(|rest| rest.split(" minutes").next())
+        .expect("README.md says how many minutes the first release build takes");
+    assert_eq!(
+        about.parse::<u32>().ok(),
+        Some((seconds + 30) / 60),
+        "README.md says about {about} minutes and quotes CI's {seconds} s"
     );
+    // How to call `coapcam` bare, as every later example does: the binary the demo
+    // built, on PATH, said before the first example that needs it.
+    let built = "target/release/coapcam";
+    let export = "export PATH=\"$PWD/target/release:$PATH\"";
+    let first_bare = README
+        .match_indices("\ncoapcam ")
+        .map(|(at, _)| at)
+        .find(|&at| README[..at].matches("```").count() % 2 == 1)
+        .expect("an example that calls coapcam bare");
+    for fact in [built, export] {
+        assert!(
+            README.find(fact).is_some_and(|at| at < first_bare),
+            "README.md does not say `{fact}` before its first bare `coapcam` example"
+        );
+    }
     assert!(installed.len() >= 10, "{installed:?}");
     let missing: Vec<&String> = installed
         .iter()
