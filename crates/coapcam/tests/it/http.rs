@@ -193,6 +193,50 @@ fn measuring_an_empty_table_over_http_records_nothing() {
     assert_eq!(get(addr, "/api/measurements").json(), json!([]));
 }
 
+/// Issue 51, item 10: the page's depth picture of an empty table was colour noise (the
+/// floor's few millimetres of noise stretched over every colour) and a JPEG of 1.5 MB,
+/// fetched every second per camera. Over at least 30 cm of depth the floor is the far
+/// end's red (a few shades apart, black where it has no depth), and the JPEG under 300 kB
+/// (149 kB here).
+#[test]
+fn an_empty_tables_depth_picture_is_one_colour_and_small() {
+    let state = TempDir::new("http-empty-depth");
+    let scene = crate::support::empty_table(&state);
+    let (_server, _, addr) = station_with_http(state.path(), &["--scene", &scene]);
+    let depth = get(
+        addr,
+        &format!("/api/cameras/{}/depth.jpg", crate::support::SN),
+    );
+    assert_eq!(
+        depth.status,
+        200,
+        "{}",
+        String::from_utf8_lossy(&depth.body)
+    );
+    assert!(
+        depth.body.len() < 300_000,
+        "{} bytes for an empty table",
+        depth.body.len()
+    );
+    let picture = image::load_from_memory_with_format(&depth.body, image::ImageFormat::Jpeg)
+        .expect("a JPEG")
+        .to_rgb8();
+    // The floor, above the colour bar in the bottom right corner: the far end's red, dark
+    // or black where the camera has no depth, hardly a pixel green, yellow or blue.
+    let (w, h) = picture.dimensions();
+    let floor: Vec<[u8; 3]> = (h / 8..h * 3 / 4)
+        .step_by(3)
+        .flat_map(|y| (w / 8..w * 7 / 8).step_by(3).map(move |x| (x, y)))
+        .map(|(x, y)| picture.get_pixel(x, y).0)
+        .collect();
+    let coloured = floor.iter().filter(|[_, g, b]| *g > 60 || *b > 60).count();
+    assert!(
+        coloured * 100 <= floor.len(),
+        "{coloured} of {} floor pixels are not the far end's red",
+        floor.len()
+    );
+}
+
 /// Reads a Server-Sent Events stream until the event with id `id`: its data.
 fn event_data(stream: &mut BufReader<TcpStream>, id: u64) -> Value {
     let want = format!("id: {id}");
