@@ -837,7 +837,10 @@ fn the_page_shows_the_parcel_and_measures_in_chromium() {
 /// `--virtual-time-budget` is never taken (the page's event stream stays open, and
 /// virtual time waits for it). docs/station.md gives a command that takes one: run as it
 /// stands there (with this station's address, a file of the test's, and, as root, no
-/// sandbox), it ends within the limit and writes the page's picture.
+/// sandbox), it ends within the limit and writes the page's picture. It is taken once the
+/// page has loaded, well before the command's `--timeout`, which bounds the wait and does
+/// not delay the picture: station.md said it was taken "after 10 s of real time", with the
+/// photo (it had neither the photo nor the cameras' images).
 #[test]
 fn a_headless_screenshot_as_station_md_gives_it_finishes() {
     if !available(
@@ -887,7 +890,24 @@ fn a_headless_screenshot_as_station_md_gives_it_finishes() {
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let browser = coapcam::process::peers::on_path("chromium").expect("chromium");
     let browser = browser.to_str().expect("UTF-8 path");
+    let timeout = words
+        .iter()
+        .find_map(|w| w.strip_prefix("--timeout="))
+        .and_then(|ms| ms.parse().ok())
+        .map(Duration::from_millis)
+        .expect("the command bounds its wait with --timeout=MS");
+    let said = format!("after {} s", timeout.as_secs());
+    assert!(
+        !prose.contains(&said),
+        "station.md says the picture is taken {said}"
+    );
+    let started = Instant::now();
     Proc::run(browser, &args, LIMIT).expect_success("the documented screenshot");
+    assert!(
+        started.elapsed() < timeout,
+        "the picture took {:?}, not the page's load",
+        started.elapsed()
+    );
     let png = std::fs::read(&shot).expect("the screenshot");
     let picture =
         image::load_from_memory_with_format(&png, image::ImageFormat::Png).expect("a PNG");
