@@ -63,14 +63,36 @@ fn a_path_with_newlines_and_escapes_cannot_forge_log_lines() {
     );
 }
 
+/// `GET path` over HTTP/1.1 on a connection of its own: the answer's status line.
+fn http_get(addr: SocketAddr, path: &str) -> String {
+    use std::io::{Read as _, Write as _};
+    let mut stream = std::net::TcpStream::connect(addr).expect("connecting over HTTP");
+    stream.set_read_timeout(Some(LIMIT)).expect("timeout");
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .expect("asking");
+    let mut answer = String::new();
+    stream.read_to_string(&mut answer).expect("the answer");
+    answer.lines().next().unwrap_or_default().to_owned()
+}
+
 /// Issue 51, item 13: a 4.04 (or any 4.xx) is the answer the client asked for, not a
 /// fault of the server: at the default level (warnings) it is not logged, at
-/// `RUST_LOG=info` it is.
+/// `RUST_LOG=info` it is; asked directly or through the HTTP proxy (`/hc/`), whose 404 was
+/// a server WARN.
 #[test]
 fn a_client_error_is_no_warning() {
     for (level, logged) in [("warn", false), ("info", true)] {
         let state = TempDir::new("logs-4xx");
-        let (mut p, addr, _) = server(&state, level, &[]);
+        let (mut p, addr, before) = server(&state, level, &["--http", "127.0.0.1:0"]);
+        let http: SocketAddr = before
+            .iter()
+            .find_map(|l| l.strip_prefix("coapcam: HTTP on http://"))
+            .and_then(|a| a.split('/').next())
+            .and_then(|a| a.parse().ok())
+            .unwrap_or_else(|| panic!("no HTTP address in {before:?}"));
         runtime().block_on(async {
             let r = send(&client(), addr, Code::GET, "/nope", b"", None).await;
             assert_eq!(r.code, Code::NOT_FOUND);
@@ -78,6 +100,8 @@ fn a_client_error_is_no_warning() {
             let r = send(&client(), addr, Code::GET, &color, b"", None).await;
             assert_eq!(r.code, Code::NOT_FOUND, "no frame grabbed yet");
         });
+        let status = http_get(http, &format!("/hc/coap://{addr}/nope"));
+        assert!(status.starts_with("HTTP/1.1 404"), "{status}");
         // Logged before the answer was sent, if at all.
         let finished = p.kill();
         let refused = finished
@@ -87,7 +111,7 @@ fn a_client_error_is_no_warning() {
             .collect::<Vec<_>>();
         assert_eq!(
             refused.len(),
-            if logged { 2 } else { 0 },
+            if logged { 3 } else { 0 },
             "{level}: {refused:?}"
         );
         // Information: the commands' prefix and no level (issue 51, item 13: the log's
