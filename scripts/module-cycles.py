@@ -279,18 +279,31 @@ def cycles(graph):
     return out
 
 
-def folders(graph):
-    """The graph between a crate's top-level modules (a folder and all below it is one)."""
+def folders(graph, within=()):
+    """The graph between the modules directly in module `within` (a folder and all below
+    it is one) and `within` itself; the crate's top-level modules by default. Edges that
+    leave `within` are left out."""
+    depth = len(within)
+
+    def child(module):
+        return module[: depth + 1] if module[:depth] == within else None
+
     out = {}
     for source, targets in graph.items():
-        out.setdefault(source[:1], set())
-        out[source[:1]].update(t[:1] for t in targets if t[:1] != source[:1])
+        s = child(source)
+        if s is None:
+            continue
+        out.setdefault(s, set())
+        out[s].update(t for t in map(child, targets) if t is not None and t != s)
     return out
 
 
 def stated_layers(map_file):
-    """Crate root -> its top-level modules' layers, top first, from the map's fenced
-    blocks opened by ```` ```layers crates/x/src/lib.rs ````: one layer a line."""
+    """Module file -> its child modules' layers, top first, from the map's fenced blocks
+    opened by ```` ```layers crates/x/src/lib.rs ```` (a crate root: its top-level
+    modules) or ```` ```layers crates/x/src/a/mod.rs ```` (module `a`: the modules in its
+    folder): one layer a line. `self` in a layer is the module's own file; without it,
+    that file is below every layer."""
     out = {}
     if not os.path.exists(map_file):
         return out
@@ -299,25 +312,30 @@ def stated_layers(map_file):
     return out
 
 
-def layer_problems(top, layers):
-    """What breaks "a module uses only the modules in the layers below its own" (the crate
-    root below them all, using none)."""
+def layer_problems(top, layers, within=()):
+    """What breaks "a module uses only the modules in the layers below its own" among the
+    modules in `within` (by default the crate's top-level modules; `within`'s own file,
+    unless a layer names it `self`, below them all, using none)."""
     rank = {}
     out = []
     for i, layer in enumerate(layers):
         for name in layer:
-            rank[(name,)] = i
-    rank[()] = len(layers)
+            rank[within if name == "self" else within + (name,)] = i
+    rank.setdefault(within, len(layers))
+
+    def name(module):
+        return "::".join(module) or "(root)"
+
     for module in sorted(top):
         if module not in rank:
-            out.append(f"{module[0]} is in no layer")
-    for name in sorted(n for n in rank if n not in top):
-        out.append(f"{name[0]} is in a layer but not a module of the crate")
+            out.append(f"{name(module)} is in no layer")
+    for module in sorted(m for m in rank if m not in top and m != within):
+        out.append(f"{name(module)} is in a layer but not a module of the crate")
     for source in sorted(top):
         for target in sorted(top[source]):
             if source in rank and target in rank and rank[target] <= rank[source]:
                 where = "the same layer" if rank[target] == rank[source] else "a layer above"
-                out.append(f"{'::'.join(source) or '(root)'} uses {'::'.join(target) or '(root)'}, in {where}")
+                out.append(f"{name(source)} uses {name(target)}, in {where}")
     return out
 
 
@@ -330,7 +348,8 @@ def check(crates, map_file, base="."):
             root_file = os.path.join(crate, root)
             if not os.path.exists(root_file):
                 continue
-            graph = edges(module_tree(root_file))
+            modules = module_tree(root_file)
+            graph = edges(modules)
             for scc in cycles(graph):
                 names = sorted("::".join(m) or "(root)" for m in scc)
                 out.append(f"{root_file}: import cycle among {', '.join(names)}")
@@ -351,10 +370,13 @@ def check(crates, map_file, base="."):
                             if d[:1] == t
                         )
                         out.append(f"    {'::'.join(m) or '(root)'} -> {'::'.join(t) or '(root)'} ({'; '.join(via)})")
-            key = os.path.relpath(root_file, base)
-            if key in layers:
-                for problem in layer_problems(top, layers[key]):
-                    out.append(f"{root_file}: not as {os.path.basename(map_file)} layers it: {problem}")
+            for module, file in sorted(modules.items()):
+                key = os.path.relpath(file, base)
+                if key not in layers:
+                    continue
+                top = folders(graph, module)
+                for problem in layer_problems(top, layers[key], module):
+                    out.append(f"{file}: not as {os.path.basename(map_file)} layers it: {problem}")
     return out
 
 
@@ -386,6 +408,15 @@ def self_test():
           "b.rs": "use crate::a::X;"}, None, ["import cycle among a, b"]),
         # Clean: downward only.
         ({"lib.rs": "mod a;\nmod b;\n", "a.rs": "use crate::b::X;", "b.rs": ""}, "a\nb\n", []),
+        # Layers of the modules in a folder (a/mod.rs), its own file placed by `self`: a
+        # child that imports its sibling, the folder's file that uses a child above it.
+        ({"lib.rs": "mod a;\n", "a/mod.rs": "mod x;\nmod y;\nmod v;\nuse v::W;\n",
+          "a/x.rs": "use super::y::Y; use super::Z;", "a/y.rs": "", "a/v.rs": ""},
+         {"a/mod.rs": "x y\nself\nv\n"}, ["a::x uses a::y, in the same layer"]),
+        ({"lib.rs": "mod a;\n", "a/mod.rs": "mod x;\nmod v;\nuse v::W;\n", "a/x.rs": "use super::Z;",
+          "a/v.rs": ""}, {"a/mod.rs": "x\nv\n"}, ["a uses a::v, in a layer above"]),
+        ({"lib.rs": "mod a;\n", "a/mod.rs": "mod x;\nmod v;\nuse v::W;\n", "a/x.rs": "use super::Z;",
+          "a/v.rs": "use crate::b::Q;"}, {"a/mod.rs": "x\nself\nv\n"}, []),
     ]
     failed = 0
     for n, (files, layers, expected) in enumerate(cases):
@@ -397,9 +428,11 @@ def self_test():
                 with open(path, "w") as f:
                     f.write(text)
             map_file = os.path.join(tmp, "MAP.md")
+            if isinstance(layers, str):
+                layers = {"lib.rs": layers}
             with open(map_file, "w") as f:
-                if layers is not None:
-                    f.write(f"```layers crates/t/src/lib.rs\n{layers}```\n")
+                for file, block in (layers or {}).items():
+                    f.write(f"```layers crates/t/src/{file}\n{block}```\n")
             found = check([crate], map_file, tmp)
             missing = [e for e in expected if not any(e in line for line in found)]
             if missing or (not expected and found):
