@@ -11,7 +11,11 @@ child is a cycle too. A path in a `macro_rules!` body that names a macro variabl
 (`super::$name::Args`, `$name::Args`) is read once for each identifier the macro's
 invocations in the same file pass (`outputs!(mqtt, line)`: `super::mqtt::Args`,
 `super::line::Args`); `$crate::a` is `crate::a`. Inline modules (`mod tests { ... }`) are left out: nothing imports
-them, so they close no cycle. Usage: scripts/module-cycles.py [CRATE_DIR ...] (default: crates/*).
+them, so they close no cycle. The same graph, between the modules of one folder, is held
+against ARCHITECTURE.md's fenced `layers` blocks (a module uses only those in the lines
+below its own) and `apart` blocks (a module of one line never uses one of another), each
+named by the folder's file. Usage: scripts/module-cycles.py [CRATE_DIR ...] (default:
+crates/*).
 """
 
 import bisect
@@ -298,18 +302,43 @@ def folders(graph, within=()):
     return out
 
 
+def stated_groups(map_file, kind):
+    """Module file -> the lines of the map's fenced blocks of `kind` (`layers`, `apart`)
+    opened by ```` ```KIND crates/x/src/a/mod.rs ````, each line's words (a block may be
+    indented, inside a list item)."""
+    out = {}
+    if not os.path.exists(map_file):
+        return out
+    pattern = r"^[ \t]*```" + kind + r"[ \t]+(\S+)[ \t]*\n(.*?)^[ \t]*```"
+    for m in re.finditer(pattern, open(map_file).read(), re.M | re.S):
+        out[m.group(1)] = [line.split() for line in m.group(2).splitlines() if line.split()]
+    return out
+
+
+def apart_problems(top, groups, within):
+    """What breaks "a module of one group (a line) never uses one of another group" among
+    the modules in `within`."""
+    group = {}
+    out = []
+    for i, names in enumerate(groups):
+        for name in names:
+            group[within + (name,)] = i
+    for module in sorted(m for m in group if m not in top):
+        out.append(f"{'::'.join(module)} is in a group but not a module of the crate")
+    for source in sorted(top):
+        for target in sorted(top[source]):
+            if source in group and target in group and group[source] != group[target]:
+                out.append(f"{'::'.join(source)} uses {'::'.join(target)}, of another group")
+    return out
+
+
 def stated_layers(map_file):
     """Module file -> its child modules' layers, top first, from the map's fenced blocks
     opened by ```` ```layers crates/x/src/lib.rs ```` (a crate root: its top-level
     modules) or ```` ```layers crates/x/src/a/mod.rs ```` (module `a`: the modules in its
     folder): one layer a line. `self` in a layer is the module's own file; without it,
     that file is below every layer."""
-    out = {}
-    if not os.path.exists(map_file):
-        return out
-    for m in re.finditer(r"^```layers[ \t]+(\S+)[ \t]*\n(.*?)^```", open(map_file).read(), re.M | re.S):
-        out[m.group(1)] = [line.split() for line in m.group(2).splitlines() if line.split()]
-    return out
+    return stated_groups(map_file, "layers")
 
 
 def layer_problems(top, layers, within=()):
@@ -342,6 +371,7 @@ def layer_problems(top, layers, within=()):
 def check(crates, map_file, base="."):
     """Every problem found, as lines of text."""
     layers = stated_layers(map_file)
+    apart = stated_groups(map_file, "apart")
     out = []
     for crate in crates:
         for root in ("src/lib.rs", "src/main.rs"):
@@ -372,11 +402,11 @@ def check(crates, map_file, base="."):
                         out.append(f"    {'::'.join(m) or '(root)'} -> {'::'.join(t) or '(root)'} ({'; '.join(via)})")
             for module, file in sorted(modules.items()):
                 key = os.path.relpath(file, base)
-                if key not in layers:
-                    continue
                 top = folders(graph, module)
-                for problem in layer_problems(top, layers[key], module):
+                for problem in layer_problems(top, layers[key], module) if key in layers else []:
                     out.append(f"{file}: not as {os.path.basename(map_file)} layers it: {problem}")
+                for problem in apart_problems(top, apart[key], module) if key in apart else []:
+                    out.append(f"{file}: not as {os.path.basename(map_file)} keeps it apart: {problem}")
     return out
 
 
@@ -417,6 +447,16 @@ def self_test():
           "a/v.rs": ""}, {"a/mod.rs": "x\nv\n"}, ["a uses a::v, in a layer above"]),
         ({"lib.rs": "mod a;\n", "a/mod.rs": "mod x;\nmod v;\nuse v::W;\n", "a/x.rs": "use super::Z;",
           "a/v.rs": "use crate::b::Q;"}, {"a/mod.rs": "x\nself\nv\n"}, []),
+        # Groups kept apart: a module of one never uses one of another, at any depth
+        # below them; within a group, and to a module in none, uses are free.
+        ({"lib.rs": "mod e;\n", "e/mod.rs": "mod c;\nmod cs;\nmod s;\nmod ss;\nmod t;\n",
+          "e/c.rs": "use super::cs::A; use super::t::T;", "e/cs.rs": "use super::ss::B;",
+          "e/s.rs": "use super::ss::B;", "e/ss.rs": "", "e/t.rs": ""},
+         {"apart e/mod.rs": "c cs\ns ss\n"}, ["e::cs uses e::ss, of another group"]),
+        ({"lib.rs": "mod e;\n", "e/mod.rs": "mod c;\nmod s;\n", "e/c.rs": "use super::s::X;", "e/s.rs": ""},
+         {"apart e/mod.rs": "c\ns\n"}, ["e::c uses e::s, of another group"]),
+        ({"lib.rs": "mod e;\n", "e/mod.rs": "mod c;\nmod s;\nmod t;\n", "e/c.rs": "use super::t::X;",
+          "e/s.rs": "use super::t::X;", "e/t.rs": ""}, {"apart e/mod.rs": "c\ns\n"}, []),
     ]
     failed = 0
     for n, (files, layers, expected) in enumerate(cases):
@@ -431,16 +471,26 @@ def self_test():
             if isinstance(layers, str):
                 layers = {"lib.rs": layers}
             with open(map_file, "w") as f:
-                for file, block in (layers or {}).items():
-                    f.write(f"```layers crates/t/src/{file}\n{block}```\n")
+                for key, block in (layers or {}).items():
+                    kind, file = key.split() if " " in key else ("layers", key)
+                    f.write(f"```{kind} crates/t/src/{file}\n{block}```\n")
             found = check([crate], map_file, tmp)
             missing = [e for e in expected if not any(e in line for line in found)]
             if missing or (not expected and found):
                 failed += 1
                 print(f"self-test case {n}: expected {expected}, found {found}")
+    # A block indented inside a list item is read as one at the margin.
+    with tempfile.TemporaryDirectory() as tmp:
+        map_file = os.path.join(tmp, "MAP.md")
+        with open(map_file, "w") as f:
+            f.write("- `x/`:\n\n  ```layers crates/t/src/x/mod.rs\n  self\n  a b\n  ```\n")
+        found = stated_layers(map_file)
+        if found != {"crates/t/src/x/mod.rs": [["self"], ["a", "b"]]}:
+            failed += 1
+            print(f"self-test: an indented block read as {found}")
     if failed:
         sys.exit(1)
-    print(f"module-cycles: self-test passed ({len(cases)} cases)")
+    print(f"module-cycles: self-test passed ({len(cases) + 1} cases)")
 
 
 def main():
