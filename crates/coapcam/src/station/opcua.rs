@@ -69,6 +69,7 @@ use super::follow::{
     self, CameraView, Cameras, Feed, MeasureNow, Next, Output, OutputId, Sink, Start,
 };
 use super::log::{LogError, ResultsLog};
+use super::reads::{self, Kind, Refusal};
 use crate::api::record::{Record, UtcTime};
 use crate::api::results::MAX_LIST;
 use crate::report::Found;
@@ -923,29 +924,13 @@ impl StationNodes {
         }
     }
 
-    /// Reads the log on the blocking pool for method `what`; a failure is a warning and
-    /// `BadResourceUnavailable`.
-    async fn read<T: Send + 'static>(
-        &self,
-        what: &'static str,
-        read: impl FnOnce(&ResultsLog) -> Result<T, LogError> + Send + 'static,
-    ) -> Result<T, StatusCode> {
-        read_log(&self.nodes.log, read).await.map_err(|why| {
-            tracing::warn!("OPC UA {what}: reading the results log: {why}");
-            StatusCode::BadResourceUnavailable
-        })
-    }
-
     /// `GetResultById(RecordId)`: the record's fields as `LatestResult` shows them.
     async fn result_by_id(&self, arguments: &[Variant]) -> Result<Vec<Variant>, StatusCode> {
         if arguments.len() > 1 {
             return Err(StatusCode::BadTooManyArguments);
         }
         let id = unsigned(arguments.first())?;
-        let record = self
-            .read("GetResultById", move |log| log.get(id))
-            .await?
-            .ok_or(StatusCode::BadNotFound)?;
+        let record = reads::record(&self.nodes.log, id).await.map_err(refused)?;
         Ok(result_values(&record).into())
     }
 
@@ -969,12 +954,9 @@ impl StationNodes {
             0 => MAX_LIST,
             n => usize::try_from(n).unwrap_or(MAX_LIST).min(MAX_LIST),
         };
-        let records = self
-            .read("GetResultsSince", move |log| match since {
-                Some(from) => log.after_from(after, from, max),
-                None => log.after(after, max),
-            })
-            .await?;
+        let records = reads::after(&self.nodes.log, after, since, max)
+            .await
+            .map_err(refused)?;
         let mm = |pick: fn(&crate::report::Reported) -> f64| -> Variant {
             let values: Vec<f64> = records
                 .iter()
@@ -999,8 +981,21 @@ impl StationNodes {
     }
 }
 
+/// The status of a method whose read of the results log ([`reads`]) was refused: no such
+/// record is `BadNotFound`, a log that could not be read `BadResourceUnavailable` (`reads`
+/// said why in the server's log).
+fn refused(refusal: Refusal) -> StatusCode {
+    match refusal.kind {
+        Kind::BadRequest => StatusCode::BadInvalidArgument,
+        Kind::NotFound => StatusCode::BadNotFound,
+        Kind::Failed => StatusCode::BadResourceUnavailable,
+    }
+}
+
 /// Runs `read` on `log` on the blocking pool: what it read, or why it could not (the log's
-/// error, or the task's).
+/// error, or the task's). For the photo of the record the follower hands the publisher,
+/// whose failure `follow::run` says once and retries, where [`reads`] would warn at each
+/// retry.
 async fn read_log<T: Send + 'static>(
     log: &ResultsLog,
     read: impl FnOnce(&ResultsLog) -> Result<T, LogError> + Send + 'static,

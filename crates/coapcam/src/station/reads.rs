@@ -1,12 +1,17 @@
-//! The results log's read API, written once for its two front ends (the CoAP resources in
-//! `resources.rs`, the HTTP API in `http/`): the list, the newest record, one record, a
-//! record's pictures, and the wording of every refusal. A front end reads its request into
-//! these calls, maps a [`Refusal`]'s [`Kind`] to its own code (4.00/400, 4.04/404,
-//! 5.00/500) and writes the document in its own format.
+//! The results log's read API, written once for its front ends (the CoAP resources in
+//! `resources.rs`, the HTTP API in `http/`, the OPC UA methods in `opcua.rs`): the list,
+//! the newest record, one record, the records after one, a record's pictures, and the
+//! wording of every refusal. A front end reads its request into these calls, maps a
+//! [`Refusal`]'s [`Kind`] to its own code (4.00/400, 4.04/404, 5.00/500;
+//! `BadNotFound`, `BadResourceUnavailable`) and writes the document in its own format.
 
 use super::log::{LogError, ResultsLog};
-use crate::api::record::{EventRecord, Head, Record};
+use crate::api::record::{EventRecord, Head, Record, UtcTime};
 use crate::api::results::ListQuery;
+
+/// The largest record id: SQLite's ids are signed 64-bit, so an id past it is no record
+/// (not a 5.00 with the database's refusal of the number).
+const MAX_ID: u64 = i64::MAX as u64;
 
 /// What kind of refusal: the code each front end gives it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -98,10 +103,35 @@ pub(crate) async fn head(log: &ResultsLog) -> Result<Head, Refusal> {
 
 /// The record of id `text`.
 pub(crate) async fn one(log: &ResultsLog, text: &str) -> Result<Record, Refusal> {
-    let id = parse_id(text)?;
+    record(log, parse_id(text)?).await
+}
+
+/// The record of id `id`.
+pub(crate) async fn record(log: &ResultsLog, id: u64) -> Result<Record, Refusal> {
+    if id > MAX_ID {
+        return Err(no_record(id));
+    }
     blocking(log, move |log| log.get(id))
         .await?
         .ok_or_else(|| no_record(id))
+}
+
+/// At most `max` records after id `after` (measured at `since` or later, when given),
+/// oldest first.
+pub(crate) async fn after(
+    log: &ResultsLog,
+    after: u64,
+    since: Option<UtcTime>,
+    max: usize,
+) -> Result<Vec<Record>, Refusal> {
+    if after >= MAX_ID {
+        return Ok(Vec::new());
+    }
+    blocking(log, move |log| match since {
+        Some(from) => log.after_from(after, from, max),
+        None => log.after(after, max),
+    })
+    .await
 }
 
 /// The record of id `text` and its `picture`.
@@ -146,9 +176,7 @@ pub(crate) async fn picture(
 /// A record id: a whole number from 1.
 fn parse_id(text: &str) -> Result<u64, Refusal> {
     match text.parse::<u64>() {
-        // SQLite's ids are signed 64-bit: one past them is no record (it was a 500 with
-        // the database's error).
-        Ok(id) if id > i64::MAX as u64 => Err(no_record(id)),
+        Ok(id) if id > MAX_ID => Err(no_record(id)),
         Ok(id) if id > 0 => Ok(id),
         _ => Err(Refusal::new(
             Kind::BadRequest,
@@ -198,5 +226,56 @@ mod tests {
         assert_eq!(query.kind, Kind::BadRequest);
         assert_eq!(latest(&log).await, Ok(None));
         assert_eq!(list(&log, Vec::<String>::new(), "/x").await, Ok(Vec::new()));
+    }
+
+    fn new(n: i64) -> crate::api::record::NewRecord {
+        use crate::api::record::{NewRecord, Trigger};
+        NewRecord {
+            time: UtcTime {
+                unix_ms: 1_795_734_229_000 + n,
+            },
+            station: "lane-1".into(),
+            trigger: Trigger::Request,
+            measurement: crate::api::record::tests::measurement(300.0, "PKG"),
+            cameras: Vec::new(),
+            version: NewRecord::VERSION.into(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.into(),
+            photo_jpeg: None,
+            annotated_png: None,
+            parameters_sha256: None,
+        }
+    }
+
+    /// The reads the OPC UA methods make by number: an id past SQLite's is no record and
+    /// nothing follows it, not the log's failure (5.00, `BadResourceUnavailable`).
+    #[tokio::test]
+    async fn records_by_number_and_after_one() {
+        let dir = ScratchDir::new("reads-after");
+        let log = ResultsLog::open(&dir.path().join("log.db")).expect("log");
+        for n in 0..3 {
+            log.append(new(n * 1000)).expect("append");
+        }
+        let ids = |records: Vec<Record>| records.iter().map(|r| r.id).collect::<Vec<_>>();
+        assert_eq!(record(&log, 2).await.map(|r| r.id), Ok(2));
+        assert_eq!(
+            record(&log, 0).await.expect_err("none").kind,
+            Kind::NotFound
+        );
+        let past = record(&log, u64::MAX).await.expect_err("none");
+        assert_eq!(past.kind, Kind::NotFound, "{}", past.why);
+        assert_eq!(
+            past.why,
+            format!("no record {} in the results log", u64::MAX)
+        );
+        assert_eq!(after(&log, 0, None, 10).await.map(ids), Ok(vec![1, 2, 3]));
+        assert_eq!(after(&log, 1, None, 1).await.map(ids), Ok(vec![2]));
+        let second = Some(UtcTime {
+            unix_ms: 1_795_734_230_000,
+        });
+        assert_eq!(after(&log, 0, second, 10).await.map(ids), Ok(vec![2, 3]));
+        assert_eq!(
+            after(&log, u64::MAX, None, 10).await.map(ids),
+            Ok(Vec::new())
+        );
     }
 }
