@@ -1,10 +1,7 @@
 //! The [`Backend`] trait every camera backend implements.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
-use rgbd::backend::playback::PlaybackError;
-use rgbd::backend::realsense::RealSenseError;
 use rgbd::{CameraHub, HubError, SceneError, Serial};
 
 /// A source of cameras for a camera server: started once with the server's hub, it puts
@@ -21,7 +18,10 @@ pub trait Backend: Send + Sync {
     fn start(&mut self, hub: &Arc<CameraHub>) -> Result<Vec<Serial>, StartError>;
 }
 
-/// A backend could not start: what it was doing, and why.
+/// A backend could not start: what it was doing, and why. What every backend may meet is
+/// a variant here; what one backend alone meets (a recording it cannot open, a library it
+/// cannot load) is that backend's own error, in its file, carried by
+/// [`StartError::Backend`]: a new backend needs no variant here.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum StartError {
@@ -31,34 +31,14 @@ pub enum StartError {
     /// A camera could not go into the hub (a camera of its serial is there already).
     #[error("adding a camera")]
     Add(#[source] HubError),
-    /// A recording could not be opened or read.
-    #[error("opening recording {}", path.display())]
-    Recording {
-        /// The recording's file.
-        path: PathBuf,
-        /// Why.
-        source: PlaybackError,
-    },
-    /// A recorded camera could not go into the hub.
-    #[error("adding the camera of {}", path.display())]
-    AddRecorded {
-        /// The recording's file.
-        path: PathBuf,
-        /// Why.
-        source: HubError,
-    },
-    /// librealsense could not be loaded, or its cameras did not come.
+    /// A backend's own error ([`StartError::backend`]).
     #[error(transparent)]
-    RealSense(#[from] RealSenseError),
-    /// librealsense did not start.
-    #[error("starting librealsense {version}")]
-    StartRealSense {
-        /// The library's version.
-        version: String,
-        /// Why.
-        source: RealSenseError,
-    },
-    /// A scene's camera could not be added to librealsense as a virtual D415.
-    #[error("adding a virtual D415 to librealsense")]
-    Software(#[source] RealSenseError),
+    Backend(Box<dyn std::error::Error + Send + Sync>),
+}
+
+impl StartError {
+    /// A backend's own error `e`, said as it says it.
+    pub fn backend(e: impl std::error::Error + Send + Sync + 'static) -> Self {
+        Self::Backend(Box::new(e))
+    }
 }

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use rgbd::backend::realsense::{
-    GrabMode, LibrarySearch, RealSense, RealSenseLibrary, SoftwareD415,
+    GrabMode, LibrarySearch, RealSense, RealSenseError, RealSenseLibrary, SoftwareD415,
 };
 use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
 
@@ -103,17 +103,17 @@ struct Running {
 impl Backend for RealSenseCameras {
     fn start(&mut self, hub: &Arc<CameraHub>) -> Result<Vec<Serial>, StartError> {
         let options = &self.options;
-        let library = RealSenseLibrary::load(&options.library)?;
+        let library = RealSenseLibrary::load(&options.library).map_err(failed)?;
         let mode = if options.streaming {
             GrabMode::Streaming
         } else {
             GrabMode::PerRequest
         };
         let realsense = RealSense::start(&library, hub.clone(), mode).map_err(|source| {
-            StartError::StartRealSense {
+            StartError::backend(RealSenseStartError::Start {
                 version: library.version(),
                 source,
-            }
+            })
         })?;
         let mut software = Vec::new();
         if let Some(scene) = &options.software {
@@ -121,18 +121,18 @@ impl Backend for RealSenseCameras {
                 software.push(
                     realsense
                         .add_software_d415(camera)
-                        .map_err(StartError::Software)?,
+                        .map_err(|e| StartError::backend(RealSenseStartError::Software(e)))?,
                 );
             }
         }
-        let mut serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
+        let mut serials = realsense.wait_for_cameras(FIRST_CAMERA).map_err(failed)?;
         // Every virtual camera is announced on librealsense's thread; wait for all.
         let deadline = std::time::Instant::now() + FIRST_CAMERA;
         while software.iter().any(|s| !serials.contains(&s.serial()))
             && std::time::Instant::now() < deadline
         {
             std::thread::sleep(Duration::from_millis(10));
-            serials = realsense.wait_for_cameras(FIRST_CAMERA)?;
+            serials = realsense.wait_for_cameras(FIRST_CAMERA).map_err(failed)?;
         }
         for reason in realsense.rejected() {
             tracing::warn!("librealsense device not served: {reason}");
@@ -143,4 +143,28 @@ impl Backend for RealSenseCameras {
         });
         Ok(serials)
     }
+}
+
+/// librealsense did not serve: how.
+#[derive(Debug, thiserror::Error)]
+pub enum RealSenseStartError {
+    /// It could not be loaded, or its cameras did not come.
+    #[error(transparent)]
+    RealSense(RealSenseError),
+    /// It did not start.
+    #[error("starting librealsense {version}")]
+    Start {
+        /// The library's version.
+        version: String,
+        /// Why.
+        source: RealSenseError,
+    },
+    /// A scene's camera could not be added to it as a virtual D415.
+    #[error("adding a virtual D415 to librealsense")]
+    Software(#[source] RealSenseError),
+}
+
+/// librealsense could not be loaded, or its cameras did not come.
+fn failed(e: RealSenseError) -> StartError {
+    StartError::backend(RealSenseStartError::RealSense(e))
 }

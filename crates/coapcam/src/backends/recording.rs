@@ -4,8 +4,8 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use rgbd::backend::playback::PlaybackCamera;
-use rgbd::{Camera as _, CameraHub, Scene, Serial};
+use rgbd::backend::playback::{PlaybackCamera, PlaybackError};
+use rgbd::{Camera as _, CameraHub, HubError, Scene, Serial};
 
 use super::backend::{Backend, StartError};
 
@@ -39,19 +39,66 @@ impl Backend for Recordings {
     fn start(&mut self, hub: &Arc<CameraHub>) -> Result<Vec<Serial>, StartError> {
         let mut serials = Vec::new();
         for path in &self.0 {
-            let cameras = PlaybackCamera::open(path).map_err(|source| StartError::Recording {
-                path: path.clone(),
-                source,
+            let cameras = PlaybackCamera::open(path).map_err(|source| {
+                StartError::backend(RecordingError::Open {
+                    path: path.clone(),
+                    source,
+                })
             })?;
             for camera in cameras {
                 serials.push(camera.serial());
-                hub.add(Arc::new(camera))
-                    .map_err(|source| StartError::AddRecorded {
+                hub.add(Arc::new(camera)).map_err(|source| {
+                    StartError::backend(RecordingError::Add {
                         path: path.clone(),
                         source,
-                    })?;
+                    })
+                })?;
             }
         }
         Ok(serials)
+    }
+}
+
+/// A recording could not be served.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    /// It could not be opened or read.
+    #[error("opening recording {}", path.display())]
+    Open {
+        /// The recording's file.
+        path: PathBuf,
+        /// Why.
+        source: PlaybackError,
+    },
+    /// A recorded camera could not go into the hub.
+    #[error("adding the camera of {}", path.display())]
+    Add {
+        /// The recording's file.
+        path: PathBuf,
+        /// Why.
+        source: HubError,
+    },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A recording that cannot be opened fails the backend's start naming it, and the
+    /// playback's reason once, though `StartError` has no variant of its own for it.
+    #[test]
+    fn a_recording_that_cannot_be_opened_is_named() {
+        let dir = crate::ScratchDir::new("recording-missing");
+        let path = dir.path().join("none.bag");
+        let hub = Arc::new(CameraHub::new());
+        let e = Recordings(vec![path.clone()])
+            .start(&hub)
+            .expect_err("no such recording");
+        assert!(matches!(e, StartError::Backend(_)), "{e:?}");
+        let text = crate::error_text(&e);
+        let named = format!("opening recording {}: ", path.display());
+        assert!(text.starts_with(&named), "{text}");
+        assert_eq!(text.matches("opening recording").count(), 1, "{text}");
+        assert!(text.len() > named.len(), "{text}");
     }
 }

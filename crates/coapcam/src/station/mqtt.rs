@@ -131,6 +131,11 @@ pub enum TargetError {
     Topic(String),
 }
 
+/// The publisher could not start: the station's name cannot be a level of its topics.
+#[derive(Debug, thiserror::Error)]
+#[error("the station's name as an MQTT topic level (--station-name)")]
+pub struct StationNameError(#[source] pub TargetError);
+
 impl FromStr for Target {
     type Err = TargetError;
 
@@ -420,7 +425,7 @@ impl Args {
         &self,
         feed: &Feed<'_>,
         id: &OutputId,
-    ) -> Result<Option<Box<dyn Output>>, TargetError> {
+    ) -> Result<Option<Box<dyn Output>>, StationNameError> {
         let Some(target) = &self.mqtt else {
             return Ok(None);
         };
@@ -428,7 +433,8 @@ impl Args {
             target: target.clone(),
             station: feed.station.to_owned(),
         };
-        let publisher = Publisher::start_as(config, feed.log.clone(), id)?;
+        let publisher =
+            Publisher::start_as(config, feed.log.clone(), id).map_err(StationNameError)?;
         Ok(Some(Box::new(publisher)))
     }
 }
