@@ -117,7 +117,8 @@ pub(crate) async fn record(log: &ResultsLog, id: u64) -> Result<Record, Refusal>
 }
 
 /// At most `max` records after id `after` (measured at `since` or later, when given),
-/// oldest first.
+/// oldest first. Read by the OPC UA methods only (feature `opcua`).
+#[cfg_attr(not(feature = "opcua"), allow(dead_code))]
 pub(crate) async fn after(
     log: &ResultsLog,
     after: u64,
