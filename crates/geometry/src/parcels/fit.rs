@@ -8,7 +8,7 @@ use super::rect::{CUBOID_OUTSIDE, OUTSIDE_M};
 use super::rect::{RectFrame, centre, polygon, rect_area, share_outside};
 use super::round;
 use super::shape::{Object, Shape, ShapeFit, ShapeRule};
-use super::shoulders::shoulders;
+use super::shoulders::{BAND_MAX_M, shoulders};
 use super::view::View;
 use crate::Point3;
 use crate::dimension::{
@@ -58,8 +58,10 @@ pub struct ParcelFit {
     /// The share of the footprint's cells that hold points (1 without holes).
     pub coverage: f64,
     /// Just beyond an edge, at the top's height, lies a point outside every camera's
-    /// image, or behind another parcel from each camera that has it in its image: more of
-    /// the parcel may be there, unseen (only known with views).
+    /// image, or behind another parcel from each camera that has it in its image; or a
+    /// soft parcel's side faces away from every camera, which see it only over its top,
+    /// and its foot may lie far beyond (see `shoulders`): more of the parcel may be
+    /// there, unseen (only known with views).
     pub out_of_view: bool,
     /// Seen whole: in view, and coverage at least the configured minimum.
     pub complete: bool,
@@ -350,8 +352,8 @@ fn measure(
         tops: if seam { tops.max(2) } else { tops },
         isolated: tops <= 1 && !several && !seam,
         coverage: measured.coverage,
-        out_of_view: false,
-        complete: measured.coverage >= f64::from(config.min_coverage),
+        out_of_view: measured.foot_unseen,
+        complete: measured.coverage >= f64::from(config.min_coverage) && !measured.foot_unseen,
         no_depth: false,
     })
 }
@@ -372,6 +374,7 @@ fn cuboid(object: &Object<'_>, min_height_m: f32) -> ShapeFit {
         footprint,
         top_m: object.height_m,
         coverage: object.map.coverage(&polygon(&footprint)),
+        foot_unseen: false,
     }
 }
 
@@ -394,14 +397,15 @@ fn irregular(object: &Object<'_>, lid_fill: f64) -> ShapeFit {
             0.0,
         )
     });
-    let footprint = if lid_fill < CUBOID_FIT {
+    let (footprint, band_m) = if lid_fill < CUBOID_FIT {
         shoulders(around, object.dense, object.height_m, object.views)
     } else {
-        around
+        (around, 0.0)
     };
     ShapeFit {
         shape: Shape::Irregular,
         footprint,
+        foot_unseen: band_m > BAND_MAX_M,
         top_m: object
             .map
             .peak()

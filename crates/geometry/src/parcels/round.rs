@@ -34,6 +34,7 @@ pub(super) fn rule(object: &Object<'_>) -> Option<ShapeFit> {
             footprint: tube.footprint(&object.lid_rect),
             top_m: (2.0 * tube.radius) as f32,
             coverage: object.map.coverage(&polygon(&tube.seen(&object.lid_rect))),
+            foot_unseen: false,
         });
     }
     if object.box_like {
@@ -57,6 +58,7 @@ pub(super) fn rule(object: &Object<'_>) -> Option<ShapeFit> {
         footprint: disc.footprint(&object.hull_rect),
         top_m: object.height_m,
         coverage: object.map.coverage(&disc.polygon()),
+        foot_unseen: false,
     })
 }
 

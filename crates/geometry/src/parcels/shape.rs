@@ -76,6 +76,10 @@ pub(super) struct ShapeFit {
     /// box's footprint, the strip a lying tube's circle was seen over) that hold points
     /// (see `HeightMap::coverage`).
     pub(super) coverage: f64,
+    /// Where a side meets the floor no camera sees, in a band wider than
+    /// `shoulders::BAND_MAX_M` (a soft parcel's side facing away from every camera): more
+    /// of it may lie there, unseen.
+    pub(super) foot_unseen: bool,
 }
 
 /// A shape rule: `Some` when the object is of its shape, measured; `None` to leave it to

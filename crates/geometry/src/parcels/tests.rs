@@ -449,7 +449,7 @@ fn a_low_bags_foot_seen_down_to_the_floor_keeps_its_edge() {
     let view = View::pinhole(to_common, 900.0, 900.0, 640.0, 360.0, 1280, 720);
     // The rectangle the points' density placed: the footprint.
     let around = [[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]];
-    let got = shoulders(around, &points, h as f32, &[view]);
+    let (got, band) = shoulders(around, &points, h as f32, &[view]);
     // Seen down to the floor, the sides stay where they are (within the millimetre the
     // camera's grazing rays leave unseen below 10 mm); a bin beyond the edge that held a
     // fifth of the surface's count moved each out by the whole 4 mm bin.
@@ -458,6 +458,7 @@ fn a_low_bags_foot_seen_down_to_the_floor_keeps_its_edge() {
             assert!((g[k] - a[k]).abs() < 0.0015, "{got:?}");
         }
     }
+    assert!(band < 0.003, "{band}");
 }
 
 #[test]

@@ -606,6 +606,27 @@ fn a_polybag_is_measured_to_its_enclosing_cuboid_from_where_the_camera_loses_its
         blind_errors.iter().all(|e| *e < -1.0) && (0..2).all(|i| errors[i] > blind_errors[i]),
         "{blind_errors:?} {errors:?}"
     );
+    // Seen down to the floor on every side: nothing of it is said to be out of view.
+    assert!(fit.complete && !fit.out_of_view, "{fit:?}");
+}
+
+/// A bag 300 mm high whose end faces away from all three cameras (certification set,
+/// seed 1, scene 329): they see that end only over its top, and the band where its foot
+/// may stand is 233 mm wide. Placed in the middle of it, the length came out 33 mm long
+/// and was accepted; a foot no camera sees is now said, and the bag is not complete.
+#[test]
+fn a_bags_foot_no_camera_sees_is_out_of_view_not_a_number() {
+    let cert = rgbd::cert::cert_scene(1, 329);
+    assert_eq!(cert.scene.cameras.len(), 3);
+    assert_eq!(cert.objects[0].truth.kind, ObjectKind::Bag);
+    let (cloud, views) = crate::round::prepared_clouds(&cert.scene);
+    let found = parcels(&cloud, &DimensionConfig::default(), &views)
+        .unwrap()
+        .parcels;
+    assert_eq!(found.len(), 1, "{found:?}");
+    let bag = &found[0];
+    assert_eq!(bag.shape, Shape::Irregular);
+    assert!(bag.out_of_view && !bag.complete, "{bag:?}");
 }
 
 /// A tube lying on the floor beside a box as high as it is, under one camera off to the
