@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The project's test command (README, "Two commands"). CI runs exactly this via .ci/run.
-# It installs the peers the tests need, then: format check, the module import checks and
-# the commands' sizes, clippy with -D warnings, all tests, the multicast tests inside a
-# private network namespace, and the fuzz targets (built, seeds replayed).
+# It installs the peers the tests need, then: format check, the module import checks, the
+# commands' sizes and the map's names, clippy with -D warnings, all tests, the multicast
+# tests inside a private network namespace, and the fuzz targets (built, seeds replayed).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # A one-shot full check gains nothing from incremental caches, which would add ~0.9 GB to
@@ -152,11 +152,13 @@ fi
 step "cargo fmt --check"
 cargo fmt --all -- --check
 
-step "no module import cycles, folders in the direction ARCHITECTURE.md states, commands small"
+step "no module import cycles, folders in the direction ARCHITECTURE.md states, commands small, the map's names real"
 python3 scripts/module-cycles.py --self-test
 python3 scripts/module-cycles.py
 python3 scripts/cli-size.py --self-test
 python3 scripts/cli-size.py
+python3 scripts/map-names.py --self-test
+python3 scripts/map-names.py
 
 step "cargo clippy -D warnings"
 cargo clippy --workspace --all-targets --locked -- -D warnings
