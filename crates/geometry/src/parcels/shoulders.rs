@@ -31,7 +31,7 @@ const FALL_M: f32 = 0.005;
 /// grazing ray's run from where it is lost. Read off the certification set's seed 1
 /// (scenes 0-499) with the limit at 60 mm: it refused 11 bags that had come out within
 /// one division of an irregular item (10 mm), 9 of them with bands of 61 to 88 mm, and
-/// the 13 bags it caught 16 to 34 mm off with no flag had bands of 87 to 334 mm (scene
+/// the 13 bags it caught 16 to 57 mm off with no flag had bands of 87 to 334 mm (scene
 /// 329: 33 mm off in a band of 233). A pillow seen from above leaves bands of 10 to 25
 /// mm.
 pub(super) const BAND_MAX_M: f64 = 0.09;
