@@ -53,8 +53,9 @@ pub(super) const BAND_MAX_M: f64 = 0.09;
 /// whose surface arrives level (a lid) stays where it is. Without views the band is
 /// unknown and the rectangle stays.
 ///
-/// Also the widest of the bands (metres; 0 when no side slopes down or no camera is
-/// known): where it exceeds [`BAND_MAX_M`], the foot is not known.
+/// Also the widest of the bands (metres; a level edge's too, which stays where it is but
+/// may have its foot anywhere in its band; 0 without views): where it exceeds
+/// [`BAND_MAX_M`], the foot is not known.
 pub(super) fn shoulders(
     corners: [[f64; 2]; 4],
     points: &[Point3],
