@@ -848,6 +848,25 @@ pub(crate) mod tests {
         .expect("a measurement")
     }
 
+    /// Record `n` of a lane's tests: taken `n` ms after a fixed time, of a parcel 300 + `n`
+    /// mm long with the QR code `code`, no cameras and no pictures.
+    pub(crate) fn numbered_record(n: u64, code: &str) -> NewRecord {
+        NewRecord {
+            time: UtcTime {
+                unix_ms: 1_795_734_229_000 + i64::try_from(n).unwrap_or(0),
+            },
+            station: "lane-1".into(),
+            trigger: Trigger::Request,
+            measurement: measurement(300.0 + n as f64, code),
+            cameras: Vec::new(),
+            version: NewRecord::VERSION.into(),
+            software_sha256: crate::identity::SOFTWARE_SHA256.into(),
+            photo_jpeg: None,
+            annotated_png: None,
+            parameters_sha256: None,
+        }
+    }
+
     /// The record of issue 51, item 4: a parcel measured 322.6 x 241.3 x 99.8 mm, billed
     /// at the default 5 mm division, with a code.
     pub(crate) fn billed_record() -> Record {

@@ -394,23 +394,10 @@ mod tests {
 
     use super::*;
     use crate::ScratchDir;
-    use crate::api::record::{NewRecord, Trigger, UtcTime};
+    use crate::api::record::NewRecord;
 
     fn new(n: u64) -> NewRecord {
-        NewRecord {
-            time: UtcTime {
-                unix_ms: 1_795_734_229_000 + i64::try_from(n).unwrap_or(0),
-            },
-            station: "lane-1".into(),
-            trigger: Trigger::Request,
-            measurement: crate::api::record::tests::measurement(300.0 + n as f64, "PKG"),
-            cameras: Vec::new(),
-            version: NewRecord::VERSION.into(),
-            software_sha256: crate::identity::SOFTWARE_SHA256.into(),
-            photo_jpeg: None,
-            annotated_png: None,
-            parameters_sha256: None,
-        }
+        crate::api::record::tests::numbered_record(n, "PKG")
     }
 
     /// Takes every other hand-over only, and tells which it took.

@@ -1954,23 +1954,14 @@ fn check_record(
 mod tests {
     use super::*;
     use crate::ScratchDir;
-    use crate::api::record::{Trigger, UtcTime};
+    use crate::api::record::UtcTime;
     use crate::station::clock::ManualClock;
 
     fn new(n: u64, code: &str, photo: bool) -> NewRecord {
         NewRecord {
-            time: UtcTime {
-                unix_ms: 1_795_734_229_000 + i64::try_from(n).unwrap_or(0),
-            },
-            station: "lane-1".into(),
-            trigger: Trigger::Request,
-            measurement: crate::api::record::tests::measurement(300.0 + n as f64, code),
-            cameras: Vec::new(),
-            version: NewRecord::VERSION.into(),
-            software_sha256: crate::identity::SOFTWARE_SHA256.into(),
             photo_jpeg: photo.then(|| vec![n as u8; 1000]),
             annotated_png: photo.then(|| vec![n as u8; 500]),
-            parameters_sha256: None,
+            ..crate::api::record::tests::numbered_record(n, code)
         }
     }
 

@@ -229,24 +229,6 @@ mod tests {
         assert_eq!(list(&log, Vec::<String>::new(), "/x").await, Ok(Vec::new()));
     }
 
-    fn new(n: i64) -> crate::api::record::NewRecord {
-        use crate::api::record::{NewRecord, Trigger};
-        NewRecord {
-            time: UtcTime {
-                unix_ms: 1_795_734_229_000 + n,
-            },
-            station: "lane-1".into(),
-            trigger: Trigger::Request,
-            measurement: crate::api::record::tests::measurement(300.0, "PKG"),
-            cameras: Vec::new(),
-            version: NewRecord::VERSION.into(),
-            software_sha256: crate::identity::SOFTWARE_SHA256.into(),
-            photo_jpeg: None,
-            annotated_png: None,
-            parameters_sha256: None,
-        }
-    }
-
     /// The reads the OPC UA methods make by number: an id past SQLite's is no record and
     /// nothing follows it, not the log's failure (5.00, `BadResourceUnavailable`).
     #[tokio::test]
@@ -254,7 +236,8 @@ mod tests {
         let dir = ScratchDir::new("reads-after");
         let log = ResultsLog::open(&dir.path().join("log.db")).expect("log");
         for n in 0..3 {
-            log.append(new(n * 1000)).expect("append");
+            log.append(crate::api::record::tests::numbered_record(n * 1000, "PKG"))
+                .expect("append");
         }
         let ids = |records: Vec<Record>| records.iter().map(|r| r.id).collect::<Vec<_>>();
         assert_eq!(record(&log, 2).await.map(|r| r.id), Ok(2));
