@@ -1,4 +1,5 @@
-//! Method and response codes (RFC 7252 §5.8, §5.9, §12.1; RFC 7959 §2.9; RFC 8132).
+//! Method, response and signalling codes (RFC 7252 §5.8, §5.9, §12.1; RFC 7959 §2.9;
+//! RFC 8132; RFC 8323 §5).
 
 use std::fmt;
 
@@ -47,6 +48,11 @@ impl Code {
         matches!(self.class(), 4 | 5)
     }
 
+    /// A signalling code (7.xx, RFC 8323 §5.1), which only reliable transports carry.
+    pub const fn is_signal(self) -> bool {
+        self.class() == 7
+    }
+
     /// The registered name, if any.
     pub fn name(self) -> Option<&'static str> {
         Some(match self {
@@ -82,6 +88,11 @@ impl Code {
             Self::SERVICE_UNAVAILABLE => "Service Unavailable",
             Self::GATEWAY_TIMEOUT => "Gateway Timeout",
             Self::PROXYING_NOT_SUPPORTED => "Proxying Not Supported",
+            Self::CSM => "CSM",
+            Self::PING => "Ping",
+            Self::PONG => "Pong",
+            Self::RELEASE => "Release",
+            Self::ABORT => "Abort",
             _ => return None,
         })
     }
@@ -150,6 +161,16 @@ impl Code {
     pub const GATEWAY_TIMEOUT: Self = Self::new(5, 4);
     /// 5.05 Proxying Not Supported
     pub const PROXYING_NOT_SUPPORTED: Self = Self::new(5, 5);
+    /// 7.01 CSM, Capabilities and Settings Message (RFC 8323 §5.3)
+    pub const CSM: Self = Self::new(7, 1);
+    /// 7.02 Ping (RFC 8323 §5.4)
+    pub const PING: Self = Self::new(7, 2);
+    /// 7.03 Pong (RFC 8323 §5.4)
+    pub const PONG: Self = Self::new(7, 3);
+    /// 7.04 Release (RFC 8323 §5.5)
+    pub const RELEASE: Self = Self::new(7, 4);
+    /// 7.05 Abort (RFC 8323 §5.6)
+    pub const ABORT: Self = Self::new(7, 5);
 }
 
 impl fmt::Display for Code {

@@ -1,11 +1,15 @@
 //! The CoAP message format (RFC 7252 §3): a checked zero-copy view over a datagram
-//! ([`MessageView`]) and the validated owned form ([`Message`]).
+//! ([`MessageView`]) and the validated owned form ([`Message`]). [`stream`] frames the
+//! same code, token, options and payload for TCP, TLS and WebSockets (RFC 8323), and
+//! [`signal`] holds the signalling messages only streams carry.
 //!
 //! Parsing never panics: [`MessageView::new_checked`] walks the whole datagram once and
 //! every accessor after it only reads what was checked.
 
 mod code;
 pub mod option;
+pub mod signal;
+pub mod stream;
 
 use std::fmt;
 
@@ -122,8 +126,8 @@ pub enum DecodeErrorKind {
     /// Token length 9-15 (RFC 7252 §3: a message format error).
     #[error("token length above 8")]
     TokenLength,
-    /// The datagram ends inside the token, an option header or an option value.
-    #[error("datagram truncated")]
+    /// The message ends inside the token, an option header or an option value.
+    #[error("message truncated")]
     Truncated,
     /// Option delta or length nibble 15 outside a payload marker (RFC 7252 §3.1).
     #[error("reserved option nibble 15")]
@@ -137,7 +141,8 @@ pub enum DecodeErrorKind {
     /// An Empty message (code 0.00) with a token, options or payload (RFC 7252 §4.1).
     #[error("empty message with content")]
     EmptyWithContent,
-    /// Code classes 1, 6 and 7 are reserved (RFC 7252 §12.1).
+    /// Code classes 1, 6 and 7 are reserved (RFC 7252 §12.1); over a stream, class 7 is
+    /// signalling (RFC 8323 §5).
     #[error("reserved code class")]
     ReservedClass,
 }
@@ -196,37 +201,12 @@ impl<'a> MessageView<'a> {
         if matches!(code >> 5, 1 | 6 | 7) {
             return Err(err(DecodeErrorKind::ReservedClass, 1, header));
         }
-        let mut pos = 4 + token_len;
+        let pos = 4 + token_len;
         if data.len() < pos {
             return Err(err(DecodeErrorKind::Truncated, data.len(), header));
         }
-        let mut number: u32 = 0;
-        let mut options_end = data.len();
-        let mut payload_start = data.len();
-        while let Some(&byte) = data.get(pos) {
-            if byte == 0xff {
-                options_end = pos;
-                payload_start = pos + 1;
-                if payload_start == data.len() {
-                    return Err(err(DecodeErrorKind::EmptyPayload, pos, header));
-                }
-                break;
-            }
-            let start = pos;
-            pos += 1;
-            let delta =
-                read_ext(data, &mut pos, byte >> 4).map_err(|kind| err(kind, start, header))?;
-            let len =
-                read_ext(data, &mut pos, byte & 0x0f).map_err(|kind| err(kind, start, header))?;
-            number += delta;
-            if number > u32::from(u16::MAX) {
-                return Err(err(DecodeErrorKind::OptionNumber, start, header));
-            }
-            pos += len as usize;
-            if pos > data.len() {
-                return Err(err(DecodeErrorKind::Truncated, start, header));
-            }
-        }
+        let (options_end, payload_start) =
+            check_options(data, pos).map_err(|(kind, offset)| err(kind, offset, header))?;
         let view = Self {
             data,
             token_len,
@@ -272,6 +252,34 @@ impl<'a> MessageView<'a> {
     pub fn payload(&self) -> &'a [u8] {
         &self.data[self.payload_start..]
     }
+}
+
+/// Checks the options, payload marker and payload that fill `data` from `pos` on (RFC 7252
+/// §3, §3.1), the part of a message both framings share: the end of the options and the
+/// start of the payload (both `data.len()` without a payload), or what is wrong and where.
+fn check_options(data: &[u8], mut pos: usize) -> Result<(usize, usize), (DecodeErrorKind, usize)> {
+    let mut number: u32 = 0;
+    while let Some(&byte) = data.get(pos) {
+        if byte == 0xff {
+            if pos + 1 == data.len() {
+                return Err((DecodeErrorKind::EmptyPayload, pos));
+            }
+            return Ok((pos, pos + 1));
+        }
+        let start = pos;
+        pos += 1;
+        let delta = read_ext(data, &mut pos, byte >> 4).map_err(|kind| (kind, start))?;
+        let len = read_ext(data, &mut pos, byte & 0x0f).map_err(|kind| (kind, start))?;
+        number += delta;
+        if number > u32::from(u16::MAX) {
+            return Err((DecodeErrorKind::OptionNumber, start));
+        }
+        pos += len as usize;
+        if pos > data.len() {
+            return Err((DecodeErrorKind::Truncated, start));
+        }
+    }
+    Ok((data.len(), data.len()))
 }
 
 /// Reads the 4-bit delta/length field and its extension (RFC 7252 §3.1).
@@ -634,6 +642,45 @@ impl HeadWriter<'_> {
             _ => self.bytes(&((v - 269).min(0xffff) as u16).to_be_bytes()),
         }
     }
+}
+
+/// The exact number of bytes [`write_options`] appends for `options`.
+fn options_len(options: &Options) -> usize {
+    let ext = |v: usize| match nibble(v as u32) {
+        13 => 1,
+        14 => 2,
+        _ => 0,
+    };
+    let mut prev = 0;
+    options
+        .iter()
+        .map(|o| {
+            let delta = usize::from(o.number.0 - prev);
+            prev = o.number.0;
+            let len = o.value.len().min(MAX_OPTION_LEN);
+            1 + ext(delta) + ext(len) + len
+        })
+        .sum()
+}
+
+/// Appends `options` in wire order (RFC 7252 §3.1), as a datagram carries them after its
+/// token; a stream frame carries them the same way (RFC 8323 §3.2).
+fn write_options(options: &Options, out: &mut Vec<u8>) {
+    let start = out.len();
+    out.resize(
+        start + options.iter().map(|o| 5 + o.value.len()).sum::<usize>(),
+        0,
+    );
+    let mut w = HeadWriter {
+        out: &mut out[start..],
+        pos: 0,
+        prev: 0,
+    };
+    for o in options.iter() {
+        w.option(o.number, &o.value);
+    }
+    let len = w.pos;
+    out.truncate(start + len);
 }
 
 /// The longest option value the wire format can express (RFC 7252 §3.1: 14 + 2 bytes).

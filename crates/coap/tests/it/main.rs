@@ -7,4 +7,5 @@ mod observe;
 mod qblock;
 mod reliability;
 mod sim;
+mod stream;
 mod window;
