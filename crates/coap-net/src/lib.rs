@@ -1,9 +1,11 @@
-//! Drives the sans-IO [`coap`] core over UDP sockets, for async (tokio) callers.
+//! Drives the sans-IO [`coap`] core over UDP sockets, and its stream connections over TCP,
+//! for async (tokio) callers.
 //!
 //! Owns: sockets (IPv4, IPv6, multicast membership, the destination address of each
 //! datagram), DTLS sessions (OpenSSL's, [`dtls`]), the thread per socket that owns a
-//! `coap::Endpoint`, the [`Client`], the [`Server`] and its [`Router`], `coap://` and
-//! `coaps://` URIs.
+//! `coap::Endpoint`, the [`Client`], the [`Server`] and its [`Router`], the `coap+tcp`
+//! [`TcpServer`] (a task per connection owning a `coap::connection::Connection`),
+//! `coap://` and `coaps://` URIs.
 //! Must not: implement protocol rules (those live in `coap`), or read the clock anywhere
 //! but [`clock::now`].
 
@@ -15,6 +17,7 @@ pub mod dtls;
 pub mod router;
 pub mod server;
 pub mod socket;
+pub mod tcp;
 pub mod uri;
 
 pub use client::{BodyPart, BodyStream, Client, Observation, fresh_seed};
@@ -23,6 +26,7 @@ pub use driver::{EndpointHandle, Progress};
 pub use dtls::Psk;
 pub use router::{Around, Ctx, Policy, Resource, Router, handler};
 pub use server::{Server, ServerConfig};
+pub use tcp::TcpServer;
 pub use uri::Uri;
 
 /// The one clock of the network layer.

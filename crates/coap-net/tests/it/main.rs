@@ -3,6 +3,7 @@
 mod dtls;
 mod multicast;
 mod stream;
+mod tcp;
 
 use std::net::SocketAddr;
 use std::sync::Arc;
