@@ -4,7 +4,8 @@
 //! answers signalling and frames the answers; this moves bytes and runs handlers.
 //!
 //! One task per connection owns its `Connection`; handlers run as spawned tasks, as the
-//! UDP server's do, and send their answers back to it. What the connection does not do
+//! UDP server's do, at most [`MAX_IN_FLIGHT`] per connection, and send their answers
+//! back to it. What the connection does not do
 //! yet (Observe, block-wise transfer, requests of its own, Pings, timeouts) this server
 //! does not either.
 
@@ -24,6 +25,11 @@ use crate::router::Router;
 /// The Max-Message-Size a [`TcpServer`] announces unless told otherwise: a request of up
 /// to 1 MiB, whole (there is no block-wise transfer over TCP yet).
 pub const DEFAULT_MAX_MESSAGE_SIZE: u32 = 1 << 20;
+
+/// How many of a connection's requests its handlers may work on at once. At the limit the
+/// connection reads no more until one is answered, so a peer that sends faster than the
+/// handlers answer is held back by TCP's flow control, not queued here.
+pub const MAX_IN_FLIGHT: usize = 32;
 
 /// How long the listener waits after a failed accept (out of file descriptors, say)
 /// before it tries again.
@@ -102,12 +108,16 @@ async fn serve(
     let (mut read, mut write) = stream.into_split();
     let (answer, mut answers) = mpsc::unbounded_channel::<(Token, Response)>();
     let mut buf = vec![0u8; 64 * 1024];
+    let mut in_flight = 0;
     loop {
         let mut closing = false;
-        while let Some(event) = conn.poll_event() {
+        while in_flight < MAX_IN_FLIGHT
+            && let Some(event) = conn.poll_event()
+        {
             match event {
                 ConnectionEvent::Request(request) => {
                     let request = *request;
+                    in_flight += 1;
                     let id = IncomingId(ids.fetch_add(1, Ordering::Relaxed));
                     let incoming = IncomingRequest {
                         id,
@@ -147,11 +157,14 @@ async fn serve(
             return;
         }
         tokio::select! {
-            n = read.read(&mut buf) => match n {
+            n = read.read(&mut buf), if in_flight < MAX_IN_FLIGHT => match n {
                 Ok(0) | Err(_) => return,
                 Ok(n) => conn.handle(&buf[..n]),
             },
-            Some((token, response)) = answers.recv() => conn.respond(token, &response),
+            Some((token, response)) = answers.recv() => {
+                in_flight -= 1;
+                conn.respond(token, &response);
+            }
             _ = stopped.changed() => return,
         }
     }

@@ -166,3 +166,55 @@ async fn libcoap_4_3_5_coap_client_gets_over_tcp() {
     assert!(output.status.success(), "{stdout}\n{stderr}");
     assert_eq!(stdout.trim_end(), "hello tcp", "{stderr}");
 }
+
+#[tokio::test]
+async fn pipelined_requests_are_all_answered_with_at_most_max_in_flight_handlers() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let (now, most) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicUsize::new(0)));
+    let router = Router::new();
+    let (n, m) = (now.clone(), most.clone());
+    router.add(
+        "/slow",
+        Resource::new().get(handler(move |_| {
+            let (n, m) = (n.clone(), m.clone());
+            async move {
+                m.fetch_max(n.fetch_add(1, Ordering::SeqCst) + 1, Ordering::SeqCst);
+                tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+                n.fetch_sub(1, Ordering::SeqCst);
+                Response::new(Code::CONTENT)
+            }
+        })),
+    );
+    let addr = "127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!());
+    let server = TcpServer::bind(addr, router, tcp::DEFAULT_MAX_MESSAGE_SIZE)
+        .await
+        .unwrap_or_else(|e| panic!("bind: {e}"));
+    within(async {
+        let mut s = TcpStream::connect(server.local_addr())
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        // An empty CSM, then 100 GETs of /slow in one write, tokens 0-99.
+        let mut out = vec![0x00, 0xe1];
+        for token in 0..100u8 {
+            out.extend_from_slice(&[0x51, 0x01, token, 0xb4]);
+            out.extend_from_slice(b"slow");
+        }
+        s.write_all(&out).await.unwrap_or_else(|e| panic!("{e}"));
+        let mut buf = Vec::new();
+        let _csm = next_frame(&mut s, &mut buf).await;
+        let mut tokens = Vec::new();
+        for _ in 0..100 {
+            let answer = next_frame(&mut s, &mut buf).await;
+            assert_eq!(answer.code, Code::CONTENT);
+            tokens.extend_from_slice(answer.token.as_bytes());
+        }
+        tokens.sort_unstable();
+        assert_eq!(tokens, (0..100).collect::<Vec<u8>>());
+    })
+    .await;
+    let most = most.load(Ordering::SeqCst);
+    assert!(
+        (2..=tcp::MAX_IN_FLIGHT).contains(&most),
+        "{most} handlers at once"
+    );
+}
