@@ -10,7 +10,9 @@ graph. A child that uses its parent's own items (`super::Type`) while the parent
 child is a cycle too. A path in a `macro_rules!` body that names a macro variable
 (`super::$name::Args`, `$name::Args`) is read once for each identifier the macro's
 invocations in the same file pass (`outputs!(mqtt, line)`: `super::mqtt::Args`,
-`super::line::Args`); `$crate::a` is `crate::a`. Inline modules (`mod tests { ... }`) are left out: nothing imports
+`super::line::Args`); `$crate::a` is `crate::a`. A macro whose body declares `mod $name;`
+declares a module of each identifier its invocations in the same file pass
+(`backends!(realsense, recording)`). Inline modules (`mod tests { ... }`) are left out: nothing imports
 them, so they close no cycle. The same graph, between the modules of one folder, is held
 against ARCHITECTURE.md's fenced `layers` blocks (a module uses only those in the lines
 below its own) and `apart` blocks (a module of one line never uses one of another), each
@@ -32,6 +34,7 @@ PATH = re.compile(r"(?<![\w:])(crate|super|self|\w+)((?:::\w+)*)(::\{)?")
 MACRO_DEF = re.compile(r"macro_rules!\s*(\w+)\s*\{")
 MACRO_PATH = re.compile(r"(?<![\w:$])\$?\w+(?:::\$?\w+)+")
 MACRO_VAR = re.compile(r"\$(?!crate\b)\w+")
+MACRO_MOD = re.compile(r"\bmod\s+\$\w+\s*;")
 CLOSE = {"{": "}", "(": ")", "[": "]"}
 
 
@@ -46,7 +49,8 @@ def module_tree(root_file):
         folder = os.path.dirname(file)
         if base not in ("lib.rs", "main.rs", "mod.rs"):
             folder = os.path.join(folder, base[:-3])
-        for name in MOD_DECL.findall(strip_comments(open(file).read())):
+        text = strip_comments(open(file).read())
+        for name in MOD_DECL.findall(text) + macro_mods(text):
             for candidate in (os.path.join(folder, name + ".rs"), os.path.join(folder, name, "mod.rs")):
                 if os.path.exists(candidate):
                     modules[path + (name,)] = candidate
@@ -149,10 +153,9 @@ def closing(text, start):
     return len(text)
 
 
-def macro_paths(text):
-    """(position, path) for each path in a `macro_rules!` body of `text` that names a macro
-    variable, once with each identifier that the macro's invocations in `text` pass in
-    place of the variables."""
+def macros(text):
+    """(start of its body, end of its body, identifiers passed) for each `macro_rules!` of
+    `text`: the identifiers its invocations in `text` pass."""
     out = []
     for d in MACRO_DEF.finditer(text):
         end = closing(text, d.end() - 1)
@@ -161,7 +164,28 @@ def macro_paths(text):
             if d.start() <= call.start() <= end:
                 continue
             passed.update(re.findall(r"\w+", text[call.end() : closing(text, call.end() - 1)]))
-        for p in MACRO_PATH.finditer(text, d.end(), end):
+        out.append((d.end(), end, passed))
+    return out
+
+
+def macro_mods(text):
+    """The modules a `macro_rules!` of `text` declares (`$(pub mod $name;)+`): the
+    identifiers its invocations in `text` pass."""
+    return sorted(
+        ident
+        for start, end, passed in macros(text)
+        if MACRO_MOD.search(text, start, end)
+        for ident in passed
+    )
+
+
+def macro_paths(text):
+    """(position, path) for each path in a `macro_rules!` body of `text` that names a macro
+    variable, once with each identifier that the macro's invocations in `text` pass in
+    place of the variables."""
+    out = []
+    for start, end, passed in macros(text):
+        for p in MACRO_PATH.finditer(text, start, end):
             if MACRO_VAR.search(p.group(0)):
                 out.extend((p.start(), MACRO_VAR.sub(ident, p.group(0))) for ident in sorted(passed))
     return out
@@ -434,6 +458,9 @@ def self_test():
           "s/b.rs": "use super::a::X;"}, None, ["import cycle among s::a, s::b"]),
         ({"lib.rs": "mod a;\n", "a/mod.rs": "mod b;\nmacro_rules! m { ($n:ident) => { $n::Y }; }\nfn f() { m!(b) }\n",
           "a/b.rs": "use super::X;"}, None, ["import cycle among a, a::b"]),
+        # Modules a macro declares, with the identifiers its invocation passes.
+        ({"lib.rs": "mod s;\n", "s/mod.rs": "macro_rules! all { ($($n:ident),+) => { $(pub mod $n;)+ }; }\nall!(a, b);\n",
+          "s/a.rs": "use super::b::X;", "s/b.rs": "use super::a::Y;"}, None, ["import cycle among s::a, s::b"]),
         ({"lib.rs": "mod a;\nmod b;\n", "a.rs": "macro_rules! m { () => { $crate::b::Y }; }\n",
           "b.rs": "use crate::a::X;"}, None, ["import cycle among a, b"]),
         # Clean: downward only.

@@ -3,21 +3,22 @@
 //! its cameras in; dropped, it stops), and its flags (a clap `Args` struct, which `serve`
 //! takes in through [`Backends`]) with `Args::configured` and `Args::backend`. The
 //! synthetic cameras of the scene ([`synthetic`]) serve when no other backend is asked
-//! for. Adding one is its file, its `pub mod` and its name in the `backends!` line below.
-//! The backends use `backend.rs`, never this list, which uses them.
+//! for. Adding one is its file and its name in the `backends!` line below, which declares
+//! its module. The backends use `backend.rs`, never this list, which uses them.
 
 mod backend;
-pub mod realsense;
-pub mod recording;
 pub mod synthetic;
 
 use rgbd::Scene;
 
 pub use backend::{Backend, StartError};
 
-/// [`Backends`]: every backend's flags, flattened, and the backends they ask for.
+/// Each backend's module (its file, documented by its `//!` lines), and [`Backends`]:
+/// every backend's flags, flattened, and the backends they ask for.
 macro_rules! backends {
     ($($name:ident),+) => {
+        $(pub mod $name;)+
+
         /// The backends' flags: the `Args` of each.
         #[derive(Debug, Clone, Default, clap::Args)]
         pub struct Backends {
