@@ -49,4 +49,4 @@ macro_rules! backends {
     };
 }
 
-backends!(realsense, recording);
+backends!(realsense, recording, depth_pngs);

@@ -8,6 +8,7 @@ mod calibrated;
 mod cams;
 mod client;
 mod config;
+mod depth_pngs;
 mod dtls;
 mod exits;
 mod files;
