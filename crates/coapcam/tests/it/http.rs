@@ -12,7 +12,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::{Value, json};
 
-use crate::support::{LIMIT, Peer, Proc, TempDir, available, station_with_http};
+use crate::support::{
+    COAPCAM, LIMIT, Peer, Proc, TempDir, available, station_under, station_with_http,
+};
 
 /// An HTTP answer.
 struct Reply {
@@ -1499,6 +1501,25 @@ fn status_of(stream: &mut BufReader<TcpStream>) -> u16 {
         .unwrap_or_else(|| panic!("not a status line: {line:?}"))
 }
 
+/// `GET /api/station` from 127.0.0.2, a client at another address than the test's others:
+/// its answer; a test that gets none fails, saying that it came none `while` what.
+fn another_clients_answer(addr: SocketAddr, while_: &str) -> Reply {
+    let mut other = connect_from("127.0.0.2", addr, None);
+    write!(
+        other,
+        "GET /api/station HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .expect("asking");
+    let mut raw = Vec::new();
+    let read = other.read_to_end(&mut raw);
+    parse_reply(&raw).unwrap_or_else(|| {
+        panic!(
+            "another client got no answer ({read:?}) while {while_}: {:?}",
+            String::from_utf8_lossy(&raw)
+        )
+    })
+}
+
 /// Issue 46: 1,024 event streams from one client locked every other HTTP client out while
 /// they stayed open (the station served 1,024 connections and let more wait). Now one
 /// client has at most 16 streams and 64 connections, the rest get 429 with the reason,
@@ -1517,20 +1538,7 @@ fn a_client_with_1024_event_streams_locks_no_other_client_out() {
         })
         .collect();
     // Another client, at another address, while they are open.
-    let mut other = connect_from("127.0.0.2", addr, None);
-    write!(
-        other,
-        "GET /api/station HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .expect("asking");
-    let mut raw = Vec::new();
-    let read = other.read_to_end(&mut raw);
-    let reply = parse_reply(&raw).unwrap_or_else(|| {
-        panic!(
-            "another client got no answer ({read:?}) while one client held 1,024 event streams: {:?}",
-            String::from_utf8_lossy(&raw)
-        )
-    });
+    let reply = another_clients_answer(addr, "one client held 1,024 event streams");
     assert_eq!(
         reply.status,
         200,
@@ -1776,52 +1784,20 @@ fn a_change_through_the_proxy_is_an_event_naming_the_http_client() {
 #[test]
 fn with_128_open_files_200_idle_connections_leave_the_api_answering() {
     let state = TempDir::new("http-nofile");
-    let dir = state.path().to_string_lossy().into_owned();
-    let mut server = Proc::spawn_with_env(
-        "prlimit",
-        &[
-            "--nofile=128:128",
-            "--",
-            crate::support::COAPCAM,
-            "serve",
-            "--bind",
-            "127.0.0.1:0",
-            "--state-dir",
-            &dir,
-            "--duration",
-            "120",
-            "--http",
-            "127.0.0.1:0",
-        ],
+    let station = station_under(
+        &["prlimit", "--nofile=128:128", "--", COAPCAM],
         &[("RUST_LOG", "info")],
+        state.path(),
+        &["--http", "127.0.0.1:0"],
     );
-    let addr: SocketAddr = server.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: HTTP on http://")?
-            .split('/')
-            .next()?
-            .parse()
-            .ok()
-    });
+    let (mut server, addr) = (station.process, station.http.expect("its HTTP address"));
     let idle: Vec<TcpStream> = (0..200)
         .map(|n| TcpStream::connect(addr).unwrap_or_else(|e| panic!("connection {n}: {e}")))
         .collect();
     thread::sleep(Duration::from_millis(500));
     let asked = Instant::now();
-    let mut other = connect_from("127.0.0.2", addr, None);
-    write!(
-        other,
-        "GET /api/station HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .expect("asking");
-    let mut raw = Vec::new();
-    let read = other.read_to_end(&mut raw);
+    let reply = another_clients_answer(addr, "200 idle connections were open");
     let took = asked.elapsed();
-    let reply = parse_reply(&raw).unwrap_or_else(|| {
-        panic!(
-            "no answer ({read:?}) while 200 idle connections were open: {:?}",
-            String::from_utf8_lossy(&raw)
-        )
-    });
     assert_eq!(
         reply.status,
         200,

@@ -731,8 +731,22 @@ pub(crate) struct Station {
 /// it announced where it is: the outputs, then HTTP, then the CoAP address, in that order.
 /// Without `--scene` or `--no-cameras` in `flags` it serves the default scene.
 pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
+    station_under(&[COAPCAM], &[], state, flags)
+}
+
+/// [`station`] run as `command` (a program and its first arguments, ending in the
+/// coapcam binary: `["prlimit", "--nofile=128:128", "--", COAPCAM]`), with the
+/// environment variables `env`.
+pub(crate) fn station_under(
+    command: &[&str],
+    env: &[(&str, &str)],
+    state: &Path,
+    flags: &[&str],
+) -> Station {
+    let (program, first) = command.split_first().expect("a program");
     let dir = state.to_string_lossy().into_owned();
-    let mut args = vec![
+    let mut args = first.to_vec();
+    args.extend_from_slice(&[
         "serve",
         "--bind",
         "127.0.0.1:0",
@@ -740,9 +754,9 @@ pub(crate) fn station(state: &Path, flags: &[&str]) -> Station {
         &dir,
         "--duration",
         "600",
-    ];
+    ]);
     args.extend_from_slice(flags);
-    let mut process = Proc::spawn(COAPCAM, &args);
+    let mut process = Proc::spawn_with_env(program, &args, env);
     let (mut http, mut opcua, mut lines) = (None, None, Vec::new());
     let coap = loop {
         let (what, addr) = process.stderr_line(LIMIT, |l| {

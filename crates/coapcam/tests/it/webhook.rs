@@ -199,38 +199,66 @@ fn self_signed_for(
     (pem, private)
 }
 
+/// A receiver of `https://` webhooks (tests/peers/webhook_receiver.py), started with the
+/// variables `env`, checking signatures with the secret in `dir/secret` and showing a
+/// certificate of its own ([`self_signed_for`] `dir`, `name` and `host`).
+struct HttpsReceiver {
+    process: Proc,
+    /// Its URL, the station's `--webhook`.
+    hook: String,
+    /// The secret's file, the station's `--webhook-secret-file`.
+    secret: String,
+    /// Its certificate.
+    cert: std::path::PathBuf,
+}
+
+impl HttpsReceiver {
+    fn start(dir: &std::path::Path, name: &str, host: Option<&str>, env: &[(&str, &str)]) -> Self {
+        let secret = dir.join("secret");
+        std::fs::write(&secret, "wh-tls-secret\n").expect("writing the secret");
+        let secret = secret.to_str().expect("UTF-8 path").to_owned();
+        let (cert, key) = self_signed_for(dir, name, host);
+        let script = support::script("webhook_receiver.py");
+        let path = |p: &std::path::Path| p.to_str().expect("UTF-8 path").to_owned();
+        let mut process = Proc::spawn_with_env(
+            "python3",
+            &[&script, &secret, &path(&cert), &path(&key)],
+            env,
+        );
+        let port: u16 = process.stdout_line(LIMIT, |l| l.strip_prefix("ready ")?.parse().ok());
+        Self {
+            process,
+            hook: format!("https://127.0.0.1:{port}/hook"),
+            secret,
+            cert,
+        }
+    }
+}
+
 /// An `https://` webhook: a receiver whose certificate the station does not trust gets
 /// no record (the station gives up the handshake, and keeps the record); trusted
 /// (`SSL_CERT_FILE`, OpenSSL's trust store), it gets it, signed.
 #[test]
 fn an_https_webhook_posts_only_to_a_receiver_whose_certificate_it_trusts() {
     let dir = TempDir::new("webhook-https");
-    let secret = dir.join("secret");
-    std::fs::write(&secret, "wh-tls-secret\n").expect("writing the secret");
-    let secret = secret.to_str().expect("UTF-8 path");
-    let (cert, key) = self_signed(dir.path(), "receiver");
+    let mut receiver = HttpsReceiver::start(dir.path(), "receiver", None, &[]);
     let (other, _) = self_signed(dir.path(), "someone-else");
-    let script = support::script("webhook_receiver.py");
-    let path = |p: &std::path::Path| p.to_str().expect("UTF-8 path").to_owned();
-    let mut receiver = Proc::spawn("python3", &[&script, secret, &path(&cert), &path(&key)]);
-    let port: u16 = receiver.stdout_line(LIMIT, |l| l.strip_prefix("ready ")?.parse().ok());
-    let hook = format!("https://127.0.0.1:{port}/hook");
     let flags = [
         "--station-name",
         "dock-tls",
         "--webhook",
-        &hook,
+        &receiver.hook,
         "--webhook-secret-file",
-        secret,
+        &receiver.secret,
     ];
     let state = dir.join("state");
     let (station, addr) = serve_with_env(&state, &flags, &[("SSL_CERT_FILE", &other)]);
     measure(addr);
-    let got = next_request(&mut receiver);
+    let got = next_request(&mut receiver.process);
     assert!(got["tls_refused"].is_string(), "{got}");
     drop(station);
-    let (_station, _) = serve_with_env(&state, &flags, &[("SSL_CERT_FILE", &cert)]);
-    let got = next_request(&mut receiver);
+    let (_station, _) = serve_with_env(&state, &flags, &[("SSL_CERT_FILE", &receiver.cert)]);
+    let got = next_request(&mut receiver.process);
     assert_eq!(got["valid"], true, "{got}");
     let body: Value = serde_json::from_str(got["body"].as_str().expect("a body")).expect("JSON");
     assert_eq!(
@@ -246,36 +274,34 @@ fn an_https_webhook_posts_only_to_a_receiver_whose_certificate_it_trusts() {
 #[test]
 fn an_https_webhook_reads_the_trust_store_once_for_all_its_connections() {
     let dir = TempDir::new("webhook-https-once");
-    let secret = dir.join("secret");
-    std::fs::write(&secret, "wh-tls-secret\n").expect("writing the secret");
-    let secret = secret.to_str().expect("UTF-8 path");
-    let (cert, key) = self_signed(dir.path(), "receiver");
-    let (other, _) = self_signed(dir.path(), "someone-else");
-    let trust = dir.join("trust.pem");
-    std::fs::copy(&cert, &trust).expect("trusting the receiver");
-    let script = support::script("webhook_receiver.py");
-    let path = |p: &std::path::Path| p.to_str().expect("UTF-8 path").to_owned();
     // A new connection for each record.
-    let mut receiver = Proc::spawn_with_env(
-        "python3",
-        &[&script, secret, &path(&cert), &path(&key)],
+    let mut receiver = HttpsReceiver::start(
+        dir.path(),
+        "receiver",
+        None,
         &[("WEBHOOK_RECEIVER_CLOSE", "1")],
     );
-    let port: u16 = receiver.stdout_line(LIMIT, |l| l.strip_prefix("ready ")?.parse().ok());
-    let hook = format!("https://127.0.0.1:{port}/hook");
+    let (other, _) = self_signed(dir.path(), "someone-else");
+    let trust = dir.join("trust.pem");
+    std::fs::copy(&receiver.cert, &trust).expect("trusting the receiver");
     let (_station, addr) = serve_with_env(
         &dir.join("state"),
-        &["--webhook", &hook, "--webhook-secret-file", secret],
+        &[
+            "--webhook",
+            &receiver.hook,
+            "--webhook-secret-file",
+            &receiver.secret,
+        ],
         &[("SSL_CERT_FILE", &trust)],
     );
     measure(addr);
-    let got = next_request(&mut receiver);
+    let got = next_request(&mut receiver.process);
     assert_eq!(got["valid"], true, "{got}");
     // The trust store no longer holds the receiver's certificate: the context made at the
     // first connection still does.
     std::fs::copy(&other, &trust).expect("trusting someone else");
     measure(addr);
-    let got = next_request(&mut receiver);
+    let got = next_request(&mut receiver.process);
     assert_eq!(
         got["valid"], true,
         "the second record, on a new connection: {got}"
@@ -290,46 +316,27 @@ fn an_https_webhook_reads_the_trust_store_once_for_all_its_connections() {
 #[test]
 fn an_https_webhook_refuses_a_trusted_certificate_for_another_host_and_says_so() {
     let dir = TempDir::new("webhook-https-host");
-    let secret = dir.join("secret");
-    std::fs::write(&secret, "wh-tls-secret\n").expect("writing the secret");
-    let secret = secret.to_str().expect("UTF-8 path");
-    let (cert, key) = self_signed_for(dir.path(), "elsewhere", Some("elsewhere.example"));
-    let script = support::script("webhook_receiver.py");
-    let path = |p: &std::path::Path| p.to_str().expect("UTF-8 path").to_owned();
-    let mut receiver = Proc::spawn("python3", &[&script, secret, &path(&cert), &path(&key)]);
-    let port: u16 = receiver.stdout_line(LIMIT, |l| l.strip_prefix("ready ")?.parse().ok());
-    let hook = format!("https://127.0.0.1:{port}/hook");
-    let state = dir.join("state");
-    let state = path(&state);
-    let mut station = Proc::spawn_with_env(
-        COAPCAM,
+    let mut receiver =
+        HttpsReceiver::start(dir.path(), "elsewhere", Some("elsewhere.example"), &[]);
+    let cert = receiver.cert.to_str().expect("UTF-8 path");
+    let mut station = support::station_under(
+        &[COAPCAM],
+        &[("SSL_CERT_FILE", cert)],
+        &dir.join("state"),
         &[
-            "serve",
-            "--bind",
-            "127.0.0.1:0",
-            "--state-dir",
-            &state,
-            "--duration",
-            "120",
             "--webhook",
-            &hook,
+            &receiver.hook,
             "--webhook-secret-file",
-            secret,
+            &receiver.secret,
         ],
-        &[("SSL_CERT_FILE", &path(&cert))],
     );
-    let addr: std::net::SocketAddr = station.stderr_line(LIMIT, |l| {
-        l.strip_prefix("coapcam: serving on ")?
-            .split(',')
-            .next()?
-            .trim()
-            .parse()
-            .ok()
-    });
+    let addr = station.coap;
     measure(addr);
-    let got = next_request(&mut receiver);
+    let got = next_request(&mut receiver.process);
     assert!(got["tls_refused"].is_string(), "{got}");
-    let warning = station.stderr_line(LIMIT, |l| l.contains("TLS handshake").then(|| l.to_owned()));
+    let warning = station
+        .process
+        .stderr_line(LIMIT, |l| l.contains("TLS handshake").then(|| l.to_owned()));
     assert!(
         warning.contains("the server's certificate is not for 127.0.0.1")
             && warning.contains("records wait in the log"),
