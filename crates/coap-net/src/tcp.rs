@@ -145,6 +145,10 @@ async fn serve(
                     tracing::debug!(%peer, ?why, "coap+tcp connection closed");
                     closing = true;
                 }
+                // The server sends no requests or Pings of its own.
+                ConnectionEvent::Response(..)
+                | ConnectionEvent::Failed(..)
+                | ConnectionEvent::Pong(_) => {}
             }
         }
         if let Some(bytes) = conn.poll_transmit()

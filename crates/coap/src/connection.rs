@@ -1,7 +1,12 @@
-//! The server side of one CoAP connection over a reliable byte stream (RFC 8323, TCP),
-//! sans-IO: bytes in with [`Connection::handle`], requests out with
-//! [`Connection::poll_event`], answers in with [`Connection::respond`], bytes out with
-//! [`Connection::poll_transmit`].
+//! One CoAP connection over a reliable byte stream (RFC 8323, TCP), sans-IO, for either
+//! end: bytes in with [`Connection::handle`], bytes out with
+//! [`Connection::poll_transmit`], what happened out with [`Connection::poll_event`].
+//! A server takes the peer's requests from [`ConnectionEvent::Request`] and answers them
+//! with [`Connection::respond`]; a client sends its own with
+//! [`Connection::send_request`] and gets [`ConnectionEvent::Response`] or
+//! [`ConnectionEvent::Failed`] for each, and calls [`Connection::handle_timeout`] at
+//! [`Connection::poll_timeout`]. Both roles share one type because the signalling is the
+//! same for both, and RFC 8323 lets either end of a connection send requests.
 //!
 //! What it does of the signalling (§5): it sends its CSM first, with its
 //! Max-Message-Size; it takes the peer's first message to be a CSM and aborts otherwise;
@@ -10,20 +15,40 @@
 //! it. A frame it cannot read, one over its Max-Message-Size, or a signalling message with
 //! an unknown critical option makes it send an Abort and close.
 //!
-//! What it does not do yet: send requests (a response from the peer is ignored), send
-//! Pings or keep any timer, Observe (a registration is served as a plain GET and the
+//! As a client: each request gets a fresh token, from a counter: unique on the
+//! connection, which is what matching needs (over a stream an off-path attacker cannot
+//! inject a response, the reason RFC 7252 §5.3.1 asks for random tokens over UDP). Requests
+//! wait until the peer's CSM has come, so that they are measured against its
+//! Max-Message-Size (one over it fails with [`RequestError::RequestTooLarge`]); a
+//! response is matched by its token, and one whose token no waiting request has is
+//! ignored; a body over the body limit ([`Connection::with_body_limit`]) fails with
+//! [`RequestError::TooLarge`], as the UDP client's does. Each request gives up at its
+//! [`Request::timeout`] ([`DEFAULT_RESPONSE_TIMEOUT`] when it has none). When the
+//! connection closes, every request still waiting fails with
+//! [`RequestError::ConnectionClosed`]. [`Connection::ping`] sends a Ping and reports its
+//! Pong.
+//!
+//! What it does not do yet: Observe (a registration is served as a plain GET and the
 //! answer's Observe option removed, so the client knows it is not registered, RFC 7641
-//! §4.1), block-wise transfer and BERT (it announces no Block-Wise-Transfer; an answer
-//! over the peer's Max-Message-Size becomes a 5.00 with a diagnostic).
+//! §4.1; a client's notifications are not followed), block-wise transfer and BERT (it
+//! announces no Block-Wise-Transfer; an answer over the peer's Max-Message-Size becomes a
+//! 5.00 with a diagnostic, a request over it fails), Pings of its own to keep a
+//! connection alive.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
+use std::time::{Duration, Instant};
 
 use bytes::Bytes;
 
-use crate::endpoint::Response;
+use crate::config::Limits;
+use crate::endpoint::{Request, RequestError, Response};
 use crate::msg::signal::{Abort, Csm, Signal};
 use crate::msg::stream::{self, Decoded, Frame};
 use crate::msg::{Code, OptionNumber, Options, Token};
+
+/// How long a request without [`Request::timeout`] waits for its response: the UDP
+/// client's wait for a separate response (MAX_TRANSMIT_WAIT, RFC 7252 §4.8.2, 93 s).
+pub const DEFAULT_RESPONSE_TIMEOUT: Duration = Duration::from_secs(93);
 
 /// A request the peer sent.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -47,6 +72,8 @@ pub enum Closed {
     AbortedByPeer(String),
     /// This side sent an Abort, for this reason.
     Aborted(String),
+    /// The stream ended without either ([`Connection::handle_end`]).
+    Ended,
 }
 
 /// What the connection tells its owner.
@@ -55,9 +82,24 @@ pub enum ConnectionEvent {
     /// A request to answer with [`Connection::respond`] (boxed: the other event is
     /// small).
     Request(Box<StreamRequest>),
+    /// The response to this side's request of this token (boxed, as a request is).
+    Response(Token, Box<Response>),
+    /// This side's request of this token failed: no response will be reported.
+    Failed(Token, RequestError),
+    /// The Pong to this side's Ping of this token.
+    Pong(Token),
     /// The connection is over: send what [`Connection::poll_transmit`] still has, then
     /// close the stream.
     Closed(Closed),
+}
+
+/// A request or Ping this side sent and the peer has not answered.
+#[derive(Debug)]
+struct Outstanding {
+    /// When it fails with [`RequestError::Timeout`].
+    deadline: Instant,
+    /// A Ping, answered by a Pong rather than a response.
+    ping: bool,
 }
 
 /// One connection's state.
@@ -73,11 +115,20 @@ pub struct Connection {
     /// The peer's settings, once its CSM came.
     peer: Option<Csm>,
     closed: bool,
+    /// The largest response body this side takes.
+    body_limit: usize,
+    /// This side's requests and Pings not answered yet, by token.
+    outstanding: HashMap<Token, Outstanding>,
+    /// Requests that wait for the peer's CSM, in the order they were sent.
+    waiting: Vec<Frame>,
+    /// The last token given out.
+    last_token: u64,
 }
 
 impl Connection {
     /// A connection that accepts frames of up to `max_message_size` bytes; its CSM is the
-    /// first thing to send.
+    /// first thing to send. As a client it takes response bodies of up to
+    /// [`Limits::client_body_bytes`]'s default.
     pub fn new(max_message_size: u32) -> Self {
         let csm = Signal::Csm(Csm {
             max_message_size: Some(max_message_size),
@@ -90,7 +141,20 @@ impl Connection {
             events: VecDeque::new(),
             peer: None,
             closed: false,
+            body_limit: Limits::default().client_body_bytes,
+            outstanding: HashMap::new(),
+            waiting: Vec::new(),
+            last_token: 0,
         }
+    }
+
+    /// The same connection taking response bodies of up to `bytes` (the endpoint's
+    /// [`Limits::client_body_bytes`]); a larger one fails its request with
+    /// [`RequestError::TooLarge`].
+    #[must_use]
+    pub fn with_body_limit(mut self, bytes: usize) -> Self {
+        self.body_limit = bytes;
+        self
     }
 
     /// The peer's capabilities and settings, once its CSM came (options it left out
@@ -136,10 +200,16 @@ impl Connection {
         if frame.code.is_signal() {
             return self.signal(frame);
         }
-        if !frame.code.is_request() {
-            // 0.00 is ignored (§3.4); responses answer nothing this side sent.
-            return;
+        if frame.code.is_request() {
+            return self.request(frame);
         }
+        // 0.00 is ignored (§3.4).
+        if frame.code != Code::EMPTY {
+            self.response(frame);
+        }
+    }
+
+    fn request(&mut self, frame: Frame) {
         let mut options = frame.options;
         if let Some(bad) = options.first_bad_critical() {
             let text = format!("bad option {}", bad.0);
@@ -153,6 +223,22 @@ impl Connection {
                 options,
                 payload: frame.payload,
             })));
+    }
+
+    /// A response: to a request of this side's that waits for it, or ignored.
+    fn response(&mut self, frame: Frame) {
+        if self.outstanding.get(&frame.token).is_none_or(|o| o.ping) {
+            return;
+        }
+        self.outstanding.remove(&frame.token);
+        let event = if frame.payload.len() > self.body_limit {
+            let limit = self.body_limit;
+            ConnectionEvent::Failed(frame.token, RequestError::TooLarge { limit })
+        } else {
+            let response = Response::with_parts(frame.code, frame.options, frame.payload);
+            ConnectionEvent::Response(frame.token, Box::new(response))
+        };
+        self.events.push_back(event);
     }
 
     fn signal(&mut self, frame: Frame) {
@@ -171,13 +257,21 @@ impl Connection {
                 peer.max_message_size = csm.max_message_size.or(peer.max_message_size);
                 peer.block_wise_transfer |= csm.block_wise_transfer;
                 self.peer = Some(peer);
+                for frame in std::mem::take(&mut self.waiting) {
+                    self.transmit_request(frame);
+                }
             }
             Signal::Ping { .. } => {
                 let pong = Signal::Pong { custody: false };
                 pong.to_frame(frame.token, Bytes::new())
                     .encode_into(&mut self.outbound);
             }
-            Signal::Pong { .. } => {}
+            Signal::Pong { .. } => {
+                if self.outstanding.get(&frame.token).is_some_and(|o| o.ping) {
+                    self.outstanding.remove(&frame.token);
+                    self.events.push_back(ConnectionEvent::Pong(frame.token));
+                }
+            }
             Signal::Release(_) => self.close(Closed::Released),
             Signal::Abort(_) => {
                 let text = String::from_utf8_lossy(&frame.payload).into_owned();
@@ -195,9 +289,137 @@ impl Connection {
         self.close(Closed::Aborted(reason));
     }
 
+    /// Closes: every request still waiting fails (in the order of their tokens), then
+    /// [`ConnectionEvent::Closed`].
     fn close(&mut self, why: Closed) {
         self.closed = true;
+        self.waiting.clear();
+        let mut left: Vec<(Token, Outstanding)> = self.outstanding.drain().collect();
+        left.sort_by_key(|(token, _)| token_order(token));
+        for (token, o) in left {
+            if !o.ping {
+                let failed = ConnectionEvent::Failed(token, RequestError::ConnectionClosed);
+                self.events.push_back(failed);
+            }
+        }
         self.events.push_back(ConnectionEvent::Closed(why));
+    }
+
+    /// The peer's Max-Message-Size: its CSM's, or the default until that comes.
+    fn peer_limit(&self) -> usize {
+        self.peer.map_or(Csm::DEFAULT_MAX_MESSAGE_SIZE, |p| {
+            p.max_message_size_or_default()
+        }) as usize
+    }
+
+    /// A token no request or Ping of this side's has had on this connection.
+    fn fresh_token(&mut self) -> Token {
+        self.last_token += 1;
+        let bytes = self.last_token.to_be_bytes();
+        let zeros = self.last_token.leading_zeros() as usize / 8;
+        // Eight bytes at most: always a token.
+        Token::new(&bytes[zeros..]).unwrap_or_default()
+    }
+
+    /// Sends `request` to the peer; its answer comes as [`ConnectionEvent::Response`] or
+    /// [`ConnectionEvent::Failed`] with the token returned. It leaves once the peer's
+    /// CSM has come (at once, when it has). Its type, block size and transfer mode do
+    /// not apply to a stream.
+    pub fn send_request(&mut self, now: Instant, request: &Request) -> Token {
+        let token = self.fresh_token();
+        if self.closed {
+            let failed = ConnectionEvent::Failed(token, RequestError::ConnectionClosed);
+            self.events.push_back(failed);
+            return token;
+        }
+        let timeout = request.timeout.unwrap_or(DEFAULT_RESPONSE_TIMEOUT);
+        let deadline = now + timeout;
+        let pending = Outstanding {
+            deadline,
+            ping: false,
+        };
+        self.outstanding.insert(token, pending);
+        let frame = Frame {
+            code: request.method,
+            token,
+            options: request.options.clone(),
+            payload: request.payload.clone(),
+        };
+        if self.peer.is_some() {
+            self.transmit_request(frame);
+        } else {
+            self.waiting.push(frame);
+        }
+        token
+    }
+
+    /// Writes a request that waited for the peer's CSM, or fails it when it is larger
+    /// than the peer takes (or timed out meanwhile).
+    fn transmit_request(&mut self, frame: Frame) {
+        if !self.outstanding.contains_key(&frame.token) {
+            return;
+        }
+        let limit = self.peer_limit();
+        if frame.encoded_len() > limit {
+            self.outstanding.remove(&frame.token);
+            let failed = RequestError::RequestTooLarge { limit };
+            self.events
+                .push_back(ConnectionEvent::Failed(frame.token, failed));
+            return;
+        }
+        frame.encode_into(&mut self.outbound);
+    }
+
+    /// Sends a Ping (§5.4); [`ConnectionEvent::Pong`] with the token returned reports
+    /// its answer. Unanswered by `now + timeout`, it is forgotten (no event): the owner
+    /// that waits for it gives up at the same time.
+    pub fn ping(&mut self, now: Instant, timeout: Duration) -> Token {
+        let token = self.fresh_token();
+        if !self.closed {
+            let ping = Outstanding {
+                deadline: now + timeout,
+                ping: true,
+            };
+            self.outstanding.insert(token, ping);
+            let frame = Signal::Ping { custody: false }.to_frame(token, Bytes::new());
+            frame.encode_into(&mut self.outbound);
+        }
+        token
+    }
+
+    /// When [`Connection::handle_timeout`] is next due: the earliest deadline of a
+    /// request or Ping not answered yet.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.outstanding.values().map(|o| o.deadline).min()
+    }
+
+    /// Fails every request whose deadline has passed with [`RequestError::Timeout`] (and
+    /// forgets every such Ping). Calling it early does nothing.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        let mut late: Vec<(Token, bool)> = self
+            .outstanding
+            .iter()
+            .filter(|(_, o)| o.deadline <= now)
+            .map(|(token, o)| (*token, o.ping))
+            .collect();
+        late.sort_by_key(|(token, _)| token_order(token));
+        for (token, ping) in late {
+            self.outstanding.remove(&token);
+            if !ping {
+                let failed = ConnectionEvent::Failed(token, RequestError::Timeout);
+                self.events.push_back(failed);
+            }
+        }
+        let outstanding = &self.outstanding;
+        self.waiting.retain(|f| outstanding.contains_key(&f.token));
+    }
+
+    /// The stream ended (the peer closed it, or reading or writing failed) without a
+    /// Release or an Abort: closes, failing every request still waiting.
+    pub fn handle_end(&mut self) {
+        if !self.closed {
+            self.close(Closed::Ended);
+        }
     }
 
     /// Answers the request of `token`. Its Observe option is removed (no Observe over
@@ -216,9 +438,7 @@ impl Connection {
             None => Some(response.payload.clone()),
             Some(source) => source.read(0..source.len()),
         };
-        let limit = self.peer.map_or(Csm::DEFAULT_MAX_MESSAGE_SIZE, |p| {
-            p.max_message_size_or_default()
-        }) as usize;
+        let limit = self.peer_limit();
         let failure = |text: String| {
             let frame = Frame {
                 code: Code::INTERNAL_SERVER_ERROR,
@@ -265,6 +485,14 @@ impl Connection {
     pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         (!self.outbound.is_empty()).then(|| std::mem::take(&mut self.outbound))
     }
+}
+
+/// The order in which tokens of [`Connection::fresh_token`] were given out: shorter
+/// first, then by their bytes.
+fn token_order(token: &Token) -> (usize, [u8; 8]) {
+    let mut bytes = [0; 8];
+    bytes[..token.len()].copy_from_slice(token.as_bytes());
+    (token.len(), bytes)
 }
 
 #[cfg(test)]
@@ -393,5 +621,229 @@ mod tests {
             c.poll_event(),
             Some(ConnectionEvent::Closed(Closed::Released))
         );
+    }
+
+    // ------------------------------------------------------------ the client side
+
+    /// The bytes of a server's CSM announcing `max` as its Max-Message-Size (4 bytes).
+    fn server_csm(max: u32) -> Vec<u8> {
+        let csm = Signal::Csm(Csm {
+            max_message_size: Some(max),
+            block_wise_transfer: false,
+        });
+        csm.to_frame(Token::EMPTY, Bytes::new()).encode()
+    }
+
+    /// A response frame of `code` with `token` and `payload`.
+    fn answer(code: Code, token: &[u8], payload: &[u8]) -> Vec<u8> {
+        Frame {
+            code,
+            token: Token::new(token).unwrap_or_default(),
+            options: Options::new(),
+            payload: Bytes::copy_from_slice(payload),
+        }
+        .encode()
+    }
+
+    fn get(path: &str) -> Request {
+        Request::new(Code::GET, path)
+    }
+
+    /// A client connection whose CSM is taken and which has the server's.
+    fn client(max: u32) -> Connection {
+        let mut c = Connection::new(1 << 24);
+        let _csm = c.poll_transmit();
+        c.handle(&server_csm(max));
+        c
+    }
+
+    #[test]
+    fn rfc8323_5_3_requests_wait_for_the_peers_csm_then_go_with_fresh_tokens() {
+        let now = crate::test_epoch();
+        let mut c = Connection::new(1 << 24);
+        let _csm = c.poll_transmit();
+        let first = c.send_request(now, &get("/hello"));
+        let second = c.send_request(now, &get("/hello"));
+        assert_eq!((first.as_bytes(), second.as_bytes()), (&[1][..], &[2][..]));
+        assert_eq!(c.poll_transmit(), None);
+        c.handle(&server_csm(1152));
+        // GET, Uri-Path (11) "hello": Len 6, TKL 1; both, in order.
+        let get = |t| [&[0x61, 0x01, t, 0xb5][..], b"hello"].concat();
+        assert_eq!(c.poll_transmit(), Some([get(1), get(2)].concat()));
+        assert_eq!(c.poll_event(), None);
+    }
+
+    #[test]
+    fn responses_are_matched_by_token_and_an_unknown_token_is_ignored() {
+        let now = crate::test_epoch();
+        let mut c = client(1152);
+        let first = c.send_request(now, &get("/a"));
+        let second = c.send_request(now, &get("/b"));
+        let _requests = c.poll_transmit();
+        c.handle(&answer(Code::CONTENT, &[9], b"stray"));
+        c.handle(&answer(Code::NOT_FOUND, second.as_bytes(), b""));
+        c.handle(&answer(Code::CONTENT, first.as_bytes(), b"a"));
+        // The first answer again: its request is done, so it is unknown now.
+        c.handle(&answer(Code::CONTENT, first.as_bytes(), b"a"));
+        let mut events = Vec::new();
+        while let Some(e) = c.poll_event() {
+            events.push(e);
+        }
+        let expected = vec![
+            ConnectionEvent::Response(second, Box::new(Response::new(Code::NOT_FOUND))),
+            ConnectionEvent::Response(
+                first,
+                Box::new(Response::new(Code::CONTENT).with_payload(&b"a"[..])),
+            ),
+        ];
+        assert_eq!(events, expected);
+        assert_eq!(c.poll_timeout(), None);
+        assert!(!c.is_closed());
+    }
+
+    #[test]
+    fn a_body_over_the_body_limit_fails_too_large_as_over_udp() {
+        let now = crate::test_epoch();
+        let mut c = client(1152).with_body_limit(4);
+        let big = c.send_request(now, &get("/big"));
+        let fits = c.send_request(now, &get("/fits"));
+        c.handle(&answer(Code::CONTENT, big.as_bytes(), b"12345"));
+        c.handle(&answer(Code::CONTENT, fits.as_bytes(), b"1234"));
+        assert_eq!(
+            c.poll_event(),
+            Some(ConnectionEvent::Failed(
+                big,
+                RequestError::TooLarge { limit: 4 }
+            ))
+        );
+        assert!(matches!(
+            c.poll_event(),
+            Some(ConnectionEvent::Response(t, r)) if t == fits && r.payload.len() == 4
+        ));
+    }
+
+    #[test]
+    fn rfc8323_5_3_1_a_request_over_the_peers_max_message_size_is_not_sent() {
+        let now = crate::test_epoch();
+        let mut c = client(16);
+        // GET with token 0x01 and 20 bytes of payload: 24 bytes, over 16.
+        let too_big = c.send_request(now, &get("/").with_payload(vec![7; 20]));
+        // First byte, code, token, marker and 11 bytes: 15 (one more byte of payload
+        // takes an extended length byte too: 17).
+        let fits = c.send_request(now, &get("/").with_payload(vec![7; 11]));
+        assert_eq!(
+            c.poll_event(),
+            Some(ConnectionEvent::Failed(
+                too_big,
+                RequestError::RequestTooLarge { limit: 16 }
+            ))
+        );
+        let out = c.poll_transmit().unwrap_or_default();
+        assert_eq!((out.len(), out.get(2)), (15, fits.as_bytes().first()));
+    }
+
+    #[test]
+    fn a_request_fails_at_its_timeout_and_its_late_answer_is_ignored() {
+        let now = crate::test_epoch();
+        let mut c = client(1152);
+        let mut quick = get("/quick");
+        quick.timeout = Some(Duration::from_secs(2));
+        let quick = c.send_request(now, &quick);
+        let _patient = c.send_request(now, &get("/patient"));
+        assert_eq!(c.poll_timeout(), Some(now + Duration::from_secs(2)));
+        c.handle_timeout(now + Duration::from_millis(1999));
+        assert_eq!(c.poll_event(), None);
+        c.handle_timeout(now + Duration::from_secs(2));
+        assert_eq!(
+            c.poll_event(),
+            Some(ConnectionEvent::Failed(quick, RequestError::Timeout))
+        );
+        // The one without a timeout waits DEFAULT_RESPONSE_TIMEOUT.
+        assert_eq!(c.poll_timeout(), Some(now + DEFAULT_RESPONSE_TIMEOUT));
+        c.handle(&answer(Code::CONTENT, quick.as_bytes(), b"late"));
+        assert_eq!(c.poll_event(), None);
+    }
+
+    #[test]
+    fn a_request_waiting_for_the_csm_times_out_and_is_never_sent() {
+        let now = crate::test_epoch();
+        let mut c = Connection::new(1 << 24);
+        let _csm = c.poll_transmit();
+        let mut request = get("/x");
+        request.timeout = Some(Duration::from_secs(1));
+        let token = c.send_request(now, &request);
+        c.handle_timeout(now + Duration::from_secs(1));
+        assert_eq!(
+            c.poll_event(),
+            Some(ConnectionEvent::Failed(token, RequestError::Timeout))
+        );
+        c.handle(&server_csm(1152));
+        assert_eq!(c.poll_transmit(), None);
+    }
+
+    #[test]
+    fn rfc8323_5_4_a_client_answers_pings_and_gets_pongs_for_its_own() {
+        let now = crate::test_epoch();
+        let mut c = client(1152);
+        c.handle(&[0x01, 0xe2, 0x42]);
+        assert_eq!(c.poll_transmit(), Some(vec![0x01, 0xe3, 0x42]));
+        let ping = c.ping(now, Duration::from_secs(5));
+        assert_eq!(c.poll_transmit(), Some(vec![0x01, 0xe2, 0x01]));
+        // A response with the Ping's token is not its answer; a Pong is.
+        c.handle(&answer(Code::CONTENT, ping.as_bytes(), b""));
+        assert_eq!(c.poll_event(), None);
+        c.handle(&[0x01, 0xe3, 0x01]);
+        assert_eq!(c.poll_event(), Some(ConnectionEvent::Pong(ping)));
+        // A Ping left unanswered is forgotten at its deadline, without an event.
+        let _ = c.ping(now, Duration::from_secs(5));
+        c.handle_timeout(now + Duration::from_secs(5));
+        assert_eq!((c.poll_event(), c.poll_timeout()), (None, None));
+    }
+
+    #[test]
+    fn rfc8323_5_5_a_release_fails_the_requests_still_waiting() {
+        let now = crate::test_epoch();
+        let mut c = client(1152);
+        let a = c.send_request(now, &get("/a"));
+        let b = c.send_request(now, &get("/b"));
+        let _requests = c.poll_transmit();
+        c.handle(&[0x00, 0xe4]);
+        let closed = |t| ConnectionEvent::Failed(t, RequestError::ConnectionClosed);
+        assert_eq!(c.poll_event(), Some(closed(a)));
+        assert_eq!(c.poll_event(), Some(closed(b)));
+        assert_eq!(
+            c.poll_event(),
+            Some(ConnectionEvent::Closed(Closed::Released))
+        );
+        // A request on a closed connection fails at once.
+        let late = c.send_request(now, &get("/c"));
+        assert_eq!(c.poll_event(), Some(closed(late)));
+        assert_eq!((c.poll_transmit(), c.poll_timeout()), (None, None));
+    }
+
+    #[test]
+    fn the_end_of_the_stream_fails_the_requests_still_waiting() {
+        let now = crate::test_epoch();
+        let mut c = client(1152);
+        let a = c.send_request(now, &get("/a"));
+        c.handle_end();
+        assert_eq!(
+            c.poll_event(),
+            Some(ConnectionEvent::Failed(a, RequestError::ConnectionClosed))
+        );
+        assert_eq!(c.poll_event(), Some(ConnectionEvent::Closed(Closed::Ended)));
+        c.handle_end();
+        assert_eq!(c.poll_event(), None);
+    }
+
+    #[test]
+    fn tokens_are_the_shortest_bytes_of_a_counter() {
+        let now = crate::test_epoch();
+        let mut c = client(1152);
+        let tokens: Vec<Token> = (0..300).map(|_| c.send_request(now, &get("/"))).collect();
+        assert_eq!(tokens[254].as_bytes(), [0xff]);
+        assert_eq!(tokens[255].as_bytes(), [0x01, 0x00]);
+        let distinct: std::collections::HashSet<Token> = tokens.iter().copied().collect();
+        assert_eq!(distinct.len(), 300);
     }
 }

@@ -3,8 +3,8 @@
 //! Owns: the wire format (RFC 7252 messages and options, RFC 7959 block options, RFC 7641
 //! Observe, RFC 9175 Echo/Request-Tag, RFC 9177 Q-Block numbers, RFC 8323 stream framing
 //! and signalling messages), the content-format registry, the endpoint state machine
-//! (message IDs, tokens, retransmission, deduplication, block-wise transfer), the server
-//! side of an RFC 8323 stream connection, RFC 6690 link-format and RFC 7390 group JSON.
+//! (message IDs, tokens, retransmission, deduplication, block-wise transfer), both
+//! sides of an RFC 8323 stream connection, RFC 6690 link-format and RFC 7390 group JSON.
 //!
 //! Must not: read a clock, sleep, draw from a thread RNG or touch a socket. Time enters as
 //! `now` on every call, randomness comes from the endpoint's seeded generator, and bytes move

@@ -251,6 +251,17 @@ pub enum RequestError {
     /// Cancelled by [`Endpoint::cancel`](crate::Endpoint::cancel).
     #[error("cancelled")]
     Cancelled,
+    /// The stream connection the request went over closed before its response came
+    /// (RFC 8323: a Release or an Abort, or the stream ended).
+    #[error("the connection closed before the response came")]
+    ConnectionClosed,
+    /// The request is larger than the peer takes in one message (its Max-Message-Size,
+    /// RFC 8323 §5.3.1), and streams have no block-wise transfer yet.
+    #[error("request larger than the peer's Max-Message-Size of {limit} bytes")]
+    RequestTooLarge {
+        /// The peer's Max-Message-Size.
+        limit: usize,
+    },
 }
 
 /// What the endpoint reports to its owner.
