@@ -709,17 +709,21 @@ impl ClientLayer {
                     RequestError::Protocol("first Block2 response is not block 0"),
                 );
             }
+            let size2 = msg.options.uint(OptionNumber::SIZE2).map(|t| t as usize);
+            if size2.is_some_and(|t| t > limit) {
+                // A body announced larger than the limit is refused at its first block,
+                // not after `limit` bytes of it have been fetched.
+                return self.fail(cx, now, id, RequestError::TooLarge { limit });
+            }
             let mut first = msg.options.clone();
             first.remove(OptionNumber::BLOCK2);
             r.etag = msg.options.etag().map(<[u8]>::to_vec);
             // Room for the first piece of a streamed body, or for the whole body Size2
-            // announced (bounded by the limit), not regrown block by block.
+            // announced (within the limit), not regrown block by block.
             let room = if r.req.stream {
                 if b2.more { STREAM_PIECE + b2.size() } else { 0 }
             } else {
-                msg.options
-                    .uint(OptionNumber::SIZE2)
-                    .map_or(0, |size2| (size2 as usize).min(limit))
+                size2.unwrap_or(0)
             };
             r.body.reserve(room);
             r.first_options = Some(first);

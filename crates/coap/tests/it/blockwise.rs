@@ -526,7 +526,7 @@ fn rfc7959_2_4_random_access_block_is_delivered_as_is() {
 }
 
 #[test]
-fn client_refuses_a_body_over_its_limit() {
+fn client_refuses_a_body_over_its_limit_at_its_first_block() {
     let mut sim = Sim::new(LinkConfig::default());
     let small = EndpointConfig {
         limits: Limits {
@@ -536,7 +536,9 @@ fn client_refuses_a_body_over_its_limit() {
         ..cfg(1)
     };
     let c = sim.add(small, None);
-    let s = sim.add(cfg(2), Some(serve(body(10_000, 1), Rc::new(Cell::new(0)))));
+    // The server renders each block again, so `calls` counts the blocks asked for.
+    let calls = Rc::new(Cell::new(0));
+    let s = sim.add(no_store(2), Some(serve(body(10_000, 1), calls.clone())));
     let server = sim.nodes[s].addr;
     let now = sim.now;
     sim.nodes[c]
@@ -550,6 +552,8 @@ fn client_refuses_a_body_over_its_limit() {
             ..
         }
     ));
+    // Block 0's Size2 said 10,000 bytes: no block after it was fetched.
+    assert_eq!(calls.get(), 1);
 }
 
 #[test]
