@@ -1,5 +1,7 @@
 //! The client: requests with transparent block-wise transfer, Observe as a stream,
-//! multicast requests that collect every server's response, ping.
+//! multicast requests that collect every server's response, ping; over UDP (or DTLS), or
+//! over TCP ([`Client::tcp`], `coap+tcp://`), chosen when it is made, so that what sends
+//! requests does not care which.
 
 use std::net::SocketAddr;
 
@@ -10,6 +12,7 @@ use crate::Error;
 use crate::driver::{self, BodyItem, Command, EndpointHandle, Progress, Reply, StreamItem};
 use crate::dtls::Psk;
 use crate::socket::Socket;
+use crate::tcp::TcpClient;
 
 /// How often [`Client::multicast_until`] asks again whether it is done.
 const RECHECK: std::time::Duration = std::time::Duration::from_millis(50);
@@ -23,11 +26,26 @@ fn any_for(peer: SocketAddr) -> SocketAddr {
     }
 }
 
-/// A CoAP client on one socket. Cheap to clone; requests from clones share the socket,
-/// the message IDs and NSTART.
+/// A CoAP client on one socket, or over TCP connections. Cheap to clone; requests from
+/// clones share the socket, the message IDs and NSTART (or the connections).
+///
+/// Over TCP ([`Client::tcp`]) a request goes whole, as one message, and its response
+/// comes so: [`Client::send_with_progress`] reports once, when it has come, and
+/// [`Client::send_streamed`] gives the body as one piece; Observe and multicast are
+/// refused with [`Error::Unsupported`] (RFC 8323 has no multicast; Observe over streams
+/// is not done yet), and there are no path statistics.
 #[derive(Clone, Debug)]
 pub struct Client {
-    handle: EndpointHandle,
+    transport: Transport,
+}
+
+/// How a [`Client`] reaches its servers.
+#[derive(Clone, Debug)]
+enum Transport {
+    /// Datagrams from one endpoint's socket (UDP, or DTLS over it).
+    Udp(EndpointHandle),
+    /// One TCP connection per server (RFC 8323).
+    Tcp(TcpClient),
 }
 
 /// A seed for a new client endpoint's message IDs and tokens
@@ -60,14 +78,32 @@ impl Client {
         psk: Option<&Psk>,
     ) -> std::io::Result<Self> {
         let socket = Socket::bind(addr)?;
-        Ok(Self {
-            handle: driver::spawn(socket, config, None, psk)?,
-        })
+        let handle = driver::spawn(socket, config, None, psk)?;
+        Ok(Self::from_handle(handle))
     }
 
     /// A client on an endpoint that already runs (a server's, [`crate::Server::client_for`]).
     pub(crate) fn from_handle(handle: EndpointHandle) -> Self {
-        Self { handle }
+        Self {
+            transport: Transport::Udp(handle),
+        }
+    }
+
+    /// A `coap+tcp` client (RFC 8323): a connection to each server it sends to, opened by
+    /// the first request. Of `config` only the body limit
+    /// ([`coap::Limits::client_body_bytes`]) applies.
+    pub fn tcp(config: &EndpointConfig) -> Self {
+        Self {
+            transport: Transport::Tcp(TcpClient::new(config.limits.client_body_bytes)),
+        }
+    }
+
+    /// The endpoint of a UDP client; over TCP, [`Error::Unsupported`] naming `what`.
+    fn udp(&self, what: &'static str) -> Result<&EndpointHandle, Error> {
+        match &self.transport {
+            Transport::Udp(handle) => Ok(handle),
+            Transport::Tcp(_) => Err(Error::Unsupported(what)),
+        }
     }
 
     /// A client on an ephemeral port of the right address family for `peer`.
@@ -84,15 +120,23 @@ impl Client {
         Self::bind_secured(any_for(peer), config, psk)
     }
 
-    /// The local socket address.
+    /// The local socket address. A TCP client, which has an address per connection,
+    /// answers the unspecified IPv4 address and port 0.
     pub fn local_addr(&self) -> SocketAddr {
-        self.handle.local_addr()
+        match &self.transport {
+            Transport::Udp(handle) => handle.local_addr(),
+            Transport::Tcp(_) => ([0, 0, 0, 0], 0).into(),
+        }
     }
 
     /// Sends a request and waits for its whole response (every block).
     pub async fn send(&self, peer: SocketAddr, request: Request) -> Result<Response, Error> {
+        let handle = match &self.transport {
+            Transport::Udp(handle) => handle,
+            Transport::Tcp(tcp) => return tcp.send(peer, request).await,
+        };
         let (tx, rx) = oneshot::channel();
-        self.handle.send(Command::Request {
+        handle.send(Command::Request {
             peer,
             request,
             reply: Reply::Once(tx),
@@ -109,10 +153,19 @@ impl Client {
         mut request: Request,
         progress: mpsc::UnboundedSender<Progress>,
     ) -> Result<Response, Error> {
+        if let Transport::Tcp(tcp) = &self.transport {
+            let response = tcp.send(peer, request).await?;
+            let done = response.payload.len();
+            let _ = progress.send(Progress {
+                done,
+                total: Some(done),
+            });
+            return Ok(response);
+        }
         request.progress = true;
         let (tx, rx) = oneshot::channel();
         let reply = Reply::Tracked(tx, progress);
-        self.handle.send(Command::Request {
+        self.udp("progress")?.send(Command::Request {
             peer,
             request,
             reply,
@@ -134,9 +187,28 @@ impl Client {
         peer: SocketAddr,
         mut request: Request,
     ) -> Result<BodyStream, Error> {
-        request.stream = true;
         let (tx, rx) = mpsc::unbounded_channel();
-        self.handle.send(Command::Request {
+        if let Transport::Tcp(tcp) = &self.transport {
+            let tcp = tcp.clone();
+            tokio::spawn(async move {
+                let item = match tcp.send(peer, request).await {
+                    Err(Error::Request(e)) => BodyItem::Failed(e),
+                    Err(_) => return,
+                    Ok(mut response) => {
+                        if response.code.is_success() && !response.payload.is_empty() {
+                            let body = std::mem::take(&mut response.payload);
+                            let total = Some(body.len());
+                            let _ = tx.send(BodyItem::Chunk(body, total));
+                        }
+                        BodyItem::Done(Box::new(response))
+                    }
+                };
+                let _ = tx.send(item);
+            });
+            return Ok(BodyStream { rx });
+        }
+        request.stream = true;
+        self.udp("streaming")?.send(Command::Request {
             peer,
             request,
             reply: Reply::Body(tx),
@@ -183,7 +255,7 @@ impl Client {
         request.options.set_uint(coap::OptionNumber::OBSERVE, 0);
         let (tx, rx) = mpsc::unbounded_channel();
         let (id_tx, id_rx) = oneshot::channel();
-        self.handle.send(Command::Request {
+        self.udp("Observe")?.send(Command::Request {
             peer,
             request,
             reply: Reply::Stream(tx),
@@ -236,7 +308,7 @@ impl Client {
         request.multicast = true;
         let follow_up = request.clone();
         let (tx, mut rx) = mpsc::unbounded_channel();
-        self.handle.send(Command::Request {
+        self.udp("multicast")?.send(Command::Request {
             peer: group,
             request,
             reply: Reply::Stream(tx),
@@ -347,22 +419,38 @@ impl Client {
     /// What the endpoint knows of the path to `peer`: its round-trip estimate and what its
     /// windowed transfers counted (`None` before any exchange with it).
     pub async fn path_stats(&self, peer: SocketAddr) -> Result<Option<coap::PathStats>, Error> {
+        let Transport::Udp(handle) = &self.transport else {
+            return Ok(None);
+        };
         let (tx, rx) = oneshot::channel();
-        self.handle.send(Command::PathStats { peer, reply: tx })?;
+        handle.send(Command::PathStats { peer, reply: tx })?;
         rx.await.map_err(|_| Error::Closed)
     }
 
     /// A round trip to `peer` remembered from before (another process's estimate): the
     /// endpoint's first CON to it times out after about that instead of ACK_TIMEOUT, until
-    /// it measures one of its own ([`coap::Endpoint::remember_rtt`]).
+    /// it measures one of its own ([`coap::Endpoint::remember_rtt`]). A TCP client, which
+    /// has no retransmission timer, ignores it.
     pub fn remember_rtt(&self, peer: SocketAddr, rtt: std::time::Duration) -> Result<(), Error> {
-        self.handle.send(Command::RememberRtt { peer, rtt })
+        match &self.transport {
+            Transport::Udp(handle) => handle.send(Command::RememberRtt { peer, rtt }),
+            Transport::Tcp(_) => Ok(()),
+        }
     }
 
-    /// A CoAP ping: `Ok` when the peer answers the empty CON.
+    /// A CoAP ping: `Ok` when the peer answers the empty CON (over TCP: when it answers
+    /// a Ping with a Pong within [`coap::connection::DEFAULT_RESPONSE_TIMEOUT`]).
     pub async fn ping(&self, peer: SocketAddr) -> Result<(), Error> {
+        let handle = match &self.transport {
+            Transport::Udp(handle) => handle,
+            Transport::Tcp(tcp) => {
+                return tcp
+                    .ping(peer, coap::connection::DEFAULT_RESPONSE_TIMEOUT)
+                    .await;
+            }
+        };
         let (tx, rx) = oneshot::channel();
-        self.handle.send(Command::Ping { peer, reply: tx })?;
+        handle.send(Command::Ping { peer, reply: tx })?;
         rx.await.map_err(|_| Error::Closed)?.map_err(Error::Request)
     }
 }
@@ -442,6 +530,8 @@ impl Drop for Observation {
     fn drop(&mut self) {
         // Forgetting the token makes the client answer the next notification with a
         // Reset, which ends the observation on the server (RFC 7641 §3.6).
-        let _ = self.client.handle.send(Command::Cancel(self.id));
+        if let Transport::Udp(handle) = &self.client.transport {
+            let _ = handle.send(Command::Cancel(self.id));
+        }
     }
 }

@@ -4,8 +4,8 @@
 //! Owns: sockets (IPv4, IPv6, multicast membership, the destination address of each
 //! datagram), DTLS sessions (OpenSSL's, [`dtls`]), the thread per socket that owns a
 //! `coap::Endpoint`, the [`Client`], the [`Server`] and its [`Router`], the `coap+tcp`
-//! [`TcpServer`] (a task per connection owning a `coap::connection::Connection`),
-//! `coap://` and `coaps://` URIs.
+//! [`TcpServer`] and [`TcpClient`] (a task per connection owning a
+//! `coap::connection::Connection`), `coap://`, `coaps://` and `coap+tcp://` URIs.
 //! Must not: implement protocol rules (those live in `coap`), or read the clock anywhere
 //! but [`clock::now`].
 
@@ -26,7 +26,7 @@ pub use driver::{EndpointHandle, Progress};
 pub use dtls::Psk;
 pub use router::{Around, Ctx, Policy, Resource, Router, handler};
 pub use server::{Server, ServerConfig};
-pub use tcp::TcpServer;
+pub use tcp::{TcpClient, TcpServer};
 pub use uri::Uri;
 
 /// The one clock of the network layer.
@@ -51,4 +51,8 @@ pub enum Error {
     /// The endpoint task is gone.
     #[error("the endpoint has shut down")]
     Closed,
+    /// What was asked is not done over this client's transport (Observe or multicast
+    /// over TCP).
+    #[error("{0} is not supported over coap+tcp")]
+    Unsupported(&'static str),
 }

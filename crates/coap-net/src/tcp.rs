@@ -1,30 +1,41 @@
-//! `coap+tcp://` serving (RFC 8323): a listener whose every connection is a
+//! `coap+tcp://` (RFC 8323): serving, a listener whose every connection is a
 //! [`coap::connection::Connection`], its requests handed to the same [`Router`] the UDP
-//! [`Server`](crate::Server) uses. Nothing here decides protocol behaviour: the connection
-//! answers signalling and frames the answers; this moves bytes and runs handlers.
+//! [`Server`](crate::Server) uses; and the client side, [`TcpClient`], which keeps one
+//! connection per server. Nothing here decides protocol behaviour: the connection
+//! answers signalling, frames messages and matches responses; this moves bytes, runs
+//! handlers and hands responses to whoever waits for them.
 //!
-//! One task per connection owns its `Connection`; handlers run as spawned tasks, as the
-//! UDP server's do, at most [`MAX_IN_FLIGHT`] per connection, and send their answers
-//! back to it. What the connection does not do
-//! yet (Observe, block-wise transfer, requests of its own, Pings, timeouts) this server
-//! does not either.
+//! One task per connection owns its `Connection`. On a server, handlers run as spawned
+//! tasks, as the UDP server's do, at most [`MAX_IN_FLIGHT`] per connection, and send
+//! their answers back to it. What the connection does not do yet (Observe, block-wise
+//! transfer, Pings to keep it alive) neither side does either.
 
+use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Duration;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
-use coap::connection::{Connection, ConnectionEvent};
-use coap::{IncomingId, IncomingRequest, Response, Token};
+use coap::connection::{Connection, ConnectionEvent, DEFAULT_RESPONSE_TIMEOUT};
+use coap::{Code, IncomingId, IncomingRequest, Request, RequestError, Response, Token};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{mpsc, watch};
+use tokio::sync::{mpsc, oneshot, watch};
 
+use crate::Error;
 use crate::router::Router;
 
 /// The Max-Message-Size a [`TcpServer`] announces unless told otherwise: a request of up
 /// to 1 MiB, whole (there is no block-wise transfer over TCP yet).
 pub const DEFAULT_MAX_MESSAGE_SIZE: u32 = 1 << 20;
+
+/// The Max-Message-Size a [`TcpClient`] announces: 16 MiB. Without block-wise transfer
+/// over TCP a body comes in one message, so this is the largest body a client can fetch
+/// over `coap+tcp`: a 1280x720 color frame (2,764,810 bytes), its depth (1,843,210) and
+/// the point cloud of all its pixels (12 + 12 x 921,600 = 11,059,212) each fit, with
+/// room. It is also the most one connection buffers of a message, whatever the body
+/// limit; bodies over [`coap::Limits::client_body_bytes`] fail once they have come.
+pub const CLIENT_MAX_MESSAGE_SIZE: u32 = 16 << 20;
 
 /// How many of a connection's requests its handlers may work on at once. At the limit the
 /// connection reads no more until one is answered, so a peer that sends faster than the
@@ -170,6 +181,219 @@ async fn serve(
                 conn.respond(token, &response);
             }
             _ = stopped.changed() => return,
+        }
+    }
+}
+
+/// A `coap+tcp` client: one connection per server, opened by the first request to it
+/// and again by the first after it closed, on which requests go side by side. Cheap to
+/// clone; clones share the connections. Dropped with its last clone, its connections
+/// close.
+#[derive(Clone, Debug)]
+pub struct TcpClient {
+    /// The largest response body taken ([`coap::Limits::client_body_bytes`]).
+    body_limit: usize,
+    /// The command channel of each server's connection task.
+    connections: Arc<Mutex<HashMap<SocketAddr, mpsc::UnboundedSender<ToConnection>>>>,
+}
+
+/// What a [`TcpClient`] asks of a connection's task.
+#[derive(Debug)]
+enum ToConnection {
+    /// Send a request, sent by the caller at `sent`, and answer on `reply` (boxed: a
+    /// request keeps its options inline).
+    Request {
+        request: Box<Request>,
+        sent: Instant,
+        reply: oneshot::Sender<Result<Response, Error>>,
+    },
+    /// Send a Ping and answer on `reply` when its Pong comes.
+    Ping {
+        timeout: Duration,
+        reply: oneshot::Sender<Result<(), Error>>,
+    },
+}
+
+impl ToConnection {
+    /// Answers with `error`.
+    fn fail(self, error: Error) {
+        match self {
+            Self::Request { reply, .. } => drop(reply.send(Err(error))),
+            Self::Ping { reply, .. } => drop(reply.send(Err(error))),
+        }
+    }
+}
+
+/// Who waits for what a connection's task was asked, by token.
+#[derive(Debug)]
+enum Waiter {
+    Response(oneshot::Sender<Result<Response, Error>>),
+    Pong(oneshot::Sender<Result<(), Error>>),
+}
+
+impl TcpClient {
+    /// A client whose responses may carry bodies of up to `body_limit` bytes (the
+    /// endpoint's [`coap::Limits::client_body_bytes`]); larger ones fail with
+    /// [`RequestError::TooLarge`].
+    pub fn new(body_limit: usize) -> Self {
+        Self {
+            body_limit,
+            connections: Arc::default(),
+        }
+    }
+
+    /// The channel to `peer`'s connection task, started when there is none or the last
+    /// one ended.
+    fn connection(&self, peer: SocketAddr) -> mpsc::UnboundedSender<ToConnection> {
+        let mut connections = self
+            .connections
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(tx) = connections.get(&peer).filter(|tx| !tx.is_closed()) {
+            return tx.clone();
+        }
+        let (tx, rx) = mpsc::unbounded_channel();
+        tokio::spawn(drive(peer, self.body_limit, rx));
+        connections.insert(peer, tx.clone());
+        tx
+    }
+
+    /// Sends `request` to `peer` over its connection and waits for the response, at most
+    /// the request's timeout ([`DEFAULT_RESPONSE_TIMEOUT`] without one), connecting
+    /// included. A request that never left because its connection closed first is sent
+    /// once more on a new one.
+    pub async fn send(&self, peer: SocketAddr, request: Request) -> Result<Response, Error> {
+        let sent = crate::clock::now();
+        let timeout = request.timeout.unwrap_or(DEFAULT_RESPONSE_TIMEOUT);
+        let exchange = async {
+            for _ in 0..2 {
+                let (reply, answer) = oneshot::channel();
+                let request = Box::new(request.clone());
+                let command = ToConnection::Request {
+                    request,
+                    sent,
+                    reply,
+                };
+                if self.connection(peer).send(command).is_err() {
+                    continue;
+                }
+                // No answer at all: the task ended before it took the request.
+                if let Ok(answer) = answer.await {
+                    return answer;
+                }
+            }
+            Err(Error::Closed)
+        };
+        tokio::time::timeout(timeout, exchange)
+            .await
+            .unwrap_or(Err(Error::Request(RequestError::Timeout)))
+    }
+
+    /// A CoAP Ping over `peer`'s connection (RFC 8323 §5.4), connecting first if need
+    /// be: `Ok` when its Pong comes within `timeout`.
+    pub async fn ping(&self, peer: SocketAddr, timeout: Duration) -> Result<(), Error> {
+        let exchange = async {
+            let (reply, answer) = oneshot::channel();
+            let command = ToConnection::Ping { timeout, reply };
+            self.connection(peer)
+                .send(command)
+                .map_err(|_| Error::Closed)?;
+            answer.await.map_err(|_| Error::Closed)?
+        };
+        tokio::time::timeout(timeout, exchange)
+            .await
+            .unwrap_or(Err(Error::Request(RequestError::Timeout)))
+    }
+}
+
+/// Connects to `peer` and moves bytes between the stream and a client `Connection`, and
+/// commands and answers between it and the callers, until the connection closes or every
+/// [`TcpClient`] is gone. Commands it did not take by then are dropped unanswered (their
+/// callers try a new connection).
+async fn drive(
+    peer: SocketAddr,
+    body_limit: usize,
+    mut commands: mpsc::UnboundedReceiver<ToConnection>,
+) {
+    let stream = match TcpStream::connect(peer).await {
+        Ok(stream) => stream,
+        Err(e) => {
+            commands.close();
+            while let Some(command) = commands.recv().await {
+                let error = std::io::Error::new(e.kind(), format!("coap+tcp {peer}: {e}"));
+                command.fail(Error::Io(error));
+            }
+            return;
+        }
+    };
+    let _ = stream.set_nodelay(true);
+    let (mut read, mut write) = stream.into_split();
+    let mut conn = Connection::new(CLIENT_MAX_MESSAGE_SIZE).with_body_limit(body_limit);
+    let mut waiters: HashMap<Token, Waiter> = HashMap::new();
+    let mut buf = vec![0u8; 64 * 1024];
+    loop {
+        while let Some(event) = conn.poll_event() {
+            match event {
+                ConnectionEvent::Response(token, response) => {
+                    if let Some(Waiter::Response(reply)) = waiters.remove(&token) {
+                        let _ = reply.send(Ok(*response));
+                    }
+                }
+                ConnectionEvent::Failed(token, error) => match waiters.remove(&token) {
+                    Some(Waiter::Response(reply)) => drop(reply.send(Err(Error::Request(error)))),
+                    Some(Waiter::Pong(reply)) => drop(reply.send(Err(Error::Request(error)))),
+                    None => {}
+                },
+                ConnectionEvent::Pong(token) => {
+                    if let Some(Waiter::Pong(reply)) = waiters.remove(&token) {
+                        let _ = reply.send(Ok(()));
+                    }
+                }
+                // A server's request to this client: it serves no resources.
+                ConnectionEvent::Request(request) => {
+                    let answer = Response::diagnostic(Code::NOT_FOUND, "a client: no resources");
+                    conn.respond(request.token, &answer);
+                }
+                ConnectionEvent::Closed(why) => {
+                    tracing::debug!(%peer, ?why, "coap+tcp client connection closed");
+                }
+            }
+        }
+        if let Some(bytes) = conn.poll_transmit()
+            && write.write_all(&bytes).await.is_err()
+        {
+            // Its requests fail with the events the next turn hands out.
+            conn.handle_end();
+            continue;
+        }
+        if conn.is_closed() {
+            let _ = write.shutdown().await;
+            return;
+        }
+        let due = conn.poll_timeout();
+        let at = due.unwrap_or_else(crate::clock::now);
+        let sleep = tokio::time::sleep_until(tokio::time::Instant::from_std(at));
+        tokio::select! {
+            n = read.read(&mut buf) => match n {
+                Ok(0) | Err(_) => conn.handle_end(),
+                Ok(n) => conn.handle(&buf[..n]),
+            },
+            command = commands.recv() => match command {
+                Some(ToConnection::Request { request, sent, reply }) => {
+                    let token = conn.send_request(sent, &request);
+                    waiters.insert(token, Waiter::Response(reply));
+                }
+                Some(ToConnection::Ping { timeout, reply }) => {
+                    let token = conn.ping(crate::clock::now(), timeout);
+                    waiters.insert(token, Waiter::Pong(reply));
+                }
+                // Every client is gone.
+                None => {
+                    let _ = write.shutdown().await;
+                    return;
+                }
+            },
+            () = sleep, if due.is_some() => conn.handle_timeout(crate::clock::now()),
         }
     }
 }

@@ -1,21 +1,23 @@
-//! `coap://host[:port]/path?query` and `coaps://` URIs (RFC 7252 §6) to a socket address
-//! and request options, and back.
+//! `coap://host[:port]/path?query` and `coaps://` URIs (RFC 7252 §6), and
+//! `coap+tcp://` ones (RFC 8323 §8.1), to a socket address and request options, and back.
 
 use std::net::{IpAddr, SocketAddr};
 
 use coap::{OptionNumber, Options};
 
-/// A parsed `coap://` or `coaps://` URI.
+/// A parsed `coap://`, `coaps://` or `coap+tcp://` URI.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Uri {
     /// `coaps://`: the server is reached through DTLS (RFC 7252 §6.2).
     pub secure: bool,
+    /// `coap+tcp://`: the server is reached over TCP (RFC 8323 §8.1).
+    pub tcp: bool,
     /// Host as written: an IP literal (IPv6 without brackets or zone) or a name.
     pub host: String,
     /// The zone of an IPv6 link-local literal (RFC 6874, `[ff02::fd%25eth0]`): an
     /// interface name or index.
     pub zone: Option<String>,
-    /// Port (5683 when absent; 5684 for `coaps://`).
+    /// Port (5683 when absent, for `coap+tcp://` too; 5684 for `coaps://`).
     pub port: u16,
     /// Path segments, percent-decoded.
     pub path: Vec<String>,
@@ -26,8 +28,8 @@ pub struct Uri {
 /// Why a URI was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum UriError {
-    /// Only `coap://` and `coaps://` are supported.
-    #[error("unsupported scheme in {0:?}: only coap:// and coaps:// are supported")]
+    /// Only `coap://`, `coaps://` and `coap+tcp://` are supported.
+    #[error("unsupported scheme in {0:?}: only coap://, coaps:// and coap+tcp:// are supported")]
     Scheme(String),
     /// No host.
     #[error("no host in {0:?}")]
@@ -49,12 +51,18 @@ pub const DEFAULT_PORT: u16 = 5683;
 pub const DEFAULT_SECURE_PORT: u16 = 5684;
 
 impl Uri {
-    /// Parses `coap://host[:port][/path][?query]` (or `coaps://`).
+    /// Parses `coap://host[:port][/path][?query]` (or `coaps://`, or `coap+tcp://`).
     pub fn parse(s: &str) -> Result<Self, UriError> {
-        let (secure, rest) = match (s.strip_prefix("coap://"), s.strip_prefix("coaps://")) {
-            (Some(rest), _) => (false, rest),
-            (None, Some(rest)) => (true, rest),
-            (None, None) => return Err(UriError::Scheme(s.to_string())),
+        let schemes = [
+            ("coap://", false, false),
+            ("coaps://", true, false),
+            ("coap+tcp://", false, true),
+        ];
+        let Some((rest, secure, tcp)) = schemes
+            .iter()
+            .find_map(|(scheme, secure, tcp)| Some((s.strip_prefix(scheme)?, *secure, *tcp)))
+        else {
+            return Err(UriError::Scheme(s.to_string()));
         };
         if rest.contains('#') {
             return Err(UriError::Fragment(s.to_string()));
@@ -119,6 +127,7 @@ impl Uri {
             .unwrap_or_default();
         Ok(Self {
             secure,
+            tcp,
             host,
             zone,
             port,
@@ -234,6 +243,25 @@ mod tests {
         let u = Uri::parse("coap://camera-1.local").unwrap();
         assert!(u.path.is_empty());
         assert!(u.options().contains(OptionNumber::URI_HOST));
+    }
+
+    #[test]
+    fn rfc8323_8_1_coap_tcp_uris_default_to_port_5683() {
+        let u = Uri::parse("coap+tcp://[::1]/cams/840412060746/color?x=1").unwrap();
+        assert_eq!((u.tcp, u.secure), (true, false));
+        assert_eq!((u.host.as_str(), u.port), ("::1", 5683));
+        assert_eq!(u.path, ["cams", "840412060746", "color"]);
+        assert_eq!(u.query, ["x=1"]);
+        let u = Uri::parse("coap+tcp://camera-1.local:6000").unwrap();
+        assert_eq!((u.port, u.path.len()), (6000, 0));
+        assert!(!Uri::parse("coap://x").unwrap().tcp);
+        // TLS and WebSockets are not supported yet.
+        for other in ["coaps+tcp://x/", "coap+ws://x/", "coaps+ws://x/"] {
+            assert!(
+                matches!(Uri::parse(other), Err(UriError::Scheme(_))),
+                "{other}"
+            );
+        }
     }
 
     #[test]

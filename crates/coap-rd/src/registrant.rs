@@ -172,7 +172,8 @@ impl RegistrantConfig {
     ///
     /// # Errors
     ///
-    /// A URI that does not parse or resolve, or `coaps://` (not supported here).
+    /// A URI that does not parse or resolve, or `coaps://` or `coap+tcp://` (not
+    /// supported here).
     pub async fn from_uri(
         uri: &str,
         ep: String,
@@ -180,8 +181,8 @@ impl RegistrantConfig {
         lt: u32,
     ) -> anyhow::Result<Self> {
         let parsed = Uri::parse(uri)?;
-        if parsed.secure {
-            bail!("{uri}: registering over coaps:// is not supported; give coap://");
+        if parsed.secure || parsed.tcp {
+            bail!("{uri}: registering over coaps:// or coap+tcp:// is not supported; give coap://");
         }
         let rd = parsed
             .resolve()
@@ -519,7 +520,7 @@ pub async fn lookup_endpoints(
             let base = link.attr("base").unwrap_or_default().to_owned();
             let addr = Uri::parse(&base)
                 .ok()
-                .filter(|u| !u.secure)
+                .filter(|u| !u.secure && !u.tcp)
                 .and_then(|u| u.ip().map(|ip| SocketAddr::new(ip, u.port)));
             Endpoint {
                 ep: link.attr("ep").unwrap_or_default().to_owned(),

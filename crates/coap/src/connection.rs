@@ -26,7 +26,7 @@
 //! [`Request::timeout`] ([`DEFAULT_RESPONSE_TIMEOUT`] when it has none). When the
 //! connection closes, every request still waiting fails with
 //! [`RequestError::ConnectionClosed`]. [`Connection::ping`] sends a Ping and reports its
-//! Pong.
+//! Pong (one without the Ping's token, as libcoap 4.3.5 sends, answers the oldest Ping).
 //!
 //! What it does not do yet: Observe (a registration is served as a plain GET and the
 //! answer's Observe option removed, so the client knows it is not registered, RFC 7641
@@ -84,7 +84,8 @@ pub enum ConnectionEvent {
     Request(Box<StreamRequest>),
     /// The response to this side's request of this token (boxed, as a request is).
     Response(Token, Box<Response>),
-    /// This side's request of this token failed: no response will be reported.
+    /// This side's request (or Ping) of this token failed: no response (or Pong) will be
+    /// reported.
     Failed(Token, RequestError),
     /// The Pong to this side's Ping of this token.
     Pong(Token),
@@ -267,9 +268,9 @@ impl Connection {
                     .encode_into(&mut self.outbound);
             }
             Signal::Pong { .. } => {
-                if self.outstanding.get(&frame.token).is_some_and(|o| o.ping) {
-                    self.outstanding.remove(&frame.token);
-                    self.events.push_back(ConnectionEvent::Pong(frame.token));
+                if let Some(ping) = self.ping_answered_by(frame.token) {
+                    self.outstanding.remove(&ping);
+                    self.events.push_back(ConnectionEvent::Pong(ping));
                 }
             }
             Signal::Release(_) => self.close(Closed::Released),
@@ -278,6 +279,19 @@ impl Connection {
                 self.close(Closed::AbortedByPeer(text));
             }
         }
+    }
+
+    /// The Ping a Pong of `token` answers: the one of that token, else the oldest one
+    /// waiting (libcoap 4.3.5 answers every Ping with a Pong of an empty token).
+    fn ping_answered_by(&self, token: Token) -> Option<Token> {
+        if self.outstanding.get(&token).is_some_and(|o| o.ping) {
+            return Some(token);
+        }
+        self.outstanding
+            .iter()
+            .filter(|(_, o)| o.ping)
+            .map(|(t, _)| *t)
+            .min_by_key(token_order)
     }
 
     /// Sends an Abort with `reason` as its diagnostic, and closes.
@@ -289,18 +303,16 @@ impl Connection {
         self.close(Closed::Aborted(reason));
     }
 
-    /// Closes: every request still waiting fails (in the order of their tokens), then
+    /// Closes: every request and Ping still waiting fails (in the order of their tokens), then
     /// [`ConnectionEvent::Closed`].
     fn close(&mut self, why: Closed) {
         self.closed = true;
         self.waiting.clear();
         let mut left: Vec<(Token, Outstanding)> = self.outstanding.drain().collect();
         left.sort_by_key(|(token, _)| token_order(token));
-        for (token, o) in left {
-            if !o.ping {
-                let failed = ConnectionEvent::Failed(token, RequestError::ConnectionClosed);
-                self.events.push_back(failed);
-            }
+        for (token, _) in left {
+            let failed = ConnectionEvent::Failed(token, RequestError::ConnectionClosed);
+            self.events.push_back(failed);
         }
         self.events.push_back(ConnectionEvent::Closed(why));
     }
@@ -371,8 +383,8 @@ impl Connection {
     }
 
     /// Sends a Ping (§5.4); [`ConnectionEvent::Pong`] with the token returned reports
-    /// its answer. Unanswered by `now + timeout`, it is forgotten (no event): the owner
-    /// that waits for it gives up at the same time.
+    /// its answer, or [`ConnectionEvent::Failed`] its timeout (`now + timeout`) or the
+    /// connection's end.
     pub fn ping(&mut self, now: Instant, timeout: Duration) -> Token {
         let token = self.fresh_token();
         if !self.closed {
@@ -393,22 +405,20 @@ impl Connection {
         self.outstanding.values().map(|o| o.deadline).min()
     }
 
-    /// Fails every request whose deadline has passed with [`RequestError::Timeout`] (and
-    /// forgets every such Ping). Calling it early does nothing.
+    /// Fails every request and Ping whose deadline has passed with
+    /// [`RequestError::Timeout`]. Calling it early does nothing.
     pub fn handle_timeout(&mut self, now: Instant) {
-        let mut late: Vec<(Token, bool)> = self
+        let mut late: Vec<Token> = self
             .outstanding
             .iter()
             .filter(|(_, o)| o.deadline <= now)
-            .map(|(token, o)| (*token, o.ping))
+            .map(|(token, _)| *token)
             .collect();
-        late.sort_by_key(|(token, _)| token_order(token));
-        for (token, ping) in late {
+        late.sort_by_key(token_order);
+        for token in late {
             self.outstanding.remove(&token);
-            if !ping {
-                let failed = ConnectionEvent::Failed(token, RequestError::Timeout);
-                self.events.push_back(failed);
-            }
+            let failed = ConnectionEvent::Failed(token, RequestError::Timeout);
+            self.events.push_back(failed);
         }
         let outstanding = &self.outstanding;
         self.waiting.retain(|f| outstanding.contains_key(&f.token));
@@ -794,10 +804,27 @@ mod tests {
         assert_eq!(c.poll_event(), None);
         c.handle(&[0x01, 0xe3, 0x01]);
         assert_eq!(c.poll_event(), Some(ConnectionEvent::Pong(ping)));
-        // A Ping left unanswered is forgotten at its deadline, without an event.
-        let _ = c.ping(now, Duration::from_secs(5));
+        // A Pong without the token (as libcoap 4.3.5 sends it, with Custody) answers
+        // the oldest Ping; with none waiting it is ignored.
+        let (older, newer) = (
+            c.ping(now, Duration::from_secs(5)),
+            c.ping(now, Duration::from_secs(5)),
+        );
+        let _pings = c.poll_transmit();
+        c.handle(&[0x10, 0xe3, 0x20]);
+        assert_eq!(c.poll_event(), Some(ConnectionEvent::Pong(older)));
+        c.handle(&[0x10, 0xe3, 0x20]);
+        assert_eq!(c.poll_event(), Some(ConnectionEvent::Pong(newer)));
+        c.handle(&[0x10, 0xe3, 0x20]);
+        assert_eq!(c.poll_event(), None);
+        // A Ping left unanswered fails at its deadline.
+        let unanswered = c.ping(now, Duration::from_secs(5));
         c.handle_timeout(now + Duration::from_secs(5));
-        assert_eq!((c.poll_event(), c.poll_timeout()), (None, None));
+        assert_eq!(
+            c.poll_event(),
+            Some(ConnectionEvent::Failed(unanswered, RequestError::Timeout))
+        );
+        assert_eq!(c.poll_timeout(), None);
     }
 
     #[test]

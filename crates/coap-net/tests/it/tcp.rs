@@ -1,14 +1,18 @@
 //! `coap+tcp` (RFC 8323) through `TcpServer`: the CSM exchange, a request through the
-//! router, Ping and Pong, and Release, byte by byte over a real socket; and libcoap
-//! 4.3.5's `coap-client` fetching a resource over TCP.
+//! router, Ping and Pong, and Release, byte by byte over a real socket; our `coap+tcp`
+//! client against it (a 2.76 MB body in one message, the body limit, requests side by
+//! side on one connection, timeouts, a connection that closes); and libcoap 4.3.5's
+//! `coap-client` and `coap-server` on the other end.
 
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::time::Duration;
 
 use coap::msg::signal::{Csm, Signal};
 use coap::msg::stream::{self, Decoded, Frame};
-use coap::{Code, Response};
-use coap_net::{Resource, Router, TcpServer, handler, tcp};
+use coap::{Code, EndpointConfig, Limits, Request, RequestError, Response};
+use coap_net::{Client, Resource, Router, TcpServer, handler, tcp};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
@@ -122,10 +126,10 @@ async fn rfc8323_5_3_a_request_before_the_csm_is_aborted() {
     .await;
 }
 
-/// libcoap 4.3.5's `coap-client` ( `../shared/peers/build-libcoap.sh`; its folder in
-/// `COAPCAM_LIBCOAP435` or the script's default), or `None` after saying why it is missing.
-/// Missing in CI (`CI=true`) fails the test.
-fn libcoap435_client() -> Option<PathBuf> {
+/// libcoap 4.3.5's `coap-client` or `coap-server` (`bin`; `../shared/peers/build-libcoap.sh`
+/// builds them, into `COAPCAM_LIBCOAP435` or the script's default folder), or `None`
+/// after saying why it is missing. Missing in CI (`CI=true`) fails the test.
+fn libcoap435(bin: &str) -> Option<PathBuf> {
     let dir = std::env::var_os("COAPCAM_LIBCOAP435").map_or_else(
         || {
             let home = std::env::var_os("HOME").unwrap_or_default();
@@ -133,13 +137,13 @@ fn libcoap435_client() -> Option<PathBuf> {
         },
         PathBuf::from,
     );
-    let client = dir.join("coap-client");
-    if client.is_file() {
-        return Some(client);
+    let path = dir.join(bin);
+    if path.is_file() {
+        return Some(path);
     }
     let why = format!(
         "{} is missing (../shared/peers/build-libcoap.sh builds it)",
-        client.display()
+        path.display()
     );
     assert!(std::env::var("CI").as_deref() != Ok("true"), "{why}");
     eprintln!("SKIP: {why}");
@@ -148,7 +152,7 @@ fn libcoap435_client() -> Option<PathBuf> {
 
 #[tokio::test]
 async fn libcoap_4_3_5_coap_client_gets_over_tcp() {
-    let Some(client) = libcoap435_client() else {
+    let Some(client) = libcoap435("coap-client") else {
         return;
     };
     let server = tcp_server().await;
@@ -179,7 +183,7 @@ async fn pipelined_requests_are_all_answered_with_at_most_max_in_flight_handlers
             let (n, m) = (n.clone(), m.clone());
             async move {
                 m.fetch_max(n.fetch_add(1, Ordering::SeqCst) + 1, Ordering::SeqCst);
-                tokio::time::sleep(std::time::Duration::from_millis(5)).await;
+                tokio::time::sleep(Duration::from_millis(5)).await;
                 n.fetch_sub(1, Ordering::SeqCst);
                 Response::new(Code::CONTENT)
             }
@@ -217,4 +221,341 @@ async fn pipelined_requests_are_all_answered_with_at_most_max_in_flight_handlers
         (2..=tcp::MAX_IN_FLIGHT).contains(&most),
         "{most} handlers at once"
     );
+}
+
+// ------------------------------------------------------------------ our client
+
+/// The length of a 1280x720 color grab in the thesis packet (docs/resources.md).
+const FRAME_BYTES: usize = 2_764_810;
+
+/// A server with `/hello`, `/frame` (FRAME_BYTES of a pattern), `/slow` (answers after
+/// 2 s) and `/peer` (the requester's address, so a test sees which connection asked).
+async fn frame_server() -> TcpServer {
+    let router = hello_router();
+    router.add(
+        "/frame",
+        Resource::new().get(handler(|_| async {
+            Response::new(Code::CONTENT).with_payload(pattern())
+        })),
+    );
+    router.add(
+        "/slow",
+        Resource::new().get(handler(|_| async {
+            tokio::time::sleep(Duration::from_secs(2)).await;
+            Response::new(Code::CONTENT)
+        })),
+    );
+    router.add(
+        "/peer",
+        Resource::new().get(handler(|ctx| async move {
+            Response::new(Code::CONTENT).with_payload(ctx.request.peer.to_string())
+        })),
+    );
+    let addr = "127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!());
+    TcpServer::bind(addr, router, tcp::DEFAULT_MAX_MESSAGE_SIZE)
+        .await
+        .unwrap_or_else(|e| panic!("bind: {e}"))
+}
+
+fn pattern() -> Vec<u8> {
+    (0..FRAME_BYTES).map(|i| (i % 251) as u8).collect()
+}
+
+fn get(path: &str) -> Request {
+    let mut r = Request::new(Code::GET, path);
+    r.timeout = Some(Duration::from_secs(10));
+    r
+}
+
+/// A `coap+tcp` client taking bodies of up to `limit` bytes.
+fn tcp_client(limit: usize) -> Client {
+    let config = EndpointConfig {
+        limits: Limits {
+            client_body_bytes: limit,
+            ..Limits::default()
+        },
+        ..EndpointConfig::default()
+    };
+    Client::tcp(&config)
+}
+
+#[tokio::test]
+async fn our_client_gets_a_resource_and_a_2_76_mb_frame_in_one_message() {
+    let server = frame_server().await;
+    let client = tcp_client(Limits::default().client_body_bytes);
+    let peer = server.local_addr();
+    within(async {
+        let hello = client
+            .send(peer, get("/hello"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            (hello.code, &hello.payload[..]),
+            (Code::CONTENT, &b"hello tcp"[..])
+        );
+        let frame = client
+            .send(peer, get("/frame"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(frame.code, Code::CONTENT);
+        // One message: no Block2, and every byte.
+        assert!(frame.options.block2().is_none());
+        assert!(
+            frame.payload[..] == pattern()[..],
+            "{} bytes",
+            frame.payload.len()
+        );
+        assert_eq!(client.ping(peer).await.ok(), Some(()));
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn a_body_over_the_client_limit_fails_too_large_and_the_connection_stays() {
+    let server = frame_server().await;
+    let client = tcp_client(1 << 20);
+    let peer = server.local_addr();
+    within(async {
+        let refused = client.send(peer, get("/frame")).await;
+        assert!(
+            matches!(
+                refused,
+                Err(coap_net::Error::Request(RequestError::TooLarge {
+                    limit: 1_048_576
+                }))
+            ),
+            "{refused:?}"
+        );
+        let before = client
+            .send(peer, get("/peer"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        let after = client
+            .send(peer, get("/peer"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(before.payload, after.payload, "one connection throughout");
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn requests_side_by_side_share_one_connection_and_time_out_alone() {
+    let server = frame_server().await;
+    let client = tcp_client(1 << 20);
+    let peer = server.local_addr();
+    within(async {
+        let mut slow = get("/slow");
+        slow.timeout = Some(Duration::from_millis(300));
+        let started = std::time::Instant::now();
+        let slow = {
+            let client = client.clone();
+            tokio::spawn(async move { client.send(peer, slow).await })
+        };
+        let asked: Vec<_> = (0..20)
+            .map(|_| {
+                let client = client.clone();
+                tokio::spawn(async move { client.send(peer, get("/peer")).await })
+            })
+            .collect();
+        let mut seen = Vec::new();
+        for one in asked {
+            let answer = one.await.unwrap_or_else(|e| panic!("{e}"));
+            seen.push(answer.unwrap_or_else(|e| panic!("{e}")).payload);
+        }
+        let slow = slow.await.unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            matches!(slow, Err(coap_net::Error::Request(RequestError::Timeout))),
+            "{slow:?}"
+        );
+        let took = started.elapsed();
+        assert!(took < Duration::from_millis(1500), "{took:?}");
+        seen.dedup();
+        assert_eq!(seen.len(), 1, "one connection: {seen:?}");
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn nothing_listening_fails_at_once_and_a_closed_connection_is_replaced() {
+    let client = tcp_client(1 << 20);
+    within(async {
+        // A port nobody listens on: connection refused.
+        let gone = {
+            let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap_or_else(|e| panic!("{e}"));
+            l.local_addr().unwrap_or_else(|e| panic!("{e}"))
+        };
+        let refused = client.send(gone, get("/hello")).await;
+        assert!(
+            matches!(refused, Err(coap_net::Error::Io(_))),
+            "{refused:?}"
+        );
+
+        // A server that answers one request per connection, then closes it.
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        let peer: SocketAddr = listener.local_addr().unwrap_or_else(|e| panic!("{e}"));
+        tokio::spawn(async move {
+            for n in 0u8..3 {
+                let Ok((mut s, _)) = listener.accept().await else {
+                    return;
+                };
+                let mut buf = Vec::new();
+                let _csm = next_frame(&mut s, &mut buf).await;
+                let _ = s.write_all(&Frame::new(Code::CSM).encode()).await;
+                let request = next_frame(&mut s, &mut buf).await;
+                let mut out = Vec::new();
+                let answer = Frame {
+                    token: request.token,
+                    payload: vec![n].into(),
+                    ..Frame::new(Code::CONTENT)
+                };
+                answer.encode_into(&mut out);
+                let _ = s.write_all(&out).await;
+                let _ = s.shutdown().await;
+            }
+        });
+        for n in 0u8..3 {
+            // Between requests the client notices the close and opens a new connection.
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            let r = client
+                .send(peer, get("/x"))
+                .await
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(&r.payload[..], [n]);
+        }
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn a_request_sent_when_the_server_closes_fails_connection_closed() {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .unwrap_or_else(|e| panic!("{e}"));
+    let peer: SocketAddr = listener.local_addr().unwrap_or_else(|e| panic!("{e}"));
+    tokio::spawn(async move {
+        let Ok((mut s, _)) = listener.accept().await else {
+            return;
+        };
+        let mut buf = Vec::new();
+        let _csm = next_frame(&mut s, &mut buf).await;
+        let _ = s.write_all(&Frame::new(Code::CSM).encode()).await;
+        let _request = next_frame(&mut s, &mut buf).await;
+        // An Abort instead of an answer.
+        let _ = s.write_all(&Frame::new(Code::ABORT).encode()).await;
+    });
+    let client = tcp_client(1 << 20);
+    within(async {
+        let failed = client.send(peer, get("/x")).await;
+        assert!(
+            matches!(
+                failed,
+                Err(coap_net::Error::Request(RequestError::ConnectionClosed))
+            ),
+            "{failed:?}"
+        );
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn observe_and_multicast_over_tcp_are_refused_not_sent_over_udp() {
+    let client = tcp_client(1 << 20);
+    let peer: SocketAddr = "127.0.0.1:9".parse().unwrap_or_else(|_| unreachable!());
+    let observed = client.observe(peer, get("/x")).await;
+    assert!(matches!(
+        observed,
+        Err(coap_net::Error::Unsupported("Observe"))
+    ));
+    let group: SocketAddr = "224.0.1.187:5683"
+        .parse()
+        .unwrap_or_else(|_| unreachable!());
+    let answers = client.multicast(group, get("/x")).await;
+    assert!(matches!(
+        answers,
+        Err(coap_net::Error::Unsupported("multicast"))
+    ));
+}
+
+// ---------------------------------------------------------- libcoap's coap-server
+
+/// libcoap 4.3.5's `coap-server` on a free port of 127.0.0.1 (UDP and TCP), killed on
+/// drop.
+struct LibcoapServer {
+    child: std::process::Child,
+    addr: SocketAddr,
+}
+
+impl Drop for LibcoapServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Starts `coap-server -A 127.0.0.1 -p PORT` and waits (10 s at most) until our client
+/// gets its `/` over TCP; tries another port when the first was taken meanwhile.
+async fn libcoap_server(bin: PathBuf, client: &Client) -> LibcoapServer {
+    for _ in 0..5 {
+        let port = {
+            let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap_or_else(|e| panic!("{e}"));
+            l.local_addr().unwrap_or_else(|e| panic!("{e}")).port()
+        };
+        let child = std::process::Command::new(&bin)
+            .args(["-A", "127.0.0.1", "-p", &port.to_string()])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| panic!("{}: {e}", bin.display()));
+        let mut server = LibcoapServer {
+            child,
+            addr: SocketAddr::from(([127, 0, 0, 1], port)),
+        };
+        for _ in 0..100 {
+            let mut probe = get("/");
+            probe.timeout = Some(Duration::from_millis(500));
+            if client.send(server.addr, probe).await.is_ok() {
+                return server;
+            }
+            if server.child.try_wait().ok().flatten().is_some() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        drop(server);
+    }
+    panic!("libcoap's coap-server did not start");
+}
+
+#[tokio::test]
+async fn our_client_gets_from_libcoap_4_3_5_coap_server_over_tcp() {
+    let Some(bin) = libcoap435("coap-server") else {
+        return;
+    };
+    let client = tcp_client(1 << 20);
+    let server = libcoap_server(bin, &client).await;
+    within(async {
+        let index = client
+            .send(server.addr, get("/"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(index.code, Code::CONTENT);
+        let text = String::from_utf8_lossy(&index.payload);
+        assert!(text.contains("libcoap"), "{text}");
+        let core = client
+            .send(server.addr, get("/.well-known/core"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        let links = String::from_utf8_lossy(&core.payload);
+        assert!(links.contains("</time>"), "{links}");
+        let missing = client
+            .send(server.addr, get("/no/such/thing"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(missing.code, Code::NOT_FOUND);
+        assert_eq!(client.ping(server.addr).await.ok(), Some(()));
+    })
+    .await;
 }
