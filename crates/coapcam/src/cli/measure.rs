@@ -246,8 +246,15 @@ async fn connect(args: &MeasureArgs) -> anyhow::Result<(CamClient, Source, Vec<E
                 .await?
                 .with_progress(Bars::shown());
             let mut servers = vec![client.server()];
+            let scheme = |uri: &Uri| (uri.secure, uri.tcp);
+            let first = scheme(&Uri::parse(server)?);
             for uri in &args.cameras.servers()[1..] {
                 let parsed = Uri::parse(uri)?;
+                if scheme(&parsed) != first {
+                    bail!(
+                        "--server {uri}: give every --server the scheme of the first (one client reaches them all)"
+                    );
+                }
                 let addr = parsed
                     .resolve()
                     .await

@@ -133,7 +133,8 @@ impl TransmissionArgs {
 /// `--all`.
 #[derive(Debug, Clone, Args)]
 pub(crate) struct CameraArgs {
-    /// The server, coap://host[:port] (or coaps:// with --psk-identity and --psk-key).
+    /// The server, coap://host[:port] (or coaps:// with --psk-identity and --psk-key, or
+    /// coap+tcp:// over TCP).
     /// `measure` takes it more than once: every camera of each server, merged.
     // Required, but an argument that conflicts with one given (measure's --group) is not.
     #[arg(long, value_name = "URI", required = true, value_parser = values::coap_uri)]

@@ -20,7 +20,8 @@ use coapcam::client::{check_size, describe};
 /// Flags shared by `get`, `post`, `put` and `delete`.
 #[derive(Debug, Args)]
 pub(crate) struct RequestArgs {
-    /// The resource, e.g. coap://127.0.0.1:5683/cams/pointclouds?x=1 (IPv6: coap://[::1]/...).
+    /// The resource, e.g. coap://127.0.0.1:5683/cams/pointclouds?x=1 (IPv6: coap://[::1]/...;
+    /// coaps:// for DTLS, coap+tcp:// for TCP, without --observe).
     #[arg(value_parser = values::coap_uri)]
     uri: String,
     /// Request payload as text.
@@ -67,7 +68,8 @@ fn parse_block_size(s: &str) -> Result<u8, String> {
 /// Flags of `discover`.
 #[derive(Debug, Args)]
 pub(crate) struct DiscoverArgs {
-    /// The server (coap://host[:port]); a multicast address asks every server in the group.
+    /// The server (coap://host[:port], coaps:// or coap+tcp://); a multicast address (coap://
+    /// only) asks every server in the group.
     #[arg(required_unless_present = "rd", value_parser = values::coap_uri)]
     uri: Option<String>,
     /// List the endpoints (stations) registered with this resource directory instead

@@ -22,7 +22,7 @@ use super::{Exit, TransmissionArgs, out, outln};
 pub(crate) struct ResultsArgs {
     #[command(subcommand)]
     command: Option<ResultsCommand>,
-    /// The station, coap://host[:port]: list its records, newest first, with the events
+    /// The station, coap://host[:port] (coaps://, coap+tcp://): list its records, newest first, with the events
     /// (changes of a camera's 3d-transformation or application-config) among them.
     #[arg(long, value_name = "URI", required = true, value_parser = super::values::coap_uri)]
     server: Option<String>,

@@ -26,13 +26,18 @@ use crate::repr::packet::DepthImage;
 use crate::repr::{self, DecodeError, Stream, cbor};
 use crate::timesync::SERVER_TIME;
 
-/// A client socket for `server`: plain for `coap://`, DTLS with `psk` for `coaps://`.
+/// A client for `server`, its transport chosen by `uri`'s scheme: a plain socket for
+/// `coap://`, DTLS with `psk` for `coaps://`, a TCP connection for `coap+tcp://`. Every
+/// command that takes a server URI comes here, so each speaks every scheme.
 pub fn secured_client(
     uri: &Uri,
     server: SocketAddr,
     config: EndpointConfig,
     psk: Option<&Psk>,
 ) -> Result<Client, ConnectError> {
+    if uri.tcp {
+        return Ok(Client::tcp(&config));
+    }
     let psk = match (uri.secure, psk) {
         (true, None) => return Err(ConnectError::NoKey),
         (true, psk) => psk,
@@ -74,8 +79,8 @@ pub trait WatchProgress: Send {
 }
 
 impl CamClient {
-    /// A client for the server at `uri` (`coap://host[:port]`); every request gives up
-    /// after `timeout`.
+    /// A client for the server at `uri` (`coap://host[:port]`, `coaps://` or
+    /// `coap+tcp://`); every request gives up after `timeout`.
     pub async fn connect(
         uri: &str,
         config: EndpointConfig,
