@@ -141,8 +141,9 @@ async fn serve(
                         confirmable: true,
                         observe: None,
                         identity: None,
-                        // Not known over TCP yet: the safe answer.
-                        loopback: false,
+                        // TCP's handshake proves the peer's address, so one on
+                        // loopback is this machine (as the HTTP side decides).
+                        loopback: peer.ip().to_canonical().is_loopback(),
                     };
                     let (router, answer, token) = (router.clone(), answer.clone(), request.token);
                     tokio::spawn(async move {

@@ -229,7 +229,8 @@ async fn pipelined_requests_are_all_answered_with_at_most_max_in_flight_handlers
 const FRAME_BYTES: usize = 2_764_810;
 
 /// A server with `/hello`, `/frame` (FRAME_BYTES of a pattern), `/slow` (answers after
-/// 2 s) and `/peer` (the requester's address, so a test sees which connection asked).
+/// 2 s), `/peer` (the requester's address, so a test sees which connection asked) and
+/// `/local` (whether the request counts as this machine's).
 async fn frame_server() -> TcpServer {
     let router = hello_router();
     router.add(
@@ -249,6 +250,12 @@ async fn frame_server() -> TcpServer {
         "/peer",
         Resource::new().get(handler(|ctx| async move {
             Response::new(Code::CONTENT).with_payload(ctx.request.peer.to_string())
+        })),
+    );
+    router.add(
+        "/local",
+        Resource::new().get(handler(|ctx| async move {
+            Response::new(Code::CONTENT).with_payload(ctx.request.loopback.to_string())
         })),
     );
     let addr = "127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!());
@@ -306,6 +313,12 @@ async fn our_client_gets_a_resource_and_a_2_76_mb_frame_in_one_message() {
             frame.payload.len()
         );
         assert_eq!(client.ping(peer).await.ok(), Some(()));
+        // A peer on loopback is this machine: TCP's handshake proved its address.
+        let local = client
+            .send(peer, get("/local"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(&local.payload[..], b"true");
     })
     .await;
 }

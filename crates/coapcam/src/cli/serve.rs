@@ -89,6 +89,14 @@ pub(crate) struct ServeArgs {
     /// e.g. 0.0.0.0:5684; repeatable. Needs --psk-file.
     #[arg(long, value_name = "ADDR:PORT", requires = "psk_file")]
     coaps: Vec<SocketAddr>,
+    /// Also answer coap+tcp:// (CoAP over TCP, RFC 8323) on this address, e.g.
+    /// 0.0.0.0:5683 (TCP's port, beside UDP's); repeatable. The same resources as over
+    /// UDP; each answer goes whole in one message, up to the client's Max-Message-Size
+    /// (no block-wise transfer or Observe over TCP yet), and requests may carry up to
+    /// 1 MiB. Configuration changes over TCP come from this machine only (TCP's handshake
+    /// proves the client's address), unless --allow-unauthenticated-config.
+    #[arg(long, value_name = "ADDR:PORT")]
+    bind_tcp: Vec<SocketAddr>,
     /// The DTLS identities, one per line: `IDENTITY KEY ROLE`, ROLE `read` (GET, grabs,
     /// discovery, Observe) or `configure` (also PUT, DELETE, POST to /coap-group, /files
     /// and /cams/<name>). With it, configuration changes need a `configure` identity
@@ -337,6 +345,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
         allow_unauthenticated_config: args.allow_unauthenticated_config,
         grab_memory: args.grab_memory.saturating_mul(1 << 20),
         secure_binds: args.coaps.clone(),
+        tcp_binds: args.bind_tcp.clone(),
         identities,
         clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
     };
@@ -413,6 +422,9 @@ fn announce(args: &ServeArgs, station: &Station) {
         } else {
             eprintln!("coapcam: serving coaps on {a}");
         }
+    }
+    for a in station.tcp_addrs() {
+        eprintln!("coapcam: serving coap+tcp on {a}");
     }
 }
 

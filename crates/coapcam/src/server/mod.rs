@@ -22,7 +22,7 @@ use std::time::Duration;
 
 use coap::link_format::Filter;
 use coap::{Code, EndpointConfig, IncomingRequest, Response};
-use coap_net::{Router, Server, ServerConfig};
+use coap_net::{Router, Server, ServerConfig, TcpServer};
 use coap_rd::registrant::{Announcement, Registrant, RegistrantConfig};
 use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
 use tokio::sync::mpsc;
@@ -72,6 +72,10 @@ pub struct Config {
     pub grab_memory: u64,
     /// Addresses answered with DTLS (`coaps://`); they need `identities`.
     pub secure_binds: Vec<SocketAddr>,
+    /// Addresses answered over TCP (`coap+tcp://`, RFC 8323): the same resources, each
+    /// answer in one message (no block-wise transfer or Observe over TCP yet), requests
+    /// of up to [`coap_net::tcp::DEFAULT_MAX_MESSAGE_SIZE`].
+    pub tcp_binds: Vec<SocketAddr>,
     /// The DTLS identities with their keys and roles; with them, configuration changes
     /// need an identity of the `configure` role (or this machine).
     pub identities: Option<Arc<Identities>>,
@@ -99,6 +103,8 @@ pub fn loopback_only(request: &IncomingRequest) -> Option<Response> {
 /// A running camera server: bound, its cameras routed, its groups joined.
 pub struct CameraServer {
     server: Server,
+    /// The `coap+tcp` listeners, on the same router.
+    tcp: Vec<TcpServer>,
     /// The `/coap-group` memberships (what `register_with` announces).
     groups: Arc<Groups>,
     files: Option<StaticFiles>,
@@ -170,11 +176,25 @@ impl CameraServer {
             binds: binds.clone(),
             source,
         })?;
+        let mut tcp = Vec::with_capacity(config.tcp_binds.len());
+        for &addr in &config.tcp_binds {
+            let router = Arc::clone(server.router());
+            let max = coap_net::tcp::DEFAULT_MAX_MESSAGE_SIZE;
+            let listener =
+                TcpServer::bind(addr, router, max)
+                    .await
+                    .map_err(|source| StartError::Bind {
+                        binds: vec![addr],
+                        source,
+                    })?;
+            tcp.push(listener);
+        }
         groups
             .start(&server, &config.groups, config.group_interface)
             .await?;
         Ok(Self {
             server,
+            tcp,
             groups,
             files,
             changed,
@@ -224,9 +244,14 @@ impl CameraServer {
             .unwrap_or_default()
     }
 
-    /// The addresses it answers on.
+    /// The addresses it answers on (over UDP, then with DTLS).
     pub fn local_addrs(&self) -> Vec<SocketAddr> {
         self.server.local_addrs()
+    }
+
+    /// The addresses it answers on over TCP.
+    pub fn tcp_addrs(&self) -> Vec<SocketAddr> {
+        self.tcp.iter().map(TcpServer::local_addr).collect()
     }
 
     /// Registers this server with a resource directory and keeps the registration alive

@@ -239,6 +239,11 @@ impl Station {
         self.server.local_addrs()
     }
 
+    /// The addresses the camera server answers on over TCP (`coap+tcp://`).
+    pub fn tcp_addrs(&self) -> Vec<SocketAddr> {
+        self.server.tcp_addrs()
+    }
+
     /// Registers the camera server with a resource directory
     /// ([`CameraServer::register_with`]).
     ///

@@ -39,5 +39,6 @@ mod results;
 mod service;
 mod signals;
 mod support;
+mod tcp;
 mod usage;
 mod webhook;
