@@ -329,6 +329,10 @@ async fn a_body_over_the_client_limit_fails_too_large_and_the_connection_stays()
     let client = tcp_client(1 << 20);
     let peer = server.local_addr();
     within(async {
+        let before = client
+            .send(peer, get("/peer"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
         let refused = client.send(peer, get("/frame")).await;
         assert!(
             matches!(
@@ -339,10 +343,6 @@ async fn a_body_over_the_client_limit_fails_too_large_and_the_connection_stays()
             ),
             "{refused:?}"
         );
-        let before = client
-            .send(peer, get("/peer"))
-            .await
-            .unwrap_or_else(|e| panic!("{e}"));
         let after = client
             .send(peer, get("/peer"))
             .await
