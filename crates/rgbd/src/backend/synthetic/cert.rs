@@ -268,8 +268,25 @@ fn eyes(scene: &Scene) -> Vec<Eye> {
 /// [`TOP_CELLS`] along a side of the footprint); each is where a ray straight down first
 /// meets the object (a box's or a cylinder's lid, a tube's or a bag's upper surface out
 /// to its outline), and a cell the object does not stand over has none.
+///
+/// A soft object (a bag) also hides its own top: where its sides come down to the floor
+/// follows from nothing else a camera sees of it, as a box's edges follow from its lid, a
+/// cylinder's from its rim and a tube's from its circle. Its point counts as seen when a
+/// point of its top at most a division ([`DIVISION_M`]) further in towards its centre is:
+/// a camera above never sees the last steep millimetres of a bag's side, and what it
+/// misses of them is less than a division of its length or width.
 fn top_seen(eyes: &[Eye], world: &World, index: usize, t: &Truth) -> bool {
-    let others = || world.all().filter(move |j| *j != index);
+    let soft = t.kind == ObjectKind::Bag;
+    let hiders = || world.all().filter(move |j| *j != index || soft);
+    // `None` where the object does not stand over (x, y).
+    let seen = |x: f64, y: f64| {
+        world.top_of(index, x as f32, y as f32).map(|p| {
+            let at = [p.x, p.y, p.z].map(f64::from);
+            eyes.iter()
+                .any(|e| e.holds(at) && !world.occluded(&e.from, &p, hiders()))
+        })
+    };
+    const STEPS: u32 = 5;
     let (s, c) = t.yaw_deg.to_radians().sin_cos();
     let cells = |side: f64| ((side / TOP_STEP_M).ceil() as usize).clamp(1, TOP_CELLS);
     let (nl, nw) = (cells(t.size[0]), cells(t.size[1]));
@@ -279,10 +296,19 @@ fn top_seen(eyes: &[Eye], world: &World, index: usize, t: &Truth) -> bool {
             let across = t.size[1] * ((b as f64 + 0.5) / nw as f64 - 0.5);
             let x = t.center[0] + along * c - across * s;
             let y = t.center[1] + along * s + across * c;
-            world.top_of(index, x as f32, y as f32).is_none_or(|p| {
-                let at = [p.x, p.y, p.z].map(f64::from);
-                eyes.iter()
-                    .any(|e| e.holds(at) && !world.occluded(&e.from, &p, others()))
+            seen(x, y).is_none_or(|seen_here| {
+                let r = along.hypot(across);
+                seen_here
+                    || (soft
+                        && r > 0.0
+                        && (1..=STEPS).any(|k| {
+                            let f = 1.0 - DIVISION_M * f64::from(k) / f64::from(STEPS) / r;
+                            let (xi, yi) = (
+                                t.center[0] + (x - t.center[0]) * f,
+                                t.center[1] + (y - t.center[1]) * f,
+                            );
+                            seen(xi, yi) == Some(true)
+                        }))
             })
         })
     })
