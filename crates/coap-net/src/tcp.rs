@@ -9,6 +9,12 @@
 //! tasks, as the UDP server's do, at most [`MAX_IN_FLIGHT`] per connection, and send
 //! their answers back to it. What the connection does not do yet (Observe, block-wise
 //! transfer, Pings to keep it alive) neither side does either.
+//!
+//! A server's bounds ([`StreamLimits`], per listening address): at most
+//! [`DEFAULT_MAX_CONNECTIONS`] connections open, a further one turned away with a
+//! Release that says why; a connection idle for [`DEFAULT_IDLE_TIMEOUT`] (nothing came,
+//! no request of its being handled) released and closed; messages of up to
+//! [`DEFAULT_MAX_MESSAGE_SIZE`].
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -20,7 +26,7 @@ use coap::connection::{Connection, ConnectionEvent, DEFAULT_RESPONSE_TIMEOUT};
 use coap::{Code, IncomingId, IncomingRequest, Request, RequestError, Response, Token};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::{Semaphore, mpsc, oneshot, watch};
 
 use crate::Error;
 use crate::router::Router;
@@ -42,9 +48,58 @@ pub const CLIENT_MAX_MESSAGE_SIZE: u32 = 16 << 20;
 /// handlers answer is held back by TCP's flow control, not queued here.
 pub const MAX_IN_FLIGHT: usize = 32;
 
+/// How many connections a [`TcpServer`] keeps open unless told otherwise: 64. A camera
+/// server has a handful of clients, each of our commands one connection to it; the bound
+/// is what peers can pin of the server's memory, since each connection may hold a
+/// message of up to its Max-Message-Size being received (1 MiB by default, about 68 MiB
+/// for 64 connections with their read buffers) and [`MAX_IN_FLIGHT`] handlers.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 64;
+
+/// How long a [`TcpServer`] keeps a connection on which nothing came and none of whose
+/// requests is being handled, unless told otherwise: 60 s.
+pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// The Hold-Off of the Release that turns a connection away at the connection limit: how
+/// many seconds its client should wait before it tries again.
+const FULL_HOLD_OFF_S: u32 = 5;
+
 /// How long the listener waits after a failed accept (out of file descriptors, say)
 /// before it tries again.
 const ACCEPT_RETRY: Duration = Duration::from_millis(100);
+
+/// How long a connection turned away may take: the Release written, then what the
+/// client still sends read and dropped until it closes (so that it gets the Release,
+/// not a reset for bytes of its left unread).
+const REFUSAL_TIME: Duration = Duration::from_secs(1);
+
+/// The most often the listener logs that it turns connections away.
+const FULL_LOG_INTERVAL: Duration = Duration::from_secs(60);
+
+/// The bounds of a stream server's connections.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StreamLimits {
+    /// The largest message taken, announced as the server's Max-Message-Size; one whose
+    /// header says it is larger aborts its connection.
+    pub max_message_size: u32,
+    /// Open connections at most. One accepted beyond them gets the server's CSM and a
+    /// Release (with a Hold-Off of 5 s and a diagnostic saying why) and is closed.
+    pub max_connections: usize,
+    /// A connection on which nothing came for this long while none of its requests was
+    /// being handled is released (RFC 8323 §5.5 lets either side close) and closed.
+    pub idle_timeout: Duration,
+}
+
+impl Default for StreamLimits {
+    /// [`DEFAULT_MAX_MESSAGE_SIZE`], [`DEFAULT_MAX_CONNECTIONS`] and
+    /// [`DEFAULT_IDLE_TIMEOUT`].
+    fn default() -> Self {
+        Self {
+            max_message_size: DEFAULT_MAX_MESSAGE_SIZE,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
+            idle_timeout: DEFAULT_IDLE_TIMEOUT,
+        }
+    }
+}
 
 /// A running `coap+tcp` server; dropped, it stops listening and closes its connections.
 #[derive(Debug)]
@@ -55,19 +110,18 @@ pub struct TcpServer {
 }
 
 impl TcpServer {
-    /// Listens on `addr` and serves `router` on every connection, accepting messages of
-    /// up to `max_message_size` bytes.
+    /// Listens on `addr` and serves `router` on every connection, within `limits`.
     pub async fn bind(
         addr: SocketAddr,
         router: Arc<Router>,
-        max_message_size: u32,
+        limits: StreamLimits,
     ) -> std::io::Result<Self> {
         let listener = TcpListener::bind(addr)
             .await
             .map_err(|e| std::io::Error::new(e.kind(), format!("{addr}: {e}")))?;
         let local_addr = listener.local_addr()?;
         let (stop, stopped) = watch::channel(());
-        tokio::spawn(listen(listener, router, max_message_size, stopped));
+        tokio::spawn(listen(listener, router, limits, stopped));
         Ok(Self {
             local_addr,
             _stop: stop,
@@ -83,17 +137,33 @@ impl TcpServer {
 async fn listen(
     listener: TcpListener,
     router: Arc<Router>,
-    max_message_size: u32,
+    limits: StreamLimits,
     mut stopped: watch::Receiver<()>,
 ) {
     let ids = Arc::new(AtomicU64::new(0));
+    // A permit per open connection, held by its task.
+    let open = Arc::new(Semaphore::new(limits.max_connections));
+    let mut last_full_log: Option<Instant> = None;
     loop {
         tokio::select! {
             accepted = listener.accept() => match accepted {
                 Ok((stream, peer)) => {
-                    let conn = Connection::new(max_message_size);
-                    let served = serve(stream, peer, conn, router.clone(), ids.clone(), stopped.clone());
-                    tokio::spawn(served);
+                    let conn = Connection::new(limits.max_message_size);
+                    let Ok(permit) = open.clone().try_acquire_owned() else {
+                        let now = crate::clock::now();
+                        if last_full_log.is_none_or(|at| now - at >= FULL_LOG_INTERVAL) {
+                            last_full_log = Some(now);
+                            let max = limits.max_connections;
+                            tracing::warn!(%peer, max, "coap+tcp connections at their limit: turning new ones away (logged once a minute)");
+                        }
+                        tokio::spawn(turn_away(stream, conn, limits.max_connections));
+                        continue;
+                    };
+                    let served = serve(stream, peer, conn, router.clone(), ids.clone(), limits.idle_timeout, stopped.clone());
+                    tokio::spawn(async move {
+                        served.await;
+                        drop(permit);
+                    });
                 }
                 Err(e) => {
                     tracing::warn!(error = %e, "coap+tcp accept failed");
@@ -105,14 +175,31 @@ async fn listen(
     }
 }
 
+/// Sends a connection accepted beyond the limit of `max` the server's CSM and a Release
+/// that says why, and closes it.
+async fn turn_away(mut stream: TcpStream, mut conn: Connection, max: usize) {
+    let reason = format!("the server has {max} connections open, its limit");
+    conn.release(&reason, Some(FULL_HOLD_OFF_S));
+    let bytes = conn.poll_transmit().unwrap_or_default();
+    let refuse = async {
+        stream.write_all(&bytes).await?;
+        stream.shutdown().await?;
+        let mut sink = [0u8; 1024];
+        while stream.read(&mut sink).await? > 0 {}
+        std::io::Result::Ok(())
+    };
+    let _ = tokio::time::timeout(REFUSAL_TIME, refuse).await;
+}
+
 /// Moves one connection's bytes between its stream and its `Connection`, and its
-/// requests to the router, until either side ends it.
+/// requests to the router, until either side ends it or it is idle for `idle_timeout`.
 async fn serve(
     stream: TcpStream,
     peer: SocketAddr,
     mut conn: Connection,
     router: Arc<Router>,
     ids: Arc<AtomicU64>,
+    idle_timeout: Duration,
     mut stopped: watch::Receiver<()>,
 ) {
     let _ = stream.set_nodelay(true);
@@ -120,6 +207,8 @@ async fn serve(
     let (answer, mut answers) = mpsc::unbounded_channel::<(Token, Response)>();
     let mut buf = vec![0u8; 64 * 1024];
     let mut in_flight = 0;
+    // When the connection last showed life: bytes came, or an answer went.
+    let mut active = tokio::time::Instant::now();
     loop {
         let mut closing = false;
         while in_flight < MAX_IN_FLIGHT
@@ -172,14 +261,23 @@ async fn serve(
             let _ = write.shutdown().await;
             return;
         }
+        let idle = tokio::time::sleep_until(active + idle_timeout);
         tokio::select! {
             n = read.read(&mut buf), if in_flight < MAX_IN_FLIGHT => match n {
                 Ok(0) | Err(_) => return,
-                Ok(n) => conn.handle(&buf[..n]),
+                Ok(n) => {
+                    active = tokio::time::Instant::now();
+                    conn.handle(&buf[..n]);
+                }
             },
             Some((token, response)) = answers.recv() => {
                 in_flight -= 1;
+                active = tokio::time::Instant::now();
                 conn.respond(token, &response);
+            }
+            () = idle, if in_flight == 0 => {
+                let secs = idle_timeout.as_secs_f64();
+                conn.release(&format!("idle for {secs} s"), None);
             }
             _ = stopped.changed() => return,
         }

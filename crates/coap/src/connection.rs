@@ -42,7 +42,7 @@ use bytes::Bytes;
 
 use crate::config::Limits;
 use crate::endpoint::{Request, RequestError, Response};
-use crate::msg::signal::{Abort, Csm, Signal};
+use crate::msg::signal::{Abort, Csm, Release, Signal};
 use crate::msg::stream::{self, Decoded, Frame};
 use crate::msg::{Code, OptionNumber, Options, Token};
 
@@ -72,6 +72,8 @@ pub enum Closed {
     AbortedByPeer(String),
     /// This side sent an Abort, for this reason.
     Aborted(String),
+    /// This side sent a Release ([`Connection::release`]), for this reason.
+    ReleasedHere(String),
     /// The stream ended without either ([`Connection::handle_end`]).
     Ended,
 }
@@ -301,6 +303,24 @@ impl Connection {
             .to_frame(Token::EMPTY, Bytes::copy_from_slice(reason.as_bytes()))
             .encode_into(&mut self.outbound);
         self.close(Closed::Aborted(reason));
+    }
+
+    /// Ends the connection from this side (§5.5): sends a Release with `reason` as its
+    /// diagnostic and Hold-Off `hold_off_s` (how many seconds the peer should wait before
+    /// it connects again), and closes. A server uses it to turn a connection away and to
+    /// end an idle one.
+    pub fn release(&mut self, reason: &str, hold_off_s: Option<u32>) {
+        if self.closed {
+            return;
+        }
+        let release = Signal::Release(Release {
+            alternative_addresses: Vec::new(),
+            hold_off_s,
+        });
+        release
+            .to_frame(Token::EMPTY, Bytes::copy_from_slice(reason.as_bytes()))
+            .encode_into(&mut self.outbound);
+        self.close(Closed::ReleasedHere(reason.to_owned()));
     }
 
     /// Closes: every request and Ping still waiting fails (in the order of their tokens), then
@@ -631,6 +651,25 @@ mod tests {
             c.poll_event(),
             Some(ConnectionEvent::Closed(Closed::Released))
         );
+    }
+
+    #[test]
+    fn rfc8323_5_5_a_release_of_this_side_follows_the_csm_and_closes() {
+        let mut c = Connection::new(1152);
+        c.release("idle", Some(10));
+        let out = c.poll_transmit().unwrap_or_default();
+        // The CSM (5 bytes), then 7.04 with Hold-Off (4) 10 and "idle": Len 7.
+        assert_eq!(
+            &out[5..],
+            &[0x70, 0xe4, 0x41, 10, 0xff, b'i', b'd', b'l', b'e']
+        );
+        assert_eq!(
+            c.poll_event(),
+            Some(ConnectionEvent::Closed(Closed::ReleasedHere("idle".into())))
+        );
+        assert!(c.is_closed());
+        c.release("again", None);
+        assert_eq!((c.poll_transmit(), c.poll_event()), (None, None));
     }
 
     // ------------------------------------------------------------ the client side

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use coap::msg::signal::{Csm, Signal};
+use coap::msg::signal::{Csm, Release, Signal};
 use coap::msg::stream::{self, Decoded, Frame};
 use coap::{Code, EndpointConfig, Limits, Request, RequestError, Response};
 use coap_net::{Client, Resource, Router, TcpServer, handler, tcp};
@@ -31,7 +31,7 @@ fn hello_router() -> Arc<Router> {
 
 async fn tcp_server() -> TcpServer {
     let addr = "127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!());
-    TcpServer::bind(addr, hello_router(), tcp::DEFAULT_MAX_MESSAGE_SIZE)
+    TcpServer::bind(addr, hello_router(), tcp::StreamLimits::default())
         .await
         .unwrap_or_else(|e| panic!("bind: {e}"))
 }
@@ -190,7 +190,7 @@ async fn pipelined_requests_are_all_answered_with_at_most_max_in_flight_handlers
         })),
     );
     let addr = "127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!());
-    let server = TcpServer::bind(addr, router, tcp::DEFAULT_MAX_MESSAGE_SIZE)
+    let server = TcpServer::bind(addr, router, tcp::StreamLimits::default())
         .await
         .unwrap_or_else(|e| panic!("bind: {e}"));
     within(async {
@@ -221,6 +221,126 @@ async fn pipelined_requests_are_all_answered_with_at_most_max_in_flight_handlers
         (2..=tcp::MAX_IN_FLIGHT).contains(&most),
         "{most} handlers at once"
     );
+}
+
+// ------------------------------------------------------------------ the server's bounds
+
+/// A server of `/hello` and `/slow` (answers after 600 ms) within `limits`.
+async fn bounded_server(limits: tcp::StreamLimits) -> TcpServer {
+    let router = hello_router();
+    router.add(
+        "/slow",
+        Resource::new().get(handler(|_| async {
+            tokio::time::sleep(Duration::from_millis(600)).await;
+            Response::new(Code::CONTENT).with_payload("slow")
+        })),
+    );
+    let addr = "127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!());
+    TcpServer::bind(addr, router, limits)
+        .await
+        .unwrap_or_else(|e| panic!("bind: {e}"))
+}
+
+/// A connection to `server` that sent its CSM and GET `path` (token 0x07), and the
+/// frames that came back until the answer: the server's CSM, then the answer, or a
+/// Release when the server turned it away.
+async fn ask(server: &TcpServer, path: &str) -> (TcpStream, Vec<u8>, Frame) {
+    let mut s = TcpStream::connect(server.local_addr())
+        .await
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut out = vec![0x00, 0xe1, 0x11 + ((path.len() as u8) << 4), 0x01, 0x07];
+    out.push(0xb0 + path.len() as u8);
+    out.extend_from_slice(path.as_bytes());
+    // An IO error here is the server closing first, when it turns the connection away.
+    let _ = s.write_all(&out).await;
+    let mut buf = Vec::new();
+    let csm = next_frame(&mut s, &mut buf).await;
+    assert_eq!(csm.code, Code::CSM);
+    let answer = next_frame(&mut s, &mut buf).await;
+    (s, buf, answer)
+}
+
+/// Reads to the end of `s`, which must carry nothing more.
+async fn closed(mut s: TcpStream, buf: Vec<u8>) {
+    let mut rest = Vec::new();
+    // A reset (the server closed with our bytes unread) is an end too.
+    let _ = s.read_to_end(&mut rest).await;
+    assert!(rest.is_empty() && buf.is_empty(), "{buf:02x?} {rest:02x?}");
+}
+
+#[tokio::test]
+async fn a_connection_beyond_the_limit_is_released_saying_why_and_a_freed_place_is_taken() {
+    let limits = tcp::StreamLimits {
+        max_connections: 2,
+        ..tcp::StreamLimits::default()
+    };
+    let server = bounded_server(limits).await;
+    within(async {
+        let (first, _, answer) = ask(&server, "hello").await;
+        assert_eq!(&answer.payload[..], b"hello tcp");
+        let (_second, _, answer) = ask(&server, "hello").await;
+        assert_eq!(&answer.payload[..], b"hello tcp");
+
+        let (third, buf, release) = ask(&server, "hello").await;
+        assert_eq!(
+            Signal::decode(&release),
+            Ok(Signal::Release(Release {
+                alternative_addresses: Vec::new(),
+                hold_off_s: Some(5),
+            }))
+        );
+        let why = String::from_utf8_lossy(&release.payload).into_owned();
+        assert_eq!(why, "the server has 2 connections open, its limit");
+        closed(third, buf).await;
+
+        // The first one goes: its place is taken (once the server has seen it go).
+        drop(first);
+        let mut tries = 0;
+        loop {
+            let (_s, _, answer) = ask(&server, "hello").await;
+            if answer.code == Code::CONTENT {
+                break;
+            }
+            tries += 1;
+            assert!(tries < 50, "no place freed: {answer:?}");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await;
+}
+
+#[tokio::test]
+async fn an_idle_connection_is_released_and_one_with_a_request_in_flight_is_not() {
+    let limits = tcp::StreamLimits {
+        idle_timeout: Duration::from_millis(200),
+        ..tcp::StreamLimits::default()
+    };
+    let server = bounded_server(limits).await;
+    within(async {
+        let (idle, mut buf, answer) = ask(&server, "hello").await;
+        let answered = std::time::Instant::now();
+        assert_eq!(&answer.payload[..], b"hello tcp");
+        let mut idle = idle;
+        let release = next_frame(&mut idle, &mut buf).await;
+        let waited = answered.elapsed();
+        assert_eq!(
+            Signal::decode(&release),
+            Ok(Signal::Release(Release::default()))
+        );
+        assert_eq!(&release.payload[..], b"idle for 0.2 s");
+        assert!(waited >= Duration::from_millis(190), "{waited:?}");
+        closed(idle, buf).await;
+
+        // Its handler takes 600 ms, three idle timeouts: the answer comes all the same.
+        let asked = std::time::Instant::now();
+        let (mut busy, mut buf, answer) = ask(&server, "slow").await;
+        assert_eq!(&answer.payload[..], b"slow");
+        assert!(asked.elapsed() >= Duration::from_millis(600));
+        let release = next_frame(&mut busy, &mut buf).await;
+        assert_eq!(release.code, Code::RELEASE);
+        closed(busy, buf).await;
+    })
+    .await;
 }
 
 // ------------------------------------------------------------------ our client
@@ -259,7 +379,7 @@ async fn frame_server() -> TcpServer {
         })),
     );
     let addr = "127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!());
-    TcpServer::bind(addr, router, tcp::DEFAULT_MAX_MESSAGE_SIZE)
+    TcpServer::bind(addr, router, tcp::StreamLimits::default())
         .await
         .unwrap_or_else(|e| panic!("bind: {e}"))
 }

@@ -74,7 +74,9 @@ pub struct Config {
     pub secure_binds: Vec<SocketAddr>,
     /// Addresses answered over TCP (`coap+tcp://`, RFC 8323): the same resources, each
     /// answer in one message (no block-wise transfer or Observe over TCP yet), requests
-    /// of up to [`coap_net::tcp::DEFAULT_MAX_MESSAGE_SIZE`].
+    /// of up to [`coap_net::tcp::DEFAULT_MAX_MESSAGE_SIZE`], within the default
+    /// [`coap_net::tcp::StreamLimits`] (64 connections per address, released after 60 s
+    /// idle).
     pub tcp_binds: Vec<SocketAddr>,
     /// The DTLS identities with their keys and roles; with them, configuration changes
     /// need an identity of the `configure` role (or this machine).
@@ -179,14 +181,13 @@ impl CameraServer {
         let mut tcp = Vec::with_capacity(config.tcp_binds.len());
         for &addr in &config.tcp_binds {
             let router = Arc::clone(server.router());
-            let max = coap_net::tcp::DEFAULT_MAX_MESSAGE_SIZE;
-            let listener =
-                TcpServer::bind(addr, router, max)
-                    .await
-                    .map_err(|source| StartError::Bind {
-                        binds: vec![addr],
-                        source,
-                    })?;
+            let limits = coap_net::tcp::StreamLimits::default();
+            let listener = TcpServer::bind(addr, router, limits)
+                .await
+                .map_err(|source| StartError::Bind {
+                    binds: vec![addr],
+                    source,
+                })?;
             tcp.push(listener);
         }
         groups
