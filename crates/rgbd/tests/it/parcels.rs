@@ -629,6 +629,51 @@ fn a_bags_foot_no_camera_sees_is_out_of_view_not_a_number() {
     assert!(bag.out_of_view && !bag.complete, "{bag:?}");
 }
 
+/// A flat cylinder 20 mm from a lying tube twice its height, under one camera 2.1 m up
+/// on the tube's side (certification set, seed 1, scene 274): the camera sees a division
+/// past every edge of the cylinder's lid, but not 15 mm past the edge facing the tube, and
+/// the cylinder was refused as reaching beyond the view. It is measured. A box the
+/// image's edge cuts is still out of view.
+#[test]
+fn a_lid_seen_a_division_past_each_edge_is_in_view() {
+    let cert = rgbd::cert::cert_scene(1, 274);
+    let truth = &cert.objects[1].truth;
+    assert_eq!(truth.kind, ObjectKind::Cylinder);
+    let (cloud, views) = crate::round::prepared_clouds(&cert.scene);
+    let found = parcels(&cloud, &DimensionConfig::default(), &views)
+        .unwrap()
+        .parcels;
+    let off = |f: &&geometry::ParcelFit| {
+        let c = f.dimensions.corners_m;
+        let centre = [0, 1].map(|k| (c[0][k] + c[2][k]) / 2.0);
+        (centre[0] - truth.center[0]).hypot(centre[1] - truth.center[1])
+    };
+    let disc = found.iter().find(|f| off(f) < 0.02).expect("the cylinder");
+    assert!(
+        disc.complete && !disc.out_of_view && disc.isolated,
+        "{disc:?}"
+    );
+    let d = &disc.dimensions;
+    assert!(
+        (d.length_mm - truth.length_mm()).abs() <= 5.0
+            && (d.width_mm - truth.width_mm()).abs() <= 5.0,
+        "{d:?}"
+    );
+
+    let cut = under_one_camera(
+        4,
+        [0.0, 0.0, 1.0],
+        "d415",
+        "[[box]]\nsize = [0.60, 0.40, 0.20]\ncenter = [0.75, 0.0]\n",
+    );
+    let (cloud, views) = crate::round::prepared_clouds(&cut);
+    let found = parcels(&cloud, &DimensionConfig::default(), &views)
+        .unwrap()
+        .parcels;
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(found[0].out_of_view && !found[0].complete, "{found:?}");
+}
+
 /// A tube lying on the floor beside a box as high as it is, under one camera off to the
 /// tube's side, with a D415's depth noise (the floor sent, no spatial filter).
 const TUBE_BESIDE_A_BOX: &str = r#"
