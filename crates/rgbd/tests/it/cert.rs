@@ -242,6 +242,31 @@ fn in_view_means_every_corner_in_one_cameras_depth_image_beyond_its_minimum_rang
     assert!(judge(&Scene::from_toml(&two).unwrap())[0].in_view);
 }
 
+/// A dimensioner knows where a lid ends only where it sees past the end: a flat box
+/// whose every corner lies in the image 2-3 mm from its edge is not in view, as a point
+/// a division past its far side is not in the image; 6 mm nearer the middle it is.
+#[test]
+fn in_view_means_seen_a_division_past_each_edge() {
+    let at = |y: f64| {
+        judge(
+            &Scene::from_toml(&format!(
+                "{}{}",
+                one_camera(1.0),
+                boxed([0.3, 0.2, 0.02], [0.0, y], 0.0)
+            ))
+            .unwrap(),
+        )[0]
+    };
+    assert!(at(0.288).in_view);
+    let edge = at(0.294);
+    assert!(
+        !edge.in_view && edge.returns_depth && edge.measurable,
+        "{edge:?}"
+    );
+    // 3.5 mm farther out its corners leave the image too.
+    assert!(!at(0.2975).in_view);
+}
+
 /// A camera at `position` looking at (0.1, 0, 0), its image's rows along world y.
 fn camera_at(serial: &str, position: [f64; 3]) -> String {
     format!(

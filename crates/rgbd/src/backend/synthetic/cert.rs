@@ -314,6 +314,35 @@ fn top_seen(eyes: &[Eye], world: &World, index: usize, t: &Truth) -> bool {
     })
 }
 
+/// Whether some camera sees past each edge of the object `t` describes, primitive
+/// `index` of `world`: a point a division ([`DIVISION_M`]) beyond each corner and the
+/// middle of each side of its enclosing footprint, outwards from its centre, at its top's
+/// height, in a camera's depth image with no other primitive on the segment from the
+/// camera to it. A lid whose edge a neighbour's wall meets in the image (the neighbour
+/// hides what lies just past it) could go on under the wall: where the parcel ends is not
+/// seen.
+fn past_edges_seen(eyes: &[Eye], world: &World, index: usize, t: &Truth) -> bool {
+    let others = || world.all().filter(move |j| *j != index);
+    let f = &t.footprint;
+    (0..4)
+        .flat_map(|k| {
+            let (p, q) = (f[k], f[(k + 1) % 4]);
+            [p, [(p[0] + q[0]) / 2.0, (p[1] + q[1]) / 2.0]]
+        })
+        .all(|at| {
+            let away = [at[0] - t.center[0], at[1] - t.center[1]];
+            let n = away[0].hypot(away[1]).max(1e-9);
+            let probe = [
+                at[0] + away[0] / n * DIVISION_M,
+                at[1] + away[1] / n * DIVISION_M,
+                t.size[2],
+            ];
+            let p = V3::new(probe[0] as f32, probe[1] as f32, probe[2] as f32);
+            eyes.iter()
+                .any(|e| e.holds(probe) && !world.occluded(&e.from, &p, others()))
+        })
+}
+
 /// The finish of the object `t` describes.
 fn finish_of(scene: &Scene, t: &Truth) -> Finish {
     scene
@@ -381,11 +410,11 @@ fn separation(a: &[[f64; 2]; 4], b: &[[f64; 2]; 4]) -> f64 {
 /// over its footprint (40 along a side at most), each on the surface a ray straight down
 /// meets first: a box's or a cylinder's lid, a tube's or a bag's upper surface out to its
 /// outline. A low object that a taller neighbour hides from the only camera looking at it
-/// is not in view, nor is one whose top is partly hidden from every camera: a
-/// dimensioner cannot measure what it does not see. The object is not counted as hiding
-/// its own top (a tube's far flank from a tilted camera), a camera's position stands for
-/// both its imagers, and every object stands where the scene puts it, whatever its
-/// timeline.
+/// is not in view, nor is one whose top is partly hidden from every camera, nor one past
+/// whose edges no camera sees ([`past_edges_seen`]): a dimensioner cannot measure what it
+/// does not see. A rigid object is not counted as hiding its own top (a tube's far flank
+/// from a tilted camera); a bag is ([`top_seen`]). A camera's position stands for both
+/// its imagers, and every object stands where the scene puts it, whatever its timeline.
 ///
 /// # Panics
 ///
@@ -424,7 +453,9 @@ pub fn judge(scene: &Scene) -> Vec<Judged> {
             let measurable = (0..3).all(|k| lwh[k] >= (MIN_M[k] + DIVISION_M) * 1e3 - 1e-9);
             Judged {
                 gap_m,
-                in_view: !seeing.is_empty() && top_seen(&eyes, &world, i, t),
+                in_view: !seeing.is_empty()
+                    && top_seen(&eyes, &world, i, t)
+                    && past_edges_seen(&eyes, &world, i, t),
                 returns_depth,
                 measurable,
             }
