@@ -199,7 +199,7 @@ pub fn parcels(
             }
         }
     }
-    let mut found: Vec<(ParcelFit, &[Point3])> = fits
+    let found: Vec<(ParcelFit, &[Point3])> = fits
         .into_iter()
         .zip(objects.iter().map(|o| &o[..]))
         .collect();
@@ -208,18 +208,7 @@ pub fn parcels(
     {
         return Err(e);
     }
-    // Fragments of larger objects (more points) go.
-    found.sort_by_key(|(f, _)| std::cmp::Reverse(f.dimensions.points));
-    let mut kept: Vec<(ParcelFit, &[Point3])> = Vec::with_capacity(found.len());
-    for (f, points) in found {
-        // Flying pixels that holes parted from a parcel's edge are nothing at all.
-        if !kept
-            .iter()
-            .any(|(k, _)| fragment_of(&f, points, k) || curtain_of(points, k, views))
-        {
-            kept.push((f, points));
-        }
-    }
+    let kept = without_fragments(found, views);
     // Pieces of one top that holes cut apart (a dark lid returns depth in patches) are one
     // object: those that each miss much of their top and touch are measured together.
     let groups = pieces(&kept);
@@ -229,13 +218,14 @@ pub fn parcels(
         .collect();
     let joined: Vec<Option<ParcelFit>> =
         unions.iter().map(|u| fit(u, config, views).ok()).collect();
+    let joined_any = joined.iter().any(Option::is_some);
     let gone: Vec<usize> = groups
         .iter()
         .zip(&joined)
         .filter(|(_, f)| f.is_some())
         .flat_map(|(g, _)| g.iter().copied())
         .collect();
-    let mut kept: Vec<(ParcelFit, &[Point3])> = kept
+    let kept: Vec<(ParcelFit, &[Point3])> = kept
         .into_iter()
         .enumerate()
         .filter(|(i, _)| !gone.contains(i))
@@ -247,6 +237,13 @@ pub fn parcels(
                 .filter_map(|(f, u)| Some((f?, &u[..]))),
         )
         .collect();
+    // A patch of a dark top too far from the others to join them lies inside what they
+    // measure together: a fragment of it now.
+    let mut kept = if joined_any {
+        without_fragments(kept, views)
+    } else {
+        kept
+    };
     let area = |f: &ParcelFit| f.dimensions.length_mm * f.dimensions.width_mm;
     kept.sort_by(|a, b| area(&b.0).total_cmp(&area(&a.0)));
     // Objects whose outlines come closer than TOUCH_M touch: one leans on the other, or
@@ -412,6 +409,26 @@ fn without_speckle(
                 })
         })
         .collect()
+}
+
+/// The objects of `found` that are not fragments of larger ones (more points,
+/// [`fragment_of`]) nor flying pixels off a larger one's edge ([`curtain_of`]), largest
+/// first.
+fn without_fragments<'a>(
+    mut found: Vec<(ParcelFit, &'a [Point3])>,
+    views: &[View],
+) -> Vec<(ParcelFit, &'a [Point3])> {
+    found.sort_by_key(|(f, _)| std::cmp::Reverse(f.dimensions.points));
+    let mut kept: Vec<(ParcelFit, &[Point3])> = Vec::with_capacity(found.len());
+    for (f, points) in found {
+        if !kept
+            .iter()
+            .any(|(k, _)| fragment_of(&f, points, k) || curtain_of(points, k, views))
+        {
+            kept.push((f, points));
+        }
+    }
+    kept
 }
 
 /// Whether the object `f` (of `points`) is a piece of the larger object `k` rather than a
