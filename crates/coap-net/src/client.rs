@@ -1,6 +1,7 @@
 //! The client: requests with transparent block-wise transfer, Observe as a stream,
 //! multicast requests that collect every server's response, ping; over UDP (or DTLS), or
-//! over TCP ([`Client::tcp`], `coap+tcp://`), chosen when it is made, so that what sends
+//! over TCP ([`Client::tcp`], `coap+tcp://`) or WebSockets ([`Client::ws`], `coap+ws://`),
+//! chosen when it is made, so that what sends
 //! requests does not care which.
 
 use std::net::SocketAddr;
@@ -29,7 +30,7 @@ fn any_for(peer: SocketAddr) -> SocketAddr {
 /// A CoAP client on one socket, or over TCP connections. Cheap to clone; requests from
 /// clones share the socket, the message IDs and NSTART (or the connections).
 ///
-/// Over TCP ([`Client::tcp`]) a request goes whole, as one message, and its response
+/// Over TCP ([`Client::tcp`]) or WebSockets ([`Client::ws`]) a request goes whole, as one message, and its response
 /// comes so: [`Client::send_with_progress`] reports once, when it has come, and
 /// [`Client::send_streamed`] gives the body as one piece; Observe and multicast are
 /// refused with [`Error::Unsupported`] (RFC 8323 has no multicast; Observe over streams
@@ -44,7 +45,7 @@ pub struct Client {
 enum Transport {
     /// Datagrams from one endpoint's socket (UDP, or DTLS over it).
     Udp(EndpointHandle),
-    /// One TCP connection per server (RFC 8323).
+    /// One TCP connection per server, or one WebSocket (RFC 8323).
     Tcp(TcpClient),
 }
 
@@ -95,6 +96,15 @@ impl Client {
     pub fn tcp(config: &EndpointConfig) -> Self {
         Self {
             transport: Transport::Tcp(TcpClient::new(config.limits.client_body_bytes)),
+        }
+    }
+
+    /// A `coap+ws` client (RFC 8323 §4): as [`Client::tcp`], each connection a WebSocket
+    /// to the server's `/.well-known/coap`.
+    pub fn ws(config: &EndpointConfig) -> Self {
+        let ws = TcpClient::websocket(config.limits.client_body_bytes);
+        Self {
+            transport: Transport::Tcp(ws),
         }
     }
 

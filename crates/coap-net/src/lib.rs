@@ -4,8 +4,9 @@
 //! Owns: sockets (IPv4, IPv6, multicast membership, the destination address of each
 //! datagram), DTLS sessions (OpenSSL's, [`dtls`]), the thread per socket that owns a
 //! `coap::Endpoint`, the [`Client`], the [`Server`] and its [`Router`], the `coap+tcp`
-//! [`TcpServer`] and [`TcpClient`] (a task per connection owning a
-//! `coap::connection::Connection`), `coap://`, `coaps://` and `coap+tcp://` URIs.
+//! and `coap+ws` [`TcpServer`] and [`TcpClient`] (a task per connection owning a
+//! `coap::connection::Connection`; WebSockets through tokio-tungstenite), `coap://`,
+//! `coaps://`, `coap+tcp://` and `coap+ws://` URIs.
 //! Must not: implement protocol rules (those live in `coap`), or read the clock anywhere
 //! but [`clock::now`].
 
@@ -14,6 +15,7 @@
 pub mod client;
 mod driver;
 pub mod dtls;
+mod link;
 pub mod router;
 pub mod server;
 pub mod socket;
@@ -52,7 +54,7 @@ pub enum Error {
     #[error("the endpoint has shut down")]
     Closed,
     /// What was asked is not done over this client's transport (Observe or multicast
-    /// over TCP).
-    #[error("{0} is not supported over coap+tcp")]
+    /// over TCP or WebSockets).
+    #[error("{0} is not supported over coap+tcp or coap+ws")]
     Unsupported(&'static str),
 }

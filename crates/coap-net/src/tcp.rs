@@ -1,7 +1,9 @@
-//! `coap+tcp://` (RFC 8323): serving, a listener whose every connection is a
-//! [`coap::connection::Connection`], its requests handed to the same [`Router`] the UDP
-//! [`Server`](crate::Server) uses; and the client side, [`TcpClient`], which keeps one
-//! connection per server. Nothing here decides protocol behaviour: the connection
+//! `coap+tcp://` and `coap+ws://` (RFC 8323): serving, a listener whose every connection
+//! is a [`coap::connection::Connection`], its requests handed to the same [`Router`] the
+//! UDP [`Server`](crate::Server) uses; and the client side, [`TcpClient`], which keeps
+//! one connection per server. Over WebSockets ([`TcpServer::bind_ws`],
+//! [`TcpClient::websocket`]) the same runs over a WebSocket on the TCP stream, each of
+//! its messages one frame (the carrier is `link.rs`'s). Nothing here decides protocol behaviour: the connection
 //! answers signalling, frames messages and matches responses; this moves bytes, runs
 //! handlers and hands responses to whoever waits for them.
 //!
@@ -27,8 +29,11 @@ use coap::{Code, IncomingId, IncomingRequest, Request, RequestError, Response, T
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, mpsc, oneshot, watch};
+use tokio_tungstenite::tungstenite::http::StatusCode;
 
 use crate::Error;
+pub use crate::link::WS_PATH;
+use crate::link::{self, Link};
 use crate::router::Router;
 
 /// The Max-Message-Size a [`TcpServer`] announces unless told otherwise: a request of up
@@ -116,12 +121,33 @@ impl TcpServer {
         router: Arc<Router>,
         limits: StreamLimits,
     ) -> std::io::Result<Self> {
+        Self::start(addr, router, limits, false).await
+    }
+
+    /// Listens on `addr` for WebSocket connections and serves `router` on each (RFC 8323
+    /// §4, `coap+ws`): the WebSocket endpoint is [`WS_PATH`], the subprotocol `coap`.
+    /// Beyond `limits.max_connections` a handshake is answered 503, saying why; one that
+    /// has not finished within `limits.idle_timeout` is dropped.
+    pub async fn bind_ws(
+        addr: SocketAddr,
+        router: Arc<Router>,
+        limits: StreamLimits,
+    ) -> std::io::Result<Self> {
+        Self::start(addr, router, limits, true).await
+    }
+
+    async fn start(
+        addr: SocketAddr,
+        router: Arc<Router>,
+        limits: StreamLimits,
+        websocket: bool,
+    ) -> std::io::Result<Self> {
         let listener = TcpListener::bind(addr)
             .await
             .map_err(|e| std::io::Error::new(e.kind(), format!("{addr}: {e}")))?;
         let local_addr = listener.local_addr()?;
         let (stop, stopped) = watch::channel(());
-        tokio::spawn(listen(listener, router, limits, stopped));
+        tokio::spawn(listen(listener, router, limits, websocket, stopped));
         Ok(Self {
             local_addr,
             _stop: stop,
@@ -134,12 +160,16 @@ impl TcpServer {
     }
 }
 
+/// Accepts connections (WebSocket ones when `websocket`) and starts a task serving each,
+/// or turns it away at the limit, until the server is dropped.
 async fn listen(
     listener: TcpListener,
     router: Arc<Router>,
     limits: StreamLimits,
+    websocket: bool,
     mut stopped: watch::Receiver<()>,
 ) {
+    let scheme = if websocket { "coap+ws" } else { "coap+tcp" };
     let ids = Arc::new(AtomicU64::new(0));
     // A permit per open connection, held by its task.
     let open = Arc::new(Semaphore::new(limits.max_connections));
@@ -148,25 +178,41 @@ async fn listen(
         tokio::select! {
             accepted = listener.accept() => match accepted {
                 Ok((stream, peer)) => {
-                    let conn = Connection::new(limits.max_message_size);
                     let Ok(permit) = open.clone().try_acquire_owned() else {
                         let now = crate::clock::now();
                         if last_full_log.is_none_or(|at| now - at >= FULL_LOG_INTERVAL) {
                             last_full_log = Some(now);
                             let max = limits.max_connections;
-                            tracing::warn!(%peer, max, "coap+tcp connections at their limit: turning new ones away (logged once a minute)");
+                            tracing::warn!(%peer, max, "{scheme} connections at their limit: turning new ones away (logged once a minute)");
                         }
-                        tokio::spawn(turn_away(stream, conn, limits.max_connections));
+                        tokio::spawn(turn_away(stream, limits, websocket));
                         continue;
                     };
-                    let served = serve(stream, peer, conn, router.clone(), ids.clone(), limits.idle_timeout, stopped.clone());
+                    let (router, ids, stopped) = (router.clone(), ids.clone(), stopped.clone());
                     tokio::spawn(async move {
-                        served.await;
+                        let link = if websocket {
+                            let shake = link::accept_ws(stream, limits.max_message_size);
+                            match tokio::time::timeout(limits.idle_timeout, shake).await {
+                                Ok(Ok(link)) => link,
+                                Ok(Err(e)) => {
+                                    tracing::debug!(%peer, error = %e, "coap+ws handshake failed");
+                                    return;
+                                }
+                                Err(_) => {
+                                    tracing::debug!(%peer, "coap+ws handshake took too long");
+                                    return;
+                                }
+                            }
+                        } else {
+                            Link::tcp(stream)
+                        };
+                        let conn = link.connection(limits.max_message_size);
+                        serve(link, peer, conn, router, ids, limits.idle_timeout, stopped).await;
                         drop(permit);
                     });
                 }
                 Err(e) => {
-                    tracing::warn!(error = %e, "coap+tcp accept failed");
+                    tracing::warn!(error = %e, "{scheme} accept failed");
                     tokio::time::sleep(ACCEPT_RETRY).await;
                 }
             },
@@ -175,10 +221,18 @@ async fn listen(
     }
 }
 
-/// Sends a connection accepted beyond the limit of `max` the server's CSM and a Release
-/// that says why, and closes it.
-async fn turn_away(mut stream: TcpStream, mut conn: Connection, max: usize) {
+/// Turns away a connection accepted beyond the limit: sends a TCP one the server's CSM
+/// and a Release that says why, answers a WebSocket one's handshake 503 with the same
+/// sentence, and closes it.
+async fn turn_away(mut stream: TcpStream, limits: StreamLimits, websocket: bool) {
+    let max = limits.max_connections;
     let reason = format!("the server has {max} connections open, its limit");
+    if websocket {
+        let refuse = link::refuse_ws(stream, StatusCode::SERVICE_UNAVAILABLE, reason);
+        let _ = tokio::time::timeout(REFUSAL_TIME, refuse).await;
+        return;
+    }
+    let mut conn = Connection::new(limits.max_message_size);
     conn.release(&reason, Some(FULL_HOLD_OFF_S));
     let bytes = conn.poll_transmit().unwrap_or_default();
     let refuse = async {
@@ -194,7 +248,7 @@ async fn turn_away(mut stream: TcpStream, mut conn: Connection, max: usize) {
 /// Moves one connection's bytes between its stream and its `Connection`, and its
 /// requests to the router, until either side ends it or it is idle for `idle_timeout`.
 async fn serve(
-    stream: TcpStream,
+    mut link: Link,
     peer: SocketAddr,
     mut conn: Connection,
     router: Arc<Router>,
@@ -202,10 +256,11 @@ async fn serve(
     idle_timeout: Duration,
     mut stopped: watch::Receiver<()>,
 ) {
-    let _ = stream.set_nodelay(true);
-    let (mut read, mut write) = stream.into_split();
+    let scheme = match link {
+        Link::Tcp(..) => "coap+tcp",
+        Link::Ws(..) => "coap+ws",
+    };
     let (answer, mut answers) = mpsc::unbounded_channel::<(Token, Response)>();
-    let mut buf = vec![0u8; 64 * 1024];
     let mut in_flight = 0;
     // When the connection last showed life: bytes came, or an answer went.
     let mut active = tokio::time::Instant::now();
@@ -238,12 +293,12 @@ async fn serve(
                     tokio::spawn(async move {
                         let (method, path) = (incoming.method, incoming.options.path_string());
                         let response = router.dispatch(incoming).await;
-                        tracing::debug!(%peer, %method, ?path, code = %response.code, "coap+tcp request");
+                        tracing::debug!(%peer, %method, ?path, code = %response.code, "{scheme} request");
                         let _ = answer.send((token, response));
                     });
                 }
                 ConnectionEvent::Closed(why) => {
-                    tracing::debug!(%peer, ?why, "coap+tcp connection closed");
+                    tracing::debug!(%peer, ?why, "{scheme} connection closed");
                     closing = true;
                 }
                 // The server sends no requests or Pings of its own.
@@ -252,22 +307,22 @@ async fn serve(
                 | ConnectionEvent::Pong(_) => {}
             }
         }
-        if let Some(bytes) = conn.poll_transmit()
-            && write.write_all(&bytes).await.is_err()
-        {
-            return;
+        while let Some(bytes) = conn.poll_transmit() {
+            if link.send(bytes).await.is_err() {
+                return;
+            }
         }
         if closing {
-            let _ = write.shutdown().await;
+            link.close().await;
             return;
         }
         let idle = tokio::time::sleep_until(active + idle_timeout);
         tokio::select! {
-            n = read.read(&mut buf), if in_flight < MAX_IN_FLIGHT => match n {
-                Ok(0) | Err(_) => return,
-                Ok(n) => {
+            bytes = link.recv(), if in_flight < MAX_IN_FLIGHT => match bytes {
+                None => return,
+                Some(bytes) => {
                     active = tokio::time::Instant::now();
-                    conn.handle(&buf[..n]);
+                    conn.handle(bytes);
                 }
             },
             Some((token, response)) = answers.recv() => {
@@ -292,6 +347,8 @@ async fn serve(
 pub struct TcpClient {
     /// The largest response body taken ([`coap::Limits::client_body_bytes`]).
     body_limit: usize,
+    /// Over WebSockets (`coap+ws`) rather than plain TCP.
+    websocket: bool,
     /// The command channel of each server's connection task.
     connections: Arc<Mutex<HashMap<SocketAddr, mpsc::UnboundedSender<ToConnection>>>>,
 }
@@ -337,7 +394,17 @@ impl TcpClient {
     pub fn new(body_limit: usize) -> Self {
         Self {
             body_limit,
+            websocket: false,
             connections: Arc::default(),
+        }
+    }
+
+    /// The same over WebSockets (`coap+ws`, RFC 8323 §4): each connection is a WebSocket
+    /// to the server's [`WS_PATH`] with the subprotocol `coap`.
+    pub fn websocket(body_limit: usize) -> Self {
+        Self {
+            websocket: true,
+            ..Self::new(body_limit)
         }
     }
 
@@ -352,7 +419,7 @@ impl TcpClient {
             return tx.clone();
         }
         let (tx, rx) = mpsc::unbounded_channel();
-        tokio::spawn(drive(peer, self.body_limit, rx));
+        tokio::spawn(drive(peer, self.body_limit, self.websocket, rx));
         connections.insert(peer, tx.clone());
         tx
     }
@@ -412,24 +479,24 @@ impl TcpClient {
 async fn drive(
     peer: SocketAddr,
     body_limit: usize,
+    websocket: bool,
     mut commands: mpsc::UnboundedReceiver<ToConnection>,
 ) {
-    let stream = match TcpStream::connect(peer).await {
-        Ok(stream) => stream,
+    let scheme = if websocket { "coap+ws" } else { "coap+tcp" };
+    let mut link = match connect(peer, websocket).await {
+        Ok(link) => link,
         Err(e) => {
             commands.close();
             while let Some(command) = commands.recv().await {
-                let error = std::io::Error::new(e.kind(), format!("coap+tcp {peer}: {e}"));
+                let error = std::io::Error::new(e.kind(), format!("{scheme} {peer}: {e}"));
                 command.fail(Error::Io(error));
             }
             return;
         }
     };
-    let _ = stream.set_nodelay(true);
-    let (mut read, mut write) = stream.into_split();
-    let mut conn = Connection::new(CLIENT_MAX_MESSAGE_SIZE).with_body_limit(body_limit);
+    let conn = link.connection(CLIENT_MAX_MESSAGE_SIZE);
+    let mut conn = conn.with_body_limit(body_limit);
     let mut waiters: HashMap<Token, Waiter> = HashMap::new();
-    let mut buf = vec![0u8; 64 * 1024];
     loop {
         while let Some(event) = conn.poll_event() {
             match event {
@@ -454,28 +521,28 @@ async fn drive(
                     conn.respond(request.token, &answer);
                 }
                 ConnectionEvent::Closed(why) => {
-                    tracing::debug!(%peer, ?why, "coap+tcp client connection closed");
+                    tracing::debug!(%peer, ?why, "{scheme} client connection closed");
                 }
             }
         }
         if let Some(bytes) = conn.poll_transmit()
-            && write.write_all(&bytes).await.is_err()
+            && link.send(bytes).await.is_err()
         {
             // Its requests fail with the events the next turn hands out.
             conn.handle_end();
             continue;
         }
         if conn.is_closed() {
-            let _ = write.shutdown().await;
+            link.close().await;
             return;
         }
         let due = conn.poll_timeout();
         let at = due.unwrap_or_else(crate::clock::now);
         let sleep = tokio::time::sleep_until(tokio::time::Instant::from_std(at));
         tokio::select! {
-            n = read.read(&mut buf) => match n {
-                Ok(0) | Err(_) => conn.handle_end(),
-                Ok(n) => conn.handle(&buf[..n]),
+            bytes = link.recv() => match bytes {
+                None => conn.handle_end(),
+                Some(bytes) => conn.handle(bytes),
             },
             command = commands.recv() => match command {
                 Some(ToConnection::Request { request, sent, reply }) => {
@@ -488,11 +555,24 @@ async fn drive(
                 }
                 // Every client is gone.
                 None => {
-                    let _ = write.shutdown().await;
+                    link.close().await;
                     return;
                 }
             },
             () = sleep, if due.is_some() => conn.handle_timeout(crate::clock::now()),
         }
     }
+}
+
+/// Opens the connection to `peer`: a TCP one, and the WebSocket handshake over it when
+/// `websocket` (given [`DEFAULT_RESPONSE_TIMEOUT`] at most).
+async fn connect(peer: SocketAddr, websocket: bool) -> std::io::Result<Link> {
+    let stream = TcpStream::connect(peer).await?;
+    if !websocket {
+        return Ok(Link::tcp(stream));
+    }
+    let shake = link::connect_ws(stream, peer, CLIENT_MAX_MESSAGE_SIZE);
+    tokio::time::timeout(DEFAULT_RESPONSE_TIMEOUT, shake)
+        .await
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::TimedOut, "WebSocket handshake"))?
 }

@@ -1,5 +1,6 @@
 //! `coap://host[:port]/path?query` and `coaps://` URIs (RFC 7252 §6), and
-//! `coap+tcp://` ones (RFC 8323 §8.1), to a socket address and request options, and back.
+//! `coap+tcp://` and `coap+ws://` ones (RFC 8323 §8.1, §8.2), to a socket address and
+//! request options, and back.
 
 use std::net::{IpAddr, SocketAddr};
 
@@ -12,12 +13,16 @@ pub struct Uri {
     pub secure: bool,
     /// `coap+tcp://`: the server is reached over TCP (RFC 8323 §8.1).
     pub tcp: bool,
+    /// `coap+ws://`: the server is reached over WebSockets, at its
+    /// `/.well-known/coap` (RFC 8323 §8.2); the path is the resource's, as ever.
+    pub ws: bool,
     /// Host as written: an IP literal (IPv6 without brackets or zone) or a name.
     pub host: String,
     /// The zone of an IPv6 link-local literal (RFC 6874, `[ff02::fd%25eth0]`): an
     /// interface name or index.
     pub zone: Option<String>,
-    /// Port (5683 when absent, for `coap+tcp://` too; 5684 for `coaps://`).
+    /// Port (5683 when absent, for `coap+tcp://` too; 5684 for `coaps://`; 80 for
+    /// `coap+ws://`).
     pub port: u16,
     /// Path segments, percent-decoded.
     pub path: Vec<String>,
@@ -28,8 +33,10 @@ pub struct Uri {
 /// Why a URI was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum UriError {
-    /// Only `coap://`, `coaps://` and `coap+tcp://` are supported.
-    #[error("unsupported scheme in {0:?}: only coap://, coaps:// and coap+tcp:// are supported")]
+    /// Only `coap://`, `coaps://`, `coap+tcp://` and `coap+ws://` are supported.
+    #[error(
+        "unsupported scheme in {0:?}: only coap://, coaps://, coap+tcp:// and coap+ws:// are supported"
+    )]
     Scheme(String),
     /// No host.
     #[error("no host in {0:?}")]
@@ -49,19 +56,23 @@ pub enum UriError {
 pub const DEFAULT_PORT: u16 = 5683;
 /// The default port of CoAP over DTLS (`coaps://`).
 pub const DEFAULT_SECURE_PORT: u16 = 5684;
+/// The default port of CoAP over WebSockets (`coap+ws://`, RFC 8323 §8.2): HTTP's.
+pub const DEFAULT_WS_PORT: u16 = 80;
 
 impl Uri {
-    /// Parses `coap://host[:port][/path][?query]` (or `coaps://`, or `coap+tcp://`).
+    /// Parses `coap://host[:port][/path][?query]` (or `coaps://`, `coap+tcp://` or
+    /// `coap+ws://`).
     pub fn parse(s: &str) -> Result<Self, UriError> {
+        // Scheme, secure, tcp, ws.
         let schemes = [
-            ("coap://", false, false),
-            ("coaps://", true, false),
-            ("coap+tcp://", false, true),
+            ("coap://", false, false, false),
+            ("coaps://", true, false, false),
+            ("coap+tcp://", false, true, false),
+            ("coap+ws://", false, false, true),
         ];
-        let Some((rest, secure, tcp)) = schemes
-            .iter()
-            .find_map(|(scheme, secure, tcp)| Some((s.strip_prefix(scheme)?, *secure, *tcp)))
-        else {
+        let Some((rest, secure, tcp, ws)) = schemes.iter().find_map(|(scheme, secure, tcp, ws)| {
+            Some((s.strip_prefix(scheme)?, *secure, *tcp, *ws))
+        }) else {
             return Err(UriError::Scheme(s.to_string()));
         };
         if rest.contains('#') {
@@ -103,6 +114,7 @@ impl Uri {
                 .filter(|p| *p != 0)
                 .ok_or_else(|| UriError::Port(s.to_string()))?,
             None if secure => DEFAULT_SECURE_PORT,
+            None if ws => DEFAULT_WS_PORT,
             None => DEFAULT_PORT,
         };
         let (path, query) = match path_query.split_once('?') {
@@ -128,6 +140,7 @@ impl Uri {
         Ok(Self {
             secure,
             tcp,
+            ws,
             host,
             zone,
             port,
@@ -255,13 +268,24 @@ mod tests {
         let u = Uri::parse("coap+tcp://camera-1.local:6000").unwrap();
         assert_eq!((u.port, u.path.len()), (6000, 0));
         assert!(!Uri::parse("coap://x").unwrap().tcp);
-        // TLS and WebSockets are not supported yet.
-        for other in ["coaps+tcp://x/", "coap+ws://x/", "coaps+ws://x/"] {
+        // TLS is not supported yet, over TCP or WebSockets.
+        for other in ["coaps+tcp://x/", "coaps+ws://x/"] {
             assert!(
                 matches!(Uri::parse(other), Err(UriError::Scheme(_))),
                 "{other}"
             );
         }
+    }
+
+    #[test]
+    fn rfc8323_8_2_coap_ws_uris_default_to_port_80_and_keep_the_resource_path() {
+        let u = Uri::parse("coap+ws://127.0.0.1/cams?x=1").unwrap();
+        assert_eq!((u.ws, u.tcp, u.secure), (true, false, false));
+        assert_eq!((u.port, u.path_string()), (80, "/cams".into()));
+        assert_eq!(u.query, ["x=1"]);
+        let u = Uri::parse("coap+ws://[::1]:8080").unwrap();
+        assert_eq!((u.host.as_str(), u.port), ("::1", 8080));
+        assert!(!Uri::parse("coap+tcp://x").unwrap().ws);
     }
 
     #[test]

@@ -181,8 +181,10 @@ impl RegistrantConfig {
         lt: u32,
     ) -> anyhow::Result<Self> {
         let parsed = Uri::parse(uri)?;
-        if parsed.secure || parsed.tcp {
-            bail!("{uri}: registering over coaps:// or coap+tcp:// is not supported; give coap://");
+        if parsed.secure || parsed.tcp || parsed.ws {
+            bail!(
+                "{uri}: registering over coaps://, coap+tcp:// or coap+ws:// is not supported; give coap://"
+            );
         }
         let rd = parsed
             .resolve()
@@ -520,7 +522,7 @@ pub async fn lookup_endpoints(
             let base = link.attr("base").unwrap_or_default().to_owned();
             let addr = Uri::parse(&base)
                 .ok()
-                .filter(|u| !u.secure && !u.tcp)
+                .filter(|u| !u.secure && !u.tcp && !u.ws)
                 .and_then(|u| u.ip().map(|ip| SocketAddr::new(ip, u.port)));
             Endpoint {
                 ep: link.attr("ep").unwrap_or_default().to_owned(),

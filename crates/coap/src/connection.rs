@@ -1,5 +1,5 @@
-//! One CoAP connection over a reliable byte stream (RFC 8323, TCP), sans-IO, for either
-//! end: bytes in with [`Connection::handle`], bytes out with
+//! One CoAP connection over a reliable transport (RFC 8323: TCP, or WebSockets with
+//! [`Connection::websocket`]), sans-IO, for either end: bytes in with [`Connection::handle`], bytes out with
 //! [`Connection::poll_transmit`], what happened out with [`Connection::poll_event`].
 //! A server takes the peer's requests from [`ConnectionEvent::Request`] and answers them
 //! with [`Connection::respond`]; a client sends its own with
@@ -49,6 +49,25 @@ use crate::msg::{Code, OptionNumber, Options, Token};
 /// How long a request without [`Request::timeout`] waits for its response: the UDP
 /// client's wait for a separate response (MAX_TRANSMIT_WAIT, RFC 7252 §4.8.2, 93 s).
 pub const DEFAULT_RESPONSE_TIMEOUT: Duration = Duration::from_secs(93);
+
+/// How a connection's frames are delimited.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Framing {
+    /// TCP (or TLS): each frame carries its length (§3.2).
+    Stream,
+    /// WebSockets: each message is one frame, whose length the message gives (§4.2).
+    WebSocket,
+}
+
+impl Framing {
+    /// The bytes `frame` takes on the wire, as Max-Message-Size counts them.
+    fn size(self, frame: &Frame) -> usize {
+        match self {
+            Self::Stream => frame.encoded_len(),
+            Self::WebSocket => frame.ws_encoded_len(),
+        }
+    }
+}
 
 /// A request the peer sent.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -110,10 +129,14 @@ struct Outstanding {
 pub struct Connection {
     /// The largest frame this side accepts, announced in its CSM.
     max_message_size: u32,
-    /// Bytes received and not yet a whole frame.
+    /// How frames are delimited on the wire.
+    framing: Framing,
+    /// Bytes received and not yet a whole frame (over TCP).
     inbound: Vec<u8>,
-    /// Frames to send, encoded.
+    /// Frames to send, encoded (over TCP).
     outbound: Vec<u8>,
+    /// Messages to send, one frame each (over WebSockets).
+    messages: VecDeque<Vec<u8>>,
     events: VecDeque<ConnectionEvent>,
     /// The peer's settings, once its CSM came.
     peer: Option<Csm>,
@@ -129,18 +152,32 @@ pub struct Connection {
 }
 
 impl Connection {
-    /// A connection that accepts frames of up to `max_message_size` bytes; its CSM is the
-    /// first thing to send. As a client it takes response bodies of up to
+    /// A connection over TCP that accepts frames of up to `max_message_size` bytes; its
+    /// CSM is the first thing to send. As a client it takes response bodies of up to
     /// [`Limits::client_body_bytes`]'s default.
     pub fn new(max_message_size: u32) -> Self {
+        Self::with_framing(max_message_size, Framing::Stream)
+    }
+
+    /// The same over WebSockets (§4): [`Connection::handle`] takes one whole WebSocket
+    /// message at a time and [`Connection::poll_transmit`] gives one, each a frame
+    /// without its length ([`Frame::encode_ws`]). Max-Message-Size counts a message's
+    /// bytes.
+    pub fn websocket(max_message_size: u32) -> Self {
+        Self::with_framing(max_message_size, Framing::WebSocket)
+    }
+
+    fn with_framing(max_message_size: u32, framing: Framing) -> Self {
         let csm = Signal::Csm(Csm {
             max_message_size: Some(max_message_size),
             block_wise_transfer: false,
         });
-        Self {
+        let mut c = Self {
             max_message_size,
+            framing,
             inbound: Vec::new(),
-            outbound: csm.to_frame(Token::EMPTY, Bytes::new()).encode(),
+            outbound: Vec::new(),
+            messages: VecDeque::new(),
             events: VecDeque::new(),
             peer: None,
             closed: false,
@@ -148,6 +185,16 @@ impl Connection {
             outstanding: HashMap::new(),
             waiting: Vec::new(),
             last_token: 0,
+        };
+        c.emit(&csm.to_frame(Token::EMPTY, Bytes::new()));
+        c
+    }
+
+    /// Queues `frame` to be sent, framed for the connection's transport.
+    fn emit(&mut self, frame: &Frame) {
+        match self.framing {
+            Framing::Stream => frame.encode_into(&mut self.outbound),
+            Framing::WebSocket => self.messages.push_back(frame.encode_ws()),
         }
     }
 
@@ -171,9 +218,17 @@ impl Connection {
         self.closed
     }
 
-    /// Takes bytes received from the stream: every whole frame among them is handled.
+    /// Takes bytes received: over TCP any part of the stream, every whole frame among
+    /// them handled; over WebSockets one whole message.
     pub fn handle(&mut self, bytes: &[u8]) {
         if self.closed {
+            return;
+        }
+        if self.framing == Framing::WebSocket {
+            match stream::decode_ws(bytes, self.max_message_size as usize) {
+                Ok(frame) => self.frame(frame),
+                Err(e) => self.abort(e.to_string(), None),
+            }
             return;
         }
         self.inbound.extend_from_slice(bytes);
@@ -266,8 +321,7 @@ impl Connection {
             }
             Signal::Ping { .. } => {
                 let pong = Signal::Pong { custody: false };
-                pong.to_frame(frame.token, Bytes::new())
-                    .encode_into(&mut self.outbound);
+                self.emit(&pong.to_frame(frame.token, Bytes::new()));
             }
             Signal::Pong { .. } => {
                 if let Some(ping) = self.ping_answered_by(frame.token) {
@@ -299,9 +353,8 @@ impl Connection {
     /// Sends an Abort with `reason` as its diagnostic, and closes.
     fn abort(&mut self, reason: String, bad_csm_option: Option<OptionNumber>) {
         let abort = Signal::Abort(Abort { bad_csm_option });
-        abort
-            .to_frame(Token::EMPTY, Bytes::copy_from_slice(reason.as_bytes()))
-            .encode_into(&mut self.outbound);
+        let diagnostic = Bytes::copy_from_slice(reason.as_bytes());
+        self.emit(&abort.to_frame(Token::EMPTY, diagnostic));
         self.close(Closed::Aborted(reason));
     }
 
@@ -317,9 +370,8 @@ impl Connection {
             alternative_addresses: Vec::new(),
             hold_off_s,
         });
-        release
-            .to_frame(Token::EMPTY, Bytes::copy_from_slice(reason.as_bytes()))
-            .encode_into(&mut self.outbound);
+        let diagnostic = Bytes::copy_from_slice(reason.as_bytes());
+        self.emit(&release.to_frame(Token::EMPTY, diagnostic));
         self.close(Closed::ReleasedHere(reason.to_owned()));
     }
 
@@ -392,14 +444,14 @@ impl Connection {
             return;
         }
         let limit = self.peer_limit();
-        if frame.encoded_len() > limit {
+        if self.framing.size(&frame) > limit {
             self.outstanding.remove(&frame.token);
             let failed = RequestError::RequestTooLarge { limit };
             self.events
                 .push_back(ConnectionEvent::Failed(frame.token, failed));
             return;
         }
-        frame.encode_into(&mut self.outbound);
+        self.emit(&frame);
     }
 
     /// Sends a Ping (§5.4); [`ConnectionEvent::Pong`] with the token returned reports
@@ -414,7 +466,7 @@ impl Connection {
             };
             self.outstanding.insert(token, ping);
             let frame = Signal::Ping { custody: false }.to_frame(token, Bytes::new());
-            frame.encode_into(&mut self.outbound);
+            self.emit(&frame);
         }
         token
     }
@@ -468,7 +520,7 @@ impl Connection {
             None => Some(response.payload.clone()),
             Some(source) => source.read(0..source.len()),
         };
-        let limit = self.peer_limit();
+        let (limit, framing) = (self.peer_limit(), self.framing);
         let failure = |text: String| {
             let frame = Frame {
                 code: Code::INTERNAL_SERVER_ERROR,
@@ -477,7 +529,7 @@ impl Connection {
                 payload: Bytes::from(text),
             };
             // Without its diagnostic when even that is too large.
-            if frame.encoded_len() > limit {
+            if framing.size(&frame) > limit {
                 Frame {
                     payload: Bytes::new(),
                     ..frame
@@ -495,15 +547,15 @@ impl Connection {
                 payload,
             },
         };
-        let frame = if frame.encoded_len() > limit {
-            let size = frame.encoded_len();
+        let size = framing.size(&frame);
+        let frame = if size > limit {
             failure(format!(
                 "the answer takes {size} bytes, over the {limit} of Max-Message-Size"
             ))
         } else {
             frame
         };
-        frame.encode_into(&mut self.outbound);
+        self.emit(&frame);
     }
 
     /// The next event.
@@ -511,9 +563,15 @@ impl Connection {
         self.events.pop_front()
     }
 
-    /// The bytes to write to the stream, if any.
+    /// What to send, if anything: over TCP the bytes to write to the stream, all at
+    /// once; over WebSockets the next message (call again for the one after).
     pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
-        (!self.outbound.is_empty()).then(|| std::mem::take(&mut self.outbound))
+        match self.framing {
+            Framing::Stream => {
+                (!self.outbound.is_empty()).then(|| std::mem::take(&mut self.outbound))
+            }
+            Framing::WebSocket => self.messages.pop_front(),
+        }
     }
 }
 
@@ -670,6 +728,35 @@ mod tests {
         assert!(c.is_closed());
         c.release("again", None);
         assert_eq!((c.poll_transmit(), c.poll_event()), (None, None));
+    }
+
+    #[test]
+    fn rfc8323_4_over_websockets_a_message_is_a_frame_without_its_length() {
+        let mut c = Connection::websocket(1152);
+        // The CSM: Len 0, then Max-Message-Size (2) 1152 in two bytes.
+        assert_eq!(c.poll_transmit(), Some(vec![0x00, 0xe1, 0x22, 0x04, 0x80]));
+        // The peer's empty CSM and a GET /cams (token 0x05), one message each; and a
+        // Ping (token 0x42) whose Pong is a message of its own after the answer.
+        c.handle(&[0x00, 0xe1]);
+        c.handle(&[0x01, 0x01, 0x05, 0xb4, b'c', b'a', b'm', b's']);
+        c.handle(&[0x01, 0xe2, 0x42]);
+        let r = request(&mut c);
+        assert_eq!(r.options.path_string(), "/cams");
+        c.respond(
+            r.token,
+            &Response::new(Code::CONTENT).with_payload(&b"hi"[..]),
+        );
+        assert_eq!(c.poll_transmit(), Some(vec![0x01, 0xe3, 0x42]));
+        assert_eq!(
+            c.poll_transmit(),
+            Some(vec![0x01, 0x45, 0x05, 0xff, b'h', b'i'])
+        );
+        assert_eq!(c.poll_transmit(), None);
+        // A message with a length in its first byte is a TCP frame, not ours: Abort.
+        c.handle(&[0x31, 0x01, 0x05, 0xff, 1, 2]);
+        let abort = c.poll_transmit().unwrap_or_default();
+        assert_eq!(abort.get(1), Some(&Code::ABORT.0));
+        assert!(c.is_closed());
     }
 
     // ------------------------------------------------------------ the client side

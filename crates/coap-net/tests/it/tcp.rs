@@ -18,7 +18,7 @@ use tokio::net::TcpStream;
 
 use crate::within;
 
-fn hello_router() -> Arc<Router> {
+pub(crate) fn hello_router() -> Arc<Router> {
     let router = Router::new();
     router.add(
         "/hello",
@@ -129,7 +129,7 @@ async fn rfc8323_5_3_a_request_before_the_csm_is_aborted() {
 /// libcoap 4.3.5's `coap-client` or `coap-server` (`bin`; `../shared/peers/build-libcoap.sh`
 /// builds them, into `COAPCAM_LIBCOAP435` or the script's default folder), or `None`
 /// after saying why it is missing. Missing in CI (`CI=true`) fails the test.
-fn libcoap435(bin: &str) -> Option<PathBuf> {
+pub(crate) fn libcoap435(bin: &str) -> Option<PathBuf> {
     let dir = std::env::var_os("COAPCAM_LIBCOAP435").map_or_else(
         || {
             let home = std::env::var_os("HOME").unwrap_or_default();
@@ -346,7 +346,7 @@ async fn an_idle_connection_is_released_and_one_with_a_request_in_flight_is_not(
 // ------------------------------------------------------------------ our client
 
 /// The length of a 1280x720 color grab in the thesis packet (docs/resources.md).
-const FRAME_BYTES: usize = 2_764_810;
+pub(crate) const FRAME_BYTES: usize = 2_764_810;
 
 /// A server with `/hello`, `/frame` (FRAME_BYTES of a pattern), `/slow` (answers after
 /// 2 s), `/peer` (the requester's address, so a test sees which connection asked) and
@@ -384,11 +384,11 @@ async fn frame_server() -> TcpServer {
         .unwrap_or_else(|e| panic!("bind: {e}"))
 }
 
-fn pattern() -> Vec<u8> {
+pub(crate) fn pattern() -> Vec<u8> {
     (0..FRAME_BYTES).map(|i| (i % 251) as u8).collect()
 }
 
-fn get(path: &str) -> Request {
+pub(crate) fn get(path: &str) -> Request {
     let mut r = Request::new(Code::GET, path);
     r.timeout = Some(Duration::from_secs(10));
     r

@@ -99,7 +99,7 @@ fn tally(t: &Shared) -> std::sync::MutexGuard<'_, Tally> {
 /// Runs the clients against `config.server` for `config.duration`; what they counted.
 pub async fn run(config: &Config) -> anyhow::Result<Tally> {
     let uri = Uri::parse(&config.server)?;
-    if uri.secure || uri.tcp {
+    if uri.secure || uri.tcp || uri.ws {
         anyhow::bail!("{}: bench load speaks coap:// only", config.server);
     }
     let server = uri.resolve().await.context("resolving the server")?;

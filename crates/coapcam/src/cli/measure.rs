@@ -246,7 +246,7 @@ async fn connect(args: &MeasureArgs) -> anyhow::Result<(CamClient, Source, Vec<E
                 .await?
                 .with_progress(Bars::shown());
             let mut servers = vec![client.server()];
-            let scheme = |uri: &Uri| (uri.secure, uri.tcp);
+            let scheme = |uri: &Uri| (uri.secure, uri.tcp, uri.ws);
             let first = scheme(&Uri::parse(server)?);
             for uri in &args.cameras.servers()[1..] {
                 let parsed = Uri::parse(uri)?;

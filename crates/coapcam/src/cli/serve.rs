@@ -93,10 +93,17 @@ pub(crate) struct ServeArgs {
     /// 0.0.0.0:5683 (TCP's port, beside UDP's); repeatable. The same resources as over
     /// UDP; each answer goes whole in one message, up to the client's Max-Message-Size
     /// (no block-wise transfer or Observe over TCP yet), and requests may carry up to
-    /// 1 MiB. Configuration changes over TCP come from this machine only (TCP's handshake
+    /// 1 MiB; at most 64 connections, each closed after 60 s idle. Configuration changes over TCP come from this machine only (TCP's handshake
     /// proves the client's address), unless --allow-unauthenticated-config.
     #[arg(long, value_name = "ADDR:PORT")]
     bind_tcp: Vec<SocketAddr>,
+    /// Also answer coap+ws:// (CoAP over WebSockets, RFC 8323 §4) on this address, e.g.
+    /// 0.0.0.0:80 (the scheme's default port) or 127.0.0.1:8080; repeatable. WebSocket
+    /// clients connect to /.well-known/coap with the subprotocol "coap". The same
+    /// resources and bounds as --bind-tcp (64 connections, 60 s idle, 1 MiB requests),
+    /// and the same rule for configuration changes.
+    #[arg(long, value_name = "ADDR:PORT")]
+    bind_ws: Vec<SocketAddr>,
     /// The DTLS identities, one per line: `IDENTITY KEY ROLE`, ROLE `read` (GET, grabs,
     /// discovery, Observe) or `configure` (also PUT, DELETE, POST to /coap-group, /files
     /// and /cams/<name>). With it, configuration changes need a `configure` identity
@@ -346,6 +353,7 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
         grab_memory: args.grab_memory.saturating_mul(1 << 20),
         secure_binds: args.coaps.clone(),
         tcp_binds: args.bind_tcp.clone(),
+        ws_binds: args.bind_ws.clone(),
         identities,
         clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
     };
@@ -425,6 +433,9 @@ fn announce(args: &ServeArgs, station: &Station) {
     }
     for a in station.tcp_addrs() {
         eprintln!("coapcam: serving coap+tcp on {a}");
+    }
+    for a in station.ws_addrs() {
+        eprintln!("coapcam: serving coap+ws on {a}");
     }
 }
 

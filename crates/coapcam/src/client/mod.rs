@@ -27,7 +27,8 @@ use crate::repr::{self, DecodeError, Stream, cbor};
 use crate::timesync::SERVER_TIME;
 
 /// A client for `server`, its transport chosen by `uri`'s scheme: a plain socket for
-/// `coap://`, DTLS with `psk` for `coaps://`, a TCP connection for `coap+tcp://`. Every
+/// `coap://`, DTLS with `psk` for `coaps://`, a TCP connection for `coap+tcp://`, a
+/// WebSocket for `coap+ws://`. Every
 /// command that takes a server URI comes here, so each speaks every scheme.
 pub fn secured_client(
     uri: &Uri,
@@ -37,6 +38,9 @@ pub fn secured_client(
 ) -> Result<Client, ConnectError> {
     if uri.tcp {
         return Ok(Client::tcp(&config));
+    }
+    if uri.ws {
+        return Ok(Client::ws(&config));
     }
     let psk = match (uri.secure, psk) {
         (true, None) => return Err(ConnectError::NoKey),

@@ -78,6 +78,9 @@ pub struct Config {
     /// [`coap_net::tcp::StreamLimits`] (64 connections per address, released after 60 s
     /// idle).
     pub tcp_binds: Vec<SocketAddr>,
+    /// Addresses answered over WebSockets (`coap+ws://`, RFC 8323 §4, at
+    /// [`coap_net::tcp::WS_PATH`]): as `tcp_binds`, with the same bounds.
+    pub ws_binds: Vec<SocketAddr>,
     /// The DTLS identities with their keys and roles; with them, configuration changes
     /// need an identity of the `configure` role (or this machine).
     pub identities: Option<Arc<Identities>>,
@@ -107,6 +110,8 @@ pub struct CameraServer {
     server: Server,
     /// The `coap+tcp` listeners, on the same router.
     tcp: Vec<TcpServer>,
+    /// The `coap+ws` listeners, on the same router.
+    ws: Vec<TcpServer>,
     /// The `/coap-group` memberships (what `register_with` announces).
     groups: Arc<Groups>,
     files: Option<StaticFiles>,
@@ -190,12 +195,25 @@ impl CameraServer {
                 })?;
             tcp.push(listener);
         }
+        let mut ws = Vec::with_capacity(config.ws_binds.len());
+        for &addr in &config.ws_binds {
+            let router = Arc::clone(server.router());
+            let limits = coap_net::tcp::StreamLimits::default();
+            let listener = TcpServer::bind_ws(addr, router, limits)
+                .await
+                .map_err(|source| StartError::Bind {
+                    binds: vec![addr],
+                    source,
+                })?;
+            ws.push(listener);
+        }
         groups
             .start(&server, &config.groups, config.group_interface)
             .await?;
         Ok(Self {
             server,
             tcp,
+            ws,
             groups,
             files,
             changed,
@@ -253,6 +271,11 @@ impl CameraServer {
     /// The addresses it answers on over TCP.
     pub fn tcp_addrs(&self) -> Vec<SocketAddr> {
         self.tcp.iter().map(TcpServer::local_addr).collect()
+    }
+
+    /// The addresses it answers on over WebSockets.
+    pub fn ws_addrs(&self) -> Vec<SocketAddr> {
+        self.ws.iter().map(TcpServer::local_addr).collect()
     }
 
     /// Registers this server with a resource directory and keeps the registration alive

@@ -244,6 +244,11 @@ impl Station {
         self.server.tcp_addrs()
     }
 
+    /// The addresses the camera server answers on over WebSockets (`coap+ws://`).
+    pub fn ws_addrs(&self) -> Vec<SocketAddr> {
+        self.server.ws_addrs()
+    }
+
     /// Registers the camera server with a resource directory
     /// ([`CameraServer::register_with`]).
     ///

@@ -651,6 +651,7 @@ fn a_camera_server_serves_the_cameras_of_every_backend_in_its_list_until_it_is_d
             grab_memory: 1 << 28,
             secure_binds: Vec::new(),
             tcp_binds: Vec::new(),
+            ws_binds: Vec::new(),
             identities: None,
             clock_offset_us: 0,
         })

@@ -42,3 +42,4 @@ mod support;
 mod tcp;
 mod usage;
 mod webhook;
+mod ws;
