@@ -645,36 +645,31 @@ fn a_patch_of_a_dark_lid_inside_what_the_others_measure_is_no_parcel() {
     assert!(!found[0].complete, "{found:?}");
 }
 
-/// A flat cylinder 20 mm from a lying tube twice its height, under one camera 2.1 m up
-/// on the tube's side (certification set, seed 1, scene 274): the camera sees a division
-/// past every edge of the cylinder's lid, but not 15 mm past the edge facing the tube, and
-/// the cylinder was refused as reaching beyond the view. It is measured. A box the
-/// image's edge cuts is still out of view.
+/// A lower box touching a taller one under one camera (the lane set of seed 1, scene 493
+/// of 720): the taller one hides the lower one's end. Its measured edge lies some
+/// millimetres inside its last pixels, so a point a division past it is still in sight;
+/// with the cameras asked to see only that far (tried for a flat cylinder beside a tube,
+/// cert seed 1, scene 274) the lower box read 21.8 mm short with no flag. 15 mm past it
+/// lies behind the taller box: it is not whole. A box the image's edge cuts is out of
+/// view.
 #[test]
-fn a_lid_seen_a_division_past_each_edge_is_in_view() {
-    let cert = rgbd::cert::cert_scene(1, 274);
-    let truth = &cert.objects[1].truth;
-    assert_eq!(truth.kind, ObjectKind::Cylinder);
-    let (cloud, views) = crate::round::prepared_clouds(&cert.scene);
+fn a_lid_whose_end_a_taller_neighbour_hides_is_not_whole() {
+    let lane = rgbd::lane::lane_scene(1, 493);
+    assert_eq!(lane.truths.len(), 2);
+    let lower = lane
+        .truths
+        .iter()
+        .min_by(|a, b| a.size[2].total_cmp(&b.size[2]))
+        .expect("two boxes");
+    let (cloud, views) = crate::round::prepared_clouds(&lane.scene);
     let found = parcels(&cloud, &DimensionConfig::default(), &views)
         .unwrap()
         .parcels;
-    let off = |f: &&geometry::ParcelFit| {
-        let c = f.dimensions.corners_m;
-        let centre = [0, 1].map(|k| (c[0][k] + c[2][k]) / 2.0);
-        (centre[0] - truth.center[0]).hypot(centre[1] - truth.center[1])
-    };
-    let disc = found.iter().find(|f| off(f) < 0.02).expect("the cylinder");
-    assert!(
-        disc.complete && !disc.out_of_view && disc.isolated,
-        "{disc:?}"
-    );
-    let d = &disc.dimensions;
-    assert!(
-        (d.length_mm - truth.length_mm()).abs() <= 5.0
-            && (d.width_mm - truth.width_mm()).abs() <= 5.0,
-        "{d:?}"
-    );
+    let low = found
+        .iter()
+        .find(|f| (f.dimensions.height_mm - lower.height_mm()).abs() < 5.0)
+        .expect("the lower box");
+    assert!(!(low.complete && low.isolated), "{low:?}");
 
     let cut = under_one_camera(
         4,
