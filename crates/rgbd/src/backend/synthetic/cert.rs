@@ -160,8 +160,9 @@ pub struct Judged {
     /// they touch or overlap); `None` when it stands alone.
     pub gap_m: Option<f64>,
     /// Every corner of its enclosing cuboid lies inside the depth image of at least one
-    /// camera, in front of it and beyond its minimum range, and each point of its top is
-    /// in some camera's depth image with no other object between ([`judge`] says which
+    /// camera, in front of it and beyond its minimum range, each point of its top is in
+    /// some camera's depth image with no other object between (for a bag, not itself
+    /// either), and so is a point a division past each edge ([`judge`] says which
     /// points).
     pub in_view: bool,
     /// Its top returns depth everywhere to a camera that has it in view: the light coming
@@ -286,6 +287,7 @@ fn top_seen(eyes: &[Eye], world: &World, index: usize, t: &Truth) -> bool {
                 .any(|e| e.holds(at) && !world.occluded(&e.from, &p, hiders()))
         })
     };
+    // The points further in that may stand for a bag's: a fifth of a division apart.
     const STEPS: u32 = 5;
     let (s, c) = t.yaw_deg.to_radians().sin_cos();
     let cells = |side: f64| ((side / TOP_STEP_M).ceil() as usize).clamp(1, TOP_CELLS);
