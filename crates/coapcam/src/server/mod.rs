@@ -183,30 +183,8 @@ impl CameraServer {
             binds: binds.clone(),
             source,
         })?;
-        let mut tcp = Vec::with_capacity(config.tcp_binds.len());
-        for &addr in &config.tcp_binds {
-            let router = Arc::clone(server.router());
-            let limits = coap_net::tcp::StreamLimits::default();
-            let listener = TcpServer::bind(addr, router, limits)
-                .await
-                .map_err(|source| StartError::Bind {
-                    binds: vec![addr],
-                    source,
-                })?;
-            tcp.push(listener);
-        }
-        let mut ws = Vec::with_capacity(config.ws_binds.len());
-        for &addr in &config.ws_binds {
-            let router = Arc::clone(server.router());
-            let limits = coap_net::tcp::StreamLimits::default();
-            let listener = TcpServer::bind_ws(addr, router, limits)
-                .await
-                .map_err(|source| StartError::Bind {
-                    binds: vec![addr],
-                    source,
-                })?;
-            ws.push(listener);
-        }
+        let tcp = stream_listeners(&config.tcp_binds, server.router(), false).await?;
+        let ws = stream_listeners(&config.ws_binds, server.router(), true).await?;
         groups
             .start(&server, &config.groups, config.group_interface)
             .await?;
@@ -558,4 +536,27 @@ struct CameraTree {
     _backends: Vec<Box<dyn Backend>>,
     _hub: Arc<CameraHub>,
     cams: Arc<Cams>,
+}
+
+/// A listener on each of `addrs` serving `router` over TCP, or over WebSockets when `ws`
+/// (RFC 8323), each within the default [`coap_net::tcp::StreamLimits`].
+async fn stream_listeners(
+    addrs: &[SocketAddr],
+    router: &Arc<Router>,
+    ws: bool,
+) -> Result<Vec<TcpServer>, StartError> {
+    let mut listeners = Vec::with_capacity(addrs.len());
+    for &addr in addrs {
+        let (router, limits) = (Arc::clone(router), coap_net::tcp::StreamLimits::default());
+        let bound = if ws {
+            TcpServer::bind_ws(addr, router, limits).await
+        } else {
+            TcpServer::bind(addr, router, limits).await
+        };
+        listeners.push(bound.map_err(|source| StartError::Bind {
+            binds: vec![addr],
+            source,
+        })?);
+    }
+    Ok(listeners)
 }
