@@ -116,12 +116,21 @@ const SPECKLE_CELL_M: f64 = 0.01;
 /// up: speckle columns hold 2-9 %, median 4 %).
 const SPECKLE_SHARE: f64 = 0.25;
 
-/// How far beyond a parcel's edges the cameras must see (metres) for it to be whole. An
-/// edge is placed by the lid's density, some millimetres inside its last pixels, so a
-/// point a division (5 mm) past it may still be in sight where a taller neighbour hides
-/// the rest of the lid: a lower box touching a taller one under one camera then read
-/// 11-22 mm short with no flag (`bench accuracy --set lane --scenes 720`, 4 scenes).
+/// How far beyond a parcel's edges, at its top's height, some camera must see past every
+/// other parcel (metres) for it to be whole. An edge is placed by the lid's density, some
+/// millimetres inside its last pixels, so a point a division (5 mm) past it may still be
+/// in sight where a taller neighbour hides the rest of the lid: a lower box touching a
+/// taller one under one camera then read 11-22 mm short with no flag (`bench accuracy
+/// --set lane --scenes 720`, 4 scenes).
 const PROBE_M: f64 = 0.015;
+
+/// How far beyond a parcel's edges, at its top's height, that camera's image must reach
+/// (metres): a division. Nothing but the image's border hides the lid there, and the
+/// border cuts the lid's last pixels themselves, so the edge then lies at the border and
+/// a point a division past it is out of the image. Asking [`PROBE_M`] of the image too
+/// refused tall boxes under one camera whose edges the image holds (certification set,
+/// seed 295841469: 4 of 15 false refusals).
+const PROBE_IMAGE_M: f64 = 0.005;
 
 /// A top corner counts as seen when it projects at least this far inside an image.
 const VIEW_MARGIN_PX: f32 = 3.0;
@@ -259,23 +268,23 @@ pub fn parcels(
         }
     }
     // Just beyond each edge, at the top's height: a point there that no camera has in
-    // its image, or that every camera that has it sees only through another parcel,
-    // might be more of the parcel, hidden.
+    // its image (a division out), or that every camera that has it sees only through
+    // another parcel (further out), might be more of the parcel, hidden.
     if !views.is_empty() {
         for i in 0..found.len() {
             let hidden = probes(&found[i].dimensions, &footprints[i])
                 .iter()
-                .any(|p| {
+                .any(|[near, far]| {
                     !views.iter().any(|v| {
                         let eye = Point3::from(v.to_common.translation);
-                        v.sees(p, VIEW_MARGIN_PX)
+                        v.sees(near, VIEW_MARGIN_PX)
                             && !found.iter().enumerate().any(|(j, other)| {
                                 j != i
                                     && blocks(
                                         &footprints[j],
                                         other.dimensions.height_mm / 1e3,
                                         &eye,
-                                        p,
+                                        far,
                                     )
                             })
                     })
@@ -499,10 +508,11 @@ fn curtain_of(points: &[Point3], k: &ParcelFit, views: &[View]) -> bool {
     })
 }
 
-/// Points [`PROBE_M`] beyond the `outline` of `d` at its height: on the lines from its
-/// rectangle's centre through each corner and each edge's middle, past where they leave
-/// the outline (a cylinder's probes lie beside its wall, not beyond its square's corners).
-fn probes(d: &Dimensions, outline: &Polygon<f64>) -> Vec<Point3> {
+/// Pairs of points [`PROBE_IMAGE_M`] and [`PROBE_M`] beyond the `outline` of `d` at its
+/// height: on the lines from its rectangle's centre through each corner and each edge's
+/// middle, past where they leave the outline (a cylinder's probes lie beside its wall,
+/// not beyond its square's corners).
+fn probes(d: &Dimensions, outline: &Polygon<f64>) -> Vec<[Point3; 2]> {
     use geo::Contains as _;
     let c = &d.corners_m;
     let centre = centre(c);
@@ -529,11 +539,13 @@ fn probes(d: &Dimensions, outline: &Polygon<f64>) -> Vec<Point3> {
                 inside = 1.0;
             }
             let edge = point(inside);
-            out.push(Point3::new(
-                (edge.x() + away[0] / n * PROBE_M) as f32,
-                (edge.y() + away[1] / n * PROBE_M) as f32,
-                z,
-            ));
+            out.push([PROBE_IMAGE_M, PROBE_M].map(|past| {
+                Point3::new(
+                    (edge.x() + away[0] / n * past) as f32,
+                    (edge.y() + away[1] / n * past) as f32,
+                    z,
+                )
+            }));
         }
     }
     out

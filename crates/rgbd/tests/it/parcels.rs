@@ -685,6 +685,58 @@ fn a_lid_whose_end_a_taller_neighbour_hides_is_not_whole() {
     assert!(found[0].out_of_view && !found[0].complete, "{found:?}");
 }
 
+/// A tall box under one camera whose lid ends 10 mm inside the image's border: nothing
+/// hides the lid, so a division (5 mm) past its edge in the image is enough to call it
+/// whole. Asked 15 mm past, it was refused as reaching beyond the view (certification
+/// set, seed 295841469: 4 tall boxes under one camera). Moved 12 mm further out, 2 mm
+/// inside the border, it is out of view.
+#[test]
+fn a_lid_the_image_holds_a_division_past_its_edge_is_whole() {
+    let (h, half) = (0.40, 0.15);
+    let probe = under_one_camera(4, [0.0, 0.0, 1.3], "d415", "");
+    let (_, views) = crate::round::prepared_clouds(&probe);
+    // Where a point at the lid's height leaves the image (3 pixels in, as parcels asks).
+    let seen = |x: f64| views[0].sees(&Point3::new(x as f32, 0.0, h as f32), 3.0);
+    let (mut inside, mut outside) = (0.0, 2.0);
+    for _ in 0..40 {
+        let mid = 0.5 * (inside + outside);
+        if seen(mid) {
+            inside = mid;
+        } else {
+            outside = mid;
+        }
+    }
+    let measure = |gap: f64| {
+        let scene = under_one_camera(
+            4,
+            [0.0, 0.0, 1.3],
+            "d415",
+            &format!(
+                "[[box]]\nsize = [{:?}, 0.20, {h:?}]\ncenter = [{:?}, 0.0]\n",
+                2.0 * half,
+                inside - gap - half
+            ),
+        );
+        let (cloud, views) = crate::round::prepared_clouds(&scene);
+        let found = parcels(&cloud, &DimensionConfig::default(), &views)
+            .unwrap()
+            .parcels;
+        assert_eq!(found.len(), 1, "{found:?}");
+        found[0].clone()
+    };
+    let whole = measure(0.010);
+    assert!(whole.complete && !whole.out_of_view, "{whole:?}");
+    let d = &whole.dimensions;
+    assert!(
+        (d.length_mm - 300.0).abs() <= 5.0
+            && (d.width_mm - 200.0).abs() <= 5.0
+            && (d.height_mm - 400.0).abs() <= 5.0,
+        "{d:?}"
+    );
+    let cut = measure(0.002);
+    assert!(cut.out_of_view && !cut.complete, "{cut:?}");
+}
+
 /// A tube lying on the floor beside a box as high as it is, under one camera off to the
 /// tube's side, with a D415's depth noise (the floor sent, no spatial filter).
 const TUBE_BESIDE_A_BOX: &str = r#"
