@@ -37,9 +37,10 @@ use super::scene::{
 use crate::camera::Serial;
 use crate::intrinsics::Pose;
 
-/// The symbologies the set's labels are drawn from. A new one is one more entry here
-/// (and its text in `label_text`).
-pub const SYMBOLOGIES: &[LabelKind] = &[LabelKind::Qr, LabelKind::Code128];
+/// The symbologies the set's labels are drawn from: every one a scene's label takes (the
+/// symbologies of shipping labels). Since 2026-12-02; before, QR and Code 128 only, so a
+/// seed's scenes from before differ from the first labelled box on.
+pub const SYMBOLOGIES: &[LabelKind] = &LabelKind::ALL;
 
 /// The spacings of a group, millimetres between neighbouring footprints along its row.
 pub const SPACINGS_MM: [f64; 7] = [0.0, 10.0, 20.0, 30.0, 50.0, 80.0, 120.0];
