@@ -277,6 +277,7 @@ impl Client {
             id,
             client: self.clone(),
             follow_up,
+            skipped: 0,
         })
     }
 
@@ -511,6 +512,8 @@ pub struct Observation {
     /// The registration without Observe: what asks for the rest of a notification sent
     /// block-wise.
     follow_up: Request,
+    /// Notifications [`Observation::newest`] skipped.
+    skipped: u64,
 }
 
 impl Observation {
@@ -533,6 +536,50 @@ impl Observation {
             }
             StreamItem::Failed(e) => Some(Err(Error::Request(e))),
         }
+    }
+
+    /// The newest notification, whole, for an observer that wants the resource's latest
+    /// state rather than every change (a live stream): notifications that arrived while
+    /// the caller was busy are skipped ([`Observation::skipped`] counts them), and one sent
+    /// block-wise is completed by a GET of the whole resource, whose blocks come through
+    /// a window as any GET's. Its body is then the resource's representation when the GET
+    /// was answered, which may be newer than the notification's block 0 (its code and
+    /// options come with it). `None` when the observation ended.
+    pub async fn newest(&mut self) -> Option<Result<Response, Error>> {
+        let mut item = self.rx.recv().await?;
+        while let StreamItem::Response(..) = item {
+            match self.rx.try_recv() {
+                Ok(newer) => {
+                    self.skipped += 1;
+                    item = newer;
+                }
+                Err(_) => break,
+            }
+        }
+        match item {
+            StreamItem::Response(peer, r) => {
+                let more = r.options.block2().is_some_and(|b| b.more && b.num == 0);
+                if !more {
+                    return Some(Ok(*r));
+                }
+                let mut whole = self.follow_up.clone();
+                whole.payload = bytes::Bytes::new();
+                whole.options.remove(coap::OptionNumber::BLOCK2);
+                let observe = r.options.uint(coap::OptionNumber::OBSERVE);
+                Some(self.client.send(peer, whole).await.map(|mut got| {
+                    if let Some(seq) = observe.filter(|_| got.code.is_success()) {
+                        got.options.set_uint(coap::OptionNumber::OBSERVE, seq);
+                    }
+                    got
+                }))
+            }
+            StreamItem::Failed(e) => Some(Err(Error::Request(e))),
+        }
+    }
+
+    /// How many notifications [`Observation::newest`] skipped so far.
+    pub fn skipped(&self) -> u64 {
+        self.skipped
     }
 }
 

@@ -26,7 +26,7 @@ pub use client::{BodyPart, BodyStream, Client, Observation, fresh_seed};
 pub use coap;
 pub use driver::{EndpointHandle, Progress};
 pub use dtls::Psk;
-pub use router::{Around, Ctx, Policy, Resource, Router, handler};
+pub use router::{Around, Ctx, ObservationEnd, Policy, Resource, Router, handler};
 pub use server::{Server, ServerConfig};
 pub use tcp::{TcpClient, TcpServer};
 pub use uri::Uri;

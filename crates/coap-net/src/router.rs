@@ -7,7 +7,7 @@ use std::pin::Pin;
 use std::sync::{Arc, RwLock};
 
 use coap::link_format::{self, Filter, Link};
-use coap::{Code, ContentFormat, IncomingRequest, OptionNumber, Response};
+use coap::{Code, ContentFormat, IncomingRequest, ObservationId, OptionNumber, Response};
 
 /// A request as a handler sees it: the received request plus the values of the path
 /// pattern's `{name}` segments.
@@ -31,6 +31,11 @@ pub type BoxFuture = Pin<Box<dyn Future<Output = Response> + Send>>;
 /// A handler: an async function from request to response.
 pub type Handler = Arc<dyn Fn(Ctx) -> BoxFuture + Send + Sync>;
 
+/// Told that an observation of a resource ended ([`Resource::on_observation_end`]): the
+/// observer's address and the observation, as the registration's
+/// [`IncomingRequest::observe`] named it.
+pub type ObservationEnd = Arc<dyn Fn(std::net::SocketAddr, ObservationId) + Send + Sync>;
+
 /// Wraps an async closure as a [`Handler`].
 pub fn handler<F, Fut>(f: F) -> Handler
 where
@@ -48,6 +53,8 @@ pub struct Resource {
     observable: bool,
     /// Methods that change the server's configuration ([`Router::set_policy`]).
     configuring: Vec<Code>,
+    /// Told when an observation of the resource ends.
+    ended: Option<ObservationEnd>,
 }
 
 impl std::fmt::Debug for Resource {
@@ -107,6 +114,20 @@ impl Resource {
     pub fn observable(mut self) -> Self {
         self.observable = true;
         self
+    }
+
+    /// Calls `ended` when an observation of the resource ends: the observer deregistered
+    /// or rejected a notification, a confirmable notification went unacknowledged, or a
+    /// notification was an error. A handler that keeps something per observer (its
+    /// registration's [`IncomingRequest::observe`]) lets it go then.
+    pub fn on_observation_end(mut self, ended: ObservationEnd) -> Self {
+        self.ended = Some(ended);
+        self
+    }
+
+    /// What is told when an observation of the resource ends, if anything.
+    pub fn observation_end(&self) -> Option<&ObservationEnd> {
+        self.ended.as_ref()
     }
 
     /// Whether the resource is observable.

@@ -16,7 +16,7 @@ use tokio::sync::{mpsc, oneshot};
 use crate::Error;
 use crate::driver::{self, Command, EndpointHandle, ServerEvent};
 use crate::dtls::Psk;
-use crate::router::Router;
+use crate::router::{ObservationEnd, Router};
 use crate::socket::Socket;
 
 /// Server settings.
@@ -37,6 +37,9 @@ struct Observer {
     /// What the observer was last sent: the registration's answer, then each
     /// notification.
     last: Sent,
+    /// The resource's [`Resource::on_observation_end`](crate::Resource::on_observation_end),
+    /// told when the observation ends.
+    ended: Option<ObservationEnd>,
 }
 
 /// What tells one representation from another for an observer: the code, the
@@ -80,10 +83,30 @@ impl Observers {
         self.by_path.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
+    /// Forgets observation `id` of `endpoint`, and tells its resource (outside the lock).
     fn remove(&self, endpoint: usize, id: ObservationId) {
+        let mut gone = Vec::new();
         for list in self.lock().values_mut() {
-            list.retain(|o| !(o.endpoint == endpoint && o.id == id));
+            list.retain(|o| {
+                let keep = !(o.endpoint == endpoint && o.id == id);
+                if !keep && let Some(ended) = &o.ended {
+                    gone.push((ended.clone(), o.request.peer));
+                }
+                keep
+            });
         }
+        for (ended, peer) in gone {
+            ended(peer, id);
+        }
+    }
+
+    /// Keeps a registration: a new one, or the same peer and token registering again
+    /// (the endpoint gives it the same id), which replaces the one before.
+    fn add(&self, path: String, observer: Observer) {
+        let mut by_path = self.lock();
+        let list = by_path.entry(path).or_default();
+        list.retain(|o| !(o.endpoint == observer.endpoint && o.id == observer.id));
+        list.push(observer);
     }
 
     /// Takes `next` as the observer's newest representation, unless it is the one the
@@ -334,12 +357,25 @@ async fn serve(
                         && response.options.contains(OptionNumber::OBSERVE)
                     {
                         let path = request.options.path_string();
-                        observers.lock().entry(path).or_default().push(Observer {
-                            id: obs,
-                            endpoint,
-                            request,
-                            last: Sent::of(&response),
-                        });
+                        let ended = router
+                            .find(
+                                &request
+                                    .options
+                                    .uri_path()
+                                    .map(|s| s.into_owned())
+                                    .collect::<Vec<_>>(),
+                            )
+                            .and_then(|(resource, _)| resource.observation_end().cloned());
+                        observers.add(
+                            path,
+                            Observer {
+                                id: obs,
+                                endpoint,
+                                request,
+                                last: Sent::of(&response),
+                                ended,
+                            },
+                        );
                     }
                     let _ = handle.send(Command::Respond { id, response });
                 });

@@ -5,7 +5,8 @@
 //!   [`AbsSummary`] (mean, 95th percentile and maximum of absolute values);
 //! - running moments: [`Welford`] (mean and standard deviation in one pass, exact for
 //!   values far larger than their spread), and [`TransferStats`], the columns of the
-//!   thesis's Tables 4.1-4.11 over any number of transfer times.
+//!   thesis's Tables 4.1-4.11 over any number of transfer times;
+//! - [`LiveStats`]: a live stream's frames per second and capture-to-client latency.
 //!
 //! Every function of a sample leaves out values that are not finite (a failed run's NaN).
 
@@ -318,6 +319,105 @@ impl TransferStats {
     }
 }
 
+/// A live stream's frames as they arrived (`monitor --live`): the frame rate between the
+/// first frame and the last, and the capture-to-client latency of the last 2^20 frames.
+#[derive(Debug, Clone, Default)]
+pub struct LiveStats {
+    /// Frames skipped for a newer one that arrived meanwhile (as the stream counts them).
+    pub skipped: u64,
+    frames: u64,
+    first: Option<std::time::Instant>,
+    last: Option<std::time::Instant>,
+    latencies_ms: VecDeque<f64>,
+}
+
+/// What [`LiveStats`] says.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LiveSummary {
+    /// Frames received.
+    pub frames: u64,
+    /// Frames a second from the first to the last (`None` before the second frame).
+    pub fps: Option<f64>,
+    /// Median, 95th percentile (nearest rank) and maximum latency, ms (`None` without a
+    /// capture time).
+    pub latency_ms: Option<[f64; 3]>,
+    /// Frames skipped for a newer one that arrived meanwhile.
+    pub skipped: u64,
+}
+
+impl LiveStats {
+    /// A frame arrived `at`, `latency` after it was captured (if known: frames without a
+    /// capture time count for the rate only).
+    pub fn record(&mut self, at: std::time::Instant, latency: Option<Duration>) {
+        self.frames += 1;
+        self.first.get_or_insert(at);
+        self.last = Some(at);
+        if let Some(latency) = latency {
+            if self.latencies_ms.len() == MEDIAN_WINDOW {
+                self.latencies_ms.pop_front();
+            }
+            self.latencies_ms.push_back(latency.as_secs_f64() * 1e3);
+        }
+    }
+
+    /// The rate, the latencies and the frames skipped so far.
+    pub fn summary(&self) -> LiveSummary {
+        let fps = match (self.first, self.last) {
+            (Some(first), Some(last)) if self.frames > 1 && last > first => {
+                Some((self.frames - 1) as f64 / (last - first).as_secs_f64())
+            }
+            _ => None,
+        };
+        let all = sorted(self.latencies_ms.iter().copied());
+        let latency_ms = (|| {
+            Some([
+                percentile_of_sorted(&all, 0.5)?,
+                percentile_of_sorted(&all, 0.95)?,
+                *all.last()?,
+            ])
+        })();
+        LiveSummary {
+            frames: self.frames,
+            fps,
+            latency_ms,
+            skipped: self.skipped,
+        }
+    }
+}
+
+impl LiveSummary {
+    /// As a JSON object: `frames`, `fps`, `latency_p50_ms`, `latency_p95_ms`,
+    /// `latency_max_ms`, `skipped`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let round = |x: f64| (x * 1e3).round() / 1e3;
+        let mut out = serde_json::json!({ "frames": self.frames, "skipped": self.skipped });
+        if let Some(fps) = self.fps {
+            out["fps"] = round(fps).into();
+        }
+        if let Some([p50, p95, max]) = self.latency_ms {
+            out["latency_p50_ms"] = round(p50).into();
+            out["latency_p95_ms"] = round(p95).into();
+            out["latency_max_ms"] = round(max).into();
+        }
+        out
+    }
+
+    /// One line of text.
+    pub fn text(&self) -> String {
+        let fps = self
+            .fps
+            .map_or_else(|| "-".to_owned(), |f| format!("{f:.1}"));
+        let latency = self.latency_ms.map_or_else(
+            || "no capture times".to_owned(),
+            |[p50, p95, max]| format!("p50 {p50:.1} ms, p95 {p95:.1} ms, max {max:.1} ms"),
+        );
+        format!(
+            "live: {} frame(s), {fps} frames/s, {} skipped for newer ones; capture-to-client latency {latency}\n",
+            self.frames, self.skipped
+        )
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -480,5 +580,22 @@ mod tests {
         let t = s.summary().times.unwrap();
         assert!((t.sd_ns - (2f64 / 3.0).sqrt()).abs() < 1e-3, "{}", t.sd_ns);
         assert_eq!(t.median_ns, 324_000_000_002.0);
+    }
+
+    #[test]
+    fn live_stats_give_the_rate_between_first_and_last_and_latency_percentiles() {
+        let mut s = LiveStats::default();
+        let t0 = std::time::Instant::now();
+        for i in 0..21u64 {
+            let latency = Duration::from_millis(if i == 20 { 50 } else { 10 + i % 3 });
+            s.record(t0 + Duration::from_millis(100 * i), Some(latency));
+        }
+        s.skipped = 3;
+        let summary = s.summary();
+        assert_eq!(summary.frames, 21);
+        assert!((summary.fps.unwrap() - 10.0).abs() < 1e-9, "{summary:?}");
+        assert_eq!(summary.latency_ms, Some([11.0, 12.0, 50.0]));
+        assert_eq!(summary.skipped, 3);
+        assert_eq!(LiveStats::default().summary().fps, None);
     }
 }

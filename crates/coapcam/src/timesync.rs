@@ -27,6 +27,27 @@ pub const SERVER_TIME: OptionNumber = OptionNumber(65000);
 /// Bytes of a Server-Time value in a response.
 pub const SERVER_TIME_LEN: usize = 16;
 
+/// The Capture-Time option (experimental range, elective and safe to forward, as
+/// [`SERVER_TIME`]): on every notification of a live stream (`/cams/<sn>/<stream>/live`),
+/// the frame's capture time, the same `timestamp_us` the frame's CBOR map and compact
+/// cloud carry: 8 bytes, big-endian microseconds since the UNIX epoch on the server's
+/// clock (correct it by the server's offset, [`ClockEstimator`], to compare it with
+/// the client's).
+pub const CAPTURE_TIME: OptionNumber = OptionNumber(65012);
+
+/// The Capture-Time option's value of a frame captured at `unix_us`.
+pub fn capture_time_value(unix_us: u64) -> [u8; 8] {
+    unix_us.to_be_bytes()
+}
+
+/// The capture time a response's Capture-Time option carries, µs since the UNIX epoch
+/// on the server's clock; `None` without one, or with one that is not 8 bytes or past
+/// the range of signed microseconds.
+pub fn capture_time(options: &Options) -> Option<i64> {
+    let value: [u8; 8] = options.first(CAPTURE_TIME)?.try_into().ok()?;
+    i64::try_from(u64::from_be_bytes(value)).ok()
+}
+
 /// The window of NTP's clock filter: the last 8 samples of a server are kept.
 pub const FILTER_LEN: usize = 8;
 

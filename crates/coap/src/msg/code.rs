@@ -82,6 +82,7 @@ impl Code {
             Self::PRECONDITION_FAILED => "Precondition Failed",
             Self::REQUEST_ENTITY_TOO_LARGE => "Request Entity Too Large",
             Self::UNSUPPORTED_CONTENT_FORMAT => "Unsupported Content-Format",
+            Self::TOO_MANY_REQUESTS => "Too Many Requests",
             Self::INTERNAL_SERVER_ERROR => "Internal Server Error",
             Self::NOT_IMPLEMENTED => "Not Implemented",
             Self::BAD_GATEWAY => "Bad Gateway",
@@ -149,6 +150,8 @@ impl Code {
     pub const REQUEST_ENTITY_TOO_LARGE: Self = Self::new(4, 13);
     /// 4.15 Unsupported Content-Format
     pub const UNSUPPORTED_CONTENT_FORMAT: Self = Self::new(4, 15);
+    /// 4.29 Too Many Requests (RFC 8516)
+    pub const TOO_MANY_REQUESTS: Self = Self::new(4, 29);
     /// 5.00 Internal Server Error
     pub const INTERNAL_SERVER_ERROR: Self = Self::new(5, 0);
     /// 5.01 Not Implemented

@@ -7,6 +7,10 @@ pub const TIME: &str = "/time";
 /// The cameras (link-format of every camera's resources).
 pub const CAMS: &str = "/cams";
 
+/// The live streams (`/cams/<sn>/<stream>/live`): their bounds, and each feed with its
+/// observers and counters.
+pub const LIVE: &str = "/cams/live";
+
 /// Every camera's cloud, merged (POST grabs).
 pub const POINTCLOUDS: &str = "/cams/pointclouds";
 

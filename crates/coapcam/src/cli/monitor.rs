@@ -11,12 +11,13 @@ use clap::Args;
 use coap::ContentFormat;
 
 use coapcam::api::record::Record;
+use coapcam::client::live::{self, LiveFrame};
 use coapcam::client::measure::{self, Calibration, Source};
 use coapcam::client::timed::{self, Repeat, Timed, TimedError};
 use coapcam::client::{CamClient, results};
 use coapcam::report::{Billing, Found, Measurement, Parcel, Reported};
 use coapcam::repr::Stream;
-use coapcam::stats::TransferStats;
+use coapcam::stats::{LiveStats, TransferStats};
 
 use super::{
     CameraArgs, DimensionArgs, Exit, Interrupted, Signals, TransmissionArgs, error_text,
@@ -79,6 +80,15 @@ pub(crate) struct MonitorArgs {
     /// skipped (records appended between two notifications are fetched).
     #[arg(long)]
     observe: bool,
+    /// Observe the camera's live stream (/cams/<sn>/<stream>/live): each frame with its
+    /// capture-to-client latency, then the frames per second and the latency's p50 and p95;
+    /// a frame that arrives while an older one is taken in is skipped for the newer.
+    #[arg(long, conflicts_with_all = ["observe", "interval"])]
+    live: bool,
+    /// With --live: frames a second to ask for (the camera's rate at most and by default).
+    #[arg(long, value_name = "N", requires = "live",
+          value_parser = clap::value_parser!(u32).range(1..=1000))]
+    fps: Option<u32>,
     /// The representation asked for (Accept): a number or a short name (png, jpeg, cbor,
     /// ply, depth-cloud, ...). Left out, grabs ask for the compact form (color JPEG, depth
     /// RVL+zstd, clouds the compact cloud; the thesis packet from a server without it)
@@ -109,6 +119,8 @@ struct Line {
     received_bytes: usize,
     time_ms: f64,
     mean_ms: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    latency_ms: Option<f64>,
 }
 
 /// A record's fields on a `--json` line of `measure --observe`.
@@ -133,6 +145,7 @@ impl Success {
                 ..m.report_with(&Billing::default(), calibration)
             }),
             record: None,
+            latency: None,
         }
     }
 }
@@ -145,6 +158,8 @@ struct Success {
     measurement: Option<Measurement>,
     /// A record of the results log (`measure --observe`).
     record: Option<Record>,
+    /// A live frame's capture-to-client latency.
+    latency: Option<Duration>,
 }
 
 /// What `monitor` does, resolved once at the start.
@@ -162,16 +177,16 @@ impl Plan {
     async fn resolve(args: &MonitorArgs, client: &CamClient) -> anyhow::Result<Self> {
         if let Some(stream) = args.target.stream() {
             let serial = client.one_camera(args.cameras.camera.as_deref()).await?;
-            return Ok(if args.observe {
+            return Ok(if args.observe || args.live {
                 Self::Observe { serial, stream }
             } else {
                 Self::Repeat(Repeat::Grab { serial, stream })
             });
         }
-        if args.observe {
-            if args.target != Target::Measure {
+        if args.observe || args.live {
+            if args.target != Target::Measure || args.live {
                 bail!(
-                    "--observe watches one camera's color, depth or pointcloud resource, or the measurements"
+                    "--observe watches one camera's color, depth or pointcloud resource, or the measurements; --live one camera's stream"
                 );
             }
             if args.cameras.camera.is_some() {
@@ -190,8 +205,8 @@ impl Plan {
         Ok(Self::Repeat(repeat))
     }
 
-    /// Words for the header.
-    fn describe(&self) -> String {
+    /// Words for the header (`live`: of the live stream).
+    fn describe(&self, live: bool) -> String {
         match self {
             Self::Repeat(Repeat::Grab { serial, stream }) => {
                 format!("POST /cams/{serial}/{}", stream.name())
@@ -201,6 +216,9 @@ impl Plan {
                 format!("measure with camera {sn}")
             }
             Self::Repeat(Repeat::Measure(_)) => "measure with every camera".to_owned(),
+            Self::Observe { serial, stream } if live => {
+                format!("observe GET {}", live::path(serial, *stream))
+            }
             Self::Observe { serial, stream } => {
                 format!("observe GET /cams/{serial}/{}", stream.name())
             }
@@ -216,6 +234,8 @@ struct Report {
     seen: u64,
     /// How the last failed result would end the command.
     last_failure: Option<Exit>,
+    /// With --live: the frame rate, the latencies and the frames skipped.
+    live: LiveStats,
 }
 
 impl Report {
@@ -231,6 +251,7 @@ impl Report {
         match outcome {
             Ok(s) => {
                 self.stats.record(s.time);
+                self.live.record(Instant::now(), s.latency);
                 let mean = self.stats.mean().unwrap_or(s.time);
                 if self.json {
                     let measurement = s
@@ -252,6 +273,7 @@ impl Report {
                         received_bytes: s.bytes,
                         time_ms: millis(s.time),
                         mean_ms: millis(mean),
+                        latency_ms: s.latency.map(millis),
                     };
                     outln!("{}", serde_json::to_string(&line)?);
                 } else {
@@ -263,6 +285,9 @@ impl Report {
                         millis(s.time),
                         millis(mean)
                     );
+                    if let Some(latency) = s.latency {
+                        line += &format!("  latency {:.1} ms", millis(latency));
+                    }
                     if let Some(r) = &s.record {
                         line += &format!(
                             "  record #{} {} {} {}",
@@ -417,6 +442,25 @@ async fn carry_out(
 ) -> anyhow::Result<()> {
     let timeout = args.transmission.timeout();
     match plan {
+        Plan::Observe { serial, stream } if args.live => {
+            let on_frame = |frame: Result<LiveFrame, TimedError>| {
+                let elapsed = frame.as_ref().map_or(Duration::ZERO, |f| f.gap);
+                if let Ok(f) = &frame {
+                    report.live.skipped = f.skipped;
+                }
+                let frame = frame.map(|f| Success {
+                    bytes: f.bytes,
+                    time: f.gap,
+                    measurement: None,
+                    record: None,
+                    latency: f.latency,
+                });
+                report.result(frame.map_err(anyhow::Error::from), elapsed)?;
+                Ok::<_, anyhow::Error>(report.done(args.count))
+            };
+            let (accept, fps) = (args.accept, args.fps);
+            live::follow(client, serial, *stream, accept, fps, timeout, on_frame).await
+        }
         Plan::Observe { serial, stream } => {
             let on_result = |outcome: Result<Timed, TimedError>, elapsed| {
                 let grab = outcome.map(|t| Success::timed(t, &Calibration::default()));
@@ -453,6 +497,7 @@ async fn carry_out(
                     time: elapsed,
                     measurement: None,
                     record: Some(record),
+                    latency: None,
                 };
                 report.result(Ok(success), elapsed)?;
                 Ok::<_, anyhow::Error>(report.done(args.count))
@@ -482,7 +527,7 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
         } => ready?,
         signal = signals.recv() => return Err(signal.into()),
     };
-    let what = plan.describe();
+    let what = plan.describe(args.live);
     if !args.json {
         match args.count {
             Some(n) => outln!("{what}: {n} result(s)"),
@@ -494,6 +539,7 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
         stats: TransferStats::new(),
         seen: 0,
         last_failure: None,
+        live: LiveStats::default(),
     };
     let work = carry_out(&plan, &client, &args, &mut report);
     let mut interrupted = None;
@@ -505,15 +551,23 @@ pub(crate) async fn run(args: MonitorArgs) -> anyhow::Result<Exit> {
         }
     };
     let summary = report.stats.summary();
+    let live = args.live.then(|| report.live.summary());
     if args.json {
-        outln!("{}", summary.to_json());
+        let mut json = summary.to_json();
+        if let Some(live) = &live {
+            json["live"] = live.to_json();
+        }
+        outln!("{json}");
     } else {
-        let times = if args.observe {
+        let times = if args.observe || args.live {
             "times between results"
         } else {
             "transfer times"
         };
         out!("{}", summary.text(times));
+        if let Some(live) = &live {
+            out!("{}", live.text());
+        }
     }
     ended?;
     Ok(if summary.count > 0 {

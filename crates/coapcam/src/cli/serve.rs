@@ -120,6 +120,17 @@ pub(crate) struct ServeArgs {
     #[arg(long, value_name = "MIB", default_value_t = 256,
           value_parser = clap::value_parser!(u64).range(1..=1_048_576))]
     grab_memory: u64,
+    /// Live streams (observations of /cams/<sn>/<stream>/live) a client address may have
+    /// at once; the next answers 4.29 Too Many Requests.
+    #[arg(long, value_name = "N", default_value_t = 4,
+          value_parser = clap::value_parser!(u64).range(1..=1024))]
+    live_streams_per_client: u64,
+    /// Live streams in all; the next answers 5.03 with Max-Age 5. Each stream of another
+    /// camera, stream or representation grabs and encodes its frames; observers of the
+    /// same share them.
+    #[arg(long, value_name = "N", default_value_t = 32,
+          value_parser = clap::value_parser!(u64).range(1..=1024))]
+    live_streams: u64,
     /// The station's name, in every record of the results log (default: the host name).
     /// With --mqtt it is one topic level, so no /, + or #.
     #[arg(long, value_name = "NAME")]
@@ -356,6 +367,10 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
         ws_binds: args.bind_ws.clone(),
         identities,
         clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
+        live: server::LiveLimits {
+            per_client: usize::try_from(args.live_streams_per_client).unwrap_or(usize::MAX),
+            total: usize::try_from(args.live_streams).unwrap_or(usize::MAX),
+        },
     };
     let name = args.station_name.clone().unwrap_or_else(station::host_name);
     if let Err(e) = args.outputs.check() {

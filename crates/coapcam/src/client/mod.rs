@@ -7,6 +7,7 @@ pub mod calibrate;
 pub mod clocks;
 pub mod codes;
 pub mod frames;
+pub mod live;
 pub mod measure;
 pub mod results;
 pub mod rtt_cache;

@@ -32,7 +32,7 @@ use tokio::time::{Instant, MissedTickBehavior};
 use crate::backends::{self, Backend, synthetic};
 use crate::report::{EdgeQuery, Measurement};
 use cams::Cams;
-pub use cams::{Busy, CodeColor, EdgeError};
+pub use cams::{Busy, CodeColor, EdgeError, LiveLimits};
 use clock::ServerClock;
 pub use error::{AddressError, StartError};
 use files::StaticFiles;
@@ -88,6 +88,8 @@ pub struct Config {
     /// and its frames' capture times) by this many µs (`--clock-offset-ms`: a server whose
     /// clock is off, for tests); 0 for the system's clock.
     pub clock_offset_us: i64,
+    /// The bounds of the live streams (`/cams/<sn>/<stream>/live`).
+    pub live: LiveLimits,
 }
 
 /// The policy of a server without security configured: configuration changes (PUT and
@@ -166,7 +168,7 @@ impl CameraServer {
                 &router,
                 &clock,
                 changed_tx.clone(),
-                config.grab_memory,
+                (config.grab_memory, config.live),
             )?)
         };
         let binds = &config.binds;
@@ -516,10 +518,11 @@ fn start_cameras(
     router: &Arc<Router>,
     clock: &Arc<ServerClock>,
     changed: mpsc::UnboundedSender<String>,
-    grab_memory: u64,
+    (grab_memory, live): (u64, LiveLimits),
 ) -> Result<CameraTree, StartError> {
     let (hub, cams) = start_hub(state_dir, router, changed, clock)?;
     cams.set_grab_memory(grab_memory);
+    cams.set_live_limits(live);
     for backend in &mut backends {
         let serials = backend.start(&hub)?;
         wait_routed(router, &serials, true)?;

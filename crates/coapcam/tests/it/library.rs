@@ -654,6 +654,7 @@ fn a_camera_server_serves_the_cameras_of_every_backend_in_its_list_until_it_is_d
             ws_binds: Vec::new(),
             identities: None,
             clock_offset_us: 0,
+            live: coapcam::server::LiveLimits::default(),
         })
         .await
         .expect("camera server");

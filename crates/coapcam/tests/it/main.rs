@@ -22,6 +22,7 @@ mod interop;
 mod lane;
 mod library;
 mod line;
+mod live;
 mod load;
 mod logs;
 mod markers;

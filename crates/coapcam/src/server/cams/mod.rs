@@ -2,9 +2,11 @@
 //! per-camera grab and configuration resources that follow the [`CameraHub`], and
 //! `/cams/pointclouds`, and `/cams/dimensions` (measurement at the edge, an extension).
 
+mod answer;
 mod budget;
 mod edge;
 mod grab;
+mod live;
 mod merge;
 mod state;
 #[cfg(test)]
@@ -30,7 +32,6 @@ use tokio::sync::mpsc;
 use super::measure::{self, Records, Rig, RigCamera, Shot};
 use crate::api::record::{CameraPose, Change, Event, Trigger, parameters_sha256, sha256_hex};
 use crate::report::{self, EdgeQuery, Measurement};
-use crate::repr::no_depth::{self, NoDepth};
 use crate::repr::{self, CloudSource, Stream, Subject, raster};
 use crate::vision::calibration::pose_transformation;
 use crate::vision::codes;
@@ -38,9 +39,11 @@ use crate::vision::codes;
 use super::clock::ServerClock;
 use crate::documents::AppConfig;
 use crate::timesync::{self, FrameHistory, FrameTime, Limits};
+use answer::{content, encode, frame_etag, representation_etag, set_cf, subject, with_no_depth};
 pub use budget::Busy;
 pub use edge::EdgeError;
 use grab::{Frame, GrabError};
+pub use live::LiveLimits;
 use merge::{Merged, register_and_merge};
 use state::StateDir;
 
@@ -62,6 +65,7 @@ fn names(camera: &dyn Camera) -> impl Iterator<Item = &'static str> {
     let advanced = camera.advanced_mode().is_some();
     (Stream::ALL.iter().map(|s| s.name()))
         .chain(CONFIGS)
+        .chain(live::NAMES)
         .filter(move |name| advanced || *name != ADVANCED)
 }
 
@@ -158,6 +162,8 @@ pub(crate) struct Cams {
     /// The last frame of each camera measured at the edge: a camera that serves it again
     /// is stale.
     frames: Mutex<FrameHistory>,
+    /// The live streams (`/cams/<sn>/<stream>/live`).
+    live: live::Live,
 }
 
 impl Cams {
@@ -191,6 +197,7 @@ impl Cams {
             records: OnceLock::new(),
             clock,
             frames: Mutex::default(),
+            live: live::Live::default(),
         });
         me.register_fixed();
         let events = me.hub.subscribe();
@@ -213,6 +220,11 @@ impl Cams {
     /// beyond it answers 5.03 with Max-Age 1.
     pub(crate) fn set_grab_memory(&self, bytes: u64) {
         self.budget.set_limit(bytes);
+    }
+
+    /// Sets the bounds of the live streams.
+    pub(crate) fn set_live_limits(&self, limits: LiveLimits) {
+        self.live.set_limits(limits);
     }
 
     /// Keeps every measurement made for a client (`POST /cams/dimensions`) in `records`
@@ -256,6 +268,21 @@ impl Cams {
                     }
                 }))
                 .attr("ct", "40"),
+        );
+        let me = self.clone();
+        self.router.add(
+            crate::api::paths::LIVE,
+            Resource::new()
+                .get(handler(move |_ctx| {
+                    let response = live::report(&me.live);
+                    async move { response }
+                }))
+                .attr("rt", "coapcam.live")
+                .attr("ct", "50")
+                .attr(
+                    "title",
+                    "extension: the live streams, their bounds and counters",
+                ),
         );
         let me = self.clone();
         self.router.add(
@@ -422,7 +449,10 @@ impl Cams {
 
     fn disconnected(&self, sn: Serial) {
         lock(&self.cams).remove(&sn);
-        let names = Stream::ALL.iter().map(|s| s.name()).chain(CONFIGS);
+        self.live.forget_camera(sn);
+        let names = (Stream::ALL.iter().map(|s| s.name()))
+            .chain(CONFIGS)
+            .chain(live::NAMES);
         self.router
             .remove_all(names.map(|name| crate::api::paths::camera(sn, name)));
         tracing::info!(serial = %sn, "camera disconnected: /cams/{sn} removed");
@@ -463,7 +493,31 @@ impl Cams {
                 }
             })
         };
-        let resource = if let Some(kind) = Stream::of(name) {
+        let resource = if let Some(kind) = live::stream_of(name) {
+            let me = self.clone();
+            let weak = Arc::downgrade(self);
+            let ct: Vec<String> = live::formats(kind)
+                .iter()
+                .map(|cf| cf.0.to_string())
+                .collect();
+            Resource::new()
+                .get(handler(move |ctx| {
+                    let me = me.clone();
+                    async move { live::answer(&me, sn, kind, &ctx.request).await }
+                }))
+                .attr("rt", format!("{}.live", kind.resource_type()))
+                .attr("ct", ct.join(" "))
+                .attr(
+                    "title",
+                    "extension: observe for frames as they are captured, ?fps=N",
+                )
+                .observable()
+                .on_observation_end(Arc::new(move |peer, id| {
+                    if let Some(me) = weak.upgrade() {
+                        me.live.leave((peer, id));
+                    }
+                }))
+        } else if let Some(kind) = Stream::of(name) {
             let rt = kind.resource_type();
             let (get_me, post_me, post_path) = (self.clone(), self.clone(), path.clone());
             Resource::new()
@@ -1247,6 +1301,44 @@ impl Cams {
     }
 }
 
+impl live::Cameras for Cams {
+    fn live(&self) -> &live::Live {
+        &self.live
+    }
+
+    fn rate(&self, sn: Serial, kind: Stream) -> Option<u32> {
+        let cam = self.camera(&sn)?;
+        Some(match kind {
+            Stream::Color => cam.camera.color_settings().fps,
+            Stream::Depth | Stream::Pointcloud => cam.camera.depth_settings().fps,
+        })
+    }
+
+    fn grab(&self, sn: Serial, kind: Stream) -> Result<Frame, String> {
+        let cam = self
+            .camera(&sn)
+            .ok_or_else(|| format!("camera {sn} is disconnected"))?;
+        let _held = self
+            .reserve(&[(sn, cam.clone())], &[kind])
+            .map_err(|busy| busy.to_string())?;
+        let app = lock(&cam.app).clone();
+        let transformation = *lock(&cam.transformation);
+        let camera = cam.camera.as_ref();
+        let frame = match kind {
+            Stream::Color => grab::color(camera, &app),
+            Stream::Depth => grab::depth(camera, &app),
+            Stream::Pointcloud => grab::cloud(camera, &app, &transformation),
+        };
+        frame
+            .map(|f| f.on_clock(&self.clock))
+            .map_err(|e| e.to_string())
+    }
+
+    fn changed(&self, path: &str) {
+        let _ = self.changed.send(path.to_owned());
+    }
+}
+
 impl Rig for Cams {
     type Error = EdgeError;
 
@@ -1397,11 +1489,6 @@ fn grab_error(sn: &Serial, e: &GrabError) -> Response {
     }
 }
 
-fn set_cf(r: &mut Response, cf: ContentFormat) {
-    r.options
-        .set_uint(OptionNumber::CONTENT_FORMAT, u32::from(cf.0));
-}
-
 /// The content format to answer with, or 4.06 Not Acceptable.
 #[expect(
     clippy::result_large_err,
@@ -1439,29 +1526,7 @@ fn represent(
         Ok(q) => q,
         Err(refused) => return refused,
     };
-    let subject = match frame {
-        Frame::Color(frame, intrinsics, depth_to_color) => Subject::Color {
-            frame,
-            intrinsics,
-            depth_to_color,
-            serial: sn,
-            quality: quality.unwrap_or(raster::JPEG_QUALITY),
-        },
-        Frame::Depth(frame, intrinsics) => Subject::Depth {
-            frame,
-            intrinsics,
-            serial: sn,
-        },
-        Frame::Cloud { points, part, .. } => Subject::Cloud {
-            points,
-            timestamp_us: part.depth.timestamp_us,
-            source: CloudSource::Camera {
-                serial: sn,
-                frame: part.depth.frame_number,
-            },
-            parts: std::slice::from_ref(part),
-        },
-    };
+    let subject = subject(sn, frame, quality.unwrap_or(raster::JPEG_QUALITY));
     let body = encode(cf, &subject);
     let response = match body {
         Ok(body) => content(body, cf, representation_etag(etag, cf, quality)),
@@ -1471,18 +1536,6 @@ fn represent(
         Frame::Cloud { no_depth, .. } => with_no_depth(response, no_depth),
         _ => response,
     }
-}
-
-/// `response` with the [`no_depth::NO_DEPTH`] option when `regions` are not empty.
-fn with_no_depth(mut response: Response, regions: &[NoDepth]) -> Response {
-    if !regions.is_empty() {
-        let mut largest = regions.to_vec();
-        largest.sort_by(|a, b| b.area_m2.total_cmp(&a.area_m2));
-        response
-            .options
-            .set(no_depth::NO_DEPTH, no_depth::encode(&largest));
-    }
-    response
 }
 
 /// The JPEG quality a request asks for with the query `q=N` (1-100), if it does; 4.00 for
@@ -1510,50 +1563,6 @@ fn jpeg_quality(request: &IncomingRequest, cf: ContentFormat) -> Result<Option<u
             &format!("q={q}: the JPEG quality is a whole number from 1 to 100"),
         )),
     }
-}
-
-/// `subject` in content format `cf` (one that [`negotiate`] chose), by its row of the table.
-fn encode(cf: ContentFormat, subject: &Subject<'_>) -> Result<Vec<u8>, repr::EncodeError> {
-    match repr::Format::of(cf) {
-        Some(row) => row.encode(subject),
-        None => Err(repr::EncodeError::NotServed {
-            stream: subject.stream_name(),
-            format: "an unknown content format",
-        }),
-    }
-}
-
-/// A 2.05 Content of `body` in `cf` with ETag `etag`.
-fn content(body: Vec<u8>, cf: ContentFormat, etag: [u8; 8]) -> Response {
-    let mut r = Response::new(Code::CONTENT).with_payload(body);
-    set_cf(&mut r, cf);
-    r.options.set(OptionNumber::ETAG, etag);
-    r
-}
-
-/// The ETag of one representation of a frame: the frame's own for the thesis packet.
-fn representation_etag(frame: [u8; 8], cf: ContentFormat, quality: Option<u8>) -> [u8; 8] {
-    if cf == ContentFormat::OCTET_STREAM {
-        return frame;
-    }
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    (frame, cf.0).hash(&mut h);
-    if let Some(q) = quality {
-        q.hash(&mut h);
-    }
-    h.finish().to_be_bytes()
-}
-
-fn frame_etag(sn: &Serial, kind: Stream, frame: &Frame) -> [u8; 8] {
-    let mut h = std::collections::hash_map::DefaultHasher::new();
-    (
-        sn.as_u64(),
-        kind.index(),
-        frame.frame_number(),
-        frame.timestamp_us(),
-    )
-        .hash(&mut h);
-    h.finish().to_be_bytes()
 }
 
 /// How far along its optical axis camera's 3d-transformation puts the table (the plane
