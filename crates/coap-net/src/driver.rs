@@ -449,7 +449,10 @@ impl Thread {
                     tracing::debug!(error = %e, "recv failed");
                     for peer in self.socket.unreachable() {
                         self.fail_peer(peer, RequestError::Unreachable);
+                        // And what it observed of a server ends.
+                        self.ep.peer_unreachable(peer);
                     }
+                    self.events(false);
                 }
             }
             // Every turn, not only after a wake-up: a lost wake-up costs no command.

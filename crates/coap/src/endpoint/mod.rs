@@ -168,6 +168,15 @@ impl Endpoint {
         server.notify(&mut cx, now, id, response)
     }
 
+    /// The network says nothing listens at `peer` (an ICMP port unreachable for a datagram
+    /// sent to it): the observations it had end, each with [`Event::ObservationEnded`], as
+    /// when it rejects a notification (RFC 7641 §3.6), rather than when a confirmable
+    /// notification goes unacknowledged after every retransmission.
+    pub fn peer_unreachable(&mut self, peer: SocketAddr) {
+        let (mut cx, _, server) = self.parts();
+        server.end_observations_of(&mut cx, peer);
+    }
+
     /// The next datagram to send.
     pub fn poll_transmit(&mut self) -> Option<Transmit> {
         self.msg.outbox.queue.pop_front()

@@ -566,6 +566,17 @@ impl ServerLayer {
         }
     }
 
+    /// Ends every observation of `peer` ([`Endpoint::peer_unreachable`](super::Endpoint::peer_unreachable)).
+    pub(super) fn end_observations_of(&mut self, cx: &mut Context<'_>, peer: SocketAddr) {
+        let ids: Vec<u64> = (self.observations.iter())
+            .filter(|(_, o)| o.peer == peer)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in ids {
+            self.end_observation(cx, id);
+        }
+    }
+
     pub(super) fn end_observation(&mut self, cx: &mut Context<'_>, id: u64) {
         if self.observations.remove(&id).is_some() {
             cx.events.push_back(Event::ObservationEnded {

@@ -320,3 +320,34 @@ fn libcoap_client_observes_a_live_stream() {
         etags.len()
     );
 }
+
+/// A client killed while it observes sends no Reset; the next notification to its closed
+/// port comes back as an ICMP port unreachable, which ends the observation at once: the
+/// stream is gone from `/cams/live` within 3 s, not after a confirmable notification's
+/// retransmissions (17 s measured before).
+#[test]
+fn a_killed_client_s_stream_ends_at_once() {
+    let state = TempDir::new("live-killed");
+    let (_server, addr) = serve_with(state.path(), &[]);
+    let server = format!("coap://{addr}");
+    let args = ["monitor", "depth", "--live", "--server", &server];
+    let mut monitor = Proc::spawn(COAPCAM, &args);
+    monitor.stdout_line(LIMIT, |l| l.starts_with("#1 ").then_some(()));
+    runtime().block_on(async {
+        let c = client_on([127, 0, 0, 1]);
+        assert_eq!(report(&c, addr).await["streams"], 1);
+        monitor.kill();
+        let killed = Instant::now();
+        loop {
+            let now = report(&c, addr).await;
+            if now["streams"] == 0 {
+                break;
+            }
+            assert!(
+                killed.elapsed() < Duration::from_secs(3),
+                "the killed client's stream lasts: {now}"
+            );
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    });
+}
