@@ -554,3 +554,28 @@ fn rfc7641_4_5_1_non_notifications_are_paced_by_the_con_among_them() {
             .notify(now, obs, Response::new(Code::CONTENT))
     );
 }
+
+/// A peer that the network says no longer listens (an ICMP port unreachable for a
+/// datagram sent to it: `Endpoint::peer_unreachable`) has its observations ended at once:
+/// the owner is told, and the next notification to it does not go out.
+#[test]
+fn an_unreachable_peer_s_observations_end() {
+    let (mut sim, c, s, obs) = observed(LinkConfig::default());
+    let client = sim.nodes[c].addr;
+    let other: std::net::SocketAddr = "192.0.2.1:5683".parse().expect("an address");
+    sim.nodes[s].ep.peer_unreachable(other);
+    assert!(
+        std::iter::from_fn(|| sim.nodes[s].ep.poll_event())
+            .next()
+            .is_none()
+    );
+    sim.nodes[s].ep.peer_unreachable(client);
+    let events: Vec<Event> = std::iter::from_fn(|| sim.nodes[s].ep.poll_event()).collect();
+    assert!(
+        matches!(events.as_slice(), [Event::ObservationEnded { id }] if *id == obs),
+        "{events:?}"
+    );
+    let now = sim.now;
+    let next = Response::new(Code::CONTENT).with_payload("v1");
+    assert!(!sim.nodes[s].ep.notify(now, obs, next));
+}
