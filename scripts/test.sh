@@ -68,6 +68,15 @@ if [ -x ../shared/peers/build-libcoap.sh ] || [ -f ../shared/peers/build-libcoap
 else
   echo "libcoap 4.3.5: ../shared/peers/build-libcoap.sh not found; its tests skip (fail in CI)"
 fi
+# libcoap 4.3.5 with OpenSSL (coaps+tcp, coaps+ws: Debian's 4.3.1 has no WebSockets) from
+# the same tarball, by a script of ours, for the coaps+ws interop tests (tests/it/tls.rs).
+if COAPCAM_LIBCOAP435_OPENSSL=$(COAPCAM_LIBCOAP_TARBALL=../shared/peers/libcoap-4.3.5.tar.gz \
+    bash scripts/build-libcoap-openssl.sh); then
+  export COAPCAM_LIBCOAP435_OPENSSL
+  echo "libcoap 4.3.5 with OpenSSL: $COAPCAM_LIBCOAP435_OPENSSL"
+else
+  peer_failed "libcoap 4.3.5 with OpenSSL (scripts/build-libcoap-openssl.sh)"
+fi
 AIOCOAP_VERSION=0.4.17
 if command -v aiocoap-client >/dev/null \
   && python3 -c "import aiocoap.meta as m, sys; sys.exit(m.version != '$AIOCOAP_VERSION')" 2>/dev/null; then

@@ -1,7 +1,7 @@
 //! The client: requests with transparent block-wise transfer, Observe as a stream,
 //! multicast requests that collect every server's response, ping; over UDP (or DTLS), or
 //! over TCP ([`Client::tcp`], `coap+tcp://`) or WebSockets ([`Client::ws`], `coap+ws://`),
-//! chosen when it is made, so that what sends
+//! either with TLS ([`Client::tls`], [`Client::wss`]), chosen when it is made, so that what sends
 //! requests does not care which.
 
 use std::net::SocketAddr;
@@ -106,6 +106,24 @@ impl Client {
         Self {
             transport: Transport::Tcp(ws),
         }
+    }
+
+    /// A `coaps+tcp` client (RFC 8323, TLS): as [`Client::tcp`], each connection TLS with
+    /// `key` (a [`Psk::Client`]; see [`TcpClient::tls`]).
+    pub fn tls(config: &EndpointConfig, key: &Psk) -> std::io::Result<Self> {
+        let tls = TcpClient::tls(config.limits.client_body_bytes, key)?;
+        Ok(Self {
+            transport: Transport::Tcp(tls),
+        })
+    }
+
+    /// A `coaps+ws` client (RFC 8323 §4, a `wss` WebSocket): as [`Client::ws`] over TLS
+    /// with `key` (see [`TcpClient::wss`]).
+    pub fn wss(config: &EndpointConfig, key: &Psk) -> std::io::Result<Self> {
+        let wss = TcpClient::wss(config.limits.client_body_bytes, key)?;
+        Ok(Self {
+            transport: Transport::Tcp(wss),
+        })
     }
 
     /// The endpoint of a UDP client; over TCP, [`Error::Unsupported`] naming `what`.

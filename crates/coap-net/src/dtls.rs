@@ -151,8 +151,10 @@ impl std::fmt::Debug for Dtls {
     }
 }
 
-/// The identity OpenSSL's server callback saw, kept in the session's extra data.
-fn identity_index() -> Result<openssl::ex_data::Index<Ssl, Arc<str>>, openssl::error::ErrorStack> {
+/// The identity OpenSSL's server callback saw, kept in the session's extra data (DTLS's
+/// and TLS's).
+pub(crate) fn identity_index()
+-> Result<openssl::ex_data::Index<Ssl, Arc<str>>, openssl::error::ErrorStack> {
     static INDEX: std::sync::OnceLock<openssl::ex_data::Index<Ssl, Arc<str>>> =
         std::sync::OnceLock::new();
     if let Some(i) = INDEX.get() {

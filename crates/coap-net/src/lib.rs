@@ -5,8 +5,10 @@
 //! datagram), DTLS sessions (OpenSSL's, [`dtls`]), the thread per socket that owns a
 //! `coap::Endpoint`, the [`Client`], the [`Server`] and its [`Router`], the `coap+tcp`
 //! and `coap+ws` [`TcpServer`] and [`TcpClient`] (a task per connection owning a
-//! `coap::connection::Connection`; WebSockets through tokio-tungstenite), `coap://`,
-//! `coaps://`, `coap+tcp://` and `coap+ws://` URIs.
+//! `coap::connection::Connection`; WebSockets through tokio-tungstenite) and their TLS
+//! twins `coaps+tcp` and `coaps+ws` (OpenSSL's TLS with pre-shared keys, through
+//! tokio-openssl), `coap://`, `coaps://`, `coap+tcp://`, `coaps+tcp://`, `coap+ws://` and
+//! `coaps+ws://` URIs.
 //! Must not: implement protocol rules (those live in `coap`), or read the clock anywhere
 //! but [`clock::now`].
 
@@ -20,6 +22,7 @@ pub mod router;
 pub mod server;
 pub mod socket;
 pub mod tcp;
+mod tls;
 pub mod uri;
 
 pub use client::{BodyPart, BodyStream, Client, Observation, fresh_seed};
@@ -54,7 +57,7 @@ pub enum Error {
     #[error("the endpoint has shut down")]
     Closed,
     /// What was asked is not done over this client's transport (Observe or multicast
-    /// over TCP or WebSockets).
-    #[error("{0} is not supported over coap+tcp or coap+ws")]
+    /// over TCP or WebSockets, with TLS or not).
+    #[error("{0} is not supported over coap+tcp or coap+ws (nor coaps+tcp or coaps+ws)")]
     Unsupported(&'static str),
 }

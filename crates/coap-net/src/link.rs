@@ -1,16 +1,21 @@
 //! What carries a stream connection's frames (RFC 8323): a TCP stream (`coap+tcp`), whose
 //! bytes the [`Connection`] cuts into frames itself, or a WebSocket over one (`coap+ws`,
-//! §4), each of whose binary messages is one frame. The WebSocket handshakes and framing
-//! are tokio-tungstenite's; what is CoAP's here is the endpoint's path,
-//! `/.well-known/coap`, and the subprotocol `coap` (§4.1), which both ends ask for.
+//! §4), each of whose binary messages is one frame; either of them over TLS on the TCP
+//! stream (`coaps+tcp`, `coaps+ws`; the handshake is `tls.rs`'s). The WebSocket
+//! handshakes and framing are tokio-tungstenite's; what is CoAP's here is the endpoint's
+//! path, `/.well-known/coap`, and the subprotocol `coap` (§4.1), which both ends ask for.
 
+use std::io;
 use std::net::SocketAddr;
+use std::pin::Pin;
+use std::task::{Context, Poll};
 
 use bytes::Bytes;
 use coap::connection::Connection;
 use futures_util::{SinkExt, StreamExt};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 use tokio::net::TcpStream;
+use tokio_openssl::SslStream;
 use tokio_tungstenite::WebSocketStream;
 use tokio_tungstenite::tungstenite::handshake::client::Request as ClientRequest;
 use tokio_tungstenite::tungstenite::handshake::server::{ErrorResponse, Request, Response};
@@ -24,20 +29,86 @@ pub const WS_PATH: &str = "/.well-known/coap";
 /// The WebSocket subprotocol of CoAP (RFC 8323 §4.1).
 const SUBPROTOCOL: &str = "coap";
 
+/// The bytes under a connection: a TCP stream, or TLS on one.
+#[derive(Debug)]
+pub(crate) enum Stream {
+    /// TCP as it is (`coap+tcp`, `coap+ws`).
+    Plain(TcpStream),
+    /// TLS on TCP (`coaps+tcp`, `coaps+ws`), its handshake done (boxed: OpenSSL's
+    /// stream carries its buffers).
+    Tls(Box<SslStream<TcpStream>>),
+}
+
+impl Stream {
+    /// Whether this is TLS.
+    pub(crate) fn is_tls(&self) -> bool {
+        matches!(self, Self::Tls(_))
+    }
+}
+
+impl AsyncRead for Stream {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        match self.get_mut() {
+            Self::Plain(s) => Pin::new(s).poll_read(cx, buf),
+            Self::Tls(s) => Pin::new(&mut **s).poll_read(cx, buf),
+        }
+    }
+}
+
+impl AsyncWrite for Stream {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        match self.get_mut() {
+            Self::Plain(s) => Pin::new(s).poll_write(cx, buf),
+            Self::Tls(s) => Pin::new(&mut **s).poll_write(cx, buf),
+        }
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        match self.get_mut() {
+            Self::Plain(s) => Pin::new(s).poll_flush(cx),
+            Self::Tls(s) => Pin::new(&mut **s).poll_flush(cx),
+        }
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        match self.get_mut() {
+            Self::Plain(s) => Pin::new(s).poll_shutdown(cx),
+            Self::Tls(s) => Pin::new(&mut **s).poll_shutdown(cx),
+        }
+    }
+}
+
 /// One connection's carrier.
 #[derive(Debug)]
 pub(crate) enum Link {
-    /// A TCP stream and its read buffer.
-    Tcp(TcpStream, Vec<u8>),
+    /// A stream and its read buffer.
+    Tcp(Stream, Vec<u8>),
     /// A WebSocket (boxed: its state is large) and the last message received.
-    Ws(Box<WebSocketStream<TcpStream>>, Bytes),
+    Ws(Box<WebSocketStream<Stream>>, Bytes),
 }
 
 impl Link {
-    /// A TCP stream as it is.
-    pub(crate) fn tcp(stream: TcpStream) -> Self {
-        let _ = stream.set_nodelay(true);
+    /// A stream as it is.
+    pub(crate) fn tcp(stream: Stream) -> Self {
         Self::Tcp(stream, vec![0; 64 * 1024])
+    }
+
+    /// The URI scheme of what this carries.
+    pub(crate) fn scheme(&self) -> &'static str {
+        match self {
+            Self::Tcp(s, _) if s.is_tls() => "coaps+tcp",
+            Self::Tcp(..) => "coap+tcp",
+            Self::Ws(ws, _) if ws.get_ref().is_tls() => "coaps+ws",
+            Self::Ws(..) => "coap+ws",
+        }
     }
 
     /// The connection for this carrier, accepting messages of up to `max_message_size`.
@@ -72,13 +143,13 @@ impl Link {
 
     /// Sends what [`Connection::poll_transmit`] gave: bytes of the stream, or one
     /// WebSocket message.
-    pub(crate) async fn send(&mut self, bytes: Vec<u8>) -> std::io::Result<()> {
+    pub(crate) async fn send(&mut self, bytes: Vec<u8>) -> io::Result<()> {
         match self {
             Self::Tcp(stream, _) => stream.write_all(&bytes).await,
             Self::Ws(ws, _) => ws
                 .send(Message::Binary(bytes.into()))
                 .await
-                .map_err(std::io::Error::other),
+                .map_err(io::Error::other),
         }
     }
 
@@ -107,8 +178,7 @@ fn ws_config(max_message_size: u32) -> WebSocketConfig {
     clippy::result_large_err,
     reason = "tungstenite's handshake callback returns its HTTP response as the error"
 )]
-pub(crate) async fn accept_ws(stream: TcpStream, max_message_size: u32) -> std::io::Result<Link> {
-    let _ = stream.set_nodelay(true);
+pub(crate) async fn accept_ws(stream: Stream, max_message_size: u32) -> io::Result<Link> {
     let check = |request: &Request, mut response: Response| {
         if request.uri().path() != WS_PATH {
             let why = format!("CoAP over WebSockets is served at {WS_PATH}");
@@ -134,7 +204,7 @@ pub(crate) async fn accept_ws(stream: TcpStream, max_message_size: u32) -> std::
     let config = Some(ws_config(max_message_size));
     let ws = tokio_tungstenite::accept_hdr_async_with_config(stream, check, config)
         .await
-        .map_err(std::io::Error::other)?;
+        .map_err(io::Error::other)?;
     Ok(Link::Ws(Box::new(ws), Bytes::new()))
 }
 
@@ -143,7 +213,7 @@ pub(crate) async fn accept_ws(stream: TcpStream, max_message_size: u32) -> std::
     clippy::result_large_err,
     reason = "tungstenite's handshake callback returns its HTTP response as the error"
 )]
-pub(crate) async fn refuse_ws(stream: TcpStream, status: StatusCode, why: String) {
+pub(crate) async fn refuse_ws(stream: Stream, status: StatusCode, why: String) {
     let refuse = |_: &Request, _: Response| Err(refusal(status, why));
     let _ = tokio_tungstenite::accept_hdr_async(stream, refuse).await;
 }
@@ -158,14 +228,14 @@ fn refusal(status: StatusCode, why: String) -> ErrorResponse {
 /// The client's side of the WebSocket handshake with `peer` on `stream`: a GET of
 /// [`WS_PATH`] asking for the subprotocol `coap`, which the server must choose.
 pub(crate) async fn connect_ws(
-    stream: TcpStream,
+    stream: Stream,
     peer: SocketAddr,
     max_message_size: u32,
-) -> std::io::Result<Link> {
-    let _ = stream.set_nodelay(true);
-    let mut request: ClientRequest = format!("ws://{peer}{WS_PATH}")
+) -> io::Result<Link> {
+    let scheme = if stream.is_tls() { "wss" } else { "ws" };
+    let mut request: ClientRequest = format!("{scheme}://{peer}{WS_PATH}")
         .into_client_request()
-        .map_err(std::io::Error::other)?;
+        .map_err(io::Error::other)?;
     let protocol = HeaderValue::from_static(SUBPROTOCOL);
     request
         .headers_mut()
@@ -173,6 +243,6 @@ pub(crate) async fn connect_ws(
     let config = Some(ws_config(max_message_size));
     let (ws, _) = tokio_tungstenite::client_async_with_config(request, stream, config)
         .await
-        .map_err(|e| std::io::Error::other(format!("coap+ws {peer}: {e}")))?;
+        .map_err(|e| io::Error::other(format!("WebSocket handshake: {e}")))?;
     Ok(Link::Ws(Box::new(ws), Bytes::new()))
 }

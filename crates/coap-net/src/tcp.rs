@@ -1,9 +1,13 @@
-//! `coap+tcp://` and `coap+ws://` (RFC 8323): serving, a listener whose every connection
+//! `coap+tcp://` and `coap+ws://` (RFC 8323), and their TLS twins `coaps+tcp://` and
+//! `coaps+ws://`: serving, a listener whose every connection
 //! is a [`coap::connection::Connection`], its requests handed to the same [`Router`] the
 //! UDP [`Server`](crate::Server) uses; and the client side, [`TcpClient`], which keeps
 //! one connection per server. Over WebSockets ([`TcpServer::bind_ws`],
 //! [`TcpClient::websocket`]) the same runs over a WebSocket on the TCP stream, each of
-//! its messages one frame (the carrier is `link.rs`'s). Nothing here decides protocol behaviour: the connection
+//! its messages one frame (the carrier is `link.rs`'s). With TLS ([`TcpServer::bind_tls`],
+//! [`TcpServer::bind_wss`], [`TcpClient::tls`], [`TcpClient::wss`]) OpenSSL's TLS with a
+//! pre-shared key runs on the TCP stream first (`tls.rs`), and a server's requests carry
+//! the client's PSK identity as DTLS ones do. Nothing here decides protocol behaviour: the connection
 //! answers signalling, frames messages and matches responses; this moves bytes, runs
 //! handlers and hands responses to whoever waits for them.
 //!
@@ -16,7 +20,8 @@
 //! [`DEFAULT_MAX_CONNECTIONS`] connections open, a further one turned away with a
 //! Release that says why; a connection idle for [`DEFAULT_IDLE_TIMEOUT`] (nothing came,
 //! no request of its being handled) released and closed; messages of up to
-//! [`DEFAULT_MAX_MESSAGE_SIZE`].
+//! [`DEFAULT_MAX_MESSAGE_SIZE`]. The TLS and WebSocket handshakes must be done within the
+//! idle timeout; a connection whose handshake fails or takes longer is closed.
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -32,9 +37,11 @@ use tokio::sync::{Semaphore, mpsc, oneshot, watch};
 use tokio_tungstenite::tungstenite::http::StatusCode;
 
 use crate::Error;
+use crate::dtls::Psk;
 pub use crate::link::WS_PATH;
-use crate::link::{self, Link};
+use crate::link::{self, Link, Stream};
 use crate::router::Router;
+use crate::tls::Tls;
 
 /// The Max-Message-Size a [`TcpServer`] announces unless told otherwise: a request of up
 /// to 1 MiB, whole (there is no block-wise transfer over TCP yet).
@@ -121,7 +128,45 @@ impl TcpServer {
         router: Arc<Router>,
         limits: StreamLimits,
     ) -> std::io::Result<Self> {
-        Self::start(addr, router, limits, false).await
+        Self::start(addr, router, limits, Door::default()).await
+    }
+
+    /// Listens on `addr` for TLS connections (`coaps+tcp`) with the identities of `keys`
+    /// (a [`Psk::Server`]) and serves `router` on each, within `limits`: a client must
+    /// finish its TLS handshake with a key `keys` knows within `limits.idle_timeout`.
+    /// Beyond `limits.max_connections` a client gets its handshake, the CSM and a Release
+    /// saying why. Requests carry the client's PSK identity
+    /// ([`coap::IncomingRequest::identity`]).
+    pub async fn bind_tls(
+        addr: SocketAddr,
+        router: Arc<Router>,
+        limits: StreamLimits,
+        keys: &Psk,
+    ) -> std::io::Result<Self> {
+        let tls = Some(server_tls(keys, true)?);
+        let door = Door {
+            websocket: false,
+            tls,
+        };
+        Self::start(addr, router, limits, door).await
+    }
+
+    /// Listens on `addr` for WebSockets over TLS (`coaps+ws`, a `wss` endpoint at
+    /// [`WS_PATH`]) with the identities of `keys`, as [`TcpServer::bind_ws`] does over TCP
+    /// and [`TcpServer::bind_tls`] with TLS: both handshakes within
+    /// `limits.idle_timeout`.
+    pub async fn bind_wss(
+        addr: SocketAddr,
+        router: Arc<Router>,
+        limits: StreamLimits,
+        keys: &Psk,
+    ) -> std::io::Result<Self> {
+        let tls = Some(server_tls(keys, false)?);
+        let door = Door {
+            websocket: true,
+            tls,
+        };
+        Self::start(addr, router, limits, door).await
     }
 
     /// Listens on `addr` for WebSocket connections and serves `router` on each (RFC 8323
@@ -133,21 +178,25 @@ impl TcpServer {
         router: Arc<Router>,
         limits: StreamLimits,
     ) -> std::io::Result<Self> {
-        Self::start(addr, router, limits, true).await
+        let door = Door {
+            websocket: true,
+            tls: None,
+        };
+        Self::start(addr, router, limits, door).await
     }
 
     async fn start(
         addr: SocketAddr,
         router: Arc<Router>,
         limits: StreamLimits,
-        websocket: bool,
+        door: Door,
     ) -> std::io::Result<Self> {
         let listener = TcpListener::bind(addr)
             .await
             .map_err(|e| std::io::Error::new(e.kind(), format!("{addr}: {e}")))?;
         let local_addr = listener.local_addr()?;
         let (stop, stopped) = watch::channel(());
-        tokio::spawn(listen(listener, router, limits, websocket, stopped));
+        tokio::spawn(listen(listener, router, limits, door, stopped));
         Ok(Self {
             local_addr,
             _stop: stop,
@@ -160,16 +209,71 @@ impl TcpServer {
     }
 }
 
-/// Accepts connections (WebSocket ones when `websocket`) and starts a task serving each,
-/// or turns it away at the limit, until the server is dropped.
+/// The server side of TLS with `keys`, which must be a server's.
+fn server_tls(keys: &Psk, alpn: bool) -> std::io::Result<Arc<Tls>> {
+    if !matches!(keys, Psk::Server(_)) {
+        let why = "a TLS server needs the identities it accepts (Psk::Server)";
+        return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, why));
+    }
+    Tls::new(keys, alpn)
+}
+
+/// What a listener's connections speak: WebSockets or not, TLS or not.
+#[derive(Debug, Clone, Default)]
+struct Door {
+    websocket: bool,
+    tls: Option<Arc<Tls>>,
+}
+
+impl Door {
+    fn scheme(&self) -> &'static str {
+        match (self.tls.is_some(), self.websocket) {
+            (false, false) => "coap+tcp",
+            (false, true) => "coap+ws",
+            (true, false) => "coaps+tcp",
+            (true, true) => "coaps+ws",
+        }
+    }
+
+    /// The server's side of a new connection's handshakes (TLS, then WebSocket): its
+    /// link and the client's PSK identity.
+    async fn open(
+        &self,
+        stream: TcpStream,
+        max_message_size: u32,
+    ) -> std::io::Result<(Link, Option<Arc<str>>)> {
+        let (stream, identity) = self.secure(stream).await?;
+        let link = if self.websocket {
+            link::accept_ws(stream, max_message_size).await?
+        } else {
+            Link::tcp(stream)
+        };
+        Ok((link, identity))
+    }
+
+    /// The TLS handshake when this door has TLS: the stream and the client's identity.
+    async fn secure(&self, stream: TcpStream) -> std::io::Result<(Stream, Option<Arc<str>>)> {
+        let _ = stream.set_nodelay(true);
+        match &self.tls {
+            Some(tls) => {
+                let (stream, identity) = tls.accept(stream).await?;
+                Ok((Stream::Tls(Box::new(stream)), identity))
+            }
+            None => Ok((Stream::Plain(stream), None)),
+        }
+    }
+}
+
+/// Accepts connections (speaking what `door` says) and starts a task serving each, or
+/// turns it away at the limit, until the server is dropped.
 async fn listen(
     listener: TcpListener,
     router: Arc<Router>,
     limits: StreamLimits,
-    websocket: bool,
+    door: Door,
     mut stopped: watch::Receiver<()>,
 ) {
-    let scheme = if websocket { "coap+ws" } else { "coap+tcp" };
+    let scheme = door.scheme();
     let ids = Arc::new(AtomicU64::new(0));
     // A permit per open connection, held by its task.
     let open = Arc::new(Semaphore::new(limits.max_connections));
@@ -185,29 +289,27 @@ async fn listen(
                             let max = limits.max_connections;
                             tracing::warn!(%peer, max, "{scheme} connections at their limit: turning new ones away (logged once a minute)");
                         }
-                        tokio::spawn(turn_away(stream, limits, websocket));
+                        tokio::spawn(turn_away(stream, limits, door.clone()));
                         continue;
                     };
                     let (router, ids, stopped) = (router.clone(), ids.clone(), stopped.clone());
+                    let door = door.clone();
                     tokio::spawn(async move {
-                        let link = if websocket {
-                            let shake = link::accept_ws(stream, limits.max_message_size);
-                            match tokio::time::timeout(limits.idle_timeout, shake).await {
-                                Ok(Ok(link)) => link,
-                                Ok(Err(e)) => {
-                                    tracing::debug!(%peer, error = %e, "coap+ws handshake failed");
-                                    return;
-                                }
-                                Err(_) => {
-                                    tracing::debug!(%peer, "coap+ws handshake took too long");
-                                    return;
-                                }
+                        let shake = door.open(stream, limits.max_message_size);
+                        let (link, identity) = match tokio::time::timeout(limits.idle_timeout, shake).await {
+                            Ok(Ok(opened)) => opened,
+                            Ok(Err(e)) => {
+                                tracing::debug!(%peer, error = %e, "{scheme} handshake failed");
+                                return;
                             }
-                        } else {
-                            Link::tcp(stream)
+                            Err(_) => {
+                                tracing::debug!(%peer, "{scheme} handshake took too long");
+                                return;
+                            }
                         };
                         let conn = link.connection(limits.max_message_size);
-                        serve(link, peer, conn, router, ids, limits.idle_timeout, stopped).await;
+                        let from = Peer { addr: peer, identity };
+                        serve(link, from, conn, router, ids, limits.idle_timeout, stopped).await;
                         drop(permit);
                     });
                 }
@@ -223,19 +325,20 @@ async fn listen(
 
 /// Turns away a connection accepted beyond the limit: sends a TCP one the server's CSM
 /// and a Release that says why, answers a WebSocket one's handshake 503 with the same
-/// sentence, and closes it.
-async fn turn_away(mut stream: TcpStream, limits: StreamLimits, websocket: bool) {
+/// sentence, and closes it; over TLS once the TLS handshake is done (all within
+/// [`REFUSAL_TIME`]: a client too slow for it just sees the connection close).
+async fn turn_away(stream: TcpStream, limits: StreamLimits, door: Door) {
     let max = limits.max_connections;
     let reason = format!("the server has {max} connections open, its limit");
-    if websocket {
-        let refuse = link::refuse_ws(stream, StatusCode::SERVICE_UNAVAILABLE, reason);
-        let _ = tokio::time::timeout(REFUSAL_TIME, refuse).await;
-        return;
-    }
-    let mut conn = Connection::new(limits.max_message_size);
-    conn.release(&reason, Some(FULL_HOLD_OFF_S));
-    let bytes = conn.poll_transmit().unwrap_or_default();
     let refuse = async {
+        let (mut stream, _) = door.secure(stream).await?;
+        if door.websocket {
+            link::refuse_ws(stream, StatusCode::SERVICE_UNAVAILABLE, reason).await;
+            return Ok(());
+        }
+        let mut conn = Connection::new(limits.max_message_size);
+        conn.release(&reason, Some(FULL_HOLD_OFF_S));
+        let bytes = conn.poll_transmit().unwrap_or_default();
         stream.write_all(&bytes).await?;
         stream.shutdown().await?;
         let mut sink = [0u8; 1024];
@@ -245,21 +348,26 @@ async fn turn_away(mut stream: TcpStream, limits: StreamLimits, websocket: bool)
     let _ = tokio::time::timeout(REFUSAL_TIME, refuse).await;
 }
 
+/// Who is at the other end of a server's connection.
+#[derive(Debug)]
+struct Peer {
+    addr: SocketAddr,
+    /// The PSK identity a TLS client presented.
+    identity: Option<Arc<str>>,
+}
+
 /// Moves one connection's bytes between its stream and its `Connection`, and its
 /// requests to the router, until either side ends it or it is idle for `idle_timeout`.
 async fn serve(
     mut link: Link,
-    peer: SocketAddr,
+    from: Peer,
     mut conn: Connection,
     router: Arc<Router>,
     ids: Arc<AtomicU64>,
     idle_timeout: Duration,
     mut stopped: watch::Receiver<()>,
 ) {
-    let scheme = match link {
-        Link::Tcp(..) => "coap+tcp",
-        Link::Ws(..) => "coap+ws",
-    };
+    let (scheme, peer) = (link.scheme(), from.addr);
     let (answer, mut answers) = mpsc::unbounded_channel::<(Token, Response)>();
     let mut in_flight = 0;
     // When the connection last showed life: bytes came, or an answer went.
@@ -284,7 +392,7 @@ async fn serve(
                         // Reliable, as a CON is.
                         confirmable: true,
                         observe: None,
-                        identity: None,
+                        identity: from.identity.clone(),
                         // TCP's handshake proves the peer's address, so one on
                         // loopback is this machine (as the HTTP side decides).
                         loopback: peer.ip().to_canonical().is_loopback(),
@@ -347,8 +455,8 @@ async fn serve(
 pub struct TcpClient {
     /// The largest response body taken ([`coap::Limits::client_body_bytes`]).
     body_limit: usize,
-    /// Over WebSockets (`coap+ws`) rather than plain TCP.
-    websocket: bool,
+    /// Over WebSockets (`coap+ws`) or plain TCP, with TLS under it or not.
+    door: Door,
     /// The command channel of each server's connection task.
     connections: Arc<Mutex<HashMap<SocketAddr, mpsc::UnboundedSender<ToConnection>>>>,
 }
@@ -394,16 +502,47 @@ impl TcpClient {
     pub fn new(body_limit: usize) -> Self {
         Self {
             body_limit,
-            websocket: false,
+            door: Door::default(),
             connections: Arc::default(),
         }
+    }
+
+    /// The same over TLS (`coaps+tcp`) with `key` (a [`Psk::Client`]: its identity and
+    /// key), offering the ALPN protocol `coap`. A server that does not know the key
+    /// fails the handshake, and each request with it.
+    pub fn tls(body_limit: usize, key: &Psk) -> std::io::Result<Self> {
+        let door = Door {
+            websocket: false,
+            tls: Some(client_tls(key, true)?),
+        };
+        Ok(Self {
+            door,
+            ..Self::new(body_limit)
+        })
+    }
+
+    /// WebSockets over TLS (`coaps+ws`, a `wss` connection to the server's [`WS_PATH`])
+    /// with `key`, as [`TcpClient::tls`].
+    pub fn wss(body_limit: usize, key: &Psk) -> std::io::Result<Self> {
+        let door = Door {
+            websocket: true,
+            tls: Some(client_tls(key, false)?),
+        };
+        Ok(Self {
+            door,
+            ..Self::new(body_limit)
+        })
     }
 
     /// The same over WebSockets (`coap+ws`, RFC 8323 §4): each connection is a WebSocket
     /// to the server's [`WS_PATH`] with the subprotocol `coap`.
     pub fn websocket(body_limit: usize) -> Self {
-        Self {
+        let door = Door {
             websocket: true,
+            tls: None,
+        };
+        Self {
+            door,
             ..Self::new(body_limit)
         }
     }
@@ -419,7 +558,7 @@ impl TcpClient {
             return tx.clone();
         }
         let (tx, rx) = mpsc::unbounded_channel();
-        tokio::spawn(drive(peer, self.body_limit, self.websocket, rx));
+        tokio::spawn(drive(peer, self.body_limit, self.door.clone(), rx));
         connections.insert(peer, tx.clone());
         tx
     }
@@ -479,11 +618,11 @@ impl TcpClient {
 async fn drive(
     peer: SocketAddr,
     body_limit: usize,
-    websocket: bool,
+    door: Door,
     mut commands: mpsc::UnboundedReceiver<ToConnection>,
 ) {
-    let scheme = if websocket { "coap+ws" } else { "coap+tcp" };
-    let mut link = match connect(peer, websocket).await {
+    let scheme = door.scheme();
+    let mut link = match connect(peer, &door).await {
         Ok(link) => link,
         Err(e) => {
             commands.close();
@@ -564,15 +703,33 @@ async fn drive(
     }
 }
 
-/// Opens the connection to `peer`: a TCP one, and the WebSocket handshake over it when
-/// `websocket` (given [`DEFAULT_RESPONSE_TIMEOUT`] at most).
-async fn connect(peer: SocketAddr, websocket: bool) -> std::io::Result<Link> {
-    let stream = TcpStream::connect(peer).await?;
-    if !websocket {
-        return Ok(Link::tcp(stream));
+/// The client side of TLS with `key`, which must be a client's.
+fn client_tls(key: &Psk, alpn: bool) -> std::io::Result<Arc<Tls>> {
+    if !matches!(key, Psk::Client { .. }) {
+        let why = "a TLS client needs an identity and its key (Psk::Client)";
+        return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, why));
     }
-    let shake = link::connect_ws(stream, peer, CLIENT_MAX_MESSAGE_SIZE);
+    Tls::new(key, alpn)
+}
+
+/// Opens the connection to `peer`: a TCP one, then the TLS handshake and the WebSocket
+/// one over it as `door` says (the handshakes given [`DEFAULT_RESPONSE_TIMEOUT`] at
+/// most).
+async fn connect(peer: SocketAddr, door: &Door) -> std::io::Result<Link> {
+    let stream = TcpStream::connect(peer).await?;
+    let _ = stream.set_nodelay(true);
+    let shake = async {
+        let stream = match &door.tls {
+            Some(tls) => Stream::Tls(Box::new(tls.connect(stream).await?)),
+            None => Stream::Plain(stream),
+        };
+        if door.websocket {
+            link::connect_ws(stream, peer, CLIENT_MAX_MESSAGE_SIZE).await
+        } else {
+            Ok(Link::tcp(stream))
+        }
+    };
     tokio::time::timeout(DEFAULT_RESPONSE_TIMEOUT, shake)
         .await
-        .map_err(|_| std::io::Error::new(std::io::ErrorKind::TimedOut, "WebSocket handshake"))?
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::TimedOut, "handshake"))?
 }

@@ -1,28 +1,30 @@
 //! `coap://host[:port]/path?query` and `coaps://` URIs (RFC 7252 §6), and
-//! `coap+tcp://` and `coap+ws://` ones (RFC 8323 §8.1, §8.2), to a socket address and
-//! request options, and back.
+//! `coap+tcp://`, `coaps+tcp://`, `coap+ws://` and `coaps+ws://` ones (RFC 8323 §8), to a
+//! socket address and request options, and back.
 
 use std::net::{IpAddr, SocketAddr};
 
 use coap::{OptionNumber, Options};
 
-/// A parsed `coap://`, `coaps://` or `coap+tcp://` URI.
+/// A parsed `coap://`, `coaps://`, `coap+tcp://`, `coaps+tcp://`, `coap+ws://` or
+/// `coaps+ws://` URI.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Uri {
-    /// `coaps://`: the server is reached through DTLS (RFC 7252 §6.2).
+    /// `coaps`: the server is reached through DTLS (`coaps://`, RFC 7252 §6.2), or TLS
+    /// with `tcp` or `ws` (`coaps+tcp://`, `coaps+ws://`).
     pub secure: bool,
-    /// `coap+tcp://`: the server is reached over TCP (RFC 8323 §8.1).
+    /// `coap+tcp://` (or `coaps+tcp://`): the server is reached over TCP (RFC 8323 §8).
     pub tcp: bool,
-    /// `coap+ws://`: the server is reached over WebSockets, at its
-    /// `/.well-known/coap` (RFC 8323 §8.2); the path is the resource's, as ever.
+    /// `coap+ws://` (or `coaps+ws://`): the server is reached over WebSockets, at its
+    /// `/.well-known/coap` (RFC 8323 §8); the path is the resource's, as ever.
     pub ws: bool,
     /// Host as written: an IP literal (IPv6 without brackets or zone) or a name.
     pub host: String,
     /// The zone of an IPv6 link-local literal (RFC 6874, `[ff02::fd%25eth0]`): an
     /// interface name or index.
     pub zone: Option<String>,
-    /// Port (5683 when absent, for `coap+tcp://` too; 5684 for `coaps://`; 80 for
-    /// `coap+ws://`).
+    /// Port (5683 when absent, for `coap+tcp://` too; 5684 for `coaps://` and
+    /// `coaps+tcp://`; 80 for `coap+ws://`, 443 for `coaps+ws://`).
     pub port: u16,
     /// Path segments, percent-decoded.
     pub path: Vec<String>,
@@ -33,9 +35,10 @@ pub struct Uri {
 /// Why a URI was refused.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum UriError {
-    /// Only `coap://`, `coaps://`, `coap+tcp://` and `coap+ws://` are supported.
+    /// Only `coap://`, `coaps://`, `coap+tcp://`, `coaps+tcp://`, `coap+ws://` and
+    /// `coaps+ws://` are supported.
     #[error(
-        "unsupported scheme in {0:?}: only coap://, coaps://, coap+tcp:// and coap+ws:// are supported"
+        "unsupported scheme in {0:?}: only coap://, coaps://, coap+tcp://, coaps+tcp://, coap+ws:// and coaps+ws:// are supported"
     )]
     Scheme(String),
     /// No host.
@@ -54,21 +57,25 @@ pub enum UriError {
 
 /// The default CoAP port.
 pub const DEFAULT_PORT: u16 = 5683;
-/// The default port of CoAP over DTLS (`coaps://`).
+/// The default port of CoAP over DTLS (`coaps://`) and over TLS (`coaps+tcp://`).
 pub const DEFAULT_SECURE_PORT: u16 = 5684;
-/// The default port of CoAP over WebSockets (`coap+ws://`, RFC 8323 §8.2): HTTP's.
+/// The default port of CoAP over WebSockets (`coap+ws://`, RFC 8323 §8): HTTP's.
 pub const DEFAULT_WS_PORT: u16 = 80;
+/// The default port of CoAP over WebSockets over TLS (`coaps+ws://`): HTTPS's.
+pub const DEFAULT_WSS_PORT: u16 = 443;
 
 impl Uri {
-    /// Parses `coap://host[:port][/path][?query]` (or `coaps://`, `coap+tcp://` or
-    /// `coap+ws://`).
+    /// Parses `coap://host[:port][/path][?query]` (or `coaps://`, `coap+tcp://`,
+    /// `coaps+tcp://`, `coap+ws://` or `coaps+ws://`).
     pub fn parse(s: &str) -> Result<Self, UriError> {
         // Scheme, secure, tcp, ws.
         let schemes = [
             ("coap://", false, false, false),
             ("coaps://", true, false, false),
             ("coap+tcp://", false, true, false),
+            ("coaps+tcp://", true, true, false),
             ("coap+ws://", false, false, true),
+            ("coaps+ws://", true, false, true),
         ];
         let Some((rest, secure, tcp, ws)) = schemes.iter().find_map(|(scheme, secure, tcp, ws)| {
             Some((s.strip_prefix(scheme)?, *secure, *tcp, *ws))
@@ -113,6 +120,7 @@ impl Uri {
                 .ok()
                 .filter(|p| *p != 0)
                 .ok_or_else(|| UriError::Port(s.to_string()))?,
+            None if secure && ws => DEFAULT_WSS_PORT,
             None if secure => DEFAULT_SECURE_PORT,
             None if ws => DEFAULT_WS_PORT,
             None => DEFAULT_PORT,
@@ -268,13 +276,23 @@ mod tests {
         let u = Uri::parse("coap+tcp://camera-1.local:6000").unwrap();
         assert_eq!((u.port, u.path.len()), (6000, 0));
         assert!(!Uri::parse("coap://x").unwrap().tcp);
-        // TLS is not supported yet, over TCP or WebSockets.
-        for other in ["coaps+tcp://x/", "coaps+ws://x/"] {
-            assert!(
-                matches!(Uri::parse(other), Err(UriError::Scheme(_))),
-                "{other}"
-            );
-        }
+    }
+
+    #[test]
+    fn rfc8323_8_coaps_tcp_and_coaps_ws_uris_are_tls_on_ports_5684_and_443() {
+        let u = Uri::parse("coaps+tcp://127.0.0.1/cams?x=1").unwrap();
+        assert_eq!((u.secure, u.tcp, u.ws), (true, true, false));
+        assert_eq!((u.port, u.path_string()), (5684, "/cams".into()));
+        let u = Uri::parse("coaps+ws://[::1]/cams").unwrap();
+        assert_eq!((u.secure, u.tcp, u.ws), (true, false, true));
+        assert_eq!((u.host.as_str(), u.port), ("::1", 443));
+        let u = Uri::parse("coaps+ws://camera-1.local:8443").unwrap();
+        assert_eq!(u.port, 8443);
+        // Not a scheme of RFC 8323's.
+        assert!(matches!(
+            Uri::parse("coaps+udp://x/"),
+            Err(UriError::Scheme(_))
+        ));
     }
 
     #[test]

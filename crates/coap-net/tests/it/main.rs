@@ -4,6 +4,7 @@ mod dtls;
 mod multicast;
 mod stream;
 mod tcp;
+mod tls;
 mod ws;
 
 use std::net::SocketAddr;

@@ -61,10 +61,11 @@ pub(crate) struct TransmissionArgs {
     /// know Q-Block, as `window`). Uploads are windowed only with `q-block`.
     #[arg(long, value_name = "MODE", default_value = "window")]
     transfer: TransferMode,
-    /// For coaps:// URIs: the DTLS pre-shared key identity to present.
+    /// For coaps://, coaps+tcp:// and coaps+ws:// URIs: the pre-shared key identity to
+    /// present (in DTLS or TLS).
     #[arg(long, value_name = "ID", requires = "psk_key")]
     psk_identity: Option<String>,
-    /// For coaps:// URIs: the pre-shared key of --psk-identity (its text, as libcoap's
+    /// For coaps://, coaps+tcp:// and coaps+ws:// URIs: the pre-shared key of --psk-identity (its text, as libcoap's
     /// coap-client -k takes it).
     #[arg(long, value_name = "KEY", requires = "psk_identity")]
     psk_key: Option<String>,
@@ -133,8 +134,9 @@ impl TransmissionArgs {
 /// `--all`.
 #[derive(Debug, Clone, Args)]
 pub(crate) struct CameraArgs {
-    /// The server, coap://host[:port] (or coaps:// with --psk-identity and --psk-key, or
-    /// coap+tcp:// over TCP).
+    /// The server, coap://host[:port] (or coaps:// with --psk-identity and --psk-key,
+    /// coap+tcp:// over TCP, coap+ws:// over WebSockets, or coaps+tcp:// and coaps+ws://
+    /// over TLS with the same keys).
     /// `measure` takes it more than once: every camera of each server, merged.
     // Required, but an argument that conflicts with one given (measure's --group) is not.
     #[arg(long, value_name = "URI", required = true, value_parser = values::coap_uri)]

@@ -68,8 +68,8 @@ fn parse_block_size(s: &str) -> Result<u8, String> {
 /// Flags of `discover`.
 #[derive(Debug, Args)]
 pub(crate) struct DiscoverArgs {
-    /// The server (coap://host[:port], coaps:// or coap+tcp://); a multicast address (coap://
-    /// only) asks every server in the group.
+    /// The server (coap://host[:port], coaps://, coap+tcp://, coap+ws://, coaps+tcp:// or
+    /// coaps+ws://); a multicast address (coap:// only) asks every server in the group.
     #[arg(required_unless_present = "rd", value_parser = values::coap_uri)]
     uri: Option<String>,
     /// List the endpoints (stations) registered with this resource directory instead

@@ -104,7 +104,18 @@ pub(crate) struct ServeArgs {
     /// and the same rule for configuration changes.
     #[arg(long, value_name = "ADDR:PORT")]
     bind_ws: Vec<SocketAddr>,
-    /// The DTLS identities, one per line: `IDENTITY KEY ROLE`, ROLE `read` (GET, grabs,
+    /// Also answer coaps+tcp:// (CoAP over TLS, RFC 8323) on this address, e.g.
+    /// 0.0.0.0:5684; repeatable. Needs --psk-file: a client must present one of its
+    /// identities and keys (TLS 1.3 or 1.2 with a pre-shared key, no certificates), which
+    /// then counts as over coaps://. Otherwise as --bind-tcp.
+    #[arg(long, value_name = "ADDR:PORT", requires = "psk_file")]
+    bind_tls: Vec<SocketAddr>,
+    /// Also answer coaps+ws:// (CoAP over WebSockets over TLS, wss) on this address, e.g.
+    /// 0.0.0.0:443 (the scheme's default port) or 127.0.0.1:8443; repeatable. Needs
+    /// --psk-file, with the keys as --bind-tls; otherwise as --bind-ws.
+    #[arg(long, value_name = "ADDR:PORT", requires = "psk_file")]
+    bind_wss: Vec<SocketAddr>,
+    /// The DTLS and TLS identities, one per line: `IDENTITY KEY ROLE`, ROLE `read` (GET, grabs,
     /// discovery, Observe) or `configure` (also PUT, DELETE, POST to /coap-group, /files
     /// and /cams/<name>). With it, configuration changes need a `configure` identity
     /// (4.03 for a `read` one, 4.01 over plain CoAP), except from this machine.
@@ -365,6 +376,8 @@ fn config(args: &ServeArgs) -> anyhow::Result<(server::Config, station::Config)>
         secure_binds: args.coaps.clone(),
         tcp_binds: args.bind_tcp.clone(),
         ws_binds: args.bind_ws.clone(),
+        tls_binds: args.bind_tls.clone(),
+        wss_binds: args.bind_wss.clone(),
         identities,
         clock_offset_us: args.clock_offset_ms.saturating_mul(1000),
         live: server::LiveLimits {
@@ -410,7 +423,7 @@ fn warn_of_config(args: &ServeArgs) {
     }
     if args.psk_file.is_some() {
         eprintln!(
-            "coapcam: configuration changes need a DTLS identity of the configure role (or this machine)"
+            "coapcam: configuration changes need a DTLS or TLS identity of the configure role (or this machine)"
         );
     } else if args.allow_unauthenticated_config {
         eprintln!(
@@ -451,6 +464,12 @@ fn announce(args: &ServeArgs, station: &Station) {
     }
     for a in station.ws_addrs() {
         eprintln!("coapcam: serving coap+ws on {a}");
+    }
+    for a in station.tls_addrs() {
+        eprintln!("coapcam: serving coaps+tcp on {a}");
+    }
+    for a in station.wss_addrs() {
+        eprintln!("coapcam: serving coaps+ws on {a}");
     }
 }
 

@@ -33,7 +33,8 @@ fn seconds(text: &str, zero: bool) -> Result<Duration, String> {
     Duration::try_from_secs_f64(v).map_err(|_| refused())
 }
 
-/// A coap://, coaps:// or coap+tcp:// URI that parses (scheme, host, port 1-65535, percent-encoding);
+/// A URI of a scheme coap_net::Uri takes (coap://, coaps://, coap+tcp://, coaps+tcp://,
+/// coap+ws://, coaps+ws://) that parses (scheme, host, port 1-65535, percent-encoding);
 /// kept as written for the commands that take text.
 pub(crate) fn coap_uri(text: &str) -> Result<String, String> {
     coap_net::Uri::parse(text).map_err(|e| e.to_string())?;

@@ -28,26 +28,33 @@ use crate::repr::{self, DecodeError, Stream, cbor};
 use crate::timesync::SERVER_TIME;
 
 /// A client for `server`, its transport chosen by `uri`'s scheme: a plain socket for
-/// `coap://`, DTLS with `psk` for `coaps://`, a TCP connection for `coap+tcp://`, a
-/// WebSocket for `coap+ws://`. Every
-/// command that takes a server URI comes here, so each speaks every scheme.
+/// `coap://`, DTLS with `psk` for `coaps://`, a TCP connection for `coap+tcp://` (TLS
+/// with `psk` on it for `coaps+tcp://`), a WebSocket for `coap+ws://` (over TLS with
+/// `psk` for `coaps+ws://`). Every command that takes a server URI comes here, so each
+/// speaks every scheme.
 pub fn secured_client(
     uri: &Uri,
     server: SocketAddr,
     config: EndpointConfig,
     psk: Option<&Psk>,
 ) -> Result<Client, ConnectError> {
-    if uri.tcp {
-        return Ok(Client::tcp(&config));
-    }
-    if uri.ws {
-        return Ok(Client::ws(&config));
-    }
+    let scheme = match (uri.secure, uri.tcp, uri.ws) {
+        (true, true, _) => "coaps+tcp",
+        (true, _, true) => "coaps+ws",
+        _ => "coaps",
+    };
     let psk = match (uri.secure, psk) {
-        (true, None) => return Err(ConnectError::NoKey),
+        (true, None) => return Err(ConnectError::NoKey(scheme)),
         (true, psk) => psk,
         (false, _) => None,
     };
+    match (uri.tcp, uri.ws, psk) {
+        (true, _, None) => return Ok(Client::tcp(&config)),
+        (_, true, None) => return Ok(Client::ws(&config)),
+        (true, _, Some(key)) => return Client::tls(&config, key).map_err(ConnectError::Tls),
+        (_, true, Some(key)) => return Client::wss(&config, key).map_err(ConnectError::Tls),
+        (false, false, _) => {}
+    }
     let client = Client::for_peer_secured(server, config, psk).map_err(ConnectError::Bind)?;
     if !server.ip().is_multicast() {
         rtt_cache::seed(&client, server);
@@ -520,9 +527,13 @@ pub enum ConnectError {
     /// The server's URI is not one.
     #[error(transparent)]
     Uri(#[from] coap_net::uri::UriError),
-    /// A `coaps://` URI without a key.
-    #[error("coaps:// needs a pre-shared key: --psk-identity ID --psk-key KEY")]
-    NoKey,
+    /// A `coaps://`, `coaps+tcp://` or `coaps+ws://` URI (the scheme named) without a
+    /// key.
+    #[error("{0}:// needs a pre-shared key: --psk-identity ID --psk-key KEY")]
+    NoKey(&'static str),
+    /// OpenSSL's TLS could not be set up for `coaps+tcp://` or `coaps+ws://`.
+    #[error("setting up TLS")]
+    Tls(#[source] std::io::Error),
     /// The URI's host did not resolve.
     #[error("resolving {host}")]
     Resolve {

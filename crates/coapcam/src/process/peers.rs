@@ -1,5 +1,5 @@
 //! Where the peer programs are: libcoap 4.3.1 (Debian libcoap3-bin, on PATH), libcoap
-//! 4.3.5 built from source (Q-Block, RFC 9177), aiocoap (PyPI) and `quic-bench` (this
+//! 4.3.5 built from source (Q-Block, RFC 9177; and with OpenSSL, for TLS), aiocoap (PyPI) and `quic-bench` (this
 //! workspace), Mosquitto and PostgreSQL (Debian). Each lookup says why a program cannot be used when it cannot: the
 //! benchmarks report that mode as unavailable, the tests skip or (in CI) fail with it.
 
@@ -61,7 +61,35 @@ pub fn libcoap435_dir() -> PathBuf {
 
 /// libcoap 4.3.5's client and server.
 pub fn libcoap435() -> Result<(PathBuf, PathBuf), String> {
-    let dir = libcoap435_dir();
+    built_libcoap(
+        &libcoap435_dir(),
+        "../shared/peers/build-libcoap.sh builds libcoap 4.3.5 there; COAPCAM_LIBCOAP435 names another folder",
+    )
+}
+
+/// The folder of libcoap 4.3.5's `coap-client` and `coap-server` built with OpenSSL
+/// (DTLS and TLS, so also `coaps+tcp` and `coaps+ws`): `COAPCAM_LIBCOAP435_OPENSSL`, or
+/// `~/.cache/coapcam-peers/libcoap-4.3.5-openssl/build`.
+pub fn libcoap435_openssl_dir() -> PathBuf {
+    std::env::var_os("COAPCAM_LIBCOAP435_OPENSSL").map_or_else(
+        || {
+            let home = std::env::var_os("HOME").unwrap_or_default();
+            PathBuf::from(home).join(".cache/coapcam-peers/libcoap-4.3.5-openssl/build")
+        },
+        PathBuf::from,
+    )
+}
+
+/// libcoap 4.3.5's client and server with OpenSSL.
+pub fn libcoap435_openssl() -> Result<(PathBuf, PathBuf), String> {
+    built_libcoap(
+        &libcoap435_openssl_dir(),
+        "scripts/build-libcoap-openssl.sh builds libcoap 4.3.5 with OpenSSL there; COAPCAM_LIBCOAP435_OPENSSL names another folder",
+    )
+}
+
+/// `coap-client` and `coap-server` in `dir`, or which is missing and `how` to build it.
+fn built_libcoap(dir: &Path, how: &str) -> Result<(PathBuf, PathBuf), String> {
     let (client, server) = (dir.join("coap-client"), dir.join("coap-server"));
     let missing = [&client, &server]
         .into_iter()
@@ -69,11 +97,7 @@ pub fn libcoap435() -> Result<(PathBuf, PathBuf), String> {
         .cloned();
     match missing {
         None => Ok((client, server)),
-        Some(missing) => Err(format!(
-            "{} is missing (../shared/peers/build-libcoap.sh builds libcoap 4.3.5 there; \
-             COAPCAM_LIBCOAP435 names another folder)",
-            missing.display()
-        )),
+        Some(missing) => Err(format!("{} is missing ({how})", missing.display())),
     }
 }
 

@@ -159,7 +159,8 @@ impl Identities {
 
 /// The policy for configuration changes when identities are configured: an identity with
 /// the `configure` role may (4.03 for one that may only read), this machine may over plain
-/// CoAP, and anyone else gets 4.01: they must come over DTLS with such an identity.
+/// CoAP, and anyone else gets 4.01: they must come over DTLS (or TLS, `coaps+tcp` and
+/// `coaps+ws`) with such an identity.
 pub fn by_role(identities: Arc<Identities>) -> impl Fn(&IncomingRequest) -> Option<Response> {
     move |request| match request.identity.as_deref() {
         Some(id) if identities.role(id) == Some(Role::Configure) => None,
@@ -170,7 +171,7 @@ pub fn by_role(identities: Arc<Identities>) -> impl Fn(&IncomingRequest) -> Opti
         None if request.loopback => None,
         None => Some(Response::diagnostic(
             Code::UNAUTHORIZED,
-            "configuration changes need coaps:// with an identity of the configure role",
+            "configuration changes need coaps:// (or coaps+tcp://, coaps+ws://) with an identity of the configure role",
         )),
     }
 }

@@ -22,7 +22,7 @@ use std::time::Duration;
 
 use coap::link_format::Filter;
 use coap::{Code, EndpointConfig, IncomingRequest, Response};
-use coap_net::{Router, Server, ServerConfig, TcpServer};
+use coap_net::{Psk, Router, Server, ServerConfig, TcpServer};
 use coap_rd::registrant::{Announcement, Registrant, RegistrantConfig};
 use rgbd::{CameraHub, Scene, Serial, SyntheticCamera};
 use tokio::sync::mpsc;
@@ -81,7 +81,14 @@ pub struct Config {
     /// Addresses answered over WebSockets (`coap+ws://`, RFC 8323 §4, at
     /// [`coap_net::tcp::WS_PATH`]): as `tcp_binds`, with the same bounds.
     pub ws_binds: Vec<SocketAddr>,
-    /// The DTLS identities with their keys and roles; with them, configuration changes
+    /// Addresses answered over TLS (`coaps+tcp://`): as `tcp_binds`, each client with a
+    /// pre-shared key of `identities` (which they need), its requests with its identity
+    /// as over DTLS.
+    pub tls_binds: Vec<SocketAddr>,
+    /// Addresses answered over WebSockets over TLS (`coaps+ws://`): as `ws_binds`, with
+    /// the keys of `identities` as `tls_binds`.
+    pub wss_binds: Vec<SocketAddr>,
+    /// The DTLS (and TLS) identities with their keys and roles; with them, configuration changes
     /// need an identity of the `configure` role (or this machine).
     pub identities: Option<Arc<Identities>>,
     /// Shift the server's clock as its clients see it (the times it stamps into answers
@@ -114,6 +121,10 @@ pub struct CameraServer {
     tcp: Vec<TcpServer>,
     /// The `coap+ws` listeners, on the same router.
     ws: Vec<TcpServer>,
+    /// The `coaps+tcp` listeners, on the same router.
+    tls: Vec<TcpServer>,
+    /// The `coaps+ws` listeners, on the same router.
+    wss: Vec<TcpServer>,
     /// The `/coap-group` memberships (what `register_with` announces).
     groups: Arc<Groups>,
     files: Option<StaticFiles>,
@@ -185,8 +196,22 @@ impl CameraServer {
             binds: binds.clone(),
             source,
         })?;
-        let tcp = stream_listeners(&config.tcp_binds, server.router(), false).await?;
-        let ws = stream_listeners(&config.ws_binds, server.router(), true).await?;
+        let keys = config.identities.as_ref().map(Identities::keys);
+        let secured = [&config.tls_binds, &config.wss_binds];
+        if keys.is_none()
+            && let Some(binds) = secured.into_iter().find(|b| !b.is_empty())
+        {
+            let why = "TLS (coaps+tcp, coaps+ws) needs the identities of a --psk-file";
+            return Err(StartError::Bind {
+                binds: binds.clone(),
+                source: std::io::Error::new(std::io::ErrorKind::InvalidInput, why),
+            });
+        }
+        let router = server.router();
+        let tcp = stream_listeners(&config.tcp_binds, router, false, None).await?;
+        let ws = stream_listeners(&config.ws_binds, router, true, None).await?;
+        let tls = stream_listeners(&config.tls_binds, router, false, keys.as_ref()).await?;
+        let wss = stream_listeners(&config.wss_binds, router, true, keys.as_ref()).await?;
         groups
             .start(&server, &config.groups, config.group_interface)
             .await?;
@@ -194,6 +219,8 @@ impl CameraServer {
             server,
             tcp,
             ws,
+            tls,
+            wss,
             groups,
             files,
             changed,
@@ -256,6 +283,16 @@ impl CameraServer {
     /// The addresses it answers on over WebSockets.
     pub fn ws_addrs(&self) -> Vec<SocketAddr> {
         self.ws.iter().map(TcpServer::local_addr).collect()
+    }
+
+    /// The addresses it answers on over TLS (`coaps+tcp`).
+    pub fn tls_addrs(&self) -> Vec<SocketAddr> {
+        self.tls.iter().map(TcpServer::local_addr).collect()
+    }
+
+    /// The addresses it answers on over WebSockets over TLS (`coaps+ws`).
+    pub fn wss_addrs(&self) -> Vec<SocketAddr> {
+        self.wss.iter().map(TcpServer::local_addr).collect()
     }
 
     /// Registers this server with a resource directory and keeps the registration alive
@@ -542,19 +579,22 @@ struct CameraTree {
 }
 
 /// A listener on each of `addrs` serving `router` over TCP, or over WebSockets when `ws`
-/// (RFC 8323), each within the default [`coap_net::tcp::StreamLimits`].
+/// (RFC 8323), with TLS and the identities of `keys` when given, each within the default
+/// [`coap_net::tcp::StreamLimits`].
 async fn stream_listeners(
     addrs: &[SocketAddr],
     router: &Arc<Router>,
     ws: bool,
+    keys: Option<&Psk>,
 ) -> Result<Vec<TcpServer>, StartError> {
     let mut listeners = Vec::with_capacity(addrs.len());
     for &addr in addrs {
         let (router, limits) = (Arc::clone(router), coap_net::tcp::StreamLimits::default());
-        let bound = if ws {
-            TcpServer::bind_ws(addr, router, limits).await
-        } else {
-            TcpServer::bind(addr, router, limits).await
+        let bound = match (ws, keys) {
+            (false, None) => TcpServer::bind(addr, router, limits).await,
+            (true, None) => TcpServer::bind_ws(addr, router, limits).await,
+            (false, Some(keys)) => TcpServer::bind_tls(addr, router, limits, keys).await,
+            (true, Some(keys)) => TcpServer::bind_wss(addr, router, limits, keys).await,
         };
         listeners.push(bound.map_err(|source| StartError::Bind {
             binds: vec![addr],

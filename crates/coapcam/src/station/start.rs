@@ -249,6 +249,17 @@ impl Station {
         self.server.ws_addrs()
     }
 
+    /// The addresses the camera server answers on over TLS (`coaps+tcp://`).
+    pub fn tls_addrs(&self) -> Vec<SocketAddr> {
+        self.server.tls_addrs()
+    }
+
+    /// The addresses the camera server answers on over WebSockets over TLS
+    /// (`coaps+ws://`).
+    pub fn wss_addrs(&self) -> Vec<SocketAddr> {
+        self.server.wss_addrs()
+    }
+
     /// Registers the camera server with a resource directory
     /// ([`CameraServer::register_with`]).
     ///

@@ -41,6 +41,7 @@ mod service;
 mod signals;
 mod support;
 mod tcp;
+mod tls;
 mod usage;
 mod webhook;
 mod ws;

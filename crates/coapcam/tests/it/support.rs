@@ -40,6 +40,10 @@ pub(crate) enum Peer {
     /// `../shared/peers/build-libcoap.sh`: its folder in `COAPCAM_LIBCOAP435`, or the
     /// script's default.
     Libcoap435,
+    /// libcoap 4.3.5 built with OpenSSL (DTLS, TLS and WebSockets over TLS) by
+    /// `scripts/build-libcoap-openssl.sh`: its folder in `COAPCAM_LIBCOAP435_OPENSSL`, or
+    /// the script's default.
+    Libcoap435Openssl,
     /// Debian mosquitto (the broker) and mosquitto-clients (mosquitto_sub).
     Mosquitto,
     /// Debian chromium and chromium-driver (headless Chromium and chromedriver).
@@ -104,6 +108,7 @@ fn missing(peer: Peer) -> Option<String> {
                 .to_owned()
         }),
         Peer::Libcoap435 => peers::libcoap435().err(),
+        Peer::Libcoap435Openssl => peers::libcoap435_openssl().err(),
         Peer::Aiocoap => peers::aiocoap().err(),
         Peer::Postgres => peers::postgres_bin().err(),
         Peer::Asyncua => peers::asyncua().err(),
