@@ -120,7 +120,9 @@ impl Tls {
         let identity = identity_index()
             .ok()
             .and_then(|i| tls.ssl().ex_data(i).cloned());
-        tracing::debug!(version = tls.ssl().version_str(), identity = ?identity, "TLS accepted");
+        let cipher = tls.ssl().current_cipher().map(|c| c.name());
+        let version = tls.ssl().version_str();
+        tracing::debug!(version, cipher, identity = ?identity, "TLS accepted");
         Ok((tls, identity))
     }
 
@@ -132,7 +134,9 @@ impl Tls {
             .connect()
             .await
             .map_err(|e| handshake_error(&e))?;
-        tracing::debug!(version = tls.ssl().version_str(), "TLS connected");
+        let cipher = tls.ssl().current_cipher().map(|c| c.name());
+        let version = tls.ssl().version_str();
+        tracing::debug!(version, cipher, "TLS connected");
         Ok(tls)
     }
 

@@ -62,6 +62,11 @@ pub(crate) fn libcoap435(bin: &str) -> PathBuf {
     peers::libcoap435_dir().join(bin)
 }
 
+/// The path of `coap-client` or `coap-server` of libcoap 4.3.5 built with OpenSSL.
+pub(crate) fn libcoap435_openssl(bin: &str) -> PathBuf {
+    peers::libcoap435_openssl_dir().join(bin)
+}
+
 /// libcoap 4.3.5's server with Q-Block (`-L 5`) and dynamic resources (`-d 10`).
 pub(crate) fn libcoap435_server() -> (Proc, SocketAddr) {
     let server = libcoap435("coap-server");
@@ -84,6 +89,42 @@ pub(crate) fn libcoap435_server() -> (Proc, SocketAddr) {
         },
         "/.well-known/core",
     )
+}
+
+/// libcoap 4.3.5 built with OpenSSL: `coap-server -A 127.0.0.1 -p PORT -k KEY -d 10 -w
+/// ,WSS`, with TLS (any identity, this pre-shared key) on TCP port PORT + 1 and
+/// WebSockets over TLS on WSS; returns its `coaps+tcp` and `coaps+ws` addresses.
+pub(crate) fn libcoap435_tls_server(key: &str) -> (Proc, SocketAddr, SocketAddr) {
+    let server = peers::libcoap435_openssl_dir().join("coap-server");
+    let server = server.to_str().expect("UTF-8 path").to_string();
+    let mut wss = 0;
+    let (p, plain) = start_on_free_port(
+        |port| {
+            wss = std::net::TcpListener::bind("127.0.0.1:0")
+                .and_then(|l| l.local_addr())
+                .expect("a free TCP port")
+                .port();
+            let (port, wss) = (port.to_string(), format!(",{wss}"));
+            Proc::spawn(
+                &server,
+                &[
+                    "-A",
+                    "127.0.0.1",
+                    "-p",
+                    &port,
+                    "-k",
+                    key,
+                    "-d",
+                    "10",
+                    "-w",
+                    &wss,
+                ],
+            )
+        },
+        "/.well-known/core",
+    );
+    let tls = SocketAddr::new(plain.ip(), plain.port() + 1);
+    (p, tls, SocketAddr::new(plain.ip(), wss))
 }
 
 /// The broker program (checked by [`available`] with [`Peer::Mosquitto`]).

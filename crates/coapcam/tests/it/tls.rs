@@ -2,9 +2,11 @@
 //! `coapcam serve --bind-tls --bind-wss --psk-file` reached by our own commands through
 //! `coaps+tcp://` and `coaps+ws://` URIs (discovery, a 2,764,810-byte color grab in one
 //! message, the identity's role deciding a write), a wrong key and a missing key refused;
-//! and Debian's libcoap 4.3.1 (`coap-client-openssl`, `coap-server-openssl`) over
-//! `coaps+tcp`, both directions. libcoap 4.3.1 has no WebSockets, so `coaps+ws` is ours
-//! against ours here.
+//! Debian's libcoap 4.3.1 (`coap-client-openssl`, `coap-server-openssl`) over
+//! `coaps+tcp`, both directions; and libcoap 4.3.5 built with OpenSSL
+//! (`scripts/build-libcoap-openssl.sh`; 4.3.1 has no WebSockets) over `coaps+ws` and
+//! `coaps+tcp`, both directions, with small bodies over WebSockets (its WebSocket reader
+//! takes messages of at most 1,472 bytes, docs/testing.md).
 
 use std::net::SocketAddr;
 
@@ -227,4 +229,75 @@ fn our_client_over_coaps_tcp_against_libcoap_server() {
     let f = ours(&["get", &uri, "--timeout", "10"], &wrong);
     assert_eq!(f.status.code(), Some(1), "{}", f.stderr);
     assert!(f.stderr.contains("TLS handshake failed"), "{}", f.stderr);
+}
+
+#[test]
+fn libcoap435_client_over_coaps_ws_and_coaps_tcp_reads_serve_bind_wss_and_bind_tls() {
+    let test = "libcoap435_client_over_coaps_ws_and_coaps_tcp_reads_serve_bind_wss_and_bind_tls";
+    if !support::available(test, &[Peer::Libcoap435Openssl]) {
+        return;
+    }
+    let dir = TempDir::new("tls-libcoap435");
+    let (_server, tls, wss) = serve_tls(&dir);
+    let client = support::libcoap435_openssl("coap-client");
+    let client = client.to_str().expect("UTF-8 path");
+    let run = |args: &[&str]| {
+        let mut all = vec!["-u", "bob", "-k", "secret-of-bob", "-B", "30"];
+        all.extend_from_slice(args);
+        Proc::run(client, &all, LIMIT)
+    };
+    for base in [format!("coaps+ws://{wss}"), format!("coaps+tcp://{tls}")] {
+        let core = run(&[&format!("{base}/.well-known/core?rt=coapcam.time")])
+            .expect_success("coap-client GET /.well-known/core over TLS");
+        let links = core.stdout_text();
+        assert!(links.starts_with("</time>"), "{base}: {links}");
+        let time = run(&[&format!("{base}/time")]).expect_success("coap-client GET /time");
+        let text = time.stdout_text();
+        assert!(text.starts_with("{\"unix_us\":"), "{base}: {text}");
+        // A wrong key gets nothing.
+        let mut wrong = vec!["-u", "bob", "-k", "guessed", "-B", "5"];
+        let uri = format!("{base}/time");
+        wrong.push(&uri);
+        let f = Proc::run(client, &wrong, LIMIT);
+        assert!(
+            !f.stdout_text().contains("unix_us"),
+            "{base}: {}",
+            f.stdout_text()
+        );
+    }
+}
+
+#[test]
+fn our_client_over_coaps_ws_and_coaps_tcp_against_libcoap435_server() {
+    let test = "our_client_over_coaps_ws_and_coaps_tcp_against_libcoap435_server";
+    if !support::available(test, &[Peer::Libcoap435Openssl]) {
+        return;
+    }
+    let dir = TempDir::new("tls-theirs435");
+    let (_server, tls, wss) = support::libcoap435_tls_server("shared-key");
+    let key = ["--psk-identity", "carol", "--psk-key", "shared-key"];
+    for (n, base) in [format!("coaps+ws://{wss}"), format!("coaps+tcp://{tls}")]
+        .iter()
+        .enumerate()
+    {
+        // Under the 1,472 bytes its WebSocket reader takes.
+        let upload = dir.join(&format!("up-{n}.bin"));
+        let body = random_file(&upload, 1_000, 14 + n as u64);
+        let up = upload.to_str().expect("UTF-8 path");
+        let uri = format!("{base}/example_data");
+        ours(&["put", &uri, "--file", up], &key).expect_success("coapcam put over TLS");
+        let out = dir.join(&format!("got-{n}.bin"));
+        let out_path = out.to_str().expect("UTF-8 path");
+        ours(&["get", &uri, "-o", out_path], &key).expect_success("coapcam get over TLS");
+        assert_file_is(&out, &body);
+
+        let wrong = ["--psk-identity", "carol", "--psk-key", "wrong"];
+        let f = ours(&["get", &uri, "--timeout", "10"], &wrong);
+        assert_eq!(f.status.code(), Some(1), "{base}: {}", f.stderr);
+        assert!(
+            f.stderr.contains("TLS handshake failed"),
+            "{base}: {}",
+            f.stderr
+        );
+    }
 }
