@@ -1,14 +1,16 @@
 //! `coaps+tcp` and `coaps+ws` (RFC 8323 over TLS with pre-shared keys) through
 //! `TcpServer::bind_tls` and `bind_wss`: our client against them (a GET naming the PSK
 //! identity, a 2.76 MB body in one message, a Ping), a wrong key and an unknown identity
-//! refused, the ALPN protocol `coap`, TLS 1.3, and a connection that never finishes its
-//! handshake closed after the idle timeout.
+//! refused, the ALPN protocol `coap`, TLS 1.3, a connection that never finishes its
+//! handshake closed after the idle timeout, and one beyond the connection limit released.
 
 use std::net::SocketAddr;
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Duration;
 
+use coap::msg::signal::{Release, Signal};
+use coap::msg::stream::{self, Decoded};
 use coap::{Code, EndpointConfig, Request, Response};
 use coap_net::{Client, Psk, Resource, Router, TcpServer, handler, tcp};
 use openssl::ssl::{Ssl, SslContext, SslMethod, SslVersion};
@@ -18,6 +20,9 @@ use tokio_openssl::SslStream;
 
 use crate::tcp::{FRAME_BYTES, get, pattern};
 use crate::within;
+
+/// The ALPN offer of a `coaps+tcp` client: `coap` alone.
+const ALPN: &[u8] = b"\x04coap";
 
 fn keys() -> Psk {
     Psk::Server(Arc::new(|identity: &[u8]| match identity {
@@ -121,6 +126,13 @@ async fn our_client_over_coaps_ws_names_its_identity_gets_2_76_mb_and_pings() {
 /// A handshake with `peer` as alice offering `alpn` (ALPN's wire form; none when empty):
 /// the protocol the server chose and the TLS version, or why it failed.
 async fn raw_handshake(peer: SocketAddr, alpn: &[u8]) -> Result<(Option<Vec<u8>>, String), String> {
+    let tls = raw_tls(peer, alpn).await?;
+    let chosen = tls.ssl().selected_alpn_protocol().map(<[u8]>::to_vec);
+    Ok((chosen, tls.ssl().version_str().to_string()))
+}
+
+/// A TLS connection to `peer` as alice offering `alpn`, its handshake done.
+async fn raw_tls(peer: SocketAddr, alpn: &[u8]) -> Result<SslStream<TcpStream>, String> {
     let mut ctx = SslContext::builder(SslMethod::tls_client()).map_err(|e| e.to_string())?;
     ctx.set_psk_client_callback(|_, _, id, key| {
         id[..6].copy_from_slice(b"alice\0");
@@ -139,8 +151,7 @@ async fn raw_handshake(peer: SocketAddr, alpn: &[u8]) -> Result<(Option<Vec<u8>>
         .connect()
         .await
         .map_err(|e| e.to_string())?;
-    let chosen = tls.ssl().selected_alpn_protocol().map(<[u8]>::to_vec);
-    Ok((chosen, tls.ssl().version_str().to_string()))
+    Ok(tls)
 }
 
 #[tokio::test]
@@ -193,4 +204,40 @@ async fn a_tls_server_needs_the_identities_and_a_client_a_key() {
     assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);
     let e = Client::tls(&EndpointConfig::default(), &keys()).expect_err("no client key");
     assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);
+}
+
+#[tokio::test]
+async fn a_tls_connection_beyond_the_limit_gets_its_handshake_and_a_release_saying_why() {
+    let limits = tcp::StreamLimits {
+        max_connections: 1,
+        ..tcp::StreamLimits::default()
+    };
+    let server = tls_server(false, limits).await;
+    let peer = server.local_addr();
+    let alice = client(false, &key("alice", "secret-of-alice"));
+    within(async {
+        let who = alice.send(peer, get("/who")).await;
+        assert_eq!(who.ok().map(|r| r.code), Some(Code::CONTENT));
+        // The second connection: the CSM, then a Release with a Hold-Off, then the end.
+        let mut second = raw_tls(peer, ALPN).await.unwrap_or_else(|e| panic!("{e}"));
+        let mut bytes = Vec::new();
+        let _ = second.read_to_end(&mut bytes).await;
+        let mut frames = Vec::new();
+        while let Ok(Decoded::Frame { frame, consumed }) = stream::decode(&bytes, 1 << 20) {
+            bytes.drain(..consumed);
+            frames.push(frame);
+        }
+        assert_eq!(frames.len(), 2, "{frames:?}");
+        assert!(matches!(Signal::decode(&frames[0]), Ok(Signal::Csm(_))));
+        assert_eq!(
+            Signal::decode(&frames[1]),
+            Ok(Signal::Release(Release {
+                alternative_addresses: Vec::new(),
+                hold_off_s: Some(5),
+            }))
+        );
+        let why = String::from_utf8_lossy(&frames[1].payload).into_owned();
+        assert_eq!(why, "the server has 1 connections open, its limit");
+    })
+    .await;
 }
