@@ -81,7 +81,7 @@ fn no_advanced_mode(sn: &Serial) -> String {
 const LEGAL: [&str; 2] = ["application-config", "3d-transformation"];
 
 /// Who sent `request`, as an event names them: `coap://ADDR`, or `coaps://ADDR
-/// psk-identity NAME` when DTLS authenticated it; followed by `for http://ADDR` when it
+/// psk-identity NAME` when DTLS or TLS (`coaps+tcp`, `coaps+ws`) authenticated it; followed by `for http://ADDR` when it
 /// came over loopback from the station's HTTP-CoAP proxy, which names its client
 /// ([`crate::api::paths::FORWARDED_FOR`]).
 fn sender(request: &IncomingRequest) -> String {
