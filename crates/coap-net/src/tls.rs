@@ -111,7 +111,6 @@ impl Tls {
         &self,
         stream: TcpStream,
     ) -> io::Result<(SslStream<TcpStream>, Option<Arc<str>>)> {
-        let _ = stream.set_nodelay(true);
         let mut tls = self.stream(stream)?;
         Pin::new(&mut tls)
             .accept()
@@ -128,7 +127,6 @@ impl Tls {
 
     /// A client's handshake on `stream`.
     pub(crate) async fn connect(&self, stream: TcpStream) -> io::Result<SslStream<TcpStream>> {
-        let _ = stream.set_nodelay(true);
         let mut tls = self.stream(stream)?;
         Pin::new(&mut tls)
             .connect()

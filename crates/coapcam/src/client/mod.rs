@@ -91,8 +91,8 @@ pub trait WatchProgress: Send {
 }
 
 impl CamClient {
-    /// A client for the server at `uri` (`coap://host[:port]`, `coaps://` or
-    /// `coap+tcp://`); every request gives up after `timeout`.
+    /// A client for the server at `uri` (`coap://host[:port]`, or any other scheme
+    /// [`secured_client`] takes); every request gives up after `timeout`.
     pub async fn connect(
         uri: &str,
         config: EndpointConfig,
