@@ -84,6 +84,13 @@ if command -v aiocoap-client >/dev/null \
 else
   python3 -m pip install "aiocoap==$AIOCOAP_VERSION" || peer_failed "aiocoap==$AIOCOAP_VERSION"
 fi
+# aiocoap's CoAP over WebSockets (tests/it/ws.rs) needs websockets (aiocoap 0.4.17 takes >=13,<16).
+WEBSOCKETS_VERSION=15.0.1
+if python3 -c "import websockets, sys; sys.exit(websockets.__version__ != '$WEBSOCKETS_VERSION')" 2>/dev/null; then
+  echo "websockets $WEBSOCKETS_VERSION: present"
+else
+  python3 -m pip install "websockets==$WEBSOCKETS_VERSION" || peer_failed "websockets==$WEBSOCKETS_VERSION"
+fi
 # The OPC UA output's test (crates/coapcam/tests/it/opcua.rs) runs tests/peers/opcua_client.py on
 # asyncua, an OPC UA client library of its own.
 ASYNCUA_VERSION=2.1.0

@@ -3,8 +3,11 @@
 
 Usage: aiocoap_server.py [BIG_FILE]
 
-Binds 127.0.0.1 on a port the system picks (UDP; aiocoap's TCP listener too), prints
-"ready PORT" on standard output once it listens, and serves until it is killed:
+Binds 127.0.0.1 on a port PORT found free for UDP and TCP, with PORT + 3000 free for TCP
+too: aiocoap binds UDP and CoAP over TCP (RFC 8323) on PORT and, when the `websockets`
+package is importable, CoAP over WebSockets on PORT + 3000 (aiocoap's rule for an explicit
+port: transports/ws.py). Prints "ready UDP TCP WS" (the ports it listens on; WS is "-"
+without WebSockets) on standard output once it listens, and serves until it is killed:
 
   /big      GET: the bytes of BIG_FILE (read once at start; empty without it), block-wise.
   /store    GET: the body last stored (4.04 before any); PUT: stores the body (2.01 when
@@ -17,12 +20,15 @@ Binds 127.0.0.1 on a port the system picks (UDP; aiocoap's TCP listener too), pr
 """
 
 import asyncio
+import random
+import socket
 import sys
 
 import aiocoap
 import aiocoap.resource as resource
 from aiocoap.numbers.codes import Code
 from aiocoap.numbers.contentformat import ContentFormat
+from aiocoap.transports.tcp import TCPServer
 from aiocoap.transports.udp6 import MessageInterfaceUDP6
 
 
@@ -104,6 +110,42 @@ def udp_port(context):
     raise RuntimeError("aiocoap opened no UDP transport")
 
 
+def stream_ports(context):
+    """The TCP ports of the context's CoAP over TCP and WebSocket listeners (None without)."""
+    tcp = ws = None
+    for interface in context.request_interfaces:
+        transport = getattr(interface, "token_interface", None)
+        if isinstance(transport, TCPServer):
+            tcp = transport.server.sockets[0].getsockname()[1]
+        elif type(transport).__name__ == "WSPool" and transport._servers:
+            ws = transport._servers[0].sockets[0].getsockname()[1]
+    return tcp, ws
+
+
+def free(kind, port):
+    """Whether 127.0.0.1:port can be bound now with a socket of kind."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def pick_port():
+    """A port free for UDP and TCP whose port + 3000 is free for TCP: aiocoap binds a
+    port it is given on every transport (0 would put its TCP listener on 5683)."""
+    for _ in range(200):
+        port = random.randrange(20000, 60000)
+        if (
+            free(socket.SOCK_DGRAM, port)
+            and free(socket.SOCK_STREAM, port)
+            and free(socket.SOCK_STREAM, port + 3000)
+        ):
+            return port
+    raise RuntimeError("no free port pair found in 200 tries")
+
+
 async def main():
     body = b""
     if len(sys.argv) > 1:
@@ -120,10 +162,11 @@ async def main():
     counter = Counter()
     root.add_resource(["counter"], counter)
     context = await aiocoap.Context.create_server_context(
-        root, bind=("127.0.0.1", 0)
+        root, bind=("127.0.0.1", pick_port())
     )
     ticking = asyncio.ensure_future(counter.tick())
-    print(f"ready {udp_port(context)}", flush=True)
+    tcp, ws = stream_ports(context)
+    print(f"ready {udp_port(context)} {tcp} {ws or '-'}", flush=True)
     try:
         await asyncio.get_running_loop().create_future()
     finally:

@@ -14,7 +14,9 @@
 //! One task per connection owns its `Connection`. On a server, handlers run as spawned
 //! tasks, as the UDP server's do, at most [`MAX_IN_FLIGHT`] per connection, and send
 //! their answers back to it. What the connection does not do yet (Observe, block-wise
-//! transfer, Pings to keep it alive) neither side does either.
+//! transfer, Pings to keep it alive) neither side does either, but for one thing: a
+//! [`TcpClient`] follows an answer to a GET or FETCH that a server sends in Block2 blocks
+//! (aiocoap does over streams) and returns it whole.
 //!
 //! A server's bounds ([`StreamLimits`], per listening address): at most
 //! [`DEFAULT_MAX_CONNECTIONS`] connections open, a further one turned away with a
@@ -29,8 +31,12 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use bytes::Bytes;
 use coap::connection::{Connection, ConnectionEvent, DEFAULT_RESPONSE_TIMEOUT};
-use coap::{Code, IncomingId, IncomingRequest, Request, RequestError, Response, Token};
+use coap::{
+    BlockOpt, Code, IncomingId, IncomingRequest, OptionNumber, Request, RequestError, Response,
+    Token,
+};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, mpsc, oneshot, watch};
@@ -564,34 +570,103 @@ impl TcpClient {
     }
 
     /// Sends `request` to `peer` over its connection and waits for the response, at most
-    /// the request's timeout ([`DEFAULT_RESPONSE_TIMEOUT`] without one), connecting
+    /// the request's timeout ([`DEFAULT_RESPONSE_TIMEOUT`] without one) in all, connecting
     /// included. A request that never left because its connection closed first is sent
-    /// once more on a new one.
+    /// once more on a new one. An answer to a GET or FETCH that comes in Block2 blocks
+    /// (RFC 7959 §2.4: a server may send them over a stream too; aiocoap does whenever its
+    /// peer announces no Block-Wise-Transfer) is followed, block after block, and
+    /// returned whole; one to another method fails, rather than come back cut.
     pub async fn send(&self, peer: SocketAddr, request: Request) -> Result<Response, Error> {
-        let sent = crate::clock::now();
         let timeout = request.timeout.unwrap_or(DEFAULT_RESPONSE_TIMEOUT);
-        let exchange = async {
-            for _ in 0..2 {
-                let (reply, answer) = oneshot::channel();
-                let request = Box::new(request.clone());
-                let command = ToConnection::Request {
-                    request,
-                    sent,
-                    reply,
-                };
-                if self.connection(peer).send(command).is_err() {
-                    continue;
-                }
-                // No answer at all: the task ended before it took the request.
-                if let Ok(answer) = answer.await {
-                    return answer;
-                }
-            }
-            Err(Error::Closed)
-        };
-        tokio::time::timeout(timeout, exchange)
+        tokio::time::timeout(timeout, self.send_following_block2(peer, request))
             .await
             .unwrap_or(Err(Error::Request(RequestError::Timeout)))
+    }
+
+    /// [`TcpClient::send`] without its timeout.
+    async fn send_following_block2(
+        &self,
+        peer: SocketAddr,
+        request: Request,
+    ) -> Result<Response, Error> {
+        let mut response = self.exchange(peer, &request).await?;
+        let Some(first) = response.options.block2() else {
+            return Ok(response);
+        };
+        if !first.more {
+            return Ok(response);
+        }
+        if !matches!(request.method, Code::GET | Code::FETCH) {
+            return Err(Error::Unsupported(
+                "a block-wise answer to a request other than GET or FETCH",
+            ));
+        }
+        if first.num != 0 {
+            return Err(RequestError::Protocol("the first Block2 block is not block 0").into());
+        }
+        let etag = response
+            .options
+            .first(OptionNumber::ETAG)
+            .map(<[u8]>::to_vec);
+        let mut body = response.payload.to_vec();
+        let mut block = first;
+        while block.more {
+            let next = BlockOpt {
+                num: block.num + 1,
+                more: false,
+                szx: block.szx,
+            };
+            let mut more = request.clone();
+            more.options.set_block(OptionNumber::BLOCK2, next);
+            let answer = self.exchange(peer, &more).await?;
+            if !answer.code.is_success() {
+                return Ok(answer);
+            }
+            if answer.options.first(OptionNumber::ETAG).map(<[u8]>::to_vec) != etag {
+                return Err(RequestError::RepresentationChanged.into());
+            }
+            block = answer.options.block2().ok_or(RequestError::Protocol(
+                "a later block of a Block2 answer has no Block2 option",
+            ))?;
+            if block.offset() != body.len() {
+                return Err(
+                    RequestError::Protocol("a Block2 block does not follow the last one").into(),
+                );
+            }
+            body.extend_from_slice(&answer.payload);
+            if body.len() > self.body_limit {
+                return Err(RequestError::TooLarge {
+                    limit: self.body_limit,
+                }
+                .into());
+            }
+        }
+        response.options.remove(OptionNumber::BLOCK2);
+        response.payload = Bytes::from(body);
+        Ok(response)
+    }
+
+    /// One request and its response, sent once more on a new connection if its
+    /// connection closed before it left.
+    async fn exchange(&self, peer: SocketAddr, request: &Request) -> Result<Response, Error> {
+        let sent = crate::clock::now();
+        for _ in 0..2 {
+            let (reply, answer) = oneshot::channel();
+            let request = Box::new(request.clone());
+            let command = ToConnection::Request {
+                request,
+                sent,
+                reply,
+            };
+            if self.connection(peer).send(command).is_err() {
+                continue;
+            }
+            // No answer at all: the task ended before it took the request.
+            if let Ok(answer) = answer.await {
+                return answer;
+            }
+        }
+        Err(Error::Closed)
     }
 
     /// A CoAP Ping over `peer`'s connection (RFC 8323 §5.4), connecting first if need

@@ -110,6 +110,13 @@ pub fn aiocoap() -> Result<(), String> {
     python_imports("aiocoap")
 }
 
+/// Whether aiocoap can speak CoAP over WebSockets: [`aiocoap`], and `python3` imports
+/// websockets (PyPI), which aiocoap's `ws` transport needs.
+pub fn aiocoap_ws() -> Result<(), String> {
+    aiocoap()?;
+    python_imports("websockets")
+}
+
 /// Whether asyncua (PyPI), the OPC UA client library of `tests/peers/opcua_client.py`,
 /// is importable by `python3`.
 pub fn asyncua() -> Result<(), String> {

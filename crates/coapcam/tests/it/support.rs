@@ -36,6 +36,8 @@ pub(crate) enum Peer {
     Libcoap,
     /// PyPI aiocoap: the library (for the server script) and aiocoap-client.
     Aiocoap,
+    /// [`Peer::Aiocoap`] with PyPI websockets, which aiocoap's CoAP over WebSockets needs.
+    AiocoapWs,
     /// libcoap 4.3.5 built from source (Q-Block, RFC 9177) by
     /// `../shared/peers/build-libcoap.sh`: its folder in `COAPCAM_LIBCOAP435`, or the
     /// script's default.
@@ -151,6 +153,7 @@ fn missing(peer: Peer) -> Option<String> {
         Peer::Libcoap435 => peers::libcoap435().err(),
         Peer::Libcoap435Openssl => peers::libcoap435_openssl().err(),
         Peer::Aiocoap => peers::aiocoap().err(),
+        Peer::AiocoapWs => peers::aiocoap_ws().err(),
         Peer::Postgres => peers::postgres_bin().err(),
         Peer::Asyncua => peers::asyncua().err(),
     }
@@ -607,20 +610,51 @@ pub(crate) fn script(name: &str) -> String {
     path.to_str().expect("UTF-8 path").to_string()
 }
 
-/// `tests/peers/aiocoap_server.py [BIG_FILE]` on the port it picked and printed ("ready PORT").
+/// `tests/peers/aiocoap_server.py [BIG_FILE]` on the port it picked and printed ("ready PORT ..."):
+/// its UDP address.
 pub(crate) fn aiocoap_server(big: Option<&Path>) -> (Proc, SocketAddr) {
+    let (p, ports) = aiocoap_server_on_all(big);
+    (p, ports.udp)
+}
+
+/// The addresses `tests/peers/aiocoap_server.py` listens on.
+pub(crate) struct AiocoapAddrs {
+    pub(crate) udp: SocketAddr,
+    /// CoAP over TCP (RFC 8323).
+    pub(crate) tcp: SocketAddr,
+    /// CoAP over WebSockets, when Python's `websockets` package is there.
+    pub(crate) ws: Option<SocketAddr>,
+}
+
+/// `tests/peers/aiocoap_server.py [BIG_FILE]` with every address it listens on, as it
+/// printed them ("ready UDP TCP WS", WS "-" without WebSockets).
+pub(crate) fn aiocoap_server_on_all(big: Option<&Path>) -> (Proc, AiocoapAddrs) {
     let script = script("aiocoap_server.py");
     let big = big.map(|p| p.to_str().expect("UTF-8 path").to_string());
     let mut args = vec![script.as_str()];
     args.extend(big.as_deref());
     let mut p = Proc::spawn("python3", &args);
-    let port = p.stdout_line(STARTUP, |l| l.strip_prefix("ready ")?.parse::<u16>().ok());
-    let addr = SocketAddr::from(([127, 0, 0, 1], port));
+    let (udp, tcp, ws) = p.stdout_line(STARTUP, |l| {
+        let mut ports = l.strip_prefix("ready ")?.split(' ');
+        let udp = ports.next()?.parse::<u16>().ok()?;
+        let tcp = ports.next()?.parse::<u16>().ok()?;
+        let ws = match ports.next()? {
+            "-" => None,
+            port => Some(port.parse::<u16>().ok()?),
+        };
+        Some((udp, tcp, ws))
+    });
+    let at = |port| SocketAddr::from(([127, 0, 0, 1], port));
+    let addrs = AiocoapAddrs {
+        udp: at(udp),
+        tcp: at(tcp),
+        ws: ws.map(at),
+    };
     assert!(
-        wait_until_serving(&mut p, addr, "/.well-known/core"),
+        wait_until_serving(&mut p, addrs.udp, "/.well-known/core"),
         "the aiocoap server exited"
     );
-    (p, addr)
+    (p, addrs)
 }
 
 /// `coapcam serve --no-cameras --static DIR [--writable] --bind 127.0.0.1:0`, with the

@@ -148,3 +148,112 @@ fn our_commands_reach_serve_bind_tcp_through_coap_tcp_uris() {
         f.stderr
     );
 }
+
+/// The bytes of `/big` on aiocoap's server in the stream tests: over its 1,024-byte
+/// blocks, so that it answers in Block2 blocks.
+const AIOCOAP_BIG: usize = 300_000;
+
+/// Our client against `tests/peers/aiocoap_server.py` over `scheme` (`coap+tcp` or
+/// `coap+ws`) at `addr`: discovery, a PUT read back, a POST echoed, and a GET of
+/// [`AIOCOAP_BIG`] bytes which aiocoap sends in Block2 blocks over a stream too (it does
+/// unless its peer's CSM announces Block-Wise-Transfer): returned whole, bit-exact.
+pub(crate) fn our_client_against_aiocoap(
+    scheme: &str,
+    addr: SocketAddr,
+    dir: &TempDir,
+    big: &[u8],
+) {
+    let at = |path: &str| format!("{scheme}://{addr}{path}");
+    let core = Proc::run(COAPCAM, &["get", &at("/.well-known/core")], LIMIT)
+        .expect_success("coapcam get /.well-known/core from aiocoap");
+    let links = core.stdout_text();
+    assert!(
+        links.contains("</counter>;ct=\"0\";rt=\"interop.counter\";obs"),
+        "{links}"
+    );
+
+    Proc::run(
+        COAPCAM,
+        &["put", &at("/store"), "--payload", "stored over a stream"],
+        LIMIT,
+    )
+    .expect_success("coapcam put /store to aiocoap");
+    let back = Proc::run(COAPCAM, &["get", &at("/store")], LIMIT)
+        .expect_success("coapcam get /store from aiocoap");
+    assert_eq!(back.stdout_text().trim(), "stored over a stream");
+    let echo = Proc::run(
+        COAPCAM,
+        &["post", &at("/echo"), "--payload", "echoed"],
+        LIMIT,
+    )
+    .expect_success("coapcam post /echo to aiocoap");
+    assert_eq!(echo.stdout_text().trim(), "echoed");
+
+    let out = dir.join("big.bin");
+    Proc::run(
+        COAPCAM,
+        &["get", &at("/big"), "-o", out.to_str().expect("UTF-8 path")],
+        LIMIT,
+    )
+    .expect_success("coapcam get /big from aiocoap");
+    let got = std::fs::read(&out).expect("the body");
+    assert_eq!(got.len(), big.len(), "bytes of /big");
+    assert!(
+        got == big,
+        "the body of /big differs from what aiocoap served"
+    );
+}
+
+/// [`AIOCOAP_BIG`] bytes that are not one byte repeated, written to `dir/big`.
+pub(crate) fn aiocoap_big_file(dir: &TempDir) -> (std::path::PathBuf, Vec<u8>) {
+    let big: Vec<u8> = (0..AIOCOAP_BIG).map(|i| (i * 7 % 251) as u8).collect();
+    let path = dir.join("big");
+    std::fs::write(&path, &big).expect("write the body of /big");
+    (path, big)
+}
+
+#[test]
+fn our_client_reads_and_writes_aiocoap_server_over_tcp() {
+    let test = "our_client_reads_and_writes_aiocoap_server_over_tcp";
+    if !support::available(test, &[Peer::Aiocoap]) {
+        return;
+    }
+    let dir = TempDir::new("tcp-aiocoap-server");
+    let (path, big) = aiocoap_big_file(&dir);
+    let (_server, addrs) = support::aiocoap_server_on_all(Some(&path));
+    our_client_against_aiocoap("coap+tcp", addrs.tcp, &dir, &big);
+}
+
+/// aiocoap's `aiocoap-client` against `serve` over `scheme` at `addr`: discovery, and a
+/// camera's color settings. Not a grab: aiocoap announces a Max-Message-Size of 1 MiB
+/// and our server answers a frame over it with 5.00 (it does no block-wise over streams).
+pub(crate) fn aiocoap_client_against_serve(scheme: &str, addr: SocketAddr) {
+    let at = |path: &str| format!("{scheme}://{addr}{path}");
+    let core = Proc::run(support::AIOCOAP_CLIENT, &[&at("/.well-known/core")], LIMIT)
+        .expect_success("aiocoap-client GET /.well-known/core");
+    let links = core.stdout_text();
+    assert!(
+        links.contains(&format!("</cams/{SN}/color>;rt=\"rgbd.color\"")),
+        "{links}"
+    );
+    let settings = Proc::run(
+        support::AIOCOAP_CLIENT,
+        &[&at(&format!("/cams/{SN}/color-settings"))],
+        LIMIT,
+    )
+    .expect_success("aiocoap-client GET color-settings");
+    let json = settings.json();
+    assert_eq!(json["width"], 1280, "{json}");
+    assert_eq!(json["height"], 720, "{json}");
+}
+
+#[test]
+fn aiocoap_client_discovers_and_reads_a_camera_over_tcp_from_serve_bind_tcp() {
+    let test = "aiocoap_client_discovers_and_reads_a_camera_over_tcp_from_serve_bind_tcp";
+    if !support::available(test, &[Peer::Aiocoap]) {
+        return;
+    }
+    let dir = TempDir::new("tcp-aiocoap-client");
+    let (_server, tcp) = serve_tcp(&dir);
+    aiocoap_client_against_serve("coap+tcp", tcp);
+}

@@ -113,3 +113,29 @@ fn libcoap435_client_discovers_and_reads_the_time_over_websockets_from_serve_bin
     let text = time.stdout_text();
     assert!(text.starts_with("{\"unix_us\":"), "{text}");
 }
+
+#[test]
+fn our_client_reads_and_writes_aiocoap_server_over_websockets() {
+    let test = "our_client_reads_and_writes_aiocoap_server_over_websockets";
+    if !support::available(test, &[Peer::AiocoapWs]) {
+        return;
+    }
+    let dir = TempDir::new("ws-aiocoap-server");
+    let (path, big) = crate::tcp::aiocoap_big_file(&dir);
+    let (_server, addrs) = support::aiocoap_server_on_all(Some(&path));
+    let ws = addrs
+        .ws
+        .expect("aiocoap listens on WebSockets with websockets installed");
+    crate::tcp::our_client_against_aiocoap("coap+ws", ws, &dir, &big);
+}
+
+#[test]
+fn aiocoap_client_discovers_and_reads_a_camera_over_websockets_from_serve_bind_ws() {
+    let test = "aiocoap_client_discovers_and_reads_a_camera_over_websockets_from_serve_bind_ws";
+    if !support::available(test, &[Peer::AiocoapWs]) {
+        return;
+    }
+    let dir = TempDir::new("ws-aiocoap-client");
+    let (_server, ws) = serve_ws(&dir);
+    crate::tcp::aiocoap_client_against_serve("coap+ws", ws);
+}
