@@ -11,7 +11,7 @@ use rand_core::{RngCore as _, SeedableRng as _};
 use rgbd::scene::{Label, LabelKind};
 use rgbd::{Camera as _, ColorFormat, ColorSettings, Scene, SyntheticCamera};
 
-use crate::vision::codes::{CodeKind, MIN_PX_PER_MODULE, Reader, read_with};
+use crate::vision::codes::{CodeKind, Reader, read_with};
 
 /// The readers compared, in the order of [`Cell::read`].
 pub const READERS: [Reader; 3] = [Reader::Ours, Reader::Rxing, Reader::Both];
@@ -179,11 +179,14 @@ pub fn run(
 }
 
 /// Per symbology of `cells`, in their order: the labels read by both readers and the
-/// labels shown, over the cells whose modules span the reader's limit
-/// ([`MIN_PX_PER_MODULE`]) or more.
+/// labels shown, over the cells whose modules span the reader's limit for their
+/// symbology ([`CodeKind::min_px_per_module`]) or more.
 pub fn at_the_limit(cells: &[Cell]) -> Vec<(CodeKind, u32, u32)> {
     let mut out: Vec<(CodeKind, u32, u32)> = Vec::new();
-    for cell in cells.iter().filter(|c| c.module_px >= MIN_PX_PER_MODULE) {
+    for cell in cells
+        .iter()
+        .filter(|c| c.module_px >= c.kind.min_px_per_module())
+    {
         match out.iter_mut().find(|(kind, ..)| *kind == cell.kind) {
             Some((_, read, labels)) => {
                 *read += cell.read[2];
@@ -223,15 +226,16 @@ mod tests {
     #[test]
     fn the_rate_at_the_limit_counts_only_cells_at_or_above_it() {
         let cells = [
-            cell(CodeKind::Ean13, MIN_PX_PER_MODULE - 1.0, 0, 40),
-            cell(CodeKind::Ean13, MIN_PX_PER_MODULE, 38, 40),
-            cell(CodeKind::Ean13, MIN_PX_PER_MODULE + 1.0, 40, 40),
-            cell(CodeKind::Qr, MIN_PX_PER_MODULE - 0.5, 1, 40),
-            cell(CodeKind::Qr, MIN_PX_PER_MODULE + 2.0, 39, 40),
+            cell(CodeKind::DataMatrix, 3.0, 38, 40),
+            cell(CodeKind::DataMatrix, 4.0, 40, 40),
+            cell(CodeKind::DataMatrix, 5.0, 39, 40),
+            cell(CodeKind::Qr, 2.5, 1, 40),
+            cell(CodeKind::Qr, 3.0, 39, 40),
         ];
+        // Data Matrix's limit is 4 px, QR's 3.
         assert_eq!(
             at_the_limit(&cells),
-            [(CodeKind::Ean13, 78, 80), (CodeKind::Qr, 39, 40)]
+            [(CodeKind::DataMatrix, 79, 80), (CodeKind::Qr, 39, 40)]
         );
     }
 }

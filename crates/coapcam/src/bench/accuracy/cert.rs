@@ -19,7 +19,7 @@ use crate::client::CamClient;
 use crate::client::codes;
 use crate::client::measure::{self, Source, prepare_cameras};
 use crate::report::Billing;
-use crate::vision::codes::MIN_PX_PER_MODULE;
+use crate::vision::codes::CodeKind;
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -92,10 +92,14 @@ impl ObjectResult {
         self.reported_errors().is_some() && !self.within(billing, 2.0)
     }
 
-    /// Whether its label's modules span the reader's limit ([`MIN_PX_PER_MODULE`]) in some
-    /// camera: a label below it no camera of the station can resolve, whatever reads it.
+    /// Whether its label's modules span the reader's limit for its symbology
+    /// ([`CodeKind::min_px_per_module`]) in some camera: a label below it no camera of the
+    /// station can resolve, whatever reads it.
     pub fn label_in_reach(&self) -> bool {
-        self.module_px.is_some_and(|px| px >= MIN_PX_PER_MODULE)
+        self.object.label.as_ref().is_some_and(|l| {
+            self.module_px
+                .is_some_and(|px| px >= CodeKind::from(l.kind).min_px_per_module())
+        })
     }
 
     /// Its label is in reach and its code was not read.
@@ -434,7 +438,7 @@ pub struct ClassSummary {
     /// Labelled objects whose code was read (accepted or not), and labelled objects.
     pub read: [usize; 2],
     /// The same over the labels whose modules span the reader's limit or more in some
-    /// camera (`module_px` at least [`MIN_PX_PER_MODULE`]).
+    /// camera ([`ObjectResult::label_in_reach`]).
     pub read_at_limit: [usize; 2],
     /// Not found where they stand, or the scene failed.
     pub missing: usize,
@@ -683,7 +687,8 @@ mod tests {
         }
         cert.objects[0].label = cert.scene.boxes[0].label.clone();
         let (small, _) = judge_scene(&cert, &fits, &[], &config());
-        assert!(small[0].module_px.is_some_and(|px| px < MIN_PX_PER_MODULE));
+        assert!(small[0].module_px.is_some_and(|px| px < 1.0));
+        assert!(!small[0].label_in_reach());
         assert_eq!(small[0].code_read, Some(false));
         assert!(!small[0].unread() && small[0].first_pass(&billing));
         let rows = [Row {

@@ -277,7 +277,7 @@ fn print_table(
         "acc = accepted by a certified system (isolated by 20 mm, wholly in a camera's view, \
          returning depth); pass = accepted, every reported dimension within 1 d (d = {} mm) \
          and its code read if its label is in reach (modules of {lim} px or more in a camera's \
-         color image, the reader's limit); ref = accepted but refused; off = accepted, a number \
+         color image, {lim1} px for Data Matrix: the reader's limits); ref = accepted but refused; off = accepted, a number \
          more than 1 d off; unread = accepted, its label in reach, its code not read; small = \
          accepted, its label below the limit in every camera (no reader resolves it: a station \
          that must read it needs the camera nearer or a larger label); read = codes read / labels (all objects); \
@@ -286,6 +286,7 @@ fn print_table(
         args.division_mm,
         rows.len(),
         lim = coapcam::vision::codes::MIN_PX_PER_MODULE,
+        lim1 = coapcam::vision::codes::CodeKind::DataMatrix.min_px_per_module(),
     );
     Ok(())
 }

@@ -6,7 +6,6 @@ use rgbd::scene::LabelKind;
 
 use crate::cli::{Exit, outln};
 use coapcam::bench::codes::{self, Sensor};
-use coapcam::vision::codes::MIN_PX_PER_MODULE;
 
 /// Flags of `bench codes`.
 #[derive(Debug, Args)]
@@ -88,12 +87,14 @@ pub(super) async fn run(args: CodesArgs) -> anyhow::Result<Exit> {
             ms(2)
         );
     }
-    outln!(
-        "\nAt the limit and above ({MIN_PX_PER_MODULE} px a module or more), the station's reader (both):"
-    );
+    outln!("\nAt each symbology's limit and above, the station's reader (both):");
     for (kind, read, labels) in codes::at_the_limit(&cells) {
         let rate = 100.0 * f64::from(read) / f64::from(labels.max(1));
-        outln!("- {}: {read} of {labels} read ({rate:.1} %)", kind.name());
+        outln!(
+            "- {} (from {} px a module): {read} of {labels} read ({rate:.1} %)",
+            kind.name(),
+            kind.min_px_per_module()
+        );
     }
     Ok(Exit::Success)
 }
