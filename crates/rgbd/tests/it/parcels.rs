@@ -610,16 +610,26 @@ fn a_polybag_is_measured_to_its_enclosing_cuboid_from_where_the_camera_loses_its
     assert!(fit.complete && !fit.out_of_view, "{fit:?}");
 }
 
+/// Scene `index` of the certification set of seed 1 as it was drawn before its labels
+/// took every symbology (tests/fixtures/cert, written by `coapcam bench accuracy --set
+/// cert --write-scenes DIR --first INDEX --scenes 1` at commit 02bb80b): a change to the
+/// set's draws moves its scenes, and these are the ones the tests below were found on.
+pub(crate) fn cert_1(index: usize) -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(format!("tests/fixtures/cert/cert-1-{index}.toml"));
+    Scene::from_toml(&std::fs::read_to_string(&path).expect("a fixture")).expect("a scene")
+}
+
 /// A bag 300 mm high whose end faces away from all three cameras (certification set,
 /// seed 1, scene 329): they see that end only over its top, and the band where its foot
 /// may stand is 233 mm wide. Placed in the middle of it, the length came out 33 mm long
 /// and was accepted; a foot no camera sees is now said, and the bag is not complete.
 #[test]
 fn a_bags_foot_no_camera_sees_is_out_of_view_not_a_number() {
-    let cert = rgbd::cert::cert_scene(1, 329);
-    assert_eq!(cert.scene.cameras.len(), 3);
-    assert_eq!(cert.objects[0].truth.kind, ObjectKind::Bag);
-    let (cloud, views) = crate::round::prepared_clouds(&cert.scene);
+    let scene = cert_1(329);
+    assert_eq!(scene.cameras.len(), 3);
+    assert_eq!(scene.truths()[0].kind, ObjectKind::Bag);
+    let (cloud, views) = crate::round::prepared_clouds(&scene);
     let found = parcels(&cloud, &DimensionConfig::default(), &views)
         .unwrap()
         .parcels;
@@ -635,9 +645,9 @@ fn a_bags_foot_no_camera_sees_is_out_of_view_not_a_number() {
 /// (a phantom) inside the box's footprint. It is a fragment of what the three measure.
 #[test]
 fn a_patch_of_a_dark_lid_inside_what_the_others_measure_is_no_parcel() {
-    let cert = rgbd::cert::cert_scene(1, 148);
-    assert_eq!(cert.objects.len(), 1);
-    let (cloud, views) = crate::round::prepared_clouds(&cert.scene);
+    let scene = cert_1(148);
+    assert_eq!(scene.truths().len(), 1);
+    let (cloud, views) = crate::round::prepared_clouds(&scene);
     let found = parcels(&cloud, &DimensionConfig::default(), &views)
         .unwrap()
         .parcels;
@@ -910,16 +920,15 @@ yaw_deg = 3.0
 /// parts them. Their dense columns stand apart, and each is measured on its own.
 #[test]
 fn parcels_20_mm_apart_that_flying_pixels_join_are_each_measured() {
-    let cert = rgbd::cert::cert_scene(1, 101);
-    assert_eq!(cert.scene.cameras.len(), 3);
-    let (cloud, views) = crate::round::prepared_clouds(&cert.scene);
+    let scene = cert_1(101);
+    assert_eq!(scene.cameras.len(), 3);
+    let (cloud, views) = crate::round::prepared_clouds(&scene);
     let found = parcels(&cloud, &DimensionConfig::default(), &views)
         .unwrap()
         .parcels;
     assert_eq!(found.len(), 3, "{found:?}");
-    for o in &cert.objects {
-        let t = &o.truth;
-        assert!(o.judged.gap_m.is_some_and(|g| (g - 0.02).abs() < 1e-3));
+    for (t, judged) in scene.truths().iter().zip(rgbd::cert::judge(&scene)) {
+        assert!(judged.gap_m.is_some_and(|g| (g - 0.02).abs() < 1e-3));
         let f = found
             .iter()
             .find(|f| (f.dimensions.height_mm - t.height_mm()).abs() < 2.0)
