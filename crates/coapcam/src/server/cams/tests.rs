@@ -680,7 +680,7 @@ fn the_holes_the_flying_pixel_stage_leaves_are_no_part_of_the_table_without_dept
     use rgbd::filter::{FlyingPixelsConfig, SpatialConfig};
 
     // As drawn before the set's labels took every symbology (rgbd's tests/fixtures/cert).
-    let scene = rgbd::Scene::from_toml(include_str!(
+    let scene = Scene::from_toml(include_str!(
         "../../../../rgbd/tests/fixtures/cert/cert-1-93.toml"
     ))
     .expect("a scene");
