@@ -164,6 +164,28 @@ pub(crate) fn identity_index()
     Ok(*INDEX.get_or_init(|| i))
 }
 
+/// Makes `b` a server that accepts the identities `keys` knows, each with its key, and
+/// keeps the identity a session presented at [`identity_index`] (DTLS's and TLS's).
+pub(crate) fn serve_keys(
+    b: &mut SslContextBuilder,
+    keys: &KeyStore,
+) -> Result<(), openssl::error::ErrorStack> {
+    let index = identity_index()?;
+    let keys = keys.clone();
+    b.set_psk_server_callback(move |ssl, identity, out| {
+        let identity = identity.unwrap_or_default();
+        let Some(key) = keys(identity).filter(|k| k.len() <= out.len()) else {
+            // Unknown identity: the handshake fails.
+            return Ok(0);
+        };
+        out[..key.len()].copy_from_slice(&key);
+        let name: Arc<str> = String::from_utf8_lossy(identity).into();
+        ssl.set_ex_data(index, name);
+        Ok(key.len())
+    });
+    Ok(())
+}
+
 /// The cookie a server's session sends and expects, in the session's extra data.
 fn cookie_index() -> Result<openssl::ex_data::Index<Ssl, Vec<u8>>, openssl::error::ErrorStack> {
     static INDEX: std::sync::OnceLock<openssl::ex_data::Index<Ssl, Vec<u8>>> =
@@ -181,7 +203,6 @@ impl Dtls {
         let mut b = SslContextBuilder::new(SslMethod::dtls()).map_err(err)?;
         b.set_cipher_list(CIPHERS).map_err(err)?;
         b.set_options(SslOptions::NO_QUERY_MTU | SslOptions::NO_TICKET);
-        let index = identity_index().map_err(err)?;
         let server = match psk {
             Psk::Server(keys) => {
                 // The session's cookie exchange: the cookie the peer already returned
@@ -199,18 +220,7 @@ impl Dtls {
                     ssl.ex_data(cookie_index)
                         .is_some_and(|c| !c.is_empty() && c.as_slice() == got)
                 });
-                let keys = keys.clone();
-                b.set_psk_server_callback(move |ssl, identity, out| {
-                    let identity = identity.unwrap_or_default();
-                    let Some(key) = keys(identity).filter(|k| k.len() <= out.len()) else {
-                        // Unknown identity: the handshake fails.
-                        return Ok(0);
-                    };
-                    out[..key.len()].copy_from_slice(&key);
-                    let name: Arc<str> = String::from_utf8_lossy(identity).into();
-                    ssl.set_ex_data(index, name);
-                    Ok(key.len())
-                });
+                serve_keys(&mut b, keys).map_err(err)?;
                 true
             }
             Psk::Client { identity, key } => {

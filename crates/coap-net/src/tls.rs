@@ -27,7 +27,7 @@ use openssl::ssl::{
 use tokio::net::TcpStream;
 use tokio_openssl::SslStream;
 
-use crate::dtls::{Psk, identity_index};
+use crate::dtls::{Psk, identity_index, serve_keys};
 
 /// TLS 1.2's PSK suites: the ones DTLS offers (RFC 7925 §4.2's mandatory CCM_8 first),
 /// then the larger GCM one.
@@ -64,21 +64,9 @@ impl Tls {
         b.set_ciphersuites(CIPHERSUITES).map_err(err)?;
         // No resumption: every connection proves the key anew.
         b.set_options(SslOptions::NO_TICKET);
-        let index = identity_index().map_err(err)?;
         match psk {
             Psk::Server(keys) => {
-                let keys = keys.clone();
-                b.set_psk_server_callback(move |ssl, identity, out| {
-                    let identity = identity.unwrap_or_default();
-                    let Some(key) = keys(identity).filter(|k| k.len() <= out.len()) else {
-                        // Unknown identity: the handshake fails.
-                        return Ok(0);
-                    };
-                    out[..key.len()].copy_from_slice(&key);
-                    let name: Arc<str> = String::from_utf8_lossy(identity).into();
-                    ssl.set_ex_data(index, name);
-                    Ok(key.len())
-                });
+                serve_keys(&mut b, keys).map_err(err)?;
                 if alpn {
                     b.set_alpn_select_callback(|_, offered| {
                         select_next_proto(ALPN_COAP, offered).ok_or(AlpnError::ALERT_FATAL)
