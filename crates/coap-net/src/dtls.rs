@@ -186,6 +186,21 @@ pub(crate) fn serve_keys(
     Ok(())
 }
 
+/// Makes `b` a client that presents `identity` and its `key` (DTLS's and TLS's).
+pub(crate) fn present_key(b: &mut SslContextBuilder, identity: &[u8], key: &[u8]) {
+    let (identity, key) = (identity.to_vec(), key.to_vec());
+    b.set_psk_client_callback(move |_ssl, _hint, id_out, key_out| {
+        // The identity goes out NUL-terminated.
+        if identity.len() >= id_out.len() || key.len() > key_out.len() {
+            return Ok(0);
+        }
+        id_out[..identity.len()].copy_from_slice(&identity);
+        id_out[identity.len()] = 0;
+        key_out[..key.len()].copy_from_slice(&key);
+        Ok(key.len())
+    });
+}
+
 /// The cookie a server's session sends and expects, in the session's extra data.
 fn cookie_index() -> Result<openssl::ex_data::Index<Ssl, Vec<u8>>, openssl::error::ErrorStack> {
     static INDEX: std::sync::OnceLock<openssl::ex_data::Index<Ssl, Vec<u8>>> =
@@ -224,17 +239,7 @@ impl Dtls {
                 true
             }
             Psk::Client { identity, key } => {
-                let (identity, key) = (identity.clone(), key.clone());
-                b.set_psk_client_callback(move |_ssl, _hint, id_out, key_out| {
-                    // The identity goes out NUL-terminated.
-                    if identity.len() >= id_out.len() || key.len() > key_out.len() {
-                        return Ok(0);
-                    }
-                    id_out[..identity.len()].copy_from_slice(&identity);
-                    id_out[identity.len()] = 0;
-                    key_out[..key.len()].copy_from_slice(&key);
-                    Ok(key.len())
-                });
+                present_key(&mut b, identity, key);
                 false
             }
         };

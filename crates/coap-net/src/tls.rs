@@ -27,7 +27,7 @@ use openssl::ssl::{
 use tokio::net::TcpStream;
 use tokio_openssl::SslStream;
 
-use crate::dtls::{Psk, identity_index, serve_keys};
+use crate::dtls::{Psk, identity_index, present_key, serve_keys};
 
 /// TLS 1.2's PSK suites: the ones DTLS offers (RFC 7925 §4.2's mandatory CCM_8 first),
 /// then the larger GCM one.
@@ -74,17 +74,7 @@ impl Tls {
                 }
             }
             Psk::Client { identity, key } => {
-                let (identity, key) = (identity.clone(), key.clone());
-                b.set_psk_client_callback(move |_ssl, _hint, id_out, key_out| {
-                    // The identity goes out NUL-terminated.
-                    if identity.len() >= id_out.len() || key.len() > key_out.len() {
-                        return Ok(0);
-                    }
-                    id_out[..identity.len()].copy_from_slice(&identity);
-                    id_out[identity.len()] = 0;
-                    key_out[..key.len()].copy_from_slice(&key);
-                    Ok(key.len())
-                });
+                present_key(&mut b, identity, key);
                 if alpn {
                     b.set_alpn_protos(ALPN_COAP).map_err(err)?;
                 }
