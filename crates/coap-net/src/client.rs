@@ -13,7 +13,7 @@ use crate::Error;
 use crate::driver::{self, BodyItem, Command, EndpointHandle, Progress, Reply, StreamItem};
 use crate::dtls::Psk;
 use crate::socket::Socket;
-use crate::tcp::TcpClient;
+use crate::tcp::{TcpClient, TcpObservation};
 
 /// How often [`Client::multicast_until`] asks again whether it is done.
 const RECHECK: std::time::Duration = std::time::Duration::from_millis(50);
@@ -32,9 +32,9 @@ fn any_for(peer: SocketAddr) -> SocketAddr {
 ///
 /// Over TCP ([`Client::tcp`]) or WebSockets ([`Client::ws`]) a request goes whole, as one message, and its response
 /// comes so: [`Client::send_with_progress`] reports once, when it has come, and
-/// [`Client::send_streamed`] gives the body as one piece; Observe and multicast are
-/// refused with [`Error::Unsupported`] (RFC 8323 has no multicast; Observe over streams
-/// is not done yet), and there are no path statistics.
+/// [`Client::send_streamed`] gives the body as one piece; multicast is refused with
+/// [`Error::Unsupported`] (RFC 8323 has none), and there are no path statistics.
+/// [`Client::observe`] works over either (RFC 8323 §7 over streams).
 #[derive(Clone, Debug)]
 pub struct Client {
     transport: Transport,
@@ -272,7 +272,9 @@ impl Client {
     }
 
     /// Registers an Observe on `peer` (the request gets Observe 0). The stream yields the
-    /// first response, then each notification; dropping it cancels the observation.
+    /// first response, then each notification; dropping it cancels the observation (over
+    /// UDP the next notification is answered with a Reset; over a stream a GET with
+    /// Observe 1 deregisters, RFC 8323 §7.4).
     pub async fn observe(
         &self,
         peer: SocketAddr,
@@ -281,6 +283,16 @@ impl Client {
         let mut follow_up = request.clone();
         follow_up.options.remove(coap::OptionNumber::OBSERVE);
         request.options.set_uint(coap::OptionNumber::OBSERVE, 0);
+        if let Transport::Tcp(tcp) = &self.transport {
+            let (registration, rx) = tcp.observe(peer, request).await?;
+            return Ok(Observation {
+                rx,
+                registration: Registration::Stream(registration),
+                client: self.clone(),
+                follow_up,
+                skipped: 0,
+            });
+        }
         let (tx, rx) = mpsc::unbounded_channel();
         let (id_tx, id_rx) = oneshot::channel();
         self.udp("Observe")?.send(Command::Request {
@@ -292,7 +304,7 @@ impl Client {
         let id = id_rx.await.map_err(|_| Error::Closed)?;
         Ok(Observation {
             rx,
-            id,
+            registration: Registration::Udp(id),
             client: self.clone(),
             follow_up,
             skipped: 0,
@@ -525,7 +537,7 @@ impl BodyStream {
 #[derive(Debug)]
 pub struct Observation {
     rx: mpsc::UnboundedReceiver<StreamItem>,
-    id: RequestId,
+    registration: Registration,
     client: Client,
     /// The registration without Observe: what asks for the rest of a notification sent
     /// block-wise.
@@ -601,12 +613,25 @@ impl Observation {
     }
 }
 
+/// What ends an [`Observation`] from the client's side.
+#[derive(Debug)]
+enum Registration {
+    /// The endpoint's request: forgetting it makes the client answer the next
+    /// notification with a Reset, which ends the observation on the server (RFC 7641
+    /// §3.6).
+    Udp(RequestId),
+    /// Over a stream there is no Reset: the connection deregisters (RFC 8323 §7.4).
+    Stream(TcpObservation),
+}
+
 impl Drop for Observation {
     fn drop(&mut self) {
-        // Forgetting the token makes the client answer the next notification with a
-        // Reset, which ends the observation on the server (RFC 7641 §3.6).
-        if let Transport::Udp(handle) = &self.client.transport {
-            let _ = handle.send(Command::Cancel(self.id));
+        match (&self.registration, &self.client.transport) {
+            (Registration::Udp(id), Transport::Udp(handle)) => {
+                let _ = handle.send(Command::Cancel(*id));
+            }
+            (Registration::Stream(registration), _) => registration.cancel(),
+            (Registration::Udp(_), Transport::Tcp(_)) => {}
         }
     }
 }

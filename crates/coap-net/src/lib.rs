@@ -18,6 +18,7 @@ pub mod client;
 mod driver;
 pub mod dtls;
 mod link;
+mod observers;
 pub mod router;
 pub mod server;
 pub mod socket;
@@ -56,8 +57,8 @@ pub enum Error {
     /// The endpoint task is gone.
     #[error("the endpoint has shut down")]
     Closed,
-    /// What was asked is not done over this client's transport (Observe or multicast
-    /// over TCP or WebSockets, with TLS or not).
+    /// What was asked is not done over this client's transport (multicast over TCP or
+    /// WebSockets, with TLS or not).
     #[error("{0} is not supported over coap+tcp or coap+ws (nor coaps+tcp or coaps+ws)")]
     Unsupported(&'static str),
 }

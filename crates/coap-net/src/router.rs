@@ -6,6 +6,8 @@ use std::future::Future;
 use std::pin::Pin;
 use std::sync::{Arc, RwLock};
 
+use tokio::sync::broadcast;
+
 use coap::link_format::{self, Filter, Link};
 use coap::{Code, ContentFormat, IncomingRequest, ObservationId, OptionNumber, Response};
 
@@ -199,6 +201,22 @@ pub struct Router {
     entries: RwLock<Vec<Entry>>,
     policy: RwLock<Option<Policy>>,
     around: RwLock<Option<Around>>,
+    changes: Changes,
+}
+
+/// How many changed paths wait for a stream connection that has not taken them yet; one
+/// that falls further behind takes every path it observes for changed
+/// ([`Router::changes`]).
+const CHANGES_BUFFER: usize = 64;
+
+/// The paths [`Router::changed`] was told of, for every stream connection serving the
+/// router.
+struct Changes(broadcast::Sender<Arc<str>>);
+
+impl Default for Changes {
+    fn default() -> Self {
+        Self(broadcast::channel(CHANGES_BUFFER).0)
+    }
 }
 
 /// Who may change the configuration: the answer to a request it refuses, `None` for one
@@ -251,6 +269,22 @@ impl Router {
             .around
             .write()
             .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(around);
+    }
+
+    /// Tells the connections that serve this router over streams (a
+    /// [`TcpServer`](crate::TcpServer)'s) that the representation of `path` changed: each
+    /// notifies its observers of `path`, as [`Server::notify`](crate::Server::notify), which
+    /// calls this, does those over UDP. Over a stream an observation lives in its
+    /// connection, so the connection keeps it rather than the server.
+    pub fn changed(&self, path: &str) {
+        // No receiver (no stream connection open) is no error.
+        let _ = self.changes.0.send(Arc::from(path));
+    }
+
+    /// The paths [`Router::changed`] is told of from now on. A receiver more than
+    /// 64 paths behind loses the oldest and is told it lagged.
+    pub(crate) fn changes(&self) -> broadcast::Receiver<Arc<str>> {
+        self.changes.0.subscribe()
     }
 
     /// Adds or replaces the resource at `pattern` (`/files/a.bin`, `/cams/{sn}/color`).

@@ -7,15 +7,13 @@ use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use bytes::Bytes;
-use coap::{
-    Code, ContentFormat, EndpointConfig, IncomingRequest, ObservationId, OptionNumber, Response,
-};
+use coap::{EndpointConfig, IncomingRequest, ObservationId, OptionNumber};
 use tokio::sync::{mpsc, oneshot};
 
 use crate::Error;
 use crate::driver::{self, Command, EndpointHandle, ServerEvent};
 use crate::dtls::Psk;
+use crate::observers::Sent;
 use crate::router::{ObservationEnd, Router};
 use crate::socket::Socket;
 
@@ -40,37 +38,6 @@ struct Observer {
     /// The resource's [`Resource::on_observation_end`](crate::Resource::on_observation_end),
     /// told when the observation ends.
     ended: Option<ObservationEnd>,
-}
-
-/// What tells one representation from another for an observer: the code, the
-/// Content-Format and the ETag, and the body when there is no ETag. A body read block by
-/// block (a [`Response::source`]) without an ETag is never taken for the last one.
-#[derive(Debug, Clone, PartialEq, Eq)]
-struct Sent {
-    code: Code,
-    format: Option<ContentFormat>,
-    etag: Option<Vec<u8>>,
-    /// `None` when the ETag names the body, or when the body is read block by block.
-    payload: Option<Bytes>,
-}
-
-impl Sent {
-    fn of(response: &Response) -> Self {
-        let etag = response.options.etag().map(<[u8]>::to_vec);
-        let payload =
-            (etag.is_none() && response.source.is_none()).then(|| response.payload.clone());
-        Self {
-            code: response.code,
-            format: response.options.content_format(),
-            etag,
-            payload,
-        }
-    }
-
-    /// Whether `next` is the representation this observer already has.
-    fn repeats(&self, next: &Self) -> bool {
-        self == next && (self.etag.is_some() || self.payload.is_some())
-    }
 }
 
 #[derive(Default)]
@@ -256,8 +223,10 @@ impl Server {
     /// notification: the same code, Content-Format and ETag, or the same body when there
     /// is no ETag). A change that crosses the registration, or a notification that
     /// already read the next change, thus sends nothing twice. Calls run one at a time.
-    /// Returns how many were sent.
+    /// Returns how many were sent over UDP; the observers over streams are told through
+    /// the router ([`Router::changed`]), and their connections notify them on their own.
     pub async fn notify(&self, path: &str) -> usize {
+        self.router.changed(path);
         let _round = self.notifying.lock().await;
         let targets: Vec<(usize, ObservationId, IncomingRequest)> = self
             .observers

@@ -13,15 +13,22 @@
 //!
 //! One task per connection owns its `Connection`. On a server, handlers run as spawned
 //! tasks, as the UDP server's do, at most [`MAX_IN_FLIGHT`] per connection, and send
-//! their answers back to it. What the connection does not do yet (Observe, block-wise
-//! transfer, Pings to keep it alive) neither side does either, but for one thing: a
-//! [`TcpClient`] follows an answer to a GET or FETCH that a server sends in Block2 blocks
-//! (aiocoap does over streams) and returns it whole.
+//! their answers back to it. Observe (RFC 7641 as RFC 8323 §7 has it): a server's
+//! connection keeps the observations registered on it (`observers.rs`), notifies them of
+//! the paths its router is told changed ([`Router::changed`], which
+//! [`Server::notify`](crate::Server::notify) calls) and ends them with itself; a
+//! connection with observations is never idle. A [`TcpClient`] registers over its
+//! connection ([`crate::Client::observe`]) and deregisters with a GET with Observe 1.
+//! What the connection does not do yet (block-wise transfer, Pings to keep it alive)
+//! neither side does either, but for one thing: a [`TcpClient`] follows an answer to a
+//! GET or FETCH that a server sends in Block2 blocks (aiocoap does over streams) and
+//! returns it whole.
 //!
 //! A server's bounds ([`StreamLimits`], per listening address): at most
 //! [`DEFAULT_MAX_CONNECTIONS`] connections open, a further one turned away with a
 //! Release that says why; a connection idle for [`DEFAULT_IDLE_TIMEOUT`] (nothing came,
-//! no request of its being handled) released and closed; messages of up to
+//! no request of its being handled, no observation) released and closed; at most 64
+//! observations per connection (a registration beyond them answered as a plain GET); messages of up to
 //! [`DEFAULT_MAX_MESSAGE_SIZE`]. The TLS and WebSocket handshakes must be done within the
 //! idle timeout; a connection whose handshake fails or takes longer is closed.
 
@@ -34,18 +41,20 @@ use std::time::{Duration, Instant};
 use bytes::Bytes;
 use coap::connection::{Connection, ConnectionEvent, DEFAULT_RESPONSE_TIMEOUT};
 use coap::{
-    BlockOpt, Code, IncomingId, IncomingRequest, OptionNumber, Request, RequestError, Response,
-    Token,
+    BlockOpt, Code, IncomingId, IncomingRequest, ObservationId, OptionNumber, Request,
+    RequestError, Response, Token,
 };
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
-use tokio::sync::{Semaphore, mpsc, oneshot, watch};
+use tokio::sync::{Semaphore, broadcast, mpsc, oneshot, watch};
 use tokio_tungstenite::tungstenite::http::StatusCode;
 
 use crate::Error;
+use crate::driver::StreamItem;
 use crate::dtls::Psk;
 pub use crate::link::WS_PATH;
 use crate::link::{self, Link, Stream};
+use crate::observers::{Due, Observers};
 use crate::router::Router;
 use crate::tls::Tls;
 
@@ -103,7 +112,8 @@ pub struct StreamLimits {
     /// Release (with a Hold-Off of 5 s and a diagnostic saying why) and is closed.
     pub max_connections: usize,
     /// A connection on which nothing came for this long while none of its requests was
-    /// being handled is released (RFC 8323 §5.5 lets either side close) and closed.
+    /// being handled and it had no observation is released (RFC 8323 §5.5 lets either
+    /// side close) and closed.
     pub idle_timeout: Duration,
 }
 
@@ -362,8 +372,41 @@ struct Peer {
     identity: Option<Arc<str>>,
 }
 
+/// What a connection's handlers hand back to its task.
+enum Handled {
+    /// The answer to the request of `token`; `request` is the request itself when it
+    /// registered an observation (boxed: a request keeps its options inline).
+    Answer {
+        token: Token,
+        response: Response,
+        request: Option<Box<IncomingRequest>>,
+    },
+    /// A notification of observation `id` (under `token`), run again.
+    Notification {
+        token: Token,
+        id: ObservationId,
+        response: Response,
+    },
+}
+
+/// Runs a notification of `due` on a spawned task, which hands it to `handled`.
+fn run_notification(due: Due, router: &Arc<Router>, handled: &mpsc::UnboundedSender<Handled>) {
+    let (router, handled) = (router.clone(), handled.clone());
+    tokio::spawn(async move {
+        let response = router.dispatch(due.request).await;
+        let (token, id) = (due.token, due.id);
+        let _ = handled.send(Handled::Notification {
+            token,
+            id,
+            response,
+        });
+    });
+}
+
 /// Moves one connection's bytes between its stream and its `Connection`, and its
 /// requests to the router, until either side ends it or it is idle for `idle_timeout`.
+/// It keeps the observations registered on it (`observers.rs`) and notifies them of the
+/// paths the router is told changed; they end with it.
 async fn serve(
     mut link: Link,
     from: Peer,
@@ -374,7 +417,9 @@ async fn serve(
     mut stopped: watch::Receiver<()>,
 ) {
     let (scheme, peer) = (link.scheme(), from.addr);
-    let (answer, mut answers) = mpsc::unbounded_channel::<(Token, Response)>();
+    let (handled_tx, mut handled) = mpsc::unbounded_channel::<Handled>();
+    let mut changes = router.changes();
+    let mut observers = Observers::new(peer);
     let mut in_flight = 0;
     // When the connection last showed life: bytes came, or an answer went.
     let mut active = tokio::time::Instant::now();
@@ -387,6 +432,9 @@ async fn serve(
                 ConnectionEvent::Request(request) => {
                     let request = *request;
                     in_flight += 1;
+                    let registers = request.method == Code::GET
+                        && request.options.uint(OptionNumber::OBSERVE) == Some(0);
+                    let observe = observers.request(request.token, registers);
                     let id = IncomingId(ids.fetch_add(1, Ordering::Relaxed));
                     let incoming = IncomingRequest {
                         id,
@@ -397,18 +445,24 @@ async fn serve(
                         multicast: false,
                         // Reliable, as a CON is.
                         confirmable: true,
-                        observe: None,
+                        observe,
                         identity: from.identity.clone(),
                         // TCP's handshake proves the peer's address, so one on
                         // loopback is this machine (as the HTTP side decides).
                         loopback: peer.ip().to_canonical().is_loopback(),
                     };
-                    let (router, answer, token) = (router.clone(), answer.clone(), request.token);
+                    let registration = observe.is_some().then(|| Box::new(incoming.clone()));
+                    let (router, handled, token) =
+                        (router.clone(), handled_tx.clone(), request.token);
                     tokio::spawn(async move {
                         let (method, path) = (incoming.method, incoming.options.path_string());
                         let response = router.dispatch(incoming).await;
                         tracing::debug!(%peer, %method, ?path, code = %response.code, "{scheme} request");
-                        let _ = answer.send((token, response));
+                        let _ = handled.send(Handled::Answer {
+                            token,
+                            response,
+                            request: registration,
+                        });
                     });
                 }
                 ConnectionEvent::Closed(why) => {
@@ -439,12 +493,45 @@ async fn serve(
                     conn.handle(bytes);
                 }
             },
-            Some((token, response)) = answers.recv() => {
-                in_flight -= 1;
+            Some(done) = handled.recv() => {
                 active = tokio::time::Instant::now();
-                conn.respond(token, &response);
+                match done {
+                    Handled::Answer { token, mut response, request } => {
+                        in_flight -= 1;
+                        if let Some(request) = request {
+                            observers.answered(&router, token, *request, &mut response);
+                        } else {
+                            response.options.remove(OptionNumber::OBSERVE);
+                        }
+                        conn.respond(token, &response);
+                    }
+                    Handled::Notification { token, id, response } => {
+                        let (send, again) = observers.notified(token, id, response);
+                        if let Some(notification) = send {
+                            conn.respond(token, &notification);
+                        }
+                        if let Some(due) = again {
+                            run_notification(due, &router, &handled_tx);
+                        }
+                    }
+                }
             }
-            () = idle, if in_flight == 0 => {
+            changed = changes.recv(), if !observers.is_empty() => {
+                let paths = match changed {
+                    Ok(path) => vec![path.to_string()],
+                    // Changes were lost: every observed path may have changed.
+                    Err(broadcast::error::RecvError::Lagged(_)) => observers.paths(),
+                    Err(broadcast::error::RecvError::Closed) => Vec::new(),
+                };
+                for path in paths {
+                    for due in observers.changed(&path) {
+                        run_notification(due, &router, &handled_tx);
+                    }
+                }
+            }
+            // An observed connection is not idle: its notifications are what it waits
+            // for, however rarely the resource changes.
+            () = idle, if in_flight == 0 && observers.is_empty() => {
                 let secs = idle_timeout.as_secs_f64();
                 conn.release(&format!("idle for {secs} s"), None);
             }
@@ -482,6 +569,16 @@ enum ToConnection {
         timeout: Duration,
         reply: oneshot::Sender<Result<(), Error>>,
     },
+    /// Send a registration (a GET with Observe 0), tell its token on `token` once it is
+    /// sent, and hand its answer and every notification to `items`.
+    Observe {
+        request: Box<Request>,
+        sent: Instant,
+        token: oneshot::Sender<Result<Token, Error>>,
+        items: mpsc::UnboundedSender<StreamItem>,
+    },
+    /// End the observation of this token (a GET with Observe 1 under it).
+    Cancel(Token),
 }
 
 impl ToConnection {
@@ -490,6 +587,8 @@ impl ToConnection {
         match self {
             Self::Request { reply, .. } => drop(reply.send(Err(error))),
             Self::Ping { reply, .. } => drop(reply.send(Err(error))),
+            Self::Observe { token, .. } => drop(token.send(Err(error))),
+            Self::Cancel(_) => {}
         }
     }
 }
@@ -499,6 +598,9 @@ impl ToConnection {
 enum Waiter {
     Response(oneshot::Sender<Result<Response, Error>>),
     Pong(oneshot::Sender<Result<(), Error>>),
+    /// An observation: its registration (sent again with Observe 1 to cancel it) and
+    /// where its answer and notifications go.
+    Observe(Box<Request>, mpsc::UnboundedSender<StreamItem>),
 }
 
 impl TcpClient {
@@ -684,6 +786,56 @@ impl TcpClient {
             .await
             .unwrap_or(Err(Error::Request(RequestError::Timeout)))
     }
+
+    /// Registers `request` (a GET with Observe 0) on `peer` over its connection,
+    /// connecting first if need be: its answer and then each notification come on the
+    /// returned receiver (RFC 7641 over RFC 8323 §7), which ends when the observation
+    /// does (an answer without Observe, an error, the connection's end).
+    /// [`TcpObservation::cancel`] ends it from this side. Fails when the connection
+    /// cannot be opened.
+    pub(crate) async fn observe(
+        &self,
+        peer: SocketAddr,
+        request: Request,
+    ) -> Result<(TcpObservation, mpsc::UnboundedReceiver<StreamItem>), Error> {
+        let sent = crate::clock::now();
+        for _ in 0..2 {
+            let (items, rx) = mpsc::unbounded_channel();
+            let (token_tx, token) = oneshot::channel();
+            let commands = self.connection(peer);
+            let command = ToConnection::Observe {
+                request: Box::new(request.clone()),
+                sent,
+                token: token_tx,
+                items,
+            };
+            if commands.send(command).is_err() {
+                continue;
+            }
+            // No answer at all: the task ended before it took the registration.
+            if let Ok(token) = token.await {
+                let token = token?;
+                return Ok((TcpObservation { commands, token }, rx));
+            }
+        }
+        Err(Error::Closed)
+    }
+}
+
+/// This side's end of an observation over a stream ([`TcpClient::observe`]).
+#[derive(Debug)]
+pub(crate) struct TcpObservation {
+    commands: mpsc::UnboundedSender<ToConnection>,
+    token: Token,
+}
+
+impl TcpObservation {
+    /// Deregisters (RFC 7641 §3.6: a GET with Observe 1 under the observation's token,
+    /// the only way over a stream, RFC 8323 §7.4), unless it already ended; whatever
+    /// comes for it after is dropped.
+    pub(crate) fn cancel(&self) {
+        let _ = self.commands.send(ToConnection::Cancel(self.token));
+    }
 }
 
 /// Connects to `peer` and moves bytes between the stream and a client `Connection`, and
@@ -714,14 +866,22 @@ async fn drive(
     loop {
         while let Some(event) = conn.poll_event() {
             match event {
-                ConnectionEvent::Response(token, response) => {
-                    if let Some(Waiter::Response(reply)) = waiters.remove(&token) {
-                        let _ = reply.send(Ok(*response));
+                ConnectionEvent::Response(token, response) => match waiters.remove(&token) {
+                    Some(Waiter::Response(reply)) => drop(reply.send(Ok(*response))),
+                    Some(Waiter::Observe(request, items)) => {
+                        let _ = items.send(StreamItem::Response(peer, response));
+                        // Kept while the registration holds: its notifications follow.
+                        if conn.is_observing(token) {
+                            waiters.insert(token, Waiter::Observe(request, items));
+                        }
                     }
-                }
+                    Some(other) => drop(waiters.insert(token, other)),
+                    None => {}
+                },
                 ConnectionEvent::Failed(token, error) => match waiters.remove(&token) {
                     Some(Waiter::Response(reply)) => drop(reply.send(Err(Error::Request(error)))),
                     Some(Waiter::Pong(reply)) => drop(reply.send(Err(Error::Request(error)))),
+                    Some(Waiter::Observe(_, items)) => drop(items.send(StreamItem::Failed(error))),
                     None => {}
                 },
                 ConnectionEvent::Pong(token) => {
@@ -766,6 +926,16 @@ async fn drive(
                 Some(ToConnection::Ping { timeout, reply }) => {
                     let token = conn.ping(crate::clock::now(), timeout);
                     waiters.insert(token, Waiter::Pong(reply));
+                }
+                Some(ToConnection::Observe { request, sent, token, items }) => {
+                    let registered = conn.send_request(sent, &request);
+                    let _ = token.send(Ok(registered));
+                    waiters.insert(registered, Waiter::Observe(request, items));
+                }
+                Some(ToConnection::Cancel(token)) => {
+                    if let Some(Waiter::Observe(request, _)) = waiters.remove(&token) {
+                        conn.cancel_observation(token, &request);
+                    }
                 }
                 // Every client is gone.
                 None => {

@@ -28,12 +28,20 @@
 //! [`RequestError::ConnectionClosed`]. [`Connection::ping`] sends a Ping and reports its
 //! Pong (one without the Ping's token, as libcoap 4.3.5 sends, answers the oldest Ping).
 //!
-//! What it does not do yet: Observe (a registration is served as a plain GET and the
-//! answer's Observe option removed, so the client knows it is not registered, RFC 7641
-//! §4.1; a client's notifications are not followed), block-wise transfer and BERT (it
-//! announces no Block-Wise-Transfer; an answer over the peer's Max-Message-Size becomes a
-//! 5.00 with a diagnostic, a request over it fails), Pings of its own to keep a
-//! connection alive.
+//! Observe (RFC 7641 as RFC 8323 §7 has it over reliable transports): as a server it
+//! passes a registration's answer and each notification on as the caller gives them,
+//! Observe option and all (keeping observations is the caller's, who knows the resources:
+//! coap-net's stream server); as a client, a request registering (GET or FETCH with
+//! Observe 0) whose answer is a 2.xx with Observe stays matched to its token, with no
+//! timeout any more, and every later response of that token is reported as a
+//! notification until one comes without Observe or with an error code, or
+//! [`Connection::cancel_observation`] deregisters. Notifications carry no type and need
+//! no acknowledgement (§7.2); their Observe values are not used for ordering, since the
+//! stream keeps it (§7.1).
+//!
+//! What it does not do yet: block-wise transfer and BERT (it announces no
+//! Block-Wise-Transfer; an answer over the peer's Max-Message-Size becomes a 5.00 with a
+//! diagnostic, a request over it fails), Pings of its own to keep a connection alive.
 
 use std::collections::{HashMap, VecDeque};
 use std::time::{Duration, Instant};
@@ -122,6 +130,11 @@ struct Outstanding {
     deadline: Instant,
     /// A Ping, answered by a Pong rather than a response.
     ping: bool,
+    /// A request registering an observation (GET or FETCH with Observe 0).
+    registers: bool,
+    /// Its registration was accepted: every response of its token is a notification,
+    /// and it no longer times out.
+    observing: bool,
 }
 
 /// One connection's state.
@@ -283,12 +296,20 @@ impl Connection {
             })));
     }
 
-    /// A response: to a request of this side's that waits for it, or ignored.
+    /// A response: to a request of this side's that waits for it (or a notification of
+    /// an observation it registered), or ignored.
     fn response(&mut self, frame: Frame) {
-        if self.outstanding.get(&frame.token).is_none_or(|o| o.ping) {
+        let Some(waiting) = self.outstanding.get_mut(&frame.token).filter(|o| !o.ping) else {
             return;
+        };
+        // RFC 7641 §3.2: a 2.xx with Observe says the registration holds; anything else
+        // ends it (§3.3.2 for an error, and a plain answer says it was not made).
+        let observed = frame.code.is_success() && frame.options.contains(OptionNumber::OBSERVE);
+        if waiting.registers && observed {
+            waiting.observing = true;
+        } else {
+            self.outstanding.remove(&frame.token);
         }
-        self.outstanding.remove(&frame.token);
         let event = if frame.payload.len() > self.body_limit {
             let limit = self.body_limit;
             ConnectionEvent::Failed(frame.token, RequestError::TooLarge { limit })
@@ -418,9 +439,13 @@ impl Connection {
         }
         let timeout = request.timeout.unwrap_or(DEFAULT_RESPONSE_TIMEOUT);
         let deadline = now + timeout;
+        let registers = matches!(request.method, Code::GET | Code::FETCH)
+            && request.options.uint(OptionNumber::OBSERVE) == Some(0);
         let pending = Outstanding {
             deadline,
             ping: false,
+            registers,
+            observing: false,
         };
         self.outstanding.insert(token, pending);
         let frame = Frame {
@@ -463,6 +488,8 @@ impl Connection {
             let ping = Outstanding {
                 deadline: now + timeout,
                 ping: true,
+                registers: false,
+                observing: false,
             };
             self.outstanding.insert(token, ping);
             let frame = Signal::Ping { custody: false }.to_frame(token, Bytes::new());
@@ -472,9 +499,44 @@ impl Connection {
     }
 
     /// When [`Connection::handle_timeout`] is next due: the earliest deadline of a
-    /// request or Ping not answered yet.
+    /// request or Ping not answered yet (an accepted observation has none).
     pub fn poll_timeout(&self) -> Option<Instant> {
-        self.outstanding.values().map(|o| o.deadline).min()
+        (self.outstanding.values())
+            .filter(|o| !o.observing)
+            .map(|o| o.deadline)
+            .min()
+    }
+
+    /// Whether this side's request of `token` registered an observation that holds: its
+    /// later responses are notifications.
+    pub fn is_observing(&self, token: Token) -> bool {
+        self.outstanding.get(&token).is_some_and(|o| o.observing)
+    }
+
+    /// Ends this side's observation of `token` (RFC 7641 §3.6, the only way over a
+    /// stream, RFC 8323 §7.4: there is no Reset): sends `request`, the registration's,
+    /// with Observe 1 under the same token, and forgets the token, so the answer to
+    /// that and any notification still on its way are ignored. Nothing is sent for a
+    /// token that is not observing.
+    pub fn cancel_observation(&mut self, token: Token, request: &Request) {
+        if self.outstanding.get(&token).is_none_or(|o| !o.observing) {
+            return;
+        }
+        self.outstanding.remove(&token);
+        if self.closed {
+            return;
+        }
+        let mut options = request.options.clone();
+        options.set_uint(OptionNumber::OBSERVE, 1);
+        let frame = Frame {
+            code: request.method,
+            token,
+            options,
+            payload: request.payload.clone(),
+        };
+        if self.framing.size(&frame) <= self.peer_limit() {
+            self.emit(&frame);
+        }
     }
 
     /// Fails every request and Ping whose deadline has passed with
@@ -483,7 +545,7 @@ impl Connection {
         let mut late: Vec<Token> = self
             .outstanding
             .iter()
-            .filter(|(_, o)| o.deadline <= now)
+            .filter(|(_, o)| !o.observing && o.deadline <= now)
             .map(|(token, _)| *token)
             .collect();
         late.sort_by_key(token_order);
@@ -504,9 +566,10 @@ impl Connection {
         }
     }
 
-    /// Answers the request of `token`. Its Observe option is removed (no Observe over
-    /// streams yet); an answer larger than the peer's Max-Message-Size is replaced by a
-    /// 5.00 that says so.
+    /// Answers the request of `token`, or sends a notification of the observation of
+    /// `token`: as given, Observe option included (whoever keeps the observations
+    /// removes it from an answer to a registration it did not keep, RFC 7641 §4.1). An
+    /// answer larger than the peer's Max-Message-Size is replaced by a 5.00 that says so.
     pub fn respond(&mut self, token: Token, response: &Response) {
         if !self.closed {
             self.send(token, response);
@@ -514,8 +577,7 @@ impl Connection {
     }
 
     fn send(&mut self, token: Token, response: &Response) {
-        let mut options = response.options.clone();
-        options.remove(OptionNumber::OBSERVE);
+        let options = response.options.clone();
         let payload = match &response.source {
             None => Some(response.payload.clone()),
             Some(source) => source.read(0..source.len()),
@@ -626,10 +688,10 @@ mod tests {
         let mut answer = Response::new(Code::CONTENT).with_payload(&b"hi"[..]);
         answer.options.set_uint(OptionNumber::OBSERVE, 3);
         c.respond(token, &answer);
-        // No Observe over streams yet: 2.05 with the marker and "hi", Len 3.
+        // 2.05, Observe (6) 3, the marker and "hi": Len 5.
         assert_eq!(
             c.poll_transmit(),
-            Some(vec![0x31, 0x45, 0x05, 0xff, b'h', b'i'])
+            Some(vec![0x51, 0x45, 0x05, 0x61, 0x03, 0xff, b'h', b'i'])
         );
     }
 
@@ -950,6 +1012,91 @@ mod tests {
             c.poll_event(),
             Some(ConnectionEvent::Failed(unanswered, RequestError::Timeout))
         );
+        assert_eq!(c.poll_timeout(), None);
+    }
+
+    /// A response frame of `code` with `token`, Observe `seq` and `payload`.
+    fn notification(code: Code, token: Token, seq: u32, payload: &[u8]) -> Vec<u8> {
+        let mut options = Options::new();
+        options.set_uint(OptionNumber::OBSERVE, seq);
+        Frame {
+            code,
+            token,
+            options,
+            payload: Bytes::copy_from_slice(payload),
+        }
+        .encode()
+    }
+
+    fn observe(path: &str) -> Request {
+        let mut r = get(path);
+        r.options.set_uint(OptionNumber::OBSERVE, 0);
+        r
+    }
+
+    fn payloads(c: &mut Connection, token: Token) -> Vec<Vec<u8>> {
+        let mut got = Vec::new();
+        while let Some(e) = c.poll_event() {
+            match e {
+                ConnectionEvent::Response(t, r) if t == token => got.push(r.payload.to_vec()),
+                other => panic!("{other:?}"),
+            }
+        }
+        got
+    }
+
+    #[test]
+    fn rfc7641_an_accepted_registration_reports_notifications_without_a_timeout() {
+        let now = crate::test_epoch();
+        let mut c = client(1152);
+        let token = c.send_request(now, &observe("/n"));
+        let _request = c.poll_transmit();
+        c.handle(&notification(Code::CONTENT, token, 0, b"0"));
+        // RFC 8323 §7.1: the Observe value is not an order; a smaller one still counts.
+        c.handle(&notification(Code::CONTENT, token, 5, b"1"));
+        c.handle(&notification(Code::CONTENT, token, 2, b"2"));
+        assert_eq!(payloads(&mut c, token), [b"0", b"1", b"2"]);
+        assert_eq!(c.poll_timeout(), None);
+        c.handle_timeout(now + Duration::from_secs(3600));
+        assert_eq!(c.poll_event(), None);
+
+        // Cancelled: a GET with Observe 1 under the same token; what follows is ignored.
+        c.cancel_observation(token, &observe("/n"));
+        let mut options = Options::new();
+        options.set_uint(OptionNumber::OBSERVE, 1);
+        options.set_path("/n");
+        let deregister = Frame {
+            code: Code::GET,
+            token,
+            options,
+            payload: Bytes::new(),
+        };
+        assert_eq!(c.poll_transmit(), Some(deregister.encode()));
+        c.handle(&notification(Code::CONTENT, token, 3, b"3"));
+        c.handle(&answer(Code::CONTENT, token.as_bytes(), b"plain"));
+        assert_eq!(c.poll_event(), None);
+    }
+
+    #[test]
+    fn rfc7641_3_2_an_answer_without_observe_or_an_error_ends_the_observation() {
+        let now = crate::test_epoch();
+        let mut c = client(1152);
+        // Not registered: the plain answer is the only one.
+        let plain = c.send_request(now, &observe("/p"));
+        c.handle(&answer(Code::CONTENT, plain.as_bytes(), b"once"));
+        c.handle(&notification(Code::CONTENT, plain, 1, b"late"));
+        assert_eq!(payloads(&mut c, plain), [b"once"]);
+        // Registered, then a 4.04 notification: the last.
+        let gone = c.send_request(now, &observe("/g"));
+        c.handle(&notification(Code::CONTENT, gone, 0, b"here"));
+        c.handle(&answer(Code::NOT_FOUND, gone.as_bytes(), b"gone"));
+        c.handle(&notification(Code::CONTENT, gone, 2, b"late"));
+        assert_eq!(payloads(&mut c, gone), [&b"here"[..], b"gone"]);
+        // A GET without Observe is matched once, even if the answer carries Observe.
+        let once = c.send_request(now, &get("/o"));
+        c.handle(&notification(Code::CONTENT, once, 0, b"a"));
+        c.handle(&notification(Code::CONTENT, once, 1, b"b"));
+        assert_eq!(payloads(&mut c, once), [b"a"]);
         assert_eq!(c.poll_timeout(), None);
     }
 

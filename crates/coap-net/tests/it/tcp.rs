@@ -594,14 +594,15 @@ async fn a_request_sent_when_the_server_closes_fails_connection_closed() {
 }
 
 #[tokio::test]
-async fn observe_and_multicast_over_tcp_are_refused_not_sent_over_udp() {
+async fn multicast_over_tcp_is_refused_not_sent_over_udp_and_observe_goes_over_tcp() {
     let client = tcp_client(1 << 20);
+    // Nothing listens on TCP port 9 here: the observation fails to connect.
     let peer: SocketAddr = "127.0.0.1:9".parse().unwrap_or_else(|_| unreachable!());
     let observed = client.observe(peer, get("/x")).await;
-    assert!(matches!(
-        observed,
-        Err(coap_net::Error::Unsupported("Observe"))
-    ));
+    assert!(
+        matches!(observed, Err(coap_net::Error::Io(_))),
+        "{observed:?}"
+    );
     let group: SocketAddr = "224.0.1.187:5683"
         .parse()
         .unwrap_or_else(|_| unreachable!());
@@ -689,6 +690,93 @@ async fn our_client_gets_from_libcoap_4_3_5_coap_server_over_tcp() {
             .unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(missing.code, Code::NOT_FOUND);
         assert_eq!(client.ping(server.addr).await.ok(), Some(()));
+    })
+    .await;
+}
+
+/// A router with `/counter`, observable: its GET answers the counter's value, and its
+/// observations' ends are counted in `ended`.
+fn counter_router(
+    count: &Arc<std::sync::atomic::AtomicU32>,
+    ended: &Arc<std::sync::atomic::AtomicU32>,
+) -> Arc<Router> {
+    use std::sync::atomic::Ordering;
+    let router = Router::new();
+    let (count, ended) = (count.clone(), ended.clone());
+    router.add(
+        "/counter",
+        Resource::new()
+            .get(handler(move |_| {
+                let n = count.load(Ordering::SeqCst);
+                async move { Response::new(Code::CONTENT).with_payload(n.to_string()) }
+            }))
+            .observable()
+            .on_observation_end(Arc::new(move |_, _| {
+                ended.fetch_add(1, Ordering::SeqCst);
+            })),
+    );
+    router
+}
+
+/// RFC 7641 over RFC 8323 §7: a registration over the connection gets a notification
+/// for each change the router is told of (and none for a change to another path); the
+/// client's deregistration (a GET with Observe 1, when its observation is dropped) ends
+/// it on the server while the connection stays, and so does the connection's end (the
+/// server's, here), which ends the client's observation too.
+#[tokio::test]
+async fn rfc8323_7_observe_notifies_over_the_connection_and_ends_with_a_deregistration_or_it() {
+    use std::sync::atomic::{AtomicU32, Ordering};
+    let (count, ended) = (Arc::new(AtomicU32::new(0)), Arc::new(AtomicU32::new(0)));
+    let router = counter_router(&count, &ended);
+    let addr = "127.0.0.1:0".parse().unwrap_or_else(|_| unreachable!());
+    let server = TcpServer::bind(addr, router.clone(), tcp::StreamLimits::default())
+        .await
+        .unwrap_or_else(|e| panic!("bind: {e}"));
+    let client = tcp_client(1 << 20);
+    let ended_at = |n: u32| {
+        let ended = ended.clone();
+        async move {
+            while ended.load(Ordering::SeqCst) < n {
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+        }
+    };
+    within(async {
+        let mut obs = client
+            .observe(server.local_addr(), get("/counter"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        let first = obs.next().await.expect("the answer").expect("a 2.05");
+        assert_eq!(first.payload, "0");
+        assert!(first.options.contains(coap::OptionNumber::OBSERVE));
+        for n in 1..=3u32 {
+            count.store(n, Ordering::SeqCst);
+            router.changed("/elsewhere");
+            router.changed("/counter");
+            let r = obs.next().await.expect("a notification").expect("a 2.05");
+            assert_eq!(r.payload, n.to_string());
+            assert!(r.options.contains(coap::OptionNumber::OBSERVE));
+        }
+        drop(obs);
+        ended_at(1).await;
+        // The connection is still the same one, and answers.
+        let r = client
+            .send(server.local_addr(), get("/counter"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(r.payload, "3");
+        assert!(!r.options.contains(coap::OptionNumber::OBSERVE));
+
+        // A second observation, and the server goes: its connections end, and their
+        // observations with them.
+        let mut obs = client
+            .observe(server.local_addr(), get("/counter"))
+            .await
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(obs.next().await.is_some_and(|r| r.is_ok()));
+        drop(server);
+        ended_at(2).await;
+        assert!(obs.next().await.is_none_or(|r| r.is_err()));
     })
     .await;
 }

@@ -21,7 +21,7 @@ use coapcam::client::{check_size, describe};
 #[derive(Debug, Args)]
 pub(crate) struct RequestArgs {
     /// The resource, e.g. coap://127.0.0.1:5683/cams/pointclouds?x=1 (IPv6: coap://[::1]/...;
-    /// coaps:// for DTLS, coap+tcp:// for TCP, without --observe).
+    /// coaps:// for DTLS, coap+tcp:// for TCP).
     #[arg(value_parser = values::coap_uri)]
     uri: String,
     /// Request payload as text.

@@ -138,15 +138,84 @@ fn our_commands_reach_serve_bind_tcp_through_coap_tcp_uris() {
     assert_eq!(m["parcel"], "measured", "{m}");
     assert_eq!(m["length_mm"], 400.0, "{m}");
 
-    // Observe is not done over TCP yet: refused, not tried over UDP.
-    let uri = format!("coap+tcp://{tcp}/.well-known/core");
-    let f = Proc::run(COAPCAM, &["get", &uri, "--observe", "1"], LIMIT);
-    assert!(!f.status.success());
-    assert!(
-        f.stderr.contains("Observe is not supported over coap+tcp"),
-        "{}",
-        f.stderr
-    );
+    // Observe over the stream: the live color stream's first frame and two notifications,
+    // the observation ended with the connection.
+    let uri = format!("coap+tcp://{tcp}/cams/{SN}/color/live?fps=5");
+    let f = Proc::run(COAPCAM, &["get", &uri, "--observe", "2", "--json"], LIMIT)
+        .expect_success("coapcam get --observe over coap+tcp://");
+    let lines = f.json_lines();
+    assert_eq!(lines.len(), 3, "the answer and 2 notifications: {lines:?}");
+    for l in &lines {
+        assert_eq!(l["code"], "2.05", "{l}");
+        assert!(l["observe"].is_u64(), "no Observe option: {l}");
+        assert!(l["size_bytes"].as_u64() > Some(1000), "a JPEG frame: {l}");
+    }
+    assert_live_streams_end(&server);
+}
+
+/// `GET /cams/live` of the server at `server` (a URI without a path) until it reports no
+/// stream left: an observation over a stream ends with its connection. Bounded: 100
+/// reads, 100 ms apart.
+#[track_caller]
+pub(crate) fn assert_live_streams_end(server: &str) {
+    let uri = format!("{server}/cams/live");
+    let mut report = serde_json::Value::Null;
+    for _ in 0..100 {
+        report = Proc::run(COAPCAM, &["get", &uri], LIMIT)
+            .expect_success("coapcam get /cams/live")
+            .json();
+        if report["streams"] == 0 {
+            return;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    panic!("the live stream outlived its observer's connection: {report}");
+}
+
+/// aiocoap's observer (`tests/peers/aiocoap_observe.py`, the aiocoap library) on the live
+/// color stream of `serve` over `scheme` at `addr`: registered, it gets two notifications
+/// and cancels; the stream ends once its connection has.
+pub(crate) fn aiocoap_observes_serve(scheme: &str, addr: SocketAddr) {
+    let uri = format!("{scheme}://{addr}/cams/{SN}/color/live?fps=5");
+    let observer = support::script("aiocoap_observe.py");
+    Proc::run("python3", &[&observer, &uri, "2"], LIMIT)
+        .expect_success("aiocoap_observe.py on the live color stream");
+    assert_live_streams_end(&format!("{scheme}://{addr}"));
+}
+
+#[test]
+fn aiocoap_observes_a_live_stream_of_serve_bind_tcp() {
+    let test = "aiocoap_observes_a_live_stream_of_serve_bind_tcp";
+    if !support::available(test, &[Peer::Aiocoap]) {
+        return;
+    }
+    let dir = TempDir::new("tcp-aiocoap-observe");
+    let (_server, tcp) = serve_tcp(&dir);
+    aiocoap_observes_serve("coap+tcp", tcp);
+}
+
+#[test]
+fn our_client_observes_aiocoap_server_over_tcp() {
+    let test = "our_client_observes_aiocoap_server_over_tcp";
+    if !support::available(test, &[Peer::Aiocoap]) {
+        return;
+    }
+    let (_server, addrs) = support::aiocoap_server_on_all(None);
+    // /counter counts up every 250 ms and notifies each step.
+    let uri = format!("coap+tcp://{}/counter", addrs.tcp);
+    let f = Proc::run(COAPCAM, &["get", &uri, "--observe", "3", "--json"], LIMIT)
+        .expect_success("coapcam get --observe coap+tcp:// from aiocoap");
+    let lines = f.json_lines();
+    assert_eq!(lines.len(), 4, "the answer and 3 notifications: {lines:?}");
+    let counts: Vec<u64> = lines
+        .iter()
+        .map(|l| {
+            assert_eq!(l["code"], "2.05", "{l}");
+            let text = l["payload"].as_str().unwrap_or_default();
+            text.parse().unwrap_or_else(|e| panic!("{text:?}: {e}"))
+        })
+        .collect();
+    assert!(counts.windows(2).all(|w| w[0] < w[1]), "{counts:?}");
 }
 
 /// The bytes of `/big` on aiocoap's server in the stream tests: over its 1,024-byte

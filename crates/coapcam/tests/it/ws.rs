@@ -139,3 +139,14 @@ fn aiocoap_client_discovers_and_reads_a_camera_over_websockets_from_serve_bind_w
     let (_server, ws) = serve_ws(&dir);
     crate::tcp::aiocoap_client_against_serve("coap+ws", ws);
 }
+
+#[test]
+fn aiocoap_observes_a_live_stream_of_serve_bind_ws() {
+    let test = "aiocoap_observes_a_live_stream_of_serve_bind_ws";
+    if !support::available(test, &[Peer::AiocoapWs]) {
+        return;
+    }
+    let dir = TempDir::new("ws-aiocoap-observe");
+    let (_server, ws) = serve_ws(&dir);
+    crate::tcp::aiocoap_observes_serve("coap+ws", ws);
+}
