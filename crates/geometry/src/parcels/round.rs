@@ -25,7 +25,7 @@ use crate::Point3;
 pub(super) fn rule(object: &Object<'_>) -> Option<ShapeFit> {
     if let Some(tube) = lying_tube(
         &object.lid_rect,
-        object.dense,
+        (object.dense, object.cluster),
         object.height_m,
         object.band_m,
     ) {
@@ -71,6 +71,9 @@ pub(super) struct LyingTube {
     centre: f64,
     /// The radius, metres: the tube rests on the floor, so its top is at twice this.
     pub(super) radius: f64,
+    /// Along the axis, from corner 0, where its ends lie, metres: the lid strip's, or
+    /// beyond them as far as its crest runs ([`crest_ends`]).
+    pub(super) ends: [f64; 2],
     /// Across the rectangle, from corner 0, where the circle's points lie, metres: a
     /// tilted camera sees the near flank, the crest and the far side only until it
     /// turns away.
@@ -85,12 +88,13 @@ impl LyingTube {
         self.across(rect, self.seen)
     }
 
-    /// The footprint: the lid's rectangle along the axis, the circle's diameter across.
+    /// The footprint: its ends along the axis, the circle's diameter across.
     fn footprint(&self, rect: &[[f64; 2]; 4]) -> [[f64; 2]; 4] {
         self.across(rect, [self.centre - self.radius, self.centre + self.radius])
     }
 
-    /// The lid's rectangle `rect` along the axis, from `t[0]` to `t[1]` across it.
+    /// Its ends along the axis of the lid's rectangle `rect`, from `t[0]` to `t[1]`
+    /// across it.
     fn across(&self, rect: &[[f64; 2]; 4], t: [f64; 2]) -> [[f64; 2]; 4] {
         let Some(frame) = RectFrame::new(rect) else {
             return *rect;
@@ -100,7 +104,7 @@ impl LyingTube {
         } else {
             frame.swapped()
         };
-        frame.corners(0.0, frame.la, t[0], t[1])
+        frame.corners(self.ends[0], self.ends[1], t[0], t[1])
     }
 }
 
@@ -360,10 +364,11 @@ const TUBE_BEYOND_SHARE: f64 = 0.02;
 /// long). Depth noise moves each point along its ray by about a quarter of the
 /// lid band, so the circle fits to that; the height read from the top band is a median
 /// of the strip below the crest (about a quarter of the band low on a circle), the
-/// circle's top is not.
+/// circle's top is not. Its ends are where its crest ends ([`crest_ends`], of all the
+/// object's points, `cluster`), which may lie beyond the lid strip's.
 pub(super) fn lying_tube(
     rect: &[[f64; 2]; 4],
-    dense: &[Point3],
+    (dense, cluster): (&[Point3], &[Point3]),
     height_m: f32,
     band_m: f32,
 ) -> Option<LyingTube> {
@@ -453,21 +458,91 @@ pub(super) fn lying_tube(
         && rms <= TUBE_RMS_M.max(f64::from(band_m) / 4.0)
         && hi - lo >= TUBE_SPAN * 2.0 * radius
         && (2.0 * radius - height).abs() <= (0.05 * height).max(0.006);
-    // A tube's crest runs its whole length and its ends are upright discs: beyond the
-    // lid strip's ends only a few flying pixels stay dense. A bag's top curves down along
-    // its length as across it, and its rounded ends lie beyond the strip.
+    if !round {
+        return None;
+    }
+    let ends = crest_ends(&frame, cluster, centre, radius, band_m);
+    // A tube's crest runs its whole length and its ends are upright discs: beyond its
+    // ends only a few flying pixels stay dense. A bag's top curves down along its length
+    // as across it, and its rounded ends lie beyond the strip.
     let beyond = dense
         .iter()
         .filter(|p| {
             let (s, _) = frame.local_point(p);
-            s < -OUTSIDE_M || s > len + OUTSIDE_M
+            s < ends[0] - OUTSIDE_M || s > ends[1] + OUTSIDE_M
         })
         .count() as f64
         / dense.len().max(1) as f64;
-    (round && beyond <= TUBE_BEYOND_SHARE).then_some(LyingTube {
+    (beyond <= TUBE_BEYOND_SHARE).then_some(LyingTube {
         along_first,
         centre,
         radius,
+        ends,
         seen: [lo, hi],
     })
+}
+
+/// A tube's crest runs on beyond its lid strip's end by more than this (metres) before
+/// the end moves out to it: within it, the strip's edges (placed by the points' density
+/// and the cameras' pixels) say where the end is better than the outermost crest points.
+const CREST_BEYOND_M: f64 = 0.01;
+
+/// Crest points further apart along the axis than this (metres) are not one crest.
+const CREST_GAP_M: f64 = 0.01;
+
+/// Along the axis of `frame` (the tube's), where the crest of a tube whose axis lies
+/// `centre` across it and whose radius is `radius` ends on each side: the lid strip's ends
+/// (0 and the frame's length), or, where the crest runs on beyond one by more than
+/// [`CREST_BEYOND_M`] without a gap of [`CREST_GAP_M`], its last points there (the fifth
+/// from the end: a stray point is no crest). The crest is the points of `cluster` within a
+/// quarter radius of the axis and within half the lid band (at least 4 mm) of its top.
+///
+/// The lid keeps the points with enough others near them, by the merged cloud's typical
+/// spacing; the end of a tube that only one camera sees, from afar or at a grazing
+/// angle, holds its points at a fraction of that density and drops out of the lid, and the
+/// strip ends short of the tube (certification set, seed 1, scene 256: a tube 340 mm long
+/// under four cameras, its far end seen by one at an eighth of the density, read 269 mm
+/// long and round). Its crest there is at the tube's full height, where no flying pixel
+/// off an end lies farther out than the depth noise moves it.
+fn crest_ends(
+    frame: &RectFrame,
+    cluster: &[Point3],
+    centre: f64,
+    radius: f64,
+    band_m: f32,
+) -> [f64; 2] {
+    const STRAY: usize = 4;
+    let top = 2.0 * radius;
+    let depth = (f64::from(band_m) / 2.0).max(0.004);
+    let mut along: Vec<f64> = cluster
+        .iter()
+        .filter_map(|p| {
+            let (s, t) = frame.local_point(p);
+            ((t - centre).abs() <= radius / 4.0 && f64::from(p.z) >= top - depth).then_some(s)
+        })
+        .collect();
+    along.sort_unstable_by(f64::total_cmp);
+    let len = frame.la;
+    if along.len() <= 2 * STRAY {
+        return [0.0, len];
+    }
+    // From inside the strip's end outwards, as far as the crest runs without a gap.
+    let run = |points: &mut dyn Iterator<Item = f64>, from: f64| -> Vec<f64> {
+        let mut last = from;
+        points
+            .take_while(|s| {
+                let joined = (s - last).abs() <= CREST_GAP_M;
+                last = *s;
+                joined
+            })
+            .collect()
+    };
+    let low = run(&mut along.iter().rev().copied().filter(|s| *s < 0.0), 0.0);
+    let high = run(&mut along.iter().copied().filter(|s| *s > len), len);
+    let reach = |run: &[f64]| run.len().checked_sub(STRAY + 1).map(|k| run[k]);
+    let low = reach(&low).filter(|s| *s < -CREST_BEYOND_M).unwrap_or(0.0);
+    let high = reach(&high)
+        .filter(|s| *s > len + CREST_BEYOND_M)
+        .unwrap_or(len);
+    [low, high]
 }

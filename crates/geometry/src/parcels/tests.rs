@@ -59,12 +59,12 @@ fn a_bag_with_a_round_section_and_rounded_ends_is_no_lying_tube() {
         ]
     };
     let tube = lying_top(0.2);
-    let found = lying_tube(&strip(0.2), &tube, 0.16, 0.01).expect("a tube");
+    let found = lying_tube(&strip(0.2), (&tube, &tube), 0.16, 0.01).expect("a tube");
     assert!((found.radius - 0.08).abs() < 0.002, "{}", found.radius);
     // The same section, but the top curves down over the last 6 cm of each end: the
     // crest strip is 28 cm long and the bag's ends lie beyond it.
     let bag = lying_top(0.14);
-    assert!(lying_tube(&strip(0.14), &bag, 0.16, 0.01).is_none());
+    assert!(lying_tube(&strip(0.14), (&bag, &bag), 0.16, 0.01).is_none());
 }
 
 /// Points every 2 mm over the rectangle [x0, x1] x [y0, y1] at height z.
